@@ -1,0 +1,373 @@
+"""The small typed values that CAM stages pass to each other.
+
+Everything here is in millimetres, millimetres per minute and revolutions per minute, in
+*work coordinates* (the frame the G-code is written in: see :class:`Setup`), unless a
+field says otherwise. Arrays are read-only ``float64``.
+
+A :class:`Job` is what ``factory toolpath`` writes and ``factory gcode`` reads: the setup,
+the tools and the operations, each operation a polyline of cutter locations (tool *tip*
+positions) with the kind of motion that reaches each point.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+ToolShape = Literal["flat", "ball", "bull"]
+WorkOrigin = Literal["top-front-left", "top-centre"]
+
+
+def frozen_array(values: Any, shape_tail: tuple[int, ...] = (), dtype: Any = np.float64) -> np.ndarray:
+    """Return a read-only copy of ``values`` as an array of ``dtype``.
+
+    ``shape_tail`` checks the trailing dimensions, e.g. ``(3,)`` for an ``(n, 3)`` array.
+    """
+    a = np.array(values, dtype=dtype, copy=True)
+    if shape_tail and a.shape[a.ndim - len(shape_tail):] != shape_tail:
+        raise ValueError(f"expected shape (..., {', '.join(map(str, shape_tail))}), got {a.shape}")
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class Tool:
+    """An end mill.
+
+    The cutting surface is described by one profile for all three shapes: at radial
+    distance ``r`` from the axis, the lowest point of the cutter is
+    :meth:`profile_height` above the tip. Flat: ``corner_radius == 0``; ball:
+    ``corner_radius == diameter / 2``; bull-nose: anything between.
+
+    Attributes
+    ----------
+    number : int
+        Tool number in the machine's tool table (``T`` word), >= 1.
+    name : str
+        Human name, e.g. ``"6 mm flat 3FL carbide"``.
+    shape : {"flat", "ball", "bull"}
+    diameter : float
+        Cutting diameter [mm].
+    corner_radius : float
+        Corner (torus) radius [mm].
+    flute_length : float
+        Length of cut [mm]: the deepest a wall can be cut in one step.
+    flutes : int
+        Number of cutting edges, for feed per tooth.
+    length : float
+        Stick-out from the holder [mm]: the deepest the tool reaches without the holder
+        touching the part. Also the tool length offset written to tool tables.
+    """
+
+    number: int
+    name: str
+    shape: ToolShape
+    diameter: float
+    corner_radius: float
+    flute_length: float
+    flutes: int
+    length: float
+
+    def __post_init__(self) -> None:
+        # Programming errors, not user input: the tool library validates user files.
+        expected = {"flat": 0.0, "ball": self.diameter / 2}
+        if self.shape in expected and abs(self.corner_radius - expected[self.shape]) > 1e-9:
+            raise ValueError(f"{self.shape} tool needs corner_radius {expected[self.shape]}")
+        if not 0.0 <= self.corner_radius <= self.diameter / 2:
+            raise ValueError("corner_radius must lie in [0, diameter/2]")
+
+    @property
+    def radius(self) -> float:
+        """Cutting radius [mm]."""
+        return self.diameter / 2
+
+    def profile_height(self, r: np.ndarray | float) -> np.ndarray:
+        """Height of the cutting surface above the tip at radial distance ``r`` [mm].
+
+        Parameters
+        ----------
+        r : (...) float
+            Radial distance from the tool axis [mm]. Values beyond the radius give ``inf``.
+
+        Returns
+        -------
+        (...) float
+            0 on the flat bottom, rising along the corner radius to ``corner_radius`` at
+            ``r == radius``.
+        """
+        r = np.asarray(r, dtype=np.float64)
+        rc = self.corner_radius
+        a = self.radius - rc  # radius of the flat bottom
+        d = np.clip(r - a, 0.0, None)
+        with np.errstate(invalid="ignore"):
+            h = rc - np.sqrt(np.clip(rc * rc - d * d, 0.0, None))
+        return np.where(r <= self.radius + 1e-12, h, np.inf)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Tool":
+        return cls(**{f.name: d[f.name] for f in dataclasses.fields(cls)})
+
+
+@dataclass(frozen=True)
+class CuttingData:
+    """Spindle speed and feeds for one tool in one material.
+
+    Attributes
+    ----------
+    spindle_rpm : float
+        Spindle speed [rev/min].
+    feed : float
+        Cutting feed [mm/min].
+    plunge_feed : float
+        Feed for ramps, helices and vertical entries [mm/min].
+    """
+
+    spindle_rpm: float
+    feed: float
+    plunge_feed: float
+
+
+class Motion(enum.IntEnum):
+    """How the tool reaches a cutter location."""
+
+    RAPID = 0  #: G0, maximum traverse rate; must never touch stock
+    CUT = 1  #: G1/G2/G3 at the cutting feed
+    PLUNGE = 2  #: G1/G2/G3 at the plunge feed: ramps, helices, vertical entries
+
+
+@dataclass(frozen=True)
+class Operation:
+    """One machining operation: a tool following a polyline of cutter locations.
+
+    Attributes
+    ----------
+    name : str
+        What a machinist would call it, e.g. ``"rough z-level"``; becomes a G-code comment.
+    kind : {"roughing", "raster", "waterline"}
+    tool : Tool
+    cutting : CuttingData
+    points : (n, 3) float
+        Cutter locations: tool tip positions in work coordinates [mm]. Point 0 is where the
+        operation starts; the post reaches it from the safe height.
+    motion : (n,) int8
+        ``motion[i]`` is the :class:`Motion` of the move that *ends* at ``points[i]``
+        (``motion[0]`` is ignored: the post positions there by rapid at safe height).
+    allowance : float
+        Stock deliberately left on the part by this operation [mm].
+    """
+
+    name: str
+    kind: str
+    tool: Tool
+    cutting: CuttingData
+    points: np.ndarray
+    motion: np.ndarray
+    allowance: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "points", frozen_array(self.points, (3,)).reshape(-1, 3))
+        object.__setattr__(self, "motion", frozen_array(self.motion, dtype=np.int8).reshape(-1))
+        if len(self.points) != len(self.motion):
+            raise ValueError("points and motion must have the same length")
+
+    def lengths(self) -> dict[str, float]:
+        """Path length by motion kind [mm]: ``{"rapid": .., "cut": .., "plunge": ..}``."""
+        seg = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
+        kinds = self.motion[1:]
+        return {m.name.lower(): float(seg[kinds == m].sum()) for m in Motion}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "kind": self.kind,
+            "tool": self.tool.to_dict(),
+            "cutting": dataclasses.asdict(self.cutting),
+            "allowance": self.allowance,
+            "points": np.round(self.points, 6).tolist(),
+            "motion": self.motion.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Operation":
+        return cls(
+            name=d["name"],
+            kind=d["kind"],
+            tool=Tool.from_dict(d["tool"]),
+            cutting=CuttingData(**d["cutting"]),
+            points=np.asarray(d["points"], dtype=np.float64).reshape(-1, 3),
+            motion=np.asarray(d["motion"], dtype=np.int8),
+            allowance=float(d.get("allowance", 0.0)),
+        )
+
+
+@dataclass(frozen=True)
+class Setup:
+    """Where the part sits in the stock and where the work origin is.
+
+    Work coordinates: X right, Y away from the operator, Z up the spindle, origin as
+    named by ``origin`` (default: top of stock, front-left corner, so the whole stock
+    lies in X >= 0, Y >= 0, Z <= 0).
+
+    Attributes
+    ----------
+    stock_min, stock_max : (3,) float
+        Stock box corners in work coordinates [mm].
+    transform_mesh_to_work : (4, 4) float
+        Homogeneous transform from the mesh file's coordinates (after unit scaling to
+        mm) to work coordinates.
+    mesh_scale : float
+        Factor from the mesh file's units to mm (1 for mm, 25.4 for inch, 1000 for m);
+        already applied before ``transform_mesh_to_work``.
+    origin : {"top-front-left", "top-centre"}
+    material : str
+        Stock material key into the tool library's cutting data, e.g. ``"aluminium"``.
+    safe_z : float
+        Height for rapids between regions and tool changes, above the stock [mm].
+    clearance : float
+        Gap above already-cut material for short retracts [mm].
+    """
+
+    stock_min: np.ndarray
+    stock_max: np.ndarray
+    transform_mesh_to_work: np.ndarray
+    mesh_scale: float = 1.0
+    origin: WorkOrigin = "top-front-left"
+    material: str = "aluminium"
+    safe_z: float = 10.0
+    clearance: float = 1.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "stock_min", frozen_array(self.stock_min).reshape(3))
+        object.__setattr__(self, "stock_max", frozen_array(self.stock_max).reshape(3))
+        object.__setattr__(
+            self, "transform_mesh_to_work", frozen_array(self.transform_mesh_to_work).reshape(4, 4)
+        )
+
+    @property
+    def stock_size(self) -> np.ndarray:
+        """Stock box extents (x, y, z) [mm]."""
+        return self.stock_max - self.stock_min
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "stock_min": self.stock_min.tolist(),
+            "stock_max": self.stock_max.tolist(),
+            "transform_mesh_to_work": self.transform_mesh_to_work.tolist(),
+            "mesh_scale": self.mesh_scale,
+            "origin": self.origin,
+            "material": self.material,
+            "safe_z": self.safe_z,
+            "clearance": self.clearance,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Setup":
+        return cls(
+            stock_min=d["stock_min"],
+            stock_max=d["stock_max"],
+            transform_mesh_to_work=d["transform_mesh_to_work"],
+            mesh_scale=float(d.get("mesh_scale", 1.0)),
+            origin=d.get("origin", "top-front-left"),
+            material=d.get("material", "aluminium"),
+            safe_z=float(d.get("safe_z", 10.0)),
+            clearance=float(d.get("clearance", 1.0)),
+        )
+
+
+@dataclass(frozen=True)
+class Job:
+    """Everything ``factory gcode`` needs: the setup and the operations in cutting order.
+
+    Attributes
+    ----------
+    part_name : str
+        Stem of the part file, used for program names.
+    setup : Setup
+    operations : tuple of Operation
+    source_sha256 : str
+        Hash of the part mesh file, for traceability.
+    """
+
+    part_name: str
+    setup: Setup
+    operations: tuple[Operation, ...]
+    source_sha256: str = ""
+    parameters: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def tools(self) -> tuple[Tool, ...]:
+        """The distinct tools in first-use order."""
+        seen: dict[int, Tool] = {}
+        for op in self.operations:
+            seen.setdefault(op.tool.number, op.tool)
+        return tuple(seen.values())
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "format": "factory.job/1",
+            "part_name": self.part_name,
+            "source_sha256": self.source_sha256,
+            "parameters": self.parameters,
+            "setup": self.setup.to_dict(),
+            "operations": [op.to_dict() for op in self.operations],
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Job":
+        if d.get("format") != "factory.job/1":
+            raise ValueError(f"not a factory job (format {d.get('format')!r})")
+        return cls(
+            part_name=d["part_name"],
+            setup=Setup.from_dict(d["setup"]),
+            operations=tuple(Operation.from_dict(o) for o in d["operations"]),
+            source_sha256=d.get("source_sha256", ""),
+            parameters=dict(d.get("parameters", {})),
+        )
+
+
+@dataclass(frozen=True)
+class ProgramMoves:
+    """The moves of a G-code program, arcs already broken into short chords.
+
+    What the G-code parser produces and the material-removal simulation consumes.
+    Positions are tool tip positions in work coordinates [mm] (tool length offset
+    applied, as a controller with G43 would). Axes not yet programmed are NaN.
+
+    Attributes
+    ----------
+    points : (n, 3) float
+        Position after each move [mm]; ``points[0]`` is the position before the first
+        move (all NaN at program start).
+    motion : (n,) int8
+        :class:`Motion` of the move ending at ``points[i]`` (RAPID for G0, CUT for
+        G1/G2/G3; the parser never produces PLUNGE). ``motion[0]`` is meaningless.
+    tool : (n,) int32
+        Tool number in the spindle during the move ending at ``points[i]`` (0: none).
+    feed : (n,) float
+        Programmed feed during that move [mm/min] (NaN for rapids).
+    line : (n,) int32
+        1-based source line of the block that made the move (0 for ``points[0]``).
+    """
+
+    points: np.ndarray
+    motion: np.ndarray
+    tool: np.ndarray
+    feed: np.ndarray
+    line: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "points", frozen_array(self.points, (3,)).reshape(-1, 3))
+        object.__setattr__(self, "motion", frozen_array(self.motion, dtype=np.int8).reshape(-1))
+        object.__setattr__(self, "tool", frozen_array(self.tool, dtype=np.int32).reshape(-1))
+        object.__setattr__(self, "feed", frozen_array(self.feed).reshape(-1))
+        object.__setattr__(self, "line", frozen_array(self.line, dtype=np.int32).reshape(-1))
+        n = len(self.points)
+        if not all(len(a) == n for a in (self.motion, self.tool, self.feed, self.line)):
+            raise ValueError("ProgramMoves arrays must have the same length")

@@ -1,0 +1,67 @@
+"""Outputs that appear whole or not at all.
+
+Every file a stage writes goes to a temporary file in the destination's folder and is
+renamed over the destination only when writing succeeded, so a failed run never leaves
+a partial file and never destroys what the user had.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO
+
+from factory.errors import OutputExistsError
+
+
+def check_writable(path: Path, overwrite: bool) -> None:
+    """Raise :class:`OutputExistsError` if ``path`` exists and ``overwrite`` is false."""
+    if path.exists() and not overwrite:
+        raise OutputExistsError("exists; pass --overwrite to replace it", source=path)
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | Path, *, overwrite: bool = False, mode: str = "wb") -> Iterator[IO]:
+    """Open a temporary file that replaces ``path`` when the block exits cleanly.
+
+    Parameters
+    ----------
+    path : str or Path
+        Final destination. Its parent folder is created if missing.
+    overwrite : bool
+        Replace an existing file; otherwise :class:`OutputExistsError` is raised before
+        anything is written.
+    mode : str
+        ``"wb"`` or ``"w"`` (text, UTF-8, ``\\n`` line endings).
+    """
+    path = Path(path)
+    check_writable(path, overwrite)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    try:
+        if "b" in mode:
+            f = os.fdopen(fd, mode)
+        else:
+            f = os.fdopen(fd, mode, encoding="utf-8", newline="\n")
+        with f:
+            yield f
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def write_bytes(path: str | Path, data: bytes, *, overwrite: bool = False) -> None:
+    """Write ``data`` to ``path`` atomically."""
+    with atomic_output(path, overwrite=overwrite) as f:
+        f.write(data)
+
+
+def write_text(path: str | Path, text: str, *, overwrite: bool = False) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically."""
+    with atomic_output(path, overwrite=overwrite, mode="w") as f:
+        f.write(text)

@@ -1,0 +1,70 @@
+"""One root exception for the whole toolchain, a subclass per stage.
+
+Every exception carries the data a user needs to understand it. ``source`` names the
+file (or field, or pose) the problem is in; the CLI prints ``error: <source>: <message>``
+and exits non-zero. Library code raises these for bad input; it never asserts on
+user input and never returns ``None`` to mean failure.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class FactoryError(Exception):
+    """Root of every error factory raises on purpose.
+
+    Parameters
+    ----------
+    message : str
+        What is wrong, one line, no trailing full stop needed.
+    source : str or Path, optional
+        The file, field or object the problem is in.
+    """
+
+    def __init__(self, message: str, *, source: str | Path | None = None, **data: object):
+        super().__init__(message)
+        self.message = message
+        self.source = None if source is None else str(source)
+        self.data = data
+
+    def with_source(self, source: str | Path) -> "FactoryError":
+        """Name the file the problem came from, when the raiser did not know it."""
+        if self.source is None:
+            self.source = str(source)
+        return self
+
+    def __str__(self) -> str:
+        return f"{self.source}: {self.message}" if self.source else self.message
+
+
+class MeshError(FactoryError):
+    """A part mesh cannot be read, is empty, open, non-finite or implausibly sized."""
+
+
+class SetupError(FactoryError):
+    """Stock, work origin or units do not fit the part."""
+
+
+class ToolError(FactoryError):
+    """The tool library is malformed or has no tool fit for an operation."""
+
+
+class ToolpathError(FactoryError):
+    """A toolpath cannot be computed, or a toolpath file cannot be read."""
+
+
+class GcodeError(FactoryError):
+    """G-code cannot be parsed or posted. ``line`` is the 1-based line number when known."""
+
+
+class VerifyError(FactoryError):
+    """The material-removal simulation cannot run on its inputs."""
+
+
+class McapError(FactoryError):
+    """An MCAP file cannot be written or read back."""
+
+
+class OutputExistsError(FactoryError):
+    """An output file exists and overwriting was not asked for."""
