@@ -1,0 +1,355 @@
+"""Part intake: read a CAD mesh, make sure it is a closed solid, and bring it to millimetres.
+
+Everything downstream (setup, toolpaths, verification) assumes a watertight, outward-facing
+triangle mesh in millimetres. :func:`load_part` is the single door through which a part file
+enters the toolchain: it reads STL (ASCII and binary), OBJ, PLY and 3MF, repairs what can be
+repaired cheaply (duplicate vertices, flipped faces, small holes, non-manifold seams via a
+manifold3d rebuild), says what it repaired, and refuses with a :class:`~factory.errors.MeshError`
+what it cannot trust: truncated files, non-finite vertices, open shells, implausible sizes.
+
+The mesh keeps the file's own axes: only unit scaling is applied here. Placing the part in
+the stock is :mod:`cadcam.setup`'s job.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import logging
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import trimesh
+
+from factory.errors import MeshError
+
+log = logging.getLogger(__name__)
+
+Units = Literal["auto", "mm", "inch", "m"]
+
+#: Factor from each accepted ``--units`` value to millimetres.
+UNIT_SCALE: dict[str, float] = {"mm": 1.0, "inch": 25.4, "m": 1000.0}
+
+#: Smallest and largest plausible part extent [mm]: below a millimetre or above two metres
+#: the file is far more likely in the wrong units than a real job for a milling machine.
+MIN_EXTENT_MM = 1.0
+MAX_EXTENT_MM = 2000.0
+
+_FORMATS = {".stl": "stl", ".obj": "obj", ".ply": "ply", ".3mf": "3mf"}
+
+
+# Open edges whose vertices lie closer than this fraction of the part size are welded by the
+# manifold3d rebuild (1 um on a 100 mm part: far below any machining tolerance).
+_WELD_TOLERANCE = 1e-5
+
+# Triangles with less area than this [file units^2] are slivers that carry no surface.
+_DEGENERATE_AREA = 1e-12
+
+
+@dataclass(frozen=True)
+class PartMesh:
+    """A part as read from its file: a closed solid in millimetres.
+
+    Attributes
+    ----------
+    mesh : trimesh.Trimesh
+        Watertight, consistently wound, outward normals (positive volume), in millimetres,
+        in the file's own axes (only scaled, never moved or rotated).
+    scale : float
+        Factor applied to go from file units to mm (1, 25.4 or 1000; or the 3MF unit).
+    sha256 : str
+        Hex SHA-256 of the file's bytes, for traceability into the job and G-code header.
+    repairs : tuple of str
+        Human-readable notes of what was repaired, e.g. ``"merged 12 duplicate vertices"``.
+        Empty when the file was clean.
+    """
+
+    mesh: trimesh.Trimesh
+    scale: float
+    sha256: str
+    repairs: tuple[str, ...]
+
+
+def load_part(path: str | Path, units: Units = "auto") -> PartMesh:
+    """Read a part mesh file, check and repair it, and scale it to millimetres.
+
+    Parameters
+    ----------
+    path : str or Path
+        STL (ASCII or binary), OBJ, PLY or 3MF file. Multi-body files (scenes) are merged
+        into one mesh.
+    units : {"auto", "mm", "inch", "m"}
+        Units of the file's coordinates. ``"auto"`` takes the unit a 3MF file declares, and
+        millimetres for every other format.
+
+    Returns
+    -------
+    PartMesh
+
+    Raises
+    ------
+    MeshError
+        With ``source=path``: missing or unreadable file, unknown extension, empty or
+        truncated file, no triangles, NaN/inf vertices, only degenerate triangles, an open
+        or non-manifold shell that cannot be repaired (names the boundary edge count), or a
+        size that is implausible in the given units (suggests ``--units``).
+    """
+    path = Path(path)
+    if units not in ("auto", *UNIT_SCALE):
+        raise MeshError(f"unknown units {units!r}: expected auto, mm, inch or m", source=path)
+    fmt = _FORMATS.get(path.suffix.lower())
+    if fmt is None:
+        raise MeshError(
+            f"unknown mesh format {path.suffix or '(no extension)'!r}: expected .stl, .obj, .ply or .3mf",
+            source=path,
+        )
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise MeshError("no such file", source=path) from None
+    except IsADirectoryError:
+        raise MeshError("is a directory, not a mesh file", source=path) from None
+    except OSError as e:
+        raise MeshError(f"cannot read file: {e.strerror or e}", source=path) from None
+    if not data.strip():
+        raise MeshError("file is empty", source=path)
+    sha = hashlib.sha256(data).hexdigest()
+
+    if fmt == "stl":
+        data = _check_stl_size(data, path)
+    vertices, faces, declared_scale = _read_with_trimesh(data, fmt, path)
+
+    if units == "auto":
+        scale = declared_scale if declared_scale is not None else 1.0
+    else:
+        scale = UNIT_SCALE[units]
+
+    mesh, repairs = _make_solid(vertices, faces, fmt, path)
+    if scale != 1.0:
+        mesh.apply_scale(scale)
+    _check_size(mesh, units, path)
+    for note in repairs:
+        log.info("%s: %s", path, note)
+    return PartMesh(mesh=mesh, scale=float(scale), sha256=sha, repairs=tuple(repairs))
+
+
+def _check_stl_size(data: bytes, path: Path) -> bytes:
+    """Refuse a binary STL whose declared triangle count does not fit the file size.
+
+    A truncated binary STL is otherwise read as fewer triangles, garbage, or a confusing
+    ASCII-parser error; the header's count is the only way to tell. Returns the bytes to
+    parse: ASCII files unchanged, binary files cut to the declared triangles.
+    """
+    if len(data) >= 84:
+        (count,) = struct.unpack_from("<I", data, 80)
+        expected = 84 + 50 * count
+        if len(data) == expected:
+            return data
+    else:
+        count, expected = None, None
+    if _looks_ascii_stl(data):
+        return data
+    if count is None:
+        raise MeshError(f"truncated binary STL: {len(data)} bytes, shorter than the 84-byte header", source=path)
+    if len(data) < expected:
+        raise MeshError(
+            f"truncated binary STL: header declares {count} triangles ({expected} bytes) "
+            f"but the file has {len(data)} bytes",
+            source=path,
+        )
+    # Some exporters pad or append data after the triangles; the declared count still rules.
+    log.warning("%s: %d bytes after the %d declared triangles ignored", path, len(data) - expected, count)
+    return data[:expected]
+
+
+def _looks_ascii_stl(data: bytes) -> bool:
+    head = data[:2048].lstrip()
+    if not head[:5].lower() == b"solid":
+        return False
+    try:
+        head.decode("ascii")
+    except UnicodeDecodeError:
+        return False
+    return b"facet" in head or b"endsolid" in head
+
+
+def _read_with_trimesh(data: bytes, fmt: str, path: Path) -> tuple[np.ndarray, np.ndarray, float | None]:
+    """Vertices, faces and, for 3MF, the factor from the unit the file declares to mm."""
+    try:
+        # process=False: we merge and repair ourselves so that we can report what changed.
+        loaded = trimesh.load(io.BytesIO(data), file_type=fmt, process=False)
+        declared_scale = None
+        if fmt == "3mf":
+            # 3MF is the one format that declares its unit (default millimetre).
+            declared_scale = trimesh.units.unit_conversion(loaded.units or "millimeters", "millimeters")
+        if isinstance(loaded, trimesh.Scene):
+            loaded = loaded.to_geometry()  # applies build and component transforms
+    except Exception as e:  # trimesh raises anything from ValueError to IndexError on bad files
+        raise MeshError(f"cannot read {fmt.upper()} file: {_one_line(e)}", source=path) from None
+    if isinstance(loaded, list):  # older trimesh returns a list for multi-body files
+        loaded = trimesh.util.concatenate(loaded) if loaded else trimesh.Trimesh()
+    if not isinstance(loaded, trimesh.Trimesh):
+        raise MeshError(f"{fmt.upper()} file holds no triangle mesh", source=path)
+    return (np.asarray(loaded.vertices, dtype=np.float64), np.asarray(loaded.faces, dtype=np.int64),
+            declared_scale)
+
+
+def _make_solid(
+    vertices: np.ndarray, faces: np.ndarray, fmt: str, path: Path
+) -> tuple[trimesh.Trimesh, list[str]]:
+    """Turn raw triangles into a closed, outward-facing solid, or explain why not."""
+    if len(faces) == 0 or len(vertices) == 0:
+        raise MeshError("no triangles in file", source=path)
+    if not np.isfinite(vertices).all():
+        bad = int((~np.isfinite(vertices).all(axis=1)).sum())
+        raise MeshError(f"{bad} vertices are NaN or infinite", source=path)
+    repairs: list[str] = []
+    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False, validate=False)
+
+    n0 = len(mesh.vertices)
+    mesh.merge_vertices()
+    merged = n0 - len(mesh.vertices)
+    # STL stores every triangle's corners separately: merging is reading, not repairing.
+    if merged and fmt != "stl":
+        repairs.append(f"merged {merged} duplicate vertices")
+
+    area = mesh.area_faces
+    keep = area > _DEGENERATE_AREA * max(1.0, float(np.ptp(mesh.vertices, axis=0).max()) ** 2)
+    # Also drop faces whose corners coincide after merging (zero area, possibly index-equal).
+    f = mesh.faces
+    keep &= (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
+    if not keep.any():
+        raise MeshError(f"all {len(f)} triangles are degenerate (zero area)", source=path)
+    if not keep.all():
+        repairs.append(f"removed {int((~keep).sum())} degenerate triangles")
+        mesh.update_faces(keep)
+    n_faces = len(mesh.faces)
+    mesh.update_faces(mesh.unique_faces())
+    if len(mesh.faces) != n_faces:
+        repairs.append(f"removed {n_faces - len(mesh.faces)} duplicate triangles")
+    mesh.remove_unreferenced_vertices()
+
+    if not (mesh.is_watertight and mesh.is_winding_consistent):
+        unfilled = mesh.copy()
+        trimesh.repair.fix_winding(unfilled)
+        filled = 0
+        if _boundary_edges(mesh):
+            before = len(mesh.faces)
+            trimesh.repair.fill_holes(mesh)
+            filled = len(mesh.faces) - before
+        trimesh.repair.fix_winding(mesh)
+        if mesh.is_watertight and mesh.is_winding_consistent:
+            repairs.append(f"filled small holes with {filled} triangles" if filled else "made face winding consistent")
+        else:
+            # Hole filling only helps real holes; seams of near-coincident vertices are
+            # manifold3d's job, and the sliver triangles fill_holes may have added would
+            # only get in its way.
+            mesh = unfilled
+            rebuilt = _manifold_rebuild(mesh)
+            if rebuilt is None:
+                n_open = _boundary_edges(mesh)
+                what = (
+                    f"open mesh with {n_open} boundary edges"
+                    if n_open
+                    else "mesh is not a closed 2-manifold (edges shared by more than two triangles)"
+                )
+                raise MeshError(f"{what}: cannot repair; close the shell in CAD and re-export", source=path)
+            mesh = rebuilt
+            repairs.append("rebuilt with manifold3d")
+
+    if mesh.volume < 0:
+        mesh.invert()
+        repairs.append("flipped inside-out normals")
+    if not mesh.volume > 0:
+        raise MeshError("mesh encloses no volume", source=path)
+    return mesh, repairs
+
+
+def _boundary_edges(mesh: trimesh.Trimesh) -> int:
+    """Number of edges used by exactly one triangle."""
+    return int(len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)))
+
+
+def _manifold_rebuild(mesh: trimesh.Trimesh) -> trimesh.Trimesh | None:
+    """Weld near-coincident open seams, let manifold3d rebuild the solid; None if it fails.
+
+    CAD exporters often write a seam's two sides with vertices a few nanometres apart, so
+    exact vertex merging leaves open edges there. Vertices on open edges closer than the
+    weld tolerance are merged, then manifold3d checks that the result is a closed
+    2-manifold (its status) and returns it cleanly triangulated.
+    """
+    import manifold3d
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    tol = _WELD_TOLERANCE * float(np.ptp(vertices, axis=0).max())
+    open_edges = mesh.edges_sorted[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)]
+    seam = np.unique(open_edges)
+    if len(seam):
+        pairs = cKDTree(vertices[seam]).query_pairs(tol, output_type="ndarray")
+        if len(pairs):
+            n = len(vertices)
+            graph = coo_matrix((np.ones(len(pairs)), (seam[pairs[:, 0]], seam[pairs[:, 1]])), shape=(n, n))
+            _, label = connected_components(graph, directed=False)
+            faces = label[faces]
+            faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
+            # Each welded vertex takes the position of its group's first member.
+            first = np.full(label.max() + 1, -1)
+            first[label[::-1]] = np.arange(n)[::-1]
+            vertices = vertices[first]
+    try:
+        solid = manifold3d.Manifold(
+            manifold3d.Mesh(
+                vert_properties=np.ascontiguousarray(vertices, dtype=np.float32),
+                tri_verts=np.ascontiguousarray(faces, dtype=np.uint32),
+            )
+        )
+    except Exception as e:  # pragma: no cover - depends on manifold3d internals
+        log.debug("manifold3d rebuild failed: %s", e)
+        return None
+    if solid.status() != manifold3d.Error.NoError or solid.is_empty():
+        log.debug("manifold3d rebuild: status %s", solid.status())
+        return None
+    out = solid.to_mesh()
+    result = trimesh.Trimesh(
+        vertices=np.asarray(out.vert_properties[:, :3], dtype=np.float64),
+        faces=np.asarray(out.tri_verts, dtype=np.int64),
+        process=True,
+    )
+    if not (result.is_watertight and result.is_winding_consistent):
+        return None
+    return result
+
+
+def _check_size(mesh: trimesh.Trimesh, units: str, path: Path) -> None:
+    extent = float(np.ptp(mesh.vertices, axis=0).max())
+    shown = f"{extent:.0f}" if extent >= 100 else f"{extent:.1f}" if extent >= 1 else f"{extent:.3g}"
+    size = f"{shown} mm across"
+    if extent < MIN_EXTENT_MM:
+        if units in ("auto", "mm"):
+            hint = "probably in metres or inches; pass --units m or --units inch"
+        elif units == "inch":
+            hint = "probably in metres; pass --units m"
+        else:
+            hint = "too small to machine even in metres"
+        raise MeshError(f"part is {size}: {hint}", source=path)
+    if extent > MAX_EXTENT_MM:
+        if units in ("auto", "mm"):
+            hint = (
+                f"larger than {MAX_EXTENT_MM:g} mm, probably not in millimetres (micrometres?); "
+                "re-export it in mm, inch or m units"
+            )
+        else:
+            hint = "probably already in millimetres; pass --units mm"
+        raise MeshError(f"part is {size}: {hint}", source=path)
+
+
+def _one_line(e: BaseException) -> str:
+    text = str(e).strip().splitlines()
+    return text[0] if text else type(e).__name__

@@ -1,0 +1,146 @@
+"""Setup: size the stock around the part and put the work origin where the machinist touches off.
+
+The part keeps its file orientation (the file's +Z is the spindle axis: the part is cut from
+the top). The stock is either the part's bounding box grown by :class:`StockMargins` or a
+block of given size; the part sits on the stock bottom, centred in X and Y. The work origin
+is the top of the stock, either at its front-left corner or at its centre.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+from cadcam.model import Setup, WorkOrigin
+from factory.errors import SetupError
+
+log = logging.getLogger(__name__)
+
+_ORIGINS = ("top-front-left", "top-centre")
+# Stock this much smaller than the part [mm] is rounding noise, not a misfit.
+_FIT_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class StockMargins:
+    """Extra stock around the part's bounding box when the stock is sized from the part.
+
+    Attributes
+    ----------
+    sides : float
+        Added on each of the four sides (X-, X+, Y-, Y+) [mm]. Default 2.
+    top : float
+        Added above the part's highest point, to be faced off [mm]. Default 1.
+
+    There is no bottom margin: the part sits on the stock bottom (it is parted or faced
+    from the other side in a second operation, outside this setup).
+    """
+
+    sides: float = 2.0
+    top: float = 1.0
+
+
+def make_setup(
+    part: trimesh.Trimesh,
+    *,
+    stock_size: tuple[float, float, float] | None = None,
+    margins: StockMargins = StockMargins(),
+    origin: WorkOrigin = "top-front-left",
+    material: str = "aluminium",
+    safe_height: float = 5.0,
+    mesh_scale: float = 1.0,
+    source: str | None = None,
+) -> tuple[Setup, trimesh.Trimesh]:
+    """Size the stock, place the part in it and express both in work coordinates.
+
+    Parameters
+    ----------
+    part : trimesh.Trimesh
+        The part in millimetres, in the file's axes (``PartMesh.mesh``: already scaled).
+    stock_size : (3,) float, optional
+        Explicit stock block (X, Y, Z) [mm]. The part is centred in X and Y and its bottom
+        put on the stock bottom. None: part bounding box plus ``margins``.
+    margins : StockMargins
+        Used only when ``stock_size`` is None [mm].
+    origin : {"top-front-left", "top-centre"}
+        Work origin: stock top (z = 0) at the front-left corner (stock in x >= 0, y >= 0) or
+        at the centre of the stock top (stock centred on x = y = 0).
+    material : str
+        Stock material, the key into the tool library's cutting data.
+    safe_height : float
+        Height of ``safe_z`` above the stock top [mm], > 0.
+    mesh_scale : float
+        Units factor already applied to ``part`` (recorded in the setup, not applied again).
+    source : str, optional
+        Name for error messages (usually the part file).
+
+    Returns
+    -------
+    setup : Setup
+        ``transform_mesh_to_work`` is a pure translation (4, 4): rotation is never needed
+        because the part is cut along its file's Z, and scaling happened at load time
+        (``mesh_scale``), so it maps the *scaled* mesh into work coordinates.
+    part_work : trimesh.Trimesh
+        A new mesh: the part in work coordinates [mm].
+
+    Raises
+    ------
+    SetupError
+        Negative margins, non-positive stock size or safe height, unknown origin, or a part
+        that does not fit the given stock (names the axis and both sizes).
+    """
+    if origin not in _ORIGINS:
+        raise SetupError(f"unknown work origin {origin!r}: expected one of {', '.join(_ORIGINS)}", source=source)
+    if not (np.isfinite(safe_height) and safe_height > 0):
+        raise SetupError(f"safe height must be > 0 mm, got {safe_height}", source=source)
+    lo, hi = np.asarray(part.bounds, dtype=np.float64)
+    part_size = hi - lo
+
+    if stock_size is None:
+        for name in ("sides", "top"):
+            v = getattr(margins, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise SetupError(f"stock margin {name} must be >= 0 mm, got {v}", source=source)
+        size = part_size + np.array([2 * margins.sides, 2 * margins.sides, margins.top])
+    else:
+        size = np.asarray(stock_size, dtype=np.float64).reshape(-1)
+        if size.shape != (3,) or not np.isfinite(size).all() or (size <= 0).any():
+            raise SetupError(f"stock size must be three positive lengths X, Y, Z [mm], got {stock_size}", source=source)
+        for axis, s, p in zip("XYZ", size, part_size):
+            if s < p - _FIT_TOLERANCE:
+                raise SetupError(
+                    f"part does not fit the stock in {axis}: part is {p:.3f} mm, stock is {s:.3f} mm",
+                    source=source,
+                )
+
+    # Part centre in XY and part bottom, in file coordinates, go to where the stock puts them.
+    part_centre_xy = (lo[:2] + hi[:2]) / 2
+    if origin == "top-front-left":
+        stock_min = np.array([0.0, 0.0, -size[2]])
+    else:
+        stock_min = np.array([-size[0] / 2, -size[1] / 2, -size[2]])
+    stock_max = stock_min + size
+    target_centre_xy = (stock_min[:2] + stock_max[:2]) / 2
+    shift = np.empty(3)
+    shift[:2] = target_centre_xy - part_centre_xy
+    shift[2] = stock_min[2] - lo[2]
+
+    transform = np.eye(4)
+    transform[:3, 3] = shift
+    part_work = part.copy()
+    part_work.apply_transform(transform)
+
+    setup = Setup(
+        stock_min=stock_min,
+        stock_max=stock_max,
+        transform_mesh_to_work=transform,
+        mesh_scale=float(mesh_scale),
+        origin=origin,
+        material=material,
+        safe_z=float(stock_max[2] + safe_height),
+    )
+    log.debug("stock %s mm, part shifted by %s mm", size.round(3).tolist(), shift.round(3).tolist())
+    return setup, part_work

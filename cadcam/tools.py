@@ -1,0 +1,344 @@
+"""The tool library: machine limits, end mills and cutting data per material, from YAML.
+
+The file format is documented in ``fixtures/tools.yaml`` (the default library). Every field
+is checked on load; an error names the field the way a user would find it in the file, e.g.
+``tools[2].diameter: must be > 0`` or ``machine.max_rmp: unknown key (did you mean max_rpm?)``.
+
+Speeds and feeds follow the usual shop formulas::
+
+    n  = 1000 * Vc / (pi * D)      spindle speed [rev/min], capped at the machine's max rpm
+    vf = n * z * fz                cutting feed [mm/min], capped at the machine's max feed
+    plunge = vf * plunge_fraction
+
+with ``fz`` (chip load per tooth [mm]) interpolated linearly in the tool diameter from the
+material's table.
+"""
+
+from __future__ import annotations
+
+import difflib
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from cadcam.model import CuttingData, Tool
+from factory.errors import ToolError
+from factory.resources import FIXTURES
+
+log = logging.getLogger(__name__)
+
+_SHAPES = ("flat", "ball", "bull")
+
+
+@dataclass(frozen=True)
+class MaterialData:
+    """Cutting data for one stock material.
+
+    Attributes
+    ----------
+    name : str
+        Key used in setups, e.g. ``"aluminium"``.
+    surface_speed : float
+        Cutting speed Vc at the tool's periphery [m/min].
+    chip_load : tuple of (float, float)
+        ``(diameter [mm], fz [mm/tooth])`` pairs, ascending diameter; interpolated linearly,
+        clamped to the end values outside the table.
+    plunge_fraction : float
+        Plunge/ramp feed as a fraction of the cutting feed, in (0, 1].
+    aliases : tuple of str
+        Other names accepted for this material (matched case-insensitively).
+    description : str
+    """
+
+    name: str
+    surface_speed: float
+    chip_load: tuple[tuple[float, float], ...]
+    plunge_fraction: float
+    aliases: tuple[str, ...] = ()
+    description: str = ""
+
+    def chip_load_for(self, diameter: float) -> float:
+        """Chip load per tooth for a tool of this diameter [mm/tooth]."""
+        ds = [d for d, _ in self.chip_load]
+        fs = [f for _, f in self.chip_load]
+        if diameter <= ds[0]:
+            return fs[0]
+        if diameter >= ds[-1]:
+            return fs[-1]
+        for (d0, f0), (d1, f1) in zip(self.chip_load, self.chip_load[1:]):
+            if d0 <= diameter <= d1:
+                return f0 + (f1 - f0) * (diameter - d0) / (d1 - d0)
+        return fs[-1]  # unreachable: the table is sorted and covers the interval
+
+
+@dataclass(frozen=True)
+class ToolLibrary:
+    """The tools a machine holds and how fast to run them.
+
+    Attributes
+    ----------
+    tools : tuple of Tool
+        In file order; tool numbers are unique.
+    materials : tuple of MaterialData
+    max_rpm : float
+        Spindle speed limit [rev/min].
+    max_feed : float
+        Cutting feed limit [mm/min].
+    source : str
+        The file it was read from.
+    machine_name : str
+    """
+
+    tools: tuple[Tool, ...]
+    materials: tuple[MaterialData, ...]
+    max_rpm: float
+    max_feed: float
+    source: str
+    machine_name: str = ""
+
+    def tool(self, number: int) -> Tool:
+        """The tool with this T number; ToolError naming the numbers there are if missing."""
+        for t in self.tools:
+            if t.number == number:
+                return t
+        have = ", ".join(f"T{t.number}" for t in self.tools) or "none"
+        raise ToolError(f"no tool T{number} in the library (have {have})", source=self.source)
+
+    def material(self, name: str) -> MaterialData:
+        """Cutting data for a material by name or alias (case-insensitive)."""
+        key = name.strip().lower()
+        for m in self.materials:
+            if key == m.name.lower() or key in (a.lower() for a in m.aliases):
+                return m
+        known = ", ".join(m.name for m in self.materials)
+        raise ToolError(f"unknown material {name!r}: the library has cutting data for {known}", source=self.source)
+
+    def cutting_data(self, tool: Tool, material: str) -> CuttingData:
+        """Spindle speed, cutting feed and plunge feed for ``tool`` in ``material``.
+
+        Parameters
+        ----------
+        tool : Tool
+        material : str
+            Material name or alias, e.g. ``"aluminium"``, ``"pom"``.
+
+        Returns
+        -------
+        CuttingData
+            ``spindle_rpm`` <= ``max_rpm`` [rev/min]; ``feed`` and ``plunge_feed`` in
+            (0, ``max_feed``] [mm/min]. Computed from the nominal diameter for every shape
+            (conservative for ball ends, whose effective diameter at shallow depth is smaller).
+
+        Raises
+        ------
+        ToolError
+            Unknown material (lists the known ones).
+        """
+        m = self.material(material)
+        rpm = min(self.max_rpm, 1000.0 * m.surface_speed / (math.pi * tool.diameter))
+        feed = min(self.max_feed, rpm * tool.flutes * m.chip_load_for(tool.diameter))
+        plunge = min(self.max_feed, feed * m.plunge_fraction)
+        return CuttingData(spindle_rpm=round(rpm), feed=round(feed, 1), plunge_feed=round(plunge, 1))
+
+
+def load_tool_library(path: str | Path | None = None) -> ToolLibrary:
+    """Read and validate a tool library YAML file.
+
+    Parameters
+    ----------
+    path : str or Path, optional
+        The library file; None reads the shipped ``fixtures/tools.yaml``.
+
+    Returns
+    -------
+    ToolLibrary
+
+    Raises
+    ------
+    ToolError
+        With ``source=path``: unreadable file or bad YAML (with line), and any invalid
+        field, named by its place in the file (``tools[2].diameter: must be > 0``,
+        unknown keys with a did-you-mean, missing keys, duplicate tool numbers, a ball
+        whose corner radius is not half its diameter, ...).
+    """
+    path = Path(FIXTURES / "tools.yaml" if path is None else path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ToolError("no such tool library file", source=path) from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ToolError(f"cannot read tool library: {e}", source=path) from None
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+        raise ToolError(f"invalid YAML{where}: {problem}", source=path) from None
+    return _Parser(str(path)).library(doc)
+
+
+class _Parser:
+    """Validates the parsed YAML document, raising ToolError with the field's path."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def fail(self, where: str, message: str) -> ToolError:
+        return ToolError(f"{where}: {message}" if where else message, source=self.source)
+
+    def mapping(self, value: Any, where: str, required: set[str], optional: set[str]) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            raise self.fail(where, f"must be a mapping, got {_kind(value)}")
+        allowed = required | optional
+        for key in value:
+            if key not in allowed:
+                close = difflib.get_close_matches(str(key), sorted(allowed), n=1)
+                hint = f"did you mean {close[0]}?" if close else f"expected one of {', '.join(sorted(allowed))}"
+                raise self.fail(_join(where, str(key)), f"unknown key ({hint})")
+        for key in sorted(required):
+            if key not in value:
+                raise self.fail(_join(where, key), "missing")
+        return value
+
+    def number(self, value: Any, where: str, *, positive: bool = True, minimum: float | None = None) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise self.fail(where, f"must be a number, got {_kind(value)}")
+        if positive and value <= 0:
+            raise self.fail(where, f"must be > 0, got {value}")
+        if minimum is not None and value < minimum:
+            raise self.fail(where, f"must be >= {minimum:g}, got {value}")
+        return float(value)
+
+    def integer(self, value: Any, where: str, minimum: int) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.fail(where, f"must be a whole number, got {_kind(value)}")
+        if value < minimum:
+            raise self.fail(where, f"must be >= {minimum}, got {value}")
+        return value
+
+    def string(self, value: Any, where: str) -> str:
+        if not isinstance(value, str) or not value.strip():
+            raise self.fail(where, f"must be a non-empty text, got {_kind(value)}")
+        return value.strip()
+
+    def library(self, doc: Any) -> ToolLibrary:
+        if doc is None:
+            raise self.fail("", "tool library is empty")
+        doc = self.mapping(doc, "", {"machine", "materials", "tools"}, set())
+        machine = self.mapping(doc["machine"], "machine", {"max_rpm", "max_feed"}, {"name"})
+        max_rpm = self.number(machine["max_rpm"], "machine.max_rpm")
+        max_feed = self.number(machine["max_feed"], "machine.max_feed")
+        name = self.string(machine["name"], "machine.name") if "name" in machine else ""
+
+        mats = doc["materials"]
+        if not isinstance(mats, dict) or not mats:
+            raise self.fail("materials", f"must be a non-empty mapping of material name to cutting data, got {_kind(mats)}")
+        materials = tuple(self.material(str(k), v) for k, v in mats.items())
+        seen_names: dict[str, str] = {}
+        for m in materials:
+            for n in (m.name, *m.aliases):
+                if n.lower() in seen_names and seen_names[n.lower()] != m.name:
+                    raise self.fail(f"materials.{m.name}", f"name or alias {n!r} also used by {seen_names[n.lower()]}")
+                seen_names[n.lower()] = m.name
+
+        tools_doc = doc["tools"]
+        if not isinstance(tools_doc, list) or not tools_doc:
+            raise self.fail("tools", f"must be a non-empty list of tools, got {_kind(tools_doc)}")
+        tools = tuple(self.tool(t, f"tools[{i}]") for i, t in enumerate(tools_doc))
+        first: dict[int, int] = {}
+        for i, t in enumerate(tools):
+            if t.number in first:
+                raise self.fail(f"tools[{i}].number", f"duplicate tool number {t.number} (also tools[{first[t.number]}])")
+            first[t.number] = i
+        return ToolLibrary(
+            tools=tools, materials=materials, max_rpm=max_rpm, max_feed=max_feed, source=self.source, machine_name=name
+        )
+
+    def material(self, name: str, d: Any) -> MaterialData:
+        where = f"materials.{name}"
+        d = self.mapping(d, where, {"surface_speed", "chip_load", "plunge_fraction"}, {"aliases", "description"})
+        vc = self.number(d["surface_speed"], f"{where}.surface_speed")
+        table = d["chip_load"]
+        if isinstance(table, (int, float)) and not isinstance(table, bool):
+            # A single fz for every diameter is allowed.
+            table = {1.0: table}
+        if not isinstance(table, dict) or not table:
+            raise self.fail(f"{where}.chip_load", f"must be a mapping of diameter [mm] to fz [mm/tooth], got {_kind(table)}")
+        pairs = sorted(
+            (self.number(k, f"{where}.chip_load (diameter {k!r})"), self.number(v, f"{where}.chip_load[{k}]"))
+            for k, v in table.items()
+        )
+        for _, fz in pairs:
+            if fz > 1.0:
+                raise self.fail(f"{where}.chip_load", f"fz {fz} mm/tooth is implausible (> 1 mm); is it in mm?")
+        frac = self.number(d["plunge_fraction"], f"{where}.plunge_fraction")
+        if frac > 1:
+            raise self.fail(f"{where}.plunge_fraction", f"must be in (0, 1], got {frac}")
+        aliases = d.get("aliases", [])
+        if not isinstance(aliases, list):
+            raise self.fail(f"{where}.aliases", f"must be a list of names, got {_kind(aliases)}")
+        aliases_t = tuple(self.string(a, f"{where}.aliases[{i}]") for i, a in enumerate(aliases))
+        desc = self.string(d["description"], f"{where}.description") if "description" in d else ""
+        return MaterialData(name, vc, tuple(pairs), frac, aliases_t, desc)
+
+    def tool(self, d: Any, where: str) -> Tool:
+        d = self.mapping(
+            d, where, {"number", "name", "shape", "diameter", "flute_length", "flutes", "length"}, {"corner_radius"}
+        )
+        number = self.integer(d["number"], f"{where}.number", 1)
+        name = self.string(d["name"], f"{where}.name")
+        shape = d["shape"]
+        if shape not in _SHAPES:
+            raise self.fail(f"{where}.shape", f"unknown shape {shape!r}: expected flat, ball or bull")
+        diameter = self.number(d["diameter"], f"{where}.diameter")
+        radius = diameter / 2
+        if shape == "flat":
+            rc = self.number(d.get("corner_radius", 0.0), f"{where}.corner_radius", positive=False, minimum=0)
+            if rc != 0:
+                raise self.fail(f"{where}.corner_radius", f"a flat end mill has corner_radius 0, got {rc} (use shape: bull)")
+        elif shape == "ball":
+            rc = self.number(d.get("corner_radius", radius), f"{where}.corner_radius")
+            if abs(rc - radius) > 1e-9:
+                raise self.fail(f"{where}.corner_radius", f"a ball end mill has corner_radius = diameter/2 = {radius:g}, got {rc:g}")
+            rc = radius
+        else:
+            if "corner_radius" not in d:
+                raise self.fail(f"{where}.corner_radius", "missing (a bull-nose end mill needs its corner radius)")
+            rc = self.number(d["corner_radius"], f"{where}.corner_radius")
+            if rc >= radius:
+                raise self.fail(
+                    f"{where}.corner_radius",
+                    f"must be < diameter/2 = {radius:g} for a bull-nose, got {rc:g} (use shape: ball)",
+                )
+        flute_length = self.number(d["flute_length"], f"{where}.flute_length")
+        flutes = self.integer(d["flutes"], f"{where}.flutes", 1)
+        length = self.number(d["length"], f"{where}.length")
+        return Tool(
+            number=number,
+            name=name,
+            shape=shape,
+            diameter=diameter,
+            corner_radius=float(rc),
+            flute_length=flute_length,
+            flutes=flutes,
+            length=length,
+        )
+
+
+def _join(where: str, key: str) -> str:
+    return f"{where}.{key}" if where else key
+
+
+def _kind(value: Any) -> str:
+    if value is None:
+        return "nothing"
+    if isinstance(value, bool):
+        return f"{value!r}"
+    if isinstance(value, (int, float, str)):
+        return f"{value!r}"
+    return type(value).__name__

@@ -1,0 +1,126 @@
+"""Setup: the stock holds the part with the asked-for margins, the origin is where it is named."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from cadcam.mesh import load_part
+from cadcam.model import Setup
+from cadcam.setup import StockMargins, make_setup
+from factory.errors import SetupError
+
+SAMPLES = Path(__file__).resolve().parents[2] / "samples"
+EPS = 1e-9
+
+
+def box(extents, at) -> trimesh.Trimesh:
+    b = trimesh.creation.box(extents=extents)
+    b.apply_translation(np.asarray(at, float) + np.asarray(extents, float) / 2)
+    return b
+
+
+def test_default_stock_is_part_plus_margins_with_origin_top_front_left():
+    part = box((80, 50, 15), at=(-40, 7, 3))  # arbitrary placement in the file
+    setup, work = make_setup(part)
+    np.testing.assert_allclose(setup.stock_min, [0, 0, -16])
+    np.testing.assert_allclose(setup.stock_max, [84, 54, 0])
+    # Part sits on the stock bottom, 2 mm in from the sides, 1 mm below the top.
+    np.testing.assert_allclose(work.bounds, [[2, 2, -16], [82, 52, -1]])
+    assert setup.safe_z == pytest.approx(5.0)
+    assert setup.origin == "top-front-left" and setup.material == "aluminium"
+    # The input mesh is untouched; the transform maps it onto the returned mesh.
+    np.testing.assert_allclose(part.bounds, [[-40, 7, 3], [40, 57, 18]])
+    np.testing.assert_allclose(trimesh.transform_points(part.vertices, setup.transform_mesh_to_work), work.vertices)
+    assert np.allclose(setup.transform_mesh_to_work[:3, :3], np.eye(3))
+
+
+def test_top_centre_origin():
+    part = box((60, 40, 10), at=(100, 100, 100))
+    setup, work = make_setup(part, origin="top-centre", margins=StockMargins(sides=5, top=0.5), safe_height=10)
+    np.testing.assert_allclose(setup.stock_min, [-35, -25, -10.5])
+    np.testing.assert_allclose(setup.stock_max, [35, 25, 0])
+    np.testing.assert_allclose(work.bounds, [[-30, -20, -10.5], [30, 20, -0.5]])
+    assert setup.safe_z == pytest.approx(10)
+
+
+def test_explicit_stock_centres_the_part_on_the_bottom():
+    part = box((80, 50, 15), at=(0, 0, 0))
+    setup, work = make_setup(part, stock_size=(100, 60, 20))
+    np.testing.assert_allclose(setup.stock_size, [100, 60, 20])
+    np.testing.assert_allclose(work.bounds, [[10, 5, -20], [90, 55, -5]])
+
+
+def test_explicit_stock_exactly_the_part_size_fits():
+    part = box((80, 50, 15), at=(1, 2, 3))
+    setup, work = make_setup(part, stock_size=(80, 50, 15))
+    np.testing.assert_allclose(work.bounds, [[0, 0, -15], [80, 50, 0]], atol=1e-9)
+
+
+@pytest.mark.parametrize("stock, axis", [((79, 60, 20), "X"), ((100, 49.9, 20), "Y"), ((100, 60, 14), "Z")])
+def test_stock_too_small_names_axis_and_sizes(stock, axis):
+    part = box((80, 50, 15), at=(0, 0, 0))
+    with pytest.raises(SetupError) as info:
+        make_setup(part, stock_size=stock, source="bracket.stl")
+    msg = str(info.value)
+    assert f"in {axis}" in msg and "bracket.stl" in msg
+    part_size = {"X": 80, "Y": 50, "Z": 15}[axis]
+    stock_size = stock["XYZ".index(axis)]
+    assert f"{part_size:.3f}" in msg and f"{stock_size:.3f}" in msg
+
+
+@pytest.mark.parametrize(
+    "kwargs, words",
+    [
+        ({"margins": StockMargins(sides=-1)}, "sides"),
+        ({"margins": StockMargins(top=-0.1)}, "top"),
+        ({"stock_size": (100, 0, 20)}, "stock size"),
+        ({"stock_size": (100, 60)}, "stock size"),
+        ({"safe_height": 0}, "safe height"),
+        ({"origin": "bottom-left"}, "origin"),
+    ],
+)
+def test_bad_setup_arguments(kwargs, words):
+    with pytest.raises(SetupError, match=words):
+        make_setup(box((10, 10, 10), (0, 0, 0)), **kwargs)
+
+
+def test_sample_part_setup_round_trips_through_dict():
+    part = load_part(SAMPLES / "bracket.stl")
+    setup, work = make_setup(part.mesh, mesh_scale=part.scale, material="steel")
+    again = Setup.from_dict(setup.to_dict())
+    np.testing.assert_array_equal(again.transform_mesh_to_work, setup.transform_mesh_to_work)
+    assert again.material == "steel" and again.mesh_scale == 1.0
+    assert work.is_watertight and work.volume == pytest.approx(part.mesh.volume)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    extents=st.tuples(*[st.floats(1, 500) for _ in range(3)]),
+    at=st.tuples(*[st.floats(-1000, 1000) for _ in range(3)]),
+    sides=st.floats(0, 20),
+    top=st.floats(0, 10),
+    origin=st.sampled_from(["top-front-left", "top-centre"]),
+)
+def test_part_always_inside_stock_with_top_at_zero(extents, at, sides, top, origin):
+    part = box(extents, at)
+    setup, work = make_setup(part, margins=StockMargins(sides=sides, top=top), origin=origin)
+    lo, hi = work.bounds
+    tol = 1e-9 * (1 + np.abs(at).max() + max(extents))
+    assert setup.stock_max[2] == 0
+    assert np.all(lo >= setup.stock_min - tol) and np.all(hi <= setup.stock_max + tol)
+    # The margins are exactly what was asked for, and the part sits on the stock bottom.
+    np.testing.assert_allclose(lo[:2] - setup.stock_min[:2], [sides, sides], atol=1e-6)
+    np.testing.assert_allclose(setup.stock_max[:2] - hi[:2], [sides, sides], atol=1e-6)
+    assert setup.stock_max[2] - hi[2] == pytest.approx(top, abs=1e-6)
+    assert lo[2] == pytest.approx(setup.stock_min[2], abs=1e-6)
+    if origin == "top-front-left":
+        np.testing.assert_allclose(setup.stock_min[:2], 0)
+    else:
+        np.testing.assert_allclose(setup.stock_min[:2] + setup.stock_max[:2], 0, atol=1e-9)
+    assert setup.safe_z > setup.stock_max[2]

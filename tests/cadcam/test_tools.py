@@ -1,0 +1,175 @@
+"""Tool library: the shipped file loads, its cutting data are sane, and bad files name the field."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+import yaml
+
+from cadcam.model import Tool
+from cadcam.tools import load_tool_library
+from factory.errors import ToolError
+from factory.resources import FIXTURES
+
+
+@pytest.fixture(scope="module")
+def lib():
+    return load_tool_library()
+
+
+@pytest.fixture()
+def doc():
+    return yaml.safe_load((FIXTURES / "tools.yaml").read_text())
+
+
+def write(tmp_path: Path, doc) -> Path:
+    path = tmp_path / "tools.yaml"
+    path.write_text(doc if isinstance(doc, str) else yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def test_default_library_has_the_shop_tools(lib):
+    assert lib.source == str(FIXTURES / "tools.yaml")
+    assert [t.number for t in lib.tools] == [1, 2, 3, 4, 5, 6]
+    assert (lib.tool(1).shape, lib.tool(1).diameter, lib.tool(1).flutes) == ("flat", 6, 3)
+    assert (lib.tool(3).shape, lib.tool(3).corner_radius) == ("ball", 3)
+    assert (lib.tool(5).shape, lib.tool(5).corner_radius) == ("bull", 1)
+    for t in lib.tools:
+        assert isinstance(t, Tool)
+        assert t.flute_length >= 2 * t.diameter
+        assert t.length >= t.flute_length
+    assert {"aluminium", "steel", "brass", "plastic"} <= {m.name for m in lib.materials}
+
+
+def test_missing_tool_lists_the_ones_there_are(lib):
+    with pytest.raises(ToolError, match=r"no tool T9 .*T1, T2"):
+        lib.tool(9)
+
+
+@pytest.mark.parametrize("material", ["aluminium", "aluminum", "steel", "brass", "plastic", "POM", "stainless"])
+def test_cutting_data_are_sane_for_every_tool(lib, material):
+    for t in lib.tools:
+        cd = lib.cutting_data(t, material)
+        assert 0 < cd.spindle_rpm <= lib.max_rpm
+        assert 0 < cd.plunge_feed < cd.feed <= lib.max_feed
+        # Chip load actually cut per tooth stays within carbide's plausible range.
+        fz = cd.feed / (cd.spindle_rpm * t.flutes)
+        assert 0.002 <= fz <= 0.2
+        # Surface speed never exceeds the material's (the rpm cap only lowers it).
+        vc = math.pi * t.diameter * cd.spindle_rpm / 1000
+        assert vc <= lib.material(material).surface_speed * 1.001
+
+
+def test_aluminium_figures_are_shop_plausible(lib):
+    cd = lib.cutting_data(lib.tool(1), "aluminium")  # 6 mm 3FL at Vc 300
+    assert cd.spindle_rpm == pytest.approx(1000 * 300 / (math.pi * 6), abs=1)
+    assert 1500 <= cd.feed <= 4000
+    small = lib.cutting_data(lib.tool(4), "aluminium")  # 3 mm ball wants 31.8k: capped
+    assert small.spindle_rpm == lib.max_rpm
+
+
+def test_feed_is_capped_by_machine(tmp_path, doc):
+    doc["machine"]["max_feed"] = 500
+    lib = load_tool_library(write(tmp_path, doc))
+    for t in lib.tools:
+        assert lib.cutting_data(t, "plastic").feed <= 500
+
+
+def test_chip_load_interpolates_and_clamps(lib):
+    al = lib.material("aluminium")
+    assert al.chip_load_for(6) == pytest.approx(0.05)
+    assert al.chip_load_for(7) == pytest.approx((0.05 + 0.065) / 2)
+    assert al.chip_load_for(0.1) == al.chip_load[0][1]
+    assert al.chip_load_for(50) == al.chip_load[-1][1]
+
+
+def test_unknown_material_lists_known_ones(lib):
+    with pytest.raises(ToolError, match=r"unknown material 'titanium'.*aluminium.*steel"):
+        lib.cutting_data(lib.tool(1), "titanium")
+
+
+def _set(doc, path, value):
+    *head, last = path
+    node = doc
+    for k in head:
+        node = node[k]
+    if value is DELETE:
+        del node[last]
+    else:
+        node[last] = value
+
+
+DELETE = object()
+
+
+@pytest.mark.parametrize(
+    "path, value, expected",
+    [
+        (("tools", 2, "diameter"), 0, "tools[2].diameter: must be > 0"),
+        (("tools", 2, "diameter"), "six", "tools[2].diameter: must be a number"),
+        (("tools", 0, "shape"), "taper", "tools[0].shape: unknown shape 'taper'"),
+        (("tools", 2, "corner_radius"), 1.0, "tools[2].corner_radius: a ball end mill has corner_radius"),
+        (("tools", 0, "corner_radius"), 0.5, "tools[0].corner_radius: a flat end mill"),
+        (("tools", 4, "corner_radius"), 4, "tools[4].corner_radius: must be < diameter/2"),
+        (("tools", 4, "corner_radius"), DELETE, "tools[4].corner_radius: missing"),
+        (("tools", 1, "number"), 1, "tools[1].number: duplicate tool number 1 (also tools[0])"),
+        (("tools", 1, "number"), 0, "tools[1].number: must be >= 1"),
+        (("tools", 1, "flutes"), 2.5, "tools[1].flutes: must be a whole number"),
+        (("tools", 1, "flutes"), True, "tools[1].flutes: must be a whole number"),
+        (("tools", 3, "flute_length"), DELETE, "tools[3].flute_length: missing"),
+        (("tools", 3, "lenght"), 20, "tools[3].lenght: unknown key (did you mean length?)"),
+        (("machine", "max_rmp"), 20000, "machine.max_rmp: unknown key (did you mean max_rpm?)"),
+        (("machine", "max_rpm"), -1, "machine.max_rpm: must be > 0"),
+        (("machine",), DELETE, "machine: missing"),
+        (("materials", "steel", "surface_speed"), DELETE, "materials.steel.surface_speed: missing"),
+        (("materials", "steel", "plunge_fraction"), 2, "materials.steel.plunge_fraction: must be in (0, 1]"),
+        (("materials", "brass", "chip_load"), "lots", "materials.brass.chip_load: must be a mapping"),
+        (("materials", "brass", "chip_load"), {6: 5}, "materials.brass.chip_load: fz 5.0 mm/tooth is implausible"),
+        (("materials", "brass", "aliases"), ["pom"], "materials.plastic: name or alias 'pom' also used by brass"),
+        (("tools",), [], "tools: must be a non-empty list"),
+        (("tools", 0), "T1 6mm", "tools[0]: must be a mapping"),
+    ],
+)
+def test_malformed_library_names_the_field(tmp_path, doc, path, value, expected):
+    _set(doc, path, value)
+    p = write(tmp_path, doc)
+    with pytest.raises(ToolError) as info:
+        load_tool_library(p)
+    err = info.value
+    assert err.source == str(p)
+    assert expected in err.message, err.message
+
+
+def test_single_chip_load_value_is_accepted(tmp_path, doc):
+    doc["materials"]["plastic"]["chip_load"] = 0.05
+    lib = load_tool_library(write(tmp_path, doc))
+    assert lib.material("pom").chip_load_for(3) == 0.05
+
+
+def test_ball_corner_radius_may_be_omitted_and_flat_defaults_to_zero(doc, tmp_path):
+    assert "corner_radius" not in doc["tools"][2]  # shipped file relies on the default
+    lib = load_tool_library(write(tmp_path, doc))
+    assert lib.tool(3).corner_radius == 3 and lib.tool(1).corner_radius == 0
+
+
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        ("", "tool library is empty"),
+        ("machine: [1, 2\n", "invalid YAML at line"),
+        ("- a\n- b\n", "must be a mapping"),
+        ("machine: {max_rpm: 1, max_feed: 1}\nmaterials: {}\ntools: []\n", "materials: must be a non-empty mapping"),
+    ],
+)
+def test_broken_yaml(tmp_path, text, expected):
+    p = write(tmp_path, text)
+    with pytest.raises(ToolError) as info:
+        load_tool_library(p)
+    assert expected in info.value.message and info.value.source == str(p)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(ToolError, match="no such tool library"):
+        load_tool_library(tmp_path / "nope.yaml")
