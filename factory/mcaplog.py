@@ -1,0 +1,655 @@
+"""The MCAP log every stage writes: ROS 2 messages for Foxglove and ``ros2 bag``.
+
+Files follow the MCAP ``ros2`` profile the way rosbag2 (Jazzy) writes them, so that
+Foxglove, ``ros2 bag info/play`` and rosbags can open them without a ROS install:
+
+* header profile ``ros2``; every channel ``cdr`` encoded, every schema ``ros2msg`` with the
+  full concatenated definition text (the top-level ``.msg`` text, then per dependency a
+  line of 80 ``=``, ``MSG: pkg/Name`` and its text);
+* channel metadata ``offered_qos_profiles`` (rosbag2 metadata version 9 YAML: policy names,
+  not numbers) and ``topic_type_hash`` (RIHS01). Latched topics (``/tf_static``, a robot
+  description, a static scene) offer ``transient_local`` durability, others ``volatile``;
+* zstd-compressed chunks, message indexes, chunk indexes and a summary with statistics;
+* a metadata record named ``factory`` (stage, version, input hashes, parameters) and
+  attachments for the files the next stage reads back (the CAM job JSON).
+
+Message classes, CDR serialisation and definition texts come from rosbags' ROS 2 Jazzy
+typestore (:data:`TYPESTORE`); files are written by the ``mcap`` package's writer through
+:func:`factory.atomic.atomic_output`, so a failed run leaves no file behind.
+
+Units: ROS speaks metres, seconds and radians. The builders below take metres (and a
+4x4 homogeneous transform with its translation in metres); the millimetre-to-metre
+conversion of CAM values happens in the views that call them (:mod:`cli.views`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import re
+import sys
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+from mcap.exceptions import McapError as _McapLibError
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, IndexType, Writer
+from rosbags.typesys import Stores, get_typestore
+from scipy.spatial.transform import Rotation
+
+import factory
+from factory.atomic import atomic_output, check_writable
+from factory.errors import McapError
+
+log = logging.getLogger(__name__)
+
+#: ROS 2 distribution whose message definitions and bag conventions the files follow.
+ROS_DISTRO = "jazzy"
+#: rosbags typestore with every message type we log (visualization_msgs, sensor_msgs,
+#: tf2_msgs, trajectory_msgs, std_msgs, rcl_interfaces, geometry_msgs, ...).
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+#: Name of the metadata record that describes the run that wrote the file.
+FACTORY_METADATA = "factory"
+
+RGBA = tuple[float, float, float, float]
+
+_T = TYPESTORE.types
+_Time = _T["builtin_interfaces/msg/Time"]
+_Duration = _T["builtin_interfaces/msg/Duration"]
+_Header = _T["std_msgs/msg/Header"]
+_ColorRGBA = _T["std_msgs/msg/ColorRGBA"]
+_String = _T["std_msgs/msg/String"]
+_Point = _T["geometry_msgs/msg/Point"]
+_Vector3 = _T["geometry_msgs/msg/Vector3"]
+_Quaternion = _T["geometry_msgs/msg/Quaternion"]
+_Pose = _T["geometry_msgs/msg/Pose"]
+_Transform = _T["geometry_msgs/msg/Transform"]
+_TransformStamped = _T["geometry_msgs/msg/TransformStamped"]
+_TFMessage = _T["tf2_msgs/msg/TFMessage"]
+_Marker = _T["visualization_msgs/msg/Marker"]
+_MarkerArray = _T["visualization_msgs/msg/MarkerArray"]
+_MeshFile = _T["visualization_msgs/msg/MeshFile"]
+_CompressedImage = _T["sensor_msgs/msg/CompressedImage"]
+_Log = _T["rcl_interfaces/msg/Log"]
+
+_INT32_MAX = 2**31 - 1
+_UINT64_MAX = 2**64 - 1
+
+# rosbag2 >= Jazzy (metadata version 9) writes policy names; Humble wrote enum numbers.
+# Durations are RMW_DURATION_INFINITE {sec: INT64_MAX // 1e9, nsec: INT64_MAX % 1e9}, as
+# recorded from publishers that left deadline, lifespan and lease at their defaults.
+_QOS_TEMPLATE = """\
+- history: keep_last
+  depth: {depth}
+  reliability: reliable
+  durability: {durability}
+  deadline:
+    sec: 9223372036
+    nsec: 854775807
+  lifespan:
+    sec: 9223372036
+    nsec: 854775807
+  liveliness: automatic
+  liveliness_lease_duration:
+    sec: 9223372036
+    nsec: 854775807
+  avoid_ros_namespace_conventions: false"""
+
+
+def offered_qos_profiles(latched: bool) -> str:
+    """The ``offered_qos_profiles`` channel metadata rosbag2 (Jazzy) writes for a publisher.
+
+    Parameters
+    ----------
+    latched : bool
+        ``True``: keep-last 1, reliable, ``transient_local`` (what ``/tf_static`` and
+        ``/robot_description`` publishers offer, so late subscribers get the message on
+        ``ros2 bag play``). ``False``: keep-last 10, reliable, ``volatile`` (rclcpp defaults).
+    """
+    if latched:
+        return _QOS_TEMPLATE.format(depth=1, durability="transient_local")
+    return _QOS_TEMPLATE.format(depth=10, durability="volatile")
+
+
+def message_definition(typename: str) -> str:
+    """The ``ros2msg`` schema text of ``typename`` as rosbag2 stores it.
+
+    The top-level definition, then for every type it depends on (once, recursively) a line
+    of 80 ``=``, a line ``MSG: pkg/msg/Name`` and that type's definition. rosbags writes
+    the ROS 1 style ``MSG: pkg/Name``; rosbag2's message_definition_encoding.md names the
+    full resource (``pkg/msg/Name``), so the header lines are rewritten to that. Readers
+    (Foxglove, mcap_ros2, rosbags) accept both.
+    """
+    text, _ = TYPESTORE.generate_msgdef(typename, ros_version=2)
+    return _MSG_LINE.sub(lambda m: f"\nMSG: {m[1]}/msg/{m[2]}\n", text)
+
+
+_MSG_LINE = re.compile(r"\nMSG: ([A-Za-z0-9_]+)/([A-Za-z0-9_]+)\n")
+
+
+def _check_time(ns: int, what: str) -> int:
+    if isinstance(ns, bool) or not isinstance(ns, (int, np.integer)):
+        raise McapError(f"{what} must be an integer number of nanoseconds, got {ns!r}")
+    ns = int(ns)
+    if not 0 <= ns <= _UINT64_MAX:
+        raise McapError(f"{what} {ns} ns is outside the MCAP time range [0, 2^64)")
+    return ns
+
+
+class McapLog:
+    """Writes one MCAP file of ROS 2 messages, atomically. Use as a context manager.
+
+    The file appears at ``path`` only when the ``with`` block exits without an exception;
+    otherwise nothing is left behind (not even the temporary file).
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination ``.mcap`` file.
+    stage : str
+        The stage writing the file (``"toolpath"``, ``"verify"``, ``"plan"``, ...).
+    overwrite : bool
+        Replace an existing file. Without it :class:`OutputExistsError` is raised by the
+        constructor, before anything is computed or written.
+    inputs : mapping of str to str
+        Input file name (or path) -> hex SHA-256 of its bytes, for traceability.
+    parameters : mapping of str to object
+        Run parameters. Strings are stored as they are, everything else JSON-encoded.
+
+    Raises
+    ------
+    OutputExistsError
+        ``path`` exists and ``overwrite`` is false.
+    McapError
+        A message cannot be serialised, a topic is reused with another type or QoS, an
+        attachment name repeats, or parameters cannot be JSON-encoded.
+
+    Examples
+    --------
+    >>> with McapLog("part.mcap", stage="toolpath", inputs={"part.stl": digest}) as log:
+    ...     log.write("/tf_static", tf_message([transform_stamped("world", "work", np.eye(4), 0)]),
+    ...               0, latched=True)
+    ...     log.attach("factory.job.json", "application/json", job_bytes)
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        stage: str,
+        overwrite: bool = False,
+        inputs: Mapping[str, str] = {},
+        parameters: Mapping[str, object] = {},
+    ) -> None:
+        self.path = Path(path)
+        self.stage = stage
+        self.overwrite = overwrite
+        check_writable(self.path, overwrite)
+        self._metadata = _factory_metadata(stage, inputs, parameters)
+        self._stack: contextlib.ExitStack | None = None
+        self._writer: Writer | None = None
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, tuple[int, str, bool]] = {}  # topic -> (id, type, latched)
+        self._sequence: dict[int, int] = {}
+        self._attachments: set[str] = set()
+
+    def __enter__(self) -> "McapLog":
+        if self._stack is not None:
+            raise McapError("McapLog is already open", source=self.path)
+        stack = contextlib.ExitStack()
+        f = stack.enter_context(atomic_output(self.path, overwrite=self.overwrite))
+        try:
+            writer = Writer(
+                f,
+                compression=CompressionType.ZSTD,
+                index_types=IndexType.ALL,
+                use_chunking=True,
+                use_statistics=True,
+                use_summary_offsets=True,
+            )
+            writer.start(profile="ros2", library=f"factory {factory.__version__}")
+        except BaseException:
+            stack.__exit__(*sys.exc_info())
+            raise
+        self._stack, self._writer = stack, writer
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> bool:
+        stack, writer = self._stack, self._writer
+        self._stack = self._writer = None
+        if stack is None or writer is None:
+            return False
+        if exc_type is None:
+            try:
+                writer.add_metadata(FACTORY_METADATA, self._metadata)
+                writer.finish()
+            except BaseException as e:
+                # The temporary file is removed by atomic_output on the way out.
+                stack.__exit__(type(e), e, e.__traceback__)
+                raise
+            stack.__exit__(None, None, None)
+            log.info("wrote %s (%d channels)", self.path, len(self._channels))
+        else:
+            stack.__exit__(exc_type, exc, tb)
+        return False
+
+    def _require_open(self) -> Writer:
+        if self._writer is None:
+            raise McapError("McapLog is not open; use it in a with block", source=self.path)
+        return self._writer
+
+    def _channel(self, topic: str, typename: str, latched: bool) -> int:
+        writer = self._require_open()
+        known = self._channels.get(topic)
+        if known is not None:
+            cid, ktype, klatched = known
+            if ktype != typename:
+                raise McapError(f"topic {topic} carries {ktype}, not {typename}", source=self.path)
+            if klatched != latched:
+                raise McapError(f"topic {topic} was {'' if klatched else 'not '}latched before",
+                                source=self.path)
+            return cid
+        if not topic.startswith("/"):
+            raise McapError(f"topic {topic!r} must be absolute (start with '/')", source=self.path)
+        sid = self._schemas.get(typename)
+        if sid is None:
+            try:
+                text = message_definition(typename)
+            except Exception as e:  # rosbags raises several kinds for unknown types
+                raise McapError(f"no message definition for {typename}: {e}", source=self.path) from None
+            sid = writer.register_schema(name=typename, encoding="ros2msg", data=text.encode())
+            self._schemas[typename] = sid
+        cid = writer.register_channel(
+            topic=topic,
+            message_encoding="cdr",
+            schema_id=sid,
+            metadata={
+                "offered_qos_profiles": offered_qos_profiles(latched),
+                "topic_type_hash": TYPESTORE.hash_rihs01(typename),
+            },
+        )
+        self._channels[topic] = (cid, typename, latched)
+        return cid
+
+    def write(self, topic: str, msg: Any, log_time_ns: int, *, latched: bool = False) -> None:
+        """Serialise ``msg`` to CDR and log it on ``topic``.
+
+        Parameters
+        ----------
+        topic : str
+            Absolute ROS topic name, e.g. ``"/cam/toolpath"``. Its schema and channel are
+            registered on first use; later messages must have the same type and ``latched``.
+        msg : rosbags message
+            An instance of a :data:`TYPESTORE` class (see the builders in this module); its
+            type name is taken from ``msg.__msgtype__``.
+        log_time_ns : int
+            Log (and publish) time [ns]; 0 for timeless views such as a toolpath.
+        latched : bool
+            Offer ``transient_local`` durability (``/tf_static``, static scene topics).
+        """
+        typename = getattr(msg, "__msgtype__", None)
+        if not isinstance(typename, str):
+            raise McapError(f"cannot log a {type(msg).__name__} on {topic}: not a ROS message",
+                            source=self.path)
+        t = _check_time(log_time_ns, "log time")
+        cid = self._channel(topic, typename, latched)
+        try:
+            data = TYPESTORE.serialize_cdr(msg, typename)
+        except Exception as e:  # struct.error, AttributeError, TypeError... from generated code
+            raise McapError(f"cannot serialise {typename} on {topic}: {e}", source=self.path) from None
+        seq = self._sequence.get(cid, 0)
+        self._sequence[cid] = seq + 1
+        self._require_open().add_message(
+            channel_id=cid, log_time=t, data=bytes(data), publish_time=t, sequence=seq & 0xFFFFFFFF
+        )
+
+    def attach(self, name: str, media_type: str, data: bytes, log_time_ns: int = 0) -> None:
+        """Store a file inside the log, e.g. the CAM job JSON that ``factory gcode`` reads.
+
+        Parameters
+        ----------
+        name : str
+            Unique attachment name, e.g. ``"factory.job.json"``.
+        media_type : str
+            MIME type, e.g. ``"application/json"``.
+        data : bytes
+        log_time_ns : int
+            Log time of the attachment [ns].
+        """
+        writer = self._require_open()
+        if name in self._attachments:
+            raise McapError(f"attachment {name!r} written twice", source=self.path)
+        if not isinstance(data, (bytes, bytearray, memoryview)):
+            raise McapError(f"attachment {name!r} must be bytes, got {type(data).__name__}",
+                            source=self.path)
+        t = _check_time(log_time_ns, "attachment log time")
+        writer.add_attachment(create_time=t, log_time=t, name=name, media_type=media_type, data=bytes(data))
+        self._attachments.add(name)
+
+
+def _factory_metadata(stage: str, inputs: Mapping[str, str], parameters: Mapping[str, object]) -> dict[str, str]:
+    """The string map of the ``factory`` metadata record.
+
+    Keys: ``stage``, ``version``, ``ros_distro``, ``input:<name>`` (hex SHA-256) and
+    ``param:<name>`` (strings as they are, anything else JSON).
+    """
+    meta = {"stage": str(stage), "version": factory.__version__, "ros_distro": ROS_DISTRO}
+    for name, digest in inputs.items():
+        meta[f"input:{name}"] = str(digest)
+    for key, value in parameters.items():
+        if isinstance(value, str):
+            meta[f"param:{key}"] = value
+            continue
+        try:
+            meta[f"param:{key}"] = json.dumps(value, sort_keys=True, default=_json_default)
+        except (TypeError, ValueError) as e:
+            raise McapError(f"parameter {key!r} cannot be stored as JSON: {e}") from None
+    return meta
+
+
+def _json_default(o: object) -> object:
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"{type(o).__name__} is not JSON serialisable")
+
+
+@contextlib.contextmanager
+def _open_reader(path: str | Path):  # type: ignore[no-untyped-def]
+    path = Path(path)
+    try:
+        f = open(path, "rb")
+    except OSError as e:
+        raise McapError(f"cannot open: {e.strerror}", source=path) from None
+    with f:
+        try:
+            reader = make_reader(f)
+            header = reader.get_header()
+        except (_McapLibError, EOFError, OSError, ValueError, StopIteration) as e:
+            raise McapError(f"not an MCAP file ({e.__class__.__name__}: {e})", source=path) from None
+        yield path, header, reader
+
+
+def read_attachment(path: str | Path, name: str) -> bytes:
+    """The bytes of attachment ``name`` in the MCAP file at ``path``.
+
+    Raises
+    ------
+    McapError
+        (``source=path``) The file cannot be opened, is not MCAP, or has no such attachment.
+    """
+    with _open_reader(path) as (p, _, reader):
+        try:
+            for a in reader.iter_attachments():
+                if a.name == name:
+                    return bytes(a.data)
+        except (_McapLibError, EOFError, OSError, ValueError, StopIteration) as e:
+            raise McapError(f"corrupt MCAP file ({e.__class__.__name__}: {e})", source=p) from None
+    raise McapError(f"no attachment named {name!r}", source=p)
+
+
+def read_metadata(path: str | Path, name: str = FACTORY_METADATA) -> dict[str, str]:
+    """The key-value map of metadata record ``name`` (default: the ``factory`` record).
+
+    Raises
+    ------
+    McapError
+        (``source=path``) The file cannot be opened, is not MCAP, or has no such record.
+    """
+    with _open_reader(path) as (p, _, reader):
+        try:
+            for m in reader.iter_metadata():
+                if m.name == name:
+                    return dict(m.metadata)
+        except (_McapLibError, EOFError, OSError, ValueError, StopIteration) as e:
+            raise McapError(f"corrupt MCAP file ({e.__class__.__name__}: {e})", source=p) from None
+    raise McapError(f"no metadata record named {name!r}", source=p)
+
+
+# --- message builders: pure functions returning rosbags message objects (SI units) -------
+
+
+def ros_time(ns: int) -> Any:
+    """``builtin_interfaces/Time`` for a time in nanoseconds (``sec`` must fit int32)."""
+    ns = int(ns)
+    sec, nanosec = divmod(ns, 1_000_000_000)
+    if not -(2**31) <= sec <= _INT32_MAX:
+        raise McapError(f"time {ns} ns does not fit builtin_interfaces/Time")
+    return _Time(sec=sec, nanosec=nanosec)
+
+
+def _header(frame_id: str, stamp_ns: int) -> Any:
+    return _Header(stamp=ros_time(stamp_ns), frame_id=frame_id)
+
+
+def _color(rgba: Sequence[float]) -> Any:
+    c = np.asarray(rgba, dtype=np.float64).reshape(-1)
+    if c.shape != (4,) or not np.all((c >= 0) & (c <= 1)):
+        raise McapError(f"colour must be 4 values r, g, b, a in [0, 1], got {list(rgba)}")
+    return _ColorRGBA(r=float(c[0]), g=float(c[1]), b=float(c[2]), a=float(c[3]))
+
+
+def _points(points: np.ndarray, what: str) -> list[Any]:
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise McapError(f"{what}: points must have shape (n, 3), got {p.shape}")
+    if not np.isfinite(p).all():
+        raise McapError(f"{what}: {int((~np.isfinite(p)).any(axis=1).sum())} non-finite points")
+    # rosbags serialises sequences of structs from objects; map() keeps the loop in C.
+    return list(map(_Point, *p.T.tolist())) if len(p) else []
+
+
+def _identity_pose(position: Sequence[float] = (0.0, 0.0, 0.0)) -> Any:
+    x, y, z = (float(v) for v in position)
+    return _Pose(position=_Point(x=x, y=y, z=z), orientation=_Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
+
+
+def _marker(ns: str, id: int, type_: int, frame_id: str, stamp_ns: int, *, color: Sequence[float],
+            scale: Sequence[float], points: list[Any], pose: Any | None = None) -> Any:
+    header = _header(frame_id, stamp_ns)
+    return _Marker(
+        header=header,
+        ns=ns,
+        id=int(id),
+        type=type_,
+        action=_Marker.ADD,
+        pose=pose if pose is not None else _identity_pose(),
+        scale=_Vector3(x=float(scale[0]), y=float(scale[1]), z=float(scale[2])),
+        color=_color(color),
+        lifetime=_Duration(sec=0, nanosec=0),  # 0: forever
+        frame_locked=False,
+        points=points,
+        colors=[],
+        texture_resource="",
+        texture=_CompressedImage(header=_header("", 0), format="", data=np.zeros(0, np.uint8)),
+        uv_coordinates=[],
+        text="",
+        mesh_resource="",
+        mesh_file=_MeshFile(filename="", data=np.zeros(0, np.uint8)),
+        mesh_use_embedded_materials=False,
+    )
+
+
+def transform_stamped(parent: str, child: str, matrix: np.ndarray, stamp_ns: int) -> Any:
+    """``geometry_msgs/TransformStamped`` placing frame ``child`` in frame ``parent``.
+
+    Parameters
+    ----------
+    parent, child : str
+        Frame ids (``header.frame_id`` and ``child_frame_id``).
+    matrix : (4, 4) float
+        Homogeneous transform from ``child`` to ``parent`` coordinates; translation in
+        **metres**; the 3x3 block a proper rotation.
+    stamp_ns : int
+        Header stamp [ns].
+
+    Raises
+    ------
+    McapError
+        Wrong shape, non-finite values, or a 3x3 block that is not a rotation.
+    """
+    m = np.asarray(matrix, dtype=np.float64)
+    if m.shape != (4, 4) or not np.isfinite(m).all():
+        raise McapError(f"transform {parent} -> {child} must be a finite 4x4 matrix")
+    r = m[:3, :3]
+    if (not np.allclose(m[3], [0, 0, 0, 1], atol=1e-9) or not np.allclose(r @ r.T, np.eye(3), atol=1e-6)
+            or np.linalg.det(r) < 0):
+        raise McapError(f"transform {parent} -> {child} is not a rigid motion")
+    qx, qy, qz, qw = Rotation.from_matrix(r).as_quat()
+    tx, ty, tz = (float(v) for v in m[:3, 3])
+    return _TransformStamped(
+        header=_header(parent, stamp_ns),
+        child_frame_id=child,
+        transform=_Transform(
+            translation=_Vector3(x=tx, y=ty, z=tz),
+            rotation=_Quaternion(x=float(qx), y=float(qy), z=float(qz), w=float(qw)),
+        ),
+    )
+
+
+def tf_message(transforms: Iterable[Any]) -> Any:
+    """``tf2_msgs/TFMessage`` for ``/tf`` or ``/tf_static`` (log the latter latched)."""
+    return _TFMessage(transforms=list(transforms))
+
+
+def line_strip_marker(ns: str, id: int, points: np.ndarray, color: RGBA, width: float,
+                      frame_id: str, stamp_ns: int) -> Any:
+    """``visualization_msgs/Marker`` LINE_STRIP: one polyline through ``points``.
+
+    Parameters
+    ----------
+    ns, id : str, int
+        Marker namespace and id (together they name the marker; Foxglove toggles by ns).
+    points : (n, 3) float
+        Polyline vertices in ``frame_id`` [m].
+    color : (r, g, b, a) float
+        In [0, 1].
+    width : float
+        Line width [m].
+    frame_id : str
+    stamp_ns : int
+        Header stamp [ns].
+    """
+    return _marker(ns, id, _Marker.LINE_STRIP, frame_id, stamp_ns, color=color,
+                   scale=(width, 0.0, 0.0), points=_points(points, f"marker {ns}/{id}"))
+
+
+def line_list_marker(ns: str, id: int, points: np.ndarray, color: RGBA, width: float,
+                     frame_id: str, stamp_ns: int) -> Any:
+    """``visualization_msgs/Marker`` LINE_LIST: separate segments ``points[2k] -> points[2k+1]``.
+
+    Same parameters as :func:`line_strip_marker`; ``points`` is ``(2k, 3)`` [m].
+    """
+    p = np.asarray(points)
+    if p.ndim == 2 and len(p) % 2:
+        raise McapError(f"marker {ns}/{id}: LINE_LIST needs an even number of points, got {len(p)}")
+    return _marker(ns, id, _Marker.LINE_LIST, frame_id, stamp_ns, color=color,
+                   scale=(width, 0.0, 0.0), points=_points(p, f"marker {ns}/{id}"))
+
+
+def triangle_mesh_marker(ns: str, id: int, vertices: np.ndarray, faces: np.ndarray, color: RGBA,
+                         frame_id: str, stamp_ns: int) -> Any:
+    """``visualization_msgs/Marker`` TRIANGLE_LIST of an indexed triangle mesh.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+        Vertex positions in ``frame_id`` [m].
+    faces : (m, 3) int
+        Vertex indices per triangle, counter-clockwise seen from outside. TRIANGLE_LIST
+        has no index buffer, so the message carries ``3 m`` points.
+    color : (r, g, b, a) float
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces)
+    if f.size == 0:
+        f = f.reshape(0, 3)
+    if f.ndim != 2 or f.shape[1] != 3 or (f.size and not np.issubdtype(f.dtype, np.integer)):
+        raise McapError(f"marker {ns}/{id}: faces must be (m, 3) integers, got {f.shape} {f.dtype}")
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise McapError(f"marker {ns}/{id}: vertices must have shape (n, 3), got {v.shape}")
+    if f.size and (f.min() < 0 or f.max() >= len(v)):
+        raise McapError(f"marker {ns}/{id}: face index out of range [0, {len(v)})")
+    # scale 1: RViz multiplies TRIANGLE_LIST points by scale.
+    return _marker(ns, id, _Marker.TRIANGLE_LIST, frame_id, stamp_ns, color=color,
+                   scale=(1.0, 1.0, 1.0), points=_points(v[f.reshape(-1)], f"marker {ns}/{id}"))
+
+
+def cube_marker(ns: str, id: int, center: Sequence[float], size: Sequence[float], color: RGBA,
+                frame_id: str, stamp_ns: int) -> Any:
+    """``visualization_msgs/Marker`` CUBE: an axis-aligned box.
+
+    Parameters
+    ----------
+    center : (3,) float
+        Box centre in ``frame_id`` [m].
+    size : (3,) float
+        Edge lengths x, y, z [m], all > 0.
+    """
+    c = np.asarray(center, dtype=np.float64).reshape(-1)
+    s = np.asarray(size, dtype=np.float64).reshape(-1)
+    if c.shape != (3,) or s.shape != (3,) or not (np.isfinite(c).all() and np.isfinite(s).all()) or (s <= 0).any():
+        raise McapError(f"marker {ns}/{id}: cube needs a finite centre and positive size")
+    return _marker(ns, id, _Marker.CUBE, frame_id, stamp_ns, color=color, scale=s.tolist(), points=[],
+                   pose=_identity_pose(c.tolist()))
+
+
+def marker_array(markers: Iterable[Any]) -> Any:
+    """``visualization_msgs/MarkerArray`` of ``markers``."""
+    return _MarkerArray(markers=list(markers))
+
+
+def string_msg(text: str) -> Any:
+    """``std_msgs/String``."""
+    return _String(data=str(text))
+
+
+_LOG_LEVELS = {"debug": _Log.DEBUG, "info": _Log.INFO, "warn": _Log.WARN, "warning": _Log.WARN,
+               "error": _Log.ERROR, "fatal": _Log.FATAL, "critical": _Log.FATAL}
+
+
+def log_msg(level: int | str, name: str, text: str, stamp_ns: int, *, file: str = "",
+            function: str = "", line: int = 0) -> Any:
+    """``rcl_interfaces/Log`` for ``/rosout``.
+
+    Parameters
+    ----------
+    level : int or str
+        10 debug, 20 info, 30 warn, 40 error, 50 fatal: the same numbers as Python's
+        :mod:`logging` levels, so ``record.levelno`` can be passed as is. Names accepted too.
+    name : str
+        Logger (node) name.
+    text : str
+    stamp_ns : int
+        [ns]
+    """
+    if isinstance(level, str):
+        if level.lower() not in _LOG_LEVELS:
+            raise McapError(f"unknown log level {level!r}")
+        lv = _LOG_LEVELS[level.lower()]
+    else:
+        # Round to the rcl level at or below, so logging.NOTSET-like values stay valid.
+        lv = int(np.clip(int(level) // 10 * 10, _Log.DEBUG, _Log.FATAL))
+    return _Log(stamp=ros_time(stamp_ns), level=lv, name=name, msg=text, file=file,
+                function=function, line=int(line))
+
+
+__all__ = [
+    "FACTORY_METADATA", "ROS_DISTRO", "TYPESTORE", "McapLog", "cube_marker",
+    "line_list_marker", "line_strip_marker", "log_msg", "marker_array", "message_definition",
+    "offered_qos_profiles",
+    "read_attachment", "read_metadata", "ros_time", "string_msg", "tf_message", "transform_stamped",
+    "triangle_mesh_marker",
+]

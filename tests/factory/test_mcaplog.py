@@ -1,0 +1,289 @@
+"""The MCAP log: ros2-profile files that independent readers (mcap + mcap_ros2, rosbags) accept."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from rosbags.highlevel import AnyReader
+from rosbags.interfaces import QosDurability
+from scipy.spatial.transform import Rotation
+
+import factory
+from factory.errors import McapError, OutputExistsError
+from factory.mcaplog import (
+    McapLog,
+    cube_marker,
+    line_list_marker,
+    line_strip_marker,
+    log_msg,
+    marker_array,
+    offered_qos_profiles,
+    read_attachment,
+    read_metadata,
+    ros_time,
+    string_msg,
+    tf_message,
+    transform_stamped,
+    triangle_mesh_marker,
+)
+
+STRIP = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, -0.001], [0.01, 0.02, -0.001], [0.0, 0.02, 0.005]])
+SEGMENTS = np.array([[0.0, 0.0, 0.01], [0.03, 0.0, 0.01], [0.03, 0.0, 0.01], [0.03, 0.03, 0.02]])
+VERTICES = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]) * 0.05
+FACES = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+JOB_BYTES = json.dumps({"format": "factory.job/1", "operations": []}).encode()
+INPUTS = {"parts/bracket.stl": "0123456789abcdef" * 4}
+PARAMETERS = {"stepover": 1.5, "tools": {"rough": 1, "finish": [2, 3]}, "note": "plain text"}
+WORK_IN_WORLD = np.array([[0.0, -1.0, 0.0, 0.1], [1.0, 0.0, 0.0, 0.2], [0.0, 0.0, 1.0, -0.05], [0, 0, 0, 1]])
+
+
+def write_sample(path: Path) -> None:
+    """Five messages on four topics, one attachment; the metadata comes from McapLog."""
+    with McapLog(path, stage="test", inputs=INPUTS, parameters=PARAMETERS) as log:
+        log.write("/tf_static", tf_message([transform_stamped("world", "work", WORK_IN_WORLD, 0)]), 0,
+                  latched=True)
+        markers = marker_array([
+            line_strip_marker("path", 0, STRIP, (0.0, 0.0, 1.0, 1.0), 0.0005, "work", 1_000),
+            line_list_marker("path", 1, SEGMENTS, (1.0, 0.2, 0.0, 0.5), 0.0002, "work", 1_000),
+            triangle_mesh_marker("part", 0, VERTICES, FACES, (0.6, 0.6, 0.6, 1.0), "work", 1_000),
+            cube_marker("stock", 0, (0.05, 0.04, -0.01), (0.1, 0.08, 0.02), (0.8, 0.7, 0.5, 0.2), "work", 1_000),
+        ])
+        log.write("/cam/toolpath", markers, 1_000, latched=True)
+        log.write("/status", string_msg("roughing done"), 2_000)
+        log.write("/rosout", log_msg(logging.INFO, "factory.cam", "hello", 2_500), 2_500)
+        log.write("/rosout", log_msg("error", "factory.cam", "bad", 3_000_000_001), 3_000_000_001)
+        log.attach("factory.job.json", "application/json", JOB_BYTES)
+
+
+@pytest.fixture(scope="module")
+def sample(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("mcap") / "sample.mcap"
+    write_sample(path)
+    return path
+
+
+def test_ros2_profile_encodings_statistics_and_zstd_chunks(sample: Path) -> None:
+    with open(sample, "rb") as f:
+        reader = make_reader(f)
+        assert reader.get_header().profile == "ros2"
+        summary = reader.get_summary()
+    assert summary is not None and summary.statistics is not None
+    assert summary.statistics.message_count == 5
+    by_topic = {c.topic: c for c in summary.channels.values()}
+    assert set(by_topic) == {"/tf_static", "/cam/toolpath", "/status", "/rosout"}
+    assert summary.statistics.channel_message_counts[by_topic["/rosout"].id] == 2
+    assert summary.statistics.message_start_time == 0
+    assert summary.statistics.message_end_time == 3_000_000_001
+    assert all(c.message_encoding == "cdr" for c in summary.channels.values())
+    assert all(s.encoding == "ros2msg" for s in summary.schemas.values())
+    assert {s.name for s in summary.schemas.values()} == {
+        "tf2_msgs/msg/TFMessage", "visualization_msgs/msg/MarkerArray", "std_msgs/msg/String",
+        "rcl_interfaces/msg/Log"}
+    assert summary.chunk_indexes and all(c.compression == "zstd" for c in summary.chunk_indexes)
+    assert all(c.message_index_offsets for c in summary.chunk_indexes)
+
+
+def test_schema_is_the_concatenated_definition_text(sample: Path) -> None:
+    with open(sample, "rb") as f:
+        schemas = {s.name: s.data.decode() for s in make_reader(f).get_summary().schemas.values()}
+    tf = schemas["tf2_msgs/msg/TFMessage"]
+    sections = tf.split("=" * 80 + "\n")
+    assert sections[0].startswith("geometry_msgs/TransformStamped[] transforms\n")
+    deps = [s.split("\n", 1)[0] for s in sections[1:]]
+    assert all(d.startswith("MSG: ") for d in deps)
+    assert {"MSG: geometry_msgs/msg/TransformStamped", "MSG: std_msgs/msg/Header",
+            "MSG: builtin_interfaces/msg/Time", "MSG: geometry_msgs/msg/Quaternion"} <= set(deps)
+    assert len(deps) == len(set(deps))  # each dependency once
+    assert "int32 LINE_STRIP=4" in schemas["visualization_msgs/msg/MarkerArray"]
+
+
+def test_latched_topics_offer_transient_local(sample: Path) -> None:
+    with open(sample, "rb") as f:
+        channels = {c.topic: c for c in make_reader(f).get_summary().channels.values()}
+    for topic, channel in channels.items():
+        (qos,) = yaml.safe_load(channel.metadata["offered_qos_profiles"])
+        latched = topic in ("/tf_static", "/cam/toolpath")
+        assert qos["durability"] == ("transient_local" if latched else "volatile")
+        assert qos["reliability"] == "reliable" and qos["history"] == "keep_last"
+        assert channel.metadata["topic_type_hash"].startswith("RIHS01_")
+
+
+def test_factory_metadata_and_attachment(sample: Path) -> None:
+    meta = read_metadata(sample)
+    assert meta["stage"] == "test" and meta["version"] == factory.__version__
+    assert meta["input:parts/bracket.stl"] == INPUTS["parts/bracket.stl"]
+    assert meta["param:note"] == "plain text"
+    assert json.loads(meta["param:tools"]) == PARAMETERS["tools"]
+    assert json.loads(meta["param:stepover"]) == 1.5
+    assert read_attachment(sample, "factory.job.json") == JOB_BYTES
+    with open(sample, "rb") as f:
+        (att,) = list(make_reader(f).iter_attachments())
+    assert att.media_type == "application/json"
+
+
+def test_mcap_ros2_decodes_what_was_written(sample: Path) -> None:
+    with open(sample, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        decoded = [(ch.topic, m.log_time, d) for _, ch, m, d in reader.iter_decoded_messages(log_time_order=True)]
+    topics = [t for t, _, _ in decoded]
+    assert topics == ["/tf_static", "/cam/toolpath", "/status", "/rosout", "/rosout"]
+    tf = decoded[0][2].transforms[0]
+    assert (tf.header.frame_id, tf.child_frame_id) == ("world", "work")
+    t = tf.transform
+    assert [t.translation.x, t.translation.y, t.translation.z] == [0.1, 0.2, -0.05]
+    r = Rotation.from_quat([t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w]).as_matrix()
+    np.testing.assert_allclose(r, WORK_IN_WORLD[:3, :3], atol=1e-12)
+
+    strip, lst, mesh, cube = decoded[1][2].markers
+    def pts(m: object) -> np.ndarray:
+        return np.array([[p.x, p.y, p.z] for p in m.points]).reshape(-1, 3)
+    assert (strip.type, lst.type, mesh.type, cube.type) == (4, 5, 11, 1)
+    np.testing.assert_array_equal(pts(strip), STRIP)
+    np.testing.assert_array_equal(pts(lst), SEGMENTS)
+    np.testing.assert_array_equal(pts(mesh), VERTICES[FACES.reshape(-1)])
+    assert strip.scale.x == 0.0005 and strip.header.frame_id == "work"
+    assert (strip.header.stamp.sec, strip.header.stamp.nanosec) == (0, 1_000)
+    assert (cube.pose.position.x, cube.scale.y) == (0.05, 0.08)
+    assert cube.color.a == np.float32(0.2)  # ColorRGBA is float32
+    assert decoded[2][2].data == "roughing done"
+    late = decoded[4][2]
+    assert (late.level, late.name, late.msg) == (40, "factory.cam", "bad")
+    assert (late.stamp.sec, late.stamp.nanosec) == (3, 1)
+
+
+def test_rosbags_anyreader_reads_bare_mcap(sample: Path) -> None:
+    with AnyReader([sample]) as reader:
+        conns = {c.topic: c for c in reader.connections}
+        assert conns["/tf_static"].ext.offered_qos_profiles[0].durability == QosDurability.TRANSIENT_LOCAL
+        assert conns["/status"].ext.offered_qos_profiles[0].durability == QosDurability.VOLATILE
+        assert conns["/rosout"].msgcount == 2
+        # The types rebuilt from our definition text hash like the ones we declared.
+        with open(sample, "rb") as f:
+            declared = {c.topic: c.metadata["topic_type_hash"] for c in make_reader(f).get_summary().channels.values()}
+        for topic, conn in conns.items():
+            assert reader.typestore.hash_rihs01(conn.msgtype) == declared[topic]
+        msgs = [(c.topic, reader.deserialize(raw, c.msgtype)) for c, _, raw in reader.messages()]
+    markers = dict(msgs)["/cam/toolpath"].markers
+    np.testing.assert_array_equal([[p.x, p.y, p.z] for p in markers[1].points], SEGMENTS)
+    assert dict(msgs)["/status"].data == "roughing done"
+
+
+def test_failure_inside_block_leaves_nothing(tmp_path: Path) -> None:
+    path = tmp_path / "out.mcap"
+    with pytest.raises(RuntimeError):
+        with McapLog(path, stage="test") as log:
+            log.write("/status", string_msg("half"), 0)
+            raise RuntimeError("stage failed")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_existing_file_needs_overwrite(tmp_path: Path) -> None:
+    path = tmp_path / "out.mcap"
+    path.write_bytes(b"precious")
+    with pytest.raises(OutputExistsError) as e:
+        McapLog(path, stage="test")  # refused at construction, before any work
+    assert e.value.source == str(path)
+    assert path.read_bytes() == b"precious"
+    with McapLog(path, stage="test", overwrite=True) as log:
+        log.write("/status", string_msg("new"), 0)
+    assert read_metadata(path)["stage"] == "test"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.mcap"]
+
+
+def test_topic_type_conflict_is_an_error_and_writes_nothing(tmp_path: Path) -> None:
+    path = tmp_path / "out.mcap"
+    with pytest.raises(McapError, match="carries std_msgs/msg/String"):
+        with McapLog(path, stage="test") as log:
+            log.write("/status", string_msg("a"), 0)
+            log.write("/status", marker_array([]), 1)
+    assert not path.exists()
+
+
+def test_bad_writes_raise_mcap_error(tmp_path: Path) -> None:
+    with McapLog(tmp_path / "a.mcap", stage="test") as log:
+        with pytest.raises(McapError):
+            log.write("/status", "not a message", 0)
+        with pytest.raises(McapError):
+            log.write("/status", string_msg("x"), -1)
+        with pytest.raises(McapError):
+            log.write("relative", string_msg("x"), 0)
+        log.write("/tf_static", tf_message([]), 0, latched=True)
+        with pytest.raises(McapError, match="latched"):
+            log.write("/tf_static", tf_message([]), 0)
+        log.attach("a", "text/plain", b"1")
+        with pytest.raises(McapError, match="twice"):
+            log.attach("a", "text/plain", b"2")
+    with pytest.raises(McapError):
+        McapLog(tmp_path / "b.mcap", stage="test", parameters={"x": object()})
+
+
+def test_read_attachment_errors_name_the_file(tmp_path: Path, sample: Path) -> None:
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"this is not an mcap file at all, just text" * 3)
+    for path, name in ((junk, "factory.job.json"), (tmp_path / "missing.mcap", "x"), (sample, "nope.json")):
+        with pytest.raises(McapError) as e:
+            read_attachment(path, name)
+        assert e.value.source == str(path)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.floats(-1, 1), min_size=4, max_size=4).filter(lambda q: np.linalg.norm(q) > 0.1),
+       st.lists(st.floats(-10, 10), min_size=3, max_size=3))
+def test_transform_stamped_round_trips_rotation_and_translation(q: list[float], t: list[float]) -> None:
+    m = np.eye(4)
+    m[:3, :3] = Rotation.from_quat(q).as_matrix()
+    m[:3, 3] = t
+    msg = transform_stamped("a", "b", m, 5)
+    r = msg.transform.rotation
+    back = Rotation.from_quat([r.x, r.y, r.z, r.w]).as_matrix()
+    np.testing.assert_allclose(back, m[:3, :3], atol=1e-9)
+    tr = msg.transform.translation
+    assert [tr.x, tr.y, tr.z] == t
+
+
+def test_transform_stamped_rejects_non_rigid() -> None:
+    m = np.eye(4)
+    m[0, 0] = 2.0
+    with pytest.raises(McapError):
+        transform_stamped("a", "b", m, 0)
+    m = np.diag([1.0, 1.0, -1.0, 1.0])  # a mirror
+    with pytest.raises(McapError):
+        transform_stamped("a", "b", m, 0)
+
+
+@given(st.integers(0, 2**31 * 10**9 - 1))
+def test_ros_time_splits_nanoseconds(ns: int) -> None:
+    t = ros_time(ns)
+    assert t.sec * 10**9 + t.nanosec == ns and 0 <= t.nanosec < 10**9
+
+
+def test_builders_reject_bad_geometry() -> None:
+    with pytest.raises(McapError, match="even"):
+        line_list_marker("a", 0, STRIP[:3], (1, 1, 1, 1), 0.001, "work", 0)
+    with pytest.raises(McapError, match="non-finite"):
+        line_strip_marker("a", 0, np.array([[0, 0, 0], [np.nan, 0, 0]]), (1, 1, 1, 1), 0.001, "work", 0)
+    with pytest.raises(McapError, match="out of range"):
+        triangle_mesh_marker("a", 0, VERTICES, FACES + 1, (1, 1, 1, 1), "work", 0)
+    with pytest.raises(McapError, match="colour"):
+        line_strip_marker("a", 0, STRIP, (255, 0, 0, 255), 0.001, "work", 0)
+
+
+def test_log_levels_follow_python_logging() -> None:
+    assert log_msg(logging.WARNING, "n", "t", 0).level == 30
+    assert log_msg(logging.CRITICAL, "n", "t", 0).level == 50
+    assert log_msg("debug", "n", "t", 0).level == 10
+
+
+def test_qos_yaml_parses() -> None:
+    (latched,) = yaml.safe_load(offered_qos_profiles(True))
+    assert latched["durability"] == "transient_local" and latched["depth"] == 1
+    assert latched["deadline"] == {"sec": 9223372036, "nsec": 854775807}
