@@ -1,0 +1,583 @@
+"""A G-code parser: program text to the tool-tip moves a machine would make.
+
+It reads what factory's posts write (:mod:`cadcam.post`) and what hand-written and other
+CAM programs for 3-axis mills commonly contain, and refuses everything else with a
+:class:`~factory.errors.GcodeError` naming the line, rather than guessing.
+
+Read
+    Comments ``( )`` and ``;``; ``%`` lines; ``N`` line numbers; an ``O`` program number
+    alone on its line; block delete ``/`` (the block runs: the switch is off, as
+    LinuxCNC starts; pass ``block_delete=True`` to skip such blocks); spaces anywhere
+    and lower case letters. ``G0 G1 G2 G3`` (arcs in the XY plane, ``I J`` centre or
+    ``R`` radius, helical with ``Z``, ``P`` turns), ``G4 P`` dwell, ``G17``, ``G20``/``G21``,
+    ``G90``/``G91``, ``G90.1``/``G91.1``, ``G94``, ``G40``, ``G43 [H]``/``G49``, ``G54``-``G59``,
+    ``G61``/``G61.1``/``G64 [P Q]``, ``G80``, ``G53`` and ``G28`` Z retracts; ``M0 M1 M2 M3
+    M4 M5 M6 M7 M8 M9 M30``, ``T S F``.
+Not read (error)
+    Other planes (``G18``/``G19``), cutter compensation (``G41``/``G42``), canned cycles,
+    inverse-time feed, ``G92``/``G10`` offsets, parameters and expressions (``#``, ``[ ]``),
+    subroutines, axes other than X Y Z.
+
+Semantics chosen where a machine's would depend on its configuration:
+
+* ``G54``-``G59`` all mean "the work frame": positions are reported in work coordinates.
+* ``G53 Z..`` and ``G28 Z..`` move to machine coordinates the parser cannot know. Both are
+  taken as what they are used for, a retract to the top: a straight-up move to the highest
+  tool-tip Z the program has reached so far (after ``G28``'s intermediate point). X or Y
+  with ``G53``/``G28`` is an error.
+* Tool length: reported positions are tool *tip* positions. Without ``tool_lengths`` the
+  parser assumes the program's length compensation matches the tool in the spindle (as
+  factory's programs do with the tool table the post writes), so tip = programmed
+  position. With ``tool_lengths`` (tool number -> length [mm]) it applies them as a
+  controller does: tip Z = programmed Z + (length of ``H`` when ``G43`` is on, else 0) -
+  length of the tool in the spindle.
+* The tool in the spindle is the one the last ``M6`` loaded; in a program with no ``M6``
+  at all (grbl style, manual changes) the last ``T`` word.
+* ``F`` is stored as written and read in the units in force at each move.
+* Arcs whose start and end radius differ are accepted by LinuxCNC's rule (in mm: the
+  difference must not exceed 0.0283 mm unless it is within 0.1 % of the radius, and never
+  2.83 mm) and moved as LinuxCNC moves them: the radius changes linearly along the arc.
+* Parsing stops at ``M2``/``M30``, as a controller stops reading.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+import numpy as np
+
+from cadcam.arcs import arc_sweep, discretize_arc
+from cadcam.model import Motion, ProgramMoves
+from factory.errors import GcodeError
+
+log = logging.getLogger(__name__)
+
+MM_PER_INCH = 25.4
+#: LinuxCNC's arc radius rules [mm] (interp_internal.hh: RADIUS_TOLERANCE_MM,
+#: CENTER_ARC_RADIUS_TOLERANCE_MM, SPIRAL_RELATIVE_TOLERANCE).
+ZERO_RADIUS_TOLERANCE = 0.00005 * MM_PER_INCH
+SPIRAL_ABS_TOLERANCE = 2 * 0.01 * math.sqrt(2.0)
+SPIRAL_REL_TOLERANCE = 0.001
+#: Largest coordinate magnitude accepted [mm]: 100 m, beyond any milling machine.
+MAX_COORDINATE = 1.0e5
+#: Largest magnitude of any number word (feeds, speeds, codes) before unit conversion.
+MAX_NUMBER = 1.0e9
+
+# G codes as round(10 * number) -> modal group (LinuxCNC's numbering; 0 = non-modal).
+_G_GROUP = {
+    0: 1, 10: 1, 20: 1, 30: 1, 800: 1,
+    40: 0, 280: 0, 530: 0,
+    170: 2,
+    200: 6, 210: 6,
+    400: 7,
+    430: 8, 490: 8,
+    540: 12, 550: 12, 560: 12, 570: 12, 580: 12, 590: 12,
+    610: 13, 611: 13, 640: 13,
+    900: 3, 910: 3,
+    901: 4, 911: 4,
+    940: 5,
+}
+_G_REFUSED = {
+    180: "only XY-plane arcs supported (G18 selects the XZ plane)",
+    190: "only XY-plane arcs supported (G19 selects the YZ plane)",
+    410: "cutter radius compensation (G41) not supported",
+    420: "cutter radius compensation (G42) not supported",
+    411: "cutter radius compensation (G41.1) not supported",
+    421: "cutter radius compensation (G42.1) not supported",
+    431: "dynamic tool length offset (G43.1) not supported",
+    930: "inverse time feed (G93) not supported",
+    950: "feed per revolution (G95) not supported",
+    920: "coordinate offsets (G92) not supported",
+    100: "G10 offset setting not supported",
+    300: "G30 not supported",
+    380: "probing (G38) not supported",
+    330: "spindle-synchronized motion (G33) not supported",
+}
+_M_GROUP = {0: 4, 1: 4, 2: 4, 30: 4, 6: 6, 3: 7, 4: 7, 5: 7, 7: 8, 8: 8, 9: 8}
+
+# A word: letter then a number (no exponents, as in RS274/NGC).
+_WORD = re.compile(r"([A-Z])([+-]?(?:\d+\.?\d*|\.\d+))")
+_LETTERS_OK = set("GMTSFXYZIJKRPQHN")
+
+
+@dataclass
+class _State:
+    scale: float = 1.0  # mm per program unit
+    absolute: bool = True
+    ijk_absolute: bool = False
+    motion: int | None = None  # 0..3, None after G80 / at start
+    feed_raw: float | None = None
+    selected_tool: int = 0
+    spindle_tool: int = 0
+    tlo_on: bool = False
+    tlo_h: int = 0
+    ended: bool = False
+    pos: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))  # programmed, mm
+    top: float = -math.inf  # highest tip Z reached [mm]
+
+
+def _err(msg: str, source: str | None, line: int) -> GcodeError:
+    return GcodeError(f"line {line}: {msg}", source=source, line=line)
+
+
+def _strip_comments(text: str, source: str | None, line: int) -> str:
+    """Remove ``( )`` and ``;`` comments; refuse unclosed or nested parentheses."""
+    if "(" not in text and ")" not in text:
+        return text.split(";", 1)[0]
+    out = []
+    i = 0
+    n = len(text)
+    while i < n:
+        ch = text[i]
+        if ch == ";":
+            break
+        if ch == "(":
+            j = text.find(")", i + 1)
+            if j < 0:
+                raise _err("comment opened with '(' is not closed", source, line)
+            if "(" in text[i + 1:j]:
+                raise _err("nested comment", source, line)
+            i = j + 1
+            continue
+        if ch == ")":
+            raise _err("')' without '('", source, line)
+        out.append(ch)
+        i += 1
+    return "".join(out)
+
+
+@dataclass
+class _Block:
+    g: list[int]
+    m: list[int]
+    words: dict[str, float]
+
+
+def _tokenize(raw: str, source: str | None, line: int, block_delete: bool) -> _Block | None:
+    """One line to a block, or None for a line without words."""
+    s = raw.strip()
+    if s.startswith("%"):
+        if _strip_comments(s[1:], source, line).strip():
+            raise _err("text after '%'", source, line)
+        return None
+    if s.startswith("/"):
+        if block_delete:
+            return None
+        s = s[1:]
+    s = _strip_comments(s, source, line)
+    s = "".join(s.split()).upper()
+    if not s:
+        return None
+    for bad, what in (("#", "parameters (#)"), ("[", "expressions ([ ])"), ("]", "expressions ([ ])")):
+        if bad in s:
+            raise _err(f"{what} not supported", source, line)
+    if s[0] == "O":
+        if re.fullmatch(r"O\d+", s):
+            return None  # program number
+        raise _err("O words (subroutines, program control) not supported", source, line)
+    pos = 0
+    g: list[int] = []
+    m: list[int] = []
+    words: dict[str, float] = {}
+    first = True
+    for mt in _WORD.finditer(s):
+        if mt.start() != pos:
+            break
+        pos = mt.end()
+        letter, num = mt.group(1), mt.group(2)
+        if letter not in _LETTERS_OK:
+            raise _err(f"unsupported word {letter}{num}", source, line)
+        v = float(num)
+        if not abs(v) <= MAX_NUMBER:
+            raise _err(f"number out of range in {letter}{num[:20]}", source, line)
+        if letter == "N":
+            if not first:
+                raise _err("N line number must be the first word", source, line)
+            first = False
+            continue
+        first = False
+        if letter == "G":
+            code = round(v * 10)
+            if abs(v * 10 - code) > 1e-6:
+                raise _err(f"unknown code G{num}", source, line)
+            g.append(code)
+        elif letter == "M":
+            if v != int(v):
+                raise _err(f"unknown code M{num}", source, line)
+            m.append(int(v))
+        else:
+            if letter in words:
+                raise _err(f"word {letter} appears twice in one block", source, line)
+            words[letter] = v
+    if pos != len(s):
+        rest = s[pos:pos + 12]
+        raise _err(f"cannot read {rest!r}", source, line)
+    return _Block(g, m, words)
+
+
+class _Out:
+    """Growing move arrays: point chunks plus one (motion, tool, feed, line) per chunk."""
+
+    def __init__(self) -> None:
+        self.points: list[np.ndarray] = [np.full((1, 3), np.nan)]
+        self.meta: list[tuple[int, int, float, int]] = [(0, 0, math.nan, 0)]
+        self.count: list[int] = [1]
+
+    def add(self, pts: np.ndarray, motion: int, tool: int, feed: float, line: int) -> None:
+        self.points.append(pts)
+        self.meta.append((int(motion), tool, feed, line))
+        self.count.append(len(pts))
+
+    def result(self) -> ProgramMoves:
+        count = np.asarray(self.count)
+        motion, tool, feed, line = (np.repeat(np.asarray(col), count) for col in zip(*self.meta))
+        return ProgramMoves(points=np.vstack(self.points), motion=motion, tool=tool, feed=feed, line=line)
+
+
+def parse_gcode(text: str, *, source: str | None = None, arc_tolerance: float = 0.001,
+                tool_lengths: Mapping[int, float] | None = None,
+                block_delete: bool = False,
+                progress: Callable[[int, int], None] | None = None) -> ProgramMoves:
+    """Parse a G-code program into tool-tip moves, arcs broken into chords.
+
+    Parameters
+    ----------
+    text : str
+        The program.
+    source : str, optional
+        File name for error messages.
+    arc_tolerance : float
+        Largest distance between an arc and the chords that replace it [mm] (> 0).
+    tool_lengths : mapping of int to float, optional
+        Tool number -> length offset [mm]; see the module docstring. None: the program's
+        length compensation is taken to match the tool in the spindle.
+    block_delete : bool
+        Skip blocks starting with ``/`` (the machine's block delete switch on).
+    progress : callable, optional
+        Called as ``progress(lines_done, lines_total)`` every few thousand lines.
+
+    Returns
+    -------
+    ProgramMoves
+        ``points[0]`` all NaN; axes never programmed stay NaN. Positions in mm.
+
+    Raises
+    ------
+    GcodeError
+        Anything the parser does not read, or reads as wrong; the message starts
+        ``line N:`` and ``error.data["line"]`` is N.
+    """
+    if not (isinstance(arc_tolerance, (int, float)) and arc_tolerance > 0 and math.isfinite(arc_tolerance)):
+        raise GcodeError(f"arc_tolerance must be a positive number of mm, got {arc_tolerance}", source=source)
+    lines = text.splitlines()
+    blocks: list[tuple[int, _Block]] = []
+    for i, raw in enumerate(lines, start=1):
+        try:
+            b = _tokenize(raw, source, i, block_delete)
+        except (ArithmeticError, ValueError) as e:
+            raise _err(f"cannot read block: {e}", source, i) from e
+        if b is not None:
+            blocks.append((i, b))
+    any_m6 = any(6 in b.m for _, b in blocks)
+    st = _State()
+    out = _Out()
+    total = len(lines)
+    for k, (ln, b) in enumerate(blocks):
+        if progress is not None and k % 5000 == 0:
+            progress(ln - 1, total)
+        try:
+            _execute(b, st, out, ln, any_m6, arc_tolerance, tool_lengths)
+        except GcodeError as e:
+            if e.source is None and source is not None:
+                e.source = source
+            if "line" not in e.data:
+                e.message = f"line {ln}: {e.message}"
+                e.args = (e.message,)
+                e.data["line"] = ln
+            raise
+        except (ArithmeticError, ValueError) as e:
+            # Not expected; still a bad program must not surface as a crash.
+            raise _err(f"cannot execute block: {e}", source, ln) from e
+        if st.ended:
+            break
+    if progress is not None:
+        progress(total, total)
+    return out.result()
+
+
+def _execute(b: _Block, st: _State, out: _Out, ln: int, any_m6: bool, tol: float,
+             tool_lengths: Mapping[int, float] | None) -> None:
+    # --- classify codes and check modal group conflicts
+    groups: dict[int, int] = {}
+    for code in b.g:
+        if code in _G_REFUSED:
+            raise GcodeError(_G_REFUSED[code])
+        if code not in _G_GROUP:
+            c = f"{code / 10:g}"
+            if 810 <= code <= 890:
+                raise GcodeError(f"canned cycle G{c} not supported")
+            raise GcodeError(f"unsupported code G{c}")
+        grp = _G_GROUP[code]
+        if grp in groups:
+            if grp == 1:
+                raise GcodeError("two motion codes in one block")
+            raise GcodeError(f"G{groups[grp] / 10:g} and G{code / 10:g} in one block are of the same modal group")
+        groups[grp] = code
+    mgroups: dict[int, int] = {}
+    for code in b.m:
+        if code not in _M_GROUP:
+            raise GcodeError(f"unsupported code M{code}")
+        grp = _M_GROUP[code]
+        if grp in mgroups and not {mgroups[grp], code} <= {7, 8}:
+            raise GcodeError(f"M{mgroups[grp]} and M{code} in one block are of the same modal group")
+        mgroups[grp] = code
+    w = b.words
+    used: set[str] = set()
+
+    # --- F S T, tool change (RS274/NGC order of execution)
+    if "F" in w:
+        if w["F"] < 0:
+            raise GcodeError("negative feed rate")
+        st.feed_raw = w["F"]
+        used.add("F")
+    if "S" in w:
+        if w["S"] < 0:
+            raise GcodeError("negative spindle speed")
+        used.add("S")
+    if "T" in w:
+        t = w["T"]
+        if t < 0 or t != int(t):
+            raise GcodeError(f"tool number must be a whole number >= 0, got T{t:g}")
+        st.selected_tool = int(t)
+        if not any_m6:
+            st.spindle_tool = st.selected_tool
+        used.add("T")
+    if 6 in b.m:
+        st.spindle_tool = st.selected_tool
+
+    # --- dwell
+    if 40 in b.g:
+        if "P" not in w or w["P"] < 0:
+            raise GcodeError("G4 dwell needs P >= 0 (seconds)")
+        used.add("P")
+
+    # --- modal settings
+    if groups.get(6) is not None:
+        st.scale = MM_PER_INCH if groups[6] == 200 else 1.0
+    if groups.get(8) == 430:
+        h = w.get("H", float(st.spindle_tool))
+        if h < 0 or h != int(h):
+            raise GcodeError(f"H must be a whole number >= 0, got H{h:g}")
+        if tool_lengths is not None and int(h) != 0 and int(h) not in tool_lengths:
+            raise GcodeError(f"G43 H{int(h)}: no length known for tool {int(h)}")
+        st.tlo_on, st.tlo_h = True, int(h)
+        used.add("H")
+    elif groups.get(8) == 490:
+        st.tlo_on, st.tlo_h = False, 0
+    if "H" in w and groups.get(8) != 430:
+        raise GcodeError("H word without G43")
+    if groups.get(13) == 640:
+        used.update({"P", "Q"} & w.keys())
+        if any(w.get(k, 0.0) < 0 for k in "PQ"):
+            raise GcodeError("G64 P and Q must be >= 0")
+    if groups.get(3) is not None:
+        st.absolute = groups[3] == 900
+    if groups.get(4) is not None:
+        st.ijk_absolute = groups[4] == 901
+    if groups.get(1) is not None:
+        st.motion = None if groups[1] == 800 else groups[1] // 10
+
+    axes = [a for a in "XYZ" if a in w]
+    nonmodal = groups.get(0)
+    if nonmodal in (280, 530):
+        _retract(b, st, out, ln, nonmodal, axes, tool_lengths)
+        used.update(axes)
+    elif axes:
+        if st.motion is None:
+            raise GcodeError("axis words without a motion mode (G0, G1, G2 or G3)")
+        if st.motion in (2, 3):
+            _arc(w, st, out, ln, tol, tool_lengths, used)
+        else:
+            _line(w, st, out, ln, tool_lengths)
+        used.update(axes)
+
+    for k in ("I", "J", "R"):
+        if k in w and k not in used:
+            raise GcodeError(f"{k} word with no G2 or G3 arc to use it")
+    if "K" in w:
+        raise GcodeError("K word not allowed: only XY-plane arcs (G17) supported")
+    if "P" in w and "P" not in used:
+        raise GcodeError("P word with nothing to use it (G4, G64 or an arc)")
+    if "Q" in w and "Q" not in used:
+        raise GcodeError("Q word with nothing to use it (G64)")
+
+    if mgroups.get(4) in (2, 30):
+        st.ended = True
+
+
+def _tip_shift(st: _State, tool_lengths: Mapping[int, float] | None) -> float:
+    """Tip Z minus programmed Z [mm]."""
+    if tool_lengths is None:
+        return 0.0
+    cur = st.spindle_tool
+    if cur != 0 and cur not in tool_lengths:
+        raise GcodeError(f"no length known for tool {cur} in the spindle")
+    if st.tlo_on and st.tlo_h != 0 and st.tlo_h not in tool_lengths:
+        raise GcodeError(f"no length known for H{st.tlo_h}")
+    comp = float(tool_lengths[st.tlo_h]) if st.tlo_on and st.tlo_h != 0 else 0.0
+    return comp - (float(tool_lengths[cur]) if cur != 0 else 0.0)
+
+
+def _target(w: Mapping[str, float], st: _State) -> np.ndarray:
+    """Programmed end point [mm] of a move with the block's X Y Z words."""
+    tgt = st.pos.copy()
+    for i, a in enumerate("XYZ"):
+        if a not in w:
+            continue
+        v = w[a] * st.scale
+        if st.absolute:
+            tgt[i] = v
+        else:
+            if math.isnan(tgt[i]):
+                raise GcodeError(f"incremental {a} move (G91) from an unknown position")
+            tgt[i] = tgt[i] + v
+        if not abs(tgt[i]) <= MAX_COORDINATE:
+            raise GcodeError(f"{a} {tgt[i]:.6g} mm is out of range (|{a}| <= {MAX_COORDINATE:g} mm)")
+    return tgt
+
+
+def _feed(st: _State) -> float:
+    if st.feed_raw is None or st.feed_raw <= 0:
+        raise GcodeError(f"G{st.motion} without a feed rate (F)")
+    return st.feed_raw * st.scale
+
+
+def _record(out: _Out, pts: np.ndarray, motion: int, st: _State, feed: float, ln: int) -> None:
+    out.add(pts, motion, st.spindle_tool, feed, ln)
+    if len(pts) == 1:
+        z = float(pts[0, 2])
+        if z > st.top:  # False for NaN
+            st.top = z
+    elif np.isfinite(pts[:, 2]).any():
+        st.top = max(st.top, float(np.nanmax(pts[:, 2])))
+
+
+def _line(w: Mapping[str, float], st: _State, out: _Out, ln: int,
+          tool_lengths: Mapping[int, float] | None) -> None:
+    tgt = _target(w, st)
+    if st.motion == 0:
+        motion, feed = Motion.RAPID, math.nan
+    else:
+        motion, feed = Motion.CUT, _feed(st)
+    shift = _tip_shift(st, tool_lengths)
+    st.pos = tgt
+    _record(out, (tgt + [0.0, 0.0, shift])[None, :], motion, st, feed, ln)
+
+
+def _arc(w: Mapping[str, float], st: _State, out: _Out, ln: int, tol: float,
+         tool_lengths: Mapping[int, float] | None, used: set[str]) -> None:
+    if "X" not in w and "Y" not in w:
+        raise GcodeError(f"G{st.motion} arc needs an X or Y word")
+    feed = _feed(st)
+    start = st.pos
+    if np.isnan(start[:2]).any():
+        raise GcodeError("arc from an unknown X/Y position")
+    tgt = _target(w, st)
+    if "Z" in w and math.isnan(start[2]):
+        raise GcodeError("helical arc from an unknown Z position")
+    cw = st.motion == 2
+    has_ij = "I" in w or "J" in w
+    turns = 1
+    if "P" in w:
+        p = w["P"]
+        if p < 1 or p != int(p):
+            raise GcodeError(f"arc P (turns) must be a whole number >= 1, got P{p:g}")
+        turns = int(p)
+        used.add("P")
+    sx, sy = float(start[0]), float(start[1])
+    ex, ey = float(tgt[0]), float(tgt[1])
+    if "R" in w:
+        if has_ij:
+            raise GcodeError("arc with both R and I/J")
+        used.add("R")
+        r = w["R"] * st.scale
+        half = 0.5 * math.hypot(ex - sx, ey - sy)
+        if half < ZERO_RADIUS_TOLERANCE:
+            raise GcodeError("R-format arc with the end point equal to the start point")
+        if abs(r) < ZERO_RADIUS_TOLERANCE:
+            raise GcodeError("zero-radius arc")
+        if abs(r) < half - ZERO_RADIUS_TOLERANCE:
+            raise GcodeError(f"arc radius R{abs(r):.4f} mm too small to reach the end point")
+        h = math.sqrt(max(r * r - half * half, 0.0))
+        ux, uy = (ex - sx) / (2 * half), (ey - sy) / (2 * half)
+        # Short arc (R > 0): the centre lies right of the chord for G2, left for G3.
+        sign = (1.0 if cw else -1.0) * (1.0 if r > 0 else -1.0)
+        cx = 0.5 * (sx + ex) + sign * h * uy
+        cy = 0.5 * (sy + ey) - sign * h * ux
+    elif has_ij:
+        used.update({"I", "J"} & w.keys())
+        i = w.get("I", 0.0) * st.scale
+        j = w.get("J", 0.0) * st.scale
+        if st.ijk_absolute:
+            cx, cy = i, j  # as LinuxCNC: a centre word left out is 0
+        else:
+            cx, cy = sx + i, sy + j
+        if not (abs(cx) <= MAX_COORDINATE and abs(cy) <= MAX_COORDINATE):
+            raise GcodeError("arc centre out of range")
+        r1 = math.hypot(sx - cx, sy - cy)
+        r2 = math.hypot(ex - cx, ey - cy)
+        if r1 < ZERO_RADIUS_TOLERANCE or r2 < ZERO_RADIUS_TOLERANCE:
+            raise GcodeError("zero-radius arc")
+        err = abs(r1 - r2)
+        if err > SPIRAL_ABS_TOLERANCE * 100.0 or (err / max(r1, r2) > SPIRAL_REL_TOLERANCE and err > SPIRAL_ABS_TOLERANCE):
+            raise GcodeError(f"radius to end of arc differs from radius to start: r1={r1:.4f} r2={r2:.4f} mm")
+    else:
+        raise GcodeError(f"G{st.motion} arc needs I/J or R")
+    centre = np.array([cx, cy])
+    sweep = float(arc_sweep(np.array([sx, sy]), np.array([ex, ey]), centre, cw, turns))
+    shift = _tip_shift(st, tool_lengths)
+    sh = np.array([0.0, 0.0, shift])
+    pts = discretize_arc(start + sh, tgt + sh, centre, sweep, tol)
+    st.pos = tgt
+    _record(out, pts, Motion.CUT, st, feed, ln)
+
+
+def _retract(b: _Block, st: _State, out: _Out, ln: int, code: int, axes: list[str],
+             tool_lengths: Mapping[int, float] | None) -> None:
+    """G53 / G28 with Z only: a straight-up move to the highest tip Z reached so far."""
+    name = "G53" if code == 530 else "G28"
+    if "X" in axes or "Y" in axes:
+        raise GcodeError(f"{name} supported only for a Z retract (machine X/Y positions are unknown)")
+    if not axes:
+        raise GcodeError(f"{name} without Z: would move X and Y to an unknown machine position")
+    for k in ("I", "J", "R", "K"):
+        if k in b.words:
+            raise GcodeError(f"{k} word not allowed with {name}")
+    shift = _tip_shift(st, tool_lengths)
+    sh = np.array([0.0, 0.0, shift])
+    if code == 530:
+        if st.motion not in (0, 1):
+            raise GcodeError("G53 needs G0 or G1 motion")
+        motion = Motion.RAPID if st.motion == 0 else Motion.CUT
+        feed = math.nan if st.motion == 0 else _feed(st)
+    else:
+        motion, feed = Motion.RAPID, math.nan
+        # G28 first goes to its intermediate point, in the current distance mode.
+        # A zero increment from an unknown position (Fanuc's "G28 G91 Z0." at the
+        # start of a program) is no move at all.
+        words = {a: v for a, v in b.words.items() if a in "XYZ" and (st.absolute or v != 0.0)}
+        mid = _target(words, st)
+        if not np.array_equal(mid, st.pos, equal_nan=True) and not math.isnan(mid[2]):
+            st.pos = mid
+            _record(out, (mid + sh)[None, :], Motion.RAPID, st, feed, ln)
+    if math.isfinite(st.top):
+        tip_z = st.pos[2] + shift
+        top = st.top if math.isnan(tip_z) else max(st.top, float(tip_z))
+        pos = st.pos.copy()
+        pos[2] = top - shift
+        st.pos = pos
+        _record(out, (pos + sh)[None, :], motion, st, feed, ln)
