@@ -1,0 +1,272 @@
+"""Regular XY grids over the stock and the part's upper envelope sampled on them.
+
+A 3-axis cutter only ever sees the part from above, so both the material-removal
+simulation and the gouge check work on *heightfields* (z-maps): one height per grid
+point. :func:`upper_envelope` samples the highest part surface exactly at the grid
+points (no cell averaging), so comparing it with a simulated stock surface sampled at the
+same points never reports a gouge that is an artefact of the grid.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from factory.errors import MeshError, SetupError
+
+log = logging.getLogger(__name__)
+
+#: Distance within which a grid point counts as lying on a triangle's edge [mm]. Points on
+#: an edge shared by two triangles must be claimed by at least one of them.
+EDGE_TOLERANCE = 1e-7
+
+#: Grid point / triangle pairs evaluated per vectorised batch (bounds peak memory).
+_PAIR_BUDGET = 1 << 21
+
+
+@dataclass(frozen=True)
+class Grid:
+    """A regular grid of sample points in the XY plane.
+
+    Point ``(i, j)`` (column ``i``, row ``j``) sits at ``(x0 + i * cell, y0 + j * cell)``.
+    Arrays sampled on the grid have shape ``(ny, nx)``: row index = y.
+
+    Attributes
+    ----------
+    x0, y0 : float
+        Position of the first grid point [mm].
+    cell : float
+        Spacing between neighbouring points in X and Y [mm].
+    nx, ny : int
+        Number of points along X and Y.
+    """
+
+    x0: float
+    y0: float
+    cell: float
+    nx: int
+    ny: int
+
+    @property
+    def xs(self) -> np.ndarray:
+        """(nx,) float X of each grid column [mm]."""
+        return self.x0 + self.cell * np.arange(self.nx, dtype=np.float64)
+
+    @property
+    def ys(self) -> np.ndarray:
+        """(ny,) float Y of each grid row [mm]."""
+        return self.y0 + self.cell * np.arange(self.ny, dtype=np.float64)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(ny, nx)``: the shape of arrays sampled on this grid."""
+        return (self.ny, self.nx)
+
+    @property
+    def size(self) -> int:
+        """Number of grid points."""
+        return self.nx * self.ny
+
+    def column_range(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """First and last column whose X lies in ``[lo, hi]``, clipped to the grid.
+
+        Parameters
+        ----------
+        lo, hi : (k,) float
+            X interval per query [mm].
+
+        Returns
+        -------
+        first, last : (k,) int64
+            ``last < first`` where no column falls in the interval.
+        """
+        return _index_range(lo, hi, self.x0, self.cell, self.nx)
+
+    def row_range(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """First and last row whose Y lies in ``[lo, hi]``, clipped to the grid (see :meth:`column_range`)."""
+        return _index_range(lo, hi, self.y0, self.cell, self.ny)
+
+
+def _index_range(lo: np.ndarray, hi: np.ndarray, origin: float, cell: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+    # The 1e-9 slack keeps a point that sits exactly on the interval's end inside it
+    # despite rounding in (lo - origin) / cell.
+    first = np.ceil((np.asarray(lo) - origin) / cell - 1e-9)
+    last = np.floor((np.asarray(hi) - origin) / cell + 1e-9)
+    first = np.clip(first, 0, n).astype(np.int64)
+    last = np.clip(last, -1, n - 1).astype(np.int64)
+    return first, last
+
+
+def grid_over(stock_min: np.ndarray, stock_max: np.ndarray, cell: float) -> Grid:
+    """The grid of cell centres covering the stock's XY footprint.
+
+    Points are spaced ``cell`` apart and centred in the footprint, so every point lies
+    strictly inside the stock (a part wall flush with the stock side is never sampled
+    right on the wall). When the footprint is not a whole number of cells the margins
+    grow symmetrically, each staying below one cell.
+
+    Parameters
+    ----------
+    stock_min, stock_max : (3,) float
+        Stock box corners [mm].
+    cell : float
+        Grid spacing [mm], > 0.
+
+    Raises
+    ------
+    SetupError
+        If the cell is not positive and finite or the stock footprint is empty.
+    """
+    lo = np.asarray(stock_min, dtype=np.float64).reshape(-1)[:2]
+    hi = np.asarray(stock_max, dtype=np.float64).reshape(-1)[:2]
+    if not (math.isfinite(cell) and cell > 0):
+        raise SetupError(f"grid cell must be a positive number of mm, got {cell}", source="cell")
+    size = hi - lo
+    if not (np.all(np.isfinite(size)) and np.all(size > 0)):
+        raise SetupError(f"stock footprint is empty: min {lo.tolist()}, max {hi.tolist()}", source="stock")
+    n = np.maximum(np.ceil(size / cell - 1e-9), 1).astype(np.int64)
+    origin = lo + (size - (n - 1) * cell) / 2
+    return Grid(x0=float(origin[0]), y0=float(origin[1]), cell=float(cell), nx=int(n[0]), ny=int(n[1]))
+
+
+def upper_envelope(triangles: np.ndarray, grid: Grid) -> np.ndarray:
+    """Highest surface z of a triangle soup above each grid point.
+
+    Each triangle's XY projection is rasterised onto the grid points it covers, with the
+    z of the triangle's plane at the point. A point within :data:`EDGE_TOLERANCE` of an
+    edge counts as covered, so a point on an edge shared by two triangles is never missed.
+    Vertical (and nearly vertical) triangles project to a segment: points on it get the
+    highest z of the triangle above them.
+
+    Parameters
+    ----------
+    triangles : (m, 3, 3) float
+        Triangle corners [mm], e.g. ``mesh.triangles`` of a part in work coordinates.
+        Orientation and watertightness do not matter.
+    grid : Grid
+
+    Returns
+    -------
+    (ny, nx) float
+        Highest z at each grid point [mm]; ``-inf`` where no triangle covers the point
+        (outside the part, inside through holes).
+
+    Raises
+    ------
+    MeshError
+        If ``triangles`` is not ``(m, 3, 3)`` or holds non-finite values.
+    """
+    tri = np.asarray(triangles, dtype=np.float64)
+    if tri.ndim != 3 or tri.shape[1:] != (3, 3):
+        raise MeshError(f"triangles must have shape (m, 3, 3), got {tri.shape}")
+    if not np.all(np.isfinite(tri)):
+        raise MeshError("triangles hold non-finite coordinates")
+    top = np.full(grid.size, -np.inf)
+    if len(tri) == 0:
+        return top.reshape(grid.shape)
+
+    tol = EDGE_TOLERANCE
+    xy = tri[:, :, :2]
+    i0, i1 = grid.column_range(xy[:, :, 0].min(1) - tol, xy[:, :, 0].max(1) + tol)
+    j0, j1 = grid.row_range(xy[:, :, 1].min(1) - tol, xy[:, :, 1].max(1) + tol)
+    ni = np.maximum(i1 - i0 + 1, 0)
+    nj = np.maximum(j1 - j0 + 1, 0)
+    counts = ni * nj
+
+    e1 = xy[:, 1] - xy[:, 0]
+    e2 = xy[:, 2] - xy[:, 0]
+    area2 = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    edge_len = np.linalg.norm(xy[:, [1, 2, 0]] - xy, axis=2)  # edge k runs from corner k to k+1
+    longest = edge_len.max(1)
+    # Thinner than the edge tolerance in XY: barycentric coordinates are ill-conditioned,
+    # treat the triangle as the vertical wall it (nearly) is.
+    vertical = np.abs(area2) <= tol * np.maximum(longest, tol)
+
+    flat_sel = np.flatnonzero(~vertical & (counts > 0))
+    wall_sel = np.flatnonzero(vertical & (counts > 0))
+    if len(flat_sel):
+        _raster_triangles(tri, flat_sel, area2, edge_len, i0, j0, ni, counts, grid, top)
+    if len(wall_sel):
+        _raster_walls(tri, wall_sel, i0, j0, ni, counts, grid, top)
+    return top.reshape(grid.shape)
+
+
+def _batches(sel: np.ndarray, counts: np.ndarray):
+    """Split the triangle indices ``sel`` into runs of about ``_PAIR_BUDGET`` grid points."""
+    cum = np.cumsum(counts[sel])
+    start_cum = cum - counts[sel]
+    bucket = start_cum // _PAIR_BUDGET
+    cuts = np.flatnonzero(np.diff(bucket)) + 1
+    yield from np.split(sel, cuts)
+
+
+def _pairs(batch: np.ndarray, i0, j0, ni, counts, grid: Grid):
+    """Expand triangles into (triangle position in batch, flat grid index, x, y) pairs."""
+    c = counts[batch]
+    owner = np.repeat(np.arange(len(batch)), c)
+    offset = np.cumsum(c) - c
+    local = np.arange(int(c.sum()), dtype=np.int64) - np.repeat(offset, c)
+    nib = np.repeat(ni[batch], c)
+    ii = np.repeat(i0[batch], c) + local % nib
+    jj = np.repeat(j0[batch], c) + local // nib
+    return owner, jj * grid.nx + ii, grid.x0 + ii * grid.cell, grid.y0 + jj * grid.cell
+
+
+def _raster_triangles(tri, sel, area2, edge_len, i0, j0, ni, counts, grid, top) -> None:
+    tol = EDGE_TOLERANCE
+    for batch in _batches(sel, counts):
+        t = tri[batch]
+        a2 = area2[batch]
+        # Barycentric weight of corner k is an affine function of (x, y): the signed
+        # distance to the opposite edge over the corner's height above that edge.
+        p1, p2 = t[:, [1, 2, 0], :2], t[:, [2, 0, 1], :2]  # opposite edge of corner k: p1 -> p2
+        gx = -(p2[:, :, 1] - p1[:, :, 1]) / a2[:, None]
+        gy = (p2[:, :, 0] - p1[:, :, 0]) / a2[:, None]
+        g0 = -(gx * p1[:, :, 0] + gy * p1[:, :, 1])
+        # A weight of -tol / height is a distance of tol outside that edge.
+        opp_len = edge_len[batch][:, [1, 2, 0]]
+        slack = tol * opp_len / np.abs(a2)[:, None]
+        z = t[:, :, 2]
+        zlo, zhi = z.min(1), z.max(1)
+
+        owner, flat, qx, qy = _pairs(batch, i0, j0, ni, counts, grid)
+        inside = np.ones(len(owner), dtype=bool)
+        zq = np.zeros(len(owner))
+        for k in range(3):
+            lam = g0[owner, k] + gx[owner, k] * qx + gy[owner, k] * qy
+            inside &= lam >= -slack[owner, k]
+            zq += lam * z[owner, k]
+        # Clamping to the triangle's own z range keeps a point that is "inside" only by the
+        # tolerance from picking up an extrapolated height on a steep triangle.
+        zq = np.clip(zq, zlo[owner], zhi[owner])
+        np.maximum.at(top, flat[inside], zq[inside])
+
+
+def _raster_walls(tri, sel, i0, j0, ni, counts, grid, top) -> None:
+    tol = EDGE_TOLERANCE
+    for batch in _batches(sel, counts):
+        t = tri[batch]
+        owner, flat, qx, qy = _pairs(batch, i0, j0, ni, counts, grid)
+        best = np.full(len(owner), -np.inf)
+        # The highest point of a (near) vertical triangle above a point lies on one of its
+        # edges: evaluate every edge that passes within tol of the point.
+        for k in range(3):
+            a = t[:, k]
+            b = t[:, (k + 1) % 3]
+            d = b - a
+            l2 = d[:, 0] ** 2 + d[:, 1] ** 2
+            ax, ay, az = a[owner, 0], a[owner, 1], a[owner, 2]
+            dx, dy, dz = d[owner, 0], d[owner, 1], d[owner, 2]
+            l2o = l2[owner]
+            steep = l2o <= tol * tol
+            with np.errstate(invalid="ignore", divide="ignore"):
+                s = np.where(steep, 0.0, ((qx - ax) * dx + (qy - ay) * dy) / np.where(steep, 1.0, l2o))
+            s = np.clip(s, 0.0, 1.0)
+            dist2 = (qx - ax - s * dx) ** 2 + (qy - ay - s * dy) ** 2
+            zk = np.where(steep, az + np.maximum(dz, 0.0), az + s * dz)
+            best = np.where(dist2 <= tol * tol, np.maximum(best, zk), best)
+        hit = best > -np.inf
+        np.maximum.at(top, flat[hit], best[hit])

@@ -1,0 +1,330 @@
+"""Material-removal simulation: exact swept envelopes, gouges, rapid crashes, remaining stock."""
+
+from __future__ import annotations
+
+import json
+from unittest import mock
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from cadcam import verify
+from cadcam.model import Motion, ProgramMoves, Setup, Tool
+from cadcam.verify import (
+    VerifyOptions,
+    deviation_image,
+    png_bytes,
+    simulate,
+    swept_envelope,
+)
+from factory.errors import VerifyError
+
+FLAT = Tool(1, "6 mm flat", "flat", 6.0, 0.0, 20.0, 3, 40.0)
+BALL = Tool(2, "6 mm ball", "ball", 6.0, 3.0, 20.0, 2, 40.0)
+BULL = Tool(3, "6 mm bull r1", "bull", 6.0, 1.0, 20.0, 3, 40.0)
+FACE = Tool(4, "10 mm flat", "flat", 10.0, 0.0, 20.0, 3, 40.0)
+TOOLS = {t.number: t for t in (FLAT, BALL, BULL, FACE)}
+SHAPES = {"flat": FLAT, "ball": BALL, "bull": BULL}
+
+# Stock 40 x 20 x 10 mm, origin top-front-left; the part is a box sitting on the stock bottom.
+SETUP = Setup(stock_min=[0, 0, -10], stock_max=[40, 20, 0], transform_mesh_to_work=np.eye(4))
+
+
+def box(lo, hi) -> np.ndarray:
+    return trimesh.creation.box(bounds=[lo, hi]).triangles
+
+
+LOW_PART = box([10, 5, -10], [30, 15, -5])  # top at z = -5
+
+
+def program(blocks, start=None):
+    """ProgramMoves from ``[(motion, tool, (x, y, z)), ...]``; block k is source line k + 1."""
+    n = len(blocks) + 1
+    points = np.full((n, 3), np.nan)
+    if start is not None:
+        points[0] = start
+    motion = np.zeros(n, np.int8)
+    tool = np.zeros(n, np.int32)
+    line = np.arange(n, dtype=np.int32)
+    for k, (m, t, p) in enumerate(blocks, start=1):
+        points[k] = p
+        motion[k], tool[k] = m, t
+    feed = np.where(motion == Motion.RAPID, np.nan, 500.0)
+    return ProgramMoves(points, motion, tool, feed, line)
+
+
+R, C = Motion.RAPID, Motion.CUT
+
+
+def grid_xy(sim):
+    return np.meshgrid(sim.grid.xs, sim.grid.ys)
+
+
+def dist_to_segment(X, Y, a, b):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    d = b[:2] - a[:2]
+    t = np.clip(((X - a[0]) * d[0] + (Y - a[1]) * d[1]) / max(d @ d, 1e-300), 0, 1)
+    return np.hypot(X - a[0] - t * d[0], Y - a[1] - t * d[1])
+
+
+# --- the swept envelope of one move ---------------------------------------------------
+
+
+def brute_envelope(q, p0, p1, tool, n=4001):
+    """Minimum over densely sampled t, refined once around the best sample."""
+    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+
+    def f(t):  # (k, m)
+        P = p0 + t[..., None] * (p1 - p0)
+        r = np.hypot(q[:, None, 0] - P[..., 0], q[:, None, 1] - P[..., 1])
+        return P[..., 2] + tool.profile_height(r)
+
+    t = np.broadcast_to(np.linspace(0, 1, n), (len(q), n))
+    v = f(t)
+    best = t[np.arange(len(q)), np.argmin(v, axis=1)]
+    fine = np.clip(best[:, None] + np.linspace(-1, 1, n)[None, :] / (n - 1), 0, 1)
+    return np.minimum(v.min(axis=1), f(fine).min(axis=1))
+
+
+coord = st.floats(-4, 4, allow_nan=False, allow_infinity=False)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    shape=st.sampled_from(sorted(SHAPES)),
+    p0=st.tuples(coord, coord, coord),
+    p1=st.tuples(coord, coord, coord),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_sloped_move_envelope_matches_dense_sampling(shape, p0, p1, seed):
+    tool = SHAPES[shape]
+    q = np.random.default_rng(seed).uniform(-8, 8, (300, 2))
+    exact = swept_envelope(q, p0, p1, tool)
+    brute = brute_envelope(q, p0, p1, tool)
+    reached = np.isfinite(brute)
+    assert np.all(np.isfinite(exact[reached])), "a point the tool passes over was missed"
+    # Sampling can only miss the minimum: the exact envelope is never above it ...
+    assert np.all(exact[reached] <= brute[reached] + 1e-9)
+    # ... and the dense sampling gets within a hair of it.
+    assert np.all(brute[reached] - exact[reached] <= 2e-5)
+    # Only a sliver at the tool's reach can be finite without sampling landing on it.
+    assert np.all(exact[~reached] == np.inf) or np.all(
+        dist_to_segment(q[~reached, 0], q[~reached, 1], p0, p1)[np.isfinite(exact[~reached])] > tool.radius - 1e-3
+    )
+
+
+def test_horizontal_and_vertical_moves_are_closed_form():
+    q = np.array([[0.0, 0.0], [1.0, 2.0], [2.9, 0.0], [3.1, 0.0], [5.0, 1.5]])
+    for tool in SHAPES.values():
+        horiz = swept_envelope(q, (0, 0, -1), (5, 0, -1), tool)
+        d = dist_to_segment(q[:, 0], q[:, 1], (0, 0), (5, 0))
+        assert np.allclose(horiz, -1 + tool.profile_height(d))
+        vert = swept_envelope(q, (0, 0, 2), (0, 0, -3), tool)
+        assert np.allclose(vert, -3 + tool.profile_height(np.hypot(q[:, 0], q[:, 1])))
+
+
+# --- simulate ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("tool", [BALL, BULL, FLAT], ids=lambda t: t.shape)
+def test_horizontal_pass_cuts_the_tool_profile(tool):
+    moves = program([(R, tool.number, (5, 10, 5)), (C, tool.number, (5, 10, -2)), (C, tool.number, (35, 12, -2)),
+                     (R, tool.number, (35, 12, 5))])
+    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.25))
+    X, Y = grid_xy(sim)
+    d = dist_to_segment(X, Y, (5, 10), (35, 12))
+    # The plunge at (5, 10) and the pass both reach their lowest at z = -2.
+    groove = np.where(d <= tool.radius, -2 + tool.profile_height(np.minimum(d, tool.radius)), np.inf)
+    assert np.allclose(sim.stock_top, np.minimum(0.0, groove), atol=1e-9)
+    assert report.max_gouge == 0.0 and report.ok
+    assert report.moves == 3  # the first positioning move (from NaN) is not simulated
+    assert report.cut_length == pytest.approx(7 + np.hypot(30, 2))
+    assert report.rapid_length == pytest.approx(7)
+
+
+moves_strategy = st.lists(
+    st.tuples(st.sampled_from([C, C, R]), st.sampled_from(sorted(TOOLS)),
+              st.tuples(st.floats(-5, 45), st.floats(-5, 25), st.floats(-4, 1))),
+    min_size=1, max_size=12,
+)
+
+
+@settings(max_examples=25, deadline=None)
+@given(blocks=moves_strategy)
+def test_simulated_stock_is_the_minimum_of_all_swept_envelopes(blocks):
+    """Batching, row spans and the lower-bound shortcut lose no grid point."""
+    moves = program(blocks, start=(20, 10, 5))
+    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+    with mock.patch.object(verify, "_PAIR_BUDGET", 300):  # one move per batch
+        small, small_report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+    assert np.array_equal(small.stock_top, sim.stock_top)
+    assert small_report.rapid_crashes == report.rapid_crashes
+    X, Y = grid_xy(sim)
+    q = np.column_stack([X.ravel(), Y.ravel()])
+    expected = np.zeros(len(q))
+    for k in range(1, len(moves.points)):
+        env = swept_envelope(q, moves.points[k - 1], moves.points[k], TOOLS[int(moves.tool[k])])
+        expected = np.minimum(expected, env)
+    assert np.allclose(sim.stock_top.ravel(), expected, atol=1e-9)
+    assert report.moves == len(blocks)
+
+
+def test_gouging_plunge_reports_its_depth_line_and_position():
+    opts = VerifyOptions(cell=0.2)
+    moves = program([
+        (R, 2, (20, 10, 5)),
+        (C, 2, (20, 10, -4)),  # down to 1 mm above the part
+        (C, 2, (20.1, 10.1, -5.5)),  # 0.5 mm into it
+        (C, 2, (20.1, 10.1, -4)),
+        (R, 2, (20.1, 10.1, 5)),
+    ])
+    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, opts)
+    # Exact at grid points: the nearest point to the tip is at most half a cell diagonal away.
+    slack = float(BALL.profile_height(opts.cell * np.sqrt(0.5)))
+    assert 0.5 - slack <= report.max_gouge <= 0.5 + 1e-9
+    assert report.gouge_line == 3
+    assert report.gouge_position[:2] == pytest.approx((20.1, 10.1), abs=opts.cell)
+    assert report.gouge_position[2] == pytest.approx(-5 - report.max_gouge)
+    assert not report.ok
+    assert report.remaining_p95 == pytest.approx(5.0)
+
+
+def test_cutting_into_a_through_hole_is_not_a_gouge():
+    plate = trimesh.creation.box(bounds=[[0, 0, -10], [40, 20, -2]])
+    hole = trimesh.creation.cylinder(radius=6, height=30, sections=64)
+    hole.apply_translation([20, 10, -5])
+    part = plate.difference(hole)
+    # A 6 mm flat plunges to the stock bottom in the middle of the 12 mm hole.
+    moves = program([(R, 1, (20, 10, 5)), (C, 1, (20, 10, -10)), (R, 1, (20, 10, 5))])
+    sim, report = simulate(moves, TOOLS, SETUP, part.triangles, VerifyOptions(cell=0.25))
+    assert report.max_gouge == 0.0 and report.gouge_line is None
+    assert report.remaining_max == pytest.approx(2.0)
+
+
+def test_rapid_through_stock_is_a_crash_with_its_line():
+    moves = program([
+        (R, 1, (-5, 10, 5)),
+        (R, 1, (-5, 10, -2)),  # beside the stock: harmless
+        (R, 1, (45, 10, -2)),  # through it, 2 mm deep
+        (R, 1, (45, 10, 5)),
+    ])
+    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+    assert [c.line for c in report.rapid_crashes] == [3]
+    crash = report.rapid_crashes[0]
+    assert crash.depth == pytest.approx(2.0)
+    assert crash.move == 3 and crash.position[2] == pytest.approx(-2.0)
+    assert not report.ok
+    # Material is still removed, violently.
+    assert sim.stock_top.min() == pytest.approx(-2.0)
+
+
+@pytest.mark.parametrize("budget", [None, 300], ids=["one batch", "a batch per move"])
+def test_rapids_are_checked_against_the_stock_left_by_earlier_moves(budget):
+    moves = program([
+        (R, 1, (-5, 10, 5)),
+        (R, 1, (-5, 10, -2)),
+        (C, 1, (45, 10, -2)),  # cut a slot ...
+        (R, 1, (-5, 10, -1.5)),  # ... and rapid back inside it: fine
+        (R, 1, (45, 10, -3)),  # deeper than the slot, sloping: crash of up to 1 mm
+        (R, 1, (-5, 10, -1.5)),  # back along the same path: the rapid before cleared it
+        (R, 1, (-5, 10, 5)),
+    ])
+    with mock.patch.object(verify, "_PAIR_BUDGET", budget or verify._PAIR_BUDGET):
+        sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+    assert [c.line for c in report.rapid_crashes] == [5]
+    # Deepest where the rapid leaves the stock, on the last grid point the tool covers.
+    assert 0.85 < report.rapid_crashes[0].depth <= 1.0 + 1e-9
+
+
+def test_rapid_grazing_within_tolerance_is_not_a_crash():
+    moves = program([(R, 1, (-5, 10, 5)), (R, 1, (-5, 10, -0.005)), (R, 1, (45, 10, -0.005))])
+    _, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5, rapid_tolerance=0.01))
+    assert report.rapid_crashes == ()
+
+
+def test_cutting_air_leaves_the_full_stock_above_the_part():
+    moves = program([(R, 1, (-10, -10, 5)), (C, 1, (50, 30, 1)), (C, 1, (50, -10, 0.0)), (C, 1, (-20, 10, 2))])
+    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+    assert np.all(sim.stock_top == 0.0)
+    assert report.remaining_max == report.remaining_mean == report.remaining_p95 == pytest.approx(5.0)
+    assert report.max_gouge == 0.0 and report.ok
+
+
+def test_facing_to_the_part_top_leaves_nothing_and_gouges_nothing():
+    part = box([0, 0, -10], [40, 20, -3])  # the part fills the stock footprint, 3 mm below its top
+    blocks = [(R, 4, (-6, -2, 5)), (C, 4, (-6, -2, -3))]
+    for k, y in enumerate(np.arange(-2, 23, 4.0)):  # 10 mm cutter, 4 mm stepover, overhanging the stock
+        x0, x1 = (-6, 46) if k % 2 == 0 else (46, -6)
+        blocks += [(C, 4, (x0, y, -3)), (C, 4, (x1, y, -3))]
+    blocks.append((R, 4, (-6, 30, 5)))
+    sim, report = simulate(program(blocks), TOOLS, SETUP, part, VerifyOptions(cell=0.25))
+    assert abs(report.remaining_max) <= 1e-9 and abs(report.remaining_mean) <= 1e-9
+    assert report.max_gouge <= 1e-9
+    assert report.ok
+
+
+def test_moves_with_unknown_axes_are_skipped():
+    moves = ProgramMoves(
+        points=[[np.nan] * 3, [10, 10, np.nan], [10, 10, -3], [20, 10, -3]],
+        motion=[0, R, C, C], tool=[0, 1, 1, 1], feed=[np.nan, np.nan, 500, 500], line=[0, 1, 2, 3],
+    )
+    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+    assert report.moves == 1  # only the last move has both ends known
+    assert sim.stock_top.min() == pytest.approx(-3.0)
+
+
+def test_feed_move_without_a_known_tool_is_an_error():
+    no_tool = program([(R, 0, (0, 0, 5)), (C, 0, (5, 5, -1))])
+    with pytest.raises(VerifyError) as err:
+        simulate(no_tool, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=1.0))
+    assert err.value.data["line"] == 2
+    unknown = program([(R, 9, (0, 0, 5)), (C, 9, (5, 5, -1))])
+    with pytest.raises(VerifyError, match="T9"):
+        simulate(unknown, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=1.0))
+
+
+def test_rapid_with_empty_spindle_is_skipped():
+    moves = program([(R, 0, (-5, 10, -2)), (R, 0, (45, 10, -2))])
+    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=1.0))
+    assert report.rapid_crashes == () and np.all(sim.stock_top == 0.0)
+
+
+def test_bad_inputs_are_verify_errors():
+    moves = program([(R, 1, (0, 0, 5))])
+    with pytest.raises(VerifyError):
+        simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.0))
+    with pytest.raises(VerifyError):
+        simulate(moves, TOOLS, SETUP, np.zeros((0, 3, 3)), VerifyOptions(cell=1.0))
+    with pytest.raises(VerifyError):
+        simulate(moves, TOOLS, SETUP, box([100, 100, -10], [110, 110, -5]), VerifyOptions(cell=1.0))
+
+
+def test_progress_reaches_the_total_and_report_is_json_ready():
+    calls = []
+    moves = program([(R, 2, (20, 10, 5)), (C, 2, (20, 10, -5.5)), (R, 2, (20, 10, 5)), (R, 1, (-5, 10, 5)),
+                     (R, 1, (-5, 10, -1)), (R, 1, (45, 10, -1))])
+    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5),
+                           progress=lambda d, t: calls.append((d, t)))
+    assert calls and calls[-1] == (report.moves, report.moves)
+    assert all(d <= t for d, t in calls)
+    d = json.loads(json.dumps(report.to_dict()))
+    assert d["ok"] is False and d["gouge_line"] == 2
+    assert [c["line"] for c in d["rapid_crashes"]] == [6]
+    assert not sim.stock_top.flags.writeable and not sim.part_top.flags.writeable
+
+
+def test_deviation_image_is_a_sane_picture():
+    moves = program([(R, 2, (20, 10, 5)), (C, 2, (20, 10, -5.5)), (C, 2, (30, 10, -4)), (R, 2, (30, 10, 5))])
+    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.25))
+    img = deviation_image(sim, report)
+    assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3
+    assert img.shape[0] >= 160 and img.shape[1] >= 160 + 160  # map plus colour bar and labels
+    assert len(np.unique(img.reshape(-1, 3), axis=0)) > 10
+    # The gouge shows in red.
+    red = (img[..., 0] > 180) & (img[..., 1] < 60) & (img[..., 2] < 60)
+    assert red.sum() > 20
+    png = png_bytes(img)
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
