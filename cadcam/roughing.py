@@ -1,0 +1,696 @@
+"""Z-level roughing: clear the stock around the part level by level with a flat end mill.
+
+At each level the *tool-centre region* (where the axis of the end mill may go without
+coming closer than the allowance to the part) is computed in the plane with shapely, then
+cleared with contour-parallel offset loops. The pieces:
+
+* **Levels** go from the stock top down to the stock bottom at most ``stepdown`` apart, and
+  every upward-facing flat face of the part (pocket floor, step top, boss top) at height
+  ``f`` gets a level at exactly ``f + allowance``, so floors are left with an even
+  allowance instead of whatever the stepdown grid happens to leave.
+* **Shadow**: at level ``z`` the part blocks the tool wherever it has material at or above
+  ``z`` (the end mill is a cylinder going up forever from its tip). The XY shadow is the
+  union of the projections of the part's upward-facing triangles clipped to ``z' >= z``:
+  exact for any watertight mesh, undercuts included (every vertical line through the
+  solid leaves it through an upward-facing face), not just at sampled section heights.
+* **Forbidden region**: material at depth ``t * allowance`` below the tip must stay at
+  least ``R + allowance * sqrt(1 - t^2)`` away from the axis (the tool grown by a ball of
+  radius ``allowance``); this is approximated conservatively by a small staircase of
+  buffered shadows. Buffers are polygonal, with the distance enlarged so that the chords
+  (not only the vertices) lie outside the true offset: the tool never comes closer than the
+  allowance because of the polygonisation; at most ``arc_tolerance`` more stock is left.
+* **Region** = stock rectangle grown by the tool radius ``R`` minus the forbidden region.
+  Growing by less would keep the tool out of margins narrower than ``R + allowance``
+  between part and stock edge; the price is that the outermost loop along the stock edge
+  only touches the stock (it doubles as the path the tool feeds in on).
+* **Loops**: each connected region is eroded by ``k * stepover`` (k = 0, 1, ...) until
+  empty; every ring of every erosion is one closed loop. With ``stepover <= R`` every
+  point of the region is within ``R`` of a loop, so the whole region and its
+  ``R``-neighbourhood is cleared: the next level can rely on that.
+* **Entry**: a region touching the outside of the stock is entered from the air: the tool
+  descends outside the stock and feeds in horizontally. A closed pocket is entered by a
+  helix (``ramp_angle``, shrunk down to ``min_helix_diameter`` if need be) from the
+  previous level's floor, or by a ramp along one of its loops if no helix fits; a pocket
+  that fits neither is skipped with a warning (and stays skipped on the levels below).
+  The tool never plunges vertically into material.
+* **Order and links**: closed pockets are cut inside-out from the helix, regions open to
+  the stock edge outside-in; each next loop is the uncut loop nearest to what is already
+  cut, linked by a short horizontal cut that is checked to stay inside the region. When
+  the tool is not already there it retracts to the clearance height, rapids, and descends
+  vertically on a path already cut at this level (air all the way down).
+* **Climb milling** (M3, clockwise spindle seen from above): the uncut stock is kept on
+  the *left* of the direction of travel. Each loop is oriented at the point where the link
+  reaches it: the link arrives from the cleared side, so the far side is the uncut one. In
+  the usual inside-out pocket this makes pocket walls clockwise and loops around islands
+  counter-clockwise; helices turn clockwise.
+
+A bull-nose end mill is treated as a flat one of the same diameter: its body lies inside
+that cylinder, so there is no gouge; it leaves a little more stock at its corners.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+import trimesh
+from shapely.geometry import LineString, MultiLineString, Point, Polygon, box
+from shapely.geometry.base import BaseGeometry
+from shapely.geometry.polygon import orient
+from shapely.ops import nearest_points
+
+from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
+from factory.errors import MeshError, ToolError, ToolpathError
+
+log = logging.getLogger(__name__)
+
+#: Material less than this above ``z - allowance`` counts as the floor itself [mm].
+_FLOOR_EPS = 1e-3
+#: Depths below the tip, in units of the allowance, of the forbidden-region staircase.
+_CORNER_T = (0.0, 0.5, 0.75, 0.9, 1.0)
+#: Floor levels closer than this are merged, keeping the higher one [mm].
+_LEVEL_MERGE = 0.02
+#: Angular step of helix cutter locations [deg].
+_HELIX_STEP_DEG = 5.0
+#: Slack when checking that a link segment lies in the region [mm].
+_COVER_TOL = 1e-5
+#: Regions smaller than this are numerical slivers [mm^2].
+_MIN_AREA = 1e-6
+#: A ramp loop shorter than this many tool diameters is too short to enter on.
+_MIN_RAMP_DIAMETERS = 2.0
+
+
+@dataclass(frozen=True)
+class RoughingOptions:
+    """How to rough.
+
+    Attributes
+    ----------
+    stepdown : float, optional
+        Maximum depth of one level [mm]. Default ``min(0.5 * D, flute_length)``: contour
+        offsets cannot avoid some full-width cuts (the first loop after a helix, the first
+        loop along a wall in an open region), and half a diameter is a safe slotting depth
+        for carbide in aluminium.
+    stepover : float, optional
+        Radial step between offset loops [mm], in ``(0, D/2]``. Default ``0.4 * D``.
+        At most the tool radius, so that no islands of stock survive between loops.
+    allowance : float
+        Stock left on the part, radially on walls and vertically on floors [mm], >= 0.
+    ramp_angle : float
+        Maximum descent angle of helix and ramp entries [deg], in ``(0, 45]``.
+    helix_diameter : float, optional
+        Diameter of the circle the tool centre follows in a helix entry [mm]. Default
+        ``0.8 * D``: smaller than ``D`` so no post is left in the middle. In a pocket too
+        small for it the helix shrinks, down to ``min_helix_diameter``; below that the
+        pocket is entered by a ramp along one of its loops instead.
+    min_helix_diameter : float, optional
+        Smallest helix diameter [mm]. Default ``0.3 * D``: the helix must stay well
+        outside the end mill's non-cutting core (typically 0.1 to 0.2 D across) or the
+        core would plunge.
+    arc_tolerance : float
+        Maximum chord error of the polygonal buffers [mm]. The buffers are enlarged so the
+        error only ever leaves stock (never cuts into the allowance); keep it far below the
+        allowance. Default 0.002 mm.
+    """
+
+    stepdown: float | None = None
+    stepover: float | None = None
+    allowance: float = 0.3
+    ramp_angle: float = 3.0
+    helix_diameter: float | None = None
+    min_helix_diameter: float | None = None
+    arc_tolerance: float = 0.002
+
+
+@dataclass(frozen=True)
+class _Params:
+    radius: float
+    stepdown: float
+    stepover: float
+    allowance: float
+    tan_ramp: float
+    helix_radius: float
+    min_helix_radius: float
+    arc_tolerance: float
+    clear_z: float
+    safe_z: float
+    lead_gap: float
+    link_max: float
+    min_ramp_length: float
+
+
+def _resolve(options: RoughingOptions, tool: Tool, setup: Setup) -> _Params:
+    d = tool.diameter
+    if tool.shape == "ball":
+        raise ToolError(f"T{tool.number} is a ball end mill; z-level roughing needs a flat or bull-nose end mill")
+    if not (d > 0 and math.isfinite(d)):
+        raise ToolError(f"T{tool.number} has diameter {d}")
+    stepdown = min(0.5 * d, tool.flute_length) if options.stepdown is None else float(options.stepdown)
+    stepover = 0.4 * d if options.stepover is None else float(options.stepover)
+    helix_d = 0.8 * d if options.helix_diameter is None else float(options.helix_diameter)
+    min_helix_d = 0.3 * d if options.min_helix_diameter is None else float(options.min_helix_diameter)
+    if not 0 < stepdown <= tool.flute_length:
+        raise ToolpathError(f"stepdown {stepdown:g} mm must lie in (0, flute length {tool.flute_length:g}]",
+                            source="roughing.stepdown")
+    if not 0 < stepover <= tool.radius + 1e-12:
+        raise ToolpathError(f"stepover {stepover:g} mm must lie in (0, tool radius {tool.radius:g}]",
+                            source="roughing.stepover")
+    if not 0 <= options.allowance < 1e3:
+        raise ToolpathError(f"allowance {options.allowance:g} mm must be >= 0", source="roughing.allowance")
+    if not 0 < options.ramp_angle <= 45:
+        raise ToolpathError(f"ramp angle {options.ramp_angle:g} deg must lie in (0, 45]",
+                            source="roughing.ramp_angle")
+    if not 0 < helix_d < 2 * d:
+        raise ToolpathError(f"helix diameter {helix_d:g} mm must lie in (0, {2 * d:g})",
+                            source="roughing.helix_diameter")
+    if not 0 < min_helix_d <= helix_d:
+        raise ToolpathError(f"min helix diameter {min_helix_d:g} mm must lie in (0, {helix_d:g}]",
+                            source="roughing.min_helix_diameter")
+    if not 0 < options.arc_tolerance <= 0.1:
+        raise ToolpathError(f"arc tolerance {options.arc_tolerance:g} mm must lie in (0, 0.1]",
+                            source="roughing.arc_tolerance")
+    top = float(setup.stock_max[2])
+    clear_z = top + float(setup.clearance)
+    if setup.safe_z < clear_z:
+        raise ToolpathError(f"safe_z {setup.safe_z:g} lies below the clearance height {clear_z:g}",
+                            source="setup.safe_z")
+    return _Params(
+        radius=tool.radius,
+        stepdown=stepdown,
+        stepover=stepover,
+        allowance=float(options.allowance),
+        tan_ramp=math.tan(math.radians(options.ramp_angle)),
+        helix_radius=helix_d / 2,
+        min_helix_radius=min_helix_d / 2,
+        arc_tolerance=float(options.arc_tolerance),
+        clear_z=clear_z,
+        safe_z=float(setup.safe_z),
+        lead_gap=max(float(setup.clearance), 0.5),
+        link_max=max(1.5 * stepover, tool.radius),
+        min_ramp_length=_MIN_RAMP_DIAMETERS * d,
+    )
+
+
+# --------------------------------------------------------------------------- levels
+
+
+def _levels(part: trimesh.Trimesh, setup: Setup, p: _Params) -> np.ndarray:
+    """Level heights, top down, ending at the stock bottom [mm]."""
+    top, bottom = float(setup.stock_max[2]), float(setup.stock_min[2])
+    nz = part.face_normals[:, 2]
+    flat_up = nz > 1.0 - 1e-6
+    floors = np.unique(np.round(part.triangles_center[flat_up, 2], 6))
+    wanted = floors + p.allowance
+    wanted = wanted[(wanted < top - 1e-6) & (wanted > bottom + 1e-6)]
+    mandatory: list[float] = []
+    for z in sorted(wanted, reverse=True):
+        # Two floors within _LEVEL_MERGE: keep the higher level, the lower floor gets a
+        # hair more stock rather than less.
+        if not mandatory or mandatory[-1] - z > _LEVEL_MERGE:
+            mandatory.append(float(z))
+    mandatory.append(bottom)
+    levels: list[float] = []
+    hi = top
+    for m in mandatory:
+        if hi - m <= 1e-9:
+            continue
+        n = max(1, math.ceil((hi - m) / p.stepdown - 1e-9))
+        levels.extend(hi - (hi - m) * i / n for i in range(1, n + 1))
+        levels[-1] = m
+        hi = m
+    return np.array(levels)
+
+
+# --------------------------------------------------------------------------- shadows
+
+
+def _clip_projections(tri: np.ndarray, z: float) -> np.ndarray:
+    """XY projections of triangles clipped to ``z' >= z``, as shapely polygons.
+
+    tri : (m, 3, 3) float, each triangle reaching at least up to ``z``.
+    """
+    m = len(tri)
+    a = tri
+    b = np.roll(tri, -1, axis=1)
+    ha, hb = a[:, :, 2], b[:, :, 2]
+    above_a, above_b = ha >= z, hb >= z
+    cross = above_a != above_b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(cross, (z - ha) / np.where(cross, hb - ha, 1.0), 0.0)
+    x = a[:, :, :2] + t[..., None] * (b[:, :, :2] - a[:, :, :2])
+    cand = np.stack([a[:, :, :2], x], axis=2).reshape(m, 6, 2)
+    valid = np.stack([above_a, cross], axis=2).reshape(m, 6)
+    counts = valid.sum(axis=1)
+    keep = counts >= 3
+    if not keep.any():
+        return np.empty(0, dtype=object)
+    coords = cand[keep][valid[keep]]
+    idx = np.repeat(np.arange(int(keep.sum())), counts[keep])
+    polys = shapely.polygons(shapely.linearrings(coords, indices=idx))
+    return polys[shapely.area(polys) > 1e-12]
+
+
+def _shadows(part: trimesh.Trimesh, heights: list[float]) -> dict[float, BaseGeometry]:
+    """XY shadow of the part's material at or above each height.
+
+    Computed top down, each height adding only the triangles reaching into the slab
+    below the previous one, so many heights cost little more than one.
+    """
+    up = part.face_normals[:, 2] > 1e-9
+    tri = np.asarray(part.triangles)[up]
+    zmin, zmax = tri[:, :, 2].min(axis=1), tri[:, :, 2].max(axis=1)
+    out: dict[float, BaseGeometry] = {}
+    acc: BaseGeometry = Polygon()
+    z_last = math.inf
+    for z in sorted(set(heights), reverse=True):
+        sel = (zmax >= z) & (zmin < z_last)
+        if sel.any():
+            polys = _clip_projections(tri[sel], z)
+            if len(polys):
+                acc = shapely.union_all(np.concatenate([polys, [acc]]))
+        out[z] = acc
+        z_last = z
+    return out
+
+
+def _buffer(geom: BaseGeometry, distance: float, tol: float) -> BaseGeometry:
+    """Outward buffer whose polygon never comes closer than ``distance`` to ``geom``.
+
+    Vertices of shapely's round buffers lie on the arc and chords cut inside it; the
+    distance is enlarged so the chord midpoints lie on the true offset, at the cost of
+    leaving at most ``tol`` more.
+    """
+    if distance <= 0:
+        return geom
+    half_step = math.acos(max(1.0 - tol / distance, 0.0))  # half the angle of one chord
+    quad_segs = max(2, math.ceil((math.pi / 2) / (2 * half_step)))
+    step = (math.pi / 2) / quad_segs
+    return geom.buffer(distance / math.cos(step / 2), quad_segs=quad_segs)
+
+
+def _forbidden_terms(z: float, p: _Params) -> list[tuple[float, float]]:
+    """(shadow height, buffer distance) pairs whose union is the forbidden region at z."""
+    a = p.allowance
+    if a <= _FLOOR_EPS:
+        return [(z + _FLOOR_EPS, p.radius)]
+    terms = []
+    for t0, t1 in zip(_CORNER_T[:-1], _CORNER_T[1:]):
+        zq = z - a * t1 + (_FLOOR_EPS if t1 == 1.0 else 0.0)
+        terms.append((zq, p.radius + a * math.sqrt(1.0 - t0 * t0)))
+    return terms
+
+
+# --------------------------------------------------------------------------- geometry helpers
+
+
+def _polygons(geom: BaseGeometry) -> list[Polygon]:
+    if geom.is_empty:
+        return []
+    if isinstance(geom, Polygon):
+        return [geom]
+    return [g for g in getattr(geom, "geoms", []) if isinstance(g, Polygon) and not g.is_empty]
+
+
+@dataclass
+class _Ring:
+    coords: np.ndarray  # (n+1, 2) closed
+    k: int
+    line: LineString
+
+
+def _rings(region: Polygon, p: _Params) -> list[_Ring]:
+    """Contour-parallel loops of a region: the rings of its erosions by k * stepover."""
+    rings: list[_Ring] = []
+    k = 0
+    while True:
+        eroded = region if k == 0 else region.buffer(-k * p.stepover, quad_segs=16)
+        polys = [q for q in _polygons(eroded) if q.area > _MIN_AREA]
+        if not polys:
+            return rings
+        for poly in polys:
+            poly = orient(poly, 1.0)
+            for ring in [poly.exterior, *poly.interiors]:
+                c = np.asarray(ring.coords)[:, :2]
+                if len(c) >= 4 and ring.length > 1e-3:
+                    rings.append(_Ring(c, k, LineString(c)))
+        k += 1
+
+
+def _dedupe(c: np.ndarray) -> np.ndarray:
+    keep = np.ones(len(c), bool)
+    keep[1:] = np.linalg.norm(np.diff(c, axis=0), axis=1) > 1e-9
+    return c[keep]
+
+
+def _ring_from(c: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The closed ring ``c`` re-started at its point ``q``."""
+    seg = np.linalg.norm(np.diff(c, axis=0), axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    d = LineString(c).project(Point(q))
+    n = len(c) - 1
+    i = int(np.clip(np.searchsorted(cum, d, side="right") - 1, 0, n - 1))
+    out = np.vstack([q[None], c[i + 1 : n + 1], c[1 : i + 1], q[None]])
+    return _dedupe(out)
+
+
+def _climb(ring: np.ndarray, uncut_dir: np.ndarray | None, inside_out: bool) -> np.ndarray:
+    """Orient a ring (starting and ending at its entry) so the uncut side is on the left.
+
+    ``ring`` comes oriented as shapely's ``orient(poly, 1)`` (exteriors counter-clockwise,
+    holes clockwise: the region on the left). ``uncut_dir`` points from the cleared side
+    across the ring; without it, inside-out cutting has the uncut stock outside the region
+    (reverse), outside-in inside it (keep).
+    """
+    t = ring[1] - ring[0]
+    if uncut_dir is not None and np.linalg.norm(uncut_dir) > 1e-6 and np.linalg.norm(t) > 1e-12:
+        left = np.array([-t[1], t[0]])
+        return ring if left @ uncut_dir >= 0 else ring[::-1].copy()
+    return ring[::-1].copy() if inside_out else ring
+
+
+# --------------------------------------------------------------------------- path building
+
+
+class _Path:
+    def __init__(self) -> None:
+        self.points: list[np.ndarray] = []
+        self.motion: list[int] = []
+
+    def add(self, xyz, kind: Motion) -> None:
+        q = np.asarray(xyz, dtype=np.float64)
+        if self.points and np.linalg.norm(self.points[-1] - q) < 1e-9:
+            return
+        self.points.append(q)
+        self.motion.append(int(kind))
+
+    def add_many(self, xyz: np.ndarray, kind: Motion) -> None:
+        for q in xyz:
+            self.add(q, kind)
+
+    @property
+    def here(self) -> np.ndarray:
+        return self.points[-1]
+
+    def go_to(self, xy, p: _Params) -> None:
+        """Retract to clearance height and rapid over ``xy``."""
+        cur = self.here
+        if cur[2] < p.clear_z - 1e-9:
+            self.add([cur[0], cur[1], p.clear_z], Motion.RAPID)
+        elif cur[2] > p.clear_z + 1e-9 and np.linalg.norm(cur[:2] - np.asarray(xy)) > 1e-9:
+            # Leaving the start height: drop to the clearance plane first.
+            self.add([cur[0], cur[1], p.clear_z], Motion.RAPID)
+        self.add([xy[0], xy[1], p.clear_z], Motion.RAPID)
+
+
+def _helix(centre: np.ndarray, r: float, p: _Params, z_top: float, z: float) -> tuple[np.ndarray, np.ndarray]:
+    """Clockwise helix from ``z_top`` down to ``z`` then one full turn at ``z``.
+
+    Returns (descent points (n,3), flat turn points (m,3)); the first descent point is the
+    helix start at ``z_top``.
+    """
+    dth = math.radians(_HELIX_STEP_DEG)
+    chord = 2 * r * math.sin(dth / 2)
+    n = max(1, math.ceil((z_top - z) / (chord * p.tan_ramp) - 1e-9))
+    m = round(2 * math.pi / dth)
+    th = -dth * np.arange(n + m + 1)
+    xy = centre[None] + r * np.column_stack([np.cos(th), np.sin(th)])
+    zz = np.maximum(z_top - (z_top - z) * np.arange(n + m + 1) / n, z)
+    pts = np.column_stack([xy, zz])
+    return pts[: n + 1], pts[n + 1 :]
+
+
+def _ramp(ring: np.ndarray, p: _Params, z_top: float, z: float) -> tuple[np.ndarray, np.ndarray]:
+    """Ramp along a closed ring from ``z_top`` down to ``z``, then one full loop at ``z``."""
+    length = LineString(ring).length
+    need = (z_top - z) / p.tan_ramp
+    reps = math.ceil((need + length) / length) + 1
+    path = np.vstack([ring] + [ring[1:]] * reps)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    cut_at = [need, need + length]
+    s_all = np.unique(np.concatenate([s[s < need + length], cut_at]))
+    xy = np.column_stack([np.interp(s_all, s, path[:, 0]), np.interp(s_all, s, path[:, 1])])
+    zz = np.maximum(z_top - s_all * p.tan_ramp, z)
+    pts = np.column_stack([xy, zz])
+    i = int(np.searchsorted(s_all, need))
+    return pts[: i + 1], pts[i + 1 :]
+
+
+# --------------------------------------------------------------------------- regions
+
+
+@dataclass
+class _Entry:
+    kind: str  # "air", "helix", "ramp"
+    start_xy: np.ndarray
+    air_xy: np.ndarray | None = None  # for "air": where to descend
+    ring_index: int = -1  # for "air" and "ramp": the first ring cut
+    centre: np.ndarray | None = None  # for "helix"
+    helix_radius: float = 0.0
+
+
+def _open_entry(region: Polygon, rings: list[_Ring], rect: tuple[float, float, float, float],
+                g: float, p: _Params) -> _Entry | None:
+    """Entry from outside the stock: a point of the region's outline on the grown stock box."""
+    x0, y0, x1, y1 = rect
+    ext = np.asarray(region.exterior.coords)[:, :2]
+    tol = 1e-7
+    sides = [
+        (np.abs(ext[:, 0] - x0) < tol, np.array([-1.0, 0.0])),
+        (np.abs(ext[:, 0] - x1) < tol, np.array([1.0, 0.0])),
+        (np.abs(ext[:, 1] - y0) < tol, np.array([0.0, -1.0])),
+        (np.abs(ext[:, 1] - y1) < tol, np.array([0.0, 1.0])),
+    ]
+    best = None
+    for on, normal in sides:
+        both = on[:-1] & on[1:]
+        if not both.any():
+            continue
+        seg = np.linalg.norm(np.diff(ext, axis=0), axis=1) * both
+        i = int(np.argmax(seg))
+        if seg[i] > 1e-6 and (best is None or seg[i] > best[0]):
+            best = (seg[i], 0.5 * (ext[i] + ext[i + 1]), normal)
+    if best is None:
+        return None
+    _, s, normal = best
+    # The ring of the region's exterior at k == 0 is the one through s.
+    idx = min((j for j, r in enumerate(rings) if r.k == 0), key=lambda j: rings[j].line.distance(Point(s)))
+    air = s + normal * (p.radius - g + p.lead_gap)
+    return _Entry("air", s, air_xy=air, ring_index=idx)
+
+
+def _closed_entry(region: Polygon, rings: list[_Ring], p: _Params) -> _Entry | None:
+    mic = shapely.maximum_inscribed_circle(region, tolerance=0.01)
+    centre = np.asarray(mic.coords[0])
+    radius = mic.length
+    # 0.02 mm margin: the inscribed circle is found to within 0.01 mm.
+    r = min(p.helix_radius, radius - 0.02)
+    if r >= p.min_helix_radius:
+        return _Entry("helix", centre + np.array([r, 0.0]), centre=centre, helix_radius=r)
+    order = sorted(range(len(rings)), key=lambda j: (-rings[j].k, -rings[j].line.length))
+    for j in order:
+        if rings[j].line.length >= p.min_ramp_length:
+            return _Entry("ramp", rings[j].coords[0].copy(), ring_index=j)
+    return None
+
+
+def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry, z: float,
+                z_prev: float, inside_out: bool, p: _Params) -> bool:
+    """Emit the moves clearing one region at level z. Returns False if loops were left."""
+    covered = region.buffer(_COVER_TOL)
+    shapely.prepare(covered)
+    cut: list[LineString] = []
+    uncut = list(range(len(rings)))
+
+    def emit_ring(j: int, q: np.ndarray, uncut_dir: np.ndarray | None) -> None:
+        ring = _climb(_ring_from(rings[j].coords, q), uncut_dir, inside_out)
+        path.add_many(np.column_stack([ring, np.full(len(ring), z)]), Motion.CUT)
+        cut.append(rings[j].line)
+        uncut.remove(j)
+
+    if entry.kind == "air":
+        path.go_to(entry.air_xy, p)
+        path.add([*entry.air_xy, z], Motion.PLUNGE)  # outside the stock: air
+        path.add([*entry.start_xy, z], Motion.CUT)
+        emit_ring(entry.ring_index, entry.start_xy, entry.start_xy - entry.air_xy)
+    elif entry.kind == "helix":
+        descent, turn = _helix(entry.centre, entry.helix_radius, p, z_prev, z)
+        path.go_to(descent[0, :2], p)
+        path.add(descent[0], Motion.PLUNGE)  # down to the previous floor: air
+        path.add_many(descent[1:], Motion.PLUNGE)
+        path.add_many(turn, Motion.CUT)
+        cut.append(LineString(turn[:, :2]))
+    else:  # ramp
+        j = entry.ring_index
+        ring = _climb(rings[j].coords, None, inside_out)
+        descent, rest = _ramp(ring, p, z_prev, z)
+        path.go_to(descent[0, :2], p)
+        path.add(descent[0], Motion.PLUNGE)
+        path.add_many(descent[1:], Motion.PLUNGE)
+        path.add_many(rest, Motion.CUT)
+        cut.append(rings[j].line)
+        uncut.remove(j)
+
+    while uncut:
+        cut_geom = MultiLineString(cut)
+        ks = [rings[j].k for j in uncut]
+        k_next = max(ks) if inside_out else min(ks)
+        preferred = [j for j in uncut if rings[j].k == k_next]
+        link = _best_link(rings, preferred, cut_geom, covered, p.link_max)
+        if link is None:
+            # The globally nearest uncut loop is linkable in theory (the segment cannot leave
+            # the region without crossing a loop that is nearer); try all by distance.
+            link = _best_link(rings, uncut, cut_geom, covered, math.inf)
+        if link is None:
+            log.warning("z=%.3f: %d loop(s) of a region could not be linked safely; left uncut", z, len(uncut))
+            return False
+        j, src, q = link
+        cur = path.here
+        direct = LineString([cur[:2], q])
+        at_src = np.linalg.norm(cur[:2] - src) < 1e-7
+        if not at_src and direct.length <= p.link_max and covered.covers(direct):
+            src = cur[:2]  # a short link straight from here stays in the region
+        elif not at_src:
+            path.go_to(src, p)
+            path.add([*src, z], Motion.PLUNGE)  # on a path already cut at this level: air
+        path.add([*q, z], Motion.CUT)
+        emit_ring(j, q, q - src)
+    return True
+
+
+def _best_link(rings: list[_Ring], cands: list[int], cut_geom: BaseGeometry, covered: BaseGeometry,
+               max_len: float) -> tuple[int, np.ndarray, np.ndarray] | None:
+    """Nearest candidate loop reachable from the cut paths by a segment inside the region."""
+    lines = np.array([rings[j].line for j in cands], dtype=object)
+    dist = shapely.distance(lines, cut_geom)
+    for i in np.argsort(dist, kind="stable"):
+        if dist[i] > max_len:
+            return None
+        q_pt, src_pt = nearest_points(rings[cands[i]].line, cut_geom)
+        q, src = np.asarray(q_pt.coords[0]), np.asarray(src_pt.coords[0])
+        if dist[i] < 1e-9 or covered.covers(LineString([src, q])):
+            return cands[i], src, q
+        if math.isfinite(max_len):
+            return None  # only the nearest preferred loop is worth a short link
+    return None
+
+
+# --------------------------------------------------------------------------- main
+
+
+def zlevel_roughing(
+    part: trimesh.Trimesh,
+    setup: Setup,
+    tool: Tool,
+    cutting: CuttingData,
+    options: RoughingOptions = RoughingOptions(),
+    progress: Callable[[int, int], None] | None = None,
+) -> Operation:
+    """Clear the stock around ``part`` level by level, leaving ``options.allowance``.
+
+    Parameters
+    ----------
+    part : trimesh.Trimesh
+        Watertight part in work coordinates [mm], inside the stock of ``setup``.
+    setup : Setup
+        Stock box, ``safe_z`` (start and end height) and ``clearance`` (links rapid at
+        ``stock top + clearance``).
+    tool : Tool
+        Flat or bull-nose end mill.
+    cutting : CuttingData
+        Feeds: ``plunge_feed`` applies to PLUNGE moves (helices, ramps, descents).
+    options : RoughingOptions
+    progress : callable, optional
+        ``progress(done, total)`` after each level.
+
+    Returns
+    -------
+    Operation
+        ``kind="roughing"``, ``allowance=options.allowance``; points are tool tip positions
+        [mm]. Starts and ends at ``setup.safe_z``; empty (no points) if nothing is to cut.
+
+    Raises
+    ------
+    MeshError
+        The part mesh is empty.
+    ToolError
+        The tool is a ball end mill.
+    ToolpathError
+        An option is out of range.
+    """
+    if part is None or len(part.faces) == 0:
+        raise MeshError("part mesh is empty")
+    p = _resolve(options, tool, setup)
+    levels = _levels(part, setup, p)
+    heights = [zq for z in levels for zq, _ in _forbidden_terms(float(z), p)]
+    shadow = _shadows(part, heights)
+
+    sx0, sy0 = float(setup.stock_min[0]), float(setup.stock_min[1])
+    sx1, sy1 = float(setup.stock_max[0]), float(setup.stock_max[1])
+    g = p.radius
+    rect_xy = (sx0 - g, sy0 - g, sx1 + g, sy1 + g)
+    rect = box(*rect_xy)
+
+    path = _Path()
+    cleared: BaseGeometry | None = None  # None: nothing was ever skipped
+    z_prev = float(setup.stock_max[2])
+    skipped = 0
+    for li, z in enumerate(levels):
+        z = float(z)
+        forbidden = shapely.union_all(
+            [_buffer(shadow[zq], dist, p.arc_tolerance) for zq, dist in _forbidden_terms(z, p)]
+        )
+        allowed = rect.difference(forbidden)
+        if cleared is not None:
+            allowed = allowed.intersection(cleared)
+        regions = [r for r in _polygons(allowed) if r.area > _MIN_AREA]
+        plans = []
+        for region in regions:
+            rings = _rings(region, p)
+            if not rings:
+                continue
+            entry = _open_entry(region, rings, rect_xy, g, p)
+            inside_out = entry is None
+            if entry is None:
+                entry = _closed_entry(region, rings, p)
+            if entry is None:
+                c = region.representative_point()
+                log.warning(
+                    "z=%.3f: pocket near (%.2f, %.2f) is too small to enter with a helix or ramp; skipped",
+                    z, c.x, c.y,
+                )
+                skipped += 1
+                continue
+            plans.append((region, rings, entry, inside_out))
+        done_regions = []
+        # Nearest-neighbour order of regions from where the tool is.
+        while plans:
+            here = path.here[:2] if path.points else np.array([sx0, sy0])
+            i = min(range(len(plans)), key=lambda i: np.linalg.norm(
+                (plans[i][2].air_xy if plans[i][2].air_xy is not None else plans[i][2].start_xy) - here))
+            region, rings, entry, inside_out = plans.pop(i)
+            if not path.points:
+                first = entry.air_xy if entry.air_xy is not None else entry.start_xy
+                path.add([first[0], first[1], p.safe_z], Motion.RAPID)
+            if _cut_region(path, region, rings, entry, z, z_prev, inside_out, p):
+                done_regions.append(region)
+            else:
+                skipped += 1
+        if skipped or cleared is not None:
+            cleared = shapely.union_all(done_regions) if done_regions else Polygon()
+        if path.points:
+            path.go_to(path.here[:2], p)
+        z_prev = z
+        if progress is not None:
+            progress(li + 1, len(levels))
+
+    if path.points:
+        cur = path.here
+        path.add([cur[0], cur[1], p.safe_z], Motion.RAPID)
+    pts = np.array(path.points).reshape(-1, 3)
+    motion = np.array(path.motion, dtype=np.int8)
+    return Operation(name="rough z-level", kind="roughing", tool=tool, cutting=cutting, points=pts,
+                     motion=motion, allowance=p.allowance)
