@@ -38,6 +38,10 @@ cleared with contour-parallel offset loops. The pieces:
   cut, linked by a short horizontal cut that is checked to stay inside the region. When
   the tool is not already there it retracts to the clearance height, rapids, and descends
   vertically on a path already cut at this level (air all the way down).
+* **Descents** run by rapid to ``lead_gap`` above the deepest floor known to be cleared
+  under the whole tool (the previous level's, or this level's on a cut path), and at the
+  plunge feed only for the last ``lead_gap``: the cleared-neighbourhood property above
+  makes that air.
 * **Climb milling** (M3, clockwise spindle seen from above): the uncut stock is kept on
   the *left* of the direction of travel. Each loop is oriented at the point where the link
   reaches it: the link arrives from the cleared side, so the far side is the uncut one. In
@@ -405,6 +409,19 @@ class _Path:
             self.add([cur[0], cur[1], p.clear_z], Motion.RAPID)
         self.add([xy[0], xy[1], p.clear_z], Motion.RAPID)
 
+    def descend(self, xyz, air_z: float, p: _Params) -> None:
+        """Go straight down to ``xyz``: by rapid to ``lead_gap`` above ``air_z``, then at plunge feed.
+
+        ``air_z`` is the lowest height known to be clear under the whole tool here: every
+        tool centre of a level lies inside the previous level's region, which was cleared
+        with stepover <= R, so everything within R of it is cut down to that level's floor.
+        """
+        cur = self.here
+        rapid_to = air_z + p.lead_gap
+        if rapid_to < cur[2] - 1e-9 and rapid_to > xyz[2] + 1e-9:
+            self.add([cur[0], cur[1], rapid_to], Motion.RAPID)
+        self.add(xyz, Motion.PLUNGE)
+
 
 def _helix(centre: np.ndarray, r: float, p: _Params, z_top: float, z: float) -> tuple[np.ndarray, np.ndarray]:
     """Clockwise helix from ``z_top`` down to ``z`` then one full turn at ``z``.
@@ -513,13 +530,13 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
 
     if entry.kind == "air":
         path.go_to(entry.air_xy, p)
-        path.add([*entry.air_xy, z], Motion.PLUNGE)  # outside the stock: air
+        path.descend([*entry.air_xy, z], z_prev, p)  # outside the stock: air
         path.add([*entry.start_xy, z], Motion.CUT)
         emit_ring(entry.ring_index, entry.start_xy, entry.start_xy - entry.air_xy)
     elif entry.kind == "helix":
         descent, turn = _helix(entry.centre, entry.helix_radius, p, z_prev, z)
         path.go_to(descent[0, :2], p)
-        path.add(descent[0], Motion.PLUNGE)  # down to the previous floor: air
+        path.descend(descent[0], z_prev, p)  # down to the previous floor: air
         path.add_many(descent[1:], Motion.PLUNGE)
         path.add_many(turn, Motion.CUT)
         cut.append(LineString(turn[:, :2]))
@@ -528,7 +545,7 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
         ring = _climb(rings[j].coords, None, inside_out)
         descent, rest = _ramp(ring, p, z_prev, z)
         path.go_to(descent[0, :2], p)
-        path.add(descent[0], Motion.PLUNGE)
+        path.descend(descent[0], z_prev, p)
         path.add_many(descent[1:], Motion.PLUNGE)
         path.add_many(rest, Motion.CUT)
         cut.append(rings[j].line)
@@ -555,7 +572,7 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
             src = cur[:2]  # a short link straight from here stays in the region
         elif not at_src:
             path.go_to(src, p)
-            path.add([*src, z], Motion.PLUNGE)  # on a path already cut at this level: air
+            path.descend([*src, z], z, p)  # on a path already cut at this level: air
         path.add([*q, z], Motion.CUT)
         emit_ring(j, q, q - src)
     return True

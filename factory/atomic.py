@@ -17,6 +17,12 @@ from typing import IO
 from factory.errors import OutputExistsError
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def check_writable(path: Path, overwrite: bool) -> None:
     """Raise :class:`OutputExistsError` if ``path`` exists and ``overwrite`` is false."""
     if path.exists() and not overwrite:
@@ -41,6 +47,8 @@ def atomic_output(path: str | Path, *, overwrite: bool = False, mode: str = "wb"
     check_writable(path, overwrite)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    # mkstemp makes the file private (0600); an output should get the mode any new file would.
+    os.chmod(tmp, 0o666 & ~_umask())
     try:
         if "b" in mode:
             f = os.fdopen(fd, mode)

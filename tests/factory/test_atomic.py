@@ -1,0 +1,40 @@
+"""Outputs appear whole or not at all, and never replace a file silently."""
+
+from __future__ import annotations
+
+import os
+import stat
+
+import pytest
+
+from factory.atomic import atomic_output, write_text
+from factory.errors import OutputExistsError
+
+
+def test_failed_write_leaves_nothing(tmp_path):
+    target = tmp_path / "out.nc"
+    with pytest.raises(RuntimeError):
+        with atomic_output(target, mode="w") as f:
+            f.write("G0 X1\n")
+            raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_existing_file_is_kept_without_overwrite(tmp_path):
+    target = tmp_path / "out.nc"
+    target.write_text("mine")
+    with pytest.raises(OutputExistsError) as e:
+        write_text(target, "theirs")
+    assert str(target) in str(e.value)
+    assert target.read_text() == "mine"
+    write_text(target, "theirs", overwrite=True)
+    assert target.read_text() == "theirs"
+
+
+def test_output_mode_follows_umask(tmp_path):
+    old = os.umask(0o022)
+    try:
+        write_text(tmp_path / "a.txt", "x")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "a.txt").stat().st_mode) == 0o644
