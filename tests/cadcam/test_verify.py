@@ -160,7 +160,8 @@ def test_simulated_stock_is_the_minimum_of_all_swept_envelopes(blocks):
     sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
     with mock.patch.object(verify, "_PAIR_BUDGET", 300):  # one move per batch
         small, small_report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
-    assert np.array_equal(small.stock_top, sim.stock_top)
+    # Equal up to rounding: the skip bounds compare heights, so subnormal depths may differ.
+    assert np.allclose(small.stock_top, sim.stock_top, atol=1e-9, rtol=0)
     assert small_report.rapid_crashes == report.rapid_crashes
     X, Y = grid_xy(sim)
     q = np.column_stack([X.ravel(), Y.ravel()])

@@ -1,0 +1,515 @@
+"""Exact drop-cutter: how low a tool can go at (x, y) without entering a triangle mesh.
+
+The cutter location (CL, the tool tip) at ``(x, y)`` is the highest of::
+
+    floor_z,  max over mesh points p with |p_xy - c| <= R of  p_z - h(|p_xy - c|)
+
+where ``h`` is :meth:`cadcam.model.Tool.profile_height` (flat, ball and bull-nose share it).
+For one triangle, ``p -> p_z - h(|p_xy - c|)`` is concave (a plane minus a convex bowl) on a
+convex domain, so its maximum is one of three kinds of contact, each computed exactly:
+
+- **vertex**: closed form;
+- **facet**: the point of the tool whose surface normal equals the facet normal ``n``: on the
+  torus the ring centre ``(R - rc) n_xy/|n_xy|`` then the sphere of radius ``rc`` (the flat
+  tool's rim, the ball's sphere as special cases); it counts when it lies inside the triangle;
+- **edge**: the tool cut by the vertical plane through the edge; closed form for the ball
+  (a circle) and flat (a chord); for the bull-nose the concave function along the edge is
+  maximised by bisection on the sign of its derivative (to ~1e-10 mm).
+
+Every candidate is evaluated at a genuine point of a triangle, so the result never exceeds
+the exact answer by more than rounding, and equals it because the true maximiser is always
+one of the candidates.
+
+Vertices and edges are de-duplicated (a closed mesh shares each vertex among ~6 triangles),
+and each primitive kind is bucketed in a uniform XY grid: vertices and edges by their box
+grown by the tool radius, facets by the triangle moved by the (tool-dependent) contact
+offset, so a facet is a candidate only where its contact point can lie inside it. The work
+is vectorised over (CL point, candidate primitive) pairs in chunks of bounded size.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from cadcam.model import Tool
+from factory.errors import MeshError, ToolpathError
+
+log = logging.getLogger(__name__)
+
+Progress = Callable[[int, int], None]
+
+#: Pairs (CL point x primitive) evaluated per vectorised batch; bounds memory (~100 B/pair).
+_PAIR_BUDGET = 400_000
+#: Bisection steps for bull-nose edge contacts: 2R / 2**44 is far below 1e-9 mm.
+_BISECT_STEPS = 44
+#: Highest vertex candidates per point evaluated first, for a lower bound that culls the rest.
+_HEAD = 24
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class TriangleIndex:
+    """A triangle mesh prepared for drop-cutter queries (all arrays read-only).
+
+    Attributes
+    ----------
+    triangles : (m, 3, 3) float
+        The triangles in work coordinates [mm].
+    vertices : (k, 3) float
+        Distinct triangle corners [mm].
+    edge_start : (e, 3) float
+        First end of each distinct non-vertical edge [mm].
+    edge_dir : (e, 2) float
+        Unit XY direction of each edge.
+    edge_length : (e,) float
+        XY length of each edge [mm].
+    edge_slope : (e,) float
+        dz per mm of XY travel along each edge.
+    facet_origin : (f, 3) float
+        First corner of each non-vertical triangle [mm].
+    facet_e1, facet_e2 : (f, 3) float
+        Edge vectors from ``facet_origin`` to the other two corners [mm].
+    facet_inverse : (f, 2, 2) float
+        Inverse of the XY part of ``[e1 e2]``: barycentric coordinates from an XY offset.
+    facet_normal : (f, 3) float
+        Unit normal, oriented so ``n_z > 0`` (the contact does not depend on orientation).
+    origin : (2,) float
+        XY of the bucket grid's lower-left corner [mm].
+    cell : float
+        Bucket size [mm] (queries may merge buckets for large tools).
+    shape : (2,) int
+        Bucket count along X and Y.
+    """
+
+    triangles: np.ndarray
+    vertices: np.ndarray
+    edge_start: np.ndarray
+    edge_dir: np.ndarray
+    edge_length: np.ndarray
+    edge_slope: np.ndarray
+    facet_origin: np.ndarray
+    facet_e1: np.ndarray
+    facet_e2: np.ndarray
+    facet_inverse: np.ndarray
+    facet_normal: np.ndarray
+    origin: np.ndarray
+    cell: float
+    shape: tuple[int, int]
+
+
+def build_index(triangles: np.ndarray, cell: float | None = None) -> TriangleIndex:
+    """Prepare triangles for :func:`drop_cutter`.
+
+    Parameters
+    ----------
+    triangles : (m, 3, 3) float
+        Triangle corners in work coordinates [mm]; degenerate and vertical triangles are
+        fine (their edges and corners still count). ``m`` may be 0.
+    cell : float, optional
+        Bucket size [mm]. Default: about twice the median triangle size, coarsened so the
+        grid has at most ~1M buckets.
+
+    Returns
+    -------
+    TriangleIndex
+
+    Raises
+    ------
+    MeshError
+        ``triangles`` is not ``(m, 3, 3)`` or holds non-finite values; ``cell`` <= 0.
+    """
+    tri = np.asarray(triangles, dtype=np.float64)
+    if tri.ndim != 3 or tri.shape[1:] != (3, 3):
+        raise MeshError(f"triangles must have shape (m, 3, 3), got {tri.shape}")
+    if not np.all(np.isfinite(tri)):
+        raise MeshError("triangles hold non-finite coordinates")
+    if cell is not None and not (cell > 0 and math.isfinite(cell)):
+        raise MeshError(f"bucket size must be positive, got {cell}")
+    m = len(tri)
+
+    corners = tri.reshape(-1, 3)
+    if m:
+        vertices, inverse = np.unique(corners, axis=0, return_inverse=True)
+        inverse = inverse.reshape(m, 3)
+    else:
+        vertices, inverse = np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+
+    # Distinct edges; vertical ones are covered by their end vertices.
+    pairs = np.sort(np.concatenate([inverse[:, [0, 1]], inverse[:, [1, 2]], inverse[:, [2, 0]]]), axis=1)
+    pairs = np.unique(pairs, axis=0) if len(pairs) else pairs.reshape(0, 2)
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    p0 = vertices[pairs[:, 0]]
+    p1 = vertices[pairs[:, 1]]
+    dxy = p1[:, :2] - p0[:, :2]
+    length = np.hypot(dxy[:, 0], dxy[:, 1])
+    scale = max(1.0, float(np.abs(corners).max(initial=0.0)))
+    keep = length > 1e-12 * scale
+    p0, p1, dxy, length = p0[keep], p1[keep], dxy[keep], length[keep]
+    edge_dir = dxy / length[:, None]
+    edge_slope = (p1[:, 2] - p0[:, 2]) / length
+
+    # Facets: only non-vertical ones have an interior contact.
+    e1 = tri[:, 1] - tri[:, 0]
+    e2 = tri[:, 2] - tri[:, 0]
+    normal = np.cross(e1, e2)
+    nlen = np.linalg.norm(normal, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normal = normal / nlen[:, None]
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    good = (nlen > 0) & (np.abs(normal[:, 2]) > 1e-12) & (det != 0)
+    normal = normal[good] * np.sign(normal[good, 2])[:, None]
+    e1g, e2g, detg = e1[good], e2[good], det[good]
+    inv = np.empty((len(detg), 2, 2))
+    inv[:, 0, 0] = e2g[:, 1] / detg
+    inv[:, 0, 1] = -e2g[:, 0] / detg
+    inv[:, 1, 0] = -e1g[:, 1] / detg
+    inv[:, 1, 1] = e1g[:, 0] / detg
+
+    if m:
+        lo = corners[:, :2].min(axis=0)
+        hi = corners[:, :2].max(axis=0)
+    else:
+        lo = hi = np.zeros(2)
+    span = np.maximum(hi - lo, 1e-9)
+    if cell is None:
+        size = np.ptp(tri[:, :, :2], axis=1).max(axis=1) if m else np.ones(1)
+        cell = 2.0 * float(np.median(size)) if m else 1.0
+        cell = max(cell, 1e-6 * float(span.max()), 1e-9)
+    cell = max(float(cell), float(np.sqrt(span[0] * span[1] / 1e6)))
+    shape = (int(span[0] // cell) + 1, int(span[1] // cell) + 1)
+
+    return TriangleIndex(
+        triangles=_readonly(tri),
+        vertices=_readonly(vertices),
+        edge_start=_readonly(p0),
+        edge_dir=_readonly(edge_dir),
+        edge_length=_readonly(length),
+        edge_slope=_readonly(edge_slope),
+        facet_origin=_readonly(tri[good, 0]),
+        facet_e1=_readonly(e1g),
+        facet_e2=_readonly(e2g),
+        facet_inverse=_readonly(inv),
+        facet_normal=_readonly(normal),
+        origin=_readonly(lo),
+        cell=float(cell),
+        shape=shape,
+    )
+
+
+# --------------------------------------------------------------------------- buckets
+
+
+@dataclass(frozen=True)
+class _Grid:
+    origin: np.ndarray
+    cell: float
+    nx: int
+    ny: int
+
+    def cells(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ix = np.clip(np.floor((x - self.origin[0]) / self.cell), 0, self.nx - 1).astype(np.int64)
+        iy = np.clip(np.floor((y - self.origin[1]) / self.cell), 0, self.ny - 1).astype(np.int64)
+        return ix, iy
+
+
+def _query_grid(index: TriangleIndex, radius: float) -> _Grid:
+    # Buckets much smaller than the tool make every primitive sit in many buckets.
+    factor = max(1, int(math.ceil(0.5 * radius / index.cell)))
+    cell = index.cell * factor
+    nx = (index.shape[0] - 1) // factor + 1
+    ny = (index.shape[1] - 1) // factor + 1
+    return _Grid(index.origin, cell, nx, ny)
+
+
+@dataclass(frozen=True)
+class _Buckets:
+    """Primitives per bucket, each bucket's list sorted by descending top z.
+
+    ``key[j] = bucket + fraction`` with the fraction growing as the top z falls, so one
+    ``searchsorted`` finds, for any bucket and height, the prefix of primitives that reach
+    above that height: the others cannot raise a CL point already known to be that high.
+    """
+
+    ptr: np.ndarray
+    items: np.ndarray
+    key: np.ndarray
+    z_hi: float
+    z_span: float
+
+    def stop(self, cell: np.ndarray, below: np.ndarray) -> np.ndarray:
+        """End of the prefix of ``cell``'s list whose top z exceeds ``below`` (maybe a few more)."""
+        # The margin only ever admits extra candidates, never drops a useful one.
+        z = below - 1e-7 * self.z_span
+        frac = np.clip((self.z_hi - z) / self.z_span, 0.0, 0.999999)
+        return np.searchsorted(self.key, cell + frac, side="left")
+
+
+def _bucket(grid: _Grid, lo: np.ndarray, hi: np.ndarray, top: np.ndarray) -> _Buckets:
+    """Boxes ``[lo, hi]`` (k, 2) with top heights ``top`` (k,) [mm] listed per bucket."""
+    k = len(lo)
+    ix0, iy0 = grid.cells(lo[:, 0], lo[:, 1])
+    ix1, iy1 = grid.cells(hi[:, 0], hi[:, 1])
+    wx = ix1 - ix0 + 1
+    counts = wx * (iy1 - iy0 + 1)
+    total = int(counts.sum())
+    item = np.repeat(np.arange(k), counts)
+    local = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
+    w = wx[item]
+    bucket = (iy0[item] + local // w) * grid.nx + ix0[item] + local % w
+    z_hi = float(top.max(initial=0.0)) + 1.0
+    z_span = z_hi - float(top.min(initial=0.0)) + 1.0
+    frac = (z_hi - top[item]) / z_span
+    order = np.lexsort((frac, bucket))
+    ptr = np.zeros(grid.nx * grid.ny + 1, dtype=np.int64)
+    np.cumsum(np.bincount(bucket, minlength=grid.nx * grid.ny), out=ptr[1:])
+    return _Buckets(ptr, item[order], bucket[order] + frac[order], z_hi, z_span)
+
+
+def _pairs(items: np.ndarray, start: np.ndarray, stop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """All (point, candidate) pairs for candidate ranges ``items[start:stop]`` per point."""
+    counts = np.maximum(stop - start, 0)
+    total = int(counts.sum())
+    point = np.repeat(np.arange(len(start)), counts)
+    offset = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
+    return point, items[np.repeat(start, counts) + offset]
+
+
+# --------------------------------------------------------------------------- kernels
+
+
+def _height(r: np.ndarray, radius: float, corner: float) -> np.ndarray:
+    """Profile height for ``0 <= r <= radius`` (callers clamp r)."""
+    if corner <= 0.0:
+        return np.zeros_like(r)
+    d = np.maximum(r - (radius - corner), 0.0)
+    return corner - np.sqrt(np.maximum(corner * corner - d * d, 0.0))
+
+
+def _vertex_contacts(index, radius, corner, offsets, cx, cy, point, vi, out) -> None:
+    v = index.vertices[vi]
+    d2 = (v[:, 0] - cx[point]) ** 2 + (v[:, 1] - cy[point]) ** 2
+    ok = d2 <= radius * radius
+    point, v, d2 = point[ok], v[ok], d2[ok]
+    z = v[:, 2] - _height(np.sqrt(d2), radius, corner)
+    np.maximum.at(out, point, z)
+
+
+def _edge_contacts(index, radius, corner, offsets, cx, cy, point, ei, out) -> None:
+    p0 = index.edge_start[ei]
+    u = index.edge_dir[ei]
+    wx = cx[point] - p0[:, 0]
+    wy = cy[point] - p0[:, 1]
+    tc = wx * u[:, 0] + wy * u[:, 1]  # foot of the perpendicular from the axis, along the edge
+    d2 = np.maximum(wx * wx + wy * wy - tc * tc, 0.0)
+    rho2 = radius * radius - d2
+    ok = rho2 >= 0.0
+    rho = np.sqrt(np.where(ok, rho2, 0.0))
+    lo = np.maximum(-rho, -tc)
+    hi = np.minimum(rho, index.edge_length[ei] - tc)
+    ok &= lo <= hi
+    point, ei, p0, tc, d2, rho, lo, hi = (a[ok] for a in (point, ei, p0, tc, d2, rho, lo, hi))
+    s = index.edge_slope[ei]
+    if corner <= 0.0:
+        # Flat: the edge height is linear over the chord under the flat bottom.
+        t = np.where(s >= 0.0, rho, -rho)
+    elif corner >= radius:
+        # Ball: the vertical plane cuts a circle of radius rho; its tangent of slope s.
+        t = s * rho / np.sqrt(1.0 + s * s)
+    else:
+        t = _bull_edge_argmax(s, d2, lo, hi, radius, corner)
+    t = np.clip(t, lo, hi)
+    z = p0[:, 2] + s * (tc + t)
+    r = np.minimum(np.sqrt(d2 + t * t), radius)
+    np.maximum.at(out, point, z - _height(r, radius, corner))
+
+
+def _bull_edge_argmax(s, d2, lo, hi, radius, corner):
+    """argmax over t in [lo, hi] of s t - h(sqrt(d2 + t^2)) (concave) by bisection on the slope."""
+    a = radius - corner
+    lo = lo.copy()
+    hi = hi.copy()
+    for _ in range(_BISECT_STEPS):
+        mid = 0.5 * (lo + hi)
+        r = np.sqrt(d2 + mid * mid)
+        e = np.maximum(r - a, 0.0)
+        k = np.sqrt(np.maximum(corner * corner - e * e, 0.0))
+        # d/dt [s t - h] > 0  <=>  s r k > e t  (h' = e / k, dr/dt = t / r; multiplied out)
+        up = s * r * k > e * mid
+        lo = np.where(up, mid, lo)
+        hi = np.where(up, hi, mid)
+    return 0.5 * (lo + hi)
+
+
+def _facet_offsets(index: TriangleIndex, radius: float, corner: float) -> np.ndarray:
+    """XY offset from the tool axis to the facet contact point, per facet (f, 2) [mm]."""
+    n = index.facet_normal
+    nxy = np.hypot(n[:, 0], n[:, 1])
+    a = radius - corner
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(nxy > 1e-15, a / nxy + corner, 0.0)
+    return -n[:, :2] * scale[:, None]
+
+
+def _facet_contacts(index, radius, corner, offsets, cx, cy, point, fi, out) -> None:
+    dx = cx[point] + offsets[fi, 0] - index.facet_origin[fi, 0]
+    dy = cy[point] + offsets[fi, 1] - index.facet_origin[fi, 1]
+    inv = index.facet_inverse[fi]
+    b1 = inv[:, 0, 0] * dx + inv[:, 0, 1] * dy
+    b2 = inv[:, 1, 0] * dx + inv[:, 1, 1] * dy
+    ok = (b1 >= 0.0) & (b2 >= 0.0) & (b1 + b2 <= 1.0)
+    point, fi, b1, b2 = point[ok], fi[ok], b1[ok], b2[ok]
+    # The contact point rebuilt from barycentrics is a genuine point of the triangle.
+    p = index.facet_origin[fi] + b1[:, None] * index.facet_e1[fi] + b2[:, None] * index.facet_e2[fi]
+    r = np.minimum(np.hypot(p[:, 0] - cx[point], p[:, 1] - cy[point]), radius)
+    np.maximum.at(out, point, p[:, 2] - _height(r, radius, corner))
+
+
+def drop_profile(
+    index: TriangleIndex,
+    radius: float,
+    corner_radius: float,
+    xy: np.ndarray,
+    floor_z: float,
+    progress: Progress | None = None,
+) -> np.ndarray:
+    """:func:`drop_cutter` for a tool given by its radii (e.g. grown by an allowance).
+
+    Parameters
+    ----------
+    radius : float
+        Cutting radius R [mm], > 0.
+    corner_radius : float
+        Corner radius rc [mm], 0 <= rc <= R.
+
+    See :func:`drop_cutter` for the rest.
+    """
+    if not (radius > 0 and 0 <= corner_radius <= radius):
+        raise ToolpathError(f"drop-cutter needs 0 <= corner radius <= radius > 0, got {corner_radius}, {radius}")
+    pts = np.asarray(xy, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ToolpathError(f"CL points must have shape (n, 2), got {pts.shape}")
+    if not np.all(np.isfinite(pts)) or not math.isfinite(floor_z):
+        raise ToolpathError("CL points and floor must be finite")
+    n = len(pts)
+    out = np.full(n, float(floor_z))
+    if n == 0:
+        return out
+
+    grid = _query_grid(index, radius)
+    v = index.vertices
+    vbuckets = _bucket(grid, v[:, :2] - radius, v[:, :2] + radius, v[:, 2])
+    p0 = index.edge_start
+    p1 = np.concatenate([p0[:, :2] + index.edge_dir * index.edge_length[:, None],
+                         (p0[:, 2] + index.edge_slope * index.edge_length)[:, None]], axis=1)
+    elo = np.minimum(p0[:, :2], p1[:, :2]) - radius
+    ehi = np.maximum(p0[:, :2], p1[:, :2]) + radius
+    ebuckets = _bucket(grid, elo, ehi, np.maximum(p0[:, 2], p1[:, 2]))
+    offsets = _facet_offsets(index, radius, corner_radius)
+    corners = np.stack(
+        [index.facet_origin, index.facet_origin + index.facet_e1, index.facet_origin + index.facet_e2], axis=1
+    )
+    # A facet can only be touched where axis + offset lies inside it.
+    pad = 1e-9 * (1.0 + np.abs(corners).max(initial=0.0))
+    fxy = corners[:, :, :2]
+    fbuckets = _bucket(grid, fxy.min(axis=1) - offsets - pad, fxy.max(axis=1) - offsets + pad,
+                       corners[:, :, 2].max(axis=1))
+
+    # Sorting by bucket keeps gathers local; results are scattered back at the end.
+    ix, iy = grid.cells(pts[:, 0], pts[:, 1])
+    cell = iy * grid.nx + ix
+    order = np.argsort(cell, kind="stable")
+    cell = cell[order]
+    cx = pts[order, 0]
+    cy = pts[order, 1]
+    res = np.full(n, float(floor_z))
+    # Chunks of points by their (unculled) vertex candidates; culled work is split again.
+    cum = np.cumsum(vbuckets.ptr[cell + 1] - vbuckets.ptr[cell])
+    bull = 0.0 < corner_radius < radius
+    start = 0
+    while start < n:
+        base = cum[start - 1] if start else 0
+        stop = int(np.searchsorted(cum, base + _PAIR_BUDGET, side="right"))
+        stop = min(max(stop, start + 1), n)
+        sl = slice(start, stop)
+        c = cell[sl]
+        best = res[sl]  # a view: kernels raise it in place
+        sx, sy = cx[sl], cy[sl]
+        first = vbuckets.ptr[c]
+        # The highest few vertices give a good lower bound that culls most other candidates.
+        head = np.minimum(first + _HEAD, vbuckets.ptr[c + 1])
+        _run(_vertex_contacts, index, radius, corner_radius, offsets, sx, sy, vbuckets.items, first, head, best, 1)
+        # Facets are few per point and on smooth meshes nearly exact: a tight bound for the rest.
+        _run(_facet_contacts, index, radius, corner_radius, offsets, sx, sy, fbuckets.items,
+             fbuckets.ptr[c], fbuckets.stop(c, best), best, 1)
+        tail = np.maximum(vbuckets.stop(c, best), head)
+        _run(_vertex_contacts, index, radius, corner_radius, offsets, sx, sy, vbuckets.items, head, tail, best, 1)
+        _run(_edge_contacts, index, radius, corner_radius, offsets, sx, sy, ebuckets.items,
+             ebuckets.ptr[c], ebuckets.stop(c, best), best, 8 if bull else 1)
+        start = stop
+        if progress is not None:
+            progress(start, n)
+    out[order] = res
+    return out
+
+
+def _run(kernel, index, radius, corner, offsets, cx, cy, items, first, last, best, cost) -> None:
+    """Apply ``kernel`` to the candidate ranges ``items[first:last]`` of each point, in batches."""
+    counts = np.maximum(last - first, 0)
+    cum = np.cumsum(counts)
+    n = len(counts)
+    budget = max(_PAIR_BUDGET // cost, 1)
+    start = 0
+    while start < n:
+        base = cum[start - 1] if start else 0
+        stop = int(np.searchsorted(cum, base + budget, side="right"))
+        stop = min(max(stop, start + 1), n)
+        point, prim = _pairs(items, first[start:stop], last[start:stop])
+        if len(point):
+            kernel(index, radius, corner, offsets, cx, cy, point + start, prim, best)
+        start = stop
+
+
+def drop_cutter(
+    index: TriangleIndex,
+    tool: Tool,
+    xy: np.ndarray,
+    floor_z: float,
+    progress: Progress | None = None,
+) -> np.ndarray:
+    """Lowest gouge-free tool tip height at each XY position.
+
+    Parameters
+    ----------
+    index : TriangleIndex
+        From :func:`build_index`.
+    tool : Tool
+        Flat, ball or bull-nose end mill (profile from ``radius`` and ``corner_radius``).
+    xy : (n, 2) float
+        Tool axis positions [mm].
+    floor_z : float
+        The tip never goes below this [mm] (e.g. the stock bottom).
+    progress : callable, optional
+        ``progress(done, total)`` in CL points, called after each batch.
+
+    Returns
+    -------
+    (n,) float
+        CL (tool tip) z [mm]: the exact contact height, or ``floor_z`` where the tool
+        touches nothing.
+
+    Raises
+    ------
+    ToolpathError
+        ``xy`` is not ``(n, 2)`` or not finite, or ``floor_z`` is not finite.
+    """
+    return drop_profile(index, tool.radius, tool.corner_radius, xy, floor_z, progress)

@@ -1,0 +1,697 @@
+"""3D finishing: raster (zigzag drop-cutter) on shallow areas, waterline loops on steep walls.
+
+Every cutter location comes from the exact drop-cutter (:mod:`cadcam.dropcutter`), so every
+point is gouge-free by construction; straight moves between points are refined until they
+stay within ``tolerance`` of the exact CL surface.
+
+Stepover from scallop height ``h`` (used for raster line spacing and waterline level spacing):
+
+- ball, radius ``R``: ``2 sqrt(2 R h - h^2)`` (the cusp between two passes on a plane);
+- bull-nose: the same with the corner radius ``rc`` in place of ``R`` (conservative: it
+  ignores the flat bottom, which only helps on near-flat areas);
+- flat: ``diameter / 10`` (a flat end mill leaves no scallop on a plane and a staircase on
+  slopes whatever the stepover; a tenth of the diameter is a customary finishing stepover).
+
+Allowance is applied exactly: the drop-cutter runs with a tool grown by the allowance
+(radius ``R + a``, corner radius ``rc + a``), whose tip lies ``a`` below the real tool's
+tip when both share the corner centres, so the real CL is the grown tool's CL raised by ``a``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import contourpy
+import numpy as np
+import trimesh
+from scipy import ndimage
+
+from cadcam.dropcutter import TriangleIndex, build_index, drop_profile
+from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
+from factory.errors import ToolpathError
+
+log = logging.getLogger(__name__)
+
+Progress = Callable[[int, int], None]
+
+#: Share of ``tolerance`` allowed to the chord test while refining (the rest to merging).
+_REFINE_SHARE = 0.4
+_MERGE_SHARE = 0.2
+#: Shortest segment the adaptive refinement splits [mm]; below it a jump is a cliff.
+_MIN_SEGMENT = 0.01
+
+
+@dataclass(frozen=True)
+class FinishingOptions:
+    """How finely to finish.
+
+    Attributes
+    ----------
+    scallop : float
+        Target scallop height [mm]; the raster stepover and waterline stepdown follow from
+        it and the tool (see module docstring).
+    step_along : float, optional
+        Initial CL spacing along a raster line [mm]; default ``min(R / 8, 0.25)``. Refined
+        adaptively where the CL surface bends.
+    tolerance : float
+        Largest vertical deviation of a straight move from the exact CL surface [mm].
+    steep_angle : float
+        CL surface slope [deg] from which the raster leaves a region to waterline (90: the
+        raster covers everything).
+    allowance : float
+        Stock to leave on the part [mm].
+    angle : float
+        Raster direction [deg] from +X, counter-clockwise.
+    """
+
+    scallop: float = 0.005
+    step_along: float | None = None
+    tolerance: float = 0.002
+    steep_angle: float = 50.0
+    allowance: float = 0.0
+    angle: float = 0.0
+
+
+def stepover_for(tool: Tool, scallop: float) -> float:
+    """Distance between passes that leaves ``scallop`` [mm] on a plane (module docstring).
+
+    Returns
+    -------
+    float
+        Stepover [mm], at most the tool diameter.
+    """
+    if tool.corner_radius <= 0.0:
+        return tool.diameter / 10.0
+    rho = tool.corner_radius
+    h = min(scallop, rho)
+    return float(min(2.0 * math.sqrt(2.0 * rho * h - h * h), tool.diameter))
+
+
+def _check(options: FinishingOptions) -> None:
+    o = options
+    bad = []
+    if not o.scallop > 0:
+        bad.append(f"scallop must be > 0, got {o.scallop}")
+    if not o.tolerance > 0:
+        bad.append(f"tolerance must be > 0, got {o.tolerance}")
+    if o.step_along is not None and not o.step_along > 0:
+        bad.append(f"step_along must be > 0, got {o.step_along}")
+    if not 0 < o.steep_angle <= 90:
+        bad.append(f"steep_angle must be in (0, 90], got {o.steep_angle}")
+    if not o.allowance >= 0:
+        bad.append(f"allowance must be >= 0, got {o.allowance}")
+    if bad:
+        raise ToolpathError("; ".join(bad), source="finishing options")
+
+
+@dataclass(frozen=True)
+class _Surface:
+    """The exact CL surface of the real tool (allowance included) over one part."""
+
+    index: TriangleIndex
+    radius: float
+    corner: float
+    allowance: float
+    floor: float
+
+    def z(self, xy: np.ndarray, progress: Progress | None = None) -> np.ndarray:
+        a = self.allowance
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        return drop_profile(self.index, self.radius + a, self.corner + a, xy, self.floor - a, progress) + a
+
+
+def _surface(part: trimesh.Trimesh, setup: Setup, tool: Tool, options: FinishingOptions) -> _Surface:
+    tris = np.asarray(part.triangles, dtype=np.float64)
+    if len(tris) == 0:
+        raise ToolpathError("part mesh has no triangles")
+    return _Surface(build_index(tris), tool.radius, tool.corner_radius, options.allowance, float(setup.stock_min[2]))
+
+
+def _work_box(part: trimesh.Trimesh, setup: Setup, reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """XY box the tool can touch the part from, clipped to the stock [mm]."""
+    b = np.asarray(part.bounds, dtype=np.float64)
+    lo = np.maximum(b[0, :2] - reach, setup.stock_min[:2])
+    hi = np.minimum(b[1, :2] + reach, setup.stock_max[:2])
+    if np.any(hi <= lo):
+        raise ToolpathError("the part does not overlap the stock in XY", source="setup")
+    return lo, hi
+
+
+# --------------------------------------------------------------------------- refinement
+
+
+def _refine(surface: _Surface, xy: np.ndarray, z: np.ndarray, joined: np.ndarray, tol: float):
+    """Split segments until their quarter points are within ``tol`` of the exact CL surface.
+
+    Parameters
+    ----------
+    xy, z : (n, 2), (n,) float
+        Polyline points with exact CL z [mm].
+    joined : (n - 1,) bool
+        Which consecutive points are joined by a move (False between separate chains).
+
+    Returns
+    -------
+    xy, z : (k, 2), (k,) float
+        Refined points, in order [mm].
+    forced : (k,) bool
+        Points merging must keep: the ends of vertical steps at cliffs (jumps of the CL
+        surface narrower than the shortest segment), where a corner point is inserted so the
+        tool goes over then down (or up then over), never through.
+    source : (k,) int
+        Index of the input point each output point follows (itself for input points).
+    """
+    n = len(xy)
+    keys = [np.stack([np.arange(n, dtype=np.float64), np.zeros(n), np.zeros(n)], axis=1)]
+    forced_ids: list[np.ndarray] = []
+    total = n
+    seg = np.flatnonzero(joined)
+    ia, ib = seg.copy(), seg + 1
+    t0, t1 = np.zeros(len(seg)), np.ones(len(seg))
+    allp = np.column_stack([xy, z])
+    zm = surface.z(0.5 * (allp[ia, :2] + allp[ib, :2])) if len(seg) else np.zeros(0)
+    while len(seg):
+        a, b = allp[ia], allp[ib]
+        # Chord test at the quarter points too: an S-bend can hide from the midpoint alone.
+        # Computed exactly as the children's midpoints will be: a point's z must belong to
+        # its own XY to the last bit (the CL surface can jump).
+        mid = 0.5 * (a[:, :2] + b[:, :2])
+        q = np.concatenate([0.5 * (a[:, :2] + mid), 0.5 * (mid + b[:, :2])])
+        zq = surface.z(q)
+        zq1, zq3 = zq[: len(seg)], zq[len(seg):]
+        dev = np.maximum.reduce([
+            np.abs(zm - 0.5 * (a[:, 2] + b[:, 2])),
+            np.abs(zq1 - (0.75 * a[:, 2] + 0.25 * b[:, 2])),
+            np.abs(zq3 - (0.25 * a[:, 2] + 0.75 * b[:, 2])),
+        ])
+        length = np.hypot(*(b[:, :2] - a[:, :2]).T)
+        bad = dev > tol
+        split = bad & (length > _MIN_SEGMENT)
+        cliff = bad & ~split
+        if np.any(cliff):
+            ca, cb = ia[cliff], ib[cliff]
+            za, zb = allp[ca, 2], allp[cb, 2]
+            down = za > zb
+            corner = np.where(down[:, None], np.column_stack([allp[cb, :2], za]), np.column_stack([allp[ca, :2], zb]))
+            key = np.column_stack([seg[cliff], np.where(down, t1[cliff], t0[cliff]), np.where(down, -1.0, 1.0)])
+            ids = np.arange(total, total + len(ca))
+            total += len(ca)
+            keys.append(key)
+            allp = np.concatenate([allp, corner])
+            forced_ids += [ca, cb, ids]
+        if not np.any(split):
+            break
+        tm = 0.5 * (t0 + t1)
+        new = np.column_stack([mid[split], zm[split]])
+        ids = np.arange(total, total + len(new))
+        total += len(new)
+        keys.append(np.column_stack([seg[split], tm[split], np.zeros(len(new))]))
+        allp = np.concatenate([allp, new])
+        seg = np.concatenate([seg[split], seg[split]])
+        ia, ib = np.concatenate([ia[split], ids]), np.concatenate([ids, ib[split]])
+        t0, t1 = np.concatenate([t0[split], tm[split]]), np.concatenate([tm[split], t1[split]])
+        zm = np.concatenate([zq1[split], zq3[split]])
+    key = np.concatenate(keys)
+    # Points are keyed by (segment, t, side); segment i's end (t = 1) is point i + 1 at t = 0.
+    key[:, 0] += np.floor(key[:, 1])
+    key[:, 1] -= np.floor(key[:, 1])
+    order = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
+    forced = np.zeros(total, dtype=bool)
+    if forced_ids:
+        forced[np.concatenate(forced_ids)] = True
+    return allp[order, :2], allp[order, 2], forced[order], key[order, 0].astype(np.int64)
+
+
+def _simplify(p: np.ndarray, keep: np.ndarray, tol: float) -> np.ndarray:
+    """Douglas-Peucker by vertical deviation, all chains at once.
+
+    ``p`` (n, 3) points; between consecutive ``keep`` points the points must lie on one XY
+    line (raster lines, links); returns the keep mask.
+    """
+    keep = keep.copy()
+    while True:
+        k = np.flatnonzero(keep)
+        free = np.flatnonzero(~keep)
+        if not len(free):
+            return keep
+        j = np.searchsorted(k, free) - 1
+        a, b = p[k[j]], p[k[j + 1]]
+        dxy = b[:, :2] - a[:, :2]
+        l2 = np.einsum("ij,ij->i", dxy, dxy)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s = np.where(l2 > 0, np.einsum("ij,ij->i", p[free, :2] - a[:, :2], dxy) / l2, 0.0)
+        dev = np.abs(p[free, 2] - (a[:, 2] + s * (b[:, 2] - a[:, 2])))
+        worst = np.full(len(k), -1.0)
+        np.maximum.at(worst, j, dev)
+        pick = (dev == worst[j]) & (dev > tol)
+        if not np.any(pick):
+            return keep
+        _, first = np.unique(j[pick], return_index=True)
+        keep[free[np.flatnonzero(pick)[first]]] = True
+
+
+# --------------------------------------------------------------------------- assembly
+
+
+def _assemble(chains: list[np.ndarray], safe_z: float, name: str, kind: str, tool: Tool,
+              cutting: CuttingData, allowance: float) -> Operation:
+    """Chains of CL points cut in order; retract to ``safe_z``, rapid, plunge between them."""
+    points: list[np.ndarray] = []
+    motion: list[np.ndarray] = []
+    for c in chains:
+        top = np.array([[c[0, 0], c[0, 1], safe_z]])
+        points += [top, c, np.array([[c[-1, 0], c[-1, 1], safe_z]])]
+        motion += [
+            np.array([Motion.RAPID]),
+            np.concatenate([[Motion.PLUNGE], np.full(len(c) - 1, Motion.CUT)]),
+            np.array([Motion.RAPID]),
+        ]
+    if not points:
+        return Operation(name, kind, tool, cutting, np.zeros((0, 3)), np.zeros(0), allowance)
+    pts = np.concatenate(points)
+    if np.max(pts[:, 2]) > safe_z + 1e-9:
+        raise ToolpathError(f"safe height {safe_z:g} mm is below the part ({np.max(pts[:, 2]):g} mm)", source="setup")
+    return Operation(name, kind, tool, cutting, pts, np.concatenate(motion).astype(np.int8), allowance)
+
+
+# --------------------------------------------------------------------------- raster
+
+
+def raster_finishing(
+    part: trimesh.Trimesh,
+    setup: Setup,
+    tool: Tool,
+    cutting: CuttingData,
+    options: FinishingOptions = FinishingOptions(),
+    progress: Progress | None = None,
+) -> Operation:
+    """Zigzag drop-cutter finishing of the shallow areas of ``part``.
+
+    Lines run at ``options.angle`` over the part's footprint grown by the tool radius (cells
+    where the tool touches the part, plus one sample around), within the stock; the tip
+    never goes below the stock bottom. Points on CL-surface slopes of ``steep_angle`` or
+    more are left to waterline; a steep gap shorter than the tool diameter is cut through
+    along the CL surface, a longer one is crossed at ``setup.safe_z``. Consecutive lines are
+    joined by a cut along the CL surface when their ends are within a tool diameter.
+
+    Parameters
+    ----------
+    part : trimesh.Trimesh
+        Watertight part in work coordinates [mm].
+    setup : Setup
+    tool : Tool
+    cutting : CuttingData
+    options : FinishingOptions
+    progress : callable, optional
+        ``progress(done, total)`` over the initial CL grid.
+
+    Returns
+    -------
+    Operation
+        ``kind="raster"``; starts and ends at ``setup.safe_z``; empty if nothing is shallow.
+
+    Raises
+    ------
+    ToolpathError
+        Bad options, an empty part, a part outside the stock, or ``safe_z`` below the part.
+    """
+    _check(options)
+    surface = _surface(part, setup, tool, options)
+    stepover = stepover_for(tool, options.scallop)
+    step = options.step_along if options.step_along is not None else min(tool.radius / 8.0, 0.25)
+    # One step beyond the tool's reach: a line exactly one radius from a vertical wall would
+    # run along the jump of the CL surface, where rounding decides which side a point is on.
+    lo, hi = _work_box(part, setup, tool.radius + options.allowance + step)
+
+    th = math.radians(options.angle)
+    u_dir = np.array([math.cos(th), math.sin(th)])
+    v_dir = np.array([-math.sin(th), math.cos(th)])
+    box = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+    bu, bv = box @ u_dir, box @ v_dir
+    nv = max(int(math.ceil((bv.max() - bv.min()) / stepover)) + 1, 1)
+    nu = max(int(math.ceil((bu.max() - bu.min()) / step)) + 1, 2)
+    vs = np.linspace(bv.min(), bv.max(), nv) if nv > 1 else np.array([0.5 * (bv.min() + bv.max())])
+    us = np.linspace(bu.min(), bu.max(), nu)
+    du = us[1] - us[0]
+    gxy = us[None, :, None] * u_dir + vs[:, None, None] * v_dir  # (nv, nu, 2)
+    eps = 1e-9
+    inside = np.all((gxy >= lo - eps) & (gxy <= hi + eps), axis=2)
+    gz = np.full(inside.shape, np.nan)
+    gz[inside] = surface.z(gxy[inside], progress)
+
+    touched = inside & (gz > surface.floor + 1e-9)
+    region = ndimage.binary_dilation(touched, structure=np.ones((3, 3), bool)) & inside
+    if options.steep_angle >= 90.0:
+        shallow = region
+    else:
+        slope = _slope(gz, du, vs[1] - vs[0] if nv > 1 else du)
+        shallow = region & (slope < math.tan(math.radians(options.steep_angle)))
+
+    chains_xy: list[np.ndarray] = []
+    last_line = -1
+    link = tool.diameter
+    for j in range(nv):
+        runs = _runs(shallow[j], inside[j], max(int(link / du), 0))
+        for s, e in runs if j % 2 == 0 else reversed(runs):
+            idx = np.arange(s, e + 1) if j % 2 == 0 else np.arange(e, s - 1, -1)
+            line = gxy[j, idx]
+            if chains_xy and last_line != j and np.hypot(*(chains_xy[-1][-1] - line[0])) <= link:
+                # Step over to the next line along the CL surface rather than retracting.
+                gap = line[0] - chains_xy[-1][-1]
+                k = max(int(math.ceil(np.hypot(*gap) / step)), 1)
+                bridge = chains_xy[-1][-1] + gap * (np.arange(1, k) / k)[:, None]
+                chains_xy[-1] = np.concatenate([chains_xy[-1], bridge, line])
+            else:
+                chains_xy.append(line)
+            last_line = j
+
+    chains = _finish_chains(surface, chains_xy, options.tolerance)
+    return _assemble(chains, setup.safe_z, "finish raster", "raster", tool, cutting, options.allowance)
+
+
+def _slope(gz: np.ndarray, du: float, dv: float) -> np.ndarray:
+    """|grad z| from one-sided differences, the gentler side per axis (a jump next door
+    must not make a flat point look steep)."""
+    def gentle(axis: int, d: float) -> np.ndarray:
+        diff = np.abs(np.diff(gz, axis=axis)) / d
+        pad = [(0, 0), (0, 0)]
+        pad[axis] = (1, 0)
+        back = np.pad(diff, pad, constant_values=np.nan)
+        pad[axis] = (0, 1)
+        fwd = np.pad(diff, pad, constant_values=np.nan)
+        return np.nan_to_num(np.fmin(back, fwd), nan=0.0)
+
+    return np.hypot(gentle(1, du), gentle(0, dv))
+
+
+def _runs(keep: np.ndarray, inside: np.ndarray, max_gap: int) -> list[tuple[int, int]]:
+    """Index ranges [s, e] of kept samples along one line, short inside gaps bridged."""
+    k = np.flatnonzero(keep)
+    if len(k) < 2:
+        return []
+    breaks = np.flatnonzero(np.diff(k) > 1)
+    starts = np.concatenate([[k[0]], k[breaks + 1]])
+    ends = np.concatenate([k[breaks], [k[-1]]])
+    runs = [[int(starts[0]), int(ends[0])]]
+    for s, e in zip(starts[1:], ends[1:]):
+        gap = s - runs[-1][1] - 1
+        if gap <= max_gap and np.all(inside[runs[-1][1]:s]):
+            runs[-1][1] = int(e)
+        else:
+            runs.append([int(s), int(e)])
+    return [(s, e) for s, e in runs if e > s]
+
+
+def _finish_chains(surface: _Surface, chains_xy: list[np.ndarray], tolerance: float) -> list[np.ndarray]:
+    """Exact z, adaptive refinement and merging for polylines cut along the CL surface."""
+    if not chains_xy:
+        return []
+    sizes = np.array([len(c) for c in chains_xy])
+    xy = np.concatenate(chains_xy)
+    z = surface.z(xy)
+    joined = np.ones(len(xy) - 1, dtype=bool)
+    ends = np.cumsum(sizes)[:-1]
+    joined[ends - 1] = False
+    chain_id = np.repeat(np.arange(len(sizes)), sizes)
+    rxy, rz, forced, source = _refine(surface, xy, z, joined, _REFINE_SHARE * tolerance)
+    p = np.column_stack([rxy, rz])
+    cid = chain_id[source]
+    bounds = np.concatenate([[0], np.flatnonzero(np.diff(cid)) + 1, [len(p)]])
+    first = bounds[:-1]
+    keep = forced.copy()
+    keep[first] = True
+    keep[bounds[1:] - 1] = True
+    # Direction changes (links between lines) must stay.
+    d = np.diff(p[:, :2], axis=0)
+    cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
+    dot = np.einsum("ij,ij->i", d[:-1], d[1:])
+    turn = np.abs(cross) > 1e-9 * (np.hypot(*d[:-1].T) * np.hypot(*d[1:].T) + 1e-30)
+    keep[1:-1] |= turn | (dot < 0)
+    keep = _simplify(p, keep, _MERGE_SHARE * tolerance)
+    return [p[a:b][keep[a:b]] for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+# --------------------------------------------------------------------------- waterline
+
+#: Bisection steps locating a loop vertex on its grid edge (grid step / 2**40: sub-nm).
+_ISO_STEPS = 40
+#: Rounds of chord checking; each halves the chords that still cut in.
+_CHORD_ROUNDS = 14
+
+
+def waterline_finishing(
+    part: trimesh.Trimesh,
+    setup: Setup,
+    tool: Tool,
+    cutting: CuttingData,
+    options: FinishingOptions = FinishingOptions(),
+    progress: Progress | None = None,
+) -> Operation:
+    """Constant-z loops around the part, levels spaced for ``options.scallop`` on walls.
+
+    The CL height map on a grid (spacing R/4) is contoured at each level with contourpy;
+    each contour vertex is then moved onto the exact iso-line by bisection along its grid
+    edge with the exact drop-cutter (keeping the gouge-free end). Where the CL surface
+    jumps (a vertical wall: the tool's side touches it) the vertex is moved out by half the
+    tolerance, so chords around convex corners do not cut into the wall. Chords that rise
+    above ``level + tolerance/2`` anywhere (sampled finely, see :func:`_tighten_chords`)
+    get a new vertex pushed out onto the iso-line. All loops are kept (shallow areas included); the raster covers shallow areas
+    again. Loops are cut top level first, nearest loop next, with a retract to
+    ``setup.safe_z``, a rapid, and a plunge to each loop's start.
+
+    Parameters, returns and raises as :func:`raster_finishing` (``kind="waterline"``).
+    """
+    _check(options)
+    surface = _surface(part, setup, tool, options)
+    reach = tool.radius + options.allowance
+    g = max(min(tool.radius / 4.0, 2.0), 0.02)
+    lo, hi = _work_box(part, setup, reach + g)
+    nx = int(math.ceil((hi[0] - lo[0]) / g)) + 1
+    ny = int(math.ceil((hi[1] - lo[1]) / g)) + 1
+    gx = np.linspace(lo[0], hi[0], nx)
+    gy = np.linspace(lo[1], hi[1], ny)
+    X, Y = np.meshgrid(gx, gy)
+    Z = surface.z(np.column_stack([X.ravel(), Y.ravel()]), progress).reshape(ny, nx)
+
+    floor = surface.floor
+    top = float(Z.max())
+    step = stepover_for(tool, options.scallop)
+    levels = top - step * np.arange(1, int((top - floor) / step) + 1)
+    levels = levels[levels > floor + 1e-3]
+    if not len(levels):
+        return _assemble([], setup.safe_z, "finish waterline", "waterline", tool, cutting, options.allowance)
+
+    gen = contourpy.contour_generator(gx, gy, Z, line_type="Separate")
+    lines: list[np.ndarray] = []
+    line_level: list[float] = []
+    for level in levels:
+        for line in gen.lines(float(level)):
+            if len(line) >= 3:
+                lines.append(np.asarray(line, dtype=np.float64))
+                line_level.append(float(level))
+    if not lines:
+        return _assemble([], setup.safe_z, "finish waterline", "waterline", tool, cutting, options.allowance)
+
+    sizes = np.array([len(c) for c in lines])
+    xy = np.concatenate(lines)
+    lev = np.repeat(np.array(line_level), sizes)
+    closed = np.array([np.allclose(c[0], c[-1]) for c in lines])
+    xy, outward = _onto_iso(surface, xy, lev, gx, gy, Z, options.tolerance)
+    loops = np.split(np.column_stack([xy, lev]), np.cumsum(sizes)[:-1])
+    outs = np.split(outward, np.cumsum(sizes)[:-1])
+    loops = _tighten_chords(surface, loops, outs, options.tolerance)
+    p = np.concatenate(loops)
+    high = int(np.sum(surface.z(p[:, :2]) > p[:, 2] + 1e-9))
+    if high:
+        log.warning("waterline: %d loop vertices sit below the exact CL surface", high)
+    chains = _order_loops(loops, closed)
+    return _assemble(chains, setup.safe_z, "finish waterline", "waterline", tool, cutting, options.allowance)
+
+
+def _onto_iso(surface: _Surface, xy, lev, gx, gy, Z, tolerance):
+    """Move contour vertices onto the exact iso-lines; also return each one's outward direction."""
+    g = gx[1] - gx[0]
+    fx = (xy[:, 0] - gx[0]) / (gx[1] - gx[0])
+    fy = (xy[:, 1] - gy[0]) / (gy[1] - gy[0])
+    on_col = np.abs(fx - np.round(fx)) < 1e-7
+    # A vertex on a column lies on a vertical grid edge, otherwise on a horizontal one.
+    i0 = np.where(on_col, np.round(fx), np.floor(fx)).astype(np.int64)
+    j0 = np.where(on_col, np.floor(fy), np.round(fy)).astype(np.int64)
+    i0 = np.clip(i0, 0, len(gx) - 1)
+    j0 = np.clip(j0, 0, len(gy) - 1)
+    i1 = np.clip(np.where(on_col, i0, i0 + 1), 0, len(gx) - 1)
+    j1 = np.clip(np.where(on_col, j0 + 1, j0), 0, len(gy) - 1)
+    pa = np.column_stack([gx[i0], gy[j0]])
+    pb = np.column_stack([gx[i1], gy[j1]])
+    za, zb = Z[j0, i0], Z[j1, i1]
+    a_in = za >= lev
+    bracket = a_in != (zb >= lev)
+    p_in = np.where(a_in[:, None], pa, pb)
+    p_out = np.where(a_in[:, None], pb, pa)
+    sel = np.flatnonzero(bracket)
+    pi, po, lv = p_in[sel], p_out[sel], lev[sel]
+    for _ in range(_ISO_STEPS):
+        mid = 0.5 * (pi + po)
+        inside = surface.z(mid) > lv
+        pi = np.where(inside[:, None], mid, pi)
+        po = np.where(inside[:, None], po, mid)
+    out = xy.copy()
+    out[sel] = po
+    outward = np.zeros_like(xy)
+    d = po - pi
+    outward[sel] = d / np.maximum(np.hypot(*d.T), 1e-300)[:, None]
+    # Where the surface jumps across the bracket, step out a little: the tool side is on a wall.
+    jump = surface.z(pi) - lv > 1e-4
+    if np.any(jump):
+        k = sel[jump]
+        pushed = po[jump] + 0.5 * tolerance * outward[k]
+        free = surface.z(pushed) <= lv[jump]
+        out[k[free]] = pushed[free]
+    unbracketed = np.flatnonzero(~bracket)
+    if len(unbracketed):
+        log.warning("%d contour vertices without a bracketing grid edge", len(unbracketed))
+    return out, outward
+
+
+def _tighten_chords(surface: _Surface, loops, outs, tolerance):
+    """Insert pushed-out vertices where a chord rises above ``level + tolerance/2``.
+
+    Chords are sampled ``s = min(0.05, sqrt(R * tolerance))`` apart and each sample is
+    tested ``s^2 / 8R`` inside the chord: where the CL surface jumps (vertical walls) any
+    intrusion is a gouge, and the boundary of the region the tool must avoid bends with
+    radius >= R, so it cannot reach the chord between two samples that pass. The new vertex goes where the chord cuts
+    in deepest, moved along the chord's normal onto the iso-line (and off a wall, see
+    :func:`_onto_iso`). Only chords made in the previous round are checked again.
+    """
+    tol = 0.5 * tolerance
+    spacing = min(0.05, math.sqrt(surface.radius * tolerance))
+    margin = spacing * spacing / (8.0 * surface.radius)
+    sizes = np.array([len(c) for c in loops])
+    p = np.concatenate(loops)
+    o = np.concatenate(outs)
+    p[:, :2] = _clear_margin(surface, p[:, :2], o, p[:, 2], margin, tol)
+    ends = np.cumsum(sizes)
+    dirty = np.ones(len(p), dtype=bool)  # chord from point i to i + 1 not yet verified
+    dirty[ends - 1] = False
+    for _ in range(_CHORD_ROUNDS):
+        ia = np.flatnonzero(dirty)
+        if not len(ia):
+            break
+        ib = ia + 1
+        a, b = p[ia], p[ib]
+        lv = a[:, 2]
+        length = np.hypot(*(b[:, :2] - a[:, :2]).T)
+        n_s = np.maximum(np.ceil(length / spacing).astype(np.int64), 2)
+        chord = np.repeat(np.arange(len(ia)), n_s - 1)
+        first = np.cumsum(n_s - 1) - (n_s - 1)
+        t = (np.arange(len(chord)) - first[chord] + 1) / n_s[chord]
+        q = a[chord, :2] + t[:, None] * (b[chord, :2] - a[chord, :2])
+        d = b[:, :2] - a[:, :2]
+        nrm = np.column_stack([-d[:, 1], d[:, 0]]) / np.maximum(length, 1e-300)[:, None]
+        side = np.sign(np.einsum("ij,ij->i", nrm, o[ia] + o[ib]))
+        nrm *= np.where(side == 0, 1.0, side)[:, None]
+        # Samples are tested a little inside the chord: a wall the tool rounds with radius
+        # >= R cannot then reach the chord between two samples that pass.
+        over = surface.z(q - margin * nrm[chord]) - lv[chord]
+        worst = np.full(len(ia), -np.inf)
+        np.maximum.at(worst, chord, over)
+        dirty[ia] = False
+        bad = (worst > tol) & (length > 1e-4)
+        log.debug("chord round: %d checked, %d bad, %d points", len(ia), int(bad.sum()), len(p))
+        if not np.any(bad):
+            break
+        k = np.flatnonzero(bad)
+        # Deepest sample of each bad chord.
+        hit = np.flatnonzero(over == worst[chord])
+        _, firsthit = np.unique(chord[hit], return_index=True)
+        deepest = np.full(len(ia), -1)
+        deepest[chord[hit[firsthit]]] = hit[firsthit]
+        start = q[deepest[k]]
+        n = nrm[k]
+        lvk = lv[k]
+        # Search outward for a free point, then bisect back onto the iso-line.
+        po = np.full_like(start, np.nan)
+        for s in (0.25, 0.5, 1.0, 2.0, 4.0):
+            todo = np.isnan(po[:, 0])
+            if not np.any(todo):
+                break
+            cand = start[todo] + n[todo] * (s * length[k][todo, None] + tolerance)
+            ok = surface.z(cand) <= lvk[todo]
+            po[np.flatnonzero(todo)[ok]] = cand[ok]
+        found = ~np.isnan(po[:, 0])
+        if not np.all(found):
+            log.warning("waterline: %d chords could not be pushed off the part", int(np.sum(~found)))
+        if not np.any(found):
+            break
+        pi, po, lvf, nf = start[found], po[found], lvk[found], n[found]
+        for _ in range(_ISO_STEPS):
+            m = 0.5 * (pi + po)
+            inside = surface.z(m) > lvf
+            pi = np.where(inside[:, None], m, pi)
+            po = np.where(inside[:, None], po, m)
+        jump = surface.z(pi) - lvf > 1e-4
+        pushed = po + 0.5 * tolerance * nf
+        use = jump & (surface.z(pushed) <= lvf)
+        po[use] = pushed[use]
+        po = _clear_margin(surface, po, nf, lvf, margin, tol)
+        after = ia[k[found]]
+        at = after + 1
+        p = np.insert(p, at, np.column_stack([po, lvf]), axis=0)
+        o = np.insert(o, at, nf, axis=0)
+        # Both new chords (before and after each new vertex) need checking.
+        dirty = np.insert(dirty, at, True)
+        dirty[after + np.arange(len(after))] = True
+        counts = np.bincount(np.searchsorted(ends, after, side="right"), minlength=len(sizes))
+        sizes = sizes + counts
+        ends = np.cumsum(sizes)
+    else:
+        if np.any(dirty):
+            log.warning("waterline: %d chords still unverified after %d rounds", int(dirty.sum()), _CHORD_ROUNDS)
+    return np.split(p, np.cumsum(sizes)[:-1])
+
+
+def _clear_margin(surface: _Surface, xy, outward, level, margin, tol):
+    """Move vertices out by ``margin`` where the CL surface is too steep for the chord test.
+
+    The chord test probes ``margin`` inside the chord; on a near-vertical CL slope (the tool
+    rolling over a wall's top edge) that probe would fail beside a vertex exactly on the
+    iso-line, and splitting would never end.
+    """
+    steep = surface.z(xy - margin * outward) > level + tol
+    if not np.any(steep):
+        return xy
+    moved = xy[steep] + margin * outward[steep]
+    free = surface.z(moved) <= level[steep]
+    out = xy.copy()
+    out[np.flatnonzero(steep)[free]] = moved[free]
+    return out
+
+
+def _order_loops(loops, closed) -> list[np.ndarray]:
+    """Top level first; within a level the nearest loop next, closed loops entered nearest."""
+    levels = np.array([c[0, 2] for c in loops])
+    remaining = list(np.argsort(-levels, kind="stable"))
+    pos = None
+    out = []
+    while remaining:
+        lvl = levels[remaining[0]]
+        same = [i for i in remaining if levels[i] == lvl]
+        if pos is None:
+            pick = same[0]
+        else:
+            pick = min(same, key=lambda i: float(np.min(np.hypot(*(loops[i][:, :2] - pos).T))))
+        remaining.remove(pick)
+        c = loops[pick]
+        if closed[pick] and pos is not None:
+            body = c[:-1]
+            s = int(np.argmin(np.hypot(*(body[:, :2] - pos).T)))
+            body = np.roll(body, -s, axis=0)
+            c = np.concatenate([body, body[:1]])
+        elif pos is not None and np.hypot(*(c[-1, :2] - pos)) < np.hypot(*(c[0, :2] - pos)):
+            c = c[::-1]
+        out.append(c)
+        pos = c[-1, :2]
+    return out
