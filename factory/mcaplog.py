@@ -28,6 +28,7 @@ import contextlib
 import json
 import logging
 import re
+import struct
 import sys
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -44,6 +45,9 @@ from scipy.spatial.transform import Rotation
 import factory
 from factory.atomic import atomic_output, check_writable
 from factory.errors import McapError
+
+# What the mcap reader raises on a file that is not MCAP or is cut short.
+_READ_ERRORS = (_McapLibError, EOFError, OSError, ValueError, StopIteration, struct.error)
 
 log = logging.getLogger(__name__)
 
@@ -377,7 +381,7 @@ def _open_reader(path: str | Path):  # type: ignore[no-untyped-def]
         try:
             reader = make_reader(f)
             header = reader.get_header()
-        except (_McapLibError, EOFError, OSError, ValueError, StopIteration) as e:
+        except _READ_ERRORS as e:
             raise McapError(f"not an MCAP file ({e.__class__.__name__}: {e})", source=path) from None
         yield path, header, reader
 
@@ -395,7 +399,7 @@ def read_attachment(path: str | Path, name: str) -> bytes:
             for a in reader.iter_attachments():
                 if a.name == name:
                     return bytes(a.data)
-        except (_McapLibError, EOFError, OSError, ValueError, StopIteration) as e:
+        except _READ_ERRORS as e:
             raise McapError(f"corrupt MCAP file ({e.__class__.__name__}: {e})", source=p) from None
     raise McapError(f"no attachment named {name!r}", source=p)
 
@@ -413,7 +417,7 @@ def read_metadata(path: str | Path, name: str = FACTORY_METADATA) -> dict[str, s
             for m in reader.iter_metadata():
                 if m.name == name:
                     return dict(m.metadata)
-        except (_McapLibError, EOFError, OSError, ValueError, StopIteration) as e:
+        except _READ_ERRORS as e:
             raise McapError(f"corrupt MCAP file ({e.__class__.__name__}: {e})", source=p) from None
     raise McapError(f"no metadata record named {name!r}", source=p)
 

@@ -1,0 +1,141 @@
+"""What every command shares: options, error reporting, progress bars, JSON output.
+
+Exit codes: 0 success; 1 bad input or a failed stage (``error: <file>: <problem>`` on
+stderr, no traceback, no output file); 2 command-line usage; 3 ``verify`` ran but the
+program gouges the part or crashes a rapid.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import hashlib
+import json
+import logging
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Annotated, Any, TypeVar
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+from factory.errors import FactoryError
+
+EXIT_ERROR = 1
+EXIT_VERIFY_FAILED = 3
+
+stderr = Console(stderr=True)
+
+Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace output files that exist.")]
+JsonFlag = Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout.")]
+Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars or summaries on stderr.")]
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def reports_errors(fn: F) -> F:
+    """Turn a :class:`FactoryError` into one line on stderr and exit code 1."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except FactoryError as e:
+            # markup=False: file names may contain brackets.
+            stderr.print(f"error: {e}", markup=False, highlight=False, soft_wrap=True)
+            raise typer.Exit(EXIT_ERROR) from None
+
+    return wrapper  # type: ignore[return-value]
+
+
+def setup_logging(quiet: bool) -> None:
+    """Library warnings to stderr; only the CLI configures logging."""
+    logging.basicConfig(
+        level=logging.ERROR if quiet else logging.WARNING,
+        format="%(levelname)s: %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+
+
+class StageProgress:
+    """Rich progress bars on stderr, one per named stage, fed by library callbacks."""
+
+    def __init__(self, progress: Progress | None):
+        self._progress = progress
+        self._tasks: dict[str, Any] = {}
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if self._progress is None:
+            return
+        if stage not in self._tasks:
+            self._tasks[stage] = self._progress.add_task(stage, total=max(total, 1))
+        self._progress.update(self._tasks[stage], completed=done, total=max(total, 1))
+
+    def stage(self, name: str) -> Callable[[int, int], None]:
+        """A ``progress(done, total)`` callback for one stage."""
+        return lambda done, total: self(name, done, total)
+
+
+@contextlib.contextmanager
+def progress_bars(quiet: bool) -> Iterator[StageProgress]:
+    """Progress bars on stderr (nothing when ``quiet``)."""
+    if quiet:
+        yield StageProgress(None)
+        return
+    with Progress(
+        TextColumn("{task.description:>10}"),
+        BarColumn(),
+        TextColumn("{task.percentage:>3.0f}%"),
+        TimeElapsedColumn(),
+        console=stderr,
+        transient=True,
+    ) as p:
+        yield StageProgress(p)
+
+
+class Stopwatch:
+    """Wall time per named stage [s], in the order the stages ran."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    @contextlib.contextmanager
+    def __call__(self, name: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - t0
+
+    def rounded(self) -> dict[str, float]:
+        return {k: round(v, 3) for k, v in self.seconds.items()}
+
+
+def sha256_file(path: Path) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def print_json(data: Any) -> None:
+    """One JSON document on stdout, for scripts."""
+    sys.stdout.write(json.dumps(data, indent=2, sort_keys=False) + "\n")
+
+
+def parse_triple(text: str | None, name: str) -> tuple[float, float, float] | None:
+    """``"100,60,25"`` → ``(100.0, 60.0, 25.0)``; a usage error names the option."""
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(v > 0 for v in values):
+        raise typer.BadParameter(f"expected three positive sizes in mm like 100,60,25, got {text!r}", param_hint=name)
+    return values  # type: ignore[return-value]

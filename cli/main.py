@@ -1,0 +1,26 @@
+"""The ``factory`` command: one sub-command per stage, each reading and writing files."""
+
+from __future__ import annotations
+
+import typer
+
+from cli.gcode import gcode
+from cli.plan import plan
+from cli.toolpath import toolpath
+from cli.verify import verify
+
+app = typer.Typer(
+    name="factory",
+    help="From a part's CAD mesh to a running robotic machining cell.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+app.command()(toolpath)
+app.command()(gcode)
+app.command()(verify)
+app.command()(plan)
+
+
+def main() -> None:
+    app()

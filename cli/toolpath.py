@@ -1,0 +1,53 @@
+"""``factory toolpath PART.stl -o PART.toolpath.mcap``: compute the operations of a part."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from cli import cam
+from cli.common import JsonFlag, Overwrite, Quiet, Stopwatch, print_json, progress_bars, reports_errors, setup_logging, stderr
+from factory.atomic import check_writable
+from factory.mcaplog import McapLog
+
+
+@reports_errors
+def toolpath(
+    part: Annotated[Path, typer.Argument(help="Part mesh: STL, OBJ, 3MF or PLY.", dir_okay=False)],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Toolpath MCAP to write.", dir_okay=False)],
+    tools: cam.ToolsOpt = None,
+    stock: cam.StockOpt = None,
+    material: cam.MaterialOpt = "aluminium",
+    units: cam.UnitsOpt = "auto",
+    origin: cam.OriginOpt = "top-front-left",
+    rough_tool: cam.RoughToolOpt = 1,
+    finish_tool: cam.FinishToolOpt = 3,
+    allowance: cam.AllowanceOpt = 0.3,
+    scallop: cam.ScallopOpt = 0.005,
+    stepdown: cam.StepdownOpt = None,
+    waterline: cam.WaterlineOpt = True,
+    overwrite: Overwrite = False,
+    json_out: JsonFlag = False,
+    quiet: Quiet = False,
+) -> None:
+    """Rough and finish a part; write the job and its views to an MCAP file."""
+    setup_logging(quiet)
+    req = cam.CamRequest.from_options(part, tools, stock, material, units, origin, rough_tool, finish_tool,
+                                      allowance, scallop, stepdown, waterline)
+    check_writable(output, overwrite)
+    watch = Stopwatch()
+    with progress_bars(quiet) as bars:
+        planned = cam.compute_job(req, bars, watch)
+    with watch("write"):
+        with McapLog(output, stage="toolpath", overwrite=overwrite,
+                     inputs={str(part): planned.loaded.sha256},
+                     parameters=planned.job.parameters) as log:
+            cam.log_job(log, planned)
+    summary = cam.job_summary(planned.job) | {"output": str(output), "seconds": watch.rounded()}
+    if json_out:
+        print_json(summary)
+    elif not quiet:
+        for op in summary["operations"]:
+            stderr.print(f"{op['name']}: T{op['tool']}, {op['points']} points, cut {op['cut_mm']:.0f} mm")

@@ -1,0 +1,112 @@
+"""The whole CAM chain: part → job → G-code → parsed back → simulated. No gouge, no crash, rs274 accepts it."""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+import subprocess
+from pathlib import Path
+
+import manifold3d
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cadcam.finishing import FinishingOptions
+from cadcam.gcode import parse_gcode
+from cadcam.mesh import load_part
+from cadcam.plan import PlanOptions, plan_job
+from cadcam.post import PostOptions, linuxcnc_tool_table, post_process
+from cadcam.setup import make_setup
+from cadcam.tools import load_tool_library
+from cadcam.verify import VerifyOptions, simulate
+from tests.conftest import SAMPLES, manifold_to_trimesh
+
+LIBRARY = load_tool_library()
+# A coarser scallop than the default keeps the suite quick; gouge-freedom does not depend on it.
+TEST_PLAN = PlanOptions(finishing=FinishingOptions(scallop=0.02))
+SAMPLE_PARTS = sorted(SAMPLES.glob("*.stl"))
+
+
+def plan_post_verify(part_mesh, name: str, tmp_path: Path, options: PlanOptions = TEST_PLAN, cell: float = 0.2):
+    setup, part = make_setup(part_mesh)
+    job, _ = plan_job(part, setup, LIBRARY, part_name=name, options=options)
+    program = post_process(job, PostOptions())
+    moves = parse_gcode(program.text, source=name)
+    tools = {t.number: t for t in job.tools}
+    sim, report = simulate(moves, tools, setup, np.asarray(part.triangles), VerifyOptions(cell=cell))
+    nc = tmp_path / f"{name}.nc"
+    nc.write_text(program.text)
+    return job, program, report, nc
+
+
+def rs274_accepts(nc: Path, job, tmp_path: Path) -> None:
+    tbl = tmp_path / "tool.tbl"
+    tbl.write_text(linuxcnc_tool_table(job.tools))
+    p = subprocess.run(["rs274", "-t", str(tbl), "-g", str(nc)], stdin=subprocess.DEVNULL,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, (p.stdout[-1500:], p.stderr[-1500:])
+
+
+needs_rs274 = pytest.mark.skipif(shutil.which("rs274") is None,
+                                 reason="LinuxCNC's rs274 is not installed (apt-get install linuxcnc-uspace)")
+
+
+@pytest.mark.parametrize("sample", SAMPLE_PARTS, ids=lambda p: p.stem)
+def test_sample_never_gouges_and_never_crashes(sample, tmp_path):
+    job, program, report, nc = plan_post_verify(load_part(sample).mesh, sample.stem, tmp_path)
+    assert [op.kind for op in job.operations][0] == "roughing"
+    assert report.max_gouge <= 0.01, report.to_dict()
+    assert report.rapid_crashes == (), report.rapid_crashes[:3]
+    # Finishing actually finished: most of the surface is within the roughing allowance.
+    assert report.remaining_p95 <= TEST_PLAN.roughing.allowance + 0.05, report.to_dict()
+    if shutil.which("rs274"):
+        rs274_accepts(nc, job, tmp_path)
+
+
+@needs_rs274
+@pytest.mark.parametrize("dialect", ["linuxcnc", "fanuc"])
+def test_rs274_accepts_every_dialect_it_knows(dialect, tmp_path):
+    # LinuxCNC's interpreter also reads Fanuc-style programs (% bounds, O-number words aside).
+    setup, part = make_setup(load_part(SAMPLE_PARTS[0]).mesh)
+    job, _ = plan_job(part, setup, LIBRARY, part_name="p", options=TEST_PLAN)
+    nc = tmp_path / "p.nc"
+    nc.write_text(post_process(job, PostOptions(dialect=dialect)).text)
+    rs274_accepts(nc, job, tmp_path)
+
+
+def random_block(size, pockets, bosses) -> manifold3d.Manifold:
+    body = manifold3d.Manifold.cube(size)
+    for (x, y, w, h, depth) in pockets:
+        body -= manifold3d.Manifold.cube((w, h, depth + 1)).translate((x, y, size[2] - depth))
+    for (x, y, r, height) in bosses:
+        body += manifold3d.Manifold.cylinder(height, r, r, 48).translate((x, y, size[2]))
+    return body
+
+
+@st.composite
+def blocks(draw):
+    sx = draw(st.floats(30, 50))
+    sy = draw(st.floats(25, 40))
+    sz = draw(st.floats(6, 12))
+    pockets = []
+    for _ in range(draw(st.integers(0, 2))):
+        w, h = draw(st.floats(8, sx / 2)), draw(st.floats(8, sy / 2))
+        x, y = draw(st.floats(2, sx - w - 2)), draw(st.floats(2, sy - h - 2))
+        pockets.append((x, y, w, h, draw(st.floats(1, sz - 2))))
+    bosses = []
+    for _ in range(draw(st.integers(0, 2))):
+        r = draw(st.floats(3, 7))
+        bosses.append((draw(st.floats(r, sx - r)), draw(st.floats(r, sy - r)), r, draw(st.floats(1, 6))))
+    return random_block((sx, sy, sz), pockets, bosses)
+
+
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(body=blocks())
+def test_random_blocks_with_pockets_and_bosses_never_gouge(body, tmp_path):
+    mesh = manifold_to_trimesh(body)
+    options = dataclasses.replace(TEST_PLAN, finishing=FinishingOptions(scallop=0.05))
+    _, _, report, _ = plan_post_verify(mesh, "random", tmp_path, options=options, cell=0.25)
+    assert report.max_gouge <= 0.01, report.to_dict()
+    assert report.rapid_crashes == ()

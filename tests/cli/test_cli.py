@@ -1,0 +1,186 @@
+"""The `factory` command driven through typer's CliRunner on temp files."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import struct
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from typer.testing import CliRunner
+
+from cli.main import app
+
+runner = CliRunner()
+FAST = ["--scallop", "0.02", "--quiet"]
+
+
+def run(*args: str):
+    return runner.invoke(app, [str(a) for a in args], catch_exceptions=False)
+
+
+def assert_one_line_error(result, *needles: str) -> None:
+    assert result.exit_code == 1, result.output
+    lines = [l for l in result.stderr.splitlines() if l.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
+    for n in needles:
+        assert n in lines[0], (n, lines[0])
+    assert "Traceback" not in result.output
+
+
+@pytest.fixture(scope="module")
+def chain(tmp_path_factory) -> dict[str, Path]:
+    """toolpath → gcode → verify on the pocket block, once for the module."""
+    from tests.conftest import pocket_block
+
+    d = tmp_path_factory.mktemp("chain")
+    part = d / "block.stl"
+    pocket_block().export(part)
+    tp = d / "block.toolpath.mcap"
+    r = run("toolpath", part, "-o", tp, *FAST)
+    assert r.exit_code == 0, r.output
+    nc = d / "block.nc"
+    r = run("gcode", tp, "-o", nc, "--quiet")
+    assert r.exit_code == 0, r.output
+    return {"part": part, "toolpath": tp, "nc": nc, "setup": d / "block.setup.json", "dir": d}
+
+
+def test_chain_writes_program_and_setup_sheet(chain):
+    text = chain["nc"].read_text()
+    assert "G21" in text and "M30" in text
+    sheet = json.loads(chain["setup"].read_text())
+    assert sheet["format"] == "factory.setup/1"
+    assert sheet["units"] == "mm"
+    assert {t["number"] for t in sheet["tools"]} >= {1, 3}
+    assert sheet["estimated_cycle_s"] > 0
+    assert all(op["estimated_s"] > 0 for op in sheet["operations"])
+
+
+def test_verify_passes_and_writes_reports(chain):
+    d = chain["dir"]
+    r = run("verify", chain["nc"], "--setup", chain["setup"], "--part", chain["part"],
+            "--json", d / "v.json", "--png", d / "v.png", "--mcap", d / "v.mcap", "--quiet")
+    assert r.exit_code == 0, r.output
+    report = json.loads((d / "v.json").read_text())
+    assert report["max_gouge"] <= 0.01
+    assert report["rapid_crashes"] == []
+    assert (d / "v.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (d / "v.mcap").stat().st_size > 0
+
+
+def test_verify_fails_with_exit_3_on_a_gouging_program(chain, tmp_path):
+    # Lower every Z by 1 mm: the program now cuts into the part.
+    import re
+
+    text = chain["nc"].read_text()
+    lowered = re.sub(r"Z(-?\d+\.?\d*)", lambda m: f"Z{float(m.group(1)) - 1.0:.4f}", text)
+    bad = tmp_path / "deep.nc"
+    bad.write_text(lowered)
+    r = run("verify", bad, "--setup", chain["setup"], "--part", chain["part"], "--json", "-", "--quiet")
+    assert r.exit_code == 3
+    assert json.loads(r.stdout)["max_gouge"] > 0.5
+
+
+@pytest.mark.skipif(shutil.which("rs274") is None, reason="LinuxCNC's rs274 is not installed (apt-get install linuxcnc-uspace)")
+def test_linuxcnc_accepts_the_program(chain, tmp_path):
+    sheet = json.loads(chain["setup"].read_text())
+    tbl = tmp_path / "tool.tbl"
+    tbl.write_text("".join(f"T{t['number']} P{t['number']} Z{t['length']} D{t['diameter']}\n" for t in sheet["tools"]))
+    p = subprocess.run(["rs274", "-t", str(tbl), "-g", str(chain["nc"])], stdin=subprocess.DEVNULL,
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
+
+
+def test_outputs_are_not_overwritten_without_asking(chain):
+    before = chain["nc"].read_bytes()
+    r = run("gcode", chain["toolpath"], "-o", chain["nc"], "--quiet")
+    assert_one_line_error(r, str(chain["nc"]), "--overwrite")
+    assert chain["nc"].read_bytes() == before
+
+
+def test_plan_writes_everything(small_part, tmp_path):
+    out = tmp_path / "out"
+    r = run("plan", small_part, "-o", out, "--json", "--scallop", "0.02", "--quiet")
+    assert r.exit_code == 0, r.output
+    summary = json.loads(r.stdout)
+    for key in ("program", "setup_sheet", "mcap", "verify_json", "verify_png", "summary"):
+        assert Path(summary["outputs"][key]).is_file(), key
+    assert summary["verify"]["max_gouge"] <= 0.01
+    assert set(summary["seconds"]) >= {"load", "roughing", "raster", "post", "verify"}
+
+
+def test_gcode_rejects_a_file_that_is_not_mcap(tmp_path):
+    bogus = tmp_path / "x.toolpath.mcap"
+    bogus.write_text("hello")
+    out = tmp_path / "x.nc"
+    r = run("gcode", bogus, "-o", out)
+    assert_one_line_error(r, str(bogus))
+    assert not out.exists()
+
+
+def _box_stl(path: Path, size=(20.0, 20.0, 10.0)) -> trimesh.Trimesh:
+    mesh = trimesh.creation.box(size)
+    mesh.export(path)
+    return mesh
+
+
+def bad_empty(p: Path) -> None:
+    p.write_bytes(b"")
+
+
+def bad_truncated(p: Path) -> None:
+    _box_stl(p)
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) - 70])
+
+
+def bad_nan(p: Path) -> None:
+    mesh = trimesh.creation.box((20, 20, 10))
+    v = mesh.vertices.copy()
+    v[0, 0] = np.nan
+    data = bytearray(b"\0" * 80 + struct.pack("<I", len(mesh.faces)))
+    for f in mesh.faces:
+        data += struct.pack("<3f", 0, 0, 0) + struct.pack("<9f", *v[f].ravel()) + b"\0\0"
+    p.write_bytes(bytes(data))
+
+
+def bad_open(p: Path) -> None:
+    # A tube without its end caps: holes far too big to patch (a missing box side gets repaired).
+    tube = trimesh.creation.cylinder(radius=10, height=20, sections=32)
+    walls = np.abs(tube.face_normals[:, 2]) < 0.5
+    trimesh.Trimesh(tube.vertices, tube.faces[walls], process=False).export(p)
+
+
+def bad_units(p: Path) -> None:
+    _box_stl(p, (0.05, 0.04, 0.02))
+
+
+@pytest.mark.parametrize("make_bad", [bad_empty, bad_truncated, bad_nan, bad_open, bad_units],
+                         ids=lambda f: f.__name__)
+@pytest.mark.parametrize("command", ["toolpath", "plan"])
+def test_bad_part_gives_one_line_error_and_no_output(tmp_path, make_bad, command):
+    part = tmp_path / "bad.stl"
+    make_bad(part)
+    out = tmp_path / "out"
+    if command == "toolpath":
+        r = run("toolpath", part, "-o", out / "bad.toolpath.mcap", "--quiet")
+    else:
+        r = run("plan", part, "-o", out, "--quiet")
+    assert_one_line_error(r, str(part))
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_part_bigger_than_the_stock_given(small_part, tmp_path):
+    out = tmp_path / "x.mcap"
+    r = run("toolpath", small_part, "-o", out, "--stock", "20,20,20", "--quiet")
+    assert_one_line_error(r)
+    assert not out.exists()
+
+
+def test_malformed_stock_option_is_a_usage_error(small_part, tmp_path):
+    r = runner.invoke(app, ["toolpath", str(small_part), "-o", str(tmp_path / "x.mcap"), "--stock", "20,abc"])
+    assert r.exit_code == 2

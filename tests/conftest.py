@@ -1,0 +1,36 @@
+"""Fixtures shared across the test suite: small real parts made on the fly."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import manifold3d
+import numpy as np
+import pytest
+import trimesh
+
+ROOT = Path(__file__).resolve().parent.parent
+SAMPLES = ROOT / "samples"
+SHARED = ROOT.parent / "shared"
+
+
+def manifold_to_trimesh(m: manifold3d.Manifold) -> trimesh.Trimesh:
+    mesh = m.to_mesh()
+    return trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts), process=True)
+
+
+def pocket_block(size=(30.0, 20.0, 10.0), pocket=(16.0, 12.0, 4.0)) -> trimesh.Trimesh:
+    """A block with a rectangular pocket in its top, base at z=0 [mm]."""
+    block = manifold3d.Manifold.cube(size)
+    cut = manifold3d.Manifold.cube((pocket[0], pocket[1], pocket[2] + 1.0)).translate(
+        ((size[0] - pocket[0]) / 2, (size[1] - pocket[1]) / 2, size[2] - pocket[2])
+    )
+    return manifold_to_trimesh(block - cut)
+
+
+@pytest.fixture
+def small_part(tmp_path: Path) -> Path:
+    """A 30×20×10 mm block with a 16×12×4 mm pocket, as binary STL."""
+    path = tmp_path / "block.stl"
+    pocket_block().export(path)
+    return path
