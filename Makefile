@@ -1,0 +1,31 @@
+# Set up and run factory on a fresh machine: `make demo` plans every sample part into build/,
+# `make test` runs the test suite. Both create .venv and install factory into it first.
+
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+OUT    := build
+PARTS  := $(basename $(notdir $(wildcard samples/*.stl)))
+
+.PHONY: demo test venv clean
+
+demo: $(PARTS:%=$(OUT)/%.plan.json)
+	$(BIN)/python samples/summarize.py $^
+
+# One part per rule, so `make -j` plans parts in parallel.
+$(OUT)/%.plan.json: samples/%.stl $(BIN)/.installed
+	$(BIN)/factory plan $< -o $(OUT) --overwrite --quiet
+
+test: $(BIN)/.installed
+	$(BIN)/python -m pytest -q
+
+venv: $(BIN)/.installed
+
+$(BIN)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $@
+
+clean:
+	rm -rf $(OUT)
