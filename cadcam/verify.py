@@ -700,7 +700,7 @@ def _report(
     covered = np.isfinite(sim.part_top)
     rem = (sim.stock_top - np.where(covered, sim.part_top, 0.0))[covered]
     k = int(np.argmin(rem))
-    max_gouge = max(-float(rem[k]), 0.0)
+    max_gouge = max(0.0, -float(rem[k]))  # never -0.0: max keeps its first argument on a tie
     gouge_position = gouge_line = None
     if max_gouge > 0.0:
         cell = int(np.flatnonzero(covered.reshape(-1))[k])
