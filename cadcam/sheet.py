@@ -87,15 +87,10 @@ def read_setup_sheet(data: Any, source: str | None = None) -> tuple[Setup, dict[
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise SetupError(f"not a factory setup sheet (expected format {FORMAT!r})", source=source)
     try:
-        setup = Setup(
-            stock_min=data["stock"]["min"],
-            stock_max=data["stock"]["max"],
-            transform_mesh_to_work=data["transform_mesh_to_work"],
-            mesh_scale=float(data.get("mesh_scale", 1.0)),
-            origin=data.get("work_origin", "top-front-left"),
-            material=data.get("material", "aluminium"),
-            safe_z=float(data.get("safe_z", 5.0)),
-            clearance=float(data.get("clearance", 1.0)),
+        # The sheet names two fields for readers outside factory; the rest are Setup's own.
+        setup = Setup.from_dict(
+            {**data, "stock_min": data["stock"]["min"], "stock_max": data["stock"]["max"],
+             "origin": data.get("work_origin", "top-front-left")}
         )
         tools = {int(t["number"]): Tool.from_dict(t) for t in data["tools"]}
     except (KeyError, TypeError, ValueError) as e:

@@ -9,6 +9,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from tests.geometry import point_polyline_distance
 from cadcam.arcs import FitOptions, SegmentKind, arc_sweep, discretize_arc, fit_segments
 from cadcam.model import Motion
 from factory.errors import GcodeError
@@ -18,23 +19,6 @@ TOL = 0.002
 #: vertices and at quarter points of chords, so the worst point in between may exceed
 #: the tolerance by a few percent of it.
 SLACK = 0.05 * TOL + 1e-9
-
-
-def point_polyline_distance(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
-    """Distance from each point ``p`` (k, 3) to the polyline ``poly`` (m, 3) [mm]."""
-    if len(poly) == 1:
-        return np.linalg.norm(p - poly[0], axis=1)
-    a = poly[:-1]
-    d = poly[1:] - a
-    dd = np.einsum("ij,ij->i", d, d)
-    dd = np.where(dd == 0, 1.0, dd)
-    out = np.empty(len(p))
-    for s in range(0, len(p), 256):
-        q = p[s:s + 256, None, :] - a[None]
-        t = np.clip(np.einsum("kij,ij->ki", q, d) / dd, 0, 1)
-        r = q - t[..., None] * d
-        out[s:s + 256] = np.sqrt(np.einsum("kij,kij->ki", r, r).min(axis=1))
-    return out
 
 
 def check_within(points: np.ndarray, motion: np.ndarray, opt: FitOptions):

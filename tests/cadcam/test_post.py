@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.geometry import point_polyline_distance
 from cadcam.gcode import parse_gcode
 from cadcam.model import CuttingData, Job, Motion, Operation, Setup, Tool
 from cadcam.post import PostOptions, linuxcnc_tool_table, post_process
@@ -78,22 +79,6 @@ def _job() -> Job:
 # --------------------------------------------------------------------------- helpers
 
 
-def _seg_dist(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
-    """Distance of points (k, 3) to the polyline (m, 3)."""
-    if len(poly) == 1:
-        return np.linalg.norm(p - poly[0], axis=1)
-    a, d = poly[:-1], np.diff(poly, axis=0)
-    dd = np.einsum("ij,ij->i", d, d)
-    dd[dd == 0] = 1.0
-    out = np.empty(len(p))
-    for s in range(0, len(p), 256):
-        q = p[s:s + 256, None, :] - a[None]
-        t = np.clip(np.einsum("kij,ij->ki", q, d) / dd, 0, 1)
-        r = q - t[..., None] * d
-        out[s:s + 256] = np.sqrt(np.einsum("kij,kij->ki", r, r).min(axis=1))
-    return out
-
-
 def _op_line_ranges(text: str) -> list[tuple[int, int]]:
     """1-based [first, next) line ranges of each operation, from its ``(op k:`` comment."""
     lines = text.splitlines()
@@ -128,10 +113,10 @@ def test_round_trip_through_parser(dialect, arcs):
         sel = sel[known]
         path = mv.points[sel]
         # Every cutter location lies on the parsed path.
-        assert _seg_dist(op.points, path).max() <= tol
+        assert point_polyline_distance(op.points, path).max() <= tol
         # Every parsed point lies on the job's polyline, or at the safe height (approach,
         # retract) straight above the operation's first/last point.
-        d = _seg_dist(mv.points[sel], op.points)
+        d = point_polyline_distance(mv.points[sel], op.points)
         at_safe = np.isclose(mv.points[sel, 2], SETUP.safe_z)
         assert np.all((d <= tol) | at_safe)
         # Feeds are the operation's, rapids carry none; the right tool is in the spindle.
@@ -145,7 +130,7 @@ def test_round_trip_through_parser(dialect, arcs):
         # Feed moves happen only where the job feeds: parsed CUT points are near feed segments.
         feed_seg = op.motion[1:] != Motion.RAPID
         pieces = [op.points[i:i + 2] for i in np.flatnonzero(feed_seg)]
-        dmin = np.min([_seg_dist(mv.points[sel][cut], p) for p in pieces], axis=0)
+        dmin = np.min([point_polyline_distance(mv.points[sel][cut], p) for p in pieces], axis=0)
         assert dmin.max() <= tol
     # The program ends up, above everything.
     assert mv.points[-1, 2] >= SETUP.safe_z
