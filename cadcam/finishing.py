@@ -458,8 +458,11 @@ def waterline_finishing(
     jumps (a vertical wall: the tool's side touches it) the vertex is moved out by half the
     tolerance, so chords around convex corners do not cut into the wall. Chords that rise
     above ``level + tolerance/2`` anywhere (sampled finely, see :func:`_tighten_chords`)
-    get a new vertex pushed out onto the iso-line. All loops are kept (shallow areas included); the raster covers shallow areas
-    again. Loops are cut top level first, nearest loop next, with a retract to
+    get a new vertex pushed out onto the iso-line. Only the steep portions of the loops are
+    kept (CL slope of at least ``steep_angle`` less a small overlap with the raster, judged
+    by the steepest side, so the foot of a vertical wall counts as steep); shallow gaps
+    shorter than the tool diameter are bridged rather than retracted over. Loops are cut
+    top level first, nearest loop next, with a retract to
     ``setup.safe_z``, a rapid, and a plunge to each loop's start.
 
     Parameters, returns and raises as :func:`raster_finishing` (``kind="waterline"``).
@@ -507,8 +510,75 @@ def waterline_finishing(
     high = int(np.sum(surface.z(p[:, :2]) > p[:, 2] + 1e-9))
     if high:
         log.warning("waterline: %d loop vertices sit below the exact CL surface", high)
+    # The raster owns slopes below steep_angle; overlap it by _SEAM_OVERLAP so the seam is cut.
+    min_slope = math.tan(math.radians(max(options.steep_angle - _SEAM_OVERLAP, 0.0)))
+    loops, closed = _steep_portions(loops, closed, _steepest_slope(Z, g), gx, gy, min_slope, bridge=tool.diameter)
+    if not loops:
+        return _assemble([], setup.safe_z, "finish waterline", "waterline", tool, cutting, options.allowance)
     chains = _order_loops(loops, closed)
     return _assemble(chains, setup.safe_z, "finish waterline", "waterline", tool, cutting, options.allowance)
+
+
+#: Overlap [deg] of the waterline's slope range with the raster's, so their seam gets cut.
+_SEAM_OVERLAP = 5.0
+
+
+def _steepest_slope(gz: np.ndarray, g: float) -> np.ndarray:
+    """|grad z| per grid node from its steeper one-sided differences (a cliff next door counts)."""
+    dx = np.abs(np.diff(gz, axis=1)) / g
+    dy = np.abs(np.diff(gz, axis=0)) / g
+    sx = np.zeros_like(gz)
+    sy = np.zeros_like(gz)
+    sx[:, :-1] = dx
+    sx[:, 1:] = np.maximum(sx[:, 1:], dx)
+    sy[:-1, :] = dy
+    sy[1:, :] = np.maximum(sy[1:, :], dy)
+    return np.hypot(sx, sy)
+
+
+def _steep_portions(loops, closed, slope, gx, gy, min_slope: float, bridge: float):
+    """Cut waterline loops down to their steep stretches.
+
+    A vertex is steep when any node of its grid cell has ``slope >= min_slope``. Each kept
+    stretch takes one shallow neighbour at either end (its chord was verified with the
+    loop), and shallow gaps shorter than ``bridge`` [mm] are kept rather than retracted
+    over. Returns the pieces and whether each is still a closed loop.
+    """
+    g = gx[1] - gx[0]
+    ny, nx = slope.shape
+    out, out_closed = [], []
+    for c, is_closed in zip(loops, closed):
+        i = np.clip(((c[:, 0] - gx[0]) / g).astype(np.int64), 0, nx - 2)
+        j = np.clip(((c[:, 1] - gy[0]) / g).astype(np.int64), 0, ny - 2)
+        m = np.maximum.reduce([slope[j, i], slope[j, i + 1], slope[j + 1, i], slope[j + 1, i + 1]]) >= min_slope
+        if not m.any():
+            continue
+        if is_closed:
+            body, mb = c[:-1], m[:-1]
+            if mb.all():
+                out.append(c)
+                out_closed.append(True)
+                continue
+            r = int(np.argmin(mb))  # start the walk on a shallow vertex
+            body, mb = np.roll(body, -r, axis=0), np.roll(mb, -r)
+            c, m = np.concatenate([body, body[:1]]), np.concatenate([mb, [False]])
+        along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(c[:, :2], axis=0).T))])
+        steep = np.flatnonzero(m)
+        if is_closed and along[-1] - along[steep[-1]] + along[steep[0]] < bridge:
+            out.append(c)  # only a short shallow gap: cut the whole loop
+            out_closed.append(True)
+            continue
+        gaps = np.flatnonzero(np.diff(steep) > 1)
+        for a, b in zip(steep[gaps], steep[gaps + 1]):
+            if along[b] - along[a] < bridge:
+                m[a:b] = True
+        edges = np.diff(np.concatenate([[0], m.astype(np.int8), [0]]))
+        for s0, e0 in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1):
+            s0, e0 = max(s0 - 1, 0), min(e0 + 1, len(c) - 1)
+            if e0 > s0:
+                out.append(c[s0:e0 + 1])
+                out_closed.append(False)
+    return out, np.array(out_closed, dtype=bool)
 
 
 def _onto_iso(surface: _Surface, xy, lev, gx, gy, Z, tolerance):

@@ -225,3 +225,29 @@ def test_part_outside_stock_raises():
     part.apply_translation([500, 0, 0])
     with pytest.raises(ToolpathError):
         waterline_finishing(part, setup_for(), tool("ball"), CUTTING)
+
+
+@lru_cache(maxsize=None)
+def shallow_cap_on_block() -> trimesh.Trimesh:
+    """A 30 x 20 x 5 block with a low spherical cap (at most ~27 deg steep) on top."""
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=20.0)
+    sphere.apply_translation([20, 15, -15 - 20 + 3])  # cap 3 mm high, 2*sqrt(20^2-17^2) ~ 21 mm wide
+    cap = trimesh.boolean.intersection([sphere, box([5, 5, -15], [35, 25, 0])], engine="manifold")
+    return trimesh.boolean.union([box([5, 5, -20], [35, 25, -15]), cap], engine="manifold")
+
+
+def test_waterline_leaves_shallow_areas_to_the_raster():
+    """The cap never reaches steep_angle - overlap: its slopes get no waterline, the walls do."""
+    part, t = shallow_cap_on_block(), tool("ball")
+    op = waterline_finishing(part, setup_for(), t, CUTTING, FinishingOptions(scallop=0.05))
+    cut = op.points[op.motion == Motion.CUT]
+    assert len(cut) > 0
+    # Every cutting point hugs the block's vertical walls (tool axis R away from them) ...
+    x, y = cut[:, 0], cut[:, 1]
+    to_wall = np.minimum.reduce([np.abs(x - 5), np.abs(x - 35), np.abs(y - 5), np.abs(y - 25)])
+    outside = (x < 5) | (x > 35) | (y < 5) | (y > 25)
+    assert np.all(outside | (to_wall < 1e-6)), "waterline cut on the shallow cap"
+    # ... and every level of the walls is still there.
+    levels = np.unique(np.round(cut[:, 2], 6))
+    assert levels.min() < -19.0 + 1.0 and levels.max() > -15.5
+    assert worst_gouge(op, part, t, setup_for().stock_min[2]) <= TOL + 1e-6
