@@ -20,7 +20,7 @@ from cli.common import (EXIT_VERIFY_FAILED, Overwrite, Quiet, StageProgress, pri
 from cli.views import heightfield_mesh
 from factory.atomic import check_writable, write_bytes, write_text
 from factory.errors import SetupError, VerifyError
-from factory.mcaplog import McapLog, triangle_mesh_marker, marker_array
+from factory.mcaplog import McapLog, marker_array, triangle_mesh_marker
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +61,7 @@ def log_simulation(mcap: McapLog, sim: Simulation) -> None:
     """The simulated stock as a mesh in work coordinates (metres) on ``/verify/stock``."""
     vertices, faces = heightfield_mesh(sim.grid.xs, sim.grid.ys, sim.stock_top)
     marker = triangle_mesh_marker("verify_stock", 0, vertices / 1000.0, faces, (0.75, 0.75, 0.8, 1.0), "work", 0)
-    mcap.write("/verify/stock", marker_array([marker]), 0)
+    mcap.write("/verify/stock", marker_array([marker]), 0, latched=True)
 
 
 def report_text(report: VerifyReport) -> str:
