@@ -15,6 +15,8 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    # Help texts carry units in brackets ("[mm]"); rich markup would swallow them as tags.
+    rich_markup_mode=None,
 )
 app.command()(toolpath)
 app.command()(gcode)

@@ -184,3 +184,9 @@ def test_part_bigger_than_the_stock_given(small_part, tmp_path):
 def test_malformed_stock_option_is_a_usage_error(small_part, tmp_path):
     r = runner.invoke(app, ["toolpath", str(small_part), "-o", str(tmp_path / "x.mcap"), "--stock", "20,abc"])
     assert r.exit_code == 2
+
+
+def test_help_shows_units():
+    r = runner.invoke(app, ["verify", "--help"])
+    assert r.exit_code == 0
+    assert "[mm]" in r.output
