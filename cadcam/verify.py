@@ -32,7 +32,6 @@ into the stock are replayed in order, against the stock as every earlier move le
 
 from __future__ import annotations
 
-import io
 import logging
 import math
 from collections.abc import Callable, Mapping
@@ -778,7 +777,7 @@ def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640) -> 
     Returns
     -------
     (H, W, 3) uint8
-        RGB picture; write it with :func:`png_bytes`.
+        RGB picture; write it with :func:`factory.pictures.png_bytes`.
     """
     from PIL import Image, ImageDraw, ImageFont
 
@@ -841,12 +840,3 @@ def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640) -> 
         draw.line([(cx - 7, cy - 7), (cx + 7, cy + 7)], fill=(255, 0, 255), width=3)
         draw.line([(cx - 7, cy + 7), (cx + 7, cy - 7)], fill=(255, 0, 255), width=3)
     return np.asarray(img, dtype=np.uint8).copy()
-
-
-def png_bytes(image: np.ndarray) -> bytes:
-    """Encode an ``(H, W, 3)`` uint8 RGB picture as PNG."""
-    from PIL import Image
-
-    buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(image, dtype=np.uint8)).save(buf, format="PNG")
-    return buf.getvalue()

@@ -16,8 +16,10 @@ from cli.common import (EXIT_VERIFY_FAILED, JsonFlag, Overwrite, Quiet, Stopwatc
                         reports_errors, setup_logging, stderr)
 from cli.gcode import ArcTolOpt, PostOpt, program_summary, write_program
 from cli.verify import log_simulation, report_text, run_verify, write_verify_outputs
-from factory.atomic import check_writable, write_text
+from cadcam.preview import toolpath_image
+from factory.atomic import check_writable, write_bytes, write_text
 from factory.mcaplog import McapLog
+from factory.pictures import png_bytes
 
 
 def plan_outputs(part: Path, out_dir: Path) -> dict[str, Path]:
@@ -29,6 +31,7 @@ def plan_outputs(part: Path, out_dir: Path) -> dict[str, Path]:
         "mcap": stem.with_suffix(".mcap"),
         "verify_json": stem.with_suffix(".verify.json"),
         "verify_png": stem.with_suffix(".verify.png"),
+        "toolpath_png": stem.with_suffix(".toolpath.png"),
         "summary": stem.with_suffix(".plan.json"),
     }
 
@@ -80,6 +83,7 @@ def plan(
     with watch("write"):
         write_verify_outputs(sim, report, png=outputs["verify_png"], json_path=outputs["verify_json"], mcap=None,
                              overwrite=overwrite, inputs={})
+        write_bytes(outputs["toolpath_png"], png_bytes(toolpath_image(planned.job)), overwrite=overwrite)
         with McapLog(outputs["mcap"], stage="plan", overwrite=overwrite,
                      inputs={str(part): planned.loaded.sha256}, parameters=planned.job.parameters) as log:
             cam.log_job(log, planned)

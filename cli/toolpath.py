@@ -9,14 +9,17 @@ import typer
 
 from cli import cam
 from cli.common import JsonFlag, Overwrite, Quiet, Stopwatch, print_json, progress_bars, reports_errors, setup_logging, stderr
-from factory.atomic import check_writable
+from cadcam.preview import toolpath_image
+from factory.atomic import check_writable, write_bytes
 from factory.mcaplog import McapLog
+from factory.pictures import png_bytes
 
 
 @reports_errors
 def toolpath(
     part: Annotated[Path, typer.Argument(help="Part mesh: STL, OBJ, 3MF or PLY.", dir_okay=False)],
     output: Annotated[Path, typer.Option("-o", "--output", help="Toolpath MCAP to write.", dir_okay=False)],
+    png: Annotated[Path | None, typer.Option("--png", help="Also write a top-view picture of the toolpaths.", dir_okay=False)] = None,
     tools: cam.ToolsOpt = None,
     stock: cam.StockOpt = None,
     material: cam.MaterialOpt = "aluminium",
@@ -37,6 +40,8 @@ def toolpath(
     req = cam.CamRequest.from_options(part, tools, stock, material, units, origin, rough_tool, finish_tool,
                                       allowance, scallop, stepdown, waterline)
     check_writable(output, overwrite)
+    if png is not None:
+        check_writable(png, overwrite)
     watch = Stopwatch()
     with progress_bars(quiet) as bars:
         planned = cam.compute_job(req, bars, watch)
@@ -45,6 +50,8 @@ def toolpath(
                      inputs={str(part): planned.loaded.sha256},
                      parameters=planned.job.parameters) as log:
             cam.log_job(log, planned)
+        if png is not None:
+            write_bytes(png, png_bytes(toolpath_image(planned.job)), overwrite=overwrite)
     summary = cam.job_summary(planned.job) | {"output": str(output), "seconds": watch.rounded()}
     if json_out:
         print_json(summary)

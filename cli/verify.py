@@ -14,12 +14,13 @@ from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_part
 from cadcam.model import Setup, Tool
 from cadcam.sheet import read_setup_sheet
-from cadcam.verify import Simulation, VerifyOptions, VerifyReport, deviation_image, png_bytes, simulate
+from cadcam.verify import Simulation, VerifyOptions, VerifyReport, deviation_image, simulate
 from cli.common import (EXIT_VERIFY_FAILED, Overwrite, Quiet, StageProgress, print_json,
                         progress_bars, reports_errors, setup_logging, stderr)
 from cli.views import heightfield_mesh
 from factory.atomic import check_writable, write_bytes, write_text
 from factory.errors import SetupError, VerifyError
+from factory.pictures import png_bytes
 from factory.mcaplog import McapLog, marker_array, triangle_mesh_marker
 
 log = logging.getLogger(__name__)

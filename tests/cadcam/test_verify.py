@@ -16,11 +16,11 @@ from cadcam.model import Motion, ProgramMoves, Setup, Tool
 from cadcam.verify import (
     VerifyOptions,
     deviation_image,
-    png_bytes,
     simulate,
     swept_envelope,
 )
 from factory.errors import VerifyError
+from factory.pictures import png_bytes
 
 FLAT = Tool(1, "6 mm flat", "flat", 6.0, 0.0, 20.0, 3, 40.0)
 BALL = Tool(2, "6 mm ball", "ball", 6.0, 3.0, 20.0, 2, 40.0)

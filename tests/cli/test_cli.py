@@ -41,7 +41,7 @@ def chain(tmp_path_factory) -> dict[str, Path]:
     part = d / "block.stl"
     pocket_block().export(part)
     tp = d / "block.toolpath.mcap"
-    r = run("toolpath", part, "-o", tp, *FAST)
+    r = run("toolpath", part, "-o", tp, "--png", d / "block.toolpath.png", *FAST)
     assert r.exit_code == 0, r.output
     nc = d / "block.nc"
     r = run("gcode", tp, "-o", nc, "--quiet")
@@ -50,6 +50,7 @@ def chain(tmp_path_factory) -> dict[str, Path]:
 
 
 def test_chain_writes_program_and_setup_sheet(chain):
+    assert (chain["dir"] / "block.toolpath.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     text = chain["nc"].read_text()
     assert "G21" in text and "M30" in text
     sheet = json.loads(chain["setup"].read_text())
@@ -107,7 +108,7 @@ def test_plan_writes_everything(small_part, tmp_path):
     r = run("plan", small_part, "-o", out, "--json", "--scallop", "0.02", "--quiet")
     assert r.exit_code == 0, r.output
     summary = json.loads(r.stdout)
-    for key in ("program", "setup_sheet", "mcap", "verify_json", "verify_png", "summary"):
+    for key in ("program", "setup_sheet", "mcap", "verify_json", "verify_png", "toolpath_png", "summary"):
         assert Path(summary["outputs"][key]).is_file(), key
     assert summary["verify"]["max_gouge"] <= 0.01
     assert set(summary["seconds"]) >= {"load", "roughing", "raster", "post", "verify"}

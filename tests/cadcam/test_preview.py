@@ -1,0 +1,25 @@
+"""The toolpath picture shows every operation in its colour over the stock."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cadcam.model import CuttingData, Job, Motion, Operation, Setup, Tool
+from cadcam.preview import KIND_COLOURS, RAPID_COLOUR, toolpath_image
+
+
+def test_every_operation_and_the_rapids_are_drawn():
+    setup = Setup(stock_min=[0, 0, -10], stock_max=[60, 30, 0], transform_mesh_to_work=np.eye(4))
+    ball = Tool(3, "ball", "ball", 6.0, 3.0, 18.0, 2, 30.0)
+    flat = Tool(1, "flat", "flat", 6.0, 0.0, 18.0, 3, 30.0)
+    cut = CuttingData(10000, 1000, 300)
+    square = [[5, 5, -1], [55, 5, -1], [55, 25, -1], [5, 25, -1], [5, 5, -1]]
+    rough = Operation("rough", "roughing", flat, cut, [[5, 5, 5]] + square + [[5, 5, 5]],
+                      [0, 2] + [1] * 4 + [0])
+    raster = Operation("raster", "raster", ball, cut, [[10, 10, 5], [10, 10, -2], [50, 12, -2], [50, 12, 5]],
+                       [0, 2, 1, 0])
+    img = toolpath_image(Job("p", setup, (rough, raster)), width=600)
+    assert img.shape[1] == 600 and img.dtype == np.uint8
+    colours = {tuple(c) for c in img.reshape(-1, 3)}
+    for c in (KIND_COLOURS["roughing"], KIND_COLOURS["raster"], RAPID_COLOUR):
+        assert c in colours
