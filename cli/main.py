@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import typer
 
+from cli.calibrate import calibrate
 from cli.gcode import gcode
 from cli.plan import plan
 from cli.toolpath import toolpath
@@ -22,6 +23,7 @@ app.command()(toolpath)
 app.command()(gcode)
 app.command()(verify)
 app.command()(plan)
+app.command()(calibrate)
 
 
 def main() -> None:

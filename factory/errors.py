@@ -68,3 +68,19 @@ class McapError(FactoryError):
 
 class OutputExistsError(FactoryError):
     """An output file exists and overwriting was not asked for."""
+
+
+class VisionError(FactoryError):
+    """An image, board description or camera model file cannot be used."""
+
+
+class CalibrationError(VisionError):
+    """Camera calibration cannot run on its views: no board found, too few views, bad board spec."""
+
+
+class CellError(FactoryError):
+    """The robot cell description (robot, gripper, rack, vise, enclosure) is malformed."""
+
+
+class PlanningError(FactoryError):
+    """A robot motion cannot be planned: unreachable pose, joint limits, timing failure."""
