@@ -31,6 +31,7 @@ from scipy import ndimage
 
 from cadcam.dropcutter import TriangleIndex, build_index, drop_profile
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
+from cadcam.verify import Simulation, clear_height
 from factory.errors import ToolpathError
 
 log = logging.getLogger(__name__)
@@ -256,16 +257,28 @@ def _simplify(p: np.ndarray, keep: np.ndarray, tol: float) -> np.ndarray:
 # --------------------------------------------------------------------------- assembly
 
 
-def _assemble(chains: list[np.ndarray], safe_z: float, name: str, kind: str, tool: Tool,
-              cutting: CuttingData, allowance: float) -> Operation:
-    """Chains of CL points cut in order; retract to ``safe_z``, rapid, plunge between them."""
+def _assemble(chains: list[np.ndarray], setup: Setup, name: str, kind: str, tool: Tool,
+              cutting: CuttingData, allowance: float, stock: Simulation | None = None) -> Operation:
+    """Chains of CL points cut in order; retract to ``safe_z``, rapid, descend between them.
+
+    Descents rapid down to ``setup.clearance`` above the highest stock under the tool
+    (from ``stock``, the material earlier operations left) and feed only the rest; without
+    a stock model the whole descent from ``safe_z`` is fed.
+    """
+    safe_z = setup.safe_z
     points: list[np.ndarray] = []
     motion: list[np.ndarray] = []
-    for c in chains:
+    starts = np.array([c[0, :2] for c in chains]).reshape(-1, 2)
+    air = clear_height(stock, tool, starts) + setup.clearance if stock is not None else np.full(len(chains), np.inf)
+    for c, air_z in zip(chains, air):
         top = np.array([[c[0, 0], c[0, 1], safe_z]])
-        points += [top, c, np.array([[c[-1, 0], c[-1, 1], safe_z]])]
+        points.append(top)
+        motion.append(np.array([Motion.RAPID]))
+        if c[0, 2] < air_z < safe_z:
+            points.append(np.array([[c[0, 0], c[0, 1], air_z]]))
+            motion.append(np.array([Motion.RAPID]))
+        points += [c, np.array([[c[-1, 0], c[-1, 1], safe_z]])]
         motion += [
-            np.array([Motion.RAPID]),
             np.concatenate([[Motion.PLUNGE], np.full(len(c) - 1, Motion.CUT)]),
             np.array([Motion.RAPID]),
         ]
@@ -287,6 +300,7 @@ def raster_finishing(
     cutting: CuttingData,
     options: FinishingOptions = FinishingOptions(),
     progress: Progress | None = None,
+    stock: Simulation | None = None,
 ) -> Operation:
     """Zigzag drop-cutter finishing of the shallow areas of ``part``.
 
@@ -307,6 +321,9 @@ def raster_finishing(
     options : FinishingOptions
     progress : callable, optional
         ``progress(done, total)`` over the initial CL grid.
+    stock : Simulation, optional
+        The stock earlier operations left (:func:`cadcam.verify.stock_after`); descents
+        rapid through the air above it instead of feeding down from ``safe_z``.
 
     Returns
     -------
@@ -369,7 +386,7 @@ def raster_finishing(
             last_line = j
 
     chains = _finish_chains(surface, chains_xy, options.tolerance)
-    return _assemble(chains, setup.safe_z, "finish raster", "raster", tool, cutting, options.allowance)
+    return _assemble(chains, setup, "finish raster", "raster", tool, cutting, options.allowance, stock)
 
 
 def _slope(gz: np.ndarray, du: float, dv: float) -> np.ndarray:
@@ -449,6 +466,7 @@ def waterline_finishing(
     cutting: CuttingData,
     options: FinishingOptions = FinishingOptions(),
     progress: Progress | None = None,
+    stock: Simulation | None = None,
 ) -> Operation:
     """Constant-z loops around the part, levels spaced for ``options.scallop`` on walls.
 
@@ -485,7 +503,7 @@ def waterline_finishing(
     levels = top - step * np.arange(1, int((top - floor) / step) + 1)
     levels = levels[levels > floor + 1e-3]
     if not len(levels):
-        return _assemble([], setup.safe_z, "finish waterline", "waterline", tool, cutting, options.allowance)
+        return _assemble([], setup, "finish waterline", "waterline", tool, cutting, options.allowance)
 
     gen = contourpy.contour_generator(gx, gy, Z, line_type="Separate")
     lines: list[np.ndarray] = []
@@ -496,7 +514,7 @@ def waterline_finishing(
                 lines.append(np.asarray(line, dtype=np.float64))
                 line_level.append(float(level))
     if not lines:
-        return _assemble([], setup.safe_z, "finish waterline", "waterline", tool, cutting, options.allowance)
+        return _assemble([], setup, "finish waterline", "waterline", tool, cutting, options.allowance)
 
     sizes = np.array([len(c) for c in lines])
     xy = np.concatenate(lines)
@@ -514,9 +532,9 @@ def waterline_finishing(
     min_slope = math.tan(math.radians(max(options.steep_angle - _SEAM_OVERLAP, 0.0)))
     loops, closed = _steep_portions(loops, closed, _steepest_slope(Z, g), gx, gy, min_slope, bridge=tool.diameter)
     if not loops:
-        return _assemble([], setup.safe_z, "finish waterline", "waterline", tool, cutting, options.allowance)
+        return _assemble([], setup, "finish waterline", "waterline", tool, cutting, options.allowance)
     chains = _order_loops(loops, closed)
-    return _assemble(chains, setup.safe_z, "finish waterline", "waterline", tool, cutting, options.allowance)
+    return _assemble(chains, setup, "finish waterline", "waterline", tool, cutting, options.allowance, stock)
 
 
 #: Overlap [deg] of the waterline's slope range with the raster's, so their seam gets cut.

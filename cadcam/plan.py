@@ -14,12 +14,14 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import numpy as np
 import trimesh
 
 from cadcam.finishing import FinishingOptions, raster_finishing, waterline_finishing
 from cadcam.model import Job, Operation, Setup, Tool
 from cadcam.roughing import RoughingOptions, zlevel_roughing
 from cadcam.tools import ToolLibrary
+from cadcam.verify import stock_after
 from factory.errors import ToolError
 
 log = logging.getLogger(__name__)
@@ -125,50 +127,38 @@ def plan_job(
             return None
         return lambda done, total: progress(stage, done, total)
 
-    steps: list[tuple[str, Callable[[], Operation]]] = [
-        (
-            "roughing",
-            lambda: zlevel_roughing(
-                part, setup, rough_tool, library.cutting_data(rough_tool, setup.material),
-                options.roughing, progress=stage_progress("roughing"),
-            ),
-        )
-    ]
+    rough_cutting = library.cutting_data(rough_tool, setup.material)
     finish_cutting = library.cutting_data(finish_tool, setup.material)
-    if options.waterline:
-        steps.append(
-            (
-                "waterline",
-                lambda: waterline_finishing(
-                    part, setup, finish_tool, finish_cutting, options.finishing,
-                    progress=stage_progress("waterline"),
-                ),
-            )
-        )
     raster_options = options.finishing
     if not options.waterline:
         # Without waterline the raster must cover steep walls too.
         raster_options = dataclasses.replace(raster_options, steep_angle=90.0)
-    steps.append(
-        (
-            "raster",
-            lambda: raster_finishing(
-                part, setup, finish_tool, finish_cutting, raster_options,
-                progress=stage_progress("raster"),
-            ),
-        )
-    )
 
-    operations: list[Operation] = []
     seconds: list[tuple[str, float]] = []
-    for stage, compute in steps:
+
+    def timed(stage: str, compute: Callable[[], Operation]) -> Operation:
         t0 = time.perf_counter()
         op = compute()
         seconds.append((stage, time.perf_counter() - t0))
-        if len(op.points) < 2:
-            log.info("%s: nothing to cut, operation dropped", stage)
-            continue
-        operations.append(op)
+        return op
+
+    rough = timed("roughing", lambda: zlevel_roughing(part, setup, rough_tool, rough_cutting, options.roughing,
+                                                       progress=stage_progress("roughing")))
+    # What roughing left lets finishing descend by rapid through air instead of feeding from safe_z.
+    t0 = time.perf_counter()
+    stock = stock_after([rough], setup, np.asarray(part.triangles)) if len(rough.points) > 1 else None
+    seconds.append(("stock model", time.perf_counter() - t0))
+    operations = [rough]
+    if options.waterline:
+        operations.append(timed("waterline", lambda: waterline_finishing(
+            part, setup, finish_tool, finish_cutting, options.finishing,
+            progress=stage_progress("waterline"), stock=stock)))
+    operations.append(timed("raster", lambda: raster_finishing(
+        part, setup, finish_tool, finish_cutting, raster_options, progress=stage_progress("raster"), stock=stock)))
+    dropped = [op.kind for op in operations if len(op.points) < 2]
+    if dropped:
+        log.info("nothing to cut for %s: dropped", ", ".join(dropped))
+    operations = [op for op in operations if len(op.points) >= 2]
 
     job = Job(
         part_name=part_name,

@@ -34,14 +34,14 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from cadcam.heightmap import Grid, grid_over, upper_envelope
-from cadcam.model import Motion, ProgramMoves, Setup, Tool
+from cadcam.model import Motion, Operation, ProgramMoves, Setup, Tool
 from factory.errors import VerifyError
 
 log = logging.getLogger(__name__)
@@ -840,3 +840,67 @@ def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640) -> 
         draw.line([(cx - 7, cy - 7), (cx + 7, cy + 7)], fill=(255, 0, 255), width=3)
         draw.line([(cx - 7, cy + 7), (cx + 7, cy - 7)], fill=(255, 0, 255), width=3)
     return np.asarray(img, dtype=np.uint8).copy()
+
+
+def operation_moves(operations: Sequence[Operation]) -> ProgramMoves:
+    """The moves of operations as a controller would run them, without posting G-code.
+
+    PLUNGE moves become feed moves (the simulation does not tell feeds apart); each
+    operation's first point is reached by a rapid from the previous one's last.
+    """
+    points = np.concatenate([op.points for op in operations])
+    motion = np.concatenate([op.motion for op in operations]).astype(np.int8)
+    motion[motion == Motion.PLUNGE] = Motion.CUT
+    tool = np.concatenate([np.full(len(op.points), op.tool.number) for op in operations])
+    feed = np.concatenate([np.where(op.motion == Motion.RAPID, np.nan, op.cutting.feed) for op in operations])
+    return ProgramMoves(points, motion, tool, feed, np.zeros(len(points), dtype=np.int32))
+
+
+def stock_after(operations: Sequence[Operation], setup: Setup, part_triangles: np.ndarray,
+                cell: float = 0.5) -> Simulation:
+    """The stock left by ``operations``, on a grid of ``cell`` [mm], for planning later ones."""
+    tools = {op.tool.number: op.tool for op in operations}
+    sim, _ = simulate(operation_moves(operations), tools, setup, part_triangles, VerifyOptions(cell=cell))
+    return sim
+
+
+def clear_height(sim: Simulation, tool: Tool, xy: np.ndarray) -> np.ndarray:
+    """Lowest tool tip height at each ``xy`` that touches none of the stock in ``sim`` [mm].
+
+    Conservative between grid points: the stock is taken as reaching up to a grid point's
+    height anywhere within a cell diagonal of it.
+
+    Parameters
+    ----------
+    sim : Simulation
+    tool : Tool
+    xy : (n, 2) float
+        Tool axis positions [mm].
+
+    Returns
+    -------
+    (n,) float
+        ``-inf`` where no stock lies under the tool.
+    """
+    g = sim.grid
+    slack = g.cell * math.sqrt(2.0)
+    reach = tool.radius + slack
+    k = int(math.ceil(reach / g.cell))
+    di, dj = np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1))
+    di, dj = di.ravel(), dj.ravel()
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    i0 = np.rint((xy[:, 0] - g.x0) / g.cell).astype(np.int64)
+    j0 = np.rint((xy[:, 1] - g.y0) / g.cell).astype(np.int64)
+    out = np.full(len(xy), -np.inf)
+    for a, b in zip(di, dj):
+        i, j = i0 + a, j0 + b
+        inside = (i >= 0) & (i < g.nx) & (j >= 0) & (j < g.ny)
+        if not inside.any():
+            continue
+        ii, jj = i[inside], j[inside]
+        r = np.hypot(g.x0 + ii * g.cell - xy[inside, 0], g.y0 + jj * g.cell - xy[inside, 1])
+        near = r <= reach
+        h = tool.profile_height(np.clip(r - slack, 0.0, tool.radius))
+        need = np.where(near, sim.stock_top[jj, ii] - h, -np.inf)
+        out[inside] = np.maximum(out[inside], need)
+    return out
