@@ -1,0 +1,432 @@
+"""The robot cell as data: robot, gripper, stock rack, vise, enclosure, out-tray.
+
+A cell file is YAML (format ``factory.cell/1``; the default is ``fixtures/cell.yaml``).
+Units follow ROS: metres, radians, seconds.
+
+Poses
+-----
+Every pose is written ``{xyz: [x, y, z], rpy: [roll, pitch, yaw]}``: the translation [m]
+and the orientation as fixed-axis roll about X, then pitch about Y, then yaw about Z [rad]
+(the URDF convention, ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``). A pose is the transform
+from its parent frame to the named frame, ``transform_parent_to_frame``; the parent is
+``world`` (floor, Z up) unless the field says otherwise:
+
+* ``robot.base``: ``transform_world_to_base`` (the robot's base frame, ``base_link`` on a UR);
+* ``gripper.tcp``: ``transform_flange_to_tcp`` (TCP: the point between the fingertips,
+  Z out of the flange, the gripper's fingers close along Y);
+* ``gripper.collision.pose``: the gripper's collision box in the flange frame;
+* ``rack.pose`` / ``out_tray.pose``: the frame of slot (row 0, column 0); slot (r, c) sits
+  at ``(c * pitch[0], r * pitch[1], 0)`` in it, Z up out of the slot;
+* ``vise.pose``: ``transform_world_to_vise``, origin at the centre of the jaw gap on the
+  top of the parallels (where the stock's bottom rests), X along the jaws, Y the
+  clamping direction, Z up (see :mod:`robotprog.frames`);
+* ``enclosure`` boxes: the pose of each box's centre.
+
+Unknown keys are errors (typos must not be silently ignored), and every error names
+its field: ``vise.pose.xyz: expected 3 numbers``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from factory.errors import CellError
+
+FORMAT = "factory.cell/1"
+
+
+def rpy_matrix(rpy: tuple[float, float, float] | np.ndarray) -> np.ndarray:
+    """Rotation matrix ``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (3, 3) from roll, pitch, yaw [rad]."""
+    r, p, y = (float(v) for v in rpy)
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A frame's pose in its parent: translation ``xyz`` [m], orientation ``rpy`` [rad]."""
+
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def matrix(self) -> np.ndarray:
+        """``transform_parent_to_frame`` as a (4, 4) homogeneous matrix [m]."""
+        t = np.eye(4)
+        t[:3, :3] = rpy_matrix(self.rpy)
+        t[:3, 3] = self.xyz
+        return t
+
+
+@dataclass(frozen=True)
+class Box:
+    """A collision box: edge lengths ``size`` [m] and the pose of its centre."""
+
+    name: str
+    size: tuple[float, float, float]
+    pose: Pose
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """The arm: model, mounting, home configuration.
+
+    Attributes
+    ----------
+    model : str
+        example-robot-data name (``ur5``, ``ur10``, ``panda``) or a URDF path (relative
+        paths are relative to the cell file).
+    base : Pose
+        ``transform_world_to_base``.
+    home : tuple of float
+        Home configuration [rad], one per joint.
+    flange_frame : str or None
+        Override of the model's flange frame (needed for a URDF path).
+    """
+
+    model: str
+    base: Pose
+    home: tuple[float, ...]
+    flange_frame: str | None = None
+
+
+@dataclass(frozen=True)
+class Motion:
+    """Motion limits the URDF does not give.
+
+    Attributes
+    ----------
+    acceleration_limits : tuple of float
+        Per joint [rad/s^2] (URDFs carry no acceleration limits).
+    speed_scaling : float
+        Fraction in (0, 1] of the URDF velocity limits and of ``acceleration_limits``
+        that planned motions use.
+    """
+
+    acceleration_limits: tuple[float, ...]
+    speed_scaling: float = 1.0
+
+
+@dataclass(frozen=True)
+class GripperIO:
+    """How the controller drives the gripper.
+
+    Attributes
+    ----------
+    grip, release : tuple of (int, bool)
+        Digital outputs to set (output number, level) to close / open the fingers.
+    settle_s : float
+        Time to wait after switching before the fingers are known closed/open [s].
+    """
+
+    grip: tuple[tuple[int, bool], ...]
+    release: tuple[tuple[int, bool], ...]
+    settle_s: float = 0.5
+
+
+@dataclass(frozen=True)
+class Gripper:
+    """Parallel gripper on the flange.
+
+    Attributes
+    ----------
+    tcp : Pose
+        ``transform_flange_to_tcp``.
+    opening_min, opening_max : float
+        Finger opening range [m]: what the gripper can hold.
+    io : GripperIO
+    collision : Box
+        Simple collision shape, pose in the flange frame.
+    """
+
+    tcp: Pose
+    opening_min: float
+    opening_max: float
+    io: GripperIO
+    collision: Box
+
+
+@dataclass(frozen=True)
+class SlotGrid:
+    """A grid of slots (stock rack, out-tray): ``rows`` x ``columns`` at ``pitch`` [m]."""
+
+    pose: Pose
+    rows: int
+    columns: int
+    pitch: tuple[float, float]
+
+    def slot_transform(self, row: int, column: int) -> np.ndarray:
+        """``transform_world_to_slot`` (4, 4) [m] of slot (row, column), 0-based.
+
+        Raises
+        ------
+        CellError
+            No such slot.
+        """
+        if not (0 <= row < self.rows and 0 <= column < self.columns):
+            raise CellError(f"no slot ({row}, {column}) in a {self.rows} x {self.columns} grid")
+        t = np.eye(4)
+        t[:3, 3] = (column * self.pitch[0], row * self.pitch[1], 0.0)
+        return self.pose.matrix() @ t
+
+
+@dataclass(frozen=True)
+class Vise:
+    """The machine vise.
+
+    Attributes
+    ----------
+    pose : Pose
+        ``transform_world_to_vise`` (origin: centre of the jaw gap on the parallels).
+    jaw_opening_min, jaw_opening_max : float
+        Stock widths (along vise Y) the vise can clamp [m].
+    jaw_height : float
+        Height of the jaws above the parallels [m]; the stock must stand above it for
+        the gripper fingers to reach it.
+    """
+
+    pose: Pose
+    jaw_opening_min: float
+    jaw_opening_max: float
+    jaw_height: float
+
+
+@dataclass(frozen=True)
+class Enclosure:
+    """The machine enclosure: fixed walls and the door (a collision box while closed)."""
+
+    walls: tuple[Box, ...]
+    door: Box
+
+
+@dataclass(frozen=True)
+class Cell:
+    """A robot cell. See the module docstring for frames and units."""
+
+    name: str
+    robot: RobotSpec
+    motion: Motion
+    gripper: Gripper
+    rack: SlotGrid
+    vise: Vise
+    enclosure: Enclosure
+    out_tray: SlotGrid
+    source: str | None = None
+
+
+# --- parsing ---------------------------------------------------------------------------
+
+
+class _Reader:
+    """Field access with error messages that name the field's path."""
+
+    def __init__(self, source: str | None):
+        self.source = source
+
+    def fail(self, field: str, message: str) -> CellError:
+        return CellError(f"{field or 'cell'}: {message}", source=self.source)
+
+    def mapping(self, value: Any, field: str, required: set[str], optional: set[str] = frozenset()) -> Mapping:
+        if not isinstance(value, Mapping):
+            raise self.fail(field, "expected a mapping")
+        prefix = f"{field}." if field else ""
+        unknown = sorted(str(k) for k in value if k not in required | optional)
+        if unknown:
+            allowed = ", ".join(sorted(required | optional))
+            raise self.fail(f"{prefix}{unknown[0]}", f"unknown key (allowed: {allowed})")
+        for k in sorted(required):
+            if k not in value:
+                raise self.fail(f"{prefix}{k}", "missing")
+        return value
+
+    def number(self, value: Any, field: str, *, positive: bool = False, nonneg: bool = False) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise self.fail(field, f"expected a number, got {value!r}")
+        if positive and value <= 0:
+            raise self.fail(field, f"must be > 0, got {value}")
+        if nonneg and value < 0:
+            raise self.fail(field, f"must be >= 0, got {value}")
+        return float(value)
+
+    def integer(self, value: Any, field: str, *, minimum: int = 0) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.fail(field, f"expected an integer, got {value!r}")
+        if value < minimum:
+            raise self.fail(field, f"must be >= {minimum}, got {value}")
+        return value
+
+    def numbers(self, value: Any, field: str, n: int | None = None, **kw: bool) -> tuple[float, ...]:
+        if not isinstance(value, (list, tuple)) or (n is not None and len(value) != n) or len(value) == 0:
+            raise self.fail(field, f"expected {n if n is not None else 'a list of'} numbers")
+        return tuple(self.number(v, f"{field}[{i}]", **kw) for i, v in enumerate(value))
+
+    def string(self, value: Any, field: str) -> str:
+        if not isinstance(value, str) or not value:
+            raise self.fail(field, f"expected a non-empty string, got {value!r}")
+        return value
+
+    def pose(self, value: Any, field: str) -> Pose:
+        m = self.mapping(value, field, {"xyz"}, {"rpy"})
+        xyz = self.numbers(m["xyz"], f"{field}.xyz", 3)
+        rpy = self.numbers(m.get("rpy", [0.0, 0.0, 0.0]), f"{field}.rpy", 3)
+        return Pose(xyz, rpy)  # type: ignore[arg-type]
+
+    def box(self, value: Any, field: str, default_name: str) -> Box:
+        m = self.mapping(value, field, {"size", "pose"}, {"name"})
+        name = self.string(m.get("name", default_name), f"{field}.name")
+        size = self.numbers(m["size"], f"{field}.size", 3, positive=True)
+        return Box(name, size, self.pose(m["pose"], f"{field}.pose"))  # type: ignore[arg-type]
+
+    def outputs(self, value: Any, field: str) -> tuple[tuple[int, bool], ...]:
+        if not isinstance(value, Mapping) or not value:
+            raise self.fail(field, "expected a mapping of output number to level, e.g. {0: true}")
+        out = []
+        for k, v in value.items():
+            self.integer(k, f"{field}.{k}")
+            if not isinstance(v, bool):
+                raise self.fail(f"{field}.{k}", f"expected true or false, got {v!r}")
+            out.append((int(k), v))
+        return tuple(sorted(out))
+
+    def grid(self, value: Any, field: str) -> SlotGrid:
+        m = self.mapping(value, field, {"pose", "rows", "columns", "pitch"})
+        return SlotGrid(
+            self.pose(m["pose"], f"{field}.pose"),
+            self.integer(m["rows"], f"{field}.rows", minimum=1),
+            self.integer(m["columns"], f"{field}.columns", minimum=1),
+            self.numbers(m["pitch"], f"{field}.pitch", 2, positive=True),  # type: ignore[arg-type]
+        )
+
+
+def read_cell(data: Any, source: str | Path | None = None) -> Cell:
+    """Parse and validate a cell document (the YAML already loaded).
+
+    Raises
+    ------
+    CellError
+        Wrong format, missing or unknown key, or a malformed value; the message names the field.
+    """
+    src = None if source is None else str(source)
+    rd = _Reader(src)
+    top = rd.mapping(
+        data, "", {"format", "robot", "motion", "gripper", "rack", "vise", "enclosure", "out_tray"}, {"name"}
+    )
+    if top["format"] != FORMAT:
+        raise rd.fail("format", f"expected {FORMAT!r}, got {top['format']!r}")
+    name = rd.string(top.get("name", "cell"), "name")
+
+    r = rd.mapping(top["robot"], "robot", {"model", "base", "home"}, {"flange_frame"})
+    model = rd.string(r["model"], "robot.model")
+    if src is not None and model.lower().endswith(".urdf") and not Path(model).is_absolute():
+        model = str(Path(src).parent / model)
+    flange = None if r.get("flange_frame") is None else rd.string(r["flange_frame"], "robot.flange_frame")
+    robot = RobotSpec(model, rd.pose(r["base"], "robot.base"), rd.numbers(r["home"], "robot.home"), flange)
+
+    mo = rd.mapping(top["motion"], "motion", {"acceleration_limits"}, {"speed_scaling"})
+    accel = rd.numbers(mo["acceleration_limits"], "motion.acceleration_limits", positive=True)
+    if len(accel) != len(robot.home):
+        raise rd.fail(
+            "motion.acceleration_limits", f"expected {len(robot.home)} numbers (one per joint of robot.home)"
+        )
+    scaling = rd.number(mo.get("speed_scaling", 1.0), "motion.speed_scaling", positive=True)
+    if scaling > 1:
+        raise rd.fail("motion.speed_scaling", f"must be in (0, 1], got {scaling}")
+    motion = Motion(accel, scaling)
+
+    g = rd.mapping(top["gripper"], "gripper", {"tcp", "opening", "io", "collision"})
+    op = rd.mapping(g["opening"], "gripper.opening", {"min", "max"})
+    omin = rd.number(op["min"], "gripper.opening.min", nonneg=True)
+    omax = rd.number(op["max"], "gripper.opening.max", positive=True)
+    if omax <= omin:
+        raise rd.fail("gripper.opening", f"max ({omax}) must exceed min ({omin})")
+    io = rd.mapping(g["io"], "gripper.io", {"grip", "release"}, {"settle_s"})
+    gio = GripperIO(
+        rd.outputs(io["grip"], "gripper.io.grip"),
+        rd.outputs(io["release"], "gripper.io.release"),
+        rd.number(io.get("settle_s", 0.5), "gripper.io.settle_s", nonneg=True),
+    )
+    gripper = Gripper(
+        rd.pose(g["tcp"], "gripper.tcp"), omin, omax, gio, rd.box(g["collision"], "gripper.collision", "gripper")
+    )
+
+    v = rd.mapping(top["vise"], "vise", {"pose", "jaw_opening", "jaw_height"})
+    jo = rd.mapping(v["jaw_opening"], "vise.jaw_opening", {"min", "max"})
+    jmin = rd.number(jo["min"], "vise.jaw_opening.min", nonneg=True)
+    jmax = rd.number(jo["max"], "vise.jaw_opening.max", positive=True)
+    if jmax <= jmin:
+        raise rd.fail("vise.jaw_opening", f"max ({jmax}) must exceed min ({jmin})")
+    jaw_height = rd.number(v["jaw_height"], "vise.jaw_height", nonneg=True)
+    vise = Vise(rd.pose(v["pose"], "vise.pose"), jmin, jmax, jaw_height)
+
+    e = rd.mapping(top["enclosure"], "enclosure", {"walls", "door"})
+    if not isinstance(e["walls"], list) or not e["walls"]:
+        raise rd.fail("enclosure.walls", "expected a list of boxes")
+    walls = tuple(rd.box(w, f"enclosure.walls[{i}]", f"wall{i}") for i, w in enumerate(e["walls"]))
+    enclosure = Enclosure(walls, rd.box(e["door"], "enclosure.door", "door"))
+
+    return Cell(
+        name, robot, motion, gripper, rd.grid(top["rack"], "rack"), vise, enclosure,
+        rd.grid(top["out_tray"], "out_tray"), src,
+    )
+
+
+def load_cell(path: str | Path, *, check_robot: bool = True) -> Cell:
+    """Read a cell YAML file; with ``check_robot`` also load the robot and check the
+    home configuration against its joint count and limits.
+
+    Raises
+    ------
+    CellError
+        Unreadable file, malformed cell (message names the field), unknown robot, or a
+        home configuration the robot cannot take.
+    """
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except OSError as e:
+        raise CellError(f"cannot read cell file: {e.strerror}", source=path) from None
+    except yaml.YAMLError as e:
+        raise CellError(f"not valid YAML: {e}", source=path) from None
+    cell = read_cell(data, path)
+    if check_robot:
+        check_cell_robot(cell)
+    return cell
+
+
+def check_cell_robot(cell: Cell) -> None:
+    """Check the cell's joint-space data against its robot model.
+
+    Raises
+    ------
+    CellError
+        Unknown robot, wrong number of joints in ``robot.home``, or home outside the limits.
+    """
+    from robotprog.robots import load_robot  # Pinocchio only when the robot is needed
+
+    try:
+        robot = load_robot(cell.robot.model, flange_frame=cell.robot.flange_frame)
+    except CellError as e:
+        raise e.with_source(cell.source or "cell") from None
+    home = np.array(cell.robot.home)
+    if len(home) != robot.dof:
+        raise CellError(f"robot.home: expected {robot.dof} numbers for {robot.name}", source=cell.source)
+    bad = np.flatnonzero((home < robot.q_lower) | (home > robot.q_upper))
+    if len(bad):
+        j = int(bad[0])
+        raise CellError(
+            f"robot.home[{j}]: {home[j]} rad outside the joint limits "
+            f"[{robot.q_lower[j]:.4f}, {robot.q_upper[j]:.4f}] of {robot.joint_names[j]}",
+            source=cell.source,
+        )

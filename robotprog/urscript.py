@@ -1,0 +1,177 @@
+"""URScript programs for Universal Robots controllers (CB3 / e-Series).
+
+A program is a list of steps: joint moves (``movej``), straight-line tool moves
+(``movel``), gripper actions (``set_standard_digital_out`` then a settle ``sleep``), waits
+and comments. The text is deterministic: the same steps give byte-identical output
+(fixed decimals, no time stamps), so programs can be diffed and golden-tested.
+
+Frames and units: URScript speaks metres, radians and seconds. ``movel`` poses are
+``p[x, y, z, rx, ry, rz]`` with the orientation as a rotation vector (axis times angle),
+the TCP's pose in the *controller's* base frame. That frame is the URDF frame ``base``,
+turned by pi about Z from ROS's ``base_link``; :class:`MoveL` takes the ROS pose
+(``transform_base_link_to_tcp``) and this module converts it, the only place that does.
+``set_tcp`` is given ``transform_flange_to_tcp`` (the controller's flange is ``tool0``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from factory.errors import PlanningError
+from robotprog.ik import TRANSFORM_BASE_LINK_TO_UR_BASE
+
+#: Decimals for lengths [m] (1 µm), angles [rad] (1 µrad) and rotation vectors.
+DECIMALS = 6
+
+
+@dataclass(frozen=True)
+class MoveJ:
+    """Joint move: ``q`` (6,) target [rad], ``a`` joint acceleration [rad/s^2], ``v`` speed [rad/s],
+    ``r`` blend radius [m] (0 = stop at the target)."""
+
+    q: tuple[float, ...]
+    a: float
+    v: float
+    r: float = 0.0
+
+
+@dataclass(frozen=True)
+class MoveL:
+    """Straight tool move to ``pose`` = ``transform_base_link_to_tcp`` (4, 4) [m], tool
+    acceleration ``a`` [m/s^2], speed ``v`` [m/s], blend radius ``r`` [m]."""
+
+    pose: tuple[tuple[float, ...], ...]
+    a: float
+    v: float
+    r: float = 0.0
+
+    @staticmethod
+    def to(pose: np.ndarray, a: float, v: float, r: float = 0.0) -> "MoveL":
+        """A MoveL from a (4, 4) array."""
+        return MoveL(tuple(tuple(float(x) for x in row) for row in np.asarray(pose, dtype=float)), a, v, r)
+
+
+@dataclass(frozen=True)
+class SetOutputs:
+    """Switch digital outputs (the gripper's grip or release): ``outputs`` (number, level)
+    pairs, then wait ``settle_s`` [s] for the fingers to move. ``label`` becomes a comment."""
+
+    outputs: tuple[tuple[int, bool], ...]
+    settle_s: float = 0.0
+    label: str = ""
+
+
+@dataclass(frozen=True)
+class Wait:
+    """Pause ``seconds`` [s]."""
+
+    seconds: float
+
+
+@dataclass(frozen=True)
+class Comment:
+    """A ``#`` comment line in the program (one line of text)."""
+
+    text: str
+
+
+Step = MoveJ | MoveL | SetOutputs | Wait | Comment
+
+
+def _num(x: float) -> str:
+    s = f"{round(float(x), DECIMALS):.{DECIMALS}f}"
+    s = s.rstrip("0")
+    if s.endswith("."):
+        s += "0"
+    return "0.0" if s in ("-0.0", "0.0") else s
+
+
+def _positive(x: float, what: str) -> None:
+    if not (math.isfinite(x) and x > 0):
+        raise PlanningError(f"URScript {what} must be finite and > 0, got {x}")
+
+
+def ur_pose(transform: np.ndarray) -> str:
+    """``p[x, y, z, rx, ry, rz]`` of a (4, 4) transform [m] (rotation vector [rad])."""
+    t = np.asarray(transform, dtype=float)
+    if t.shape != (4, 4) or not np.isfinite(t).all():
+        raise PlanningError(f"pose must be a finite 4x4 transform, got shape {t.shape}")
+    rv = Rotation.from_matrix(t[:3, :3]).as_rotvec()
+    return "p[" + ", ".join(_num(v) for v in (*t[:3, 3], *rv)) + "]"
+
+
+def urscript_program(
+    steps: Sequence[Step],
+    *,
+    name: str = "factory_program",
+    transform_flange_to_tcp: np.ndarray | None = None,
+    header: Sequence[str] = (),
+) -> str:
+    """The URScript text of a program.
+
+    Parameters
+    ----------
+    steps : sequence of MoveJ, MoveL, SetOutputs, Wait, Comment
+    name : str
+        Program (function) name: letters, digits, underscores.
+    transform_flange_to_tcp : (4, 4) float, optional
+        The gripper's TCP, emitted as ``set_tcp`` first; ``MoveL`` poses are TCP poses.
+    header : sequence of str
+        Comment lines at the top (no time stamps, to keep the text deterministic).
+
+    Returns
+    -------
+    str
+        ``def name(): ... end`` with a trailing newline.
+
+    Raises
+    ------
+    PlanningError
+        A malformed step (wrong joint count, non-finite or non-positive a/v, bad name).
+    """
+    if not name.replace("_", "a").isalnum() or name[0].isdigit():
+        raise PlanningError(f"URScript program name must be letters, digits and underscores, got {name!r}")
+    lines = [f"def {name}():"]
+    lines += [f"  # {h}" for h in header]
+    if transform_flange_to_tcp is not None:
+        lines.append(f"  set_tcp({ur_pose(transform_flange_to_tcp)})")
+    to_ur = np.linalg.inv(TRANSFORM_BASE_LINK_TO_UR_BASE)
+    for i, st in enumerate(steps):
+        if isinstance(st, MoveJ):
+            q = np.asarray(st.q, dtype=float)
+            if q.shape != (6,) or not np.isfinite(q).all():
+                raise PlanningError(f"step {i}: movej needs 6 finite joint angles, got {st.q}")
+            _positive(st.a, f"step {i} movej a")
+            _positive(st.v, f"step {i} movej v")
+            joints = "[" + ", ".join(_num(v) for v in q) + "]"
+            blend = f", r={_num(st.r)}" if st.r > 0 else ""
+            lines.append(f"  movej({joints}, a={_num(st.a)}, v={_num(st.v)}{blend})")
+        elif isinstance(st, MoveL):
+            _positive(st.a, f"step {i} movel a")
+            _positive(st.v, f"step {i} movel v")
+            blend = f", r={_num(st.r)}" if st.r > 0 else ""
+            pose = ur_pose(to_ur @ np.asarray(st.pose, dtype=float))
+            lines.append(f"  movel({pose}, a={_num(st.a)}, v={_num(st.v)}{blend})")
+        elif isinstance(st, SetOutputs):
+            if st.label:
+                lines.append(f"  # {st.label}")
+            for n, level in st.outputs:
+                if not 0 <= n <= 7:
+                    raise PlanningError(f"step {i}: standard digital output {n} is not in 0..7")
+                lines.append(f"  set_standard_digital_out({n}, {'True' if level else 'False'})")
+            if st.settle_s > 0:
+                lines.append(f"  sleep({_num(st.settle_s)})")
+        elif isinstance(st, Wait):
+            _positive(st.seconds, f"step {i} wait")
+            lines.append(f"  sleep({_num(st.seconds)})")
+        elif isinstance(st, Comment):
+            lines.append(f"  # {st.text.splitlines()[0] if st.text else ''}")
+        else:
+            raise PlanningError(f"step {i}: not a URScript step: {type(st).__name__}")
+    lines.append("end")
+    return "\n".join(lines) + "\n"

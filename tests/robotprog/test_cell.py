@@ -1,0 +1,164 @@
+"""The cell file: frozen dataclasses, errors that name the field, a plausible default cell."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from factory.errors import CellError
+from factory.resources import FIXTURES
+from robotprog.cell import Cell, load_cell, read_cell, rpy_matrix
+from robotprog.ik import ik_continuous
+from robotprog.robots import load_robot
+
+DEFAULT = FIXTURES / "cell.yaml"
+
+
+@pytest.fixture(scope="module")
+def raw() -> dict:
+    return yaml.safe_load(DEFAULT.read_text())
+
+
+def test_default_cell_loads() -> None:
+    cell = load_cell(DEFAULT)
+    assert isinstance(cell, Cell)
+    assert cell.robot.model == "ur5" and len(cell.robot.home) == 6
+    assert cell.gripper.io.grip == ((0, True),) and cell.gripper.io.release == ((0, False),)
+    assert cell.rack.rows * cell.rack.columns == 6
+    with pytest.raises(AttributeError):
+        cell.name = "other"  # frozen
+
+
+def test_rpy_is_fixed_axis_xyz() -> None:
+    """R = Rz(yaw) Ry(pitch) Rx(roll): yaw pi/2 turns X into Y; roll pi/2 turns Y into Z."""
+    np.testing.assert_allclose(rpy_matrix((0, 0, np.pi / 2)) @ [1, 0, 0], [0, 1, 0], atol=1e-15)
+    np.testing.assert_allclose(rpy_matrix((np.pi / 2, 0, 0)) @ [0, 1, 0], [0, 0, 1], atol=1e-15)
+    r = rpy_matrix((0.3, -0.7, 1.9))
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-15)
+
+
+def _mutate(raw: dict, path: str, value) -> dict:
+    data = copy.deepcopy(raw)
+    keys = path.split(".")
+    node = data
+    for k in keys[:-1]:
+        node = node[k]
+    if value is _DELETE:
+        del node[keys[-1]]
+    else:
+        node[keys[-1]] = value
+    return data
+
+
+_DELETE = object()
+
+
+@pytest.mark.parametrize(
+    "path, value, message",
+    [
+        ("vise.pose.xyz", [0.6, 0.0], r"vise\.pose\.xyz: expected 3 numbers"),
+        ("vise.pose.xyz", [0.6, "a", 0.9], r"vise\.pose\.xyz\[1\]: expected a number"),
+        ("vise.pose.rpz", [0, 0, 0], r"vise\.pose\.rpz: unknown key"),
+        ("vise.jaw_heigth", 0.04, r"vise\.jaw_heigth: unknown key"),
+        ("vise.jaw_height", _DELETE, r"vise\.jaw_height: missing"),
+        ("rack.rows", 0, r"rack\.rows: must be >= 1"),
+        ("rack.pitch", [0.08, -0.08], r"rack\.pitch\[1\]: must be > 0"),
+        ("motion.speed_scaling", 1.5, r"motion\.speed_scaling: must be in \(0, 1\]"),
+        ("motion.acceleration_limits", [3, 3, 3], r"motion\.acceleration_limits: expected 6 numbers"),
+        ("gripper.io.grip", {0: "yes"}, r"gripper\.io\.grip\.0: expected true or false"),
+        ("gripper.opening.max", -0.01, r"gripper\.opening\.max: must be > 0"),
+        ("enclosure.walls", [], r"enclosure\.walls: expected a list of boxes"),
+        ("enclosure.door.size", [0.02, 0.7, 0], r"enclosure\.door\.size\[2\]: must be > 0"),
+        ("format", "factory.cell/9", r"format: expected 'factory.cell/1'"),
+        ("robotz", {}, r"robotz: unknown key"),
+    ],
+)
+def test_errors_name_the_field(raw: dict, path: str, value, message: str) -> None:
+    with pytest.raises(CellError, match=message) as e:
+        read_cell(_mutate(raw, path, value), source="cell.yaml")
+    assert str(e.value).startswith("cell.yaml: ")
+
+
+def test_home_is_checked_against_the_robot(raw: dict, tmp_path: Path) -> None:
+    bad = _mutate(raw, "robot.home", [0.0, 0.0, 4.0, 0.0, 0.0, 0.0])
+    path = tmp_path / "cell.yaml"
+    path.write_text(yaml.safe_dump(bad))
+    with pytest.raises(CellError, match=r"robot\.home\[2\]: 4\.0 rad outside the joint limits"):
+        load_cell(path)
+    short = _mutate(raw, "robot.home", [0.0] * 7)
+    short["motion"]["acceleration_limits"] = [3.0] * 7
+    path.write_text(yaml.safe_dump(short))
+    with pytest.raises(CellError, match=r"robot\.home: expected 6 numbers for ur5"):
+        load_cell(path)
+
+
+def test_unknown_robot_in_cell(raw: dict, tmp_path: Path) -> None:
+    path = tmp_path / "cell.yaml"
+    path.write_text(yaml.safe_dump(_mutate(raw, "robot.model", "ur55")))
+    with pytest.raises(CellError, match="unknown robot 'ur55'"):
+        load_cell(path)
+
+
+def test_unreadable_files(tmp_path: Path) -> None:
+    with pytest.raises(CellError, match="cannot read"):
+        load_cell(tmp_path / "missing.yaml")
+    (tmp_path / "bad.yaml").write_text("robot: [unclosed\n")
+    with pytest.raises(CellError, match="not valid YAML"):
+        load_cell(tmp_path / "bad.yaml")
+
+
+def test_slots_outside_the_grid() -> None:
+    cell = load_cell(DEFAULT, check_robot=False)
+    with pytest.raises(CellError, match=r"no slot \(2, 0\)"):
+        cell.rack.slot_transform(2, 0)
+
+
+def test_default_cell_is_reachable() -> None:
+    """With the gripper pointing down, the UR5 reaches every rack and tray slot and the vise,
+    at grasp height and 15 cm above (the approach)."""
+    cell = load_cell(DEFAULT)
+    robot = load_robot(cell.robot.model)
+    t_world_base = cell.robot.base.matrix()
+    t_flange_tcp = cell.gripper.tcp.matrix()
+    down = np.diag([1.0, -1.0, -1.0, 1.0])
+    targets = [cell.vise.pose.matrix()]
+    targets += [
+        g.slot_transform(r, c) for g in (cell.rack, cell.out_tray) for r in range(g.rows) for c in range(g.columns)
+    ]
+    q = np.array(cell.robot.home)
+    for t_world_place in targets:
+        for lift in (0.03, 0.15):
+            t = t_world_place @ down
+            t[2, 3] += lift
+            t_base_flange = np.linalg.inv(t_world_base) @ t @ np.linalg.inv(t_flange_tcp)
+            q = ik_continuous(robot, t_base_flange, q)  # raises PlanningError if out of reach
+            np.testing.assert_allclose(t_world_base @ robot.fk(q) @ t_flange_tcp, t, atol=1e-9)
+
+
+def test_default_cell_layout_is_consistent() -> None:
+    """The vise sits inside the enclosure, behind the door; rack and tray outside it."""
+    cell = load_cell(DEFAULT, check_robot=False)
+    boxes = [*cell.enclosure.walls, cell.enclosure.door]
+    lo = np.min([np.array(b.pose.xyz) - np.array(b.size) / 2 for b in boxes], axis=0)
+    hi = np.max([np.array(b.pose.xyz) + np.array(b.size) / 2 for b in boxes], axis=0)
+    vise = np.array(cell.vise.pose.xyz)
+    assert (vise > lo).all() and (vise < hi).all()
+    door = cell.enclosure.door
+    assert door.pose.xyz[0] < vise[0]
+    for g in (cell.rack, cell.out_tray):
+        far = g.slot_transform(g.rows - 1, g.columns - 1)[:3, 3]
+        assert far[0] < lo[0] and g.pose.xyz[0] < lo[0]
+    # Every place the gripper goes lies within the UR5's 0.85 m reach of its shoulder.
+    shoulder = np.array(cell.robot.base.xyz) + [0, 0, 0.089159]
+    for p in [vise, *(g.slot_transform(r, c)[:3, 3] for g in (cell.rack, cell.out_tray)
+                     for r in range(g.rows) for c in range(g.columns))]:
+        assert np.linalg.norm(p - shoulder) < 0.85
+
+
+def test_empty_document() -> None:
+    with pytest.raises(CellError, match="cell: expected a mapping"):
+        read_cell(None, source="empty.yaml")

@@ -1,0 +1,60 @@
+"""Robot models from example-robot-data by name or URDF path."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from factory.errors import CellError
+from robotprog.robots import KNOWN_ROBOTS, example_robot_data_dir, load_robot, robot_urdf
+
+
+@pytest.mark.parametrize("name, dof", [("ur5", 6), ("ur10", 6), ("panda", 7)])
+def test_known_robots_load_with_limits(name: str, dof: int) -> None:
+    r = load_robot(name)
+    assert r.dof == dof == len(r.joint_names)
+    assert r.q_lower.shape == r.q_upper.shape == r.v_max.shape == (dof,)
+    assert (r.q_lower < r.q_upper).all() and (r.v_max > 0).all()
+    # The flange is somewhere sensible: within 1.5 m of the base at the neutral pose.
+    assert 0.05 < np.linalg.norm(r.fk(np.zeros(dof))[:3, 3]) < 1.5
+
+
+def test_panda_fingers_are_locked() -> None:
+    r = load_robot("panda")
+    assert not any("finger" in j for j in r.joint_names)
+
+
+def test_collision_geometry_resolves_package_meshes() -> None:
+    r = load_robot("ur5", collision=True)
+    assert r.collision is not None and r.collision.ngeoms >= 6
+    # package://example-robot-data/... resolved to real files under the share folder.
+    share = str(example_robot_data_dir())
+    files = [g.meshPath for g in r.collision.geometryObjects if g.meshPath.endswith((".stl", ".dae", ".obj"))]
+    assert len(files) >= 6 and all(f.startswith(share) for f in files)
+
+
+def test_every_known_robot_urdf_exists() -> None:
+    for name in KNOWN_ROBOTS:
+        assert robot_urdf(name).is_file(), name
+
+
+def test_urdf_path_loads_like_the_name() -> None:
+    by_path = load_robot(robot_urdf("ur5"), base_frame="base_link", flange_frame="tool0")
+    by_name = load_robot("ur5")
+    q = np.array([0.3, -1.2, 1.1, -0.4, 0.7, 0.2])
+    np.testing.assert_allclose(by_path.fk(q), by_name.fk(q), atol=1e-12)
+
+
+def test_unknown_name_lists_known_robots() -> None:
+    with pytest.raises(CellError, match="unknown robot 'ur7'.*panda.*ur5"):
+        load_robot("ur7")
+
+
+def test_missing_urdf_file(tmp_path) -> None:
+    with pytest.raises(CellError, match="not found"):
+        load_robot(tmp_path / "nope.urdf")
+
+
+def test_bad_frame_name() -> None:
+    with pytest.raises(CellError, match="flange_frame 'gripper_tip'"):
+        load_robot("ur5", flange_frame="gripper_tip")
