@@ -7,6 +7,7 @@ import typer
 from cli.calibrate import calibrate
 from cli.gcode import gcode
 from cli.plan import plan
+from cli.robot import robot
 from cli.toolpath import toolpath
 from cli.verify import verify
 
@@ -24,6 +25,7 @@ app.command()(gcode)
 app.command()(verify)
 app.command()(plan)
 app.command()(calibrate)
+app.command()(robot)
 
 
 def main() -> None:

@@ -1,0 +1,337 @@
+"""Collision checking of the arm, its gripper and the part it holds against the cell.
+
+A :class:`CollisionWorld` is built once from a robot (loaded with its collision geometry)
+and a cell. It holds one Pinocchio ``GeometryModel`` (coal underneath) with
+
+* the robot's link collision meshes from the URDF;
+* the gripper's collision box (``cell.gripper.collision``, in the flange frame);
+* the cell's static boxes: the enclosure walls and mill table, the door (only when
+  ``door_closed``; tending runs with the door open), and boxes the cell file implies
+  but does not list (see :func:`cell_static_boxes`): the vise body under the parallels,
+  the stock rack and out-tray stands, and the robot's pedestal.
+
+Pairs checked: every link and the gripper against every static box (except the robot's
+base link against its own pedestal), and self-collision between link pairs the vendor's
+SRDF does not disable (:func:`robot_srdf`: example-robot-data ships
+``ur_description/srdf/ur5.srdf`` etc.; for robots without one, all pairs of geometries on
+non-adjacent joints). Pairs already in
+contact at the home configuration (e.g. the gripper box against the wrist links it is
+bolted next to) are dropped, and :attr:`CollisionWorld.dropped_pairs` lists them.
+
+A held box (the stock or finished part, :class:`HeldBox`) rides on the TCP and is checked
+against the static boxes with coal directly. It is shrunk by :attr:`HeldBox.clearance` per
+face so that a part resting on a surface (stock on the vise parallels, in its rack slot)
+is not a contact, and against the arm's links except those on the flange's joint (the
+last wrist link, which carries the gripper holding it).
+
+Frames: everything is placed in the Pinocchio model's root frame; the cell's world frame
+enters through ``cell.robot.base`` (``transform_world_to_base``). Units: metres, radians.
+"""
+
+from __future__ import annotations
+
+import logging
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import coal
+import numpy as np
+import pinocchio as pin
+
+from factory.errors import CellError, PlanningError
+from robotprog.cell import Box, Cell, Pose
+from robotprog.robots import Robot, load_robot
+
+log = logging.getLogger(__name__)
+
+#: Height of the vise body below the parallels [m] (to the mill table top in the default cell).
+VISE_BODY_HEIGHT = 0.06
+#: Vise body length along the jaws [m].
+VISE_BODY_LENGTH = 0.15
+#: Extra width of the vise body beyond the largest jaw opening [m].
+VISE_BODY_MARGIN = 0.12
+#: Margin of the rack / out-tray stands around the slot grid [m].
+STAND_MARGIN = 0.05
+#: Pedestal footprint under the robot base [m] (square).
+PEDESTAL_SIZE = 0.25
+
+
+@dataclass(frozen=True)
+class HeldBox:
+    """A box held by the gripper: the stock or the finished part.
+
+    Attributes
+    ----------
+    size : (3,) float
+        Edge lengths [m].
+    transform_tcp_to_box : (4, 4) float
+        Pose of the box centre in the TCP frame [m].
+    clearance : float
+        Shrink per face when checking [m], so a part resting on a surface is free.
+    """
+
+    size: tuple[float, float, float]
+    transform_tcp_to_box: tuple[tuple[float, ...], ...]
+    clearance: float = 0.001
+
+    @staticmethod
+    def at(size: np.ndarray, transform_tcp_to_box: np.ndarray, clearance: float = 0.001) -> "HeldBox":
+        """A HeldBox from arrays."""
+        return HeldBox(tuple(float(s) for s in size),
+                       tuple(tuple(float(x) for x in row) for row in np.asarray(transform_tcp_to_box)), clearance)
+
+
+def _grid_stand(name: str, grid, top_offset: float = 0.0) -> Box:
+    """A stand box under a slot grid: covers the slots plus a margin, floor to slot height."""
+    t = grid.pose.matrix()
+    nx = (grid.columns - 1) * grid.pitch[0]
+    ny = (grid.rows - 1) * grid.pitch[1]
+    centre_local = np.array([nx / 2, ny / 2, 0.0, 1.0])
+    c = t @ centre_local
+    top = float(c[2]) + top_offset
+    size = (nx + 2 * STAND_MARGIN, ny + 2 * STAND_MARGIN, top)
+    return Box(name, size, Pose((float(c[0]), float(c[1]), top / 2), _yaw_only(t)))
+
+
+def _yaw_only(t: np.ndarray) -> tuple[float, float, float]:
+    return (0.0, 0.0, float(np.arctan2(t[1, 0], t[0, 0])))
+
+
+def cell_static_boxes(cell: Cell, *, door_closed: bool = False) -> tuple[Box, ...]:
+    """Every static collision box of the cell, poses in the cell's world frame.
+
+    The enclosure walls (and the door when ``door_closed``), plus boxes the cell file
+    implies: ``vise_body`` (:data:`VISE_BODY_LENGTH` along the jaws, the largest jaw opening
+    plus :data:`VISE_BODY_MARGIN` across, :data:`VISE_BODY_HEIGHT` below the parallels; the
+    moving jaws are not modelled), ``rack_stand`` and ``out_tray_stand`` (floor to slot
+    height, grid plus :data:`STAND_MARGIN`), and ``pedestal`` (floor to the robot base).
+    """
+    boxes = list(cell.enclosure.walls)
+    if door_closed:
+        boxes.append(cell.enclosure.door)
+    tv = cell.vise.pose.matrix()
+    body = np.eye(4)
+    body[2, 3] = -VISE_BODY_HEIGHT / 2
+    c = (tv @ body)[:3, 3]
+    boxes.append(Box("vise_body", (VISE_BODY_LENGTH, cell.vise.jaw_opening_max + VISE_BODY_MARGIN,
+                                   VISE_BODY_HEIGHT), Pose(tuple(float(v) for v in c), _yaw_only(tv))))
+    boxes.append(_grid_stand("rack_stand", cell.rack))
+    boxes.append(_grid_stand("out_tray_stand", cell.out_tray))
+    base = np.array(cell.robot.base.xyz, dtype=float)
+    boxes.append(Box("pedestal", (PEDESTAL_SIZE, PEDESTAL_SIZE, float(base[2])),
+                     Pose((float(base[0]), float(base[1]), float(base[2]) / 2))))
+    return tuple(boxes)
+
+
+def robot_srdf(robot: Robot) -> Path | None:
+    """The SRDF shipped beside the robot's URDF (``<pkg>/srdf/<name>.srdf``, the
+    example-robot-data layout), or ``None``."""
+    p = Path(robot.urdf).parent.parent / "srdf" / f"{robot.name}.srdf"
+    return p if p.is_file() else None
+
+
+@dataclass(frozen=True, eq=False)
+class CollisionWorld:
+    """The robot, gripper and cell as collision geometry. Build with :func:`collision_world`.
+
+    Queries reuse one Pinocchio data buffer: a world is not thread-safe (build one per thread).
+
+    Attributes
+    ----------
+    robot : Robot
+    geometry : pinocchio.GeometryModel
+        Links, gripper and static boxes with the active collision pairs. Read-only.
+    static_names : tuple of str
+        Names of the static boxes.
+    dropped_pairs : tuple of (str, str)
+        Self-collision pairs dropped because they touch at the home configuration.
+    transform_model_to_world : (4, 4) float
+        The cell world frame in the Pinocchio model's root frame [m].
+    transform_flange_to_tcp : (4, 4) float
+    """
+
+    robot: Robot
+    geometry: pin.GeometryModel
+    static_names: tuple[str, ...]
+    dropped_pairs: tuple[tuple[str, str], ...]
+    transform_model_to_world: np.ndarray
+    transform_flange_to_tcp: np.ndarray
+    _data: pin.Data = field(repr=False)
+    _gdata: pin.GeometryData = field(repr=False)
+    _static: tuple[tuple[str, coal.Box, coal.Transform3s], ...] = field(repr=False)
+    _flange_id: int = field(repr=False)
+    _arm_links: tuple[tuple[str, int], ...] = field(repr=False, default=())
+
+    def _update(self, q: np.ndarray) -> None:
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.robot.dof,) or not np.isfinite(q).all():
+            raise PlanningError(f"configuration must be {self.robot.dof} finite joint angles, got {q.tolist()}")
+        pin.framesForwardKinematics(self.robot.model, self._data, q)
+        pin.updateGeometryPlacements(self.robot.model, self._data, self.geometry, self._gdata)
+
+    def _held_contact(self, held: HeldBox) -> str | None:
+        size = np.asarray(held.size) - 2 * held.clearance
+        if (size <= 0).any():
+            return None
+        shape = coal.Box(*size)
+        t = self._data.oMf[self._flange_id].homogeneous @ self.transform_flange_to_tcp @ np.asarray(
+            held.transform_tcp_to_box)
+        tf = coal.Transform3s(t[:3, :3], t[:3, 3])
+        req = coal.CollisionRequest()
+        for name, i in self._arm_links:
+            g = self.geometry.geometryObjects[i].geometry
+            m = self._gdata.oMg[i]
+            res = coal.CollisionResult()
+            if coal.collide(shape, tf, g, coal.Transform3s(m.rotation, m.translation), req, res):
+                return name
+        for name, box, btf in self._static:
+            res = coal.CollisionResult()
+            if coal.collide(shape, tf, box, btf, req, res):
+                return name
+        return None
+
+    def in_collision(self, q: np.ndarray, held: HeldBox | None = None) -> bool:
+        """Whether configuration ``q`` (dof,) [rad] (holding ``held``) touches anything."""
+        self._update(q)
+        if pin.computeCollisions(self.geometry, self._gdata, True):
+            return True
+        return held is not None and self._held_contact(held) is not None
+
+    def first_contact(self, q: np.ndarray, held: HeldBox | None = None) -> str | None:
+        """``"body_a <-> body_b"`` for the first colliding pair at ``q``, or ``None`` when free.
+
+        Robot bodies are named by their geometry (``forearm_link_0``, ``gripper``,
+        ``held``), static ones by the cell's box name (``mill_table``, ``vise_body``).
+        """
+        self._update(q)
+        if pin.computeCollisions(self.geometry, self._gdata, False):
+            for k, res in enumerate(self._gdata.collisionResults):
+                if res.isCollision():
+                    pair = self.geometry.collisionPairs[k]
+                    a = self.geometry.geometryObjects[pair.first].name
+                    b = self.geometry.geometryObjects[pair.second].name
+                    return f"{a} <-> {b}"
+        if held is not None:
+            name = self._held_contact(held)
+            if name is not None:
+                return f"held <-> {name}"
+        return None
+
+    def path_free(self, qs: np.ndarray, held: HeldBox | None = None) -> int | None:
+        """Index of the first colliding configuration of ``qs`` (n, dof) [rad], ``None`` if all are free."""
+        qs = np.asarray(qs, dtype=float).reshape(-1, self.robot.dof)
+        for i, q in enumerate(qs):
+            if self.in_collision(q, held):
+                return i
+        return None
+
+
+def collision_world(cell: Cell, robot: Robot | None = None, *, door_closed: bool = False) -> CollisionWorld:
+    """Build the collision world of ``cell`` once (loads the robot's collision meshes).
+
+    Parameters
+    ----------
+    cell : Cell
+    robot : Robot, optional
+        Loaded with ``collision=True``; by default loaded from ``cell.robot``.
+    door_closed : bool
+        Include the enclosure door as an obstacle.
+
+    Raises
+    ------
+    CellError
+        The robot has no collision geometry, or its home configuration collides with the cell.
+    """
+    if robot is None or robot.collision is None:
+        robot = load_robot(cell.robot.model, flange_frame=cell.robot.flange_frame, collision=True)
+    if robot.collision is None:
+        raise CellError("robot has no collision geometry", source=cell.source)
+    model = robot.model
+    data = model.createData()
+    gm = robot.collision.copy()
+    links = list(range(gm.ngeoms))
+    pin.framesForwardKinematics(model, data, pin.neutral(model))
+    t_model_base = data.oMf[model.getFrameId(robot.base_frame)].homogeneous
+    t_model_world = t_model_base @ np.linalg.inv(cell.robot.base.matrix())
+
+    fid = model.getFrameId(robot.flange_frame)
+    fr = model.frames[fid]
+    g = cell.gripper.collision
+    gripper_placement = fr.placement.homogeneous @ g.pose.matrix()
+    gripper = gm.addGeometryObject(pin.GeometryObject(
+        "gripper", fr.parentJoint, fid, pin.SE3(gripper_placement), coal.Box(*g.size)))
+
+    static: list[tuple[str, coal.Box, coal.Transform3s]] = []
+    static_ids = []
+    boxes = cell_static_boxes(cell, door_closed=door_closed)
+    for b in boxes:
+        t = t_model_world @ b.pose.matrix()
+        shape = coal.Box(*b.size)
+        static_ids.append(gm.addGeometryObject(pin.GeometryObject(b.name, 0, 0, pin.SE3(t), shape)))
+        static.append((b.name, coal.Box(*b.size), coal.Transform3s(t[:3, :3], t[:3, 3])))
+
+    base_geoms = {i for i in links if gm.geometryObjects[i].parentJoint == 0}
+    for i in links + [gripper]:
+        for s, b in zip(static_ids, boxes):
+            if b.name == "pedestal" and i in base_geoms:
+                continue
+            gm.addCollisionPair(pin.CollisionPair(i, s))
+
+    # Self-collision candidates: link/gripper pairs on different, non-adjacent joints.
+    robot_geoms = links + [gripper]
+    self_pairs = []
+    for a in range(len(robot_geoms)):
+        for b in range(a + 1, len(robot_geoms)):
+            ia, ib = robot_geoms[a], robot_geoms[b]
+            ja, jb = gm.geometryObjects[ia].parentJoint, gm.geometryObjects[ib].parentJoint
+            if ja == jb or model.parents[ja] == jb or model.parents[jb] == ja:
+                continue
+            self_pairs.append((ia, ib))
+    srdf = robot_srdf(robot)
+    disabled: set[frozenset[str]] = set()
+    if srdf is not None:
+        try:
+            root = ET.parse(srdf).getroot()
+        except (OSError, ET.ParseError) as e:
+            raise CellError(f"cannot read SRDF: {e}", source=srdf) from None
+        for e in root.iter("disable_collisions"):
+            disabled.add(frozenset((e.get("link1"), e.get("link2"))))
+
+    def link_of(i: int) -> str:
+        f = gm.geometryObjects[i].parentFrame
+        return model.frames[f].name if gm.geometryObjects[i].name != "gripper" else "gripper"
+
+    candidates = [(a, b) for a, b in self_pairs if frozenset((link_of(a), link_of(b))) not in disabled]
+    home = np.asarray(cell.robot.home, dtype=float)
+    probe = pin.GeometryModel()
+    for o in gm.geometryObjects:
+        probe.addGeometryObject(o)
+    for a, b in candidates:
+        probe.addCollisionPair(pin.CollisionPair(a, b))
+    pdata = pin.GeometryData(probe)
+    pin.computeCollisions(model, data, probe, pdata, home, False)
+    dropped = []
+    for k, res in enumerate(pdata.collisionResults):
+        a, b = candidates[k]
+        if res.isCollision():
+            dropped.append((gm.geometryObjects[a].name, gm.geometryObjects[b].name))
+        else:
+            gm.addCollisionPair(pin.CollisionPair(a, b))
+    if dropped:
+        log.info("self-collision pairs in contact at home, not checked: %s", dropped)
+
+    gdata = pin.GeometryData(gm)
+    t_model_world.setflags(write=False)
+    tcp = cell.gripper.tcp.matrix()
+    tcp.setflags(write=False)
+    # The held box is checked against the links that do not move with the flange (those
+    # on the flange's joint carry the gripper that holds it).
+    arm_links = tuple((gm.geometryObjects[i].name, i) for i in links
+                      if gm.geometryObjects[i].parentJoint != fr.parentJoint)
+    world = CollisionWorld(robot, gm, tuple(b.name for b in boxes), tuple(dropped), t_model_world, tcp,
+                           data, gdata, tuple(static), fid, arm_links)
+    contact = world.first_contact(home)
+    if contact is not None:
+        raise CellError(f"robot.home: the home configuration collides ({contact})", source=cell.source)
+    return world

@@ -1,0 +1,151 @@
+"""ABB RAPID programs (one ``.mod`` module) from the same steps as :mod:`robotprog.urscript`.
+
+RAPID speaks millimetres and degrees. ``MoveJ`` steps become ``MoveAbsJ`` to a
+``jointtarget`` (the model's joint values in degrees: the cell must use the URDF of the
+robot the program runs on, whose joint zeros match the controller's), ``MoveL`` steps a
+``MoveL`` to a ``robtarget`` (TCP position [mm] and orientation quaternion ``[q1, q2, q3,
+q4] = [w, x, y, z]`` in the robot's base frame, ``base_link``), with the configuration
+``[cf1, cf4, cf6, cfx]`` left to the controller (``ConfL\\Off`` before the moves).
+Digital outputs ``n`` are the signals ``do<n>`` (named in the controller's I/O
+configuration). The TCP is ``tGripper`` built from ``transform_flange_to_tcp``.
+
+Speeds: joint moves run at ``vJoint`` (TCP 1000 mm/s, the controller's axis limits govern)
+and lines at their ``v`` [m/s] (``vLine<k>``), all ``fine`` (stop at each point) unless a
+blend radius is given (``z<mm>`` zonedata, declared). Output is deterministic: fixed
+decimals, no time stamps.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from factory.errors import PlanningError
+from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Step, Wait
+
+#: Decimals of millimetres and degrees (1 µm, 1e-4 deg) and quaternions.
+DECIMALS_MM = 3
+DECIMALS_DEG = 4
+DECIMALS_QUAT = 6
+_EXT = "[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]"
+
+
+def _f(x: float, d: int) -> str:
+    s = f"{round(float(x), d):.{d}f}"
+    return "0" if float(s) == 0 else s.rstrip("0").rstrip(".")
+
+
+def _name_ok(name: str) -> None:
+    if not name or not name.replace("_", "a").isalnum() or name[0].isdigit() or len(name) > 32:
+        raise PlanningError(f"RAPID module name must be letters, digits and underscores (<= 32), got {name!r}")
+
+
+def _quat_wxyz(r: np.ndarray) -> list[float]:
+    x, y, z, w = Rotation.from_matrix(r).as_quat()
+    q = np.array([w, x, y, z])
+    return list(-q if q[0] < 0 else q)
+
+
+def rapid_pose(t: np.ndarray) -> str:
+    """``[[x, y, z], [q1, q2, q3, q4]]`` of a (4, 4) transform (translation [m] -> [mm])."""
+    t = np.asarray(t, dtype=float)
+    if t.shape != (4, 4) or not np.isfinite(t).all():
+        raise PlanningError(f"pose must be a finite 4x4 transform, got shape {t.shape}")
+    p = ",".join(_f(v * 1000.0, DECIMALS_MM) for v in t[:3, 3])
+    q = ",".join(_f(v, DECIMALS_QUAT) for v in _quat_wxyz(t[:3, :3]))
+    return f"[[{p}],[{q}]]"
+
+
+def rapid_module(
+    steps: Sequence[Step],
+    *,
+    name: str = "factory_program",
+    transform_flange_to_tcp: np.ndarray | None = None,
+    tool_mass_kg: float = 1.0,
+    header: Sequence[str] = (),
+) -> str:
+    """The RAPID module text of a program with a ``main`` procedure.
+
+    Parameters
+    ----------
+    steps : sequence of MoveJ, MoveL, SetOutputs, Wait, Comment
+        Joint angles [rad] (6 per MoveJ), poses base_link -> TCP [m].
+    name : str
+        Module name.
+    transform_flange_to_tcp : (4, 4) float, optional
+        The TCP (default: the flange).
+    tool_mass_kg : float
+        Tool load mass for ``tooldata`` [kg] (centre of gravity at the TCP's half height).
+    header : sequence of str
+        Comment lines.
+
+    Raises
+    ------
+    PlanningError
+        A malformed step or name.
+    """
+    _name_ok(name)
+    tcp = np.eye(4) if transform_flange_to_tcp is None else np.asarray(transform_flange_to_tcp, dtype=float)
+    decl: list[str] = []
+    body: list[str] = []
+    speeds: dict[str, str] = {}
+    zones: dict[str, str] = {}
+    nj = nl = 0
+    for i, st in enumerate(steps):
+        if isinstance(st, MoveJ):
+            q = np.asarray(st.q, dtype=float)
+            if q.shape != (6,) or not np.isfinite(q).all():
+                raise PlanningError(f"step {i}: MoveAbsJ needs 6 finite joint angles, got {st.q}")
+            nj += 1
+            deg = ",".join(_f(math.degrees(v), DECIMALS_DEG) for v in q)
+            decl.append(f"  CONST jointtarget j{nj} := [[{deg}],{_EXT}];")
+            body.append(f"    MoveAbsJ j{nj}\\NoEOffs, vJoint, {_zone(st.r, zones)}, tGripper;")
+        elif isinstance(st, MoveL):
+            if not (math.isfinite(st.v) and st.v > 0):
+                raise PlanningError(f"step {i}: MoveL speed must be finite and > 0, got {st.v}")
+            nl += 1
+            decl.append(f"  CONST robtarget p{nl} := [{rapid_pose(np.asarray(st.pose))[1:-1]},[0,0,0,0],{_EXT}];")
+            v = _f(st.v * 1000.0, 1)
+            sname = f"vLine{v.replace('.', '_')}"
+            speeds[sname] = f"  CONST speeddata {sname} := [{v},500,5000,1000];"
+            body.append(f"    MoveL p{nl}, {sname}, {_zone(st.r, zones)}, tGripper;")
+        elif isinstance(st, SetOutputs):
+            if st.label:
+                body.append(f"    ! {st.label}")
+            for n, level in st.outputs:
+                if n < 0:
+                    raise PlanningError(f"step {i}: digital output {n} is negative")
+                body.append(f"    SetDO do{n}, {1 if level else 0};")
+            if st.settle_s > 0:
+                body.append(f"    WaitTime {_f(st.settle_s, 3)};")
+        elif isinstance(st, Wait):
+            if not (math.isfinite(st.seconds) and st.seconds > 0):
+                raise PlanningError(f"step {i}: wait must be finite and > 0, got {st.seconds}")
+            body.append(f"    WaitTime {_f(st.seconds, 3)};")
+        elif isinstance(st, Comment):
+            body.append(f"    ! {st.text.splitlines()[0] if st.text else ''}")
+        else:
+            raise PlanningError(f"step {i}: not a program step: {type(st).__name__}")
+    cog = _f(tcp[2, 3] * 500.0, DECIMALS_MM)
+    lines = [f"MODULE {name}"]
+    lines += [f"  ! {h}" for h in header]
+    lines.append(f"  PERS tooldata tGripper := [TRUE,{rapid_pose(tcp)},[{_f(tool_mass_kg, 3)},[0,0,{cog}],"
+                 "[1,0,0,0],0,0,0]];")
+    lines.append("  CONST speeddata vJoint := [1000,500,5000,1000];")
+    lines += [speeds[k] for k in sorted(speeds)]
+    lines += [zones[k] for k in sorted(zones)]
+    lines += decl
+    lines += ["", "  PROC main()", "    ConfJ\\Off;", "    ConfL\\Off;"] + body + ["  ENDPROC", "ENDMODULE"]
+    return "\n".join(lines) + "\n"
+
+
+def _zone(r: float, zones: dict[str, str]) -> str:
+    if not r > 0:
+        return "fine"
+    mm = _f(r * 1000.0, 1)
+    name = f"zBlend{mm.replace('.', '_')}"
+    zones[name] = f"  CONST zonedata {name} := [FALSE,{mm},{mm},{mm},{_f(r * 100.0, 2)},{mm},{_f(r * 100.0, 2)}];"
+    return name

@@ -1,0 +1,531 @@
+"""Machine tending: load a stock blank from the rack into the vise, unload the part to the out-tray.
+
+The plan is a list of :class:`TimedMove`: joint-space *transfers* between "above" poses,
+straight-line Cartesian *approach* / *retreat* moves between an above pose and the
+grasp or place pose, and *gripper* actions (digital outputs, then the settle time).
+
+Grasp
+-----
+Top-down: the TCP's Z points down (world -Z), the fingers close along the TCP's Y across
+the narrower horizontal side of the box (stock or part), centred on the box's top face.
+The fingers reach ``min(height / 2, grip_depth)`` below the top, but never so deep that
+the gripper's collision box (``cell.gripper.collision``) comes within
+:attr:`TendingOptions.floor_clearance` of the surface the box stands on. Of the two yaws
+that satisfy this, the one nearer the home TCP orientation is used (less wrist travel).
+
+Stock and part placement: in the rack and out-tray the box stands centred on the slot
+origin, its edges along the slot axes, bottom at slot height; in the vise per
+:mod:`robotprog.frames` (centred on the jaw gap, bottom on the parallels).
+
+Motion
+------
+Approach and retreat are straight lines of the TCP, IK-sampled every
+:attr:`TendingOptions.line_step` with :func:`robotprog.ik.ik_continuous` (the branch
+continuous with the previous sample). Transfers are straight in joint space when that is
+collision-free at :attr:`TendingOptions.joint_resolution`; otherwise an RRT-Connect in
+joint space (seeded :class:`numpy.random.Generator`, so plans are reproducible) finds a
+path, which is then shortcut (random pairs of path points joined when the straight joint
+segment between them is free). Each move is timed with :func:`robotprog.timing.time_path`
+and the timed spline is checked for collision again (the cubic spline through the
+waypoints need not follow the polyline); where it collides, the waypoints are densified
+and the move re-timed.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.interpolate import PPoly
+
+from factory.errors import CellError, PlanningError
+from robotprog.cell import Cell, SlotGrid
+from robotprog.collision import CollisionWorld, HeldBox, collision_world
+from robotprog.frames import StockInVise, setup_sheet_to_cell, MM_PER_M
+from robotprog.ik import ik_continuous, ik_solutions
+from robotprog.robots import Robot
+from robotprog.timing import Trajectory, time_path
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class TendingOptions:
+    """Tending planner settings.
+
+    Attributes
+    ----------
+    approach_height : float
+        Height of the "above" poses over the grasp / place pose [m].
+    grip_depth : float
+        How far the fingertips reach below the top of the box at most [m].
+    min_grip_depth : float
+        Shallowest grip accepted [m]; a thinner box raises :class:`PlanningError`.
+    floor_clearance : float
+        Gap kept between the gripper's collision box and the surface the box stands on [m].
+    line_step : float
+        IK sample spacing along approach / retreat lines [m].
+    joint_resolution : float
+        Largest joint step between collision-checked configurations [rad].
+    rrt_step : float
+        RRT-Connect extension step [rad].
+    rrt_iterations : int
+        RRT-Connect iterations before giving up.
+    shortcut_attempts : int
+        Random shortcut attempts on an RRT path.
+    seed : int
+        Seed of the RRT random generator.
+    rack_slot, tray_slot : (int, int)
+        (row, column) of the rack slot the stock comes from and the out-tray slot the part goes to.
+    """
+
+    approach_height: float = 0.10
+    grip_depth: float = 0.015
+    min_grip_depth: float = 0.003
+    floor_clearance: float = 0.002
+    line_step: float = 0.005
+    joint_resolution: float = 0.02
+    rrt_step: float = 0.15
+    rrt_iterations: int = 4000
+    shortcut_attempts: int = 60
+    seed: int = 0
+    rack_slot: tuple[int, int] = (0, 0)
+    tray_slot: tuple[int, int] = (0, 0)
+
+
+@dataclass(frozen=True, eq=False)
+class TimedMove:
+    """One step of the plan.
+
+    Attributes
+    ----------
+    name : str
+        ``"load: approach rack"`` etc.
+    trajectory : Trajectory
+        The timed joint motion (zero length for a gripper action).
+    kind : str
+        ``"joint"`` (transfer), ``"linear"`` (straight TCP line) or ``"gripper"``.
+    waypoints : (n, dof) float
+        The joint waypoints the trajectory passes through [rad].
+    held : HeldBox or None
+        What the gripper holds during the move.
+    outputs : tuple of (int, bool)
+        Digital outputs a gripper action sets.
+    settle_s : float
+        Wait after a gripper action [s].
+    transform_world_to_tcp : (4, 4) float
+        TCP pose at the end of the move [m].
+    """
+
+    name: str
+    trajectory: Trajectory
+    kind: str
+    waypoints: np.ndarray
+    held: HeldBox | None = None
+    outputs: tuple[tuple[int, bool], ...] = ()
+    settle_s: float = 0.0
+    transform_world_to_tcp: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    @property
+    def duration(self) -> float:
+        """Time of the move [s] (a gripper action: its settle time)."""
+        return self.settle_s if self.kind == "gripper" else self.trajectory.duration
+
+    @property
+    def q_end(self) -> np.ndarray:
+        """Last configuration [rad]."""
+        return self.waypoints[-1]
+
+
+@dataclass(frozen=True, eq=False)
+class TendingPlan:
+    """Load then unload, as a sequence of moves from home back to home.
+
+    Attributes
+    ----------
+    moves : tuple of TimedMove
+    stock : StockInVise
+    part_min, part_max : (3,) float
+        Finished part box in the vise frame [m].
+    planning_s : float
+        Wall time spent planning [s].
+    """
+
+    moves: tuple[TimedMove, ...]
+    stock: StockInVise
+    part_min: np.ndarray
+    part_max: np.ndarray
+    planning_s: float
+
+    @property
+    def durations(self) -> tuple[tuple[str, float], ...]:
+        """(move name, duration [s]) in order."""
+        return tuple((m.name, m.duration) for m in self.moves)
+
+    @property
+    def duration(self) -> float:
+        """Total time [s]."""
+        return float(sum(m.duration for m in self.moves))
+
+    def phase(self, prefix: str) -> tuple[TimedMove, ...]:
+        """Moves whose name starts with ``prefix`` (``"load"`` or ``"unload"``)."""
+        return tuple(m for m in self.moves if m.name.startswith(prefix))
+
+
+def part_box_in_vise(stock: StockInVise, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding box of the part mesh in the vise frame [m].
+
+    Parameters
+    ----------
+    stock : StockInVise
+    vertices : (n, 3) float
+        Mesh vertices in mesh file units (as the setup sheet's ``mesh_scale`` reads them).
+    """
+    v = np.asarray(vertices, dtype=float) * stock.mesh_scale_m
+    t = stock.transform_vise_to_work @ stock.transform_mesh_to_work
+    p = v @ t[:3, :3].T + t[:3, 3]
+    return p.min(axis=0), p.max(axis=0)
+
+
+# --- geometry helpers --------------------------------------------------------------------
+
+
+def _grasp(cell: Cell, t_world_support: np.ndarray, bmin: np.ndarray, bmax: np.ndarray,
+           r_home: np.ndarray, options: TendingOptions, what: str) -> tuple[np.ndarray, HeldBox]:
+    """TCP grasp pose (world) and the held box, for a box [bmin, bmax] in the support frame."""
+    size = bmax - bmin
+    g = cell.gripper
+    narrow = 0 if size[0] <= size[1] else 1
+    width = float(size[narrow])
+    if width > g.opening_max:
+        raise PlanningError(
+            f"{what} {width * MM_PER_M:.1f} mm across its narrowest side is wider than the gripper opens "
+            f"({g.opening_max * MM_PER_M:.1f} mm)", source="gripper.opening.max")
+    if width < g.opening_min:
+        raise PlanningError(
+            f"{what} {width * MM_PER_M:.1f} mm is narrower than the gripper closes "
+            f"({g.opening_min * MM_PER_M:.1f} mm)", source="gripper.opening.min")
+    # How far the gripper's collision box reaches past the TCP along the tool axis.
+    t_tcp_flange = np.linalg.inv(g.tcp.matrix())
+    corners = np.array([[sx, sy, sz] for sx in (-.5, .5) for sy in (-.5, .5) for sz in (-.5, .5)]) * g.collision.size
+    c = corners @ g.collision.pose.matrix()[:3, :3].T + g.collision.pose.matrix()[:3, 3]
+    reach = float(((c @ t_tcp_flange[:3, :3].T) + t_tcp_flange[:3, 3])[:, 2].max())
+    height = float(size[2])
+    tcp_above = max(height - min(height / 2, options.grip_depth), reach + options.floor_clearance)
+    if height - tcp_above < options.min_grip_depth - 1e-9:
+        raise PlanningError(
+            f"{what} {height * MM_PER_M:.1f} mm tall is too thin to grip: the fingers would reach "
+            f"{(height - tcp_above) * MM_PER_M:.1f} mm below its top", source="gripper.collision")
+    centre = np.array([(bmin[0] + bmax[0]) / 2, (bmin[1] + bmax[1]) / 2, bmin[2] + tcp_above, 1.0])
+    p = (t_world_support @ centre)[:3]
+    axis = t_world_support[:3, :3][:, narrow]
+    axis = axis - axis[2] * np.array([0.0, 0.0, 1.0])
+    axis /= np.linalg.norm(axis)
+    best = None
+    for s in (1.0, -1.0):
+        y = s * axis
+        z = np.array([0.0, 0.0, -1.0])
+        x = np.cross(y, z)
+        r = np.column_stack([x, y, z])
+        score = np.trace(r_home.T @ r)
+        if best is None or score > best[0]:
+            best = (score, r)
+    t = np.eye(4)
+    t[:3, :3] = best[1]
+    t[:3, 3] = p
+    box = np.eye(4)
+    box[:3, :3] = t_world_support[:3, :3]
+    box[:3, 3] = (t_world_support @ np.append((bmin + bmax) / 2, 1.0))[:3]
+    return t, HeldBox.at(size, np.linalg.inv(t) @ box)
+
+
+class _Planner:
+    def __init__(self, cell: Cell, robot: Robot, world: CollisionWorld, options: TendingOptions):
+        self.cell, self.robot, self.world, self.o = cell, robot, world, options
+        self.t_base_world = np.linalg.inv(cell.robot.base.matrix())
+        self.t_tcp_flange = np.linalg.inv(cell.gripper.tcp.matrix())
+        self.vmax = robot.v_max * cell.motion.speed_scaling
+        self.amax = np.asarray(cell.motion.acceleration_limits, dtype=float) * cell.motion.speed_scaling
+        self.rng = np.random.default_rng(options.seed)
+        self.lo = np.maximum(robot.q_lower, np.asarray(cell.robot.home) - np.pi)
+        self.hi = np.minimum(robot.q_upper, np.asarray(cell.robot.home) + np.pi)
+
+    def flange(self, t_world_tcp: np.ndarray) -> np.ndarray:
+        return self.t_base_world @ t_world_tcp @ self.t_tcp_flange
+
+    def tcp_world(self, q: np.ndarray) -> np.ndarray:
+        return self.cell.robot.base.matrix() @ self.robot.fk(q) @ self.cell.gripper.tcp.matrix()
+
+    def pick_ik(self, t_world_tcp: np.ndarray, q_ref: np.ndarray, held: HeldBox | None, what: str,
+                field_name: str) -> np.ndarray:
+        sols = ik_solutions(self.robot, self.flange(t_world_tcp), q_ref)
+        sols = [q for q in sols if not self.world.in_collision(q, held)]
+        if not sols:
+            raise PlanningError(f"{what} is out of reach or only reachable in collision", source=field_name)
+        return min(sols, key=lambda q: float(np.linalg.norm(q - q_ref)))
+
+    def line(self, t_a: np.ndarray, t_b: np.ndarray, q_a: np.ndarray, held: HeldBox | None,
+             what: str, field_name: str) -> np.ndarray:
+        d = float(np.linalg.norm(t_b[:3, 3] - t_a[:3, 3]))
+        n = max(2, int(math.ceil(d / self.o.line_step)) + 1)
+        qs = [q_a]
+        for f in np.linspace(0.0, 1.0, n)[1:]:
+            t = t_a.copy()
+            t[:3, 3] = (1 - f) * t_a[:3, 3] + f * t_b[:3, 3]
+            try:
+                q = ik_continuous(self.robot, self.flange(t), qs[-1])
+            except PlanningError as e:
+                raise PlanningError(f"{what}: {e}", source=field_name) from None
+            if np.abs(q - qs[-1]).max() > 0.25:
+                raise PlanningError(f"{what}: the arm flips configuration along the line", source=field_name)
+            qs.append(q)
+        qs = np.array(qs)
+        dense = self.densify(qs)
+        bad = self.world.path_free(dense, held)
+        if bad is not None:
+            raise PlanningError(f"{what} collides ({self.world.first_contact(dense[bad], held)})",
+                                source=field_name)
+        return qs
+
+    def densify(self, qs: np.ndarray) -> np.ndarray:
+        out = [qs[:1]]
+        for a, b in zip(qs[:-1], qs[1:]):
+            n = max(1, int(math.ceil(np.abs(b - a).max() / self.o.joint_resolution)))
+            f = np.linspace(0.0, 1.0, n + 1)[1:, None]
+            out.append(a + f * (b - a))
+        return np.concatenate(out)
+
+    def edge_free(self, a: np.ndarray, b: np.ndarray, held: HeldBox | None) -> bool:
+        return self.world.path_free(self.densify(np.array([a, b])), held) is None
+
+    def transfer(self, q_a: np.ndarray, q_b: np.ndarray, held: HeldBox | None, what: str) -> np.ndarray:
+        if self.edge_free(q_a, q_b, held):
+            return np.array([q_a, q_b])
+        path = self.rrt_connect(q_a, q_b, held, what)
+        return self.shortcut(path, held)
+
+    def rrt_connect(self, q_a: np.ndarray, q_b: np.ndarray, held: HeldBox | None, what: str) -> np.ndarray:
+        trees = [([q_a], [-1]), ([q_b], [-1])]
+        step = self.o.rrt_step
+
+        def extend(tree, target):
+            nodes, parents = tree
+            arr = np.array(nodes)
+            i = int(np.argmin(np.linalg.norm(arr - target, axis=1)))
+            d = target - nodes[i]
+            n = float(np.linalg.norm(d))
+            new = target if n <= step else nodes[i] + d * (step / n)
+            if not self.edge_free(nodes[i], new, held):
+                return None
+            nodes.append(new)
+            parents.append(i)
+            return len(nodes) - 1
+
+        def branch(tree, i):
+            nodes, parents = tree
+            out = []
+            while i != -1:
+                out.append(nodes[i])
+                i = parents[i]
+            return out
+
+        for it in range(self.o.rrt_iterations):
+            sample = self.lo + (self.hi - self.lo) * self.rng.random(self.robot.dof)
+            ta, tb = trees if it % 2 == 0 else trees[::-1]
+            ia = extend(ta, sample)
+            if ia is None:
+                continue
+            target = ta[0][ia]
+            while True:  # connect
+                ib = extend(tb, target)
+                if ib is None:
+                    break
+                if np.allclose(tb[0][ib], target):
+                    pa, pb = branch(ta, ia), branch(tb, ib)
+                    path = pa[::-1] + pb[1:]
+                    if ta is not trees[0]:
+                        path = path[::-1]
+                    log.debug("RRT-Connect: %s in %d iterations", what, it + 1)
+                    return np.array(path)
+        raise PlanningError(f"{what}: no collision-free joint path found in {self.o.rrt_iterations} RRT iterations")
+
+    def shortcut(self, path: np.ndarray, held: HeldBox | None) -> np.ndarray:
+        pts = list(path)
+        for _ in range(self.o.shortcut_attempts):
+            if len(pts) < 3:
+                break
+            i, j = sorted(self.rng.choice(len(pts), 2, replace=False))
+            if j - i < 2:
+                continue
+            if self.edge_free(pts[i], pts[j], held):
+                pts = pts[: i + 1] + pts[j:]
+        return np.array(pts)
+
+    def timed(self, name: str, kind: str, qs: np.ndarray, held: HeldBox | None) -> TimedMove:
+        wp = np.asarray(qs, dtype=float)
+        for _ in range(2):
+            traj = time_path(wp, self.vmax, self.amax, q_lower=self.robot.q_lower, q_upper=self.robot.q_upper)
+            path = PPoly(traj.coefficients, traj.breakpoints)
+            s = np.linspace(traj.breakpoints[0], traj.breakpoints[-1],
+                            max(2, int(math.ceil((traj.breakpoints[-1] - traj.breakpoints[0])
+                                                 / self.o.joint_resolution)) + 1))
+            bad = self.world.path_free(path(s), held)
+            if bad is None:
+                return TimedMove(name, traj, kind, wp, held, transform_world_to_tcp=self.tcp_world(wp[-1]))
+            # The spline strayed from the checked polyline: pin it down with a waypoint
+            # every joint_resolution (a second pass changes nothing, hence the small loop).
+            wp = self.densify(wp)
+        raise PlanningError(f"{name}: the timed path collides ({self.world.first_contact(path(s)[bad], held)})")
+
+    def gripper(self, name: str, q: np.ndarray, outputs, held: HeldBox | None) -> TimedMove:
+        traj = time_path(q[None, :], self.vmax, self.amax)
+        return TimedMove(name, traj, "gripper", q[None, :].copy(), held, tuple(outputs),
+                         self.cell.gripper.io.settle_s, self.tcp_world(q))
+
+
+def _raise_up(t: np.ndarray, dz: float) -> np.ndarray:
+    out = t.copy()
+    out[2, 3] += dz
+    return out
+
+
+def _slot(grid: SlotGrid, slot: tuple[int, int], field_name: str) -> np.ndarray:
+    try:
+        return grid.slot_transform(*slot)
+    except CellError as e:
+        raise CellError(str(e.args[0]) if e.args else str(e), source=field_name) from None
+
+
+def plan_tending(
+    cell: Cell,
+    sheet: dict[str, Any],
+    *,
+    part_box: tuple[np.ndarray, np.ndarray] | None = None,
+    world: CollisionWorld | None = None,
+    options: TendingOptions = TendingOptions(),
+    source: str | None = None,
+) -> TendingPlan:
+    """Plan loading the stock of ``sheet`` into the vise and unloading the finished part.
+
+    Parameters
+    ----------
+    cell : Cell
+    sheet : dict
+        The part's ``factory.setup/1`` setup sheet.
+    part_box : ((3,), (3,)) float, optional
+        Finished part box in the vise frame [m] (:func:`part_box_in_vise`); default the stock box.
+    world : CollisionWorld, optional
+        Built once with :func:`robotprog.collision.collision_world` (door open) and reused.
+    options : TendingOptions
+    source : str, optional
+        Setup sheet file name for errors.
+
+    Returns
+    -------
+    TendingPlan
+        Home → rack → vise → home, then home → vise → out-tray → home.
+
+    Raises
+    ------
+    SetupError
+        Malformed setup sheet.
+    CellError
+        The stock does not fit the vise jaws, or no such rack / tray slot.
+    PlanningError
+        The box is wider than the gripper opens (``gripper.opening.max``), a slot or the
+        vise is out of reach (``rack.pose``, ``vise.pose``, ``out_tray.pose``), or no
+        collision-free path exists.
+    """
+    t0 = time.perf_counter()
+    stock = setup_sheet_to_cell(sheet, source)
+    width = float(stock.size[1])
+    if not cell.vise.jaw_opening_min <= width <= cell.vise.jaw_opening_max:
+        raise CellError(
+            f"stock {width * MM_PER_M:.1f} mm wide does not fit the vise jaw opening "
+            f"{cell.vise.jaw_opening_min * MM_PER_M:.1f}..{cell.vise.jaw_opening_max * MM_PER_M:.1f} mm",
+            source="vise.jaw_opening")
+    world = world or collision_world(cell)
+    robot = world.robot
+    p = _Planner(cell, robot, world, options)
+    home = np.asarray(cell.robot.home, dtype=float)
+    r_home = p.tcp_world(home)[:3, :3]
+    pmin, pmax = (stock.stock_min, stock.stock_max) if part_box is None else (
+        np.asarray(part_box[0], dtype=float), np.asarray(part_box[1], dtype=float))
+    t_vise = cell.vise.pose.matrix()
+    t_rack = _slot(cell.rack, options.rack_slot, "rack")
+    t_tray = _slot(cell.out_tray, options.tray_slot, "out_tray")
+    # In rack and tray the box is centred on the slot, bottom at slot height.
+    half = np.array([0.5, 0.5, 0.0])
+    s_size = stock.size
+    g_rack, held_stock = _grasp(cell, t_rack, -half * s_size, s_size - half * s_size, r_home, options, "stock")
+    g_vise_in, held_vise = _grasp(cell, t_vise, stock.stock_min, stock.stock_max, r_home, options, "stock")
+    g_vise_out, held_part = _grasp(cell, t_vise, pmin, pmax, r_home, options, "part")
+    psize = pmax - pmin
+    g_tray, _ = _grasp(cell, t_tray, -half * psize, psize - half * psize, r_home, options, "part")
+    up = options.approach_height
+
+    moves: list[TimedMove] = []
+    io = cell.gripper.io
+    # load
+    q_above_rack = p.pick_ik(_raise_up(g_rack, up), home, None, "above rack slot", "rack.pose")
+    app_rack = p.line(_raise_up(g_rack, up), g_rack, q_above_rack, None, "approach to rack slot", "rack.pose")
+    q_grasp = app_rack[-1]
+    ret_rack = p.line(g_rack, _raise_up(g_rack, up), q_grasp, held_stock, "retreat from rack slot", "rack.pose")
+    q_above_vise = p.pick_ik(_raise_up(g_vise_in, up), ret_rack[-1], held_vise, "above vise", "vise.pose")
+    place = p.line(_raise_up(g_vise_in, up), g_vise_in, q_above_vise, held_vise, "place in vise", "vise.pose")
+    ret_vise = p.line(g_vise_in, _raise_up(g_vise_in, up), place[-1], None, "retreat from vise", "vise.pose")
+    moves.append(p.timed("load: home to above rack", "joint", p.transfer(home, q_above_rack, None, "home to rack"),
+                         None))
+    moves.append(p.timed("load: approach stock", "linear", app_rack, None))
+    moves.append(p.gripper("load: grip stock", q_grasp, io.grip, None))
+    moves.append(p.timed("load: retreat from rack", "linear", ret_rack, held_stock))
+    moves.append(p.timed("load: transfer to vise", "joint",
+                         p.transfer(ret_rack[-1], q_above_vise, held_stock, "rack to vise"), held_stock))
+    moves.append(p.timed("load: place in vise", "linear", place, held_vise))
+    moves.append(p.gripper("load: release stock", place[-1], io.release, None))
+    moves.append(p.timed("load: retreat from vise", "linear", ret_vise, None))
+    moves.append(p.timed("load: return home", "joint", p.transfer(ret_vise[-1], home, None, "vise to home"), None))
+    # unload
+    q_above_part = p.pick_ik(_raise_up(g_vise_out, up), home, None, "above vise", "vise.pose")
+    app_part = p.line(_raise_up(g_vise_out, up), g_vise_out, q_above_part, None, "approach to part", "vise.pose")
+    ret_part = p.line(g_vise_out, _raise_up(g_vise_out, up), app_part[-1], held_part, "retreat from vise",
+                      "vise.pose")
+    held_tray = HeldBox.at(psize, np.linalg.inv(g_tray) @ _box_pose(t_tray, -half * psize, psize - half * psize))
+    q_above_tray = p.pick_ik(_raise_up(g_tray, up), ret_part[-1], held_tray, "above out-tray slot", "out_tray.pose")
+    place_tray = p.line(_raise_up(g_tray, up), g_tray, q_above_tray, held_tray, "place in out-tray",
+                        "out_tray.pose")
+    ret_tray = p.line(g_tray, _raise_up(g_tray, up), place_tray[-1], None, "retreat from out-tray",
+                      "out_tray.pose")
+    moves.append(p.timed("unload: home to above vise", "joint",
+                         p.transfer(home, q_above_part, None, "home to vise"), None))
+    moves.append(p.timed("unload: approach part", "linear", app_part, None))
+    moves.append(p.gripper("unload: grip part", app_part[-1], io.grip, None))
+    moves.append(p.timed("unload: retreat from vise", "linear", ret_part, held_part))
+    moves.append(p.timed("unload: transfer to out-tray", "joint",
+                         p.transfer(ret_part[-1], q_above_tray, held_part, "vise to out-tray"), held_part))
+    moves.append(p.timed("unload: place in out-tray", "linear", place_tray, held_tray))
+    moves.append(p.gripper("unload: release part", place_tray[-1], io.release, None))
+    moves.append(p.timed("unload: retreat from out-tray", "linear", ret_tray, None))
+    moves.append(p.timed("unload: return home", "joint",
+                         p.transfer(ret_tray[-1], home, None, "out-tray to home"), None))
+    for m in moves:
+        m.waypoints.setflags(write=False)
+    pmin = pmin.copy()
+    pmax = pmax.copy()
+    pmin.setflags(write=False)
+    pmax.setflags(write=False)
+    dt = time.perf_counter() - t0
+    log.info("tending plan: %d moves, %.2f s of motion, planned in %.2f s", len(moves),
+             sum(m.duration for m in moves), dt)
+    return TendingPlan(tuple(moves), stock, pmin, pmax, dt)
+
+
+def _box_pose(t_support: np.ndarray, bmin: np.ndarray, bmax: np.ndarray) -> np.ndarray:
+    box = np.eye(4)
+    box[:3, :3] = t_support[:3, :3]
+    box[:3, 3] = (t_support @ np.append((bmin + bmax) / 2, 1.0))[:3]
+    return box

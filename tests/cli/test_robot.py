@@ -1,0 +1,170 @@
+"""`factory robot` through typer's CliRunner: MCAP read back with rosbags, URScript, one-line errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+import yaml
+from rosbags.highlevel import AnyReader
+from typer.testing import CliRunner
+
+from cli.main import app
+from factory.resources import FIXTURES
+
+SAMPLES = Path(__file__).resolve().parents[2] / "samples"
+runner = CliRunner()
+
+
+def _sheet(path: Path, part: Path, allowance: float = 2.0, top: float = 1.0) -> Path:
+    """A setup sheet placing ``part`` in a stock box with ``allowance`` around and ``top`` above [mm]."""
+    lo, hi = trimesh.load(part).bounds
+    size = (hi - lo) + [2 * allowance, 2 * allowance, top]
+    t = np.eye(4)
+    t[:3, 3] = [allowance - lo[0], allowance - lo[1], -size[2] - lo[2]]
+    path.write_text(json.dumps({
+        "format": "factory.setup/1", "units": "mm", "work_origin": "top-front-left",
+        "stock": {"min": [0, 0, -float(size[2])], "max": [float(size[0]), float(size[1]), 0],
+                  "size": size.tolist()},
+        "transform_mesh_to_work": t.tolist(), "mesh_scale": 1.0, "tools": []}))
+    return path
+
+
+def _cell(tmp: Path, edit) -> Path:
+    data = yaml.safe_load((FIXTURES / "cell.yaml").read_text())
+    edit(data)
+    p = tmp / "cell.yaml"
+    p.write_text(yaml.safe_dump(data))
+    return p
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("robot")
+    part = SAMPLES / "bracket.stl"
+    sheet = _sheet(tmp / "bracket.setup.json", part)
+    out = tmp / "bracket.robot.mcap"
+    script = tmp / "bracket.script"
+    res = runner.invoke(app, ["robot", str(FIXTURES / "cell.yaml"), "--setup", str(sheet), "--part", str(part),
+                              "-o", str(out), "--program", str(script), "--lang", "urscript", "--json"])
+    return tmp, sheet, part, out, script, res
+
+
+def test_robot_writes_mcap_and_urscript(run):
+    tmp, sheet, part, out, script, res = run
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout)
+    assert summary["robot"] == "ur5" and len(summary["moves"]) == 18
+    total = summary["duration_s"]
+    assert total == pytest.approx(sum(m["duration_s"] for m in summary["moves"]), abs=0.01)
+    text = script.read_text()
+    assert text.startswith("def bracket():") and text.rstrip().endswith("end")
+    assert text.count("set_standard_digital_out(0, True)") == 2
+    assert text.count("set_standard_digital_out(0, False)") == 2
+    assert text.count("movel(") == 8 and "movej(" in text
+
+    with AnyReader([out]) as reader:
+        topics = {c.topic: c.msgtype for c in reader.connections}
+        assert topics["/robot_description"] == "std_msgs/msg/String"
+        assert topics["/joint_states"] == "sensor_msgs/msg/JointState"
+        assert topics["/tf"] == "tf2_msgs/msg/TFMessage"
+        assert topics["/tf_static"] == "tf2_msgs/msg/TFMessage"
+        assert topics["/robot/trajectory"] == "trajectory_msgs/msg/JointTrajectory"
+        assert topics["/cell/boxes"] == "visualization_msgs/msg/MarkerArray"
+        by_topic: dict[str, list] = {}
+        for conn, t, raw in reader.messages():
+            by_topic.setdefault(conn.topic, []).append((t, reader.deserialize(raw, conn.msgtype)))
+    assert "<robot" in by_topic["/robot_description"][0][1].data
+    states = by_topic["/joint_states"]
+    assert len(states) == pytest.approx(total * 50, abs=20)
+    times = [t for t, _ in states]
+    assert times == sorted(times)
+    home = [0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0]
+    np.testing.assert_allclose(states[0][1].position, home, atol=1e-9)
+    np.testing.assert_allclose(states[-1][1].position, home, atol=1e-9)
+    assert list(states[0][1].name) == ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint",
+                                       "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]
+    tf = by_topic["/tf"]
+    assert len(tf) == len(states)
+    children = {x.child_frame_id for x in tf[0][1].transforms}
+    assert {"shoulder_link", "forearm_link", "wrist_3_link", "tool0"} <= children
+    static = {(x.header.frame_id, x.child_frame_id) for x in by_topic["/tf_static"][0][1].transforms}
+    assert ("world", "base_link") in static and ("tool0", "tcp") in static
+    trajs = by_topic["/robot/trajectory"]
+    assert len(trajs) == 14
+    last = trajs[-1][1].points[-1]
+    np.testing.assert_allclose(last.positions, home, atol=1e-9)
+    np.testing.assert_allclose(last.velocities, 0.0, atol=1e-9)
+    tfs = [p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in trajs[0][1].points]
+    assert tfs == sorted(tfs) and len(trajs[0][1].points[0].accelerations) == 6
+    names = {m.text for m in by_topic["/cell/boxes"][0][1].markers}
+    assert {"mill_table", "vise_body", "front_lower"} <= names
+
+
+def test_existing_output_needs_overwrite(run):
+    tmp, sheet, part, out, script, res = run
+    before = out.read_bytes()
+    again = runner.invoke(app, ["robot", str(FIXTURES / "cell.yaml"), "--setup", str(sheet), "-o", str(out)])
+    assert again.exit_code == 1 and "error:" in again.output
+    assert out.read_bytes() == before
+
+
+def _fails(tmp: Path, cell: Path, sheet: Path, expect: str) -> None:
+    out = tmp / "x.robot.mcap"
+    prog = tmp / "x.script"
+    res = runner.invoke(app, ["robot", str(cell), "--setup", str(sheet), "-o", str(out), "--program", str(prog)])
+    assert res.exit_code == 1, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: ") and expect in lines[0], res.output
+    assert not out.exists() and not prog.exists()
+
+
+def test_unknown_robot(tmp_path):
+    sheet = _sheet(tmp_path / "p.setup.json", SAMPLES / "bracket.stl")
+    cell = _cell(tmp_path, lambda d: d["robot"].update(model="ur99"))
+    _fails(tmp_path, cell, sheet, "ur99")
+
+
+def test_typo_in_cell_file(tmp_path):
+    sheet = _sheet(tmp_path / "p.setup.json", SAMPLES / "bracket.stl")
+    cell = _cell(tmp_path, lambda d: d["vise"].update(jaw_hieght=0.04))
+    _fails(tmp_path, cell, sheet, "jaw_hieght")
+
+
+def test_part_wider_than_gripper(tmp_path):
+    sheet = _sheet(tmp_path / "p.setup.json", SAMPLES / "bracket.stl")
+    cell = _cell(tmp_path, lambda d: d["gripper"]["opening"].update(max=0.05))
+    _fails(tmp_path, cell, sheet, "gripper.opening.max")
+
+
+def test_unreachable_slot(tmp_path):
+    sheet = _sheet(tmp_path / "p.setup.json", SAMPLES / "bracket.stl")
+    cell = _cell(tmp_path, lambda d: d["rack"]["pose"].update(xyz=[1.6, -1.2, 0.8]))
+    _fails(tmp_path, cell, sheet, "rack.pose")
+
+
+def test_unknown_lang(tmp_path):
+    sheet = _sheet(tmp_path / "p.setup.json", SAMPLES / "bracket.stl")
+    res = runner.invoke(app, ["robot", str(FIXTURES / "cell.yaml"), "--setup", str(sheet), "-o",
+                              str(tmp_path / "x.mcap"), "--program", str(tmp_path / "x.s"), "--lang", "cobol"])
+    assert res.exit_code == 2
+    assert not (tmp_path / "x.mcap").exists()
+
+
+@pytest.mark.parametrize("lang, files", [("rapid", ["tending.mod"]), ("krl", ["tending.src", "tending.dat"])])
+def test_rapid_and_krl_programs(run, tmp_path, lang, files):
+    _tmp, sheet, _part, _out, _script, _res = run
+    program = tmp_path / files[0]
+    res = runner.invoke(app, ["robot", str(FIXTURES / "cell.yaml"), "--setup", str(sheet), "-o",
+                              str(tmp_path / "t.mcap"), "--program", str(program), "--lang", lang])
+    assert res.exit_code == 0, res.output
+    texts = [(tmp_path / f).read_text() for f in files]
+    if lang == "rapid":
+        assert texts[0].startswith("MODULE tending") and texts[0].count("MoveL p") == 8
+        assert texts[0].count("SetDO do0, 1;") == 2
+    else:
+        assert "DEF tending( )" in texts[0] and texts[0].count("LIN XP") == 8
+        assert texts[0].count("$OUT[1] = TRUE") == 2 and texts[1].startswith("&ACCESS RVP\nDEFDAT tending")

@@ -1,0 +1,121 @@
+"""ABB RAPID and KUKA KRL posts: golden files, pose round trips, malformed steps."""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from factory.errors import PlanningError
+from robotprog.krl import krl_frame, krl_program
+from robotprog.rapid import rapid_module, rapid_pose
+from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Wait
+
+GOLDEN = Path(__file__).parent / "golden"
+
+
+def _pose(xyz, rotvec) -> np.ndarray:
+    t = np.eye(4)
+    t[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
+    t[:3, 3] = xyz
+    return t
+
+
+def _steps():
+    down = _pose([0.45, -0.12, 0.3], [math.pi, 0.0, 0.0])
+    return [
+        MoveJ((0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0), 1.5, 1.0),
+        Comment("load: approach stock"),
+        MoveL.to(down, 0.5, 0.1),
+        SetOutputs(((0, True),), 0.4, "grip"),
+        MoveL.to(_pose([0.45, -0.12, 0.4], [math.pi, 0.0, 0.3]), 0.5, 0.25, r=0.01),
+        MoveJ((0.5, -1.2, 1.4, -1.7, -1.5708, 0.25), 1.5, 1.0, r=0.02),
+        Wait(1.5),
+        SetOutputs(((0, False), (3, True)), 0.0),
+    ]
+
+
+def _tcp() -> np.ndarray:
+    return _pose([0.0, 0.0, 0.15], [0.0, 0.0, 0.0])
+
+
+def test_rapid_golden():
+    text = rapid_module(_steps(), name="tending", transform_flange_to_tcp=_tcp(), header=("golden test",))
+    assert text == (GOLDEN / "tending.mod").read_text()
+    assert text == rapid_module(_steps(), name="tending", transform_flange_to_tcp=_tcp(), header=("golden test",))
+
+
+def test_krl_golden():
+    src, dat = krl_program(_steps(), name="tending", transform_flange_to_tcp=_tcp(), axis_percent=50.0,
+                           header=("golden test",))
+    assert src == (GOLDEN / "tending.src").read_text()
+    assert dat == (GOLDEN / "tending.dat").read_text()
+
+
+def test_krl_every_point_used_is_declared():
+    src, dat = krl_program(_steps(), name="tending")
+    used = set(re.findall(r"^\s*(?:PTP|LIN) (\w+)$", src, re.M))
+    declared = set(re.findall(r"DECL E6(?:AXIS|POS) (\w+)=", dat))
+    assert used == declared and len(used) == 4
+    assert src.count("$OUT[1] = TRUE") == 1 and "$OUT[4] = TRUE" in src
+
+
+def test_rapid_every_target_declared():
+    text = rapid_module(_steps(), name="tending")
+    used = set(re.findall(r"Move(?:AbsJ|L) (\w+)[\\,]", text))
+    declared = set(re.findall(r"CONST (?:jointtarget|robtarget) (\w+) :=", text))
+    assert used == declared and len(used) == 4
+    for z in re.findall(r", (z\w+), tGripper", text):
+        assert f"CONST zonedata {z} :=" in text
+    for v in re.findall(r", (v\w+), (?:fine|z\w+), tGripper", text):
+        assert f"CONST speeddata {v} :=" in text
+
+
+_rot = st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3)
+_pos = st.lists(st.floats(-2.0, 2.0), min_size=3, max_size=3)
+
+
+@settings(max_examples=60, deadline=None)
+@given(_pos, _rot)
+def test_rapid_pose_round_trip(xyz, rotvec):
+    t = _pose(xyz, rotvec)
+    nums = [float(v) for v in re.findall(r"-?\d+(?:\.\d+)?", rapid_pose(t))]
+    p, (w, x, y, z) = np.array(nums[:3]) / 1000.0, nums[3:]
+    np.testing.assert_allclose(p, t[:3, 3], atol=1e-6)
+    assert w >= 0
+    np.testing.assert_allclose(Rotation.from_quat([x, y, z, w]).as_matrix(), t[:3, :3], atol=1e-5)
+
+
+@settings(max_examples=60, deadline=None)
+@given(_pos, _rot)
+def test_krl_frame_round_trip(xyz, rotvec):
+    t = _pose(xyz, rotvec)
+    vals = dict((k, float(v)) for k, v in re.findall(r"([XYZABC]) (-?\d+(?:\.\d+)?)", krl_frame(t)))
+    np.testing.assert_allclose([vals["X"], vals["Y"], vals["Z"]], t[:3, 3] * 1000.0, atol=1e-3)
+    r = Rotation.from_euler("ZYX", [vals["A"], vals["B"], vals["C"]], degrees=True).as_matrix()
+    np.testing.assert_allclose(r, t[:3, :3], atol=1e-5)
+
+
+def test_malformed_steps_raise():
+    with pytest.raises(PlanningError):
+        rapid_module([MoveJ((0.0,) * 5, 1.0, 1.0)])
+    with pytest.raises(PlanningError):
+        krl_program([MoveJ((0.0,) * 5, 1.0, 1.0)])
+    with pytest.raises(PlanningError):
+        rapid_module([MoveL.to(np.eye(4), 0.5, 0.0)])
+    with pytest.raises(PlanningError):
+        krl_program([Wait(-1.0)])
+    with pytest.raises(PlanningError):
+        rapid_module([], name="9bad")
+    with pytest.raises(PlanningError):
+        krl_program([], name="a" * 25)
+    with pytest.raises(PlanningError):
+        krl_program([], axis_percent=0.0)
+    with pytest.raises(PlanningError):
+        rapid_module(["movej"])  # type: ignore[list-item]

@@ -1,0 +1,174 @@
+"""Load/unload planning in the default cell for the sample parts' stock sizes."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from factory.errors import CellError, PlanningError
+from factory.resources import FIXTURES
+from robotprog.cell import Pose, load_cell
+from robotprog.collision import collision_world
+from robotprog.tending import TendingOptions, _Planner, part_box_in_vise, plan_tending
+from robotprog.timing import LIMIT_SLACK
+
+#: Stock sizes [mm] of the sample parts (samples/make_samples.py with the default allowances).
+SAMPLE_STOCK = {
+    "bracket": (104, 64, 16),
+    "plate_bosses": (94, 74, 21),
+    "dome_mould": (94, 74, 31),
+    "stepped_wall": (104, 54, 31),
+}
+
+
+def sheet(sx: float, sy: float, sz: float) -> dict:
+    return {
+        "format": "factory.setup/1",
+        "units": "mm",
+        "work_origin": "top-front-left",
+        "stock": {"min": [0, 0, -sz], "max": [sx, sy, 0], "size": [sx, sy, sz]},
+        "transform_mesh_to_work": np.eye(4).tolist(),
+        "mesh_scale": 1.0,
+        "tools": [],
+    }
+
+
+@pytest.fixture(scope="module")
+def cell():
+    return load_cell(FIXTURES / "cell.yaml")
+
+
+@pytest.fixture(scope="module")
+def world(cell):
+    return collision_world(cell)
+
+
+@pytest.fixture(scope="module")
+def plans(cell, world):
+    return {name: plan_tending(cell, sheet(*s), world=world) for name, s in SAMPLE_STOCK.items()}
+
+
+def _tcp(cell, robot, q):
+    return cell.robot.base.matrix() @ robot.fk(q) @ cell.gripper.tcp.matrix()
+
+
+@pytest.mark.parametrize("name", sorted(SAMPLE_STOCK))
+def test_plan_within_limits_reaches_targets_and_is_collision_free(name, plans, cell, world):
+    plan = plans[name]
+    robot = world.robot
+    vmax = robot.v_max * cell.motion.speed_scaling
+    amax = np.array(cell.motion.acceleration_limits) * cell.motion.speed_scaling
+    home = np.array(cell.robot.home)
+    assert [m.kind for m in plan.moves].count("gripper") == 4
+    np.testing.assert_allclose(plan.moves[0].waypoints[0], home)
+    np.testing.assert_allclose(plan.moves[-1].q_end, home, atol=1e-9)
+    q_prev = home
+    for m in plan.moves:
+        s = m.trajectory.resample(1000.0)
+        # Moves chain: each starts where the previous ended.
+        np.testing.assert_allclose(s.q[0], q_prev, atol=1e-9, err_msg=m.name)
+        q_prev = s.q[-1]
+        assert (np.abs(s.qd) <= vmax * (1 + LIMIT_SLACK)).all(), m.name
+        assert (np.abs(s.qdd) <= amax * (1 + LIMIT_SLACK)).all(), m.name
+        assert (s.q >= robot.q_lower - 1e-9).all() and (s.q <= robot.q_upper + 1e-9).all(), m.name
+        end = _tcp(cell, robot, s.q[-1])
+        np.testing.assert_allclose(end[:3, 3], m.transform_world_to_tcp[:3, 3], atol=1e-4, err_msg=m.name)
+        assert world.path_free(s.q[::10], m.held) is None, m.name
+        assert world.path_free(m.waypoints, m.held) is None, m.name
+        if m.kind == "linear":
+            # Straight TCP line: every sample within 1 mm of the segment, tool pointing down.
+            a = _tcp(cell, robot, m.waypoints[0])[:3, 3]
+            b = end[:3, 3]
+            # Approach and retreat are vertical lines of the approach height.
+            np.testing.assert_allclose(np.abs(b - a), [0.0, 0.0, TendingOptions().approach_height], atol=1e-4)
+            for q in s.q[::25]:
+                p = _tcp(cell, robot, q)
+                u = np.clip(np.dot(p[:3, 3] - a, b - a) / np.dot(b - a, b - a), 0, 1)
+                assert np.linalg.norm(p[:3, 3] - (a + u * (b - a))) < 1e-3, m.name
+                assert p[2, 2] < -0.999, m.name
+        if m.kind == "gripper":
+            assert m.duration == cell.gripper.io.settle_s
+            assert m.outputs in (cell.gripper.io.grip, cell.gripper.io.release)
+    assert plan.duration == pytest.approx(sum(d for _, d in plan.durations))
+
+
+@pytest.mark.parametrize("name", sorted(SAMPLE_STOCK))
+def test_grasp_and_place_poses(name, plans, cell, world):
+    plan = plans[name]
+    sx, sy, sz = (v / 1000 for v in SAMPLE_STOCK[name])
+    by_name = {m.name: m for m in plan.moves}
+    slot = cell.rack.slot_transform(0, 0)
+    grasp = by_name["load: approach stock"].transform_world_to_tcp
+    # Centred on the stock in the slot, fingers within its height, closing across the narrow side.
+    np.testing.assert_allclose(grasp[:2, 3], slot[:2, 3], atol=1e-6)
+    assert slot[2, 3] < grasp[2, 3] < slot[2, 3] + sz
+    assert abs(abs(grasp[:3, 1] @ slot[:3, 1]) - 1) < 1e-6  # sy is the narrow side of every sample
+    vise = cell.vise.pose.matrix()
+    place = by_name["load: place in vise"].transform_world_to_tcp
+    np.testing.assert_allclose(place[:2, 3], vise[:2, 3], atol=1e-6)
+    assert vise[2, 3] < place[2, 3] < vise[2, 3] + sz
+    tray = by_name["unload: place in out-tray"].transform_world_to_tcp
+    np.testing.assert_allclose(tray[:2, 3], cell.out_tray.slot_transform(0, 0)[:2, 3], atol=1e-6)
+    assert sy <= cell.gripper.opening_max
+
+
+def test_stock_wider_than_gripper_names_the_field(cell, world):
+    with pytest.raises(PlanningError) as e:
+        plan_tending(cell, sheet(120, 100, 20), world=world)
+    assert e.value.source == "gripper.opening.max" or "gripper.opening.max" in str(e.value)
+
+
+def test_stock_too_wide_for_vise(cell, world):
+    with pytest.raises(CellError, match="vise.jaw_opening"):
+        plan_tending(cell, sheet(200, 180, 20), world=world)
+
+
+def test_unreachable_rack_slot_names_the_field(cell, world):
+    far = dataclasses.replace(cell, rack=dataclasses.replace(cell.rack, pose=Pose((1.6, -1.2, 0.8))))
+    with pytest.raises(PlanningError, match="rack.pose"):
+        plan_tending(far, sheet(104, 64, 16), world=world)
+
+
+def test_missing_slot(cell, world):
+    with pytest.raises(CellError, match="rack"):
+        plan_tending(cell, sheet(104, 64, 16), world=world, options=TendingOptions(rack_slot=(5, 0)))
+
+
+def test_part_box_from_mesh_sits_in_stock(cell, world):
+    from robotprog.frames import setup_sheet_to_cell
+
+    stock = setup_sheet_to_cell(sheet(100, 60, 20))
+    verts = np.array([[5.0, 5.0, -20.0], [95.0, 55.0, -4.0]])  # part in work coords (identity mesh→work)
+    pmin, pmax = part_box_in_vise(stock, verts)
+    np.testing.assert_allclose(pmin, [-0.045, -0.025, 0.0], atol=1e-12)
+    np.testing.assert_allclose(pmax, [0.045, 0.025, 0.016], atol=1e-12)
+    plan = plan_tending(cell, sheet(100, 60, 20), part_box=(pmin, pmax), world=world)
+    grip = {m.name: m for m in plan.moves}["unload: approach part"].transform_world_to_tcp
+    assert grip[2, 3] < cell.vise.pose.matrix()[2, 3] + 0.016
+    # Lower than the gripper's collision box reaches past the TCP plus clearance: no grip.
+    thin = part_box_in_vise(stock, np.array([[5.0, 5.0, -20.0], [95.0, 55.0, -8.0]]))
+    with pytest.raises(PlanningError, match="gripper.collision"):
+        plan_tending(cell, sheet(100, 60, 20), part_box=thin, world=world)
+
+
+def test_rrt_connect_finds_free_deterministic_path_when_direct_move_collides(cell, world):
+    home = np.array(cell.robot.home)
+    a = home.copy()
+    a[:3] = (-1.5, -0.6, 1.0)
+    b = a.copy()
+    b[0] = 1.5  # swinging the low arm across passes through the mill
+    planner = _Planner(cell, world.robot, world, TendingOptions(seed=3))
+    assert not world.in_collision(a) and not world.in_collision(b)
+    assert not planner.edge_free(a, b, None)
+    path = planner.transfer(a, b, None, "test")
+    np.testing.assert_allclose(path[0], a)
+    np.testing.assert_allclose(path[-1], b)
+    assert len(path) >= 3
+    assert world.path_free(planner.densify(path)) is None
+    again = _Planner(cell, world.robot, world, TendingOptions(seed=3)).transfer(a, b, None, "test")
+    np.testing.assert_array_equal(path, again)
+    timed = planner.timed("rrt", "joint", path, None)
+    s = timed.trajectory.resample(200.0)
+    assert world.path_free(s.q) is None
