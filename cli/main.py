@@ -6,6 +6,9 @@ import typer
 
 from cli.calibrate import calibrate
 from cli.gcode import gcode
+from cli.handeye import handeye
+from cli.inspect import inspect
+from cli.locate import locate
 from cli.plan import plan
 from cli.robot import robot
 from cli.toolpath import toolpath
@@ -26,6 +29,9 @@ app.command()(verify)
 app.command()(plan)
 app.command()(calibrate)
 app.command()(robot)
+app.command()(handeye)
+app.command()(locate)
+app.command()(inspect)
 
 
 def main() -> None:

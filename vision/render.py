@@ -181,3 +181,105 @@ def render(camera: CameraModel | PixelRays, pose: np.ndarray, texture: PlanarTex
     if noise_sigma > 0:
         img = img + np.random.default_rng(seed).normal(0.0, noise_sigma, img.shape)
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+@dataclass(frozen=True)
+class Box:
+    """A box standing on the tray plane, for synthetic pictures of blanks on a tray.
+
+    Attributes
+    ----------
+    x, y : float
+        Centre of the box's footprint in the world frame [m].
+    yaw : float
+        Rotation of the box's x edge about the world z axis [rad].
+    size : (float, float, float)
+        Edges along its own x, y and its height above the tray [m].
+    """
+
+    x: float
+    y: float
+    yaw: float
+    size: tuple[float, float, float]
+
+
+#: Grey levels of a box's faces in :func:`render_boxes`: top, then the sides facing its +x, -x, +y, -y.
+BOX_SHADES = (215.0, 170.0, 140.0, 155.0, 125.0)
+
+
+def render_boxes(camera: CameraModel | PixelRays, world_to_camera: np.ndarray, boxes: list[Box], *,
+                 plane_z: float = 0.0, tray: float = 40.0, shades: tuple[float, ...] = BOX_SHADES,
+                 supersample: int = 3, noise_sigma: float = 0.0, background: float = 0.0,
+                 seed: int | None = None) -> np.ndarray:
+    """The image a camera sees of flat-shaded boxes on a uniform tray (the plane z = ``plane_z``).
+
+    World frame: z up, the boxes stand on the tray and extend to ``plane_z + height``. Each
+    sample ray is intersected with the tray and with every box (slab test); the nearest hit sets
+    the sample's grey level. Pixels are the mean of their ``s x s`` samples (antialiased edges).
+
+    Parameters
+    ----------
+    camera : CameraModel or PixelRays
+    world_to_camera : (4, 4) float
+        ``T_cam_world`` (``X_camera = T @ X_world``, translation [m]).
+    boxes : list of Box
+    plane_z : float
+        Height of the tray in the world frame [m].
+    tray, shades, background : float
+        Grey levels of the tray, of the box faces (:data:`BOX_SHADES` order) and where no tray is seen.
+    supersample : int
+        Samples per pixel along each axis (ignored when ``camera`` is a PixelRays).
+    noise_sigma : float
+        Standard deviation of additive Gaussian noise [grey levels of 255].
+    seed : int, optional
+
+    Returns
+    -------
+    (h, w) uint8
+    """
+    pr = camera if isinstance(camera, PixelRays) else pixel_rays(camera, supersample)
+    s = pr.supersample
+    w, h = pr.camera.image_size
+    t = np.asarray(world_to_camera, dtype=np.float64)
+    if t.shape != (4, 4) or not np.isfinite(t).all():
+        raise VisionError("pose must be a finite 4x4 matrix")
+    r, trans = t[:3, :3], t[:3, 3]
+    origin = -r.T @ trans
+    x, y = pr.rays[..., 0], pr.rays[..., 1]
+    # World direction of each ray, R^T (x, y, 1); the ray parameter is the camera depth.
+    d = [x * np.float32(r[0, k]) + y * np.float32(r[1, k]) + np.float32(r[2, k]) for k in range(3)]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth = np.float32(plane_z - origin[2]) / d[2]
+    depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.float32(np.inf)).astype(np.float32)
+    value = np.where(np.isfinite(depth), np.float32(tray), np.float32(background)).astype(np.float32)
+    for box in boxes:
+        c, sn = np.cos(box.yaw), np.sin(box.yaw)
+        lx, ly, hz = (float(v) for v in box.size)
+        p = origin - np.array([box.x, box.y, plane_z])
+        # Ray origin and direction in the box's own frame (rotate by -yaw about z).
+        po = (c * p[0] + sn * p[1], -sn * p[0] + c * p[1], p[2])
+        dd = (np.float32(c) * d[0] + np.float32(sn) * d[1], np.float32(-sn) * d[0] + np.float32(c) * d[1], d[2])
+        lo, hi = (-lx / 2, -ly / 2, 0.0), (lx / 2, ly / 2, hz)
+        near = np.full(x.shape, -np.inf, np.float32)
+        far = np.full(x.shape, np.inf, np.float32)
+        face = np.zeros(x.shape, np.int8)
+        for k, (neg, pos) in enumerate(((2, 1), (4, 3), (-1, 0))):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t1 = (np.float32(lo[k] - po[k])) / dd[k]
+                t2 = (np.float32(hi[k] - po[k])) / dd[k]
+            entry = np.fmin(t1, t2)
+            exit_ = np.fmax(t1, t2)
+            # Entering through the low face means the face looks toward -axis.
+            kind = np.where(t1 < t2, neg, pos).astype(np.int8)
+            later = entry > near
+            face = np.where(later, kind, face)
+            near = np.where(later, entry, near)
+            far = np.fmin(far, exit_)
+        hit = (near <= far) & (near > 0) & (near < depth)
+        shade = np.asarray(shades, np.float32)[np.clip(face, 0, 4)]
+        value = np.where(hit, shade, value)
+        depth = np.where(hit, near, depth)
+    img = value.reshape(h, s, w, s).mean(axis=(1, 3))
+    if noise_sigma > 0:
+        img = img + np.random.default_rng(seed).normal(0.0, noise_sigma, img.shape)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)

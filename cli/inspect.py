@@ -1,0 +1,84 @@
+"""``factory inspect IMAGE --camera ... --extrinsics ... --part PART.stl``: outline check of parts on the tray."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from cadcam.mesh import load_part
+from cli.common import (EXIT_VERIFY_FAILED, JsonFlag, Overwrite, Quiet, print_json, reports_errors, setup_logging,
+                        stderr)
+from cli.locate import parse_flange, read_grey
+from factory.atomic import check_writable, write_bytes
+from factory.errors import VisionError
+from vision.camera import CameraModel
+from vision.handeye import read_extrinsics
+from vision.inspect import InspectOptions, inspect_part, inspection_image
+from vision.locate import footprint_from_mesh, mm_to_m
+from vision.report import bgr_png_bytes
+
+
+@reports_errors
+def inspect(
+    image_file: Annotated[Path, typer.Argument(help="Picture of the tray.", dir_okay=False)],
+    camera_file: Annotated[Path, typer.Option("--camera", help="Calibrated camera (ROS camera_info YAML).",
+                                              dir_okay=False)],
+    extrinsics_file: Annotated[Path, typer.Option("--extrinsics", help="Hand-eye file (factory handeye).",
+                                                  dir_okay=False)],
+    part_file: Annotated[Path, typer.Option("--part", help="Part mesh (STL/OBJ/PLY/3MF), lying on the tray with "
+                                                           "its mesh z up.", dir_okay=False)],
+    tolerance: Annotated[float, typer.Option("--tolerance", help="Largest outline deviation that passes [mm].",
+                                             min=0.0)] = 1.0,
+    tray_z: Annotated[float | None, typer.Option("--tray-z", help="Tray height in the robot base frame [m]; "
+                                                                  "default: tray_z of the extrinsics file.")] = None,
+    flange: Annotated[str | None, typer.Option("--flange", help="Flange pose of the picture, x,y,z,rx,ry,rz "
+                                                                "[m, rad] (eye-in-hand extrinsics only).")] = None,
+    png: Annotated[Path | None, typer.Option("--png", help="Write the picture with silhouettes and deviations.",
+                                             dir_okay=False)] = None,
+    units: Annotated[str, typer.Option("--units", help="Mesh units: auto, mm, inch, m.")] = "auto",
+    overwrite: Overwrite = False,
+    json_out: JsonFlag = False,
+    quiet: Quiet = False,
+) -> None:
+    """Compare each part's outline in the picture with its mesh's projected silhouette.
+
+    Exits 3 when a part deviates by more than --tolerance. --json prints a list of
+    {pass, tolerance_mm, max/p95/mean_deviation_mm, excess_mm, missing_mm, pose}.
+    """
+    setup_logging(quiet)
+    flange_pose = parse_flange(flange)
+    if png is not None:
+        check_writable(png, overwrite)
+    camera = CameraModel.read(camera_file)
+    try:
+        text = extrinsics_file.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise VisionError(f"cannot read extrinsics file: {getattr(e, 'strerror', None) or e}",
+                          source=extrinsics_file) from None
+    extrinsics = read_extrinsics(text, source=str(extrinsics_file))
+    height = tray_z if tray_z is not None else extrinsics.tray_z
+    if height is None:
+        raise VisionError("tray height unknown: pass --tray-z or add tray_z [m] to the file", source=extrinsics_file)
+    try:
+        base_camera = extrinsics.base_camera(flange_pose)
+    except VisionError as e:
+        raise e.with_source(extrinsics_file) from None
+    mesh = load_part(part_file, units).mesh  # type: ignore[arg-type]
+    part = footprint_from_mesh(mesh.vertices, mesh.faces, source=str(part_file))
+    image = read_grey(image_file)
+    results = inspect_part(image, camera, base_camera, part, mesh.vertices, mesh.faces, float(height),
+                           InspectOptions(tolerance=float(mm_to_m(tolerance))), source=str(image_file))
+    if png is not None:
+        write_bytes(png, bgr_png_bytes(inspection_image(image, results)), overwrite=overwrite)
+    if not quiet:
+        for r in results:
+            p = r.part
+            stderr.print(f"{'PASS' if r.passed else 'FAIL'}  max {r.max_deviation * 1e3:.2f} mm "
+                         f"(tolerance {tolerance:g} mm, {p.mm_per_px:.2f} mm/px) at x {p.x:.4f} y {p.y:.4f} m",
+                         highlight=False, markup=False)
+    if json_out:
+        print_json([r.to_dict() for r in results])
+    if not all(r.passed for r in results):
+        raise typer.Exit(EXIT_VERIFY_FAILED)
