@@ -24,7 +24,7 @@ from typing import Literal
 import numpy as np
 import trimesh
 
-from factory.errors import MeshError
+from factory.errors import MeshError, SetupError
 
 log = logging.getLogger(__name__)
 
@@ -32,6 +32,20 @@ Units = Literal["auto", "mm", "inch", "m"]
 
 #: Factor from each accepted ``--units`` value to millimetres.
 UNIT_SCALE: dict[str, float] = {"mm": 1.0, "inch": 25.4, "m": 1000.0}
+
+
+def units_of_scale(scale: float, source: str | None = None) -> Units:
+    """The ``--units`` value whose factor to mm is ``scale`` (a setup sheet's ``mesh_scale``).
+
+    Raises
+    ------
+    SetupError
+        ``scale`` is not 1, 25.4 or 1000.
+    """
+    for name, factor in UNIT_SCALE.items():
+        if float(scale) == factor:
+            return name  # type: ignore[return-value]
+    raise SetupError(f"mesh_scale {scale} is not mm, inch or m", source=source)
 
 #: Smallest and largest plausible part extent [mm]: below a millimetre or above two metres
 #: the file is far more likely in the wrong units than a real job for a milling machine.

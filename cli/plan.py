@@ -1,4 +1,4 @@
-"""``factory plan PART.stl -o DIR``: the one-shot: toolpaths, G-code, setup sheet, verify, one MCAP."""
+"""``factory plan PART.stl -o DIR``: the one-shot: toolpaths, G-code, setup sheet, verify, robot program, MCAP."""
 
 from __future__ import annotations
 
@@ -9,23 +9,30 @@ from typing import Annotated
 import numpy as np
 import typer
 
-from cadcam.post import PostOptions
+from cadcam.post import PostOptions, post_process
+from cadcam.preview import toolpath_image
+from cadcam.sheet import setup_sheet
 from cadcam.verify import VerifyOptions
 from cli import cam
 from cli.common import (EXIT_VERIFY_FAILED, JsonFlag, Overwrite, Quiet, Stopwatch, print_json, progress_bars,
-                        reports_errors, setup_logging, stderr)
-from cli.gcode import ArcTolOpt, PostOpt, program_summary, write_program
+                        reports_errors, setup_logging, sha256_file, stderr)
+from cli.gcode import ArcTolOpt, PostOpt, program_summary
+from cli.robot import plan_cell, program_texts, write_robot_mcap
 from cli.verify import log_simulation, report_text, run_verify, write_verify_outputs
-from cadcam.preview import toolpath_image
 from factory.atomic import check_writable, write_bytes, write_text
 from factory.mcaplog import McapLog
 from factory.pictures import png_bytes
+from factory.resources import FIXTURES
 
 
-def plan_outputs(part: Path, out_dir: Path) -> dict[str, Path]:
-    """Every file ``factory plan`` writes for ``part`` into ``out_dir``."""
+#: Robot program file ending per language.
+PROGRAM_SUFFIX = {"urscript": ".script", "rapid": ".mod", "krl": ".src"}
+
+
+def plan_outputs(part: Path, out_dir: Path, robot_lang: str | None = "urscript") -> dict[str, Path]:
+    """Every file ``factory plan`` writes for ``part`` into ``out_dir`` (no robot files for ``None``)."""
     stem = out_dir / part.stem
-    return {
+    outputs = {
         "program": stem.with_suffix(".nc"),
         "setup_sheet": stem.with_suffix(".setup.json"),
         "mcap": stem.with_suffix(".mcap"),
@@ -34,6 +41,12 @@ def plan_outputs(part: Path, out_dir: Path) -> dict[str, Path]:
         "toolpath_png": stem.with_suffix(".toolpath.png"),
         "summary": stem.with_suffix(".plan.json"),
     }
+    if robot_lang is not None:
+        outputs["robot_mcap"] = stem.with_suffix(".robot.mcap")
+        outputs["robot_program"] = stem.with_suffix(PROGRAM_SUFFIX[robot_lang])
+        if robot_lang == "krl":
+            outputs["robot_program_dat"] = stem.with_suffix(".dat")
+    return outputs
 
 
 @reports_errors
@@ -53,7 +66,10 @@ def plan(
     waterline: cam.WaterlineOpt = True,
     post: PostOpt = "linuxcnc",
     arc_tolerance: ArcTolOpt = 0.002,
-    cell: Annotated[float, typer.Option("--cell", help="Verify grid spacing [mm].", min=0.01)] = 0.2,
+    grid: Annotated[float, typer.Option("--grid", help="Verify grid spacing [mm].", min=0.01)] = 0.2,
+    robot_cell: Annotated[Path, typer.Option("--cell", help="Robot cell file for the load/unload program.", exists=True, dir_okay=False)] = FIXTURES / "cell.yaml",
+    robot: Annotated[bool, typer.Option("--robot/--no-robot", help="Plan loading and unloading with the robot cell.")] = True,
+    lang: Annotated[str, typer.Option("--lang", help="Robot program language: urscript, rapid or krl.")] = "urscript",
     overwrite: Overwrite = False,
     json_out: JsonFlag = False,
     quiet: Quiet = False,
@@ -65,29 +81,44 @@ def plan(
     setup_logging(quiet)
     req = cam.CamRequest.from_options(part, tools, stock, material, units, origin, rough_tool, finish_tool,
                                       allowance, scallop, stepdown, waterline)
-    outputs = plan_outputs(part, out_dir)
+    if lang not in PROGRAM_SUFFIX:
+        raise typer.BadParameter(f"expected one of {', '.join(PROGRAM_SUFFIX)}, got {lang!r}", param_hint="--lang")
+    outputs = plan_outputs(part, out_dir, lang if robot else None)
     for p in outputs.values():
         check_writable(p, overwrite)
 
+    # Every stage runs before anything is written: a stage that fails leaves no files.
     watch = Stopwatch()
     with progress_bars(quiet) as bars:
         planned = cam.compute_job(req, bars, watch)
+        job = planned.job
         with watch("post"):
-            program, _ = write_program(
-                planned.job, outputs["program"], PostOptions(dialect=post, arc_tolerance=arc_tolerance), overwrite
-            )
+            program = post_process(job, PostOptions(dialect=post, arc_tolerance=arc_tolerance))
+            sheet = setup_sheet(job, program, outputs["program"].name)
+        tending = None
+        if robot:
+            vertices = np.asarray(planned.loaded.mesh.vertices) / float(job.setup.mesh_scale)
+            tending = plan_cell(robot_cell, sheet, str(outputs["setup_sheet"]), vertices, watch)
+            robot_texts = program_texts(lang, outputs["robot_program"], *tending)
         with watch("verify"):
-            sim, report = run_verify(program.text, str(outputs["program"]), planned.job.setup,
-                                     {t.number: t for t in planned.job.tools},
-                                     np.asarray(planned.part_work.triangles), VerifyOptions(cell=cell), bars)
+            sim, report = run_verify(program.text, str(outputs["program"]), job.setup,
+                                     {t.number: t for t in job.tools},
+                                     np.asarray(planned.part_work.triangles), VerifyOptions(cell=grid), bars)
     with watch("write"):
+        write_text(outputs["setup_sheet"], json.dumps(sheet, indent=2) + "\n", overwrite=overwrite)
+        write_text(outputs["program"], program.text, overwrite=overwrite)
         write_verify_outputs(sim, report, png=outputs["verify_png"], json_path=outputs["verify_json"], mcap=None,
                              overwrite=overwrite, inputs={})
-        write_bytes(outputs["toolpath_png"], png_bytes(toolpath_image(planned.job)), overwrite=overwrite)
+        write_bytes(outputs["toolpath_png"], png_bytes(toolpath_image(job)), overwrite=overwrite)
         with McapLog(outputs["mcap"], stage="plan", overwrite=overwrite,
-                     inputs={str(part): planned.loaded.sha256}, parameters=planned.job.parameters) as log:
+                     inputs={str(part): planned.loaded.sha256}, parameters=job.parameters) as log:
             cam.log_job(log, planned)
             log_simulation(log, sim)
+        if tending is not None:
+            for path, text in robot_texts.items():
+                write_text(path, text, overwrite=overwrite)
+            write_robot_mcap(outputs["robot_mcap"], *tending, overwrite=overwrite,
+                             inputs={str(robot_cell): sha256_file(robot_cell), str(part): planned.loaded.sha256})
 
     summary = {
         "part": str(part),
@@ -96,6 +127,9 @@ def plan(
         "stock_mm": planned.job.setup.stock_size.round(3).tolist(),
         **program_summary(program, outputs["program"], outputs["setup_sheet"]),
         "verify": report.to_dict(),
+        "robot": None if tending is None else {
+            "cell": tending[0].name, "robot": tending[1].robot.name, "motion_s": round(tending[2].duration, 3),
+            "moves": [{"name": n, "duration_s": round(d, 3)} for n, d in tending[2].durations]},
         "seconds": watch.rounded(),
         "outputs": {k: str(v) for k, v in outputs.items()},
     }
@@ -103,7 +137,9 @@ def plan(
     if json_out:
         print_json(summary)
     elif not quiet:
-        stderr.print(f"{part.name}: {len(planned.job.operations)} operations, {program.line_count} lines, "
-                     f"estimated {program.total_time / 60:.1f} min; {report_text(report)}", highlight=False)
+        robot_text = f"; robot load+unload {tending[2].duration:.1f} s" if tending is not None else ""
+        stderr.print(f"{part.name}: {len(job.operations)} operations, {program.line_count} lines, "
+                     f"estimated {program.total_time / 60:.1f} min; {report_text(report)}{robot_text}",
+                     highlight=False, markup=False)
     if not report.ok:
         raise typer.Exit(EXIT_VERIFY_FAILED)

@@ -16,17 +16,17 @@ import numpy as np
 import pinocchio as pin
 import typer
 
-from cadcam.mesh import load_part
+from cadcam.mesh import load_part, units_of_scale
 from cli.common import (JsonFlag, Overwrite, Quiet, Stopwatch, print_json, reports_errors, setup_logging,
                         sha256_file, stderr)
 from cli.verify import read_sheet
 from factory.atomic import check_writable, write_text
-from factory.errors import CellError, PlanningError, SetupError
+from factory.errors import CellError, PlanningError
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, marker_array, ros_time, string_msg, tf_message,
                              transform_stamped)
 from robotprog.cell import Cell, load_cell
 from robotprog.collision import CollisionWorld, cell_static_boxes, collision_world
-from robotprog.frames import StockInVise, setup_sheet_to_cell
+from robotprog.frames import setup_sheet_to_cell
 from robotprog.krl import krl_program
 from robotprog.rapid import rapid_module
 from robotprog.tending import TendingPlan, part_box_in_vise, plan_tending
@@ -217,16 +217,12 @@ def robot(
             check_writable(p, overwrite)
     watch = Stopwatch()
     with watch("load"):
-        cell = load_cell(cell_path)
         setup, _tools, sheet = read_sheet(setup_path)
-        world = collision_world(cell)
-        part_box = None
+        vertices = None
         if part is not None:
-            loaded = load_part(part, units=_units(setup.mesh_scale))
-            part_box = part_box_in_vise(
-                _stock(sheet, setup_path), np.asarray(loaded.mesh.vertices) / float(setup.mesh_scale))
-    with watch("plan"):
-        plan = plan_tending(cell, sheet, part_box=part_box, world=world, source=str(setup_path))
+            loaded = load_part(part, units=units_of_scale(setup.mesh_scale, str(setup_path)))
+            vertices = np.asarray(loaded.mesh.vertices) / float(setup.mesh_scale)
+    cell, world, plan = plan_cell(cell_path, sheet, str(setup_path), vertices, watch)
     texts = program_texts(lang, program, cell, world, plan) if program is not None else {}
     with watch("write"):
         for path, text in texts.items():
@@ -252,12 +248,19 @@ def robot(
                      f"{plan.planning_s:.2f} s -> {output}", highlight=False, markup=False)
 
 
-def _units(scale: float) -> str:
-    units = {1.0: "mm", 25.4: "inch", 1000.0: "m"}.get(float(scale))
-    if units is None:
-        raise SetupError(f"mesh_scale {scale} is not mm, inch or m", source="setup sheet")
-    return units
+def plan_cell(cell_path: Path, sheet: dict[str, Any], sheet_source: str, part_vertices: np.ndarray | None,
+              watch: Stopwatch) -> tuple[Cell, CollisionWorld, TendingPlan]:
+    """Load the cell and plan loading and unloading the part a setup sheet describes.
 
-
-def _stock(sheet: dict[str, Any], source: Path) -> StockInVise:
-    return setup_sheet_to_cell(sheet, str(source))
+    ``part_vertices`` are the part mesh's vertices in mesh file units (the sheet's
+    ``mesh_scale`` turns them into mm); without them unload grips the stock box.
+    """
+    with watch("cell"):
+        cell = load_cell(cell_path)
+        world = collision_world(cell)
+        part_box = None
+        if part_vertices is not None:
+            part_box = part_box_in_vise(setup_sheet_to_cell(sheet, sheet_source), part_vertices)
+    with watch("robot plan"):
+        plan = plan_tending(cell, sheet, part_box=part_box, world=world, source=sheet_source)
+    return cell, world, plan

@@ -11,7 +11,7 @@ import numpy as np
 import typer
 
 from cadcam.gcode import parse_gcode
-from cadcam.mesh import load_part
+from cadcam.mesh import load_part, units_of_scale
 from cadcam.model import Setup, Tool
 from cadcam.sheet import read_setup_sheet
 from cadcam.verify import Simulation, VerifyOptions, VerifyReport, deviation_image, simulate
@@ -25,9 +25,6 @@ from factory.mcaplog import McapLog, marker_array, triangle_mesh_marker
 
 log = logging.getLogger(__name__)
 
-_UNITS_OF_SCALE = {1.0: "mm", 25.4: "inch", 1000.0: "m"}
-
-
 def read_sheet(path: Path) -> tuple[Setup, dict[int, Tool], dict[str, Any]]:
     """Setup, tool table and raw document of a setup sheet file."""
     try:
@@ -40,10 +37,7 @@ def read_sheet(path: Path) -> tuple[Setup, dict[int, Tool], dict[str, Any]]:
 
 def part_triangles(part: Path, setup: Setup, expected_sha256: str = "") -> np.ndarray:
     """The part's triangles in work coordinates [mm], placed as the setup sheet says."""
-    units = _UNITS_OF_SCALE.get(float(setup.mesh_scale))
-    if units is None:
-        raise SetupError(f"mesh_scale {setup.mesh_scale} is not mm, inch or m", source="setup sheet")
-    loaded = load_part(part, units=units)
+    loaded = load_part(part, units=units_of_scale(setup.mesh_scale, "setup sheet"))
     if expected_sha256 and loaded.sha256 != expected_sha256:
         log.warning("%s differs from the part the program was made for (sha256 mismatch)", part)
     mesh = loaded.mesh.copy()
@@ -80,7 +74,7 @@ def verify(
     png: Annotated[Path | None, typer.Option("--png", help="Write a deviation map picture.", dir_okay=False)] = None,
     json_path: Annotated[Path | None, typer.Option("--json", help="Write the report as JSON ('-' for stdout).")] = None,
     mcap: Annotated[Path | None, typer.Option("--mcap", help="Write the simulated stock to MCAP.", dir_okay=False)] = None,
-    cell: Annotated[float, typer.Option("--cell", help="Simulation grid spacing [mm].", min=0.01)] = 0.2,
+    grid: Annotated[float, typer.Option("--grid", help="Simulation grid spacing [mm].", min=0.01)] = 0.2,
     tolerance: Annotated[float, typer.Option("--tolerance", help="Cuts deeper into the part than this are gouges [mm].", min=0.0)] = 0.01,
     overwrite: Overwrite = False,
     quiet: Quiet = False,
@@ -99,7 +93,7 @@ def verify(
         text = program.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as e:
         raise VerifyError(f"cannot read program: {e}", source=program) from None
-    options = VerifyOptions(cell=cell, gouge_tolerance=tolerance)
+    options = VerifyOptions(cell=grid, gouge_tolerance=tolerance)
     with progress_bars(quiet) as bars:
         sim, report = run_verify(text, str(program), setup, tools, triangles, options, bars)
     write_verify_outputs(sim, report, png=png, json_path=json_path, mcap=mcap, overwrite=overwrite,

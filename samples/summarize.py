@@ -25,13 +25,14 @@ def row(summary: dict) -> list[str]:
         f"{v['max_gouge']:.4f}",
         f"{v['remaining_max']:.3f}/{v['remaining_mean']:.3f}/{v['remaining_p95']:.3f}",
         str(len(v["rapid_crashes"])),
+        f"{summary['robot']['motion_s']:.1f}" if summary.get("robot") else "-",
         " ".join(f"{k}={t:.1f}" for k, t in s.items()),
     ]
 
 
 def main(paths: list[str]) -> None:
     header = ["part", "triangles", "ops", "cut m", "rapid m", "cycle min", "lines", "gouge mm",
-              "left max/mean/p95 mm", "crashes", "wall s per stage"]
+              "left max/mean/p95 mm", "crashes", "robot s", "wall s per stage"]
     rows = [header] + [row(json.loads(Path(p).read_text())) for p in sorted(paths)]
     print("| " + " | ".join(header) + " |")
     print("|" + "---|" * len(header))

@@ -103,13 +103,21 @@ def test_outputs_are_not_overwritten_without_asking(chain):
     assert chain["nc"].read_bytes() == before
 
 
-def test_plan_writes_everything(small_part, tmp_path):
+def test_plan_writes_everything(tmp_path):
+    from tests.conftest import pocket_block
+
+    part = tmp_path / "block.stl"
+    pocket_block(size=(30.0, 20.0, 16.0)).export(part)  # 17 mm of stock: tall enough to grip
     out = tmp_path / "out"
-    r = run("plan", small_part, "-o", out, "--json", "--scallop", "0.02", "--quiet")
+    r = run("plan", part, "-o", out, "--json", "--scallop", "0.02", "--quiet")
     assert r.exit_code == 0, r.output
     summary = json.loads(r.stdout)
-    for key in ("program", "setup_sheet", "mcap", "verify_json", "verify_png", "toolpath_png", "summary"):
+    for key in ("program", "setup_sheet", "mcap", "verify_json", "verify_png", "toolpath_png", "summary",
+                "robot_mcap", "robot_program"):
         assert Path(summary["outputs"][key]).is_file(), key
+    script = Path(summary["outputs"]["robot_program"]).read_text()
+    assert "movej(" in script and "set_standard_digital_out(" in script
+    assert summary["robot"]["motion_s"] > 0
     assert summary["verify"]["max_gouge"] <= 0.01
     assert set(summary["seconds"]) >= {"load", "roughing", "raster", "post", "verify"}
 
@@ -191,3 +199,21 @@ def test_help_shows_units():
     r = runner.invoke(app, ["verify", "--help"])
     assert r.exit_code == 0
     assert "[mm]" in r.output
+
+
+def test_plan_without_robot_writes_no_robot_files(small_part, tmp_path):
+    out = tmp_path / "out"
+    r = run("plan", small_part, "-o", out, "--no-robot", "--scallop", "0.05", "--quiet")
+    assert r.exit_code == 0, r.output
+    assert not list(out.glob("*.robot.mcap")) and not list(out.glob("*.script"))
+
+
+def test_plan_with_a_broken_cell_writes_nothing(small_part, tmp_path):
+    from factory.resources import FIXTURES
+
+    cell = tmp_path / "cell.yaml"
+    cell.write_text((FIXTURES / "cell.yaml").read_text().replace("gripper:", "griper:", 1))
+    out = tmp_path / "out"
+    r = run("plan", small_part, "-o", out, "--cell", cell, "--scallop", "0.05", "--quiet")
+    assert_one_line_error(r, str(cell))
+    assert not out.exists() or not any(out.iterdir())
