@@ -10,11 +10,8 @@ import typer
 from cadcam.mesh import load_part
 from cli.common import (EXIT_VERIFY_FAILED, JsonFlag, Overwrite, Quiet, print_json, reports_errors, setup_logging,
                         stderr)
-from cli.locate import parse_flange, read_grey
+from cli.locate import parse_flange, read_grey, read_view
 from factory.atomic import check_writable, write_bytes
-from factory.errors import VisionError
-from vision.camera import CameraModel
-from vision.handeye import read_extrinsics
 from vision.inspect import InspectOptions, inspect_part, inspection_image
 from vision.locate import footprint_from_mesh, mm_to_m
 from vision.report import bgr_png_bytes
@@ -51,20 +48,7 @@ def inspect(
     flange_pose = parse_flange(flange)
     if png is not None:
         check_writable(png, overwrite)
-    camera = CameraModel.read(camera_file)
-    try:
-        text = extrinsics_file.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise VisionError(f"cannot read extrinsics file: {getattr(e, 'strerror', None) or e}",
-                          source=extrinsics_file) from None
-    extrinsics = read_extrinsics(text, source=str(extrinsics_file))
-    height = tray_z if tray_z is not None else extrinsics.tray_z
-    if height is None:
-        raise VisionError("tray height unknown: pass --tray-z or add tray_z [m] to the file", source=extrinsics_file)
-    try:
-        base_camera = extrinsics.base_camera(flange_pose)
-    except VisionError as e:
-        raise e.with_source(extrinsics_file) from None
+    camera, base_camera, height = read_view(camera_file, extrinsics_file, flange_pose, tray_z)
     mesh = load_part(part_file, units).mesh  # type: ignore[arg-type]
     part = footprint_from_mesh(mesh.vertices, mesh.faces, source=str(part_file))
     image = read_grey(image_file)

@@ -42,6 +42,29 @@ def parse_flange(text: str | None) -> np.ndarray | None:
     return pose_from_xyz_rotation(np.array(v[:3]), rotvec=np.array(v[3:]))
 
 
+def read_view(camera_file: Path, extrinsics_file: Path, flange_pose: np.ndarray | None,
+              tray_z: float | None) -> tuple[CameraModel, np.ndarray, float]:
+    """The camera, its pose in the robot base frame (4x4, m) and the tray height [m].
+
+    ``tray_z`` overrides the extrinsics file's; ``flange_pose`` is needed for eye-in-hand.
+    """
+    camera = CameraModel.read(camera_file)
+    try:
+        text = extrinsics_file.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise VisionError(f"cannot read extrinsics file: {getattr(e, 'strerror', None) or e}",
+                          source=extrinsics_file) from None
+    extrinsics = read_extrinsics(text, source=str(extrinsics_file))
+    height = tray_z if tray_z is not None else extrinsics.tray_z
+    if height is None:
+        raise VisionError("tray height unknown: pass --tray-z or add tray_z [m] to the file", source=extrinsics_file)
+    try:
+        base_camera = extrinsics.base_camera(flange_pose)
+    except VisionError as e:
+        raise e.with_source(extrinsics_file) from None
+    return camera, base_camera, float(height)
+
+
 @reports_errors
 def locate(
     image_file: Annotated[Path, typer.Argument(help="Picture of the tray.", dir_okay=False)],
@@ -67,20 +90,7 @@ def locate(
     """
     setup_logging(quiet)
     flange_pose = parse_flange(flange)
-    camera = CameraModel.read(camera_file)
-    try:
-        text = extrinsics_file.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise VisionError(f"cannot read extrinsics file: {getattr(e, 'strerror', None) or e}",
-                          source=extrinsics_file) from None
-    extrinsics = read_extrinsics(text, source=str(extrinsics_file))
-    height = tray_z if tray_z is not None else extrinsics.tray_z
-    if height is None:
-        raise VisionError("tray height unknown: pass --tray-z or add tray_z [m] to the file", source=extrinsics_file)
-    try:
-        base_camera = extrinsics.base_camera(flange_pose)
-    except VisionError as e:
-        raise e.with_source(extrinsics_file) from None
+    camera, base_camera, height = read_view(camera_file, extrinsics_file, flange_pose, tray_z)
     mesh = load_part(part_file, units).mesh  # type: ignore[arg-type]
     part = footprint_from_mesh(mesh.vertices, mesh.faces, source=str(part_file))
     image = read_grey(image_file)
