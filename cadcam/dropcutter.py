@@ -21,10 +21,16 @@ the exact answer by more than rounding, and equals it because the true maximiser
 one of the candidates.
 
 Vertices and edges are de-duplicated (a closed mesh shares each vertex among ~6 triangles),
-and each primitive kind is bucketed in a uniform XY grid: vertices and edges by their box
-grown by the tool radius, facets by the triangle moved by the (tool-dependent) contact
-offset, so a facet is a candidate only where its contact point can lie inside it. The work
-is vectorised over (CL point, candidate primitive) pairs in chunks of bounded size.
+and each primitive kind is bucketed in a uniform XY grid: vertices and edges in every bucket
+within the tool radius of their box, facets by the triangle moved by the (tool-dependent)
+contact offset, so a facet is a candidate only where its contact point can lie inside it.
+Each bucket lists its primitives by decreasing upper bound on the contact they can give any
+axis in it (vertices and edges: top z less the profile height at the bucket's distance), so
+only a prefix above the best contact found so far is evaluated; edges are checked again
+against a per-pair bound (highest point over the chord less the profile at the nearest XY
+distance) before the exact contact. The work is vectorised over (CL point, candidate
+primitive) pairs in chunks of bounded size. The bucket lists for the last few (index,
+tool) pairs are kept, because finishing queries the same surface many times.
 """
 
 from __future__ import annotations
@@ -32,7 +38,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -49,6 +55,8 @@ _PAIR_BUDGET = 400_000
 _BISECT_STEPS = 44
 #: Highest vertex candidates per point evaluated first, for a lower bound that culls the rest.
 _HEAD = 24
+#: Query bucket size as a share of the tool radius (smaller: tighter bounds, more entries).
+_CELL_PER_RADIUS = 0.5
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -105,6 +113,11 @@ class TriangleIndex:
     origin: np.ndarray
     cell: float
     shape: tuple[int, int]
+    #: Query structures already prepared on this index, by (radius, corner radius) [mm].
+    #: Finishing drops the same tool many times (refinement, iso-line bisection) and
+    #: bucketing costs as much as a few thousand CL points. The index never changes, so
+    #: nothing here goes stale.
+    prepared: dict = field(default_factory=dict, repr=False, compare=False)
 
 
 def build_index(triangles: np.ndarray, cell: float | None = None) -> TriangleIndex:
@@ -139,14 +152,25 @@ def build_index(triangles: np.ndarray, cell: float | None = None) -> TriangleInd
 
     corners = tri.reshape(-1, 3)
     if m:
-        vertices, inverse = np.unique(corners, axis=0, return_inverse=True)
+        # Lexicographic row sort then run starts: np.unique(axis=0)'s result, several times faster.
+        order = np.lexsort((corners[:, 2], corners[:, 1], corners[:, 0]))
+        srt = corners[order]
+        new = np.ones(len(srt), dtype=bool)
+        new[1:] = np.any(srt[1:] != srt[:-1], axis=1)
+        vertices = srt[new]
+        inverse = np.empty(len(srt), dtype=np.int64)
+        inverse[order] = np.cumsum(new) - 1
         inverse = inverse.reshape(m, 3)
     else:
         vertices, inverse = np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
 
     # Distinct edges; vertical ones are covered by their end vertices.
     pairs = np.sort(np.concatenate([inverse[:, [0, 1]], inverse[:, [1, 2]], inverse[:, [2, 0]]]), axis=1)
-    pairs = np.unique(pairs, axis=0) if len(pairs) else pairs.reshape(0, 2)
+    if len(pairs):
+        code = np.unique(pairs[:, 0] * np.int64(len(vertices)) + pairs[:, 1])
+        pairs = np.column_stack([code // len(vertices), code % len(vertices)])
+    else:
+        pairs = pairs.reshape(0, 2)
     pairs = pairs[pairs[:, 0] != pairs[:, 1]]
     p0 = vertices[pairs[:, 0]]
     p1 = vertices[pairs[:, 1]]
@@ -224,7 +248,7 @@ class _Grid:
 
 def _query_grid(index: TriangleIndex, radius: float) -> _Grid:
     # Buckets much smaller than the tool make every primitive sit in many buckets.
-    factor = max(1, int(math.ceil(0.5 * radius / index.cell)))
+    factor = max(1, int(math.ceil(_CELL_PER_RADIUS * radius / index.cell)))
     cell = index.cell * factor
     nx = (index.shape[0] - 1) // factor + 1
     ny = (index.shape[1] - 1) // factor + 1
@@ -254,25 +278,49 @@ class _Buckets:
         return np.searchsorted(self.key, cell + frac, side="left")
 
 
-def _bucket(grid: _Grid, lo: np.ndarray, hi: np.ndarray, top: np.ndarray) -> _Buckets:
-    """Boxes ``[lo, hi]`` (k, 2) with top heights ``top`` (k,) [mm] listed per bucket."""
+def _bucket(grid: _Grid, lo: np.ndarray, hi: np.ndarray, top: np.ndarray,
+            radius: float = 0.0, corner: float = 0.0) -> _Buckets:
+    """Boxes ``[lo, hi]`` (k, 2) with top heights ``top`` (k,) [mm] listed per bucket.
+
+    With ``radius > 0`` each box is listed in every bucket within ``radius`` of it, ranked
+    not by ``top`` but by ``top - h(d)``, ``d`` the least XY distance from the bucket to the
+    box and ``h`` the profile: no tool axis in that bucket can get a higher contact from a
+    primitive inside the box, and most primitives far from a bucket drop out of its prefix.
+    """
     k = len(lo)
-    ix0, iy0 = grid.cells(lo[:, 0], lo[:, 1])
-    ix1, iy1 = grid.cells(hi[:, 0], hi[:, 1])
+    ix0, iy0 = grid.cells(lo[:, 0] - radius, lo[:, 1] - radius)
+    ix1, iy1 = grid.cells(hi[:, 0] + radius, hi[:, 1] + radius)
     wx = ix1 - ix0 + 1
     counts = wx * (iy1 - iy0 + 1)
     total = int(counts.sum())
     item = np.repeat(np.arange(k), counts)
     local = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
     w = wx[item]
-    bucket = (iy0[item] + local // w) * grid.nx + ix0[item] + local % w
-    z_hi = float(top.max(initial=0.0)) + 1.0
-    z_span = z_hi - float(top.min(initial=0.0)) + 1.0
-    frac = (z_hi - top[item]) / z_span
-    order = np.lexsort((frac, bucket))
+    bx = ix0[item] + local % w
+    by = iy0[item] + local // w
+    value = top[item]
+    if radius > 0.0:
+        # Border buckets also hold every axis beyond the grid (cells() clamps): open sides.
+        x0 = np.where(bx == 0, -np.inf, grid.origin[0] + bx * grid.cell)
+        x1 = np.where(bx == grid.nx - 1, np.inf, grid.origin[0] + (bx + 1) * grid.cell)
+        y0 = np.where(by == 0, -np.inf, grid.origin[1] + by * grid.cell)
+        y1 = np.where(by == grid.ny - 1, np.inf, grid.origin[1] + (by + 1) * grid.cell)
+        dx = np.maximum(np.maximum(x0 - hi[item, 0], lo[item, 0] - x1), 0.0)
+        dy = np.maximum(np.maximum(y0 - hi[item, 1], lo[item, 1] - y1), 0.0)
+        # The margin covers rounding in the bucket of an axis; it only ever lowers d.
+        d = np.maximum(np.hypot(dx, dy) - 1e-9 * (1.0 + grid.cell * max(grid.nx, grid.ny)), 0.0)
+        near = d <= radius
+        item, bx, by, value, d = item[near], bx[near], by[near], value[near], d[near]
+        value = value - _height(d, radius, corner)
+    bucket = by * grid.nx + bx
+    z_hi = float(value.max(initial=0.0)) + 1.0
+    z_span = z_hi - float(value.min(initial=0.0)) + 1.0
+    key = bucket + (z_hi - value) / z_span
+    # One float sort (not lexsort): the key itself must be sorted for searchsorted in stop().
+    order = np.argsort(key)
     ptr = np.zeros(grid.nx * grid.ny + 1, dtype=np.int64)
     np.cumsum(np.bincount(bucket, minlength=grid.nx * grid.ny), out=ptr[1:])
-    return _Buckets(ptr, item[order], bucket[order] + frac[order], z_hi, z_span)
+    return _Buckets(ptr, item[order], key[order], z_hi, z_span)
 
 
 def _pairs(items: np.ndarray, start: np.ndarray, stop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -295,7 +343,7 @@ def _height(r: np.ndarray, radius: float, corner: float) -> np.ndarray:
     return corner - np.sqrt(np.maximum(corner * corner - d * d, 0.0))
 
 
-def _vertex_contacts(index, radius, corner, offsets, cx, cy, point, vi, out) -> None:
+def _vertex_contacts(index, radius, corner, tables, cx, cy, point, vi, out) -> None:
     v = index.vertices[vi]
     d2 = (v[:, 0] - cx[point]) ** 2 + (v[:, 1] - cy[point]) ** 2
     ok = d2 <= radius * radius
@@ -304,21 +352,27 @@ def _vertex_contacts(index, radius, corner, offsets, cx, cy, point, vi, out) -> 
     np.maximum.at(out, point, z)
 
 
-def _edge_contacts(index, radius, corner, offsets, cx, cy, point, ei, out) -> None:
-    p0 = index.edge_start[ei]
-    u = index.edge_dir[ei]
-    wx = cx[point] - p0[:, 0]
-    wy = cy[point] - p0[:, 1]
-    tc = wx * u[:, 0] + wy * u[:, 1]  # foot of the perpendicular from the axis, along the edge
+def _edge_contacts(index, radius, corner, tables, cx, cy, point, ei, out) -> None:
+    # One row gather per pair: x0, y0, z0, ux, uy, length, slope.
+    e = tables.edges[ei]
+    wx = cx[point] - e[:, 0]
+    wy = cy[point] - e[:, 1]
+    tc = wx * e[:, 3] + wy * e[:, 4]  # foot of the perpendicular from the axis, along the edge
     d2 = np.maximum(wx * wx + wy * wy - tc * tc, 0.0)
     rho2 = radius * radius - d2
     ok = rho2 >= 0.0
     rho = np.sqrt(np.where(ok, rho2, 0.0))
     lo = np.maximum(-rho, -tc)
-    hi = np.minimum(rho, index.edge_length[ei] - tc)
-    ok &= lo <= hi
-    point, ei, p0, tc, d2, rho, lo, hi = (a[ok] for a in (point, ei, p0, tc, d2, rho, lo, hi))
-    s = index.edge_slope[ei]
+    hi = np.minimum(rho, e[:, 5] - tc)
+    s = e[:, 6]
+    # Upper bound: the edge's highest point over the chord less the profile at the nearest
+    # XY distance (h grows with r); most pairs cannot beat the current best.
+    top = e[:, 2] + s * (tc + np.where(s >= 0.0, hi, lo))
+    ok &= (lo <= hi) & (top - _height(np.sqrt(d2), radius, corner) > out[point] - 1e-12)
+    keep = np.flatnonzero(ok)
+    if not len(keep):
+        return
+    point, e, tc, d2, rho, lo, hi, s = (a[keep] for a in (point, e, tc, d2, rho, lo, hi, s))
     if corner <= 0.0:
         # Flat: the edge height is linear over the chord under the flat bottom.
         t = np.where(s >= 0.0, rho, -rho)
@@ -328,7 +382,7 @@ def _edge_contacts(index, radius, corner, offsets, cx, cy, point, ei, out) -> No
     else:
         t = _bull_edge_argmax(s, d2, lo, hi, radius, corner)
     t = np.clip(t, lo, hi)
-    z = p0[:, 2] + s * (tc + t)
+    z = e[:, 2] + s * (tc + t)
     r = np.minimum(np.sqrt(d2 + t * t), radius)
     np.maximum.at(out, point, z - _height(r, radius, corner))
 
@@ -350,6 +404,14 @@ def _bull_edge_argmax(s, d2, lo, hi, radius, corner):
     return 0.5 * (lo + hi)
 
 
+@dataclass(frozen=True)
+class _Tables:
+    """Per-query primitive data packed for single-gather access."""
+
+    offsets: np.ndarray  # (f, 2) facet contact offsets [mm]
+    edges: np.ndarray  # (e, 7) x0, y0, z0, ux, uy, length, slope
+
+
 def _facet_offsets(index: TriangleIndex, radius: float, corner: float) -> np.ndarray:
     """XY offset from the tool axis to the facet contact point, per facet (f, 2) [mm]."""
     n = index.facet_normal
@@ -360,7 +422,8 @@ def _facet_offsets(index: TriangleIndex, radius: float, corner: float) -> np.nda
     return -n[:, :2] * scale[:, None]
 
 
-def _facet_contacts(index, radius, corner, offsets, cx, cy, point, fi, out) -> None:
+def _facet_contacts(index, radius, corner, tables, cx, cy, point, fi, out) -> None:
+    offsets = tables.offsets
     dx = cx[point] + offsets[fi, 0] - index.facet_origin[fi, 0]
     dy = cy[point] + offsets[fi, 1] - index.facet_origin[fi, 1]
     inv = index.facet_inverse[fi]
@@ -372,6 +435,37 @@ def _facet_contacts(index, radius, corner, offsets, cx, cy, point, fi, out) -> N
     p = index.facet_origin[fi] + b1[:, None] * index.facet_e1[fi] + b2[:, None] * index.facet_e2[fi]
     r = np.minimum(np.hypot(p[:, 0] - cx[point], p[:, 1] - cy[point]), radius)
     np.maximum.at(out, point, p[:, 2] - _height(r, radius, corner))
+
+
+def _prepared(index: TriangleIndex, radius: float, corner_radius: float) -> tuple:
+    key = (float(radius), float(corner_radius))
+    if key not in index.prepared:
+        index.prepared[key] = _prepare(index, radius, corner_radius)
+    return index.prepared[key]
+
+
+def _prepare(index: TriangleIndex, radius: float, corner_radius: float) -> tuple:
+    """Query grid, the three bucket lists and packed tables for one tool on one index."""
+    grid = _query_grid(index, radius)
+    v = index.vertices
+    vbuckets = _bucket(grid, v[:, :2], v[:, :2], v[:, 2], radius, corner_radius)
+    p0 = index.edge_start
+    p1 = np.concatenate([p0[:, :2] + index.edge_dir * index.edge_length[:, None],
+                         (p0[:, 2] + index.edge_slope * index.edge_length)[:, None]], axis=1)
+    elo = np.minimum(p0[:, :2], p1[:, :2])
+    ehi = np.maximum(p0[:, :2], p1[:, :2])
+    ebuckets = _bucket(grid, elo, ehi, np.maximum(p0[:, 2], p1[:, 2]), radius, corner_radius)
+    offsets = _facet_offsets(index, radius, corner_radius)
+    tables = _Tables(offsets, np.column_stack([p0, index.edge_dir, index.edge_length, index.edge_slope]))
+    corners = np.stack(
+        [index.facet_origin, index.facet_origin + index.facet_e1, index.facet_origin + index.facet_e2], axis=1
+    )
+    # A facet can only be touched where axis + offset lies inside it.
+    pad = 1e-9 * (1.0 + np.abs(corners).max(initial=0.0))
+    fxy = corners[:, :, :2]
+    fbuckets = _bucket(grid, fxy.min(axis=1) - offsets - pad, fxy.max(axis=1) - offsets + pad,
+                       corners[:, :, 2].max(axis=1))
+    return grid, vbuckets, ebuckets, fbuckets, tables
 
 
 def drop_profile(
@@ -405,24 +499,7 @@ def drop_profile(
     if n == 0:
         return out
 
-    grid = _query_grid(index, radius)
-    v = index.vertices
-    vbuckets = _bucket(grid, v[:, :2] - radius, v[:, :2] + radius, v[:, 2])
-    p0 = index.edge_start
-    p1 = np.concatenate([p0[:, :2] + index.edge_dir * index.edge_length[:, None],
-                         (p0[:, 2] + index.edge_slope * index.edge_length)[:, None]], axis=1)
-    elo = np.minimum(p0[:, :2], p1[:, :2]) - radius
-    ehi = np.maximum(p0[:, :2], p1[:, :2]) + radius
-    ebuckets = _bucket(grid, elo, ehi, np.maximum(p0[:, 2], p1[:, 2]))
-    offsets = _facet_offsets(index, radius, corner_radius)
-    corners = np.stack(
-        [index.facet_origin, index.facet_origin + index.facet_e1, index.facet_origin + index.facet_e2], axis=1
-    )
-    # A facet can only be touched where axis + offset lies inside it.
-    pad = 1e-9 * (1.0 + np.abs(corners).max(initial=0.0))
-    fxy = corners[:, :, :2]
-    fbuckets = _bucket(grid, fxy.min(axis=1) - offsets - pad, fxy.max(axis=1) - offsets + pad,
-                       corners[:, :, 2].max(axis=1))
+    grid, vbuckets, ebuckets, fbuckets, tables = _prepared(index, radius, corner_radius)
 
     # Sorting by bucket keeps gathers local; results are scattered back at the end.
     ix, iy = grid.cells(pts[:, 0], pts[:, 1])
@@ -447,13 +524,13 @@ def drop_profile(
         first = vbuckets.ptr[c]
         # The highest few vertices give a good lower bound that culls most other candidates.
         head = np.minimum(first + _HEAD, vbuckets.ptr[c + 1])
-        _run(_vertex_contacts, index, radius, corner_radius, offsets, sx, sy, vbuckets.items, first, head, best, 1)
+        _run(_vertex_contacts, index, radius, corner_radius, tables, sx, sy, vbuckets.items, first, head, best, 1)
         # Facets are few per point and on smooth meshes nearly exact: a tight bound for the rest.
-        _run(_facet_contacts, index, radius, corner_radius, offsets, sx, sy, fbuckets.items,
+        _run(_facet_contacts, index, radius, corner_radius, tables, sx, sy, fbuckets.items,
              fbuckets.ptr[c], fbuckets.stop(c, best), best, 1)
         tail = np.maximum(vbuckets.stop(c, best), head)
-        _run(_vertex_contacts, index, radius, corner_radius, offsets, sx, sy, vbuckets.items, head, tail, best, 1)
-        _run(_edge_contacts, index, radius, corner_radius, offsets, sx, sy, ebuckets.items,
+        _run(_vertex_contacts, index, radius, corner_radius, tables, sx, sy, vbuckets.items, head, tail, best, 1)
+        _run(_edge_contacts, index, radius, corner_radius, tables, sx, sy, ebuckets.items,
              ebuckets.ptr[c], ebuckets.stop(c, best), best, 8 if bull else 1)
         start = stop
         if progress is not None:
@@ -462,7 +539,7 @@ def drop_profile(
     return out
 
 
-def _run(kernel, index, radius, corner, offsets, cx, cy, items, first, last, best, cost) -> None:
+def _run(kernel, index, radius, corner, tables, cx, cy, items, first, last, best, cost) -> None:
     """Apply ``kernel`` to the candidate ranges ``items[first:last]`` of each point, in batches."""
     counts = np.maximum(last - first, 0)
     cum = np.cumsum(counts)
@@ -475,7 +552,7 @@ def _run(kernel, index, radius, corner, offsets, cx, cy, items, first, last, bes
         stop = min(max(stop, start + 1), n)
         point, prim = _pairs(items, first[start:stop], last[start:stop])
         if len(point):
-            kernel(index, radius, corner, offsets, cx, cy, point + start, prim, best)
+            kernel(index, radius, corner, tables, cx, cy, point + start, prim, best)
         start = stop
 
 
