@@ -7,7 +7,7 @@ BIN    := $(VENV)/bin
 OUT    := build
 PARTS  := $(basename $(notdir $(wildcard samples/*.stl)))
 
-.PHONY: demo test venv clean
+.PHONY: demo test bench venv clean
 
 demo: $(PARTS:%=$(OUT)/%.plan.json)
 	$(BIN)/python samples/summarize.py $^
@@ -18,6 +18,12 @@ $(OUT)/%.plan.json: samples/%.stl $(BIN)/.installed
 
 test: $(BIN)/.installed
 	$(BIN)/python -m pytest -q
+
+# Speed against OpenCAMLib (a benchmark-only extra) and every CAM stage; prints JSON last lines.
+bench: $(BIN)/.installed
+	$(BIN)/python -m pip install --quiet -e '.[bench]'
+	$(BIN)/python benchmarks/finishing_vs_ocl.py --json
+	$(BIN)/python benchmarks/cam_pipeline.py --json
 
 venv: $(BIN)/.installed
 
