@@ -84,3 +84,7 @@ class CellError(FactoryError):
 
 class PlanningError(FactoryError):
     """A robot motion cannot be planned: unreachable pose, joint limits, timing failure."""
+
+
+class SchedulerError(FactoryError):
+    """An orders file is malformed, or the cell scheduler was driven with an event its state does not accept."""
