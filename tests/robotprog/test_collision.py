@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pytest
@@ -82,16 +81,6 @@ def test_self_collision_detected(world, cell):
 def test_bad_configuration_raises(world):
     with pytest.raises(PlanningError):
         world.in_collision(np.zeros(3))
-
-
-def test_check_time_reported(world, cell, capsys):
-    home = np.array(cell.robot.home)
-    qs = home + 0.01 * np.random.default_rng(0).standard_normal((300, 6))
-    t0 = time.perf_counter()
-    world.path_free(qs)
-    us = (time.perf_counter() - t0) / len(qs) * 1e6
-    with capsys.disabled():
-        print(f"\ncollision check: {us:.0f} us per configuration")
 
 
 def test_held_box_against_arm_links(world, cell):
