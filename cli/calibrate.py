@@ -15,7 +15,7 @@ import typer
 
 from cli.common import JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, setup_logging, stderr
 from factory.atomic import check_writable, write_bytes, write_text
-from factory.errors import CalibrationError
+from factory.errors import CalibrationError, VisionError
 from factory.mcaplog import TYPESTORE, McapLog, ros_time
 from vision.board import BOARD_SYNTAX, BoardSpec
 from vision.calibrate import CalibrationResult, Detection, calibrate as run_calibration, detect
@@ -55,14 +55,14 @@ def list_images(folder: Path) -> list[Path]:
 
 
 def read_image(path: Path) -> tuple[np.ndarray, bytes]:
-    """Grey image and the file's bytes."""
+    """An image file as an 8-bit grey image, and the file's bytes (for logging them as they are)."""
     try:
         data = path.read_bytes()
     except OSError as e:
-        raise CalibrationError(f"cannot read image: {e.strerror}", source=path) from None
+        raise VisionError(f"cannot read image: {e.strerror}", source=path) from None
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
     if image is None:
-        raise CalibrationError("cannot read image: not a picture OpenCV can decode", source=path)
+        raise VisionError("cannot read image: not a picture OpenCV can decode", source=path)
     return image, data
 
 

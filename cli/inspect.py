@@ -10,7 +10,8 @@ import typer
 from cadcam.mesh import load_part
 from cli.common import (EXIT_VERIFY_FAILED, JsonFlag, Overwrite, Quiet, print_json, reports_errors, setup_logging,
                         stderr)
-from cli.locate import parse_flange, read_grey, read_view
+from cli.calibrate import read_image
+from cli.locate import parse_flange, read_view
 from factory.atomic import check_writable, write_bytes
 from vision.inspect import InspectOptions, inspect_part, inspection_image
 from vision.locate import footprint_from_mesh, mm_to_m
@@ -51,7 +52,7 @@ def inspect(
     camera, base_camera, height = read_view(camera_file, extrinsics_file, flange_pose, tray_z)
     mesh = load_part(part_file, units).mesh  # type: ignore[arg-type]
     part = footprint_from_mesh(mesh.vertices, mesh.faces, source=str(part_file))
-    image = read_grey(image_file)
+    image, _ = read_image(image_file)
     results = inspect_part(image, camera, base_camera, part, mesh.vertices, mesh.faces, float(height),
                            InspectOptions(tolerance=float(mm_to_m(tolerance))), source=str(image_file))
     if png is not None:

@@ -5,28 +5,16 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-import cv2
 import numpy as np
 import typer
 
 from cadcam.mesh import load_part
+from cli.calibrate import read_image
 from cli.common import JsonFlag, Quiet, print_json, reports_errors, setup_logging, stderr
 from factory.errors import VisionError
 from vision.camera import CameraModel
 from vision.handeye import pose_from_xyz_rotation, read_extrinsics
 from vision.locate import footprint_from_mesh, locate_parts
-
-
-def read_grey(path: Path) -> np.ndarray:
-    """A picture file as an 8-bit grey image."""
-    try:
-        data = path.read_bytes()
-    except OSError as e:
-        raise VisionError(f"cannot read image: {e.strerror}", source=path) from None
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise VisionError("cannot read image: not a picture OpenCV can decode", source=path)
-    return image
 
 
 def parse_flange(text: str | None) -> np.ndarray | None:
@@ -93,7 +81,7 @@ def locate(
     camera, base_camera, height = read_view(camera_file, extrinsics_file, flange_pose, tray_z)
     mesh = load_part(part_file, units).mesh  # type: ignore[arg-type]
     part = footprint_from_mesh(mesh.vertices, mesh.faces, source=str(part_file))
-    image = read_grey(image_file)
+    image, _ = read_image(image_file)
     found = locate_parts(image, camera, base_camera, part, float(height), source=str(image_file))
     if not quiet:
         for p in found:
