@@ -72,8 +72,10 @@ def detect_all(files: list[Path], board: BoardSpec, progress: Callable[[int, int
 
     Raises
     ------
+    VisionError
+        An image cannot be read.
     CalibrationError
-        An image cannot be read, or differs in size from the first.
+        An image differs in size from the first.
     """
     detections, missing, images = [], [], {}
     size = None
