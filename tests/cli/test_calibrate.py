@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 from cli.main import app
 from tests.vision import SAMPLES
 from vision.camera import CameraModel
+from tests.cli.expect import assert_one_line_error
 
 pytestmark = pytest.mark.skipif(not SAMPLES.is_dir(),
                                 reason=f"OpenCV sample images not present at {SAMPLES} (../shared absent)")
@@ -25,15 +26,6 @@ BOARD = ["--board", "chessboard:9x6:0.025"]
 
 def run(*args):
     return runner.invoke(app, ["calibrate", *[str(a) for a in args]], catch_exceptions=False)
-
-
-def assert_one_line_error(result, *needles: str, code: int = 1) -> None:
-    assert result.exit_code == code, result.output
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
-    for n in needles:
-        assert n in lines[0], (n, lines[0])
-    assert "Traceback" not in result.output
 
 
 def images(tmp_path: Path, names: list[str] | None = None) -> Path:

@@ -14,6 +14,7 @@ import trimesh
 from typer.testing import CliRunner
 
 from cli.main import app
+from tests.cli.expect import assert_one_line_error
 
 runner = CliRunner()
 FAST = ["--scallop", "0.02", "--quiet"]
@@ -21,15 +22,6 @@ FAST = ["--scallop", "0.02", "--quiet"]
 
 def run(*args: str):
     return runner.invoke(app, [str(a) for a in args], catch_exceptions=False)
-
-
-def assert_one_line_error(result, *needles: str) -> None:
-    assert result.exit_code == 1, result.output
-    lines = [l for l in result.stderr.splitlines() if l.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
-    for n in needles:
-        assert n in lines[0], (n, lines[0])
-    assert "Traceback" not in result.output
 
 
 @pytest.fixture(scope="module")

@@ -18,6 +18,7 @@ from tests.vision.test_handeye import BASE_BOARD, TRUE_FLANGE_CAM, jitter, rotat
 from vision.board import BoardSpec
 from vision.handeye import invert, read_extrinsics, transform_to_xyz_quat
 from vision.render import pixel_rays, render
+from tests.cli.expect import assert_one_line_error
 
 runner = CliRunner()
 BOARD = BoardSpec.parse("chessboard:9x6:0.025")
@@ -25,14 +26,6 @@ BOARD = BoardSpec.parse("chessboard:9x6:0.025")
 
 def run(*args):
     return runner.invoke(app, ["handeye", *[str(a) for a in args]], catch_exceptions=False)
-
-
-def assert_one_line_error(result, *needles: str) -> None:
-    assert result.exit_code == 1, result.output
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
-    for n in needles:
-        assert n in lines[0], (n, lines[0])
 
 
 @pytest.fixture(scope="module")

@@ -17,21 +17,13 @@ from tests.vision.test_locate import BASE_CAM, BLANK_MM, TRAY_Z, blank_mesh, ran
 from vision.handeye import handeye_document, invert
 from vision.locate import mm_to_m
 from vision.render import render_boxes
+from tests.cli.expect import assert_one_line_error
 
 runner = CliRunner()
 
 
 def run(*args):
     return runner.invoke(app, ["locate", *[str(a) for a in args]], catch_exceptions=False)
-
-
-def assert_one_line_error(result, *needles: str) -> None:
-    assert result.exit_code == 1, result.output
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
-    for n in needles:
-        assert n in lines[0], (n, lines[0])
-    assert result.stdout == ""
 
 
 @pytest.fixture(scope="module")

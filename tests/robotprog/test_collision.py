@@ -7,19 +7,9 @@ import numpy as np
 import pytest
 
 from factory.errors import PlanningError
-from robotprog.cell import load_cell
-from robotprog.collision import HeldBox, cell_static_boxes, collision_world
-from factory.resources import FIXTURES
+from robotprog.collision import HeldBox, cell_static_boxes
 
 
-@pytest.fixture(scope="module")
-def cell():
-    return load_cell(FIXTURES / "cell.yaml")
-
-
-@pytest.fixture(scope="module")
-def world(cell):
-    return collision_world(cell)
 
 
 def test_home_is_free(world, cell):

@@ -8,9 +8,7 @@ import numpy as np
 import pytest
 
 from factory.errors import CellError, PlanningError
-from factory.resources import FIXTURES
-from robotprog.cell import Pose, load_cell
-from robotprog.collision import collision_world
+from robotprog.cell import Pose
 from robotprog.tending import TendingOptions, _Planner, part_box_in_vise, plan_tending
 from robotprog.timing import LIMIT_SLACK
 
@@ -35,14 +33,6 @@ def sheet(sx: float, sy: float, sz: float) -> dict:
     }
 
 
-@pytest.fixture(scope="module")
-def cell():
-    return load_cell(FIXTURES / "cell.yaml")
-
-
-@pytest.fixture(scope="module")
-def world(cell):
-    return collision_world(cell)
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,14 @@
+"""What every command's failure must look like, checked one way for all CLI tests."""
+
+from __future__ import annotations
+
+
+def assert_one_line_error(result, *needles: str, code: int = 1) -> None:
+    """One ``error: ...`` line on stderr naming each of ``needles``, exit ``code``, nothing on stdout."""
+    assert result.exit_code == code, result.output
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
+    for n in needles:
+        assert n in lines[0], (n, lines[0])
+    assert "Traceback" not in result.output
+    assert result.stdout == ""
