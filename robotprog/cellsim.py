@@ -4,21 +4,27 @@ Orders run through :mod:`robotprog.scheduler`'s state machine; this module decid
 each event happens. Time is simulated seconds, kept in a ``heapq`` of pending events.
 Durations come from a :class:`PartProcess` per part (the CLI fills them from ``factory plan``:
 robot moves timed with TOPP-RA, machining from the setup sheet's ``estimated_cycle_s``,
-camera steps from locate and inspect).
+camera steps from locate and inspect on rendered frames).
 
-Resources
----------
-- The **robot** does one action at a time: locate-and-pick (camera locate + fetch to the
-  staging nest), load (nest → vise), unload (vise → inspection station), inspect (camera),
-  sort (to the out-tray or the reject bin).
-- The **machine** holds at most one part, from the start of its load to the end of its
-  unload, and cuts it in between.
+The cell modelled is the one ``factory plan`` programs: one robot with one gripper, a rack of
+blanks, the machine's vise, an out-tray, and two fixed cameras, one over the rack (locate)
+and one over the out-tray (inspect). There is no staging nest, so a blank the robot picks
+goes straight into the vise.
 
-Pipelining: while the machine cuts, the robot inspects and sorts the previous part and
-fetches the next blank to the staging nest (at most one blank waits there). When the robot
-is free it picks, in this order: unload, load, inspect, sort, a fetch retry, a new blank.
-In steady state a part leaves every ``max(load_s + machining_s + unload_s, robot work per
-part)`` seconds, with robot work = ``2·camera_s + fetch_s + load_s + unload_s + sort_s``.
+Resources and actions
+---------------------
+- **Robot** (one action at a time): ``locate_and_pick`` (the rack camera locates the blank,
+  then the robot picks it: the load phase up to the retreat from the rack), ``load`` (the
+  rest of the load phase: into the vise and back home), ``unload`` (the unload phase: vise →
+  out-tray and home), ``sort_reject`` (out-tray → reject bin).
+- **Machine**: holds one part from the start of its load to the end of its unload and cuts it
+  in between.
+- **Inspection camera**: inspects the part in the out-tray while the robot works on; a good
+  part stays where it is (``sort_good`` takes no time).
+
+A new blank is picked only when the machine is empty (the gripper cannot hold a blank and
+unload a part), so in steady state a part leaves every ``locate_s + fetch_s + load_s +
+machining_s + unload_s`` seconds, and inspection and rejects overlap the next cut.
 
 Faults are drawn from a seeded RNG (:class:`FaultModel`), so a run is reproducible.
 """
@@ -28,7 +34,7 @@ from __future__ import annotations
 import heapq
 import logging
 import random
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
@@ -47,41 +53,53 @@ class PartProcess:
     Attributes
     ----------
     fetch_s : float
-        Robot: pick the blank in the rack and set it on the staging nest.
+        Robot: home → pick the blank in the rack → retreat from the rack (load phase, first part).
     load_s : float
-        Robot: staging nest → vise (the load phase of a TendingPlan).
+        Robot: the rest of the load phase: into the vise, release, back home.
     machining_s : float
         Machine: the program (setup sheet ``estimated_cycle_s``).
     unload_s : float
-        Robot: vise → inspection station (the unload phase of a TendingPlan).
-    camera_s : float
-        Camera: one locate or one inspect (image + processing).
+        Robot: the unload phase: home → vise → out-tray → home.
+    locate_s : float
+        Rack camera: one picture and locate of the blank.
+    inspect_s : float
+        Out-tray camera: one picture and inspection of the part.
     sort_s : float
-        Robot: inspection station → out-tray or reject bin (default 5).
+        Robot: a rejected part from the out-tray to the reject bin and back home.
+    regrasp_s : float
+        Robot: back from above the rack to home after a missed grasp (the retry starts at home).
     """
 
     fetch_s: float
     load_s: float
     machining_s: float
     unload_s: float
-    camera_s: float
-    sort_s: float = 5.0
+    locate_s: float
+    inspect_s: float
+    sort_s: float
+    regrasp_s: float = 0.0
 
     def __post_init__(self):
-        for name in ("fetch_s", "load_s", "machining_s", "unload_s", "camera_s", "sort_s"):
+        for name in ("fetch_s", "load_s", "machining_s", "unload_s", "locate_s", "inspect_s", "sort_s",
+                     "regrasp_s"):
             value = getattr(self, name)
             if not (value >= 0 and value != float("inf")):
                 raise SchedulerError(f"{name} must be a finite duration >= 0 s, got {value}", source=name)
 
     @property
     def robot_s(self) -> float:
-        """Robot busy time [s] per good part without faults."""
-        return 2 * self.camera_s + self.fetch_s + self.load_s + self.unload_s + self.sort_s
+        """Robot busy time [s] per good part without faults (waiting for the rack camera included)."""
+        return self.locate_s + self.fetch_s + self.load_s + self.unload_s
 
     @property
     def machine_s(self) -> float:
         """Time [s] the machine holds one part: load + machining + unload."""
         return self.load_s + self.machining_s + self.unload_s
+
+    @property
+    def cycle_s(self) -> float:
+        """Time [s] between finished parts in steady state without faults."""
+        return self.locate_s + self.fetch_s + self.machine_s
 
 
 @dataclass(frozen=True)
@@ -135,6 +153,36 @@ class LogEntry:
 
 
 @dataclass(frozen=True)
+class Activity:
+    """One stretch of work by one resource.
+
+    Attributes
+    ----------
+    resource : str
+        ``"robot"``, ``"machine"`` or ``"camera"``.
+    action : str
+        Robot: ``fetch``, ``missed_grasp``, ``load``, ``unload``, ``sort_reject``; machine:
+        ``cut``, ``reset``; camera: ``locate``, ``inspect``.
+    job : int
+    start, end : float
+        Simulated time [s].
+    outcome : str
+        The event the activity ended with (``fetched``, ``machine_alarm``, ``inspect_fail``, …).
+    fraction : float
+        Share of the step's nominal motion or program carried out (a cut stopped by an alarm,
+        a timed-out move), in [0, 1].
+    """
+
+    resource: str
+    action: str
+    job: int
+    start: float
+    end: float
+    outcome: str
+    fraction: float = 1.0
+
+
+@dataclass(frozen=True)
 class OrderOutcome:
     order: str
     part: str
@@ -157,15 +205,24 @@ class SimulationResult:
         One per order, each ``done``, ``rejected`` or ``failed`` with a reason.
     summary : dict
         See :meth:`to_dict`.
-    robot_intervals, machine_intervals : tuple of (start, end, job)
-        When the robot was busy, and when the machine held a part [s].
+    activities : tuple of Activity
+        What the robot, the machine and the cameras did, in start order.
+    machine_intervals : tuple of (start, end, job)
+        When the machine held a part, from load start to unload end [s].
+    jobs : mapping job id → order id
     """
 
     log: tuple[LogEntry, ...]
     outcomes: tuple[OrderOutcome, ...]
     summary: Mapping[str, object]
-    robot_intervals: tuple[tuple[float, float, int], ...] = ()
+    activities: tuple[Activity, ...] = ()
     machine_intervals: tuple[tuple[float, float, int], ...] = ()
+    jobs: Mapping[int, str] = field(default_factory=dict)
+
+    @property
+    def robot_intervals(self) -> tuple[tuple[float, float, int], ...]:
+        """(start, end, job) of every robot activity [s]."""
+        return tuple((a.start, a.end, a.job) for a in self.activities if a.resource == "robot")
 
     def to_dict(self) -> dict:
         """JSON-ready: ``{summary, orders: [...], events: n}``.
@@ -183,11 +240,11 @@ class SimulationResult:
         }
 
 
-_ROBOT_PRIORITY = {"unload": 0, "load": 1, "inspect": 2, "sort_good": 3, "sort_reject": 3,
-                   "locate_and_pick": 4}
-_ROBOT_ACTIONS = set(_ROBOT_PRIORITY)
+#: Robot actions of the state machine, most urgent first (unload frees the machine).
+_ROBOT_PRIORITY = {"unload": 0, "load": 1, "sort_reject": 2, "locate_and_pick": 3}
 _MACHINE_ACTIONS = {"run_program", "reset_and_rerun"}
-_ROBOT_STATES = {State.FETCH_RAW, State.LOAD, State.UNLOAD, State.INSPECT, State.SORT}
+#: States whose action occupies the robot until its event arrives.
+_ROBOT_STATES = {State.FETCH_RAW, State.LOAD, State.UNLOAD, State.SORT}
 _AHEAD = (State.IDLE, State.FETCH_RAW, State.LOAD)
 
 
@@ -204,9 +261,10 @@ def simulate(
     ----------
     orders : sequence of Order
         From :func:`robotprog.orders.read_orders`.
-    processes : mapping part path → PartProcess, or the reason it cannot run
-        An order whose part is missing from the mapping, or maps to a str/exception (the
-        planning error), ends ``failed`` with that reason; the others run.
+    processes : mapping (part path, material) or part path → PartProcess, or the reason it cannot run
+        Looked up by ``(order.part, order.material)`` first, then by ``order.part``. An order
+        whose part is missing from the mapping, or maps to a str/exception (the planning
+        error), ends ``failed`` with that reason; the others run.
     faults : FaultModel
         Injected faults (default none).
     options : SchedulerOptions
@@ -228,12 +286,18 @@ def simulate(
         raise SchedulerError("duplicate order ids", source="orders")
     failed: dict[str, str] = {}
     for o in orders:
-        proc = processes.get(o.part)
+        proc = process_of(processes, o)
         if proc is None:
             failed[o.id] = f"{o.part}: no plan for this part"
         elif not isinstance(proc, PartProcess):
             failed[o.id] = f"{o.part}: cannot be planned: {proc}"
     return _Sim(orders, processes, faults, options, failed, progress).run()
+
+
+def process_of(processes: Mapping, order: Order) -> PartProcess | str | Exception | None:
+    """The process entry for an order: by (part, material), else by part."""
+    found = processes.get((order.part, order.material))
+    return processes.get(order.part) if found is None else found
 
 
 class _Sim:
@@ -252,7 +316,8 @@ class _Sim:
         self.waiting: list[tuple[int, str, int]] = []  # (job, action, arrival seq) needing the robot
         self.robot_job: int | None = None
         self.machine_job: int | None = None
-        self.robot_busy: list[tuple[float, float, int]] = []
+        self.activities: list[Activity] = []
+        self.jobs: dict[int, str] = {}
         self.machine_hold: list[tuple[float, float, int]] = []
         self.hold_start = 0.0
         self.cutting = 0.0
@@ -264,7 +329,7 @@ class _Sim:
                 self.log.append(LogEntry(0.0, 0, p.order.id, "-", "order_failed", p.reason))
 
     def proc(self, job_id: int) -> PartProcess:
-        return self.processes[self.orders[self.cell.job(job_id).order].part]
+        return process_of(self.processes, self.orders[self.cell.job(job_id).order])
 
     def push(self, delay: float, job: int, event: Event, message: str = "") -> None:
         self.seq += 1
@@ -280,11 +345,17 @@ class _Sim:
             self.apply(job_id, eff.action, eff.event)
 
     def apply(self, job_id: int, action: str, chosen: Event | None) -> None:
-        if action in _ROBOT_ACTIONS:
+        if action in _ROBOT_PRIORITY:
             self.seq += 1
             self.waiting.append((job_id, action, self.seq))
         elif action in _MACHINE_ACTIONS:
             self.start_machining(job_id, action == "reset_and_rerun")
+        elif action == "inspect":
+            fail = self.rng.random() < self.faults.inspect_fail
+            self.activity("camera", "inspect", job_id, State.INSPECT, self.proc(job_id).inspect_s,
+                          Event.INSPECT_FAIL if fail else Event.INSPECT_PASS)
+        elif action == "sort_good":  # the part already lies in the out-tray
+            self.push(0.0, job_id, Event.SORTED)
         elif action == "recover":
             self.push(0.0, job_id, chosen)
         elif action in ("stop_robot", "hold_machine"):
@@ -302,54 +373,71 @@ class _Sim:
         self.machine_hold.append((self.hold_start, self.now, job_id))
         self.machine_job = None
 
-    def timed(self, job_id: int, state: State, duration: float, event: Event, message: str = "") -> float:
-        """Schedule ``event`` after ``duration``, or TIMEOUT if the state's timeout is shorter."""
-        limit = self.options.timeout(state)
+    def activity(self, resource: str, action: str, job_id: int, state: State, duration: float,
+                 event: Event | None, message: str = "", *, start_after: float = 0.0) -> float:
+        """Record an activity starting ``start_after`` seconds from now and schedule ``event`` at its
+        end (none for ``None``: a later activity ends the step), or TIMEOUT if the state's timeout,
+        counted from now, comes first. Returns the activity's length [s]."""
+        limit = self.options.timeout(state) - start_after
+        start = self.now + start_after
         if duration > limit:
-            self.push(limit, job_id, Event.TIMEOUT, f"{state.name} took over {limit:g} s")
-            return limit
-        self.push(duration, job_id, event, message)
-        return duration
+            used = max(limit, 0.0)
+            self.push(start_after + used, job_id, Event.TIMEOUT,
+                      f"{state.name} took over {self.options.timeout(state):g} s")
+            outcome = Event.TIMEOUT.value
+        else:
+            used = duration
+            if event is not None:
+                self.push(start_after + used, job_id, event, message)
+            outcome = event.value if event is not None else "done"
+        fraction = used / duration if duration > 0 else 1.0
+        self.activities.append(Activity(resource, action, job_id, start, start + used, outcome, fraction))
+        return used
 
     def start_machining(self, job_id: int, rerun: bool) -> None:
         p = self.proc(job_id)
         reset = self.options.machine_reset_s if rerun else 0.0
+        if reset:
+            self.activities.append(Activity("machine", "reset", job_id, self.now, self.now + reset, "reset"))
         if self.rng.random() < self.faults.machine_alarm:
-            cut = reset + self.rng.random() * p.machining_s
-            used = self.timed(job_id, State.MACHINING, cut, Event.MACHINE_ALARM, "machine alarm")
+            share = self.rng.random()
+            used = self.activity("machine", "cut", job_id, State.MACHINING, share * p.machining_s,
+                                 Event.MACHINE_ALARM, "machine alarm", start_after=reset)
+            self.activities[-1] = replace(self.activities[-1], fraction=share * self.activities[-1].fraction)
         else:
-            used = self.timed(job_id, State.MACHINING, reset + p.machining_s, Event.CYCLE_DONE)
-        self.cutting += max(0.0, used - reset)
+            used = self.activity("machine", "cut", job_id, State.MACHINING, p.machining_s, Event.CYCLE_DONE,
+                                 start_after=reset)
+        self.cutting += used
 
     def start_robot(self, job_id: int, action: str) -> None:
         p = self.proc(job_id)
         job = self.cell.job(job_id)
+        self.robot_job = job_id
         if action == "locate_and_pick":
             self.started.setdefault(job_id, self.now)
             if self.rng.random() < self.faults.stock_not_found:
-                used = self.timed(job_id, job.state, p.camera_s, Event.STOCK_NOT_FOUND,
-                                  f"no stock in rack slot {job.slot}")
-            elif self.rng.random() < self.faults.grasp_miss:
-                used = self.timed(job_id, job.state, p.camera_s + 0.5 * p.fetch_s, Event.GRASP_MISSED,
-                                  f"grasp missed at rack slot {job.slot}")
+                self.activity("camera", "locate", job_id, job.state, p.locate_s, Event.STOCK_NOT_FOUND,
+                              f"no stock in rack slot {job.slot}")
+                return
+            seen = self.activity("camera", "locate", job_id, job.state, p.locate_s, None)
+            if self.activities[-1].outcome == Event.TIMEOUT.value:
+                return
+            if self.rng.random() < self.faults.grasp_miss:
+                self.activity("robot", "missed_grasp", job_id, job.state, p.fetch_s + p.regrasp_s,
+                              Event.GRASP_MISSED, f"grasp missed at rack slot {job.slot}", start_after=seen)
             else:
-                used = self.timed(job_id, job.state, p.camera_s + p.fetch_s, Event.FETCHED)
+                self.activity("robot", "fetch", job_id, job.state, p.fetch_s, Event.FETCHED, start_after=seen)
         elif action == "load":
             self.machine_job, self.hold_start = job_id, self.now
-            used = self.timed(job_id, job.state, p.load_s, Event.LOADED)
+            self.activity("robot", "load", job_id, job.state, p.load_s, Event.LOADED)
         elif action == "unload":
-            used = self.timed(job_id, job.state, p.unload_s,
-                              Event.UNLOADED_SCRAP if job.scrap else Event.UNLOADED)
-        elif action == "inspect":
-            fail = self.rng.random() < self.faults.inspect_fail
-            used = self.timed(job_id, job.state, p.camera_s, Event.INSPECT_FAIL if fail else Event.INSPECT_PASS)
+            self.activity("robot", "unload", job_id, job.state, p.unload_s,
+                          Event.UNLOADED_SCRAP if job.scrap else Event.UNLOADED)
         else:
-            used = self.timed(job_id, job.state, p.sort_s, Event.SORTED)
-        self.robot_job = job_id
-        self.robot_busy.append((self.now, self.now + used, job_id))
+            self.activity("robot", "sort_reject", job_id, job.state, p.sort_s, Event.SORTED)
 
     def dispatch(self) -> None:
-        """Give the free robot its next action; admit a new blank when nothing else waits."""
+        """Give the free robot its next action; pick a new blank when the machine is empty."""
         if self.robot_job is not None:
             return
         ready = [w for w in self.waiting if w[1] != "load" or self.machine_job is None]
@@ -358,11 +446,12 @@ class _Sim:
             self.waiting.remove((job_id, action, seq))
             self.start_robot(job_id, action)
             return
-        # at most one blank ahead of the machine (in the rack, on the robot or on the nest)
+        # one gripper and no staging nest: a blank is picked only when it can go into the vise
         ahead = [j for j in self.cell.jobs if j.state in _AHEAD
                  or (j.state in (State.FAULT, State.RECOVER) and j.fault_state in _AHEAD)]
-        if self.cell.queue and not ahead:
+        if self.cell.queue and not ahead and self.machine_job is None:
             self.cell, job_id = admit(self.cell)
+            self.jobs[job_id] = self.cell.job(job_id).order
             self.deliver(job_id, Event.START)
             self.dispatch()
 
@@ -385,7 +474,8 @@ class _Sim:
     def result(self) -> SimulationResult:
         makespan = self.now
         good = sum(p.good for p in self.cell.orders)
-        robot = sum(e - s for s, e, _ in self.robot_busy)
+        robot = sum(a.end - a.start for a in self.activities if a.resource == "robot"
+                    or (a.resource == "camera" and a.action == "locate"))
         outcomes = tuple(OrderOutcome(p.order.id, str(p.order.part), p.order.quantity, p.good, p.rejected,
                                       p.outcome or "failed", p.reason)
                          for p in sorted(self.cell.orders, key=lambda p: self.rank[p.order.id]))
@@ -404,5 +494,6 @@ class _Sim:
             "recoveries": self.cell.recoveries,
             "failures": self.cell.failures,
         }
-        return SimulationResult(tuple(self.log), outcomes, summary, tuple(self.robot_busy),
-                                tuple(self.machine_hold))
+        activities = tuple(sorted(self.activities, key=lambda a: (a.start, a.end)))
+        return SimulationResult(tuple(self.log), outcomes, summary, activities, tuple(self.machine_hold),
+                                dict(self.jobs))

@@ -7,10 +7,10 @@ Each blank the cell works on is a *job*, one unit of an order. A job walks throu
 knows about time or resources: :mod:`robotprog.cellsim` decides when events happen, and
 runs several jobs at once (the robot fetches the next blank while the machine cuts).
 
-Blank flow: ``FETCH_RAW`` = the camera locates the blank in its rack slot, the robot picks
-it and sets it on the staging nest by the machine; ``LOAD`` = staging nest → vise;
-``MACHINING`` = the program runs; ``UNLOAD`` = vise → inspection station; ``INSPECT`` = the
-camera checks the part; ``SORT`` = to the out-tray (good) or the reject bin.
+Blank flow: ``FETCH_RAW`` = the rack camera locates the blank in its slot and the robot picks
+it; ``LOAD`` = into the vise; ``MACHINING`` = the program runs; ``UNLOAD`` = vise → out-tray;
+``INSPECT`` = the out-tray camera checks the part; ``SORT`` = a good part stays in the out-tray,
+a rejected one goes to the reject bin.
 
 Faults and their recoveries (each fault ends as exactly one recovery or one failure):
 

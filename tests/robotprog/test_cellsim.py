@@ -11,8 +11,10 @@ from robotprog.orders import Order
 from robotprog.scheduler import SchedulerOptions, State
 
 A, B = Path("a.stl"), Path("b.stl")
-PROC_A = PartProcess(fetch_s=12.0, load_s=15.0, machining_s=300.0, unload_s=14.0, camera_s=2.0, sort_s=5.0)
-PROC_B = PartProcess(fetch_s=10.0, load_s=16.0, machining_s=20.0, unload_s=15.0, camera_s=3.0, sort_s=6.0)
+PROC_A = PartProcess(fetch_s=12.0, load_s=15.0, machining_s=300.0, unload_s=14.0, locate_s=2.0, inspect_s=2.5,
+                     sort_s=5.0, regrasp_s=3.0)
+PROC_B = PartProcess(fetch_s=10.0, load_s=16.0, machining_s=20.0, unload_s=15.0, locate_s=3.0, inspect_s=40.0,
+                     sort_s=6.0, regrasp_s=2.0)
 
 
 def _orders(n, part=A, quantity=1):
@@ -22,17 +24,27 @@ def _orders(n, part=A, quantity=1):
 def _check_invariants(result):
     times = [e.time for e in result.log]
     assert times == sorted(times), "time went backwards"
-    for intervals in (result.robot_intervals, result.machine_intervals):
-        spans = sorted((s, e) for s, e, _ in intervals)
+    robot = [(a.start, a.end) for a in result.activities if a.resource == "robot"
+             or (a.resource == "camera" and a.action == "locate")]  # the robot waits for the rack camera
+    machine = [(a.start, a.end) for a in result.activities if a.resource == "machine"]
+    for intervals in (robot, machine, [(s, e) for s, e, _ in result.machine_intervals]):
+        spans = sorted(intervals)
         assert all(s <= e for s, e in spans)
         assert all(e0 <= s1 + 1e-9 for (_, e0), (s1, _) in zip(spans, spans[1:])), "resource double-booked"
+    # the gripper holds one thing: a picked blank goes straight into the vise
+    acts = sorted((a for a in result.activities if a.resource == "robot"), key=lambda a: a.start)
+    for a, b in zip(acts, acts[1:]):
+        if a.action == "fetch" and a.outcome == "fetched":
+            assert b.action == "load" and b.job == a.job and b.start == pytest.approx(a.end)
+    for a in result.activities:
+        assert 0.0 <= a.fraction <= 1.0
     assert all(o.outcome in ("done", "rejected", "failed") and o.reason for o in result.outcomes)
     s = result.summary
     assert sum(s["faults"].values()) == s["recoveries"] + s["failures"]
     assert 0 <= s["robot_utilisation"] <= 1 and 0 <= s["machine_utilisation"] <= 1
 
 
-@pytest.mark.parametrize("proc", [PROC_A, PROC_B], ids=["machine-bound", "robot-bound"])
+@pytest.mark.parametrize("proc", [PROC_A, PROC_B], ids=["long-cut", "long-inspection"])
 def test_no_faults_steady_state_cycle(proc):
     n = 12
     result = simulate(_orders(n), {A: proc})
@@ -40,18 +52,14 @@ def test_no_faults_steady_state_cycle(proc):
     s = result.summary
     assert s["parts_good"] == n and s["orders"] == {"done": n, "rejected": 0, "failed": 0}
     assert s["faults"] == {} and s["recoveries"] == s["failures"] == 0
-    # parts leave one per bottleneck cycle once the pipeline is full
+    # parts leave one per cycle: pick, load, cut, unload; inspection overlaps the next cut
     ends = sorted(e.time for e in result.log if e.event == "sorted")
-    cycle = max(proc.machine_s, proc.robot_s)
-    # (the last part drains faster: no next blank to fetch)
-    gaps = [b - a for a, b in zip(ends[2:-1], ends[3:-1])]
-    assert gaps == pytest.approx([cycle] * len(gaps))
+    gaps = [b - a for a, b in zip(ends, ends[1:])]
+    assert gaps == pytest.approx([proc.cycle_s] * (n - 1))
+    assert s["makespan_s"] == pytest.approx(n * proc.cycle_s + proc.inspect_s)
     assert s["machine_utilisation"] == pytest.approx(n * proc.machining_s / s["makespan_s"], abs=1e-4)
     assert s["robot_utilisation"] == pytest.approx(n * proc.robot_s / s["makespan_s"], abs=1e-4)
     assert s["parts_per_hour"] == pytest.approx(3600 * n / s["makespan_s"], rel=1e-3)
-    # pipelining beats running one part at a time
-    assert s["makespan_s"] < n * (proc.robot_s + proc.machining_s)
-    assert s["makespan_s"] >= n * cycle
 
 
 def test_machine_holds_part_from_load_to_unload():
@@ -102,7 +110,7 @@ def test_bad_inputs():
     with pytest.raises(SchedulerError):
         FaultModel(grasp_miss=1.5)
     with pytest.raises(SchedulerError):
-        PartProcess(fetch_s=-1, load_s=1, machining_s=1, unload_s=1, camera_s=1)
+        PartProcess(fetch_s=-1, load_s=1, machining_s=1, unload_s=1, locate_s=1, inspect_s=1, sort_s=1)
 
 
 _p = st.floats(0.0, 0.6)
@@ -125,5 +133,6 @@ def test_nothing_is_lost(seed, grasp, found, alarm, inspect, quantities):
             assert outcome.rejected >= SchedulerOptions().remakes + 1
     # every robot action and machine hold belongs to a job that appears in the log
     jobs = {e.job for e in result.log}
-    assert {j for *_, j in result.robot_intervals} <= jobs
+    assert {a.job for a in result.activities} <= jobs
     assert {j for *_, j in result.machine_intervals} <= jobs
+    assert set(result.jobs) == jobs - {0}
