@@ -108,10 +108,13 @@ def compute_job(req: CamRequest, bars: StageProgress, watch: Stopwatch) -> Plann
     return PlannedPart(job, loaded, part_work)
 
 
-def log_job(log: McapLog, planned: PlannedPart) -> None:
-    """Views of the job for Foxglove, and the job itself as an attachment for ``factory gcode``."""
+def log_job(log: McapLog, planned: PlannedPart, transform_world_to_work: np.ndarray | None = None) -> None:
+    """Views of the job for Foxglove, and the job itself as an attachment for ``factory gcode``.
+
+    ``transform_world_to_work``: pose of the work frame in ``world`` [m] (default identity)."""
     part = planned.part_work
-    for topic, msg, latched in job_messages(planned.job, np.asarray(part.vertices), np.asarray(part.faces)):
+    for topic, msg, latched in job_messages(planned.job, np.asarray(part.vertices), np.asarray(part.faces),
+                                            transform_world_to_work=transform_world_to_work):
         log.write(topic, msg, 0, latched=latched)
     log.attach(JOB_ATTACHMENT, "application/json", json.dumps(planned.job.to_dict()).encode())
 

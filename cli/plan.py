@@ -17,7 +17,7 @@ from cli import cam
 from cli.common import (EXIT_VERIFY_FAILED, JsonFlag, Overwrite, Quiet, Stopwatch, print_json, progress_bars,
                         reports_errors, setup_logging, sha256_file, stderr)
 from cli.gcode import ArcTolOpt, PostOpt, program_summary
-from cli.robot import plan_cell, program_texts, write_robot_mcap
+from cli.robot import log_tending, plan_cell, program_texts
 from cli.verify import log_simulation, report_text, run_verify, write_verify_outputs
 from factory.atomic import check_writable, write_bytes, write_text
 from factory.mcaplog import McapLog
@@ -42,7 +42,6 @@ def plan_outputs(part: Path, out_dir: Path, robot_lang: str | None = "urscript")
         "summary": stem.with_suffix(".plan.json"),
     }
     if robot_lang is not None:
-        outputs["robot_mcap"] = stem.with_suffix(".robot.mcap")
         outputs["robot_program"] = stem.with_suffix(PROGRAM_SUFFIX[robot_lang])
         if robot_lang == "krl":
             outputs["robot_program_dat"] = stem.with_suffix(".dat")
@@ -110,15 +109,25 @@ def plan(
         write_verify_outputs(sim, report, png=outputs["verify_png"], json_path=outputs["verify_json"], mcap=None,
                              overwrite=overwrite, inputs={})
         write_bytes(outputs["toolpath_png"], png_bytes(toolpath_image(job)), overwrite=overwrite)
-        with McapLog(outputs["mcap"], stage="plan", overwrite=overwrite,
-                     inputs={str(part): planned.loaded.sha256}, parameters=job.parameters) as log:
-            cam.log_job(log, planned)
-            log_simulation(log, sim)
+        inputs = {str(part): planned.loaded.sha256}
+        parameters = dict(job.parameters)
         if tending is not None:
+            inputs[str(robot_cell)] = sha256_file(robot_cell)
+            parameters["robot"] = {"cell": tending[0].name, "robot": tending[1].robot.name,
+                                   "durations_s": {n: round(d, 4) for n, d in tending[2].durations}}
             for path, text in robot_texts.items():
                 write_text(path, text, overwrite=overwrite)
-            write_robot_mcap(outputs["robot_mcap"], *tending, overwrite=overwrite,
-                             inputs={str(robot_cell): sha256_file(robot_cell), str(part): planned.loaded.sha256})
+        # One log of the whole plan: with a robot, the work frame sits in the cell's vise.
+        with McapLog(outputs["mcap"], stage="plan", overwrite=overwrite, inputs=inputs,
+                     parameters=parameters) as log:
+            world_work = None
+            if tending is not None:
+                cell, _, tplan = tending
+                world_work = cell.vise.pose.matrix() @ tplan.stock.transform_vise_to_work
+            cam.log_job(log, planned, world_work)
+            log_simulation(log, sim)
+            if tending is not None:
+                log_tending(log, *tending)
 
     summary = {
         "part": str(part),

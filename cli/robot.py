@@ -77,71 +77,102 @@ def link_frames(world: CollisionWorld) -> list[tuple[str, int]]:
 def write_robot_mcap(path: Path, cell: Cell, world: CollisionWorld, plan: TendingPlan, *, overwrite: bool,
                      inputs: dict[str, str]) -> int:
     """Write the plan's MCAP log; returns the number of joint-state samples."""
+    with McapLog(path, stage="robot", overwrite=overwrite, inputs=inputs,
+                 parameters={"cell": cell.name, "robot": world.robot.name,
+                             "durations_s": {n: round(d, 4) for n, d in plan.durations}}) as m:
+        return log_tending(m, cell, world, plan)
+
+
+def read_urdf(world: CollisionWorld) -> str:
+    """The robot's URDF text, for /robot_description."""
+    try:
+        return Path(world.robot.urdf).read_text(encoding="utf-8")
+    except OSError as e:
+        raise CellError(f"cannot read URDF: {e.strerror}", source=world.robot.urdf) from None
+
+
+def log_cell(m: McapLog, cell: Cell, world: CollisionWorld) -> None:
+    """The cell at time 0: /robot_description, /tf_static (robot base, TCP, vise, rack, out-tray)
+    and /cell/boxes, all latched."""
+    robot = world.robot
+    m.write("/robot_description", string_msg(read_urdf(world)), 0, latched=True)
+    static = [
+        transform_stamped("world", robot.base_frame, cell.robot.base.matrix(), 0),
+        transform_stamped(robot.flange_frame, "tcp", cell.gripper.tcp.matrix(), 0),
+        transform_stamped("world", "vise", cell.vise.pose.matrix(), 0),
+        transform_stamped("world", "rack", cell.rack.pose.matrix(), 0),
+        transform_stamped("world", "out_tray", cell.out_tray.pose.matrix(), 0),
+    ]
+    m.write("/tf_static", tf_message(static), 0, latched=True)
+    markers = []
+    for k, b in enumerate(cell_static_boxes(cell, door_closed=False)):
+        mk = cube_marker("cell", k, b.pose.xyz, b.size, (0.6, 0.6, 0.65, 0.5), "world", 0)
+        qx, qy, qz, qw = _quat(b.pose.matrix())
+        mk.pose = _Pose(position=_Point(x=b.pose.xyz[0], y=b.pose.xyz[1], z=b.pose.xyz[2]),
+                        orientation=_Quaternion(x=qx, y=qy, z=qz, w=qw))
+        mk.text = b.name
+        markers.append(mk)
+    m.write("/cell/boxes", marker_array(markers), 0, latched=True)
+
+
+class RobotStateLog:
+    """Writes /joint_states and the links' /tf for configurations of one robot."""
+
+    def __init__(self, m: McapLog, world: CollisionWorld):
+        self.m = m
+        self.robot = world.robot
+        self.names = list(self.robot.joint_names)
+        self.data = self.robot.model.createData()
+        self.frames = link_frames(world)
+        self.base_id = self.robot.model.getFrameId(self.robot.base_frame)
+
+    def write(self, q: np.ndarray, qd: np.ndarray, stamp_ns: int) -> None:
+        """One sample: q [rad], qd [rad/s] at ``stamp_ns``."""
+        model, data, base = self.robot.model, self.data, self.robot.base_frame
+        self.m.write("/joint_states", _JointState(header=_Header(stamp=ros_time(stamp_ns), frame_id=""),
+                                                  name=self.names, position=np.asarray(q, dtype=float),
+                                                  velocity=np.asarray(qd, dtype=float), effort=np.zeros(0)),
+                     stamp_ns)
+        pin.framesForwardKinematics(model, data, np.asarray(q, dtype=float))
+        ob = data.oMf[self.base_id]
+        self.m.write("/tf", tf_message([transform_stamped(base, name, ob.actInv(data.oMf[i]).homogeneous, stamp_ns)
+                                        for name, i in self.frames]), stamp_ns)
+
+
+def log_tending(m: McapLog, cell: Cell, world: CollisionWorld, plan: TendingPlan) -> int:
+    """Write the cell and the plan's motion (from time 0) into an open log; returns the number of
+    joint-state samples."""
     robot = world.robot
     names = list(robot.joint_names)
     base = robot.base_frame
-    model, data = robot.model, robot.model.createData()
-    frames = link_frames(world)
-    try:
-        urdf_text = Path(robot.urdf).read_text(encoding="utf-8")
-    except OSError as e:
-        raise CellError(f"cannot read URDF: {e.strerror}", source=robot.urdf) from None
-    with McapLog(path, stage="robot", overwrite=overwrite, inputs=inputs,
-                 parameters={"cell": cell.name, "robot": robot.name,
-                             "durations_s": {n: round(d, 4) for n, d in plan.durations}}) as m:
-        m.write("/robot_description", string_msg(urdf_text), 0, latched=True)
-        static = [
-            transform_stamped("world", base, cell.robot.base.matrix(), 0),
-            transform_stamped(robot.flange_frame, "tcp", cell.gripper.tcp.matrix(), 0),
-            transform_stamped("world", "vise", cell.vise.pose.matrix(), 0),
-            transform_stamped("world", "rack", cell.rack.pose.matrix(), 0),
-            transform_stamped("world", "out_tray", cell.out_tray.pose.matrix(), 0),
-        ]
-        m.write("/tf_static", tf_message(static), 0, latched=True)
-        markers = []
-        for k, b in enumerate(cell_static_boxes(cell, door_closed=False)):
-            mk = cube_marker("cell", k, b.pose.xyz, b.size, (0.6, 0.6, 0.65, 0.5), "world", 0)
-            qx, qy, qz, qw = _quat(b.pose.matrix())
-            mk.pose = _Pose(position=_Point(x=b.pose.xyz[0], y=b.pose.xyz[1], z=b.pose.xyz[2]),
-                            orientation=_Quaternion(x=qx, y=qy, z=qz, w=qw))
-            mk.text = b.name
-            markers.append(mk)
-        m.write("/cell/boxes", marker_array(markers), 0, latched=True)
-
-        t0 = 0.0
-        n_states = 0
-        for mv in plan.moves:
-            traj = mv.trajectory
-            if mv.kind != "gripper":
-                ts = np.arange(0.0, traj.duration, 1.0 / TRAJECTORY_RATE_HZ)
-                ts = np.append(ts, traj.duration)
-                q, qd, qdd = traj.sample(ts)
-                pts = [_JointTrajectoryPoint(positions=q[i].astype(float), velocities=qd[i].astype(float),
-                                             accelerations=qdd[i].astype(float), effort=np.zeros(0),
-                                             time_from_start=_duration(float(ts[i]))) for i in range(len(ts))]
-                m.write("/robot/trajectory", _JointTrajectory(
-                    header=_Header(stamp=ros_time(_ns(t0)), frame_id=base), joint_names=names, points=pts),
-                    _ns(t0))
-            m.write("/robot/events", string_msg(mv.name), _ns(t0))
-            dur = mv.duration
-            ts = np.arange(0.0, dur, 1.0 / STATE_RATE_HZ)
-            if mv is plan.moves[-1]:
-                ts = np.append(ts, dur)
-            for t in ts:
-                q, qd, _ = traj.sample(min(float(t), traj.duration))
-                if mv.kind == "gripper":
-                    qd = np.zeros_like(qd)
-                stamp = _ns(t0 + float(t))
-                m.write("/joint_states", _JointState(header=_Header(stamp=ros_time(stamp), frame_id=""),
-                                                      name=names, position=q.astype(float),
-                                                      velocity=qd.astype(float), effort=np.zeros(0)), stamp)
-                pin.framesForwardKinematics(model, data, q)
-                ob = data.oMf[model.getFrameId(base)]
-                tfs = [transform_stamped(base, name, ob.actInv(data.oMf[i]).homogeneous, stamp)
-                       for name, i in frames]
-                m.write("/tf", tf_message(tfs), stamp)
-                n_states += 1
-            t0 += dur
+    log_cell(m, cell, world)
+    states = RobotStateLog(m, world)
+    t0 = 0.0
+    n_states = 0
+    for mv in plan.moves:
+        traj = mv.trajectory
+        if mv.kind != "gripper":
+            ts = np.arange(0.0, traj.duration, 1.0 / TRAJECTORY_RATE_HZ)
+            ts = np.append(ts, traj.duration)
+            q, qd, qdd = traj.sample(ts)
+            pts = [_JointTrajectoryPoint(positions=q[i].astype(float), velocities=qd[i].astype(float),
+                                         accelerations=qdd[i].astype(float), effort=np.zeros(0),
+                                         time_from_start=_duration(float(ts[i]))) for i in range(len(ts))]
+            m.write("/robot/trajectory", _JointTrajectory(
+                header=_Header(stamp=ros_time(_ns(t0)), frame_id=base), joint_names=names, points=pts),
+                _ns(t0))
+        m.write("/robot/events", string_msg(mv.name), _ns(t0))
+        dur = mv.duration
+        ts = np.arange(0.0, dur, 1.0 / STATE_RATE_HZ)
+        if mv is plan.moves[-1]:
+            ts = np.append(ts, dur)
+        for t in ts:
+            q, qd, _ = traj.sample(min(float(t), traj.duration))
+            if mv.kind == "gripper":
+                qd = np.zeros_like(qd)
+            states.write(q, qd, _ns(t0 + float(t)))
+            n_states += 1
+        t0 += dur
     return n_states
 
 

@@ -113,6 +113,7 @@ def job_messages(
     part_faces: np.ndarray,
     stamp_ns: int = 0,
     style: ViewStyle = ViewStyle(),
+    transform_world_to_work: np.ndarray | None = None,
 ) -> list[tuple[str, object, bool]]:
     """The messages that show a CAM job in Foxglove: ``(topic, message, latched)`` tuples.
 
@@ -127,6 +128,9 @@ def job_messages(
     stamp_ns : int
         Header stamp of every message [ns] (0 for a timeless plan).
     style : ViewStyle
+    transform_world_to_work : (4, 4) float, optional
+        Pose of the work frame in ``world`` [m] (the part in the vise of a robot cell);
+        default identity.
 
     Returns
     -------
@@ -134,7 +138,8 @@ def job_messages(
         ``/tf_static``, ``/cam/toolpath``, ``/cam/part`` (only if the mesh has faces) and
         ``/cam/stock``, all latched, all points in metres in frame ``work``.
     """
-    world_work = transform_stamped(WORLD_FRAME, WORK_FRAME, np.eye(4), stamp_ns)
+    pose = np.eye(4) if transform_world_to_work is None else transform_world_to_work
+    world_work = transform_stamped(WORLD_FRAME, WORK_FRAME, pose, stamp_ns)
     msgs: list[tuple[str, object, bool]] = [
         ("/tf_static", tf_message([world_work]), True),
         ("/cam/toolpath", marker_array(toolpath_markers(job, stamp_ns, style)), True),

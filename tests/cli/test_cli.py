@@ -14,6 +14,7 @@ import trimesh
 from typer.testing import CliRunner
 
 from cli.main import app
+from cli.plan import plan_outputs
 from tests.cli.expect import assert_one_line_error
 
 runner = CliRunner()
@@ -105,8 +106,24 @@ def test_plan_writes_everything(tmp_path):
     assert r.exit_code == 0, r.output
     summary = json.loads(r.stdout)
     for key in ("program", "setup_sheet", "mcap", "verify_json", "verify_png", "toolpath_png", "summary",
-                "robot_mcap", "robot_program"):
+                "robot_program"):
         assert Path(summary["outputs"][key]).is_file(), key
+    assert set(summary["outputs"]) == set(plan_outputs(part, out))
+    # one MCAP of the whole plan: CAM, verify and robot, with the work frame in the cell's vise
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(summary["outputs"]["mcap"], "rb") as f:
+        msgs = list(make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages())
+    topics = {ch.topic for _, ch, _, _ in msgs}
+    assert {"/cam/toolpath", "/verify/stock", "/robot_description", "/joint_states", "/tf"} <= topics
+    static = [t for _, ch, _, m in msgs if ch.topic == "/tf_static" for t in m.transforms]
+    work = next(t for t in static if t.child_frame_id == "work")
+    vise = next(t for t in static if t.child_frame_id == "vise")
+    assert work.header.frame_id == "world"
+    # the stock's top face (work z = 0) is above the vise's parallels
+    assert work.transform.translation.z > vise.transform.translation.z
+    assert abs(work.transform.translation.x - vise.transform.translation.x) < 0.1
     script = Path(summary["outputs"]["robot_program"]).read_text()
     assert "movej(" in script and "set_standard_digital_out(" in script
     assert summary["robot"]["motion_s"] > 0
@@ -197,7 +214,7 @@ def test_plan_without_robot_writes_no_robot_files(small_part, tmp_path):
     out = tmp_path / "out"
     r = run("plan", small_part, "-o", out, "--no-robot", "--scallop", "0.05", "--quiet")
     assert r.exit_code == 0, r.output
-    assert not list(out.glob("*.robot.mcap")) and not list(out.glob("*.script"))
+    assert not list(out.glob("*.script"))
 
 
 def test_plan_with_a_broken_cell_writes_nothing(small_part, tmp_path):
