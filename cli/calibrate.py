@@ -18,6 +18,7 @@ from factory.atomic import check_writable, write_bytes, write_text
 from factory.errors import CalibrationError, VisionError
 from factory.mcaplog import TYPESTORE, McapLog, ros_time
 from vision.board import BOARD_SYNTAX, BoardSpec
+from vision.camera import CameraModel
 from vision.calibrate import CalibrationResult, Detection, calibrate as run_calibration, detect
 from vision.report import bgr_png_bytes, report_image
 
@@ -96,11 +97,11 @@ def detect_all(files: list[Path], board: BoardSpec, progress: Callable[[int, int
     return detections, missing, images
 
 
-def _header(stamp_ns: int) -> Any:
-    return _T["std_msgs/msg/Header"](stamp=ros_time(stamp_ns), frame_id=FRAME)
+def _header(stamp_ns: int, frame_id: str = FRAME) -> Any:
+    return _T["std_msgs/msg/Header"](stamp=ros_time(stamp_ns), frame_id=frame_id)
 
 
-def compressed_image_msg(data: bytes, name: str, image: np.ndarray, stamp_ns: int) -> Any:
+def compressed_image_msg(data: bytes, name: str, image: np.ndarray, stamp_ns: int, frame_id: str = FRAME) -> Any:
     """``sensor_msgs/CompressedImage``: the file's own JPEG/PNG bytes, or PNG re-encoded."""
     suffix = Path(name).suffix.lower()
     if suffix in (".jpg", ".jpeg"):
@@ -109,7 +110,7 @@ def compressed_image_msg(data: bytes, name: str, image: np.ndarray, stamp_ns: in
         fmt = "png"
     else:
         fmt, data = "png", bgr_png_bytes(image)
-    return _T["sensor_msgs/msg/CompressedImage"](header=_header(stamp_ns), format=fmt,
+    return _T["sensor_msgs/msg/CompressedImage"](header=_header(stamp_ns, frame_id), format=fmt,
                                                  data=np.frombuffer(data, np.uint8).copy())
 
 
@@ -126,12 +127,11 @@ def corners_marker_msg(det: Detection, stamp_ns: int) -> Any:
         outline_colors=[])
 
 
-def camera_info_msg(result: CalibrationResult, stamp_ns: int) -> Any:
-    """``sensor_msgs/CameraInfo`` of the calibrated camera."""
-    cam = result.camera
+def camera_info_msg(cam: CameraModel, stamp_ns: int, frame_id: str = FRAME) -> Any:
+    """``sensor_msgs/CameraInfo`` of a camera."""
     roi = _T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
     return _T["sensor_msgs/msg/CameraInfo"](
-        header=_header(stamp_ns), height=cam.image_size[1], width=cam.image_size[0],
+        header=_header(stamp_ns, frame_id), height=cam.image_size[1], width=cam.image_size[0],
         distortion_model=cam.model, d=np.array(cam.dist, dtype=np.float64), k=cam.K.reshape(-1).copy(),
         r=np.eye(3).reshape(-1), p=cam.P.reshape(-1).copy(), binning_x=0, binning_y=0, roi=roi)
 
@@ -148,7 +148,7 @@ def write_mcap(path: Path, result: CalibrationResult, images: dict[str, tuple[np
             m.write("/camera/image_raw/compressed", compressed_image_msg(data, name, image, t), t)
             if name in found:
                 m.write("/camera/corners", corners_marker_msg(found[name], t), t)
-            m.write("/camera/camera_info", camera_info_msg(result, t), t)
+            m.write("/camera/camera_info", camera_info_msg(result.camera, t), t)
 
 
 def summary_text(result: CalibrationResult) -> str:

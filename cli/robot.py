@@ -27,6 +27,7 @@ from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, marker_array, ros_
 from robotprog.cell import Cell, load_cell
 from robotprog.collision import CollisionWorld, cell_static_boxes, collision_world
 from robotprog.frames import setup_sheet_to_cell
+from robotprog.robots import example_robot_data_dir
 from robotprog.krl import krl_program
 from robotprog.rapid import rapid_module
 from robotprog.tending import TendingPlan, part_box_in_vise, plan_tending
@@ -84,11 +85,18 @@ def write_robot_mcap(path: Path, cell: Cell, world: CollisionWorld, plan: Tendin
 
 
 def read_urdf(world: CollisionWorld) -> str:
-    """The robot's URDF text, for /robot_description."""
+    """The robot's URDF text, for /robot_description.
+
+    ``package://example-robot-data/`` mesh paths become ``file://`` paths into the installed
+    package: a viewer without a ROS package path (Foxglove) finds the meshes on this machine."""
     try:
-        return Path(world.robot.urdf).read_text(encoding="utf-8")
+        text = Path(world.robot.urdf).read_text(encoding="utf-8")
     except OSError as e:
         raise CellError(f"cannot read URDF: {e.strerror}", source=world.robot.urdf) from None
+    if "package://example-robot-data/" in text:
+        share = example_robot_data_dir() / "example-robot-data"
+        text = text.replace("package://example-robot-data/", share.as_uri() + "/")
+    return text
 
 
 def log_cell(m: McapLog, cell: Cell, world: CollisionWorld) -> None:

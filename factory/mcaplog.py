@@ -404,6 +404,27 @@ def read_attachment(path: str | Path, name: str) -> bytes:
     raise McapError(f"no attachment named {name!r}", source=p)
 
 
+def read_messages(path: str | Path, topics: Iterable[str]) -> list[tuple[str, int, Any]]:
+    """``(topic, log_time [ns], message)`` of every message on ``topics``, in log-time order,
+    decoded into rosbags message objects.
+
+    Raises
+    ------
+    McapError
+        (``source=path``) The file cannot be opened, is not MCAP, or a message does not decode.
+    """
+    wanted = set(topics)
+    out = []
+    with _open_reader(path) as (p, _, reader):
+        try:
+            for schema, channel, message in reader.iter_messages(topics=list(wanted), log_time_order=True):
+                out.append((channel.topic, int(message.log_time),
+                            TYPESTORE.deserialize_cdr(message.data, schema.name)))
+        except _READ_ERRORS as e:
+            raise McapError(f"corrupt MCAP file ({e.__class__.__name__}: {e})", source=p) from None
+    return out
+
+
 def read_metadata(path: str | Path, name: str = FACTORY_METADATA) -> dict[str, str]:
     """The key-value map of metadata record ``name`` (default: the ``factory`` record).
 
@@ -654,6 +675,6 @@ __all__ = [
     "FACTORY_METADATA", "ROS_DISTRO", "TYPESTORE", "McapLog", "cube_marker",
     "line_list_marker", "line_strip_marker", "log_msg", "marker_array", "message_definition",
     "offered_qos_profiles",
-    "read_attachment", "read_metadata", "ros_time", "string_msg", "tf_message", "transform_stamped",
+    "read_attachment", "read_messages", "read_metadata", "ros_time", "string_msg", "tf_message", "transform_stamped",
     "triangle_mesh_marker",
 ]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -77,7 +78,11 @@ def test_robot_writes_mcap_and_urscript(run):
         by_topic: dict[str, list] = {}
         for conn, t, raw in reader.messages():
             by_topic.setdefault(conn.topic, []).append((t, reader.deserialize(raw, conn.msgtype)))
-    assert "<robot" in by_topic["/robot_description"][0][1].data
+    urdf = by_topic["/robot_description"][0][1].data
+    assert "<robot" in urdf
+    # mesh paths a viewer without ROS can open: file:// URIs of meshes that exist
+    meshes = re.findall(r'<mesh filename="([^"]+)"', urdf)
+    assert meshes and all(m.startswith("file://") and Path(m[len("file://"):]).is_file() for m in meshes)
     states = by_topic["/joint_states"]
     assert len(states) == pytest.approx(total * 50, abs=20)
     times = [t for t, _ in states]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
+from mcap.writer import Writer
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import QosDurability
@@ -20,12 +22,14 @@ from scipy.spatial.transform import Rotation
 import factory
 from factory.errors import McapError, OutputExistsError
 from factory.mcaplog import (
+    TYPESTORE,
     McapLog,
     cube_marker,
     line_list_marker,
     line_strip_marker,
     log_msg,
     marker_array,
+    message_definition,
     offered_qos_profiles,
     read_attachment,
     read_metadata,
@@ -35,6 +39,7 @@ from factory.mcaplog import (
     transform_stamped,
     triangle_mesh_marker,
 )
+from tests.mcapcheck import check_rosbag2_mcap
 
 STRIP = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, -0.001], [0.01, 0.02, -0.001], [0.0, 0.02, 0.005]])
 SEGMENTS = np.array([[0.0, 0.0, 0.01], [0.03, 0.0, 0.01], [0.03, 0.0, 0.01], [0.03, 0.03, 0.02]])
@@ -287,3 +292,51 @@ def test_qos_yaml_parses() -> None:
     (latched,) = yaml.safe_load(offered_qos_profiles(True))
     assert latched["durability"] == "transient_local" and latched["depth"] == 1
     assert latched["deadline"] == {"sec": 9223372036, "nsec": 854775807}
+
+
+# --- the rosbag2 check every MCAP-writing test uses (tests/mcapcheck.py) ----------------------
+
+
+def test_rosbag2_check_accepts_what_mcaplog_writes(sample: Path) -> None:
+    counts = check_rosbag2_mcap(sample, latched_topics=("/tf_static", "/cam/toolpath"))
+    assert counts == {"/tf_static": 1, "/cam/toolpath": 1, "/status": 1, "/rosout": 2}
+
+
+def write_raw(path: Path, *, profile: str = "ros2", message_encoding: str = "cdr", qos: bool = True,
+              latched: bool = True, statistics: bool = True, data: bytes | None = None) -> None:
+    """One /tf_static message written with the bare mcap writer, one requirement broken at a time."""
+    schema_text = message_definition("tf2_msgs/msg/TFMessage")
+    if data is None:
+        msg = tf_message([transform_stamped("world", "work", WORK_IN_WORLD, 0)])
+        data = bytes(TYPESTORE.serialize_cdr(msg, "tf2_msgs/msg/TFMessage"))
+    metadata = {"offered_qos_profiles": offered_qos_profiles(latched)} if qos else {}
+    with open(path, "wb") as f:
+        w = Writer(f, use_statistics=statistics)
+        w.start(profile=profile, library="test")
+        sid = w.register_schema(name="tf2_msgs/msg/TFMessage", encoding="ros2msg", data=schema_text.encode())
+        cid = w.register_channel(topic="/tf_static", message_encoding=message_encoding, schema_id=sid,
+                                 metadata=metadata)
+        w.add_message(channel_id=cid, log_time=5, publish_time=5, data=data, sequence=0)
+        w.finish()
+
+
+def test_rosbag2_check_accepts_the_bare_writer_when_nothing_is_broken(tmp_path: Path) -> None:
+    path = tmp_path / "good.mcap"
+    write_raw(path)
+    assert check_rosbag2_mcap(path) == {"/tf_static": 1}
+
+
+@pytest.mark.parametrize("broken, message", [
+    ({"message_encoding": "json"}, "message encoding 'json', not 'cdr'"),
+    ({"qos": False}, "no 'offered_qos_profiles' metadata"),
+    ({"latched": False}, "not transient_local"),
+    ({"profile": ""}, "profile is '', not 'ros2'"),
+    ({"statistics": False}, "no Statistics record"),
+    ({"data": b"\x00\x01\x00\x00\xff\xff\xff\x7f"}, "cannot decode"),
+])
+def test_rosbag2_check_rejects_a_broken_file(tmp_path: Path, broken: dict, message: str) -> None:
+    path = tmp_path / "bad.mcap"
+    write_raw(path, **broken)
+    with pytest.raises(AssertionError, match=re.escape(message)) as e:
+        check_rosbag2_mcap(path)
+    assert str(path) in str(e.value)
