@@ -153,6 +153,41 @@ class Program:
     moves_before_fitting: int
 
 
+# --------------------------------------------------------------------------- time model
+
+
+def move_seconds(length: np.ndarray | float, feed: np.ndarray | float, rapid_rate: float) -> np.ndarray:
+    """Time the cycle-time estimate gives moves: length over rate, constant speed, no acceleration.
+
+    The one time model for the post's estimate and :func:`cadcam.timeline.machine_timeline`.
+
+    Parameters
+    ----------
+    length : (n,) float or float
+        Path length of each move [mm].
+    feed : (n,) float or float
+        Feed of each move [mm/min]; NaN for a rapid.
+    rapid_rate : float
+        Rapid traverse rate [mm/min] (``PostOptions.rapid_rate``).
+
+    Returns
+    -------
+    (n,) float or 0-d float array
+        Duration of each move [s].
+    """
+    rate = np.where(np.isnan(feed), rapid_rate, feed)
+    return np.asarray(length, dtype=np.float64) / rate * 60.0
+
+
+def tool_change_seconds(first_load: bool, options: PostOptions) -> float:
+    """Time the cycle-time estimate gives one tool change [s].
+
+    Every change costs ``options.tool_change_time``, the program's first load too, except on
+    grbl: there the first tool is loaded and touched off before the start.
+    """
+    return 0.0 if first_load and options.dialect == "grbl" else options.tool_change_time
+
+
 # --------------------------------------------------------------------------- formatting
 
 _COMMENT_BAD = re.compile(r"[^ -~]")  # anything but printable ASCII
@@ -303,7 +338,7 @@ def post_process(job: Job, options: PostOptions = PostOptions(), *,
 
     w = _Writer(opt)
     estimates: list[OperationEstimate] = []
-    tool_changes = 0
+    change_time = 0.0  # [s]
     current_tool: int | None = None
     last_xy: tuple[float, float] | None = None
     moves_before = sum(max(len(op.points) - 1, 0) for op in job.operations)
@@ -316,6 +351,7 @@ def post_process(job: Job, options: PostOptions = PostOptions(), *,
         w.comment(f"op {k + 1}: {op.name} [{op.kind}] T{t} {op.tool.name}")
         rapid_len = 0.0
         if t != current_tool:
+            change_time += tool_change_seconds(current_tool is None, opt)
             if d == "grbl":
                 if current_tool is not None:
                     w.emit("M5")
@@ -324,7 +360,6 @@ def post_process(job: Job, options: PostOptions = PostOptions(), *,
                     w.comment(f"change to T{t} {op.tool.name}, set Z zero, then resume")
                     w.emit(f"T{t}")
                     w.emit("M0")
-                    tool_changes += 1
                 else:
                     w.emit(f"T{t}")
             else:
@@ -338,7 +373,6 @@ def post_process(job: Job, options: PostOptions = PostOptions(), *,
                 w.emit(f"T{t} M6")
                 if d == "linuxcnc":
                     w.emit(f"G43 H{t}")
-                tool_changes += 1
             w.forget()
             last_xy = None  # the tool change moves the spindle somewhere we do not know
         current_tool = t
@@ -365,6 +399,8 @@ def post_process(job: Job, options: PostOptions = PostOptions(), *,
                            (lambda done, _n, base=done_before: progress(base + done, moves_before)))
         moves_done += max(len(op.points) - 1, 0)
         lengths = seg.lengths()
+        feeds = np.select([seg.motion == Motion.CUT, seg.motion == Motion.PLUNGE], [c.feed, c.plunge_feed], np.nan)
+        seconds = move_seconds(lengths, feeds, opt.rapid_rate)
         cut_len = 0.0
         cut_time = 0.0
         for i in range(len(seg)):
@@ -375,7 +411,7 @@ def post_process(job: Job, options: PostOptions = PostOptions(), *,
                 continue
             feed = c.feed if m == Motion.CUT else c.plunge_feed
             cut_len += float(lengths[i])
-            cut_time += float(lengths[i]) / feed * 60.0
+            cut_time += float(seconds[i])
             kind = int(seg.kind[i])
             if kind == SegmentKind.LINE:
                 w.move(1, seg.end[i], feed)
@@ -387,14 +423,14 @@ def post_process(job: Job, options: PostOptions = PostOptions(), *,
         last_xy = (float(end[0]), float(end[1]))
         estimates.append(OperationEstimate(
             name=op.name, tool_number=t, cut_length=cut_len, rapid_length=rapid_len,
-            cut_time=cut_time, rapid_time=rapid_len / opt.rapid_rate * 60.0,
+            cut_time=cut_time, rapid_time=float(move_seconds(rapid_len, math.nan, opt.rapid_rate)),
             lines=len(w.lines) - first_line,
         ))
 
     if progress is not None:
         progress(moves_before, moves_before)
     body = w.lines
-    total = sum(e.cut_time + e.rapid_time for e in estimates) + tool_changes * opt.tool_change_time
+    total = sum(e.cut_time + e.rapid_time for e in estimates) + change_time
 
     head: list[str] = []
     if d == "fanuc":

@@ -582,6 +582,45 @@ def simulate(
         (``source`` names the G-code line, ``data["line"]`` holds it); if the part, stock
         or options are unusable.
     """
+    sim, report, _ = simulate_snapshots(moves, tools, setup, part_triangles, (), options, progress)
+    return sim, report
+
+
+def simulate_snapshots(
+    moves: ProgramMoves,
+    tools: Mapping[int, Tool],
+    setup: Setup,
+    part_triangles: np.ndarray,
+    snapshot_moves: Sequence[int],
+    options: VerifyOptions = VerifyOptions(),
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[Simulation, VerifyReport, tuple[np.ndarray, ...]]:
+    """:func:`simulate`, also keeping the stock as it was part way through, in the same pass.
+
+    Parameters
+    ----------
+    snapshot_moves : (s,) sequence of int
+        Indices into ``moves.points``: snapshot ``k`` is the stock once every move up to
+        and including the one ending at ``points[snapshot_moves[k]]`` has cut (0: the
+        uncut stock). Any order; repeats allowed.
+    moves, tools, setup, part_triangles, options, progress
+        As for :func:`simulate`.
+
+    Returns
+    -------
+    Simulation, VerifyReport
+        As :func:`simulate` returns them.
+    snapshots : tuple of s (ny, nx) float
+        Stock top at each snapshot [mm] (read-only), on ``Simulation.grid``.
+
+    Raises
+    ------
+    VerifyError
+        As :func:`simulate`; also for a snapshot index outside ``0 .. len(moves.points) - 1``.
+    """
+    snap = np.asarray(snapshot_moves, dtype=np.int64).reshape(-1)
+    if len(snap) and (snap.min() < 0 or snap.max() >= len(moves.points)):
+        raise VerifyError(f"snapshot move indices must lie in 0..{len(moves.points) - 1}", source="snapshot_moves")
     tri = _check_inputs(setup, options, part_triangles)
     grid = grid_over(setup.stock_min, setup.stock_max, options.cell)
     part_top = upper_envelope(tri, grid)
@@ -605,7 +644,10 @@ def simulate(
 
     n_moves = int(known.sum())
     done = np.cumsum(known)  # simulated moves up to and including each move, for progress
-    crashes = _run(seg, grid, stock, moves, options, progress, done[seg.move - 1] if len(seg) else done[:0], n_moves)
+    # Segments applied by each snapshot (seg.move is increasing).
+    applied = np.searchsorted(seg.move, snap, side="right")
+    crashes, stocks = _run(seg, grid, stock, moves, options, progress,
+                           done[seg.move - 1] if len(seg) else done[:0], n_moves, applied)
 
     stock_top = stock.reshape(grid.shape)
     stock_top.setflags(write=False)
@@ -614,15 +656,21 @@ def simulate(
     report = _report(
         sim, moves, tools, options, crashes, n_moves, float(length[~rapid].sum()), float(length[rapid].sum())
     )
-    return sim, report
+    snapshots = tuple(flat.reshape(grid.shape) for flat in stocks)
+    for top in snapshots:
+        top.setflags(write=False)
+    return sim, report, snapshots
 
 
 def _run(
-    seg: _Segments, grid: Grid, stock: np.ndarray, moves: ProgramMoves, options, progress, done, total_moves
-) -> list[RapidCrash]:
-    """Apply every move to ``stock`` (flat, modified in place); return the rapid crashes.
+    seg: _Segments, grid: Grid, stock: np.ndarray, moves: ProgramMoves, options, progress, done, total_moves,
+    snapshot_at: np.ndarray,
+) -> tuple[list[RapidCrash], list[np.ndarray]]:
+    """Apply every move to ``stock`` (flat, modified in place); return the rapid crashes and snapshots.
 
-    ``done[k]`` is the progress count once segment ``k`` is applied.
+    ``done[k]`` is the progress count once segment ``k`` is applied. ``snapshot_at[i]`` is a
+    number of segments: a copy of ``stock`` is taken once that many are applied (the
+    batches are split there; cuts commute, so the final stock is the same).
     """
     # Batch boundaries from an estimate of each move's grid points (its stadium's area).
     L = np.sqrt(seg.l2)
@@ -630,6 +678,9 @@ def _run(
     cum = np.cumsum(est)
     bucket = ((cum - est) // _PAIR_BUDGET).astype(np.int64)
     bounds = np.concatenate([[0], np.flatnonzero(np.diff(bucket)) + 1, [len(seg)]]).astype(np.int64)
+    bounds = np.union1d(bounds, snapshot_at)
+    wanted = set(snapshot_at.tolist())
+    taken = {0: stock.copy()} if 0 in wanted else {}  # segments applied -> stock then
 
     crashes: list[RapidCrash] = []
     for c in range(len(bounds) - 1):
@@ -638,9 +689,11 @@ def _run(
             crashes += _run_batch(seg.sub(s, e), grid, stock, moves, options)
             if progress is not None:
                 progress(int(done[e - 1]), total_moves)
+        if e in wanted:
+            taken[e] = stock.copy()
     if progress is not None:
         progress(total_moves, total_moves)
-    return crashes
+    return crashes, [taken[k] for k in snapshot_at.tolist()]
 
 
 def _run_batch(seg: _Segments, grid: Grid, stock: np.ndarray, moves: ProgramMoves, options) -> list[RapidCrash]:
