@@ -1,12 +1,21 @@
 """Silhouette inspection: does the part in the picture have the outline its mesh says it should?
 
 The part is located on the tray (:func:`vision.locate.locate_parts`, robust fit of its footprint
-prism). Its whole mesh, placed at that pose, is projected through the camera (pinhole in the
+prism). Its whole mesh, placed at a pose, is projected through the camera (pinhole in the
 normalised image plane; the picture's outline has its distortion removed instead) and the union
-of its triangles is the expected silhouette. Each point of the picture's sub-pixel outline gets
-its signed distance to that silhouette (positive outside: extra material or a burr; negative
-inside: missing material), converted to millimetres by the pixel size at the part's distance.
-The part passes when every point is within the tolerance.
+of its triangles is the expected silhouette.
+
+The prism is the full height everywhere, so a part whose top is stepped (lower tops look smaller
+in perspective) is located off by a millimetre or two. The pose is therefore refined against the
+mesh's own silhouette (:func:`refine_pose`): each piece of the silhouette ring is the projection of
+one mesh edge, so the outline is fitted (x, y, yaw on the tray, robust soft-L1 loss) to those
+edges' projections, then the silhouette is recomputed at the new pose and the fit repeated until
+the pose stops moving (a few rounds, like ICP).
+
+Each point of the picture's sub-pixel outline then gets its signed distance to the silhouette
+(positive outside: extra material or a burr; negative inside: missing material), converted to
+millimetres by the pixel size at the part's distance. The part passes when every point is within
+the tolerance.
 
 Because the pose is fitted to the same outline, a defect pulls the pose a little (the robust
 loss limits that); deviations are therefore a lower bound on the defect for large defects.
@@ -14,16 +23,23 @@ loss limits that); deviations are therefore a lower bound on the defect for larg
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 import shapely
+from scipy.optimize import least_squares
 from shapely.geometry import MultiPolygon, Polygon
 
 from factory.errors import VisionError
 from vision.camera import CameraModel
-from vision.locate import Footprint, LocatedPart, LocateOptions, locate_parts, mm_to_m
+from vision.locate import ROBUST_SCALE_PX, Footprint, LocatedPart, LocateOptions, locate_parts, mm_to_m
+
+#: A ring piece lies on a mesh edge when its midpoint is this close to the edge's projection
+#: (normalised image units; ~1e-4 px, far above the 1e-9 the silhouette is buffered by).
+_ON_EDGE = 1e-7
+#: Refinement stops when a round moves the part less than these [m], [rad].
+_STILL_M, _STILL_RAD = 1e-7, 1e-6
 
 
 @dataclass(frozen=True)
@@ -34,9 +50,13 @@ class InspectOptions:
     ----------
     tolerance : float
         Largest deviation of the outline from the expected silhouette that passes [m].
+    refine_rounds : int
+        Most rounds of :func:`refine_pose` (refit to the mesh's silhouette, recompute it); 0 keeps
+        the prism pose of :func:`vision.locate.locate_parts`.
     """
 
     tolerance: float = 1e-3
+    refine_rounds: int = 8
 
 
 @dataclass(frozen=True)
@@ -108,10 +128,7 @@ def expected_silhouette(vertices_mm: np.ndarray, faces: np.ndarray, cam_part: np
     VisionError
         Part (partly) behind the camera.
     """
-    v = mm_to_m(np.asarray(vertices_mm, dtype=np.float64)) @ cam_part[:3, :3].T + cam_part[:3, 3]
-    if (v[:, 2] <= 1e-6).any():
-        raise VisionError("part is (partly) behind the camera")
-    uv = v[:, :2] / v[:, 2:3]
+    uv = _project(mm_to_m(np.asarray(vertices_mm, dtype=np.float64)), cam_part)
     tri = uv[np.asarray(faces, dtype=np.int64)]
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
     cross = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
@@ -125,10 +142,161 @@ def expected_silhouette(vertices_mm: np.ndarray, faces: np.ndarray, cam_part: np
     return Polygon(shape.exterior)
 
 
+def _project(points_m: np.ndarray, cam_part: np.ndarray) -> np.ndarray:
+    """``(n, 2)`` points of the part [m] in the normalised image plane; VisionError if behind the camera."""
+    v = points_m @ cam_part[:3, :3].T + cam_part[:3, 3]
+    if (v[..., 2] <= 1e-6).any():
+        raise VisionError("part is (partly) behind the camera")
+    return v[..., :2] / v[..., 2:3]
+
+
+def _mesh_edges(faces: np.ndarray) -> np.ndarray:
+    """``(e, 2)`` int: every edge of the triangles once."""
+    f = np.asarray(faces, dtype=np.int64)
+    return np.unique(np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+
+
+def _ring_edges(ring: np.ndarray, uv: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh edge each piece of a silhouette ring lies on.
+
+    Parameters
+    ----------
+    ring : (m, 2) float
+        Closed silhouette ring (normalised image plane).
+    uv : (n, 2) float
+        Projected mesh vertices (same plane).
+    edges : (e, 2) int
+
+    Returns
+    -------
+    pieces : (k,) int
+        Ring pieces (``ring[i]`` to ``ring[i + 1]``) that lie on a mesh edge.
+    edge : (k,) int
+        The (most nearly parallel) edge each of them lies on.
+    """
+    a, b = ring[:-1], ring[1:]
+    d = b - a
+    length = np.hypot(d[:, 0], d[:, 1])
+    # The silhouette's 1e-9 buffer rounds convex corners with arcs of that size: not edges.
+    pieces = np.flatnonzero(length > 100 * _ON_EDGE)
+    tree = shapely.STRtree(shapely.linestrings(uv[edges]))
+    piece, edge = tree.query(shapely.points(0.5 * (a + b)[pieces]), predicate="dwithin", distance=_ON_EDGE)
+    e = uv[edges[edge, 1]] - uv[edges[edge, 0]]
+    u = d[pieces[piece]] / length[pieces[piece], None]
+    sine = np.abs(u[:, 0] * e[:, 1] - u[:, 1] * e[:, 0]) / np.maximum(np.hypot(e[:, 0], e[:, 1]), 1e-300)
+    # Per piece, the edge most nearly along it; edges that merely cross the midpoint are not it.
+    order = np.lexsort((sine, piece))
+    first = order[np.r_[True, piece[order][1:] != piece[order][:-1]]]
+    first = first[sine[first] < 1e-3]
+    return pieces[piece[first]], edge[first]
+
+
+def refine_pose(camera: CameraModel, cam_base: np.ndarray, part: Footprint, located: LocatedPart,
+                vertices_mm: np.ndarray, faces: np.ndarray, rounds: int = 8) -> LocatedPart:
+    """The located pose refitted to the mesh's own silhouette instead of the footprint prism.
+
+    Each round computes :func:`expected_silhouette` at the current pose, finds the mesh edge every
+    piece of its ring lies on, pairs each outline point with its nearest piece and fits x, y and yaw
+    (:func:`scipy.optimize.least_squares`, soft-L1 loss at :data:`vision.locate.ROBUST_SCALE_PX`,
+    so missing material of a defective part does not drag the pose) to minimise the outline points'
+    distances to their edges' projected lines [px]. Rounds stop when the pose stops moving.
+    A footprint with symmetry leaves the mesh's yaw open: each symmetric yaw gets a first round
+    and the one the outline fits best is carried on.
+
+    Parameters
+    ----------
+    camera : CameraModel
+    cam_base : (4, 4) float
+        ``T_cam_base`` [m].
+    part : Footprint
+    located : LocatedPart
+        The starting pose, with the sub-pixel ``outline`` [px] it was found by.
+    vertices_mm : (n, 3) float
+        Mesh vertices [mm].
+    faces : (m, 3) int
+    rounds : int
+        Most rounds (0 returns ``located`` unchanged).
+
+    Returns
+    -------
+    LocatedPart
+        ``located`` with the refined ``x``, ``y`` [m], ``yaw`` [rad] and ``rms_px`` [px] (the robust
+        fit's RMS); its score, uncertainties and pixel stay those of the prism fit.
+
+    Raises
+    ------
+    VisionError
+        Part (partly) behind the camera.
+    """
+    return _refine(camera, cam_base, part, located, vertices_mm, faces, rounds)[0]
+
+
+def _refine(camera: CameraModel, cam_base: np.ndarray, part: Footprint, located: LocatedPart,
+            vertices_mm: np.ndarray, faces: np.ndarray, rounds: int) -> tuple[LocatedPart, Polygon | None]:
+    """:func:`refine_pose`, and :func:`expected_silhouette` at the refined pose when the last round
+    computed it there (the pose stood still after it), so :func:`inspect_part` need not compute it again.
+    """
+    vertices = mm_to_m(np.asarray(vertices_mm, dtype=np.float64))
+    edges = _mesh_edges(faces)
+    obs = camera.rays(located.outline)[:, :2]
+    if rounds <= 0 or len(obs) < 3:
+        return located, None
+    f = np.sqrt(camera.fx * camera.fy)
+    p = np.array([located.x, located.y, located.yaw])
+
+    def cam_part(q: np.ndarray) -> np.ndarray:
+        return cam_base @ part_transform(part, replace(located, x=q[0], y=q[1], yaw=q[2]))
+
+    def fit_round(p: np.ndarray):
+        """One round from pose ``p``: (new pose, robust cost, RMS [px], step, silhouette at ``p``) or None."""
+        uv = _project(vertices, cam_part(p))
+        sil = expected_silhouette(vertices_mm, faces, cam_part(p))
+        ring = np.array(sil.exterior.coords)
+        pieces, edge = _ring_edges(ring, uv, edges)
+        if len(pieces) == 0:
+            return None
+        nearest = shapely.STRtree(shapely.linestrings(np.stack([ring[pieces], ring[pieces + 1]], axis=1)))
+        _, which = nearest.query_nearest(shapely.points(obs), all_matches=False)
+        ends = vertices[edges[edge[which]]]  # (n, 2, 3) the mesh edge of each outline point [m]
+
+        def residuals(q: np.ndarray) -> np.ndarray:
+            uv_ends = _project(ends, cam_part(q))
+            d = uv_ends[:, 1] - uv_ends[:, 0]
+            w = obs - uv_ends[:, 0]
+            return f * (d[:, 0] * w[:, 1] - d[:, 1] * w[:, 0]) / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-300)
+
+        sol = least_squares(residuals, p, x_scale=np.array([1e-3, 1e-3, 1e-2]), method="trf",
+                            loss="soft_l1", f_scale=ROBUST_SCALE_PX)
+        return sol.x, float(sol.cost), float(np.sqrt(np.mean(sol.fun ** 2))), sol.x - p, sil
+
+    def still(step: np.ndarray) -> bool:
+        return np.hypot(step[0], step[1]) < _STILL_M and abs(step[2]) < _STILL_RAD
+
+    # The prism knows the yaw only modulo its footprint's symmetry; the mesh need not share it
+    # (a stepped top): one round from each symmetric yaw, then the best one is carried on.
+    turns = 2 * np.pi * np.arange(part.symmetry) / part.symmetry
+    tried = [r for r in (fit_round(p + np.array([0.0, 0.0, t])) for t in turns) if r is not None]
+    if not tried:
+        return located, None
+    p, _, rms, step, sil = min(tried, key=lambda r: r[1])
+    for _ in range(rounds - 1):
+        if still(step):
+            break
+        again = fit_round(p)
+        if again is None:
+            break
+        p, _, rms, step, sil = again
+    refined = replace(located, x=float(p[0]), y=float(p[1]), yaw=float(np.angle(np.exp(1j * p[2]))), rms_px=rms)
+    return refined, sil if still(step) else None
+
+
 def inspect_part(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray, part: Footprint,
                  vertices_mm: np.ndarray, faces: np.ndarray, tray_z: float,
                  options: InspectOptions = InspectOptions(), *, source: str = "image") -> list[Inspection]:
     """Inspect every copy of the part on the tray (best located first).
+
+    Each copy's prism pose from :func:`vision.locate.locate_parts` is refined to the mesh's own
+    silhouette (:func:`refine_pose`, ``options.refine_rounds``) before its outline is judged.
 
     Parameters
     ----------
@@ -148,8 +316,9 @@ def inspect_part(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     out = []
     f = np.sqrt(camera.fx * camera.fy)
     for located in found:
-        cam_part = cam_base @ part_transform(part, located)
-        sil = expected_silhouette(vertices_mm, faces, cam_part)
+        located, sil = _refine(camera, cam_base, part, located, vertices_mm, faces, options.refine_rounds)
+        if sil is None:
+            sil = expected_silhouette(vertices_mm, faces, cam_base @ part_transform(part, located))
         obs = camera.rays(located.outline)[:, :2]
         ring = shapely.geometry.LineString(sil.exterior.coords)
         dist = shapely.distance(shapely.points(obs), ring)

@@ -6,20 +6,26 @@ The ``factory inspect`` command is driven here too (this file is the inspect fea
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import cv2
 import numpy as np
 import pytest
+import trimesh
 import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from cli.main import app
+from tests.conftest import SAMPLES
 from tests.vision import TRUE_CAMERA
 from tests.vision.test_locate import BASE_CAM, TRAY_Z, blank_mesh
 from vision.handeye import invert
-from vision.inspect import InspectOptions, inspect_part, inspection_image
-from vision.locate import footprint_from_mesh
-from vision.render import Box, pixel_rays, render_boxes
+from vision.inspect import InspectOptions, inspect_part, inspection_image, part_transform, refine_pose
+from vision.locate import LocatedPart, LocateOptions, footprint_from_mesh, locate_parts, mm_to_m
+from vision.render import Box, pixel_rays, render_boxes, render_mesh
+from vision.station import cut_corner
 
 GOOD = Box(0.47, 0.03, 0.4, (0.08, 0.05, 0.02))
 NOTCH_AT = (0.58, 0.1, -0.6)
@@ -82,3 +88,58 @@ def test_inspect_command(tray, tmp_path):
     assert r.exit_code == 1 and "--overwrite" in r.stderr and r.stdout == ""
     r = CliRunner().invoke(app, [*args[:-3], "--tolerance", "30", "--quiet"], catch_exceptions=False)
     assert r.exit_code == 0, r.output
+
+
+#: The stepped wall (three steps, 10-26 mm, and a 30 mm thin wall) where BASE_CAM sees it, 15-20 deg off vertical.
+STEPPED_AT = (0.5, 0.06, 0.7)
+
+
+def stepped_picture(rays, defect: bool):
+    """The stepped wall sample at STEPPED_AT, whole or with a corner cut off: (mesh, footprint, picture)."""
+    mesh = trimesh.load(SAMPLES / "stepped_wall.stl")
+    part = footprint_from_mesh(mesh.vertices, mesh.faces)
+    shown = cut_corner(mesh.vertices, mesh.faces) if defect else (mesh.vertices, mesh.faces)
+    t = part_transform(part, truth_pose(*STEPPED_AT))
+    world = mm_to_m(np.asarray(shown[0])) @ t[:3, :3].T + t[:3, 3]
+    return mesh, part, render_mesh(rays, invert(BASE_CAM), world, shown[1], plane_z=TRAY_Z, noise_sigma=2.0, seed=4)
+
+
+def truth_pose(x: float, y: float, yaw: float) -> LocatedPart:
+    return LocatedPart(x=x, y=y, z=TRAY_Z, yaw=yaw, score=1.0, rms_px=0.0, mm_per_px=float("nan"),
+                       sigma_xy=0.0, sigma_yaw=0.0, pixel=(float("nan"), float("nan")))
+
+
+@pytest.fixture(scope="module")
+def stepped(request):
+    rays = pixel_rays(TRUE_CAMERA, 3)
+    return {defect: stepped_picture(rays, defect) for defect in (False, True)}
+
+
+def test_a_stepped_part_passes_only_with_the_pose_refined_to_its_silhouette(stepped):
+    mesh, part, image = stepped[False]
+    args = (image, TRUE_CAMERA, BASE_CAM, part, mesh.vertices, mesh.faces, TRAY_Z)
+    # The footprint prism is full height everywhere: its pose is off and the good part fails by mm.
+    (prism,) = inspect_part(*args, InspectOptions(refine_rounds=0))
+    assert not prism.passed and prism.max_deviation > 1.2e-3
+    (refined,) = inspect_part(*args)
+    assert refined.passed and refined.max_deviation < 0.8e-3
+    assert np.hypot(refined.part.x - STEPPED_AT[0], refined.part.y - STEPPED_AT[1]) < 0.3e-3
+    assert abs(np.angle(np.exp(1j * (refined.part.yaw - STEPPED_AT[2])))) < np.radians(0.3)  # not turned 180 deg
+    assert refined.part.rms_px < prism.part.rms_px
+    (broken,) = inspect_part(stepped[True][2], *args[1:])
+    assert not broken.passed and broken.to_dict()["missing_mm"] > 4
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(dx=st.floats(-2e-3, 2e-3), dy=st.floats(-2e-3, 2e-3), dyaw=st.floats(-0.03, 0.03), defect=st.booleans())
+def test_refine_pose_returns_to_the_truth_from_nearby(stepped, dx, dy, dyaw, defect):
+    mesh, part, image = stepped[defect]
+    # The prism misses the stepped outline by more than locate accepts by default.
+    (found,) = locate_parts(image, TRUE_CAMERA, BASE_CAM, part, TRAY_Z, LocateOptions(max_rms_px=np.inf))
+    x, y, yaw = STEPPED_AT
+    start = replace(found, x=x + dx, y=y + dy, yaw=yaw + dyaw)
+    got = refine_pose(TRUE_CAMERA, np.linalg.inv(BASE_CAM), part, start, mesh.vertices, mesh.faces)
+    # A corner cut off (18 % legs, ~9 mm) must not drag the pose: the soft-L1 loss discounts it.
+    assert np.hypot(got.x - x, got.y - y) < (0.5e-3 if defect else 0.2e-3)
+    assert abs(np.angle(np.exp(1j * (got.yaw - yaw)))) < np.radians(0.3)
+    assert refine_pose(TRUE_CAMERA, np.linalg.inv(BASE_CAM), part, start, mesh.vertices, mesh.faces, 0) is start
