@@ -23,7 +23,7 @@ from cli.verify import read_sheet
 from factory.atomic import check_writable, write_text
 from factory.errors import CellError, PlanningError
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, marker_array, ros_time, string_msg, tf_message,
-                             transform_stamped)
+                             transform_stamped, transforms_stamped)
 from robotprog.cell import Cell, load_cell
 from robotprog.collision import CollisionWorld, cell_static_boxes, collision_world
 from robotprog.frames import setup_sheet_to_cell
@@ -132,6 +132,7 @@ class RobotStateLog:
         self.names = list(self.robot.joint_names)
         self.data = self.robot.model.createData()
         self.frames = link_frames(world)
+        self.frame_names = [name for name, _ in self.frames]
         self.base_id = self.robot.model.getFrameId(self.robot.base_frame)
 
     def write(self, q: np.ndarray, qd: np.ndarray, stamp_ns: int) -> None:
@@ -142,9 +143,9 @@ class RobotStateLog:
                                                   velocity=np.asarray(qd, dtype=float), effort=np.zeros(0)),
                      stamp_ns)
         pin.framesForwardKinematics(model, data, np.asarray(q, dtype=float))
-        ob = data.oMf[self.base_id]
-        self.m.write("/tf", tf_message([transform_stamped(base, name, ob.actInv(data.oMf[i]).homogeneous, stamp_ns)
-                                        for name, i in self.frames]), stamp_ns)
+        ob = data.oMf[self.base_id].actInv
+        matrices = np.array([ob(data.oMf[i]).homogeneous for _, i in self.frames])
+        self.m.write("/tf", tf_message(transforms_stamped(base, self.frame_names, matrices, stamp_ns)), stamp_ns)
 
 
 def log_tending(m: McapLog, cell: Cell, world: CollisionWorld, plan: TendingPlan) -> int:

@@ -526,22 +526,36 @@ def transform_stamped(parent: str, child: str, matrix: np.ndarray, stamp_ns: int
         Wrong shape, non-finite values, or a 3x3 block that is not a rotation.
     """
     m = np.asarray(matrix, dtype=np.float64)
-    if m.shape != (4, 4) or not np.isfinite(m).all():
+    if m.shape != (4, 4):
         raise McapError(f"transform {parent} -> {child} must be a finite 4x4 matrix")
-    r = m[:3, :3]
-    if (not np.allclose(m[3], [0, 0, 0, 1], atol=1e-9) or not np.allclose(r @ r.T, np.eye(3), atol=1e-6)
-            or np.linalg.det(r) < 0):
-        raise McapError(f"transform {parent} -> {child} is not a rigid motion")
-    qx, qy, qz, qw = Rotation.from_matrix(r).as_quat()
-    tx, ty, tz = (float(v) for v in m[:3, 3])
-    return _TransformStamped(
-        header=_header(parent, stamp_ns),
-        child_frame_id=child,
-        transform=_Transform(
-            translation=_Vector3(x=tx, y=ty, z=tz),
-            rotation=_Quaternion(x=float(qx), y=float(qy), z=float(qz), w=float(qw)),
-        ),
-    )
+    return transforms_stamped(parent, [child], m[None], stamp_ns)[0]
+
+
+def transforms_stamped(parent: str, children: Sequence[str], matrices: np.ndarray, stamp_ns: int) -> list[Any]:
+    """:func:`transform_stamped` for many children of one parent at one stamp, checked and
+    converted in one vectorised pass (``matrices`` (k, 4, 4), translations in metres)."""
+    m = np.asarray(matrices, dtype=np.float64)
+    if m.ndim != 3 or m.shape[1:] != (4, 4) or len(m) != len(children) or not np.isfinite(m).all():
+        raise McapError(f"transforms {parent} -> {', '.join(children)} must be finite 4x4 matrices")
+    r = m[:, :3, :3]
+    bad = ((np.abs(m[:, 3] - [0, 0, 0, 1]) > 1e-9).any(axis=1)
+           | (np.abs(r @ r.transpose(0, 2, 1) - np.eye(3)) > 1e-6).any(axis=(1, 2))
+           | (np.linalg.det(r) < 0))
+    if bad.any():
+        raise McapError(f"transform {parent} -> {children[int(np.argmax(bad))]} is not a rigid motion")
+    quats = Rotation.from_matrix(r).as_quat().tolist() if len(m) else []
+    header = _header(parent, stamp_ns)
+    out = []
+    for child, (qx, qy, qz, qw), (tx, ty, tz) in zip(children, quats, m[:, :3, 3].tolist()):
+        out.append(_TransformStamped(
+            header=header,
+            child_frame_id=child,
+            transform=_Transform(
+                translation=_Vector3(x=tx, y=ty, z=tz),
+                rotation=_Quaternion(x=qx, y=qy, z=qz, w=qw),
+            ),
+        ))
+    return out
 
 
 def tf_message(transforms: Iterable[Any]) -> Any:
@@ -675,6 +689,7 @@ __all__ = [
     "FACTORY_METADATA", "ROS_DISTRO", "TYPESTORE", "McapLog", "cube_marker",
     "line_list_marker", "line_strip_marker", "log_msg", "marker_array", "message_definition",
     "offered_qos_profiles",
-    "read_attachment", "read_messages", "read_metadata", "ros_time", "string_msg", "tf_message", "transform_stamped",
+    "read_attachment", "read_messages", "read_metadata", "ros_time", "string_msg", "tf_message",
+    "transform_stamped", "transforms_stamped",
     "triangle_mesh_marker",
 ]

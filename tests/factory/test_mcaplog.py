@@ -340,3 +340,25 @@ def test_rosbag2_check_rejects_a_broken_file(tmp_path: Path, broken: dict, messa
     with pytest.raises(AssertionError, match=re.escape(message)) as e:
         check_rosbag2_mcap(path)
     assert str(path) in str(e.value)
+
+
+def test_transforms_stamped_matches_one_at_a_time_and_names_the_bad_one():
+    from scipy.spatial.transform import Rotation
+
+    from factory.mcaplog import transforms_stamped
+
+    rng = np.random.default_rng(4)
+    mats = np.tile(np.eye(4), (5, 1, 1))
+    mats[:, :3, :3] = Rotation.random(5, random_state=7).as_matrix()
+    mats[:, :3, 3] = rng.normal(size=(5, 3))
+    names = [f"f{i}" for i in range(5)]
+    batch = transforms_stamped("base", names, mats, 123)
+    for msg, name, m in zip(batch, names, mats):
+        one = transform_stamped("base", name, m, 123)
+        assert msg.child_frame_id == one.child_frame_id == name
+        for a, b in ((msg.transform.translation, one.transform.translation),
+                     (msg.transform.rotation, one.transform.rotation)):
+            assert [getattr(a, k) for k in a.__dataclass_fields__] == [getattr(b, k) for k in b.__dataclass_fields__]
+    mats[3, :3, :3] *= 1.1
+    with pytest.raises(McapError, match="f3"):
+        transforms_stamped("base", names, mats, 0)
