@@ -1,4 +1,5 @@
-# Set up and run factory on a fresh machine: `make demo` plans every sample part into build/,
+# Set up and run factory on a fresh machine: `make demo` plans every sample part into build/ and runs
+# the sample orders through the cell (build/cell.mcap + build/cell.layout.json for Foxglove);
 # `make test` runs the test suite. Both create .venv and install factory into it first.
 
 PYTHON ?= python3
@@ -11,6 +12,7 @@ PARTS  := $(basename $(notdir $(wildcard samples/*.stl)))
 
 demo: $(PARTS:%=$(OUT)/%.plan.json)
 	$(BIN)/python samples/summarize.py $^
+	$(BIN)/factory simulate samples/orders.yaml --catalog $(OUT) --mcap $(OUT)/cell.mcap --overwrite
 
 # One part per rule, so `make -j` plans parts in parallel.
 $(OUT)/%.plan.json: samples/%.stl $(BIN)/.installed

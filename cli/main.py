@@ -11,6 +11,7 @@ from cli.inspect import inspect
 from cli.locate import locate
 from cli.plan import plan
 from cli.robot import robot
+from cli.simulate import simulate
 from cli.toolpath import toolpath
 from cli.verify import verify
 
@@ -32,6 +33,7 @@ app.command()(robot)
 app.command()(handeye)
 app.command()(locate)
 app.command()(inspect)
+app.command()(simulate)
 
 
 def main() -> None:
