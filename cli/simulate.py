@@ -24,7 +24,7 @@ import trimesh
 import typer
 
 from cadcam.gcode import parse_gcode
-from cadcam.mesh import load_part
+from cadcam.mesh import load_part, units_of_scale
 from cadcam.timeline import MachineTimeline, machine_timeline, stock_snapshots
 from cli.calibrate import camera_info_msg, compressed_image_msg
 from cli.catalog import CatalogEntry, catalog_record, find_entry
@@ -287,7 +287,7 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
     motion = read_motion(mcap)
     toolpath = next((m for topic, _, m in read_messages(mcap, ["/cam/toolpath"])), None)
     in_vise = setup_sheet_to_cell(sheet, str(sheet_path))
-    loaded = load_part(part, units="auto")
+    loaded = load_part(part, units=units_of_scale(setup.mesh_scale, str(sheet_path)))
     mesh_mm = loaded.mesh.copy()
     mesh_mm.apply_scale(float(setup.mesh_scale))
     shots = camera_shots(entry, mesh_mm, np.asarray(setup.stock_size), stations, camera_sha256)
