@@ -20,7 +20,9 @@ is found exactly:
 
 Everything is exact at the grid points: a gouge, the remaining stock and a rapid's
 penetration depth are true values there, and what the grid can miss is detail *between*
-points (cost grows as ``1 / cell**2``).
+points (cost grows as ``1 / cell**2``). A gouge beyond the tolerance is measured from the
+lowest part top within the tolerance sideways, so a wall nicked within the tolerance does
+not read as a cut of the wall's height.
 
 Each move covers the grid points within the tool radius of its XY segment, enumerated
 exactly row by row; (grid point, move) pairs from consecutive moves are evaluated in
@@ -142,6 +144,9 @@ class VerifyReport:
     ----------
     max_gouge : float
         Deepest cut into the part over the grid points [mm], 0 if the part is untouched.
+        A cut deeper than ``gouge_tolerance`` is measured from the lowest part top within
+        ``gouge_tolerance`` sideways of the point, so a vertical wall nicked by less than
+        the tolerance is no gouge of the wall's height (see :func:`_lowest_part_near`).
     gouge_position : tuple of 3 float or None
         X, Y of that grid point and the stock top Z there [mm]; None without a gouge.
     gouge_line : int or None
@@ -654,7 +659,7 @@ def simulate_snapshots(
     part_top.setflags(write=False)
     sim = Simulation(grid=grid, stock_top=stock_top, part_top=part_top, stock_bottom=float(setup.stock_min[2]))
     report = _report(
-        sim, moves, tools, options, crashes, n_moves, float(length[~rapid].sum()), float(length[rapid].sum())
+        sim, tri, moves, tools, options, crashes, n_moves, float(length[~rapid].sum()), float(length[rapid].sum())
     )
     snapshots = tuple(flat.reshape(grid.shape) for flat in stocks)
     for top in snapshots:
@@ -747,12 +752,21 @@ def _run_batch(seg: _Segments, grid: Grid, stock: np.ndarray, moves: ProgramMove
 
 
 def _report(
-    sim: Simulation, moves: ProgramMoves, tools, options: VerifyOptions, crashes, n_moves, cut_length, rapid_length
+    sim: Simulation, tri: np.ndarray, moves: ProgramMoves, tools, options: VerifyOptions, crashes, n_moves,
+    cut_length, rapid_length,
 ) -> VerifyReport:
     covered = np.isfinite(sim.part_top)
     rem = (sim.stock_top - np.where(covered, sim.part_top, 0.0))[covered]
-    k = int(np.argmin(rem))
-    max_gouge = max(0.0, -float(rem[k]))  # never -0.0: max keeps its first argument on a tie
+    # Only cuts deeper than the tolerance can fail the verdict; measure those against the
+    # part within the tolerance sideways too (see _lowest_part_near).
+    deep = np.flatnonzero(rem < -options.gouge_tolerance)
+    gouge = -rem
+    if len(deep) and options.gouge_tolerance > 0:
+        cells = np.flatnonzero(covered.reshape(-1))[deep]
+        low = _lowest_part_near(tri, sim.grid, sim.part_top.reshape(-1)[cells], cells, options.gouge_tolerance)
+        gouge[deep] = low - sim.stock_top.reshape(-1)[cells]
+    k = int(np.argmax(gouge))
+    max_gouge = max(0.0, float(gouge[k]))  # never -0.0: max keeps its first argument on a tie
     gouge_position = gouge_line = None
     if max_gouge > 0.0:
         cell = int(np.flatnonzero(covered.reshape(-1))[k])
@@ -777,6 +791,55 @@ def _report(
         gouge_tolerance=options.gouge_tolerance,
         rapid_tolerance=options.rapid_tolerance,
     )
+
+
+#: Directions [rad] in which :func:`_lowest_part_near` looks sideways: within 22.5 deg of
+#: any wall normal, so a wall nicked less than ``cos(22.5 deg) = 0.92`` times the reach is
+#: always seen past.
+_SIDEWAYS = np.linspace(0.0, 2.0 * math.pi, 8, endpoint=False)
+
+
+def _lowest_part_near(tri: np.ndarray, grid: Grid, part_top: np.ndarray, cells: np.ndarray, reach: float) -> np.ndarray:
+    """Lowest part top at, and ``reach`` [mm] sideways of, some grid points [mm].
+
+    Why: on a vertical wall the part top jumps, so a tool that passes within the path
+    tolerance of the wall (finishing touches walls by design, and the post-processor's
+    line and arc fit may move the path ``arc_tolerance`` either way) takes a grid point
+    lying a hair inside the wall down to the tool's side: a cut of the wall's full height
+    at that point, though the tool reached only microns into the part. Measured against
+    the lowest part top within ``reach`` sideways, such a nick counts for what it is, while
+    a cut deeper into the part than ``reach`` in every direction keeps its full depth
+    (floors, and walls cut into by more than the tolerance).
+
+    Parameters
+    ----------
+    tri : (m, 3, 3) float
+        Part triangles [mm].
+    grid : Grid
+    part_top : (k,) float
+        Upper envelope of the part at those points [mm].
+    cells : (k,) int
+        Flat indices of the grid points (row-major, ``(ny, nx)``).
+    reach : float
+        How far to look sideways [mm].
+
+    Returns
+    -------
+    (k,) float
+        ``-inf`` where no part lies under some point looked at.
+    """
+    jj, ii = np.divmod(cells, grid.nx)
+    i0, j0 = int(ii.min()), int(jj.min())
+    low = np.asarray(part_top, dtype=np.float64).copy()
+    for angle in _SIDEWAYS:
+        # The grid points' bounding box, shifted: one rasterisation per direction.
+        shifted = Grid(
+            x0=grid.x0 + i0 * grid.cell + reach * math.cos(angle),
+            y0=grid.y0 + j0 * grid.cell + reach * math.sin(angle),
+            cell=grid.cell, nx=int(ii.max()) - i0 + 1, ny=int(jj.max()) - j0 + 1,
+        )
+        low = np.minimum(low, upper_envelope(tri, shifted)[jj - j0, ii - i0])
+    return low
 
 
 def _line_reaching(moves: ProgramMoves, tools: Mapping[int, Tool], x: float, y: float, z: float) -> int | None:

@@ -333,3 +333,25 @@ def test_deviation_image_is_a_sane_picture():
     assert red.sum() > 20
     png = png_bytes(img)
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_wall_nicked_within_the_tolerance_is_no_gouge_of_its_height():
+    # The part's wall at x = 29.8755 leaves grid point x = 29.875 (cell 0.25) 0.5 um inside it.
+    part = box([10, 5, -10], [29.8755, 15, -5])
+    opts = VerifyOptions(cell=0.25)
+
+    def pass_beside_wall(nick):
+        x = 29.8755 + BALL.radius - nick  # the ball's side reaches ``nick`` into the wall
+        return simulate(program([(R, 2, (x, 1, 5)), (C, 2, (x, 1, -9)), (C, 2, (x, 19, -9)), (R, 2, (x, 19, 5))]),
+                        TOOLS, SETUP, part, opts)
+
+    sim, report = pass_beside_wall(0.002)
+    assert np.nanmin(sim.remaining) < -1.0  # the z-map alone would read a 1 mm cut there
+    assert report.max_gouge <= opts.gouge_tolerance and report.ok
+    # Into the wall by more than the tolerance: the grid point 0.25 mm inside keeps its full
+    # cut, from the wall top (z = -5) down to the ball's side (centre at z = -6).
+    sim, report = pass_beside_wall(0.3)
+    d = BALL.radius - 0.3 + (29.8755 - 29.625)  # from the tool axis to that grid point [mm]
+    assert report.max_gouge == pytest.approx(1.0 + np.sqrt(BALL.radius**2 - d**2), abs=1e-9)
+    assert report.gouge_position[0] == pytest.approx(29.625)
+    assert report.gouge_line == 3
