@@ -12,6 +12,7 @@ inspections), and the run is logged to one MCAP with a Foxglove layout beside it
 
 from __future__ import annotations
 
+import copy
 import json
 import logging
 from dataclasses import dataclass
@@ -37,8 +38,8 @@ from cli.views import heightfield_mesh
 from factory.atomic import check_writable, write_bytes, write_text
 from factory.errors import CellError, FactoryError, McapError
 from factory.foxglove import layout_json
-from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, log_msg, marker_array, read_messages, string_msg, tf_message,
-                             transform_stamped, triangle_mesh_marker)
+from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, log_msg, marker_array, read_messages, ros_time,
+                             string_msg, tf_message, transform_stamped, triangle_mesh_marker)
 from factory.pictures import png_bytes
 from factory.resources import FIXTURES
 from robotprog.cell import Cell, load_cell
@@ -356,11 +357,12 @@ def _delete_all(ns: str, frame: str, t: float) -> Any:
 
 
 def _restamp(array: Any, t: float) -> Any:
-    from factory.mcaplog import ros_time
-
-    for mk in array.markers:
+    """A copy of a MarkerArray with every header stamped ``t`` [s] (messages are written later, so
+    each use needs its own copy)."""
+    out = copy.deepcopy(array)
+    for mk in out.markers:
         mk.header.stamp = ros_time(_ns(t))
-    return array
+    return out
 
 
 def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path, str], PartAssets],

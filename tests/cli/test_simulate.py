@@ -111,6 +111,15 @@ def test_mcap_meets_rosbag2_requirements_and_layout_names_its_topics(run_ok):
     assert counts["/camera/image/compressed"] == 6
 
 
+def test_every_logged_marker_is_stamped_when_it_was_logged(run_ok):
+    _, mcap, _ = run_ok
+    msgs = read_messages(mcap, ["/machine/toolpath", "/machine/stock"])
+    assert len({t for topic, t, _ in msgs if topic == "/machine/toolpath"}) >= 3  # a toolpath per load
+    for _, t, m in msgs:
+        for mk in m.markers:
+            assert mk.header.stamp.sec * 10**9 + mk.header.stamp.nanosec == t
+
+
 def test_logged_robot_motion_is_continuous_and_inside_the_limits(run_ok):
     _, mcap, _ = run_ok
     cell = load_cell(FIXTURES / "cell.yaml")
