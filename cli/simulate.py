@@ -12,7 +12,7 @@ inspections), and the run is logged to one MCAP with a Foxglove layout beside it
 
 from __future__ import annotations
 
-import copy
+import functools
 import json
 import logging
 from dataclasses import dataclass
@@ -340,7 +340,8 @@ def _ns(t: float) -> int:
 
 
 class _Timeline:
-    """Messages collected out of order, written sorted by time (MCAP readers play in log time)."""
+    """Messages collected out of order, written sorted by time (MCAP readers play in log time).
+    A message may be a callable that makes it when it is written."""
 
     def __init__(self) -> None:
         self.items: list[tuple[int, int, str, Any, bool]] = []
@@ -357,12 +358,11 @@ def _delete_all(ns: str, frame: str, t: float) -> Any:
 
 
 def _restamp(array: Any, t: float) -> Any:
-    """A copy of a MarkerArray with every header stamped ``t`` [s] (messages are written later, so
-    each use needs its own copy)."""
-    out = copy.deepcopy(array)
-    for mk in out.markers:
+    """Stamp every header of a MarkerArray ``t`` [s], in place: call it just before writing (the
+    same message is logged at each load)."""
+    for mk in array.markers:
         mk.header.stamp = ros_time(_ns(t))
-    return out
+    return array
 
 
 def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path, str], PartAssets],
@@ -404,7 +404,7 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
                 tl.add(a.start, "/tf", tf_message([transform_stamped(
                     "vise", "work", p.transform_vise_to_work, _ns(a.start))]))
                 if p.toolpath is not None:
-                    tl.add(a.start, "/machine/toolpath", _restamp(p.toolpath, a.start))
+                    tl.add(a.start, "/machine/toolpath", functools.partial(_restamp, p.toolpath, a.start))
             if a.action == "load" and a.outcome == "loaded":
                 tl.add(a.end, "/machine/stock", _stock_msg(p, 0, a.end))
             if a.action == "unload":
@@ -483,7 +483,7 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
         for t, q in robot_samples:
             states.write(q, np.zeros_like(q), _ns(t))
         for stamp, _, topic, msg, latched in sorted(tl.items, key=lambda i: (i[0], i[1])):
-            m.write(topic, msg, stamp, latched=latched)
+            m.write(topic, msg() if callable(msg) else msg, stamp, latched=latched)
             counts[topic] = counts.get(topic, 0) + 1
     counts["/joint_states"] = len(robot_samples)
     return counts
