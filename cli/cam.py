@@ -29,6 +29,15 @@ JOB_ATTACHMENT = "factory.job.json"
 Units = Literal["auto", "mm", "inch", "m"]
 Origin = Literal["top-front-left", "top-centre"]
 
+# Defaults of the CAM options, shared by `factory toolpath`, `factory plan` and the plans `factory simulate` makes.
+MATERIAL = "aluminium"
+UNITS: Units = "auto"
+ORIGIN: Origin = "top-front-left"
+ROUGH_TOOL = 1
+FINISH_TOOL = 3
+ALLOWANCE = 0.3  # [mm]
+SCALLOP = 0.005  # [mm]
+
 # Options shared by `factory toolpath` and `factory plan`, defined once.
 ToolsOpt = Annotated[Path | None, typer.Option("--tools", help="Tool library YAML (default: fixtures/tools.yaml).", exists=True, dir_okay=False)]
 StockOpt = Annotated[str | None, typer.Option("--stock", help="Stock size X,Y,Z [mm]; default: part box + 2 mm sides, 1 mm top.")]
@@ -68,6 +77,12 @@ class CamRequest:
             waterline=waterline,
         )
         return cls(part, tools, stock, material, units, origin, plan)
+
+    @classmethod
+    def defaults(cls, part: Path, material: str = MATERIAL, tools: Path | None = None) -> "CamRequest":
+        """The request of a command line that gives only the part, material and tool library."""
+        return cls.from_options(part, tools, None, material, UNITS, ORIGIN, ROUGH_TOOL, FINISH_TOOL, ALLOWANCE,
+                                SCALLOP, None, True)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -69,9 +69,7 @@ class PlanRequest:
     def defaults(cls, part: Path, material: str, cell: Path = FIXTURES / "cell.yaml",
                  tools: Path | None = None) -> "PlanRequest":
         """The plan ``factory plan PART --material M --cell C`` makes with every other option at its default."""
-        req = cam.CamRequest.from_options(part, tools, None, material, "auto", "top-front-left", 1, 3, 0.3, 0.005,
-                                          None, True)
-        return cls(req, cell=cell)
+        return cls(cam.CamRequest.defaults(part, material, tools), cell=cell)
 
     def outputs(self, out_dir: Path) -> dict[str, Path]:
         return plan_outputs(self.cam.part, out_dir, self.lang if self.robot else None)
@@ -160,21 +158,21 @@ def plan(
     out_dir: Annotated[Path, typer.Option("-o", "--output-dir", help="Folder for all outputs.", file_okay=False)] = Path("."),
     tools: cam.ToolsOpt = None,
     stock: cam.StockOpt = None,
-    material: cam.MaterialOpt = "aluminium",
-    units: cam.UnitsOpt = "auto",
-    origin: cam.OriginOpt = "top-front-left",
-    rough_tool: cam.RoughToolOpt = 1,
-    finish_tool: cam.FinishToolOpt = 3,
-    allowance: cam.AllowanceOpt = 0.3,
-    scallop: cam.ScallopOpt = 0.005,
+    material: cam.MaterialOpt = cam.MATERIAL,
+    units: cam.UnitsOpt = cam.UNITS,
+    origin: cam.OriginOpt = cam.ORIGIN,
+    rough_tool: cam.RoughToolOpt = cam.ROUGH_TOOL,
+    finish_tool: cam.FinishToolOpt = cam.FINISH_TOOL,
+    allowance: cam.AllowanceOpt = cam.ALLOWANCE,
+    scallop: cam.ScallopOpt = cam.SCALLOP,
     stepdown: cam.StepdownOpt = None,
     waterline: cam.WaterlineOpt = True,
-    post: PostOpt = "linuxcnc",
-    arc_tolerance: ArcTolOpt = 0.002,
-    grid: Annotated[float, typer.Option("--grid", help="Verify grid spacing [mm].", min=0.01)] = 0.2,
-    robot_cell: Annotated[Path, typer.Option("--cell", help="Robot cell file for the load/unload program.", exists=True, dir_okay=False)] = FIXTURES / "cell.yaml",
-    robot: Annotated[bool, typer.Option("--robot/--no-robot", help="Plan loading and unloading with the robot cell.")] = True,
-    lang: Annotated[str, typer.Option("--lang", help="Robot program language: urscript, rapid or krl.")] = "urscript",
+    post: PostOpt = PlanRequest.post,
+    arc_tolerance: ArcTolOpt = PlanRequest.arc_tolerance,
+    grid: Annotated[float, typer.Option("--grid", help="Verify grid spacing [mm].", min=0.01)] = PlanRequest.grid,
+    robot_cell: Annotated[Path, typer.Option("--cell", help="Robot cell file for the load/unload program.", exists=True, dir_okay=False)] = PlanRequest.cell,
+    robot: Annotated[bool, typer.Option("--robot/--no-robot", help="Plan loading and unloading with the robot cell.")] = PlanRequest.robot,
+    lang: Annotated[str, typer.Option("--lang", help="Robot program language: urscript, rapid or krl.")] = PlanRequest.lang,
     overwrite: Overwrite = False,
     json_out: JsonFlag = False,
     quiet: Quiet = False,

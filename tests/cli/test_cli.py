@@ -226,3 +226,21 @@ def test_plan_with_a_broken_cell_writes_nothing(small_part, tmp_path):
     r = run("plan", small_part, "-o", out, "--cell", cell, "--scallop", "0.05", "--quiet")
     assert_one_line_error(r, str(cell))
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_simulate_plans_exactly_what_plan_does_with_its_defaults():
+    """A part missing from the catalog is planned as `factory plan PART` would: same options."""
+    import inspect
+
+    from cli import cam
+    from cli.plan import PlanRequest, plan
+
+    defaults = {k: p.default for k, p in inspect.signature(plan).parameters.items()
+                if p.default is not inspect.Parameter.empty}
+    part = Path("p.stl")
+    from_cli = PlanRequest(cam.CamRequest.from_options(
+        part, defaults["tools"], defaults["stock"], defaults["material"], defaults["units"], defaults["origin"],
+        defaults["rough_tool"], defaults["finish_tool"], defaults["allowance"], defaults["scallop"],
+        defaults["stepdown"], defaults["waterline"]), post=defaults["post"], arc_tolerance=defaults["arc_tolerance"],
+        grid=defaults["grid"], cell=defaults["robot_cell"], robot=defaults["robot"], lang=defaults["lang"])
+    assert PlanRequest.defaults(part, defaults["material"]) == from_cli
