@@ -50,6 +50,7 @@ from robotprog.frames import setup_sheet_to_cell
 from robotprog.orders import Order, read_orders
 from vision.camera import CameraModel
 from vision.handeye import invert
+from vision.render import render_mesh
 from vision.report import bgr_png_bytes
 from vision.station import CameraShot, CameraStation, inspect_shot, locate_shot, station_above
 
@@ -184,8 +185,6 @@ def cell_stations(cell: Cell, camera: CameraModel) -> Stations:
 
 
 def _empty_frame(station: CameraStation) -> np.ndarray:
-    from vision.render import render_mesh
-
     grey = render_mesh(station.rays, station.world_to_camera, np.zeros((0, 3)), np.zeros((0, 3), np.int64),
                        plane_z=station.plane_z, noise_sigma=2.0, seed=0)
     canvas = cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
@@ -194,11 +193,13 @@ def _empty_frame(station: CameraStation) -> np.ndarray:
 
 
 def _shot(shot: CameraShot) -> Shot:
-    return Shot(bgr_png_bytes(shot.annotated), list(shot.detections), float(shot.processing_s), bool(shot.passed))
+    # rounded as the cache keeps it, so a fresh and a cached run time their camera steps alike
+    return Shot(bgr_png_bytes(shot.annotated), list(shot.detections), round(float(shot.processing_s), 4),
+                bool(shot.passed))
 
 
 def camera_shots(entry: CatalogEntry, part_mesh: trimesh.Trimesh, stock_mm: np.ndarray, stations: Stations,
-                 camera_sha256: str, *, overwrite_cache: bool = True) -> dict[str, Shot]:
+                 camera_sha256: str) -> dict[str, Shot]:
     """Locate (blank, empty slot) and inspect (good, damaged part) pictures for one part, kept in the
     catalog beside its plan (``PART.camera.json`` + PNGs) and reused while the camera is unchanged."""
     stem = Path(entry.summary["part"]).stem
@@ -235,11 +236,11 @@ def camera_shots(entry: CatalogEntry, part_mesh: trimesh.Trimesh, stock_mm: np.n
     doc = {"format": SHOTS_FORMAT, "key": entry.key, "camera_sha256": camera_sha256, "shots": {}}
     for n, s in shots.items():
         png = f"{stem}.{n}.png"
-        write_bytes(folder / png, s.png, overwrite=overwrite_cache)
-        doc["shots"][n] = {"png": png, "detections": s.detections, "processing_s": round(s.processing_s, 4),
+        write_bytes(folder / png, s.png, overwrite=True)  # a stale cache is replaced
+        doc["shots"][n] = {"png": png, "detections": s.detections, "processing_s": s.processing_s,
                            "passed": s.passed}
-    write_text(index, json.dumps(doc, indent=2) + "\n", overwrite=overwrite_cache)
-    return {n: Shot(s.png, s.detections, round(s.processing_s, 4), s.passed) for n, s in shots.items()}
+    write_text(index, json.dumps(doc, indent=2) + "\n", overwrite=True)
+    return shots
 
 
 def part_process(motion: RobotMotion, machining_s: float, shots: dict[str, Shot]) -> PartProcess:
@@ -446,6 +447,7 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
     tl.add(0.0, "/cell/orders", string_msg(json.dumps(status)))
     last_entry = {e.order: i for i, e in enumerate(result.log)}
     ended = {o.order: o for o in result.outcomes}
+    sorted_parts = {o.id: 0 for o in orders}
     for i, e in enumerate(result.log):
         level = "info"
         if e.state in ("FAULT", "RECOVER") or e.event in ("inspect_fail", "timeout"):
@@ -457,12 +459,13 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
         if e.job:
             tl.add(e.time, "/cell/state", string_msg(e.state))
         before = status[e.order]
+        if e.event == "sorted":
+            sorted_parts[e.order] += 1
         if last_entry[e.order] == i:
             o = ended[e.order]
             status[e.order] = f"{o.outcome}: {o.good}/{o.quantity} good, {o.rejected} rejected"
         elif e.job:
-            o_good = sum(1 for f in result.log[:i + 1] if f.order == e.order and f.event == "sorted")
-            status[e.order] = f"running: {o_good} sorted"
+            status[e.order] = f"running: {sorted_parts[e.order]} sorted"
         if status[e.order] != before:
             tl.add(e.time, "/cell/orders", string_msg(json.dumps(status)))
     makespan = float(result.summary["makespan_s"])
