@@ -16,9 +16,9 @@ import typer
 from cli.common import JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, setup_logging, stderr
 from factory.atomic import check_writable, write_bytes, write_text
 from factory.errors import CalibrationError, VisionError
-from factory.mcaplog import TYPESTORE, McapLog, ros_time
+from factory.camera_msgs import camera_info_msg, compressed_image_msg, header as _header
+from factory.mcaplog import TYPESTORE, McapLog
 from vision.board import BOARD_SYNTAX, BoardSpec
-from vision.camera import CameraModel
 from vision.calibrate import CalibrationResult, Detection, calibrate as run_calibration, detect
 from vision.report import bgr_png_bytes, report_image
 
@@ -26,8 +26,6 @@ log = logging.getLogger(__name__)
 
 #: Image files the command reads from IMAGES_DIR (case-insensitive suffixes).
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp")
-#: Camera frame id in the MCAP log.
-FRAME = "camera"
 
 _T = TYPESTORE.types
 
@@ -97,23 +95,6 @@ def detect_all(files: list[Path], board: BoardSpec, progress: Callable[[int, int
     return detections, missing, images
 
 
-def _header(stamp_ns: int, frame_id: str = FRAME) -> Any:
-    return _T["std_msgs/msg/Header"](stamp=ros_time(stamp_ns), frame_id=frame_id)
-
-
-def compressed_image_msg(data: bytes, name: str, image: np.ndarray, stamp_ns: int, frame_id: str = FRAME) -> Any:
-    """``sensor_msgs/CompressedImage``: the file's own JPEG/PNG bytes, or PNG re-encoded."""
-    suffix = Path(name).suffix.lower()
-    if suffix in (".jpg", ".jpeg"):
-        fmt = "jpeg"
-    elif suffix == ".png":
-        fmt = "png"
-    else:
-        fmt, data = "png", bgr_png_bytes(image)
-    return _T["sensor_msgs/msg/CompressedImage"](header=_header(stamp_ns, frame_id), format=fmt,
-                                                 data=np.frombuffer(data, np.uint8).copy())
-
-
 def corners_marker_msg(det: Detection, stamp_ns: int) -> Any:
     """``visualization_msgs/ImageMarker`` POINTS at the detected corners [px]."""
     marker = _T["visualization_msgs/msg/ImageMarker"]
@@ -125,15 +106,6 @@ def corners_marker_msg(det: Detection, stamp_ns: int) -> Any:
         lifetime=_T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
         points=[point(x=float(u), y=float(v), z=0.0) for u, v in det.image_points],
         outline_colors=[])
-
-
-def camera_info_msg(cam: CameraModel, stamp_ns: int, frame_id: str = FRAME) -> Any:
-    """``sensor_msgs/CameraInfo`` of a camera."""
-    roi = _T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
-    return _T["sensor_msgs/msg/CameraInfo"](
-        header=_header(stamp_ns, frame_id), height=cam.image_size[1], width=cam.image_size[0],
-        distortion_model=cam.model, d=np.array(cam.dist, dtype=np.float64), k=cam.K.reshape(-1).copy(),
-        r=np.eye(3).reshape(-1), p=cam.P.reshape(-1).copy(), binning_x=0, binning_y=0, roi=roi)
 
 
 def write_mcap(path: Path, result: CalibrationResult, images: dict[str, tuple[np.ndarray, bytes]],

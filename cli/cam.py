@@ -1,44 +1,18 @@
-"""Glue shared by the CAM commands: part intake → job, and job ⇄ MCAP."""
+"""Command-line options of the CAM commands (`factory toolpath`, `factory plan`), defined once."""
 
 from __future__ import annotations
 
-import dataclasses
-import json
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated
 
-import numpy as np
-import trimesh
 import typer
 
-from cadcam.finishing import FinishingOptions
-from cadcam.mesh import PartMesh, load_part
-from cadcam.model import Job
-from cadcam.plan import PlanOptions, plan_job
-from cadcam.roughing import RoughingOptions
-from cadcam.setup import make_setup
-from cadcam.tools import load_tool_library
-from cli.common import StageProgress, Stopwatch, parse_triple
-from cli.views import job_messages
-from factory.errors import ToolpathError
-from factory.mcaplog import McapLog, read_attachment
+from factory.cam import (ALLOWANCE, FINISH_TOOL, MATERIAL, ORIGIN, ROUGH_TOOL, SCALLOP, UNITS, CamRequest, Origin,
+                         Units)
+from cli.common import parse_triple
 
-#: Name of the MCAP attachment that carries the job from ``toolpath`` to ``gcode``.
-JOB_ATTACHMENT = "factory.job.json"
+__all__ = ["ALLOWANCE", "FINISH_TOOL", "MATERIAL", "ORIGIN", "ROUGH_TOOL", "SCALLOP", "UNITS", "cam_request"]
 
-Units = Literal["auto", "mm", "inch", "m"]
-Origin = Literal["top-front-left", "top-centre"]
-
-# Defaults of the CAM options, shared by `factory toolpath`, `factory plan` and the plans `factory simulate` makes.
-MATERIAL = "aluminium"
-UNITS: Units = "auto"
-ORIGIN: Origin = "top-front-left"
-ROUGH_TOOL = 1
-FINISH_TOOL = 3
-ALLOWANCE = 0.3  # [mm]
-SCALLOP = 0.005  # [mm]
-
-# Options shared by `factory toolpath` and `factory plan`, defined once.
 ToolsOpt = Annotated[Path | None, typer.Option("--tools", help="Tool library YAML (default: fixtures/tools.yaml).", exists=True, dir_okay=False)]
 StockOpt = Annotated[str | None, typer.Option("--stock", help="Stock size X,Y,Z [mm]; default: part box + 2 mm sides, 1 mm top.")]
 MaterialOpt = Annotated[str, typer.Option("--material", help="Stock material, a key of the tool library's cutting data.")]
@@ -52,105 +26,9 @@ StepdownOpt = Annotated[float | None, typer.Option("--stepdown", help="Roughing 
 WaterlineOpt = Annotated[bool, typer.Option("--waterline/--no-waterline", help="Finish steep walls with waterline loops.")]
 
 
-@dataclasses.dataclass(frozen=True)
-class CamRequest:
-    """The parsed CAM options of one command line."""
-
-    part: Path
-    tools: Path | None
-    stock: str | None
-    material: str
-    units: Units
-    origin: Origin
-    plan: PlanOptions
-
-    @classmethod
-    def from_options(cls, part: Path, tools: Path | None, stock: str | None, material: str, units: Units,
-                     origin: Origin, rough_tool: int, finish_tool: int, allowance: float, scallop: float,
-                     stepdown: float | None, waterline: bool) -> "CamRequest":
-        parse_triple(stock, "--stock")  # usage errors before any work
-        plan = PlanOptions(
-            rough_tool=rough_tool,
-            finish_tool=finish_tool,
-            roughing=RoughingOptions(allowance=allowance, stepdown=stepdown),
-            finishing=FinishingOptions(scallop=scallop),
-            waterline=waterline,
-        )
-        return cls(part, tools, stock, material, units, origin, plan)
-
-    @classmethod
-    def defaults(cls, part: Path, material: str = MATERIAL, tools: Path | None = None) -> "CamRequest":
-        """The request of a command line that gives only the part, material and tool library."""
-        return cls.from_options(part, tools, None, material, UNITS, ORIGIN, ROUGH_TOOL, FINISH_TOOL, ALLOWANCE,
-                                SCALLOP, None, True)
-
-
-@dataclasses.dataclass(frozen=True)
-class PlannedPart:
-    """A computed job with the part it was computed for."""
-
-    job: Job
-    loaded: PartMesh
-    part_work: trimesh.Trimesh
-
-
-def compute_job(req: CamRequest, bars: StageProgress, watch: Stopwatch) -> PlannedPart:
-    """Load, set up and plan one part, timing each stage."""
-    with watch("load"):
-        loaded = load_part(req.part, units=req.units)
-        library = load_tool_library(req.tools)
-    with watch("setup"):
-        setup, part_work = make_setup(
-            loaded.mesh,
-            stock_size=parse_triple(req.stock, "--stock"),
-            origin=req.origin,
-            material=req.material,
-            mesh_scale=loaded.scale,
-            source=str(req.part),
-        )
-        library.cutting_data(library.tool(req.plan.rough_tool), req.material)  # unknown material: fail early
-    job, timings = plan_job(
-        part_work,
-        setup,
-        library,
-        part_name=req.part.stem,
-        source_sha256=loaded.sha256,
-        options=req.plan,
-        progress=bars,
-    )
-    for stage, seconds in timings.seconds:
-        watch.seconds[stage] = seconds
-    return PlannedPart(job, loaded, part_work)
-
-
-def log_job(log: McapLog, planned: PlannedPart, transform_world_to_work: np.ndarray | None = None) -> None:
-    """Views of the job for Foxglove, and the job itself as an attachment for ``factory gcode``.
-
-    ``transform_world_to_work``: pose of the work frame in ``world`` [m] (default identity)."""
-    part = planned.part_work
-    for topic, msg, latched in job_messages(planned.job, np.asarray(part.vertices), np.asarray(part.faces),
-                                            transform_world_to_work=transform_world_to_work):
-        log.write(topic, msg, 0, latched=latched)
-    log.attach(JOB_ATTACHMENT, "application/json", json.dumps(planned.job.to_dict()).encode())
-
-
-def read_job(path: Path) -> Job:
-    """The job a ``factory toolpath`` MCAP carries."""
-    data = read_attachment(path, JOB_ATTACHMENT)
-    try:
-        return Job.from_dict(json.loads(data))
-    except (ValueError, KeyError, TypeError) as e:
-        raise ToolpathError(f"job attachment is malformed: {e}", source=path) from None
-
-
-def job_summary(job: Job) -> dict[str, Any]:
-    """Per-operation figures for summaries: points and path lengths [mm]."""
-    return {
-        "part": job.part_name,
-        "operations": [
-            {"name": op.name, "tool": op.tool.number, "points": int(len(op.points)),
-             **{f"{k}_mm": round(v, 1) for k, v in op.lengths().items()}}
-            for op in job.operations
-        ],
-    }
-
+def cam_request(part: Path, tools: Path | None, stock: str | None, material: str, units: Units, origin: Origin,
+                rough_tool: int, finish_tool: int, allowance: float, scallop: float, stepdown: float | None,
+                waterline: bool) -> CamRequest:
+    """The request of one command line; a malformed ``--stock`` is a usage error before any work."""
+    return CamRequest.from_options(part, tools, parse_triple(stock, "--stock"), material, units, origin, rough_tool,
+                                   finish_tool, allowance, scallop, stepdown, waterline)

@@ -11,9 +11,10 @@ import typer
 from cadcam.model import Job
 from cadcam.post import PostOptions, Program, post_process
 from cadcam.sheet import setup_sheet
-from cli import cam
 from cli.common import JsonFlag, Overwrite, Quiet, print_json, reports_errors, setup_logging, stderr
 from factory.atomic import check_writable, write_text
+from factory.cam import read_job
+from factory.plan import program_summary
 
 Dialect = Literal["linuxcnc", "grbl", "fanuc"]
 PostOpt = Annotated[Dialect, typer.Option("--post", help="Controller dialect.")]
@@ -37,21 +38,6 @@ def write_program(job: Job, output: Path, options: PostOptions, overwrite: bool)
     return program, sheet_path
 
 
-def program_summary(program: Program, output: Path, sheet_path: Path) -> dict:
-    return {
-        "program": str(output),
-        "setup_sheet": str(sheet_path),
-        "dialect": program.dialect,
-        "lines": program.line_count,
-        "estimated_cycle_s": round(program.total_time, 1),
-        "operations": [
-            {"name": e.name, "tool": e.tool_number, "cut_mm": round(e.cut_length, 1),
-             "rapid_mm": round(e.rapid_length, 1), "estimated_s": round(e.cut_time + e.rapid_time, 1)}
-            for e in program.estimates
-        ],
-    }
-
-
 @reports_errors
 def gcode(
     toolpath: Annotated[Path, typer.Argument(help="Toolpath MCAP from `factory toolpath`.", exists=True, dir_okay=False)],
@@ -65,7 +51,7 @@ def gcode(
 ) -> None:
     """Write G-code for a controller and the setup sheet beside it."""
     setup_logging(quiet)
-    job = cam.read_job(toolpath)
+    job = read_job(toolpath)
     program, sheet_path = write_program(
         job, output, PostOptions(dialect=post, arc_tolerance=arc_tolerance, coolant=coolant), overwrite
     )

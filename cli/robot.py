@@ -3,236 +3,24 @@
 Loads the stock from the rack into the vise and unloads the finished part to the out-tray,
 collision-checked against the cell, timed within the joint limits. Writes the plan as
 MCAP (robot description, joint states, TF, trajectories, the cell's boxes) and, with
-``--program``, a robot program (URScript).
+``--program``, a robot program (URScript, RAPID or KRL).
 """
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import numpy as np
-import pinocchio as pin
 import typer
 
 from cadcam.mesh import load_part, units_of_scale
-from cli.common import (JsonFlag, Overwrite, Quiet, Stopwatch, print_json, reports_errors, setup_logging,
-                        sha256_file, stderr)
-from cli.verify import read_sheet
+from cli.common import JsonFlag, Overwrite, Quiet, print_json, reports_errors, setup_logging, stderr
 from factory.atomic import check_writable, write_text
-from factory.errors import CellError, PlanningError
-from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, marker_array, ros_time, string_msg, tf_message,
-                             transform_stamped, transforms_stamped)
-from robotprog.cell import Cell, load_cell
-from robotprog.collision import CollisionWorld, cell_static_boxes, collision_world
-from robotprog.frames import setup_sheet_to_cell
-from robotprog.robots import example_robot_data_dir
-from robotprog.krl import krl_program
-from robotprog.rapid import rapid_module
-from robotprog.tending import TendingPlan, part_box_in_vise, plan_tending
-from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, urscript_program
-
-log = logging.getLogger(__name__)
-
-_T = TYPESTORE.types
-_JointState = _T["sensor_msgs/msg/JointState"]
-_JointTrajectory = _T["trajectory_msgs/msg/JointTrajectory"]
-_JointTrajectoryPoint = _T["trajectory_msgs/msg/JointTrajectoryPoint"]
-_Pose = _T["geometry_msgs/msg/Pose"]
-_Point = _T["geometry_msgs/msg/Point"]
-_Quaternion = _T["geometry_msgs/msg/Quaternion"]
-_Duration = _T["builtin_interfaces/msg/Duration"]
-_Header = _T["std_msgs/msg/Header"]
-
-#: Rate of /joint_states and /tf [Hz].
-STATE_RATE_HZ = 50.0
-#: Rate of the points of each /robot/trajectory message [Hz].
-TRAJECTORY_RATE_HZ = 50.0
-#: Tool speed and acceleration of URScript movel approach / retreat moves [m/s], [m/s^2].
-MOVEL_SPEED = 0.1
-MOVEL_ACCELERATION = 0.5
-
-LANGS = ("urscript", "rapid", "krl")
-
-
-def _ns(t: float) -> int:
-    return int(round(t * 1e9))
-
-
-def _duration(t: float) -> Any:
-    sec, nanosec = divmod(_ns(t), 1_000_000_000)
-    return _Duration(sec=int(sec), nanosec=int(nanosec))
-
-
-def link_frames(world: CollisionWorld) -> list[tuple[str, int]]:
-    """(name, frame id) of every link (body frame) to publish on /tf, relative to the base frame."""
-    robot = world.robot
-    out = []
-    for i, f in enumerate(robot.model.frames):
-        if f.type == pin.FrameType.BODY and f.name not in (robot.base_frame, "world", "universe"):
-            out.append((f.name, i))
-    return out
-
-
-def write_robot_mcap(path: Path, cell: Cell, world: CollisionWorld, plan: TendingPlan, *, overwrite: bool,
-                     inputs: dict[str, str]) -> int:
-    """Write the plan's MCAP log; returns the number of joint-state samples."""
-    with McapLog(path, stage="robot", overwrite=overwrite, inputs=inputs,
-                 parameters={"cell": cell.name, "robot": world.robot.name,
-                             "durations_s": {n: round(d, 4) for n, d in plan.durations}}) as m:
-        return log_tending(m, cell, world, plan)
-
-
-def read_urdf(world: CollisionWorld) -> str:
-    """The robot's URDF text, for /robot_description.
-
-    ``package://example-robot-data/`` mesh paths become ``file://`` paths into the installed
-    package: a viewer without a ROS package path (Foxglove) finds the meshes on this machine."""
-    try:
-        text = Path(world.robot.urdf).read_text(encoding="utf-8")
-    except OSError as e:
-        raise CellError(f"cannot read URDF: {e.strerror}", source=world.robot.urdf) from None
-    if "package://example-robot-data/" in text:
-        share = example_robot_data_dir() / "example-robot-data"
-        text = text.replace("package://example-robot-data/", share.as_uri() + "/")
-    return text
-
-
-def log_cell(m: McapLog, cell: Cell, world: CollisionWorld) -> None:
-    """The cell at time 0: /robot_description, /tf_static (robot base, TCP, vise, rack, out-tray)
-    and /cell/boxes, all latched."""
-    robot = world.robot
-    m.write("/robot_description", string_msg(read_urdf(world)), 0, latched=True)
-    static = [
-        transform_stamped("world", robot.base_frame, cell.robot.base.matrix(), 0),
-        transform_stamped(robot.flange_frame, "tcp", cell.gripper.tcp.matrix(), 0),
-        transform_stamped("world", "vise", cell.vise.pose.matrix(), 0),
-        transform_stamped("world", "rack", cell.rack.pose.matrix(), 0),
-        transform_stamped("world", "out_tray", cell.out_tray.pose.matrix(), 0),
-    ]
-    m.write("/tf_static", tf_message(static), 0, latched=True)
-    markers = []
-    for k, b in enumerate(cell_static_boxes(cell, door_closed=False)):
-        mk = cube_marker("cell", k, b.pose.xyz, b.size, (0.6, 0.6, 0.65, 0.5), "world", 0)
-        qx, qy, qz, qw = _quat(b.pose.matrix())
-        mk.pose = _Pose(position=_Point(x=b.pose.xyz[0], y=b.pose.xyz[1], z=b.pose.xyz[2]),
-                        orientation=_Quaternion(x=qx, y=qy, z=qz, w=qw))
-        mk.text = b.name
-        markers.append(mk)
-    m.write("/cell/boxes", marker_array(markers), 0, latched=True)
-
-
-class RobotStateLog:
-    """Writes /joint_states and the links' /tf for configurations of one robot."""
-
-    def __init__(self, m: McapLog, world: CollisionWorld):
-        self.m = m
-        self.robot = world.robot
-        self.names = list(self.robot.joint_names)
-        self.data = self.robot.model.createData()
-        self.frames = link_frames(world)
-        self.frame_names = [name for name, _ in self.frames]
-        self.base_id = self.robot.model.getFrameId(self.robot.base_frame)
-
-    def write(self, q: np.ndarray, qd: np.ndarray, stamp_ns: int) -> None:
-        """One sample: q [rad], qd [rad/s] at ``stamp_ns``."""
-        model, data, base = self.robot.model, self.data, self.robot.base_frame
-        self.m.write("/joint_states", _JointState(header=_Header(stamp=ros_time(stamp_ns), frame_id=""),
-                                                  name=self.names, position=np.asarray(q, dtype=float),
-                                                  velocity=np.asarray(qd, dtype=float), effort=np.zeros(0)),
-                     stamp_ns)
-        pin.framesForwardKinematics(model, data, np.asarray(q, dtype=float))
-        ob = data.oMf[self.base_id].actInv
-        matrices = np.array([ob(data.oMf[i]).homogeneous for _, i in self.frames])
-        self.m.write("/tf", tf_message(transforms_stamped(base, self.frame_names, matrices, stamp_ns)), stamp_ns)
-
-
-def log_tending(m: McapLog, cell: Cell, world: CollisionWorld, plan: TendingPlan) -> int:
-    """Write the cell and the plan's motion (from time 0) into an open log; returns the number of
-    joint-state samples."""
-    robot = world.robot
-    names = list(robot.joint_names)
-    base = robot.base_frame
-    log_cell(m, cell, world)
-    states = RobotStateLog(m, world)
-    t0 = 0.0
-    n_states = 0
-    for mv in plan.moves:
-        traj = mv.trajectory
-        if mv.kind != "gripper":
-            ts = np.arange(0.0, traj.duration, 1.0 / TRAJECTORY_RATE_HZ)
-            ts = np.append(ts, traj.duration)
-            q, qd, qdd = traj.sample(ts)
-            pts = [_JointTrajectoryPoint(positions=q[i].astype(float), velocities=qd[i].astype(float),
-                                         accelerations=qdd[i].astype(float), effort=np.zeros(0),
-                                         time_from_start=_duration(float(ts[i]))) for i in range(len(ts))]
-            m.write("/robot/trajectory", _JointTrajectory(
-                header=_Header(stamp=ros_time(_ns(t0)), frame_id=base), joint_names=names, points=pts),
-                _ns(t0))
-        m.write("/robot/events", string_msg(mv.name), _ns(t0))
-        dur = mv.duration
-        ts = np.arange(0.0, dur, 1.0 / STATE_RATE_HZ)
-        if mv is plan.moves[-1]:
-            ts = np.append(ts, dur)
-        for t in ts:
-            q, qd, _ = traj.sample(min(float(t), traj.duration))
-            if mv.kind == "gripper":
-                qd = np.zeros_like(qd)
-            states.write(q, qd, _ns(t0 + float(t)))
-            n_states += 1
-        t0 += dur
-    return n_states
-
-
-def _quat(t: np.ndarray) -> tuple[float, float, float, float]:
-    from scipy.spatial.transform import Rotation
-
-    return tuple(float(v) for v in Rotation.from_matrix(t[:3, :3]).as_quat())  # type: ignore[return-value]
-
-
-def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan) -> list[Any]:
-    """The plan as program steps: a joint move through every transfer waypoint, a line to the
-    end of every approach/retreat, digital outputs for the gripper."""
-    robot = world.robot
-    vmax = float(np.min(robot.v_max * cell.motion.speed_scaling))
-    amax = float(np.min(np.asarray(cell.motion.acceleration_limits) * cell.motion.speed_scaling))
-    t_base_world = np.linalg.inv(cell.robot.base.matrix())
-    steps: list[Any] = [MoveJ(tuple(float(v) for v in cell.robot.home), amax, vmax)]
-    for mv in plan.moves:
-        steps.append(Comment(mv.name))
-        if mv.kind == "joint":
-            steps += [MoveJ(tuple(float(v) for v in q), amax, vmax) for q in mv.waypoints[1:]]
-        elif mv.kind == "linear":
-            steps.append(MoveL.to(t_base_world @ mv.transform_world_to_tcp, MOVEL_ACCELERATION, MOVEL_SPEED))
-        else:
-            steps.append(SetOutputs(mv.outputs, mv.settle_s))
-    return steps
-
-
-def program_texts(lang: str, program: Path, cell: Cell, world: CollisionWorld,
-                  plan: TendingPlan) -> dict[Path, str]:
-    """File path -> text of the robot program in ``lang`` (KRL: the .src and its .dat)."""
-    robot = world.robot
-    name = _program_name(program.name.split(".")[0])
-    steps = program_steps(cell, world, plan)
-    header = (f"factory robot: {cell.name}, {robot.name}", f"planned motion {plan.duration:.2f} s")
-    tcp = cell.gripper.tcp.matrix()
-    if lang == "urscript":
-        if not robot.name.startswith("ur"):
-            raise PlanningError(f"URScript needs a Universal Robots arm, the cell has {robot.name}",
-                                source="robot.model")
-        return {program: urscript_program(steps, name=name, transform_flange_to_tcp=tcp, header=header)}
-    if lang == "rapid":
-        return {program: rapid_module(steps, name=name[:32], transform_flange_to_tcp=tcp, header=header)}
-    src, dat = krl_program(steps, name=name[:24], transform_flange_to_tcp=tcp,
-                           axis_percent=100.0 * cell.motion.speed_scaling, header=header)
-    return {program: src, program.with_suffix(".dat"): dat}
-
-
-def _program_name(stem: str) -> str:
-    clean = "".join(c if c.isalnum() else "_" for c in stem) or "part"
-    return ("p_" + clean) if clean[0].isdigit() else clean
+from factory.catalog import sha256_file
+from factory.progress import Stopwatch
+from factory.tending import LANGS, plan_cell, program_texts, write_robot_mcap
+from factory.verify import read_sheet
 
 
 @reports_errors
@@ -286,21 +74,3 @@ def robot(
     elif not quiet:
         stderr.print(f"robot: {len(plan.moves)} moves, {plan.duration:.2f} s of motion, planned in "
                      f"{plan.planning_s:.2f} s -> {output}", highlight=False, markup=False)
-
-
-def plan_cell(cell_path: Path, sheet: dict[str, Any], sheet_source: str, part_vertices: np.ndarray | None,
-              watch: Stopwatch) -> tuple[Cell, CollisionWorld, TendingPlan]:
-    """Load the cell and plan loading and unloading the part a setup sheet describes.
-
-    ``part_vertices`` are the part mesh's vertices in mesh file units (the sheet's
-    ``mesh_scale`` turns them into mm); without them unload grips the stock box.
-    """
-    with watch("cell"):
-        cell = load_cell(cell_path)
-        world = collision_world(cell)
-        part_box = None
-        if part_vertices is not None:
-            part_box = part_box_in_vise(setup_sheet_to_cell(sheet, sheet_source), part_vertices)
-    with watch("robot plan"):
-        plan = plan_tending(cell, sheet, part_box=part_box, world=world, source=sheet_source)
-    return cell, world, plan

@@ -1,503 +1,30 @@
 """``factory simulate [ORDERS] --mcap out.mcap``: the cell runs orders, much faster than real time.
 
-For every part the orders name, the plan comes from the part catalog (``--catalog``, see
-:mod:`cli.catalog`), or ``factory plan`` runs with its defaults and puts it there. From each
-plan: the robot's load and unload motion (TOPP-RA timed, read back from the plan's MCAP), the
-program's time estimate and toolpath, and camera steps: the rack camera locates a rendered
-blank, the out-tray camera inspects the rendered part (and a damaged one, for rejects); those
-results are kept in the catalog beside the plan. :func:`robotprog.cellsim.simulate` then runs
-the orders (``--faults SEED`` injects missed grasps, missing stock, machine alarms and failed
-inspections), and the run is logged to one MCAP with a Foxglove layout beside it.
+The work is :func:`factory.simulation.run_cell`; this command reads the orders, runs it, and writes
+the MCAP log with a Foxglove layout beside it, the Gantt chart and the summary.
 """
 
 from __future__ import annotations
 
-import functools
-import json
-import logging
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
-import cv2
-import numpy as np
-import trimesh
 import typer
 
-from cadcam.gcode import parse_gcode
-from cadcam.mesh import load_part, units_of_scale
-from cadcam.timeline import MachineTimeline, machine_timeline, stock_snapshots
-from cli.calibrate import camera_info_msg, compressed_image_msg
-from cli.catalog import CatalogEntry, catalog_record, find_entry
-from cli.common import (JsonFlag, Overwrite, Quiet, StageProgress, Stopwatch, print_json, progress_bars,
-                        reports_errors, setup_logging, sha256_file, stderr)
-from cli.plan import PlanRequest, run_plan
-from cli.robot import RobotStateLog, log_cell
-from cli.verify import part_triangles, read_sheet
-from cli.views import heightfield_mesh
+from cli.common import JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, setup_logging, stderr
 from factory.atomic import check_writable, write_bytes, write_text
-from factory.errors import CellError, FactoryError, McapError
+from factory.catalog import sha256_file
 from factory.foxglove import layout_json
-from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, log_msg, marker_array, read_messages, ros_time,
-                             string_msg, tf_message, transform_stamped, triangle_mesh_marker)
 from factory.pictures import png_bytes
+from factory.progress import Stopwatch
 from factory.resources import FIXTURES
-from robotprog.cell import Cell, load_cell
-from robotprog.cellsim import FaultModel, PartProcess, SimulationResult, simulate as run_simulation
+from factory.simulation import PartAssets, run_cell, write_cell_log
+from robotprog.cellsim import FaultModel, SimulationResult
 from robotprog.gantt import activity_chart
-from robotprog.collision import CollisionWorld, collision_world
-from robotprog.frames import setup_sheet_to_cell
-from robotprog.orders import Order, read_orders
-from vision.camera import CameraModel
-from vision.handeye import invert
-from vision.render import render_mesh
-from vision.report import bgr_png_bytes
-from vision.station import CameraShot, CameraStation, inspect_shot, locate_shot, station_above
-
-log = logging.getLogger(__name__)
-
-_T = TYPESTORE.types
-_Marker = _T["visualization_msgs/msg/Marker"]
+from robotprog.orders import read_orders
 
 #: Orders ``factory simulate`` runs without an ORDERS argument.
 SAMPLE_ORDERS = FIXTURES.parent / "samples" / "orders.yaml"
-#: Exposure and image transfer of one camera picture [s], added to the measured processing time.
-CAMERA_OVERHEAD_S = 0.1
-#: Height of the fixed cameras above the rack and the out-tray [m].
-CAMERA_HEIGHT_M = 0.5
-#: Rates of the logged robot state and machine tool position [Hz of simulated time].
-ROBOT_RATE_HZ = 25.0
-TOOL_RATE_HZ = 0.2
-#: Stock snapshots per program, and triangles per snapshot (decimated height field).
-STOCK_SNAPSHOTS = 8
-STOCK_TRIANGLES = 3000
-#: Verify grid of the stock snapshots [mm].
-STOCK_GRID_MM = 1.0
-#: Split of the load phase: the moves up to this one pick the blank (FETCH_RAW), the rest load it.
-LAST_FETCH_MOVE = "load: retreat from rack"
-FIRST_FETCH_MOVE = "load: home to above rack"
-SHOTS_FORMAT = "factory.camera-shots/1"
-
-
-# --- robot motion of a plan --------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class RobotMotion:
-    """The joint samples of a plan's load + unload motion, read back from its MCAP.
-
-    Attributes
-    ----------
-    moves : tuple of (name, start, end)
-        Each move and its time span in the plan [s].
-    t : (n,) float
-        Sample times [s].
-    q : (n, dof) float
-        Joint positions [rad].
-    """
-
-    moves: tuple[tuple[str, float, float], ...]
-    t: np.ndarray
-    q: np.ndarray
-
-    def span(self, first: str, last: str) -> tuple[float, float]:
-        """Time span [s] from the start of move ``first`` to the end of move ``last``."""
-        names = [m[0] for m in self.moves]
-        for name in (first, last):
-            if name not in names:
-                raise CellError(f"the plan has no move {name!r}", source="robot plan")
-        return self.moves[names.index(first)][1], self.moves[names.index(last)][2]
-
-    def duration(self, first: str, last: str) -> float:
-        t0, t1 = self.span(first, last)
-        return t1 - t0
-
-    def samples(self, t0: float, t1: float, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
-        """Joint positions at ``rate_hz`` over [t0, t1] of the plan (ends included): (times [s], q [rad])."""
-        ts = np.append(np.arange(t0, t1, 1.0 / rate_hz), t1)
-        q = np.column_stack([np.interp(ts, self.t, self.q[:, j]) for j in range(self.q.shape[1])])
-        return ts, q
-
-
-def read_motion(mcap: Path) -> RobotMotion:
-    """The robot motion a ``factory plan`` MCAP holds (``/robot/events`` and ``/joint_states``)."""
-    events, t, q = [], [], []
-    for topic, stamp, msg in read_messages(mcap, ["/robot/events", "/joint_states"]):
-        if topic == "/robot/events":
-            events.append((msg.data, stamp * 1e-9))
-        else:
-            t.append(stamp * 1e-9)
-            q.append(np.asarray(msg.position, dtype=float))
-    if not events or len(t) < 2:
-        raise McapError("no robot motion in the plan (planned with --no-robot?)", source=mcap)
-    ends = [s for _, s in events[1:]] + [t[-1]]
-    moves = tuple((name, start, end) for (name, start), end in zip(events, ends))
-    return RobotMotion(moves, np.asarray(t), np.asarray(q))
-
-
-# --- per-part assets ----------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Shot:
-    """One camera picture as logged: annotated PNG, detections, measured processing [s]."""
-
-    png: bytes
-    detections: list[dict[str, Any]]
-    processing_s: float
-    passed: bool
-
-
-@dataclass(frozen=True)
-class PartAssets:
-    """Everything the simulation and its log need of one planned part."""
-
-    part: Path
-    material: str
-    entry: CatalogEntry
-    process: PartProcess
-    motion: RobotMotion
-    transform_vise_to_work: np.ndarray
-    toolpath: Any
-    timeline: MachineTimeline
-    stock: tuple[tuple[float, np.ndarray, np.ndarray], ...]
-    shots: dict[str, Shot]
-    planned_now: bool
-
-
-@dataclass(frozen=True)
-class Stations:
-    """The cell's two fixed cameras, and where the blank and the finished part lie under them."""
-
-    rack: CameraStation
-    tray: CameraStation
-    rack_xy: tuple[float, float]
-    tray_xy: tuple[float, float]
-
-
-def cell_stations(cell: Cell, camera: CameraModel) -> Stations:
-    """A camera :data:`CAMERA_HEIGHT_M` above rack slot (0, 0) and one above out-tray slot (0, 0)."""
-    rack = cell.rack.pose.xyz
-    tray = cell.out_tray.pose.xyz
-    return Stations(station_above(camera, np.asarray(rack, dtype=float), CAMERA_HEIGHT_M),
-                    station_above(camera, np.asarray(tray, dtype=float), CAMERA_HEIGHT_M),
-                    (float(rack[0]), float(rack[1])), (float(tray[0]), float(tray[1])))
-
-
-def _empty_frame(station: CameraStation) -> np.ndarray:
-    grey = render_mesh(station.rays, station.world_to_camera, np.zeros((0, 3)), np.zeros((0, 3), np.int64),
-                       plane_z=station.plane_z, noise_sigma=2.0, seed=0)
-    canvas = cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
-    cv2.putText(canvas, "NO STOCK FOUND", (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.0, (0, 0, 255), 2, cv2.LINE_AA)
-    return canvas
-
-
-def _shot(shot: CameraShot) -> Shot:
-    # rounded as the cache keeps it, so a fresh and a cached run time their camera steps alike
-    return Shot(bgr_png_bytes(shot.annotated), list(shot.detections), round(float(shot.processing_s), 4),
-                bool(shot.passed))
-
-
-def camera_shots(entry: CatalogEntry, part_mesh: trimesh.Trimesh, stock_mm: np.ndarray, stations: Stations,
-                 camera_sha256: str) -> dict[str, Shot]:
-    """Locate (blank, empty slot) and inspect (good, damaged part) pictures for one part, kept in the
-    catalog beside its plan (``PART.camera.json`` + PNGs) and reused while the camera is unchanged."""
-    stem = Path(entry.summary["part"]).stem
-    folder = entry.summary_path.parent
-    index = folder / f"{stem}.camera.json"
-    names = ("locate", "empty", "inspect", "reject")
-    if index.is_file():
-        try:
-            doc = json.loads(index.read_text(encoding="utf-8"))
-            if doc.get("format") == SHOTS_FORMAT and doc.get("key") == entry.key and \
-                    doc.get("camera_sha256") == camera_sha256:
-                return {n: Shot((folder / doc["shots"][n]["png"]).read_bytes(), doc["shots"][n]["detections"],
-                                doc["shots"][n]["processing_s"], doc["shots"][n]["passed"]) for n in names}
-        except (OSError, ValueError, KeyError, TypeError):
-            log.warning("%s: unreadable camera shots, taken again", index)
-    blank = trimesh.creation.box(stock_mm)
-    blank.apply_translation(np.asarray(stock_mm) / 2)
-    v, f = np.asarray(part_mesh.vertices), np.asarray(part_mesh.faces)
-    rx, ry = stations.rack_xy
-    tx, ty = stations.tray_xy
-    shots = {
-        "locate": _shot(locate_shot(stations.rack, np.asarray(blank.vertices), np.asarray(blank.faces),
-                                    (rx, ry, 0.0), seed=1)),
-        "empty": Shot(bgr_png_bytes(_empty_frame(stations.rack)), [], 0.0, False),
-        "inspect": _shot(inspect_shot(stations.tray, v, f, (tx, ty, 0.0), defect=False, seed=2)),
-        "reject": _shot(inspect_shot(stations.tray, v, f, (tx, ty, 0.0), defect=True, seed=3)),
-    }
-    if not shots["locate"].passed:
-        log.warning("%s: the rack camera did not locate the rendered blank within tolerance", stem)
-    if not shots["inspect"].passed or shots["reject"].passed:
-        log.warning("%s: inspection of the rendered parts disagrees with the truth (good %s, damaged %s)", stem,
-                    "passed" if shots["inspect"].passed else "failed",
-                    "passed" if shots["reject"].passed else "failed")
-    doc = {"format": SHOTS_FORMAT, "key": entry.key, "camera_sha256": camera_sha256, "shots": {}}
-    for n, s in shots.items():
-        png = f"{stem}.{n}.png"
-        write_bytes(folder / png, s.png, overwrite=True)  # a stale cache is replaced
-        doc["shots"][n] = {"png": png, "detections": s.detections, "processing_s": s.processing_s,
-                           "passed": s.passed}
-    write_text(index, json.dumps(doc, indent=2) + "\n", overwrite=True)
-    return shots
-
-
-def part_process(motion: RobotMotion, machining_s: float, shots: dict[str, Shot]) -> PartProcess:
-    """Step durations of one part from its plan (see :class:`robotprog.cellsim.PartProcess`).
-
-    A rejected part goes from the out-tray to a reject bin beside it: not planned, taken as long
-    as the unload's move from the vise to the out-tray and home.
-    """
-    load = [m for m in motion.moves if m[0].startswith("load:")]
-    unload = [m for m in motion.moves if m[0].startswith("unload:")]
-    if not load or not unload:
-        raise CellError("the plan has no load or no unload moves", source="robot plan")
-    fetch_s = motion.duration(FIRST_FETCH_MOVE, LAST_FETCH_MOVE)
-    unload_s = unload[-1][2] - unload[0][1]
-    return PartProcess(
-        fetch_s=fetch_s,
-        load_s=load[-1][2] - load[0][1] - fetch_s,
-        machining_s=machining_s,
-        unload_s=unload_s,
-        locate_s=CAMERA_OVERHEAD_S + shots["locate"].processing_s,
-        inspect_s=CAMERA_OVERHEAD_S + shots["inspect"].processing_s,
-        sort_s=unload_s,
-        regrasp_s=motion.duration(FIRST_FETCH_MOVE, FIRST_FETCH_MOVE),
-    )
-
-
-def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stations, camera_sha256: str,
-                 planned_now: bool) -> PartAssets:
-    """Read a catalog plan and derive what the simulation needs (see :class:`PartAssets`)."""
-    summary = entry.summary
-    if not summary.get("verify", {}).get("ok", True):
-        raise FactoryError("its plan does not verify (gouge or rapid crash)", source=entry.summary_path)
-    sheet_path = entry.output("setup_sheet")
-    setup, tools, sheet = read_sheet(sheet_path)
-    program_path = entry.output("program")
-    moves = parse_gcode(program_path.read_text(encoding="utf-8"), source=str(program_path))
-    timeline = machine_timeline(moves)
-    triangles = part_triangles(part, setup, summary["catalog"]["mesh_sha256"])
-    times = np.linspace(0.0, timeline.duration, STOCK_SNAPSHOTS + 1)
-    stock = []
-    for t, sim in stock_snapshots(moves, tools, setup, triangles, times, cell=STOCK_GRID_MM,
-                                     timeline=timeline):
-        vertices, faces = heightfield_mesh(sim.grid.xs, sim.grid.ys, sim.stock_top, max_triangles=STOCK_TRIANGLES)
-        stock.append((float(t), vertices / 1000.0, faces))
-    mcap = entry.output("mcap")
-    motion = read_motion(mcap)
-    toolpath = next((m for topic, _, m in read_messages(mcap, ["/cam/toolpath"])), None)
-    in_vise = setup_sheet_to_cell(sheet, str(sheet_path))
-    loaded = load_part(part, units=units_of_scale(setup.mesh_scale, str(sheet_path)))
-    mesh_mm = loaded.mesh.copy()
-    mesh_mm.apply_scale(float(setup.mesh_scale))
-    shots = camera_shots(entry, mesh_mm, np.asarray(setup.stock_size), stations, camera_sha256)
-    return PartAssets(
-        part=part, material=material, entry=entry,
-        process=part_process(motion, float(sheet["estimated_cycle_s"]), shots),
-        motion=motion, transform_vise_to_work=in_vise.transform_vise_to_work, toolpath=toolpath,
-        timeline=timeline, stock=tuple(stock), shots=shots, planned_now=planned_now)
-
-
-def plan_parts(orders: tuple[Order, ...], catalog: Path, cell_path: Path, tools: Path | None, stations: Stations,
-               camera_sha256: str, bars: StageProgress, watch: Stopwatch) -> dict[tuple[Path, str], PartAssets | str]:
-    """Assets of every (part, material) the orders name, planning what the catalog lacks;
-    a part that cannot be had maps to the one-line reason."""
-    wanted = list(dict.fromkeys((o.part, o.material) for o in orders))
-    cell_sha = sha256_file(cell_path)
-    tools_sha = sha256_file(tools or FIXTURES / "tools.yaml")
-    out: dict[tuple[Path, str], PartAssets | str] = {}
-    for i, (part, material) in enumerate(wanted):
-        bars("parts", i, len(wanted))
-        if not part.is_file():
-            out[(part, material)] = f"{part}: part file not found"
-            continue
-        key = catalog_record(sha256_file(part), material, cell_sha, tools_sha)["key"]
-        try:
-            entry = find_entry(catalog, key)
-            planned_now = entry is None
-            if entry is None:
-                folder = catalog / f"{part.stem}-{material}-{key[:8]}"
-                with watch("plan"):
-                    summary, _ = run_plan(PlanRequest.defaults(part, material, cell_path, tools), folder,
-                                          overwrite=False, bars=bars, watch=Stopwatch())
-                entry = CatalogEntry(folder / f"{part.stem}.plan.json", summary)
-            with watch("prepare"):
-                out[(part, material)] = prepare_part(part, material, entry, stations, camera_sha256, planned_now)
-        except FactoryError as e:
-            out[(part, material)] = f"{part}: {e}"
-        except typer.BadParameter as e:
-            out[(part, material)] = f"{part}: {e.message}"
-    bars("parts", len(wanted), len(wanted))
-    return out
-
-
-# --- the log --------------------------------------------------------------------------------
-
-
-def _ns(t: float) -> int:
-    return int(round(t * 1e9))
-
-
-class _Timeline:
-    """Messages collected out of order, written sorted by time (MCAP readers play in log time).
-    A message may be a callable that makes it when it is written."""
-
-    def __init__(self) -> None:
-        self.items: list[tuple[int, int, str, Any, bool]] = []
-
-    def add(self, t: float, topic: str, msg: Any, latched: bool = False) -> None:
-        self.items.append((_ns(t), len(self.items), topic, msg, latched))
-
-
-def _delete_all(ns: str, frame: str, t: float) -> Any:
-    """A marker that clears every marker of the topic (DELETEALL)."""
-    marker = cube_marker(ns, 0, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), (0.0, 0.0, 0.0, 0.0), frame, _ns(t))
-    marker.action = _Marker.DELETEALL
-    return marker
-
-
-def _restamp(array: Any, t: float) -> Any:
-    """Stamp every header of a MarkerArray ``t`` [s], in place: call it just before writing (the
-    same message is logged at each load)."""
-    for mk in array.markers:
-        mk.header.stamp = ros_time(_ns(t))
-    return array
-
-
-def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path, str], PartAssets],
-                   orders: tuple[Order, ...], cell: Cell, world: CollisionWorld, stations: Stations, *,
-                   overwrite: bool, inputs: dict[str, str], parameters: dict[str, Any]) -> dict[str, int]:
-    """Write the simulation to MCAP; returns message counts per topic."""
-    order_of = {o.id: o for o in orders}
-
-    def part_of(job: int) -> PartAssets:
-        o = order_of[result.jobs[job]]
-        return assets[(o.part, o.material)]
-
-    tl = _Timeline()
-    home = np.asarray(cell.robot.home, dtype=float)
-    robot_samples: list[tuple[float, np.ndarray]] = [(0.0, home)]
-    cut_so_far: dict[int, float] = {}
-    for a in result.activities:
-        label = f"{result.jobs.get(a.job, '?')} job {a.job}"
-        if a.resource == "robot":
-            tl.add(a.start, "/cell/robot", string_msg(f"{a.action} ({label})"))
-            tl.add(a.end, "/cell/robot", string_msg("idle"))
-            p = part_of(a.job)
-            spans = {"fetch": [(FIRST_FETCH_MOVE, LAST_FETCH_MOVE, False)],
-                     "missed_grasp": [(FIRST_FETCH_MOVE, LAST_FETCH_MOVE, False),
-                                      (FIRST_FETCH_MOVE, FIRST_FETCH_MOVE, True)],
-                     "load": [("load: transfer to vise", "load: return home", False)],
-                     "unload": [("unload: home to above vise", "unload: return home", False)]}.get(a.action, [])
-            t = a.start
-            for first, last, backwards in spans:
-                t0, t1 = p.motion.span(first, last)
-                ts, q = p.motion.samples(t0, t1, ROBOT_RATE_HZ)
-                if backwards:
-                    q = q[::-1]
-                for dt, qi in zip(ts - t0, q):
-                    if t + dt <= a.end + 1e-9:  # a timed-out move stops where it was
-                        robot_samples.append((t + dt, qi))
-                t += t1 - t0
-            if a.action == "load":
-                tl.add(a.start, "/tf", tf_message([transform_stamped(
-                    "vise", "work", p.transform_vise_to_work, _ns(a.start))]))
-                if p.toolpath is not None:
-                    tl.add(a.start, "/machine/toolpath", functools.partial(_restamp, p.toolpath, a.start))
-            if a.action == "load" and a.outcome == "loaded":
-                tl.add(a.end, "/machine/stock", _stock_msg(p, 0, a.end))
-            if a.action == "unload":
-                tl.add(a.end, "/machine/stock", marker_array([_delete_all("stock", "work", a.end)]))
-                tl.add(a.end, "/machine/toolpath", marker_array([_delete_all("toolpath", "work", a.end)]))
-        elif a.resource == "machine":
-            tl.add(a.start, "/cell/machine", string_msg("reset" if a.action == "reset" else "cutting"))
-            tl.add(a.end, "/cell/machine", string_msg("alarm" if a.outcome in ("machine_alarm", "timeout") else "idle"))
-            if a.action != "cut":
-                continue
-            p = part_of(a.job)
-            program_t = np.append(np.arange(0.0, a.end - a.start, 1.0 / TOOL_RATE_HZ), a.end - a.start)
-            positions = p.timeline.position_at(program_t) / 1000.0
-            for dt, xyz in zip(program_t, positions):
-                pose = np.eye(4)
-                pose[:3, 3] = xyz
-                tl.add(a.start + dt, "/tf", tf_message([transform_stamped("work", "tool", pose, _ns(a.start + dt))]))
-            done_before = cut_so_far.get(a.job, 0.0)
-            for k, (snap_t, _, _) in enumerate(p.stock):
-                if done_before < snap_t <= a.end - a.start:
-                    tl.add(a.start + snap_t, "/machine/stock", _stock_msg(p, k, a.start + snap_t))
-            cut_so_far[a.job] = max(done_before, a.end - a.start)
-        else:
-            p = part_of(a.job)
-            if a.action == "locate":
-                shot = p.shots["locate" if a.outcome != "stock_not_found" else "empty"]
-                frame = "rack_camera"
-            else:
-                shot = p.shots["reject" if a.outcome == "inspect_fail" else "inspect"]
-                frame = "tray_camera"
-            tl.add(a.end, "/camera/image/compressed",
-                   compressed_image_msg(shot.png, "shot.png", np.zeros(0), _ns(a.end), frame))
-            tl.add(a.end, "/camera/camera_info", camera_info_msg(stations.rack.camera, _ns(a.end), frame))
-            tl.add(a.end, "/camera/detections", string_msg(json.dumps(
-                {"job": a.job, "order": result.jobs.get(a.job), "step": a.action, "outcome": a.outcome,
-                 "detections": shot.detections})))
-
-    status: dict[str, str] = {o.id: "queued" for o in orders}
-    tl.add(0.0, "/cell/orders", string_msg(json.dumps(status)))
-    last_entry = {e.order: i for i, e in enumerate(result.log)}
-    ended = {o.order: o for o in result.outcomes}
-    sorted_parts = {o.id: 0 for o in orders}
-    for i, e in enumerate(result.log):
-        level = "info"
-        if e.state in ("FAULT", "RECOVER") or e.event in ("inspect_fail", "timeout"):
-            level = "warn"
-        if e.event == "order_failed" or "operator" in e.message:
-            level = "error"
-        text = f"{e.order} job {e.job}: {e.event} -> {e.state}" + (f": {e.message}" if e.message else "")
-        tl.add(e.time, "/rosout", log_msg(level, "cell.scheduler", text, _ns(e.time)))
-        if e.job:
-            tl.add(e.time, "/cell/state", string_msg(e.state))
-        before = status[e.order]
-        if e.event == "sorted":
-            sorted_parts[e.order] += 1
-        if last_entry[e.order] == i:
-            o = ended[e.order]
-            status[e.order] = f"{o.outcome}: {o.good}/{o.quantity} good, {o.rejected} rejected"
-        elif e.job:
-            status[e.order] = f"running: {sorted_parts[e.order]} sorted"
-        if status[e.order] != before:
-            tl.add(e.time, "/cell/orders", string_msg(json.dumps(status)))
-    makespan = float(result.summary["makespan_s"])
-    final = {o.order: {"outcome": o.outcome, "good": o.good, "rejected": o.rejected, "reason": o.reason}
-             for o in result.outcomes}
-    tl.add(makespan, "/cell/orders", string_msg(json.dumps(final)))
-    tl.add(makespan, "/cell/summary", string_msg(json.dumps(result.summary)))
-
-    robot_samples.sort(key=lambda s: s[0])
-    counts: dict[str, int] = {}
-    with McapLog(path, stage="simulate", overwrite=overwrite, inputs=inputs, parameters=parameters) as m:
-        log_cell(m, cell, world)
-        cams = []
-        for name, st in (("rack_camera", stations.rack), ("tray_camera", stations.tray)):
-            cams.append(transform_stamped("world", name, invert(st.world_to_camera), 0))
-        m.write("/tf_static", tf_message(cams), 0, latched=True)
-        states = RobotStateLog(m, world)
-        for t, q in robot_samples:
-            states.write(q, np.zeros_like(q), _ns(t))
-        for stamp, _, topic, msg, latched in sorted(tl.items, key=lambda i: (i[0], i[1])):
-            m.write(topic, msg() if callable(msg) else msg, stamp, latched=latched)
-            counts[topic] = counts.get(topic, 0) + 1
-    counts["/joint_states"] = len(robot_samples)
-    return counts
-
-
-def _stock_msg(p: PartAssets, k: int, t: float) -> Any:
-    _, vertices, faces = p.stock[k]
-    return marker_array([triangle_mesh_marker("stock", 0, vertices, faces, (0.75, 0.75, 0.8, 1.0), "work", _ns(t))])
-
-
-# --- the command ----------------------------------------------------------------------------
 
 
 def summary_text(result: SimulationResult, seconds: float) -> str:
@@ -543,29 +70,24 @@ def simulate(
     for p in (mcap, layout, png):
         if p is not None:
             check_writable(p, overwrite)
+    model = FaultModel()
+    if faults is not None:
+        model = FaultModel.default(faults) if fault_rate is None else \
+            FaultModel(fault_rate, fault_rate, fault_rate, fault_rate, seed=faults)
     watch = Stopwatch()
-    with watch("cell"):
-        cell = load_cell(cell_path)
-        world = collision_world(cell)
-        camera = CameraModel.read(camera_path)
-        stations = cell_stations(cell, camera)
     with progress_bars(quiet) as bars:
-        assets = plan_parts(orders, catalog, cell_path, tools, stations, sha256_file(camera_path), bars, watch)
-        processes = {k: (v.process if isinstance(v, PartAssets) else v) for k, v in assets.items()}
-        model = FaultModel()
-        if faults is not None:
-            model = FaultModel.default(faults) if fault_rate is None else \
-                FaultModel(fault_rate, fault_rate, fault_rate, fault_rate, seed=faults)
-        with watch("simulate"):
-            result = run_simulation(orders, processes, model, progress=bars.stage("orders"))
-        ready = {k: v for k, v in assets.items() if isinstance(v, PartAssets)}
+        run = run_cell(orders, catalog=catalog, cell_path=cell_path, camera_path=camera_path, tools=tools,
+                       faults=model, progress=bars)
+        watch.seconds.update(run.seconds)
+        result, assets, ready = run.result, run.assets, run.ready
         counts: dict[str, int] = {}
         if mcap is not None:
             with watch("write"):
                 inputs = {str(orders_path): sha256_file(orders_path), str(cell_path): sha256_file(cell_path)}
                 inputs.update({str(a.part): a.entry.summary["catalog"]["mesh_sha256"] for a in ready.values()})
-                counts = write_cell_log(mcap, result, ready, orders, cell, world, stations, overwrite=overwrite,
-                                        inputs=inputs, parameters={"faults_seed": faults, "catalog": str(catalog)})
+                counts = write_cell_log(mcap, result, ready, orders, run.cell, run.world, run.stations,
+                                        overwrite=overwrite, inputs=inputs,
+                                        parameters={"faults_seed": faults, "catalog": str(catalog)})
                 write_text(layout, layout_json(), overwrite=overwrite)
     if png is not None:
         write_bytes(png, png_bytes(activity_chart(result)), overwrite=overwrite)

@@ -7,12 +7,14 @@ from typing import Annotated
 
 import typer
 
-from cli import cam
-from cli.common import JsonFlag, Overwrite, Quiet, Stopwatch, print_json, progress_bars, reports_errors, setup_logging, stderr
 from cadcam.preview import toolpath_image
+from cli import cam
+from cli.common import JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, setup_logging, stderr
+from factory.cam import compute_job, job_summary, log_job
 from factory.atomic import check_writable, write_bytes
 from factory.mcaplog import McapLog
 from factory.pictures import png_bytes
+from factory.progress import Stopwatch
 
 
 @reports_errors
@@ -37,22 +39,22 @@ def toolpath(
 ) -> None:
     """Rough and finish a part; write the job and its views to an MCAP file."""
     setup_logging(quiet)
-    req = cam.CamRequest.from_options(part, tools, stock, material, units, origin, rough_tool, finish_tool,
+    req = cam.cam_request(part, tools, stock, material, units, origin, rough_tool, finish_tool,
                                       allowance, scallop, stepdown, waterline)
     check_writable(output, overwrite)
     if png is not None:
         check_writable(png, overwrite)
     watch = Stopwatch()
     with progress_bars(quiet) as bars:
-        planned = cam.compute_job(req, bars, watch)
+        planned = compute_job(req, bars, watch)
     with watch("write"):
         with McapLog(output, stage="toolpath", overwrite=overwrite,
                      inputs={str(part): planned.loaded.sha256},
                      parameters=planned.job.parameters) as log:
-            cam.log_job(log, planned)
+            log_job(log, planned)
         if png is not None:
             write_bytes(png, png_bytes(toolpath_image(planned.job)), overwrite=overwrite)
-    summary = cam.job_summary(planned.job) | {"output": str(output), "seconds": watch.rounded()}
+    summary = job_summary(planned.job) | {"output": str(output), "seconds": watch.rounded()}
     if json_out:
         print_json(summary)
     elif not quiet:

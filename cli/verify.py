@@ -2,68 +2,17 @@
 
 from __future__ import annotations
 
-import json
-import logging
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
-import numpy as np
 import typer
 
-from cadcam.gcode import parse_gcode
-from cadcam.mesh import load_part, units_of_scale
-from cadcam.model import Setup, Tool
-from cadcam.sheet import read_setup_sheet
-from cadcam.verify import Simulation, VerifyOptions, VerifyReport, deviation_image, simulate
-from cli.common import (EXIT_VERIFY_FAILED, Overwrite, Quiet, StageProgress, print_json,
-                        progress_bars, reports_errors, setup_logging, stderr)
-from cli.views import heightfield_mesh
-from factory.atomic import check_writable, write_bytes, write_text
-from factory.errors import SetupError, VerifyError
-from factory.pictures import png_bytes
-from factory.mcaplog import McapLog, marker_array, triangle_mesh_marker
-
-log = logging.getLogger(__name__)
-
-def read_sheet(path: Path) -> tuple[Setup, dict[int, Tool], dict[str, Any]]:
-    """Setup, tool table and raw document of a setup sheet file."""
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise SetupError(f"cannot read setup sheet: {e}", source=path) from None
-    setup, tools = read_setup_sheet(data, source=str(path))
-    return setup, tools, data
-
-
-def part_triangles(part: Path, setup: Setup, expected_sha256: str = "") -> np.ndarray:
-    """The part's triangles in work coordinates [mm], placed as the setup sheet says."""
-    loaded = load_part(part, units=units_of_scale(setup.mesh_scale, "setup sheet"))
-    if expected_sha256 and loaded.sha256 != expected_sha256:
-        log.warning("%s differs from the part the program was made for (sha256 mismatch)", part)
-    mesh = loaded.mesh.copy()
-    mesh.apply_transform(setup.transform_mesh_to_work)
-    return np.asarray(mesh.triangles)
-
-
-def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int, Tool],
-               triangles: np.ndarray, options: VerifyOptions, bars: StageProgress) -> tuple[Simulation, VerifyReport]:
-    """Parse and simulate a program against the part."""
-    moves = parse_gcode(gcode_text, source=gcode_source)
-    return simulate(moves, tools, setup, triangles, options, progress=bars.stage("verify"))
-
-
-def log_simulation(mcap: McapLog, sim: Simulation) -> None:
-    """The simulated stock as a mesh in work coordinates (metres) on ``/verify/stock``."""
-    vertices, faces = heightfield_mesh(sim.grid.xs, sim.grid.ys, sim.stock_top)
-    marker = triangle_mesh_marker("verify_stock", 0, vertices / 1000.0, faces, (0.75, 0.75, 0.8, 1.0), "work", 0)
-    mcap.write("/verify/stock", marker_array([marker]), 0, latched=True)
-
-
-def report_text(report: VerifyReport) -> str:
-    verdict = "OK" if report.ok else "FAILED"
-    return (f"verify {verdict}: max gouge {report.max_gouge:.4f} mm, remaining stock max "
-            f"{report.remaining_max:.3f} / mean {report.remaining_mean:.3f} / p95 {report.remaining_p95:.3f} mm, "
-            f"{len(report.rapid_crashes)} rapid crash(es)")
+from cadcam.verify import VerifyOptions
+from cli.common import (EXIT_VERIFY_FAILED, Overwrite, Quiet, print_json, progress_bars, reports_errors,
+                        setup_logging, stderr)
+from factory.atomic import check_writable
+from factory.errors import VerifyError
+from factory.verify import part_triangles, read_sheet, report_text, run_verify, write_verify_outputs
 
 
 @reports_errors
@@ -96,25 +45,12 @@ def verify(
     options = VerifyOptions(cell=grid, gouge_tolerance=tolerance)
     with progress_bars(quiet) as bars:
         sim, report = run_verify(text, str(program), setup, tools, triangles, options, bars)
-    write_verify_outputs(sim, report, png=png, json_path=json_path, mcap=mcap, overwrite=overwrite,
-                         inputs={str(program): "", str(part): ""})
+    to_stdout = json_path is not None and str(json_path) == "-"
+    write_verify_outputs(sim, report, png=png, json_path=None if to_stdout else json_path, mcap=mcap,
+                         overwrite=overwrite, inputs={str(program): "", str(part): ""})
+    if to_stdout:
+        print_json(report.to_dict())
     if not quiet:
         stderr.print(report_text(report), highlight=False)
     if not report.ok:
         raise typer.Exit(EXIT_VERIFY_FAILED)
-
-
-def write_verify_outputs(sim: Simulation, report: VerifyReport, *, png: Path | None, json_path: Path | None,
-                         mcap: Path | None, overwrite: bool, inputs: dict[str, str]) -> None:
-    """The report as JSON, the deviation picture, the simulated stock in MCAP: each where asked."""
-    if png is not None:
-        write_bytes(png, png_bytes(deviation_image(sim, report)), overwrite=overwrite)
-    if mcap is not None:
-        with McapLog(mcap, stage="verify", overwrite=overwrite, inputs=inputs) as m:
-            log_simulation(m, sim)
-    if json_path is not None:
-        if str(json_path) == "-":
-            print_json(report.to_dict())
-        else:
-            write_text(json_path, json.dumps(report.to_dict(), indent=2) + "\n", overwrite=overwrite)
-

@@ -19,7 +19,7 @@ typestore (:data:`TYPESTORE`); files are written by the ``mcap`` package's write
 
 Units: ROS speaks metres, seconds and radians. The builders below take metres (and a
 4x4 homogeneous transform with its translation in metres); the millimetre-to-metre
-conversion of CAM values happens in the views that call them (:mod:`cli.views`).
+conversion of CAM values happens in the views that call them (:mod:`factory.views`).
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ import trimesh
 from typer.testing import CliRunner
 
 from cli.main import app
-from cli.plan import plan_outputs
+from factory.plan import plan_outputs
 from tests.cli.expect import assert_one_line_error
 
 runner = CliRunner()
@@ -233,12 +233,13 @@ def test_simulate_plans_exactly_what_plan_does_with_its_defaults():
     import inspect
 
     from cli import cam
-    from cli.plan import PlanRequest, plan
+    from cli.plan import plan
+    from factory.plan import PlanRequest
 
     defaults = {k: p.default for k, p in inspect.signature(plan).parameters.items()
                 if p.default is not inspect.Parameter.empty}
     part = Path("p.stl")
-    from_cli = PlanRequest(cam.CamRequest.from_options(
+    from_cli = PlanRequest(cam.cam_request(
         part, defaults["tools"], defaults["stock"], defaults["material"], defaults["units"], defaults["origin"],
         defaults["rough_tool"], defaults["finish_tool"], defaults["allowance"], defaults["scallop"],
         defaults["stepdown"], defaults["waterline"]), post=defaults["post"], arc_tolerance=defaults["arc_tolerance"],

@@ -27,6 +27,15 @@ log = logging.getLogger(__name__)
 CATALOG_FORMAT = "factory.catalog/1"
 
 
+def sha256_file(path: Path) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
 def catalog_record(mesh_sha256: str, material: str, cell_sha256: str | None, tools_sha256: str) -> dict[str, str]:
     """The ``catalog`` record of a plan, with its key (hex SHA-256 of the other fields).
 

@@ -1,0 +1,40 @@
+"""Progress and wall-time bookkeeping for pipelines a Python user calls (no terminal, no rich).
+
+A pipeline reports progress through a plain callback ``progress(stage, done, total)``; the CLI
+draws it as progress bars, a script may log it or pass ``None``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Callable, Iterator
+
+#: ``progress(stage, done, total)``: which stage is running and how far it is.
+Progress = Callable[[str, int, int], None]
+
+
+def stage_callback(progress: Progress | None, stage: str) -> Callable[[int, int], None] | None:
+    """A ``progress(done, total)`` callback for one stage of ``progress`` (None stays None)."""
+    if progress is None:
+        return None
+    return lambda done, total: progress(stage, done, total)
+
+
+class Stopwatch:
+    """Wall time per named stage [s], in the order the stages ran."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    @contextlib.contextmanager
+    def __call__(self, name: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - t0
+
+    def rounded(self) -> dict[str, float]:
+        """Seconds per stage, rounded to the millisecond."""
+        return {k: round(v, 3) for k, v in self.seconds.items()}

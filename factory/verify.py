@@ -1,0 +1,86 @@
+"""The verify stage: a program simulated against its part, as ``factory verify`` and ``factory plan`` run it."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cadcam.gcode import parse_gcode
+from cadcam.mesh import load_part, units_of_scale
+from cadcam.model import Setup, Tool
+from cadcam.sheet import read_setup_sheet
+from cadcam.verify import Simulation, VerifyOptions, VerifyReport, deviation_image, simulate
+from factory.atomic import write_bytes, write_text
+from factory.errors import SetupError
+from factory.pictures import png_bytes
+from factory.mcaplog import McapLog, marker_array, triangle_mesh_marker
+from factory.progress import Progress, stage_callback
+from factory.views import heightfield_mesh
+
+log = logging.getLogger(__name__)
+
+def read_sheet(path: Path) -> tuple[Setup, dict[int, Tool], dict[str, Any]]:
+    """Setup, tool table and raw document of a setup sheet file."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise SetupError(f"cannot read setup sheet: {e}", source=path) from None
+    setup, tools = read_setup_sheet(data, source=str(path))
+    return setup, tools, data
+
+
+def part_triangles(part: Path, setup: Setup, expected_sha256: str = "") -> np.ndarray:
+    """The part's triangles in work coordinates [mm], placed as the setup sheet says."""
+    loaded = load_part(part, units=units_of_scale(setup.mesh_scale, "setup sheet"))
+    if expected_sha256 and loaded.sha256 != expected_sha256:
+        log.warning("%s differs from the part the program was made for (sha256 mismatch)", part)
+    mesh = loaded.mesh.copy()
+    mesh.apply_transform(setup.transform_mesh_to_work)
+    return np.asarray(mesh.triangles)
+
+
+def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int, Tool],
+               triangles: np.ndarray, options: VerifyOptions,
+               progress: Progress | None = None) -> tuple[Simulation, VerifyReport]:
+    """Parse and simulate a program against the part (``triangles`` in work coordinates [mm]).
+
+    Raises
+    ------
+    GcodeError
+        The program cannot be parsed.
+    VerifyError
+        The simulation cannot run on its inputs (a tool missing from ``tools``, ...).
+    """
+    moves = parse_gcode(gcode_text, source=gcode_source)
+    return simulate(moves, tools, setup, triangles, options, progress=stage_callback(progress, "verify"))
+
+
+def log_simulation(mcap: McapLog, sim: Simulation) -> None:
+    """The simulated stock as a mesh in work coordinates (metres) on ``/verify/stock``."""
+    vertices, faces = heightfield_mesh(sim.grid.xs, sim.grid.ys, sim.stock_top)
+    marker = triangle_mesh_marker("verify_stock", 0, vertices / 1000.0, faces, (0.75, 0.75, 0.8, 1.0), "work", 0)
+    mcap.write("/verify/stock", marker_array([marker]), 0, latched=True)
+
+
+def report_text(report: VerifyReport) -> str:
+    verdict = "OK" if report.ok else "FAILED"
+    return (f"verify {verdict}: max gouge {report.max_gouge:.4f} mm, remaining stock max "
+            f"{report.remaining_max:.3f} / mean {report.remaining_mean:.3f} / p95 {report.remaining_p95:.3f} mm, "
+            f"{len(report.rapid_crashes)} rapid crash(es)")
+
+
+def write_verify_outputs(sim: Simulation, report: VerifyReport, *, png: Path | None, json_path: Path | None,
+                         mcap: Path | None, overwrite: bool, inputs: dict[str, str]) -> None:
+    """The report as JSON, the deviation picture, the simulated stock in MCAP: each where asked."""
+    if png is not None:
+        write_bytes(png, png_bytes(deviation_image(sim, report)), overwrite=overwrite)
+    if mcap is not None:
+        with McapLog(mcap, stage="verify", overwrite=overwrite, inputs=inputs) as m:
+            log_simulation(m, sim)
+    if json_path is not None:
+        write_text(json_path, json.dumps(report.to_dict(), indent=2) + "\n", overwrite=overwrite)
+

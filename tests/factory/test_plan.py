@@ -1,0 +1,141 @@
+"""factory.plan: the plan pipeline as a library; output sets that appear whole or not at all.
+
+A plan killed (SIGKILL) while writing must leave nothing a later run trips over: the catalog
+ignores the set without its summary and plans the part again into the folder it owns.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from cli.main import app
+from factory.cam import CamRequest
+from factory.catalog import catalog_record, find_entry, sha256_file
+from factory.plan import PlanRequest, plan_outputs, plan_part
+from factory.resources import FIXTURES
+from tests.conftest import ROOT, pocket_block
+
+
+def fast_request(part: Path, robot: bool = True) -> PlanRequest:
+    """Coarse CAM and verify: the pipeline's shape, not its finish, is under test here."""
+    cam = CamRequest.defaults(part, "aluminium")
+    plan = cam.plan
+    plan = dataclasses.replace(plan, waterline=False,
+                               finishing=dataclasses.replace(plan.finishing, scallop=0.05))
+    return PlanRequest(dataclasses.replace(cam, plan=plan), grid=0.5, robot=robot)
+
+
+@pytest.fixture(scope="module")
+def block(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("part") / "block.stl"
+    pocket_block(size=(30.0, 20.0, 16.0)).export(path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def planned(block):
+    return plan_part(fast_request(block))
+
+
+def test_plan_part_computes_everything_and_writes_nothing(planned, block):
+    assert sorted(p.name for p in block.parent.iterdir()) == ["block.stl"]
+    assert planned.report.ok and planned.program.total_time > 0
+    assert planned.tending is not None and set(planned.tending.programs) == {"block.script"}
+    assert planned.setup_sheet["program"] == "block.nc"
+
+
+def test_write_makes_the_whole_set_and_no_staging_is_left(planned, tmp_path):
+    summary = planned.write(tmp_path)
+    outputs = plan_outputs(planned.request.cam.part, tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in outputs.values())
+    assert json.loads(outputs["summary"].read_text()) == summary
+    assert summary["outputs"] == {k: str(v) for k, v in outputs.items()}
+    assert "write" in summary["seconds"]
+    with pytest.raises(Exception, match="exists"):
+        planned.write(tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in outputs.values())
+
+
+# The child plans the part, then dies by SIGKILL at a chosen point of the write phase: while the
+# files are staged (after the first one), or while they are renamed into place (after the second).
+_KILLER = textwrap.dedent("""
+    import os, signal, sys
+    from pathlib import Path
+    import factory.plan as fp
+    from tests.factory.test_plan import fast_request
+
+    part, out, when = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
+    plan = fp.plan_part(fast_request(part))
+    calls = [0]
+
+    def dying(real):
+        def call(*args, **kwargs):
+            real(*args, **kwargs)
+            calls[0] += 1
+            if calls[0] == 2:
+                os.kill(os.getpid(), signal.SIGKILL)
+        return call
+
+    if when == "staging":
+        fp.write_text = dying(fp.write_text)
+    else:
+        fp.os.replace = dying(os.replace)
+    plan.write(out)
+""")
+
+
+def _killed_write(part: Path, out: Path, when: str) -> None:
+    r = subprocess.run([sys.executable, "-c", _KILLER, str(part), str(out), when], cwd=ROOT,
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == -9, r.stderr
+
+
+@pytest.mark.parametrize("when", ["staging", "renaming"])
+def test_a_plan_killed_while_writing_poisons_nothing(block, tmp_path, when):
+    """kill -9 in the write phase, into the catalog's own folder for the part; then `factory
+    simulate` finds no plan there, plans the part again over the leftovers, and runs the order."""
+    catalog = tmp_path / "catalog"
+    key = catalog_record(sha256_file(block), "aluminium", sha256_file(FIXTURES / "cell.yaml"),
+                         sha256_file(FIXTURES / "tools.yaml"))["key"]
+    folder = catalog / f"block-aluminium-{key[:8]}"
+    _killed_write(block, folder, when)
+    assert not (folder / "block.plan.json").exists()
+    assert any(folder.iterdir())  # it died with something written
+    assert find_entry(catalog, key) is None
+
+    orders = tmp_path / "orders.csv"
+    orders.write_text(f"part,quantity,material,priority\n{block},1,aluminium,0\n")
+    r = CliRunner().invoke(app, ["simulate", str(orders), "--catalog", str(catalog), "--json", "--quiet"])
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.stdout)
+    assert [o["outcome"] for o in doc["orders"]] == ["done"], doc["orders"]
+    assert find_entry(catalog, key) is not None
+    assert not [p for p in folder.iterdir() if p.name.startswith(".")], "staging or temp files left behind"
+
+
+def test_a_plain_plan_after_a_killed_one_starts_clean(block, tmp_path):
+    """Staging left by a dead process is removed by the next write of the part."""
+    _killed_write(block, tmp_path, "staging")
+    assert [p for p in tmp_path.iterdir() if p.name.startswith(".block.plan-")]
+    plan_part(fast_request(block, robot=False)).write(tmp_path, overwrite=True)
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_readme_python_example_runs(tmp_path, monkeypatch):
+    """The README's "From Python" example, as written, with its output folder under tmp_path."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    section = readme.split("## From Python", 1)[1]
+    code = section.split("```python\n", 1)[1].split("```", 1)[0]
+    monkeypatch.chdir(ROOT)
+    code = code.replace('Path("build/', f'Path("{tmp_path}/')
+    namespace: dict = {}
+    exec(compile(code, "README.md", "exec"), namespace)
+    assert (tmp_path / "bracket" / "bracket.plan.json").is_file()
