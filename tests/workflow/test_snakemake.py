@@ -1,0 +1,134 @@
+"""The Snakemake workflow, run by Snakemake itself: locally, through a detached-job executor, and
+after its driver was killed.
+
+The sample parts are planned with coarse options (the workflow, not the finish, is under test).
+Every run's deterministic outputs (G-code, setup sheets, verify reports, robot programs, the plan
+summaries, and the cell's order outcomes) must equal a clean run's.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from tests.conftest import ROOT, SAMPLES
+
+SNAKEFILE = ROOT / "workflow" / "Snakefile"
+PROFILES = ROOT / "workflow" / "profiles"
+BIN = Path(sys.executable).parent
+PARTS = sorted(p.stem for p in SAMPLES.glob("*.stl"))
+FAST = {"scallop": 0.05, "waterline": False, "grid": 0.5}
+
+
+def _config(folder: Path, options: dict | None = None) -> Path:
+    config = {"parts": str(SAMPLES), "catalog": "catalog", "orders": str(SAMPLES / "one_each.csv"), "out": "out",
+              "factory": str(BIN / "factory"), "options": options or FAST}
+    path = folder / "config.yaml"
+    path.write_text(yaml.safe_dump(config))
+    return path
+
+
+def _snakemake(folder: Path, *args: str, **kwargs) -> subprocess.CompletedProcess:
+    cmd = [str(BIN / "snakemake"), "-s", str(SNAKEFILE), "--configfile", str(folder / "config.yaml"),
+           "--directory", str(folder), *args]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=1800, **kwargs)
+
+
+def _outputs(folder: Path) -> dict[str, object]:
+    """What a run made that must not depend on how it was run."""
+    out: dict[str, object] = {}
+    for part in PARTS:
+        d = folder / "catalog" / part
+        for ext in ("nc", "setup.json", "verify.json", "script"):
+            out[f"{part}.{ext}"] = (d / f"{part}.{ext}").read_bytes()
+        summary = json.loads((d / f"{part}.plan.json").read_text())
+        summary.pop("seconds")
+        summary["outputs"] = {k: Path(v).name for k, v in summary["outputs"].items()}
+        out[f"{part}.plan.json"] = summary
+    # The cell's times include the camera steps' measured processing: outcomes, not times, must agree.
+    cell = json.loads((folder / "out" / "cell.json").read_text())
+    out["cell"] = [(o["order"], o["outcome"], o["good"], o["rejected"]) for o in cell["orders"]]
+    return out
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory) -> tuple[Path, dict[str, object]]:
+    folder = tmp_path_factory.mktemp("clean")
+    _config(folder)
+    r = _snakemake(folder, "--profile", str(PROFILES / "local"))
+    assert r.returncode == 0, r.stderr[-3000:]
+    return folder, _outputs(folder)
+
+
+def test_plans_every_sample_then_runs_the_orders(clean):
+    folder, outputs = clean
+    for part in PARTS:
+        assert json.loads((folder / "catalog" / part / f"{part}.plan.json").read_text())["verify"]["ok"]
+    orders = outputs["cell"]
+    assert len(orders) == len(PARTS) and all(o[1] == "done" and o[2] == 1 for o in orders), orders
+    # No plan was made by the simulation: every one came from the workflow's jobs.
+    cell = json.loads((folder / "out" / "cell.json").read_text())
+    assert not any(p.get("planned_now") for p in cell["parts"]), cell["parts"]
+
+
+def test_a_rerun_skips_unchanged_parts_and_replans_changed_options(clean):
+    folder, _ = clean
+    r = _snakemake(folder, "--cores", "2", "--dry-run")
+    assert r.returncode == 0 and "Nothing to be done" in r.stdout + r.stderr, r.stdout[-2000:]
+    config = yaml.safe_load((folder / "config.yaml").read_text())
+    config["part_options"] = {PARTS[0]: {"allowance": 0.4}}
+    (folder / "config.yaml").write_text(yaml.safe_dump(config))
+    r = _snakemake(folder, "--cores", "2", "--dry-run", "--quiet", "rules")
+    assert r.returncode == 0, r.stderr[-2000:]
+    counts = {line.split()[0]: int(line.split()[1]) for line in (r.stdout + r.stderr).splitlines()
+              if len(line.split()) == 2 and line.split()[1].isdigit()}
+    assert counts.get("plan") == 1 and counts.get("simulate") == 1, r.stdout + r.stderr
+
+
+def test_unknown_option_names_are_refused_before_any_job(tmp_path):
+    _config(tmp_path, {"scallop": 0.05, "rough-tol": 2})
+    r = _snakemake(tmp_path, "--cores", "1")
+    assert r.returncode != 0 and "has no option --rough-tol" in r.stdout + r.stderr
+    assert not (tmp_path / "catalog").exists()
+
+
+def test_detached_jobs_make_what_a_local_run_makes(clean, tmp_path):
+    _config(tmp_path)
+    r = _snakemake(tmp_path, "--profile", str(PROFILES / "detached"))
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "Submitted job" in r.stdout + r.stderr and "external jobid" in r.stdout + r.stderr
+    assert _outputs(tmp_path) == clean[1]
+
+
+def test_a_driver_killed_mid_run_reruns_to_a_clean_result(clean, tmp_path):
+    """SIGKILL to the driver and every job it started (a lost login node), in the middle of the
+    plan jobs; then `--unlock` and the same command again finish with a clean run's outputs."""
+    _config(tmp_path)
+    cmd = [str(BIN / "snakemake"), "-s", str(SNAKEFILE), "--configfile", str(tmp_path / "config.yaml"),
+           "--directory", str(tmp_path), "--profile", str(PROFILES / "local")]
+    driver = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.monotonic() + 600
+    # Kill once the first part is planned and others are under way.
+    while not list((tmp_path / "catalog").glob("*/*.plan.json")) and time.monotonic() < deadline:
+        assert driver.poll() is None, "the workflow ended before it could be killed"
+        time.sleep(0.2)
+    os.killpg(driver.pid, signal.SIGKILL)
+    driver.wait()
+    done = list((tmp_path / "catalog").glob("*/*.plan.json"))
+    assert 0 < len(done) < len(PARTS), done
+    assert not (tmp_path / "out" / "cell.json").exists()
+
+    assert _snakemake(tmp_path, "--unlock").returncode == 0
+    r = _snakemake(tmp_path, "--profile", str(PROFILES / "local"))
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert _outputs(tmp_path) == clean[1]
+    leftovers = [p for p in (tmp_path / "catalog").rglob(".*") if ".snakemake" not in p.parts]
+    assert not leftovers, leftovers
