@@ -23,10 +23,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from cadcam.model import CuttingData, Tool
 from factory.errors import ToolError
+from factory.yamlfile import load_yaml
 from factory.resources import FIXTURES
 
 log = logging.getLogger(__name__)
@@ -172,13 +171,7 @@ def load_tool_library(path: str | Path | None = None) -> ToolLibrary:
         raise ToolError("no such tool library file", source=path) from None
     except (OSError, UnicodeDecodeError) as e:
         raise ToolError(f"cannot read tool library: {e}", source=path) from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
-        raise ToolError(f"invalid YAML{where}: {problem}", source=path) from None
+    doc = load_yaml(text, source=path, error=ToolError)
     return _Parser(str(path)).library(doc)
 
 

@@ -8,7 +8,21 @@ user input and never returns ``None`` to mean failure.
 
 from __future__ import annotations
 
+import reprlib
 from pathlib import Path
+
+#: Longest user value an error message quotes [characters].
+SHOWN_CHARS = 60
+
+_repr = reprlib.Repr()
+_repr.maxlevel, _repr.maxstring, _repr.maxother = 2, SHOWN_CHARS, SHOWN_CHARS
+
+
+def shown(value: object) -> str:
+    """A user's value quoted in an error message: its repr, bounded in depth, items and
+    length, so a huge or deeply shared value (a YAML alias bomb) is never expanded."""
+    text = _repr.repr(value)
+    return text if len(text) <= SHOWN_CHARS else text[:SHOWN_CHARS - 3] + "..."
 
 
 class FactoryError(Exception):

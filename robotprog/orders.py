@@ -29,9 +29,8 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
-
-from factory.errors import SchedulerError
+from factory.errors import SchedulerError, shown
+from factory.yamlfile import load_yaml
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +65,7 @@ class Order:
 
 def _whole(value: object, field: str, where: str, minimum: int) -> int:
     if isinstance(value, bool):
-        raise SchedulerError(f"{field}: expected a whole number, got {value!r}", source=where)
+        raise SchedulerError(f"{field}: expected a whole number, got {shown(value)}", source=where)
     if isinstance(value, int):
         number = value
     elif isinstance(value, float) and value.is_integer():
@@ -74,7 +73,7 @@ def _whole(value: object, field: str, where: str, minimum: int) -> int:
     elif isinstance(value, str) and value.strip().lstrip("+").isdigit():
         number = int(value.strip())
     else:
-        raise SchedulerError(f"{field}: expected a whole number, got {value!r}", source=where)
+        raise SchedulerError(f"{field}: expected a whole number, got {shown(value)}", source=where)
     if number < minimum:
         raise SchedulerError(f"{field}: must be >= {minimum}, got {number}", source=where)
     return number
@@ -90,9 +89,9 @@ def _order(entry: dict, index: int, where: str, base: Path) -> Order:
             raise SchedulerError(f"{field}: missing", source=where)
     part, material = entry["part"], entry["material"]
     if not isinstance(part, str):
-        raise SchedulerError(f"part: expected a file path, got {part!r}", source=where)
+        raise SchedulerError(f"part: expected a file path, got {shown(part)}", source=where)
     if not isinstance(material, str):
-        raise SchedulerError(f"material: expected a name, got {material!r}", source=where)
+        raise SchedulerError(f"material: expected a name, got {shown(material)}", source=where)
     priority = entry.get("priority")
     path = Path(part.strip())
     return Order(
@@ -105,12 +104,7 @@ def _order(entry: dict, index: int, where: str, base: Path) -> Order:
 
 
 def _read_yaml(path: Path, text: str) -> list[Order]:
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
-        raise SchedulerError(f"not valid YAML: {getattr(exc, 'problem', None) or exc}", source=where) from None
+    doc = load_yaml(text, source=path, error=SchedulerError)
     if not isinstance(doc, dict) or "orders" not in doc:
         raise SchedulerError("expected a mapping with an 'orders' list", source=path)
     extra = sorted(set(map(str, doc)) - {"orders"})
@@ -123,7 +117,7 @@ def _read_yaml(path: Path, text: str) -> list[Order]:
     for i, entry in enumerate(entries):
         where = f"{path}: orders[{i}]"
         if not isinstance(entry, dict):
-            raise SchedulerError(f"expected a mapping of {', '.join(FIELDS)}, got {entry!r}", source=where)
+            raise SchedulerError(f"expected a mapping of {', '.join(FIELDS)}, got {shown(entry)}", source=where)
         orders.append(_order(entry, i, where, path.parent))
     return orders
 

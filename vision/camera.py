@@ -28,6 +28,7 @@ import numpy as np
 import yaml
 
 from factory.errors import VisionError
+from factory.yamlfile import load_yaml
 
 #: Distortion models we read and write -> number of coefficients (OpenCV order).
 DISTORTION_MODELS = {"plumb_bob": 5, "rational_polynomial": 8}
@@ -188,10 +189,7 @@ class CameraModel:
             (``source`` = the file, the message names the field) Not YAML, a field missing,
             of the wrong shape or type, or an unknown distortion model.
         """
-        try:
-            doc = yaml.safe_load(text)
-        except yaml.YAMLError as e:
-            raise VisionError(f"not YAML: {str(e).splitlines()[0]}", source=source) from None
+        doc = load_yaml(text, source=source, error=VisionError)
         if not isinstance(doc, dict):
             raise VisionError("not a camera_info YAML mapping", source=source)
 

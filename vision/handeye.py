@@ -27,11 +27,11 @@ from itertools import combinations
 
 import cv2
 import numpy as np
-import yaml
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from factory.errors import VisionError
+from factory.yamlfile import load_yaml
 from vision.calibrate import Detection
 from vision.camera import CameraModel
 
@@ -398,10 +398,7 @@ def parse_robot_poses(text: str, *, source: str = "poses", csv: bool = False) ->
                 raise VisionError(f"line {i}: pose values must be numbers", source=source) from None
             add(row[0], values[:3], **{kind: values[3:]}, where=f"line {i}")
     else:
-        try:
-            doc = yaml.safe_load(text)
-        except yaml.YAMLError as e:
-            raise VisionError(f"not YAML: {str(e).splitlines()[0]}", source=source) from None
+        doc = load_yaml(text, source=source, error=VisionError)
         if not isinstance(doc, dict) or not isinstance(doc.get("poses"), dict):
             raise VisionError("expected a mapping 'poses: {IMAGE: {xyz: [...], rotvec|quat: [...]}}'",
                               source=source)
@@ -487,10 +484,7 @@ def read_extrinsics(text: str, *, source: str = "extrinsics") -> Extrinsics:
     VisionError
         (``source``) Not YAML, not a hand-eye file, or a transform that is not rigid.
     """
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise VisionError(f"not YAML: {str(e).splitlines()[0]}", source=source) from None
+    doc = load_yaml(text, source=source, error=VisionError)
     if not isinstance(doc, dict) or doc.get("format") != HANDEYE_FORMAT:
         raise VisionError(f"not a hand-eye file (format: {HANDEYE_FORMAT})", source=source)
     mode = doc.get("mode")
