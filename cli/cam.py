@@ -16,11 +16,11 @@ from cadcam.mesh import PartMesh, load_part
 from cadcam.model import Job
 from cadcam.plan import PlanOptions, plan_job
 from cadcam.roughing import RoughingOptions
-from cadcam.setup import make_setup
+from cadcam.setup import check_stock_size, make_setup
 from cadcam.tools import load_tool_library
 from cli.common import StageProgress, Stopwatch, parse_triple
 from cli.views import job_messages
-from factory.errors import ToolpathError
+from factory.errors import SetupError, ToolpathError
 from factory.mcaplog import McapLog, read_attachment
 
 #: Name of the MCAP attachment that carries the job from ``toolpath`` to ``gcode``.
@@ -68,7 +68,12 @@ class CamRequest:
     def from_options(cls, part: Path, tools: Path | None, stock: str | None, material: str, units: Units,
                      origin: Origin, rough_tool: int, finish_tool: int, allowance: float, scallop: float,
                      stepdown: float | None, waterline: bool) -> "CamRequest":
-        parse_triple(stock, "--stock")  # usage errors before any work
+        size = parse_triple(stock, "--stock")  # usage errors before any work
+        if size is not None:
+            try:
+                check_stock_size(size)
+            except SetupError as e:
+                raise typer.BadParameter(e.message, param_hint="--stock") from None
         plan = PlanOptions(
             rough_tool=rough_tool,
             finish_tool=finish_tool,
