@@ -80,7 +80,11 @@ class McapError(FactoryError):
     """An MCAP file cannot be written or read back."""
 
 
-class OutputExistsError(FactoryError):
+class OutputError(FactoryError):
+    """An output cannot be written where it was asked for (its folder is a file, ...)."""
+
+
+class OutputExistsError(OutputError):
     """An output file exists and overwriting was not asked for."""
 
 
