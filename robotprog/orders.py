@@ -12,7 +12,10 @@ CSV (``.csv``), a header row then one order per row::
     part,quantity,material,priority
     samples/bracket.stl,2,aluminium,1
 
-``part`` is a path relative to the orders file (absolute paths are kept). ``quantity`` is a
+``part`` is a path relative to the folder of the orders file; an absolute path is kept. A path
+may leave that folder (``../parts/x.stl``): an orders file is trusted like a command line, and
+factory only reads the part (plans go to the catalog). Each part's resolved path is logged
+(INFO), with a note when it lies outside the orders file's folder. ``quantity`` is a
 whole number >= 1. ``material`` is a non-empty name (the cutting-data key). ``priority`` is
 an optional whole number >= 0, default 0; *lower numbers run first*, ties in file order.
 
@@ -82,7 +85,7 @@ def _whole(value: object, field: str, where: str, minimum: int) -> int:
 def _order(entry: dict, index: int, where: str, base: Path) -> Order:
     unknown = sorted(set(map(str, entry)) - set(FIELDS))
     if unknown:
-        raise SchedulerError(f"unknown field {unknown[0]!r} (expected {', '.join(FIELDS)})", source=where)
+        raise SchedulerError(f"unknown field {shown(unknown[0])} (expected {', '.join(FIELDS)})", source=where)
     for field in REQUIRED:
         value = entry.get(field)
         if value is None or (isinstance(value, str) and not value.strip()):
@@ -94,9 +97,13 @@ def _order(entry: dict, index: int, where: str, base: Path) -> Order:
         raise SchedulerError(f"material: expected a name, got {shown(material)}", source=where)
     priority = entry.get("priority")
     path = Path(part.strip())
+    path = path if path.is_absolute() else base / path
+    resolved = path.resolve()
+    outside = not resolved.is_relative_to(base.resolve())
+    log.info("%s: part %s%s", where, resolved, " (outside the orders file's folder)" if outside else "")
     return Order(
         id=f"o{index + 1}",
-        part=path if path.is_absolute() else base / path,
+        part=path,
         quantity=_whole(entry["quantity"], "quantity", where, 1),
         material=material.strip(),
         priority=0 if priority is None or priority == "" else _whole(priority, "priority", where, 0),
@@ -109,7 +116,7 @@ def _read_yaml(path: Path, text: str) -> list[Order]:
         raise SchedulerError("expected a mapping with an 'orders' list", source=path)
     extra = sorted(set(map(str, doc)) - {"orders"})
     if extra:
-        raise SchedulerError(f"unknown key {extra[0]!r} (expected 'orders')", source=path)
+        raise SchedulerError(f"unknown key {shown(extra[0])} (expected 'orders')", source=path)
     entries = doc["orders"]
     if not isinstance(entries, list):
         raise SchedulerError("orders: expected a list", source=path)
