@@ -147,7 +147,10 @@ def load_part(path: str | Path, units: Units = "auto") -> PartMesh:
     else:
         scale = UNIT_SCALE[units]
 
-    mesh, repairs = _make_solid(vertices, faces, fmt, path)
+    # A shell enclosing no volume makes trimesh divide by zero for its centre of mass: the
+    # check below reports that in one line, numpy's warnings would add six more.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mesh, repairs = _make_solid(vertices, faces, fmt, path)
     if scale != 1.0:
         mesh.apply_scale(scale)
     _check_size(mesh, units, path)
