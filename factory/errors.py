@@ -18,6 +18,13 @@ _repr = reprlib.Repr()
 _repr.maxlevel, _repr.maxstring, _repr.maxother = 2, SHOWN_CHARS, SHOWN_CHARS
 
 
+def clipped(text: str, limit: int = 2 * SHOWN_CHARS) -> str:
+    """The first line of a message from elsewhere (a library's exception), at most ``limit`` characters."""
+    lines = str(text).strip().splitlines()
+    first = lines[0] if lines else ""
+    return first if len(first) <= limit else first[:limit - 3] + "..."
+
+
 def shown(value: object) -> str:
     """A user's value quoted in an error message: its repr, bounded in depth, items and
     length, so a huge or deeply shared value (a YAML alias bomb) is never expanded."""

@@ -43,8 +43,9 @@ def load_yaml(text: str, *, source: str | Path, error: type[FactoryError],
         Not valid YAML (one line, ``source:LINE``), more than one document, nesting too
         deep for the parser, a recursive alias, or more than ``max_values`` values.
     """
-    loader = yaml.SafeLoader(text)
+    loader = None
     try:
+        loader = yaml.SafeLoader(text)  # checks the characters: may raise already
         node = loader.get_single_node()
         if node is None:
             return None
@@ -58,7 +59,8 @@ def load_yaml(text: str, *, source: str | Path, error: type[FactoryError],
     except RecursionError:
         raise error("not valid YAML: nested too deeply", source=source) from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
 
 
 def _children(node: yaml.Node) -> list[yaml.Node]:
