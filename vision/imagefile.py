@@ -57,7 +57,13 @@ def decode_grey(data: bytes, source: str | Path, max_pixels: int = MAX_PIXELS) -
     if w * h > max_pixels:
         raise VisionError(f"picture of {w} x {h} px is larger than {max_pixels / 1e6:g} megapixels",
                           source=source)
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    # OpenCV logs its own warning for a truncated file on stderr; the error below says it once.
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    try:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    finally:
+        cv2.utils.logging.setLogLevel(level)
     if image is None:
-        raise VisionError("cannot read image: not a picture OpenCV can decode", source=source)
+        raise VisionError("cannot read image: truncated or corrupt picture", source=source)
     return image
