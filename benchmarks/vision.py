@@ -42,7 +42,7 @@ from vision.handeye import calibrate_handeye, invert, make_transform  # noqa: E4
 from vision.locate import footprint_from_mesh, locate_parts  # noqa: E402
 from vision.render import Box, look_at_pose, pixel_rays, render_boxes  # noqa: E402
 
-SAMPLES = ROOT.parent / "shared" / "data" / "opencv-samples" / "left"
+SAMPLES = ROOT / "tests" / "data" / "opencv-samples" / "left"
 BOARD = BoardSpec.parse("chessboard:9x6:0.025")
 #: cornerSubPix half-window of OpenCV's regression test [px].
 BARE_WINDOW = 5

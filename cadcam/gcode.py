@@ -232,10 +232,11 @@ class _Out:
         self.meta.append((int(motion), tool, feed, line))
         self.count.append(len(pts))
 
-    def result(self) -> ProgramMoves:
+    def result(self, source: str | None) -> ProgramMoves:
         count = np.asarray(self.count)
         motion, tool, feed, line = (np.repeat(np.asarray(col), count) for col in zip(*self.meta))
-        return ProgramMoves(points=np.vstack(self.points), motion=motion, tool=tool, feed=feed, line=line)
+        return ProgramMoves(points=np.vstack(self.points), motion=motion, tool=tool, feed=feed, line=line,
+                            source=source)
 
 
 def parse_gcode(text: str, *, source: str | None = None, arc_tolerance: float = 0.001,
@@ -306,7 +307,7 @@ def parse_gcode(text: str, *, source: str | None = None, arc_tolerance: float = 
             break
     if progress is not None:
         progress(total, total)
-    return out.result()
+    return out.result(source)
 
 
 def _execute(b: _Block, st: _State, out: _Out, ln: int, any_m6: bool, tol: float,

@@ -61,6 +61,12 @@ _WELD_TOLERANCE = 1e-5
 
 # Triangles with less area than this [file units^2] are slivers that carry no surface.
 _DEGENERATE_AREA = 1e-12
+#: Least fraction of its bounding box a repaired solid must fill. A thin-walled tube fills a
+#: few per cent; a triangle soup "repaired" into slivers fills 1e-17.
+MIN_BOX_FILL = 1e-3
+#: Least fraction of the file's surface a manifold3d rebuild must keep: welding seams moves
+#: vertices by nanometres, it does not discard faces wholesale.
+MIN_SURFACE_KEPT = 0.5
 
 
 @dataclass(frozen=True)
@@ -141,7 +147,10 @@ def load_part(path: str | Path, units: Units = "auto") -> PartMesh:
     else:
         scale = UNIT_SCALE[units]
 
-    mesh, repairs = _make_solid(vertices, faces, fmt, path)
+    # A shell enclosing no volume makes trimesh divide by zero for its centre of mass: the
+    # check below reports that in one line, numpy's warnings would add six more.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mesh, repairs = _make_solid(vertices, faces, fmt, path)
     if scale != 1.0:
         mesh.apply_scale(scale)
     _check_size(mesh, units, path)
@@ -262,6 +271,7 @@ def _make_solid(
             # manifold3d's job, and the sliver triangles fill_holes may have added would
             # only get in its way.
             mesh = unfilled
+            area_before = float(mesh.area)
             rebuilt = _manifold_rebuild(mesh)
             if rebuilt is None:
                 n_open = _boundary_edges(mesh)
@@ -271,6 +281,10 @@ def _make_solid(
                     else "mesh is not a closed 2-manifold (edges shared by more than two triangles)"
                 )
                 raise MeshError(f"{what}: cannot repair; close the shell in CAD and re-export", source=path)
+            kept = float(rebuilt.area) / area_before
+            if kept < MIN_SURFACE_KEPT:
+                raise MeshError(f"repair kept {kept:.1%} of the surface (less than {MIN_SURFACE_KEPT:.0%}): not a "
+                                "closed shell; close it in CAD and re-export", source=path)
             mesh = rebuilt
             repairs.append("rebuilt with manifold3d")
 
@@ -279,6 +293,11 @@ def _make_solid(
         repairs.append("flipped inside-out normals")
     if not mesh.volume > 0:
         raise MeshError("mesh encloses no volume", source=path)
+    box = float(np.prod(np.ptp(mesh.vertices, axis=0)))
+    fill = float(mesh.volume) / box if box > 0 else 0.0
+    if fill < MIN_BOX_FILL:
+        raise MeshError(f"solid fills {fill:.2g} of its bounding box (less than {MIN_BOX_FILL:g}): "
+                        f"{float(mesh.volume):.3g} mm^3 in {box:.3g} mm^3; not a solid part", source=path)
     return mesh, repairs
 
 

@@ -354,6 +354,8 @@ class ProgramMoves:
         Programmed feed during that move [mm/min] (NaN for rapids).
     line : (n,) int32
         1-based source line of the block that made the move (0 for ``points[0]``).
+    source : str or None
+        The program file the moves were read from, named in errors about a line.
     """
 
     points: np.ndarray
@@ -361,6 +363,7 @@ class ProgramMoves:
     tool: np.ndarray
     feed: np.ndarray
     line: np.ndarray
+    source: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "points", frozen_array(self.points, (3,)).reshape(-1, 3))

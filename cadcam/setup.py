@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from cadcam.mesh import MAX_EXTENT_MM
 from cadcam.model import Setup, WorkOrigin
 from factory.errors import SetupError
 
@@ -22,6 +23,36 @@ log = logging.getLogger(__name__)
 _ORIGINS = ("top-front-left", "top-centre")
 # Stock this much smaller than the part [mm] is rounding noise, not a misfit.
 _FIT_TOLERANCE = 1e-6
+
+#: Longest stock side [mm]: the same bound as a part mesh's extent.
+MAX_STOCK_MM = MAX_EXTENT_MM
+#: Largest stock top area [mm^2]. Roughing levels and the verify grid grow with the area the
+#: tools sweep; at the default 0.2 mm verify grid this is 25 million cells, under the
+#: simulation's 60 million, so no plan does its CAM work only for verify to refuse it.
+MAX_STOCK_AREA_MM2 = 1000.0 * 1000.0
+
+
+def check_stock_size(size: tuple[float, float, float] | np.ndarray, source: str | None = None) -> np.ndarray:
+    """The stock size X, Y, Z [mm] as an array, if it is one this toolchain can plan within bounded
+    time and memory.
+
+    Raises
+    ------
+    SetupError
+        Not three finite positive lengths, a side longer than :data:`MAX_STOCK_MM`, or a top
+        larger than :data:`MAX_STOCK_AREA_MM2`.
+    """
+    size = np.asarray(size, dtype=np.float64).reshape(-1)
+    if size.shape != (3,) or not np.isfinite(size).all() or (size <= 0).any():
+        raise SetupError(f"stock size must be three positive lengths X, Y, Z [mm], got {size.tolist()}",
+                         source=source)
+    if (size > MAX_STOCK_MM).any():
+        axis = "XYZ"[int(np.argmax(size))]
+        raise SetupError(f"stock {axis} of {size.max():g} mm is longer than {MAX_STOCK_MM:g} mm", source=source)
+    if size[0] * size[1] > MAX_STOCK_AREA_MM2:
+        raise SetupError(f"stock top {size[0]:g} x {size[1]:g} mm is larger than {MAX_STOCK_AREA_MM2:g} mm^2",
+                         source=source)
+    return size
 
 
 @dataclass(frozen=True)
@@ -104,11 +135,9 @@ def make_setup(
             v = getattr(margins, name)
             if not (np.isfinite(v) and v >= 0):
                 raise SetupError(f"stock margin {name} must be >= 0 mm, got {v}", source=source)
-        size = part_size + np.array([2 * margins.sides, 2 * margins.sides, margins.top])
+        size = check_stock_size(part_size + np.array([2 * margins.sides, 2 * margins.sides, margins.top]), source)
     else:
-        size = np.asarray(stock_size, dtype=np.float64).reshape(-1)
-        if size.shape != (3,) or not np.isfinite(size).all() or (size <= 0).any():
-            raise SetupError(f"stock size must be three positive lengths X, Y, Z [mm], got {stock_size}", source=source)
+        size = check_stock_size(stock_size, source)
         for axis, s, p in zip("XYZ", size, part_size):
             if s < p - _FIT_TOLERANCE:
                 raise SetupError(

@@ -29,7 +29,7 @@ from typing import Any
 
 from cadcam.model import Job, Setup, Tool
 from cadcam.post import Program
-from factory.errors import SetupError
+from factory.errors import SetupError, clipped
 
 FORMAT = "factory.setup/1"
 
@@ -94,5 +94,5 @@ def read_setup_sheet(data: Any, source: str | None = None) -> tuple[Setup, dict[
         )
         tools = {int(t["number"]): Tool.from_dict(t) for t in data["tools"]}
     except (KeyError, TypeError, ValueError) as e:
-        raise SetupError(f"malformed setup sheet: {type(e).__name__}: {e}", source=source) from None
+        raise SetupError(f"malformed setup sheet: {type(e).__name__}: {clipped(str(e))}", source=source) from None
     return setup, tools

@@ -239,7 +239,7 @@ def machine_timeline(moves: ProgramMoves, options: PostOptions = PostOptions()) 
     bad = ~rapid & ~(feed > 0)
     if bad.any():
         line = int(moves.line[1 + int(np.flatnonzero(bad)[0])])
-        raise GcodeError(f"line {line}: feed move without a positive feed", line=line)
+        raise GcodeError(f"line {line}: feed move without a positive feed", source=moves.source, line=line)
     step = np.diff(points, axis=0)
     seconds = move_seconds(np.linalg.norm(step, axis=1), feed, options.rapid_rate)
 

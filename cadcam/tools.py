@@ -23,10 +23,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from cadcam.model import CuttingData, Tool
-from factory.errors import ToolError
+from factory.errors import ToolError, shown
+from factory.yamlfile import load_yaml
 from factory.resources import FIXTURES
 
 log = logging.getLogger(__name__)
@@ -115,7 +114,7 @@ class ToolLibrary:
             if key == m.name.lower() or key in (a.lower() for a in m.aliases):
                 return m
         known = ", ".join(m.name for m in self.materials)
-        raise ToolError(f"unknown material {name!r}: the library has cutting data for {known}", source=self.source)
+        raise ToolError(f"unknown material {shown(name)}: the library has cutting data for {known}", source=self.source)
 
     def cutting_data(self, tool: Tool, material: str) -> CuttingData:
         """Spindle speed, cutting feed and plunge feed for ``tool`` in ``material``.
@@ -172,13 +171,7 @@ def load_tool_library(path: str | Path | None = None) -> ToolLibrary:
         raise ToolError("no such tool library file", source=path) from None
     except (OSError, UnicodeDecodeError) as e:
         raise ToolError(f"cannot read tool library: {e}", source=path) from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
-        raise ToolError(f"invalid YAML{where}: {problem}", source=path) from None
+    doc = load_yaml(text, source=path, error=ToolError)
     return _Parser(str(path)).library(doc)
 
 
@@ -243,7 +236,7 @@ class _Parser:
         for m in materials:
             for n in (m.name, *m.aliases):
                 if n.lower() in seen_names and seen_names[n.lower()] != m.name:
-                    raise self.fail(f"materials.{m.name}", f"name or alias {n!r} also used by {seen_names[n.lower()]}")
+                    raise self.fail(f"materials.{m.name}", f"name or alias {shown(n)} also used by {seen_names[n.lower()]}")
                 seen_names[n.lower()] = m.name
 
         tools_doc = doc["tools"]
@@ -270,7 +263,7 @@ class _Parser:
         if not isinstance(table, dict) or not table:
             raise self.fail(f"{where}.chip_load", f"must be a mapping of diameter [mm] to fz [mm/tooth], got {_kind(table)}")
         pairs = sorted(
-            (self.number(k, f"{where}.chip_load (diameter {k!r})"), self.number(v, f"{where}.chip_load[{k}]"))
+            (self.number(k, f"{where}.chip_load (diameter {shown(k)})"), self.number(v, f"{where}.chip_load[{k}]"))
             for k, v in table.items()
         )
         for _, fz in pairs:
@@ -294,7 +287,7 @@ class _Parser:
         name = self.string(d["name"], f"{where}.name")
         shape = d["shape"]
         if shape not in _SHAPES:
-            raise self.fail(f"{where}.shape", f"unknown shape {shape!r}: expected flat, ball or bull")
+            raise self.fail(f"{where}.shape", f"unknown shape {shown(shape)}: expected flat, ball or bull")
         diameter = self.number(d["diameter"], f"{where}.diameter")
         radius = diameter / 2
         if shape == "flat":
@@ -337,8 +330,6 @@ def _join(where: str, key: str) -> str:
 def _kind(value: Any) -> str:
     if value is None:
         return "nothing"
-    if isinstance(value, bool):
-        return f"{value!r}"
-    if isinstance(value, (int, float, str)):
-        return f"{value!r}"
+    if isinstance(value, (bool, int, float, str)):
+        return shown(value)
     return type(value).__name__

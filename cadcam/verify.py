@@ -543,7 +543,7 @@ def _tool_table(moves: ProgramMoves, tools: Mapping[int, Tool], use: np.ndarray)
                 what = "no tool in the spindle" if t == 0 else f"tool T{t} is not in the tool table"
                 line = int(moves.line[first + 1])
                 kind = "feed" if cutting[first] else "rapid"
-                raise VerifyError(f"{kind} move with {what}", source=f"line {line}", line=line)
+                raise VerifyError(f"line {line}: {kind} move with {what}", source=moves.source, line=line)
             continue  # rapids with an empty spindle: nothing to collide
         radius[sel] = tool.radius
         rc[sel] = float(tool.corner_radius)

@@ -9,7 +9,6 @@ from enum import Enum
 from pathlib import Path
 from typing import Annotated, Any
 
-import cv2
 import numpy as np
 import typer
 
@@ -19,6 +18,7 @@ from factory.errors import CalibrationError, VisionError
 from factory.camera_msgs import camera_info_msg, compressed_image_msg, header as _header
 from factory.mcaplog import TYPESTORE, McapLog
 from vision.board import BOARD_SYNTAX, BoardSpec
+from vision.imagefile import decode_grey
 from vision.calibrate import CalibrationResult, Detection, calibrate as run_calibration, detect
 from vision.report import bgr_png_bytes, report_image
 
@@ -59,10 +59,7 @@ def read_image(path: Path) -> tuple[np.ndarray, bytes]:
         data = path.read_bytes()
     except OSError as e:
         raise VisionError(f"cannot read image: {e.strerror}", source=path) from None
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise VisionError("cannot read image: not a picture OpenCV can decode", source=path)
-    return image, data
+    return decode_grey(data, path), data
 
 
 def detect_all(files: list[Path], board: BoardSpec, progress: Callable[[int, int], None]

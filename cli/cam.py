@@ -7,9 +7,11 @@ from typing import Annotated
 
 import typer
 
+from cadcam.setup import check_stock_size
+from cli.common import parse_triple
 from factory.cam import (ALLOWANCE, FINISH_TOOL, MATERIAL, ORIGIN, ROUGH_TOOL, SCALLOP, UNITS, CamRequest, Origin,
                          Units)
-from cli.common import parse_triple
+from factory.errors import SetupError
 
 __all__ = ["ALLOWANCE", "FINISH_TOOL", "MATERIAL", "ORIGIN", "ROUGH_TOOL", "SCALLOP", "UNITS", "cam_request"]
 
@@ -29,6 +31,12 @@ WaterlineOpt = Annotated[bool, typer.Option("--waterline/--no-waterline", help="
 def cam_request(part: Path, tools: Path | None, stock: str | None, material: str, units: Units, origin: Origin,
                 rough_tool: int, finish_tool: int, allowance: float, scallop: float, stepdown: float | None,
                 waterline: bool) -> CamRequest:
-    """The request of one command line; a malformed ``--stock`` is a usage error before any work."""
-    return CamRequest.from_options(part, tools, parse_triple(stock, "--stock"), material, units, origin, rough_tool,
-                                   finish_tool, allowance, scallop, stepdown, waterline)
+    """The request of one command line; a malformed or unmachinable ``--stock`` is a usage error before any work."""
+    size = parse_triple(stock, "--stock")
+    if size is not None:
+        try:
+            check_stock_size(size)
+        except SetupError as e:
+            raise typer.BadParameter(e.message, param_hint="--stock") from None
+    return CamRequest.from_options(part, tools, size, material, units, origin, rough_tool, finish_tool, allowance,
+                                   scallop, stepdown, waterline)

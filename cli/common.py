@@ -78,8 +78,9 @@ class StageProgress:
 
 @contextlib.contextmanager
 def progress_bars(quiet: bool) -> Iterator[StageProgress]:
-    """Progress bars on stderr (nothing when ``quiet``)."""
-    if quiet:
+    """Progress bars on stderr (nothing when ``quiet``, or when stderr is not a terminal: a
+    transient bar there leaves only a blank line, before any ``error:`` line)."""
+    if quiet or not stderr.is_terminal:
         yield StageProgress(None)
         return
     with Progress(

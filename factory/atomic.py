@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 
-from factory.errors import OutputExistsError
+from factory.errors import OutputError, OutputExistsError
 
 
 def _umask() -> int:
@@ -24,9 +24,26 @@ def _umask() -> int:
 
 
 def check_writable(path: Path, overwrite: bool) -> None:
-    """Raise :class:`OutputExistsError` if ``path`` exists and ``overwrite`` is false."""
+    """Check, before any work, that ``path`` can be written.
+
+    Raises
+    ------
+    OutputExistsError
+        ``path`` exists and ``overwrite`` is false.
+    OutputError
+        ``path`` is a folder, or the nearest of its folders that exists is not a folder
+        (``-o afile/p.nc``).
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError("is a folder, expected a file name", source=path)
     if path.exists() and not overwrite:
         raise OutputExistsError("exists; pass --overwrite to replace it", source=path)
+    folder = path.parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        raise OutputError(f"not a folder, so {path.name} cannot be written in it", source=folder)
 
 
 @contextlib.contextmanager

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from factory.plansummary import summary_problem
+
 log = logging.getLogger(__name__)
 
 CATALOG_FORMAT = "factory.catalog/1"
@@ -84,7 +86,11 @@ def find_entry(catalog: Path, key: str) -> CatalogEntry | None:
         except (OSError, UnicodeDecodeError, json.JSONDecodeError):
             log.warning("%s: not a readable plan summary, ignored", path)
             continue
-        if not isinstance(summary, dict) or (summary.get("catalog") or {}).get("key") != key:
+        problem = summary_problem(summary)
+        if problem is not None:
+            log.warning("%s: not a usable plan summary (%s), ignored", path, problem)
+            continue
+        if summary["catalog"]["key"] != key:
             continue
         entry = CatalogEntry(path, summary)
         missing = [n for n in summary.get("outputs", {}) if n != "summary" and not entry.output(n).is_file()]

@@ -8,7 +8,28 @@ user input and never returns ``None`` to mean failure.
 
 from __future__ import annotations
 
+import reprlib
 from pathlib import Path
+
+#: Longest user value an error message quotes [characters].
+SHOWN_CHARS = 60
+
+_repr = reprlib.Repr()
+_repr.maxlevel, _repr.maxstring, _repr.maxother = 2, SHOWN_CHARS, SHOWN_CHARS
+
+
+def clipped(text: str, limit: int = 2 * SHOWN_CHARS) -> str:
+    """The first line of a message from elsewhere (a library's exception), at most ``limit`` characters."""
+    lines = str(text).strip().splitlines()
+    first = lines[0] if lines else ""
+    return first if len(first) <= limit else first[:limit - 3] + "..."
+
+
+def shown(value: object) -> str:
+    """A user's value quoted in an error message: its repr, bounded in depth, items and
+    length, so a huge or deeply shared value (a YAML alias bomb) is never expanded."""
+    text = _repr.repr(value)
+    return text if len(text) <= SHOWN_CHARS else text[:SHOWN_CHARS - 3] + "..."
 
 
 class FactoryError(Exception):
@@ -66,7 +87,11 @@ class McapError(FactoryError):
     """An MCAP file cannot be written or read back."""
 
 
-class OutputExistsError(FactoryError):
+class OutputError(FactoryError):
+    """An output cannot be written where it was asked for (its folder is a file, ...)."""
+
+
+class OutputExistsError(OutputError):
     """An output file exists and overwriting was not asked for."""
 
 

@@ -35,9 +35,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
-
-from factory.errors import CellError
+from factory.errors import CellError, shown
+from factory.yamlfile import load_yaml
 
 FORMAT = "factory.cell/1"
 
@@ -253,7 +252,7 @@ class _Reader:
 
     def number(self, value: Any, field: str, *, positive: bool = False, nonneg: bool = False) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise self.fail(field, f"expected a number, got {value!r}")
+            raise self.fail(field, f"expected a number, got {shown(value)}")
         if positive and value <= 0:
             raise self.fail(field, f"must be > 0, got {value}")
         if nonneg and value < 0:
@@ -262,7 +261,7 @@ class _Reader:
 
     def integer(self, value: Any, field: str, *, minimum: int = 0) -> int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise self.fail(field, f"expected an integer, got {value!r}")
+            raise self.fail(field, f"expected an integer, got {shown(value)}")
         if value < minimum:
             raise self.fail(field, f"must be >= {minimum}, got {value}")
         return value
@@ -274,7 +273,7 @@ class _Reader:
 
     def string(self, value: Any, field: str) -> str:
         if not isinstance(value, str) or not value:
-            raise self.fail(field, f"expected a non-empty string, got {value!r}")
+            raise self.fail(field, f"expected a non-empty string, got {shown(value)}")
         return value
 
     def pose(self, value: Any, field: str) -> Pose:
@@ -296,7 +295,7 @@ class _Reader:
         for k, v in value.items():
             self.integer(k, f"{field}.{k}")
             if not isinstance(v, bool):
-                raise self.fail(f"{field}.{k}", f"expected true or false, got {v!r}")
+                raise self.fail(f"{field}.{k}", f"expected true or false, got {shown(v)}")
             out.append((int(k), v))
         return tuple(sorted(out))
 
@@ -324,7 +323,7 @@ def read_cell(data: Any, source: str | Path | None = None) -> Cell:
         data, "", {"format", "robot", "motion", "gripper", "rack", "vise", "enclosure", "out_tray"}, {"name"}
     )
     if top["format"] != FORMAT:
-        raise rd.fail("format", f"expected {FORMAT!r}, got {top['format']!r}")
+        raise rd.fail("format", f"expected {FORMAT!r}, got {shown(top['format'])}")
     name = rd.string(top.get("name", "cell"), "name")
 
     r = rd.mapping(top["robot"], "robot", {"model", "base", "home"}, {"flange_frame"})
@@ -394,11 +393,12 @@ def load_cell(path: str | Path, *, check_robot: bool = True) -> Cell:
     """
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
     except OSError as e:
         raise CellError(f"cannot read cell file: {e.strerror}", source=path) from None
-    except yaml.YAMLError as e:
-        raise CellError(f"not valid YAML: {e}", source=path) from None
+    except UnicodeDecodeError:
+        raise CellError("cannot read cell file: not UTF-8 text", source=path) from None
+    data = load_yaml(text, source=path, error=CellError)
     cell = read_cell(data, path)
     if check_robot:
         check_cell_robot(cell)

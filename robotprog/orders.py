@@ -12,7 +12,10 @@ CSV (``.csv``), a header row then one order per row::
     part,quantity,material,priority
     samples/bracket.stl,2,aluminium,1
 
-``part`` is a path relative to the orders file (absolute paths are kept). ``quantity`` is a
+``part`` is a path relative to the folder of the orders file; an absolute path is kept. A path
+may leave that folder (``../parts/x.stl``): an orders file is trusted like a command line, and
+factory only reads the part (plans go to the catalog). Each part's resolved path is logged
+(INFO), with a note when it lies outside the orders file's folder. ``quantity`` is a
 whole number >= 1. ``material`` is a non-empty name (the cutting-data key). ``priority`` is
 an optional whole number >= 0, default 0; *lower numbers run first*, ties in file order.
 
@@ -29,9 +32,8 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
-
-from factory.errors import SchedulerError
+from factory.errors import SchedulerError, shown
+from factory.yamlfile import load_yaml
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +68,7 @@ class Order:
 
 def _whole(value: object, field: str, where: str, minimum: int) -> int:
     if isinstance(value, bool):
-        raise SchedulerError(f"{field}: expected a whole number, got {value!r}", source=where)
+        raise SchedulerError(f"{field}: expected a whole number, got {shown(value)}", source=where)
     if isinstance(value, int):
         number = value
     elif isinstance(value, float) and value.is_integer():
@@ -74,7 +76,7 @@ def _whole(value: object, field: str, where: str, minimum: int) -> int:
     elif isinstance(value, str) and value.strip().lstrip("+").isdigit():
         number = int(value.strip())
     else:
-        raise SchedulerError(f"{field}: expected a whole number, got {value!r}", source=where)
+        raise SchedulerError(f"{field}: expected a whole number, got {shown(value)}", source=where)
     if number < minimum:
         raise SchedulerError(f"{field}: must be >= {minimum}, got {number}", source=where)
     return number
@@ -83,21 +85,25 @@ def _whole(value: object, field: str, where: str, minimum: int) -> int:
 def _order(entry: dict, index: int, where: str, base: Path) -> Order:
     unknown = sorted(set(map(str, entry)) - set(FIELDS))
     if unknown:
-        raise SchedulerError(f"unknown field {unknown[0]!r} (expected {', '.join(FIELDS)})", source=where)
+        raise SchedulerError(f"unknown field {shown(unknown[0])} (expected {', '.join(FIELDS)})", source=where)
     for field in REQUIRED:
         value = entry.get(field)
         if value is None or (isinstance(value, str) and not value.strip()):
             raise SchedulerError(f"{field}: missing", source=where)
     part, material = entry["part"], entry["material"]
     if not isinstance(part, str):
-        raise SchedulerError(f"part: expected a file path, got {part!r}", source=where)
+        raise SchedulerError(f"part: expected a file path, got {shown(part)}", source=where)
     if not isinstance(material, str):
-        raise SchedulerError(f"material: expected a name, got {material!r}", source=where)
+        raise SchedulerError(f"material: expected a name, got {shown(material)}", source=where)
     priority = entry.get("priority")
     path = Path(part.strip())
+    path = path if path.is_absolute() else base / path
+    resolved = path.resolve()
+    outside = not resolved.is_relative_to(base.resolve())
+    log.info("%s: part %s%s", where, resolved, " (outside the orders file's folder)" if outside else "")
     return Order(
         id=f"o{index + 1}",
-        part=path if path.is_absolute() else base / path,
+        part=path,
         quantity=_whole(entry["quantity"], "quantity", where, 1),
         material=material.strip(),
         priority=0 if priority is None or priority == "" else _whole(priority, "priority", where, 0),
@@ -105,17 +111,12 @@ def _order(entry: dict, index: int, where: str, base: Path) -> Order:
 
 
 def _read_yaml(path: Path, text: str) -> list[Order]:
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
-        raise SchedulerError(f"not valid YAML: {getattr(exc, 'problem', None) or exc}", source=where) from None
+    doc = load_yaml(text, source=path, error=SchedulerError)
     if not isinstance(doc, dict) or "orders" not in doc:
         raise SchedulerError("expected a mapping with an 'orders' list", source=path)
     extra = sorted(set(map(str, doc)) - {"orders"})
     if extra:
-        raise SchedulerError(f"unknown key {extra[0]!r} (expected 'orders')", source=path)
+        raise SchedulerError(f"unknown key {shown(extra[0])} (expected 'orders')", source=path)
     entries = doc["orders"]
     if not isinstance(entries, list):
         raise SchedulerError("orders: expected a list", source=path)
@@ -123,7 +124,7 @@ def _read_yaml(path: Path, text: str) -> list[Order]:
     for i, entry in enumerate(entries):
         where = f"{path}: orders[{i}]"
         if not isinstance(entry, dict):
-            raise SchedulerError(f"expected a mapping of {', '.join(FIELDS)}, got {entry!r}", source=where)
+            raise SchedulerError(f"expected a mapping of {', '.join(FIELDS)}, got {shown(entry)}", source=where)
         orders.append(_order(entry, i, where, path.parent))
     return orders
 

@@ -27,7 +27,8 @@ import cv2
 import numpy as np
 import yaml
 
-from factory.errors import VisionError
+from factory.errors import VisionError, shown
+from factory.yamlfile import load_yaml
 
 #: Distortion models we read and write -> number of coefficients (OpenCV order).
 DISTORTION_MODELS = {"plumb_bob": 5, "rational_polynomial": 8}
@@ -79,7 +80,7 @@ class CameraModel:
             raise VisionError(f"focal lengths must be positive, got fx={k[0, 0]}, fy={k[1, 1]}")
         n = DISTORTION_MODELS.get(self.model)
         if n is None:
-            raise VisionError(f"distortion model {self.model!r} is not one of {', '.join(DISTORTION_MODELS)}")
+            raise VisionError(f"distortion model {shown(self.model)} is not one of {', '.join(DISTORTION_MODELS)}")
         d = np.zeros(n)
         given = np.asarray(self.dist, dtype=np.float64).reshape(-1)
         if given.size > n or not np.isfinite(given).all():
@@ -188,46 +189,43 @@ class CameraModel:
             (``source`` = the file, the message names the field) Not YAML, a field missing,
             of the wrong shape or type, or an unknown distortion model.
         """
-        try:
-            doc = yaml.safe_load(text)
-        except yaml.YAMLError as e:
-            raise VisionError(f"not YAML: {str(e).splitlines()[0]}", source=source) from None
+        doc = load_yaml(text, source=source, error=VisionError)
         if not isinstance(doc, dict):
             raise VisionError("not a camera_info YAML mapping", source=source)
 
         def need(key: str) -> Any:
             if key not in doc:
-                raise VisionError(f"field {key!r} is missing", source=source)
+                raise VisionError(f"field {shown(key)} is missing", source=source)
             return doc[key]
 
         def integer(key: str) -> int:
             v = need(key)
             if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
-                raise VisionError(f"field {key!r} must be a positive integer, got {v!r}", source=source)
+                raise VisionError(f"field {shown(key)} must be a positive integer, got {shown(v)}", source=source)
             return v
 
         def matrix(key: str, rows: int | None, cols: int | None) -> np.ndarray:
             m = need(key)
             if not isinstance(m, dict) or not {"rows", "cols", "data"} <= m.keys():
-                raise VisionError(f"field {key!r} must have rows, cols and data", source=source)
+                raise VisionError(f"field {shown(key)} must have rows, cols and data", source=source)
             r, c, data = m["rows"], m["cols"], m["data"]
             if (rows is not None and r != rows) or (cols is not None and c != cols):
-                raise VisionError(f"field {key!r} must be {rows or 'n'}x{cols or 'n'}, got {r}x{c}", source=source)
+                raise VisionError(f"field {shown(key)} must be {rows or 'n'}x{cols or 'n'}, got {shown(r)}x{shown(c)}", source=source)
             try:
                 a = np.array(data, dtype=np.float64)
             except (TypeError, ValueError):
-                raise VisionError(f"field {key!r}: data must be numbers", source=source) from None
+                raise VisionError(f"field {shown(key)}: data must be numbers", source=source) from None
             if not isinstance(r, int) or not isinstance(c, int) or a.shape != (r * c,):
-                raise VisionError(f"field {key!r}: data must hold rows*cols = {r}*{c} numbers", source=source)
+                raise VisionError(f"field {shown(key)}: data must hold rows*cols = {shown(r)}*{shown(c)} numbers", source=source)
             if not np.isfinite(a).all():
-                raise VisionError(f"field {key!r}: data must be finite", source=source)
+                raise VisionError(f"field {shown(key)}: data must be finite", source=source)
             return a.reshape(r, c)
 
         w, h = integer("image_width"), integer("image_height")
         name = need("camera_name")
         model = need("distortion_model")
         if model not in DISTORTION_MODELS:
-            raise VisionError(f"field 'distortion_model': {model!r} is not one of {', '.join(DISTORTION_MODELS)}",
+            raise VisionError(f"field 'distortion_model': {shown(model)} is not one of {', '.join(DISTORTION_MODELS)}",
                               source=source)
         k = matrix("camera_matrix", 3, 3)
         d = matrix("distortion_coefficients", 1, None).reshape(-1)

@@ -27,11 +27,11 @@ from itertools import combinations
 
 import cv2
 import numpy as np
-import yaml
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from factory.errors import VisionError
+from factory.errors import VisionError, shown
+from factory.yamlfile import load_yaml
 from vision.calibrate import Detection
 from vision.camera import CameraModel
 
@@ -218,7 +218,7 @@ def calibrate_handeye(flange_poses: np.ndarray, board_poses: np.ndarray, mode: s
         motions that do not determine the rotation (parallel axes).
     """
     if mode not in MODES:
-        raise VisionError(f"unknown hand-eye mode {mode!r}; use {' or '.join(MODES)}", source="--mode")
+        raise VisionError(f"unknown hand-eye mode {shown(mode)}; use {' or '.join(MODES)}", source="--mode")
     f = _check_poses(flange_poses, "flange pose")
     c = _check_poses(board_poses, "board pose")
     if len(f) != len(c):
@@ -359,7 +359,7 @@ def parse_robot_poses(text: str, *, source: str = "poses", csv: bool = False) ->
         if not name:
             raise VisionError(f"{where}: empty image name", source=source)
         if name in poses:
-            raise VisionError(f"image {name!r} has two poses", source=source)
+            raise VisionError(f"image {shown(name)} has two poses", source=source)
         try:
             p = np.array(xyz, dtype=np.float64)
             rv = None if rotvec is None else np.array(rotvec, dtype=np.float64)
@@ -398,10 +398,7 @@ def parse_robot_poses(text: str, *, source: str = "poses", csv: bool = False) ->
                 raise VisionError(f"line {i}: pose values must be numbers", source=source) from None
             add(row[0], values[:3], **{kind: values[3:]}, where=f"line {i}")
     else:
-        try:
-            doc = yaml.safe_load(text)
-        except yaml.YAMLError as e:
-            raise VisionError(f"not YAML: {str(e).splitlines()[0]}", source=source) from None
+        doc = load_yaml(text, source=source, error=VisionError)
         if not isinstance(doc, dict) or not isinstance(doc.get("poses"), dict):
             raise VisionError("expected a mapping 'poses: {IMAGE: {xyz: [...], rotvec|quat: [...]}}'",
                               source=source)
@@ -487,15 +484,12 @@ def read_extrinsics(text: str, *, source: str = "extrinsics") -> Extrinsics:
     VisionError
         (``source``) Not YAML, not a hand-eye file, or a transform that is not rigid.
     """
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise VisionError(f"not YAML: {str(e).splitlines()[0]}", source=source) from None
+    doc = load_yaml(text, source=source, error=VisionError)
     if not isinstance(doc, dict) or doc.get("format") != HANDEYE_FORMAT:
         raise VisionError(f"not a hand-eye file (format: {HANDEYE_FORMAT})", source=source)
     mode = doc.get("mode")
     if mode not in MODES:
-        raise VisionError(f"field 'mode' must be one of {', '.join(MODES)}, got {mode!r}", source=source)
+        raise VisionError(f"field 'mode' must be one of {', '.join(MODES)}, got {shown(mode)}", source=source)
     try:
         t = np.array(doc["transform"]["matrix"], dtype=np.float64)
     except (KeyError, TypeError, ValueError):
@@ -506,5 +500,5 @@ def read_extrinsics(text: str, *, source: str = "extrinsics") -> Extrinsics:
         raise VisionError(f"field 'transform.matrix': {e.message}", source=source) from None
     tray = doc.get("tray_z")
     if tray is not None and (isinstance(tray, bool) or not isinstance(tray, (int, float)) or not np.isfinite(tray)):
-        raise VisionError(f"field 'tray_z' must be a height in metres, got {tray!r}", source=source)
+        raise VisionError(f"field 'tray_z' must be a height in metres, got {shown(tray)}", source=source)
     return Extrinsics(mode=mode, transform=_frozen(t), tray_z=None if tray is None else float(tray))

@@ -318,3 +318,27 @@ def test_bad_units_argument(tmp_path):
     path = tmp_path / "b.stl"
     path.write_bytes(trimesh.exchange.stl.export_stl(box()))
     expect_error(path, "units", units="furlong")
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_triangle_soup_is_refused_not_repaired_into_slivers(tmp_path, seed):
+    """Random triangles in a 30 mm cube once came out "repaired" as a 3e-13 mm^3 solid."""
+    from tests.cli.hostile import triangle_soup
+
+    path = tmp_path / "soup.stl"
+    path.write_bytes(triangle_soup(seed=seed))
+    import warnings
+
+    with pytest.raises(MeshError, match="no volume|of its bounding box|of the surface") as e, \
+            warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy's divide-by-zero warnings would be lines beside the error
+        load_part(path)
+    assert e.value.source == str(path) and "\n" not in e.value.message
+
+
+def test_thin_walled_tube_fills_enough_of_its_box(tmp_path):
+    """A 50 mm tube with a 1 mm wall fills about 8 % of its box: a real part, kept."""
+    tube = trimesh.creation.annulus(r_min=24.0, r_max=25.0, height=100.0, sections=64)
+    tube.export(tmp_path / "tube.stl")
+    part = load_part(tmp_path / "tube.stl")
+    assert part.mesh.volume == pytest.approx(tube.volume, rel=1e-6)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -81,6 +82,9 @@ def test_stock_too_small_names_axis_and_sizes(stock, axis):
         ({"margins": StockMargins(top=-0.1)}, "top"),
         ({"stock_size": (100, 0, 20)}, "stock size"),
         ({"stock_size": (100, 60)}, "stock size"),
+        ({"stock_size": (math.inf, 60, 20)}, "stock size"),
+        ({"stock_size": (100, 60, 2001)}, "stock Z of 2001 mm is longer than 2000 mm"),
+        ({"stock_size": (1500, 800, 30)}, "stock top 1500 x 800 mm is larger than"),
         ({"safe_height": 0}, "safe height"),
         ({"origin": "bottom-left"}, "origin"),
     ],

@@ -291,6 +291,16 @@ def test_feed_move_without_a_known_tool_is_an_error():
         simulate(unknown, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=1.0))
 
 
+def test_an_error_about_a_line_names_the_program_file():
+    from cadcam.gcode import parse_gcode
+
+    moves = parse_gcode("G21 G90\nG0 X0 Y0 Z5\nG1 X5 Y5 Z-1 F300\n", source="p.ngc")
+    assert moves.source == "p.ngc"
+    with pytest.raises(VerifyError) as err:
+        simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=1.0))
+    assert str(err.value) == "p.ngc: line 3: feed move with no tool in the spindle"
+
+
 def test_rapid_with_empty_spindle_is_skipped():
     moves = program([(R, 0, (-5, 10, -2)), (R, 0, (45, 10, -2))])
     sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=1.0))

@@ -17,9 +17,6 @@ from tests.vision import SAMPLES
 from vision.camera import CameraModel
 from tests.cli.expect import assert_one_line_error
 
-pytestmark = pytest.mark.skipif(not SAMPLES.is_dir(),
-                                reason=f"OpenCV sample images not present at {SAMPLES} (../shared absent)")
-
 runner = CliRunner()
 BOARD = ["--board", "chessboard:9x6:0.025"]
 

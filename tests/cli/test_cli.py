@@ -199,9 +199,10 @@ def test_part_bigger_than_the_stock_given(small_part, tmp_path):
     assert not out.exists()
 
 
-def test_malformed_stock_option_is_a_usage_error(small_part, tmp_path):
-    r = runner.invoke(app, ["toolpath", str(small_part), "-o", str(tmp_path / "x.mcap"), "--stock", "20,abc"])
-    assert r.exit_code == 2
+@pytest.mark.parametrize("stock", ["20,abc", "inf,100,30", "nan,100,30", "2000,2000,31", "100000,100000,31"])
+def test_malformed_or_unbounded_stock_option_is_a_usage_error(small_part, tmp_path, stock):
+    r = runner.invoke(app, ["toolpath", str(small_part), "-o", str(tmp_path / "x.mcap"), "--stock", stock])
+    assert r.exit_code == 2 and "--stock" in r.output
 
 
 def test_help_shows_units():

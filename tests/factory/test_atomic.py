@@ -7,8 +7,8 @@ import stat
 
 import pytest
 
-from factory.atomic import atomic_output, write_text
-from factory.errors import OutputExistsError
+from factory.atomic import atomic_output, check_writable, write_text
+from factory.errors import OutputError, OutputExistsError
 
 
 def test_failed_write_leaves_nothing(tmp_path):
@@ -38,3 +38,19 @@ def test_output_mode_follows_umask(tmp_path):
     finally:
         os.umask(old)
     assert stat.S_IMODE((tmp_path / "a.txt").stat().st_mode) == 0o644
+
+
+@pytest.mark.parametrize("name", ["afile/p.nc", "afile/deeper/p.nc"])
+def test_an_output_whose_folder_is_a_file_is_refused_before_any_work(tmp_path, name):
+    (tmp_path / "afile").write_text("mine")
+    with pytest.raises(OutputError, match="not a folder") as e:
+        check_writable(tmp_path / name, overwrite=True)
+    assert e.value.source == str(tmp_path / "afile")
+    with pytest.raises(OutputError):
+        write_text(tmp_path / name, "G0 X1\n", overwrite=True)
+    assert (tmp_path / "afile").read_text() == "mine"
+
+
+def test_an_output_that_is_a_folder_is_refused(tmp_path):
+    with pytest.raises(OutputError, match="is a folder"):
+        check_writable(tmp_path, overwrite=True)

@@ -94,3 +94,33 @@ def test_csv_round_trip(tmp_path_factory, rows):
     assert [(o.part, o.quantity, o.material, o.priority) for o in orders] == \
         [(folder / f"{p}.stl", q, m, pr) for p, q, m, pr in rows]
     assert len({o.id for o in orders}) == len(orders)
+
+
+def test_part_paths_resolve_against_the_orders_folder_and_are_logged(tmp_path, caplog):
+    import logging
+
+    folder = tmp_path / "jobs"
+    folder.mkdir()
+    path = _write(folder, "o.yaml", "orders:\n  - {part: ../parts/a.stl, quantity: 1, material: steel}\n"
+                  "  - {part: b.stl, quantity: 1, material: steel}\n  - {part: /abs/c.stl, quantity: 1, material: steel}\n")
+    with caplog.at_level(logging.INFO, logger="robotprog.orders"):
+        orders = read_orders(path)
+    assert [o.part for o in orders] == [folder / "../parts/a.stl", folder / "b.stl", Path("/abs/c.stl")]
+    assert f"{(tmp_path / 'parts/a.stl')} (outside the orders file's folder)" in caplog.text
+    assert f"{folder / 'b.stl'}\n" in caplog.text + "\n" and "b.stl (outside" not in caplog.text
+
+
+def test_alias_bomb_in_quantity_stops_at_once_with_one_line(tmp_path):
+    from tests.cli.hostile import alias_bomb
+
+    path = _write(tmp_path, "o.yaml", f"orders:\n  - part: a.stl\n    material: steel\n    quantity: {alias_bomb()}\n")
+    with pytest.raises(SchedulerError, match="alias") as err:
+        read_orders(path)
+    assert err.value.source == f"{path}:4" and "\n" not in str(err.value)
+
+
+def test_a_huge_value_is_quoted_short(tmp_path):
+    path = _write(tmp_path, "o.yaml", "orders:\n  - {part: a.stl, material: steel, quantity: " + "9" * 100_000 + "x}\n")
+    with pytest.raises(SchedulerError, match="quantity") as err:
+        read_orders(path)
+    assert len(str(err.value)) < len(str(path)) + 150

@@ -109,7 +109,7 @@ def test_reader_names_file_and_field(key, value):
 
 
 def test_reader_rejects_non_yaml_and_missing_file(tmp_path):
-    with pytest.raises(VisionError, match="not YAML|mapping"):
+    with pytest.raises(VisionError, match="not valid YAML|mapping"):
         CameraModel.from_camera_info_yaml("a: [1, 2", source="x.yaml")
     with pytest.raises(VisionError) as e:
         CameraModel.read(tmp_path / "none.yaml")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from factory.errors import CalibrationError
-from tests.vision import SAMPLES, TRUE_CAMERA, calibration_poses, needs_samples
+from tests.vision import SAMPLES, TRUE_CAMERA, calibration_poses
 from vision.board import BoardSpec
 from vision.calibrate import Detection, calibrate, detect, outlier_views, subpix_half_window
 from vision.camera import CameraModel
@@ -28,13 +28,10 @@ def intrinsics(result) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def left_images() -> dict[str, np.ndarray]:
-    if not SAMPLES.is_dir():
-        pytest.skip(f"OpenCV sample images not present at {SAMPLES} (../shared absent)")
     files = sorted((SAMPLES / "left").glob("*.jpg"))
     return {p.name: cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in files}
 
 
-@needs_samples
 @pytest.mark.parametrize("window", [None, 5], ids=["adaptive-window", "reference-5x5"])
 def test_reproduces_opencv_reference_on_left(left_images, window):
     dets = [detect(img, CHESS, name, subpix_window=window) for name, img in left_images.items()]
@@ -48,7 +45,6 @@ def test_reproduces_opencv_reference_on_left(left_images, window):
     assert np.all((result.std_K > 0) & (result.std_K < 2))
 
 
-@needs_samples
 def test_adaptive_window_follows_corner_spacing(left_images):
     """left02's corners are about 22 px apart: its window must be smaller than the widest view's."""
     windows = {n: detect(img, CHESS, n).subpix_window for n, img in left_images.items()}
@@ -63,7 +59,6 @@ def test_subpix_window_is_clamped():
     assert subpix_half_window(grid * 30, 4, 3) == round(0.18 * 30)
 
 
-@needs_samples
 def test_charuco_sample_detection():
     image = cv2.imread(str(SAMPLES / "charuco" / "choriginal.jpg"))
     det = detect(image, CHARUCO_SAMPLE, "choriginal.jpg")
@@ -86,7 +81,6 @@ def test_no_board_in_an_image_is_an_error_naming_it():
         detect(blank.astype(np.float32), CHESS, "float.tif")
 
 
-@needs_samples
 def test_too_few_views_and_mixed_sizes(left_images):
     dets = [detect(img, CHESS, n) for n, img in list(left_images.items())[:3]]
     with pytest.raises(CalibrationError, match="at least 3"):
@@ -107,7 +101,6 @@ def test_outlier_rule():
     assert flags.tolist() == [False] * 10 + [True]
 
 
-@needs_samples
 def test_a_corrupted_view_is_flagged_and_rejected(left_images):
     dets = [detect(img, CHESS, n) for n, img in left_images.items()]
     rng = np.random.default_rng(3)
