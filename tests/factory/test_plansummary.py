@@ -9,7 +9,7 @@ import logging
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cli.catalog import find_entry
+from factory.catalog import find_entry
 from factory.plansummary import summary_problem
 
 KEY = "k" * 64
