@@ -453,6 +453,8 @@ class RunRecorder:
         self.open_alarm: dict[int, int] = {}
         self.recovery_message: dict[int, str] = {}
         self.marks: dict[int, set[str]] = {}
+        #: (alarm id, order, time) of a failed inspection whose part was just sorted to the reject bin
+        self.rejecting: tuple[int, str, float] | None = None
 
     def _transaction(self):
         if self.conn is None:
@@ -504,14 +506,16 @@ class RunRecorder:
     def __call__(self, event: CellEvent) -> None:
         """Record one event of the simulation (one transaction)."""
         self.seq += 1
-        if isinstance(event, LogEntry):
-            self._write(self._transition, event)
-        elif isinstance(event, Activity):
-            self._write(self._activity, event)
-        elif isinstance(event, OrderOutcome):
-            self._write(self._outcome, event)
-        else:
+        handler = {LogEntry: self._transition, Activity: self._activity, OrderOutcome: self._outcome}.get(type(event))
+        if handler is None:
             raise RecordError(f"unknown event {type(event).__name__}", source=self.record.shown)
+
+        def write():
+            if self.rejecting is not None:
+                self._resolve_reject(event)
+            handler(event)
+
+        self._write(write)
 
     def serial(self, job: int) -> str:
         """The serial number of a job's part unit: unique across runs, since the run id is the database's."""
@@ -536,9 +540,9 @@ class RunRecorder:
                 lost_s=max(e.time - start, 0.0), seq=self.seq)
         elif e.event == "inspect_fail":
             self.marks[e.job].add("rejected")
-            self._insert(alarm, run_id=self.run_id, part_unit_id=unit, kind=e.event, severity=SEVERITY[e.event],
-                         state="INSPECT", message=e.message or None, raised_s=e.time, lost_s=0.0,
-                         recovery="sort_reject", outcome="rejected", cleared_s=e.time, seq=self.seq)
+            self.open_alarm[e.job] = self._insert(
+                alarm, run_id=self.run_id, part_unit_id=unit, kind=e.event, severity=SEVERITY[e.event],
+                state="INSPECT", message=e.message or None, raised_s=e.time, lost_s=0.0, seq=self.seq)
         elif e.event == "recover":
             self.recovery_message[e.job] = e.message
         elif e.event in RECOVERIES and e.job in self.open_alarm:
@@ -549,6 +553,9 @@ class RunRecorder:
             if e.event == "scrap":
                 self.marks[e.job].add("scrap")
             self.conn.execute(sa.update(alarm).where(alarm.c.id == self.open_alarm.pop(e.job)).values(**values))
+        if e.event == "sorted" and e.job in self.open_alarm:
+            # a rejected part is sorted: the order re-makes it, or ends (told next, see _resolve_reject)
+            self.rejecting = (self.open_alarm.pop(e.job), e.order, e.time)
         if e.event in ("sorted", "abandon") and unit is not None:
             marks = self.marks[e.job]
             outcome = "failed" if e.event == "abandon" else \
@@ -558,6 +565,16 @@ class RunRecorder:
         if e.job:
             self.state_of[e.job] = e.state
             self.attempt_start.pop(e.job, None)
+
+    def _resolve_reject(self, event: CellEvent) -> None:
+        """A failed inspection is recovered when the order re-makes the part (nothing said), failed
+        when the rejected part ends the order or comes after its end (the order's outcome is told
+        right after the sort), as the scheduler counts recoveries and failures."""
+        alarm_id, order, time = self.rejecting
+        self.rejecting = None
+        failed = isinstance(event, OrderOutcome) and event.order == order
+        self.conn.execute(sa.update(alarm).where(alarm.c.id == alarm_id).values(
+            recovery="reject" if failed else "remake", outcome="failed" if failed else "recovered", cleared_s=time))
 
     def _activity(self, a: Activity) -> None:
         unit = self.units[a.job]
@@ -593,6 +610,8 @@ class RunRecorder:
         """Close the run: its end, makespan and summary (one transaction)."""
 
         def write():
+            if self.rejecting is not None:  # the last event was a sort that ended nothing
+                self._resolve_reject(None)
             self.conn.execute(sa.update(run_table).where(run_table.c.id == self.run_id).values(
                 ended_at=dt.datetime.now(dt.timezone.utc), makespan_s=float(result.summary["makespan_s"]),
                 summary=_plain(result.summary)))

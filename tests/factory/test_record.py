@@ -1,0 +1,259 @@
+"""The process record (`factory simulate --db`): what it holds, checked with the real `sqlite3` client.
+
+A run of the small pocketed block with faults is recorded; its rows are counted against what the
+simulation reported, a second run must append without touching the first, serials never repeat, a
+run killed with SIGKILL mid-way leaves a consistent file holding exactly the events it committed,
+and a database URL's password is never shown.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+import sqlite3
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import sqlalchemy as sa
+from typer.testing import CliRunner
+
+from cli.main import app
+from factory.errors import RecordError
+from factory.record import EVENT_TABLES, SEVERITY, SEVERITY_OPERATOR, Record, masked, metadata, record_url
+from tests.cli.expect import assert_one_line_error
+
+ROOT = Path(__file__).resolve().parents[2]
+runner = CliRunner()
+SQLITE3 = shutil.which("sqlite3")
+needs_sqlite3 = pytest.mark.skipif(SQLITE3 is None, reason="the sqlite3 client is not installed (.ci/run installs it)")
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def sql(db: Path, query: str) -> list[list[str]]:
+    """Rows of ``query`` as the ``sqlite3`` command-line client prints them (|-separated)."""
+    out = subprocess.run([SQLITE3, "-batch", str(db), query], check=True, capture_output=True, text=True).stdout
+    return [line.split("|") for line in out.splitlines()]
+
+
+def one(db: Path, query: str) -> str:
+    return sql(db, query)[0][0]
+
+
+def _orders(folder: Path, part: Path) -> Path:
+    path = folder / "orders.csv"
+    path.write_text(f"part,quantity,material,priority\n{part},4,aluminium,0\n{part},3,aluminium,1\n"
+                    "missing.stl,1,aluminium,0\n")
+    return path
+
+
+SIM = ("--faults", "7", "--fault-rate", "0.2")
+
+
+@pytest.fixture(scope="module")
+def recorded(block_catalog, tmp_path_factory):
+    """(db, orders, JSON of the run): one run with faults recorded into a fresh SQLite file."""
+    folder, part = block_catalog
+    out = tmp_path_factory.mktemp("record")
+    orders = _orders(out, part)
+    db = out / "cell.sqlite"
+    r = run("simulate", orders, "--catalog", folder, *SIM, "--db", db, "--json", "--quiet")
+    assert r.exit_code == 0, r.output
+    return db, orders, json.loads(r.stdout)
+
+
+@needs_sqlite3
+def test_rows_match_what_the_simulation_reported(recorded):
+    db, _, doc = recorded
+    s = doc["summary"]
+    assert doc["db"] == {"url": str(db), "run": 1}
+    assert one(db, "PRAGMA journal_mode") == "wal"
+    assert one(db, "PRAGMA integrity_check") == "ok"
+    assert one(db, "SELECT count(*) FROM run") == "1"
+    assert sql(db, "SELECT order_ref, outcome, good, rejected FROM work_order ORDER BY order_ref") == \
+        [[o["order"], o["outcome"], str(o["good"]), str(o["rejected"])] for o in sorted(doc["orders"],
+                                                                                      key=lambda o: o["order"])]
+    # one operation per order that can run (the missing part has none)
+    assert one(db, "SELECT count(*) FROM operation") == "2"
+    # every transition, one row each; every fault one alarm; every good part a good unit
+    assert int(one(db, "SELECT count(*) FROM job_state")) == doc["events"]
+    assert int(one(db, "SELECT count(*) FROM alarm")) == sum(s["faults"].values()) > 0
+    assert sql(db, "SELECT kind, count(*) FROM alarm GROUP BY kind ORDER BY kind") == \
+        [[k, str(v)] for k, v in sorted(s["faults"].items())]
+    assert int(one(db, "SELECT count(*) FROM part_unit WHERE outcome = 'good'")) == s["parts_good"]
+    assert int(one(db, "SELECT count(*) FROM part_unit WHERE outcome IN ('rejected', 'scrap')")) == \
+        s["parts_rejected"]
+    # each alarm ends as one recovery or one failure, as the scheduler counts them
+    assert int(one(db, "SELECT count(*) FROM alarm WHERE outcome = 'recovered'")) == s["recoveries"]
+    assert int(one(db, "SELECT count(*) FROM alarm WHERE outcome = 'failed'")) == s["failures"]
+    # OPC UA severities; raised to "operator" when the cell gave up
+    for kind, severity, recovery, outcome in sql(db, "SELECT kind, severity, recovery, outcome FROM alarm"):
+        assert int(severity) == (SEVERITY_OPERATOR if recovery == "abandon" else SEVERITY[kind])
+        assert outcome in ("recovered", "failed")
+    # machine time: the cut rows add up to the machine's utilisation
+    cut = float(one(db, "SELECT sum(machine_time_s) FROM job_response WHERE kind = 'cut'"))
+    assert cut / s["makespan_s"] == pytest.approx(s["machine_utilisation"], abs=1e-3)
+    assert one(db, "SELECT count(DISTINCT program_sha256) FROM job_response WHERE kind = 'cut'") == "1"
+    # one measurement per inspection; pass as the cell decided
+    assert int(one(db, "SELECT count(*) FROM measurement")) == \
+        int(one(db, "SELECT count(*) FROM job_state WHERE event IN ('inspect_pass', 'inspect_fail')"))
+    assert one(db, "SELECT count(*) FROM measurement WHERE passed = 0") == \
+        one(db, "SELECT count(*) FROM alarm WHERE kind = 'inspect_fail'")
+    assert one(db, "SELECT count(*) FROM measurement WHERE passed = 1 AND actual > tolerance") == "0"
+    # a blank taken from each rack slot at most once; every fetched blank came from a lot
+    assert int(one(db, "SELECT count(*) FROM material_lot")) == \
+        int(one(db, "SELECT count(*) FROM robot_move WHERE action = 'fetch' AND outcome = 'fetched'"))
+    assert one(db, "SELECT count(*) - count(DISTINCT rack_slot) FROM material_lot") == "0"
+    assert one(db, "SELECT ended_at IS NOT NULL AND makespan_s > 0 FROM run") == "1"
+
+
+def test_schema_is_what_the_migrations_build(recorded):
+    """The Alembic migrations and the schema the code writes with agree (autogenerate finds nothing)."""
+    from alembic.autogenerate import compare_metadata
+    from alembic.migration import MigrationContext
+
+    db, _, _ = recorded
+    engine = sa.create_engine(record_url(db))
+    with engine.connect() as conn:
+        assert compare_metadata(MigrationContext.configure(conn), metadata) == []
+        assert conn.exec_driver_sql("SELECT version_num FROM alembic_version").scalar_one() == "0001"
+    engine.dispose()
+
+
+@needs_sqlite3
+def test_a_second_run_appends_and_never_rewrites_the_first(recorded, block_catalog, tmp_path):
+    db0, orders, _ = recorded
+    folder, _ = block_catalog
+    db = tmp_path / "cell.sqlite"
+    shutil.copy(db0, db)
+    dump = {t.name: sql(db, f"SELECT * FROM {t.name} ORDER BY id") for t in metadata.sorted_tables}
+    r = run("simulate", orders, "--catalog", folder, *SIM, "--db", f"sqlite:///{db}", "--json", "--quiet")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["db"]["run"] == 2
+    for table, rows in dump.items():
+        assert sql(db, f"SELECT * FROM {table} WHERE id <= {len(rows)} ORDER BY id") == rows, table
+        if table != "run":
+            assert one(db, f"SELECT count(*) FROM {table} WHERE run_id = 2") == str(len(rows)), table
+    # same seed, same run: the second run's events are the first's, under new serials
+    assert sql(db, "SELECT time_s, state, event, message, seq FROM job_state WHERE run_id = 1 ORDER BY id") == \
+        sql(db, "SELECT time_s, state, event, message, seq FROM job_state WHERE run_id = 2 ORDER BY id")
+    assert one(db, "SELECT count(*) - count(DISTINCT serial) FROM part_unit") == "0"
+    assert one(db, "SELECT count(*) FROM part_unit WHERE serial LIKE 'R000002-%' AND run_id = 2") == \
+        one(db, "SELECT count(*) FROM part_unit WHERE run_id = 2")
+    assert one(db, "PRAGMA integrity_check") == "ok"
+
+
+#: Runs `factory simulate` with a recorder that kills its own process (SIGKILL, nothing flushed or
+#: closed) right after committing event N.
+_DYING = """
+import os, signal, sys
+import factory.record as record
+
+N = int(sys.argv[1])
+told = 0
+call = record.RunRecorder.__call__
+
+
+def dying(self, event):
+    global told
+    call(self, event)
+    told += 1
+    if told == N:
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+record.RunRecorder.__call__ = dying
+from cli.main import app
+app(sys.argv[2:], prog_name="factory")
+"""
+
+
+@needs_sqlite3
+@pytest.mark.parametrize("n", [1, 45])
+def test_kill_9_mid_run_leaves_a_consistent_record_with_every_committed_event(recorded, block_catalog, tmp_path, n):
+    db_full, orders, doc = recorded
+    folder, _ = block_catalog
+    db = tmp_path / "killed.sqlite"
+    proc = subprocess.run([sys.executable, "-c", _DYING, str(n), "simulate", str(orders), "--catalog", str(folder),
+                           *SIM, "--db", str(db), "--quiet"], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    assert n < doc["events"]  # killed mid-run
+    assert one(db, "PRAGMA integrity_check") == "ok"
+    assert sql(db, "PRAGMA foreign_key_check") == []
+    assert one(db, "SELECT ended_at IS NULL FROM run") == "1"  # the run never finished
+    # exactly the first n events are there: every row the complete run wrote by event n, and no other
+    for table in EVENT_TABLES:
+        columns = [c.name for c in metadata.tables[table].c if not c.name.endswith("id") and c.name != "ended_s"
+                   and c.name not in ("outcome", "recovery", "recovery_message", "cleared_s", "severity")]
+        q = f"SELECT {', '.join(columns)} FROM {table} WHERE seq <= {n} ORDER BY seq, id"
+        assert sql(db, q) == sql(db_full, q), table
+        assert one(db, f"SELECT count(*) FROM {table} WHERE seq > {n}") == "0"
+    assert int(one(db, "SELECT max(seq) FROM job_state")) <= n
+    # and Python reads it as a record
+    with Record(db, write=False) as record:
+        counts = record.counts()
+    assert counts["run"] == 1 and counts["job_state"] == int(one(db, "SELECT count(*) FROM job_state"))
+    # the stdlib driver agrees, and the killed record takes the next run
+    with sqlite3.connect(db) as conn:
+        assert conn.execute("PRAGMA integrity_check").fetchone() == ("ok",)
+    r = run("simulate", orders, "--catalog", folder, *SIM, "--db", db, "--json", "--quiet")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["db"]["run"] == 2
+
+
+def test_a_password_is_never_shown(block_catalog, tmp_path, monkeypatch):
+    folder, part = block_catalog
+    url = "postgresql+psycopg://cell:hunter2@127.0.0.1:1/plant"
+    assert masked(url) == "postgresql+psycopg://cell:***@127.0.0.1:1/plant"
+    # unreachable (or no driver): one line, the URL masked, nothing planned or written
+    orders = _orders(tmp_path, part)
+    r = run("simulate", orders, "--catalog", tmp_path / "catalog", "--db", url, "--mcap", tmp_path / "x.mcap")
+    assert_one_line_error(r, "postgresql+psycopg://cell:***@127.0.0.1:1/plant")
+    assert "hunter2" not in r.output and not (tmp_path / "catalog").exists()
+    with pytest.raises(RecordError) as e:
+        Record("postgresql://cell:hunter2@127.0.0.1:1/plant")
+    assert "hunter2" not in str(e.value)
+    r = run("simulate", orders, "--catalog", tmp_path / "catalog", "--db", "postgresql://cell:hunter2@[::1/x")
+    assert "hunter2" not in r.output and r.exit_code != 0
+
+    # a reachable record behind a password URL (SQLite standing in for the server): the MCAP
+    # metadata, the JSON and the text output show it masked
+    import cli.simulate
+
+    class Remote(Record):
+        def __init__(self, target, write=True):
+            super().__init__(tmp_path / "remote.sqlite", write=write)
+            self.url = record_url(target)
+            self.shown = masked(self.url)
+
+    monkeypatch.setattr(cli.simulate, "Record", Remote)
+    mcap = tmp_path / "cell.mcap"
+    r = run("simulate", orders, "--catalog", folder, "--db", url, "--mcap", mcap, "--json")
+    assert r.exit_code == 0, r.output
+    assert "hunter2" not in r.output and b"hunter2" not in mcap.read_bytes()
+    assert json.loads(r.stdout)["db"]["url"] == masked(url)
+    from mcap.reader import make_reader
+    with mcap.open("rb") as f:
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    assert meta["factory"]["param:db"] == masked(url) and meta["factory"]["param:db_run"] == "1"
+    r = run("simulate", orders, "--catalog", folder, "--db", url)
+    assert r.exit_code == 0 and "hunter2" not in r.output and masked(url) in r.output
+
+
+def test_a_record_that_is_not_one_is_refused(tmp_path):
+    other = tmp_path / "other.sqlite"
+    with sqlite3.connect(other) as conn:
+        conn.execute("CREATE TABLE t (x)")
+    with pytest.raises(RecordError, match="not a process record"):
+        Record(other, write=False)
+    with pytest.raises(RecordError, match="no such record"):
+        Record(tmp_path / "missing.sqlite", write=False)
+    with pytest.raises(RecordError, match="does not exist"):
+        Record(tmp_path / "no" / "folder.sqlite")
+    with pytest.raises(RecordError, match="not a database URL"):
+        record_url("postgresql://[::1")
