@@ -9,6 +9,7 @@ and a database URL's password is never shown.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import signal
 import sqlite3
@@ -257,3 +258,99 @@ def test_a_record_that_is_not_one_is_refused(tmp_path):
         Record(tmp_path / "no" / "folder.sqlite")
     with pytest.raises(RecordError, match="not a database URL"):
         record_url("postgresql://[::1")
+
+
+# --- one record for many cells: a real PostgreSQL server ------------------------------------
+
+
+def _postgres_bin() -> Path | None:
+    """Folder of Debian's PostgreSQL server programs (initdb, pg_ctl), newest first; else from PATH."""
+    for folder in sorted(Path("/usr/lib/postgresql").glob("*/bin"), key=lambda p: int(p.parent.name), reverse=True):
+        if (folder / "initdb").exists():
+            return folder
+    found = shutil.which("initdb")
+    return Path(found).parent if found else None
+
+
+@pytest.fixture(scope="module")
+def postgres():
+    """URL of a fresh PostgreSQL server on 127.0.0.1 (a throw-away cluster, password auth), stopped after."""
+    import pwd
+    import socket
+    import tempfile
+
+    pytest.importorskip("psycopg")
+    folder = _postgres_bin()
+    if folder is None:
+        pytest.skip("PostgreSQL's server programs are not installed (.ci/run installs them)")
+    as_user: list[str] = []
+    root = Path(tempfile.mkdtemp(prefix="factory-pg-"))
+    if os.geteuid() == 0:  # the server refuses to run as root: run it as Debian's postgres user
+        user = pwd.getpwnam("postgres")
+        os.chown(root, user.pw_uid, user.pw_gid)
+        as_user = ["runuser", "-u", "postgres", "--"]
+    root.chmod(0o755)
+    (root / "pw").write_text("s3cret-pw\n")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    data = root / "data"
+    subprocess.run(as_user + [str(folder / "initdb"), "-D", str(data), "-U", "factory", f"--pwfile={root / 'pw'}",
+                              "--auth=scram-sha-256", "-E", "UTF8"], check=True, capture_output=True)
+    subprocess.run(as_user + [str(folder / "pg_ctl"), "-D", str(data), "-w", "-l", str(root / "log"), "-o",
+                              f"-c listen_addresses=127.0.0.1 -p {port} -k {root}", "start"],
+                   check=True, capture_output=True)
+    try:
+        admin = sa.create_engine(f"postgresql+psycopg://factory:s3cret-pw@127.0.0.1:{port}/postgres",
+                                 isolation_level="AUTOCOMMIT")
+        with admin.connect() as conn:
+            conn.exec_driver_sql("CREATE DATABASE plant")
+        admin.dispose()
+        yield f"postgresql+psycopg://factory:s3cret-pw@127.0.0.1:{port}/plant"
+    finally:
+        subprocess.run(as_user + [str(folder / "pg_ctl"), "-D", str(data), "-m", "immediate", "stop"],
+                       capture_output=True)
+        shutil.rmtree(root, ignore_errors=True)
+
+
+_FACTORY = "import sys; from cli.main import app; app(sys.argv[1:], prog_name='factory')"
+
+
+def test_four_cells_write_one_postgresql_record_at_once(postgres, recorded, block_catalog):
+    """Four `simulate` runs into one fresh PostgreSQL database at the same time (the first opens
+    also race to create the schema): every event of each is there, serials never collide, and
+    `factory report` reads it."""
+    _, orders, _ = recorded
+    folder, _ = block_catalog
+    cells = [subprocess.Popen([sys.executable, "-c", _FACTORY, "simulate", str(orders), "--catalog", str(folder),
+                               "--faults", str(seed), "--fault-rate", "0.2", "--db", postgres, "--json", "--quiet"],
+                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for seed in (1, 2, 3, 4)]
+    outputs = [cell.communicate(timeout=900) for cell in cells]
+    for cell, (out, err) in zip(cells, outputs):
+        assert cell.returncode == 0, err
+        assert "s3cret-pw" not in out + err
+    docs = [json.loads(out) for out, _ in outputs]
+    assert sorted(d["db"]["run"] for d in docs) == [1, 2, 3, 4]
+    assert all(d["db"]["url"] == masked(postgres) for d in docs)
+    engine = sa.create_engine(postgres)
+    with engine.connect() as conn:
+        for d in docs:
+            run_id = d["db"]["run"]
+            events = conn.exec_driver_sql(f"SELECT count(*) FROM job_state WHERE run_id = {run_id}").scalar_one()
+            assert events == d["events"]
+            good = conn.exec_driver_sql(f"SELECT count(*) FROM part_unit WHERE run_id = {run_id} "
+                                        "AND outcome = 'good'").scalar_one()
+            assert good == d["summary"]["parts_good"]
+            alarms = conn.exec_driver_sql(f"SELECT count(*) FROM alarm WHERE run_id = {run_id}").scalar_one()
+            assert alarms == sum(d["summary"]["faults"].values())
+        total, distinct = conn.exec_driver_sql("SELECT count(*), count(DISTINCT serial) FROM part_unit").one()
+        assert total == distinct > 0
+        assert conn.exec_driver_sql("SELECT count(*) FROM run WHERE ended_at IS NOT NULL").scalar_one() == 4
+    engine.dispose()
+    r = run("report", postgres, "--json")
+    assert r.exit_code == 0, r.output
+    report = json.loads(r.stdout)
+    assert "s3cret-pw" not in r.output and report["record"] == masked(postgres)
+    assert report["throughput"]["parts_good"] == sum(d["summary"]["parts_good"] for d in docs)
+    assert len(report["parts"]) == total
