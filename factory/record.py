@@ -46,7 +46,7 @@ import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterator, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import sqlalchemy as sa
 from sqlalchemy import (JSON, Boolean, Column, DateTime, Float, ForeignKey, Integer, MetaData, String, Table, Text,
@@ -225,6 +225,7 @@ job_state = Table(
     Column("seq", Integer, nullable=False),
 )
 
+_INSERTS = {t.name: sa.insert(t) for t in metadata.sorted_tables}
 #: Tables whose rows events write (each has ``seq``).
 EVENT_TABLES = ("part_unit", "material_lot", "job_response", "measurement", "alarm", "robot_move", "job_state")
 MIGRATIONS = Path(__file__).parent / "migrations"
@@ -352,10 +353,7 @@ class Record:
                 with self.engine.connect() as conn:
                     if not sa.inspect(conn).has_table("run"):
                         raise RecordError("not a process record (no run table)", source=self.shown)
-        except sa.exc.SQLAlchemyError as e:
-            self.engine.dispose()
-            raise _error(e, self.url, "cannot open the record") from None
-        except ImportError as e:
+        except (sa.exc.SQLAlchemyError, ImportError) as e:  # ImportError: the URL's driver is not installed
             self.engine.dispose()
             raise _error(e, self.url, "cannot open the record") from None
 
@@ -469,17 +467,19 @@ class RunRecorder:
             raise _error(e, self.record.url, f"cannot record run {self.run_id}") from None
 
     def _insert(self, table: Table, **values: Any) -> int:
-        return int(self.conn.execute(sa.insert(table).values(**values)).inserted_primary_key[0])
+        # values as parameters of one statement per table, not baked into it: SQLAlchemy compiles it once
+        return int(self.conn.execute(_INSERTS[table.name], values).inserted_primary_key[0])
 
-    def begin(self, parts: Mapping[tuple[Path, str], "PartAssets | str"]) -> "RunRecorder":
+    def begin(self, parts: Mapping[tuple[Path, str], "PartAssets | OperationPlan | str"]) -> "RunRecorder":
         """Write the run, its work orders and their operations (one transaction); returns the
-        recorder, the sink to give the simulation. ``parts``: (part, material) → its assets, or why
-        it cannot be made."""
+        recorder, the sink to give the simulation. ``parts``: (part, material) → its assets (or
+        directly its :class:`OperationPlan`), or why it cannot be made."""
         try:
             self.conn = self.record.engine.connect()
         except sa.exc.SQLAlchemyError as e:
             raise _error(e, self.record.url, "cannot open the record") from None
-        plans = {k: OperationPlan.of(v) for k, v in parts.items() if not isinstance(v, str)}
+        plans = {k: v if isinstance(v, OperationPlan) else OperationPlan.of(v) for k, v in parts.items()
+                 if not isinstance(v, str)}
 
         def write():
             self.run_id = self._insert(
@@ -633,8 +633,3 @@ def _plain(value: Any) -> Any:
         return [_plain(v) for v in value]
     return value
 
-
-def rows(conn: Connection, query: Any) -> Iterator[Mapping[str, Any]]:
-    """Rows of a query as mappings."""
-    for row in conn.execute(query):
-        yield row._mapping
