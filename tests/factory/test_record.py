@@ -354,3 +354,49 @@ def test_four_cells_write_one_postgresql_record_at_once(postgres, recorded, bloc
     assert "s3cret-pw" not in r.output and report["record"] == masked(postgres)
     assert report["throughput"]["parts_good"] == sum(d["summary"]["parts_good"] for d in docs)
     assert len(report["parts"]) == total
+
+
+_NEXT_REVISION = '''
+from alembic import op
+import sqlalchemy as sa
+
+revision = "0002"
+down_revision = "0001"
+branch_labels = None
+depends_on = None
+
+
+def upgrade() -> None:
+    with op.batch_alter_table("run") as batch:
+        batch.add_column(sa.Column("shift", sa.String(20), nullable=True))
+
+
+def downgrade() -> None:
+    with op.batch_alter_table("run") as batch:
+        batch.drop_column("shift")
+'''
+
+
+@needs_sqlite3
+def test_an_old_record_opens_with_a_newer_schema_and_keeps_its_history(recorded, tmp_path, monkeypatch):
+    """A factory whose migrations go one revision further opens a record written at revision 0001:
+    the record is migrated in place (SQLite alters by copying tables) and every row is kept."""
+    import factory.record
+
+    db0, _, _ = recorded
+    db = tmp_path / "old.sqlite"
+    shutil.copy(db0, db)
+    before = {t.name: sql(db, f"SELECT * FROM {t.name} ORDER BY id") for t in metadata.sorted_tables}
+    newer = tmp_path / "migrations"
+    shutil.copytree(factory.record.MIGRATIONS, newer)
+    (newer / "versions" / "0002_shift.py").write_text(_NEXT_REVISION)
+    monkeypatch.setattr(factory.record, "MIGRATIONS", newer)
+    Record(db).close()
+    assert one(db, "SELECT version_num FROM alembic_version") == "0002"
+    assert "shift" in [row[1] for row in sql(db, "PRAGMA table_info(run)")]
+    for table, rows in before.items():
+        got = sql(db, f"SELECT * FROM {table} ORDER BY id")
+        assert [r[:len(rows[0])] for r in got] == rows if rows else got == rows, table
+    assert one(db, "PRAGMA integrity_check") == "ok" and sql(db, "PRAGMA foreign_key_check") == []
+    Record(db).close()  # opening again changes nothing
+    assert one(db, "SELECT version_num FROM alembic_version") == "0002"
