@@ -199,6 +199,14 @@ def test_kill_9_mid_run_leaves_a_consistent_record_with_every_committed_event(re
     with Record(db, write=False) as record:
         counts = record.counts()
     assert counts["run"] == 1 and counts["job_state"] == int(one(db, "SELECT count(*) FROM job_state"))
+    # the report reads it, the run marked incomplete and timed to its last recorded event
+    r = run("report", db, "--json")
+    assert r.exit_code == 0, r.output
+    killed = json.loads(r.stdout)["runs"][0]
+    last = [float(v) for (v,) in sql(db, "SELECT max(time_s) FROM job_state UNION ALL SELECT max(end_s) FROM "
+                                         "robot_move UNION ALL SELECT max(end_s) FROM job_response") if v]
+    assert killed["complete"] is False
+    assert killed["planned_s"] == pytest.approx(max(last, default=0.0), abs=1e-3)
     # the stdlib driver agrees, and the killed record takes the next run
     with sqlite3.connect(db) as conn:
         assert conn.execute("PRAGMA integrity_check").fetchone() == ("ok",)
