@@ -20,10 +20,10 @@ from factory.report import cell_report, dashboard, report_text
 
 @reports_errors
 def report(
-    record: Annotated[str, typer.Argument(help="The process record `factory simulate --db` wrote: a SQLite file or a SQLAlchemy database URL.")],
+    record: Annotated[str, typer.Argument(metavar="RECORD", help="The process record `factory simulate --db` wrote: a SQLite file or a SQLAlchemy database URL.")],
     png: Annotated[Path | None, typer.Option("--png", help="Write a one-page dashboard picture.", dir_okay=False)] = None,
-    run: Annotated[list[int] | None, typer.Option("--run", help="Only this run (repeat for several); default every run.")] = None,
-    serial: Annotated[str | None, typer.Option("--serial", help="Print this part's whole history instead of the parts table.")] = None,
+    run: Annotated[list[int] | None, typer.Option("--run", metavar="ID", help="Only this run (repeat for several); default every run.")] = None,
+    serial: Annotated[str | None, typer.Option("--serial", metavar="SERIAL", help="Print this part's whole history instead of the parts table.")] = None,
     overwrite: Overwrite = False,
     json_out: JsonFlag = False,
 ) -> None:

@@ -55,7 +55,7 @@ def simulate(
     png: Annotated[Path | None, typer.Option("--png", help="Write a Gantt chart of the robot, machine and cameras.", dir_okay=False)] = None,
     faults: Annotated[int | None, typer.Option("--faults", help="Inject faults drawn from this seed: missed grasps, missing stock, machine alarms, failed inspections.")] = None,
     fault_rate: Annotated[float | None, typer.Option("--fault-rate", help="With --faults: probability of each fault per attempt (default: grasp 5 %, stock 5 %, alarm 3 %, inspection 5 %).", min=0.0, max=1.0)] = None,
-    db: Annotated[str | None, typer.Option("--db", help="Append the run to this process record, event by event: a SQLite file (created if missing) or a SQLAlchemy database URL (sqlite:///cell.sqlite, postgresql+psycopg://user@host/plant). See `factory report`.")] = None,
+    db: Annotated[str | None, typer.Option("--db", metavar="FILE|URL", help="Append the run to this process record, event by event: a SQLite file (created if missing) or a SQLAlchemy database URL (sqlite:///cell.sqlite, postgresql+psycopg://user@host/plant). See `factory report`.")] = None,
     overwrite: Overwrite = False,
     json_out: JsonFlag = False,
     quiet: Quiet = False,
