@@ -10,6 +10,7 @@ from cli.handeye import handeye
 from cli.inspect import inspect
 from cli.locate import locate
 from cli.plan import plan
+from cli.report import report
 from cli.robot import robot
 from cli.simulate import simulate
 from cli.toolpath import toolpath
@@ -34,6 +35,7 @@ app.command()(handeye)
 app.command()(locate)
 app.command()(inspect)
 app.command()(simulate)
+app.command()(report)
 
 
 def main() -> None:

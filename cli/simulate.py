@@ -17,8 +17,10 @@ from factory.catalog import sha256_file
 from factory.foxglove import layout_json
 from factory.pictures import png_bytes
 from factory.progress import Stopwatch
+from factory.record import Record
 from factory.resources import FIXTURES
 from factory.simulation import PartAssets, run_cell, write_cell_log
+from robotprog.cell import load_cell
 from robotprog.cellsim import FaultModel, SimulationResult
 from robotprog.gantt import activity_chart
 from robotprog.orders import read_orders
@@ -53,6 +55,7 @@ def simulate(
     png: Annotated[Path | None, typer.Option("--png", help="Write a Gantt chart of the robot, machine and cameras.", dir_okay=False)] = None,
     faults: Annotated[int | None, typer.Option("--faults", help="Inject faults drawn from this seed: missed grasps, missing stock, machine alarms, failed inspections.")] = None,
     fault_rate: Annotated[float | None, typer.Option("--fault-rate", help="With --faults: probability of each fault per attempt (default: grasp 5 %, stock 5 %, alarm 3 %, inspection 5 %).", min=0.0, max=1.0)] = None,
+    db: Annotated[str | None, typer.Option("--db", metavar="FILE|URL", help="Append the run to this process record, event by event: a SQLite file (created if missing) or a SQLAlchemy database URL (sqlite:///cell.sqlite, postgresql+psycopg://user@host/plant). See `factory report`.")] = None,
     overwrite: Overwrite = False,
     json_out: JsonFlag = False,
     quiet: Quiet = False,
@@ -75,9 +78,21 @@ def simulate(
         model = FaultModel.default(faults) if fault_rate is None else \
             FaultModel(fault_rate, fault_rate, fault_rate, fault_rate, seed=faults)
     watch = Stopwatch()
+    record = Record(db) if db is not None else None  # an unreachable record fails before any planning
+    recorder = None
+    if record is not None:
+        recorder = record.recorder(cell=load_cell(cell_path).name, orders=orders, orders_file=str(orders_path),
+                                   orders_sha256=sha256_file(orders_path), faults_seed=faults)
     with progress_bars(quiet) as bars:
-        run = run_cell(orders, catalog=catalog, cell_path=cell_path, camera_path=camera_path, tools=tools,
-                       faults=model, progress=bars)
+        try:
+            run = run_cell(orders, catalog=catalog, cell_path=cell_path, camera_path=camera_path, tools=tools,
+                           faults=model, progress=bars, events=recorder.begin if recorder else None)
+            if recorder is not None:
+                recorder.finish(run.result)
+        finally:
+            if recorder is not None:
+                recorder.close()
+                record.close()
         watch.seconds.update(run.seconds)
         result, assets, ready = run.result, run.assets, run.ready
         counts: dict[str, int] = {}
@@ -87,7 +102,9 @@ def simulate(
                 inputs.update({str(a.part): a.entry.summary["catalog"]["mesh_sha256"] for a in ready.values()})
                 counts = write_cell_log(mcap, result, ready, orders, run.cell, run.world, run.stations,
                                         overwrite=overwrite, inputs=inputs,
-                                        parameters={"faults_seed": faults, "catalog": str(catalog)})
+                                        parameters={"faults_seed": faults, "catalog": str(catalog),
+                                                    **({"db": record.shown, "db_run": recorder.run_id}
+                                                       if record is not None else {})})
                 write_text(layout, layout_json(), overwrite=overwrite)
     if png is not None:
         write_bytes(png, png_bytes(activity_chart(result)), overwrite=overwrite)
@@ -101,6 +118,8 @@ def simulate(
     doc["seconds"] = watch.rounded()
     if mcap is not None:
         doc["mcap"] = {"path": str(mcap), "layout": str(layout), "bytes": mcap.stat().st_size, "messages": counts}
+    if record is not None:
+        doc["db"] = {"url": record.shown, "run": recorder.run_id}
     if json_out:
         print_json(doc)
     elif not quiet:
@@ -108,3 +127,5 @@ def simulate(
         if mcap is not None:
             stderr.print(f"log: {mcap} ({mcap.stat().st_size / 1e6:.1f} MB), layout: {layout}",
                          highlight=False, markup=False)
+        if record is not None:
+            stderr.print(f"record: {record.shown}, run {recorder.run_id}", highlight=False, markup=False)

@@ -113,3 +113,8 @@ class PlanningError(FactoryError):
 
 class SchedulerError(FactoryError):
     """An orders file is malformed, or the cell scheduler was driven with an event its state does not accept."""
+
+
+class RecordError(FactoryError):
+    """The process record (database) cannot be opened, read or written. ``source`` is the database
+    URL with its password masked."""

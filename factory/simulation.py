@@ -17,7 +17,7 @@ import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import cv2
 import numpy as np
@@ -39,7 +39,7 @@ from factory.tending import RobotStateLog, log_cell
 from factory.verify import part_triangles, read_sheet
 from factory.views import heightfield_mesh
 from robotprog.cell import Cell, load_cell
-from robotprog.cellsim import FaultModel, PartProcess, SimulationResult, simulate as run_simulation
+from robotprog.cellsim import EventSink, FaultModel, PartProcess, SimulationResult, simulate as run_simulation
 from robotprog.collision import CollisionWorld, collision_world
 from robotprog.frames import setup_sheet_to_cell
 from robotprog.orders import Order
@@ -365,9 +365,15 @@ class CellRun:
 
 def run_cell(orders: tuple[Order, ...], *, catalog: Path, cell_path: Path = FIXTURES / "cell.yaml",
              camera_path: Path = FIXTURES / "camera.yaml", tools: Path | None = None,
-             faults: FaultModel = FaultModel(), progress: Progress | None = None) -> CellRun:
+             faults: FaultModel = FaultModel(), progress: Progress | None = None,
+             events: Callable[[dict[tuple[Path, str], PartAssets | str]], EventSink] | None = None) -> CellRun:
     """Run ``orders`` through the cell: plans from ``catalog`` (planning what it lacks into it),
-    camera steps, then the discrete-event simulation. Writes nothing but the catalog.
+    camera steps, then the discrete-event simulation. Writes nothing but the catalog (and what
+    ``events`` writes).
+
+    ``events``, if given, is called once the parts are planned, with what :class:`CellRun` ``assets``
+    holds, and returns the sink the simulation tells every event as it goes (for example
+    :meth:`factory.record.RunRecorder.begin`).
 
     Raises
     ------
@@ -384,7 +390,8 @@ def run_cell(orders: tuple[Order, ...], *, catalog: Path, cell_path: Path = FIXT
     assets = plan_parts(orders, catalog, cell_path, tools, stations, sha256_file(camera_path), progress, watch)
     processes = {k: (v.process if isinstance(v, PartAssets) else v) for k, v in assets.items()}
     with watch("simulate"):
-        result = run_simulation(orders, processes, faults, progress=stage_callback(progress, "orders"))
+        sink = events(assets) if events is not None else None
+        result = run_simulation(orders, processes, faults, progress=stage_callback(progress, "orders"), sink=sink)
     return CellRun(orders, cell, world, stations, assets, result, dict(watch.seconds))
 
 

@@ -34,7 +34,7 @@ from __future__ import annotations
 import heapq
 import logging
 import random
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
@@ -171,6 +171,8 @@ class Activity:
     fraction : float
         Share of the step's nominal motion or program carried out (a cut stopped by an alarm,
         a timed-out move), in [0, 1].
+    slot : int or None
+        The rack slot the step works at (``locate``, ``fetch``, ``missed_grasp``), else None.
     """
 
     resource: str
@@ -180,6 +182,7 @@ class Activity:
     end: float
     outcome: str
     fraction: float = 1.0
+    slot: int | None = None
 
 
 @dataclass(frozen=True)
@@ -191,6 +194,16 @@ class OrderOutcome:
     rejected: int
     outcome: str
     reason: str
+
+
+#: What the simulation tells an :data:`EventSink`, in the order it decides them: a transition
+#: (:class:`LogEntry`), a stretch of work with its end already known (:class:`Activity`, told when
+#: it starts), an order's outcome (:class:`OrderOutcome`, told when the order ends, and again with
+#: new counts when a part still under way then is sorted: the last one told is the final one).
+CellEvent = LogEntry | Activity | OrderOutcome
+#: Called once per :data:`CellEvent` as the simulation goes (a process record, a live view); what it
+#: raises stops the simulation.
+EventSink = Callable[[CellEvent], None]
 
 
 @dataclass(frozen=True)
@@ -254,6 +267,7 @@ def simulate(
     faults: FaultModel = NO_FAULTS,
     options: SchedulerOptions = SchedulerOptions(),
     progress: Callable[[int, int], None] | None = None,
+    sink: EventSink | None = None,
 ) -> SimulationResult:
     """Run orders through the cell until every order has ended.
 
@@ -270,6 +284,9 @@ def simulate(
     options : SchedulerOptions
     progress : callable(done, total), optional
         Called as orders end.
+    sink : EventSink, optional
+        Called with every event as it is decided (see :data:`CellEvent`): first the orders that
+        cannot run (their ``order_failed`` entry, then their outcome), then the run.
 
     Returns
     -------
@@ -291,7 +308,7 @@ def simulate(
             failed[o.id] = f"{o.part}: no plan for this part"
         elif not isinstance(proc, PartProcess):
             failed[o.id] = f"{o.part}: cannot be planned: {proc}"
-    return _Sim(orders, processes, faults, options, failed, progress).run()
+    return _Sim(orders, processes, faults, options, failed, progress, sink).run()
 
 
 def process_of(processes: Mapping, order: Order) -> PartProcess | str | Exception | None:
@@ -300,8 +317,13 @@ def process_of(processes: Mapping, order: Order) -> PartProcess | str | Exceptio
     return processes.get(order.part) if found is None else found
 
 
+def _outcome(p) -> OrderOutcome:
+    return OrderOutcome(p.order.id, str(p.order.part), p.order.quantity, p.good, p.rejected,
+                        p.outcome or "failed", p.reason)
+
+
 class _Sim:
-    def __init__(self, orders, processes, faults, options, failed, progress):
+    def __init__(self, orders, processes, faults, options, failed, progress, sink):
         self.orders = {o.id: o for o in orders}
         self.rank = {o.id: i for i, o in enumerate(orders)}
         self.processes = processes
@@ -309,6 +331,7 @@ class _Sim:
         self.faults = faults
         self.options = options
         self.progress = progress
+        self.sink = sink or (lambda event: None)
         self.cell: CellState = initial_state(orders, failed)
         self.now = 0.0
         self.heap: list = []
@@ -323,10 +346,23 @@ class _Sim:
         self.cutting = 0.0
         self.started: dict[int, float] = {}
         self.flow: list[float] = []
+        self.told: dict[str, OrderOutcome] = {}  # the last outcome the sink had of each order
         self.log: list[LogEntry] = []
-        for p in self.cell.orders:
-            if p.outcome:
-                self.log.append(LogEntry(0.0, 0, p.order.id, "-", "order_failed", p.reason))
+
+    def note(self, entry: LogEntry) -> None:
+        self.log.append(entry)
+        self.sink(entry)
+
+    def tell(self, outcome: OrderOutcome) -> None:
+        """Tell the sink an order's outcome when it is decided, and again whenever a part still under
+        way when it ended is sorted (the counts change)."""
+        if self.told.get(outcome.order) != outcome:
+            self.told[outcome.order] = outcome
+            self.sink(outcome)
+
+    def add_activity(self, activity: Activity) -> None:
+        self.activities.append(activity)
+        self.sink(activity)
 
     def proc(self, job_id: int) -> PartProcess:
         return process_of(self.processes, self.orders[self.cell.job(job_id).order])
@@ -341,7 +377,7 @@ class _Sim:
         for eff in effects:
             state = next((j.state.name for j in self.cell.jobs if j.id == job_id), "IDLE")
             text = "; ".join(m for m in (eff.message, message) if m)
-            self.log.append(LogEntry(self.now, job_id, order, state, event.value, text))
+            self.note(LogEntry(self.now, job_id, order, state, event.value, text))
             self.apply(job_id, eff.action, eff.event)
 
     def apply(self, job_id: int, action: str, chosen: Event | None) -> None:
@@ -365,6 +401,9 @@ class _Sim:
                 self.release_machine(job_id)
             if action == "finish_part" and self.cell.finished[-1].reason == "good":
                 self.flow.append(self.now - self.started.get(job_id, self.now))
+            p = self.cell.progress(self.cell.finished[-1].order)
+            if p.outcome:
+                self.tell(_outcome(p))
             if self.progress:
                 ended = sum(1 for p in self.cell.orders if p.outcome)
                 self.progress(ended, len(self.cell.orders))
@@ -374,10 +413,12 @@ class _Sim:
         self.machine_job = None
 
     def activity(self, resource: str, action: str, job_id: int, state: State, duration: float,
-                 event: Event | None, message: str = "", *, start_after: float = 0.0) -> float:
+                 event: Event | None, message: str = "", *, start_after: float = 0.0, share: float = 1.0,
+                 slot: int | None = None) -> float:
         """Record an activity starting ``start_after`` seconds from now and schedule ``event`` at its
         end (none for ``None``: a later activity ends the step), or TIMEOUT if the state's timeout,
-        counted from now, comes first. Returns the activity's length [s]."""
+        counted from now, comes first. ``share`` scales the recorded fraction (a cut an alarm stops
+        part way). Returns the activity's length [s]."""
         limit = self.options.timeout(state) - start_after
         start = self.now + start_after
         if duration > limit:
@@ -391,19 +432,18 @@ class _Sim:
                 self.push(start_after + used, job_id, event, message)
             outcome = event.value if event is not None else "done"
         fraction = used / duration if duration > 0 else 1.0
-        self.activities.append(Activity(resource, action, job_id, start, start + used, outcome, fraction))
+        self.add_activity(Activity(resource, action, job_id, start, start + used, outcome, share * fraction, slot))
         return used
 
     def start_machining(self, job_id: int, rerun: bool) -> None:
         p = self.proc(job_id)
         reset = self.options.machine_reset_s if rerun else 0.0
         if reset:
-            self.activities.append(Activity("machine", "reset", job_id, self.now, self.now + reset, "reset"))
+            self.add_activity(Activity("machine", "reset", job_id, self.now, self.now + reset, "reset"))
         if self.rng.random() < self.faults.machine_alarm:
             share = self.rng.random()
             used = self.activity("machine", "cut", job_id, State.MACHINING, share * p.machining_s,
-                                 Event.MACHINE_ALARM, "machine alarm", start_after=reset)
-            self.activities[-1] = replace(self.activities[-1], fraction=share * self.activities[-1].fraction)
+                                 Event.MACHINE_ALARM, "machine alarm", start_after=reset, share=share)
         else:
             used = self.activity("machine", "cut", job_id, State.MACHINING, p.machining_s, Event.CYCLE_DONE,
                                  start_after=reset)
@@ -417,16 +457,18 @@ class _Sim:
             self.started.setdefault(job_id, self.now)
             if self.rng.random() < self.faults.stock_not_found:
                 self.activity("camera", "locate", job_id, job.state, p.locate_s, Event.STOCK_NOT_FOUND,
-                              f"no stock in rack slot {job.slot}")
+                              f"no stock in rack slot {job.slot}", slot=job.slot)
                 return
-            seen = self.activity("camera", "locate", job_id, job.state, p.locate_s, None)
+            seen = self.activity("camera", "locate", job_id, job.state, p.locate_s, None, slot=job.slot)
             if self.activities[-1].outcome == Event.TIMEOUT.value:
                 return
             if self.rng.random() < self.faults.grasp_miss:
                 self.activity("robot", "missed_grasp", job_id, job.state, p.fetch_s + p.regrasp_s,
-                              Event.GRASP_MISSED, f"grasp missed at rack slot {job.slot}", start_after=seen)
+                              Event.GRASP_MISSED, f"grasp missed at rack slot {job.slot}", start_after=seen,
+                              slot=job.slot)
             else:
-                self.activity("robot", "fetch", job_id, job.state, p.fetch_s, Event.FETCHED, start_after=seen)
+                self.activity("robot", "fetch", job_id, job.state, p.fetch_s, Event.FETCHED, start_after=seen,
+                              slot=job.slot)
         elif action == "load":
             self.machine_job, self.hold_start = job_id, self.now
             self.activity("robot", "load", job_id, job.state, p.load_s, Event.LOADED)
@@ -456,6 +498,10 @@ class _Sim:
             self.dispatch()
 
     def run(self) -> SimulationResult:
+        for p in self.cell.orders:
+            if p.outcome:  # cannot run at all (no plan)
+                self.note(LogEntry(0.0, 0, p.order.id, "-", "order_failed", p.reason))
+                self.tell(_outcome(p))
         self.dispatch()
         while self.heap:
             t, _, job_id, event, message = heapq.heappop(self.heap)
@@ -476,9 +522,7 @@ class _Sim:
         good = sum(p.good for p in self.cell.orders)
         robot = sum(a.end - a.start for a in self.activities if a.resource == "robot"
                     or (a.resource == "camera" and a.action == "locate"))
-        outcomes = tuple(OrderOutcome(p.order.id, str(p.order.part), p.order.quantity, p.good, p.rejected,
-                                      p.outcome or "failed", p.reason)
-                         for p in sorted(self.cell.orders, key=lambda p: self.rank[p.order.id]))
+        outcomes = tuple(_outcome(p) for p in sorted(self.cell.orders, key=lambda p: self.rank[p.order.id]))
         counts = {k: sum(1 for o in outcomes if o.outcome == k) for k in ("done", "rejected", "failed")}
         summary = {
             "makespan_s": round(makespan, 3),

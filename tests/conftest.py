@@ -34,3 +34,20 @@ def small_part(tmp_path: Path) -> Path:
     path = tmp_path / "block.stl"
     pocket_block().export(path)
     return path
+
+
+@pytest.fixture(scope="session")
+def block_catalog(tmp_path_factory) -> tuple[Path, Path]:
+    """(catalog folder, part): a 30x20x16 mm pocketed block planned once per session with fast options,
+    for tests that run the cell (``factory simulate``) and what reads its output."""
+    from typer.testing import CliRunner
+
+    from cli.main import app
+
+    root = tmp_path_factory.mktemp("block_catalog")
+    part = root / "block.stl"
+    pocket_block(size=(30.0, 20.0, 16.0)).export(part)
+    r = CliRunner().invoke(app, ["plan", str(part), "-o", str(root / "catalog"), "--scallop", "0.05",
+                                 "--no-waterline", "--grid", "0.5", "--quiet"])
+    assert r.exit_code == 0, r.output
+    return root / "catalog", part

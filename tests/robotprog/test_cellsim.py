@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from factory.errors import SchedulerError
-from robotprog.cellsim import FaultModel, PartProcess, simulate
+from robotprog.cellsim import Activity, FaultModel, LogEntry, OrderOutcome, PartProcess, simulate
 from robotprog.orders import Order
 from robotprog.scheduler import SchedulerOptions, State
 
@@ -136,3 +136,27 @@ def test_nothing_is_lost(seed, grasp, found, alarm, inspect, quantities):
     assert {a.job for a in result.activities} <= jobs
     assert {j for *_, j in result.machine_intervals} <= jobs
     assert set(result.jobs) == jobs - {0}
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31), rate=st.floats(0.0, 0.5), quantities=st.lists(st.integers(1, 3), min_size=1,
+                                                                                    max_size=4))
+def test_the_sink_is_told_every_event_of_the_result_once(seed, rate, quantities):
+    orders = [Order(f"o{i + 1}", A if i % 2 else B, q, "steel", 0) for i, q in enumerate(quantities)]
+    orders.append(Order("ox", Path("missing.stl"), 1, "steel", 0))
+    told = []
+    result = simulate(orders, {A: PROC_A, B: PROC_B}, FaultModel(rate, rate, rate, rate, seed), sink=told.append)
+    assert tuple(e for e in told if isinstance(e, LogEntry)) == result.log
+    assert sorted((e for e in told if isinstance(e, Activity)), key=lambda a: (a.start, a.end)) == \
+        list(result.activities)
+    outcomes = [e for e in told if isinstance(e, OrderOutcome)]
+    final = {o.order: o for o in outcomes}  # the last told is the final outcome
+    assert sorted(final.values(), key=lambda o: o.order) == sorted(result.outcomes, key=lambda o: o.order)
+    assert all(a != b for a, b in zip(outcomes, outcomes[1:]))  # told again only when it changed
+    assert outcomes[0].order == "ox"  # the order that cannot run is told first
+    # an outcome is told right after the transition of that order that decided it
+    for i, e in enumerate(told):
+        if isinstance(e, OrderOutcome):
+            assert isinstance(told[i - 1], LogEntry) and told[i - 1].order == e.order
+    # rack steps name their slot
+    assert all((a.slot is not None) == (a.action in ("locate", "fetch", "missed_grasp")) for a in result.activities)
