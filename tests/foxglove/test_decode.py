@@ -38,7 +38,8 @@ def logs(tmp_path_factory, scene) -> dict[str, Path]:  # noqa: F811
     part = d / "block.stl"
     pocket_block(size=(30.0, 20.0, 16.0)).export(part)
     out = {"toolpath": d / "block.toolpath.mcap", "verify": d / "verify.mcap", "plan": d / "catalog" / "block.mcap",
-           "robot": d / "robot.mcap", "simulate": d / "cell.mcap", "calibrate": d / "calibrate.mcap"}
+           "robot": d / "robot.mcap", "simulate": d / "cell.mcap", "calibrate": d / "calibrate.mcap",
+           "handeye": d / "handeye.mcap"}
     run("toolpath", part, "-o", out["toolpath"], *FAST[:-3])
     run("gcode", out["toolpath"], "-o", d / "block.nc", "--quiet")
     run("verify", d / "block.nc", "--setup", d / "block.setup.json", "--part", part, "--mcap", out["verify"],
@@ -52,6 +53,7 @@ def logs(tmp_path_factory, scene) -> dict[str, Path]:  # noqa: F811
         "--fault-rate", "0.3", "--quiet")
     run("calibrate", scene["images"], "--board", str(BOARD), "-o", d / "camera.yaml", "--mcap", out["calibrate"],
         "--quiet")
+    run("handeye", *args(scene, "poses.yaml", d / "handeye.yaml", "--mcap", out["handeye"], "--quiet"))
     return out
 
 
@@ -63,7 +65,7 @@ def _counts(path: Path) -> dict[str, int]:
     return {topics[cid]: n for cid, n in summary.statistics.channel_message_counts.items() if n}
 
 
-@pytest.mark.parametrize("stage", ["toolpath", "verify", "plan", "robot", "simulate", "calibrate"])
+@pytest.mark.parametrize("stage", ["toolpath", "verify", "plan", "robot", "simulate", "calibrate", "handeye"])
 def test_foxglove_decodes_every_message(logs, stage):
     path = logs[stage]
     decoded = check_foxglove_decodes(path)
