@@ -20,8 +20,9 @@ out take the panel's defaults.
   (``camera.ts``: distance [m], phi and thetaOffset [deg], targetOffset [m], near/far [m]),
   ``followTf`` + ``followMode``, ``scene``, ``transforms`` (``"frame:<id>"`` -> visibility),
   ``topics`` (topic -> ``{"visible": ...}`` plus per-type settings) and ``layers`` (custom
-  layers by instance id: ``foxglove.Grid`` in ``renderables/Grids.ts``, ``foxglove.Urdf`` in
-  ``renderables/Urdfs.ts`` with ``sourceType`` ``"topic"`` and ``topic``).
+  layers by instance id: ``foxglove.Grid`` in ``renderables/Grids.ts``). The robot is drawn
+  from the ``foxglove_msgs/SceneUpdate`` of its link meshes (:mod:`factory.scene`), not from
+  the URDF, whose ``package://`` meshes only a ROS install resolves.
 * ``Image``: the same renderer in image mode; ``imageMode`` holds ``imageTopic``,
   ``calibrationTopic`` and ``annotations`` (topic -> ``{"visible": ...}``).
 * ``StateTransitions``: ``paths`` of ``{"value": message path, "timestampMethod":
@@ -54,7 +55,6 @@ PANEL_ORDERS = "RawMessages!orders"
 # Instance ids of the 3D panel's custom layers (Foxglove makes UUIDs; any unique key works as
 # long as ``instanceId`` repeats it).
 _GRID_LAYER = "grid"
-_URDF_LAYER = "robot"
 
 # Log panel levels (foxglove LogLevel): 1 debug, 2 info, 4 warn, 8 error, 16 fatal.
 _LOG_DEBUG = 1
@@ -71,7 +71,10 @@ class CellTopics:
     Attributes
     ----------
     robot_description : str
-        ``std_msgs/String`` with the robot URDF (latched).
+        ``std_msgs/String`` with the robot URDF (latched); hidden in the 3D view.
+    robot_visuals : str
+        ``foxglove_msgs/SceneUpdate``: the robot's link meshes, embedded, each locked to its
+        link frame (latched).
     boxes : str
         ``visualization_msgs/MarkerArray``: the cell's static boxes, frame ``world``.
     toolpath, stock : str
@@ -90,6 +93,7 @@ class CellTopics:
     """
 
     robot_description: str = "/robot_description"
+    robot_visuals: str = "/robot/visuals"
     boxes: str = "/cell/boxes"
     toolpath: str = "/machine/toolpath"
     stock: str = "/machine/stock"
@@ -173,9 +177,10 @@ def _three_d(topics: CellTopics, view: CellView) -> dict[str, Any]:
         "scene": {"transforms": {"showLabel": True, "editable": False}},
         "transforms": {f"frame:{f}": {"visible": True} for f in view.frames},
         "topics": {
-            # The URDF layer below draws the robot; the automatic /robot_description entry is
-            # switched off so it is not drawn twice when the topic has that name.
+            # The robot is drawn from its embedded meshes; the URDF's package:// meshes would
+            # only load on a machine with ROS (and draw the robot twice there).
             topics.robot_description: {"visible": False},
+            topics.robot_visuals: {"visible": True},
             topics.boxes: {"visible": True},
             topics.toolpath: {"visible": True},
             topics.stock: {"visible": True},
@@ -197,22 +202,6 @@ def _three_d(topics: CellTopics, view: CellView) -> dict[str, Any]:
                 "position": [0.0, 0.0, 0.0],
                 "rotation": [0.0, 0.0, 0.0],
                 "order": 1,
-            },
-            _URDF_LAYER: {
-                "layerId": "foxglove.Urdf",
-                "instanceId": _URDF_LAYER,
-                "label": "Robot",
-                "visible": True,
-                "frameLocked": True,
-                "sourceType": "topic",
-                "topic": topics.robot_description,
-                "url": "",
-                "filePath": "",
-                "parameter": "",
-                "framePrefix": "",
-                "displayMode": "auto",
-                "fallbackColor": "#ffffff",
-                "order": 2,
             },
         },
         "imageMode": {},
@@ -246,7 +235,7 @@ def _state_transitions(topics: CellTopics) -> dict[str, Any]:
 def cell_layout(topics: CellTopics = CellTopics(), view: CellView = CellView()) -> dict[str, Any]:
     """The Foxglove layout of a cell-simulation log, as a JSON-ready dict.
 
-    A large 3D view on the left (URDF robot from ``topics.robot_description``, cell boxes,
+    A large 3D view on the left (the robot from ``topics.robot_visuals``, cell boxes,
     toolpath, stock, transforms, following ``view.follow_frame``), the state timelines under
     it; on the right the camera image above the ``/rosout`` log and the orders' status.
 

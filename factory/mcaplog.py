@@ -19,7 +19,9 @@ Files follow the MCAP ``ros2`` profile the way rosbag2 writes them, so that Foxg
   attachments for the files the next stage reads back (the CAM job JSON).
 
 Message classes, CDR serialisation and definition texts come from rosbags' ROS 2 Jazzy
-typestore (:data:`TYPESTORE`); files are written by the ``mcap`` package's writer through
+typestore (:data:`TYPESTORE`), with the ``.msg`` files under :data:`MSG_DIRS` registered into
+it (``foxglove_msgs``: Foxglove's scene messages, checked field by field against Foxglove's own
+definitions in ``tests/foxglove``); files are written by the ``mcap`` package's writer through
 :func:`factory.atomic.atomic_output`, so a failed run leaves no file behind.
 
 Units: ROS speaks metres, seconds and radians. The builders below take metres (and a
@@ -43,7 +45,7 @@ import numpy as np
 from mcap.exceptions import McapError as _McapLibError
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, IndexType, Writer
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from scipy.spatial.transform import Rotation
 
 import factory
@@ -60,6 +62,32 @@ ROS_DISTRO = "jazzy"
 #: rosbags typestore with every message type we log (visualization_msgs, sensor_msgs,
 #: tf2_msgs, trajectory_msgs, std_msgs, rcl_interfaces, geometry_msgs, ...).
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+#: Folders of ROS interface packages (``PKG/msg/NAME.msg``) registered into :data:`TYPESTORE`.
+MSG_DIRS = (Path(__file__).resolve().parent / "msg",)
+
+
+def register_msg_files(typestore: Any, roots: Iterable[Path]) -> list[str]:
+    """Register every ``ROOT/PKG/msg/NAME.msg`` into ``typestore``; return the type names.
+
+    Raises
+    ------
+    McapError
+        A file cannot be read or parsed as a ROS 2 message definition.
+    """
+    types: dict[str, Any] = {}
+    for root in roots:
+        for path in sorted(Path(root).glob("*/msg/*.msg")):
+            name = f"{path.parent.parent.name}/msg/{path.stem}"
+            try:
+                types.update(get_types_from_msg(path.read_text(encoding="utf-8"), name))
+            except Exception as e:  # rosbags raises its own parse errors
+                raise McapError(f"cannot read message definition: {e}", source=path) from None
+    typestore.register(types)
+    return sorted(types)
+
+
+register_msg_files(TYPESTORE, MSG_DIRS)
+
 #: Name of the metadata record that describes the run that wrote the file.
 FACTORY_METADATA = "factory"
 

@@ -1,5 +1,8 @@
 """Decode MCAP files with the Foxglove app's own parsers (Node.js), from Python tests.
 
+Also: compare the ``foxglove_msgs`` definitions factory ships with Foxglove's own, and validate
+every model embedded in a ``SceneUpdate`` with the Khronos glTF validator.
+
 The app opens an MCAP with ``@mcap/core``, parses every ``ros2msg`` schema with
 ``@foxglove/rosmsg`` and reads every CDR message with ``@foxglove/rosmsg2-serialization``;
 ``tests/foxglove/decode.mjs`` does the same with the versions pinned in
@@ -18,6 +21,7 @@ from pathlib import Path
 
 PROJECT = Path(__file__).resolve().parent / "foxglove"
 SCRIPT = PROJECT / "decode.mjs"
+SCHEMAS_SCRIPT = PROJECT / "schemas.mjs"
 
 
 @functools.cache
@@ -73,3 +77,14 @@ def check_foxglove_decodes(path: str | Path) -> dict[str, int]:
     if problems:
         raise AssertionError(f"{path}: Foxglove cannot decode it:\n  " + "\n  ".join(problems))
     return {topic: t["decoded"] for topic, t in report["topics"].items() if t["decoded"]}
+
+
+def foxglove_schema_differences(msg_dir: str | Path) -> dict[str, str | None]:
+    """Each ``NAME.msg`` in ``msg_dir`` compared with Foxglove's own ROS 2 definition of ``NAME``
+    (``@foxglove/schemas``): ``None`` when the fields and constants agree, else what differs."""
+    node = _installed()
+    done = subprocess.run([str(node), str(SCHEMAS_SCRIPT), str(msg_dir)], capture_output=True, text=True,
+                          timeout=120)
+    if done.returncode not in (0, 1):
+        raise AssertionError(f"schemas.mjs failed (exit {done.returncode}):\n{done.stderr}")
+    return json.loads(done.stdout)

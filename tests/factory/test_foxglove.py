@@ -16,7 +16,7 @@ from factory.foxglove import CellTopics, CellView, cell_layout, layout_json
 # Panel types a layout may use, and the topics `factory simulate` writes (decided by the lead).
 PANEL_TYPES = {"3D", "Image", "StateTransitions", "RosOut", "RawMessages"}
 SIMULATION_TOPICS = {
-    "/robot_description", "/tf", "/tf_static", "/joint_states", "/cell/boxes", "/machine/toolpath",
+    "/robot_description", "/robot/visuals", "/tf", "/tf_static", "/joint_states", "/cell/boxes", "/machine/toolpath",
     "/machine/stock", "/camera/image/compressed", "/camera/camera_info", "/cell/state", "/cell/robot",
     "/cell/machine", "/cell/orders", "/rosout",
 }
@@ -78,8 +78,9 @@ def test_layout_names_only_simulation_topics_and_shows_the_ones_asked_for() -> N
     assert named <= SIMULATION_TOPICS, named - SIMULATION_TOPICS
     by_type = {i.split("!", 1)[0]: c for i, c in doc["configById"].items()}
     three_d = by_type["3D"]
-    (urdf,) = [layer for layer in three_d["layers"].values() if layer["layerId"] == "foxglove.Urdf"]
-    assert (urdf["sourceType"], urdf["topic"], urdf["visible"]) == ("topic", "/robot_description", True)
+    # the robot from its embedded meshes, never from the URDF's package:// files
+    assert three_d["topics"]["/robot/visuals"]["visible"] and not three_d["topics"]["/robot_description"]["visible"]
+    assert not [layer for layer in three_d["layers"].values() if layer["layerId"] == "foxglove.Urdf"]
     assert three_d["followTf"] == "world"
     assert all(three_d["topics"][t]["visible"] for t in ("/cell/boxes", "/machine/toolpath", "/machine/stock"))
     assert three_d["transforms"]["frame:tool"]["visible"]

@@ -7,10 +7,13 @@
 // ROS 2 message decoder does) and every message read with @foxglove/rosmsg2-serialization's
 // MessageReader. A message counts as decoded only if the reader consumed all of its bytes but
 // CDR's final alignment padding (< 4 bytes): leftover bytes mean schema and payload disagree.
+// Every model embedded in a foxglove_msgs/msg/SceneUpdate (what the 3D panel draws) must be
+// glTF binary that the Khronos glTF validator (gltf-validator) passes without errors.
 //
 // Prints one JSON document on stdout:
 //   {"FILE": {"schemas": {NAME: {"ok": bool, "error"?: str}},
-//             "topics": {TOPIC: {"schema": NAME, "decoded": n, "failed": n, "error"?: str}}}}
+//             "topics": {TOPIC: {"schema": NAME, "decoded": n, "failed": n, "error"?: str,
+//                                "models"?: n}}}}
 // and exits 1 when any schema or message failed, 2 on a file that cannot be read at all.
 
 import { open } from "node:fs/promises";
@@ -18,9 +21,35 @@ import { McapIndexedReader } from "@mcap/core";
 import { parse } from "@foxglove/rosmsg";
 import { MessageReader } from "@foxglove/rosmsg2-serialization";
 import * as zstd from "@foxglove/wasm-zstd";
+import validator from "gltf-validator";
 
 // Alignment padding a CDR writer may leave after the last field.
 const MAX_PADDING = 3;
+
+const SCENE_UPDATE = "foxglove_msgs/msg/SceneUpdate";
+const GLB = "model/gltf-binary";
+
+// Throws unless every embedded model of a decoded SceneUpdate is valid glTF binary; returns their count.
+async function checkModels(sceneUpdate) {
+  let count = 0;
+  for (const entity of sceneUpdate.entities) {
+    for (const model of entity.models) {
+      if (model.url !== "") {
+        throw new Error(`entity ${entity.id} loads its model from ${model.url}, not from the log`);
+      }
+      if (model.media_type !== GLB) {
+        throw new Error(`entity ${entity.id} model has media type ${model.media_type}, not ${GLB}`);
+      }
+      const report = await validator.validateBytes(new Uint8Array(model.data), { maxIssues: 5 });
+      if (report.issues.numErrors > 0) {
+        const first = report.issues.messages.map((m) => `${m.code}: ${m.message}`).join("; ");
+        throw new Error(`entity ${entity.id} model is not valid glTF: ${first}`);
+      }
+      count += 1;
+    }
+  }
+  return count;
+}
 
 async function readableFile(path) {
   const handle = await open(path, "r");
@@ -83,6 +112,9 @@ async function decodeFile(path) {
         }
         if (left > MAX_PADDING) {
           throw new Error(`${left} of ${message.data.byteLength} bytes left after decoding`);
+        }
+        if (reader.schemasById.get(channel.schemaId).name === SCENE_UPDATE) {
+          entry.models = (entry.models ?? 0) + (await checkModels(decoded));
         }
         entry.decoded += 1;
       } catch (e) {

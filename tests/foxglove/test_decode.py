@@ -16,11 +16,11 @@ from mcap.reader import make_reader
 from typer.testing import CliRunner
 
 from cli.main import app
-from factory.mcaplog import message_definition
+from factory.mcaplog import MSG_DIRS, message_definition
 from factory.resources import FIXTURES
 from tests.cli.test_handeye import BOARD, args, scene  # noqa: F401  (scene is a fixture)
 from tests.conftest import pocket_block
-from tests.foxglovecheck import check_foxglove_decodes, foxglove_decode
+from tests.foxglovecheck import check_foxglove_decodes, foxglove_decode, foxglove_schema_differences
 
 runner = CliRunner()
 FAST = ["--scallop", "0.05", "--no-waterline", "--grid", "0.5", "--quiet"]
@@ -72,6 +72,30 @@ def test_foxglove_decodes_every_message(logs, stage):
     assert decoded == _counts(path) and decoded
 
 
+@pytest.mark.parametrize("stage", ["plan", "robot", "simulate"])
+def test_the_robot_travels_in_the_log_as_valid_gltf(logs, stage):
+    """The robot's link meshes: one valid glTF binary model per UR5 link, nothing loaded by URL."""
+    report = foxglove_decode(logs[stage])[str(logs[stage])]
+    assert report["topics"]["/robot/visuals"]["models"] == 7
+
+
+def test_foxglove_msgs_we_ship_are_foxgloves_own():
+    (root,) = MSG_DIRS
+    differences = foxglove_schema_differences(root / "foxglove_msgs" / "msg")
+    assert {"SceneUpdate", "SceneEntity", "ModelPrimitive"} <= set(differences)
+    assert differences == dict.fromkeys(differences)
+
+
+def test_the_schema_comparison_sees_a_changed_field(tmp_path):
+    (root,) = MSG_DIRS
+    text = (root / "foxglove_msgs" / "msg" / "ModelPrimitive.msg").read_text()
+    (tmp_path / "ModelPrimitive.msg").write_text(text.replace("string media_type", "string mime_type"))
+    (tmp_path / "Color.msg").write_text("float32 r\nfloat32 g\nfloat32 b\nfloat32 a\n")
+    differences = foxglove_schema_differences(tmp_path)
+    assert differences["ModelPrimitive"] and "mime_type" in differences["ModelPrimitive"]
+    assert differences["Color"] and "float32" in differences["Color"]
+
+
 def test_the_check_rejects_what_foxglove_cannot_read(tmp_path):
     """A dependency header naming the type unlike its field (``MSG: pkg/msg/Name`` for a field
     ``pkg/Name``) fails the parser; a message with bytes left over fails the reader."""
@@ -90,3 +114,21 @@ def test_the_check_rejects_what_foxglove_cannot_read(tmp_path):
     for path in (bad_schema, long_message):
         with pytest.raises(AssertionError, match="Foxglove cannot decode it"):
             check_foxglove_decodes(path)
+
+
+def test_the_check_rejects_a_model_that_is_not_gltf(tmp_path):
+    import numpy as np
+    import trimesh
+
+    from factory.mcaplog import McapLog
+    from factory.scene import model_entity, scene_update
+
+    box = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
+    entity = model_entity("box", "world", np.eye(4), box.vertices, box.faces, (1, 1, 1, 1), 0)
+    entity.models[0].data = entity.models[0].data[:100]  # cut short
+    path = tmp_path / "bad_model.mcap"
+    with McapLog(path, stage="test") as m:
+        m.write("/scene", scene_update([entity]), 0)
+    report = foxglove_decode(path)[str(path)]
+    assert report["topics"]["/scene"]["failed"] == 1
+    assert "not valid glTF" in report["topics"]["/scene"]["error"]
