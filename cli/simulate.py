@@ -36,6 +36,7 @@ from cli.robot import RobotStateLog, log_cell
 from cli.verify import part_triangles, read_sheet
 from cli.views import heightfield_mesh
 from factory.atomic import check_writable, write_bytes, write_text
+from factory.cellmsgs import ComponentStatus, Detection, detected_object_array, diagnostic_array, image_annotations
 from factory.errors import CellError, FactoryError, McapError
 from factory.foxglove import layout_json
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, log_msg, marker_array, read_messages, ros_time,
@@ -366,6 +367,71 @@ def _restamp(array: Any, t: float) -> Any:
     return array
 
 
+def _detections(shot: Shot, p: PartAssets, step: str, serial: str) -> list[Detection]:
+    """The station's detections as message values. The circle around the footprint is the blank's
+    (locate) or the finished stock's (inspect) bounding rectangle seen at the fit's scale."""
+    verts = p.stock[0][1] if step == "locate" else p.stock[-1][1]  # [m]
+    radius_mm = 500.0 * float(np.hypot(*np.ptp(np.asarray(verts)[:, :2], axis=0)))
+    out = []
+    for d in shot.detections:
+        inspected = "pass" in d
+        out.append(Detection(
+            class_name="part" if step == "inspect" else "blank", center_px=(d["pixel"][0], d["pixel"][1]),
+            radius_px=radius_mm / d["mm_per_px"], confidence=float(np.clip(d["score"], 0.0, 1.0)),
+            xyz=(d["x"], d["y"], d["z"]), yaw=d["yaw"], serial=serial, inspected=inspected,
+            passed=bool(d.get("pass", False)), max_deviation=d.get("max_deviation_mm", 0.0) / 1000.0,
+            tolerance=d.get("tolerance_mm", 0.0) / 1000.0))
+    return out
+
+
+#: Which component a fault code belongs to (timeouts: the machine while machining, else the robot).
+_FAULT_COMPONENT = {"grasp_missed": "robot", "stock_not_found": "camera", "machine_alarm": "machine",
+                    "inspect_fail": "camera"}
+_COMPONENTS = ("machine", "robot", "camera", "scheduler")
+#: Events of a job still working off its fault: the recovery decision and the retry it starts.
+_RETRYING = ("recover", "retry_fetch", "rerun")
+
+
+class _Health:
+    """Each component's health as the scheduler's log goes: a fault is ERROR on its component and
+    on the scheduler from the entry that raised it until it is recovered: until the retried step
+    succeeds (the stock fetched, the program run), the part is scrapped or abandoned, or, for a
+    failed inspection, sorted to the reject bin."""
+
+    def __init__(self) -> None:
+        self.faults: dict[int, tuple[str, str, str, str]] = {}  # job -> (component, code, order, message)
+        self.state: dict[int, tuple[str, str]] = {}  # job -> (order, state) of running jobs
+
+    def update(self, e: Any) -> bool:
+        """Take one log entry; True when a status changed."""
+        before = self.statuses()
+        # A failed inspection sends the part to SORT, not FAULT; it stays an error until sorted.
+        if e.state == "FAULT" or e.event == "inspect_fail":
+            where = _FAULT_COMPONENT.get(e.event)
+            if where is None:
+                where = "machine" if self.state.get(e.job, ("", ""))[1] == "MACHINING" else "robot"
+            self.faults[e.job] = (where, e.event, e.order, e.message)
+        elif e.event not in _RETRYING:
+            self.faults.pop(e.job, None)
+        if e.state == "IDLE":  # sorted, scrapped or abandoned: the job is over
+            self.state.pop(e.job, None)
+        else:
+            self.state[e.job] = (e.order, e.state)
+        return self.statuses() != before
+
+    def statuses(self) -> list[ComponentStatus]:
+        out = []
+        for name in _COMPONENTS:
+            faults = [(job, f) for job, f in sorted(self.faults.items()) if name == "scheduler" or f[0] == name]
+            values = {"fault": ", ".join(f[1] for _, f in faults), "jobs_in_fault": str(len(faults))}
+            if name == "scheduler":
+                values["jobs_running"] = str(len(self.state))
+                values["states"] = ", ".join(f"{o}-{j}: {st}" for j, (o, st) in sorted(self.state.items()))
+            message = "; ".join(f"{f[2]}-{job} {f[1]}: {f[3]}" for job, f in faults) or "ok"
+            out.append(ComponentStatus(f"cell/{name}", "ERROR" if faults else "OK", message, values))
+        return out
+
+
 def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path, str], PartAssets],
                    orders: tuple[Order, ...], cell: Cell, world: CollisionWorld, stations: Stations, *,
                    overwrite: bool, inputs: dict[str, str], parameters: dict[str, Any]) -> dict[str, int]:
@@ -439,16 +505,21 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
             tl.add(a.end, "/camera/image/compressed",
                    compressed_image_msg(shot.png, "shot.png", np.zeros(0), _ns(a.end), frame))
             tl.add(a.end, "/camera/camera_info", camera_info_msg(stations.rack.camera, _ns(a.end), frame))
-            tl.add(a.end, "/camera/detections", string_msg(json.dumps(
-                {"job": a.job, "order": result.jobs.get(a.job), "step": a.action, "outcome": a.outcome,
-                 "detections": shot.detections})))
+            found = _detections(shot, p, a.action, f"{result.jobs.get(a.job, '?')}-{a.job}")
+            tl.add(a.end, "/camera/detections", detected_object_array(found, a.action, a.outcome, frame, _ns(a.end),
+                                                                     world.robot.base_frame))
+            tl.add(a.end, "/camera/annotations", image_annotations(found, _ns(a.end)))
 
     status: dict[str, str] = {o.id: "queued" for o in orders}
     tl.add(0.0, "/cell/orders", string_msg(json.dumps(status)))
     last_entry = {e.order: i for i, e in enumerate(result.log)}
     ended = {o.order: o for o in result.outcomes}
     sorted_parts = {o.id: 0 for o in orders}
+    health = _Health()
+    tl.add(0.0, "/diagnostics", diagnostic_array(health.statuses(), 0))
     for i, e in enumerate(result.log):
+        if health.update(e):
+            tl.add(e.time, "/diagnostics", diagnostic_array(health.statuses(), _ns(e.time)))
         level = "info"
         if e.state in ("FAULT", "RECOVER") or e.event in ("inspect_fail", "timeout"):
             level = "warn"

@@ -29,6 +29,8 @@ out take the panel's defaults.
   "receiveTime" | "headerStamp", "label"}`` and ``isSynced`` (``panels/StateTransitions/types.ts``).
 * ``RosOut`` (the Log panel, legacy type name): ``searchTerms``, ``minLogLevel`` (1 debug, 2 info,
   4 warn, 8 error, 16 fatal; ROS 2 levels are mapped onto these), ``topicToRender``.
+* ``DiagnosticSummary``: ``topicToRender``, ``minLevel`` (0 OK .. 3 STALE), ``pinnedIds``,
+  ``hardwareIdFilter``, ``sortByLevel`` (``panels/diagnostics/DiagnosticSummary.tsx``).
 * ``RawMessages``: ``topicPath``, ``diffEnabled``, ``diffMethod``, ``diffTopicPath``,
   ``showFullMessageForDiff`` (``panels/RawMessages/types.ts``).
 
@@ -51,6 +53,7 @@ PANEL_IMAGE = "Image!camera"
 PANEL_STATES = "StateTransitions!cell"
 PANEL_LOG = "RosOut!rosout"
 PANEL_ORDERS = "RawMessages!orders"
+PANEL_DIAGNOSTICS = "DiagnosticSummary!cell"
 
 # Instance ids of the 3D panel's custom layers (Foxglove makes UUIDs; any unique key works as
 # long as ``instanceId`` repeats it).
@@ -81,6 +84,10 @@ class CellTopics:
         ``MarkerArray``: the part's toolpath and the stock mesh, frame ``work``.
     image : str
         ``sensor_msgs/CompressedImage``: annotated camera frames.
+    annotations : str
+        ``foxglove_msgs/ImageAnnotations``: each detection's circle and label over ``image``.
+    diagnostics : str
+        ``diagnostic_msgs/DiagnosticArray``: health of the machine, robot, camera and scheduler.
     camera_info : str
         ``sensor_msgs/CameraInfo`` of ``image``.
     state, robot, machine : str
@@ -98,6 +105,8 @@ class CellTopics:
     toolpath: str = "/machine/toolpath"
     stock: str = "/machine/stock"
     image: str = "/camera/image/compressed"
+    annotations: str = "/camera/annotations"
+    diagnostics: str = "/diagnostics"
     camera_info: str = "/camera/camera_info"
     state: str = "/cell/state"
     robot: str = "/cell/robot"
@@ -214,8 +223,9 @@ def _image(topics: CellTopics) -> dict[str, Any]:
         "imageMode": {
             "imageTopic": topics.image,
             "calibrationTopic": topics.camera_info,
-            # The frames carry their annotations drawn in; there is no annotation topic.
-            "annotations": {},
+            # The frames carry the fitted outlines drawn in; the overlay adds class, serial,
+            # confidence and the inspection verdict per detection.
+            "annotations": {topics.annotations: {"visible": True}},
             "synchronize": False,
         },
     }
@@ -237,7 +247,8 @@ def cell_layout(topics: CellTopics = CellTopics(), view: CellView = CellView()) 
 
     A large 3D view on the left (the robot from ``topics.robot_visuals``, cell boxes,
     toolpath, stock, transforms, following ``view.follow_frame``), the state timelines under
-    it; on the right the camera image above the ``/rosout`` log and the orders' status.
+    it; on the right the camera image with its detections above the ``/rosout`` log, the
+    components' health (``/diagnostics``) and the orders' status.
 
     Parameters
     ----------
@@ -265,6 +276,8 @@ def cell_layout(topics: CellTopics = CellTopics(), view: CellView = CellView()) 
         PANEL_LOG: {"searchTerms": [], "minLogLevel": _LOG_DEBUG, "topicToRender": topics.rosout},
         PANEL_ORDERS: {"topicPath": topics.orders, "diffEnabled": False, "diffMethod": "custom",
                        "diffTopicPath": "", "showFullMessageForDiff": False},
+        PANEL_DIAGNOSTICS: {"topicToRender": topics.diagnostics, "minLevel": 0, "pinnedIds": [],
+                            "hardwareIdFilter": "", "sortByLevel": True},
     }
     layout = {
         "direction": "row",
@@ -274,7 +287,9 @@ def cell_layout(topics: CellTopics = CellTopics(), view: CellView = CellView()) 
             "direction": "column",
             "splitPercentage": 45,
             "first": PANEL_IMAGE,
-            "second": {"direction": "column", "splitPercentage": 55, "first": PANEL_LOG, "second": PANEL_ORDERS},
+            "second": {"direction": "column", "splitPercentage": 55, "first": PANEL_LOG,
+                       "second": {"direction": "row", "splitPercentage": 50, "first": PANEL_DIAGNOSTICS,
+                                  "second": PANEL_ORDERS}},
         },
     }
     return {
@@ -294,5 +309,5 @@ def layout_json(topics: CellTopics = CellTopics(), view: CellView = CellView()) 
     return json.dumps(cell_layout(topics, view), indent=2, sort_keys=True, allow_nan=False) + "\n"
 
 
-__all__ = ["PANEL_3D", "PANEL_IMAGE", "PANEL_LOG", "PANEL_ORDERS", "PANEL_STATES", "CellTopics", "CellView",
+__all__ = ["PANEL_3D", "PANEL_DIAGNOSTICS", "PANEL_IMAGE", "PANEL_LOG", "PANEL_ORDERS", "PANEL_STATES", "CellTopics", "CellView",
            "cell_layout", "layout_json"]

@@ -20,8 +20,9 @@ Files follow the MCAP ``ros2`` profile the way rosbag2 writes them, so that Foxg
 
 Message classes, CDR serialisation and definition texts come from rosbags' ROS 2 Jazzy
 typestore (:data:`TYPESTORE`), with the ``.msg`` files under :data:`MSG_DIRS` registered into
-it (``foxglove_msgs``: Foxglove's scene messages, checked field by field against Foxglove's own
-definitions in ``tests/foxglove``); files are written by the ``mcap`` package's writer through
+it (``foxglove_msgs``: Foxglove's scene and image-annotation messages, checked field by field
+against Foxglove's own definitions in ``tests/foxglove``; ``factory_msgs``: the cell's own, from
+the ROS 2 interface package in ``ros/``); files are written by the ``mcap`` package's writer through
 :func:`factory.atomic.atomic_output`, so a failed run leaves no file behind.
 
 Units: ROS speaks metres, seconds and radians. The builders below take metres (and a
@@ -51,6 +52,7 @@ from scipy.spatial.transform import Rotation
 import factory
 from factory.atomic import atomic_output, check_writable
 from factory.errors import McapError
+from factory.resources import ROS_INTERFACES
 
 # What the mcap reader raises on a file that is not MCAP or is cut short.
 _READ_ERRORS = (_McapLibError, EOFError, OSError, ValueError, StopIteration, struct.error)
@@ -62,8 +64,9 @@ ROS_DISTRO = "jazzy"
 #: rosbags typestore with every message type we log (visualization_msgs, sensor_msgs,
 #: tf2_msgs, trajectory_msgs, std_msgs, rcl_interfaces, geometry_msgs, ...).
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
-#: Folders of ROS interface packages (``PKG/msg/NAME.msg``) registered into :data:`TYPESTORE`.
-MSG_DIRS = (Path(__file__).resolve().parent / "msg",)
+#: Folders of ROS interface packages (``PKG/msg/NAME.msg``) registered into :data:`TYPESTORE`:
+#: Foxglove's scene and image-annotation messages, and factory's own (``ros/factory_msgs``).
+MSG_DIRS = (Path(__file__).resolve().parent / "msg", ROS_INTERFACES)
 
 
 def register_msg_files(typestore: Any, roots: Iterable[Path]) -> list[str]:

@@ -14,11 +14,11 @@ from factory.errors import McapError
 from factory.foxglove import CellTopics, CellView, cell_layout, layout_json
 
 # Panel types a layout may use, and the topics `factory simulate` writes (decided by the lead).
-PANEL_TYPES = {"3D", "Image", "StateTransitions", "RosOut", "RawMessages"}
+PANEL_TYPES = {"3D", "Image", "StateTransitions", "RosOut", "RawMessages", "DiagnosticSummary"}
 SIMULATION_TOPICS = {
     "/robot_description", "/robot/visuals", "/tf", "/tf_static", "/joint_states", "/cell/boxes", "/machine/toolpath",
     "/machine/stock", "/camera/image/compressed", "/camera/camera_info", "/cell/state", "/cell/robot",
-    "/cell/machine", "/cell/orders", "/rosout",
+    "/cell/machine", "/cell/orders", "/rosout", "/camera/annotations", "/diagnostics",
 }
 
 
@@ -90,6 +90,8 @@ def test_layout_names_only_simulation_topics_and_shows_the_ones_asked_for() -> N
         "/cell/state.data", "/cell/robot.data", "/cell/machine.data"]
     assert all(p["timestampMethod"] in ("receiveTime", "headerStamp") for p in by_type["StateTransitions"]["paths"])
     assert by_type["RosOut"]["topicToRender"] == "/rosout"
+    assert by_type["DiagnosticSummary"]["topicToRender"] == "/diagnostics"
+    assert by_type["Image"]["imageMode"]["annotations"] == {"/camera/annotations": {"visible": True}}
     assert by_type["RawMessages"]["topicPath"] == "/cell/orders"
 
 

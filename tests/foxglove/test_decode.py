@@ -79,16 +79,17 @@ def test_the_robot_travels_in_the_log_as_valid_gltf(logs, stage):
     assert report["topics"]["/robot/visuals"]["models"] == 7
 
 
+FOXGLOVE_MSGS = next(d / "foxglove_msgs" / "msg" for d in MSG_DIRS if (d / "foxglove_msgs").is_dir())
+
+
 def test_foxglove_msgs_we_ship_are_foxgloves_own():
-    (root,) = MSG_DIRS
-    differences = foxglove_schema_differences(root / "foxglove_msgs" / "msg")
-    assert {"SceneUpdate", "SceneEntity", "ModelPrimitive"} <= set(differences)
+    differences = foxglove_schema_differences(FOXGLOVE_MSGS)
+    assert {"SceneUpdate", "SceneEntity", "ModelPrimitive", "ImageAnnotations"} <= set(differences)
     assert differences == dict.fromkeys(differences)
 
 
 def test_the_schema_comparison_sees_a_changed_field(tmp_path):
-    (root,) = MSG_DIRS
-    text = (root / "foxglove_msgs" / "msg" / "ModelPrimitive.msg").read_text()
+    text = (FOXGLOVE_MSGS / "ModelPrimitive.msg").read_text()
     (tmp_path / "ModelPrimitive.msg").write_text(text.replace("string media_type", "string mime_type"))
     (tmp_path / "Color.msg").write_text("float32 r\nfloat32 g\nfloat32 b\nfloat32 a\n")
     differences = foxglove_schema_differences(tmp_path)
