@@ -15,6 +15,7 @@ from __future__ import annotations
 import functools
 import json
 import logging
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
@@ -36,11 +37,13 @@ from cli.robot import RobotStateLog, log_cell
 from cli.verify import part_triangles, read_sheet
 from cli.views import heightfield_mesh
 from factory.atomic import check_writable, write_bytes, write_text
-from factory.cellmsgs import ComponentStatus, Detection, detected_object_array, diagnostic_array, image_annotations
+from factory.cellmsgs import (ComponentStatus, Detection, OrderLine, cell_summary, detected_object_array,
+                              diagnostic_array, image_annotations, machine_state, order_queue, robot_state,
+                              scheduler_state)
 from factory.errors import CellError, FactoryError, McapError
 from factory.foxglove import layout_json
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, log_msg, marker_array, read_messages, ros_time,
-                             string_msg, tf_message, transform_stamped, triangle_mesh_marker)
+                             tf_message, transform_stamped, triangle_mesh_marker)
 from factory.pictures import png_bytes
 from factory.resources import FIXTURES
 from robotprog.cell import Cell, load_cell
@@ -367,6 +370,58 @@ def _restamp(array: Any, t: float) -> Any:
     return array
 
 
+class _Queue:
+    """Every order's status as the scheduler's log goes: queued, running (good parts sorted and
+    rejects so far), then its outcome with the final counts and reason."""
+
+    def __init__(self, orders: tuple[Order, ...]) -> None:
+        self.lines = {o.id: OrderLine(o.id, o.part.name, o.material, o.quantity, 0, 0, "queued") for o in orders}
+        self.failed_inspection: set[int] = set()
+
+    def update(self, e: Any, outcome: Any | None) -> bool:
+        """Take one log entry (``outcome``: the order's outcome when this is its last entry);
+        True when the order's line changed."""
+        line = before = self.lines[e.order]
+        if e.event == "inspect_fail":
+            self.failed_inspection.add(e.job)
+        if outcome is not None:
+            line = dataclasses.replace(line, good=outcome.good, rejected=outcome.rejected, state=outcome.outcome,
+                                       reason=outcome.reason)
+        elif e.event == "sorted":
+            bad = e.job in self.failed_inspection
+            line = dataclasses.replace(line, good=line.good + (not bad), rejected=line.rejected + bad,
+                                       state="running")
+        elif e.job:
+            line = dataclasses.replace(line, state="running")
+        self.lines[e.order] = line
+        return line != before
+
+    def message(self, t: float) -> Any:
+        return order_queue(self.lines.values(), _ns(t))
+
+
+def _program_state(timeline: MachineTimeline, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Tool number, G-code line and feed [mm/min] at program times ``t`` [s] (feed 0 while the
+    tool stands still, e.g. during a tool change)."""
+    n = len(timeline.end)
+    i = np.clip(np.searchsorted(timeline.end, t, side="left"), 1, n - 1) if n > 1 else np.zeros(len(t), int)
+    span = timeline.end - timeline.start
+    length = np.r_[0.0, np.linalg.norm(np.diff(timeline.points, axis=0), axis=1)]
+    moving = (timeline.start[i] <= t) & (span[i] > 0)
+    feed = np.where(moving, 60.0 * length[i] / np.where(span[i] > 0, span[i], 1.0), 0.0)
+    return timeline.tool[i], timeline.line[i], feed
+
+
+def spindle_speeds(p: PartAssets) -> dict[int, float]:
+    """Spindle speed [rev/min] of each tool of the part's program, from its setup sheet."""
+    path = p.entry.output("setup_sheet")
+    try:
+        sheet = json.loads(path.read_text(encoding="utf-8"))
+        return {int(op["tool"]): float(op["spindle_rpm"]) for op in sheet["operations"]}
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise McapError(f"cannot read the spindle speeds: {e}", source=path) from None
+
+
 def _detections(shot: Shot, p: PartAssets, step: str, serial: str) -> list[Detection]:
     """The station's detections as message values. The circle around the footprint is the blank's
     (locate) or the finished stock's (inspect) bounding rectangle seen at the fit's scale."""
@@ -446,11 +501,13 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
     home = np.asarray(cell.robot.home, dtype=float)
     robot_samples: list[tuple[float, np.ndarray]] = [(0.0, home)]
     cut_so_far: dict[int, float] = {}
+    spindle: dict[tuple[Path, str], dict[int, float]] = {}
     for a in result.activities:
-        label = f"{result.jobs.get(a.job, '?')} job {a.job}"
+        order = result.jobs.get(a.job, "?")
+        serial = f"{order}-{a.job}"
         if a.resource == "robot":
-            tl.add(a.start, "/cell/robot", string_msg(f"{a.action} ({label})"))
-            tl.add(a.end, "/cell/robot", string_msg("idle"))
+            tl.add(a.start, "/cell/robot", robot_state(a.action, order, serial, _ns(a.start)))
+            tl.add(a.end, "/cell/robot", robot_state("idle", "", "", _ns(a.end)))
             p = part_of(a.job)
             spans = {"fetch": [(FIRST_FETCH_MOVE, LAST_FETCH_MOVE, False)],
                      "missed_grasp": [(FIRST_FETCH_MOVE, LAST_FETCH_MOVE, False),
@@ -478,17 +535,28 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
                 tl.add(a.end, "/machine/stock", marker_array([_delete_all("stock", "work", a.end)]))
                 tl.add(a.end, "/machine/toolpath", marker_array([_delete_all("toolpath", "work", a.end)]))
         elif a.resource == "machine":
-            tl.add(a.start, "/cell/machine", string_msg("reset" if a.action == "reset" else "cutting"))
-            tl.add(a.end, "/cell/machine", string_msg("alarm" if a.outcome in ("machine_alarm", "timeout") else "idle"))
+            after = "alarm" if a.outcome in ("machine_alarm", "timeout") else "idle"
             if a.action != "cut":
+                tl.add(a.start, "/cell/machine", machine_state("reset", order, serial, _ns(a.start)))
+                tl.add(a.end, "/cell/machine", machine_state(after, "", "", _ns(a.end)))
                 continue
             p = part_of(a.job)
             program_t = np.append(np.arange(0.0, a.end - a.start, 1.0 / TOOL_RATE_HZ), a.end - a.start)
             positions = p.timeline.position_at(program_t) / 1000.0
-            for dt, xyz in zip(program_t, positions):
+            tools, lines, feeds = _program_state(p.timeline, program_t)
+            if (p.part, p.material) not in spindle:
+                spindle[(p.part, p.material)] = spindle_speeds(p)
+            rpm = spindle[(p.part, p.material)]
+            duration = float(p.timeline.end[-1]) or 1.0
+            for dt, xyz, tool, line, feed in zip(program_t, positions, tools, lines, feeds):
                 pose = np.eye(4)
                 pose[:3, 3] = xyz
-                tl.add(a.start + dt, "/tf", tf_message([transform_stamped("work", "tool", pose, _ns(a.start + dt))]))
+                stamp = _ns(a.start + dt)
+                tl.add(a.start + dt, "/tf", tf_message([transform_stamped("work", "tool", pose, stamp)]))
+                tl.add(a.start + dt, "/cell/machine", machine_state(
+                    "cutting", order, serial, stamp, tool=int(tool), spindle_rpm=rpm.get(int(tool), 0.0),
+                    feed_mm_min=float(feed), tool_position=xyz, line=int(line), progress=min(dt / duration, 1.0)))
+            tl.add(a.end, "/cell/machine", machine_state(after, "", "", _ns(a.end)))
             done_before = cut_so_far.get(a.job, 0.0)
             for k, (snap_t, _, _) in enumerate(p.stock):
                 if done_before < snap_t <= a.end - a.start:
@@ -505,16 +573,15 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
             tl.add(a.end, "/camera/image/compressed",
                    compressed_image_msg(shot.png, "shot.png", np.zeros(0), _ns(a.end), frame))
             tl.add(a.end, "/camera/camera_info", camera_info_msg(stations.rack.camera, _ns(a.end), frame))
-            found = _detections(shot, p, a.action, f"{result.jobs.get(a.job, '?')}-{a.job}")
+            found = _detections(shot, p, a.action, serial)
             tl.add(a.end, "/camera/detections", detected_object_array(found, a.action, a.outcome, frame, _ns(a.end),
                                                                      world.robot.base_frame))
             tl.add(a.end, "/camera/annotations", image_annotations(found, _ns(a.end)))
 
-    status: dict[str, str] = {o.id: "queued" for o in orders}
-    tl.add(0.0, "/cell/orders", string_msg(json.dumps(status)))
+    queue = _Queue(orders)
+    tl.add(0.0, "/cell/orders", queue.message(0.0))
     last_entry = {e.order: i for i, e in enumerate(result.log)}
     ended = {o.order: o for o in result.outcomes}
-    sorted_parts = {o.id: 0 for o in orders}
     health = _Health()
     tl.add(0.0, "/diagnostics", diagnostic_array(health.statuses(), 0))
     for i, e in enumerate(result.log):
@@ -528,22 +595,12 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
         text = f"{e.order} job {e.job}: {e.event} -> {e.state}" + (f": {e.message}" if e.message else "")
         tl.add(e.time, "/rosout", log_msg(level, "cell.scheduler", text, _ns(e.time)))
         if e.job:
-            tl.add(e.time, "/cell/state", string_msg(e.state))
-        before = status[e.order]
-        if e.event == "sorted":
-            sorted_parts[e.order] += 1
-        if last_entry[e.order] == i:
-            o = ended[e.order]
-            status[e.order] = f"{o.outcome}: {o.good}/{o.quantity} good, {o.rejected} rejected"
-        elif e.job:
-            status[e.order] = f"running: {sorted_parts[e.order]} sorted"
-        if status[e.order] != before:
-            tl.add(e.time, "/cell/orders", string_msg(json.dumps(status)))
+            tl.add(e.time, "/cell/state", scheduler_state(e.state, e.event, e.order, f"{e.order}-{e.job}", e.message,
+                                                          _ns(e.time)))
+        if queue.update(e, ended[e.order] if last_entry[e.order] == i else None):
+            tl.add(e.time, "/cell/orders", queue.message(e.time))
     makespan = float(result.summary["makespan_s"])
-    final = {o.order: {"outcome": o.outcome, "good": o.good, "rejected": o.rejected, "reason": o.reason}
-             for o in result.outcomes}
-    tl.add(makespan, "/cell/orders", string_msg(json.dumps(final)))
-    tl.add(makespan, "/cell/summary", string_msg(json.dumps(result.summary)))
+    tl.add(makespan, "/cell/summary", cell_summary(result.summary, _ns(makespan)))
 
     robot_samples.sort(key=lambda s: s[0])
     counts: dict[str, int] = {}

@@ -8,7 +8,10 @@ Pure builders returning :data:`factory.mcaplog.TYPESTORE` message objects:
 * ``foxglove_msgs/ImageAnnotations``: a circle and a label per detection, which Foxglove's Image
   panel draws over the picture with the same stamp;
 * ``diagnostic_msgs/DiagnosticArray``: one ``DiagnosticStatus`` per cell component (level OK,
-  WARN, ERROR, STALE; key values), for Foxglove's Diagnostics panel and ``rqt_robot_monitor``.
+  WARN, ERROR, STALE; key values), for Foxglove's Diagnostics panel and ``rqt_robot_monitor``;
+* the cell's state as fields (``factory_msgs``): ``SchedulerState``, ``RobotState``,
+  ``MachineState``, ``OrderQueue`` of ``OrderStatus`` and ``CellSummary``, so Foxglove's Plot and
+  State Transitions panels and ``ros2 topic echo --field`` reach every value.
 
 Units: metres and radians for poses, pixels in the image, as each field's comment says.
 """
@@ -39,6 +42,12 @@ _Color = _T["foxglove_msgs/msg/Color"]
 _DiagnosticArray = _T["diagnostic_msgs/msg/DiagnosticArray"]
 _DiagnosticStatus = _T["diagnostic_msgs/msg/DiagnosticStatus"]
 _KeyValue = _T["diagnostic_msgs/msg/KeyValue"]
+_SchedulerState = _T["factory_msgs/msg/SchedulerState"]
+_RobotState = _T["factory_msgs/msg/RobotState"]
+_MachineState = _T["factory_msgs/msg/MachineState"]
+_OrderStatus = _T["factory_msgs/msg/OrderStatus"]
+_OrderQueue = _T["factory_msgs/msg/OrderQueue"]
+_CellSummary = _T["factory_msgs/msg/CellSummary"]
 
 #: DiagnosticStatus levels by name (diagnostic_msgs: OK 0, WARN 1, ERROR 2, STALE 3).
 LEVELS = {"OK": 0, "WARN": 1, "ERROR": 2, "STALE": 3}
@@ -181,5 +190,87 @@ def diagnostic_array(statuses: Iterable[ComponentStatus], stamp_ns: int) -> Any:
     return _DiagnosticArray(header=_header("", stamp_ns), status=out)
 
 
-__all__ = ["LEVELS", "ComponentStatus", "Detection", "detected_object_array", "diagnostic_array",
-           "image_annotations"]
+def scheduler_state(state: str, event: str, order: str, serial: str, message: str, stamp_ns: int) -> Any:
+    """``factory_msgs/SchedulerState``: a job's new state and the event that moved it."""
+    return _SchedulerState(header=_header("", stamp_ns), state=state, event=event, order=order, serial=serial,
+                           message=message)
+
+
+def robot_state(activity: str, order: str, serial: str, stamp_ns: int) -> Any:
+    """``factory_msgs/RobotState``: the robot's activity (``"idle"`` with empty order and serial)."""
+    return _RobotState(header=_header("", stamp_ns), activity=activity, order=order, serial=serial)
+
+
+def machine_state(state: str, order: str, serial: str, stamp_ns: int, *, tool: int = 0, spindle_rpm: float = 0.0,
+                  feed_mm_min: float = 0.0, tool_position: Sequence[float] = (0.0, 0.0, 0.0), line: int = 0,
+                  progress: float = 0.0, frame_id: str = "work") -> Any:
+    """``factory_msgs/MachineState``.
+
+    Parameters
+    ----------
+    tool_position : (3,) float
+        Tool tip in ``frame_id`` [m].
+    spindle_rpm : float
+        [rev/min]; ``feed_mm_min`` [mm/min]; ``progress`` in [0, 1].
+
+    Raises
+    ------
+    McapError
+        A non-finite value, a negative speed or feed, or progress outside [0, 1].
+    """
+    values = (spindle_rpm, feed_mm_min, *tool_position, progress)
+    if not np.isfinite(values).all() or spindle_rpm < 0 or feed_mm_min < 0 or not 0 <= progress <= 1:
+        raise McapError(f"machine state of {serial or 'the machine'}: non-finite value, negative speed or feed, "
+                        f"or progress {progress} outside [0, 1]")
+    x, y, z = (float(v) for v in tool_position)
+    return _MachineState(header=_header(frame_id, stamp_ns), state=state, order=order, serial=serial, tool=int(tool),
+                         spindle_speed_rpm=float(spindle_rpm), feed_mm_per_min=float(feed_mm_min),
+                         tool_position=_Point(x=x, y=y, z=z), program_line=int(line),
+                         program_progress=float(progress))
+
+
+@dataclass(frozen=True)
+class OrderLine:
+    """One order's status for :func:`order_queue` (counts of parts; ``state`` queued, running,
+    done, rejected or failed)."""
+
+    id: str
+    part: str
+    material: str
+    quantity: int
+    good: int
+    rejected: int
+    state: str
+    reason: str = ""
+
+
+def order_queue(lines: Iterable[OrderLine], stamp_ns: int) -> Any:
+    """``factory_msgs/OrderQueue`` of every order, in the given (priority) order."""
+    return _OrderQueue(header=_header("", stamp_ns), orders=[
+        _OrderStatus(id=o.id, part=o.part, material=o.material, quantity=int(o.quantity), good=int(o.good),
+                     rejected=int(o.rejected), state=o.state, reason=o.reason) for o in lines])
+
+
+def cell_summary(summary: Mapping[str, Any], stamp_ns: int) -> Any:
+    """``factory_msgs/CellSummary`` of a simulation's summary dict
+    (:attr:`robotprog.cellsim.SimulationResult.summary`; figures that are ``None`` when no part
+    was made become 0)."""
+    good, rejected = int(summary["parts_good"]), int(summary["parts_rejected"])
+    faults = dict(summary.get("faults", {}))
+    orders = dict(summary.get("orders", {}))
+    return _CellSummary(
+        header=_header("", stamp_ns), makespan_s=float(summary["makespan_s"]), parts_good=good,
+        parts_rejected=rejected, parts_per_hour=float(summary["parts_per_hour"]),
+        robot_utilisation=float(summary["robot_utilisation"]),
+        machine_utilisation=float(summary["machine_utilisation"]),
+        quality=good / (good + rejected) if good + rejected else 0.0,
+        cycle_time_s=float(summary.get("cycle_time_s") or 0.0),
+        mean_flow_time_s=float(summary.get("mean_flow_time_s") or 0.0),
+        orders_done=int(orders.get("done", 0)), orders_rejected=int(orders.get("rejected", 0)),
+        orders_failed=int(orders.get("failed", 0)), fault_kinds=list(faults),
+        fault_counts=np.array([int(n) for n in faults.values()], dtype=np.uint32),
+        recoveries=int(summary.get("recoveries", 0)), failures=int(summary.get("failures", 0)))
+
+
+__all__ = ["LEVELS", "ComponentStatus", "Detection", "OrderLine", "cell_summary", "detected_object_array",
+           "diagnostic_array", "image_annotations", "machine_state", "order_queue", "robot_state", "scheduler_state"]

@@ -31,6 +31,8 @@ out take the panel's defaults.
   4 warn, 8 error, 16 fatal; ROS 2 levels are mapped onto these), ``topicToRender``.
 * ``DiagnosticSummary``: ``topicToRender``, ``minLevel`` (0 OK .. 3 STALE), ``pinnedIds``,
   ``hardwareIdFilter``, ``sortByLevel`` (``panels/diagnostics/DiagnosticSummary.tsx``).
+* ``Plot``: ``paths`` of ``{"value": message path, "enabled", "timestampMethod", "label"}``,
+  ``xAxisVal`` ``"timestamp"``, legend and axis switches (``panels/Plot/types.ts``).
 * ``RawMessages``: ``topicPath``, ``diffEnabled``, ``diffMethod``, ``diffTopicPath``,
   ``showFullMessageForDiff`` (``panels/RawMessages/types.ts``).
 
@@ -54,6 +56,7 @@ PANEL_STATES = "StateTransitions!cell"
 PANEL_LOG = "RosOut!rosout"
 PANEL_ORDERS = "RawMessages!orders"
 PANEL_DIAGNOSTICS = "DiagnosticSummary!cell"
+PANEL_PLOT = "Plot!machine"
 
 # Instance ids of the 3D panel's custom layers (Foxglove makes UUIDs; any unique key works as
 # long as ``instanceId`` repeats it).
@@ -91,10 +94,11 @@ class CellTopics:
     camera_info : str
         ``sensor_msgs/CameraInfo`` of ``image``.
     state, robot, machine : str
-        ``std_msgs/String``: cell state (``IDLE``, ``FETCH_RAW``, ... ``RECOVER``), robot
-        activity, machine status (``idle``, ``cutting``, ``alarm``).
+        ``factory_msgs/SchedulerState`` (``state``: ``IDLE``, ``FETCH_RAW``, ... ``RECOVER``),
+        ``RobotState`` (``activity``), ``MachineState`` (``state``: ``idle``, ``cutting``,
+        ``reset``, ``alarm``; tool position, feed, spindle speed, program line and progress).
     orders : str
-        ``std_msgs/String`` with the orders' status as JSON.
+        ``factory_msgs/OrderQueue``: every order's status.
     rosout : str
         ``rcl_interfaces/msg/Log``.
     """
@@ -231,12 +235,25 @@ def _image(topics: CellTopics) -> dict[str, Any]:
     }
 
 
-def _state_transitions(topics: CellTopics) -> dict[str, Any]:
-    """One State Transitions row each for the cell state, robot activity and machine status."""
-    rows = ((topics.state, "cell state"), (topics.robot, "robot"), (topics.machine, "machine"))
+def _plot(topics: CellTopics) -> dict[str, Any]:
+    """Tool tip height [m] and feed [mm/min] of the machine against time."""
+    rows = ((f"{topics.machine}.tool_position.z", "tool Z [m]"), (f"{topics.machine}.feed_mm_per_min",
+                                                                     "feed [mm/min]"))
     return {
-        "paths": [{"value": f"{topic}.data", "timestampMethod": "receiveTime", "label": label}
-                  for topic, label in rows],
+        "paths": [{"value": value, "enabled": True, "timestampMethod": "headerStamp", "label": label}
+                  for value, label in rows],
+        "showLegend": True, "legendDisplay": "floating", "showPlotValuesInLegend": True,
+        "showXAxisLabels": True, "showYAxisLabels": True, "isSynced": True, "xAxisVal": "timestamp",
+    }
+
+
+def _state_transitions(topics: CellTopics) -> dict[str, Any]:
+    """One State Transitions row each for the scheduler state, robot activity and machine state."""
+    rows = ((topics.state, "state", "scheduler"), (topics.robot, "activity", "robot"),
+            (topics.machine, "state", "machine"))
+    return {
+        "paths": [{"value": f"{topic}.{field}", "timestampMethod": "headerStamp", "label": label}
+                  for topic, field, label in rows],
         "isSynced": True,
         "showPoints": True,
     }
@@ -246,9 +263,10 @@ def cell_layout(topics: CellTopics = CellTopics(), view: CellView = CellView()) 
     """The Foxglove layout of a cell-simulation log, as a JSON-ready dict.
 
     A large 3D view on the left (the robot from ``topics.robot_visuals``, cell boxes,
-    toolpath, stock, transforms, following ``view.follow_frame``), the state timelines under
-    it; on the right the camera image with its detections above the ``/rosout`` log, the
-    components' health (``/diagnostics``) and the orders' status.
+    toolpath, stock, transforms, following ``view.follow_frame``), the state timelines and a
+    plot of the tool's height and feed under it; on the right the camera image with its
+    detections above the ``/rosout`` log, the components' health (``/diagnostics``) and the
+    orders' status.
 
     Parameters
     ----------
@@ -273,6 +291,7 @@ def cell_layout(topics: CellTopics = CellTopics(), view: CellView = CellView()) 
         PANEL_3D: _three_d(topics, view),
         PANEL_IMAGE: _image(topics),
         PANEL_STATES: _state_transitions(topics),
+        PANEL_PLOT: _plot(topics),
         PANEL_LOG: {"searchTerms": [], "minLogLevel": _LOG_DEBUG, "topicToRender": topics.rosout},
         PANEL_ORDERS: {"topicPath": topics.orders, "diffEnabled": False, "diffMethod": "custom",
                        "diffTopicPath": "", "showFullMessageForDiff": False},
@@ -282,7 +301,9 @@ def cell_layout(topics: CellTopics = CellTopics(), view: CellView = CellView()) 
     layout = {
         "direction": "row",
         "splitPercentage": 62,
-        "first": {"direction": "column", "splitPercentage": 72, "first": PANEL_3D, "second": PANEL_STATES},
+        "first": {"direction": "column", "splitPercentage": 64, "first": PANEL_3D,
+                  "second": {"direction": "row", "splitPercentage": 50, "first": PANEL_STATES,
+                             "second": PANEL_PLOT}},
         "second": {
             "direction": "column",
             "splitPercentage": 45,
@@ -309,5 +330,5 @@ def layout_json(topics: CellTopics = CellTopics(), view: CellView = CellView()) 
     return json.dumps(cell_layout(topics, view), indent=2, sort_keys=True, allow_nan=False) + "\n"
 
 
-__all__ = ["PANEL_3D", "PANEL_DIAGNOSTICS", "PANEL_IMAGE", "PANEL_LOG", "PANEL_ORDERS", "PANEL_STATES", "CellTopics", "CellView",
-           "cell_layout", "layout_json"]
+__all__ = ["PANEL_3D", "PANEL_DIAGNOSTICS", "PANEL_IMAGE", "PANEL_LOG", "PANEL_ORDERS", "PANEL_PLOT", "PANEL_STATES",
+           "CellTopics", "CellView", "cell_layout", "layout_json"]

@@ -14,7 +14,7 @@ from factory.errors import McapError
 from factory.foxglove import CellTopics, CellView, cell_layout, layout_json
 
 # Panel types a layout may use, and the topics `factory simulate` writes (decided by the lead).
-PANEL_TYPES = {"3D", "Image", "StateTransitions", "RosOut", "RawMessages", "DiagnosticSummary"}
+PANEL_TYPES = {"3D", "Image", "StateTransitions", "RosOut", "RawMessages", "DiagnosticSummary", "Plot"}
 SIMULATION_TOPICS = {
     "/robot_description", "/robot/visuals", "/tf", "/tf_static", "/joint_states", "/cell/boxes", "/machine/toolpath",
     "/machine/stock", "/camera/image/compressed", "/camera/camera_info", "/cell/state", "/cell/robot",
@@ -87,7 +87,9 @@ def test_layout_names_only_simulation_topics_and_shows_the_ones_asked_for() -> N
     assert all(k == layer["instanceId"] for k, layer in three_d["layers"].items())
     assert by_type["Image"]["imageMode"]["imageTopic"] == "/camera/image/compressed"
     assert [p["value"] for p in by_type["StateTransitions"]["paths"]] == [
-        "/cell/state.data", "/cell/robot.data", "/cell/machine.data"]
+        "/cell/state.state", "/cell/robot.activity", "/cell/machine.state"]
+    assert [p["value"] for p in by_type["Plot"]["paths"]] == ["/cell/machine.tool_position.z",
+                                                              "/cell/machine.feed_mm_per_min"]
     assert all(p["timestampMethod"] in ("receiveTime", "headerStamp") for p in by_type["StateTransitions"]["paths"])
     assert by_type["RosOut"]["topicToRender"] == "/rosout"
     assert by_type["DiagnosticSummary"]["topicToRender"] == "/diagnostics"

@@ -8,6 +8,7 @@ their image's header and that every injected fault shows on ``/diagnostics`` at 
 
 from __future__ import annotations
 
+import json
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -57,8 +58,9 @@ def cell_log(tmp_path_factory) -> Path:
                                              "--no-waterline", "--grid", "0.5", "--quiet")])
     assert r.exit_code == 0, r.output
     r = runner.invoke(app, [str(a) for a in ("simulate", orders, "--catalog", d / "catalog", "--mcap", mcap,
-                                             "--faults", "3", "--fault-rate", "0.3", "--quiet")])
+                                             "--faults", "3", "--fault-rate", "0.3", "--quiet", "--json")])
     assert r.exit_code == 0, r.output
+    (mcap.parent / "run.json").write_text(r.stdout)
     return mcap
 
 
@@ -170,3 +172,58 @@ def test_every_injected_fault_is_an_error_on_diagnostics_until_recovered(cell_lo
         assert at[t]["cell/camera"].level == 2
     # all recovered by the end of the run
     assert all(s.level == 0 for s in diagnostics[-1][1].values())
+
+
+def test_no_json_in_strings_the_cell_state_is_fields(cell_log):
+    msgs = messages(cell_log, shipped_typestore())
+    types = {topic: name for topic, name, _, _ in msgs}
+    strings = {topic for topic, name in types.items() if name == "std_msgs/msg/String"}
+    assert strings == {"/robot_description"}
+    assert types["/cell/state"] == "factory_msgs/msg/SchedulerState"
+    assert types["/cell/robot"] == "factory_msgs/msg/RobotState"
+    assert types["/cell/machine"] == "factory_msgs/msg/MachineState"
+    assert types["/cell/orders"] == "factory_msgs/msg/OrderQueue"
+    assert types["/cell/summary"] == "factory_msgs/msg/CellSummary"
+
+
+def test_machine_state_follows_the_program(cell_log):
+    msgs = messages(cell_log, shipped_typestore())
+    sheet = json.loads((cell_log.parent / "catalog" / "block.setup.json").read_text())
+    rpm = {op["tool"]: op["spindle_rpm"] for op in sheet["operations"]}
+    cutting = [m for topic, _, _, m in msgs if topic == "/cell/machine" and m.state == "cutting"]
+    assert len(cutting) > 20
+    for m in cutting:
+        assert m.header.frame_id == "work" and re.fullmatch(r"o\d+-\d+", m.serial)
+        assert m.tool in rpm and m.spindle_speed_rpm == pytest.approx(rpm[m.tool])
+        assert 0 <= m.program_progress <= 1 and m.program_line > 0 and m.feed_mm_per_min >= 0
+        assert -0.05 < m.tool_position.z < 0.1  # [m] around the work's top face, not millimetres
+    assert max(m.feed_mm_per_min for m in cutting) > 100
+    # the tool position is the one on /tf (work -> tool) at the same stamp
+    tips = {t: x.transform.translation for topic, _, t, msg in msgs if topic == "/tf" for x in msg.transforms
+            if x.child_frame_id == "tool"}
+    for m in cutting:
+        stamp = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+        assert tips[stamp].z == pytest.approx(m.tool_position.z)
+    last = [m for topic, _, _, m in msgs if topic == "/cell/machine"][-1]
+    assert last.state in ("idle", "alarm") and last.serial == ""
+
+
+def test_order_queue_and_summary_end_as_the_run_reports(cell_log):
+    run = json.loads((cell_log.parent / "run.json").read_text())
+    msgs = messages(cell_log, shipped_typestore())
+    queues = [m for topic, _, _, m in msgs if topic == "/cell/orders"]
+    assert [o.state for o in queues[0].orders] == ["queued"]
+    final = {o.id: o for o in queues[-1].orders}
+    for o in run["orders"]:
+        assert (final[o["order"]].state, final[o["order"]].good) == (o["outcome"], o["good"])
+    goods = [q.orders[0].good for q in queues]
+    assert goods == sorted(goods)  # parts are only ever added
+    (summary,) = [m for topic, _, _, m in msgs if topic == "/cell/summary"]
+    s = run["summary"]
+    assert summary.parts_good == s["parts_good"] and summary.makespan_s == pytest.approx(s["makespan_s"])
+    assert summary.orders_done == s["orders"]["done"]
+    assert dict(zip(summary.fault_kinds, summary.fault_counts.tolist())) == s["faults"]
+    assert summary.quality == pytest.approx(s["parts_good"] / (s["parts_good"] + s["parts_rejected"]))
+    states = [m for topic, _, _, m in msgs if topic == "/cell/state"]
+    assert {m.state for m in states} >= {"FETCH_RAW", "LOAD", "MACHINING", "UNLOAD", "INSPECT", "SORT", "IDLE"}
+    assert all(re.fullmatch(r"o\d+-\d+", m.serial) for m in states)
