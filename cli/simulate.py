@@ -12,10 +12,11 @@ inspections), and the run is logged to one MCAP with a Foxglove layout beside it
 
 from __future__ import annotations
 
+import bisect
+import dataclasses
 import functools
 import json
 import logging
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
@@ -447,19 +448,55 @@ _COMPONENTS = ("machine", "robot", "camera", "scheduler")
 _RETRYING = ("recover", "retry_fetch", "rerun")
 
 
+class _Resources:
+    """What the machine and the robot are doing at a time, from the simulation's activities, as
+    diagnostic key values (units in the keys)."""
+
+    def __init__(self, result: SimulationResult, part_of: Any, spindle: Any) -> None:
+        self.by = {r: sorted((a for a in result.activities if a.resource == r), key=lambda a: a.start)
+                   for r in ("machine", "robot")}
+        self.starts = {r: [a.start for a in acts] for r, acts in self.by.items()}
+        self.jobs, self.part_of, self.spindle = result.jobs, part_of, spindle
+
+    def _last(self, resource: str, t: float) -> Any | None:
+        k = bisect.bisect_right(self.starts[resource], t)
+        return self.by[resource][k - 1] if k else None
+
+    def at(self, t: float) -> dict[str, dict[str, str]]:
+        m, r = self._last("machine", t), self._last("robot", t)
+        machine = {"state": "idle", "serial": "", "tool": "0", "spindle_speed_rpm": "0", "program_line": "0"}
+        if m is not None and t < m.end:
+            machine.update(state="cutting" if m.action == "cut" else "reset",
+                           serial=f"{self.jobs.get(m.job, '?')}-{m.job}")
+            if m.action == "cut":
+                p = self.part_of(m.job)
+                tool, line, _ = _program_state(p.timeline, np.array([t - m.start]))
+                machine.update(tool=str(int(tool[0])), program_line=str(int(line[0])),
+                               spindle_speed_rpm=f"{self.spindle(p).get(int(tool[0]), 0.0):.0f}")
+        elif m is not None and m.outcome in ("machine_alarm", "timeout"):
+            machine["state"] = "alarm"
+        robot = {"activity": "idle", "serial": ""}
+        if r is not None and t < r.end:
+            robot = {"activity": r.action, "serial": f"{self.jobs.get(r.job, '?')}-{r.job}"}
+        return {"machine": machine, "robot": robot}
+
+
 class _Health:
     """Each component's health as the scheduler's log goes: a fault is ERROR on its component and
     on the scheduler from the entry that raised it until it is recovered: until the retried step
     succeeds (the stock fetched, the program run), the part is scrapped or abandoned, or, for a
     failed inspection, sorted to the reject bin."""
 
-    def __init__(self) -> None:
+    def __init__(self, resources: "_Resources") -> None:
         self.faults: dict[int, tuple[str, str, str, str]] = {}  # job -> (component, code, order, message)
         self.state: dict[int, tuple[str, str]] = {}  # job -> (order, state) of running jobs
+        self.resources = resources
+        self.values: dict[str, dict[str, str]] = resources.at(0.0)
 
     def update(self, e: Any) -> bool:
         """Take one log entry; True when a status changed."""
         before = self.statuses()
+        self.values = self.resources.at(e.time)
         # A failed inspection sends the part to SORT, not FAULT; it stays an error until sorted.
         if e.state == "FAULT" or e.event == "inspect_fail":
             where = _FAULT_COMPONENT.get(e.event)
@@ -478,7 +515,8 @@ class _Health:
         out = []
         for name in _COMPONENTS:
             faults = [(job, f) for job, f in sorted(self.faults.items()) if name == "scheduler" or f[0] == name]
-            values = {"fault": ", ".join(f[1] for _, f in faults), "jobs_in_fault": str(len(faults))}
+            values = {"fault": ", ".join(f[1] for _, f in faults), "jobs_in_fault": str(len(faults)),
+                      **self.values.get(name, {})}
             if name == "scheduler":
                 values["jobs_running"] = str(len(self.state))
                 values["states"] = ", ".join(f"{o}-{j}: {st}" for j, (o, st) in sorted(self.state.items()))
@@ -502,6 +540,12 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
     robot_samples: list[tuple[float, np.ndarray]] = [(0.0, home)]
     cut_so_far: dict[int, float] = {}
     spindle: dict[tuple[Path, str], dict[int, float]] = {}
+
+    def rpm_of(p: PartAssets) -> dict[int, float]:
+        """Spindle speed [rev/min] per tool of a part, read once."""
+        if (p.part, p.material) not in spindle:
+            spindle[(p.part, p.material)] = spindle_speeds(p)
+        return spindle[(p.part, p.material)]
     for a in result.activities:
         order = result.jobs.get(a.job, "?")
         serial = f"{order}-{a.job}"
@@ -544,9 +588,7 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
             program_t = np.append(np.arange(0.0, a.end - a.start, 1.0 / TOOL_RATE_HZ), a.end - a.start)
             positions = p.timeline.position_at(program_t) / 1000.0
             tools, lines, feeds = _program_state(p.timeline, program_t)
-            if (p.part, p.material) not in spindle:
-                spindle[(p.part, p.material)] = spindle_speeds(p)
-            rpm = spindle[(p.part, p.material)]
+            rpm = rpm_of(p)
             duration = float(p.timeline.end[-1]) or 1.0
             for dt, xyz, tool, line, feed in zip(program_t, positions, tools, lines, feeds):
                 pose = np.eye(4)
@@ -582,7 +624,7 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
     tl.add(0.0, "/cell/orders", queue.message(0.0))
     last_entry = {e.order: i for i, e in enumerate(result.log)}
     ended = {o.order: o for o in result.outcomes}
-    health = _Health()
+    health = _Health(_Resources(result, part_of, rpm_of))
     tl.add(0.0, "/diagnostics", diagnostic_array(health.statuses(), 0))
     for i, e in enumerate(result.log):
         if health.update(e):

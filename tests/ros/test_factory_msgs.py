@@ -172,6 +172,13 @@ def test_every_injected_fault_is_an_error_on_diagnostics_until_recovered(cell_lo
         assert at[t]["cell/camera"].level == 2
     # all recovered by the end of the run
     assert all(s.level == 0 for s in diagnostics[-1][1].values())
+    # key values of the machine and the robot, as they were at each change
+    machine = [{kv.key: kv.value for kv in d["cell/machine"].values} for _, d in diagnostics]
+    assert {"state", "tool", "spindle_speed_rpm", "program_line", "fault"} <= set(machine[0])
+    cutting = [v for v in machine if v["state"] == "cutting"]
+    assert cutting and all(int(v["tool"]) > 0 and float(v["spindle_speed_rpm"]) > 1000 for v in cutting)
+    robot = [{kv.key: kv.value for kv in d["cell/robot"].values} for _, d in diagnostics]
+    assert {v["activity"] for v in robot} >= {"idle", "load", "unload"}
 
 
 def test_no_json_in_strings_the_cell_state_is_fields(cell_log):
