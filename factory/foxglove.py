@@ -20,14 +20,19 @@ out take the panel's defaults.
   (``camera.ts``: distance [m], phi and thetaOffset [deg], targetOffset [m], near/far [m]),
   ``followTf`` + ``followMode``, ``scene``, ``transforms`` (``"frame:<id>"`` -> visibility),
   ``topics`` (topic -> ``{"visible": ...}`` plus per-type settings) and ``layers`` (custom
-  layers by instance id: ``foxglove.Grid`` in ``renderables/Grids.ts``, ``foxglove.Urdf`` in
-  ``renderables/Urdfs.ts`` with ``sourceType`` ``"topic"`` and ``topic``).
+  layers by instance id: ``foxglove.Grid`` in ``renderables/Grids.ts``). The robot is drawn
+  from the ``foxglove_msgs/SceneUpdate`` of its link meshes (:mod:`factory.scene`), not from
+  the URDF, whose ``package://`` meshes only a ROS install resolves.
 * ``Image``: the same renderer in image mode; ``imageMode`` holds ``imageTopic``,
   ``calibrationTopic`` and ``annotations`` (topic -> ``{"visible": ...}``).
 * ``StateTransitions``: ``paths`` of ``{"value": message path, "timestampMethod":
   "receiveTime" | "headerStamp", "label"}`` and ``isSynced`` (``panels/StateTransitions/types.ts``).
 * ``RosOut`` (the Log panel, legacy type name): ``searchTerms``, ``minLogLevel`` (1 debug, 2 info,
   4 warn, 8 error, 16 fatal; ROS 2 levels are mapped onto these), ``topicToRender``.
+* ``DiagnosticSummary``: ``topicToRender``, ``minLevel`` (0 OK .. 3 STALE), ``pinnedIds``,
+  ``hardwareIdFilter``, ``sortByLevel`` (``panels/diagnostics/DiagnosticSummary.tsx``).
+* ``Plot``: ``paths`` of ``{"value": message path, "enabled", "timestampMethod", "label"}``,
+  ``xAxisVal`` ``"timestamp"``, legend and axis switches (``panels/Plot/types.ts``).
 * ``RawMessages``: ``topicPath``, ``diffEnabled``, ``diffMethod``, ``diffTopicPath``,
   ``showFullMessageForDiff`` (``panels/RawMessages/types.ts``).
 
@@ -50,11 +55,12 @@ PANEL_IMAGE = "Image!camera"
 PANEL_STATES = "StateTransitions!cell"
 PANEL_LOG = "RosOut!rosout"
 PANEL_ORDERS = "RawMessages!orders"
+PANEL_DIAGNOSTICS = "DiagnosticSummary!cell"
+PANEL_PLOT = "Plot!machine"
 
 # Instance ids of the 3D panel's custom layers (Foxglove makes UUIDs; any unique key works as
 # long as ``instanceId`` repeats it).
 _GRID_LAYER = "grid"
-_URDF_LAYER = "robot"
 
 # Log panel levels (foxglove LogLevel): 1 debug, 2 info, 4 warn, 8 error, 16 fatal.
 _LOG_DEBUG = 1
@@ -71,29 +77,40 @@ class CellTopics:
     Attributes
     ----------
     robot_description : str
-        ``std_msgs/String`` with the robot URDF (latched).
+        ``std_msgs/String`` with the robot URDF (latched); hidden in the 3D view.
+    robot_visuals : str
+        ``foxglove_msgs/SceneUpdate``: the robot's link meshes, embedded, each locked to its
+        link frame (latched).
     boxes : str
         ``visualization_msgs/MarkerArray``: the cell's static boxes, frame ``world``.
     toolpath, stock : str
         ``MarkerArray``: the part's toolpath and the stock mesh, frame ``work``.
     image : str
         ``sensor_msgs/CompressedImage``: annotated camera frames.
+    annotations : str
+        ``foxglove_msgs/ImageAnnotations``: each detection's circle and label over ``image``.
+    diagnostics : str
+        ``diagnostic_msgs/DiagnosticArray``: health of the machine, robot, camera and scheduler.
     camera_info : str
         ``sensor_msgs/CameraInfo`` of ``image``.
     state, robot, machine : str
-        ``std_msgs/String``: cell state (``IDLE``, ``FETCH_RAW``, ... ``RECOVER``), robot
-        activity, machine status (``idle``, ``cutting``, ``alarm``).
+        ``factory_msgs/SchedulerState`` (``state``: ``IDLE``, ``FETCH_RAW``, ... ``RECOVER``),
+        ``RobotState`` (``activity``), ``MachineState`` (``state``: ``idle``, ``cutting``,
+        ``reset``, ``alarm``; tool position, feed, spindle speed, program line and progress).
     orders : str
-        ``std_msgs/String`` with the orders' status as JSON.
+        ``factory_msgs/OrderQueue``: every order's status.
     rosout : str
         ``rcl_interfaces/msg/Log``.
     """
 
     robot_description: str = "/robot_description"
+    robot_visuals: str = "/robot/visuals"
     boxes: str = "/cell/boxes"
     toolpath: str = "/machine/toolpath"
     stock: str = "/machine/stock"
     image: str = "/camera/image/compressed"
+    annotations: str = "/camera/annotations"
+    diagnostics: str = "/diagnostics"
     camera_info: str = "/camera/camera_info"
     state: str = "/cell/state"
     robot: str = "/cell/robot"
@@ -173,9 +190,10 @@ def _three_d(topics: CellTopics, view: CellView) -> dict[str, Any]:
         "scene": {"transforms": {"showLabel": True, "editable": False}},
         "transforms": {f"frame:{f}": {"visible": True} for f in view.frames},
         "topics": {
-            # The URDF layer below draws the robot; the automatic /robot_description entry is
-            # switched off so it is not drawn twice when the topic has that name.
+            # The robot is drawn from its embedded meshes; the URDF's package:// meshes would
+            # only load on a machine with ROS (and draw the robot twice there).
             topics.robot_description: {"visible": False},
+            topics.robot_visuals: {"visible": True},
             topics.boxes: {"visible": True},
             topics.toolpath: {"visible": True},
             topics.stock: {"visible": True},
@@ -198,22 +216,6 @@ def _three_d(topics: CellTopics, view: CellView) -> dict[str, Any]:
                 "rotation": [0.0, 0.0, 0.0],
                 "order": 1,
             },
-            _URDF_LAYER: {
-                "layerId": "foxglove.Urdf",
-                "instanceId": _URDF_LAYER,
-                "label": "Robot",
-                "visible": True,
-                "frameLocked": True,
-                "sourceType": "topic",
-                "topic": topics.robot_description,
-                "url": "",
-                "filePath": "",
-                "parameter": "",
-                "framePrefix": "",
-                "displayMode": "auto",
-                "fallbackColor": "#ffffff",
-                "order": 2,
-            },
         },
         "imageMode": {},
     }
@@ -225,19 +227,33 @@ def _image(topics: CellTopics) -> dict[str, Any]:
         "imageMode": {
             "imageTopic": topics.image,
             "calibrationTopic": topics.camera_info,
-            # The frames carry their annotations drawn in; there is no annotation topic.
-            "annotations": {},
+            # The frames carry the fitted outlines drawn in; the overlay adds class, serial,
+            # confidence and the inspection verdict per detection.
+            "annotations": {topics.annotations: {"visible": True}},
             "synchronize": False,
         },
     }
 
 
-def _state_transitions(topics: CellTopics) -> dict[str, Any]:
-    """One State Transitions row each for the cell state, robot activity and machine status."""
-    rows = ((topics.state, "cell state"), (topics.robot, "robot"), (topics.machine, "machine"))
+def _plot(topics: CellTopics) -> dict[str, Any]:
+    """Tool tip height [m] and feed [mm/min] of the machine against time."""
+    rows = ((f"{topics.machine}.tool_position.z", "tool Z [m]"), (f"{topics.machine}.feed_mm_per_min",
+                                                                     "feed [mm/min]"))
     return {
-        "paths": [{"value": f"{topic}.data", "timestampMethod": "receiveTime", "label": label}
-                  for topic, label in rows],
+        "paths": [{"value": value, "enabled": True, "timestampMethod": "headerStamp", "label": label}
+                  for value, label in rows],
+        "showLegend": True, "legendDisplay": "floating", "showPlotValuesInLegend": True,
+        "showXAxisLabels": True, "showYAxisLabels": True, "isSynced": True, "xAxisVal": "timestamp",
+    }
+
+
+def _state_transitions(topics: CellTopics) -> dict[str, Any]:
+    """One State Transitions row each for the scheduler state, robot activity and machine state."""
+    rows = ((topics.state, "state", "scheduler"), (topics.robot, "activity", "robot"),
+            (topics.machine, "state", "machine"))
+    return {
+        "paths": [{"value": f"{topic}.{field}", "timestampMethod": "headerStamp", "label": label}
+                  for topic, field, label in rows],
         "isSynced": True,
         "showPoints": True,
     }
@@ -246,9 +262,11 @@ def _state_transitions(topics: CellTopics) -> dict[str, Any]:
 def cell_layout(topics: CellTopics = CellTopics(), view: CellView = CellView()) -> dict[str, Any]:
     """The Foxglove layout of a cell-simulation log, as a JSON-ready dict.
 
-    A large 3D view on the left (URDF robot from ``topics.robot_description``, cell boxes,
-    toolpath, stock, transforms, following ``view.follow_frame``), the state timelines under
-    it; on the right the camera image above the ``/rosout`` log and the orders' status.
+    A large 3D view on the left (the robot from ``topics.robot_visuals``, cell boxes,
+    toolpath, stock, transforms, following ``view.follow_frame``), the state timelines and a
+    plot of the tool's height and feed under it; on the right the camera image with its
+    detections above the ``/rosout`` log, the components' health (``/diagnostics``) and the
+    orders' status.
 
     Parameters
     ----------
@@ -273,19 +291,26 @@ def cell_layout(topics: CellTopics = CellTopics(), view: CellView = CellView()) 
         PANEL_3D: _three_d(topics, view),
         PANEL_IMAGE: _image(topics),
         PANEL_STATES: _state_transitions(topics),
+        PANEL_PLOT: _plot(topics),
         PANEL_LOG: {"searchTerms": [], "minLogLevel": _LOG_DEBUG, "topicToRender": topics.rosout},
         PANEL_ORDERS: {"topicPath": topics.orders, "diffEnabled": False, "diffMethod": "custom",
                        "diffTopicPath": "", "showFullMessageForDiff": False},
+        PANEL_DIAGNOSTICS: {"topicToRender": topics.diagnostics, "minLevel": 0, "pinnedIds": [],
+                            "hardwareIdFilter": "", "sortByLevel": True},
     }
     layout = {
         "direction": "row",
         "splitPercentage": 62,
-        "first": {"direction": "column", "splitPercentage": 72, "first": PANEL_3D, "second": PANEL_STATES},
+        "first": {"direction": "column", "splitPercentage": 64, "first": PANEL_3D,
+                  "second": {"direction": "row", "splitPercentage": 50, "first": PANEL_STATES,
+                             "second": PANEL_PLOT}},
         "second": {
             "direction": "column",
             "splitPercentage": 45,
             "first": PANEL_IMAGE,
-            "second": {"direction": "column", "splitPercentage": 55, "first": PANEL_LOG, "second": PANEL_ORDERS},
+            "second": {"direction": "column", "splitPercentage": 55, "first": PANEL_LOG,
+                       "second": {"direction": "row", "splitPercentage": 50, "first": PANEL_DIAGNOSTICS,
+                                  "second": PANEL_ORDERS}},
         },
     }
     return {
@@ -305,5 +330,5 @@ def layout_json(topics: CellTopics = CellTopics(), view: CellView = CellView()) 
     return json.dumps(cell_layout(topics, view), indent=2, sort_keys=True, allow_nan=False) + "\n"
 
 
-__all__ = ["PANEL_3D", "PANEL_IMAGE", "PANEL_LOG", "PANEL_ORDERS", "PANEL_STATES", "CellTopics", "CellView",
-           "cell_layout", "layout_json"]
+__all__ = ["PANEL_3D", "PANEL_DIAGNOSTICS", "PANEL_IMAGE", "PANEL_LOG", "PANEL_ORDERS", "PANEL_PLOT", "PANEL_STATES",
+           "CellTopics", "CellView", "cell_layout", "layout_json"]

@@ -1,20 +1,28 @@
 """The MCAP log every stage writes: ROS 2 messages for Foxglove and ``ros2 bag``.
 
-Files follow the MCAP ``ros2`` profile the way rosbag2 (Jazzy) writes them, so that
-Foxglove, ``ros2 bag info/play`` and rosbags can open them without a ROS install:
+Files follow the MCAP ``ros2`` profile the way rosbag2 writes them, so that Foxglove,
+``ros2 bag info/play`` (Humble and Jazzy) and rosbags can open them without a ROS install:
 
 * header profile ``ros2``; every channel ``cdr`` encoded, every schema ``ros2msg`` with the
-  full concatenated definition text (the top-level ``.msg`` text, then per dependency a
-  line of 80 ``=``, ``MSG: pkg/Name`` and its text);
-* channel metadata ``offered_qos_profiles`` (rosbag2 metadata version 9 YAML: policy names,
-  not numbers) and ``topic_type_hash`` (RIHS01). Latched topics (``/tf_static``, a robot
+  full concatenated definition text as rosbag2's ``LocalMessageDefinitionSource`` writes it:
+  the top-level ``.msg`` text, then per dependency a line of 80 ``=``, a line
+  ``MSG: pkg/Name`` naming the type exactly as the fields spell it, and its text (Foxglove's
+  parser finds a dependency only under the name its field uses);
+* channel metadata ``offered_qos_profiles`` with the QoS policies as rmw enum numbers and
+  ``topic_type_hash`` (RIHS01). Humble's ``ros2 bag`` reads only numbers; Jazzy reads
+  numbers when the file's ``rosbag2`` metadata record has no ``serialized_metadata``
+  (it then takes the bag as metadata version 8), which is the record written here, the one
+  Humble writes (``ROS_DISTRO`` only). Latched topics (``/tf_static``, a robot
   description, a static scene) offer ``transient_local`` durability, others ``volatile``;
 * zstd-compressed chunks, message indexes, chunk indexes and a summary with statistics;
 * a metadata record named ``factory`` (stage, version, input hashes, parameters) and
   attachments for the files the next stage reads back (the CAM job JSON).
 
 Message classes, CDR serialisation and definition texts come from rosbags' ROS 2 Jazzy
-typestore (:data:`TYPESTORE`); files are written by the ``mcap`` package's writer through
+typestore (:data:`TYPESTORE`), with the ``.msg`` files under :data:`MSG_DIRS` registered into
+it (``foxglove_msgs``: Foxglove's scene and image-annotation messages, checked field by field
+against Foxglove's own definitions in ``tests/foxglove``; ``factory_msgs``: the cell's own, from
+the ROS 2 interface package in ``ros/``); files are written by the ``mcap`` package's writer through
 :func:`factory.atomic.atomic_output`, so a failed run leaves no file behind.
 
 Units: ROS speaks metres, seconds and radians. The builders below take metres (and a
@@ -27,7 +35,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import re
 import struct
 import sys
 from collections.abc import Iterable, Mapping, Sequence
@@ -39,12 +46,13 @@ import numpy as np
 from mcap.exceptions import McapError as _McapLibError
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, IndexType, Writer
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from scipy.spatial.transform import Rotation
 
 import factory
 from factory.atomic import atomic_output, check_writable
 from factory.errors import McapError
+from factory.resources import ROS_INTERFACES
 
 # What the mcap reader raises on a file that is not MCAP or is cut short.
 _READ_ERRORS = (_McapLibError, EOFError, OSError, ValueError, StopIteration, struct.error)
@@ -56,6 +64,33 @@ ROS_DISTRO = "jazzy"
 #: rosbags typestore with every message type we log (visualization_msgs, sensor_msgs,
 #: tf2_msgs, trajectory_msgs, std_msgs, rcl_interfaces, geometry_msgs, ...).
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+#: Folders of ROS interface packages (``PKG/msg/NAME.msg``) registered into :data:`TYPESTORE`:
+#: Foxglove's scene and image-annotation messages, and factory's own (``ros/factory_msgs``).
+MSG_DIRS = (Path(__file__).resolve().parent / "msg", ROS_INTERFACES)
+
+
+def register_msg_files(typestore: Any, roots: Iterable[Path]) -> list[str]:
+    """Register every ``ROOT/PKG/msg/NAME.msg`` into ``typestore``; return the type names.
+
+    Raises
+    ------
+    McapError
+        A file cannot be read or parsed as a ROS 2 message definition.
+    """
+    types: dict[str, Any] = {}
+    for root in roots:
+        for path in sorted(Path(root).glob("*/msg/*.msg")):
+            name = f"{path.parent.parent.name}/msg/{path.stem}"
+            try:
+                types.update(get_types_from_msg(path.read_text(encoding="utf-8"), name))
+            except Exception as e:  # rosbags raises its own parse errors
+                raise McapError(f"cannot read message definition: {e}", source=path) from None
+    typestore.register(types)
+    return sorted(types)
+
+
+register_msg_files(TYPESTORE, MSG_DIRS)
+
 #: Name of the metadata record that describes the run that wrote the file.
 FACTORY_METADATA = "factory"
 
@@ -83,21 +118,32 @@ _Log = _T["rcl_interfaces/msg/Log"]
 _INT32_MAX = 2**31 - 1
 _UINT64_MAX = 2**64 - 1
 
-# rosbag2 >= Jazzy (metadata version 9) writes policy names; Humble wrote enum numbers.
-# Durations are RMW_DURATION_INFINITE {sec: INT64_MAX // 1e9, nsec: INT64_MAX % 1e9}, as
-# recorded from publishers that left deadline, lifespan and lease at their defaults.
-_QOS_TEMPLATE = """\
-- history: keep_last
-  depth: {depth}
-  reliability: reliable
-  durability: {durability}
+#: Name of the metadata record ``ros2 bag`` reads the bag's distribution (and on Jazzy its
+#: metadata version) from.
+ROSBAG2_METADATA = "rosbag2"
+
+# rmw enum numbers (rmw/types.h), the form both Humble and Jazzy read (see the module doc):
+# history 1 keep_last; reliability 1 reliable; durability 1 transient_local, 2 volatile;
+# liveliness 1 automatic. Durations are RMW_DURATION_INFINITE {sec: INT64_MAX // 1e9,
+# nsec: INT64_MAX % 1e9}, as recorded from publishers that left deadline, lifespan and lease
+# at their defaults.
+_HISTORY_KEEP_LAST = 1
+_RELIABILITY_RELIABLE = 1
+_DURABILITY_TRANSIENT_LOCAL = 1
+_DURABILITY_VOLATILE = 2
+_LIVELINESS_AUTOMATIC = 1
+_QOS_TEMPLATE = f"""\
+- history: {_HISTORY_KEEP_LAST}
+  depth: {{depth}}
+  reliability: {_RELIABILITY_RELIABLE}
+  durability: {{durability}}
   deadline:
     sec: 9223372036
     nsec: 854775807
   lifespan:
     sec: 9223372036
     nsec: 854775807
-  liveliness: automatic
+  liveliness: {_LIVELINESS_AUTOMATIC}
   liveliness_lease_duration:
     sec: 9223372036
     nsec: 854775807
@@ -105,34 +151,29 @@ _QOS_TEMPLATE = """\
 
 
 def offered_qos_profiles(latched: bool) -> str:
-    """The ``offered_qos_profiles`` channel metadata rosbag2 (Jazzy) writes for a publisher.
+    """The ``offered_qos_profiles`` channel metadata for a publisher, policies as rmw numbers.
 
     Parameters
     ----------
     latched : bool
-        ``True``: keep-last 1, reliable, ``transient_local`` (what ``/tf_static`` and
+        ``True``: keep-last 1, reliable, transient local (what ``/tf_static`` and
         ``/robot_description`` publishers offer, so late subscribers get the message on
-        ``ros2 bag play``). ``False``: keep-last 10, reliable, ``volatile`` (rclcpp defaults).
+        ``ros2 bag play``). ``False``: keep-last 10, reliable, volatile (rclcpp defaults).
     """
     if latched:
-        return _QOS_TEMPLATE.format(depth=1, durability="transient_local")
-    return _QOS_TEMPLATE.format(depth=10, durability="volatile")
+        return _QOS_TEMPLATE.format(depth=1, durability=_DURABILITY_TRANSIENT_LOCAL)
+    return _QOS_TEMPLATE.format(depth=10, durability=_DURABILITY_VOLATILE)
 
 
 def message_definition(typename: str) -> str:
     """The ``ros2msg`` schema text of ``typename`` as rosbag2 stores it.
 
     The top-level definition, then for every type it depends on (once, recursively) a line
-    of 80 ``=``, a line ``MSG: pkg/msg/Name`` and that type's definition. rosbags writes
-    the ROS 1 style ``MSG: pkg/Name``; rosbag2's message_definition_encoding.md names the
-    full resource (``pkg/msg/Name``), so the header lines are rewritten to that. Readers
-    (Foxglove, mcap_ros2, rosbags) accept both.
+    of 80 ``=``, a line ``MSG: pkg/Name`` with the type named as its fields spell it (not
+    ``pkg/msg/Name``: Foxglove's parser would not find it) and that type's definition.
     """
     text, _ = TYPESTORE.generate_msgdef(typename, ros_version=2)
-    return _MSG_LINE.sub(lambda m: f"\nMSG: {m[1]}/msg/{m[2]}\n", text)
-
-
-_MSG_LINE = re.compile(r"\nMSG: ([A-Za-z0-9_]+)/([A-Za-z0-9_]+)\n")
+    return text
 
 
 def _check_time(ns: int, what: str) -> int:
@@ -234,6 +275,7 @@ class McapLog:
             return False
         if exc_type is None:
             try:
+                writer.add_metadata(ROSBAG2_METADATA, {"ROS_DISTRO": ROS_DISTRO})
                 writer.add_metadata(FACTORY_METADATA, self._metadata)
                 writer.finish()
             except BaseException as e:
@@ -298,7 +340,7 @@ class McapLog:
         log_time_ns : int
             Log (and publish) time [ns]; 0 for timeless views such as a toolpath.
         latched : bool
-            Offer ``transient_local`` durability (``/tf_static``, static scene topics).
+            Offer transient local durability (``/tf_static``, static scene topics).
         """
         typename = getattr(msg, "__msgtype__", None)
         if not isinstance(typename, str):
@@ -686,7 +728,7 @@ def log_msg(level: int | str, name: str, text: str, stamp_ns: int, *, file: str 
 
 
 __all__ = [
-    "FACTORY_METADATA", "ROS_DISTRO", "TYPESTORE", "McapLog", "cube_marker",
+    "FACTORY_METADATA", "ROSBAG2_METADATA", "ROS_DISTRO", "TYPESTORE", "McapLog", "cube_marker",
     "line_list_marker", "line_strip_marker", "log_msg", "marker_array", "message_definition",
     "offered_qos_profiles",
     "read_attachment", "read_messages", "read_metadata", "ros_time", "string_msg", "tf_message",

@@ -6,3 +6,6 @@ from pathlib import Path
 
 #: The project's ``fixtures/`` folder: tool library and cell definitions.
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
+#: The project's ``ros/`` folder: factory's own ROS 2 interface packages (``factory_msgs``), the
+#: one source of the message definitions written into every MCAP.
+ROS_INTERFACES = Path(__file__).resolve().parent.parent / "ros"

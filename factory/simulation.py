@@ -12,6 +12,8 @@ inspections) in :func:`run_cell`, and :func:`write_cell_log` logs the run to one
 
 from __future__ import annotations
 
+import bisect
+import dataclasses
 import functools
 import json
 import logging
@@ -29,9 +31,12 @@ from cadcam.timeline import MachineTimeline, machine_timeline, stock_snapshots
 from factory.camera_msgs import camera_info_msg, compressed_image_msg
 from factory.atomic import write_bytes, write_text
 from factory.catalog import CatalogEntry, catalog_record, find_entry, sha256_file
+from factory.cellmsgs import (ComponentStatus, Detection, OrderLine, cell_summary, detected_object_array,
+                              diagnostic_array, image_annotations, machine_state, order_queue, robot_state,
+                              scheduler_state)
 from factory.errors import CellError, FactoryError, McapError
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, log_msg, marker_array, read_messages, ros_time,
-                             string_msg, tf_message, transform_stamped, triangle_mesh_marker)
+                             tf_message, transform_stamped, triangle_mesh_marker)
 from factory.plan import PlanRequest, plan_part
 from factory.progress import Progress, Stopwatch, stage_callback
 from factory.resources import FIXTURES
@@ -428,6 +433,160 @@ def _restamp(array: Any, t: float) -> Any:
     return array
 
 
+class _Queue:
+    """Every order's status as the scheduler's log goes: queued, running (good parts sorted and
+    rejects so far), then its outcome with the final counts and reason."""
+
+    def __init__(self, orders: tuple[Order, ...]) -> None:
+        self.lines = {o.id: OrderLine(o.id, o.part.name, o.material, o.quantity, 0, 0, "queued") for o in orders}
+        self.failed_inspection: set[int] = set()
+
+    def update(self, e: Any, outcome: Any | None) -> bool:
+        """Take one log entry (``outcome``: the order's outcome when this is its last entry);
+        True when the order's line changed."""
+        line = before = self.lines[e.order]
+        if e.event == "inspect_fail":
+            self.failed_inspection.add(e.job)
+        if outcome is not None:
+            line = dataclasses.replace(line, good=outcome.good, rejected=outcome.rejected, state=outcome.outcome,
+                                       reason=outcome.reason)
+        elif e.event == "sorted":
+            bad = e.job in self.failed_inspection
+            line = dataclasses.replace(line, good=line.good + (not bad), rejected=line.rejected + bad,
+                                       state="running")
+        elif e.job:
+            line = dataclasses.replace(line, state="running")
+        self.lines[e.order] = line
+        return line != before
+
+    def message(self, t: float) -> Any:
+        return order_queue(self.lines.values(), _ns(t))
+
+
+def _program_state(timeline: MachineTimeline, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Tool number, G-code line and feed [mm/min] at program times ``t`` [s] (feed 0 while the
+    tool stands still, e.g. during a tool change)."""
+    n = len(timeline.end)
+    i = np.clip(np.searchsorted(timeline.end, t, side="left"), 1, n - 1) if n > 1 else np.zeros(len(t), int)
+    span = timeline.end - timeline.start
+    length = np.r_[0.0, np.linalg.norm(np.diff(timeline.points, axis=0), axis=1)]
+    moving = (timeline.start[i] <= t) & (span[i] > 0)
+    feed = np.where(moving, 60.0 * length[i] / np.where(span[i] > 0, span[i], 1.0), 0.0)
+    return timeline.tool[i], timeline.line[i], feed
+
+
+def spindle_speeds(p: PartAssets) -> dict[int, float]:
+    """Spindle speed [rev/min] of each tool of the part's program, from its setup sheet."""
+    path = p.entry.output("setup_sheet")
+    try:
+        sheet = json.loads(path.read_text(encoding="utf-8"))
+        return {int(op["tool"]): float(op["spindle_rpm"]) for op in sheet["operations"]}
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise McapError(f"cannot read the spindle speeds: {e}", source=path) from None
+
+
+def _detections(shot: Shot, p: PartAssets, step: str, serial: str) -> list[Detection]:
+    """The station's detections as message values. The circle around the footprint is the blank's
+    (locate) or the finished stock's (inspect) bounding rectangle seen at the fit's scale."""
+    verts = p.stock[0][1] if step == "locate" else p.stock[-1][1]  # [m]
+    radius_mm = 500.0 * float(np.hypot(*np.ptp(np.asarray(verts)[:, :2], axis=0)))
+    out = []
+    for d in shot.detections:
+        inspected = "pass" in d
+        out.append(Detection(
+            class_name="part" if step == "inspect" else "blank", center_px=(d["pixel"][0], d["pixel"][1]),
+            radius_px=radius_mm / d["mm_per_px"], confidence=float(np.clip(d["score"], 0.0, 1.0)),
+            xyz=(d["x"], d["y"], d["z"]), yaw=d["yaw"], serial=serial, inspected=inspected,
+            passed=bool(d.get("pass", False)), max_deviation=d.get("max_deviation_mm", 0.0) / 1000.0,
+            tolerance=d.get("tolerance_mm", 0.0) / 1000.0))
+    return out
+
+
+#: Which component a fault code belongs to (timeouts: the machine while machining, else the robot).
+_FAULT_COMPONENT = {"grasp_missed": "robot", "stock_not_found": "camera", "machine_alarm": "machine",
+                    "inspect_fail": "camera"}
+_COMPONENTS = ("machine", "robot", "camera", "scheduler")
+#: Events of a job still working off its fault: the recovery decision and the retry it starts.
+_RETRYING = ("recover", "retry_fetch", "rerun")
+
+
+class _Resources:
+    """What the machine and the robot are doing at a time, from the simulation's activities, as
+    diagnostic key values (units in the keys)."""
+
+    def __init__(self, result: SimulationResult, part_of: Any, spindle: Any) -> None:
+        self.by = {r: sorted((a for a in result.activities if a.resource == r), key=lambda a: a.start)
+                   for r in ("machine", "robot")}
+        self.starts = {r: [a.start for a in acts] for r, acts in self.by.items()}
+        self.jobs, self.part_of, self.spindle = result.jobs, part_of, spindle
+
+    def _last(self, resource: str, t: float) -> Any | None:
+        k = bisect.bisect_right(self.starts[resource], t)
+        return self.by[resource][k - 1] if k else None
+
+    def at(self, t: float) -> dict[str, dict[str, str]]:
+        m, r = self._last("machine", t), self._last("robot", t)
+        machine = {"state": "idle", "serial": "", "tool": "0", "spindle_speed_rpm": "0", "program_line": "0"}
+        if m is not None and t < m.end:
+            machine.update(state="cutting" if m.action == "cut" else "reset",
+                           serial=f"{self.jobs.get(m.job, '?')}-{m.job}")
+            if m.action == "cut":
+                p = self.part_of(m.job)
+                tool, line, _ = _program_state(p.timeline, np.array([t - m.start]))
+                machine.update(tool=str(int(tool[0])), program_line=str(int(line[0])),
+                               spindle_speed_rpm=f"{self.spindle(p).get(int(tool[0]), 0.0):.0f}")
+        elif m is not None and m.outcome in ("machine_alarm", "timeout"):
+            machine["state"] = "alarm"
+        robot = {"activity": "idle", "serial": ""}
+        if r is not None and t < r.end:
+            robot = {"activity": r.action, "serial": f"{self.jobs.get(r.job, '?')}-{r.job}"}
+        return {"machine": machine, "robot": robot}
+
+
+class _Health:
+    """Each component's health as the scheduler's log goes: a fault is ERROR on its component and
+    on the scheduler from the entry that raised it until it is recovered: until the retried step
+    succeeds (the stock fetched, the program run), the part is scrapped or abandoned, or, for a
+    failed inspection, sorted to the reject bin."""
+
+    def __init__(self, resources: "_Resources") -> None:
+        self.faults: dict[int, tuple[str, str, str, str]] = {}  # job -> (component, code, order, message)
+        self.state: dict[int, tuple[str, str]] = {}  # job -> (order, state) of running jobs
+        self.resources = resources
+        self.values: dict[str, dict[str, str]] = resources.at(0.0)
+
+    def update(self, e: Any) -> bool:
+        """Take one log entry; True when a status changed."""
+        before = self.statuses()
+        self.values = self.resources.at(e.time)
+        # A failed inspection sends the part to SORT, not FAULT; it stays an error until sorted.
+        if e.state == "FAULT" or e.event == "inspect_fail":
+            where = _FAULT_COMPONENT.get(e.event)
+            if where is None:
+                where = "machine" if self.state.get(e.job, ("", ""))[1] == "MACHINING" else "robot"
+            self.faults[e.job] = (where, e.event, e.order, e.message)
+        elif e.event not in _RETRYING:
+            self.faults.pop(e.job, None)
+        if e.state == "IDLE":  # sorted, scrapped or abandoned: the job is over
+            self.state.pop(e.job, None)
+        else:
+            self.state[e.job] = (e.order, e.state)
+        return self.statuses() != before
+
+    def statuses(self) -> list[ComponentStatus]:
+        out = []
+        for name in _COMPONENTS:
+            faults = [(job, f) for job, f in sorted(self.faults.items()) if name == "scheduler" or f[0] == name]
+            values = {"fault": ", ".join(f[1] for _, f in faults), "jobs_in_fault": str(len(faults)),
+                      **self.values.get(name, {})}
+            if name == "scheduler":
+                values["jobs_running"] = str(len(self.state))
+                values["states"] = ", ".join(f"{o}-{j}: {st}" for j, (o, st) in sorted(self.state.items()))
+            message = "; ".join(f"{f[2]}-{job} {f[1]}: {f[3]}" for job, f in faults) or "ok"
+            out.append(ComponentStatus(f"cell/{name}", "ERROR" if faults else "OK", message, values))
+        return out
+
+
 def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path, str], PartAssets],
                    orders: tuple[Order, ...], cell: Cell, world: CollisionWorld, stations: Stations, *,
                    overwrite: bool, inputs: dict[str, str], parameters: dict[str, Any]) -> dict[str, int]:
@@ -442,11 +601,19 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
     home = np.asarray(cell.robot.home, dtype=float)
     robot_samples: list[tuple[float, np.ndarray]] = [(0.0, home)]
     cut_so_far: dict[int, float] = {}
+    spindle: dict[tuple[Path, str], dict[int, float]] = {}
+
+    def rpm_of(p: PartAssets) -> dict[int, float]:
+        """Spindle speed [rev/min] per tool of a part, read once."""
+        if (p.part, p.material) not in spindle:
+            spindle[(p.part, p.material)] = spindle_speeds(p)
+        return spindle[(p.part, p.material)]
     for a in result.activities:
-        label = f"{result.jobs.get(a.job, '?')} job {a.job}"
+        order = result.jobs.get(a.job, "?")
+        serial = f"{order}-{a.job}"
         if a.resource == "robot":
-            tl.add(a.start, "/cell/robot", string_msg(f"{a.action} ({label})"))
-            tl.add(a.end, "/cell/robot", string_msg("idle"))
+            tl.add(a.start, "/cell/robot", robot_state(a.action, order, serial, _ns(a.start)))
+            tl.add(a.end, "/cell/robot", robot_state("idle", "", "", _ns(a.end)))
             p = part_of(a.job)
             spans = {"fetch": [(FIRST_FETCH_MOVE, LAST_FETCH_MOVE, False)],
                      "missed_grasp": [(FIRST_FETCH_MOVE, LAST_FETCH_MOVE, False),
@@ -474,17 +641,26 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
                 tl.add(a.end, "/machine/stock", marker_array([_delete_all("stock", "work", a.end)]))
                 tl.add(a.end, "/machine/toolpath", marker_array([_delete_all("toolpath", "work", a.end)]))
         elif a.resource == "machine":
-            tl.add(a.start, "/cell/machine", string_msg("reset" if a.action == "reset" else "cutting"))
-            tl.add(a.end, "/cell/machine", string_msg("alarm" if a.outcome in ("machine_alarm", "timeout") else "idle"))
+            after = "alarm" if a.outcome in ("machine_alarm", "timeout") else "idle"
             if a.action != "cut":
+                tl.add(a.start, "/cell/machine", machine_state("reset", order, serial, _ns(a.start)))
+                tl.add(a.end, "/cell/machine", machine_state(after, "", "", _ns(a.end)))
                 continue
             p = part_of(a.job)
             program_t = np.append(np.arange(0.0, a.end - a.start, 1.0 / TOOL_RATE_HZ), a.end - a.start)
             positions = p.timeline.position_at(program_t) / 1000.0
-            for dt, xyz in zip(program_t, positions):
+            tools, lines, feeds = _program_state(p.timeline, program_t)
+            rpm = rpm_of(p)
+            duration = float(p.timeline.end[-1]) or 1.0
+            for dt, xyz, tool, line, feed in zip(program_t, positions, tools, lines, feeds):
                 pose = np.eye(4)
                 pose[:3, 3] = xyz
-                tl.add(a.start + dt, "/tf", tf_message([transform_stamped("work", "tool", pose, _ns(a.start + dt))]))
+                stamp = _ns(a.start + dt)
+                tl.add(a.start + dt, "/tf", tf_message([transform_stamped("work", "tool", pose, stamp)]))
+                tl.add(a.start + dt, "/cell/machine", machine_state(
+                    "cutting", order, serial, stamp, tool=int(tool), spindle_rpm=rpm.get(int(tool), 0.0),
+                    feed_mm_min=float(feed), tool_position=xyz, line=int(line), progress=min(dt / duration, 1.0)))
+            tl.add(a.end, "/cell/machine", machine_state(after, "", "", _ns(a.end)))
             done_before = cut_so_far.get(a.job, 0.0)
             for k, (snap_t, _, _) in enumerate(p.stock):
                 if done_before < snap_t <= a.end - a.start:
@@ -501,16 +677,20 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
             tl.add(a.end, "/camera/image/compressed",
                    compressed_image_msg(shot.png, "shot.png", np.zeros(0), _ns(a.end), frame))
             tl.add(a.end, "/camera/camera_info", camera_info_msg(stations.rack.camera, _ns(a.end), frame))
-            tl.add(a.end, "/camera/detections", string_msg(json.dumps(
-                {"job": a.job, "order": result.jobs.get(a.job), "step": a.action, "outcome": a.outcome,
-                 "detections": shot.detections})))
+            found = _detections(shot, p, a.action, serial)
+            tl.add(a.end, "/camera/detections", detected_object_array(found, a.action, a.outcome, frame, _ns(a.end),
+                                                                     world.robot.base_frame))
+            tl.add(a.end, "/camera/annotations", image_annotations(found, _ns(a.end)))
 
-    status: dict[str, str] = {o.id: "queued" for o in orders}
-    tl.add(0.0, "/cell/orders", string_msg(json.dumps(status)))
+    queue = _Queue(orders)
+    tl.add(0.0, "/cell/orders", queue.message(0.0))
     last_entry = {e.order: i for i, e in enumerate(result.log)}
     ended = {o.order: o for o in result.outcomes}
-    sorted_parts = {o.id: 0 for o in orders}
+    health = _Health(_Resources(result, part_of, rpm_of))
+    tl.add(0.0, "/diagnostics", diagnostic_array(health.statuses(), 0))
     for i, e in enumerate(result.log):
+        if health.update(e):
+            tl.add(e.time, "/diagnostics", diagnostic_array(health.statuses(), _ns(e.time)))
         level = "info"
         if e.state in ("FAULT", "RECOVER") or e.event in ("inspect_fail", "timeout"):
             level = "warn"
@@ -519,22 +699,12 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
         text = f"{e.order} job {e.job}: {e.event} -> {e.state}" + (f": {e.message}" if e.message else "")
         tl.add(e.time, "/rosout", log_msg(level, "cell.scheduler", text, _ns(e.time)))
         if e.job:
-            tl.add(e.time, "/cell/state", string_msg(e.state))
-        before = status[e.order]
-        if e.event == "sorted":
-            sorted_parts[e.order] += 1
-        if last_entry[e.order] == i:
-            o = ended[e.order]
-            status[e.order] = f"{o.outcome}: {o.good}/{o.quantity} good, {o.rejected} rejected"
-        elif e.job:
-            status[e.order] = f"running: {sorted_parts[e.order]} sorted"
-        if status[e.order] != before:
-            tl.add(e.time, "/cell/orders", string_msg(json.dumps(status)))
+            tl.add(e.time, "/cell/state", scheduler_state(e.state, e.event, e.order, f"{e.order}-{e.job}", e.message,
+                                                          _ns(e.time)))
+        if queue.update(e, ended[e.order] if last_entry[e.order] == i else None):
+            tl.add(e.time, "/cell/orders", queue.message(e.time))
     makespan = float(result.summary["makespan_s"])
-    final = {o.order: {"outcome": o.outcome, "good": o.good, "rejected": o.rejected, "reason": o.reason}
-             for o in result.outcomes}
-    tl.add(makespan, "/cell/orders", string_msg(json.dumps(final)))
-    tl.add(makespan, "/cell/summary", string_msg(json.dumps(result.summary)))
+    tl.add(makespan, "/cell/summary", cell_summary(result.summary, _ns(makespan)))
 
     robot_samples.sort(key=lambda s: s[0])
     counts: dict[str, int] = {}

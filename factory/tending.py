@@ -19,14 +19,15 @@ from factory.errors import CellError, PlanningError
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, marker_array, ros_time, string_msg, tf_message,
                              transform_stamped, transforms_stamped)
 from factory.progress import Stopwatch
+from factory.scene import visuals_scene
 from robotprog.cell import Cell, load_cell
 from robotprog.collision import CollisionWorld, cell_static_boxes, collision_world
 from robotprog.frames import setup_sheet_to_cell
-from robotprog.robots import example_robot_data_dir
 from robotprog.krl import krl_program
 from robotprog.rapid import rapid_module
 from robotprog.tending import TendingPlan, part_box_in_vise, plan_tending
 from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, urscript_program
+from robotprog.visuals import robot_visuals
 
 log = logging.getLogger(__name__)
 
@@ -80,25 +81,22 @@ def write_robot_mcap(path: Path, cell: Cell, world: CollisionWorld, plan: Tendin
 
 
 def read_urdf(world: CollisionWorld) -> str:
-    """The robot's URDF text, for /robot_description.
+    """The robot's URDF text, for /robot_description, as its vendor wrote it.
 
-    ``package://example-robot-data/`` mesh paths become ``file://`` paths into the installed
-    package: a viewer without a ROS package path (Foxglove) finds the meshes on this machine."""
+    Mesh URIs stay ``package://`` (ROS resolves them); they are never turned into paths of this
+    machine. Viewers without ROS draw the robot from /robot/visuals, which carries the meshes."""
     try:
-        text = Path(world.robot.urdf).read_text(encoding="utf-8")
+        return Path(world.robot.urdf).read_text(encoding="utf-8")
     except OSError as e:
         raise CellError(f"cannot read URDF: {e.strerror}", source=world.robot.urdf) from None
-    if "package://example-robot-data/" in text:
-        share = example_robot_data_dir() / "example-robot-data"
-        text = text.replace("package://example-robot-data/", share.as_uri() + "/")
-    return text
 
 
 def log_cell(m: McapLog, cell: Cell, world: CollisionWorld) -> None:
-    """The cell at time 0: /robot_description, /tf_static (robot base, TCP, vise, rack, out-tray)
-    and /cell/boxes, all latched."""
+    """The cell at time 0: /robot_description, /robot/visuals (the links' meshes), /tf_static
+    (robot base, TCP, vise, rack, out-tray) and /cell/boxes, all latched."""
     robot = world.robot
     m.write("/robot_description", string_msg(read_urdf(world)), 0, latched=True)
+    m.write("/robot/visuals", visuals_scene(robot_visuals(robot), 0), 0, latched=True)
     static = [
         transform_stamped("world", robot.base_frame, cell.robot.base.matrix(), 0),
         transform_stamped(robot.flange_frame, "tcp", cell.gripper.tcp.matrix(), 0),

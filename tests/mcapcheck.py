@@ -23,13 +23,58 @@ LATCHED_TOPICS = ("/tf_static", "/robot_description")
 
 # rosbag2 resolves a schema name to a type support library: it must be pkg/msg/Name.
 _TYPE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*$")
-# Humble (metadata version <= 8) wrote policy enum numbers: durability 1 is transient_local.
-_TRANSIENT_LOCAL = ("transient_local", 1)
+# How ``ros2 bag`` reads offered_qos_profiles (rosbag2_storage qos.cpp): Humble takes each
+# policy as an int (yaml-cpp ``as<int>``: a name throws); Jazzy takes history as an int or a name,
+# and reliability, durability and liveliness as ints when the bag's metadata version is <= 8 but
+# as names from 9 on (a number then reads as "unknown"). Jazzy's MCAP plugin takes version 8
+# from a "rosbag2" metadata record without serialized_metadata, the version inside it when it has
+# one, and 9 when there is no such record. So both read a file only with rmw enum numbers and a
+# version <= 8. Allowed numbers (rmw/types.h): 0 system default; history 1 keep_last, 2 keep_all;
+# reliability 1 reliable, 2 best_effort; durability 1 transient_local, 2 volatile; liveliness
+# 1 automatic, 3 manual_by_topic.
+_POLICIES = {"history": {0, 1, 2}, "reliability": {0, 1, 2}, "durability": {0, 1, 2}, "liveliness": {0, 1, 3}}
+_DURATIONS = ("deadline", "lifespan", "liveliness_lease_duration")
+_TRANSIENT_LOCAL = 1
+_JAZZY_DEFAULT_VERSION = 9
 
 
 def _require(ok: object, path: Path, message: str) -> None:
     if not ok:
         raise AssertionError(f"{path}: {message}")
+
+
+def _jazzy_metadata_version(reader, path: Path) -> int:
+    """The metadata version Jazzy's MCAP storage plugin assumes for the file (see above)."""
+    version = _JAZZY_DEFAULT_VERSION
+    for record in reader.iter_metadata():
+        if record.name != "rosbag2":
+            continue
+        serialized = record.metadata.get("serialized_metadata", "")
+        if not serialized:
+            version = 8
+            continue
+        try:
+            version = int(yaml.safe_load(serialized)["rosbag2_bagfile_information"]["version"])
+        except (yaml.YAMLError, KeyError, TypeError, ValueError) as e:
+            raise AssertionError(f"{path}: rosbag2 serialized_metadata has no readable version: {e}") from None
+    return version
+
+
+def _check_profile(profile: dict, path: Path, where: str) -> None:
+    """One QoS profile as Humble's and Jazzy's ``ros2 bag`` (metadata version <= 8) decode it."""
+    for policy, allowed in _POLICIES.items():
+        value = profile.get(policy)
+        _require(type(value) is int and value in allowed, path,
+                 f"{where} QoS {policy} is {value!r}; Humble's ros2 bag reads only the rmw enum numbers "
+                 f"{sorted(allowed)}")
+    _require(type(profile.get("depth")) is int and profile["depth"] >= 0, path,
+             f"{where} QoS depth is {profile.get('depth')!r}, not a count")
+    for name in _DURATIONS:
+        d = profile.get(name)
+        _require(isinstance(d, dict) and all(type(d.get(k)) is int and d[k] >= 0 for k in ("sec", "nsec")),
+                 path, f"{where} QoS {name} is {d!r}, not {{sec: int, nsec: int}}")
+    _require(type(profile.get("avoid_ros_namespace_conventions")) is bool, path,
+             f"{where} QoS avoid_ros_namespace_conventions is not a boolean")
 
 
 def check_rosbag2_mcap(path: str | Path, latched_topics: Iterable[str] = LATCHED_TOPICS) -> dict[str, int]:
@@ -39,8 +84,10 @@ def check_rosbag2_mcap(path: str | Path, latched_topics: Iterable[str] = LATCHED
 
     * header profile ``ros2``;
     * every channel ``cdr``-encoded with a ``ros2msg`` schema named ``pkg/msg/Name``;
-    * every channel has ``offered_qos_profiles`` metadata, a YAML list of profiles, and those
-      of ``latched_topics`` present in the file offer ``transient_local`` durability;
+    * every channel has ``offered_qos_profiles`` metadata, a YAML list of profiles that both
+      Humble's and Jazzy's ``ros2 bag`` decode (rmw enum numbers, and a ``rosbag2`` metadata
+      record that makes Jazzy read numbers), and those of ``latched_topics`` present in the
+      file offer ``transient_local`` durability;
     * a summary with a Statistics record whose message count, per-channel counts and
       message start/end times agree with the messages actually read;
     * every message decodes with ``mcap_ros2.decoder`` and with rosbags' ``AnyReader``, and
@@ -74,6 +121,10 @@ def check_rosbag2_mcap(path: str | Path, latched_topics: Iterable[str] = LATCHED
         summary = reader.get_summary()
         _require(summary is not None, path, "no summary section (rosbag2 reads channels and counts from it)")
         schemas, channels, stats = summary.schemas, summary.channels, summary.statistics
+        version = _jazzy_metadata_version(reader, path)
+        _require(version <= 8, path,
+                 f"Jazzy's ros2 bag would read the QoS as metadata version {version} (policy names, not the "
+                 f"numbers Humble needs): write a 'rosbag2' metadata record without serialized_metadata")
         for cid, ch in sorted(channels.items()):
             where = f"channel {cid} ({ch.topic})"
             _require(ch.message_encoding == "cdr", path,
@@ -92,10 +143,12 @@ def check_rosbag2_mcap(path: str | Path, latched_topics: Iterable[str] = LATCHED
                 raise AssertionError(f"{path}: {where} offered_qos_profiles is not YAML: {e}") from None
             _require(isinstance(profiles, list) and profiles and all(isinstance(p, dict) for p in profiles),
                      path, f"{where} offered_qos_profiles is not a list of QoS profiles: {profiles!r}")
+            for profile in profiles:
+                _check_profile(profile, path, where)
             if ch.topic in latched:
                 durability = [p.get("durability") for p in profiles]
-                _require(all(d in _TRANSIENT_LOCAL for d in durability), path,
-                         f"{where} is latched but offers durability {durability}, not transient_local")
+                _require(all(d == _TRANSIENT_LOCAL for d in durability), path,
+                         f"{where} is latched but offers durability {durability}, not transient_local (1)")
         _require(stats is not None, path, "no Statistics record in the summary")
 
         counts: Counter[str] = Counter()

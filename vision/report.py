@@ -1,4 +1,5 @@
-"""The calibration report picture: corner coverage, magnified residuals, per-view errors.
+"""Report pictures: camera calibration (corner coverage, magnified residuals, per-view errors)
+and hand-eye calibration (per-view pose residuals).
 
 Drawn with OpenCV on a white canvas (no plotting library):
 
@@ -16,6 +17,7 @@ import numpy as np
 
 from factory.errors import VisionError
 from vision.calibrate import CalibrationResult
+from vision.handeye import FRAMES, HandEyeResult
 
 _PANEL_W = 640
 _BAR_W = 420
@@ -59,17 +61,33 @@ def report_image(result: CalibrationResult) -> np.ndarray:
                 (0, 0, 0), 1, cv2.LINE_AA)
 
     # Per-view RMS bars.
-    x0, y0 = _PANEL_W + 50, top
-    bar_h = height - top - 60
-    errors = np.asarray(result.per_view_rms, dtype=np.float64)
-    rms = result.camera.rms
-    top_val = max(float(errors.max(initial=0.0)), rms) * 1.15 or 1.0
-    n = len(errors)
-    step = _BAR_W / max(n, 1)
-    cv2.line(canvas, (x0, y0 + bar_h), (x0 + _BAR_W, y0 + bar_h), (0, 0, 0), 1)
+    _bar_panel(canvas, (_PANEL_W + 50, top, _BAR_W, height - top - 60), result.views, result.per_view_rms,
+               overall=result.camera.rms, outliers=set(result.outliers),
+               title="per-view RMS [px]; overall {overall:.3f} px (green), max {top:.3f}")
+    note = f"{len(result.views)} views used"
+    if result.outliers:
+        note += f"; outliers{' (rejected)' if result.rejected else ''}: {', '.join(result.outliers)}"
+    if result.without_board:
+        note += f"; no board: {len(result.without_board)}"
+    cv2.putText(canvas, note, (10, height - 14), _FONT, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    return canvas
+
+
+def _bar_panel(canvas: np.ndarray, box: tuple[int, int, int, int], names: list[str], values: np.ndarray, *,
+               overall: float, title: str, outliers: set[str] = frozenset()) -> None:
+    """Draw one bar per view into ``canvas`` (in place), with ``overall`` as a green line.
+
+    ``box`` is (x, y, width, height) [px] of the plot area; labels go below it and ``title``
+    (formatted with ``overall`` and ``top``, the largest value) above. Views in ``outliers``
+    are red.
+    """
+    x0, y0, width, bar_h = box
+    errors = np.asarray(values, dtype=np.float64)
+    top_val = max(float(errors.max(initial=0.0)), overall) * 1.15 or 1.0
+    step = width / max(len(errors), 1)
+    cv2.line(canvas, (x0, y0 + bar_h), (x0 + width, y0 + bar_h), (0, 0, 0), 1)
     cv2.line(canvas, (x0, y0), (x0, y0 + bar_h), (0, 0, 0), 1)
-    outliers = set(result.outliers)
-    for i, (name, e) in enumerate(zip(result.views, errors)):
+    for i, (name, e) in enumerate(zip(names, errors)):
         bx = int(x0 + i * step + 0.15 * step)
         by = int(y0 + bar_h * (1 - e / top_val))
         colour = (40, 40, 220) if name in outliers else (180, 120, 40)
@@ -78,16 +96,49 @@ def report_image(result: CalibrationResult) -> np.ndarray:
         label = stem if len(stem) <= 10 else stem[:9] + "~"
         org = (bx, y0 + bar_h + 12 + 11 * (i % 2))  # alternate rows so labels do not overlap
         cv2.putText(canvas, label, org, _FONT, 0.3, (0, 0, 0), 1, cv2.LINE_AA)
-    ry = int(y0 + bar_h * (1 - rms / top_val))
-    cv2.line(canvas, (x0, ry), (x0 + _BAR_W, ry), (0, 160, 0), 1, cv2.LINE_AA)
-    cv2.putText(canvas, f"per-view RMS [px]; overall {rms:.3f} px (green), max {top_val / 1.15:.3f}",
-                (x0, 28), _FONT, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
-    note = f"{len(result.views)} views used"
-    if result.outliers:
-        note += f"; outliers{' (rejected)' if result.rejected else ''}: {', '.join(result.outliers)}"
-    if result.without_board:
-        note += f"; no board: {len(result.without_board)}"
-    cv2.putText(canvas, note, (10, height - 14), _FONT, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    ry = int(y0 + bar_h * (1 - overall / top_val))
+    cv2.line(canvas, (x0, ry), (x0 + width, ry), (0, 160, 0), 1, cv2.LINE_AA)
+    cv2.putText(canvas, title.format(overall=overall, top=top_val / 1.15), (x0, y0 - 12), _FONT, 0.5, (0, 0, 0), 1,
+                cv2.LINE_AA)
+
+
+def handeye_report_image(result: HandEyeResult, views: list[str], reprojection_px: list[float]) -> np.ndarray:
+    """The report picture of a hand-eye calibration: per view, how far the board pose it implies
+    lies from the fitted one (position [mm], angle [deg]) and the corners' reprojection error [px].
+
+    Parameters
+    ----------
+    result : HandEyeResult
+    views : list of str
+        Image names of the views used, in the order of the residuals.
+    reprojection_px : list of float
+        RMS reprojection error of each view's corners under its solvePnP pose [px].
+
+    Returns
+    -------
+    (h, w, 3) uint8
+        BGR image, three bar panels side by side.
+    """
+    n = len(views)
+    if not (n == len(result.translation_residuals) == len(result.rotation_residuals) == len(reprojection_px)):
+        raise VisionError(f"{n} views but {len(result.translation_residuals)} residuals and "
+                          f"{len(reprojection_px)} reprojection errors")
+    panel_w, top, plot_h = 360, 60, 320
+    canvas = np.full((top + plot_h + 50, 3 * (panel_w + 40) + 20, 3), 255, np.uint8)
+    rms = lambda v: float(np.sqrt(np.mean(np.square(v)))) if len(v) else 0.0  # noqa: E731
+    panels = [
+        (result.translation_residuals * 1e3, "board position [mm]: RMS {overall:.2f} (green), max {top:.2f}"),
+        (np.degrees(result.rotation_residuals), "board angle [deg]: RMS {overall:.3f} (green), max {top:.3f}"),
+        (np.asarray(reprojection_px, dtype=np.float64), "corner reprojection [px]: RMS {overall:.3f}, max {top:.3f}"),
+    ]
+    for k, (values, title) in enumerate(panels):
+        _bar_panel(canvas, (30 + k * (panel_w + 40), top, panel_w, plot_h), views, values, overall=rms(values),
+                   title=title)
+    parent, child = FRAMES[result.mode]
+    xyz = result.transform[:3, 3]
+    cv2.putText(canvas, f"{result.mode}: T_{parent}_{child} xyz " + " ".join(f"{v:.4f}" for v in xyz)
+                + f" m; {n} views; condition {result.condition:.2f}", (30, 24), _FONT, 0.55, (0, 0, 0), 1,
+                cv2.LINE_AA)
     return canvas
 
 

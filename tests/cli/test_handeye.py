@@ -88,6 +88,41 @@ def test_recovers_the_wrist_camera(scene, tmp_path, poses):
     assert back.mode == "eye-in-hand" and back.tray_z is None
 
 
+def test_writes_mcap_and_report_like_calibrate(scene, tmp_path):
+    """The log holds every used view with its flange pose, and the TF chain through the fitted
+    camera puts the board where each view saw it, as close as the residuals say."""
+    from factory.mcaplog import read_messages
+    from tests.mcapcheck import check_rosbag2_mcap
+
+    out, mcap, png = tmp_path / "handeye.yaml", tmp_path / "handeye.mcap", tmp_path / "handeye.png"
+    r = run(*args(scene, "poses.yaml", out, "--mcap", mcap, "--report", png, "--quiet"))
+    assert r.exit_code == 0, r.output
+    image = cv2.imread(str(png))
+    assert image is not None and image.shape[1] > 1000
+    counts = check_rosbag2_mcap(mcap)
+    assert counts == {"/tf_static": 1, "/handeye/board": 1, "/tf": 12, "/camera/image_raw/compressed": 12,
+                      "/camera/corners": 12, "/camera/camera_info": 12}
+
+    def matrix(tf) -> np.ndarray:
+        t = np.eye(4)
+        q, p = tf.transform.rotation, tf.transform.translation
+        t[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+        t[:3, 3] = [p.x, p.y, p.z]
+        return t
+
+    edges = {}
+    for topic, stamp, msg in read_messages(mcap, ["/tf_static", "/tf"]):
+        for tf in msg.transforms:
+            edges.setdefault((tf.header.frame_id, tf.child_frame_id), []).append(matrix(tf))
+    (flange_cam,) = edges["flange", "camera"]
+    (base_board,) = edges["base", "board"]
+    doc = yaml.safe_load(out.read_text())
+    np.testing.assert_allclose(flange_cam, doc["transform"]["matrix"], atol=1e-9)
+    for base_flange, cam_seen in zip(edges["base", "flange"], edges["camera", "board_seen"], strict=True):
+        seen = base_flange @ flange_cam @ cam_seen
+        assert np.linalg.norm(seen[:3, 3] - base_board[:3, 3]) < 3 * doc["residuals"]["translation_rms_m"] + 1e-4
+
+
 def test_bad_inputs_are_one_line_errors(scene, tmp_path):
     out = tmp_path / "out.yaml"
     bad_cam = tmp_path / "notcam.yaml"

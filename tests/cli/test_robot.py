@@ -75,14 +75,21 @@ def test_robot_writes_mcap_and_urscript(run):
         assert topics["/tf_static"] == "tf2_msgs/msg/TFMessage"
         assert topics["/robot/trajectory"] == "trajectory_msgs/msg/JointTrajectory"
         assert topics["/cell/boxes"] == "visualization_msgs/msg/MarkerArray"
+        assert topics["/robot/visuals"] == "foxglove_msgs/msg/SceneUpdate"
         by_topic: dict[str, list] = {}
         for conn, t, raw in reader.messages():
             by_topic.setdefault(conn.topic, []).append((t, reader.deserialize(raw, conn.msgtype)))
     urdf = by_topic["/robot_description"][0][1].data
     assert "<robot" in urdf
-    # mesh paths a viewer without ROS can open: file:// URIs of meshes that exist
+    # the vendor's package:// mesh URIs, never paths of the machine that wrote the log
     meshes = re.findall(r'<mesh filename="([^"]+)"', urdf)
-    assert meshes and all(m.startswith("file://") and Path(m[len("file://"):]).is_file() for m in meshes)
+    assert meshes and all(m.startswith("package://example-robot-data/") for m in meshes)
+    # the meshes themselves travel in the log: one entity per link visual, locked to its link
+    (scene,) = [m for _, m in by_topic["/robot/visuals"]]
+    assert {e.frame_id for e in scene.entities} == {"base_link", "shoulder_link", "upper_arm_link", "forearm_link",
+                                                    "wrist_1_link", "wrist_2_link", "wrist_3_link"}
+    assert all(e.frame_locked and len(e.models) == 1 and e.models[0].media_type == "model/gltf-binary"
+               and bytes(e.models[0].data[:4]) == b"glTF" and e.models[0].url == "" for e in scene.entities)
     states = by_topic["/joint_states"]
     assert len(states) == pytest.approx(total * 50, abs=20)
     times = [t for t, _ in states]

@@ -14,11 +14,11 @@ from factory.errors import McapError
 from factory.foxglove import CellTopics, CellView, cell_layout, layout_json
 
 # Panel types a layout may use, and the topics `factory simulate` writes (decided by the lead).
-PANEL_TYPES = {"3D", "Image", "StateTransitions", "RosOut", "RawMessages"}
+PANEL_TYPES = {"3D", "Image", "StateTransitions", "RosOut", "RawMessages", "DiagnosticSummary", "Plot"}
 SIMULATION_TOPICS = {
-    "/robot_description", "/tf", "/tf_static", "/joint_states", "/cell/boxes", "/machine/toolpath",
+    "/robot_description", "/robot/visuals", "/tf", "/tf_static", "/joint_states", "/cell/boxes", "/machine/toolpath",
     "/machine/stock", "/camera/image/compressed", "/camera/camera_info", "/cell/state", "/cell/robot",
-    "/cell/machine", "/cell/orders", "/rosout",
+    "/cell/machine", "/cell/orders", "/rosout", "/camera/annotations", "/diagnostics",
 }
 
 
@@ -78,17 +78,22 @@ def test_layout_names_only_simulation_topics_and_shows_the_ones_asked_for() -> N
     assert named <= SIMULATION_TOPICS, named - SIMULATION_TOPICS
     by_type = {i.split("!", 1)[0]: c for i, c in doc["configById"].items()}
     three_d = by_type["3D"]
-    (urdf,) = [layer for layer in three_d["layers"].values() if layer["layerId"] == "foxglove.Urdf"]
-    assert (urdf["sourceType"], urdf["topic"], urdf["visible"]) == ("topic", "/robot_description", True)
+    # the robot from its embedded meshes, never from the URDF's package:// files
+    assert three_d["topics"]["/robot/visuals"]["visible"] and not three_d["topics"]["/robot_description"]["visible"]
+    assert not [layer for layer in three_d["layers"].values() if layer["layerId"] == "foxglove.Urdf"]
     assert three_d["followTf"] == "world"
     assert all(three_d["topics"][t]["visible"] for t in ("/cell/boxes", "/machine/toolpath", "/machine/stock"))
     assert three_d["transforms"]["frame:tool"]["visible"]
     assert all(k == layer["instanceId"] for k, layer in three_d["layers"].items())
     assert by_type["Image"]["imageMode"]["imageTopic"] == "/camera/image/compressed"
     assert [p["value"] for p in by_type["StateTransitions"]["paths"]] == [
-        "/cell/state.data", "/cell/robot.data", "/cell/machine.data"]
+        "/cell/state.state", "/cell/robot.activity", "/cell/machine.state"]
+    assert [p["value"] for p in by_type["Plot"]["paths"]] == ["/cell/machine.tool_position.z",
+                                                              "/cell/machine.feed_mm_per_min"]
     assert all(p["timestampMethod"] in ("receiveTime", "headerStamp") for p in by_type["StateTransitions"]["paths"])
     assert by_type["RosOut"]["topicToRender"] == "/rosout"
+    assert by_type["DiagnosticSummary"]["topicToRender"] == "/diagnostics"
+    assert by_type["Image"]["imageMode"]["annotations"] == {"/camera/annotations": {"visible": True}}
     assert by_type["RawMessages"]["topicPath"] == "/cell/orders"
 
 

@@ -105,8 +105,10 @@ def test_schema_is_the_concatenated_definition_text(sample: Path) -> None:
     assert sections[0].startswith("geometry_msgs/TransformStamped[] transforms\n")
     deps = [s.split("\n", 1)[0] for s in sections[1:]]
     assert all(d.startswith("MSG: ") for d in deps)
-    assert {"MSG: geometry_msgs/msg/TransformStamped", "MSG: std_msgs/msg/Header",
-            "MSG: builtin_interfaces/msg/Time", "MSG: geometry_msgs/msg/Quaternion"} <= set(deps)
+    # Named as the fields spell them (rosbag2's LocalMessageDefinitionSource does the same);
+    # Foxglove's parser finds a dependency only under that name.
+    assert {"MSG: geometry_msgs/TransformStamped", "MSG: std_msgs/Header",
+            "MSG: builtin_interfaces/Time", "MSG: geometry_msgs/Quaternion"} <= set(deps)
     assert len(deps) == len(set(deps))  # each dependency once
     assert "int32 LINE_STRIP=4" in schemas["visualization_msgs/msg/MarkerArray"]
 
@@ -117,8 +119,9 @@ def test_latched_topics_offer_transient_local(sample: Path) -> None:
     for topic, channel in channels.items():
         (qos,) = yaml.safe_load(channel.metadata["offered_qos_profiles"])
         latched = topic in ("/tf_static", "/cam/toolpath")
-        assert qos["durability"] == ("transient_local" if latched else "volatile")
-        assert qos["reliability"] == "reliable" and qos["history"] == "keep_last"
+        # rmw enum numbers: durability 1 transient_local, 2 volatile; reliable 1; keep_last 1
+        assert qos["durability"] == (1 if latched else 2)
+        assert qos["reliability"] == 1 and qos["history"] == 1 and qos["liveliness"] == 1
         assert channel.metadata["topic_type_hash"].startswith("RIHS01_")
 
 
@@ -130,6 +133,8 @@ def test_factory_metadata_and_attachment(sample: Path) -> None:
     assert json.loads(meta["param:tools"]) == PARAMETERS["tools"]
     assert json.loads(meta["param:stepover"]) == 1.5
     assert read_attachment(sample, "factory.job.json") == JOB_BYTES
+    # Humble's record (no serialized_metadata): Jazzy then reads the QoS numbers as Humble does
+    assert read_metadata(sample, "rosbag2") == {"ROS_DISTRO": "jazzy"}
     with open(sample, "rb") as f:
         (att,) = list(make_reader(f).iter_attachments())
     assert att.media_type == "application/json"
@@ -290,7 +295,7 @@ def test_log_levels_follow_python_logging() -> None:
 
 def test_qos_yaml_parses() -> None:
     (latched,) = yaml.safe_load(offered_qos_profiles(True))
-    assert latched["durability"] == "transient_local" and latched["depth"] == 1
+    assert latched["durability"] == 1 and latched["depth"] == 1  # 1: transient_local
     assert latched["deadline"] == {"sec": 9223372036, "nsec": 854775807}
 
 
@@ -303,13 +308,19 @@ def test_rosbag2_check_accepts_what_mcaplog_writes(sample: Path) -> None:
 
 
 def write_raw(path: Path, *, profile: str = "ros2", message_encoding: str = "cdr", qos: bool = True,
-              latched: bool = True, statistics: bool = True, data: bytes | None = None) -> None:
+              latched: bool = True, statistics: bool = True, data: bytes | None = None,
+              schema_text: str | None = None, trailing: bytes = b"", qos_text: str | None = None,
+              rosbag2_record: dict[str, str] | None = {"ROS_DISTRO": "jazzy"}) -> None:
     """One /tf_static message written with the bare mcap writer, one requirement broken at a time."""
-    schema_text = message_definition("tf2_msgs/msg/TFMessage")
+    if schema_text is None:
+        schema_text = message_definition("tf2_msgs/msg/TFMessage")
     if data is None:
         msg = tf_message([transform_stamped("world", "work", WORK_IN_WORLD, 0)])
         data = bytes(TYPESTORE.serialize_cdr(msg, "tf2_msgs/msg/TFMessage"))
-    metadata = {"offered_qos_profiles": offered_qos_profiles(latched)} if qos else {}
+    data += trailing
+    if qos_text is None:
+        qos_text = offered_qos_profiles(latched)
+    metadata = {"offered_qos_profiles": qos_text} if qos else {}
     with open(path, "wb") as f:
         w = Writer(f, use_statistics=statistics)
         w.start(profile=profile, library="test")
@@ -317,6 +328,8 @@ def write_raw(path: Path, *, profile: str = "ros2", message_encoding: str = "cdr
         cid = w.register_channel(topic="/tf_static", message_encoding=message_encoding, schema_id=sid,
                                  metadata=metadata)
         w.add_message(channel_id=cid, log_time=5, publish_time=5, data=data, sequence=0)
+        if rosbag2_record is not None:
+            w.add_metadata("rosbag2", rosbag2_record)
         w.finish()
 
 
@@ -332,6 +345,15 @@ def test_rosbag2_check_accepts_the_bare_writer_when_nothing_is_broken(tmp_path: 
     ({"latched": False}, "not transient_local"),
     ({"profile": ""}, "profile is '', not 'ros2'"),
     ({"statistics": False}, "no Statistics record"),
+    # Jazzy's own format: policy names, which Humble's ros2 bag cannot read
+    ({"qos_text": offered_qos_profiles(True).replace("history: 1", "history: keep_last")
+      .replace("reliability: 1", "reliability: reliable").replace("durability: 1", "durability: transient_local")
+      .replace("liveliness: 1", "liveliness: automatic")}, "QoS history is 'keep_last'"),
+    ({"qos_text": offered_qos_profiles(True).replace("liveliness: 1", "liveliness: 7")}, "QoS liveliness is 7"),
+    # numbers without the Humble-style record: Jazzy reads them as names, i.e. unknown
+    ({"rosbag2_record": None}, "metadata version 9"),
+    ({"rosbag2_record": {"serialized_metadata": "rosbag2_bagfile_information:\n  version: 9\n"}},
+     "metadata version 9"),
     ({"data": b"\x00\x01\x00\x00\xff\xff\xff\x7f"}, "cannot decode"),
 ])
 def test_rosbag2_check_rejects_a_broken_file(tmp_path: Path, broken: dict, message: str) -> None:
