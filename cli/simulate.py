@@ -6,6 +6,7 @@ the MCAP log with a Foxglove layout beside it, the Gantt chart and the summary.
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 from typing import Annotated
 
@@ -15,6 +16,7 @@ from cli.common import JsonFlag, Overwrite, Quiet, print_json, progress_bars, re
 from factory.atomic import check_writable, write_bytes, write_text
 from factory.catalog import sha256_file
 from factory.foxglove import layout_json
+from factory.live import LiveView
 from factory.pictures import png_bytes
 from factory.progress import Stopwatch
 from factory.record import Record
@@ -56,6 +58,9 @@ def simulate(
     faults: Annotated[int | None, typer.Option("--faults", help="Inject faults drawn from this seed: missed grasps, missing stock, machine alarms, failed inspections.")] = None,
     fault_rate: Annotated[float | None, typer.Option("--fault-rate", help="With --faults: probability of each fault per attempt (default: grasp 5 %, stock 5 %, alarm 3 %, inspection 5 %).", min=0.0, max=1.0)] = None,
     db: Annotated[str | None, typer.Option("--db", metavar="FILE|URL", help="Append the run to this process record, event by event: a SQLite file (created if missing) or a SQLAlchemy database URL (sqlite:///cell.sqlite, postgresql+psycopg://user@host/plant). See `factory report`.")] = None,
+    serve: Annotated[int | None, typer.Option("--serve", metavar="PORT", help="Stream the run live to the Foxglove app (ws://HOST:PORT) with the channels of the MCAP log.", min=0, max=65535)] = None,
+    host: Annotated[str, typer.Option("--host", help="Address the live view binds (with --serve).")] = "127.0.0.1",
+    speed: Annotated[float, typer.Option("--speed", help="With --serve: play the run at this many times real time.", min=1e-3)] = 60.0,
     overwrite: Overwrite = False,
     json_out: JsonFlag = False,
     quiet: Quiet = False,
@@ -78,6 +83,11 @@ def simulate(
         model = FaultModel.default(faults) if fault_rate is None else \
             FaultModel(fault_rate, fault_rate, fault_rate, fault_rate, seed=faults)
     watch = Stopwatch()
+    # Bound before any work, so a port in use fails at once; it streams once the run is simulated.
+    live = LiveView(serve, host=host, speed=speed) if serve is not None else None
+    if live is not None and not quiet:
+        stderr.print(f"live view: ws://{host}:{live.port} (Foxglove: open connection, Foxglove WebSocket)",
+                     highlight=False, markup=False)
     record = Record(db) if db is not None else None  # an unreachable record fails before any planning
     recorder = None
     if record is not None:
@@ -96,16 +106,18 @@ def simulate(
         watch.seconds.update(run.seconds)
         result, assets, ready = run.result, run.assets, run.ready
         counts: dict[str, int] = {}
-        if mcap is not None:
-            with watch("write"):
+        if mcap is not None or live is not None:
+            with watch("write"), (live or contextlib.nullcontext()):
                 inputs = {str(orders_path): sha256_file(orders_path), str(cell_path): sha256_file(cell_path)}
                 inputs.update({str(a.part): a.entry.summary["catalog"]["mesh_sha256"] for a in ready.values()})
                 counts = write_cell_log(mcap, result, ready, orders, run.cell, run.world, run.stations,
                                         overwrite=overwrite, inputs=inputs,
                                         parameters={"faults_seed": faults, "catalog": str(catalog),
                                                     **({"db": record.shown, "db_run": recorder.run_id}
-                                                       if record is not None else {})})
-                write_text(layout, layout_json(), overwrite=overwrite)
+                                                       if record is not None else {})},
+                                        live=live)
+                if layout is not None:
+                    write_text(layout, layout_json(), overwrite=overwrite)
     if png is not None:
         write_bytes(png, png_bytes(activity_chart(result)), overwrite=overwrite)
     doc = result.to_dict()

@@ -118,3 +118,7 @@ class SchedulerError(FactoryError):
 class RecordError(FactoryError):
     """The process record (database) cannot be opened, read or written. ``source`` is the database
     URL with its password masked."""
+
+
+class LiveError(FactoryError):
+    """The live view's server cannot start (port in use, address not available)."""

@@ -13,8 +13,10 @@ inspections) in :func:`run_cell`, and :func:`write_cell_log` logs the run to one
 from __future__ import annotations
 
 import bisect
+import contextlib
 import dataclasses
 import functools
+import heapq
 import json
 import logging
 from dataclasses import dataclass
@@ -35,6 +37,7 @@ from factory.cellmsgs import (ComponentStatus, Detection, OrderLine, cell_summar
                               diagnostic_array, image_annotations, machine_state, order_queue, robot_state,
                               scheduler_state)
 from factory.errors import CellError, FactoryError, McapError
+from factory.live import LiveView
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, log_msg, marker_array, read_messages, ros_time,
                              tf_message, transform_stamped, triangle_mesh_marker)
 from factory.plan import PlanRequest, plan_part
@@ -587,10 +590,12 @@ class _Health:
         return out
 
 
-def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path, str], PartAssets],
+def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tuple[Path, str], PartAssets],
                    orders: tuple[Order, ...], cell: Cell, world: CollisionWorld, stations: Stations, *,
-                   overwrite: bool, inputs: dict[str, str], parameters: dict[str, Any]) -> dict[str, int]:
-    """Write the simulation to MCAP; returns message counts per topic."""
+                   overwrite: bool, inputs: dict[str, str], parameters: dict[str, Any],
+                   live: LiveView | None = None) -> dict[str, int]:
+    """Write the simulation to MCAP (``path``) and/or stream it to a live view, in log time;
+    returns message counts per topic."""
     order_of = {o.id: o for o in orders}
 
     def part_of(job: int) -> PartAssets:
@@ -708,20 +713,42 @@ def write_cell_log(path: Path, result: SimulationResult, assets: dict[tuple[Path
 
     robot_samples.sort(key=lambda s: s[0])
     counts: dict[str, int] = {}
-    with McapLog(path, stage="simulate", overwrite=overwrite, inputs=inputs, parameters=parameters) as m:
+    with contextlib.ExitStack() as stack:
+        sinks: list[Any] = []
+        if path is not None:
+            sinks.append(stack.enter_context(
+                McapLog(path, stage="simulate", overwrite=overwrite, inputs=inputs, parameters=parameters)))
+        if live is not None:
+            sinks.append(live)
+        m = _Fanout(sinks)
         log_cell(m, cell, world)
         cams = []
         for name, st in (("rack_camera", stations.rack), ("tray_camera", stations.tray)):
             cams.append(transform_stamped("world", name, invert(st.world_to_camera), 0))
         m.write("/tf_static", tf_message(cams), 0, latched=True)
         states = RobotStateLog(m, world)
-        for t, q in robot_samples:
-            states.write(q, np.zeros_like(q), _ns(t))
-        for stamp, _, topic, msg, latched in sorted(tl.items, key=lambda i: (i[0], i[1])):
+        # One stream in log time, robot state and events interleaved: a live view plays it as it goes.
+        robot = ((_ns(t), -1, "", q, False) for t, q in robot_samples)
+        events = sorted(tl.items, key=lambda i: (i[0], i[1]))
+        for stamp, _, topic, msg, latched in heapq.merge(robot, events, key=lambda i: (i[0], i[1])):
+            if not topic:
+                states.write(msg, np.zeros_like(msg), stamp)
+                continue
             m.write(topic, msg() if callable(msg) else msg, stamp, latched=latched)
             counts[topic] = counts.get(topic, 0) + 1
     counts["/joint_states"] = len(robot_samples)
     return counts
+
+
+class _Fanout:
+    """``write(topic, msg, log_time_ns, latched=...)`` to every sink: the MCAP file, the live view."""
+
+    def __init__(self, sinks: list[Any]) -> None:
+        self.sinks = sinks
+
+    def write(self, topic: str, msg: Any, log_time_ns: int, *, latched: bool = False) -> None:
+        for sink in self.sinks:
+            sink.write(topic, msg, log_time_ns, latched=latched)
 
 
 def _stock_msg(p: PartAssets, k: int, t: float) -> Any:
