@@ -19,12 +19,13 @@ from cli.catalog import catalog_record
 from cli.common import (EXIT_VERIFY_FAILED, JsonFlag, Overwrite, Quiet, StageProgress, Stopwatch, print_json,
                         progress_bars, reports_errors, setup_logging, sha256_file, stderr)
 from cli.gcode import ArcTolOpt, PostOpt, program_summary
-from cli.robot import log_tending, plan_cell, program_texts
+from cli.robot import log_tending, plan_cell
 from cli.verify import log_simulation, report_text, run_verify, write_verify_outputs
 from factory.atomic import check_writable, write_bytes, write_text
 from factory.mcaplog import McapLog
 from factory.pictures import png_bytes
 from factory.resources import FIXTURES
+from robotprog.programs import post_program
 
 
 #: Robot program file ending per language.
@@ -101,7 +102,7 @@ def run_plan(req: PlanRequest, out_dir: Path, *, overwrite: bool, bars: StagePro
     if req.robot:
         vertices = np.asarray(planned.loaded.mesh.vertices) / float(job.setup.mesh_scale)
         tending = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch)
-        robot_texts = program_texts(req.lang, outputs["robot_program"], *tending)
+        posted = post_program(req.lang, outputs["robot_program"], *tending)
     with watch("verify"):
         sim, report = run_verify(program.text, str(outputs["program"]), job.setup,
                                  {t.number: t for t in job.tools},
@@ -117,8 +118,9 @@ def run_plan(req: PlanRequest, out_dir: Path, *, overwrite: bool, bars: StagePro
         if tending is not None:
             inputs[str(req.cell)] = sha256_file(req.cell)
             parameters["robot"] = {"cell": tending[0].name, "robot": tending[1].robot.name,
-                                   "durations_s": {n: round(d, 4) for n, d in tending[2].durations}}
-            for path, text in robot_texts.items():
+                                   "durations_s": {n: round(d, 4) for n, d in tending[2].durations},
+                                   "program_duration_s": round(posted.predicted_s, 4)}
+            for path, text in posted.texts.items():
                 write_text(path, text, overwrite=overwrite)
         # One log of the whole plan: with a robot, the work frame sits in the cell's vise.
         with McapLog(outputs["mcap"], stage="plan", overwrite=overwrite, inputs=inputs,
@@ -144,6 +146,7 @@ def run_plan(req: PlanRequest, out_dir: Path, *, overwrite: bool, bars: StagePro
         "verify": report.to_dict(),
         "robot": None if tending is None else {
             "cell": tending[0].name, "robot": tending[1].robot.name, "motion_s": round(tending[2].duration, 3),
+            "program_s": round(posted.predicted_s, 3), "program_targets": posted.targets,
             "moves": [{"name": n, "duration_s": round(d, 3)} for n, d in tending[2].durations]},
         "seconds": watch.rounded(),
         "outputs": {k: str(v) for k, v in outputs.items()},

@@ -9,8 +9,9 @@ q4] = [w, x, y, z]`` in the robot's base frame, ``base_link``), with the configu
 Digital outputs ``n`` are the signals ``do<n>`` (named in the controller's I/O
 configuration). The TCP is ``tGripper`` built from ``transform_flange_to_tcp``.
 
-Speeds: joint moves run at ``vJoint`` (TCP 1000 mm/s, the controller's axis limits govern)
-and lines at their ``v`` [m/s] (``vLine<k>``), all ``fine`` (stop at each point) unless a
+Speeds: joint moves run at ``vJoint`` (TCP 1000 mm/s, the controller's axis limits govern),
+or take the step's time ``t`` (``vJoint\\T:=t``: the controller stretches the move to last ``t``
+seconds), and lines at their ``v`` [m/s] (``vLine<k>``), all ``fine`` (stop at each point) unless a
 blend radius is given (``z<mm>`` zonedata, declared). Output is deterministic: fixed
 decimals, no time stamps.
 """
@@ -102,7 +103,13 @@ def rapid_module(
             nj += 1
             deg = ",".join(_f(math.degrees(v), DECIMALS_DEG) for v in q)
             decl.append(f"  CONST jointtarget j{nj} := [[{deg}],{_EXT}];")
-            body.append(f"    MoveAbsJ j{nj}\\NoEOffs, vJoint, {_zone(st.r, zones)}, tGripper;")
+            if st.t > 0:
+                if not math.isfinite(st.t):
+                    raise PlanningError(f"step {i}: MoveAbsJ time must be finite, got {st.t}")
+                speed = f"vJoint\\T:={_f(st.t, 4)}"
+            else:
+                speed = "vJoint"
+            body.append(f"    MoveAbsJ j{nj}\\NoEOffs, {speed}, {_zone(st.r, zones)}, tGripper;")
         elif isinstance(st, MoveL):
             if not (math.isfinite(st.v) and st.v > 0):
                 raise PlanningError(f"step {i}: MoveL speed must be finite and > 0, got {st.v}")

@@ -32,12 +32,28 @@ DECIMALS = 6
 @dataclass(frozen=True)
 class MoveJ:
     """Joint move: ``q`` (6,) target [rad], ``a`` joint acceleration [rad/s^2], ``v`` speed [rad/s],
-    ``r`` blend radius [m] (0 = stop at the target)."""
+    ``r`` blend radius [m] (0 = stop at the target), ``t`` move time [s] (0 = as fast as ``a`` and
+    ``v`` allow; > 0: the controller stretches the move to take ``t``, URScript's ``t``, RAPID's
+    ``\\T``)."""
 
     q: tuple[float, ...]
     a: float
     v: float
     r: float = 0.0
+    t: float = 0.0
+
+
+@dataclass(frozen=True, eq=False)
+class ServoJ:
+    """A streamed joint trajectory: ``targets`` (n, 6) [rad], one every ``t`` [s], each sent with
+    ``servoj(q, 0, 0, t, lookahead_time, gain)``: the controller reaches target ``k`` at ``(k + 1) t``
+    after the first is sent (URScript posts it as a table and a loop). ``lookahead_time`` [s]
+    smooths the stream (0.03..0.2 s), ``gain`` is the controller's proportional gain (100..2000)."""
+
+    targets: np.ndarray
+    t: float
+    lookahead_time: float = 0.03
+    gain: float = 300.0
 
 
 @dataclass(frozen=True)
@@ -80,7 +96,7 @@ class Comment:
     text: str
 
 
-Step = MoveJ | MoveL | SetOutputs | Wait | Comment
+Step = MoveJ | MoveL | ServoJ | SetOutputs | Wait | Comment
 
 
 def _num(x: float) -> str:
@@ -141,6 +157,7 @@ def urscript_program(
     if transform_flange_to_tcp is not None:
         lines.append(f"  set_tcp({ur_pose(transform_flange_to_tcp)})")
     to_ur = np.linalg.inv(TRANSFORM_BASE_LINK_TO_UR_BASE)
+    n_tables = 0
     for i, st in enumerate(steps):
         if isinstance(st, MoveJ):
             q = np.asarray(st.q, dtype=float)
@@ -149,8 +166,11 @@ def urscript_program(
             _positive(st.a, f"step {i} movej a")
             _positive(st.v, f"step {i} movej v")
             joints = "[" + ", ".join(_num(v) for v in q) + "]"
+            timed = f", t={_num(st.t)}" if st.t > 0 else ""
             blend = f", r={_num(st.r)}" if st.r > 0 else ""
-            lines.append(f"  movej({joints}, a={_num(st.a)}, v={_num(st.v)}{blend})")
+            lines.append(f"  movej({joints}, a={_num(st.a)}, v={_num(st.v)}{timed}{blend})")
+        elif isinstance(st, ServoJ):
+            n_tables = _servoj_lines(st, i, n_tables, lines)
         elif isinstance(st, MoveL):
             _positive(st.a, f"step {i} movel a")
             _positive(st.v, f"step {i} movel v")
@@ -175,3 +195,33 @@ def urscript_program(
             raise PlanningError(f"step {i}: not a URScript step: {type(st).__name__}")
     lines.append("end")
     return "\n".join(lines) + "\n"
+
+
+#: Rows per servoj table: URScript lists are fixed-length values; short tables keep each
+#: assignment small for the controller's parser.
+SERVO_TABLE_ROWS = 250
+
+
+def _servoj_lines(st: ServoJ, i: int, n_tables: int, lines: list[str]) -> int:
+    """Append the table(s) and loop(s) streaming ``st``; returns the number of tables so far."""
+    q = np.asarray(st.targets, dtype=float)
+    if q.ndim != 2 or q.shape[1] != 6 or len(q) == 0 or not np.isfinite(q).all():
+        raise PlanningError(f"step {i}: servoj needs (n, 6) finite joint targets, got shape {q.shape}")
+    _positive(st.t, f"step {i} servoj t")
+    if not 0.03 <= st.lookahead_time <= 0.2:
+        raise PlanningError(f"step {i}: servoj lookahead_time must be in 0.03..0.2 s, got {st.lookahead_time}")
+    if not 100 <= st.gain <= 2000:
+        raise PlanningError(f"step {i}: servoj gain must be in 100..2000, got {st.gain}")
+    lines.append(f"  # stream {len(q)} targets, one every {_num(st.t)} s")
+    for k in range(0, len(q), SERVO_TABLE_ROWS):
+        chunk = q[k:k + SERVO_TABLE_ROWS]
+        n_tables += 1
+        rows = ", ".join("[" + ", ".join(_num(v) for v in row) + "]" for row in chunk)
+        lines.append(f"  table{n_tables} = [{rows}]")
+        lines.append("  k = 0")
+        lines.append(f"  while k < {len(chunk)}:")
+        lines.append(f"    servoj(table{n_tables}[k], 0, 0, {_num(st.t)}, {_num(st.lookahead_time)}, "
+                     f"{_num(st.gain)})")
+        lines.append("    k = k + 1")
+        lines.append("  end")
+    return n_tables
