@@ -24,7 +24,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from factory.errors import PlanningError
-from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Step, Wait
+from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Step, Wait, comment_text
 
 DECIMALS_MM = 3
 DECIMALS_DEG = 4
@@ -96,7 +96,7 @@ def krl_program(
     tcp = np.eye(4) if transform_flange_to_tcp is None else np.asarray(transform_flange_to_tcp, dtype=float)
     dat = ["&ACCESS RVP", f"DEFDAT {name} PUBLIC"]
     src = ["&ACCESS RVP", f"DEF {name}( )", "  DECL INT I"]
-    src += [f"; {h}" for h in header]
+    src += [f"; {comment_text(h)}".rstrip() for h in header]
     pct_text = _f(axis_percent, 1)
     src += ["  BAS(#INITMOV, 0)", f"  $TOOL = {{{krl_frame(tcp)}}}", "  $BASE = $NULLFRAME",
             "  FOR I = 1 TO 6", f"    $VEL_AXIS[I] = {pct_text}", f"    $ACC_AXIS[I] = {pct_text}", "  ENDFOR"]
@@ -135,7 +135,7 @@ def krl_program(
             src.append(f"  LIN XP{nl}")
         elif isinstance(st, SetOutputs):
             if st.label:
-                src.append(f"  ; {st.label}")
+                src.append(f"  ; {comment_text(st.label)}".rstrip())
             for n, level in st.outputs:
                 if n < 0:
                     raise PlanningError(f"step {i}: digital output {n} is negative")
@@ -147,7 +147,7 @@ def krl_program(
                 raise PlanningError(f"step {i}: wait must be finite and > 0, got {st.seconds}")
             src.append(f"  WAIT SEC {_f(st.seconds, 3)}")
         elif isinstance(st, Comment):
-            src.append(f"  ; {st.text.splitlines()[0] if st.text else ''}")
+            src.append(f"  ; {comment_text(st.text)}".rstrip())
         else:
             raise PlanningError(f"step {i}: not a program step: {type(st).__name__}")
     src.append("END")

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from factory.errors import PlanningError
-from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Step, Wait
+from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Step, Wait, comment_text
 
 #: Decimals of millimetres and degrees (1 µm, 1e-4 deg) and quaternions.
 DECIMALS_MM = 3
@@ -121,7 +121,7 @@ def rapid_module(
             body.append(f"    MoveL p{nl}, {sname}, {_zone(st.r, zones)}, tGripper;")
         elif isinstance(st, SetOutputs):
             if st.label:
-                body.append(f"    ! {st.label}")
+                body.append(f"    ! {comment_text(st.label)}".rstrip())
             for n, level in st.outputs:
                 if n < 0:
                     raise PlanningError(f"step {i}: digital output {n} is negative")
@@ -133,12 +133,12 @@ def rapid_module(
                 raise PlanningError(f"step {i}: wait must be finite and > 0, got {st.seconds}")
             body.append(f"    WaitTime {_f(st.seconds, 3)};")
         elif isinstance(st, Comment):
-            body.append(f"    ! {st.text.splitlines()[0] if st.text else ''}")
+            body.append(f"    ! {comment_text(st.text)}".rstrip())
         else:
             raise PlanningError(f"step {i}: not a program step: {type(st).__name__}")
     cog = _f(tcp[2, 3] * 500.0, DECIMALS_MM)
     lines = [f"MODULE {name}"]
-    lines += [f"  ! {h}" for h in header]
+    lines += [f"  ! {comment_text(h)}".rstrip() for h in header]
     lines.append(f"  PERS tooldata tGripper := [TRUE,{rapid_pose(tcp)},[{_f(tool_mass_kg, 3)},[0,0,{cog}],"
                  "[1,0,0,0],0,0,0]];")
     lines.append("  CONST speeddata vJoint := [1000,500,5000,1000];")

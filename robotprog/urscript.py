@@ -99,6 +99,12 @@ class Comment:
 Step = MoveJ | MoveL | ServoJ | SetOutputs | Wait | Comment
 
 
+def comment_text(text: str) -> str:
+    """One line of comment text: the first line, without trailing blanks (controllers' checkers
+    flag trailing spaces; a line break would end the comment)."""
+    return text.splitlines()[0].rstrip() if text.strip() else ""
+
+
 def _num(x: float) -> str:
     s = f"{round(float(x), DECIMALS):.{DECIMALS}f}"
     s = s.rstrip("0")
@@ -153,7 +159,7 @@ def urscript_program(
     if not name.replace("_", "a").isalnum() or name[0].isdigit():
         raise PlanningError(f"URScript program name must be letters, digits and underscores, got {name!r}")
     lines = [f"def {name}():"]
-    lines += [f"  # {h}" for h in header]
+    lines += [f"  # {comment_text(h)}".rstrip() for h in header]
     if transform_flange_to_tcp is not None:
         lines.append(f"  set_tcp({ur_pose(transform_flange_to_tcp)})")
     to_ur = np.linalg.inv(TRANSFORM_BASE_LINK_TO_UR_BASE)
@@ -179,7 +185,7 @@ def urscript_program(
             lines.append(f"  movel({pose}, a={_num(st.a)}, v={_num(st.v)}{blend})")
         elif isinstance(st, SetOutputs):
             if st.label:
-                lines.append(f"  # {st.label}")
+                lines.append(f"  # {comment_text(st.label)}".rstrip())
             for n, level in st.outputs:
                 if not 0 <= n <= 7:
                     raise PlanningError(f"step {i}: standard digital output {n} is not in 0..7")
@@ -190,7 +196,7 @@ def urscript_program(
             _positive(st.seconds, f"step {i} wait")
             lines.append(f"  sleep({_num(st.seconds)})")
         elif isinstance(st, Comment):
-            lines.append(f"  # {st.text.splitlines()[0] if st.text else ''}")
+            lines.append(f"  # {comment_text(st.text)}".rstrip())
         else:
             raise PlanningError(f"step {i}: not a URScript step: {type(st).__name__}")
     lines.append("end")

@@ -15,6 +15,7 @@ from robotprog.programs import (SERVO_PERIOD_S, check_posted_path, post_program,
                                 program_steps)
 from robotprog.tending import plan_tending
 from robotprog.urscript import ServoJ
+from tests.robotprog.parsers import parse_krl, parse_urscript, rapid_errors
 from tests.robotprog.test_tending import SAMPLE_STOCK, sheet
 
 _rng = np.random.default_rng(13)
@@ -41,6 +42,16 @@ def test_controller_runs_the_planned_duration(name, lang, plans, cell, world):
     # the number is the timer's on the posted steps, from home
     again = program_duration(posted.steps, np.asarray(cell.robot.home), lang=lang, axis_speed=world.robot.v_max)
     assert again == pytest.approx(posted.predicted_s)
+    # the consumer reads it (RAPID: rapidchecker takes ~25 s a program, so the bracket's only, below)
+    if lang == "urscript":
+        parse_urscript(posted.texts[Path("part.script")])
+    elif lang == "krl":
+        parse_krl(posted.texts[Path("part.src")], posted.texts[Path("part.dat")])
+
+
+def test_rapid_program_passes_rapidchecker(plans, cell, world):
+    posted = post_program("rapid", Path("bracket.mod"), cell, world, plans["bracket"])
+    assert rapid_errors(posted.texts[Path("bracket.mod")]) == []
 
 
 def test_urscript_table_is_the_proven_trajectory(plans, cell, world):
