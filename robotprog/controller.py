@@ -16,7 +16,9 @@ controller runs it, from the numbers the program states, so the two can be compa
 * ``movel`` is a trapezoid on the TCP path length with its ``a`` [m/s^2] and ``v`` [m/s]
   (needs the TCP position, hence ``tcp_of``);
 * gripper outputs wait their settle time, ``sleep`` / ``WaitTime`` / ``WAIT SEC`` their
-  seconds; comments take no time.
+  seconds; comments take no time;
+* a wait on a digital input (the machine's door, its cycle) counts nothing: that is the
+  machine's time, which the plan does not contain either; the robot stands still meanwhile.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import numpy as np
 
 from factory.errors import PlanningError
 from robotprog.krl import ptp_percent
-from robotprog.urscript import Comment, MoveJ, MoveL, ServoJ, SetOutputs, Step, Wait
+from robotprog.urscript import Comment, MoveJ, MoveL, ServoJ, SetOutputs, Step, Wait, WaitInput
 
 LANGS = ("urscript", "rapid", "krl")
 
@@ -144,6 +146,8 @@ def program_duration(
             total += flush() + flush_krl() + st.settle_s
         elif isinstance(st, Wait):
             total += flush() + flush_krl() + st.seconds
+        elif isinstance(st, WaitInput):
+            total += flush() + flush_krl()  # the machine's time (door, cycle), not the robot's
         elif isinstance(st, Comment):
             continue
         else:

@@ -6,7 +6,7 @@ the program runs on), ``MoveL`` steps ``LIN`` to an ``E6POS``: the TCP position 
 orientation as KUKA's A, B, C (intrinsic Z, Y', X'' Euler angles [deg]) in the robot's
 base frame (``base_link``; ``$BASE`` is ``$NULLFRAME``), without Status/Turn (the
 controller keeps the current configuration on a LIN). Digital output ``n`` is KRL's
-``$OUT[n + 1]`` (KRL numbers outputs from 1). The TCP is written to ``$TOOL``.
+``$OUT[n + 1]``, input ``n`` is ``$IN[n + 1]`` (KRL numbers them from 1). The TCP is written to ``$TOOL``.
 
 Speeds: PTP moves at ``$VEL_AXIS`` / ``$ACC_AXIS`` percentages (``axis_percent``), a
 timed step (``t`` > 0) at the percentage that runs it in ``t`` (``BAS(#VEL_PTP, pct)``),
@@ -24,7 +24,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from factory.errors import PlanningError
-from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Step, Wait, comment_text
+from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Step, Wait, WaitInput, comment_text
 
 DECIMALS_MM = 3
 DECIMALS_DEG = 4
@@ -142,6 +142,12 @@ def krl_program(
                 src.append(f"  $OUT[{n + 1}] = {'TRUE' if level else 'FALSE'}")
             if st.settle_s > 0:
                 src.append(f"  WAIT SEC {_f(st.settle_s, 3)}")
+        elif isinstance(st, WaitInput):
+            if st.input < 0:
+                raise PlanningError(f"step {i}: digital input {st.input} is negative")
+            if st.label:
+                src.append(f"  ; {comment_text(st.label)}".rstrip())
+            src.append(f"  WAIT FOR {'' if st.level else 'NOT '}$IN[{st.input + 1}]")
         elif isinstance(st, Wait):
             if not (math.isfinite(st.seconds) and st.seconds > 0):
                 raise PlanningError(f"step {i}: wait must be finite and > 0, got {st.seconds}")

@@ -25,6 +25,11 @@ collision-checks that polyline and every corner chord at the planner's joint res
 with what the gripper holds in that move. Each segment's speed is its joint travel over the
 sample time of a trajectory proven within the limits, so it is within them too.
 
+With ``cell.machine`` the program also drives the machine tool through its digital I/O:
+wait until it is idle, open the door, load; close the door, start the cycle, wait for it
+to run and to finish, open the door; unload (:func:`machine_cycle`). The waits on inputs
+are the machine's time and count nothing in the controller time.
+
 Each program's header states the planned motion time and the controller's, timed by
 :func:`robotprog.controller.program_duration` from the program's own steps.
 """
@@ -39,13 +44,13 @@ from typing import Any
 import numpy as np
 
 from factory.errors import PlanningError
-from robotprog.cell import Cell
-from robotprog.collision import CollisionWorld
+from robotprog.cell import Cell, MachineIO
+from robotprog.collision import CollisionWorld, collision_world
 from robotprog.controller import program_duration
 from robotprog.krl import krl_program
 from robotprog.rapid import rapid_module
 from robotprog.tending import TendingOptions, TendingPlan, TimedMove
-from robotprog.urscript import Comment, MoveJ, ServoJ, SetOutputs, Step, urscript_program
+from robotprog.urscript import Comment, MoveJ, ServoJ, SetOutputs, Step, WaitInput, urscript_program
 
 LANGS = ("urscript", "rapid", "krl")
 #: servoj period [s]: the CB3 controller's cycle (125 Hz).
@@ -110,7 +115,15 @@ def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: st
     # The plan starts at home; a program may start elsewhere, so it first goes there.
     steps: list[Step] = [MoveJ(tuple(float(v) for v in cell.robot.home), amax, vmax)]
     moves = plan.moves
+    machine = cell.machine
+    # the machine runs its cycle between load and unload, with the arm at home and the door shut
+    cycle_at = {k for k in range(1, len(moves)) if moves[k].name.startswith("unload")
+                and not moves[k - 1].name.startswith("unload")} if machine is not None else set()
+    if machine is not None:
+        steps += machine_ready(machine)
     for k, mv in enumerate(moves):
+        if k in cycle_at and machine is not None:
+            steps += machine_cycle(machine)
         steps.append(Comment(mv.name))
         if mv.kind == "gripper":
             steps.append(SetOutputs(mv.outputs, mv.settle_s))
@@ -119,7 +132,7 @@ def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: st
             continue
         if lang == "urscript":
             q, _ = _samples(mv, SERVO_PERIOD_S, exact=False)
-            stops = k + 1 == len(moves) or moves[k + 1].kind == "gripper"
+            stops = k + 1 == len(moves) or moves[k + 1].kind == "gripper" or k + 1 in cycle_at
             if stops:  # the arm must stand before the gripper switches: let the servo catch up
                 q = np.vstack([q, np.repeat(q[-1:], math.ceil(SERVO_LOOKAHEAD_S / SERVO_PERIOD_S - 1e-9), 0)])
             steps.append(ServoJ(q, SERVO_PERIOD_S, SERVO_LOOKAHEAD_S, SERVO_GAIN))
@@ -129,6 +142,30 @@ def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: st
                 last = j + 1 == len(q)
                 steps.append(MoveJ(tuple(float(v) for v in row), amax, vmax, 0.0 if last else ZONE_M, seg))
     return steps
+
+
+def machine_ready(io: MachineIO) -> list[Step]:
+    """Wait for the machine to be idle, then open its door and wait until it is open."""
+    return [WaitInput(io.cycle_done, True, "machine: wait until idle"), *_door(io, True)]
+
+
+def machine_cycle(io: MachineIO) -> list[Step]:
+    """Close the door, start the cycle (raised until the machine runs), wait for it to finish,
+    open the door: the handshake waits on the machine's inputs, never on a guessed time."""
+    return [*_door(io, False),
+            SetOutputs(((io.cycle_start, True),), 0.0, "machine: start the cycle"),
+            WaitInput(io.cycle_done, False, "machine: wait until it runs"),
+            SetOutputs(((io.cycle_start, False),), 0.0),
+            WaitInput(io.cycle_done, True, "machine: wait for the cycle done"),
+            *_door(io, True)]
+
+
+def _door(io: MachineIO, open_: bool) -> list[Step]:
+    if open_:
+        return [SetOutputs(((io.close_door, False), (io.open_door, True)), 0.0, "machine: open the door"),
+                WaitInput(io.door_open, True, "machine: wait for the door open")]
+    return [SetOutputs(((io.open_door, False), (io.close_door, True)), 0.0, "machine: close the door"),
+            WaitInput(io.door_open, False, "machine: wait for the door closed")]
 
 
 def check_posted_path(world: CollisionWorld, plan: TendingPlan, steps: list[Step],
@@ -197,7 +234,9 @@ def post_program(lang: str, program: Path, cell: Cell, world: CollisionWorld, pl
                             source="robot.model")
     name = program_name(program.name.split(".")[0])
     steps = program_steps(cell, world, plan, lang)
-    check_posted_path(world, plan, steps)
+    # the world the plan was proven in: the cell plus the blanks and parts beside the slots used
+    check_posted_path(collision_world(cell, robot, obstacles=plan.obstacles) if plan.obstacles else world,
+                      plan, steps)
     home = np.asarray(cell.robot.home, dtype=float)
     predicted = program_duration(steps, home, lang=lang, axis_speed=robot.v_max)
     targets = sum(len(s.targets) if isinstance(s, ServoJ) else 1 for s in steps[1:]

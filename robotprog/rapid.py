@@ -6,8 +6,8 @@ robot the program runs on, whose joint zeros match the controller's), ``MoveL`` 
 ``MoveL`` to a ``robtarget`` (TCP position [mm] and orientation quaternion ``[q1, q2, q3,
 q4] = [w, x, y, z]`` in the robot's base frame, ``base_link``), with the configuration
 ``[cf1, cf4, cf6, cfx]`` left to the controller (``ConfL\\Off`` before the moves).
-Digital outputs ``n`` are the signals ``do<n>`` (named in the controller's I/O
-configuration). The TCP is ``tGripper`` built from ``transform_flange_to_tcp``.
+Digital outputs ``n`` are the signals ``do<n>``, inputs ``di<n>`` (named in the controller's
+I/O configuration). The TCP is ``tGripper`` built from ``transform_flange_to_tcp``.
 
 Speeds: joint moves run at ``vJoint`` (TCP 1000 mm/s, the controller's axis limits govern),
 or take the step's time ``t`` (``vJoint\\T:=t``: the controller stretches the move to last ``t``
@@ -25,7 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from factory.errors import PlanningError
-from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Step, Wait, comment_text
+from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Step, Wait, WaitInput, comment_text
 
 #: Decimals of millimetres and degrees (1 µm, 1e-4 deg) and quaternions.
 DECIMALS_MM = 3
@@ -128,6 +128,12 @@ def rapid_module(
                 body.append(f"    SetDO do{n}, {1 if level else 0};")
             if st.settle_s > 0:
                 body.append(f"    WaitTime {_f(st.settle_s, 3)};")
+        elif isinstance(st, WaitInput):
+            if st.input < 0:
+                raise PlanningError(f"step {i}: digital input {st.input} is negative")
+            if st.label:
+                body.append(f"    ! {comment_text(st.label)}".rstrip())
+            body.append(f"    WaitDI di{st.input}, {1 if st.level else 0};")
         elif isinstance(st, Wait):
             if not (math.isfinite(st.seconds) and st.seconds > 0):
                 raise PlanningError(f"step {i}: wait must be finite and > 0, got {st.seconds}")

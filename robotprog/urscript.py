@@ -83,6 +83,16 @@ class SetOutputs:
 
 
 @dataclass(frozen=True)
+class WaitInput:
+    """Wait until digital input ``input`` reads ``level`` (the machine's door, its cycle);
+    ``label`` becomes a comment. How long is the machine's business, not the robot's."""
+
+    input: int
+    level: bool
+    label: str = ""
+
+
+@dataclass(frozen=True)
 class Wait:
     """Pause ``seconds`` [s]."""
 
@@ -96,7 +106,7 @@ class Comment:
     text: str
 
 
-Step = MoveJ | MoveL | ServoJ | SetOutputs | Wait | Comment
+Step = MoveJ | MoveL | ServoJ | SetOutputs | WaitInput | Wait | Comment
 
 
 def comment_text(text: str) -> str:
@@ -192,6 +202,14 @@ def urscript_program(
                 lines.append(f"  set_standard_digital_out({n}, {'True' if level else 'False'})")
             if st.settle_s > 0:
                 lines.append(f"  sleep({_num(st.settle_s)})")
+        elif isinstance(st, WaitInput):
+            if not 0 <= st.input <= 7:
+                raise PlanningError(f"step {i}: standard digital input {st.input} is not in 0..7")
+            if st.label:
+                lines.append(f"  # {comment_text(st.label)}".rstrip())
+            lines.append(f"  while get_standard_digital_in({st.input}) != {'True' if st.level else 'False'}:")
+            lines.append("    sync()")
+            lines.append("  end")
         elif isinstance(st, Wait):
             _positive(st.seconds, f"step {i} wait")
             lines.append(f"  sleep({_num(st.seconds)})")

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from factory.errors import PlanningError
 from robotprog.controller import program_duration, trapezoid_time
-from robotprog.urscript import Comment, MoveJ, MoveL, ServoJ, SetOutputs, Wait
+from robotprog.urscript import Comment, MoveJ, MoveL, ServoJ, SetOutputs, Wait, WaitInput
 
 Q0 = np.zeros(6)
 
@@ -58,7 +58,8 @@ def test_timed_moves_take_their_time_krl_runs_its_percentages():
 
 def test_servoj_counts_its_t_outputs_and_waits_count():
     targets = np.linspace(0.0, 0.5, 40)[:, None] * np.ones(6)
-    steps = [Comment("x"), ServoJ(targets, 0.008), SetOutputs(((0, True),), 0.4), Wait(1.5)]
+    steps = [Comment("x"), ServoJ(targets, 0.008), SetOutputs(((0, True),), 0.4), Wait(1.5), WaitInput(1, True)]
+    # waiting on the machine's input is the machine's time, not the robot's
     assert program_duration(steps, Q0) == pytest.approx(40 * 0.008 + 0.4 + 1.5)
 
 

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from robotprog.krl import krl_program
 from robotprog.rapid import rapid_module
-from robotprog.urscript import Comment, MoveJ, MoveL, ServoJ, SetOutputs, Wait, urscript_program
+from robotprog.urscript import Comment, MoveJ, MoveL, ServoJ, SetOutputs, Wait, WaitInput, urscript_program
 from tests.robotprog.parsers import parse_krl, parse_urscript, rapid_errors
 
 GOLDEN = Path(__file__).parent / "golden"
@@ -64,6 +64,7 @@ _step = st.one_of(
     st.builds(lambda n, level, s: SetOutputs(((n, level),), s, "gripper"), st.integers(0, 7), st.booleans(),
               st.sampled_from([0.0, 0.4])),
     st.builds(Wait, st.floats(0.01, 10.0)),
+    st.builds(WaitInput, st.integers(0, 7), st.booleans(), st.sampled_from(["", "machine: door open"])),
     st.builds(Comment, st.text("abc: ()-,.", max_size=20)),
 )
 

@@ -88,3 +88,32 @@ def test_program_name():
     assert program_name("bracket") == "bracket"
     assert program_name("3d-part") == "p_3d_part"
     assert program_name("") == "part"
+
+
+def test_programs_drive_the_machine_through_its_io(plans, cell, world):
+    io = cell.machine
+    plan = plans["bracket"]
+    texts = {lang: post_program(lang, Path(LANG_FILES[lang]), cell, world, plan).texts for lang in LANG_FILES}
+    ur = texts["urscript"][Path("part.script")]
+    lines = [ln.strip() for ln in ur.splitlines()]
+    seq = [ln for ln in lines if ln.startswith(("while get_standard_digital_in", "set_standard_digital_out"))
+           and not ln.startswith("set_standard_digital_out(0,")]
+    assert seq == [
+        f"while get_standard_digital_in({io.cycle_done}) != True:",
+        f"set_standard_digital_out({io.close_door}, False)", f"set_standard_digital_out({io.open_door}, True)",
+        f"while get_standard_digital_in({io.door_open}) != True:",
+        f"set_standard_digital_out({io.open_door}, False)", f"set_standard_digital_out({io.close_door}, True)",
+        f"while get_standard_digital_in({io.door_open}) != False:",
+        f"set_standard_digital_out({io.cycle_start}, True)",
+        f"while get_standard_digital_in({io.cycle_done}) != False:",
+        f"set_standard_digital_out({io.cycle_start}, False)",
+        f"while get_standard_digital_in({io.cycle_done}) != True:",
+        f"set_standard_digital_out({io.close_door}, False)", f"set_standard_digital_out({io.open_door}, True)",
+        f"while get_standard_digital_in({io.door_open}) != True:",
+    ]
+    # the cycle runs between the load's return home and the unload, with the arm standing
+    assert ur.index("# load: return home") < ur.index("# machine: close the door") < ur.index("# unload:")
+    mod = texts["rapid"][Path("part.mod")]
+    assert f"WaitDI di{io.cycle_done}, 0;" in mod and f"SetDO do{io.cycle_start}, 1;" in mod
+    src = texts["krl"][Path("part.src")]
+    assert f"WAIT FOR NOT $IN[{io.door_open + 1}]" in src and f"$OUT[{io.close_door + 1}] = TRUE" in src
