@@ -21,7 +21,7 @@ from cli.common import (JsonFlag, Overwrite, Quiet, Stopwatch, print_json, repor
                         sha256_file, stderr)
 from cli.verify import read_sheet
 from factory.atomic import check_writable, write_text
-from factory.errors import CellError, PlanningError
+from factory.errors import CellError
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, marker_array, ros_time, string_msg, tf_message,
                              transform_stamped, transforms_stamped)
 from robotprog.cell import Cell, load_cell

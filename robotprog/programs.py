@@ -46,13 +46,12 @@ import numpy as np
 from factory.errors import PlanningError
 from robotprog.cell import Cell, MachineIO
 from robotprog.collision import CollisionWorld, collision_world
-from robotprog.controller import program_duration
+from robotprog.controller import LANGS, program_duration
 from robotprog.krl import krl_program
 from robotprog.rapid import rapid_module
 from robotprog.tending import TendingOptions, TendingPlan, TimedMove
 from robotprog.urscript import Comment, MoveJ, ServoJ, SetOutputs, Step, WaitInput, urscript_program
 
-LANGS = ("urscript", "rapid", "krl")
 #: servoj period [s]: the CB3 controller's cycle (125 Hz).
 SERVO_PERIOD_S = 0.008
 #: servoj lookahead [s] (the smallest the controller takes: least lag behind the table) and gain.
