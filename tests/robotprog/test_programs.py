@@ -1,4 +1,4 @@
-"""Posted programs run the proven motion: controller time within 5 % of the plan, the posted
+"""Posted programs run the proven motion (sample stock, random stock, random 15 mm plate stock): controller time within 5 % of the plan, the posted
 path collision-checked, the URScript table the plan's own samples."""
 
 from __future__ import annotations
@@ -22,6 +22,9 @@ _rng = np.random.default_rng(13)
 #: Random stock boxes [mm] (x 40..110, y 30..80, z 20..60) besides the samples'.
 RANDOM_STOCK = {f"random{k}": tuple(float(v) for v in np.round(_rng.uniform([40, 30, 20], [110, 80, 60]), 1))
                 for k in range(2)}
+#: and random 15 mm plate stock
+RANDOM_STOCK |= {f"plate{k}": (*(float(v) for v in np.round(_rng.uniform([40, 30], [110, 80]), 1)), 15.0)
+                 for k in range(2)}
 LANG_FILES = {"urscript": "part.script", "rapid": "part.mod", "krl": "part.src"}
 
 
