@@ -19,8 +19,9 @@ from cli.common import JsonFlag, Overwrite, Quiet, print_json, reports_errors, s
 from factory.atomic import check_writable, write_text
 from factory.catalog import sha256_file
 from factory.progress import Stopwatch
-from factory.tending import LANGS, plan_cell, program_texts, write_robot_mcap
+from factory.tending import plan_cell, write_robot_mcap
 from factory.verify import read_sheet
+from robotprog.programs import LANGS, post_program
 
 
 @reports_errors
@@ -51,9 +52,9 @@ def robot(
             loaded = load_part(part, units=units_of_scale(setup.mesh_scale, str(setup_path)))
             vertices = np.asarray(loaded.mesh.vertices) / float(setup.mesh_scale)
     cell, world, plan = plan_cell(cell_path, sheet, str(setup_path), vertices, watch)
-    texts = program_texts(lang, program, cell, world, plan) if program is not None else {}
+    posted = post_program(lang, program, cell, world, plan) if program is not None else None
     with watch("write"):
-        for path, text in texts.items():
+        for path, text in (posted.texts if posted else {}).items():
             write_text(path, text, overwrite=overwrite)
         inputs = {str(cell_path): sha256_file(cell_path), str(setup_path): sha256_file(setup_path)}
         if part is not None:
@@ -65,6 +66,8 @@ def robot(
         "mcap": str(output),
         "program": str(program) if program else None,
         "duration_s": round(plan.duration, 3),
+        "program_duration_s": round(posted.predicted_s, 3) if posted else None,
+        "program_targets": posted.targets if posted else None,
         "moves": [{"name": nm, "duration_s": round(d, 3)} for nm, d in plan.durations],
         "joint_states": n,
         "seconds": watch.rounded(),

@@ -42,10 +42,11 @@ from factory.mcaplog import McapLog
 from factory.pictures import png_bytes
 from factory.progress import Progress, Stopwatch
 from factory.resources import FIXTURES
-from factory.tending import log_tending, plan_cell, program_texts
+from factory.tending import log_tending, plan_cell
 from factory.verify import log_simulation, run_verify, write_verify_outputs
 from robotprog.cell import Cell
 from robotprog.collision import CollisionWorld
+from robotprog.programs import PostedProgram, post_program
 from robotprog.tending import TendingPlan
 
 log = logging.getLogger(__name__)
@@ -135,12 +136,17 @@ class PlanRequest:
 @dataclasses.dataclass(frozen=True)
 class Tending:
     """The robot's load and unload of one part: the cell, its collision world, the timed plan,
-    and the posted robot program (file name -> text; KRL has a ``.src`` and a ``.dat``)."""
+    and the posted robot program (its texts keyed by file name: KRL has a ``.src`` and a ``.dat``)."""
 
     cell: Cell
     world: CollisionWorld
     plan: TendingPlan
-    programs: dict[str, str]
+    program: PostedProgram
+
+    @property
+    def programs(self) -> dict[str, str]:
+        """File name -> text of the robot program."""
+        return {path.name: text for path, text in self.program.texts.items()}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -193,6 +199,7 @@ class PartPlan:
             "robot": None if tending is None else {
                 "cell": tending.cell.name, "robot": tending.world.robot.name,
                 "motion_s": round(tending.plan.duration, 3),
+                "program_s": round(tending.program.predicted_s, 3), "program_targets": tending.program.targets,
                 "moves": [{"name": n, "duration_s": round(d, 3)} for n, d in tending.plan.durations]},
             "seconds": {k: round(v, 3) for k, v in self.seconds.items()},
             "outputs": {k: str(v) for k, v in outputs.items()},
@@ -237,7 +244,8 @@ class PartPlan:
         if tending is not None:
             inputs[str(req.cell)] = sha256_file(req.cell)
             parameters["robot"] = {"cell": tending.cell.name, "robot": tending.world.robot.name,
-                                   "durations_s": {n: round(d, 4) for n, d in tending.plan.durations}}
+                                   "durations_s": {n: round(d, 4) for n, d in tending.plan.durations},
+                                   "program_duration_s": round(tending.program.predicted_s, 4)}
             for name, text in tending.programs.items():
                 write_text(outputs["summary"].parent / name, text)
         # One log of the whole plan: with a robot, the work frame sits in the cell's vise.
@@ -274,8 +282,7 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     if req.robot:
         vertices = np.asarray(planned.loaded.mesh.vertices) / float(job.setup.mesh_scale)
         cell, world, tplan = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch)
-        texts = program_texts(req.lang, outputs["robot_program"], cell, world, tplan)
-        tending = Tending(cell, world, tplan, {path.name: text for path, text in texts.items()})
+        tending = Tending(cell, world, tplan, post_program(req.lang, outputs["robot_program"], cell, world, tplan))
     with watch("verify"):
         sim, report = run_verify(program.text, str(outputs["program"]), job.setup,
                                  {t.number: t for t in job.tools},

@@ -2,8 +2,8 @@
 
 Loads the stock from the rack into the vise and unloads the finished part to the out-tray,
 collision-checked against the cell, timed within the joint limits (:func:`plan_cell`); logs the
-plan as MCAP (robot description, joint states, TF, trajectories, the cell's boxes) and posts it
-as a robot program (URScript, RAPID or KRL). ``factory robot`` and ``factory plan`` call it.
+plan as MCAP (robot description, joint states, TF, trajectories, the cell's boxes); the robot
+program is :func:`robotprog.programs.post_program`. ``factory robot`` and ``factory plan`` call it.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from factory.errors import CellError, PlanningError
+from factory.errors import CellError
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, marker_array, ros_time, string_msg, tf_message,
                              transform_stamped, transforms_stamped)
 from factory.progress import Stopwatch
@@ -23,10 +23,7 @@ from factory.scene import visuals_scene
 from robotprog.cell import Cell, load_cell
 from robotprog.collision import CollisionWorld, cell_static_boxes, collision_world
 from robotprog.frames import setup_sheet_to_cell
-from robotprog.krl import krl_program
-from robotprog.rapid import rapid_module
 from robotprog.tending import TendingPlan, part_box_in_vise, plan_tending
-from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, urscript_program
 from robotprog.visuals import robot_visuals
 
 log = logging.getLogger(__name__)
@@ -45,11 +42,6 @@ _Header = _T["std_msgs/msg/Header"]
 STATE_RATE_HZ = 50.0
 #: Rate of the points of each /robot/trajectory message [Hz].
 TRAJECTORY_RATE_HZ = 50.0
-#: Tool speed and acceleration of URScript movel approach / retreat moves [m/s], [m/s^2].
-MOVEL_SPEED = 0.1
-MOVEL_ACCELERATION = 0.5
-
-LANGS = ("urscript", "rapid", "krl")
 
 
 def _ns(t: float) -> int:
@@ -182,50 +174,6 @@ def _quat(t: np.ndarray) -> tuple[float, float, float, float]:
     from scipy.spatial.transform import Rotation
 
     return tuple(float(v) for v in Rotation.from_matrix(t[:3, :3]).as_quat())  # type: ignore[return-value]
-
-
-def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan) -> list[Any]:
-    """The plan as program steps: a joint move through every transfer waypoint, a line to the
-    end of every approach/retreat, digital outputs for the gripper."""
-    robot = world.robot
-    vmax = float(np.min(robot.v_max * cell.motion.speed_scaling))
-    amax = float(np.min(np.asarray(cell.motion.acceleration_limits) * cell.motion.speed_scaling))
-    t_base_world = np.linalg.inv(cell.robot.base.matrix())
-    steps: list[Any] = [MoveJ(tuple(float(v) for v in cell.robot.home), amax, vmax)]
-    for mv in plan.moves:
-        steps.append(Comment(mv.name))
-        if mv.kind == "joint":
-            steps += [MoveJ(tuple(float(v) for v in q), amax, vmax) for q in mv.waypoints[1:]]
-        elif mv.kind == "linear":
-            steps.append(MoveL.to(t_base_world @ mv.transform_world_to_tcp, MOVEL_ACCELERATION, MOVEL_SPEED))
-        else:
-            steps.append(SetOutputs(mv.outputs, mv.settle_s))
-    return steps
-
-
-def program_texts(lang: str, program: Path, cell: Cell, world: CollisionWorld,
-                  plan: TendingPlan) -> dict[Path, str]:
-    """File path -> text of the robot program in ``lang`` (KRL: the .src and its .dat)."""
-    robot = world.robot
-    name = _program_name(program.name.split(".")[0])
-    steps = program_steps(cell, world, plan)
-    header = (f"factory robot: {cell.name}, {robot.name}", f"planned motion {plan.duration:.2f} s")
-    tcp = cell.gripper.tcp.matrix()
-    if lang == "urscript":
-        if not robot.name.startswith("ur"):
-            raise PlanningError(f"URScript needs a Universal Robots arm, the cell has {robot.name}",
-                                source="robot.model")
-        return {program: urscript_program(steps, name=name, transform_flange_to_tcp=tcp, header=header)}
-    if lang == "rapid":
-        return {program: rapid_module(steps, name=name[:32], transform_flange_to_tcp=tcp, header=header)}
-    src, dat = krl_program(steps, name=name[:24], transform_flange_to_tcp=tcp,
-                           axis_percent=100.0 * cell.motion.speed_scaling, header=header)
-    return {program: src, program.with_suffix(".dat"): dat}
-
-
-def _program_name(stem: str) -> str:
-    clean = "".join(c if c.isalnum() else "_" for c in stem) or "part"
-    return ("p_" + clean) if clean[0].isdigit() else clean
 
 
 def plan_cell(cell_path: Path, sheet: dict[str, Any], sheet_source: str, part_vertices: np.ndarray | None,

@@ -14,13 +14,15 @@ from its parent frame to the named frame, ``transform_parent_to_frame``; the par
 * ``robot.base``: ``transform_world_to_base`` (the robot's base frame, ``base_link`` on a UR);
 * ``gripper.tcp``: ``transform_flange_to_tcp`` (TCP: the point between the fingertips,
   Z out of the flange, the gripper's fingers close along Y);
-* ``gripper.collision.pose``: the gripper's collision box in the flange frame;
+* ``gripper.body.pose``: the gripper body's box in the flange frame (the fingers hang below
+  it, their tips at the TCP: :class:`Fingers`);
 * ``rack.pose`` / ``out_tray.pose``: the frame of slot (row 0, column 0); slot (r, c) sits
   at ``(c * pitch[0], r * pitch[1], 0)`` in it, Z up out of the slot;
 * ``vise.pose``: ``transform_world_to_vise``, origin at the centre of the jaw gap on the
   top of the parallels (where the stock's bottom rests), X along the jaws, Y the
   clamping direction, Z up (see :mod:`robotprog.frames`);
-* ``enclosure`` boxes: the pose of each box's centre.
+* ``enclosure`` boxes and ``reject_bin``: the pose of each box's centre (the reject bin is
+  open at its top; rejected parts are dropped into it from above).
 
 Unknown keys are errors (typos must not be silently ignored), and every error names
 its field: ``vise.pose.xyz: expected 3 numbers``.
@@ -136,25 +138,91 @@ class GripperIO:
 
 
 @dataclass(frozen=True)
+class MachineIO:
+    """The machine tool's interface: the robot controller's digital outputs it sets and the
+    inputs it waits on (numbers 0-based, as URScript's standard digital I/O; RAPID ``do<n>`` /
+    ``di<n>``, KRL ``$OUT[n + 1]`` / ``$IN[n + 1]``).
+
+    Attributes
+    ----------
+    open_door, close_door : int
+        Outputs held high to open / to close the machine's door.
+    cycle_start : int
+        Output raised to start the machine's cycle, lowered once the machine runs.
+    door_open : int
+        Input high while the door is fully open (low: closed).
+    cycle_done : int
+        Input high while the machine is idle with its cycle finished (low: running).
+    """
+
+    open_door: int
+    close_door: int
+    cycle_start: int
+    door_open: int
+    cycle_done: int
+
+
+@dataclass(frozen=True)
+class Fingers:
+    """The two parallel fingers: boxes whose tips end in the TCP's XY plane, closing along the
+    TCP's Y axis, hanging from the gripper body along the tool axis.
+
+    Attributes
+    ----------
+    length : float
+        Along the tool axis (Z), from the body to the tip [m]: how deep the fingers reach
+        below the body, so the deepest grip.
+    width : float
+        Across the closing direction (X) [m].
+    thickness : float
+        Along the closing direction (Y) [m].
+    stroke : float
+        Travel of each finger [m]; the two together cover ``opening.max - opening.min``.
+    clearance : float
+        How far each finger opens beyond the box it goes to grip, or stays off the box it
+        let go [m] (the fingers are never wider open than that: neighbours stand close).
+    """
+
+    length: float
+    width: float
+    thickness: float
+    stroke: float
+    clearance: float = 0.008
+
+    def boxes(self, opening: float) -> tuple[tuple[tuple[float, float, float], np.ndarray], ...]:
+        """(size [m], ``transform_tcp_to_finger`` (4, 4)) of both fingers at ``opening`` [m]
+        (the gap between their inner faces)."""
+        out = []
+        for side in (1.0, -1.0):
+            t = np.eye(4)
+            t[:3, 3] = (0.0, side * (opening + self.thickness) / 2, -self.length / 2)
+            out.append(((self.width, self.thickness, self.length), t))
+        return tuple(out)
+
+
+@dataclass(frozen=True)
 class Gripper:
-    """Parallel gripper on the flange.
+    """Parallel gripper on the flange: a body and two fingers.
 
     Attributes
     ----------
     tcp : Pose
-        ``transform_flange_to_tcp``.
+        ``transform_flange_to_tcp``: between the fingertips.
     opening_min, opening_max : float
         Finger opening range [m]: what the gripper can hold.
     io : GripperIO
-    collision : Box
-        Simple collision shape, pose in the flange frame.
+    body : Box
+        The gripper body (actuator, housing), pose in the flange frame; it must end at or
+        above the fingers' root (``fingers.length`` above the TCP).
+    fingers : Fingers
     """
 
     tcp: Pose
     opening_min: float
     opening_max: float
     io: GripperIO
-    collision: Box
+    body: Box
+    fingers: Fingers
 
 
 @dataclass(frozen=True)
@@ -223,6 +291,10 @@ class Cell:
     enclosure: Enclosure
     out_tray: SlotGrid
     source: str | None = None
+    #: Open bin rejected parts are dropped into (its box is an obstacle); ``None``: no reject move.
+    reject_bin: Box | None = None
+    #: The machine tool's door and cycle signals; ``None``: programs do not drive the machine.
+    machine: MachineIO | None = None
 
 
 # --- parsing ---------------------------------------------------------------------------
@@ -320,7 +392,8 @@ def read_cell(data: Any, source: str | Path | None = None) -> Cell:
     src = None if source is None else str(source)
     rd = _Reader(src)
     top = rd.mapping(
-        data, "", {"format", "robot", "motion", "gripper", "rack", "vise", "enclosure", "out_tray"}, {"name"}
+        data, "", {"format", "robot", "motion", "gripper", "rack", "vise", "enclosure", "out_tray"},
+        {"name", "reject_bin", "machine"},
     )
     if top["format"] != FORMAT:
         raise rd.fail("format", f"expected {FORMAT!r}, got {shown(top['format'])}")
@@ -344,7 +417,7 @@ def read_cell(data: Any, source: str | Path | None = None) -> Cell:
         raise rd.fail("motion.speed_scaling", f"must be in (0, 1], got {scaling}")
     motion = Motion(accel, scaling)
 
-    g = rd.mapping(top["gripper"], "gripper", {"tcp", "opening", "io", "collision"})
+    g = rd.mapping(top["gripper"], "gripper", {"tcp", "opening", "io", "body", "fingers"})
     op = rd.mapping(g["opening"], "gripper.opening", {"min", "max"})
     omin = rd.number(op["min"], "gripper.opening.min", nonneg=True)
     omax = rd.number(op["max"], "gripper.opening.max", positive=True)
@@ -356,9 +429,26 @@ def read_cell(data: Any, source: str | Path | None = None) -> Cell:
         rd.outputs(io["release"], "gripper.io.release"),
         rd.number(io.get("settle_s", 0.5), "gripper.io.settle_s", nonneg=True),
     )
-    gripper = Gripper(
-        rd.pose(g["tcp"], "gripper.tcp"), omin, omax, gio, rd.box(g["collision"], "gripper.collision", "gripper")
+    fm = rd.mapping(g["fingers"], "gripper.fingers", {"length", "width", "thickness", "stroke"}, {"clearance"})
+    fingers = Fingers(
+        rd.number(fm["length"], "gripper.fingers.length", positive=True),
+        rd.number(fm["width"], "gripper.fingers.width", positive=True),
+        rd.number(fm["thickness"], "gripper.fingers.thickness", positive=True),
+        rd.number(fm["stroke"], "gripper.fingers.stroke", positive=True),
+        rd.number(fm.get("clearance", 0.008), "gripper.fingers.clearance", nonneg=True),
     )
+    if 2 * fingers.stroke < omax - omin - 1e-9:
+        raise rd.fail("gripper.fingers.stroke", f"two fingers of {fingers.stroke} m stroke cannot open "
+                      f"from opening.min {omin} to opening.max {omax}")
+    tcp = rd.pose(g["tcp"], "gripper.tcp")
+    body = rd.box(g["body"], "gripper.body", "gripper")
+    corners = np.array([[x, y, z] for x in (-.5, .5) for y in (-.5, .5) for z in (-.5, .5)]) * body.size
+    t_tcp_body = np.linalg.inv(tcp.matrix()) @ body.pose.matrix()
+    reach = float((corners @ t_tcp_body[:3, :3].T + t_tcp_body[:3, 3])[:, 2].max())
+    if reach > -fingers.length + 1e-9:
+        raise rd.fail("gripper.body", f"reaches {(reach + fingers.length) * 1000:.1f} mm past the fingers' root "
+                      f"({fingers.length * 1000:.1f} mm above the TCP): the fingers would not reach below it")
+    gripper = Gripper(tcp, omin, omax, gio, body, fingers)
 
     v = rd.mapping(top["vise"], "vise", {"pose", "jaw_opening", "jaw_height"})
     jo = rd.mapping(v["jaw_opening"], "vise.jaw_opening", {"min", "max"})
@@ -378,7 +468,29 @@ def read_cell(data: Any, source: str | Path | None = None) -> Cell:
     return Cell(
         name, robot, motion, gripper, rd.grid(top["rack"], "rack"), vise, enclosure,
         rd.grid(top["out_tray"], "out_tray"), src,
+        None if top.get("reject_bin") is None else rd.box(top["reject_bin"], "reject_bin", "reject_bin"),
+        None if top.get("machine") is None else _machine_io(rd, top["machine"], gio),
     )
+
+
+def _machine_io(rd: _Reader, value: Any, gripper: GripperIO) -> MachineIO:
+    m = rd.mapping(value, "machine", {"io"})
+    io = rd.mapping(m["io"], "machine.io", {"outputs", "inputs"})
+    outs = rd.mapping(io["outputs"], "machine.io.outputs", {"open_door", "close_door", "cycle_start"})
+    ins = rd.mapping(io["inputs"], "machine.io.inputs", {"door_open", "cycle_done"})
+    o = {k: rd.integer(outs[k], f"machine.io.outputs.{k}", minimum=0) for k in sorted(outs)}
+    i = {k: rd.integer(ins[k], f"machine.io.inputs.{k}", minimum=0) for k in sorted(ins)}
+    taken = {n for n, _ in gripper.grip + gripper.release}
+    seen: dict[int, str] = {}
+    for k, n in o.items():
+        if n in taken:
+            raise rd.fail(f"machine.io.outputs.{k}", f"output {n} already drives the gripper")
+        if n in seen:
+            raise rd.fail(f"machine.io.outputs.{k}", f"output {n} is also {seen[n]}")
+        seen[n] = k
+    if i["door_open"] == i["cycle_done"]:
+        raise rd.fail("machine.io.inputs.cycle_done", f"input {i['cycle_done']} is also door_open")
+    return MachineIO(o["open_door"], o["close_door"], o["cycle_start"], i["door_open"], i["cycle_done"])
 
 
 def load_cell(path: str | Path, *, check_robot: bool = True) -> Cell:

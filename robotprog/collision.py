@@ -4,7 +4,7 @@ A :class:`CollisionWorld` is built once from a robot (loaded with its collision 
 and a cell. It holds one Pinocchio ``GeometryModel`` (coal underneath) with
 
 * the robot's link collision meshes from the URDF;
-* the gripper's collision box (``cell.gripper.collision``, in the flange frame);
+* the gripper body's box (``cell.gripper.body``, in the flange frame);
 * the cell's static boxes: the enclosure walls and mill table, the door (only when
   ``door_closed``; tending runs with the door open), and boxes the cell file implies
   but does not list (see :func:`cell_static_boxes`): the vise body under the parallels,
@@ -18,7 +18,8 @@ non-adjacent joints). Pairs already in
 contact at the home configuration (e.g. the gripper box against the wrist links it is
 bolted next to) are dropped, and :attr:`CollisionWorld.dropped_pairs` lists them.
 
-A held box (the stock or finished part, :class:`HeldBox`) rides on the TCP and is checked
+The fingers (at the opening of the move, :func:`finger_boxes`) and a held box (the stock or
+finished part, :class:`HeldBox`) ride on the TCP (a :data:`Payload`); each is checked
 against the static boxes with coal directly. It is shrunk by :attr:`HeldBox.clearance` per
 face so that a part resting on a surface (stock on the vise parallels, in its rack slot)
 is not a contact, and against the arm's links except those on the flange's joint (the
@@ -69,17 +70,39 @@ class HeldBox:
         Pose of the box centre in the TCP frame [m].
     clearance : float
         Shrink per face when checking [m], so a part resting on a surface is free.
+    name : str
+        What it is in contact messages (``held``, ``finger``).
     """
 
     size: tuple[float, float, float]
     transform_tcp_to_box: tuple[tuple[float, ...], ...]
     clearance: float = 0.001
+    name: str = "held"
 
     @staticmethod
-    def at(size: np.ndarray, transform_tcp_to_box: np.ndarray, clearance: float = 0.001) -> "HeldBox":
+    def at(size: np.ndarray, transform_tcp_to_box: np.ndarray, clearance: float = 0.001,
+           name: str = "held") -> "HeldBox":
         """A HeldBox from arrays."""
         return HeldBox(tuple(float(s) for s in size),
-                       tuple(tuple(float(x) for x in row) for row in np.asarray(transform_tcp_to_box)), clearance)
+                       tuple(tuple(float(x) for x in row) for row in np.asarray(transform_tcp_to_box)), clearance,
+                       name)
+
+
+#: What rides on the TCP during a move: nothing, one box, or several (the fingers at their
+#: opening and the box they hold).
+Payload = HeldBox | tuple[HeldBox, ...] | None
+
+
+def finger_boxes(cell: Cell, opening: float) -> tuple[HeldBox, ...]:
+    """The gripper's two fingers at ``opening`` [m] as boxes riding on the TCP (checked exactly,
+    no clearance: a finger beside a blank must not touch the surface it stands on)."""
+    return tuple(HeldBox.at(size, t, 0.0, "finger") for size, t in cell.gripper.fingers.boxes(opening))
+
+
+def _riding(held: Payload) -> tuple[HeldBox, ...]:
+    if held is None:
+        return ()
+    return held if isinstance(held, tuple) else (held,)
 
 
 def _grid_stand(name: str, grid, top_offset: float = 0.0) -> Box:
@@ -118,6 +141,8 @@ def cell_static_boxes(cell: Cell, *, door_closed: bool = False) -> tuple[Box, ..
                                    VISE_BODY_HEIGHT), Pose(tuple(float(v) for v in c), _yaw_only(tv))))
     boxes.append(_grid_stand("rack_stand", cell.rack))
     boxes.append(_grid_stand("out_tray_stand", cell.out_tray))
+    if cell.reject_bin is not None:
+        boxes.append(cell.reject_bin)
     base = np.array(cell.robot.base.xyz, dtype=float)
     boxes.append(Box("pedestal", (PEDESTAL_SIZE, PEDESTAL_SIZE, float(base[2])),
                      Pose((float(base[0]), float(base[1]), float(base[2]) / 2))))
@@ -170,7 +195,14 @@ class CollisionWorld:
         pin.framesForwardKinematics(self.robot.model, self._data, q)
         pin.updateGeometryPlacements(self.robot.model, self._data, self.geometry, self._gdata)
 
-    def _held_contact(self, held: HeldBox) -> str | None:
+    def _held_contact(self, held: Payload) -> str | None:
+        for box in _riding(held):
+            name = self._box_contact(box)
+            if name is not None:
+                return f"{box.name} <-> {name}"
+        return None
+
+    def _box_contact(self, held: HeldBox) -> str | None:
         size = np.asarray(held.size) - 2 * held.clearance
         if (size <= 0).any():
             return None
@@ -191,14 +223,14 @@ class CollisionWorld:
                 return name
         return None
 
-    def in_collision(self, q: np.ndarray, held: HeldBox | None = None) -> bool:
+    def in_collision(self, q: np.ndarray, held: Payload = None) -> bool:
         """Whether configuration ``q`` (dof,) [rad] (holding ``held``) touches anything."""
         self._update(q)
         if pin.computeCollisions(self.geometry, self._gdata, True):
             return True
-        return held is not None and self._held_contact(held) is not None
+        return self._held_contact(held) is not None
 
-    def first_contact(self, q: np.ndarray, held: HeldBox | None = None) -> str | None:
+    def first_contact(self, q: np.ndarray, held: Payload = None) -> str | None:
         """``"body_a <-> body_b"`` for the first colliding pair at ``q``, or ``None`` when free.
 
         Robot bodies are named by their geometry (``forearm_link_0``, ``gripper``,
@@ -212,13 +244,9 @@ class CollisionWorld:
                     a = self.geometry.geometryObjects[pair.first].name
                     b = self.geometry.geometryObjects[pair.second].name
                     return f"{a} <-> {b}"
-        if held is not None:
-            name = self._held_contact(held)
-            if name is not None:
-                return f"held <-> {name}"
-        return None
+        return self._held_contact(held)
 
-    def path_free(self, qs: np.ndarray, held: HeldBox | None = None) -> int | None:
+    def path_free(self, qs: np.ndarray, held: Payload = None) -> int | None:
         """Index of the first colliding configuration of ``qs`` (n, dof) [rad], ``None`` if all are free."""
         qs = np.asarray(qs, dtype=float).reshape(-1, self.robot.dof)
         for i, q in enumerate(qs):
@@ -227,7 +255,8 @@ class CollisionWorld:
         return None
 
 
-def collision_world(cell: Cell, robot: Robot | None = None, *, door_closed: bool = False) -> CollisionWorld:
+def collision_world(cell: Cell, robot: Robot | None = None, *, door_closed: bool = False,
+                    obstacles: tuple[Box, ...] = ()) -> CollisionWorld:
     """Build the collision world of ``cell`` once (loads the robot's collision meshes).
 
     Parameters
@@ -237,6 +266,9 @@ def collision_world(cell: Cell, robot: Robot | None = None, *, door_closed: bool
         Loaded with ``collision=True``; by default loaded from ``cell.robot``.
     door_closed : bool
         Include the enclosure door as an obstacle.
+    obstacles : tuple of Box
+        More static boxes (world frame): the blanks beside the one picked, the parts already
+        in the out-tray.
 
     Raises
     ------
@@ -257,14 +289,14 @@ def collision_world(cell: Cell, robot: Robot | None = None, *, door_closed: bool
 
     fid = model.getFrameId(robot.flange_frame)
     fr = model.frames[fid]
-    g = cell.gripper.collision
+    g = cell.gripper.body
     gripper_placement = fr.placement.homogeneous @ g.pose.matrix()
     gripper = gm.addGeometryObject(pin.GeometryObject(
         "gripper", fr.parentJoint, fid, pin.SE3(gripper_placement), coal.Box(*g.size)))
 
     static: list[tuple[str, coal.Box, coal.Transform3s]] = []
     static_ids = []
-    boxes = cell_static_boxes(cell, door_closed=door_closed)
+    boxes = cell_static_boxes(cell, door_closed=door_closed) + tuple(obstacles)
     for b in boxes:
         t = t_model_world @ b.pose.matrix()
         shape = coal.Box(*b.size)

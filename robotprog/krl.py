@@ -6,10 +6,12 @@ the program runs on), ``MoveL`` steps ``LIN`` to an ``E6POS``: the TCP position 
 orientation as KUKA's A, B, C (intrinsic Z, Y', X'' Euler angles [deg]) in the robot's
 base frame (``base_link``; ``$BASE`` is ``$NULLFRAME``), without Status/Turn (the
 controller keeps the current configuration on a LIN). Digital output ``n`` is KRL's
-``$OUT[n + 1]`` (KRL numbers outputs from 1). The TCP is written to ``$TOOL``.
+``$OUT[n + 1]``, input ``n`` is ``$IN[n + 1]`` (KRL numbers them from 1). The TCP is written to ``$TOOL``.
 
-Speeds: PTP moves at ``$VEL_AXIS`` / ``$ACC_AXIS`` percentages (``axis_percent``),
-LIN at ``$VEL.CP`` = the step's ``v`` [m/s]; all moves stop exactly (no ``C_DIS``).
+Speeds: PTP moves at ``$VEL_AXIS`` / ``$ACC_AXIS`` percentages (``axis_percent``), a
+timed step (``t`` > 0) at the percentage that runs it in ``t`` (``BAS(#VEL_PTP, pct)``),
+LIN at ``$VEL.CP`` = the step's ``v`` [m/s]. A step with a blend radius is approximated
+(``C_PTP``, ``$APO.CPTP``), the rest stop exactly.
 Output is deterministic: fixed decimals, no time stamps.
 """
 
@@ -22,10 +24,21 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from factory.errors import PlanningError
-from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Step, Wait
+from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Step, Wait, WaitInput, comment_text
 
 DECIMALS_MM = 3
 DECIMALS_DEG = 4
+#: ``$APO.CPTP`` [%] for blended (``C_PTP``) PTP moves: approximation starts this far (as a
+#: percentage of the largest axis travel, at most half the move) before the point.
+APPROXIMATION_PERCENT = 50
+
+
+def ptp_percent(q_from: np.ndarray, q_to: np.ndarray, t: float, axis_speed: np.ndarray) -> int:
+    """The whole ``$VEL_AXIS`` percentage (1..100) at which a PTP from ``q_from`` to ``q_to``
+    [rad] takes at most ``t`` [s] at cruise: the leading axis needs ``|dq| / t`` of its 100 %
+    speed ``axis_speed`` [rad/s]; rounded up (KRL takes whole percents), so never slower."""
+    need = float(np.max(np.abs(np.asarray(q_to, float) - np.asarray(q_from, float)) / (t * np.asarray(axis_speed))))
+    return int(min(100, max(1, math.ceil(100.0 * need - 1e-9))))
 
 
 def _f(x: float, d: int) -> str:
@@ -51,6 +64,7 @@ def krl_program(
     name: str = "factory_program",
     transform_flange_to_tcp: np.ndarray | None = None,
     axis_percent: float = 50.0,
+    axis_speed: np.ndarray | None = None,
     header: Sequence[str] = (),
 ) -> tuple[str, str]:
     """The ``.src`` and ``.dat`` texts of a KRL program.
@@ -65,6 +79,9 @@ def krl_program(
         The TCP (default: the flange).
     axis_percent : float
         ``$VEL_AXIS`` and ``$ACC_AXIS`` for PTP moves [%], in (0, 100].
+    axis_speed : (6,) float, optional
+        The axes' 100 % speeds [rad/s]; needed by timed ``MoveJ`` steps (``t`` > 0), each of
+        which gets the ``$VEL_AXIS`` percentage (:func:`ptp_percent`) that runs it in ``t``.
     header : sequence of str
 
     Raises
@@ -79,11 +96,15 @@ def krl_program(
     tcp = np.eye(4) if transform_flange_to_tcp is None else np.asarray(transform_flange_to_tcp, dtype=float)
     dat = ["&ACCESS RVP", f"DEFDAT {name} PUBLIC"]
     src = ["&ACCESS RVP", f"DEF {name}( )", "  DECL INT I"]
-    src += [f"; {h}" for h in header]
-    pct = _f(axis_percent, 1)
+    src += [f"; {comment_text(h)}".rstrip() for h in header]
+    pct_text = _f(axis_percent, 1)
     src += ["  BAS(#INITMOV, 0)", f"  $TOOL = {{{krl_frame(tcp)}}}", "  $BASE = $NULLFRAME",
-            "  FOR I = 1 TO 6", f"    $VEL_AXIS[I] = {pct}", f"    $ACC_AXIS[I] = {pct}", "  ENDFOR"]
+            "  FOR I = 1 TO 6", f"    $VEL_AXIS[I] = {pct_text}", f"    $ACC_AXIS[I] = {pct_text}", "  ENDFOR"]
+    if any(isinstance(st, MoveJ) and st.r > 0 for st in steps):
+        src.append(f"  $APO.CPTP = {APPROXIMATION_PERCENT}")
     nj = nl = 0
+    q_prev: np.ndarray | None = None
+    current_pct: int | None = None
     for i, st in enumerate(steps):
         if isinstance(st, MoveJ):
             q = np.asarray(st.q, dtype=float)
@@ -92,7 +113,18 @@ def krl_program(
             nj += 1
             axes = ",".join(f"A{k + 1} {_f(math.degrees(v), DECIMALS_DEG)}" for k, v in enumerate(q))
             dat.append(f"  DECL E6AXIS XJ{nj}={{{axes},E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}}")
-            src.append(f"  PTP XJ{nj}")
+            if st.t > 0:
+                if q_prev is None or axis_speed is None:
+                    raise PlanningError(f"step {i}: a timed PTP needs the axis speeds and a previous PTP")
+                percent = ptp_percent(q_prev, q, st.t, axis_speed)
+                if percent != current_pct:
+                    src.append(f"  BAS(#VEL_PTP, {percent})")
+                    current_pct = percent
+            elif current_pct is not None:  # back to the program's axis speed after timed moves
+                src.append(f"  BAS(#VEL_PTP, {pct_text})")
+                current_pct = None
+            src.append(f"  PTP XJ{nj}" + (" C_PTP" if st.r > 0 else ""))
+            q_prev = q
         elif isinstance(st, MoveL):
             if not (math.isfinite(st.v) and st.v > 0):
                 raise PlanningError(f"step {i}: LIN speed must be finite and > 0, got {st.v}")
@@ -103,19 +135,25 @@ def krl_program(
             src.append(f"  LIN XP{nl}")
         elif isinstance(st, SetOutputs):
             if st.label:
-                src.append(f"  ; {st.label}")
+                src.append(f"  ; {comment_text(st.label)}".rstrip())
             for n, level in st.outputs:
                 if n < 0:
                     raise PlanningError(f"step {i}: digital output {n} is negative")
                 src.append(f"  $OUT[{n + 1}] = {'TRUE' if level else 'FALSE'}")
             if st.settle_s > 0:
                 src.append(f"  WAIT SEC {_f(st.settle_s, 3)}")
+        elif isinstance(st, WaitInput):
+            if st.input < 0:
+                raise PlanningError(f"step {i}: digital input {st.input} is negative")
+            if st.label:
+                src.append(f"  ; {comment_text(st.label)}".rstrip())
+            src.append(f"  WAIT FOR {'' if st.level else 'NOT '}$IN[{st.input + 1}]")
         elif isinstance(st, Wait):
             if not (math.isfinite(st.seconds) and st.seconds > 0):
                 raise PlanningError(f"step {i}: wait must be finite and > 0, got {st.seconds}")
             src.append(f"  WAIT SEC {_f(st.seconds, 3)}")
         elif isinstance(st, Comment):
-            src.append(f"  ; {st.text.splitlines()[0] if st.text else ''}")
+            src.append(f"  ; {comment_text(st.text)}".rstrip())
         else:
             raise PlanningError(f"step {i}: not a program step: {type(st).__name__}")
     src.append("END")

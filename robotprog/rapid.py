@@ -6,11 +6,12 @@ robot the program runs on, whose joint zeros match the controller's), ``MoveL`` 
 ``MoveL`` to a ``robtarget`` (TCP position [mm] and orientation quaternion ``[q1, q2, q3,
 q4] = [w, x, y, z]`` in the robot's base frame, ``base_link``), with the configuration
 ``[cf1, cf4, cf6, cfx]`` left to the controller (``ConfL\\Off`` before the moves).
-Digital outputs ``n`` are the signals ``do<n>`` (named in the controller's I/O
-configuration). The TCP is ``tGripper`` built from ``transform_flange_to_tcp``.
+Digital outputs ``n`` are the signals ``do<n>``, inputs ``di<n>`` (named in the controller's
+I/O configuration). The TCP is ``tGripper`` built from ``transform_flange_to_tcp``.
 
-Speeds: joint moves run at ``vJoint`` (TCP 1000 mm/s, the controller's axis limits govern)
-and lines at their ``v`` [m/s] (``vLine<k>``), all ``fine`` (stop at each point) unless a
+Speeds: joint moves run at ``vJoint`` (TCP 1000 mm/s, the controller's axis limits govern),
+or take the step's time ``t`` (``vJoint\\T:=t``: the controller stretches the move to last ``t``
+seconds), and lines at their ``v`` [m/s] (``vLine<k>``), all ``fine`` (stop at each point) unless a
 blend radius is given (``z<mm>`` zonedata, declared). Output is deterministic: fixed
 decimals, no time stamps.
 """
@@ -24,7 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from factory.errors import PlanningError
-from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Step, Wait
+from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Step, Wait, WaitInput, comment_text
 
 #: Decimals of millimetres and degrees (1 µm, 1e-4 deg) and quaternions.
 DECIMALS_MM = 3
@@ -102,7 +103,13 @@ def rapid_module(
             nj += 1
             deg = ",".join(_f(math.degrees(v), DECIMALS_DEG) for v in q)
             decl.append(f"  CONST jointtarget j{nj} := [[{deg}],{_EXT}];")
-            body.append(f"    MoveAbsJ j{nj}\\NoEOffs, vJoint, {_zone(st.r, zones)}, tGripper;")
+            if st.t > 0:
+                if not math.isfinite(st.t):
+                    raise PlanningError(f"step {i}: MoveAbsJ time must be finite, got {st.t}")
+                speed = f"vJoint\\T:={_f(st.t, 4)}"
+            else:
+                speed = "vJoint"
+            body.append(f"    MoveAbsJ j{nj}\\NoEOffs, {speed}, {_zone(st.r, zones)}, tGripper;")
         elif isinstance(st, MoveL):
             if not (math.isfinite(st.v) and st.v > 0):
                 raise PlanningError(f"step {i}: MoveL speed must be finite and > 0, got {st.v}")
@@ -114,24 +121,30 @@ def rapid_module(
             body.append(f"    MoveL p{nl}, {sname}, {_zone(st.r, zones)}, tGripper;")
         elif isinstance(st, SetOutputs):
             if st.label:
-                body.append(f"    ! {st.label}")
+                body.append(f"    ! {comment_text(st.label)}".rstrip())
             for n, level in st.outputs:
                 if n < 0:
                     raise PlanningError(f"step {i}: digital output {n} is negative")
                 body.append(f"    SetDO do{n}, {1 if level else 0};")
             if st.settle_s > 0:
                 body.append(f"    WaitTime {_f(st.settle_s, 3)};")
+        elif isinstance(st, WaitInput):
+            if st.input < 0:
+                raise PlanningError(f"step {i}: digital input {st.input} is negative")
+            if st.label:
+                body.append(f"    ! {comment_text(st.label)}".rstrip())
+            body.append(f"    WaitDI di{st.input}, {1 if st.level else 0};")
         elif isinstance(st, Wait):
             if not (math.isfinite(st.seconds) and st.seconds > 0):
                 raise PlanningError(f"step {i}: wait must be finite and > 0, got {st.seconds}")
             body.append(f"    WaitTime {_f(st.seconds, 3)};")
         elif isinstance(st, Comment):
-            body.append(f"    ! {st.text.splitlines()[0] if st.text else ''}")
+            body.append(f"    ! {comment_text(st.text)}".rstrip())
         else:
             raise PlanningError(f"step {i}: not a program step: {type(st).__name__}")
     cog = _f(tcp[2, 3] * 500.0, DECIMALS_MM)
     lines = [f"MODULE {name}"]
-    lines += [f"  ! {h}" for h in header]
+    lines += [f"  ! {comment_text(h)}".rstrip() for h in header]
     lines.append(f"  PERS tooldata tGripper := [TRUE,{rapid_pose(tcp)},[{_f(tool_mass_kg, 3)},[0,0,{cog}],"
                  "[1,0,0,0],0,0,0]];")
     lines.append("  CONST speeddata vJoint := [1000,500,5000,1000];")

@@ -8,10 +8,14 @@ Grasp
 -----
 Top-down: the TCP's Z points down (world -Z), the fingers close along the TCP's Y across
 the narrower horizontal side of the box (stock or part), centred on the box's top face.
-The fingers reach ``min(height / 2, grip_depth)`` below the top, but never so deep that
-the gripper's collision box (``cell.gripper.collision``) comes within
-:attr:`TendingOptions.floor_clearance` of the surface the box stands on. Of the two yaws
-that satisfy this, the one nearer the home TCP orientation is used (less wrist travel).
+The fingertips (at the TCP) reach ``min(height / 2, grip_depth)`` below the top, but stay
+:attr:`TendingOptions.floor_clearance` above the surface the box stands on, and the gripper
+body (where the fingers start, ``gripper.fingers.length`` above the tips) stays that far
+above the box's top. Of the two yaws that satisfy this, the one nearer the home TCP
+orientation is used (less wrist travel). The fingers ride on the TCP as boxes
+(:func:`robotprog.collision.finger_boxes`): open ``gripper.fingers.clearance`` beyond the
+box on the way to it and after letting it go, closed on it while holding it. The blanks
+beside the picked one in the rack and the parts in the other out-tray slots are obstacles.
 
 Stock and part placement: in the rack and out-tray the box stands centred on the slot
 origin, its edges along the slot axes, bottom at slot height; in the vise per
@@ -43,8 +47,8 @@ import numpy as np
 from scipy.interpolate import PPoly
 
 from factory.errors import CellError, PlanningError
-from robotprog.cell import Cell, SlotGrid
-from robotprog.collision import CollisionWorld, HeldBox, collision_world
+from robotprog.cell import Box, Cell, Pose, SlotGrid
+from robotprog.collision import CollisionWorld, HeldBox, Payload, collision_world, finger_boxes
 from robotprog.frames import StockInVise, setup_sheet_to_cell, MM_PER_M
 from robotprog.ik import ik_continuous, ik_solutions
 from robotprog.robots import Robot
@@ -81,6 +85,8 @@ class TendingOptions:
         Seed of the RRT random generator.
     rack_slot, tray_slot : (int, int)
         (row, column) of the rack slot the stock comes from and the out-tray slot the part goes to.
+    reject_drop : float
+        Height of a rejected part's bottom above the reject bin's rim when it is let go [m].
     """
 
     approach_height: float = 0.10
@@ -95,6 +101,7 @@ class TendingOptions:
     seed: int = 0
     rack_slot: tuple[int, int] = (0, 0)
     tray_slot: tuple[int, int] = (0, 0)
+    reject_drop: float = 0.03
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,7 +132,7 @@ class TimedMove:
     trajectory: Trajectory
     kind: str
     waypoints: np.ndarray
-    held: HeldBox | None = None
+    held: Payload = None
     outputs: tuple[tuple[int, bool], ...] = ()
     settle_s: float = 0.0
     transform_world_to_tcp: np.ndarray = field(default_factory=lambda: np.eye(4))
@@ -153,6 +160,13 @@ class TendingPlan:
         Finished part box in the vise frame [m].
     planning_s : float
         Wall time spent planning [s].
+    obstacles : tuple of Box
+        Boxes the plan avoided besides the cell's: the blanks beside the one picked, the
+        parts already in the out-tray (:func:`robotprog.collision.collision_world` ``obstacles``).
+    reject : tuple of TimedMove
+        The planned alternative to the tray for a rejected part (empty without
+        ``cell.reject_bin``): from the end of ``unload: retreat from vise`` to above the
+        reject bin, release, home.
     """
 
     moves: tuple[TimedMove, ...]
@@ -160,6 +174,8 @@ class TendingPlan:
     part_min: np.ndarray
     part_max: np.ndarray
     planning_s: float
+    obstacles: tuple[Box, ...] = ()
+    reject: tuple[TimedMove, ...] = ()
 
     @property
     def durations(self) -> tuple[tuple[str, float], ...]:
@@ -209,17 +225,21 @@ def _grasp(cell: Cell, t_world_support: np.ndarray, bmin: np.ndarray, bmax: np.n
         raise PlanningError(
             f"{what} {width * MM_PER_M:.1f} mm is narrower than the gripper closes "
             f"({g.opening_min * MM_PER_M:.1f} mm)", source="gripper.opening.min")
-    # How far the gripper's collision box reaches past the TCP along the tool axis.
-    t_tcp_flange = np.linalg.inv(g.tcp.matrix())
-    corners = np.array([[sx, sy, sz] for sx in (-.5, .5) for sy in (-.5, .5) for sz in (-.5, .5)]) * g.collision.size
-    c = corners @ g.collision.pose.matrix()[:3, :3].T + g.collision.pose.matrix()[:3, 3]
-    reach = float(((c @ t_tcp_flange[:3, :3].T) + t_tcp_flange[:3, 3])[:, 2].max())
+    # The fingertips end at the TCP: they must stay floor_clearance above the surface the box
+    # stands on. The body ends where the fingers start: it must stay floor_clearance above
+    # the box's top, which bounds the grip depth by the finger length.
+    t_tcp_body = np.linalg.inv(g.tcp.matrix()) @ g.body.pose.matrix()
+    corners = np.array([[sx, sy, sz] for sx in (-.5, .5) for sy in (-.5, .5) for sz in (-.5, .5)]) * g.body.size
+    body_above = -float(((corners @ t_tcp_body[:3, :3].T) + t_tcp_body[:3, 3])[:, 2].max())
     height = float(size[2])
-    tcp_above = max(height - min(height / 2, options.grip_depth), reach + options.floor_clearance)
+    depth = min(height / 2, options.grip_depth, body_above - options.floor_clearance)
+    tcp_above = max(height - depth, options.floor_clearance)
     if height - tcp_above < options.min_grip_depth - 1e-9:
         raise PlanningError(
             f"{what} {height * MM_PER_M:.1f} mm tall is too thin to grip: the fingers would reach "
-            f"{(height - tcp_above) * MM_PER_M:.1f} mm below its top", source="gripper.collision")
+            f"{(height - tcp_above) * MM_PER_M:.2f} mm below its top, {options.min_grip_depth * MM_PER_M:.1f} mm "
+            f"needed, fingertips {options.floor_clearance * MM_PER_M:.1f} mm above what it stands on",
+            source="gripper.fingers")
     centre = np.array([(bmin[0] + bmax[0]) / 2, (bmin[1] + bmax[1]) / 2, bmin[2] + tcp_above, 1.0])
     p = (t_world_support @ centre)[:3]
     axis = t_world_support[:3, :3][:, narrow]
@@ -260,7 +280,7 @@ class _Planner:
     def tcp_world(self, q: np.ndarray) -> np.ndarray:
         return self.cell.robot.base.matrix() @ self.robot.fk(q) @ self.cell.gripper.tcp.matrix()
 
-    def pick_ik(self, t_world_tcp: np.ndarray, q_ref: np.ndarray, held: HeldBox | None, what: str,
+    def pick_ik(self, t_world_tcp: np.ndarray, q_ref: np.ndarray, held: Payload, what: str,
                 field_name: str) -> np.ndarray:
         sols = ik_solutions(self.robot, self.flange(t_world_tcp), q_ref)
         sols = [q for q in sols if not self.world.in_collision(q, held)]
@@ -268,7 +288,7 @@ class _Planner:
             raise PlanningError(f"{what} is out of reach or only reachable in collision", source=field_name)
         return min(sols, key=lambda q: float(np.linalg.norm(q - q_ref)))
 
-    def line(self, t_a: np.ndarray, t_b: np.ndarray, q_a: np.ndarray, held: HeldBox | None,
+    def line(self, t_a: np.ndarray, t_b: np.ndarray, q_a: np.ndarray, held: Payload,
              what: str, field_name: str) -> np.ndarray:
         d = float(np.linalg.norm(t_b[:3, 3] - t_a[:3, 3]))
         n = max(2, int(math.ceil(d / self.o.line_step)) + 1)
@@ -291,24 +311,25 @@ class _Planner:
                                 source=field_name)
         return qs
 
-    def densify(self, qs: np.ndarray) -> np.ndarray:
+    def densify(self, qs: np.ndarray, resolution: float | None = None) -> np.ndarray:
+        step = self.o.joint_resolution if resolution is None else resolution
         out = [qs[:1]]
         for a, b in zip(qs[:-1], qs[1:]):
-            n = max(1, int(math.ceil(np.abs(b - a).max() / self.o.joint_resolution)))
+            n = max(1, int(math.ceil(np.abs(b - a).max() / step)))
             f = np.linspace(0.0, 1.0, n + 1)[1:, None]
             out.append(a + f * (b - a))
         return np.concatenate(out)
 
-    def edge_free(self, a: np.ndarray, b: np.ndarray, held: HeldBox | None) -> bool:
+    def edge_free(self, a: np.ndarray, b: np.ndarray, held: Payload) -> bool:
         return self.world.path_free(self.densify(np.array([a, b])), held) is None
 
-    def transfer(self, q_a: np.ndarray, q_b: np.ndarray, held: HeldBox | None, what: str) -> np.ndarray:
+    def transfer(self, q_a: np.ndarray, q_b: np.ndarray, held: Payload, what: str) -> np.ndarray:
         if self.edge_free(q_a, q_b, held):
             return np.array([q_a, q_b])
         path = self.rrt_connect(q_a, q_b, held, what)
         return self.shortcut(path, held)
 
-    def rrt_connect(self, q_a: np.ndarray, q_b: np.ndarray, held: HeldBox | None, what: str) -> np.ndarray:
+    def rrt_connect(self, q_a: np.ndarray, q_b: np.ndarray, held: Payload, what: str) -> np.ndarray:
         trees = [([q_a], [-1]), ([q_b], [-1])]
         step = self.o.rrt_step
 
@@ -353,7 +374,7 @@ class _Planner:
                     return np.array(path)
         raise PlanningError(f"{what}: no collision-free joint path found in {self.o.rrt_iterations} RRT iterations")
 
-    def shortcut(self, path: np.ndarray, held: HeldBox | None) -> np.ndarray:
+    def shortcut(self, path: np.ndarray, held: Payload) -> np.ndarray:
         pts = list(path)
         for _ in range(self.o.shortcut_attempts):
             if len(pts) < 3:
@@ -365,23 +386,45 @@ class _Planner:
                 pts = pts[: i + 1] + pts[j:]
         return np.array(pts)
 
-    def timed(self, name: str, kind: str, qs: np.ndarray, held: HeldBox | None) -> TimedMove:
-        wp = np.asarray(qs, dtype=float)
-        for _ in range(2):
-            traj = time_path(wp, self.vmax, self.amax, q_lower=self.robot.q_lower, q_upper=self.robot.q_upper)
-            path = PPoly(traj.coefficients, traj.breakpoints)
-            s = np.linspace(traj.breakpoints[0], traj.breakpoints[-1],
-                            max(2, int(math.ceil((traj.breakpoints[-1] - traj.breakpoints[0])
-                                                 / self.o.joint_resolution)) + 1))
-            bad = self.world.path_free(path(s), held)
-            if bad is None:
-                return TimedMove(name, traj, kind, wp, held, transform_world_to_tcp=self.tcp_world(wp[-1]))
-            # The spline strayed from the checked polyline: pin it down with a waypoint
-            # every joint_resolution (a second pass changes nothing, hence the small loop).
-            wp = self.densify(wp)
-        raise PlanningError(f"{name}: the timed path collides ({self.world.first_contact(path(s)[bad], held)})")
+    def timed(self, name: str, kind: str, qs: np.ndarray, held: Payload) -> TimedMove:
+        """Time the path through ``qs``; a joint transfer whose timed path still touches something
+        (a graze between the 0.02 rad checks of its RRT edges) is planned again, up to twice
+        (the seeded generator has moved on, so the new path differs and plans stay reproducible)."""
+        qs = np.asarray(qs, dtype=float)
+        for _ in range(3):
+            try:
+                return self._timed_once(name, kind, qs, held)
+            except PlanningError as e:
+                if kind != "joint" or len(qs) <= 2:
+                    raise
+                log.debug("%s: %s; planning the transfer again", name, e)
+                qs = self.shortcut(self.rrt_connect(qs[0], qs[-1], held, name), held)
+        return self._timed_once(name, kind, qs, held)
 
-    def gripper(self, name: str, q: np.ndarray, outputs, held: HeldBox | None) -> TimedMove:
+    def _timed_once(self, name: str, kind: str, qs: np.ndarray, held: Payload) -> TimedMove:
+        wp = np.asarray(qs, dtype=float)
+        problem = ""
+        for attempt in range(4):
+            try:
+                traj = time_path(wp, self.vmax, self.amax, q_lower=self.robot.q_lower, q_upper=self.robot.q_upper)
+            except PlanningError as e:  # the spline overshot a joint limit between waypoints
+                problem = str(e)
+            else:
+                path = PPoly(traj.coefficients, traj.breakpoints)
+                s = np.linspace(traj.breakpoints[0], traj.breakpoints[-1],
+                                max(2, int(math.ceil((traj.breakpoints[-1] - traj.breakpoints[0])
+                                                     / self.o.joint_resolution)) + 1))
+                bad = self.world.path_free(path(s), held)
+                if bad is None:
+                    return TimedMove(name, traj, kind, wp, held, transform_world_to_tcp=self.tcp_world(wp[-1]))
+                problem = f"the timed path collides ({self.world.first_contact(path(s)[bad], held)})"
+            # The spline strayed from the checked polyline: pin it down with waypoints on the
+            # polyline, every joint_resolution, then twice and four times as dense (a spline
+            # through dense points of a free polyline stays within a shrinking distance of it).
+            wp = self.densify(wp, self.o.joint_resolution / 2 ** max(0, attempt - 1) if attempt else None)
+        raise PlanningError(f"{name}: {problem}")
+
+    def gripper(self, name: str, q: np.ndarray, outputs, held: Payload) -> TimedMove:
         traj = time_path(q[None, :], self.vmax, self.amax)
         return TimedMove(name, traj, "gripper", q[None, :].copy(), held, tuple(outputs),
                          self.cell.gripper.io.settle_s, self.tcp_world(q))
@@ -419,7 +462,8 @@ def plan_tending(
     part_box : ((3,), (3,)) float, optional
         Finished part box in the vise frame [m] (:func:`part_box_in_vise`); default the stock box.
     world : CollisionWorld, optional
-        Built once with :func:`robotprog.collision.collision_world` (door open) and reused.
+        Its loaded robot is reused; the plan's world is the cell (door open) plus the
+        neighbouring blanks and tray parts (``TendingPlan.obstacles``).
     options : TendingOptions
     source : str, optional
         Setup sheet file name for errors.
@@ -448,71 +492,105 @@ def plan_tending(
             f"stock {width * MM_PER_M:.1f} mm wide does not fit the vise jaw opening "
             f"{cell.vise.jaw_opening_min * MM_PER_M:.1f}..{cell.vise.jaw_opening_max * MM_PER_M:.1f} mm",
             source="vise.jaw_opening")
-    world = world or collision_world(cell)
+    pmin, pmax = (stock.stock_min, stock.stock_max) if part_box is None else (
+        np.asarray(part_box[0], dtype=float), np.asarray(part_box[1], dtype=float))
+    psize = pmax - pmin
+    s_size = stock.size
+    # The blanks beside the one picked and the parts already in the out-tray are obstacles.
+    obstacles = (_neighbours(cell.rack, options.rack_slot, s_size, "rack_blank")
+                 + _neighbours(cell.out_tray, options.tray_slot, psize, "tray_part"))
+    world = collision_world(cell, world.robot if world is not None else None, obstacles=obstacles)
     robot = world.robot
     p = _Planner(cell, robot, world, options)
     home = np.asarray(cell.robot.home, dtype=float)
     r_home = p.tcp_world(home)[:3, :3]
-    pmin, pmax = (stock.stock_min, stock.stock_max) if part_box is None else (
-        np.asarray(part_box[0], dtype=float), np.asarray(part_box[1], dtype=float))
     t_vise = cell.vise.pose.matrix()
     t_rack = _slot(cell.rack, options.rack_slot, "rack")
     t_tray = _slot(cell.out_tray, options.tray_slot, "out_tray")
     # In rack and tray the box is centred on the slot, bottom at slot height.
     half = np.array([0.5, 0.5, 0.0])
-    s_size = stock.size
     g_rack, held_stock = _grasp(cell, t_rack, -half * s_size, s_size - half * s_size, r_home, options, "stock")
     g_vise_in, held_vise = _grasp(cell, t_vise, stock.stock_min, stock.stock_max, r_home, options, "stock")
     g_vise_out, held_part = _grasp(cell, t_vise, pmin, pmax, r_home, options, "part")
-    psize = pmax - pmin
     g_tray, _ = _grasp(cell, t_tray, -half * psize, psize - half * psize, r_home, options, "part")
     up = options.approach_height
+    # The fingers: open a clearance beyond the box on the way to it and after letting it go,
+    # closed on it while holding it.
+    fingers = cell.gripper.fingers
+    stock_width = float(min(s_size[0], s_size[1]))
+    part_width = float(min(psize[0], psize[1]))
+    open_stock = finger_boxes(cell, min(cell.gripper.opening_max, stock_width + 2 * fingers.clearance))
+    open_part = finger_boxes(cell, min(cell.gripper.opening_max, part_width + 2 * fingers.clearance))
+    closed_stock = finger_boxes(cell, stock_width)
+    closed_part = finger_boxes(cell, part_width)
+    held_tray = HeldBox.at(psize, np.linalg.inv(g_tray) @ _box_pose(t_tray, -half * psize, psize - half * psize))
+    with_stock = closed_stock + (held_stock,)
+    in_vise = closed_stock + (held_vise,)
+    with_part = closed_part + (held_part,)
+    to_tray = closed_part + (held_tray,)
 
     moves: list[TimedMove] = []
     io = cell.gripper.io
     # load
-    q_above_rack = p.pick_ik(_raise_up(g_rack, up), home, None, "above rack slot", "rack.pose")
-    app_rack = p.line(_raise_up(g_rack, up), g_rack, q_above_rack, None, "approach to rack slot", "rack.pose")
+    q_above_rack = p.pick_ik(_raise_up(g_rack, up), home, open_stock, "above rack slot", "rack.pose")
+    app_rack = p.line(_raise_up(g_rack, up), g_rack, q_above_rack, open_stock, "approach to rack slot",
+                      "rack.pose")
     q_grasp = app_rack[-1]
-    ret_rack = p.line(g_rack, _raise_up(g_rack, up), q_grasp, held_stock, "retreat from rack slot", "rack.pose")
-    q_above_vise = p.pick_ik(_raise_up(g_vise_in, up), ret_rack[-1], held_vise, "above vise", "vise.pose")
-    place = p.line(_raise_up(g_vise_in, up), g_vise_in, q_above_vise, held_vise, "place in vise", "vise.pose")
-    ret_vise = p.line(g_vise_in, _raise_up(g_vise_in, up), place[-1], None, "retreat from vise", "vise.pose")
-    moves.append(p.timed("load: home to above rack", "joint", p.transfer(home, q_above_rack, None, "home to rack"),
-                         None))
-    moves.append(p.timed("load: approach stock", "linear", app_rack, None))
-    moves.append(p.gripper("load: grip stock", q_grasp, io.grip, None))
-    moves.append(p.timed("load: retreat from rack", "linear", ret_rack, held_stock))
+    ret_rack = p.line(g_rack, _raise_up(g_rack, up), q_grasp, with_stock, "retreat from rack slot", "rack.pose")
+    q_above_vise = p.pick_ik(_raise_up(g_vise_in, up), ret_rack[-1], in_vise, "above vise", "vise.pose")
+    place = p.line(_raise_up(g_vise_in, up), g_vise_in, q_above_vise, in_vise, "place in vise", "vise.pose")
+    ret_vise = p.line(g_vise_in, _raise_up(g_vise_in, up), place[-1], open_stock, "retreat from vise", "vise.pose")
+    moves.append(p.timed("load: home to above rack", "joint",
+                         p.transfer(home, q_above_rack, open_stock, "home to rack"), open_stock))
+    moves.append(p.timed("load: approach stock", "linear", app_rack, open_stock))
+    moves.append(p.gripper("load: grip stock", q_grasp, io.grip, open_stock))
+    moves.append(p.timed("load: retreat from rack", "linear", ret_rack, with_stock))
     moves.append(p.timed("load: transfer to vise", "joint",
-                         p.transfer(ret_rack[-1], q_above_vise, held_stock, "rack to vise"), held_stock))
-    moves.append(p.timed("load: place in vise", "linear", place, held_vise))
-    moves.append(p.gripper("load: release stock", place[-1], io.release, None))
-    moves.append(p.timed("load: retreat from vise", "linear", ret_vise, None))
-    moves.append(p.timed("load: return home", "joint", p.transfer(ret_vise[-1], home, None, "vise to home"), None))
+                         p.transfer(ret_rack[-1], q_above_vise, with_stock, "rack to vise"), with_stock))
+    moves.append(p.timed("load: place in vise", "linear", place, in_vise))
+    moves.append(p.gripper("load: release stock", place[-1], io.release, in_vise))
+    moves.append(p.timed("load: retreat from vise", "linear", ret_vise, open_stock))
+    moves.append(p.timed("load: return home", "joint", p.transfer(ret_vise[-1], home, open_stock, "vise to home"),
+                         open_stock))
     # unload
-    q_above_part = p.pick_ik(_raise_up(g_vise_out, up), home, None, "above vise", "vise.pose")
-    app_part = p.line(_raise_up(g_vise_out, up), g_vise_out, q_above_part, None, "approach to part", "vise.pose")
-    ret_part = p.line(g_vise_out, _raise_up(g_vise_out, up), app_part[-1], held_part, "retreat from vise",
+    q_above_part = p.pick_ik(_raise_up(g_vise_out, up), home, open_part, "above vise", "vise.pose")
+    app_part = p.line(_raise_up(g_vise_out, up), g_vise_out, q_above_part, open_part, "approach to part",
                       "vise.pose")
-    held_tray = HeldBox.at(psize, np.linalg.inv(g_tray) @ _box_pose(t_tray, -half * psize, psize - half * psize))
-    q_above_tray = p.pick_ik(_raise_up(g_tray, up), ret_part[-1], held_tray, "above out-tray slot", "out_tray.pose")
-    place_tray = p.line(_raise_up(g_tray, up), g_tray, q_above_tray, held_tray, "place in out-tray",
+    ret_part = p.line(g_vise_out, _raise_up(g_vise_out, up), app_part[-1], with_part, "retreat from vise",
+                      "vise.pose")
+    q_above_tray = p.pick_ik(_raise_up(g_tray, up), ret_part[-1], to_tray, "above out-tray slot", "out_tray.pose")
+    place_tray = p.line(_raise_up(g_tray, up), g_tray, q_above_tray, to_tray, "place in out-tray",
                         "out_tray.pose")
-    ret_tray = p.line(g_tray, _raise_up(g_tray, up), place_tray[-1], None, "retreat from out-tray",
+    ret_tray = p.line(g_tray, _raise_up(g_tray, up), place_tray[-1], open_part, "retreat from out-tray",
                       "out_tray.pose")
     moves.append(p.timed("unload: home to above vise", "joint",
-                         p.transfer(home, q_above_part, None, "home to vise"), None))
-    moves.append(p.timed("unload: approach part", "linear", app_part, None))
-    moves.append(p.gripper("unload: grip part", app_part[-1], io.grip, None))
-    moves.append(p.timed("unload: retreat from vise", "linear", ret_part, held_part))
+                         p.transfer(home, q_above_part, open_part, "home to vise"), open_part))
+    moves.append(p.timed("unload: approach part", "linear", app_part, open_part))
+    moves.append(p.gripper("unload: grip part", app_part[-1], io.grip, open_part))
+    moves.append(p.timed("unload: retreat from vise", "linear", ret_part, with_part))
     moves.append(p.timed("unload: transfer to out-tray", "joint",
-                         p.transfer(ret_part[-1], q_above_tray, held_part, "vise to out-tray"), held_part))
-    moves.append(p.timed("unload: place in out-tray", "linear", place_tray, held_tray))
-    moves.append(p.gripper("unload: release part", place_tray[-1], io.release, None))
-    moves.append(p.timed("unload: retreat from out-tray", "linear", ret_tray, None))
+                         p.transfer(ret_part[-1], q_above_tray, with_part, "vise to out-tray"), with_part))
+    moves.append(p.timed("unload: place in out-tray", "linear", place_tray, to_tray))
+    moves.append(p.gripper("unload: release part", place_tray[-1], io.release, to_tray))
+    moves.append(p.timed("unload: retreat from out-tray", "linear", ret_tray, open_part))
     moves.append(p.timed("unload: return home", "joint",
-                         p.transfer(ret_tray[-1], home, None, "out-tray to home"), None))
-    for m in moves:
+                         p.transfer(ret_tray[-1], home, open_part, "out-tray to home"), open_part))
+    reject: list[TimedMove] = []
+    if cell.reject_bin is not None:
+        # A rejected part goes from above the vise to above the bin instead of the tray and
+        # is let go there, its bottom reject_drop above the rim; then home.
+        t_bin = cell.reject_bin.pose.matrix()
+        g_bin = g_vise_out.copy()
+        part_below_tcp = g_vise_out[2, 3] - (t_vise @ np.append(pmin, 1.0))[2]
+        g_bin[:3, 3] = (t_bin[0, 3], t_bin[1, 3],
+                        t_bin[2, 3] + cell.reject_bin.size[2] / 2 + options.reject_drop + part_below_tcp)
+        q_bin = p.pick_ik(g_bin, ret_part[-1], with_part, "above reject bin", "reject_bin.pose")
+        reject.append(p.timed("reject: transfer to bin", "joint",
+                              p.transfer(ret_part[-1], q_bin, with_part, "vise to reject bin"), with_part))
+        reject.append(p.gripper("reject: release part", q_bin, io.release, with_part))
+        reject.append(p.timed("reject: return home", "joint", p.transfer(q_bin, home, open_part, "bin to home"),
+                              open_part))
+    for m in moves + reject:
         m.waypoints.setflags(write=False)
     pmin = pmin.copy()
     pmax = pmax.copy()
@@ -521,7 +599,7 @@ def plan_tending(
     dt = time.perf_counter() - t0
     log.info("tending plan: %d moves, %.2f s of motion, planned in %.2f s", len(moves),
              sum(m.duration for m in moves), dt)
-    return TendingPlan(tuple(moves), stock, pmin, pmax, dt)
+    return TendingPlan(tuple(moves), stock, pmin, pmax, dt, obstacles, tuple(reject))
 
 
 def _box_pose(t_support: np.ndarray, bmin: np.ndarray, bmax: np.ndarray) -> np.ndarray:
@@ -529,3 +607,24 @@ def _box_pose(t_support: np.ndarray, bmin: np.ndarray, bmax: np.ndarray) -> np.n
     box[:3, :3] = t_support[:3, :3]
     box[:3, 3] = (t_support @ np.append((bmin + bmax) / 2, 1.0))[:3]
     return box
+
+
+def _neighbours(grid: SlotGrid, taken: tuple[int, int], size: np.ndarray, name: str) -> tuple[Box, ...]:
+    """A box of ``size`` [m] in every slot of ``grid`` but ``taken`` (the blanks waiting in the
+    rack, the parts already in the tray), each centred on its slot, bottom at slot height.
+    A slot closer than the box's own size to ``taken`` cannot hold one beside it and stays empty."""
+    out = []
+    pitch = np.array(grid.pitch)
+    for r in range(grid.rows):
+        for c in range(grid.columns):
+            if (r, c) == tuple(taken):
+                continue
+            offset = np.abs(np.array([c - taken[1], r - taken[0]], dtype=float)) * pitch
+            if (offset < np.asarray(size[:2]) - 1e-9).all():
+                continue
+            t = grid.slot_transform(r, c)
+            centre = (t @ np.array([0.0, 0.0, size[2] / 2, 1.0]))[:3]
+            yaw = float(np.arctan2(t[1, 0], t[0, 0]))
+            out.append(Box(f"{name}_r{r}c{c}", tuple(float(v) for v in size),
+                           Pose(tuple(float(v) for v in centre), (0.0, 0.0, yaw))))
+    return tuple(out)

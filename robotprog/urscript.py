@@ -32,12 +32,28 @@ DECIMALS = 6
 @dataclass(frozen=True)
 class MoveJ:
     """Joint move: ``q`` (6,) target [rad], ``a`` joint acceleration [rad/s^2], ``v`` speed [rad/s],
-    ``r`` blend radius [m] (0 = stop at the target)."""
+    ``r`` blend radius [m] (0 = stop at the target), ``t`` move time [s] (0 = as fast as ``a`` and
+    ``v`` allow; > 0: the controller stretches the move to take ``t``, URScript's ``t``, RAPID's
+    ``\\T``)."""
 
     q: tuple[float, ...]
     a: float
     v: float
     r: float = 0.0
+    t: float = 0.0
+
+
+@dataclass(frozen=True, eq=False)
+class ServoJ:
+    """A streamed joint trajectory: ``targets`` (n, 6) [rad], one every ``t`` [s], each sent with
+    ``servoj(q, 0, 0, t, lookahead_time, gain)``: the controller reaches target ``k`` at ``(k + 1) t``
+    after the first is sent (URScript posts it as a table and a loop). ``lookahead_time`` [s]
+    smooths the stream (0.03..0.2 s), ``gain`` is the controller's proportional gain (100..2000)."""
+
+    targets: np.ndarray
+    t: float
+    lookahead_time: float = 0.03
+    gain: float = 300.0
 
 
 @dataclass(frozen=True)
@@ -67,6 +83,16 @@ class SetOutputs:
 
 
 @dataclass(frozen=True)
+class WaitInput:
+    """Wait until digital input ``input`` reads ``level`` (the machine's door, its cycle);
+    ``label`` becomes a comment. How long is the machine's business, not the robot's."""
+
+    input: int
+    level: bool
+    label: str = ""
+
+
+@dataclass(frozen=True)
 class Wait:
     """Pause ``seconds`` [s]."""
 
@@ -80,7 +106,13 @@ class Comment:
     text: str
 
 
-Step = MoveJ | MoveL | SetOutputs | Wait | Comment
+Step = MoveJ | MoveL | ServoJ | SetOutputs | WaitInput | Wait | Comment
+
+
+def comment_text(text: str) -> str:
+    """One line of comment text: the first line, without trailing blanks (controllers' checkers
+    flag trailing spaces; a line break would end the comment)."""
+    return text.splitlines()[0].rstrip() if text.strip() else ""
 
 
 def _num(x: float) -> str:
@@ -137,10 +169,11 @@ def urscript_program(
     if not name.replace("_", "a").isalnum() or name[0].isdigit():
         raise PlanningError(f"URScript program name must be letters, digits and underscores, got {name!r}")
     lines = [f"def {name}():"]
-    lines += [f"  # {h}" for h in header]
+    lines += [f"  # {comment_text(h)}".rstrip() for h in header]
     if transform_flange_to_tcp is not None:
         lines.append(f"  set_tcp({ur_pose(transform_flange_to_tcp)})")
     to_ur = np.linalg.inv(TRANSFORM_BASE_LINK_TO_UR_BASE)
+    n_tables = 0
     for i, st in enumerate(steps):
         if isinstance(st, MoveJ):
             q = np.asarray(st.q, dtype=float)
@@ -149,8 +182,11 @@ def urscript_program(
             _positive(st.a, f"step {i} movej a")
             _positive(st.v, f"step {i} movej v")
             joints = "[" + ", ".join(_num(v) for v in q) + "]"
+            timed = f", t={_num(st.t)}" if st.t > 0 else ""
             blend = f", r={_num(st.r)}" if st.r > 0 else ""
-            lines.append(f"  movej({joints}, a={_num(st.a)}, v={_num(st.v)}{blend})")
+            lines.append(f"  movej({joints}, a={_num(st.a)}, v={_num(st.v)}{timed}{blend})")
+        elif isinstance(st, ServoJ):
+            n_tables = _servoj_lines(st, i, n_tables, lines)
         elif isinstance(st, MoveL):
             _positive(st.a, f"step {i} movel a")
             _positive(st.v, f"step {i} movel v")
@@ -159,19 +195,57 @@ def urscript_program(
             lines.append(f"  movel({pose}, a={_num(st.a)}, v={_num(st.v)}{blend})")
         elif isinstance(st, SetOutputs):
             if st.label:
-                lines.append(f"  # {st.label}")
+                lines.append(f"  # {comment_text(st.label)}".rstrip())
             for n, level in st.outputs:
                 if not 0 <= n <= 7:
                     raise PlanningError(f"step {i}: standard digital output {n} is not in 0..7")
                 lines.append(f"  set_standard_digital_out({n}, {'True' if level else 'False'})")
             if st.settle_s > 0:
                 lines.append(f"  sleep({_num(st.settle_s)})")
+        elif isinstance(st, WaitInput):
+            if not 0 <= st.input <= 7:
+                raise PlanningError(f"step {i}: standard digital input {st.input} is not in 0..7")
+            if st.label:
+                lines.append(f"  # {comment_text(st.label)}".rstrip())
+            lines.append(f"  while get_standard_digital_in({st.input}) != {'True' if st.level else 'False'}:")
+            lines.append("    sync()")
+            lines.append("  end")
         elif isinstance(st, Wait):
             _positive(st.seconds, f"step {i} wait")
             lines.append(f"  sleep({_num(st.seconds)})")
         elif isinstance(st, Comment):
-            lines.append(f"  # {st.text.splitlines()[0] if st.text else ''}")
+            lines.append(f"  # {comment_text(st.text)}".rstrip())
         else:
             raise PlanningError(f"step {i}: not a URScript step: {type(st).__name__}")
     lines.append("end")
     return "\n".join(lines) + "\n"
+
+
+#: Rows per servoj table: URScript lists are fixed-length values; short tables keep each
+#: assignment small for the controller's parser.
+SERVO_TABLE_ROWS = 250
+
+
+def _servoj_lines(st: ServoJ, i: int, n_tables: int, lines: list[str]) -> int:
+    """Append the table(s) and loop(s) streaming ``st``; returns the number of tables so far."""
+    q = np.asarray(st.targets, dtype=float)
+    if q.ndim != 2 or q.shape[1] != 6 or len(q) == 0 or not np.isfinite(q).all():
+        raise PlanningError(f"step {i}: servoj needs (n, 6) finite joint targets, got shape {q.shape}")
+    _positive(st.t, f"step {i} servoj t")
+    if not 0.03 <= st.lookahead_time <= 0.2:
+        raise PlanningError(f"step {i}: servoj lookahead_time must be in 0.03..0.2 s, got {st.lookahead_time}")
+    if not 100 <= st.gain <= 2000:
+        raise PlanningError(f"step {i}: servoj gain must be in 100..2000, got {st.gain}")
+    lines.append(f"  # stream {len(q)} targets, one every {_num(st.t)} s")
+    for k in range(0, len(q), SERVO_TABLE_ROWS):
+        chunk = q[k:k + SERVO_TABLE_ROWS]
+        n_tables += 1
+        rows = ", ".join("[" + ", ".join(_num(v) for v in row) + "]" for row in chunk)
+        lines.append(f"  table{n_tables} = [{rows}]")
+        lines.append("  k = 0")
+        lines.append(f"  while k < {len(chunk)}:")
+        lines.append(f"    servoj(table{n_tables}[k], 0, 0, {_num(st.t)}, {_num(st.lookahead_time)}, "
+                     f"{_num(st.gain)})")
+        lines.append("    k = k + 1")
+        lines.append("  end")
+    return n_tables

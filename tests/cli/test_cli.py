@@ -127,6 +127,7 @@ def test_plan_writes_everything(tmp_path):
     script = Path(summary["outputs"]["robot_program"]).read_text()
     assert "movej(" in script and "set_standard_digital_out(" in script
     assert summary["robot"]["motion_s"] > 0
+    assert summary["robot"]["program_s"] == pytest.approx(summary["robot"]["motion_s"], rel=0.05)
     assert summary["verify"]["max_gouge"] <= 0.01
     assert set(summary["seconds"]) >= {"load", "roughing", "raster", "post", "verify"}
 

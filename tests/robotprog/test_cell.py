@@ -75,6 +75,15 @@ _DELETE = object()
         ("enclosure.door.size", [0.02, 0.7, 0], r"enclosure\.door\.size\[2\]: must be > 0"),
         ("format", "factory.cell/9", r"format: expected 'factory.cell/1'"),
         ("robotz", {}, r"robotz: unknown key"),
+        ("gripper.fingers.length", 0, r"gripper\.fingers\.length: must be > 0"),
+        ("gripper.fingers.stroke", 0.02, r"gripper\.fingers\.stroke: two fingers of 0\.02 m stroke cannot open"),
+        ("gripper.body.size", [0.09, 0.12, 0.16], r"gripper\.body: reaches 27\.5 mm past the fingers' root"),
+        ("gripper.collision", {}, r"gripper\.collision: unknown key"),
+        ("machine.io.outputs.open_door", 0, r"machine\.io\.outputs\.open_door: output 0 already drives the gripper"),
+        ("machine.io.outputs.cycle_start", 1, r"machine\.io\.outputs\.open_door: output 1 is also cycle_start|"
+                                              r"machine\.io\.outputs\.cycle_start: output 1 is also open_door"),
+        ("machine.io.inputs.cycle_done", 0, r"machine\.io\.inputs\.cycle_done: input 0 is also door_open"),
+        ("reject_bin.size", [0.3, 0.3], r"reject_bin\.size: expected 3 numbers"),
     ],
 )
 def test_errors_name_the_field(raw: dict, path: str, value, message: str) -> None:
@@ -162,3 +171,19 @@ def test_default_cell_layout_is_consistent() -> None:
 def test_empty_document() -> None:
     with pytest.raises(CellError, match="cell: expected a mapping"):
         read_cell(None, source="empty.yaml")
+
+
+def test_gripper_machine_io_and_reject_bin_are_read(raw: dict) -> None:
+    cell = read_cell(raw)
+    f = cell.gripper.fingers
+    assert (f.length, f.width, f.thickness, f.stroke) == (0.045, 0.02, 0.008, 0.0425)
+    assert 2 * f.stroke >= cell.gripper.opening_max - cell.gripper.opening_min
+    (size_a, t_a), (size_b, t_b) = f.boxes(0.06)
+    # inner faces 60 mm apart, tips in the TCP plane, reaching the finger length up
+    assert t_a[1, 3] - f.thickness / 2 == pytest.approx(0.03) and t_b[1, 3] + f.thickness / 2 == pytest.approx(-0.03)
+    assert t_a[2, 3] + size_a[2] / 2 == pytest.approx(0.0) and size_a[2] == f.length
+    io = cell.machine
+    assert (io.open_door, io.close_door, io.cycle_start, io.door_open, io.cycle_done) == (1, 2, 3, 0, 1)
+    assert cell.reject_bin is not None and cell.reject_bin.name == "reject_bin"
+    bare = {k: v for k, v in raw.items() if k not in ("machine", "reject_bin")}
+    assert read_cell(bare).machine is None and read_cell(bare).reject_bin is None

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from factory.errors import PlanningError
-from robotprog.krl import krl_frame, krl_program
+from robotprog.krl import krl_frame, krl_program, ptp_percent
 from robotprog.rapid import rapid_module, rapid_pose
 from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Wait
 
@@ -36,9 +36,15 @@ def _steps():
         SetOutputs(((0, True),), 0.4, "grip"),
         MoveL.to(_pose([0.45, -0.12, 0.4], [math.pi, 0.0, 0.3]), 0.5, 0.25, r=0.01),
         MoveJ((0.5, -1.2, 1.4, -1.7, -1.5708, 0.25), 1.5, 1.0, r=0.02),
+        MoveJ((0.55, -1.15, 1.35, -1.7, -1.5708, 0.3), 1.5, 1.0, r=0.005, t=0.25),
+        MoveJ((0.6, -1.1, 1.3, -1.7, -1.5708, 0.35), 1.5, 1.0, t=0.25),
         Wait(1.5),
         SetOutputs(((0, False), (3, True)), 0.0),
     ]
+
+
+#: 100 % axis speeds of the golden KRL program [rad/s].
+AXIS_SPEED = np.full(6, 3.15)
 
 
 def _tcp() -> np.ndarray:
@@ -53,16 +59,16 @@ def test_rapid_golden():
 
 def test_krl_golden():
     src, dat = krl_program(_steps(), name="tending", transform_flange_to_tcp=_tcp(), axis_percent=50.0,
-                           header=("golden test",))
+                           axis_speed=AXIS_SPEED, header=("golden test",))
     assert src == (GOLDEN / "tending.src").read_text()
     assert dat == (GOLDEN / "tending.dat").read_text()
 
 
 def test_krl_every_point_used_is_declared():
-    src, dat = krl_program(_steps(), name="tending")
-    used = set(re.findall(r"^\s*(?:PTP|LIN) (\w+)$", src, re.M))
+    src, dat = krl_program(_steps(), name="tending", axis_speed=AXIS_SPEED)
+    used = set(re.findall(r"^\s*(?:PTP|LIN) (\w+)(?: C_PTP)?$", src, re.M))
     declared = set(re.findall(r"DECL E6(?:AXIS|POS) (\w+)=", dat))
-    assert used == declared and len(used) == 4
+    assert used == declared and len(used) == 6
     assert src.count("$OUT[1] = TRUE") == 1 and "$OUT[4] = TRUE" in src
 
 
@@ -70,10 +76,10 @@ def test_rapid_every_target_declared():
     text = rapid_module(_steps(), name="tending")
     used = set(re.findall(r"Move(?:AbsJ|L) (\w+)[\\,]", text))
     declared = set(re.findall(r"CONST (?:jointtarget|robtarget) (\w+) :=", text))
-    assert used == declared and len(used) == 4
+    assert used == declared and len(used) == 6
     for z in re.findall(r", (z\w+), tGripper", text):
         assert f"CONST zonedata {z} :=" in text
-    for v in re.findall(r", (v\w+), (?:fine|z\w+), tGripper", text):
+    for v in re.findall(r", (v\w+)(?:\\T:=[\d.]+)?, (?:fine|z\w+), tGripper", text):
         assert f"CONST speeddata {v} :=" in text
 
 
@@ -119,3 +125,22 @@ def test_malformed_steps_raise():
         krl_program([], axis_percent=0.0)
     with pytest.raises(PlanningError):
         rapid_module(["movej"])  # type: ignore[list-item]
+
+
+def test_timed_moves_state_their_time():
+    text = rapid_module(_steps(), name="tending")
+    assert text.count("vJoint\\T:=0.25, zBlend5, tGripper;") == 1
+    assert text.count("vJoint\\T:=0.25, fine, tGripper;") == 1
+    src, _ = krl_program(_steps(), name="tending", axis_speed=AXIS_SPEED)
+    # 0.05 rad in 0.25 s of 3.15 rad/s is 6.3 %: KRL takes whole percents, rounded up
+    assert src.count("BAS(#VEL_PTP, 7)") == 1 and "$APO.CPTP = 50" in src
+    with pytest.raises(PlanningError, match="axis speeds"):
+        krl_program(_steps(), name="tending")
+
+
+def test_krl_ptp_percent_never_slower():
+    a, b = np.zeros(6), np.array([0.3, -0.1, 0.0, 0.0, 0.0, 0.0])
+    assert ptp_percent(a, b, 1.0, np.full(6, 3.0)) == 10
+    assert ptp_percent(a, b, 0.999, np.full(6, 3.0)) == 11
+    assert ptp_percent(a, a, 1.0, np.full(6, 3.0)) == 1
+    assert ptp_percent(a, b, 0.01, np.full(6, 3.0)) == 100

@@ -137,10 +137,61 @@ def test_part_box_from_mesh_sits_in_stock(cell, world):
     plan = plan_tending(cell, sheet(100, 60, 20), part_box=(pmin, pmax), world=world)
     grip = {m.name: m for m in plan.moves}["unload: approach part"].transform_world_to_tcp
     assert grip[2, 3] < cell.vise.pose.matrix()[2, 3] + 0.016
-    # Lower than the gripper's collision box reaches past the TCP plus clearance: no grip.
-    thin = part_box_in_vise(stock, np.array([[5.0, 5.0, -20.0], [95.0, 55.0, -8.0]]))
-    with pytest.raises(PlanningError, match="gripper.collision"):
+    # 4 mm tall: the fingertips, kept 2 mm above the parallels, reach 2 mm below its top (3 needed).
+    thin = part_box_in_vise(stock, np.array([[5.0, 5.0, -20.0], [95.0, 55.0, -16.0]]))
+    with pytest.raises(PlanningError, match="too thin to grip") as e:
         plan_tending(cell, sheet(100, 60, 20), part_box=thin, world=world)
+    assert e.value.source == "gripper.fingers"
+
+
+def test_smallest_stock_the_default_gripper_takes_is_6_mm(cell, world):
+    # 3 mm of grip with the fingertips 2 mm above the rack: 6 mm; 5.9 mm leaves 2.95 mm
+    assert len(plan_tending(cell, sheet(104, 64, 6.0), world=world).moves) == 18
+    with pytest.raises(PlanningError, match="5.9 mm tall is too thin to grip"):
+        plan_tending(cell, sheet(104, 64, 5.9), world=world)
+
+
+@pytest.mark.parametrize("height", [10.0, 15.0])
+def test_plate_stock_is_gripped_from_above_in_rack_vise_and_tray(height, cell, world):
+    plan = plan_tending(cell, sheet(104, 64, height), world=world)
+    grips = {m.name: m.transform_world_to_tcp for m in plan.moves}
+    z_rack = cell.rack.slot_transform(0, 0)[2, 3]
+    z_vise = cell.vise.pose.matrix()[2, 3]
+    z_tray = cell.out_tray.slot_transform(0, 0)[2, 3]
+    for name, z in (("load: approach stock", z_rack), ("load: place in vise", z_vise),
+                    ("unload: place in out-tray", z_tray)):
+        depth = z + height / 1000.0 - grips[name][2, 3]  # fingertips below the box's top [m]
+        assert 0.003 - 1e-9 <= depth <= height / 2000.0 + 1e-9, (name, depth)
+    # the fingers and the blanks beside the picked one are in the proof
+    assert {b.name for b in plan.obstacles} >= {"rack_blank_r0c1", "rack_blank_r1c0", "tray_part_r0c1"}
+    for m in plan.moves:
+        assert any(getattr(b, "name", "") == "finger" for b in m.held), m.name
+    # the reject move is planned: from above the vise, over the bin, let go, home
+    assert [m.name for m in plan.reject] == ["reject: transfer to bin", "reject: release part", "reject: return home"]
+    start = {m.name: m for m in plan.moves}["unload: retreat from vise"].q_end
+    np.testing.assert_allclose(plan.reject[0].waypoints[0], start)
+    np.testing.assert_allclose(plan.reject[-1].q_end, cell.robot.home, atol=1e-9)
+    drop = plan.reject[1].transform_world_to_tcp
+    bin_ = cell.reject_bin
+    assert np.abs(drop[:2, 3] - np.array(bin_.pose.xyz[:2])).max() < 1e-6
+    assert drop[2, 3] > bin_.pose.xyz[2] + bin_.size[2] / 2
+    robot = world.robot
+    vmax = robot.v_max * cell.motion.speed_scaling
+    amax = np.array(cell.motion.acceleration_limits) * cell.motion.speed_scaling
+    for m in plan.reject[::2]:
+        smp = m.trajectory.resample(1000.0)
+        assert (np.abs(smp.qd) <= vmax * (1 + LIMIT_SLACK)).all() and (np.abs(smp.qdd) <= amax * (1 + LIMIT_SLACK)).all()
+
+
+def test_blanks_beside_the_picked_one_are_obstacles(cell, world):
+    import dataclasses
+
+    from robotprog.cell import SlotGrid
+
+    # rows 70 mm apart: a 60 mm blank leaves 10 mm to its neighbour, less than a finger and its clearance
+    tight = dataclasses.replace(cell, rack=SlotGrid(cell.rack.pose, 2, 3, (0.12, 0.07)))
+    with pytest.raises(PlanningError, match="finger <-> rack_blank_r1c0"):
+        plan_tending(tight, sheet(104, 60, 30), world=world)
 
 
 def test_rrt_connect_finds_free_deterministic_path_when_direct_move_collides(cell, world):

@@ -15,7 +15,8 @@ from factory.resources import FIXTURES
 from robotprog.cell import load_cell
 from robotprog.ik import TRANSFORM_BASE_LINK_TO_UR_BASE
 from robotprog.robots import load_robot
-from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Wait, ur_pose, urscript_program
+from robotprog.urscript import (SERVO_TABLE_ROWS, Comment, MoveJ, MoveL, ServoJ, SetOutputs, Wait, ur_pose,
+                                urscript_program)
 
 GOLDEN = Path(__file__).parent / "golden"
 
@@ -108,6 +109,10 @@ def test_negative_zero_is_printed_as_zero() -> None:
         ([MoveL.to(np.eye(4), a=1.0, v=float("nan"))], "movel v"),
         ([SetOutputs(((9, True),))], "output 9 is not in 0..7"),
         (["movej"], "not a URScript step"),
+        ([ServoJ(np.zeros((3, 5)), 0.008)], r"\(n, 6\) finite joint targets"),
+        ([ServoJ(np.zeros((3, 6)), 0.0)], "servoj t must be finite"),
+        ([ServoJ(np.zeros((3, 6)), 0.008, lookahead_time=0.01)], "lookahead_time"),
+        ([ServoJ(np.zeros((3, 6)), 0.008, gain=50.0)], "gain"),
     ],
 )
 def test_bad_steps(steps, message) -> None:
@@ -118,3 +123,20 @@ def test_bad_steps(steps, message) -> None:
 def test_bad_program_name() -> None:
     with pytest.raises(PlanningError, match="program name"):
         urscript_program([], name="1 bad-name")
+
+
+def test_servoj_tables_stream_every_target_in_order() -> None:
+    n = SERVO_TABLE_ROWS + 17
+    targets = np.linspace(-1.0, 1.0, n)[:, None] * np.arange(1, 7) / 7.0
+    text = urscript_program([ServoJ(targets, 0.008, 0.05, 400.0)])
+    tables = re.findall(r"^  (table\d+) = (\[.*\])$", text, re.M)
+    assert [t for t, _ in tables] == ["table1", "table2"]
+    rows = np.concatenate([np.array(eval(body), dtype=float) for _, body in tables])  # noqa: S307
+    np.testing.assert_allclose(rows, targets, atol=5e-7)
+    assert re.findall(r"while k < (\d+):", text) == [str(SERVO_TABLE_ROWS), "17"]
+    assert text.count("servoj(table1[k], 0, 0, 0.008, 0.05, 400.0)") == 1
+
+
+def test_timed_movej_states_t_before_r() -> None:
+    text = urscript_program([MoveJ((0.0,) * 6, a=1.0, v=1.0, r=0.01, t=0.25)])
+    assert "movej([0.0, 0.0, 0.0, 0.0, 0.0, 0.0], a=1.0, v=1.0, t=0.25, r=0.01)" in text

@@ -1,0 +1,38 @@
+"""The programs' consumers in tests: lark grammars for URScript and KRL (tests/robotprog/grammars),
+rapidchecker for RAPID."""
+
+from __future__ import annotations
+
+from functools import cache
+from pathlib import Path
+
+from lark import Lark, Tree
+
+GRAMMARS = Path(__file__).parent / "grammars"
+
+
+@cache
+def _parser(name: str) -> Lark:
+    return Lark((GRAMMARS / f"{name}.lark").read_text(), parser="lalr", lexer="contextual")
+
+
+def parse_urscript(text: str) -> Tree:
+    """Parse tree of a URScript program; raises lark's error on text outside the grammar."""
+    return _parser("urscript").parse(text)
+
+
+def parse_krl(src: str, dat: str) -> tuple[Tree, Tree]:
+    """Parse trees of a KRL ``.src`` and its ``.dat``; every PTP / LIN target must be declared in the ``.dat``."""
+    s, d = _parser("krl_src").parse(src), _parser("krl_dat").parse(dat)
+    used = {str(t.children[0]) for t in s.iter_subtrees() if t.data in ("ptp", "lin")}
+    declared = {str(t.children[1]) for t in d.iter_subtrees() if t.data == "decl"}
+    if used - declared:
+        raise ValueError(f"KRL points moved to but not declared in the .dat: {sorted(used - declared)}")
+    return s, d
+
+
+def rapid_errors(text: str) -> list[str]:
+    """rapidchecker's findings for a RAPID module (it prints them and exits 0, so tests read them here)."""
+    from rapidchecker.cli import check_file
+
+    return [str(e) for e in check_file(text)]

@@ -1,0 +1,100 @@
+"""Every post checked by its consumer: URScript and KRL by the lark grammars, RAPID by rapidchecker,
+for the golden programs and for random step lists."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import lark
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from robotprog.krl import krl_program
+from robotprog.rapid import rapid_module
+from robotprog.urscript import Comment, MoveJ, MoveL, ServoJ, SetOutputs, Wait, WaitInput, urscript_program
+from tests.robotprog.parsers import parse_krl, parse_urscript, rapid_errors
+
+GOLDEN = Path(__file__).parent / "golden"
+AXIS_SPEED = np.full(6, 3.15)
+
+
+def test_golden_programs_parse():
+    parse_urscript((GOLDEN / "pick_blank.script").read_text())
+    parse_krl((GOLDEN / "tending.src").read_text(), (GOLDEN / "tending.dat").read_text())
+    assert rapid_errors((GOLDEN / "tending.mod").read_text()) == []
+
+
+def test_the_checkers_reject_broken_programs():
+    script = (GOLDEN / "pick_blank.script").read_text()
+    with pytest.raises(lark.exceptions.LarkError):
+        parse_urscript(script.replace("movej([", "movej(["[:-1], 1))
+    with pytest.raises(lark.exceptions.LarkError):
+        parse_urscript(script.replace("\nend", "\n"))
+    src, dat = (GOLDEN / "tending.src").read_text(), (GOLDEN / "tending.dat").read_text()
+    with pytest.raises(lark.exceptions.LarkError):
+        parse_krl(src.replace("PTP XJ1", "PTP"), dat)
+    with pytest.raises(ValueError, match="XJ1"):
+        parse_krl(src, "\n".join(line for line in dat.splitlines() if "XJ1=" not in line) + "\n")
+    mod = (GOLDEN / "tending.mod").read_text()
+    assert rapid_errors(mod.replace("tGripper;", "tGripper", 1))
+    assert rapid_errors(mod.replace("\\T:=", "\\T=", 1))
+
+
+_angle = st.floats(-3.1, 3.1, allow_nan=False)
+_q = st.tuples(*[_angle] * 6)
+
+
+def _pose(xyz, rotvec) -> np.ndarray:
+    t = np.eye(4)
+    t[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
+    t[:3, 3] = xyz
+    return t
+
+
+_step = st.one_of(
+    st.builds(MoveJ, _q, st.floats(0.1, 5.0), st.floats(0.1, 3.0), st.sampled_from([0.0, 0.005, 0.02]),
+              st.sampled_from([0.0, 0.1, 0.25])),
+    st.builds(lambda xyz, rv, v, r: MoveL.to(_pose(xyz, rv), 0.5, v, r),
+              st.tuples(*[st.floats(-1.0, 1.0)] * 3), st.tuples(*[st.floats(-3.0, 3.0)] * 3),
+              st.floats(0.01, 1.0), st.sampled_from([0.0, 0.01])),
+    st.builds(lambda n, level, s: SetOutputs(((n, level),), s, "gripper"), st.integers(0, 7), st.booleans(),
+              st.sampled_from([0.0, 0.4])),
+    st.builds(Wait, st.floats(0.01, 10.0)),
+    st.builds(WaitInput, st.integers(0, 7), st.booleans(), st.sampled_from(["", "machine: door open"])),
+    st.builds(Comment, st.text("abc: ()-,.", max_size=20)),
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(_q, st.lists(_step, max_size=12))
+def test_random_urscript_and_krl_parse(start, steps):
+    steps = [MoveJ(start, 1.0, 1.0), *steps]
+    parse_urscript(urscript_program(steps, name="prop"))
+    src, dat = krl_program(steps, name="prop", axis_speed=AXIS_SPEED)
+    parse_krl(src, dat)
+
+
+# rapidchecker (pyparsing) takes about 1 s per module: fewer examples.
+@settings(max_examples=8, deadline=None)
+@given(_q, st.lists(_step, max_size=12))
+def test_random_rapid_passes_rapidchecker(start, steps):
+    assert rapid_errors(rapid_module([MoveJ(start, 1.0, 1.0), *steps], name="prop")) == []
+
+
+def test_an_empty_comment_leaves_no_trailing_space():
+    steps = [MoveJ((0.0,) * 6, 1.0, 1.0), Comment(""), Comment("  "), SetOutputs(((0, True),), 0.0, " ")]
+    for text in (urscript_program(steps), rapid_module(steps), *krl_program(steps)):
+        assert all(line == line.rstrip() for line in text.splitlines())
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(1, 600), st.floats(0.002, 0.02))
+def test_servoj_streams_parse(n, t):
+    targets = np.sin(np.linspace(0, math.pi, n))[:, None] * np.arange(6)
+    tree = parse_urscript(urscript_program([ServoJ(targets, t)], name="stream"))
+    calls = [c for c in tree.find_data("call") if c.children[0] == "servoj"]
+    assert len(calls) == math.ceil(n / 250)

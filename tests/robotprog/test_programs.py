@@ -1,0 +1,122 @@
+"""Posted programs run the proven motion (sample stock, random stock, random 15 mm plate stock): controller time within 5 % of the plan, the posted
+path collision-checked, the URScript table the plan's own samples."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from factory.errors import PlanningError
+from robotprog.controller import program_duration
+from robotprog.programs import (SERVO_PERIOD_S, check_posted_path, post_program, program_name,
+                                program_steps)
+from robotprog.tending import plan_tending
+from robotprog.urscript import ServoJ
+from tests.robotprog.parsers import parse_krl, parse_urscript, rapid_errors
+from tests.robotprog.test_tending import SAMPLE_STOCK, sheet
+
+_rng = np.random.default_rng(13)
+#: Random stock boxes [mm] (x 40..110, y 30..80, z 20..60) besides the samples'.
+RANDOM_STOCK = {f"random{k}": tuple(float(v) for v in np.round(_rng.uniform([40, 30, 20], [110, 80, 60]), 1))
+                for k in range(2)}
+#: and random 15 mm plate stock
+RANDOM_STOCK |= {f"plate{k}": (*(float(v) for v in np.round(_rng.uniform([40, 30], [110, 80]), 1)), 15.0)
+                 for k in range(2)}
+LANG_FILES = {"urscript": "part.script", "rapid": "part.mod", "krl": "part.src"}
+
+
+@pytest.fixture(scope="module")
+def plans(cell, world):
+    return {name: plan_tending(cell, sheet(*s), world=world) for name, s in {**SAMPLE_STOCK, **RANDOM_STOCK}.items()}
+
+
+@pytest.mark.parametrize("lang", sorted(LANG_FILES))
+@pytest.mark.parametrize("name", sorted({**SAMPLE_STOCK, **RANDOM_STOCK}))
+def test_controller_runs_the_planned_duration(name, lang, plans, cell, world):
+    plan = plans[name]
+    posted = post_program(lang, Path(LANG_FILES[lang]), cell, world, plan)
+    assert posted.planned_s == pytest.approx(plan.duration)
+    assert 0.95 * plan.duration <= posted.predicted_s <= 1.05 * plan.duration, (posted.predicted_s, plan.duration)
+    header = next(iter(posted.texts.values())).splitlines()[:6]
+    assert any(f"planned motion {plan.duration:.2f} s, controller {posted.predicted_s:.2f} s" in h for h in header)
+    # the number is the timer's on the posted steps, from home
+    again = program_duration(posted.steps, np.asarray(cell.robot.home), lang=lang, axis_speed=world.robot.v_max)
+    assert again == pytest.approx(posted.predicted_s)
+    # the consumer reads it (RAPID: rapidchecker takes ~25 s a program, so the bracket's only, below)
+    if lang == "urscript":
+        parse_urscript(posted.texts[Path("part.script")])
+    elif lang == "krl":
+        parse_krl(posted.texts[Path("part.src")], posted.texts[Path("part.dat")])
+
+
+def test_rapid_program_passes_rapidchecker(plans, cell, world):
+    posted = post_program("rapid", Path("bracket.mod"), cell, world, plans["bracket"])
+    assert rapid_errors(posted.texts[Path("bracket.mod")]) == []
+
+
+def test_urscript_table_is_the_proven_trajectory(plans, cell, world):
+    plan = plans["bracket"]
+    text = post_program("urscript", Path("bracket.script"), cell, world, plan).texts[Path("bracket.script")]
+    tables = re.findall(r"^  table\d+ = (\[.*\])$", text, re.M)
+    rows = np.concatenate([np.array(eval(t), dtype=float) for t in tables])  # noqa: S307 - our own numbers
+    steps = [s for s in program_steps(cell, world, plan, "urscript") if isinstance(s, ServoJ)]
+    assert len(rows) == sum(len(s.targets) for s in steps)
+    first = plan.moves[0]
+    n = len(steps[0].targets)
+    t = np.minimum(np.arange(1, n + 1) * SERVO_PERIOD_S, first.trajectory.duration)
+    q, _, _ = first.trajectory.sample(t)
+    np.testing.assert_allclose(rows[:n], q, atol=5e-7)
+    assert text.count("servoj(") == len(tables)
+
+
+def test_a_posted_path_into_an_obstacle_is_refused(plans, cell, world):
+    plan = plans["bracket"]
+    steps = program_steps(cell, world, plan, "rapid")
+    rng = np.random.default_rng(1)
+    robot = world.robot
+    while True:
+        bad = robot.q_lower + (robot.q_upper - robot.q_lower) * rng.random(robot.dof)
+        if world.in_collision(bad):
+            break
+    k = next(i for i, s in enumerate(steps) if i > 2 and hasattr(s, "t") and s.t > 0)
+    steps[k] = type(steps[k])(tuple(bad), steps[k].a, steps[k].v, steps[k].r, steps[k].t)
+    with pytest.raises(PlanningError, match="posted path collides"):
+        check_posted_path(world, plan, steps)
+
+
+def test_program_name():
+    assert program_name("bracket") == "bracket"
+    assert program_name("3d-part") == "p_3d_part"
+    assert program_name("") == "part"
+
+
+def test_programs_drive_the_machine_through_its_io(plans, cell, world):
+    io = cell.machine
+    plan = plans["bracket"]
+    texts = {lang: post_program(lang, Path(LANG_FILES[lang]), cell, world, plan).texts for lang in LANG_FILES}
+    ur = texts["urscript"][Path("part.script")]
+    lines = [ln.strip() for ln in ur.splitlines()]
+    seq = [ln for ln in lines if ln.startswith(("while get_standard_digital_in", "set_standard_digital_out"))
+           and not ln.startswith("set_standard_digital_out(0,")]
+    assert seq == [
+        f"while get_standard_digital_in({io.cycle_done}) != True:",
+        f"set_standard_digital_out({io.close_door}, False)", f"set_standard_digital_out({io.open_door}, True)",
+        f"while get_standard_digital_in({io.door_open}) != True:",
+        f"set_standard_digital_out({io.open_door}, False)", f"set_standard_digital_out({io.close_door}, True)",
+        f"while get_standard_digital_in({io.door_open}) != False:",
+        f"set_standard_digital_out({io.cycle_start}, True)",
+        f"while get_standard_digital_in({io.cycle_done}) != False:",
+        f"set_standard_digital_out({io.cycle_start}, False)",
+        f"while get_standard_digital_in({io.cycle_done}) != True:",
+        f"set_standard_digital_out({io.close_door}, False)", f"set_standard_digital_out({io.open_door}, True)",
+        f"while get_standard_digital_in({io.door_open}) != True:",
+    ]
+    # the cycle runs between the load's return home and the unload, with the arm standing
+    assert ur.index("# load: return home") < ur.index("# machine: close the door") < ur.index("# unload:")
+    mod = texts["rapid"][Path("part.mod")]
+    assert f"WaitDI di{io.cycle_done}, 0;" in mod and f"SetDO do{io.cycle_start}, 1;" in mod
+    src = texts["krl"][Path("part.src")]
+    assert f"WAIT FOR NOT $IN[{io.door_open + 1}]" in src and f"$OUT[{io.close_door + 1}] = TRUE" in src
