@@ -47,7 +47,8 @@ from factory.tending import RobotStateLog, log_cell
 from factory.verify import part_triangles, read_sheet
 from factory.views import heightfield_mesh
 from robotprog.cell import Cell, load_cell
-from robotprog.cellsim import EventSink, FaultModel, PartProcess, SimulationResult, simulate as run_simulation
+from robotprog.cellsim import (EventSink, FaultModel, PartProcess, SimulationResult, running_summary,
+                              simulate as run_simulation)
 from robotprog.collision import CollisionWorld, collision_world
 from robotprog.frames import setup_sheet_to_cell
 from robotprog.orders import Order
@@ -708,6 +709,8 @@ def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tup
                                                           _ns(e.time)))
         if queue.update(e, ended[e.order] if last_entry[e.order] == i else None):
             tl.add(e.time, "/cell/orders", queue.message(e.time))
+        if e.event == "sorted":  # the running figures, as each part reaches a tray
+            tl.add(e.time, "/cell/summary", cell_summary(running_summary(result, e.time), _ns(e.time)))
     makespan = float(result.summary["makespan_s"])
     tl.add(makespan, "/cell/summary", cell_summary(result.summary, _ns(makespan)))
 

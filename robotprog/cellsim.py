@@ -36,12 +36,12 @@ import logging
 import random
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from factory.errors import SchedulerError
 
 from .orders import Order
-from .scheduler import CellState, Event, SchedulerOptions, State, admit, initial_state, step
+from .scheduler import CellState, Event, Fault, SchedulerOptions, State, admit, initial_state, step
 
 log = logging.getLogger(__name__)
 
@@ -309,6 +309,59 @@ def simulate(
         elif not isinstance(proc, PartProcess):
             failed[o.id] = f"{o.part}: cannot be planned: {proc}"
     return _Sim(orders, processes, faults, options, failed, progress, sink).run()
+
+
+def running_summary(result: SimulationResult, t: float) -> dict[str, Any]:
+    """The run's figures over its first ``t`` seconds, with the keys of ``result.summary``.
+
+    Parts sorted by ``t`` (good after a passed inspection, rejected after a failed one or a
+    scrapped part), the robot's and machine's busy share of ``t``, parts per hour, cycle time and
+    faults by kind, all as the run stood at ``t`` [s]. Order counts, recoveries, failures and the
+    mean flow time are known when the run ends: before ``t`` reaches the makespan they are 0 (or
+    None), from then on the simulation's own.
+    """
+    ended = t >= float(result.summary["makespan_s"])
+    # the summary's makespan is rounded to the millisecond: at the end, count everything
+    horizon = float("inf") if ended else t
+    verdict: dict[int, bool] = {}  # job -> good, for the part now on its way to the trays
+    good = rejected = 0
+    faults: dict[str, int] = {}
+    kinds = {f.value for f in Fault}
+    for e in result.log:
+        if e.time > horizon:
+            break
+        if e.event == Event.INSPECT_PASS.value:
+            verdict[e.job] = True
+        elif e.event in (Event.INSPECT_FAIL.value, Event.UNLOADED_SCRAP.value):
+            verdict[e.job] = False
+        elif e.event == Event.SORTED.value:
+            if verdict.pop(e.job, True):
+                good += 1
+            else:
+                rejected += 1
+        if e.event in kinds:
+            faults[e.event] = faults.get(e.event, 0) + 1
+
+    def busy(*kinds_of: tuple[str, str | None]) -> float:
+        return sum(max(0.0, min(a.end, horizon) - a.start) for a in result.activities
+                   if any(a.resource == r and (act is None or a.action == act) for r, act in kinds_of))
+
+    robot = busy(("robot", None), ("camera", "locate"))
+    cutting = busy(("machine", "cut"))
+    return {
+        "makespan_s": round(t, 3),
+        "parts_good": good,
+        "parts_rejected": rejected,
+        "parts_per_hour": round(3600.0 * good / t, 3) if t > 0 else 0.0,
+        "robot_utilisation": round(robot / t, 4) if t > 0 else 0.0,
+        "machine_utilisation": round(cutting / t, 4) if t > 0 else 0.0,
+        "cycle_time_s": round(t / good, 3) if good else None,
+        "mean_flow_time_s": result.summary["mean_flow_time_s"] if ended else None,
+        "orders": dict(result.summary["orders"]) if ended else {"done": 0, "rejected": 0, "failed": 0},
+        "faults": faults,
+        "recoveries": result.summary["recoveries"] if ended else 0,
+        "failures": result.summary["failures"] if ended else 0,
+    }
 
 
 def process_of(processes: Mapping, order: Order) -> PartProcess | str | Exception | None:

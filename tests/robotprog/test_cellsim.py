@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from factory.errors import SchedulerError
-from robotprog.cellsim import Activity, FaultModel, LogEntry, OrderOutcome, PartProcess, simulate
+from robotprog.cellsim import Activity, FaultModel, LogEntry, OrderOutcome, PartProcess, running_summary, simulate
 from robotprog.orders import Order
 from robotprog.scheduler import SchedulerOptions, State
 
@@ -160,3 +160,25 @@ def test_the_sink_is_told_every_event_of_the_result_once(seed, rate, quantities)
             assert isinstance(told[i - 1], LogEntry) and told[i - 1].order == e.order
     # rack steps name their slot
     assert all((a.slot is not None) == (a.action in ("locate", "fetch", "missed_grasp")) for a in result.activities)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31), rate=st.floats(0.0, 0.4),
+       quantities=st.lists(st.integers(1, 3), min_size=1, max_size=4), share=st.floats(0.0, 1.0))
+def test_the_running_summary_grows_into_the_final_one(seed, rate, quantities, share):
+    """Counted from the log and activities as the run stood: at the end it agrees with the summary
+    the simulation keeps itself; before, it never runs ahead of it."""
+    orders = [Order(f"o{i + 1}", A if i % 2 else B, q, "steel", 0) for i, q in enumerate(quantities)]
+    result = simulate(orders, {A: PROC_A, B: PROC_B}, FaultModel(rate, rate, rate, rate, seed))
+    final = result.summary
+    end = final["makespan_s"]
+    last = running_summary(result, end)
+    for key in ("parts_good", "parts_rejected", "faults", "orders", "recoveries", "failures", "makespan_s"):
+        assert last[key] == final[key], key
+    # both round to the same places, from a makespan exact or rounded to the millisecond
+    for key, tol in (("robot_utilisation", 2e-4), ("machine_utilisation", 2e-4), ("parts_per_hour", 2e-3),
+                     ("cycle_time_s", 2e-3)):
+        assert last[key] == final[key] if final[key] is None else last[key] == pytest.approx(final[key], abs=tol), key
+    early = running_summary(result, end * share)
+    assert early["parts_good"] <= final["parts_good"] and early["parts_rejected"] <= final["parts_rejected"]
+    assert all(early["faults"].get(k, 0) <= n for k, n in final["faults"].items())

@@ -225,7 +225,11 @@ def test_order_queue_and_summary_end_as_the_run_reports(cell_log):
         assert (final[o["order"]].state, final[o["order"]].good) == (o["outcome"], o["good"])
     goods = [q.orders[0].good for q in queues]
     assert goods == sorted(goods)  # parts are only ever added
-    (summary,) = [m for topic, _, _, m in msgs if topic == "/cell/summary"]
+    summaries = [m for topic, _, _, m in msgs if topic == "/cell/summary"]
+    # the running figures as parts reach the trays, then the run's own summary
+    made = [m.parts_good + m.parts_rejected for m in summaries]
+    assert made == sorted(made) and len(summaries) == made[-1] + 1
+    summary = summaries[-1]
     s = run["summary"]
     assert summary.parts_good == s["parts_good"] and summary.makespan_s == pytest.approx(s["makespan_s"])
     assert summary.orders_done == s["orders"]["done"]
