@@ -33,8 +33,8 @@ Origin = Literal["top-front-left", "top-centre"]
 MATERIAL = "aluminium"
 UNITS: Units = "auto"
 ORIGIN: Origin = "top-front-left"
-ROUGH_TOOL = 1
-FINISH_TOOL = 3
+ROUGH_TOOL: int | None = None  # None: chosen from the library by reach and size
+FINISH_TOOL: int | None = None
 ALLOWANCE = 0.3  # [mm]
 SCALLOP = 0.005  # [mm]
 
@@ -44,8 +44,8 @@ StockOpt = Annotated[str | None, typer.Option("--stock", help="Stock size X,Y,Z 
 MaterialOpt = Annotated[str, typer.Option("--material", help="Stock material, a key of the tool library's cutting data.")]
 UnitsOpt = Annotated[Units, typer.Option("--units", help="Units of the mesh file; auto assumes mm and checks the size.")]
 OriginOpt = Annotated[Origin, typer.Option("--origin", help="Work origin: top of stock at its front-left corner or its centre.")]
-RoughToolOpt = Annotated[int, typer.Option("--rough-tool", help="Tool number for roughing (flat or bull-nose).")]
-FinishToolOpt = Annotated[int, typer.Option("--finish-tool", help="Tool number for finishing.")]
+RoughToolOpt = Annotated[int | None, typer.Option("--rough-tool", help="Tool number for roughing (flat or bull-nose); default: chosen by reach and size.")]
+FinishToolOpt = Annotated[int | None, typer.Option("--finish-tool", help="Tool number for finishing; default: chosen by reach and size.")]
 AllowanceOpt = Annotated[float, typer.Option("--allowance", help="Stock roughing leaves for finishing [mm].", min=0.0)]
 ScallopOpt = Annotated[float, typer.Option("--scallop", help="Target scallop height of finishing [mm].", min=1e-4)]
 StepdownOpt = Annotated[float | None, typer.Option("--stepdown", help="Roughing depth per level [mm].", min=0.01)]
@@ -66,7 +66,7 @@ class CamRequest:
 
     @classmethod
     def from_options(cls, part: Path, tools: Path | None, stock: str | None, material: str, units: Units,
-                     origin: Origin, rough_tool: int, finish_tool: int, allowance: float, scallop: float,
+                     origin: Origin, rough_tool: int | None, finish_tool: int | None, allowance: float, scallop: float,
                      stepdown: float | None, waterline: bool) -> "CamRequest":
         parse_triple(stock, "--stock")  # usage errors before any work
         plan = PlanOptions(
@@ -108,7 +108,7 @@ def compute_job(req: CamRequest, bars: StageProgress, watch: Stopwatch) -> Plann
             mesh_scale=loaded.scale,
             source=str(req.part),
         )
-        library.cutting_data(library.tool(req.plan.rough_tool), req.material)  # unknown material: fail early
+        library.material(req.material)  # unknown material: fail early
     job, timings = plan_job(
         part_work,
         setup,
