@@ -271,7 +271,8 @@ def _assemble(chains: list[np.ndarray], setup: Setup, name: str, kind: str, tool
     """
     safe_z = setup.safe_z
     if limit is not None and stock is not None:
-        chains = _clip_engagement(chains, tool, deep_stock(stock, limit.depth, limit.allowance), limit.depth)
+        deep = deep_stock(stock, limit.depth, limit.allowance, limit.grid_slack)
+        chains = _clip_engagement(chains, tool, deep, limit.depth)
     points: list[np.ndarray] = []
     motion: list[np.ndarray] = []
     starts = np.array([c[0, :2] for c in chains]).reshape(-1, 2)
@@ -307,10 +308,15 @@ class EngagementLimit:
     allowance : float
         Stock the earlier operations left on walls and floors on purpose [mm] (not rest
         material: see :mod:`cadcam.rest`).
+    grid_slack : bool
+        Also grow the part by a grid cell diagonal when telling that stock from rest
+        material (roughing stopped short of the walls); False after an operation finished
+        the walls (see :func:`cadcam.rest.excess`).
     """
 
     depth: float = 3.0
     allowance: float = 0.3
+    grid_slack: bool = True
 
 
 def _clip_engagement(chains: list[np.ndarray], tool: Tool, deep: Simulation, depth: float) -> list[np.ndarray]:

@@ -274,7 +274,7 @@ def plan_job(
         # for its loops), the raster must not take it in one deep pass either.
         if stock is not None and len(operations[-1].points) > 1:
             stock = model(operations)
-            engagement = EngagementLimit(depth=limit, allowance=options.finishing.allowance)
+            engagement = EngagementLimit(depth=limit, allowance=options.finishing.allowance, grid_slack=False)
     operations.append(timed("raster", lambda: raster_finishing(
         part, setup, finish_tool, finish_cutting, raster_options, progress=stage_progress("raster"), stock=stock,
         limit=engagement)))

@@ -34,10 +34,15 @@ log = logging.getLogger(__name__)
 _LEVEL_EPS = 1e-3
 
 
-def excess(sim: Simulation, allowance: float) -> np.ndarray:
-    """(ny, nx) float: stock above the part grown by ``allowance`` + a cell diagonal [mm] (module docstring)."""
+def excess(sim: Simulation, allowance: float, grid_slack: bool = True) -> np.ndarray:
+    """(ny, nx) float: stock above the part grown by ``allowance`` + a cell diagonal [mm] (module docstring).
+
+    ``grid_slack=False`` grows the part by ``allowance`` only: right for stock a tool has
+    finished against the walls (its side reached them), where a cell beside a wall holds
+    only what the tool's corner could not reach.
+    """
     g = sim.grid
-    reach = allowance + g.cell * math.sqrt(2.0)
+    reach = allowance + (g.cell * math.sqrt(2.0) if grid_slack else 0.0)
     k = int(math.ceil(reach / g.cell))
     di, dj = np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1))
     disc = np.hypot(di, dj) * g.cell <= reach
@@ -58,9 +63,9 @@ def rest_material(sim: Simulation, z: float, above: float, allowance: float) -> 
     return shapely.union_all(shapely.box(x - h, y - h, x + h, y + h))
 
 
-def deep_stock(sim: Simulation, above: float, allowance: float) -> Simulation:
+def deep_stock(sim: Simulation, above: float, allowance: float, grid_slack: bool = True) -> Simulation:
     """``sim`` with only the stock that lies more than ``above`` [mm] over the part; elsewhere ``-inf``."""
-    top = np.where(excess(sim, allowance) > above, sim.stock_top, -np.inf)
+    top = np.where(excess(sim, allowance, grid_slack) > above, sim.stock_top, -np.inf)
     top.setflags(write=False)
     return dataclasses.replace(sim, stock_top=top)
 
