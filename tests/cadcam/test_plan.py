@@ -71,7 +71,7 @@ def test_sample_never_gouges_and_never_crashes(sample, tmp_path):
     assert report.remaining_p95 <= TEST_PLAN.roughing.allowance + 0.05, report.to_dict()
     # No finishing tool buried, no rapid through stock, by the independent sweep probe.
     assert_safe(job, job.setup, moves, sweep_moves(moves.points, moves.motion, moves.tool,
-                                                   {t.number: t for t in job.tools}, job.setup, 0.5))
+                                                   {t.number: t for t in job.tools}, job.setup, 0.5), program.text)
     if shutil.which("rs274"):
         rs274_accepts(nc, job, tmp_path)
 

@@ -91,17 +91,29 @@ def test_a_rapid_into_stock_is_split_into_rapid_then_plunge(xy):
 def probe_plan(body: manifold3d.Manifold, options: PlanOptions = FAST, cell: float = 0.5, library=LIBRARY):
     setup, part = make_setup(manifold_to_trimesh(body))
     job, _ = plan_job(part, setup, library, part_name="p", options=options)
-    moves = parse_gcode(post_process(job, PostOptions()).text)
+    text = post_process(job, PostOptions()).text
+    moves = parse_gcode(text)
     tools = {t.number: t for t in job.tools}
     sw = sweep_moves(moves.points, moves.motion, moves.tool, tools, setup, cell)
-    return job, setup, moves, sw
+    return job, setup, moves, sw, text
 
 
-def assert_safe(job, setup, moves, sw) -> None:
+def finishing_moves(moves, text: str) -> np.ndarray:
+    """(n,) bool: moves of the program's finishing operations (after their ``(op k: ... [raster])`` comment)."""
+    kind = np.zeros(len(text.splitlines()) + 2, dtype=bool)
+    current = False
+    for i, line in enumerate(text.splitlines(), start=1):
+        if line.startswith("(op "):
+            current = "[raster]" in line or "[waterline]" in line
+        kind[i] = current
+    return kind[moves.line]
+
+
+def assert_safe(job, setup, moves, sw, text: str) -> None:
     feed = moves.motion != Motion.RAPID
-    finishing = {op.tool.number for op in job.operations if op.kind in ("raster", "waterline")}
-    for t in finishing:
-        sel = feed & (moves.tool == t)
+    fin = finishing_moves(moves, text) & feed
+    for t in {op.tool.number for op in job.operations if op.kind in ("raster", "waterline")}:
+        sel = fin & (moves.tool == t)
         assert sw.buried[sel].max(initial=0.0) <= LIMIT + SLACK, (t, float(sw.buried[sel].max()))
     hits = rapid_hits(sw, moves.motion)
     assert len(hits) == 0, [(int(moves.line[k]), float(sw.engagement[k])) for k in hits[:5]]
@@ -112,11 +124,11 @@ def assert_safe(job, setup, moves, sw) -> None:
 def test_a_slot_too_narrow_for_the_roughing_tool_is_rest_roughed_then_finished():
     body = manifold3d.Manifold.cube((40.0, 30.0, 10.0)) - manifold3d.Manifold.cube((24.0, 4.0, 7.0)).translate(
         (8.0, 13.0, 4.0))
-    job, setup, moves, sw = probe_plan(body)
+    job, setup, moves, sw, text = probe_plan(body)
     kinds = [(op.kind, op.tool.number) for op in job.operations]
     assert ("roughing", 6) in kinds, kinds
     assert job.parameters["unreached"] == []
-    assert_safe(job, setup, moves, sw)
+    assert_safe(job, setup, moves, sw, text)
 
 
 def test_a_hole_no_tool_fits_is_reported_and_left_alone():
@@ -124,12 +136,12 @@ def test_a_hole_no_tool_fits_is_reported_and_left_alone():
     library = dataclasses.replace(LIBRARY, tools=tuple(t for t in LIBRARY.tools if t.number != 6))
     body = manifold3d.Manifold.cube((30.0, 24.0, 8.0)) - manifold3d.Manifold.cylinder(10.0, 2.0, 2.0, 32).translate(
         (15.0, 12.0, 2.0))
-    job, setup, moves, sw = probe_plan(body, library=library)
+    job, setup, moves, sw, text = probe_plan(body, library=library)
     (u,) = job.parameters["unreached"]
     # Work coordinates: make_setup puts the part 2 mm in from the stock's front-left corner.
     assert u["x"] == pytest.approx(17.0, abs=1.0) and u["y"] == pytest.approx(14.0, abs=1.0)
     assert u["size_x"] <= 4.5 and u["depth"] > LIMIT
-    assert_safe(job, setup, moves, sw)
+    assert_safe(job, setup, moves, sw, text)
 
 
 @st.composite
@@ -157,3 +169,13 @@ def machinable_blocks(draw):
 def test_random_parts_plan_with_no_buried_finishing_tool_and_no_rapid_into_stock(body):
     options = dataclasses.replace(FAST, waterline=True)
     assert_safe(*probe_plan(body, options))
+
+
+def test_a_part_deeper_than_t1_reaches_plans_with_longer_tools():
+    # The issue's case: 34.5 mm deep (35.5 mm of stock with the default 1 mm on top).
+    body = manifold3d.Manifold.cube((24.0, 18.0, 34.5)) - manifold3d.Manifold.cube((10.0, 20.0, 12.0)).translate(
+        (-1.0, -1.0, 23.5))
+    job, setup, moves, sw, text = probe_plan(body)
+    assert float(setup.stock_size[2]) == pytest.approx(35.5)
+    assert all(op.tool.length >= 35.5 for op in job.operations)
+    assert_safe(job, setup, moves, sw, text)
