@@ -31,6 +31,7 @@ from scipy import ndimage
 
 from cadcam.dropcutter import TriangleIndex, build_index, drop_profile
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
+from cadcam.rest import deep_stock, engagement_ok
 from cadcam.verify import Simulation, clear_height
 from factory.errors import ToolpathError
 
@@ -258,14 +259,20 @@ def _simplify(p: np.ndarray, keep: np.ndarray, tol: float) -> np.ndarray:
 
 
 def _assemble(chains: list[np.ndarray], setup: Setup, name: str, kind: str, tool: Tool,
-              cutting: CuttingData, allowance: float, stock: Simulation | None = None) -> Operation:
+              cutting: CuttingData, allowance: float, stock: Simulation | None = None,
+              limit: EngagementLimit | None = None) -> Operation:
     """Chains of CL points cut in order; retract to ``safe_z``, rapid, descend between them.
 
     Descents rapid down to ``setup.clearance`` above the highest stock under the tool
     (from ``stock``, the material earlier operations left) and feed only the rest; without
-    a stock model the whole descent from ``safe_z`` is fed.
+    a stock model the whole descent from ``safe_z`` is fed. With ``limit`` (and ``stock``)
+    the chains are cut where a move would cut deeper than the limit (see
+    :class:`EngagementLimit`).
     """
     safe_z = setup.safe_z
+    if limit is not None and stock is not None:
+        deep = deep_stock(stock, limit.depth, limit.allowance, limit.grid_slack)
+        chains = _clip_engagement(chains, tool, deep, limit.depth)
     points: list[np.ndarray] = []
     motion: list[np.ndarray] = []
     starts = np.array([c[0, :2] for c in chains]).reshape(-1, 2)
@@ -290,6 +297,62 @@ def _assemble(chains: list[np.ndarray], setup: Setup, name: str, kind: str, tool
     return Operation(name, kind, tool, cutting, pts, np.concatenate(motion).astype(np.int8), allowance)
 
 
+@dataclass(frozen=True)
+class EngagementLimit:
+    """Keep finishing out of stock earlier operations could not clear.
+
+    Attributes
+    ----------
+    depth : float
+        Deepest a finishing move may cut into the stock model it is given [mm].
+    allowance : float
+        Stock the earlier operations left on walls and floors on purpose [mm] (not rest
+        material: see :mod:`cadcam.rest`).
+    grid_slack : bool
+        Also grow the part by a grid cell diagonal when telling that stock from rest
+        material (roughing stopped short of the walls); False after an operation finished
+        the walls (see :func:`cadcam.rest.excess`).
+    """
+
+    depth: float = 3.0
+    allowance: float = 0.3
+    grid_slack: bool = True
+
+
+def _clip_engagement(chains: list[np.ndarray], tool: Tool, deep: Simulation, depth: float) -> list[np.ndarray]:
+    """Chains split where a move would cut more than ``depth`` [mm] of the ``deep`` stock.
+
+    Every move is tested at its ends and at samples at most a grid cell apart; a move
+    failing anywhere is dropped with the runs of moves on either side kept as chains.
+    """
+    if not chains or not np.isfinite(deep.stock_top).any():
+        return chains
+    step = deep.grid.cell
+    out: list[np.ndarray] = []
+    sizes = np.array([len(c) for c in chains])
+    p = np.concatenate(chains)
+    a, b = p[:-1], p[1:]
+    n_s = np.maximum(np.ceil(np.linalg.norm(b[:, :2] - a[:, :2], axis=1) / step).astype(np.int64), 1) + 1
+    seg = np.repeat(np.arange(len(a)), n_s)
+    t = (np.arange(len(seg)) - np.repeat(np.cumsum(n_s) - n_s, n_s)) / np.repeat(n_s - 1, n_s)
+    q = a[seg] + t[:, None] * (b[seg] - a[seg])
+    ok_q = engagement_ok(deep, tool, q, depth)
+    seg_ok = np.ones(len(a), dtype=bool)
+    np.logical_and.at(seg_ok, seg, ok_q)
+    start = 0
+    dropped = 0
+    for n in sizes:
+        good = seg_ok[start:start + n - 1] if n > 1 else np.zeros(0, dtype=bool)
+        edges = np.diff(np.concatenate([[0], good.astype(np.int8), [0]]))
+        for s0, e0 in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+            out.append(p[start + s0:start + e0 + 1])
+        dropped += int((~good).sum())
+        start += n
+    if dropped:
+        log.info("finishing: %d moves left out, they would cut more than %.1f mm", dropped, depth)
+    return out
+
+
 # --------------------------------------------------------------------------- raster
 
 
@@ -301,6 +364,7 @@ def raster_finishing(
     options: FinishingOptions = FinishingOptions(),
     progress: Progress | None = None,
     stock: Simulation | None = None,
+    limit: EngagementLimit | None = None,
 ) -> Operation:
     """Zigzag drop-cutter finishing of the shallow areas of ``part``.
 
@@ -324,6 +388,8 @@ def raster_finishing(
     stock : Simulation, optional
         The stock earlier operations left (:func:`cadcam.verify.stock_after`); descents
         rapid through the air above it instead of feeding down from ``safe_z``.
+    limit : EngagementLimit, optional
+        With ``stock``: leave out every move that would cut deeper into it than this.
 
     Returns
     -------
@@ -386,7 +452,7 @@ def raster_finishing(
             last_line = j
 
     chains = _finish_chains(surface, chains_xy, options.tolerance)
-    return _assemble(chains, setup, "finish raster", "raster", tool, cutting, options.allowance, stock)
+    return _assemble(chains, setup, "finish raster", "raster", tool, cutting, options.allowance, stock, limit)
 
 
 def _slope(gz: np.ndarray, du: float, dv: float) -> np.ndarray:
@@ -467,6 +533,7 @@ def waterline_finishing(
     options: FinishingOptions = FinishingOptions(),
     progress: Progress | None = None,
     stock: Simulation | None = None,
+    limit: EngagementLimit | None = None,
 ) -> Operation:
     """Constant-z loops around the part, levels spaced for ``options.scallop`` on walls.
 
@@ -534,7 +601,8 @@ def waterline_finishing(
     if not loops:
         return _assemble([], setup, "finish waterline", "waterline", tool, cutting, options.allowance)
     chains = _order_loops(loops, closed)
-    return _assemble(chains, setup, "finish waterline", "waterline", tool, cutting, options.allowance, stock)
+    return _assemble(chains, setup, "finish waterline", "waterline", tool, cutting, options.allowance, stock,
+                     limit)
 
 
 #: Overlap [deg] of the waterline's slope range with the raster's, so their seam gets cut.

@@ -14,7 +14,8 @@ Read
     ``G61``/``G61.1``/``G64 [P Q]``, ``G80``, ``G53`` and ``G28`` Z retracts; ``M0 M1 M2 M3
     M4 M5 M6 M7 M8 M9 M30``, ``T S F``.
 Not read (error)
-    Other planes (``G18``/``G19``), cutter compensation (``G41``/``G42``), canned cycles,
+    ``G81``/``G83`` drilling cycles with ``G98``/``G99`` retract (absolute mode, no ``L``).
+    Other planes (``G18``/``G19``), cutter compensation (``G41``/``G42``), other canned cycles,
     inverse-time feed, ``G92``/``G10`` offsets, parameters and expressions (``#``, ``[ ]``),
     subroutines, axes other than X Y Z.
 
@@ -69,7 +70,8 @@ MAX_NUMBER = 1.0e9
 
 # G codes as round(10 * number) -> modal group (LinuxCNC's numbering; 0 = non-modal).
 _G_GROUP = {
-    0: 1, 10: 1, 20: 1, 30: 1, 800: 1,
+    0: 1, 10: 1, 20: 1, 30: 1, 800: 1, 810: 1, 830: 1,
+    980: 10, 990: 10,
     40: 0, 280: 0, 530: 0,
     170: 2,
     200: 6, 210: 6,
@@ -118,6 +120,12 @@ class _State:
     ended: bool = False
     pos: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))  # programmed, mm
     top: float = -math.inf  # highest tip Z reached [mm]
+    # Canned drilling cycles (G81, G83): sticky words [mm] and the retract mode.
+    retract_to_r: bool = False  # G99 (True) or G98 (False, LinuxCNC's default)
+    cycle_z: float = math.nan
+    cycle_r: float = math.nan
+    cycle_q: float = math.nan
+    cycle_clear: float = math.nan  # G98's retract height: Z where the cycles began
 
 
 def _err(msg: str, source: str | None, line: int) -> GcodeError:
@@ -319,7 +327,7 @@ def _execute(b: _Block, st: _State, out: _Out, ln: int, any_m6: bool, tol: float
             raise GcodeError(_G_REFUSED[code])
         if code not in _G_GROUP:
             c = f"{code / 10:g}"
-            if 810 <= code <= 890:
+            if code == 730 or 810 <= code <= 890:
                 raise GcodeError(f"canned cycle G{c} not supported")
             raise GcodeError(f"unsupported code G{c}")
         grp = _G_GROUP[code]
@@ -389,7 +397,11 @@ def _execute(b: _Block, st: _State, out: _Out, ln: int, any_m6: bool, tol: float
         st.absolute = groups[3] == 900
     if groups.get(4) is not None:
         st.ijk_absolute = groups[4] == 901
+    if groups.get(10) is not None:
+        st.retract_to_r = groups[10] == 990
     if groups.get(1) is not None:
+        if groups[1] in (810, 830) and st.motion not in (81, 83):
+            st.cycle_clear = math.nan  # entering canned cycles: G98 remembers this block's start Z
         st.motion = None if groups[1] == 800 else groups[1] // 10
 
     axes = [a for a in "XYZ" if a in w]
@@ -400,7 +412,9 @@ def _execute(b: _Block, st: _State, out: _Out, ln: int, any_m6: bool, tol: float
     elif axes:
         if st.motion is None:
             raise GcodeError("axis words without a motion mode (G0, G1, G2 or G3)")
-        if st.motion in (2, 3):
+        if st.motion in (81, 83):
+            _cycle(w, st, out, ln, tool_lengths, used)
+        elif st.motion in (2, 3):
             _arc(w, st, out, ln, tol, tool_lengths, used)
         else:
             _line(w, st, out, ln, tool_lengths)
@@ -545,6 +559,74 @@ def _arc(w: Mapping[str, float], st: _State, out: _Out, ln: int, tol: float,
     pts = discretize_arc(start + sh, tgt + sh, centre, sweep, tol)
     st.pos = tgt
     _record(out, pts, Motion.CUT, st, feed, ln)
+
+
+#: How far above the previous peck's depth G83 rapids back down [mm] (LinuxCNC: 0.010 inch).
+PECK_CLEARANCE = 0.254
+
+
+def _cycle(w: Mapping[str, float], st: _State, out: _Out, ln: int,
+           tool_lengths: Mapping[int, float] | None, used: set[str]) -> None:
+    """One hole of a G81 (drill) or G83 (peck drill) cycle, moved as LinuxCNC moves it.
+
+    Rapid over the hole at the higher of the current Z and the retract height, rapid down
+    to R, feed to Z (G83: in pecks of Q, rapid out to R after each and back down to
+    :data:`PECK_CLEARANCE` above the last depth), rapid out to R (G99) or to the Z the
+    cycles began at (G98). Z, R and Q are sticky; incremental (G91) cycles and L repeats
+    are refused.
+    """
+    if not st.absolute:
+        raise GcodeError("canned cycles in incremental distance mode (G91) not supported")
+    for k, name in (("Z", "cycle_z"), ("R", "cycle_r"), ("Q", "cycle_q")):
+        if k in w:
+            setattr(st, name, w[k] * st.scale)
+            used.add(k)
+    if math.isnan(st.cycle_z) or math.isnan(st.cycle_r):
+        raise GcodeError(f"G{st.motion} needs Z (hole bottom) and R (retract plane)")
+    if st.cycle_z > st.cycle_r:
+        raise GcodeError(f"G{st.motion}: hole bottom Z{st.cycle_z:g} above the R plane R{st.cycle_r:g}")
+    if st.motion == 83 and not st.cycle_q > 0:
+        raise GcodeError("G83 needs a peck depth Q > 0")
+    if st.motion == 81 and "Q" in w:
+        raise GcodeError("Q word with G81 (pecks are G83)")
+    if np.isnan(st.pos).any():
+        raise GcodeError(f"G{st.motion} from an unknown position")
+    feed = _feed(st)
+    sh = np.array([0.0, 0.0, _tip_shift(st, tool_lengths)])
+    x = w["X"] * st.scale if "X" in w else st.pos[0]
+    y = w["Y"] * st.scale if "Y" in w else st.pos[1]
+    r, bottom = st.cycle_r, st.cycle_z
+    pts: list[tuple[np.ndarray, int, float]] = []
+
+    def go(z: float, motion: int, xy=None) -> None:
+        p = np.array([*(xy if xy is not None else (x, y)), z])
+        pts.append((p, motion, feed if motion == Motion.CUT else math.nan))
+
+    z = float(st.pos[2])
+    if math.isnan(st.cycle_clear):
+        if z < r:  # preliminary move up to the R plane
+            pts.append((np.array([st.pos[0], st.pos[1], r]), Motion.RAPID, math.nan))
+            z = r
+        st.cycle_clear = z
+    clear = r if st.retract_to_r else max(st.cycle_clear, r)
+    over = max(z, clear)
+    go(over, Motion.RAPID)
+    if over != r:
+        go(r, Motion.RAPID)
+    if st.motion == 81:
+        go(bottom, Motion.CUT)
+    else:
+        depth = r
+        while depth > bottom:
+            if depth < r:
+                go(r, Motion.RAPID)
+                go(depth + PECK_CLEARANCE, Motion.RAPID)
+            depth = max(depth - st.cycle_q, bottom)
+            go(depth, Motion.CUT)
+    go(clear, Motion.RAPID)
+    for p, motion, f in pts:
+        st.pos = p
+        _record(out, (p + sh)[None, :], motion, st, f, ln)
 
 
 def _retract(b: _Block, st: _State, out: _Out, ln: int, code: int, axes: list[str],

@@ -1,9 +1,11 @@
 """From a part in work coordinates to a :class:`~cadcam.model.Job`: choose tools, order operations.
 
 The strategy is the one a machinist would program by hand for a single top-side setup:
-z-level roughing with a flat end mill, leaving an even allowance, then finishing with a
-ball end mill: waterline loops on steep walls and a raster (zigzag) drop-cutter pass on
-shallow areas.
+z-level roughing with a flat end mill, leaving an even allowance, rest roughing with
+narrower flat end mills where it could not go, then finishing with a ball end mill:
+waterline loops on steep walls and a raster (zigzag) drop-cutter pass on shallow areas.
+Finishing never enters stock the roughing left deeper than a set engagement; what no
+tool reaches is reported. Every rapid is checked against the in-process stock.
 """
 
 from __future__ import annotations
@@ -17,8 +19,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
-from cadcam.finishing import FinishingOptions, raster_finishing, waterline_finishing
+from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
 from cadcam.model import Job, Operation, Setup, Tool
+from cadcam.rest import excess, safe_rapids, unreached
 from cadcam.roughing import RoughingOptions, zlevel_roughing
 from cadcam.tools import ToolLibrary
 from cadcam.verify import stock_after
@@ -36,21 +39,31 @@ class PlanOptions:
 
     Attributes
     ----------
-    rough_tool : int
-        Tool number of the roughing end mill (must be flat or bull-nose).
-    finish_tool : int
-        Tool number of the finishing end mill (ball, bull-nose or flat).
+    rough_tool : int, optional
+        Tool number of the roughing end mill (must be flat or bull-nose). None: chosen from
+        the library by reach and size (:func:`choose_tools`).
+    finish_tool : int, optional
+        Tool number of the finishing end mill (ball, bull-nose or flat). None: chosen.
     roughing : RoughingOptions
     finishing : FinishingOptions
     waterline : bool
         Finish steep walls with waterline loops (otherwise the raster covers everything).
+    rest_roughing : bool
+        Rough what the roughing tool could not reach (narrow slots, small pockets and holes)
+        with the next smaller flat end mills of the library, from the in-process stock.
+    finish_engagement : float
+        Deepest a finishing move may cut into the stock earlier operations left [mm]:
+        finishing never descends where more than this is left above the part; such places
+        are reported as unreached (``Job.parameters["unreached"]``).
     """
 
-    rough_tool: int = 1
-    finish_tool: int = 3
+    rough_tool: int | None = None
+    finish_tool: int | None = None
     roughing: RoughingOptions = field(default_factory=RoughingOptions)
     finishing: FinishingOptions = field(default_factory=FinishingOptions)
     waterline: bool = True
+    rest_roughing: bool = True
+    finish_engagement: float = 3.0
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -77,6 +90,80 @@ def _checked_tool(library: ToolLibrary, number: int, part_depth: float, role: st
             source=library.source,
         )
     return tool
+
+
+#: A roughing end mill wider than this share of the stock's narrower side leaves most of the
+#: part's detail to rest roughing; below it, the widest end mill removes stock fastest.
+_ROUGH_SHARE_OF_WIDTH = 0.1
+
+
+def choose_tools(library: ToolLibrary, setup: Setup, options: PlanOptions) -> tuple[Tool, Tool]:
+    """The roughing and finishing tools: the options' numbers, or chosen by reach and size.
+
+    Every tool must reach the stock depth with its stick-out (``Tool.length``), or the holder
+    would hit the part. Roughing: the widest flat (else bull-nose) end mill no wider than a
+    tenth of the stock's narrower side, or the narrowest one that reaches if all are wider.
+    Finishing: the widest ball end mill that reaches and is no wider than the roughing tool
+    (so it fits wherever roughing went), else the narrowest reaching ball, else a reaching
+    bull-nose, else a flat end mill.
+
+    Raises
+    ------
+    ToolError
+        A named tool is missing, unfit or too short; or no tool in the library reaches the
+        depth for a role (naming the depth and the longest tool there is).
+    """
+    depth = float(setup.stock_size[2])
+    if options.rough_tool is not None:
+        rough = _checked_tool(library, options.rough_tool, depth, "roughing")
+    else:
+        rough = _pick_rough(library, setup, depth)
+    if options.finish_tool is not None:
+        finish = _checked_tool(library, options.finish_tool, depth, "finishing")
+    else:
+        finish = _pick_finish(library, depth, rough)
+    return rough, finish
+
+
+def _missing(library: ToolLibrary, what: str, depth: float, tools: list[Tool]) -> ToolError:
+    longest = max(tools, key=lambda t: t.length, default=None)
+    have = f"; the longest is T{longest.number} with {longest.length:g} mm" if longest else ""
+    return ToolError(f"no {what} in the library reaches the stock depth {depth:g} mm below its holder{have}",
+                     source=library.source)
+
+
+def _pick_rough(library: ToolLibrary, setup: Setup, depth: float) -> Tool:
+    mills = [t for t in library.tools if t.shape != "ball"]
+    reach = [t for t in mills if t.length >= depth]
+    if not reach:
+        raise _missing(library, "flat or bull-nose end mill for roughing", depth, mills)
+    width = float(min(setup.stock_size[0], setup.stock_size[1]))
+    fit = [t for t in reach if t.diameter <= _ROUGH_SHARE_OF_WIDTH * width]
+    if fit:
+        return max(fit, key=lambda t: (t.diameter, t.shape == "flat", -t.number))
+    return min(reach, key=lambda t: (t.diameter, t.shape != "flat", t.number))
+
+
+def _pick_finish(library: ToolLibrary, depth: float, rough: Tool) -> Tool:
+    reach = [t for t in library.tools if t.length >= depth]
+    for shape in ("ball", "bull", "flat"):
+        cands = [t for t in reach if t.shape == shape]
+        fit = [t for t in cands if t.diameter <= rough.diameter]
+        if fit:
+            return max(fit, key=lambda t: (t.diameter, -t.number))
+        if cands:
+            return min(cands, key=lambda t: (t.diameter, t.number))
+    raise _missing(library, "end mill for finishing", depth, list(library.tools))
+
+
+def rest_tools(library: ToolLibrary, rough: Tool) -> list[Tool]:
+    """Flat end mills narrower than ``rough``, widest first: one per diameter, the longest."""
+    by_d: dict[float, Tool] = {}
+    for t in library.tools:
+        if t.shape == "flat" and t.diameter < rough.diameter - 1e-9:
+            if t.diameter not in by_d or t.length > by_d[t.diameter].length:
+                by_d[t.diameter] = t
+    return [by_d[d] for d in sorted(by_d, reverse=True)]
 
 
 def plan_job(
@@ -107,20 +194,26 @@ def plan_job(
     Returns
     -------
     job : Job
-        Roughing, then waterline (if any steep walls) and raster finishing.
+        Roughing, rest roughing with narrower flat end mills where roughing left more than
+        ``options.finish_engagement``, then waterline (if any steep walls) and raster
+        finishing, which never cut deeper than ``options.finish_engagement`` into what the
+        roughing left. Every rapid below the safe height clears the in-process stock with
+        the whole tool (:func:`cadcam.rest.safe_rapids`). ``job.parameters["unreached"]``
+        lists the stock no tool could reach (:class:`cadcam.rest.Unreached` as dicts);
+        ``job.parameters["rapids"]`` how many rapids were checked and made safe.
     timings : PlanTimings
         Wall time spent computing each operation [s].
 
     Raises
     ------
     ToolError
-        A named tool is missing, unfit for its role, or too short for the stock.
+        A named tool is missing, unfit for its role, or too short for the stock; or no
+        tool in the library can rough or finish a stock this deep.
     ToolpathError
         An operation cannot be computed.
     """
-    depth = float(setup.stock_size[2])
-    rough_tool = _checked_tool(library, options.rough_tool, depth, "roughing")
-    finish_tool = _checked_tool(library, options.finish_tool, depth, "finishing")
+    rough_tool, finish_tool = choose_tools(library, setup, options)
+    triangles = np.asarray(part.triangles)
 
     def stage_progress(stage: str):
         if progress is None:
@@ -142,29 +235,68 @@ def plan_job(
         seconds.append((stage, time.perf_counter() - t0))
         return op
 
+    def model(ops: list[Operation]):
+        t0 = time.perf_counter()
+        sim = stock_after(ops, setup, triangles) if any(len(op.points) > 1 for op in ops) else None
+        seconds.append(("stock model", time.perf_counter() - t0))
+        return sim
+
     rough = timed("roughing", lambda: zlevel_roughing(part, setup, rough_tool, rough_cutting, options.roughing,
                                                        progress=stage_progress("roughing")))
-    # What roughing left lets finishing descend by rapid through air instead of feeding from safe_z.
-    t0 = time.perf_counter()
-    stock = stock_after([rough], setup, np.asarray(part.triangles)) if len(rough.points) > 1 else None
-    seconds.append(("stock model", time.perf_counter() - t0))
     operations = [rough]
+    # What roughing left lets finishing descend by rapid through air instead of feeding from safe_z.
+    stock = model(operations)
+    allowance = options.roughing.allowance
+    limit = options.finish_engagement
+    if options.rest_roughing and stock is not None:
+        for tool in rest_tools(library, rough_tool):
+            if not (excess(stock, allowance) > limit).any():
+                break
+            # The rest tool's own default stepdown and stepover (they scale with its diameter).
+            rest_options = dataclasses.replace(options.roughing, stepdown=None, stepover=None, helix_diameter=None,
+                                               min_helix_diameter=None)
+            cutting = library.cutting_data(tool, setup.material)
+            op = timed(f"rest T{tool.number}", lambda: zlevel_roughing(
+                part, setup, tool, cutting, rest_options, progress=stage_progress(f"rest T{tool.number}"),
+                rest=stock, rest_above=limit))
+            if len(op.points) > 1:
+                operations.append(op)
+                stock = model(operations)
+    left = unreached(stock, limit, allowance) if stock is not None else ()
+    for u in left:
+        log.warning("no tool reaches %s; finishing leaves it alone", u.describe())
+    engagement = EngagementLimit(depth=limit, allowance=allowance)
     if options.waterline:
         operations.append(timed("waterline", lambda: waterline_finishing(
             part, setup, finish_tool, finish_cutting, options.finishing,
-            progress=stage_progress("waterline"), stock=stock)))
+            progress=stage_progress("waterline"), stock=stock, limit=engagement)))
+        # The raster comes after the waterline: where that left a wall's skin (a hole too small
+        # for its loops), the raster must not take it in one deep pass either.
+        if stock is not None and len(operations[-1].points) > 1:
+            stock = model(operations)
+            engagement = EngagementLimit(depth=limit, allowance=options.finishing.allowance, grid_slack=False)
     operations.append(timed("raster", lambda: raster_finishing(
-        part, setup, finish_tool, finish_cutting, raster_options, progress=stage_progress("raster"), stock=stock)))
+        part, setup, finish_tool, finish_cutting, raster_options, progress=stage_progress("raster"), stock=stock,
+        limit=engagement)))
     dropped = [op.kind for op in operations if len(op.points) < 2]
     if dropped:
         log.info("nothing to cut for %s: dropped", ", ".join(dropped))
     operations = [op for op in operations if len(op.points) >= 2]
+    t0 = time.perf_counter()
+    safe_ops, checked, fixed = safe_rapids(operations, setup, triangles)
+    seconds.append(("rapid check", time.perf_counter() - t0))
 
     job = Job(
         part_name=part_name,
         setup=setup,
-        operations=tuple(operations),
+        operations=safe_ops,
         source_sha256=source_sha256,
-        parameters=options.to_dict(),
+        parameters={
+            **options.to_dict(),
+            "rough_tool": rough_tool.number,
+            "finish_tool": finish_tool.number,
+            "unreached": [u.to_dict() for u in left],
+            "rapids": {"checked": checked, "made_safe": fixed},
+        },
     )
     return job, PlanTimings(tuple(seconds))

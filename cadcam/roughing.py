@@ -68,6 +68,8 @@ from shapely.geometry.polygon import orient
 from shapely.ops import nearest_points
 
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
+from cadcam.rest import rest_material
+from cadcam.verify import Simulation
 from factory.errors import MeshError, ToolError, ToolpathError
 
 log = logging.getLogger(__name__)
@@ -605,8 +607,16 @@ def zlevel_roughing(
     cutting: CuttingData,
     options: RoughingOptions = RoughingOptions(),
     progress: Callable[[int, int], None] | None = None,
+    rest: Simulation | None = None,
+    rest_above: float = 0.0,
 ) -> Operation:
     """Clear the stock around ``part`` level by level, leaving ``options.allowance``.
+
+    With ``rest`` (the stock earlier operations left) this is *rest roughing*: at each
+    level only the regions within the tool radius of material that ``rest`` still holds
+    at that level, more than ``rest_above`` [mm] above the part (or the stock bottom
+    where there is no part), are cleared, and no level lies deeper than the tool's
+    stick-out below the stock top (what it cannot reach stays, for the caller to report).
 
     Parameters
     ----------
@@ -642,6 +652,8 @@ def zlevel_roughing(
         raise MeshError("part mesh is empty")
     p = _resolve(options, tool, setup)
     levels = _levels(part, setup, p)
+    if rest is not None:
+        levels = levels[levels >= float(setup.stock_max[2]) - tool.length - 1e-9]
     heights = [zq for z in levels for zq, _ in _forbidden_terms(float(z), p)]
     shadow = _shadows(part, heights)
 
@@ -663,6 +675,9 @@ def zlevel_roughing(
         allowed = rect.difference(forbidden)
         if cleared is not None:
             allowed = allowed.intersection(cleared)
+        if rest is not None:
+            material = rest_material(rest, z, rest_above, p.allowance)
+            allowed = allowed.intersection(material.buffer(p.radius, quad_segs=8))
         regions = [r for r in _polygons(allowed) if r.area > _MIN_AREA]
         plans = []
         for region in regions:
@@ -709,5 +724,6 @@ def zlevel_roughing(
         path.add([cur[0], cur[1], p.safe_z], Motion.RAPID)
     pts = np.array(path.points).reshape(-1, 3)
     motion = np.array(path.motion, dtype=np.int8)
-    return Operation(name="rough z-level", kind="roughing", tool=tool, cutting=cutting, points=pts,
+    name = "rough z-level" if rest is None else f"rest rough T{tool.number}"
+    return Operation(name=name, kind="roughing", tool=tool, cutting=cutting, points=pts,
                      motion=motion, allowance=p.allowance)

@@ -19,8 +19,12 @@ outside checkers) read it instead of the G-code. Format ``factory.setup/1``::
       "operations": [{"name": "rough z-level", "kind": "roughing", "tool": 1,
                       "spindle_rpm": …, "feed_mm_min": …, "allowance_mm": …,
                       "cut_mm": …, "rapid_mm": …, "estimated_s": …}],
-      "estimated_cycle_s": …
+      "estimated_cycle_s": …,
+      "unreached": [{"x": …, "y": …, "size_x": …, "size_y": …, "depth": …, "z_bottom": …}]
     }
+
+``unreached`` lists stock no tool in the library could reach [mm, work coordinates]: the
+program leaves it, finishing does not enter it (see :func:`cadcam.rest.unreached`).
 """
 
 from __future__ import annotations
@@ -73,6 +77,7 @@ def setup_sheet(job: Job, program: Program, program_name: str) -> dict[str, Any]
         "operations": operations,
         "estimated_cycle_s": round(program.total_time, 1),
         "gcode_lines": program.line_count,
+        "unreached": list(job.parameters.get("unreached", [])),
     }
 
 

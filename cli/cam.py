@@ -20,8 +20,8 @@ StockOpt = Annotated[str | None, typer.Option("--stock", help="Stock size X,Y,Z 
 MaterialOpt = Annotated[str, typer.Option("--material", help="Stock material, a key of the tool library's cutting data.")]
 UnitsOpt = Annotated[Units, typer.Option("--units", help="Units of the mesh file; auto assumes mm and checks the size.")]
 OriginOpt = Annotated[Origin, typer.Option("--origin", help="Work origin: top of stock at its front-left corner or its centre.")]
-RoughToolOpt = Annotated[int, typer.Option("--rough-tool", help="Tool number for roughing (flat or bull-nose).")]
-FinishToolOpt = Annotated[int, typer.Option("--finish-tool", help="Tool number for finishing.")]
+RoughToolOpt = Annotated[int | None, typer.Option("--rough-tool", help="Tool number for roughing (flat or bull-nose); default: chosen by reach and size.")]
+FinishToolOpt = Annotated[int | None, typer.Option("--finish-tool", help="Tool number for finishing; default: chosen by reach and size.")]
 AllowanceOpt = Annotated[float, typer.Option("--allowance", help="Stock roughing leaves for finishing [mm].", min=0.0)]
 ScallopOpt = Annotated[float, typer.Option("--scallop", help="Target scallop height of finishing [mm].", min=1e-4)]
 StepdownOpt = Annotated[float | None, typer.Option("--stepdown", help="Roughing depth per level [mm].", min=0.01)]
@@ -29,7 +29,7 @@ WaterlineOpt = Annotated[bool, typer.Option("--waterline/--no-waterline", help="
 
 
 def cam_request(part: Path, tools: Path | None, stock: str | None, material: str, units: Units, origin: Origin,
-                rough_tool: int, finish_tool: int, allowance: float, scallop: float, stepdown: float | None,
+                rough_tool: int | None, finish_tool: int | None, allowance: float, scallop: float, stepdown: float | None,
                 waterline: bool) -> CamRequest:
     """The request of one command line; a malformed or unmachinable ``--stock`` is a usage error before any work."""
     size = parse_triple(stock, "--stock")

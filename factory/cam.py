@@ -36,8 +36,8 @@ Origin = Literal["top-front-left", "top-centre"]
 MATERIAL = "aluminium"
 UNITS: Units = "auto"
 ORIGIN: Origin = "top-front-left"
-ROUGH_TOOL = 1
-FINISH_TOOL = 3
+ROUGH_TOOL: int | None = None  # None: chosen from the library by reach and size
+FINISH_TOOL: int | None = None
 ALLOWANCE = 0.3  # [mm]
 SCALLOP = 0.005  # [mm]
 
@@ -58,7 +58,7 @@ class CamRequest:
 
     @classmethod
     def from_options(cls, part: Path, tools: Path | None, stock: tuple[float, float, float] | None, material: str,
-                     units: Units, origin: Origin, rough_tool: int, finish_tool: int, allowance: float,
+                     units: Units, origin: Origin, rough_tool: int | None, finish_tool: int | None, allowance: float,
                      scallop: float, stepdown: float | None, waterline: bool) -> "CamRequest":
         """The request from the flat option values of ``factory toolpath`` and ``factory plan``."""
         plan = PlanOptions(
@@ -108,7 +108,7 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
             mesh_scale=loaded.scale,
             source=str(req.part),
         )
-        library.cutting_data(library.tool(req.plan.rough_tool), req.material)  # unknown material: fail early
+        library.material(req.material)  # unknown material: fail early
     job, timings = plan_job(
         part_work,
         setup,

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import math
+import re
+import shutil
+import subprocess
 
 import numpy as np
 import pytest
@@ -157,7 +160,10 @@ def test_dwell_and_path_modes_accepted():
     ("G0 X1 (open comment\n", 1, "not closed"),
     ("G0 X1 (a (nested) one)\n", 1, "nested"),
     ("G0 X0 Y0\nG41\n", 2, "compensation"),
-    ("G81 X1 Y1 Z-1 R1\n", 1, "canned cycle"),
+    ("G73 X1 Y1 Z-1 R1\n", 1, "canned cycle"),
+    ("G82 X1 Y1 Z-1 R1 P1\n", 1, "canned cycle"),
+    ("G0 X0 Y0 Z5\nG83 X1 Y1 Z-1 R1 F100\n", 2, "peck depth Q"),
+    ("G0 X0 Y0 Z5\nG91 G81 X1 Y1 Z-1 R1 F100\n", 2, "incremental"),
     ("G92 X0\n", 1, "G92"),
     ("G0 X#1\n", 1, "parameters"),
     ("G0 X[1+2]\n", 1, "expressions"),
@@ -252,3 +258,72 @@ def test_fuzz_valid_ish_blocks(blocks, with_lengths):
     assert np.isfinite(mv.points[1:][known]).all()
     cut = mv.motion[1:] == Motion.CUT
     assert np.all(mv.feed[1:][cut] > 0)
+
+
+DRILL_PROGRAM = """G21 G90 G17 G94
+T1 M6
+G43 H1
+G0 Z10
+G0 X0 Y0
+G99 G81 X5 Y5 Z-3 R1 F100
+X10
+G98 G83 X15 Y5 Z-5 R1 Q2
+X20 Z-4.5 Q1.3
+G80
+G0 Z10
+G0 X0 Y0 Z0.5
+G98 G81 X25 Y5 Z-2 R2
+G80
+M30
+"""
+
+
+def _distinct(points: np.ndarray) -> np.ndarray:
+    p = points[np.all(np.isfinite(points), axis=1)]
+    keep = np.ones(len(p), dtype=bool)
+    keep[1:] = np.any(np.abs(np.diff(p, axis=0)) > 1e-9, axis=1)
+    return p[keep]
+
+
+@pytest.mark.skipif(shutil.which("rs274") is None, reason="LinuxCNC's rs274 is not installed")
+def test_drill_cycles_move_as_linuxcnc_moves_them(tmp_path):
+    nc = tmp_path / "drill.ngc"
+    nc.write_text(DRILL_PROGRAM)
+    tbl = tmp_path / "tool.tbl"
+    tbl.write_text("T1 P1 Z30 D3 ;drill\n")
+    p = subprocess.run(["rs274", "-t", str(tbl), "-g", str(nc)], stdin=subprocess.DEVNULL,
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0, p.stdout[-1000:]
+    theirs = []
+    for m in re.finditer(r"STRAIGHT_(TRAVERSE|FEED)\(([-\d.]+), ([-\d.]+), ([-\d.]+)", p.stdout):
+        theirs.append((float(m.group(2)), float(m.group(3)), float(m.group(4)), m.group(1) == "FEED"))
+    theirs = np.array(theirs)
+    moves = parse_gcode(DRILL_PROGRAM)
+    ours = _distinct(np.column_stack([moves.points, moves.motion == Motion.CUT]))
+    theirs = _distinct(theirs)
+    # rs274 starts at the machine origin; the parser knows no position before the first X Y.
+    start = int(np.flatnonzero(np.all(np.abs(theirs - ours[0]) < 1e-4, axis=1))[0])
+    np.testing.assert_allclose(ours, theirs[start:], atol=1e-4)
+    # Feeds: one per G81 hole (3), G83 pecks of 2 mm to -5 (3) and of 1.3 mm to -4.5 (5).
+    assert (moves.motion == Motion.CUT).sum() == 11
+
+
+@settings(max_examples=40, deadline=None)
+@given(r=st.floats(0.5, 5.0), depth=st.floats(0.5, 30.0), q=st.floats(0.3, 8.0), start=st.floats(-3.0, 20.0),
+       g99=st.booleans())
+def test_peck_drilling_reaches_the_bottom_in_pecks_and_never_feeds_sideways(r, depth, q, start, g99):
+    bottom = r - depth
+    prog = (f"G0 X0 Y0 Z{start:.4f}\n{'G99' if g99 else 'G98'} G83 X3 Y4 Z{bottom:.4f} R{r:.4f} Q{q:.4f} F100\n"
+            "G80\nM30\n")
+    moves = parse_gcode(prog)
+    p, feed = moves.points, moves.motion == Motion.CUT
+    a, b = p[:-1], p[1:]
+    cut = feed[1:]
+    assert np.allclose(b[cut, :2], [3.0, 4.0]) and np.allclose(a[cut, :2], [3.0, 4.0])
+    assert np.all(b[cut, 2] < a[cut, 2])  # every feed goes down
+    rr, zz, qq = (round(v, 4) for v in (r, bottom, q))
+    assert p[-1, 2] == pytest.approx(rr if g99 else max(rr, round(start, 4)))
+    assert np.min(b[cut, 2]) == pytest.approx(zz)
+    assert int(cut.sum()) == math.ceil((rr - zz) / qq - 1e-9)
+    # A peck removes at most Q of new depth (plus the clearance it re-enters above the last one).
+    assert np.all(a[cut, 2] - b[cut, 2] <= qq + 0.254 + 1e-6)

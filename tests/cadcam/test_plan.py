@@ -21,6 +21,8 @@ from cadcam.post import PostOptions, linuxcnc_tool_table, post_process
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
 from cadcam.verify import VerifyOptions, simulate
+from tests.cadcam.sweep import sweep_moves
+from tests.cadcam.test_rest import assert_safe
 from tests.conftest import SAMPLES, manifold_to_trimesh
 
 LIBRARY = load_tool_library()
@@ -30,6 +32,12 @@ SAMPLE_PARTS = sorted(SAMPLES.glob("*.stl"))
 
 
 def plan_post_verify(part_mesh, name: str, tmp_path: Path, options: PlanOptions = TEST_PLAN, cell: float = 0.2):
+    job, program, report, nc, _ = plan_post_verify_moves(part_mesh, name, tmp_path, options, cell)
+    return job, program, report, nc
+
+
+def plan_post_verify_moves(part_mesh, name: str, tmp_path: Path, options: PlanOptions = TEST_PLAN,
+                           cell: float = 0.2):
     setup, part = make_setup(part_mesh)
     job, _ = plan_job(part, setup, LIBRARY, part_name=name, options=options)
     program = post_process(job, PostOptions())
@@ -38,7 +46,7 @@ def plan_post_verify(part_mesh, name: str, tmp_path: Path, options: PlanOptions 
     sim, report = simulate(moves, tools, setup, np.asarray(part.triangles), VerifyOptions(cell=cell))
     nc = tmp_path / f"{name}.nc"
     nc.write_text(program.text)
-    return job, program, report, nc
+    return job, program, report, nc, moves
 
 
 def rs274_accepts(nc: Path, job, tmp_path: Path) -> None:
@@ -55,12 +63,15 @@ needs_rs274 = pytest.mark.skipif(shutil.which("rs274") is None,
 
 @pytest.mark.parametrize("sample", SAMPLE_PARTS, ids=lambda p: p.stem)
 def test_sample_never_gouges_and_never_crashes(sample, tmp_path):
-    job, program, report, nc = plan_post_verify(load_part(sample).mesh, sample.stem, tmp_path)
+    job, program, report, nc, moves = plan_post_verify_moves(load_part(sample).mesh, sample.stem, tmp_path)
     assert [op.kind for op in job.operations][0] == "roughing"
     assert report.max_gouge <= 0.01, report.to_dict()
     assert report.rapid_crashes == (), report.rapid_crashes[:3]
     # Finishing actually finished: most of the surface is within the roughing allowance.
     assert report.remaining_p95 <= TEST_PLAN.roughing.allowance + 0.05, report.to_dict()
+    # No finishing tool buried, no rapid through stock, by the independent sweep probe.
+    assert_safe(job, job.setup, moves, sweep_moves(moves.points, moves.motion, moves.tool,
+                                                   {t.number: t for t in job.tools}, job.setup, 0.5), program.text)
     if shutil.which("rs274"):
         rs274_accepts(nc, job, tmp_path)
 

@@ -1,0 +1,215 @@
+"""What earlier operations left: rest material, unreached features, and rapids made safe.
+
+All three work from the in-process stock model (:func:`cadcam.verify.stock_after`), a
+heightfield of the stock top on a grid, and the part's upper envelope on the same grid.
+
+*Excess* is the stock above the part at a grid point, the part taken grown sideways by
+the roughing allowance plus a cell diagonal: the thin skin of allowance roughing leaves
+on a wall is not rest material (the grid cannot tell it from a hole beside the wall
+otherwise). Where there is no part (through holes, outside it) the stock bottom is the
+floor.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import shapely
+from scipy import ndimage
+from shapely.geometry import Polygon
+from shapely.geometry.base import BaseGeometry
+
+from cadcam.model import Motion, Operation, Setup, Tool
+from cadcam.verify import Simulation, VerifyOptions, clear_height, operation_moves, simulate, simulate_snapshots
+
+log = logging.getLogger(__name__)
+
+#: Material less than this above a level counts as the level itself [mm].
+_LEVEL_EPS = 1e-3
+
+
+def excess(sim: Simulation, allowance: float, grid_slack: bool = True) -> np.ndarray:
+    """(ny, nx) float: stock above the part grown by ``allowance`` + a cell diagonal [mm] (module docstring).
+
+    ``grid_slack=False`` grows the part by ``allowance`` only: right for stock a tool has
+    finished against the walls (its side reached them), where a cell beside a wall holds
+    only what the tool's corner could not reach.
+    """
+    g = sim.grid
+    reach = allowance + (g.cell * math.sqrt(2.0) if grid_slack else 0.0)
+    k = int(math.ceil(reach / g.cell))
+    di, dj = np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1))
+    disc = np.hypot(di, dj) * g.cell <= reach
+    part = np.where(np.isfinite(sim.part_top), sim.part_top, -np.inf)
+    grown = ndimage.maximum_filter(part, footprint=disc, mode="constant", cval=-np.inf)
+    return sim.stock_top - np.maximum(grown, sim.stock_bottom)
+
+
+def rest_material(sim: Simulation, z: float, above: float, allowance: float) -> BaseGeometry:
+    """XY area of the grid cells whose stock reaches above ``z`` with more than ``above`` [mm] of excess."""
+    g = sim.grid
+    mask = (sim.stock_top > z + _LEVEL_EPS) & (excess(sim, allowance) > above)
+    jj, ii = np.nonzero(mask)
+    if not len(jj):
+        return Polygon()
+    h = 0.5 * g.cell
+    x, y = g.x0 + ii * g.cell, g.y0 + jj * g.cell
+    return shapely.union_all(shapely.box(x - h, y - h, x + h, y + h))
+
+
+def deep_stock(sim: Simulation, above: float, allowance: float, grid_slack: bool = True) -> Simulation:
+    """``sim`` with only the stock that lies more than ``above`` [mm] over the part; elsewhere ``-inf``."""
+    top = np.where(excess(sim, allowance, grid_slack) > above, sim.stock_top, -np.inf)
+    top.setflags(write=False)
+    return dataclasses.replace(sim, stock_top=top)
+
+
+def engagement_ok(deep: Simulation, tool: Tool, points: np.ndarray, limit: float) -> np.ndarray:
+    """(n,) bool: a tool tip at each of ``points`` cuts at most ``limit`` [mm] of the ``deep`` stock.
+
+    ``deep`` comes from :func:`deep_stock`; only tips near its stock are tested.
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    ok = np.ones(len(pts), dtype=bool)
+    present = np.isfinite(deep.stock_top)
+    if not present.any() or not len(pts):
+        return ok
+    g = deep.grid
+    k = int(math.ceil((tool.radius + 2 * g.cell * math.sqrt(2.0)) / g.cell))
+    near = ndimage.binary_dilation(present, structure=np.ones((2 * k + 1, 2 * k + 1), dtype=bool))
+    i = np.clip(np.rint((pts[:, 0] - g.x0) / g.cell).astype(np.int64), 0, g.nx - 1)
+    j = np.clip(np.rint((pts[:, 1] - g.y0) / g.cell).astype(np.int64), 0, g.ny - 1)
+    test = np.flatnonzero(near[j, i])
+    if len(test):
+        ok[test] = pts[test, 2] >= clear_height(deep, tool, pts[test, :2]) - limit
+    return ok
+
+
+@dataclass(frozen=True)
+class Unreached:
+    """Stock no operation could remove and finishing leaves alone.
+
+    Attributes
+    ----------
+    x, y : float
+        Centre of the region's bounding box [mm], work coordinates.
+    size_x, size_y : float
+        Bounding box size [mm].
+    depth : float
+        Most stock left above the part there [mm].
+    z_bottom : float
+        Lowest part surface (or stock bottom) under it [mm].
+    """
+
+    x: float
+    y: float
+    size_x: float
+    size_y: float
+    depth: float
+    z_bottom: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: round(v, 2) for k, v in dataclasses.asdict(self).items()}
+
+    def describe(self) -> str:
+        return (f"{self.size_x:.1f} x {self.size_y:.1f} mm near X{self.x:.1f} Y{self.y:.1f}, "
+                f"{self.depth:.1f} mm of stock down to Z{self.z_bottom:.1f}")
+
+
+def unreached(sim: Simulation, above: float, allowance: float) -> tuple[Unreached, ...]:
+    """Connected regions where more than ``above`` [mm] of stock is left over the part."""
+    ex = excess(sim, allowance)
+    deep = ex > above
+    labels, n = ndimage.label(deep, structure=np.ones((3, 3), dtype=bool))
+    if n == 0:
+        return ()
+    g = sim.grid
+    floor = np.maximum(np.where(np.isfinite(sim.part_top), sim.part_top, -np.inf), sim.stock_bottom)
+    out = []
+    for k, sl in enumerate(ndimage.find_objects(labels), start=1):
+        m = labels[sl] == k
+        js, is_ = sl
+        x0, x1 = g.x0 + (is_.start - 0.5) * g.cell, g.x0 + (is_.stop - 0.5) * g.cell
+        y0, y1 = g.y0 + (js.start - 0.5) * g.cell, g.y0 + (js.stop - 0.5) * g.cell
+        out.append(Unreached(
+            x=0.5 * (x0 + x1), y=0.5 * (y0 + y1), size_x=x1 - x0, size_y=y1 - y0,
+            depth=float(ex[sl][m].max()), z_bottom=float(floor[sl][m].min()),
+        ))
+    return tuple(sorted(out, key=lambda u: (-u.depth, u.x, u.y)))
+
+
+def _grown(tool: Tool, by: float) -> Tool:
+    """The tool made ``by`` [mm] wider all round (same shape): conservative for a sampled stock."""
+    d = tool.diameter + 2 * by
+    rc = d / 2 if tool.shape == "ball" else tool.corner_radius
+    return dataclasses.replace(tool, diameter=d, corner_radius=rc)
+
+
+def safe_rapids(operations: Sequence[Operation], setup: Setup, part_triangles: np.ndarray,
+                cell: float = 0.5) -> tuple[tuple[Operation, ...], int, int]:
+    """Make every rapid of ``operations`` clear the in-process stock with the whole tool.
+
+    The operations are simulated in order with each tool grown by half a cell diagonal (the
+    stock is only known at grid points). A rapid that would touch the stock as the earlier
+    moves left it is split: a vertical descent rapids down to ``setup.clearance`` above
+    the highest stock under the (grown) tool and feeds the rest at the plunge feed; any
+    other such rapid becomes a plunge-feed move.
+
+    Returns
+    -------
+    operations : tuple of Operation
+    checked : int
+        Rapids below ``setup.safe_z`` that were tested.
+    fixed : int
+        Rapids that touched the stock and were split or slowed.
+    """
+    ops = tuple(operations)
+    if not ops:
+        return ops, 0, 0
+    by = 0.5 * cell * math.sqrt(2.0)
+    tools = {op.tool.number: _grown(op.tool, by) for op in ops}
+    moves = operation_moves(ops)
+    starts = np.cumsum([0] + [len(op.points) for op in ops])
+    first = np.zeros(len(moves.points), dtype=bool)
+    first[starts[:-1]] = True
+    below = (moves.motion == Motion.RAPID) & ~first & (moves.points[:, 2] < setup.safe_z - 1e-9)
+    checked = int(below.sum())
+    opts = VerifyOptions(cell=cell)
+    final, report = simulate(moves, tools, setup, part_triangles, opts)
+    bad = sorted({c.move for c in report.rapid_crashes if not first[c.move]})
+    if not bad:
+        return ops, checked, 0
+    _, _, snaps = simulate_snapshots(moves, tools, setup, part_triangles, [m - 1 for m in bad], opts)
+    edits: dict[int, list[tuple[int, float | None]]] = {}
+    for m, snap in zip(bad, snaps):
+        k = int(np.searchsorted(starts, m, side="right") - 1)
+        i = m - int(starts[k])
+        a, b = moves.points[m - 1], moves.points[m]
+        split = None
+        if np.hypot(*(b[:2] - a[:2])) < 1e-9 and b[2] < a[2]:
+            stock_sim = dataclasses.replace(final, stock_top=snap)
+            air = float(clear_height(stock_sim, tools[ops[k].tool.number], b[None, :2])[0]) + setup.clearance
+            if b[2] < air < a[2]:
+                split = air
+        edits.setdefault(k, []).append((i, split))
+    out = list(ops)
+    for k, changes in edits.items():
+        op = ops[k]
+        pts, mot = op.points.copy(), op.motion.copy()
+        inserts = []
+        for i, split in changes:
+            mot[i] = Motion.PLUNGE
+            if split is not None:
+                inserts.append((i, np.array([pts[i, 0], pts[i, 1], split])))
+        for i, p in sorted(inserts, key=lambda t: -t[0]):
+            pts = np.insert(pts, i, p, axis=0)
+            mot = np.insert(mot, i, Motion.RAPID)
+        out[k] = dataclasses.replace(op, points=pts, motion=mot)
+    log.info("%d of %d rapids below the safe plane would touch the stock: split or slowed", len(bad), checked)
+    return tuple(out), checked, len(bad)

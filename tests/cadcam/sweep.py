@@ -1,0 +1,100 @@
+"""An independent material-removal probe for tests and benchmarks: how deep each move cuts.
+
+It shares nothing with :mod:`cadcam.verify` but the grid: each move is swept by sampling
+the tool's position along it (at most a quarter cell apart) and taking, at every grid
+point within reach, the lowest point of the tool's surface over the samples. A move's
+*engagement* is the deepest it reaches below the stock as every earlier move left it
+(the axial depth of material it cuts); a rapid's engagement is a crash. Its *buried*
+depth counts only material more than :data:`EDGE` inside the tool's edge (radial
+immersion over ``EDGE``): a finishing pass taking a thin skin off a tall wall engages
+deep but is not buried; a ball dropped into an uncut hole is.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cadcam.heightmap import grid_over
+from cadcam.model import Motion, Setup, Tool
+
+#: Radial immersion [mm] from which material counts as burying the tool.
+EDGE = 1.0
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """Per move (aligned with the moves' points; entry 0 is meaningless).
+
+    engagement : (n,) float
+        Depth of stock the move cuts [mm]; 0 where it cuts nothing.
+    buried : (n,) float
+        The same, counting only material more than ``EDGE`` inside the tool's edge [mm].
+    lowest : (n,) float
+        Lowest tip height of the move [mm].
+    """
+
+    engagement: np.ndarray
+    buried: np.ndarray
+    lowest: np.ndarray
+
+
+def sweep_moves(points: np.ndarray, motion: np.ndarray, tools: np.ndarray, library: dict[int, Tool],
+                setup: Setup, cell: float = 0.5) -> Sweep:
+    """Sweep ``points`` (tool tips [mm]) in order through the stock of ``setup``.
+
+    ``motion`` as :class:`cadcam.model.Motion` per point, ``tools`` the tool number per point.
+    """
+    g = grid_over(setup.stock_min, setup.stock_max, cell)
+    top = float(setup.stock_max[2])
+    stock = np.full(g.shape, top)
+    n = len(points)
+    eng = np.zeros(n)
+    buried = np.zeros(n)
+    lowest = np.full(n, np.nan)
+    for i in range(1, n):
+        a, b = points[i - 1], points[i]
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+            continue
+        lowest[i] = min(a[2], b[2])
+        if lowest[i] >= top:
+            continue
+        tool = library[int(tools[i])]
+        r = tool.radius
+        length = float(np.hypot(*(b[:2] - a[:2])))
+        ns = max(2, int(math.ceil(length / (0.25 * cell))) + 1)
+        t = np.linspace(0.0, 1.0, ns)
+        p = a[None] + t[:, None] * (b - a)[None]
+        i0 = max(int(math.floor((min(a[0], b[0]) - r - g.x0) / g.cell)), 0)
+        i1 = min(int(math.ceil((max(a[0], b[0]) + r - g.x0) / g.cell)), g.nx - 1)
+        j0 = max(int(math.floor((min(a[1], b[1]) - r - g.y0) / g.cell)), 0)
+        j1 = min(int(math.ceil((max(a[1], b[1]) + r - g.y0) / g.cell)), g.ny - 1)
+        if i1 < i0 or j1 < j0:
+            continue
+        xs = g.x0 + g.cell * np.arange(i0, i1 + 1)
+        ys = g.y0 + g.cell * np.arange(j0, j1 + 1)
+        env = np.full((len(ys), len(xs)), np.inf)
+        for chunk in np.array_split(np.arange(ns), max(1, ns // 64)):
+            d = np.hypot(xs[None, None, :] - p[chunk, 0, None, None], ys[None, :, None] - p[chunk, 1, None, None])
+            z = p[chunk, 2, None, None] + tool.profile_height(d)
+            env = np.minimum(env, z.min(axis=0))
+        block = stock[j0:j1 + 1, i0:i1 + 1]
+        depth = block - env
+        eng[i] = max(float(depth.max()), 0.0)
+        # Distance of each cell from the move's XY path: the tool's axis sweeps that segment.
+        dxy = b[:2] - a[:2]
+        l2 = float(dxy @ dxy)
+        cx, cy = xs[None, :] - a[0], ys[:, None] - a[1]
+        s = np.clip((cx * dxy[0] + cy * dxy[1]) / l2, 0.0, 1.0) if l2 > 0 else 0.0
+        axis = np.hypot(cx - s * dxy[0], cy - s * dxy[1])
+        core = axis <= max(r - EDGE, 0.5 * r)
+        buried[i] = max(float(depth[core].max()), 0.0) if core.any() else 0.0
+        np.minimum(block, env, out=block)
+    return Sweep(eng, buried, lowest)
+
+
+def rapid_hits(sw: Sweep, motion: np.ndarray, tol: float = 0.05) -> np.ndarray:
+    """Indices of rapids that cut more than ``tol`` [mm] of stock."""
+    return np.flatnonzero((np.asarray(motion) == Motion.RAPID) & (sw.engagement > tol))

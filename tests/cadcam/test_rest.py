@@ -1,0 +1,181 @@
+"""Safe cutting: tools chosen by reach, rest roughing, finishing kept out of uncut stock, rapids clear of it.
+
+Engagement is measured by the independent probe in tests/cadcam/sweep.py, not by the
+planner's own stock model.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import manifold3d
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cadcam.finishing import FinishingOptions
+from cadcam.gcode import parse_gcode
+from cadcam.model import CuttingData, Motion, Operation, Setup
+from cadcam.plan import PlanOptions, choose_tools, plan_job
+from cadcam.post import PostOptions, post_process
+from cadcam.rest import safe_rapids
+from cadcam.setup import make_setup
+from cadcam.tools import load_tool_library
+from factory.errors import ToolError
+from tests.cadcam.sweep import rapid_hits, sweep_moves
+from tests.conftest import manifold_to_trimesh
+
+LIBRARY = load_tool_library()
+FAST = PlanOptions(finishing=FinishingOptions(scallop=0.05))
+#: Finishing engagement the plan promises [mm], and the probe's slack for its grid.
+LIMIT = FAST.finish_engagement
+SLACK = 0.3
+
+
+def box_setup(size) -> Setup:
+    return Setup(stock_min=[0.0, 0.0, -size[2]], stock_max=[size[0], size[1], 0.0], transform_mesh_to_work=np.eye(4))
+
+
+def test_a_deep_part_gets_the_tools_that_reach_it():
+    # 34.5 mm deep: T1 (32 mm stick-out) and both balls are too short, T2 (45) and T5 (40) reach.
+    rough, finish = choose_tools(LIBRARY, box_setup((80.0, 60.0, 34.5)), PlanOptions())
+    assert rough.length >= 34.5 and rough.shape != "ball"
+    assert finish.length >= 34.5
+    # The narrowest that reaches (a tenth of 60 mm is less than any of them), then the ball-less finish.
+    assert (rough.number, finish.number) == (5, 5)
+
+
+def test_a_shallow_part_keeps_the_usual_tools():
+    rough, finish = choose_tools(LIBRARY, box_setup((64.0, 64.0, 16.0)), PlanOptions())
+    assert (rough.number, finish.number) == (1, 3)
+
+
+def test_overrides_win_and_are_still_checked():
+    rough, finish = choose_tools(LIBRARY, box_setup((64.0, 64.0, 16.0)), PlanOptions(rough_tool=5, finish_tool=4))
+    assert (rough.number, finish.number) == (5, 4)
+    with pytest.raises(ToolError, match="T1 reaches 32"):
+        choose_tools(LIBRARY, box_setup((80.0, 60.0, 34.5)), PlanOptions(rough_tool=1))
+
+
+def test_refuses_naming_what_is_missing_only_when_nothing_reaches():
+    with pytest.raises(ToolError, match=r"no flat or bull-nose end mill .* 50 mm .* longest is T2 with 45 mm"):
+        choose_tools(LIBRARY, box_setup((80.0, 60.0, 50.0)), PlanOptions())
+
+
+def _doctored(setup: Setup, tool_number: int, descent_xy) -> Operation:
+    tool = LIBRARY.tool(tool_number)
+    x, y = descent_xy
+    pts = [[x, y, setup.safe_z], [x, y, -2.0], [x + 5.0, y, -2.0], [x + 5.0, y, setup.safe_z]]
+    motion = [Motion.RAPID, Motion.RAPID, Motion.CUT, Motion.RAPID]
+    return Operation("doctored", "roughing", tool, CuttingData(10000, 1000, 300), pts, motion)
+
+
+@pytest.mark.parametrize("xy", [(20.0, 15.0), (-1.0, 20.0)], ids=["centre-in-stock", "edge-only"])
+def test_a_rapid_into_stock_is_split_into_rapid_then_plunge(xy):
+    # (-1, 20): the tool's centre is outside the stock, its edge 2 mm inside it.
+    setup = box_setup((40.0, 30.0, 10.0))
+    part = manifold_to_trimesh(manifold3d.Manifold.cube((36.0, 26.0, 5.0)).translate((2.0, 2.0, -10.0)))
+    op = _doctored(setup, 1, xy)
+    before = sweep_moves(op.points, op.motion, np.full(len(op.points), 1), {1: op.tool}, setup, 0.25)
+    assert len(rapid_hits(before, op.motion)) == 1
+    (fixed,), checked, n_fixed = safe_rapids([op], setup, np.asarray(part.triangles))
+    assert (checked, n_fixed) == (1, 1)
+    after = sweep_moves(fixed.points, fixed.motion, np.full(len(fixed.points), 1), {1: op.tool}, setup, 0.25)
+    assert len(rapid_hits(after, fixed.motion)) == 0
+    # Rapid down to the clearance above the stock top, feed the rest.
+    assert fixed.points[1, 2] == pytest.approx(setup.clearance, abs=1e-6) and fixed.points[2, 2] == -2.0
+    assert fixed.motion[1] == Motion.RAPID and fixed.motion[2] == Motion.PLUNGE
+
+
+def probe_plan(body: manifold3d.Manifold, options: PlanOptions = FAST, cell: float = 0.5, library=LIBRARY):
+    setup, part = make_setup(manifold_to_trimesh(body))
+    job, _ = plan_job(part, setup, library, part_name="p", options=options)
+    text = post_process(job, PostOptions()).text
+    moves = parse_gcode(text)
+    tools = {t.number: t for t in job.tools}
+    sw = sweep_moves(moves.points, moves.motion, moves.tool, tools, setup, cell)
+    return job, setup, moves, sw, text
+
+
+def finishing_moves(moves, text: str) -> np.ndarray:
+    """(n,) bool: moves of the program's finishing operations (after their ``(op k: ... [raster])`` comment)."""
+    kind = np.zeros(len(text.splitlines()) + 2, dtype=bool)
+    current = False
+    for i, line in enumerate(text.splitlines(), start=1):
+        if line.startswith("(op "):
+            current = "[raster]" in line or "[waterline]" in line
+        kind[i] = current
+    return kind[moves.line]
+
+
+def assert_safe(job, setup, moves, sw, text: str) -> None:
+    feed = moves.motion != Motion.RAPID
+    fin = finishing_moves(moves, text) & feed
+    for t in {op.tool.number for op in job.operations if op.kind in ("raster", "waterline")}:
+        sel = fin & (moves.tool == t)
+        assert sw.buried[sel].max(initial=0.0) <= LIMIT + SLACK, (t, float(sw.buried[sel].max()))
+    hits = rapid_hits(sw, moves.motion)
+    assert len(hits) == 0, [(int(moves.line[k]), float(sw.engagement[k])) for k in hits[:5]]
+    # The post writes 4 decimals.
+    assert np.nanmin(np.where(feed, sw.lowest, np.nan)) >= float(setup.stock_min[2]) - 1e-4
+
+
+def test_a_slot_too_narrow_for_the_roughing_tool_is_rest_roughed_then_finished():
+    body = manifold3d.Manifold.cube((40.0, 30.0, 10.0)) - manifold3d.Manifold.cube((24.0, 4.0, 7.0)).translate(
+        (8.0, 13.0, 4.0))
+    job, setup, moves, sw, text = probe_plan(body)
+    kinds = [(op.kind, op.tool.number) for op in job.operations]
+    assert ("roughing", 6) in kinds, kinds
+    assert job.parameters["unreached"] == []
+    assert_safe(job, setup, moves, sw, text)
+
+
+def test_a_hole_no_tool_fits_is_reported_and_left_alone():
+    # 4 mm across, in a library whose narrowest end mill is T1 (6 mm): the 2 mm T6 taken out.
+    library = dataclasses.replace(LIBRARY, tools=tuple(t for t in LIBRARY.tools if t.number != 6))
+    body = manifold3d.Manifold.cube((30.0, 24.0, 8.0)) - manifold3d.Manifold.cylinder(10.0, 2.0, 2.0, 32).translate(
+        (15.0, 12.0, 2.0))
+    job, setup, moves, sw, text = probe_plan(body, library=library)
+    (u,) = job.parameters["unreached"]
+    # Work coordinates: make_setup puts the part 2 mm in from the stock's front-left corner.
+    assert u["x"] == pytest.approx(17.0, abs=1.0) and u["y"] == pytest.approx(14.0, abs=1.0)
+    assert u["size_x"] <= 4.5 and u["depth"] > LIMIT
+    assert_safe(job, setup, moves, sw, text)
+
+
+@st.composite
+def machinable_blocks(draw):
+    sx, sy, sz = draw(st.floats(30, 45)), draw(st.floats(25, 35)), draw(st.floats(6, 12))
+    body = manifold3d.Manifold.cube((sx, sy, sz))
+    for _ in range(draw(st.integers(0, 2))):  # round holes, blind or through
+        r = draw(st.floats(0.6, 6.0))
+        depth = draw(st.floats(2.0, sz + 1.0))
+        x, y = draw(st.floats(r + 2, sx - r - 2)), draw(st.floats(r + 2, sy - r - 2))
+        body -= manifold3d.Manifold.cylinder(depth + 1.0, r, r, 32).translate((x, y, sz - depth))
+    for _ in range(draw(st.integers(0, 2))):  # pockets and slots, some narrower than the roughing tool
+        w, h = draw(st.floats(2.5, sx / 3)), draw(st.floats(2.5, sy / 3))
+        x, y = draw(st.floats(2, sx - w - 2)), draw(st.floats(2, sy - h - 2))
+        depth = draw(st.floats(1.0, sz - 1.5))
+        body -= manifold3d.Manifold.cube((w, h, depth + 1.0)).translate((x, y, sz - depth))
+    if draw(st.booleans()):  # a step down one side
+        body -= manifold3d.Manifold.cube((sx / 3 + 1, sy + 2, draw(st.floats(1.0, sz - 2)) + 1)).translate(
+            (-1.0, -1.0, sz - 1))
+    return body
+
+
+@settings(max_examples=3, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(body=machinable_blocks())
+def test_random_parts_plan_with_no_buried_finishing_tool_and_no_rapid_into_stock(body):
+    options = dataclasses.replace(FAST, waterline=True)
+    assert_safe(*probe_plan(body, options))
+
+
+def test_a_part_deeper_than_t1_reaches_plans_with_longer_tools():
+    # The issue's case: 34.5 mm deep (35.5 mm of stock with the default 1 mm on top).
+    body = manifold3d.Manifold.cube((24.0, 18.0, 34.5)) - manifold3d.Manifold.cube((10.0, 20.0, 12.0)).translate(
+        (-1.0, -1.0, 23.5))
+    job, setup, moves, sw, text = probe_plan(body)
+    assert float(setup.stock_size[2]) == pytest.approx(35.5)
+    assert all(op.tool.length >= 35.5 for op in job.operations)
+    assert_safe(job, setup, moves, sw, text)
