@@ -7,6 +7,7 @@ from typing import Annotated
 
 import typer
 
+from cadcam.rest import Unreached
 from cli import cam
 from cli.common import EXIT_VERIFY_FAILED, JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, \
     setup_logging, stderr
@@ -63,6 +64,9 @@ def plan(
         print_json(summary)
     elif not quiet:
         robot_text = f"; robot load+unload {summary['robot']['motion_s']:.1f} s" if summary["robot"] else ""
+        for u in summary["unreached"]:
+            stderr.print(f"{part.name}: no tool in the library reaches {Unreached(**u).describe()}: left uncut",
+                         highlight=False, markup=False)
         stderr.print(f"{part.name}: {len(summary['operations'])} operations, {summary['lines']} lines, estimated "
                      f"{summary['estimated_cycle_s'] / 60:.1f} min; {report_text(planned.report)}{robot_text}",
                      highlight=False, markup=False)

@@ -195,6 +195,9 @@ class PartPlan:
             "repairs": list(self.planned.loaded.repairs),
             "stock_mm": job.setup.stock_size.round(3).tolist(),
             **program_summary(self.program, outputs["program"], outputs["setup_sheet"]),
+            # what no tool in the library reaches: left in place, and finishing stays out of it [mm]
+            "unreached": list(job.parameters.get("unreached", [])),
+            "rapids": job.parameters.get("rapids"),
             "verify": self.report.to_dict(),
             "robot": None if tending is None else {
                 "cell": tending.cell.name, "robot": tending.world.robot.name,
