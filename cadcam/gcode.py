@@ -621,7 +621,10 @@ def _cycle(w: Mapping[str, float], st: _State, out: _Out, ln: int,
             if depth < r:
                 go(r, Motion.RAPID)
                 go(depth + PECK_CLEARANCE, Motion.RAPID)
-            depth = max(depth - st.cycle_q, bottom)
+            depth -= st.cycle_q
+            # a peck that ends within rounding of the bottom ends on it: no zero-depth peck after it
+            if depth < bottom + 1e-9:
+                depth = bottom
             go(depth, Motion.CUT)
     go(clear, Motion.RAPID)
     for p, motion, f in pts:
