@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 from pathlib import Path
+from collections.abc import Mapping, Sequence
 from typing import Annotated, Any
 
 import numpy as np
@@ -14,7 +15,7 @@ from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_part, units_of_scale
 from cadcam.model import Setup, Tool
 from cadcam.sheet import read_setup_sheet
-from cadcam.verify import Simulation, VerifyOptions, VerifyReport, deviation_image, simulate
+from cadcam.verify import Simulation, VerifyOptions, VerifyReport, deviation_image, finishing_moves, simulate
 from cli.common import (EXIT_VERIFY_FAILED, Overwrite, Quiet, StageProgress, print_json,
                         progress_bars, reports_errors, setup_logging, stderr)
 from cli.views import heightfield_mesh
@@ -46,10 +47,12 @@ def part_triangles(part: Path, setup: Setup, expected_sha256: str = "") -> np.nd
 
 
 def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int, Tool],
-               triangles: np.ndarray, options: VerifyOptions, bars: StageProgress) -> tuple[Simulation, VerifyReport]:
-    """Parse and simulate a program against the part."""
+               triangles: np.ndarray, options: VerifyOptions, bars: StageProgress,
+               operations: Sequence[Mapping[str, Any]] = ()) -> tuple[Simulation, VerifyReport]:
+    """Parse and simulate a program against the part (``operations``: the setup sheet's, for finishing limits)."""
     moves = parse_gcode(gcode_text, source=gcode_source)
-    return simulate(moves, tools, setup, triangles, options, progress=bars.stage("verify"))
+    finishing = finishing_moves(gcode_text, moves, operations)
+    return simulate(moves, tools, setup, triangles, options, progress=bars.stage("verify"), finishing=finishing)
 
 
 def log_simulation(mcap: McapLog, sim: Simulation) -> None:
@@ -61,9 +64,27 @@ def log_simulation(mcap: McapLog, sim: Simulation) -> None:
 
 def report_text(report: VerifyReport) -> str:
     verdict = "OK" if report.ok else "FAILED"
-    return (f"verify {verdict}: max gouge {report.max_gouge:.4f} mm, remaining stock max "
+    text = (f"verify {verdict}: max gouge {report.max_gouge:.4f} mm, remaining stock max "
             f"{report.remaining_max:.3f} / mean {report.remaining_mean:.3f} / p95 {report.remaining_p95:.3f} mm, "
             f"{len(report.rapid_crashes)} rapid crash(es)")
+    if report.gouged and report.gouge_line is not None:
+        text += f"\n  gouge: {report.max_gouge:.3f} mm into the part, line {report.gouge_line}"
+    for f in report.faults:
+        text += f"\n  {f.kind}: {f.message}" + (f", line(s) {line_ranges(f.lines)}" if f.lines else "")
+    return text
+
+
+def line_ranges(lines: Sequence[int], most: int = 12) -> str:
+    """``1203-1210, 1304`` for program lines; at most ``most`` runs, then how many more lines."""
+    runs: list[list[int]] = []
+    for n in lines:
+        if runs and n <= runs[-1][1] + 1:
+            runs[-1][1] = n
+        else:
+            runs.append([n, n])
+    shown = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in runs[:most])
+    rest = sum(b - a + 1 for a, b in runs[most:])
+    return shown + (f" and {rest} more" if rest else "")
 
 
 @reports_errors
@@ -81,7 +102,9 @@ def verify(
 ) -> None:
     """Simulate material removal; report gouges, remaining stock and rapid crashes.
 
-    Exits 3 when the program gouges the part or a rapid crashes into stock.
+    Exits 3 when the program gouges the part, a rapid or the shank or holder meets stock, a
+    tool is engaged deeper than its flutes (a finishing tool: deeper than the allowance plus
+    the roughing terraces), a tool goes below the stock bottom, or nothing is cut.
     """
     setup_logging(quiet)
     outputs = [p for p in (png, mcap) if p is not None] + ([json_path] if json_path and str(json_path) != "-" else [])
@@ -95,7 +118,8 @@ def verify(
         raise VerifyError(f"cannot read program: {e}", source=program) from None
     options = VerifyOptions(cell=grid, gouge_tolerance=tolerance)
     with progress_bars(quiet) as bars:
-        sim, report = run_verify(text, str(program), setup, tools, triangles, options, bars)
+        sim, report = run_verify(text, str(program), setup, tools, triangles, options, bars,
+                                 operations=sheet.get("operations") or ())
     write_verify_outputs(sim, report, png=png, json_path=json_path, mcap=mcap, overwrite=overwrite,
                          inputs={str(program): "", str(part): ""})
     if not quiet:

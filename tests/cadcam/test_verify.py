@@ -140,7 +140,7 @@ def test_horizontal_pass_cuts_the_tool_profile(tool):
     groove = np.where(d <= tool.radius, -2 + tool.profile_height(np.minimum(d, tool.radius)), np.inf)
     assert np.allclose(sim.stock_top, np.minimum(0.0, groove), atol=1e-9)
     assert report.max_gouge == 0.0 and report.ok
-    assert report.moves == 3  # the first positioning move (from NaN) is not simulated
+    assert report.moves == 4  # the first positioning move (from NaN) is checked standing at its end
     assert report.cut_length == pytest.approx(7 + np.hypot(30, 2))
     assert report.rapid_length == pytest.approx(7)
 
@@ -255,7 +255,9 @@ def test_cutting_air_leaves_the_full_stock_above_the_part():
     sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
     assert np.all(sim.stock_top == 0.0)
     assert report.remaining_max == report.remaining_mean == report.remaining_p95 == pytest.approx(5.0)
-    assert report.max_gouge == 0.0 and report.ok
+    # Nothing cut proves nothing: the program fails as one that removes no material.
+    assert report.max_gouge == 0.0 and not report.ok
+    assert [f.kind for f in report.faults] == ["no_cut"]
 
 
 def test_facing_to_the_part_top_leaves_nothing_and_gouges_nothing():
@@ -271,14 +273,17 @@ def test_facing_to_the_part_top_leaves_nothing_and_gouges_nothing():
     assert report.ok
 
 
-def test_moves_with_unknown_axes_are_skipped():
+def test_moves_with_unknown_axes_are_skipped_and_the_first_known_position_is_checked():
     moves = ProgramMoves(
         points=[[np.nan] * 3, [10, 10, np.nan], [10, 10, -3], [20, 10, -3]],
         motion=[0, R, C, C], tool=[0, 1, 1, 1], feed=[np.nan, np.nan, 500, 500], line=[0, 1, 2, 3],
     )
     sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
-    assert report.moves == 1  # only the last move has both ends known
+    # Line 1 ends at an unknown Z: skipped. Line 2 comes from there: the tool stands at
+    # its end, already 3 mm down in the stock, which line 3 then cuts on from.
+    assert report.moves == 2
     assert sim.stock_top.min() == pytest.approx(-3.0)
+    assert sim.stock_top[np.abs(sim.grid.ys - 10).argmin(), np.abs(sim.grid.xs - 8).argmin()] == pytest.approx(-3.0)
 
 
 def test_feed_move_without_a_known_tool_is_an_error():
