@@ -1033,7 +1033,8 @@ def _engaged_depth(seg: _Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np
       move's XY direction while still deeper than the depth reported (a tall but thin
       skin shaved off a wall is not a buried tool, a full-width slot is);
     * plunging: they cover half the cutter's footprint while still deeper than it (a
-      drill-like entry into solid stock, not a descent past a wall).
+      drill-like entry into solid stock, not a descent past a wall; for a ball that is
+      ``0.29 R`` less than the depth of its tip).
     """
     R = seg.radius[o]
     ta, tb, _ = _reach_interval(seg, o, qx, qy)
@@ -1116,7 +1117,8 @@ def _judge(seg: _Segments, stats: _MoveStats, moves: ProgramMoves, tools: Mappin
          flute, "T{t} engaged {w:.2f} mm deep, beyond its {l:g} mm flutes"),
         ("buried", ~seg.rapid & fin & (stats.depth > options.finish_depth), stats.depth, stats.depth_cell,
          np.full(len(seg), options.finish_depth), "finishing tool T{t} engaged {w:.2f} mm deep (limit {l:g} mm)"),
-        ("below_stock", seg.zmin < sim.stock_bottom - options.contact_tolerance, sim.stock_bottom - seg.zmin,
+        # The move that takes the tip below the bottom, not the one that brings it back.
+        ("below_stock", seg.z + seg.dz < sim.stock_bottom - options.contact_tolerance, sim.stock_bottom - seg.zmin,
          np.full(len(seg), -1), np.full(len(seg), options.contact_tolerance),
          "T{t} goes {w:.2f} mm below the stock bottom"),
     )

@@ -360,3 +360,174 @@ def test_a_wall_nicked_within_the_tolerance_is_no_gouge_of_its_height():
     assert report.max_gouge == pytest.approx(1.0 + np.sqrt(BALL.radius**2 - d**2), abs=1e-9)
     assert report.gouge_position[0] == pytest.approx(29.625)
     assert report.gouge_line == 3
+
+
+# --- what breaks a tool or crashes the machine ------------------------------------------
+#
+# Random parts (a box in the left of the stock, its top a few mm below the stock top), a
+# clean program that faces the stock down to the part top with the flat end mill, and
+# doctored copies of it. Programs are G-code text parsed by the real parser, so the
+# line numbers the faults name are the lines of the text.
+
+from cadcam.gcode import parse_gcode  # noqa: E402
+from cadcam.model import HolderSegment  # noqa: E402
+from cadcam.verify import finishing_moves  # noqa: E402
+
+SAFE_STOCK = Setup(stock_min=[0, 0, -20], stock_max=[60, 30, 0], transform_mesh_to_work=np.eye(4))
+#: A 4 mm flat end mill sticking out only 8 mm from a 16 mm holder.
+STUBBY = Tool(5, "4 mm flat, short", "flat", 4.0, 0.0, 6.0, 2, 8.0, shank_diameter=4.0,
+              holder=(HolderSegment(16.0, 30.0, 16.0),))
+SAFE_TOOLS = {**TOOLS, STUBBY.number: STUBBY}
+FAST = VerifyOptions(cell=0.5)
+
+
+def facing(face: float, stepdown: float) -> list[str]:
+    """Face the whole stock down to ``face`` with T1 (6 mm flat): entries beside the stock."""
+    out = ["G21 G90 G17", "(op 1: face [roughing] T1 6 mm flat)", "T1 M6", "G0 Z5"]
+    levels = np.arange(-stepdown, face - 1e-9, -stepdown).tolist() + [face]
+    for z in dict.fromkeys(round(v, 4) for v in levels):
+        out += ["G0 X-4 Y0", f"G0 Z{z}"]
+        for k, y in enumerate(np.arange(0.0, 30.01, 4.0).tolist()):
+            out += [f"G1 X{64 if k % 2 == 0 else -4} Y{y} F800", f"G1 Y{y + 4}"]
+        out.append("G0 Z5")
+    return out
+
+
+def verify_text(lines: list[str], part, sheet_ops=()):
+    text = "\n".join(lines) + "\n"
+    moves = parse_gcode(text)
+    return simulate(moves, SAFE_TOOLS, SAFE_STOCK, part, FAST, finishing=finishing_moves(text, moves, sheet_ops))
+
+
+def line_of(lines: list[str], text: str, start: int = 0) -> int:
+    return lines.index(text, start) + 1
+
+
+def faults_by_kind(report):
+    return {(f.kind, f.tool): f for f in report.faults}
+
+
+part_strategy = st.tuples(st.floats(12.0, 26.0), st.floats(14.0, 26.0), st.floats(1.5, 6.0))
+
+
+def random_part(size):
+    sx, sy, depth = size
+    return box([2, 2, -20], [2 + sx, 2 + sy, -depth]), -depth
+
+
+@settings(max_examples=12, deadline=None)
+@given(part_strategy)
+def test_a_clean_program_is_not_flagged(size):
+    part, face = random_part(size)
+    sim, report = verify_text(facing(face, 1.5), part)
+    assert report.ok, report.faults
+    assert report.engagement[0].max_depth <= 1.5 + 1e-9  # never more than the stepdown
+    assert report.engagement[0].max_width == pytest.approx(4.0, abs=FAST.cell)  # the stepover
+
+
+@settings(max_examples=12, deadline=None)
+@given(part_strategy, st.floats(36.0, 52.0), st.floats(7.0, 23.0), st.floats(3.0, 10.0), st.sampled_from([0.0, 4.0]))
+def test_a_buried_finishing_tool_is_caught_on_its_lines(size, x, y, depth, travel):
+    part, face = random_part(size)
+    lines = facing(face, 1.5) + [
+        "(op 2: finish raster [raster] T2 6 mm ball)", "T2 M6", "G0 Z5", f"G0 X{x} Y{y}", f"G0 Z{face + 1}",
+        f"G1 Z{face - depth} F300", f"G1 X{x - travel}", "G0 Z5",
+    ]
+    _, report = verify_text(lines, part)
+    buried = faults_by_kind(report)[("buried", 2)]
+    plunge = line_of(lines, f"G1 Z{face - depth} F300")
+    assert set(buried.lines) <= {plunge, plunge + 1} and plunge in buried.lines
+    # Sideways the whole column under the ball's centre; plunging, the thickness over half
+    # the footprint (r <= R / sqrt 2, where the ball stands 0.88 mm above its tip).
+    assert depth - 0.88 - FAST.cell < buried.worst <= depth + 1e-9
+    if travel:
+        assert buried.worst > depth - 0.1
+    assert {f.kind for f in report.faults} == {"buried"}  # nothing else: no gouge, no crash
+    # The same moves with a roughing tool are within its 20 mm flutes.
+    rough = [ln.replace("[raster] T2", "[roughing] T2") for ln in lines]
+    assert verify_text(rough, part)[1].ok
+
+
+@settings(max_examples=12, deadline=None)
+@given(part_strategy, st.floats(0.3, 2.7), st.floats(0.5, 4.0), st.floats(4.0, 26.0))
+def test_a_rapid_whose_edge_alone_meets_stock_is_caught(size, outside, depth, y):
+    """The tool's centre stays outside the stock; its edge reaches ``3 - outside`` mm in."""
+    part, face = random_part(size)
+    base = facing(face, 1.5)
+    lines = base[:4] + [f"G0 X{-outside} Y{y}", f"G0 Z{-depth}", "G0 Z5"] + base[4:]
+    _, report = verify_text(lines, part)
+    crash = faults_by_kind(report)[("rapid", 1)]
+    assert crash.lines == (6,)  # the G0 Z-depth
+    assert crash.worst == pytest.approx(depth)
+    assert [c.line for c in report.rapid_crashes] == [6]
+    assert {f.kind for f in report.faults} == {"rapid"}
+
+
+@settings(max_examples=10, deadline=None)
+@given(part_strategy, st.floats(36.0, 52.0), st.floats(8.0, 22.0), st.integers(9, 14))
+def test_a_short_tool_reaching_deep_is_caught_by_its_holder(size, x, y, depth):
+    """A narrow pocket cut 1 mm per level: no level is deep, but the holder comes down on the stock."""
+    part, face = random_part(size)
+    lines = facing(face, 1.5) + ["(op 2: pocket [roughing] T5 4 mm flat, short)", "T5 M6", "G0 Z5",
+                                 f"G0 X{x + 1} Y{y}", f"G0 Z{face + 1}"]
+    for k in range(1, depth + 1):
+        lines += [f"G1 Z{face - k} F200", f"G2 X{x + 1} Y{y} I-1 J0 F400"]
+    lines.append("G0 Z5")
+    text = "\n".join(lines) + "\n"
+    moves = parse_gcode(text)
+    _, report = verify_text(lines, part)
+    holder = faults_by_kind(report)[("holder", 5)]
+    # Every move of T5 whose tip goes more than the 8 mm stick-out below the faced top.
+    low = np.minimum(moves.points[:-1, 2], moves.points[1:, 2]) < face - 8 - FAST.contact_tolerance
+    expected = set(moves.line[1:][low & (moves.tool[1:] == 5)].tolist())
+    assert set(holder.lines) == expected and expected
+    assert {f.kind for f in report.faults} == {"holder"}
+    assert holder.worst == pytest.approx(depth - 8.0, abs=0.05)
+
+
+def test_a_cut_deeper_than_the_flutes_and_below_the_stock():
+    part, face = random_part((20.0, 20.0, 3.0))
+    lines = facing(face, 1.5) + ["(op 2: slot [roughing] T5 4 mm flat, short)", "T5 M6", "G0 Z5",
+                                 "G0 X40 Y15", "G0 Z-2", "G1 Z-3 F200", "G1 X50 Z-10", "G1 Z-21", "G0 Z5"]
+    _, report = verify_text(lines, part)
+    found = faults_by_kind(report)
+    ramp = line_of(lines, "G1 X50 Z-10")
+    assert ramp in found[("flute", 5)].lines  # 7 mm of stock met sideways by 6 mm flutes
+    assert found[("below_stock", 5)].lines == (line_of(lines, "G1 Z-21"),)
+    assert found[("below_stock", 5)].worst == pytest.approx(1.0)
+
+
+def test_an_empty_program_fails():
+    part, _ = random_part((20.0, 20.0, 3.0))
+    for text in ([], ["G21 G90", "T1 M6", "G0 Z5", "M30"]):
+        _, report = verify_text(text, part)
+        assert not report.ok and [f.kind for f in report.faults] == ["no_cut"]
+
+
+@settings(max_examples=8, deadline=None)
+@given(part_strategy, st.floats(36.0, 52.0), st.floats(7.0, 23.0), st.floats(3.0, 10.0))
+def test_one_batch_or_a_batch_per_move_judge_alike(size, x, y, depth):
+    """Within a batch each move meets the stock its predecessors left, as across batches."""
+    part, face = random_part(size)
+    lines = facing(face, 1.5) + [
+        "(op 2: finish raster [raster] T2 6 mm ball)", "T2 M6", "G0 Z5", f"G0 X{x} Y{y}", f"G0 Z{face + 1}",
+        f"G1 Z{face - depth} F300", f"G1 X{x - 4}", f"G1 X{x}", f"G0 X{x - 4}", "G0 Z5",
+    ]
+    _, one = verify_text(lines, part)
+    with mock.patch.object(verify, "_PAIR_BUDGET", 50):
+        _, many = verify_text(lines, part)
+    assert one.to_dict() == many.to_dict()
+
+
+def test_finishing_moves_follow_the_op_comments_then_the_sheet():
+    text = "\n".join(["(op 1: rough [roughing] T1 flat)", "T1 M6", "G0 X0 Y0 Z5", "G1 Z-1 F100",
+                      "(op 2: finish [raster] T2 ball)", "T2 M6", "G1 Z-1", "T3 M6", "G1 Z-2"]) + "\n"
+    moves = parse_gcode(text)
+    ops = [{"kind": "roughing", "tool": 1}, {"kind": "raster", "tool": 2}, {"kind": "waterline", "tool": 3}]
+    fin = dict(zip(moves.line.tolist(), finishing_moves(text, moves, ops).tolist()))
+    assert fin[4] is False and fin[7] is True
+    assert fin[9] is True  # T3 under op 2's comment (which names T2): the sheet says T3 only finishes
+    no_comments = "\n".join(ln for ln in text.splitlines() if not ln.startswith("(")) + "\n"
+    moves = parse_gcode(no_comments)
+    fin = finishing_moves(no_comments, moves, ops)
+    assert fin[moves.tool == 1].sum() == 0 and fin[moves.tool == 2].all()
