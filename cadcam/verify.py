@@ -80,8 +80,9 @@ class VerifyOptions:
         A finishing tool (see :func:`finishing_moves`) engaged deeper than this is buried
         [mm]. Finishing should only meet the roughing allowance (default 0.3 mm) plus what
         roughing leaves between its passes and levels: the 6 mm ball finishing the four
-        samples after their roughing engages at most 0.54 mm, while with the roughing
-        deleted from the bracket program it slots 2.2 mm deep at full width.
+        samples after their roughing engages at most 0.49 mm, while with the roughing
+        deleted from the bracket program it slots 1.6 mm deep at full width (the skin of
+        walls left out, see :func:`_engaged_depth`).
     engaged_width : float
         A cut counts as engagement only where it is at least this wide across the move
         [mm] (see :func:`_engaged_depth`): a thinner band is a skin shaved off a wall.
@@ -766,7 +767,8 @@ def simulate_snapshots(
     idx = np.flatnonzero(use)
     seg = _Segments.between(a[idx], b[idx], radius[idx], rc[idx], rapid[idx], idx + 1)
     part_flat = np.where(np.isfinite(part_top), part_top, -np.inf).reshape(-1)
-    body = _Body(tools, moves.tool[idx + 1], part_flat, options.engaged_width)
+    body = _Body(tools, moves.tool[idx + 1], part_flat, options.engaged_width, options.contact_tolerance)
+    body.wall_near = _highest_part_near(part_top, grid, _SKIN).reshape(-1)
 
     n_moves = int(known.sum())
     done = np.cumsum(known)  # simulated moves up to and including each move, for progress
@@ -794,6 +796,27 @@ def simulate_snapshots(
     return sim, report, snapshots
 
 
+#: Material within this sideways of a part wall at least as tall (less this), over part
+#: lower than that, is the wall's skin [mm]: a finishing tool takes it off whatever its
+#: height (raster passes meet walls head-on).
+_SKIN = 1.0
+
+
+def _highest_part_near(part_top: np.ndarray, grid: Grid, reach: float) -> np.ndarray:
+    """(ny, nx) highest part top within ``reach`` [mm] of each grid point (``-inf``: none)."""
+    top = np.where(np.isfinite(part_top), part_top, -np.inf)
+    out = top.copy()
+    k = int(reach // grid.cell)
+    ny, nx = top.shape
+    for dj in range(-k, k + 1):
+        for di in range(-k, k + 1):
+            if (di or dj) and (di * di + dj * dj) * grid.cell**2 <= reach * reach + 1e-12:
+                src = top[max(0, dj):ny + min(0, dj), max(0, di):nx + min(0, di)]
+                dst = out[max(0, -dj):ny + min(0, -dj), max(0, -di):nx + min(0, -di)]
+                np.maximum(dst, src, out=dst)
+    return out
+
+
 class _Body:
     """The shank and holder of the tool making each segment, as flat cylinders to sweep.
 
@@ -802,7 +825,7 @@ class _Body:
     """
 
     def __init__(self, tools: Mapping[int, Tool], tool_of_seg: np.ndarray, part_flat: np.ndarray,
-                 engaged_width: float):
+                 engaged_width: float, graze: float = 0.0):
         self.tool_of_seg = np.asarray(tool_of_seg, dtype=np.int64)
         self.levels = {t: tools[t].body() for t in np.unique(self.tool_of_seg).tolist() if t in tools}
         flutes = {t: tools[t].flute_length for t in self.levels}
@@ -811,6 +834,9 @@ class _Body:
         self.part_max = float(finite.max()) if len(finite) else -np.inf
         self.part = part_flat
         self.engaged_width = engaged_width
+        # A shank as wide as the cutter rides a finished wall at exactly its radius: a
+        # graze sideways within the contact tolerance is no contact.
+        self.graze = graze
 
     def pairs(self, seg: _Segments, s: int, e: int, grid: Grid, stock: np.ndarray, ceiling: float):
         """(segment in batch, flat grid index, body envelope) for body parts that come below ``ceiling``."""
@@ -825,7 +851,7 @@ class _Body:
                 if len(low):
                     rows.append(low)
                     heights.append(np.full(len(low), h))
-                    radii.append(np.full(len(low), r))
+                    radii.append(np.full(len(low), max(r - self.graze, 1e-6)))
         if not rows:
             empty = np.zeros(0, np.int64)
             return empty, empty, np.zeros(0)
@@ -984,8 +1010,12 @@ def _run_batch(seg_all: _Segments, body: "_Body", s: int, e: int, grid: Grid, st
     if len(cut):
         o, f, r = owner[cut], flat[cut], removed[cut]
         _record_max(stats.removed_max, stats.removed_cell, o + s, r, f, extra=(stats.removed_env, env[cut]))
+        # A wall's skin is no engagement (see _SKIN); it is still cut, and still counts
+        # for rapids and for the width of the cut.
+        # Only beside a wall: floor allowance (the part right below) is engagement as usual.
+        skin = (body.wall_near[f] >= before[cut] - _SKIN) & (part[f] < before[cut] - _SKIN)
         _engaged_depth(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
-                       env[cut], f, grid.cell, body.engaged_width, stats)
+                       env[cut], f, grid.cell, body.engaged_width, stats, skin)
         np.minimum.at(stock, f, env[cut])
 
 
@@ -1026,7 +1056,8 @@ def _reach_interval(seg: _Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarra
 
 
 def _engaged_depth(seg: _Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.ndarray, before: np.ndarray,
-                   env: np.ndarray, cells: np.ndarray, cell: float, min_width: float, stats: _MoveStats) -> None:
+                   env: np.ndarray, cells: np.ndarray, cell: float, min_width: float, stats: _MoveStats,
+                   skin: np.ndarray | None = None) -> None:
     """Deepest engagement of each move's cutter [mm], in ``stats.depth``; its width in ``stats.width``.
 
     The column a move takes off a grid point is split in two: as much of it as the tool
@@ -1040,6 +1071,10 @@ def _engaged_depth(seg: _Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np
     * plunging: they cover half the cutter's footprint while still deeper than it (a
       drill-like entry into solid stock, not a descent past a wall; for a ball that is
       ``0.29 R`` less than the depth of its tip).
+
+    Grid points ``skin`` (within :data:`_SKIN` of a part wall at least as tall as the
+    material on them, less that distance) are left out: the allowance on a wall is
+    taken off by finishing whatever its height, a raster pass meeting it head-on.
     """
     R = seg.radius[o]
     ta, tb, _ = _reach_interval(seg, o, qx, qy)
@@ -1048,6 +1083,9 @@ def _engaged_depth(seg: _Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np
     removed = before - env
     plunge = np.minimum(removed, np.maximum(-seg.dz[o], 0.0) * np.maximum(tb - ta, 0.0))
     side = removed - plunge
+    if skin is not None:  # the skin of a wall: taken off, but no engagement
+        plunge = np.where(skin, 0.0, plunge)
+        side = np.where(skin, 0.0, side)
 
     L = np.sqrt(seg.l2[o])
     has = L > 1e-9

@@ -553,3 +553,27 @@ def test_finishing_moves_follow_the_op_comments_then_the_sheet():
     moves = parse_gcode(no_comments)
     fin = finishing_moves(no_comments, moves, ops)
     assert fin[moves.tool == 1].sum() == 0 and fin[moves.tool == 2].all()
+
+
+def test_a_shank_as_wide_as_the_cutter_riding_a_finished_wall_is_no_contact():
+    """A ball with short flutes plunges down a 15 mm wall at exactly its radius from it."""
+    wall = box([30, 2, -20], [58, 28, 0])  # top flush with the stock top
+    ball = Tool(6, "6 mm ball, 8 mm flutes", "ball", 6.0, 3.0, 8.0, 2, 40.0)
+    lines = ["G21 G90", "(op 1: rough [roughing] T1 6 mm flat)", "T1 M6", "G0 Z5"]
+    for z in np.arange(-1.5, -15.01, -1.5).round(2).tolist():  # clear x < 30 leaving 0.3 mm
+        lines += ["G0 X-4 Y0", f"G0 Z{z}"]
+        for k, y in enumerate(np.arange(0.0, 30.01, 4.0).tolist()):
+            lines += [f"G1 X{26.7 if k % 2 == 0 else -4} Y{y} F800", f"G1 Y{y + 4}"]
+        lines += ["G1 X26.7 Y32", "G1 Y-2", "G0 Z5"]  # and along the wall: no scallops between the rows
+    lines += ["(op 2: finish [raster] T6 6 mm ball)", "T6 M6", "G0 X27 Y15 Z5", "G1 Z-15 F300", "G0 Z5"]
+    text = "\n".join(lines) + "\n"
+    moves = parse_gcode(text)
+    tools = {1: FLAT, 6: ball}
+    _, report = simulate(moves, tools, SAFE_STOCK, wall, FAST, finishing=finishing_moves(text, moves))
+    assert report.faults == () and not report.gouged
+    # Dragged along the wall at that depth, the shank does rub the 0.3 mm skin above the flutes.
+    text = text.replace("G1 Z-15 F300\n", "G1 Z-15 F300\nG1 Y25\n")
+    moves = parse_gcode(text)
+    _, report = simulate(moves, tools, SAFE_STOCK, wall, FAST, finishing=finishing_moves(text, moves))
+    assert [(f.kind, f.tool) for f in report.faults] == [("holder", 6)]
+    assert report.faults[0].lines == (text.splitlines().index("G1 Y25") + 1,)
