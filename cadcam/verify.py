@@ -935,8 +935,8 @@ def _segmented_exclusive_min(group: np.ndarray, value: np.ndarray) -> np.ndarray
 
     ``group`` is sorted; ``inf`` starts each run and stands for ``inf`` in ``value``. Each
     run is lifted below every earlier one by a multiple of the values' span, so one
-    ``minimum.accumulate`` restarts at every run (the lift costs a few ulps of
-    ``runs * span``, below 1e-8 mm for the batch sizes used here).
+    ``minimum.accumulate`` restarts at every run; the minimum is then read back from the
+    entry that holds it, so it is exact.
     """
     out = np.full(len(value), np.inf)
     if len(value) == 0:
@@ -949,11 +949,15 @@ def _segmented_exclusive_min(group: np.ndarray, value: np.ndarray) -> np.ndarray
     v = np.where(finite, value - lo, span)  # inf -> above every finite value
     start = np.r_[True, group[1:] != group[:-1]]
     run = np.cumsum(start) - 1
-    lift = (run[-1] - run) * (2.0 * span)
-    inclusive = np.minimum.accumulate(v + lift) - lift
+    lifted = v + (run[-1] - run) * (2.0 * span)
+    running = np.minimum.accumulate(lifted)
+    # The entry holding each running minimum (every run's first entry holds one), so the
+    # minimum comes back as the exact value, whatever the lift rounded: results do not
+    # depend on how moves are batched.
+    idx = np.arange(len(value))
+    holder = np.maximum.accumulate(np.where(lifted <= running, idx, 0))
     keep = np.flatnonzero(~start)
-    prev = inclusive[keep - 1]
-    out[keep] = np.where(prev < span - 0.5, prev + lo, np.inf)
+    out[keep] = value[holder[keep - 1]]
     return out
 
 
@@ -1107,7 +1111,7 @@ def _engaged_depth(seg: _Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np
     # (cummax with a per-move offset that lifts each move above every earlier one).
     sel = np.flatnonzero(side > 0.0)
     if len(sel):
-        order = sel[np.argsort(o[sel] * (float(side[sel].max()) + 1.0) - side[sel])]
+        order = sel[np.argsort(o[sel] * (float(side[sel].max()) + 1.0) - side[sel], kind="stable")]
         os_, lat_s = o[order], lat[order]
         shift = os_ * (4.0 * float(2 * np.max(seg.radius)) + 4.0)
         hi = np.maximum.accumulate(lat_s + shift) - shift
@@ -1118,7 +1122,7 @@ def _engaged_depth(seg: _Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np
     # Plunging: the k-th thickest, k grid points being half the cutter's footprint.
     sel = np.flatnonzero(plunge > 0.0)
     if len(sel):
-        order = sel[np.argsort(o[sel] * (float(plunge[sel].max()) + 1.0) - plunge[sel])]
+        order = sel[np.argsort(o[sel] * (float(plunge[sel].max()) + 1.0) - plunge[sel], kind="stable")]
         os_ = o[order]
         first = np.r_[True, os_[1:] != os_[:-1]]
         rank = np.arange(len(order)) - np.maximum.accumulate(np.where(first, np.arange(len(order)), 0))
