@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -32,6 +33,40 @@ def frozen_array(values: Any, shape_tail: tuple[int, ...] = (), dtype: Any = np.
         raise ValueError(f"expected shape (..., {', '.join(map(str, shape_tail))}), got {a.shape}")
     a.setflags(write=False)
     return a
+
+
+@dataclass(frozen=True)
+class HolderSegment:
+    """One cylinder or cone of a tool holder; a holder is a stack of them from the gauge line up.
+
+    Attributes
+    ----------
+    diameter : float
+        Diameter at the segment's lower end [mm].
+    length : float
+        Height of the segment along the tool axis [mm].
+    top_diameter : float
+        Diameter at the upper end [mm]; equal to ``diameter`` for a cylinder, different
+        for a cone (the taper of a collet nut or a shrink-fit holder).
+    """
+
+    diameter: float
+    length: float
+    top_diameter: float
+
+    def __post_init__(self) -> None:
+        if not (self.diameter > 0 and self.top_diameter > 0 and self.length > 0):
+            raise ValueError("holder segment diameters and length must be > 0")
+
+
+#: Holder assumed for a tool whose library entry or setup sheet names none (sheets written
+#: before holders were recorded): a generic ER20 collet chuck, its nut a cone from
+#: 28 mm at the gauge line to 35 mm over 12 mm, then a 42 mm body 40 mm tall. Generous
+#: for the small tools of the default library, so old sheets verify on the safe side.
+DEFAULT_HOLDER: tuple[HolderSegment, ...] = (
+    HolderSegment(diameter=28.0, length=12.0, top_diameter=35.0),
+    HolderSegment(diameter=42.0, length=40.0, top_diameter=42.0),
+)
 
 
 @dataclass(frozen=True)
@@ -60,7 +95,13 @@ class Tool:
         Number of cutting edges, for feed per tooth.
     length : float
         Stick-out from the holder [mm]: the deepest the tool reaches without the holder
-        touching the part. Also the tool length offset written to tool tables.
+        touching the part. Also the tool length offset written to tool tables. The
+        holder's *gauge line* (its lower face) is this far above the tip.
+    shank_diameter : float
+        Diameter of the body between the top of the flutes and the holder [mm] (the
+        neck of a long-neck tool); None on construction means the cutting diameter.
+    holder : tuple of HolderSegment
+        The holder from the gauge line up [mm]; :data:`DEFAULT_HOLDER` unless given.
     """
 
     number: int
@@ -71,8 +112,15 @@ class Tool:
     flute_length: float
     flutes: int
     length: float
+    shank_diameter: float | None = None
+    holder: tuple[HolderSegment, ...] = DEFAULT_HOLDER
 
     def __post_init__(self) -> None:
+        if self.shank_diameter is None:
+            object.__setattr__(self, "shank_diameter", float(self.diameter))
+        object.__setattr__(self, "holder", tuple(self.holder))
+        if not self.holder:
+            raise ValueError("a tool needs at least one holder segment")
         # Programming errors, not user input: the tool library validates user files.
         expected = {"flat": 0.0, "ball": self.diameter / 2}
         if self.shape in expected and abs(self.corner_radius - expected[self.shape]) > 1e-9:
@@ -107,12 +155,48 @@ class Tool:
             h = rc - np.sqrt(np.clip(rc * rc - d * d, 0.0, None))
         return np.where(r <= self.radius + 1e-12, h, np.inf)
 
+    def body(self, step: float = 2.0) -> tuple[tuple[float, float], ...]:
+        """The tool's non-cutting body as stacked cylinders: ``(height above the tip, radius)`` [mm].
+
+        The shank from the top of the flutes, then each holder segment from the gauge
+        line (:attr:`length` above the tip) up. Cones become cylinders at most ``step``
+        tall, each as wide as the cone gets over its height and starting at its bottom,
+        so the stack holds the true body (contacts are found on the safe side). Each
+        cylinder is taken to reach up forever (material is a height field, so only the
+        lowest body point over a spot matters); cylinders hidden by a wider one lower
+        down are dropped, leaving radii that grow with height.
+        """
+        parts = [(float(self.flute_length), float(self.shank_diameter) / 2)]
+        z = float(self.length)
+        for seg in self.holder:
+            n = max(1, math.ceil(seg.length / step)) if seg.top_diameter != seg.diameter else 1
+            for k in range(n):
+                d = max(seg.diameter + (seg.top_diameter - seg.diameter) * (k + f) / n for f in (0, 1))
+                parts.append((z + seg.length * k / n, d / 2))
+            z += seg.length
+        out: list[tuple[float, float]] = []
+        for h, r in sorted(parts):
+            if not out or r > out[-1][1]:
+                out.append((h, r))
+        return tuple(out)
+
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "Tool":
-        return cls(**{f.name: d[f.name] for f in dataclasses.fields(cls)})
+        """Read :meth:`to_dict` output; dictionaries from before holders were recorded get
+        the cutting diameter as shank and :data:`DEFAULT_HOLDER`."""
+        values = {f.name: d[f.name] for f in dataclasses.fields(cls) if f.name not in ("shank_diameter", "holder")}
+        if d.get("shank_diameter") is not None:
+            values["shank_diameter"] = float(d["shank_diameter"])
+        if d.get("holder"):
+            values["holder"] = tuple(
+                HolderSegment(diameter=float(h["diameter"]), length=float(h["length"]),
+                              top_diameter=float(h.get("top_diameter", h["diameter"])))
+                for h in d["holder"]
+            )
+        return cls(**values)
 
 
 @dataclass(frozen=True)

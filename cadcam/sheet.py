@@ -15,7 +15,11 @@ outside checkers) read it instead of the G-code. Format ``factory.setup/1``::
       "mesh_scale": 1.0,                  # mesh file units → mm
       "safe_z": 5.0,                      # retract height [mm]
       "tools": [{"number": 1, "name": …, "shape": "flat", "diameter": 6.0,
-                 "corner_radius": 0.0, "flute_length": 18.0, "flutes": 3, "length": 30.0}],
+                 "corner_radius": 0.0, "flute_length": 18.0, "flutes": 3, "length": 30.0,
+                 "shank_diameter": 6.0,       # body between flutes and holder [mm]
+                 "holder": [{"diameter": 22.0, "length": 10.0, "top_diameter": 28.0}, …]}],
+                                              # from the gauge line up [mm]; sheets without
+                                              # them read as cadcam.model.DEFAULT_HOLDER
       "operations": [{"name": "rough z-level", "kind": "roughing", "tool": 1,
                       "spindle_rpm": …, "feed_mm_min": …, "allowance_mm": …,
                       "cut_mm": …, "rapid_mm": …, "estimated_s": …}],

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cadcam.model import CuttingData, Tool
+from cadcam.model import DEFAULT_HOLDER, CuttingData, HolderSegment, Tool
 from factory.errors import ToolError, shown
 from factory.yamlfile import load_yaml
 from factory.resources import FIXTURES
@@ -281,7 +281,8 @@ class _Parser:
 
     def tool(self, d: Any, where: str) -> Tool:
         d = self.mapping(
-            d, where, {"number", "name", "shape", "diameter", "flute_length", "flutes", "length"}, {"corner_radius"}
+            d, where, {"number", "name", "shape", "diameter", "flute_length", "flutes", "length"},
+            {"corner_radius", "shank_diameter", "holder"},
         )
         number = self.integer(d["number"], f"{where}.number", 1)
         name = self.string(d["name"], f"{where}.name")
@@ -311,6 +312,8 @@ class _Parser:
         flute_length = self.number(d["flute_length"], f"{where}.flute_length")
         flutes = self.integer(d["flutes"], f"{where}.flutes", 1)
         length = self.number(d["length"], f"{where}.length")
+        shank = self.number(d["shank_diameter"], f"{where}.shank_diameter") if "shank_diameter" in d else diameter
+        holder = self.holder(d["holder"], f"{where}.holder") if "holder" in d else DEFAULT_HOLDER
         return Tool(
             number=number,
             name=name,
@@ -320,7 +323,22 @@ class _Parser:
             flute_length=flute_length,
             flutes=flutes,
             length=length,
+            shank_diameter=shank,
+            holder=holder,
         )
+
+    def holder(self, value: Any, where: str) -> tuple[HolderSegment, ...]:
+        """A list of ``{diameter, length, top_diameter?}`` from the gauge line up [mm]."""
+        if not isinstance(value, list) or not value:
+            raise self.fail(where, f"must be a non-empty list of segments {{diameter, length, top_diameter}}, got {_kind(value)}")
+        out = []
+        for i, seg in enumerate(value):
+            w = f"{where}[{i}]"
+            seg = self.mapping(seg, w, {"diameter", "length"}, {"top_diameter"})
+            d = self.number(seg["diameter"], f"{w}.diameter")
+            top = self.number(seg["top_diameter"], f"{w}.top_diameter") if "top_diameter" in seg else d
+            out.append(HolderSegment(diameter=d, length=self.number(seg["length"], f"{w}.length"), top_diameter=top))
+        return tuple(out)
 
 
 def _join(where: str, key: str) -> str:

@@ -35,7 +35,9 @@ into the stock are replayed in order, against the stock as every earlier move le
 from __future__ import annotations
 
 import logging
+import dataclasses
 import math
+import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -74,11 +76,27 @@ class VerifyOptions:
         The part may be cut this deep before it counts as a gouge [mm].
     rapid_tolerance : float
         A rapid whose tool reaches more than this deep into the remaining stock is a crash [mm].
+    finish_depth : float
+        A finishing tool (see :func:`finishing_moves`) engaged deeper than this is buried
+        [mm]. Finishing should only meet the roughing allowance (default 0.3 mm) plus what
+        roughing leaves between its passes and levels: the 6 mm ball finishing the four
+        samples after their roughing engages at most 0.49 mm, while with the roughing
+        deleted from the bracket program it slots 1.6 mm deep at full width (the skin of
+        walls left out, see :func:`_engaged_depth`).
+    engaged_width : float
+        A cut counts as engagement only where it is at least this wide across the move
+        [mm] (see :func:`_engaged_depth`): a thinner band is a skin shaved off a wall.
+    contact_tolerance : float
+        Shank or holder reaching this far into the stock or the part, or a tool tip this
+        far below the stock bottom, is a fault [mm].
     """
 
     cell: float = 0.2
     gouge_tolerance: float = 0.01
     rapid_tolerance: float = 0.01
+    finish_depth: float = 1.0
+    engaged_width: float = 1.0
+    contact_tolerance: float = 0.01
 
 
 @dataclass(frozen=True)
@@ -136,6 +154,83 @@ class RapidCrash:
         return {"line": self.line, "depth": self.depth, "position": list(self.position), "move": self.move}
 
 
+#: What :class:`Fault` can say, in the order the report lists them.
+FAULT_KINDS = ("no_cut", "rapid", "holder", "flute", "buried", "below_stock")
+
+#: Setup sheet operation kinds that finish a surface; every other kind removes bulk stock.
+FINISHING_KINDS = frozenset({"raster", "waterline", "finishing"})
+
+
+@dataclass(frozen=True)
+class Fault:
+    """Moves that would break a tool or crash the machine, of one kind and one tool.
+
+    Attributes
+    ----------
+    kind : str
+        One of :data:`FAULT_KINDS`: ``no_cut`` the program removes nothing; ``rapid`` a
+        rapid whose cutter (its full footprint) meets stock; ``holder`` the shank or holder
+        meets the stock or the part; ``flute`` a cut engaged deeper than the flute length;
+        ``buried`` a finishing tool engaged deeper than :attr:`VerifyOptions.finish_depth`;
+        ``below_stock`` the tool tip below the stock bottom.
+    tool : int
+        Tool number (0 for ``no_cut``).
+    lines : tuple of int
+        1-based program lines of every offending move, ascending.
+    worst : float
+        The largest depth among them [mm].
+    limit : float
+        What it was held against [mm].
+    position : tuple of 3 float or None
+        Where the worst happened: X, Y of the grid point and the tool tip Z [mm].
+    message : str
+        One line for people.
+    """
+
+    kind: str
+    tool: int
+    lines: tuple[int, ...]
+    worst: float
+    limit: float
+    position: tuple[float, float, float] | None
+    message: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"kind": self.kind, "tool": self.tool, "lines": list(self.lines), "worst": self.worst,
+                "limit": self.limit, "position": None if self.position is None else list(self.position),
+                "message": self.message}
+
+
+@dataclass(frozen=True)
+class ToolEngagement:
+    """How hard one tool worked, over its moves (all [mm]).
+
+    Attributes
+    ----------
+    tool : int
+    finishing : bool
+        Its moves were held to the finishing limit.
+    moves : int
+        Its moves that came below the stock top.
+    max_depth : float
+        Deepest engagement of any move (:func:`_engaged_depth`).
+    max_depth_line : int
+        Program line of that move (0 if it never engaged).
+    max_width : float
+        Widest radial engagement of any move.
+    """
+
+    tool: int
+    finishing: bool
+    moves: int
+    max_depth: float
+    max_depth_line: int
+    max_width: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
 @dataclass(frozen=True)
 class VerifyReport:
     """What the simulation found.
@@ -155,7 +250,7 @@ class VerifyReport:
         Stock left above the part over the grid points the part covers [mm] (max, mean,
         95th percentile; a gouge counts as negative).
     rapid_crashes : tuple of RapidCrash
-        In program order.
+        In program order (each also counted in a ``rapid`` :class:`Fault`).
     moves : int
         Moves simulated (both end points known).
     cut_length, rapid_length : float
@@ -166,6 +261,12 @@ class VerifyReport:
         Grid spacing [mm].
     gouge_tolerance, rapid_tolerance : float
         The tolerances the verdict used [mm].
+    faults : tuple of Fault
+        What would break a tool or crash the machine, by kind (:data:`FAULT_KINDS`) and tool.
+    engagement : tuple of ToolEngagement
+        Per tool, in order of tool number.
+    rapids_checked : int
+        Rapids that came below the stock top and were swept against the stock.
     """
 
     max_gouge: float
@@ -182,6 +283,9 @@ class VerifyReport:
     cell: float
     gouge_tolerance: float = 0.01
     rapid_tolerance: float = 0.01
+    faults: tuple[Fault, ...] = ()
+    engagement: tuple[ToolEngagement, ...] = ()
+    rapids_checked: int = 0
 
     @property
     def gouged(self) -> bool:
@@ -190,8 +294,8 @@ class VerifyReport:
 
     @property
     def ok(self) -> bool:
-        """No gouge beyond tolerance and no rapid into the stock."""
-        return not self.gouged and not self.rapid_crashes
+        """No gouge beyond tolerance, no rapid into the stock and no other :class:`Fault`."""
+        return not self.gouged and not self.rapid_crashes and not self.faults
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (plain floats, ints, lists and None)."""
@@ -211,6 +315,9 @@ class VerifyReport:
             "cell": self.cell,
             "gouge_tolerance": self.gouge_tolerance,
             "rapid_tolerance": self.rapid_tolerance,
+            "faults": [f.to_dict() for f in self.faults],
+            "engagement": [e.to_dict() for e in self.engagement],
+            "rapids_checked": self.rapids_checked,
         }
 
 
@@ -497,10 +604,11 @@ def _row_spans(seg: _Segments, grid: Grid) -> tuple[np.ndarray, np.ndarray, np.n
 
 
 def _check_inputs(setup: Setup, options: VerifyOptions, tri: Any) -> np.ndarray:
-    for name in ("cell", "gouge_tolerance", "rapid_tolerance"):
+    for name in ("cell", "gouge_tolerance", "rapid_tolerance", "finish_depth", "engaged_width", "contact_tolerance"):
         v = getattr(options, name)
-        if not (math.isfinite(v) and (v > 0 if name == "cell" else v >= 0)):
-            kind = "positive" if name == "cell" else "non-negative"
+        positive = name in ("cell", "finish_depth")
+        if not (math.isfinite(v) and (v > 0 if positive else v >= 0)):
+            kind = "positive" if positive else "non-negative"
             raise VerifyError(f"{name} must be a {kind} number of mm, got {v}", source=name)
     tri = np.asarray(tri, dtype=np.float64)
     if tri.ndim != 3 or tri.shape[1:] != (3, 3):
@@ -557,15 +665,17 @@ def simulate(
     part_triangles: np.ndarray,
     options: VerifyOptions = VerifyOptions(),
     progress: Callable[[int, int], None] | None = None,
+    finishing: np.ndarray | None = None,
 ) -> tuple[Simulation, VerifyReport]:
     """Cut the stock with every move of a program and compare the result with the part.
 
     Parameters
     ----------
     moves : ProgramMoves
-        The program's moves (tool tip positions in work coordinates [mm]); moves with an
-        unknown (NaN) coordinate at either end are skipped, rapids with an empty spindle
-        (tool 0) too.
+        The program's moves (tool tip positions in work coordinates [mm]); moves ending at
+        an unknown (NaN) coordinate are skipped, a move from an unknown start is checked
+        as the tool standing at its end; rapids with an empty spindle (tool 0) are skipped
+        too.
     tools : mapping of int to Tool
         Tools by number, for every tool the program uses.
     setup : Setup
@@ -575,6 +685,9 @@ def simulate(
     options : VerifyOptions
     progress : callable, optional
         ``progress(done, total)`` in moves.
+    finishing : (n,) bool, optional
+        True for moves (indexed like ``moves.points``) a finishing operation makes, held
+        to :attr:`VerifyOptions.finish_depth` (see :func:`finishing_moves`); default none.
 
     Returns
     -------
@@ -587,7 +700,7 @@ def simulate(
         (``source`` names the G-code line, ``data["line"]`` holds it); if the part, stock
         or options are unusable.
     """
-    sim, report, _ = simulate_snapshots(moves, tools, setup, part_triangles, (), options, progress)
+    sim, report, _ = simulate_snapshots(moves, tools, setup, part_triangles, (), options, progress, finishing)
     return sim, report
 
 
@@ -599,6 +712,7 @@ def simulate_snapshots(
     snapshot_moves: Sequence[int],
     options: VerifyOptions = VerifyOptions(),
     progress: Callable[[int, int], None] | None = None,
+    finishing: np.ndarray | None = None,
 ) -> tuple[Simulation, VerifyReport, tuple[np.ndarray, ...]]:
     """:func:`simulate`, also keeping the stock as it was part way through, in the same pass.
 
@@ -635,8 +749,14 @@ def simulate_snapshots(
     stock = np.full(grid.size, top_z)
 
     pts = moves.points
-    a, b = pts[:-1], pts[1:]
-    known = np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
+    a, b = pts[:-1].copy(), pts[1:]
+    known = np.all(np.isfinite(b), axis=1)
+    # The move that first makes the position known comes from wherever the machine was
+    # (a tool change, the last program): the tool is at least *there* at its end, so it
+    # is checked standing at its end point (a G0 Z-2 as the first move after a tool
+    # change is a crash on that line).
+    arrive = known & ~np.all(np.isfinite(a), axis=1)
+    a[arrive] = b[arrive]
     rapid = moves.motion[1:] == Motion.RAPID
     length = np.zeros(len(a))
     length[known] = np.linalg.norm(b[known] - a[known], axis=1)
@@ -646,20 +766,29 @@ def simulate_snapshots(
     use[use] &= np.minimum(a[use, 2], b[use, 2]) < top_z
     idx = np.flatnonzero(use)
     seg = _Segments.between(a[idx], b[idx], radius[idx], rc[idx], rapid[idx], idx + 1)
+    part_flat = np.where(np.isfinite(part_top), part_top, -np.inf).reshape(-1)
+    body = _Body(tools, moves.tool[idx + 1], part_flat, options.engaged_width, options.contact_tolerance)
+    body.wall_near = _highest_part_near(part_top, grid, _SKIN).reshape(-1)
 
     n_moves = int(known.sum())
     done = np.cumsum(known)  # simulated moves up to and including each move, for progress
     # Segments applied by each snapshot (seg.move is increasing).
     applied = np.searchsorted(seg.move, snap, side="right")
-    crashes, stocks = _run(seg, grid, stock, moves, options, progress,
-                           done[seg.move - 1] if len(seg) else done[:0], n_moves, applied)
+    stats = _MoveStats(len(seg))
+    stocks = _run(seg, body, grid, stock, part_flat, progress, done[seg.move - 1] if len(seg) else done[:0],
+                  n_moves, applied, stats)
 
     stock_top = stock.reshape(grid.shape)
     stock_top.setflags(write=False)
     part_top.setflags(write=False)
     sim = Simulation(grid=grid, stock_top=stock_top, part_top=part_top, stock_bottom=float(setup.stock_min[2]))
+    finish = np.zeros(len(pts), bool) if finishing is None else np.asarray(finishing, bool).reshape(-1)
+    if len(finish) != len(pts):
+        raise VerifyError(f"finishing flags: expected {len(pts)}, got {len(finish)}", source="finishing")
+    crashes, faults, engagement = _judge(seg, stats, moves, tools, finish, sim, options)
     report = _report(
-        sim, tri, moves, tools, options, crashes, n_moves, float(length[~rapid].sum()), float(length[rapid].sum())
+        sim, tri, moves, tools, options, crashes, n_moves, float(length[~rapid].sum()), float(length[rapid].sum()),
+        faults, engagement, int(np.count_nonzero(seg.rapid)),
     )
     snapshots = tuple(flat.reshape(grid.shape) for flat in stocks)
     for top in snapshots:
@@ -667,11 +796,102 @@ def simulate_snapshots(
     return sim, report, snapshots
 
 
+#: Material within this sideways of a part wall at least as tall (less this), over part
+#: lower than that, is the wall's skin [mm]: a finishing tool takes it off whatever its
+#: height (raster passes meet walls head-on).
+_SKIN = 1.0
+
+
+def _highest_part_near(part_top: np.ndarray, grid: Grid, reach: float) -> np.ndarray:
+    """(ny, nx) highest part top within ``reach`` [mm] of each grid point (``-inf``: none)."""
+    top = np.where(np.isfinite(part_top), part_top, -np.inf)
+    out = top.copy()
+    k = int(reach // grid.cell)
+    ny, nx = top.shape
+    for dj in range(-k, k + 1):
+        for di in range(-k, k + 1):
+            if (di or dj) and (di * di + dj * dj) * grid.cell**2 <= reach * reach + 1e-12:
+                src = top[max(0, dj):ny + min(0, dj), max(0, di):nx + min(0, di)]
+                dst = out[max(0, -dj):ny + min(0, -dj), max(0, -di):nx + min(0, -di)]
+                np.maximum(dst, src, out=dst)
+    return out
+
+
+class _Body:
+    """The shank and holder of the tool making each segment, as flat cylinders to sweep.
+
+    ``levels[t]``: ``(height above the tip, radius)`` of tool ``t``'s body cylinders
+    (:meth:`Tool.body`), radii growing with height.
+    """
+
+    def __init__(self, tools: Mapping[int, Tool], tool_of_seg: np.ndarray, part_flat: np.ndarray,
+                 engaged_width: float, graze: float = 0.0):
+        self.tool_of_seg = np.asarray(tool_of_seg, dtype=np.int64)
+        self.levels = {t: tools[t].body() for t in np.unique(self.tool_of_seg).tolist() if t in tools}
+        flutes = {t: tools[t].flute_length for t in self.levels}
+        self.flute_of_seg = np.array([flutes.get(t, np.inf) for t in self.tool_of_seg.tolist()], dtype=np.float64)
+        finite = part_flat[np.isfinite(part_flat)]
+        self.part_max = float(finite.max()) if len(finite) else -np.inf
+        self.part = part_flat
+        self.engaged_width = engaged_width
+        # A shank as wide as the cutter rides a finished wall at exactly its radius: a
+        # graze sideways within the contact tolerance is no contact.
+        self.graze = graze
+
+    def pairs(self, seg: _Segments, s: int, e: int, grid: Grid, stock: np.ndarray, ceiling: float):
+        """(segment in batch, flat grid index, body envelope) for body parts that come below ``ceiling``."""
+        tool = self.tool_of_seg[s:e]
+        rows, heights, radii = [], [], []
+        for t, levels in self.levels.items():
+            mine = np.flatnonzero(tool == t)
+            if len(mine) == 0:
+                continue
+            for h, r in levels:
+                low = mine[seg.zmin[mine] + h < ceiling]
+                if len(low):
+                    rows.append(low)
+                    heights.append(np.full(len(low), h))
+                    radii.append(np.full(len(low), max(r - self.graze, 1e-6)))
+        if not rows:
+            empty = np.zeros(0, np.int64)
+            return empty, empty, np.zeros(0)
+        k = np.concatenate(rows)
+        h = np.concatenate(heights)
+        lifted = _Segments(seg.x[k], seg.y[k], seg.z[k] + h, seg.dx[k], seg.dy[k], seg.dz[k],
+                           np.concatenate(radii), np.zeros(len(k)), seg.rapid[k], seg.move[k])
+        owner, flat, col, row = _pairs(lifted, grid)
+        bound = np.maximum(stock[flat], self.part[flat])
+        env = _pair_envelope(grid.x0 + col * grid.cell, grid.y0 + row * grid.cell, owner, lifted, bound)
+        hit = np.flatnonzero(np.isfinite(env))
+        return k[owner[hit]], flat[hit], env[hit]
+
+
+class _MoveStats:
+    """Per-segment results of the simulation, filled batch by batch (all lengths [mm]).
+
+    ``depth``: deepest *engaged* depth of the move (see :func:`_engaged_depth`);
+    ``width``: lateral extent of the material it removed; ``removed_max``: thickest column
+    it took off one grid point; ``contact``: deepest reach of its shank or holder into
+    the stock or the part; ``*_cell``: flat grid index where that happened, -1 if nowhere.
+    """
+
+    def __init__(self, n: int):
+        self.depth = np.zeros(n)
+        self.depth_cell = np.full(n, -1, np.int64)
+        self.width = np.zeros(n)
+        self.removed_max = np.zeros(n)
+        self.removed_cell = np.full(n, -1, np.int64)
+        self.removed_env = np.zeros(n)
+        self.contact = np.zeros(n)
+        self.contact_cell = np.full(n, -1, np.int64)
+        self.contact_z = np.zeros(n)
+
+
 def _run(
-    seg: _Segments, grid: Grid, stock: np.ndarray, moves: ProgramMoves, options, progress, done, total_moves,
-    snapshot_at: np.ndarray,
-) -> tuple[list[RapidCrash], list[np.ndarray]]:
-    """Apply every move to ``stock`` (flat, modified in place); return the rapid crashes and snapshots.
+    seg: _Segments, body: "_Body", grid: Grid, stock: np.ndarray, part: np.ndarray, progress, done, total_moves,
+    snapshot_at: np.ndarray, stats: _MoveStats,
+) -> list[np.ndarray]:
+    """Apply every move to ``stock`` (flat, modified in place); fill ``stats``; return the snapshots.
 
     ``done[k]`` is the progress count once segment ``k`` is applied. ``snapshot_at[i]`` is a
     number of segments: a copy of ``stock`` is taken once that many are applied (the
@@ -687,73 +907,296 @@ def _run(
     wanted = set(snapshot_at.tolist())
     taken = {0: stock.copy()} if 0 in wanted else {}  # segments applied -> stock then
 
-    crashes: list[RapidCrash] = []
     for c in range(len(bounds) - 1):
         s, e = int(bounds[c]), int(bounds[c + 1])
         if e > s:
-            crashes += _run_batch(seg.sub(s, e), grid, stock, moves, options)
+            _run_batch(seg, body, s, e, grid, stock, part, stats)
             if progress is not None:
                 progress(int(done[e - 1]), total_moves)
         if e in wanted:
             taken[e] = stock.copy()
     if progress is not None:
         progress(total_moves, total_moves)
-    return crashes, [taken[k] for k in snapshot_at.tolist()]
+    return [taken[k] for k in snapshot_at.tolist()]
 
 
-def _run_batch(seg: _Segments, grid: Grid, stock: np.ndarray, moves: ProgramMoves, options) -> list[RapidCrash]:
+def _pairs(seg: _Segments, grid: Grid) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every (segment, grid point) pair within a segment's reach: owner, flat index, column, row."""
     row_owner, row, first, count = _row_spans(seg, grid)
     n = int(count.sum())
-    if n == 0:
-        return []
     owner = np.repeat(row_owner, count)
     col = np.repeat(first - (np.cumsum(count) - count), count) + np.arange(n)
-    flat = np.repeat(row * grid.nx, count) + col
-    # Only pairs that go below the stock as it was at the start of the batch change
-    # anything; the stock only gets lower, so the rest never will.
-    before = stock[flat]
-    env = _pair_envelope(grid.x0 + col * grid.cell, np.repeat(grid.y0 + row * grid.cell, count), owner, seg, before)
-    touch = np.flatnonzero(env < before)
-    if len(touch) == 0:
-        return []
-    owner, flat, env = owner[touch], flat[touch], env[touch]
-    suspects = np.unique(owner[seg.rapid[owner]])
-    if len(suspects) == 0:
-        np.minimum.at(stock, flat, env)
-        return []
-    # Rapids that reach into the stock are replayed in program order against the stock as
-    # every earlier move left it; the feed moves between them still go in bulk (owner is
-    # sorted, so each move's pairs are one run).
+    rows = np.repeat(row, count)
+    return owner, rows * grid.nx + col, col, rows
+
+
+def _segmented_exclusive_min(group: np.ndarray, value: np.ndarray) -> np.ndarray:
+    """Running minimum of ``value`` within each run of equal ``group``, excluding the entry itself.
+
+    ``group`` is sorted; ``inf`` starts each run and stands for ``inf`` in ``value``. Each
+    run is lifted below every earlier one by a multiple of the values' span, so one
+    ``minimum.accumulate`` restarts at every run; the minimum is then read back from the
+    entry that holds it, so it is exact.
+    """
+    out = np.full(len(value), np.inf)
+    if len(value) == 0:
+        return out
+    finite = np.isfinite(value)
+    if not finite.any():
+        return out
+    lo = float(value[finite].min())
+    span = float(value[finite].max()) - lo + 1.0
+    v = np.where(finite, value - lo, span)  # inf -> above every finite value
+    start = np.r_[True, group[1:] != group[:-1]]
+    run = np.cumsum(start) - 1
+    lifted = v + (run[-1] - run) * (2.0 * span)
+    running = np.minimum.accumulate(lifted)
+    # The entry holding each running minimum (every run's first entry holds one), so the
+    # minimum comes back as the exact value, whatever the lift rounded: results do not
+    # depend on how moves are batched.
+    idx = np.arange(len(value))
+    holder = np.maximum.accumulate(np.where(lifted <= running, idx, 0))
+    keep = np.flatnonzero(~start)
+    out[keep] = value[holder[keep - 1]]
+    return out
+
+
+def _run_batch(seg_all: _Segments, body: "_Body", s: int, e: int, grid: Grid, stock: np.ndarray, part: np.ndarray,
+               stats: _MoveStats) -> None:
+    """Cut segments ``s:e`` into ``stock`` and record what each met.
+
+    Each move is judged against the stock exactly as every earlier move left it (also
+    the earlier moves of this batch): pairs are ordered by grid point and move, and a
+    running minimum of the earlier moves' envelopes gives the stock each move found.
+    """
+    seg = seg_all.sub(s, e)
+    owner, flat, col, row = _pairs(seg, grid)
+    before0 = stock[flat]
+    env = _pair_envelope(grid.x0 + col * grid.cell, grid.y0 + row * grid.cell, owner, seg, before0)
+    touch = np.flatnonzero(env < before0)
+    owner, flat, col, row, env = owner[touch], flat[touch], col[touch], row[touch], env[touch]
+
+    # Shank and holder: the same sweep with the body's cylinders, only where they can
+    # come below the highest stock or part there is.
+    b_owner, b_flat, b_env = body.pairs(seg, s, e, grid, stock, max(float(stock.max()), body.part_max))
+
+    n_c = len(flat)
+    cells = np.concatenate([flat, b_flat])
+    # At a grid point, every earlier move's cut counts, and for this move's own
+    # shank, not its own cutter (which takes that material off no higher than its flutes).
+    order_key = np.concatenate([owner * 2 + 1, b_owner * 2])
+    value = np.concatenate([env, np.full(len(b_flat), np.inf)])
+    order = np.argsort(cells * (2 * (e - s) + 2) + order_key)
+    earlier = np.empty(len(cells))
+    earlier[order] = _segmented_exclusive_min(cells[order], value[order])
+    found = np.minimum(stock[cells], earlier)
+
+    if len(b_flat):
+        # This move's own flutes take off what they reach first (the tool descends or
+        # moves on into it), up to the flute length above the highest tip position
+        # from which they reach the point; material above that meets the body.
+        qx = grid.x0 + (b_flat % grid.nx) * grid.cell
+        qy = grid.y0 + (b_flat // grid.nx) * grid.cell
+        ta, tb, _ = _reach_interval(seg, b_owner, qx, qy)
+        z0, dz = seg.z[b_owner], seg.dz[b_owner]
+        flute_top = np.where(ta <= tb, np.maximum(z0 + dz * ta, z0 + dz * tb) + body.flute_of_seg[b_owner + s], -np.inf)
+        standing = found[n_c:]
+        standing = np.where(standing > flute_top, standing, -np.inf)
+        met = np.maximum(standing, part[b_flat]) - b_env
+        hit = np.flatnonzero(met > 0.0)
+        if len(hit):
+            _record_max(stats.contact, stats.contact_cell, b_owner[hit] + s, met[hit], b_flat[hit],
+                        extra=(stats.contact_z, b_env[hit]))
+
+    before = found[:n_c]
+    removed = before - env
+    cut = np.flatnonzero(removed > 0.0)
+    if len(cut):
+        o, f, r = owner[cut], flat[cut], removed[cut]
+        _record_max(stats.removed_max, stats.removed_cell, o + s, r, f, extra=(stats.removed_env, env[cut]))
+        # A wall's skin is no engagement (see _SKIN); it is still cut, and still counts
+        # for rapids and for the width of the cut.
+        # Only beside a wall: floor allowance (the part right below) is engagement as usual.
+        skin = (body.wall_near[f] >= before[cut] - _SKIN) & (part[f] < before[cut] - _SKIN)
+        _engaged_depth(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
+                       env[cut], f, grid.cell, body.engaged_width, stats, skin)
+        np.minimum.at(stock, f, env[cut])
+
+
+def _record_max(best: np.ndarray, where: np.ndarray, owner: np.ndarray, value: np.ndarray, cell: np.ndarray,
+                extra: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+    """``best[k] = max(value)`` over entries of owner ``k``, with the cell (and ``extra``) where it is reached."""
+    np.maximum.at(best, owner, value)
+    at = np.flatnonzero(value >= best[owner])
+    where[owner[at]] = cell[at]
+    if extra is not None:
+        extra[0][owner[at]] = extra[1][at]
+
+
+#: A grid point counts towards a move's width once the move takes more than this off it [mm].
+_ENGAGED_FILM = 0.02
+
+
+def _reach_interval(seg: _Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray):
+    """Where along each move (``t`` in [0, 1]) the grid point is within the cutting radius.
+
+    Returns ``ta, tb, r0``: the interval's ends and the distance from the axis at the start
+    [mm]; ``ta > tb`` where the point is never within reach.
+    """
+    wx, wy = qx - seg.x[o], qy - seg.y[o]
+    dx, dy, l2, R = seg.dx[o], seg.dy[o], seg.l2[o], seg.radius[o]
+    r0 = np.hypot(wx, wy)
+    has = l2 > 1e-18
+    l2s = np.where(has, l2, 1.0)
+    cross = wx * dy - wy * dx
+    root = np.sqrt(np.maximum(l2 * R * R - cross * cross, 0.0))
+    wd = wx * dx + wy * dy
+    ta = np.where(has, np.clip((wd - root) / l2s, 0.0, 1.0), 0.0)
+    tb = np.where(has, np.clip((wd + root) / l2s, 0.0, 1.0), 1.0)
+    never = (l2 * R * R * (1 + 1e-12) < cross * cross) | (~has & (r0 > R * (1 + 1e-12)))
+    ta = np.where(never, 1.0, ta)
+    tb = np.where(never, 0.0, tb)
+    return ta, tb, r0
+
+
+def _engaged_depth(seg: _Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.ndarray, before: np.ndarray,
+                   env: np.ndarray, cells: np.ndarray, cell: float, min_width: float, stats: _MoveStats,
+                   skin: np.ndarray | None = None) -> None:
+    """Deepest engagement of each move's cutter [mm], in ``stats.depth``; its width in ``stats.width``.
+
+    The column a move takes off a grid point is split in two: as much of it as the tool
+    descends while the point is within its reach is a plunge (taken off from above); the
+    rest the cutter meets moving sideways, and that height is the axial depth of cut
+    ``ap`` there. A tool is buried when
+
+    * sideways: the grid points taken, thickest first, span ``min_width`` across the
+      move's XY direction while still deeper than the depth reported (a tall but thin
+      skin shaved off a wall is not a buried tool, a full-width slot is);
+    * plunging: they cover half the cutter's footprint while still deeper than it (a
+      drill-like entry into solid stock, not a descent past a wall; for a ball that is
+      ``0.29 R`` less than the depth of its tip).
+
+    Grid points ``skin`` (within :data:`_SKIN` of a part wall at least as tall as the
+    material on them, less that distance) are left out: the allowance on a wall is
+    taken off by finishing whatever its height, a raster pass meeting it head-on.
+    """
+    R = seg.radius[o]
+    ta, tb, _ = _reach_interval(seg, o, qx, qy)
+    # What the tool takes off a point while it descends over it is a plunge; the rest it
+    # takes moving sideways into the material.
+    removed = before - env
+    plunge = np.minimum(removed, np.maximum(-seg.dz[o], 0.0) * np.maximum(tb - ta, 0.0))
+    side = removed - plunge
+    if skin is not None:  # the skin of a wall: taken off, but no engagement
+        plunge = np.where(skin, 0.0, plunge)
+        side = np.where(skin, 0.0, side)
+
+    L = np.sqrt(seg.l2[o])
+    has = L > 1e-9
+    ux = np.where(has, seg.dx[o] / np.where(has, L, 1.0), 1.0)
+    uy = np.where(has, seg.dy[o] / np.where(has, L, 1.0), 0.0)
+    wx, wy = qx - seg.x[o], qy - seg.y[o]
+    lat = np.where(has, wx * uy - wy * ux, wx)  # signed distance across the move (along X if vertical)
+    film = removed > _ENGAGED_FILM
+    if film.any():
+        lo = np.full(len(seg), np.inf)
+        hi = np.full(len(seg), -np.inf)
+        np.minimum.at(lo, o[film], lat[film])
+        np.maximum.at(hi, o[film], lat[film])
+        k = np.flatnonzero(np.isfinite(lo))
+        width = np.minimum(hi[k] - lo[k] + cell, 2 * seg.radius[k])
+        stats.width[k + s] = np.maximum(stats.width[k + s], width)
+
+    # Sideways: thickest first within each move, running extent of the lateral offsets
+    # (cummax with a per-move offset that lifts each move above every earlier one).
+    sel = np.flatnonzero(side > 0.0)
+    if len(sel):
+        order = sel[np.argsort(o[sel] * (float(side[sel].max()) + 1.0) - side[sel], kind="stable")]
+        os_, lat_s = o[order], lat[order]
+        shift = os_ * (4.0 * float(2 * np.max(seg.radius)) + 4.0)
+        hi = np.maximum.accumulate(lat_s + shift) - shift
+        lo = shift - np.maximum.accumulate(shift - lat_s)
+        wide = np.flatnonzero(hi - lo + cell >= min_width)
+        if len(wide):
+            _record_max(stats.depth, stats.depth_cell, os_[wide] + s, side[order][wide], cells[order][wide])
+    # Plunging: the k-th thickest, k grid points being half the cutter's footprint.
+    sel = np.flatnonzero(plunge > 0.0)
+    if len(sel):
+        order = sel[np.argsort(o[sel] * (float(plunge[sel].max()) + 1.0) - plunge[sel], kind="stable")]
+        os_ = o[order]
+        first = np.r_[True, os_[1:] != os_[:-1]]
+        rank = np.arange(len(order)) - np.maximum.accumulate(np.where(first, np.arange(len(order)), 0))
+        need = np.ceil(0.5 * math.pi * R[order] ** 2 / cell**2) - 1
+        at = np.flatnonzero(rank >= need)
+        if len(at):
+            _record_max(stats.depth, stats.depth_cell, os_[at] + s, plunge[order][at], cells[order][at])
+
+
+def _judge(seg: _Segments, stats: _MoveStats, moves: ProgramMoves, tools: Mapping[int, Tool], finish: np.ndarray,
+           sim: Simulation, options: VerifyOptions):
+    """Rapid crashes, faults and per-tool engagement from the per-move results."""
+    g = sim.grid
+
+    def xy(cell: int) -> tuple[float, float]:
+        jj, ii = divmod(int(cell), g.nx)
+        return float(g.x0 + ii * g.cell), float(g.y0 + jj * g.cell)
+
+    line = moves.line[seg.move].astype(np.int64)
+    tool = moves.tool[seg.move].astype(np.int64)
+    fin = finish[seg.move]
     crashes = []
-    starts = np.searchsorted(owner, suspects, side="left")
-    stops = np.searchsorted(owner, suspects, side="right")
-    done = 0
-    for k, f, l in zip(suspects.tolist(), starts.tolist(), stops.tolist()):
-        if f > done:
-            np.minimum.at(stock, flat[done:f], env[done:f])
-        cells, e = flat[f:l], env[f:l]
-        depth = stock[cells] - e
-        worst = int(np.argmax(depth))
-        if depth[worst] > options.rapid_tolerance:
-            jj, ii = divmod(int(cells[worst]), grid.nx)
-            move = int(seg.move[k])
-            crashes.append(RapidCrash(
-                line=int(moves.line[move]),
-                depth=float(depth[worst]),
-                position=(grid.x0 + ii * grid.cell, grid.y0 + jj * grid.cell, float(e[worst])),
-                move=move,
-            ))
-            log.debug("rapid on line %d goes %.3f mm into the stock", crashes[-1].line, crashes[-1].depth)
-        stock[cells] = np.minimum(stock[cells], e)  # a move's cells are distinct
-        done = l
-    if done < len(owner):
-        np.minimum.at(stock, flat[done:], env[done:])
-    return crashes
+    for k in np.flatnonzero(seg.rapid & (stats.removed_max > options.rapid_tolerance)).tolist():
+        x, y = xy(stats.removed_cell[k])
+        crashes.append(RapidCrash(line=int(line[k]), depth=float(stats.removed_max[k]),
+                                  position=(x, y, float(stats.removed_env[k])), move=int(seg.move[k])))
+    faults: list[Fault] = []
+    # A program whose feed moves take nothing off proves nothing (an empty or truncated file).
+    if not np.any(stats.removed_max[~seg.rapid] > options.gouge_tolerance):
+        faults.append(Fault("no_cut", 0, (), 0.0, 0.0, None, "the program removes no material"))
+
+    flute = np.array([tools[t].flute_length if t in tools else np.inf for t in tool.tolist()], dtype=np.float64)
+    checks = (
+        ("rapid", seg.rapid & (stats.removed_max > options.rapid_tolerance), stats.removed_max, stats.removed_cell,
+         np.full(len(seg), options.rapid_tolerance), "rapid with T{t} goes {w:.2f} mm into the stock"),
+        ("holder", stats.contact > options.contact_tolerance, stats.contact, stats.contact_cell,
+         np.full(len(seg), options.contact_tolerance), "shank or holder of T{t} reaches {w:.2f} mm into the stock or part"),
+        ("flute", ~seg.rapid & (stats.depth > flute + options.contact_tolerance), stats.depth, stats.depth_cell,
+         flute, "T{t} engaged {w:.2f} mm deep, beyond its {l:g} mm flutes"),
+        ("buried", ~seg.rapid & fin & (stats.depth > options.finish_depth), stats.depth, stats.depth_cell,
+         np.full(len(seg), options.finish_depth), "finishing tool T{t} engaged {w:.2f} mm deep (limit {l:g} mm)"),
+        # The move that takes the tip below the bottom, not the one that brings it back.
+        ("below_stock", seg.z + seg.dz < sim.stock_bottom - options.contact_tolerance, sim.stock_bottom - seg.zmin,
+         np.full(len(seg), -1), np.full(len(seg), options.contact_tolerance),
+         "T{t} goes {w:.2f} mm below the stock bottom"),
+    )
+    for kind, bad, value, where, limit, text in checks:
+        for t in np.unique(tool[bad]).tolist():
+            ks = np.flatnonzero(bad & (tool == t))
+            k = int(ks[np.argmax(value[ks])])
+            if where[k] >= 0:
+                x, y = xy(where[k])
+            else:
+                x, y = float(seg.x[k] + (seg.dx[k] if seg.dz[k] < 0 else 0.0)), float(seg.y[k] + (seg.dy[k] if seg.dz[k] < 0 else 0.0))
+            w = float(value[k])
+            faults.append(Fault(kind, int(t), tuple(sorted(set(line[ks].tolist()))), w, float(limit[k]),
+                                (x, y, float(seg.zmin[k])), text.format(t=t, w=w, l=float(limit[k]))))
+
+    engagement = []
+    for t in np.unique(tool).tolist():
+        ks = np.flatnonzero((tool == t) & ~seg.rapid)
+        if len(ks) == 0:
+            continue
+        k = int(ks[np.argmax(stats.depth[ks])])
+        engagement.append(ToolEngagement(
+            tool=int(t), finishing=bool(fin[ks].any()), moves=int(len(ks)), max_depth=float(stats.depth[k]),
+            max_depth_line=int(line[k]) if stats.depth[k] > 0 else 0, max_width=float(stats.width[ks].max()),
+        ))
+    return crashes, faults, tuple(engagement)
 
 
 def _report(
     sim: Simulation, tri: np.ndarray, moves: ProgramMoves, tools, options: VerifyOptions, crashes, n_moves,
-    cut_length, rapid_length,
+    cut_length, rapid_length, faults=(), engagement=(), rapids_checked=0,
 ) -> VerifyReport:
     covered = np.isfinite(sim.part_top)
     rem = (sim.stock_top - np.where(covered, sim.part_top, 0.0))[covered]
@@ -790,6 +1233,9 @@ def _report(
         cell=sim.grid.cell,
         gouge_tolerance=options.gouge_tolerance,
         rapid_tolerance=options.rapid_tolerance,
+        faults=tuple(sorted(faults, key=lambda f: (FAULT_KINDS.index(f.kind), f.tool))),
+        engagement=tuple(engagement),
+        rapids_checked=rapids_checked,
     )
 
 
@@ -880,8 +1326,9 @@ def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640) -> 
 
     Blue is on size, through cyan, green and yellow to orange at the largest remaining
     stock; red is a gouge deeper than the tolerance; grey is where there is no part. The
-    deepest gouge is ringed in white, rapid crashes are marked with a magenta cross. Y
-    points up in the picture (away from the operator).
+    deepest gouge is ringed in white, rapid crashes are marked with a magenta cross, every
+    other fault with a square labelled with its kind, tool and first line. Y points up in
+    the picture (away from the operator).
 
     Parameters
     ----------
@@ -939,6 +1386,9 @@ def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640) -> 
     caption = f"remaining stock above the part, max gouge {report.max_gouge:.3f} mm"
     if report.rapid_crashes:
         caption += f", {len(report.rapid_crashes)} rapid crash(es)"
+    others = [f.kind for f in report.faults if f.kind != "rapid"]
+    if others:
+        caption += ", " + ", ".join(sorted(set(others)))
     draw.text((margin, margin + h + 6), caption, fill=(0, 0, 0), font=font)
 
     def to_px(x: float, y: float) -> tuple[float, float]:
@@ -955,7 +1405,66 @@ def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640) -> 
         cx, cy = to_px(crash.position[0], crash.position[1])
         draw.line([(cx - 7, cy - 7), (cx + 7, cy + 7)], fill=(255, 0, 255), width=3)
         draw.line([(cx - 7, cy + 7), (cx + 7, cy - 7)], fill=(255, 0, 255), width=3)
+    # Every other fault: a black-and-white square at its worst point, labelled with its
+    # kind and first program line (rapids already carry their cross).
+    for fault in report.faults:
+        if fault.position is None or fault.kind == "rapid":
+            continue
+        cx, cy = to_px(fault.position[0], fault.position[1])
+        draw.rectangle([cx - 8, cy - 8, cx + 8, cy + 8], outline=(0, 0, 0), width=3)
+        draw.rectangle([cx - 6, cy - 6, cx + 6, cy + 6], outline=(255, 255, 255), width=1)
+        label = f"{fault.kind} T{fault.tool}" + (f" L{fault.lines[0]}" if fault.lines else "")
+        draw.text((cx + 10, cy - 6), label, fill=(0, 0, 0), font=font)
     return np.asarray(img, dtype=np.uint8).copy()
+
+
+#: The comment the post-processor writes at the start of each operation (cadcam.post):
+#: ``(op 2: finish raster [raster] T3 6 mm ball 2FL carbide)``.
+_OP_COMMENT = re.compile(r"\(\s*op\s+\d+\s*:.*\[([^\]]+)\]\s*T(\d+)\b", re.IGNORECASE)
+
+
+def finishing_moves(gcode_text: str, moves: ProgramMoves, operations: Sequence[Mapping[str, Any]] = ()) -> np.ndarray:
+    """Which moves of a program a finishing operation makes, for :attr:`VerifyOptions.finish_depth`.
+
+    Each move belongs to the operation whose ``op N: NAME [KIND] Tt`` comment (written by
+    the post-processor) last precedes it, if that comment names the tool in the spindle;
+    the kind is finishing if it is in :data:`FINISHING_KINDS`. Moves without such a
+    comment (hand-edited programs, other posts) take the kind from the setup sheet's
+    ``operations``: finishing if every operation there using that tool is a finishing
+    one. So deleting the roughing operation, comment and all, still leaves the finishing
+    tool judged as a finishing tool.
+
+    Parameters
+    ----------
+    gcode_text : str
+        The program the moves were parsed from.
+    moves : ProgramMoves
+    operations : sequence of mapping
+        The setup sheet's ``operations`` (``kind`` and ``tool`` are read).
+
+    Returns
+    -------
+    (n,) bool
+        Indexed like ``moves.points``.
+    """
+    by_tool: dict[int, set[bool]] = {}
+    for op in operations:
+        try:
+            by_tool.setdefault(int(op["tool"]), set()).add(str(op["kind"]).lower() in FINISHING_KINDS)
+        except (KeyError, TypeError, ValueError):
+            continue
+    comment_line, comment_tool, comment_fin = [0], [-1], [False]
+    for k, text in enumerate(gcode_text.splitlines(), start=1):
+        m = _OP_COMMENT.search(text)
+        if m:
+            comment_line.append(k)
+            comment_tool.append(int(m.group(2)))
+            comment_fin.append(m.group(1).strip().lower() in FINISHING_KINDS)
+    at = np.searchsorted(np.asarray(comment_line), moves.line, side="right") - 1
+    named_tool = np.asarray(comment_tool)[at]
+    from_comment = np.asarray(comment_fin)[at]
+    sheet = np.array([by_tool.get(t) == {True} for t in moves.tool.tolist()], dtype=bool)
+    return np.where(named_tool == moves.tool, from_comment, sheet)
 
 
 def operation_moves(operations: Sequence[Operation]) -> ProgramMoves:

@@ -30,7 +30,9 @@ def verify(
 ) -> None:
     """Simulate material removal; report gouges, remaining stock and rapid crashes.
 
-    Exits 3 when the program gouges the part or a rapid crashes into stock.
+    Exits 3 when the program gouges the part, a rapid or the shank or holder meets stock, a
+    tool is engaged deeper than its flutes (a finishing tool: deeper than the allowance plus
+    the roughing terraces), a tool goes below the stock bottom, or nothing is cut.
     """
     setup_logging(quiet)
     outputs = [p for p in (png, mcap) if p is not None] + ([json_path] if json_path and str(json_path) != "-" else [])
@@ -44,7 +46,8 @@ def verify(
         raise VerifyError(f"cannot read program: {e}", source=program) from None
     options = VerifyOptions(cell=grid, gouge_tolerance=tolerance)
     with progress_bars(quiet) as bars:
-        sim, report = run_verify(text, str(program), setup, tools, triangles, options, bars)
+        sim, report = run_verify(text, str(program), setup, tools, triangles, options, bars,
+                                 operations=sheet.get("operations") or ())
     to_stdout = json_path is not None and str(json_path) == "-"
     write_verify_outputs(sim, report, png=png, json_path=None if to_stdout else json_path, mcap=mcap,
                          overwrite=overwrite, inputs={str(program): "", str(part): ""})

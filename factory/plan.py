@@ -289,7 +289,8 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     with watch("verify"):
         sim, report = run_verify(program.text, str(outputs["program"]), job.setup,
                                  {t.number: t for t in job.tools},
-                                 np.asarray(planned.part_work.triangles), VerifyOptions(cell=req.grid), progress)
+                                 np.asarray(planned.part_work.triangles), VerifyOptions(cell=req.grid), progress,
+                                 operations=sheet.get("operations") or ())
     return PartPlan(req, planned, program, sheet, tending, sim, report, dict(watch.seconds))
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +14,7 @@ from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_part, units_of_scale
 from cadcam.model import Setup, Tool
 from cadcam.sheet import read_setup_sheet
-from cadcam.verify import Simulation, VerifyOptions, VerifyReport, deviation_image, simulate
+from cadcam.verify import Simulation, VerifyOptions, VerifyReport, deviation_image, finishing_moves, simulate
 from factory.atomic import write_bytes, write_text
 from factory.errors import SetupError
 from factory.pictures import png_bytes
@@ -44,9 +45,11 @@ def part_triangles(part: Path, setup: Setup, expected_sha256: str = "") -> np.nd
 
 
 def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int, Tool],
-               triangles: np.ndarray, options: VerifyOptions,
-               progress: Progress | None = None) -> tuple[Simulation, VerifyReport]:
-    """Parse and simulate a program against the part (``triangles`` in work coordinates [mm]).
+               triangles: np.ndarray, options: VerifyOptions, progress: Progress | None = None,
+               operations: Sequence[Mapping[str, Any]] = ()) -> tuple[Simulation, VerifyReport]:
+    """Parse and simulate a program against the part (``triangles`` in work coordinates [mm]);
+    ``operations`` are the setup sheet's, which tell finishing tools from roughing ones where the
+    program's own operation comments do not.
 
     Raises
     ------
@@ -56,7 +59,9 @@ def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int
         The simulation cannot run on its inputs (a tool missing from ``tools``, ...).
     """
     moves = parse_gcode(gcode_text, source=gcode_source)
-    return simulate(moves, tools, setup, triangles, options, progress=stage_callback(progress, "verify"))
+    finishing = finishing_moves(gcode_text, moves, operations)
+    return simulate(moves, tools, setup, triangles, options, progress=stage_callback(progress, "verify"),
+                    finishing=finishing)
 
 
 def log_simulation(mcap: McapLog, sim: Simulation) -> None:
@@ -67,10 +72,29 @@ def log_simulation(mcap: McapLog, sim: Simulation) -> None:
 
 
 def report_text(report: VerifyReport) -> str:
+    """The verdict in a few lines: gouge, remaining stock, rapid crashes, and each fault with its lines."""
     verdict = "OK" if report.ok else "FAILED"
-    return (f"verify {verdict}: max gouge {report.max_gouge:.4f} mm, remaining stock max "
+    text = (f"verify {verdict}: max gouge {report.max_gouge:.4f} mm, remaining stock max "
             f"{report.remaining_max:.3f} / mean {report.remaining_mean:.3f} / p95 {report.remaining_p95:.3f} mm, "
             f"{len(report.rapid_crashes)} rapid crash(es)")
+    if report.gouged and report.gouge_line is not None:
+        text += f"\n  gouge: {report.max_gouge:.3f} mm into the part, line {report.gouge_line}"
+    for f in report.faults:
+        text += f"\n  {f.kind}: {f.message}" + (f", line(s) {line_ranges(f.lines)}" if f.lines else "")
+    return text
+
+
+def line_ranges(lines: Sequence[int], most: int = 12) -> str:
+    """``1203-1210, 1304`` for program lines; at most ``most`` runs, then how many more lines."""
+    runs: list[list[int]] = []
+    for n in lines:
+        if runs and n <= runs[-1][1] + 1:
+            runs[-1][1] = n
+        else:
+            runs.append([n, n])
+    text = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in runs[:most])
+    rest = sum(b - a + 1 for a, b in runs[most:])
+    return text + (f" and {rest} more" if rest else "")
 
 
 def write_verify_outputs(sim: Simulation, report: VerifyReport, *, png: Path | None, json_path: Path | None,

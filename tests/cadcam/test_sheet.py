@@ -7,6 +7,7 @@ import json
 import pytest
 
 from cadcam.finishing import FinishingOptions
+from cadcam.model import DEFAULT_HOLDER
 from cadcam.plan import PlanOptions, plan_job
 from cadcam.post import PostOptions, post_process
 from cadcam.setup import make_setup
@@ -40,3 +41,13 @@ def test_round_trip(posted):
 def test_malformed_sheet_names_its_file(broken):
     with pytest.raises(SetupError, match="x.setup.json"):
         read_setup_sheet(broken, source="x.setup.json")
+
+
+def test_sheet_carries_holders_and_old_sheets_get_the_default(posted):
+    job, program = posted
+    sheet = json.loads(json.dumps(setup_sheet(job, program, "block.nc")))
+    assert all(t["holder"] and t["shank_diameter"] > 0 for t in sheet["tools"])
+    for t in sheet["tools"]:  # a sheet written before holders were recorded
+        del t["holder"], t["shank_diameter"]
+    _, tools = read_setup_sheet(sheet)
+    assert all(t.holder == DEFAULT_HOLDER and t.shank_diameter == t.diameter for t in tools.values())

@@ -8,7 +8,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cadcam.model import Tool
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from cadcam.model import DEFAULT_HOLDER, HolderSegment, Tool
 from cadcam.tools import load_tool_library
 from factory.errors import ToolError
 from factory.resources import FIXTURES
@@ -130,6 +133,13 @@ DELETE = object()
         (("materials", "brass", "aliases"), ["pom"], "materials.plastic: name or alias 'pom' also used by brass"),
         (("tools",), [], "tools: must be a non-empty list"),
         (("tools", 0), "T1 6mm", "tools[0]: must be a mapping"),
+        (("tools", 0, "holder"), [], "tools[0].holder: must be a non-empty list"),
+        (("tools", 0, "holder"), [{"diameter": 20}], "tools[0].holder[0].length: missing"),
+        (("tools", 0, "holder"), [{"diameter": 20, "length": -1}], "tools[0].holder[0].length: must be > 0"),
+        (("tools", 1, "holder"), [{"diameter": 20, "length": 5, "top_diameter": 0}],
+         "tools[1].holder[0].top_diameter: must be > 0"),
+        (("tools", 1, "holder"), [{"diameter": 20, "lenght": 5}], "tools[1].holder[0].lenght: unknown key (did you mean length?)"),
+        (("tools", 2, "shank_diameter"), 0, "tools[2].shank_diameter: must be > 0"),
     ],
 )
 def test_malformed_library_names_the_field(tmp_path, doc, path, value, expected):
@@ -175,3 +185,50 @@ def test_broken_yaml(tmp_path, text, expected):
 def test_missing_file(tmp_path):
     with pytest.raises(ToolError, match="no such tool library"):
         load_tool_library(tmp_path / "nope.yaml")
+
+
+def test_every_shop_tool_has_its_holder(lib, doc):
+    assert all("holder" in t and "shank_diameter" in t for t in doc["tools"])
+    t1 = lib.tool(1)
+    assert t1.shank_diameter == 6.0
+    assert t1.holder == (HolderSegment(22.0, 10.0, 28.0), HolderSegment(32.0, 40.0, 32.0))
+    assert lib.tool(4).shank_diameter == 2.8  # the long neck
+
+
+def test_holder_and_shank_default_when_omitted(tmp_path, doc):
+    for t in doc["tools"]:
+        del t["holder"], t["shank_diameter"]
+    lib = load_tool_library(write(tmp_path, doc))
+    assert all(t.holder == DEFAULT_HOLDER and t.shank_diameter == t.diameter for t in lib.tools)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.tuples(st.floats(2.0, 60.0), st.floats(0.5, 40.0), st.floats(2.0, 60.0)), min_size=1, max_size=4),
+    st.floats(1.0, 20.0), st.floats(5.0, 40.0), st.floats(0.0, 1.0),
+)
+def test_body_cylinders_hold_the_true_shank_and_holder(segments, shank, stickout, where):
+    """At every height, the stacked cylinders are at least as wide as the shank or holder there."""
+    holder = tuple(HolderSegment(d, length, top) for d, length, top in segments)
+    tool = Tool(1, "t", "flat", 6.0, 0.0, min(4.0, stickout), 2, stickout, shank_diameter=shank, holder=holder)
+    body = tool.body()
+    assert [h for h, _ in body] == sorted(h for h, _ in body)
+    assert all(r1 > r0 for (_, r0), (_, r1) in zip(body, body[1:]))
+
+    def body_radius(z):
+        return max((r for h, r in body if h <= z + 1e-9), default=0.0)
+
+    top = stickout + sum(seg.length for seg in holder)
+    z = tool.flute_length + where * (top - tool.flute_length)
+    if z < stickout:
+        true = shank / 2
+    else:
+        base = stickout
+        true = 0.0
+        for seg in holder:
+            if z <= base + seg.length:
+                u = (z - base) / seg.length
+                true = (seg.diameter + (seg.top_diameter - seg.diameter) * u) / 2
+                break
+            base += seg.length
+    assert body_radius(z) >= true - 1e-9

@@ -140,7 +140,7 @@ def test_horizontal_pass_cuts_the_tool_profile(tool):
     groove = np.where(d <= tool.radius, -2 + tool.profile_height(np.minimum(d, tool.radius)), np.inf)
     assert np.allclose(sim.stock_top, np.minimum(0.0, groove), atol=1e-9)
     assert report.max_gouge == 0.0 and report.ok
-    assert report.moves == 3  # the first positioning move (from NaN) is not simulated
+    assert report.moves == 4  # the first positioning move (from NaN) is checked standing at its end
     assert report.cut_length == pytest.approx(7 + np.hypot(30, 2))
     assert report.rapid_length == pytest.approx(7)
 
@@ -255,7 +255,9 @@ def test_cutting_air_leaves_the_full_stock_above_the_part():
     sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
     assert np.all(sim.stock_top == 0.0)
     assert report.remaining_max == report.remaining_mean == report.remaining_p95 == pytest.approx(5.0)
-    assert report.max_gouge == 0.0 and report.ok
+    # Nothing cut proves nothing: the program fails as one that removes no material.
+    assert report.max_gouge == 0.0 and not report.ok
+    assert [f.kind for f in report.faults] == ["no_cut"]
 
 
 def test_facing_to_the_part_top_leaves_nothing_and_gouges_nothing():
@@ -271,14 +273,17 @@ def test_facing_to_the_part_top_leaves_nothing_and_gouges_nothing():
     assert report.ok
 
 
-def test_moves_with_unknown_axes_are_skipped():
+def test_moves_with_unknown_axes_are_skipped_and_the_first_known_position_is_checked():
     moves = ProgramMoves(
         points=[[np.nan] * 3, [10, 10, np.nan], [10, 10, -3], [20, 10, -3]],
         motion=[0, R, C, C], tool=[0, 1, 1, 1], feed=[np.nan, np.nan, 500, 500], line=[0, 1, 2, 3],
     )
     sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
-    assert report.moves == 1  # only the last move has both ends known
+    # Line 1 ends at an unknown Z: skipped. Line 2 comes from there: the tool stands at
+    # its end, already 3 mm down in the stock, which line 3 then cuts on from.
+    assert report.moves == 2
     assert sim.stock_top.min() == pytest.approx(-3.0)
+    assert sim.stock_top[np.abs(sim.grid.ys - 10).argmin(), np.abs(sim.grid.xs - 8).argmin()] == pytest.approx(-3.0)
 
 
 def test_feed_move_without_a_known_tool_is_an_error():
@@ -365,3 +370,220 @@ def test_a_wall_nicked_within_the_tolerance_is_no_gouge_of_its_height():
     assert report.max_gouge == pytest.approx(1.0 + np.sqrt(BALL.radius**2 - d**2), abs=1e-9)
     assert report.gouge_position[0] == pytest.approx(29.625)
     assert report.gouge_line == 3
+
+
+# --- what breaks a tool or crashes the machine ------------------------------------------
+#
+# Random parts (a box in the left of the stock, its top a few mm below the stock top), a
+# clean program that faces the stock down to the part top with the flat end mill, and
+# doctored copies of it. Programs are G-code text parsed by the real parser, so the
+# line numbers the faults name are the lines of the text.
+
+from cadcam.gcode import parse_gcode  # noqa: E402
+from cadcam.model import HolderSegment  # noqa: E402
+from cadcam.verify import finishing_moves  # noqa: E402
+
+SAFE_STOCK = Setup(stock_min=[0, 0, -20], stock_max=[60, 30, 0], transform_mesh_to_work=np.eye(4))
+#: A 4 mm flat end mill sticking out only 8 mm from a 16 mm holder.
+STUBBY = Tool(5, "4 mm flat, short", "flat", 4.0, 0.0, 6.0, 2, 8.0, shank_diameter=4.0,
+              holder=(HolderSegment(16.0, 30.0, 16.0),))
+SAFE_TOOLS = {**TOOLS, STUBBY.number: STUBBY}
+FAST = VerifyOptions(cell=0.5)
+
+
+def facing(face: float, stepdown: float) -> list[str]:
+    """Face the whole stock down to ``face`` with T1 (6 mm flat): entries beside the stock."""
+    out = ["G21 G90 G17", "(op 1: face [roughing] T1 6 mm flat)", "T1 M6", "G0 Z5"]
+    levels = np.arange(-stepdown, face - 1e-9, -stepdown).tolist() + [face]
+    for z in dict.fromkeys(round(v, 4) for v in levels):
+        out += ["G0 X-4 Y0", f"G0 Z{z}"]
+        for k, y in enumerate(np.arange(0.0, 30.01, 4.0).tolist()):
+            out += [f"G1 X{64 if k % 2 == 0 else -4} Y{y} F800", f"G1 Y{y + 4}"]
+        out.append("G0 Z5")
+    return out
+
+
+def verify_text(lines: list[str], part, sheet_ops=()):
+    text = "\n".join(lines) + "\n"
+    moves = parse_gcode(text)
+    return simulate(moves, SAFE_TOOLS, SAFE_STOCK, part, FAST, finishing=finishing_moves(text, moves, sheet_ops))
+
+
+def line_of(lines: list[str], text: str, start: int = 0) -> int:
+    return lines.index(text, start) + 1
+
+
+def faults_by_kind(report):
+    return {(f.kind, f.tool): f for f in report.faults}
+
+
+part_strategy = st.tuples(st.floats(12.0, 26.0), st.floats(14.0, 26.0), st.floats(1.5, 6.0))
+
+
+def random_part(size):
+    sx, sy, depth = size
+    return box([2, 2, -20], [2 + sx, 2 + sy, -depth]), -depth
+
+
+@settings(max_examples=12, deadline=None)
+@given(part_strategy)
+def test_a_clean_program_is_not_flagged(size):
+    part, face = random_part(size)
+    sim, report = verify_text(facing(face, 1.5), part)
+    assert report.ok, report.faults
+    assert report.engagement[0].max_depth <= 1.5 + 1e-9  # never more than the stepdown
+    assert report.engagement[0].max_width == pytest.approx(4.0, abs=FAST.cell)  # the stepover
+
+
+@settings(max_examples=12, deadline=None)
+@given(part_strategy, st.floats(36.0, 52.0), st.floats(7.0, 23.0), st.floats(3.0, 10.0), st.sampled_from([0.0, 4.0]))
+def test_a_buried_finishing_tool_is_caught_on_its_lines(size, x, y, depth, travel):
+    part, face = random_part(size)
+    lines = facing(face, 1.5) + [
+        "(op 2: finish raster [raster] T2 6 mm ball)", "T2 M6", "G0 Z5", f"G0 X{x} Y{y}", f"G0 Z{face + 1}",
+        f"G1 Z{face - depth} F300", f"G1 X{x - travel}", "G0 Z5",
+    ]
+    _, report = verify_text(lines, part)
+    buried = faults_by_kind(report)[("buried", 2)]
+    plunge = line_of(lines, f"G1 Z{face - depth} F300")
+    assert set(buried.lines) <= {plunge, plunge + 1} and plunge in buried.lines
+    # Sideways the whole column under the ball's centre; plunging, the thickness over half
+    # the footprint (r <= R / sqrt 2, where the ball stands 0.88 mm above its tip).
+    assert depth - 0.88 - FAST.cell < buried.worst <= depth + 1e-9
+    if travel:
+        assert buried.worst > depth - 0.1
+    assert {f.kind for f in report.faults} == {"buried"}  # nothing else: no gouge, no crash
+    # The same moves with a roughing tool are within its 20 mm flutes.
+    rough = [ln.replace("[raster] T2", "[roughing] T2") for ln in lines]
+    assert verify_text(rough, part)[1].ok
+
+
+@settings(max_examples=12, deadline=None)
+@given(part_strategy, st.floats(0.3, 2.7), st.floats(0.5, 4.0), st.floats(4.0, 26.0))
+def test_a_rapid_whose_edge_alone_meets_stock_is_caught(size, outside, depth, y):
+    """The tool's centre stays outside the stock; its edge reaches ``3 - outside`` mm in."""
+    part, face = random_part(size)
+    base = facing(face, 1.5)
+    lines = base[:4] + [f"G0 X{-outside} Y{y}", f"G0 Z{-depth}", "G0 Z5"] + base[4:]
+    _, report = verify_text(lines, part)
+    crash = faults_by_kind(report)[("rapid", 1)]
+    assert crash.lines == (6,)  # the G0 Z-depth
+    assert crash.worst == pytest.approx(depth)
+    assert [c.line for c in report.rapid_crashes] == [6]
+    assert {f.kind for f in report.faults} == {"rapid"}
+
+
+@settings(max_examples=10, deadline=None)
+@given(part_strategy, st.floats(36.0, 52.0), st.floats(8.0, 22.0), st.integers(9, 14))
+def test_a_short_tool_reaching_deep_is_caught_by_its_holder(size, x, y, depth):
+    """A narrow pocket cut 1 mm per level: no level is deep, but the holder comes down on the stock."""
+    part, face = random_part(size)
+    lines = facing(face, 1.5) + ["(op 2: pocket [roughing] T5 4 mm flat, short)", "T5 M6", "G0 Z5",
+                                 f"G0 X{x + 1} Y{y}", f"G0 Z{face + 1}"]
+    for k in range(1, depth + 1):
+        lines += [f"G1 Z{face - k} F200", f"G2 X{x + 1} Y{y} I-1 J0 F400"]
+    lines.append("G0 Z5")
+    text = "\n".join(lines) + "\n"
+    moves = parse_gcode(text)
+    _, report = verify_text(lines, part)
+    holder = faults_by_kind(report)[("holder", 5)]
+    # Every move of T5 whose tip goes more than the 8 mm stick-out below the faced top.
+    low = np.minimum(moves.points[:-1, 2], moves.points[1:, 2]) < face - 8 - FAST.contact_tolerance
+    expected = set(moves.line[1:][low & (moves.tool[1:] == 5)].tolist())
+    assert set(holder.lines) == expected and expected
+    assert {f.kind for f in report.faults} == {"holder"}
+    assert holder.worst == pytest.approx(depth - 8.0, abs=0.05)
+
+
+def test_a_cut_deeper_than_the_flutes_and_below_the_stock():
+    part, face = random_part((20.0, 20.0, 3.0))
+    lines = facing(face, 1.5) + ["(op 2: slot [roughing] T5 4 mm flat, short)", "T5 M6", "G0 Z5",
+                                 "G0 X40 Y15", "G0 Z-2", "G1 Z-3 F200", "G1 X50 Z-10", "G1 Z-21", "G0 Z5"]
+    _, report = verify_text(lines, part)
+    found = faults_by_kind(report)
+    ramp = line_of(lines, "G1 X50 Z-10")
+    assert ramp in found[("flute", 5)].lines  # 7 mm of stock met sideways by 6 mm flutes
+    assert found[("below_stock", 5)].lines == (line_of(lines, "G1 Z-21"),)
+    assert found[("below_stock", 5)].worst == pytest.approx(1.0)
+
+
+def test_an_empty_program_fails():
+    part, _ = random_part((20.0, 20.0, 3.0))
+    for text in ([], ["G21 G90", "T1 M6", "G0 Z5", "M30"]):
+        _, report = verify_text(text, part)
+        assert not report.ok and [f.kind for f in report.faults] == ["no_cut"]
+
+
+@settings(max_examples=8, deadline=None)
+@given(part_strategy, st.floats(36.0, 52.0), st.floats(7.0, 23.0), st.floats(3.0, 10.0))
+def test_one_batch_or_a_batch_per_move_judge_alike(size, x, y, depth):
+    """Within a batch each move meets the stock its predecessors left, as across batches."""
+    part, face = random_part(size)
+    lines = facing(face, 1.5) + [
+        "(op 2: finish raster [raster] T2 6 mm ball)", "T2 M6", "G0 Z5", f"G0 X{x} Y{y}", f"G0 Z{face + 1}",
+        f"G1 Z{face - depth} F300", f"G1 X{x - 4}", f"G1 X{x}", f"G0 X{x - 4}", "G0 Z5",
+    ]
+    sim1, one = verify_text(lines, part)
+    with mock.patch.object(verify, "_PAIR_BUDGET", 50):
+        sim2, many = verify_text(lines, part)
+    np.testing.assert_array_equal(sim1.stock_top, sim2.stock_top)
+    # Where and on which line a maximum is reached may differ between moves that tie.
+    assert_same([(f.kind, f.tool, f.lines, f.worst) for f in one.faults],
+                [(f.kind, f.tool, f.lines, f.worst) for f in many.faults])
+    assert_same([(e.tool, e.max_depth, e.max_width) for e in one.engagement],
+                [(e.tool, e.max_depth, e.max_width) for e in many.engagement])
+    assert_same(one.rapid_crashes, many.rapid_crashes)
+
+
+def assert_same(a, b, path="report"):
+    """Equal structure and text; numbers equal to 1e-7 mm (batching reorders float sums)."""
+    if isinstance(a, dict):
+        assert a.keys() == b.keys(), path
+        for k in a:
+            assert_same(a[k], b[k], f"{path}.{k}")
+    elif isinstance(a, (list, tuple)):
+        assert len(a) == len(b), path
+        for k, (x, y) in enumerate(zip(a, b)):
+            assert_same(x, y, f"{path}[{k}]")
+    elif isinstance(a, float):
+        assert a == pytest.approx(b, abs=1e-7), path
+    else:
+        assert a == b, path
+
+
+def test_finishing_moves_follow_the_op_comments_then_the_sheet():
+    text = "\n".join(["(op 1: rough [roughing] T1 flat)", "T1 M6", "G0 X0 Y0 Z5", "G1 Z-1 F100",
+                      "(op 2: finish [raster] T2 ball)", "T2 M6", "G1 Z-1", "T3 M6", "G1 Z-2"]) + "\n"
+    moves = parse_gcode(text)
+    ops = [{"kind": "roughing", "tool": 1}, {"kind": "raster", "tool": 2}, {"kind": "waterline", "tool": 3}]
+    fin = dict(zip(moves.line.tolist(), finishing_moves(text, moves, ops).tolist()))
+    assert fin[4] is False and fin[7] is True
+    assert fin[9] is True  # T3 under op 2's comment (which names T2): the sheet says T3 only finishes
+    no_comments = "\n".join(ln for ln in text.splitlines() if not ln.startswith("(")) + "\n"
+    moves = parse_gcode(no_comments)
+    fin = finishing_moves(no_comments, moves, ops)
+    assert fin[moves.tool == 1].sum() == 0 and fin[moves.tool == 2].all()
+
+
+def test_a_shank_as_wide_as_the_cutter_riding_a_finished_wall_is_no_contact():
+    """A ball with short flutes plunges down a 15 mm wall at exactly its radius from it."""
+    wall = box([30, 2, -20], [58, 28, 0])  # top flush with the stock top
+    ball = Tool(6, "6 mm ball, 8 mm flutes", "ball", 6.0, 3.0, 8.0, 2, 40.0)
+    lines = ["G21 G90", "(op 1: rough [roughing] T1 6 mm flat)", "T1 M6", "G0 Z5"]
+    for z in np.arange(-1.5, -15.01, -1.5).round(2).tolist():  # clear x < 30 leaving 0.3 mm
+        lines += ["G0 X-4 Y0", f"G0 Z{z}"]
+        for k, y in enumerate(np.arange(0.0, 30.01, 4.0).tolist()):
+            lines += [f"G1 X{26.7 if k % 2 == 0 else -4} Y{y} F800", f"G1 Y{y + 4}"]
+        lines += ["G1 X26.7 Y32", "G1 Y-2", "G0 Z5"]  # and along the wall: no scallops between the rows
+    lines += ["(op 2: finish [raster] T6 6 mm ball)", "T6 M6", "G0 X27 Y15 Z5", "G1 Z-15 F300", "G0 Z5"]
+    text = "\n".join(lines) + "\n"
+    moves = parse_gcode(text)
+    tools = {1: FLAT, 6: ball}
+    _, report = simulate(moves, tools, SAFE_STOCK, wall, FAST, finishing=finishing_moves(text, moves))
+    assert report.faults == () and not report.gouged
+    # Dragged along the wall at that depth, the shank does rub the 0.3 mm skin above the flutes.
+    text = text.replace("G1 Z-15 F300\n", "G1 Z-15 F300\nG1 Y25\n")
+    moves = parse_gcode(text)
+    _, report = simulate(moves, tools, SAFE_STOCK, wall, FAST, finishing=finishing_moves(text, moves))
+    assert [(f.kind, f.tool) for f in report.faults] == [("holder", 6)]
+    assert report.faults[0].lines == (text.splitlines().index("G1 Y25") + 1,)

@@ -1,0 +1,87 @@
+"""`factory verify` fails, naming the lines, the programs that would break a tool or crash.
+
+The bracket sample is planned once for the module (`factory plan`) and doctored here, so
+no large golden G-code is kept.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from cli.common import EXIT_VERIFY_FAILED
+from cli.main import app
+
+SAMPLES = Path(__file__).resolve().parents[2] / "samples"
+runner = CliRunner()
+GRID = "0.4"  # [mm]; the faults below are millimetres wide
+
+
+def run(*args) -> object:
+    return runner.invoke(app, [str(a) for a in args], catch_exceptions=False)
+
+
+@pytest.fixture(scope="module")
+def bracket(tmp_path_factory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("bracket")
+    r = run("plan", SAMPLES / "bracket.stl", "-o", d, "--no-robot", "--quiet")
+    assert r.exit_code in (0, EXIT_VERIFY_FAILED), r.output
+    return {"dir": d, "nc": d / "bracket.nc", "setup": d / "bracket.setup.json", "part": SAMPLES / "bracket.stl"}
+
+
+def verify(bracket, text: str, name: str):
+    nc = bracket["dir"] / name
+    nc.write_text(text)
+    out = bracket["dir"] / (name + ".json")
+    r = run("verify", nc, "--setup", bracket["setup"], "--part", bracket["part"], "--grid", GRID,
+            "--json", out, "--png", bracket["dir"] / (name + ".png"), "--overwrite")
+    return r, json.loads(out.read_text())
+
+
+def test_bracket_without_its_roughing_buries_the_finishing_ball(bracket):
+    lines = bracket["nc"].read_text().splitlines()
+    start = next(i for i, ln in enumerate(lines) if re.match(r"\(op 1: .*\[roughing\]", ln))
+    end = next(i for i, ln in enumerate(lines) if ln.startswith("(op 2:"))
+    doctored = lines[:start] + lines[end:]
+    r, report = verify(bracket, "\n".join(doctored) + "\n", "no_roughing.nc")
+    assert r.exit_code == EXIT_VERIFY_FAILED, r.output
+    buried = [f for f in report["faults"] if f["kind"] == "buried"]
+    assert buried and buried[0]["tool"] == 3 and buried[0]["worst"] > 1.0
+    # Each named line is a feed move of the finishing ball.
+    for n in buried[0]["lines"]:
+        assert re.match(r"G[123]\b|[XYZ]-?\d", doctored[n - 1]), doctored[n - 1]
+    assert f"line(s) {buried[0]['lines'][0]}" in r.output.replace("\n", " ")
+
+
+def test_bracket_with_a_rapid_whose_edge_cuts_the_stock(bracket):
+    lines = bracket["nc"].read_text().splitlines()
+    change = next(i for i, ln in enumerate(lines) if re.match(r"T\d+\s+M6", ln))
+    doctored = lines[:change + 1] + ["G0 X-1 Y20", "G0 Z-2"] + lines[change + 1:]
+    r, report = verify(bracket, "\n".join(doctored) + "\n", "rapid_edge.nc")
+    assert r.exit_code == EXIT_VERIFY_FAILED, r.output
+    rapid = [f for f in report["faults"] if f["kind"] == "rapid"]
+    assert rapid and rapid[0]["lines"] == [change + 3]  # the G0 Z-2
+    assert rapid[0]["worst"] == pytest.approx(2.0)
+    assert [c["line"] for c in report["rapid_crashes"]] == [change + 3]
+    assert "line(s) " + str(change + 3) in r.output
+
+
+@pytest.mark.parametrize("text", ["", "%\nG21 G90\nM30\n%\n"], ids=["empty", "no moves"])
+def test_a_program_that_removes_nothing_fails(bracket, text):
+    r, report = verify(bracket, text, "empty.nc")
+    assert r.exit_code == EXIT_VERIFY_FAILED, r.output
+    assert [f["kind"] for f in report["faults"]] == ["no_cut"]
+    assert "removes no material" in r.output
+
+
+def test_the_planned_bracket_is_judged_safe_with_its_engagement(bracket):
+    r, report = verify(bracket, bracket["nc"].read_text(), "as_planned.nc")
+    assert r.exit_code == 0, r.output
+    by_tool = {e["tool"]: e for e in report["engagement"]}
+    assert by_tool[3]["finishing"] and by_tool[3]["max_depth"] <= 1.0
+    assert not by_tool[1]["finishing"] and by_tool[1]["max_depth"] <= 18.0  # T1's flutes
+    assert report["rapids_checked"] > 0
