@@ -87,8 +87,11 @@ class RobotSpec:
     Attributes
     ----------
     model : str
-        example-robot-data name (``ur5``, ``ur10``, ``panda``) or a URDF path (relative
-        paths are relative to the cell file).
+        example-robot-data name (``ur5``, ``ur10``, ``panda``) or a URDF path (the cell file's
+        ``robot.model`` or ``robot.urdf``; relative paths are relative to the cell file).
+        RAPID and KRL programs need an ABB or KUKA arm: a URDF whose file name starts with
+        ``abb_`` or ``kuka_`` and whose joint zeros and directions are the controller's axes
+        (``fixtures/robots/`` has an IRB 1200-5/0.9 and a KR 6 R900 sixx).
     base : Pose
         ``transform_world_to_base``.
     home : tuple of float
@@ -399,8 +402,15 @@ def read_cell(data: Any, source: str | Path | None = None) -> Cell:
         raise rd.fail("format", f"expected {FORMAT!r}, got {shown(top['format'])}")
     name = rd.string(top.get("name", "cell"), "name")
 
-    r = rd.mapping(top["robot"], "robot", {"model", "base", "home"}, {"flange_frame"})
-    model = rd.string(r["model"], "robot.model")
+    r = rd.mapping(top["robot"], "robot", {"base", "home"}, {"model", "urdf", "flange_frame"})
+    if ("model" in r) == ("urdf" in r):
+        raise rd.fail("robot", "expected one of model (a known robot's name) or urdf (a .urdf path)")
+    if "urdf" in r:
+        model = rd.string(r["urdf"], "robot.urdf")
+        if not model.lower().endswith(".urdf"):
+            raise rd.fail("robot.urdf", f"expected a path to a .urdf file, got {shown(model)}")
+    else:
+        model = rd.string(r["model"], "robot.model")
     if src is not None and model.lower().endswith(".urdf") and not Path(model).is_absolute():
         model = str(Path(src).parent / model)
     flange = None if r.get("flange_frame") is None else rd.string(r["flange_frame"], "robot.flange_frame")

@@ -368,17 +368,22 @@ def ik_dls(
     seeds += [slo + (shi - slo) * rng.random(robot.dof) for _ in range(options.restarts)]
     eye6 = np.eye(6)
     found: list[np.ndarray] = []
+    def error(q: np.ndarray) -> tuple[pin.SE3, np.ndarray, float]:
+        pin.framesForwardKinematics(model, data, q)
+        err_m = data.oMf[bid].actInv(data.oMf[fid]).actInv(target)
+        err = pin.log6(err_m).vector
+        return err_m, err, float(np.linalg.norm(err))
+
     for q in seeds:
         q = q.copy()
-        best_err, best_q = np.inf, q
-        for _ in range(options.max_iterations + 1):
-            pin.framesForwardKinematics(model, data, q)
-            current = data.oMf[bid].actInv(data.oMf[fid])
-            err_m = current.actInv(target)
-            err = pin.log6(err_m).vector
-            norm = float(np.linalg.norm(err))
-            if norm < best_err:
-                best_err, best_q = norm, q
+        err_m, err, norm = error(q)
+        best_err, best_q = norm, q
+        # Levenberg-Marquardt: the damping grows while a step makes the error worse (far from
+        # the target, or pushing a joint into its limit) and shrinks back to options.damping
+        # while steps succeed, so a seed far from the solution (a wrist to turn over) still
+        # converges and the last steps near it are Gauss-Newton's.
+        damping = options.damping
+        for _ in range(options.max_iterations):
             if norm < options.tolerance:
                 break
             pin.computeJointJacobians(model, data, q)
@@ -386,8 +391,18 @@ def ik_dls(
             # The base frame moves with no joint, so the LOCAL flange Jacobian is the one
             # of the base-relative pose; Jlog6 maps it to the log6 error's tangent space.
             jac = pin.Jlog6(err_m.inverse()) @ jac
-            dq = jac.T @ np.linalg.solve(jac @ jac.T + options.damping**2 * eye6, err)
-            q = np.clip(pin.integrate(model, q, dq), lo, hi)
+            dq = jac.T @ np.linalg.solve(jac @ jac.T + damping**2 * eye6, err)
+            q_new = np.clip(pin.integrate(model, q, dq), lo, hi)
+            m_new, e_new, n_new = error(q_new)
+            if n_new < norm:
+                q, err_m, err, norm = q_new, m_new, e_new, n_new
+                damping = max(options.damping, damping / 3.0)
+                if norm < best_err:
+                    best_err, best_q = norm, q
+            else:
+                damping *= 10.0
+                if damping > 1e3:  # stuck (a joint limit in the way): next seed
+                    break
         if best_err < options.accept:
             found.append(best_q)
             break

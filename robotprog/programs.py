@@ -22,7 +22,8 @@ Proof of the posted path: the controller drives the polyline through the posted 
 cutting each blended corner no further than the chord between the two segments' midpoints
 (RAPID and KRL shrink a zone to at most half of its segments). :func:`check_posted_path`
 collision-checks that polyline and every corner chord at the planner's joint resolution,
-with what the gripper holds in that move. Each segment's speed is its joint travel over the
+with what the gripper holds in that move; a move whose posted path collides is posted again with
+segments half as long (down to :data:`MIN_SEGMENT_S`), hugging the proven trajectory closer. Each segment's speed is its joint travel over the
 sample time of a trajectory proven within the limits, so it is within them too.
 
 With ``cell.machine`` the program also drives the machine tool through its digital I/O:
@@ -57,8 +58,13 @@ SERVO_PERIOD_S = 0.008
 #: servoj lookahead [s] (the smallest the controller takes: least lag behind the table) and gain.
 SERVO_LOOKAHEAD_S = 0.03
 SERVO_GAIN = 300.0
+#: The maker whose controller runs each language (a program carries that arm's joint values).
+LANG_MAKER = {"urscript": "Universal Robots", "rapid": "ABB", "krl": "KUKA"}
+LANG_NAME = {"urscript": "URScript", "rapid": "RAPID", "krl": "KRL"}
 #: Longest segment [s] of a RAPID / KRL blended-waypoint move.
 SEGMENT_S = 0.1
+#: Shortest segment [s] a move is refined to when its posted path would collide (module docstring).
+MIN_SEGMENT_S = 0.0125
 #: RAPID zone radius of the blended samples [m] (the controller shrinks it to half a segment).
 ZONE_M = 0.005
 
@@ -104,8 +110,11 @@ def _samples(mv: TimedMove, dt: float, exact: bool) -> tuple[np.ndarray, float]:
     return np.atleast_2d(q), step
 
 
-def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: str = "urscript") -> list[Step]:
-    """The plan as program steps in ``lang``'s way of running the proven motion (module docstring)."""
+def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: str = "urscript",
+                  segments: dict[int, float] | None = None) -> list[Step]:
+    """The plan as program steps in ``lang``'s way of running the proven motion (module docstring).
+
+    ``segments``: RAPID / KRL, longest segment [s] per move index where it is not :data:`SEGMENT_S`."""
     if lang not in LANGS:
         raise PlanningError(f"expected a program language of {', '.join(LANGS)}, got {lang!r}")
     robot = world.robot
@@ -136,7 +145,7 @@ def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: st
                 q = np.vstack([q, np.repeat(q[-1:], math.ceil(SERVO_LOOKAHEAD_S / SERVO_PERIOD_S - 1e-9), 0)])
             steps.append(ServoJ(q, SERVO_PERIOD_S, SERVO_LOOKAHEAD_S, SERVO_GAIN))
         else:
-            q, seg = _samples(mv, SEGMENT_S, exact=True)
+            q, seg = _samples(mv, (segments or {}).get(k, SEGMENT_S), exact=True)
             for j, row in enumerate(q):
                 last = j + 1 == len(q)
                 steps.append(MoveJ(tuple(float(v) for v in row), amax, vmax, 0.0 if last else ZONE_M, seg))
@@ -176,13 +185,22 @@ def check_posted_path(world: CollisionWorld, plan: TendingPlan, steps: list[Step
     PlanningError
         A posted segment or blended corner collides, naming the move and the contact.
     """
+    hit = posted_collision(world, plan, steps, joint_resolution)
+    if hit is not None:
+        k, contact = hit
+        raise PlanningError(f"{plan.moves[k].name}: the posted path collides ({contact})")
+
+
+def posted_collision(world: CollisionWorld, plan: TendingPlan, steps: list[Step],
+                     joint_resolution: float = TendingOptions().joint_resolution) -> tuple[int, str] | None:
+    """The first move (index into ``plan.moves``) whose posted path collides, and the contact."""
     per_move: list[list[Step]] = []
     for st in steps:
         if isinstance(st, Comment):
             per_move.append([])
         elif per_move:
             per_move[-1].append(st)
-    for mv, posted in zip(plan.moves, per_move, strict=True):
+    for k, (mv, posted) in enumerate(zip(plan.moves, per_move, strict=True)):
         if mv.kind == "gripper":
             continue
         pts = [mv.waypoints[0]]
@@ -206,8 +224,8 @@ def check_posted_path(world: CollisionWorld, plan: TendingPlan, steps: list[Step
             dense = _densify(path, joint_resolution)
             bad = world.path_free(dense, mv.held)
             if bad is not None:
-                raise PlanningError(f"{mv.name}: the posted path collides "
-                                    f"({world.first_contact(dense[bad], mv.held)})")
+                return k, str(world.first_contact(dense[bad], mv.held))
+    return None
 
 
 def _densify(qs: np.ndarray, resolution: float) -> np.ndarray:
@@ -225,17 +243,32 @@ def post_program(lang: str, program: Path, cell: Cell, world: CollisionWorld, pl
     Raises
     ------
     PlanningError
-        URScript for an arm that is not a Universal Robots one, or a posted path that collides.
+        A language for another maker's arm (URScript needs a Universal Robots arm, RAPID an
+        ABB one, KRL a KUKA one), or a posted path that collides.
     """
     robot = world.robot
-    if lang == "urscript" and not robot.name.startswith("ur"):
-        raise PlanningError(f"URScript needs a Universal Robots arm, the cell has {robot.name}",
-                            source="robot.model")
+    # The joint values are the model's: only the maker's own controller reads them as its axes.
+    maker = LANG_MAKER[lang] if lang in LANG_MAKER else None
+    if maker is not None and robot.maker != maker:
+        raise PlanningError(f"{LANG_NAME[lang]} needs {'an' if maker == 'ABB' else 'a'} {maker} arm, "
+                            f"the cell has {robot.name}", source="robot.model")
     name = program_name(program.name.split(".")[0])
-    steps = program_steps(cell, world, plan, lang)
     # the world the plan was proven in: the cell plus the blanks and parts beside the slots used
-    check_posted_path(collision_world(cell, robot, obstacles=plan.obstacles) if plan.obstacles else world,
-                      plan, steps)
+    proven = collision_world(cell, robot, obstacles=plan.obstacles) if plan.obstacles else world
+    # A move whose waypoints cut too close to an obstacle (an RRT transfer skirting the door frame)
+    # is posted again with segments half as long, whose polyline and corners hug the proven
+    # trajectory closer, down to MIN_SEGMENT_S; then the collision is the error.
+    segments: dict[int, float] = {}
+    while True:
+        steps = program_steps(cell, world, plan, lang, segments)
+        hit = posted_collision(proven, plan, steps)
+        if hit is None:
+            break
+        k, contact = hit
+        seg = segments.get(k, SEGMENT_S) / 2
+        if lang == "urscript" or seg < MIN_SEGMENT_S:
+            raise PlanningError(f"{plan.moves[k].name}: the posted path collides ({contact})")
+        segments[k] = seg
     home = np.asarray(cell.robot.home, dtype=float)
     predicted = program_duration(steps, home, lang=lang, axis_speed=robot.v_max)
     targets = sum(len(s.targets) if isinstance(s, ServoJ) else 1 for s in steps[1:]

@@ -83,6 +83,13 @@ class Robot:
     v_max: np.ndarray
 
     @property
+    def maker(self) -> str | None:
+        """The arm's maker, whose controller language its joint values are meant for:
+        ``"Universal Robots"`` (``ur3``, ``ur5e``...), ``"ABB"`` (a URDF named ``abb_*``) or
+        ``"KUKA"`` (``kuka_*``), from :attr:`name`; ``None`` for any other arm."""
+        return maker_of(self.name)
+
+    @property
     def dof(self) -> int:
         """Number of arm joints."""
         return int(self.model.nq)
@@ -114,6 +121,18 @@ class Robot:
         a = data.oMf[self.model.getFrameId(frame_a)]
         b = data.oMf[self.model.getFrameId(frame_b)]
         return (a.actInv(b)).homogeneous
+
+
+def maker_of(name: str) -> str | None:
+    """The maker named by a robot model name (see :attr:`Robot.maker`)."""
+    low = name.lower()
+    if low.startswith("ur") and low[2:3].isdigit():
+        return "Universal Robots"
+    if low.startswith("abb_"):
+        return "ABB"
+    if low.startswith("kuka_"):
+        return "KUKA"
+    return None
 
 
 @functools.cache

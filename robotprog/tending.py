@@ -411,13 +411,17 @@ class _Planner:
                 problem = str(e)
             else:
                 path = PPoly(traj.coefficients, traj.breakpoints)
-                s = np.linspace(traj.breakpoints[0], traj.breakpoints[-1],
-                                max(2, int(math.ceil((traj.breakpoints[-1] - traj.breakpoints[0])
-                                                     / self.o.joint_resolution)) + 1))
-                bad = self.world.path_free(path(s), held)
+                # The path parameter is not joint travel: sample every piece of the spline (its
+                # breakpoints and four points inside each), then fill in every joint_resolution,
+                # so no stretch of the driven path goes unchecked however long it is.
+                bp = np.asarray(traj.breakpoints, dtype=float)
+                s = np.concatenate([bp[:-1, None] + np.diff(bp)[:, None] * np.linspace(0, 1, 5, endpoint=False),
+                                    bp[-1:, None]], axis=None)
+                dense = self.densify(path(s))
+                bad = self.world.path_free(dense, held)
                 if bad is None:
                     return TimedMove(name, traj, kind, wp, held, transform_world_to_tcp=self.tcp_world(wp[-1]))
-                problem = f"the timed path collides ({self.world.first_contact(path(s)[bad], held)})"
+                problem = f"the timed path collides ({self.world.first_contact(dense[bad], held)})"
             # The spline strayed from the checked polyline: pin it down with waypoints on the
             # polyline, every joint_resolution, then twice and four times as dense (a spline
             # through dense points of a free polyline stays within a shrinking distance of it).

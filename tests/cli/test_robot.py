@@ -169,13 +169,18 @@ def test_unknown_lang(tmp_path):
     assert not (tmp_path / "x.mcap").exists()
 
 
-@pytest.mark.parametrize("lang, files", [("rapid", ["tending.mod"]), ("krl", ["tending.src", "tending.dat"])])
-def test_rapid_and_krl_programs(run, tmp_path, lang, files):
+@pytest.mark.parametrize("lang, cell, files", [("rapid", "cell_abb.yaml", ["tending.mod"]),
+                                               ("krl", "cell_kuka.yaml", ["tending.src", "tending.dat"])])
+def test_rapid_and_krl_programs(run, tmp_path, lang, cell, files):
+    """RAPID for the ABB sample cell, KRL for the KUKA one: each carries its own arm's joint values."""
     _tmp, sheet, _part, _out, _script, _res = run
     program = tmp_path / files[0]
-    res = runner.invoke(app, ["robot", str(FIXTURES / "cell.yaml"), "--setup", str(sheet), "-o",
-                              str(tmp_path / "t.mcap"), "--program", str(program), "--lang", lang])
+    res = runner.invoke(app, ["robot", str(FIXTURES / cell), "--setup", str(sheet), "-o",
+                              str(tmp_path / "t.mcap"), "--program", str(program), "--lang", lang, "--json"])
     assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout)
+    assert summary["robot"] == {"rapid": "abb_irb1200_5_90", "krl": "kuka_kr6_r900_sixx"}[lang]
+    assert 0.95 * summary["duration_s"] <= summary["program_duration_s"] <= 1.05 * summary["duration_s"]
     texts = [(tmp_path / f).read_text() for f in files]
     if lang == "rapid":
         assert texts[0].startswith("MODULE tending") and texts[0].count("\\T:=") > 50
@@ -183,3 +188,35 @@ def test_rapid_and_krl_programs(run, tmp_path, lang, files):
     else:
         assert "DEF tending( )" in texts[0] and texts[0].count(" C_PTP") > 50
         assert texts[0].count("$OUT[1] = TRUE") == 2 and texts[1].startswith("&ACCESS RVP\nDEFDAT tending")
+
+
+@pytest.mark.parametrize("lang, maker", [("rapid", "an ABB arm"), ("krl", "a KUKA arm")])
+def test_rapid_and_krl_refused_for_the_ur5(run, tmp_path, lang, maker):
+    """The UR5's joint values mean nothing to an ABB or KUKA controller: one line, nothing written."""
+    _tmp, sheet, _part, _out, _script, _res = run
+    out, prog = tmp_path / "x.robot.mcap", tmp_path / "x.prog"
+    res = runner.invoke(app, ["robot", str(FIXTURES / "cell.yaml"), "--setup", str(sheet), "-o", str(out),
+                              "--program", str(prog), "--lang", lang])
+    assert res.exit_code == 1, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: robot.model: ") and maker in lines[0], res.output
+    assert not out.exists() and not prog.exists()
+
+
+@pytest.mark.parametrize("cell, lang, robot", [("cell_abb.yaml", "rapid", "abb_irb1200_5_90"),
+                                               ("cell_kuka.yaml", "krl", "kuka_kr6_r900_sixx")])
+def test_factory_plan_with_the_abb_and_kuka_cells(tmp_path, cell, lang, robot):
+    """`factory plan --cell fixtures/cell_abb.yaml --lang rapid` (and the KUKA's with krl) plans the bracket's
+    load and unload; the program is read by its consumer and runs the planned time within 5 %."""
+    from tests.robotprog.parsers import parse_krl, rapid_errors
+
+    res = runner.invoke(app, ["plan", str(SAMPLES / "bracket.stl"), "-o", str(tmp_path), "--cell", str(FIXTURES / cell),
+                              "--lang", lang, "--scallop", "0.05", "--no-waterline", "--grid", "0.5", "--json"])
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout)
+    assert summary["robot"]["robot"] == robot
+    assert summary["robot"]["program_s"] == pytest.approx(summary["robot"]["motion_s"], rel=0.05)
+    if lang == "rapid":
+        assert rapid_errors((tmp_path / "bracket.mod").read_text()) == []
+    else:
+        parse_krl((tmp_path / "bracket.src").read_text(), (tmp_path / "bracket.dat").read_text())

@@ -126,11 +126,15 @@ def test_slots_outside_the_grid() -> None:
         cell.rack.slot_transform(2, 0)
 
 
-def test_default_cell_is_reachable() -> None:
-    """With the gripper pointing down, the UR5 reaches every rack and tray slot and the vise,
-    at grasp height and 15 cm above (the approach)."""
-    cell = load_cell(DEFAULT)
-    robot = load_robot(cell.robot.model)
+SAMPLE_CELLS = ["cell.yaml", "cell_abb.yaml", "cell_kuka.yaml"]
+
+
+@pytest.mark.parametrize("name", SAMPLE_CELLS)
+def test_default_cell_is_reachable(name: str) -> None:
+    """With the gripper pointing down, the UR5 (and the ABB and KUKA arms of the sample cells)
+    reaches every rack and tray slot and the vise, at grasp height and 15 cm above (the approach)."""
+    cell = load_cell(FIXTURES / name)
+    robot = load_robot(cell.robot.model, flange_frame=cell.robot.flange_frame)
     t_world_base = cell.robot.base.matrix()
     t_flange_tcp = cell.gripper.tcp.matrix()
     down = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -166,6 +170,43 @@ def test_default_cell_layout_is_consistent() -> None:
     for p in [vise, *(g.slot_transform(r, c)[:3, 3] for g in (cell.rack, cell.out_tray)
                      for r in range(g.rows) for c in range(g.columns))]:
         assert np.linalg.norm(p - shoulder) < 0.85
+
+
+@pytest.mark.parametrize("name, robot, maker", [("cell_abb.yaml", "abb_irb1200_5_90", "ABB"),
+                                                ("cell_kuka.yaml", "kuka_kr6_r900_sixx", "KUKA")])
+def test_abb_and_kuka_sample_cells(name: str, robot: str, maker: str) -> None:
+    """The sample cells name their arm by a URDF beside them and keep cell.yaml's layout."""
+    cell = load_cell(FIXTURES / name)
+    arm = load_robot(cell.robot.model, flange_frame=cell.robot.flange_frame)
+    assert arm.name == robot and arm.maker == maker and arm.dof == 6
+    assert Path(cell.robot.model).is_file() and Path(cell.robot.model).parent.parent.name == "robots"
+    default = load_cell(DEFAULT, check_robot=False)
+    for part in ("gripper", "rack", "vise", "enclosure", "out_tray", "reject_bin", "machine"):
+        assert getattr(cell, part) == getattr(default, part), part
+
+
+def test_robot_urdf_key(raw: dict, tmp_path: Path) -> None:
+    path = tmp_path / "cell.yaml"
+    urdf = str(FIXTURES / "robots/abb_irb1200_5_90/abb_irb1200_5_90.urdf")
+    both = _mutate(raw, "robot.urdf", urdf)
+    path.write_text(yaml.safe_dump(both))
+    with pytest.raises(CellError, match=r"robot: expected one of model .* or urdf"):
+        load_cell(path)
+    neither = _mutate(raw, "robot.model", _DELETE)
+    path.write_text(yaml.safe_dump(neither))
+    with pytest.raises(CellError, match=r"robot: expected one of model"):
+        load_cell(path)
+    path.write_text(yaml.safe_dump(_mutate(neither, "robot.urdf", "arm.xacro")))
+    with pytest.raises(CellError, match=r"robot\.urdf: expected a path to a \.urdf file"):
+        load_cell(path)
+    path.write_text(yaml.safe_dump(_mutate(neither, "robot.urdf", "missing/arm.urdf")))
+    with pytest.raises(CellError, match="URDF file not found") as e:
+        load_cell(path)
+    assert "\n" not in str(e.value)
+    ok = _mutate(_mutate(neither, "robot.urdf", urdf), "robot.home", [0.0, 0.0, 0.0, 0.0, 1.5708, 0.0])
+    ok["robot"]["flange_frame"] = "tool0"
+    path.write_text(yaml.safe_dump(ok))
+    assert load_cell(path).robot.model == urdf
 
 
 def test_empty_document() -> None:

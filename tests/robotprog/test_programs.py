@@ -11,7 +11,10 @@ import pytest
 
 from factory.errors import PlanningError
 from robotprog.controller import program_duration
-from robotprog.programs import (SERVO_PERIOD_S, check_posted_path, post_program, program_name,
+from factory.resources import FIXTURES
+from robotprog.cell import load_cell
+from robotprog.collision import collision_world
+from robotprog.programs import (LANG_NAME, SERVO_PERIOD_S, check_posted_path, post_program, program_name,
                                 program_steps)
 from robotprog.tending import plan_tending
 from robotprog.urscript import ServoJ
@@ -26,6 +29,10 @@ RANDOM_STOCK = {f"random{k}": tuple(float(v) for v in np.round(_rng.uniform([40,
 RANDOM_STOCK |= {f"plate{k}": (*(float(v) for v in np.round(_rng.uniform([40, 30], [110, 80]), 1)), 15.0)
                  for k in range(2)}
 LANG_FILES = {"urscript": "part.script", "rapid": "part.mod", "krl": "part.src"}
+#: The sample cell whose arm each language drives (RAPID an ABB, KRL a KUKA, URScript the default UR5).
+LANG_CELL = {"urscript": "cell.yaml", "rapid": "cell_abb.yaml", "krl": "cell_kuka.yaml"}
+#: Stock the ABB and KUKA cells are planned for (each plan takes ~10 s: the bracket and a 15 mm plate).
+ARM_STOCK = ("bracket", "plate0")
 
 
 @pytest.fixture(scope="module")
@@ -33,10 +40,30 @@ def plans(cell, world):
     return {name: plan_tending(cell, sheet(*s), world=world) for name, s in {**SAMPLE_STOCK, **RANDOM_STOCK}.items()}
 
 
-@pytest.mark.parametrize("lang", sorted(LANG_FILES))
-@pytest.mark.parametrize("name", sorted({**SAMPLE_STOCK, **RANDOM_STOCK}))
-def test_controller_runs_the_planned_duration(name, lang, plans, cell, world):
-    plan = plans[name]
+@pytest.fixture(scope="module")
+def arm_cells():
+    """lang -> (cell, world, {stock name: plan}) for the ABB and KUKA sample cells."""
+    out = {}
+    for lang in ("rapid", "krl"):
+        c = load_cell(FIXTURES / LANG_CELL[lang])
+        w = collision_world(c)
+        out[lang] = (c, w, {n: plan_tending(c, sheet(*{**SAMPLE_STOCK, **RANDOM_STOCK}[n]), world=w)
+                            for n in ARM_STOCK})
+    return out
+
+
+def _for(lang, name, plans, cell, world, arm_cells):
+    """(plan, cell, world) of ``lang``'s sample cell."""
+    if lang == "urscript":
+        return plans[name], cell, world
+    c, w, p = arm_cells[lang]
+    return p[name], c, w
+
+
+@pytest.mark.parametrize("lang, name", [("urscript", n) for n in sorted({**SAMPLE_STOCK, **RANDOM_STOCK})]
+                         + [(lang, n) for lang in ("rapid", "krl") for n in ARM_STOCK])
+def test_controller_runs_the_planned_duration(name, lang, plans, cell, world, arm_cells):
+    plan, cell, world = _for(lang, name, plans, cell, world, arm_cells)
     posted = post_program(lang, Path(LANG_FILES[lang]), cell, world, plan)
     assert posted.planned_s == pytest.approx(plan.duration)
     assert 0.95 * plan.duration <= posted.predicted_s <= 1.05 * plan.duration, (posted.predicted_s, plan.duration)
@@ -52,9 +79,42 @@ def test_controller_runs_the_planned_duration(name, lang, plans, cell, world):
         parse_krl(posted.texts[Path("part.src")], posted.texts[Path("part.dat")])
 
 
-def test_rapid_program_passes_rapidchecker(plans, cell, world):
+def test_rapid_program_passes_rapidchecker(arm_cells):
+    cell, world, plans = arm_cells["rapid"]
     posted = post_program("rapid", Path("bracket.mod"), cell, world, plans["bracket"])
     assert rapid_errors(posted.texts[Path("bracket.mod")]) == []
+
+
+@pytest.mark.parametrize("lang", ["rapid", "krl"])
+def test_programs_carry_the_arms_joint_values_within_its_limits(lang, arm_cells):
+    cell, world, plans = arm_cells[lang]
+    robot = world.robot
+    assert robot.maker == {"rapid": "ABB", "krl": "KUKA"}[lang]
+    posted = post_program(lang, Path(LANG_FILES[lang]), cell, world, plans["bracket"])
+    if lang == "rapid":
+        rows = re.findall(r"jointtarget j\d+ := \[\[([^\]]*)\]", posted.texts[Path("part.mod")])
+        deg = np.array([[float(v) for v in r.split(",")] for r in rows])
+    else:
+        rows = re.findall(r"E6AXIS XJ\d+=\{([^}]*)\}", posted.texts[Path("part.dat")])
+        deg = np.array([[float(v) for v in re.findall(r"A\d (-?[\d.]+)", r)] for r in rows])
+    assert deg.shape[1] == 6 and len(deg) == posted.targets + 1  # the targets and the move home
+    q = np.radians(deg)
+    assert (q >= robot.q_lower - 1e-6).all() and (q <= robot.q_upper + 1e-6).all()
+    # the posted values are the plan's own joint values (4 decimals of a degree)
+    moves = [s for s in posted.steps if hasattr(s, "q")]
+    np.testing.assert_allclose(deg, np.degrees([m.q for m in moves]), atol=0.5e-4 + 1e-9)
+
+
+@pytest.mark.parametrize("lang", ["rapid", "krl"])
+def test_a_language_for_another_makers_arm_is_refused(lang, plans, cell, world, arm_cells):
+    with pytest.raises(PlanningError, match=f"{LANG_NAME[lang]} needs an? .* arm, the cell has ur5"):
+        post_program(lang, Path(LANG_FILES[lang]), cell, world, plans["bracket"])
+    other = "krl" if lang == "rapid" else "rapid"
+    c, w, p = arm_cells[other]
+    with pytest.raises(PlanningError, match=f"{LANG_NAME[lang]} needs"):
+        post_program(lang, Path(LANG_FILES[lang]), c, w, p["bracket"])
+    with pytest.raises(PlanningError, match="URScript needs a Universal Robots arm"):
+        post_program("urscript", Path("part.script"), c, w, p["bracket"])
 
 
 def test_urscript_table_is_the_proven_trajectory(plans, cell, world):
@@ -93,10 +153,13 @@ def test_program_name():
     assert program_name("") == "part"
 
 
-def test_programs_drive_the_machine_through_its_io(plans, cell, world):
+def test_programs_drive_the_machine_through_its_io(plans, cell, world, arm_cells):
     io = cell.machine
-    plan = plans["bracket"]
-    texts = {lang: post_program(lang, Path(LANG_FILES[lang]), cell, world, plan).texts for lang in LANG_FILES}
+    texts = {}
+    for lang in LANG_FILES:
+        plan, c, w = _for(lang, "bracket", plans, cell, world, arm_cells)
+        texts[lang] = post_program(lang, Path(LANG_FILES[lang]), c, w, plan).texts
+    assert all(arm_cells[lang][0].machine == io for lang in ("rapid", "krl"))
     ur = texts["urscript"][Path("part.script")]
     lines = [ln.strip() for ln in ur.splitlines()]
     seq = [ln for ln in lines if ln.startswith(("while get_standard_digital_in", "set_standard_digital_out"))
@@ -120,3 +183,19 @@ def test_programs_drive_the_machine_through_its_io(plans, cell, world):
     assert f"WaitDI di{io.cycle_done}, 0;" in mod and f"SetDO do{io.cycle_start}, 1;" in mod
     src = texts["krl"][Path("part.src")]
     assert f"WAIT FOR NOT $IN[{io.door_open + 1}]" in src and f"$OUT[{io.close_door + 1}] = TRUE" in src
+
+
+def test_a_posted_move_that_would_cut_into_an_obstacle_is_posted_finer(arm_cells, monkeypatch):
+    """With 0.8 s segments the ABB's first move's polyline cuts into the enclosure; the post halves that
+    move's segments until its path (checked by post_program) is free, and still runs the planned time."""
+    import robotprog.programs as programs
+
+    cell, world, plans = arm_cells["rapid"]
+    plan = plans["bracket"]
+    monkeypatch.setattr(programs, "SEGMENT_S", 0.8)
+    hit = programs.posted_collision(world, plan, program_steps(cell, world, plan, "rapid"))
+    assert hit is not None and hit[0] == 0
+    posted = post_program("rapid", Path("part.mod"), cell, world, plan)
+    coarse = program_steps(cell, world, plan, "rapid")
+    assert posted.targets > sum(1 for s in coarse[1:] if hasattr(s, "q"))
+    assert 0.95 * plan.duration <= posted.predicted_s <= 1.05 * plan.duration

@@ -58,3 +58,18 @@ def test_missing_urdf_file(tmp_path) -> None:
 def test_bad_frame_name() -> None:
     with pytest.raises(CellError, match="flange_frame 'gripper_tip'"):
         load_robot("ur5", flange_frame="gripper_tip")
+
+
+def test_maker_from_the_model_name() -> None:
+    from factory.resources import FIXTURES
+    from robotprog.robots import maker_of
+
+    assert load_robot("ur5").maker == "Universal Robots" and load_robot("panda").maker is None
+    arm = load_robot(FIXTURES / "robots/kuka_kr6_r900_sixx/kuka_kr6_r900_sixx.urdf", flange_frame="tool0")
+    assert arm.maker == "KUKA"
+    assert maker_of("abb_irb120") == "ABB" and maker_of("ur10e") == "Universal Robots"
+    assert maker_of("urdf_arm") is None and maker_of("kr6") is None
+    # the datasheet's axis speeds [deg/s] and ranges are the URDF's limits
+    np.testing.assert_allclose(np.degrees(arm.v_max), [360, 300, 360, 381, 388, 615], atol=1e-4)
+    np.testing.assert_allclose(np.degrees(arm.q_lower), [-170, -190, -120, -185, -120, -350], atol=1e-4)
+    np.testing.assert_allclose(np.degrees(arm.q_upper), [170, 45, 156, 185, 120, 350], atol=1e-4)
