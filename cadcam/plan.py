@@ -55,6 +55,10 @@ class PlanOptions:
         Deepest a finishing move may cut into the stock earlier operations left [mm]:
         finishing never descends where more than this is left above the part; such places
         are reported as unreached (``Job.parameters["unreached"]``).
+    terrace_stepdown : float
+        Z-level roughing leaves terraces up to a stepdown high on shallow surfaces. Where more
+        than ``finish_engagement`` is left, the roughing tool steps down again between its levels
+        by this much [mm], so that the finishing tool meets at most about this plus the allowance.
     """
 
     rough_tool: int | None = None
@@ -63,7 +67,8 @@ class PlanOptions:
     finishing: FinishingOptions = field(default_factory=FinishingOptions)
     waterline: bool = True
     rest_roughing: bool = True
-    finish_engagement: float = 3.0
+    finish_engagement: float = 1.5
+    terrace_stepdown: float = 0.7
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -248,6 +253,15 @@ def plan_job(
     stock = model(operations)
     allowance = options.roughing.allowance
     limit = options.finish_engagement
+    if options.rest_roughing and stock is not None and (excess(stock, allowance) > limit).any():
+        # the terraces of the roughing levels, at a finer stepdown where more than the limit is left
+        terraces = dataclasses.replace(options.roughing, stepdown=options.terrace_stepdown)
+        op = timed("terraces", lambda: zlevel_roughing(part, setup, rough_tool, rough_cutting, terraces,
+                                                       progress=stage_progress("terraces"), rest=stock,
+                                                       rest_above=options.terrace_stepdown))
+        if len(op.points) > 1:
+            operations.append(op)
+            stock = model(operations)
     if options.rest_roughing and stock is not None:
         for tool in rest_tools(library, rough_tool):
             if not (excess(stock, allowance) > limit).any():
