@@ -619,9 +619,18 @@ def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tup
         if a.resource == "machine" and a.action == "cut":
             cut_so_far[a.job] = max(done, a.end - a.start)
 
+    # A stock snapshot is thousands of points: made once per part and snapshot, restamped at each
+    # use; the few parts under way at once stay cached, not every part the orders name.
+    @functools.lru_cache(maxsize=4 * (STOCK_SNAPSHOTS + 1))
+    def stock_marker(key: tuple[Path, str], k: int) -> Any:
+        return _stock_msg(assets[key], k, 0.0)
+
+    def stock_at(p: PartAssets, k: int, t: float) -> Any:
+        return _restamp(stock_marker((p.part, p.material), k), t)
+
     home = np.asarray(cell.robot.home, dtype=float)
-    activity_events = (functools.partial(_activity_events, k, a, part_of, cut_before[k], rpm_of, stations, world,
-                                         result, robot_rate_hz)
+    activity_events = (functools.partial(_activity_events, k, a, part_of, cut_before[k], rpm_of, stock_at,
+                                         stations, world, result, robot_rate_hz)
                        for k, a in enumerate(result.activities))
     streams = _staggered(((_ns(a.start), make) for a, make in zip(result.activities, activity_events)),
                          [iter([(0, -1, -1, 0, "", home, False)]),
@@ -690,7 +699,8 @@ def _staggered(pending: Any, running: list[Any]) -> Any:
         push(stream)
 
 
-def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_before: float, rpm_of: Any, stations: Stations,
+def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_before: float, rpm_of: Any,
+                     stock_at: Callable[[PartAssets, int, float], Any], stations: Stations,
                      world: CollisionWorld, result: SimulationResult, robot_rate_hz: float) -> Any:
     """The messages of activity number ``k`` (and its robot states), in log-time order, each made
     when it is written."""
@@ -726,7 +736,7 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
             if p.toolpath is not None:
                 add(a.start, "/machine/toolpath", functools.partial(_restamp, p.toolpath, a.start))
         if a.action == "load" and a.outcome == "loaded":
-            add(a.end, "/machine/stock", functools.partial(_stock_msg, p, 0, a.end))
+            add(a.end, "/machine/stock", functools.partial(stock_at, p, 0, a.end))
         if a.action == "unload":
             add(a.end, "/machine/stock", lambda: marker_array([_delete_all("stock", "work", a.end)]))
             add(a.end, "/machine/toolpath", lambda: marker_array([_delete_all("toolpath", "work", a.end)]))
@@ -751,7 +761,7 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
             add(a.end, "/cell/machine", functools.partial(machine_state, after, "", "", _ns(a.end)))
             for j, (snap_t, _, _) in enumerate(p.stock):
                 if cut_before < snap_t <= a.end - a.start:
-                    add(a.start + snap_t, "/machine/stock", functools.partial(_stock_msg, p, j, a.start + snap_t))
+                    add(a.start + snap_t, "/machine/stock", functools.partial(stock_at, p, j, a.start + snap_t))
     else:
         if a.action == "locate":
             shot = p.shots["locate" if a.outcome != "stock_not_found" else "empty"]

@@ -138,6 +138,28 @@ def test_logged_robot_motion_is_continuous_and_inside_the_limits(run_ok):
     np.testing.assert_allclose(q[-1], cell.robot.home, atol=1e-3)
 
 
+def test_robot_rate_thins_the_robot_states_and_leaves_every_other_topic_as_it_was(run_ok, tmp_path):
+    doc, full, orders = run_ok
+    mcap = tmp_path / "thin.mcap"
+    r = run("simulate", orders, "--catalog", Path(doc["parts"][0]["plan"]).parent.parent, "--mcap", mcap,
+            "--robot-rate", "1", "--json", "--quiet")
+    assert r.exit_code == 0, r.output
+    thin = json.loads(r.stdout)["mcap"]["messages"]
+    counts = doc["mcap"]["messages"]
+    # one state per simulated second (and each move's ends) instead of 25
+    assert 0 < thin["/joint_states"] < counts["/joint_states"] / 5
+    assert {k: v for k, v in thin.items() if k != "/joint_states"} == \
+        {k: v for k, v in counts.items() if k != "/joint_states"}
+    states = [(t, np.asarray(m.position)) for _, t, m in read_messages(mcap, ["/joint_states"])]
+    assert all(b[0] >= a[0] for a, b in zip(states, states[1:]))
+    # the robot still starts and ends at home
+    home = load_cell(FIXTURES / "cell.yaml").robot.home
+    np.testing.assert_allclose(states[0][1], home, atol=1e-6)
+    np.testing.assert_allclose(states[-1][1], home, atol=1e-3)
+    r = run("simulate", orders, "--catalog", Path(doc["parts"][0]["plan"]).parent.parent, "--robot-rate", "0")
+    assert r.exit_code == 2
+
+
 def test_tool_follows_the_program_inside_the_stock(run_ok, catalog):
     _, mcap, _ = run_ok
     folder, _ = catalog
