@@ -629,12 +629,17 @@ def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tup
         return _restamp(stock_marker((p.part, p.material), k), t)
 
     home = np.asarray(cell.robot.home, dtype=float)
+    makespan = float(result.summary["makespan_s"])
     activity_events = (functools.partial(_activity_events, k, a, part_of, cut_before[k], rpm_of, stock_at,
                                          stations, world, result, robot_rate_hz)
                        for k, a in enumerate(result.activities))
     streams = _staggered(((_ns(a.start), make) for a, make in zip(result.activities, activity_events)),
                          [iter([(0, -1, -1, 0, "", home, False)]),
-                          _scheduler_events(result, orders, part_of, rpm_of)])
+                          _scheduler_events(result, orders, part_of, rpm_of),
+                          # its own stream: the makespan is rounded to the millisecond, so the
+                          # whole run's summary may come before the last entries' messages
+                          iter([(_ns(makespan), 2, 0, 0, "/cell/summary",
+                                 functools.partial(cell_summary, result.summary, _ns(makespan)), False)])])
     counts: dict[str, int] = {}
     n_states = 0
     with contextlib.ExitStack() as stack:
@@ -783,7 +788,7 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
 
 def _scheduler_events(result: SimulationResult, orders: tuple[Order, ...], part_of: Any, rpm_of: Any) -> Any:
     """The scheduler's log as messages (/rosout, /cell/state, the order queue, diagnostics, the
-    running summary), in log-time order."""
+    running summary), in log-time order (the run's own summary apart)."""
     queue = _Queue(orders)
     items: list[tuple[float, str, Any]] = [(0.0, "/cell/orders", queue.message(0.0))]
     last_entry = {e.order: i for i, e in enumerate(result.log)}
@@ -813,8 +818,6 @@ def _scheduler_events(result: SimulationResult, orders: tuple[Order, ...], part_
             yield (_ns(t), 1, n, 0, topic, msg, False)
             n += 1
         items.clear()
-    makespan = float(result.summary["makespan_s"])
-    yield (_ns(makespan), 2, 0, 0, "/cell/summary", cell_summary(result.summary, _ns(makespan)), False)
 
 
 def _vise_tf(p: PartAssets, t: float) -> Any:

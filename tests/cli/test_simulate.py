@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from mcap.reader import make_reader
 from typer.testing import CliRunner
 
 from cli.main import app
@@ -109,6 +110,20 @@ def test_mcap_meets_rosbag2_requirements_and_layout_names_its_topics(run_ok):
     assert "/robot_description" in text and "/camera/image/compressed" in text
     # every camera step left a picture: 3 locates + 3 inspections
     assert counts["/camera/image/compressed"] == 6
+
+
+def test_the_log_is_written_in_log_time(run_ok, catalog, tmp_path):
+    # streamed, not sorted at the end: a player (and the live view) gets every message in time order,
+    # also when faults rerun steps and the summary's rounded makespan precedes the last entries
+    folder, part = catalog
+    orders = _orders(tmp_path, [f"{part},3,aluminium,0", f"{part},2,aluminium,1"])
+    mcap = tmp_path / "faults.mcap"
+    r = run("simulate", orders, "--catalog", folder, "--faults", "3", "--mcap", mcap, "--json", "--quiet")
+    assert r.exit_code == 0, r.output
+    for path in (run_ok[1], mcap):
+        with open(path, "rb") as f:
+            times = [m.log_time for _, _, m in make_reader(f).iter_messages(log_time_order=False)]
+        assert len(times) > 1000 and times == sorted(times)
 
 
 def test_every_logged_marker_is_stamped_when_it_was_logged(run_ok):
