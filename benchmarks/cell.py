@@ -60,8 +60,8 @@ def scale_out(catalog: Path, counts: list[int], robot_rate: float | None, faults
         orders.write_text("part,quantity,material,priority\n" + "".join(
             f"{ROOT / 'samples' / SAMPLE_PARTS[i % len(SAMPLE_PARTS)]},1,aluminium,0\n" for i in range(n)))
         mcap = out / f"cell-{n}.mcap"
-        args = [sys.executable, "-c", "from cli.main import main; main()", "simulate", str(orders), "--catalog", str(catalog),
-                "--mcap", str(mcap), "--overwrite", "--json", "--quiet"]
+        args = [sys.executable, "-c", "from cli.main import main; main()", "simulate", str(orders),
+                "--catalog", str(catalog), "--mcap", str(mcap), "--overwrite", "--json", "--quiet"]
         if robot_rate is not None:
             args += ["--robot-rate", str(robot_rate)]
         if faults is not None:
@@ -74,8 +74,10 @@ def scale_out(catalog: Path, counts: list[int], robot_rate: float | None, faults
         if r.returncode != 0:
             raise SystemExit(f"simulate of {n} orders failed:\n{r.stderr[-2000:]}")
         doc = json.loads(r.stdout)
-        row = {"orders": n, "wall_s": round(wall, 1), "peak_rss_mb": round(int(rss_file.read_text().split()[-1]) / 1024),
-               "mcap_mb": round(mcap.stat().st_size / 1e6, 1), "simulated_h": round(doc["summary"]["makespan_s"] / 3600, 1),
+        peak_kb = int(rss_file.read_text().split()[-1])  # GNU time's %M: peak resident set [KiB]
+        row = {"orders": n, "wall_s": round(wall, 1), "peak_rss_mb": round(peak_kb / 1024),
+               "mcap_mb": round(mcap.stat().st_size / 1e6, 1),
+               "simulated_h": round(doc["summary"]["makespan_s"] / 3600, 1),
                "parts_good": doc["summary"]["parts_good"], "stages_s": doc["seconds"],
                "planned_now": sum(1 for p in doc["parts"] if p.get("planned_now"))}
         rows.append(row)
