@@ -21,7 +21,7 @@ from factory.pictures import png_bytes
 from factory.progress import Stopwatch
 from factory.record import Record
 from factory.resources import FIXTURES
-from factory.simulation import PartAssets, run_cell, write_cell_log
+from factory.simulation import ROBOT_RATE_HZ, PartAssets, run_cell, write_cell_log
 from robotprog.cell import load_cell
 from robotprog.cellsim import FaultModel, SimulationResult
 from robotprog.gantt import activity_chart
@@ -61,6 +61,7 @@ def simulate(
     serve: Annotated[int | None, typer.Option("--serve", metavar="PORT", help="Stream the run live to the Foxglove app (ws://HOST:PORT) with the channels of the MCAP log.", min=0, max=65535)] = None,
     host: Annotated[str, typer.Option("--host", help="Address the live view binds (with --serve).")] = "127.0.0.1",
     speed: Annotated[float, typer.Option("--speed", help="With --serve: play the run at this many times real time.", min=1e-3)] = 60.0,
+    robot_rate: Annotated[float, typer.Option("--robot-rate", metavar="HZ", help="Robot joint states and link transforms per second of simulated time in the log and the live view (each move's ends always); lower it for long runs, e.g. 1.", min=1e-3)] = ROBOT_RATE_HZ,
     overwrite: Overwrite = False,
     json_out: JsonFlag = False,
     quiet: Quiet = False,
@@ -113,9 +114,10 @@ def simulate(
                 counts = write_cell_log(mcap, result, ready, orders, run.cell, run.world, run.stations,
                                         overwrite=overwrite, inputs=inputs,
                                         parameters={"faults_seed": faults, "catalog": str(catalog),
+                                                    "robot_rate_hz": robot_rate,
                                                     **({"db": record.shown, "db_run": recorder.run_id}
                                                        if record is not None else {})},
-                                        live=live)
+                                        live=live, robot_rate_hz=robot_rate)
                 if layout is not None:
                     write_text(layout, layout_json(), overwrite=overwrite)
     if png is not None:

@@ -47,7 +47,6 @@ from mcap.exceptions import McapError as _McapLibError
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, IndexType, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-from scipy.spatial.transform import Rotation
 
 import factory
 from factory.atomic import atomic_output, check_writable
@@ -573,6 +572,25 @@ def transform_stamped(parent: str, child: str, matrix: np.ndarray, stamp_ns: int
     return transforms_stamped(parent, [child], m[None], stamp_ns)[0]
 
 
+def _quaternions(r: np.ndarray) -> np.ndarray:
+    """Unit quaternions (x, y, z, w) of rotation matrices ``r`` (k, 3, 3), by Markley's method
+    (the largest of the four candidate forms, so no division by a small number): what scipy's
+    ``Rotation.from_matrix`` gives, sign included, without its per-call overhead (the robot's
+    link transforms are converted at every logged state)."""
+    m00, m11, m22 = r[:, 0, 0], r[:, 1, 1], r[:, 2, 2]
+    trace = m00 + m11 + m22
+    a, b, c = r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]
+    d, e, f = r[:, 0, 1] + r[:, 1, 0], r[:, 0, 2] + r[:, 2, 0], r[:, 1, 2] + r[:, 2, 1]
+    # the four forms (x, y, z, w), by which of m00, m11, m22, trace is largest
+    forms = np.array([[1.0 - trace + 2.0 * m00, d, e, a],
+                      [d, 1.0 - trace + 2.0 * m11, f, b],
+                      [e, f, 1.0 - trace + 2.0 * m22, c],
+                      [a, b, c, 1.0 + trace]])  # (form, component, k)
+    choice = np.argmax(np.array([m00, m11, m22, trace]), axis=0)
+    q = forms[choice, :, np.arange(len(r))]
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
 def transforms_stamped(parent: str, children: Sequence[str], matrices: np.ndarray, stamp_ns: int) -> list[Any]:
     """:func:`transform_stamped` for many children of one parent at one stamp, checked and
     converted in one vectorised pass (``matrices`` (k, 4, 4), translations in metres)."""
@@ -585,7 +603,7 @@ def transforms_stamped(parent: str, children: Sequence[str], matrices: np.ndarra
            | (np.linalg.det(r) < 0))
     if bad.any():
         raise McapError(f"transform {parent} -> {children[int(np.argmax(bad))]} is not a rigid motion")
-    quats = Rotation.from_matrix(r).as_quat().tolist() if len(m) else []
+    quats = _quaternions(r).tolist()
     header = _header(parent, stamp_ns)
     out = []
     for child, (qx, qy, qz, qw), (tx, ty, tz) in zip(children, quats, m[:, :3, 3].tolist()):

@@ -411,17 +411,6 @@ def _ns(t: float) -> int:
     return int(round(t * 1e9))
 
 
-class _Timeline:
-    """Messages collected out of order, written sorted by time (MCAP readers play in log time).
-    A message may be a callable that makes it when it is written."""
-
-    def __init__(self) -> None:
-        self.items: list[tuple[int, int, str, Any, bool]] = []
-
-    def add(self, t: float, topic: str, msg: Any, latched: bool = False) -> None:
-        self.items.append((_ns(t), len(self.items), topic, msg, latched))
-
-
 def _delete_all(ns: str, frame: str, t: float) -> Any:
     """A marker that clears every marker of the topic (DELETEALL)."""
     marker = cube_marker(ns, 0, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), (0.0, 0.0, 0.0, 0.0), frame, _ns(t))
@@ -594,19 +583,24 @@ class _Health:
 def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tuple[Path, str], PartAssets],
                    orders: tuple[Order, ...], cell: Cell, world: CollisionWorld, stations: Stations, *,
                    overwrite: bool, inputs: dict[str, str], parameters: dict[str, Any],
-                   live: LiveView | None = None) -> dict[str, int]:
+                   live: LiveView | None = None, robot_rate_hz: float = ROBOT_RATE_HZ) -> dict[str, int]:
     """Write the simulation to MCAP (``path``) and/or stream it to a live view, in log time;
-    returns message counts per topic."""
+    returns message counts per topic.
+
+    The log streams: each activity and the scheduler's log are generators of their messages in
+    time order, merged as the clock reaches them, and a message is made only when it is written,
+    so memory stays flat however many orders ran. ``robot_rate_hz`` [Hz of simulated time] is the
+    rate of the robot's joint states and link transforms (the ends of each motion always logged):
+    lower it for long runs.
+    """
+    if not robot_rate_hz > 0:
+        raise CellError(f"the robot state rate must be positive, got {robot_rate_hz} Hz", source="--robot-rate")
     order_of = {o.id: o for o in orders}
 
     def part_of(job: int) -> PartAssets:
         o = order_of[result.jobs[job]]
         return assets[(o.part, o.material)]
 
-    tl = _Timeline()
-    home = np.asarray(cell.robot.home, dtype=float)
-    robot_samples: list[tuple[float, np.ndarray]] = [(0.0, home)]
-    cut_so_far: dict[int, float] = {}
     spindle: dict[tuple[Path, str], dict[int, float]] = {}
 
     def rpm_of(p: PartAssets) -> dict[int, float]:
@@ -614,108 +608,40 @@ def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tup
         if (p.part, p.material) not in spindle:
             spindle[(p.part, p.material)] = spindle_speeds(p)
         return spindle[(p.part, p.material)]
+
+    # Program time [s] each cut of a job had already done before it (a rerun after an alarm
+    # does not log the stock snapshots again): one float per activity.
+    cut_before: list[float] = []
+    cut_so_far: dict[int, float] = {}
     for a in result.activities:
-        order = result.jobs.get(a.job, "?")
-        serial = f"{order}-{a.job}"
-        if a.resource == "robot":
-            tl.add(a.start, "/cell/robot", robot_state(a.action, order, serial, _ns(a.start)))
-            tl.add(a.end, "/cell/robot", robot_state("idle", "", "", _ns(a.end)))
-            p = part_of(a.job)
-            spans = {"fetch": [(FIRST_FETCH_MOVE, LAST_FETCH_MOVE, False)],
-                     "missed_grasp": [(FIRST_FETCH_MOVE, LAST_FETCH_MOVE, False),
-                                      (FIRST_FETCH_MOVE, FIRST_FETCH_MOVE, True)],
-                     "load": [("load: transfer to vise", "load: return home", False)],
-                     "unload": [("unload: home to above vise", "unload: return home", False)]}.get(a.action, [])
-            t = a.start
-            for first, last, backwards in spans:
-                t0, t1 = p.motion.span(first, last)
-                ts, q = p.motion.samples(t0, t1, ROBOT_RATE_HZ)
-                if backwards:
-                    q = q[::-1]
-                for dt, qi in zip(ts - t0, q):
-                    if t + dt <= a.end + 1e-9:  # a timed-out move stops where it was
-                        robot_samples.append((t + dt, qi))
-                t += t1 - t0
-            if a.action == "load":
-                tl.add(a.start, "/tf", tf_message([transform_stamped(
-                    "vise", "work", p.transform_vise_to_work, _ns(a.start))]))
-                if p.toolpath is not None:
-                    tl.add(a.start, "/machine/toolpath", functools.partial(_restamp, p.toolpath, a.start))
-            if a.action == "load" and a.outcome == "loaded":
-                tl.add(a.end, "/machine/stock", _stock_msg(p, 0, a.end))
-            if a.action == "unload":
-                tl.add(a.end, "/machine/stock", marker_array([_delete_all("stock", "work", a.end)]))
-                tl.add(a.end, "/machine/toolpath", marker_array([_delete_all("toolpath", "work", a.end)]))
-        elif a.resource == "machine":
-            after = "alarm" if a.outcome in ("machine_alarm", "timeout") else "idle"
-            if a.action != "cut":
-                tl.add(a.start, "/cell/machine", machine_state("reset", order, serial, _ns(a.start)))
-                tl.add(a.end, "/cell/machine", machine_state(after, "", "", _ns(a.end)))
-                continue
-            p = part_of(a.job)
-            program_t = np.append(np.arange(0.0, a.end - a.start, 1.0 / TOOL_RATE_HZ), a.end - a.start)
-            positions = p.timeline.position_at(program_t) / 1000.0
-            tools, lines, feeds = _program_state(p.timeline, program_t)
-            rpm = rpm_of(p)
-            duration = float(p.timeline.end[-1]) or 1.0
-            for dt, xyz, tool, line, feed in zip(program_t, positions, tools, lines, feeds):
-                pose = np.eye(4)
-                pose[:3, 3] = xyz
-                stamp = _ns(a.start + dt)
-                tl.add(a.start + dt, "/tf", tf_message([transform_stamped("work", "tool", pose, stamp)]))
-                tl.add(a.start + dt, "/cell/machine", machine_state(
-                    "cutting", order, serial, stamp, tool=int(tool), spindle_rpm=rpm.get(int(tool), 0.0),
-                    feed_mm_min=float(feed), tool_position=xyz, line=int(line), progress=min(dt / duration, 1.0)))
-            tl.add(a.end, "/cell/machine", machine_state(after, "", "", _ns(a.end)))
-            done_before = cut_so_far.get(a.job, 0.0)
-            for k, (snap_t, _, _) in enumerate(p.stock):
-                if done_before < snap_t <= a.end - a.start:
-                    tl.add(a.start + snap_t, "/machine/stock", _stock_msg(p, k, a.start + snap_t))
-            cut_so_far[a.job] = max(done_before, a.end - a.start)
-        else:
-            p = part_of(a.job)
-            if a.action == "locate":
-                shot = p.shots["locate" if a.outcome != "stock_not_found" else "empty"]
-                frame = "rack_camera"
-            else:
-                shot = p.shots["reject" if a.outcome == "inspect_fail" else "inspect"]
-                frame = "tray_camera"
-            tl.add(a.end, "/camera/image/compressed",
-                   compressed_image_msg(shot.png, "shot.png", np.zeros(0), _ns(a.end), frame))
-            tl.add(a.end, "/camera/camera_info", camera_info_msg(stations.rack.camera, _ns(a.end), frame))
-            found = _detections(shot, p, a.action, serial)
-            tl.add(a.end, "/camera/detections", detected_object_array(found, a.action, a.outcome, frame, _ns(a.end),
-                                                                     world.robot.base_frame))
-            tl.add(a.end, "/camera/annotations", image_annotations(found, _ns(a.end)))
+        done = cut_so_far.get(a.job, 0.0)
+        cut_before.append(done)
+        if a.resource == "machine" and a.action == "cut":
+            cut_so_far[a.job] = max(done, a.end - a.start)
 
-    queue = _Queue(orders)
-    tl.add(0.0, "/cell/orders", queue.message(0.0))
-    last_entry = {e.order: i for i, e in enumerate(result.log)}
-    ended = {o.order: o for o in result.outcomes}
-    health = _Health(_Resources(result, part_of, rpm_of))
-    tl.add(0.0, "/diagnostics", diagnostic_array(health.statuses(), 0))
-    for i, e in enumerate(result.log):
-        if health.update(e):
-            tl.add(e.time, "/diagnostics", diagnostic_array(health.statuses(), _ns(e.time)))
-        level = "info"
-        if e.state in ("FAULT", "RECOVER") or e.event in ("inspect_fail", "timeout"):
-            level = "warn"
-        if e.event == "order_failed" or "operator" in e.message:
-            level = "error"
-        text = f"{e.order} job {e.job}: {e.event} -> {e.state}" + (f": {e.message}" if e.message else "")
-        tl.add(e.time, "/rosout", log_msg(level, "cell.scheduler", text, _ns(e.time)))
-        if e.job:
-            tl.add(e.time, "/cell/state", scheduler_state(e.state, e.event, e.order, f"{e.order}-{e.job}", e.message,
-                                                          _ns(e.time)))
-        if queue.update(e, ended[e.order] if last_entry[e.order] == i else None):
-            tl.add(e.time, "/cell/orders", queue.message(e.time))
-        if e.event == "sorted":  # the running figures, as each part reaches a tray
-            tl.add(e.time, "/cell/summary", cell_summary(running_summary(result, e.time), _ns(e.time)))
+    # A stock snapshot is thousands of points: made once per part and snapshot, restamped at each
+    # use; the few parts under way at once stay cached, not every part the orders name.
+    @functools.lru_cache(maxsize=4 * (STOCK_SNAPSHOTS + 1))
+    def stock_marker(key: tuple[Path, str], k: int) -> Any:
+        return _stock_msg(assets[key], k, 0.0)
+
+    def stock_at(p: PartAssets, k: int, t: float) -> Any:
+        return _restamp(stock_marker((p.part, p.material), k), t)
+
+    home = np.asarray(cell.robot.home, dtype=float)
     makespan = float(result.summary["makespan_s"])
-    tl.add(makespan, "/cell/summary", cell_summary(result.summary, _ns(makespan)))
-
-    robot_samples.sort(key=lambda s: s[0])
+    activity_events = (functools.partial(_activity_events, k, a, part_of, cut_before[k], rpm_of, stock_at,
+                                         stations, world, result, robot_rate_hz)
+                       for k, a in enumerate(result.activities))
+    streams = _staggered(((_ns(a.start), make) for a, make in zip(result.activities, activity_events)),
+                         [iter([(0, -1, -1, 0, "", home, False)]),
+                          _scheduler_events(result, orders, part_of, rpm_of),
+                          # its own stream: the makespan is rounded to the millisecond, so the
+                          # whole run's summary may come before the last entries' messages
+                          iter([(_ns(makespan), 2, 0, 0, "/cell/summary",
+                                 functools.partial(cell_summary, result.summary, _ns(makespan)), False)])])
     counts: dict[str, int] = {}
+    n_states = 0
     with contextlib.ExitStack() as stack:
         sinks: list[Any] = []
         if path is not None:
@@ -731,16 +657,177 @@ def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tup
         m.write("/tf_static", tf_message(cams), 0, latched=True)
         states = RobotStateLog(m, world)
         # One stream in log time, robot state and events interleaved: a live view plays it as it goes.
-        robot = ((_ns(t), -1, "", q, False) for t, q in robot_samples)
-        events = sorted(tl.items, key=lambda i: (i[0], i[1]))
-        for stamp, _, topic, msg, latched in heapq.merge(robot, events, key=lambda i: (i[0], i[1])):
+        for stamp, _, _, _, topic, msg, latched in streams:
             if not topic:
                 states.write(msg, np.zeros_like(msg), stamp)
+                n_states += 1
                 continue
             m.write(topic, msg() if callable(msg) else msg, stamp, latched=latched)
             counts[topic] = counts.get(topic, 0) + 1
-    counts["/joint_states"] = len(robot_samples)
+    counts["/joint_states"] = n_states
     return counts
+
+
+#: One logged item: (stamp [ns], group, index, position, topic, message or its maker, latched).
+#: Sorting on the first four is log-time order; at one stamp, robot states (group -1) come
+#: first, then the activities' messages (0) in activity order, then the scheduler's (1).
+_Item = tuple[int, int, int, int, str, Any, bool]
+
+
+def _staggered(pending: Any, running: list[Any]) -> Any:
+    """Merge item streams into one in log-time order. ``running`` streams are merged from the
+    start; ``pending`` yields (start [ns], maker) sorted by start, and a maker's stream (none of
+    whose items is stamped before its start) is made only once the merge reaches its start: the
+    streams open at once are the activities under way, not all of the run's."""
+    heap: list[tuple[tuple[int, int, int, int], int, _Item, Any]] = []
+    serial = 0
+
+    def push(stream: Any) -> None:
+        nonlocal serial
+        item = next(stream, None)
+        if item is not None:
+            heapq.heappush(heap, (item[:4], serial, item, stream))
+            serial += 1
+
+    for s in running:
+        push(iter(s))
+    pending = iter(pending)
+    upcoming = next(pending, None)
+    while heap or upcoming is not None:
+        while upcoming is not None and (not heap or upcoming[0] <= heap[0][0][0]):
+            push(iter(upcoming[1]()))
+            upcoming = next(pending, None)
+        if not heap:
+            continue
+        _, _, item, stream = heapq.heappop(heap)
+        yield item
+        push(stream)
+
+
+def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_before: float, rpm_of: Any,
+                     stock_at: Callable[[PartAssets, int, float], Any], stations: Stations,
+                     world: CollisionWorld, result: SimulationResult, robot_rate_hz: float) -> Any:
+    """The messages of activity number ``k`` (and its robot states), in log-time order, each made
+    when it is written."""
+    order = result.jobs.get(a.job, "?")
+    serial = f"{order}-{a.job}"
+    out: list[tuple[float, str, Any]] = []  # (time [s], topic, maker), in the order logged before
+    robot: list[_Item] = []
+    p = part_of(a.job) if a.resource != "machine" or a.action == "cut" else None
+
+    def add(t: float, topic: str, make: Any) -> None:
+        out.append((t, topic, make))
+
+    if a.resource == "robot":
+        add(a.start, "/cell/robot", functools.partial(robot_state, a.action, order, serial, _ns(a.start)))
+        add(a.end, "/cell/robot", functools.partial(robot_state, "idle", "", "", _ns(a.end)))
+        spans = {"fetch": [(FIRST_FETCH_MOVE, LAST_FETCH_MOVE, False)],
+                 "missed_grasp": [(FIRST_FETCH_MOVE, LAST_FETCH_MOVE, False),
+                                  (FIRST_FETCH_MOVE, FIRST_FETCH_MOVE, True)],
+                 "load": [("load: transfer to vise", "load: return home", False)],
+                 "unload": [("unload: home to above vise", "unload: return home", False)]}.get(a.action, [])
+        t = a.start
+        for first, last, backwards in spans:
+            t0, t1 = p.motion.span(first, last)
+            ts, q = p.motion.samples(t0, t1, robot_rate_hz)
+            if backwards:
+                q = q[::-1]
+            for dt, qi in zip(ts - t0, q):
+                if t + dt <= a.end + 1e-9:  # a timed-out move stops where it was
+                    robot.append((_ns(t + dt), -1, k, len(robot), "", qi, False))
+            t += t1 - t0
+        if a.action == "load":
+            add(a.start, "/tf", functools.partial(_vise_tf, p, a.start))
+            if p.toolpath is not None:
+                add(a.start, "/machine/toolpath", functools.partial(_restamp, p.toolpath, a.start))
+        if a.action == "load" and a.outcome == "loaded":
+            add(a.end, "/machine/stock", functools.partial(stock_at, p, 0, a.end))
+        if a.action == "unload":
+            add(a.end, "/machine/stock", lambda: marker_array([_delete_all("stock", "work", a.end)]))
+            add(a.end, "/machine/toolpath", lambda: marker_array([_delete_all("toolpath", "work", a.end)]))
+    elif a.resource == "machine":
+        after = "alarm" if a.outcome in ("machine_alarm", "timeout") else "idle"
+        if a.action != "cut":
+            add(a.start, "/cell/machine", functools.partial(machine_state, "reset", order, serial, _ns(a.start)))
+            add(a.end, "/cell/machine", functools.partial(machine_state, after, "", "", _ns(a.end)))
+        else:
+            program_t = np.append(np.arange(0.0, a.end - a.start, 1.0 / TOOL_RATE_HZ), a.end - a.start)
+            positions = p.timeline.position_at(program_t) / 1000.0
+            tools, lines, feeds = _program_state(p.timeline, program_t)
+            rpm = rpm_of(p)
+            duration = float(p.timeline.end[-1]) or 1.0
+            for dt, xyz, tool, line, feed in zip(program_t, positions, tools, lines, feeds):
+                stamp = _ns(a.start + dt)
+                add(a.start + dt, "/tf", functools.partial(_tool_tf, xyz, stamp))
+                add(a.start + dt, "/cell/machine", functools.partial(
+                    machine_state, "cutting", order, serial, stamp, tool=int(tool),
+                    spindle_rpm=rpm.get(int(tool), 0.0), feed_mm_min=float(feed), tool_position=xyz,
+                    line=int(line), progress=min(dt / duration, 1.0)))
+            add(a.end, "/cell/machine", functools.partial(machine_state, after, "", "", _ns(a.end)))
+            for j, (snap_t, _, _) in enumerate(p.stock):
+                if cut_before < snap_t <= a.end - a.start:
+                    add(a.start + snap_t, "/machine/stock", functools.partial(stock_at, p, j, a.start + snap_t))
+    else:
+        if a.action == "locate":
+            shot = p.shots["locate" if a.outcome != "stock_not_found" else "empty"]
+            frame = "rack_camera"
+        else:
+            shot = p.shots["reject" if a.outcome == "inspect_fail" else "inspect"]
+            frame = "tray_camera"
+        stamp = _ns(a.end)
+        found = _detections(shot, p, a.action, serial)
+        add(a.end, "/camera/image/compressed",
+            functools.partial(compressed_image_msg, shot.png, "shot.png", np.zeros(0), stamp, frame))
+        add(a.end, "/camera/camera_info", functools.partial(camera_info_msg, stations.rack.camera, stamp, frame))
+        add(a.end, "/camera/detections", functools.partial(detected_object_array, found, a.action, a.outcome,
+                                                           frame, stamp, world.robot.base_frame))
+        add(a.end, "/camera/annotations", functools.partial(image_annotations, found, stamp))
+    items = [(_ns(t), 0, k, i, topic, make, False) for i, (t, topic, make) in enumerate(out)]
+    return heapq.merge(robot, sorted(items, key=lambda i: i[:4]), key=lambda i: i[:4])
+
+
+def _scheduler_events(result: SimulationResult, orders: tuple[Order, ...], part_of: Any, rpm_of: Any) -> Any:
+    """The scheduler's log as messages (/rosout, /cell/state, the order queue, diagnostics, the
+    running summary), in log-time order (the run's own summary apart)."""
+    queue = _Queue(orders)
+    items: list[tuple[float, str, Any]] = [(0.0, "/cell/orders", queue.message(0.0))]
+    last_entry = {e.order: i for i, e in enumerate(result.log)}
+    ended = {o.order: o for o in result.outcomes}
+    health = _Health(_Resources(result, part_of, rpm_of))
+    items.append((0.0, "/diagnostics", diagnostic_array(health.statuses(), 0)))
+    n = 0
+    for i, e in enumerate(result.log):
+        if health.update(e):
+            items.append((e.time, "/diagnostics", diagnostic_array(health.statuses(), _ns(e.time))))
+        level = "info"
+        if e.state in ("FAULT", "RECOVER") or e.event in ("inspect_fail", "timeout"):
+            level = "warn"
+        if e.event == "order_failed" or "operator" in e.message:
+            level = "error"
+        text = f"{e.order} job {e.job}: {e.event} -> {e.state}" + (f": {e.message}" if e.message else "")
+        items.append((e.time, "/rosout", log_msg(level, "cell.scheduler", text, _ns(e.time))))
+        if e.job:
+            items.append((e.time, "/cell/state", scheduler_state(e.state, e.event, e.order, f"{e.order}-{e.job}",
+                                                                 e.message, _ns(e.time))))
+        if queue.update(e, ended[e.order] if last_entry[e.order] == i else None):
+            items.append((e.time, "/cell/orders", queue.message(e.time)))
+        if e.event == "sorted":  # the running figures, as each part reaches a tray
+            items.append((e.time, "/cell/summary", cell_summary(running_summary(result, e.time), _ns(e.time))))
+        # the log is in time order: what one entry made goes out before the next is read
+        for t, topic, msg in items:
+            yield (_ns(t), 1, n, 0, topic, msg, False)
+            n += 1
+        items.clear()
+
+
+def _vise_tf(p: PartAssets, t: float) -> Any:
+    return tf_message([transform_stamped("vise", "work", p.transform_vise_to_work, _ns(t))])
+
+
+def _tool_tf(xyz: np.ndarray, stamp: int) -> Any:
+    pose = np.eye(4)
+    pose[:3, 3] = xyz
+    return tf_message([transform_stamped("work", "tool", pose, stamp)])
 
 
 class _Fanout:

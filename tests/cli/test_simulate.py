@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from mcap.reader import make_reader
 from typer.testing import CliRunner
 
 from cli.main import app
@@ -111,6 +112,20 @@ def test_mcap_meets_rosbag2_requirements_and_layout_names_its_topics(run_ok):
     assert counts["/camera/image/compressed"] == 6
 
 
+def test_the_log_is_written_in_log_time(run_ok, catalog, tmp_path):
+    # streamed, not sorted at the end: a player (and the live view) gets every message in time order,
+    # also when faults rerun steps and the summary's rounded makespan precedes the last entries
+    folder, part = catalog
+    orders = _orders(tmp_path, [f"{part},3,aluminium,0", f"{part},2,aluminium,1"])
+    mcap = tmp_path / "faults.mcap"
+    r = run("simulate", orders, "--catalog", folder, "--faults", "3", "--mcap", mcap, "--json", "--quiet")
+    assert r.exit_code == 0, r.output
+    for path in (run_ok[1], mcap):
+        with open(path, "rb") as f:
+            times = [m.log_time for _, _, m in make_reader(f).iter_messages(log_time_order=False)]
+        assert len(times) > 1000 and times == sorted(times)
+
+
 def test_every_logged_marker_is_stamped_when_it_was_logged(run_ok):
     _, mcap, _ = run_ok
     msgs = read_messages(mcap, ["/machine/toolpath", "/machine/stock"])
@@ -136,6 +151,28 @@ def test_logged_robot_motion_is_continuous_and_inside_the_limits(run_ok):
     # the robot starts and ends at home
     np.testing.assert_allclose(q[0], cell.robot.home, atol=1e-6)
     np.testing.assert_allclose(q[-1], cell.robot.home, atol=1e-3)
+
+
+def test_robot_rate_thins_the_robot_states_and_leaves_every_other_topic_as_it_was(run_ok, tmp_path):
+    doc, full, orders = run_ok
+    mcap = tmp_path / "thin.mcap"
+    r = run("simulate", orders, "--catalog", Path(doc["parts"][0]["plan"]).parent.parent, "--mcap", mcap,
+            "--robot-rate", "1", "--json", "--quiet")
+    assert r.exit_code == 0, r.output
+    thin = json.loads(r.stdout)["mcap"]["messages"]
+    counts = doc["mcap"]["messages"]
+    # one state per simulated second (and each move's ends) instead of 25
+    assert 0 < thin["/joint_states"] < counts["/joint_states"] / 5
+    assert {k: v for k, v in thin.items() if k != "/joint_states"} == \
+        {k: v for k, v in counts.items() if k != "/joint_states"}
+    states = [(t, np.asarray(m.position)) for _, t, m in read_messages(mcap, ["/joint_states"])]
+    assert all(b[0] >= a[0] for a, b in zip(states, states[1:]))
+    # the robot still starts and ends at home
+    home = load_cell(FIXTURES / "cell.yaml").robot.home
+    np.testing.assert_allclose(states[0][1], home, atol=1e-6)
+    np.testing.assert_allclose(states[-1][1], home, atol=1e-3)
+    r = run("simulate", orders, "--catalog", Path(doc["parts"][0]["plan"]).parent.parent, "--robot-rate", "0")
+    assert r.exit_code == 2
 
 
 def test_tool_follows_the_program_inside_the_stock(run_ok, catalog):

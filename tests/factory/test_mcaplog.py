@@ -37,6 +37,7 @@ from factory.mcaplog import (
     string_msg,
     tf_message,
     transform_stamped,
+    transforms_stamped,
     triangle_mesh_marker,
 )
 from tests.mcapcheck import check_rosbag2_mcap
@@ -258,6 +259,22 @@ def test_transform_stamped_round_trips_rotation_and_translation(q: list[float], 
     np.testing.assert_allclose(back, m[:3, :3], atol=1e-9)
     tr = msg.transform.translation
     assert [tr.x, tr.y, tr.z] == t
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.lists(st.floats(-1, 1), min_size=4, max_size=4).filter(lambda q: np.linalg.norm(q) > 0.1),
+                min_size=1, max_size=8))
+def test_transforms_stamped_gives_scipys_quaternion_sign_included(qs: list[list[float]]) -> None:
+    # the logged quaternion is the one scipy's Rotation.from_matrix gives, so logs keep their bytes;
+    # the half-turns (trace -1, the largest diagonal element decides) are the delicate case
+    r = np.concatenate([Rotation.from_quat(qs).as_matrix(), np.diag([1.0, -1, -1])[None],
+                        np.diag([-1.0, 1, -1])[None], np.diag([-1.0, -1, 1])[None], np.eye(3)[None]])
+    m = np.tile(np.eye(4), (len(r), 1, 1))
+    m[:, :3, :3] = r
+    msgs = transforms_stamped("a", [f"c{i}" for i in range(len(r))], m, 0)
+    got = [[t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z, t.transform.rotation.w]
+           for t in msgs]
+    np.testing.assert_allclose(got, Rotation.from_matrix(r).as_quat(), atol=1e-12)
 
 
 def test_transform_stamped_rejects_non_rigid() -> None:
