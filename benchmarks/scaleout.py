@@ -72,12 +72,12 @@ def _compute(folder: Path) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--generated", type=int, default=4, help="pocketed blocks added to the samples")
-    ap.add_argument("--fast", action="store_true", help="coarse CAM options (scallop 0.05, no waterline)")
+    ap.add_argument("--fast", action="store_true", help="coarse CAM options (scallop 0.05, verify grid 0.5)")
     ap.add_argument("--nodes", type=int, default=100, help="Slurm nodes of the estimate")
     ap.add_argument("--cores-per-node", type=int, default=32, help="cores per node of the estimate")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
-    options = {"scallop": 0.05, "waterline": False, "grid": 0.5} if args.fast else {}
+    options = {"scallop": 0.05, "grid": 0.5} if args.fast else {}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         n = _parts(tmp / "parts", args.generated)

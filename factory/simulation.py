@@ -47,7 +47,7 @@ from factory.tending import RobotStateLog, log_cell
 from factory.verify import part_triangles, read_sheet
 from factory.views import heightfield_mesh
 from robotprog.cell import Cell, load_cell
-from robotprog.cellsim import (EventSink, FaultModel, PartProcess, SimulationResult, running_summary,
+from robotprog.cellsim import (EventSink, FaultModel, PartProcess, RunningSummary, SimulationResult,
                               simulate as run_simulation)
 from robotprog.collision import CollisionWorld, collision_world
 from robotprog.frames import setup_sheet_to_cell
@@ -794,6 +794,7 @@ def _scheduler_events(result: SimulationResult, orders: tuple[Order, ...], part_
     last_entry = {e.order: i for i, e in enumerate(result.log)}
     ended = {o.order: o for o in result.outcomes}
     health = _Health(_Resources(result, part_of, rpm_of))
+    figures = RunningSummary(result)
     items.append((0.0, "/diagnostics", diagnostic_array(health.statuses(), 0)))
     n = 0
     for i, e in enumerate(result.log):
@@ -812,7 +813,7 @@ def _scheduler_events(result: SimulationResult, orders: tuple[Order, ...], part_
         if queue.update(e, ended[e.order] if last_entry[e.order] == i else None):
             items.append((e.time, "/cell/orders", queue.message(e.time)))
         if e.event == "sorted":  # the running figures, as each part reaches a tray
-            items.append((e.time, "/cell/summary", cell_summary(running_summary(result, e.time), _ns(e.time))))
+            items.append((e.time, "/cell/summary", cell_summary(figures.at(e.time), _ns(e.time))))
         # the log is in time order: what one entry made goes out before the next is read
         for t, topic, msg in items:
             yield (_ns(t), 1, n, 0, topic, msg, False)

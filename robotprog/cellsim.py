@@ -32,6 +32,7 @@ Faults are drawn from a seeded RNG (:class:`FaultModel`), so a run is reproducib
 from __future__ import annotations
 
 import heapq
+import math
 import logging
 import random
 from dataclasses import dataclass, field
@@ -318,50 +319,90 @@ def running_summary(result: SimulationResult, t: float) -> dict[str, Any]:
     scrapped part), the robot's and machine's busy share of ``t``, parts per hour, cycle time and
     faults by kind, all as the run stood at ``t`` [s]. Order counts, recoveries, failures and the
     mean flow time are known when the run ends: before ``t`` reaches the makespan they are 0 (or
-    None), from then on the simulation's own.
+    None), from then on the simulation's own. For many times, :class:`RunningSummary` walks the
+    run once.
     """
-    ended = t >= float(result.summary["makespan_s"])
-    # the summary's makespan is rounded to the millisecond: at the end, count everything
-    horizon = float("inf") if ended else t
-    verdict: dict[int, bool] = {}  # job -> good, for the part now on its way to the trays
-    good = rejected = 0
-    faults: dict[str, int] = {}
-    kinds = {f.value for f in Fault}
-    for e in result.log:
-        if e.time > horizon:
-            break
-        if e.event == Event.INSPECT_PASS.value:
-            verdict[e.job] = True
-        elif e.event in (Event.INSPECT_FAIL.value, Event.UNLOADED_SCRAP.value):
-            verdict[e.job] = False
-        elif e.event == Event.SORTED.value:
-            if verdict.pop(e.job, True):
-                good += 1
+    return RunningSummary(result).at(t)
+
+
+def _busy_kind(a: Activity) -> str | None:
+    """What an activity keeps busy in the summary's terms: the robot (its moves and locating), the
+    machine (cutting), or neither."""
+    if a.resource == "robot" or (a.resource == "camera" and a.action == "locate"):
+        return "robot"
+    if a.resource == "machine" and a.action == "cut":
+        return "machine"
+    return None
+
+
+class RunningSummary:
+    """:func:`running_summary` at increasing times, in one pass over the log and the activities
+    (the cell log asks at every part sorted: rescanning the run each time is quadratic)."""
+
+    def __init__(self, result: SimulationResult) -> None:
+        self.result = result
+        self._log = 0
+        self._verdict: dict[int, bool] = {}  # job -> good, for the part now on its way to the trays
+        self._good = self._rejected = 0
+        self._faults: dict[str, int] = {}
+        self._kinds = {f.value for f in Fault}
+        self._activities = sorted(((a.start, a.end, k) for a in result.activities
+                                   if (k := _busy_kind(a)) is not None), key=lambda a: a[0])
+        self._started = 0
+        self._open: list[tuple[float, float, str]] = []
+        self._busy = {"robot": 0.0, "machine": 0.0}  # of activities ended by the last time asked
+        self._t = -math.inf
+
+    def at(self, t: float) -> dict[str, Any]:
+        """The figures at ``t`` [s], no earlier than the last time asked."""
+        if t < self._t:
+            raise ValueError(f"running summary asked for {t} s after {self._t} s")
+        self._t = t
+        result = self.result
+        ended = t >= float(result.summary["makespan_s"])
+        # the summary's makespan is rounded to the millisecond: at the end, count everything
+        horizon = math.inf if ended else t
+        log = result.log
+        while self._log < len(log) and log[self._log].time <= horizon:
+            e = log[self._log]
+            self._log += 1
+            if e.event == Event.INSPECT_PASS.value:
+                self._verdict[e.job] = True
+            elif e.event in (Event.INSPECT_FAIL.value, Event.UNLOADED_SCRAP.value):
+                self._verdict[e.job] = False
+            elif e.event == Event.SORTED.value:
+                if self._verdict.pop(e.job, True):
+                    self._good += 1
+                else:
+                    self._rejected += 1
+            if e.event in self._kinds:
+                self._faults[e.event] = self._faults.get(e.event, 0) + 1
+        while self._started < len(self._activities) and self._activities[self._started][0] <= horizon:
+            self._open.append(self._activities[self._started])
+            self._started += 1
+        still_open = []
+        for start, end, kind in self._open:
+            if end <= horizon:
+                self._busy[kind] += end - start
             else:
-                rejected += 1
-        if e.event in kinds:
-            faults[e.event] = faults.get(e.event, 0) + 1
-
-    def busy(*kinds_of: tuple[str, str | None]) -> float:
-        return sum(max(0.0, min(a.end, horizon) - a.start) for a in result.activities
-                   if any(a.resource == r and (act is None or a.action == act) for r, act in kinds_of))
-
-    robot = busy(("robot", None), ("camera", "locate"))
-    cutting = busy(("machine", "cut"))
-    return {
-        "makespan_s": round(t, 3),
-        "parts_good": good,
-        "parts_rejected": rejected,
-        "parts_per_hour": round(3600.0 * good / t, 3) if t > 0 else 0.0,
-        "robot_utilisation": round(robot / t, 4) if t > 0 else 0.0,
-        "machine_utilisation": round(cutting / t, 4) if t > 0 else 0.0,
-        "cycle_time_s": round(t / good, 3) if good else None,
-        "mean_flow_time_s": result.summary["mean_flow_time_s"] if ended else None,
-        "orders": dict(result.summary["orders"]) if ended else {"done": 0, "rejected": 0, "failed": 0},
-        "faults": faults,
-        "recoveries": result.summary["recoveries"] if ended else 0,
-        "failures": result.summary["failures"] if ended else 0,
-    }
+                still_open.append((start, end, kind))
+        self._open = still_open
+        busy = {k: v + sum(horizon - s for s, _, kind in still_open if kind == k) for k, v in self._busy.items()}
+        good = self._good
+        return {
+            "makespan_s": round(t, 3),
+            "parts_good": good,
+            "parts_rejected": self._rejected,
+            "parts_per_hour": round(3600.0 * good / t, 3) if t > 0 else 0.0,
+            "robot_utilisation": round(busy["robot"] / t, 4) if t > 0 else 0.0,
+            "machine_utilisation": round(busy["machine"] / t, 4) if t > 0 else 0.0,
+            "cycle_time_s": round(t / good, 3) if good else None,
+            "mean_flow_time_s": result.summary["mean_flow_time_s"] if ended else None,
+            "orders": dict(result.summary["orders"]) if ended else {"done": 0, "rejected": 0, "failed": 0},
+            "faults": dict(self._faults),
+            "recoveries": result.summary["recoveries"] if ended else 0,
+            "failures": result.summary["failures"] if ended else 0,
+        }
 
 
 def process_of(processes: Mapping, order: Order) -> PartProcess | str | Exception | None:

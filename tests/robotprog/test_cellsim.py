@@ -6,7 +6,8 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from factory.errors import SchedulerError
-from robotprog.cellsim import Activity, FaultModel, LogEntry, OrderOutcome, PartProcess, running_summary, simulate
+from robotprog.cellsim import (Activity, FaultModel, LogEntry, OrderOutcome, PartProcess, RunningSummary,
+                               running_summary, simulate)
 from robotprog.orders import Order
 from robotprog.scheduler import SchedulerOptions, State
 
@@ -182,3 +183,18 @@ def test_the_running_summary_grows_into_the_final_one(seed, rate, quantities, sh
     early = running_summary(result, end * share)
     assert early["parts_good"] <= final["parts_good"] and early["parts_rejected"] <= final["parts_rejected"]
     assert all(early["faults"].get(k, 0) <= n for k, n in final["faults"].items())
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31), rate=st.floats(0.0, 0.4),
+       quantities=st.lists(st.integers(1, 3), min_size=1, max_size=4),
+       shares=st.lists(st.floats(0.0, 1.2), min_size=1, max_size=12))
+def test_one_pass_gives_what_each_time_alone_gives(seed, rate, quantities, shares):
+    orders = [Order(f"o{i + 1}", A if i % 2 else B, q, "steel", 0) for i, q in enumerate(quantities)]
+    result = simulate(orders, {A: PROC_A, B: PROC_B}, FaultModel(rate, rate, rate, rate, seed))
+    walk = RunningSummary(result)
+    times = sorted(result.summary["makespan_s"] * s for s in shares)
+    for t in times:
+        assert walk.at(t) == running_summary(result, t)
+    with pytest.raises(ValueError):
+        walk.at(times[-1] - 1.0)
