@@ -587,6 +587,9 @@ def drop_cutter(
     Raises
     ------
     ToolpathError
-        ``xy`` is not ``(n, 2)`` or not finite, or ``floor_z`` is not finite.
+        ``xy`` is not ``(n, 2)`` or not finite, or ``floor_z`` is not finite; ``tool`` is a
+        drill (drills only drill: :mod:`cadcam.drilling`).
     """
+    if tool.is_drill:
+        raise ToolpathError(f"T{tool.number} is a drill: drills are never used for surface milling")
     return drop_profile(index, tool.radius, tool.corner_radius, xy, floor_z, progress)

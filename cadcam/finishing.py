@@ -129,6 +129,8 @@ def _surface(part: trimesh.Trimesh, setup: Setup, tool: Tool, options: Finishing
     tris = np.asarray(part.triangles, dtype=np.float64)
     if len(tris) == 0:
         raise ToolpathError("part mesh has no triangles")
+    if tool.is_drill:
+        raise ToolpathError(f"T{tool.number} is a drill: finishing needs an end mill")
     return _Surface(build_index(tris), tool.radius, tool.corner_radius, options.allowance, float(setup.stock_min[2]))
 
 

@@ -19,7 +19,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-ToolShape = Literal["flat", "ball", "bull"]
+ToolShape = Literal["flat", "ball", "bull", "drill"]
 WorkOrigin = Literal["top-front-left", "top-centre"]
 
 
@@ -71,12 +71,14 @@ DEFAULT_HOLDER: tuple[HolderSegment, ...] = (
 
 @dataclass(frozen=True)
 class Tool:
-    """An end mill.
+    """An end mill or a drill.
 
-    The cutting surface is described by one profile for all three shapes: at radial
+    The cutting surface is described by one profile for every shape: at radial
     distance ``r`` from the axis, the lowest point of the cutter is
     :meth:`profile_height` above the tip. Flat: ``corner_radius == 0``; ball:
-    ``corner_radius == diameter / 2``; bull-nose: anything between.
+    ``corner_radius == diameter / 2``; bull-nose: anything between. Drill (twist drills
+    and spot drills): ``corner_radius == 0`` and a conical point of ``point_angle``; it
+    only ever cuts along its axis (drill cycles), never sideways.
 
     Attributes
     ----------
@@ -102,6 +104,9 @@ class Tool:
         neck of a long-neck tool); None on construction means the cutting diameter.
     holder : tuple of HolderSegment
         The holder from the gauge line up [mm]; :data:`DEFAULT_HOLDER` unless given.
+    point_angle : float
+        Included angle of a drill's point [deg]: 118 for a twist drill, 90 for a spot
+        drill; 180 (no point) for end mills.
     """
 
     number: int
@@ -114,6 +119,7 @@ class Tool:
     length: float
     shank_diameter: float | None = None
     holder: tuple[HolderSegment, ...] = DEFAULT_HOLDER
+    point_angle: float = 180.0
 
     def __post_init__(self) -> None:
         if self.shank_diameter is None:
@@ -122,11 +128,28 @@ class Tool:
         if not self.holder:
             raise ValueError("a tool needs at least one holder segment")
         # Programming errors, not user input: the tool library validates user files.
-        expected = {"flat": 0.0, "ball": self.diameter / 2}
+        expected = {"flat": 0.0, "ball": self.diameter / 2, "drill": 0.0}
         if self.shape in expected and abs(self.corner_radius - expected[self.shape]) > 1e-9:
             raise ValueError(f"{self.shape} tool needs corner_radius {expected[self.shape]}")
         if not 0.0 <= self.corner_radius <= self.diameter / 2:
             raise ValueError("corner_radius must lie in [0, diameter/2]")
+        if (self.shape == "drill") != (self.point_angle < 180.0) or not 0.0 < self.point_angle <= 180.0:
+            raise ValueError("a drill needs a point_angle in (0, 180) deg; an end mill has 180")
+
+    @property
+    def is_drill(self) -> bool:
+        """A twist or spot drill: cuts only along its axis."""
+        return self.shape == "drill"
+
+    @property
+    def point_slope(self) -> float:
+        """Rise of the drill point per mm of radius [mm/mm]: ``1 / tan(point_angle / 2)``; 0 for end mills."""
+        return 0.0 if self.point_angle >= 180.0 else 1.0 / math.tan(math.radians(self.point_angle) / 2)
+
+    @property
+    def point_length(self) -> float:
+        """Height of the drill's conical point from the tip to the full diameter [mm]; 0 for end mills."""
+        return self.radius * self.point_slope
 
     @property
     def radius(self) -> float:
@@ -145,9 +168,11 @@ class Tool:
         -------
         (...) float
             0 on the flat bottom, rising along the corner radius to ``corner_radius`` at
-            ``r == radius``.
+            ``r == radius``; a drill's cone rises as ``r * point_slope``.
         """
         r = np.asarray(r, dtype=np.float64)
+        if self.point_slope > 0.0:
+            return np.where(r <= self.radius + 1e-12, r * self.point_slope, np.inf)
         rc = self.corner_radius
         a = self.radius - rc  # radius of the flat bottom
         d = np.clip(r - a, 0.0, None)
@@ -187,7 +212,10 @@ class Tool:
     def from_dict(cls, d: dict[str, Any]) -> "Tool":
         """Read :meth:`to_dict` output; dictionaries from before holders were recorded get
         the cutting diameter as shank and :data:`DEFAULT_HOLDER`."""
-        values = {f.name: d[f.name] for f in dataclasses.fields(cls) if f.name not in ("shank_diameter", "holder")}
+        values = {f.name: d[f.name] for f in dataclasses.fields(cls)
+                  if f.name not in ("shank_diameter", "holder", "point_angle")}
+        if d.get("point_angle") is not None:
+            values["point_angle"] = float(d["point_angle"])
         if d.get("shank_diameter") is not None:
             values["shank_diameter"] = float(d["shank_diameter"])
         if d.get("holder"):
@@ -227,6 +255,58 @@ class Motion(enum.IntEnum):
 
 
 @dataclass(frozen=True)
+class DrillCycle:
+    """A canned drilling cycle over a row of holes: how a post writes a drilling operation.
+
+    The operation's points hold the same motion expanded into rapids and feeds (what the
+    controller does, for grbl and for the stock model); the post writes this instead on
+    controllers with canned cycles.
+
+    Attributes
+    ----------
+    code : {81, 83}
+        G81 drill in one feed, G83 peck drill.
+    holes : (k, 3) float
+        Hole positions and the depth the tip feeds to: ``x, y, z`` [mm].
+    r_plane : float
+        Z of the R plane: rapid down to it over each hole, feed from it [mm].
+    peck : float
+        G83 peck depth Q [mm]; 0 for G81.
+    retract : {"r", "initial"}
+        Between holes, back to the R plane (G99) or to the initial level, the Z the
+        cycle starts at (G98).
+    initial_z : float
+        Z the cycle starts at: the operation's first point [mm].
+    """
+
+    code: int
+    holes: np.ndarray
+    r_plane: float
+    peck: float
+    retract: Literal["r", "initial"]
+    initial_z: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "holes", frozen_array(self.holes, (3,)).reshape(-1, 3))
+        if self.code not in (81, 83) or (self.code == 83) != (self.peck > 0):
+            raise ValueError("a drill cycle is G81 (peck 0) or G83 (peck > 0)")
+        if self.retract not in ("r", "initial") or self.initial_z < self.r_plane:
+            raise ValueError("retract is 'r' or 'initial'; the initial level is at or above R")
+        if len(self.holes) == 0 or (self.holes[:, 2] > self.r_plane).any():
+            raise ValueError("a drill cycle needs holes below its R plane")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"code": self.code, "holes": np.round(self.holes, 6).tolist(), "r_plane": self.r_plane,
+                "peck": self.peck, "retract": self.retract, "initial_z": self.initial_z}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "DrillCycle":
+        return cls(code=int(d["code"]), holes=np.asarray(d["holes"], dtype=np.float64).reshape(-1, 3),
+                   r_plane=float(d["r_plane"]), peck=float(d["peck"]), retract=d["retract"],
+                   initial_z=float(d["initial_z"]))
+
+
+@dataclass(frozen=True)
 class Operation:
     """One machining operation: a tool following a polyline of cutter locations.
 
@@ -245,6 +325,9 @@ class Operation:
         (``motion[0]`` is ignored: the post positions there by rapid at safe height).
     allowance : float
         Stock deliberately left on the part by this operation [mm].
+    cycle : DrillCycle or None
+        For drilling operations, the canned cycle the points expand (see
+        :mod:`cadcam.drilling`); None for everything else.
     """
 
     name: str
@@ -254,6 +337,7 @@ class Operation:
     points: np.ndarray
     motion: np.ndarray
     allowance: float = 0.0
+    cycle: DrillCycle | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "points", frozen_array(self.points, (3,)).reshape(-1, 3))
@@ -276,6 +360,7 @@ class Operation:
             "allowance": self.allowance,
             "points": np.round(self.points, 6).tolist(),
             "motion": self.motion.tolist(),
+            **({"cycle": self.cycle.to_dict()} if self.cycle is not None else {}),
         }
 
     @classmethod
@@ -288,6 +373,7 @@ class Operation:
             points=np.asarray(d["points"], dtype=np.float64).reshape(-1, 3),
             motion=np.asarray(d["motion"], dtype=np.int8),
             allowance=float(d.get("allowance", 0.0)),
+            cycle=DrillCycle.from_dict(d["cycle"]) if d.get("cycle") else None,
         )
 
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
+from cadcam.drilling import DrillingOptions, plan_holes
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
 from cadcam.model import Job, Operation, Setup, Tool
 from cadcam.rest import excess, safe_rapids, unreached
@@ -59,6 +60,10 @@ class PlanOptions:
         Z-level roughing leaves terraces up to a stepdown high on shallow surfaces. Where more
         than ``finish_engagement`` is left, the roughing tool steps down again between its levels
         by this much [mm], so that the finishing tool meets at most about this plus the allowance.
+    holes : bool
+        Drill round holes (spot, G81/G83) and helix those no drill and no roughing tool
+        fits, before roughing (:func:`cadcam.drilling.plan_holes`).
+    drilling : DrillingOptions
     """
 
     rough_tool: int | None = None
@@ -69,6 +74,8 @@ class PlanOptions:
     rest_roughing: bool = True
     finish_engagement: float = 1.5
     terrace_stepdown: float = 0.7
+    holes: bool = True
+    drilling: DrillingOptions = field(default_factory=DrillingOptions)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -83,6 +90,8 @@ class PlanTimings:
 
 def _checked_tool(library: ToolLibrary, number: int, part_depth: float, role: str) -> Tool:
     tool = library.tool(number)
+    if tool.is_drill:
+        raise ToolError(f"T{number} is a drill; {role} needs an end mill", source=library.source)
     if role == "roughing" and tool.shape == "ball":
         raise ToolError(
             f"T{number} is a ball end mill; roughing needs a flat or bull-nose end mill",
@@ -138,7 +147,7 @@ def _missing(library: ToolLibrary, what: str, depth: float, tools: list[Tool]) -
 
 
 def _pick_rough(library: ToolLibrary, setup: Setup, depth: float) -> Tool:
-    mills = [t for t in library.tools if t.shape != "ball"]
+    mills = [t for t in library.tools if t.shape in ("flat", "bull")]
     reach = [t for t in mills if t.length >= depth]
     if not reach:
         raise _missing(library, "flat or bull-nose end mill for roughing", depth, mills)
@@ -246,9 +255,14 @@ def plan_job(
         seconds.append(("stock model", time.perf_counter() - t0))
         return sim
 
+    t0 = time.perf_counter()
+    holes = plan_holes(part, setup, library, rough_tool, options.drilling, options.roughing.min_helix_diameter,
+                       options.roughing.allowance) if options.holes else None
+    seconds.append(("holes", time.perf_counter() - t0))
     rough = timed("roughing", lambda: zlevel_roughing(part, setup, rough_tool, rough_cutting, options.roughing,
                                                        progress=stage_progress("roughing")))
-    operations = [rough]
+    # Drilled and helixed holes come first: the stock model below sees them.
+    operations = [*(holes.operations if holes is not None else ()), rough]
     # What roughing left lets finishing descend by rapid through air instead of feeding from safe_z.
     stock = model(operations)
     allowance = options.roughing.allowance
@@ -311,6 +325,7 @@ def plan_job(
             "finish_tool": finish_tool.number,
             "unreached": [u.to_dict() for u in left],
             "rapids": {"checked": checked, "made_safe": fixed},
+            "holes": holes.to_dict() if holes is not None else {},
         },
     )
     return job, PlanTimings(tuple(seconds))

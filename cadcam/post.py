@@ -21,6 +21,11 @@ Three dialects share one writer and differ where the controllers differ:
     touched off before the start. The program ends at the safe height with ``M30``:
     machine coordinates mean nothing on a grbl machine without homing, so no ``G53``.
 
+Drilling operations (those with a :class:`~cadcam.model.DrillCycle`) are written as
+canned cycles on LinuxCNC and Fanuc: ``G99 G81``/``G83 X Y Z R [Q] F`` on the first
+hole, ``X Y [Z]`` on each further one, ``G80`` after the last. Grbl has none: there the
+operation's points, the same motion expanded, are written as ``G0``/``G1`` moves.
+
 Every program starts with the modal states it relies on (``G21 G90 G17 G40 G49 G80 G94``,
 ``G54``), writes the feed only when it changes, omits axis words that did not change, and
 is deterministic: no dates, the same job gives byte-identical text.
@@ -296,6 +301,46 @@ class _Writer:
         return True
 
 
+def _write_cycle(w: _Writer, op: Operation) -> tuple[float, float, float]:
+    """Write a drilling operation as its canned cycle (G81/G83, G98/G99, G80), from over its first hole.
+
+    Returns the feed length [mm], feed time [s] and rapid length [mm] of the motion the
+    cycle makes (the operation's points are that motion).
+    """
+    cyc = op.cycle
+    num = w.num
+    feed = op.cutting.feed
+    f = w.feed_num(feed)
+    last_z: str | None = None
+    for k, (x, y, z) in enumerate(cyc.holes.tolist()):
+        words = [f"X{num(x)}", f"Y{num(y)}"]
+        if num(z) != last_z:
+            words.append(f"Z{num(z)}")
+            last_z = num(z)
+        if k == 0:
+            head = ["G98" if cyc.retract == "initial" else "G99", f"G{cyc.code}"]
+            words += [f"R{num(cyc.r_plane)}"] + ([f"Q{num(cyc.peck)}"] if cyc.code == 83 else [])
+            if f != w.feed:
+                words.append(f"F{f}")
+                w.feed = f
+            w.emit(" ".join(head + words))
+        else:
+            w.emit(" ".join(words))
+    w.emit("G80")
+    # The controller is at the retract level over the last hole, no motion mode in force.
+    x, y, _ = cyc.holes[-1]
+    clear = cyc.r_plane if cyc.retract == "r" else max(cyc.initial_z, cyc.r_plane)
+    w.motion = None
+    for i, (a, v) in enumerate(zip("XYZ", (x, y, clear))):
+        w.words[a] = num(float(v))
+        w.pos[i] = num.rounded(float(v))
+    seg = np.linalg.norm(np.diff(op.points, axis=0), axis=1)
+    kinds = op.motion[1:]
+    cut = kinds != Motion.RAPID
+    cut_len = float(seg[cut].sum())
+    return cut_len, float(move_seconds(cut_len, feed, w.opt.rapid_rate)), float(seg[~cut].sum())
+
+
 def _op_segments(op: Operation, opt: PostOptions,
                  progress: Callable[[int, int], None] | None) -> Segments:
     fit = FitOptions(tolerance=opt.arc_tolerance, arcs=opt.arcs,
@@ -394,6 +439,22 @@ def post_process(job: Job, options: PostOptions = PostOptions(), *,
         w.move(0, p0)
         rapid_len += safe_z - float(p0[2])
 
+        if op.cycle is not None and d != "grbl":
+            moves_done += max(len(op.points) - 1, 0)
+            cut_len, cut_time, cycle_rapid = _write_cycle(w, op)
+            rapid_len += cycle_rapid
+            end = op.points[-1]
+            w.move(0, np.array([math.nan, math.nan, safe_z]))
+            rapid_len += safe_z - float(end[2])
+            last_xy = (float(end[0]), float(end[1]))
+            estimates.append(OperationEstimate(
+                name=op.name, tool_number=t, cut_length=cut_len, rapid_length=rapid_len,
+                cut_time=cut_time, rapid_time=float(move_seconds(rapid_len, math.nan, opt.rapid_rate)),
+                lines=len(w.lines) - first_line,
+            ))
+            continue
+        if op.cycle is not None:
+            w.comment(f"G{op.cycle.code} cycle written out as moves: grbl has no canned cycles")
         done_before = moves_done
         seg = _op_segments(op, opt, None if progress is None else
                            (lambda done, _n, base=done_before: progress(base + done, moves_before)))

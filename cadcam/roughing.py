@@ -151,8 +151,9 @@ class _Params:
 
 def _resolve(options: RoughingOptions, tool: Tool, setup: Setup) -> _Params:
     d = tool.diameter
-    if tool.shape == "ball":
-        raise ToolError(f"T{tool.number} is a ball end mill; z-level roughing needs a flat or bull-nose end mill")
+    if tool.shape not in ("flat", "bull"):
+        raise ToolError(f"T{tool.number} is a {'drill' if tool.is_drill else 'ball end mill'}; "
+                        "z-level roughing needs a flat or bull-nose end mill")
     if not (d > 0 and math.isfinite(d)):
         raise ToolError(f"T{tool.number} has diameter {d}")
     stepdown = min(0.5 * d, tool.flute_length) if options.stepdown is None else float(options.stepdown)

@@ -20,6 +20,8 @@ import difflib
 import logging
 import math
 from dataclasses import dataclass
+
+import numpy as np
 from pathlib import Path
 from typing import Any
 
@@ -30,7 +32,38 @@ from factory.resources import FIXTURES
 
 log = logging.getLogger(__name__)
 
-_SHAPES = ("flat", "ball", "bull")
+_SHAPES = ("flat", "ball", "bull", "drill")
+
+
+@dataclass(frozen=True)
+class DrillingData:
+    """Cutting data for drills (twist and spot) in one material.
+
+    Attributes
+    ----------
+    surface_speed : float
+        Cutting speed Vc at the drill's periphery [m/min].
+    feed_per_rev : tuple of (float, float)
+        ``(diameter [mm], f [mm/rev])`` pairs, ascending diameter; interpolated linearly,
+        clamped to the end values outside the table.
+    peck : float
+        Peck depth Q of a G83 cycle as a multiple of the drill diameter [D].
+    """
+
+    surface_speed: float
+    feed_per_rev: tuple[tuple[float, float], ...]
+    peck: float
+
+    def feed_per_rev_for(self, diameter: float) -> float:
+        """Feed per revolution for a drill of this diameter [mm/rev]."""
+        return _interpolated(self.feed_per_rev, diameter)
+
+
+def _interpolated(table: tuple[tuple[float, float], ...], x: float) -> float:
+    """Linear interpolation in ascending ``(x, y)`` pairs, clamped to the end values."""
+    xs = [a for a, _ in table]
+    ys = [b for _, b in table]
+    return float(np.interp(x, xs, ys))
 
 
 @dataclass(frozen=True)
@@ -51,6 +84,9 @@ class MaterialData:
     aliases : tuple of str
         Other names accepted for this material (matched case-insensitively).
     description : str
+    drilling : DrillingData or None
+        Cutting data for drills; None when the library gives none (drills are then not
+        used in this material).
     """
 
     name: str
@@ -59,6 +95,7 @@ class MaterialData:
     plunge_fraction: float
     aliases: tuple[str, ...] = ()
     description: str = ""
+    drilling: DrillingData | None = None
 
     def chip_load_for(self, diameter: float) -> float:
         """Chip load per tooth for a tool of this diameter [mm/tooth]."""
@@ -138,10 +175,41 @@ class ToolLibrary:
             Unknown material (lists the known ones).
         """
         m = self.material(material)
+        if tool.is_drill:
+            return self._drilling_data(tool, m)
         rpm = min(self.max_rpm, 1000.0 * m.surface_speed / (math.pi * tool.diameter))
         feed = min(self.max_feed, rpm * tool.flutes * m.chip_load_for(tool.diameter))
         plunge = min(self.max_feed, feed * m.plunge_fraction)
         return CuttingData(spindle_rpm=round(rpm), feed=round(feed, 1), plunge_feed=round(plunge, 1))
+
+    def _drilling_data(self, tool: Tool, m: MaterialData) -> CuttingData:
+        # A drill only feeds along its axis: feed = plunge feed = n * f.
+        if m.drilling is None:
+            raise ToolError(f"materials.{m.name}: no drilling data for drill T{tool.number}", source=self.source)
+        rpm = min(self.max_rpm, 1000.0 * m.drilling.surface_speed / (math.pi * tool.diameter))
+        feed = round(min(self.max_feed, rpm * m.drilling.feed_per_rev_for(tool.diameter)), 1)
+        return CuttingData(spindle_rpm=round(rpm), feed=feed, plunge_feed=feed)
+
+    def peck_depth(self, tool: Tool, material: str) -> float:
+        """G83 peck depth Q for ``tool`` in ``material`` [mm] (the material's ``drilling.peck`` x D)."""
+        m = self.material(material)
+        if m.drilling is None:
+            raise ToolError(f"materials.{m.name}: no drilling data for drill T{tool.number}", source=self.source)
+        return m.drilling.peck * tool.diameter
+
+    def drills(self, material: str) -> tuple[Tool, ...]:
+        """The twist drills usable in ``material`` (point angle over 100 deg), narrowest first."""
+        if self.material(material).drilling is None:
+            return ()
+        return tuple(sorted((t for t in self.tools if t.is_drill and t.point_angle > 100.0),
+                            key=lambda t: (t.diameter, t.number)))
+
+    def spot_drills(self, material: str) -> tuple[Tool, ...]:
+        """The spot drills usable in ``material`` (point angle 100 deg or less), widest first."""
+        if self.material(material).drilling is None:
+            return ()
+        return tuple(sorted((t for t in self.tools if t.is_drill and t.point_angle <= 100.0),
+                            key=lambda t: (-t.diameter, t.number)))
 
 
 def load_tool_library(path: str | Path | None = None) -> ToolLibrary:
@@ -254,7 +322,8 @@ class _Parser:
 
     def material(self, name: str, d: Any) -> MaterialData:
         where = f"materials.{name}"
-        d = self.mapping(d, where, {"surface_speed", "chip_load", "plunge_fraction"}, {"aliases", "description"})
+        d = self.mapping(d, where, {"surface_speed", "chip_load", "plunge_fraction"},
+                         {"aliases", "description", "drilling"})
         vc = self.number(d["surface_speed"], f"{where}.surface_speed")
         table = d["chip_load"]
         if isinstance(table, (int, float)) and not isinstance(table, bool):
@@ -277,24 +346,54 @@ class _Parser:
             raise self.fail(f"{where}.aliases", f"must be a list of names, got {_kind(aliases)}")
         aliases_t = tuple(self.string(a, f"{where}.aliases[{i}]") for i, a in enumerate(aliases))
         desc = self.string(d["description"], f"{where}.description") if "description" in d else ""
-        return MaterialData(name, vc, tuple(pairs), frac, aliases_t, desc)
+        drilling = self.drilling(d["drilling"], f"{where}.drilling") if "drilling" in d else None
+        return MaterialData(name, vc, tuple(pairs), frac, aliases_t, desc, drilling)
+
+    def drilling(self, d: Any, where: str) -> DrillingData:
+        d = self.mapping(d, where, {"surface_speed", "feed_per_rev", "peck"}, set())
+        vc = self.number(d["surface_speed"], f"{where}.surface_speed")
+        table = d["feed_per_rev"]
+        if isinstance(table, (int, float)) and not isinstance(table, bool):
+            table = {1.0: table}
+        if not isinstance(table, dict) or not table:
+            raise self.fail(f"{where}.feed_per_rev", f"must be a mapping of diameter [mm] to f [mm/rev], got {_kind(table)}")
+        pairs = sorted(
+            (self.number(k, f"{where}.feed_per_rev (diameter {shown(k)})"), self.number(v, f"{where}.feed_per_rev[{k}]"))
+            for k, v in table.items()
+        )
+        for _, f in pairs:
+            if f > 2.0:
+                raise self.fail(f"{where}.feed_per_rev", f"f {f} mm/rev is implausible (> 2 mm); is it in mm?")
+        peck = self.number(d["peck"], f"{where}.peck")
+        return DrillingData(vc, tuple(pairs), peck)
 
     def tool(self, d: Any, where: str) -> Tool:
         d = self.mapping(
             d, where, {"number", "name", "shape", "diameter", "flute_length", "flutes", "length"},
-            {"corner_radius", "shank_diameter", "holder"},
+            {"corner_radius", "shank_diameter", "holder", "point_angle"},
         )
         number = self.integer(d["number"], f"{where}.number", 1)
         name = self.string(d["name"], f"{where}.name")
         shape = d["shape"]
         if shape not in _SHAPES:
-            raise self.fail(f"{where}.shape", f"unknown shape {shown(shape)}: expected flat, ball or bull")
+            raise self.fail(f"{where}.shape", f"unknown shape {shown(shape)}: expected flat, ball, bull or drill")
         diameter = self.number(d["diameter"], f"{where}.diameter")
         radius = diameter / 2
-        if shape == "flat":
+        point_angle = 180.0
+        if shape == "drill":
+            if "point_angle" not in d:
+                raise self.fail(f"{where}.point_angle", "missing (a drill needs its point angle, e.g. 118 or 90 for a spot drill)")
+            point_angle = self.number(d["point_angle"], f"{where}.point_angle")
+            if not 60 <= point_angle < 180:
+                raise self.fail(f"{where}.point_angle", f"must lie in [60, 180) deg, got {point_angle:g}")
+        elif "point_angle" in d:
+            raise self.fail(f"{where}.point_angle", f"only drills have a point angle (this is a {shape} end mill)")
+        if shape in ("flat", "drill"):
             rc = self.number(d.get("corner_radius", 0.0), f"{where}.corner_radius", positive=False, minimum=0)
             if rc != 0:
-                raise self.fail(f"{where}.corner_radius", f"a flat end mill has corner_radius 0, got {rc} (use shape: bull)")
+                what = "a flat end mill" if shape == "flat" else "a drill"
+                raise self.fail(f"{where}.corner_radius", f"{what} has corner_radius 0, got {rc} (use shape: bull)"
+                                if shape == "flat" else f"{what} has corner_radius 0, got {rc}")
         elif shape == "ball":
             rc = self.number(d.get("corner_radius", radius), f"{where}.corner_radius")
             if abs(rc - radius) > 1e-9:
@@ -325,6 +424,7 @@ class _Parser:
             length=length,
             shank_diameter=shank,
             holder=holder,
+            point_angle=point_angle,
         )
 
     def holder(self, value: Any, where: str) -> tuple[HolderSegment, ...]:

@@ -16,6 +16,8 @@ is found exactly:
 * ball end mill: the lowest point of the capsule the ball centre sweeps, closed form;
 * bull-nose: bisection on the sign of the derivative over that interval (the minimiser to
   1e-6 mm; the error in height is second order in that);
+* drill (a cone of slope ``k``, ``h = k r``): ``z(t) + k r(t)`` is stationary where the
+  cone's flank is as steep as the move, closed form, clipped to that interval;
 * horizontal or vertical moves, any shape: closest point on the segment.
 
 Everything is exact at the grid points: a gouge, the remaining stock and a rapid's
@@ -155,7 +157,7 @@ class RapidCrash:
 
 
 #: What :class:`Fault` can say, in the order the report lists them.
-FAULT_KINDS = ("no_cut", "rapid", "holder", "flute", "buried", "below_stock")
+FAULT_KINDS = ("no_cut", "rapid", "holder", "flute", "buried", "drill_side", "below_stock")
 
 #: Setup sheet operation kinds that finish a surface; every other kind removes bulk stock.
 FINISHING_KINDS = frozenset({"raster", "waterline", "finishing"})
@@ -172,7 +174,8 @@ class Fault:
         rapid whose cutter (its full footprint) meets stock; ``holder`` the shank or holder
         meets the stock or the part; ``flute`` a cut engaged deeper than the flute length;
         ``buried`` a finishing tool engaged deeper than :attr:`VerifyOptions.finish_depth`;
-        ``below_stock`` the tool tip below the stock bottom.
+        ``drill_side`` a drill fed sideways through stock (a drill's only engagement is
+        axial, held to its flute length by ``flute``); ``below_stock`` the tool tip below the stock bottom.
     tool : int
         Tool number (0 for ``no_cut``).
     lines : tuple of int
@@ -332,7 +335,7 @@ def _profile(r: np.ndarray, flat_radius: np.ndarray, rc: np.ndarray) -> np.ndarr
     return rc - np.sqrt(np.maximum(rc * rc - d * d, 0.0))
 
 
-_FLAT, _BALL, _BULL = 0, 1, 2
+_FLAT, _BALL, _BULL, _CONE = 0, 1, 2, 3
 
 
 @dataclass
@@ -340,7 +343,8 @@ class _Segments:
     """Straight moves with the size of the tool that makes them: contiguous 1-D arrays, one row each.
 
     ``x, y, z`` is the start (tool tip) and ``dx, dy, dz`` the displacement to the end [mm].
-    ``move`` is the index of the end point in :attr:`ProgramMoves.points`.
+    ``move`` is the index of the end point in :attr:`ProgramMoves.points`. ``cone`` is a
+    drill point's rise per mm of radius (:attr:`Tool.point_slope`; 0 for end mills).
     """
 
     x: np.ndarray
@@ -353,8 +357,10 @@ class _Segments:
     rc: np.ndarray
     rapid: np.ndarray
     move: np.ndarray
+    cone: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        self.cone = np.zeros(len(self.x)) if self.cone is None else np.asarray(self.cone, dtype=np.float64)
         self.l2 = self.dx * self.dx + self.dy * self.dy
         has_len = self.l2 > 1e-18
         self.inv_l2 = np.where(has_len, 1.0 / np.where(has_len, self.l2, 1.0), 0.0)
@@ -364,19 +370,21 @@ class _Segments:
         self.reach2 = self.radius * self.radius * (1 + 1e-12)
         self.flat_radius = self.radius - self.rc
         ball = np.abs(self.rc - self.radius) <= 1e-12 * np.maximum(self.radius, 1.0)
-        self.shape = np.where(self.rc == 0.0, _FLAT, np.where(ball, _BALL, _BULL)).astype(np.int8)
+        self.shape = np.where(self.cone > 0.0, _CONE,
+                              np.where(self.rc == 0.0, _FLAT, np.where(ball, _BALL, _BULL))).astype(np.int8)
 
     def __len__(self) -> int:
         return len(self.x)
 
     @classmethod
-    def between(cls, p0, p1, radius, rc, rapid=None, move=None) -> "_Segments":
+    def between(cls, p0, p1, radius, rc, rapid=None, move=None, cone=None) -> "_Segments":
         k = len(p0)
         return cls(
             np.ascontiguousarray(p0[:, 0]), np.ascontiguousarray(p0[:, 1]), np.ascontiguousarray(p0[:, 2]),
             p1[:, 0] - p0[:, 0], p1[:, 1] - p0[:, 1], p1[:, 2] - p0[:, 2],
             np.asarray(radius, dtype=np.float64), np.asarray(rc, dtype=np.float64),
             np.zeros(k, bool) if rapid is None else rapid, np.arange(k) if move is None else move,
+            None if cone is None else np.asarray(cone, dtype=np.float64),
         )
 
     def sub(self, s: int, e: int) -> "_Segments":
@@ -430,7 +438,9 @@ def _pair_envelope(
     # and vertical moves, a lower bound otherwise (z(t) >= zmin and r(t) >= distance).
     lower = seg.zmin[owner]
     if np.any(seg.shape != _FLAT):
-        lower += _profile(np.sqrt(dist2), seg.flat_radius[owner], seg.rc[owner])
+        dist = np.sqrt(dist2)
+        lower += _profile(dist, seg.flat_radius[owner], seg.rc[owner])
+        lower += seg.cone[owner] * np.minimum(dist, seg.radius[owner])
     cand = dist2 <= seg.reach2[owner]
     if bound is not None:
         cand &= lower < bound
@@ -488,7 +498,30 @@ def _sloped_envelope(wx, wy, wd, o, seg: _Segments) -> np.ndarray:
     if len(bull):
         m = bull
         out[m] = _bisect_envelope(wx[m], wy[m], dx[m], dy[m], z0[m], dz[m], R[m] - rc[m], rc[m], ta[m], tb[m])
+    cone = np.flatnonzero(shape == _CONE)
+    if len(cone):
+        m = cone
+        out[m] = _cone_envelope(wx[m], wy[m], dx[m], dy[m], z0[m], dz[m], l2[m], wd[m], cross[m], R[m],
+                                seg.cone[o[m]], ta[m], tb[m])
     return out
+
+
+def _cone_envelope(wx, wy, dx, dy, z0, dz, l2, wd, cross, R, k, ta, tb) -> np.ndarray:
+    """Minimum of the convex ``f(t) = z0 + dz t + k r(t)`` on ``[ta, tb]`` (a drill's cone).
+
+    With ``u = t - wd / l2`` the distance is ``r = sqrt(p^2 + l2 u^2)``, ``p`` the
+    perpendicular distance from the line; ``f' = 0`` where ``sqrt(l2) u / r = -dz / (k sqrt(l2))``.
+    Convex, so the stationary point clipped to the interval is the minimum; without one
+    (the move is steeper than the flank) an end is.
+    """
+    L = np.sqrt(l2)
+    p = np.abs(cross) / L
+    sgn = -dz / (k * L)
+    interior = np.abs(sgn) < 1.0
+    u = np.where(interior, sgn * p / (L * np.sqrt(np.maximum(1.0 - sgn * sgn, 1e-300))), np.sign(sgn) * np.inf)
+    t = np.clip(wd / l2 + u, ta, tb)
+    r = np.minimum(np.hypot(wx - t * dx, wy - t * dy), R)
+    return z0 + dz * t + k * r
 
 
 def _bisect_envelope(wx, wy, dx, dy, z0, dz, a, rc, ta, tb) -> np.ndarray:
@@ -543,7 +576,7 @@ def swept_envelope(q: np.ndarray, start: np.ndarray, end: np.ndarray, tool: Tool
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
     p0 = np.asarray(start, dtype=np.float64).reshape(1, 3)
     p1 = np.asarray(end, dtype=np.float64).reshape(1, 3)
-    seg = _Segments.between(p0, p1, [tool.radius], [float(tool.corner_radius)])
+    seg = _Segments.between(p0, p1, [tool.radius], [float(tool.corner_radius)], cone=[tool.point_slope])
     return _pair_envelope(q[:, 0].copy(), q[:, 1].copy(), np.zeros(len(q), np.int64), seg)
 
 
@@ -631,8 +664,9 @@ def _check_inputs(setup: Setup, options: VerifyOptions, tri: Any) -> np.ndarray:
     return tri
 
 
-def _tool_table(moves: ProgramMoves, tools: Mapping[int, Tool], use: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Radius and corner radius of the tool in the spindle for each move; NaN where none.
+def _tool_table(moves: ProgramMoves, tools: Mapping[int, Tool],
+                use: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Radius, corner radius and drill point slope of the tool in the spindle for each move; NaN where none.
 
     Raises VerifyError for a feed move with an empty spindle and for any move with a tool
     number missing from ``tools`` (among the moves selected by ``use``).
@@ -640,6 +674,7 @@ def _tool_table(moves: ProgramMoves, tools: Mapping[int, Tool], use: np.ndarray)
     number = moves.tool[1:]
     radius = np.full(len(number), np.nan)
     rc = np.full(len(number), np.nan)
+    cone = np.zeros(len(number))
     cutting = moves.motion[1:] != Motion.RAPID
     for t in np.unique(number[use]).tolist():
         sel = use & (number == t)
@@ -655,7 +690,8 @@ def _tool_table(moves: ProgramMoves, tools: Mapping[int, Tool], use: np.ndarray)
             continue  # rapids with an empty spindle: nothing to collide
         radius[sel] = tool.radius
         rc[sel] = float(tool.corner_radius)
-    return radius, rc
+        cone[sel] = tool.point_slope
+    return radius, rc, cone
 
 
 def simulate(
@@ -760,12 +796,12 @@ def simulate_snapshots(
     rapid = moves.motion[1:] == Motion.RAPID
     length = np.zeros(len(a))
     length[known] = np.linalg.norm(b[known] - a[known], axis=1)
-    radius, rc = _tool_table(moves, tools, known)
+    radius, rc, cone = _tool_table(moves, tools, known)
     # A move whose tip never comes below the stock top cannot touch the stock.
     use = known & np.isfinite(radius)
     use[use] &= np.minimum(a[use, 2], b[use, 2]) < top_z
     idx = np.flatnonzero(use)
-    seg = _Segments.between(a[idx], b[idx], radius[idx], rc[idx], rapid[idx], idx + 1)
+    seg = _Segments.between(a[idx], b[idx], radius[idx], rc[idx], rapid[idx], idx + 1, cone[idx])
     part_flat = np.where(np.isfinite(part_top), part_top, -np.inf).reshape(-1)
     body = _Body(tools, moves.tool[idx + 1], part_flat, options.engaged_width, options.contact_tolerance)
     body.wall_near = _highest_part_near(part_top, grid, _SKIN).reshape(-1)
@@ -1155,6 +1191,9 @@ def _judge(seg: _Segments, stats: _MoveStats, moves: ProgramMoves, tools: Mappin
         faults.append(Fault("no_cut", 0, (), 0.0, 0.0, None, "the program removes no material"))
 
     flute = np.array([tools[t].flute_length if t in tools else np.inf for t in tool.tolist()], dtype=np.float64)
+    # A drill only cuts along its axis: any feed move across the stock breaks it.
+    drill = np.array([t in tools and tools[t].is_drill for t in tool.tolist()], dtype=bool)
+    sideways = drill & ~seg.rapid & (seg.l2 > 1e-12) & (stats.removed_max > options.gouge_tolerance)
     checks = (
         ("rapid", seg.rapid & (stats.removed_max > options.rapid_tolerance), stats.removed_max, stats.removed_cell,
          np.full(len(seg), options.rapid_tolerance), "rapid with T{t} goes {w:.2f} mm into the stock"),
@@ -1164,6 +1203,8 @@ def _judge(seg: _Segments, stats: _MoveStats, moves: ProgramMoves, tools: Mappin
          flute, "T{t} engaged {w:.2f} mm deep, beyond its {l:g} mm flutes"),
         ("buried", ~seg.rapid & fin & (stats.depth > options.finish_depth), stats.depth, stats.depth_cell,
          np.full(len(seg), options.finish_depth), "finishing tool T{t} engaged {w:.2f} mm deep (limit {l:g} mm)"),
+        ("drill_side", sideways, stats.removed_max, stats.removed_cell, np.full(len(seg), options.gouge_tolerance),
+         "drill T{t} moves sideways through {w:.2f} mm of stock (drills cut only along their axis)"),
         # The move that takes the tip below the bottom, not the one that brings it back.
         ("below_stock", seg.z + seg.dz < sim.stock_bottom - options.contact_tolerance, sim.stock_bottom - seg.zmin,
          np.full(len(seg), -1), np.full(len(seg), options.contact_tolerance),
@@ -1292,9 +1333,9 @@ def _line_reaching(moves: ProgramMoves, tools: Mapping[int, Tool], x: float, y: 
     """Source line of the first move whose tool reaches down to ``z`` at ``(x, y)``."""
     a, b = moves.points[:-1], moves.points[1:]
     known = np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
-    radius, rc = _tool_table(moves, tools, known)
+    radius, rc, cone = _tool_table(moves, tools, known)
     sel = np.flatnonzero(known & np.isfinite(radius))
-    seg = _Segments.between(a[sel], b[sel], radius[sel], rc[sel])
+    seg = _Segments.between(a[sel], b[sel], radius[sel], rc[sel], cone=cone[sel])
     k = len(sel)
     env = _pair_envelope(np.full(k, x), np.full(k, y), np.arange(k), seg)
     hit = np.flatnonzero(env <= z + 1e-9)

@@ -35,20 +35,22 @@ def write(tmp_path: Path, doc) -> Path:
 
 def test_default_library_has_the_shop_tools(lib):
     assert lib.source == str(FIXTURES / "tools.yaml")
-    assert [t.number for t in lib.tools] == [1, 2, 3, 4, 5, 6]
+    assert [t.number for t in lib.tools] == list(range(1, 14))
     assert (lib.tool(1).shape, lib.tool(1).diameter, lib.tool(1).flutes) == ("flat", 6, 3)
     assert (lib.tool(3).shape, lib.tool(3).corner_radius) == ("ball", 3)
     assert (lib.tool(5).shape, lib.tool(5).corner_radius) == ("bull", 1)
     for t in lib.tools:
         assert isinstance(t, Tool)
-        assert t.flute_length >= 2 * t.diameter
+        assert t.flute_length >= (0.5 if t.is_drill and t.point_angle <= 90 else 2) * t.diameter
         assert t.length >= t.flute_length
+    assert [t.diameter for t in lib.drills("aluminium")] == [3.3, 4.2, 5, 6.8, 8.5, 10]
+    assert [(t.diameter, t.point_angle) for t in lib.spot_drills("aluminium")] == [(10, 90)]
     assert {"aluminium", "steel", "brass", "plastic"} <= {m.name for m in lib.materials}
 
 
 def test_missing_tool_lists_the_ones_there_are(lib):
-    with pytest.raises(ToolError, match=r"no tool T9 .*T1, T2"):
-        lib.tool(9)
+    with pytest.raises(ToolError, match=r"no tool T99 .*T1, T2"):
+        lib.tool(99)
 
 
 @pytest.mark.parametrize("material", ["aluminium", "aluminum", "steel", "brass", "plastic", "POM", "stainless"])
@@ -56,6 +58,14 @@ def test_cutting_data_are_sane_for_every_tool(lib, material):
     for t in lib.tools:
         cd = lib.cutting_data(t, material)
         assert 0 < cd.spindle_rpm <= lib.max_rpm
+        if t.is_drill:
+            # A drill feeds only along its axis: n * f, f in carbide drills' range.
+            assert 0 < cd.plunge_feed == cd.feed <= lib.max_feed
+            assert 0.02 <= cd.feed / cd.spindle_rpm <= 0.4
+            assert 0 < lib.peck_depth(t, material) <= 2 * t.diameter
+            vc = math.pi * t.diameter * cd.spindle_rpm / 1000
+            assert vc <= lib.material(material).drilling.surface_speed * 1.001
+            continue
         assert 0 < cd.plunge_feed < cd.feed <= lib.max_feed
         # Chip load actually cut per tooth stays within carbide's plausible range.
         fz = cd.feed / (cd.spindle_rpm * t.flutes)
@@ -232,3 +242,31 @@ def test_body_cylinders_hold_the_true_shank_and_holder(segments, shank, stickout
                 break
             base += seg.length
     assert body_radius(z) >= true - 1e-9
+
+
+def test_a_drill_needs_its_point_angle_and_only_drills_have_one(tmp_path):
+    doc = yaml.safe_load((FIXTURES / "tools.yaml").read_text())
+    drill = next(i for i, t in enumerate(doc["tools"]) if t["shape"] == "drill")
+    del doc["tools"][drill]["point_angle"]
+    with pytest.raises(ToolError, match=rf"tools\[{drill}\]\.point_angle: missing"):
+        load_tool_library(write(tmp_path, doc))
+    doc = yaml.safe_load((FIXTURES / "tools.yaml").read_text())
+    doc["tools"][0]["point_angle"] = 118
+    with pytest.raises(ToolError, match=r"tools\[0\]\.point_angle: only drills"):
+        load_tool_library(write(tmp_path, doc))
+    doc = yaml.safe_load((FIXTURES / "tools.yaml").read_text())
+    del doc["materials"]["steel"]["drilling"]
+    lib = load_tool_library(write(tmp_path, doc))
+    assert lib.drills("steel") == () and lib.drills("aluminium")
+    with pytest.raises(ToolError, match=r"no drilling data"):
+        lib.cutting_data(lib.drills("aluminium")[0], "steel")
+
+
+def test_a_drill_round_trips_and_its_point_is_its_profile(lib):
+    d = lib.drills("aluminium")[-1]
+    assert Tool.from_dict(d.to_dict()) == d
+    assert d.point_length == pytest.approx(d.radius / math.tan(math.radians(59)))
+    assert float(d.profile_height(d.radius)) == pytest.approx(d.point_length)
+    assert float(d.profile_height(d.radius + 0.1)) == math.inf
+    spot = lib.spot_drills("aluminium")[0]
+    assert spot.point_slope == pytest.approx(1.0)

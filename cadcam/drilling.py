@@ -1,0 +1,501 @@
+"""Round holes: find them in the part, drill them (spot, then G81 or G83), or helix them to size.
+
+A machinist drills a round hole with a drill of its size rather than pocketing it: a spot
+drill centres it, a twist drill takes it to depth in one feed (``G81``) or, deeper than
+about three diameters, in pecks that clear the chips (``G83``). A hole no drill in the
+library matches, too small for the roughing end mill to enter, is cut to size by helical
+interpolation (``G2``/``G3`` with Z) with a smaller flat end mill.
+
+:func:`find_holes` reads the holes from the mesh: connected bands of vertical faces whose
+vertices lie on a circle, facing its axis, open to the top (nothing of the part over the
+bore) and closed all round. :func:`plan_holes` matches each with the library and returns
+the operations, whose points are the motion a controller makes (what the stock model and
+grbl see); drilling operations carry their :class:`~cadcam.model.DrillCycle` for posts
+with canned cycles (:func:`cycle_moves` expands one, as LinuxCNC moves it).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import trimesh
+
+from cadcam.gcode import PECK_CLEARANCE
+from cadcam.heightmap import Grid, upper_envelope
+from cadcam.model import CuttingData, DrillCycle, Motion, Operation, Setup, Tool
+from cadcam.tools import ToolLibrary
+
+log = logging.getLogger(__name__)
+
+HoleBottom = Literal["through", "flat", "conical"]
+
+
+@dataclass(frozen=True)
+class Hole:
+    """A cylindrical vertical hole of the part, in work coordinates.
+
+    Attributes
+    ----------
+    x, y : float
+        Axis position [mm].
+    diameter : float
+        Diameter of the circle through the wall's vertices [mm] (the nominal size).
+    inscribed : float
+        Diameter of the largest circle inside the wall's facets [mm]: a tool this wide
+        cuts nothing of a tessellated wall.
+    top_z : float
+        Z where the wall starts [mm].
+    bottom_z : float
+        Z where the wall ends [mm]: the floor of a flat hole, where the cone of a conical
+        one starts, the part's underside for a through hole.
+    tip_z : float
+        Lowest point of the hole [mm]: ``bottom_z`` for flat and through holes, the
+        cone's tip for a conical bottom.
+    bottom : {"through", "flat", "conical"}
+    """
+
+    x: float
+    y: float
+    diameter: float
+    inscribed: float
+    top_z: float
+    bottom_z: float
+    tip_z: float
+    bottom: HoleBottom
+
+    @property
+    def depth(self) -> float:
+        """From the top of the wall to the lowest point [mm]."""
+        return self.top_z - self.tip_z
+
+    def describe(self) -> str:
+        kind = {"through": "through hole", "flat": "flat-bottom hole", "conical": "drilled (conical) hole"}[self.bottom]
+        return f"{self.diameter:.2f} mm {kind} at X{self.x:.2f} Y{self.y:.2f}, {self.depth:.2f} mm deep"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"x": self.x, "y": self.y, "diameter": self.diameter, "top_z": self.top_z,
+                "bottom_z": self.bottom_z, "tip_z": self.tip_z, "bottom": self.bottom}
+
+
+@dataclass(frozen=True)
+class DrillingOptions:
+    """How round holes are found and cut.
+
+    Attributes
+    ----------
+    fit_tolerance : float
+        The wall's vertices may lie this far off the fitted circle [mm].
+    drill_undersize : float
+        A drill up to this much narrower than the hole's inscribed diameter drills it to
+        size [mm] (a drilled hole comes out a little over the drill's size).
+    drill_oversize : float
+        A drill up to this much wider than the inscribed diameter still drills it to size
+        [mm]: the facets of a tessellated wall lie inside the nominal circle.
+    peck_ratio : float
+        Holes deeper than this many drill diameters are peck drilled (G83) [D].
+    breakthrough : float
+        A through hole's drill goes this far past its full diameter below the part [mm],
+        never below ``Setup.floor_z`` (the stock bottom when the setup has none).
+    spot : bool
+        Spot drill every drilled hole first (when the library has a spot drill).
+    spot_share : float
+        Diameter of the spot's cone at the surface, as a share of the drill's [1]; below 1
+        so the drill removes it all.
+    helix_angle : float
+        Ramp angle of a helix along its path [deg].
+    helix_share : float
+        An end mill helixes a hole when the helix's path is at least this share of the
+        tool diameter across (the tool must be narrower than ``D / (1 + share)``) [1].
+    """
+
+    fit_tolerance: float = 0.02
+    drill_undersize: float = 0.05
+    drill_oversize: float = 0.016
+    peck_ratio: float = 3.0
+    breakthrough: float = 0.5
+    spot: bool = True
+    spot_share: float = 0.8
+    helix_angle: float = 3.0
+    helix_share: float = 0.3
+
+
+@dataclass(frozen=True)
+class HolePlan:
+    """What :func:`plan_holes` decided.
+
+    Attributes
+    ----------
+    holes : tuple of Hole
+        Every hole found.
+    operations : tuple of Operation
+        Spot drilling, drilling and helical operations, in cutting order.
+    drilled, helixed : tuple of Hole
+        Holes taken to depth by a drill (to size, or undersize where ``undersize``) and by a helix.
+    undersize : tuple of Hole
+        Drilled holes whose drill is narrower than the hole: rest roughing takes the rest.
+    left : tuple of Hole
+        Holes left to roughing (it can enter them) or to nothing in the library.
+    """
+
+    holes: tuple[Hole, ...]
+    operations: tuple[Operation, ...]
+    drilled: tuple[Hole, ...]
+    helixed: tuple[Hole, ...]
+    undersize: tuple[Hole, ...]
+    left: tuple[Hole, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: [h.to_dict() for h in getattr(self, k)] for k in ("holes", "drilled", "helixed", "undersize", "left")}
+
+
+# --------------------------------------------------------------------------- detection
+
+#: A face is a wall when its normal is within this of horizontal (sine of the tilt).
+_VERTICAL = 1e-3
+#: Neighbouring wall facets of one bore turn by less than this [rad] (a 12-gon turns 30 deg).
+_MAX_TURN = math.radians(31.0)
+
+
+def find_holes(part: trimesh.Trimesh, options: DrillingOptions = DrillingOptions()) -> tuple[Hole, ...]:
+    """The cylindrical vertical holes of a part in work coordinates, open to the top.
+
+    Parameters
+    ----------
+    part : trimesh.Trimesh
+        Watertight part mesh in work coordinates [mm], outward normals.
+    options : DrillingOptions
+
+    Returns
+    -------
+    tuple of Hole
+        Sorted by X, then Y, then top Z. A counterbored hole gives two: the counterbore
+        and the bore below it.
+    """
+    normals = np.asarray(part.face_normals)
+    wall = np.abs(normals[:, 2]) < _VERTICAL
+    if not wall.any():
+        return ()
+    adj = np.asarray(part.face_adjacency)
+    angles = np.asarray(part.face_adjacency_angles)
+    keep = wall[adj[:, 0]] & wall[adj[:, 1]] & (angles < _MAX_TURN)
+    groups = trimesh.graph.connected_components(adj[keep], nodes=np.flatnonzero(wall), min_len=3)
+    tri = np.asarray(part.triangles)
+    found = []
+    for faces in groups:
+        hole = _hole_from_wall(part, tri, normals, np.asarray(faces), options)
+        if hole is not None:
+            found.append(hole)
+    return tuple(sorted(found, key=lambda h: (round(h.x, 6), round(h.y, 6), -h.top_z)))
+
+
+def _hole_from_wall(part, tri, normals, faces, options: DrillingOptions) -> Hole | None:
+    """The hole a band of wall facets bounds; None when the band is no full round bore."""
+    v = tri[faces].reshape(-1, 3)
+    xy = v[:, :2]
+    # Algebraic circle fit: x^2 + y^2 = 2 a x + 2 b y + c.
+    A = np.column_stack([2 * xy, np.ones(len(xy))])
+    rhs = (xy * xy).sum(axis=1)
+    sol, *_ = np.linalg.lstsq(A, rhs, rcond=None)
+    c = sol[:2]
+    r2 = sol[2] + c @ c
+    if not r2 > 0:
+        return None
+    r = math.sqrt(r2)
+    d = np.hypot(*(xy - c).T)
+    if np.abs(d - r).max() > options.fit_tolerance:
+        return None
+    # Facing the axis (a bore, not a boss), and closed all round.
+    mid = tri[faces].mean(axis=1)[:, :2]
+    n = normals[faces, :2]
+    if ((c - mid) * n).sum(axis=1).min() <= 0:
+        return None
+    ang = np.sort(np.arctan2(xy[:, 1] - c[1], xy[:, 0] - c[0]))
+    gaps = np.diff(np.concatenate([ang, ang[:1] + 2 * math.pi]))
+    if gaps.max() > math.radians(60.0):
+        return None
+    inscribed = float(((mid - c) * -n).sum(axis=1).min())  # distance from the axis to the nearest facet plane
+    top, bottom = float(v[:, 2].max()), float(v[:, 2].min())
+    # Nothing of the part over the bore above its bottom: sample the inscribed disk.
+    reach = 0.98 * inscribed
+    cell = max(reach / 8, 1e-3)
+    k = int(math.ceil(reach / cell))
+    grid = Grid(x0=float(c[0]) - k * cell, y0=float(c[1]) - k * cell, cell=cell, nx=2 * k + 1, ny=2 * k + 1)
+    near = np.all(tri[:, :, :2].min(axis=1) <= c + reach, axis=1) & np.all(tri[:, :, :2].max(axis=1) >= c - reach, axis=1)
+    top_map = upper_envelope(tri[near], grid)
+    gx, gy = np.meshgrid(grid.xs - c[0], grid.ys - c[1])
+    disk = np.hypot(gx, gy) <= reach
+    inside = top_map[disk]
+    tol = 1e-6 * max(1.0, abs(bottom))
+    if np.isfinite(inside).any() and inside[np.isfinite(inside)].max() > bottom + max(tol, 1e-4):
+        return None
+    centre = top_map[k, k]
+    if not np.isfinite(centre):
+        kind: HoleBottom = "through"
+        tip = bottom
+        if np.isfinite(inside).any():
+            return None  # part partly under the bore: no simple through hole
+    elif centre < bottom - 0.01:
+        kind, tip = "conical", float(centre)
+    else:
+        kind, tip = "flat", bottom
+    if top - tip <= 1e-3:
+        return None
+    return Hole(x=float(c[0]), y=float(c[1]), diameter=2 * r, inscribed=2 * inscribed, top_z=top,
+                bottom_z=bottom, tip_z=tip, bottom=kind)
+
+
+# --------------------------------------------------------------------------- cycles
+
+
+def cycle_moves(cycle: DrillCycle) -> tuple[np.ndarray, np.ndarray]:
+    """The motion of a canned cycle, as LinuxCNC makes it, from the initial level over the first hole.
+
+    Over each hole: rapid across at the higher of the current Z and the retract level, down to
+    the R plane, feed to the hole's Z (G83: in pecks of ``peck``, rapid out to R after each
+    and back down to :data:`cadcam.gcode.PECK_CLEARANCE` above the last depth), rapid out
+    to R (``retract == "r"``, G99) or to the initial level (G98).
+
+    Returns
+    -------
+    points : (n, 3) float
+        Tool tip positions [mm]; ``points[0]`` is the initial level over the first hole.
+    motion : (n,) int8
+        :class:`Motion` of the move ending at each point (CUT for the feeds).
+    """
+    r = cycle.r_plane
+    clear = r if cycle.retract == "r" else max(cycle.initial_z, r)
+    h0 = cycle.holes[0]
+    pts: list[tuple[float, float, float]] = [(h0[0], h0[1], cycle.initial_z)]
+    mot: list[int] = [Motion.RAPID]
+
+    def go(x: float, y: float, z: float, m: int) -> None:
+        if (x, y, z) != pts[-1]:
+            pts.append((x, y, z))
+            mot.append(m)
+
+    z = cycle.initial_z
+    for x, y, bottom in cycle.holes.tolist():
+        go(x, y, max(z, clear), Motion.RAPID)
+        go(x, y, r, Motion.RAPID)
+        if cycle.code == 81:
+            go(x, y, bottom, Motion.CUT)
+        else:
+            depth = r
+            while depth > bottom:
+                if depth < r:
+                    go(x, y, r, Motion.RAPID)
+                    go(x, y, depth + PECK_CLEARANCE, Motion.RAPID)
+                depth -= cycle.peck
+                if depth < bottom + 1e-9:
+                    depth = bottom
+                go(x, y, depth, Motion.CUT)
+        go(x, y, clear, Motion.RAPID)
+        z = clear
+    return np.array(pts, dtype=np.float64), np.array(mot, dtype=np.int8)
+
+
+def drill_operation(name: str, kind: str, tool: Tool, cutting: CuttingData, cycle: DrillCycle) -> Operation:
+    """A drilling operation: the cycle and its expanded motion."""
+    pts, mot = cycle_moves(cycle)
+    return Operation(name=name, kind=kind, tool=tool, cutting=cutting, points=pts, motion=mot, cycle=cycle)
+
+
+def helix_operation(hole: Hole, tool: Tool, cutting: CuttingData, start_z: float, bottom_z: float,
+                    options: DrillingOptions, clear_z: float) -> Operation:
+    """Helical interpolation of a hole to its inscribed size with an end mill.
+
+    Climb milling (counter-clockwise inside a bore, spindle clockwise): down a helix of
+    ``options.helix_angle`` from ``start_z`` to ``bottom_z`` [mm] at the plunge feed, a full
+    circle there to cut the ramp's last turn level, to the centre and straight up to ``clear_z``.
+    """
+    rh = hole.inscribed / 2 - tool.radius - 0.002  # a hair inside the facets
+    pitch = 2 * math.pi * rh * math.tan(math.radians(options.helix_angle))
+    pitch = max(pitch, 0.02 * tool.diameter)
+    turns = max((start_z - bottom_z) / pitch, 0.0)
+    per_turn = 72
+    n = max(int(math.ceil(turns * per_turn)), 1)
+    theta = np.linspace(0.0, 2 * math.pi * turns, n + 1)
+    z = np.linspace(start_z, bottom_z, n + 1)
+    helix = np.column_stack([hole.x + rh * np.cos(theta), hole.y + rh * np.sin(theta), z])
+    last = theta[-1]
+    ring_t = last + np.linspace(0.0, 2 * math.pi, per_turn + 1)[1:]
+    ring = np.column_stack([hole.x + rh * np.cos(ring_t), hole.y + rh * np.sin(ring_t), np.full(per_turn, bottom_z)])
+    out = np.array([[hole.x, hole.y, bottom_z], [hole.x, hole.y, clear_z]])
+    pts = np.concatenate([helix, ring, out])
+    mot = np.concatenate([[Motion.RAPID], np.full(n, Motion.PLUNGE), np.full(per_turn + 1, Motion.CUT), [Motion.RAPID]])
+    return Operation(name=f"helix {hole.diameter:.2f} mm bore", kind="helix", tool=tool, cutting=cutting,
+                     points=pts, motion=mot.astype(np.int8))
+
+
+# --------------------------------------------------------------------------- planning
+
+
+def _floor(setup: Setup) -> float:
+    """Lowest a tool tip may go [mm]: ``Setup.floor_z`` where the setup has one, else the stock bottom."""
+    floor = getattr(setup, "floor_z", None)
+    return float(setup.stock_min[2]) if floor is None else float(floor)
+
+
+def _drill_tip(hole: Hole, drill: Tool, options: DrillingOptions, floor: float) -> float:
+    """Lowest the drill's tip goes in ``hole`` [mm], its cone never below the hole's bottom."""
+    if hole.bottom == "through":
+        return max(hole.bottom_z - drill.point_length - options.breakthrough, floor)
+    # Flat: tip on the floor. Conical: the tip of the hole's cone, unless that is steeper
+    # than the drill's, whose cone then meets the wall's bottom edge first.
+    return max(hole.tip_z, hole.bottom_z - drill.point_slope * drill.radius, floor)
+
+
+def _reaches(tool: Tool, top: float, tip: float) -> bool:
+    """Flutes and stick-out both longer than the depth from the stock top to the tip."""
+    return tool.flute_length >= top - tip and tool.length > top - tip
+
+
+def _tour(points: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """Visiting order of ``points`` (k, 2), nearest neighbour first from ``start``."""
+    left = list(range(len(points)))
+    order = []
+    at = np.asarray(start, dtype=np.float64)
+    while left:
+        d = [float(np.hypot(*(points[i] - at))) for i in left]
+        i = left.pop(int(np.argmin(d)))
+        order.append(i)
+        at = points[i]
+    return np.array(order, dtype=np.int64)
+
+
+def plan_holes(
+    part: trimesh.Trimesh,
+    setup: Setup,
+    library: ToolLibrary,
+    rough_tool: Tool,
+    options: DrillingOptions = DrillingOptions(),
+    rough_min_helix: float | None = None,
+    allowance: float = 0.0,
+) -> HolePlan:
+    """Find the part's round holes and the operations that cut them, before roughing.
+
+    Per hole, in this order of preference:
+
+    1. through or conical-bottom hole, a drill of its size (within ``drill_undersize`` /
+       ``drill_oversize`` of the inscribed diameter) that reaches: spot and drill it;
+    2. the roughing tool can enter it (``D - 2 allowance - d_rough >= rough_min_helix``):
+       left to roughing;
+    3. a flat end mill can helix it (narrower than ``D / (1 + helix_share)``, reaching):
+       helix it to size (a flat floor stays flat);
+    4. a drill of its size (a flat-bottom hole no end mill fits): drill, tip on the floor;
+       the corner the point leaves goes to rest roughing;
+    5. the widest drill narrower than the hole that reaches (through and conical holes):
+       drill undersize, rest roughing takes the rest;
+    6. nothing: left (the plan's unreached report names the stock left there).
+
+    Drilling happens first, into the uncut block: drills enter at the stock top, the R
+    plane is ``setup.clearance`` above it, the cycle starts at ``setup.safe_z`` and
+    retracts to R between holes (G99). Holes deeper than ``peck_ratio`` drill diameters
+    from R are peck drilled (G83, Q from the library's drilling data).
+
+    Parameters
+    ----------
+    rough_tool : Tool
+        The roughing end mill, to tell which holes it can enter.
+    rough_min_helix : float, optional
+        Narrowest helix the roughing enters with [mm]; default ``0.3 d_rough``.
+    allowance : float
+        Stock roughing leaves on walls [mm].
+    """
+    holes = find_holes(part, options)
+    if not holes:
+        return HolePlan((), (), (), (), (), ())
+    mat = setup.material
+    top = float(setup.stock_max[2])
+    floor = _floor(setup)
+    r_plane = top + float(setup.clearance)
+    initial = max(float(setup.safe_z), r_plane)
+    drills = library.drills(mat)
+    spots = library.spot_drills(mat) if options.spot else ()
+    mills = sorted((t for t in library.tools if t.shape == "flat"), key=lambda t: (-t.diameter, t.number))
+    min_helix = 0.3 * rough_tool.diameter if rough_min_helix is None else rough_min_helix
+
+    def exact(h: Hole, tip_of) -> Tool | None:
+        for t in sorted(drills, key=lambda t: -t.diameter):
+            if h.inscribed - options.drill_undersize <= t.diameter <= h.inscribed + options.drill_oversize \
+                    and _reaches(t, top, tip_of(t)):
+                return t
+        return None
+
+    def helix_mill(h: Hole) -> Tool | None:
+        bottom = max(h.bottom_z - (options.breakthrough if h.bottom == "through" else 0.0), floor)
+        for t in mills:
+            if t.diameter * (1 + options.helix_share) <= h.inscribed and _reaches(t, top, bottom):
+                return t
+        return None
+
+    drilled: dict[int, list[tuple[Hole, float]]] = {}  # drill number -> (hole, tip z)
+    helixed: list[tuple[Hole, Tool]] = []
+    undersize: list[Hole] = []
+    left: list[Hole] = []
+    for h in holes:
+        def tip(t: Tool, h=h) -> float:
+            return _drill_tip(h, t, options, floor)
+        d = exact(h, tip)
+        mill = helix_mill(h)
+        if d is not None and h.bottom != "flat":
+            drilled.setdefault(d.number, []).append((h, tip(d)))
+        elif h.inscribed - 2 * allowance - rough_tool.diameter >= min_helix:
+            left.append(h)
+        elif mill is not None:
+            helixed.append((h, mill))
+        elif d is not None:
+            drilled.setdefault(d.number, []).append((h, tip(d)))
+        else:
+            under = [t for t in drills if t.diameter < h.inscribed - options.drill_undersize
+                     and h.bottom != "flat" and _reaches(t, top, tip(t))]
+            if under:
+                t = max(under, key=lambda t: t.diameter)
+                drilled.setdefault(t.number, []).append((h, tip(t)))
+                undersize.append(h)
+            else:
+                left.append(h)
+
+    ops: list[Operation] = []
+    origin = np.array([float(setup.stock_min[0]), float(setup.stock_min[1])])
+    if drilled and spots:
+        spot = spots[0]
+        targets = [(h, library.tool(n)) for n, hs in drilled.items() for h, _ in hs]
+        xy = np.array([[h.x, h.y] for h, _ in targets])
+        order = _tour(xy, origin)
+        rows = []
+        for i in order:
+            h, drill = targets[i]
+            spot_d = min(options.spot_share * drill.diameter, spot.diameter)
+            rows.append((h.x, h.y, top - spot.point_slope * spot_d / 2))
+        cycle = DrillCycle(code=81, holes=np.array(rows), r_plane=r_plane, peck=0.0, retract="r", initial_z=initial)
+        ops.append(drill_operation("spot drill", "spot", spot, library.cutting_data(spot, mat), cycle))
+    for number in sorted(drilled, key=lambda n: library.tool(n).diameter):
+        drill = library.tool(number)
+        rows_by_code: dict[int, list[tuple[float, float, float]]] = {}
+        for h, tip_z in drilled[number]:
+            code = 83 if r_plane - tip_z > options.peck_ratio * drill.diameter else 81
+            rows_by_code.setdefault(code, []).append((h.x, h.y, tip_z))
+        for code in sorted(rows_by_code):
+            rows = np.array(rows_by_code[code])
+            rows = rows[_tour(rows[:, :2], origin)]
+            peck = library.peck_depth(drill, mat) if code == 83 else 0.0
+            cycle = DrillCycle(code=code, holes=rows, r_plane=r_plane, peck=peck, retract="r", initial_z=initial)
+            name = f"{'peck ' if code == 83 else ''}drill {drill.diameter:g} mm"
+            ops.append(drill_operation(name, "drill", drill, library.cutting_data(drill, mat), cycle))
+    for h, mill in sorted(helixed, key=lambda hm: (-hm[1].diameter, hm[0].x, hm[0].y)):
+        bottom = max(h.bottom_z - (options.breakthrough if h.bottom == "through" else 0.0), floor)
+        ops.append(helix_operation(h, mill, library.cutting_data(mill, mat), r_plane, bottom, options, initial))
+    for h in holes:
+        log.debug("hole: %s", h.describe())
+    log.info("%d round holes: %d drilled (%d undersize), %d helixed, %d left to roughing or unreached",
+             len(holes), sum(len(v) for v in drilled.values()), len(undersize), len(helixed), len(left))
+    return HolePlan(
+        holes=holes, operations=tuple(ops),
+        drilled=tuple(h for hs in drilled.values() for h, _ in hs),
+        helixed=tuple(h for h, _ in helixed), undersize=tuple(undersize), left=tuple(left),
+    )

@@ -1,0 +1,310 @@
+"""Round holes: detection, drill cycles posted per dialect (judged by LinuxCNC's rs274), helices, verify."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import manifold3d
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cadcam.drilling import DrillingOptions, cycle_moves, drill_operation, find_holes, plan_holes
+from cadcam.gcode import parse_gcode
+from cadcam.model import DrillCycle, Job, Motion, Operation, Setup
+from cadcam.plan import PlanOptions, choose_tools
+from cadcam.post import PostOptions, linuxcnc_tool_table, post_process
+from cadcam.setup import make_setup
+from cadcam.tools import load_tool_library
+from cadcam.verify import VerifyOptions, operation_moves, simulate, swept_envelope
+from factory.errors import ToolError
+from tests.conftest import manifold_to_trimesh
+
+LIBRARY = load_tool_library()
+SEGMENTS = 96
+
+
+def cylinder(cx, cy, r, z0, z1) -> manifold3d.Manifold:
+    return manifold3d.Manifold.cylinder(z1 - z0, r, circular_segments=SEGMENTS).translate((cx, cy, z0))
+
+
+def cone_tip(cx, cy, r, z_tip, angle=118.0) -> manifold3d.Manifold:
+    """A drill point's cone, tip at ``z_tip``, full radius ``r`` above it."""
+    h = r / math.tan(math.radians(angle / 2))
+    return manifold3d.Manifold.cylinder(h, 0.0, r, circular_segments=SEGMENTS).translate((cx, cy, z_tip))
+
+
+def plate(size=(60.0, 40.0, 12.0)) -> manifold3d.Manifold:
+    return manifold3d.Manifold.cube(size)
+
+
+# --------------------------------------------------------------------------- detection
+
+
+def test_finds_through_flat_and_conical_holes_and_skips_bosses_and_slots():
+    body = plate()
+    body -= cylinder(10, 10, 5.0, -1, 13)  # 10 mm through
+    body -= cylinder(25, 10, 3.4, 6, 13)  # 6.8 mm, 6 deep, flat
+    body -= cylinder(40, 10, 2.1, 4, 13) + cone_tip(40, 10, 2.1, 4 - 2.1 / math.tan(math.radians(59)))  # drilled 4.2
+    body -= manifold3d.Manifold.cube((12, 4, 5)).translate((5, 28, 8))  # a slot: no hole
+    body += cylinder(50, 30, 4, 12, 14)  # a boss: no hole
+    part = manifold_to_trimesh(body)
+    holes = find_holes(part)
+    got = [(round(h.x, 3), round(h.y, 3), round(h.diameter, 3), h.bottom) for h in holes]
+    assert got == [(10, 10, 10, "through"), (25, 10, 6.8, "flat"), (40, 10, 4.2, "conical")]
+    through, flat, conical = holes
+    assert (through.top_z, through.bottom_z) == (12, 0)
+    assert (flat.top_z, flat.bottom_z, flat.tip_z) == (12, 6, 6)
+    assert conical.bottom_z == pytest.approx(4) and conical.tip_z == pytest.approx(4 - 2.1 / math.tan(math.radians(59)))
+    # The facets of a 96-gon lie inside the nominal circle.
+    assert through.inscribed == pytest.approx(10 * math.cos(math.pi / SEGMENTS), abs=1e-6)
+
+
+def test_a_counterbore_is_no_simple_hole_but_its_bore_is():
+    body = plate()
+    body -= cylinder(20, 20, 5.0, -1, 13)
+    body -= cylinder(20, 20, 8.0, 8, 13)
+    holes = find_holes(manifold_to_trimesh(body))
+    assert [(round(h.diameter, 3), h.bottom, h.top_z) for h in holes] == [(10, "through", 8)]
+
+
+# --------------------------------------------------------------------------- cycles through rs274
+
+
+def _setup(size=(60.0, 40.0, 12.0)) -> Setup:
+    return Setup(stock_min=np.array([0.0, 0.0, -size[2]]), stock_max=np.array([size[0], size[1], 0.0]),
+                 transform_mesh_to_work=np.eye(4), safe_z=5.0, clearance=1.0)
+
+
+def _drill_job(retract="r") -> Job:
+    spot, drill = LIBRARY.spot_drills("al")[0], LIBRARY.drills("al")[3]
+    holes = np.array([[10.0, 10.0, -12.0], [30.0, 12.5, -9.5], [45.25, 30.0, -14.0]])
+    ops = (
+        drill_operation("spot", "spot", spot, LIBRARY.cutting_data(spot, "al"),
+                        DrillCycle(81, holes * [1, 1, 0] + [0, 0, -2.0], 1.0, 0.0, retract, 5.0)),
+        drill_operation("drill", "drill", drill, LIBRARY.cutting_data(drill, "al"),
+                        DrillCycle(81, holes, 1.0, 0.0, retract, 5.0)),
+        drill_operation("peck", "drill", drill, LIBRARY.cutting_data(drill, "al"),
+                        DrillCycle(83, holes[::-1] - [0, 0, 20.0], 1.0, 3.4, retract, 5.0)),
+    )
+    return Job(part_name="drill", setup=_setup((60, 40, 40)), operations=ops)
+
+
+def _rs274(tmp_path: Path, job: Job, text: str) -> subprocess.CompletedProcess:
+    if shutil.which("rs274") is None:
+        pytest.skip("LinuxCNC's rs274 interpreter is not on PATH")
+    tbl = tmp_path / "tool.tbl"
+    tbl.write_text(linuxcnc_tool_table(job.tools))
+    nc = tmp_path / "drill.nc"
+    nc.write_text(text)
+    return subprocess.run(["rs274", "-t", str(tbl), "-g", str(nc)], stdin=subprocess.DEVNULL,
+                          capture_output=True, text=True, timeout=60, cwd=tmp_path)
+
+
+_CANON = re.compile(r"(STRAIGHT_TRAVERSE|STRAIGHT_FEED)\(([^)]*)\)")
+
+
+def _path(points: np.ndarray) -> np.ndarray:
+    """Positions with repeats (zero-length moves) dropped."""
+    keep = np.r_[True, np.any(np.abs(np.diff(points, axis=0)) > 1e-9, axis=1)]
+    return points[keep]
+
+
+@pytest.mark.parametrize("retract", ["r", "initial"])
+@pytest.mark.parametrize("dialect", ["linuxcnc", "fanuc"])
+def test_linuxcnc_runs_the_cycles_as_we_expand_them(tmp_path, dialect, retract):
+    """rs274 reads the posted G81/G83 (G98 or G99, G80) and moves exactly through our expansion."""
+    job = _drill_job(retract)
+    prog = post_process(job, PostOptions(dialect=dialect))
+    code = prog.text
+    assert "G99 G81" in code if retract == "r" else "G98 G81" in code
+    assert "G83" in code and code.count("G80") >= 4  # header + one per operation
+    res = _rs274(tmp_path, job, code)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    canon = [(kind, [float(a) for a in args.split(",")[:3]]) for kind, args in _CANON.findall(res.stdout)]
+    theirs = np.array([v for _, v in canon])
+    feeds = np.array([k == "STRAIGHT_FEED" for k, _ in canon])
+    moved = np.r_[True, np.any(np.abs(np.diff(theirs, axis=0)) > 1e-9, axis=1)]  # rs274 repeats some positions
+    theirs, feeds = theirs[moved], feeds[moved]
+    cursor = 0
+    for op in job.operations:
+        pts, mot = cycle_moves(op.cycle)
+        # Find the cycle's first point (over the first hole at the initial level) in rs274's moves.
+        # (the last operation may have ended right there: its end is this one's start)
+        cursor = max(cursor - 1, 0)
+        start = cursor + int(np.flatnonzero(np.all(np.abs(theirs[cursor:] - pts[0]) < 1e-4, axis=1))[0])
+        ours = _path(pts)
+        cursor = start + len(ours)
+        got = theirs[start:start + len(ours)]
+        np.testing.assert_allclose(got, ours, atol=1e-4)
+        np.testing.assert_array_equal(feeds[start + 1:start + len(ours)], mot[1:][np.any(np.diff(pts, axis=0) != 0, axis=1)] == Motion.CUT)
+
+
+def test_grbl_moves_equal_the_cycles(tmp_path):
+    """Grbl has no canned cycles: its G0/G1 program moves the tool as the canned-cycle program does."""
+    job = _drill_job()
+    grbl = post_process(job, PostOptions(dialect="grbl"))
+    assert not re.search(r"^G8[0-3]\b|\bG8[13]\b|\bG9[89]\b", "\n".join(
+        re.sub(r"\([^)]*\)", "", s) for s in grbl.text.splitlines()[8:]), re.M)
+    cnc = post_process(job, PostOptions(dialect="linuxcnc"))
+    a, b = parse_gcode(grbl.text), parse_gcode(cnc.text)
+    ka = np.all(np.isfinite(a.points), axis=1)
+    kb = np.all(np.isfinite(b.points), axis=1) & (b.line > 0)
+    pa, pb = _path(a.points[ka]), _path(b.points[kb])
+    n = min(len(pa), len(pb)) - 1  # LinuxCNC ends with G53 G0 Z0, grbl at the safe height
+    np.testing.assert_allclose(pa[:n], pb[:n], atol=1e-4)
+    # Same motion kinds and the same estimate of the drilling itself.
+    for ea, eb in zip(grbl.estimates, cnc.estimates):
+        assert ea.cut_length == pytest.approx(eb.cut_length, abs=1e-3)
+        assert ea.cut_time == pytest.approx(eb.cut_time, rel=1e-3)
+
+
+def test_job_with_cycles_round_trips():
+    job = _drill_job()
+    again = Job.from_dict(job.to_dict())
+    for a, b in zip(job.operations, again.operations):
+        assert b.cycle is not None and b.cycle.code == a.cycle.code
+        np.testing.assert_array_equal(a.cycle.holes, b.cycle.holes)
+        assert b.tool == a.tool
+
+
+# --------------------------------------------------------------------------- verify sees a drill's shape
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(-5, 5), st.floats(-5, 5), st.floats(-3, 3), st.floats(-4, 4), st.floats(-4, 4),
+       st.sampled_from([0, 1]), st.floats(-3, 3), st.floats(-3, 3))
+def test_drill_envelope_is_the_lowest_point_of_the_swept_cone(x0, y0, z0, dx, dy, which, qx, qy):
+    drill = [LIBRARY.drills("al")[2], LIBRARY.spot_drills("al")[0]][which]
+    p0, p1 = np.array([x0, y0, z0]), np.array([x0 + dx, y0 + dy, z0 - 2.0 + dx])
+    q = np.array([[qx, qy]])
+    env = float(swept_envelope(q, p0, p1, drill)[0])
+    t = np.linspace(0.0, 1.0, 20001)
+    c = p0 + t[:, None] * (p1 - p0)
+    r = np.hypot(q[0, 0] - c[:, 0], q[0, 1] - c[:, 1])
+    brute = c[:, 2] + drill.profile_height(r)
+    expect = float(brute.min())
+    if math.isinf(expect):
+        assert math.isinf(env) or env >= float(np.min(c[:, 2] + drill.point_length)) - 1e-6
+    else:
+        assert env == pytest.approx(expect, abs=2e-3)
+        assert env <= expect + 1e-9
+
+
+def test_a_drill_fed_sideways_through_stock_is_a_fault():
+    setup = _setup()
+    part = manifold_to_trimesh(plate((56, 36, 6)).translate((2, 2, -12)))
+    drill = LIBRARY.drills("al")[2]
+    cut = LIBRARY.cutting_data(drill, "al")
+    pts = np.array([[20, 20, 5], [20, 20, -3], [30, 20, -3], [30, 20, 5]], dtype=float)
+    op = Operation("bad", "drill", drill, cut, pts, np.array([0, 1, 1, 0], dtype=np.int8))
+    _, rep = simulate(operation_moves([op]), {drill.number: drill}, setup, part.triangles, VerifyOptions(cell=0.25))
+    kinds = {f.kind for f in rep.faults}
+    assert "drill_side" in kinds and not rep.ok
+    # Straight down and up again is what a drill does: no fault.
+    ok = Operation("ok", "drill", drill, cut, pts[[0, 1, 0]], np.array([0, 1, 0], dtype=np.int8))
+    _, rep = simulate(operation_moves([ok]), {drill.number: drill}, setup, part.triangles, VerifyOptions(cell=0.25))
+    assert rep.faults == () and rep.ok
+
+
+def test_drills_are_never_chosen_for_milling_and_refused_when_named():
+    setup = _setup()
+    rough, finish = choose_tools(LIBRARY, setup, PlanOptions())
+    assert not rough.is_drill and not finish.is_drill
+    drill = LIBRARY.drills("al")[0].number
+    with pytest.raises(ToolError, match="is a drill"):
+        choose_tools(LIBRARY, setup, PlanOptions(rough_tool=drill))
+    with pytest.raises(ToolError, match="is a drill"):
+        choose_tools(LIBRARY, setup, PlanOptions(finish_tool=drill))
+
+
+# --------------------------------------------------------------------------- random plates
+
+_DIAMETERS = [3.3, 4.2, 5.0, 6.8, 8.5, 10.0, 7.0, 9.0, 11.0]
+
+
+@st.composite
+def plates(draw):
+    """A plate with holes on a grid of 14 mm pitches: drill sizes and others, through, flat or conical."""
+    thick = draw(st.sampled_from([8.0, 12.0, 20.0]))
+    body = plate((60.0, 44.0, thick))
+    specs = []
+    n = draw(st.integers(1, 6))
+    slots = draw(st.permutations([(x, y) for x in (9.0, 23.0, 37.0, 51.0) for y in (9.0, 22.0, 35.0)]))[:n]
+    for x, y in slots:
+        d = draw(st.sampled_from(_DIAMETERS))
+        kind = draw(st.sampled_from(["through", "flat", "conical"]))
+        point = d / 2 / math.tan(math.radians(59)) if kind == "conical" else 0.0
+        depth = draw(st.floats(2.0, thick - 1.0 - point)) if kind != "through" else thick
+        z = thick - depth
+        cut = cylinder(x, y, d / 2, z if kind != "through" else -1.0, thick + 1)
+        if kind == "conical":
+            cut += cone_tip(x, y, d / 2, z - d / 2 / math.tan(math.radians(59)))
+        body -= cut
+        specs.append((x, y, d, kind, z))
+    # The roughing end mill decides which holes it enters itself and which get a helix.
+    return body, specs, thick, LIBRARY.tool(draw(st.sampled_from([1, 2, 5])))
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(plates())
+def test_random_plates_holes_found_drilled_to_depth_without_gouge(case):
+    body, specs, thick, rough = case
+    part0 = manifold_to_trimesh(body)
+    setup, part = make_setup(part0)  # 2 mm sides, 1 mm over the top; the part's bottom on the stock's
+    shift = setup.transform_mesh_to_work[:3, 3]
+    holes = find_holes(part)
+    assert len(holes) == len(specs)
+    for (x, y, d, kind, z) in specs:
+        h = min(holes, key=lambda h: math.hypot(h.x - x - shift[0], h.y - y - shift[1]))
+        assert math.hypot(h.x - x - shift[0], h.y - y - shift[1]) < 1e-4  # float32 vertices
+        assert h.diameter == pytest.approx(d, abs=1e-4) and h.bottom == kind
+        if kind != "through":
+            assert h.bottom_z == pytest.approx(z + shift[2], abs=1e-4)
+    hp = plan_holes(part, setup, LIBRARY, rough, allowance=0.3)
+    assert len(hp.drilled) + len(hp.helixed) + len(hp.left) == len(holes)
+    if not hp.operations:
+        return
+    ops = list(hp.operations)
+    tools = {op.tool.number: op.tool for op in ops}
+    cell = 0.2
+    sim, rep = simulate(operation_moves(ops), tools, setup, part.triangles, VerifyOptions(cell=cell))
+    assert rep.max_gouge <= 0.01, rep.to_dict()
+    assert rep.rapid_crashes == ()
+    assert [f.kind for f in rep.faults] == [], rep.faults
+    # Every drilled or helixed hole is open to its depth at its axis.
+    g = sim.grid
+    floor = float(setup.stock_min[2])
+    for h in (*hp.drilled, *hp.helixed):
+        i, j = int(round((h.x - g.x0) / g.cell)), int(round((h.y - g.y0) / g.cell))
+        top = float(sim.stock_top[j, i])
+        # a drill to the hole's tip (an undersize one until its point meets the wall's bottom),
+        # an end mill to the wall's bottom; never below the floor
+        rows = np.concatenate([op.cycle.holes for op in ops if op.cycle is not None and op.kind == "drill"] or
+                              [np.zeros((0, 3))])
+        drilled_to = rows[np.hypot(rows[:, 0] - h.x, rows[:, 1] - h.y) < 1e-6, 2]
+        if h in hp.drilled:
+            assert len(drilled_to) == 1
+            if h not in hp.undersize:
+                assert drilled_to[0] == pytest.approx(max(h.tip_z, floor) if h.bottom != "through" else floor)
+            depth = float(drilled_to[0])
+        else:
+            depth = h.bottom_z
+        off = math.hypot(g.x0 + i * g.cell - h.x, g.y0 + j * g.cell - h.y)  # the grid point is off the axis:
+        assert top <= max(depth, floor) + 0.61 * off + 1e-6, (h, top)  # up the drill's 118 deg point
+        # and to its size (within the drill's tolerance) near the wall, at mid depth of the wall
+        if h in hp.undersize:
+            continue
+        mid = 0.5 * (h.top_z + h.bottom_z)
+        ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+        rr = h.inscribed / 2 - 0.1 - cell
+        for a in ang:
+            ii = int(round((h.x + rr * np.cos(a) - g.x0) / g.cell))
+            jj = int(round((h.y + rr * np.sin(a) - g.y0) / g.cell))
+            assert sim.stock_top[jj, ii] <= mid + 1e-6, (h, a)
