@@ -139,3 +139,17 @@ def test_boss_overhanging_a_pocket_is_left_alone(pocket_depth, tmp_path):
     assert report.max_gouge <= 0.01, report.to_dict()
     assert report.rapid_crashes == ()
 
+
+def test_raster_only_keeps_the_shank_off_a_wall_taller_than_the_flutes(tmp_path):
+    # A wall standing 21 mm over its floor, the 6 mm ball's flutes 18 mm: a zigzag pass to
+    # the floor beside it would rub its shank on the allowance roughing left on the wall's
+    # top (stepped_wall.stl with --no-waterline). A first raster within the flutes' reach
+    # finishes the wall's upper part before the full-depth one.
+    body = manifold3d.Manifold.cube((30.0, 24.0, 4.0))
+    body += manifold3d.Manifold.cube((3.0, 14.0, 21.0)).translate((12.0, 5.0, 3.0))
+    options = dataclasses.replace(TEST_PLAN, waterline=False, finishing=FinishingOptions(scallop=0.05))
+    job, _, report, _ = plan_post_verify(manifold_to_trimesh(body), "tall wall", tmp_path, options=options, cell=0.25)
+    assert [op.name for op in job.operations if op.kind == "raster"] == ["finish raster upper", "finish raster"]
+    assert job.operations[-2].points[:, 2].min() >= job.setup.stock_max[2] - LIBRARY.tool(3).flute_length
+    assert [f.kind for f in report.faults] == [], report.faults
+    assert report.ok and report.max_gouge <= 0.01
