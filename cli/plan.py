@@ -64,6 +64,10 @@ def plan(
         print_json(summary)
     elif not quiet:
         robot_text = f"; robot load+unload {summary['robot']['motion_s']:.1f} s" if summary["robot"] else ""
+        holes = summary["holes"]
+        if holes.get("holes"):
+            stderr.print(f"{part.name}: {len(holes['holes'])} round holes, {len(holes['drilled'])} drilled, "
+                         f"{len(holes['helixed'])} helixed", highlight=False, markup=False)
         for u in summary["unreached"]:
             stderr.print(f"{part.name}: no tool in the library reaches {Unreached(**u).describe()}: left uncut",
                          highlight=False, markup=False)

@@ -198,6 +198,8 @@ class PartPlan:
             # what no tool in the library reaches: left in place, and finishing stays out of it [mm]
             "unreached": list(job.parameters.get("unreached", [])),
             "rapids": job.parameters.get("rapids"),
+            # round holes found, and which were drilled, helixed, or left to roughing (cadcam.drilling)
+            "holes": job.parameters.get("holes", {}),
             "verify": self.report.to_dict(),
             "robot": None if tending is None else {
                 "cell": tending.cell.name, "robot": tending.world.robot.name,

@@ -159,6 +159,10 @@ def test_grbl_moves_equal_the_cycles(tmp_path):
     pa, pb = _path(a.points[ka]), _path(b.points[kb])
     n = min(len(pa), len(pb)) - 1  # LinuxCNC ends with G53 G0 Z0, grbl at the safe height
     np.testing.assert_allclose(pa[:n], pb[:n], atol=1e-4)
+    # Our parser reads Fanuc's cycles (decimal points, % and O) as the same motion.
+    c = parse_gcode(post_process(job, PostOptions(dialect="fanuc")).text)
+    pc = _path(c.points[np.all(np.isfinite(c.points), axis=1) & (c.line > 0)])
+    np.testing.assert_allclose(pc[:n], pb[:n], atol=1e-4)
     # Same motion kinds and the same estimate of the drilling itself.
     for ea, eb in zip(grbl.estimates, cnc.estimates):
         assert ea.cut_length == pytest.approx(eb.cut_length, abs=1e-3)
@@ -278,6 +282,7 @@ def test_random_plates_holes_found_drilled_to_depth_without_gouge(case):
     assert rep.max_gouge <= 0.01, rep.to_dict()
     assert rep.rapid_crashes == ()
     assert [f.kind for f in rep.faults] == [], rep.faults
+    assert rep.ok
     # Every drilled or helixed hole is open to its depth at its axis.
     g = sim.grid
     floor = float(setup.stock_min[2])
