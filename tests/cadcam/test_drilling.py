@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import re
 import shutil
 import subprocess
@@ -103,8 +104,10 @@ def _rs274(tmp_path: Path, job: Job, text: str) -> subprocess.CompletedProcess:
     tbl.write_text(linuxcnc_tool_table(job.tools))
     nc = tmp_path / "drill.nc"
     nc.write_text(text)
+    # rs274 keeps its tool table in $HOME/.tool.mmap: a private HOME, or concurrent runs clobber it.
     return subprocess.run(["rs274", "-t", str(tbl), "-g", str(nc)], stdin=subprocess.DEVNULL,
-                          capture_output=True, text=True, timeout=60, cwd=tmp_path)
+                          capture_output=True, text=True, timeout=60, cwd=tmp_path,
+                          env={**os.environ, "HOME": str(tmp_path)})
 
 
 _CANON = re.compile(r"(STRAIGHT_TRAVERSE|STRAIGHT_FEED)\(([^)]*)\)")

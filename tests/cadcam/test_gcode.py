@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import re
 import shutil
 import subprocess
@@ -291,8 +292,9 @@ def test_drill_cycles_move_as_linuxcnc_moves_them(tmp_path):
     nc.write_text(DRILL_PROGRAM)
     tbl = tmp_path / "tool.tbl"
     tbl.write_text("T1 P1 Z30 D3 ;drill\n")
+    # rs274 keeps its tool table in $HOME/.tool.mmap: a private HOME, or concurrent runs clobber it.
     p = subprocess.run(["rs274", "-t", str(tbl), "-g", str(nc)], stdin=subprocess.DEVNULL,
-                       capture_output=True, text=True, timeout=60)
+                       capture_output=True, text=True, timeout=60, env={**os.environ, "HOME": str(tmp_path)})
     assert p.returncode == 0, p.stdout[-1000:]
     theirs = []
     for m in re.finditer(r"STRAIGHT_(TRAVERSE|FEED)\(([-\d.]+), ([-\d.]+), ([-\d.]+)", p.stdout):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 import shutil
 import subprocess
 from pathlib import Path
@@ -52,8 +53,10 @@ def plan_post_verify_moves(part_mesh, name: str, tmp_path: Path, options: PlanOp
 def rs274_accepts(nc: Path, job, tmp_path: Path) -> None:
     tbl = tmp_path / "tool.tbl"
     tbl.write_text(linuxcnc_tool_table(job.tools))
+    # rs274 keeps its tool table in $HOME/.tool.mmap: a private HOME, or concurrent runs clobber it
+    # ("Requested tool 3 not found in the tool table" when another rs274 ran meanwhile).
     p = subprocess.run(["rs274", "-t", str(tbl), "-g", str(nc)], stdin=subprocess.DEVNULL,
-                       capture_output=True, text=True, timeout=300)
+                       capture_output=True, text=True, timeout=300, env={**os.environ, "HOME": str(tmp_path)})
     assert p.returncode == 0, (p.stdout[-1500:], p.stderr[-1500:])
 
 
