@@ -12,22 +12,21 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
-from scipy import ndimage
 
 from cadcam.drilling import DrillingOptions, plan_holes
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
 from cadcam.model import Job, Operation, Setup, Tool
 from cadcam.rest import excess, safe_rapids, unreached
 from cadcam.roughing import RoughingOptions, zlevel_roughing
+from cadcam.shank_clearance import upper_raster
 from cadcam.tools import ToolLibrary
-from cadcam.verify import Simulation, stock_after
+from cadcam.verify import stock_after
 from factory.errors import ToolError
 
 log = logging.getLogger(__name__)
@@ -88,35 +87,6 @@ class PlanTimings:
     """Wall time per operation computed [s], in cutting order."""
 
     seconds: tuple[tuple[str, float], ...]
-
-
-#: A raster that must keep its shank out of the stock stops this far short of the flutes' reach [mm].
-_SHANK_CLEARANCE = 0.5
-
-
-def _tall_walls(stock: Simulation, tool: Tool, reach: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """XY box [mm] of the tool positions where a tool down on the part has stock ``reach`` over its tip.
-
-    The lowest tip at each grid point is the drop of the tool's profile onto the part (the
-    stock bottom where there is none), on the grid; the shank (the cutting diameter wide)
-    meets the highest stock within its radius. The box is grown by the tool diameter; None
-    where no position has stock that high.
-    """
-    g = stock.grid
-    floor = np.where(np.isfinite(stock.part_top), stock.part_top, stock.stock_bottom)
-    k = int(math.ceil(tool.radius / g.cell))
-    off = np.hypot(*np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1))) * g.cell
-    disk = off <= tool.radius
-    drop = -tool.profile_height(np.minimum(off, tool.radius))
-    tip = ndimage.grey_dilation(floor, footprint=disk, structure=np.where(disk, drop, 0.0), mode="nearest")
-    over = ndimage.maximum_filter(stock.stock_top, footprint=disk, mode="nearest")
-    tall = over - tip > reach
-    if not tall.any():
-        return None
-    rows, cols = np.nonzero(tall)
-    lo = np.array([g.x0 + cols.min() * g.cell, g.y0 + rows.min() * g.cell]) - tool.diameter
-    hi = np.array([g.x0 + cols.max() * g.cell, g.y0 + rows.max() * g.cell]) + tool.diameter
-    return lo, hi
 
 
 def _checked_tool(library: ToolLibrary, number: int, part_depth: float, role: str) -> Tool:
@@ -334,23 +304,12 @@ def plan_job(
         if stock is not None and len(operations[-1].points) > 1:
             stock = model(operations)
             engagement = EngagementLimit(depth=limit, allowance=options.finishing.allowance, grid_slack=False)
-    upper = float(setup.stock_max[2]) - finish_tool.flute_length + _SHANK_CLEARANCE
-    walls = _tall_walls(stock, finish_tool, finish_tool.flute_length - _SHANK_CLEARANCE) \
-        if not options.waterline and stock is not None else None
-    if walls is not None and upper > float(setup.stock_min[2]):
-        # Without waterline every raster pass goes to full depth at once: beside a wall taller
-        # than the flutes, the shank would rub the allowance still on the wall's upper part.
-        # A first raster around such walls, no deeper than the flutes reach from the stock
-        # top, finishes their upper parts (its tip never goes below ``upper``), so the full
-        # raster's shank meets finished walls only.
-        lo, hi = walls
-        shallow = dataclasses.replace(setup, stock_min=np.array([*np.maximum(lo, setup.stock_min[:2]), upper]),
-                                      stock_max=np.array([*np.minimum(hi, setup.stock_max[:2]), setup.stock_max[2]]))
-        op = timed("upper raster", lambda: raster_finishing(
-            part, shallow, finish_tool, finish_cutting, raster_options, progress=stage_progress("upper raster"),
-            stock=stock, limit=engagement))
-        if len(op.points) > 1:
-            operations.append(dataclasses.replace(op, name="finish raster upper"))
+    if not options.waterline and stock is not None:
+        # Every raster pass goes to full depth at once: first finish the tops of walls taller than the flutes.
+        op = timed("upper raster", lambda: upper_raster(part, setup, finish_tool, finish_cutting, raster_options,
+                                                        stock, engagement, stage_progress("upper raster")))
+        if op is not None:
+            operations.append(op)
             stock = model(operations)
     operations.append(timed("raster", lambda: raster_finishing(
         part, setup, finish_tool, finish_cutting, raster_options, progress=stage_progress("raster"), stock=stock,
