@@ -57,6 +57,14 @@ MAX_GAP_SHARE = 0.5
 #: as gaps in one surface, wider ones separate pieces of work.
 GAP_CLOSING = 0.2
 
+#: Deepest a finishing move may cut into what roughing left on a relief [mm] (``PlanOptions.
+#: finish_engagement``), and the terrace stepdown that keeps the terraces under it. A relief is
+#: shallow surface nearly everywhere, where z-level roughing leaves terraces a stepdown plus the
+#: allowance high; the verify lets a finishing tool engage 1 mm, and the planner's stock model,
+#: on a coarser grid, must stay clear of that with room to spare.
+FINISH_ENGAGEMENT = 0.8
+TERRACE_STEPDOWN = 0.4
+
 # Triangles whose normal is this close to horizontal are walls: they add nothing to the footprint.
 _WALL_NZ = 1e-9
 # Segments of a buffer's quarter circle: the chord error is below 0.2 % of the tool radius.
@@ -425,6 +433,17 @@ def machining_surface(part_work: trimesh.Trimesh, setup: Setup) -> trimesh.Trime
     allt = np.concatenate([tri, base])
     return trimesh.Trimesh(vertices=allt.reshape(-1, 3), faces=np.arange(3 * len(allt)).reshape(-1, 3),
                            process=False, validate=False)
+
+
+def block_corners(setup: Setup) -> np.ndarray:
+    """(8, 3) float: the stock block's corners in the mesh file's axes and units.
+
+    What leaves the machine is the block with the relief cut into its top: the robot grips and
+    places the block, not the surface's own (thin) box.
+    """
+    lo, hi = np.asarray(setup.stock_min, dtype=np.float64), np.asarray(setup.stock_max, dtype=np.float64)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    return (corners - np.asarray(setup.transform_mesh_to_work)[:3, 3]) / float(setup.mesh_scale)
 
 
 def clip_chains(chains: list[np.ndarray], region: BaseGeometry, iterations: int = 30) -> list[np.ndarray]:

@@ -19,7 +19,8 @@ from cadcam.finishing import FinishingOptions
 from cadcam.mesh import PartMesh, load_part
 from cadcam.model import Job
 from cadcam.plan import PlanOptions, plan_job
-from cadcam.relief import Boundary, ReliefOptions, machining_surface, relief_setup
+from cadcam.relief import (FINISH_ENGAGEMENT, TERRACE_STEPDOWN, Boundary, ReliefOptions, machining_surface,
+                           relief_setup)
 from cadcam.roughing import RoughingOptions
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
@@ -126,13 +127,17 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
                 material=req.material, mesh_scale=loaded.scale, source=str(req.part))
             part_work = machining_surface(surface_work, setup)
         library.material(req.material)  # unknown material: fail early
+    options = req.plan
+    if boundary is not None:  # shallow nearly everywhere: finer terraces, finishing engages less
+        options = dataclasses.replace(options, finish_engagement=min(options.finish_engagement, FINISH_ENGAGEMENT),
+                                      terrace_stepdown=min(options.terrace_stepdown, TERRACE_STEPDOWN))
     job, timings = plan_job(
         part_work,
         setup,
         library,
         part_name=req.part.stem,
         source_sha256=loaded.sha256,
-        options=req.plan,
+        options=options,
         progress=progress,
         boundary=boundary,
     )

@@ -209,3 +209,15 @@ def test_chains_are_cut_where_they_leave_the_region():
     assert out[0][0, 0] == pytest.approx(0.0, abs=1e-6) and out[0][-1, 0] == pytest.approx(10.0, abs=1e-6)
     assert out[0][0, 2] == pytest.approx(1.5, abs=1e-6)  # on the original move
     assert all(shapely.contains_xy(region, c[:, 0], c[:, 1]).all() for c in out)
+
+
+def test_the_sample_relief_is_made_by_its_script_and_is_a_relief(tmp_path):
+    import runpy
+
+    from tests.cadcam.reliefs import SAMPLES
+
+    runpy.run_path(str(SAMPLES / "make_relief.py"))["main"](tmp_path)
+    assert (tmp_path / "relief.stl").read_bytes() == (SAMPLES / "relief.stl").read_bytes()
+    found = load_part(SAMPLES / "relief.stl").surface
+    assert found.describe() == ("open surface, machined from above as a relief: 400 boundary edges, 1 shell, "
+                                "footprint 120.0 \u00d7 80.0 mm")
