@@ -20,11 +20,12 @@ triangles and boundary.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import shapely
@@ -37,6 +38,9 @@ from shapely.geometry.base import BaseGeometry
 from cadcam.model import Setup, WorkOrigin
 from cadcam.setup import StockMargins, make_setup
 from factory.errors import MeshError, SetupError
+
+if TYPE_CHECKING:
+    from cadcam.verify import Simulation
 
 log = logging.getLogger(__name__)
 
@@ -492,11 +496,9 @@ def _crossing(region: BaseGeometry, inside: np.ndarray, outside: np.ndarray, ite
     return inside + a * (outside - inside)
 
 
-def keep_outside(sim, boundary: Boundary, radius: float):
-    """``sim`` (a :class:`cadcam.verify.Simulation`) with the stock outside the cut region of a
-    tool of ``radius`` [mm] taken as part: it is not to be cut, so it is no excess to remove."""
-    import dataclasses
-
+def keep_outside(sim: Simulation, boundary: Boundary, radius: float) -> Simulation:
+    """``sim`` with the stock outside the roughing tool's cut region (tool ``radius`` [mm]) taken
+    as part: it is not to be cut, so it is no excess to remove and nothing unreached."""
     g = sim.grid
     x, y = np.meshgrid(g.xs, g.ys)
     region = boundary.cut_region(radius)
