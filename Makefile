@@ -14,6 +14,10 @@ demo: $(PARTS:%=$(OUT)/%.plan.json)
 	$(BIN)/python samples/summarize.py $^
 	$(BIN)/factory simulate samples/orders.yaml --catalog $(OUT) --mcap $(OUT)/cell.mcap --overwrite
 
+# The sample relief is generated: an open heightfield sheet, planned as a relief (cadcam/relief.py).
+samples/relief.stl: samples/make_relief.py | $(BIN)/.installed
+	$(BIN)/python samples/make_relief.py
+
 # One part per rule, so `make -j` plans parts in parallel.
 $(OUT)/%.plan.json: samples/%.stl $(BIN)/.installed
 	$(BIN)/factory plan $< -o $(OUT) --overwrite --quiet || test $$? -eq 3  # 3: written, verify failed (see summary)

@@ -28,12 +28,17 @@ import contourpy
 import numpy as np
 import trimesh
 from scipy import ndimage
+from shapely.geometry.base import BaseGeometry
 
 from cadcam.dropcutter import TriangleIndex, build_index, drop_profile
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
+from cadcam.relief import clip_chains
 from cadcam.rest import deep_stock, engagement_ok
 from cadcam.verify import Simulation, clear_height
 from factory.errors import ToolpathError
+
+#: ``within(radius)``: the XY region [mm] the axis of a tool of ``radius`` [mm] stays in.
+Within = Callable[[float], "BaseGeometry"]
 
 log = logging.getLogger(__name__)
 
@@ -262,7 +267,7 @@ def _simplify(p: np.ndarray, keep: np.ndarray, tol: float) -> np.ndarray:
 
 def _assemble(chains: list[np.ndarray], setup: Setup, name: str, kind: str, tool: Tool,
               cutting: CuttingData, allowance: float, stock: Simulation | None = None,
-              limit: EngagementLimit | None = None) -> Operation:
+              limit: EngagementLimit | None = None, within: Within | None = None) -> Operation:
     """Chains of CL points cut in order; retract to ``safe_z``, rapid, descend between them.
 
     Descents rapid down to ``setup.clearance`` above the highest stock under the tool
@@ -272,6 +277,8 @@ def _assemble(chains: list[np.ndarray], setup: Setup, name: str, kind: str, tool
     :class:`EngagementLimit`).
     """
     safe_z = setup.safe_z
+    if within is not None:
+        chains = clip_chains(chains, within(tool.radius))
     if limit is not None and stock is not None:
         deep = deep_stock(stock, limit.depth, limit.allowance, limit.grid_slack)
         chains = _clip_engagement(chains, tool, deep, limit.depth)
@@ -367,6 +374,7 @@ def raster_finishing(
     progress: Progress | None = None,
     stock: Simulation | None = None,
     limit: EngagementLimit | None = None,
+    within: Within | None = None,
 ) -> Operation:
     """Zigzag drop-cutter finishing of the shallow areas of ``part``.
 
@@ -392,6 +400,9 @@ def raster_finishing(
         rapid through the air above it instead of feeding down from ``safe_z``.
     limit : EngagementLimit, optional
         With ``stock``: leave out every move that would cut deeper into it than this.
+    within : callable, optional
+        ``within(radius)``: the XY region the tool axis stays in (a relief's boundary,
+        :meth:`cadcam.relief.Boundary.centre_region`); moves are cut where they leave it.
 
     Returns
     -------
@@ -454,7 +465,8 @@ def raster_finishing(
             last_line = j
 
     chains = _finish_chains(surface, chains_xy, options.tolerance)
-    return _assemble(chains, setup, "finish raster", "raster", tool, cutting, options.allowance, stock, limit)
+    return _assemble(chains, setup, "finish raster", "raster", tool, cutting, options.allowance, stock, limit,
+                     within)
 
 
 def _slope(gz: np.ndarray, du: float, dv: float) -> np.ndarray:
@@ -536,6 +548,7 @@ def waterline_finishing(
     progress: Progress | None = None,
     stock: Simulation | None = None,
     limit: EngagementLimit | None = None,
+    within: Within | None = None,
 ) -> Operation:
     """Constant-z loops around the part, levels spaced for ``options.scallop`` on walls.
 
@@ -604,7 +617,7 @@ def waterline_finishing(
         return _assemble([], setup, "finish waterline", "waterline", tool, cutting, options.allowance)
     chains = _order_loops(loops, closed)
     return _assemble(chains, setup, "finish waterline", "waterline", tool, cutting, options.allowance, stock,
-                     limit)
+                     limit, within)
 
 
 #: Overlap [deg] of the waterline's slope range with the raster's, so their seam gets cut.

@@ -1,11 +1,20 @@
-"""Part intake: read a CAD mesh, make sure it is a closed solid, and bring it to millimetres.
+"""Part intake: read a CAD mesh, weld and orient it, judge it a closed solid or a surface, bring it to mm.
 
-Everything downstream (setup, toolpaths, verification) assumes a watertight, outward-facing
-triangle mesh in millimetres. :func:`load_part` is the single door through which a part file
-enters the toolchain: it reads STL (ASCII and binary), OBJ, PLY and 3MF, repairs what can be
-repaired cheaply (duplicate vertices, flipped faces, small holes, non-manifold seams via a
-manifold3d rebuild), says what it repaired, and refuses with a :class:`~factory.errors.MeshError`
-what it cannot trust: truncated files, non-finite vertices, open shells, implausible sizes.
+:func:`load_part` is the single door through which a part file enters the toolchain: it reads
+STL (ASCII and binary), OBJ, PLY and 3MF, welds vertices closer than a tolerance scaled to the
+mesh (so a solid stored as unwelded triangles stays a solid), drops degenerate and duplicate
+triangles, repairs what can be repaired cheaply (flipped faces, small holes, non-manifold seams
+via a manifold3d rebuild), and only then judges what it holds:
+
+* a **closed solid** (watertight, outward-facing): ``PartMesh.surface`` is None;
+* else a **coherent open surface** (a relief, a terrain sheet, several sheets touching at
+  non-manifold edges), wound consistently and turned to face up, to be machined from above
+  (:mod:`cadcam.relief`): ``PartMesh.surface`` says what was found.
+
+It says what it repaired, and refuses with a :class:`~factory.errors.MeshError` what it cannot
+trust: truncated files, non-finite vertices, implausible sizes, and meshes with no surface to
+machine (a soup of disjoint triangles, a surface facing down, an envelope with gaps over most of
+its footprint; the criteria are in :func:`cadcam.relief.judge_surface`).
 
 The mesh keeps the file's own axes: only unit scaling is applied here. Placing the part in
 the stock is :mod:`cadcam.setup`'s job.
@@ -19,12 +28,15 @@ import logging
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import trimesh
 
 from factory.errors import MeshError, SetupError
+
+if TYPE_CHECKING:
+    from cadcam.relief import SurfaceFound
 
 log = logging.getLogger(__name__)
 
@@ -55,8 +67,8 @@ MAX_EXTENT_MM = 2000.0
 _FORMATS = {".stl": "stl", ".obj": "obj", ".ply": "ply", ".3mf": "3mf"}
 
 
-# Open edges whose vertices lie closer than this fraction of the part size are welded by the
-# manifold3d rebuild (1 um on a 100 mm part: far below any machining tolerance).
+# Vertices closer than this fraction of the part size are one vertex (1 um on a 100 mm part: far
+# below any machining tolerance, far above the float32 rounding of an STL's coordinates).
 _WELD_TOLERANCE = 1e-5
 
 # Triangles with less area than this [file units^2] are slivers that carry no surface.
@@ -71,13 +83,14 @@ MIN_SURFACE_KEPT = 0.5
 
 @dataclass(frozen=True)
 class PartMesh:
-    """A part as read from its file: a closed solid in millimetres.
+    """A part as read from its file: a closed solid or an open surface, in millimetres.
 
     Attributes
     ----------
     mesh : trimesh.Trimesh
-        Watertight, consistently wound, outward normals (positive volume), in millimetres,
-        in the file's own axes (only scaled, never moved or rotated).
+        A solid: watertight, consistently wound, outward normals (positive volume). A surface
+        (``surface`` is not None): welded, each shell wound consistently and facing up. In
+        millimetres, in the file's own axes (only scaled, never moved or rotated).
     scale : float
         Factor applied to go from file units to mm (1, 25.4 or 1000; or the 3MF unit).
     sha256 : str
@@ -85,12 +98,17 @@ class PartMesh:
     repairs : tuple of str
         Human-readable notes of what was repaired, e.g. ``"merged 12 duplicate vertices"``.
         Empty when the file was clean.
+
+    surface : SurfaceFound or None
+        None for a closed solid; for an open surface, what was found (boundary edges, shells,
+        footprint [mm]): it is machined from above as a relief.
     """
 
     mesh: trimesh.Trimesh
     scale: float
     sha256: str
     repairs: tuple[str, ...]
+    surface: SurfaceFound | None = None
 
 
 def load_part(path: str | Path, units: Units = "auto") -> PartMesh:
@@ -113,9 +131,10 @@ def load_part(path: str | Path, units: Units = "auto") -> PartMesh:
     ------
     MeshError
         With ``source=path``: missing or unreadable file, unknown extension, empty or
-        truncated file, no triangles, NaN/inf vertices, only degenerate triangles, an open
-        or non-manifold shell that cannot be repaired (names the boundary edge count), or a
-        size that is implausible in the given units (suggests ``--units``).
+        truncated file, no triangles, NaN/inf vertices, only degenerate triangles, a mesh
+        that is neither a closed solid nor a surface to machine from above (names the test
+        that failed and its figure), or a size that is implausible in the given units
+        (suggests ``--units``).
     """
     path = Path(path)
     if units not in ("auto", *UNIT_SCALE):
@@ -151,12 +170,18 @@ def load_part(path: str | Path, units: Units = "auto") -> PartMesh:
     # check below reports that in one line, numpy's warnings would add six more.
     with np.errstate(divide="ignore", invalid="ignore"):
         mesh, repairs = _make_solid(vertices, faces, fmt, path)
+    surface = None
+    if not (mesh.is_watertight and mesh.is_winding_consistent):
+        from cadcam.relief import judge_surface  # the relief module needs shapely; solids do not
+
+        mesh, surface, notes = judge_surface(mesh, scale, source=str(path))
+        repairs += notes
     if scale != 1.0:
         mesh.apply_scale(scale)
     _check_size(mesh, units, path)
     for note in repairs:
         log.info("%s: %s", path, note)
-    return PartMesh(mesh=mesh, scale=float(scale), sha256=sha, repairs=tuple(repairs))
+    return PartMesh(mesh=mesh, scale=float(scale), sha256=sha, repairs=tuple(repairs), surface=surface)
 
 
 def _check_stl_size(data: bytes, path: Path) -> bytes:
@@ -223,7 +248,11 @@ def _read_with_trimesh(data: bytes, fmt: str, path: Path) -> tuple[np.ndarray, n
 def _make_solid(
     vertices: np.ndarray, faces: np.ndarray, fmt: str, path: Path
 ) -> tuple[trimesh.Trimesh, list[str]]:
-    """Turn raw triangles into a closed, outward-facing solid, or explain why not."""
+    """Weld raw triangles and make them a closed, outward-facing solid where they are one.
+
+    Returns the mesh as welded and cleaned, but open, when it is not a closed solid and
+    cannot be repaired into one: :func:`cadcam.relief.judge_surface` decides what it is.
+    """
     if len(faces) == 0 or len(vertices) == 0:
         raise MeshError("no triangles in file", source=path)
     if not np.isfinite(vertices).all():
@@ -238,6 +267,10 @@ def _make_solid(
     # STL stores every triangle's corners separately: merging is reading, not repairing.
     if merged and fmt != "stl":
         repairs.append(f"merged {merged} duplicate vertices")
+    tol = _WELD_TOLERANCE * float(np.ptp(mesh.vertices, axis=0).max())
+    mesh, welded = _weld(mesh, tol)
+    if welded:
+        repairs.append(f"welded {welded} vertices closer than {tol:.2g} file units")
 
     area = mesh.area_faces
     keep = area > _DEGENERATE_AREA * max(1.0, float(np.ptp(mesh.vertices, axis=0).max()) ** 2)
@@ -256,6 +289,10 @@ def _make_solid(
     mesh.remove_unreferenced_vertices()
 
     if not (mesh.is_watertight and mesh.is_winding_consistent):
+        from cadcam.relief import check_sheet
+
+        # Disjoint triangles are neither a solid to repair nor a surface: say so before trying.
+        check_sheet(mesh.faces, source=str(path))
         unfilled = mesh.copy()
         trimesh.repair.fix_winding(unfilled)
         filled = 0
@@ -274,13 +311,8 @@ def _make_solid(
             area_before = float(mesh.area)
             rebuilt = _manifold_rebuild(mesh)
             if rebuilt is None:
-                n_open = _boundary_edges(mesh)
-                what = (
-                    f"open mesh with {n_open} boundary edges"
-                    if n_open
-                    else "mesh is not a closed 2-manifold (edges shared by more than two triangles)"
-                )
-                raise MeshError(f"{what}: cannot repair; close the shell in CAD and re-export", source=path)
+                # Not a solid: an open surface, judged by the caller (cadcam.relief.judge_surface).
+                return mesh, repairs
             kept = float(rebuilt.area) / area_before
             if kept < MIN_SURFACE_KEPT:
                 raise MeshError(f"repair kept {kept:.1%} of the surface (less than {MIN_SURFACE_KEPT:.0%}): not a "
@@ -299,6 +331,32 @@ def _make_solid(
         raise MeshError(f"solid fills {fill:.2g} of its bounding box (less than {MIN_BOX_FILL:g}): "
                         f"{float(mesh.volume):.3g} mm^3 in {box:.3g} mm^3; not a solid part", source=path)
     return mesh, repairs
+
+
+def _weld(mesh: trimesh.Trimesh, tol: float) -> tuple[trimesh.Trimesh, int]:
+    """Merge vertices closer than ``tol`` [file units]; the mesh and how many vertices went.
+
+    Exporters that write every triangle on its own (or round each one's corners separately)
+    leave a solid's neighbours a float's rounding apart: exact merging leaves it open.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    if tol <= 0 or len(vertices) < 2:
+        return mesh, 0
+    pairs = cKDTree(vertices).query_pairs(tol, output_type="ndarray")
+    if not len(pairs):
+        return mesh, 0
+    n = len(vertices)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    count, label = connected_components(graph, directed=False)
+    first = np.full(count, -1)
+    first[label[::-1]] = np.arange(n)[::-1]  # each group takes its first member's position
+    welded = trimesh.Trimesh(vertices=vertices[first], faces=label[np.asarray(mesh.faces)], process=False,
+                             validate=False)
+    return welded, n - count
 
 
 def _boundary_edges(mesh: trimesh.Trimesh) -> int:

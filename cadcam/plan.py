@@ -22,6 +22,7 @@ import trimesh
 from cadcam.drilling import DrillingOptions, plan_holes
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
 from cadcam.model import Job, Operation, Setup, Tool
+from cadcam.relief import Boundary, keep_outside
 from cadcam.rest import excess, safe_rapids, unreached
 from cadcam.roughing import RoughingOptions, zlevel_roughing
 from cadcam.shank_clearance import upper_raster
@@ -190,6 +191,7 @@ def plan_job(
     source_sha256: str = "",
     options: PlanOptions = PlanOptions(),
     progress: StageProgress | None = None,
+    boundary: Boundary | None = None,
 ) -> tuple[Job, PlanTimings]:
     """Compute the operations that cut ``part`` out of the stock described by ``setup``.
 
@@ -205,6 +207,9 @@ def plan_job(
     options : PlanOptions
     progress : callable, optional
         ``progress(stage, done, total)`` for long operations.
+    boundary : Boundary, optional
+        A relief's boundary (:mod:`cadcam.relief`): every tool stays within it, and the stock
+        outside what it lets the roughing tool cut counts as no excess (nothing unreached there).
 
     Returns
     -------
@@ -253,6 +258,8 @@ def plan_job(
     def model(ops: list[Operation]):
         t0 = time.perf_counter()
         sim = stock_after(ops, setup, triangles) if any(len(op.points) > 1 for op in ops) else None
+        if sim is not None and boundary is not None:
+            sim = keep_outside(sim, boundary, rough_tool.radius)
         seconds.append(("stock model", time.perf_counter() - t0))
         return sim
 
@@ -260,8 +267,11 @@ def plan_job(
     holes = plan_holes(part, setup, library, rough_tool, options.drilling, options.roughing.min_helix_diameter,
                        options.roughing.allowance) if options.holes else None
     seconds.append(("holes", time.perf_counter() - t0))
+    rough_within = boundary.centre_region if boundary is not None else None
+    # Every later tool keeps off the wall of uncut stock the roughing tool leaves at the boundary.
+    within = boundary.after_roughing(rough_tool.radius) if boundary is not None else None
     rough = timed("roughing", lambda: zlevel_roughing(part, setup, rough_tool, rough_cutting, options.roughing,
-                                                       progress=stage_progress("roughing")))
+                                                       progress=stage_progress("roughing"), within=rough_within))
     # Drilled and helixed holes come first: the stock model below sees them.
     operations = [*(holes.operations if holes is not None else ()), rough]
     # What roughing left lets finishing descend by rapid through air instead of feeding from safe_z.
@@ -273,7 +283,7 @@ def plan_job(
         terraces = dataclasses.replace(options.roughing, stepdown=options.terrace_stepdown)
         op = timed("terraces", lambda: zlevel_roughing(part, setup, rough_tool, rough_cutting, terraces,
                                                        progress=stage_progress("terraces"), rest=stock,
-                                                       rest_above=options.terrace_stepdown))
+                                                       rest_above=options.terrace_stepdown, within=within))
         if len(op.points) > 1:
             operations.append(op)
             stock = model(operations)
@@ -287,7 +297,7 @@ def plan_job(
             cutting = library.cutting_data(tool, setup.material)
             op = timed(f"rest T{tool.number}", lambda: zlevel_roughing(
                 part, setup, tool, cutting, rest_options, progress=stage_progress(f"rest T{tool.number}"),
-                rest=stock, rest_above=limit))
+                rest=stock, rest_above=limit, within=within))
             if len(op.points) > 1:
                 operations.append(op)
                 stock = model(operations)
@@ -298,7 +308,7 @@ def plan_job(
     if options.waterline:
         operations.append(timed("waterline", lambda: waterline_finishing(
             part, setup, finish_tool, finish_cutting, options.finishing,
-            progress=stage_progress("waterline"), stock=stock, limit=engagement)))
+            progress=stage_progress("waterline"), stock=stock, limit=engagement, within=within)))
         # The raster comes after the waterline: where that left a wall's skin (a hole too small
         # for its loops), the raster must not take it in one deep pass either.
         if stock is not None and len(operations[-1].points) > 1:
@@ -313,7 +323,7 @@ def plan_job(
             stock = model(operations)
     operations.append(timed("raster", lambda: raster_finishing(
         part, setup, finish_tool, finish_cutting, raster_options, progress=stage_progress("raster"), stock=stock,
-        limit=engagement)))
+        limit=engagement, within=within)))
     dropped = [op.kind for op in operations if len(op.points) < 2]
     if dropped:
         log.info("nothing to cut for %s: dropped", ", ".join(dropped))

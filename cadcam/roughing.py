@@ -610,6 +610,7 @@ def zlevel_roughing(
     progress: Callable[[int, int], None] | None = None,
     rest: Simulation | None = None,
     rest_above: float = 0.0,
+    within: Callable[[float], BaseGeometry] | None = None,
 ) -> Operation:
     """Clear the stock around ``part`` level by level, leaving ``options.allowance``.
 
@@ -633,6 +634,9 @@ def zlevel_roughing(
     options : RoughingOptions
     progress : callable, optional
         ``progress(done, total)`` after each level.
+    within : callable, optional
+        ``within(radius)``: the XY region the tool axis must stay in (a relief's
+        :meth:`cadcam.relief.Boundary.centre_region`); None: anywhere around the stock.
 
     Returns
     -------
@@ -663,6 +667,8 @@ def zlevel_roughing(
     g = p.radius
     rect_xy = (sx0 - g, sy0 - g, sx1 + g, sy1 + g)
     rect = box(*rect_xy)
+    if within is not None:
+        rect = rect.intersection(within(p.radius))
 
     path = _Path()
     cleared: BaseGeometry | None = None  # None: nothing was ever skipped

@@ -82,6 +82,8 @@ def setup_sheet(job: Job, program: Program, program_name: str) -> dict[str, Any]
         "estimated_cycle_s": round(program.total_time, 1),
         "gcode_lines": program.line_count,
         "unreached": list(job.parameters.get("unreached", [])),
+        # a relief (cadcam.relief): what was found, its floor and the boundary the tools kept within
+        **({"relief": job.parameters["relief"]} if "relief" in job.parameters else {}),
     }
 
 

@@ -7,6 +7,7 @@ from typing import Annotated
 
 import typer
 
+from cadcam.relief import ReliefOptions
 from cadcam.setup import check_stock_size
 from cli.common import parse_triple
 from factory.cam import (ALLOWANCE, FINISH_TOOL, MATERIAL, ORIGIN, ROUGH_TOOL, SCALLOP, UNITS, CamRequest, Origin,
@@ -26,12 +27,19 @@ AllowanceOpt = Annotated[float, typer.Option("--allowance", help="Stock roughing
 ScallopOpt = Annotated[float, typer.Option("--scallop", help="Target scallop height of finishing [mm].", min=1e-4)]
 StepdownOpt = Annotated[float | None, typer.Option("--stepdown", help="Roughing depth per level [mm].", min=0.01)]
 WaterlineOpt = Annotated[bool, typer.Option("--waterline/--no-waterline", help="Finish steep walls with waterline loops.")]
+FloorOpt = Annotated[float, typer.Option("--floor", help="Relief (open surface) only: stock left under its lowest point [mm].", min=0.0)]
+BoundaryOpt = Annotated[str, typer.Option("--boundary", help="Relief only: the tool inside, centre on, or outside the footprint's outline: inside, on or outside.")]
+FLOOR = ReliefOptions.floor
+BOUNDARY = ReliefOptions.boundary
 
 
 def cam_request(part: Path, tools: Path | None, stock: str | None, material: str, units: Units, origin: Origin,
                 rough_tool: int | None, finish_tool: int | None, allowance: float, scallop: float, stepdown: float | None,
-                waterline: bool) -> CamRequest:
-    """The request of one command line; a malformed or unmachinable ``--stock`` is a usage error before any work."""
+                waterline: bool, floor: float = FLOOR, boundary: str = BOUNDARY) -> CamRequest:
+    """The request of one command line; a malformed or unmachinable ``--stock`` or an unknown
+    ``--boundary`` is a usage error before any work."""
+    if boundary not in ("inside", "on", "outside"):
+        raise typer.BadParameter(f"expected inside, on or outside, got {boundary!r}", param_hint="--boundary")
     size = parse_triple(stock, "--stock")
     if size is not None:
         try:
@@ -39,4 +47,5 @@ def cam_request(part: Path, tools: Path | None, stock: str | None, material: str
         except SetupError as e:
             raise typer.BadParameter(e.message, param_hint="--stock") from None
     return CamRequest.from_options(part, tools, size, material, units, origin, rough_tool, finish_tool, allowance,
-                                   scallop, stepdown, waterline)
+                                   scallop, stepdown, waterline,
+                                   ReliefOptions(floor=floor, boundary=boundary))  # type: ignore[arg-type]

@@ -32,6 +32,8 @@ def plan(
     scallop: cam.ScallopOpt = cam.SCALLOP,
     stepdown: cam.StepdownOpt = None,
     waterline: cam.WaterlineOpt = True,
+    floor: cam.FloorOpt = cam.FLOOR,
+    boundary: cam.BoundaryOpt = cam.BOUNDARY,
     post: PostOpt = PlanRequest.post,
     arc_tolerance: ArcTolOpt = PlanRequest.arc_tolerance,
     grid: Annotated[float, typer.Option("--grid", help="Verify grid spacing [mm].", min=0.01)] = PlanRequest.grid,
@@ -50,7 +52,7 @@ def plan(
     """
     setup_logging(quiet)
     req = cam.cam_request(part, tools, stock, material, units, origin, rough_tool, finish_tool, allowance, scallop,
-                          stepdown, waterline)
+                          stepdown, waterline, floor, boundary)
     if lang not in PROGRAM_SUFFIX:
         raise typer.BadParameter(f"expected one of {', '.join(PROGRAM_SUFFIX)}, got {lang!r}", param_hint="--lang")
     request = PlanRequest(req, post=post, arc_tolerance=arc_tolerance, grid=grid, cell=robot_cell, robot=robot,
@@ -68,6 +70,8 @@ def plan(
         if holes.get("holes"):
             stderr.print(f"{part.name}: {len(holes['holes'])} round holes, {len(holes['drilled'])} drilled, "
                          f"{len(holes['helixed'])} helixed", highlight=False, markup=False)
+        if summary.get("relief"):
+            stderr.print(f"{part.name}: {summary['relief']['found']}", highlight=False, markup=False)
         for u in summary["unreached"]:
             stderr.print(f"{part.name}: no tool in the library reaches {Unreached(**u).describe()}: left uncut",
                          highlight=False, markup=False)

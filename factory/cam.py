@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 from pathlib import Path
 from typing import Any, Literal
 
@@ -18,6 +19,8 @@ from cadcam.finishing import FinishingOptions
 from cadcam.mesh import PartMesh, load_part
 from cadcam.model import Job
 from cadcam.plan import PlanOptions, plan_job
+from cadcam.relief import (FINISH_ENGAGEMENT, TERRACE_STEPDOWN, Boundary, ReliefOptions, machining_surface,
+                           relief_setup)
 from cadcam.roughing import RoughingOptions
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
@@ -25,6 +28,8 @@ from factory.errors import ToolpathError
 from factory.mcaplog import McapLog, read_attachment
 from factory.progress import Progress, Stopwatch
 from factory.views import job_messages
+
+log = logging.getLogger(__name__)
 
 #: Name of the MCAP attachment that carries the job from ``toolpath`` to ``gcode``.
 JOB_ATTACHMENT = "factory.job.json"
@@ -46,7 +51,8 @@ class CamRequest:
     """What to plan and how: the part file, tool library, stock, material, work origin and CAM options.
 
     ``tools`` None is the bundled library (``fixtures/tools.yaml``); ``stock`` is the stock size
-    X, Y, Z [mm], None for the default (part box + 2 mm on the sides, 1 mm on top)."""
+    X, Y, Z [mm], None for the default (part box + 2 mm on the sides, 1 mm on top). ``relief``
+    applies when the mesh is an open surface (:mod:`cadcam.relief`): floor and boundary mode."""
 
     part: Path
     tools: Path | None
@@ -55,11 +61,13 @@ class CamRequest:
     units: Units
     origin: Origin
     plan: PlanOptions
+    relief: ReliefOptions = ReliefOptions()
 
     @classmethod
     def from_options(cls, part: Path, tools: Path | None, stock: tuple[float, float, float] | None, material: str,
                      units: Units, origin: Origin, rough_tool: int | None, finish_tool: int | None, allowance: float,
-                     scallop: float, stepdown: float | None, waterline: bool) -> "CamRequest":
+                     scallop: float, stepdown: float | None, waterline: bool,
+                     relief: ReliefOptions = ReliefOptions()) -> "CamRequest":
         """The request from the flat option values of ``factory toolpath`` and ``factory plan``."""
         plan = PlanOptions(
             rough_tool=rough_tool,
@@ -68,7 +76,7 @@ class CamRequest:
             finishing=FinishingOptions(scallop=scallop),
             waterline=waterline,
         )
-        return cls(part, tools, stock, material, units, origin, plan)
+        return cls(part, tools, stock, material, units, origin, plan, relief)
 
     @classmethod
     def defaults(cls, part: Path, material: str = MATERIAL, tools: Path | None = None) -> "CamRequest":
@@ -79,11 +87,13 @@ class CamRequest:
 
 @dataclasses.dataclass(frozen=True)
 class PlannedPart:
-    """A computed job with the part it was computed for."""
+    """A computed job with the part it was computed for (for a relief, the surface it was machined
+    against, :func:`cadcam.relief.machining_surface`, and the boundary the tools kept within)."""
 
     job: Job
     loaded: PartMesh
     part_work: trimesh.Trimesh
+    boundary: Boundary | None = None
 
 
 def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwatch | None = None) -> PlannedPart:
@@ -99,28 +109,45 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
     with watch("load"):
         loaded = load_part(req.part, units=req.units)
         library = load_tool_library(req.tools)
+    boundary = None
     with watch("setup"):
-        setup, part_work = make_setup(
-            loaded.mesh,
-            stock_size=req.stock,
-            origin=req.origin,
-            material=req.material,
-            mesh_scale=loaded.scale,
-            source=str(req.part),
-        )
+        if loaded.surface is None:
+            setup, part_work = make_setup(
+                loaded.mesh,
+                stock_size=req.stock,
+                origin=req.origin,
+                material=req.material,
+                mesh_scale=loaded.scale,
+                source=str(req.part),
+            )
+        else:
+            log.info("%s: %s", req.part, loaded.surface.describe())
+            setup, surface_work, boundary = relief_setup(
+                loaded.mesh, loaded.surface, req.relief, stock_size=req.stock, origin=req.origin,
+                material=req.material, mesh_scale=loaded.scale, source=str(req.part))
+            part_work = machining_surface(surface_work, setup)
         library.material(req.material)  # unknown material: fail early
+    options = req.plan
+    if boundary is not None:  # shallow nearly everywhere: finer terraces, finishing engages less
+        options = dataclasses.replace(options, finish_engagement=min(options.finish_engagement, FINISH_ENGAGEMENT),
+                                      terrace_stepdown=min(options.terrace_stepdown, TERRACE_STEPDOWN))
     job, timings = plan_job(
         part_work,
         setup,
         library,
         part_name=req.part.stem,
         source_sha256=loaded.sha256,
-        options=req.plan,
+        options=options,
         progress=progress,
+        boundary=boundary,
     )
+    if boundary is not None and loaded.surface is not None:
+        relief = {"found": loaded.surface.describe(), **loaded.surface.to_dict(), **req.relief.to_dict(),
+                  "boundary": boundary.to_dict()}
+        job = dataclasses.replace(job, parameters={**job.parameters, "relief": relief})
     for stage, seconds in timings.seconds:
         watch.seconds[stage] = seconds
-    return PlannedPart(job, loaded, part_work)
+    return PlannedPart(job, loaded, part_work, boundary)
 
 
 def log_job(log: McapLog, planned: PlannedPart, transform_world_to_work: np.ndarray | None = None) -> None:

@@ -33,6 +33,7 @@ import numpy as np
 
 from cadcam.post import PostOptions, Program, post_process
 from cadcam.preview import toolpath_image
+from cadcam.relief import block_corners
 from cadcam.sheet import setup_sheet
 from cadcam.verify import Simulation, VerifyOptions, VerifyReport
 from factory.atomic import check_writable, write_bytes, write_text
@@ -193,6 +194,8 @@ class PartPlan:
                                       sha256_file(tools_path)),
             "triangles": int(len(self.planned.loaded.mesh.faces)),
             "repairs": list(self.planned.loaded.repairs),
+            # an open surface machined from above (cadcam.relief): what was found, floor, boundary
+            **({"relief": job.parameters["relief"]} if "relief" in job.parameters else {}),
             "stock_mm": job.setup.stock_size.round(3).tolist(),
             **program_summary(self.program, outputs["program"], outputs["setup_sheet"]),
             # what no tool in the library reaches: left in place, and finishing stays out of it [mm]
@@ -286,6 +289,8 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     tending = None
     if req.robot:
         vertices = np.asarray(planned.loaded.mesh.vertices) / float(job.setup.mesh_scale)
+        if planned.boundary is not None:  # a relief leaves in its block: the robot holds the block
+            vertices = block_corners(job.setup)
         cell, world, tplan = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch)
         tending = Tending(cell, world, tplan, post_program(req.lang, outputs["robot_program"], cell, world, tplan))
     with watch("verify"):

@@ -29,6 +29,7 @@ import trimesh
 
 from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_part, units_of_scale
+from cadcam.relief import block_corners
 from cadcam.timeline import MachineTimeline, machine_timeline, stock_snapshots
 from factory.camera_msgs import camera_info_msg, compressed_image_msg
 from factory.atomic import write_bytes, write_text
@@ -294,6 +295,9 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
     loaded = load_part(part, units=units_of_scale(setup.mesh_scale, str(sheet_path)))
     mesh_mm = loaded.mesh.copy()
     mesh_mm.apply_scale(float(setup.mesh_scale))
+    if loaded.surface is not None:  # a relief leaves the machine in its block: the cameras see the block
+        corners = block_corners(setup) * float(setup.mesh_scale)
+        mesh_mm = trimesh.creation.box(bounds=[corners.min(axis=0), corners.max(axis=0)])
     shots = camera_shots(entry, mesh_mm, np.asarray(setup.stock_size), stations, camera_sha256)
     return PartAssets(
         part=part, material=material, entry=entry,

@@ -12,6 +12,7 @@ import numpy as np
 
 from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_part, units_of_scale
+from cadcam.relief import machining_surface
 from cadcam.model import Setup, Tool
 from cadcam.sheet import read_setup_sheet
 from cadcam.verify import Simulation, VerifyOptions, VerifyReport, deviation_image, finishing_moves, simulate
@@ -35,12 +36,14 @@ def read_sheet(path: Path) -> tuple[Setup, dict[int, Tool], dict[str, Any]]:
 
 
 def part_triangles(part: Path, setup: Setup, expected_sha256: str = "") -> np.ndarray:
-    """The part's triangles in work coordinates [mm], placed as the setup sheet says."""
+    """The part's triangles in work coordinates [mm], placed as the setup sheet says (a relief on its base)."""
     loaded = load_part(part, units=units_of_scale(setup.mesh_scale, "setup sheet"))
     if expected_sha256 and loaded.sha256 != expected_sha256:
         log.warning("%s differs from the part the program was made for (sha256 mismatch)", part)
     mesh = loaded.mesh.copy()
     mesh.apply_transform(setup.transform_mesh_to_work)
+    if loaded.surface is not None:  # a relief: the surface on its base, as it was planned against
+        mesh = machining_surface(mesh, setup)
     return np.asarray(mesh.triangles)
 
 

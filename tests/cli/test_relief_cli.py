@@ -1,0 +1,73 @@
+"""`factory plan` and `factory simulate` with a relief: an open heightfield sheet, planned from above."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from cli.main import app
+from tests.cadcam.reliefs import heightfield_sheet, stl_bytes, wavy
+from tests.cli.expect import assert_one_line_error
+from tests.cli.hostile import triangle_soup
+
+runner = CliRunner()
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def relief(tmp_path_factory):
+    root = tmp_path_factory.mktemp("relief")
+    part = root / "sign.stl"
+    part.write_bytes(stl_bytes(heightfield_sheet(*wavy())))
+    return part
+
+
+def test_plan_says_what_it_found_and_writes_the_relief_into_the_sheet(relief, tmp_path):
+    r = run("plan", relief, "-o", tmp_path, "--scallop", "0.03", "--boundary", "on",
+            "--floor", "3", "--no-robot")
+    assert r.exit_code == 0, r.output
+    assert "sign.stl: open surface, machined from above as a relief: 80 boundary edges, 1 shell, " \
+           "footprint 48.0 \u00d7 32.0 mm" in " ".join(r.output.split())
+    summary = json.loads((tmp_path / "sign.plan.json").read_text())
+    sheet = json.loads((tmp_path / "sign.setup.json").read_text())
+    assert summary["relief"] == sheet["relief"]
+    assert sheet["relief"]["boundary"]["mode"] == "on" and sheet["relief"]["floor"] == 3.0
+    assert summary["verify"]["max_gouge"] <= 0.01
+    # `factory verify` on its own judges the program against the same surface on its base.
+    v = run("verify", tmp_path / "sign.nc", "--setup", tmp_path / "sign.setup.json", "--part", relief,
+            "--json", tmp_path / "v.json")
+    assert v.exit_code == 0, v.output
+    alone = json.loads((tmp_path / "v.json").read_text())
+    assert alone["max_gouge"] == pytest.approx(summary["verify"]["max_gouge"], abs=1e-3)
+
+
+def test_an_unknown_boundary_mode_is_a_usage_error(relief, tmp_path):
+    r = run("plan", relief, "-o", tmp_path, "--boundary", "around", "--no-robot")
+    assert r.exit_code == 2 and "--boundary" in r.output
+
+
+def test_a_triangle_soup_is_one_line_nonzero_and_writes_nothing(tmp_path):
+    soup = tmp_path / "soup.stl"
+    soup.write_bytes(triangle_soup())
+    out = tmp_path / "out"
+    r = run("plan", soup, "-o", out, "--no-robot")
+    assert_one_line_error(r, str(soup), "disjoint triangles")
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_simulate_runs_an_order_for_a_relief(relief, tmp_path):
+    orders = tmp_path / "orders.csv"
+    orders.write_text(f"part,quantity,material,priority\n{relief},1,aluminium,0\n")
+    r = run("simulate", orders, "--catalog", tmp_path / "catalog", "--mcap", tmp_path / "cell.mcap", "--json",
+            "--quiet")
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.stdout)
+    (order,) = doc["orders"]
+    assert order["outcome"] == "done" and order["good"] == 1, json.dumps(order)
+    assert np.isfinite(doc["summary"]["makespan_s"])
