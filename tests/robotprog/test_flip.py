@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -143,3 +144,54 @@ def test_turning_over_is_rigid_puts_the_top_down_and_twice_is_the_piece(part, bl
     # turned twice: the piece again, standing on its (now) top, i.e. shifted down by nothing
     np.testing.assert_allclose(back.part_min[:2], pmin[:2], atol=1e-12)
     np.testing.assert_allclose(back.part_max - back.part_min, pmax - pmin, atol=1e-12)
+
+
+#: The language each sample cell's arm is programmed in.
+CELL_LANG = {"ur5": ("urscript", "part.script"), "abb_irb1200_5_90": ("rapid", "part.mod"),
+             "kuka_kr6_r900_sixx": ("krl", "part.src")}
+
+
+def test_the_robot_program_loads_flips_and_reloads_the_part(flipped, tmp_path):
+    from robotprog.programs import post_program
+    from tests.robotprog.parsers import parse_krl, parse_urscript, rapid_errors
+
+    cell, world, plan = flipped
+    lang, name = CELL_LANG[world.robot.name]
+    posted = post_program(lang, Path(name), cell, world, plan)  # checks the posted path for collisions
+    assert 0.95 * plan.duration <= posted.predicted_s <= 1.05 * plan.duration
+    text = posted.texts[Path(name)]
+    # every move in order, the machine's cycle before the flip (op 1) and before the unload (op 2)
+    marks = [0]
+    for m in plan.moves:  # each move's comment after the one before
+        marks.append(text.find(m.name, marks[-1] + 1))
+        assert marks[-1] > marks[-2], m.name
+    marks = marks[1:]
+    starts = [k for k in range(len(text)) if text.startswith("machine: start the cycle", k)]
+    assert len(starts) == 2
+    assert marks[0] < starts[0] < text.find("flip: home to above vise") < starts[1] < text.find(
+        "unload: home to above vise")
+    if lang == "urscript":
+        parse_urscript(text)
+    elif lang == "krl":
+        parse_krl(text, posted.texts[Path("part.dat")])
+    else:
+        assert rapid_errors(text) == []
+
+
+def test_the_plan_mcap_shows_the_flip_and_the_flip_station(flipped, tmp_path):
+    from factory.mcaplog import read_messages
+    from factory.tending import write_robot_mcap
+
+    cell, world, plan = flipped
+    path = tmp_path / "flip.robot.mcap"
+    write_robot_mcap(path, cell, world, plan, overwrite=False, inputs={})
+    events, boxes = [], []
+    for topic, stamp, msg in read_messages(path, ["/robot/events", "/cell/boxes"]):
+        if topic == "/robot/events":
+            events.append((stamp * 1e-9, msg.data))
+        else:
+            boxes = [mk.text for mk in msg.markers]
+    assert [name for _, name in events] == [m.name for m in plan.moves]
+    starts = np.cumsum([0.0] + [m.duration for m in plan.moves])[:-1]
+    np.testing.assert_allclose([t for t, _ in events], starts, atol=1e-6)
+    assert cell.flip_station.post.name in boxes
