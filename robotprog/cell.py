@@ -509,14 +509,6 @@ def read_cell(data: Any, source: str | Path | None = None) -> Cell:
     )
 
 
-def _flip_station(rd: _Reader, value: Any) -> FlipStation:
-    post = rd.box(value, "flip_station", "flip_station")
-    rpy = post.pose.rpy
-    if abs(rpy[0]) > 1e-9 or abs(rpy[1]) > 1e-9:
-        raise rd.fail("flip_station.pose.rpy", f"the post must stand upright (roll and pitch 0), got {list(rpy)}")
-    return FlipStation(post)
-
-
 def _machine_io(rd: _Reader, value: Any, gripper: GripperIO) -> MachineIO:
     m = rd.mapping(value, "machine", {"io"})
     io = rd.mapping(m["io"], "machine.io", {"outputs", "inputs"})
@@ -535,6 +527,14 @@ def _machine_io(rd: _Reader, value: Any, gripper: GripperIO) -> MachineIO:
     if i["door_open"] == i["cycle_done"]:
         raise rd.fail("machine.io.inputs.cycle_done", f"input {i['cycle_done']} is also door_open")
     return MachineIO(o["open_door"], o["close_door"], o["cycle_start"], i["door_open"], i["cycle_done"])
+
+
+def _flip_station(rd: _Reader, value: Any) -> FlipStation:
+    post = rd.box(value, "flip_station", "flip_station")
+    rpy = post.pose.rpy
+    if abs(rpy[0]) > 1e-9 or abs(rpy[1]) > 1e-9:
+        raise rd.fail("flip_station.pose.rpy", f"the post must stand upright (roll and pitch 0), got {list(rpy)}")
+    return FlipStation(post)
 
 
 def load_cell(path: str | Path, *, check_robot: bool = True) -> Cell:
