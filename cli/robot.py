@@ -32,6 +32,7 @@ def robot(
     part: Annotated[Path | None, typer.Option("--part", help="Part mesh: its box is what unload grips (default: the stock box).", exists=True, dir_okay=False)] = None,
     program: Annotated[Path | None, typer.Option("--program", help="Also write a robot program.", dir_okay=False)] = None,
     lang: Annotated[str, typer.Option("--lang", help="Robot program language: urscript, rapid (ABB .mod) or krl (KUKA .src + .dat).")] = "urscript",
+    setups: Annotated[int, typer.Option("--setups", min=1, max=2, help="2: the part is turned over on the cell's flip station between op 1 and op 2 (its holding block is the stock below --part).")] = 1,
     overwrite: Overwrite = False,
     json_out: JsonFlag = False,
     quiet: Quiet = False,
@@ -51,7 +52,7 @@ def robot(
         if part is not None:
             loaded = load_part(part, units=units_of_scale(setup.mesh_scale, str(setup_path)))
             vertices = np.asarray(loaded.mesh.vertices) / float(setup.mesh_scale)
-    cell, world, plan = plan_cell(cell_path, sheet, str(setup_path), vertices, watch)
+    cell, world, plan = plan_cell(cell_path, sheet, str(setup_path), vertices, watch, setups=setups)
     posted = post_program(lang, program, cell, world, plan) if program is not None else None
     with watch("write"):
         for path, text in (posted.texts if posted else {}).items():

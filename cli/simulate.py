@@ -126,7 +126,8 @@ def simulate(
     doc["parts"] = [
         {"part": str(k[0]), "material": k[1],
          **({"planned_now": v.planned_now, "plan": str(v.entry.summary_path),
-             "process_s": {f: round(getattr(v.process, f), 3) for f in v.process.__dataclass_fields__}}
+             "process_s": {f: None if getattr(v.process, f) is None else round(getattr(v.process, f), 3)
+                           for f in v.process.__dataclass_fields__}}
             if isinstance(v, PartAssets) else {"error": v})}
         for k, v in assets.items()]
     doc["seconds"] = watch.rounded()

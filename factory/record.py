@@ -25,11 +25,13 @@ run's start, ``seq`` is the number of the event that wrote the row, 1, 2, … pe
                           (``good``, ``rejected``, ``scrap``, ``failed``), start and end.
 ``material_lot``          one per blank taken from the rack: lot id, rack slot, material.
 ``job_response``          one per stretch of machine work (B2MML JobResponse): ``cut`` (a program
-                          run: program SHA-256, machine time, share done, outcome) or ``reset``.
+                          run: program SHA-256, machine time, share done, outcome) or ``reset``,
+                          each under its operation (op 1 or op 2).
 ``measurement``           one per inspection: characteristic, nominal, tolerance, actual [mm], pass.
 ``alarm``                 one per fault: kind, severity (OPC UA bands, :data:`SEVERITY`), the state
                           it hit, time lost, recovery chosen and outcome.
-``robot_move``            one per robot action: fetch, missed_grasp, load, unload, sort_reject.
+``robot_move``            one per robot action: fetch, missed_grasp, load, flip (turning a part over
+                          between op 1 and op 2), unload, sort_reject.
 ``job_state``             every state transition of every job (B2MML JobState): state, event,
                           message.
 ========================  ===================================================================
@@ -404,6 +406,8 @@ class OperationPlan:
         The inspection result (``tolerance_mm``, ``max_deviation_mm``, …) the out-tray camera gives
         for a good part (``inspect_pass``) and a damaged one (``inspect_fail``).
     part_sha256 : str
+    op2 : (program, program SHA-256, planned machining [s]) or None
+        The op-2 program of a part machined in two setups.
     """
 
     program: str
@@ -412,14 +416,19 @@ class OperationPlan:
     ideal_cycle_s: float
     inspections: Mapping[str, Mapping[str, Any]]
     part_sha256: str
+    op2: tuple[str, str, float] | None = None
 
     @classmethod
     def of(cls, assets: "PartAssets") -> "OperationPlan":
         program = assets.entry.output("program")
         detections = {event: (assets.shots[shot].detections or [{}])[0]
                       for event, shot in (("inspect_pass", "inspect"), ("inspect_fail", "reject"))}
+        op2 = None
+        if assets.process.op2_machining_s is not None:
+            program2 = assets.entry.output("program_op2")
+            op2 = (str(program2), sha256_file(program2), assets.process.op2_machining_s)
         return cls(str(program), sha256_file(program), assets.process.machining_s, assets.process.cycle_s,
-                   detections, assets.entry.summary["catalog"]["mesh_sha256"])
+                   detections, assets.entry.summary["catalog"]["mesh_sha256"], op2)
 
 
 class RunRecorder:
@@ -443,6 +452,7 @@ class RunRecorder:
         self.now = 0.0
         self.work_orders: dict[str, int] = {}
         self.operations: dict[str, int] = {}
+        self.operations_op2: dict[str, int] = {}  # order -> its op-2 operation row (two setups)
         self.plans: dict[str, OperationPlan] = {}
         self.units: dict[int, int] = {}
         self.job_order: dict[int, str] = {}
@@ -498,6 +508,11 @@ class RunRecorder:
                         operation, run_id=self.run_id, work_order_id=wo, sequence=1, name="op 1",
                         program=plan.program, program_sha256=plan.program_sha256,
                         planned_machining_s=plan.machining_s, ideal_cycle_s=plan.ideal_cycle_s)
+                    if plan.op2 is not None:
+                        self.operations_op2[o.id] = self._insert(
+                            operation, run_id=self.run_id, work_order_id=wo, sequence=2, name="op 2",
+                            program=plan.op2[0], program_sha256=plan.op2[1], planned_machining_s=plan.op2[2],
+                            ideal_cycle_s=plan.ideal_cycle_s)
 
         self._write(write)
         log.info("record %s: run %s", self.record.shown, self.run_id)
@@ -590,8 +605,10 @@ class RunRecorder:
                              rack_slot=a.slot, material=material, part_unit_id=unit, taken_s=a.end, seq=self.seq)
         elif a.resource == "machine":
             plan = self.plans[order]
-            self._insert(job_response, run_id=self.run_id, part_unit_id=unit, operation_id=self.operations[order],
-                         kind=a.action, program_sha256=plan.program_sha256 if a.action == "cut" else None,
+            op2 = a.op == 2 and plan.op2 is not None
+            self._insert(job_response, run_id=self.run_id, part_unit_id=unit,
+                         operation_id=self.operations_op2[order] if op2 else self.operations[order], kind=a.action,
+                         program_sha256=(plan.op2[1] if op2 else plan.program_sha256) if a.action == "cut" else None,
                          start_s=a.start, end_s=a.end, machine_time_s=a.end - a.start, fraction=a.fraction,
                          outcome=a.outcome, seq=self.seq)
         elif a.action == "inspect" and a.outcome in ("inspect_pass", "inspect_fail"):

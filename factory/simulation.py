@@ -79,6 +79,9 @@ STOCK_GRID_MM = 1.0
 #: Split of the load phase: the moves up to this one pick the blank (FETCH_RAW), the rest load it.
 LAST_FETCH_MOVE = "load: retreat from rack"
 FIRST_FETCH_MOVE = "load: home to above rack"
+#: The flip phase of a part in two setups: its first and last moves (:mod:`robotprog.flip`).
+FIRST_FLIP_MOVE = "flip: home to above vise"
+LAST_FLIP_MOVE = "flip: return home"
 SHOTS_FORMAT = "factory.camera-shots/1"
 
 
@@ -166,6 +169,12 @@ class PartAssets:
     stock: tuple[tuple[float, np.ndarray, np.ndarray], ...]
     shots: dict[str, Shot]
     planned_now: bool
+    #: The op-2 program's timeline of a part in two setups (None: one setup).
+    timeline_op2: MachineTimeline | None = None
+
+    def timeline_of(self, op: int | None) -> MachineTimeline:
+        """The program timeline of operation ``op`` (None or 1: op 1's)."""
+        return self.timeline_op2 if op == 2 and self.timeline_op2 is not None else self.timeline
 
 
 @dataclass(frozen=True)
@@ -246,16 +255,22 @@ def camera_shots(entry: CatalogEntry, part_mesh: trimesh.Trimesh, stock_mm: np.n
     return shots
 
 
-def part_process(motion: RobotMotion, machining_s: float, shots: dict[str, Shot]) -> PartProcess:
+def part_process(motion: RobotMotion, machining_s: float, shots: dict[str, Shot],
+                 op2_machining_s: float | None = None) -> PartProcess:
     """Step durations of one part from its plan (see :class:`robotprog.cellsim.PartProcess`).
 
     A rejected part goes from the out-tray to a reject bin beside it: not planned, taken as long
-    as the unload's move from the vise to the out-tray and home.
+    as the unload's move from the vise to the out-tray and home. ``op2_machining_s`` [s]: the
+    op-2 program of a part in two setups, whose robot plan turns it over (the ``flip:`` moves).
     """
     load = [m for m in motion.moves if m[0].startswith("load:")]
     unload = [m for m in motion.moves if m[0].startswith("unload:")]
+    flip = [m for m in motion.moves if m[0].startswith("flip:")]
     if not load or not unload:
         raise CellError("the plan has no load or no unload moves", source="robot plan")
+    if (op2_machining_s is not None) != bool(flip):
+        raise CellError("the plan has two setups but its robot plan does not turn the part over" if not flip
+                        else "the robot plan turns the part over but the plan has one setup", source="robot plan")
     fetch_s = motion.duration(FIRST_FETCH_MOVE, LAST_FETCH_MOVE)
     unload_s = unload[-1][2] - unload[0][1]
     return PartProcess(
@@ -267,7 +282,14 @@ def part_process(motion: RobotMotion, machining_s: float, shots: dict[str, Shot]
         inspect_s=CAMERA_OVERHEAD_S + shots["inspect"].processing_s,
         sort_s=unload_s,
         regrasp_s=motion.duration(FIRST_FETCH_MOVE, FIRST_FETCH_MOVE),
+        flip_s=motion.duration(FIRST_FLIP_MOVE, LAST_FLIP_MOVE) if flip else 0.0,
+        op2_machining_s=op2_machining_s,
     )
+
+
+def op2_of(summary: dict[str, Any]) -> dict[str, Any] | None:
+    """The op-2 entry of a plan summary's ``setups`` (None: the part is machined in one setup)."""
+    return next((s for s in summary.get("setups") or () if s.get("op") == 2), None)
 
 
 def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stations, camera_sha256: str,
@@ -290,6 +312,11 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
         stock.append((float(t), vertices / 1000.0, faces))
     mcap = entry.output("mcap")
     motion = read_motion(mcap)
+    op2 = op2_of(summary)
+    timeline_op2 = None
+    if op2 is not None:
+        program2 = entry.output("program_op2")
+        timeline_op2 = machine_timeline(parse_gcode(program2.read_text(encoding="utf-8"), source=str(program2)))
     toolpath = next((m for topic, _, m in read_messages(mcap, ["/cam/toolpath"])), None)
     in_vise = setup_sheet_to_cell(sheet, str(sheet_path))
     loaded = load_part(part, units=units_of_scale(setup.mesh_scale, str(sheet_path)))
@@ -301,9 +328,10 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
     shots = camera_shots(entry, mesh_mm, np.asarray(setup.stock_size), stations, camera_sha256)
     return PartAssets(
         part=part, material=material, entry=entry,
-        process=part_process(motion, float(sheet["estimated_cycle_s"]), shots),
+        process=part_process(motion, float(sheet["estimated_cycle_s"]), shots,
+                             None if op2 is None else float(op2["estimated_cycle_s"])),
         motion=motion, transform_vise_to_work=in_vise.transform_vise_to_work, toolpath=toolpath,
-        timeline=timeline, stock=tuple(stock), shots=shots, planned_now=planned_now)
+        timeline=timeline, stock=tuple(stock), shots=shots, planned_now=planned_now, timeline_op2=timeline_op2)
 
 
 def plan_parts(orders: tuple[Order, ...], catalog: Path, cell_path: Path, tools: Path | None, stations: Stations,
@@ -472,9 +500,10 @@ def _program_state(timeline: MachineTimeline, t: np.ndarray) -> tuple[np.ndarray
     return timeline.tool[i], timeline.line[i], feed
 
 
-def spindle_speeds(p: PartAssets) -> dict[int, float]:
-    """Spindle speed [rev/min] of each tool of the part's program, from its setup sheet."""
-    path = p.entry.output("setup_sheet")
+def spindle_speeds(p: PartAssets, op: int | None = None) -> dict[int, float]:
+    """Spindle speed [rev/min] of each tool of the part's program (op 2: the op-2 program's), from
+    its setup sheet."""
+    path = p.entry.output("setup_sheet_op2" if op == 2 and p.timeline_op2 is not None else "setup_sheet")
     try:
         sheet = json.loads(path.read_text(encoding="utf-8"))
         return {int(op["tool"]): float(op["spindle_rpm"]) for op in sheet["operations"]}
@@ -529,9 +558,9 @@ class _Resources:
                            serial=f"{self.jobs.get(m.job, '?')}-{m.job}")
             if m.action == "cut":
                 p = self.part_of(m.job)
-                tool, line, _ = _program_state(p.timeline, np.array([t - m.start]))
+                tool, line, _ = _program_state(p.timeline_of(m.op), np.array([t - m.start]))
                 machine.update(tool=str(int(tool[0])), program_line=str(int(line[0])),
-                               spindle_speed_rpm=f"{self.spindle(p).get(int(tool[0]), 0.0):.0f}")
+                               spindle_speed_rpm=f"{self.spindle(p, m.op).get(int(tool[0]), 0.0):.0f}")
         elif m is not None and m.outcome in ("machine_alarm", "timeout"):
             machine["state"] = "alarm"
         robot = {"activity": "idle", "serial": ""}
@@ -605,23 +634,23 @@ def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tup
         o = order_of[result.jobs[job]]
         return assets[(o.part, o.material)]
 
-    spindle: dict[tuple[Path, str], dict[int, float]] = {}
+    spindle: dict[tuple[Path, str, int | None], dict[int, float]] = {}
 
-    def rpm_of(p: PartAssets) -> dict[int, float]:
-        """Spindle speed [rev/min] per tool of a part, read once."""
-        if (p.part, p.material) not in spindle:
-            spindle[(p.part, p.material)] = spindle_speeds(p)
-        return spindle[(p.part, p.material)]
+    def rpm_of(p: PartAssets, op: int | None = None) -> dict[int, float]:
+        """Spindle speed [rev/min] per tool of a part's operation, read once."""
+        if (p.part, p.material, op) not in spindle:
+            spindle[(p.part, p.material, op)] = spindle_speeds(p, op)
+        return spindle[(p.part, p.material, op)]
 
     # Program time [s] each cut of a job had already done before it (a rerun after an alarm
     # does not log the stock snapshots again): one float per activity.
     cut_before: list[float] = []
-    cut_so_far: dict[int, float] = {}
+    cut_so_far: dict[tuple[int, int | None], float] = {}  # per job and operation
     for a in result.activities:
-        done = cut_so_far.get(a.job, 0.0)
+        done = cut_so_far.get((a.job, a.op), 0.0)
         cut_before.append(done)
         if a.resource == "machine" and a.action == "cut":
-            cut_so_far[a.job] = max(done, a.end - a.start)
+            cut_so_far[(a.job, a.op)] = max(done, a.end - a.start)
 
     # A stock snapshot is thousands of points: made once per part and snapshot, restamped at each
     # use; the few parts under way at once stay cached, not every part the orders name.
@@ -729,6 +758,7 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
                  "missed_grasp": [(FIRST_FETCH_MOVE, LAST_FETCH_MOVE, False),
                                   (FIRST_FETCH_MOVE, FIRST_FETCH_MOVE, True)],
                  "load": [("load: transfer to vise", "load: return home", False)],
+                 "flip": [(FIRST_FLIP_MOVE, LAST_FLIP_MOVE, False)],
                  "unload": [("unload: home to above vise", "unload: return home", False)]}.get(a.action, [])
         t = a.start
         for first, last, backwards in spans:
@@ -755,11 +785,12 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
             add(a.start, "/cell/machine", functools.partial(machine_state, "reset", order, serial, _ns(a.start)))
             add(a.end, "/cell/machine", functools.partial(machine_state, after, "", "", _ns(a.end)))
         else:
+            timeline = p.timeline_of(a.op)
             program_t = np.append(np.arange(0.0, a.end - a.start, 1.0 / TOOL_RATE_HZ), a.end - a.start)
-            positions = p.timeline.position_at(program_t) / 1000.0
-            tools, lines, feeds = _program_state(p.timeline, program_t)
-            rpm = rpm_of(p)
-            duration = float(p.timeline.end[-1]) or 1.0
+            positions = timeline.position_at(program_t) / 1000.0
+            tools, lines, feeds = _program_state(timeline, program_t)
+            rpm = rpm_of(p, a.op)
+            duration = float(timeline.end[-1]) or 1.0
             for dt, xyz, tool, line, feed in zip(program_t, positions, tools, lines, feeds):
                 stamp = _ns(a.start + dt)
                 add(a.start + dt, "/tf", functools.partial(_tool_tf, xyz, stamp))
@@ -768,7 +799,8 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
                     spindle_rpm=rpm.get(int(tool), 0.0), feed_mm_min=float(feed), tool_position=xyz,
                     line=int(line), progress=min(dt / duration, 1.0)))
             add(a.end, "/cell/machine", functools.partial(machine_state, after, "", "", _ns(a.end)))
-            for j, (snap_t, _, _) in enumerate(p.stock):
+            # the stock snapshots are op 1's (op 2 faces the turned-over piece)
+            for j, (snap_t, _, _) in enumerate(p.stock if a.op in (None, 1) else ()):
                 if cut_before < snap_t <= a.end - a.start:
                     add(a.start + snap_t, "/machine/stock", functools.partial(stock_at, p, j, a.start + snap_t))
     else:

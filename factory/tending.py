@@ -1,6 +1,7 @@
 """The robot half of the plan pipeline: machine tending for one part, its log and its program.
 
-Loads the stock from the rack into the vise and unloads the finished part to the out-tray,
+Loads the stock from the rack into the vise and unloads the finished part to the out-tray (a part
+in two setups is turned over on the flip station between them: the ``flip: ...`` moves),
 collision-checked against the cell, timed within the joint limits (:func:`plan_cell`); logs the
 plan as MCAP (robot description, joint states, TF, trajectories, the cell's boxes); the robot
 program is :func:`robotprog.programs.post_program`. ``factory robot`` and ``factory plan`` call it.
@@ -177,12 +178,14 @@ def _quat(t: np.ndarray) -> tuple[float, float, float, float]:
 
 
 def plan_cell(cell_path: Path, sheet: dict[str, Any], sheet_source: str, part_vertices: np.ndarray | None,
-              watch: Stopwatch | None = None) -> tuple[Cell, CollisionWorld, TendingPlan]:
+              watch: Stopwatch | None = None, setups: int = 1) -> tuple[Cell, CollisionWorld, TendingPlan]:
     """Load the cell and plan loading and unloading the part a setup sheet describes.
 
     ``part_vertices`` are the part mesh's vertices in mesh file units (the sheet's
     ``mesh_scale`` turns them into mm); without them unload grips the stock box. Wall times
-    go into ``watch`` (stages ``cell`` and ``robot plan``).
+    go into ``watch`` (stages ``cell`` and ``robot plan``). ``setups`` 2: the part is turned
+    over on the cell's flip station between op 1 (``sheet``, the op-1 setup sheet) and op 2
+    (:func:`robotprog.tending.plan_tending`).
 
     Raises
     ------
@@ -199,5 +202,5 @@ def plan_cell(cell_path: Path, sheet: dict[str, Any], sheet_source: str, part_ve
         if part_vertices is not None:
             part_box = part_box_in_vise(setup_sheet_to_cell(sheet, sheet_source), part_vertices)
     with watch("robot plan"):
-        plan = plan_tending(cell, sheet, part_box=part_box, world=world, source=sheet_source)
+        plan = plan_tending(cell, sheet, part_box=part_box, world=world, source=sheet_source, setups=setups)
     return cell, world, plan

@@ -22,7 +22,10 @@ from its parent frame to the named frame, ``transform_parent_to_frame``; the par
   top of the parallels (where the stock's bottom rests), X along the jaws, Y the
   clamping direction, Z up (see :mod:`robotprog.frames`);
 * ``enclosure`` boxes and ``reject_bin``: the pose of each box's centre (the reject bin is
-  open at its top; rejected parts are dropped into it from above).
+  open at its top; rejected parts are dropped into it from above);
+* ``flip_station``: the pose of the centre of the post the robot turns a part over on between
+  op 1 and op 2 (:class:`FlipStation`; the part stands on the post's top face, the post's X
+  and Y axes the part's, and hangs over the post's ends so the fingers can grip it from the side).
 
 Unknown keys are errors (typos must not be silently ignored), and every error names
 its field: ``vise.pose.xyz: expected 3 numbers``.
@@ -274,6 +277,26 @@ class Vise:
 
 
 @dataclass(frozen=True)
+class FlipStation:
+    """The post the robot turns a part over on between op 1 and op 2 (a regrasp table).
+
+    Attributes
+    ----------
+    post : Box
+        The post, floor to its top face (a collision box); the part is set down centred on
+        its top face, edges along its X and Y, and gripped from the side where it overhangs.
+    """
+
+    post: Box
+
+    def transform_world_to_top(self) -> np.ndarray:
+        """(4, 4) frame on the centre of the post's top face, axes the post's [m]."""
+        t = self.post.pose.matrix()
+        t[:3, 3] += t[:3, 2] * self.post.size[2] / 2
+        return t
+
+
+@dataclass(frozen=True)
 class Enclosure:
     """The machine enclosure: fixed walls and the door (a collision box while closed)."""
 
@@ -298,6 +321,8 @@ class Cell:
     reject_bin: Box | None = None
     #: The machine tool's door and cycle signals; ``None``: programs do not drive the machine.
     machine: MachineIO | None = None
+    #: Where the part is turned over between op 1 and op 2; ``None``: the cell runs one operation.
+    flip_station: FlipStation | None = None
 
 
 # --- parsing ---------------------------------------------------------------------------
@@ -396,7 +421,7 @@ def read_cell(data: Any, source: str | Path | None = None) -> Cell:
     rd = _Reader(src)
     top = rd.mapping(
         data, "", {"format", "robot", "motion", "gripper", "rack", "vise", "enclosure", "out_tray"},
-        {"name", "reject_bin", "machine"},
+        {"name", "reject_bin", "machine", "flip_station"},
     )
     if top["format"] != FORMAT:
         raise rd.fail("format", f"expected {FORMAT!r}, got {shown(top['format'])}")
@@ -480,6 +505,7 @@ def read_cell(data: Any, source: str | Path | None = None) -> Cell:
         rd.grid(top["out_tray"], "out_tray"), src,
         None if top.get("reject_bin") is None else rd.box(top["reject_bin"], "reject_bin", "reject_bin"),
         None if top.get("machine") is None else _machine_io(rd, top["machine"], gio),
+        None if top.get("flip_station") is None else _flip_station(rd, top["flip_station"]),
     )
 
 
@@ -501,6 +527,14 @@ def _machine_io(rd: _Reader, value: Any, gripper: GripperIO) -> MachineIO:
     if i["door_open"] == i["cycle_done"]:
         raise rd.fail("machine.io.inputs.cycle_done", f"input {i['cycle_done']} is also door_open")
     return MachineIO(o["open_door"], o["close_door"], o["cycle_start"], i["door_open"], i["cycle_done"])
+
+
+def _flip_station(rd: _Reader, value: Any) -> FlipStation:
+    post = rd.box(value, "flip_station", "flip_station")
+    rpy = post.pose.rpy
+    if abs(rpy[0]) > 1e-9 or abs(rpy[1]) > 1e-9:
+        raise rd.fail("flip_station.pose.rpy", f"the post must stand upright (roll and pitch 0), got {list(rpy)}")
+    return FlipStation(post)
 
 
 def load_cell(path: str | Path, *, check_robot: bool = True) -> Cell:

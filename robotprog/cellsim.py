@@ -15,16 +15,18 @@ Resources and actions
 ---------------------
 - **Robot** (one action at a time): ``locate_and_pick`` (the rack camera locates the blank,
   then the robot picks it: the load phase up to the retreat from the rack), ``load`` (the
-  rest of the load phase: into the vise and back home), ``unload`` (the unload phase: vise →
-  out-tray and home), ``sort_reject`` (out-tray → reject bin).
+  rest of the load phase: into the vise and back home), ``flip`` (a part in two setups, between
+  op 1 and op 2: vise → flip station, turned over → vise, home), ``unload`` (the unload phase:
+  vise → out-tray and home), ``sort_reject`` (out-tray → reject bin).
 - **Machine**: holds one part from the start of its load to the end of its unload and cuts it
-  in between.
+  in between (a part in two setups: op 1, the flip, op 2; each cut is one activity, its
+  :attr:`Activity.op` the operation).
 - **Inspection camera**: inspects the part in the out-tray while the robot works on; a good
   part stays where it is (``sort_good`` takes no time).
 
 A new blank is picked only when the machine is empty (the gripper cannot hold a blank and
 unload a part), so in steady state a part leaves every ``locate_s + fetch_s + load_s +
-machining_s + unload_s`` seconds, and inspection and rejects overlap the next cut.
+machining_s + unload_s`` seconds (two setups: ``+ flip_s + op2_machining_s``), and inspection and rejects overlap the next cut.
 
 Faults are drawn from a seeded RNG (:class:`FaultModel`), so a run is reproducible.
 """
@@ -69,6 +71,10 @@ class PartProcess:
         Robot: a rejected part from the out-tray to the reject bin and back home.
     regrasp_s : float
         Robot: back from above the rack to home after a missed grasp (the retry starts at home).
+    flip_s : float
+        Robot: the flip phase between op 1 and op 2 (0 for a part in one setup).
+    op2_machining_s : float or None
+        Machine: the op-2 program; ``None``: the part is machined in one setup (``machining_s``).
     """
 
     fetch_s: float
@@ -79,23 +85,34 @@ class PartProcess:
     inspect_s: float
     sort_s: float
     regrasp_s: float = 0.0
+    flip_s: float = 0.0
+    op2_machining_s: float | None = None
 
     def __post_init__(self):
         for name in ("fetch_s", "load_s", "machining_s", "unload_s", "locate_s", "inspect_s", "sort_s",
-                     "regrasp_s"):
+                     "regrasp_s", "flip_s") + (("op2_machining_s",) if self.op2_machining_s is not None else ()):
             value = getattr(self, name)
             if not (value >= 0 and value != float("inf")):
                 raise SchedulerError(f"{name} must be a finite duration >= 0 s, got {value}", source=name)
 
     @property
+    def setups(self) -> int:
+        """Operations per part: 1, or 2 (op 1, flip, op 2)."""
+        return 1 if self.op2_machining_s is None else 2
+
+    def machining(self, op: int) -> float:
+        """Program time [s] of operation ``op`` (1 or 2)."""
+        return self.machining_s if op == 1 or self.op2_machining_s is None else self.op2_machining_s
+
+    @property
     def robot_s(self) -> float:
         """Robot busy time [s] per good part without faults (waiting for the rack camera included)."""
-        return self.locate_s + self.fetch_s + self.load_s + self.unload_s
+        return self.locate_s + self.fetch_s + self.load_s + self.flip_s + self.unload_s
 
     @property
     def machine_s(self) -> float:
-        """Time [s] the machine holds one part: load + machining + unload."""
-        return self.load_s + self.machining_s + self.unload_s
+        """Time [s] the machine holds one part: load + machining (op 1, flip, op 2) + unload."""
+        return self.load_s + self.machining_s + self.flip_s + (self.op2_machining_s or 0.0) + self.unload_s
 
     @property
     def cycle_s(self) -> float:
@@ -162,8 +179,8 @@ class Activity:
     resource : str
         ``"robot"``, ``"machine"`` or ``"camera"``.
     action : str
-        Robot: ``fetch``, ``missed_grasp``, ``load``, ``unload``, ``sort_reject``; machine:
-        ``cut``, ``reset``; camera: ``locate``, ``inspect``.
+        Robot: ``fetch``, ``missed_grasp``, ``load``, ``flip``, ``unload``, ``sort_reject``;
+        machine: ``cut``, ``reset``; camera: ``locate``, ``inspect``.
     job : int
     start, end : float
         Simulated time [s].
@@ -174,6 +191,9 @@ class Activity:
         a timed-out move), in [0, 1].
     slot : int or None
         The rack slot the step works at (``locate``, ``fetch``, ``missed_grasp``), else None.
+    op : int or None
+        The operation of a part in two setups a ``cut`` (1 or 2) or its ``reset`` belongs to;
+        None for a part in one setup and for the other actions.
     """
 
     resource: str
@@ -184,6 +204,7 @@ class Activity:
     outcome: str
     fraction: float = 1.0
     slot: int | None = None
+    op: int | None = None
 
 
 @dataclass(frozen=True)
@@ -255,10 +276,10 @@ class SimulationResult:
 
 
 #: Robot actions of the state machine, most urgent first (unload frees the machine).
-_ROBOT_PRIORITY = {"unload": 0, "load": 1, "sort_reject": 2, "locate_and_pick": 3}
+_ROBOT_PRIORITY = {"unload": 0, "flip": 0, "load": 1, "sort_reject": 2, "locate_and_pick": 3}
 _MACHINE_ACTIONS = {"run_program", "reset_and_rerun"}
 #: States whose action occupies the robot until its event arrives.
-_ROBOT_STATES = {State.FETCH_RAW, State.LOAD, State.UNLOAD, State.SORT}
+_ROBOT_STATES = {State.FETCH_RAW, State.LOAD, State.FLIP, State.UNLOAD, State.SORT}
 _AHEAD = (State.IDLE, State.FETCH_RAW, State.LOAD)
 
 
@@ -508,7 +529,7 @@ class _Sim:
 
     def activity(self, resource: str, action: str, job_id: int, state: State, duration: float,
                  event: Event | None, message: str = "", *, start_after: float = 0.0, share: float = 1.0,
-                 slot: int | None = None) -> float:
+                 slot: int | None = None, op: int | None = None) -> float:
         """Record an activity starting ``start_after`` seconds from now and schedule ``event`` at its
         end (none for ``None``: a later activity ends the step), or TIMEOUT if the state's timeout,
         counted from now, comes first. ``share`` scales the recorded fraction (a cut an alarm stops
@@ -526,21 +547,27 @@ class _Sim:
                 self.push(start_after + used, job_id, event, message)
             outcome = event.value if event is not None else "done"
         fraction = used / duration if duration > 0 else 1.0
-        self.add_activity(Activity(resource, action, job_id, start, start + used, outcome, share * fraction, slot))
+        self.add_activity(Activity(resource, action, job_id, start, start + used, outcome, share * fraction, slot,
+                                   op))
         return used
 
     def start_machining(self, job_id: int, rerun: bool) -> None:
         p = self.proc(job_id)
+        op = self.cell.job(job_id).op
+        label = op if p.setups > 1 else None
+        machining = p.machining(op)
+        # op 1 of a part in two setups ends with the flip, the last operation with the unload
+        done = Event.OP_DONE if op < p.setups else Event.CYCLE_DONE
         reset = self.options.machine_reset_s if rerun else 0.0
         if reset:
-            self.add_activity(Activity("machine", "reset", job_id, self.now, self.now + reset, "reset"))
+            self.add_activity(Activity("machine", "reset", job_id, self.now, self.now + reset, "reset", op=label))
         if self.rng.random() < self.faults.machine_alarm:
             share = self.rng.random()
-            used = self.activity("machine", "cut", job_id, State.MACHINING, share * p.machining_s,
-                                 Event.MACHINE_ALARM, "machine alarm", start_after=reset, share=share)
+            used = self.activity("machine", "cut", job_id, State.MACHINING, share * machining,
+                                 Event.MACHINE_ALARM, "machine alarm", start_after=reset, share=share, op=label)
         else:
-            used = self.activity("machine", "cut", job_id, State.MACHINING, p.machining_s, Event.CYCLE_DONE,
-                                 start_after=reset)
+            used = self.activity("machine", "cut", job_id, State.MACHINING, machining, done,
+                                 start_after=reset, op=label)
         self.cutting += used
 
     def start_robot(self, job_id: int, action: str) -> None:
@@ -566,6 +593,8 @@ class _Sim:
         elif action == "load":
             self.machine_job, self.hold_start = job_id, self.now
             self.activity("robot", "load", job_id, job.state, p.load_s, Event.LOADED)
+        elif action == "flip":
+            self.activity("robot", "flip", job_id, job.state, p.flip_s, Event.FLIPPED)
         elif action == "unload":
             self.activity("robot", "unload", job_id, job.state, p.unload_s,
                           Event.UNLOADED_SCRAP if job.scrap else Event.UNLOADED)

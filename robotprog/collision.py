@@ -128,7 +128,8 @@ def cell_static_boxes(cell: Cell, *, door_closed: bool = False) -> tuple[Box, ..
     implies: ``vise_body`` (:data:`VISE_BODY_LENGTH` along the jaws, the largest jaw opening
     plus :data:`VISE_BODY_MARGIN` across, :data:`VISE_BODY_HEIGHT` below the parallels; the
     moving jaws are not modelled), ``rack_stand`` and ``out_tray_stand`` (floor to slot
-    height, grid plus :data:`STAND_MARGIN`), and ``pedestal`` (floor to the robot base).
+    height, grid plus :data:`STAND_MARGIN`), ``pedestal`` (floor to the robot base), and the
+    reject bin and the flip station's post where the cell has them.
     """
     boxes = list(cell.enclosure.walls)
     if door_closed:
@@ -143,6 +144,8 @@ def cell_static_boxes(cell: Cell, *, door_closed: bool = False) -> tuple[Box, ..
     boxes.append(_grid_stand("out_tray_stand", cell.out_tray))
     if cell.reject_bin is not None:
         boxes.append(cell.reject_bin)
+    if cell.flip_station is not None:
+        boxes.append(cell.flip_station.post)
     base = np.array(cell.robot.base.xyz, dtype=float)
     boxes.append(Box("pedestal", (PEDESTAL_SIZE, PEDESTAL_SIZE, float(base[2])),
                      Pose((float(base[0]), float(base[1]), float(base[2]) / 2))))

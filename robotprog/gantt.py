@@ -9,7 +9,7 @@ from .cellsim import SimulationResult
 
 #: Rows of the chart: (label, resource, actions shown in it).
 ROWS = (
-    ("robot", "robot", ("fetch", "missed_grasp", "load", "unload", "sort_reject")),
+    ("robot", "robot", ("fetch", "missed_grasp", "load", "flip", "unload", "sort_reject")),
     ("machine", "machine", ("cut", "reset")),
     ("rack camera", "camera", ("locate",)),
     ("tray camera", "camera", ("inspect",)),
@@ -18,15 +18,19 @@ ROWS = (
 COLOURS = {
     "fetch": (66, 133, 244), "missed_grasp": (234, 67, 53), "load": (52, 168, 83), "unload": (251, 188, 5),
     "sort_reject": (171, 71, 188), "cut": (120, 144, 156), "reset": (234, 67, 53), "locate": (0, 172, 193),
-    "inspect": (0, 137, 123),
+    "inspect": (0, 137, 123), "flip": (255, 112, 67),
 }
+#: Bar colours of the cuts of a part in two setups, by operation (a one-setup cut is ``cut``'s).
+OP_COLOURS = {1: (120, 144, 156), 2: (69, 90, 100)}
 #: Outcomes drawn with a red frame: faults.
 FAULTS = {"grasp_missed", "stock_not_found", "machine_alarm", "inspect_fail", "timeout"}
 
 
 def activity_chart(result: SimulationResult, width: int = 1400) -> np.ndarray:
     """The simulation as a Gantt chart: one row per resource, a bar per activity, faults framed in
-    red, hour ticks along the bottom, the summary figures on top.
+    red, hour ticks along the bottom, the summary figures on top. A part in two setups shows op 1
+    and op 2 as two cut bars (shaded by :data:`OP_COLOURS`, labelled "op 1" / "op 2" where they
+    are wide enough) with the robot's ``flip`` between them.
 
     Parameters
     ----------
@@ -63,7 +67,10 @@ def activity_chart(result: SimulationResult, width: int = 1400) -> np.ndarray:
             if a.resource != resource or a.action not in actions:
                 continue
             x0, x1 = x(a.start), max(x(a.end), x(a.start) + 1)
-            draw.rectangle([x0, y0 + 3, x1, y0 + row_h - 3], fill=COLOURS[a.action])
+            colour = OP_COLOURS.get(a.op, COLOURS[a.action]) if a.action == "cut" else COLOURS[a.action]
+            draw.rectangle([x0, y0 + 3, x1, y0 + row_h - 3], fill=colour)
+            if a.op is not None and x1 - x0 > 30:
+                draw.text((x0 + 3, y0 + 3), f"op {a.op}", fill=(255, 255, 255))  # above the middle line
             if a.outcome in FAULTS:
                 draw.rectangle([x0 - 1, y0, x1 + 1, y0 + row_h], outline=(220, 0, 0), width=2)
     # hour ticks (or 10-minute ticks for short runs)
@@ -74,7 +81,10 @@ def activity_chart(result: SimulationResult, width: int = 1400) -> np.ndarray:
         draw.line([x(t), top - 4, x(t), axis - gap], fill=(200, 200, 200))
         draw.text((x(t) - 8, axis), f"{t / 3600:.0f} h" if step == 3600.0 else f"{t / 60:.0f} min", fill=(0, 0, 0))
     lx = left
-    for name, colour in COLOURS.items():
+    legend = dict(COLOURS)
+    if any(a.op is not None for a in result.activities):
+        legend.update({f"op {k}": c for k, c in OP_COLOURS.items()})
+    for name, colour in legend.items():
         draw.rectangle([lx, height - 16, lx + 10, height - 6], fill=colour)
         draw.text((lx + 14, height - 18), name, fill=(0, 0, 0))
         lx += 24 + 7 * len(name)

@@ -124,9 +124,11 @@ def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: st
     steps: list[Step] = [MoveJ(tuple(float(v) for v in cell.robot.home), amax, vmax)]
     moves = plan.moves
     machine = cell.machine
-    # the machine runs its cycle between load and unload, with the arm at home and the door shut
-    cycle_at = {k for k in range(1, len(moves)) if moves[k].name.startswith("unload")
-                and not moves[k - 1].name.startswith("unload")} if machine is not None else set()
+    # the machine runs its cycle between load and unload (two setups: op 1 before the flip, op 2
+    # after it), with the arm at home and the door shut
+    phase = [mv.name.split(":")[0] for mv in moves]
+    cycle_at = {k for k in range(1, len(moves)) if phase[k] in ("flip", "unload")
+                and phase[k - 1] != phase[k]} if machine is not None else set()
     if machine is not None:
         steps += machine_ready(machine)
     for k, mv in enumerate(moves):

@@ -10,7 +10,9 @@ runs several jobs at once (the robot fetches the next blank while the machine cu
 Blank flow: ``FETCH_RAW`` = the rack camera locates the blank in its slot and the robot picks
 it; ``LOAD`` = into the vise; ``MACHINING`` = the program runs; ``UNLOAD`` = vise → out-tray;
 ``INSPECT`` = the out-tray camera checks the part; ``SORT`` = a good part stays in the out-tray,
-a rejected one goes to the reject bin.
+a rejected one goes to the reject bin. A part machined in two setups ends op 1 with ``OP_DONE``
+instead: ``FLIP`` = vise → flip station, turned over → vise, then ``MACHINING`` again runs op 2
+(:attr:`Job.op` counts the operation), which ends with ``CYCLE_DONE``.
 
 Faults and their recoveries (each fault ends as exactly one recovery or one failure):
 
@@ -54,6 +56,7 @@ class State(enum.Enum):
     LOAD = "LOAD"
     MACHINING = "MACHINING"
     UNLOAD = "UNLOAD"
+    FLIP = "FLIP"
     INSPECT = "INSPECT"
     SORT = "SORT"
     FAULT = "FAULT"
@@ -67,6 +70,8 @@ class Event(enum.Enum):
     STOCK_NOT_FOUND = "stock_not_found"
     LOADED = "loaded"
     CYCLE_DONE = "cycle_done"
+    OP_DONE = "op_done"
+    FLIPPED = "flipped"
     MACHINE_ALARM = "machine_alarm"
     UNLOADED = "unloaded"
     UNLOADED_SCRAP = "unloaded_scrap"
@@ -100,6 +105,9 @@ TRANSITIONS: Mapping[tuple[State, Event], tuple[State, str]] = MappingProxyType(
     (S.LOAD, E.LOADED): (S.MACHINING, "run_program"),
     (S.LOAD, E.TIMEOUT): (S.FAULT, "stop_robot"),
     (S.MACHINING, E.CYCLE_DONE): (S.UNLOAD, "unload"),
+    (S.MACHINING, E.OP_DONE): (S.FLIP, "flip"),
+    (S.FLIP, E.FLIPPED): (S.MACHINING, "run_program"),
+    (S.FLIP, E.TIMEOUT): (S.FAULT, "stop_robot"),
     (S.MACHINING, E.MACHINE_ALARM): (S.FAULT, "hold_machine"),
     (S.MACHINING, E.TIMEOUT): (S.FAULT, "hold_machine"),
     (S.UNLOAD, E.UNLOADED): (S.INSPECT, "inspect"),
@@ -131,7 +139,8 @@ class SchedulerOptions:
     timeouts : mapping State → float
         Longest time [s] an action of that state may take before ``TIMEOUT``; counted from
         the action's start (waiting for the robot or the machine does not count). Defaults:
-        FETCH_RAW 120, LOAD 120, MACHINING 14400 (4 h), UNLOAD 120, INSPECT 60, SORT 60.
+        FETCH_RAW 120, LOAD 120, MACHINING 14400 (4 h, each operation), FLIP 180, UNLOAD 120,
+        INSPECT 60, SORT 60.
     grasp_retries : int
         Grasp attempts after the first miss, per job (default 2).
     reimage_retries : int
@@ -150,7 +159,7 @@ class SchedulerOptions:
 
     timeouts: Mapping[State, float] = field(default_factory=lambda: MappingProxyType({
         State.FETCH_RAW: 120.0, State.LOAD: 120.0, State.MACHINING: 14400.0,
-        State.UNLOAD: 120.0, State.INSPECT: 60.0, State.SORT: 60.0}))
+        State.UNLOAD: 120.0, State.FLIP: 180.0, State.INSPECT: 60.0, State.SORT: 60.0}))
     grasp_retries: int = 2
     reimage_retries: int = 1
     slot_skips: int = 1
@@ -176,7 +185,8 @@ class SchedulerOptions:
 
 @dataclass(frozen=True)
 class Job:
-    """One blank on its way through the cell (one unit of an order)."""
+    """One blank on its way through the cell (one unit of an order); ``op`` is the operation
+    (setup) it is in or last ran: 1, then 2 once turned over for op 2."""
 
     id: int
     order: str
@@ -191,6 +201,7 @@ class Job:
     scrap: bool = False
     inspect_failed: bool = False
     reason: str = ""
+    op: int = 1
 
 
 @dataclass(frozen=True)
@@ -385,6 +396,8 @@ def step(cell: CellState, job_id: int, event: Event,
         cell = replace(cell, faults=MappingProxyType(counts))
         job = replace(job, inspect_failed=True)
         message = "part failed inspection"
+    if event is Event.FLIPPED:
+        job = replace(job, op=job.op + 1)
     job = replace(job, state=nxt)
     effects = [Effect(action, job.id, message=message)]
 

@@ -455,8 +455,10 @@ def plan_tending(
     world: CollisionWorld | None = None,
     options: TendingOptions = TendingOptions(),
     source: str | None = None,
+    setups: int = 1,
 ) -> TendingPlan:
-    """Plan loading the stock of ``sheet`` into the vise and unloading the finished part.
+    """Plan loading the stock of ``sheet`` into the vise and unloading the finished part; with
+    two setups, turning the part over on the flip station between them (:mod:`robotprog.flip`).
 
     Parameters
     ----------
@@ -471,11 +473,16 @@ def plan_tending(
     options : TendingOptions
     source : str, optional
         Setup sheet file name for errors.
+    setups : int
+        1: the part is machined in one operation; 2: op 1 leaves the part on its holding
+        block (the stock below ``part_box``), the robot turns it over on the cell's
+        ``flip_station`` (moves ``flip: ...``) and op 2 faces the block off.
 
     Returns
     -------
     TendingPlan
-        Home → rack → vise → home, then home → vise → out-tray → home.
+        Home → rack → vise → home (``load``), with two setups home → vise → flip station →
+        vise → home (``flip``), then home → vise → out-tray → home (``unload``).
 
     Raises
     ------
@@ -485,10 +492,12 @@ def plan_tending(
         The stock does not fit the vise jaws, or no such rack / tray slot.
     PlanningError
         The box is wider than the gripper opens (``gripper.opening.max``), a slot or the
-        vise is out of reach (``rack.pose``, ``vise.pose``, ``out_tray.pose``), or no
-        collision-free path exists.
+        vise is out of reach (``rack.pose``, ``vise.pose``, ``out_tray.pose``,
+        ``flip_station.pose``), or no collision-free path exists.
     """
     t0 = time.perf_counter()
+    if setups not in (1, 2):
+        raise PlanningError(f"expected 1 or 2 setups, got {setups}", source="setups")
     stock = setup_sheet_to_cell(sheet, source)
     width = float(stock.size[1])
     if not cell.vise.jaw_opening_min <= width <= cell.vise.jaw_opening_max:
@@ -498,6 +507,14 @@ def plan_tending(
             source="vise.jaw_opening")
     pmin, pmax = (stock.stock_min, stock.stock_max) if part_box is None else (
         np.asarray(part_box[0], dtype=float), np.asarray(part_box[1], dtype=float))
+    piece = None
+    if setups == 2:
+        from robotprog.flip import TURNOVER_AXIS, Piece  # noqa: PLC0415 (flip imports this module)
+
+        piece = Piece.after_op1(stock.stock_min, stock.stock_max, pmin, pmax)
+        # op 2 holds the part upside down, on its finished faces; unload grips it there
+        turned = piece.turned(TURNOVER_AXIS)
+        pmin, pmax = turned.part_min, turned.part_max
     psize = pmax - pmin
     s_size = stock.size
     # The blanks beside the one picked and the parts already in the out-tray are obstacles.
@@ -556,6 +573,11 @@ def plan_tending(
     moves.append(p.timed("load: retreat from vise", "linear", ret_vise, open_stock))
     moves.append(p.timed("load: return home", "joint", p.transfer(ret_vise[-1], home, open_stock, "vise to home"),
                          open_stock))
+    if piece is not None:
+        from robotprog.flip import plan_flip  # noqa: PLC0415
+
+        flip, _ = plan_flip(p, cell, piece, home, r_home, obstacles, _grasp, _raise_up)
+        moves.extend(flip)
     # unload
     q_above_part = p.pick_ik(_raise_up(g_vise_out, up), home, open_part, "above vise", "vise.pose")
     app_part = p.line(_raise_up(g_vise_out, up), g_vise_out, q_above_part, open_part, "approach to part",

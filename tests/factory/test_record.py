@@ -23,7 +23,7 @@ from typer.testing import CliRunner
 
 from cli.main import app
 from factory.errors import RecordError
-from factory.record import EVENT_TABLES, SEVERITY, SEVERITY_OPERATOR, Record, masked, metadata, record_url
+from factory.record import EVENT_TABLES, SEVERITY, SEVERITY_OPERATOR, OperationPlan, Record, masked, metadata, record_url
 from tests.cli.expect import assert_one_line_error
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -452,3 +452,25 @@ def test_cells_write_one_sqlite_record_at_once(tmp_path):
     spans = sql(db, "SELECT started_at, ended_at FROM run ORDER BY started_at")
     assert any(later[0] < earlier[1] for earlier, later in zip(spans, spans[1:]))
     assert one(db, "PRAGMA integrity_check") == "ok"
+
+
+def test_two_setups_record_op1_flip_op2_under_their_operations(tmp_path):
+    from robotprog.cellsim import PartProcess, simulate
+    from robotprog.orders import Order
+
+    proc = PartProcess(fetch_s=12.0, load_s=15.0, machining_s=300.0, unload_s=14.0, locate_s=0.2, inspect_s=0.2,
+                       sort_s=14.0, regrasp_s=3.0, flip_s=25.0, op2_machining_s=120.0)
+    orders = [Order("o1", Path("a.stl"), 3, "aluminium", 0)]
+    plan = OperationPlan("a.nc", "1" * 64, 300.0, proc.cycle_s, {}, "0" * 64, ("a.op2.nc", "2" * 64, 120.0))
+    db = tmp_path / "two.sqlite"
+    with Record(db) as record:
+        recorder = record.recorder(cell="c", orders=orders, orders_file="-", orders_sha256="0" * 64, faults_seed=None)
+        result = simulate(orders, {Path("a.stl"): proc}, sink=recorder.begin({(Path("a.stl"), "aluminium"): plan}))
+        recorder.finish(result)
+    ops = sql(db, "SELECT sequence, name, program, planned_machining_s FROM operation ORDER BY sequence")
+    assert [tuple(r) for r in ops] == [("1", "op 1", "a.nc", "300.0"), ("2", "op 2", "a.op2.nc", "120.0")]
+    cuts = sql(db, "SELECT o.name, j.program_sha256, j.machine_time_s FROM job_response j "
+                   "JOIN operation o ON o.id = j.operation_id ORDER BY j.start_s")
+    assert [(r[0], r[1][0], float(r[2])) for r in cuts] == [("op 1", "1", 300.0), ("op 2", "2", 120.0)] * 3
+    flips = sql(db, "SELECT start_s, end_s FROM robot_move WHERE action = 'flip' ORDER BY start_s")
+    assert len(flips) == 3 and all(float(e) - float(s) == pytest.approx(25.0) for s, e in flips)

@@ -198,3 +198,57 @@ def test_one_pass_gives_what_each_time_alone_gives(seed, rate, quantities, share
         assert walk.at(t) == running_summary(result, t)
     with pytest.raises(ValueError):
         walk.at(times[-1] - 1.0)
+
+
+#: A part in two setups: op 1 (300 s), the flip (25 s), op 2 (120 s).
+PROC_TWO = PartProcess(fetch_s=12.0, load_s=15.0, machining_s=300.0, unload_s=14.0, locate_s=2.0, inspect_s=2.5,
+                       sort_s=5.0, regrasp_s=3.0, flip_s=25.0, op2_machining_s=120.0)
+
+
+def test_two_setups_run_op1_flip_op2_in_order_with_the_summary_durations():
+    n = 5
+    result = simulate(_orders(n), {A: PROC_TWO})
+    _check_invariants(result)
+    s = result.summary
+    assert s["parts_good"] == n and s["faults"] == {}
+    for job in set(result.jobs):
+        acts = [a for a in result.activities if a.job == job and a.action in ("load", "cut", "flip", "unload")]
+        assert [(a.action, a.op) for a in acts] == [("load", None), ("cut", 1), ("flip", None), ("cut", 2),
+                                                    ("unload", None)]
+        assert [a.end - a.start for a in acts] == pytest.approx([15.0, 300.0, 25.0, 120.0, 14.0])
+        # each step starts when the one before ends: the robot is free while the part is cut
+        assert all(b.start == pytest.approx(a.end) for a, b in zip(acts, acts[1:]))
+        states = [e.state for e in result.log if e.job == job]
+        k = states.index("FLIP")
+        assert states[k - 1] == "MACHINING" and states[k + 1] == "MACHINING" and "UNLOAD" in states[k + 1:]
+    ends = sorted(e.time for e in result.log if e.event == "sorted")
+    assert [b - a for a, b in zip(ends, ends[1:])] == pytest.approx([PROC_TWO.cycle_s] * (n - 1))
+    assert PROC_TWO.cycle_s == pytest.approx(2 + 12 + 15 + 300 + 25 + 120 + 14)
+    # both cuts keep the machine busy; the flip keeps the robot busy
+    assert s["machine_utilisation"] == pytest.approx(round(n * 420.0 / s["makespan_s"], 4), abs=1e-4)
+    assert s["parts_per_hour"] < simulate(_orders(n), {A: PROC_A}).summary["parts_per_hour"]
+
+
+def test_one_setup_has_no_flip_and_no_op_labels():
+    result = simulate(_orders(3), {A: PROC_A})
+    assert all(a.action != "flip" and a.op is None for a in result.activities)
+    assert all(e.state != "FLIP" for e in result.log)
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 10_000), alarm=st.floats(0, 0.6), quantities=st.lists(st.integers(1, 3), min_size=1,
+                                                                                   max_size=4))
+def test_two_setups_with_alarms_lose_nothing(seed, alarm, quantities):
+    orders = [Order(f"o{i}", A, q, "aluminium", 0) for i, q in enumerate(quantities)]
+    result = simulate(orders, {A: PROC_TWO}, FaultModel(machine_alarm=alarm, grasp_miss=0.1, seed=seed))
+    _check_invariants(result)
+    for job in set(result.jobs):
+        ops = [a.op for a in result.activities if a.job == job and a.action == "cut"]
+        assert ops == sorted(ops) and set(ops) <= {1, 2}
+        flips = [a for a in result.activities if a.job == job and a.action == "flip"]
+        assert len(flips) <= 1
+        if flips:  # op 2 is cut only after the flip, op 1 only before
+            assert all(a.start >= flips[0].end - 1e-9 for a in result.activities
+                       if a.job == job and a.action == "cut" and a.op == 2)
+            assert all(a.end <= flips[0].start + 1e-9 for a in result.activities
+                       if a.job == job and a.action == "cut" and a.op == 1)

@@ -1,0 +1,58 @@
+"""The part process the cell simulation runs on, taken from a plan's robot motion and summary."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from factory.errors import CellError
+from factory.simulation import RobotMotion, Shot, op2_of, part_process
+from robotprog.cellsim import simulate
+from robotprog.orders import Order
+
+SHOTS = {"locate": Shot(b"", [], 0.05, True), "inspect": Shot(b"", [], 0.07, True)}
+
+
+def _motion(phases: list[tuple[str, list[tuple[str, float]]]]) -> RobotMotion:
+    moves, t = [], 0.0
+    for phase, steps in phases:
+        for name, d in steps:
+            moves.append((f"{phase}: {name}", t, t + d))
+            t += d
+    ts = np.linspace(0.0, t, 50)
+    return RobotMotion(tuple(moves), ts, np.zeros((50, 6)))
+
+
+LOAD = ("load", [("home to above rack", 2.0), ("approach stock", 0.5), ("grip stock", 0.4),
+                 ("retreat from rack", 0.5), ("transfer to vise", 3.0), ("return home", 2.0)])
+FLIP = ("flip", [("home to above vise", 2.5), ("turn over", 1.5), ("return home", 3.0)])
+UNLOAD = ("unload", [("home to above vise", 2.0), ("return home", 4.0)])
+
+
+def test_one_setup_plan_has_no_flip():
+    proc = part_process(_motion([LOAD, UNLOAD]), 300.0, SHOTS)
+    assert proc.setups == 1 and proc.flip_s == 0.0 and proc.op2_machining_s is None
+    assert proc.fetch_s == pytest.approx(3.4) and proc.load_s == pytest.approx(5.0)
+    assert proc.unload_s == pytest.approx(6.0)
+
+
+def test_two_setups_take_the_flip_from_the_motion_and_op2_from_the_summary():
+    summary = {"setups": [{"op": 1, "program": "a.nc", "estimated_cycle_s": 300.0},
+                          {"op": 2, "program": "a.op2.nc", "estimated_cycle_s": 95.5}]}
+    op2 = op2_of(summary)
+    proc = part_process(_motion([LOAD, FLIP, UNLOAD]), 300.0, SHOTS, op2["estimated_cycle_s"])
+    assert proc.setups == 2 and proc.flip_s == pytest.approx(7.0) and proc.op2_machining_s == 95.5
+    assert proc.unload_s == pytest.approx(6.0) and proc.load_s == pytest.approx(5.0)
+    assert proc.cycle_s == pytest.approx(proc.locate_s + 3.4 + 5.0 + 300.0 + 7.0 + 95.5 + 6.0)
+    result = simulate([Order("o1", "a.stl", 2, "aluminium", 0)], {"a.stl": proc})
+    acts = [(a.action, a.op, round(a.end - a.start, 6)) for a in result.activities
+            if a.job == 1 and a.action in ("cut", "flip")]
+    assert acts == [("cut", 1, 300.0), ("flip", None, 7.0), ("cut", 2, 95.5)]
+    assert op2_of({"setups": summary["setups"][:1]}) is None and op2_of({}) is None
+
+
+def test_setups_and_motion_must_agree():
+    with pytest.raises(CellError, match="does not turn the part over"):
+        part_process(_motion([LOAD, UNLOAD]), 300.0, SHOTS, 90.0)
+    with pytest.raises(CellError, match="one setup"):
+        part_process(_motion([LOAD, FLIP, UNLOAD]), 300.0, SHOTS)
