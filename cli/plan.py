@@ -16,6 +16,9 @@ from factory.atomic import check_writable
 from factory.plan import PROGRAM_SUFFIX, PlanRequest, plan_part
 from factory.verify import report_text
 
+#: Places no tool reaches named on stderr; the rest are counted (all are in the plan summary).
+_UNREACHED_SHOWN = 5
+
 
 @reports_errors
 def plan(
@@ -72,9 +75,14 @@ def plan(
                          f"{len(holes['helixed'])} helixed", highlight=False, markup=False)
         if summary.get("relief"):
             stderr.print(f"{part.name}: {summary['relief']['found']}", highlight=False, markup=False)
-        for u in summary["unreached"]:
+        # The largest few name the places; a relief can leave scores of small spots, all in the summary.
+        unreached = summary["unreached"]
+        for u in unreached[:_UNREACHED_SHOWN]:
             stderr.print(f"{part.name}: no tool in the library reaches {Unreached(**u).describe()}: left uncut",
                          highlight=False, markup=False)
+        if len(unreached) > _UNREACHED_SHOWN:
+            stderr.print(f"{part.name}: and {len(unreached) - _UNREACHED_SHOWN} more places no tool reaches "
+                         f"(listed in {Path(summary['outputs']['summary']).name})", highlight=False, markup=False)
         stderr.print(f"{part.name}: {len(summary['operations'])} operations, {summary['lines']} lines, estimated "
                      f"{summary['estimated_cycle_s'] / 60:.1f} min; {report_text(planned.report)}{robot_text}",
                      highlight=False, markup=False)
