@@ -106,7 +106,7 @@ def test_plan_writes_everything(tmp_path):
     r = run("plan", part, "-o", out, "--json", "--scallop", "0.02", "--quiet")
     assert r.exit_code == 0, r.output
     summary = json.loads(r.stdout)
-    for key in ("program", "setup_sheet", "mcap", "verify_json", "verify_png", "toolpath_png", "summary",
+    for key in ("program", "setup_sheet", "mcap", "verify_json", "verify_png", "toolpath_png", "setup_png", "summary",
                 "robot_program"):
         assert Path(summary["outputs"][key]).is_file(), key
     assert set(summary["outputs"]) == set(plan_outputs(part, out))
