@@ -136,7 +136,8 @@ def _surface(part: trimesh.Trimesh, setup: Setup, tool: Tool, options: Finishing
         raise ToolpathError("part mesh has no triangles")
     if tool.is_drill:
         raise ToolpathError(f"T{tool.number} is a drill: finishing needs an end mill")
-    return _Surface(build_index(tris), tool.radius, tool.corner_radius, options.allowance, float(setup.stock_min[2]))
+    # workholding: the tool drops no lower than the setup's floor (the holding allowance stays)
+    return _Surface(build_index(tris), tool.radius, tool.corner_radius, options.allowance, float(setup.floor_z))
 
 
 def _work_box(part: trimesh.Trimesh, setup: Setup, reach: float) -> tuple[np.ndarray, np.ndarray]:
@@ -380,7 +381,7 @@ def raster_finishing(
 
     Lines run at ``options.angle`` over the part's footprint grown by the tool radius (cells
     where the tool touches the part, plus one sample around), within the stock; the tip
-    never goes below the stock bottom. Points on CL-surface slopes of ``steep_angle`` or
+    never goes below the setup's floor (``Setup.floor_z``). Points on CL-surface slopes of ``steep_angle`` or
     more are left to waterline; a steep gap shorter than the tool diameter is cut through
     along the CL surface, a longer one is crossed at ``setup.safe_z``. Consecutive lines are
     joined by a cut along the CL surface when their ends are within a tool diameter.

@@ -116,9 +116,10 @@ _ROUGH_SHARE_OF_WIDTH = 0.1
 def choose_tools(library: ToolLibrary, setup: Setup, options: PlanOptions) -> tuple[Tool, Tool]:
     """The roughing and finishing tools: the options' numbers, or chosen by reach and size.
 
-    Every tool must reach the stock depth with its stick-out (``Tool.length``), or the holder
-    would hit the part. Roughing: the widest flat (else bull-nose) end mill no wider than a
-    tenth of the stock's narrower side, or the narrowest one that reaches if all are wider.
+    Every tool must reach from the stock top down to the floor (``setup.floor_z``) with its
+    stick-out (``Tool.length``), or the holder would hit the part. Roughing: the widest flat
+    (else bull-nose) end mill no wider than a tenth of the stock's narrower side, or the
+    narrowest one that reaches if all are wider.
     Finishing: the widest ball end mill that reaches and is no wider than the roughing tool
     (so it fits wherever roughing went), else the narrowest reaching ball, else a reaching
     bull-nose, else a flat end mill.
@@ -129,7 +130,8 @@ def choose_tools(library: ToolLibrary, setup: Setup, options: PlanOptions) -> tu
         A named tool is missing, unfit or too short; or no tool in the library reaches the
         depth for a role (naming the depth and the longest tool there is).
     """
-    depth = float(setup.stock_size[2])
+    # the deepest feed: down to the setup's floor (the holding allowance below it stays uncut)
+    depth = float(setup.stock_max[2] - setup.floor_z)
     if options.rough_tool is not None:
         rough = _checked_tool(library, options.rough_tool, depth, "roughing")
     else:

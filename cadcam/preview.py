@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cadcam.model import Job, Motion
+from cadcam.model import Job, Motion, Setup
 
 #: RGB per operation kind; rapids are drawn thin and red over everything.
 KIND_COLOURS = {"roughing": (40, 90, 200), "waterline": (230, 140, 20), "raster": (40, 160, 70)}
@@ -77,4 +77,92 @@ def toolpath_image(job: Job, width: int = 900) -> np.ndarray:
         draw.text((38, y + 2), text, fill=(0, 0, 0))
         y += 22
     draw.text((10, y + 2), f"{job.part_name}: top view, stock outline in black", fill=(0, 0, 0))
+    return np.asarray(img, dtype=np.uint8).copy()
+
+
+#: Colours of the setup picture.
+_JAW_COLOUR = (150, 150, 160)
+_PARALLELS_COLOUR = (190, 175, 120)
+_PART_COLOUR = (60, 120, 200)
+_FLOOR_COLOUR = (210, 40, 40)
+
+
+def setup_image(setup: Setup, part_triangles: np.ndarray, title: str, width: int = 900) -> np.ndarray:
+    """The part in the vise: a section across the jaws (Y right, Z up) beside a top view (XY).
+
+    The stock is outlined in black, the part's silhouette filled blue, the jaws grey, the
+    parallels tan, and op 1's floor (:attr:`Setup.floor_z`) a dashed red line: the tool
+    never feeds below it, so the holding allowance under it stays for the vise.
+
+    Parameters
+    ----------
+    setup : Setup
+        With ``jaws`` (None: the stock and part alone are drawn).
+    part_triangles : (m, 3, 3) float
+        The part in work coordinates [mm].
+    title : str
+        Caption under the views.
+    width : int
+        Width of the picture [px].
+
+    Returns
+    -------
+    (H, W, 3) uint8
+        RGB picture; write it with :func:`factory.pictures.png_bytes`.
+    """
+    from PIL import Image, ImageDraw  # only the stages that draw pay for the import
+
+    tri = np.asarray(part_triangles, dtype=np.float64).reshape(-1, 3, 3)
+    boxes = tuple(setup.jaws or ())
+    lo = np.min([setup.stock_min] + [b.lo for b in boxes], axis=0) - 2.0
+    hi = np.max([setup.stock_max] + [b.hi for b in boxes], axis=0) + 2.0
+    # section: Y across, Z up; top view: X across, Y up. One scale for both.
+    span_w = (hi[1] - lo[1]) + (hi[0] - lo[0])
+    scale = (width - 30) / float(span_w)
+    panel_h = int(round(max(hi[2] - lo[2], hi[1] - lo[1]) * scale)) + 20
+    caption_h = 22 * 4
+    img = Image.new("RGB", (width, panel_h + caption_h), (255, 255, 255))
+    draw = ImageDraw.Draw(img)
+    left_w = (hi[1] - lo[1]) * scale
+
+    def section(yz: np.ndarray) -> list[tuple[float, float]]:
+        u = 10 + (yz[..., 0] - lo[1]) * scale
+        v = 10 + (hi[2] - yz[..., 1]) * scale
+        return list(zip(np.ravel(u).tolist(), np.ravel(v).tolist()))
+
+    def top(xy: np.ndarray) -> list[tuple[float, float]]:
+        u = 20 + left_w + (xy[..., 0] - lo[0]) * scale
+        v = 10 + (hi[1] - xy[..., 1]) * scale
+        return list(zip(np.ravel(u).tolist(), np.ravel(v).tolist()))
+
+    def rect(to_px, a: np.ndarray, b: np.ndarray, **kw) -> None:
+        (u0, v0), (u1, v1) = to_px(np.array([a, b]))
+        draw.rectangle([min(u0, u1), min(v0, v1), max(u0, u1), max(v0, v1)], **kw)
+
+    for b in boxes:
+        fill = _PARALLELS_COLOUR if b.name == "parallels" else _JAW_COLOUR
+        rect(section, b.lo[[1, 2]], b.hi[[1, 2]], fill=fill, outline=(80, 80, 80))
+        if b.name != "parallels":
+            rect(top, b.lo[:2], b.hi[:2], fill=fill, outline=(80, 80, 80))
+    # the part's silhouettes: every triangle projected (Y, Z) and (X, Y), filled
+    for t in tri:
+        draw.polygon(section(t[:, [1, 2]]), fill=_PART_COLOUR)
+        draw.polygon(top(t[:, :2]), fill=_PART_COLOUR)
+    rect(section, setup.stock_min[[1, 2]], setup.stock_max[[1, 2]], outline=(0, 0, 0), width=2)
+    rect(top, setup.stock_min[:2], setup.stock_max[:2], outline=(0, 0, 0), width=2)
+    # op 1's floor, dashed across the stock
+    y0, y1 = float(setup.stock_min[1]), float(setup.stock_max[1])
+    for ya in np.arange(y0, y1, 3.0):
+        draw.line(section(np.array([[ya, setup.floor_z], [min(ya + 1.5, y1), setup.floor_z]])),
+                  fill=_FLOOR_COLOUR, width=2)
+
+    y = panel_h + 4
+    held = float(setup.floor_z - setup.stock_min[2])
+    lines = [f"{title}: op 1, the part in the vise (left: section across the jaws; right: top view)",
+             f"stock {' x '.join(f'{v:g}' for v in np.round(setup.stock_size, 2))} mm; "
+             f"op 1 cuts down to Z{setup.floor_z:.2f} (dashed red), leaving {held:.1f} mm held",
+             "grey: jaws, tan: parallels" if boxes else "no vise known: jaws not drawn"]
+    for text in lines:
+        draw.text((10, y + 2), text, fill=(0, 0, 0))
+        y += 22
     return np.asarray(img, dtype=np.uint8).copy()

@@ -35,7 +35,7 @@ import trimesh
 from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
-from cadcam.model import Setup, WorkOrigin
+from cadcam.model import Setup, ViseJaws, WorkOrigin
 from cadcam.setup import StockMargins, make_setup
 from factory.errors import MeshError, SetupError
 
@@ -378,6 +378,7 @@ def relief_setup(
     material: str = "aluminium",
     safe_height: float = 5.0,
     mesh_scale: float = 1.0,
+    jaws: ViseJaws | None = None,
     source: str | None = None,
 ) -> tuple[Setup, trimesh.Trimesh, Boundary]:
     """Place a relief in a block: the stock around its footprint, from its lowest point less
@@ -410,7 +411,7 @@ def relief_setup(
     fx0, fy0, fx1, fy1 = found.footprint.bounds
     block = trimesh.creation.box(bounds=[[fx0, fy0, lo[2] - options.floor], [fx1, fy1, hi[2]]])
     setup, _ = make_setup(block, stock_size=stock_size, margins=margins, origin=origin, material=material,
-                          safe_height=safe_height, mesh_scale=mesh_scale, source=source)
+                          safe_height=safe_height, mesh_scale=mesh_scale, jaws=jaws, source=source)
     part_work = part.copy()
     part_work.apply_transform(setup.transform_mesh_to_work)
     shift = setup.transform_mesh_to_work[:3, 3]

@@ -6,8 +6,9 @@ heightfield of the stock top on a grid, and the part's upper envelope on the sam
 *Excess* is the stock above the part at a grid point, the part taken grown sideways by
 the roughing allowance plus a cell diagonal: the thin skin of allowance roughing leaves
 on a wall is not rest material (the grid cannot tell it from a hole beside the wall
-otherwise). Where there is no part (through holes, outside it) the stock bottom is the
-floor.
+otherwise). Where there is no part (through holes, outside it) the setup's floor
+(:attr:`cadcam.model.Setup.floor_z`, the part's bottom less the breakthrough) is the floor:
+the holding allowance under it stays for the vise.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from shapely.geometry.base import BaseGeometry
 
 from cadcam.model import Motion, Operation, Setup, Tool
 from cadcam.verify import Simulation, VerifyOptions, clear_height, operation_moves, simulate, simulate_snapshots
+from factory.errors import ToolpathError
 
 log = logging.getLogger(__name__)
 
@@ -48,7 +50,7 @@ def excess(sim: Simulation, allowance: float, grid_slack: bool = True) -> np.nda
     disc = np.hypot(di, dj) * g.cell <= reach
     part = np.where(np.isfinite(sim.part_top), sim.part_top, -np.inf)
     grown = ndimage.maximum_filter(part, footprint=disc, mode="constant", cval=-np.inf)
-    return sim.stock_top - np.maximum(grown, sim.stock_bottom)
+    return sim.stock_top - np.maximum(grown, sim.floor)
 
 
 def rest_material(sim: Simulation, z: float, above: float, allowance: float) -> BaseGeometry:
@@ -130,7 +132,7 @@ def unreached(sim: Simulation, above: float, allowance: float) -> tuple[Unreache
     if n == 0:
         return ()
     g = sim.grid
-    floor = np.maximum(np.where(np.isfinite(sim.part_top), sim.part_top, -np.inf), sim.stock_bottom)
+    floor = np.maximum(np.where(np.isfinite(sim.part_top), sim.part_top, -np.inf), sim.floor)
     out = []
     for k, sl in enumerate(ndimage.find_objects(labels), start=1):
         m = labels[sl] == k
@@ -153,7 +155,8 @@ def _grown(tool: Tool, by: float) -> Tool:
 
 def safe_rapids(operations: Sequence[Operation], setup: Setup, part_triangles: np.ndarray,
                 cell: float = 0.5) -> tuple[tuple[Operation, ...], int, int]:
-    """Make every rapid of ``operations`` clear the in-process stock with the whole tool.
+    """Make every rapid of ``operations`` clear the in-process stock with the whole tool, and check
+    that no move of any tool reaches the vise's jaws or parallels (``setup.jaws``).
 
     The operations are simulated in order with each tool grown by half a cell diagonal (the
     stock is only known at grid points). A rapid that would touch the stock as the earlier
@@ -168,6 +171,11 @@ def safe_rapids(operations: Sequence[Operation], setup: Setup, part_triangles: n
         Rapids below ``setup.safe_z`` that were tested.
     fixed : int
         Rapids that touched the stock and were split or slowed.
+
+    Raises
+    ------
+    ToolpathError
+        A move's tool, shank or holder reaches into the jaws or parallels.
     """
     ops = tuple(operations)
     if not ops:
@@ -182,6 +190,10 @@ def safe_rapids(operations: Sequence[Operation], setup: Setup, part_triangles: n
     checked = int(below.sum())
     opts = VerifyOptions(cell=cell)
     final, report = simulate(moves, tools, setup, part_triangles, opts)
+    for f in report.faults:
+        if f.kind == "jaws":  # no speed makes a move into the vise safe: the planner is wrong
+            x, y, z = f.position or (math.nan,) * 3
+            raise ToolpathError(f"{f.message} near X{x:.1f} Y{y:.1f} Z{z:.1f}: the toolpath would hit the vise")
     bad = sorted({c.move for c in report.rapid_crashes if not first[c.move]})
     if not bad:
         return ops, checked, 0

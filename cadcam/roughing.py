@@ -4,7 +4,8 @@ At each level the *tool-centre region* (where the axis of the end mill may go wi
 coming closer than the allowance to the part) is computed in the plane with shapely, then
 cleared with contour-parallel offset loops. The pieces:
 
-* **Levels** go from the stock top down to the stock bottom at most ``stepdown`` apart, and
+* **Levels** go from the stock top down to the setup's floor (``Setup.floor_z``: the part's
+  bottom less a breakthrough, above the holding allowance) at most ``stepdown`` apart, and
   every upward-facing flat face of the part (pocket floor, step top, boss top) at height
   ``f`` gets a level at exactly ``f + allowance``, so floors are left with an even
   allowance instead of whatever the stepdown grid happens to leave.
@@ -206,8 +207,9 @@ def _resolve(options: RoughingOptions, tool: Tool, setup: Setup) -> _Params:
 
 
 def _levels(part: trimesh.Trimesh, setup: Setup, p: _Params) -> np.ndarray:
-    """Level heights, top down, ending at the stock bottom [mm]."""
-    top, bottom = float(setup.stock_max[2]), float(setup.stock_min[2])
+    """Level heights, top down, ending at the setup's floor [mm]."""
+    # workholding: the last level breaks out just below the part (Setup.floor_z), never into the vise
+    top, bottom = float(setup.stock_max[2]), float(setup.floor_z)
     nz = part.face_normals[:, 2]
     flat_up = nz > 1.0 - 1e-6
     floors = np.unique(np.round(part.triangles_center[flat_up, 2], 6))

@@ -319,6 +319,7 @@ def stock_snapshots(
     sim, _, tops = simulate_snapshots(moves, tools, setup, part_triangles, timeline.move_at(times),
                                       VerifyOptions(cell=cell))
     return tuple(
-        (float(t), Simulation(grid=sim.grid, stock_top=top, part_top=sim.part_top, stock_bottom=sim.stock_bottom))
+        (float(t), Simulation(grid=sim.grid, stock_top=top, part_top=sim.part_top, stock_bottom=sim.stock_bottom,
+                                floor_z=sim.floor_z))
         for t, top in zip(times.tolist(), tops)
     )

@@ -48,6 +48,7 @@ import numpy as np
 
 from cadcam.heightmap import Grid, grid_over, upper_envelope
 from cadcam.model import Motion, Operation, ProgramMoves, Setup, Tool
+from cadcam.workholding import fixture_contacts
 from factory.errors import VerifyError
 
 log = logging.getLogger(__name__)
@@ -117,12 +118,21 @@ class Simulation:
         (outside it, through holes) (read-only).
     stock_bottom : float
         Bottom of the stock [mm]; the stock top can be cut below it (through cuts).
+    floor_z : float or None
+        The lowest the program may cut (:attr:`Setup.floor_z`) [mm]: below it, where there
+        is no part, lies the holding allowance, left on purpose. None: ``stock_bottom``.
     """
 
     grid: Grid
     stock_top: np.ndarray
     part_top: np.ndarray
     stock_bottom: float
+    floor_z: float | None = None
+
+    @property
+    def floor(self) -> float:
+        """:attr:`floor_z`, or the stock bottom when unknown [mm]."""
+        return self.stock_bottom if self.floor_z is None else max(float(self.floor_z), self.stock_bottom)
 
     @property
     def remaining(self) -> np.ndarray:
@@ -157,7 +167,7 @@ class RapidCrash:
 
 
 #: What :class:`Fault` can say, in the order the report lists them.
-FAULT_KINDS = ("no_cut", "rapid", "holder", "flute", "buried", "drill_side", "below_stock")
+FAULT_KINDS = ("no_cut", "rapid", "holder", "flute", "buried", "drill_side", "below_stock", "jaws")
 
 #: Setup sheet operation kinds that finish a surface; every other kind removes bulk stock.
 FINISHING_KINDS = frozenset({"raster", "waterline", "finishing"})
@@ -175,7 +185,9 @@ class Fault:
         meets the stock or the part; ``flute`` a cut engaged deeper than the flute length;
         ``buried`` a finishing tool engaged deeper than :attr:`VerifyOptions.finish_depth`;
         ``drill_side`` a drill fed sideways through stock (a drill's only engagement is
-        axial, held to its flute length by ``flute``); ``below_stock`` the tool tip below the stock bottom.
+        axial, held to its flute length by ``flute``); ``below_stock`` the tool tip below the stock
+        bottom; ``jaws`` the tool, shank or holder reaches into the vise's jaws or parallels
+        (:attr:`Setup.jaws`).
     tool : int
         Tool number (0 for ``no_cut``).
     lines : tuple of int
@@ -817,11 +829,14 @@ def simulate_snapshots(
     stock_top = stock.reshape(grid.shape)
     stock_top.setflags(write=False)
     part_top.setflags(write=False)
-    sim = Simulation(grid=grid, stock_top=stock_top, part_top=part_top, stock_bottom=float(setup.stock_min[2]))
+    sim = Simulation(grid=grid, stock_top=stock_top, part_top=part_top, stock_bottom=float(setup.stock_min[2]),
+                     floor_z=setup.floor_z)
     finish = np.zeros(len(pts), bool) if finishing is None else np.asarray(finishing, bool).reshape(-1)
     if len(finish) != len(pts):
         raise VerifyError(f"finishing flags: expected {len(pts)}, got {len(finish)}", source="finishing")
     crashes, faults, engagement = _judge(seg, stats, moves, tools, finish, sim, options)
+    if setup.jaws:
+        faults += _jaw_faults(a, b, known & np.isfinite(radius), moves, tools, setup, options)
     report = _report(
         sim, tri, moves, tools, options, crashes, n_moves, float(length[~rapid].sum()), float(length[rapid].sum()),
         faults, engagement, int(np.count_nonzero(seg.rapid)),
@@ -830,6 +845,33 @@ def simulate_snapshots(
     for top in snapshots:
         top.setflags(write=False)
     return sim, report, snapshots
+
+
+def _jaw_faults(a: np.ndarray, b: np.ndarray, use: np.ndarray, moves: ProgramMoves, tools: Mapping[int, Tool],
+                setup: Setup, options: VerifyOptions) -> list["Fault"]:
+    """One ``jaws`` fault per tool whose moves (``a`` -> ``b``, those in ``use``) reach into the
+    workholding deeper than the contact tolerance (:mod:`cadcam.workholding`)."""
+    idx = np.flatnonzero(use)
+    jaws = tuple(setup.jaws or ())
+    hits = fixture_contacts(a[idx], b[idx], moves.tool[idx + 1], tools, jaws)
+    tol = options.contact_tolerance
+    # The move that takes the tool into the jaws, not the one that brings it back out.
+    leaving = ((fixture_contacts(a[idx], a[idx], moves.tool[idx + 1], tools, jaws).depth > tol)
+               & (fixture_contacts(b[idx], b[idx], moves.tool[idx + 1], tools, jaws).depth <= tol))
+    bad = (hits.depth > tol) & ~leaving
+    line = moves.line[idx + 1].astype(np.int64)
+    tool = moves.tool[idx + 1].astype(np.int64)
+    out = []
+    for t in np.unique(tool[bad]).tolist():
+        ks = np.flatnonzero(bad & (tool == t))
+        k = int(ks[np.argmax(hits.depth[ks])])
+        w = float(hits.depth[k])
+        name = jaws[int(hits.box[k])].name
+        lines = tuple(sorted(set(line[ks].tolist())))
+        out.append(Fault("jaws", int(t), lines, w, options.contact_tolerance,
+                         tuple(float(v) for v in hits.position[k]),
+                         f"T{t} runs {w:.2f} mm into the {name}"))
+    return out
 
 
 #: Material within this sideways of a part wall at least as tall (less this), over part

@@ -31,8 +31,9 @@ from typing import Any
 
 import numpy as np
 
+from cadcam.model import Setup
 from cadcam.post import PostOptions, Program, post_process
-from cadcam.preview import toolpath_image
+from cadcam.preview import setup_image, toolpath_image
 from cadcam.relief import block_corners
 from cadcam.sheet import setup_sheet
 from cadcam.verify import Simulation, VerifyOptions, VerifyReport
@@ -45,8 +46,9 @@ from factory.progress import Progress, Stopwatch
 from factory.resources import FIXTURES
 from factory.tending import log_tending, plan_cell
 from factory.verify import log_simulation, run_verify, write_verify_outputs
-from robotprog.cell import Cell
+from robotprog.cell import Cell, load_cell
 from robotprog.collision import CollisionWorld
+from robotprog.frames import check_stock_fits, setup_sheet_to_cell
 from robotprog.programs import PostedProgram, post_program
 from robotprog.tending import TendingPlan
 
@@ -68,6 +70,7 @@ def plan_outputs(part: Path, out_dir: Path, robot_lang: str | None = "urscript")
         "verify_json": stem.with_suffix(".verify.json"),
         "verify_png": stem.with_suffix(".verify.png"),
         "toolpath_png": stem.with_suffix(".toolpath.png"),
+        "setup_png": stem.with_suffix(".setup.png"),
         "summary": stem.with_suffix(SUMMARY_SUFFIX),
     }
     if robot_lang is not None:
@@ -93,6 +96,19 @@ def program_summary(program: Program, output: Path, sheet_path: Path) -> dict[st
     }
 
 
+def workholding_summary(setup: Setup, part_bottom: float) -> dict[str, Any]:
+    """How op 1 holds the part [mm]: the holding allowance under it, the lowest feed, what stays held,
+    and the jaws' top above the stock bottom (None without a vise)."""
+    bottom = float(setup.stock_min[2])
+    jaws = [b for b in setup.jaws or () if b.name != "parallels"]
+    return {
+        "holding_mm": round(part_bottom - bottom, 3),
+        "floor_z": round(float(setup.floor_z), 3),
+        "left_under_part_mm": round(float(setup.floor_z) - bottom, 3),
+        "grip_depth_mm": round(max(float(b.hi[2]) for b in jaws) - bottom, 3) if jaws else None,
+    }
+
+
 @dataclasses.dataclass(frozen=True)
 class PlanRequest:
     """Everything ``factory plan`` needs besides the output folder.
@@ -108,7 +124,8 @@ class PlanRequest:
     grid : float
         Verify grid spacing [mm].
     cell : Path
-        Robot cell file, used when ``robot`` is true.
+        Robot cell file, used when ``robot`` is true (its vise holds the stock: give the same
+        file as ``cam.cell``).
     robot : bool
         Plan loading and unloading with the cell.
     lang : str
@@ -127,7 +144,7 @@ class PlanRequest:
     def defaults(cls, part: Path, material: str, cell: Path = FIXTURES / "cell.yaml",
                  tools: Path | None = None) -> "PlanRequest":
         """The plan ``factory plan PART --material M --cell C`` makes with every other option at its default."""
-        return cls(CamRequest.defaults(part, material, tools), cell=cell)
+        return cls(CamRequest.defaults(part, material, tools, cell), cell=cell)
 
     def outputs(self, out_dir: Path) -> dict[str, Path]:
         """Every file :meth:`PartPlan.write` writes into ``out_dir``."""
@@ -197,6 +214,7 @@ class PartPlan:
             # an open surface machined from above (cadcam.relief): what was found, floor, boundary
             **({"relief": job.parameters["relief"]} if "relief" in job.parameters else {}),
             "stock_mm": job.setup.stock_size.round(3).tolist(),
+            "workholding": workholding_summary(job.setup, np.asarray(self.planned.part_work.bounds)[0][2]),
             **program_summary(self.program, outputs["program"], outputs["setup_sheet"]),
             # what no tool in the library reaches: left in place, and finishing stays out of it [mm]
             "unreached": list(job.parameters.get("unreached", [])),
@@ -247,6 +265,8 @@ class PartPlan:
         write_verify_outputs(self.simulation, self.report, png=outputs["verify_png"], json_path=outputs["verify_json"],
                              mcap=None, overwrite=False, inputs={})
         write_bytes(outputs["toolpath_png"], png_bytes(toolpath_image(job)))
+        write_bytes(outputs["setup_png"], png_bytes(setup_image(job.setup, np.asarray(planned.part_work.triangles),
+                                                               job.part_name)))
         inputs = {str(req.cam.part): planned.loaded.sha256}
         parameters = dict(job.parameters)
         if tending is not None:
@@ -288,6 +308,10 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
         sheet = setup_sheet(job, program, outputs["program"].name)
     tending = None
     if req.robot:
+        # the vise must clamp the stock above its jaws and the gripper hold it, before any motion is planned
+        vise_cell = load_cell(req.cell, check_robot=False)
+        check_stock_fits(setup_sheet_to_cell(sheet, str(outputs["setup_sheet"])), vise_cell.vise.jaw_opening_min,
+                         vise_cell.vise.jaw_opening_max, vise_cell.vise.grip_depth, vise_cell.gripper.opening_max)
         vertices = np.asarray(planned.loaded.mesh.vertices) / float(job.setup.mesh_scale)
         if planned.boundary is not None:  # a relief leaves in its block: the robot holds the block
             vertices = block_corners(job.setup)

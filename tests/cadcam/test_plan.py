@@ -17,11 +17,16 @@ from hypothesis import strategies as st
 from cadcam.finishing import FinishingOptions
 from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_part
+from cadcam.model import Motion
 from cadcam.plan import PlanOptions, plan_job
 from cadcam.post import PostOptions, linuxcnc_tool_table, post_process
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
+from cadcam.setup import BREAKTHROUGH_MM, MIN_HOLDING_LEFT_MM
 from cadcam.verify import VerifyOptions, simulate
+from factory.resources import FIXTURES
+from robotprog.cell import load_cell
+from robotprog.frames import vise_jaws
 from tests.cadcam.sweep import sweep_moves
 from tests.cadcam.test_rest import assert_safe
 from tests.conftest import SAMPLES, manifold_to_trimesh
@@ -31,6 +36,21 @@ LIBRARY = load_tool_library()
 TEST_PLAN = PlanOptions(finishing=FinishingOptions(scallop=0.02))
 # The closed solids; samples/relief.stl is an open surface, planned as a relief (tests/cadcam/test_relief.py).
 SAMPLE_PARTS = sorted(p for p in SAMPLES.glob("*.stl") if p.stem != "relief")
+#: The default cell's vise [mm]: every plan here is held in it, as `factory plan` holds it.
+JAWS = vise_jaws(load_cell(FIXTURES / "cell.yaml", check_robot=False).vise)
+
+
+def assert_held(job, moves, part) -> None:
+    """Op 1 leaves the holding allowance: no feed below the part's bottom by more than 0.6 mm,
+    at least 3 mm of stock under it, the jaws clear (read from the posted G-code)."""
+    setup = job.setup
+    feed = moves.motion[1:] != Motion.RAPID
+    z = moves.points[1:, 2][feed & np.isfinite(moves.points[1:, 2])]
+    part_bottom = float(part.bounds[0][2])
+    assert z.min() >= part_bottom - 0.6, (z.min(), part_bottom)
+    assert z.min() - setup.stock_min[2] >= MIN_HOLDING_LEFT_MM - 1e-9
+    assert setup.floor_z == pytest.approx(part_bottom - BREAKTHROUGH_MM)
+    assert setup.jaws is not None and min(b.hi[2] for b in setup.jaws) < z.min()
 
 
 def plan_post_verify(part_mesh, name: str, tmp_path: Path, options: PlanOptions = TEST_PLAN, cell: float = 0.2):
@@ -40,7 +60,7 @@ def plan_post_verify(part_mesh, name: str, tmp_path: Path, options: PlanOptions 
 
 def plan_post_verify_moves(part_mesh, name: str, tmp_path: Path, options: PlanOptions = TEST_PLAN,
                            cell: float = 0.2):
-    setup, part = make_setup(part_mesh)
+    setup, part = make_setup(part_mesh, jaws=JAWS)
     job, _ = plan_job(part, setup, LIBRARY, part_name=name, options=options)
     program = post_process(job, PostOptions())
     moves = parse_gcode(program.text, source=name)
@@ -48,6 +68,7 @@ def plan_post_verify_moves(part_mesh, name: str, tmp_path: Path, options: PlanOp
     sim, report = simulate(moves, tools, setup, np.asarray(part.triangles), VerifyOptions(cell=cell))
     nc = tmp_path / f"{name}.nc"
     nc.write_text(program.text)
+    assert_held(job, moves, part)
     return job, program, report, nc, moves
 
 
@@ -72,6 +93,7 @@ def test_sample_never_gouges_and_never_crashes(sample, tmp_path):
     assert [op.kind for op in job.operations if op.kind not in ("spot", "drill", "helix")][0] == "roughing"
     assert report.max_gouge <= 0.01, report.to_dict()
     assert report.rapid_crashes == (), report.rapid_crashes[:3]
+    assert report.ok, [f.message for f in report.faults]  # the jaws among them
     # Finishing actually finished: most of the surface is within the roughing allowance.
     assert report.remaining_p95 <= TEST_PLAN.roughing.allowance + 0.05, report.to_dict()
     # No finishing tool buried, no rapid through stock, by the independent sweep probe.
@@ -126,6 +148,7 @@ def test_random_blocks_with_pockets_and_bosses_never_gouge(body, tmp_path):
     _, _, report, _ = plan_post_verify(mesh, "random", tmp_path, options=options, cell=0.25)
     assert report.max_gouge <= 0.01, report.to_dict()
     assert report.rapid_crashes == ()
+    assert not [f for f in report.faults if f.kind == "jaws"]
 
 
 @pytest.mark.parametrize("pocket_depth", [1.0, 4.05])
@@ -142,6 +165,7 @@ def test_boss_overhanging_a_pocket_is_left_alone(pocket_depth, tmp_path):
     assert [op.kind for op in job.operations] == ["roughing", "waterline", "raster"]
     assert report.max_gouge <= 0.01, report.to_dict()
     assert report.rapid_crashes == ()
+    assert not [f for f in report.faults if f.kind == "jaws"]
 
 
 def test_raster_only_keeps_the_shank_off_a_wall_taller_than_the_flutes(tmp_path):

@@ -23,3 +23,24 @@ def test_every_operation_and_the_rapids_are_drawn():
     colours = {tuple(c) for c in img.reshape(-1, 3)}
     for c in (KIND_COLOURS["roughing"], KIND_COLOURS["raster"], RAPID_COLOUR):
         assert c in colours
+
+
+def test_the_setup_picture_draws_the_part_in_the_jaws_over_the_floor():
+    import trimesh
+
+    from cadcam import preview
+    from cadcam.model import ViseJaws
+
+    jaws = ViseJaws(jaw_height=40.0, jaw_width=150.0, jaw_thickness=20.0, parallels_height=35.0, opening_min=0.0,
+                    opening_max=160.0)
+    lo, hi = np.array([0.0, 0.0, -22.5]), np.array([104.0, 64.0, 0.0])
+    setup = Setup(stock_min=lo, stock_max=hi, transform_mesh_to_work=np.eye(4), floor_z=-16.5,
+                  jaws=jaws.place(lo, hi))
+    part = trimesh.creation.box(bounds=[[2, 2, -16], [102, 62, -1]]).triangles
+    img = preview.setup_image(setup, part, "bracket", width=700)
+    assert img.shape[1] == 700 and img.dtype == np.uint8
+    colours = {tuple(c) for c in img.reshape(-1, 3)}
+    for c in (preview._JAW_COLOUR, preview._PARALLELS_COLOUR, preview._PART_COLOUR, preview._FLOOR_COLOUR):
+        assert c in colours
+    no_vise = preview.setup_image(Setup(stock_min=lo, stock_max=hi, transform_mesh_to_work=np.eye(4)), part, "p")
+    assert preview._JAW_COLOUR not in {tuple(c) for c in no_vise.reshape(-1, 3)}

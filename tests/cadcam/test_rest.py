@@ -117,8 +117,9 @@ def assert_safe(job, setup, moves, sw, text: str) -> None:
         assert sw.buried[sel].max(initial=0.0) <= LIMIT + SLACK, (t, float(sw.buried[sel].max()))
     hits = rapid_hits(sw, moves.motion)
     assert len(hits) == 0, [(int(moves.line[k]), float(sw.engagement[k])) for k in hits[:5]]
-    # The post writes 4 decimals.
-    assert np.nanmin(np.where(feed, sw.lowest, np.nan)) >= float(setup.stock_min[2]) - 1e-4
+    # The post writes 4 decimals. No feed below the setup's floor: the holding allowance stays.
+    assert np.nanmin(np.where(feed, sw.lowest, np.nan)) >= float(setup.floor_z) - 1e-4
+    assert float(setup.floor_z) - float(setup.stock_min[2]) >= 3.0 - 1e-9
 
 
 def test_a_slot_too_narrow_for_the_roughing_tool_is_rest_roughed_then_finished():
@@ -172,10 +173,12 @@ def test_random_parts_plan_with_no_buried_finishing_tool_and_no_rapid_into_stock
 
 
 def test_a_part_deeper_than_t1_reaches_plans_with_longer_tools():
-    # The case: 34.5 mm deep (35.5 mm of stock with the default 1 mm on top).
+    # The case: 34.5 mm deep (35.5 mm of stock over the part's bottom with the default 1 mm on top,
+    # 3.5 mm of holding allowance under it); the tools reach the floor 0.5 mm below the part: 36 mm.
     body = manifold3d.Manifold.cube((24.0, 18.0, 34.5)) - manifold3d.Manifold.cube((10.0, 20.0, 12.0)).translate(
         (-1.0, -1.0, 23.5))
     job, setup, moves, sw, text = probe_plan(body)
-    assert float(setup.stock_size[2]) == pytest.approx(35.5)
-    assert all(op.tool.length >= 35.5 for op in job.operations)
+    assert float(setup.stock_size[2]) == pytest.approx(39.0)
+    assert float(setup.stock_max[2] - setup.floor_z) == pytest.approx(36.0)
+    assert all(op.tool.length >= 36.0 for op in job.operations)
     assert_safe(job, setup, moves, sw, text)

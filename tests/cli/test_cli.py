@@ -106,7 +106,7 @@ def test_plan_writes_everything(tmp_path):
     r = run("plan", part, "-o", out, "--json", "--scallop", "0.02", "--quiet")
     assert r.exit_code == 0, r.output
     summary = json.loads(r.stdout)
-    for key in ("program", "setup_sheet", "mcap", "verify_json", "verify_png", "toolpath_png", "summary",
+    for key in ("program", "setup_sheet", "mcap", "verify_json", "verify_png", "toolpath_png", "setup_png", "summary",
                 "robot_program"):
         assert Path(summary["outputs"][key]).is_file(), key
     assert set(summary["outputs"]) == set(plan_outputs(part, out))
@@ -245,6 +245,19 @@ def test_simulate_plans_exactly_what_plan_does_with_its_defaults():
     from_cli = PlanRequest(cam.cam_request(
         part, defaults["tools"], defaults["stock"], defaults["material"], defaults["units"], defaults["origin"],
         defaults["rough_tool"], defaults["finish_tool"], defaults["allowance"], defaults["scallop"],
-        defaults["stepdown"], defaults["waterline"]), post=defaults["post"], arc_tolerance=defaults["arc_tolerance"],
+        defaults["stepdown"], defaults["waterline"], defaults["holding"], defaults["robot_cell"]), post=defaults["post"], arc_tolerance=defaults["arc_tolerance"],
         grid=defaults["grid"], cell=defaults["robot_cell"], robot=defaults["robot"], lang=defaults["lang"])
     assert PlanRequest.defaults(part, defaults["material"]) == from_cli
+
+
+@pytest.mark.parametrize("args, needles", [
+    (["--holding", "2"], ["holding allowance 2 mm leaves 1.5 mm under the part", "--holding 6.5"]),
+    (["--holding", "6"], ["below the jaws' grip depth 5 mm", "--holding 6.5"]),
+    (["--stock", "40,30,12"], ["needs stock 16.500 mm tall, stock is 12.000 mm"]),
+    (["--stock", "40,170,30"], ["stock 170.0 mm wide (Y) does not fit the vise opening 0..160 mm"]),
+])
+def test_stock_the_vise_cannot_hold_is_one_line_with_its_figures(small_part, tmp_path, args, needles):
+    out = tmp_path / "out"
+    for command in (["plan", small_part, "-o", out], ["toolpath", small_part, "-o", tmp_path / "t.mcap"]):
+        assert_one_line_error(run(*command, *args, "--quiet"), str(small_part), *needles)
+    assert not out.exists() or not any(out.iterdir())

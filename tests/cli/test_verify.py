@@ -85,3 +85,21 @@ def test_the_planned_bracket_is_judged_safe_with_its_engagement(bracket):
     assert by_tool[3]["finishing"] and by_tool[3]["max_depth"] <= 1.0
     assert not by_tool[1]["finishing"] and by_tool[1]["max_depth"] <= 18.0  # T1's flutes
     assert report["rapids_checked"] > 0
+
+
+def test_bracket_with_a_plunge_into_the_front_jaw(bracket):
+    setup = json.loads(bracket["setup"].read_text())
+    front = next(j for j in setup["jaws"] if j["name"] == "front jaw")
+    assert front["hi"][2] == pytest.approx(setup["stock"]["min"][2] + 5.0)  # the default vise grips 5 mm
+    lines = bracket["nc"].read_text().splitlines()
+    change = next(i for i, ln in enumerate(lines) if re.match(r"T\d+\s+M6", ln))
+    z = front["hi"][2] - 2.5
+    doctored = lines[:change + 1] + ["G0 X50 Y-8", "G0 Z5", f"G1 Z{z:.3f} F500", "G0 Z10"] + lines[change + 1:]
+    r, report = verify(bracket, "\n".join(doctored) + "\n", "into_jaw.nc")
+    assert r.exit_code == EXIT_VERIFY_FAILED, r.output
+    (jaws,) = [f for f in report["faults"] if f["kind"] == "jaws"]
+    assert jaws["lines"] == [change + 4] and jaws["worst"] == pytest.approx(2.5)
+    assert "front jaw" in jaws["message"]
+    assert "line(s) " + str(change + 4) in r.output.replace("\n", " ")
+    # the program as planned keeps clear of the vise
+    assert not [f for f in verify(bracket, bracket["nc"].read_text(), "clear.nc")[1]["faults"] if f["kind"] == "jaws"]

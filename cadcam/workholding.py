@@ -1,0 +1,149 @@
+"""The vise's jaws and parallels as obstacles: how far a tool's swept body reaches into them.
+
+The jaws are boxes in work coordinates (:attr:`cadcam.model.Setup.jaws`, placed by
+:meth:`cadcam.model.ViseJaws.place`), beside and under the stock, so outside the stock's
+height field: the material-removal simulation never sees them. Here every straight move is
+swept against each box exactly.
+
+The tool is taken as the cutter's cylinder from the tip up (its corner profile ignored: on
+the safe side) and its shank and holder cylinders (:meth:`cadcam.model.Tool.body`), each
+reaching up forever, as in the simulation. A cylinder of radius ``r`` whose bottom is ``h``
+above the tip meets a box where the tip is at most ``box top - h`` high and the tool axis
+within ``r`` of the box's XY rectangle. Its depth into the box is the lesser of the two
+deepest overlaps along the part of the move that comes low enough (radial: ``r`` minus the
+least distance; vertical: box top minus the cylinder's lowest bottom): positive exactly
+where the swept body meets the box, and never less than the depth at any one point.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from cadcam.model import FixtureBox, Tool
+
+
+@dataclass(frozen=True)
+class FixtureContacts:
+    """How deep each move's tool reaches into the workholding.
+
+    Attributes
+    ----------
+    depth : (n,) float
+        Deepest reach of the move's tool into any box [mm]; 0 where it stays clear.
+    box : (n,) int
+        Index into the boxes of that deepest reach; -1 where clear.
+    position : (n, 3) float
+        Tool tip where the move comes lowest into that box [mm]; NaN where clear.
+    """
+
+    depth: np.ndarray
+    box: np.ndarray
+    position: np.ndarray
+
+
+def tool_cylinders(tool: Tool) -> tuple[tuple[float, float], ...]:
+    """``(height of the bottom above the tip, radius)`` [mm] of the tool's cylinders: the cutter, then
+    shank and holder (each reaching up forever)."""
+    return ((0.0, float(tool.radius)),) + tuple(tool.body())
+
+
+def _point_rect_distance(p: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(n,) distance of 2-D points (n, 2) to the rectangle [lo, hi] (0 inside)."""
+    d = np.maximum(np.maximum(lo - p, p - hi), 0.0)
+    return np.hypot(d[:, 0], d[:, 1])
+
+
+def _point_segment_distance(q: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+    """(n,) distance of one 2-D point ``q`` to each segment p0 -> p1 (n, 2)."""
+    d = p1 - p0
+    l2 = np.einsum("ij,ij->i", d, d)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = np.where(l2 > 0, np.einsum("ij,ij->i", q - p0, d) / np.where(l2 > 0, l2, 1.0), 0.0)
+    c = p0 + np.clip(t, 0.0, 1.0)[:, None] * d
+    return np.hypot(*(q - c).T)
+
+
+def _segment_crosses_rect(p0: np.ndarray, p1: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(n,) bool: the segment p0 -> p1 meets the rectangle [lo, hi] (Liang-Barsky clipping)."""
+    d = p1 - p0
+    t0 = np.zeros(len(p0))
+    t1 = np.ones(len(p0))
+    ok = np.ones(len(p0), dtype=bool)
+    for axis in (0, 1):
+        for sign, bound in ((-1.0, lo[axis]), (1.0, hi[axis])):
+            # sign * (p + t d) <= sign * bound
+            num = sign * (bound - p0[:, axis])
+            den = sign * d[:, axis]
+            parallel = den == 0
+            ok &= ~(parallel & (num < 0))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = num / np.where(parallel, 1.0, den)
+            t1 = np.where(~parallel & (den > 0), np.minimum(t1, t), t1)
+            t0 = np.where(~parallel & (den < 0), np.maximum(t0, t), t0)
+    return ok & (t0 <= t1)
+
+
+def fixture_contacts(start: np.ndarray, end: np.ndarray, tool: np.ndarray, tools: Mapping[int, Tool],
+                     boxes: Sequence[FixtureBox]) -> FixtureContacts:
+    """Sweep each move's tool against the workholding boxes.
+
+    Parameters
+    ----------
+    start, end : (n, 3) float
+        Tool tip at the start and end of each straight move [mm], finite.
+    tool : (n,) int
+        Tool number of each move; numbers missing from ``tools`` (an empty spindle) never
+        touch anything.
+    tools : mapping of int to Tool
+    boxes : sequence of FixtureBox
+        In the same work coordinates [mm].
+
+    Returns
+    -------
+    FixtureContacts
+    """
+    a = np.asarray(start, dtype=np.float64).reshape(-1, 3)
+    b = np.asarray(end, dtype=np.float64).reshape(-1, 3)
+    tool = np.asarray(tool, dtype=np.int64).reshape(-1)
+    n = len(a)
+    depth = np.zeros(n)
+    which = np.full(n, -1, dtype=np.int64)
+    where = np.full((n, 3), np.nan)
+    for t in np.unique(tool).tolist():
+        if t not in tools:
+            continue
+        mine = np.flatnonzero(tool == t)
+        sa, sb = a[mine], b[mine]
+        dz = sb[:, 2] - sa[:, 2]
+        for h, r in tool_cylinders(tools[t]):
+            for k, box in enumerate(boxes):
+                lo, hi = box.lo, box.hi
+                # the part of the move where the cylinder's bottom is below the box top
+                limit = hi[2] - h
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    tz = np.where(dz != 0, (limit - sa[:, 2]) / np.where(dz != 0, dz, 1.0), 0.0)
+                t0 = np.where(dz < 0, np.clip(tz, 0.0, 1.0), 0.0)
+                t1 = np.where(dz > 0, np.clip(tz, 0.0, 1.0), 1.0)
+                low = np.where(dz == 0, sa[:, 2] <= limit,
+                               np.where(dz > 0, sa[:, 2] <= limit, sb[:, 2] <= limit))
+                if not low.any():
+                    continue
+                p0 = sa + t0[:, None] * (sb - sa)
+                p1 = sa + t1[:, None] * (sb - sa)
+                lo2, hi2 = lo[:2], hi[:2]
+                dist = np.minimum(_point_rect_distance(p0[:, :2], lo2, hi2), _point_rect_distance(p1[:, :2], lo2, hi2))
+                for corner in ((lo2[0], lo2[1]), (lo2[0], hi2[1]), (hi2[0], lo2[1]), (hi2[0], hi2[1])):
+                    dist = np.minimum(dist, _point_segment_distance(np.array(corner), p0[:, :2], p1[:, :2]))
+                dist = np.where(_segment_crosses_rect(p0[:, :2], p1[:, :2], lo2, hi2), 0.0, dist)
+                zlow = np.minimum(p0[:, 2], p1[:, 2])
+                d = np.where(low, np.minimum(r - dist, limit - zlow), 0.0)
+                better = d > depth[mine]
+                if better.any():
+                    idx = mine[better]
+                    depth[idx] = d[better]
+                    which[idx] = k
+                    where[idx] = np.where((p0[:, 2] <= p1[:, 2])[:, None], p0, p1)[better]
+    return FixtureContacts(depth, which, where)
