@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Literal
 
@@ -16,7 +17,7 @@ import trimesh
 
 from cadcam.finishing import FinishingOptions
 from cadcam.mesh import PartMesh, load_part
-from cadcam.model import Job
+from cadcam.model import Job, Setup
 from cadcam.plan import PlanOptions, plan_job
 from cadcam.roughing import RoughingOptions
 from cadcam.setup import make_setup
@@ -86,8 +87,12 @@ class PlannedPart:
     part_work: trimesh.Trimesh
 
 
-def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwatch | None = None) -> PlannedPart:
+def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwatch | None = None,
+                check_setup: Callable[[Setup], None] | None = None) -> PlannedPart:
     """Load, set up and plan one part, timing each stage into ``watch``.
+
+    ``check_setup`` is called with the setup before the toolpaths are computed, to refuse early
+    what a later stage would refuse only after that work.
 
     Raises
     ------
@@ -109,6 +114,8 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
             source=str(req.part),
         )
         library.material(req.material)  # unknown material: fail early
+        if check_setup is not None:
+            check_setup(setup)
     job, timings = plan_job(
         part_work,
         setup,
