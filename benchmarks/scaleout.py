@@ -4,17 +4,25 @@
 
 Plans the sample parts plus ``--generated`` pocketed blocks (different sizes) with the workflow's
 ``plans`` target, first with 1 and then with 2 concurrent jobs (``--cores``; every job pinned to
-one thread), each into a fresh folder. Reports:
+one thread), each into a fresh folder. Every job's ``factory`` runs under ``/usr/bin/time``, so
+each job's own processor time is known. Reports:
 
 - wall time of each run [s] and the speed-up of 2 jobs over 1;
+- processor time (user + sys) of each run's whole process tree [s], of every job, and the rest:
+  the driver's own (Snakemake: parse, DAG, file checks, starting the jobs);
 - the jobs' own compute: the sum of the stage times each ``factory plan`` reports in its summary;
-- per-job overhead: (wall with 1 job - compute) / jobs, i.e. what Snakemake and starting a job
-  cost (driver, DAG, process and interpreter start-up, imports, file checks), and apart from it
-  the start-up of one ``factory`` process (``factory --help``) and of the driver (a dry run);
-- a paper estimate of 10,000 parts on 100 Slurm nodes from those figures.
+- per-job overhead, as the issue defines it: (wall with 1 job - compute) / jobs, i.e. what
+  Snakemake and starting a job cost; and the same in processor time: the driver's share per job
+  plus one ``factory plan`` start-up (``factory plan --help`` imports what a plan run imports but
+  TOPP-RA, which ``plan`` loads when it times the robot);
+- the speed-up the measured jobs allow on 2 cores: their processor times scheduled longest first
+  on 2 slots (what an otherwise idle machine would give, less the driver);
+- the driver as a fixed cost plus a cost per job, from dry runs over ``--dry-parts`` copies of a
+  part and over the parts planned; and a paper estimate of 10,000 parts on 100 Slurm nodes.
 
-Timings are single runs on whatever machine this is. With ``--json`` the last line is one JSON
-object.
+Timings are single runs on whatever machine this is: on a shared machine the wall times carry
+the other users' load, the processor times much less so. With ``--json`` the last line is one
+JSON object.
 """
 
 from __future__ import annotations
@@ -23,6 +31,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import shutil
 import subprocess
 import sys
@@ -51,28 +60,94 @@ def _parts(folder: Path, generated: int) -> int:
     return len(list(folder.glob("*.stl")))
 
 
-def _run(folder: Path, parts: Path, cores: int, options: dict, *extra: str) -> float:
+def _tree_cpu() -> float:
+    """Processor time [s] (user + sys) of every finished child process tree so far."""
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
+def _timed_factory(folder: Path) -> Path:
+    """A ``factory`` that records its own processor time in ``folder/times/``, one file per job."""
+    (folder / "times").mkdir(parents=True)
+    wrapper = folder / "factory"
+    wrapper.write_text(f'#!/bin/sh\nexec /usr/bin/time -f "%U %S" -o "{folder}/times/$$" {BIN / "factory"} "$@"\n')
+    wrapper.chmod(0o755)
+    return wrapper
+
+
+def _run(folder: Path, parts: Path, cores: int, options: dict, *extra: str) -> tuple[float, float]:
+    """(wall [s], processor time of the whole tree [s]) of one Snakemake run."""
+    factory = _timed_factory(folder) if not (folder / "factory").exists() else folder / "factory"
     (folder / "config.yaml").write_text(yaml.safe_dump(
         {"parts": str(parts), "catalog": "catalog", "orders": str(ROOT / "samples" / "one_each.csv"),
-         "out": "out", "factory": str(BIN / "factory"), "options": options}))
+         "out": "out", "factory": str(factory), "options": options}))
     cmd = [str(BIN / "snakemake"), "-s", str(SNAKEFILE), "--configfile", str(folder / "config.yaml"),
            "--directory", str(folder), "--cores", str(cores), *extra]
-    t0 = time.perf_counter()
+    cpu0, t0 = _tree_cpu(), time.perf_counter()
     r = subprocess.run(cmd, capture_output=True, text=True)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, _tree_cpu() - cpu0
     if r.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed:\n{r.stderr[-3000:]}")
-    return wall
+    return wall, cpu
 
 
 def _compute(folder: Path) -> float:
     return sum(sum(json.loads(p.read_text())["seconds"].values()) for p in folder.glob("catalog/*/*.plan.json"))
 
 
+def _job_cpu(folder: Path) -> list[float]:
+    """Processor time [s] of each job's ``factory`` process."""
+    return [sum(map(float, p.read_text().split()[-2:])) for p in sorted((folder / "times").iterdir())]
+
+
+def _startup_cpu(repeat: int = 3) -> float:
+    """Processor time [s] of one ``factory plan --help`` (the least of ``repeat``: the imports)."""
+    best = float("inf")
+    for _ in range(repeat):
+        cpu0 = _tree_cpu()
+        subprocess.run([str(BIN / "factory"), "plan", "--help"], capture_output=True, check=True)
+        best = min(best, _tree_cpu() - cpu0)
+    return best
+
+
+def _longest_first(jobs: list[float], slots: int) -> float:
+    """Makespan [s] of ``jobs`` [s] scheduled longest first, each on the least loaded of ``slots``."""
+    load = [0.0] * slots
+    for t in sorted(jobs, reverse=True):
+        load[load.index(min(load))] += t
+    return max(load)
+
+
+def estimate_s(job_cpu: list[float], driver_fixed_s: float, driver_per_job_s: float, parts: int,
+               slots: int) -> dict[str, float]:
+    """Paper estimate [s] of ``parts`` jobs on ``slots`` cores, each job one thread on its own core.
+
+    Each job takes what one of the measured jobs took in processor time (``job_cpu`` [s], its
+    start-up included): on a core of its own that is its wall time. Scheduled as they come, the
+    jobs end within their mean load per slot plus the longest job (Graham's bound for list
+    scheduling). The driver adds its fixed cost and its cost per job (DAG, file checks); what it
+    spends submitting to Slurm and polling it is not measured here.
+    """
+    mean = sum(job_cpu) / len(job_cpu)
+    jobs = parts * mean / slots + max(job_cpu)
+    driver = driver_fixed_s + driver_per_job_s * parts
+    return {"jobs_s": jobs, "driver_s": driver, "wall_s": jobs + driver}
+
+
+def _dry_parts(folder: Path, count: int) -> Path:
+    """``count`` copies of one sample mesh: a catalog for dry runs (nothing is planned)."""
+    folder.mkdir(parents=True)
+    mesh = (ROOT / "samples" / "bracket.stl").read_bytes()
+    for k in range(count):
+        (folder / f"part{k:05d}.stl").write_bytes(mesh)
+    return folder
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--generated", type=int, default=4, help="pocketed blocks added to the samples")
     ap.add_argument("--fast", action="store_true", help="coarse CAM options (scallop 0.05, verify grid 0.5)")
+    ap.add_argument("--dry-parts", type=int, default=400, help="parts of the larger dry run (driver per job)")
     ap.add_argument("--nodes", type=int, default=100, help="Slurm nodes of the estimate")
     ap.add_argument("--cores-per-node", type=int, default=32, help="cores per node of the estimate")
     ap.add_argument("--json", action="store_true")
@@ -84,35 +159,55 @@ def main() -> None:
         t0 = time.perf_counter()
         subprocess.run([str(BIN / "factory"), "--help"], capture_output=True, check=True)
         startup = time.perf_counter() - t0
-        walls, compute = {}, {}
+        startup_cpu = _startup_cpu()
+        walls, cpus, compute, jobs_cpu = {}, {}, {}, {}
         for cores in (1, 2):
             folder = tmp / f"cores{cores}"
             folder.mkdir()
-            walls[cores] = _run(folder, tmp / "parts", cores, options, "plans")
+            walls[cores], cpus[cores] = _run(folder, tmp / "parts", cores, options, "plans")
             compute[cores] = _compute(folder)
-        dry = _run(tmp / "cores1", tmp / "parts", 1, options, "plans", "--dry-run")
+            jobs_cpu[cores] = _job_cpu(folder)
+        dry_wall, dry_cpu = _run(tmp / "dry_small", tmp / "parts", 1, options, "plans", "--dry-run")
+        big = _dry_parts(tmp / "dry_parts", args.dry_parts)
+        dry_big_wall, dry_big_cpu = _run(tmp / "dry_big", big, 1, options, "plans", "--dry-run")
     per_job_s = compute[1] / n
     overhead = (walls[1] - compute[1]) / n
-    # Paper estimate: jobs run in waves of nodes x cores; each job costs its compute plus the
-    # measured overhead; the driver adds its DAG time, scaled linearly with the number of jobs.
+    driver_cpu = cpus[1] - sum(jobs_cpu[1])
+    overhead_cpu = driver_cpu / n + startup_cpu
+    # The driver is a fixed cost (interpreter, Snakemake and the Snakefile's imports) plus a cost per
+    # job (DAG, file checks): a line through the dry runs over n and over --dry-parts parts.
+    driver_per_job_cpu = max(dry_big_cpu - dry_cpu, 0.0) / (args.dry_parts - n)
+    driver_fixed_cpu = max(dry_cpu - driver_per_job_cpu * n, 0.0)
+    # Paper estimate from processor times, not from this machine's (shared, loaded) wall times.
     parts = 10_000
     slots = args.nodes * args.cores_per_node
-    waves = -(-parts // slots)
-    driver_s = dry / n * parts
-    estimate_s = waves * (per_job_s + overhead) + driver_s
+    paper = estimate_s(jobs_cpu[1], driver_fixed_cpu, driver_per_job_cpu, parts, slots)
     result = {
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
+                    "load_1min_at_end": round(os.getloadavg()[0], 1)},
         "parts": n, "fast_options": args.fast,
         "wall_s": {str(k): round(v, 1) for k, v in walls.items()},
         "speedup_2_jobs": round(walls[1] / walls[2], 2),
+        "cpu_s": {str(k): round(v, 1) for k, v in cpus.items()},
+        "jobs_cpu_s": {str(k): round(sum(v), 1) for k, v in jobs_cpu.items()},
+        "job_cpu_s": [round(t, 1) for t in sorted(jobs_cpu[1], reverse=True)],
+        "speedup_2_jobs_from_cpu": round(sum(jobs_cpu[1]) / _longest_first(jobs_cpu[1], 2), 2),
         "compute_s": {str(k): round(v, 1) for k, v in compute.items()},
         "per_job_compute_s": round(per_job_s, 2),
         "per_job_overhead_s": round(overhead, 2),
+        "per_job_overhead_cpu_s": round(overhead_cpu, 2),
+        # the same with the driver's fixed start-up (what its dry run costs) left out: per job at scale
+        "per_job_overhead_cpu_marginal_s": round(max(driver_cpu - driver_fixed_cpu, 0.0) / n + startup_cpu, 2),
+        "driver_cpu_s": round(driver_cpu, 2),
         "factory_startup_s": round(startup, 2),
-        "driver_dry_run_s": round(dry, 2),
+        "factory_plan_startup_cpu_s": round(startup_cpu, 2),
+        "driver_dry_run_s": round(dry_wall, 2),
+        "driver_dry_run_cpu_s": {str(n): round(dry_cpu, 2), str(args.dry_parts): round(dry_big_cpu, 2)},
+        "driver_cpu_fixed_s": round(driver_fixed_cpu, 2),
+        "driver_cpu_per_job_ms": round(1000 * driver_per_job_cpu, 1),
         "estimate_10000_parts": {
-            "nodes": args.nodes, "cores_per_node": args.cores_per_node, "waves": waves,
-            "driver_s": round(driver_s), "wall_h": round(estimate_s / 3600, 2)},
+            "nodes": args.nodes, "cores_per_node": args.cores_per_node, "jobs_s": round(paper["jobs_s"]),
+            "driver_s": round(paper["driver_s"]), "wall_h": round(paper["wall_s"] / 3600, 3)},
     }
     for key, value in result.items():
         print(f"{key}: {value}", file=sys.stderr)

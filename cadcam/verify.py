@@ -667,13 +667,24 @@ def _check_inputs(setup: Setup, options: VerifyOptions, tri: Any) -> np.ndarray:
         raise VerifyError(
             f"stock box is empty: {setup.stock_min.tolist()} .. {setup.stock_max.tolist()}", source="stock"
         )
-    cells = math.ceil(size[0] / options.cell) * math.ceil(size[1] / options.cell)
+    check_grid_size(setup, options.cell)
+    return tri
+
+
+def check_grid_size(setup: Setup, cell: float, source: str = "cell") -> None:
+    """Refuse a verify grid of more than 60 M cells over the stock's footprint (about 4 GB of
+    height fields), before any work that would be thrown away.
+
+    ``cell``: grid spacing [mm], > 0. Raises VerifyError naming the cell count and the stock size.
+    """
+    size = setup.stock_size
+    cells = math.ceil(size[0] / cell) * math.ceil(size[1] / cell)
     if cells > _MAX_CELLS:
         raise VerifyError(
-            f"{cells} grid cells at {options.cell} mm is too many (limit {_MAX_CELLS}); use a coarser cell",
-            source="cell",
+            f"{cells:,} verify grid cells at {cell} mm over the {size[0]:g} x {size[1]:g} mm stock are too many "
+            f"(limit {_MAX_CELLS:,}); use a coarser grid",
+            source=source,
         )
-    return tri
 
 
 def _tool_table(moves: ProgramMoves, tools: Mapping[int, Tool],

@@ -1,8 +1,9 @@
 """What every command shares: options, error reporting, progress bars, JSON output.
 
 Exit codes: 0 success; 1 bad input or a failed stage (``error: <file>: <problem>`` on
-stderr, no traceback, no output file); 2 command-line usage; 3 ``verify`` ran but the
-program gouges the part or crashes a rapid.
+stderr, no traceback, no output file); 2 command-line usage; 3 the command ran and wrote its
+outputs, with findings: ``verify`` (and ``plan``) found the program gouges the part or crashes a
+rapid, ``inspect`` failed a part, ``simulate`` ended an order ``failed`` or ``rejected``.
 """
 
 from __future__ import annotations
@@ -22,7 +23,9 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from factory.errors import FactoryError
 
 EXIT_ERROR = 1
-EXIT_VERIFY_FAILED = 3
+#: Done, outputs written, with findings (a gouge, a failed part, an order not done).
+EXIT_FINDINGS = 3
+EXIT_VERIFY_FAILED = EXIT_FINDINGS
 
 stderr = Console(stderr=True)
 

@@ -12,7 +12,8 @@ from typing import Annotated
 
 import typer
 
-from cli.common import JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, setup_logging, stderr
+from cli.common import EXIT_FINDINGS, JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, \
+    setup_logging, stderr
 from factory.atomic import check_writable, write_bytes, write_text
 from factory.catalog import sha256_file
 from factory.foxglove import layout_json
@@ -69,7 +70,8 @@ def simulate(
     """Run orders through the cell (fetch, load, machine, unload, inspect, sort) and report throughput.
 
     Parts not in the catalog are planned first (as `factory plan` with its defaults). An order
-    whose part is missing or cannot be planned fails on its own; the others run.
+    whose part is missing or cannot be planned fails on its own; the others run. Exits 3 (after
+    writing everything) when an order ends failed or rejected: the reasons are in the summary.
     """
     setup_logging(quiet)
     if fault_rate is not None and faults is None:
@@ -144,3 +146,5 @@ def simulate(
                          highlight=False, markup=False)
         if record is not None:
             stderr.print(f"record: {record.shown}, run {recorder.run_id}", highlight=False, markup=False)
+    if any(o.outcome != "done" for o in result.outcomes):
+        raise typer.Exit(EXIT_FINDINGS)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Literal
 
@@ -17,7 +18,7 @@ import trimesh
 
 from cadcam.finishing import FinishingOptions
 from cadcam.mesh import PartMesh, load_part
-from cadcam.model import Job, ViseJaws
+from cadcam.model import Job, Setup, ViseJaws
 from cadcam.plan import PlanOptions, plan_job
 from cadcam.relief import (FINISH_ENGAGEMENT, TERRACE_STEPDOWN, Boundary, ReliefOptions, machining_surface,
                            relief_setup)
@@ -117,8 +118,12 @@ class PlannedPart:
     boundary: Boundary | None = None
 
 
-def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwatch | None = None) -> PlannedPart:
+def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwatch | None = None,
+                check_setup: Callable[[Setup], None] | None = None) -> PlannedPart:
     """Load, set up and plan one part, timing each stage into ``watch``.
+
+    ``check_setup`` is called with the setup before the toolpaths are computed, to refuse early
+    what a later stage would refuse only after that work.
 
     Raises
     ------
@@ -152,6 +157,8 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
                 material=req.material, mesh_scale=loaded.scale, source=str(req.part))
             part_work = machining_surface(surface_work, setup)
         library.material(req.material)  # unknown material: fail early
+        if check_setup is not None:
+            check_setup(setup)
     options = req.plan
     if boundary is not None:  # shallow nearly everywhere: finer terraces, finishing engages less
         options = dataclasses.replace(options, finish_engagement=min(options.finish_engagement, FINISH_ENGAGEMENT),

@@ -36,10 +36,11 @@ from cadcam.post import PostOptions, Program, post_process
 from cadcam.preview import setup_image, toolpath_image
 from cadcam.relief import block_corners
 from cadcam.sheet import setup_sheet
-from cadcam.verify import Simulation, VerifyOptions, VerifyReport
+from cadcam.verify import Simulation, VerifyOptions, VerifyReport, check_grid_size
 from factory.atomic import check_writable, write_bytes, write_text
 from factory.cam import CamRequest, PlannedPart, compute_job, log_job
 from factory.catalog import catalog_record, sha256_file
+from factory.errors import PlanningError, shown
 from factory.mcaplog import McapLog
 from factory.pictures import png_bytes
 from factory.progress import Progress, Stopwatch
@@ -298,13 +299,16 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     """
     req = request
     if req.lang not in PROGRAM_SUFFIX:
-        raise ValueError(f"unknown robot program language {req.lang!r}")
+        raise PlanningError(f"unknown robot program language {shown(req.lang)}: expected {', '.join(PROGRAM_SUFFIX)}",
+                            source="lang")
+    post_options = PostOptions(dialect=req.post, arc_tolerance=req.arc_tolerance)  # refused before the CAM work
     watch = Stopwatch()
-    planned = compute_job(req.cam, progress, watch)
+    planned = compute_job(req.cam, progress, watch,
+                          check_setup=lambda setup: check_grid_size(setup, req.grid, source=str(req.cam.part)))
     job = planned.job
     outputs = req.outputs(Path("."))
     with watch("post"):
-        program = post_process(job, PostOptions(dialect=req.post, arc_tolerance=req.arc_tolerance))
+        program = post_process(job, post_options)
         sheet = setup_sheet(job, program, outputs["program"].name)
     tending = None
     if req.robot:

@@ -37,6 +37,7 @@ from factory.catalog import CatalogEntry, catalog_record, find_entry, sha256_fil
 from factory.cellmsgs import (ComponentStatus, Detection, OrderLine, cell_summary, detected_object_array,
                               diagnostic_array, image_annotations, machine_state, order_queue, robot_state,
                               scheduler_state)
+from factory.diagnostics import door, gripper
 from factory.errors import CellError, FactoryError, McapError
 from factory.live import LiveView
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, log_msg, marker_array, read_messages, ros_time,
@@ -566,6 +567,8 @@ class _Resources:
         robot = {"activity": "idle", "serial": ""}
         if r is not None and t < r.end:
             robot = {"activity": r.action, "serial": f"{self.jobs.get(r.job, '?')}-{r.job}"}
+        machine["door"] = door(r, t)
+        robot.update(gripper(r, t))
         return {"machine": machine, "robot": robot}
 
 

@@ -12,3 +12,9 @@ def assert_one_line_error(result, *needles: str, code: int = 1) -> None:
         assert n in lines[0], (n, lines[0])
     assert "Traceback" not in result.output
     assert result.stdout == ""
+
+
+def simulate_exit(doc: dict) -> int:
+    """The exit code ``factory simulate`` owes the run its JSON ``doc`` describes: 3 when an order
+    ended failed or rejected (everything written, with findings), else 0."""
+    return 3 if any(o["outcome"] != "done" for o in doc["orders"]) else 0

@@ -17,7 +17,7 @@ import pytest
 from typer.testing import CliRunner
 
 from cli.main import app
-from tests.cli.expect import assert_one_line_error
+from tests.cli.expect import assert_one_line_error, simulate_exit
 
 runner = CliRunner()
 pytestmark = pytest.mark.skipif(shutil.which("sqlite3") is None, reason="the sqlite3 client is not installed")
@@ -45,8 +45,9 @@ def record(block_catalog, tmp_path_factory) -> Path:
     orders.write_text(f"part,quantity,material,priority\n{part},4,aluminium,0\n{part},2,aluminium,1\n")
     db = out / "cell.sqlite"
     for seed, rate in (("3", "0.3"), ("7", "0.2")):
-        r = run("simulate", orders, "--catalog", folder, "--faults", seed, "--fault-rate", rate, "--db", db, "--quiet")
-        assert r.exit_code == 0, r.output
+        r = run("simulate", orders, "--catalog", folder, "--faults", seed, "--fault-rate", rate, "--db", db, "--quiet",
+                "--json")
+        assert r.exit_code == simulate_exit(json.loads(r.stdout)), r.output
     return db
 
 

@@ -21,7 +21,7 @@ from factory.mcaplog import read_messages
 from factory.resources import FIXTURES
 from robotprog.cell import load_cell
 from robotprog.robots import load_robot
-from tests.cli.expect import assert_one_line_error
+from tests.cli.expect import assert_one_line_error, simulate_exit
 from tests.conftest import pocket_block
 from tests.mcapcheck import check_rosbag2_mcap
 
@@ -60,7 +60,7 @@ def run_ok(catalog, tmp_path_factory):
                            f"{huge},1,aluminium,0", f"{part},1,aluminium,0"])
     mcap = out / "cell.mcap"
     r = run("simulate", orders, "--catalog", folder, "--mcap", mcap, "--png", out / "cell.png", "--json", "--quiet")
-    assert r.exit_code == 0, r.output
+    assert r.exit_code == 3, r.output  # done, with findings: three orders failed, everything written
     assert (out / "cell.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     return json.loads(r.stdout), mcap, orders
 
@@ -119,7 +119,7 @@ def test_the_log_is_written_in_log_time(run_ok, catalog, tmp_path):
     orders = _orders(tmp_path, [f"{part},3,aluminium,0", f"{part},2,aluminium,1"])
     mcap = tmp_path / "faults.mcap"
     r = run("simulate", orders, "--catalog", folder, "--faults", "3", "--mcap", mcap, "--json", "--quiet")
-    assert r.exit_code == 0, r.output
+    assert r.exit_code == simulate_exit(json.loads(r.stdout)), r.output
     for path in (run_ok[1], mcap):
         with open(path, "rb") as f:
             times = [m.log_time for _, _, m in make_reader(f).iter_messages(log_time_order=False)]
@@ -158,7 +158,7 @@ def test_robot_rate_thins_the_robot_states_and_leaves_every_other_topic_as_it_wa
     mcap = tmp_path / "thin.mcap"
     r = run("simulate", orders, "--catalog", Path(doc["parts"][0]["plan"]).parent.parent, "--mcap", mcap,
             "--robot-rate", "1", "--json", "--quiet")
-    assert r.exit_code == 0, r.output
+    assert r.exit_code == 3, r.output  # the run_ok orders: three fail
     thin = json.loads(r.stdout)["mcap"]["messages"]
     counts = doc["mcap"]["messages"]
     # one state per simulated second (and each move's ends) instead of 25
@@ -194,8 +194,8 @@ def test_faults_are_recovered_or_reported(catalog, tmp_path):
     orders = _orders(tmp_path, [f"{part},4,aluminium,0", f"{part},3,aluminium,1"])
     mcap = tmp_path / "faults.mcap"
     r = run("simulate", orders, "--catalog", folder, "--faults", "7", "--mcap", mcap, "--json", "--quiet")
-    assert r.exit_code == 0, r.output
     doc = json.loads(r.stdout)
+    assert r.exit_code == simulate_exit(doc), r.output
     s = doc["summary"]
     assert sum(s["faults"].values()) == s["recoveries"] + s["failures"] > 0
     assert all(o["outcome"] in ("done", "rejected", "failed") and o["reason"] for o in doc["orders"])

@@ -24,7 +24,7 @@ from typer.testing import CliRunner
 from cli.main import app
 from factory.errors import RecordError
 from factory.record import EVENT_TABLES, SEVERITY, SEVERITY_OPERATOR, OperationPlan, Record, masked, metadata, record_url
-from tests.cli.expect import assert_one_line_error
+from tests.cli.expect import assert_one_line_error, simulate_exit
 
 ROOT = Path(__file__).resolve().parents[2]
 runner = CliRunner()
@@ -64,7 +64,7 @@ def recorded(block_catalog, tmp_path_factory):
     orders = _orders(out, part)
     db = out / "cell.sqlite"
     r = run("simulate", orders, "--catalog", folder, *SIM, "--db", db, "--json", "--quiet")
-    assert r.exit_code == 0, r.output
+    assert r.exit_code == simulate_exit(json.loads(r.stdout)), r.output
     return db, orders, json.loads(r.stdout)
 
 
@@ -134,7 +134,7 @@ def test_a_second_run_appends_and_never_rewrites_the_first(recorded, block_catal
     shutil.copy(db0, db)
     dump = {t.name: sql(db, f"SELECT * FROM {t.name} ORDER BY id") for t in metadata.sorted_tables}
     r = run("simulate", orders, "--catalog", folder, *SIM, "--db", f"sqlite:///{db}", "--json", "--quiet")
-    assert r.exit_code == 0, r.output
+    assert r.exit_code == simulate_exit(json.loads(r.stdout)), r.output
     assert json.loads(r.stdout)["db"]["run"] == 2
     for table, rows in dump.items():
         assert sql(db, f"SELECT * FROM {table} WHERE id <= {len(rows)} ORDER BY id") == rows, table
@@ -211,7 +211,7 @@ def test_kill_9_mid_run_leaves_a_consistent_record_with_every_committed_event(re
     with sqlite3.connect(db) as conn:
         assert conn.execute("PRAGMA integrity_check").fetchone() == ("ok",)
     r = run("simulate", orders, "--catalog", folder, *SIM, "--db", db, "--json", "--quiet")
-    assert r.exit_code == 0, r.output
+    assert r.exit_code == simulate_exit(json.loads(r.stdout)), r.output
     assert json.loads(r.stdout)["db"]["run"] == 2
 
 
@@ -336,7 +336,7 @@ def test_four_cells_write_one_postgresql_record_at_once(postgres, recorded, bloc
              for seed in (1, 2, 3, 4)]
     outputs = [cell.communicate(timeout=900) for cell in cells]
     for cell, (out, err) in zip(cells, outputs):
-        assert cell.returncode == 0, err
+        assert cell.returncode == simulate_exit(json.loads(out)), err
         assert "s3cret-pw" not in out + err
     docs = [json.loads(out) for out, _ in outputs]
     assert sorted(d["db"]["run"] for d in docs) == [1, 2, 3, 4]

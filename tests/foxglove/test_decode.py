@@ -8,6 +8,7 @@ each log must have every schema parsed and every message decoded by ``@foxglove/
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from typer.testing import CliRunner
 from cli.main import app
 from factory.mcaplog import MSG_DIRS, message_definition
 from factory.resources import FIXTURES
+from tests.cli.expect import simulate_exit
 from tests.cli.test_handeye import BOARD, args, scene  # noqa: F401  (scene is a fixture)
 from tests.conftest import pocket_block
 from tests.foxglovecheck import check_foxglove_decodes, foxglove_decode, foxglove_schema_differences
@@ -49,8 +51,10 @@ def logs(tmp_path_factory, scene) -> dict[str, Path]:  # noqa: F811
         "-o", out["robot"], "--quiet")
     orders = d / "orders.csv"
     orders.write_text(f"part,quantity,material,priority\n{part},2,aluminium,0\n")
-    run("simulate", orders, "--catalog", d / "catalog", "--mcap", out["simulate"], "--faults", "3",
-        "--fault-rate", "0.3", "--quiet")
+    r = runner.invoke(app, [str(a) for a in ("simulate", orders, "--catalog", d / "catalog", "--mcap",
+                                             out["simulate"], "--faults", "3", "--fault-rate", "0.3", "--quiet",
+                                             "--json")], catch_exceptions=False)
+    assert r.exit_code == simulate_exit(json.loads(r.stdout)), r.output  # 3: an order not done
     run("calibrate", scene["images"], "--board", str(BOARD), "-o", d / "camera.yaml", "--mcap", out["calibrate"],
         "--quiet")
     run("handeye", *args(scene, "poses.yaml", d / "handeye.yaml", "--mcap", out["handeye"], "--quiet"))

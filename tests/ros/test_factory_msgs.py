@@ -21,6 +21,7 @@ from typer.testing import CliRunner
 from cli.main import app
 from factory.mcaplog import MSG_DIRS
 from factory.resources import ROS_INTERFACES
+from tests.cli.expect import simulate_exit
 from tests.conftest import pocket_block
 
 PACKAGE = ROS_INTERFACES / "factory_msgs"
@@ -59,7 +60,7 @@ def cell_log(tmp_path_factory) -> Path:
     assert r.exit_code == 0, r.output
     r = runner.invoke(app, [str(a) for a in ("simulate", orders, "--catalog", d / "catalog", "--mcap", mcap,
                                              "--faults", "3", "--fault-rate", "0.3", "--quiet", "--json")])
-    assert r.exit_code == 0, r.output
+    assert r.exit_code == simulate_exit(json.loads(r.stdout)), r.output
     (mcap.parent / "run.json").write_text(r.stdout)
     return mcap
 
@@ -88,6 +89,21 @@ def test_the_package_builds_every_message_file():
                                                                                           re.M)}
     assert used - {"factory_msgs"} <= depends, used - depends
     assert set(re.search(r"DEPENDENCIES ([\w ]+)", cmake)[1].split()) == depends
+
+
+def test_colcons_package_parser_accepts_the_package():
+    # catkin_pkg is what colcon-ros and bloom read package.xml with: format 3, and every
+    # maintainer with a well-formed address (a build stops on a package it calls invalid).
+    from catkin_pkg.package import parse_package
+
+    warnings: list[str] = []
+    package = parse_package(str(PACKAGE / "package.xml"), warnings=warnings)
+    package.validate(warnings=warnings)
+    assert warnings == []
+    assert package.name == "factory_msgs" and package.package_format == 3
+    assert package.get_build_type() == "ament_cmake"
+    assert [m.name for m in package.maintainers] == ["factory maintainers"]
+    assert "example.com" not in package.maintainers[0].email  # no made-up person's address
 
 
 def test_every_message_deserialises_from_the_shipped_msg_files(cell_log):
@@ -179,6 +195,21 @@ def test_every_injected_fault_is_an_error_on_diagnostics_until_recovered(cell_lo
     assert cutting and all(int(v["tool"]) > 0 and float(v["spindle_speed_rpm"]) > 1000 for v in cutting)
     robot = [{kv.key: kv.value for kv in d["cell/robot"].values} for _, d in diagnostics]
     assert {v["activity"] for v in robot} >= {"idle", "load", "unload"}
+
+
+def test_diagnostics_carry_the_door_and_the_gripper(cell_log):
+    msgs = messages(cell_log, shipped_typestore())
+    rows = [({kv.key: kv.value for kv in d["cell/machine"].values}, {kv.key: kv.value for kv in d["cell/robot"].values})
+            for d in ({s.name: s for s in m.status} for topic, _, _, m in msgs if topic == "/diagnostics")]
+    # the door is open exactly while the robot reaches into the machine, so never while it cuts
+    assert {m["door"] for m, _ in rows} == {"open", "closed"}
+    assert all((m["door"] == "open") == (r["activity"] in ("load", "unload")) for m, r in rows)
+    assert all(m["door"] == "closed" for m, _ in rows if m["state"] == "cutting")
+    # the gripper is closed exactly when it holds something: the blank into the vise, the part out
+    assert all((r["gripper"] == "closed") == bool(r["gripper_holds"]) for _, r in rows)
+    assert all(r["gripper_holds"] == "blank" for _, r in rows if r["activity"] == "load")
+    assert all(r["gripper_holds"] == "part" for _, r in rows if r["activity"] == "unload")
+    assert all(r["gripper"] == "open" for _, r in rows if r["activity"] in ("fetch", "missed_grasp"))
 
 
 def test_no_json_in_strings_the_cell_state_is_fields(cell_log):
