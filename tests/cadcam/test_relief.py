@@ -23,6 +23,7 @@ from cadcam.mesh import load_part
 from cadcam.plan import PlanOptions
 from cadcam.post import PostOptions, post_process
 from cadcam.relief import ReliefOptions, clip_chains
+from cadcam.setup import BREAKTHROUGH_MM, default_holding
 from cadcam.verify import VerifyOptions, simulate
 from factory.cam import CamRequest, compute_job
 from factory.errors import MeshError
@@ -164,9 +165,12 @@ def test_a_relief_plans_within_its_boundary_without_gouge(tmp_path, mode):
     assert report.ok, report.to_dict()
     assert report.max_gouge <= 0.01
     assert _cut_outside(planned, sim, _allowed_outside(planned, mode)) <= 1e-6
-    # The stock: the footprint's box + 2 mm sides, from the lowest point less the floor to the top + 1 mm.
+    # The stock: the footprint's box + 2 mm sides, from the lowest point less the floor and the
+    # holding allowance under it to the top + 1 mm.
     lo, hi = planned.loaded.mesh.bounds
-    assert planned.job.setup.stock_size == pytest.approx([52.0, 36.0, hi[2] - lo[2] + 2.0 + 1.0])
+    holding = default_holding(CamRequest.defaults(path).jaws())
+    assert planned.job.setup.stock_size == pytest.approx([52.0, 36.0, hi[2] - lo[2] + 2.0 + holding + 1.0])
+    assert planned.job.setup.floor_z == pytest.approx(planned.job.setup.stock_min[2] + holding - BREAKTHROUGH_MM)
     relief = planned.job.parameters["relief"]
     assert relief["boundary"]["mode"] == mode and relief["floor"] == 2.0
     nc = tmp_path / "relief.nc"

@@ -60,7 +60,7 @@ def test_a_verify_grid_too_fine_is_refused_with_the_figure_before_the_cam_work(p
 
 
 def test_the_grid_limit_is_the_one_verify_applies(part):
-    setup, _ = make_setup(trimesh.load(part), stock_size=(100.0, 70.0, 20.0), material="aluminium")
+    setup, _ = make_setup(trimesh.load(part), stock_size=(100.0, 70.0, 40.0), material="aluminium")
     check_grid_size(setup, 0.0125)  # 8000 x 5600: 44.8 M cells
     with pytest.raises(VerifyError, match="71,431,242 verify grid cells at 0.0099 mm over the 100 x 70 mm stock"):
         check_grid_size(setup, 0.0099)  # 10102 x 7071
