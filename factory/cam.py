@@ -85,6 +85,13 @@ class PlannedPart:
     loaded: PartMesh
     part_work: trimesh.Trimesh
 
+    def toolpath_picture(self) -> np.ndarray:
+        """(H, W, 3) uint8 top view of the toolpaths over the part's faces by kind."""
+        from cadcam.faces import classify_faces
+        from cadcam.preview import toolpath_image
+
+        return toolpath_image(self.job, faces=classify_faces(self.part_work))
+
 
 def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwatch | None = None) -> PlannedPart:
     """Load, set up and plan one part, timing each stage into ``watch``.

@@ -32,7 +32,6 @@ from typing import Any
 import numpy as np
 
 from cadcam.post import PostOptions, Program, post_process
-from cadcam.preview import toolpath_image
 from cadcam.sheet import setup_sheet
 from cadcam.verify import Simulation, VerifyOptions, VerifyReport
 from factory.atomic import check_writable, write_bytes, write_text
@@ -241,7 +240,7 @@ class PartPlan:
         write_text(outputs["program"], self.program.text)
         write_verify_outputs(self.simulation, self.report, png=outputs["verify_png"], json_path=outputs["verify_json"],
                              mcap=None, overwrite=False, inputs={})
-        write_bytes(outputs["toolpath_png"], png_bytes(toolpath_image(job)))
+        write_bytes(outputs["toolpath_png"], png_bytes(planned.toolpath_picture()))
         inputs = {str(req.cam.part): planned.loaded.sha256}
         parameters = dict(job.parameters)
         if tending is not None:
