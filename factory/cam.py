@@ -68,6 +68,8 @@ class CamRequest:
             finishing=FinishingOptions(scallop=scallop),
             waterline=waterline,
         )
+        if scallop != SCALLOP:  # a scallop asked for on the command line holds on freeform too
+            plan = dataclasses.replace(plan, freeform_scallop=scallop)
         return cls(part, tools, stock, material, units, origin, plan)
 
     @classmethod
