@@ -266,12 +266,27 @@ def _simplify(p: np.ndarray, keep: np.ndarray, tol: float) -> np.ndarray:
 # --------------------------------------------------------------------------- assembly
 
 
+def _only_where(chains: list[np.ndarray], where: Callable[[np.ndarray], np.ndarray] | None) -> list[np.ndarray]:
+    """Chains cut down to their runs of points ``where`` accepts (all of them without ``where``)."""
+    if where is None or not chains:
+        return chains
+    ok = where(np.concatenate(chains)[:, :2])
+    out, start = [], 0
+    for c in chains:
+        edges = np.diff(np.concatenate([[0], ok[start:start + len(c)].astype(np.int8), [0]]))
+        out += [c[s:e] for s, e in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)) if e - s >= 2]
+        start += len(c)
+    return out
+
+
+
 def _assemble(chains: list[np.ndarray], setup: Setup, name: str, kind: str, tool: Tool,
               cutting: CuttingData, allowance: float, stock: Simulation | None = None,
               limit: EngagementLimit | None = None, within: Within | None = None) -> Operation:
-    """Chains of CL points cut in order; retract to ``safe_z``, rapid, descend between them.
+    """Chains of CL points cut in order; retract, rapid, descend between them.
 
-    Descents rapid down to ``setup.clearance`` above the highest stock under the tool
+    Links between chains rapid low through the air the stock model knows (:func:`_link_heights`;
+    ``safe_z`` without one). Descents rapid down to ``setup.clearance`` above the highest stock under the tool
     (from ``stock``, the material earlier operations left) and feed only the rest; without
     a stock model the whole descent from ``safe_z`` is fed. With ``limit`` (and ``stock``)
     the chains are cut where a move would cut deeper than the limit (see
@@ -287,14 +302,16 @@ def _assemble(chains: list[np.ndarray], setup: Setup, name: str, kind: str, tool
     motion: list[np.ndarray] = []
     starts = np.array([c[0, :2] for c in chains]).reshape(-1, 2)
     air = clear_height(stock, tool, starts) + setup.clearance if stock is not None else np.full(len(chains), np.inf)
-    for c, air_z in zip(chains, air):
-        top = np.array([[c[0, 0], c[0, 1], safe_z]])
-        points.append(top)
+    links = _link_heights(chains, stock, tool, setup) if stock is not None else np.full(len(chains), safe_z)
+    for k, (c, air_z) in enumerate(zip(chains, air)):
+        top_z = safe_z if k == 0 else links[k]
+        points.append(np.array([[c[0, 0], c[0, 1], top_z]]))
         motion.append(np.array([Motion.RAPID]))
-        if c[0, 2] < air_z < safe_z:
+        if c[0, 2] < air_z < top_z:
             points.append(np.array([[c[0, 0], c[0, 1], air_z]]))
             motion.append(np.array([Motion.RAPID]))
-        points += [c, np.array([[c[-1, 0], c[-1, 1], safe_z]])]
+        leave_z = links[k + 1] if k + 1 < len(chains) else safe_z
+        points += [c, np.array([[c[-1, 0], c[-1, 1], leave_z]])]
         motion += [
             np.concatenate([[Motion.PLUNGE], np.full(len(c) - 1, Motion.CUT)]),
             np.array([Motion.RAPID]),
@@ -305,6 +322,31 @@ def _assemble(chains: list[np.ndarray], setup: Setup, name: str, kind: str, tool
     if np.max(pts[:, 2]) > safe_z + 1e-9:
         raise ToolpathError(f"safe height {safe_z:g} mm is below the part ({np.max(pts[:, 2]):g} mm)", source="setup")
     return Operation(name, kind, tool, cutting, pts, np.concatenate(motion).astype(np.int8), allowance)
+
+
+def _link_heights(chains: list[np.ndarray], stock: Simulation, tool: Tool, setup: Setup) -> np.ndarray:
+    """(n,) height of the rapid into each chain from the end of the one before [mm].
+
+    Low through the air the stock model knows: ``setup.clearance`` above the highest stock
+    under the tool along the straight line between them (sampled a grid cell apart), never
+    below either end nor above ``setup.safe_z``; the first chain is entered from ``safe_z``.
+    The stock is the one before this operation, which only loses material while it runs.
+    """
+    out = np.full(len(chains), float(setup.safe_z))
+    if len(chains) < 2:
+        return out
+    ends = np.array([c[-1] for c in chains[:-1]])
+    starts = np.array([c[0] for c in chains[1:]])
+    length = np.hypot(*(starts[:, :2] - ends[:, :2]).T)
+    n = np.maximum(np.ceil(length / stock.grid.cell).astype(np.int64), 1) + 1
+    seg = np.repeat(np.arange(len(ends)), n)
+    t = (np.arange(len(seg)) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n - 1, n)
+    xy = ends[seg, :2] + t[:, None] * (starts[seg, :2] - ends[seg, :2])
+    high = np.full(len(ends), -np.inf)
+    np.maximum.at(high, seg, clear_height(stock, tool, xy))
+    z = np.maximum(high + setup.clearance, np.maximum(ends[:, 2], starts[:, 2]))
+    out[1:] = np.minimum(z, setup.safe_z)
+    return out
 
 
 @dataclass(frozen=True)
@@ -376,6 +418,7 @@ def raster_finishing(
     stock: Simulation | None = None,
     limit: EngagementLimit | None = None,
     within: Within | None = None,
+    where: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> Operation:
     """Zigzag drop-cutter finishing of the shallow areas of ``part``.
 
@@ -404,6 +447,9 @@ def raster_finishing(
     within : callable, optional
         ``within(radius)``: the XY region the tool axis stays in (a relief's boundary,
         :meth:`cadcam.relief.Boundary.centre_region`); moves are cut where they leave it.
+    where : callable, optional
+        ``where(xy) -> (m,) bool``: cut only at these cutter locations (the faces this tool
+        is to finish, :meth:`cadcam.faces.FaceClasses.near`); chains are split elsewhere.
 
     Returns
     -------
@@ -466,8 +512,8 @@ def raster_finishing(
             last_line = j
 
     chains = _finish_chains(surface, chains_xy, options.tolerance)
-    return _assemble(chains, setup, "finish raster", "raster", tool, cutting, options.allowance, stock, limit,
-                     within)
+    return _assemble(_only_where(chains, where), setup, "finish raster", "raster", tool, cutting,
+                     options.allowance, stock, limit, within)
 
 
 def _slope(gz: np.ndarray, du: float, dv: float) -> np.ndarray:
@@ -550,6 +596,7 @@ def waterline_finishing(
     stock: Simulation | None = None,
     limit: EngagementLimit | None = None,
     within: Within | None = None,
+    where: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> Operation:
     """Constant-z loops around the part, levels spaced for ``options.scallop`` on walls.
 
@@ -616,7 +663,7 @@ def waterline_finishing(
     loops, closed = _steep_portions(loops, closed, _steepest_slope(Z, g), gx, gy, min_slope, bridge=tool.diameter)
     if not loops:
         return _assemble([], setup, "finish waterline", "waterline", tool, cutting, options.allowance)
-    chains = _order_loops(loops, closed)
+    chains = _only_where(_order_loops(loops, closed), where)
     return _assemble(chains, setup, "finish waterline", "waterline", tool, cutting, options.allowance, stock,
                      limit, within)
 

@@ -2,10 +2,14 @@
 
 The strategy is the one a machinist would program by hand for a single top-side setup:
 z-level roughing with a flat end mill, leaving an even allowance, rest roughing with
-narrower flat end mills where it could not go, then finishing with a ball end mill:
-waterline loops on steep walls and a raster (zigzag) drop-cutter pass on shallow areas.
-Finishing never enters stock the roughing left deeper than a set engagement; what no
-tool reaches is reported. Every rapid is checked against the in-process stock.
+narrower flat end mills where it could not go, then finishing by the kind of face
+(:mod:`cadcam.faces`): flat faces at their exact heights and walls by the flank, with the
+widest flat end mill and then narrower ones where it did not fit (:mod:`cadcam.flatfinish`);
+a ball end mill only on freeform surfaces, waterline loops on steep ones and a raster
+(zigzag) drop-cutter pass on shallow ones. The roughing end mill is the one that clears the
+stock soonest with rest roughing counted (:mod:`cadcam.toolfit`). Finishing never enters
+stock the roughing left deeper than a set engagement; what no tool reaches is reported.
+Every rapid is checked against the in-process stock.
 """
 
 from __future__ import annotations
@@ -20,12 +24,15 @@ import numpy as np
 import trimesh
 
 from cadcam.drilling import DrillingOptions, plan_holes
+from cadcam.faces import SHALLOW, STEEP, FaceClasses, classify_faces
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
+from cadcam.flatfinish import FlatFinishOptions, flat_wall_finishing, left_on_flats_and_walls
 from cadcam.model import Job, Operation, Setup, Tool
 from cadcam.relief import Boundary, keep_outside
 from cadcam.rest import excess, safe_rapids, unreached
 from cadcam.roughing import RoughingOptions, zlevel_roughing
 from cadcam.shank_clearance import upper_raster
+from cadcam.toolfit import removal_rate, tool_fits
 from cadcam.tools import ToolLibrary
 from cadcam.verify import stock_after
 from factory.errors import ToolError
@@ -66,6 +73,15 @@ class PlanOptions:
         Drill round holes (spot, G81/G83) and helix those no drill and no roughing tool
         fits, before roughing (:func:`cadcam.drilling.plan_holes`).
     drilling : DrillingOptions
+    by_faces : bool
+        Finish by the kind of face (:mod:`cadcam.faces`): flats and walls with flat end mills
+        (:mod:`cadcam.flatfinish`), the ball only on freeform surfaces. False: the ball finishes
+        everything.
+    flat_finish : FlatFinishOptions
+    freeform_scallop : float, optional
+        With ``by_faces``: the scallop the ball leaves on freeform surfaces [mm] (its raster
+        stepover and waterline stepdown follow from it), half the 0.02 mm a finished surface
+        may keep; None: ``finishing.scallop``.
     """
 
     rough_tool: int | None = None
@@ -78,6 +94,9 @@ class PlanOptions:
     terrace_stepdown: float = 0.7
     holes: bool = True
     drilling: DrillingOptions = field(default_factory=DrillingOptions)
+    by_faces: bool = True
+    flat_finish: FlatFinishOptions = field(default_factory=FlatFinishOptions)
+    freeform_scallop: float | None = 0.01
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -113,13 +132,15 @@ def _checked_tool(library: ToolLibrary, number: int, part_depth: float, role: st
 _ROUGH_SHARE_OF_WIDTH = 0.1
 
 
-def choose_tools(library: ToolLibrary, setup: Setup, options: PlanOptions) -> tuple[Tool, Tool]:
+def choose_tools(library: ToolLibrary, setup: Setup, options: PlanOptions,
+                 part_triangles: np.ndarray | None = None) -> tuple[Tool, Tool]:
     """The roughing and finishing tools: the options' numbers, or chosen by reach and size.
 
     Every tool must reach from the stock top down to the floor (``setup.floor_z``) with its
-    stick-out (``Tool.length``), or the holder would hit the part. Roughing: the widest flat
-    (else bull-nose) end mill no wider than a tenth of the stock's narrower side, or the
-    narrowest one that reaches if all are wider.
+    stick-out (``Tool.length``), or the holder would hit the part. Roughing, given the part: the
+    end mill that fits the part's features best (:func:`_pick_rough_by_fit`); without it, the
+    widest flat (else bull-nose) end mill no wider than a tenth of the stock's narrower side, or
+    the narrowest one that reaches if all are wider.
     Finishing: the widest ball end mill that reaches and is no wider than the roughing tool
     (so it fits wherever roughing went), else the narrowest reaching ball, else a reaching
     bull-nose, else a flat end mill.
@@ -134,6 +155,8 @@ def choose_tools(library: ToolLibrary, setup: Setup, options: PlanOptions) -> tu
     depth = float(setup.stock_max[2] - setup.floor_z)
     if options.rough_tool is not None:
         rough = _checked_tool(library, options.rough_tool, depth, "roughing")
+    elif part_triangles is not None:
+        rough = _pick_rough_by_fit(library, setup, depth, part_triangles, options.roughing.allowance)
     else:
         rough = _pick_rough(library, setup, depth)
     if options.finish_tool is not None:
@@ -160,6 +183,40 @@ def _pick_rough(library: ToolLibrary, setup: Setup, depth: float) -> Tool:
     if fit:
         return max(fit, key=lambda t: (t.diameter, t.shape == "flat", -t.number))
     return min(reach, key=lambda t: (t.diameter, t.shape != "flat", t.number))
+
+
+def _pick_rough_by_fit(library: ToolLibrary, setup: Setup, depth: float, triangles: np.ndarray,
+                       allowance: float) -> Tool:
+    """The flat (else bull-nose) end mill that roughs the part soonest, rest roughing included.
+
+    Each candidate clears the stock it reaches (:func:`cadcam.toolfit.tool_fits`) at its removal
+    rate; what only narrower flat end mills get to falls to them in turn, widest first, each at
+    its own rate (rest roughing). The least total wins; ties go to the wider tool.
+    """
+    mills = [t for t in library.tools if t.shape != "ball"]
+    reach = [t for t in mills if t.length >= depth]
+    if not reach:
+        raise _missing(library, "flat or bull-nose end mill for roughing", depth, mills)
+    fits = {f.tool.number: f for f in tool_fits(triangles, setup, reach, allowance)}
+    rate = {t.number: removal_rate(t, library.cutting_data(t, setup.material).feed) for t in reach}
+
+    def minutes(tool: Tool) -> float:
+        done, total = 0.0, 0.0
+        for t in [tool] + [r for r in rest_tools(library, tool) if r.number in fits]:
+            more = max(fits[t.number].reach_volume - done, 0.0)
+            total += more / rate[t.number]
+            done += more
+        return total
+
+    best = min(reach, key=lambda t: (round(minutes(t), 3), t.shape != "flat", -t.diameter, t.number))
+    return best
+
+
+def flat_finish_tool(library: ToolLibrary, depth: float) -> Tool | None:
+    """The flat end mill for flats and walls: the widest that reaches ``depth`` [mm] (narrower
+    ones follow where it does not fit, :func:`rest_tools`); None if there is none."""
+    fit = [t for t in library.tools if t.shape == "flat" and t.length >= depth]
+    return max(fit, key=lambda t: (t.diameter, t.length, -t.number)) if fit else None
 
 
 def _pick_finish(library: ToolLibrary, depth: float, rough: Tool) -> Tool:
@@ -234,8 +291,10 @@ def plan_job(
     ToolpathError
         An operation cannot be computed.
     """
-    rough_tool, finish_tool = choose_tools(library, setup, options)
     triangles = np.asarray(part.triangles)
+    rough_tool, finish_tool = choose_tools(library, setup, options, triangles)
+    # A relief's flats include the base plane outside its boundary: the ball finishes reliefs.
+    faces = classify_faces(part) if options.by_faces and boundary is None else None
 
     def stage_progress(stage: str):
         if progress is None:
@@ -307,10 +366,23 @@ def plan_job(
     for u in left:
         log.warning("no tool reaches %s; finishing leaves it alone", u.describe())
     engagement = EngagementLimit(depth=limit, allowance=allowance)
+    if faces is not None and stock is not None:
+        flat = flat_finish_tool(library, float(setup.stock_max[2] - setup.floor_z))
+        if flat is not None:
+            stock = _finish_flats_and_walls(part, setup, library, flat, faces, stock, options, operations, timed,
+                                            model, stage_progress)
+        if not faces.freeform:
+            return _finished(part_name, setup, operations, source_sha256, options, rough_tool, finish_tool, left,
+                             triangles, seconds, faces, holes)
+    where = None if faces is None else faces.near((STEEP, SHALLOW), finish_tool.radius + 0.5)
+    ball_options = options.finishing
+    if faces is not None and options.freeform_scallop is not None:
+        ball_options = dataclasses.replace(ball_options, scallop=options.freeform_scallop)
+        raster_options = dataclasses.replace(raster_options, scallop=options.freeform_scallop)
     if options.waterline:
         operations.append(timed("waterline", lambda: waterline_finishing(
-            part, setup, finish_tool, finish_cutting, options.finishing,
-            progress=stage_progress("waterline"), stock=stock, limit=engagement, within=within)))
+            part, setup, finish_tool, finish_cutting, ball_options,
+            progress=stage_progress("waterline"), stock=stock, limit=engagement, within=within, where=where)))
         # The raster comes after the waterline: where that left a wall's skin (a hole too small
         # for its loops), the raster must not take it in one deep pass either.
         if stock is not None and len(operations[-1].points) > 1:
@@ -325,7 +397,34 @@ def plan_job(
             stock = model(operations)
     operations.append(timed("raster", lambda: raster_finishing(
         part, setup, finish_tool, finish_cutting, raster_options, progress=stage_progress("raster"), stock=stock,
-        limit=engagement, within=within)))
+        limit=engagement, within=within, where=where)))
+    return _finished(part_name, setup, operations, source_sha256, options, rough_tool, finish_tool, left, triangles,
+                     seconds, faces, holes)
+
+
+def _finish_flats_and_walls(part, setup, library, flat, faces, stock, options, operations, timed, model,
+                            stage_progress):
+    """Flats and walls with ``flat``, then with each narrower flat end mill where stock is left.
+
+    Appends the operations; returns the stock after them."""
+    ff = options.flat_finish
+    depth = float(setup.stock_max[2] - setup.floor_z)
+    for tool in [flat] + [t for t in rest_tools(library, flat) if t.length >= depth]:
+        if not left_on_flats_and_walls(stock, faces, tool.radius, ff.allowance, ff.rest_above).any():
+            break
+        cutting = library.cutting_data(tool, setup.material)
+        stage = f"flats+walls T{tool.number}"
+        op = timed(stage, lambda: flat_wall_finishing(part, setup, tool, cutting, faces, stock, options.flat_finish,
+                                                      progress=stage_progress(stage)))
+        if len(op.points) > 1:
+            operations.append(op)
+            stock = model(operations)
+    return stock
+
+
+def _finished(part_name, setup, operations, source_sha256, options, rough_tool, finish_tool, left, triangles,
+              seconds, faces: FaceClasses | None, holes):
+    """The job from its operations: empty ones dropped, every rapid made safe."""
     dropped = [op.kind for op in operations if len(op.points) < 2]
     if dropped:
         log.info("nothing to cut for %s: dropped", ", ".join(dropped))
@@ -346,6 +445,7 @@ def plan_job(
             "unreached": [u.to_dict() for u in left],
             "rapids": {"checked": checked, "made_safe": fixed},
             "holes": holes.to_dict() if holes is not None else {},
+            "faces": None if faces is None else faces.summary(),
         },
     )
     return job, PlanTimings(tuple(seconds))

@@ -33,7 +33,10 @@ cleared with contour-parallel offset loops. The pieces:
   helix (``ramp_angle``, shrunk down to ``min_helix_diameter`` if need be) from the
   previous level's floor, or by a ramp along one of its loops if no helix fits; a pocket
   that fits neither is skipped with a warning (and stays skipped on the levels below).
-  The tool never plunges vertically into material.
+  The tool never plunges vertically into material. In rest machining the stock model tells
+  where the air is: a helix or ramp starts just above the stock, not at the previous level,
+  and where the stock under the helix centre is already gone the tool goes straight down
+  there; a skipped pocket bars only its own neighbourhood (``2 R``) on the levels below.
 * **Order and links**: closed pockets are cut inside-out from the helix, regions open to
   the stock edge outside-in; each next loop is the uncut loop nearest to what is already
   cut, linked by a short horizontal cut that is checked to stay inside the region. When
@@ -70,7 +73,7 @@ from shapely.ops import nearest_points
 
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.rest import rest_material
-from cadcam.verify import Simulation
+from cadcam.verify import Simulation, clear_height
 from factory.errors import MeshError, ToolError, ToolpathError
 
 log = logging.getLogger(__name__)
@@ -520,8 +523,17 @@ def _closed_entry(region: Polygon, rings: list[_Ring], p: _Params) -> _Entry | N
 
 
 def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry, z: float,
-                z_prev: float, inside_out: bool, p: _Params) -> bool:
-    """Emit the moves clearing one region at level z. Returns False if loops were left."""
+                z_prev: float, inside_out: bool, p: _Params,
+                air_at: Callable[[np.ndarray], np.ndarray] | None = None) -> bool:
+    """Emit the moves clearing one region at level z. Returns False if loops were left.
+
+    ``air_at(xy)`` is the lowest tip height clear of the known stock at tool positions: an
+    entry starts no higher than needed, down to the level itself (no helix through air)."""
+
+    def air_over(xy: np.ndarray) -> float:
+        if air_at is None:
+            return z_prev
+        return min(z_prev, max(float(np.max(air_at(np.asarray(xy).reshape(-1, 2)))), z))
     covered = region.buffer(_COVER_TOL)
     shapely.prepare(covered)
     cut: list[LineString] = []
@@ -535,22 +547,32 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
 
     if entry.kind == "air":
         path.go_to(entry.air_xy, p)
-        path.descend([*entry.air_xy, z], z_prev, p)  # outside the stock: air
+        path.descend([*entry.air_xy, z], air_over(entry.air_xy), p)  # outside the stock: air
         path.add([*entry.start_xy, z], Motion.CUT)
         emit_ring(entry.ring_index, entry.start_xy, entry.start_xy - entry.air_xy)
     elif entry.kind == "helix":
-        descent, turn = _helix(entry.centre, entry.helix_radius, p, z_prev, z)
-        path.go_to(descent[0, :2], p)
-        path.descend(descent[0], z_prev, p)  # down to the previous floor: air
-        path.add_many(descent[1:], Motion.PLUNGE)
+        th = np.linspace(0.0, 2 * math.pi, 25)
+        z_top = air_over(entry.centre + entry.helix_radius * np.column_stack([np.cos(th), np.sin(th)]))
+        descent, turn = _helix(entry.centre, entry.helix_radius, p, z_top, z)
+        if z_top > z and air_over(entry.centre) <= z:
+            # Air under the centre (a hole roughed before, with its skin left): straight down
+            # there and out onto the circle, not a helix through the air.
+            path.go_to(entry.centre, p)
+            path.descend([*entry.centre, z], z, p)
+            path.add(descent[-1], Motion.CUT)
+        else:
+            path.go_to(descent[0, :2], p)
+            path.descend(descent[0], z_top, p)  # down to the previous floor (or the known stock): air
+            path.add_many(descent[1:], Motion.PLUNGE)
         path.add_many(turn, Motion.CUT)
         cut.append(LineString(turn[:, :2]))
     else:  # ramp
         j = entry.ring_index
         ring = _climb(rings[j].coords, None, inside_out)
-        descent, rest = _ramp(ring, p, z_prev, z)
+        z_top = air_over(ring)
+        descent, rest = _ramp(ring, p, z_top, z)
         path.go_to(descent[0, :2], p)
-        path.descend(descent[0], z_prev, p)
+        path.descend(descent[0], z_top, p)
         path.add_many(descent[1:], Motion.PLUNGE)
         path.add_many(rest, Motion.CUT)
         cut.append(rings[j].line)
@@ -613,6 +635,7 @@ def zlevel_roughing(
     rest: Simulation | None = None,
     rest_above: float = 0.0,
     within: Callable[[float], BaseGeometry] | None = None,
+    air: Simulation | None = None,
 ) -> Operation:
     """Clear the stock around ``part`` level by level, leaving ``options.allowance``.
 
@@ -636,6 +659,13 @@ def zlevel_roughing(
     options : RoughingOptions
     progress : callable, optional
         ``progress(done, total)`` after each level.
+    rest : Simulation, optional
+        The stock to rest-rough (see above).
+    rest_above : float
+        Rest material thinner than this over the part is left [mm].
+    air : Simulation, optional
+        The stock known to be there before this operation, default ``rest``: entries start
+        just above it rather than at the previous level (no helix through air).
     within : callable, optional
         ``within(radius)``: the XY region the tool axis must stay in (a relief's
         :meth:`cadcam.relief.Boundary.centre_region`); None: anywhere around the stock.
@@ -672,8 +702,13 @@ def zlevel_roughing(
     if within is not None:
         rect = rect.intersection(within(p.radius))
 
+    known = rest if air is None else air
+    air_at = None if known is None else (lambda xy: clear_height(known, tool, xy))
     path = _Path()
     cleared: BaseGeometry | None = None  # None: nothing was ever skipped
+    # Rest machining knows the air from the stock model (entries and descents use it), so a
+    # skipped pocket only bars the levels below it, not every place this level had nothing to cut.
+    blocked: list[BaseGeometry] = []
     z_prev = float(setup.stock_max[2])
     skipped = 0
     for li, z in enumerate(levels):
@@ -684,6 +719,8 @@ def zlevel_roughing(
         allowed = rect.difference(forbidden)
         if cleared is not None:
             allowed = allowed.intersection(cleared)
+        if blocked:
+            allowed = allowed.difference(shapely.union_all(blocked))
         if rest is not None:
             material = rest_material(rest, z, rest_above, p.allowance)
             allowed = allowed.intersection(material.buffer(p.radius, quad_segs=8))
@@ -704,6 +741,8 @@ def zlevel_roughing(
                     z, c.x, c.y,
                 )
                 skipped += 1
+                if rest is not None:
+                    blocked.append(region.buffer(2 * p.radius, quad_segs=4))
                 continue
             plans.append((region, rings, entry, inside_out))
         done_regions = []
@@ -716,11 +755,13 @@ def zlevel_roughing(
             if not path.points:
                 first = entry.air_xy if entry.air_xy is not None else entry.start_xy
                 path.add([first[0], first[1], p.safe_z], Motion.RAPID)
-            if _cut_region(path, region, rings, entry, z, z_prev, inside_out, p):
+            if _cut_region(path, region, rings, entry, z, z_prev, inside_out, p, air_at):
                 done_regions.append(region)
             else:
                 skipped += 1
-        if skipped or cleared is not None:
+                if rest is not None:
+                    blocked.append(region.buffer(2 * p.radius, quad_segs=4))
+        if rest is None and (skipped or cleared is not None):
             cleared = shapely.union_all(done_regions) if done_regions else Polygon()
         if path.points:
             path.go_to(path.here[:2], p)

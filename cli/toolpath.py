@@ -7,7 +7,6 @@ from typing import Annotated
 
 import typer
 
-from cadcam.preview import toolpath_image
 from cli import cam
 from cli.common import JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, setup_logging, stderr
 from factory.cam import compute_job, job_summary, log_job
@@ -55,7 +54,7 @@ def toolpath(
                      parameters=planned.job.parameters) as log:
             log_job(log, planned)
         if png is not None:
-            write_bytes(png, png_bytes(toolpath_image(planned.job)), overwrite=overwrite)
+            write_bytes(png, png_bytes(planned.toolpath_picture()), overwrite=overwrite)
     summary = job_summary(planned.job) | {"output": str(output), "seconds": watch.rounded()}
     if json_out:
         print_json(summary)

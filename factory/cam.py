@@ -87,6 +87,8 @@ class CamRequest:
             finishing=FinishingOptions(scallop=scallop),
             waterline=waterline,
         )
+        if scallop != SCALLOP:  # a scallop asked for on the command line holds on freeform too
+            plan = dataclasses.replace(plan, freeform_scallop=scallop)
         return cls(part, tools, stock, material, units, origin, plan, holding, cell, relief)
 
     @classmethod
@@ -116,6 +118,13 @@ class PlannedPart:
     loaded: PartMesh
     part_work: trimesh.Trimesh
     boundary: Boundary | None = None
+
+    def toolpath_picture(self) -> np.ndarray:
+        """(H, W, 3) uint8 top view of the toolpaths over the part's faces by kind."""
+        from cadcam.faces import classify_faces
+        from cadcam.preview import toolpath_image
+
+        return toolpath_image(self.job, faces=classify_faces(self.part_work))
 
 
 def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwatch | None = None,

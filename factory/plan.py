@@ -33,7 +33,7 @@ import numpy as np
 
 from cadcam.model import Setup
 from cadcam.post import PostOptions, Program, post_process
-from cadcam.preview import setup_image, toolpath_image
+from cadcam.preview import setup_image
 from cadcam.relief import block_corners
 from cadcam.sheet import setup_sheet
 from cadcam.verify import Simulation, VerifyOptions, VerifyReport, check_grid_size
@@ -265,7 +265,7 @@ class PartPlan:
         write_text(outputs["program"], self.program.text)
         write_verify_outputs(self.simulation, self.report, png=outputs["verify_png"], json_path=outputs["verify_json"],
                              mcap=None, overwrite=False, inputs={})
-        write_bytes(outputs["toolpath_png"], png_bytes(toolpath_image(job)))
+        write_bytes(outputs["toolpath_png"], png_bytes(planned.toolpath_picture()))
         write_bytes(outputs["setup_png"], png_bytes(setup_image(job.setup, np.asarray(planned.part_work.triangles),
                                                                job.part_name)))
         inputs = {str(req.cam.part): planned.loaded.sha256}

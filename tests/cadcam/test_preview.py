@@ -44,3 +44,23 @@ def test_the_setup_picture_draws_the_part_in_the_jaws_over_the_floor():
         assert c in colours
     no_vise = preview.setup_image(Setup(stock_min=lo, stock_max=hi, transform_mesh_to_work=np.eye(4)), part, "p")
     assert preview._JAW_COLOUR not in {tuple(c) for c in no_vise.reshape(-1, 3)}
+
+
+def test_the_faces_by_kind_are_drawn_under_the_toolpaths():
+    import manifold3d
+
+    from cadcam.faces import FLAT, SHALLOW, WALL, classify_faces
+    from cadcam.preview import FACE_COLOURS
+    from cadcam.setup import make_setup
+    from tests.conftest import manifold_to_trimesh
+
+    body = manifold3d.Manifold.cube((40.0, 30.0, 10.0)) - manifold3d.Manifold.sphere(8.0, 64).translate(
+        (20.0, 15.0, 14.0))
+    setup, part = make_setup(manifold_to_trimesh(body))
+    faces = classify_faces(part)
+    img = toolpath_image(Job("p", setup, ()), width=400, faces=faces)
+    colours = {tuple(c) for c in img.reshape(-1, 3)}
+    for k in (FLAT, SHALLOW, WALL):
+        assert FACE_COLOURS[k] in colours, k
+    plain = toolpath_image(Job("p", setup, ()), width=400)
+    assert FACE_COLOURS[FLAT] not in {tuple(c) for c in plain.reshape(-1, 3)}

@@ -99,12 +99,13 @@ def probe_plan(body: manifold3d.Manifold, options: PlanOptions = FAST, cell: flo
 
 
 def finishing_moves(moves, text: str) -> np.ndarray:
-    """(n,) bool: moves of the program's finishing operations (after their ``(op k: ... [raster])`` comment)."""
+    """(n,) bool: moves of the program's finishing operations (after their ``(op k: ... [raster])`` comment:
+    raster, waterline, or flats and walls with a flat end mill)."""
     kind = np.zeros(len(text.splitlines()) + 2, dtype=bool)
     current = False
     for i, line in enumerate(text.splitlines(), start=1):
         if line.startswith("(op "):
-            current = "[raster]" in line or "[waterline]" in line
+            current = any(f"[{kind}]" in line for kind in ("raster", "waterline", "finishing"))
         kind[i] = current
     return kind[moves.line]
 
@@ -112,7 +113,7 @@ def finishing_moves(moves, text: str) -> np.ndarray:
 def assert_safe(job, setup, moves, sw, text: str) -> None:
     feed = moves.motion != Motion.RAPID
     fin = finishing_moves(moves, text) & feed
-    for t in {op.tool.number for op in job.operations if op.kind in ("raster", "waterline")}:
+    for t in {op.tool.number for op in job.operations if op.kind in ("raster", "waterline", "finishing")}:
         sel = fin & (moves.tool == t)
         assert sw.buried[sel].max(initial=0.0) <= LIMIT + SLACK, (t, float(sw.buried[sel].max()))
     hits = rapid_hits(sw, moves.motion)

@@ -1,0 +1,143 @@
+"""Finish the flat faces and the walls of a part with a flat end mill, at their exact heights.
+
+What a machinist does on prismatic work instead of running a ball over everything: each
+flat face (pocket floor, step top, boss top) is cleared by a flat end mill standing on it,
+at wide stepover, and each wall is cut by the flank of the same tool in a contour pass,
+with as few passes down the wall as the flute length allows.
+
+The passes are z-level clearing (:func:`cadcam.roughing.zlevel_roughing`) run as rest
+machining over the stock earlier operations left, with:
+
+* **levels** at every flat face's height (plus a hair, :attr:`FlatFinishOptions.allowance`,
+  so that the face itself does not block the tool) and at most a flute length apart down
+  the walls;
+* **stepover** the tool radius (the widest that leaves no island between loops) and no
+  allowance on walls: the outermost loop of each level's region follows the walls above it
+  at exactly the tool radius, a flank pass over the whole height between two levels;
+* **where**: only within reach of the flat and wall faces (:mod:`cadcam.faces`), and only
+  where the stock still holds more than ``rest_above`` over the part. Freeform surfaces are
+  left to the ball end mill, and what this tool cannot reach to a narrower one.
+
+The operation's kind is ``finishing``: ``factory verify`` holds it to the finishing depth.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+from cadcam.faces import FLAT, WALL, FaceClasses
+from cadcam.model import CuttingData, Operation, Setup, Tool
+from cadcam.rest import excess
+from cadcam.roughing import RoughingOptions, zlevel_roughing
+from cadcam.verify import Simulation
+from factory.errors import ToolError
+
+
+@dataclass(frozen=True)
+class FlatFinishOptions:
+    """How the flats and walls are finished.
+
+    Attributes
+    ----------
+    allowance : float
+        Stock left on floors and walls [mm]: a hair above zero so that a floor does not
+        shadow the tool standing on it; well below any finishing tolerance.
+    rest_above : float
+        Stock over the part thinner than this is taken as finished [mm].
+    stepover : float, optional
+        Radial step between loops [mm]; default the tool radius (at most that).
+    ramp_angle : float
+        Helix and ramp entries [deg].
+    """
+
+    allowance: float = 0.005
+    rest_above: float = 0.02
+    stepover: float | None = None
+    ramp_angle: float = 3.0
+
+
+def left_on_flats_and_walls(stock: Simulation, faces: FaceClasses, reach: float, allowance: float,
+                            above: float) -> np.ndarray:
+    """(ny, nx) bool: grid points within ``reach`` [mm] of a flat or a wall where ``stock`` holds
+    more than ``above`` [mm] over the part grown by ``allowance`` [mm].
+
+    Without the grid slack of :func:`cadcam.rest.excess`: the skin roughing leaves on a wall is
+    thinner than a cell diagonal, and it is what this finishing is for.
+    """
+    g = stock.grid
+    x = g.x0 + g.cell * np.arange(g.nx)
+    y = g.y0 + g.cell * np.arange(g.ny)
+    X, Y = np.meshgrid(x, y)
+    near = faces.near((FLAT, WALL), reach)(np.column_stack([X.ravel(), Y.ravel()])).reshape(X.shape)
+    return near & (excess(stock, allowance, grid_slack=False) > above)
+
+
+def _target(stock: Simulation, left: np.ndarray) -> Simulation:
+    """A stand-in stock whose rest material (:func:`cadcam.rest.rest_material`) is exactly ``left``.
+
+    The part is taken away (its top ``-inf``) so that the rest test sees every such point as
+    excess; the real stock and part still bound the cutting (the mesh) and the entries (``air``).
+    """
+    top = np.where(left, stock.stock_top, -np.inf)
+    part = np.full_like(top, -np.inf)
+    top.setflags(write=False)
+    part.setflags(write=False)
+    return dataclasses.replace(stock, stock_top=top, part_top=part)
+
+
+def flat_wall_finishing(
+    part: trimesh.Trimesh,
+    setup: Setup,
+    tool: Tool,
+    cutting: CuttingData,
+    faces: FaceClasses,
+    stock: Simulation,
+    options: FlatFinishOptions = FlatFinishOptions(),
+    progress: Callable[[int, int], None] | None = None,
+) -> Operation:
+    """Floors at their heights and walls by the flank, with the flat end mill ``tool``.
+
+    Parameters
+    ----------
+    part : trimesh.Trimesh
+        Watertight part in work coordinates [mm].
+    setup : Setup
+    tool : Tool
+        A flat end mill.
+    cutting : CuttingData
+    faces : FaceClasses
+        The part's faces by kind (:func:`cadcam.faces.classify_faces`).
+    stock : Simulation
+        The stock the earlier operations left.
+    options : FlatFinishOptions
+    progress : callable, optional
+
+    Returns
+    -------
+    Operation
+        ``kind="finishing"``, empty if no flat or wall is left to finish.
+
+    Raises
+    ------
+    ToolError
+        The tool is not a flat end mill.
+    """
+    if tool.shape != "flat":
+        raise ToolError(f"T{tool.number} is a {tool.shape} end mill; flats and walls need a flat one")
+    stepover = tool.radius if options.stepover is None else min(float(options.stepover), tool.radius)
+    rough = RoughingOptions(stepdown=tool.flute_length, stepover=stepover, allowance=options.allowance,
+                            ramp_angle=options.ramp_angle)
+    # A grid cell of margin: the stock beside a wall lies in the cells next to it.
+    left = left_on_flats_and_walls(stock, faces, tool.radius + 2 * stock.grid.cell, options.allowance,
+                                   options.rest_above)
+    if not left.any():
+        return Operation(f"finish flats+walls T{tool.number}", "finishing", tool, cutting, np.zeros((0, 3)),
+                         np.zeros(0), options.allowance)
+    op = zlevel_roughing(part, setup, tool, cutting, rough, progress=progress, rest=_target(stock, left),
+                         rest_above=0.0, air=stock)
+    return dataclasses.replace(op, name=f"finish flats+walls T{tool.number}", kind="finishing")

@@ -1,0 +1,51 @@
+"""Which roughing end mill fits the part: reach by grey opening, choice by time."""
+
+from __future__ import annotations
+
+import manifold3d
+import numpy as np
+import pytest
+
+from cadcam.plan import PlanOptions, choose_tools
+from cadcam.setup import make_setup
+from cadcam.toolfit import entry_radius, tool_fits
+from cadcam.tools import load_tool_library
+from tests.conftest import manifold_to_trimesh
+
+LIBRARY = load_tool_library()
+
+
+def _planned(body: manifold3d.Manifold):
+    setup, part = make_setup(manifold_to_trimesh(body))
+    return setup, np.asarray(part.triangles)
+
+
+def test_an_open_step_is_reached_whole_by_every_tool():
+    body = manifold3d.Manifold.cube((60.0, 40.0, 10.0)) - manifold3d.Manifold.cube((30.0, 50.0, 6.0)).translate(
+        (-1.0, -5.0, 5.0))
+    setup, tri = _planned(body)
+    for fit in tool_fits(tri, setup, [LIBRARY.tool(1), LIBRARY.tool(2)]):
+        # the step, the 1 mm on top and the 2 mm margins; the grid loses a little at the edges
+        assert fit.share == pytest.approx(1.0, abs=0.02), fit.tool.number
+
+
+def test_a_hole_narrower_than_the_entry_is_not_reached():
+    # 12 mm across: the 6 mm mill enters (entry radius 4.2 mm), the 10 mm one does not (6.8 mm).
+    body = manifold3d.Manifold.cube((60.0, 40.0, 10.0)) - manifold3d.Manifold.cylinder(12.0, 6.0, 6.0, 64).translate(
+        (30.0, 20.0, -1.0))
+    setup, tri = _planned(body)
+    t1, t2 = LIBRARY.tool(1), LIBRARY.tool(2)
+    assert entry_radius(t1, 0.3) < 6.0 < entry_radius(t2, 0.3)
+    small, big = tool_fits(tri, setup, [t1, t2])
+    hole = np.pi * 36.0 * 10.0
+    assert small.reach_volume - big.reach_volume == pytest.approx(hole, rel=0.1)
+
+
+def test_the_wide_mill_roughs_a_plate_with_a_few_small_holes():
+    body = manifold3d.Manifold.cube((90.0, 60.0, 12.0)) - manifold3d.Manifold.cube((40.0, 30.0, 6.0)).translate(
+        (25.0, 15.0, 7.0))
+    for x in (8.0, 82.0):
+        body -= manifold3d.Manifold.cylinder(14.0, 5.5, 5.5, 64).translate((x, 30.0, -1.0))
+    setup, tri = _planned(body)
+    rough, _ = choose_tools(LIBRARY, setup, PlanOptions(), tri)
+    assert rough.number == 2
