@@ -78,7 +78,8 @@ def tool_fits(triangles: np.ndarray, setup: Setup, tools: list[Tool], allowance:
         In the order of ``tools``.
     """
     grid = grid_over(setup.stock_min, setup.stock_max, _CELL)
-    bottom = float(setup.stock_min[2])
+    # op 1 removes nothing below its floor: the holding allowance stays for op 2
+    bottom = float(setup.floor_z)
     top = float(setup.stock_max[2])
     part = upper_envelope(np.asarray(triangles, dtype=np.float64), grid)
     part = np.maximum(np.where(np.isfinite(part), part, bottom), bottom)
@@ -87,7 +88,7 @@ def tool_fits(triangles: np.ndarray, setup: Setup, tools: list[Tool], allowance:
     out = []
     for tool in tools:
         disc = _disc(entry_radius(tool, allowance))
-        # Outside the stock there is air: the tool may stand there down to the stock bottom.
+        # Outside the stock there is air: the tool may stand there down to the floor.
         stop = ndimage.maximum_filter(part, footprint=disc, mode="constant", cval=bottom)
         reached = ndimage.minimum_filter(stop, footprint=disc, mode="constant", cval=bottom)
         out.append(ToolFit(tool, float(np.sum(top - np.maximum(reached, part)) * area), removal))
