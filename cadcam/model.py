@@ -292,6 +292,118 @@ class Operation:
 
 
 @dataclass(frozen=True)
+class SoftJaws:
+    """How op 2 holds the flipped part (data for op 2; op 1 never uses it).
+
+    Attributes
+    ----------
+    kind : {"pocket", "parallels"}
+        ``pocket``: soft jaws with a pocket shaped like the part's outline; ``parallels``:
+        plain jaws, the part's finished top face resting on parallels.
+    depth : float
+        How deep the part sits in the pocket, or how far the jaws grip it above the
+        parallels [mm].
+    """
+
+    kind: str
+    depth: float
+
+
+@dataclass(frozen=True)
+class FixtureBox:
+    """A piece of workholding placed in work coordinates: an axis-aligned box the tool and its
+    holder must never enter.
+
+    Attributes
+    ----------
+    name : str
+        ``"front jaw"``, ``"back jaw"`` or ``"parallels"``: named in verify faults.
+    lo, hi : (3,) float
+        Box corners in work coordinates [mm].
+    """
+
+    name: str
+    lo: np.ndarray
+    hi: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "lo", frozen_array(self.lo).reshape(3))
+        object.__setattr__(self, "hi", frozen_array(self.hi).reshape(3))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "lo": self.lo.tolist(), "hi": self.hi.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "FixtureBox":
+        return cls(str(d["name"]), d["lo"], d["hi"])
+
+
+@dataclass(frozen=True)
+class ViseJaws:
+    """The machine vise as CAM sees it, in millimetres: the cell file's ``vise`` converted at
+    :func:`robotprog.frames.vise_jaws` (the one place metres become millimetres).
+
+    Heights are up from the vise bed; the stock's bottom rests on the parallels, clamped
+    across work Y (the jaws run along work X), centred in the jaws.
+
+    Attributes
+    ----------
+    jaw_height : float
+        Top of the jaws above the vise bed [mm].
+    jaw_width : float
+        Length of the jaws along work X [mm].
+    jaw_thickness : float
+        Thickness of each jaw plate along work Y [mm].
+    parallels_height : float
+        Top of the parallels above the vise bed [mm]: where the stock's bottom rests.
+    opening_min, opening_max : float
+        Stock widths (along work Y) the vise clamps [mm].
+    soft_jaws : SoftJaws or None
+        Op 2's soft jaws; None: plain jaws on parallels.
+    """
+
+    jaw_height: float
+    jaw_width: float
+    jaw_thickness: float
+    parallels_height: float
+    opening_min: float
+    opening_max: float
+    soft_jaws: SoftJaws | None = None
+
+    @property
+    def grip_depth(self) -> float:
+        """How far up the stock the jaws grip: the jaws' top above the stock's bottom [mm]."""
+        return self.jaw_height - self.parallels_height
+
+    def place(self, stock_min: np.ndarray, stock_max: np.ndarray) -> tuple[FixtureBox, ...]:
+        """The jaws and parallels around a stock box clamped in this vise, in work coordinates [mm].
+
+        The jaws touch the stock's front (Y-) and back (Y+) faces, centred on it along X, from
+        the bed to ``grip_depth`` above the stock's bottom; the parallels fill the jaw gap
+        under the stock (the two bars and the gap between them as one box: nothing may go
+        below the stock's bottom anyway)."""
+        lo, hi = np.asarray(stock_min, dtype=float), np.asarray(stock_max, dtype=float)
+        cx = (lo[0] + hi[0]) / 2
+        x0, x1 = cx - self.jaw_width / 2, cx + self.jaw_width / 2
+        bed, top = lo[2] - self.parallels_height, lo[2] + self.grip_depth
+        t = self.jaw_thickness
+        boxes = [FixtureBox("front jaw", (x0, lo[1] - t, bed), (x1, lo[1], top)),
+                 FixtureBox("back jaw", (x0, hi[1], bed), (x1, hi[1] + t, top))]
+        if self.parallels_height > 0:
+            boxes.append(FixtureBox("parallels", (x0, lo[1], bed), (x1, hi[1], lo[2])))
+        return tuple(boxes)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "ViseJaws":
+        soft = d.get("soft_jaws")
+        values = {f.name: float(d[f.name]) for f in dataclasses.fields(cls) if f.name != "soft_jaws"}
+        return cls(**values, soft_jaws=None if soft is None else SoftJaws(str(soft["kind"]), float(soft["depth"])))
+
+
+@dataclass(frozen=True)
 class Setup:
     """Where the part sits in the stock and where the work origin is.
 
@@ -316,6 +428,13 @@ class Setup:
         Height for rapids between regions and tool changes, above the stock [mm].
     clearance : float
         Gap above already-cut material for short retracts [mm].
+    floor_z : float
+        The lowest any feed may reach in this operation [mm]: the part's bottom minus the
+        breakthrough (op 1 breaks out into the holding allowance, never into the vise).
+        None on construction: the stock's bottom (sheets from before workholding).
+    jaws : tuple of FixtureBox or None
+        The vise's jaws and parallels placed in work coordinates: obstacles for the tool and
+        its holder. None: the workholding is unknown (nothing checked).
     """
 
     stock_min: np.ndarray
@@ -326,10 +445,16 @@ class Setup:
     material: str = "aluminium"
     safe_z: float = 10.0
     clearance: float = 1.0
+    floor_z: float | None = None
+    jaws: tuple[FixtureBox, ...] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "stock_min", frozen_array(self.stock_min).reshape(3))
         object.__setattr__(self, "stock_max", frozen_array(self.stock_max).reshape(3))
+        if self.floor_z is None:
+            object.__setattr__(self, "floor_z", float(self.stock_min[2]))
+        if self.jaws is not None:
+            object.__setattr__(self, "jaws", tuple(self.jaws))
         object.__setattr__(
             self, "transform_mesh_to_work", frozen_array(self.transform_mesh_to_work).reshape(4, 4)
         )
@@ -349,6 +474,8 @@ class Setup:
             "material": self.material,
             "safe_z": self.safe_z,
             "clearance": self.clearance,
+            "floor_z": self.floor_z,
+            "jaws": None if self.jaws is None else [b.to_dict() for b in self.jaws],
         }
 
     @classmethod
@@ -362,6 +489,8 @@ class Setup:
             material=d.get("material", "aluminium"),
             safe_z=float(d.get("safe_z", 10.0)),
             clearance=float(d.get("clearance", 1.0)),
+            floor_z=None if d.get("floor_z") is None else float(d["floor_z"]),
+            jaws=None if d.get("jaws") is None else tuple(FixtureBox.from_dict(b) for b in d["jaws"]),
         )
 
 

@@ -2,8 +2,15 @@
 
 The part keeps its file orientation (the file's +Z is the spindle axis: the part is cut from
 the top). The stock is either the part's bounding box grown by :class:`StockMargins` or a
-block of given size; the part sits on the stock bottom, centred in X and Y. The work origin
-is the top of the stock, either at its front-left corner or at its centre.
+block of given size; the part sits centred in X and Y, its bottom a *holding allowance* above
+the stock's bottom. The work origin is the top of the stock, either at its front-left corner
+or at its centre.
+
+Workholding (op 1): the vise grips the stock's lowest ``grip_depth`` between its jaws. Op 1
+machines everything it reaches from the top down to the part's bottom minus a breakthrough
+(:data:`BREAKTHROUGH_MM`: through-holes and outer walls break out into the holding allowance),
+which must stay :data:`JAW_CLEARANCE_MM` above the jaws' top and leave at least
+:data:`MIN_HOLDING_LEFT_MM` under the part; op 2, flipped, faces the allowance off.
 """
 
 from __future__ import annotations
@@ -15,7 +22,7 @@ import numpy as np
 import trimesh
 
 from cadcam.mesh import MAX_EXTENT_MM
-from cadcam.model import Setup, WorkOrigin
+from cadcam.model import Setup, ViseJaws, WorkOrigin
 from factory.errors import SetupError
 
 log = logging.getLogger(__name__)
@@ -30,6 +37,12 @@ MAX_STOCK_MM = MAX_EXTENT_MM
 #: tools sweep; at the default 0.2 mm verify grid this is 25 million cells, under the
 #: simulation's 60 million, so no plan does its CAM work only for verify to refuse it.
 MAX_STOCK_AREA_MM2 = 1000.0 * 1000.0
+#: How far op 1 cuts below the part's bottom, so walls and through-holes come out clean [mm].
+BREAKTHROUGH_MM = 0.5
+#: Holding allowance op 1 leaves under the part at the least (what op 2 faces off) [mm].
+MIN_HOLDING_LEFT_MM = 3.0
+#: Gap between op 1's deepest feed and the jaws' top [mm].
+JAW_CLEARANCE_MM = 1.0
 
 
 def check_stock_size(size: tuple[float, float, float] | np.ndarray, source: str | None = None) -> np.ndarray:
@@ -65,13 +78,61 @@ class StockMargins:
         Added on each of the four sides (X-, X+, Y-, Y+) [mm]. Default 2.
     top : float
         Added above the part's highest point, to be faced off [mm]. Default 1.
-
-    There is no bottom margin: the part sits on the stock bottom (it is parted or faced
-    from the other side in a second operation, outside this setup).
+    bottom : float or None
+        The holding allowance: stock under the part's bottom, gripped by the vise in op 1
+        and faced off in op 2 [mm]. Also used with an explicit stock size (the part's bottom
+        sits this far above the stock's bottom). None: :func:`default_holding`.
+    breakthrough : float
+        How far op 1 cuts below the part's bottom [mm]. Default :data:`BREAKTHROUGH_MM`.
     """
 
     sides: float = 2.0
     top: float = 1.0
+    bottom: float | None = None
+    breakthrough: float = BREAKTHROUGH_MM
+
+
+def default_holding(jaws: ViseJaws | None, breakthrough: float = BREAKTHROUGH_MM) -> float:
+    """The least holding allowance [mm]: the breakthrough plus :data:`MIN_HOLDING_LEFT_MM`, and with a
+    vise, the jaws' grip depth plus the breakthrough plus :data:`JAW_CLEARANCE_MM`."""
+    need = breakthrough + MIN_HOLDING_LEFT_MM
+    if jaws is not None:
+        need = max(need, jaws.grip_depth + breakthrough + JAW_CLEARANCE_MM)
+    return float(need)
+
+
+def check_holding(holding: float, stock_size: np.ndarray, jaws: ViseJaws | None,
+                  breakthrough: float = BREAKTHROUGH_MM, source: str | None = None) -> None:
+    """Check the vise can hold the stock with ``holding`` [mm] under the part, op 1 cutting
+    ``breakthrough`` [mm] below the part.
+
+    Raises
+    ------
+    SetupError
+        The allowance leaves less than :data:`MIN_HOLDING_LEFT_MM` under the part, op 1's
+        deepest feed would come within :data:`JAW_CLEARANCE_MM` of the jaws' top, or the
+        stock is wider (work Y) than the vise opens; the message gives the figures.
+    """
+    if not (np.isfinite(holding) and holding >= 0):
+        raise SetupError(f"holding allowance must be >= 0 mm, got {holding}", source=source)
+    if not (np.isfinite(breakthrough) and breakthrough >= 0):
+        raise SetupError(f"breakthrough must be >= 0 mm, got {breakthrough}", source=source)
+    need = default_holding(jaws, breakthrough)
+    left = holding - breakthrough
+    if left < MIN_HOLDING_LEFT_MM - 1e-9:
+        raise SetupError(f"holding allowance {holding:g} mm leaves {left:g} mm under the part after op 1's "
+                         f"{breakthrough:g} mm breakthrough, under {MIN_HOLDING_LEFT_MM:g} mm: give --holding "
+                         f"{need:g} or more", source=source)
+    if jaws is None:
+        return
+    if left < jaws.grip_depth + JAW_CLEARANCE_MM - 1e-9:
+        raise SetupError(f"holding allowance {holding:g} mm is below the jaws' grip depth {jaws.grip_depth:g} mm "
+                         f"plus {breakthrough:g} mm breakthrough and {JAW_CLEARANCE_MM:g} mm clearance: the tool "
+                         f"would reach the jaws; give --holding {need:g} or more", source=source)
+    width = float(stock_size[1])
+    if not jaws.opening_min - 1e-9 <= width <= jaws.opening_max + 1e-9:
+        raise SetupError(f"stock {width:.1f} mm wide (Y) does not fit the vise opening "
+                         f"{jaws.opening_min:g}..{jaws.opening_max:g} mm", source=source)
 
 
 def make_setup(
@@ -83,6 +144,7 @@ def make_setup(
     material: str = "aluminium",
     safe_height: float = 5.0,
     mesh_scale: float = 1.0,
+    jaws: ViseJaws | None = None,
     source: str | None = None,
 ) -> tuple[Setup, trimesh.Trimesh]:
     """Size the stock, place the part in it and express both in work coordinates.
@@ -93,9 +155,11 @@ def make_setup(
         The part in millimetres, in the file's axes (``PartMesh.mesh``: already scaled).
     stock_size : (3,) float, optional
         Explicit stock block (X, Y, Z) [mm]. The part is centred in X and Y and its bottom
-        put on the stock bottom. None: part bounding box plus ``margins``.
+        put ``margins.bottom`` (the holding allowance) above the stock bottom. None: part
+        bounding box plus ``margins``.
     margins : StockMargins
-        Used only when ``stock_size`` is None [mm].
+        Sides and top used only when ``stock_size`` is None; the holding allowance and
+        breakthrough always [mm].
     origin : {"top-front-left", "top-centre"}
         Work origin: stock top (z = 0) at the front-left corner (stock in x >= 0, y >= 0) or
         at the centre of the stock top (stock centred on x = y = 0).
@@ -105,6 +169,10 @@ def make_setup(
         Height of ``safe_z`` above the stock top [mm], > 0.
     mesh_scale : float
         Units factor already applied to ``part`` (recorded in the setup, not applied again).
+    jaws : ViseJaws, optional
+        The vise holding the stock (from the cell file): sets the default holding allowance,
+        is checked against the stock, and is placed in the setup as obstacles. None: no vise
+        known (the setup's ``jaws`` is None).
     source : str, optional
         Name for error messages (usually the part file).
 
@@ -120,8 +188,9 @@ def make_setup(
     Raises
     ------
     SetupError
-        Negative margins, non-positive stock size or safe height, unknown origin, or a part
-        that does not fit the given stock (names the axis and both sizes).
+        Negative margins, non-positive stock size or safe height, unknown origin, a part
+        that does not fit the given stock with its holding allowance (names the axis and
+        both sizes), or stock the vise cannot hold (:func:`check_holding`).
     """
     if origin not in _ORIGINS:
         raise SetupError(f"unknown work origin {origin!r}: expected one of {', '.join(_ORIGINS)}", source=source)
@@ -129,21 +198,31 @@ def make_setup(
         raise SetupError(f"safe height must be > 0 mm, got {safe_height}", source=source)
     lo, hi = np.asarray(part.bounds, dtype=np.float64)
     part_size = hi - lo
+    holding = default_holding(jaws, margins.breakthrough) if margins.bottom is None else float(margins.bottom)
 
     if stock_size is None:
         for name in ("sides", "top"):
             v = getattr(margins, name)
             if not (np.isfinite(v) and v >= 0):
                 raise SetupError(f"stock margin {name} must be >= 0 mm, got {v}", source=source)
-        size = check_stock_size(part_size + np.array([2 * margins.sides, 2 * margins.sides, margins.top]), source)
+        check_holding(holding, part_size + 2 * margins.sides, jaws, margins.breakthrough, source)
+        size = check_stock_size(
+            part_size + np.array([2 * margins.sides, 2 * margins.sides, margins.top + holding]), source)
     else:
         size = check_stock_size(stock_size, source)
+        check_holding(holding, size, jaws, margins.breakthrough, source)
         for axis, s, p in zip("XYZ", size, part_size):
             if s < p - _FIT_TOLERANCE:
                 raise SetupError(
                     f"part does not fit the stock in {axis}: part is {p:.3f} mm, stock is {s:.3f} mm",
                     source=source,
                 )
+        if size[2] < part_size[2] + holding - _FIT_TOLERANCE:
+            raise SetupError(
+                f"part {part_size[2]:.3f} mm tall with {holding:g} mm holding allowance under it needs stock "
+                f"{part_size[2] + holding:.3f} mm tall, stock is {size[2]:.3f} mm (--stock, --holding)",
+                source=source,
+            )
 
     # Part centre in XY and part bottom, in file coordinates, go to where the stock puts them.
     part_centre_xy = (lo[:2] + hi[:2]) / 2
@@ -155,7 +234,7 @@ def make_setup(
     target_centre_xy = (stock_min[:2] + stock_max[:2]) / 2
     shift = np.empty(3)
     shift[:2] = target_centre_xy - part_centre_xy
-    shift[2] = stock_min[2] - lo[2]
+    shift[2] = stock_min[2] + holding - lo[2]
 
     transform = np.eye(4)
     transform[:3, 3] = shift
@@ -170,6 +249,8 @@ def make_setup(
         origin=origin,
         material=material,
         safe_z=float(stock_max[2] + safe_height),
+        floor_z=float(stock_min[2] + holding - margins.breakthrough),
+        jaws=None if jaws is None else jaws.place(stock_min, stock_max),
     )
     log.debug("stock %s mm, part shifted by %s mm", size.round(3).tolist(), shift.round(3).tolist())
     return setup, part_work

@@ -14,6 +14,9 @@ outside checkers) read it instead of the G-code. Format ``factory.setup/1``::
       "transform_mesh_to_work": [[4×4]],  # mesh file coordinates (scaled to mm) → work [mm]
       "mesh_scale": 1.0,                  # mesh file units → mm
       "safe_z": 5.0,                      # retract height [mm]
+      "floor_z": -22.5,                   # lowest feed [mm]: part bottom minus the breakthrough
+      "jaws": [{"name": "front jaw", "lo": [x, y, z], "hi": [x, y, z]}, …],   # vise boxes [mm, work];
+                                          # null: workholding unknown (older sheets)
       "tools": [{"number": 1, "name": …, "shape": "flat", "diameter": 6.0,
                  "corner_radius": 0.0, "flute_length": 18.0, "flutes": 3, "length": 30.0,
                  "shank_diameter": 6.0,       # body between flutes and holder [mm]
@@ -77,6 +80,9 @@ def setup_sheet(job: Job, program: Program, program_name: str) -> dict[str, Any]
         "mesh_scale": s.mesh_scale,
         "safe_z": s.safe_z,
         "clearance": s.clearance,
+        # workholding: the lowest feed, and the vise's jaws and parallels as boxes [mm, work]
+        "floor_z": s.floor_z,
+        "jaws": None if s.jaws is None else [b.to_dict() for b in s.jaws],
         "tools": [t.to_dict() for t in job.tools],
         "operations": operations,
         "estimated_cycle_s": round(program.total_time, 1),

@@ -9,14 +9,17 @@ import typer
 
 from cadcam.setup import check_stock_size
 from cli.common import parse_triple
-from factory.cam import (ALLOWANCE, FINISH_TOOL, MATERIAL, ORIGIN, ROUGH_TOOL, SCALLOP, UNITS, CamRequest, Origin,
-                         Units)
+from factory.cam import (ALLOWANCE, CELL, FINISH_TOOL, HOLDING, MATERIAL, ORIGIN, ROUGH_TOOL, SCALLOP, UNITS,
+                         CamRequest, Origin, Units)
 from factory.errors import SetupError
 
-__all__ = ["ALLOWANCE", "FINISH_TOOL", "MATERIAL", "ORIGIN", "ROUGH_TOOL", "SCALLOP", "UNITS", "cam_request"]
+__all__ = ["ALLOWANCE", "CELL", "FINISH_TOOL", "HOLDING", "MATERIAL", "ORIGIN", "ROUGH_TOOL", "SCALLOP", "UNITS",
+           "cam_request"]
 
 ToolsOpt = Annotated[Path | None, typer.Option("--tools", help="Tool library YAML (default: fixtures/tools.yaml).", exists=True, dir_okay=False)]
-StockOpt = Annotated[str | None, typer.Option("--stock", help="Stock size X,Y,Z [mm]; default: part box + 2 mm sides, 1 mm top.")]
+StockOpt = Annotated[str | None, typer.Option("--stock", help="Stock size X,Y,Z [mm]; default: part box + 2 mm sides, 1 mm top, the holding allowance below.")]
+HoldingOpt = Annotated[float | None, typer.Option("--holding", help="Holding allowance: stock under the part the vise grips in op 1 [mm]; default: the jaws' grip depth + 1.5 mm, at least 3.5 mm.", min=0.0)]
+CellOpt = Annotated[Path, typer.Option("--cell", help="Cell file whose vise holds the stock.", exists=True, dir_okay=False)]
 MaterialOpt = Annotated[str, typer.Option("--material", help="Stock material, a key of the tool library's cutting data.")]
 UnitsOpt = Annotated[Units, typer.Option("--units", help="Units of the mesh file; auto assumes mm and checks the size.")]
 OriginOpt = Annotated[Origin, typer.Option("--origin", help="Work origin: top of stock at its front-left corner or its centre.")]
@@ -30,7 +33,7 @@ WaterlineOpt = Annotated[bool, typer.Option("--waterline/--no-waterline", help="
 
 def cam_request(part: Path, tools: Path | None, stock: str | None, material: str, units: Units, origin: Origin,
                 rough_tool: int | None, finish_tool: int | None, allowance: float, scallop: float, stepdown: float | None,
-                waterline: bool) -> CamRequest:
+                waterline: bool, holding: float | None = HOLDING, cell: Path | None = CELL) -> CamRequest:
     """The request of one command line; a malformed or unmachinable ``--stock`` is a usage error before any work."""
     size = parse_triple(stock, "--stock")
     if size is not None:
@@ -39,4 +42,4 @@ def cam_request(part: Path, tools: Path | None, stock: str | None, material: str
         except SetupError as e:
             raise typer.BadParameter(e.message, param_hint="--stock") from None
     return CamRequest.from_options(part, tools, size, material, units, origin, rough_tool, finish_tool, allowance,
-                                   scallop, stepdown, waterline)
+                                   scallop, stepdown, waterline, holding, cell)

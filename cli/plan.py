@@ -23,6 +23,7 @@ def plan(
     out_dir: Annotated[Path, typer.Option("-o", "--output-dir", help="Folder for all outputs.", file_okay=False)] = Path("."),
     tools: cam.ToolsOpt = None,
     stock: cam.StockOpt = None,
+    holding: cam.HoldingOpt = cam.HOLDING,
     material: cam.MaterialOpt = cam.MATERIAL,
     units: cam.UnitsOpt = cam.UNITS,
     origin: cam.OriginOpt = cam.ORIGIN,
@@ -50,7 +51,7 @@ def plan(
     """
     setup_logging(quiet)
     req = cam.cam_request(part, tools, stock, material, units, origin, rough_tool, finish_tool, allowance, scallop,
-                          stepdown, waterline)
+                          stepdown, waterline, holding, robot_cell)
     if lang not in PROGRAM_SUFFIX:
         raise typer.BadParameter(f"expected one of {', '.join(PROGRAM_SUFFIX)}, got {lang!r}", param_hint="--lang")
     request = PlanRequest(req, post=post, arc_tolerance=arc_tolerance, grid=grid, cell=robot_cell, robot=robot,

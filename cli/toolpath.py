@@ -24,6 +24,8 @@ def toolpath(
     png: Annotated[Path | None, typer.Option("--png", help="Also write a top-view picture of the toolpaths.", dir_okay=False)] = None,
     tools: cam.ToolsOpt = None,
     stock: cam.StockOpt = None,
+    holding: cam.HoldingOpt = cam.HOLDING,
+    cell: cam.CellOpt = cam.CELL,
     material: cam.MaterialOpt = cam.MATERIAL,
     units: cam.UnitsOpt = cam.UNITS,
     origin: cam.OriginOpt = cam.ORIGIN,
@@ -40,7 +42,7 @@ def toolpath(
     """Rough and finish a part; write the job and its views to an MCAP file."""
     setup_logging(quiet)
     req = cam.cam_request(part, tools, stock, material, units, origin, rough_tool, finish_tool,
-                                      allowance, scallop, stepdown, waterline)
+                          allowance, scallop, stepdown, waterline, holding, cell)
     check_writable(output, overwrite)
     if png is not None:
         check_writable(png, overwrite)

@@ -16,15 +16,18 @@ import trimesh
 
 from cadcam.finishing import FinishingOptions
 from cadcam.mesh import PartMesh, load_part
-from cadcam.model import Job
+from cadcam.model import Job, ViseJaws
 from cadcam.plan import PlanOptions, plan_job
 from cadcam.roughing import RoughingOptions
-from cadcam.setup import make_setup
+from cadcam.setup import StockMargins, make_setup
 from cadcam.tools import load_tool_library
 from factory.errors import ToolpathError
 from factory.mcaplog import McapLog, read_attachment
 from factory.progress import Progress, Stopwatch
+from factory.resources import FIXTURES
 from factory.views import job_messages
+from robotprog.cell import load_cell
+from robotprog.frames import vise_jaws
 
 #: Name of the MCAP attachment that carries the job from ``toolpath`` to ``gcode``.
 JOB_ATTACHMENT = "factory.job.json"
@@ -40,13 +43,18 @@ ROUGH_TOOL: int | None = None  # None: chosen from the library by reach and size
 FINISH_TOOL: int | None = None
 ALLOWANCE = 0.3  # [mm]
 SCALLOP = 0.005  # [mm]
+HOLDING: float | None = None  # [mm] None: the vise's grip depth + breakthrough + clearance (cadcam.setup)
+CELL = FIXTURES / "cell.yaml"  # whose vise holds the stock
 
 @dataclasses.dataclass(frozen=True)
 class CamRequest:
     """What to plan and how: the part file, tool library, stock, material, work origin and CAM options.
 
     ``tools`` None is the bundled library (``fixtures/tools.yaml``); ``stock`` is the stock size
-    X, Y, Z [mm], None for the default (part box + 2 mm on the sides, 1 mm on top)."""
+    X, Y, Z [mm], None for the default (part box + 2 mm on the sides, 1 mm on top, the holding
+    allowance below); ``holding`` the holding allowance under the part [mm], None for the
+    default of :func:`cadcam.setup.default_holding`; ``cell`` the cell file whose vise holds
+    the stock (None: no vise, nothing checked against jaws)."""
 
     part: Path
     tools: Path | None
@@ -55,11 +63,14 @@ class CamRequest:
     units: Units
     origin: Origin
     plan: PlanOptions
+    holding: float | None = HOLDING
+    cell: Path | None = CELL
 
     @classmethod
     def from_options(cls, part: Path, tools: Path | None, stock: tuple[float, float, float] | None, material: str,
                      units: Units, origin: Origin, rough_tool: int | None, finish_tool: int | None, allowance: float,
-                     scallop: float, stepdown: float | None, waterline: bool) -> "CamRequest":
+                     scallop: float, stepdown: float | None, waterline: bool, holding: float | None = HOLDING,
+                     cell: Path | None = CELL) -> "CamRequest":
         """The request from the flat option values of ``factory toolpath`` and ``factory plan``."""
         plan = PlanOptions(
             rough_tool=rough_tool,
@@ -68,13 +79,24 @@ class CamRequest:
             finishing=FinishingOptions(scallop=scallop),
             waterline=waterline,
         )
-        return cls(part, tools, stock, material, units, origin, plan)
+        return cls(part, tools, stock, material, units, origin, plan, holding, cell)
 
     @classmethod
-    def defaults(cls, part: Path, material: str = MATERIAL, tools: Path | None = None) -> "CamRequest":
-        """The request of a command line that gives only the part, material and tool library."""
+    def defaults(cls, part: Path, material: str = MATERIAL, tools: Path | None = None,
+                 cell: Path | None = CELL) -> "CamRequest":
+        """The request of a command line that gives only the part, material, tool library and cell."""
         return cls.from_options(part, tools, None, material, UNITS, ORIGIN, ROUGH_TOOL, FINISH_TOOL, ALLOWANCE,
-                                SCALLOP, None, True)
+                                SCALLOP, None, True, HOLDING, cell)
+
+    def jaws(self) -> ViseJaws | None:
+        """The vise of :attr:`cell` in millimetres, None without a cell.
+
+        Raises
+        ------
+        CellError
+            The cell file cannot be read or is malformed.
+        """
+        return None if self.cell is None else vise_jaws(load_cell(self.cell, check_robot=False).vise)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,10 +121,13 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
     with watch("load"):
         loaded = load_part(req.part, units=req.units)
         library = load_tool_library(req.tools)
+        jaws = req.jaws()
     with watch("setup"):
         setup, part_work = make_setup(
             loaded.mesh,
             stock_size=req.stock,
+            margins=StockMargins(bottom=req.holding),
+            jaws=jaws,
             origin=req.origin,
             material=req.material,
             mesh_scale=loaded.scale,

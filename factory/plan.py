@@ -107,7 +107,8 @@ class PlanRequest:
     grid : float
         Verify grid spacing [mm].
     cell : Path
-        Robot cell file, used when ``robot`` is true.
+        Robot cell file, used when ``robot`` is true (its vise holds the stock: give the same
+        file as ``cam.cell``).
     robot : bool
         Plan loading and unloading with the cell.
     lang : str
@@ -126,7 +127,7 @@ class PlanRequest:
     def defaults(cls, part: Path, material: str, cell: Path = FIXTURES / "cell.yaml",
                  tools: Path | None = None) -> "PlanRequest":
         """The plan ``factory plan PART --material M --cell C`` makes with every other option at its default."""
-        return cls(CamRequest.defaults(part, material, tools), cell=cell)
+        return cls(CamRequest.defaults(part, material, tools, cell), cell=cell)
 
     def outputs(self, out_dir: Path) -> dict[str, Path]:
         """Every file :meth:`PartPlan.write` writes into ``out_dir``."""

@@ -252,9 +252,35 @@ class SlotGrid:
         return self.pose.matrix() @ t
 
 
+#: Soft-jaw kinds for op 2 (the part flipped, held on its finished faces): ``pocket`` jaws
+#: milled to the part's outline, or plain ``parallels`` under the finished faces.
+SOFT_JAW_KINDS = ("pocket", "parallels")
+
+
+@dataclass(frozen=True)
+class SoftJaws:
+    """How op 2 holds the flipped part (data only: op 1 never uses it).
+
+    Attributes
+    ----------
+    kind : {"pocket", "parallels"}
+        ``pocket``: soft jaws with a pocket shaped like the part's outline; ``parallels``:
+        plain jaws, the part's finished top face resting on parallels.
+    depth : float
+        How deep the part sits in the pocket, or how far the jaws grip the part above the
+        parallels [m].
+    """
+
+    kind: str
+    depth: float
+
+
 @dataclass(frozen=True)
 class Vise:
-    """The machine vise.
+    """The machine vise and how it holds the stock in op 1.
+
+    Heights are measured up from the vise bed (the floor of the jaw gap); the vise frame's
+    origin is on top of the parallels, where the stock's bottom rests.
 
     Attributes
     ----------
@@ -263,14 +289,32 @@ class Vise:
     jaw_opening_min, jaw_opening_max : float
         Stock widths (along vise Y) the vise can clamp [m].
     jaw_height : float
-        Height of the jaws above the parallels [m]; the stock must stand above it for
-        the gripper fingers to reach it.
+        Top of the jaws above the vise bed [m].
+    jaw_width : float
+        Length of the jaws along vise X [m].
+    parallels_height : float
+        Top of the parallels above the vise bed [m]: the stock's bottom rests there (0: the
+        stock rests on the bed).
+    jaw_thickness : float
+        Thickness of each jaw plate along vise Y [m] (drawn and checked as an obstacle).
+    soft_jaws : SoftJaws or None
+        Soft jaws for op 2; None: op 2 uses the plain jaws on parallels.
     """
 
     pose: Pose
     jaw_opening_min: float
     jaw_opening_max: float
     jaw_height: float
+    jaw_width: float = 0.15
+    parallels_height: float = 0.0
+    jaw_thickness: float = 0.02
+    soft_jaws: SoftJaws | None = None
+
+    @property
+    def grip_depth(self) -> float:
+        """How far up the stock the jaws reach and grip: jaw top above the parallels [m]. The
+        holding allowance under the part must exceed it, or the tool would reach the jaws."""
+        return self.jaw_height - self.parallels_height
 
 
 @dataclass(frozen=True)
@@ -460,14 +504,7 @@ def read_cell(data: Any, source: str | Path | None = None) -> Cell:
                       f"({fingers.length * 1000:.1f} mm above the TCP): the fingers would not reach below it")
     gripper = Gripper(tcp, omin, omax, gio, body, fingers)
 
-    v = rd.mapping(top["vise"], "vise", {"pose", "jaw_opening", "jaw_height"})
-    jo = rd.mapping(v["jaw_opening"], "vise.jaw_opening", {"min", "max"})
-    jmin = rd.number(jo["min"], "vise.jaw_opening.min", nonneg=True)
-    jmax = rd.number(jo["max"], "vise.jaw_opening.max", positive=True)
-    if jmax <= jmin:
-        raise rd.fail("vise.jaw_opening", f"max ({jmax}) must exceed min ({jmin})")
-    jaw_height = rd.number(v["jaw_height"], "vise.jaw_height", nonneg=True)
-    vise = Vise(rd.pose(v["pose"], "vise.pose"), jmin, jmax, jaw_height)
+    vise = _vise(rd, top["vise"])
 
     e = rd.mapping(top["enclosure"], "enclosure", {"walls", "door"})
     if not isinstance(e["walls"], list) or not e["walls"]:
@@ -481,6 +518,31 @@ def read_cell(data: Any, source: str | Path | None = None) -> Cell:
         None if top.get("reject_bin") is None else rd.box(top["reject_bin"], "reject_bin", "reject_bin"),
         None if top.get("machine") is None else _machine_io(rd, top["machine"], gio),
     )
+
+
+def _vise(rd: _Reader, value: Any) -> Vise:
+    v = rd.mapping(value, "vise", {"pose", "jaw_opening", "jaw_height"},
+                   {"jaw_width", "jaw_thickness", "parallels_height", "soft_jaws"})
+    jo = rd.mapping(v["jaw_opening"], "vise.jaw_opening", {"min", "max"})
+    jmin = rd.number(jo["min"], "vise.jaw_opening.min", nonneg=True)
+    jmax = rd.number(jo["max"], "vise.jaw_opening.max", positive=True)
+    if jmax <= jmin:
+        raise rd.fail("vise.jaw_opening", f"max ({jmax}) must exceed min ({jmin})")
+    jaw_height = rd.number(v["jaw_height"], "vise.jaw_height", positive=True)
+    parallels = rd.number(v.get("parallels_height", 0.0), "vise.parallels_height", nonneg=True)
+    if parallels >= jaw_height:
+        raise rd.fail("vise.parallels_height", f"{parallels} m reaches the jaws' top ({jaw_height} m above the "
+                      "bed): the jaws would grip nothing")
+    soft = None
+    if v.get("soft_jaws") is not None:
+        sj = rd.mapping(v["soft_jaws"], "vise.soft_jaws", {"kind", "depth"})
+        kind = rd.string(sj["kind"], "vise.soft_jaws.kind")
+        if kind not in SOFT_JAW_KINDS:
+            raise rd.fail("vise.soft_jaws.kind", f"expected one of {', '.join(SOFT_JAW_KINDS)}, got {shown(kind)}")
+        soft = SoftJaws(kind, rd.number(sj["depth"], "vise.soft_jaws.depth", positive=True))
+    return Vise(rd.pose(v["pose"], "vise.pose"), jmin, jmax, jaw_height,
+                rd.number(v.get("jaw_width", 0.15), "vise.jaw_width", positive=True), parallels,
+                rd.number(v.get("jaw_thickness", 0.02), "vise.jaw_thickness", positive=True), soft)
 
 
 def _machine_io(rd: _Reader, value: Any, gripper: GripperIO) -> MachineIO:

@@ -1,9 +1,10 @@
-"""Where CAM's millimetres enter the robot's metres: the ONE conversion from the setup sheet.
+"""Where CAM's millimetres and the robot's metres cross: the ONE conversion, both ways.
 
 The CAM stages speak millimetres in work coordinates (X right, Y away from the operator,
 Z up the spindle; origin per the setup sheet's ``work_origin``). The robot planner speaks
-metres in ROS frames. :func:`setup_sheet_to_cell` is the only place that converts one
-into the other; nothing else in ``robotprog`` divides by 1000.
+metres in ROS frames. :func:`setup_sheet_to_cell` (the stock and part, CAM → cell) and
+:func:`vise_jaws` (the vise, cell → CAM) are the only places that convert one into the
+other; nothing else in ``robotprog`` divides by 1000, nothing in ``cadcam`` multiplies.
 
 Convention (how the stock sits in the vise)
 -------------------------------------------
@@ -27,8 +28,10 @@ from typing import Any
 
 import numpy as np
 
+from cadcam.model import SoftJaws, ViseJaws
 from cadcam.sheet import read_setup_sheet
 from factory.errors import CellError
+from robotprog.cell import Vise
 
 #: Millimetres per metre: the CAM → robot unit factor.
 MM_PER_M = 1000.0
@@ -90,11 +93,28 @@ def setup_sheet_to_cell(sheet: dict[str, Any], source: str | None = None) -> Sto
     return StockInVise(*out, mesh_scale_m=float(setup.mesh_scale) / MM_PER_M)
 
 
-def check_stock_fits(stock: StockInVise, jaw_opening_min: float, jaw_opening_max: float, jaw_height: float,
+def vise_jaws(vise: Vise) -> ViseJaws:
+    """The cell's vise [m] as CAM's :class:`cadcam.model.ViseJaws` [mm] (the pose stays in the cell:
+    CAM places the jaws around the stock, the robot places the stock in the vise)."""
+    soft = vise.soft_jaws
+    return ViseJaws(
+        jaw_height=vise.jaw_height * MM_PER_M,
+        jaw_width=vise.jaw_width * MM_PER_M,
+        jaw_thickness=vise.jaw_thickness * MM_PER_M,
+        parallels_height=vise.parallels_height * MM_PER_M,
+        opening_min=vise.jaw_opening_min * MM_PER_M,
+        opening_max=vise.jaw_opening_max * MM_PER_M,
+        soft_jaws=None if soft is None else SoftJaws(soft.kind, soft.depth * MM_PER_M),
+    )
+
+
+def check_stock_fits(stock: StockInVise, jaw_opening_min: float, jaw_opening_max: float, grip_depth: float,
                      gripper_opening_max: float) -> None:
     """Check the vise can clamp the stock and the gripper can hold it (all [m]).
 
     The vise clamps across vise Y; the gripper grips the stock across the same width.
+    ``grip_depth`` is the jaws' top above the parallels (:attr:`robotprog.cell.Vise.grip_depth`):
+    the stock must stand above it for the fingers to reach it.
 
     Raises
     ------
@@ -115,9 +135,9 @@ def check_stock_fits(stock: StockInVise, jaw_opening_min: float, jaw_opening_max
             f"{gripper_opening_max * MM_PER_M:.1f} mm",
             source="gripper.opening.max",
         )
-    if stock.size[2] <= jaw_height:
+    if stock.size[2] <= grip_depth:
         raise CellError(
-            f"stock {stock.size[2] * MM_PER_M:.1f} mm tall does not stand above the "
-            f"{jaw_height * MM_PER_M:.1f} mm jaws",
+            f"stock {stock.size[2] * MM_PER_M:.1f} mm tall does not stand above the jaws "
+            f"{grip_depth * MM_PER_M:.1f} mm over the parallels",
             source="vise.jaw_height",
         )

@@ -12,12 +12,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cadcam.mesh import load_part
-from cadcam.model import Setup
-from cadcam.setup import StockMargins, make_setup
+from cadcam.model import FixtureBox, Setup, ViseJaws
+from cadcam.setup import BREAKTHROUGH_MM, MIN_HOLDING_LEFT_MM, StockMargins, default_holding, make_setup
 from factory.errors import SetupError
 
 SAMPLES = Path(__file__).resolve().parents[2] / "samples"
 EPS = 1e-9
+#: The default cell's vise [mm]: jaws 40 mm over the bed, parallels 35: 5 mm grip.
+JAWS = ViseJaws(jaw_height=40.0, jaw_width=150.0, jaw_thickness=20.0, parallels_height=35.0, opening_min=0.0,
+                opening_max=160.0)
 
 
 def box(extents, at) -> trimesh.Trimesh:
@@ -29,10 +32,12 @@ def box(extents, at) -> trimesh.Trimesh:
 def test_default_stock_is_part_plus_margins_with_origin_top_front_left():
     part = box((80, 50, 15), at=(-40, 7, 3))  # arbitrary placement in the file
     setup, work = make_setup(part)
-    np.testing.assert_allclose(setup.stock_min, [0, 0, -16])
+    # Without a vise the holding allowance is 3 mm left under the part plus the 0.5 mm breakthrough.
+    np.testing.assert_allclose(setup.stock_min, [0, 0, -19.5])
     np.testing.assert_allclose(setup.stock_max, [84, 54, 0])
-    # Part sits on the stock bottom, 2 mm in from the sides, 1 mm below the top.
+    # Part sits 3.5 mm above the stock bottom, 2 mm in from the sides, 1 mm below the top.
     np.testing.assert_allclose(work.bounds, [[2, 2, -16], [82, 52, -1]])
+    assert setup.floor_z == pytest.approx(-16.5) and setup.jaws is None
     assert setup.safe_z == pytest.approx(5.0)
     assert setup.origin == "top-front-left" and setup.material == "aluminium"
     # The input mesh is untouched; the transform maps it onto the returned mesh.
@@ -43,24 +48,68 @@ def test_default_stock_is_part_plus_margins_with_origin_top_front_left():
 
 def test_top_centre_origin():
     part = box((60, 40, 10), at=(100, 100, 100))
-    setup, work = make_setup(part, origin="top-centre", margins=StockMargins(sides=5, top=0.5), safe_height=10)
-    np.testing.assert_allclose(setup.stock_min, [-35, -25, -10.5])
+    setup, work = make_setup(part, origin="top-centre", margins=StockMargins(sides=5, top=0.5, bottom=3.5),
+                             safe_height=10)
+    np.testing.assert_allclose(setup.stock_min, [-35, -25, -14])
     np.testing.assert_allclose(setup.stock_max, [35, 25, 0])
     np.testing.assert_allclose(work.bounds, [[-30, -20, -10.5], [30, 20, -0.5]])
     assert setup.safe_z == pytest.approx(10)
 
 
-def test_explicit_stock_centres_the_part_on_the_bottom():
+def test_explicit_stock_centres_the_part_holding_above_the_bottom():
     part = box((80, 50, 15), at=(0, 0, 0))
-    setup, work = make_setup(part, stock_size=(100, 60, 20))
-    np.testing.assert_allclose(setup.stock_size, [100, 60, 20])
-    np.testing.assert_allclose(work.bounds, [[10, 5, -20], [90, 55, -5]])
+    setup, work = make_setup(part, stock_size=(100, 60, 25), margins=StockMargins(bottom=4))
+    np.testing.assert_allclose(setup.stock_size, [100, 60, 25])
+    np.testing.assert_allclose(work.bounds, [[10, 5, -21], [90, 55, -6]])
+    assert setup.floor_z == pytest.approx(-21.5)
 
 
-def test_explicit_stock_exactly_the_part_size_fits():
+def test_explicit_stock_exactly_the_part_size_plus_holding_fits():
     part = box((80, 50, 15), at=(1, 2, 3))
-    setup, work = make_setup(part, stock_size=(80, 50, 15))
+    setup, work = make_setup(part, stock_size=(80, 50, 18.5))
     np.testing.assert_allclose(work.bounds, [[0, 0, -15], [80, 50, 0]], atol=1e-9)
+
+
+def test_default_stock_with_a_vise_stands_above_the_jaws():
+    part = box((80, 50, 15), at=(0, 0, 0))
+    setup, work = make_setup(part, jaws=JAWS)
+    # 5 mm grip + 0.5 mm breakthrough + 1 mm clearance under the part
+    assert default_holding(JAWS) == pytest.approx(6.5)
+    assert work.bounds[0][2] - setup.stock_min[2] == pytest.approx(6.5)
+    assert setup.floor_z == pytest.approx(work.bounds[0][2] - BREAKTHROUGH_MM)
+    names = [b.name for b in setup.jaws]
+    assert names == ["front jaw", "back jaw", "parallels"]
+    front, back, par = setup.jaws
+    # the jaws touch the stock's Y faces and reach 5 mm up it; the parallels fill the gap below
+    assert front.hi[1] == pytest.approx(setup.stock_min[1]) and back.lo[1] == pytest.approx(setup.stock_max[1])
+    assert front.hi[2] == pytest.approx(setup.stock_min[2] + 5) and par.hi[2] == pytest.approx(setup.stock_min[2])
+    assert setup.floor_z - front.hi[2] >= 1.0 - EPS
+    again = Setup.from_dict(setup.to_dict())
+    assert again.floor_z == setup.floor_z and [b.to_dict() for b in again.jaws] == [b.to_dict() for b in setup.jaws]
+
+
+def test_old_setup_dicts_read_with_floor_at_stock_bottom_and_no_jaws():
+    d = make_setup(box((10, 10, 10), (0, 0, 0)))[0].to_dict()
+    del d["floor_z"], d["jaws"]
+    old = Setup.from_dict(d)
+    assert old.floor_z == old.stock_min[2] and old.jaws is None
+
+
+@pytest.mark.parametrize(
+    "kwargs, words",
+    [
+        ({"margins": StockMargins(bottom=3.4)}, r"holding allowance 3.4 mm leaves 2.9 mm under the part"),
+        ({"margins": StockMargins(bottom=6), "jaws": JAWS},
+         r"holding allowance 6 mm is below the jaws' grip depth 5 mm .* give --holding 6.5 or more"),
+        ({"stock_size": (100, 170, 30), "jaws": JAWS}, r"stock 170.0 mm wide \(Y\) does not fit the vise opening 0..160 mm"),
+        ({"stock_size": (100, 60, 20), "jaws": JAWS}, r"part 15.000 mm tall with 6.5 mm holding allowance under it "
+                                                        r"needs stock 21.500 mm tall, stock is 20.000 mm"),
+    ],
+)
+def test_stock_the_vise_cannot_hold_is_one_line_with_figures(kwargs, words):
+    with pytest.raises(SetupError, match=words) as info:
+        make_setup(box((80, 50, 15), (0, 0, 0)), source="p.stl", **kwargs)
+    assert "\n" not in str(info.value) and "p.stl" in str(info.value)
 
 
 @pytest.mark.parametrize("stock, axis", [((79, 60, 20), "X"), ((100, 49.9, 20), "Y"), ((100, 60, 14), "Z")])
@@ -109,11 +158,12 @@ def test_sample_part_setup_round_trips_through_dict():
     at=st.tuples(*[st.floats(-1000, 1000) for _ in range(3)]),
     sides=st.floats(0, 20),
     top=st.floats(0, 10),
+    holding=st.floats(3.5, 30),
     origin=st.sampled_from(["top-front-left", "top-centre"]),
 )
-def test_part_always_inside_stock_with_top_at_zero(extents, at, sides, top, origin):
+def test_part_always_inside_stock_with_top_at_zero(extents, at, sides, top, holding, origin):
     part = box(extents, at)
-    setup, work = make_setup(part, margins=StockMargins(sides=sides, top=top), origin=origin)
+    setup, work = make_setup(part, margins=StockMargins(sides=sides, top=top, bottom=holding), origin=origin)
     lo, hi = work.bounds
     tol = 1e-9 * (1 + np.abs(at).max() + max(extents))
     assert setup.stock_max[2] == 0
@@ -122,7 +172,10 @@ def test_part_always_inside_stock_with_top_at_zero(extents, at, sides, top, orig
     np.testing.assert_allclose(lo[:2] - setup.stock_min[:2], [sides, sides], atol=1e-6)
     np.testing.assert_allclose(setup.stock_max[:2] - hi[:2], [sides, sides], atol=1e-6)
     assert setup.stock_max[2] - hi[2] == pytest.approx(top, abs=1e-6)
-    assert lo[2] == pytest.approx(setup.stock_min[2], abs=1e-6)
+    assert lo[2] - setup.stock_min[2] == pytest.approx(holding, abs=1e-6)
+    # op 1 never feeds below the part bottom by more than the breakthrough, and leaves >= 3 mm
+    assert lo[2] - setup.floor_z == pytest.approx(BREAKTHROUGH_MM, abs=1e-6)
+    assert setup.floor_z - setup.stock_min[2] >= MIN_HOLDING_LEFT_MM - 1e-6
     if origin == "top-front-left":
         np.testing.assert_allclose(setup.stock_min[:2], 0)
     else:

@@ -245,6 +245,6 @@ def test_simulate_plans_exactly_what_plan_does_with_its_defaults():
     from_cli = PlanRequest(cam.cam_request(
         part, defaults["tools"], defaults["stock"], defaults["material"], defaults["units"], defaults["origin"],
         defaults["rough_tool"], defaults["finish_tool"], defaults["allowance"], defaults["scallop"],
-        defaults["stepdown"], defaults["waterline"]), post=defaults["post"], arc_tolerance=defaults["arc_tolerance"],
+        defaults["stepdown"], defaults["waterline"], defaults["holding"], defaults["robot_cell"]), post=defaults["post"], arc_tolerance=defaults["arc_tolerance"],
         grid=defaults["grid"], cell=defaults["robot_cell"], robot=defaults["robot"], lang=defaults["lang"])
     assert PlanRequest.defaults(part, defaults["material"]) == from_cli

@@ -65,6 +65,13 @@ _DELETE = object()
         ("vise.pose.rpz", [0, 0, 0], r"vise\.pose\.rpz: unknown key"),
         ("vise.jaw_heigth", 0.04, r"vise\.jaw_heigth: unknown key"),
         ("vise.jaw_height", _DELETE, r"vise\.jaw_height: missing"),
+        ("vise.jaw_width", 0, r"vise\.jaw_width: must be > 0, got 0"),
+        ("vise.parallels_height", -0.01, r"vise\.parallels_height: must be >= 0"),
+        ("vise.parallels_height", 0.05, r"vise\.parallels_height: 0\.05 m reaches the jaws' top \(0\.04 m above the "
+                                        r"bed\): the jaws would grip nothing"),
+        ("vise.soft_jaws.kind", "magnet", r"vise\.soft_jaws\.kind: expected one of pocket, parallels, got 'magnet'"),
+        ("vise.soft_jaws.depth", 0, r"vise\.soft_jaws\.depth: must be > 0"),
+        ("vise.soft_jaws.shape", 1, r"vise\.soft_jaws\.shape: unknown key"),
         ("rack.rows", 0, r"rack\.rows: must be >= 1"),
         ("rack.pitch", [0.08, -0.08], r"rack\.pitch\[1\]: must be > 0"),
         ("motion.speed_scaling", 1.5, r"motion\.speed_scaling: must be in \(0, 1\]"),
@@ -89,7 +96,19 @@ _DELETE = object()
 def test_errors_name_the_field(raw: dict, path: str, value, message: str) -> None:
     with pytest.raises(CellError, match=message) as e:
         read_cell(_mutate(raw, path, value), source="cell.yaml")
-    assert str(e.value).startswith("cell.yaml: ")
+    assert str(e.value).startswith("cell.yaml: ") and "\n" not in str(e.value)
+
+
+def test_default_vise_grips_5_mm_and_old_vise_sections_still_read(raw: dict) -> None:
+    vise = read_cell(raw).vise
+    assert vise.grip_depth == pytest.approx(0.005) and vise.jaw_width == pytest.approx(0.15)
+    assert vise.soft_jaws is not None and vise.soft_jaws.kind == "parallels"
+    old = copy.deepcopy(raw)
+    for k in ("jaw_width", "jaw_thickness", "parallels_height", "soft_jaws"):
+        del old["vise"][k]
+    v = read_cell(old).vise
+    # Before parallels were written down, the jaws' height was measured from the stock's bottom.
+    assert v.grip_depth == v.jaw_height and v.soft_jaws is None
 
 
 def test_home_is_checked_against_the_robot(raw: dict, tmp_path: Path) -> None:

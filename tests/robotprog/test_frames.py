@@ -8,7 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from factory.errors import CellError, SetupError
-from robotprog.frames import StockInVise, check_stock_fits, setup_sheet_to_cell
+from factory.resources import FIXTURES
+from robotprog.cell import load_cell
+from robotprog.frames import StockInVise, check_stock_fits, setup_sheet_to_cell, vise_jaws
 
 
 def _sheet(smin, smax, origin="top-front-left", mesh_to_work=None, mesh_scale=1.0) -> dict:
@@ -88,3 +90,13 @@ def test_stock_fit_checks() -> None:
         check_stock_fits(s, 0.0, 0.16, 0.03, 0.05)
     with pytest.raises(CellError, match="does not stand above"):
         check_stock_fits(s, 0.0, 0.16, 0.05, 0.085)
+
+
+def test_vise_crosses_into_millimetres() -> None:
+    vise = load_cell(FIXTURES / "cell.yaml", check_robot=False).vise
+    jaws = vise_jaws(vise)
+    assert jaws.jaw_height == pytest.approx(40.0) and jaws.parallels_height == pytest.approx(35.0)
+    assert jaws.grip_depth == pytest.approx(vise.grip_depth * 1000.0)
+    assert (jaws.opening_min, jaws.opening_max) == pytest.approx((0.0, 160.0))
+    assert jaws.jaw_width == pytest.approx(150.0) and jaws.jaw_thickness == pytest.approx(20.0)
+    assert jaws.soft_jaws.kind == "parallels" and jaws.soft_jaws.depth == pytest.approx(5.0)
