@@ -14,7 +14,8 @@ from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_part, units_of_scale
 from cadcam.model import Setup, Tool
 from cadcam.sheet import read_setup_sheet
-from cadcam.verify import Simulation, VerifyOptions, VerifyReport, deviation_image, finishing_moves, simulate
+from cadcam.verify import (Simulation, VerifyOptions, VerifyReport, deviation_image, finishing_moves, flip_stock,
+                           simulate, simulate_flipped)
 from factory.atomic import write_bytes, write_text
 from factory.errors import SetupError
 from factory.pictures import png_bytes
@@ -64,9 +65,30 @@ def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int
                     finishing=finishing)
 
 
+def run_verify_after(before: Simulation, flip: np.ndarray, gcode_text: str, gcode_source: str, setup: Setup,
+                     tools: dict[int, Tool], triangles: np.ndarray, options: VerifyOptions,
+                     progress: Progress | None = None,
+                     operations: Sequence[Mapping[str, Any]] = ()) -> tuple[Simulation, VerifyReport]:
+    """:func:`run_verify` of op 2: starting from ``before`` (op 1's simulated stock, on a grid of
+    ``options.cell``) turned over by ``flip`` (op-1 -> op-2 work transform [mm]) into ``setup``.
+
+    Raises
+    ------
+    GcodeError, VerifyError
+        As :func:`run_verify`; VerifyError also when the stock does not turn over onto ``setup``.
+    """
+    moves = parse_gcode(gcode_text, source=gcode_source)
+    finishing = finishing_moves(gcode_text, moves, operations)
+    start = flip_stock(before, flip, setup)
+    return simulate_flipped(moves, tools, setup, triangles, start, options,
+                            progress=stage_callback(progress, "verify op 2"), finishing=finishing)
+
+
 def log_simulation(mcap: McapLog, sim: Simulation) -> None:
     """The simulated stock as a mesh in work coordinates (metres) on ``/verify/stock``."""
-    vertices, faces = heightfield_mesh(sim.grid.xs, sim.grid.ys, sim.stock_top)
+    top = sim.stock_top if sim.stock_under is None else np.where(np.isfinite(sim.stock_top), sim.stock_top,
+                                                                   sim.stock_under)  # cut through: drawn at its bottom
+    vertices, faces = heightfield_mesh(sim.grid.xs, sim.grid.ys, top)
     marker = triangle_mesh_marker("verify_stock", 0, vertices / 1000.0, faces, (0.75, 0.75, 0.8, 1.0), "work", 0)
     mcap.write("/verify/stock", marker_array([marker]), 0, latched=True)
 
