@@ -43,16 +43,16 @@ import numpy as np
 import trimesh
 from scipy import ndimage
 
-from cadcam.heightmap import upper_envelope
 from cadcam.finishing import EngagementLimit, raster_finishing
+from cadcam.heightmap import upper_envelope
 from cadcam.model import CuttingData, FixtureBox, Job, Motion, Operation, Setup, Tool, ViseJaws
-from cadcam.setup import JAW_CLEARANCE_MM
 from cadcam.plan import PlanOptions, choose_tools, rest_tools
 from cadcam.rest import excess, safe_rapids, unreached
 from cadcam.roughing import zlevel_roughing
+from cadcam.setup import JAW_CLEARANCE_MM
 from cadcam.tools import ToolLibrary
-from cadcam.verify import FlippedStock, Simulation, clear_height, flip_stock, operation_moves, simulate_flipped, \
-    stock_after, VerifyOptions
+from cadcam.verify import (FlippedStock, Simulation, VerifyOptions, clear_height, flip_stock, operation_moves,
+                           simulate_flipped, stock_after)
 from factory.errors import SetupError, ToolError, ToolpathError
 
 log = logging.getLogger(__name__)

@@ -15,8 +15,8 @@ from hypothesis import strategies as st
 from cadcam.finishing import FinishingOptions
 from cadcam.gcode import parse_gcode
 from cadcam.heightmap import grid_over
-from cadcam.model import CuttingData, Motion, ProgramMoves, Setup, Tool, ViseJaws
-from cadcam.op2 import (FacingOptions, Op2Options, facing, facing_levels, flip_part, flip_transform, op2_setup,
+from cadcam.model import CuttingData, Motion, ProgramMoves, Setup, ViseJaws
+from cadcam.op2 import (FacingOptions, Op2Options, facing, facing_levels, flip_transform, op2_setup,
                         plan_op2, setup_image)
 from cadcam.plan import PlanOptions, plan_job
 from cadcam.post import PostOptions, post_process
