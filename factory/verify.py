@@ -84,6 +84,44 @@ def run_verify_after(before: Simulation, flip: np.ndarray, gcode_text: str, gcod
                             progress=stage_callback(progress, "verify op 2"), finishing=finishing)
 
 
+def op1_of(sheet: Mapping[str, Any], sheet_path: Path, after: Path | None) -> tuple[Path, Path] | None:
+    """Op 1's program and setup sheet an op-2 setup sheet runs after, or None for an op-1 sheet.
+
+    The op-2 sheet names them (``after``) relative to its own folder; ``after`` (the command
+    line's ``--after``) overrides the program, its sheet staying the named one.
+
+    Raises
+    ------
+    SetupError
+        ``after`` given for a sheet that is not op 2's, or an op-2 sheet without ``after``.
+    """
+    if sheet.get("op") != 2:
+        if after is not None:
+            raise SetupError("--after is for op 2: this setup sheet is op 1's", source=sheet_path)
+        return None
+    named = sheet.get("after")
+    if not isinstance(named, Mapping) or not isinstance(named.get("setup_sheet"), str):
+        raise SetupError("op-2 setup sheet does not name op 1's setup sheet ('after')", source=sheet_path)
+    program = after if after is not None else sheet_path.parent / str(named.get("program", ""))
+    return program, sheet_path.parent / named["setup_sheet"]
+
+
+def flip_of(sheet: Mapping[str, Any], sheet_path: Path) -> np.ndarray:
+    """The op-1 -> op-2 work transform an op-2 setup sheet records [mm], (4, 4).
+
+    Raises
+    ------
+    SetupError
+        Missing or not a 4 x 4 matrix.
+    """
+    try:
+        t = np.asarray(sheet["flip"]["transform_op1_to_op2"], dtype=np.float64).reshape(4, 4)
+    except (KeyError, TypeError, ValueError):
+        raise SetupError("op-2 setup sheet lacks the flip transform ('flip.transform_op1_to_op2')",
+                         source=sheet_path) from None
+    return t
+
+
 def log_simulation(mcap: McapLog, sim: Simulation) -> None:
     """The simulated stock as a mesh in work coordinates (metres) on ``/verify/stock``."""
     top = sim.stock_top if sim.stock_under is None else np.where(np.isfinite(sim.stock_top), sim.stock_top,
