@@ -521,7 +521,7 @@ def op2_sheet_fields(job: Job, op1_program: str, op1_sheet: str) -> dict:
     }
 
 
-def setup_image(job: Job, part: trimesh.Trimesh, width: int = 720) -> np.ndarray:
+def op2_setup_image(job: Job, part: trimesh.Trimesh, width: int = 720) -> np.ndarray:
     """Op 2's setup as a machinist's sketch: the turned-over part in the vise, looking along X
     (across the jaws) and from the front, with the jaws, the parallels and the allowance to face.
 

@@ -33,7 +33,8 @@ import numpy as np
 import trimesh
 
 from cadcam.model import Job
-from cadcam.op2 import FLIP_AXIS, WORK_OFFSET, Op2Options, flip_transform, op2_sheet_fields, plan_op2, setup_image
+from cadcam.op2 import (FLIP_AXIS, WORK_OFFSET, Op2Options, flip_transform, op2_setup_image, op2_sheet_fields,
+                        plan_op2)
 from cadcam.post import PostOptions, Program, post_process
 from cadcam.preview import toolpath_image
 from cadcam.sheet import setup_sheet
@@ -323,7 +324,7 @@ class PartPlan:
             write_text(outputs["program_op2"], op2.program.text)
             write_verify_outputs(op2.simulation, op2.report, png=outputs["verify_png_op2"],
                                  json_path=outputs["verify_json_op2"], mcap=None, overwrite=False, inputs={})
-            write_bytes(outputs["setup_png_op2"], png_bytes(setup_image(op2.job, op2.part_work)))
+            write_bytes(outputs["setup_png_op2"], png_bytes(op2_setup_image(op2.job, op2.part_work)))
         inputs = {str(req.cam.part): planned.loaded.sha256}
         parameters = dict(job.parameters)
         if tending is not None:

@@ -17,7 +17,7 @@ from cadcam.gcode import parse_gcode
 from cadcam.heightmap import grid_over
 from cadcam.model import CuttingData, Motion, ProgramMoves, Setup, ViseJaws
 from cadcam.op2 import (FacingOptions, Op2Options, facing, facing_levels, flip_transform, op2_setup,
-                        plan_op2, setup_image)
+                        op2_setup_image, plan_op2)
 from cadcam.plan import PlanOptions, plan_job
 from cadcam.post import PostOptions, post_process
 from cadcam.setup import make_setup
@@ -253,7 +253,7 @@ def test_rs274_accepts_op_2_in_g55(block_ops):
 
 def test_setup_picture(block_ops):
     _, (_, job2, part2, _, _, _, _) = block_ops
-    img = setup_image(job2, part2)
+    img = op2_setup_image(job2, part2)
     assert img.ndim == 3 and img.shape[2] == 3 and img.shape[1] == 720
     jaw_blue = np.all(img == [40, 60, 120], axis=-1)
     allowance = np.all(img == [253, 214, 170], axis=-1)
