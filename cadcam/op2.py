@@ -454,6 +454,9 @@ def plan_op2(
             "face_z": face_z,
             "holding_mm": round(float(part_work.bounds[0][2] - setup1.stock_min[2]), 4),
             "facing_tool": tool.number,
+            # what holds the part in op 2: the cell's soft jaws if it has them, else the plain vise jaws
+            "held_in": None if jaws is None else ("vise jaws" if jaws.soft_jaws is None
+                                                  else f"soft jaws ({jaws.soft_jaws.kind})"),
             "options": options.to_dict(),
             "unreached": [u.to_dict() for u in left_regions],
             "rapids": {"checked": checked, "made_safe": fixed},
@@ -508,7 +511,8 @@ def op2_sheet_fields(job: Job, op1_program: str, op1_sheet: str) -> dict:
     ``op`` (2), ``work_offset`` (``G55``), ``after`` (op 1's program and sheet file names:
     op 2 runs on what op 1 left, and ``factory verify`` simulates op 1 first), ``flip`` (the
     axis and the op-1 -> op-2 work transform [mm]), ``face_z`` (the part's original bottom
-    face in op-2 work coordinates [mm]) and ``holding_mm`` (the allowance faced off [mm]).
+    face in op-2 work coordinates [mm]), ``holding_mm`` (the allowance faced off [mm]) and
+    ``held_in`` (``"vise jaws"``, ``"soft jaws (pocket)"``, ...; None: workholding unknown).
     """
     p = job.parameters
     return {
@@ -518,6 +522,7 @@ def op2_sheet_fields(job: Job, op1_program: str, op1_sheet: str) -> dict:
         "flip": p["flip"],
         "face_z": p["face_z"],
         "holding_mm": p["holding_mm"],
+        "held_in": p.get("held_in"),
     }
 
 
@@ -580,7 +585,7 @@ def op2_setup_image(job: Job, part: trimesh.Trimesh, width: int = 720) -> np.nda
         draw.line([(cx - 6, cy), (cx + 6, cy)], fill=(220, 0, 0), width=2)
         draw.line([(cx, cy - 6), (cx, cy + 6)], fill=(220, 0, 0), width=2)
         draw.text((ox, height - caption + 4), name, fill=(0, 0, 0), font=font)
-    held = "soft jaws" if any("soft" in b.name for b in boxes) else "vise jaws"
+    held = job.parameters.get("held_in") or "vise"
     text = (f"op 2 (G55): part turned over about X, held in the {held} on its finished faces; "
             f"face the allowance to Z{face_z:.3f}")
     draw.text((margin, height - caption / 2 + 2), text, fill=(0, 0, 0), font=font)

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from cadcam.finishing import FinishingOptions
 from cadcam.gcode import parse_gcode
 from cadcam.heightmap import grid_over
-from cadcam.model import CuttingData, Motion, ProgramMoves, Setup, ViseJaws
+from cadcam.model import CuttingData, Motion, ProgramMoves, Setup, SoftJaws, ViseJaws
 from cadcam.op2 import (FacingOptions, Op2Options, facing, facing_levels, flip_transform, op2_setup,
                         op2_setup_image, plan_op2)
 from cadcam.plan import PlanOptions, plan_job
@@ -235,6 +235,16 @@ def test_op_2_jaws_grip_the_finished_faces_below_the_face(block_ops):
     assert front.hi[2] == pytest.approx(lo[2] + JAWS.grip_depth)
     assert front.hi[2] <= job2.parameters["face_z"] - 1.0
     assert parallels.hi[2] == pytest.approx(lo[2]) and job2.setup.floor_z == pytest.approx(lo[2])
+
+
+def test_soft_jaws_hold_op_2_as_deep_as_the_cell_file_says(block_ops):
+    _, (job1, _, _, _, _, _, _) = block_ops
+    _, part1 = make_setup(pocket_block(size=(30.0, 20.0, 16.0)), jaws=JAWS)  # the part as op 1 held it
+    soft = dataclasses.replace(JAWS, soft_jaws=SoftJaws("pocket", 3.0))
+    job2, part2 = plan_op2(part1, job1, LIBRARY, options=Op2Options(plan=PLAN), jaws=soft)
+    front = job2.setup.jaws[0]
+    assert front.hi[2] == pytest.approx(part2.bounds[0][2] + 3.0)
+    assert job2.parameters["held_in"] == "soft jaws (pocket)"
 
 
 def test_a_part_too_thin_to_grip_in_op_2_is_refused():
