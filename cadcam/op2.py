@@ -61,6 +61,8 @@ log = logging.getLogger(__name__)
 FLIP_AXIS = "X"
 #: Work offset of each operation, as the post writes it (fixture 1: G54, fixture 2: G55).
 WORK_OFFSET = {1: 1, 2: 2}
+#: Where the work origin sits on the turned-over stock's top, for the program header.
+_ORIGIN_WORDS = {"top-front-left": "front-left corner", "top-centre": "centre"}
 #: Stock left over a face from below that counts as finished: the verify's residual target [mm].
 _FINISHED = 0.02
 
@@ -450,6 +452,9 @@ def plan_op2(
         parameters={
             "op": 2,
             "work_offset": WORK_OFFSET[2],
+            # the program's header comment (cadcam.post): what the operator sets up before cycle start
+            "setup_note": (f"op 2: part turned over about X, held on its finished faces; G55 zero on the top of "
+                           f"the turned-over stock, {_ORIGIN_WORDS[setup.origin]}; faces to Z{face_z:.3f}"),
             "flip": {"axis": FLIP_AXIS, "transform_op1_to_op2": flip_transform(setup1).tolist()},
             "face_z": face_z,
             "holding_mm": round(float(part_work.bounds[0][2] - setup1.stock_min[2]), 4),

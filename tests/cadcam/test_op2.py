@@ -258,6 +258,7 @@ def test_a_part_too_thin_to_grip_in_op_2_is_refused():
 def test_rs274_accepts_op_2_in_g55(block_ops):
     tmp, (job1, job2, _, (p1, p2), _, _, _) = block_ops
     assert "\nG55\n" in p2.text and "\nG54\n" in p1.text
+    assert "(op 2: part turned over about X" in p2.text  # the operator's setup note in the header
     rs274_accepts(tmp / "block.op2.nc", job2, tmp)
 
 
