@@ -375,7 +375,9 @@ def plan_op2(
     library : ToolLibrary
     options : Op2Options
     op1_stock : Simulation, optional
-        Op 1's stock model on a grid of ``options.cell``; None: simulated here from ``job1``.
+        Op 1's stock model (its verify simulation will do, on any grid); None: simulated here
+        from ``job1`` on ``options.cell``. Where stock is left over faces seen from below, it is
+        simulated again on ``options.cell`` if its grid is another.
     jaws : ViseJaws, optional
         The vise (the cell file's, with its optional soft jaws): placed round the turned-over
         part (:func:`op2_jaws`) as the op-2 setup's ``jaws``. None: workholding unknown.
@@ -409,14 +411,22 @@ def plan_op2(
     tool = choose_facing_tool(library, top - face_z, options.facing_tool)
     operations = [facing(setup, face_z, tool, library.cutting_data(tool, setup.material), options.facing)]
 
+    def op1_model() -> Simulation:
+        return stock_after(list(job1.operations), setup1, np.asarray(part_work.triangles), options.cell)
+
     if op1_stock is None:
-        op1_stock = stock_after(list(job1.operations), setup1, np.asarray(part_work.triangles), options.cell)
+        op1_stock = op1_model()
     start = flip_stock(op1_stock, flip_transform(setup1), setup)
-    stock = stock_after_flipped(operations, setup, triangles, start, options.cell)
+    stock = stock_after_flipped(operations, setup, triangles, start, op1_stock.grid.cell)
 
     plan = options.plan
     allowance, limit = plan.roughing.allowance, plan.finish_engagement
     left = _left_from_below(stock, 0.0)
+    if left.any() and op1_stock.grid.cell != options.cell:
+        # Rest roughing reads the stock cell by cell: on the planning grid, not a finer verify grid.
+        start = flip_stock(op1_model(), flip_transform(setup1), setup)
+        stock = stock_after_flipped(operations, setup, triangles, start, options.cell)
+        left = _left_from_below(stock, 0.0)
     if left.any():
         # Pockets and recesses in the bottom face: rest rough them, then finish them, only there.
         log.info("op 2: %d grid points of stock left over faces seen from below; rest roughing and finishing",

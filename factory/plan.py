@@ -390,8 +390,10 @@ def _plan_op2(req: PlanRequest, planned: PlannedPart, op1_sim: Simulation, outpu
     job1 = planned.job
     with watch("op 2"):
         library = load_tool_library(req.cam.tools)
+        # Op 1's verify simulation is op 2's starting stock: op 1 is not simulated again unless the bottom
+        # has features to rest rough (planned on the coarser planning grid).
         job2, part2 = plan_op2(planned.part_work, job1, library, options=Op2Options(plan=req.cam.plan),
-                               jaws=req.cam.jaws())
+                               op1_stock=op1_sim, jaws=req.cam.jaws())
     with watch("op 2 post"):
         program2 = post_process(job2, PostOptions(dialect=req.post, arc_tolerance=req.arc_tolerance,
                                                   work_offset=WORK_OFFSET[2], program_number=1002))
