@@ -27,7 +27,8 @@ hole, ``X Y [Z]`` on each further one, ``G80`` after the last. Grbl has none: th
 operation's points, the same motion expanded, are written as ``G0``/``G1`` moves.
 
 Every program starts with the modal states it relies on (``G21 G90 G17 G40 G49 G80 G94``,
-``G54``), writes the feed only when it changes, omits axis words that did not change, and
+and its work offset: ``G54`` unless ``PostOptions.work_offset`` says another), writes the
+feed only when it changes, omits axis words that did not change, and
 is deterministic: no dates, the same job gives byte-identical text.
 
 Moves are first passed through :func:`cadcam.arcs.fit_segments` (unless
@@ -77,6 +78,10 @@ class PostOptions:
         Rapid traverse rate for time estimates [mm/min]. Default 5000.
     tool_change_time : float
         Time one tool change takes, for time estimates [s]. Default 8.
+    work_offset : int
+        Fixture (work coordinate system) the program runs in, 1..6: ``G54`` .. ``G59``, which
+        LinuxCNC, Fanuc and grbl 1.1 all accept. Default 1 (``G54``); op 2 of a part turned
+        over runs in 2 (``G55``), touched off on the turned-over stock.
     """
 
     dialect: Dialect = "linuxcnc"
@@ -87,6 +92,7 @@ class PostOptions:
     decimals: int = 4
     rapid_rate: float = 5000.0
     tool_change_time: float = 8.0
+    work_offset: int = 1
 
     def __post_init__(self) -> None:
         if self.dialect not in DIALECTS:
@@ -101,6 +107,13 @@ class PostOptions:
             raise GcodeError(f"rapid_rate must be positive [mm/min], got {self.rapid_rate}")
         if not (self.tool_change_time >= 0 and math.isfinite(self.tool_change_time)):
             raise GcodeError(f"tool_change_time must be >= 0 [s], got {self.tool_change_time}")
+        if self.work_offset not in range(1, 7):
+            raise GcodeError(f"work_offset must lie in 1..6 (G54..G59), got {self.work_offset}")
+
+    @property
+    def work_offset_code(self) -> str:
+        """The G word of :attr:`work_offset`: ``G54`` .. ``G59``."""
+        return f"G{53 + self.work_offset}"
 
 
 @dataclass(frozen=True)
@@ -509,7 +522,9 @@ def post_process(job: Job, options: PostOptions = PostOptions(), *,
     head.append("G21 G90 G17 G40 G49 G80 G94")
     if d in ("linuxcnc", "grbl"):
         head.append("G91.1")
-    head.append("G54")
+    if job.parameters.get("setup_note"):
+        head.append(_comment(str(job.parameters["setup_note"]), d))
+    head.append(opt.work_offset_code)
     if d == "linuxcnc":
         head.append(f"G64 P{w.num(opt.arc_tolerance)}")
 

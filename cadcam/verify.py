@@ -140,6 +140,12 @@ class Simulation:
         with np.errstate(invalid="ignore"):
             return np.where(np.isfinite(self.part_top), self.stock_top - self.part_top, np.nan)
 
+    #: (ny, nx) float or None: bottom of the stock at each grid point [mm] when its columns do
+    #: not stand on one plane (op 2's turned-over part, :func:`simulate_flipped`); a column cut
+    #: through is empty and its ``stock_top`` is ``-inf``; ``stock_bottom`` is the lowest of
+    #: them. None: every column stands on ``stock_bottom``.
+    stock_under: np.ndarray | None = None
+
 
 @dataclass(frozen=True)
 class RapidCrash:
@@ -796,6 +802,13 @@ def simulate_snapshots(
     VerifyError
         As :func:`simulate`; also for a snapshot index outside ``0 .. len(moves.points) - 1``.
     """
+    return _simulate(moves, tools, setup, part_triangles, snapshot_moves, options, progress, finishing, None)
+
+
+def _simulate(moves, tools, setup, part_triangles, snapshot_moves, options, progress, finishing,
+              start: "FlippedStock | None"):
+    """:func:`simulate_snapshots` from the setup's stock box (``start`` None) or from a stock
+    given per grid point (:func:`simulate_flipped`)."""
     snap = np.asarray(snapshot_moves, dtype=np.int64).reshape(-1)
     if len(snap) and (snap.min() < 0 or snap.max() >= len(moves.points)):
         raise VerifyError(f"snapshot move indices must lie in 0..{len(moves.points) - 1}", source="snapshot_moves")
@@ -804,8 +817,19 @@ def simulate_snapshots(
     part_top = upper_envelope(tri, grid)
     if not np.isfinite(part_top).any():
         raise VerifyError("the part does not overlap the stock's footprint", source="part")
-    top_z = float(setup.stock_max[2])
-    stock = np.full(grid.size, top_z)
+    under = None
+    if start is None:
+        top_z = float(setup.stock_max[2])
+        stock = np.full(grid.size, top_z)
+    else:
+        if start.grid != grid:
+            raise VerifyError(f"the starting stock's grid {start.grid} is not this setup's {grid}", source="stock")
+        stock = np.array(start.top, dtype=np.float64).reshape(-1)
+        under = np.array(start.bottom, dtype=np.float64).reshape(-1)
+        stock[~(stock > under)] = -np.inf  # empty columns hold nothing to cut
+        finite = stock[np.isfinite(stock)]
+        top_z = float(finite.max()) if len(finite) else float(setup.stock_max[2])
+        stock_bottom = float(under[np.isfinite(stock)].min()) if len(finite) else float(setup.stock_min[2])
 
     pts = moves.points
     a, b = pts[:-1].copy(), pts[1:]
@@ -835,13 +859,17 @@ def simulate_snapshots(
     applied = np.searchsorted(seg.move, snap, side="right")
     stats = _MoveStats(len(seg))
     stocks = _run(seg, body, grid, stock, part_flat, progress, done[seg.move - 1] if len(seg) else done[:0],
-                  n_moves, applied, stats)
+                  n_moves, applied, stats, under)
 
     stock_top = stock.reshape(grid.shape)
     stock_top.setflags(write=False)
     part_top.setflags(write=False)
     sim = Simulation(grid=grid, stock_top=stock_top, part_top=part_top, stock_bottom=float(setup.stock_min[2]),
                      floor_z=setup.floor_z)
+    if under is not None:
+        stock_under = under.reshape(grid.shape)
+        stock_under.setflags(write=False)
+        sim = dataclasses.replace(sim, stock_bottom=stock_bottom, stock_under=stock_under)
     finish = np.zeros(len(pts), bool) if finishing is None else np.asarray(finishing, bool).reshape(-1)
     if len(finish) != len(pts):
         raise VerifyError(f"finishing flags: expected {len(pts)}, got {len(finish)}", source="finishing")
@@ -978,7 +1006,7 @@ class _MoveStats:
 
 def _run(
     seg: _Segments, body: "_Body", grid: Grid, stock: np.ndarray, part: np.ndarray, progress, done, total_moves,
-    snapshot_at: np.ndarray, stats: _MoveStats,
+    snapshot_at: np.ndarray, stats: _MoveStats, under: np.ndarray | None = None,
 ) -> list[np.ndarray]:
     """Apply every move to ``stock`` (flat, modified in place); fill ``stats``; return the snapshots.
 
@@ -999,7 +1027,7 @@ def _run(
     for c in range(len(bounds) - 1):
         s, e = int(bounds[c]), int(bounds[c + 1])
         if e > s:
-            _run_batch(seg, body, s, e, grid, stock, part, stats)
+            _run_batch(seg, body, s, e, grid, stock, part, stats, under)
             if progress is not None:
                 progress(int(done[e - 1]), total_moves)
         if e in wanted:
@@ -1051,12 +1079,14 @@ def _segmented_exclusive_min(group: np.ndarray, value: np.ndarray) -> np.ndarray
 
 
 def _run_batch(seg_all: _Segments, body: "_Body", s: int, e: int, grid: Grid, stock: np.ndarray, part: np.ndarray,
-               stats: _MoveStats) -> None:
+               stats: _MoveStats, under: np.ndarray | None = None) -> None:
     """Cut segments ``s:e`` into ``stock`` and record what each met.
 
     Each move is judged against the stock exactly as every earlier move left it (also
     the earlier moves of this batch): pairs are ordered by grid point and move, and a
     running minimum of the earlier moves' envelopes gives the stock each move found.
+    ``under`` (flat, per grid point): the bottom of a stock whose columns do not all stand
+    on one plane (a flipped part); a column cut down to it is empty (``-inf``) from then on.
     """
     seg = seg_all.sub(s, e)
     owner, flat, col, row = _pairs(seg, grid)
@@ -1079,6 +1109,8 @@ def _run_batch(seg_all: _Segments, body: "_Body", s: int, e: int, grid: Grid, st
     earlier = np.empty(len(cells))
     earlier[order] = _segmented_exclusive_min(cells[order], value[order])
     found = np.minimum(stock[cells], earlier)
+    if under is not None:  # a column cut through by an earlier move holds nothing
+        found[~(found > under[cells])] = -np.inf
 
     if len(b_flat):
         # This move's own flutes take off what they reach first (the tool descends or
@@ -1110,6 +1142,9 @@ def _run_batch(seg_all: _Segments, body: "_Body", s: int, e: int, grid: Grid, st
         _engaged_depth(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
                        env[cut], f, grid.cell, body.engaged_width, stats, skin)
         np.minimum.at(stock, f, env[cut])
+        if under is not None:
+            through = f[~(stock[f] > under[f])]
+            stock[through] = -np.inf
 
 
 def _record_max(best: np.ndarray, where: np.ndarray, owner: np.ndarray, value: np.ndarray, cell: np.ndarray,
@@ -1623,3 +1658,94 @@ def clear_height(sim: Simulation, tool: Tool, xy: np.ndarray) -> np.ndarray:
         need = np.where(near, sim.stock_top[jj, ii] - h, -np.inf)
         out[inside] = np.maximum(out[inside], need)
     return out
+
+
+@dataclass(frozen=True)
+class FlippedStock:
+    """The stock one operation left, turned over for the next: a column of material per grid point.
+
+    Attributes
+    ----------
+    grid : Grid
+        The next setup's grid (:func:`cadcam.heightmap.grid_over` of its stock box).
+    top, bottom : (ny, nx) float
+        Top and bottom of the material at each grid point in the next setup's work
+        coordinates [mm]; ``top`` is ``-inf`` where the column is empty (cut through).
+    """
+
+    grid: Grid
+    top: np.ndarray
+    bottom: np.ndarray
+
+
+def flip_stock(sim: Simulation, transform: np.ndarray, setup: Setup) -> FlippedStock:
+    """The stock of ``sim`` turned over by ``transform`` into the work coordinates of ``setup``.
+
+    A z-map column ``[bottom, top]`` turned upside down is a column ``[-top, -bottom]`` (plus
+    the transform's offset): its top is the old flat bottom, its bottom the surface the
+    earlier program cut. The next setup's grid must be the old one mirrored, which it is
+    when ``setup``'s stock box is the old one turned over in place (:mod:`cadcam.op2`).
+
+    Parameters
+    ----------
+    sim : Simulation
+        The stock after the earlier program.
+    transform : (4, 4) float
+        Old work coordinates -> new ones [mm]: a half turn about the X axis
+        (``diag(1, -1, -1)``) and a translation.
+    setup : Setup
+        The next setup; its grid is laid over its stock box with ``sim``'s cell.
+
+    Raises
+    ------
+    VerifyError
+        ``transform`` is not a half turn about X, or the grids do not coincide.
+    """
+    t = np.asarray(transform, dtype=np.float64).reshape(4, 4)
+    if not np.allclose(t[:3, :3], np.diag([1.0, -1.0, -1.0]), atol=1e-12):
+        raise VerifyError("the flip must be a half turn about the work X axis", source="flip")
+    g1 = sim.grid
+    grid = grid_over(setup.stock_min, setup.stock_max, g1.cell)
+    # New grid point (x, y) comes from the old point (x - tx, ty - y).
+    i_f = (grid.xs - t[0, 3] - g1.x0) / g1.cell
+    j_f = (t[1, 3] - grid.ys - g1.y0) / g1.cell
+    i, j = np.rint(i_f).astype(np.int64), np.rint(j_f).astype(np.int64)
+    if (grid.shape != g1.shape or np.abs(i_f - i).max() > 1e-6 or np.abs(j_f - j).max() > 1e-6
+            or i.min() < 0 or i.max() >= g1.nx or j.min() < 0 or j.max() >= g1.ny):
+        raise VerifyError("the flipped stock does not land on the next setup's grid: its stock box must be "
+                          "the old one turned over in place", source="flip")
+    old_top = sim.stock_top[np.ix_(j, i)]
+    old_under = (np.full(g1.shape, sim.stock_bottom) if sim.stock_under is None else sim.stock_under)[np.ix_(j, i)]
+    present = old_top > old_under
+    tz = t[2, 3]
+    top = np.where(present, tz - old_under, -np.inf)
+    bottom = np.where(present, tz - old_top, tz - old_under)
+    top.setflags(write=False)
+    bottom.setflags(write=False)
+    return FlippedStock(grid=grid, top=top, bottom=bottom)
+
+
+def simulate_flipped(
+    moves: ProgramMoves,
+    tools: Mapping[int, Tool],
+    setup: Setup,
+    part_triangles: np.ndarray,
+    start: FlippedStock,
+    options: VerifyOptions = VerifyOptions(),
+    progress: Callable[[int, int], None] | None = None,
+    finishing: np.ndarray | None = None,
+) -> tuple[Simulation, VerifyReport]:
+    """:func:`simulate` starting from the stock an earlier operation left, turned over.
+
+    The simulation keeps each column's bottom (``Simulation.stock_under``): a move that cuts
+    a column down to it empties it, and later moves through it cut nothing there.
+    ``below_stock`` faults are held against the lowest material there is (below it: the
+    vise's parallels). ``options.cell`` must be the cell ``start`` was made on.
+
+    Raises
+    ------
+    VerifyError
+        As :func:`simulate`; also when ``start`` lies on another grid than this setup's.
+    """
+    sim, report, _ = _simulate(moves, tools, setup, part_triangles, (), options, progress, finishing, start)
+    return sim, report

@@ -44,6 +44,7 @@ def plan(
     robot_cell: Annotated[Path, typer.Option("--cell", help="Robot cell file for the load/unload program.", exists=True, dir_okay=False)] = PlanRequest.cell,
     robot: Annotated[bool, typer.Option("--robot/--no-robot", help="Plan loading and unloading with the robot cell.")] = PlanRequest.robot,
     lang: Annotated[str, typer.Option("--lang", help="Robot program language: urscript, rapid or krl.")] = PlanRequest.lang,
+    ops: Annotated[int | None, typer.Option("--ops", help="2: op 1, then the part turned over and op 2 faces off the holding allowance (PART.op2.nc); 1: op 1 only. Default: 2 for a solid, 1 for a relief (a block not turned over).", min=1, max=2)] = PlanRequest.ops,
     overwrite: Overwrite = False,
     json_out: JsonFlag = False,
     quiet: Quiet = False,
@@ -51,8 +52,10 @@ def plan(
     """Plan a part end to end: G-code, setup sheet, verify report and picture, robot program, one MCAP.
 
     Every stage runs before any file is written, and the files appear as one set (the summary
-    PART.plan.json last). Exits 3 (after writing everything) when verification finds a gouge or a
-    rapid crash.
+    PART.plan.json last). Two operations by default: op 1 from the top (PART.nc, G54), then the
+    part turned over about the jaw axis and op 2 facing off the holding allowance (PART.op2.nc,
+    G55, PART.op2.setup.json). Exits 3 (after writing everything) when verification of either
+    finds a gouge or a rapid crash.
     """
     setup_logging(quiet)
     req = cam.cam_request(part, tools, stock, material, units, origin, rough_tool, finish_tool, allowance, scallop,
@@ -60,7 +63,7 @@ def plan(
     if lang not in PROGRAM_SUFFIX:
         raise typer.BadParameter(f"expected one of {', '.join(PROGRAM_SUFFIX)}, got {lang!r}", param_hint="--lang")
     request = PlanRequest(req, post=post, arc_tolerance=arc_tolerance, grid=grid, cell=robot_cell, robot=robot,
-                          lang=lang)
+                          lang=lang, ops=ops)
     for p in request.outputs(out_dir).values():  # before the work, not after it
         check_writable(p, overwrite)
     with progress_bars(quiet) as bars:
@@ -84,8 +87,18 @@ def plan(
         if len(unreached) > _UNREACHED_SHOWN:
             stderr.print(f"{part.name}: and {len(unreached) - _UNREACHED_SHOWN} more places no tool reaches "
                          f"(listed in {Path(summary['outputs']['summary']).name})", highlight=False, markup=False)
-        stderr.print(f"{part.name}: {len(summary['operations'])} operations, {summary['lines']} lines, estimated "
+        op1 = "op 1: " if planned.op2 is not None else ""
+        stderr.print(f"{part.name}: {op1}{len(summary['operations'])} operations, {summary['lines']} lines, estimated "
                      f"{summary['estimated_cycle_s'] / 60:.1f} min; {report_text(planned.report)}{robot_text}",
                      highlight=False, markup=False)
-    if not planned.report.ok:
+        if planned.op2 is not None:
+            op2 = planned.op2
+            for u in op2.job.parameters.get("unreached", [])[:_UNREACHED_SHOWN]:
+                stderr.print(f"{part.name}: op 2: no tool in the library reaches {Unreached(**u).describe()} from "
+                             f"below: left uncut", highlight=False, markup=False)
+            stderr.print(f"{part.name}: op 2 (turned over about X, G55): {len(op2.job.operations)} operations, "
+                         f"{op2.program.line_count} lines, estimated {op2.program.total_time / 60:.1f} min, faces "
+                         f"{op2.job.parameters['holding_mm']:g} mm of holding allowance; {report_text(op2.report)}",
+                         highlight=False, markup=False)
+    if not planned.ok:
         raise typer.Exit(EXIT_VERIFY_FAILED)

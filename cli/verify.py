@@ -1,4 +1,9 @@
-"""``factory verify PART.nc --setup PART.setup.json --part PART.stl``: prove a program never gouges."""
+"""``factory verify PART.nc --setup PART.setup.json --part PART.stl``: prove a program never gouges.
+
+Op 2 (``PART.op2.nc`` with ``PART.op2.setup.json``) runs on what op 1 left, turned over: its
+sheet names op 1's program and sheet, which are simulated first (``--after`` gives another
+op-1 program); the verdict covers both.
+"""
 
 from __future__ import annotations
 
@@ -12,7 +17,15 @@ from cli.common import (EXIT_VERIFY_FAILED, Overwrite, Quiet, print_json, progre
                         setup_logging, stderr)
 from factory.atomic import check_writable
 from factory.errors import VerifyError
-from factory.verify import part_triangles, read_sheet, report_text, run_verify, write_verify_outputs
+from factory.verify import (flip_of, op1_of, part_triangles, read_sheet, report_text, run_verify, run_verify_after,
+                            write_verify_outputs)
+
+
+def _read(program: Path) -> str:
+    try:
+        return program.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise VerifyError(f"cannot read program: {e}", source=program) from None
 
 
 @reports_errors
@@ -20,6 +33,7 @@ def verify(
     program: Annotated[Path, typer.Argument(help="G-code program.", exists=True, dir_okay=False)],
     setup_path: Annotated[Path, typer.Option("--setup", help="Setup sheet written by `factory gcode`.", exists=True, dir_okay=False)],
     part: Annotated[Path, typer.Option("--part", help="The part mesh the program was made for.", exists=True, dir_okay=False)],
+    after: Annotated[Path | None, typer.Option("--after", help="Op 2 only: op 1's program, simulated first (default: the one the op-2 setup sheet names).", exists=True, dir_okay=False)] = None,
     png: Annotated[Path | None, typer.Option("--png", help="Write a deviation map picture.", dir_okay=False)] = None,
     json_path: Annotated[Path | None, typer.Option("--json", help="Write the report as JSON ('-' for stdout).")] = None,
     mcap: Annotated[Path | None, typer.Option("--mcap", help="Write the simulated stock to MCAP.", dir_okay=False)] = None,
@@ -32,28 +46,41 @@ def verify(
 
     Exits 3 when the program gouges the part, a rapid or the shank or holder meets stock, a
     tool is engaged deeper than its flutes (a finishing tool: deeper than the allowance plus
-    the roughing terraces), a tool goes below the stock bottom, or nothing is cut.
+    the roughing terraces), a tool goes below the stock bottom, or nothing is cut. For op 2
+    the report, picture and MCAP are op 2's, and op 1 failing fails the command too.
     """
     setup_logging(quiet)
     outputs = [p for p in (png, mcap) if p is not None] + ([json_path] if json_path and str(json_path) != "-" else [])
     for p in outputs:
         check_writable(p, overwrite)
     setup, tools, sheet = read_sheet(setup_path)
+    first = op1_of(sheet, setup_path, after)
     triangles = part_triangles(part, setup, sheet.get("source_sha256", ""))
-    try:
-        text = program.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise VerifyError(f"cannot read program: {e}", source=program) from None
+    text = _read(program)
     options = VerifyOptions(cell=grid, gouge_tolerance=tolerance)
+    before_ok = True
     with progress_bars(quiet) as bars:
-        sim, report = run_verify(text, str(program), setup, tools, triangles, options, bars,
-                                 operations=sheet.get("operations") or ())
+        if first is None:
+            sim, report = run_verify(text, str(program), setup, tools, triangles, options, bars,
+                                     operations=sheet.get("operations") or ())
+        else:
+            program1, sheet1_path = first
+            setup1, tools1, sheet1 = read_sheet(sheet1_path)
+            sim1, report1 = run_verify(_read(program1), str(program1), setup1, tools1,
+                                       part_triangles(part, setup1, sheet1.get("source_sha256", "")), options, bars,
+                                       operations=sheet1.get("operations") or ())
+            before_ok = report1.ok
+            if not quiet:
+                stderr.print(f"op 1 ({program1.name}): {report_text(report1)}", highlight=False, markup=False)
+            sim, report = run_verify_after(sim1, flip_of(sheet, setup_path), text, str(program), setup, tools,
+                                           triangles, options, bars, operations=sheet.get("operations") or ())
     to_stdout = json_path is not None and str(json_path) == "-"
     write_verify_outputs(sim, report, png=png, json_path=None if to_stdout else json_path, mcap=mcap,
                          overwrite=overwrite, inputs={str(program): "", str(part): ""})
     if to_stdout:
         print_json(report.to_dict())
     if not quiet:
-        stderr.print(report_text(report), highlight=False)
-    if not report.ok:
+        label = "" if first is None else f"op 2 ({program.name}): "
+        stderr.print(label + report_text(report), highlight=False)
+    if not (report.ok and before_ok):
         raise typer.Exit(EXIT_VERIFY_FAILED)

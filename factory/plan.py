@@ -30,12 +30,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import trimesh
 
-from cadcam.model import Setup
+from cadcam.model import Job, Setup
+from cadcam.op2 import (FLIP_AXIS, WORK_OFFSET, Op2Options, flip_transform, op2_setup_image, op2_sheet_fields,
+                        plan_op2)
 from cadcam.post import PostOptions, Program, post_process
 from cadcam.preview import setup_image
 from cadcam.relief import block_corners
 from cadcam.sheet import setup_sheet
+from cadcam.tools import load_tool_library
 from cadcam.verify import Simulation, VerifyOptions, VerifyReport, check_grid_size
 from factory.atomic import check_writable, write_bytes, write_text
 from factory.cam import CamRequest, PlannedPart, compute_job, log_job
@@ -46,7 +50,7 @@ from factory.pictures import png_bytes
 from factory.progress import Progress, Stopwatch
 from factory.resources import FIXTURES
 from factory.tending import log_tending, plan_cell
-from factory.verify import log_simulation, run_verify, write_verify_outputs
+from factory.verify import log_simulation, run_verify, run_verify_after, write_verify_outputs
 from robotprog.cell import Cell, load_cell
 from robotprog.collision import CollisionWorld
 from robotprog.frames import check_stock_fits, setup_sheet_to_cell
@@ -61,8 +65,12 @@ PROGRAM_SUFFIX = {"urscript": ".script", "rapid": ".mod", "krl": ".src"}
 SUMMARY_SUFFIX = ".plan.json"
 
 
-def plan_outputs(part: Path, out_dir: Path, robot_lang: str | None = "urscript") -> dict[str, Path]:
-    """Every file ``factory plan`` writes for ``part`` into ``out_dir`` (no robot files for ``None``)."""
+def plan_outputs(part: Path, out_dir: Path, robot_lang: str | None = "urscript",
+                 ops: int | None = 2) -> dict[str, Path]:
+    """Every file ``factory plan`` writes for ``part`` into ``out_dir`` (no robot files for ``None``).
+
+    With ``ops`` 2 (the default) or None (not known yet: all that may be written), op 2's program, setup sheet, verify report and picture, and
+    the picture of its setup: ``PART.op2.nc``, ``PART.op2.setup.json``, ... (:mod:`cadcam.op2`)."""
     stem = out_dir / part.stem
     outputs = {
         "program": stem.with_suffix(".nc"),
@@ -74,6 +82,14 @@ def plan_outputs(part: Path, out_dir: Path, robot_lang: str | None = "urscript")
         "setup_png": stem.with_suffix(".setup.png"),
         "summary": stem.with_suffix(SUMMARY_SUFFIX),
     }
+    if ops != 1:
+        outputs.update({
+            "program_op2": stem.with_suffix(".op2.nc"),
+            "setup_sheet_op2": stem.with_suffix(".op2.setup.json"),
+            "verify_json_op2": stem.with_suffix(".op2.verify.json"),
+            "verify_png_op2": stem.with_suffix(".op2.verify.png"),
+            "setup_png_op2": stem.with_suffix(".op2.setup.png"),
+        })
     if robot_lang is not None:
         outputs["robot_program"] = stem.with_suffix(PROGRAM_SUFFIX[robot_lang])
         if robot_lang == "krl":
@@ -131,6 +147,10 @@ class PlanRequest:
         Plan loading and unloading with the cell.
     lang : str
         Robot program language: ``urscript``, ``rapid`` or ``krl``.
+    ops : int, optional
+        2: op 1 from the top, then the part turned over and op 2 facing off the holding
+        allowance (:mod:`cadcam.op2`); 1: op 1 only. None (default): 2 for a solid, 1 for a
+        relief (cut into the top of a block that is not turned over unless asked).
     """
 
     cam: CamRequest
@@ -140,6 +160,7 @@ class PlanRequest:
     cell: Path = FIXTURES / "cell.yaml"
     robot: bool = True
     lang: str = "urscript"
+    ops: int | None = None
 
     @classmethod
     def defaults(cls, part: Path, material: str, cell: Path = FIXTURES / "cell.yaml",
@@ -149,7 +170,7 @@ class PlanRequest:
 
     def outputs(self, out_dir: Path) -> dict[str, Path]:
         """Every file :meth:`PartPlan.write` writes into ``out_dir``."""
-        return plan_outputs(self.cam.part, out_dir, self.lang if self.robot else None)
+        return plan_outputs(self.cam.part, out_dir, self.lang if self.robot else None, self.ops)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -166,6 +187,32 @@ class Tending:
     def programs(self) -> dict[str, str]:
         """File name -> text of the robot program."""
         return {path.name: text for path, text in self.program.texts.items()}
+
+
+@dataclasses.dataclass(frozen=True)
+class SecondOp:
+    """Op 2 of a plan: the part turned over about the jaw axis, the holding allowance faced off.
+
+    Attributes
+    ----------
+    job : Job
+        In op-2 work coordinates (:func:`cadcam.op2.plan_op2`).
+    part_work : trimesh.Trimesh
+        The part in op-2 work coordinates [mm].
+    program : Program
+        Posted in work offset G55.
+    setup_sheet : dict
+        ``PART.op2.setup.json``: naming op 1's program and sheet it runs after.
+    simulation, report : Simulation, VerifyReport
+        Its verify, from op 1's simulated stock turned over.
+    """
+
+    job: Job
+    part_work: trimesh.Trimesh
+    program: Program
+    setup_sheet: dict[str, Any]
+    simulation: Simulation
+    report: VerifyReport
 
 
 @dataclasses.dataclass(frozen=True)
@@ -189,6 +236,8 @@ class PartPlan:
         Its verdict: gouges, remaining stock, rapid crashes.
     seconds : dict
         Wall time per stage [s].
+    op2 : SecondOp or None
+        Op 2, None when planned with ``ops=1``.
     """
 
     request: PlanRequest
@@ -199,6 +248,12 @@ class PartPlan:
     simulation: Simulation
     report: VerifyReport
     seconds: dict[str, float]
+    op2: SecondOp | None = None
+
+    @property
+    def ok(self) -> bool:
+        """Both operations verified: no gouge, no rapid into stock, no other fault."""
+        return self.report.ok and (self.op2 is None or self.op2.report.ok)
 
     def summary(self, out_dir: Path) -> dict[str, Any]:
         """The ``PART.plan.json`` document of this plan written into ``out_dir``."""
@@ -222,7 +277,10 @@ class PartPlan:
             "rapids": job.parameters.get("rapids"),
             # round holes found, and which were drilled, helixed, or left to roughing (cadcam.drilling)
             "holes": job.parameters.get("holes", {}),
-            "verify": self.report.to_dict(),
+            # verify.ok: every operation verified; the figures are op 1's, op 2's under verify_op2
+            "verify": {**self.report.to_dict(), "ok": self.ok},
+            "verify_op2": None if self.op2 is None else self.op2.report.to_dict(),
+            "setups": self._setups(outputs),
             "robot": None if tending is None else {
                 "cell": tending.cell.name, "robot": tending.world.robot.name,
                 "motion_s": round(tending.plan.duration, 3),
@@ -231,6 +289,23 @@ class PartPlan:
             "seconds": {k: round(v, 3) for k, v in self.seconds.items()},
             "outputs": {k: str(v) for k, v in outputs.items()},
         }
+
+    def _setups(self, outputs: dict[str, Path]) -> list[dict[str, Any]]:
+        """One entry per operation, in running order: program, sheet, work offset, cycle estimate [s]."""
+        out = [{"op": 1, "program": str(outputs["program"]), "setup_sheet": str(outputs["setup_sheet"]),
+                "work_offset": "G54", "estimated_cycle_s": round(self.program.total_time, 1),
+                "verify_ok": self.report.ok}]
+        if self.op2 is not None:
+            out.append({"op": 2, "program": str(outputs["program_op2"]),
+                        "setup_sheet": str(outputs["setup_sheet_op2"]), "work_offset": "G55",
+                        "estimated_cycle_s": round(self.op2.program.total_time, 1),
+                        "verify_ok": self.op2.report.ok, "flip_axis": FLIP_AXIS,
+                        "face_z": round(float(self.op2.job.parameters["face_z"]), 4),
+                        "operations": [{"name": e.name, "tool": e.tool_number,
+                                        "estimated_s": round(e.cut_time + e.rapid_time, 1)}
+                                       for e in self.op2.program.estimates],
+                        "unreached": list(self.op2.job.parameters.get("unreached", []))})
+        return out
 
     def write(self, out_dir: Path, *, overwrite: bool = False) -> dict[str, Any]:
         """Write every output into ``out_dir`` as one set, the summary last; returns the summary.
@@ -268,6 +343,13 @@ class PartPlan:
         write_bytes(outputs["toolpath_png"], png_bytes(planned.toolpath_picture()))
         write_bytes(outputs["setup_png"], png_bytes(setup_image(job.setup, np.asarray(planned.part_work.triangles),
                                                                job.part_name)))
+        if self.op2 is not None:
+            op2 = self.op2
+            write_text(outputs["setup_sheet_op2"], json.dumps(op2.setup_sheet, indent=2) + "\n")
+            write_text(outputs["program_op2"], op2.program.text)
+            write_verify_outputs(op2.simulation, op2.report, png=outputs["verify_png_op2"],
+                                 json_path=outputs["verify_json_op2"], mcap=None, overwrite=False, inputs={})
+            write_bytes(outputs["setup_png_op2"], png_bytes(op2_setup_image(op2.job, op2.part_work)))
         inputs = {str(req.cam.part): planned.loaded.sha256}
         parameters = dict(job.parameters)
         if tending is not None:
@@ -301,15 +383,20 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     if req.lang not in PROGRAM_SUFFIX:
         raise PlanningError(f"unknown robot program language {shown(req.lang)}: expected {', '.join(PROGRAM_SUFFIX)}",
                             source="lang")
+    if req.ops not in (None, 1, 2):
+        raise PlanningError(f"ops must be 1 or 2, got {shown(req.ops)}", source="ops")
     post_options = PostOptions(dialect=req.post, arc_tolerance=req.arc_tolerance)  # refused before the CAM work
     watch = Stopwatch()
     planned = compute_job(req.cam, progress, watch,
                           check_setup=lambda setup: check_grid_size(setup, req.grid, source=str(req.cam.part)))
     job = planned.job
+    if req.ops is None:  # a relief stays in its block, right way up, unless asked
+        req = dataclasses.replace(req, ops=1 if planned.boundary is not None else 2)
     outputs = req.outputs(Path("."))
     with watch("post"):
         program = post_process(job, post_options)
         sheet = setup_sheet(job, program, outputs["program"].name)
+        sheet.update(op=1, work_offset="G54")
     tending = None
     if req.robot:
         # the vise must clamp the stock above its jaws and the gripper hold it, before any motion is planned
@@ -319,14 +406,42 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
         vertices = np.asarray(planned.loaded.mesh.vertices) / float(job.setup.mesh_scale)
         if planned.boundary is not None:  # a relief leaves in its block: the robot holds the block
             vertices = block_corners(job.setup)
-        cell, world, tplan = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch)
+        cell, world, tplan = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch,
+                                       setups=req.ops)
         tending = Tending(cell, world, tplan, post_program(req.lang, outputs["robot_program"], cell, world, tplan))
     with watch("verify"):
         sim, report = run_verify(program.text, str(outputs["program"]), job.setup,
                                  {t.number: t for t in job.tools},
                                  np.asarray(planned.part_work.triangles), VerifyOptions(cell=req.grid), progress,
                                  operations=sheet.get("operations") or ())
-    return PartPlan(req, planned, program, sheet, tending, sim, report, dict(watch.seconds))
+    op2 = None
+    if req.ops == 2:
+        op2 = _plan_op2(req, planned, sim, outputs, progress, watch)
+        sheet["next"] = {"program": outputs["program_op2"].name, "setup_sheet": outputs["setup_sheet_op2"].name}
+    return PartPlan(req, planned, program, sheet, tending, sim, report, dict(watch.seconds), op2)
+
+
+def _plan_op2(req: PlanRequest, planned: PlannedPart, op1_sim: Simulation, outputs: dict[str, Path],
+              progress: Progress | None, watch: Stopwatch) -> SecondOp:
+    """Op 2 planned, posted in G55 and verified from op 1's simulated stock turned over."""
+    job1 = planned.job
+    with watch("op 2"):
+        library = load_tool_library(req.cam.tools)
+        # Op 1's verify simulation is op 2's starting stock: op 1 is not simulated again unless the bottom
+        # has features to rest rough (planned on the coarser planning grid).
+        job2, part2 = plan_op2(planned.part_work, job1, library, options=Op2Options(plan=req.cam.plan),
+                               op1_stock=op1_sim, jaws=req.cam.jaws())
+    with watch("op 2 post"):
+        program2 = post_process(job2, PostOptions(dialect=req.post, arc_tolerance=req.arc_tolerance,
+                                                  work_offset=WORK_OFFSET[2], program_number=1002))
+        sheet2 = setup_sheet(job2, program2, outputs["program_op2"].name)
+        sheet2.update(op2_sheet_fields(job2, outputs["program"].name, outputs["setup_sheet"].name))
+    with watch("op 2 verify"):
+        sim2, report2 = run_verify_after(op1_sim, flip_transform(job1.setup), program2.text,
+                                         str(outputs["program_op2"]), job2.setup, {t.number: t for t in job2.tools},
+                                         np.asarray(part2.triangles), VerifyOptions(cell=req.grid), progress,
+                                         operations=sheet2.get("operations") or ())
+    return SecondOp(job2, part2, program2, sheet2, sim2, report2)
 
 
 @contextlib.contextmanager

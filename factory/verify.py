@@ -15,7 +15,8 @@ from cadcam.mesh import load_part, units_of_scale
 from cadcam.relief import machining_surface
 from cadcam.model import Setup, Tool
 from cadcam.sheet import read_setup_sheet
-from cadcam.verify import Simulation, VerifyOptions, VerifyReport, deviation_image, finishing_moves, simulate
+from cadcam.verify import (Simulation, VerifyOptions, VerifyReport, deviation_image, finishing_moves, flip_stock,
+                           simulate, simulate_flipped)
 from factory.atomic import write_bytes, write_text
 from factory.errors import SetupError
 from factory.pictures import png_bytes
@@ -67,9 +68,68 @@ def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int
                     finishing=finishing)
 
 
+def run_verify_after(before: Simulation, flip: np.ndarray, gcode_text: str, gcode_source: str, setup: Setup,
+                     tools: dict[int, Tool], triangles: np.ndarray, options: VerifyOptions,
+                     progress: Progress | None = None,
+                     operations: Sequence[Mapping[str, Any]] = ()) -> tuple[Simulation, VerifyReport]:
+    """:func:`run_verify` of op 2: starting from ``before`` (op 1's simulated stock, on a grid of
+    ``options.cell``) turned over by ``flip`` (op-1 -> op-2 work transform [mm]) into ``setup``.
+
+    Raises
+    ------
+    GcodeError, VerifyError
+        As :func:`run_verify`; VerifyError also when the stock does not turn over onto ``setup``.
+    """
+    moves = parse_gcode(gcode_text, source=gcode_source)
+    finishing = finishing_moves(gcode_text, moves, operations)
+    start = flip_stock(before, flip, setup)
+    return simulate_flipped(moves, tools, setup, triangles, start, options,
+                            progress=stage_callback(progress, "verify op 2"), finishing=finishing)
+
+
+def op1_of(sheet: Mapping[str, Any], sheet_path: Path, after: Path | None) -> tuple[Path, Path] | None:
+    """Op 1's program and setup sheet an op-2 setup sheet runs after, or None for an op-1 sheet.
+
+    The op-2 sheet names them (``after``) relative to its own folder; ``after`` (the command
+    line's ``--after``) overrides the program, its sheet staying the named one.
+
+    Raises
+    ------
+    SetupError
+        ``after`` given for a sheet that is not op 2's, or an op-2 sheet without ``after``.
+    """
+    if sheet.get("op") != 2:
+        if after is not None:
+            raise SetupError("--after is for op 2: this setup sheet is op 1's", source=sheet_path)
+        return None
+    named = sheet.get("after")
+    if not isinstance(named, Mapping) or not isinstance(named.get("setup_sheet"), str):
+        raise SetupError("op-2 setup sheet does not name op 1's setup sheet ('after')", source=sheet_path)
+    program = after if after is not None else sheet_path.parent / str(named.get("program", ""))
+    return program, sheet_path.parent / named["setup_sheet"]
+
+
+def flip_of(sheet: Mapping[str, Any], sheet_path: Path) -> np.ndarray:
+    """The op-1 -> op-2 work transform an op-2 setup sheet records [mm], (4, 4).
+
+    Raises
+    ------
+    SetupError
+        Missing or not a 4 x 4 matrix.
+    """
+    try:
+        t = np.asarray(sheet["flip"]["transform_op1_to_op2"], dtype=np.float64).reshape(4, 4)
+    except (KeyError, TypeError, ValueError):
+        raise SetupError("op-2 setup sheet lacks the flip transform ('flip.transform_op1_to_op2')",
+                         source=sheet_path) from None
+    return t
+
+
 def log_simulation(mcap: McapLog, sim: Simulation) -> None:
     """The simulated stock as a mesh in work coordinates (metres) on ``/verify/stock``."""
-    vertices, faces = heightfield_mesh(sim.grid.xs, sim.grid.ys, sim.stock_top)
+    top = sim.stock_top if sim.stock_under is None else np.where(np.isfinite(sim.stock_top), sim.stock_top,
+                                                                   sim.stock_under)  # cut through: drawn at its bottom
+    vertices, faces = heightfield_mesh(sim.grid.xs, sim.grid.ys, top)
     marker = triangle_mesh_marker("verify_stock", 0, vertices / 1000.0, faces, (0.75, 0.75, 0.8, 1.0), "work", 0)
     mcap.write("/verify/stock", marker_array([marker]), 0, latched=True)
 

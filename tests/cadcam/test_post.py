@@ -182,11 +182,12 @@ def _rs274(tmp_path: Path, text: str, name: str) -> subprocess.CompletedProcess:
 _CANON = re.compile(r"(STRAIGHT_TRAVERSE|STRAIGHT_FEED|ARC_FEED)\(([^)]*)\)")
 
 
+@pytest.mark.parametrize("work_offset", [1, 2], ids=["G54", "G55"])
 @pytest.mark.parametrize("dialect", ["linuxcnc", "fanuc"])
-def test_linuxcnc_interpreter_accepts(tmp_path, dialect):
-    """rs274 accepts the program. Fanuc programs happen to be valid RS274/NGC too
-    (``%`` bounds, the ``O`` number alone on its line, ``G28 G91 Z0.``)."""
-    prog = post_process(_job(), PostOptions(dialect=dialect))
+def test_linuxcnc_interpreter_accepts(tmp_path, dialect, work_offset):
+    """rs274 accepts the program, in op 1's work offset and op 2's. Fanuc programs happen to be
+    valid RS274/NGC too (``%`` bounds, the ``O`` number alone on its line, ``G28 G91 Z0.``)."""
+    prog = post_process(_job(), PostOptions(dialect=dialect, work_offset=work_offset))
     res = _rs274(tmp_path, prog.text, f"{dialect}.nc")
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
     assert "PROGRAM_END" in res.stdout
@@ -256,8 +257,9 @@ def test_fanuc_program_structure():
             assert s == s.upper()
 
 
-def test_grbl_uses_only_grbl_codes():
-    text = post_process(_job(), PostOptions(dialect="grbl")).text
+@pytest.mark.parametrize("work_offset", [1, 2], ids=["G54", "G55"])
+def test_grbl_uses_only_grbl_codes(work_offset):
+    text = post_process(_job(), PostOptions(dialect="grbl", work_offset=work_offset)).text
     grbl_g = {"0", "1", "2", "3", "4", "10", "17", "18", "19", "20", "21", "28", "28.1", "30", "30.1",
               "38.2", "38.3", "38.4", "38.5", "40", "43.1", "49", "53", "54", "55", "56", "57", "58",
               "59", "61", "80", "90", "91", "91.1", "92", "92.1", "93", "94"}
@@ -368,3 +370,17 @@ def test_bad_jobs_and_options():
                {"rapid_rate": 0.0}):
         with pytest.raises(GcodeError):
             PostOptions(**kw)
+
+
+@pytest.mark.parametrize("dialect", DIALECTS)
+def test_work_offset_is_the_fixture_the_program_runs_in(dialect):
+    """Op 2 of a part turned over runs in G55: G54..G59 are read by LinuxCNC, Fanuc and grbl 1.1 alike."""
+    op1 = _code(post_process(_job(), PostOptions(dialect=dialect)).text)
+    op2 = _code(post_process(_job(), PostOptions(dialect=dialect, work_offset=2)).text)
+    assert "G54" in op1 and "G55" not in op1
+    assert "G55" in op2 and "G54" not in op2
+    assert [ln for ln in op1 if ln != "G54"] == [ln for ln in op2 if ln != "G55"]
+    for bad in (0, 7):
+        with pytest.raises(GcodeError, match="work_offset"):
+            PostOptions(dialect=dialect, work_offset=bad)
+

@@ -220,6 +220,18 @@ def test_plan_without_robot_writes_no_robot_files(small_part, tmp_path):
     r = run("plan", small_part, "-o", out, "--no-robot", "--scallop", "0.05", "--quiet")
     assert r.exit_code == 0, r.output
     assert not list(out.glob("*.script"))
+    assert (out / "block.nc").is_file() and (out / "block.op2.nc").is_file()  # both operations
+
+
+def test_plan_ops_1_writes_op_1_only(small_part, tmp_path):
+    out = tmp_path / "out"
+    r = run("plan", small_part, "-o", out, "--no-robot", "--ops", "1", "--scallop", "0.05", "--json", "--quiet")
+    assert r.exit_code == 0, r.output
+    summary = json.loads(r.stdout)
+    assert not list(out.glob("*.op2.*")) and "program_op2" not in summary["outputs"]
+    assert [s["op"] for s in summary["setups"]] == [1] and summary["verify_op2"] is None
+    r = run("plan", small_part, "-o", out, "--no-robot", "--ops", "3", "--quiet")
+    assert r.exit_code == 2
 
 
 def test_plan_with_a_broken_cell_writes_nothing(small_part, tmp_path):

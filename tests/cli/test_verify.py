@@ -30,7 +30,8 @@ def bracket(tmp_path_factory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("bracket")
     r = run("plan", SAMPLES / "bracket.stl", "-o", d, "--no-robot", "--quiet")
     assert r.exit_code in (0, EXIT_VERIFY_FAILED), r.output
-    return {"dir": d, "nc": d / "bracket.nc", "setup": d / "bracket.setup.json", "part": SAMPLES / "bracket.stl"}
+    return {"dir": d, "nc": d / "bracket.nc", "setup": d / "bracket.setup.json", "part": SAMPLES / "bracket.stl",
+            "nc2": d / "bracket.op2.nc", "setup2": d / "bracket.op2.setup.json"}
 
 
 def verify(bracket, text: str, name: str):
@@ -107,3 +108,46 @@ def test_bracket_with_a_plunge_into_the_front_jaw(bracket):
     assert "line(s) " + str(change + 4) in r.output.replace("\n", " ")
     # the program as planned keeps clear of the vise
     assert not [f for f in verify(bracket, bracket["nc"].read_text(), "clear.nc")[1]["faults"] if f["kind"] == "jaws"]
+     assert by_tool[3]["finishing"] and by_tool[3]["max_depth"] <= 1.0
+     assert not by_tool[1]["finishing"] and by_tool[1]["max_depth"] <= 18.0  # T1's flutes
+     assert report["rapids_checked"] > 0
+
+
+def verify_op2(bracket, text: str, name: str, *extra):
+    nc = bracket["dir"] / name
+    nc.write_text(text)
+    out = bracket["dir"] / (name + ".json")
+    r = run("verify", nc, "--setup", bracket["setup2"], "--part", bracket["part"], "--grid", GRID,
+            "--json", out, "--overwrite", *extra)
+    return r, json.loads(out.read_text())
+
+
+def test_op_2_is_verified_after_op_1_turned_over(bracket):
+    sheet = json.loads(bracket["setup2"].read_text())
+    assert sheet["op"] == 2 and sheet["work_offset"] == "G55"
+    assert sheet["after"] == {"program": "bracket.nc", "setup_sheet": "bracket.setup.json"}
+    op1_ok = json.loads((bracket["dir"] / "bracket.plan.json").read_text())["setups"][0]["verify_ok"]
+    r, report = verify_op2(bracket, bracket["nc2"].read_text(), "op2.nc")
+    # the verdict covers both operations: op 1 failing fails the command
+    assert r.exit_code == (0 if op1_ok else EXIT_VERIFY_FAILED), r.output
+    assert f"op 1 (bracket.nc): verify {'OK' if op1_ok else 'FAILED'}" in r.output
+    assert "op 2 (op2.nc): verify OK" in r.output
+    assert report["ok"] and report["max_gouge"] <= 0.01 and report["remaining_p95"] <= 0.02
+    # --after names op 1's program explicitly: the same verdict
+    r2, again = verify_op2(bracket, bracket["nc2"].read_text(), "op2.nc", "--after", bracket["nc"])
+    assert r2.exit_code == r.exit_code and again == report
+
+
+def test_op_2_facing_a_millimetre_too_deep_gouges_the_bottom(bracket):
+    face = json.loads(bracket["setup2"].read_text())["face_z"]
+    text = bracket["nc2"].read_text()
+    deeper = re.sub(rf"Z{face:g}\b", f"Z{face - 1:g}", text)
+    assert deeper != text
+    r, report = verify_op2(bracket, deeper, "op2_deep.nc")
+    assert r.exit_code == EXIT_VERIFY_FAILED, r.output
+    assert report["max_gouge"] == pytest.approx(1.0, abs=0.02)
+
+
+def test_after_is_refused_for_op_1(bracket):
+    r = run("verify", bracket["nc"], "--setup", bracket["setup"], "--part", bracket["part"], "--after", bracket["nc"])
+    assert r.exit_code == 1 and "--after is for op 2" in r.output

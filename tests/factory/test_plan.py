@@ -50,6 +50,11 @@ def test_plan_part_computes_everything_and_writes_nothing(planned, block):
     assert planned.report.ok and planned.program.total_time > 0
     assert planned.tending is not None and set(planned.tending.programs) == {"block.script"}
     assert planned.setup_sheet["program"] == "block.nc"
+    # two operations: op 2 runs after op 1, in G55, on the part turned over
+    assert planned.setup_sheet["next"] == {"program": "block.op2.nc", "setup_sheet": "block.op2.setup.json"}
+    op2 = planned.op2
+    assert op2 is not None and op2.setup_sheet["after"] == {"program": "block.nc", "setup_sheet": "block.setup.json"}
+    assert "\nG55\n" in op2.program.text and op2.report.ok and planned.ok
 
 
 def test_write_makes_the_whole_set_and_no_staging_is_left(planned, tmp_path):
@@ -58,6 +63,10 @@ def test_write_makes_the_whole_set_and_no_staging_is_left(planned, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in outputs.values())
     assert json.loads(outputs["summary"].read_text()) == summary
     assert summary["outputs"] == {k: str(v) for k, v in outputs.items()}
+    setups = summary["setups"]
+    assert [s["op"] for s in setups] == [1, 2] and [s["work_offset"] for s in setups] == ["G54", "G55"]
+    assert setups[0]["program"] == str(outputs["program"]) and setups[1]["program"] == str(outputs["program_op2"])
+    assert all(s["estimated_cycle_s"] > 0 for s in setups) and summary["verify"]["ok"]
     assert "write" in summary["seconds"]
     with pytest.raises(Exception, match="exists"):
         planned.write(tmp_path)

@@ -1,0 +1,607 @@
+"""Op 2: the part turned over in the vise, the holding allowance faced off, the bottom finished.
+
+Op 1 cuts the part from the top down into the holding allowance under it, which the vise
+grips. Then the part is turned over and held on its finished faces, and op 2 faces the
+allowance off down to the part's original bottom face and finishes what only shows from
+below.
+
+The flip
+    A half turn about the work X axis: the vise's jaw axis (X along the jaws, Y the
+    clamping direction: :mod:`robotprog.frames`). The faces the jaws gripped in op 1 (the
+    stock's Y faces) stay facing the jaws, front and back swapped; X stays X. In work
+    coordinates ``(x, y, z) -> (x, y0 + y1 - y, z0 - z)`` with ``y0, y1`` the stock's Y
+    extent and ``z0`` its bottom: the stock box lands on itself in X and Y, so the op-2
+    grid of the verify simulation is op 1's with its rows reversed, and the old stock
+    bottom (the face of the allowance the vise gripped) becomes the new top, ``z = 0``.
+Op 2's work coordinates
+    The same convention as op 1's (:class:`cadcam.model.Setup`): origin on the top of the
+    flipped stock, at its front-left corner or its centre, whichever op 1 used. The program
+    runs in its own work offset (G55, see :mod:`cadcam.post`), touched off on the flipped
+    stock.
+Facing
+    Zigzag passes along X at ``stepover`` (70 % of the diameter) across the whole stock
+    footprint, level by level from the top down to the part's original bottom face, the
+    last level a light finishing skim. Every level is entered outside the stock: the tool
+    ramps down in the air beside it and enters the material sideways at depth, never by a
+    plunge. Passes overhang the stock's Y faces by a tenth of the diameter, so no rim stays.
+Features seen from below
+    The op-2 stock is op 1's simulated stock turned over (:func:`cadcam.verify.flip_stock`),
+    so what op 1 already cut is known. Where, after facing, more than the finishing limit is
+    left over the turned-over part's upper envelope (a pocket or recess in the bottom face,
+    which op 1 could not reach through the part), it is rest roughed with the library's flat
+    end mills and finished with the finishing tool, only there (:func:`plan_op2`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+from scipy import ndimage
+
+from cadcam.finishing import EngagementLimit, raster_finishing
+from cadcam.heightmap import upper_envelope
+from cadcam.model import CuttingData, FixtureBox, Job, Motion, Operation, Setup, Tool, ViseJaws
+from cadcam.plan import PlanOptions, choose_tools, rest_tools
+from cadcam.rest import excess, safe_rapids, unreached
+from cadcam.roughing import zlevel_roughing
+from cadcam.setup import JAW_CLEARANCE_MM
+from cadcam.tools import ToolLibrary
+from cadcam.verify import (FlippedStock, Simulation, VerifyOptions, clear_height, flip_stock, operation_moves,
+                           simulate_flipped, stock_after)
+from factory.errors import SetupError, ToolError, ToolpathError
+
+log = logging.getLogger(__name__)
+
+#: The axis the part is turned over about between op 1 and op 2: work X, the vise's jaw axis.
+FLIP_AXIS = "X"
+#: Work offset of each operation, as the post writes it (fixture 1: G54, fixture 2: G55).
+WORK_OFFSET = {1: 1, 2: 2}
+#: Where the work origin sits on the turned-over stock's top, for the program header.
+_ORIGIN_WORDS = {"top-front-left": "front-left corner", "top-centre": "centre"}
+#: Stock left over a face from below that counts as finished: the verify's residual target [mm].
+_FINISHED = 0.02
+
+
+def flip_transform(setup: Setup) -> np.ndarray:
+    """(4, 4) op-1 work coordinates -> op-2 work coordinates [mm]: the half turn about X (module docstring)."""
+    t = np.diag([1.0, -1.0, -1.0, 1.0])
+    t[1, 3] = float(setup.stock_min[1] + setup.stock_max[1])
+    t[2, 3] = float(setup.stock_min[2])
+    return t
+
+
+def op2_setup(setup: Setup) -> Setup:
+    """The op-2 setup: op 1's stock box turned over in place, its top at ``z = 0``.
+
+    The part's mesh -> work transform includes the flip; safe height and clearance above
+    the (new) stock top are op 1's. No jaws yet and the floor at the stock bottom: they
+    depend on the part (:func:`plan_op2` places them).
+    """
+    flip = flip_transform(setup)
+    size = setup.stock_size
+    stock_min = np.array([setup.stock_min[0], setup.stock_min[1], -size[2]])
+    stock_max = np.array([setup.stock_max[0], setup.stock_max[1], 0.0])
+    return dataclasses.replace(
+        setup,
+        stock_min=stock_min,
+        stock_max=stock_max,
+        transform_mesh_to_work=flip @ setup.transform_mesh_to_work,
+        safe_z=float(setup.safe_z - setup.stock_max[2]),
+        floor_z=float(stock_min[2]),
+        jaws=None,  # op 1's jaws held the allowance; op 2's hold the part (op2_jaws)
+    )
+
+
+def op2_jaws(jaws: ViseJaws, setup: Setup, part: trimesh.Trimesh, face_z: float) -> tuple[FixtureBox, ...]:
+    """The vise holding the turned-over part in op 2, as boxes in op-2 work coordinates [mm].
+
+    The jaws grip the part's finished Y faces (its bounding box across the jaws), its old top
+    resting on the parallels; they reach ``soft_jaws.depth`` up the part with soft jaws, the
+    vise's grip depth without, and never closer than :data:`cadcam.setup.JAW_CLEARANCE_MM`
+    under the face being cut (the facing passes over them).
+
+    Raises
+    ------
+    SetupError
+        The part is too thin to grip below the face with that clearance.
+    """
+    lo, hi = np.asarray(part.bounds, dtype=np.float64)
+    grip = jaws.soft_jaws.depth if jaws.soft_jaws is not None else jaws.grip_depth
+    room = face_z - JAW_CLEARANCE_MM - float(lo[2])
+    if room <= 0:
+        raise SetupError(f"the part is {face_z - lo[2]:.2f} mm tall: op 2 cannot grip it {JAW_CLEARANCE_MM:g} mm "
+                         f"below the face it cuts")
+    if grip > room:
+        log.info("op 2 grips the part %.2f mm deep, not the vise's %.2f mm: it stands only %.2f mm tall",
+                 room, grip, face_z - lo[2])
+        grip = room
+    held = dataclasses.replace(jaws, jaw_height=jaws.parallels_height + grip)
+    return held.place(np.array([setup.stock_min[0], lo[1], lo[2]]), np.array([setup.stock_max[0], hi[1], face_z]))
+
+
+def flip_part(part_work: trimesh.Trimesh, setup: Setup) -> trimesh.Trimesh:
+    """The part in op-1 work coordinates, turned over into op 2's (a new mesh)."""
+    out = part_work.copy()
+    out.apply_transform(flip_transform(setup))  # a proper rotation: the faces keep their outward normals
+    return out
+
+
+@dataclass(frozen=True)
+class FacingOptions:
+    """How to face the holding allowance off.
+
+    Attributes
+    ----------
+    stepover : float
+        Distance between passes as a share of the tool diameter, in ``(0, 0.9]``. Default 0.7.
+    stepdown : float, optional
+        Deepest level [mm]. Default: half the diameter, at most the flute length.
+    finish_depth : float
+        Depth of the last level, a light skim that leaves the bottom face clean [mm]; 0: no
+        separate skim. Default 0.2.
+    ramp_angle : float
+        Angle of the ramp down to each level beside the stock [deg], in ``(0, 45]``. Default 15.
+    overhang : float
+        How far the tool's edge passes beyond the stock's Y faces, as a share of the
+        diameter, in ``[0, 0.5)``. Default 0.1.
+    """
+
+    stepover: float = 0.7
+    stepdown: float | None = None
+    finish_depth: float = 0.2
+    ramp_angle: float = 15.0
+    overhang: float = 0.1
+
+    def check(self, tool: Tool) -> float:
+        """The stepdown for ``tool`` [mm]; raises ToolpathError for an option out of range."""
+        stepdown = min(0.5 * tool.diameter, tool.flute_length) if self.stepdown is None else float(self.stepdown)
+        bad = []
+        if not 0 < self.stepover <= 0.9:
+            bad.append(f"stepover {self.stepover:g} must lie in (0, 0.9] of the diameter")
+        if not 0 < stepdown <= tool.flute_length:
+            bad.append(f"stepdown {stepdown:g} mm must lie in (0, flute length {tool.flute_length:g}]")
+        if not 0 <= self.finish_depth < stepdown:
+            bad.append(f"finish depth {self.finish_depth:g} mm must lie in [0, stepdown {stepdown:g})")
+        if not 0 < self.ramp_angle <= 45:
+            bad.append(f"ramp angle {self.ramp_angle:g} deg must lie in (0, 45]")
+        if not 0 <= self.overhang < 0.5:
+            bad.append(f"overhang {self.overhang:g} must lie in [0, 0.5) of the diameter")
+        if bad:
+            raise ToolpathError("; ".join(bad), source="facing options")
+        return stepdown
+
+
+def facing_levels(top: float, face_z: float, stepdown: float, finish_depth: float) -> np.ndarray:
+    """Heights of the facing levels from ``top`` down to ``face_z`` [mm], the last exactly ``face_z``.
+
+    Even levels no deeper than ``stepdown`` down to ``face_z + finish_depth``, then the skim.
+    """
+    if not top > face_z:
+        return np.zeros(0)
+    skim = finish_depth >= 1e-6 and top - face_z > finish_depth + 1e-6  # a skim thinner than a micron is none
+    rough_to = face_z + finish_depth if skim else face_z
+    n = max(1, math.ceil((top - rough_to) / stepdown - 1e-9))
+    levels = list(top - (top - rough_to) * np.arange(1, n + 1) / n)
+    if skim:
+        levels.append(face_z)
+    levels[-1] = face_z
+    return np.asarray(levels)
+
+
+def facing(setup: Setup, face_z: float, tool: Tool, cutting: CuttingData,
+           options: FacingOptions = FacingOptions()) -> Operation:
+    """Face the whole stock top of ``setup`` down to ``face_z`` with a flat end mill.
+
+    Parameters
+    ----------
+    setup : Setup
+        The stock box (its top is where facing starts), safe height and clearance.
+    face_z : float
+        Height of the face to leave [mm]: the part's original bottom face in op 2.
+    tool : Tool
+        A flat end mill (a corner radius would leave a rim on the face).
+    cutting : CuttingData
+    options : FacingOptions
+
+    Returns
+    -------
+    Operation
+        ``kind="facing"``: zigzag passes along X, ``options.stepover`` apart in Y, starting
+        and ending outside the stock; each level entered by a ramp beside the stock at the
+        plunge feed. Empty when ``face_z`` is not below the stock top.
+
+    Raises
+    ------
+    ToolError
+        The tool is not a flat end mill, or its stick-out does not reach ``face_z``.
+    ToolpathError
+        An option is out of range.
+    """
+    if tool.shape != "flat":
+        raise ToolError(f"T{tool.number} is a {tool.shape} end mill; facing needs a flat end mill")
+    stepdown = options.check(tool)
+    top = float(setup.stock_max[2])
+    if top - face_z > tool.length:
+        raise ToolError(f"T{tool.number} reaches {tool.length:g} mm below its holder but the face lies "
+                        f"{top - face_z:g} mm below the stock top")
+    levels = facing_levels(top, face_z, stepdown, options.finish_depth)
+    if not len(levels):
+        return Operation("face", "facing", tool, cutting, np.zeros((0, 3)), np.zeros(0, np.int8))
+    R, D = tool.radius, tool.diameter
+    x0, y0 = float(setup.stock_min[0]), float(setup.stock_min[1])
+    x1, y1 = float(setup.stock_max[0]), float(setup.stock_max[1])
+    gap = max(float(setup.clearance), 0.5)
+    # Pass ends: the tool clear of the stock's X faces by the clearance.
+    xa, xb = x0 - R - gap, x1 + R + gap
+    # Pass centres: the tool's edge overhangs each Y face by the overhang, passes evenly spaced.
+    ya, yb = y0 + R - options.overhang * D, y1 - R + options.overhang * D
+    if yb <= ya:
+        ys = np.array([0.5 * (y0 + y1)])
+    else:
+        n = max(1, math.ceil((yb - ya) / (options.stepover * D) - 1e-9))
+        ys = ya + (yb - ya) * np.arange(n + 1) / n
+    tan = math.tan(math.radians(options.ramp_angle))
+
+    pts: list[tuple[float, float, float]] = []
+    mot: list[int] = []
+
+    def add(x: float, y: float, z: float, m: Motion) -> None:
+        pts.append((x, y, z))
+        mot.append(int(m))
+
+    z_prev = top + float(setup.clearance)
+    side = 0  # 0: the level starts at xa, 1: at xb
+    order = ys
+    for k, z in enumerate(levels):
+        x_in = xa if side == 0 else xb
+        outward = -1.0 if side == 0 else 1.0
+        run = (z_prev - z) / tan
+        if k == 0:
+            add(x_in + outward * run, order[0], float(setup.safe_z), Motion.RAPID)
+            add(x_in + outward * run, order[0], z_prev, Motion.RAPID)
+        else:
+            add(x_in + outward * run, order[0], z_prev, Motion.RAPID)  # back out beside the stock, in the air
+        add(x_in, order[0], float(z), Motion.PLUNGE)  # the ramp, ending beside the stock
+        for i, y in enumerate(order):
+            here = xa if (side + i) % 2 == 0 else xb
+            there = xb if here == xa else xa
+            if i:
+                add(here, float(y), float(z), Motion.CUT)  # step over, beside the stock
+            add(there, float(y), float(z), Motion.CUT)
+        end_side = 1 if (side + len(order) - 1) % 2 == 0 else 0
+        side = end_side  # the next level starts where this one ended, passes in reverse order
+        order = order[::-1]
+        z_prev = float(z)
+    last = pts[-1]
+    add(last[0], last[1], float(setup.safe_z), Motion.RAPID)
+    return Operation("face holding allowance", "facing", tool, cutting, np.asarray(pts), np.asarray(mot, np.int8),
+                     allowance=0.0)
+
+
+def choose_facing_tool(library: ToolLibrary, depth: float, number: int | None = None) -> Tool:
+    """The facing end mill: ``number``, or the widest flat end mill that reaches ``depth`` [mm].
+
+    Raises
+    ------
+    ToolError
+        The named tool is missing, not flat or too short; or no flat end mill reaches.
+    """
+    if number is not None:
+        tool = library.tool(number)
+        if tool.shape != "flat":
+            raise ToolError(f"T{number} is a {tool.shape} end mill; facing needs a flat end mill",
+                            source=library.source)
+        if tool.length < depth:
+            raise ToolError(f"T{number} reaches {tool.length:g} mm below its holder but op 2 faces "
+                            f"{depth:g} mm deep", source=library.source)
+        return tool
+    flats = [t for t in library.tools if t.shape == "flat" and t.length >= depth]
+    if not flats:
+        raise ToolError(f"no flat end mill in the library reaches {depth:g} mm below its holder to face op 2",
+                        source=library.source)
+    return max(flats, key=lambda t: (t.diameter, t.length, -t.number))
+
+
+@dataclass(frozen=True)
+class Op2Options:
+    """What op 2 cuts with and how.
+
+    Attributes
+    ----------
+    facing_tool : int, optional
+        Tool number of the facing end mill; None: the widest flat end mill that reaches.
+    facing : FacingOptions
+    plan : PlanOptions
+        Rest roughing and finishing of features seen from below: tools, allowance and the
+        finishing limit as for op 1.
+    cell : float
+        Grid of the in-process stock model the op-2 planning reads [mm]. Default 0.5.
+    """
+
+    facing_tool: int | None = None
+    facing: FacingOptions = field(default_factory=FacingOptions)
+    plan: PlanOptions = field(default_factory=PlanOptions)
+    cell: float = 0.5
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def stock_after_flipped(operations: list[Operation], setup: Setup, part_triangles: np.ndarray, start: FlippedStock,
+                        cell: float) -> Simulation:
+    """The op-2 stock after ``operations``, from the turned-over op-1 stock ``start`` [mm]."""
+    cutting = [op for op in operations if len(op.points) > 1]
+    if not cutting:
+        grid = start.grid
+        present = np.isfinite(start.top)
+        lowest = float(start.bottom[present].min()) if present.any() else float(setup.stock_min[2])
+        return Simulation(grid=grid, stock_top=start.top, part_top=upper_envelope(part_triangles, grid),
+                          stock_bottom=lowest, stock_under=start.bottom)
+    tools = {op.tool.number: op.tool for op in cutting}
+    sim, _ = simulate_flipped(operation_moves(cutting), tools, setup, part_triangles, start, VerifyOptions(cell=cell))
+    return sim
+
+
+def _left_from_below(sim: Simulation, allowance: float) -> np.ndarray:
+    """(ny, nx) bool: grid points over the part with more than the finished residual left."""
+    over = np.isfinite(sim.part_top) & np.isfinite(sim.stock_top)
+    left = np.zeros(sim.grid.shape, bool)
+    left[over] = sim.stock_top[over] - sim.part_top[over] > max(_FINISHED, allowance)
+    return left
+
+
+def plan_op2(
+    part_work: trimesh.Trimesh,
+    job1: Job,
+    library: ToolLibrary,
+    *,
+    options: Op2Options = Op2Options(),
+    op1_stock: Simulation | None = None,
+    jaws: ViseJaws | None = None,
+) -> tuple[Job, trimesh.Trimesh]:
+    """The op-2 job: the part turned over, the holding allowance faced off, the bottom finished.
+
+    Parameters
+    ----------
+    part_work : trimesh.Trimesh
+        The part in op-1 work coordinates [mm] (``PlannedPart.part_work``).
+    job1 : Job
+        Op 1: its setup (the stock with the holding allowance under the part) and operations.
+    library : ToolLibrary
+    options : Op2Options
+    op1_stock : Simulation, optional
+        Op 1's stock model (its verify simulation will do, on any grid); None: simulated here
+        from ``job1`` on ``options.cell``. Where stock is left over faces seen from below, it is
+        simulated again on ``options.cell`` if its grid is another.
+    jaws : ViseJaws, optional
+        The vise (the cell file's, with its optional soft jaws): placed round the turned-over
+        part (:func:`op2_jaws`) as the op-2 setup's ``jaws``. None: workholding unknown.
+
+    Returns
+    -------
+    job : Job
+        In op-2 work coordinates (:func:`op2_setup`). ``parameters``: ``op`` (2),
+        ``work_offset`` (2: G55), ``flip`` (axis and the op-1 -> op-2 transform),
+        ``face_z`` (the part's original bottom face in op 2 [mm]), ``holding_mm`` (the
+        allowance faced off), ``unreached`` (stock from below no tool reaches) and ``rapids``.
+    part_op2 : trimesh.Trimesh
+        The part in op-2 work coordinates.
+
+    Raises
+    ------
+    ToolError
+        No flat end mill reaches the face, or a named tool is unfit.
+    ToolpathError
+        An operation cannot be computed.
+    """
+    setup1 = job1.setup
+    setup = op2_setup(setup1)
+    part = flip_part(part_work, setup1)
+    triangles = np.asarray(part.triangles)
+    face_z = float(part.bounds[1][2])
+    top = float(setup.stock_max[2])
+    # Nothing feeds below the part: under it are the parallels.
+    setup = dataclasses.replace(setup, floor_z=float(part.bounds[0][2]),
+                                jaws=None if jaws is None else op2_jaws(jaws, setup, part, face_z))
+    tool = choose_facing_tool(library, top - face_z, options.facing_tool)
+    operations = [facing(setup, face_z, tool, library.cutting_data(tool, setup.material), options.facing)]
+
+    def op1_model() -> Simulation:
+        return stock_after(list(job1.operations), setup1, np.asarray(part_work.triangles), options.cell)
+
+    if op1_stock is None:
+        op1_stock = op1_model()
+    start = flip_stock(op1_stock, flip_transform(setup1), setup)
+    stock = stock_after_flipped(operations, setup, triangles, start, op1_stock.grid.cell)
+
+    plan = options.plan
+    allowance, limit = plan.roughing.allowance, plan.finish_engagement
+    left = _left_from_below(stock, 0.0)
+    if left.any() and op1_stock.grid.cell != options.cell:
+        # Rest roughing reads the stock cell by cell: on the planning grid, not a finer verify grid.
+        start = flip_stock(op1_model(), flip_transform(setup1), setup)
+        stock = stock_after_flipped(operations, setup, triangles, start, options.cell)
+        left = _left_from_below(stock, 0.0)
+    if left.any():
+        # Pockets and recesses in the bottom face: rest rough them, then finish them, only there.
+        log.info("op 2: %d grid points of stock left over faces seen from below; rest roughing and finishing",
+                 int(left.sum()))
+        rough_tool, finish_tool = choose_tools(library, setup, plan)
+        for t in [rough_tool, *rest_tools(library, rough_tool)]:
+            if not (excess(stock, allowance) > limit).any():
+                break
+            opts = dataclasses.replace(plan.roughing, stepdown=None, stepover=None, helix_diameter=None,
+                                       min_helix_diameter=None)
+            op = zlevel_roughing(part, setup, t, library.cutting_data(t, setup.material), opts, rest=stock,
+                                 rest_above=limit)
+            if len(op.points) > 1:
+                operations.append(op)
+                stock = stock_after_flipped(operations, setup, triangles, start, options.cell)
+        raster = raster_finishing(part, setup, finish_tool, library.cutting_data(finish_tool, setup.material),
+                                  dataclasses.replace(plan.finishing, steep_angle=90.0), stock=stock,
+                                  limit=EngagementLimit(depth=limit, allowance=allowance))
+        raster = _only_where(raster, _left_from_below(stock, 0.0), stock, setup)
+        if len(raster.points) > 1:
+            operations.append(raster)
+            stock = stock_after_flipped(operations, setup, triangles, start, options.cell)
+    left_regions = unreached(stock, limit, allowance)
+    for u in left_regions:
+        log.warning("op 2: no tool reaches %s from below; left uncut", u.describe())
+    operations = [op for op in operations if len(op.points) >= 2]
+    safe_ops, checked, fixed = safe_rapids(operations, setup, triangles) if operations else ((), 0, 0)
+    job = Job(
+        part_name=job1.part_name,
+        setup=setup,
+        operations=tuple(safe_ops),
+        source_sha256=job1.source_sha256,
+        parameters={
+            "op": 2,
+            "work_offset": WORK_OFFSET[2],
+            # the program's header comment (cadcam.post): what the operator sets up before cycle start
+            "setup_note": (f"op 2: part turned over about X, held on its finished faces; G55 zero on the top of "
+                           f"the turned-over stock, {_ORIGIN_WORDS[setup.origin]}; faces to Z{face_z:.3f}"),
+            "flip": {"axis": FLIP_AXIS, "transform_op1_to_op2": flip_transform(setup1).tolist()},
+            "face_z": face_z,
+            "holding_mm": round(float(part_work.bounds[0][2] - setup1.stock_min[2]), 4),
+            "facing_tool": tool.number,
+            # what holds the part in op 2: the cell's soft jaws if it has them, else the plain vise jaws
+            "held_in": None if jaws is None else ("vise jaws" if jaws.soft_jaws is None
+                                                  else f"soft jaws ({jaws.soft_jaws.kind})"),
+            "options": options.to_dict(),
+            "unreached": [u.to_dict() for u in left_regions],
+            "rapids": {"checked": checked, "made_safe": fixed},
+        },
+    )
+    return job, part
+
+
+def _only_where(op: Operation, left: np.ndarray, stock: Simulation, setup: Setup) -> Operation:
+    """``op``'s feed moves within the tool radius of ``left`` grid points, each run reached from the safe height.
+
+    A finishing pass over the whole turned-over part would drop the tool down the finished
+    walls towards the vise; only where stock is left from below is it wanted.
+    """
+    g = stock.grid
+    reach = int(math.ceil((op.tool.radius + g.cell) / g.cell))
+    yy, xx = np.mgrid[-reach:reach + 1, -reach:reach + 1]
+    near = ndimage.binary_dilation(left, structure=(np.hypot(xx, yy) <= reach))
+    i = np.clip(np.rint((op.points[:, 0] - g.x0) / g.cell).astype(np.int64), 0, g.nx - 1)
+    j = np.clip(np.rint((op.points[:, 1] - g.y0) / g.cell).astype(np.int64), 0, g.ny - 1)
+    keep = near[j, i] & (op.motion != Motion.RAPID)
+    pts: list[np.ndarray] = []
+    mot: list[int] = []
+    k = 0
+    n = len(op.points)
+    while k < n:
+        if not keep[k]:
+            k += 1
+            continue
+        e = k
+        while e + 1 < n and keep[e + 1]:
+            e += 1
+        run = op.points[k:e + 1]
+        if len(run) > 1:
+            p0 = run[0]
+            air = float(clear_height(stock, op.tool, p0[None, :2])[0]) + float(setup.clearance)
+            air = min(max(air, float(p0[2])), float(setup.safe_z))
+            pts += [np.array([p0[0], p0[1], setup.safe_z]), np.array([p0[0], p0[1], air])]
+            mot += [int(Motion.RAPID), int(Motion.RAPID)]
+            pts += list(run)
+            mot += [int(Motion.PLUNGE)] + [int(Motion.CUT)] * (len(run) - 1)
+            pts.append(np.array([run[-1][0], run[-1][1], setup.safe_z]))
+            mot.append(int(Motion.RAPID))
+        k = e + 1
+    points = np.asarray(pts).reshape(-1, 3)
+    return dataclasses.replace(op, name="finish from below", points=points, motion=np.asarray(mot, np.int8))
+
+
+def op2_sheet_fields(job: Job, op1_program: str, op1_sheet: str) -> dict:
+    """What an op-2 setup sheet adds to :func:`cadcam.sheet.setup_sheet` (JSON-ready).
+
+    ``op`` (2), ``work_offset`` (``G55``), ``after`` (op 1's program and sheet file names:
+    op 2 runs on what op 1 left, and ``factory verify`` simulates op 1 first), ``flip`` (the
+    axis and the op-1 -> op-2 work transform [mm]), ``face_z`` (the part's original bottom
+    face in op-2 work coordinates [mm]), ``holding_mm`` (the allowance faced off [mm]) and
+    ``held_in`` (``"vise jaws"``, ``"soft jaws (pocket)"``, ...; None: workholding unknown).
+    """
+    p = job.parameters
+    return {
+        "op": 2,
+        "work_offset": f"G{53 + int(p.get('work_offset', WORK_OFFSET[2]))}",
+        "after": {"program": op1_program, "setup_sheet": op1_sheet},
+        "flip": p["flip"],
+        "face_z": p["face_z"],
+        "holding_mm": p["holding_mm"],
+        "held_in": p.get("held_in"),
+    }
+
+
+def op2_setup_image(job: Job, part: trimesh.Trimesh, width: int = 720) -> np.ndarray:
+    """Op 2's setup as a machinist's sketch: the turned-over part in the vise, looking along X
+    (across the jaws) and from the front, with the jaws, the parallels and the allowance to face.
+
+    Parameters
+    ----------
+    job : Job
+        The op-2 job (its setup's stock box, jaws and ``face_z``).
+    part : trimesh.Trimesh
+        The part in op-2 work coordinates [mm].
+    width : int
+        Picture width [px].
+
+    Returns
+    -------
+    (H, W, 3) uint8
+        RGB picture; the part grey, the allowance to face hatched orange, jaws and parallels
+        dark blue, the work origin (G55) a red cross.
+    """
+    from PIL import Image, ImageDraw, ImageFont
+
+    s = job.setup
+    face_z = float(job.parameters["face_z"])
+    boxes = list(s.jaws or ())
+    lo = np.minimum.reduce([s.stock_min, *[b.lo for b in boxes]])
+    hi = np.maximum.reduce([s.stock_max, *[b.hi for b in boxes]])
+    margin, gap, caption = 16, 24, 40
+    view_w = (width - 2 * margin - gap) / 2
+    # One scale for both views: each shows a horizontal axis (Y, then X) against Z.
+    scale = min(view_w / max(hi[1] - lo[1], 1e-6), view_w / max(hi[0] - lo[0], 1e-6),
+                360.0 / max(hi[2] - lo[2], 1e-6))
+    height = int(2 * margin + caption + (hi[2] - lo[2]) * scale)
+    img = Image.new("RGB", (width, height), (255, 255, 255))
+    draw = ImageDraw.Draw(img)
+    font = ImageFont.load_default()
+    tri = np.asarray(part.triangles)
+    for v, (axis, name) in enumerate(((1, "looking along X (across the jaws)"), (0, "from the front"))):
+        ox = margin + v * (view_w + gap)
+
+        def px(h: float, z: float) -> tuple[float, float]:
+            return ox + (h - lo[axis]) * scale, margin + (hi[2] - z) * scale
+
+        sx0, sx1 = float(s.stock_min[axis]), float(s.stock_max[axis])
+        # The holding allowance op 2 faces off: the stock top down to the part's bottom face.
+        a, b = px(sx0, 0.0), px(sx1, face_z)
+        draw.rectangle([a, b], fill=(253, 214, 170), outline=(200, 110, 20))
+        for k in np.arange(a[0] - (b[1] - a[1]), b[0], 8.0):
+            x_a, x_b = max(k, a[0]), min(k + (b[1] - a[1]), b[0])
+            if x_b > x_a:
+                draw.line([(x_a, a[1] + (x_a - k)), (x_b, a[1] + (x_b - k))], fill=(220, 140, 60))
+        for t in tri:  # the part's silhouette
+            draw.polygon([px(p[axis], p[2]) for p in t], fill=(150, 150, 150))
+        for box in boxes:
+            draw.rectangle([px(box.lo[axis], box.hi[2]), px(box.hi[axis], box.lo[2])], fill=(40, 60, 120),
+                           outline=(20, 30, 60))
+        cx, cy = px(float(s.stock_min[axis]) if s.origin == "top-front-left" else 0.0, 0.0)
+        draw.line([(cx - 6, cy), (cx + 6, cy)], fill=(220, 0, 0), width=2)
+        draw.line([(cx, cy - 6), (cx, cy + 6)], fill=(220, 0, 0), width=2)
+        draw.text((ox, height - caption + 4), name, fill=(0, 0, 0), font=font)
+    held = job.parameters.get("held_in") or "vise"
+    text = (f"op 2 (G55): part turned over about X, held in the {held} on its finished faces; "
+            f"face the allowance to Z{face_z:.3f}")
+    draw.text((margin, height - caption / 2 + 2), text, fill=(0, 0, 0), font=font)
+    return np.asarray(img, dtype=np.uint8).copy()
