@@ -41,6 +41,7 @@ Each program's header states the planned motion time and the controller's, timed
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -57,6 +58,8 @@ from robotprog.rapid import rapid_module
 from robotprog.tending import TendingOptions, TendingPlan, TimedMove
 from robotprog.machineio import machine_cycle, machine_ready, number, to_steps, verdict
 from robotprog.urscript import Branch, Comment, MoveJ, ServoJ, SetOutputs, Step, flat_steps, urscript_program
+
+log = logging.getLogger(__name__)
 
 #: servoj period [s]: the CB3 controller's cycle (125 Hz).
 SERVO_PERIOD_S = 0.008
@@ -151,11 +154,11 @@ def reject_planned_s(cell: Cell, plan: TendingPlan) -> float | None:
 
 
 def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: str = "urscript",
-                  segments: dict[int, float] | None = None) -> list[Step]:
+                  segments: dict[int, float] | None = None, branch: bool = True) -> list[Step]:
     """The plan as program steps in ``lang``'s way of running the proven motion (module docstring).
 
     ``segments``: RAPID / KRL, longest segment [s] per move index (into :func:`posted_moves`) where
-    it is not :data:`SEGMENT_S`."""
+    it is not :data:`SEGMENT_S`. ``branch``: post the verdict's reject way where the cell wires it."""
     if lang not in LANGS:
         raise PlanningError(f"expected a program language of {', '.join(LANGS)}, got {lang!r}")
     robot = world.robot
@@ -170,7 +173,7 @@ def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: st
     phase = [mv.name.split(":")[0] for mv in moves]
     cycle_at = {k for k in range(1, len(moves)) if phase[k] in ("flip", "unload")
                 and phase[k - 1] != phase[k]} if machine is not None else set()
-    branch_at = verdict_index(cell, plan)
+    branch_at = verdict_index(cell, plan) if branch else None
 
     def move_steps(k: int, mv: TimedMove, stops: bool) -> list[Step]:
         out: list[Step] = [Comment(mv.name)]
@@ -299,19 +302,27 @@ def post_program(lang: str, program: Path, cell: Cell, world: CollisionWorld, pl
     # is posted again with segments half as long, whose polyline and corners hug the proven
     # trajectory closer, down to MIN_SEGMENT_S; then the collision is the error.
     segments: dict[int, float] = {}
+    branch = True
     while True:
-        steps = program_steps(cell, world, plan, lang, segments)
+        steps = program_steps(cell, world, plan, lang, segments, branch)
         hit = posted_collision(proven, plan, steps)
         if hit is None:
             break
         k, contact = hit
         seg = segments.get(k, SEGMENT_S) / 2
         if lang == "urscript" or seg < MIN_SEGMENT_S:
+            if k >= len(plan.moves):
+                # The reject way's posted path grazes (its servoj polyline, or its finest segments): post
+                # the program without the branch, every part to the out-tray, rather than refuse the part.
+                log.warning("%s: the posted path collides (%s); the program does not branch on the verdict",
+                            plan.reject[k - len(plan.moves)].name, contact)
+                branch = False
+                continue
             raise PlanningError(f"{(plan.moves + plan.reject)[k].name}: the posted path collides ({contact})")
         segments[k] = seg
     home = np.asarray(cell.robot.home, dtype=float)
     predicted = program_duration(steps, home, lang=lang, axis_speed=robot.v_max)
-    planned_reject = reject_planned_s(cell, plan)
+    planned_reject = reject_planned_s(cell, plan) if branch else None
     predicted_reject = (None if planned_reject is None else
                         program_duration(steps, home, lang=lang, axis_speed=robot.v_max, verdict=False))
     targets = sum(len(s.targets) if isinstance(s, ServoJ) else 1 for s in flat_steps(steps)[1:]
