@@ -10,7 +10,7 @@ Pure builders returning :data:`factory.mcaplog.TYPESTORE` message objects:
 * ``diagnostic_msgs/DiagnosticArray``: one ``DiagnosticStatus`` per cell component (level OK,
   WARN, ERROR, STALE; key values), for Foxglove's Diagnostics panel and ``rqt_robot_monitor``;
 * the cell's state as fields (``factory_msgs``): ``SchedulerState``, ``RobotState``,
-  ``MachineState``, ``OrderQueue`` of ``OrderStatus`` and ``CellSummary``, so Foxglove's Plot and
+  ``MachineState``, ``MachineSignal`` (the door and cycle handshake), ``OrderQueue`` of ``OrderStatus`` and ``CellSummary``, so Foxglove's Plot and
   State Transitions panels and ``ros2 topic echo --field`` reach every value.
 
 Units: metres and radians for poses, pixels in the image, as each field's comment says.
@@ -45,6 +45,7 @@ _KeyValue = _T["diagnostic_msgs/msg/KeyValue"]
 _SchedulerState = _T["factory_msgs/msg/SchedulerState"]
 _RobotState = _T["factory_msgs/msg/RobotState"]
 _MachineState = _T["factory_msgs/msg/MachineState"]
+_MachineSignal = _T["factory_msgs/msg/MachineSignal"]
 _OrderStatus = _T["factory_msgs/msg/OrderStatus"]
 _OrderQueue = _T["factory_msgs/msg/OrderQueue"]
 _CellSummary = _T["factory_msgs/msg/CellSummary"]
@@ -199,6 +200,13 @@ def scheduler_state(state: str, event: str, order: str, serial: str, message: st
 def robot_state(activity: str, order: str, serial: str, stamp_ns: int) -> Any:
     """``factory_msgs/RobotState``: the robot's activity (``"idle"`` with empty order and serial)."""
     return _RobotState(header=_header("", stamp_ns), activity=activity, order=order, serial=serial)
+
+
+def machine_signal(operation: str, signal: str, direction: str, number: int, level: bool, order: str, serial: str,
+                   stamp_ns: int) -> Any:
+    """``factory_msgs/MachineSignal``: one operation of the machine handshake (:mod:`robotprog.machineio`)."""
+    return _MachineSignal(header=_header("", stamp_ns), operation=operation, signal=signal, direction=direction,
+                          number=int(number), level=bool(level), order=order, serial=serial)
 
 
 def machine_state(state: str, order: str, serial: str, stamp_ns: int, *, tool: int = 0, spindle_rpm: float = 0.0,

@@ -35,8 +35,8 @@ from factory.camera_msgs import camera_info_msg, compressed_image_msg
 from factory.atomic import write_bytes, write_text
 from factory.catalog import CatalogEntry, catalog_record, find_entry, sha256_file
 from factory.cellmsgs import (ComponentStatus, Detection, OrderLine, cell_summary, detected_object_array,
-                              diagnostic_array, image_annotations, machine_state, order_queue, robot_state,
-                              scheduler_state)
+                              diagnostic_array, image_annotations, machine_signal, machine_state, order_queue,
+                              robot_state, scheduler_state)
 from factory.diagnostics import door, gripper
 from factory.errors import CellError, FactoryError, McapError
 from factory.live import LiveView
@@ -53,6 +53,7 @@ from robotprog.cellsim import (EventSink, FaultModel, PartProcess, RunningSummar
                               simulate as run_simulation)
 from robotprog.collision import CollisionWorld, collision_world
 from robotprog.frames import setup_sheet_to_cell
+from robotprog.machineio import SIGNALS
 from robotprog.orders import Order
 from vision.camera import CameraModel
 from vision.handeye import invert
@@ -672,6 +673,7 @@ def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tup
     streams = _staggered(((_ns(a.start), make) for a, make in zip(result.activities, activity_events)),
                          [iter([(0, -1, -1, 0, "", home, False)]),
                           _scheduler_events(result, orders, part_of, rpm_of),
+                          _signal_events(result, cell),
                           # its own stream: the makespan is rounded to the millisecond, so the
                           # whole run's summary may come before the last entries' messages
                           iter([(_ns(makespan), 2, 0, 0, "/cell/summary",
@@ -823,6 +825,20 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
         add(a.end, "/camera/annotations", functools.partial(image_annotations, found, stamp))
     items = [(_ns(t), 0, k, i, topic, make, False) for i, (t, topic, make) in enumerate(out)]
     return heapq.merge(robot, sorted(items, key=lambda i: i[:4]), key=lambda i: i[:4])
+
+
+def _signal_events(result: SimulationResult, cell: Cell) -> Any:
+    """The machine handshake on /cell/io (:attr:`SimulationResult.signals`, the programs' own
+    operations), each message made when written."""
+    io = cell.machine
+    for n, e in enumerate(result.signals):
+        sig = SIGNALS[e.op.signal]
+        number = getattr(io, sig.name, None) if io is not None else None
+        order = result.jobs.get(e.job, "?")
+        stamp = _ns(e.time)
+        yield (stamp, 3, n, 0, "/cell/io", functools.partial(
+            machine_signal, e.op.op, sig.name, sig.direction, -1 if number is None else number, e.op.level,
+            order, f"{order}-{e.job}", stamp), False)
 
 
 def _scheduler_events(result: SimulationResult, orders: tuple[Order, ...], part_of: Any, rpm_of: Any) -> Any:

@@ -159,6 +159,12 @@ class MachineIO:
         Input high while the door is fully open (low: closed).
     cycle_done : int
         Input high while the machine is idle with its cycle finished (low: running).
+    part_ok : int or None
+        Input high when the finished part passed the machine's inspection (valid while
+        ``cycle_done`` is high): the program takes it to the out-tray, else to the reject bin.
+        ``None``: no verdict, every part goes to the out-tray.
+
+    The signals' meanings and the handshake on them are :mod:`robotprog.machineio`'s.
     """
 
     open_door: int
@@ -166,6 +172,7 @@ class MachineIO:
     cycle_start: int
     door_open: int
     cycle_done: int
+    part_ok: int | None = None
 
 
 @dataclass(frozen=True)
@@ -575,7 +582,7 @@ def _machine_io(rd: _Reader, value: Any, gripper: GripperIO) -> MachineIO:
     m = rd.mapping(value, "machine", {"io"})
     io = rd.mapping(m["io"], "machine.io", {"outputs", "inputs"})
     outs = rd.mapping(io["outputs"], "machine.io.outputs", {"open_door", "close_door", "cycle_start"})
-    ins = rd.mapping(io["inputs"], "machine.io.inputs", {"door_open", "cycle_done"})
+    ins = rd.mapping(io["inputs"], "machine.io.inputs", {"door_open", "cycle_done"}, {"part_ok"})
     o = {k: rd.integer(outs[k], f"machine.io.outputs.{k}", minimum=0) for k in sorted(outs)}
     i = {k: rd.integer(ins[k], f"machine.io.inputs.{k}", minimum=0) for k in sorted(ins)}
     taken = {n for n, _ in gripper.grip + gripper.release}
@@ -586,9 +593,13 @@ def _machine_io(rd: _Reader, value: Any, gripper: GripperIO) -> MachineIO:
         if n in seen:
             raise rd.fail(f"machine.io.outputs.{k}", f"output {n} is also {seen[n]}")
         seen[n] = k
-    if i["door_open"] == i["cycle_done"]:
-        raise rd.fail("machine.io.inputs.cycle_done", f"input {i['cycle_done']} is also door_open")
-    return MachineIO(o["open_door"], o["close_door"], o["cycle_start"], i["door_open"], i["cycle_done"])
+    wired: dict[int, str] = {}
+    for k in (k for k in ("door_open", "cycle_done", "part_ok") if k in i):
+        if i[k] in wired:
+            raise rd.fail(f"machine.io.inputs.{k}", f"input {i[k]} is also {wired[i[k]]}")
+        wired[i[k]] = k
+    return MachineIO(o["open_door"], o["close_door"], o["cycle_start"], i["door_open"], i["cycle_done"],
+                     i.get("part_ok"))
 
 
 def _flip_station(rd: _Reader, value: Any) -> FlipStation:

@@ -43,6 +43,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 from factory.errors import SchedulerError
 
+from .machineio import SignalEvent, signal_timeline
 from .orders import Order
 from .scheduler import CellState, Event, Fault, SchedulerOptions, State, admit, initial_state, step
 
@@ -253,6 +254,12 @@ class SimulationResult:
     activities: tuple[Activity, ...] = ()
     machine_intervals: tuple[tuple[float, float, int], ...] = ()
     jobs: Mapping[int, str] = field(default_factory=dict)
+
+    @property
+    def signals(self) -> tuple[SignalEvent, ...]:
+        """The machine's door and cycle handshake at the times the run reached it: the same
+        operations the posted programs run (:func:`robotprog.machineio.signal_timeline`)."""
+        return signal_timeline(self.activities)
 
     @property
     def robot_intervals(self) -> tuple[tuple[float, float, int], ...]:

@@ -18,7 +18,10 @@ controller runs it, from the numbers the program states, so the two can be compa
 * gripper outputs wait their settle time, ``sleep`` / ``WaitTime`` / ``WAIT SEC`` their
   seconds; comments take no time;
 * a wait on a digital input (the machine's door, its cycle) counts nothing: that is the
-  machine's time, which the plan does not contain either; the robot stands still meanwhile.
+  machine's time, which the plan does not contain either; the robot stands still meanwhile;
+* a branch on an input (``if`` / ``IF``) runs one of its two ways, the one ``verdict`` names
+  (the machine's verdict on the part: the out-tray or the reject bin); reading the input takes
+  no time.
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ import numpy as np
 
 from factory.errors import PlanningError
 from robotprog.krl import ptp_percent
-from robotprog.urscript import Comment, MoveJ, MoveL, ServoJ, SetOutputs, Step, Wait, WaitInput
+from robotprog.urscript import Branch, Comment, MoveJ, MoveL, ServoJ, SetOutputs, Step, Wait, WaitInput
 
 LANGS = ("urscript", "rapid", "krl")
 
@@ -47,6 +50,18 @@ def trapezoid_time(distance: float, v: float, a: float) -> float:
     return 2.0 * math.sqrt(distance / a)
 
 
+def branch_taken(steps: Sequence[Step], verdict: bool) -> list[Step]:
+    """The steps a run executes when every branch's input reads ``verdict``, branches replaced by
+    the way they take (recursively)."""
+    out: list[Step] = []
+    for st in steps:
+        if isinstance(st, Branch):
+            out += branch_taken(st.then if verdict == st.level else st.otherwise, verdict)
+        else:
+            out.append(st)
+    return out
+
+
 def program_duration(
     steps: Sequence[Step],
     start: np.ndarray,
@@ -54,6 +69,7 @@ def program_duration(
     lang: str = "urscript",
     axis_speed: np.ndarray | None = None,
     tcp_of: Callable[[np.ndarray], np.ndarray] | None = None,
+    verdict: bool = True,
 ) -> float:
     """Time [s] the controller of ``lang`` takes to run ``steps`` from joint position ``start`` [rad].
 
@@ -68,6 +84,8 @@ def program_duration(
         The axes' 100 % speeds [rad/s]; KRL timed moves need them.
     tcp_of : callable, optional
         ``q -> transform_base_link_to_tcp`` (4, 4); ``movel`` after a joint move needs it.
+    verdict : bool
+        The level every branch's input reads (True: a good part, to the out-tray).
 
     Raises
     ------
@@ -103,7 +121,7 @@ def program_duration(
         krl_chain.clear()
         return t
 
-    for i, st in enumerate(steps):
+    for i, st in enumerate(branch_taken(steps, verdict)):
         if isinstance(st, MoveJ):
             target = np.asarray(st.q, dtype=float)
             d = float(np.max(np.abs(target - q))) if len(q) == len(target) else math.inf

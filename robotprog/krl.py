@@ -24,7 +24,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from factory.errors import PlanningError
-from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Step, Wait, WaitInput, comment_text
+from robotprog.urscript import (Branch, Comment, MoveJ, MoveL, SetOutputs, Step, Wait, WaitInput, check_io_step,
+                                comment_text, flat_steps)
 
 DECIMALS_MM = 3
 DECIMALS_DEG = 4
@@ -71,7 +72,7 @@ def krl_program(
 
     Parameters
     ----------
-    steps : sequence of MoveJ, MoveL, SetOutputs, Wait, Comment
+    steps : sequence of MoveJ, MoveL, SetOutputs, WaitInput, Wait, Comment, Branch
         Joint angles [rad] (6 per MoveJ), poses base_link -> TCP [m].
     name : str
         Program name (the ``DEF`` and ``DEFDAT`` name; KRL allows 24 characters).
@@ -100,62 +101,81 @@ def krl_program(
     pct_text = _f(axis_percent, 1)
     src += ["  BAS(#INITMOV, 0)", f"  $TOOL = {{{krl_frame(tcp)}}}", "  $BASE = $NULLFRAME",
             "  FOR I = 1 TO 6", f"    $VEL_AXIS[I] = {pct_text}", f"    $ACC_AXIS[I] = {pct_text}", "  ENDFOR"]
-    if any(isinstance(st, MoveJ) and st.r > 0 for st in steps):
+    if any(isinstance(st, MoveJ) and st.r > 0 for st in flat_steps(steps)):
         src.append(f"  $APO.CPTP = {APPROXIMATION_PERCENT}")
     nj = nl = 0
     q_prev: np.ndarray | None = None
     current_pct: int | None = None
-    for i, st in enumerate(steps):
-        if isinstance(st, MoveJ):
-            q = np.asarray(st.q, dtype=float)
-            if q.shape != (6,) or not np.isfinite(q).all():
-                raise PlanningError(f"step {i}: PTP needs 6 finite joint angles, got {st.q}")
-            nj += 1
-            axes = ",".join(f"A{k + 1} {_f(math.degrees(v), DECIMALS_DEG)}" for k, v in enumerate(q))
-            dat.append(f"  DECL E6AXIS XJ{nj}={{{axes},E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}}")
-            if st.t > 0:
-                if q_prev is None or axis_speed is None:
-                    raise PlanningError(f"step {i}: a timed PTP needs the axis speeds and a previous PTP")
-                percent = ptp_percent(q_prev, q, st.t, axis_speed)
-                if percent != current_pct:
-                    src.append(f"  BAS(#VEL_PTP, {percent})")
-                    current_pct = percent
-            elif current_pct is not None:  # back to the program's axis speed after timed moves
-                src.append(f"  BAS(#VEL_PTP, {pct_text})")
-                current_pct = None
-            src.append(f"  PTP XJ{nj}" + (" C_PTP" if st.r > 0 else ""))
-            q_prev = q
-        elif isinstance(st, MoveL):
-            if not (math.isfinite(st.v) and st.v > 0):
-                raise PlanningError(f"step {i}: LIN speed must be finite and > 0, got {st.v}")
-            nl += 1
-            dat.append(f"  DECL E6POS XP{nl}={{{krl_frame(np.asarray(st.pose))},"
-                       "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}")
-            src.append(f"  $VEL.CP = {_f(st.v, 4)}")
-            src.append(f"  LIN XP{nl}")
-        elif isinstance(st, SetOutputs):
-            if st.label:
-                src.append(f"  ; {comment_text(st.label)}".rstrip())
-            for n, level in st.outputs:
-                if n < 0:
-                    raise PlanningError(f"step {i}: digital output {n} is negative")
-                src.append(f"  $OUT[{n + 1}] = {'TRUE' if level else 'FALSE'}")
-            if st.settle_s > 0:
-                src.append(f"  WAIT SEC {_f(st.settle_s, 3)}")
-        elif isinstance(st, WaitInput):
-            if st.input < 0:
-                raise PlanningError(f"step {i}: digital input {st.input} is negative")
-            if st.label:
-                src.append(f"  ; {comment_text(st.label)}".rstrip())
-            src.append(f"  WAIT FOR {'' if st.level else 'NOT '}$IN[{st.input + 1}]")
-        elif isinstance(st, Wait):
-            if not (math.isfinite(st.seconds) and st.seconds > 0):
-                raise PlanningError(f"step {i}: wait must be finite and > 0, got {st.seconds}")
-            src.append(f"  WAIT SEC {_f(st.seconds, 3)}")
-        elif isinstance(st, Comment):
-            src.append(f"  ; {comment_text(st.text)}".rstrip())
-        else:
-            raise PlanningError(f"step {i}: not a program step: {type(st).__name__}")
+
+    def emit(seq: Sequence[Step], out: list[str], first: int) -> None:
+        nonlocal nj, nl, q_prev, current_pct
+        for i, st in enumerate(seq, first):
+            check_io_step(i, st)
+            if isinstance(st, MoveJ):
+                q = np.asarray(st.q, dtype=float)
+                if q.shape != (6,) or not np.isfinite(q).all():
+                    raise PlanningError(f"step {i}: PTP needs 6 finite joint angles, got {st.q}")
+                nj += 1
+                axes = ",".join(f"A{k + 1} {_f(math.degrees(v), DECIMALS_DEG)}" for k, v in enumerate(q))
+                dat.append(f"  DECL E6AXIS XJ{nj}={{{axes},E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}}")
+                if st.t > 0:
+                    if q_prev is None or axis_speed is None:
+                        raise PlanningError(f"step {i}: a timed PTP needs the axis speeds and a previous PTP")
+                    percent = ptp_percent(q_prev, q, st.t, axis_speed)
+                    if percent != current_pct:
+                        out.append(f"  BAS(#VEL_PTP, {percent})")
+                        current_pct = percent
+                elif current_pct is not None:  # back to the program's axis speed after timed moves
+                    out.append(f"  BAS(#VEL_PTP, {pct_text})")
+                    current_pct = None
+                out.append(f"  PTP XJ{nj}" + (" C_PTP" if st.r > 0 else ""))
+                q_prev = q
+            elif isinstance(st, MoveL):
+                if not (math.isfinite(st.v) and st.v > 0):
+                    raise PlanningError(f"step {i}: LIN speed must be finite and > 0, got {st.v}")
+                nl += 1
+                dat.append(f"  DECL E6POS XP{nl}={{{krl_frame(np.asarray(st.pose))},"
+                           "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}")
+                out.append(f"  $VEL.CP = {_f(st.v, 4)}")
+                out.append(f"  LIN XP{nl}")
+            elif isinstance(st, SetOutputs):
+                if st.label:
+                    out.append(f"  ; {comment_text(st.label)}".rstrip())
+                for n, level in st.outputs:
+                    out.append(f"  $OUT[{n + 1}] = {'TRUE' if level else 'FALSE'}")
+                if st.settle_s > 0:
+                    out.append(f"  WAIT SEC {_f(st.settle_s, 3)}")
+            elif isinstance(st, WaitInput):
+                if st.label:
+                    out.append(f"  ; {comment_text(st.label)}".rstrip())
+                out.append(f"  WAIT FOR {'' if st.level else 'NOT '}$IN[{st.input + 1}]")
+            elif isinstance(st, Branch):
+                if st.label:
+                    out.append(f"  ; {comment_text(st.label)}".rstrip())
+                out.append(f"  IF {'' if st.level else 'NOT '}$IN[{st.input + 1}] THEN")
+                # each branch starts from where the arm stands at the IF, at the speed stated there
+                at, pct = q_prev, current_pct
+                inner: list[str] = []
+                emit(st.then, inner, i + 1)
+                out += ["  " + line for line in inner]
+                then_end, then_pct = q_prev, current_pct
+                q_prev, current_pct = at, pct
+                out.append("  ELSE")
+                inner = []
+                emit(st.otherwise, inner, i + 1 + len(st.then))
+                out += ["  " + line for line in inner]
+                out.append("  ENDIF")
+                # after the ENDIF the speed is whichever branch ran: state it again before the next timed PTP
+                q_prev = then_end if then_end is not None else q_prev
+                current_pct = then_pct if then_pct == current_pct else -1
+            elif isinstance(st, Wait):
+                out.append(f"  WAIT SEC {_f(st.seconds, 3)}")
+            elif isinstance(st, Comment):
+                out.append(f"  ; {comment_text(st.text)}".rstrip())
+            else:
+                raise PlanningError(f"step {i}: not a program step: {type(st).__name__}")
+
+    emit(steps, src, 0)
     src.append("END")
     dat.append("ENDDAT")
     return "\n".join(src) + "\n", "\n".join(dat) + "\n"

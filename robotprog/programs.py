@@ -26,10 +26,14 @@ with what the gripper holds in that move; a move whose posted path collides is p
 segments half as long (down to :data:`MIN_SEGMENT_S`), hugging the proven trajectory closer. Each segment's speed is its joint travel over the
 sample time of a trajectory proven within the limits, so it is within them too.
 
-With ``cell.machine`` the program also drives the machine tool through its digital I/O:
+With ``cell.machine`` the program also drives the machine tool through its digital I/O, the
+handshake :mod:`robotprog.machineio` defines once for programs and the cell simulation alike:
 wait until it is idle, open the door, load; close the door, start the cycle, wait for it
-to run and to finish, open the door; unload (:func:`machine_cycle`). The waits on inputs
-are the machine's time and count nothing in the controller time.
+to run and to finish, open the door; unload. The waits on inputs are the machine's time and
+count nothing in the controller time. Where the cell wires the machine's verdict
+(``part_ok``) and has a reject bin, the program reads it after the retreat from the vise and
+branches: the rest of the unload to the out-tray, or the planned reject branch to the bin
+(both proven like every move, both timed; the header states both).
 
 Each program's header states the planned motion time and the controller's, timed by
 :func:`robotprog.controller.program_duration` from the program's own steps.
@@ -37,6 +41,7 @@ Each program's header states the planned motion time and the controller's, timed
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,13 +50,16 @@ from typing import Any
 import numpy as np
 
 from factory.errors import PlanningError
-from robotprog.cell import Cell, MachineIO
+from robotprog.cell import Cell
 from robotprog.collision import CollisionWorld, collision_world
 from robotprog.controller import LANGS, program_duration
 from robotprog.krl import krl_program
 from robotprog.rapid import rapid_module
 from robotprog.tending import TendingOptions, TendingPlan, TimedMove
-from robotprog.urscript import Comment, MoveJ, ServoJ, SetOutputs, Step, WaitInput, urscript_program
+from robotprog.machineio import machine_cycle, machine_ready, number, to_steps, verdict
+from robotprog.urscript import Branch, Comment, MoveJ, ServoJ, SetOutputs, Step, flat_steps, urscript_program
+
+log = logging.getLogger(__name__)
 
 #: servoj period [s]: the CB3 controller's cycle (125 Hz).
 SERVO_PERIOD_S = 0.008
@@ -83,7 +91,10 @@ class PostedProgram:
     predicted_s : float
         The controller's duration for the program, from the same start [s].
     targets : int
-        Joint targets posted (servoj table rows, or blended waypoints).
+        Joint targets posted (servoj table rows, or blended waypoints), both branches counted.
+    planned_reject_s, predicted_reject_s : float or None
+        The same two durations for a rejected part (the program's verdict branch to the reject
+        bin) [s]; ``None`` when the program does not branch (no ``part_ok`` input or no reject bin).
     """
 
     texts: dict[Path, str]
@@ -91,6 +102,8 @@ class PostedProgram:
     planned_s: float
     predicted_s: float
     targets: int
+    planned_reject_s: float | None = None
+    predicted_reject_s: float | None = None
 
 
 def program_name(stem: str) -> str:
@@ -110,11 +123,42 @@ def _samples(mv: TimedMove, dt: float, exact: bool) -> tuple[np.ndarray, float]:
     return np.atleast_2d(q), step
 
 
+#: The move after which the program reads the machine's verdict on the finished part (the
+#: planned reject branch starts where it ends).
+VERDICT_AFTER = "unload: retreat from vise"
+
+
+def verdict_index(cell: Cell, plan: TendingPlan) -> int | None:
+    """Index into ``plan.moves`` of the move after which the program branches on the verdict
+    (``machine.io.inputs.part_ok``) to the out-tray or the planned reject branch; ``None`` when the
+    cell wires no verdict or the plan has no reject branch."""
+    if cell.machine is None or cell.machine.part_ok is None or not plan.reject:
+        return None
+    # the last such move: a part flipped between op 1 and op 2 leaves the vise twice, finished the second time
+    return max((k for k, mv in enumerate(plan.moves) if mv.name == VERDICT_AFTER), default=None)
+
+
+def posted_moves(cell: Cell, plan: TendingPlan) -> tuple[TimedMove, ...]:
+    """The moves a program posts, in the order it writes them: the plan's, then the reject branch's
+    when the program branches on the verdict."""
+    return plan.moves + (plan.reject if verdict_index(cell, plan) is not None else ())
+
+
+def reject_planned_s(cell: Cell, plan: TendingPlan) -> float | None:
+    """The plan's duration [s] for a rejected part: its moves up to the verdict, then the reject
+    branch; ``None`` when the program does not branch (:func:`verdict_index`)."""
+    k = verdict_index(cell, plan)
+    if k is None:
+        return None
+    return sum(mv.duration for mv in plan.moves[:k + 1]) + sum(mv.duration for mv in plan.reject)
+
+
 def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: str = "urscript",
-                  segments: dict[int, float] | None = None) -> list[Step]:
+                  segments: dict[int, float] | None = None, branch: bool = True) -> list[Step]:
     """The plan as program steps in ``lang``'s way of running the proven motion (module docstring).
 
-    ``segments``: RAPID / KRL, longest segment [s] per move index where it is not :data:`SEGMENT_S`."""
+    ``segments``: RAPID / KRL, longest segment [s] per move index (into :func:`posted_moves`) where
+    it is not :data:`SEGMENT_S`. ``branch``: post the verdict's reject way where the cell wires it."""
     if lang not in LANGS:
         raise PlanningError(f"expected a program language of {', '.join(LANGS)}, got {lang!r}")
     robot = world.robot
@@ -129,53 +173,48 @@ def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: st
     phase = [mv.name.split(":")[0] for mv in moves]
     cycle_at = {k for k in range(1, len(moves)) if phase[k] in ("flip", "unload")
                 and phase[k - 1] != phase[k]} if machine is not None else set()
-    if machine is not None:
-        steps += machine_ready(machine)
-    for k, mv in enumerate(moves):
-        if k in cycle_at and machine is not None:
-            steps += machine_cycle(machine)
-        steps.append(Comment(mv.name))
+    branch_at = verdict_index(cell, plan) if branch else None
+
+    def move_steps(k: int, mv: TimedMove, stops: bool) -> list[Step]:
+        out: list[Step] = [Comment(mv.name)]
         if mv.kind == "gripper":
-            steps.append(SetOutputs(mv.outputs, mv.settle_s))
-            continue
+            out.append(SetOutputs(mv.outputs, mv.settle_s))
+            return out
         if mv.trajectory.duration <= 0:
-            continue
+            return out
         if lang == "urscript":
             q, _ = _samples(mv, SERVO_PERIOD_S, exact=False)
-            stops = k + 1 == len(moves) or moves[k + 1].kind == "gripper" or k + 1 in cycle_at
             if stops:  # the arm must stand before the gripper switches: let the servo catch up
                 q = np.vstack([q, np.repeat(q[-1:], math.ceil(SERVO_LOOKAHEAD_S / SERVO_PERIOD_S - 1e-9), 0)])
-            steps.append(ServoJ(q, SERVO_PERIOD_S, SERVO_LOOKAHEAD_S, SERVO_GAIN))
+            out.append(ServoJ(q, SERVO_PERIOD_S, SERVO_LOOKAHEAD_S, SERVO_GAIN))
         else:
             q, seg = _samples(mv, (segments or {}).get(k, SEGMENT_S), exact=True)
             for j, row in enumerate(q):
                 last = j + 1 == len(q)
-                steps.append(MoveJ(tuple(float(v) for v in row), amax, vmax, 0.0 if last else ZONE_M, seg))
+                out.append(MoveJ(tuple(float(v) for v in row), amax, vmax, 0.0 if last else ZONE_M, seg))
+        return out
+
+    if machine is not None:
+        steps += to_steps(machine_ready(), machine)
+    then: list[Step] = []
+    reject: list[Step] = []
+    body = steps
+    for k, mv in enumerate(moves):
+        if k in cycle_at and machine is not None:
+            body += to_steps(machine_cycle(), machine)
+        stops = k + 1 == len(moves) or moves[k + 1].kind == "gripper" or k + 1 in cycle_at
+        body += move_steps(k, mv, stops)
+        if k == branch_at:
+            # The machine's verdict picks the way on: the rest of the unload to the out-tray, or the
+            # planned reject branch to the bin; both end at home.
+            for j, rv in enumerate(plan.reject):
+                last = j + 1 == len(plan.reject) or plan.reject[j + 1].kind == "gripper"
+                reject += move_steps(len(moves) + j, rv, last)
+            body = then
+    if branch_at is not None and machine is not None:
+        op = verdict()
+        steps.append(Branch(number(machine, op.signal), op.level, tuple(then), tuple(reject), op.label))
     return steps
-
-
-def machine_ready(io: MachineIO) -> list[Step]:
-    """Wait for the machine to be idle, then open its door and wait until it is open."""
-    return [WaitInput(io.cycle_done, True, "machine: wait until idle"), *_door(io, True)]
-
-
-def machine_cycle(io: MachineIO) -> list[Step]:
-    """Close the door, start the cycle (raised until the machine runs), wait for it to finish,
-    open the door: the handshake waits on the machine's inputs, never on a guessed time."""
-    return [*_door(io, False),
-            SetOutputs(((io.cycle_start, True),), 0.0, "machine: start the cycle"),
-            WaitInput(io.cycle_done, False, "machine: wait until it runs"),
-            SetOutputs(((io.cycle_start, False),), 0.0),
-            WaitInput(io.cycle_done, True, "machine: wait for the cycle done"),
-            *_door(io, True)]
-
-
-def _door(io: MachineIO, open_: bool) -> list[Step]:
-    if open_:
-        return [SetOutputs(((io.close_door, False), (io.open_door, True)), 0.0, "machine: open the door"),
-                WaitInput(io.door_open, True, "machine: wait for the door open")]
-    return [SetOutputs(((io.open_door, False), (io.close_door, True)), 0.0, "machine: close the door"),
-            WaitInput(io.door_open, False, "machine: wait for the door closed")]
 
 
 def check_posted_path(world: CollisionWorld, plan: TendingPlan, steps: list[Step],
@@ -190,19 +229,21 @@ def check_posted_path(world: CollisionWorld, plan: TendingPlan, steps: list[Step
     hit = posted_collision(world, plan, steps, joint_resolution)
     if hit is not None:
         k, contact = hit
-        raise PlanningError(f"{plan.moves[k].name}: the posted path collides ({contact})")
+        raise PlanningError(f"{(plan.moves + plan.reject)[k].name}: the posted path collides ({contact})")
 
 
 def posted_collision(world: CollisionWorld, plan: TendingPlan, steps: list[Step],
                      joint_resolution: float = TendingOptions().joint_resolution) -> tuple[int, str] | None:
-    """The first move (index into ``plan.moves``) whose posted path collides, and the contact."""
+    """The first move (index into ``plan.moves``, then ``plan.reject`` where the steps branch on the
+    verdict) whose posted path collides, and the contact."""
     per_move: list[list[Step]] = []
-    for st in steps:
+    for st in flat_steps(steps):
         if isinstance(st, Comment):
             per_move.append([])
         elif per_move:
             per_move[-1].append(st)
-    for k, (mv, posted) in enumerate(zip(plan.moves, per_move, strict=True)):
+    moves = plan.moves + plan.reject if any(isinstance(st, Branch) for st in steps) else plan.moves
+    for k, (mv, posted) in enumerate(zip(moves, per_move, strict=True)):
         if mv.kind == "gripper":
             continue
         pts = [mv.waypoints[0]]
@@ -261,25 +302,38 @@ def post_program(lang: str, program: Path, cell: Cell, world: CollisionWorld, pl
     # is posted again with segments half as long, whose polyline and corners hug the proven
     # trajectory closer, down to MIN_SEGMENT_S; then the collision is the error.
     segments: dict[int, float] = {}
+    branch = True
     while True:
-        steps = program_steps(cell, world, plan, lang, segments)
+        steps = program_steps(cell, world, plan, lang, segments, branch)
         hit = posted_collision(proven, plan, steps)
         if hit is None:
             break
         k, contact = hit
         seg = segments.get(k, SEGMENT_S) / 2
         if lang == "urscript" or seg < MIN_SEGMENT_S:
-            raise PlanningError(f"{plan.moves[k].name}: the posted path collides ({contact})")
+            if k >= len(plan.moves):
+                # The reject way's posted path grazes (its servoj polyline, or its finest segments): post
+                # the program without the branch, every part to the out-tray, rather than refuse the part.
+                log.warning("%s: the posted path collides (%s); the program does not branch on the verdict",
+                            plan.reject[k - len(plan.moves)].name, contact)
+                branch = False
+                continue
+            raise PlanningError(f"{(plan.moves + plan.reject)[k].name}: the posted path collides ({contact})")
         segments[k] = seg
     home = np.asarray(cell.robot.home, dtype=float)
     predicted = program_duration(steps, home, lang=lang, axis_speed=robot.v_max)
-    targets = sum(len(s.targets) if isinstance(s, ServoJ) else 1 for s in steps[1:]
+    planned_reject = reject_planned_s(cell, plan) if branch else None
+    predicted_reject = (None if planned_reject is None else
+                        program_duration(steps, home, lang=lang, axis_speed=robot.v_max, verdict=False))
+    targets = sum(len(s.targets) if isinstance(s, ServoJ) else 1 for s in flat_steps(steps)[1:]
                   if isinstance(s, ServoJ | MoveJ))
     how = {"urscript": f"servoj stream at {1 / SERVO_PERIOD_S:.0f} Hz",
            "rapid": f"blended MoveAbsJ\\T, {SEGMENT_S:g} s segments",
            "krl": f"blended PTP C_PTP, {SEGMENT_S:g} s segments"}[lang]
     header = (f"factory robot: {cell.name}, {robot.name}",
               f"planned motion {plan.duration:.2f} s, controller {predicted:.2f} s ({how}, {targets} targets)")
+    if planned_reject is not None and predicted_reject is not None:
+        header += (f"reject branch: planned motion {planned_reject:.2f} s, controller {predicted_reject:.2f} s",)
     tcp = cell.gripper.tcp.matrix()
     texts: dict[Path, Any]
     if lang == "urscript":
@@ -291,4 +345,4 @@ def post_program(lang: str, program: Path, cell: Cell, world: CollisionWorld, pl
                                axis_percent=100.0 * cell.motion.speed_scaling, axis_speed=robot.v_max,
                                header=header)
         texts = {program: src, program.with_suffix(".dat"): dat}
-    return PostedProgram(texts, tuple(steps), plan.duration, predicted, targets)
+    return PostedProgram(texts, tuple(steps), plan.duration, predicted, targets, planned_reject, predicted_reject)

@@ -25,7 +25,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from factory.errors import PlanningError
-from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Step, Wait, WaitInput, comment_text
+from robotprog.urscript import (Branch, Comment, MoveJ, MoveL, SetOutputs, Step, Wait, WaitInput, check_io_step,
+                                comment_text)
 
 #: Decimals of millimetres and degrees (1 µm, 1e-4 deg) and quaternions.
 DECIMALS_MM = 3
@@ -72,7 +73,7 @@ def rapid_module(
 
     Parameters
     ----------
-    steps : sequence of MoveJ, MoveL, SetOutputs, Wait, Comment
+    steps : sequence of MoveJ, MoveL, SetOutputs, WaitInput, Wait, Comment, Branch
         Joint angles [rad] (6 per MoveJ), poses base_link -> TCP [m].
     name : str
         Module name.
@@ -95,53 +96,65 @@ def rapid_module(
     speeds: dict[str, str] = {}
     zones: dict[str, str] = {}
     nj = nl = 0
-    for i, st in enumerate(steps):
-        if isinstance(st, MoveJ):
-            q = np.asarray(st.q, dtype=float)
-            if q.shape != (6,) or not np.isfinite(q).all():
-                raise PlanningError(f"step {i}: MoveAbsJ needs 6 finite joint angles, got {st.q}")
-            nj += 1
-            deg = ",".join(_f(math.degrees(v), DECIMALS_DEG) for v in q)
-            decl.append(f"  CONST jointtarget j{nj} := [[{deg}],{_EXT}];")
-            if st.t > 0:
-                if not math.isfinite(st.t):
-                    raise PlanningError(f"step {i}: MoveAbsJ time must be finite, got {st.t}")
-                speed = f"vJoint\\T:={_f(st.t, 4)}"
+
+    def emit(seq: Sequence[Step], out: list[str], first: int) -> None:
+        nonlocal nj, nl
+        for i, st in enumerate(seq, first):
+            check_io_step(i, st)
+            if isinstance(st, MoveJ):
+                q = np.asarray(st.q, dtype=float)
+                if q.shape != (6,) or not np.isfinite(q).all():
+                    raise PlanningError(f"step {i}: MoveAbsJ needs 6 finite joint angles, got {st.q}")
+                nj += 1
+                deg = ",".join(_f(math.degrees(v), DECIMALS_DEG) for v in q)
+                decl.append(f"  CONST jointtarget j{nj} := [[{deg}],{_EXT}];")
+                if st.t > 0:
+                    if not math.isfinite(st.t):
+                        raise PlanningError(f"step {i}: MoveAbsJ time must be finite, got {st.t}")
+                    speed = f"vJoint\\T:={_f(st.t, 4)}"
+                else:
+                    speed = "vJoint"
+                out.append(f"    MoveAbsJ j{nj}\\NoEOffs, {speed}, {_zone(st.r, zones)}, tGripper;")
+            elif isinstance(st, MoveL):
+                if not (math.isfinite(st.v) and st.v > 0):
+                    raise PlanningError(f"step {i}: MoveL speed must be finite and > 0, got {st.v}")
+                nl += 1
+                decl.append(f"  CONST robtarget p{nl} := [{rapid_pose(np.asarray(st.pose))[1:-1]},[0,0,0,0],{_EXT}];")
+                v = _f(st.v * 1000.0, 1)
+                sname = f"vLine{v.replace('.', '_')}"
+                speeds[sname] = f"  CONST speeddata {sname} := [{v},500,5000,1000];"
+                out.append(f"    MoveL p{nl}, {sname}, {_zone(st.r, zones)}, tGripper;")
+            elif isinstance(st, SetOutputs):
+                if st.label:
+                    out.append(f"    ! {comment_text(st.label)}".rstrip())
+                for n, level in st.outputs:
+                    out.append(f"    SetDO do{n}, {1 if level else 0};")
+                if st.settle_s > 0:
+                    out.append(f"    WaitTime {_f(st.settle_s, 3)};")
+            elif isinstance(st, WaitInput):
+                if st.label:
+                    out.append(f"    ! {comment_text(st.label)}".rstrip())
+                out.append(f"    WaitDI di{st.input}, {1 if st.level else 0};")
+            elif isinstance(st, Branch):
+                if st.label:
+                    out.append(f"    ! {comment_text(st.label)}".rstrip())
+                out.append(f"    IF DInput(di{st.input}) = {1 if st.level else 0} THEN")
+                inner: list[str] = []
+                emit(st.then, inner, i + 1)
+                out += ["  " + line for line in inner]
+                out.append("    ELSE")
+                inner = []
+                emit(st.otherwise, inner, i + 1 + len(st.then))
+                out += ["  " + line for line in inner]
+                out.append("    ENDIF")
+            elif isinstance(st, Wait):
+                out.append(f"    WaitTime {_f(st.seconds, 3)};")
+            elif isinstance(st, Comment):
+                out.append(f"    ! {comment_text(st.text)}".rstrip())
             else:
-                speed = "vJoint"
-            body.append(f"    MoveAbsJ j{nj}\\NoEOffs, {speed}, {_zone(st.r, zones)}, tGripper;")
-        elif isinstance(st, MoveL):
-            if not (math.isfinite(st.v) and st.v > 0):
-                raise PlanningError(f"step {i}: MoveL speed must be finite and > 0, got {st.v}")
-            nl += 1
-            decl.append(f"  CONST robtarget p{nl} := [{rapid_pose(np.asarray(st.pose))[1:-1]},[0,0,0,0],{_EXT}];")
-            v = _f(st.v * 1000.0, 1)
-            sname = f"vLine{v.replace('.', '_')}"
-            speeds[sname] = f"  CONST speeddata {sname} := [{v},500,5000,1000];"
-            body.append(f"    MoveL p{nl}, {sname}, {_zone(st.r, zones)}, tGripper;")
-        elif isinstance(st, SetOutputs):
-            if st.label:
-                body.append(f"    ! {comment_text(st.label)}".rstrip())
-            for n, level in st.outputs:
-                if n < 0:
-                    raise PlanningError(f"step {i}: digital output {n} is negative")
-                body.append(f"    SetDO do{n}, {1 if level else 0};")
-            if st.settle_s > 0:
-                body.append(f"    WaitTime {_f(st.settle_s, 3)};")
-        elif isinstance(st, WaitInput):
-            if st.input < 0:
-                raise PlanningError(f"step {i}: digital input {st.input} is negative")
-            if st.label:
-                body.append(f"    ! {comment_text(st.label)}".rstrip())
-            body.append(f"    WaitDI di{st.input}, {1 if st.level else 0};")
-        elif isinstance(st, Wait):
-            if not (math.isfinite(st.seconds) and st.seconds > 0):
-                raise PlanningError(f"step {i}: wait must be finite and > 0, got {st.seconds}")
-            body.append(f"    WaitTime {_f(st.seconds, 3)};")
-        elif isinstance(st, Comment):
-            body.append(f"    ! {comment_text(st.text)}".rstrip())
-        else:
-            raise PlanningError(f"step {i}: not a program step: {type(st).__name__}")
+                raise PlanningError(f"step {i}: not a program step: {type(st).__name__}")
+
+    emit(steps, body, 0)
     cog = _f(tcp[2, 3] * 500.0, DECIMALS_MM)
     lines = [f"MODULE {name}"]
     lines += [f"  ! {comment_text(h)}".rstrip() for h in header]

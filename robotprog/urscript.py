@@ -27,6 +27,8 @@ from robotprog.ik import TRANSFORM_BASE_LINK_TO_UR_BASE
 
 #: Decimals for lengths [m] (1 µm), angles [rad] (1 µrad) and rotation vectors.
 DECIMALS = 6
+#: Standard digital inputs and outputs of a UR controller (numbers 0..7).
+UR_DIGITAL_IO = 8
 
 
 @dataclass(frozen=True)
@@ -106,7 +108,70 @@ class Comment:
     text: str
 
 
-Step = MoveJ | MoveL | ServoJ | SetOutputs | WaitInput | Wait | Comment
+@dataclass(frozen=True)
+class Branch:
+    """Read digital input ``input`` once: run ``then`` if it reads ``level``, else ``otherwise``
+    (URScript ``if``, RAPID ``IF DInput``, KRL ``IF $IN``); ``label`` becomes a comment. The
+    machine's verdict on a part picks the out-tray or the reject bin."""
+
+    input: int
+    level: bool
+    then: tuple["Step", ...]
+    otherwise: tuple["Step", ...]
+    label: str = ""
+
+
+Step = MoveJ | MoveL | ServoJ | SetOutputs | WaitInput | Wait | Comment | Branch
+
+
+def flat_steps(steps: Sequence[Step]) -> list[Step]:
+    """``steps`` with every :class:`Branch` replaced by its ``then`` steps and then its ``otherwise``
+    steps (depth first): every step a program contains, in the order it is written."""
+    out: list[Step] = []
+    for st in steps:
+        if isinstance(st, Branch):
+            out += flat_steps(st.then) + flat_steps(st.otherwise)
+        else:
+            out.append(st)
+    return out
+
+
+def check_io_step(i: int, st: Step, inputs: int | None = None, outputs: int | None = None) -> None:
+    """The checks every language makes on an I/O or wait step (outputs, inputs, waits, branches),
+    so URScript, RAPID and KRL refuse the same malformed steps with the same words.
+
+    Parameters
+    ----------
+    i : int
+        The step's index, for the message.
+    st : Step
+        Steps other than :class:`SetOutputs`, :class:`WaitInput`, :class:`Wait` and
+        :class:`Branch` pass unchecked.
+    inputs, outputs : int, optional
+        How many digital inputs / outputs the controller has (numbers ``0..n - 1``);
+        ``None``: any number >= 0.
+
+    Raises
+    ------
+    PlanningError
+        A negative (or too large) signal number, a non-finite or negative settle time, a wait
+        that is not finite and > 0.
+    """
+    def signal(n: int, kind: str, count: int | None) -> None:
+        if n < 0 or (count is not None and n >= count):
+            span = "negative" if n < 0 else f"not in 0..{count - 1}"
+            raise PlanningError(f"step {i}: digital {kind} {n} is {span}")
+
+    if isinstance(st, SetOutputs):
+        for n, _ in st.outputs:
+            signal(n, "output", outputs)
+        if not (math.isfinite(st.settle_s) and st.settle_s >= 0):
+            raise PlanningError(f"step {i}: settle time must be finite and >= 0, got {st.settle_s}")
+    elif isinstance(st, WaitInput | Branch):
+        signal(st.input, "input", inputs)
+    elif isinstance(st, Wait):
+        if not (math.isfinite(st.seconds) and st.seconds > 0):
+            raise PlanningError(f"step {i}: wait must be finite and > 0, got {st.seconds}")
 
 
 def comment_text(text: str) -> str:
@@ -174,49 +239,62 @@ def urscript_program(
         lines.append(f"  set_tcp({ur_pose(transform_flange_to_tcp)})")
     to_ur = np.linalg.inv(TRANSFORM_BASE_LINK_TO_UR_BASE)
     n_tables = 0
-    for i, st in enumerate(steps):
-        if isinstance(st, MoveJ):
-            q = np.asarray(st.q, dtype=float)
-            if q.shape != (6,) or not np.isfinite(q).all():
-                raise PlanningError(f"step {i}: movej needs 6 finite joint angles, got {st.q}")
-            _positive(st.a, f"step {i} movej a")
-            _positive(st.v, f"step {i} movej v")
-            joints = "[" + ", ".join(_num(v) for v in q) + "]"
-            timed = f", t={_num(st.t)}" if st.t > 0 else ""
-            blend = f", r={_num(st.r)}" if st.r > 0 else ""
-            lines.append(f"  movej({joints}, a={_num(st.a)}, v={_num(st.v)}{timed}{blend})")
-        elif isinstance(st, ServoJ):
-            n_tables = _servoj_lines(st, i, n_tables, lines)
-        elif isinstance(st, MoveL):
-            _positive(st.a, f"step {i} movel a")
-            _positive(st.v, f"step {i} movel v")
-            blend = f", r={_num(st.r)}" if st.r > 0 else ""
-            pose = ur_pose(to_ur @ np.asarray(st.pose, dtype=float))
-            lines.append(f"  movel({pose}, a={_num(st.a)}, v={_num(st.v)}{blend})")
-        elif isinstance(st, SetOutputs):
-            if st.label:
-                lines.append(f"  # {comment_text(st.label)}".rstrip())
-            for n, level in st.outputs:
-                if not 0 <= n <= 7:
-                    raise PlanningError(f"step {i}: standard digital output {n} is not in 0..7")
-                lines.append(f"  set_standard_digital_out({n}, {'True' if level else 'False'})")
-            if st.settle_s > 0:
-                lines.append(f"  sleep({_num(st.settle_s)})")
-        elif isinstance(st, WaitInput):
-            if not 0 <= st.input <= 7:
-                raise PlanningError(f"step {i}: standard digital input {st.input} is not in 0..7")
-            if st.label:
-                lines.append(f"  # {comment_text(st.label)}".rstrip())
-            lines.append(f"  while get_standard_digital_in({st.input}) != {'True' if st.level else 'False'}:")
-            lines.append("    sync()")
-            lines.append("  end")
-        elif isinstance(st, Wait):
-            _positive(st.seconds, f"step {i} wait")
-            lines.append(f"  sleep({_num(st.seconds)})")
-        elif isinstance(st, Comment):
-            lines.append(f"  # {comment_text(st.text)}".rstrip())
-        else:
-            raise PlanningError(f"step {i}: not a URScript step: {type(st).__name__}")
+
+    def emit(seq: Sequence[Step], out: list[str], first: int) -> None:
+        nonlocal n_tables
+        for i, st in enumerate(seq, first):
+            check_io_step(i, st, inputs=UR_DIGITAL_IO, outputs=UR_DIGITAL_IO)
+            if isinstance(st, MoveJ):
+                q = np.asarray(st.q, dtype=float)
+                if q.shape != (6,) or not np.isfinite(q).all():
+                    raise PlanningError(f"step {i}: movej needs 6 finite joint angles, got {st.q}")
+                _positive(st.a, f"step {i} movej a")
+                _positive(st.v, f"step {i} movej v")
+                joints = "[" + ", ".join(_num(v) for v in q) + "]"
+                timed = f", t={_num(st.t)}" if st.t > 0 else ""
+                blend = f", r={_num(st.r)}" if st.r > 0 else ""
+                out.append(f"  movej({joints}, a={_num(st.a)}, v={_num(st.v)}{timed}{blend})")
+            elif isinstance(st, ServoJ):
+                n_tables = _servoj_lines(st, i, n_tables, out)
+            elif isinstance(st, MoveL):
+                _positive(st.a, f"step {i} movel a")
+                _positive(st.v, f"step {i} movel v")
+                blend = f", r={_num(st.r)}" if st.r > 0 else ""
+                pose = ur_pose(to_ur @ np.asarray(st.pose, dtype=float))
+                out.append(f"  movel({pose}, a={_num(st.a)}, v={_num(st.v)}{blend})")
+            elif isinstance(st, SetOutputs):
+                if st.label:
+                    out.append(f"  # {comment_text(st.label)}".rstrip())
+                for n, level in st.outputs:
+                    out.append(f"  set_standard_digital_out({n}, {'True' if level else 'False'})")
+                if st.settle_s > 0:
+                    out.append(f"  sleep({_num(st.settle_s)})")
+            elif isinstance(st, WaitInput):
+                if st.label:
+                    out.append(f"  # {comment_text(st.label)}".rstrip())
+                out.append(f"  while get_standard_digital_in({st.input}) != {'True' if st.level else 'False'}:")
+                out.append("    sync()")
+                out.append("  end")
+            elif isinstance(st, Branch):
+                if st.label:
+                    out.append(f"  # {comment_text(st.label)}".rstrip())
+                out.append(f"  if get_standard_digital_in({st.input}) == {'True' if st.level else 'False'}:")
+                inner: list[str] = []
+                emit(st.then, inner, i + 1)
+                out += ["  " + line for line in inner]
+                out.append("  else:")
+                inner = []
+                emit(st.otherwise, inner, i + 1 + len(st.then))
+                out += ["  " + line for line in inner]
+                out.append("  end")
+            elif isinstance(st, Wait):
+                out.append(f"  sleep({_num(st.seconds)})")
+            elif isinstance(st, Comment):
+                out.append(f"  # {comment_text(st.text)}".rstrip())
+            else:
+                raise PlanningError(f"step {i}: not a URScript step: {type(st).__name__}")
+
+    emit(steps, lines, 0)
     lines.append("end")
     return "\n".join(lines) + "\n"
 

@@ -64,7 +64,9 @@ def test_robot_writes_mcap_and_urscript(run):
     text = script.read_text()
     assert text.startswith("def bracket():") and text.rstrip().endswith("end")
     assert text.count("set_standard_digital_out(0, True)") == 2
-    assert text.count("set_standard_digital_out(0, False)") == 2
+    # released in the vise, in the out-tray, and on the verdict's reject way in the bin
+    assert text.count("set_standard_digital_out(0, False)") == 3
+    assert text.count("if get_standard_digital_in(2) == True:") == 1
     # one movej to home, then the proven trajectory streamed: no movel, no unblended waypoints
     assert text.count("movel(") == 0 and text.count("movej(") == 1 and "servoj(" in text
     assert summary["program_duration_s"] == pytest.approx(total, rel=0.05)

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from factory.errors import PlanningError
 from robotprog.controller import program_duration, trapezoid_time
-from robotprog.urscript import Comment, MoveJ, MoveL, ServoJ, SetOutputs, Wait, WaitInput
+from robotprog.urscript import Branch, Comment, MoveJ, MoveL, ServoJ, SetOutputs, Wait, WaitInput
 
 Q0 = np.zeros(6)
 
@@ -77,3 +77,21 @@ def test_movel_is_a_trapezoid_on_the_tcp_path():
         program_duration(steps, Q0)
     with pytest.raises(PlanningError, match="unknown position"):
         program_duration(steps + [MoveJ(_q(1.0), 1.0, 1.0)], Q0, tcp_of=tcp_of)
+
+
+def test_a_branch_runs_the_way_its_input_reads():
+    """The verdict picks the way: the out-tray way's time or the reject way's, never both; each
+    way starts where the arm stands at the branch."""
+    q0 = np.zeros(6)
+    tray = (MoveJ((0.5,) * 6, 1.0, 1.0, 0.0, 2.0), Wait(0.5))
+    reject = (MoveJ((-0.5,) * 6, 1.0, 1.0, 0.0, 3.0), SetOutputs(((0, True),), 0.25))
+    steps = [Wait(1.0), Branch(2, True, tray, reject, "verdict"), MoveJ((0.0,) * 6, 1.0, 1.0, 0.0, 1.0)]
+    assert program_duration(steps, q0) == pytest.approx(1.0 + 2.5 + 1.0)
+    assert program_duration(steps, q0, verdict=False) == pytest.approx(1.0 + 3.25 + 1.0)
+    # a branch taken on a low input runs its `then` way when the input reads low
+    low = [Branch(2, False, reject, tray)]
+    assert program_duration(low, q0, verdict=False) == pytest.approx(3.25)
+    # the untimed joint move after the branch starts from the way's end
+    after = [Branch(2, True, tray, reject), MoveJ((0.5,) * 6, 1.0, 1.0)]
+    assert program_duration(after, q0) == pytest.approx(2.5)
+    assert program_duration(after, q0, verdict=False) == pytest.approx(3.25 + trapezoid_time(1.0, 1.0, 1.0))

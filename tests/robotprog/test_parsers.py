@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from robotprog.krl import krl_program
 from robotprog.rapid import rapid_module
-from robotprog.urscript import Comment, MoveJ, MoveL, ServoJ, SetOutputs, Wait, WaitInput, urscript_program
+from robotprog.urscript import Branch, Comment, MoveJ, MoveL, ServoJ, SetOutputs, Wait, WaitInput, urscript_program
 from tests.robotprog.parsers import parse_krl, parse_urscript, rapid_errors
 
 GOLDEN = Path(__file__).parent / "golden"
@@ -55,7 +55,7 @@ def _pose(xyz, rotvec) -> np.ndarray:
     return t
 
 
-_step = st.one_of(
+_base = st.one_of(
     st.builds(MoveJ, _q, st.floats(0.1, 5.0), st.floats(0.1, 3.0), st.sampled_from([0.0, 0.005, 0.02]),
               st.sampled_from([0.0, 0.1, 0.25])),
     st.builds(lambda xyz, rv, v, r: MoveL.to(_pose(xyz, rv), 0.5, v, r),
@@ -67,6 +67,10 @@ _step = st.one_of(
     st.builds(WaitInput, st.integers(0, 7), st.booleans(), st.sampled_from(["", "machine: door open"])),
     st.builds(Comment, st.text("abc: ()-,.", max_size=20)),
 )
+#: and a branch on an input (the verdict: out-tray or reject bin), its ways any of the above
+_step = st.one_of(_base, st.builds(lambda n, level, a, b: Branch(n, level, tuple(a), tuple(b), "verdict"),
+                                   st.integers(0, 7), st.booleans(), st.lists(_base, max_size=4),
+                                   st.lists(_base, max_size=4)))
 
 
 @settings(max_examples=60, deadline=None)
@@ -83,6 +87,25 @@ def test_random_urscript_and_krl_parse(start, steps):
 @given(_q, st.lists(_step, max_size=12))
 def test_random_rapid_passes_rapidchecker(start, steps):
     assert rapid_errors(rapid_module([MoveJ(start, 1.0, 1.0), *steps], name="prop")) == []
+
+
+def test_a_branch_is_checked_by_the_consumers():
+    """A branch's ways are written inside IF / if blocks the checkers read; an IF without its
+    ENDIF is refused (rapidchecker reports it: it exits 0 on errors, so the test reads them)."""
+    q = (0.1,) * 6
+    steps = [MoveJ(q, 1.0, 1.0), Branch(2, True, (MoveJ((0.2,) * 6, 1.0, 1.0, 0.0, 0.5),), (Wait(1.0),), "verdict")]
+    text = rapid_module(steps, name="branch")
+    assert "IF DInput(di2) = 1 THEN" in text and rapid_errors(text) == []
+    assert rapid_errors(text.replace("    ENDIF\n", "")) != []
+    src, dat = krl_program(steps, name="branch", axis_speed=AXIS_SPEED)
+    parse_krl(src, dat)
+    with pytest.raises(lark.exceptions.LarkError):
+        parse_krl(src.replace("  ENDIF\n", ""), dat)
+    ur = urscript_program(steps)
+    parse_urscript(ur)
+    assert "if get_standard_digital_in(2) == True:" in ur
+    with pytest.raises(lark.exceptions.LarkError):
+        parse_urscript(ur.replace("  else:\n", "  else\n"))
 
 
 def test_an_empty_comment_leaves_no_trailing_space():

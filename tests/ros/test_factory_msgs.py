@@ -220,6 +220,7 @@ def test_no_json_in_strings_the_cell_state_is_fields(cell_log):
     assert types["/cell/state"] == "factory_msgs/msg/SchedulerState"
     assert types["/cell/robot"] == "factory_msgs/msg/RobotState"
     assert types["/cell/machine"] == "factory_msgs/msg/MachineState"
+    assert types["/cell/io"] == "factory_msgs/msg/MachineSignal"
     assert types["/cell/orders"] == "factory_msgs/msg/OrderQueue"
     assert types["/cell/summary"] == "factory_msgs/msg/CellSummary"
 
@@ -269,3 +270,27 @@ def test_order_queue_and_summary_end_as_the_run_reports(cell_log):
     states = [m for topic, _, _, m in msgs if topic == "/cell/state"]
     assert {m.state for m in states} >= {"FETCH_RAW", "LOAD", "MACHINING", "UNLOAD", "INSPECT", "SORT", "IDLE"}
     assert all(re.fullmatch(r"o\d+-\d+", m.serial) for m in states)
+
+
+def test_the_machine_handshake_is_on_cell_io(cell_log):
+    """/cell/io carries the handshake the posted programs run (robotprog.machineio), with the
+    cell file's numbers: per part that was cut without an alarm, exactly the program's sequence."""
+    from robotprog.cell import load_cell
+    from factory.resources import FIXTURES
+    from robotprog.machineio import part_signals
+
+    io = load_cell(FIXTURES / "cell.yaml", check_robot=False).machine
+    msgs = [m for topic, name, _, m in messages(cell_log, shipped_typestore()) if topic == "/cell/io"]
+    assert msgs and all(m.number == getattr(io, m.signal) for m in msgs)
+    want = [o.key[:2] for o in part_signals()]
+    by_part: dict[str, list] = {}
+    for m in msgs:
+        by_part.setdefault(m.serial, []).append(m)
+    clean = 0
+    for serial, ms in by_part.items():
+        ops = [(m.operation, m.signal) for m in ms]
+        assert ops[:4] == want[:4], serial  # ready: wait idle, open the door, wait until open
+        if ops == want:
+            clean += 1
+            assert [m.level for m in ms][:-1] == [o.level for o in part_signals()][:-1]
+    assert clean >= 1
