@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
-import os
 import re
 import shutil
 import subprocess
@@ -16,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cadcam.drilling import DrillingOptions, cycle_moves, drill_operation, find_holes, plan_holes
+from cadcam.drilling import cycle_moves, drill_operation, find_holes, plan_holes
 from cadcam.gcode import parse_gcode
 from cadcam.model import DrillCycle, Job, Motion, Operation, Setup
 from cadcam.plan import PlanOptions, choose_tools
@@ -26,6 +24,7 @@ from cadcam.tools import load_tool_library
 from cadcam.verify import VerifyOptions, operation_moves, simulate, swept_envelope
 from factory.errors import ToolError
 from tests.conftest import manifold_to_trimesh
+from tests.rs274 import run_rs274
 
 LIBRARY = load_tool_library()
 SEGMENTS = 96
@@ -100,14 +99,9 @@ def _drill_job(retract="r") -> Job:
 def _rs274(tmp_path: Path, job: Job, text: str) -> subprocess.CompletedProcess:
     if shutil.which("rs274") is None:
         pytest.skip("LinuxCNC's rs274 interpreter is not on PATH")
-    tbl = tmp_path / "tool.tbl"
-    tbl.write_text(linuxcnc_tool_table(job.tools))
     nc = tmp_path / "drill.nc"
     nc.write_text(text)
-    # rs274 keeps its tool table in $HOME/.tool.mmap: a private HOME, or concurrent runs clobber it.
-    return subprocess.run(["rs274", "-t", str(tbl), "-g", str(nc)], stdin=subprocess.DEVNULL,
-                          capture_output=True, text=True, timeout=60, cwd=tmp_path,
-                          env={**os.environ, "HOME": str(tmp_path)})
+    return run_rs274(nc, linuxcnc_tool_table(job.tools), tmp_path, timeout=60)
 
 
 _CANON = re.compile(r"(STRAIGHT_TRAVERSE|STRAIGHT_FEED)\(([^)]*)\)")

@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import math
-import os
 import re
 import shutil
-import subprocess
 
 import numpy as np
 import pytest
@@ -16,6 +14,7 @@ from hypothesis import strategies as st
 from cadcam.gcode import parse_gcode
 from cadcam.model import Motion
 from factory.errors import GcodeError
+from tests.rs274 import run_rs274
 
 
 def _parse(text: str, **kw):
@@ -290,11 +289,7 @@ def _distinct(points: np.ndarray) -> np.ndarray:
 def test_drill_cycles_move_as_linuxcnc_moves_them(tmp_path):
     nc = tmp_path / "drill.ngc"
     nc.write_text(DRILL_PROGRAM)
-    tbl = tmp_path / "tool.tbl"
-    tbl.write_text("T1 P1 Z30 D3 ;drill\n")
-    # rs274 keeps its tool table in $HOME/.tool.mmap: a private HOME, or concurrent runs clobber it.
-    p = subprocess.run(["rs274", "-t", str(tbl), "-g", str(nc)], stdin=subprocess.DEVNULL,
-                       capture_output=True, text=True, timeout=60, env={**os.environ, "HOME": str(tmp_path)})
+    p = run_rs274(nc, "T1 P1 Z30 D3 ;drill\n", tmp_path, timeout=60)
     assert p.returncode == 0, p.stdout[-1000:]
     theirs = []
     for m in re.finditer(r"STRAIGHT_(TRAVERSE|FEED)\(([-\d.]+), ([-\d.]+), ([-\d.]+)", p.stdout):

@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-import os
 import shutil
-import subprocess
 from pathlib import Path
 
 import manifold3d
@@ -30,6 +28,7 @@ from robotprog.frames import vise_jaws
 from tests.cadcam.sweep import sweep_moves
 from tests.cadcam.test_rest import assert_safe
 from tests.conftest import SAMPLES, manifold_to_trimesh
+from tests.rs274 import run_rs274
 
 LIBRARY = load_tool_library()
 # A coarser scallop than the default keeps the suite quick; gouge-freedom does not depend on it.
@@ -73,12 +72,7 @@ def plan_post_verify_moves(part_mesh, name: str, tmp_path: Path, options: PlanOp
 
 
 def rs274_accepts(nc: Path, job, tmp_path: Path) -> None:
-    tbl = tmp_path / "tool.tbl"
-    tbl.write_text(linuxcnc_tool_table(job.tools))
-    # rs274 keeps its tool table in $HOME/.tool.mmap: a private HOME, or concurrent runs clobber it
-    # ("Requested tool 3 not found in the tool table" when another rs274 ran meanwhile).
-    p = subprocess.run(["rs274", "-t", str(tbl), "-g", str(nc)], stdin=subprocess.DEVNULL,
-                       capture_output=True, text=True, timeout=300, env={**os.environ, "HOME": str(tmp_path)})
+    p = run_rs274(nc, linuxcnc_tool_table(job.tools), tmp_path)
     assert p.returncode == 0, (p.stdout[-1500:], p.stderr[-1500:])
 
 

@@ -4,7 +4,6 @@ each dialect keeps its controller's syntax rules, and time estimates add up."""
 from __future__ import annotations
 
 import math
-import os
 import re
 import shutil
 import subprocess
@@ -14,6 +13,7 @@ import numpy as np
 import pytest
 
 from tests.geometry import point_polyline_distance
+from tests.rs274 import run_rs274
 from cadcam.gcode import parse_gcode
 from cadcam.model import CuttingData, Job, Motion, Operation, Setup, Tool
 from cadcam.post import PostOptions, linuxcnc_tool_table, post_process
@@ -169,14 +169,9 @@ def test_deterministic():
 def _rs274(tmp_path: Path, text: str, name: str) -> subprocess.CompletedProcess:
     if shutil.which("rs274") is None:
         pytest.skip("LinuxCNC's rs274 interpreter is not on PATH")
-    tbl = tmp_path / "tool.tbl"
-    tbl.write_text(linuxcnc_tool_table(_job().tools))
     nc = tmp_path / name
     nc.write_text(text)
-    # rs274 keeps its tool table in $HOME/.tool.mmap: a private HOME, or concurrent runs clobber it.
-    return subprocess.run(["rs274", "-t", str(tbl), "-g", str(nc)], stdin=subprocess.DEVNULL,
-                          capture_output=True, text=True, timeout=60, cwd=tmp_path,
-                          env={**os.environ, "HOME": str(tmp_path)})
+    return run_rs274(nc, linuxcnc_tool_table(_job().tools), tmp_path, timeout=60)
 
 
 _CANON = re.compile(r"(STRAIGHT_TRAVERSE|STRAIGHT_FEED|ARC_FEED)\(([^)]*)\)")

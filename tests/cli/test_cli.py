@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import shutil
 import struct
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +15,7 @@ from typer.testing import CliRunner
 from cli.main import app
 from factory.plan import plan_outputs
 from tests.cli.expect import assert_one_line_error
+from tests.rs274 import run_rs274
 
 runner = CliRunner()
 FAST = ["--scallop", "0.02", "--quiet"]
@@ -83,10 +83,8 @@ def test_verify_fails_with_exit_3_on_a_gouging_program(chain, tmp_path):
 @pytest.mark.skipif(shutil.which("rs274") is None, reason="LinuxCNC's rs274 is not installed (apt-get install linuxcnc-uspace)")
 def test_linuxcnc_accepts_the_program(chain, tmp_path):
     sheet = json.loads(chain["setup"].read_text())
-    tbl = tmp_path / "tool.tbl"
-    tbl.write_text("".join(f"T{t['number']} P{t['number']} Z{t['length']} D{t['diameter']}\n" for t in sheet["tools"]))
-    p = subprocess.run(["rs274", "-t", str(tbl), "-g", str(chain["nc"])], stdin=subprocess.DEVNULL,
-                       capture_output=True, text=True, timeout=120)
+    table = "".join(f"T{t['number']} P{t['number']} Z{t['length']} D{t['diameter']}\n" for t in sheet["tools"])
+    p = run_rs274(chain["nc"], table, tmp_path, timeout=120)
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
 
 
