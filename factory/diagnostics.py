@@ -15,9 +15,10 @@ from __future__ import annotations
 from typing import Any
 
 #: Robot activities that reach into the machine: its door is open through them.
-THROUGH_THE_DOOR = ("load", "unload")
-#: What the gripper holds through each robot activity.
-HOLDS = {"load": "blank", "unload": "part", "sort_reject": "reject"}
+THROUGH_THE_DOOR = ("load", "unload", "flip")
+#: What the gripper holds through each robot activity. The flip (vise -> post -> vise, see
+#: :mod:`robotprog.flip`) lets go only to regrasp on the post, so it counts as holding the part.
+HOLDS = {"load": "blank", "unload": "part", "flip": "part", "sort_reject": "reject"}
 
 
 def door(robot_activity: Any | None, t: float) -> str:

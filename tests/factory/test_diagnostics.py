@@ -12,7 +12,7 @@ def robot(action: str, outcome: str, start: float = 10.0, end: float = 20.0) -> 
     return Activity("robot", action, 1, start, end, outcome)
 
 
-@pytest.mark.parametrize("action", ["load", "unload"])
+@pytest.mark.parametrize("action", ["load", "unload", "flip"])
 def test_the_door_is_open_while_the_robot_reaches_into_the_machine(action):
     a = robot(action, "loaded" if action == "load" else "unloaded")
     assert [door(a, t) for t in (9.0, 10.0, 19.9, 20.0)] == ["closed", "open", "open", "closed"]
@@ -42,3 +42,8 @@ def test_the_gripper_holds_the_part_out_and_the_reject_to_the_bin():
     assert gripper(robot("unload", "unloaded"), 15.0) == {"gripper": "closed", "gripper_holds": "part"}
     assert gripper(robot("sort_reject", "sorted"), 15.0) == {"gripper": "closed", "gripper_holds": "reject"}
     assert gripper(robot("unload", "unloaded"), 20.0)["gripper"] == "open"
+
+
+def test_the_part_is_held_through_the_flip_between_op_1_and_op_2():
+    assert gripper(robot("flip", "flipped"), 15.0) == {"gripper": "closed", "gripper_holds": "part"}
+    assert gripper(robot("flip", "flipped"), 20.0)["gripper"] == "open"  # let go in the vise for op 2
