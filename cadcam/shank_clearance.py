@@ -67,11 +67,13 @@ def upper_raster(part: trimesh.Trimesh, setup: Setup, tool: Tool, cutting: Cutti
     """
     upper = float(setup.stock_max[2]) - tool.flute_length + SHANK_CLEARANCE
     walls = tall_walls(stock, tool, tool.flute_length - SHANK_CLEARANCE)
-    if walls is None or upper <= float(setup.stock_min[2]):
+    if walls is None or upper <= float(setup.floor_z):
         return None
     lo, hi = walls
     # The raster's work box is the stock's: the walls' box, its floor at ``upper``.
+    # (the drop-cutter's floor is the setup's floor_z, so that goes up to ``upper`` too)
     shallow = dataclasses.replace(setup, stock_min=np.array([*np.maximum(lo, setup.stock_min[:2]), upper]),
-                                  stock_max=np.array([*np.minimum(hi, setup.stock_max[:2]), setup.stock_max[2]]))
+                                  stock_max=np.array([*np.minimum(hi, setup.stock_max[:2]), setup.stock_max[2]]),
+                                  floor_z=max(upper, float(setup.floor_z)))
     op = raster_finishing(part, shallow, tool, cutting, options, progress=progress, stock=stock, limit=limit)
     return dataclasses.replace(op, name="finish raster upper") if len(op.points) > 1 else None

@@ -390,6 +390,7 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     planned = compute_job(req.cam, progress, watch,
                           check_setup=lambda setup: check_grid_size(setup, req.grid, source=str(req.cam.part)))
     job = planned.job
+    asked_ops = req.ops
     if req.ops is None:  # a relief stays in its block, right way up, unless asked
         req = dataclasses.replace(req, ops=1 if planned.boundary is not None else 2)
     outputs = req.outputs(Path("."))
@@ -406,8 +407,19 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
         vertices = np.asarray(planned.loaded.mesh.vertices) / float(job.setup.mesh_scale)
         if planned.boundary is not None:  # a relief leaves in its block: the robot holds the block
             vertices = block_corners(job.setup)
-        cell, world, tplan = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch,
-                                       setups=req.ops)
+        try:
+            cell, world, tplan = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch,
+                                           setups=req.ops)
+        except PlanningError as e:
+            if asked_ops is not None or req.ops != 2:
+                raise
+            # Not asked for two operations, and the robot cannot turn this part over on the cell's
+            # flip station: op 1 alone, said loudly (the holding allowance stays on the part).
+            log.warning("%s: op 1 only, the holding allowance stays: the robot cannot turn the part over: %s",
+                        req.cam.part, e.message)
+            req = dataclasses.replace(req, ops=1)
+            outputs = req.outputs(Path("."))
+            cell, world, tplan = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch)
         tending = Tending(cell, world, tplan, post_program(req.lang, outputs["robot_program"], cell, world, tplan))
     with watch("verify"):
         sim, report = run_verify(program.text, str(outputs["program"]), job.setup,

@@ -171,7 +171,8 @@ def test_raster_only_keeps_the_shank_off_a_wall_taller_than_the_flutes(tmp_path)
     # finishes the wall's upper part before the full-depth one.
     body = manifold3d.Manifold.cube((30.0, 24.0, 4.0))
     body += manifold3d.Manifold.cube((3.0, 14.0, 21.0)).translate((12.0, 5.0, 3.0))
-    options = dataclasses.replace(TEST_PLAN, waterline=False, finishing=FinishingOptions(scallop=0.05))
+    # the ball's raster over everything (by_faces would finish this prismatic part with flat end mills)
+    options = dataclasses.replace(TEST_PLAN, waterline=False, by_faces=False, finishing=FinishingOptions(scallop=0.05))
     job, _, report, _ = plan_post_verify(manifold_to_trimesh(body), "tall wall", tmp_path, options=options, cell=0.25)
     assert [op.name for op in job.operations if op.kind == "raster"] == ["finish raster upper", "finish raster"]
     assert job.operations[-2].points[:, 2].min() >= job.setup.stock_max[2] - LIBRARY.tool(3).flute_length

@@ -158,7 +158,7 @@ def posted():
 @pytest.mark.parametrize("dialect", ["linuxcnc", "fanuc", "grbl"])
 def test_duration_is_the_posts_estimate(posted, dialect):
     job, _ = posted
-    assert len({op.tool.number for op in job.operations}) == 2  # a tool change in the middle
+    assert len({op.tool.number for op in job.operations}) >= 2  # tool changes in the middle
     opt = PostOptions(dialect=dialect, rapid_rate=4000.0, tool_change_time=6.0)
     program = post_process(job, opt)
     # Arcs parsed as chords 0.01 um from the arc: their shortfall stays far below the tolerance
