@@ -78,7 +78,8 @@ class VerifyOptions:
     gouge_tolerance : float
         The part may be cut this deep before it counts as a gouge [mm].
     rapid_tolerance : float
-        A rapid whose tool reaches more than this deep into the remaining stock is a crash [mm].
+        A rapid whose tool reaches more than this deep into the remaining stock, down or
+        sideways, is a crash [mm] (rapids are swept with the rim drawn in by this much).
     finish_depth : float
         A finishing tool (see :func:`finishing_moves`) engaged deeper than this is buried
         [mm]. Finishing should only meet the roughing allowance (default 0.3 mm) plus what
@@ -844,6 +845,12 @@ def _simulate(moves, tools, setup, part_triangles, snapshot_moves, options, prog
     length = np.zeros(len(a))
     length[known] = np.linalg.norm(b[known] - a[known], axis=1)
     radius, rc, cone = _tool_table(moves, tools, known)
+    # "Reaches more than rapid_tolerance into the stock" holds sideways too: a rapid whose rim
+    # only grazes a wall's skin (a contour's arcs and the posted coordinates' rounding leave a
+    # skin microns thick beside the line a descent comes down on) is not a crash, so rapids are
+    # swept with the rim drawn in by the tolerance.
+    radius[rapid] -= options.rapid_tolerance
+    rc[rapid] = np.minimum(rc[rapid], radius[rapid])
     # A move whose tip never comes below the stock top cannot touch the stock.
     use = known & np.isfinite(radius)
     use[use] &= np.minimum(a[use, 2], b[use, 2]) < top_z
