@@ -45,9 +45,12 @@ def verify(bracket, text: str, name: str):
 
 def test_bracket_without_its_roughing_buries_the_finishing_ball(bracket):
     lines = bracket["nc"].read_text().splitlines()
-    start = next(i for i, ln in enumerate(lines) if re.match(r"\(op 1: .*\[roughing\]", ln))
-    end = next(i for i, ln in enumerate(lines) if ln.startswith("(op 2:"))
-    doctored = lines[:start] + lines[end:]
+    # the roughing operation (after the helixed holes), up to the next operation
+    start = next(i for i, ln in enumerate(lines) if re.match(r"\(op \d+: .*\[roughing\]", ln))
+    end = next(i for i, ln in enumerate(lines) if i > start and ln.startswith("(op "))
+    # its moves go, its tool change stays: the finishing that follows runs with the same tool
+    change = [ln for ln in lines[start:end] if not re.match(r"G[0-3]\b|[XYZIJ]-?\d", ln)]
+    doctored = lines[:start] + change + lines[end:]
     r, report = verify(bracket, "\n".join(doctored) + "\n", "no_roughing.nc")
     assert r.exit_code == EXIT_VERIFY_FAILED, r.output
     buried = [f for f in report["faults"] if f["kind"] == "buried"]
