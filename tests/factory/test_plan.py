@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import subprocess
 import sys
 import textwrap
@@ -19,6 +20,7 @@ from typer.testing import CliRunner
 from cli.main import app
 from factory.cam import CamRequest
 from factory.catalog import catalog_record, find_entry, sha256_file
+from factory.errors import PlanningError
 from factory.plan import PlanRequest, plan_outputs, plan_part
 from factory.resources import FIXTURES
 from tests.conftest import ROOT, pocket_block
@@ -35,9 +37,23 @@ def fast_request(part: Path, robot: bool = True) -> PlanRequest:
 
 @pytest.fixture(scope="module")
 def block(tmp_path_factory) -> Path:
+    """A block the sample cell's robot can turn over on its flip station (op 1, flip, op 2)."""
     path = tmp_path_factory.mktemp("part") / "block.stl"
-    pocket_block(size=(30.0, 20.0, 16.0)).export(path)
+    pocket_block(size=(60.0, 40.0, 16.0)).export(path)
     return path
+
+
+def test_a_part_the_robot_cannot_turn_over_is_op_1_only_unless_op_2_is_asked(tmp_path, caplog):
+    # 30 x 20 mm: its holding block does not overhang the flip station's post enough for a side grip
+    small = tmp_path / "small.stl"
+    pocket_block(size=(30.0, 20.0, 16.0)).export(small)
+    with caplog.at_level(logging.WARNING, logger="factory.plan"):
+        planned = plan_part(fast_request(small))
+    assert planned.op2 is None and planned.ok
+    assert "op 1 only, the holding allowance stays: the robot cannot turn the part over" in caplog.text
+    assert "program_op2" not in planned.request.outputs(tmp_path)
+    with pytest.raises(PlanningError, match="flip station"):
+        plan_part(dataclasses.replace(fast_request(small), ops=2))
 
 
 @pytest.fixture(scope="module")
