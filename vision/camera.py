@@ -224,7 +224,7 @@ class CameraModel:
         w, h = integer("image_width"), integer("image_height")
         name = need("camera_name")
         model = need("distortion_model")
-        if model not in DISTORTION_MODELS:
+        if not isinstance(model, str) or model not in DISTORTION_MODELS:  # a list or mapping is no name
             raise VisionError(f"field 'distortion_model': {shown(model)} is not one of {', '.join(DISTORTION_MODELS)}",
                               source=source)
         k = matrix("camera_matrix", 3, 3)

@@ -24,7 +24,8 @@ BIN = Path(sys.executable).parent
 
 def _orders(folder: Path, part: Path) -> Path:
     path = folder / "orders.csv"
-    path.write_text(f"part,quantity,material,priority\n{part},2,aluminium,0\n")
+    # four parts: at --speed 20 the run streams for about a minute, time for a slow client to subscribe
+    path.write_text(f"part,quantity,material,priority\n{part},4,aluminium,0\n")
     return path
 
 
