@@ -251,7 +251,7 @@ def test_a_password_is_never_shown(block_catalog, tmp_path, monkeypatch):
         meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
     assert meta["factory"]["param:db"] == masked(url) and meta["factory"]["param:db_run"] == "1"
     r = run("simulate", orders, "--catalog", folder, "--db", url)
-    assert r.exit_code == 0 and "hunter2" not in r.output and masked(url) in r.output
+    assert r.exit_code == 3 and "hunter2" not in r.output and masked(url) in r.output
 
 
 def test_a_record_that_is_not_one_is_refused(tmp_path):
