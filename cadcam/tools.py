@@ -325,19 +325,7 @@ class _Parser:
         d = self.mapping(d, where, {"surface_speed", "chip_load", "plunge_fraction"},
                          {"aliases", "description", "drilling"})
         vc = self.number(d["surface_speed"], f"{where}.surface_speed")
-        table = d["chip_load"]
-        if isinstance(table, (int, float)) and not isinstance(table, bool):
-            # A single fz for every diameter is allowed.
-            table = {1.0: table}
-        if not isinstance(table, dict) or not table:
-            raise self.fail(f"{where}.chip_load", f"must be a mapping of diameter [mm] to fz [mm/tooth], got {_kind(table)}")
-        pairs = sorted(
-            (self.number(k, f"{where}.chip_load (diameter {shown(k)})"), self.number(v, f"{where}.chip_load[{k}]"))
-            for k, v in table.items()
-        )
-        for _, fz in pairs:
-            if fz > 1.0:
-                raise self.fail(f"{where}.chip_load", f"fz {fz} mm/tooth is implausible (> 1 mm); is it in mm?")
+        pairs = self.by_diameter(d["chip_load"], f"{where}.chip_load", "fz", "mm/tooth", 1.0)
         frac = self.number(d["plunge_fraction"], f"{where}.plunge_fraction")
         if frac > 1:
             raise self.fail(f"{where}.plunge_fraction", f"must be in (0, 1], got {frac}")
@@ -347,25 +335,31 @@ class _Parser:
         aliases_t = tuple(self.string(a, f"{where}.aliases[{i}]") for i, a in enumerate(aliases))
         desc = self.string(d["description"], f"{where}.description") if "description" in d else ""
         drilling = self.drilling(d["drilling"], f"{where}.drilling") if "drilling" in d else None
-        return MaterialData(name, vc, tuple(pairs), frac, aliases_t, desc, drilling)
+        return MaterialData(name, vc, pairs, frac, aliases_t, desc, drilling)
 
     def drilling(self, d: Any, where: str) -> DrillingData:
         d = self.mapping(d, where, {"surface_speed", "feed_per_rev", "peck"}, set())
         vc = self.number(d["surface_speed"], f"{where}.surface_speed")
-        table = d["feed_per_rev"]
+        pairs = self.by_diameter(d["feed_per_rev"], f"{where}.feed_per_rev", "f", "mm/rev", 2.0)
+        peck = self.number(d["peck"], f"{where}.peck")
+        return DrillingData(vc, pairs, peck)
+
+    def by_diameter(self, table: Any, where: str, symbol: str, unit: str,
+                    most: float) -> tuple[tuple[float, float], ...]:
+        """A table of diameter [mm] to a feed [``unit``], sorted by diameter; a single number holds
+        for every diameter. A value over ``most`` is taken for a unit slip."""
         if isinstance(table, (int, float)) and not isinstance(table, bool):
             table = {1.0: table}
         if not isinstance(table, dict) or not table:
-            raise self.fail(f"{where}.feed_per_rev", f"must be a mapping of diameter [mm] to f [mm/rev], got {_kind(table)}")
+            raise self.fail(where, f"must be a mapping of diameter [mm] to {symbol} [{unit}], got {_kind(table)}")
         pairs = sorted(
-            (self.number(k, f"{where}.feed_per_rev (diameter {shown(k)})"), self.number(v, f"{where}.feed_per_rev[{k}]"))
+            (self.number(k, f"{where} (diameter {shown(k)})"), self.number(v, f"{where}[{k}]"))
             for k, v in table.items()
         )
-        for _, f in pairs:
-            if f > 2.0:
-                raise self.fail(f"{where}.feed_per_rev", f"f {f} mm/rev is implausible (> 2 mm); is it in mm?")
-        peck = self.number(d["peck"], f"{where}.peck")
-        return DrillingData(vc, tuple(pairs), peck)
+        for _, v in pairs:
+            if v > most:
+                raise self.fail(where, f"{symbol} {v} {unit} is implausible (> {most:g} mm); is it in mm?")
+        return tuple(pairs)
 
     def tool(self, d: Any, where: str) -> Tool:
         d = self.mapping(
