@@ -34,6 +34,8 @@ def toolpath(
     scallop: cam.ScallopOpt = cam.SCALLOP,
     stepdown: cam.StepdownOpt = None,
     waterline: cam.WaterlineOpt = True,
+    floor: cam.FloorOpt = cam.FLOOR,
+    boundary: cam.BoundaryOpt = cam.BOUNDARY,
     overwrite: Overwrite = False,
     json_out: JsonFlag = False,
     quiet: Quiet = False,
@@ -41,7 +43,7 @@ def toolpath(
     """Rough and finish a part; write the job and its views to an MCAP file."""
     setup_logging(quiet)
     req = cam.cam_request(part, tools, stock, material, units, origin, rough_tool, finish_tool,
-                          allowance, scallop, stepdown, waterline, holding, cell)
+                          allowance, scallop, stepdown, waterline, holding, cell, floor, boundary)
     check_writable(output, overwrite)
     if png is not None:
         check_writable(png, overwrite)

@@ -9,6 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from cli.main import app
+from factory.mcaplog import read_metadata
 from tests.cadcam.reliefs import heightfield_sheet, stl_bytes, wavy
 from tests.cli.expect import assert_one_line_error
 from tests.cli.hostile import triangle_soup
@@ -45,6 +46,14 @@ def test_plan_says_what_it_found_and_writes_the_relief_into_the_sheet(relief, tm
     assert v.exit_code == 0, v.output
     alone = json.loads((tmp_path / "v.json").read_text())
     assert alone["max_gouge"] == pytest.approx(summary["verify"]["max_gouge"], abs=1e-3)
+
+
+def test_toolpath_takes_the_same_floor_and_boundary_as_plan(relief, tmp_path):
+    out = tmp_path / "sign.toolpath.mcap"
+    r = run("toolpath", relief, "-o", out, "--scallop", "0.05", "--floor", "2.5", "--boundary", "outside", "--quiet")
+    assert r.exit_code == 0, r.output
+    relief_params = json.loads(read_metadata(out)["param:relief"])
+    assert relief_params["floor"] == 2.5 and relief_params["boundary"]["mode"] == "outside"
 
 
 def test_an_unknown_boundary_mode_is_a_usage_error(relief, tmp_path):
