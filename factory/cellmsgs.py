@@ -210,8 +210,9 @@ def machine_signal(operation: str, signal: str, direction: str, number: int, lev
 
 
 def machine_state(state: str, order: str, serial: str, stamp_ns: int, *, tool: int = 0, spindle_rpm: float = 0.0,
-                  feed_mm_min: float = 0.0, tool_position: Sequence[float] = (0.0, 0.0, 0.0), line: int = 0,
-                  progress: float = 0.0, frame_id: str = "work") -> Any:
+                  spindle_load: float = 0.0, feed_mm_min: float = 0.0,
+                  tool_position: Sequence[float] = (0.0, 0.0, 0.0), line: int = 0, progress: float = 0.0,
+                  frame_id: str = "work") -> Any:
     """``factory_msgs/MachineState``.
 
     Parameters
@@ -219,20 +220,22 @@ def machine_state(state: str, order: str, serial: str, stamp_ns: int, *, tool: i
     tool_position : (3,) float
         Tool tip in ``frame_id`` [m].
     spindle_rpm : float
-        [rev/min]; ``feed_mm_min`` [mm/min]; ``progress`` in [0, 1].
+        [rev/min]; ``spindle_load`` [% of the rated power]; ``feed_mm_min`` [mm/min];
+        ``progress`` in [0, 1].
 
     Raises
     ------
     McapError
-        A non-finite value, a negative speed or feed, or progress outside [0, 1].
+        A non-finite value, a negative speed, load or feed, or progress outside [0, 1].
     """
-    values = (spindle_rpm, feed_mm_min, *tool_position, progress)
-    if not np.isfinite(values).all() or spindle_rpm < 0 or feed_mm_min < 0 or not 0 <= progress <= 1:
-        raise McapError(f"machine state of {serial or 'the machine'}: non-finite value, negative speed or feed, "
-                        f"or progress {progress} outside [0, 1]")
+    values = (spindle_rpm, spindle_load, feed_mm_min, *tool_position, progress)
+    if not np.isfinite(values).all() or min(spindle_rpm, spindle_load, feed_mm_min) < 0 or not 0 <= progress <= 1:
+        raise McapError(f"machine state of {serial or 'the machine'}: non-finite value, negative speed, load or "
+                        f"feed, or progress {progress} outside [0, 1]")
     x, y, z = (float(v) for v in tool_position)
     return _MachineState(header=_header(frame_id, stamp_ns), state=state, order=order, serial=serial, tool=int(tool),
-                         spindle_speed_rpm=float(spindle_rpm), feed_mm_per_min=float(feed_mm_min),
+                         spindle_speed_rpm=float(spindle_rpm), spindle_load_percent=float(spindle_load),
+                         feed_mm_per_min=float(feed_mm_min),
                          tool_position=_Point(x=x, y=y, z=z), program_line=int(line),
                          program_progress=float(progress))
 
