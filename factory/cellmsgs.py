@@ -264,8 +264,8 @@ def order_queue(lines: Iterable[OrderLine], stamp_ns: int) -> Any:
 
 def cell_summary(summary: Mapping[str, Any], stamp_ns: int) -> Any:
     """``factory_msgs/CellSummary`` of a simulation's summary dict
-    (:attr:`robotprog.cellsim.SimulationResult.summary`; figures that are ``None`` when no part
-    was made become 0)."""
+    (:attr:`robotprog.cellsim.SimulationResult.summary`, with the OEE terms of
+    :mod:`robotprog.oee`; figures that are ``None`` when no part was made become 0)."""
     good, rejected = int(summary["parts_good"]), int(summary["parts_rejected"])
     faults = dict(summary.get("faults", {}))
     orders = dict(summary.get("orders", {}))
@@ -274,7 +274,10 @@ def cell_summary(summary: Mapping[str, Any], stamp_ns: int) -> Any:
         parts_rejected=rejected, parts_per_hour=float(summary["parts_per_hour"]),
         robot_utilisation=float(summary["robot_utilisation"]),
         machine_utilisation=float(summary["machine_utilisation"]),
-        quality=good / (good + rejected) if good + rejected else 0.0,
+        availability=float(summary.get("availability") or 0.0),
+        performance=float(summary.get("performance") or 0.0), quality=float(summary.get("quality") or 0.0),
+        oee=float(summary.get("oee") or 0.0), downtime_s=float(summary.get("downtime_s") or 0.0),
+        run_time_s=float(summary.get("run_time_s") or 0.0),
         cycle_time_s=float(summary.get("cycle_time_s") or 0.0),
         mean_flow_time_s=float(summary.get("mean_flow_time_s") or 0.0),
         orders_done=int(orders.get("done", 0)), orders_rejected=int(orders.get("rejected", 0)),

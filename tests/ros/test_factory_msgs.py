@@ -283,7 +283,12 @@ def test_order_queue_and_summary_end_as_the_run_reports(cell_log):
     assert summary.parts_good == s["parts_good"] and summary.makespan_s == pytest.approx(s["makespan_s"])
     assert summary.orders_done == s["orders"]["done"]
     assert dict(zip(summary.fault_kinds, summary.fault_counts.tolist())) == s["faults"]
-    assert summary.quality == pytest.approx(s["parts_good"] / (s["parts_good"] + s["parts_rejected"]))
+    # the OEE terms of the run's summary (robotprog.oee); the faults stopped the cell
+    for key in ("availability", "performance", "quality", "oee", "downtime_s", "run_time_s"):
+        assert getattr(summary, key) == pytest.approx(s[key]), key
+    assert s["downtime_s"] > 0 and 0 < summary.availability < 1
+    assert summary.oee == pytest.approx(summary.availability * summary.performance * summary.quality, abs=1e-4)
+    assert all(0 <= m.availability <= 1 and 0 <= m.performance <= 1 and 0 <= m.quality <= 1 for m in summaries)
     states = [m for topic, _, _, m in msgs if topic == "/cell/state"]
     assert {m.state for m in states} >= {"FETCH_RAW", "LOAD", "MACHINING", "UNLOAD", "INSPECT", "SORT", "IDLE"}
     assert all(re.fullmatch(r"o\d+-\d+", m.serial) for m in states)
