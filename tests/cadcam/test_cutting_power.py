@@ -14,6 +14,7 @@ from cadcam.timeline import machine_timeline
 from cadcam.tools import load_tool_library
 from cadcam.verify import VerifyOptions, simulate
 from factory.errors import ToolError, VerifyError
+from tests.cadcam.test_op2 import block_ops  # noqa: F401  (a fixture: the pocketed block's op 1 and op 2)
 from tests.cadcam.test_verify import SETUP, TOOLS, C, R, box, program
 
 NO_PART = box([0, 0, -30], [40, 20, -20])  # far below the stock: nothing to gouge
@@ -115,3 +116,21 @@ def test_a_material_without_specific_energy_names_what_to_add(tmp_path):
     moves, sim = slot(2.0)
     with pytest.raises(ToolError, match="materials.aluminium: no specific_energy"):
         program_spindle_load(machine_timeline(moves), sim.removed_volume, library, "aluminium")
+
+
+def test_op_2_removes_what_the_turned_over_stock_lost(block_ops):  # noqa: F811
+    """Op 2 starts from op 1's stock turned over, whose columns stand on their own bottoms: what
+    each move removed adds up to what those columns lost, never counting air below them."""
+    from cadcam.op2 import flip_transform
+    from cadcam.verify import flip_stock
+
+    _, (job1, job2, _, _, (sim1, _), (sim2, _), m2) = block_ops
+    start = flip_stock(sim1, flip_transform(job1.setup), job2.setup)
+    top, bottom = np.asarray(start.top), np.asarray(start.bottom)
+    full = np.isfinite(top) & (top > bottom)
+    final = np.where(np.isfinite(sim2.stock_top), sim2.stock_top, bottom)
+    lost = np.clip(top - np.maximum(final, bottom), 0.0, None)[full].sum() * sim2.grid.cell ** 2
+    assert lost > 100.0  # the facing took the holding allowance off
+    assert sim2.removed_volume.sum() == pytest.approx(lost, rel=1e-9)
+    load = program_spindle_load(machine_timeline(m2), sim2.removed_volume, load_tool_library(), "aluminium")
+    assert load.energy[-1] == pytest.approx(ALUMINIUM * lost) and load.move_power.max() > 0
