@@ -45,7 +45,7 @@ def summary_text(result: SimulationResult, seconds: float) -> str:
         f"{s['parts_rejected']} rejected; {s['parts_per_hour']:.2f} parts/h, cycle {cycle}",
         f"utilisation: robot {100 * s['robot_utilisation']:.1f} %, machine {100 * s['machine_utilisation']:.1f} %",
         f"OEE {_pct(s.get('oee'))} = availability {_pct(s.get('availability'))} x performance "
-        f"{_pct(s.get('performance'))} x quality {_pct(s.get('quality'))} (downtime {s.get('downtime_s', 0):.0f} s)",
+        f"{_pct(s.get('performance'))} x quality {_pct(s.get('quality'))}",
         f"faults: {faults}; recovered {s['recoveries']}, failed {s['failures']}",
     ]
     lines += [f"  {o.order} {Path(o.part).name}: {o.outcome} ({o.good}/{o.quantity} good, {o.rejected} rejected)"
