@@ -298,7 +298,8 @@ def stock_snapshots(
     -------
     tuple of s (time [s], Simulation)
         In the order of ``times_s``: the stock after every move that has started by that
-        time (a move under way counts as done). All share one grid and ``part_top``.
+        time (a move under way counts as done), with the volume each of those moves removed
+        (:attr:`Simulation.removed_volume`). All share one grid and ``part_top``.
 
     Raises
     ------
@@ -316,10 +317,14 @@ def stock_snapshots(
     times = np.asarray(times_s, dtype=np.float64).reshape(-1)
     if not np.isfinite(times).all():
         raise VerifyError("snapshot times must be finite numbers of seconds", source="times_s")
-    sim, _, tops = simulate_snapshots(moves, tools, setup, part_triangles, timeline.move_at(times),
-                                      VerifyOptions(cell=cell))
-    return tuple(
-        (float(t), Simulation(grid=sim.grid, stock_top=top, part_top=sim.part_top, stock_bottom=sim.stock_bottom,
-                                floor_z=sim.floor_z))
-        for t, top in zip(times.tolist(), tops)
-    )
+    at = timeline.move_at(times)
+    sim, _, tops = simulate_snapshots(moves, tools, setup, part_triangles, at, VerifyOptions(cell=cell))
+    out = []
+    for t, top, last in zip(times.tolist(), tops, at.tolist()):
+        # the volume each move removed, of the moves done by then
+        removed = np.where(np.arange(len(sim.removed_volume)) <= last, sim.removed_volume, 0.0)
+        removed.setflags(write=False)
+        out.append((float(t), Simulation(grid=sim.grid, stock_top=top, part_top=sim.part_top,
+                                         stock_bottom=sim.stock_bottom, floor_z=sim.floor_z,
+                                         removed_volume=removed)))
+    return tuple(out)

@@ -33,6 +33,9 @@ from factory.resources import FIXTURES
 log = logging.getLogger(__name__)
 
 _SHAPES = ("flat", "ball", "bull", "drill")
+#: Rated spindle power when the library's machine gives none [kW]: the continuous (S1) rating
+#: of a small VMC's spindle (fixtures/tools.yaml states its own).
+DEFAULT_SPINDLE_POWER_KW = 7.5
 
 
 @dataclass(frozen=True)
@@ -87,6 +90,10 @@ class MaterialData:
     drilling : DrillingData or None
         Cutting data for drills; None when the library gives none (drills are then not
         used in this material).
+    specific_energy : float or None
+        Specific cutting energy (unit power) [W·s/mm³ = J/mm³]: the spindle power a cut
+        takes per unit of material removal rate (:mod:`cadcam.cutting_power`); None when the
+        library gives none (the spindle load is then not modelled in this material).
     """
 
     name: str
@@ -96,6 +103,7 @@ class MaterialData:
     aliases: tuple[str, ...] = ()
     description: str = ""
     drilling: DrillingData | None = None
+    specific_energy: float | None = None
 
     def chip_load_for(self, diameter: float) -> float:
         """Chip load per tooth for a tool of this diameter [mm/tooth]."""
@@ -127,6 +135,8 @@ class ToolLibrary:
     source : str
         The file it was read from.
     machine_name : str
+    spindle_power_kw : float
+        The spindle motor's rated (continuous, S1) power [kW]: 100 % spindle load.
     """
 
     tools: tuple[Tool, ...]
@@ -135,6 +145,7 @@ class ToolLibrary:
     max_feed: float
     source: str
     machine_name: str = ""
+    spindle_power_kw: float = DEFAULT_SPINDLE_POWER_KW
 
     def tool(self, number: int) -> Tool:
         """The tool with this T number; ToolError naming the numbers there are if missing."""
@@ -291,9 +302,11 @@ class _Parser:
         if doc is None:
             raise self.fail("", "tool library is empty")
         doc = self.mapping(doc, "", {"machine", "materials", "tools"}, set())
-        machine = self.mapping(doc["machine"], "machine", {"max_rpm", "max_feed"}, {"name"})
+        machine = self.mapping(doc["machine"], "machine", {"max_rpm", "max_feed"}, {"name", "spindle_power"})
         max_rpm = self.number(machine["max_rpm"], "machine.max_rpm")
         max_feed = self.number(machine["max_feed"], "machine.max_feed")
+        power = self.number(machine["spindle_power"], "machine.spindle_power") if "spindle_power" in machine \
+            else DEFAULT_SPINDLE_POWER_KW
         name = self.string(machine["name"], "machine.name") if "name" in machine else ""
 
         mats = doc["materials"]
@@ -317,13 +330,14 @@ class _Parser:
                 raise self.fail(f"tools[{i}].number", f"duplicate tool number {t.number} (also tools[{first[t.number]}])")
             first[t.number] = i
         return ToolLibrary(
-            tools=tools, materials=materials, max_rpm=max_rpm, max_feed=max_feed, source=self.source, machine_name=name
+            tools=tools, materials=materials, max_rpm=max_rpm, max_feed=max_feed, source=self.source, machine_name=name,
+            spindle_power_kw=power,
         )
 
     def material(self, name: str, d: Any) -> MaterialData:
         where = f"materials.{name}"
         d = self.mapping(d, where, {"surface_speed", "chip_load", "plunge_fraction"},
-                         {"aliases", "description", "drilling"})
+                         {"aliases", "description", "drilling", "specific_energy"})
         vc = self.number(d["surface_speed"], f"{where}.surface_speed")
         pairs = self.by_diameter(d["chip_load"], f"{where}.chip_load", "fz", "mm/tooth", 1.0)
         frac = self.number(d["plunge_fraction"], f"{where}.plunge_fraction")
@@ -335,7 +349,8 @@ class _Parser:
         aliases_t = tuple(self.string(a, f"{where}.aliases[{i}]") for i, a in enumerate(aliases))
         desc = self.string(d["description"], f"{where}.description") if "description" in d else ""
         drilling = self.drilling(d["drilling"], f"{where}.drilling") if "drilling" in d else None
-        return MaterialData(name, vc, pairs, frac, aliases_t, desc, drilling)
+        energy = self.number(d["specific_energy"], f"{where}.specific_energy") if "specific_energy" in d else None
+        return MaterialData(name, vc, pairs, frac, aliases_t, desc, drilling, energy)
 
     def drilling(self, d: Any, where: str) -> DrillingData:
         d = self.mapping(d, where, {"surface_speed", "feed_per_rev", "peck"}, set())

@@ -146,6 +146,11 @@ class Simulation:
     #: through is empty and its ``stock_top`` is ``-inf``; ``stock_bottom`` is the lowest of
     #: them. None: every column stands on ``stock_bottom``.
     stock_under: np.ndarray | None = None
+    #: (n,) float or None: the stock volume each move removed [mm³] (grid cell area times the
+    #: height of stock it took off each grid point, down to the stock's bottom), indexed like
+    #: ``ProgramMoves.points`` (0 for ``points[0]`` and for moves that cut nothing): the
+    #: engagement the cutting-power model reads (:mod:`cadcam.cutting_power`). None: not recorded.
+    removed_volume: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -864,15 +869,18 @@ def _simulate(moves, tools, setup, part_triangles, snapshot_moves, options, prog
     done = np.cumsum(known)  # simulated moves up to and including each move, for progress
     # Segments applied by each snapshot (seg.move is increasing).
     applied = np.searchsorted(seg.move, snap, side="right")
-    stats = _MoveStats(len(seg))
+    stats = _MoveStats(len(seg), bottom=float(setup.stock_min[2]))
     stocks = _run(seg, body, grid, stock, part_flat, progress, done[seg.move - 1] if len(seg) else done[:0],
                   n_moves, applied, stats, under)
 
     stock_top = stock.reshape(grid.shape)
     stock_top.setflags(write=False)
     part_top.setflags(write=False)
+    removed_volume = np.zeros(len(pts))
+    np.add.at(removed_volume, seg.move, stats.volume)
+    removed_volume.setflags(write=False)
     sim = Simulation(grid=grid, stock_top=stock_top, part_top=part_top, stock_bottom=float(setup.stock_min[2]),
-                     floor_z=setup.floor_z)
+                     floor_z=setup.floor_z, removed_volume=removed_volume)
     if under is not None:
         stock_under = under.reshape(grid.shape)
         stock_under.setflags(write=False)
@@ -996,10 +1004,13 @@ class _MoveStats:
     ``depth``: deepest *engaged* depth of the move (see :func:`_engaged_depth`);
     ``width``: lateral extent of the material it removed; ``removed_max``: thickest column
     it took off one grid point; ``contact``: deepest reach of its shank or holder into
-    the stock or the part; ``*_cell``: flat grid index where that happened, -1 if nowhere.
+    the stock or the part; ``*_cell``: flat grid index where that happened, -1 if nowhere;
+    ``volume``: stock it removed above ``bottom`` (the stock's bottom) [mm³].
     """
 
-    def __init__(self, n: int):
+    def __init__(self, n: int, bottom: float = -np.inf):
+        self.volume = np.zeros(n)
+        self.bottom = bottom
         self.depth = np.zeros(n)
         self.depth_cell = np.full(n, -1, np.int64)
         self.width = np.zeros(n)
@@ -1148,6 +1159,9 @@ def _run_batch(seg_all: _Segments, body: "_Body", s: int, e: int, grid: Grid, st
         skin = (body.wall_near[f] >= before[cut] - _SKIN) & (part[f] < before[cut] - _SKIN)
         _engaged_depth(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
                        env[cut], f, grid.cell, body.engaged_width, stats, skin)
+        # what the cut took off, counted down to the stock's bottom (a through cut goes on into air)
+        floor = stats.bottom if under is None else under[f]
+        np.add.at(stats.volume, o + s, np.maximum(before[cut] - np.maximum(env[cut], floor), 0.0) * grid.cell**2)
         np.minimum.at(stock, f, env[cut])
         if under is not None:
             through = f[~(stock[f] > under[f])]

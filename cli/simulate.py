@@ -32,6 +32,10 @@ from robotprog.orders import read_orders
 SAMPLE_ORDERS = FIXTURES.parent / "samples" / "orders.yaml"
 
 
+def _pct(share: float | None) -> str:
+    return "-" if share is None else f"{100 * share:.1f} %"
+
+
 def summary_text(result: SimulationResult, seconds: float) -> str:
     s = result.summary
     cycle = f"{s['cycle_time_s'] / 60:.1f} min" if s["cycle_time_s"] else "-"
@@ -40,6 +44,8 @@ def summary_text(result: SimulationResult, seconds: float) -> str:
         f"simulated {s['makespan_s'] / 3600:.2f} h in {seconds:.1f} s: {s['parts_good']} good, "
         f"{s['parts_rejected']} rejected; {s['parts_per_hour']:.2f} parts/h, cycle {cycle}",
         f"utilisation: robot {100 * s['robot_utilisation']:.1f} %, machine {100 * s['machine_utilisation']:.1f} %",
+        f"OEE {_pct(s.get('oee'))} = availability {_pct(s.get('availability'))} x performance "
+        f"{_pct(s.get('performance'))} x quality {_pct(s.get('quality'))}",
         f"faults: {faults}; recovered {s['recoveries']}, failed {s['failures']}",
     ]
     lines += [f"  {o.order} {Path(o.part).name}: {o.outcome} ({o.good}/{o.quantity} good, {o.rejected} rejected)"

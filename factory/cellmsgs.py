@@ -210,8 +210,9 @@ def machine_signal(operation: str, signal: str, direction: str, number: int, lev
 
 
 def machine_state(state: str, order: str, serial: str, stamp_ns: int, *, tool: int = 0, spindle_rpm: float = 0.0,
-                  feed_mm_min: float = 0.0, tool_position: Sequence[float] = (0.0, 0.0, 0.0), line: int = 0,
-                  progress: float = 0.0, frame_id: str = "work") -> Any:
+                  spindle_load: float = 0.0, feed_mm_min: float = 0.0,
+                  tool_position: Sequence[float] = (0.0, 0.0, 0.0), line: int = 0, progress: float = 0.0,
+                  frame_id: str = "work") -> Any:
     """``factory_msgs/MachineState``.
 
     Parameters
@@ -219,20 +220,22 @@ def machine_state(state: str, order: str, serial: str, stamp_ns: int, *, tool: i
     tool_position : (3,) float
         Tool tip in ``frame_id`` [m].
     spindle_rpm : float
-        [rev/min]; ``feed_mm_min`` [mm/min]; ``progress`` in [0, 1].
+        [rev/min]; ``spindle_load`` [% of the rated power]; ``feed_mm_min`` [mm/min];
+        ``progress`` in [0, 1].
 
     Raises
     ------
     McapError
-        A non-finite value, a negative speed or feed, or progress outside [0, 1].
+        A non-finite value, a negative speed, load or feed, or progress outside [0, 1].
     """
-    values = (spindle_rpm, feed_mm_min, *tool_position, progress)
-    if not np.isfinite(values).all() or spindle_rpm < 0 or feed_mm_min < 0 or not 0 <= progress <= 1:
-        raise McapError(f"machine state of {serial or 'the machine'}: non-finite value, negative speed or feed, "
-                        f"or progress {progress} outside [0, 1]")
+    values = (spindle_rpm, spindle_load, feed_mm_min, *tool_position, progress)
+    if not np.isfinite(values).all() or min(spindle_rpm, spindle_load, feed_mm_min) < 0 or not 0 <= progress <= 1:
+        raise McapError(f"machine state of {serial or 'the machine'}: non-finite value, negative speed, load or "
+                        f"feed, or progress {progress} outside [0, 1]")
     x, y, z = (float(v) for v in tool_position)
     return _MachineState(header=_header(frame_id, stamp_ns), state=state, order=order, serial=serial, tool=int(tool),
-                         spindle_speed_rpm=float(spindle_rpm), feed_mm_per_min=float(feed_mm_min),
+                         spindle_speed_rpm=float(spindle_rpm), spindle_load_percent=float(spindle_load),
+                         feed_mm_per_min=float(feed_mm_min),
                          tool_position=_Point(x=x, y=y, z=z), program_line=int(line),
                          program_progress=float(progress))
 
@@ -261,8 +264,8 @@ def order_queue(lines: Iterable[OrderLine], stamp_ns: int) -> Any:
 
 def cell_summary(summary: Mapping[str, Any], stamp_ns: int) -> Any:
     """``factory_msgs/CellSummary`` of a simulation's summary dict
-    (:attr:`robotprog.cellsim.SimulationResult.summary`; figures that are ``None`` when no part
-    was made become 0)."""
+    (:attr:`robotprog.cellsim.SimulationResult.summary`, with the OEE terms of
+    :mod:`robotprog.oee`; figures that are ``None`` when no part was made become 0)."""
     good, rejected = int(summary["parts_good"]), int(summary["parts_rejected"])
     faults = dict(summary.get("faults", {}))
     orders = dict(summary.get("orders", {}))
@@ -271,7 +274,10 @@ def cell_summary(summary: Mapping[str, Any], stamp_ns: int) -> Any:
         parts_rejected=rejected, parts_per_hour=float(summary["parts_per_hour"]),
         robot_utilisation=float(summary["robot_utilisation"]),
         machine_utilisation=float(summary["machine_utilisation"]),
-        quality=good / (good + rejected) if good + rejected else 0.0,
+        availability=float(summary.get("availability") or 0.0),
+        performance=float(summary.get("performance") or 0.0), quality=float(summary.get("quality") or 0.0),
+        oee=float(summary.get("oee") or 0.0), downtime_s=float(summary.get("downtime_s") or 0.0),
+        run_time_s=float(summary.get("run_time_s") or 0.0),
         cycle_time_s=float(summary.get("cycle_time_s") or 0.0),
         mean_flow_time_s=float(summary.get("mean_flow_time_s") or 0.0),
         orders_done=int(orders.get("done", 0)), orders_rejected=int(orders.get("rejected", 0)),

@@ -96,7 +96,7 @@ class CellTopics:
     state, robot, machine : str
         ``factory_msgs/SchedulerState`` (``state``: ``IDLE``, ``FETCH_RAW``, ... ``RECOVER``),
         ``RobotState`` (``activity``), ``MachineState`` (``state``: ``idle``, ``cutting``,
-        ``reset``, ``alarm``; tool position, feed, spindle speed, program line and progress).
+        ``reset``, ``alarm``; tool position, feed, spindle speed and load, program line and progress).
     orders : str
         ``factory_msgs/OrderQueue``: every order's status.
     rosout : str
@@ -236,9 +236,10 @@ def _image(topics: CellTopics) -> dict[str, Any]:
 
 
 def _plot(topics: CellTopics) -> dict[str, Any]:
-    """Tool tip height [m] and feed [mm/min] of the machine against time."""
-    rows = ((f"{topics.machine}.tool_position.z", "tool Z [m]"), (f"{topics.machine}.feed_mm_per_min",
-                                                                     "feed [mm/min]"))
+    """Tool tip height [m] and spindle load [% of the rated power] of the machine against time
+    (``factory_msgs/MachineState`` fields ``tool_position.z`` and ``spindle_load_percent``)."""
+    rows = ((f"{topics.machine}.tool_position.z", "tool Z [m]"),
+            (f"{topics.machine}.spindle_load_percent", "spindle load [%]"))
     return {
         "paths": [{"value": value, "enabled": True, "timestampMethod": "headerStamp", "label": label}
                   for value, label in rows],
@@ -264,7 +265,7 @@ def cell_layout(topics: CellTopics = CellTopics(), view: CellView = CellView()) 
 
     A large 3D view on the left (the robot from ``topics.robot_visuals``, cell boxes,
     toolpath, stock, transforms, following ``view.follow_frame``), the state timelines and a
-    plot of the tool's height and feed under it; on the right the camera image with its
+    plot of the tool's height and the spindle load under it; on the right the camera image with its
     detections above the ``/rosout`` log, the components' health (``/diagnostics``) and the
     orders' status.
 

@@ -27,10 +27,13 @@ import cv2
 import numpy as np
 import trimesh
 
+from cadcam.cutting_power import SpindleLoad, program_spindle_load
 from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_part, units_of_scale
 from cadcam.relief import block_corners
 from cadcam.timeline import MachineTimeline, machine_timeline, stock_snapshots
+from cadcam.tools import ToolLibrary, load_tool_library
+from cadcam.verify import VerifyOptions
 from factory.camera_msgs import camera_info_msg, compressed_image_msg
 from factory.atomic import write_bytes, write_text
 from factory.catalog import CatalogEntry, catalog_record, find_entry, sha256_file
@@ -46,7 +49,7 @@ from factory.plan import PlanRequest, plan_part
 from factory.progress import Progress, Stopwatch, stage_callback
 from factory.resources import FIXTURES
 from factory.tending import RobotStateLog, log_cell
-from factory.verify import part_triangles, read_sheet
+from factory.verify import flip_of, part_triangles, read_sheet, run_verify_after
 from factory.views import heightfield_mesh
 from robotprog.cell import Cell, load_cell
 from robotprog.cellsim import (EventSink, FaultModel, PartProcess, RunningSummary, SimulationResult,
@@ -173,10 +176,18 @@ class PartAssets:
     planned_now: bool
     #: The op-2 program's timeline of a part in two setups (None: one setup).
     timeline_op2: MachineTimeline | None = None
+    #: Cutting power along op 1's program, and op 2's (None: one setup), from the volume each
+    #: move removed in the stock model (:mod:`cadcam.cutting_power`).
+    spindle: SpindleLoad | None = None
+    spindle_op2: SpindleLoad | None = None
 
     def timeline_of(self, op: int | None) -> MachineTimeline:
         """The program timeline of operation ``op`` (None or 1: op 1's)."""
         return self.timeline_op2 if op == 2 and self.timeline_op2 is not None else self.timeline
+
+    def spindle_of(self, op: int | None) -> SpindleLoad:
+        """The cutting power along operation ``op``'s program (None or 1: op 1's)."""
+        return self.spindle_op2 if op == 2 and self.spindle_op2 is not None else self.spindle
 
 
 @dataclass(frozen=True)
@@ -295,8 +306,11 @@ def op2_of(summary: dict[str, Any]) -> dict[str, Any] | None:
 
 
 def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stations, camera_sha256: str,
-                 planned_now: bool) -> PartAssets:
-    """Read a catalog plan and derive what the simulation needs (see :class:`PartAssets`)."""
+                 planned_now: bool, library: ToolLibrary | None = None) -> PartAssets:
+    """Read a catalog plan and derive what the simulation needs (see :class:`PartAssets`);
+    ``library``: the tool library the plan was made with (default ``fixtures/tools.yaml``), for
+    the material's specific cutting energy and the spindle's rated power."""
+    library = library if library is not None else load_tool_library()
     summary = entry.summary
     if not summary.get("verify", {}).get("ok", True):
         raise FactoryError("its plan does not verify (gouge or rapid crash)", source=entry.summary_path)
@@ -311,14 +325,24 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
     for t, sim in stock_snapshots(moves, tools, setup, triangles, times, cell=STOCK_GRID_MM,
                                      timeline=timeline):
         vertices, faces = heightfield_mesh(sim.grid.xs, sim.grid.ys, sim.stock_top, max_triangles=STOCK_TRIANGLES)
-        stock.append((float(t), vertices / 1000.0, faces))
+        stock.append((float(t), vertices / 1000.0, faces, sim.removed_volume))
+        last_sim = sim
     mcap = entry.output("mcap")
     motion = read_motion(mcap)
     op2 = op2_of(summary)
-    timeline_op2 = None
+    spindle = program_spindle_load(timeline, stock[-1][3], library, material)
+    timeline_op2 = spindle_op2 = None
     if op2 is not None:
         program2 = entry.output("program_op2")
-        timeline_op2 = machine_timeline(parse_gcode(program2.read_text(encoding="utf-8"), source=str(program2)))
+        text2 = program2.read_text(encoding="utf-8")
+        timeline_op2 = machine_timeline(parse_gcode(text2, source=str(program2)))
+        # op 2 cuts op 1's stock turned over: its engagement from the same stock model
+        sheet2_path = entry.output("setup_sheet_op2")
+        setup2, tools2, sheet2 = read_sheet(sheet2_path)
+        sim2, _ = run_verify_after(last_sim, flip_of(sheet2, sheet2_path), text2, str(program2), setup2, tools2,
+                                   part_triangles(part, setup2, summary["catalog"]["mesh_sha256"]),
+                                   VerifyOptions(cell=STOCK_GRID_MM))
+        spindle_op2 = program_spindle_load(timeline_op2, sim2.removed_volume, library, material)
     toolpath = next((m for topic, _, m in read_messages(mcap, ["/cam/toolpath"])), None)
     in_vise = setup_sheet_to_cell(sheet, str(sheet_path))
     loaded = load_part(part, units=units_of_scale(setup.mesh_scale, str(sheet_path)))
@@ -333,7 +357,8 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
         process=part_process(motion, float(sheet["estimated_cycle_s"]), shots,
                              None if op2 is None else float(op2["estimated_cycle_s"])),
         motion=motion, transform_vise_to_work=in_vise.transform_vise_to_work, toolpath=toolpath,
-        timeline=timeline, stock=tuple(stock), shots=shots, planned_now=planned_now, timeline_op2=timeline_op2)
+        timeline=timeline, stock=tuple((t, v, f) for t, v, f, _ in stock), shots=shots, planned_now=planned_now,
+        timeline_op2=timeline_op2, spindle=spindle, spindle_op2=spindle_op2)
 
 
 def plan_parts(orders: tuple[Order, ...], catalog: Path, cell_path: Path, tools: Path | None, stations: Stations,
@@ -350,6 +375,7 @@ def plan_parts(orders: tuple[Order, ...], catalog: Path, cell_path: Path, tools:
     wanted = list(dict.fromkeys((o.part, o.material) for o in orders))
     cell_sha = sha256_file(cell_path)
     tools_sha = sha256_file(tools or FIXTURES / "tools.yaml")
+    library = load_tool_library(tools)
     out: dict[tuple[Path, str], PartAssets | str] = {}
     for i, (part, material) in enumerate(wanted):
         report("parts", i, len(wanted))
@@ -367,7 +393,8 @@ def plan_parts(orders: tuple[Order, ...], catalog: Path, cell_path: Path, tools:
                     summary = planned.write(folder, overwrite=True)
                 entry = CatalogEntry(folder / f"{part.stem}.plan.json", summary)
             with watch("prepare"):
-                out[(part, material)] = prepare_part(part, material, entry, stations, camera_sha256, planned_now)
+                out[(part, material)] = prepare_part(part, material, entry, stations, camera_sha256, planned_now,
+                                                     library)
         except FactoryError as e:
             out[(part, material)] = f"{part}: {e}"
     report("parts", len(wanted), len(wanted))
@@ -502,6 +529,13 @@ def _program_state(timeline: MachineTimeline, t: np.ndarray) -> tuple[np.ndarray
     return timeline.tool[i], timeline.line[i], feed
 
 
+def _spindle_load(p: PartAssets, op: int | None, t: np.ndarray, rpm: np.ndarray) -> np.ndarray:
+    """Spindle load [% of rated power] at program times ``t`` [s] of operation ``op``, 0 where
+    the spindle stands (``rpm`` [rev/min] 0): the mean over the :data:`TOOL_RATE_HZ` sample
+    period before each time, so the samples together account for every joule the cut spent."""
+    return np.where(rpm > 0, p.spindle_of(op).load_percent_at(t, window_s=1.0 / TOOL_RATE_HZ), 0.0)
+
+
 def spindle_speeds(p: PartAssets, op: int | None = None) -> dict[int, float]:
     """Spindle speed [rev/min] of each tool of the part's program (op 2: the op-2 program's), from
     its setup sheet."""
@@ -554,15 +588,19 @@ class _Resources:
 
     def at(self, t: float) -> dict[str, dict[str, str]]:
         m, r = self._last("machine", t), self._last("robot", t)
-        machine = {"state": "idle", "serial": "", "tool": "0", "spindle_speed_rpm": "0", "program_line": "0"}
+        machine = {"state": "idle", "serial": "", "tool": "0", "spindle_speed_rpm": "0", "spindle_load_percent": "0",
+                   "program_line": "0"}
         if m is not None and t < m.end:
             machine.update(state="cutting" if m.action == "cut" else "reset",
                            serial=f"{self.jobs.get(m.job, '?')}-{m.job}")
             if m.action == "cut":
                 p = self.part_of(m.job)
-                tool, line, _ = _program_state(p.timeline_of(m.op), np.array([t - m.start]))
+                program_t = np.array([t - m.start])
+                tool, line, _ = _program_state(p.timeline_of(m.op), program_t)
+                rpm = self.spindle(p, m.op).get(int(tool[0]), 0.0)
+                load = _spindle_load(p, m.op, program_t, np.array([rpm]))[0]
                 machine.update(tool=str(int(tool[0])), program_line=str(int(line[0])),
-                               spindle_speed_rpm=f"{self.spindle(p, m.op).get(int(tool[0]), 0.0):.0f}")
+                               spindle_speed_rpm=f"{rpm:.0f}", spindle_load_percent=f"{load:.2f}")
         elif m is not None and m.outcome in ("machine_alarm", "timeout"):
             machine["state"] = "alarm"
         robot = {"activity": "idle", "serial": ""}
@@ -795,14 +833,16 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
             positions = timeline.position_at(program_t) / 1000.0
             tools, lines, feeds = _program_state(timeline, program_t)
             rpm = rpm_of(p, a.op)
+            speeds = np.array([rpm.get(int(tool), 0.0) for tool in tools])
+            loads = _spindle_load(p, a.op, program_t, speeds)
             duration = float(timeline.end[-1]) or 1.0
-            for dt, xyz, tool, line, feed in zip(program_t, positions, tools, lines, feeds):
+            for dt, xyz, tool, line, feed, speed, load in zip(program_t, positions, tools, lines, feeds, speeds, loads):
                 stamp = _ns(a.start + dt)
                 add(a.start + dt, "/tf", functools.partial(_tool_tf, xyz, stamp))
                 add(a.start + dt, "/cell/machine", functools.partial(
-                    machine_state, "cutting", order, serial, stamp, tool=int(tool),
-                    spindle_rpm=rpm.get(int(tool), 0.0), feed_mm_min=float(feed), tool_position=xyz,
-                    line=int(line), progress=min(dt / duration, 1.0)))
+                    machine_state, "cutting", order, serial, stamp, tool=int(tool), spindle_rpm=float(speed),
+                    spindle_load=float(load), feed_mm_min=float(feed), tool_position=xyz, line=int(line),
+                    progress=min(dt / duration, 1.0)))
             add(a.end, "/cell/machine", functools.partial(machine_state, after, "", "", _ns(a.end)))
             # the stock snapshots are op 1's (op 2 faces the turned-over piece)
             for j, (snap_t, _, _) in enumerate(p.stock if a.op in (None, 1) else ()):

@@ -44,6 +44,7 @@ from typing import Any, Callable, Mapping, Sequence
 from factory.errors import SchedulerError
 
 from .machineio import SignalEvent, signal_timeline
+from .oee import DowntimeLedger, Loss, OeeCounter, run_oee
 from .orders import Order
 from .scheduler import CellState, Event, Fault, SchedulerOptions, State, admit, initial_state, step
 
@@ -246,6 +247,10 @@ class SimulationResult:
     machine_intervals : tuple of (start, end, job)
         When the machine held a part, from load start to unload end [s].
     jobs : mapping job id → order id
+    losses : tuple of Loss
+        The time each fault and machine reset cost (:mod:`robotprog.oee`).
+    ideal_cycle_s : mapping job id → float
+        The fault-free steady-state cycle of each job's part [s] (:attr:`PartProcess.cycle_s`).
     """
 
     log: tuple[LogEntry, ...]
@@ -254,6 +259,8 @@ class SimulationResult:
     activities: tuple[Activity, ...] = ()
     machine_intervals: tuple[tuple[float, float, int], ...] = ()
     jobs: Mapping[int, str] = field(default_factory=dict)
+    losses: tuple[Loss, ...] = ()
+    ideal_cycle_s: Mapping[int, float] = field(default_factory=dict)
 
     @property
     def signals(self) -> tuple[SignalEvent, ...]:
@@ -273,7 +280,9 @@ class SimulationResult:
         ``robot_utilisation`` and ``machine_utilisation`` (busy fraction of the makespan; the
         machine is busy while cutting), ``cycle_time_s`` (makespan / good parts),
         ``mean_flow_time_s`` (fetch start to sort end per good part), ``orders`` (counts per
-        outcome), ``faults`` (per kind), ``recoveries``, ``failures``.
+        outcome), ``faults`` (per kind), ``recoveries``, ``failures``, and the OEE terms
+        ``availability``, ``performance``, ``quality``, ``oee`` (None while undefined),
+        ``downtime_s``, ``run_time_s`` (:mod:`robotprog.oee`).
         """
         return {
             "summary": dict(self.summary),
@@ -380,6 +389,7 @@ class RunningSummary:
         self._open: list[tuple[float, float, str]] = []
         self._busy = {"robot": 0.0, "machine": 0.0}  # of activities ended by the last time asked
         self._t = -math.inf
+        self._oee = OeeCounter(result.ideal_cycle_s, result.losses)
 
     def at(self, t: float) -> dict[str, Any]:
         """The figures at ``t`` [s], no earlier than the last time asked."""
@@ -394,6 +404,7 @@ class RunningSummary:
         while self._log < len(log) and log[self._log].time <= horizon:
             e = log[self._log]
             self._log += 1
+            self._oee.take(e)
             if e.event == Event.INSPECT_PASS.value:
                 self._verdict[e.job] = True
             elif e.event in (Event.INSPECT_FAIL.value, Event.UNLOADED_SCRAP.value):
@@ -430,6 +441,7 @@ class RunningSummary:
             "faults": dict(self._faults),
             "recoveries": result.summary["recoveries"] if ended else 0,
             "failures": result.summary["failures"] if ended else 0,
+            **self._oee.at(t, horizon),
         }
 
 
@@ -470,9 +482,11 @@ class _Sim:
         self.flow: list[float] = []
         self.told: dict[str, OrderOutcome] = {}  # the last outcome the sink had of each order
         self.log: list[LogEntry] = []
+        self.ledger = DowntimeLedger()  # told every event as the sink is, for the OEE terms
 
     def note(self, entry: LogEntry) -> None:
         self.log.append(entry)
+        self.ledger(entry)
         self.sink(entry)
 
     def tell(self, outcome: OrderOutcome) -> None:
@@ -484,6 +498,7 @@ class _Sim:
 
     def add_activity(self, activity: Activity) -> None:
         self.activities.append(activity)
+        self.ledger(activity)
         self.sink(activity)
 
     def proc(self, job_id: int) -> PartProcess:
@@ -668,6 +683,8 @@ class _Sim:
             "recoveries": self.cell.recoveries,
             "failures": self.cell.failures,
         }
+        ideal = {j: process_of(self.processes, self.orders[o]).cycle_s for j, o in self.jobs.items()}
+        summary.update(run_oee(self.log, ideal, self.ledger.losses, summary["makespan_s"]))
         activities = tuple(sorted(self.activities, key=lambda a: (a.start, a.end)))
         return SimulationResult(tuple(self.log), outcomes, summary, activities, tuple(self.machine_hold),
-                                dict(self.jobs))
+                                dict(self.jobs), tuple(self.ledger.losses), ideal)

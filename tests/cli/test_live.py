@@ -62,7 +62,8 @@ def test_a_client_sees_the_cell_live(block_catalog, tmp_path):
             channels: dict[str, dict] = {}
             info = None
             deadline = time.monotonic() + 300
-            while "/joint_states" not in channels and time.monotonic() < deadline:
+            wanted = {"/joint_states", "/cell/machine", "/cell/summary"}
+            while not wanted <= set(channels) and time.monotonic() < deadline:
                 msg = ws.recv(timeout=300)
                 if isinstance(msg, str):
                     doc = json.loads(msg)
@@ -73,6 +74,10 @@ def test_a_client_sees_the_cell_live(block_catalog, tmp_path):
             assert info is not None and "time" in info["capabilities"]
             js = channels["/joint_states"]
             assert js["encoding"] == "cdr" and js["schemaEncoding"] == "ros2msg"
+            # the typed cell state with the fields of the log: spindle load, the OEE terms
+            assert channels["/cell/machine"]["schemaName"] == "factory_msgs/msg/MachineState"
+            assert "float32 spindle_load_percent" in channels["/cell/machine"]["schema"]
+            assert "float64 availability" in channels["/cell/summary"]["schema"]
             ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": js["id"]}]}))
             samples, times, t0 = [], [], time.monotonic()
             while len(samples) < 30:

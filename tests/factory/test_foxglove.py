@@ -89,7 +89,8 @@ def test_layout_names_only_simulation_topics_and_shows_the_ones_asked_for() -> N
     assert [p["value"] for p in by_type["StateTransitions"]["paths"]] == [
         "/cell/state.state", "/cell/robot.activity", "/cell/machine.state"]
     assert [p["value"] for p in by_type["Plot"]["paths"]] == ["/cell/machine.tool_position.z",
-                                                              "/cell/machine.feed_mm_per_min"]
+                                                              "/cell/machine.spindle_load_percent"]
+    assert by_type["Plot"]["xAxisVal"] == "timestamp"
     assert all(p["timestampMethod"] in ("receiveTime", "headerStamp") for p in by_type["StateTransitions"]["paths"])
     assert by_type["RosOut"]["topicToRender"] == "/rosout"
     assert by_type["DiagnosticSummary"]["topicToRender"] == "/diagnostics"
@@ -133,3 +134,26 @@ def test_view_reaches_the_camera_state() -> None:
 def test_bad_names_or_views_raise_mcap_error(topics: CellTopics, view: CellView) -> None:
     with pytest.raises(McapError):
         cell_layout(topics, view)
+
+
+def test_plotted_and_state_paths_are_fields_of_the_logged_messages() -> None:
+    """Each Plot path is a number and each State Transitions path a string of the message its topic
+    carries, as the builders make them from the shipped .msg files."""
+    from factory.cellmsgs import machine_state, robot_state, scheduler_state
+
+    sample = {"/cell/machine": machine_state("cutting", "o1", "o1-1", 0, tool=1, spindle_rpm=9000.0, spindle_load=12.5),
+              "/cell/robot": robot_state("load", "o1", "o1-1", 0),
+              "/cell/state": scheduler_state("LOAD", "fetched", "o1", "o1-1", "", 0)}
+
+    def value(path: str) -> Any:
+        topic, _, fields = path.partition(".")
+        out = sample[topic]
+        for name in fields.split("."):
+            out = getattr(out, name)
+        return out
+
+    by_type = {i.split("!", 1)[0]: c for i, c in cell_layout()["configById"].items()}
+    plotted = [value(p["value"]) for p in by_type["Plot"]["paths"]]
+    assert all(isinstance(v, float) for v in plotted) and plotted[1] == 12.5
+    assert all(isinstance(value(p["value"]), str) for p in by_type["StateTransitions"]["paths"])
+

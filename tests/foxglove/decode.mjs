@@ -13,6 +13,7 @@
 // Prints one JSON document on stdout:
 //   {"FILE": {"schemas": {NAME: {"ok": bool, "error"?: str}},
 //             "topics": {TOPIC: {"schema": NAME, "decoded": n, "failed": n, "error"?: str,
+//                                "fields"?: [top-level field names], "max"?: {numeric field: largest value},
 //                                "models"?: n}}}}
 // and exits 1 when any schema or message failed, 2 on a file that cannot be read at all.
 
@@ -112,6 +113,15 @@ async function decodeFile(path) {
         }
         if (left > MAX_PADDING) {
           throw new Error(`${left} of ${message.data.byteLength} bytes left after decoding`);
+        }
+        // the top-level fields as decoded, and the largest value of each numeric one (a NaN
+        // makes it NaN, written as null): the test sees the fields and values Foxglove reads
+        entry.fields ??= Object.keys(decoded);
+        entry.max ??= {};
+        for (const [key, value] of Object.entries(decoded)) {
+          if (typeof value === "number") {
+            entry.max[key] = Math.max(entry.max[key] ?? -Number.MAX_VALUE, value);
+          }
         }
         if (reader.schemasById.get(channel.schemaId).name === SCENE_UPDATE) {
           entry.models = (entry.models ?? 0) + (await checkModels(decoded));

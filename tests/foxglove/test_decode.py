@@ -76,6 +76,17 @@ def test_foxglove_decodes_every_message(logs, stage):
     assert decoded == _counts(path) and decoded
 
 
+def test_foxglove_reads_the_spindle_load_and_the_oee_terms(logs):
+    """The fields Foxglove's parsers decode from the cell log's own schemas: the spindle load on
+    /cell/machine, the OEE terms on /cell/summary, numbers in range and never NaN."""
+    topics = foxglove_decode(logs["simulate"])[str(logs["simulate"])]["topics"]
+    machine, summary = topics["/cell/machine"], topics["/cell/summary"]
+    assert {"spindle_speed_rpm", "spindle_load_percent", "feed_mm_per_min"} <= set(machine["fields"])
+    assert 0 < machine["max"]["spindle_load_percent"] < 100  # a NaN would read null
+    assert {"availability", "performance", "quality", "oee", "downtime_s", "run_time_s"} <= set(summary["fields"])
+    assert all(0 < summary["max"][k] <= 1 for k in ("availability", "performance", "quality", "oee"))
+
+
 @pytest.mark.parametrize("stage", ["plan", "robot", "simulate"])
 def test_the_robot_travels_in_the_log_as_valid_gltf(logs, stage):
     """The robot's link meshes: one valid glTF binary model per UR5 link, nothing loaded by URL."""

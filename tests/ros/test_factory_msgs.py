@@ -9,10 +9,12 @@ their image's header and that every injected fault shows on ``/diagnostics`` at 
 from __future__ import annotations
 
 import json
+import math
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -190,9 +192,11 @@ def test_every_injected_fault_is_an_error_on_diagnostics_until_recovered(cell_lo
     assert all(s.level == 0 for s in diagnostics[-1][1].values())
     # key values of the machine and the robot, as they were at each change
     machine = [{kv.key: kv.value for kv in d["cell/machine"].values} for _, d in diagnostics]
-    assert {"state", "tool", "spindle_speed_rpm", "program_line", "fault"} <= set(machine[0])
+    assert {"state", "tool", "spindle_speed_rpm", "spindle_load_percent", "program_line", "fault"} <= set(machine[0])
     cutting = [v for v in machine if v["state"] == "cutting"]
     assert cutting and all(int(v["tool"]) > 0 and float(v["spindle_speed_rpm"]) > 1000 for v in cutting)
+    assert all(float(v["spindle_load_percent"]) == 0 for v in machine if v["state"] != "cutting")
+    assert all(0 <= float(v["spindle_load_percent"]) < 100 for v in machine)
     robot = [{kv.key: kv.value for kv in d["cell/robot"].values} for _, d in diagnostics]
     assert {v["activity"] for v in robot} >= {"idle", "load", "unload"}
 
@@ -237,6 +241,19 @@ def test_machine_state_follows_the_program(cell_log):
         assert 0 <= m.program_progress <= 1 and m.program_line > 0 and m.feed_mm_per_min >= 0
         assert -0.05 < m.tool_position.z < 0.1  # [m] around the work's top face, not millimetres
     assert max(m.feed_mm_per_min for m in cutting) > 100
+    # the spindle load: a number, 0 with the spindle stopped, positive while it cuts, below 100 %
+    machine = [m for topic, _, _, m in msgs if topic == "/cell/machine"]
+    assert all(math.isfinite(m.spindle_load_percent) and 0 <= m.spindle_load_percent < 100 for m in machine)
+    assert all(m.spindle_load_percent == 0 for m in machine if m.spindle_speed_rpm == 0)
+    assert sum(m.spindle_load_percent > 0.1 for m in cutting) >= 5
+    # roughing loads the spindle more than finishing the same part: the mean load of each
+    # operation's samples (each operation has its own tool)
+    kind = {op["tool"]: op["kind"] for op in sheet["operations"]}
+    mean = {t: np.mean([m.spindle_load_percent for m in cutting if m.tool == t]) for t in kind
+            if any(m.tool == t for m in cutting)}
+    rough = max(v for t, v in mean.items() if kind[t] == "roughing")
+    finish = max(v for t, v in mean.items() if kind[t] == "finishing")
+    assert rough > finish > 0, mean
     # the tool position is the one on /tf (work -> tool) at the same stamp
     tips = {t: x.transform.translation for topic, _, t, msg in msgs if topic == "/tf" for x in msg.transforms
             if x.child_frame_id == "tool"}
@@ -266,7 +283,12 @@ def test_order_queue_and_summary_end_as_the_run_reports(cell_log):
     assert summary.parts_good == s["parts_good"] and summary.makespan_s == pytest.approx(s["makespan_s"])
     assert summary.orders_done == s["orders"]["done"]
     assert dict(zip(summary.fault_kinds, summary.fault_counts.tolist())) == s["faults"]
-    assert summary.quality == pytest.approx(s["parts_good"] / (s["parts_good"] + s["parts_rejected"]))
+    # the OEE terms of the run's summary (robotprog.oee); the faults stopped the cell
+    for key in ("availability", "performance", "quality", "oee", "downtime_s", "run_time_s"):
+        assert getattr(summary, key) == pytest.approx(s[key]), key
+    assert s["downtime_s"] > 0 and 0 < summary.availability < 1
+    assert summary.oee == pytest.approx(summary.availability * summary.performance * summary.quality, abs=1e-4)
+    assert all(0 <= m.availability <= 1 and 0 <= m.performance <= 1 and 0 <= m.quality <= 1 for m in summaries)
     states = [m for topic, _, _, m in msgs if topic == "/cell/state"]
     assert {m.state for m in states} >= {"FETCH_RAW", "LOAD", "MACHINING", "UNLOAD", "INSPECT", "SORT", "IDLE"}
     assert all(re.fullmatch(r"o\d+-\d+", m.serial) for m in states)
