@@ -27,8 +27,12 @@ def command_flags(command: str, options: Mapping[str, Any], *, source: str = "co
     FactoryError
         An option ``command`` does not have, or a value of the wrong kind for a switch.
     """
-    from cli.main import app
+    from cli.main import COMMANDS, app
 
+    if command not in COMMANDS:
+        raise FactoryError(f"factory has no command {command!r}", source=source)
+    if not options:  # nothing to check: the command's module (1 s of imports for plan) stays unloaded
+        return []
     group = typer.main.get_command(app)
     cmd = getattr(group, "commands", {}).get(command)
     if cmd is None:

@@ -88,3 +88,11 @@ def test_command_flags_read_the_lazily_loaded_command():
         command_flags("plan", {"nonsense": 1})
     with pytest.raises(FactoryError, match="no command 'plann'"):
         command_flags("plann", {})
+
+
+def test_command_flags_of_no_options_load_no_command():
+    # A workflow driver with no plan options (the shipped config) never pays for `plan`'s imports.
+    loaded = _modules_after("from cli.options import command_flags\n"
+                            "assert command_flags('plan', {}) == []")
+    assert "cli.plan" not in loaded
+    assert not loaded & set(HEAVY), loaded & set(HEAVY)
