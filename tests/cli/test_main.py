@@ -96,3 +96,11 @@ def test_command_flags_of_no_options_load_no_command():
                             "assert command_flags('plan', {}) == []")
     assert "cli.plan" not in loaded
     assert not loaded & set(HEAVY), loaded & set(HEAVY)
+
+
+def test_a_quiet_plan_job_loads_no_progress_bars():
+    # Every workflow job runs `factory plan --quiet`: rich's progress module is for a terminal only.
+    probe = ("import sys, json\nimport cli.plan\n"
+             "print(json.dumps(sorted(m for m in sys.modules if m.startswith('rich.'))))")
+    r = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert "rich.progress" not in json.loads(r.stdout.splitlines()[-1])
