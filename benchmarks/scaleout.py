@@ -13,16 +13,21 @@ each job's own processor time is known. Reports:
 - the jobs' own compute: the sum of the stage times each ``factory plan`` reports in its summary;
 - per-job overhead, as the issue defines it: (wall with 1 job - compute) / jobs, i.e. what
   Snakemake and starting a job cost; and the same in processor time: the driver's share per job
-  plus one ``factory plan`` start-up (``factory plan --help`` imports what a plan run imports but
-  TOPP-RA, which ``plan`` loads when it times the robot);
+  plus one ``factory plan`` job's start-up (``benchmarks/startup.py``: interpreter, imports and
+  option parsing up to the first stage, and the TOPP-RA a plan loads when it first times a move);
+- what each job costs on a cluster besides its ``factory``: there every job is a Snakemake
+  process of its own on the node; measured through the cluster-generic executor with a stand-in
+  ``factory`` that only touches a plan's outputs;
 - the speed-up the measured jobs allow on 2 cores: their processor times scheduled longest first
   on 2 slots (what an otherwise idle machine would give, less the driver);
 - the driver as a fixed cost plus a cost per job, from dry runs over ``--dry-parts`` copies of a
   part and over the parts planned; and a paper estimate of 10,000 parts on 100 Slurm nodes.
 
 Timings are single runs on whatever machine this is: on a shared machine the wall times carry
-the other users' load, the processor times much less so. With ``--json`` the last line is one
-JSON object.
+the other users' load, the processor times much less so. factory's own modules are byte-compiled
+first, as an installed factory has them (pip compiles at install, Python on first import): with
+``PYTHONDONTWRITEBYTECODE`` set and an editable install, every job would compile them again
+(0.15 s). With ``--json`` the last line is one JSON object.
 """
 
 from __future__ import annotations
@@ -44,6 +49,7 @@ sys.path.insert(0, str(ROOT))
 
 import yaml  # noqa: E402
 
+from startup import measure as measure_startup  # noqa: E402  (benchmarks/startup.py)
 from tests.conftest import pocket_block  # noqa: E402
 
 BIN = Path(sys.executable).parent
@@ -100,14 +106,49 @@ def _job_cpu(folder: Path) -> list[float]:
     return [sum(map(float, p.read_text().split()[-2:])) for p in sorted((folder / "times").iterdir())]
 
 
-def _startup_cpu(repeat: int = 3) -> float:
-    """Processor time [s] of one ``factory plan --help`` (the least of ``repeat``: the imports)."""
-    best = float("inf")
-    for _ in range(repeat):
-        cpu0 = _tree_cpu()
-        subprocess.run([str(BIN / "factory"), "plan", "--help"], capture_output=True, check=True)
-        best = min(best, _tree_cpu() - cpu0)
-    return best
+# A stand-in `factory` for the cluster run: it only touches the files a plan writes, so what the
+# job costs is what the workflow adds to a plan on a node.
+_TOUCH_PLAN = """#!/bin/sh
+[ "$1" = plan ] || exit 0
+part=$(basename "$2"); part=${part%.*}; mkdir -p "$4"
+for ext in nc setup.json mcap verify.json verify.png toolpath.png setup.png plan.json; do : > "$4/$part.$ext"; done
+"""
+
+
+def _cluster_job_cpu(folder: Path, parts: Path, options: dict) -> list[float]:
+    """Processor time [s] of each job's own Snakemake on a "node": every part planned through the
+    cluster-generic executor, each job a separate process under ``/usr/bin/time``, the plan itself
+    a stand-in that only touches its outputs."""
+    folder.mkdir()
+    (folder / "times").mkdir()
+    touch = folder / "touch_plan"
+    touch.write_text(_TOUCH_PLAN)
+    touch.chmod(0o755)
+    submit = (f"bash -c '/usr/bin/time -f \"%U %S\" -o {folder}/times/$$ bash \"$1\" >/dev/null 2>&1 </dev/null & "
+              "echo $!' submit")
+    (folder / "config.yaml").write_text(yaml.safe_dump(
+        {"parts": str(parts), "catalog": "catalog", "orders": str(ROOT / "samples" / "one_each.csv"),
+         "out": "out", "factory": str(touch), "options": options}))
+    cmd = [str(BIN / "snakemake"), "-s", str(SNAKEFILE), "--configfile", str(folder / "config.yaml"),
+           "--directory", str(folder), "--executor", "cluster-generic", "--cluster-generic-submit-cmd", submit,
+           "--jobs", "2", "--latency-wait", "5", "plans"]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed:\n{r.stderr[-3000:]}")
+    # A job's script marks it done just before its `time` writes the figure: wait for the last ones.
+    jobs = len(list(parts.iterdir()))
+    for _ in range(100):
+        times = [p.read_text().split() for p in (folder / "times").iterdir()]
+        if len(times) == jobs and all(len(t) >= 2 for t in times):
+            return [float(t[-2]) + float(t[-1]) for t in times]
+        time.sleep(0.1)
+    raise SystemExit(f"{folder}: {len(times)} of {jobs} cluster jobs timed")
+
+
+def _compile_factory() -> None:
+    """Byte-compile factory's own packages, as an installed factory has them (see the docstring)."""
+    packages = [str(ROOT / name) for name in ("cadcam", "cli", "factory", "robotprog", "vision")]
+    subprocess.run([sys.executable, "-m", "compileall", "-q", *packages], check=True, capture_output=True)
 
 
 def _longest_first(jobs: list[float], slots: int) -> float:
@@ -119,17 +160,18 @@ def _longest_first(jobs: list[float], slots: int) -> float:
 
 
 def estimate_s(job_cpu: list[float], driver_fixed_s: float, driver_per_job_s: float, parts: int,
-               slots: int) -> dict[str, float]:
+               slots: int, node_job_s: float = 0.0) -> dict[str, float]:
     """Paper estimate [s] of ``parts`` jobs on ``slots`` cores, each job one thread on its own core.
 
     Each job takes what one of the measured jobs took in processor time (``job_cpu`` [s], its
-    start-up included): on a core of its own that is its wall time. Scheduled as they come, the
+    start-up included), plus ``node_job_s`` [s], what the job's own Snakemake costs on the node:
+    on a core of its own that is its wall time. Scheduled as they come, the
     jobs end within their mean load per slot plus the longest job (Graham's bound for list
     scheduling). The driver adds its fixed cost and its cost per job (DAG, file checks); what it
     spends submitting to Slurm and polling it is not measured here.
     """
-    mean = sum(job_cpu) / len(job_cpu)
-    jobs = parts * mean / slots + max(job_cpu)
+    mean = sum(job_cpu) / len(job_cpu) + node_job_s
+    jobs = parts * mean / slots + max(job_cpu) + node_job_s
     driver = driver_fixed_s + driver_per_job_s * parts
     return {"jobs_s": jobs, "driver_s": driver, "wall_s": jobs + driver}
 
@@ -153,13 +195,15 @@ def main() -> None:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     options = {"scallop": 0.05, "grid": 0.5} if args.fast else {}
+    _compile_factory()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         n = _parts(tmp / "parts", args.generated)
         t0 = time.perf_counter()
         subprocess.run([str(BIN / "factory"), "--help"], capture_output=True, check=True)
         startup = time.perf_counter() - t0
-        startup_cpu = _startup_cpu()
+        startup_figures = measure_startup(repeat=3)
+        startup_cpu = startup_figures["plan_job_startup"]
         walls, cpus, compute, jobs_cpu = {}, {}, {}, {}
         for cores in (1, 2):
             folder = tmp / f"cores{cores}"
@@ -170,6 +214,8 @@ def main() -> None:
         dry_wall, dry_cpu = _run(tmp / "dry_small", tmp / "parts", 1, options, "plans", "--dry-run")
         big = _dry_parts(tmp / "dry_parts", args.dry_parts)
         dry_big_wall, dry_big_cpu = _run(tmp / "dry_big", big, 1, options, "plans", "--dry-run")
+        node_jobs_cpu = _cluster_job_cpu(tmp / "cluster", tmp / "parts", options)
+    node_job_cpu = sum(node_jobs_cpu) / len(node_jobs_cpu)
     per_job_s = compute[1] / n
     overhead = (walls[1] - compute[1]) / n
     driver_cpu = cpus[1] - sum(jobs_cpu[1])
@@ -181,7 +227,7 @@ def main() -> None:
     # Paper estimate from processor times, not from this machine's (shared, loaded) wall times.
     parts = 10_000
     slots = args.nodes * args.cores_per_node
-    paper = estimate_s(jobs_cpu[1], driver_fixed_cpu, driver_per_job_cpu, parts, slots)
+    paper = estimate_s(jobs_cpu[1], driver_fixed_cpu, driver_per_job_cpu, parts, slots, node_job_cpu)
     result = {
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                     "load_1min_at_end": round(os.getloadavg()[0], 1)},
@@ -201,6 +247,9 @@ def main() -> None:
         "driver_cpu_s": round(driver_cpu, 2),
         "factory_startup_s": round(startup, 2),
         "factory_plan_startup_cpu_s": round(startup_cpu, 2),
+        "factory_plan_help_cpu_s": round(startup_figures["plan_help"], 2),
+        "cluster_node_job_cpu_s": round(node_job_cpu, 2),
+        "per_job_overhead_cpu_on_a_cluster_s": round(node_job_cpu + startup_cpu, 2),
         "driver_dry_run_s": round(dry_wall, 2),
         "driver_dry_run_cpu_s": {str(n): round(dry_cpu, 2), str(args.dry_parts): round(dry_big_cpu, 2)},
         "driver_cpu_fixed_s": round(driver_fixed_cpu, 2),

@@ -14,11 +14,13 @@ import json
 import logging
 import sys
 from collections.abc import Callable, Iterator
-from typing import Annotated, Any, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+if TYPE_CHECKING:
+    from rich.progress import Progress
 
 from factory.errors import FactoryError
 
@@ -86,6 +88,9 @@ def progress_bars(quiet: bool) -> Iterator[StageProgress]:
     if quiet or not stderr.is_terminal:
         yield StageProgress(None)
         return
+    # Here, not at the top: a quiet run (every workflow job) draws no bars.
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
     with Progress(
         TextColumn("{task.description:>10}"),
         BarColumn(),

@@ -14,7 +14,6 @@ from cadcam.sheet import setup_sheet
 from cli.common import JsonFlag, Overwrite, Quiet, print_json, reports_errors, setup_logging, stderr
 from factory.atomic import check_writable, write_text
 from factory.cam import read_job
-from factory.plan import program_summary
 
 Dialect = Literal["linuxcnc", "grbl", "fanuc"]
 PostOpt = Annotated[Dialect, typer.Option("--post", help="Controller dialect.")]
@@ -55,6 +54,9 @@ def gcode(
     program, sheet_path = write_program(
         job, output, PostOptions(dialect=post, arc_tolerance=arc_tolerance, coolant=coolant), overwrite
     )
+    # Here, not at the top: factory.plan brings the robot's libraries (Pinocchio), which G-code never needs.
+    from factory.plan import program_summary
+
     summary = program_summary(program, output, sheet_path)
     if json_out:
         print_json(summary)

@@ -26,6 +26,7 @@ import numpy as np
 from scipy.interpolate import PPoly
 
 from factory.errors import PlanningError
+from robotprog.toppra_loader import load_toppra
 
 log = logging.getLogger(__name__)
 
@@ -232,11 +233,9 @@ def time_path(
         return Trajectory(_frozen(z1), _frozen(z1), _frozen(z1), _frozen(z0), _frozen(np.array([0.0, 1.0])),
                           _frozen(coeffs))
     ss_wp = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(wp, axis=0), axis=1))])
-    # Imported here, not at the top: toppra imports matplotlib's pyplot (0.7 s), which every
-    # `factory` process that never times a move (help, verify, a workflow driver) would pay.
-    import toppra
-    import toppra.algorithm
-    import toppra.constraint
+    # Loaded here, not at the top: every `factory` process that never times a move (help, verify,
+    # a workflow driver) would pay for it; and loaded without the matplotlib toppra imports.
+    toppra = load_toppra()
 
     path = toppra.SplineInterpolator(ss_wp, wp, bc_type="not-a-knot")
     spline = path.cspl

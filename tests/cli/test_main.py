@@ -88,3 +88,44 @@ def test_command_flags_read_the_lazily_loaded_command():
         command_flags("plan", {"nonsense": 1})
     with pytest.raises(FactoryError, match="no command 'plann'"):
         command_flags("plann", {})
+    with pytest.raises(FactoryError, match="--grid takes a value"):
+        command_flags("plan", {"grid": True})
+    with pytest.raises(FactoryError, match="--waterline is a switch"):
+        command_flags("plan", {"waterline": 0})
+    with pytest.raises(FactoryError, match="--quiet has no --no-quiet"):
+        command_flags("plan", {"quiet": False})
+
+
+def test_unchecked_flags_are_the_checked_ones_and_load_no_command():
+    # A workflow job on a cluster node builds its flags unchecked: they must be the driver's.
+    options = {"rough_tool": 2, "waterline": False, "robot": True, "grid": 0.5, "lang": "rapid"}
+    probe = ("import json, sys\nfrom cli.options import command_flags\n"
+             f"print(json.dumps([command_flags('plan', {options!r}, check=False), sorted(sys.modules)]))")
+    r = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, check=True)
+    unchecked, loaded = json.loads(r.stdout.splitlines()[-1])
+    assert "cli.plan" not in loaded
+    assert not {m.split(".")[0] for m in loaded} & set(HEAVY)
+    assert unchecked == command_flags("plan", options)
+
+
+def test_command_flags_of_no_options_load_no_command():
+    # A workflow driver with no plan options (the shipped config) never pays for `plan`'s imports.
+    loaded = _modules_after("from cli.options import command_flags\n"
+                            "assert command_flags('plan', {}) == []")
+    assert "cli.plan" not in loaded
+    assert not loaded & set(HEAVY), loaded & set(HEAVY)
+
+
+def test_a_quiet_plan_job_loads_no_progress_bars():
+    # Every workflow job runs `factory plan --quiet`: rich's progress module is for a terminal only.
+    probe = ("import sys, json\nimport cli.plan\n"
+             "print(json.dumps(sorted(m for m in sys.modules if m.startswith('rich.'))))")
+    r = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert "rich.progress" not in json.loads(r.stdout.splitlines()[-1])
+
+
+def test_gcode_loads_no_robot_libraries():
+    # `factory gcode` posts a toolpath: the robot's libraries (Pinocchio, coal, TOPP-RA) are not its.
+    loaded = _modules_after("from cli.main import load_command\nload_command('gcode')")
+    assert "cli.gcode" in loaded
+    assert not loaded & {"pinocchio", "coal", "toppra", "matplotlib"}, loaded & {"pinocchio", "coal", "toppra"}
