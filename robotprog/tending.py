@@ -25,14 +25,16 @@ Motion
 ------
 Approach and retreat are straight lines of the TCP, IK-sampled every
 :attr:`TendingOptions.line_step` with :func:`robotprog.ik.ik_continuous` (the branch
-continuous with the previous sample). Transfers are straight in joint space when that is
+continuous with the previous sample), and proven collision-free all along
+(:mod:`robotprog.sweep`). Transfers are straight in joint space when that is
 collision-free at :attr:`TendingOptions.joint_resolution`; otherwise an RRT-Connect in
 joint space (seeded :class:`numpy.random.Generator`, so plans are reproducible) finds a
 path, which is then shortcut (random pairs of path points joined when the straight joint
-segment between them is free). Each move is timed with :func:`robotprog.timing.time_path`
-and the timed spline is checked for collision again (the cubic spline through the
-waypoints need not follow the polyline); where it collides, the waypoints are densified
-and the move re-timed.
+segment between them is free at that resolution). The transfer's polyline is then proven
+free all along, not only at the checks (else it is planned again). Each move is timed with
+:func:`robotprog.timing.time_path` and the timed spline, the path the controller drives, is
+proven free all along too (the cubic spline through the waypoints need not follow the
+polyline); where it is not, the waypoints are densified and the move re-timed.
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ from robotprog.collision import CollisionWorld, HeldBox, Payload, collision_worl
 from robotprog.frames import StockInVise, setup_sheet_to_cell, MM_PER_M
 from robotprog.ik import ik_continuous, ik_solutions
 from robotprog.robots import Robot
+from robotprog.sweep import monotone_breaks, swept_motion
 from robotprog.timing import Trajectory, time_path
 
 log = logging.getLogger(__name__)
@@ -273,6 +276,7 @@ class _Planner:
         self.rng = np.random.default_rng(options.seed)
         self.lo = np.maximum(robot.q_lower, np.asarray(cell.robot.home) - np.pi)
         self.hi = np.minimum(robot.q_upper, np.asarray(cell.robot.home) + np.pi)
+        self.sweep = swept_motion(world, options.joint_resolution)
 
     def flange(self, t_world_tcp: np.ndarray) -> np.ndarray:
         return self.t_base_world @ t_world_tcp @ self.t_tcp_flange
@@ -304,11 +308,9 @@ class _Planner:
                 raise PlanningError(f"{what}: the arm flips configuration along the line", source=field_name)
             qs.append(q)
         qs = np.array(qs)
-        dense = self.densify(qs)
-        bad = self.world.path_free(dense, held)
-        if bad is not None:
-            raise PlanningError(f"{what} collides ({self.world.first_contact(dense[bad], held)})",
-                                source=field_name)
+        hit = self.sweep.polyline_contact(qs, held)
+        if hit is not None:
+            raise PlanningError(f"{what} collides ({hit[1]})", source=field_name)
         return qs
 
     def densify(self, qs: np.ndarray, resolution: float | None = None) -> np.ndarray:
@@ -321,6 +323,8 @@ class _Planner:
         return np.concatenate(out)
 
     def edge_free(self, a: np.ndarray, b: np.ndarray, held: Payload) -> bool:
+        """Whether the straight joint segment a -> b is free at every joint_resolution (the quick
+        check of RRT edges and shortcuts; the path they make is then proven all along, :meth:`timed`)."""
         return self.world.path_free(self.densify(np.array([a, b])), held) is None
 
     def transfer(self, q_a: np.ndarray, q_b: np.ndarray, held: Payload, what: str) -> np.ndarray:
@@ -387,21 +391,35 @@ class _Planner:
         return np.array(pts)
 
     def timed(self, name: str, kind: str, qs: np.ndarray, held: Payload) -> TimedMove:
-        """Time the path through ``qs``; a joint transfer whose timed path still touches something
-        (a graze between the 0.02 rad checks of its RRT edges) is planned again, up to twice
-        (the seeded generator has moved on, so the new path differs and plans stay reproducible)."""
+        """Time the path through ``qs`` and prove the timed path free all along.
+
+        A joint transfer's polyline is proven first (its RRT edges and shortcuts were only checked
+        every joint_resolution); a transfer whose polyline or timed path still touches something
+        (a graze between those checks) is planned again, up to three times (the seeded generator
+        has moved on, so the new path differs and plans stay reproducible)."""
         qs = np.asarray(qs, dtype=float)
         for _ in range(3):
+            if kind == "joint":
+                hit = self.sweep.polyline_contact(qs, held)
+                if hit is not None:
+                    log.debug("%s: the path collides between its checks (%s); planning it again", name, hit[1])
+                    qs = self.shortcut(self.rrt_connect(qs[0], qs[-1], held, name), held)
+                    continue
             try:
-                return self._timed_once(name, kind, qs, held)
+                return self._timed_once(name, kind, qs, held, proven=kind == "joint")
             except PlanningError as e:
-                if kind != "joint" or len(qs) <= 2:
+                if kind != "joint":
                     raise
                 log.debug("%s: %s; planning the transfer again", name, e)
                 qs = self.shortcut(self.rrt_connect(qs[0], qs[-1], held, name), held)
+        hit = self.sweep.polyline_contact(qs, held)
+        if hit is not None:
+            raise PlanningError(f"{name}: the path collides ({hit[1]})")
         return self._timed_once(name, kind, qs, held)
 
-    def _timed_once(self, name: str, kind: str, qs: np.ndarray, held: Payload) -> TimedMove:
+    def _timed_once(self, name: str, kind: str, qs: np.ndarray, held: Payload, proven: bool = False) -> TimedMove:
+        """Time ``qs`` and prove the timed path; ``proven``: the polyline through ``qs`` is (so a
+        spline that is one straight segment, as through two waypoints, needs no second proof)."""
         wp = np.asarray(qs, dtype=float)
         problem = ""
         for attempt in range(4):
@@ -411,17 +429,14 @@ class _Planner:
                 problem = str(e)
             else:
                 path = PPoly(traj.coefficients, traj.breakpoints)
-                # The path parameter is not joint travel: sample every piece of the spline (its
-                # breakpoints and four points inside each), then fill in every joint_resolution,
-                # so no stretch of the driven path goes unchecked however long it is.
-                bp = np.asarray(traj.breakpoints, dtype=float)
-                s = np.concatenate([bp[:-1, None] + np.diff(bp)[:, None] * np.linspace(0, 1, 5, endpoint=False),
-                                    bp[-1:, None]], axis=None)
-                dense = self.densify(path(s))
-                bad = self.world.path_free(dense, held)
-                if bad is None:
+                # The whole driven path, not samples of it: cut where a joint turns, then proven
+                # piece by piece (robotprog.sweep).
+                breaks = monotone_breaks(traj.breakpoints, traj.coefficients)
+                straight = proven and traj.coefficients.shape[1] == 1 and not np.any(traj.coefficients[:2])
+                hit = None if straight else self.sweep.first_contact(path, breaks, held)
+                if hit is None:
                     return TimedMove(name, traj, kind, wp, held, transform_world_to_tcp=self.tcp_world(wp[-1]))
-                problem = f"the timed path collides ({self.world.first_contact(dense[bad], held)})"
+                problem = f"the timed path collides ({hit[1]})"
             # The spline strayed from the checked polyline: pin it down with waypoints on the
             # polyline, every joint_resolution, then twice and four times as dense (a spline
             # through dense points of a free polyline stays within a shrinking distance of it).
