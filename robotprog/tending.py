@@ -266,6 +266,53 @@ def _grasp(cell: Cell, t_world_support: np.ndarray, bmin: np.ndarray, bmax: np.n
     return t, HeldBox.at(size, np.linalg.inv(t) @ box)
 
 
+@dataclass(frozen=True, eq=False)
+class Station:
+    """One end of a pick-and-place (:meth:`_Planner.pick_and_place`): where the box is taken or left.
+
+    Attributes
+    ----------
+    grasp : (4, 4) float
+        TCP pose when the fingers close on (or let go of) the box, world frame [m].
+    field : str
+        The cell-file field blamed when it cannot be reached (``rack.pose``).
+    above, down, up : str
+        What the pose ``approach_height`` above, the line down to the grasp and the line back up
+        are called in errors (``above rack slot``, ``approach to rack slot``, ``retreat from rack slot``).
+    """
+
+    grasp: np.ndarray
+    field: str
+    above: str
+    down: str
+    up: str
+
+
+@dataclass(frozen=True)
+class PickPlaceNames:
+    """The plan's names of the eight moves of a pick-and-place (programs, logs and the cell
+    simulation read them), and what its two transfers are called in errors."""
+
+    to_pick: str
+    approach: str
+    grip: str
+    lift: str
+    transfer: str
+    place: str
+    release: str
+    leave: str
+    to_pick_what: str
+    transfer_what: str
+
+
+@dataclass(frozen=True, eq=False)
+class PickPlace:
+    """The moves of a pick-and-place and where the arm was when it had lifted the box [rad]."""
+
+    moves: tuple[TimedMove, ...]
+    q_lifted: np.ndarray
+
+
 class _Planner:
     def __init__(self, cell: Cell, robot: Robot, world: CollisionWorld, options: TendingOptions):
         self.cell, self.robot, self.world, self.o = cell, robot, world, options
@@ -443,6 +490,40 @@ class _Planner:
             wp = self.densify(wp, self.o.joint_resolution / 2 ** max(0, attempt - 1) if attempt else None)
         raise PlanningError(f"{name}: {problem}")
 
+    def pick_and_place(self, q_start: np.ndarray, pick: Station, place: Station, names: PickPlaceNames, *,
+                       open_: Payload, carried: Payload, placed: Payload, at_pick: "_Planner | None" = None,
+                       at_place: "_Planner | None" = None) -> PickPlace:
+        """The step every tending phase is made of: from ``q_start`` to above ``pick``, straight down,
+        grip, straight up, across to above ``place``, straight down, release, straight up.
+
+        Every pose and line is solved and checked before anything is timed (an unreachable place
+        fails fast). ``open_`` rides on the TCP on the way to the pick and after the release (the
+        fingers open), ``carried`` from the grip to above the place, ``placed`` on the way down and
+        at the release (the box as it is set down). ``at_pick`` plans the way to the pick and the
+        approach, ``at_place`` the line up after the release (planners whose worlds hold what stands
+        there then; default this one).
+        """
+        a = self if at_pick is None else at_pick
+        b = self if at_place is None else at_place
+        h = self.o.approach_height
+        q_above_pick = a.pick_ik(_raise_up(pick.grasp, h), q_start, open_, pick.above, pick.field)
+        down = a.line(_raise_up(pick.grasp, h), pick.grasp, q_above_pick, open_, pick.down, pick.field)
+        lift = self.line(pick.grasp, _raise_up(pick.grasp, h), down[-1], carried, pick.up, pick.field)
+        q_above_place = self.pick_ik(_raise_up(place.grasp, h), lift[-1], placed, place.above, place.field)
+        lower = self.line(_raise_up(place.grasp, h), place.grasp, q_above_place, placed, place.down, place.field)
+        leave = b.line(place.grasp, _raise_up(place.grasp, h), lower[-1], open_, place.up, place.field)
+        io = self.cell.gripper.io
+        moves = [a.timed(names.to_pick, "joint", a.transfer(q_start, q_above_pick, open_, names.to_pick_what), open_),
+                 a.timed(names.approach, "linear", down, open_),
+                 self.gripper(names.grip, down[-1], io.grip, open_),
+                 self.timed(names.lift, "linear", lift, carried)]
+        moves.append(self.timed(names.transfer, "joint",
+                                self.transfer(lift[-1], q_above_place, carried, names.transfer_what), carried))
+        moves += [self.timed(names.place, "linear", lower, placed),
+                  self.gripper(names.release, lower[-1], io.release, placed),
+                  b.timed(names.leave, "linear", leave, open_)]
+        return PickPlace(tuple(moves), lift[-1])
+
     def gripper(self, name: str, q: np.ndarray, outputs, held: Payload) -> TimedMove:
         traj = time_path(q[None, :], self.vmax, self.amax)
         return TimedMove(name, traj, "gripper", q[None, :].copy(), held, tuple(outputs),
@@ -549,7 +630,6 @@ def plan_tending(
     g_vise_in, held_vise = _grasp(cell, t_vise, stock.stock_min, stock.stock_max, r_home, options, "stock")
     g_vise_out, held_part = _grasp(cell, t_vise, pmin, pmax, r_home, options, "part")
     g_tray, _ = _grasp(cell, t_tray, -half * psize, psize - half * psize, r_home, options, "part")
-    up = options.approach_height
     # The fingers: open a clearance beyond the box on the way to it and after letting it go,
     # closed on it while holding it.
     fingers = cell.gripper.fingers
@@ -567,55 +647,31 @@ def plan_tending(
 
     moves: list[TimedMove] = []
     io = cell.gripper.io
-    # load
-    q_above_rack = p.pick_ik(_raise_up(g_rack, up), home, open_stock, "above rack slot", "rack.pose")
-    app_rack = p.line(_raise_up(g_rack, up), g_rack, q_above_rack, open_stock, "approach to rack slot",
-                      "rack.pose")
-    q_grasp = app_rack[-1]
-    ret_rack = p.line(g_rack, _raise_up(g_rack, up), q_grasp, with_stock, "retreat from rack slot", "rack.pose")
-    q_above_vise = p.pick_ik(_raise_up(g_vise_in, up), ret_rack[-1], in_vise, "above vise", "vise.pose")
-    place = p.line(_raise_up(g_vise_in, up), g_vise_in, q_above_vise, in_vise, "place in vise", "vise.pose")
-    ret_vise = p.line(g_vise_in, _raise_up(g_vise_in, up), place[-1], open_stock, "retreat from vise", "vise.pose")
-    moves.append(p.timed("load: home to above rack", "joint",
-                         p.transfer(home, q_above_rack, open_stock, "home to rack"), open_stock))
-    moves.append(p.timed("load: approach stock", "linear", app_rack, open_stock))
-    moves.append(p.gripper("load: grip stock", q_grasp, io.grip, open_stock))
-    moves.append(p.timed("load: retreat from rack", "linear", ret_rack, with_stock))
-    moves.append(p.timed("load: transfer to vise", "joint",
-                         p.transfer(ret_rack[-1], q_above_vise, with_stock, "rack to vise"), with_stock))
-    moves.append(p.timed("load: place in vise", "linear", place, in_vise))
-    moves.append(p.gripper("load: release stock", place[-1], io.release, in_vise))
-    moves.append(p.timed("load: retreat from vise", "linear", ret_vise, open_stock))
-    moves.append(p.timed("load: return home", "joint", p.transfer(ret_vise[-1], home, open_stock, "vise to home"),
-                         open_stock))
+    load = p.pick_and_place(
+        home, Station(g_rack, "rack.pose", "above rack slot", "approach to rack slot", "retreat from rack slot"),
+        Station(g_vise_in, "vise.pose", "above vise", "place in vise", "retreat from vise"),
+        PickPlaceNames("load: home to above rack", "load: approach stock", "load: grip stock", "load: retreat from rack",
+                       "load: transfer to vise", "load: place in vise", "load: release stock", "load: retreat from vise",
+                       "home to rack", "rack to vise"),
+        open_=open_stock, carried=with_stock, placed=in_vise)
+    moves += load.moves
+    moves.append(p.timed("load: return home", "joint", p.transfer(load.moves[-1].q_end, home, open_stock,
+                                                                  "vise to home"), open_stock))
     if piece is not None:
         from robotprog.flip import plan_flip  # noqa: PLC0415
 
         flip, _ = plan_flip(p, cell, piece, home, r_home, obstacles, _grasp, _raise_up)
         moves.extend(flip)
-    # unload
-    q_above_part = p.pick_ik(_raise_up(g_vise_out, up), home, open_part, "above vise", "vise.pose")
-    app_part = p.line(_raise_up(g_vise_out, up), g_vise_out, q_above_part, open_part, "approach to part",
-                      "vise.pose")
-    ret_part = p.line(g_vise_out, _raise_up(g_vise_out, up), app_part[-1], with_part, "retreat from vise",
-                      "vise.pose")
-    q_above_tray = p.pick_ik(_raise_up(g_tray, up), ret_part[-1], to_tray, "above out-tray slot", "out_tray.pose")
-    place_tray = p.line(_raise_up(g_tray, up), g_tray, q_above_tray, to_tray, "place in out-tray",
-                        "out_tray.pose")
-    ret_tray = p.line(g_tray, _raise_up(g_tray, up), place_tray[-1], open_part, "retreat from out-tray",
-                      "out_tray.pose")
-    moves.append(p.timed("unload: home to above vise", "joint",
-                         p.transfer(home, q_above_part, open_part, "home to vise"), open_part))
-    moves.append(p.timed("unload: approach part", "linear", app_part, open_part))
-    moves.append(p.gripper("unload: grip part", app_part[-1], io.grip, open_part))
-    moves.append(p.timed("unload: retreat from vise", "linear", ret_part, with_part))
-    moves.append(p.timed("unload: transfer to out-tray", "joint",
-                         p.transfer(ret_part[-1], q_above_tray, with_part, "vise to out-tray"), with_part))
-    moves.append(p.timed("unload: place in out-tray", "linear", place_tray, to_tray))
-    moves.append(p.gripper("unload: release part", place_tray[-1], io.release, to_tray))
-    moves.append(p.timed("unload: retreat from out-tray", "linear", ret_tray, open_part))
+    unload = p.pick_and_place(
+        home, Station(g_vise_out, "vise.pose", "above vise", "approach to part", "retreat from vise"),
+        Station(g_tray, "out_tray.pose", "above out-tray slot", "place in out-tray", "retreat from out-tray"),
+        PickPlaceNames("unload: home to above vise", "unload: approach part", "unload: grip part",
+                       "unload: retreat from vise", "unload: transfer to out-tray", "unload: place in out-tray",
+                       "unload: release part", "unload: retreat from out-tray", "home to vise", "vise to out-tray"),
+        open_=open_part, carried=with_part, placed=to_tray)
+    moves += unload.moves
     moves.append(p.timed("unload: return home", "joint",
-                         p.transfer(ret_tray[-1], home, open_part, "out-tray to home"), open_part))
+                         p.transfer(unload.moves[-1].q_end, home, open_part, "out-tray to home"), open_part))
     reject: list[TimedMove] = []
     if cell.reject_bin is not None:
         # A rejected part goes from above the vise to above the bin instead of the tray and
@@ -625,9 +681,9 @@ def plan_tending(
         part_below_tcp = g_vise_out[2, 3] - (t_vise @ np.append(pmin, 1.0))[2]
         g_bin[:3, 3] = (t_bin[0, 3], t_bin[1, 3],
                         t_bin[2, 3] + cell.reject_bin.size[2] / 2 + options.reject_drop + part_below_tcp)
-        q_bin = p.pick_ik(g_bin, ret_part[-1], with_part, "above reject bin", "reject_bin.pose")
+        q_bin = p.pick_ik(g_bin, unload.q_lifted, with_part, "above reject bin", "reject_bin.pose")
         reject.append(p.timed("reject: transfer to bin", "joint",
-                              p.transfer(ret_part[-1], q_bin, with_part, "vise to reject bin"), with_part))
+                              p.transfer(unload.q_lifted, q_bin, with_part, "vise to reject bin"), with_part))
         reject.append(p.gripper("reject: release part", q_bin, io.release, with_part))
         reject.append(p.timed("reject: return home", "joint", p.transfer(q_bin, home, open_part, "bin to home"),
                               open_part))
