@@ -29,9 +29,9 @@ from robotprog.orders import Order  # noqa: E402
 
 PARTS = {
     Path("a.stl"): PartProcess(fetch_s=12.0, load_s=15.0, machining_s=1900.0, unload_s=14.0, locate_s=0.2,
-                               inspect_s=0.2, sort_s=14.0, regrasp_s=3.0),
+                               inspect_s=0.2, reject_s=14.0, regrasp_s=3.0),
     Path("b.stl"): PartProcess(fetch_s=10.0, load_s=16.0, machining_s=2800.0, unload_s=15.0, locate_s=0.2,
-                               inspect_s=0.2, sort_s=15.0, regrasp_s=2.0),
+                               inspect_s=0.2, reject_s=15.0, regrasp_s=2.0),
 }
 
 

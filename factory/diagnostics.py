@@ -7,7 +7,7 @@ off the robot's activities the way the cell's robot programs drive them (``robot
   through a ``load`` or an ``unload`` and closed otherwise, so never while the spindle cuts.
 - The gripper closes on the blank at the end of a ``fetch`` (a missed grasp leaves it open) and
   holds it until the ``load`` ends in the vise; it grips the finished part through the ``unload``
-  to the out-tray, and a rejected part through the ``sort_reject`` to the bin.
+  to the out-tray, and a rejected part through the ``unload_reject`` from the vise to the bin.
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ from __future__ import annotations
 from typing import Any
 
 #: Robot activities that reach into the machine: its door is open through them.
-THROUGH_THE_DOOR = ("load", "unload", "flip")
+THROUGH_THE_DOOR = ("load", "unload", "unload_reject", "flip")
 #: What the gripper holds through each robot activity. The flip (vise -> post -> vise, see
 #: :mod:`robotprog.flip`) lets go only to regrasp on the post, so it counts as holding the part.
-HOLDS = {"load": "blank", "unload": "part", "flip": "part", "sort_reject": "reject"}
+HOLDS = {"load": "blank", "unload": "part", "flip": "part", "unload_reject": "reject"}
 
 
 def door(robot_activity: Any | None, t: float) -> str:

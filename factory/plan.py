@@ -285,7 +285,10 @@ class PartPlan:
                 "cell": tending.cell.name, "robot": tending.world.robot.name,
                 "motion_s": round(tending.plan.duration, 3),
                 "program_s": round(tending.program.predicted_s, 3), "program_targets": tending.program.targets,
-                "moves": [{"name": n, "duration_s": round(d, 3)} for n, d in tending.plan.durations]},
+                "moves": [{"name": n, "duration_s": round(d, 3)} for n, d in tending.plan.durations],
+                # the program's reject branch after the verdict (none: it does not branch)
+                "reject_moves": [] if tending.program.planned_reject_s is None else
+                [{"name": m.name, "duration_s": round(m.duration, 3)} for m in tending.plan.reject]},
             "seconds": {k: round(v, 3) for k, v in self.seconds.items()},
             "outputs": {k: str(v) for k, v in outputs.items()},
         }

@@ -31,7 +31,7 @@ run's start, ``seq`` is the number of the event that wrote the row, 1, 2, … pe
 ``alarm``                 one per fault: kind, severity (OPC UA bands, :data:`SEVERITY`), the state
                           it hit, time lost, recovery chosen and outcome.
 ``robot_move``            one per robot action: fetch, missed_grasp, load, flip (turning a part over
-                          between op 1 and op 2), unload, sort_reject.
+                          between op 1 and op 2), unload, unload_reject.
 ``job_state``             every state transition of every job (B2MML JobState): state, event,
                           message.
 ========================  ===================================================================
@@ -603,6 +603,8 @@ class RunRecorder:
                 material = next(o.material for o in self.orders if o.id == order)
                 self._insert(material_lot, run_id=self.run_id, lot=f"R{self.run_id:06d}-S{a.slot:04d}",
                              rack_slot=a.slot, material=material, part_unit_id=unit, taken_s=a.end, seq=self.seq)
+            if a.action == "unload_reject" and a.outcome == "inspect_fail":
+                self._measurement(a, order, unit)  # the verdict that sent the part to the bin
         elif a.resource == "machine":
             plan = self.plans[order]
             op2 = a.op == 2 and plan.op2 is not None
@@ -612,12 +614,16 @@ class RunRecorder:
                          start_s=a.start, end_s=a.end, machine_time_s=a.end - a.start, fraction=a.fraction,
                          outcome=a.outcome, seq=self.seq)
         elif a.action == "inspect" and a.outcome in ("inspect_pass", "inspect_fail"):
-            found = self.plans[order].inspections.get(a.outcome, {})
-            self._insert(measurement, run_id=self.run_id, part_unit_id=unit,
-                         characteristic="silhouette max deviation", unit="mm", nominal=0.0,
-                         tolerance=float(found.get("tolerance_mm", 0.0)),
-                         actual=float(found.get("max_deviation_mm", 0.0)), passed=a.outcome == "inspect_pass",
-                         time_s=a.end, seq=self.seq)
+            self._measurement(a, order, unit)
+
+    def _measurement(self, a: Activity, order: str, unit: int) -> None:
+        """One inspection's measurement, passed or failed as ``a.outcome`` says."""
+        found = self.plans[order].inspections.get(a.outcome, {})
+        self._insert(measurement, run_id=self.run_id, part_unit_id=unit,
+                     characteristic="silhouette max deviation", unit="mm", nominal=0.0,
+                     tolerance=float(found.get("tolerance_mm", 0.0)),
+                     actual=float(found.get("max_deviation_mm", 0.0)), passed=a.outcome == "inspect_pass",
+                     time_s=a.end, seq=self.seq)
 
     def _outcome(self, o: OrderOutcome) -> None:
         self.conn.execute(sa.update(work_order).where(work_order.c.id == self.work_orders[o.order]).values(

@@ -21,7 +21,7 @@ import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import cv2
 import numpy as np
@@ -56,7 +56,8 @@ from robotprog.cellsim import (EventSink, FaultModel, PartProcess, RunningSummar
                               simulate as run_simulation)
 from robotprog.collision import CollisionWorld, collision_world
 from robotprog.frames import setup_sheet_to_cell
-from robotprog.machineio import SIGNALS
+from robotprog.machineio import SIGNALS, UNLOADS
+from robotprog.programs import VERDICT_AFTER
 from robotprog.orders import Order
 from vision.camera import CameraModel
 from vision.handeye import invert
@@ -269,12 +270,15 @@ def camera_shots(entry: CatalogEntry, part_mesh: trimesh.Trimesh, stock_mm: np.n
 
 
 def part_process(motion: RobotMotion, machining_s: float, shots: dict[str, Shot],
-                 op2_machining_s: float | None = None) -> PartProcess:
+                 op2_machining_s: float | None = None, reject_s: Sequence[float] = ()) -> PartProcess:
     """Step durations of one part from its plan (see :class:`robotprog.cellsim.PartProcess`).
 
-    A rejected part goes from the out-tray to a reject bin beside it: not planned, taken as long
-    as the unload's move from the vise to the out-tray and home. ``op2_machining_s`` [s]: the
-    op-2 program of a part in two setups, whose robot plan turns it over (the ``flip:`` moves).
+    A rejected part takes the posted program's way: the unload up to the verdict
+    (:data:`robotprog.programs.VERDICT_AFTER`), then the planned reject branch, whose move
+    durations [s] are ``reject_s`` (the plan summary's ``robot.reject_moves``); without one the
+    program does not branch and a rejected part goes to the out-tray like any other.
+    ``op2_machining_s`` [s]: the op-2 program of a part in two setups, whose robot plan turns it
+    over (the ``flip:`` moves).
     """
     load = [m for m in motion.moves if m[0].startswith("load:")]
     unload = [m for m in motion.moves if m[0].startswith("unload:")]
@@ -293,11 +297,26 @@ def part_process(motion: RobotMotion, machining_s: float, shots: dict[str, Shot]
         unload_s=unload_s,
         locate_s=CAMERA_OVERHEAD_S + shots["locate"].processing_s,
         inspect_s=CAMERA_OVERHEAD_S + shots["inspect"].processing_s,
-        sort_s=unload_s,
+        reject_s=(motion.duration(unload[0][0], VERDICT_AFTER) + float(sum(reject_s))) if len(reject_s) else unload_s,
         regrasp_s=motion.duration(FIRST_FETCH_MOVE, FIRST_FETCH_MOVE),
         flip_s=motion.duration(FIRST_FLIP_MOVE, LAST_FLIP_MOVE) if flip else 0.0,
         op2_machining_s=op2_machining_s,
     )
+
+
+def reject_moves(summary: dict[str, Any]) -> tuple[float, ...]:
+    """Durations [s] of the planned reject branch in a plan summary (empty: the program does not branch).
+
+    Raises
+    ------
+    CellError
+        The summary has no robot plan, or was written before plans carried their reject branch.
+    """
+    robot = summary.get("robot") or {}
+    if "reject_moves" not in robot:
+        raise CellError("the plan summary has no reject branch (robot.reject_moves): plan the part again",
+                        source="robot plan")
+    return tuple(float(m["duration_s"]) for m in robot["reject_moves"])
 
 
 def op2_of(summary: dict[str, Any]) -> dict[str, Any] | None:
@@ -355,7 +374,7 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
     return PartAssets(
         part=part, material=material, entry=entry,
         process=part_process(motion, float(sheet["estimated_cycle_s"]), shots,
-                             None if op2 is None else float(op2["estimated_cycle_s"])),
+                             None if op2 is None else float(op2["estimated_cycle_s"]), reject_moves(summary)),
         motion=motion, transform_vise_to_work=in_vise.transform_vise_to_work, toolpath=toolpath,
         timeline=timeline, stock=tuple((t, v, f) for t, v, f, _ in stock), shots=shots, planned_now=planned_now,
         timeline_op2=timeline_op2, spindle=spindle, spindle_op2=spindle_op2)
@@ -564,9 +583,10 @@ def _detections(shot: Shot, p: PartAssets, step: str, serial: str) -> list[Detec
     return out
 
 
-#: Which component a fault code belongs to (timeouts: the machine while machining, else the robot).
+#: Which component a fault code belongs to (timeouts: the machine while machining, else the robot; a
+#: failed inspection is the machine's verdict, read as the robot takes the part out of the vise).
 _FAULT_COMPONENT = {"grasp_missed": "robot", "stock_not_found": "camera", "machine_alarm": "machine",
-                    "inspect_fail": "camera"}
+                    "inspect_fail": "machine"}
 _COMPONENTS = ("machine", "robot", "camera", "scheduler")
 #: Events of a job still working off its fault: the recovery decision and the retry it starts.
 _RETRYING = ("recover", "retry_fetch", "rerun")
@@ -802,7 +822,9 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
                                   (FIRST_FETCH_MOVE, FIRST_FETCH_MOVE, True)],
                  "load": [("load: transfer to vise", "load: return home", False)],
                  "flip": [(FIRST_FLIP_MOVE, LAST_FLIP_MOVE, False)],
-                 "unload": [("unload: home to above vise", "unload: return home", False)]}.get(a.action, [])
+                 "unload": [("unload: home to above vise", "unload: return home", False)],
+                 # the plan's log holds the out-tray way only: the reject way shows up to the verdict
+                 "unload_reject": [("unload: home to above vise", VERDICT_AFTER, False)]}.get(a.action, [])
         t = a.start
         for first, last, backwards in spans:
             t0, t1 = p.motion.span(first, last)
@@ -819,7 +841,7 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
                 add(a.start, "/machine/toolpath", functools.partial(_restamp, p.toolpath, a.start))
         if a.action == "load" and a.outcome == "loaded":
             add(a.end, "/machine/stock", functools.partial(stock_at, p, 0, a.end))
-        if a.action == "unload":
+        if a.action in UNLOADS:
             add(a.end, "/machine/stock", lambda: marker_array([_delete_all("stock", "work", a.end)]))
             add(a.end, "/machine/toolpath", lambda: marker_array([_delete_all("toolpath", "work", a.end)]))
     elif a.resource == "machine":

@@ -17,12 +17,14 @@ Resources and actions
   then the robot picks it: the load phase up to the retreat from the rack), ``load`` (the
   rest of the load phase: into the vise and back home), ``flip`` (a part in two setups, between
   op 1 and op 2: vise → flip station, turned over → vise, home), ``unload`` (the unload phase:
-  vise → out-tray and home), ``sort_reject`` (out-tray → reject bin).
+  vise → out-tray and home), ``unload_reject`` (a part the machine's verdict fails, or scrap: the
+  unload up to the verdict, then the posted program's reject branch, vise → reject bin → home).
 - **Machine**: holds one part from the start of its load to the end of its unload and cuts it
   in between (a part in two setups: op 1, the flip, op 2; each cut is one activity, its
   :attr:`Activity.op` the operation).
-- **Inspection camera**: inspects the part in the out-tray while the robot works on; a good
-  part stays where it is (``sort_good`` takes no time).
+- **Inspection camera**: inspects a good part in the out-tray while the robot works on; it
+  stays where it is (``sort_good`` takes no time). A rejected part never reaches the out-tray:
+  the verdict was read before it left the vise (``in_bin`` takes no time either).
 
 A new blank is picked only when the machine is empty (the gripper cannot hold a blank and
 unload a part), so in steady state a part leaves every ``locate_s + fetch_s + load_s +
@@ -69,8 +71,9 @@ class PartProcess:
         Rack camera: one picture and locate of the blank.
     inspect_s : float
         Out-tray camera: one picture and inspection of the part.
-    sort_s : float
-        Robot: a rejected part from the out-tray to the reject bin and back home.
+    reject_s : float
+        Robot: a rejected part's unload, the posted program's reject way: the unload phase up to
+        the verdict (after the retreat from the vise), then vise → reject bin → home.
     regrasp_s : float
         Robot: back from above the rack to home after a missed grasp (the retry starts at home).
     flip_s : float
@@ -85,13 +88,13 @@ class PartProcess:
     unload_s: float
     locate_s: float
     inspect_s: float
-    sort_s: float
+    reject_s: float
     regrasp_s: float = 0.0
     flip_s: float = 0.0
     op2_machining_s: float | None = None
 
     def __post_init__(self):
-        for name in ("fetch_s", "load_s", "machining_s", "unload_s", "locate_s", "inspect_s", "sort_s",
+        for name in ("fetch_s", "load_s", "machining_s", "unload_s", "locate_s", "inspect_s", "reject_s",
                      "regrasp_s", "flip_s") + (("op2_machining_s",) if self.op2_machining_s is not None else ()):
             value = getattr(self, name)
             if not (value >= 0 and value != float("inf")):
@@ -135,7 +138,7 @@ class FaultModel:
     machine_alarm : float
         Per program run (the alarm stops the program at a uniformly drawn point).
     inspect_fail : float
-        Per inspection.
+        Per finished part: the machine's verdict (``part_ok``) fails it, read on unloading.
     seed : int
         RNG seed: the same seed gives the same run.
     """
@@ -181,7 +184,7 @@ class Activity:
     resource : str
         ``"robot"``, ``"machine"`` or ``"camera"``.
     action : str
-        Robot: ``fetch``, ``missed_grasp``, ``load``, ``flip``, ``unload``, ``sort_reject``;
+        Robot: ``fetch``, ``missed_grasp``, ``load``, ``flip``, ``unload``, ``unload_reject``;
         machine: ``cut``, ``reset``; camera: ``locate``, ``inspect``.
     job : int
     start, end : float
@@ -292,10 +295,10 @@ class SimulationResult:
 
 
 #: Robot actions of the state machine, most urgent first (unload frees the machine).
-_ROBOT_PRIORITY = {"unload": 0, "flip": 0, "load": 1, "sort_reject": 2, "locate_and_pick": 3}
+_ROBOT_PRIORITY = {"unload": 0, "flip": 0, "load": 1, "locate_and_pick": 2}
 _MACHINE_ACTIONS = {"run_program", "reset_and_rerun"}
 #: States whose action occupies the robot until its event arrives.
-_ROBOT_STATES = {State.FETCH_RAW, State.LOAD, State.FLIP, State.UNLOAD, State.SORT}
+_ROBOT_STATES = {State.FETCH_RAW, State.LOAD, State.FLIP, State.UNLOAD}
 _AHEAD = (State.IDLE, State.FETCH_RAW, State.LOAD)
 
 
@@ -523,11 +526,10 @@ class _Sim:
             self.waiting.append((job_id, action, self.seq))
         elif action in _MACHINE_ACTIONS:
             self.start_machining(job_id, action == "reset_and_rerun")
-        elif action == "inspect":
-            fail = self.rng.random() < self.faults.inspect_fail
+        elif action == "inspect":  # a good part: the verdict sent the bad ones to the bin
             self.activity("camera", "inspect", job_id, State.INSPECT, self.proc(job_id).inspect_s,
-                          Event.INSPECT_FAIL if fail else Event.INSPECT_PASS)
-        elif action == "sort_good":  # the part already lies in the out-tray
+                          Event.INSPECT_PASS)
+        elif action in ("sort_good", "in_bin"):  # the part already lies in the out-tray / the bin
             self.push(0.0, job_id, Event.SORTED)
         elif action == "recover":
             self.push(0.0, job_id, chosen)
@@ -617,11 +619,14 @@ class _Sim:
             self.activity("robot", "load", job_id, job.state, p.load_s, Event.LOADED)
         elif action == "flip":
             self.activity("robot", "flip", job_id, job.state, p.flip_s, Event.FLIPPED)
-        elif action == "unload":
-            self.activity("robot", "unload", job_id, job.state, p.unload_s,
-                          Event.UNLOADED_SCRAP if job.scrap else Event.UNLOADED)
-        else:
-            self.activity("robot", "sort_reject", job_id, job.state, p.sort_s, Event.SORTED)
+        else:  # unload: the machine's verdict, read with the part above the vise, picks the way on
+            if job.scrap:
+                self.activity("robot", "unload_reject", job_id, job.state, p.reject_s, Event.UNLOADED_SCRAP)
+            elif self.rng.random() < self.faults.inspect_fail:
+                self.activity("robot", "unload_reject", job_id, job.state, p.reject_s, Event.INSPECT_FAIL,
+                              "machine verdict: part_ok low")
+            else:
+                self.activity("robot", "unload", job_id, job.state, p.unload_s, Event.UNLOADED)
 
     def dispatch(self) -> None:
         """Give the free robot its next action; pick a new blank when the machine is empty."""
@@ -653,7 +658,7 @@ class _Sim:
             self.now = t
             if self.robot_job == job_id and self.cell.job(job_id).state in _ROBOT_STATES:
                 self.robot_job = None
-            if event is Event.UNLOADED or event is Event.UNLOADED_SCRAP:
+            if event in (Event.UNLOADED, Event.UNLOADED_SCRAP, Event.INSPECT_FAIL):  # out of the vise
                 self.release_machine(job_id)
             self.deliver(job_id, event, message)
             self.dispatch()

@@ -190,6 +190,10 @@ class CollisionWorld:
     _static: tuple[tuple[str, coal.Box, coal.Transform3s], ...] = field(repr=False)
     _flange_id: int = field(repr=False)
     _arm_links: tuple[tuple[str, int], ...] = field(repr=False, default=())
+    #: the riding boxes' broad phase: static boxes (rotation, centre, half size) in the model
+    #: frame, bounding spheres of the arm link geometries (centre in the geometry's frame, radius) [m]
+    _static_spheres: tuple[np.ndarray, np.ndarray, np.ndarray] = field(repr=False, default=None)
+    _link_spheres: tuple[np.ndarray, np.ndarray] = field(repr=False, default=None)
 
     def _update(self, q: np.ndarray) -> None:
         q = np.asarray(q, dtype=float)
@@ -199,30 +203,68 @@ class CollisionWorld:
         pin.updateGeometryPlacements(self.robot.model, self._data, self.geometry, self._gdata)
 
     def _held_contact(self, held: Payload) -> str | None:
+        centres = self.link_centres() if held is not None else None
         for box in _riding(held):
-            name = self._box_contact(box)
+            name = self._box_contact(box, centres)
             if name is not None:
                 return f"{box.name} <-> {name}"
         return None
 
-    def _box_contact(self, held: HeldBox) -> str | None:
+    def link_centres(self, gdata: pin.GeometryData | None = None) -> np.ndarray:
+        """(nlinks, 3) centres of the arm links' bounding spheres in the model frame [m], placed as
+        in ``gdata`` (default the world's own, after :meth:`_update`)."""
+        gd = self._gdata if gdata is None else gdata
+        local = self._link_spheres[0]
+        return np.array([gd.oMg[i].act(local[k]) for k, (_, i) in enumerate(self._arm_links)]).reshape(-1, 3)
+
+    def _box_contact(self, held: HeldBox, centres: np.ndarray | None = None) -> str | None:
         size = np.asarray(held.size) - 2 * held.clearance
         if (size <= 0).any():
             return None
         shape = coal.Box(*size)
         t = self._data.oMf[self._flange_id].homogeneous @ self.transform_flange_to_tcp @ np.asarray(
             held.transform_tcp_to_box)
+        return self.riding_contact(shape, t, float(np.linalg.norm(size)) / 2, centres=centres)
+
+    def riding_contact(self, shape: coal.CollisionGeometry, t: np.ndarray, radius: float,
+                       link_margins: np.ndarray | None = None,
+                       static_margins: np.ndarray | None = None, centres: np.ndarray | None = None,
+                       gdata: pin.GeometryData | None = None) -> str | None:
+        """Name of the first arm link or static box within its margin of ``shape`` at pose ``t``
+        (4, 4) in the model frame (after :meth:`_update`), or ``None``.
+
+        ``radius`` [m] bounds the shape around ``t``'s origin; margins [m] (one per entry of
+        ``_arm_links`` / ``_static``, default 0) ask for that much clearance. Only the targets
+        whose bounding spheres come within reach are handed to coal; ``centres`` are
+        :meth:`link_centres` when the caller has them. The links are placed as in ``gdata``
+        (default the world's own).
+        """
+        gd = self._gdata if gdata is None else gdata
         tf = coal.Transform3s(t[:3, :3], t[:3, 3])
-        req = coal.CollisionRequest()
-        for name, i in self._arm_links:
-            g = self.geometry.geometryObjects[i].geometry
-            m = self._gdata.oMg[i]
-            res = coal.CollisionResult()
-            if coal.collide(shape, tf, g, coal.Transform3s(m.rotation, m.translation), req, res):
-                return name
-        for name, box, btf in self._static:
-            res = coal.CollisionResult()
-            if coal.collide(shape, tf, box, btf, req, res):
+        c = t[:3, 3]
+        lm = np.zeros(len(self._arm_links)) if link_margins is None else link_margins
+        sm = np.zeros(len(self._static)) if static_margins is None else static_margins
+        if self._arm_links:
+            centres = self.link_centres(gd) if centres is None else centres
+            d = np.sqrt(((centres - c) ** 2).sum(axis=1))
+            near = np.flatnonzero(d - self._link_spheres[1] - radius <= lm)
+            for k in near:
+                name, i = self._arm_links[k]
+                req = coal.CollisionRequest()
+                req.security_margin = float(lm[k])
+                m = gd.oMg[i]
+                if coal.collide(shape, tf, self.geometry.geometryObjects[i].geometry,
+                                coal.Transform3s(m.rotation, m.translation), req, coal.CollisionResult()):
+                    return name
+        # distance from the shape's centre to each static box, in the box's frame
+        rot, centre, half = self._static_spheres
+        local = np.abs(np.einsum("kji,kj->ki", rot, c - centre)) - half
+        gap = np.sqrt((np.maximum(local, 0.0) ** 2).sum(axis=1)) - radius
+        for k in np.flatnonzero(gap <= sm):
+            name, box, btf = self._static[k]
+            req = coal.CollisionRequest()
+            req.security_margin = float(sm[k])
+            if coal.collide(shape, tf, box, btf, req, coal.CollisionResult()):
                 return name
         return None
 
@@ -364,8 +406,19 @@ def collision_world(cell: Cell, robot: Robot | None = None, *, door_closed: bool
     # on the flange's joint carry the gripper that holds it).
     arm_links = tuple((gm.geometryObjects[i].name, i) for i in links
                       if gm.geometryObjects[i].parentJoint != fr.parentJoint)
+    static_spheres = (np.array([tf.getRotation() for _, _, tf in static]).reshape(-1, 3, 3),
+                      np.array([tf.getTranslation() for _, _, tf in static]).reshape(-1, 3),
+                      np.array([b.size for b in boxes], dtype=float).reshape(-1, 3) / 2)
+    local, radii = [], []
+    for _, i in arm_links:
+        geo = gm.geometryObjects[i].geometry
+        geo.computeLocalAABB()
+        lo, hi = np.asarray(geo.aabb_local.min_), np.asarray(geo.aabb_local.max_)
+        local.append((lo + hi) / 2)
+        radii.append(float(np.linalg.norm(hi - lo)) / 2)
+    link_spheres = (np.array(local).reshape(-1, 3), np.array(radii))
     world = CollisionWorld(robot, gm, tuple(b.name for b in boxes), tuple(dropped), t_model_world, tcp,
-                           data, gdata, tuple(static), fid, arm_links)
+                           data, gdata, tuple(static), fid, arm_links, static_spheres, link_spheres)
     contact = world.first_contact(home)
     if contact is not None:
         raise CellError(f"robot.home: the home configuration collides ({contact})", source=cell.source)

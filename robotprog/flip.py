@@ -225,7 +225,7 @@ def plan_flip(p, cell: Cell, piece: Piece, q_start: np.ndarray, r_home: np.ndarr
         its holding block is too thin to grip, or no reachable, collision-free way was found
         (``flip_station.pose``).
     """
-    from robotprog.tending import _Planner  # the planner class lives with the tending plan
+    from robotprog.tending import PickPlaceNames, Station, _Planner  # they live with the tending plan
 
     if cell.flip_station is None:
         raise PlanningError("the part has two setups but the cell has no flip_station to turn it over on",
@@ -264,25 +264,17 @@ def plan_flip(p, cell: Cell, piece: Piece, q_start: np.ndarray, r_home: np.ndarr
         part_w = float(min(np.ptp([piece.part_min[:2], piece.part_max[:2]], axis=0)))
         open_part = fingers(part_w, True)
         holding = fingers(part_w, False) + held_piece(piece, t_vise, g_vise)
-        q_above = p.pick_ik(raise_up(g_vise, up), q_start, open_part, "above vise", "vise.pose")
-        app = p.line(raise_up(g_vise, up), g_vise, q_above, open_part, "approach to part", "vise.pose")
-        ret = p.line(g_vise, raise_up(g_vise, up), app[-1], holding, "retreat from vise", "vise.pose")
-        g_post = vise_to_top @ g_vise
-        q_above_post = p.pick_ik(raise_up(g_post, up), ret[-1], holding, "above flip station", "flip_station.pose")
-        down = p.line(raise_up(g_post, up), g_post, q_above_post, holding, "set down on flip station",
-                      "flip_station.pose")
-        off = on_post.line(g_post, raise_up(g_post, up), down[-1], open_part, "retreat from flip station",
-                           "flip_station.pose")
-        moves.append(p.timed("flip: home to above vise", "joint", p.transfer(q_start, q_above, open_part,
-                                                                             "home to vise"), open_part))
-        moves.append(p.timed("flip: approach part", "linear", app, open_part))
-        moves.append(p.gripper("flip: grip part", app[-1], io.grip, open_part))
-        moves.append(p.timed("flip: lift part from vise", "linear", ret, holding))
-        moves.append(p.timed("flip: transfer to flip station", "joint",
-                             p.transfer(ret[-1], q_above_post, holding, "vise to flip station"), holding))
-        moves.append(p.timed("flip: set down on flip station", "linear", down, holding))
-        moves.append(p.gripper("flip: release part", down[-1], io.release, holding))
-        moves.append(on_post.timed("flip: retreat from flip station", "linear", off, open_part))
+        to_post = p.pick_and_place(
+            q_start, Station(g_vise, "vise.pose", "above vise", "approach to part", "retreat from vise"),
+            Station(vise_to_top @ g_vise, "flip_station.pose", "above flip station", "set down on flip station",
+                    "retreat from flip station"),
+            PickPlaceNames("flip: home to above vise", "flip: approach part", "flip: grip part",
+                           "flip: lift part from vise", "flip: transfer to flip station",
+                           "flip: set down on flip station", "flip: release part", "flip: retreat from flip station",
+                           "home to vise", "vise to flip station"),
+            open_=open_part, carried=holding, placed=holding, at_place=on_post)
+        moves += to_post.moves
+        off = to_post.moves[-1].waypoints
 
         # 2. grip the holding block from the side, lift, turn over, set down, back off
         other = 1 - turned_axis
@@ -340,29 +332,20 @@ def plan_flip(p, cell: Cell, piece: Piece, q_start: np.ndarray, r_home: np.ndarr
         top_w = float(min(np.ptp([turned.block_min[:2], turned.block_max[:2]], axis=0)))
         open_top = fingers(top_w, True)
         lifted = fingers(top_w, False) + held_piece(turned, t_top, g_top)
-        g_vise2 = np.linalg.inv(vise_to_top) @ g_top
-        q_above_top = turned_on_post.pick_ik(raise_up(g_top, up), back[-1], open_top, "above the turned piece",
-                                             "flip_station.pose")
-        app_top = turned_on_post.line(raise_up(g_top, up), g_top, q_above_top, open_top, "approach to the turned "
-                                      "piece", "flip_station.pose")
-        ret_top = p.line(g_top, raise_up(g_top, up), app_top[-1], lifted, "lift turned piece", "flip_station.pose")
-        q_above_vise2 = p.pick_ik(raise_up(g_vise2, up), ret_top[-1], lifted, "above vise", "vise.pose")
-        place = p.line(raise_up(g_vise2, up), g_vise2, q_above_vise2, lifted, "place in vise turned over", "vise.pose")
-        leave = p.line(g_vise2, raise_up(g_vise2, up), place[-1], open_top, "retreat from vise", "vise.pose")
-        moves.append(turned_on_post.timed("flip: above turned piece", "joint",
-                                          turned_on_post.transfer(back[-1], q_above_top, open_top, "to above the "
-                                                                  "turned piece"), open_top))
-        moves.append(turned_on_post.timed("flip: approach turned piece", "linear", app_top, open_top))
-        moves.append(p.gripper("flip: grip turned piece", app_top[-1], io.grip, open_top))
-        moves.append(p.timed("flip: lift turned piece", "linear", ret_top, lifted))
-        moves.append(p.timed("flip: transfer to vise", "joint",
-                             p.transfer(ret_top[-1], q_above_vise2, lifted, "flip station to vise"), lifted))
-        moves.append(p.timed("flip: place in vise", "linear", place, lifted))
-        moves.append(p.gripper("flip: release in vise", place[-1], io.release, lifted))
-        moves.append(p.timed("flip: retreat from vise", "linear", leave, open_top))
+        to_vise = p.pick_and_place(
+            back[-1], Station(g_top, "flip_station.pose", "above the turned piece", "approach to the turned piece",
+                              "lift turned piece"),
+            Station(np.linalg.inv(vise_to_top) @ g_top, "vise.pose", "above vise", "place in vise turned over",
+                    "retreat from vise"),
+            PickPlaceNames("flip: above turned piece", "flip: approach turned piece", "flip: grip turned piece",
+                           "flip: lift turned piece", "flip: transfer to vise", "flip: place in vise",
+                           "flip: release in vise", "flip: retreat from vise", "to above the turned piece",
+                           "flip station to vise"),
+            open_=open_top, carried=lifted, placed=lifted, at_pick=turned_on_post)
+        moves += to_vise.moves
         moves.append(p.timed("flip: return home", "joint",
-                             p.transfer(leave[-1], np.asarray(cell.robot.home, float), open_top, "vise to home"),
-                             open_top))
+                             p.transfer(to_vise.moves[-1].q_end, np.asarray(cell.robot.home, float), open_top,
+                                        "vise to home"), open_top))
         return moves
 
     # The piece may stand on the post turned any quarter turn: the first way that plans is used

@@ -9,7 +9,7 @@ from .cellsim import SimulationResult
 
 #: Rows of the chart: (label, resource, actions shown in it).
 ROWS = (
-    ("robot", "robot", ("fetch", "missed_grasp", "load", "flip", "unload", "sort_reject")),
+    ("robot", "robot", ("fetch", "missed_grasp", "load", "flip", "unload", "unload_reject")),
     ("machine", "machine", ("cut", "reset")),
     ("rack camera", "camera", ("locate",)),
     ("tray camera", "camera", ("inspect",)),
@@ -17,7 +17,7 @@ ROWS = (
 #: Bar colours (RGB) per action.
 COLOURS = {
     "fetch": (66, 133, 244), "missed_grasp": (234, 67, 53), "load": (52, 168, 83), "unload": (251, 188, 5),
-    "sort_reject": (171, 71, 188), "cut": (120, 144, 156), "reset": (234, 67, 53), "locate": (0, 172, 193),
+    "unload_reject": (171, 71, 188), "cut": (120, 144, 156), "reset": (234, 67, 53), "locate": (0, 172, 193),
     "inspect": (0, 137, 123), "flip": (255, 112, 67),
 }
 #: Bar colours of the cuts of a part in two setups, by operation (a one-setup cut is ``cut``'s).

@@ -202,6 +202,11 @@ def posted_signals(steps: Sequence[Any], io: Any, *, verdict_level: bool = True)
     return tuple(out)
 
 
+#: The simulation's robot activities that take a finished part out of the vise: to the out-tray
+#: (the verdict read high) and to the reject bin (low).
+UNLOADS = ("unload", "unload_reject")
+
+
 @dataclass(frozen=True)
 class SignalEvent:
     """A machine-interface operation at a simulated time: ``time`` [s], the ``job`` (part) it is for."""
@@ -219,14 +224,14 @@ def signal_timeline(activities: Iterable[Any]) -> tuple[SignalEvent, ...]:
     * a *cycle*'s first :data:`CYCLE_START_OPS` operations when the machine starts a ``cut``, the
       rest when the cut ends with its program done (an alarm or a timeout leaves the robot waiting);
       a part in two setups has two cuts, op 1's before the flip and op 2's before the unload;
-    * the *verdict* when the robot starts a job's last ``unload``: ``part_ok`` high unless the
-      part is scrap (``unloaded_scrap``).
+    * the *verdict* when the robot starts a job's last ``unload`` (``part_ok`` high: on to the
+      out-tray) or ``unload_reject`` (low: the reject branch to the bin).
 
     Returns the events sorted by time (operations of one instant in handshake order).
     """
     acts = sorted(activities, key=lambda a: (a.start, a.end))
     loaded: set[int] = set()
-    unloads = {a.job: a for a in acts if a.resource == "robot" and a.action == "unload"}
+    unloads = {a.job: a for a in acts if a.resource == "robot" and a.action in UNLOADS}
     out: list[tuple[float, int, SignalEvent]] = []
     cycle = machine_cycle()
 
@@ -242,7 +247,7 @@ def signal_timeline(activities: Iterable[Any]) -> tuple[SignalEvent, ...]:
             add(a.start, a.job, cycle[:CYCLE_START_OPS])
             if a.outcome not in UNFINISHED_CUT and math.isfinite(a.end):
                 add(a.end, a.job, cycle[CYCLE_START_OPS:])
-        elif a.resource == "robot" and a.action == "unload" and unloads.get(a.job) is a:
+        elif a.resource == "robot" and a.action in UNLOADS and unloads.get(a.job) is a:
             v = verdict()
-            add(a.start, a.job, (IoOp(READ, v.signal, a.outcome != "unloaded_scrap", v.label),))
+            add(a.start, a.job, (IoOp(READ, v.signal, a.action == "unload", v.label),))
     return tuple(e for _, _, e in sorted(out, key=lambda x: (x[0], x[1])))

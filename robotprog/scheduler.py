@@ -8,9 +8,12 @@ knows about time or resources: :mod:`robotprog.cellsim` decides when events happ
 runs several jobs at once (the robot fetches the next blank while the machine cuts).
 
 Blank flow: ``FETCH_RAW`` = the rack camera locates the blank in its slot and the robot picks
-it; ``LOAD`` = into the vise; ``MACHINING`` = the program runs; ``UNLOAD`` = vise → out-tray;
-``INSPECT`` = the out-tray camera checks the part; ``SORT`` = a good part stays in the out-tray,
-a rejected one goes to the reject bin. A part machined in two setups ends op 1 with ``OP_DONE``
+it; ``LOAD`` = into the vise; ``MACHINING`` = the program runs; ``UNLOAD`` = the robot takes the
+part out of the vise and reads the machine's verdict on it (``part_ok``), as the posted program does
+(:data:`robotprog.programs.VERDICT_AFTER`): a good part goes on to the out-tray (``UNLOADED``), a
+failed or scrapped one straight to the reject bin (``INSPECT_FAIL`` / ``UNLOADED_SCRAP``, the
+program's reject branch); ``INSPECT`` = the out-tray camera checks a good part; ``SORT`` = the part
+is where it belongs (the out-tray or the bin). A part machined in two setups ends op 1 with ``OP_DONE``
 instead: ``FLIP`` = vise → flip station, turned over → vise, then ``MACHINING`` again runs op 2
 (:attr:`Job.op` counts the operation), which ends with ``CYCLE_DONE``.
 
@@ -25,8 +28,9 @@ Faults and their recoveries (each fault ends as exactly one recovery or one fail
   :attr:`SchedulerOptions.slot_skips` times, then fail the order.
 - **Machine alarm** during the program (or a ``MACHINING`` timeout): reset the machine
   and re-run the program, :attr:`SchedulerOptions.program_reruns` times; then the part is
-  unloaded and sorted to the reject bin as scrap (and re-made if the order allows).
-- **Inspection failure**: the part goes to the reject bin; the order re-makes it while it
+  unloaded to the reject bin as scrap (and re-made if the order allows).
+- **Inspection failure** (the machine's verdict read on unloading): the part goes to the reject
+  bin; the order re-makes it while it
   has re-makes left (:attr:`SchedulerOptions.remakes` per order), else the order ends
   ``rejected``.
 - A timeout in ``LOAD``, ``UNLOAD``, ``INSPECT`` or ``SORT`` means the part's position is
@@ -111,10 +115,10 @@ TRANSITIONS: Mapping[tuple[State, Event], tuple[State, str]] = MappingProxyType(
     (S.MACHINING, E.MACHINE_ALARM): (S.FAULT, "hold_machine"),
     (S.MACHINING, E.TIMEOUT): (S.FAULT, "hold_machine"),
     (S.UNLOAD, E.UNLOADED): (S.INSPECT, "inspect"),
-    (S.UNLOAD, E.UNLOADED_SCRAP): (S.SORT, "sort_reject"),
+    (S.UNLOAD, E.UNLOADED_SCRAP): (S.SORT, "in_bin"),
+    (S.UNLOAD, E.INSPECT_FAIL): (S.SORT, "in_bin"),
     (S.UNLOAD, E.TIMEOUT): (S.FAULT, "stop_robot"),
     (S.INSPECT, E.INSPECT_PASS): (S.SORT, "sort_good"),
-    (S.INSPECT, E.INSPECT_FAIL): (S.SORT, "sort_reject"),
     (S.INSPECT, E.TIMEOUT): (S.FAULT, "stop_robot"),
     (S.SORT, E.SORTED): (S.IDLE, "finish_part"),
     (S.SORT, E.TIMEOUT): (S.FAULT, "stop_robot"),

@@ -25,14 +25,16 @@ Motion
 ------
 Approach and retreat are straight lines of the TCP, IK-sampled every
 :attr:`TendingOptions.line_step` with :func:`robotprog.ik.ik_continuous` (the branch
-continuous with the previous sample). Transfers are straight in joint space when that is
+continuous with the previous sample), and proven collision-free all along
+(:mod:`robotprog.sweep`). Transfers are straight in joint space when that is
 collision-free at :attr:`TendingOptions.joint_resolution`; otherwise an RRT-Connect in
 joint space (seeded :class:`numpy.random.Generator`, so plans are reproducible) finds a
 path, which is then shortcut (random pairs of path points joined when the straight joint
-segment between them is free). Each move is timed with :func:`robotprog.timing.time_path`
-and the timed spline is checked for collision again (the cubic spline through the
-waypoints need not follow the polyline); where it collides, the waypoints are densified
-and the move re-timed.
+segment between them is free at that resolution). The transfer's polyline is then proven
+free all along, not only at the checks (else it is planned again). Each move is timed with
+:func:`robotprog.timing.time_path` and the timed spline, the path the controller drives, is
+proven free all along too (the cubic spline through the waypoints need not follow the
+polyline); where it is not, the waypoints are densified and the move re-timed.
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ from robotprog.collision import CollisionWorld, HeldBox, Payload, collision_worl
 from robotprog.frames import StockInVise, setup_sheet_to_cell, MM_PER_M
 from robotprog.ik import ik_continuous, ik_solutions
 from robotprog.robots import Robot
+from robotprog.sweep import monotone_breaks, swept_motion
 from robotprog.timing import Trajectory, time_path
 
 log = logging.getLogger(__name__)
@@ -263,6 +266,53 @@ def _grasp(cell: Cell, t_world_support: np.ndarray, bmin: np.ndarray, bmax: np.n
     return t, HeldBox.at(size, np.linalg.inv(t) @ box)
 
 
+@dataclass(frozen=True, eq=False)
+class Station:
+    """One end of a pick-and-place (:meth:`_Planner.pick_and_place`): where the box is taken or left.
+
+    Attributes
+    ----------
+    grasp : (4, 4) float
+        TCP pose when the fingers close on (or let go of) the box, world frame [m].
+    field : str
+        The cell-file field blamed when it cannot be reached (``rack.pose``).
+    above, down, up : str
+        What the pose ``approach_height`` above, the line down to the grasp and the line back up
+        are called in errors (``above rack slot``, ``approach to rack slot``, ``retreat from rack slot``).
+    """
+
+    grasp: np.ndarray
+    field: str
+    above: str
+    down: str
+    up: str
+
+
+@dataclass(frozen=True)
+class PickPlaceNames:
+    """The plan's names of the eight moves of a pick-and-place (programs, logs and the cell
+    simulation read them), and what its two transfers are called in errors."""
+
+    to_pick: str
+    approach: str
+    grip: str
+    lift: str
+    transfer: str
+    place: str
+    release: str
+    leave: str
+    to_pick_what: str
+    transfer_what: str
+
+
+@dataclass(frozen=True, eq=False)
+class PickPlace:
+    """The moves of a pick-and-place and where the arm was when it had lifted the box [rad]."""
+
+    moves: tuple[TimedMove, ...]
+    q_lifted: np.ndarray
+
+
 class _Planner:
     def __init__(self, cell: Cell, robot: Robot, world: CollisionWorld, options: TendingOptions):
         self.cell, self.robot, self.world, self.o = cell, robot, world, options
@@ -273,6 +323,7 @@ class _Planner:
         self.rng = np.random.default_rng(options.seed)
         self.lo = np.maximum(robot.q_lower, np.asarray(cell.robot.home) - np.pi)
         self.hi = np.minimum(robot.q_upper, np.asarray(cell.robot.home) + np.pi)
+        self.sweep = swept_motion(world, options.joint_resolution)
 
     def flange(self, t_world_tcp: np.ndarray) -> np.ndarray:
         return self.t_base_world @ t_world_tcp @ self.t_tcp_flange
@@ -304,11 +355,9 @@ class _Planner:
                 raise PlanningError(f"{what}: the arm flips configuration along the line", source=field_name)
             qs.append(q)
         qs = np.array(qs)
-        dense = self.densify(qs)
-        bad = self.world.path_free(dense, held)
-        if bad is not None:
-            raise PlanningError(f"{what} collides ({self.world.first_contact(dense[bad], held)})",
-                                source=field_name)
+        hit = self.sweep.polyline_contact(qs, held)
+        if hit is not None:
+            raise PlanningError(f"{what} collides ({hit[1]})", source=field_name)
         return qs
 
     def densify(self, qs: np.ndarray, resolution: float | None = None) -> np.ndarray:
@@ -321,6 +370,8 @@ class _Planner:
         return np.concatenate(out)
 
     def edge_free(self, a: np.ndarray, b: np.ndarray, held: Payload) -> bool:
+        """Whether the straight joint segment a -> b is free at every joint_resolution (the quick
+        check of RRT edges and shortcuts; the path they make is then proven all along, :meth:`timed`)."""
         return self.world.path_free(self.densify(np.array([a, b])), held) is None
 
     def transfer(self, q_a: np.ndarray, q_b: np.ndarray, held: Payload, what: str) -> np.ndarray:
@@ -387,21 +438,35 @@ class _Planner:
         return np.array(pts)
 
     def timed(self, name: str, kind: str, qs: np.ndarray, held: Payload) -> TimedMove:
-        """Time the path through ``qs``; a joint transfer whose timed path still touches something
-        (a graze between the 0.02 rad checks of its RRT edges) is planned again, up to twice
-        (the seeded generator has moved on, so the new path differs and plans stay reproducible)."""
+        """Time the path through ``qs`` and prove the timed path free all along.
+
+        A joint transfer's polyline is proven first (its RRT edges and shortcuts were only checked
+        every joint_resolution); a transfer whose polyline or timed path still touches something
+        (a graze between those checks) is planned again, up to three times (the seeded generator
+        has moved on, so the new path differs and plans stay reproducible)."""
         qs = np.asarray(qs, dtype=float)
         for _ in range(3):
+            if kind == "joint":
+                hit = self.sweep.polyline_contact(qs, held)
+                if hit is not None:
+                    log.debug("%s: the path collides between its checks (%s); planning it again", name, hit[1])
+                    qs = self.shortcut(self.rrt_connect(qs[0], qs[-1], held, name), held)
+                    continue
             try:
-                return self._timed_once(name, kind, qs, held)
+                return self._timed_once(name, kind, qs, held, proven=kind == "joint")
             except PlanningError as e:
-                if kind != "joint" or len(qs) <= 2:
+                if kind != "joint":
                     raise
                 log.debug("%s: %s; planning the transfer again", name, e)
                 qs = self.shortcut(self.rrt_connect(qs[0], qs[-1], held, name), held)
+        hit = self.sweep.polyline_contact(qs, held)
+        if hit is not None:
+            raise PlanningError(f"{name}: the path collides ({hit[1]})")
         return self._timed_once(name, kind, qs, held)
 
-    def _timed_once(self, name: str, kind: str, qs: np.ndarray, held: Payload) -> TimedMove:
+    def _timed_once(self, name: str, kind: str, qs: np.ndarray, held: Payload, proven: bool = False) -> TimedMove:
+        """Time ``qs`` and prove the timed path; ``proven``: the polyline through ``qs`` is (so a
+        spline that is one straight segment, as through two waypoints, needs no second proof)."""
         wp = np.asarray(qs, dtype=float)
         problem = ""
         for attempt in range(4):
@@ -411,22 +476,53 @@ class _Planner:
                 problem = str(e)
             else:
                 path = PPoly(traj.coefficients, traj.breakpoints)
-                # The path parameter is not joint travel: sample every piece of the spline (its
-                # breakpoints and four points inside each), then fill in every joint_resolution,
-                # so no stretch of the driven path goes unchecked however long it is.
-                bp = np.asarray(traj.breakpoints, dtype=float)
-                s = np.concatenate([bp[:-1, None] + np.diff(bp)[:, None] * np.linspace(0, 1, 5, endpoint=False),
-                                    bp[-1:, None]], axis=None)
-                dense = self.densify(path(s))
-                bad = self.world.path_free(dense, held)
-                if bad is None:
+                # The whole driven path, not samples of it: cut where a joint turns, then proven
+                # piece by piece (robotprog.sweep).
+                breaks = monotone_breaks(traj.breakpoints, traj.coefficients)
+                straight = proven and traj.coefficients.shape[1] == 1 and not np.any(traj.coefficients[:2])
+                hit = None if straight else self.sweep.first_contact(path, breaks, held)
+                if hit is None:
                     return TimedMove(name, traj, kind, wp, held, transform_world_to_tcp=self.tcp_world(wp[-1]))
-                problem = f"the timed path collides ({self.world.first_contact(dense[bad], held)})"
+                problem = f"the timed path collides ({hit[1]})"
             # The spline strayed from the checked polyline: pin it down with waypoints on the
             # polyline, every joint_resolution, then twice and four times as dense (a spline
             # through dense points of a free polyline stays within a shrinking distance of it).
             wp = self.densify(wp, self.o.joint_resolution / 2 ** max(0, attempt - 1) if attempt else None)
         raise PlanningError(f"{name}: {problem}")
+
+    def pick_and_place(self, q_start: np.ndarray, pick: Station, place: Station, names: PickPlaceNames, *,
+                       open_: Payload, carried: Payload, placed: Payload, at_pick: "_Planner | None" = None,
+                       at_place: "_Planner | None" = None) -> PickPlace:
+        """The step every tending phase is made of: from ``q_start`` to above ``pick``, straight down,
+        grip, straight up, across to above ``place``, straight down, release, straight up.
+
+        Every pose and line is solved and checked before anything is timed (an unreachable place
+        fails fast). ``open_`` rides on the TCP on the way to the pick and after the release (the
+        fingers open), ``carried`` from the grip to above the place, ``placed`` on the way down and
+        at the release (the box as it is set down). ``at_pick`` plans the way to the pick and the
+        approach, ``at_place`` the line up after the release (planners whose worlds hold what stands
+        there then; default this one).
+        """
+        a = self if at_pick is None else at_pick
+        b = self if at_place is None else at_place
+        h = self.o.approach_height
+        q_above_pick = a.pick_ik(_raise_up(pick.grasp, h), q_start, open_, pick.above, pick.field)
+        down = a.line(_raise_up(pick.grasp, h), pick.grasp, q_above_pick, open_, pick.down, pick.field)
+        lift = self.line(pick.grasp, _raise_up(pick.grasp, h), down[-1], carried, pick.up, pick.field)
+        q_above_place = self.pick_ik(_raise_up(place.grasp, h), lift[-1], placed, place.above, place.field)
+        lower = self.line(_raise_up(place.grasp, h), place.grasp, q_above_place, placed, place.down, place.field)
+        leave = b.line(place.grasp, _raise_up(place.grasp, h), lower[-1], open_, place.up, place.field)
+        io = self.cell.gripper.io
+        moves = [a.timed(names.to_pick, "joint", a.transfer(q_start, q_above_pick, open_, names.to_pick_what), open_),
+                 a.timed(names.approach, "linear", down, open_),
+                 self.gripper(names.grip, down[-1], io.grip, open_),
+                 self.timed(names.lift, "linear", lift, carried)]
+        moves.append(self.timed(names.transfer, "joint",
+                                self.transfer(lift[-1], q_above_place, carried, names.transfer_what), carried))
+        moves += [self.timed(names.place, "linear", lower, placed),
+                  self.gripper(names.release, lower[-1], io.release, placed),
+                  b.timed(names.leave, "linear", leave, open_)]
+        return PickPlace(tuple(moves), lift[-1])
 
     def gripper(self, name: str, q: np.ndarray, outputs, held: Payload) -> TimedMove:
         traj = time_path(q[None, :], self.vmax, self.amax)
@@ -534,7 +630,6 @@ def plan_tending(
     g_vise_in, held_vise = _grasp(cell, t_vise, stock.stock_min, stock.stock_max, r_home, options, "stock")
     g_vise_out, held_part = _grasp(cell, t_vise, pmin, pmax, r_home, options, "part")
     g_tray, _ = _grasp(cell, t_tray, -half * psize, psize - half * psize, r_home, options, "part")
-    up = options.approach_height
     # The fingers: open a clearance beyond the box on the way to it and after letting it go,
     # closed on it while holding it.
     fingers = cell.gripper.fingers
@@ -552,55 +647,31 @@ def plan_tending(
 
     moves: list[TimedMove] = []
     io = cell.gripper.io
-    # load
-    q_above_rack = p.pick_ik(_raise_up(g_rack, up), home, open_stock, "above rack slot", "rack.pose")
-    app_rack = p.line(_raise_up(g_rack, up), g_rack, q_above_rack, open_stock, "approach to rack slot",
-                      "rack.pose")
-    q_grasp = app_rack[-1]
-    ret_rack = p.line(g_rack, _raise_up(g_rack, up), q_grasp, with_stock, "retreat from rack slot", "rack.pose")
-    q_above_vise = p.pick_ik(_raise_up(g_vise_in, up), ret_rack[-1], in_vise, "above vise", "vise.pose")
-    place = p.line(_raise_up(g_vise_in, up), g_vise_in, q_above_vise, in_vise, "place in vise", "vise.pose")
-    ret_vise = p.line(g_vise_in, _raise_up(g_vise_in, up), place[-1], open_stock, "retreat from vise", "vise.pose")
-    moves.append(p.timed("load: home to above rack", "joint",
-                         p.transfer(home, q_above_rack, open_stock, "home to rack"), open_stock))
-    moves.append(p.timed("load: approach stock", "linear", app_rack, open_stock))
-    moves.append(p.gripper("load: grip stock", q_grasp, io.grip, open_stock))
-    moves.append(p.timed("load: retreat from rack", "linear", ret_rack, with_stock))
-    moves.append(p.timed("load: transfer to vise", "joint",
-                         p.transfer(ret_rack[-1], q_above_vise, with_stock, "rack to vise"), with_stock))
-    moves.append(p.timed("load: place in vise", "linear", place, in_vise))
-    moves.append(p.gripper("load: release stock", place[-1], io.release, in_vise))
-    moves.append(p.timed("load: retreat from vise", "linear", ret_vise, open_stock))
-    moves.append(p.timed("load: return home", "joint", p.transfer(ret_vise[-1], home, open_stock, "vise to home"),
-                         open_stock))
+    load = p.pick_and_place(
+        home, Station(g_rack, "rack.pose", "above rack slot", "approach to rack slot", "retreat from rack slot"),
+        Station(g_vise_in, "vise.pose", "above vise", "place in vise", "retreat from vise"),
+        PickPlaceNames("load: home to above rack", "load: approach stock", "load: grip stock", "load: retreat from rack",
+                       "load: transfer to vise", "load: place in vise", "load: release stock", "load: retreat from vise",
+                       "home to rack", "rack to vise"),
+        open_=open_stock, carried=with_stock, placed=in_vise)
+    moves += load.moves
+    moves.append(p.timed("load: return home", "joint", p.transfer(load.moves[-1].q_end, home, open_stock,
+                                                                  "vise to home"), open_stock))
     if piece is not None:
         from robotprog.flip import plan_flip  # noqa: PLC0415
 
         flip, _ = plan_flip(p, cell, piece, home, r_home, obstacles, _grasp, _raise_up)
         moves.extend(flip)
-    # unload
-    q_above_part = p.pick_ik(_raise_up(g_vise_out, up), home, open_part, "above vise", "vise.pose")
-    app_part = p.line(_raise_up(g_vise_out, up), g_vise_out, q_above_part, open_part, "approach to part",
-                      "vise.pose")
-    ret_part = p.line(g_vise_out, _raise_up(g_vise_out, up), app_part[-1], with_part, "retreat from vise",
-                      "vise.pose")
-    q_above_tray = p.pick_ik(_raise_up(g_tray, up), ret_part[-1], to_tray, "above out-tray slot", "out_tray.pose")
-    place_tray = p.line(_raise_up(g_tray, up), g_tray, q_above_tray, to_tray, "place in out-tray",
-                        "out_tray.pose")
-    ret_tray = p.line(g_tray, _raise_up(g_tray, up), place_tray[-1], open_part, "retreat from out-tray",
-                      "out_tray.pose")
-    moves.append(p.timed("unload: home to above vise", "joint",
-                         p.transfer(home, q_above_part, open_part, "home to vise"), open_part))
-    moves.append(p.timed("unload: approach part", "linear", app_part, open_part))
-    moves.append(p.gripper("unload: grip part", app_part[-1], io.grip, open_part))
-    moves.append(p.timed("unload: retreat from vise", "linear", ret_part, with_part))
-    moves.append(p.timed("unload: transfer to out-tray", "joint",
-                         p.transfer(ret_part[-1], q_above_tray, with_part, "vise to out-tray"), with_part))
-    moves.append(p.timed("unload: place in out-tray", "linear", place_tray, to_tray))
-    moves.append(p.gripper("unload: release part", place_tray[-1], io.release, to_tray))
-    moves.append(p.timed("unload: retreat from out-tray", "linear", ret_tray, open_part))
+    unload = p.pick_and_place(
+        home, Station(g_vise_out, "vise.pose", "above vise", "approach to part", "retreat from vise"),
+        Station(g_tray, "out_tray.pose", "above out-tray slot", "place in out-tray", "retreat from out-tray"),
+        PickPlaceNames("unload: home to above vise", "unload: approach part", "unload: grip part",
+                       "unload: retreat from vise", "unload: transfer to out-tray", "unload: place in out-tray",
+                       "unload: release part", "unload: retreat from out-tray", "home to vise", "vise to out-tray"),
+        open_=open_part, carried=with_part, placed=to_tray)
+    moves += unload.moves
     moves.append(p.timed("unload: return home", "joint",
-                         p.transfer(ret_tray[-1], home, open_part, "out-tray to home"), open_part))
+                         p.transfer(unload.moves[-1].q_end, home, open_part, "out-tray to home"), open_part))
     reject: list[TimedMove] = []
     if cell.reject_bin is not None:
         # A rejected part goes from above the vise to above the bin instead of the tray and
@@ -610,9 +681,9 @@ def plan_tending(
         part_below_tcp = g_vise_out[2, 3] - (t_vise @ np.append(pmin, 1.0))[2]
         g_bin[:3, 3] = (t_bin[0, 3], t_bin[1, 3],
                         t_bin[2, 3] + cell.reject_bin.size[2] / 2 + options.reject_drop + part_below_tcp)
-        q_bin = p.pick_ik(g_bin, ret_part[-1], with_part, "above reject bin", "reject_bin.pose")
+        q_bin = p.pick_ik(g_bin, unload.q_lifted, with_part, "above reject bin", "reject_bin.pose")
         reject.append(p.timed("reject: transfer to bin", "joint",
-                              p.transfer(ret_part[-1], q_bin, with_part, "vise to reject bin"), with_part))
+                              p.transfer(unload.q_lifted, q_bin, with_part, "vise to reject bin"), with_part))
         reject.append(p.gripper("reject: release part", q_bin, io.release, with_part))
         reject.append(p.timed("reject: return home", "joint", p.transfer(q_bin, home, open_part, "bin to home"),
                               open_part))

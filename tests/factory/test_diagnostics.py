@@ -12,13 +12,13 @@ def robot(action: str, outcome: str, start: float = 10.0, end: float = 20.0) -> 
     return Activity("robot", action, 1, start, end, outcome)
 
 
-@pytest.mark.parametrize("action", ["load", "unload", "flip"])
+@pytest.mark.parametrize("action", ["load", "unload", "unload_reject", "flip"])
 def test_the_door_is_open_while_the_robot_reaches_into_the_machine(action):
     a = robot(action, "loaded" if action == "load" else "unloaded")
     assert [door(a, t) for t in (9.0, 10.0, 19.9, 20.0)] == ["closed", "open", "open", "closed"]
 
 
-@pytest.mark.parametrize("action", ["fetch", "missed_grasp", "sort_reject"])
+@pytest.mark.parametrize("action", ["fetch", "missed_grasp"])
 def test_the_door_stays_closed_for_work_outside_the_machine(action):
     assert door(robot(action, "fetched"), 15.0) == "closed"
     assert door(None, 0.0) == "closed"
@@ -40,7 +40,7 @@ def test_a_missed_grasp_or_a_timed_out_fetch_leaves_the_gripper_open():
 
 def test_the_gripper_holds_the_part_out_and_the_reject_to_the_bin():
     assert gripper(robot("unload", "unloaded"), 15.0) == {"gripper": "closed", "gripper_holds": "part"}
-    assert gripper(robot("sort_reject", "sorted"), 15.0) == {"gripper": "closed", "gripper_holds": "reject"}
+    assert gripper(robot("unload_reject", "inspect_fail"), 15.0) == {"gripper": "closed", "gripper_holds": "reject"}
     assert gripper(robot("unload", "unloaded"), 20.0)["gripper"] == "open"
 
 

@@ -419,7 +419,7 @@ from robotprog.orders import Order
 
 db, seed = sys.argv[1], int(sys.argv[2])
 proc = PartProcess(fetch_s=12.0, load_s=15.0, machining_s=300.0, unload_s=14.0, locate_s=0.2, inspect_s=0.2,
-                   sort_s=14.0, regrasp_s=3.0)
+                   reject_s=14.0, regrasp_s=3.0)
 orders = [Order(f"o{i + 1}", Path("a.stl"), 2, "aluminium", 0) for i in range(60)]
 plan = OperationPlan("a.nc", "0" * 64, 300.0, proc.cycle_s, {}, "0" * 64)
 with Record(db) as record:
@@ -459,7 +459,7 @@ def test_two_setups_record_op1_flip_op2_under_their_operations(tmp_path):
     from robotprog.orders import Order
 
     proc = PartProcess(fetch_s=12.0, load_s=15.0, machining_s=300.0, unload_s=14.0, locate_s=0.2, inspect_s=0.2,
-                       sort_s=14.0, regrasp_s=3.0, flip_s=25.0, op2_machining_s=120.0)
+                       reject_s=14.0, regrasp_s=3.0, flip_s=25.0, op2_machining_s=120.0)
     orders = [Order("o1", Path("a.stl"), 3, "aluminium", 0)]
     plan = OperationPlan("a.nc", "1" * 64, 300.0, proc.cycle_s, {}, "0" * 64, ("a.op2.nc", "2" * 64, 120.0))
     db = tmp_path / "two.sqlite"

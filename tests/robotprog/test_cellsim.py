@@ -13,9 +13,9 @@ from robotprog.scheduler import SchedulerOptions, State
 
 A, B = Path("a.stl"), Path("b.stl")
 PROC_A = PartProcess(fetch_s=12.0, load_s=15.0, machining_s=300.0, unload_s=14.0, locate_s=2.0, inspect_s=2.5,
-                     sort_s=5.0, regrasp_s=3.0)
+                     reject_s=5.0, regrasp_s=3.0)
 PROC_B = PartProcess(fetch_s=10.0, load_s=16.0, machining_s=20.0, unload_s=15.0, locate_s=3.0, inspect_s=40.0,
-                     sort_s=6.0, regrasp_s=2.0)
+                     reject_s=6.0, regrasp_s=2.0)
 
 
 def _orders(n, part=A, quantity=1):
@@ -111,7 +111,7 @@ def test_bad_inputs():
     with pytest.raises(SchedulerError):
         FaultModel(grasp_miss=1.5)
     with pytest.raises(SchedulerError):
-        PartProcess(fetch_s=-1, load_s=1, machining_s=1, unload_s=1, locate_s=1, inspect_s=1, sort_s=1)
+        PartProcess(fetch_s=-1, load_s=1, machining_s=1, unload_s=1, locate_s=1, inspect_s=1, reject_s=1)
 
 
 _p = st.floats(0.0, 0.6)
@@ -202,7 +202,7 @@ def test_one_pass_gives_what_each_time_alone_gives(seed, rate, quantities, share
 
 #: A part in two setups: op 1 (300 s), the flip (25 s), op 2 (120 s).
 PROC_TWO = PartProcess(fetch_s=12.0, load_s=15.0, machining_s=300.0, unload_s=14.0, locate_s=2.0, inspect_s=2.5,
-                       sort_s=5.0, regrasp_s=3.0, flip_s=25.0, op2_machining_s=120.0)
+                       reject_s=5.0, regrasp_s=3.0, flip_s=25.0, op2_machining_s=120.0)
 
 
 def test_two_setups_run_op1_flip_op2_in_order_with_the_summary_durations():

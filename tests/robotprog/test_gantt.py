@@ -10,7 +10,7 @@ from robotprog.gantt import COLOURS, OP_COLOURS, ROWS, activity_chart
 from robotprog.orders import Order
 
 PROC = PartProcess(fetch_s=12.0, load_s=15.0, machining_s=300.0, unload_s=14.0, locate_s=2.0, inspect_s=2.5,
-                   sort_s=5.0, regrasp_s=3.0)
+                   reject_s=5.0, regrasp_s=3.0)
 
 
 @pytest.mark.parametrize("faults", [FaultModel(), FaultModel(0.2, 0.2, 0.2, 0.2, seed=3)])
@@ -34,7 +34,7 @@ def test_machine_row_is_cut_for_the_machine_utilisation(faults):
 
 def test_two_setups_show_op1_flip_op2():
     two = PartProcess(fetch_s=12.0, load_s=15.0, machining_s=300.0, unload_s=14.0, locate_s=2.0, inspect_s=2.5,
-                      sort_s=5.0, regrasp_s=3.0, flip_s=60.0, op2_machining_s=200.0)
+                      reject_s=5.0, regrasp_s=3.0, flip_s=60.0, op2_machining_s=200.0)
     result = simulate([Order(f"o{i}", Path("a.stl"), 2, "steel", 0) for i in range(3)], {Path("a.stl"): two})
     img = activity_chart(result, width=1400)
     names = [r[0] for r in ROWS]

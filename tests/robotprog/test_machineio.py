@@ -6,22 +6,25 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from factory.errors import PlanningError
+from factory.simulation import RobotMotion, Shot, part_process
 from robotprog.cellsim import Activity, FaultModel, PartProcess, simulate
 from robotprog.krl import krl_program
 from robotprog.machineio import (CYCLE_START_OPS, INPUT, OUTPUT, READ, SET, SIGNALS, WAIT, IoOp, machine_cycle,
                                  part_signals, posted_signals, signal_timeline, to_steps)
 from robotprog.orders import Order
-from robotprog.programs import program_steps
+from robotprog.programs import VERDICT_AFTER, post_program, program_steps
+from robotprog.scheduler import SchedulerOptions
 from robotprog.rapid import rapid_module
 from robotprog.tending import plan_tending
 from robotprog.urscript import Branch, urscript_program
 from tests.robotprog.test_tending import SAMPLE_STOCK, sheet
 
 PROC = PartProcess(fetch_s=12.0, load_s=15.0, machining_s=300.0, unload_s=14.0, locate_s=2.0, inspect_s=2.5,
-                   sort_s=5.0, regrasp_s=3.0)
+                   reject_s=5.0, regrasp_s=3.0)
 
 
 def keys(ops):
@@ -29,9 +32,13 @@ def keys(ops):
 
 
 @pytest.fixture(scope="module")
-def bracket_steps(cell, world):
-    plan = plan_tending(cell, sheet(*SAMPLE_STOCK["bracket"]), world=world)
-    return {lang: program_steps(cell, world, plan, lang) for lang in ("urscript", "rapid")}
+def bracket_plan(cell, world):
+    return plan_tending(cell, sheet(*SAMPLE_STOCK["bracket"]), world=world)
+
+
+@pytest.fixture(scope="module")
+def bracket_steps(cell, world, bracket_plan):
+    return {lang: program_steps(cell, world, bracket_plan, lang) for lang in ("urscript", "rapid")}
 
 
 def test_signals_have_one_direction_each_and_the_handshake_uses_them_so():
@@ -122,6 +129,43 @@ def test_scrapped_part_reads_the_verdict_low_like_the_reject_way(cell, bracket_s
         ops = keys(e.op for e in result.signals if e.job == job)
         assert ops[:start] == rejected[:start]
         assert ops[-1] == rejected[-1]
+
+
+def test_a_rejected_part_takes_the_programs_reject_branch(cell, world, bracket_plan):
+    """A part the machine's verdict fails goes from the vise straight to the reject bin in the
+    simulation, as the posted program's branch takes it: the same handshake (the verdict read low
+    as the unload starts), the same robot way (no out-tray, no camera), and the same planned time
+    (the step durations read from the plan as ``factory simulate`` reads them)."""
+    plan = bracket_plan
+    posted = post_program("urscript", Path("part.script"), cell, world, plan)
+    t, moves = 0.0, []
+    for m in plan.moves:
+        moves.append((m.name, t, t + m.duration))
+        t += m.duration
+    motion = RobotMotion(tuple(moves), np.array([0.0, t]), np.zeros((2, world.robot.dof)))
+    shots = {n: Shot(b"", [], 0.5, True) for n in ("locate", "inspect")}
+    proc = part_process(motion, 300.0, shots, None, [m.duration for m in plan.reject])
+    result = simulate([Order("o1", Path("a.stl"), 1, "aluminium", 0)], {Path("a.stl"): proc},
+                      faults=FaultModel(inspect_fail=1.0, seed=1), options=SchedulerOptions(remakes=0))
+    assert result.summary["parts_rejected"] == 1 and result.summary["parts_good"] == 0
+    robot = [a for a in result.activities if a.resource == "robot"]
+    assert [a.action for a in robot] == ["fetch", "load", "unload_reject"]
+    assert robot[-1].outcome == "inspect_fail"
+    assert not [a for a in result.activities if a.action == "inspect"]  # it never reaches the out-tray
+    # the robot's time for the rejected part is the program's planned reject way, move for move
+    names = [m.name for m in plan.moves]
+    to_verdict = plan.moves[names.index("unload: home to above vise"):names.index(VERDICT_AFTER) + 1]
+    assert robot[-1].end - robot[-1].start == pytest.approx(
+        sum(m.duration for m in to_verdict + plan.reject), abs=1e-9)
+    assert sum(a.end - a.start for a in robot) == pytest.approx(posted.planned_reject_s, abs=1e-9)
+    assert 0.95 <= posted.predicted_reject_s / posted.planned_reject_s <= 1.05
+    # the handshake: the program's reject way, the verdict read low as the reject way starts
+    want = keys(posted_signals(program_steps(cell, world, plan, "urscript"), cell.machine, verdict_level=False))
+    assert keys(e.op for e in result.signals) == want
+    read = next(e for e in result.signals if e.op.op == READ)
+    assert read.time == robot[-1].start
+    # the part leaves the machine with the robot: the next blank may go in once the reject way ends
+    assert result.machine_intervals[-1][1] == robot[-1].end
 
 
 def test_two_machine_cycles_per_part():

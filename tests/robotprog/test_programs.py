@@ -100,16 +100,7 @@ def test_rapid_program_passes_rapidchecker(name, arm_cells):
     assert rapid_errors(text) == []
 
 
-#: A known graze: the KR 6's plan for the 15 mm plate touches the enclosure's front header with the
-#: gripper for 8 ms of "unload: transfer to out-tray" (1 kHz samples 1052..1059), between two of the
-#: planner's 0.02 rad checks of the timed spline (robotprog/tending.py checks every joint_resolution,
-#: not every logged sample).
-GRAZES = {("krl", "plate0")}
-
-
-@pytest.mark.parametrize("lang, name", [
-    pytest.param(lang, name, marks=pytest.mark.xfail(strict=True, reason="8 ms graze between the 0.02 rad checks"))
-    if (lang, name) in GRAZES else (lang, name) for lang in ("rapid", "krl") for name in ARM_STOCK])
+@pytest.mark.parametrize("lang, name", [(lang, name) for lang in ("rapid", "krl") for name in ARM_STOCK])
 def test_arm_plans_are_proven_at_1_khz(lang, name, arm_cells):
     """Every move of the ABB's and the KUKA's plans, the reject branch too, within the URDF's limits and
     collision-free at 1 kHz in the plan's world (the cell, the blanks and tray parts beside the slots)."""

@@ -109,7 +109,7 @@ def test_machine_alarm_reruns_once_then_scraps_and_remakes():
     cell, _ = step(cell, 1, chosen, OPTS)
     assert cell.job(1).state is State.UNLOAD
     cell, effects = step(cell, 1, Event.UNLOADED_SCRAP, OPTS)
-    assert effects[0].action == "sort_reject"
+    assert effects[0].action == "in_bin"  # the reject branch took it from the vise to the bin
     cell, _ = step(cell, 1, Event.SORTED, OPTS)
     p = cell.progress("o1")
     assert p.rejected == 1 and p.remakes == 1 and p.outcome is None and cell.queue == ("o1",)
@@ -127,10 +127,20 @@ def test_timeout_in_machining_is_an_alarm_and_in_unload_abandons():
 
 
 def _run_inspection(cell, job_id, passed):
-    for event in (Event.START, Event.FETCHED, Event.LOADED, Event.CYCLE_DONE, Event.UNLOADED,
-                  Event.INSPECT_PASS if passed else Event.INSPECT_FAIL, Event.SORTED):
-        cell, _ = step(cell, job_id, event, OPTS)
+    """A good part: unloaded to the out-tray, inspected there; a failed one: the verdict read on
+    unloading sends it from the vise to the reject bin, as the posted program's branch does."""
+    events = ((Event.UNLOADED, Event.INSPECT_PASS) if passed else (Event.INSPECT_FAIL,))
+    for event in (Event.START, Event.FETCHED, Event.LOADED, Event.CYCLE_DONE, *events, Event.SORTED):
+        cell, effects = step(cell, job_id, event, OPTS)
+        if event is Event.INSPECT_FAIL:
+            assert effects[0].action == "in_bin" and cell.job(job_id).state is State.SORT
     return cell
+
+
+def test_a_part_in_the_out_tray_is_not_sorted_again():
+    """No way from the out-tray to the bin: the program has none (the verdict comes before the tray)."""
+    with pytest.raises(SchedulerError, match="inspect_fail is not accepted in state INSPECT"):
+        step(_cell(_job(State.INSPECT)), 1, Event.INSPECT_FAIL, OPTS)
 
 
 def test_happy_path_and_remake_limit():
