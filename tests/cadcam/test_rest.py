@@ -63,6 +63,17 @@ def test_refuses_naming_what_is_missing_only_when_nothing_reaches():
         choose_tools(LIBRARY, box_setup((80.0, 60.0, 50.0)), PlanOptions())
 
 
+def test_a_drill_never_roughs():
+    # Chosen by fit, the roughing end mill came from every tool that is not a ball: a drill too.
+    library = dataclasses.replace(LIBRARY, tools=tuple(t for t in LIBRARY.tools if t.shape not in ("flat", "bull")))
+    assert any(t.is_drill for t in library.tools)
+    setup, part = make_setup(manifold_to_trimesh(manifold3d.Manifold.cube((30.0, 24.0, 8.0))))
+    with pytest.raises(ToolError, match="no flat or bull-nose end mill"):
+        choose_tools(library, setup, PlanOptions(), np.asarray(part.triangles))
+    rough, _ = choose_tools(LIBRARY, setup, PlanOptions(), np.asarray(part.triangles))
+    assert rough.shape in ("flat", "bull")
+
+
 def _doctored(setup: Setup, tool_number: int, descent_xy) -> Operation:
     tool = LIBRARY.tool(tool_number)
     x, y = descent_xy
