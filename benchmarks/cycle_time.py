@@ -1,6 +1,7 @@
 """Cycle time of the sample parts, counted from the G-code alone, against issue 12's figures.
 
     python benchmarks/cycle_time.py [PART.stl ...] [--material aluminium] [--rapid 5000] [--json]
+    python benchmarks/cycle_time.py --random 4 [--before 3a0aa1a] [--no-samples]
 
 Each part is planned with default options (``factory plan`` without the robot), then its
 program is read back by a small counter written here, independent of the post and of
@@ -11,6 +12,14 @@ the cycle by operation (from the ``(op N: NAME [KIND] Tt ...)`` comments), the t
 the rapid length, verify's residual stock (p95 and max over the part's grid points), its
 verdict, the plan wall time, and the ratio of the issue's figure to this count (the speed-up).
 With ``--json`` the last line is one JSON object ``{"rows": [...]}``.
+
+``--random N`` adds N random parts like the tests' (``machinable_blocks`` of
+``tests/cadcam/test_rest.py``: blocks with round holes, pockets, slots and steps, drawn by
+hypothesis with a fixed seed, so the same N parts on every run), written as STL to a temporary
+folder. ``--before REV`` plans each random part also with the code of git revision ``REV``
+(``git archive`` into a temporary folder, planned there in a subprocess with the same default
+options) and counts its programs the same way: the row's ``x`` is then that count over this one
+(issue 12 asks for 2x on such parts over the first round, ``3a0aa1a``).
 """
 
 from __future__ import annotations
@@ -19,7 +28,10 @@ import argparse
 import json
 import math
 import re
+import subprocess
 import sys
+import tarfile
+import tempfile
 import time
 from pathlib import Path
 
@@ -127,7 +139,66 @@ def count_program(text: str, rapid_feed: float = 5000.0) -> dict:
             "minutes": sum(o["minutes"] for o in ops)}
 
 
-def bench_part(path: Path, material: str, rapid_feed: float) -> dict:
+def random_parts(n: int, folder: Path) -> list[Path]:
+    """``n`` random parts like the tests' (module docstring) written to ``folder`` as STL; the same on every run."""
+    from hypothesis import HealthCheck, Phase, given, settings
+
+    from tests.cadcam.test_rest import machinable_blocks
+    from tests.conftest import manifold_to_trimesh
+
+    bodies = []
+
+    @settings(max_examples=n, derandomize=True, database=None, phases=[Phase.generate],
+              suppress_health_check=list(HealthCheck))
+    @given(machinable_blocks())
+    def draw(body):
+        if len(bodies) < n:
+            bodies.append(body)
+
+    draw()
+    paths = []
+    for i, body in enumerate(bodies, start=1):
+        path = folder / f"random_{i}.stl"
+        manifold_to_trimesh(body).export(path)
+        paths.append(path)
+    return paths
+
+
+_PLAN_SNIPPET = """
+import json, sys
+from pathlib import Path
+sys.path.insert(0, sys.argv[1])
+from factory.plan import PlanRequest, plan_part
+request = PlanRequest.defaults(Path(sys.argv[2]), sys.argv[3])
+plan = plan_part(type(request)(request.cam, robot=False))
+op2 = getattr(plan, "op2", None)
+print(json.dumps([plan.program.text] + ([op2.program.text] if op2 is not None else [])))
+"""
+
+
+def before_minutes(rev: str, parts: list[Path], material: str, rapid_feed: float, folder: Path) -> dict[str, float]:
+    """Cycle [min] of each part planned by the code of git revision ``rev``, counted like this one's."""
+    tree = folder / f"rev-{rev}"
+    if not tree.exists():
+        tree.mkdir()
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev], check=True, capture_output=True).stdout
+        tar = folder / f"{rev}.tar"
+        tar.write_bytes(archive)
+        with tarfile.open(tar) as t:
+            t.extractall(tree, filter="data")
+    out = {}
+    for path in parts:
+        done = subprocess.run([sys.executable, "-c", _PLAN_SNIPPET, str(tree), str(path), material],
+                              capture_output=True, text=True, cwd=tree)
+        if done.returncode != 0:
+            print(f"{path.stem}: not planned by {rev}: {done.stderr.strip().splitlines()[-1:]}", file=sys.stderr)
+            continue
+        texts = json.loads(done.stdout.strip().splitlines()[-1])
+        out[path.stem] = sum(count_program(t, rapid_feed)["minutes"] for t in texts)
+    return out
+
+
+def bench_part(path: Path, material: str, rapid_feed: float, before: float | None = None) -> dict:
     from factory.plan import PlanRequest, plan_part
 
     t0 = time.perf_counter()
@@ -142,14 +213,14 @@ def bench_part(path: Path, material: str, rapid_feed: float) -> dict:
                    "tool_changes": counted["tool_changes"] + op2["tool_changes"],
                    **{k: counted[k] + op2[k] for k in ("cut_mm", "rapid_mm", "minutes")}}
     report = plan.report
-    before = ISSUE_MINUTES.get(path.stem)
+    before = ISSUE_MINUTES.get(path.stem) if before is None else before
     return {
         "part": path.stem,
         "minutes": round(counted["minutes"], 2),
         "op2_minutes": None if op2 is None else round(op2["minutes"], 2),
-        "issue_minutes": before,
+        "issue_minutes": None if before is None else round(before, 2),
         "speedup": None if before is None else round(before / counted["minutes"], 2),
-        "target": ISSUE_TARGET.get(path.stem),
+        "target": ISSUE_TARGET.get(path.stem, 2.0 if path.stem.startswith("random_") else None),
         "ops": [{**o, "cut_mm": round(o["cut_mm"], 1), "rapid_mm": round(o["rapid_mm"], 1),
                  "minutes": round(o["minutes"], 2)} for o in counted["ops"]],
         "tool_changes": counted["tool_changes"],
@@ -172,13 +243,30 @@ def main() -> None:
     ap.add_argument("--material", default="aluminium")
     ap.add_argument("--rapid", type=float, default=5000.0, help="rapid rate [mm/min]")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--random", type=int, default=0, metavar="N", help="add N random parts like the tests'")
+    ap.add_argument("--before", metavar="REV", help="count the random parts planned by git revision REV too")
+    ap.add_argument("--no-samples", action="store_true", help="without PARTS: only the random parts")
     args = ap.parse_args()
-    parts = args.parts or [ROOT / "samples" / f"{name}.stl" for name in ISSUE_MINUTES]
+    parts = args.parts or ([] if args.no_samples else [ROOT / "samples" / f"{name}.stl" for name in ISSUE_MINUTES])
+    scratch = tempfile.TemporaryDirectory(prefix="cycle_time_")
+    folder = Path(scratch.name)
+    randoms = random_parts(args.random, folder) if args.random > 0 else []
+    parts = [*parts, *randoms]
+    earlier: dict[str, float] = {}
+    if args.before and randoms:
+        earlier = before_minutes(args.before, randoms, args.material, args.rapid, folder)
     rows = []
-    print(f"{'part':<14}{'min':>7}{'issue':>7}{'x':>6}{'want':>6}{'TC':>4}{'rapid m':>9}{'p95 mm':>8}"
+    from factory.errors import FactoryError
+
+    # "before": the issue's figure for the samples, the --before revision's count for random parts
+    print(f"{'part':<14}{'min':>7}{'before':>7}{'x':>6}{'want':>6}{'TC':>4}{'rapid m':>9}{'p95 mm':>8}"
           f"{'max mm':>8}{'gouge':>7}{'ok':>4}{'wall s':>8}")
     for path in parts:
-        row = bench_part(path, args.material, args.rapid)
+        try:
+            row = bench_part(path, args.material, args.rapid, earlier.get(path.stem))
+        except FactoryError as e:  # a random part can be one the plan refuses: say so, go on
+            print(f"{path.stem:<14}error: {e}")
+            continue
         rows.append(row)
         issue = "-" if row["issue_minutes"] is None else f"{row['issue_minutes']:.1f}"
         x = "-" if row["speedup"] is None else f"{row['speedup']:.2f}"

@@ -193,7 +193,7 @@ def _pick_rough_by_fit(library: ToolLibrary, setup: Setup, depth: float, triangl
     rate; what only narrower flat end mills get to falls to them in turn, widest first, each at
     its own rate (rest roughing). The least total wins; ties go to the wider tool.
     """
-    mills = [t for t in library.tools if t.shape != "ball"]
+    mills = [t for t in library.tools if t.shape in ("flat", "bull")]  # a drill does not rough
     reach = [t for t in mills if t.length >= depth]
     if not reach:
         raise _missing(library, "flat or bull-nose end mill for roughing", depth, mills)

@@ -57,12 +57,28 @@ def rest_material(sim: Simulation, z: float, above: float, allowance: float) -> 
     """XY area of the grid cells whose stock reaches above ``z`` with more than ``above`` [mm] of excess."""
     g = sim.grid
     mask = (sim.stock_top > z + _LEVEL_EPS) & (excess(sim, allowance) > above)
-    jj, ii = np.nonzero(mask)
-    if not len(jj):
+    return cells_area(mask, g.x0, g.y0, g.cell)
+
+
+def cells_area(mask: np.ndarray, x0: float, y0: float, cell: float) -> BaseGeometry:
+    """XY area of the ``True`` cells of a (ny, nx) grid mask, each a square of side ``cell`` [mm] centred
+    on its grid point ``(x0 + i * cell, y0 + j * cell)``.
+
+    The runs of cells along each row are joined into one rectangle first: the same union from
+    far fewer boxes (the union is most of rest roughing's time on a large grid).
+    """
+    m = np.asarray(mask, dtype=bool)
+    if not m.any():
         return Polygon()
-    h = 0.5 * g.cell
-    x, y = g.x0 + ii * g.cell, g.y0 + jj * g.cell
-    return shapely.union_all(shapely.box(x - h, y - h, x + h, y + h))
+    padded = np.zeros((m.shape[0], m.shape[1] + 2), dtype=np.int8)
+    padded[:, 1:-1] = m
+    step = np.diff(padded, axis=1)
+    rows, starts = np.nonzero(step == 1)
+    _, stops = np.nonzero(step == -1)  # same rows, in the same order: runs alternate start, stop
+    h = 0.5 * cell
+    x_lo, x_hi = x0 + starts * cell - h, x0 + (stops - 1) * cell + h
+    y = y0 + rows * cell
+    return shapely.union_all(shapely.box(x_lo, y - h, x_hi, y + h))
 
 
 def deep_stock(sim: Simulation, above: float, allowance: float, grid_slack: bool = True) -> Simulation:

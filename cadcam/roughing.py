@@ -27,15 +27,21 @@ cleared with contour-parallel offset loops. The pieces:
 * **Loops**: each connected region is eroded by ``k * stepover`` (k = 0, 1, ...) until
   empty; every ring of every erosion is one closed loop. With ``stepover <= R`` every
   point of the region is within ``R`` of a loop, so the whole region and its
-  ``R``-neighbourhood is cleared: the next level can rely on that.
+  ``R``-neighbourhood is cleared: the next level can rely on that. A wider stepover (up to
+  just under ``D``: finishing floors at 60-75 %) leaves cusps between loops, in corners and
+  along the middle of narrow parts more than ``R`` from every loop; those gaps get loops of
+  their own (:func:`_gap_rings`), so the property holds for any stepover.
 * **Entry**: a region touching the outside of the stock is entered from the air: the tool
   descends outside the stock and feeds in horizontally. A closed pocket is entered by a
   helix (``ramp_angle``, shrunk down to ``min_helix_diameter`` if need be) from the
   previous level's floor, or by a ramp along one of its loops if no helix fits; a pocket
   that fits neither is skipped with a warning (and stays skipped on the levels below).
   The tool never plunges vertically into material. In rest machining the stock model tells
-  where the air is: a helix or ramp starts just above the stock, not at the previous level,
-  and where the stock under the helix centre is already gone the tool goes straight down
+  where the air is: rest material with air beside it down to the level (a terrace on a
+  bowl's side, the skin roughing left on a wall) is entered from there like an open region,
+  descending in the air and feeding across (:func:`_side_entry`); otherwise a helix or ramp
+  starts where the stock lets the tool lowest, just above it, not at the previous level, and
+  where the stock under the helix centre is already gone the tool goes straight down
   there; a skipped pocket bars only its own neighbourhood (``2 R``) on the levels below.
 * **Order and links**: closed pockets are cut inside-out from the helix, regions open to
   the stock edge outside-in; each next loop is the uncut loop nearest to what is already
@@ -58,6 +64,7 @@ that cylinder, so there is no gouge; it leaves a little more stock at its corner
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections.abc import Callable
@@ -66,6 +73,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 import trimesh
+from scipy import ndimage
 from shapely.geometry import LineString, MultiLineString, Point, Polygon, box
 from shapely.geometry.base import BaseGeometry
 from shapely.geometry.polygon import orient
@@ -106,8 +114,9 @@ class RoughingOptions:
         loop along a wall in an open region), and half a diameter is a safe slotting depth
         for carbide in aluminium.
     stepover : float, optional
-        Radial step between offset loops [mm], in ``(0, D/2]``. Default ``0.4 * D``.
-        At most the tool radius, so that no islands of stock survive between loops.
+        Radial step between offset loops [mm], in ``(0, D)``. Default ``0.4 * D``.
+        Above the tool radius, the islands of stock that would survive between loops are
+        cut by extra loops (module docstring).
     allowance : float
         Stock left on the part, radially on walls and vertically on floors [mm], >= 0.
     ramp_angle : float
@@ -125,6 +134,9 @@ class RoughingOptions:
         Maximum chord error of the polygonal buffers [mm]. The buffers are enlarged so the
         error only ever leaves stock (never cuts into the allowance); keep it far below the
         allowance. Default 0.002 mm.
+    spring_pass : bool
+        Cut the outermost loop of every region at every level a second time, after the
+        region (a spring pass: the walls to size where the tool deflected). Default off.
     """
 
     stepdown: float | None = None
@@ -134,6 +146,7 @@ class RoughingOptions:
     helix_diameter: float | None = None
     min_helix_diameter: float | None = None
     arc_tolerance: float = 0.002
+    spring_pass: bool = False
 
 
 @dataclass(frozen=True)
@@ -151,6 +164,7 @@ class _Params:
     lead_gap: float
     link_max: float
     min_ramp_length: float
+    spring_pass: bool = False
 
 
 def _resolve(options: RoughingOptions, tool: Tool, setup: Setup) -> _Params:
@@ -167,8 +181,8 @@ def _resolve(options: RoughingOptions, tool: Tool, setup: Setup) -> _Params:
     if not 0 < stepdown <= tool.flute_length:
         raise ToolpathError(f"stepdown {stepdown:g} mm must lie in (0, flute length {tool.flute_length:g}]",
                             source="roughing.stepdown")
-    if not 0 < stepover <= tool.radius + 1e-12:
-        raise ToolpathError(f"stepover {stepover:g} mm must lie in (0, tool radius {tool.radius:g}]",
+    if not 0 < stepover < d:
+        raise ToolpathError(f"stepover {stepover:g} mm must lie in (0, tool diameter {d:g})",
                             source="roughing.stepover")
     if not 0 <= options.allowance < 1e3:
         raise ToolpathError(f"allowance {options.allowance:g} mm must be >= 0", source="roughing.allowance")
@@ -203,6 +217,7 @@ def _resolve(options: RoughingOptions, tool: Tool, setup: Setup) -> _Params:
         lead_gap=max(float(setup.clearance), 0.5),
         link_max=max(1.5 * stepover, tool.radius),
         min_ramp_length=_MIN_RAMP_DIAMETERS * d,
+        spring_pass=bool(options.spring_pass),
     )
 
 
@@ -330,19 +345,25 @@ def _polygons(geom: BaseGeometry) -> list[Polygon]:
 @dataclass
 class _Ring:
     coords: np.ndarray  # (n+1, 2) closed
-    k: int
+    k: float  # erosion index (order of cutting); a gap's loops lie half-way between two
     line: LineString
 
 
+#: A point this much less than the tool radius from a loop counts as cut [mm]: gaps are found
+#: conservatively, and a gap within it of the cut area everywhere is no gap.
+_GAP_TOL = 0.01
+
+
 def _rings(region: Polygon, p: _Params) -> list[_Ring]:
-    """Contour-parallel loops of a region: the rings of its erosions by k * stepover."""
+    """Contour-parallel loops of a region: the rings of its erosions by k * stepover, and with a
+    stepover above the tool radius the loops of the gaps they leave (:func:`_gap_rings`)."""
     rings: list[_Ring] = []
     k = 0
     while True:
         eroded = region if k == 0 else region.buffer(-k * p.stepover, quad_segs=16)
         polys = [q for q in _polygons(eroded) if q.area > _MIN_AREA]
         if not polys:
-            return rings
+            break
         for poly in polys:
             poly = orient(poly, 1.0)
             for ring in [poly.exterior, *poly.interiors]:
@@ -350,6 +371,28 @@ def _rings(region: Polygon, p: _Params) -> list[_Ring]:
                 if len(c) >= 4 and ring.length > 1e-3:
                     rings.append(_Ring(c, k, LineString(c)))
         k += 1
+    if rings and p.stepover > p.radius + 1e-12:
+        rings += _gap_rings(region, rings, p)
+    return rings
+
+
+def _gap_rings(region: Polygon, rings: list[_Ring], p: _Params) -> list[_Ring]:
+    """Loops over the parts of ``region`` farther than the tool radius from every loop of ``rings``.
+
+    Each gap is cleared like a region of its own at a stepover of the radius (which leaves none);
+    its loops lie inside ``region``, so links to them are checked as any other. They take the
+    erosion index of the nearest loop plus a half: cut between that loop and the next.
+    """
+    reach = shapely.union_all([r.line.buffer(p.radius - _GAP_TOL, quad_segs=8) for r in rings])
+    narrow = dataclasses.replace(p, stepover=p.radius)
+    out: list[_Ring] = []
+    lines = np.array([r.line for r in rings], dtype=object)
+    for gap in _polygons(region.difference(reach)):
+        if gap.buffer(-_GAP_TOL).is_empty:
+            continue  # within the tolerance of the cut area: cut
+        k = rings[int(np.argmin(shapely.distance(lines, gap)))].k + 0.5
+        out += [_Ring(r.coords, k, r.line) for r in _rings(gap, narrow)]
+    return out
 
 
 def _dedupe(c: np.ndarray) -> np.ndarray:
@@ -431,8 +474,10 @@ class _Path:
         self.add(xyz, Motion.PLUNGE)
 
 
-def _helix(centre: np.ndarray, r: float, p: _Params, z_top: float, z: float) -> tuple[np.ndarray, np.ndarray]:
-    """Clockwise helix from ``z_top`` down to ``z`` then one full turn at ``z``.
+def _helix(centre: np.ndarray, r: float, p: _Params, z_top: float, z: float,
+           start_angle: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Clockwise helix from ``z_top`` down to ``z`` then one full turn at ``z``, starting at
+    ``start_angle`` [rad] from +X around ``centre``.
 
     Returns (descent points (n,3), flat turn points (m,3)); the first descent point is the
     helix start at ``z_top``.
@@ -441,11 +486,18 @@ def _helix(centre: np.ndarray, r: float, p: _Params, z_top: float, z: float) -> 
     chord = 2 * r * math.sin(dth / 2)
     n = max(1, math.ceil((z_top - z) / (chord * p.tan_ramp) - 1e-9))
     m = round(2 * math.pi / dth)
-    th = -dth * np.arange(n + m + 1)
+    th = start_angle - dth * np.arange(n + m + 1)
     xy = centre[None] + r * np.column_stack([np.cos(th), np.sin(th)])
     zz = np.maximum(z_top - (z_top - z) * np.arange(n + m + 1) / n, z)
     pts = np.column_stack([xy, zz])
     return pts[: n + 1], pts[n + 1 :]
+
+
+def _lowest_air(xy: np.ndarray, air_at: Callable[[np.ndarray], np.ndarray] | None) -> int:
+    """Index of the point of ``xy`` (n, 2) where the known stock lets the tool lowest (0 without one)."""
+    if air_at is None:
+        return 0
+    return int(np.argmin(air_at(np.asarray(xy).reshape(-1, 2))))
 
 
 def _ramp(ring: np.ndarray, p: _Params, z_top: float, z: float) -> tuple[np.ndarray, np.ndarray]:
@@ -522,6 +574,75 @@ def _closed_entry(region: Polygon, rings: list[_Ring], p: _Params) -> _Entry | N
     return None
 
 
+#: Distances [grid cells] beside a rest region at which an entry from the air is looked for.
+_SIDE_ENTRY_CELLS = (1.0, 2.0, 4.0)
+#: Most candidate points tested per distance for an entry from the air.
+_SIDE_ENTRY_POINTS = 400
+
+
+def _clear_down_to(known: Simulation, tool: Tool, z: float) -> Callable[[np.ndarray], np.ndarray]:
+    """``clear(xy) -> (n,) bool``: ``tool`` (taken as a flat end mill) standing at ``xy`` with its tip
+    at ``z`` [mm] touches none of the ``known`` stock.
+
+    One dilation of the stock above ``z`` per call, then a look-up per point: at least as
+    cautious as :func:`cadcam.verify.clear_height` (which takes the stock as reaching up to a
+    grid point's height within a cell diagonal of it), with half a cell diagonal more for
+    rounding the point to its nearest grid point.
+    """
+    g = known.grid
+    reach = tool.radius + g.cell * math.sqrt(2.0) + 0.5 * g.cell * math.sqrt(2.0)
+    k = int(math.ceil(reach / g.cell))
+    di, dj = np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1))
+    blocked = ndimage.binary_dilation(known.stock_top > z + 1e-9, structure=np.hypot(di, dj) * g.cell <= reach)
+
+    def clear(xy: np.ndarray) -> np.ndarray:
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        i = np.rint((xy[:, 0] - g.x0) / g.cell).astype(np.int64)
+        j = np.rint((xy[:, 1] - g.y0) / g.cell).astype(np.int64)
+        inside = (i >= 0) & (i < g.nx) & (j >= 0) & (j < g.ny)
+        out = np.empty(len(xy), dtype=bool)
+        out[inside] = ~blocked[j[inside], i[inside]]
+        if not inside.all():  # off the grid: the exact test
+            out[~inside] = clear_height(known, tool, xy[~inside]) <= z + 1e-9
+        return out
+
+    return clear
+
+
+def _side_entry(region: Polygon, rings: list[_Ring], space: BaseGeometry,
+                clear: Callable[[np.ndarray], np.ndarray], p: _Params, cell: float = 0.5) -> _Entry | None:
+    """Entry into a closed rest region from the air beside it: the tool descends where the known
+    stock leaves it clear down to the level (``clear``, :func:`_clear_down_to`), outside the region
+    but where the tool may go (``space``), and feeds straight across onto the region's outer loop.
+    None if there is no such place.
+
+    ``cell`` [mm] is the stock model's grid spacing: the air is only known a cell or so away from
+    the rest material the region was grown from.
+    """
+    outer = [j for j, r in enumerate(rings) if r.k == 0]
+    if not outer:
+        return None
+    covered = space.buffer(_COVER_TOL)
+    shapely.prepare(covered)
+    for cells in _SIDE_ENTRY_CELLS:
+        d = cells * cell
+        around = region.buffer(d, quad_segs=8).boundary
+        if around.is_empty:
+            continue
+        step = max(around.length / _SIDE_ENTRY_POINTS, 0.25 * cell)
+        cand = shapely.get_coordinates(shapely.segmentize(around, step))
+        cand = cand[shapely.contains_xy(covered, cand[:, 0], cand[:, 1])]
+        if not len(cand):
+            continue
+        cand = cand[clear(cand)]
+        for xy in cand:
+            j = min(outer, key=lambda j: rings[j].line.distance(Point(xy)))
+            q = np.asarray(nearest_points(rings[j].line, Point(xy))[0].coords[0])
+            if covered.covers(LineString([xy, q])):
+                return _Entry("air", q, air_xy=np.asarray(xy, dtype=np.float64), ring_index=j)
+    return None
+
+
 def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry, z: float,
                 z_prev: float, inside_out: bool, p: _Params,
                 air_at: Callable[[np.ndarray], np.ndarray] | None = None) -> bool:
@@ -538,12 +659,15 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
     shapely.prepare(covered)
     cut: list[LineString] = []
     uncut = list(range(len(rings)))
+    outer: list[np.ndarray] = []  # the outermost loops as cut, for a spring pass
 
     def emit_ring(j: int, q: np.ndarray, uncut_dir: np.ndarray | None) -> None:
         ring = _climb(_ring_from(rings[j].coords, q), uncut_dir, inside_out)
         path.add_many(np.column_stack([ring, np.full(len(ring), z)]), Motion.CUT)
         cut.append(rings[j].line)
         uncut.remove(j)
+        if rings[j].k == 0:
+            outer.append(ring)
 
     if entry.kind == "air":
         path.go_to(entry.air_xy, p)
@@ -551,9 +675,14 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
         path.add([*entry.start_xy, z], Motion.CUT)
         emit_ring(entry.ring_index, entry.start_xy, entry.start_xy - entry.air_xy)
     elif entry.kind == "helix":
-        th = np.linspace(0.0, 2 * math.pi, 25)
-        z_top = air_over(entry.centre + entry.helix_radius * np.column_stack([np.cos(th), np.sin(th)]))
-        descent, turn = _helix(entry.centre, entry.helix_radius, p, z_top, z)
+        th = np.linspace(0.0, 2 * math.pi, 24, endpoint=False)
+        circle = entry.centre + entry.helix_radius * np.column_stack([np.cos(th), np.sin(th)])
+        # The helix starts where the known stock lets the tool lowest (a pocket roughed before,
+        # its wall's skin beside part of the circle): from there it ramps into whatever is left,
+        # never deeper than the previous level, instead of circling down through air.
+        start = _lowest_air(circle, air_at)
+        z_top = air_over(circle[start])
+        descent, turn = _helix(entry.centre, entry.helix_radius, p, z_top, z, float(th[start]))
         if z_top > z and air_over(entry.centre) <= z:
             # Air under the centre (a hole roughed before, with its skin left): straight down
             # there and out onto the circle, not a helix through the air.
@@ -568,8 +697,11 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
         cut.append(LineString(turn[:, :2]))
     else:  # ramp
         j = entry.ring_index
-        ring = _climb(rings[j].coords, None, inside_out)
-        z_top = air_over(ring)
+        coords = rings[j].coords
+        # As the helix: the ramp starts where the known stock lets the tool lowest.
+        candidates = coords[:-1:max(1, (len(coords) - 1) // 64)]
+        ring = _climb(_ring_from(coords, candidates[_lowest_air(candidates, air_at)]), None, inside_out)
+        z_top = air_over(ring[:1])
         descent, rest = _ramp(ring, p, z_top, z)
         path.go_to(descent[0, :2], p)
         path.descend(descent[0], z_top, p)
@@ -602,6 +734,14 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
             path.descend([*src, z], z, p)  # on a path already cut at this level: air
         path.add([*q, z], Motion.CUT)
         emit_ring(j, q, q - src)
+    if p.spring_pass:
+        # The outer loops again, in the same direction: the tool springs back less with no
+        # stock left to push it, so the walls come to size. The loops were cut: air all the way.
+        for ring in outer:
+            if np.linalg.norm(path.here[:2] - ring[0]) > 1e-9:
+                path.go_to(ring[0], p)
+                path.descend([*ring[0], z], z, p)
+            path.add_many(np.column_stack([ring, np.full(len(ring), z)]), Motion.CUT)
     return True
 
 
@@ -721,17 +861,27 @@ def zlevel_roughing(
             allowed = allowed.intersection(cleared)
         if blocked:
             allowed = allowed.difference(shapely.union_all(blocked))
+        space = allowed  # where the tool may go at this level, rest material or not
         if rest is not None:
             material = rest_material(rest, z, rest_above, p.allowance)
             allowed = allowed.intersection(material.buffer(p.radius, quad_segs=8))
         regions = [r for r in _polygons(allowed) if r.area > _MIN_AREA]
         plans = []
+        clear_here = None  # where the known stock lets the tool down to this level, when first needed
         for region in regions:
             rings = _rings(region, p)
             if not rings:
                 continue
             entry = _open_entry(region, rings, rect_xy, g, p)
             inside_out = entry is None
+            if entry is None and air_at is not None:
+                # Rest machining: rest material (a terrace, the skin on a wall) with air beside it
+                # is entered from there, as an open region is from outside the stock: no helix or
+                # ramp at the plunge feed, and none at all where a strip is too narrow for one.
+                if clear_here is None:
+                    clear_here = _clear_down_to(known, tool, z)
+                entry = _side_entry(region, rings, space, clear_here, p, known.grid.cell)
+                inside_out = entry is None
             if entry is None:
                 entry = _closed_entry(region, rings, p)
             if entry is None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import manifold3d
 import numpy as np
 import pytest
@@ -98,3 +100,55 @@ def test_flat_finishing_refuses_a_tool_that_is_not_flat(tool):
     t = LIBRARY.tool(tool)
     with pytest.raises(ToolError, match="flat"):
         flat_wall_finishing(part, setup, t, LIBRARY.cutting_data(t, "aluminium"), classify_faces(part), None)
+
+
+def _pocket_body() -> manifold3d.Manifold:
+    # A closed 36 x 24 pocket 4 mm deep: floor and four walls, for the 10 mm flat end mill.
+    return manifold3d.Manifold.cube((60.0, 40.0, 10.0)) - manifold3d.Manifold.cube((36.0, 24.0, 5.0)).translate(
+        (12.0, 8.0, 6.0))
+
+
+def _flat_ops(job, tool: int):
+    return [op for op in job.operations if op.kind == "finishing" and op.tool.number == tool]
+
+
+def _cut_length(op) -> float:
+    d = np.linalg.norm(np.diff(op.points, axis=0), axis=1)
+    return float(d[op.motion[1:] == 1].sum())
+
+
+def test_floors_at_a_wide_stepover_are_still_finished():
+    from cadcam.flatfinish import FLOOR_STEPOVER, FlatFinishOptions
+
+    assert 0.6 <= FLOOR_STEPOVER <= 0.75
+    narrow = dataclasses.replace(FAST, flat_finish=FlatFinishOptions(stepover=5.0))
+    wide_job, setup, sim, report = _plan_and_verify(_pocket_body(), cell=0.2)
+    narrow_job, _, _, _ = _plan_and_verify(_pocket_body(), narrow, cell=0.2)
+    assert report.ok, [f.message for f in report.faults]
+    rem = sim.remaining
+    assert np.percentile(rem[np.isfinite(rem)], 95) <= 0.02
+    # fewer loops over the floor than at half the diameter
+    assert sum(map(_cut_length, _flat_ops(wide_job, 2))) < sum(map(_cut_length, _flat_ops(narrow_job, 2)))
+
+
+def test_a_spring_pass_runs_the_walls_again_and_is_off_by_default():
+    from cadcam.flatfinish import FlatFinishOptions
+
+    assert not FlatFinishOptions().spring_pass
+    spring = dataclasses.replace(FAST, flat_finish=FlatFinishOptions(spring_pass=True))
+    plain_job, _, _, _ = _plan_and_verify(_pocket_body(), cell=0.2)
+    job, setup, sim, report = _plan_and_verify(_pocket_body(), spring, cell=0.2)
+    assert report.ok, [f.message for f in report.faults]
+    (plain,), (sprung,) = _flat_ops(plain_job, 2), _flat_ops(job, 2)
+    extra = _cut_length(sprung) - _cut_length(plain)
+    # at least the pocket's wall loop (36 x 24 less the tool, corners rounded) once more
+    assert extra >= 2 * (36 - 10 + 24 - 10) - 1.0, extra
+    # every extra cut point lies on a loop already cut: the spring pass cuts no new ground
+    cut = plain.points[1:][plain.motion[1:] == 1]
+    extra_pts = sprung.points[1:][sprung.motion[1:] == 1]
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(cut).query(extra_pts)
+    assert np.percentile(d, 99) <= 0.5
+    rem = sim.remaining
+    assert np.percentile(rem[np.isfinite(rem)], 95) <= 0.02

@@ -63,6 +63,17 @@ def test_refuses_naming_what_is_missing_only_when_nothing_reaches():
         choose_tools(LIBRARY, box_setup((80.0, 60.0, 50.0)), PlanOptions())
 
 
+def test_a_drill_never_roughs():
+    # Chosen by fit, the roughing end mill came from every tool that is not a ball: a drill too.
+    library = dataclasses.replace(LIBRARY, tools=tuple(t for t in LIBRARY.tools if t.shape not in ("flat", "bull")))
+    assert any(t.is_drill for t in library.tools)
+    setup, part = make_setup(manifold_to_trimesh(manifold3d.Manifold.cube((30.0, 24.0, 8.0))))
+    with pytest.raises(ToolError, match="no flat or bull-nose end mill"):
+        choose_tools(library, setup, PlanOptions(), np.asarray(part.triangles))
+    rough, _ = choose_tools(LIBRARY, setup, PlanOptions(), np.asarray(part.triangles))
+    assert rough.shape in ("flat", "bull")
+
+
 def _doctored(setup: Setup, tool_number: int, descent_xy) -> Operation:
     tool = LIBRARY.tool(tool_number)
     x, y = descent_xy
@@ -183,3 +194,21 @@ def test_a_part_deeper_than_t1_reaches_plans_with_longer_tools():
     assert float(setup.stock_max[2] - setup.floor_z) == pytest.approx(36.0)
     assert all(op.tool.length >= 36.0 for op in job.operations)
     assert_safe(job, setup, moves, sw, text)
+
+
+@settings(max_examples=100, deadline=None)
+@given(mask=st.lists(st.lists(st.booleans(), min_size=6, max_size=6), min_size=1, max_size=8),
+       x0=st.floats(-5, 5), y0=st.floats(-5, 5), cell=st.sampled_from([0.1, 0.5, 1.0]))
+def test_cells_area_is_the_union_of_the_cells(mask, x0, y0, cell):
+    import shapely
+
+    from cadcam.rest import cells_area
+
+    m = np.array(mask, dtype=bool)
+    jj, ii = np.nonzero(m)
+    h = 0.5 * cell
+    x, y = x0 + ii * cell, y0 + jj * cell
+    each = shapely.union_all(shapely.box(x - h, y - h, x + h, y + h)) if len(jj) else shapely.Polygon()
+    got = cells_area(m, x0, y0, cell)
+    assert got.symmetric_difference(each).area < 1e-9
+    assert abs(got.area - m.sum() * cell * cell) < 1e-9 * max(1.0, got.area)

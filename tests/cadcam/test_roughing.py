@@ -7,6 +7,7 @@ mill tells where stock is before each move.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import math
@@ -20,7 +21,9 @@ from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
 from cadcam.model import CuttingData, Motion, Setup, Tool
+from cadcam.rest import excess
 from cadcam.roughing import RoughingOptions, zlevel_roughing
+from cadcam.verify import stock_after
 from factory.errors import ToolError, ToolpathError
 
 TOOL = Tool(1, "6 mm flat 3FL carbide", "flat", 6.0, 0.0, 15.0, 3, 30.0)
@@ -376,7 +379,7 @@ def test_bad_inputs():
     ball = Tool(2, "ball", "ball", 6.0, 3.0, 15.0, 2, 30.0)
     with pytest.raises(ToolError):
         zlevel_roughing(pocket_part(), setup, ball, CUTTING)
-    for bad in (dict(stepover=4.0), dict(stepdown=0.0), dict(stepdown=20.0), dict(allowance=-0.1),
+    for bad in (dict(stepover=6.0), dict(stepover=0.0), dict(stepdown=0.0), dict(stepdown=20.0), dict(allowance=-0.1),
                 dict(ramp_angle=0.0), dict(helix_diameter=0.0), dict(min_helix_diameter=5.0)):
         with pytest.raises(ToolpathError):
             zlevel_roughing(pocket_part(), setup, TOOL, CUTTING, RoughingOptions(**bad))
@@ -422,3 +425,83 @@ def test_random_blocks_no_gouge_no_plunge(part_setup, diameter, allowance):
     assert_no_gouge(part, op, allowance, radius=tool.radius)
     _, bad = simulate(op, setup, 3.0, radius=tool.radius)
     assert not bad, "\n".join(bad[:5])
+
+
+def dish_part(a: float, b: float, depth: float, floor: float) -> trimesh.Trimesh:
+    """The stock block 40 x 30 x 12 with a dish in its top: a half-ellipsoid (semi-axes a, b, depth)
+    cut off by a flat floor ``floor`` [mm] down."""
+    bowl = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
+    bowl.apply_scale((a, b, depth))
+    bowl.apply_translation((20.0, 15.0, 0.0))
+    dish = difference(bowl, box((0, 0, -20), (40, 30, -floor)))
+    return difference(box((0, 0, -12), (40, 30, 0)), dish)
+
+
+def joined(*ops):
+    """One operation running the moves of ``ops`` in turn (for the heightfield simulation)."""
+    return dataclasses.replace(ops[0], points=np.vstack([op.points for op in ops]),
+                               motion=np.concatenate([op.motion for op in ops]))
+
+
+@settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.floats(12.0, 17.0), st.floats(9.0, 13.0), st.floats(7.0, 10.0), st.floats(0.5, 0.8))
+def test_rest_terraces_in_a_dish_are_entered_from_the_air_beside_them(a, b, depth, share):
+    # The terraces z-level roughing leaves on a dish's sides are strips too narrow for a helix,
+    # closed all round: rest roughing enters each from the air the earlier levels cleared
+    # beside it, instead of skipping it (and leaving it to a narrower, slower tool).
+    part, setup = dish_part(a, b, depth, share * depth), make_setup()
+    first = zlevel_roughing(part, setup, TOOL, CUTTING, RoughingOptions(stepdown=3.0))
+    stock = stock_after([first], setup, np.asarray(part.triangles))
+    logger = logging.getLogger("cadcam.roughing")
+    seen: list[str] = []
+    handler = logging.Handler()
+    handler.emit = lambda record: seen.append(record.getMessage())
+    logger.addHandler(handler)
+    try:
+        terraces = zlevel_roughing(part, setup, TOOL, CUTTING, RoughingOptions(stepdown=0.7), rest=stock,
+                                   rest_above=0.7)
+    finally:
+        logger.removeHandler(handler)
+    assert not [m for m in seen if "skipped" in m or "left uncut" in m], seen[:3]
+    assert len(terraces.points) > 1
+    after = stock_after([first, terraces], setup, np.asarray(part.triangles))
+    assert float(excess(after, 0.3).max()) <= 1.5  # what the finishing tool may meet
+    assert_no_gouge(part, terraces, 0.3)
+    _, bad = simulate(joined(first, terraces), setup, 3.0)
+    assert not bad, "\n".join(bad[:5])
+
+
+@pytest.mark.parametrize("name", ["pocket", "boss", "slot"])
+@pytest.mark.parametrize("share", [0.6, 0.75, 0.89])
+def test_a_wide_stepover_leaves_no_island_the_default_one_cuts(name, share):
+    # Loops more than a radius apart leave cusps between them; the loops added over those gaps
+    # must cut everything the default stepover (at most a radius: no gaps) cuts.
+    part, setup, wide, options = rough(name, stepover=share * TOOL.diameter)
+    _, _, usual, _ = rough(name)
+    motion_basics(wide, setup)
+    assert_no_gouge(part, wide, options.allowance)
+    hf_wide, bad = simulate(wide, setup, options.ramp_angle)
+    assert not bad, "\n".join(bad[:5])
+    hf_usual, _ = simulate(usual, setup, options.ramp_angle)
+    with np.errstate(invalid="ignore"):  # -inf - -inf outside the stock
+        left = hf_wide.h - hf_usual.h
+    left[~np.isfinite(left)] = 0.0
+    assert left.max() <= 0.05, np.unravel_index(np.argmax(left), left.shape)
+    cut = [np.linalg.norm(np.diff(op.points, axis=0), axis=1)[op.motion[1:] == Motion.CUT].sum() for op in (wide, usual)]
+    assert cut[0] <= cut[1] + 1e-6, cut
+
+
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(random_parts(), st.floats(0.55, 0.89))
+def test_random_blocks_wide_stepover_cuts_what_the_default_cuts(part_setup, share):
+    part, setup = part_setup
+    wide = zlevel_roughing(part, setup, TOOL, CUTTING, RoughingOptions(stepover=share * TOOL.diameter))
+    usual = zlevel_roughing(part, setup, TOOL, CUTTING)
+    assert_no_gouge(part, wide, 0.3)
+    hf_wide, bad = simulate(wide, setup, 3.0)
+    assert not bad, "\n".join(bad[:5])
+    hf_usual, _ = simulate(usual, setup, 3.0)
+    with np.errstate(invalid="ignore"):  # -inf - -inf outside the stock
+        left = hf_wide.h - hf_usual.h
+    left[~np.isfinite(left)] = 0.0
+    assert left.max() <= 0.05
