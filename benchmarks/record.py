@@ -53,7 +53,7 @@ def main() -> None:
         with Record(target) as record:
             recorder = record.recorder(cell="bench", orders=orders, orders_file="synthetic", orders_sha256="0" * 64,
                                        faults_seed=args.faults)
-            plans = {(p, "aluminium"): OperationPlan(str(p), "0" * 64, proc.machining_s, proc.cycle_s,
+            plans = {(p, "aluminium"): OperationPlan(str(p), "0" * 64, proc.machining_s, proc.ideal_cycle_s,
                                                      {"inspect_pass": {"tolerance_mm": 1.0, "max_deviation_mm": 0.5},
                                                       "inspect_fail": {"tolerance_mm": 1.0, "max_deviation_mm": 2.0}},
                                                      "0" * 64) for p, proc in PARTS.items()}

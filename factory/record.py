@@ -400,8 +400,8 @@ class OperationPlan:
     machining_s : float
         Planned program time [s].
     ideal_cycle_s : float
-        Steady-state cycle of the cell on this part without faults [s] (locate, fetch, load,
-        machining, unload).
+        The OEE ideal cycle of the cell on this part [s] (locate, fetch, load, machining, the
+        faster way out of the vise: :attr:`robotprog.cellsim.PartProcess.ideal_cycle_s`).
     inspections : mapping event → dict
         The inspection result (``tolerance_mm``, ``max_deviation_mm``, …) the out-tray camera gives
         for a good part (``inspect_pass``) and a damaged one (``inspect_fail``).
@@ -427,7 +427,7 @@ class OperationPlan:
         if assets.process.op2_machining_s is not None:
             program2 = assets.entry.output("program_op2")
             op2 = (str(program2), sha256_file(program2), assets.process.op2_machining_s)
-        return cls(str(program), sha256_file(program), assets.process.machining_s, assets.process.cycle_s,
+        return cls(str(program), sha256_file(program), assets.process.machining_s, assets.process.ideal_cycle_s,
                    detections, assets.entry.summary["catalog"]["mesh_sha256"], op2)
 
 

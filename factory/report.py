@@ -16,7 +16,7 @@ Definitions (times in simulated seconds [s]):
 - **Performance** = Σ ideal cycle time / *O*, over every part *made* (its program ran to the end,
   then it was inspected: good or rejected); a part's ideal cycle is its operation's
   ``ideal_cycle_s``: the cell's fault-free steady-state cycle on that part (locate, fetch, load,
-  machining, unload). A part scrapped after machine alarms is not made: its time is downtime.
+  machining, the faster way out of the vise). A part scrapped after machine alarms is not made: its time is downtime.
 - **Quality** = good parts / parts made.
 - **OEE** = availability × performance × quality (= Σ ideal cycle of the good parts / *P* when
   every part has the same ideal cycle).

@@ -124,6 +124,13 @@ class PartProcess:
         """Time [s] between finished parts in steady state without faults."""
         return self.locate_s + self.fetch_s + self.machine_s
 
+    @property
+    def ideal_cycle_s(self) -> float:
+        """The OEE ideal cycle [s]: the steady-state cycle by the faster of the part's two ways out
+        of the vise (to the out-tray, or a rejected part's way to the bin). A part made by either
+        way takes at least this long, so the performance term never exceeds 1."""
+        return self.cycle_s - self.unload_s + min(self.unload_s, self.reject_s)
+
 
 @dataclass(frozen=True)
 class FaultModel:
@@ -253,7 +260,7 @@ class SimulationResult:
     losses : tuple of Loss
         The time each fault and machine reset cost (:mod:`robotprog.oee`).
     ideal_cycle_s : mapping job id → float
-        The fault-free steady-state cycle of each job's part [s] (:attr:`PartProcess.cycle_s`).
+        The OEE ideal cycle of each job's part [s] (:attr:`PartProcess.ideal_cycle_s`).
     """
 
     log: tuple[LogEntry, ...]
@@ -688,7 +695,7 @@ class _Sim:
             "recoveries": self.cell.recoveries,
             "failures": self.cell.failures,
         }
-        ideal = {j: process_of(self.processes, self.orders[o]).cycle_s for j, o in self.jobs.items()}
+        ideal = {j: process_of(self.processes, self.orders[o]).ideal_cycle_s for j, o in self.jobs.items()}
         summary.update(run_oee(self.log, ideal, self.ledger.losses, summary["makespan_s"]))
         activities = tuple(sorted(self.activities, key=lambda a: (a.start, a.end)))
         return SimulationResult(tuple(self.log), outcomes, summary, activities, tuple(self.machine_hold),

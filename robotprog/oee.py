@@ -13,7 +13,7 @@ so the simulation's summary and the report of the same run agree (times in simul
 - **Performance** = ideal cycle time x parts made / run time: the sum, over every part *made*
   (its program ran to the end, then it was inspected and sorted: good or rejected), of its
   ideal cycle, the cell's fault-free steady-state cycle on that part
-  (:attr:`robotprog.cellsim.PartProcess.cycle_s`: locate, fetch, load, machining, unload), over
+  (:attr:`robotprog.cellsim.PartProcess.ideal_cycle_s`: locate, fetch, load, machining, the faster way out), over
   *O*. What performance loses is slow running: the program an alarm cut short, waiting, the
   last part's inspection. A part scrapped after machine alarms is not made.
 - **Quality** = good parts / parts made.
