@@ -21,11 +21,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import shapely
 from scipy import ndimage
-from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
+from cadcam.gridregion import cells_region
 from cadcam.model import Motion, Operation, Setup, Tool
 from cadcam.verify import Simulation, VerifyOptions, clear_height, operation_moves, simulate, simulate_snapshots
 from factory.errors import ToolpathError
@@ -53,16 +52,14 @@ def excess(sim: Simulation, allowance: float, grid_slack: bool = True) -> np.nda
     return sim.stock_top - np.maximum(grown, sim.floor)
 
 
+def rest_mask(sim: Simulation, z: float, above: float, allowance: float) -> np.ndarray:
+    """(ny, nx) bool: the grid cells whose stock reaches above ``z`` with more than ``above`` [mm] of excess."""
+    return (sim.stock_top > z + _LEVEL_EPS) & (excess(sim, allowance) > above)
+
+
 def rest_material(sim: Simulation, z: float, above: float, allowance: float) -> BaseGeometry:
     """XY area of the grid cells whose stock reaches above ``z`` with more than ``above`` [mm] of excess."""
-    g = sim.grid
-    mask = (sim.stock_top > z + _LEVEL_EPS) & (excess(sim, allowance) > above)
-    jj, ii = np.nonzero(mask)
-    if not len(jj):
-        return Polygon()
-    h = 0.5 * g.cell
-    x, y = g.x0 + ii * g.cell, g.y0 + jj * g.cell
-    return shapely.union_all(shapely.box(x - h, y - h, x + h, y + h))
+    return cells_region(rest_mask(sim, z, above, allowance), sim.grid)
 
 
 def deep_stock(sim: Simulation, above: float, allowance: float, grid_slack: bool = True) -> Simulation:
