@@ -588,10 +588,19 @@ def drop_profile(
 #: Threads one drop-cutter query may use: the processors this process may run on, at most 4.
 _THREADS = max(1, min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)))
 #: Candidate vertices (before culling) below which a query runs in the calling thread alone:
-#: a thread hand-off costs more than a small batch (iso-line bisection steps, chord checks).
-_THREAD_MIN_CANDIDATES = 4 * _PAIR_BUDGET
+#: a thread hand-off (~0.1 ms) is worth it from a few tens of milliseconds of work.
+_THREAD_MIN_CANDIDATES = _PAIR_BUDGET // 2
 _POOL: concurrent.futures.ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
+
+
+def _forget_pool() -> None:
+    global _POOL
+    _POOL = None  # a forked child has none of the parent's threads: it makes its own pool
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
 
 
 def _threads_for(candidates: int) -> int:

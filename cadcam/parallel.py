@@ -73,3 +73,63 @@ def _serial(fn, jobs, done):
         if done is not None:
             done(i)
     return out
+
+
+class Background:
+    """``fn(*args)`` started in a forked process now, its result taken later with :meth:`result`.
+
+    For a stage that overlaps another in this process (the program's verification while the
+    robot's moves are planned). Where processes cannot be had, or the child fails in any
+    way, :meth:`result` computes ``fn(*args)`` here: the answer, or the error, is then
+    exactly the serial one. :meth:`cancel` ends the child (the parent failed meanwhile).
+    """
+
+    def __init__(self, fn: Callable[..., Any], *args: Any):
+        self._fn, self._args = fn, args
+        self._proc = None
+        self._conn = None
+        if WORKERS < 2 or "fork" not in multiprocessing.get_all_start_methods():
+            return
+        ctx = multiprocessing.get_context("fork")
+        try:
+            self._conn, send = ctx.Pipe(duplex=False)
+            self._proc = ctx.Process(target=_child, args=(send, fn, args), daemon=True)
+            self._proc.start()
+            send.close()
+        except OSError as e:
+            log.info("no worker process (%s): %s runs here", e, getattr(fn, "__name__", fn))
+            self.cancel()
+
+    def result(self) -> Any:
+        if self._proc is not None:
+            ok, value = False, None
+            try:
+                ok, value = self._conn.recv()  # before join: a large result fills the pipe
+            except (EOFError, OSError):
+                pass
+            self.cancel()
+            if ok:
+                return value
+            log.info("%s failed in its worker process; running it here", getattr(self._fn, "__name__", self._fn))
+        return self._fn(*self._args)
+
+    def cancel(self) -> None:
+        if self._proc is not None:
+            if self._proc.is_alive():
+                self._proc.terminate()
+            self._proc.join()
+            self._proc = None
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None
+
+
+def _child(conn, fn, args) -> None:
+    try:
+        value = fn(*args)
+    except BaseException:  # noqa: BLE001 - the parent reruns it and raises the error itself
+        conn.send((False, None))
+    else:
+        conn.send((True, value))
+    finally:
+        conn.close()
