@@ -35,8 +35,11 @@ tool) pairs are kept, because finishing queries the same surface many times.
 
 from __future__ import annotations
 
+import concurrent.futures
 import logging
 import math
+import os
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -51,8 +54,10 @@ Progress = Callable[[int, int], None]
 
 #: Pairs (CL point x primitive) evaluated per vectorised batch; bounds memory (~100 B/pair).
 _PAIR_BUDGET = 400_000
-#: Bisection steps for bull-nose edge contacts: 2R / 2**44 is far below 1e-9 mm.
-_BISECT_STEPS = 44
+#: Bisection steps for bull-nose edge contacts: 2R / 2**32 is ~1e-9 mm along the edge for
+#: R = 10 mm; at an interior maximum of the concave contact height that is off by far less
+#: in z (second order), and a maximum at an edge end is the end vertex's own exact contact.
+_BISECT_STEPS = 32
 #: Highest vertex candidates per point evaluated first, for a lower bound that culls the rest.
 _HEAD = 24
 #: Query bucket size as a share of the tool radius (smaller: tighter bounds, more entries).
@@ -390,18 +395,31 @@ def _edge_contacts(index, radius, corner, tables, cx, cy, point, ei, out) -> Non
 def _bull_edge_argmax(s, d2, lo, hi, radius, corner):
     """argmax over t in [lo, hi] of s t - h(sqrt(d2 + t^2)) (concave) by bisection on the slope."""
     a = radius - corner
-    lo = lo.copy()
-    hi = hi.copy()
+    c2 = corner * corner
+    lo = np.array(lo, dtype=np.float64)
+    w = np.asarray(hi, dtype=np.float64) - lo
+    mid, r, e, k, rhs = (np.empty_like(lo) for _ in range(5))
+    up = np.empty(lo.shape, dtype=bool)
     for _ in range(_BISECT_STEPS):
-        mid = 0.5 * (lo + hi)
-        r = np.sqrt(d2 + mid * mid)
-        e = np.maximum(r - a, 0.0)
-        k = np.sqrt(np.maximum(corner * corner - e * e, 0.0))
+        # In place: this loop is most of a bull-nose query, and temporaries cost as much as the math.
+        w *= 0.5
+        np.add(lo, w, out=mid)
+        np.multiply(mid, mid, out=r)
+        r += d2
+        np.sqrt(r, out=r)
+        np.subtract(r, a, out=e)
+        np.maximum(e, 0.0, out=e)
+        np.multiply(e, e, out=k)
+        np.subtract(c2, k, out=k)
+        np.maximum(k, 0.0, out=k)
+        np.sqrt(k, out=k)
         # d/dt [s t - h] > 0  <=>  s r k > e t  (h' = e / k, dr/dt = t / r; multiplied out)
-        up = s * r * k > e * mid
-        lo = np.where(up, mid, lo)
-        hi = np.where(up, hi, mid)
-    return 0.5 * (lo + hi)
+        k *= r
+        k *= s
+        np.multiply(e, mid, out=rhs)
+        np.greater(k, rhs, out=up)
+        np.add(lo, w, out=lo, where=up)
+    return lo + 0.5 * w
 
 
 @dataclass(frozen=True)
@@ -512,31 +530,92 @@ def drop_profile(
     # Chunks of points by their (unculled) vertex candidates; culled work is split again.
     cum = np.cumsum(vbuckets.ptr[cell + 1] - vbuckets.ptr[cell])
     bull = 0.0 < corner_radius < radius
-    start = 0
-    while start < n:
-        base = cum[start - 1] if start else 0
-        stop = int(np.searchsorted(cum, base + _PAIR_BUDGET, side="right"))
-        stop = min(max(stop, start + 1), n)
-        sl = slice(start, stop)
-        c = cell[sl]
-        best = res[sl]  # a view: kernels raise it in place
-        sx, sy = cx[sl], cy[sl]
-        first = vbuckets.ptr[c]
-        # The highest few vertices give a good lower bound that culls most other candidates.
-        head = np.minimum(first + _HEAD, vbuckets.ptr[c + 1])
-        _run(_vertex_contacts, index, radius, corner_radius, tables, sx, sy, vbuckets.items, first, head, best, 1)
-        # Facets are few per point and on smooth meshes nearly exact: a tight bound for the rest.
-        _run(_facet_contacts, index, radius, corner_radius, tables, sx, sy, fbuckets.items,
-             fbuckets.ptr[c], fbuckets.stop(c, best), best, 1)
-        tail = np.maximum(vbuckets.stop(c, best), head)
-        _run(_vertex_contacts, index, radius, corner_radius, tables, sx, sy, vbuckets.items, head, tail, best, 1)
-        _run(_edge_contacts, index, radius, corner_radius, tables, sx, sy, ebuckets.items,
-             ebuckets.ptr[c], ebuckets.stop(c, best), best, 8 if bull else 1)
-        start = stop
-        if progress is not None:
-            progress(start, n)
+
+    def drop_range(lo: int, hi: int, report: Progress | None) -> None:
+        """Points ``lo:hi`` (in bucket order) into ``res[lo:hi]``; touches nothing else."""
+        start = lo
+        while start < hi:
+            base = cum[start - 1] if start else 0
+            stop = int(np.searchsorted(cum, base + _PAIR_BUDGET, side="right"))
+            stop = min(max(stop, start + 1), hi)
+            sl = slice(start, stop)
+            c = cell[sl]
+            best = res[sl]  # a view: kernels raise it in place
+            sx, sy = cx[sl], cy[sl]
+            first = vbuckets.ptr[c]
+            # The highest few vertices give a good lower bound that culls most other candidates.
+            head = np.minimum(first + _HEAD, vbuckets.ptr[c + 1])
+            _run(_vertex_contacts, index, radius, corner_radius, tables, sx, sy, vbuckets.items, first, head, best, 1)
+            # Facets are few per point and on smooth meshes nearly exact: a tight bound for the rest.
+            _run(_facet_contacts, index, radius, corner_radius, tables, sx, sy, fbuckets.items,
+                 fbuckets.ptr[c], fbuckets.stop(c, best), best, 1)
+            tail = np.maximum(vbuckets.stop(c, best), head)
+            _run(_vertex_contacts, index, radius, corner_radius, tables, sx, sy, vbuckets.items, head, tail, best, 1)
+            _run(_edge_contacts, index, radius, corner_radius, tables, sx, sy, ebuckets.items,
+                 ebuckets.ptr[c], ebuckets.stop(c, best), best, 8 if bull else 1)
+            start = stop
+            if report is not None:
+                report(start - lo)
+
+    workers = _threads_for(int(cum[-1]))
+    if workers == 1:
+        drop_range(0, n, None if progress is None else (lambda done: progress(done, n)))
+    else:
+        # Each point's CL z depends on nothing but its own candidates, so disjoint ranges of
+        # points run in threads (numpy releases the GIL in the array work) with identical results.
+        # Ranges split the candidate count evenly, not the points.
+        cuts = [0, *(int(np.searchsorted(cum, cum[-1] * k / workers)) for k in range(1, workers)), n]
+        done = [0] * workers
+        lock = threading.Lock()
+
+        def report_for(k: int) -> Callable[[int], None] | None:
+            if progress is None:
+                return None
+
+            def report(d: int) -> None:
+                with lock:  # one caller at a time, totals in order
+                    done[k] = d
+                    progress(sum(done), n)
+            return report
+
+        futures = [_pool().submit(drop_range, cuts[k], cuts[k + 1], report_for(k)) for k in range(workers)]
+        for f in futures:
+            f.result()
     out[order] = res
     return out
+
+
+#: Threads one drop-cutter query may use: the processors this process may run on, at most 4.
+_THREADS = max(1, min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)))
+#: Candidate vertices (before culling) below which a query runs in the calling thread alone:
+#: a thread hand-off (~0.1 ms) is worth it from a few tens of milliseconds of work.
+_THREAD_MIN_CANDIDATES = _PAIR_BUDGET // 2
+_POOL: concurrent.futures.ThreadPoolExecutor | None = None
+_POOL_LOCK = threading.Lock()
+
+
+def _forget_pool() -> None:
+    global _POOL
+    _POOL = None  # a forked child has none of the parent's threads: it makes its own pool
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
+
+
+def _threads_for(candidates: int) -> int:
+    if _THREADS < 2 or candidates < _THREAD_MIN_CANDIDATES:
+        return 1
+    return int(min(_THREADS, max(1, candidates // (_THREAD_MIN_CANDIDATES // 2))))
+
+
+def _pool() -> concurrent.futures.ThreadPoolExecutor:
+    """One pool for the process, made on first use (worker threads are daemon-like: idle ones cost nothing)."""
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None:
+            _POOL = concurrent.futures.ThreadPoolExecutor(max_workers=_THREADS, thread_name_prefix="dropcutter")
+        return _POOL
 
 
 def _run(kernel, index, radius, corner, tables, cx, cy, items, first, last, best, cost) -> None:

@@ -580,8 +580,15 @@ def _finish_chains(surface: _Surface, chains_xy: list[np.ndarray], tolerance: fl
 
 # --------------------------------------------------------------------------- waterline
 
-#: Bisection steps locating a loop vertex on its grid edge (grid step / 2**40: sub-nm).
-_ISO_STEPS = 40
+#: Bracket length [mm] at which a loop vertex counts as located on its iso-line: 1/100 of
+#: the G-code's 0.0001 mm (40 plain bisections of the grid step went to sub-nm, for nothing).
+_ISO_RESOLUTION = 1e-6
+#: A bracket whose ends' CL z are both within this of the level is done sooner [mm].
+_ISO_Z_RESOLUTION = 1e-7
+#: CL z step across a located bracket [mm] that counts as a jump of the surface (a wall).
+_ISO_JUMP = 1e-4
+#: Steps of :func:`_onto_level` at most (a bracket halves at least every other step).
+_ISO_MAX_STEPS = 60
 #: Rounds of chord checking; each halves the chords that still cut in.
 _CHORD_ROUNDS = 14
 
@@ -751,19 +758,15 @@ def _onto_iso(surface: _Surface, xy, lev, gx, gy, Z, tolerance):
     p_in = np.where(a_in[:, None], pa, pb)
     p_out = np.where(a_in[:, None], pb, pa)
     sel = np.flatnonzero(bracket)
-    pi, po, lv = p_in[sel], p_out[sel], lev[sel]
-    for _ in range(_ISO_STEPS):
-        mid = 0.5 * (pi + po)
-        inside = surface.z(mid) > lv
-        pi = np.where(inside[:, None], mid, pi)
-        po = np.where(inside[:, None], po, mid)
+    z_in, z_out = np.where(a_in, za, zb)[sel], np.where(a_in, zb, za)[sel]
+    pi, po, lv = _onto_level(surface, p_in[sel], p_out[sel], lev[sel], zi=z_in, zo=z_out)
     out = xy.copy()
     out[sel] = po
     outward = np.zeros_like(xy)
     d = po - pi
     outward[sel] = d / np.maximum(np.hypot(*d.T), 1e-300)[:, None]
     # Where the surface jumps across the bracket, step out a little: the tool side is on a wall.
-    jump = surface.z(pi) - lv > 1e-4
+    jump = surface.z(pi) - lv > _ISO_JUMP
     if np.any(jump):
         k = sel[jump]
         pushed = po[jump] + 0.5 * tolerance * outward[k]
@@ -773,6 +776,77 @@ def _onto_iso(surface: _Surface, xy, lev, gx, gy, Z, tolerance):
     if len(unbracketed):
         log.warning("%d contour vertices without a bracketing grid edge", len(unbracketed))
     return out, outward
+
+
+def _onto_level(surface: _Surface, pi, po, lv, zi=None, zo=None):
+    """Shrink each bracket [pi, po] onto the point where the CL surface crosses its level.
+
+    Parameters
+    ----------
+    pi, po : (n, 2) float
+        Bracket ends [mm]: the CL z at ``pi`` is above ``lv``, at ``po`` at or below it.
+    lv : (n,) float
+        Levels [mm].
+    zi, zo : (n,) float, optional
+        The exact CL z at ``pi`` and ``po`` if known [mm] (saves two evaluations).
+
+    Returns
+    -------
+    pi, po, lv : (n, 2), (n, 2), (n,) float
+        The shrunk brackets, the same invariant kept: ``po`` is exactly where the CL z was
+        found at or below the level (the gouge-free end), ``pi`` where it was above.
+
+    Safeguarded false position (the Illinois variant): a step interpolates the CL z linearly
+    between the two ends; a step that did not halve the bracket is followed by a
+    bisection, so where the surface jumps (the tool's side on a vertical wall) the
+    bracket still halves at least every other step. A bracket is done when it is shorter
+    than ``_ISO_RESOLUTION`` or both ends are within ``_ISO_Z_RESOLUTION`` of the level.
+    Each step evaluates only the brackets still open.
+    """
+    pi = np.array(pi, dtype=np.float64).reshape(-1, 2)
+    po = np.array(po, dtype=np.float64).reshape(-1, 2)
+    lv = np.asarray(lv, dtype=np.float64).reshape(-1)
+    n = len(pi)
+    if n == 0:
+        return pi, po, lv
+    fi = (surface.z(pi) if zi is None else np.asarray(zi, dtype=np.float64)) - lv
+    fo = (surface.z(po) if zo is None else np.asarray(zo, dtype=np.float64)) - lv
+    true_fi, true_fo = fi.copy(), fo.copy()  # fi, fo are scaled by the Illinois rule
+    # The ends as found; the step parameter runs along the original bracket.
+    p0, d = pi.copy(), po - pi
+    length = np.hypot(d[:, 0], d[:, 1])
+    ti, to = np.zeros(n), np.ones(n)
+    last = np.zeros(n, dtype=np.int8)  # +1: pi moved last step, -1: po moved, 0: neither yet
+    bisect = np.zeros(n, dtype=bool)
+    active = np.flatnonzero(length > _ISO_RESOLUTION)
+    for _ in range(_ISO_MAX_STEPS):
+        if not len(active):
+            break
+        a = active
+        a_ti, a_to, a_fi, a_fo = ti[a], to[a], fi[a], fo[a]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = a_ti + (a_to - a_ti) * a_fi / (a_fi - a_fo)
+        # Interpolated steps keep a little off the ends (no stalling on a bracket end).
+        w = a_to - a_ti
+        t = np.clip(np.where(np.isfinite(t), t, 0.5 * (a_ti + a_to)), a_ti + 1e-3 * w, a_to - 1e-3 * w)
+        t = np.where(bisect[a], 0.5 * (a_ti + a_to), t)
+        m = p0[a] + t[:, None] * d[a]
+        fm = surface.z(m) - lv[a]
+        inside = fm > 0.0
+        # Illinois: an end kept twice in a row has its value halved, so it moves next time.
+        keep_o = inside & (last[a] == 1)
+        keep_i = ~inside & (last[a] == -1)
+        fo[a[keep_o]] *= 0.5
+        fi[a[keep_i]] *= 0.5
+        ai, ao = a[inside], a[~inside]
+        ti[ai], fi[ai], true_fi[ai], pi[ai] = t[inside], fm[inside], fm[inside], m[inside]
+        to[ao], fo[ao], true_fo[ao], po[ao] = t[~inside], fm[~inside], fm[~inside], m[~inside]
+        last[a] = np.where(inside, 1, -1)
+        w_new = to[a] - ti[a]
+        bisect[a] = w_new > 0.5 * w
+        on_level = (true_fo[a] >= -_ISO_Z_RESOLUTION) & (true_fi[a] <= _ISO_Z_RESOLUTION)
+        active = a[(w_new * length[a] > _ISO_RESOLUTION) & ~on_level]
+    return pi, po, lv
 
 
 def _tighten_chords(surface: _Surface, loops, outs, tolerance):
@@ -846,12 +920,8 @@ def _tighten_chords(surface: _Surface, loops, outs, tolerance):
         if not np.any(found):
             break
         pi, po, lvf, nf = start[found], po[found], lvk[found], n[found]
-        for _ in range(_ISO_STEPS):
-            m = 0.5 * (pi + po)
-            inside = surface.z(m) > lvf
-            pi = np.where(inside[:, None], m, pi)
-            po = np.where(inside[:, None], po, m)
-        jump = surface.z(pi) - lvf > 1e-4
+        pi, po, lvf = _onto_level(surface, pi, po, lvf)
+        jump = surface.z(pi) - lvf > _ISO_JUMP
         pushed = po + 0.5 * tolerance * nf
         use = jump & (surface.z(pushed) <= lvf)
         po[use] = pushed[use]

@@ -47,6 +47,7 @@ import numpy as np
 
 from cadcam.arcs import FitOptions, SegmentKind, Segments, fit_segments
 from cadcam.model import Job, Motion, Operation, Tool
+from cadcam.parallel import process_map
 from factory.errors import GcodeError
 
 log = logging.getLogger(__name__)
@@ -354,11 +355,38 @@ def _write_cycle(w: _Writer, op: Operation) -> tuple[float, float, float]:
     return cut_len, float(move_seconds(cut_len, feed, w.opt.rapid_rate)), float(seg[~cut].sum())
 
 
-def _op_segments(op: Operation, opt: PostOptions,
-                 progress: Callable[[int, int], None] | None) -> Segments:
-    fit = FitOptions(tolerance=opt.arc_tolerance, arcs=opt.arcs,
-                     min_chord=max(0.01, 200 * 10.0 ** -opt.decimals))
-    return fit_segments(op.points, op.motion, fit, progress=progress)
+#: Input moves of a job from which arc fitting runs in worker processes (one operation each).
+_PARALLEL_FIT_MOVES = 20_000
+
+
+def _fit_options(opt: PostOptions) -> FitOptions:
+    return FitOptions(tolerance=opt.arc_tolerance, arcs=opt.arcs, min_chord=max(0.01, 200 * 10.0 ** -opt.decimals))
+
+
+def _fit_one(points: np.ndarray, motion: np.ndarray, fit: FitOptions) -> Segments:
+    return fit_segments(points, motion, fit)
+
+
+def _fitted(job: Job, opt: PostOptions, progress: Callable[[int, int], None] | None,
+            total: int) -> dict[int, Segments]:
+    """Segments of every operation written as moves, by operation index, fitted in parallel when large.
+
+    Arc fitting is pure Python per operation and operations are independent, so a large
+    job's are fitted in forked processes (:func:`cadcam.parallel.process_map`); the result
+    is the serial one. Progress then advances an operation at a time."""
+    fit = _fit_options(opt)
+    todo = [k for k, op in enumerate(job.operations) if op.cycle is None or opt.dialect == "grbl"]
+    moves = [max(len(job.operations[k].points) - 1, 0) for k in todo]
+    finished = [0]
+
+    def done(i: int) -> None:
+        finished[0] += moves[i]
+        if progress is not None:
+            progress(finished[0], total)
+
+    segs = process_map(_fit_one, [(job.operations[k].points, job.operations[k].motion, fit) for k in todo],
+                       moves, _PARALLEL_FIT_MOVES, done)
+    return dict(zip(todo, segs))
 
 
 def post_process(job: Job, options: PostOptions = PostOptions(), *,
@@ -401,6 +429,7 @@ def post_process(job: Job, options: PostOptions = PostOptions(), *,
     last_xy: tuple[float, float] | None = None
     moves_before = sum(max(len(op.points) - 1, 0) for op in job.operations)
     moves_done = 0
+    fitted = _fitted(job, opt, progress, moves_before)
 
     for k, op in enumerate(job.operations):
         first_line = len(w.lines)
@@ -468,9 +497,7 @@ def post_process(job: Job, options: PostOptions = PostOptions(), *,
             continue
         if op.cycle is not None:
             w.comment(f"G{op.cycle.code} cycle written out as moves: grbl has no canned cycles")
-        done_before = moves_done
-        seg = _op_segments(op, opt, None if progress is None else
-                           (lambda done, _n, base=done_before: progress(base + done, moves_before)))
+        seg = fitted[k]
         moves_done += max(len(op.points) - 1, 0)
         lengths = seg.lengths()
         feeds = np.select([seg.motion == Motion.CUT, seg.motion == Motion.PLUNGE], [c.feed, c.plunge_feed], np.nan)

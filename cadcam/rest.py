@@ -21,11 +21,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import shapely
 from scipy import ndimage
-from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
+from cadcam.gridregion import cells_region
 from cadcam.model import Motion, Operation, Setup, Tool
 from cadcam.verify import Simulation, VerifyOptions, clear_height, operation_moves, simulate, simulate_snapshots
 from factory.errors import ToolpathError
@@ -53,32 +52,14 @@ def excess(sim: Simulation, allowance: float, grid_slack: bool = True) -> np.nda
     return sim.stock_top - np.maximum(grown, sim.floor)
 
 
+def rest_mask(sim: Simulation, z: float, above: float, allowance: float) -> np.ndarray:
+    """(ny, nx) bool: the grid cells whose stock reaches above ``z`` with more than ``above`` [mm] of excess."""
+    return (sim.stock_top > z + _LEVEL_EPS) & (excess(sim, allowance) > above)
+
+
 def rest_material(sim: Simulation, z: float, above: float, allowance: float) -> BaseGeometry:
     """XY area of the grid cells whose stock reaches above ``z`` with more than ``above`` [mm] of excess."""
-    g = sim.grid
-    mask = (sim.stock_top > z + _LEVEL_EPS) & (excess(sim, allowance) > above)
-    return cells_area(mask, g.x0, g.y0, g.cell)
-
-
-def cells_area(mask: np.ndarray, x0: float, y0: float, cell: float) -> BaseGeometry:
-    """XY area of the ``True`` cells of a (ny, nx) grid mask, each a square of side ``cell`` [mm] centred
-    on its grid point ``(x0 + i * cell, y0 + j * cell)``.
-
-    The runs of cells along each row are joined into one rectangle first: the same union from
-    far fewer boxes (the union is most of rest roughing's time on a large grid).
-    """
-    m = np.asarray(mask, dtype=bool)
-    if not m.any():
-        return Polygon()
-    padded = np.zeros((m.shape[0], m.shape[1] + 2), dtype=np.int8)
-    padded[:, 1:-1] = m
-    step = np.diff(padded, axis=1)
-    rows, starts = np.nonzero(step == 1)
-    _, stops = np.nonzero(step == -1)  # same rows, in the same order: runs alternate start, stop
-    h = 0.5 * cell
-    x_lo, x_hi = x0 + starts * cell - h, x0 + (stops - 1) * cell + h
-    y = y0 + rows * cell
-    return shapely.union_all(shapely.box(x_lo, y - h, x_hi, y + h))
+    return cells_region(rest_mask(sim, z, above, allowance), sim.grid)
 
 
 def deep_stock(sim: Simulation, above: float, allowance: float, grid_slack: bool = True) -> Simulation:

@@ -80,7 +80,8 @@ from shapely.geometry.polygon import orient
 from shapely.ops import nearest_points
 
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
-from cadcam.rest import rest_material
+from cadcam.gridregion import GrownMaskCache
+from cadcam.rest import rest_mask
 from cadcam.verify import Simulation, clear_height
 from factory.errors import MeshError, ToolError, ToolpathError
 
@@ -842,6 +843,8 @@ def zlevel_roughing(
     if within is not None:
         rect = rect.intersection(within(p.radius))
 
+    # the rest material grown by the tool radius, remembered per distinct mask of levels
+    rest_grown = GrownMaskCache(rest.grid, p.radius, quad_segs=8) if rest is not None else None
     known = rest if air is None else air
     air_at = None if known is None else (lambda xy: clear_height(known, tool, xy))
     path = _Path()
@@ -863,8 +866,7 @@ def zlevel_roughing(
             allowed = allowed.difference(shapely.union_all(blocked))
         space = allowed  # where the tool may go at this level, rest material or not
         if rest is not None:
-            material = rest_material(rest, z, rest_above, p.allowance)
-            allowed = allowed.intersection(material.buffer(p.radius, quad_segs=8))
+            allowed = allowed.intersection(rest_grown(rest_mask(rest, z, rest_above, p.allowance)))
         regions = [r for r in _polygons(allowed) if r.area > _MIN_AREA]
         plans = []
         clear_here = None  # where the known stock lets the tool down to this level, when first needed

@@ -33,6 +33,7 @@ import numpy as np
 import trimesh
 
 from cadcam.model import Job, Setup
+from cadcam.parallel import Background
 from cadcam.op2 import (FLIP_AXIS, WORK_OFFSET, Op2Options, flip_transform, op2_setup_image, op2_sheet_fields,
                         plan_op2)
 from cadcam.post import PostOptions, Program, post_process
@@ -402,38 +403,54 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
         sheet = setup_sheet(job, program, outputs["program"].name)
         sheet.update(op=1, work_offset="G54")
     tending = None
+    verify_args = (program.text, str(outputs["program"]), job.setup, {t.number: t for t in job.tools},
+                   np.asarray(planned.part_work.triangles), VerifyOptions(cell=req.grid))
+    verify_kwargs = dict(operations=sheet.get("operations") or ())
+    background = None
     if req.robot:
-        # the vise must clamp the stock above its jaws and the gripper hold it, before any motion is planned
-        vise_cell = load_cell(req.cell, check_robot=False)
-        check_stock_fits(setup_sheet_to_cell(sheet, str(outputs["setup_sheet"])), vise_cell.vise.jaw_opening_min,
-                         vise_cell.vise.jaw_opening_max, vise_cell.vise.grip_depth, vise_cell.gripper.opening_max)
-        vertices = np.asarray(planned.loaded.mesh.vertices) / float(job.setup.mesh_scale)
-        if planned.boundary is not None:  # a relief leaves in its block: the robot holds the block
-            vertices = block_corners(job.setup)
+        # Verification does not depend on the robot: it runs in a second process meanwhile (no
+        # progress bar of its own then).
+        background = Background(_verify_quietly, verify_args, verify_kwargs)
         try:
-            cell, world, tplan = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch,
-                                           setups=req.ops)
-        except PlanningError as e:
-            if asked_ops is not None or req.ops != 2:
-                raise
-            # Not asked for two operations, and the robot cannot turn this part over on the cell's
-            # flip station: op 1 alone, said loudly (the holding allowance stays on the part).
-            log.warning("%s: op 1 only, the holding allowance stays: the robot cannot turn the part over: %s",
-                        req.cam.part, e.message)
-            req = dataclasses.replace(req, ops=1)
-            outputs = req.outputs(Path("."))
-            cell, world, tplan = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch)
-        tending = Tending(cell, world, tplan, post_program(req.lang, outputs["robot_program"], cell, world, tplan))
-    with watch("verify"):
-        sim, report = run_verify(program.text, str(outputs["program"]), job.setup,
-                                 {t.number: t for t in job.tools},
-                                 np.asarray(planned.part_work.triangles), VerifyOptions(cell=req.grid), progress,
-                                 operations=sheet.get("operations") or ())
+            # the vise must clamp the stock above its jaws and the gripper hold it, before any motion is planned
+            vise_cell = load_cell(req.cell, check_robot=False)
+            check_stock_fits(setup_sheet_to_cell(sheet, str(outputs["setup_sheet"])), vise_cell.vise.jaw_opening_min,
+                             vise_cell.vise.jaw_opening_max, vise_cell.vise.grip_depth, vise_cell.gripper.opening_max)
+            vertices = np.asarray(planned.loaded.mesh.vertices) / float(job.setup.mesh_scale)
+            if planned.boundary is not None:  # a relief leaves in its block: the robot holds the block
+                vertices = block_corners(job.setup)
+            try:
+                cell, world, tplan = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch,
+                                               setups=req.ops)
+            except PlanningError as e:
+                if asked_ops is not None or req.ops != 2:
+                    raise
+                # Not asked for two operations, and the robot cannot turn this part over on the cell's
+                # flip station: op 1 alone, said loudly (the holding allowance stays on the part).
+                log.warning("%s: op 1 only, the holding allowance stays: the robot cannot turn the part over: %s",
+                            req.cam.part, e.message)
+                req = dataclasses.replace(req, ops=1)
+                outputs = req.outputs(Path("."))
+                cell, world, tplan = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch)
+            tending = Tending(cell, world, tplan, post_program(req.lang, outputs["robot_program"], cell, world, tplan))
+        except BaseException:
+            background.cancel()  # no verification left running for a plan that failed
+            raise
+    with watch("verify"):  # with the robot: the wait for the second process
+        if background is not None:
+            sim, report = background.result()
+        else:
+            sim, report = run_verify(*verify_args, progress, **verify_kwargs)
     op2 = None
     if req.ops == 2:
         op2 = _plan_op2(req, planned, sim, outputs, progress, watch)
         sheet["next"] = {"program": outputs["program_op2"].name, "setup_sheet": outputs["setup_sheet_op2"].name}
     return PartPlan(req, planned, program, sheet, tending, sim, report, dict(watch.seconds), op2)
+
+
+def _verify_quietly(args: tuple, kwargs: dict) -> tuple[Simulation, VerifyReport]:
+    """:func:`run_verify` without progress, for a worker process."""
+    return run_verify(*args, None, **kwargs)
 
 
 def _plan_op2(req: PlanRequest, planned: PlannedPart, op1_sim: Simulation, outputs: dict[str, Path],

@@ -205,3 +205,25 @@ def test_bad_input_raises():
         drop_cutter(idx, tool("ball"), np.zeros((3, 3)), 0.0)
     with pytest.raises(ToolpathError):
         drop_cutter(idx, tool("ball"), np.array([[np.nan, 0.0]]), 0.0)
+
+
+@pytest.mark.parametrize("shape", ["flat", "bull", "ball"])
+def test_threads_give_the_single_thread_answer(shape, monkeypatch):
+    """Points split across worker threads get exactly the CL z one thread computes, progress to the total."""
+    import cadcam.dropcutter as dc
+
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=10.0)
+    tris = np.asarray(sphere.triangles)
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-14, 14, size=(20000, 2))
+    t = tool(shape)
+    monkeypatch.setattr(dc, "_THREADS", 1)
+    one = drop_cutter(build_index(tris), t, xy, -20.0)
+    monkeypatch.setattr(dc, "_THREADS", 3)
+    monkeypatch.setattr(dc, "_THREAD_MIN_CANDIDATES", 64)
+    seen = []
+    many = drop_cutter(build_index(tris), t, xy, -20.0, progress=lambda done, total: seen.append((done, total)))
+    assert dc._threads_for(10**6) == 3
+    np.testing.assert_array_equal(many, one)
+    assert seen and seen[-1] == (len(xy), len(xy))
+    assert all(total == len(xy) and 0 < done <= total for done, total in seen)

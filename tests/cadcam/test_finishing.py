@@ -251,3 +251,33 @@ def test_waterline_leaves_shallow_areas_to_the_raster():
     levels = np.unique(np.round(cut[:, 2], 6))
     assert levels.min() < -19.0 + 1.0 and levels.max() > -15.5
     assert worst_gouge(op, part, t, setup_for().stock_min[2]) <= TOL + 1e-6
+
+
+@pytest.mark.parametrize("name", ["hemisphere", "pocket"])
+def test_onto_level_keeps_the_gouge_free_end_and_locates_the_crossing(name):
+    """Brackets shrink onto the level: the outside end never above it, the bracket tiny or on it."""
+    from cadcam.finishing import _ISO_RESOLUTION, _ISO_Z_RESOLUTION, _onto_level, _Surface
+
+    part, setup, t = PARTS[name](), setup_for(), tool("ball")
+    surface = _Surface(build_index(part.triangles), t.radius, t.corner_radius, 0.0, float(setup.stock_min[2]))
+    rng = np.random.default_rng(7)
+    a = rng.uniform([2, 2], [38, 28], size=(400, 2))
+    b = a + rng.normal(scale=1.5, size=(400, 2))
+    za, zb = surface.z(a), surface.z(b)
+    lv = np.minimum(za, zb) + rng.uniform(0.05, 0.95, 400) * np.abs(za - zb)
+    inside_a = za > lv
+    keep = inside_a != (zb > lv)
+    pi0 = np.where(inside_a[:, None], a, b)[keep]
+    po0 = np.where(inside_a[:, None], b, a)[keep]
+    assert len(pi0) > 100
+    pi, po, lv = _onto_level(surface, pi0, po0, lv[keep])
+    zi, zo = surface.z(pi), surface.z(po)
+    assert np.all(zo <= lv)
+    assert np.all(zi > lv)
+    done = (np.hypot(*(po - pi).T) <= 2 * _ISO_RESOLUTION) | (
+        (zo >= lv - _ISO_Z_RESOLUTION) & (zi <= lv + _ISO_Z_RESOLUTION))
+    assert done.all()
+    # Both ends stay on the segment they started on.
+    d = po0 - pi0
+    cross = d[:, 0] * (po - pi0)[:, 1] - d[:, 1] * (po - pi0)[:, 0]
+    assert np.max(np.abs(cross)) <= 1e-9 * (1 + np.max(np.abs(d)) ** 2)

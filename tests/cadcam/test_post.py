@@ -379,3 +379,19 @@ def test_work_offset_is_the_fixture_the_program_runs_in(dialect):
         with pytest.raises(GcodeError, match="work_offset"):
             PostOptions(dialect=dialect, work_offset=bad)
 
+
+
+def test_fitting_in_worker_processes_writes_the_same_program(monkeypatch):
+    """Operations fitted in forked processes give the serial program, progress to the end."""
+    import cadcam.parallel
+    import cadcam.post
+
+    job = _job()
+    serial = post_process(job, PostOptions(dialect="linuxcnc"))
+    monkeypatch.setattr(cadcam.post, "_PARALLEL_FIT_MOVES", 0)
+    monkeypatch.setattr(cadcam.parallel, "WORKERS", 2)
+    calls = []
+    parallel = post_process(job, PostOptions(dialect="linuxcnc"), progress=lambda d, n: calls.append((d, n)))
+    assert parallel.text == serial.text
+    assert calls[-1] == (parallel.moves_before_fitting, parallel.moves_before_fitting)
+    assert all(a[0] <= b[0] for a, b in zip(calls, calls[1:]))

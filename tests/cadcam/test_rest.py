@@ -194,21 +194,3 @@ def test_a_part_deeper_than_t1_reaches_plans_with_longer_tools():
     assert float(setup.stock_max[2] - setup.floor_z) == pytest.approx(36.0)
     assert all(op.tool.length >= 36.0 for op in job.operations)
     assert_safe(job, setup, moves, sw, text)
-
-
-@settings(max_examples=100, deadline=None)
-@given(mask=st.lists(st.lists(st.booleans(), min_size=6, max_size=6), min_size=1, max_size=8),
-       x0=st.floats(-5, 5), y0=st.floats(-5, 5), cell=st.sampled_from([0.1, 0.5, 1.0]))
-def test_cells_area_is_the_union_of_the_cells(mask, x0, y0, cell):
-    import shapely
-
-    from cadcam.rest import cells_area
-
-    m = np.array(mask, dtype=bool)
-    jj, ii = np.nonzero(m)
-    h = 0.5 * cell
-    x, y = x0 + ii * cell, y0 + jj * cell
-    each = shapely.union_all(shapely.box(x - h, y - h, x + h, y + h)) if len(jj) else shapely.Polygon()
-    got = cells_area(m, x0, y0, cell)
-    assert got.symmetric_difference(each).area < 1e-9
-    assert abs(got.area - m.sum() * cell * cell) < 1e-9 * max(1.0, got.area)

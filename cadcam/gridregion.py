@@ -1,0 +1,80 @@
+"""XY regions made of stock-model grid cells, built fast.
+
+The stock model (:class:`cadcam.verify.Simulation`) marks rest material cell by cell. As a
+polygon that is the union of the marked cells' squares; rest roughing grows it by the tool
+radius. Both are exact set operations on up to tens of thousands of squares, and GEOS
+pays per vertex and per intersection:
+
+- the union is built from *row runs* (one rectangle per run of marked cells in a grid
+  row), a few hundred rectangles instead of thousands of squares: 5-10x faster;
+- the grown region is the union of the runs each grown by the radius (a rounded
+  rectangle each), not the staircase outline grown at once, whose offset curve crosses
+  itself at every step: 5x faster, the same set to floating-point noise (the arcs are
+  centred on the same cell corners with the same segments per quarter circle);
+- levels whose mask is the same as an earlier level's (the stock top is a grid of
+  heights, so many consecutive levels select the same cells) reuse its region.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon
+from shapely.geometry.base import BaseGeometry
+
+from cadcam.heightmap import Grid
+
+
+def cell_runs(mask: np.ndarray, grid: Grid) -> np.ndarray:
+    """(k,) shapely rectangles, one per run of True cells along a grid row.
+
+    mask : (ny, nx) bool over ``grid`` (row j at y0 + j * cell); cell (j, i) is the square
+    of side ``cell`` centred on its grid point [mm]. Edges are computed from cell indices
+    alone, so adjacent rectangles share edge coordinates exactly.
+    """
+    m = np.asarray(mask, dtype=bool)
+    d = np.diff(np.pad(m, ((0, 0), (1, 1))).view(np.int8), axis=1)
+    j, i0 = np.nonzero(d == 1)
+    _, i1 = np.nonzero(d == -1)  # row-major order pairs each run's end with its start
+    c = grid.cell
+    return shapely.box(grid.x0 + (i0 - 0.5) * c, grid.y0 + (j - 0.5) * c,
+                       grid.x0 + (i1 - 0.5) * c, grid.y0 + (j + 0.5) * c)
+
+
+def cells_region(mask: np.ndarray, grid: Grid) -> BaseGeometry:
+    """Union of the squares of the True cells of ``mask`` (see :func:`cell_runs`); empty Polygon if none."""
+    runs = cell_runs(mask, grid)
+    return shapely.union_all(runs) if len(runs) else Polygon()
+
+
+def grown_cells_region(mask: np.ndarray, grid: Grid, radius: float, quad_segs: int = 8) -> BaseGeometry:
+    """``cells_region(mask, grid).buffer(radius, quad_segs=quad_segs)``, computed run by run.
+
+    radius : float, >= 0 [mm].
+    """
+    runs = cell_runs(mask, grid)
+    if not len(runs):
+        return Polygon()
+    if radius <= 0:
+        return shapely.union_all(runs)
+    return shapely.union_all(shapely.buffer(runs, radius, quad_segs=quad_segs))
+
+
+class GrownMaskCache:
+    """:func:`grown_cells_region` remembered per distinct mask (one grid, radius and quad_segs).
+
+    Rest roughing asks for the grown rest material at every level; the masks repeat from
+    level to level, and a mask's bytes identify it.
+    """
+
+    def __init__(self, grid: Grid, radius: float, quad_segs: int = 8):
+        self.grid, self.radius, self.quad_segs = grid, float(radius), int(quad_segs)
+        self._seen: dict[bytes, BaseGeometry] = {}
+
+    def __call__(self, mask: np.ndarray) -> BaseGeometry:
+        key = np.packbits(np.asarray(mask, dtype=bool)).tobytes()
+        region = self._seen.get(key)
+        if region is None:
+            region = grown_cells_region(mask, self.grid, self.radius, self.quad_segs)
+            self._seen[key] = region
+        return region

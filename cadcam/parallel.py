@@ -1,0 +1,135 @@
+"""Independent pieces of CAM work on the machine's other processors.
+
+Some stages are many independent Python-heavy jobs (arc fitting, one per operation) that
+threads cannot share out (the interpreter lock). Forked worker processes can: they start
+with everything the parent imported and built, so only each job's arguments and result
+cross over (pickled). Work too small to pay for a fork (~20 ms) runs here, in order.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import logging
+import multiprocessing
+import os
+from collections.abc import Callable, Sequence
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+#: Processes at most: the processors this process may run on, at most 4.
+WORKERS = max(1, min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)))
+
+
+def process_map(fn: Callable[..., Any], jobs: Sequence[tuple], weights: Sequence[float], min_total: float,
+                done: Callable[[int], None] | None = None) -> list[Any]:
+    """``[fn(*args) for args in jobs]``, in forked worker processes when the work is worth it.
+
+    Parameters
+    ----------
+    fn : callable
+        A module-level function (workers find it by name); ``fn(*args)`` must depend on
+        nothing but its arguments, which and whose result must pickle.
+    jobs : sequence of tuple
+        Arguments of each call.
+    weights : sequence of float
+        Rough cost of each job (e.g. its point count): the heaviest start first, and below
+        ``min_total`` in all, or with one job, everything runs in this process.
+    done : callable, optional
+        ``done(i)`` in this process as job ``i`` finishes.
+
+    Returns
+    -------
+    list
+        Results in the order of ``jobs``: the same as the serial loop's. An exception of a
+        job is raised here as it would be in the loop. If processes cannot be had (no
+        ``fork``, a broken pool), the jobs run here.
+    """
+    n = len(jobs)
+    workers = min(WORKERS, n)
+    if workers < 2 or sum(weights) < min_total or "fork" not in multiprocessing.get_all_start_methods():
+        return _serial(fn, jobs, done)
+    order = sorted(range(n), key=lambda i: -weights[i])
+    results: list[Any] = [None] * n
+    try:
+        with concurrent.futures.ProcessPoolExecutor(max_workers=workers,
+                                                    mp_context=multiprocessing.get_context("fork")) as pool:
+            futures = {pool.submit(fn, *jobs[i]): i for i in order}
+            for f in concurrent.futures.as_completed(futures):
+                i = futures[f]
+                results[i] = f.result()
+                if done is not None:
+                    done(i)
+    except (concurrent.futures.process.BrokenProcessPool, OSError) as e:
+        log.info("worker processes unavailable (%s): running %d jobs here", e, n)
+        return _serial(fn, jobs, done)
+    return results
+
+
+def _serial(fn, jobs, done):
+    out = []
+    for i, args in enumerate(jobs):
+        out.append(fn(*args))
+        if done is not None:
+            done(i)
+    return out
+
+
+class Background:
+    """``fn(*args)`` started in a forked process now, its result taken later with :meth:`result`.
+
+    For a stage that overlaps another in this process (the program's verification while the
+    robot's moves are planned). Where processes cannot be had, or the child fails in any
+    way, :meth:`result` computes ``fn(*args)`` here: the answer, or the error, is then
+    exactly the serial one. :meth:`cancel` ends the child (the parent failed meanwhile).
+    """
+
+    def __init__(self, fn: Callable[..., Any], *args: Any):
+        self._fn, self._args = fn, args
+        self._proc = None
+        self._conn = None
+        if WORKERS < 2 or "fork" not in multiprocessing.get_all_start_methods():
+            return
+        ctx = multiprocessing.get_context("fork")
+        try:
+            self._conn, send = ctx.Pipe(duplex=False)
+            self._proc = ctx.Process(target=_child, args=(send, fn, args), daemon=True)
+            self._proc.start()
+            send.close()
+        except OSError as e:
+            log.info("no worker process (%s): %s runs here", e, getattr(fn, "__name__", fn))
+            self.cancel()
+
+    def result(self) -> Any:
+        if self._proc is not None:
+            ok, value = False, None
+            try:
+                ok, value = self._conn.recv()  # before join: a large result fills the pipe
+            except (EOFError, OSError):
+                pass
+            self.cancel()
+            if ok:
+                return value
+            log.info("%s failed in its worker process; running it here", getattr(self._fn, "__name__", self._fn))
+        return self._fn(*self._args)
+
+    def cancel(self) -> None:
+        if self._proc is not None:
+            if self._proc.is_alive():
+                self._proc.terminate()
+            self._proc.join()
+            self._proc = None
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None
+
+
+def _child(conn, fn, args) -> None:
+    try:
+        value = fn(*args)
+    except BaseException:  # noqa: BLE001 - the parent reruns it and raises the error itself
+        conn.send((False, None))
+    else:
+        conn.send((True, value))
+    finally:
+        conn.close()
