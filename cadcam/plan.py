@@ -316,9 +316,9 @@ def plan_job(
         seconds.append((stage, time.perf_counter() - t0))
         return op
 
-    def model(ops: list[Operation]):
+    def model(ops: list[Operation], cell: float = _MODEL_CELL):
         t0 = time.perf_counter()
-        sim = stock_after(ops, setup, triangles) if any(len(op.points) > 1 for op in ops) else None
+        sim = stock_after(ops, setup, triangles, cell) if any(len(op.points) > 1 for op in ops) else None
         if sim is not None and boundary is not None:
             sim = keep_outside(sim, boundary, rough_tool.radius)
         seconds.append(("stock model", time.perf_counter() - t0))
@@ -369,8 +369,14 @@ def plan_job(
     if faces is not None and stock is not None:
         flat = flat_finish_tool(library, float(setup.stock_max[2] - setup.floor_z))
         if flat is not None:
-            stock = _finish_flats_and_walls(part, setup, library, flat, faces, stock, options, operations, timed,
-                                            model, stage_progress)
+            # The skin roughing leaves on a wall (the allowance) must show in the stock model, or the
+            # flank pass would take a wall taller than its flutes in one pass at the floor below it.
+            cell = _skin_cell(allowance)
+            fine = (lambda ops: model(ops, cell)) if cell < _MODEL_CELL else model
+            stock = _finish_flats_and_walls(part, setup, library, flat, faces, fine(operations), options,
+                                            operations, timed, fine, stage_progress)
+            if cell < _MODEL_CELL and faces.freeform:  # the ball plans from the usual model
+                stock = model(operations)
         if not faces.freeform:
             return _finished(part_name, setup, operations, source_sha256, options, rough_tool, finish_tool, left,
                              triangles, seconds, faces, holes)
@@ -400,6 +406,19 @@ def plan_job(
         limit=engagement, within=within, where=where)))
     return _finished(part_name, setup, operations, source_sha256, options, rough_tool, finish_tool, left, triangles,
                      seconds, faces, holes)
+
+
+#: Grid spacing of the in-process stock model the operations are planned from [mm].
+_MODEL_CELL = 0.5
+#: Finest stock model the flats and walls are planned from [mm] (verify's default grid).
+_FINEST_SKIN_CELL = 0.2
+
+
+def _skin_cell(allowance: float) -> float:
+    """Grid spacing [mm] at which a skin ``allowance`` [mm] thick beside a wall always holds a grid
+    point: a little under the skin's thickness (no finer than verify's grid, no coarser than the
+    planning model's)."""
+    return float(min(_MODEL_CELL, max(_FINEST_SKIN_CELL, 0.8 * allowance)))
 
 
 def _finish_flats_and_walls(part, setup, library, flat, faces, stock, options, operations, timed, model,

@@ -152,3 +152,22 @@ def test_a_spring_pass_runs_the_walls_again_and_is_off_by_default():
     assert np.percentile(d, 99) <= 0.5
     rem = sim.remaining
     assert np.percentile(rem[np.isfinite(rem)], 95) <= 0.02
+
+
+def test_a_wall_taller_than_the_flutes_is_finished_in_steps_even_where_the_model_grid_misses_its_skin():
+    # A slot 4 mm wide and 8.75 mm deep (random_4 of benchmarks/cycle_time.py): only the 2 mm T6 enters
+    # it; rest roughing leaves 0.3 mm on its walls, 2.75 mm more than T6's 6 mm flutes reach. The
+    # slot's front wall (work Y 13.39: part Y 11.39 + make_setup's 2 mm margin) lies 0.36 mm from
+    # the 0.5 mm stock model's grid points (Y 13.25, 13.75) on the slot side: a model that coarse
+    # sees no skin there, and the flank pass took the whole wall at the floor, shank in the skin.
+    body = manifold3d.Manifold.cube((40.0, 30.0, 12.0))
+    body -= manifold3d.Manifold.cube((10.0, 4.0, 9.75)).translate((10.233, 11.39, 12.0 - 8.75))
+    job, setup, sim, report = _plan_and_verify(body, cell=0.2)
+    kinds = [(op.kind, op.tool.number) for op in job.operations]
+    assert ("roughing", 6) in kinds and ("finishing", 6) in kinds, kinds
+    assert report.ok, [f.message for f in report.faults]
+    # the slot's walls are finished from top to floor: only its four sharp corners keep stock
+    g = sim.grid
+    X, Y = np.meshgrid(g.x0 + g.cell * np.arange(g.nx), g.y0 + g.cell * np.arange(g.ny))
+    slot = (X > 12.233 + 1.0) & (X < 22.233 - 1.0) & (Y > 13.39) & (Y < 17.39)
+    assert sim.remaining[slot].max() <= 0.02, float(sim.remaining[slot].max())
