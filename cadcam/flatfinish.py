@@ -41,6 +41,10 @@ from factory.errors import ToolError
 
 #: Default stepover of floor finishing, a share of the diameter.
 FLOOR_STEPOVER = 0.7
+#: Stock closer than this beside a wall [mm] is the hair the finishing allowance and the stock
+#: model's sampling leave (a grid point a micron off a finished wall reads as the whole wall's
+#: height), not a skin to finish: well under roughing's allowance, well over the finishing one.
+WALL_HAIR = 0.05
 #: Widest stepover taken, a share of the diameter: the gaps between loops grow towards a full diameter.
 _MOST_STEPOVER = 0.9
 
@@ -79,13 +83,16 @@ def left_on_flats_and_walls(stock: Simulation, faces: FaceClasses, reach: float,
     more than ``above`` [mm] over the part grown by ``allowance`` [mm].
 
     Without the grid slack of :func:`cadcam.rest.excess`: the skin roughing leaves on a wall is
-    thinner than a cell diagonal, and it is what this finishing is for.
+    thinner than a cell diagonal, and it is what this finishing is for. Grid points within
+    :data:`WALL_HAIR` of a wall are not counted: what they hold is the finishing allowance.
     """
     g = stock.grid
     x = g.x0 + g.cell * np.arange(g.nx)
     y = g.y0 + g.cell * np.arange(g.ny)
     X, Y = np.meshgrid(x, y)
-    near = faces.near((FLAT, WALL), reach)(np.column_stack([X.ravel(), Y.ravel()])).reshape(X.shape)
+    xy = np.column_stack([X.ravel(), Y.ravel()])
+    near = faces.near((FLAT, WALL), reach)(xy).reshape(X.shape)
+    near &= ~faces.near((WALL,), WALL_HAIR)(xy).reshape(X.shape)
     return near & (excess(stock, allowance, grid_slack=False) > above)
 
 

@@ -26,7 +26,7 @@ import trimesh
 from cadcam.drilling import DrillingOptions, plan_holes
 from cadcam.faces import SHALLOW, STEEP, FaceClasses, classify_faces
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
-from cadcam.flatfinish import FlatFinishOptions, flat_wall_finishing, left_on_flats_and_walls
+from cadcam.flatfinish import WALL_HAIR, FlatFinishOptions, flat_wall_finishing, left_on_flats_and_walls
 from cadcam.model import Job, Operation, Setup, Tool
 from cadcam.relief import Boundary, keep_outside
 from cadcam.rest import excess, safe_rapids, unreached
@@ -416,9 +416,9 @@ _FINEST_SKIN_CELL = 0.2
 
 def _skin_cell(allowance: float) -> float:
     """Grid spacing [mm] at which a skin ``allowance`` [mm] thick beside a wall always holds a grid
-    point: a little under the skin's thickness (no finer than verify's grid, no coarser than the
-    planning model's)."""
-    return float(min(_MODEL_CELL, max(_FINEST_SKIN_CELL, 0.8 * allowance)))
+    point outside the hair next to the wall (:data:`cadcam.flatfinish.WALL_HAIR`): a little under
+    the rest of the skin's thickness, no finer than verify's grid, no coarser than the planning model's."""
+    return float(min(_MODEL_CELL, max(_FINEST_SKIN_CELL, 0.8 * (allowance - WALL_HAIR))))
 
 
 def _finish_flats_and_walls(part, setup, library, flat, faces, stock, options, operations, timed, model,
