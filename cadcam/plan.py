@@ -369,13 +369,10 @@ def plan_job(
     if faces is not None and stock is not None:
         flat = flat_finish_tool(library, float(setup.stock_max[2] - setup.floor_z))
         if flat is not None:
-            # The skin roughing leaves on a wall (the allowance) must show in the stock model, or the
-            # flank pass would take a wall taller than its flutes in one pass at the floor below it.
-            cell = _skin_cell(allowance)
-            fine = (lambda ops: model(ops, cell)) if cell < _MODEL_CELL else model
-            stock = _finish_flats_and_walls(part, setup, library, flat, faces, fine(operations), options,
-                                            operations, timed, fine, stage_progress)
-            if cell < _MODEL_CELL and faces.freeform:  # the ball plans from the usual model
+            before = len(operations)
+            _finish_flats_and_walls(part, setup, library, flat, faces, stock, options, operations, timed, model,
+                                    stage_progress)
+            if len(operations) > before and faces.freeform:
                 stock = model(operations)
         if not faces.freeform:
             return _finished(part_name, setup, operations, source_sha256, options, rough_tool, finish_tool, left,
@@ -422,23 +419,34 @@ def _skin_cell(allowance: float) -> float:
 
 
 def _finish_flats_and_walls(part, setup, library, flat, faces, stock, options, operations, timed, model,
-                            stage_progress):
+                            stage_progress) -> None:
     """Flats and walls with ``flat``, then with each narrower flat end mill where stock is left.
 
-    Appends the operations; returns the stock after them."""
+    Appends the operations to ``operations``; ``stock`` is the model before them."""
     ff = options.flat_finish
     depth = float(setup.stock_max[2] - setup.floor_z)
+    skin = _skin_cell(options.roughing.allowance)
+    stale = False  # an operation was appended since ``stock`` was modelled
     for tool in [flat] + [t for t in rest_tools(library, flat) if t.length >= depth]:
+        if stale:
+            stock, stale = model(operations, stock.grid.cell), False
+        # (A skin only the finer model below shows, with nothing else left beside it, is no
+        # danger: no pass goes there.)
         if not left_on_flats_and_walls(stock, faces, tool.radius, ff.allowance, ff.rest_above).any():
             break
+        # A tool whose flutes are shorter than the part is deep takes a wall in steps, at levels
+        # where the stock model shows the skin roughing left on it; if the model missed it, the
+        # flank pass at the floor would take the whole wall at once, shank in the skin.
+        cell = _MODEL_CELL if tool.flute_length >= depth else skin
+        if abs(stock.grid.cell - cell) > 1e-9:
+            stock = model(operations, cell)
         cutting = library.cutting_data(tool, setup.material)
         stage = f"flats+walls T{tool.number}"
         op = timed(stage, lambda: flat_wall_finishing(part, setup, tool, cutting, faces, stock, options.flat_finish,
                                                       progress=stage_progress(stage)))
         if len(op.points) > 1:
             operations.append(op)
-            stock = model(operations)
-    return stock
+            stale = True
 
 
 def _finished(part_name, setup, operations, source_sha256, options, rough_tool, finish_tool, left, triangles,
