@@ -486,39 +486,31 @@ def post_process(job: Job, options: PostOptions = PostOptions(), *,
             cut_len, cut_time, cycle_rapid = _write_cycle(w, op)
             rapid_len += cycle_rapid
             end = op.points[-1]
-            w.move(0, np.array([math.nan, math.nan, safe_z]))
-            rapid_len += safe_z - float(end[2])
-            last_xy = (float(end[0]), float(end[1]))
-            estimates.append(OperationEstimate(
-                name=op.name, tool_number=t, cut_length=cut_len, rapid_length=rapid_len,
-                cut_time=cut_time, rapid_time=float(move_seconds(rapid_len, math.nan, opt.rapid_rate)),
-                lines=len(w.lines) - first_line,
-            ))
-            continue
-        if op.cycle is not None:
-            w.comment(f"G{op.cycle.code} cycle written out as moves: grbl has no canned cycles")
-        seg = fitted[k]
-        moves_done += max(len(op.points) - 1, 0)
-        lengths = seg.lengths()
-        feeds = np.select([seg.motion == Motion.CUT, seg.motion == Motion.PLUNGE], [c.feed, c.plunge_feed], np.nan)
-        seconds = move_seconds(lengths, feeds, opt.rapid_rate)
-        cut_len = 0.0
-        cut_time = 0.0
-        for i in range(len(seg)):
-            m = int(seg.motion[i])
-            if m == Motion.RAPID:
-                w.move(0, seg.end[i])
-                rapid_len += float(lengths[i])
-                continue
-            feed = c.feed if m == Motion.CUT else c.plunge_feed
-            cut_len += float(lengths[i])
-            cut_time += float(seconds[i])
-            kind = int(seg.kind[i])
-            if kind == SegmentKind.LINE:
-                w.move(1, seg.end[i], feed)
-            else:
-                w.move(kind, seg.end[i], feed, centre=seg.centre[i])
-        end = seg.end[-1] if len(seg) else p0
+        else:
+            if op.cycle is not None:
+                w.comment(f"G{op.cycle.code} cycle written out as moves: grbl has no canned cycles")
+            seg = fitted[k]
+            moves_done += max(len(op.points) - 1, 0)
+            lengths = seg.lengths()
+            feeds = np.select([seg.motion == Motion.CUT, seg.motion == Motion.PLUNGE], [c.feed, c.plunge_feed], np.nan)
+            seconds = move_seconds(lengths, feeds, opt.rapid_rate)
+            cut_len = 0.0
+            cut_time = 0.0
+            for i in range(len(seg)):
+                m = int(seg.motion[i])
+                if m == Motion.RAPID:
+                    w.move(0, seg.end[i])
+                    rapid_len += float(lengths[i])
+                    continue
+                feed = c.feed if m == Motion.CUT else c.plunge_feed
+                cut_len += float(lengths[i])
+                cut_time += float(seconds[i])
+                kind = int(seg.kind[i])
+                if kind == SegmentKind.LINE:
+                    w.move(1, seg.end[i], feed)
+                else:
+                    w.move(kind, seg.end[i], feed, centre=seg.centre[i])
+            end = seg.end[-1] if len(seg) else p0
         w.move(0, np.array([math.nan, math.nan, safe_z]))
         rapid_len += safe_z - float(end[2])
         last_xy = (float(end[0]), float(end[1]))
