@@ -3,8 +3,8 @@
     python benchmarks/scaleout.py [--generated 4] [--fast] [--json]
 
 Plans the sample parts plus ``--generated`` pocketed blocks (different sizes) with the workflow's
-``plans`` target, first with 1 and then with 2 concurrent jobs (``--cores``; every job pinned to
-one thread), each into a fresh folder. Every job's ``factory`` runs under ``/usr/bin/time``, so
+``plans`` target, first with 1 and then with 2 concurrent jobs (``--cores``; every job held to
+one thread: the workflow sets ``FACTORY_THREADS`` to the job's threads), each into a fresh folder. Every job's ``factory`` runs under ``/usr/bin/time``, so
 each job's own processor time is known. Reports:
 
 - wall time of each run [s] and the speed-up of 2 jobs over 1;
@@ -12,7 +12,9 @@ each job's own processor time is known. Reports:
   the driver's own (Snakemake: parse, DAG, file checks, starting the jobs);
 - the jobs' own compute: the sum of the stage times each ``factory plan`` reports in its summary;
 - per-job overhead, as the issue defines it: (wall with 1 job - compute) / jobs, i.e. what
-  Snakemake and starting a job cost; and the same in processor time: the driver's share per job
+  Snakemake and starting a job cost, split into what each job's process spends outside its
+  stages (start-up, exit) and what the driver spends between jobs (every stage of a plan is
+  timed, so a plan's work is not counted as overhead); and the same in processor time: the driver's share per job
   plus one ``factory plan`` job's start-up (``benchmarks/startup.py``: interpreter, imports and
   option parsing up to the first stage, and the TOPP-RA a plan loads when it first times a move);
 - what each job costs on a cluster besides its ``factory``: there every job is a Snakemake
@@ -76,7 +78,7 @@ def _timed_factory(folder: Path) -> Path:
     """A ``factory`` that records its own processor time in ``folder/times/``, one file per job."""
     (folder / "times").mkdir(parents=True)
     wrapper = folder / "factory"
-    wrapper.write_text(f'#!/bin/sh\nexec /usr/bin/time -f "%U %S" -o "{folder}/times/$$" {BIN / "factory"} "$@"\n')
+    wrapper.write_text(f'#!/bin/sh\nexec /usr/bin/time -f "%e %U %S" -o "{folder}/times/$$" {BIN / "factory"} "$@"\n')
     wrapper.chmod(0o755)
     return wrapper
 
@@ -104,6 +106,11 @@ def _compute(folder: Path) -> float:
 def _job_cpu(folder: Path) -> list[float]:
     """Processor time [s] of each job's ``factory`` process."""
     return [sum(map(float, p.read_text().split()[-2:])) for p in sorted((folder / "times").iterdir())]
+
+
+def _job_wall(folder: Path) -> list[float]:
+    """Wall time [s] of each job's ``factory`` process, from its start to its exit."""
+    return [float(p.read_text().split()[-3]) for p in sorted((folder / "times").iterdir())]
 
 
 # A stand-in `factory` for the cluster run: it only touches the files a plan writes, so what the
@@ -204,13 +211,14 @@ def main() -> None:
         startup = time.perf_counter() - t0
         startup_figures = measure_startup(repeat=3)
         startup_cpu = startup_figures["plan_job_startup"]
-        walls, cpus, compute, jobs_cpu = {}, {}, {}, {}
+        walls, cpus, compute, jobs_cpu, jobs_wall = {}, {}, {}, {}, {}
         for cores in (1, 2):
             folder = tmp / f"cores{cores}"
             folder.mkdir()
             walls[cores], cpus[cores] = _run(folder, tmp / "parts", cores, options, "plans")
             compute[cores] = _compute(folder)
             jobs_cpu[cores] = _job_cpu(folder)
+            jobs_wall[cores] = _job_wall(folder)
         dry_wall, dry_cpu = _run(tmp / "dry_small", tmp / "parts", 1, options, "plans", "--dry-run")
         big = _dry_parts(tmp / "dry_parts", args.dry_parts)
         dry_big_wall, dry_big_cpu = _run(tmp / "dry_big", big, 1, options, "plans", "--dry-run")
@@ -241,6 +249,10 @@ def main() -> None:
         "compute_s": {str(k): round(v, 1) for k, v in compute.items()},
         "per_job_compute_s": round(per_job_s, 2),
         "per_job_overhead_s": round(overhead, 2),
+        # ... split: inside each job's process but outside its stages (interpreter, imports, option
+        # checks, exit), and outside the jobs (the driver: parse, DAG, file checks, starting jobs)
+        "per_job_overhead_in_job_s": round((sum(jobs_wall[1]) - compute[1]) / n, 2),
+        "per_job_overhead_driver_s": round((walls[1] - sum(jobs_wall[1])) / n, 2),
         "per_job_overhead_cpu_s": round(overhead_cpu, 2),
         # the same with the driver's fixed start-up (what its dry run costs) left out: per job at scale
         "per_job_overhead_cpu_marginal_s": round(max(driver_cpu - driver_fixed_cpu, 0.0) / n + startup_cpu, 2),

@@ -46,6 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cadcam.model import Tool
+from cadcam.parallel import MAX_WORKERS, processors
 from factory.errors import MeshError, ToolpathError
 
 log = logging.getLogger(__name__)
@@ -585,8 +586,6 @@ def drop_profile(
     return out
 
 
-#: Threads one drop-cutter query may use: the processors this process may run on, at most 4.
-_THREADS = max(1, min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)))
 #: Candidate vertices (before culling) below which a query runs in the calling thread alone:
 #: a thread hand-off (~0.1 ms) is worth it from a few tens of milliseconds of work.
 _THREAD_MIN_CANDIDATES = _PAIR_BUDGET // 2
@@ -604,9 +603,10 @@ if hasattr(os, "register_at_fork"):
 
 
 def _threads_for(candidates: int) -> int:
-    if _THREADS < 2 or candidates < _THREAD_MIN_CANDIDATES:
+    threads = processors()  # one drop-cutter query's threads
+    if threads < 2 or candidates < _THREAD_MIN_CANDIDATES:
         return 1
-    return int(min(_THREADS, max(1, candidates // (_THREAD_MIN_CANDIDATES // 2))))
+    return int(min(threads, max(1, candidates // (_THREAD_MIN_CANDIDATES // 2))))
 
 
 def _pool() -> concurrent.futures.ThreadPoolExecutor:
@@ -614,7 +614,7 @@ def _pool() -> concurrent.futures.ThreadPoolExecutor:
     global _POOL
     with _POOL_LOCK:
         if _POOL is None:
-            _POOL = concurrent.futures.ThreadPoolExecutor(max_workers=_THREADS, thread_name_prefix="dropcutter")
+            _POOL = concurrent.futures.ThreadPoolExecutor(max_workers=MAX_WORKERS, thread_name_prefix="dropcutter")
         return _POOL
 
 

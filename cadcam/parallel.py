@@ -15,10 +15,39 @@ import os
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from factory.errors import FactoryError, shown
+
 log = logging.getLogger(__name__)
 
-#: Processes at most: the processors this process may run on, at most 4.
-WORKERS = max(1, min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)))
+#: Environment variable: how many processors factory may use, a batch job's share of a node
+#: (the workflow sets it to Snakemake's ``{threads}``). Unset, factory uses what it may run on.
+THREADS_ENV = "FACTORY_THREADS"
+#: Worker processes or threads of one stage at most: more buys little for the work's size.
+MAX_WORKERS = 4
+
+
+def processors() -> int:
+    """Processors one stage may use for its workers or threads: ``FACTORY_THREADS`` when set,
+    else the processors this process may run on (its CPU affinity: a Slurm job's allocation, a
+    ``taskset``); at most :data:`MAX_WORKERS`. 1 means everything runs in the calling thread.
+
+    Raises
+    ------
+    FactoryError
+        ``FACTORY_THREADS`` is set but is not a whole number of at least 1.
+    """
+    text = os.environ.get(THREADS_ENV, "").strip()
+    if text:
+        try:
+            n = int(text)
+        except ValueError:
+            n = 0
+        if n < 1:
+            raise FactoryError(f"expected a whole number of processors, at least 1, got {shown(text)}",
+                               source=THREADS_ENV)
+    else:
+        n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(MAX_WORKERS, n))
 
 
 def process_map(fn: Callable[..., Any], jobs: Sequence[tuple], weights: Sequence[float], min_total: float,
@@ -46,7 +75,7 @@ def process_map(fn: Callable[..., Any], jobs: Sequence[tuple], weights: Sequence
         ``fork``, a broken pool), the jobs run here.
     """
     n = len(jobs)
-    workers = min(WORKERS, n)
+    workers = min(processors(), n)
     if workers < 2 or sum(weights) < min_total or "fork" not in multiprocessing.get_all_start_methods():
         return _serial(fn, jobs, done)
     order = sorted(range(n), key=lambda i: -weights[i])
@@ -88,7 +117,7 @@ class Background:
         self._fn, self._args = fn, args
         self._proc = None
         self._conn = None
-        if WORKERS < 2 or "fork" not in multiprocessing.get_all_start_methods():
+        if processors() < 2 or "fork" not in multiprocessing.get_all_start_methods():
             return
         ctx = multiprocessing.get_context("fork")
         try:

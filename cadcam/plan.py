@@ -19,6 +19,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 import trimesh
@@ -36,6 +37,8 @@ from cadcam.toolfit import removal_rate, tool_fits
 from cadcam.tools import ToolLibrary
 from cadcam.verify import stock_after
 from factory.errors import ToolError
+
+T = TypeVar("T")
 
 log = logging.getLogger(__name__)
 
@@ -291,6 +294,7 @@ def plan_job(
     ToolpathError
         An operation cannot be computed.
     """
+    t_start = time.perf_counter()
     triangles = np.asarray(part.triangles)
     rough_tool, finish_tool = choose_tools(library, setup, options, triangles)
     # A relief's flats include the base plane outside its boundary: the ball finishes reliefs.
@@ -308,13 +312,14 @@ def plan_job(
         # Without waterline the raster must cover steep walls too.
         raster_options = dataclasses.replace(raster_options, steep_angle=90.0)
 
-    seconds: list[tuple[str, float]] = []
+    # Every stage is timed, so that what a plan reports is all the work it did.
+    seconds: list[tuple[str, float]] = [("tools and faces", time.perf_counter() - t_start)]
 
-    def timed(stage: str, compute: Callable[[], Operation]) -> Operation:
+    def timed(stage: str, compute: Callable[[], T]) -> T:
         t0 = time.perf_counter()
-        op = compute()
+        result = compute()
         seconds.append((stage, time.perf_counter() - t0))
-        return op
+        return result
 
     def model(ops: list[Operation], cell: float = _MODEL_CELL):
         t0 = time.perf_counter()
@@ -362,7 +367,9 @@ def plan_job(
             if len(op.points) > 1:
                 operations.append(op)
                 stock = model(operations)
+    t0 = time.perf_counter()
     left = unreached(stock, limit, allowance) if stock is not None else ()
+    seconds.append(("unreached", time.perf_counter() - t0))
     for u in left:
         log.warning("no tool reaches %s; finishing leaves it alone", u.describe())
     engagement = EngagementLimit(depth=limit, allowance=allowance)
@@ -432,7 +439,8 @@ def _finish_flats_and_walls(part, setup, library, flat, faces, stock, options, o
             stock, stale = model(operations, stock.grid.cell), False
         # (A skin only the finer model below shows, with nothing else left beside it, is no
         # danger: no pass goes there.)
-        if not left_on_flats_and_walls(stock, faces, tool.radius, ff.allowance, ff.rest_above).any():
+        if not timed("rest check", lambda: left_on_flats_and_walls(stock, faces, tool.radius, ff.allowance,
+                                                                    ff.rest_above)).any():
             break
         # A tool whose flutes are shorter than the part is deep takes a wall in steps, at levels
         # where the stock model shows the skin roughing left on it; if the model missed it, the

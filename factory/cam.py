@@ -186,8 +186,8 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
         relief = {"found": loaded.surface.describe(), **loaded.surface.to_dict(), **req.relief.to_dict(),
                   "boundary": boundary.to_dict()}
         job = dataclasses.replace(job, parameters={**job.parameters, "relief": relief})
-    for stage, seconds in timings.seconds:
-        watch.seconds[stage] = seconds
+    for stage, seconds in timings.seconds:  # a stage that ran more than once (the stock model) adds up
+        watch.seconds[stage] = watch.seconds.get(stage, 0.0) + seconds
     return PlannedPart(job, loaded, part_work, boundary)
 
 

@@ -33,7 +33,7 @@ import numpy as np
 import trimesh
 
 from cadcam.model import Job, Setup
-from cadcam.parallel import Background
+from cadcam.parallel import Background, processors
 from cadcam.op2 import (FLIP_AXIS, WORK_OFFSET, Op2Options, flip_transform, op2_setup_image, op2_sheet_fields,
                         plan_op2)
 from cadcam.post import PostOptions, Program, post_process
@@ -390,6 +390,7 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     if req.ops not in (None, 1, 2):
         raise PlanningError(f"ops must be 1 or 2, got {shown(req.ops)}", source="ops")
     post_options = PostOptions(dialect=req.post, arc_tolerance=req.arc_tolerance)  # refused before the CAM work
+    processors()  # and a bad FACTORY_THREADS
     watch = Stopwatch()
     planned = compute_job(req.cam, progress, watch,
                           check_setup=lambda setup: check_grid_size(setup, req.grid, source=str(req.cam.part)))
@@ -432,7 +433,9 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
                 req = dataclasses.replace(req, ops=1)
                 outputs = req.outputs(Path("."))
                 cell, world, tplan = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch)
-            tending = Tending(cell, world, tplan, post_program(req.lang, outputs["robot_program"], cell, world, tplan))
+            with watch("robot program"):
+                tending = Tending(cell, world, tplan, post_program(req.lang, outputs["robot_program"], cell, world,
+                                                                   tplan))
         except BaseException:
             background.cancel()  # no verification left running for a plan that failed
             raise

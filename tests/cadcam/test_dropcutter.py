@@ -217,9 +217,9 @@ def test_threads_give_the_single_thread_answer(shape, monkeypatch):
     rng = np.random.default_rng(3)
     xy = rng.uniform(-14, 14, size=(20000, 2))
     t = tool(shape)
-    monkeypatch.setattr(dc, "_THREADS", 1)
+    monkeypatch.setenv("FACTORY_THREADS", "1")
     one = drop_cutter(build_index(tris), t, xy, -20.0)
-    monkeypatch.setattr(dc, "_THREADS", 3)
+    monkeypatch.setenv("FACTORY_THREADS", "3")
     monkeypatch.setattr(dc, "_THREAD_MIN_CANDIDATES", 64)
     seen = []
     many = drop_cutter(build_index(tris), t, xy, -20.0, progress=lambda done, total: seen.append((done, total)))

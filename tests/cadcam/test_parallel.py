@@ -5,7 +5,7 @@ import os
 import pytest
 
 import cadcam.parallel as par
-from factory.errors import ToolpathError
+from factory.errors import FactoryError, ToolpathError
 
 
 def square_and_pid(x):
@@ -17,7 +17,7 @@ def fails(x):
 
 
 def test_process_map_keeps_the_order_and_uses_other_processes(monkeypatch):
-    monkeypatch.setattr(par, "WORKERS", 2)
+    monkeypatch.setenv(par.THREADS_ENV, "2")
     done = []
     out = par.process_map(square_and_pid, [(i,) for i in range(6)], weights=[1, 5, 2, 9, 3, 1], min_total=0,
                           done=done.append)
@@ -32,7 +32,7 @@ def test_process_map_runs_small_work_here():
 
 
 def test_background_result_and_error_are_the_serial_ones(monkeypatch):
-    monkeypatch.setattr(par, "WORKERS", 2)
+    monkeypatch.setenv(par.THREADS_ENV, "2")
     value, pid = par.Background(square_and_pid, 7).result()
     assert value == 49 and pid != os.getpid()
     with pytest.raises(ToolpathError, match="no path for 3"):
@@ -40,9 +40,34 @@ def test_background_result_and_error_are_the_serial_ones(monkeypatch):
 
 
 def test_background_cancel_ends_the_child(monkeypatch):
-    monkeypatch.setattr(par, "WORKERS", 2)
+    monkeypatch.setenv(par.THREADS_ENV, "2")
     b = par.Background(square_and_pid, 2)
     proc = b._proc
     b.cancel()
     assert proc is not None and not proc.is_alive()
     assert b.result()[0] == 4  # after a cancel the work is done here
+
+
+def test_one_thread_runs_everything_here(monkeypatch):
+    """FACTORY_THREADS=1 (a workflow job's one thread): no worker process, whatever the work."""
+    monkeypatch.setenv(par.THREADS_ENV, "1")
+    assert par.processors() == 1
+    out = par.process_map(square_and_pid, [(i,) for i in range(4)], weights=[9] * 4, min_total=0)
+    assert [pid for _, pid in out] == [os.getpid()] * 4
+    background = par.Background(square_and_pid, 5)
+    assert background._proc is None and background.result() == (25, os.getpid())
+
+
+@pytest.mark.parametrize("text", ["0", "-2", "two", "1.5"])
+def test_a_bad_thread_count_is_refused_by_name(monkeypatch, text):
+    monkeypatch.setenv(par.THREADS_ENV, text)
+    with pytest.raises(FactoryError) as e:
+        par.processors()
+    assert e.value.source == "FACTORY_THREADS" and repr(text) in e.value.message
+
+
+def test_the_thread_count_is_capped_and_unset_follows_the_affinity(monkeypatch):
+    monkeypatch.setenv(par.THREADS_ENV, "64")
+    assert par.processors() == par.MAX_WORKERS
+    monkeypatch.delenv(par.THREADS_ENV)
+    assert par.processors() == min(par.MAX_WORKERS, len(os.sched_getaffinity(0)))

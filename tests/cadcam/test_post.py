@@ -389,7 +389,7 @@ def test_fitting_in_worker_processes_writes_the_same_program(monkeypatch):
     job = _job()
     serial = post_process(job, PostOptions(dialect="linuxcnc"))
     monkeypatch.setattr(cadcam.post, "_PARALLEL_FIT_MOVES", 0)
-    monkeypatch.setattr(cadcam.parallel, "WORKERS", 2)
+    monkeypatch.setenv(cadcam.parallel.THREADS_ENV, "2")
     calls = []
     parallel = post_process(job, PostOptions(dialect="linuxcnc"), progress=lambda d, n: calls.append((d, n)))
     assert parallel.text == serial.text

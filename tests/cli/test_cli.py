@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 from cli.main import app
 from factory.plan import plan_outputs
 from tests.cli.expect import assert_one_line_error
+from tests.conftest import SAMPLES
 from tests.rs274 import run_rs274
 
 runner = CliRunner()
@@ -193,6 +194,15 @@ def test_bad_part_gives_one_line_error_and_no_output(tmp_path, make_bad, command
         r = run("plan", part, "-o", out, "--quiet")
     assert_one_line_error(r, str(part))
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_a_bad_thread_count_is_refused_before_the_work(tmp_path, monkeypatch):
+    """FACTORY_THREADS (the workflow's per-job share) is checked before any planning, by name."""
+    monkeypatch.setenv("FACTORY_THREADS", "all")
+    out = tmp_path / "out"
+    r = run("plan", SAMPLES / "bracket.stl", "-o", out, "--quiet")
+    assert_one_line_error(r, "FACTORY_THREADS", "'all'")
+    assert not out.exists()
 
 
 def test_part_bigger_than_the_stock_given(small_part, tmp_path):

@@ -73,6 +73,28 @@ def test_plan_part_computes_everything_and_writes_nothing(planned, block):
     assert "\nG55\n" in op2.program.text and op2.report.ok and planned.ok
 
 
+def test_every_stage_of_the_work_is_timed(planned, block, monkeypatch):
+    """What a plan reports per stage is all its work (the workflow's overhead figure is what is left):
+    the robot program's posting and the CAM's tool choice and face classes included, and a stage
+    that ran several times (the stock model) counted every time."""
+    assert {"load", "setup", "tools and faces", "roughing", "stock model", "rapid check", "post", "robot plan",
+            "robot program", "verify", "op 2", "op 2 verify"} <= set(planned.seconds)
+    import factory.cam
+    from cadcam.plan import PlanTimings
+    from factory.progress import Stopwatch
+
+    real = factory.cam.plan_job
+
+    def stock_modelled_twice(*args, **kwargs):
+        job, _ = real(*args, **kwargs)
+        return job, PlanTimings((("stock model", 1.0), ("roughing", 0.5), ("stock model", 2.0)))
+
+    monkeypatch.setattr(factory.cam, "plan_job", stock_modelled_twice)
+    watch = Stopwatch()
+    factory.cam.compute_job(fast_request(block, robot=False).cam, watch=watch)
+    assert watch.seconds["stock model"] == 3.0 and watch.seconds["roughing"] == 0.5
+
+
 def test_write_makes_the_whole_set_and_no_staging_is_left(planned, tmp_path):
     summary = planned.write(tmp_path)
     outputs = plan_outputs(planned.request.cam.part, tmp_path)

@@ -140,3 +140,29 @@ def test_a_driver_killed_mid_run_reruns_to_a_clean_result(clean, tmp_path):
     assert _outputs(tmp_path) == clean[1]
     leftovers = [p for p in (tmp_path / "catalog").rglob(".*") if ".snakemake" not in p.parts]
     assert not leftovers, leftovers
+
+
+# A stand-in `factory`: records the FACTORY_THREADS its plan job was given, and touches the plan's files.
+_RECORD_THREADS = """#!/bin/sh
+[ "$1" = plan ] || exit 0
+part=$(basename "$2"); part=${part%.*}; mkdir -p "$4"
+for ext in nc setup.json mcap verify.json verify.png toolpath.png setup.png; do : > "$4/$part.$ext"; done
+echo "${FACTORY_THREADS:-unset}" > "$4/$part.plan.json"
+"""
+
+
+@pytest.mark.parametrize("threads", [None, 2])
+def test_each_plan_job_is_held_to_its_threads(tmp_path, threads):
+    """A job uses the threads it declares, no more: factory's own workers follow FACTORY_THREADS,
+    which the workflow sets to the job's threads (1 unless --set-threads says otherwise)."""
+    stand_in = tmp_path / "factory"
+    stand_in.write_text(_RECORD_THREADS)
+    stand_in.chmod(0o755)
+    _config(tmp_path)
+    config = yaml.safe_load((tmp_path / "config.yaml").read_text())
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump({**config, "factory": str(stand_in)}))
+    extra = [] if threads is None else ["--set-threads", f"plan={threads}"]
+    r = _snakemake(tmp_path, "plans", "--cores", "2", *extra)
+    assert r.returncode == 0, r.stderr[-3000:]
+    seen = {part: (tmp_path / "catalog" / part / f"{part}.plan.json").read_text().strip() for part in PARTS}
+    assert seen == {part: str(threads or 1) for part in PARTS}
