@@ -17,9 +17,10 @@ each job's own processor time is known. Reports:
   timed, so a plan's work is not counted as overhead); and the same in processor time: the driver's share per job
   plus one ``factory plan`` job's start-up (``benchmarks/startup.py``: interpreter, imports and
   option parsing up to the first stage, and the TOPP-RA a plan loads when it first times a move);
-- what each job costs on a cluster besides its ``factory``: there every job is a Snakemake
+- what each job costs on a cluster besides its ``factory``: there every submission is a Snakemake
   process of its own on the node; measured through the cluster-generic executor with a stand-in
-  ``factory`` that only touches a plan's outputs;
+  ``factory`` that only touches a plan's outputs, one part per submission and ``--group`` parts
+  per submission (Snakemake's job grouping, as the Slurm profile submits them);
 - the speed-up the measured jobs allow on 2 cores: their processor times scheduled longest first
   on 2 slots (what an otherwise idle machine would give, less the driver);
 - the driver as a fixed cost plus a cost per job, from dry runs over ``--dry-parts`` copies of a
@@ -122,34 +123,37 @@ for ext in nc setup.json mcap verify.json verify.png toolpath.png setup.png plan
 """
 
 
-def _cluster_job_cpu(folder: Path, parts: Path, options: dict) -> list[float]:
-    """Processor time [s] of each job's own Snakemake on a "node": every part planned through the
-    cluster-generic executor, each job a separate process under ``/usr/bin/time``, the plan itself
-    a stand-in that only touches its outputs."""
+def _cluster_node_cpu(folder: Path, parts: Path, options: dict, group: int = 1) -> tuple[list[float], int]:
+    """(processor time [s] of each submission's own Snakemake on a "node", parts): every part planned
+    through the cluster-generic executor, each submission a separate process under ``/usr/bin/time``,
+    ``group`` parts to a submission (Snakemake's job grouping, as the Slurm profile does it), the plan
+    itself a stand-in that only touches its outputs."""
     folder.mkdir()
     (folder / "times").mkdir()
     touch = folder / "touch_plan"
     touch.write_text(_TOUCH_PLAN)
     touch.chmod(0o755)
-    submit = (f"bash -c '/usr/bin/time -f \"%U %S\" -o {folder}/times/$$ bash \"$1\" >/dev/null 2>&1 </dev/null & "
-              "echo $!' submit")
+    submit = (f"bash -c 'echo >> {folder}/submitted; /usr/bin/time -f \"%U %S\" -o {folder}/times/$$ bash \"$1\" "
+              ">/dev/null 2>&1 </dev/null & echo $!' submit")
     (folder / "config.yaml").write_text(yaml.safe_dump(
         {"parts": str(parts), "catalog": "catalog", "orders": str(ROOT / "samples" / "one_each.csv"),
          "out": "out", "factory": str(touch), "options": options}))
-    cmd = [str(BIN / "snakemake"), "-s", str(SNAKEFILE), "--configfile", str(folder / "config.yaml"),
+    cmd = [str(BIN / "snakemake"), "plans", "-s", str(SNAKEFILE), "--configfile", str(folder / "config.yaml"),
            "--directory", str(folder), "--executor", "cluster-generic", "--cluster-generic-submit-cmd", submit,
-           "--jobs", "2", "--latency-wait", "5", "plans"]
+           "--jobs", "2", "--latency-wait", "5"]
+    if group > 1:
+        cmd += ["--groups", "plan=planning", "--group-components", f"planning={group}"]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed:\n{r.stderr[-3000:]}")
     # A job's script marks it done just before its `time` writes the figure: wait for the last ones.
-    jobs = len(list(parts.iterdir()))
+    submitted = len((folder / "submitted").read_text().splitlines())
     for _ in range(100):
         times = [p.read_text().split() for p in (folder / "times").iterdir()]
-        if len(times) == jobs and all(len(t) >= 2 for t in times):
-            return [float(t[-2]) + float(t[-1]) for t in times]
+        if len(times) == submitted and all(len(t) >= 2 for t in times):
+            return [float(t[-2]) + float(t[-1]) for t in times], len(list(parts.iterdir()))
         time.sleep(0.1)
-    raise SystemExit(f"{folder}: {len(times)} of {jobs} cluster jobs timed")
+    raise SystemExit(f"{folder}: {len(times)} of {submitted} cluster jobs timed")
 
 
 def _compile_factory() -> None:
@@ -199,6 +203,7 @@ def main() -> None:
     ap.add_argument("--dry-parts", type=int, default=400, help="parts of the larger dry run (driver per job)")
     ap.add_argument("--nodes", type=int, default=100, help="Slurm nodes of the estimate")
     ap.add_argument("--cores-per-node", type=int, default=32, help="cores per node of the estimate")
+    ap.add_argument("--group", type=int, default=8, help="parts per cluster submission (the Slurm profile's)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     options = {"scallop": 0.05, "grid": 0.5} if args.fast else {}
@@ -222,8 +227,12 @@ def main() -> None:
         dry_wall, dry_cpu = _run(tmp / "dry_small", tmp / "parts", 1, options, "plans", "--dry-run")
         big = _dry_parts(tmp / "dry_parts", args.dry_parts)
         dry_big_wall, dry_big_cpu = _run(tmp / "dry_big", big, 1, options, "plans", "--dry-run")
-        node_jobs_cpu = _cluster_job_cpu(tmp / "cluster", tmp / "parts", options)
+        node_jobs_cpu, _ = _cluster_node_cpu(tmp / "cluster", tmp / "parts", options)
+        grouped_cpu, grouped_parts = _cluster_node_cpu(tmp / "cluster_grouped",
+                                                       _dry_parts(tmp / "grouped_parts", 2 * args.group),
+                                                       options, args.group)
     node_job_cpu = sum(node_jobs_cpu) / len(node_jobs_cpu)
+    node_part_cpu_grouped = sum(grouped_cpu) / grouped_parts
     per_job_s = compute[1] / n
     overhead = (walls[1] - compute[1]) / n
     driver_cpu = cpus[1] - sum(jobs_cpu[1])
@@ -235,7 +244,7 @@ def main() -> None:
     # Paper estimate from processor times, not from this machine's (shared, loaded) wall times.
     parts = 10_000
     slots = args.nodes * args.cores_per_node
-    paper = estimate_s(jobs_cpu[1], driver_fixed_cpu, driver_per_job_cpu, parts, slots, node_job_cpu)
+    paper = estimate_s(jobs_cpu[1], driver_fixed_cpu, driver_per_job_cpu, parts, slots, node_part_cpu_grouped)
     result = {
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                     "load_1min_at_end": round(os.getloadavg()[0], 1)},
@@ -262,6 +271,10 @@ def main() -> None:
         "factory_plan_help_cpu_s": round(startup_figures["plan_help"], 2),
         "cluster_node_job_cpu_s": round(node_job_cpu, 2),
         "per_job_overhead_cpu_on_a_cluster_s": round(node_job_cpu + startup_cpu, 2),
+        # the Slurm profile's grouping: --group parts to a submission (2 x --group copies of a part)
+        "cluster_group_parts": args.group, "cluster_submissions_grouped": len(grouped_cpu),
+        "cluster_node_cpu_per_part_grouped_s": round(node_part_cpu_grouped, 2),
+        "per_job_overhead_cpu_on_a_cluster_grouped_s": round(node_part_cpu_grouped + startup_cpu, 2),
         "driver_dry_run_s": round(dry_wall, 2),
         "driver_dry_run_cpu_s": {str(n): round(dry_cpu, 2), str(args.dry_parts): round(dry_big_cpu, 2)},
         "driver_cpu_fixed_s": round(driver_fixed_cpu, 2),

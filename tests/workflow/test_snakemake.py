@@ -142,25 +142,60 @@ def test_a_driver_killed_mid_run_reruns_to_a_clean_result(clean, tmp_path):
     assert not leftovers, leftovers
 
 
-# A stand-in `factory`: records the FACTORY_THREADS its plan job was given, and touches the plan's files.
+# A stand-in `factory`: notes which part its plan job started (in order, in started.log beside it),
+# records the FACTORY_THREADS the job was given, and touches the plan's files.
 _RECORD_THREADS = """#!/bin/sh
 [ "$1" = plan ] || exit 0
 part=$(basename "$2"); part=${part%.*}; mkdir -p "$4"
+echo "$part" >> "$(dirname "$0")/started.log"
 for ext in nc setup.json mcap verify.json verify.png toolpath.png setup.png; do : > "$4/$part.$ext"; done
 echo "${FACTORY_THREADS:-unset}" > "$4/$part.plan.json"
 """
+
+
+def _stand_in_config(folder: Path) -> None:
+    stand_in = folder / "factory"
+    stand_in.write_text(_RECORD_THREADS)
+    stand_in.chmod(0o755)
+    _config(folder)
+    config = yaml.safe_load((folder / "config.yaml").read_text())
+    (folder / "config.yaml").write_text(yaml.safe_dump({**config, "factory": str(stand_in)}))
+
+
+def test_the_largest_meshes_are_planned_first(tmp_path):
+    """Longest first keeps a long part from starting last while other cores idle: with one core the
+    jobs start in the order of their meshes' sizes, largest first."""
+    _stand_in_config(tmp_path)
+    r = _snakemake(tmp_path, "plans", "--cores", "1")
+    assert r.returncode == 0, r.stderr[-3000:]
+    started = (tmp_path / "started.log").read_text().split()
+    assert started == sorted(PARTS, key=lambda p: -(SAMPLES / f"{p}.stl").stat().st_size)
+
+
+def test_the_slurm_profiles_grouping_plans_several_parts_per_submission(tmp_path):
+    """The Slurm profile sends parts to the queue in groups (one submission, one Snakemake start-up on
+    the node per group), each part still its own job with its own outputs and one thread."""
+    slurm = yaml.safe_load((PROFILES / "slurm" / "config.yaml").read_text())
+    group, size = slurm["group-components"].split("=")
+    assert slurm["groups"] == f"plan={group}"
+    _stand_in_config(tmp_path)
+    log = tmp_path / "submitted"
+    submit = (f"bash -c 'echo \"$1\" >> {log}; setsid nohup bash \"$1\" >\"$1.out\" 2>&1 </dev/null & echo $!' "
+              "submit")
+    r = _snakemake(tmp_path, "plans", "--executor", "cluster-generic", "--cluster-generic-submit-cmd", submit,
+                   "--jobs", "2", "--latency-wait", "5", "--groups", slurm["groups"],
+                   "--group-components", slurm["group-components"])
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert len(log.read_text().splitlines()) == -(-len(PARTS) // int(size))
+    seen = {part: (tmp_path / "catalog" / part / f"{part}.plan.json").read_text().strip() for part in PARTS}
+    assert seen == {part: "1" for part in PARTS}
 
 
 @pytest.mark.parametrize("threads", [None, 2])
 def test_each_plan_job_is_held_to_its_threads(tmp_path, threads):
     """A job uses the threads it declares, no more: factory's own workers follow FACTORY_THREADS,
     which the workflow sets to the job's threads (1 unless --set-threads says otherwise)."""
-    stand_in = tmp_path / "factory"
-    stand_in.write_text(_RECORD_THREADS)
-    stand_in.chmod(0o755)
-    _config(tmp_path)
-    config = yaml.safe_load((tmp_path / "config.yaml").read_text())
-    (tmp_path / "config.yaml").write_text(yaml.safe_dump({**config, "factory": str(stand_in)}))
+    _stand_in_config(tmp_path)
     extra = [] if threads is None else ["--set-threads", f"plan={threads}"]
     r = _snakemake(tmp_path, "plans", "--cores", "2", *extra)
     assert r.returncode == 0, r.stderr[-3000:]
