@@ -4,10 +4,11 @@
 
 Plans the sample parts plus ``--generated`` pocketed blocks (different sizes) with the workflow's
 ``plans`` target, first with 1 and then with 2 concurrent jobs (``--cores``; every job held to
-one thread: the workflow sets ``FACTORY_THREADS`` to the job's threads), each into a fresh folder. Every job's ``factory`` runs under ``/usr/bin/time``, so
-each job's own processor time is known. Reports:
+one thread: the workflow sets ``FACTORY_THREADS`` to the job's threads), each into a fresh folder.
+Every job's ``factory`` runs under ``/usr/bin/time``, so each job's own processor time is known. Reports:
 
 - wall time of each run [s] and the speed-up of 2 jobs over 1;
+- each job's peak resident memory [MB], what the plan rule's ``mem_mb`` must cover;
 - processor time (user + sys) of each run's whole process tree [s], of every job, and the rest:
   the driver's own (Snakemake: parse, DAG, file checks, starting the jobs);
 - the jobs' own compute: the sum of the stage times each ``factory plan`` reports in its summary;
@@ -79,7 +80,7 @@ def _timed_factory(folder: Path) -> Path:
     """A ``factory`` that records its own processor time in ``folder/times/``, one file per job."""
     (folder / "times").mkdir(parents=True)
     wrapper = folder / "factory"
-    wrapper.write_text(f'#!/bin/sh\nexec /usr/bin/time -f "%e %U %S" -o "{folder}/times/$$" {BIN / "factory"} "$@"\n')
+    wrapper.write_text(f'#!/bin/sh\nexec /usr/bin/time -f "%e %U %S %M" -o "{folder}/times/$$" {BIN / "factory"} "$@"\n')
     wrapper.chmod(0o755)
     return wrapper
 
@@ -104,14 +105,14 @@ def _compute(folder: Path) -> float:
     return sum(sum(json.loads(p.read_text())["seconds"].values()) for p in folder.glob("catalog/*/*.plan.json"))
 
 
-def _job_cpu(folder: Path) -> list[float]:
-    """Processor time [s] of each job's ``factory`` process."""
-    return [sum(map(float, p.read_text().split()[-2:])) for p in sorted((folder / "times").iterdir())]
-
-
-def _job_wall(folder: Path) -> list[float]:
-    """Wall time [s] of each job's ``factory`` process, from its start to its exit."""
-    return [float(p.read_text().split()[-3]) for p in sorted((folder / "times").iterdir())]
+def _job_times(folder: Path) -> list[tuple[float, float, float]]:
+    """(wall [s], processor time [s], peak resident memory [MB]) of each job's ``factory`` process,
+    from the last line ``/usr/bin/time`` wrote (a line before it says when the job exited non-zero)."""
+    out = []
+    for p in sorted((folder / "times").iterdir()):
+        wall, user, system, rss_kb = map(float, p.read_text().splitlines()[-1].split())
+        out.append((wall, user + system, rss_kb / 1024))
+    return out
 
 
 # A stand-in `factory` for the cluster run: it only touches the files a plan writes, so what the
@@ -216,14 +217,16 @@ def main() -> None:
         startup = time.perf_counter() - t0
         startup_figures = measure_startup(repeat=3)
         startup_cpu = startup_figures["plan_job_startup"]
-        walls, cpus, compute, jobs_cpu, jobs_wall = {}, {}, {}, {}, {}
+        walls, cpus, compute, jobs_cpu, jobs_wall, jobs_rss = {}, {}, {}, {}, {}, {}
         for cores in (1, 2):
             folder = tmp / f"cores{cores}"
             folder.mkdir()
             walls[cores], cpus[cores] = _run(folder, tmp / "parts", cores, options, "plans")
             compute[cores] = _compute(folder)
-            jobs_cpu[cores] = _job_cpu(folder)
-            jobs_wall[cores] = _job_wall(folder)
+            times = _job_times(folder)
+            jobs_wall[cores] = [t[0] for t in times]
+            jobs_cpu[cores] = [t[1] for t in times]
+            jobs_rss[cores] = [t[2] for t in times]
         dry_wall, dry_cpu = _run(tmp / "dry_small", tmp / "parts", 1, options, "plans", "--dry-run")
         big = _dry_parts(tmp / "dry_parts", args.dry_parts)
         dry_big_wall, dry_big_cpu = _run(tmp / "dry_big", big, 1, options, "plans", "--dry-run")
@@ -254,6 +257,8 @@ def main() -> None:
         "cpu_s": {str(k): round(v, 1) for k, v in cpus.items()},
         "jobs_cpu_s": {str(k): round(sum(v), 1) for k, v in jobs_cpu.items()},
         "job_cpu_s": [round(t, 1) for t in sorted(jobs_cpu[1], reverse=True)],
+        # what the plan rule's mem_mb must cover: the largest peak resident memory of a job [MB]
+        "job_peak_rss_mb": round(max(jobs_rss[1] + jobs_rss[2])),
         "speedup_2_jobs_from_cpu": round(sum(jobs_cpu[1]) / _longest_first(jobs_cpu[1], 2), 2),
         "compute_s": {str(k): round(v, 1) for k, v in compute.items()},
         "per_job_compute_s": round(per_job_s, 2),
