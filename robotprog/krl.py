@@ -24,8 +24,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from factory.errors import PlanningError
-from robotprog.urscript import (Branch, Comment, MoveJ, MoveL, SetOutputs, Step, Wait, WaitInput, check_io_step,
-                                comment_text, flat_steps)
+from robotprog.urscript import (Branch, FlowWords, MoveJ, MoveL, Step, check_io_step, comment_text, flat_steps,
+                                flow_lines, way_lines)
 
 DECIMALS_MM = 3
 DECIMALS_DEG = 4
@@ -57,6 +57,21 @@ def krl_frame(t: np.ndarray) -> str:
     vals = [("X", x, DECIMALS_MM), ("Y", y, DECIMALS_MM), ("Z", z, DECIMALS_MM),
             ("A", a, DECIMALS_DEG), ("B", b, DECIMALS_DEG), ("C", c, DECIMALS_DEG)]
     return ",".join(f"{k} {_f(v, d)}" for k, v, d in vals)
+
+
+def _krl_input(n: int, level: bool) -> str:
+    return f"{'' if level else 'NOT '}$IN[{n + 1}]"
+
+
+_KRL_WORDS = FlowWords(
+    comment=lambda text: f"  ; {comment_text(text)}".rstrip(),
+    set_output=lambda n, level: f"  $OUT[{n + 1}] = {'TRUE' if level else 'FALSE'}",
+    sleep=lambda s: f"  WAIT SEC {_f(s, 3)}",
+    wait_input=lambda n, level: [f"  WAIT FOR {_krl_input(n, level)}"],
+    if_input=lambda n, level: f"  IF {_krl_input(n, level)} THEN",
+    else_line="  ELSE",
+    end_if="  ENDIF",
+)
 
 
 def krl_program(
@@ -138,42 +153,28 @@ def krl_program(
                            "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}")
                 out.append(f"  $VEL.CP = {_f(st.v, 4)}")
                 out.append(f"  LIN XP{nl}")
-            elif isinstance(st, SetOutputs):
-                if st.label:
-                    out.append(f"  ; {comment_text(st.label)}".rstrip())
-                for n, level in st.outputs:
-                    out.append(f"  $OUT[{n + 1}] = {'TRUE' if level else 'FALSE'}")
-                if st.settle_s > 0:
-                    out.append(f"  WAIT SEC {_f(st.settle_s, 3)}")
-            elif isinstance(st, WaitInput):
-                if st.label:
-                    out.append(f"  ; {comment_text(st.label)}".rstrip())
-                out.append(f"  WAIT FOR {'' if st.level else 'NOT '}$IN[{st.input + 1}]")
             elif isinstance(st, Branch):
-                if st.label:
-                    out.append(f"  ; {comment_text(st.label)}".rstrip())
-                out.append(f"  IF {'' if st.level else 'NOT '}$IN[{st.input + 1}] THEN")
-                # each branch starts from where the arm stands at the IF, at the speed stated there
                 at, pct = q_prev, current_pct
-                inner: list[str] = []
-                emit(st.then, inner, i + 1)
-                out += ["  " + line for line in inner]
-                then_end, then_pct = q_prev, current_pct
-                q_prev, current_pct = at, pct
-                out.append("  ELSE")
-                inner = []
-                emit(st.otherwise, inner, i + 1 + len(st.then))
-                out += ["  " + line for line in inner]
-                out.append("  ENDIF")
-                # after the ENDIF the speed is whichever branch ran: state it again before the next timed PTP
+                ends: list[tuple[np.ndarray | None, int | None]] = []
+
+                def way(seq: Sequence[Step], first: int) -> list[str]:
+                    # each way starts from where the arm stands at the IF, at the speed stated there
+                    nonlocal q_prev, current_pct
+                    q_prev, current_pct = at, pct
+                    lines = way_lines(emit, seq, first)
+                    ends.append((q_prev, current_pct))
+                    return lines
+
+                out += flow_lines(i, st, _KRL_WORDS, way)
+                (then_end, then_pct), _ = ends
+                # after the ENDIF the speed is whichever way ran: state it again before the next timed PTP
                 q_prev = then_end if then_end is not None else q_prev
                 current_pct = then_pct if then_pct == current_pct else -1
-            elif isinstance(st, Wait):
-                out.append(f"  WAIT SEC {_f(st.seconds, 3)}")
-            elif isinstance(st, Comment):
-                out.append(f"  ; {comment_text(st.text)}".rstrip())
             else:
-                raise PlanningError(f"step {i}: not a program step: {type(st).__name__}")
+                lines_of = flow_lines(i, st, _KRL_WORDS, lambda seq, first: way_lines(emit, seq, first))
+                if lines_of is None:
+                    raise PlanningError(f"step {i}: not a program step: {type(st).__name__}")
+                out += lines_of
 
     emit(steps, src, 0)
     src.append("END")

@@ -25,8 +25,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from factory.errors import PlanningError
-from robotprog.urscript import (Branch, Comment, MoveJ, MoveL, SetOutputs, Step, Wait, WaitInput, check_io_step,
-                                comment_text)
+from robotprog.urscript import (FlowWords, MoveJ, MoveL, Step, check_io_step, comment_text, flow_lines,
+                                way_lines)
 
 #: Decimals of millimetres and degrees (1 µm, 1e-4 deg) and quaternions.
 DECIMALS_MM = 3
@@ -59,6 +59,17 @@ def rapid_pose(t: np.ndarray) -> str:
     p = ",".join(_f(v * 1000.0, DECIMALS_MM) for v in t[:3, 3])
     q = ",".join(_f(v, DECIMALS_QUAT) for v in _quat_wxyz(t[:3, :3]))
     return f"[[{p}],[{q}]]"
+
+
+_RAPID_WORDS = FlowWords(
+    comment=lambda text: f"    ! {comment_text(text)}".rstrip(),
+    set_output=lambda n, level: f"    SetDO do{n}, {int(level)};",
+    sleep=lambda s: f"    WaitTime {_f(s, 3)};",
+    wait_input=lambda n, level: [f"    WaitDI di{n}, {int(level)};"],
+    if_input=lambda n, level: f"    IF DInput(di{n}) = {int(level)} THEN",
+    else_line="    ELSE",
+    end_if="    ENDIF",
+)
 
 
 def rapid_module(
@@ -124,35 +135,11 @@ def rapid_module(
                 sname = f"vLine{v.replace('.', '_')}"
                 speeds[sname] = f"  CONST speeddata {sname} := [{v},500,5000,1000];"
                 out.append(f"    MoveL p{nl}, {sname}, {_zone(st.r, zones)}, tGripper;")
-            elif isinstance(st, SetOutputs):
-                if st.label:
-                    out.append(f"    ! {comment_text(st.label)}".rstrip())
-                for n, level in st.outputs:
-                    out.append(f"    SetDO do{n}, {1 if level else 0};")
-                if st.settle_s > 0:
-                    out.append(f"    WaitTime {_f(st.settle_s, 3)};")
-            elif isinstance(st, WaitInput):
-                if st.label:
-                    out.append(f"    ! {comment_text(st.label)}".rstrip())
-                out.append(f"    WaitDI di{st.input}, {1 if st.level else 0};")
-            elif isinstance(st, Branch):
-                if st.label:
-                    out.append(f"    ! {comment_text(st.label)}".rstrip())
-                out.append(f"    IF DInput(di{st.input}) = {1 if st.level else 0} THEN")
-                inner: list[str] = []
-                emit(st.then, inner, i + 1)
-                out += ["  " + line for line in inner]
-                out.append("    ELSE")
-                inner = []
-                emit(st.otherwise, inner, i + 1 + len(st.then))
-                out += ["  " + line for line in inner]
-                out.append("    ENDIF")
-            elif isinstance(st, Wait):
-                out.append(f"    WaitTime {_f(st.seconds, 3)};")
-            elif isinstance(st, Comment):
-                out.append(f"    ! {comment_text(st.text)}".rstrip())
             else:
-                raise PlanningError(f"step {i}: not a program step: {type(st).__name__}")
+                lines_of = flow_lines(i, st, _RAPID_WORDS, lambda seq, first: way_lines(emit, seq, first))
+                if lines_of is None:
+                    raise PlanningError(f"step {i}: not a program step: {type(st).__name__}")
+                out += lines_of
 
     emit(steps, body, 0)
     cog = _f(tcp[2, 3] * 500.0, DECIMALS_MM)

@@ -16,7 +16,7 @@ turned by pi about Z from ROS's ``base_link``; :class:`MoveL` takes the ROS pose
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -136,6 +136,43 @@ def flat_steps(steps: Sequence[Step]) -> list[Step]:
     return out
 
 
+@dataclass(frozen=True)
+class FlowWords:
+    """How one robot language writes the steps that are not motion: outputs, input waits, pauses,
+    comments and the verdict's branch. Each gives its line(s) at the program body's indent."""
+
+    comment: Callable[[str], str]
+    set_output: Callable[[int, bool], str]
+    sleep: Callable[[float], str]
+    wait_input: Callable[[int, bool], list[str]]
+    if_input: Callable[[int, bool], str]
+    else_line: str
+    end_if: str
+
+
+def flow_lines(i: int, st: Step, words: FlowWords,
+               way: Callable[[Sequence[Step], int], list[str]]) -> list[str] | None:
+    """The lines of step ``i`` when it is an output, input wait, pause, comment or branch; None
+    for a motion step. ``way(steps, first)`` writes one way of a branch (its steps numbered from
+    ``first``), at the body's indent: its lines go one level in. A step's label is a comment above it."""
+    label = [words.comment(st.label)] if isinstance(st, (SetOutputs, WaitInput, Branch)) and st.label else []
+    if isinstance(st, SetOutputs):
+        settle = [words.sleep(st.settle_s)] if st.settle_s > 0 else []
+        return label + [words.set_output(n, level) for n, level in st.outputs] + settle
+    if isinstance(st, WaitInput):
+        return label + words.wait_input(st.input, st.level)
+    if isinstance(st, Branch):
+        then = way(st.then, i + 1)
+        otherwise = way(st.otherwise, i + 1 + len(st.then))
+        return [*label, words.if_input(st.input, st.level), *("  " + line for line in then), words.else_line,
+                *("  " + line for line in otherwise), words.end_if]
+    if isinstance(st, Wait):
+        return [words.sleep(st.seconds)]
+    if isinstance(st, Comment):
+        return [words.comment(st.text)]
+    return None
+
+
 def check_io_step(i: int, st: Step, inputs: int | None = None, outputs: int | None = None) -> None:
     """The checks every language makes on an I/O or wait step (outputs, inputs, waits, branches),
     so URScript, RAPID and KRL refuse the same malformed steps with the same words.
@@ -202,6 +239,28 @@ def ur_pose(transform: np.ndarray) -> str:
     return "p[" + ", ".join(_num(v) for v in (*t[:3, 3], *rv)) + "]"
 
 
+def _ur_bool(level: bool) -> str:
+    return "True" if level else "False"
+
+
+_UR_WORDS = FlowWords(
+    comment=lambda text: f"  # {comment_text(text)}".rstrip(),
+    set_output=lambda n, level: f"  set_standard_digital_out({n}, {_ur_bool(level)})",
+    sleep=lambda s: f"  sleep({_num(s)})",
+    wait_input=lambda n, level: [f"  while get_standard_digital_in({n}) != {_ur_bool(level)}:", "    sync()", "  end"],
+    if_input=lambda n, level: f"  if get_standard_digital_in({n}) == {_ur_bool(level)}:",
+    else_line="  else:",
+    end_if="  end",
+)
+
+
+def way_lines(emit: Callable[[Sequence[Step], list[str], int], None], seq: Sequence[Step], first: int) -> list[str]:
+    """The lines ``emit`` writes for ``seq`` (one way of a branch), numbered from ``first``."""
+    lines: list[str] = []
+    emit(seq, lines, first)
+    return lines
+
+
 def urscript_program(
     steps: Sequence[Step],
     *,
@@ -262,37 +321,11 @@ def urscript_program(
                 blend = f", r={_num(st.r)}" if st.r > 0 else ""
                 pose = ur_pose(to_ur @ np.asarray(st.pose, dtype=float))
                 out.append(f"  movel({pose}, a={_num(st.a)}, v={_num(st.v)}{blend})")
-            elif isinstance(st, SetOutputs):
-                if st.label:
-                    out.append(f"  # {comment_text(st.label)}".rstrip())
-                for n, level in st.outputs:
-                    out.append(f"  set_standard_digital_out({n}, {'True' if level else 'False'})")
-                if st.settle_s > 0:
-                    out.append(f"  sleep({_num(st.settle_s)})")
-            elif isinstance(st, WaitInput):
-                if st.label:
-                    out.append(f"  # {comment_text(st.label)}".rstrip())
-                out.append(f"  while get_standard_digital_in({st.input}) != {'True' if st.level else 'False'}:")
-                out.append("    sync()")
-                out.append("  end")
-            elif isinstance(st, Branch):
-                if st.label:
-                    out.append(f"  # {comment_text(st.label)}".rstrip())
-                out.append(f"  if get_standard_digital_in({st.input}) == {'True' if st.level else 'False'}:")
-                inner: list[str] = []
-                emit(st.then, inner, i + 1)
-                out += ["  " + line for line in inner]
-                out.append("  else:")
-                inner = []
-                emit(st.otherwise, inner, i + 1 + len(st.then))
-                out += ["  " + line for line in inner]
-                out.append("  end")
-            elif isinstance(st, Wait):
-                out.append(f"  sleep({_num(st.seconds)})")
-            elif isinstance(st, Comment):
-                out.append(f"  # {comment_text(st.text)}".rstrip())
             else:
-                raise PlanningError(f"step {i}: not a URScript step: {type(st).__name__}")
+                lines_of = flow_lines(i, st, _UR_WORDS, lambda seq, first: way_lines(emit, seq, first))
+                if lines_of is None:
+                    raise PlanningError(f"step {i}: not a URScript step: {type(st).__name__}")
+                out += lines_of
 
     emit(steps, lines, 0)
     lines.append("end")
