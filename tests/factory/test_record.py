@@ -411,13 +411,13 @@ def test_an_old_record_opens_with_a_newer_schema_and_keeps_its_history(recorded,
 
 
 _CELL = """
-import json, sys
+import json, os, sys, time
 from pathlib import Path
 from factory.record import OperationPlan, Record
 from robotprog.cellsim import FaultModel, PartProcess, simulate
 from robotprog.orders import Order
 
-db, seed = sys.argv[1], int(sys.argv[2])
+db, seed, ready, cells = sys.argv[1], int(sys.argv[2]), Path(sys.argv[3]), int(sys.argv[4])
 proc = PartProcess(fetch_s=12.0, load_s=15.0, machining_s=300.0, unload_s=14.0, locate_s=0.2, inspect_s=0.2,
                    reject_s=14.0, regrasp_s=3.0)
 orders = [Order(f"o{i + 1}", Path("a.stl"), 2, "aluminium", 0) for i in range(60)]
@@ -425,8 +425,14 @@ plan = OperationPlan("a.nc", "0" * 64, 300.0, proc.cycle_s, {}, "0" * 64)
 with Record(db) as record:
     recorder = record.recorder(cell=f"cell{seed}", orders=orders, orders_file="-", orders_sha256="0" * 64,
                                faults_seed=seed)
-    result = simulate(orders, {Path("a.stl"): proc}, FaultModel(0.1, 0.1, 0.1, 0.1, seed),
-                      sink=recorder.begin({(Path("a.stl"), "aluminium"): plan}))
+    sink = recorder.begin({(Path("a.stl"), "aluminium"): plan})
+    # Every cell has its run open before any simulates, however the machine schedules the processes:
+    # the runs overlap, and their events interleave in the file.
+    (ready / str(seed)).touch()
+    deadline = time.monotonic() + 300
+    while len(list(ready.iterdir())) < cells and time.monotonic() < deadline:
+        time.sleep(0.01)
+    result = simulate(orders, {Path("a.stl"): proc}, FaultModel(0.1, 0.1, 0.1, 0.1, seed), sink=sink)
     recorder.finish(result)
 print(json.dumps({"run": recorder.run_id, "events": len(result.log), "good": result.summary["parts_good"]}))
 """
@@ -437,8 +443,10 @@ def test_cells_write_one_sqlite_record_at_once(tmp_path):
     """Three cells into one fresh SQLite file at the same time (the schema too): writers queue on
     the lock, nothing is lost, serials never collide."""
     db = tmp_path / "plant.sqlite"
-    cells = [subprocess.Popen([sys.executable, "-c", _CELL, str(db), str(seed)], cwd=ROOT, stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True) for seed in (1, 2, 3)]
+    ready = tmp_path / "ready"
+    ready.mkdir()
+    cells = [subprocess.Popen([sys.executable, "-c", _CELL, str(db), str(seed), str(ready), "3"], cwd=ROOT,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for seed in (1, 2, 3)]
     outputs = [cell.communicate(timeout=600) for cell in cells]
     assert all(cell.returncode == 0 for cell in cells), [err for _, err in outputs]
     docs = [json.loads(out) for out, _ in outputs]
@@ -448,7 +456,7 @@ def test_cells_write_one_sqlite_record_at_once(tmp_path):
         assert int(one(db, f"SELECT count(*) FROM part_unit WHERE run_id = {d['run']} AND outcome = 'good'")) == \
             d["good"]
     assert one(db, "SELECT count(*) - count(DISTINCT serial) FROM part_unit") == "0"
-    # the runs really overlapped: each started before another ended
+    # the runs really overlapped: each started before another ended (the cells wait for each other)
     spans = sql(db, "SELECT started_at, ended_at FROM run ORDER BY started_at")
     assert any(later[0] < earlier[1] for earlier, later in zip(spans, spans[1:]))
     assert one(db, "PRAGMA integrity_check") == "ok"
