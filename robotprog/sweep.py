@@ -55,6 +55,8 @@ COARSEST_LEVEL = -3
 FINEST_LEVEL = 12
 #: From this level on, a segment not yet proven has its ends checked at the finest level too [-].
 EXACT_AFTER = 4
+#: Collision checks one blended corner's proof may spend before it counts as touching [-].
+CORNER_CHECKS = 400
 
 
 def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -202,6 +204,20 @@ class SweptMotion:
         self._payloads[key] = got
         return got
 
+    def _closing_rates(self, payload: tuple) -> tuple[np.ndarray, np.ndarray]:
+        """(rates [m/rad] of every pair that can close, arm's and held boxes', (n, nv); their row sums)."""
+        rates = self.pair_rates
+        if payload:
+            rates = np.vstack([rates] + [np.vstack([links, static]) for *_, links, static in payload])
+        scale = rates.sum(axis=1)
+        live = scale > 0
+        return rates[live], scale[live]
+
+    def _level(self, travel: np.ndarray, rates: np.ndarray, scale: np.ndarray) -> int:
+        """The margin level that covers a segment of joint travel ``travel`` (nv,) [rad] from its ends."""
+        e = float(np.max(rates @ np.abs(travel) / scale)) if len(scale) else 0.0
+        return self.finest_level if e <= 0 else min(self.finest_level, math.floor(math.log2(self.step / e)))
+
     def _mask(self, joints) -> np.ndarray:
         m = np.zeros(self._chain.nv)
         for j in joints:
@@ -259,12 +275,7 @@ class SweptMotion:
         s = np.asarray(s, dtype=float)
         qs = np.asarray(path(s), dtype=float).reshape(len(s), -1)
         payload = self._payload(held)
-        rates = self.pair_rates
-        if payload:
-            rates = np.vstack([rates] + [np.vstack([links, static]) for *_, links, static in payload])
-        scale = rates.sum(axis=1)
-        live = scale > 0
-        rates, scale = rates[live], scale[live]
+        rates, scale = self._closing_rates(payload)
         # per sample: highest level known to fail, lowest known to pass
         state: dict[int, list] = {}
 
@@ -288,8 +299,7 @@ class SweptMotion:
         stack = [(i, float(s[i]), qs[i], i + 1, float(s[i + 1]), qs[i + 1]) for i in range(len(s) - 1)][::-1]
         while stack:
             ka, sa, qa, kb, sb, qb = stack.pop()
-            e = float(np.max(rates @ np.abs(qb - qa) / scale)) if len(scale) else 0.0
-            level = self.finest_level if e <= 0 else min(self.finest_level, math.floor(math.log2(self.step / e)))
+            level = self._level(qb - qa, rates, scale)
             if level >= COARSEST_LEVEL:
                 hit = ok(ka, qa, level) or ok(kb, qb, level)
                 if hit is None:
@@ -322,6 +332,43 @@ class SweptMotion:
             return qs[i] if n == 1 else qs[i] + f * (qs[np.minimum(i + 1, n - 1)] - qs[i])
 
         return self.first_contact(path, np.arange(n, dtype=float), held)
+
+
+    def corner_contact(self, a: np.ndarray, c: np.ndarray, b: np.ndarray, held: Payload = None,
+                       max_checks: int = CORNER_CHECKS) -> str | None:
+        """Proves the triangle ``a``, ``c``, ``b`` of joint space [rad] free, or names a pair near it.
+
+        A controller blending from segment ``a``-``c`` into ``c``-``b`` drives a convex combination
+        of the two (a parabolic or Bezier blend), inside this triangle. A configuration ``g`` free by
+        the margins of a segment of travel ``2 d`` holds every configuration within ``d`` of it, per
+        joint, free: the triangle is proven by its centroid where it is small enough, else in four
+        halves' triangles, down to the finest level or ``max_checks`` collision checks.
+
+        Returns
+        -------
+        str or None
+            None when every point of the triangle is free, else the pair nearest where the proof
+            stopped (a touch, or the check budget spent close to something).
+        """
+        payload = self._payload(held)
+        rates, scale = self._closing_rates(payload)
+        stack = [(np.asarray(a, dtype=float), np.asarray(c, dtype=float), np.asarray(b, dtype=float))]
+        checks = 0
+        while stack:
+            p = np.stack(stack.pop())
+            g = p.mean(axis=0)
+            level = self._level(2 * np.abs(p - g).max(axis=0), rates, scale)
+            hit = None
+            if level >= COARSEST_LEVEL:
+                hit = self._free(g, level, payload)
+                checks += 1
+                if hit is None:
+                    continue
+                if level >= self.finest_level or checks >= max_checks:
+                    return hit
+            m01, m12, m20 = (p[0] + p[1]) / 2, (p[1] + p[2]) / 2, (p[2] + p[0]) / 2
+            stack += [(p[0], m01, m20), (m01, p[1], m12), (m20, m12, p[2]), (m01, m12, m20)]
+        return None
 
 
 def monotone_breaks(breakpoints: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
