@@ -56,7 +56,7 @@ FINEST_LEVEL = 12
 #: From this level on, a segment not yet proven has its ends checked at the finest level too [-].
 EXACT_AFTER = 4
 #: Collision checks one blended corner's proof may spend before it counts as touching [-].
-CORNER_CHECKS = 400
+CORNER_CHECKS = 5000
 
 
 def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
