@@ -56,7 +56,7 @@ FINEST_LEVEL = 12
 #: From this level on, a segment not yet proven has its ends checked at the finest level too [-].
 EXACT_AFTER = 4
 #: Collision checks one blended corner's proof may spend before it counts as touching [-].
-CORNER_CHECKS = 5000
+CORNER_CHECKS = 2000
 
 
 def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -228,9 +228,30 @@ class SweptMotion:
 
     def _free(self, q: np.ndarray, level: int, payload: tuple) -> str | None:
         """``None`` when ``q`` is at least level ``level``'s margins from everything, else the pair."""
+        h = self.step * 2.0 ** -level
+        return self._clear(q, self._gdata(level), payload,
+                           lambda rates: self._margins(rates, h))
+
+    def _free_within(self, q: np.ndarray, d: np.ndarray, payload: tuple) -> str | None:
+        """``None`` when every configuration within ``d`` (nv,) [rad] of ``q``, joint by joint, is
+        free, else the pair: each pair's margin is its own closing rates times ``d``."""
+        gd = self._levels.get("within")
+        if gd is None:
+            gd = self._levels["within"] = pin.GeometryData(self.world.geometry)
+        for k, m in enumerate(self._within(self.pair_rates, d)):
+            gd.collisionRequests[k].security_margin = float(m)
+        return self._clear(q, gd, payload, lambda rates: self._within(rates, d))
+
+    @staticmethod
+    def _within(rates: np.ndarray, d: np.ndarray) -> np.ndarray:
+        return rates @ d * (1 + 1e-6) + 1e-9
+
+    def _clear(self, q: np.ndarray, gd: pin.GeometryData, payload: tuple,
+               margins: Callable[[np.ndarray], np.ndarray]) -> str | None:
+        """``None`` when ``q`` is clear of everything by ``gd``'s pair margins and, for each box on
+        the TCP, ``margins(rates)`` of its closing rates, else the pair."""
         w = self.world
         model = w.robot.model
-        gd = self._gdata(level)
         pin.framesForwardKinematics(model, w._data, q)
         pin.updateGeometryPlacements(model, w._data, w.geometry, gd)
         if pin.computeCollisions(w.geometry, gd, True):
@@ -242,13 +263,12 @@ class SweptMotion:
             return "a pair"  # pragma: no cover - computeCollisions said one collides
         if not payload:
             return None
-        h = self.step * 2.0 ** -level
         t_flange = w._data.oMf[w._flange_id].homogeneous
         nstatic = len(w._static)
         centres = w.link_centres(gd)
         for name, shape, t_flange_box, radius, links, static in payload:
-            hit = w.riding_contact(shape, t_flange @ t_flange_box, radius, self._margins(links, h),
-                                   np.full(nstatic, self._margins(static[None], h)[0]), centres, gd)
+            hit = w.riding_contact(shape, t_flange @ t_flange_box, radius, margins(links),
+                                   np.full(nstatic, margins(static[None])[0]), centres, gd)
             if hit is not None:
                 return f"{name} <-> {hit}"
         return None
@@ -339,10 +359,10 @@ class SweptMotion:
         """Proves the triangle ``a``, ``c``, ``b`` of joint space [rad] free, or names a pair near it.
 
         A controller blending from segment ``a``-``c`` into ``c``-``b`` drives a convex combination
-        of the two (a parabolic or Bezier blend), inside this triangle. A configuration ``g`` free by
-        the margins of a segment of travel ``2 d`` holds every configuration within ``d`` of it, per
-        joint, free: the triangle is proven by its centroid where it is small enough, else in four
-        halves' triangles, down to the finest level or ``max_checks`` collision checks.
+        of the two (a parabolic or Bezier blend), inside this triangle. A configuration ``g`` clear
+        of each pair by that pair's closing rates times ``d`` holds every configuration within ``d``
+        of it, joint by joint, free: the triangle is proven at its centroid, else as four triangles
+        of half its size, down to the finest level's reach or ``max_checks`` collision checks.
 
         Returns
         -------
@@ -352,20 +372,20 @@ class SweptMotion:
         """
         payload = self._payload(held)
         rates, scale = self._closing_rates(payload)
+        # below this reach [m] a configuration still not clear touches: the finest level's margins
+        finest = self.step * 2.0 ** -self.finest_level
         stack = [(np.asarray(a, dtype=float), np.asarray(c, dtype=float), np.asarray(b, dtype=float))]
         checks = 0
         while stack:
             p = np.stack(stack.pop())
             g = p.mean(axis=0)
-            level = self._level(2 * np.abs(p - g).max(axis=0), rates, scale)
-            hit = None
-            if level >= COARSEST_LEVEL:
-                hit = self._free(g, level, payload)
-                checks += 1
-                if hit is None:
-                    continue
-                if level >= self.finest_level or checks >= max_checks:
-                    return hit
+            d = np.abs(p - g).max(axis=0)
+            hit = self._free_within(g, d, payload)
+            checks += 1
+            if hit is None:
+                continue
+            if float(np.max(rates @ d / scale)) <= finest or checks >= max_checks:
+                return hit
             m01, m12, m20 = (p[0] + p[1]) / 2, (p[1] + p[2]) / 2, (p[2] + p[0]) / 2
             stack += [(p[0], m01, m20), (m01, p[1], m12), (m20, m12, p[2]), (m01, m12, m20)]
         return None
