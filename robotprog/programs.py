@@ -19,10 +19,11 @@ controller invents between waypoints. Per language:
   no ``C_PTP``) where the plan stops anyway.
 
 Proof of the posted path: the controller drives the polyline through the posted targets,
-cutting each blended corner no further than the chord between the two segments' midpoints
-(RAPID and KRL shrink a zone to at most half of its segments). :func:`check_posted_path`
-collision-checks that polyline and every corner chord at the planner's joint resolution,
-with what the gripper holds in that move; a move whose posted path collides is posted again with
+cutting each blended corner within the triangle of the corner and its two segments' midpoints
+(RAPID and KRL shrink a zone to at most half of its segments; a blend is a convex combination
+of its two segments). :func:`check_posted_path` proves that polyline and every corner's
+triangle free all along, not at samples (:mod:`robotprog.sweep`), with what the gripper holds
+in that move; a move whose posted path collides is posted again with
 segments half as long (down to :data:`MIN_SEGMENT_S`), hugging the proven trajectory closer. Each segment's speed is its joint travel over the
 sample time of a trajectory proven within the limits, so it is within them too.
 
@@ -55,6 +56,7 @@ from robotprog.collision import CollisionWorld, collision_world
 from robotprog.controller import LANGS, program_duration
 from robotprog.krl import krl_program
 from robotprog.rapid import rapid_module
+from robotprog.sweep import swept_motion
 from robotprog.tending import TendingOptions, TendingPlan, TimedMove
 from robotprog.machineio import machine_cycle, machine_ready, number, to_steps, verdict
 from robotprog.urscript import Branch, Comment, MoveJ, ServoJ, SetOutputs, Step, flat_steps, urscript_program
@@ -243,6 +245,7 @@ def posted_collision(world: CollisionWorld, plan: TendingPlan, steps: list[Step]
         elif per_move:
             per_move[-1].append(st)
     moves = plan.moves + plan.reject if any(isinstance(st, Branch) for st in steps) else plan.moves
+    sweep = swept_motion(world, joint_resolution)
     for k, (mv, posted) in enumerate(zip(moves, per_move, strict=True)):
         if mv.kind == "gripper":
             continue
@@ -256,27 +259,15 @@ def posted_collision(world: CollisionWorld, plan: TendingPlan, steps: list[Step]
                 pts.append(np.asarray(st.q, dtype=float))
                 blended.append(st.r > 0)
         qs = np.array(pts)
-        paths = [qs]
-        corners = [i for i in range(1, len(qs) - 1) if blended[i]]
-        if corners:
-            c = np.array(corners)
-            a = 0.5 * (qs[c - 1] + qs[c])
-            b = 0.5 * (qs[c] + qs[c + 1])
-            paths += [np.array([x, y]) for x, y in zip(a, b)]
-        for path in paths:
-            dense = _densify(path, joint_resolution)
-            bad = world.path_free(dense, mv.held)
-            if bad is not None:
-                return k, str(world.first_contact(dense[bad], mv.held))
+        hit = sweep.polyline_contact(qs, mv.held)
+        if hit is not None:
+            return k, hit[1]
+        for i in range(1, len(qs) - 1):
+            if blended[i]:  # the blend stays between the two segments' midpoints and the corner
+                contact = sweep.corner_contact(0.5 * (qs[i - 1] + qs[i]), qs[i], 0.5 * (qs[i] + qs[i + 1]), mv.held)
+                if contact is not None:
+                    return k, contact
     return None
-
-
-def _densify(qs: np.ndarray, resolution: float) -> np.ndarray:
-    out = [qs[:1]]
-    for a, b in zip(qs[:-1], qs[1:]):
-        n = max(1, math.ceil(float(np.abs(b - a).max()) / resolution))
-        out.append(a + np.linspace(0.0, 1.0, n + 1)[1:, None] * (b - a))
-    return np.concatenate(out)
 
 
 def post_program(lang: str, program: Path, cell: Cell, world: CollisionWorld, plan: TendingPlan) -> PostedProgram:

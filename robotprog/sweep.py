@@ -55,6 +55,8 @@ COARSEST_LEVEL = -3
 FINEST_LEVEL = 12
 #: From this level on, a segment not yet proven has its ends checked at the finest level too [-].
 EXACT_AFTER = 4
+#: Collision checks one blended corner's proof may spend before it counts as touching [-].
+CORNER_CHECKS = 2000
 
 
 def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -202,6 +204,20 @@ class SweptMotion:
         self._payloads[key] = got
         return got
 
+    def _closing_rates(self, payload: tuple) -> tuple[np.ndarray, np.ndarray]:
+        """(rates [m/rad] of every pair that can close, arm's and held boxes', (n, nv); their row sums)."""
+        rates = self.pair_rates
+        if payload:
+            rates = np.vstack([rates] + [np.vstack([links, static]) for *_, links, static in payload])
+        scale = rates.sum(axis=1)
+        live = scale > 0
+        return rates[live], scale[live]
+
+    def _level(self, travel: np.ndarray, rates: np.ndarray, scale: np.ndarray) -> int:
+        """The margin level that covers a segment of joint travel ``travel`` (nv,) [rad] from its ends."""
+        e = float(np.max(rates @ np.abs(travel) / scale)) if len(scale) else 0.0
+        return self.finest_level if e <= 0 else min(self.finest_level, math.floor(math.log2(self.step / e)))
+
     def _mask(self, joints) -> np.ndarray:
         m = np.zeros(self._chain.nv)
         for j in joints:
@@ -212,9 +228,30 @@ class SweptMotion:
 
     def _free(self, q: np.ndarray, level: int, payload: tuple) -> str | None:
         """``None`` when ``q`` is at least level ``level``'s margins from everything, else the pair."""
+        h = self.step * 2.0 ** -level
+        return self._clear(q, self._gdata(level), payload,
+                           lambda rates: self._margins(rates, h))
+
+    def _free_within(self, q: np.ndarray, d: np.ndarray, payload: tuple) -> str | None:
+        """``None`` when every configuration within ``d`` (nv,) [rad] of ``q``, joint by joint, is
+        free, else the pair: each pair's margin is its own closing rates times ``d``."""
+        gd = self._levels.get("within")
+        if gd is None:
+            gd = self._levels["within"] = pin.GeometryData(self.world.geometry)
+        for k, m in enumerate(self._within(self.pair_rates, d)):
+            gd.collisionRequests[k].security_margin = float(m)
+        return self._clear(q, gd, payload, lambda rates: self._within(rates, d))
+
+    @staticmethod
+    def _within(rates: np.ndarray, d: np.ndarray) -> np.ndarray:
+        return rates @ d * (1 + 1e-6) + 1e-9
+
+    def _clear(self, q: np.ndarray, gd: pin.GeometryData, payload: tuple,
+               margins: Callable[[np.ndarray], np.ndarray]) -> str | None:
+        """``None`` when ``q`` is clear of everything by ``gd``'s pair margins and, for each box on
+        the TCP, ``margins(rates)`` of its closing rates, else the pair."""
         w = self.world
         model = w.robot.model
-        gd = self._gdata(level)
         pin.framesForwardKinematics(model, w._data, q)
         pin.updateGeometryPlacements(model, w._data, w.geometry, gd)
         if pin.computeCollisions(w.geometry, gd, True):
@@ -226,13 +263,12 @@ class SweptMotion:
             return "a pair"  # pragma: no cover - computeCollisions said one collides
         if not payload:
             return None
-        h = self.step * 2.0 ** -level
         t_flange = w._data.oMf[w._flange_id].homogeneous
         nstatic = len(w._static)
         centres = w.link_centres(gd)
         for name, shape, t_flange_box, radius, links, static in payload:
-            hit = w.riding_contact(shape, t_flange @ t_flange_box, radius, self._margins(links, h),
-                                   np.full(nstatic, self._margins(static[None], h)[0]), centres, gd)
+            hit = w.riding_contact(shape, t_flange @ t_flange_box, radius, margins(links),
+                                   np.full(nstatic, margins(static[None])[0]), centres, gd)
             if hit is not None:
                 return f"{name} <-> {hit}"
         return None
@@ -259,12 +295,7 @@ class SweptMotion:
         s = np.asarray(s, dtype=float)
         qs = np.asarray(path(s), dtype=float).reshape(len(s), -1)
         payload = self._payload(held)
-        rates = self.pair_rates
-        if payload:
-            rates = np.vstack([rates] + [np.vstack([links, static]) for *_, links, static in payload])
-        scale = rates.sum(axis=1)
-        live = scale > 0
-        rates, scale = rates[live], scale[live]
+        rates, scale = self._closing_rates(payload)
         # per sample: highest level known to fail, lowest known to pass
         state: dict[int, list] = {}
 
@@ -288,8 +319,7 @@ class SweptMotion:
         stack = [(i, float(s[i]), qs[i], i + 1, float(s[i + 1]), qs[i + 1]) for i in range(len(s) - 1)][::-1]
         while stack:
             ka, sa, qa, kb, sb, qb = stack.pop()
-            e = float(np.max(rates @ np.abs(qb - qa) / scale)) if len(scale) else 0.0
-            level = self.finest_level if e <= 0 else min(self.finest_level, math.floor(math.log2(self.step / e)))
+            level = self._level(qb - qa, rates, scale)
             if level >= COARSEST_LEVEL:
                 hit = ok(ka, qa, level) or ok(kb, qb, level)
                 if hit is None:
@@ -322,6 +352,43 @@ class SweptMotion:
             return qs[i] if n == 1 else qs[i] + f * (qs[np.minimum(i + 1, n - 1)] - qs[i])
 
         return self.first_contact(path, np.arange(n, dtype=float), held)
+
+
+    def corner_contact(self, a: np.ndarray, c: np.ndarray, b: np.ndarray, held: Payload = None,
+                       max_checks: int = CORNER_CHECKS) -> str | None:
+        """Proves the triangle ``a``, ``c``, ``b`` of joint space [rad] free, or names a pair near it.
+
+        A controller blending from segment ``a``-``c`` into ``c``-``b`` drives a convex combination
+        of the two (a parabolic or Bezier blend), inside this triangle. A configuration ``g`` clear
+        of each pair by that pair's closing rates times ``d`` holds every configuration within ``d``
+        of it, joint by joint, free: the triangle is proven at its centroid, else as four triangles
+        of half its size, down to the finest level's reach or ``max_checks`` collision checks.
+
+        Returns
+        -------
+        str or None
+            None when every point of the triangle is free, else the pair nearest where the proof
+            stopped (a touch, or the check budget spent close to something).
+        """
+        payload = self._payload(held)
+        rates, scale = self._closing_rates(payload)
+        # below this reach [m] a configuration still not clear touches: the finest level's margins
+        finest = self.step * 2.0 ** -self.finest_level
+        stack = [(np.asarray(a, dtype=float), np.asarray(c, dtype=float), np.asarray(b, dtype=float))]
+        checks = 0
+        while stack:
+            p = np.stack(stack.pop())
+            g = p.mean(axis=0)
+            d = np.abs(p - g).max(axis=0)
+            hit = self._free_within(g, d, payload)
+            checks += 1
+            if hit is None:
+                continue
+            if float(np.max(rates @ d / scale)) <= finest or checks >= max_checks:
+                return hit
+            m01, m12, m20 = (p[0] + p[1]) / 2, (p[1] + p[2]) / 2, (p[2] + p[0]) / 2
+            stack += [(p[0], m01, m20), (m01, p[1], m12), (m20, m12, p[2]), (m01, m12, m20)]
+        return None
 
 
 def monotone_breaks(breakpoints: np.ndarray, coefficients: np.ndarray) -> np.ndarray:

@@ -125,3 +125,37 @@ def test_standing_still_is_checked_exactly(world, sweep, cell):
     bad[1] = -0.6
     hit = sweep.polyline_contact(np.array([bad]))
     assert hit is not None and "mill_table" in hit[1]
+
+
+def test_a_blended_corner_is_proven_over_its_whole_triangle(world, cell):
+    """A controller's blend round a corner runs inside the triangle of the corner and its segments'
+    midpoints. A 5 mm cube at the rod's tip where the arm stands at the triangle's centroid lies
+    off the corner's polyline and off its chord (the old sampled check passes), inside the
+    triangle: the corner proof finds it, and proves the same corner free without the cube."""
+    planner = _Planner(cell, world.robot, world, TendingOptions())
+    c = np.asarray(cell.robot.home, dtype=float)
+    a, b = c.copy(), c.copy()
+    a[0] -= 0.3  # the base turns into the corner, then the elbow bends out of it
+    b[2] += 0.3
+    centroid = (a + b + c) / 3
+    tip = planner.tcp_world(centroid) @ np.array([0.0, 0.0, 0.09, 1.0])
+    cube = Box("cube", (0.005, 0.005, 0.005), Pose(tuple(float(v) for v in tip[:3]), (0.0, 0.0, 0.0)))
+    w = collision_world(cell, world.robot, obstacles=(cube,))
+    assert w.in_collision(centroid, ROD)
+    assert w.path_free(planner.densify(np.array([a, c, b])), ROD) is None  # the polyline misses it
+    assert w.path_free(planner.densify(np.array([a, b])), ROD) is None  # and so does the chord
+    assert swept_motion(w, STEP).corner_contact(a, c, b, ROD) == "rod <-> cube"
+    assert swept_motion(world, STEP).corner_contact(a, c, b, ROD) is None
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.lists(st.floats(-0.4, 0.4), min_size=12, max_size=12), st.floats(0.0, 1.0), st.floats(0.0, 1.0))
+def test_a_corner_proven_free_is_free_inside(world, sweep, cell, offsets, u, v):
+    """Wherever a corner's proof says free, a point inside its triangle is free (the held box too)."""
+    c = np.asarray(cell.robot.home, dtype=float)
+    a, b = c + np.array(offsets[:6]), c + np.array(offsets[6:])
+    if u + v > 1:
+        u, v = 1 - u, 1 - v
+    held = finger_boxes(cell, 0.08) + (HeldBox.at((0.1, 0.06, 0.02), np.eye(4)),)
+    if sweep.corner_contact(a, c, b, held) is None:
+        assert not world.in_collision(c + u * (a - c) + v * (b - c), held)
