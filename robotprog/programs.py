@@ -56,7 +56,7 @@ from robotprog.collision import CollisionWorld, collision_world
 from robotprog.controller import LANGS, program_duration
 from robotprog.krl import krl_program
 from robotprog.rapid import rapid_module
-from robotprog.sweep import swept_motion
+from robotprog.sweep import SweptMotion, swept_motion
 from robotprog.tending import TendingOptions, TendingPlan, TimedMove
 from robotprog.machineio import machine_cycle, machine_ready, number, to_steps, verdict
 from robotprog.urscript import Branch, Comment, MoveJ, ServoJ, SetOutputs, Step, flat_steps, urscript_program
@@ -235,9 +235,11 @@ def check_posted_path(world: CollisionWorld, plan: TendingPlan, steps: list[Step
 
 
 def posted_collision(world: CollisionWorld, plan: TendingPlan, steps: list[Step],
-                     joint_resolution: float = TendingOptions().joint_resolution) -> tuple[int, str] | None:
+                     joint_resolution: float = TendingOptions().joint_resolution,
+                     sweep: SweptMotion | None = None) -> tuple[int, str] | None:
     """The first move (index into ``plan.moves``, then ``plan.reject`` where the steps branch on the
-    verdict) whose posted path collides, and the contact."""
+    verdict) whose posted path collides, and the contact. ``sweep``: ``world``'s continuous checker
+    at ``joint_resolution``, when the caller checks several posts of one plan (made here if not)."""
     per_move: list[list[Step]] = []
     for st in flat_steps(steps):
         if isinstance(st, Comment):
@@ -245,7 +247,7 @@ def posted_collision(world: CollisionWorld, plan: TendingPlan, steps: list[Step]
         elif per_move:
             per_move[-1].append(st)
     moves = plan.moves + plan.reject if any(isinstance(st, Branch) for st in steps) else plan.moves
-    sweep = swept_motion(world, joint_resolution)
+    sweep = swept_motion(world, joint_resolution) if sweep is None else sweep
     for k, (mv, posted) in enumerate(zip(moves, per_move, strict=True)):
         if mv.kind == "gripper":
             continue
@@ -294,9 +296,10 @@ def post_program(lang: str, program: Path, cell: Cell, world: CollisionWorld, pl
     # trajectory closer, down to MIN_SEGMENT_S; then the collision is the error.
     segments: dict[int, float] = {}
     branch = True
+    sweep = swept_motion(proven, TendingOptions().joint_resolution)  # one checker for every try
     while True:
         steps = program_steps(cell, world, plan, lang, segments, branch)
-        hit = posted_collision(proven, plan, steps)
+        hit = posted_collision(proven, plan, steps, sweep=sweep)
         if hit is None:
             break
         k, contact = hit

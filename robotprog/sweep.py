@@ -235,7 +235,7 @@ class SweptMotion:
     def _free_within(self, q: np.ndarray, d: np.ndarray, payload: tuple) -> str | None:
         """``None`` when every configuration within ``d`` (nv,) [rad] of ``q``, joint by joint, is
         free, else the pair: each pair's margin is its own closing rates times ``d``."""
-        gd = self._levels.get("within")
+        gd = self._levels.get("within")  # beside the levels' buffers, one whose margins each check sets
         if gd is None:
             gd = self._levels["within"] = pin.GeometryData(self.world.geometry)
         for k, m in enumerate(self._within(self.pair_rates, d)):
@@ -353,7 +353,6 @@ class SweptMotion:
 
         return self.first_contact(path, np.arange(n, dtype=float), held)
 
-
     def corner_contact(self, a: np.ndarray, c: np.ndarray, b: np.ndarray, held: Payload = None,
                        max_checks: int = CORNER_CHECKS) -> str | None:
         """Proves the triangle ``a``, ``c``, ``b`` of joint space [rad] free, or names a pair near it.
@@ -372,7 +371,7 @@ class SweptMotion:
         """
         payload = self._payload(held)
         rates, scale = self._closing_rates(payload)
-        # below this reach [m] a configuration still not clear touches: the finest level's margins
+        # a triangle this small [rad] (the finest level's joint step) still not clear touches
         finest = self.step * 2.0 ** -self.finest_level
         stack = [(np.asarray(a, dtype=float), np.asarray(c, dtype=float), np.asarray(b, dtype=float))]
         checks = 0
