@@ -256,7 +256,7 @@ def main() -> None:
     if args.before and randoms:
         earlier = before_minutes(args.before, randoms, args.material, args.rapid, folder)
     rows = []
-    from factory.errors import FactoryError
+    from factory.core.errors import FactoryError
 
     # "before": the figure for the samples, the --before revision's count for random parts
     print(f"{'part':<14}{'min':>7}{'before':>7}{'x':>6}{'want':>6}{'TC':>4}{'rapid m':>9}{'p95 mm':>8}"

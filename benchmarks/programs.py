@@ -24,7 +24,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from factory.resources import FIXTURES  # noqa: E402
+from factory.core.resources import FIXTURES  # noqa: E402
 from robotprog.cell import load_cell  # noqa: E402
 from robotprog.collision import collision_world  # noqa: E402
 from robotprog.programs import post_program  # noqa: E402

@@ -33,7 +33,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from factory.resources import FIXTURES  # noqa: E402
+from factory.core.resources import FIXTURES  # noqa: E402
 from robotprog.cell import load_cell  # noqa: E402
 from robotprog.collision import collision_world  # noqa: E402
 from robotprog.ik import UR_DH, ik_continuous, ur_fk, ur_ik  # noqa: E402

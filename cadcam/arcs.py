@@ -30,7 +30,7 @@ from typing import Callable
 import numpy as np
 
 from cadcam.model import Motion, frozen_array
-from factory.errors import GcodeError
+from factory.core.errors import GcodeError
 
 log = logging.getLogger(__name__)
 

@@ -33,7 +33,7 @@ import numpy as np
 from cadcam.model import frozen_array
 from cadcam.timeline import MachineTimeline
 from cadcam.tools import ToolLibrary
-from factory.errors import ToolError, VerifyError
+from factory.core.errors import ToolError, VerifyError
 
 #: Averaging window of the load meter [s].
 METER_WINDOW_S = 1.0

@@ -47,7 +47,7 @@ import numpy as np
 
 from cadcam.model import Tool
 from cadcam.parallel import MAX_WORKERS, processors
-from factory.errors import MeshError, ToolpathError
+from factory.core.errors import MeshError, ToolpathError
 
 log = logging.getLogger(__name__)
 

@@ -35,7 +35,7 @@ from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.relief import clip_chains
 from cadcam.rest import deep_stock, engagement_ok
 from cadcam.verify import Simulation, clear_height
-from factory.errors import ToolpathError
+from factory.core.errors import ToolpathError
 
 #: ``within(radius)``: the XY region [mm] the axis of a tool of ``radius`` [mm] stays in.
 Within = Callable[[float], "BaseGeometry"]

@@ -36,7 +36,7 @@ from cadcam.model import CuttingData, Operation, Setup, Tool
 from cadcam.rest import excess
 from cadcam.roughing import RoughingOptions, zlevel_roughing
 from cadcam.verify import Simulation
-from factory.errors import ToolError
+from factory.core.errors import ToolError
 
 
 #: Default stepover of floor finishing, a share of the diameter.

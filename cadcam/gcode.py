@@ -2,7 +2,7 @@
 
 It reads what factory's posts write (:mod:`cadcam.post`) and what hand-written and other
 CAM programs for 3-axis mills commonly contain, and refuses everything else with a
-:class:`~factory.errors.GcodeError` naming the line, rather than guessing.
+:class:`~factory.core.errors.GcodeError` naming the line, rather than guessing.
 
 Read
     Comments ``( )`` and ``;``; ``%`` lines; ``N`` line numbers; an ``O`` program number
@@ -53,7 +53,7 @@ import numpy as np
 
 from cadcam.arcs import arc_sweep, discretize_arc
 from cadcam.model import Motion, ProgramMoves
-from factory.errors import GcodeError
+from factory.core.errors import GcodeError
 
 log = logging.getLogger(__name__)
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factory.errors import MeshError, SetupError
+from factory.core.errors import MeshError, SetupError
 
 log = logging.getLogger(__name__)
 

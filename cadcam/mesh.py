@@ -11,7 +11,7 @@ via a manifold3d rebuild), and only then judges what it holds:
   non-manifold edges), wound consistently and turned to face up, to be machined from above
   (:mod:`cadcam.relief`): ``PartMesh.surface`` says what was found.
 
-It says what it repaired, and refuses with a :class:`~factory.errors.MeshError` what it cannot
+It says what it repaired, and refuses with a :class:`~factory.core.errors.MeshError` what it cannot
 trust: truncated files, non-finite vertices, implausible sizes, and meshes with no surface to
 machine (a soup of disjoint triangles, a surface facing down, an envelope with gaps over most of
 its footprint; the criteria are in :func:`cadcam.relief.judge_surface`).
@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 import trimesh
 
-from factory.errors import MeshError, SetupError
+from factory.core.errors import MeshError, SetupError
 
 if TYPE_CHECKING:
     from cadcam.relief import SurfaceFound

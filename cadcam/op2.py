@@ -53,7 +53,7 @@ from cadcam.setup import JAW_CLEARANCE_MM
 from cadcam.tools import ToolLibrary
 from cadcam.verify import (FlippedStock, Simulation, VerifyOptions, clear_height, flip_stock, operation_moves,
                            simulate_flipped, stock_after)
-from factory.errors import SetupError, ToolError, ToolpathError
+from factory.core.errors import SetupError, ToolError, ToolpathError
 
 log = logging.getLogger(__name__)
 

@@ -15,7 +15,7 @@ import os
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from factory.errors import FactoryError, shown
+from factory.core.errors import FactoryError, shown
 
 log = logging.getLogger(__name__)
 

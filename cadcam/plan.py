@@ -36,7 +36,7 @@ from cadcam.shank_clearance import upper_raster
 from cadcam.toolfit import removal_rate, tool_fits
 from cadcam.tools import ToolLibrary
 from cadcam.verify import stock_after
-from factory.errors import ToolError
+from factory.core.errors import ToolError
 
 T = TypeVar("T")
 

@@ -48,7 +48,7 @@ import numpy as np
 from cadcam.arcs import FitOptions, SegmentKind, Segments, fit_segments
 from cadcam.model import Job, Motion, Operation, Tool
 from cadcam.parallel import process_map
-from factory.errors import GcodeError
+from factory.core.errors import GcodeError
 
 log = logging.getLogger(__name__)
 

@@ -37,7 +37,7 @@ from shapely.geometry.base import BaseGeometry
 
 from cadcam.model import Setup, ViseJaws, WorkOrigin
 from cadcam.setup import StockMargins, make_setup
-from factory.errors import MeshError, SetupError
+from factory.core.errors import MeshError, SetupError
 
 if TYPE_CHECKING:
     from cadcam.verify import Simulation

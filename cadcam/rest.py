@@ -27,7 +27,7 @@ from shapely.geometry.base import BaseGeometry
 from cadcam.gridregion import cells_region
 from cadcam.model import Motion, Operation, Setup, Tool
 from cadcam.verify import Simulation, VerifyOptions, clear_height, operation_moves, simulate, simulate_snapshots
-from factory.errors import ToolpathError
+from factory.core.errors import ToolpathError
 
 log = logging.getLogger(__name__)
 

@@ -83,7 +83,7 @@ from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.gridregion import GrownMaskCache
 from cadcam.rest import rest_mask
 from cadcam.verify import Simulation, clear_height
-from factory.errors import MeshError, ToolError, ToolpathError
+from factory.core.errors import MeshError, ToolError, ToolpathError
 
 log = logging.getLogger(__name__)
 

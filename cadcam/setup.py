@@ -23,7 +23,7 @@ import trimesh
 
 from cadcam.mesh import MAX_EXTENT_MM
 from cadcam.model import Setup, ViseJaws, WorkOrigin
-from factory.errors import SetupError
+from factory.core.errors import SetupError
 
 log = logging.getLogger(__name__)
 

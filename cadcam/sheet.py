@@ -40,7 +40,7 @@ from typing import Any
 
 from cadcam.model import Job, Setup, Tool
 from cadcam.post import Program
-from factory.errors import SetupError, clipped
+from factory.core.errors import SetupError, clipped
 
 FORMAT = "factory.setup/1"
 

@@ -32,7 +32,7 @@ import numpy as np
 from cadcam.model import Motion, ProgramMoves, Setup, Tool, frozen_array
 from cadcam.post import PostOptions, move_seconds, tool_change_seconds
 from cadcam.verify import Simulation, VerifyOptions, simulate_snapshots
-from factory.errors import GcodeError, VerifyError
+from factory.core.errors import GcodeError, VerifyError
 
 log = logging.getLogger(__name__)
 

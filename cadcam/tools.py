@@ -26,9 +26,9 @@ from pathlib import Path
 from typing import Any
 
 from cadcam.model import DEFAULT_HOLDER, CuttingData, HolderSegment, Tool
-from factory.errors import ToolError, shown
-from factory.yamlfile import load_yaml
-from factory.resources import FIXTURES
+from factory.core.errors import ToolError, shown
+from factory.core.yamlfile import load_yaml
+from factory.core.resources import FIXTURES
 
 log = logging.getLogger(__name__)
 

@@ -49,7 +49,7 @@ import numpy as np
 from cadcam.heightmap import Grid, grid_over, upper_envelope
 from cadcam.model import Motion, Operation, ProgramMoves, Setup, Tool
 from cadcam.workholding import fixture_contacts
-from factory.errors import VerifyError
+from factory.core.errors import VerifyError
 
 log = logging.getLogger(__name__)
 

@@ -13,8 +13,8 @@ import numpy as np
 import typer
 
 from cli.common import JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, setup_logging, stderr
-from factory.atomic import check_writable, write_bytes, write_text
-from factory.errors import CalibrationError, VisionError
+from factory.core.atomic import check_writable, write_bytes, write_text
+from factory.core.errors import CalibrationError, VisionError
 from factory.camera_msgs import camera_info_msg, compressed_image_msg, header as _header
 from factory.mcaplog import TYPESTORE, McapLog
 from vision.board import BOARD_SYNTAX, BoardSpec

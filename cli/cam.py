@@ -12,7 +12,7 @@ from cadcam.setup import check_stock_size
 from cli.common import parse_triple
 from factory.cam import (ALLOWANCE, CELL, FINISH_TOOL, HOLDING, MATERIAL, ORIGIN, ROUGH_TOOL, SCALLOP, UNITS,
                          CamRequest, Origin, Units)
-from factory.errors import SetupError
+from factory.core.errors import SetupError
 
 __all__ = ["ALLOWANCE", "CELL", "FINISH_TOOL", "HOLDING", "MATERIAL", "ORIGIN", "ROUGH_TOOL", "SCALLOP", "UNITS",
            "cam_request"]

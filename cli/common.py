@@ -22,7 +22,7 @@ from rich.console import Console
 if TYPE_CHECKING:
     from rich.progress import Progress
 
-from factory.errors import FactoryError
+from factory.core.errors import FactoryError
 
 EXIT_ERROR = 1
 #: Done, outputs written, with findings (a gouge, a failed part, an order not done).

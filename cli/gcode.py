@@ -12,7 +12,7 @@ from cadcam.model import Job
 from cadcam.post import PostOptions, Program, post_process
 from cadcam.sheet import setup_sheet
 from cli.common import JsonFlag, Overwrite, Quiet, print_json, reports_errors, setup_logging, stderr
-from factory.atomic import check_writable, write_text
+from factory.core.atomic import check_writable, write_text
 from factory.cam import read_job
 
 Dialect = Literal["linuxcnc", "grbl", "fanuc"]

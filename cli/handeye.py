@@ -14,9 +14,9 @@ import yaml
 
 from cli.calibrate import corners_marker_msg, list_images, parse_board, read_image
 from cli.common import JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, setup_logging, stderr
-from factory.atomic import check_writable, write_bytes, write_text
+from factory.core.atomic import check_writable, write_bytes, write_text
 from factory.camera_msgs import camera_info_msg, compressed_image_msg
-from factory.errors import CalibrationError, VisionError
+from factory.core.errors import CalibrationError, VisionError
 from factory.mcaplog import McapLog, cube_marker, marker_array, tf_message, transforms_stamped
 from vision.board import BOARD_SYNTAX, BoardSpec
 from vision.calibrate import Detection, detect

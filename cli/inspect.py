@@ -12,7 +12,7 @@ from cli.common import (EXIT_VERIFY_FAILED, JsonFlag, Overwrite, Quiet, print_js
                         stderr)
 from cli.calibrate import read_image
 from cli.locate import parse_flange, read_view
-from factory.atomic import check_writable, write_bytes
+from factory.core.atomic import check_writable, write_bytes
 from vision.inspect import InspectOptions, inspect_part, inspection_image
 from vision.locate import footprint_from_mesh, mm_to_m
 from vision.report import bgr_png_bytes

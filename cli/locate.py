@@ -11,7 +11,7 @@ import typer
 from cadcam.mesh import load_part
 from cli.calibrate import read_image
 from cli.common import JsonFlag, Quiet, print_json, reports_errors, setup_logging, stderr
-from factory.errors import VisionError
+from factory.core.errors import VisionError
 from vision.camera import CameraModel
 from vision.handeye import pose_from_xyz_rotation, read_extrinsics
 from vision.locate import footprint_from_mesh, locate_parts

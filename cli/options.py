@@ -13,7 +13,7 @@ from typing import Any
 import typer.core
 import typer.main
 
-from factory.errors import FactoryError
+from factory.core.errors import FactoryError
 
 
 def command_flags(command: str, options: Mapping[str, Any], *, source: str = "config",

@@ -12,7 +12,7 @@ from cli import cam
 from cli.common import EXIT_VERIFY_FAILED, JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, \
     setup_logging, stderr
 from cli.gcode import ArcTolOpt, PostOpt
-from factory.atomic import check_writable
+from factory.core.atomic import check_writable
 from factory.plan import PROGRAM_SUFFIX, PlanRequest, plan_part
 from factory.verify import report_text
 

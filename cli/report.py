@@ -12,7 +12,7 @@ from typing import Annotated
 import typer
 
 from cli.common import JsonFlag, Overwrite, print_json, reports_errors, setup_logging
-from factory.atomic import check_writable, write_bytes
+from factory.core.atomic import check_writable, write_bytes
 from factory.pictures import png_bytes
 from factory.record import Record
 from factory.report import cell_report, dashboard, report_text

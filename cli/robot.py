@@ -16,9 +16,9 @@ import typer
 
 from cadcam.mesh import load_part, units_of_scale
 from cli.common import JsonFlag, Overwrite, Quiet, print_json, reports_errors, setup_logging, stderr
-from factory.atomic import check_writable, write_text
+from factory.core.atomic import check_writable, write_text
 from factory.catalog import sha256_file
-from factory.progress import Stopwatch
+from factory.core.progress import Stopwatch
 from factory.tending import plan_cell, write_robot_mcap
 from factory.verify import read_sheet
 from robotprog.programs import LANGS, post_program

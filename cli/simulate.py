@@ -14,14 +14,14 @@ import typer
 
 from cli.common import EXIT_FINDINGS, JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, \
     setup_logging, stderr
-from factory.atomic import check_writable, write_bytes, write_text
+from factory.core.atomic import check_writable, write_bytes, write_text
 from factory.catalog import sha256_file
 from factory.foxglove import layout_json
 from factory.live import LiveView
 from factory.pictures import png_bytes
-from factory.progress import Stopwatch
+from factory.core.progress import Stopwatch
 from factory.record import Record
-from factory.resources import FIXTURES
+from factory.core.resources import FIXTURES
 from factory.simulation import ROBOT_RATE_HZ, PartAssets, run_cell, write_cell_log
 from robotprog.cell import load_cell
 from robotprog.cellsim import FaultModel, SimulationResult

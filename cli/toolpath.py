@@ -10,10 +10,10 @@ import typer
 from cli import cam
 from cli.common import JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, setup_logging, stderr
 from factory.cam import compute_job, job_summary, log_job
-from factory.atomic import check_writable, write_bytes
+from factory.core.atomic import check_writable, write_bytes
 from factory.mcaplog import McapLog
 from factory.pictures import png_bytes
-from factory.progress import Stopwatch
+from factory.core.progress import Stopwatch
 
 
 @reports_errors

@@ -15,8 +15,8 @@ import typer
 from cadcam.verify import VerifyOptions
 from cli.common import (EXIT_VERIFY_FAILED, Overwrite, Quiet, print_json, progress_bars, reports_errors,
                         setup_logging, stderr)
-from factory.atomic import check_writable
-from factory.errors import VerifyError
+from factory.core.atomic import check_writable
+from factory.core.errors import VerifyError
 from factory.verify import (flip_of, op1_of, part_triangles, read_sheet, report_text, run_verify, run_verify_after,
                             write_verify_outputs)
 

@@ -25,10 +25,10 @@ from cadcam.relief import (FINISH_ENGAGEMENT, TERRACE_STEPDOWN, Boundary, Relief
 from cadcam.roughing import RoughingOptions
 from cadcam.setup import StockMargins, make_setup
 from cadcam.tools import load_tool_library
-from factory.errors import ToolpathError
+from factory.core.errors import ToolpathError
 from factory.mcaplog import McapLog, read_attachment
-from factory.progress import Progress, Stopwatch
-from factory.resources import FIXTURES
+from factory.core.progress import Progress, Stopwatch
+from factory.core.resources import FIXTURES
 from factory.views import job_messages
 from robotprog.cell import load_cell
 from robotprog.frames import vise_jaws

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from factory.errors import McapError
+from factory.core.errors import McapError
 from factory.mcaplog import TYPESTORE, ros_time
 
 _T = TYPESTORE.types

@@ -47,7 +47,7 @@ import math
 from dataclasses import dataclass, fields
 from typing import Any
 
-from factory.errors import McapError
+from factory.core.errors import McapError
 
 #: Panel ids of the layout, ``"<PanelType>!<suffix>"``.
 PANEL_3D = "3D!cell"

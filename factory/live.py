@@ -20,7 +20,7 @@ from typing import Any
 
 import foxglove
 
-from factory.errors import LiveError
+from factory.core.errors import LiveError
 from factory.mcaplog import TYPESTORE, message_definition
 
 log = logging.getLogger(__name__)

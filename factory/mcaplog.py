@@ -23,7 +23,7 @@ typestore (:data:`TYPESTORE`), with the ``.msg`` files under :data:`MSG_DIRS` re
 it (``foxglove_msgs``: Foxglove's scene and image-annotation messages, checked field by field
 against Foxglove's own definitions in ``tests/foxglove``; ``factory_msgs``: the cell's own, from
 the ROS 2 interface package in ``ros/``); files are written by the ``mcap`` package's writer through
-:func:`factory.atomic.atomic_output`, so a failed run leaves no file behind.
+:func:`factory.core.atomic.atomic_output`, so a failed run leaves no file behind.
 
 Units: ROS speaks metres, seconds and radians. The builders below take metres (and a
 4x4 homogeneous transform with its translation in metres); the millimetre-to-metre
@@ -49,9 +49,9 @@ from mcap.writer import CompressionType, IndexType, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 import factory
-from factory.atomic import atomic_output, check_writable
-from factory.errors import McapError
-from factory.resources import ROS_INTERFACES
+from factory.core.atomic import atomic_output, check_writable
+from factory.core.errors import McapError
+from factory.core.resources import ROS_INTERFACES
 
 # What the mcap reader raises on a file that is not MCAP or is cut short.
 _READ_ERRORS = (_McapLibError, EOFError, OSError, ValueError, StopIteration, struct.error)

@@ -42,14 +42,14 @@ from cadcam.relief import block_corners
 from cadcam.sheet import setup_sheet
 from cadcam.tools import load_tool_library
 from cadcam.verify import Simulation, VerifyOptions, VerifyReport, check_grid_size
-from factory.atomic import check_writable, write_bytes, write_text
+from factory.core.atomic import check_writable, write_bytes, write_text
 from factory.cam import CamRequest, PlannedPart, compute_job, log_job
 from factory.catalog import catalog_record, sha256_file
-from factory.errors import PlanningError, shown
+from factory.core.errors import PlanningError, shown
 from factory.mcaplog import McapLog
 from factory.pictures import png_bytes
-from factory.progress import Progress, Stopwatch
-from factory.resources import FIXTURES
+from factory.core.progress import Progress, Stopwatch
+from factory.core.resources import FIXTURES
 from factory.tending import log_tending, plan_cell
 from factory.verify import log_simulation, run_verify, run_verify_after, write_verify_outputs
 from robotprog.cell import Cell, load_cell

@@ -57,7 +57,7 @@ from sqlalchemy.engine import URL, Connection, Engine, make_url
 
 from factory import __version__
 from factory.catalog import sha256_file
-from factory.errors import RecordError
+from factory.core.errors import RecordError
 from robotprog.cellsim import Activity, CellEvent, LogEntry, OrderOutcome, SimulationResult
 from robotprog.orders import Order
 

@@ -36,7 +36,7 @@ from typing import Any, Sequence
 import numpy as np
 import sqlalchemy as sa
 
-from factory.errors import RecordError
+from factory.core.errors import RecordError
 from factory.record import (Record, alarm, job_response, job_state, measurement, operation, part_unit, robot_move,
                             run_table, work_order)
 

@@ -21,7 +21,7 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from factory.errors import McapError
+from factory.core.errors import McapError
 from factory.mcaplog import TYPESTORE, ros_time
 
 if TYPE_CHECKING:

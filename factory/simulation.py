@@ -35,19 +35,19 @@ from cadcam.timeline import MachineTimeline, machine_timeline, stock_snapshots
 from cadcam.tools import ToolLibrary, load_tool_library
 from cadcam.verify import VerifyOptions
 from factory.camera_msgs import camera_info_msg, compressed_image_msg
-from factory.atomic import write_bytes, write_text
+from factory.core.atomic import write_bytes, write_text
 from factory.catalog import CatalogEntry, catalog_record, find_entry, sha256_file
 from factory.cellmsgs import (ComponentStatus, Detection, OrderLine, cell_summary, detected_object_array,
                               diagnostic_array, image_annotations, machine_signal, machine_state, order_queue,
                               robot_state, scheduler_state)
 from factory.diagnostics import door, gripper
-from factory.errors import CellError, FactoryError, McapError
+from factory.core.errors import CellError, FactoryError, McapError
 from factory.live import LiveView
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, log_msg, marker_array, read_messages, ros_time,
                              tf_message, transform_stamped, triangle_mesh_marker)
 from factory.plan import PlanRequest, plan_part
-from factory.progress import Progress, Stopwatch, stage_callback
-from factory.resources import FIXTURES
+from factory.core.progress import Progress, Stopwatch, stage_callback
+from factory.core.resources import FIXTURES
 from factory.tending import RobotStateLog, log_cell
 from factory.verify import flip_of, part_triangles, read_sheet, run_verify_after
 from factory.views import heightfield_mesh

@@ -16,10 +16,10 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from factory.errors import CellError
+from factory.core.errors import CellError
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, marker_array, ros_time, string_msg, tf_message,
                              transform_stamped, transforms_stamped)
-from factory.progress import Stopwatch
+from factory.core.progress import Stopwatch
 from factory.scene import visuals_scene
 from robotprog.cell import Cell, load_cell
 from robotprog.collision import CollisionWorld, cell_static_boxes, collision_world

@@ -17,11 +17,11 @@ from cadcam.model import Setup, Tool
 from cadcam.sheet import read_setup_sheet
 from cadcam.verify import (Simulation, VerifyOptions, VerifyReport, deviation_image, finishing_moves, flip_stock,
                            simulate, simulate_flipped)
-from factory.atomic import write_bytes, write_text
-from factory.errors import SetupError
+from factory.core.atomic import write_bytes, write_text
+from factory.core.errors import SetupError
 from factory.pictures import png_bytes
 from factory.mcaplog import McapLog, marker_array, triangle_mesh_marker
-from factory.progress import Progress, stage_callback
+from factory.core.progress import Progress, stage_callback
 from factory.views import heightfield_mesh
 
 log = logging.getLogger(__name__)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cadcam.model import Job, Motion, Operation
-from factory.errors import McapError
+from factory.core.errors import McapError
 from factory.mcaplog import (
     RGBA,
     cube_marker,

@@ -40,8 +40,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from factory.errors import CellError, shown
-from factory.yamlfile import load_yaml
+from factory.core.errors import CellError, shown
+from factory.core.yamlfile import load_yaml
 
 FORMAT = "factory.cell/1"
 

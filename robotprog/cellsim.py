@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-from factory.errors import SchedulerError
+from factory.core.errors import SchedulerError
 
 from .machineio import SignalEvent, signal_timeline
 from .oee import DowntimeLedger, Loss, OeeCounter, run_oee

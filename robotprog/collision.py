@@ -40,7 +40,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from factory.errors import CellError, PlanningError
+from factory.core.errors import CellError, PlanningError
 from robotprog.cell import Box, Cell, Pose
 from robotprog.robots import Robot, load_robot
 

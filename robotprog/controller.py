@@ -31,7 +31,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from factory.errors import PlanningError
+from factory.core.errors import PlanningError
 from robotprog.krl import ptp_percent
 from robotprog.urscript import Branch, Comment, MoveJ, MoveL, ServoJ, SetOutputs, Step, Wait, WaitInput
 

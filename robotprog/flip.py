@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factory.errors import CellError, PlanningError
+from factory.core.errors import CellError, PlanningError
 from robotprog.cell import Box, Cell, Pose
 from robotprog.collision import HeldBox, collision_world, finger_boxes
 from robotprog.frames import MM_PER_M

@@ -30,7 +30,7 @@ import numpy as np
 
 from cadcam.model import SoftJaws, ViseJaws
 from cadcam.sheet import read_setup_sheet
-from factory.errors import CellError
+from factory.core.errors import CellError
 from robotprog.cell import Vise
 
 #: Millimetres per metre: the CAM → robot unit factor.

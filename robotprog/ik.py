@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from factory.errors import PlanningError
+from factory.core.errors import PlanningError
 from robotprog.robots import Robot
 
 log = logging.getLogger(__name__)

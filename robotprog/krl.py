@@ -23,7 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from factory.errors import PlanningError
+from factory.core.errors import PlanningError
 from robotprog.urscript import (Branch, FlowWords, MoveJ, MoveL, Step, check_io_step, comment_text, flat_steps,
                                 flow_lines, way_lines)
 

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
 
-from factory.errors import PlanningError
+from factory.core.errors import PlanningError
 
 OUTPUT = "output"
 INPUT = "input"

@@ -19,7 +19,7 @@ factory only reads the part (plans go to the catalog). Each part's resolved path
 whole number >= 1. ``material`` is a non-empty name (the cutting-data key). ``priority`` is
 an optional whole number >= 0, default 0; *lower numbers run first*, ties in file order.
 
-Every problem raises :class:`~factory.errors.SchedulerError` naming the file and the line
+Every problem raises :class:`~factory.core.errors.SchedulerError` naming the file and the line
 (CSV) or the entry and field (YAML), before anything runs. Whether the part file exists or
 can be planned is *not* checked here: that is a per-order failure, so the other orders of
 the file still run (see :mod:`robotprog.cellsim`).
@@ -32,8 +32,8 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
-from factory.errors import SchedulerError, shown
-from factory.yamlfile import load_yaml
+from factory.core.errors import SchedulerError, shown
+from factory.core.yamlfile import load_yaml
 
 log = logging.getLogger(__name__)
 

@@ -50,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from factory.errors import PlanningError
+from factory.core.errors import PlanningError
 from robotprog.cell import Cell
 from robotprog.collision import CollisionWorld, collision_world
 from robotprog.controller import LANGS, program_duration

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from factory.errors import CellError
+from factory.core.errors import CellError
 
 log = logging.getLogger(__name__)
 

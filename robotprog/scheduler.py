@@ -47,7 +47,7 @@ from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Mapping, Sequence
 
-from factory.errors import SchedulerError
+from factory.core.errors import SchedulerError
 
 from .orders import Order
 

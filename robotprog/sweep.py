@@ -46,7 +46,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from factory.errors import CellError
+from factory.core.errors import CellError
 from robotprog.collision import CollisionWorld, Payload, _riding
 
 #: Coarsest margin level: segments of up to ``step * 2**-COARSEST_LEVEL`` are proven in one piece [-].

@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 from scipy.interpolate import PPoly
 
-from factory.errors import CellError, PlanningError
+from factory.core.errors import CellError, PlanningError
 from robotprog.cell import Box, Cell, Pose, SlotGrid
 from robotprog.collision import CollisionWorld, HeldBox, Payload, collision_world, finger_boxes
 from robotprog.frames import StockInVise, setup_sheet_to_cell, MM_PER_M

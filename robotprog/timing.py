@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import PPoly
 
-from factory.errors import PlanningError
+from factory.core.errors import PlanningError
 from robotprog.toppra_loader import load_toppra
 
 log = logging.getLogger(__name__)

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from factory.errors import PlanningError
+from factory.core.errors import PlanningError
 from robotprog.ik import TRANSFORM_BASE_LINK_TO_UR_BASE
 
 #: Decimals for lengths [m] (1 µm), angles [rad] (1 µrad) and rotation vectors.

@@ -20,7 +20,7 @@ import numpy as np
 import pinocchio as pin
 import trimesh
 
-from factory.errors import CellError
+from factory.core.errors import CellError
 from robotprog.robots import Robot, example_robot_data_dir
 
 log = logging.getLogger(__name__)

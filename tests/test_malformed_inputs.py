@@ -22,7 +22,7 @@ from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_part
 from cadcam.sheet import read_setup_sheet
 from cadcam.tools import load_tool_library
-from factory.errors import FactoryError
+from factory.core.errors import FactoryError
 from robotprog.cell import load_cell, read_cell
 from robotprog.orders import read_orders
 from tests.cli.hostile import alias_bomb, setup_sheet

@@ -19,7 +19,7 @@ from functools import cached_property
 import cv2
 import numpy as np
 
-from factory.errors import CalibrationError
+from factory.core.errors import CalibrationError
 
 #: The ``--board`` grammar, for error messages.
 BOARD_SYNTAX = "chessboard:COLSxROWS:SQUARE_M or charuco:SQUARESXxSQUARESY:SQUARE_M:MARKER_M:DICT"

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from factory.errors import CalibrationError
+from factory.core.errors import CalibrationError
 from vision.board import BoardSpec
 from vision.camera import CameraModel
 

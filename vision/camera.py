@@ -27,8 +27,8 @@ import cv2
 import numpy as np
 import yaml
 
-from factory.errors import VisionError, shown
-from factory.yamlfile import load_yaml
+from factory.core.errors import VisionError, shown
+from factory.core.yamlfile import load_yaml
 
 #: Distortion models we read and write -> number of coefficients (OpenCV order).
 DISTORTION_MODELS = {"plumb_bob": 5, "rational_polynomial": 8}

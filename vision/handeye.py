@@ -30,8 +30,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from factory.errors import VisionError, shown
-from factory.yamlfile import load_yaml
+from factory.core.errors import VisionError, shown
+from factory.core.yamlfile import load_yaml
 from vision.calibrate import Detection
 from vision.camera import CameraModel
 

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from PIL import Image
 
-from factory.errors import VisionError
+from factory.core.errors import VisionError
 
 #: Most pixels a picture may have: a 64-megapixel camera, 64 MB as 8-bit grey.
 MAX_PIXELS = 64_000_000

@@ -31,7 +31,7 @@ import shapely
 from scipy.optimize import least_squares
 from shapely.geometry import MultiPolygon, Polygon
 
-from factory.errors import VisionError
+from factory.core.errors import VisionError
 from vision.camera import CameraModel
 from vision.locate import ROBUST_SCALE_PX, Footprint, LocatedPart, LocateOptions, locate_parts, mm_to_m
 

@@ -32,7 +32,7 @@ from scipy.optimize import least_squares
 from scipy.spatial import ConvexHull
 from shapely.geometry import MultiPolygon, Polygon
 
-from factory.errors import VisionError
+from factory.core.errors import VisionError
 from vision.camera import CameraModel
 
 log = logging.getLogger(__name__)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from factory.errors import VisionError
+from factory.core.errors import VisionError
 from vision.board import PlanarTexture
 from vision.camera import CameraModel
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from factory.errors import VisionError
+from factory.core.errors import VisionError
 from vision.calibrate import CalibrationResult
 from vision.handeye import FRAMES, HandEyeResult
 

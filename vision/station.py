@@ -25,7 +25,7 @@ import trimesh
 from shapely.geometry import Polygon
 from trimesh.intersections import slice_mesh_plane
 
-from factory.errors import VisionError
+from factory.core.errors import VisionError
 from vision.camera import CameraModel
 from vision.handeye import invert
 from vision.inspect import inspect_part, inspection_image, part_transform

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from tests.geometry import point_polyline_distance
 from cadcam.arcs import FitOptions, SegmentKind, arc_sweep, discretize_arc, fit_segments
 from cadcam.model import Motion
-from factory.errors import GcodeError
+from factory.core.errors import GcodeError
 
 TOL = 0.002
 #: Slack for checking a curve against a polyline by sampling: arcs are checked at

@@ -13,7 +13,7 @@ from cadcam.cutting_power import METER_WINDOW_S, program_spindle_load, spindle_l
 from cadcam.timeline import machine_timeline
 from cadcam.tools import load_tool_library
 from cadcam.verify import VerifyOptions, simulate
-from factory.errors import ToolError, VerifyError
+from factory.core.errors import ToolError, VerifyError
 from tests.cadcam.test_op2 import block_ops  # noqa: F401  (a fixture: the pocketed block's op 1 and op 2)
 from tests.cadcam.test_verify import SETUP, TOOLS, C, R, box, program
 

@@ -22,7 +22,7 @@ from cadcam.post import PostOptions, linuxcnc_tool_table, post_process
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
 from cadcam.verify import VerifyOptions, operation_moves, simulate, swept_envelope
-from factory.errors import ToolError
+from factory.core.errors import ToolError
 from tests.conftest import manifold_to_trimesh
 from tests.rs274 import run_rs274
 

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from cadcam.dropcutter import build_index, drop_cutter, drop_profile
 from cadcam.model import Tool
-from factory.errors import MeshError, ToolpathError
+from factory.core.errors import MeshError, ToolpathError
 
 R = 3.0
 SHAPES = {"flat": 0.0, "bull": 1.0, "ball": R}

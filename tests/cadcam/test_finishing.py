@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 from cadcam.dropcutter import build_index, drop_profile
 from cadcam.finishing import FinishingOptions, raster_finishing, stepover_for, waterline_finishing
 from cadcam.model import CuttingData, Motion, Setup, Tool
-from factory.errors import ToolpathError
+from factory.core.errors import ToolpathError
 
 CUTTING = CuttingData(12000, 1200, 400)
 TOL = 0.002

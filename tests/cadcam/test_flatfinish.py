@@ -94,7 +94,7 @@ def test_by_faces_off_keeps_the_ball_over_everything():
 @pytest.mark.parametrize("tool", [3, 5])
 def test_flat_finishing_refuses_a_tool_that_is_not_flat(tool):
     from cadcam.flatfinish import flat_wall_finishing
-    from factory.errors import ToolError
+    from factory.core.errors import ToolError
 
     setup, part = make_setup(manifold_to_trimesh(manifold3d.Manifold.cube((20.0, 20.0, 5.0))))
     t = LIBRARY.tool(tool)

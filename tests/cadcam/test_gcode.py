@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from cadcam.gcode import parse_gcode
 from cadcam.model import Motion
-from factory.errors import GcodeError
+from factory.core.errors import GcodeError
 from tests.rs274 import run_rs274
 
 

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cadcam.heightmap import Grid, grid_over, upper_envelope
-from factory.errors import MeshError, SetupError
+from factory.core.errors import MeshError, SetupError
 
 
 def points(grid: Grid) -> tuple[np.ndarray, np.ndarray]:

@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from cadcam.mesh import load_part
-from factory.errors import MeshError
+from factory.core.errors import MeshError
 
 SAMPLES = Path(__file__).resolve().parents[2] / "samples"
 SAMPLE_NAMES = ["bracket", "plate_bosses", "dome_mould", "stepped_wall"]

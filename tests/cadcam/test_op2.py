@@ -24,7 +24,7 @@ from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
 from cadcam.verify import (Simulation, VerifyOptions, finishing_moves, flip_stock, operation_moves, simulate,
                            simulate_flipped)
-from factory.errors import SetupError, ToolError, VerifyError
+from factory.core.errors import SetupError, ToolError, VerifyError
 from tests.cadcam.test_plan import blocks, needs_rs274, rs274_accepts
 from tests.conftest import manifold_to_trimesh, pocket_block
 

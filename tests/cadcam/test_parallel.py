@@ -5,7 +5,7 @@ import os
 import pytest
 
 import cadcam.parallel as par
-from factory.errors import FactoryError, ToolpathError
+from factory.core.errors import FactoryError, ToolpathError
 
 
 def square_and_pid(x):

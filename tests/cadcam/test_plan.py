@@ -22,7 +22,7 @@ from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
 from cadcam.setup import BREAKTHROUGH_MM, MIN_HOLDING_LEFT_MM
 from cadcam.verify import VerifyOptions, simulate
-from factory.resources import FIXTURES
+from factory.core.resources import FIXTURES
 from robotprog.cell import load_cell
 from robotprog.frames import vise_jaws
 from tests.cadcam.sweep import sweep_moves

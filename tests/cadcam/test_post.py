@@ -17,7 +17,7 @@ from tests.rs274 import run_rs274
 from cadcam.gcode import parse_gcode
 from cadcam.model import CuttingData, Job, Motion, Operation, Setup, Tool
 from cadcam.post import PostOptions, linuxcnc_tool_table, post_process
-from factory.errors import GcodeError
+from factory.core.errors import GcodeError
 
 FLAT = Tool(1, "6 mm flat 3FL (carbide)", "flat", 6.0, 0.0, 20.0, 3, 40.0)
 BALL = Tool(4, "3 mm ball", "ball", 3.0, 1.5, 10.0, 2, 30.0)

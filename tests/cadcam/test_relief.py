@@ -26,7 +26,7 @@ from cadcam.relief import ReliefOptions, clip_chains
 from cadcam.setup import BREAKTHROUGH_MM, default_holding
 from cadcam.verify import VerifyOptions, simulate
 from factory.cam import CamRequest, compute_job
-from factory.errors import MeshError
+from factory.core.errors import MeshError
 from tests.cadcam.reliefs import (heightfield_sheet, hollow_ball_open_on_top, inverted, overlapping_sheets,
                                   scattered_strips, stl_bytes, unwelded, wavy)
 from tests.cadcam.test_plan import needs_rs274, rs274_accepts

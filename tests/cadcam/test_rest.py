@@ -22,7 +22,7 @@ from cadcam.post import PostOptions, post_process
 from cadcam.rest import safe_rapids
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
-from factory.errors import ToolError
+from factory.core.errors import ToolError
 from tests.cadcam.sweep import rapid_hits, sweep_moves
 from tests.conftest import manifold_to_trimesh
 

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from cadcam.mesh import load_part
 from cadcam.model import FixtureBox, Setup, ViseJaws
 from cadcam.setup import BREAKTHROUGH_MM, MIN_HOLDING_LEFT_MM, StockMargins, default_holding, make_setup
-from factory.errors import SetupError
+from factory.core.errors import SetupError
 
 SAMPLES = Path(__file__).resolve().parents[2] / "samples"
 EPS = 1e-9

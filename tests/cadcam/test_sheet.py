@@ -13,7 +13,7 @@ from cadcam.post import PostOptions, post_process
 from cadcam.setup import make_setup
 from cadcam.sheet import read_setup_sheet, setup_sheet
 from cadcam.tools import load_tool_library
-from factory.errors import SetupError
+from factory.core.errors import SetupError
 from tests.conftest import pocket_block
 
 

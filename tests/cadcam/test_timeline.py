@@ -16,7 +16,7 @@ from cadcam.setup import make_setup
 from cadcam.timeline import MachineTimeline, machine_timeline, stock_snapshots
 from cadcam.tools import load_tool_library
 from cadcam.verify import VerifyOptions, simulate, simulate_snapshots
-from factory.errors import GcodeError, VerifyError
+from factory.core.errors import GcodeError, VerifyError
 from tests.conftest import pocket_block
 
 R, C = int(Motion.RAPID), int(Motion.CUT)

@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 
 from cadcam.model import DEFAULT_HOLDER, HolderSegment, Tool
 from cadcam.tools import load_tool_library
-from factory.errors import ToolError
-from factory.resources import FIXTURES
+from factory.core.errors import ToolError
+from factory.core.resources import FIXTURES
 
 
 @pytest.fixture(scope="module")

@@ -20,7 +20,7 @@ from cadcam.verify import (
     simulate,
     swept_envelope,
 )
-from factory.errors import VerifyError
+from factory.core.errors import VerifyError
 from factory.pictures import png_bytes
 
 FLAT = Tool(1, "6 mm flat", "flat", 6.0, 0.0, 20.0, 3, 40.0)

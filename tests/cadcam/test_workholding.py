@@ -12,7 +12,7 @@ from cadcam.model import CuttingData, FixtureBox, Motion, Operation, ProgramMove
 from cadcam.rest import safe_rapids
 from cadcam.verify import FAULT_KINDS, simulate
 from cadcam.workholding import fixture_contacts, tool_cylinders
-from factory.errors import ToolpathError
+from factory.core.errors import ToolpathError
 
 FLAT = Tool(1, "6 mm flat", "flat", 6.0, 0.0, 20.0, 3, 40.0)
 STUBBY = Tool(2, "6 mm flat, 8 mm out", "flat", 6.0, 0.0, 6.0, 3, 8.0)

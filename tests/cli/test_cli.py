@@ -244,7 +244,7 @@ def test_plan_ops_1_writes_op_1_only(small_part, tmp_path):
 
 
 def test_plan_with_a_broken_cell_writes_nothing(small_part, tmp_path):
-    from factory.resources import FIXTURES
+    from factory.core.resources import FIXTURES
 
     cell = tmp_path / "cell.yaml"
     cell.write_text((FIXTURES / "cell.yaml").read_text().replace("gripper:", "griper:", 1))

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from cli.main import COMMANDS, app, command_docstring, load_command
 from cli.options import command_flags
-from factory.errors import FactoryError
+from factory.core.errors import FactoryError
 
 ROOT = Path(__file__).resolve().parents[2]
 runner = CliRunner()

@@ -14,7 +14,7 @@ from rosbags.highlevel import AnyReader
 from typer.testing import CliRunner
 
 from cli.main import app
-from factory.resources import FIXTURES
+from factory.core.resources import FIXTURES
 
 SAMPLES = Path(__file__).resolve().parents[2] / "samples"
 runner = CliRunner()

@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 
 from cli.main import app
 from factory.mcaplog import read_messages
-from factory.resources import FIXTURES
+from factory.core.resources import FIXTURES
 from robotprog.cell import load_cell
 from robotprog.robots import load_robot
 from tests.cli.expect import assert_one_line_error, simulate_exit

@@ -7,8 +7,8 @@ import stat
 
 import pytest
 
-from factory.atomic import atomic_output, check_writable, write_text
-from factory.errors import OutputError, OutputExistsError
+from factory.core.atomic import atomic_output, check_writable, write_text
+from factory.core.errors import OutputError, OutputExistsError
 
 
 def test_failed_write_leaves_nothing(tmp_path):

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from factory.cellmsgs import ComponentStatus, Detection, detected_object_array, diagnostic_array, image_annotations
-from factory.errors import McapError
+from factory.core.errors import McapError
 from factory.mcaplog import TYPESTORE
 
 PART = Detection(class_name="part", center_px=(320.0, 240.0), radius_px=40.0, confidence=0.93,

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from factory.errors import McapError
+from factory.core.errors import McapError
 from factory.foxglove import CellTopics, CellView, cell_layout, layout_json
 
 # Panel types a layout may use, and the topics `factory simulate` writes (decided by the lead).

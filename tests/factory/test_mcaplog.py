@@ -20,7 +20,7 @@ from rosbags.interfaces import QosDurability
 from scipy.spatial.transform import Rotation
 
 import factory
-from factory.errors import McapError, OutputExistsError
+from factory.core.errors import McapError, OutputExistsError
 from factory.mcaplog import (
     TYPESTORE,
     McapLog,

@@ -20,9 +20,9 @@ from typer.testing import CliRunner
 from cli.main import app
 from factory.cam import CamRequest
 from factory.catalog import catalog_record, find_entry, sha256_file
-from factory.errors import PlanningError
+from factory.core.errors import PlanningError
 from factory.plan import PlanRequest, plan_outputs, plan_part
-from factory.resources import FIXTURES
+from factory.core.resources import FIXTURES
 from tests.conftest import ROOT, pocket_block
 
 
@@ -81,7 +81,7 @@ def test_every_stage_of_the_work_is_timed(planned, block, monkeypatch):
             "robot program", "verify", "op 2", "op 2 verify"} <= set(planned.seconds)
     import factory.cam
     from cadcam.plan import PlanTimings
-    from factory.progress import Stopwatch
+    from factory.core.progress import Stopwatch
 
     real = factory.cam.plan_job
 

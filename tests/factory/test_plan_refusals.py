@@ -13,7 +13,7 @@ import factory.cam
 from cadcam.setup import make_setup
 from cadcam.verify import check_grid_size
 from cli.main import app
-from factory.errors import FactoryError, GcodeError, PlanningError, VerifyError
+from factory.core.errors import FactoryError, GcodeError, PlanningError, VerifyError
 from factory.plan import PlanRequest, plan_part
 from tests.cli.expect import assert_one_line_error
 from tests.conftest import pocket_block

@@ -22,7 +22,7 @@ import sqlalchemy as sa
 from typer.testing import CliRunner
 
 from cli.main import app
-from factory.errors import RecordError
+from factory.core.errors import RecordError
 from factory.record import EVENT_TABLES, SEVERITY, SEVERITY_OPERATOR, OperationPlan, Record, masked, metadata, record_url
 from tests.cli.expect import assert_one_line_error, simulate_exit
 

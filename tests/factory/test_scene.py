@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from factory.errors import McapError
+from factory.core.errors import McapError
 from factory.mcaplog import TYPESTORE
 from factory.scene import GLB_MEDIA_TYPE, glb_bytes, model_entity, scene_update
 

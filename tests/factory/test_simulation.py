@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from factory.errors import CellError
+from factory.core.errors import CellError
 from factory.simulation import RobotMotion, Shot, op2_of, part_process
 from robotprog.cellsim import simulate
 from robotprog.orders import Order

@@ -14,7 +14,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from cadcam.model import CuttingData, Job, Motion, Operation, Setup, Tool
 from factory.views import MM_PER_M, heightfield_mesh, job_messages, toolpath_markers
-from factory.errors import McapError
+from factory.core.errors import McapError
 from factory.mcaplog import McapLog
 
 R, C, P = Motion.RAPID, Motion.CUT, Motion.PLUNGE

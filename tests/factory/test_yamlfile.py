@@ -8,8 +8,8 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from factory.errors import FactoryError
-from factory.yamlfile import load_yaml
+from factory.core.errors import FactoryError
+from factory.core.yamlfile import load_yaml
 from tests.cli.hostile import alias_bomb
 
 

@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 
 from cli.main import app
 from factory.mcaplog import MSG_DIRS, message_definition
-from factory.resources import FIXTURES
+from factory.core.resources import FIXTURES
 from tests.cli.expect import simulate_exit
 from tests.cli.test_handeye import BOARD, args, scene  # noqa: F401  (scene is a fixture)
 from tests.conftest import pocket_block

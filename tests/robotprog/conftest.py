@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from factory.resources import FIXTURES
+from factory.core.resources import FIXTURES
 from robotprog.cell import load_cell
 from robotprog.collision import collision_world
 

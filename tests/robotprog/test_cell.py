@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import yaml
 
-from factory.errors import CellError
-from factory.resources import FIXTURES
+from factory.core.errors import CellError
+from factory.core.resources import FIXTURES
 from robotprog.cell import Cell, load_cell, read_cell, rpy_matrix
 from robotprog.ik import ik_continuous
 from robotprog.robots import load_robot

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from factory.errors import SchedulerError
+from factory.core.errors import SchedulerError
 from robotprog.cellsim import (Activity, FaultModel, LogEntry, OrderOutcome, PartProcess, RunningSummary,
                                running_summary, simulate)
 from robotprog.orders import Order

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from factory.errors import PlanningError
+from factory.core.errors import PlanningError
 from robotprog.collision import HeldBox, cell_static_boxes
 
 

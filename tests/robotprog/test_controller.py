@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from factory.errors import PlanningError
+from factory.core.errors import PlanningError
 from robotprog.controller import program_duration, trapezoid_time
 from robotprog.urscript import Branch, Comment, MoveJ, MoveL, ServoJ, SetOutputs, Wait, WaitInput
 

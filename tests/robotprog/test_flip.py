@@ -10,8 +10,8 @@ import pytest
 import yaml
 from hypothesis import given, settings, strategies as st
 
-from factory.errors import CellError, PlanningError
-from factory.resources import FIXTURES
+from factory.core.errors import CellError, PlanningError
+from factory.core.resources import FIXTURES
 from robotprog.cell import load_cell, read_cell
 from robotprog.collision import collision_world
 from robotprog.flip import Piece, turnover

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from factory.errors import CellError, SetupError
-from factory.resources import FIXTURES
+from factory.core.errors import CellError, SetupError
+from factory.core.resources import FIXTURES
 from robotprog.cell import load_cell
 from robotprog.frames import StockInVise, check_stock_fits, setup_sheet_to_cell, vise_jaws
 

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from factory.errors import PlanningError
+from factory.core.errors import PlanningError
 from robotprog.ik import UR_DH, ik_continuous, ik_dls, ik_solutions, ur_fk, ur_ik, wrap_to_limits
 from robotprog.robots import load_robot
 
@@ -196,7 +196,7 @@ def test_numerical_ik_of_the_abb_and_kuka_arms_reproduces_the_pose(name: str) ->
     """No closed form for these arms: damped least squares from a seed 0.5 rad away on every
     joint (a wrist to turn, an elbow to bend) reaches the pose within 1e-6 m and 1e-6 rad,
     within the datasheet's axis ranges, the same answer every time (seeded restarts)."""
-    from factory.resources import FIXTURES
+    from factory.core.resources import FIXTURES
 
     robot = load_robot(FIXTURES / ARM_URDFS[name], flange_frame="tool0")
     assert robot.name == name and robot.dof == 6

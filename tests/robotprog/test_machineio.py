@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from factory.errors import PlanningError
+from factory.core.errors import PlanningError
 from factory.simulation import RobotMotion, Shot, part_process
 from robotprog.cellsim import Activity, FaultModel, PartProcess, simulate
 from robotprog.krl import krl_program

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from factory.errors import PlanningError
+from factory.core.errors import PlanningError
 from robotprog.krl import krl_frame, krl_program, ptp_percent
 from robotprog.rapid import rapid_module, rapid_pose
 from robotprog.urscript import Comment, MoveJ, MoveL, SetOutputs, Wait

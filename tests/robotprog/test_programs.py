@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from factory.errors import PlanningError
+from factory.core.errors import PlanningError
 from robotprog.controller import program_duration
-from factory.resources import FIXTURES
+from factory.core.resources import FIXTURES
 from robotprog.cell import load_cell
 from robotprog.collision import collision_world
 from robotprog.programs import (LANG_NAME, SERVO_PERIOD_S, VERDICT_AFTER, check_posted_path, post_program,

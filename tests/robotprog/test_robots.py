@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from factory.errors import CellError
+from factory.core.errors import CellError
 from robotprog.robots import KNOWN_ROBOTS, example_robot_data_dir, load_robot, robot_urdf
 
 
@@ -61,7 +61,7 @@ def test_bad_frame_name() -> None:
 
 
 def test_maker_from_the_model_name() -> None:
-    from factory.resources import FIXTURES
+    from factory.core.resources import FIXTURES
     from robotprog.robots import maker_of
 
     assert load_robot("ur5").maker == "Universal Robots" and load_robot("panda").maker is None

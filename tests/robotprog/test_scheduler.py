@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from factory.errors import SchedulerError
+from factory.core.errors import SchedulerError
 from robotprog.orders import Order
 from robotprog.scheduler import (TRANSITIONS, CellState, Event, Fault, Job, SchedulerOptions, State, admit,
                                  initial_state, plan_recovery, step)

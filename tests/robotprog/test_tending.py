@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from factory.errors import CellError, PlanningError
+from factory.core.errors import CellError, PlanningError
 from robotprog.cell import Pose
 from robotprog.tending import TendingOptions, _Planner, part_box_in_vise, plan_tending
 from robotprog.timing import LIMIT_SLACK

@@ -10,7 +10,7 @@ import toppra.constraint
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from factory.errors import PlanningError
+from factory.core.errors import PlanningError
 from robotprog.timing import LIMIT_SLACK, TimingOptions, Trajectory, peak_ratios, time_path
 
 # UR5 URDF velocity limits at the default cell's 50 % speed scaling, and its acceleration limits.

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from factory.errors import PlanningError
-from factory.resources import FIXTURES
+from factory.core.errors import PlanningError
+from factory.core.resources import FIXTURES
 from robotprog.cell import load_cell
 from robotprog.ik import TRANSFORM_BASE_LINK_TO_UR_BASE
 from robotprog.robots import load_robot

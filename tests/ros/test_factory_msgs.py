@@ -22,7 +22,7 @@ from typer.testing import CliRunner
 
 from cli.main import app
 from factory.mcaplog import MSG_DIRS
-from factory.resources import ROS_INTERFACES
+from factory.core.resources import ROS_INTERFACES
 from tests.cli.expect import simulate_exit
 from tests.conftest import pocket_block
 
@@ -299,7 +299,7 @@ def test_the_machine_handshake_is_on_cell_io(cell_log):
     """/cell/io carries the handshake the posted programs run (robotprog.machineio), with the
     cell file's numbers: per part that was cut without an alarm, exactly the program's sequence."""
     from robotprog.cell import load_cell
-    from factory.resources import FIXTURES
+    from factory.core.resources import FIXTURES
     from robotprog.machineio import part_signals
 
     io = load_cell(FIXTURES / "cell.yaml", check_robot=False).machine

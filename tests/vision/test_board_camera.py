@@ -8,7 +8,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from factory.errors import CalibrationError, VisionError
+from factory.core.errors import CalibrationError, VisionError
 from vision.board import BoardSpec
 from vision.camera import CameraModel
 

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from factory.errors import CalibrationError
+from factory.core.errors import CalibrationError
 from tests.vision import SAMPLES, TRUE_CAMERA, calibration_poses
 from vision.board import BoardSpec
 from vision.calibrate import Detection, calibrate, detect, outlier_views, subpix_half_window

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from factory.errors import VisionError
+from factory.core.errors import VisionError
 from tests.vision import TRUE_CAMERA
 from vision.board import BoardSpec
 from vision.calibrate import detect

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from factory.errors import VisionError
+from factory.core.errors import VisionError
 from tests.cli.hostile import png_header_only
 from vision.imagefile import MAX_PIXELS, decode_grey, image_size
 

@@ -7,7 +7,7 @@ import pytest
 import trimesh
 from shapely.geometry import Polygon
 
-from factory.errors import VisionError
+from factory.core.errors import VisionError
 from tests.vision import TRUE_CAMERA
 from vision.handeye import invert
 from vision.locate import footprint_from_mesh, locate_parts, mm_to_m

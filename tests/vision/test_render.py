@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from factory.errors import VisionError
+from factory.core.errors import VisionError
 from tests.conftest import SAMPLES
 from tests.vision import TRUE_CAMERA, calibration_poses
 from vision.board import BoardSpec, PlanarTexture

@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import Polygon
 
-from factory.errors import VisionError
+from factory.core.errors import VisionError
 from tests.conftest import SAMPLES
 from tests.vision import TRUE_CAMERA
 from tests.vision.test_locate import yaw_error

@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 
-from factory.errors import OutputError, OutputExistsError
+from factory.core.errors import OutputError, OutputExistsError
 
 
 def _umask() -> int:

@@ -15,7 +15,7 @@ from typing import Any
 
 import yaml
 
-from factory.errors import FactoryError
+from factory.core.errors import FactoryError
 
 #: Most values a user YAML document may hold with its aliases expanded. A cell, tool
 #: library or camera file holds hundreds; an orders file a few per order.
