@@ -1,0 +1,103 @@
+"""The gallery of parts factory was not tuned for (tests/gallery/parts.py), each planned with defaults and judged.
+
+Per part: `factory plan`'s exit and one-line refusal, plan wall time, both operations' cycle estimates,
+verify's verdict and the stock it left, what was reported unreached, the deepest and widest engagement
+per tool, and LinuxCNC's `rs274` on every program with the job's tool table (``PART.tbl`` when the plan
+wrote one, else the library's). A part ``expect``-ed to plan that is refused, fails verify, or whose
+program rs274 refuses, is a shortfall; so is one expected refused that plans.
+
+    .venv/bin/python benchmarks/gallery.py [--parts a,b] [--jobs 2] [--json out.json]
+
+Prints a Markdown table, then one JSON line per part.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from cadcam.post import linuxcnc_tool_table  # noqa: E402
+from cadcam.tools import load_tool_library  # noqa: E402
+from tests.gallery.parts import BY_NAME, PARTS, GalleryPart  # noqa: E402
+from tests.rs274 import run_rs274  # noqa: E402
+
+
+def _rs274(program: Path, table: str, folder: Path) -> str:
+    """'ok', or rs274's complaint (it exits 0 on some errors: its output is read too)."""
+    done = run_rs274(program, table, folder)
+    text = (done.stdout + done.stderr).lower()
+    if done.returncode != 0 or "error" in text or "not found" in text:
+        lines = [ln for ln in (done.stderr or done.stdout).splitlines() if ln.strip()]
+        return (lines[-1] if lines else f"exit {done.returncode}")[:120]
+    return "ok"
+
+
+def judge(part: GalleryPart, work: Path) -> dict[str, object]:
+    folder = work / part.name
+    folder.mkdir()
+    stl = part.write(folder)
+    t0 = time.perf_counter()
+    done = subprocess.run([sys.executable, "-c", "from cli.main import main; main()", "plan", str(stl),
+                           "-o", str(folder / "out"), "--quiet", "--no-robot"],
+                          cwd=ROOT, capture_output=True, text=True, env=dict(os.environ, FACTORY_THREADS="1"))
+    row: dict[str, object] = {"part": part.name, "expect": part.expect, "exit": done.returncode,
+                              "plan_s": round(time.perf_counter() - t0, 1)}
+    summary = folder / "out" / f"{part.name}.plan.json"
+    if not summary.exists():
+        row["error"] = done.stderr.strip().splitlines()[-1][:200] if done.stderr.strip() else ""
+        row["shortfall"] = part.expect == "plans"
+        return row
+    doc = json.loads(summary.read_text())
+    ops = doc["setups"]
+    row["cycle_min"] = [round(s["estimated_cycle_s"] / 60.0, 2) for s in ops]
+    row["verify_ok"] = [s["verify_ok"] for s in ops]
+    reports = [doc["verify"]] + ([doc["verify_op2"]] if doc.get("verify_op2") else [])
+    row["remaining_max_mm"] = [round(r["remaining_max"], 2) for r in reports]
+    row["unreached"] = len(doc.get("unreached", [])) + sum(len(s.get("unreached", [])) for s in ops[1:])
+    row["engagement"] = {f"op{i + 1}": {f"T{e['tool']}": [round(e["max_depth"], 2), round(e["max_width"], 2)]
+                                        for e in r.get("engagement", [])} for i, r in enumerate(reports)}
+    tbl = folder / "out" / f"{part.name}.tbl"
+    table = tbl.read_text() if tbl.exists() else linuxcnc_tool_table(load_tool_library().tools)
+    row["rs274"] = [_rs274(Path(s["program"]), table, folder) for s in ops]
+    row["shortfall"] = (part.expect != "plans" or done.returncode != 0 or not all(row["verify_ok"])
+                        or any(r != "ok" for r in row["rs274"]))
+    return row
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--parts", help="comma-separated part names (default: the whole gallery)")
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--json", type=Path, help="write the rows here too")
+    args = ap.parse_args()
+    parts = [BY_NAME[n] for n in args.parts.split(",")] if args.parts else list(PARTS)
+    with tempfile.TemporaryDirectory(prefix="gallery-") as tmp, ThreadPoolExecutor(args.jobs) as pool:
+        rows = list(pool.map(lambda p: judge(p, Path(tmp)), parts))
+    print("| part | expect | exit | plan s | cycle op1/op2 min | verify | left max mm | unreached | rs274 | note |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        note = r.get("error", "") or ("; ".join(x for x in r.get("rs274", []) if x != "ok"))
+        print(f"| {r['part']} | {r['expect']} | {r['exit']} | {r['plan_s']} | {r.get('cycle_min', '')} | "
+              f"{r.get('verify_ok', '')} | {r.get('remaining_max_mm', '')} | {r.get('unreached', '')} | "
+              f"{'ok' if all(x == 'ok' for x in r.get('rs274', ['-'])) else 'FAIL'} | {note} |")
+    short = [r["part"] for r in rows if r["shortfall"]]
+    print(f"\n{len(rows) - len(short)} of {len(rows)} parts as a machinist expects; short: {', '.join(short) or 'none'}")
+    for r in rows:
+        print(json.dumps(r))
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
