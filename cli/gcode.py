@@ -4,19 +4,18 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated
 
 import typer
 
 from cadcam.model import Job
-from cadcam.post import PostOptions, Program, post_process
+from cadcam.post import DialectName, PostOptions, Program, post_process
 from cadcam.sheet import setup_sheet
 from cli.common import JsonFlag, Overwrite, Quiet, print_json, reports_errors, setup_logging, stderr
 from factory.core.atomic import check_writable, write_text
 from factory.cam import read_job
 
-Dialect = Literal["linuxcnc", "grbl", "fanuc"]
-PostOpt = Annotated[Dialect, typer.Option("--post", help="Controller dialect.")]
+PostOpt = Annotated[DialectName, typer.Option("--post", help="Controller dialect.")]
 ArcTolOpt = Annotated[float, typer.Option("--arc-tolerance", help="Arc and line fitting tolerance [mm].", min=1e-5)]
 
 

@@ -302,7 +302,7 @@ def test_no_coolant():
 
 def test_tool_table():
     tbl = linuxcnc_tool_table([BALL, FLAT, FLAT])
-    assert tbl.splitlines() == ["T1 P1 Z40 D6 ;6 mm flat 3FL (carbide)", "T4 P4 Z30 D3 ;3 mm ball"]
+    assert tbl.splitlines() == ["T1 P1 D6 Z40 ;6 mm flat 3FL (carbide)", "T4 P4 D3 Z30 ;3 mm ball"]
 
 
 # --------------------------------------------------------------------------- estimates
