@@ -290,6 +290,14 @@ def linuxcnc_tool_table(tools: Iterable[Tool]) -> str:
     return "\n".join(out) + ("\n" if out else "")
 
 
+def tool_table_file(options: PostOptions, tools: Iterable[Tool]) -> str | None:
+    """The text of the tool table file the controller of ``options`` reads, for ``tools`` (LinuxCNC's
+    ``.tbl``, :func:`linuxcnc_tool_table`); None for a controller that reads none (grbl has no tool
+    table; Fanuc keeps its offsets in the control, set at the machine)."""
+    table = options.controller.tool_table
+    return None if table is None else table(tools)
+
+
 # --------------------------------------------------------------------------- controllers
 
 
