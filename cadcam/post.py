@@ -453,6 +453,28 @@ class _Writer:
         return True
 
 
+@dataclass(frozen=True)
+class _Cutting:
+    """What writing an operation's cutting motion (its moves or its canned cycle) did.
+
+    Attributes
+    ----------
+    cut_length : float
+        Feed moves [mm].
+    cut_time : float
+        Feed moves at their feeds [s].
+    rapids : tuple of float
+        Length of each rapid among them, in order [mm].
+    end : (3,) float
+        Where the tool stopped [mm].
+    """
+
+    cut_length: float
+    cut_time: float
+    rapids: tuple[float, ...]
+    end: np.ndarray
+
+
 def _write_cycle(w: _Writer, op: Operation) -> _Cutting:
     """Write a drilling operation as its canned cycle (G81/G83, G98/G99, G80), from over its first hole.
 
@@ -577,28 +599,6 @@ def _check_job(job: Job) -> None:
         raise GcodeError("job has no operations", source=job.part_name or None)
     for k, op in enumerate(job.operations):
         _check_operation(op, k)
-
-
-@dataclass(frozen=True)
-class _Cutting:
-    """What writing an operation's cutting motion (its moves or its canned cycle) did.
-
-    Attributes
-    ----------
-    cut_length : float
-        Feed moves [mm].
-    cut_time : float
-        Feed moves at their feeds [s].
-    rapids : tuple of float
-        Length of each rapid among them, in order [mm].
-    end : (3,) float
-        Where the tool stopped [mm].
-    """
-
-    cut_length: float
-    cut_time: float
-    rapids: tuple[float, ...]
-    end: np.ndarray
 
 
 def _write_operation(w: _Writer, k: int, op: Operation, seg: Segments | None, safe_z: float) -> OperationEstimate:
