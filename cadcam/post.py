@@ -1,6 +1,8 @@
 """Post-processors: write a :class:`~cadcam.model.Job` as a G-code program for a controller.
 
-Three dialects share one writer and differ where the controllers differ:
+Three dialects share one writer and differ where the controllers differ; each is one
+:class:`Dialect` value (its words and capabilities) in :data:`DIALECTS`, and the writer reads
+the table, never the dialect's name:
 
 ``linuxcnc``
     RS274/NGC as LinuxCNC reads it: ``G64 P<tol>`` path blending, ``T<n> M6`` + ``G43 H<n>``
@@ -52,8 +54,8 @@ from factory.core.errors import GcodeError
 
 log = logging.getLogger(__name__)
 
-Dialect = Literal["linuxcnc", "grbl", "fanuc"]
-DIALECTS: tuple[str, ...] = ("linuxcnc", "grbl", "fanuc")
+#: The controller dialects by name, as ``--post`` takes them (:data:`DIALECTS` holds each one's words).
+DialectName = Literal["linuxcnc", "grbl", "fanuc"]
 
 
 @dataclass(frozen=True)
@@ -85,7 +87,7 @@ class PostOptions:
         over runs in 2 (``G55``), touched off on the turned-over stock.
     """
 
-    dialect: Dialect = "linuxcnc"
+    dialect: DialectName = "linuxcnc"
     arc_tolerance: float = 0.002
     arcs: bool = True
     coolant: bool = True
@@ -115,6 +117,11 @@ class PostOptions:
     def work_offset_code(self) -> str:
         """The G word of :attr:`work_offset`: ``G54`` .. ``G59``."""
         return f"G{53 + self.work_offset}"
+
+    @property
+    def controller(self) -> Dialect:
+        """The words and capabilities of :attr:`dialect`'s controller."""
+        return DIALECTS[self.dialect]
 
 
 @dataclass(frozen=True)
@@ -165,7 +172,7 @@ class Program:
     """
 
     text: str
-    dialect: Dialect
+    dialect: DialectName
     estimates: tuple[OperationEstimate, ...]
     total_time: float
     line_count: int
@@ -204,7 +211,7 @@ def tool_change_seconds(first_load: bool, options: PostOptions) -> float:
     Every change costs ``options.tool_change_time``, the program's first load too, except on
     grbl: there the first tool is loaded and touched off before the start.
     """
-    return 0.0 if first_load and options.dialect == "grbl" else options.tool_change_time
+    return 0.0 if first_load and not options.controller.tool_changer else options.tool_change_time
 
 
 # --------------------------------------------------------------------------- formatting
@@ -212,10 +219,10 @@ def tool_change_seconds(first_load: bool, options: PostOptions) -> float:
 _COMMENT_BAD = re.compile(r"[^ -~]")  # anything but printable ASCII
 
 
-def _comment(text: str, dialect: str) -> str:
+def _comment(text: str, dialect: Dialect) -> str:
     """A comment block that every dialect reads as a comment and nothing else."""
     t = _COMMENT_BAD.sub("?", text).replace("(", "[").replace(")", "]").replace(";", ",").strip()
-    if dialect == "fanuc":
+    if dialect.upper_case_comments:
         t = t.upper()
     return f"({t})"
 
@@ -239,6 +246,134 @@ class _Numbers:
         return float(self(v))
 
 
+#: Longest tool comment LinuxCNC keeps (``CANON_TOOL_COMMENT_SIZE`` - 1); it truncates longer ones with a warning.
+_TBL_COMMENT_CHARS = 39
+
+
+def linuxcnc_tool_table(tools: Iterable[Tool]) -> str:
+    """A LinuxCNC tool table (``.tbl``) for the tools, pocket = tool number.
+
+    The figures are in mm: LinuxCNC reads a tool table in the machine's units, so the table
+    is for a machine configured in mm (``[TRAJ] LINEAR_UNITS = mm``), as the programs are.
+
+    Parameters
+    ----------
+    tools : iterable of Tool
+        The tools of every program the table serves (one job's operations, or op 1's and
+        op 2's together); a tool listed twice is written once.
+
+    Returns
+    -------
+    str
+        One line per tool, ``T<n> P<n> D<diameter> Z<length> ;<name>`` [mm], sorted by number.
+        The length is the tool length offset ``G43 H<n>`` applies (:attr:`Tool.length`); the
+        name is cut to the 39 characters LinuxCNC keeps.
+
+    Raises
+    ------
+    GcodeError
+        One number names two tools of different names, diameters or lengths: one table
+        cannot serve both.
+    """
+    num = _Numbers(4, point=False)
+    seen: dict[int, Tool] = {}
+    for t in tools:
+        first = seen.setdefault(t.number, t)
+        if (first.name, num(first.diameter), num(first.length)) != (t.name, num(t.diameter), num(t.length)):
+            raise GcodeError(f"T{t.number} names two tools ({first.name!r}, {t.name!r}): "
+                             "one tool table cannot serve both")
+    out = []
+    for n in sorted(seen):
+        t = seen[n]
+        name = _COMMENT_BAD.sub("?", t.name)[:_TBL_COMMENT_CHARS].rstrip()
+        out.append(f"T{n} P{n} D{num(t.diameter)} Z{num(t.length)} ;{name}")
+    return "\n".join(out) + ("\n" if out else "")
+
+
+def tool_table_file(options: PostOptions, tools: Iterable[Tool]) -> str | None:
+    """The text of the tool table file the controller of ``options`` reads, for ``tools`` (LinuxCNC's
+    ``.tbl``, :func:`linuxcnc_tool_table`); None for a controller that reads none (grbl has no tool
+    table; Fanuc keeps its offsets in the control, set at the machine)."""
+    table = options.controller.tool_table
+    return None if table is None else table(tools)
+
+
+# --------------------------------------------------------------------------- controllers
+
+
+@dataclass(frozen=True)
+class Dialect:
+    """What one controller family reads where controllers differ: the words and capabilities the
+    writer looks up (as :class:`robotprog.urscript.FlowWords` is per robot language).
+
+    Attributes
+    ----------
+    name : str
+        The name ``--post`` takes and the program's header states.
+    decimal_point : bool
+        Every coordinate and feed carries a decimal point (``X10.``): Fanuc reads ``X10`` as
+        10 least increments (microns) on many machines.
+    upper_case_comments : bool
+        Comments in capitals, as Fanuc controls show them.
+    tape : bool
+        The program is a tape: ``%`` first and last line, ``O<number> (PART)`` as its title.
+    arc_centres : str
+        The block that says arc centres are incremental (``G91.1``); "" where no other mode exists.
+    blending : bool
+        ``G64 P<arc tolerance>`` path blending.
+    tool_changer : bool
+        ``T<n> M6`` changes the tool. Without one (grbl: ``M6`` is unsupported there) the
+        operator changes it at an ``M0`` pause, and the first tool is loaded and touched off
+        before the start.
+    home_before_change : tuple of str
+        Blocks that send Z home before each tool change (Fanuc ``G28 G91 Z0.``, ``G90``).
+    length_offset : {"after_change", "first_z", "none"}
+        Where ``G43 H<n>`` goes: its own block after ``M6`` (LinuxCNC), on the first Z move
+        after the change, to the safe height (Fanuc), nowhere (grbl has no offset table).
+    canned_cycles : bool
+        Drilling is written as ``G81``/``G83`` cycles; without them, as the moves they make.
+    end : tuple of str
+        Blocks after the spindle and coolant stop, before ``M30``: where Z goes at the end.
+    tool_table : callable or None
+        The text of the tool table file the controller reads, from the job's tools
+        (LinuxCNC's ``.tbl``); None where the controller keeps its tool data itself.
+    """
+
+    name: DialectName
+    decimal_point: bool
+    upper_case_comments: bool
+    tape: bool
+    arc_centres: str
+    blending: bool
+    tool_changer: bool
+    home_before_change: tuple[str, ...]
+    length_offset: Literal["after_change", "first_z", "none"]
+    canned_cycles: bool
+    end: tuple[str, ...]
+    tool_table: Callable[[Iterable[Tool]], str] | None
+
+
+#: Z home in machine coordinates, on Fanuc (incremental zero move to the reference point).
+_FANUC_HOME_Z = ("G28 G91 Z0.", "G90")
+
+#: Every controller the post writes for, by name.
+DIALECTS: dict[str, Dialect] = {
+    "linuxcnc": Dialect(
+        name="linuxcnc", decimal_point=False, upper_case_comments=False, tape=False, arc_centres="G91.1",
+        blending=True, tool_changer=True, home_before_change=(), length_offset="after_change",
+        canned_cycles=True, end=("G53 G0 Z0",), tool_table=linuxcnc_tool_table),
+    "grbl": Dialect(
+        name="grbl", decimal_point=False, upper_case_comments=False, tape=False, arc_centres="G91.1",
+        blending=False, tool_changer=False, home_before_change=(), length_offset="none",
+        # machine coordinates mean nothing on a grbl machine without homing: no G53
+        canned_cycles=False, end=(), tool_table=None),
+    "fanuc": Dialect(
+        name="fanuc", decimal_point=True, upper_case_comments=True, tape=True, arc_centres="",
+        blending=False, tool_changer=True, home_before_change=_FANUC_HOME_Z, length_offset="first_z",
+        canned_cycles=True, end=_FANUC_HOME_Z, tool_table=None),
+}
+
+
 def _check_operation(op: Operation, k: int) -> None:
     src = f"operation {k + 1} ({op.name})"
     if len(op.points) == 0:
@@ -260,18 +395,21 @@ class _Writer:
 
     def __init__(self, opt: PostOptions):
         self.opt = opt
-        self.dialect = opt.dialect
-        self.num = _Numbers(opt.decimals, point=opt.dialect == "fanuc")
-        self.feed_num = _Numbers(1, point=opt.dialect == "fanuc")
+        self.dialect = opt.controller
+        self.num = _Numbers(opt.decimals, point=self.dialect.decimal_point)
+        self.feed_num = _Numbers(1, point=self.dialect.decimal_point)
         self.lines: list[str] = []
+        self.tool: int | None = None  # in the spindle
+        self.change_seconds = 0.0  # tool changes so far, for the estimate [s]
         self.forget()
 
     def forget(self) -> None:
-        """After a tool change or machine-coordinate move the position is unknown."""
+        """After a tool change the position is unknown."""
         self.motion: int | None = None
         self.words: dict[str, str] = {}
         self.pos = [math.nan, math.nan, math.nan]  # what the controller holds, after rounding
         self.feed: str | None = None
+        self.end_xy: tuple[float, float] | None = None  # where the last operation ended [mm], unrounded
 
     def emit(self, line: str) -> None:
         self.lines.append(line)
@@ -315,11 +453,33 @@ class _Writer:
         return True
 
 
-def _write_cycle(w: _Writer, op: Operation) -> tuple[float, float, float]:
+@dataclass(frozen=True)
+class _Cutting:
+    """What writing an operation's cutting motion (its moves or its canned cycle) did.
+
+    Attributes
+    ----------
+    cut_length : float
+        Feed moves [mm].
+    cut_time : float
+        Feed moves at their feeds [s].
+    rapids : tuple of float
+        Length of each rapid among them, in order [mm].
+    end : (3,) float
+        Where the tool stopped [mm].
+    """
+
+    cut_length: float
+    cut_time: float
+    rapids: tuple[float, ...]
+    end: np.ndarray
+
+
+def _write_cycle(w: _Writer, op: Operation) -> _Cutting:
     """Write a drilling operation as its canned cycle (G81/G83, G98/G99, G80), from over its first hole.
 
-    Returns the feed length [mm], feed time [s] and rapid length [mm] of the motion the
-    cycle makes (the operation's points are that motion).
+    The figures are those of the motion the cycle makes (the operation's points are that motion);
+    its rapids as one length.
     """
     cyc = op.cycle
     num = w.num
@@ -352,7 +512,8 @@ def _write_cycle(w: _Writer, op: Operation) -> tuple[float, float, float]:
     kinds = op.motion[1:]
     cut = kinds != Motion.RAPID
     cut_len = float(seg[cut].sum())
-    return cut_len, float(move_seconds(cut_len, feed, w.opt.rapid_rate)), float(seg[~cut].sum())
+    return _Cutting(cut_len, float(move_seconds(cut_len, feed, w.opt.rapid_rate)), (float(seg[~cut].sum()),),
+                    op.points[-1])
 
 
 #: Input moves of a job from which arc fitting runs in worker processes (one operation each).
@@ -369,13 +530,14 @@ def _fit_one(points: np.ndarray, motion: np.ndarray, fit: FitOptions) -> Segment
 
 def _fitted(job: Job, opt: PostOptions, progress: Callable[[int, int], None] | None,
             total: int) -> dict[int, Segments]:
-    """Segments of every operation written as moves, by operation index, fitted in parallel when large.
+    """Segments of every operation written as moves (all but the canned cycles the controller makes),
+    by operation index, fitted in parallel when large.
 
     Arc fitting is pure Python per operation and operations are independent, so a large
     job's are fitted in forked processes (:func:`cadcam.parallel.process_map`); the result
     is the serial one. Progress then advances an operation at a time."""
     fit = _fit_options(opt)
-    todo = [k for k, op in enumerate(job.operations) if op.cycle is None or opt.dialect == "grbl"]
+    todo = [k for k, op in enumerate(job.operations) if op.cycle is None or not opt.controller.canned_cycles]
     moves = [max(len(job.operations[k].points) - 1, 0) for k in todo]
     finished = [0]
 
@@ -387,6 +549,7 @@ def _fitted(job: Job, opt: PostOptions, progress: Callable[[int, int], None] | N
     segs = process_map(_fit_one, [(job.operations[k].points, job.operations[k].motion, fit) for k in todo],
                        moves, _PARALLEL_FIT_MOVES, done)
     return dict(zip(todo, segs))
+
 
 
 def post_process(job: Job, options: PostOptions = PostOptions(), *,
@@ -414,182 +577,171 @@ def post_process(job: Job, options: PostOptions = PostOptions(), *,
         A job with no operations, non-finite cutter locations, non-positive feeds or
         spindle speeds, tool numbers < 1.
     """
-    opt = options
-    d = opt.dialect
+    _check_job(job)
+    safe_z = max(float(job.setup.safe_z), max(float(op.points[:, 2].max()) for op in job.operations))
+    w = _Writer(options)
+    moves_before = sum(max(len(op.points) - 1, 0) for op in job.operations)
+    fitted = _fitted(job, options, progress, moves_before)
+    estimates = [_write_operation(w, k, op, fitted.get(k), safe_z) for k, op in enumerate(job.operations)]
+    if progress is not None:
+        progress(moves_before, moves_before)
+    total = sum(e.cut_time + e.rapid_time for e in estimates) + w.change_seconds
+    lines = _header(job, options, w.num, total) + w.lines + _tail(options)
+    text = "\n".join(lines) + "\n"
+    log.info("posted %s program: %d lines from %d moves, %.0f s estimated", options.dialect, len(lines),
+             moves_before, total)
+    return Program(text=text, dialect=options.dialect, estimates=tuple(estimates), total_time=total,
+                   line_count=len(lines), moves_before_fitting=moves_before)
+
+
+def _check_job(job: Job) -> None:
     if not job.operations:
         raise GcodeError("job has no operations", source=job.part_name or None)
     for k, op in enumerate(job.operations):
         _check_operation(op, k)
-    safe_z = max(float(job.setup.safe_z), max(float(op.points[:, 2].max()) for op in job.operations))
 
-    w = _Writer(opt)
-    estimates: list[OperationEstimate] = []
-    change_time = 0.0  # [s]
-    current_tool: int | None = None
-    last_xy: tuple[float, float] | None = None
-    moves_before = sum(max(len(op.points) - 1, 0) for op in job.operations)
-    moves_done = 0
-    fitted = _fitted(job, opt, progress, moves_before)
 
-    for k, op in enumerate(job.operations):
-        first_line = len(w.lines)
-        t = op.tool.number
-        c = op.cutting
-        w.comment(f"op {k + 1}: {op.name} [{op.kind}] T{t} {op.tool.name}")
-        rapid_len = 0.0
-        if t != current_tool:
-            change_time += tool_change_seconds(current_tool is None, opt)
-            if d == "grbl":
-                if current_tool is not None:
-                    w.emit("M5")
-                    if opt.coolant:
-                        w.emit("M9")
-                    w.comment(f"change to T{t} {op.tool.name}, set Z zero, then resume")
-                    w.emit(f"T{t}")
-                    w.emit("M0")
-                else:
-                    w.emit(f"T{t}")
-            else:
-                if current_tool is not None:
-                    w.emit("M5")
-                    if opt.coolant:
-                        w.emit("M9")
-                if d == "fanuc":
-                    w.emit("G28 G91 Z0.")
-                    w.emit("G90")
-                w.emit(f"T{t} M6")
-                if d == "linuxcnc":
-                    w.emit(f"G43 H{t}")
-            w.forget()
-            last_xy = None  # the tool change moves the spindle somewhere we do not know
-        current_tool = t
-        w.emit(f"S{max(1, int(round(c.spindle_rpm)))} M3")
-        if opt.coolant:
-            w.emit("M8")
-        p0 = op.points[0]
-        # Approach: safe height, over the start, straight down.
-        if d == "fanuc" and math.isnan(w.pos[2]):
-            w.move(0, np.array([p0[0], p0[1], math.nan]))
-            w.emit(f"G43 H{t} Z{w.num(safe_z)}")
-            w.words["Z"] = w.num(safe_z)
-            w.pos[2] = w.num.rounded(safe_z)
-        else:
-            w.move(0, np.array([math.nan, math.nan, safe_z]))
-            w.move(0, np.array([p0[0], p0[1], math.nan]))
-        if last_xy is not None:
-            rapid_len += math.hypot(p0[0] - last_xy[0], p0[1] - last_xy[1])
-        w.move(0, p0)
-        rapid_len += safe_z - float(p0[2])
+def _write_operation(w: _Writer, k: int, op: Operation, seg: Segments | None, safe_z: float) -> OperationEstimate:
+    """Write operation ``k``: its comment, tool change, spindle, approach, cuts and retract to ``safe_z`` [mm].
 
-        if op.cycle is not None and d != "grbl":
-            moves_done += max(len(op.points) - 1, 0)
-            cut_len, cut_time, cycle_rapid = _write_cycle(w, op)
-            rapid_len += cycle_rapid
-            end = op.points[-1]
-        else:
-            if op.cycle is not None:
-                w.comment(f"G{op.cycle.code} cycle written out as moves: grbl has no canned cycles")
-            seg = fitted[k]
-            moves_done += max(len(op.points) - 1, 0)
-            lengths = seg.lengths()
-            feeds = np.select([seg.motion == Motion.CUT, seg.motion == Motion.PLUNGE], [c.feed, c.plunge_feed], np.nan)
-            seconds = move_seconds(lengths, feeds, opt.rapid_rate)
-            cut_len = 0.0
-            cut_time = 0.0
-            for i in range(len(seg)):
-                m = int(seg.motion[i])
-                if m == Motion.RAPID:
-                    w.move(0, seg.end[i])
-                    rapid_len += float(lengths[i])
-                    continue
-                feed = c.feed if m == Motion.CUT else c.plunge_feed
-                cut_len += float(lengths[i])
-                cut_time += float(seconds[i])
-                kind = int(seg.kind[i])
-                if kind == SegmentKind.LINE:
-                    w.move(1, seg.end[i], feed)
-                else:
-                    w.move(kind, seg.end[i], feed, centre=seg.centre[i])
-            end = seg.end[-1] if len(seg) else p0
-        w.move(0, np.array([math.nan, math.nan, safe_z]))
-        rapid_len += safe_z - float(end[2])
-        last_xy = (float(end[0]), float(end[1]))
-        estimates.append(OperationEstimate(
-            name=op.name, tool_number=t, cut_length=cut_len, rapid_length=rapid_len,
-            cut_time=cut_time, rapid_time=float(move_seconds(rapid_len, math.nan, opt.rapid_rate)),
-            lines=len(w.lines) - first_line,
-        ))
-
-    if progress is not None:
-        progress(moves_before, moves_before)
-    body = w.lines
-    total = sum(e.cut_time + e.rapid_time for e in estimates) + change_time
-
-    head: list[str] = []
-    if d == "fanuc":
-        head += ["%", f"O{opt.program_number:04d} " + _comment(job.part_name or "part", d)]
+    ``seg``: its fitted moves; None for a canned cycle the controller makes."""
+    first_line = len(w.lines)
+    t = op.tool.number
+    w.comment(f"op {k + 1}: {op.name} [{op.kind}] T{t} {op.tool.name}")
+    _write_tool_change(w, op)
+    w.emit(f"S{max(1, int(round(op.cutting.spindle_rpm)))} M3")
+    if w.opt.coolant:
+        w.emit("M8")
+    rapid_len = _write_approach(w, op, safe_z)
+    if seg is None:
+        cutting = _write_cycle(w, op)
     else:
-        head.append(_comment(f"part {job.part_name}", d))
-    head.append(_comment(f"posted by factory for {d}, units mm", d))
+        if op.cycle is not None:
+            w.comment(f"G{op.cycle.code} cycle written out as moves: {w.dialect.name} has no canned cycles")
+        cutting = _write_moves(w, op, seg)
+    for r in cutting.rapids:  # summed in the order they run, as the estimate always was
+        rapid_len += r
+    end = cutting.end
+    w.move(0, np.array([math.nan, math.nan, safe_z]))
+    rapid_len += safe_z - float(end[2])
+    w.end_xy = (float(end[0]), float(end[1]))
+    return OperationEstimate(
+        name=op.name, tool_number=t, cut_length=cutting.cut_length, rapid_length=rapid_len,
+        cut_time=cutting.cut_time, rapid_time=float(move_seconds(rapid_len, math.nan, w.opt.rapid_rate)),
+        lines=len(w.lines) - first_line,
+    )
+
+
+def _stops(opt: PostOptions) -> list[str]:
+    """Spindle off, and coolant off when the program switches it on."""
+    return ["M5", "M9"] if opt.coolant else ["M5"]
+
+
+def _write_tool_change(w: _Writer, op: Operation) -> None:
+    """Load ``op``'s tool unless it is in the spindle: by the changer, or by the operator at a pause."""
+    t = op.tool.number
+    if t == w.tool:
+        return
+    d = w.dialect
+    first = w.tool is None
+    w.change_seconds += tool_change_seconds(first, w.opt)
+    if not first:
+        w.lines += _stops(w.opt)
+    if d.tool_changer:
+        w.lines += [*d.home_before_change, f"T{t} M6"]
+        if d.length_offset == "after_change":
+            w.emit(f"G43 H{t}")
+    elif first:
+        w.emit(f"T{t}")  # loaded and touched off before the start (the header says so)
+    else:
+        w.comment(f"change to T{t} {op.tool.name}, set Z zero, then resume")
+        w.lines += [f"T{t}", "M0"]
+    w.forget()
+    w.tool = t
+
+
+def _write_approach(w: _Writer, op: Operation, safe_z: float) -> float:
+    """Rapid to the safe height [mm], over the operation's start, straight down to it.
+
+    Returns the rapid length [mm]: from where the last operation ended (when known), and down."""
+    p0 = op.points[0]
+    if w.dialect.length_offset == "first_z" and math.isnan(w.pos[2]):
+        # The length offset comes in with the first Z move after the change, to the safe height.
+        w.move(0, np.array([p0[0], p0[1], math.nan]))
+        w.emit(f"G43 H{op.tool.number} Z{w.num(safe_z)}")
+        w.words["Z"] = w.num(safe_z)
+        w.pos[2] = w.num.rounded(safe_z)
+    else:
+        w.move(0, np.array([math.nan, math.nan, safe_z]))
+        w.move(0, np.array([p0[0], p0[1], math.nan]))
+    rapid_len = 0.0
+    if w.end_xy is not None:
+        rapid_len += math.hypot(p0[0] - w.end_xy[0], p0[1] - w.end_xy[1])
+    w.move(0, p0)
+    rapid_len += safe_z - float(p0[2])
+    return rapid_len
+
+
+def _write_moves(w: _Writer, op: Operation, seg: Segments) -> _Cutting:
+    """Write an operation's fitted segments as G0/G1/G2/G3 blocks."""
+    c = op.cutting
+    lengths = seg.lengths()
+    feeds = np.select([seg.motion == Motion.CUT, seg.motion == Motion.PLUNGE], [c.feed, c.plunge_feed], np.nan)
+    seconds = move_seconds(lengths, feeds, w.opt.rapid_rate)
+    cut_len = 0.0
+    cut_time = 0.0
+    rapids: list[float] = []
+    for i in range(len(seg)):
+        m = int(seg.motion[i])
+        if m == Motion.RAPID:
+            w.move(0, seg.end[i])
+            rapids.append(float(lengths[i]))
+            continue
+        feed = c.feed if m == Motion.CUT else c.plunge_feed
+        cut_len += float(lengths[i])
+        cut_time += float(seconds[i])
+        kind = int(seg.kind[i])
+        if kind == SegmentKind.LINE:
+            w.move(1, seg.end[i], feed)
+        else:
+            w.move(kind, seg.end[i], feed, centre=seg.centre[i])
+    return _Cutting(cut_len, cut_time, tuple(rapids), seg.end[-1] if len(seg) else op.points[0])
+
+
+def _header(job: Job, opt: PostOptions, num: _Numbers, total: float) -> list[str]:
+    """The program's title, the comments a machinist reads first, and the modal states it relies on.
+
+    ``total``: the estimated cycle time [s]."""
+    d = opt.controller
+    if d.tape:
+        head = ["%", f"O{opt.program_number:04d} " + _comment(job.part_name or "part", d)]
+    else:
+        head = [_comment(f"part {job.part_name}", d)]
+    head.append(_comment(f"posted by factory for {d.name}, units mm", d))
     if job.source_sha256:
         head.append(_comment(f"source sha256 {job.source_sha256}", d))
     head.append(_comment(f"estimated cycle time {_hms(total)}", d))
     for tool in job.tools:
-        head.append(_comment(f"T{tool.number} {tool.name} D{w.num(tool.diameter)} length {w.num(tool.length)}", d))
-    if d == "grbl":
+        head.append(_comment(f"T{tool.number} {tool.name} D{num(tool.diameter)} length {num(tool.length)}", d))
+    if not d.tool_changer:
         head.append(_comment(f"load T{job.operations[0].tool.number} and set Z zero before starting", d))
     head.append("G21 G90 G17 G40 G49 G80 G94")
-    if d in ("linuxcnc", "grbl"):
-        head.append("G91.1")
+    if d.arc_centres:
+        head.append(d.arc_centres)
     if job.parameters.get("setup_note"):
         head.append(_comment(str(job.parameters["setup_note"]), d))
     head.append(opt.work_offset_code)
-    if d == "linuxcnc":
-        head.append(f"G64 P{w.num(opt.arc_tolerance)}")
+    if d.blending:
+        head.append(f"G64 P{num(opt.arc_tolerance)}")
+    return head
 
-    tail = ["M5"]
-    if opt.coolant:
-        tail.append("M9")
-    if d == "linuxcnc":
-        tail.append("G53 G0 Z0")
-    elif d == "fanuc":
-        tail += ["G28 G91 Z0.", "G90"]
-    tail.append("M30")
-    if d == "fanuc":
-        tail.append("%")
 
-    lines = head + body + tail
-    text = "\n".join(lines) + "\n"
-    log.info("posted %s program: %d lines from %d moves, %.0f s estimated", d, len(lines), moves_before, total)
-    return Program(text=text, dialect=d, estimates=tuple(estimates), total_time=total,
-                   line_count=len(lines), moves_before_fitting=moves_before)
+def _tail(opt: PostOptions) -> list[str]:
+    """Spindle and coolant off, Z where the controller parks it, program end."""
+    d = opt.controller
+    return [*_stops(opt), *d.end, "M30", *(["%"] if d.tape else [])]
 
 
 def _hms(seconds: float) -> str:
     s = int(round(seconds))
     return f"{s // 3600}h {s % 3600 // 60:02d}m {s % 60:02d}s"
-
-
-def linuxcnc_tool_table(tools: Iterable[Tool]) -> str:
-    """A LinuxCNC tool table (``.tbl``) for the tools, pocket = tool number.
-
-    Parameters
-    ----------
-    tools : iterable of Tool
-        Duplicates by number keep the first.
-
-    Returns
-    -------
-    str
-        One line per tool, ``T1 P1 Z<length> D<diameter> ;<name>`` [mm], sorted by number.
-    """
-    num = _Numbers(4, point=False)
-    seen: dict[int, Tool] = {}
-    for t in tools:
-        seen.setdefault(t.number, t)
-    out = []
-    for n in sorted(seen):
-        t = seen[n]
-        name = _COMMENT_BAD.sub("?", t.name)
-        out.append(f"T{n} P{n} Z{num(t.length)} D{num(t.diameter)} ;{name}")
-    return "\n".join(out) + ("\n" if out else "")

@@ -36,7 +36,7 @@ from cadcam.model import Job, Setup
 from cadcam.parallel import Background, processors
 from cadcam.op2 import (FLIP_AXIS, WORK_OFFSET, Op2Options, flip_transform, op2_setup_image, op2_sheet_fields,
                         plan_op2)
-from cadcam.post import PostOptions, Program, post_process
+from cadcam.post import PostOptions, Program, post_process, tool_table_file
 from cadcam.preview import setup_image
 from cadcam.relief import block_corners
 from cadcam.sheet import setup_sheet
@@ -67,11 +67,13 @@ SUMMARY_SUFFIX = ".plan.json"
 
 
 def plan_outputs(part: Path, out_dir: Path, robot_lang: str | None = "urscript",
-                 ops: int | None = 2) -> dict[str, Path]:
+                 ops: int | None = 2, post: str = "linuxcnc") -> dict[str, Path]:
     """Every file ``factory plan`` writes for ``part`` into ``out_dir`` (no robot files for ``None``).
 
     With ``ops`` 2 (the default) or None (not known yet: all that may be written), op 2's program, setup sheet, verify report and picture, and
-    the picture of its setup: ``PART.op2.nc``, ``PART.op2.setup.json``, ... (:mod:`cadcam.op2`)."""
+    the picture of its setup: ``PART.op2.nc``, ``PART.op2.setup.json``, ... (:mod:`cadcam.op2`).
+    For a controller that reads a tool table file (``post`` linuxcnc), the job's: ``PART.tbl``, one for
+    both programs."""
     stem = out_dir / part.stem
     outputs = {
         "program": stem.with_suffix(".nc"),
@@ -95,6 +97,8 @@ def plan_outputs(part: Path, out_dir: Path, robot_lang: str | None = "urscript",
         outputs["robot_program"] = stem.with_suffix(PROGRAM_SUFFIX[robot_lang])
         if robot_lang == "krl":
             outputs["robot_program_dat"] = stem.with_suffix(".dat")
+    if PostOptions(dialect=post).controller.tool_table is not None:
+        outputs["tool_table"] = stem.with_suffix(".tbl")
     return outputs
 
 
@@ -171,7 +175,7 @@ class PlanRequest:
 
     def outputs(self, out_dir: Path) -> dict[str, Path]:
         """Every file :meth:`PartPlan.write` writes into ``out_dir``."""
-        return plan_outputs(self.cam.part, out_dir, self.lang if self.robot else None, self.ops)
+        return plan_outputs(self.cam.part, out_dir, self.lang if self.robot else None, self.ops, self.post)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -342,6 +346,9 @@ class PartPlan:
         job = planned.job
         write_text(outputs["setup_sheet"], json.dumps(self.setup_sheet, indent=2) + "\n")
         write_text(outputs["program"], self.program.text)
+        if "tool_table" in outputs:  # one for op 1's and op 2's programs: both number the library's tools alike
+            tools = [*job.tools, *(self.op2.job.tools if self.op2 is not None else ())]
+            write_text(outputs["tool_table"], tool_table_file(PostOptions(dialect=req.post), tools) or "")
         write_verify_outputs(self.simulation, self.report, png=outputs["verify_png"], json_path=outputs["verify_json"],
                              mcap=None, overwrite=False, inputs={})
         write_bytes(outputs["toolpath_png"], png_bytes(planned.toolpath_picture()))

@@ -18,13 +18,13 @@ from cadcam.drilling import cycle_moves, drill_operation, find_holes, plan_holes
 from cadcam.gcode import parse_gcode
 from cadcam.model import DrillCycle, Job, Motion, Operation, Setup
 from cadcam.plan import PlanOptions, choose_tools
-from cadcam.post import PostOptions, linuxcnc_tool_table, post_process
+from cadcam.post import PostOptions, post_process
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
 from cadcam.verify import VerifyOptions, operation_moves, simulate, swept_envelope
 from factory.core.errors import ToolError
 from tests.conftest import manifold_to_trimesh
-from tests.rs274 import run_rs274
+from tests.rs274 import run_rs274, write_tool_table
 
 LIBRARY = load_tool_library()
 SEGMENTS = 96
@@ -101,7 +101,7 @@ def _rs274(tmp_path: Path, job: Job, text: str) -> subprocess.CompletedProcess:
         pytest.skip("LinuxCNC's rs274 interpreter is not on PATH")
     nc = tmp_path / "drill.nc"
     nc.write_text(text)
-    return run_rs274(nc, linuxcnc_tool_table(job.tools), tmp_path, timeout=60)
+    return run_rs274(nc, write_tool_table(nc, job.tools), tmp_path, timeout=60)
 
 
 _CANON = re.compile(r"(STRAIGHT_TRAVERSE|STRAIGHT_FEED)\(([^)]*)\)")

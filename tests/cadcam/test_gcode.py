@@ -289,7 +289,9 @@ def _distinct(points: np.ndarray) -> np.ndarray:
 def test_drill_cycles_move_as_linuxcnc_moves_them(tmp_path):
     nc = tmp_path / "drill.ngc"
     nc.write_text(DRILL_PROGRAM)
-    p = run_rs274(nc, "T1 P1 Z30 D3 ;drill\n", tmp_path, timeout=60)
+    table = tmp_path / "drill.tbl"
+    table.write_text("T1 P1 D3 Z30 ;drill\n")
+    p = run_rs274(nc, table, tmp_path, timeout=60)
     assert p.returncode == 0, p.stdout[-1000:]
     theirs = []
     for m in re.finditer(r"STRAIGHT_(TRAVERSE|FEED)\(([-\d.]+), ([-\d.]+), ([-\d.]+)", p.stdout):

@@ -17,7 +17,7 @@ from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_part
 from cadcam.model import Motion
 from cadcam.plan import PlanOptions, plan_job
-from cadcam.post import PostOptions, linuxcnc_tool_table, post_process
+from cadcam.post import PostOptions, post_process
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
 from cadcam.setup import BREAKTHROUGH_MM, MIN_HOLDING_LEFT_MM
@@ -28,7 +28,7 @@ from robotprog.frames import vise_jaws
 from tests.cadcam.sweep import sweep_moves
 from tests.cadcam.test_rest import assert_safe
 from tests.conftest import SAMPLES, manifold_to_trimesh
-from tests.rs274 import run_rs274
+from tests.rs274 import run_rs274, write_tool_table
 
 LIBRARY = load_tool_library()
 # A coarser scallop than the default keeps the suite quick; gouge-freedom does not depend on it.
@@ -72,7 +72,8 @@ def plan_post_verify_moves(part_mesh, name: str, tmp_path: Path, options: PlanOp
 
 
 def rs274_accepts(nc: Path, job, tmp_path: Path) -> None:
-    p = run_rs274(nc, linuxcnc_tool_table(job.tools), tmp_path)
+    """rs274 runs ``nc`` to its end with the job's tool table beside it (what ``factory gcode`` writes)."""
+    p = run_rs274(nc, write_tool_table(nc, job.tools), tmp_path)
     assert p.returncode == 0, (p.stdout[-1500:], p.stderr[-1500:])
 
 

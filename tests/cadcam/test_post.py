@@ -3,6 +3,7 @@ each dialect keeps its controller's syntax rules, and time estimates add up."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import shutil
@@ -13,14 +14,16 @@ import numpy as np
 import pytest
 
 from tests.geometry import point_polyline_distance
-from tests.rs274 import run_rs274
+from tests.rs274 import run_rs274, write_tool_table
 from cadcam.gcode import parse_gcode
 from cadcam.model import CuttingData, Job, Motion, Operation, Setup, Tool
-from cadcam.post import PostOptions, linuxcnc_tool_table, post_process
+from cadcam.post import PostOptions, linuxcnc_tool_table, post_process, tool_table_file
 from factory.core.errors import GcodeError
 
 FLAT = Tool(1, "6 mm flat 3FL (carbide)", "flat", 6.0, 0.0, 20.0, 3, 40.0)
 BALL = Tool(4, "3 mm ball", "ball", 3.0, 1.5, 10.0, 2, 30.0)
+#: A tool whose name LinuxCNC would cut, with figures that are not whole millimetres.
+DRILL = Tool(7, "8.5 mm drill 118deg carbide 5xD (M10 tap)", "drill", 8.5, 0.0, 40.0, 2, 45.25, point_angle=118.0)
 CUT = CuttingData(spindle_rpm=12000, feed=1200, plunge_feed=300)
 SLOW = CuttingData(spindle_rpm=18000.4, feed=800, plunge_feed=200)
 SETUP = Setup([0, 0, -20], [80, 60, 0], np.eye(4), safe_z=10.0)
@@ -171,7 +174,7 @@ def _rs274(tmp_path: Path, text: str, name: str) -> subprocess.CompletedProcess:
         pytest.skip("LinuxCNC's rs274 interpreter is not on PATH")
     nc = tmp_path / name
     nc.write_text(text)
-    return run_rs274(nc, linuxcnc_tool_table(_job().tools), tmp_path, timeout=60)
+    return run_rs274(nc, write_tool_table(nc, _job().tools), tmp_path, timeout=60)
 
 
 _CANON = re.compile(r"(STRAIGHT_TRAVERSE|STRAIGHT_FEED|ARC_FEED)\(([^)]*)\)")
@@ -302,7 +305,56 @@ def test_no_coolant():
 
 def test_tool_table():
     tbl = linuxcnc_tool_table([BALL, FLAT, FLAT])
-    assert tbl.splitlines() == ["T1 P1 Z40 D6 ;6 mm flat 3FL (carbide)", "T4 P4 Z30 D3 ;3 mm ball"]
+    assert tbl.splitlines() == ["T1 P1 D6 Z40 ;6 mm flat 3FL (carbide)", "T4 P4 D3 Z30 ;3 mm ball"]
+    # LinuxCNC keeps 39 characters of a name (and warns about the rest): cut here
+    assert linuxcnc_tool_table([DRILL]) == "T7 P7 D8.5 Z45.25 ;8.5 mm drill 118deg carbide 5xD (M10 ta\n"
+
+
+def test_only_linuxcnc_reads_a_tool_table_file():
+    assert tool_table_file(PostOptions(dialect="linuxcnc"), [FLAT]) == linuxcnc_tool_table([FLAT])
+    assert tool_table_file(PostOptions(dialect="grbl"), [FLAT]) is None  # grbl has no tool table
+    assert tool_table_file(PostOptions(dialect="fanuc"), [FLAT]) is None  # offsets set at the control
+
+
+def test_one_number_for_two_tools_is_refused():
+    other = dataclasses.replace(BALL, number=FLAT.number)
+    with pytest.raises(GcodeError, match="T1 names two tools"):
+        linuxcnc_tool_table([FLAT, other])
+    assert linuxcnc_tool_table([FLAT, dataclasses.replace(FLAT)]) == linuxcnc_tool_table([FLAT])
+
+
+_DEBUG = re.compile(r'MESSAGE\(" ?T([\d.]+) D([\d.]+) Z([\d.]+)"\)')
+
+
+def test_linuxcnc_reads_the_tool_table_as_written(tmp_path):
+    """rs274 loads every line of the table (a line it cannot read fails run_rs274) and holds each tool's
+    number, diameter and length offset as written: the program reads them back from its parameters
+    (#5400 tool, #5410 diameter, #5403 Z offset, in force after G43)."""
+    if shutil.which("rs274") is None:
+        pytest.skip("LinuxCNC's rs274 interpreter is not on PATH")
+    tools = [FLAT, BALL, DRILL]
+    nc = tmp_path / "tools.nc"
+    nc.write_text("G21 G90\n" + "".join(f"T{t.number} M6\nG43 H{t.number}\n(debug, T#5400 D#5410 Z#5403)\n"
+                                         for t in tools) + "M30\n")
+    res = run_rs274(nc, write_tool_table(nc, tools), tmp_path, timeout=60)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    read = [tuple(float(v) for v in m) for m in _DEBUG.findall(res.stdout)]
+    assert read == [(t.number, t.diameter, t.length) for t in tools]
+
+
+def test_linuxcnc_refuses_a_program_whose_tool_the_table_lacks(tmp_path):
+    """The job's program with a table that lacks one of its tools (T4) stops at that tool: what the
+    tests' rs274 runs rely on to show the table covers the program."""
+    if shutil.which("rs274") is None:
+        pytest.skip("LinuxCNC's rs274 interpreter is not on PATH")
+    nc = tmp_path / "job.nc"
+    nc.write_text(post_process(_job()).text)
+    res = run_rs274(nc, write_tool_table(nc, [FLAT]), tmp_path, timeout=60)
+    assert res.returncode != 0
+    assert "Requested tool 4 not found in the tool table" in res.stdout + res.stderr
+    assert "PROGRAM_END" not in res.stdout
+    res = run_rs274(nc, write_tool_table(nc, [FLAT, BALL]), tmp_path, timeout=60)
+    assert res.returncode == 0 and "PROGRAM_END" in res.stdout
 
 
 # --------------------------------------------------------------------------- estimates

@@ -40,7 +40,7 @@ def chain(tmp_path_factory) -> dict[str, Path]:
     nc = d / "block.nc"
     r = run("gcode", tp, "-o", nc, "--quiet")
     assert r.exit_code == 0, r.output
-    return {"part": part, "toolpath": tp, "nc": nc, "setup": d / "block.setup.json", "dir": d}
+    return {"part": part, "toolpath": tp, "nc": nc, "setup": d / "block.setup.json", "table": d / "block.tbl", "dir": d}
 
 
 def test_chain_writes_program_and_setup_sheet(chain):
@@ -81,11 +81,27 @@ def test_verify_fails_with_exit_3_on_a_gouging_program(chain, tmp_path):
     assert json.loads(r.stdout)["max_gouge"] > 0.5
 
 
+def test_gcode_writes_the_jobs_tool_table_for_linuxcnc(chain):
+    """PART.tbl beside PART.nc: one line per tool of the setup sheet, its figures as the sheet gives them."""
+    sheet = json.loads(chain["setup"].read_text())
+    lines = chain["table"].read_text().splitlines()
+    assert lines == [f"T{t['number']} P{t['number']} D{t['diameter']:g} Z{t['length']:g} ;{t['name'][:39]}"
+                     for t in sorted(sheet["tools"], key=lambda t: t["number"])]
+
+
+@pytest.mark.parametrize("post", ["grbl", "fanuc"])
+def test_gcode_writes_no_tool_table_for_controllers_that_read_none(chain, tmp_path, post):
+    nc = tmp_path / "block.nc"
+    r = run("gcode", chain["toolpath"], "-o", nc, "--post", post, "--json", "--quiet")
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["block.nc", "block.setup.json"]
+    assert "tool_table" not in json.loads(r.stdout)
+
+
 @pytest.mark.skipif(shutil.which("rs274") is None, reason="LinuxCNC's rs274 is not installed (apt-get install linuxcnc-uspace)")
 def test_linuxcnc_accepts_the_program(chain, tmp_path):
-    sheet = json.loads(chain["setup"].read_text())
-    table = "".join(f"T{t['number']} P{t['number']} Z{t['length']} D{t['diameter']}\n" for t in sheet["tools"])
-    p = run_rs274(chain["nc"], table, tmp_path, timeout=120)
+    """rs274 -t PART.tbl PART.nc: the program with the table `factory gcode` wrote beside it."""
+    p = run_rs274(chain["nc"], chain["table"], tmp_path, timeout=120)
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
 
 
@@ -106,8 +122,11 @@ def test_plan_writes_everything(tmp_path):
     assert r.exit_code == 0, r.output
     summary = json.loads(r.stdout)
     for key in ("program", "setup_sheet", "mcap", "verify_json", "verify_png", "toolpath_png", "setup_png", "summary",
-                "robot_program"):
+                "robot_program", "tool_table"):
         assert Path(summary["outputs"][key]).is_file(), key
+    if shutil.which("rs274"):  # the program runs with the job's tool table beside it
+        p = run_rs274(Path(summary["outputs"]["program"]), Path(summary["outputs"]["tool_table"]), tmp_path)
+        assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
     # this block is too small for the robot to turn over: op 1 only (tests/factory/test_plan.py)
     assert set(summary["outputs"]) == set(plan_outputs(part, out, ops=len(summary["setups"])))
     # one MCAP of the whole plan: CAM, verify and robot, with the work frame in the cell's vise

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -24,6 +25,7 @@ from factory.core.errors import PlanningError
 from factory.plan import PlanRequest, plan_outputs, plan_part
 from factory.core.resources import FIXTURES
 from tests.conftest import ROOT, pocket_block
+from tests.rs274 import run_rs274
 
 
 def fast_request(part: Path, robot: bool = True) -> PlanRequest:
@@ -95,7 +97,7 @@ def test_every_stage_of_the_work_is_timed(planned, block, monkeypatch):
     assert watch.seconds["stock model"] == 3.0 and watch.seconds["roughing"] == 0.5
 
 
-def test_write_makes_the_whole_set_and_no_staging_is_left(planned, tmp_path):
+def test_write_makes_the_whole_set_and_no_staging_is_left(planned, tmp_path, tmp_path_factory):
     summary = planned.write(tmp_path)
     outputs = plan_outputs(planned.request.cam.part, tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in outputs.values())
@@ -106,6 +108,12 @@ def test_write_makes_the_whole_set_and_no_staging_is_left(planned, tmp_path):
     assert setups[0]["program"] == str(outputs["program"]) and setups[1]["program"] == str(outputs["program_op2"])
     assert all(s["estimated_cycle_s"] > 0 for s in setups) and summary["verify"]["ok"]
     assert "write" in summary["seconds"]
+    # one tool table for both programs: LinuxCNC runs each with it (a tool it lacks stops the run)
+    if shutil.which("rs274"):
+        home = tmp_path_factory.mktemp("rs274")  # rs274 leaves its table's copy in its HOME
+        for program in (outputs["program"], outputs["program_op2"]):
+            p = run_rs274(program, outputs["tool_table"], home)
+            assert p.returncode == 0, (program.name, p.stdout[-1500:], p.stderr[-1500:])
     with pytest.raises(Exception, match="exists"):
         planned.write(tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in outputs.values())
@@ -186,3 +194,11 @@ def test_readme_python_example_runs(tmp_path, monkeypatch):
     namespace: dict = {}
     exec(compile(code, "README.md", "exec"), namespace)
     assert (tmp_path / "bracket" / "bracket.plan.json").is_file()
+
+
+def test_the_tool_table_is_an_output_only_for_a_controller_that_reads_one(tmp_path):
+    part = tmp_path / "block.stl"
+    assert plan_outputs(part, tmp_path)["tool_table"] == tmp_path / "block.tbl"  # LinuxCNC, the default post
+    for post in ("grbl", "fanuc"):
+        assert "tool_table" not in plan_outputs(part, tmp_path, post=post)
+        assert "tool_table" not in dataclasses.replace(fast_request(part), post=post).outputs(tmp_path)
