@@ -2,9 +2,9 @@
 
 Per part: `factory plan`'s exit and one-line refusal, plan wall time, both operations' cycle estimates,
 verify's verdict and the stock it left, what was reported unreached, the deepest and widest engagement
-per tool, and LinuxCNC's `rs274` on every program with the job's tool table (``PART.tbl`` when the plan
-wrote one, else the library's). A part ``expect``-ed to plan that is refused, fails verify, or whose
-program rs274 refuses, is a shortfall; so is one expected refused that plans.
+per tool, and LinuxCNC's `rs274` on every program with the job's tool table (``PART.tbl``). A part
+``expect``-ed to plan that is refused, fails verify, or whose program rs274 refuses, is a shortfall; so is
+one expected refused that plans.
 
     .venv/bin/python benchmarks/gallery.py [--parts a,b] [--jobs 2] [--json out.json]
 
@@ -26,13 +26,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from cadcam.post import linuxcnc_tool_table  # noqa: E402
-from cadcam.tools import load_tool_library  # noqa: E402
 from tests.gallery.parts import BY_NAME, PARTS, GalleryPart  # noqa: E402
 from tests.rs274 import run_rs274  # noqa: E402
 
 
-def _rs274(program: Path, table: str, folder: Path) -> str:
+def _rs274(program: Path, table: Path, folder: Path) -> str:
     """'ok', or rs274's complaint (it exits 0 on some errors: its output is read too)."""
     done = run_rs274(program, table, folder)
     text = (done.stdout + done.stderr).lower()
@@ -66,8 +64,7 @@ def judge(part: GalleryPart, work: Path) -> dict[str, object]:
     row["unreached"] = len(doc.get("unreached", [])) + sum(len(s.get("unreached", [])) for s in ops[1:])
     row["engagement"] = {f"op{i + 1}": {f"T{e['tool']}": [round(e["max_depth"], 2), round(e["max_width"], 2)]
                                         for e in r.get("engagement", [])} for i, r in enumerate(reports)}
-    tbl = folder / "out" / f"{part.name}.tbl"
-    table = tbl.read_text() if tbl.exists() else linuxcnc_tool_table(load_tool_library().tools)
+    table = folder / "out" / f"{part.name}.tbl"
     row["rs274"] = [_rs274(Path(s["program"]), table, folder) for s in ops]
     row["shortfall"] = (part.expect != "plans" or done.returncode != 0 or not all(row["verify_ok"])
                         or any(r != "ok" for r in row["rs274"]))

@@ -1,5 +1,6 @@
 """A representative subset of the gallery (tests/gallery/parts.py), planned with defaults and judged by the
-programs' real consumers: LinuxCNC's ``rs274`` with the job's tool table, and verify on both operations.
+programs' real consumers: LinuxCNC's ``rs274`` with the job's tool table (``PART.tbl``), and verify on
+both operations.
 
 The whole gallery, with the parts the engine does not plan yet, is ``benchmarks/gallery.py``.
 """
@@ -12,7 +13,6 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from cadcam.post import linuxcnc_tool_table
 from cadcam.tools import load_tool_library
 from cli.main import app
 from tests.gallery.parts import BY_NAME
@@ -32,8 +32,7 @@ def test_a_gallery_part_plans_and_its_consumers_accept_it(name: str, tmp_path: P
     assert r.exit_code == 0, r.output
     doc = json.loads((tmp_path / "out" / f"{name}.plan.json").read_text())
     library = {t.number: t for t in load_tool_library().tools}
-    tbl = tmp_path / "out" / f"{name}.tbl"
-    table = tbl.read_text() if tbl.exists() else linuxcnc_tool_table(library.values())
+    table = tmp_path / "out" / f"{name}.tbl"  # the job's tool table, as a LinuxCNC user runs rs274
     reports = [doc["verify"], doc["verify_op2"]]
     for setup, report in zip(doc["setups"], reports, strict=True):
         assert setup["verify_ok"] and report["ok"], (setup["op"], report["faults"])
