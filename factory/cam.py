@@ -172,7 +172,7 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
     if boundary is not None:  # shallow nearly everywhere: finer terraces, finishing engages less
         options = dataclasses.replace(options, finish_engagement=min(options.finish_engagement, FINISH_ENGAGEMENT),
                                       terrace_stepdown=min(options.terrace_stepdown, TERRACE_STEPDOWN))
-    job, timings = plan_job(
+    planned = plan_job(
         part_work,
         setup,
         library,
@@ -182,11 +182,12 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
         progress=progress,
         boundary=boundary,
     )
+    job = planned.job
     if boundary is not None and loaded.surface is not None:
         relief = {"found": loaded.surface.describe(), **loaded.surface.to_dict(), **req.relief.to_dict(),
                   "boundary": boundary.to_dict()}
         job = dataclasses.replace(job, parameters={**job.parameters, "relief": relief})
-    for stage, seconds in timings.seconds:  # a stage that ran more than once (the stock model) adds up
+    for stage, seconds in planned.timings.seconds:  # a stage that ran more than once (the stock model) adds up
         watch.seconds[stage] = watch.seconds.get(stage, 0.0) + seconds
     return PlannedPart(job, loaded, part_work, boundary)
 

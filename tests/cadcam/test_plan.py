@@ -60,7 +60,7 @@ def plan_post_verify(part_mesh, name: str, tmp_path: Path, options: PlanOptions 
 def plan_post_verify_moves(part_mesh, name: str, tmp_path: Path, options: PlanOptions = TEST_PLAN,
                            cell: float = 0.2):
     setup, part = make_setup(part_mesh, jaws=JAWS)
-    job, _ = plan_job(part, setup, LIBRARY, part_name=name, options=options)
+    job = plan_job(part, setup, LIBRARY, part_name=name, options=options).job
     program = post_process(job, PostOptions())
     moves = parse_gcode(program.text, source=name)
     tools = {t.number: t for t in job.tools}
@@ -102,7 +102,7 @@ def test_sample_never_gouges_and_never_crashes(sample, tmp_path):
 def test_rs274_accepts_every_dialect_it_knows(dialect, tmp_path):
     # LinuxCNC's interpreter also reads Fanuc-style programs (% bounds, O-number words aside).
     setup, part = make_setup(load_part(SAMPLE_PARTS[0]).mesh)
-    job, _ = plan_job(part, setup, LIBRARY, part_name="p", options=TEST_PLAN)
+    job = plan_job(part, setup, LIBRARY, part_name="p", options=TEST_PLAN).job
     nc = tmp_path / "p.nc"
     nc.write_text(post_process(job, PostOptions(dialect=dialect)).text)
     rs274_accepts(nc, job, tmp_path)

@@ -20,8 +20,8 @@ from tests.conftest import pocket_block
 @pytest.fixture(scope="module")
 def posted():
     setup, part = make_setup(pocket_block(), origin="top-centre", material="brass")
-    job, _ = plan_job(part, setup, load_tool_library(), part_name="block",
-                      options=PlanOptions(finishing=FinishingOptions(scallop=0.05)))
+    job = plan_job(part, setup, load_tool_library(), part_name="block",
+                      options=PlanOptions(finishing=FinishingOptions(scallop=0.05))).job
     return job, post_process(job, PostOptions())
 
 

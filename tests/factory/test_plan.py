@@ -80,14 +80,14 @@ def test_every_stage_of_the_work_is_timed(planned, block, monkeypatch):
     assert {"load", "setup", "tools and faces", "roughing", "stock model", "rapid check", "post", "robot plan",
             "robot program", "verify", "op 2", "op 2 verify"} <= set(planned.seconds)
     import factory.cam
-    from cadcam.plan import PlanTimings
+    from cadcam.plan import PlanJobResult, PlanTimings
     from factory.core.progress import Stopwatch
 
     real = factory.cam.plan_job
 
     def stock_modelled_twice(*args, **kwargs):
-        job, _ = real(*args, **kwargs)
-        return job, PlanTimings((("stock model", 1.0), ("roughing", 0.5), ("stock model", 2.0)))
+        job = real(*args, **kwargs).job
+        return PlanJobResult(job, PlanTimings((("stock model", 1.0), ("roughing", 0.5), ("stock model", 2.0))))
 
     monkeypatch.setattr(factory.cam, "plan_job", stock_modelled_twice)
     watch = Stopwatch()
