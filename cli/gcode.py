@@ -32,7 +32,7 @@ def write_program(job: Job, output: Path, options: PostOptions, overwrite: bool)
     check_writable(sheet_path, overwrite)
     program = post_process(job, options)
     sheet = setup_sheet(job, program, output.name)
-    write_text(sheet_path, json.dumps(sheet, indent=2) + "\n", overwrite=overwrite)
+    write_text(sheet_path, json.dumps(sheet.to_json(), indent=2) + "\n", overwrite=overwrite)
     write_text(output, program.text, overwrite=overwrite)
     return program, sheet_path
 

@@ -23,8 +23,8 @@ from cadcam.tools import load_tool_library
 from cadcam.setup import BREAKTHROUGH_MM, MIN_HOLDING_LEFT_MM
 from cadcam.verify import VerifyOptions, simulate
 from factory.core.resources import FIXTURES
+from factory.cam import vise_jaws
 from robotprog.cell import load_cell
-from robotprog.frames import vise_jaws
 from tests.cadcam.sweep import sweep_moves
 from tests.cadcam.test_rest import assert_safe
 from tests.conftest import SAMPLES, manifold_to_trimesh
