@@ -10,7 +10,7 @@ the run and the summary ``factory simulate --json`` prints::
 
     done = simulate_orders(SimulateRequest(Path("samples/orders.yaml"), catalog=Path("build"), faults=7,
                                            mcap=Path("build/cell.mcap"), overwrite=True))
-    print(done.summary["parts_per_hour"], done.summary["oee"])
+    print(done.summary["summary"]["parts_per_hour"], [o.outcome for o in done.run.result.outcomes])
 """
 
 from __future__ import annotations
