@@ -43,7 +43,7 @@ def bench_part(path: Path, scallop: float, cell: float) -> dict:
     setup, part = make_setup(load_part(path).mesh)
     options = PlanOptions(finishing=FinishingOptions(scallop=scallop))
     t0 = time.perf_counter()
-    job, _ = plan_job(part, setup, lib, part_name=path.stem, options=options)
+    job = plan_job(part, setup, lib, part_name=path.stem, options=options).job
     plan_s = time.perf_counter() - t0
     program = post_process(job, PostOptions())
     moves = parse_gcode(program.text)

@@ -427,7 +427,7 @@ class FixtureBox:
 @dataclass(frozen=True)
 class ViseJaws:
     """The machine vise as CAM sees it, in millimetres: the cell file's ``vise`` converted at
-    :func:`robotprog.frames.vise_jaws` (the one place metres become millimetres).
+    :func:`factory.cam.vise_jaws` (the one place metres become millimetres).
 
     Heights are up from the vise bed; the stock's bottom rests on the parallels, clamped
     across work Y (the jaws run along work X), centred in the jaws.

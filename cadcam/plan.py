@@ -19,23 +19,23 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 import trimesh
 
-from cadcam.drilling import DrillingOptions, plan_holes
+from cadcam.drilling import DrillingOptions, HolePlan, plan_holes
 from cadcam.faces import SHALLOW, STEEP, FaceClasses, classify_faces
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
 from cadcam.flatfinish import WALL_HAIR, FlatFinishOptions, flat_wall_finishing, left_on_flats_and_walls
-from cadcam.model import Job, Operation, Setup, Tool
+from cadcam.model import CuttingData, Job, Operation, Setup, Tool
 from cadcam.relief import Boundary, keep_outside
-from cadcam.rest import excess, safe_rapids, unreached
+from cadcam.rest import Unreached, excess, safe_rapids, unreached
 from cadcam.roughing import RoughingOptions, zlevel_roughing
 from cadcam.shank_clearance import upper_raster
 from cadcam.toolfit import removal_rate, tool_fits
 from cadcam.tools import ToolLibrary
-from cadcam.verify import stock_after
+from cadcam.verify import Simulation, stock_after
 from factory.core.errors import ToolError
 
 T = TypeVar("T")
@@ -244,6 +244,22 @@ def rest_tools(library: ToolLibrary, rough: Tool) -> list[Tool]:
     return [by_d[d] for d in sorted(by_d, reverse=True)]
 
 
+@dataclass(frozen=True)
+class PlanJobResult:
+    """What :func:`plan_job` computed.
+
+    Attributes
+    ----------
+    job : Job
+        The operations in cutting order (see :func:`plan_job`).
+    timings : PlanTimings
+        Wall time spent computing each operation [s].
+    """
+
+    job: Job
+    timings: PlanTimings
+
+
 def plan_job(
     part: trimesh.Trimesh,
     setup: Setup,
@@ -254,8 +270,13 @@ def plan_job(
     options: PlanOptions = PlanOptions(),
     progress: StageProgress | None = None,
     boundary: Boundary | None = None,
-) -> tuple[Job, PlanTimings]:
+) -> PlanJobResult:
     """Compute the operations that cut ``part`` out of the stock described by ``setup``.
+
+    The steps, in cutting order: holes and roughing (:func:`_holes_and_roughing`), rest roughing
+    (:func:`_rest_roughing`), what no tool reaches (:func:`_unreached`), flats and walls
+    (:func:`_flats_and_walls`), freeform surfaces with the ball (:func:`_freeform_finishing`),
+    then every rapid made safe (:func:`_finished`).
 
     Parameters
     ----------
@@ -275,16 +296,15 @@ def plan_job(
 
     Returns
     -------
-    job : Job
-        Roughing, rest roughing with narrower flat end mills where roughing left more than
-        ``options.finish_engagement``, then waterline (if any steep walls) and raster
+    PlanJobResult
+        ``job``: roughing, rest roughing with narrower flat end mills where roughing left more
+        than ``options.finish_engagement``, then waterline (if any steep walls) and raster
         finishing, which never cut deeper than ``options.finish_engagement`` into what the
         roughing left. Every rapid below the safe height clears the in-process stock with
         the whole tool (:func:`cadcam.rest.safe_rapids`). ``job.parameters["unreached"]``
         lists the stock no tool could reach (:class:`cadcam.rest.Unreached` as dicts);
         ``job.parameters["rapids"]`` how many rapids were checked and made safe.
-    timings : PlanTimings
-        Wall time spent computing each operation [s].
+        ``timings``: wall time spent computing each operation [s].
 
     Raises
     ------
@@ -294,122 +314,193 @@ def plan_job(
     ToolpathError
         An operation cannot be computed.
     """
-    t_start = time.perf_counter()
-    triangles = np.asarray(part.triangles)
-    rough_tool, finish_tool = choose_tools(library, setup, options, triangles)
-    # A relief's flats include the base plane outside its boundary: the ball finishes reliefs.
-    faces = classify_faces(part) if options.by_faces and boundary is None else None
+    plan = _Planning.start(part, setup, library, options, progress, boundary)
+    holes, operations, stock = _holes_and_roughing(plan)
+    stock = _rest_roughing(plan, operations, stock)
+    left = _unreached(plan, stock)
+    if plan.faces is not None and stock is not None:
+        stock = _flats_and_walls(plan, operations, stock)
+        if not plan.faces.freeform:
+            return _finished(plan, part_name, operations, source_sha256, left, holes)
+    _freeform_finishing(plan, operations, stock)
+    return _finished(plan, part_name, operations, source_sha256, left, holes)
 
-    def stage_progress(stage: str):
+
+@dataclass
+class _Planning:
+    """One :func:`plan_job` call: its inputs, the tools chosen, and the clock every step reports to.
+
+    ``seconds`` collects (stage, wall time [s]) in the order the stages ran: every stage is timed,
+    so that what a plan reports is all the work it did."""
+
+    part: trimesh.Trimesh
+    setup: Setup
+    library: ToolLibrary
+    options: PlanOptions
+    progress: StageProgress | None
+    boundary: Boundary | None
+    triangles: np.ndarray
+    rough_tool: Tool
+    finish_tool: Tool
+    rough_cutting: CuttingData
+    finish_cutting: CuttingData
+    faces: FaceClasses | None
+    #: Where roughing may go, and every tool after it (None: anywhere): see :func:`_Planning.start`.
+    rough_within: Callable[[float], Any] | None
+    within: Callable[[float], Any] | None
+    seconds: list[tuple[str, float]]
+
+    @classmethod
+    def start(cls, part: trimesh.Trimesh, setup: Setup, library: ToolLibrary, options: PlanOptions,
+              progress: StageProgress | None, boundary: Boundary | None) -> "_Planning":
+        """Choose the tools and classify the faces (timed as ``tools and faces``)."""
+        t_start = time.perf_counter()
+        triangles = np.asarray(part.triangles)
+        rough_tool, finish_tool = choose_tools(library, setup, options, triangles)
+        # A relief's flats include the base plane outside its boundary: the ball finishes reliefs.
+        faces = classify_faces(part) if options.by_faces and boundary is None else None
+        rough_cutting = library.cutting_data(rough_tool, setup.material)
+        finish_cutting = library.cutting_data(finish_tool, setup.material)
+        rough_within = boundary.centre_region if boundary is not None else None
+        # Every later tool keeps off the wall of uncut stock the roughing tool leaves at the boundary.
+        within = boundary.after_roughing(rough_tool.radius) if boundary is not None else None
+        return cls(part, setup, library, options, progress, boundary, triangles, rough_tool, finish_tool,
+                   rough_cutting, finish_cutting, faces, rough_within, within,
+                   [("tools and faces", time.perf_counter() - t_start)])
+
+    def stage_progress(self, stage: str) -> Callable[[int, int], None] | None:
+        progress = self.progress
         if progress is None:
             return None
         return lambda done, total: progress(stage, done, total)
 
-    rough_cutting = library.cutting_data(rough_tool, setup.material)
-    finish_cutting = library.cutting_data(finish_tool, setup.material)
+    def timed(self, stage: str, compute: Callable[[], T]) -> T:
+        t0 = time.perf_counter()
+        result = compute()
+        self.seconds.append((stage, time.perf_counter() - t0))
+        return result
+
+    def model(self, ops: list[Operation], cell: float | None = None) -> Simulation | None:
+        """The stock ``ops`` leave on a grid of ``cell`` [mm] (default the planning model's), None before
+        any cut; a relief's stock outside its boundary kept uncut."""
+        cell = _MODEL_CELL if cell is None else cell
+        t0 = time.perf_counter()
+        sim = stock_after(ops, self.setup, self.triangles, cell) if any(len(op.points) > 1 for op in ops) else None
+        if sim is not None and self.boundary is not None:
+            sim = keep_outside(sim, self.boundary, self.rough_tool.radius)
+        self.seconds.append(("stock model", time.perf_counter() - t0))
+        return sim
+
+
+def _holes_and_roughing(plan: _Planning) -> tuple[HolePlan | None, list[Operation], Simulation | None]:
+    """Drilled and helixed holes, then z-level roughing; the operations and the stock they leave."""
+    options, setup, part = plan.options, plan.setup, plan.part
+    t0 = time.perf_counter()
+    holes = plan_holes(part, setup, plan.library, plan.rough_tool, options.drilling, options.roughing.min_helix_diameter,
+                       options.roughing.allowance) if options.holes else None
+    plan.seconds.append(("holes", time.perf_counter() - t0))
+    rough = plan.timed("roughing", lambda: zlevel_roughing(part, setup, plan.rough_tool, plan.rough_cutting,
+                                                            options.roughing, progress=plan.stage_progress("roughing"),
+                                                            within=plan.rough_within))
+    # Drilled and helixed holes come first: the stock model below sees them.
+    operations = [*(holes.operations if holes is not None else ()), rough]
+    # What roughing left lets finishing descend by rapid through air instead of feeding from safe_z.
+    return holes, operations, plan.model(operations)
+
+
+def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulation | None) -> Simulation | None:
+    """Where roughing left more than the finishing engagement: the roughing tool again between its levels
+    (the terraces), then each narrower flat end mill in turn. Appends to ``operations``; the stock after."""
+    options, setup, part, library = plan.options, plan.setup, plan.part, plan.library
+    if not options.rest_roughing or stock is None:
+        return stock
+    allowance = options.roughing.allowance
+    limit = options.finish_engagement
+    within = plan.within
+    if (excess(stock, allowance) > limit).any():
+        # the terraces of the roughing levels, at a finer stepdown where more than the limit is left
+        terraces = dataclasses.replace(options.roughing, stepdown=options.terrace_stepdown)
+        op = plan.timed("terraces", lambda: zlevel_roughing(part, setup, plan.rough_tool, plan.rough_cutting, terraces,
+                                                             progress=plan.stage_progress("terraces"), rest=stock,
+                                                             rest_above=options.terrace_stepdown, within=within))
+        if len(op.points) > 1:
+            operations.append(op)
+            stock = plan.model(operations)
+    for tool in rest_tools(library, plan.rough_tool):
+        if not (excess(stock, allowance) > limit).any():
+            break
+        # The rest tool's own default stepdown and stepover (they scale with its diameter).
+        rest_options = dataclasses.replace(options.roughing, stepdown=None, stepover=None, helix_diameter=None,
+                                           min_helix_diameter=None)
+        cutting = library.cutting_data(tool, setup.material)
+        op = plan.timed(f"rest T{tool.number}", lambda: zlevel_roughing(
+            part, setup, tool, cutting, rest_options, progress=plan.stage_progress(f"rest T{tool.number}"),
+            rest=stock, rest_above=limit, within=within))
+        if len(op.points) > 1:
+            operations.append(op)
+            stock = plan.model(operations)
+    return stock
+
+
+def _unreached(plan: _Planning, stock: Simulation | None) -> tuple[Unreached, ...]:
+    """The stock no tool reaches (finishing leaves it alone), each warned of."""
+    t0 = time.perf_counter()
+    options = plan.options
+    left = unreached(stock, options.finish_engagement, options.roughing.allowance) if stock is not None else ()
+    plan.seconds.append(("unreached", time.perf_counter() - t0))
+    for u in left:
+        log.warning("no tool reaches %s; finishing leaves it alone", u.describe())
+    return tuple(left)
+
+
+def _flats_and_walls(plan: _Planning, operations: list[Operation], stock: Simulation) -> Simulation:
+    """Flats and walls with flat end mills (:func:`_finish_flats_and_walls`); the stock the ball starts
+    from after them (modelled again only if there are freeform surfaces left to finish)."""
+    setup = plan.setup
+    flat = flat_finish_tool(plan.library, float(setup.stock_max[2] - setup.floor_z))
+    if flat is not None:
+        before = len(operations)
+        _finish_flats_and_walls(plan, flat, stock, operations)
+        if len(operations) > before and plan.faces is not None and plan.faces.freeform:
+            stock = plan.model(operations)
+    return stock
+
+
+def _freeform_finishing(plan: _Planning, operations: list[Operation], stock: Simulation | None) -> None:
+    """The ball: waterline loops on steep surfaces, then the raster; without waterline, the tops of tall
+    walls first (:func:`cadcam.shank_clearance.upper_raster`). Appends to ``operations``."""
+    options, setup, part, faces, tool = plan.options, plan.setup, plan.part, plan.faces, plan.finish_tool
+    within, cutting = plan.within, plan.finish_cutting
+    limit = options.finish_engagement
+    engagement = EngagementLimit(depth=limit, allowance=options.roughing.allowance)
     raster_options = options.finishing
     if not options.waterline:
         # Without waterline the raster must cover steep walls too.
         raster_options = dataclasses.replace(raster_options, steep_angle=90.0)
-
-    # Every stage is timed, so that what a plan reports is all the work it did.
-    seconds: list[tuple[str, float]] = [("tools and faces", time.perf_counter() - t_start)]
-
-    def timed(stage: str, compute: Callable[[], T]) -> T:
-        t0 = time.perf_counter()
-        result = compute()
-        seconds.append((stage, time.perf_counter() - t0))
-        return result
-
-    def model(ops: list[Operation], cell: float = _MODEL_CELL):
-        t0 = time.perf_counter()
-        sim = stock_after(ops, setup, triangles, cell) if any(len(op.points) > 1 for op in ops) else None
-        if sim is not None and boundary is not None:
-            sim = keep_outside(sim, boundary, rough_tool.radius)
-        seconds.append(("stock model", time.perf_counter() - t0))
-        return sim
-
-    t0 = time.perf_counter()
-    holes = plan_holes(part, setup, library, rough_tool, options.drilling, options.roughing.min_helix_diameter,
-                       options.roughing.allowance) if options.holes else None
-    seconds.append(("holes", time.perf_counter() - t0))
-    rough_within = boundary.centre_region if boundary is not None else None
-    # Every later tool keeps off the wall of uncut stock the roughing tool leaves at the boundary.
-    within = boundary.after_roughing(rough_tool.radius) if boundary is not None else None
-    rough = timed("roughing", lambda: zlevel_roughing(part, setup, rough_tool, rough_cutting, options.roughing,
-                                                       progress=stage_progress("roughing"), within=rough_within))
-    # Drilled and helixed holes come first: the stock model below sees them.
-    operations = [*(holes.operations if holes is not None else ()), rough]
-    # What roughing left lets finishing descend by rapid through air instead of feeding from safe_z.
-    stock = model(operations)
-    allowance = options.roughing.allowance
-    limit = options.finish_engagement
-    if options.rest_roughing and stock is not None and (excess(stock, allowance) > limit).any():
-        # the terraces of the roughing levels, at a finer stepdown where more than the limit is left
-        terraces = dataclasses.replace(options.roughing, stepdown=options.terrace_stepdown)
-        op = timed("terraces", lambda: zlevel_roughing(part, setup, rough_tool, rough_cutting, terraces,
-                                                       progress=stage_progress("terraces"), rest=stock,
-                                                       rest_above=options.terrace_stepdown, within=within))
-        if len(op.points) > 1:
-            operations.append(op)
-            stock = model(operations)
-    if options.rest_roughing and stock is not None:
-        for tool in rest_tools(library, rough_tool):
-            if not (excess(stock, allowance) > limit).any():
-                break
-            # The rest tool's own default stepdown and stepover (they scale with its diameter).
-            rest_options = dataclasses.replace(options.roughing, stepdown=None, stepover=None, helix_diameter=None,
-                                               min_helix_diameter=None)
-            cutting = library.cutting_data(tool, setup.material)
-            op = timed(f"rest T{tool.number}", lambda: zlevel_roughing(
-                part, setup, tool, cutting, rest_options, progress=stage_progress(f"rest T{tool.number}"),
-                rest=stock, rest_above=limit, within=within))
-            if len(op.points) > 1:
-                operations.append(op)
-                stock = model(operations)
-    t0 = time.perf_counter()
-    left = unreached(stock, limit, allowance) if stock is not None else ()
-    seconds.append(("unreached", time.perf_counter() - t0))
-    for u in left:
-        log.warning("no tool reaches %s; finishing leaves it alone", u.describe())
-    engagement = EngagementLimit(depth=limit, allowance=allowance)
-    if faces is not None and stock is not None:
-        flat = flat_finish_tool(library, float(setup.stock_max[2] - setup.floor_z))
-        if flat is not None:
-            before = len(operations)
-            _finish_flats_and_walls(part, setup, library, flat, faces, stock, options, operations, timed, model,
-                                    stage_progress)
-            if len(operations) > before and faces.freeform:
-                stock = model(operations)
-        if not faces.freeform:
-            return _finished(part_name, setup, operations, source_sha256, options, rough_tool, finish_tool, left,
-                             triangles, seconds, faces, holes)
-    where = None if faces is None else faces.near((STEEP, SHALLOW), finish_tool.radius + 0.5)
+    where = None if faces is None else faces.near((STEEP, SHALLOW), tool.radius + 0.5)
     ball_options = options.finishing
     if faces is not None and options.freeform_scallop is not None:
         ball_options = dataclasses.replace(ball_options, scallop=options.freeform_scallop)
         raster_options = dataclasses.replace(raster_options, scallop=options.freeform_scallop)
     if options.waterline:
-        operations.append(timed("waterline", lambda: waterline_finishing(
-            part, setup, finish_tool, finish_cutting, ball_options,
-            progress=stage_progress("waterline"), stock=stock, limit=engagement, within=within, where=where)))
+        operations.append(plan.timed("waterline", lambda: waterline_finishing(
+            part, setup, tool, cutting, ball_options,
+            progress=plan.stage_progress("waterline"), stock=stock, limit=engagement, within=within, where=where)))
         # The raster comes after the waterline: where that left a wall's skin (a hole too small
         # for its loops), the raster must not take it in one deep pass either.
         if stock is not None and len(operations[-1].points) > 1:
-            stock = model(operations)
+            stock = plan.model(operations)
             engagement = EngagementLimit(depth=limit, allowance=options.finishing.allowance, grid_slack=False)
     if not options.waterline and stock is not None:
         # Every raster pass goes to full depth at once: first finish the tops of walls taller than the flutes.
-        op = timed("upper raster", lambda: upper_raster(part, setup, finish_tool, finish_cutting, raster_options,
-                                                        stock, engagement, stage_progress("upper raster")))
+        op = plan.timed("upper raster", lambda: upper_raster(part, setup, tool, cutting, raster_options,
+                                                             stock, engagement, plan.stage_progress("upper raster")))
         if op is not None:
             operations.append(op)
-            stock = model(operations)
-    operations.append(timed("raster", lambda: raster_finishing(
-        part, setup, finish_tool, finish_cutting, raster_options, progress=stage_progress("raster"), stock=stock,
+            stock = plan.model(operations)
+    operations.append(plan.timed("raster", lambda: raster_finishing(
+        part, setup, tool, cutting, raster_options, progress=plan.stage_progress("raster"), stock=stock,
         limit=engagement, within=within, where=where)))
-    return _finished(part_name, setup, operations, source_sha256, options, rough_tool, finish_tool, left, triangles,
-                     seconds, faces, holes)
 
 
 #: Grid spacing of the in-process stock model the operations are planned from [mm].
@@ -425,62 +516,62 @@ def _skin_cell(allowance: float) -> float:
     return float(min(_MODEL_CELL, max(_FINEST_SKIN_CELL, 0.8 * (allowance - WALL_HAIR))))
 
 
-def _finish_flats_and_walls(part, setup, library, flat, faces, stock, options, operations, timed, model,
-                            stage_progress) -> None:
+def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, operations: list[Operation]) -> None:
     """Flats and walls with ``flat``, then with each narrower flat end mill where stock is left.
 
     Appends the operations to ``operations``; ``stock`` is the model before them."""
+    setup, library, options, faces = plan.setup, plan.library, plan.options, plan.faces
     ff = options.flat_finish
     depth = float(setup.stock_max[2] - setup.floor_z)
     skin = _skin_cell(options.roughing.allowance)
     stale = False  # an operation was appended since ``stock`` was modelled
     for tool in [flat] + [t for t in rest_tools(library, flat) if t.length >= depth]:
         if stale:
-            stock, stale = model(operations, stock.grid.cell), False
+            stock, stale = plan.model(operations, stock.grid.cell), False
         # (A skin only the finer model below shows, with nothing else left beside it, is no
         # danger: no pass goes there.)
-        if not timed("rest check", lambda: left_on_flats_and_walls(stock, faces, tool.radius, ff.allowance,
-                                                                    ff.rest_above)).any():
+        if not plan.timed("rest check", lambda: left_on_flats_and_walls(stock, faces, tool.radius, ff.allowance,
+                                                                         ff.rest_above)).any():
             break
         # A tool whose flutes are shorter than the part is deep takes a wall in steps, at levels
         # where the stock model shows the skin roughing left on it; if the model missed it, the
         # flank pass at the floor would take the whole wall at once, shank in the skin.
         cell = _MODEL_CELL if tool.flute_length >= depth else skin
         if abs(stock.grid.cell - cell) > 1e-9:
-            stock = model(operations, cell)
+            stock = plan.model(operations, cell)
         cutting = library.cutting_data(tool, setup.material)
         stage = f"flats+walls T{tool.number}"
-        op = timed(stage, lambda: flat_wall_finishing(part, setup, tool, cutting, faces, stock, options.flat_finish,
-                                                      progress=stage_progress(stage)))
+        op = plan.timed(stage, lambda: flat_wall_finishing(plan.part, setup, tool, cutting, faces, stock,
+                                                           options.flat_finish, progress=plan.stage_progress(stage)))
         if len(op.points) > 1:
             operations.append(op)
             stale = True
 
 
-def _finished(part_name, setup, operations, source_sha256, options, rough_tool, finish_tool, left, triangles,
-              seconds, faces: FaceClasses | None, holes):
+def _finished(plan: _Planning, part_name: str, operations: list[Operation], source_sha256: str,
+              left: tuple[Unreached, ...], holes: HolePlan | None) -> PlanJobResult:
     """The job from its operations: empty ones dropped, every rapid made safe."""
     dropped = [op.kind for op in operations if len(op.points) < 2]
     if dropped:
         log.info("nothing to cut for %s: dropped", ", ".join(dropped))
     operations = [op for op in operations if len(op.points) >= 2]
     t0 = time.perf_counter()
-    safe_ops, checked, fixed = safe_rapids(operations, setup, triangles)
-    seconds.append(("rapid check", time.perf_counter() - t0))
+    safe_ops, checked, fixed = safe_rapids(operations, plan.setup, plan.triangles)
+    plan.seconds.append(("rapid check", time.perf_counter() - t0))
 
     job = Job(
         part_name=part_name,
-        setup=setup,
+        setup=plan.setup,
         operations=safe_ops,
         source_sha256=source_sha256,
         parameters={
-            **options.to_dict(),
-            "rough_tool": rough_tool.number,
-            "finish_tool": finish_tool.number,
+            **plan.options.to_dict(),
+            "rough_tool": plan.rough_tool.number,
+            "finish_tool": plan.finish_tool.number,
             "unreached": [u.to_dict() for u in left],
             "rapids": {"checked": checked, "made_safe": fixed},
             "holes": holes.to_dict() if holes is not None else {},
-            "faces": None if faces is None else faces.summary(),
+            "faces": None if plan.faces is None else plan.faces.summary(),
         },
     )
-    return job, PlanTimings(tuple(seconds))
+    return PlanJobResult(job, PlanTimings(tuple(plan.seconds)))

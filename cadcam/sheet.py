@@ -1,52 +1,23 @@
-"""The setup sheet: what the machinist (and later stages) need to run a program.
+"""The setup sheet of a posted job, and the setup and tool table a sheet describes (CAM's side, mm).
 
-``PART.setup.json`` sits beside ``PART.nc``. Other stages (verify, the robot planner,
-outside checkers) read it instead of the G-code. Format ``factory.setup/1``::
-
-    {
-      "format": "factory.setup/1",
-      "part": "bracket", "program": "bracket.nc", "dialect": "linuxcnc",
-      "source_sha256": "…",              # of the part mesh file
-      "units": "mm",
-      "work_origin": "top-front-left",   # X0 Y0 Z0 on the stock
-      "material": "aluminium",
-      "stock": {"min": [x, y, z], "max": [x, y, z], "size": [x, y, z]},   # work coordinates [mm]
-      "transform_mesh_to_work": [[4×4]],  # mesh file coordinates (scaled to mm) → work [mm]
-      "mesh_scale": 1.0,                  # mesh file units → mm
-      "safe_z": 5.0,                      # retract height [mm]
-      "floor_z": -22.5,                   # lowest feed [mm]: part bottom minus the breakthrough
-      "jaws": [{"name": "front jaw", "lo": [x, y, z], "hi": [x, y, z]}, …],   # vise boxes [mm, work];
-                                          # null: workholding unknown (older sheets)
-      "tools": [{"number": 1, "name": …, "shape": "flat", "diameter": 6.0,
-                 "corner_radius": 0.0, "flute_length": 18.0, "flutes": 3, "length": 30.0,
-                 "shank_diameter": 6.0,       # body between flutes and holder [mm]
-                 "holder": [{"diameter": 22.0, "length": 10.0, "top_diameter": 28.0}, …]}],
-                                              # from the gauge line up [mm]; sheets without
-                                              # them read as cadcam.model.DEFAULT_HOLDER
-      "operations": [{"name": "rough z-level", "kind": "roughing", "tool": 1,
-                      "spindle_rpm": …, "feed_mm_min": …, "allowance_mm": …,
-                      "cut_mm": …, "rapid_mm": …, "estimated_s": …}],
-      "estimated_cycle_s": …,
-      "unreached": [{"x": …, "y": …, "size_x": …, "size_y": …, "depth": …, "z_bottom": …}]
-    }
-
-``unreached`` lists stock no tool in the library could reach [mm, work coordinates]: the
-program leaves it, finishing does not enter it (see :func:`cadcam.rest.unreached`).
+The format itself, ``factory.setup/1``, is :class:`factory.core.setupsheet.SetupSheet`: the robot
+reads the same file (:func:`robotprog.frames.setup_sheet_to_cell`).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from cadcam.model import Job, Setup, Tool
+from cadcam.model import FixtureBox, Job, Setup, Tool
 from cadcam.post import Program
 from factory.core.errors import SetupError, clipped
+from factory.core.setupsheet import FORMAT, SetupSheet
 
-FORMAT = "factory.setup/1"
+__all__ = ["FORMAT", "SetupSheet", "read_setup_sheet", "setup_sheet"]
 
 
-def setup_sheet(job: Job, program: Program, program_name: str) -> dict[str, Any]:
-    """The setup sheet of ``job`` as posted to ``program`` (JSON-ready)."""
+def setup_sheet(job: Job, program: Program, program_name: str) -> SetupSheet:
+    """The setup sheet of ``job`` as posted to ``program`` (named ``program_name``) [mm]."""
     s = job.setup
     estimates = {e.name: e for e in program.estimates}
     operations = []
@@ -66,50 +37,54 @@ def setup_sheet(job: Job, program: Program, program_name: str) -> dict[str, Any]
                 "estimated_s": round(e.cut_time + e.rapid_time, 1) if e else None,
             }
         )
-    return {
-        "format": FORMAT,
-        "part": job.part_name,
-        "program": program_name,
-        "dialect": program.dialect,
-        "source_sha256": job.source_sha256,
-        "units": "mm",
-        "work_origin": s.origin,
-        "material": s.material,
-        "stock": {"min": s.stock_min.tolist(), "max": s.stock_max.tolist(), "size": s.stock_size.tolist()},
-        "transform_mesh_to_work": s.transform_mesh_to_work.tolist(),
-        "mesh_scale": s.mesh_scale,
-        "safe_z": s.safe_z,
-        "clearance": s.clearance,
-        # workholding: the lowest feed, and the vise's jaws and parallels as boxes [mm, work]
-        "floor_z": s.floor_z,
-        "jaws": None if s.jaws is None else [b.to_dict() for b in s.jaws],
-        "tools": [t.to_dict() for t in job.tools],
-        "operations": operations,
-        "estimated_cycle_s": round(program.total_time, 1),
-        "gcode_lines": program.line_count,
-        "unreached": list(job.parameters.get("unreached", [])),
+    return SetupSheet(
+        part=job.part_name,
+        program=program_name,
+        dialect=program.dialect,
+        source_sha256=job.source_sha256,
+        work_origin=s.origin,
+        material=s.material,
+        stock_min=s.stock_min,
+        stock_max=s.stock_max,
+        transform_mesh_to_work=s.transform_mesh_to_work,
+        mesh_scale=s.mesh_scale,
+        safe_z=s.safe_z,
+        clearance=s.clearance,
+        floor_z=s.floor_z,
+        jaws=None if s.jaws is None else tuple(b.to_dict() for b in s.jaws),
+        tools=tuple(t.to_dict() for t in job.tools),
+        operations=tuple(operations),
+        estimated_cycle_s=round(program.total_time, 1),
+        gcode_lines=program.line_count,
+        unreached=tuple(job.parameters.get("unreached", [])),
         # a relief (cadcam.relief): what was found, its floor and the boundary the tools kept within
-        **({"relief": job.parameters["relief"]} if "relief" in job.parameters else {}),
-    }
+        relief=job.parameters.get("relief"),
+    )
 
 
-def read_setup_sheet(data: Any, source: str | None = None) -> tuple[Setup, dict[int, Tool]]:
-    """The setup and tool table a setup sheet describes.
+def read_setup_sheet(data: SetupSheet | Any, source: str | None = None) -> tuple[Setup, dict[int, Tool]]:
+    """The setup and tool table a setup sheet describes: a :class:`SetupSheet`, or its JSON document.
 
     Raises
     ------
     SetupError
         Not a ``factory.setup/1`` document, or a field is missing or malformed.
     """
-    if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise SetupError(f"not a factory setup sheet (expected format {FORMAT!r})", source=source)
+    sheet = data if isinstance(data, SetupSheet) else SetupSheet.from_json(data, source)
     try:
-        # The sheet names two fields for readers outside factory; the rest are Setup's own.
-        setup = Setup.from_dict(
-            {**data, "stock_min": data["stock"]["min"], "stock_max": data["stock"]["max"],
-             "origin": data.get("work_origin", "top-front-left")}
+        setup = Setup(
+            stock_min=sheet.stock_min,
+            stock_max=sheet.stock_max,
+            transform_mesh_to_work=sheet.transform_mesh_to_work,
+            mesh_scale=sheet.mesh_scale,
+            origin=sheet.work_origin,  # type: ignore[arg-type]
+            material=sheet.material,
+            safe_z=sheet.safe_z,
+            clearance=sheet.clearance,
+            floor_z=sheet.floor_z,
+            jaws=None if sheet.jaws is None else tuple(FixtureBox.from_dict(dict(b)) for b in sheet.jaws),
         )
-        tools = {int(t["number"]): Tool.from_dict(t) for t in data["tools"]}
+        tools = {int(t["number"]): Tool.from_dict(dict(t)) for t in sheet.tools}
     except (KeyError, TypeError, ValueError) as e:
         raise SetupError(f"malformed setup sheet: {type(e).__name__}: {clipped(str(e))}", source=source) from None
     return setup, tools

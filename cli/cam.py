@@ -1,9 +1,15 @@
-"""Command-line options of the CAM commands (`factory toolpath`, `factory plan`), defined once."""
+"""Command-line options of the CAM commands (`factory toolpath`, `factory plan`), defined once: :class:`CamFlags`."""
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+import inspect
+import typing
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any, TypeVar
 
 import typer
 
@@ -15,7 +21,9 @@ from factory.cam import (ALLOWANCE, CELL, FINISH_TOOL, HOLDING, MATERIAL, ORIGIN
 from factory.core.errors import SetupError
 
 __all__ = ["ALLOWANCE", "CELL", "FINISH_TOOL", "HOLDING", "MATERIAL", "ORIGIN", "ROUGH_TOOL", "SCALLOP", "UNITS",
-           "cam_request"]
+           "CamFlags", "cam_options", "cam_request"]
+
+C = TypeVar("C", bound=Callable[..., Any])
 
 ToolsOpt = Annotated[Path | None, typer.Option("--tools", help="Tool library YAML (default: fixtures/tools.yaml).", exists=True, dir_okay=False)]
 StockOpt = Annotated[str | None, typer.Option("--stock", help="Stock size X,Y,Z [mm]; default: part box + 2 mm sides, 1 mm top, the holding allowance below.")]
@@ -34,6 +42,68 @@ FloorOpt = Annotated[float, typer.Option("--floor", help="Relief (open surface) 
 BoundaryOpt = Annotated[str, typer.Option("--boundary", help="Relief only: the tool inside, centre on, or outside the footprint's outline: inside, on or outside.")]
 FLOOR = ReliefOptions.floor
 BOUNDARY = ReliefOptions.boundary
+
+
+@dataclass(frozen=True)
+class CamFlags:
+    """The CAM options of one command line, defined once for every command that plans toolpaths.
+
+    A command takes them as one parameter ``cam_flags: CamFlags`` and is decorated with
+    :func:`cam_options`, which gives it each field as its own option (``--tools``, ``--stock``, ...).
+    Lengths in millimetres.
+    """
+
+    tools: ToolsOpt = None
+    stock: StockOpt = None
+    holding: HoldingOpt = HOLDING
+    material: MaterialOpt = MATERIAL
+    units: UnitsOpt = UNITS
+    origin: OriginOpt = ORIGIN
+    rough_tool: RoughToolOpt = ROUGH_TOOL
+    finish_tool: FinishToolOpt = FINISH_TOOL
+    allowance: AllowanceOpt = ALLOWANCE
+    scallop: ScallopOpt = SCALLOP
+    stepdown: StepdownOpt = None
+    waterline: WaterlineOpt = True
+    floor: FloorOpt = FLOOR
+    boundary: BoundaryOpt = BOUNDARY
+
+    def request(self, part: Path, cell: Path | None) -> CamRequest:
+        """The request for ``part`` held in ``cell``'s vise (see :func:`cam_request`)."""
+        return cam_request(part, self.tools, self.stock, self.material, self.units, self.origin, self.rough_tool,
+                           self.finish_tool, self.allowance, self.scallop, self.stepdown, self.waterline, self.holding,
+                           cell, self.floor, self.boundary)
+
+
+def cam_options(command: C) -> C:
+    """Give ``command`` the options of :class:`CamFlags` in place of its parameter ``cam_flags: CamFlags``.
+
+    Typer reads a command's options from its signature: the one the returned function shows has each
+    field of :class:`CamFlags` where ``cam_flags`` stood; called with them, it calls ``command`` with
+    them gathered into ``cam_flags``.
+    """
+    signature = inspect.signature(command, eval_str=True)
+    if "cam_flags" not in signature.parameters:
+        raise TypeError(f"{command.__name__} has no parameter cam_flags: CamFlags")
+    hints = typing.get_type_hints(CamFlags, include_extras=True)
+    names = [f.name for f in dataclasses.fields(CamFlags)]
+    group = [inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=f.default, annotation=hints[f.name])
+             for f in dataclasses.fields(CamFlags)]
+    params: list[inspect.Parameter] = []
+    for p in signature.parameters.values():
+        if p.name == "cam_flags":
+            params += group
+        else:
+            params.append(p.replace(kind=inspect.Parameter.KEYWORD_ONLY))
+
+    @functools.wraps(command)
+    def with_cam(**kwargs: Any) -> Any:
+        flags = CamFlags(**{n: kwargs.pop(n) for n in names})
+        return command(**kwargs, cam_flags=flags)
+
+    with_cam.__signature__ = signature.replace(parameters=params)  # type: ignore[attr-defined]
+    with_cam.__annotations__ = {p.name: p.annotation for p in params}
+    return with_cam  # type: ignore[return-value]
 
 
 def cam_request(part: Path, tools: Path | None, stock: str | None, material: str, units: Units, origin: Origin,

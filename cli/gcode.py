@@ -43,7 +43,7 @@ def write_program(job: Job, output: Path, options: PostOptions, overwrite: bool)
     sheet = setup_sheet(job, program, output.name)
     if table is not None:
         write_text(tool_table_path(output), table, overwrite=overwrite)
-    write_text(sheet_path, json.dumps(sheet, indent=2) + "\n", overwrite=overwrite)
+    write_text(sheet_path, json.dumps(sheet.to_json(), indent=2) + "\n", overwrite=overwrite)
     write_text(output, program.text, overwrite=overwrite)
     return program, sheet_path
 

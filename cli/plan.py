@@ -21,23 +21,11 @@ _UNREACHED_SHOWN = 5
 
 
 @reports_errors
+@cam.cam_options
 def plan(
     part: Annotated[Path, typer.Argument(help="Part mesh: STL, OBJ, 3MF or PLY.", dir_okay=False)],
     out_dir: Annotated[Path, typer.Option("-o", "--output-dir", help="Folder for all outputs.", file_okay=False)] = Path("."),
-    tools: cam.ToolsOpt = None,
-    stock: cam.StockOpt = None,
-    holding: cam.HoldingOpt = cam.HOLDING,
-    material: cam.MaterialOpt = cam.MATERIAL,
-    units: cam.UnitsOpt = cam.UNITS,
-    origin: cam.OriginOpt = cam.ORIGIN,
-    rough_tool: cam.RoughToolOpt = cam.ROUGH_TOOL,
-    finish_tool: cam.FinishToolOpt = cam.FINISH_TOOL,
-    allowance: cam.AllowanceOpt = cam.ALLOWANCE,
-    scallop: cam.ScallopOpt = cam.SCALLOP,
-    stepdown: cam.StepdownOpt = None,
-    waterline: cam.WaterlineOpt = True,
-    floor: cam.FloorOpt = cam.FLOOR,
-    boundary: cam.BoundaryOpt = cam.BOUNDARY,
+    cam_flags: cam.CamFlags = cam.CamFlags(),
     post: PostOpt = PlanRequest.post,
     arc_tolerance: ArcTolOpt = PlanRequest.arc_tolerance,
     grid: Annotated[float, typer.Option("--grid", help="Verify grid spacing [mm].", min=0.01)] = PlanRequest.grid,
@@ -58,8 +46,7 @@ def plan(
     finds a gouge or a rapid crash.
     """
     setup_logging(quiet)
-    req = cam.cam_request(part, tools, stock, material, units, origin, rough_tool, finish_tool, allowance, scallop,
-                          stepdown, waterline, holding, robot_cell, floor, boundary)
+    req = cam_flags.request(part, robot_cell)
     if lang not in PROGRAM_SUFFIX:
         raise typer.BadParameter(f"expected one of {', '.join(PROGRAM_SUFFIX)}, got {lang!r}", param_hint="--lang")
     request = PlanRequest(req, post=post, arc_tolerance=arc_tolerance, grid=grid, cell=robot_cell, robot=robot,

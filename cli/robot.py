@@ -52,7 +52,8 @@ def robot(
         if part is not None:
             loaded = load_part(part, units=units_of_scale(setup.mesh_scale, str(setup_path)))
             vertices = np.asarray(loaded.mesh.vertices) / float(setup.mesh_scale)
-    cell, world, plan = plan_cell(cell_path, sheet, str(setup_path), vertices, watch, setups=setups)
+    planned = plan_cell(cell_path, sheet, str(setup_path), vertices, watch, setups=setups)
+    cell, world, plan = planned.cell, planned.world, planned.plan
     posted = post_program(lang, program, cell, world, plan) if program is not None else None
     with watch("write"):
         for path, text in (posted.texts if posted else {}).items():

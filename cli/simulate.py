@@ -1,12 +1,12 @@
 """``factory simulate [ORDERS] --mcap out.mcap``: the cell runs orders, much faster than real time.
 
-The work is :func:`factory.simulation.run_cell`; this command reads the orders, runs it, and writes
-the MCAP log with a Foxglove layout beside it, the Gantt chart and the summary.
+The work, with the MCAP log, its Foxglove layout and the Gantt chart, is
+:func:`factory.production.simulate_orders`; this command turns the options into its request, binds
+the live view, and prints the summary.
 """
 
 from __future__ import annotations
 
-import contextlib
 from pathlib import Path
 from typing import Annotated
 
@@ -14,22 +14,13 @@ import typer
 
 from cli.common import EXIT_FINDINGS, JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, \
     setup_logging, stderr
-from factory.core.atomic import check_writable, write_bytes, write_text
-from factory.catalog import sha256_file
-from factory.foxglove import layout_json
-from factory.live import LiveView
-from factory.pictures import png_bytes
-from factory.core.progress import Stopwatch
-from factory.record import Record
 from factory.core.resources import FIXTURES
-from factory.simulation import ROBOT_RATE_HZ, PartAssets, run_cell, write_cell_log
-from robotprog.cell import load_cell
-from robotprog.cellsim import FaultModel, SimulationResult
-from robotprog.gantt import activity_chart
-from robotprog.orders import read_orders
+from factory.live import LiveView
+from factory.production import SAMPLE_ORDERS, SimulateRequest, simulate_orders
+from factory.simulation import ROBOT_RATE_HZ
+from robotprog.cellsim import SimulationResult
 
-#: Orders ``factory simulate`` runs without an ORDERS argument.
-SAMPLE_ORDERS = FIXTURES.parent / "samples" / "orders.yaml"
+__all__ = ["SAMPLE_ORDERS", "simulate", "summary_text"]
 
 
 def _pct(share: float | None) -> str:
@@ -82,75 +73,26 @@ def simulate(
     setup_logging(quiet)
     if fault_rate is not None and faults is None:
         raise typer.BadParameter("needs --faults SEED", param_hint="--fault-rate")
-    orders = read_orders(orders_path)
-    layout = mcap.with_suffix(".layout.json") if mcap is not None else None
-    for p in (mcap, layout, png):
-        if p is not None:
-            check_writable(p, overwrite)
-    model = FaultModel()
-    if faults is not None:
-        model = FaultModel.default(faults) if fault_rate is None else \
-            FaultModel(fault_rate, fault_rate, fault_rate, fault_rate, seed=faults)
-    watch = Stopwatch()
+    request = SimulateRequest(orders_path, catalog=catalog, cell=cell_path, camera=camera_path, tools=tools,
+                              faults=faults, fault_rate=fault_rate, db=db, robot_rate_hz=robot_rate, mcap=mcap,
+                              png=png, overwrite=overwrite)
+    orders = request.checked()
     # Bound before any work, so a port in use fails at once; it streams once the run is simulated.
     live = LiveView(serve, host=host, speed=speed) if serve is not None else None
     if live is not None and not quiet:
         stderr.print(f"live view: ws://{host}:{live.port} (Foxglove: open connection, Foxglove WebSocket)",
                      highlight=False, markup=False)
-    record = Record(db) if db is not None else None  # an unreachable record fails before any planning
-    recorder = None
-    if record is not None:
-        recorder = record.recorder(cell=load_cell(cell_path).name, orders=orders, orders_file=str(orders_path),
-                                   orders_sha256=sha256_file(orders_path), faults_seed=faults)
     with progress_bars(quiet) as bars:
-        try:
-            run = run_cell(orders, catalog=catalog, cell_path=cell_path, camera_path=camera_path, tools=tools,
-                           faults=model, progress=bars, events=recorder.begin if recorder else None)
-            if recorder is not None:
-                recorder.finish(run.result)
-        finally:
-            if recorder is not None:
-                recorder.close()
-                record.close()
-        watch.seconds.update(run.seconds)
-        result, assets, ready = run.result, run.assets, run.ready
-        counts: dict[str, int] = {}
-        if mcap is not None or live is not None:
-            with watch("write"), (live or contextlib.nullcontext()):
-                inputs = {str(orders_path): sha256_file(orders_path), str(cell_path): sha256_file(cell_path)}
-                inputs.update({str(a.part): a.entry.summary["catalog"]["mesh_sha256"] for a in ready.values()})
-                counts = write_cell_log(mcap, result, ready, orders, run.cell, run.world, run.stations,
-                                        overwrite=overwrite, inputs=inputs,
-                                        parameters={"faults_seed": faults, "catalog": str(catalog),
-                                                    "robot_rate_hz": robot_rate,
-                                                    **({"db": record.shown, "db_run": recorder.run_id}
-                                                       if record is not None else {})},
-                                        live=live, robot_rate_hz=robot_rate)
-                if layout is not None:
-                    write_text(layout, layout_json(), overwrite=overwrite)
-    if png is not None:
-        write_bytes(png, png_bytes(activity_chart(result)), overwrite=overwrite)
-    doc = result.to_dict()
-    doc["parts"] = [
-        {"part": str(k[0]), "material": k[1],
-         **({"planned_now": v.planned_now, "plan": str(v.entry.summary_path),
-             "process_s": {f: None if getattr(v.process, f) is None else round(getattr(v.process, f), 3)
-                           for f in v.process.__dataclass_fields__}}
-            if isinstance(v, PartAssets) else {"error": v})}
-        for k, v in assets.items()]
-    doc["seconds"] = watch.rounded()
-    if mcap is not None:
-        doc["mcap"] = {"path": str(mcap), "layout": str(layout), "bytes": mcap.stat().st_size, "messages": counts}
-    if record is not None:
-        doc["db"] = {"url": record.shown, "run": recorder.run_id}
+        done = simulate_orders(request, orders=orders, live=live, progress=bars)
+    doc = done.summary
     if json_out:
         print_json(doc)
     elif not quiet:
-        stderr.print(summary_text(result, sum(watch.seconds.values())), highlight=False, markup=False)
+        stderr.print(summary_text(done.run.result, sum(done.seconds.values())), highlight=False, markup=False)
         if mcap is not None:
-            stderr.print(f"log: {mcap} ({mcap.stat().st_size / 1e6:.1f} MB), layout: {layout}",
+            stderr.print(f"log: {mcap} ({doc['mcap']['bytes'] / 1e6:.1f} MB), layout: {request.layout}",
                          highlight=False, markup=False)
-        if record is not None:
-            stderr.print(f"record: {record.shown}, run {recorder.run_id}", highlight=False, markup=False)
-    if any(o.outcome != "done" for o in result.outcomes):
+        if db is not None:
+            stderr.print(f"record: {doc['db']['url']}, run {doc['db']['run']}", highlight=False, markup=False)
+    if any(o.outcome != "done" for o in done.run.result.outcomes):
         raise typer.Exit(EXIT_FINDINGS)

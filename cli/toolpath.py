@@ -17,33 +17,20 @@ from factory.core.progress import Stopwatch
 
 
 @reports_errors
+@cam.cam_options
 def toolpath(
     part: Annotated[Path, typer.Argument(help="Part mesh: STL, OBJ, 3MF or PLY.", dir_okay=False)],
     output: Annotated[Path, typer.Option("-o", "--output", help="Toolpath MCAP to write.", dir_okay=False)],
     png: Annotated[Path | None, typer.Option("--png", help="Also write a top-view picture of the toolpaths.", dir_okay=False)] = None,
-    tools: cam.ToolsOpt = None,
-    stock: cam.StockOpt = None,
-    holding: cam.HoldingOpt = cam.HOLDING,
+    cam_flags: cam.CamFlags = cam.CamFlags(),
     cell: cam.CellOpt = cam.CELL,
-    material: cam.MaterialOpt = cam.MATERIAL,
-    units: cam.UnitsOpt = cam.UNITS,
-    origin: cam.OriginOpt = cam.ORIGIN,
-    rough_tool: cam.RoughToolOpt = cam.ROUGH_TOOL,
-    finish_tool: cam.FinishToolOpt = cam.FINISH_TOOL,
-    allowance: cam.AllowanceOpt = cam.ALLOWANCE,
-    scallop: cam.ScallopOpt = cam.SCALLOP,
-    stepdown: cam.StepdownOpt = None,
-    waterline: cam.WaterlineOpt = True,
-    floor: cam.FloorOpt = cam.FLOOR,
-    boundary: cam.BoundaryOpt = cam.BOUNDARY,
     overwrite: Overwrite = False,
     json_out: JsonFlag = False,
     quiet: Quiet = False,
 ) -> None:
     """Rough and finish a part; write the job and its views to an MCAP file."""
     setup_logging(quiet)
-    req = cam.cam_request(part, tools, stock, material, units, origin, rough_tool, finish_tool,
-                          allowance, scallop, stepdown, waterline, holding, cell, floor, boundary)
+    req = cam_flags.request(part, cell)
     check_writable(output, overwrite)
     if png is not None:
         check_writable(png, overwrite)

@@ -55,25 +55,25 @@ def verify(
         check_writable(p, overwrite)
     setup, tools, sheet = read_sheet(setup_path)
     first = op1_of(sheet, setup_path, after)
-    triangles = part_triangles(part, setup, sheet.get("source_sha256", ""))
+    triangles = part_triangles(part, setup, sheet.source_sha256)
     text = _read(program)
     options = VerifyOptions(cell=grid, gouge_tolerance=tolerance)
     before_ok = True
     with progress_bars(quiet) as bars:
         if first is None:
             sim, report = run_verify(text, str(program), setup, tools, triangles, options, bars,
-                                     operations=sheet.get("operations") or ())
+                                     operations=sheet.operations)
         else:
             program1, sheet1_path = first
             setup1, tools1, sheet1 = read_sheet(sheet1_path)
             sim1, report1 = run_verify(_read(program1), str(program1), setup1, tools1,
-                                       part_triangles(part, setup1, sheet1.get("source_sha256", "")), options, bars,
-                                       operations=sheet1.get("operations") or ())
+                                       part_triangles(part, setup1, sheet1.source_sha256), options, bars,
+                                       operations=sheet1.operations)
             before_ok = report1.ok
             if not quiet:
                 stderr.print(f"op 1 ({program1.name}): {report_text(report1)}", highlight=False, markup=False)
             sim, report = run_verify_after(sim1, flip_of(sheet, setup_path), text, str(program), setup, tools,
-                                           triangles, options, bars, operations=sheet.get("operations") or ())
+                                           triangles, options, bars, operations=sheet.operations)
     to_stdout = json_path is not None and str(json_path) == "-"
     write_verify_outputs(sim, report, png=png, json_path=None if to_stdout else json_path, mcap=mcap,
                          overwrite=overwrite, inputs={str(program): "", str(part): ""})

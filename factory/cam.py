@@ -18,7 +18,7 @@ import trimesh
 
 from cadcam.finishing import FinishingOptions
 from cadcam.mesh import PartMesh, load_part
-from cadcam.model import Job, Setup, ViseJaws
+from cadcam.model import Job, Setup, SoftJaws, ViseJaws
 from cadcam.plan import PlanOptions, plan_job
 from cadcam.relief import (FINISH_ENGAGEMENT, TERRACE_STEPDOWN, Boundary, ReliefOptions, machining_surface,
                            relief_setup)
@@ -30,8 +30,8 @@ from factory.mcaplog import McapLog, read_attachment
 from factory.core.progress import Progress, Stopwatch
 from factory.core.resources import FIXTURES
 from factory.views import job_messages
-from robotprog.cell import load_cell
-from robotprog.frames import vise_jaws
+from robotprog.cell import Vise, load_cell
+from robotprog.frames import MM_PER_M
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +51,24 @@ ALLOWANCE = 0.3  # [mm]
 SCALLOP = 0.005  # [mm]
 HOLDING: float | None = None  # [mm] None: the vise's grip depth + breakthrough + clearance (cadcam.setup)
 CELL = FIXTURES / "cell.yaml"  # whose vise holds the stock
+
+
+def vise_jaws(vise: Vise) -> ViseJaws:
+    """The cell's vise [m] as CAM's :class:`cadcam.model.ViseJaws` [mm]: the one place the cell's metres
+    become CAM's millimetres (the pose stays in the cell: CAM places the jaws around the stock, the
+    robot places the stock in the vise). Here in the pipeline because neither domain package may see
+    the other's type; the stock crosses the other way at :func:`robotprog.frames.setup_sheet_to_cell`."""
+    soft = vise.soft_jaws
+    return ViseJaws(
+        jaw_height=vise.jaw_height * MM_PER_M,
+        jaw_width=vise.jaw_width * MM_PER_M,
+        jaw_thickness=vise.jaw_thickness * MM_PER_M,
+        parallels_height=vise.parallels_height * MM_PER_M,
+        opening_min=vise.jaw_opening_min * MM_PER_M,
+        opening_max=vise.jaw_opening_max * MM_PER_M,
+        soft_jaws=None if soft is None else SoftJaws(soft.kind, soft.depth * MM_PER_M),
+    )
+
 
 @dataclasses.dataclass(frozen=True)
 class CamRequest:
@@ -172,7 +190,7 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
     if boundary is not None:  # shallow nearly everywhere: finer terraces, finishing engages less
         options = dataclasses.replace(options, finish_engagement=min(options.finish_engagement, FINISH_ENGAGEMENT),
                                       terrace_stepdown=min(options.terrace_stepdown, TERRACE_STEPDOWN))
-    job, timings = plan_job(
+    planned = plan_job(
         part_work,
         setup,
         library,
@@ -182,11 +200,12 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
         progress=progress,
         boundary=boundary,
     )
+    job = planned.job
     if boundary is not None and loaded.surface is not None:
         relief = {"found": loaded.surface.describe(), **loaded.surface.to_dict(), **req.relief.to_dict(),
                   "boundary": boundary.to_dict()}
         job = dataclasses.replace(job, parameters={**job.parameters, "relief": relief})
-    for stage, seconds in timings.seconds:  # a stage that ran more than once (the stock model) adds up
+    for stage, seconds in planned.timings.seconds:  # a stage that ran more than once (the stock model) adds up
         watch.seconds[stage] = watch.seconds.get(stage, 0.0) + seconds
     return PlannedPart(job, loaded, part_work, boundary)
 

@@ -50,13 +50,12 @@ from factory.mcaplog import McapLog
 from factory.pictures import png_bytes
 from factory.core.progress import Progress, Stopwatch
 from factory.core.resources import FIXTURES
-from factory.tending import log_tending, plan_cell
+from factory.core.setupsheet import SetupSheet
+from factory.tending import CellPlan, log_tending, plan_cell
 from factory.verify import log_simulation, run_verify, run_verify_after, write_verify_outputs
-from robotprog.cell import Cell, load_cell
-from robotprog.collision import CollisionWorld
+from robotprog.cell import load_cell
 from robotprog.frames import check_stock_fits, setup_sheet_to_cell
 from robotprog.programs import PostedProgram, post_program
-from robotprog.tending import TendingPlan
 
 log = logging.getLogger(__name__)
 
@@ -179,13 +178,11 @@ class PlanRequest:
 
 
 @dataclasses.dataclass(frozen=True)
-class Tending:
-    """The robot's load and unload of one part: the cell, its collision world, the timed plan,
-    and the posted robot program (its texts keyed by file name: KRL has a ``.src`` and a ``.dat``)."""
+class Tending(CellPlan):
+    """The robot's load and unload of one part (the cell, its collision world, the timed plan: a
+    :class:`~factory.tending.CellPlan`) and the posted robot program (its texts keyed by file name:
+    KRL has a ``.src`` and a ``.dat``)."""
 
-    cell: Cell
-    world: CollisionWorld
-    plan: TendingPlan
     program: PostedProgram
 
     @property
@@ -206,7 +203,7 @@ class SecondOp:
         The part in op-2 work coordinates [mm].
     program : Program
         Posted in work offset G55.
-    setup_sheet : dict
+    setup_sheet : SetupSheet
         ``PART.op2.setup.json``: naming op 1's program and sheet it runs after.
     simulation, report : Simulation, VerifyReport
         Its verify, from op 1's simulated stock turned over.
@@ -215,7 +212,7 @@ class SecondOp:
     job: Job
     part_work: trimesh.Trimesh
     program: Program
-    setup_sheet: dict[str, Any]
+    setup_sheet: SetupSheet
     simulation: Simulation
     report: VerifyReport
 
@@ -231,8 +228,8 @@ class PartPlan:
         The CAM job with the part mesh it was computed for.
     program : Program
         The posted G-code and its time estimate.
-    setup_sheet : dict
-        The setup sheet document (``PART.setup.json``).
+    setup_sheet : SetupSheet
+        The setup sheet (``PART.setup.json``).
     tending : Tending or None
         The robot's load and unload, None when planned without a robot.
     simulation : Simulation
@@ -248,7 +245,7 @@ class PartPlan:
     request: PlanRequest
     planned: PlannedPart
     program: Program
-    setup_sheet: dict[str, Any]
+    setup_sheet: SetupSheet
     tending: Tending | None
     simulation: Simulation
     report: VerifyReport
@@ -344,7 +341,7 @@ class PartPlan:
         """Every output but the summary, into a fresh folder."""
         req, planned, tending = self.request, self.planned, self.tending
         job = planned.job
-        write_text(outputs["setup_sheet"], json.dumps(self.setup_sheet, indent=2) + "\n")
+        write_text(outputs["setup_sheet"], json.dumps(self.setup_sheet.to_json(), indent=2) + "\n")
         write_text(outputs["program"], self.program.text)
         if "tool_table" in outputs:  # one for op 1's and op 2's programs: both number the library's tools alike
             tools = [*job.tools, *(self.op2.job.tools if self.op2 is not None else ())]
@@ -356,7 +353,7 @@ class PartPlan:
                                                                job.part_name)))
         if self.op2 is not None:
             op2 = self.op2
-            write_text(outputs["setup_sheet_op2"], json.dumps(op2.setup_sheet, indent=2) + "\n")
+            write_text(outputs["setup_sheet_op2"], json.dumps(op2.setup_sheet.to_json(), indent=2) + "\n")
             write_text(outputs["program_op2"], op2.program.text)
             write_verify_outputs(op2.simulation, op2.report, png=outputs["verify_png_op2"],
                                  json_path=outputs["verify_json_op2"], mcap=None, overwrite=False, inputs={})
@@ -408,12 +405,11 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     outputs = req.outputs(Path("."))
     with watch("post"):
         program = post_process(job, post_options)
-        sheet = setup_sheet(job, program, outputs["program"].name)
-        sheet.update(op=1, work_offset="G54")
+        sheet = dataclasses.replace(setup_sheet(job, program, outputs["program"].name), op=1, work_offset="G54")
     tending = None
     verify_args = (program.text, str(outputs["program"]), job.setup, {t.number: t for t in job.tools},
                    np.asarray(planned.part_work.triangles), VerifyOptions(cell=req.grid))
-    verify_kwargs = dict(operations=sheet.get("operations") or ())
+    verify_kwargs = dict(operations=sheet.operations)
     background = None
     if req.robot:
         # Verification does not depend on the robot: it runs in a second process meanwhile (no
@@ -428,8 +424,8 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
             if planned.boundary is not None:  # a relief leaves in its block: the robot holds the block
                 vertices = block_corners(job.setup)
             try:
-                cell, world, tplan = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch,
-                                               setups=req.ops)
+                planned_cell = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch,
+                                         setups=req.ops)
             except PlanningError as e:
                 if asked_ops is not None or req.ops != 2:
                     raise
@@ -439,7 +435,8 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
                             req.cam.part, e.message)
                 req = dataclasses.replace(req, ops=1)
                 outputs = req.outputs(Path("."))
-                cell, world, tplan = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch)
+                planned_cell = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch)
+            cell, world, tplan = planned_cell.cell, planned_cell.world, planned_cell.plan
             with watch("robot program"):
                 tending = Tending(cell, world, tplan, post_program(req.lang, outputs["robot_program"], cell, world,
                                                                    tplan))
@@ -454,7 +451,8 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     op2 = None
     if req.ops == 2:
         op2 = _plan_op2(req, planned, sim, outputs, progress, watch)
-        sheet["next"] = {"program": outputs["program_op2"].name, "setup_sheet": outputs["setup_sheet_op2"].name}
+        sheet = dataclasses.replace(sheet, next={"program": outputs["program_op2"].name,
+                                                 "setup_sheet": outputs["setup_sheet_op2"].name})
     return PartPlan(req, planned, program, sheet, tending, sim, report, dict(watch.seconds), op2)
 
 
@@ -476,13 +474,13 @@ def _plan_op2(req: PlanRequest, planned: PlannedPart, op1_sim: Simulation, outpu
     with watch("op 2 post"):
         program2 = post_process(job2, PostOptions(dialect=req.post, arc_tolerance=req.arc_tolerance,
                                                   work_offset=WORK_OFFSET[2], program_number=1002))
-        sheet2 = setup_sheet(job2, program2, outputs["program_op2"].name)
-        sheet2.update(op2_sheet_fields(job2, outputs["program"].name, outputs["setup_sheet"].name))
+        sheet2 = dataclasses.replace(setup_sheet(job2, program2, outputs["program_op2"].name),
+                                     **op2_sheet_fields(job2, outputs["program"].name, outputs["setup_sheet"].name))
     with watch("op 2 verify"):
         sim2, report2 = run_verify_after(op1_sim, flip_transform(job1.setup), program2.text,
                                          str(outputs["program_op2"]), job2.setup, {t.number: t for t in job2.tools},
                                          np.asarray(part2.triangles), VerifyOptions(cell=req.grid), progress,
-                                         operations=sheet2.get("operations") or ())
+                                         operations=sheet2.operations)
     return SecondOp(job2, part2, program2, sheet2, sim2, report2)
 
 

@@ -31,6 +31,7 @@ Definitions (times in simulated seconds [s]):
 from __future__ import annotations
 
 import statistics
+from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
@@ -75,6 +76,7 @@ def cell_report(record: Record, runs: Sequence[int] | None = None) -> dict[str, 
 
 
 def _report(conn: sa.Connection, record: Record, wanted: Sequence[int] | None) -> dict[str, Any]:
+    """The report (see :func:`cell_report`): the chosen runs read, then each part of it computed."""
     all_runs = [dict(r._mapping) for r in conn.execute(sa.select(run_table).order_by(run_table.c.id))]
     known = {r["id"] for r in all_runs}
     if wanted:
@@ -82,44 +84,92 @@ def _report(conn: sa.Connection, record: Record, wanted: Sequence[int] | None) -
         if missing:
             raise RecordError(f"no run {missing[0]} in the record (runs: {', '.join(map(str, sorted(known))) or 'none'})",
                               source=record.shown)
-    ids = sorted(set(wanted)) if wanted else sorted(known)
+    ids = sorted(set(wanted) if wanted else known)
+    rows = _Rows.read(conn, ids)
+    runs_out, planned, downtime = _runs(all_runs, ids, rows)
+    units = rows.units
+    done = [u for u in units if u["outcome"] in SORTED]
+    made = [u for u in done if u["outcome"] in MADE]
+    good = sum(1 for u in made if u["outcome"] == "good")
+    operating = planned - downtime
+    ideal = sum(float(u["ideal_cycle_s"] or 0.0) for u in made)
+    availability, performance, quality = _ratio(operating, planned), _ratio(ideal, operating), _ratio(good, len(made))
+    oee = round(availability * performance * quality, 4) if None not in (availability, performance, quality) else None
+    return {
+        "record": record.shown,
+        "runs": runs_out,
+        "throughput": {"parts_good": good, "parts_made": len(made),
+                       "parts_rejected": sum(1 for u in made if u["outcome"] == "rejected"),
+                       "parts_scrap": sum(1 for u in done if u["outcome"] == "scrap"),
+                       "parts_failed": sum(1 for u in units if u["outcome"] == "failed"),
+                       "planned_s": round(planned, 3),
+                       "parts_per_hour": round(3600.0 * good / planned, 3) if planned > 0 else 0.0},
+        "oee": {"availability": availability, "performance": performance, "quality": quality, "oee": oee,
+                "planned_s": round(planned, 3), "downtime_s": round(downtime, 3), "operating_s": round(operating, 3),
+                "ideal_s": round(ideal, 3)},
+        "cycle_time": _cycle_times(done),
+        "alarms": _alarm_pareto(rows.alarms),
+        "parts": _parts(rows),
+    }
 
-    def where(table):
-        return table.c.run_id.in_(ids)
 
-    last_event: dict[int, float] = {}
-    for table, column in ((job_state, job_state.c.time_s), (robot_move, robot_move.c.end_s),
-                          (job_response, job_response.c.end_s)):
-        for run_id, t in conn.execute(sa.select(table.c.run_id, sa.func.max(column)).where(where(table))
-                                      .group_by(table.c.run_id)):
-            last_event[run_id] = max(last_event.get(run_id, 0.0), float(t or 0.0))
-    units = [dict(r._mapping) for r in conn.execute(
-        sa.select(part_unit, work_order.c.order_ref, work_order.c.part, work_order.c.material,
-                  operation.c.ideal_cycle_s)
-        .join(work_order, part_unit.c.work_order_id == work_order.c.id)
-        .join(operation, sa.and_(operation.c.work_order_id == work_order.c.id, operation.c.sequence == 1),
-              isouter=True)
-        .where(where(part_unit)).order_by(part_unit.c.run_id, part_unit.c.job))]
-    alarms = [dict(r._mapping) for r in conn.execute(sa.select(alarm).where(where(alarm)).order_by(alarm.c.id))]
-    resets = {run_id: float(s or 0.0) for run_id, s in conn.execute(
-        sa.select(job_response.c.run_id, sa.func.sum(job_response.c.machine_time_s))
-        .where(where(job_response), job_response.c.kind == "reset").group_by(job_response.c.run_id))}
-    measurements = [dict(r._mapping) for r in conn.execute(
-        sa.select(measurement).where(where(measurement)).order_by(measurement.c.id))]
-    history = [dict(r._mapping) for r in conn.execute(
-        sa.select(job_state.c.part_unit_id, job_state.c.time_s, job_state.c.state, job_state.c.event,
-                  job_state.c.message).where(where(job_state), job_state.c.part_unit_id.is_not(None))
-        .order_by(job_state.c.id))]
-    orders = [dict(r._mapping) for r in conn.execute(
-        sa.select(work_order.c.run_id, work_order.c.outcome).where(where(work_order)))]
+@dataclass(frozen=True)
+class _Rows:
+    """What the record holds of the chosen runs, as rows (dicts by column name).
 
+    ``last_event``: per run, its last event's time [s]; ``resets``: per run, the machine time its
+    resets after alarms took [s]."""
+
+    last_event: dict[int, float]
+    units: list[dict[str, Any]]
+    alarms: list[dict[str, Any]]
+    resets: dict[int, float]
+    measurements: list[dict[str, Any]]
+    history: list[dict[str, Any]]
+    orders: list[dict[str, Any]]
+
+    @classmethod
+    def read(cls, conn: sa.Connection, ids: list[int]) -> "_Rows":
+        def where(table):
+            return table.c.run_id.in_(ids)
+
+        last_event: dict[int, float] = {}
+        for table, column in ((job_state, job_state.c.time_s), (robot_move, robot_move.c.end_s),
+                              (job_response, job_response.c.end_s)):
+            for run_id, t in conn.execute(sa.select(table.c.run_id, sa.func.max(column)).where(where(table))
+                                          .group_by(table.c.run_id)):
+                last_event[run_id] = max(last_event.get(run_id, 0.0), float(t or 0.0))
+        units = [dict(r._mapping) for r in conn.execute(
+            sa.select(part_unit, work_order.c.order_ref, work_order.c.part, work_order.c.material,
+                      operation.c.ideal_cycle_s)
+            .join(work_order, part_unit.c.work_order_id == work_order.c.id)
+            .join(operation, sa.and_(operation.c.work_order_id == work_order.c.id, operation.c.sequence == 1),
+                  isouter=True)
+            .where(where(part_unit)).order_by(part_unit.c.run_id, part_unit.c.job))]
+        alarms = [dict(r._mapping) for r in conn.execute(sa.select(alarm).where(where(alarm)).order_by(alarm.c.id))]
+        resets = {run_id: float(s or 0.0) for run_id, s in conn.execute(
+            sa.select(job_response.c.run_id, sa.func.sum(job_response.c.machine_time_s))
+            .where(where(job_response), job_response.c.kind == "reset").group_by(job_response.c.run_id))}
+        measurements = [dict(r._mapping) for r in conn.execute(
+            sa.select(measurement).where(where(measurement)).order_by(measurement.c.id))]
+        history = [dict(r._mapping) for r in conn.execute(
+            sa.select(job_state.c.part_unit_id, job_state.c.time_s, job_state.c.state, job_state.c.event,
+                      job_state.c.message).where(where(job_state), job_state.c.part_unit_id.is_not(None))
+            .order_by(job_state.c.id))]
+        orders = [dict(r._mapping) for r in conn.execute(
+            sa.select(work_order.c.run_id, work_order.c.outcome).where(where(work_order)))]
+        return cls(last_event, units, alarms, resets, measurements, history, orders)
+
+
+def _runs(all_runs: list[dict[str, Any]], ids: list[int], rows: _Rows) -> tuple[list[dict[str, Any]], float, float]:
+    """One summary per chosen run, and their planned time and downtime summed [s]."""
     runs_out = []
     planned = downtime = 0.0
     for r in (r for r in all_runs if r["id"] in ids):
         complete = r["ended_at"] is not None
-        span = float(r["makespan_s"]) if complete else last_event.get(r["id"], 0.0)
-        lost = sum(a["lost_s"] for a in alarms if a["run_id"] == r["id"]) + resets.get(r["id"], 0.0)
-        good = sum(1 for u in units if u["run_id"] == r["id"] and u["outcome"] == "good")
+        span = float(r["makespan_s"]) if complete else rows.last_event.get(r["id"], 0.0)
+        lost = sum(a["lost_s"] for a in rows.alarms if a["run_id"] == r["id"]) + rows.resets.get(r["id"], 0.0)
+        good = sum(1 for u in rows.units if u["run_id"] == r["id"] and u["outcome"] == "good")
         planned += span
         downtime += lost
         runs_out.append({
@@ -128,18 +178,14 @@ def _report(conn: sa.Connection, record: Record, wanted: Sequence[int] | None) -
             "factory_version": r["factory_version"], "orders_file": r["orders_file"],
             "faults_seed": r["faults_seed"], "planned_s": round(span, 3), "downtime_s": round(lost, 3),
             "parts_good": good, "parts_per_hour": round(3600.0 * good / span, 3) if span > 0 else 0.0,
-            "orders": {k: sum(1 for o in orders if o["run_id"] == r["id"] and o["outcome"] == k)
+            "orders": {k: sum(1 for o in rows.orders if o["run_id"] == r["id"] and o["outcome"] == k)
                        for k in ("done", "rejected", "failed")},
         })
+    return runs_out, planned, downtime
 
-    done = [u for u in units if u["outcome"] in SORTED]
-    made = [u for u in done if u["outcome"] in MADE]
-    good = sum(1 for u in made if u["outcome"] == "good")
-    operating = planned - downtime
-    ideal = sum(float(u["ideal_cycle_s"] or 0.0) for u in made)
-    availability, performance, quality = _ratio(operating, planned), _ratio(ideal, operating), _ratio(good, len(made))
-    oee = round(availability * performance * quality, 4) if None not in (availability, performance, quality) else None
 
+def _cycle_times(done: list[dict[str, Any]]) -> dict[str, Any]:
+    """Statistics and a histogram of the sorted parts' cycle times [s]."""
     cycles = [float(u["ended_s"]) - float(u["started_s"]) for u in done]
     cycle: dict[str, Any] = {"count": len(cycles)}
     if cycles:
@@ -150,7 +196,11 @@ def _report(conn: sa.Connection, record: Record, wanted: Sequence[int] | None) -
                       "max_s": round(float(arr.max()), 3),
                       "histogram": {"edges_s": [round(float(e), 3) for e in edges],
                                     "counts": [int(c) for c in counts]}})
+    return cycle
 
+
+def _alarm_pareto(alarms: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Alarms per kind, most frequent first, with the time each lost [s] and the cumulative share."""
     kinds: dict[str, dict[str, Any]] = {}
     for a in alarms:
         k = kinds.setdefault(a["kind"], {"kind": a["kind"], "count": 0, "lost_s": 0.0, "severity": a["severity"],
@@ -164,45 +214,32 @@ def _report(conn: sa.Connection, record: Record, wanted: Sequence[int] | None) -
     for k in sorted(kinds.values(), key=lambda k: (-k["count"], -k["lost_s"], k["kind"])):
         running += k["count"]
         pareto.append({**k, "lost_s": round(k["lost_s"], 3), "cumulative": round(running / len(alarms), 4)})
+    return pareto
 
+
+def _parts(rows: _Rows) -> list[dict[str, Any]]:
+    """One entry per serial: order, outcome, cycle time [s], its alarms, measurements and state history."""
     alarms_of: dict[int, list] = {}
-    for a in alarms:
+    for a in rows.alarms:
         alarms_of.setdefault(a["part_unit_id"], []).append(
             {"kind": a["kind"], "severity": a["severity"], "time_s": a["raised_s"], "recovery": a["recovery"],
              "outcome": a["outcome"]})
     measured: dict[int, list] = {}
-    for m in measurements:
+    for m in rows.measurements:
         measured.setdefault(m["part_unit_id"], []).append(
             {"characteristic": m["characteristic"], "unit": m["unit"], "nominal": m["nominal"],
              "tolerance": m["tolerance"], "actual": round(float(m["actual"]), 4), "passed": bool(m["passed"])})
     steps: dict[int, list] = {}
-    for h in history:
+    for h in rows.history:
         steps.setdefault(h["part_unit_id"], []).append(
             {"time_s": round(float(h["time_s"]), 3), "state": h["state"], "event": h["event"],
              "message": h["message"]})
-    parts = [{"serial": u["serial"], "run": u["run_id"], "order": u["order_ref"], "part": u["part"],
-              "material": u["material"], "outcome": u["outcome"], "started_s": round(float(u["started_s"]), 3),
-              "ended_s": None if u["ended_s"] is None else round(float(u["ended_s"]), 3),
-              "cycle_s": None if u["ended_s"] is None else round(float(u["ended_s"]) - float(u["started_s"]), 3),
-              "alarms": alarms_of.get(u["id"], []), "measurements": measured.get(u["id"], []),
-              "history": steps.get(u["id"], [])} for u in units]
-
-    return {
-        "record": record.shown,
-        "runs": runs_out,
-        "throughput": {"parts_good": good, "parts_made": len(made),
-                       "parts_rejected": sum(1 for u in made if u["outcome"] == "rejected"),
-                       "parts_scrap": sum(1 for u in done if u["outcome"] == "scrap"),
-                       "parts_failed": sum(1 for u in units if u["outcome"] == "failed"),
-                       "planned_s": round(planned, 3),
-                       "parts_per_hour": round(3600.0 * good / planned, 3) if planned > 0 else 0.0},
-        "oee": {"availability": availability, "performance": performance, "quality": quality, "oee": oee,
-                "planned_s": round(planned, 3), "downtime_s": round(downtime, 3), "operating_s": round(operating, 3),
-                "ideal_s": round(ideal, 3)},
-        "cycle_time": cycle,
-        "alarms": pareto,
-        "parts": parts,
-    }
+    return [{"serial": u["serial"], "run": u["run_id"], "order": u["order_ref"], "part": u["part"],
+             "material": u["material"], "outcome": u["outcome"], "started_s": round(float(u["started_s"]), 3),
+             "ended_s": None if u["ended_s"] is None else round(float(u["ended_s"]), 3),
+             "cycle_s": None if u["ended_s"] is None else round(float(u["ended_s"]) - float(u["started_s"]), 3),
+             "alarms": alarms_of.get(u["id"], []), "measurements": measured.get(u["id"], []),
+             "history": steps.get(u["id"], [])} for u in rows.units]
 
 
 def _pct(x: float | None) -> str:

@@ -373,7 +373,7 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
     shots = camera_shots(entry, mesh_mm, np.asarray(setup.stock_size), stations, camera_sha256)
     return PartAssets(
         part=part, material=material, entry=entry,
-        process=part_process(motion, float(sheet["estimated_cycle_s"]), shots,
+        process=part_process(motion, float(sheet.estimated_cycle_s), shots,
                              None if op2 is None else float(op2["estimated_cycle_s"]), reject_moves(summary)),
         motion=motion, transform_vise_to_work=in_vise.transform_vise_to_work, toolpath=toolpath,
         timeline=timeline, stock=tuple((t, v, f) for t, v, f, _ in stock), shots=shots, planned_now=planned_now,

@@ -10,6 +10,8 @@ program is :func:`robotprog.programs.post_program`. ``factory robot`` and ``fact
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +22,7 @@ from factory.core.errors import CellError
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, marker_array, ros_time, string_msg, tf_message,
                              transform_stamped, transforms_stamped)
 from factory.core.progress import Stopwatch
+from factory.core.setupsheet import SetupSheet
 from factory.scene import visuals_scene
 from robotprog.cell import Cell, load_cell
 from robotprog.collision import CollisionWorld, cell_static_boxes, collision_world
@@ -177,9 +180,28 @@ def _quat(t: np.ndarray) -> tuple[float, float, float, float]:
     return tuple(float(v) for v in Rotation.from_matrix(t[:3, :3]).as_quat())  # type: ignore[return-value]
 
 
-def plan_cell(cell_path: Path, sheet: dict[str, Any], sheet_source: str, part_vertices: np.ndarray | None,
-              watch: Stopwatch | None = None, setups: int = 1) -> tuple[Cell, CollisionWorld, TendingPlan]:
-    """Load the cell and plan loading and unloading the part a setup sheet describes.
+@dataclass(frozen=True)
+class CellPlan:
+    """The robot's load and unload of one part, planned in its cell (:func:`plan_cell`).
+
+    Attributes
+    ----------
+    cell : Cell
+        The cell as loaded from its file.
+    world : CollisionWorld
+        Its collision world, with the robot model loaded (reused to post and log the plan).
+    plan : TendingPlan
+        The timed moves [s], in the vise frame's metres.
+    """
+
+    cell: Cell
+    world: CollisionWorld
+    plan: TendingPlan
+
+
+def plan_cell(cell_path: Path, sheet: SetupSheet | Mapping[str, Any], sheet_source: str,
+              part_vertices: np.ndarray | None, watch: Stopwatch | None = None, setups: int = 1) -> CellPlan:
+    """Load the cell and plan loading and unloading the part a setup sheet (or its JSON) describes.
 
     ``part_vertices`` are the part mesh's vertices in mesh file units (the sheet's
     ``mesh_scale`` turns them into mm); without them unload grips the stock box. Wall times
@@ -203,4 +225,4 @@ def plan_cell(cell_path: Path, sheet: dict[str, Any], sheet_source: str, part_ve
             part_box = part_box_in_vise(setup_sheet_to_cell(sheet, sheet_source), part_vertices)
     with watch("robot plan"):
         plan = plan_tending(cell, sheet, part_box=part_box, world=world, source=sheet_source, setups=setups)
-    return cell, world, plan
+    return CellPlan(cell, world, plan)

@@ -19,6 +19,7 @@ from cadcam.verify import (Simulation, VerifyOptions, VerifyReport, deviation_im
                            simulate, simulate_flipped)
 from factory.core.atomic import write_bytes, write_text
 from factory.core.errors import SetupError
+from factory.core.setupsheet import SetupSheet
 from factory.pictures import png_bytes
 from factory.mcaplog import McapLog, marker_array, triangle_mesh_marker
 from factory.core.progress import Progress, stage_callback
@@ -26,14 +27,15 @@ from factory.views import heightfield_mesh
 
 log = logging.getLogger(__name__)
 
-def read_sheet(path: Path) -> tuple[Setup, dict[int, Tool], dict[str, Any]]:
-    """Setup, tool table and raw document of a setup sheet file."""
+def read_sheet(path: Path) -> tuple[Setup, dict[int, Tool], SetupSheet]:
+    """Setup, tool table and the sheet itself of a setup sheet file."""
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
         raise SetupError(f"cannot read setup sheet: {e}", source=path) from None
-    setup, tools = read_setup_sheet(data, source=str(path))
-    return setup, tools, data
+    sheet = SetupSheet.from_json(data, source=str(path))
+    setup, tools = read_setup_sheet(sheet, source=str(path))
+    return setup, tools, sheet
 
 
 def part_triangles(part: Path, setup: Setup, expected_sha256: str = "") -> np.ndarray:
@@ -87,7 +89,7 @@ def run_verify_after(before: Simulation, flip: np.ndarray, gcode_text: str, gcod
                             progress=stage_callback(progress, "verify op 2"), finishing=finishing)
 
 
-def op1_of(sheet: Mapping[str, Any], sheet_path: Path, after: Path | None) -> tuple[Path, Path] | None:
+def op1_of(sheet: SetupSheet, sheet_path: Path, after: Path | None) -> tuple[Path, Path] | None:
     """Op 1's program and setup sheet an op-2 setup sheet runs after, or None for an op-1 sheet.
 
     The op-2 sheet names them (``after``) relative to its own folder; ``after`` (the command
@@ -98,18 +100,18 @@ def op1_of(sheet: Mapping[str, Any], sheet_path: Path, after: Path | None) -> tu
     SetupError
         ``after`` given for a sheet that is not op 2's, or an op-2 sheet without ``after``.
     """
-    if sheet.get("op") != 2:
+    if sheet.op != 2:
         if after is not None:
             raise SetupError("--after is for op 2: this setup sheet is op 1's", source=sheet_path)
         return None
-    named = sheet.get("after")
+    named = sheet.after
     if not isinstance(named, Mapping) or not isinstance(named.get("setup_sheet"), str):
         raise SetupError("op-2 setup sheet does not name op 1's setup sheet ('after')", source=sheet_path)
     program = after if after is not None else sheet_path.parent / str(named.get("program", ""))
     return program, sheet_path.parent / named["setup_sheet"]
 
 
-def flip_of(sheet: Mapping[str, Any], sheet_path: Path) -> np.ndarray:
+def flip_of(sheet: SetupSheet, sheet_path: Path) -> np.ndarray:
     """The op-1 -> op-2 work transform an op-2 setup sheet records [mm], (4, 4).
 
     Raises
@@ -118,7 +120,7 @@ def flip_of(sheet: Mapping[str, Any], sheet_path: Path) -> np.ndarray:
         Missing or not a 4 x 4 matrix.
     """
     try:
-        t = np.asarray(sheet["flip"]["transform_op1_to_op2"], dtype=np.float64).reshape(4, 4)
+        t = np.asarray(sheet.flip["transform_op1_to_op2"], dtype=np.float64).reshape(4, 4)
     except (KeyError, TypeError, ValueError):
         raise SetupError("op-2 setup sheet lacks the flip transform ('flip.transform_op1_to_op2')",
                          source=sheet_path) from None

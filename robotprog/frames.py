@@ -1,10 +1,13 @@
-"""Where CAM's millimetres and the robot's metres cross: the ONE conversion, both ways.
+"""Where CAM's millimetres become the robot's metres: the stock and the part, read from the setup sheet.
 
 The CAM stages speak millimetres in work coordinates (X right, Y away from the operator,
 Z up the spindle; origin per the setup sheet's ``work_origin``). The robot planner speaks
-metres in ROS frames. :func:`setup_sheet_to_cell` (the stock and part, CAM → cell) and
-:func:`vise_jaws` (the vise, cell → CAM) are the only places that convert one into the
-other; nothing else in ``robotprog`` divides by 1000, nothing in ``cadcam`` multiplies.
+metres in ROS frames. :func:`setup_sheet_to_cell` is the one place the part crosses from
+CAM to the cell: it reads the setup sheet, the file format both sides share on the ground
+floor (:mod:`factory.core.setupsheet`, which says why it lives there), into
+:class:`StockInVise`. The vise crosses the other way, cell → CAM, in the pipeline
+(:func:`factory.cam.vise_jaws`), since only the pipeline may see both a cell and a CAM setup.
+Nothing else in ``robotprog`` converts the sheet's millimetres; nothing in ``cadcam`` multiplies.
 
 Convention (how the stock sits in the vise)
 -------------------------------------------
@@ -24,14 +27,13 @@ work origin therefore lies at ``(-sx/2, -sy/2, sz)`` in the vise frame, ``s`` th
 from __future__ import annotations
 
 from dataclasses import dataclass
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
-from cadcam.model import SoftJaws, ViseJaws
-from cadcam.sheet import read_setup_sheet
 from factory.core.errors import CellError
-from robotprog.cell import Vise
+from factory.core.setupsheet import SetupSheet
 
 #: Millimetres per metre: the CAM → robot unit factor.
 MM_PER_M = 1000.0
@@ -64,13 +66,13 @@ class StockInVise:
     mesh_scale_m: float
 
 
-def setup_sheet_to_cell(sheet: dict[str, Any], source: str | None = None) -> StockInVise:
+def setup_sheet_to_cell(sheet: SetupSheet | Mapping[str, Any], source: str | None = None) -> StockInVise:
     """Convert a setup sheet's stock box and part placement (mm, work) to metres in the vise frame.
 
     Parameters
     ----------
-    sheet : dict
-        A ``factory.setup/1`` setup sheet (``PART.setup.json`` loaded).
+    sheet : SetupSheet or dict
+        A ``factory.setup/1`` setup sheet, or its JSON document (``PART.setup.json`` loaded).
     source : str, optional
         File name for error messages.
 
@@ -79,33 +81,19 @@ def setup_sheet_to_cell(sheet: dict[str, Any], source: str | None = None) -> Sto
     SetupError
         Not a setup sheet, or malformed.
     """
-    setup, _tools = read_setup_sheet(sheet, source)
-    smin = np.asarray(setup.stock_min, dtype=float)
-    smax = np.asarray(setup.stock_max, dtype=float)
+    if not isinstance(sheet, SetupSheet):
+        sheet = SetupSheet.from_json(sheet, source)
+    smin = np.asarray(sheet.stock_min, dtype=float)
+    smax = np.asarray(sheet.stock_max, dtype=float)
     anchor_mm = np.array([(smin[0] + smax[0]) / 2, (smin[1] + smax[1]) / 2, smin[2]])
     t_vw = np.eye(4)
     t_vw[:3, 3] = -anchor_mm / MM_PER_M
-    t_mw = np.array(setup.transform_mesh_to_work, dtype=float)
+    t_mw = np.array(sheet.transform_mesh_to_work, dtype=float)
     t_mw[:3, 3] /= MM_PER_M
     out = [t_vw, (smin - anchor_mm) / MM_PER_M, (smax - anchor_mm) / MM_PER_M, (smax - smin) / MM_PER_M, t_mw]
     for a in out:
         a.setflags(write=False)
-    return StockInVise(*out, mesh_scale_m=float(setup.mesh_scale) / MM_PER_M)
-
-
-def vise_jaws(vise: Vise) -> ViseJaws:
-    """The cell's vise [m] as CAM's :class:`cadcam.model.ViseJaws` [mm] (the pose stays in the cell:
-    CAM places the jaws around the stock, the robot places the stock in the vise)."""
-    soft = vise.soft_jaws
-    return ViseJaws(
-        jaw_height=vise.jaw_height * MM_PER_M,
-        jaw_width=vise.jaw_width * MM_PER_M,
-        jaw_thickness=vise.jaw_thickness * MM_PER_M,
-        parallels_height=vise.parallels_height * MM_PER_M,
-        opening_min=vise.jaw_opening_min * MM_PER_M,
-        opening_max=vise.jaw_opening_max * MM_PER_M,
-        soft_jaws=None if soft is None else SoftJaws(soft.kind, soft.depth * MM_PER_M),
-    )
+    return StockInVise(*out, mesh_scale_m=float(sheet.mesh_scale) / MM_PER_M)
 
 
 def check_stock_fits(stock: StockInVise, jaw_opening_min: float, jaw_opening_max: float, grip_depth: float,

@@ -24,7 +24,7 @@ FAST = PlanOptions(finishing=FinishingOptions(scallop=0.05))
 
 def _plan_and_verify(body: manifold3d.Manifold, options: PlanOptions = FAST, cell: float = 0.1):
     setup, part = make_setup(manifold_to_trimesh(body))
-    job, _ = plan_job(part, setup, LIBRARY, part_name="p", options=options)
+    job = plan_job(part, setup, LIBRARY, part_name="p", options=options).job
     text = post_process(job, PostOptions()).text
     moves = parse_gcode(text)
     sheet_ops = [{"kind": op.kind, "tool": op.tool.number} for op in job.operations]
@@ -85,8 +85,8 @@ def test_by_faces_off_keeps_the_ball_over_everything():
     body = manifold3d.Manifold.cube((30.0, 20.0, 8.0)) - manifold3d.Manifold.cube((12.0, 8.0, 4.0)).translate(
         (9.0, 6.0, 5.0))
     setup, part = make_setup(manifold_to_trimesh(body))
-    job, _ = plan_job(part, setup, LIBRARY, part_name="p", options=PlanOptions(
-        finishing=FinishingOptions(scallop=0.05), by_faces=False))
+    job = plan_job(part, setup, LIBRARY, part_name="p", options=PlanOptions(
+        finishing=FinishingOptions(scallop=0.05), by_faces=False)).job
     assert "raster" in [op.kind for op in job.operations]
     assert job.parameters["faces"] is None
 

@@ -182,7 +182,7 @@ def op1(mesh, name: str, options: PlanOptions = PLAN):
     (the part's bottom less the breakthrough), as a vise-held op 1 must."""
     setup, part = make_setup(mesh, jaws=JAWS)
     floored = dataclasses.replace(setup, stock_min=np.array([*setup.stock_min[:2], setup.floor_z]))
-    job, _ = plan_job(part, floored, LIBRARY, part_name=name, options=options)
+    job = plan_job(part, floored, LIBRARY, part_name=name, options=options).job
     return dataclasses.replace(job, setup=setup), part
 
 

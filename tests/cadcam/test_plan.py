@@ -23,8 +23,8 @@ from cadcam.tools import load_tool_library
 from cadcam.setup import BREAKTHROUGH_MM, MIN_HOLDING_LEFT_MM
 from cadcam.verify import VerifyOptions, simulate
 from factory.core.resources import FIXTURES
+from factory.cam import vise_jaws
 from robotprog.cell import load_cell
-from robotprog.frames import vise_jaws
 from tests.cadcam.sweep import sweep_moves
 from tests.cadcam.test_rest import assert_safe
 from tests.conftest import SAMPLES, manifold_to_trimesh
@@ -60,7 +60,7 @@ def plan_post_verify(part_mesh, name: str, tmp_path: Path, options: PlanOptions 
 def plan_post_verify_moves(part_mesh, name: str, tmp_path: Path, options: PlanOptions = TEST_PLAN,
                            cell: float = 0.2):
     setup, part = make_setup(part_mesh, jaws=JAWS)
-    job, _ = plan_job(part, setup, LIBRARY, part_name=name, options=options)
+    job = plan_job(part, setup, LIBRARY, part_name=name, options=options).job
     program = post_process(job, PostOptions())
     moves = parse_gcode(program.text, source=name)
     tools = {t.number: t for t in job.tools}
@@ -103,7 +103,7 @@ def test_sample_never_gouges_and_never_crashes(sample, tmp_path):
 def test_rs274_accepts_every_dialect_it_knows(dialect, tmp_path):
     # LinuxCNC's interpreter also reads Fanuc-style programs (% bounds, O-number words aside).
     setup, part = make_setup(load_part(SAMPLE_PARTS[0]).mesh)
-    job, _ = plan_job(part, setup, LIBRARY, part_name="p", options=TEST_PLAN)
+    job = plan_job(part, setup, LIBRARY, part_name="p", options=TEST_PLAN).job
     nc = tmp_path / "p.nc"
     nc.write_text(post_process(job, PostOptions(dialect=dialect)).text)
     rs274_accepts(nc, job, tmp_path)

@@ -101,7 +101,7 @@ def test_a_rapid_into_stock_is_split_into_rapid_then_plunge(xy):
 
 def probe_plan(body: manifold3d.Manifold, options: PlanOptions = FAST, cell: float = 0.5, library=LIBRARY):
     setup, part = make_setup(manifold_to_trimesh(body))
-    job, _ = plan_job(part, setup, library, part_name="p", options=options)
+    job = plan_job(part, setup, library, part_name="p", options=options).job
     text = post_process(job, PostOptions()).text
     moves = parse_gcode(text)
     tools = {t.number: t for t in job.tools}

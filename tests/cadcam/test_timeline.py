@@ -150,8 +150,8 @@ def test_errors():
 @pytest.fixture(scope="module")
 def posted():
     setup, part = make_setup(pocket_block(), origin="top-centre", material="brass")
-    job, _ = plan_job(part, setup, load_tool_library(), part_name="block",
-                      options=PlanOptions(finishing=FinishingOptions(scallop=0.2), waterline=False))
+    job = plan_job(part, setup, load_tool_library(), part_name="block",
+                      options=PlanOptions(finishing=FinishingOptions(scallop=0.2), waterline=False)).job
     return job, part
 
 

@@ -247,3 +247,31 @@ def test_an_existing_log_is_not_overwritten(run_ok):
     r = run("simulate", orders, "--mcap", mcap)
     assert_one_line_error(r, str(mcap), "--overwrite")
     assert mcap.read_bytes() == before
+
+
+def test_the_command_is_glue_the_library_call_makes_the_same_run(run_ok, catalog, tmp_path):
+    """The README's ``simulate_orders`` example, on this module's orders and catalog: the same orders,
+    figures, parts and MCAP messages as the command made."""
+    from factory.core.errors import FactoryError
+    from factory.production import SimulateRequest, simulate_orders
+
+    doc, full, orders = run_ok
+    folder, _ = catalog
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
+    code = readme.split("## From Python", 1)[1].split("```python\n")[2].split("```", 1)[0]
+    for old, new in (('Path("samples/orders.yaml")', f'Path("{orders}")'),
+                     ('catalog=Path("build")', f'catalog=Path("{folder}")'), ('Path("build/', f'Path("{tmp_path}/')):
+        assert old in code, old
+        code = code.replace(old, new)
+    namespace: dict = {}
+    exec(compile(code, "README.md", "exec"), namespace)
+    done = namespace["done"]
+    same = done.summary
+    for key in ("orders", "summary", "parts"):
+        assert same[key] == doc[key], key
+    assert same["mcap"]["messages"] == doc["mcap"]["messages"] and (tmp_path / "cell.layout.json").exists()
+    assert (tmp_path / "cell.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    ours = [t for _, t, _ in read_messages(tmp_path / "cell.mcap", ["/joint_states"])]
+    assert ours == [t for _, t, _ in read_messages(full, ["/joint_states"])]
+    with pytest.raises(FactoryError, match="fault rate needs a seed"):
+        simulate_orders(SimulateRequest(orders, catalog=folder, fault_rate=0.5))

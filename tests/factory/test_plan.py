@@ -67,11 +67,11 @@ def test_plan_part_computes_everything_and_writes_nothing(planned, block):
     assert sorted(p.name for p in block.parent.iterdir()) == ["block.stl"]
     assert planned.report.ok and planned.program.total_time > 0
     assert planned.tending is not None and set(planned.tending.programs) == {"block.script"}
-    assert planned.setup_sheet["program"] == "block.nc"
+    assert planned.setup_sheet.program == "block.nc"
     # two operations: op 2 runs after op 1, in G55, on the part turned over
-    assert planned.setup_sheet["next"] == {"program": "block.op2.nc", "setup_sheet": "block.op2.setup.json"}
+    assert planned.setup_sheet.next == {"program": "block.op2.nc", "setup_sheet": "block.op2.setup.json"}
     op2 = planned.op2
-    assert op2 is not None and op2.setup_sheet["after"] == {"program": "block.nc", "setup_sheet": "block.setup.json"}
+    assert op2 is not None and op2.setup_sheet.after == {"program": "block.nc", "setup_sheet": "block.setup.json"}
     assert "\nG55\n" in op2.program.text and op2.report.ok and planned.ok
 
 
@@ -82,14 +82,14 @@ def test_every_stage_of_the_work_is_timed(planned, block, monkeypatch):
     assert {"load", "setup", "tools and faces", "roughing", "stock model", "rapid check", "post", "robot plan",
             "robot program", "verify", "op 2", "op 2 verify"} <= set(planned.seconds)
     import factory.cam
-    from cadcam.plan import PlanTimings
+    from cadcam.plan import PlanJobResult, PlanTimings
     from factory.core.progress import Stopwatch
 
     real = factory.cam.plan_job
 
     def stock_modelled_twice(*args, **kwargs):
-        job, _ = real(*args, **kwargs)
-        return job, PlanTimings((("stock model", 1.0), ("roughing", 0.5), ("stock model", 2.0)))
+        job = real(*args, **kwargs).job
+        return PlanJobResult(job, PlanTimings((("stock model", 1.0), ("roughing", 0.5), ("stock model", 2.0))))
 
     monkeypatch.setattr(factory.cam, "plan_job", stock_modelled_twice)
     watch = Stopwatch()

@@ -232,7 +232,7 @@ def test_a_password_is_never_shown(block_catalog, tmp_path, monkeypatch):
 
     # a reachable record behind a password URL (SQLite standing in for the server): the MCAP
     # metadata, the JSON and the text output show it masked
-    import cli.simulate
+    import factory.production
 
     class Remote(Record):
         def __init__(self, target, write=True):
@@ -240,7 +240,7 @@ def test_a_password_is_never_shown(block_catalog, tmp_path, monkeypatch):
             self.url = record_url(target)
             self.shown = masked(self.url)
 
-    monkeypatch.setattr(cli.simulate, "Record", Remote)
+    monkeypatch.setattr(factory.production, "Record", Remote)
     mcap = tmp_path / "cell.mcap"
     r = run("simulate", orders, "--catalog", folder, "--db", url, "--mcap", mcap, "--json")
     assert r.exit_code == 3, r.output  # written, with the missing part's order failed

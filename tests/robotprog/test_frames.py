@@ -8,9 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from factory.core.errors import CellError, SetupError
-from factory.core.resources import FIXTURES
-from robotprog.cell import load_cell
-from robotprog.frames import StockInVise, check_stock_fits, setup_sheet_to_cell, vise_jaws
+from factory.core.setupsheet import SetupSheet
+from robotprog.frames import StockInVise, check_stock_fits, setup_sheet_to_cell
 
 
 def _sheet(smin, smax, origin="top-front-left", mesh_to_work=None, mesh_scale=1.0) -> dict:
@@ -92,11 +91,10 @@ def test_stock_fit_checks() -> None:
         check_stock_fits(s, 0.0, 0.16, 0.05, 0.085)
 
 
-def test_vise_crosses_into_millimetres() -> None:
-    vise = load_cell(FIXTURES / "cell.yaml", check_robot=False).vise
-    jaws = vise_jaws(vise)
-    assert jaws.jaw_height == pytest.approx(40.0) and jaws.parallels_height == pytest.approx(35.0)
-    assert jaws.grip_depth == pytest.approx(vise.grip_depth * 1000.0)
-    assert (jaws.opening_min, jaws.opening_max) == pytest.approx((0.0, 160.0))
-    assert jaws.jaw_width == pytest.approx(150.0) and jaws.jaw_thickness == pytest.approx(20.0)
-    assert jaws.soft_jaws.kind == "parallels" and jaws.soft_jaws.depth == pytest.approx(5.0)
+def test_a_typed_sheet_crosses_as_its_json_does() -> None:
+    """The pipeline hands the robot a SetupSheet, the robot's tests and ``factory robot`` its JSON: same stock."""
+    doc = _sheet([0, 0, -40], [100, 60, 0], mesh_scale=25.4)
+    a, b = setup_sheet_to_cell(doc), setup_sheet_to_cell(SetupSheet.from_json(doc))
+    for name in ("transform_vise_to_work", "stock_min", "stock_max", "size", "transform_mesh_to_work"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert a.mesh_scale_m == b.mesh_scale_m
