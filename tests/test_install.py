@@ -21,6 +21,8 @@ from pathlib import Path
 
 import pytest
 
+from factory import __version__ as checkout_version
+
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "samples" / "bracket.stl"
 
@@ -131,7 +133,10 @@ def test_the_installed_command_plans_a_sample_outside_the_checkout(installed):
     work.mkdir()
     factory = installed / "bin" / "factory"
     version = subprocess.run([factory, "--version"], cwd=work, env=_clean_env(), capture_output=True, text=True)
-    assert version.returncode == 0 and version.stdout.startswith("factory 0."), version.stderr
+    # one version: the package's, the wheel's metadata (pyproject reads it) and the command's
+    dist_info = next(installed.glob("lib/python*/site-packages/factory-*.dist-info")).name
+    assert dist_info == f"factory-{checkout_version}.dist-info"
+    assert version.returncode == 0 and version.stdout == f"factory {checkout_version}\n", version.stderr
     r = subprocess.run([factory, "plan", str(SAMPLE), "-o", "out", "--quiet"], cwd=work, env=_clean_env(),
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
