@@ -13,6 +13,7 @@ from typing import Annotated, Any, TypeVar
 
 import typer
 
+from cadcam.plan import PlanOptions
 from cadcam.relief import ReliefOptions
 from cadcam.setup import check_stock_size
 from cli.common import parse_triple
@@ -35,7 +36,7 @@ OriginOpt = Annotated[Origin, typer.Option("--origin", help="Work origin: top of
 RoughToolOpt = Annotated[int | None, typer.Option("--rough-tool", help="Tool number for roughing (flat or bull-nose); default: chosen by reach and size.")]
 FinishToolOpt = Annotated[int | None, typer.Option("--finish-tool", help="Tool number for finishing; default: chosen by reach and size.")]
 AllowanceOpt = Annotated[float, typer.Option("--allowance", help="Stock roughing leaves for finishing [mm].", min=0.0)]
-ScallopOpt = Annotated[float, typer.Option("--scallop", help="Target scallop height of finishing [mm].", min=1e-4)]
+ScallopOpt = Annotated[float, typer.Option("--scallop", help=f"Scallop height the ball end mill leaves [mm]; default: {PlanOptions.freeform_scallop:g} on a solid's freeform faces, {SCALLOP:g} over a relief.", min=1e-4, show_default=False)]
 StepdownOpt = Annotated[float | None, typer.Option("--stepdown", help="Roughing depth per level [mm].", min=0.01)]
 WaterlineOpt = Annotated[bool, typer.Option("--waterline/--no-waterline", help="Finish steep walls with waterline loops.")]
 FloorOpt = Annotated[float, typer.Option("--floor", help="Relief (open surface) only: stock left under its lowest point [mm].", min=0.0)]

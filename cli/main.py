@@ -14,11 +14,13 @@ import functools
 import importlib
 import importlib.util
 from collections.abc import Iterator, Mapping
-from typing import Any
+from typing import Annotated, Any
 
 import typer
 import typer.core
 import typer.main
+
+import factory
 
 #: The sub-commands in the order ``factory --help`` lists them: each is the function of its own
 #: name in the module ``cli.<name>``.
@@ -97,8 +99,17 @@ app = typer.Typer(
 )
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(f"factory {factory.__version__}")
+        raise typer.Exit()
+
+
 @app.callback()
-def _factory() -> None:
+def _factory(
+    version: Annotated[bool, typer.Option("--version", help="Print factory's version and exit.",
+                                          callback=_print_version, is_eager=True)] = False,
+) -> None:
     # A group needs a callback when its commands are not registered with typer up front.
     pass
 

@@ -13,7 +13,7 @@ from typing import Annotated
 import typer
 
 from cadcam.verify import VerifyOptions
-from cli.common import (EXIT_VERIFY_FAILED, Overwrite, Quiet, print_json, progress_bars, reports_errors,
+from cli.common import (EXIT_VERIFY_FAILED, JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors,
                         setup_logging, stderr)
 from factory.core.atomic import check_writable
 from factory.core.errors import VerifyError
@@ -35,7 +35,8 @@ def verify(
     part: Annotated[Path, typer.Option("--part", help="The part mesh the program was made for.", exists=True, dir_okay=False)],
     after: Annotated[Path | None, typer.Option("--after", help="Op 2 only: op 1's program, simulated first (default: the one the op-2 setup sheet names).", exists=True, dir_okay=False)] = None,
     png: Annotated[Path | None, typer.Option("--png", help="Write a deviation map picture.", dir_okay=False)] = None,
-    json_path: Annotated[Path | None, typer.Option("--json", help="Write the report as JSON ('-' for stdout).")] = None,
+    json_path: Annotated[Path | None, typer.Option("-o", "--output", help="Write the report as JSON to this file.", dir_okay=False)] = None,
+    as_json: JsonFlag = False,
     mcap: Annotated[Path | None, typer.Option("--mcap", help="Write the simulated stock to MCAP.", dir_okay=False)] = None,
     grid: Annotated[float, typer.Option("--grid", help="Simulation grid spacing [mm].", min=0.01)] = 0.2,
     tolerance: Annotated[float, typer.Option("--tolerance", help="Cuts deeper into the part than this are gouges [mm].", min=0.0)] = 0.01,
@@ -50,7 +51,7 @@ def verify(
     the report, picture and MCAP are op 2's, and op 1 failing fails the command too.
     """
     setup_logging(quiet)
-    outputs = [p for p in (png, mcap) if p is not None] + ([json_path] if json_path and str(json_path) != "-" else [])
+    outputs = [p for p in (png, mcap, json_path) if p is not None]
     for p in outputs:
         check_writable(p, overwrite)
     setup, tools, sheet = read_sheet(setup_path)
@@ -74,10 +75,9 @@ def verify(
                 stderr.print(f"op 1 ({program1.name}): {report_text(report1)}", highlight=False, markup=False)
             sim, report = run_verify_after(sim1, flip_of(sheet, setup_path), text, str(program), setup, tools,
                                            triangles, options, bars, operations=sheet.operations)
-    to_stdout = json_path is not None and str(json_path) == "-"
-    write_verify_outputs(sim, report, png=png, json_path=None if to_stdout else json_path, mcap=mcap,
+    write_verify_outputs(sim, report, png=png, json_path=json_path, mcap=mcap,
                          overwrite=overwrite, inputs={str(program): "", str(part): ""})
-    if to_stdout:
+    if as_json:
         print_json(report.to_dict())
     if not quiet:
         label = "" if first is None else f"op 2 ({program.name}): "

@@ -51,7 +51,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 import factory
 from factory.core.atomic import atomic_output, check_writable
 from factory.core.errors import McapError
-from factory.core.resources import ROS_INTERFACES
+from factory.core.resources import FOXGLOVE_INTERFACES, ROS_INTERFACES
 
 # What the mcap reader raises on a file that is not MCAP or is cut short.
 _READ_ERRORS = (_McapLibError, EOFError, OSError, ValueError, StopIteration, struct.error)
@@ -65,7 +65,7 @@ ROS_DISTRO = "jazzy"
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 #: Folders of ROS interface packages (``PKG/msg/NAME.msg``) registered into :data:`TYPESTORE`:
 #: Foxglove's scene and image-annotation messages, and factory's own (``ros/factory_msgs``).
-MSG_DIRS = (Path(__file__).resolve().parent / "msg", ROS_INTERFACES)
+MSG_DIRS = (FOXGLOVE_INTERFACES, ROS_INTERFACES)
 
 
 def register_msg_files(typestore: Any, roots: Iterable[Path]) -> list[str]:

@@ -41,20 +41,19 @@ from cadcam.preview import setup_image
 from cadcam.relief import block_corners
 from cadcam.sheet import setup_sheet
 from cadcam.tools import load_tool_library
-from cadcam.verify import Simulation, VerifyOptions, VerifyReport, check_grid_size
+from cadcam.verify import Simulation, VerifyOptions, VerifyReport
 from factory.core.atomic import check_writable, write_bytes, write_text
 from factory.cam import CamRequest, PlannedPart, compute_job, log_job
 from factory.catalog import catalog_record, sha256_file
 from factory.core.errors import PlanningError, shown
 from factory.mcaplog import McapLog
 from factory.pictures import png_bytes
+from factory.refusals import check_request, check_setup
 from factory.core.progress import Progress, Stopwatch
 from factory.core.resources import FIXTURES
 from factory.core.setupsheet import SetupSheet
 from factory.tending import CellPlan, log_tending, plan_cell
 from factory.verify import log_simulation, run_verify, run_verify_after, write_verify_outputs
-from robotprog.cell import load_cell
-from robotprog.frames import check_stock_fits, setup_sheet_to_cell
 from robotprog.programs import PostedProgram, post_program
 
 log = logging.getLogger(__name__)
@@ -395,9 +394,9 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
         raise PlanningError(f"ops must be 1 or 2, got {shown(req.ops)}", source="ops")
     post_options = PostOptions(dialect=req.post, arc_tolerance=req.arc_tolerance)  # refused before the CAM work
     processors()  # and a bad FACTORY_THREADS
+    check_request(req)  # the cell, its robot and the program language
     watch = Stopwatch()
-    planned = compute_job(req.cam, progress, watch,
-                          check_setup=lambda setup: check_grid_size(setup, req.grid, source=str(req.cam.part)))
+    planned = compute_job(req.cam, progress, watch, check_setup=lambda setup: check_setup(req, setup))
     job = planned.job
     asked_ops = req.ops
     if req.ops is None:  # a relief stays in its block, right way up, unless asked
@@ -416,10 +415,6 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
         # progress bar of its own then).
         background = Background(_verify_quietly, verify_args, verify_kwargs)
         try:
-            # the vise must clamp the stock above its jaws and the gripper hold it, before any motion is planned
-            vise_cell = load_cell(req.cell, check_robot=False)
-            check_stock_fits(setup_sheet_to_cell(sheet, str(outputs["setup_sheet"])), vise_cell.vise.jaw_opening_min,
-                             vise_cell.vise.jaw_opening_max, vise_cell.vise.grip_depth, vise_cell.gripper.opening_max)
             vertices = np.asarray(planned.loaded.mesh.vertices) / float(job.setup.mesh_scale)
             if planned.boundary is not None:  # a relief leaves in its block: the robot holds the block
                 vertices = block_corners(job.setup)

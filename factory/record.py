@@ -44,6 +44,7 @@ events before the operating system wrote them out.
 from __future__ import annotations
 
 import datetime as dt
+import importlib.util
 import logging
 import re
 from dataclasses import dataclass
@@ -58,6 +59,7 @@ from sqlalchemy.engine import URL, Connection, Engine, make_url
 from factory import __version__
 from factory.catalog import sha256_file
 from factory.core.errors import RecordError
+from factory.core.resources import MIGRATIONS
 from robotprog.cellsim import Activity, CellEvent, LogEntry, OrderOutcome, SimulationResult
 from robotprog.orders import Order
 
@@ -230,26 +232,41 @@ job_state = Table(
 _INSERTS = {t.name: sa.insert(t) for t in metadata.sorted_tables}
 #: Tables whose rows events write (each has ``seq``).
 EVENT_TABLES = ("part_unit", "material_lot", "job_response", "measurement", "alarm", "robot_move", "job_state")
-MIGRATIONS = Path(__file__).parent / "migrations"
 
 
 # --- where the record is -------------------------------------------------------------------
+
+
+#: PostgreSQL drivers SQLAlchemy speaks, the first installed one serving a plain ``postgresql://``.
+POSTGRESQL_DRIVERS = (("psycopg", "postgresql+psycopg"), ("psycopg2", "postgresql+psycopg2"))
 
 
 def record_url(target: str | Path) -> URL:
     """The database a ``--db`` value names: a SQLAlchemy URL (``dialect[+driver]://…``) or a file
     path, taken as SQLite.
 
-    Raises RecordError for a malformed URL (the message never holds the URL: it may hold a password).
+    A PostgreSQL URL as psql, libpq and hosting providers write it (``postgresql://`` or
+    ``postgres://``, no driver named) is served by the driver that is installed: psycopg 3, else
+    psycopg2 (:data:`POSTGRESQL_DRIVERS`).
+
+    Raises RecordError for a malformed URL, or a PostgreSQL one without a driver installed (the
+    message never holds the URL: it may hold a password).
     """
     text = str(target)
     if "://" not in text:
         return URL.create("sqlite", database=text)
     try:
-        return make_url(text)
+        url = make_url(text)
     except (sa.exc.ArgumentError, ValueError):
         raise RecordError("not a database URL (expected a file, or dialect://user@host/database)",
                           source="--db") from None
+    if url.drivername in ("postgresql", "postgres"):
+        installed = [name for module, name in POSTGRESQL_DRIVERS if importlib.util.find_spec(module) is not None]
+        if not installed:
+            raise RecordError("no PostgreSQL driver is installed: pip install 'factory[postgresql]' (psycopg)",
+                              source="--db")
+        url = url.set(drivername=installed[0])
+    return url
 
 
 def masked(url: URL | str | Path) -> str:

@@ -96,9 +96,9 @@ def setup_sheet_to_cell(sheet: SetupSheet | Mapping[str, Any], source: str | Non
     return StockInVise(*out, mesh_scale_m=float(sheet.mesh_scale) / MM_PER_M)
 
 
-def check_stock_fits(stock: StockInVise, jaw_opening_min: float, jaw_opening_max: float, grip_depth: float,
+def check_stock_fits(size: np.ndarray, jaw_opening_min: float, jaw_opening_max: float, grip_depth: float,
                      gripper_opening_max: float) -> None:
-    """Check the vise can clamp the stock and the gripper can hold it (all [m]).
+    """Check the vise can clamp a stock of edge lengths ``size`` (3,) and the gripper hold it (all [m]).
 
     The vise clamps across vise Y; the gripper grips the stock across the same width.
     ``grip_depth`` is the jaws' top above the parallels (:attr:`robotprog.cell.Vise.grip_depth`):
@@ -110,7 +110,7 @@ def check_stock_fits(stock: StockInVise, jaw_opening_min: float, jaw_opening_max
         The stock is too wide or narrow for the vise, too wide for the gripper, or not
         taller than the jaws.
     """
-    width = float(stock.size[1])
+    width = float(size[1])
     if not jaw_opening_min <= width <= jaw_opening_max:
         raise CellError(
             f"stock {width * MM_PER_M:.1f} mm wide does not fit the vise jaw opening "
@@ -123,9 +123,9 @@ def check_stock_fits(stock: StockInVise, jaw_opening_min: float, jaw_opening_max
             f"{gripper_opening_max * MM_PER_M:.1f} mm",
             source="gripper.opening.max",
         )
-    if stock.size[2] <= grip_depth:
+    if size[2] <= grip_depth:
         raise CellError(
-            f"stock {stock.size[2] * MM_PER_M:.1f} mm tall does not stand above the jaws "
+            f"stock {size[2] * MM_PER_M:.1f} mm tall does not stand above the jaws "
             f"{grip_depth * MM_PER_M:.1f} mm over the parallels",
             source="vise.jaw_height",
         )

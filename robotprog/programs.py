@@ -58,6 +58,7 @@ from robotprog.krl import krl_program
 from robotprog.rapid import rapid_module
 from robotprog.sweep import SweptMotion, swept_motion
 from robotprog.tending import TendingOptions, TendingPlan, TimedMove
+from robotprog.robots import Robot
 from robotprog.machineio import machine_cycle, machine_ready, number, to_steps, verdict
 from robotprog.urscript import Branch, Comment, MoveJ, ServoJ, SetOutputs, Step, flat_steps, urscript_program
 
@@ -272,6 +273,22 @@ def posted_collision(world: CollisionWorld, plan: TendingPlan, steps: list[Step]
     return None
 
 
+def check_language(lang: str, robot: Robot) -> None:
+    """Refuse a program language for another maker's arm: the joint values are the model's, and
+    only the maker's own controller reads them as its axes (URScript for a Universal Robots arm,
+    RAPID for an ABB one, KRL for a KUKA one).
+
+    Raises
+    ------
+    PlanningError
+        ``lang`` is another maker's (source ``robot.model``).
+    """
+    maker = LANG_MAKER.get(lang)
+    if maker is not None and robot.maker != maker:
+        raise PlanningError(f"{LANG_NAME[lang]} needs {'an' if maker == 'ABB' else 'a'} {maker} arm, "
+                            f"the cell has {robot.name}", source="robot.model")
+
+
 def post_program(lang: str, program: Path, cell: Cell, world: CollisionWorld, plan: TendingPlan) -> PostedProgram:
     """The robot program in ``lang`` (``urscript``, ``rapid``, ``krl``) for ``plan``, its path
     collision-checked and its controller time measured.
@@ -283,11 +300,7 @@ def post_program(lang: str, program: Path, cell: Cell, world: CollisionWorld, pl
         ABB one, KRL a KUKA one), or a posted path that collides.
     """
     robot = world.robot
-    # The joint values are the model's: only the maker's own controller reads them as its axes.
-    maker = LANG_MAKER[lang] if lang in LANG_MAKER else None
-    if maker is not None and robot.maker != maker:
-        raise PlanningError(f"{LANG_NAME[lang]} needs {'an' if maker == 'ABB' else 'a'} {maker} arm, "
-                            f"the cell has {robot.name}", source="robot.model")
+    check_language(lang, robot)
     name = program_name(program.name.split(".")[0])
     # the world the plan was proven in: the cell plus the blanks and parts beside the slots used
     proven = collision_world(cell, robot, obstacles=plan.obstacles) if plan.obstacles else world

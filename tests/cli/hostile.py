@@ -136,7 +136,7 @@ def _verify_args(tmp: Path, program: str, sheet: dict | str | None = None) -> li
     sheet = setup_sheet(part) if sheet is None else sheet
     sheet_path = _write(tmp / "p.setup.json", sheet if isinstance(sheet, str) else json.dumps(sheet))
     return ["verify", str(_write(tmp / "p.ngc", program)), "--setup", str(sheet_path), "--part", str(part),
-            "--json", str(tmp / "out" / "report.json")]
+            "-o", str(tmp / "out" / "report.json")]
 
 
 def _plan_args(tmp: Path, part: Path, *extra: str) -> list[str]:
@@ -192,7 +192,7 @@ CASES: list[Case] = [
          code=2, needle="afile"),
     Case("plan -o afile/sub", lambda t: ["plan", BRACKET, "-o", str(_write(t / "afile", "x") / "sub"), "--no-robot"],
          needle="afile"),
-    Case("verify --json afile/r.json", lambda t: _verify_args(t, "G0 X0 Y0 Z5\nM2\n")[:-1]
+    Case("verify -o afile/r.json", lambda t: _verify_args(t, "G0 X0 Y0 Z5\nM2\n")[:-1]
          + [str(_write(t / "afile", "x") / "r.json")], needle="afile"),
     Case("robot -o afile/r.mcap", lambda t: _robot_args(t, FIXTURES / "cell.yaml")[:-1]
          + [str(_write(t / "afile", "x") / "r.mcap")], needle="afile"),

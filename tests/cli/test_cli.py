@@ -59,7 +59,7 @@ def test_chain_writes_program_and_setup_sheet(chain):
 def test_verify_passes_and_writes_reports(chain):
     d = chain["dir"]
     r = run("verify", chain["nc"], "--setup", chain["setup"], "--part", chain["part"],
-            "--json", d / "v.json", "--png", d / "v.png", "--mcap", d / "v.mcap", "--quiet")
+            "-o", d / "v.json", "--png", d / "v.png", "--mcap", d / "v.mcap", "--quiet")
     assert r.exit_code == 0, r.output
     report = json.loads((d / "v.json").read_text())
     assert report["max_gouge"] <= 0.01
@@ -76,7 +76,7 @@ def test_verify_fails_with_exit_3_on_a_gouging_program(chain, tmp_path):
     lowered = re.sub(r"Z(-?\d+\.?\d*)", lambda m: f"Z{float(m.group(1)) - 1.0:.4f}", text)
     bad = tmp_path / "deep.nc"
     bad.write_text(lowered)
-    r = run("verify", bad, "--setup", chain["setup"], "--part", chain["part"], "--json", "-", "--quiet")
+    r = run("verify", bad, "--setup", chain["setup"], "--part", chain["part"], "--json", "--quiet")
     assert r.exit_code == 3
     assert json.loads(r.stdout)["max_gouge"] > 0.5
 

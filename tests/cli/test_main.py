@@ -129,3 +129,13 @@ def test_gcode_loads_no_robot_libraries():
     loaded = _modules_after("from cli.main import load_command\nload_command('gcode')")
     assert "cli.gcode" in loaded
     assert not loaded & {"pinocchio", "coal", "toppra", "matplotlib"}, loaded & {"pinocchio", "coal", "toppra"}
+
+
+def test_version_is_the_packages_and_loads_no_command():
+    import factory
+
+    r = runner.invoke(app, ["--version"])
+    assert r.exit_code == 0 and r.output == f"factory {factory.__version__}\n"
+    loaded = _modules_after("from cli.main import app\ntry:\n    app(['--version'])\nexcept SystemExit:\n    pass")
+    assert not {f"cli.{name}" for name in COMMANDS} & loaded
+    assert not loaded & set(HEAVY), loaded & set(HEAVY)

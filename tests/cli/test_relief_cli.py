@@ -42,7 +42,7 @@ def test_plan_says_what_it_found_and_writes_the_relief_into_the_sheet(relief, tm
     assert summary["verify"]["max_gouge"] <= 0.01
     # `factory verify` on its own judges the program against the same surface on its base.
     v = run("verify", tmp_path / "sign.nc", "--setup", tmp_path / "sign.setup.json", "--part", relief,
-            "--json", tmp_path / "v.json")
+            "-o", tmp_path / "v.json")
     assert v.exit_code == 0, v.output
     alone = json.loads((tmp_path / "v.json").read_text())
     assert alone["max_gouge"] == pytest.approx(summary["verify"]["max_gouge"], abs=1e-3)

@@ -39,7 +39,7 @@ def verify(bracket, text: str, name: str):
     nc.write_text(text)
     out = bracket["dir"] / (name + ".json")
     r = run("verify", nc, "--setup", bracket["setup"], "--part", bracket["part"], "--grid", GRID,
-            "--json", out, "--png", bracket["dir"] / (name + ".png"), "--overwrite")
+            "-o", out, "--png", bracket["dir"] / (name + ".png"), "--overwrite")
     return r, json.loads(out.read_text())
 
 
@@ -118,7 +118,7 @@ def verify_op2(bracket, text: str, name: str, *extra):
     nc.write_text(text)
     out = bracket["dir"] / (name + ".json")
     r = run("verify", nc, "--setup", bracket["setup2"], "--part", bracket["part"], "--grid", GRID,
-            "--json", out, "--overwrite", *extra)
+            "-o", out, "--overwrite", *extra)
     return r, json.loads(out.read_text())
 
 

@@ -18,6 +18,7 @@ from factory.plan import PlanRequest, plan_part
 from tests.cli.expect import assert_one_line_error
 from tests.conftest import pocket_block
 
+ROOT = Path(__file__).resolve().parents[2]
 runner = CliRunner()
 
 
@@ -64,3 +65,62 @@ def test_the_grid_limit_is_the_one_verify_applies(part):
     check_grid_size(setup, 0.0125)  # 8000 x 5600: 44.8 M cells
     with pytest.raises(VerifyError, match="71,431,242 verify grid cells at 0.0099 mm over the 100 x 70 mm stock"):
         check_grid_size(setup, 0.0099)  # 10102 x 7071
+
+
+@pytest.fixture
+def no_cam_stage(monkeypatch):
+    """Fail the test if any CAM stage starts (the part is not even loaded)."""
+    import factory.plan
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a CAM stage started before the refusal")
+
+    monkeypatch.setattr(factory.plan, "compute_job", refuse)
+
+
+@pytest.mark.parametrize(("lang", "cell", "fixes"), [
+    ("rapid", "cell.yaml", ["--cell fixtures/cell_abb.yaml", "--lang urscript"]),
+    ("krl", "cell_abb.yaml", ["--cell fixtures/cell_kuka.yaml", "--lang rapid"]),
+    ("urscript", "cell_kuka.yaml", ["--cell fixtures/cell.yaml", "--lang krl"]),
+])
+def test_a_language_for_another_arm_is_refused_before_any_cam_stage_and_names_the_fix(
+        lang, cell, fixes, part, tmp_path, no_cam_stage, monkeypatch):
+    monkeypatch.chdir(ROOT)  # the fixes are shown as a user in the checkout types them
+    out = tmp_path / "out"
+    args = ["plan", str(part), "-o", str(out), "--lang", lang]
+    if cell != "cell.yaml":  # the default cell is the UR5's
+        args += ["--cell", f"fixtures/{cell}"]
+    r = runner.invoke(app, args)
+    assert_one_line_error(r, f"fixtures/{cell}: robot.model:", " needs ", *fixes)
+    assert not out.exists()
+
+
+def test_the_language_of_the_arm_passes_the_early_checks(part):
+    from factory.refusals import check_request
+
+    for lang, cell in (("urscript", "cell.yaml"), ("rapid", "cell_abb.yaml"), ("krl", "cell_kuka.yaml")):
+        check_request(dataclasses.replace(PlanRequest.defaults(part, "aluminium", cell=ROOT / "fixtures" / cell),
+                                          lang=lang))
+    # without the robot, the language is not the cell's business
+    check_request(dataclasses.replace(PlanRequest.defaults(part, "aluminium"), lang="rapid", robot=False))
+
+
+def test_a_cell_with_an_unknown_robot_is_refused_before_any_cam_stage(part, tmp_path, no_cam_stage):
+    cell = tmp_path / "cell.yaml"
+    cell.write_text((ROOT / "fixtures" / "cell.yaml").read_text().replace("model: ur5", "model: ur99"))
+    r = runner.invoke(app, ["plan", str(part), "-o", str(tmp_path / "out"), "--cell", str(cell)])
+    assert_one_line_error(r, "unknown robot 'ur99'")
+
+
+def test_a_stock_the_gripper_cannot_hold_is_refused_before_the_toolpaths(tmp_path, no_cam):
+    # 95 mm across the vise: the stock (2 mm each side) fits the jaws (160 mm) but not the fingers (85 mm)
+    wide = tmp_path / "wide.stl"
+    pocket_block(size=(40.0, 95.0, 20.0), pocket=(20.0, 40.0, 5.0)).export(wide)
+    out = tmp_path / "out"
+    r = runner.invoke(app, ["plan", str(wide), "-o", str(out)])
+    assert_one_line_error(r, "gripper.opening.max: stock 99.0 mm wide exceeds the gripper opening 85.0 mm",
+                          "--stock", "--cell")
+    assert not out.exists()
+    # without the robot nothing holds the stock but the vise: the plan goes on to the toolpaths
+    with pytest.raises(AssertionError, match="the CAM work ran"):
+        plan_part(dataclasses.replace(PlanRequest.defaults(wide, "aluminium"), robot=False))

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 import sqlalchemy as sa
+from sqlalchemy.engine import make_url
 from typer.testing import CliRunner
 
 from cli.main import app
@@ -362,6 +363,43 @@ def test_four_cells_write_one_postgresql_record_at_once(postgres, recorded, bloc
     assert "s3cret-pw" not in r.output and report["record"] == masked(postgres)
     assert report["throughput"]["parts_good"] == sum(d["summary"]["parts_good"] for d in docs)
     assert len(report["parts"]) == total
+
+
+def test_a_plain_libpq_url_is_served_by_the_installed_driver(postgres, recorded, block_catalog, monkeypatch):
+    """`--db postgresql://user@host:port/db` as psql writes it, the password from PGPASSWORD as libpq
+    reads it: psycopg 3 (the driver installed) records the run, and `factory report` reads it back."""
+    _, orders, _ = recorded
+    folder, _ = block_catalog
+    server = make_url(postgres)
+    admin = sa.create_engine(server.set(database="postgres"), isolation_level="AUTOCOMMIT")
+    with admin.connect() as conn:
+        conn.exec_driver_sql("CREATE DATABASE cells")
+    admin.dispose()
+    plain = f"postgresql://{server.username}@{server.host}:{server.port}/cells"
+    assert record_url(plain).drivername == "postgresql+psycopg"
+    assert record_url(plain.replace("postgresql://", "postgres://")).drivername == "postgresql+psycopg"
+    monkeypatch.setenv("PGPASSWORD", server.password)
+    r = run("simulate", orders, "--catalog", folder, *SIM, "--db", plain, "--json", "--quiet")
+    doc = json.loads(r.stdout)
+    assert r.exit_code == simulate_exit(doc), r.output
+    assert doc["db"] == {"url": f"postgresql+psycopg://{server.username}@{server.host}:{server.port}/cells", "run": 1}
+    r = run("report", plain, "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["throughput"]["parts_good"] == doc["summary"]["parts_good"]
+    assert server.password not in r.output
+    # a wrong password: refused in one line, neither password shown
+    monkeypatch.setenv("PGPASSWORD", "wrong-pw")
+    r = run("report", plain.replace("factory@", "factory:other-pw@"), "--json")
+    assert_one_line_error(r, "postgresql+psycopg://factory:***@", "password authentication failed")
+    assert "other-pw" not in r.output and "wrong-pw" not in r.output
+
+
+def test_a_plain_postgresql_url_without_a_driver_names_the_package(monkeypatch):
+    import factory.record
+
+    monkeypatch.setattr(factory.record, "POSTGRESQL_DRIVERS", (("no_such_driver_module", "postgresql+none"),))
+    with pytest.raises(RecordError, match=r"no PostgreSQL driver is installed: pip install 'factory\[postgresql\]'"):
+        record_url("postgresql://cell:hunter2@db.example.com/cells")
 
 
 _NEXT_REVISION = '''

@@ -82,13 +82,13 @@ def test_not_a_setup_sheet() -> None:
 
 def test_stock_fit_checks() -> None:
     s: StockInVise = setup_sheet_to_cell(_sheet([0, 0, -40], [100, 60, 0]))
-    check_stock_fits(s, 0.0, 0.16, 0.03, 0.085)
+    check_stock_fits(s.size, 0.0, 0.16, 0.03, 0.085)
     with pytest.raises(CellError, match="60.0 mm wide does not fit the vise"):
-        check_stock_fits(s, 0.0, 0.05, 0.03, 0.085)
+        check_stock_fits(s.size, 0.0, 0.05, 0.03, 0.085)
     with pytest.raises(CellError, match="exceeds the gripper opening"):
-        check_stock_fits(s, 0.0, 0.16, 0.03, 0.05)
+        check_stock_fits(s.size, 0.0, 0.16, 0.03, 0.05)
     with pytest.raises(CellError, match="does not stand above"):
-        check_stock_fits(s, 0.0, 0.16, 0.05, 0.085)
+        check_stock_fits(s.size, 0.0, 0.16, 0.05, 0.085)
 
 
 def test_a_typed_sheet_crosses_as_its_json_does() -> None:

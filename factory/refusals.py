@@ -1,0 +1,96 @@
+"""What ``factory plan`` can refuse without CAM work, refused before it: each error names the fix.
+
+:func:`check_request` runs first in :func:`factory.plan.plan_part`: the cell file, its robot, and
+the robot program language against the arm. :func:`check_setup` runs once the part is placed in
+its stock, before any toolpath (``check_setup`` of :func:`factory.cam.compute_job`): the verify
+grid over the stock, and the stock in the cell's vise and gripper. Both would otherwise fail
+only after all the CAM work.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from cadcam.model import Setup
+from cadcam.verify import check_grid_size
+from factory.core.errors import CellError, PlanningError
+from factory.core.resources import FIXTURES
+from robotprog.cell import load_cell
+from robotprog.frames import MM_PER_M, check_stock_fits
+from robotprog.programs import LANG_MAKER, check_language
+from robotprog.robots import load_robot
+
+if TYPE_CHECKING:
+    from factory.plan import PlanRequest
+
+
+def check_request(req: PlanRequest) -> None:
+    """Refuse, before any CAM work, a plan the robot half would refuse: a malformed cell file, an
+    unknown robot or a home it cannot take, a program language for another maker's arm.
+
+    Raises
+    ------
+    CellError
+        The cell file or its robot (the robot is loaded once: later loads are cached).
+    PlanningError
+        ``req.lang`` is another maker's; the message names the shipped cells with an arm that
+        speaks it and the language this arm speaks.
+    """
+    if not req.robot:
+        return
+    cell = load_cell(req.cell)
+    robot = load_robot(cell.robot.model, flange_frame=cell.robot.flange_frame)
+    try:
+        check_language(req.lang, robot)
+    except PlanningError as e:
+        fixes = [f"--cell {_shown(c)}" for c in shipped_cells(LANG_MAKER[req.lang])]
+        fixes += [f"--lang {lang}" for lang, maker in LANG_MAKER.items() if maker == robot.maker]
+        raise PlanningError(f"{e}: plan with {' or '.join(fixes) or 'a cell with such an arm'}",
+                            source=_shown(req.cell)) from None
+
+
+def check_setup(req: PlanRequest, setup: Setup) -> None:
+    """Refuse, once the part is placed in its stock and before any toolpath, what verify and the
+    robot would refuse: a verify grid too fine for the stock, a stock the cell's vise cannot clamp
+    or its gripper cannot hold.
+
+    Raises
+    ------
+    VerifyError
+        Too many verify grid cells over the stock (the message gives the figure).
+    CellError
+        The stock [mm] does not fit the vise's jaw opening or the gripper, or does not stand above
+        the jaws; the message names the cell's field and the options that change the stock.
+    """
+    check_grid_size(setup, req.grid, source=str(req.cam.part))
+    if not req.robot:
+        return
+    cell = load_cell(req.cell, check_robot=False)
+    try:
+        check_stock_fits(np.asarray(setup.stock_size, dtype=float) / MM_PER_M, cell.vise.jaw_opening_min,
+                         cell.vise.jaw_opening_max, cell.vise.grip_depth, cell.gripper.opening_max)
+    except CellError as e:
+        raise CellError(f"{e}: give a --stock (or --holding) that fits, or a --cell whose vise and gripper take it",
+                        source=_shown(req.cell)) from None
+
+
+def shipped_cells(maker: str) -> list[Path]:
+    """The cell files shipped in ``fixtures/`` whose arm is ``maker``'s (``"ABB"``, ...)."""
+    found = []
+    for path in sorted(FIXTURES.glob("cell*.yaml")):
+        cell = load_cell(path, check_robot=False)
+        if load_robot(cell.robot.model, flange_frame=cell.robot.flange_frame).maker == maker:
+            found.append(path)
+    return found
+
+
+def _shown(path: Path) -> str:
+    """``path`` as a user would type it here: relative to the working folder when inside it."""
+    path = Path(path)
+    try:
+        return str(path.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path)
