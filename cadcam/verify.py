@@ -285,20 +285,10 @@ def simulate(
 
     Parameters
     ----------
-    moves : ProgramMoves
-        The program's moves (tool tip positions in work coordinates [mm]); moves ending at
-        an unknown (NaN) coordinate are skipped, a move from an unknown start is checked
-        as the tool standing at its end; rapids with an empty spindle (tool 0) are skipped
-        too.
-    tools : mapping of int to Tool
-        Tools by number, for every tool the program uses.
-    setup : Setup
-        The stock box (``stock_min``, ``stock_max``) in work coordinates [mm].
-    part_triangles : (m, 3, 3) float
-        The part's triangles in work coordinates [mm].
+    moves, tools, setup, part_triangles, progress
+        As :func:`cadcam.stock.cut_stock` takes them (the program, its tools by number, the
+        stock box and the part in work coordinates [mm], ``progress(done, total)`` in moves).
     options : VerifyOptions
-    progress : callable, optional
-        ``progress(done, total)`` in moves.
     finishing : (n,) bool, optional
         True for moves (indexed like ``moves.points``) a finishing operation makes, held
         to :attr:`VerifyOptions.finish_depth` (see :func:`finishing_moves`); default none.
