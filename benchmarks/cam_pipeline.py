@@ -55,9 +55,10 @@ def bench_part(path: Path, scallop: float) -> dict:
     job = Job(path.stem, setup, tuple(op for op in (rough, water, raster) if len(op.points) > 1))
     program, seconds["post"] = timed(post_process, job, PostOptions())
     moves, seconds["parse"] = timed(parse_gcode, program.text)
-    (_, report), seconds["verify"] = timed(
+    verified, seconds["verify"] = timed(
         simulate, moves, {t.number: t for t in job.tools}, setup, np.asarray(part.triangles), VerifyOptions(cell=0.2)
     )
+    report = verified.report
     plain = post_process(job, PostOptions(arcs=False))
 
     # Drop-cutter kernel alone: a regular grid over the stock.

@@ -48,7 +48,7 @@ def main() -> None:
         for _ in range(args.reps):
             c0, w0 = time.process_time(), time.perf_counter()
             fin = finishing_moves(text, moves, sheet["operations"])
-            _, report = simulate(moves, tools, setup, tri, VerifyOptions(cell=args.grid), finishing=fin)
+            report = simulate(moves, tools, setup, tri, VerifyOptions(cell=args.grid), finishing=fin).report
             best_cpu = min(best_cpu, time.process_time() - c0)
             best_wall = min(best_wall, time.perf_counter() - w0)
         eng = ", ".join(f"T{e.tool}{' (finishing)' if e.finishing else ''} {e.max_depth:.2f} mm deep "

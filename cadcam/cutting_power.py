@@ -8,7 +8,7 @@ energy (unit power)::
     load [%]    = 100 * P / rated spindle power
 
 The removed volume of each move is what verify's stock model took off the stock
-(:attr:`cadcam.verify.Simulation.removed_volume`): the real engagement of every move, whatever
+(:attr:`cadcam.stock.Simulation.removed_volume`): the real engagement of every move, whatever
 the strategy (a slot takes the full width, an adaptive pass its thin arc, an air move nothing),
 not the nominal stepover and stepdown of its operation. The time of each move is the machine
 timeline's (:mod:`cadcam.timeline`). ``u`` comes from the tool library
@@ -97,7 +97,7 @@ def spindle_load(timeline: MachineTimeline, removed_volume: np.ndarray, specific
         When the machine makes each move [s].
     removed_volume : (n,) float
         Stock volume each move removed [mm³], indexed like ``timeline.points``
-        (:attr:`cadcam.verify.Simulation.removed_volume` of the same program).
+        (:attr:`cadcam.stock.Simulation.removed_volume` of the same program).
     specific_energy : float
         The material's specific cutting energy [W·s/mm³], > 0.
     rated_power_kw : float

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -418,6 +418,49 @@ def plan_holes(
     spots = library.spot_drills(mat) if options.spot else ()
     mills = sorted((t for t in library.tools if t.shape == "flat"), key=lambda t: (-t.diameter, t.number))
     min_helix = 0.3 * rough_tool.diameter if rough_min_helix is None else rough_min_helix
+    chosen = _choose_methods(holes, drills, mills, rough_tool, min_helix, allowance, top, floor, options)
+    drilled, helixed = chosen.drilled, chosen.helixed
+
+    ops: list[Operation] = []
+    origin = np.array([float(setup.stock_min[0]), float(setup.stock_min[1])])
+    if drilled and spots:
+        ops.append(_spot_operation(drilled, spots[0], library, mat, top, r_plane, initial, origin, options))
+    ops += _drill_operations(drilled, library, mat, r_plane, initial, origin, options)
+    for h, mill in sorted(helixed, key=lambda hm: (-hm[1].diameter, hm[0].x, hm[0].y)):
+        bottom = max(h.bottom_z - (options.breakthrough if h.bottom == "through" else 0.0), floor)
+        ops.append(helix_operation(h, mill, library.cutting_data(mill, mat), r_plane, bottom, options, initial))
+    for h in holes:
+        log.debug("hole: %s", h.describe())
+    log.info("%d round holes: %d drilled (%d undersize), %d helixed, %d left to roughing or unreached",
+             len(holes), sum(len(v) for v in drilled.values()), len(chosen.undersize), len(helixed), len(chosen.left))
+    return HolePlan(
+        holes=holes, operations=tuple(ops),
+        drilled=tuple(h for hs in drilled.values() for h, _ in hs),
+        helixed=tuple(h for h, _ in helixed), undersize=tuple(chosen.undersize), left=tuple(chosen.left),
+    )
+
+
+@dataclass
+class _Methods:
+    """How :func:`plan_holes` takes each hole, in the order the holes were found.
+
+    ``drilled``: drill number -> (hole, tip height [mm]), to size or undersize; ``helixed``:
+    (hole, flat end mill); ``undersize``: drilled with a narrower drill; ``left``: to roughing
+    or to nothing in the library.
+    """
+
+    drilled: dict[int, list[tuple[Hole, float]]] = field(default_factory=dict)
+    helixed: list[tuple[Hole, Tool]] = field(default_factory=list)
+    undersize: list[Hole] = field(default_factory=list)
+    left: list[Hole] = field(default_factory=list)
+
+
+def _choose_methods(holes: tuple[Hole, ...], drills: tuple[Tool, ...], mills: list[Tool], rough_tool: Tool,
+                    min_helix: float, allowance: float, top: float, floor: float,
+                    options: DrillingOptions) -> _Methods:
+    """Each hole's method, in :func:`plan_holes`' order of preference (``top``: stock top, ``floor``:
+    lowest a tool may go, ``min_helix``: narrowest helix the roughing enters with, ``allowance``:
+    stock roughing leaves on walls, all [mm]; ``mills``: flat end mills, widest first)."""
 
     def exact(h: Hole, tip_of) -> Tool | None:
         for t in sorted(drills, key=lambda t: -t.diameter):
@@ -433,47 +476,55 @@ def plan_holes(
                 return t
         return None
 
-    drilled: dict[int, list[tuple[Hole, float]]] = {}  # drill number -> (hole, tip z)
-    helixed: list[tuple[Hole, Tool]] = []
-    undersize: list[Hole] = []
-    left: list[Hole] = []
+    out = _Methods()
     for h in holes:
         def tip(t: Tool, h=h) -> float:
             return _drill_tip(h, t, options, floor)
         d = exact(h, tip)
         mill = helix_mill(h)
         if d is not None and h.bottom != "flat":
-            drilled.setdefault(d.number, []).append((h, tip(d)))
+            out.drilled.setdefault(d.number, []).append((h, tip(d)))
         elif h.inscribed - 2 * allowance - rough_tool.diameter >= min_helix:
-            left.append(h)
+            out.left.append(h)
         elif mill is not None:
-            helixed.append((h, mill))
+            out.helixed.append((h, mill))
         elif d is not None:
-            drilled.setdefault(d.number, []).append((h, tip(d)))
+            out.drilled.setdefault(d.number, []).append((h, tip(d)))
         else:
             under = [t for t in drills if t.diameter < h.inscribed - options.drill_undersize
                      and h.bottom != "flat" and _reaches(t, top, tip(t))]
             if under:
                 t = max(under, key=lambda t: t.diameter)
-                drilled.setdefault(t.number, []).append((h, tip(t)))
-                undersize.append(h)
+                out.drilled.setdefault(t.number, []).append((h, tip(t)))
+                out.undersize.append(h)
             else:
-                left.append(h)
+                out.left.append(h)
+    return out
 
-    ops: list[Operation] = []
-    origin = np.array([float(setup.stock_min[0]), float(setup.stock_min[1])])
-    if drilled and spots:
-        spot = spots[0]
-        targets = [(h, library.tool(n)) for n, hs in drilled.items() for h, _ in hs]
-        xy = np.array([[h.x, h.y] for h, _ in targets])
-        order = _tour(xy, origin)
-        rows = []
-        for i in order:
-            h, drill = targets[i]
-            spot_d = min(options.spot_share * drill.diameter, spot.diameter)
-            rows.append((h.x, h.y, top - spot.point_slope * spot_d / 2))
-        cycle = DrillCycle(code=81, holes=np.array(rows), r_plane=r_plane, peck=0.0, retract="r", initial_z=initial)
-        ops.append(drill_operation("spot drill", "spot", spot, library.cutting_data(spot, mat), cycle))
+
+def _spot_operation(drilled: dict[int, list[tuple[Hole, float]]], spot: Tool, library: ToolLibrary, mat: str,
+                    top: float, r_plane: float, initial: float, origin: np.ndarray,
+                    options: DrillingOptions) -> Operation:
+    """One G81 spot drilling every hole a drill takes, in a nearest-neighbour tour from ``origin``,
+    each spot ``spot_share`` of its drill wide (at most the spot drill's size) [mm]."""
+    targets = [(h, library.tool(n)) for n, hs in drilled.items() for h, _ in hs]
+    xy = np.array([[h.x, h.y] for h, _ in targets])
+    order = _tour(xy, origin)
+    rows = []
+    for i in order:
+        h, drill = targets[i]
+        spot_d = min(options.spot_share * drill.diameter, spot.diameter)
+        rows.append((h.x, h.y, top - spot.point_slope * spot_d / 2))
+    cycle = DrillCycle(code=81, holes=np.array(rows), r_plane=r_plane, peck=0.0, retract="r", initial_z=initial)
+    return drill_operation("spot drill", "spot", spot, library.cutting_data(spot, mat), cycle)
+
+
+def _drill_operations(drilled: dict[int, list[tuple[Hole, float]]], library: ToolLibrary, mat: str,
+                      r_plane: float, initial: float, origin: np.ndarray,
+                      options: DrillingOptions) -> list[Operation]:
+    """The drilling cycles, smallest drill first: per drill a G81 for the shallow holes and a G83
+    for those deeper than ``peck_ratio`` diameters from the R plane, each a nearest-neighbour tour."""
+    ops = []
     for number in sorted(drilled, key=lambda n: library.tool(n).diameter):
         drill = library.tool(number)
         rows_by_code: dict[int, list[tuple[float, float, float]]] = {}
@@ -487,15 +538,4 @@ def plan_holes(
             cycle = DrillCycle(code=code, holes=rows, r_plane=r_plane, peck=peck, retract="r", initial_z=initial)
             name = f"{'peck ' if code == 83 else ''}drill {drill.diameter:g} mm"
             ops.append(drill_operation(name, "drill", drill, library.cutting_data(drill, mat), cycle))
-    for h, mill in sorted(helixed, key=lambda hm: (-hm[1].diameter, hm[0].x, hm[0].y)):
-        bottom = max(h.bottom_z - (options.breakthrough if h.bottom == "through" else 0.0), floor)
-        ops.append(helix_operation(h, mill, library.cutting_data(mill, mat), r_plane, bottom, options, initial))
-    for h in holes:
-        log.debug("hole: %s", h.describe())
-    log.info("%d round holes: %d drilled (%d undersize), %d helixed, %d left to roughing or unreached",
-             len(holes), sum(len(v) for v in drilled.values()), len(undersize), len(helixed), len(left))
-    return HolePlan(
-        holes=holes, operations=tuple(ops),
-        drilled=tuple(h for hs in drilled.values() for h, _ in hs),
-        helixed=tuple(h for h, _ in helixed), undersize=tuple(undersize), left=tuple(left),
-    )
+    return ops

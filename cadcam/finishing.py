@@ -34,7 +34,7 @@ from cadcam.dropcutter import TriangleIndex, build_index, drop_profile
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.relief import clip_chains
 from cadcam.rest import deep_stock, engagement_ok
-from cadcam.verify import Simulation, clear_height
+from cadcam.stock import Simulation, clear_height
 from factory.core.errors import ToolpathError
 
 #: ``within(radius)``: the XY region [mm] the axis of a tool of ``radius`` [mm] stays in.
@@ -440,7 +440,7 @@ def raster_finishing(
     progress : callable, optional
         ``progress(done, total)`` over the initial CL grid.
     stock : Simulation, optional
-        The stock earlier operations left (:func:`cadcam.verify.stock_after`); descents
+        The stock earlier operations left (:func:`cadcam.stock.stock_after`); descents
         rapid through the air above it instead of feeding down from ``safe_z``.
     limit : EngagementLimit, optional
         With ``stock``: leave out every move that would cut deeper into it than this.

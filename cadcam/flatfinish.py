@@ -35,7 +35,7 @@ from cadcam.faces import FLAT, WALL, FaceClasses
 from cadcam.model import CuttingData, Operation, Setup, Tool
 from cadcam.rest import excess
 from cadcam.roughing import RoughingOptions, zlevel_roughing
-from cadcam.verify import Simulation
+from cadcam.stock import Simulation
 from factory.core.errors import ToolError
 
 

@@ -1,6 +1,6 @@
 """XY regions made of stock-model grid cells, built fast.
 
-The stock model (:class:`cadcam.verify.Simulation`) marks rest material cell by cell. As a
+The stock model (:class:`cadcam.stock.Simulation`) marks rest material cell by cell. As a
 polygon that is the union of the marked cells' squares; rest roughing grows it by the tool
 radius. Both are exact set operations on up to tens of thousands of squares, and GEOS
 pays per vertex and per intersection:

@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 import trimesh
 
+from cadcam.model import MAX_EXTENT_MM
 from factory.core.errors import MeshError, SetupError
 
 if TYPE_CHECKING:
@@ -59,10 +60,9 @@ def units_of_scale(scale: float, source: str | None = None) -> Units:
             return name  # type: ignore[return-value]
     raise SetupError(f"mesh_scale {scale} is not mm, inch or m", source=source)
 
-#: Smallest and largest plausible part extent [mm]: below a millimetre or above two metres
+#: Smallest plausible part extent [mm]: below a millimetre (or above :data:`cadcam.model.MAX_EXTENT_MM`)
 #: the file is far more likely in the wrong units than a real job for a milling machine.
 MIN_EXTENT_MM = 1.0
-MAX_EXTENT_MM = 2000.0
 
 _FORMATS = {".stl": "stl", ".obj": "obj", ".ply": "ply", ".3mf": "3mf"}
 

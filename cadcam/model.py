@@ -22,6 +22,11 @@ import numpy as np
 ToolShape = Literal["flat", "ball", "bull", "drill"]
 WorkOrigin = Literal["top-front-left", "top-centre"]
 
+#: Largest plausible part or stock extent [mm]: above two metres a part file is far more likely
+#: in the wrong units than a real job for a milling machine (:mod:`cadcam.mesh`), and no stock
+#: is longer (:mod:`cadcam.setup`).
+MAX_EXTENT_MM = 2000.0
+
 
 def frozen_array(values: Any, shape_tail: tuple[int, ...] = (), dtype: Any = np.float64) -> np.ndarray:
     """Return a read-only copy of ``values`` as an array of ``dtype``.

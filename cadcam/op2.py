@@ -25,7 +25,7 @@ Facing
     ramps down in the air beside it and enters the material sideways at depth, never by a
     plunge. Passes overhang the stock's Y faces by a tenth of the diameter, so no rim stays.
 Features seen from below
-    The op-2 stock is op 1's simulated stock turned over (:func:`cadcam.verify.flip_stock`),
+    The op-2 stock is op 1's simulated stock turned over (:func:`cadcam.stock.flip_stock`),
     so what op 1 already cut is known. Where, after facing, more than the finishing limit is
     left over the turned-over part's upper envelope (a pocket or recess in the bottom face,
     which op 1 could not reach through the part), it is rest roughed with the library's flat
@@ -44,15 +44,13 @@ import trimesh
 from scipy import ndimage
 
 from cadcam.finishing import EngagementLimit, raster_finishing
-from cadcam.heightmap import upper_envelope
 from cadcam.model import CuttingData, FixtureBox, Job, Motion, Operation, Setup, Tool, ViseJaws
 from cadcam.plan import PlanOptions, choose_tools, rest_tools
 from cadcam.rest import excess, safe_rapids, unreached
 from cadcam.roughing import zlevel_roughing
 from cadcam.setup import JAW_CLEARANCE_MM
 from cadcam.tools import ToolLibrary
-from cadcam.verify import (FlippedStock, Simulation, VerifyOptions, clear_height, flip_stock, operation_moves,
-                           simulate_flipped, stock_after)
+from cadcam.stock import FlippedStock, Simulation, clear_height, flip_stock, stock_after, stock_after_flipped
 from factory.core.errors import SetupError, ToolError, ToolpathError
 
 log = logging.getLogger(__name__)
@@ -332,21 +330,6 @@ class Op2Options:
         return dataclasses.asdict(self)
 
 
-def stock_after_flipped(operations: list[Operation], setup: Setup, part_triangles: np.ndarray, start: FlippedStock,
-                        cell: float) -> Simulation:
-    """The op-2 stock after ``operations``, from the turned-over op-1 stock ``start`` [mm]."""
-    cutting = [op for op in operations if len(op.points) > 1]
-    if not cutting:
-        grid = start.grid
-        present = np.isfinite(start.top)
-        lowest = float(start.bottom[present].min()) if present.any() else float(setup.stock_min[2])
-        return Simulation(grid=grid, stock_top=start.top, part_top=upper_envelope(part_triangles, grid),
-                          stock_bottom=lowest, stock_under=start.bottom)
-    tools = {op.tool.number: op.tool for op in cutting}
-    sim, _ = simulate_flipped(operation_moves(cutting), tools, setup, part_triangles, start, VerifyOptions(cell=cell))
-    return sim
-
-
 def _left_from_below(sim: Simulation, allowance: float) -> np.ndarray:
     """(ny, nx) bool: grid points over the part with more than the finished residual left."""
     over = np.isfinite(sim.part_top) & np.isfinite(sim.stock_top)
@@ -428,56 +411,76 @@ def plan_op2(
         stock = stock_after_flipped(operations, setup, triangles, start, options.cell)
         left = _left_from_below(stock, 0.0)
     if left.any():
-        # Pockets and recesses in the bottom face: rest rough them, then finish them, only there.
-        log.info("op 2: %d grid points of stock left over faces seen from below; rest roughing and finishing",
-                 int(left.sum()))
-        rough_tool, finish_tool = choose_tools(library, setup, plan)
-        for t in [rough_tool, *rest_tools(library, rough_tool)]:
-            if not (excess(stock, allowance) > limit).any():
-                break
-            opts = dataclasses.replace(plan.roughing, stepdown=None, stepover=None, helix_diameter=None,
-                                       min_helix_diameter=None)
-            op = zlevel_roughing(part, setup, t, library.cutting_data(t, setup.material), opts, rest=stock,
-                                 rest_above=limit)
-            if len(op.points) > 1:
-                operations.append(op)
-                stock = stock_after_flipped(operations, setup, triangles, start, options.cell)
-        raster = raster_finishing(part, setup, finish_tool, library.cutting_data(finish_tool, setup.material),
-                                  dataclasses.replace(plan.finishing, steep_angle=90.0), stock=stock,
-                                  limit=EngagementLimit(depth=limit, allowance=allowance))
-        raster = _only_where(raster, _left_from_below(stock, 0.0), stock, setup)
-        if len(raster.points) > 1:
-            operations.append(raster)
-            stock = stock_after_flipped(operations, setup, triangles, start, options.cell)
+        operations, stock = _machine_from_below(part, triangles, setup, library, plan, operations, stock, start,
+                                                options.cell, left)
     left_regions = unreached(stock, limit, allowance)
     for u in left_regions:
         log.warning("op 2: no tool reaches %s from below; left uncut", u.describe())
     operations = [op for op in operations if len(op.points) >= 2]
     safe_ops, checked, fixed = safe_rapids(operations, setup, triangles) if operations else ((), 0, 0)
-    job = Job(
-        part_name=job1.part_name,
-        setup=setup,
-        operations=tuple(safe_ops),
-        source_sha256=job1.source_sha256,
-        parameters={
-            "op": 2,
-            "work_offset": WORK_OFFSET[2],
-            # the program's header comment (cadcam.post): what the operator sets up before cycle start
-            "setup_note": (f"op 2: part turned over about X, held on its finished faces; G55 zero on the top of "
-                           f"the turned-over stock, {_ORIGIN_WORDS[setup.origin]}; faces to Z{face_z:.3f}"),
-            "flip": {"axis": FLIP_AXIS, "transform_op1_to_op2": flip_transform(setup1).tolist()},
-            "face_z": face_z,
-            "holding_mm": round(float(part_work.bounds[0][2] - setup1.stock_min[2]), 4),
-            "facing_tool": tool.number,
-            # what holds the part in op 2: the cell's soft jaws if it has them, else the plain vise jaws
-            "held_in": None if jaws is None else ("vise jaws" if jaws.soft_jaws is None
-                                                  else f"soft jaws ({jaws.soft_jaws.kind})"),
-            "options": options.to_dict(),
-            "unreached": [u.to_dict() for u in left_regions],
-            "rapids": {"checked": checked, "made_safe": fixed},
-        },
-    )
+    parameters = _op2_parameters(setup1, setup, part_work, face_z, tool, jaws, options, left_regions, checked, fixed)
+    job = Job(part_name=job1.part_name, setup=setup, operations=tuple(safe_ops), source_sha256=job1.source_sha256,
+              parameters=parameters)
     return job, part
+
+
+def _machine_from_below(part: trimesh.Trimesh, triangles: np.ndarray, setup: Setup, library: ToolLibrary,
+                        plan: PlanOptions, operations: list[Operation], stock: Simulation, start: FlippedStock,
+                        cell: float, left: np.ndarray) -> tuple[list[Operation], Simulation]:
+    """Rest rough, then finish, the stock left over faces seen from below (pockets and recesses in the
+    bottom face), only there: ``operations`` with those appended, and the stock after them.
+
+    ``stock``: the op-2 stock after ``operations``, from ``start`` (op 1's turned over) on a grid
+    of ``cell`` [mm]; ``left``: its grid points with stock over faces seen from below;
+    ``triangles``: the part's, (m, 3, 3) [mm].
+    """
+    allowance, limit = plan.roughing.allowance, plan.finish_engagement
+    log.info("op 2: %d grid points of stock left over faces seen from below; rest roughing and finishing",
+             int(left.sum()))
+    operations = list(operations)
+    rough_tool, finish_tool = choose_tools(library, setup, plan)
+    for t in [rough_tool, *rest_tools(library, rough_tool)]:
+        if not (excess(stock, allowance) > limit).any():
+            break
+        opts = dataclasses.replace(plan.roughing, stepdown=None, stepover=None, helix_diameter=None,
+                                   min_helix_diameter=None)
+        op = zlevel_roughing(part, setup, t, library.cutting_data(t, setup.material), opts, rest=stock,
+                             rest_above=limit)
+        if len(op.points) > 1:
+            operations.append(op)
+            stock = stock_after_flipped(operations, setup, triangles, start, cell)
+    raster = raster_finishing(part, setup, finish_tool, library.cutting_data(finish_tool, setup.material),
+                              dataclasses.replace(plan.finishing, steep_angle=90.0), stock=stock,
+                              limit=EngagementLimit(depth=limit, allowance=allowance))
+    raster = _only_where(raster, _left_from_below(stock, 0.0), stock, setup)
+    if len(raster.points) > 1:
+        operations.append(raster)
+        stock = stock_after_flipped(operations, setup, triangles, start, cell)
+    return operations, stock
+
+
+def _op2_parameters(setup1: Setup, setup: Setup, part_work: trimesh.Trimesh, face_z: float, tool: Tool,
+                    jaws: ViseJaws | None, options: Op2Options, left_regions: tuple, checked: int,
+                    fixed: int) -> dict:
+    """The op-2 job's ``parameters`` (see :func:`plan_op2`): what the post, the setup sheet and the
+    operator need to know of the turn-over (``face_z`` [mm] in op-2 work coordinates)."""
+    return {
+        "op": 2,
+        "work_offset": WORK_OFFSET[2],
+        # the program's header comment (cadcam.post): what the operator sets up before cycle start
+        "setup_note": (f"op 2: part turned over about X, held on its finished faces; G55 zero on the top of "
+                       f"the turned-over stock, {_ORIGIN_WORDS[setup.origin]}; faces to Z{face_z:.3f}"),
+        "flip": {"axis": FLIP_AXIS, "transform_op1_to_op2": flip_transform(setup1).tolist()},
+        "face_z": face_z,
+        "holding_mm": round(float(part_work.bounds[0][2] - setup1.stock_min[2]), 4),
+        "facing_tool": tool.number,
+        # what holds the part in op 2: the cell's soft jaws if it has them, else the plain vise jaws
+        "held_in": None if jaws is None else ("vise jaws" if jaws.soft_jaws is None
+                                              else f"soft jaws ({jaws.soft_jaws.kind})"),
+        "options": options.to_dict(),
+        "unreached": [u.to_dict() for u in left_regions],
+        "rapids": {"checked": checked, "made_safe": fixed},
+    }
 
 
 def _only_where(op: Operation, left: np.ndarray, stock: Simulation, setup: Setup) -> Operation:

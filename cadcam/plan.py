@@ -35,7 +35,7 @@ from cadcam.roughing import RoughingOptions, zlevel_roughing
 from cadcam.shank_clearance import upper_raster
 from cadcam.toolfit import removal_rate, tool_fits
 from cadcam.tools import ToolLibrary
-from cadcam.verify import Simulation, stock_after
+from cadcam.stock import Simulation, stock_after
 from factory.core.errors import ToolError
 
 T = TypeVar("T")

@@ -1,11 +1,16 @@
-"""A top-view picture of a job's toolpaths, for people who would rather look than read."""
+"""Top-view pictures for people who would rather look than read: a job's toolpaths, its setup, and the
+stock a verified program leaves on the part (the deviation map)."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
 from cadcam.faces import FLAT, KIND_NAMES, SHALLOW, STEEP, WALL, FaceClasses
 from cadcam.model import Job, Motion, Setup
+from cadcam.stock import Simulation
+from cadcam.verify import VerifyReport
 
 #: RGB per operation kind; rapids are drawn thin and red over everything.
 KIND_COLOURS = {"roughing": (40, 90, 200), "waterline": (230, 140, 20), "raster": (40, 160, 70),
@@ -181,4 +186,116 @@ def setup_image(setup: Setup, part_triangles: np.ndarray, title: str, width: int
     for text in lines:
         draw.text((10, y + 2), text, fill=(0, 0, 0))
         y += 22
+    return np.asarray(img, dtype=np.uint8).copy()
+
+
+_STOPS = np.array([0.0, 0.25, 0.5, 0.75, 1.0])
+_COLOURS = np.array([[40, 70, 200], [0, 180, 220], [60, 185, 75], [240, 215, 40], [245, 130, 20]], dtype=np.float64)
+_GOUGE = np.array([215, 25, 30], dtype=np.float64)
+_NO_PART = np.array([70, 70, 70], dtype=np.float64)
+
+
+def _colour(values: np.ndarray, vmax: float, tol: float) -> np.ndarray:
+    """RGB (float) for remaining-stock values: blue on size, to orange at ``vmax``, red for gouges."""
+    u = np.clip(np.nan_to_num(values, nan=0.0) / vmax, 0.0, 1.0)
+    rgb = np.stack([np.interp(u, _STOPS, _COLOURS[:, c]) for c in range(3)], axis=-1)
+    rgb[values < -tol] = _GOUGE
+    rgb[np.isnan(values)] = _NO_PART
+    return rgb
+
+
+def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640) -> np.ndarray:
+    """A top view of the stock left on the part, with a colour bar.
+
+    Blue is on size, through cyan, green and yellow to orange at the largest remaining
+    stock; red is a gouge deeper than the tolerance; grey is where there is no part. The
+    deepest gouge is ringed in white, rapid crashes are marked with a magenta cross, every
+    other fault with a square labelled with its kind, tool and first line. Y points up in
+    the picture (away from the operator).
+
+    Parameters
+    ----------
+    sim : Simulation
+    report : VerifyReport
+    width : int
+        Approximate width of the map part of the picture [px].
+
+    Returns
+    -------
+    (H, W, 3) uint8
+        RGB picture; write it with :func:`factory.pictures.png_bytes`.
+    """
+    from PIL import Image, ImageDraw, ImageFont
+
+    grid = sim.grid
+    tol = report.gouge_tolerance
+    vmax = report.remaining_max if report.remaining_max > max(tol, 1e-6) else 1.0
+    rgb = _colour(sim.remaining, vmax, tol)[::-1]  # row 0 of the picture is the largest Y
+    scale = max(1, width // max(grid.nx, grid.ny))
+    step = max(1, math.ceil(max(grid.nx, grid.ny) / width))
+    rgb = rgb[::step, ::step]
+    rgb = np.repeat(np.repeat(rgb, scale, axis=0), scale, axis=1)
+    px = scale / step  # picture pixels per grid point
+    h, w = rgb.shape[:2]
+
+    margin, bar_w, label_w, caption_h = 12, 18, 150, 20
+    H = max(h + 2 * margin + caption_h, 260)
+    W = max(w + 2 * margin + bar_w + label_w, 2 * margin + 420)  # room for the caption
+    canvas = np.full((H, W, 3), 255, dtype=np.uint8)
+    canvas[margin:margin + h, margin:margin + w] = np.round(rgb).astype(np.uint8)
+
+    # Colour bar: gouge band at the bottom, then 0 .. vmax upwards.
+    bx = margin + w + margin
+    bar_h = H - 2 * margin - 40
+    gouge_h = 14
+    ramp_h = bar_h - gouge_h - 4
+    vals = np.linspace(vmax, 0.0, ramp_h)
+    canvas[margin:margin + ramp_h, bx:bx + bar_w] = np.round(_colour(vals, vmax, tol))[:, None, :].astype(np.uint8)
+    gy = margin + ramp_h + 4
+    canvas[gy:gy + gouge_h, bx:bx + bar_w] = _GOUGE.astype(np.uint8)
+    ny_ = gy + gouge_h + 4
+    canvas[ny_:ny_ + gouge_h, bx:bx + bar_w] = _NO_PART.astype(np.uint8)
+
+    img = Image.fromarray(canvas)
+    draw = ImageDraw.Draw(img)
+    font = ImageFont.load_default()
+    tx = bx + bar_w + 5
+    for frac in (0.0, 0.5, 1.0):
+        y = margin + int(round((1 - frac) * (ramp_h - 1)))
+        draw.line([(bx + bar_w, y), (bx + bar_w + 3, y)], fill=(0, 0, 0))
+        draw.text((tx, y - 6), f"{frac * vmax:.3f} mm", fill=(0, 0, 0), font=font)
+    draw.text((tx, gy), f"gouge > {tol:g} mm", fill=(0, 0, 0), font=font)
+    draw.text((tx, ny_), "no part", fill=(0, 0, 0), font=font)
+    caption = f"remaining stock above the part, max gouge {report.max_gouge:.3f} mm"
+    if report.rapid_crashes:
+        caption += f", {len(report.rapid_crashes)} rapid crash(es)"
+    others = [f.kind for f in report.faults if f.kind != "rapid"]
+    if others:
+        caption += ", " + ", ".join(sorted(set(others)))
+    draw.text((margin, margin + h + 6), caption, fill=(0, 0, 0), font=font)
+
+    def to_px(x: float, y: float) -> tuple[float, float]:
+        col = (x - grid.x0) / grid.cell
+        row = (grid.ny - 1) - (y - grid.y0) / grid.cell
+        return margin + col * px + px / 2, margin + row * px + px / 2
+
+    if report.gouged and report.gouge_position is not None:
+        cx, cy = to_px(report.gouge_position[0], report.gouge_position[1])
+        for r in (9, 10):
+            draw.ellipse([cx - r, cy - r, cx + r, cy + r], outline=(255, 255, 255))
+        draw.ellipse([cx - 11, cy - 11, cx + 11, cy + 11], outline=(0, 0, 0))
+    for crash in report.rapid_crashes:
+        cx, cy = to_px(crash.position[0], crash.position[1])
+        draw.line([(cx - 7, cy - 7), (cx + 7, cy + 7)], fill=(255, 0, 255), width=3)
+        draw.line([(cx - 7, cy + 7), (cx + 7, cy - 7)], fill=(255, 0, 255), width=3)
+    # Every other fault: a black-and-white square at its worst point, labelled with its
+    # kind and first program line (rapids already carry their cross).
+    for fault in report.faults:
+        if fault.position is None or fault.kind == "rapid":
+            continue
+        cx, cy = to_px(fault.position[0], fault.position[1])
+        draw.rectangle([cx - 8, cy - 8, cx + 8, cy + 8], outline=(0, 0, 0), width=3)
+        draw.rectangle([cx - 6, cy - 6, cx + 6, cy + 6], outline=(255, 255, 255), width=1)
+        label = f"{fault.kind} T{fault.tool}" + (f" L{fault.lines[0]}" if fault.lines else "")
+        draw.text((cx + 10, cy - 6), label, fill=(0, 0, 0), font=font)
     return np.asarray(img, dtype=np.uint8).copy()

@@ -40,7 +40,7 @@ from cadcam.setup import StockMargins, make_setup
 from factory.core.errors import MeshError, SetupError
 
 if TYPE_CHECKING:
-    from cadcam.verify import Simulation
+    from cadcam.stock import Simulation
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """What earlier operations left: rest material, unreached features, and rapids made safe.
 
-All three work from the in-process stock model (:func:`cadcam.verify.stock_after`), a
+All three work from the in-process stock model (:func:`cadcam.stock.stock_after`), a
 heightfield of the stock top on a grid, and the part's upper envelope on the same grid.
 
 *Excess* is the stock above the part at a grid point, the part taken grown sideways by
@@ -26,7 +26,8 @@ from shapely.geometry.base import BaseGeometry
 
 from cadcam.gridregion import cells_region
 from cadcam.model import Motion, Operation, Setup, Tool
-from cadcam.verify import Simulation, VerifyOptions, clear_height, operation_moves, simulate, simulate_snapshots
+from cadcam.stock import Simulation, clear_height, cut_stock, operation_moves
+from cadcam.verify import VerifyOptions, simulate
 from factory.core.errors import ToolpathError
 
 log = logging.getLogger(__name__)
@@ -185,8 +186,8 @@ def safe_rapids(operations: Sequence[Operation], setup: Setup, part_triangles: n
     first[starts[:-1]] = True
     below = (moves.motion == Motion.RAPID) & ~first & (moves.points[:, 2] < setup.safe_z - 1e-9)
     checked = int(below.sum())
-    opts = VerifyOptions(cell=cell)
-    final, report = simulate(moves, tools, setup, part_triangles, opts)
+    verified = simulate(moves, tools, setup, part_triangles, VerifyOptions(cell=cell))
+    final, report = verified.simulation, verified.report
     for f in report.faults:
         if f.kind == "jaws":  # no speed makes a move into the vise safe: the planner is wrong
             x, y, z = f.position or (math.nan,) * 3
@@ -194,7 +195,7 @@ def safe_rapids(operations: Sequence[Operation], setup: Setup, part_triangles: n
     bad = sorted({c.move for c in report.rapid_crashes if not first[c.move]})
     if not bad:
         return ops, checked, 0
-    _, _, snaps = simulate_snapshots(moves, tools, setup, part_triangles, [m - 1 for m in bad], opts)
+    snaps = cut_stock(moves, tools, setup, part_triangles, cell, snapshot_moves=[m - 1 for m in bad]).snapshots
     edits: dict[int, list[tuple[int, float | None]]] = {}
     for m, snap in zip(bad, snaps):
         k = int(np.searchsorted(starts, m, side="right") - 1)

@@ -82,7 +82,7 @@ from shapely.ops import nearest_points
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.gridregion import GrownMaskCache
 from cadcam.rest import rest_mask
-from cadcam.verify import Simulation, clear_height
+from cadcam.stock import Simulation, clear_height
 from factory.core.errors import MeshError, ToolError, ToolpathError
 
 log = logging.getLogger(__name__)
@@ -586,7 +586,7 @@ def _clear_down_to(known: Simulation, tool: Tool, z: float) -> Callable[[np.ndar
     at ``z`` [mm] touches none of the ``known`` stock.
 
     One dilation of the stock above ``z`` per call, then a look-up per point: at least as
-    cautious as :func:`cadcam.verify.clear_height` (which takes the stock as reaching up to a
+    cautious as :func:`cadcam.stock.clear_height` (which takes the stock as reaching up to a
     grid point's height within a cell diagonal of it), with half a cell diagonal more for
     rounding the point to its nearest grid point.
     """
@@ -856,63 +856,15 @@ def zlevel_roughing(
     skipped = 0
     for li, z in enumerate(levels):
         z = float(z)
-        forbidden = shapely.union_all(
-            [_buffer(shadow[zq], dist, p.arc_tolerance) for zq, dist in _forbidden_terms(z, p)]
-        )
-        allowed = rect.difference(forbidden)
-        if cleared is not None:
-            allowed = allowed.intersection(cleared)
-        if blocked:
-            allowed = allowed.difference(shapely.union_all(blocked))
-        space = allowed  # where the tool may go at this level, rest material or not
+        space = _level_space(z, rect, shadow, cleared, blocked, p)  # rest material or not
+        allowed = space
         if rest is not None:
             allowed = allowed.intersection(rest_grown(rest_mask(rest, z, rest_above, p.allowance)))
-        regions = [r for r in _polygons(allowed) if r.area > _MIN_AREA]
-        plans = []
-        clear_here = None  # where the known stock lets the tool down to this level, when first needed
-        for region in regions:
-            rings = _rings(region, p)
-            if not rings:
-                continue
-            entry = _open_entry(region, rings, rect_xy, g, p)
-            inside_out = entry is None
-            if entry is None and air_at is not None:
-                # Rest machining: rest material (a terrace, the skin on a wall) with air beside it
-                # is entered from there, as an open region is from outside the stock: no helix or
-                # ramp at the plunge feed, and none at all where a strip is too narrow for one.
-                if clear_here is None:
-                    clear_here = _clear_down_to(known, tool, z)
-                entry = _side_entry(region, rings, space, clear_here, p, known.grid.cell)
-                inside_out = entry is None
-            if entry is None:
-                entry = _closed_entry(region, rings, p)
-            if entry is None:
-                c = region.representative_point()
-                log.warning(
-                    "z=%.3f: pocket near (%.2f, %.2f) is too small to enter with a helix or ramp; skipped",
-                    z, c.x, c.y,
-                )
-                skipped += 1
-                if rest is not None:
-                    blocked.append(region.buffer(2 * p.radius, quad_segs=4))
-                continue
-            plans.append((region, rings, entry, inside_out))
-        done_regions = []
-        # Nearest-neighbour order of regions from where the tool is.
-        while plans:
-            here = path.here[:2] if path.points else np.array([sx0, sy0])
-            i = min(range(len(plans)), key=lambda i: np.linalg.norm(
-                (plans[i][2].air_xy if plans[i][2].air_xy is not None else plans[i][2].start_xy) - here))
-            region, rings, entry, inside_out = plans.pop(i)
-            if not path.points:
-                first = entry.air_xy if entry.air_xy is not None else entry.start_xy
-                path.add([first[0], first[1], p.safe_z], Motion.RAPID)
-            if _cut_region(path, region, rings, entry, z, z_prev, inside_out, p, air_at):
-                done_regions.append(region)
-            else:
-                skipped += 1
-                if rest is not None:
-                    blocked.append(region.buffer(2 * p.radius, quad_segs=4))
+        plans, missed = _plan_entries(allowed, space, z, rect_xy, p, tool, known, air_at)
+        done_regions, failed = _cut_nearest_first(path, plans, z, z_prev, p, air_at, np.array([sx0, sy0]))
+        skipped += len(missed) + len(failed)
+        if rest is not None:
+            blocked += [region.buffer(2 * p.radius, quad_segs=4) for region in missed + failed]
         if rest is None and (skipped or cleared is not None):
             cleared = shapely.union_all(done_regions) if done_regions else Polygon()
         if path.points:
@@ -929,3 +881,82 @@ def zlevel_roughing(
     name = "rough z-level" if rest is None else f"rest rough T{tool.number}"
     return Operation(name=name, kind="roughing", tool=tool, cutting=cutting, points=pts,
                      motion=motion, allowance=p.allowance)
+
+
+def _level_space(z: float, rect: BaseGeometry, shadow: dict, cleared: BaseGeometry | None,
+                 blocked: list[BaseGeometry], p: _Params) -> BaseGeometry:
+    """Where the tool axis may go at level ``z`` [mm]: the stock rectangle less the part's shadows
+    grown by the tool (:func:`_forbidden_terms`), within what the levels above cleared (None: no
+    bound) and outside the regions ``blocked`` below pockets that could not be entered."""
+    forbidden = shapely.union_all(
+        [_buffer(shadow[zq], dist, p.arc_tolerance) for zq, dist in _forbidden_terms(z, p)]
+    )
+    allowed = rect.difference(forbidden)
+    if cleared is not None:
+        allowed = allowed.intersection(cleared)
+    if blocked:
+        allowed = allowed.difference(shapely.union_all(blocked))
+    return allowed
+
+
+def _plan_entries(allowed: BaseGeometry, space: BaseGeometry, z: float, rect_xy: tuple[float, float, float, float],
+                  p: _Params, tool: Tool, known: Simulation | None,
+                  air_at: Callable[[np.ndarray], np.ndarray] | None) -> tuple[list[tuple], list[Polygon]]:
+    """How to enter each region of level ``z`` to cut: ``(region, rings, entry, inside_out)`` each,
+    and the regions no entry fits (warned about, left uncut).
+
+    An open region is entered from outside the stock; with a known stock (rest machining), a
+    closed one from the air beside it (``space``: where the tool may go at this level); else by
+    a helix or ramp inside it.
+    """
+    regions = [r for r in _polygons(allowed) if r.area > _MIN_AREA]
+    plans, missed = [], []
+    clear_here = None  # where the known stock lets the tool down to this level, when first needed
+    for region in regions:
+        rings = _rings(region, p)
+        if not rings:
+            continue
+        entry = _open_entry(region, rings, rect_xy, p.radius, p)
+        inside_out = entry is None
+        if entry is None and air_at is not None:
+            # Rest machining: rest material (a terrace, the skin on a wall) with air beside it
+            # is entered from there, as an open region is from outside the stock: no helix or
+            # ramp at the plunge feed, and none at all where a strip is too narrow for one.
+            if clear_here is None:
+                clear_here = _clear_down_to(known, tool, z)
+            entry = _side_entry(region, rings, space, clear_here, p, known.grid.cell)
+            inside_out = entry is None
+        if entry is None:
+            entry = _closed_entry(region, rings, p)
+        if entry is None:
+            c = region.representative_point()
+            log.warning(
+                "z=%.3f: pocket near (%.2f, %.2f) is too small to enter with a helix or ramp; skipped",
+                z, c.x, c.y,
+            )
+            missed.append(region)
+            continue
+        plans.append((region, rings, entry, inside_out))
+    return plans, missed
+
+
+def _cut_nearest_first(path: _Path, plans: list[tuple], z: float, z_prev: float, p: _Params,
+                       air_at: Callable[[np.ndarray], np.ndarray] | None,
+                       start_xy: np.ndarray) -> tuple[list[Polygon], list[Polygon]]:
+    """Cut the planned regions of level ``z`` (:func:`_plan_entries`) onto ``path``, each time the
+    one whose entry is nearest to the tool (``start_xy`` [mm] before the first move); returns the
+    regions cut and those :func:`_cut_region` could not cut."""
+    done, failed = [], []
+    while plans:
+        here = path.here[:2] if path.points else start_xy
+        i = min(range(len(plans)), key=lambda i: np.linalg.norm(
+            (plans[i][2].air_xy if plans[i][2].air_xy is not None else plans[i][2].start_xy) - here))
+        region, rings, entry, inside_out = plans.pop(i)
+        if not path.points:
+            first = entry.air_xy if entry.air_xy is not None else entry.start_xy
+            path.add([first[0], first[1], p.safe_z], Motion.RAPID)
+        if _cut_region(path, region, rings, entry, z, z_prev, inside_out, p, air_at):
+            done.append(region)
+        else:
+            failed.append(region)
+    return done, failed

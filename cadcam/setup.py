@@ -21,8 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from cadcam.mesh import MAX_EXTENT_MM
-from cadcam.model import Setup, ViseJaws, WorkOrigin
+from cadcam.model import MAX_EXTENT_MM, Setup, ViseJaws, WorkOrigin
 from factory.core.errors import SetupError
 
 log = logging.getLogger(__name__)

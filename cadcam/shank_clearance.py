@@ -19,7 +19,7 @@ from scipy import ndimage
 
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing
 from cadcam.model import CuttingData, Operation, Setup, Tool
-from cadcam.verify import Simulation
+from cadcam.stock import Simulation
 
 #: The upper raster stops this far short of the flutes' reach from the stock top [mm].
 SHANK_CLEARANCE = 0.5
@@ -61,7 +61,7 @@ def upper_raster(part: trimesh.Trimesh, setup: Setup, tool: Tool, cutting: Cutti
     Parameters
     ----------
     stock : Simulation
-        The stock the earlier operations left (:func:`cadcam.verify.stock_after`).
+        The stock the earlier operations left (:func:`cadcam.stock.stock_after`).
     options, limit, progress
         As for :func:`cadcam.finishing.raster_finishing`.
     """

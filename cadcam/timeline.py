@@ -31,7 +31,7 @@ import numpy as np
 
 from cadcam.model import Motion, ProgramMoves, Setup, Tool, frozen_array
 from cadcam.post import PostOptions, move_seconds, tool_change_seconds
-from cadcam.verify import Simulation, VerifyOptions, simulate_snapshots
+from cadcam.stock import Simulation, cut_stock
 from factory.core.errors import GcodeError, VerifyError
 
 log = logging.getLogger(__name__)
@@ -290,7 +290,7 @@ def stock_snapshots(
     times_s : (s,) sequence of float
         Times on the timeline [s], any order.
     cell : float
-        Grid spacing [mm] (:attr:`VerifyOptions.cell`).
+        Grid spacing [mm] (:attr:`cadcam.verify.VerifyOptions.cell`).
     timeline : MachineTimeline, optional
         The program's timeline; default :func:`machine_timeline` with default post options.
 
@@ -304,7 +304,7 @@ def stock_snapshots(
     Raises
     ------
     VerifyError
-        As :func:`cadcam.verify.simulate`; a timeline of another program; a time that is
+        As :func:`cadcam.stock.cut_stock`; a timeline of another program; a time that is
         not finite.
     GcodeError
         As :func:`machine_timeline`.
@@ -318,7 +318,8 @@ def stock_snapshots(
     if not np.isfinite(times).all():
         raise VerifyError("snapshot times must be finite numbers of seconds", source="times_s")
     at = timeline.move_at(times)
-    sim, _, tops = simulate_snapshots(moves, tools, setup, part_triangles, at, VerifyOptions(cell=cell))
+    cut = cut_stock(moves, tools, setup, part_triangles, cell, snapshot_moves=at)
+    sim, tops = cut.simulation, cut.snapshots
     out = []
     for t, top, last in zip(times.tolist(), tops, at.tolist()):
         # the volume each move removed, of the moves done by then

@@ -41,7 +41,8 @@ from cadcam.preview import setup_image
 from cadcam.relief import block_corners
 from cadcam.sheet import setup_sheet
 from cadcam.tools import load_tool_library
-from cadcam.verify import Simulation, VerifyOptions, VerifyReport
+from cadcam.stock import Simulation
+from cadcam.verify import VerifyOptions, VerifyReport
 from factory.core.atomic import check_writable, write_bytes, write_text
 from factory.cam import CamRequest, PlannedPart, compute_job, log_job
 from factory.catalog import catalog_record, sha256_file

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from cadcam.model import Setup
-from cadcam.verify import check_grid_size
+from cadcam.stock import check_grid_size
 from factory.core.errors import CellError, PlanningError
 from factory.core.resources import FIXTURES
 from robotprog.cell import load_cell

@@ -15,8 +15,9 @@ from cadcam.mesh import load_part, units_of_scale
 from cadcam.relief import machining_surface
 from cadcam.model import Setup, Tool
 from cadcam.sheet import read_setup_sheet
-from cadcam.verify import (Simulation, VerifyOptions, VerifyReport, deviation_image, finishing_moves, flip_stock,
-                           simulate, simulate_flipped)
+from cadcam.preview import deviation_image
+from cadcam.stock import Simulation, flip_stock
+from cadcam.verify import VerifyOptions, VerifyReport, finishing_moves, simulate, simulate_flipped
 from factory.core.atomic import write_bytes, write_text
 from factory.core.errors import SetupError
 from factory.core.setupsheet import SetupSheet
@@ -66,8 +67,9 @@ def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int
     """
     moves = parse_gcode(gcode_text, source=gcode_source)
     finishing = finishing_moves(gcode_text, moves, operations)
-    return simulate(moves, tools, setup, triangles, options, progress=stage_callback(progress, "verify"),
-                    finishing=finishing)
+    verified = simulate(moves, tools, setup, triangles, options, progress=stage_callback(progress, "verify"),
+                        finishing=finishing)
+    return verified.simulation, verified.report
 
 
 def run_verify_after(before: Simulation, flip: np.ndarray, gcode_text: str, gcode_source: str, setup: Setup,
@@ -85,8 +87,9 @@ def run_verify_after(before: Simulation, flip: np.ndarray, gcode_text: str, gcod
     moves = parse_gcode(gcode_text, source=gcode_source)
     finishing = finishing_moves(gcode_text, moves, operations)
     start = flip_stock(before, flip, setup)
-    return simulate_flipped(moves, tools, setup, triangles, start, options,
-                            progress=stage_callback(progress, "verify op 2"), finishing=finishing)
+    verified = simulate_flipped(moves, tools, setup, triangles, start, options,
+                                progress=stage_callback(progress, "verify op 2"), finishing=finishing)
+    return verified.simulation, verified.report
 
 
 def op1_of(sheet: SetupSheet, sheet_path: Path, after: Path | None) -> tuple[Path, Path] | None:

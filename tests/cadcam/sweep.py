@@ -1,6 +1,6 @@
 """An independent material-removal probe for tests and benchmarks: how deep each move cuts.
 
-It shares nothing with :mod:`cadcam.verify` but the grid: each move is swept by sampling
+It shares nothing with :mod:`cadcam.stock` but the grid: each move is swept by sampling
 the tool's position along it (at most a quarter cell apart) and taking, at every grid
 point within reach, the lowest point of the tool's surface over the samples. A move's
 *engagement* is the deepest it reaches below the stock as every earlier move left it

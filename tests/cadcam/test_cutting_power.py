@@ -26,7 +26,7 @@ def slot(depth: float, feed: float = 600.0, y: float = 10.0):
     moves = program([(R, 1, (-5, y, 5)), (R, 1, (-5, y, -depth)), (C, 1, (45, y, -depth)), (R, 1, (45, y, 5))])
     moves = type(moves)(moves.points, moves.motion, moves.tool, np.where(np.isnan(moves.feed), np.nan, feed),
                         moves.line)
-    sim, _ = simulate(moves, TOOLS, SETUP, NO_PART, VerifyOptions(cell=0.25))
+    sim = simulate(moves, TOOLS, SETUP, NO_PART, VerifyOptions(cell=0.25)).simulation
     return moves, sim
 
 
@@ -122,7 +122,7 @@ def test_op_2_removes_what_the_turned_over_stock_lost(block_ops):  # noqa: F811
     """Op 2 starts from op 1's stock turned over, whose columns stand on their own bottoms: what
     each move removed adds up to what those columns lost, never counting air below them."""
     from cadcam.op2 import flip_transform
-    from cadcam.verify import flip_stock
+    from cadcam.stock import flip_stock
 
     _, (job1, job2, _, _, (sim1, _), (sim2, _), m2) = block_ops
     start = flip_stock(sim1, flip_transform(job1.setup), job2.setup)

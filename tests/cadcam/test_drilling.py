@@ -21,7 +21,9 @@ from cadcam.plan import PlanOptions, choose_tools
 from cadcam.post import PostOptions, post_process
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
-from cadcam.verify import VerifyOptions, operation_moves, simulate, swept_envelope
+from cadcam.envelope import swept_envelope
+from cadcam.stock import operation_moves
+from cadcam.verify import VerifyOptions, simulate
 from factory.core.errors import ToolError
 from tests.conftest import manifold_to_trimesh
 from tests.rs274 import run_rs274, write_tool_table
@@ -205,12 +207,12 @@ def test_a_drill_fed_sideways_through_stock_is_a_fault():
     cut = LIBRARY.cutting_data(drill, "al")
     pts = np.array([[20, 20, 5], [20, 20, -3], [30, 20, -3], [30, 20, 5]], dtype=float)
     op = Operation("bad", "drill", drill, cut, pts, np.array([0, 1, 1, 0], dtype=np.int8))
-    _, rep = simulate(operation_moves([op]), {drill.number: drill}, setup, part.triangles, VerifyOptions(cell=0.25))
+    rep = simulate(operation_moves([op]), {drill.number: drill}, setup, part.triangles, VerifyOptions(cell=0.25)).report
     kinds = {f.kind for f in rep.faults}
     assert "drill_side" in kinds and not rep.ok
     # Straight down and up again is what a drill does: no fault.
     ok = Operation("ok", "drill", drill, cut, pts[[0, 1, 0]], np.array([0, 1, 0], dtype=np.int8))
-    _, rep = simulate(operation_moves([ok]), {drill.number: drill}, setup, part.triangles, VerifyOptions(cell=0.25))
+    rep = simulate(operation_moves([ok]), {drill.number: drill}, setup, part.triangles, VerifyOptions(cell=0.25)).report
     assert rep.faults == () and rep.ok
 
 
@@ -275,7 +277,8 @@ def test_random_plates_holes_found_drilled_to_depth_without_gouge(case):
     ops = list(hp.operations)
     tools = {op.tool.number: op.tool for op in ops}
     cell = 0.2
-    sim, rep = simulate(operation_moves(ops), tools, setup, part.triangles, VerifyOptions(cell=cell))
+    verified = simulate(operation_moves(ops), tools, setup, part.triangles, VerifyOptions(cell=cell))
+    sim, rep = verified.simulation, verified.report
     assert rep.max_gouge <= 0.01, rep.to_dict()
     assert rep.rapid_crashes == ()
     assert [f.kind for f in rep.faults] == [], rep.faults

@@ -28,8 +28,9 @@ def _plan_and_verify(body: manifold3d.Manifold, options: PlanOptions = FAST, cel
     text = post_process(job, PostOptions()).text
     moves = parse_gcode(text)
     sheet_ops = [{"kind": op.kind, "tool": op.tool.number} for op in job.operations]
-    sim, report = simulate(moves, {t.number: t for t in job.tools}, setup, np.asarray(part.triangles),
-                           VerifyOptions(cell=cell), finishing=finishing_moves(text, moves, sheet_ops))
+    verified = simulate(moves, {t.number: t for t in job.tools}, setup, np.asarray(part.triangles),
+                        VerifyOptions(cell=cell), finishing=finishing_moves(text, moves, sheet_ops))
+    sim, report = verified.simulation, verified.report
     return job, setup, sim, report
 
 

@@ -22,8 +22,8 @@ from cadcam.plan import PlanOptions, plan_job
 from cadcam.post import PostOptions, post_process
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
-from cadcam.verify import (Simulation, VerifyOptions, finishing_moves, flip_stock, operation_moves, simulate,
-                           simulate_flipped)
+from cadcam.stock import Simulation, flip_stock, operation_moves
+from cadcam.verify import VerifyOptions, finishing_moves, simulate, simulate_flipped
 from factory.core.errors import SetupError, ToolError, VerifyError
 from tests.cadcam.test_plan import blocks, needs_rs274, rs274_accepts
 from tests.conftest import manifold_to_trimesh, pocket_block
@@ -129,7 +129,8 @@ def test_facing_clears_the_whole_top_down_to_the_face_and_enters_beside_the_stoc
     assert np.diff(ys).max() <= 0.7 * FLAT10.diameter + 1e-9
     # Simulated: the whole footprint is at the face, nothing deeper.
     tri = np.array([[[5, 5, -14], [30, 5, -14], [5, 20, -14]]], dtype=float)  # a sliver of part far below
-    sim, report = simulate(operation_moves([op]), {2: FLAT10}, s, tri, VerifyOptions(cell=0.5))
+    verified = simulate(operation_moves([op]), {2: FLAT10}, s, tri, VerifyOptions(cell=0.5))
+    sim, report = verified.simulation, verified.report
     np.testing.assert_allclose(sim.stock_top, face, atol=1e-9)
     assert report.ok, report.to_dict()
 
@@ -159,7 +160,7 @@ def test_a_column_cut_through_in_op_1_is_air_in_op_2():
     tri = np.array([[[1, 1, -8], [39, 1, -8], [1, 29, -8]], [[39, 1, -8], [39, 29, -8], [1, 29, -8]]], float)
     drill = _moves([[10, 10, 5], [10, 10, 1], [10, 10, -11], [10, 10, 5]],
                    [Motion.RAPID, Motion.RAPID, Motion.CUT, Motion.RAPID])
-    sim1, _ = simulate(drill, {2: FLAT10}, s, tri, VerifyOptions(cell=0.5))
+    sim1 = simulate(drill, {2: FLAT10}, s, tri, VerifyOptions(cell=0.5)).simulation
     s2 = op2_setup(s)
     start = flip_stock(sim1, flip_transform(s), s2)
     t = flip_transform(s)
@@ -167,10 +168,10 @@ def test_a_column_cut_through_in_op_1_is_air_in_op_2():
     tri2 = (np.c_[tri.reshape(-1, 3), np.ones(6)] @ t.T)[:, :3].reshape(-1, 3, 3)
     small = LIBRARY.tool(6)  # 2 mm: fits in the 10 mm hole
     down_hole = _moves([[*hole, 5], [*hole, -12]], [Motion.RAPID, Motion.RAPID], tool=6)
-    _, report = simulate_flipped(down_hole, {6: small}, s2, tri2, start, VerifyOptions(cell=0.5))
+    report = simulate_flipped(down_hole, {6: small}, s2, tri2, start, VerifyOptions(cell=0.5)).report
     assert report.rapid_crashes == ()
     beside = _moves([[hole[0] + 12, hole[1], 5], [hole[0] + 12, hole[1], -1]], [Motion.RAPID, Motion.RAPID], tool=6)
-    _, report = simulate_flipped(beside, {6: small}, s2, tri2, start, VerifyOptions(cell=0.5))
+    report = simulate_flipped(beside, {6: small}, s2, tri2, start, VerifyOptions(cell=0.5)).report
     assert len(report.rapid_crashes) == 1 and report.rapid_crashes[0].depth == pytest.approx(1.0)
 
 
@@ -193,12 +194,14 @@ def op1_then_op2(mesh, name: str, tmp_path: Path, cell: float = 0.25, options: P
     p2 = post_process(job2, PostOptions(work_offset=2))
     opts = VerifyOptions(cell=cell)
     m1 = parse_gcode(p1.text)
-    sim1, r1 = simulate(m1, {t.number: t for t in job1.tools}, job1.setup, np.asarray(part.triangles), opts,
+    verified = simulate(m1, {t.number: t for t in job1.tools}, job1.setup, np.asarray(part.triangles), opts,
                         finishing=finishing_moves(p1.text, m1))
+    sim1, r1 = verified.simulation, verified.report
     m2 = parse_gcode(p2.text)
     start = flip_stock(sim1, flip_transform(job1.setup), job2.setup)
-    sim2, r2 = simulate_flipped(m2, {t.number: t for t in job2.tools}, job2.setup, np.asarray(part2.triangles), start,
+    verified = simulate_flipped(m2, {t.number: t for t in job2.tools}, job2.setup, np.asarray(part2.triangles), start,
                                 opts, finishing=finishing_moves(p2.text, m2))
+    sim2, r2 = verified.simulation, verified.report
     (tmp_path / f"{name}.op2.nc").write_text(p2.text)
     return job1, job2, part2, (p1, p2), (sim1, r1), (sim2, r2), m2
 

@@ -64,7 +64,8 @@ def plan_post_verify_moves(part_mesh, name: str, tmp_path: Path, options: PlanOp
     program = post_process(job, PostOptions())
     moves = parse_gcode(program.text, source=name)
     tools = {t.number: t for t in job.tools}
-    sim, report = simulate(moves, tools, setup, np.asarray(part.triangles), VerifyOptions(cell=cell))
+    verified = simulate(moves, tools, setup, np.asarray(part.triangles), VerifyOptions(cell=cell))
+    sim, report = verified.simulation, verified.report
     nc = tmp_path / f"{name}.nc"
     nc.write_text(program.text)
     assert_held(job, moves, part)

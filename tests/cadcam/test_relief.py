@@ -137,8 +137,9 @@ def plan_relief(path: Path, relief: ReliefOptions = ReliefOptions(), options: Pl
     job = planned.job
     program = post_process(job, PostOptions())
     moves = parse_gcode(program.text, source=path.name)
-    sim, report = simulate(moves, {t.number: t for t in job.tools}, job.setup, np.asarray(planned.part_work.triangles),
-                           VerifyOptions(cell=0.2))
+    verified = simulate(moves, {t.number: t for t in job.tools}, job.setup, np.asarray(planned.part_work.triangles),
+                        VerifyOptions(cell=0.2))
+    sim, report = verified.simulation, verified.report
     return planned, program, sim, report
 
 

@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 from cadcam.model import CuttingData, Motion, Setup, Tool
 from cadcam.rest import excess
 from cadcam.roughing import RoughingOptions, zlevel_roughing
-from cadcam.verify import stock_after
+from cadcam.stock import stock_after
 from factory.core.errors import ToolError, ToolpathError
 
 TOOL = Tool(1, "6 mm flat 3FL carbide", "flat", 6.0, 0.0, 15.0, 3, 30.0)

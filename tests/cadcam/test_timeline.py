@@ -15,7 +15,8 @@ from cadcam.post import PostOptions, post_process
 from cadcam.setup import make_setup
 from cadcam.timeline import MachineTimeline, machine_timeline, stock_snapshots
 from cadcam.tools import load_tool_library
-from cadcam.verify import VerifyOptions, simulate, simulate_snapshots
+from cadcam.stock import cut_stock
+from cadcam.verify import VerifyOptions, simulate
 from factory.core.errors import GcodeError, VerifyError
 from tests.conftest import pocket_block
 
@@ -201,7 +202,7 @@ def test_snapshots_are_the_stock_of_the_program_so_far(cut):
     times = [tl.duration + 1.0, 0.0, 0.3 * tl.duration, 0.7 * tl.duration, 0.3 * tl.duration]
     snaps = stock_snapshots(moves, tools, setup, tri, times, cell=1.0, timeline=tl)
     assert [t for t, _ in snaps] == times
-    full, _ = simulate(moves, tools, setup, tri, VerifyOptions(cell=1.0))
+    full = simulate(moves, tools, setup, tri, VerifyOptions(cell=1.0)).simulation
     assert np.array_equal(snaps[0][1].stock_top, full.stock_top)
     assert np.all(snaps[1][1].stock_top == setup.stock_max[2])  # loading the first tool: nothing cut yet
     assert np.array_equal(snaps[2][1].stock_top, snaps[4][1].stock_top)
@@ -209,7 +210,7 @@ def test_snapshots_are_the_stock_of_the_program_so_far(cut):
     for t, sim in snaps[2:4]:
         m = int(tl.move_at([t])[0]) + 1
         head = ProgramMoves(moves.points[:m], moves.motion[:m], moves.tool[:m], moves.feed[:m], moves.line[:m])
-        alone, _ = simulate(head, tools, setup, tri, VerifyOptions(cell=1.0))
+        alone = simulate(head, tools, setup, tri, VerifyOptions(cell=1.0)).simulation
         assert np.array_equal(sim.stock_top, alone.stock_top)
         assert sim.grid == full.grid and np.array_equal(sim.part_top, full.part_top)
     assert not snaps[2][1].stock_top.flags.writeable
@@ -227,16 +228,21 @@ def test_snapshots_only_ever_lower_the_stock(cut):
 
 def test_snapshot_hook_keeps_the_full_result(cut):
     moves, tools, setup, tri, _ = cut
-    opts = VerifyOptions(cell=1.5)
-    plain, plain_report = simulate(moves, tools, setup, tri, opts)
+    plain = simulate(moves, tools, setup, tri, VerifyOptions(cell=1.5)).simulation
+    whole = cut_stock(moves, tools, setup, tri, 1.5)
     n = len(moves.points)
-    sim, report, tops = simulate_snapshots(moves, tools, setup, tri, [n - 1, 0, n // 2, n // 2], opts)
-    assert np.array_equal(sim.stock_top, plain.stock_top) and report == plain_report
+    snapped = cut_stock(moves, tools, setup, tri, 1.5, snapshot_moves=[n - 1, 0, n // 2, n // 2])
+    sim, tops = snapped.simulation, snapped.snapshots
+    assert np.array_equal(sim.stock_top, plain.stock_top)
+    assert np.array_equal(sim.removed_volume, plain.removed_volume)
+    # batches split at the snapshots: what each move met is the same
+    for name in ("removed_max", "depth", "width", "contact", "volume"):
+        assert np.array_equal(getattr(snapped.met, name), getattr(whole.met, name)), name
     assert np.array_equal(tops[0], plain.stock_top)
     assert np.all(tops[1] == setup.stock_max[2])
     assert np.array_equal(tops[2], tops[3])
     with pytest.raises(VerifyError):
-        simulate_snapshots(moves, tools, setup, tri, [n], opts)
+        cut_stock(moves, tools, setup, tri, 1.5, snapshot_moves=[n])
     with pytest.raises(VerifyError):
         stock_snapshots(moves, tools, setup, tri, [0.0], timeline=machine_timeline(
             ProgramMoves(moves.points[:5], moves.motion[:5], moves.tool[:5], moves.feed[:5], moves.line[:5])))

@@ -11,15 +11,12 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cadcam import verify
+from cadcam import stock
 from cadcam.model import Motion, ProgramMoves, Setup, Tool
 from cadcam.rest import _grown
-from cadcam.verify import (
-    VerifyOptions,
-    deviation_image,
-    simulate,
-    swept_envelope,
-)
+from cadcam.envelope import swept_envelope
+from cadcam.preview import deviation_image
+from cadcam.verify import VerifyOptions, simulate
 from factory.core.errors import VerifyError
 from factory.pictures import png_bytes
 
@@ -134,7 +131,8 @@ def test_horizontal_and_vertical_moves_are_closed_form():
 def test_horizontal_pass_cuts_the_tool_profile(tool):
     moves = program([(R, tool.number, (5, 10, 5)), (C, tool.number, (5, 10, -2)), (C, tool.number, (35, 12, -2)),
                      (R, tool.number, (35, 12, 5))])
-    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.25))
+    verified = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.25))
+    sim, report = verified.simulation, verified.report
     X, Y = grid_xy(sim)
     d = dist_to_segment(X, Y, (5, 10), (35, 12))
     # The plunge at (5, 10) and the pass both reach their lowest at z = -2.
@@ -158,9 +156,11 @@ moves_strategy = st.lists(
 def test_simulated_stock_is_the_minimum_of_all_swept_envelopes(blocks):
     """Batching, row spans and the lower-bound shortcut lose no grid point."""
     moves = program(blocks, start=(20, 10, 5))
-    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
-    with mock.patch.object(verify, "_PAIR_BUDGET", 300):  # one move per batch
-        small, small_report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+    verified = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+    sim, report = verified.simulation, verified.report
+    with mock.patch.object(stock, "_PAIR_BUDGET", 300):  # one move per batch
+        verified = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+        small, small_report = verified.simulation, verified.report
     # Equal up to rounding: the skip bounds compare heights, so subnormal depths may differ.
     assert np.allclose(small.stock_top, sim.stock_top, atol=1e-9, rtol=0)
     # the same crashes, their depths equal up to the same rounding
@@ -190,7 +190,8 @@ def test_gouging_plunge_reports_its_depth_line_and_position():
         (C, 2, (20.1, 10.1, -4)),
         (R, 2, (20.1, 10.1, 5)),
     ])
-    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, opts)
+    verified = simulate(moves, TOOLS, SETUP, LOW_PART, opts)
+    sim, report = verified.simulation, verified.report
     # Exact at grid points: the nearest point to the tip is at most half a cell diagonal away.
     slack = float(BALL.profile_height(opts.cell * np.sqrt(0.5)))
     assert 0.5 - slack <= report.max_gouge <= 0.5 + 1e-9
@@ -208,7 +209,8 @@ def test_cutting_into_a_through_hole_is_not_a_gouge():
     part = plate.difference(hole)
     # A 6 mm flat plunges to the stock bottom in the middle of the 12 mm hole.
     moves = program([(R, 1, (20, 10, 5)), (C, 1, (20, 10, -10)), (R, 1, (20, 10, 5))])
-    sim, report = simulate(moves, TOOLS, SETUP, part.triangles, VerifyOptions(cell=0.25))
+    verified = simulate(moves, TOOLS, SETUP, part.triangles, VerifyOptions(cell=0.25))
+    sim, report = verified.simulation, verified.report
     assert report.max_gouge == 0.0 and report.gouge_line is None
     assert report.remaining_max == pytest.approx(2.0)
 
@@ -220,7 +222,8 @@ def test_rapid_through_stock_is_a_crash_with_its_line():
         (R, 1, (45, 10, -2)),  # through it, 2 mm deep
         (R, 1, (45, 10, 5)),
     ])
-    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+    verified = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+    sim, report = verified.simulation, verified.report
     assert [c.line for c in report.rapid_crashes] == [3]
     crash = report.rapid_crashes[0]
     assert crash.depth == pytest.approx(2.0)
@@ -241,8 +244,9 @@ def test_rapids_are_checked_against_the_stock_left_by_earlier_moves(budget):
         (R, 1, (-5, 10, -1.5)),  # back along the same path: the rapid before cleared it
         (R, 1, (-5, 10, 5)),
     ])
-    with mock.patch.object(verify, "_PAIR_BUDGET", budget or verify._PAIR_BUDGET):
-        sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+    with mock.patch.object(stock, "_PAIR_BUDGET", budget or stock._PAIR_BUDGET):
+        verified = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+        sim, report = verified.simulation, verified.report
     assert [c.line for c in report.rapid_crashes] == [5]
     # Deepest where the rapid leaves the stock, on the last grid point the tool covers.
     assert 0.85 < report.rapid_crashes[0].depth <= 1.0 + 1e-9
@@ -250,13 +254,14 @@ def test_rapids_are_checked_against_the_stock_left_by_earlier_moves(budget):
 
 def test_rapid_grazing_within_tolerance_is_not_a_crash():
     moves = program([(R, 1, (-5, 10, 5)), (R, 1, (-5, 10, -0.005)), (R, 1, (45, 10, -0.005))])
-    _, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5, rapid_tolerance=0.01))
+    report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5, rapid_tolerance=0.01)).report
     assert report.rapid_crashes == ()
 
 
 def test_cutting_air_leaves_the_full_stock_above_the_part():
     moves = program([(R, 1, (-10, -10, 5)), (C, 1, (50, 30, 1)), (C, 1, (50, -10, 0.0)), (C, 1, (-20, 10, 2))])
-    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+    verified = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+    sim, report = verified.simulation, verified.report
     assert np.all(sim.stock_top == 0.0)
     assert report.remaining_max == report.remaining_mean == report.remaining_p95 == pytest.approx(5.0)
     # Nothing cut proves nothing: the program fails as one that removes no material.
@@ -271,7 +276,8 @@ def test_facing_to_the_part_top_leaves_nothing_and_gouges_nothing():
         x0, x1 = (-6, 46) if k % 2 == 0 else (46, -6)
         blocks += [(C, 4, (x0, y, -3)), (C, 4, (x1, y, -3))]
     blocks.append((R, 4, (-6, 30, 5)))
-    sim, report = simulate(program(blocks), TOOLS, SETUP, part, VerifyOptions(cell=0.25))
+    verified = simulate(program(blocks), TOOLS, SETUP, part, VerifyOptions(cell=0.25))
+    sim, report = verified.simulation, verified.report
     assert abs(report.remaining_max) <= 1e-9 and abs(report.remaining_mean) <= 1e-9
     assert report.max_gouge <= 1e-9
     assert report.ok
@@ -282,7 +288,8 @@ def test_moves_with_unknown_axes_are_skipped_and_the_first_known_position_is_che
         points=[[np.nan] * 3, [10, 10, np.nan], [10, 10, -3], [20, 10, -3]],
         motion=[0, R, C, C], tool=[0, 1, 1, 1], feed=[np.nan, np.nan, 500, 500], line=[0, 1, 2, 3],
     )
-    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+    verified = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5))
+    sim, report = verified.simulation, verified.report
     # Line 1 ends at an unknown Z: skipped. Line 2 comes from there: the tool stands at
     # its end, already 3 mm down in the stock, which line 3 then cuts on from.
     assert report.moves == 2
@@ -312,7 +319,8 @@ def test_an_error_about_a_line_names_the_program_file():
 
 def test_rapid_with_empty_spindle_is_skipped():
     moves = program([(R, 0, (-5, 10, -2)), (R, 0, (45, 10, -2))])
-    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=1.0))
+    verified = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=1.0))
+    sim, report = verified.simulation, verified.report
     assert report.rapid_crashes == () and np.all(sim.stock_top == 0.0)
 
 
@@ -330,8 +338,9 @@ def test_progress_reaches_the_total_and_report_is_json_ready():
     calls = []
     moves = program([(R, 2, (20, 10, 5)), (C, 2, (20, 10, -5.5)), (R, 2, (20, 10, 5)), (R, 1, (-5, 10, 5)),
                      (R, 1, (-5, 10, -1)), (R, 1, (45, 10, -1))])
-    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5),
-                           progress=lambda d, t: calls.append((d, t)))
+    verified = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.5),
+                        progress=lambda d, t: calls.append((d, t)))
+    sim, report = verified.simulation, verified.report
     assert calls and calls[-1] == (report.moves, report.moves)
     assert all(d <= t for d, t in calls)
     d = json.loads(json.dumps(report.to_dict()))
@@ -342,7 +351,8 @@ def test_progress_reaches_the_total_and_report_is_json_ready():
 
 def test_deviation_image_is_a_sane_picture():
     moves = program([(R, 2, (20, 10, 5)), (C, 2, (20, 10, -5.5)), (C, 2, (30, 10, -4)), (R, 2, (30, 10, 5))])
-    sim, report = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.25))
+    verified = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.25))
+    sim, report = verified.simulation, verified.report
     img = deviation_image(sim, report)
     assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3
     assert img.shape[0] >= 160 and img.shape[1] >= 160 + 160  # map plus colour bar and labels
@@ -364,12 +374,14 @@ def test_a_wall_nicked_within_the_tolerance_is_no_gouge_of_its_height():
         return simulate(program([(R, 2, (x, 1, 5)), (C, 2, (x, 1, -9)), (C, 2, (x, 19, -9)), (R, 2, (x, 19, 5))]),
                         TOOLS, SETUP, part, opts)
 
-    sim, report = pass_beside_wall(0.002)
+    verified = pass_beside_wall(0.002)
+    sim, report = verified.simulation, verified.report
     assert np.nanmin(sim.remaining) < -1.0  # the z-map alone would read a 1 mm cut there
     assert report.max_gouge <= opts.gouge_tolerance and report.ok
     # Into the wall by more than the tolerance: the grid point 0.25 mm inside keeps its full
     # cut, from the wall top (z = -5) down to the ball's side (centre at z = -6).
-    sim, report = pass_beside_wall(0.3)
+    verified = pass_beside_wall(0.3)
+    sim, report = verified.simulation, verified.report
     d = BALL.radius - 0.3 + (29.8755 - 29.625)  # from the tool axis to that grid point [mm]
     assert report.max_gouge == pytest.approx(1.0 + np.sqrt(BALL.radius**2 - d**2), abs=1e-9)
     assert report.gouge_position[0] == pytest.approx(29.625)
@@ -433,7 +445,8 @@ def random_part(size):
 @given(part_strategy)
 def test_a_clean_program_is_not_flagged(size):
     part, face = random_part(size)
-    sim, report = verify_text(facing(face, 1.5), part)
+    verified = verify_text(facing(face, 1.5), part)
+    sim, report = verified.simulation, verified.report
     assert report.ok, report.faults
     assert report.engagement[0].max_depth <= 1.5 + 1e-9  # never more than the stepdown
     assert report.engagement[0].max_width == pytest.approx(4.0, abs=FAST.cell)  # the stepover
@@ -447,7 +460,7 @@ def test_a_buried_finishing_tool_is_caught_on_its_lines(size, x, y, depth, trave
         "(op 2: finish raster [raster] T2 6 mm ball)", "T2 M6", "G0 Z5", f"G0 X{x} Y{y}", f"G0 Z{face + 1}",
         f"G1 Z{face - depth} F300", f"G1 X{x - travel}", "G0 Z5",
     ]
-    _, report = verify_text(lines, part)
+    report = verify_text(lines, part).report
     buried = faults_by_kind(report)[("buried", 2)]
     plunge = line_of(lines, f"G1 Z{face - depth} F300")
     assert set(buried.lines) <= {plunge, plunge + 1} and plunge in buried.lines
@@ -459,7 +472,7 @@ def test_a_buried_finishing_tool_is_caught_on_its_lines(size, x, y, depth, trave
     assert {f.kind for f in report.faults} == {"buried"}  # nothing else: no gouge, no crash
     # The same moves with a roughing tool are within its 20 mm flutes.
     rough = [ln.replace("[raster] T2", "[roughing] T2") for ln in lines]
-    assert verify_text(rough, part)[1].ok
+    assert verify_text(rough, part).report.ok
 
 
 @settings(max_examples=12, deadline=None)
@@ -469,7 +482,7 @@ def test_a_rapid_whose_edge_alone_meets_stock_is_caught(size, outside, depth, y)
     part, face = random_part(size)
     base = facing(face, 1.5)
     lines = base[:4] + [f"G0 X{-outside} Y{y}", f"G0 Z{-depth}", "G0 Z5"] + base[4:]
-    _, report = verify_text(lines, part)
+    report = verify_text(lines, part).report
     crash = faults_by_kind(report)[("rapid", 1)]
     assert crash.lines == (6,)  # the G0 Z-depth
     assert crash.worst == pytest.approx(depth)
@@ -489,7 +502,7 @@ def test_a_short_tool_reaching_deep_is_caught_by_its_holder(size, x, y, depth):
     lines.append("G0 Z5")
     text = "\n".join(lines) + "\n"
     moves = parse_gcode(text)
-    _, report = verify_text(lines, part)
+    report = verify_text(lines, part).report
     holder = faults_by_kind(report)[("holder", 5)]
     # Every move of T5 whose tip goes more than the 8 mm stick-out below the faced top.
     low = np.minimum(moves.points[:-1, 2], moves.points[1:, 2]) < face - 8 - FAST.contact_tolerance
@@ -503,7 +516,7 @@ def test_a_cut_deeper_than_the_flutes_and_below_the_stock():
     part, face = random_part((20.0, 20.0, 3.0))
     lines = facing(face, 1.5) + ["(op 2: slot [roughing] T5 4 mm flat, short)", "T5 M6", "G0 Z5",
                                  "G0 X40 Y15", "G0 Z-2", "G1 Z-3 F200", "G1 X50 Z-10", "G1 Z-21", "G0 Z5"]
-    _, report = verify_text(lines, part)
+    report = verify_text(lines, part).report
     found = faults_by_kind(report)
     ramp = line_of(lines, "G1 X50 Z-10")
     assert ramp in found[("flute", 5)].lines  # 7 mm of stock met sideways by 6 mm flutes
@@ -514,7 +527,7 @@ def test_a_cut_deeper_than_the_flutes_and_below_the_stock():
 def test_an_empty_program_fails():
     part, _ = random_part((20.0, 20.0, 3.0))
     for text in ([], ["G21 G90", "T1 M6", "G0 Z5", "M30"]):
-        _, report = verify_text(text, part)
+        report = verify_text(text, part).report
         assert not report.ok and [f.kind for f in report.faults] == ["no_cut"]
 
 
@@ -527,9 +540,11 @@ def test_one_batch_or_a_batch_per_move_judge_alike(size, x, y, depth):
         "(op 2: finish raster [raster] T2 6 mm ball)", "T2 M6", "G0 Z5", f"G0 X{x} Y{y}", f"G0 Z{face + 1}",
         f"G1 Z{face - depth} F300", f"G1 X{x - 4}", f"G1 X{x}", f"G0 X{x - 4}", "G0 Z5",
     ]
-    sim1, one = verify_text(lines, part)
-    with mock.patch.object(verify, "_PAIR_BUDGET", 50):
-        sim2, many = verify_text(lines, part)
+    verified = verify_text(lines, part)
+    sim1, one = verified.simulation, verified.report
+    with mock.patch.object(stock, "_PAIR_BUDGET", 50):
+        verified = verify_text(lines, part)
+        sim2, many = verified.simulation, verified.report
     np.testing.assert_array_equal(sim1.stock_top, sim2.stock_top)
     # Where and on which line a maximum is reached may differ between moves that tie.
     assert_same([(f.kind, f.tool, f.lines, f.worst) for f in one.faults],
@@ -583,11 +598,11 @@ def test_a_shank_as_wide_as_the_cutter_riding_a_finished_wall_is_no_contact():
     text = "\n".join(lines) + "\n"
     moves = parse_gcode(text)
     tools = {1: FLAT, 6: ball}
-    _, report = simulate(moves, tools, SAFE_STOCK, wall, FAST, finishing=finishing_moves(text, moves))
+    report = simulate(moves, tools, SAFE_STOCK, wall, FAST, finishing=finishing_moves(text, moves)).report
     assert report.faults == () and not report.gouged
     # Dragged along the wall at that depth, the shank does rub the 0.3 mm skin above the flutes.
     text = text.replace("G1 Z-15 F300\n", "G1 Z-15 F300\nG1 Y25\n")
     moves = parse_gcode(text)
-    _, report = simulate(moves, tools, SAFE_STOCK, wall, FAST, finishing=finishing_moves(text, moves))
+    report = simulate(moves, tools, SAFE_STOCK, wall, FAST, finishing=finishing_moves(text, moves)).report
     assert [(f.kind, f.tool) for f in report.faults] == [("holder", 6)]
     assert report.faults[0].lines == (text.splitlines().index("G1 Y25") + 1,)

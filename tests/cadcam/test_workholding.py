@@ -86,7 +86,7 @@ def test_a_cut_into_the_front_jaw_is_a_jaws_fault_on_its_line():
     prog = _program([(R, 1, (20, 10, 5)), (C, 1, (20, 10, -5)), (C, 1, (20, 1, -5)),  # a real cut, lines 1-3
                      (R, 1, (20, 1, 5)), (R, 1, (20, -6, 5)), (C, 1, (20, -6, -12)),  # line 6: into the jaw
                      (C, 1, (25, -6, -12)), (R, 1, (25, -6, 5))])  # line 7 cuts on in it, line 8 leaves it
-    _, report = simulate(prog, TOOLS, SETUP, PART)
+    report = simulate(prog, TOOLS, SETUP, PART).report
     jaws = [f for f in report.faults if f.kind == "jaws"]
     assert len(jaws) == 1 and jaws[0].lines == (6, 7) and jaws[0].worst == pytest.approx(2.0)
     assert "front jaw" in jaws[0].message and not report.ok
@@ -97,20 +97,20 @@ def test_a_short_tool_s_holder_reaching_a_jaw_beside_the_stock_is_caught():
     # the tip stays 2 mm above the jaw top beside the stock; with 8 mm stick-out the holder
     # (28 mm across) clears it, the cut itself is fine: no fault ...
     ok = _program([(R, 2, (20, 4, 5)), (C, 2, (20, 4, -8))])
-    assert not [f for f in simulate(ok, TOOLS, SETUP, PART)[1].faults if f.kind == "jaws"]
+    assert not [f for f in simulate(ok, TOOLS, SETUP, PART).report.faults if f.kind == "jaws"]
     # ... while over the jaw, the tool itself comes down onto it
     bad = _program([(R, 2, (20, -2, 5)), (C, 2, (20, -2, -11))])
-    (f,) = [f for f in simulate(bad, TOOLS, SETUP, PART)[1].faults if f.kind == "jaws"]
+    (f,) = [f for f in simulate(bad, TOOLS, SETUP, PART).report.faults if f.kind == "jaws"]
     assert f.tool == 2 and f.lines == (2,) and f.worst == pytest.approx(1.0)
 
 
 def test_moves_clear_of_the_jaws_and_old_setups_without_jaws_are_not_flagged():
     prog = _program([(R, 1, (20, 10, 5)), (C, 1, (20, 10, -10.5)), (C, 1, (-10, 10, -10.5))])
-    _, report = simulate(prog, TOOLS, SETUP, PART)  # out past the stock's side: along the jaws, not into them
+    report = simulate(prog, TOOLS, SETUP, PART).report  # out past the stock's side: along the jaws, not into them
     assert not [f for f in report.faults if f.kind == "jaws"]
     deep = _program([(R, 1, (20, -6, 5)), (C, 1, (20, -6, -12))])
     old = Setup(stock_min=STOCK_MIN, stock_max=STOCK_MAX, transform_mesh_to_work=np.eye(4))
-    assert not [f for f in simulate(deep, TOOLS, old, PART)[1].faults if f.kind == "jaws"]
+    assert not [f for f in simulate(deep, TOOLS, old, PART).report.faults if f.kind == "jaws"]
 
 
 def test_the_planner_refuses_a_toolpath_into_the_vise():

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 import factory.cam
 from cadcam.setup import make_setup
-from cadcam.verify import check_grid_size
+from cadcam.stock import check_grid_size
 from cli.main import app
 from factory.core.errors import FactoryError, GcodeError, PlanningError, VerifyError
 from factory.plan import PlanRequest, plan_part

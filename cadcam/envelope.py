@@ -1,0 +1,373 @@
+"""The swept envelope of a milling tool: the lowest its cutting surface comes over each grid point along a straight move.
+
+For a grid point ``q`` and a move from ``p0`` to ``p1`` (tool tip positions),
+
+    env(q) = min over t in [0, 1] of  z(t) + h(|q - p_xy(t)|)
+
+with ``h`` = :meth:`Tool.profile_height` (infinite beyond the radius: above the profile
+the tool is a cylinder, which never reaches lower than its own profile). ``r(t) =
+|q - p_xy(t)|`` is convex in ``t``, ``h`` is convex and increasing on ``[0, R]`` and ``z``
+is linear, so the function is convex on the interval where ``r(t) <= R`` and the minimum
+is found exactly:
+
+* flat end mill: linear on that interval, so one of its ends;
+* ball end mill: the lowest point of the capsule the ball centre sweeps, closed form;
+* bull-nose: bisection on the sign of the derivative over that interval (the minimiser to
+  1e-6 mm; the error in height is second order in that);
+* drill (a cone of slope ``k``, ``h = k r``): ``z(t) + k r(t)`` is stationary where the
+  cone's flank is as steep as the move, closed form, clipped to that interval;
+* horizontal or vertical moves, any shape: closest point on the segment.
+
+Each move covers the grid points within the tool radius of its XY segment, enumerated
+exactly row by row (:func:`grid_pairs`); the stock model (:mod:`cadcam.stock`) evaluates
+those (grid point, move) pairs in vectorised batches with :func:`pair_envelope`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cadcam.heightmap import Grid
+from cadcam.model import Tool
+
+#: Bull-nose tools: bisect until the minimiser is known to this along the move [mm]. The
+#: height error is second order in it (``f' = 0`` there), far below a nanometre.
+_BISECT_RESOLUTION = 1e-6
+
+
+def _profile(r: np.ndarray, flat_radius: np.ndarray, rc: np.ndarray) -> np.ndarray:
+    """:meth:`Tool.profile_height` for per-pair tool sizes, clamped at the radius (no inf)."""
+    d = np.minimum(np.maximum(r - flat_radius, 0.0), rc)
+    return rc - np.sqrt(np.maximum(rc * rc - d * d, 0.0))
+
+
+#: Cutter shapes in :attr:`Segments.shape`.
+_FLAT, _BALL, _BULL, _CONE = 0, 1, 2, 3
+
+
+@dataclass
+class Segments:
+    """Straight moves with the size of the tool that makes them: contiguous 1-D arrays, one row each.
+
+    ``x, y, z`` is the start (tool tip) and ``dx, dy, dz`` the displacement to the end [mm].
+    ``move`` is the index of the end point in :attr:`ProgramMoves.points`. ``cone`` is a
+    drill point's rise per mm of radius (:attr:`Tool.point_slope`; 0 for end mills).
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    dx: np.ndarray
+    dy: np.ndarray
+    dz: np.ndarray
+    radius: np.ndarray
+    rc: np.ndarray
+    rapid: np.ndarray
+    move: np.ndarray
+    cone: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.cone = np.zeros(len(self.x)) if self.cone is None else np.asarray(self.cone, dtype=np.float64)
+        self.l2 = self.dx * self.dx + self.dy * self.dy
+        has_len = self.l2 > 1e-18
+        self.inv_l2 = np.where(has_len, 1.0 / np.where(has_len, self.l2, 1.0), 0.0)
+        # Horizontal or vertical: the nearest approach is also the lowest (closed form for every shape).
+        self.trivial = ~has_len | (self.dz == 0.0)
+        self.zmin = self.z + np.minimum(self.dz, 0.0)
+        self.reach2 = self.radius * self.radius * (1 + 1e-12)
+        self.flat_radius = self.radius - self.rc
+        ball = np.abs(self.rc - self.radius) <= 1e-12 * np.maximum(self.radius, 1.0)
+        self.shape = np.where(self.cone > 0.0, _CONE,
+                              np.where(self.rc == 0.0, _FLAT, np.where(ball, _BALL, _BULL))).astype(np.int8)
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+    @classmethod
+    def between(cls, p0, p1, radius, rc, rapid=None, move=None, cone=None) -> "Segments":
+        k = len(p0)
+        return cls(
+            np.ascontiguousarray(p0[:, 0]), np.ascontiguousarray(p0[:, 1]), np.ascontiguousarray(p0[:, 2]),
+            p1[:, 0] - p0[:, 0], p1[:, 1] - p0[:, 1], p1[:, 2] - p0[:, 2],
+            np.asarray(radius, dtype=np.float64), np.asarray(rc, dtype=np.float64),
+            np.zeros(k, bool) if rapid is None else rapid, np.arange(k) if move is None else move,
+            None if cone is None else np.asarray(cone, dtype=np.float64),
+        )
+
+    def sub(self, s: int, e: int) -> "Segments":
+        out = object.__new__(Segments)
+        for name, value in vars(self).items():
+            setattr(out, name, value[s:e])
+        return out
+
+
+def pair_envelope(
+    qx: np.ndarray, qy: np.ndarray, owner: np.ndarray, seg: Segments, bound: np.ndarray | None = None
+) -> np.ndarray:
+    """Lowest point of the swept tool above each query point, one (point, move) pair per entry.
+
+    Parameters
+    ----------
+    qx, qy : (k,) float
+        Query points [mm].
+    owner : (k,) int
+        Row of ``seg`` (the move) for each query point.
+    seg : Segments
+    bound : (k,) float, optional
+        Only envelopes below this matter [mm] (the current stock top): pairs whose cheap
+        lower bound is not below it are not evaluated exactly and come back as ``inf``.
+
+    Returns
+    -------
+    (k,) float
+        Envelope height [mm]; ``inf`` where the tool never comes within its radius (or,
+        with ``bound``, where it provably stays at or above the bound).
+    """
+    env = np.full(len(qx), np.inf)
+    if len(qx) == 0:
+        return env
+    wx = qx - seg.x[owner]
+    wy = qy - seg.y[owner]
+    dx = seg.dx[owner]
+    dy = seg.dy[owner]
+    wd = wx * dx
+    wd += wy * dy
+    t = wd * seg.inv_l2[owner]
+    np.clip(t, 0.0, 1.0, out=t)
+    ex = t * dx
+    np.subtract(wx, ex, out=ex)
+    ey = np.multiply(t, dy, out=t)
+    np.subtract(wy, ey, out=ey)
+    dist2 = np.multiply(ex, ex, out=ex)
+    dist2 += ey * ey
+    del ey, dx, dy
+    # Lowest tip height plus the profile at the nearest approach: exact for horizontal
+    # and vertical moves, a lower bound otherwise (z(t) >= zmin and r(t) >= distance).
+    lower = seg.zmin[owner]
+    if np.any(seg.shape != _FLAT):
+        dist = np.sqrt(dist2)
+        lower += _profile(dist, seg.flat_radius[owner], seg.rc[owner])
+        lower += seg.cone[owner] * np.minimum(dist, seg.radius[owner])
+    cand = dist2 <= seg.reach2[owner]
+    if bound is not None:
+        cand &= lower < bound
+    idx = np.flatnonzero(cand)
+    if len(idx) == 0:
+        return env
+    o = owner[idx]
+    out = lower[idx]
+    sloped = np.flatnonzero(~seg.trivial[o])
+    if len(sloped):
+        j = idx[sloped]
+        os_ = o[sloped]
+        out[sloped] = _sloped_envelope(wx[j], wy[j], wd[j], os_, seg)
+    env[idx] = out
+    return env
+
+
+def _sloped_envelope(wx, wy, wd, o, seg: Segments) -> np.ndarray:
+    """Exact envelope for moves that climb or descend while moving sideways (``o``: move rows)."""
+    dx, dy, dz, z0 = seg.dx[o], seg.dy[o], seg.dz[o], seg.z[o]
+    l2, R, rc = seg.l2[o], seg.radius[o], seg.rc[o]
+    shape = seg.shape[o]
+    # Interval of t where r(t) <= R: roots of l2 t^2 - 2 wd t + |w|^2 - R^2; the
+    # discriminant written with the cross product avoids cancellation.
+    cross = wx * dy - wy * dx
+    s = np.sqrt(np.maximum(l2 * R * R - cross * cross, 0.0))
+    ta = np.clip((wd - s) / l2, 0.0, 1.0)
+    tb = np.maximum(np.clip((wd + s) / l2, 0.0, 1.0), ta)
+    # Flat end mill: linear in t on the interval, so one of its ends. Also the fallback
+    # for ball points right at the reach limit (see below).
+    out = z0 + np.minimum(dz * ta, dz * tb)
+
+    ball = np.flatnonzero(shape == _BALL)
+    if len(ball):
+        m = ball if len(ball) < len(out) else slice(None)
+        Rb, z0b, dzb, l2b, wdb = R[m], z0[m], dz[m], l2[m], wd[m]
+        R2 = Rb * Rb
+        # Lowest entry of the vertical line through q into the capsule swept by the ball
+        # centre: the infinite cylinder round the centre's path if the entry's foot lies on
+        # the move, else one of the end spheres (both are inside the capsule, so the
+        # minimum of all valid candidates is the entry).
+        D2 = l2b + dzb * dzb
+        u = (dzb * wdb - np.sqrt(D2) * s[m]) / l2b
+        t = (wdb + dzb * u) / D2
+        best = np.where((t >= 0.0) & (t <= 1.0), z0b + Rb + u, np.inf)
+        w2 = wx[m] ** 2 + wy[m] ** 2
+        e2 = (wx[m] - dx[m]) ** 2 + (wy[m] - dy[m]) ** 2
+        best = np.minimum(best, np.where(w2 <= R2, z0b + Rb - np.sqrt(np.maximum(R2 - w2, 0.0)), np.inf))
+        best = np.minimum(best, np.where(e2 <= R2, z0b + dzb + Rb - np.sqrt(np.maximum(R2 - e2, 0.0)), np.inf))
+        # Rounding can leave a point right at the reach limit without a valid candidate;
+        # the tool touches it only with its rim there, at the interval end's height + R.
+        out[m] = np.where(np.isfinite(best), best, out[m] + Rb)
+
+    bull = np.flatnonzero(shape == _BULL)
+    if len(bull):
+        m = bull
+        out[m] = _bisect_envelope(wx[m], wy[m], dx[m], dy[m], z0[m], dz[m], R[m] - rc[m], rc[m], ta[m], tb[m])
+    cone = np.flatnonzero(shape == _CONE)
+    if len(cone):
+        m = cone
+        out[m] = _cone_envelope(wx[m], wy[m], dx[m], dy[m], z0[m], dz[m], l2[m], wd[m], cross[m], R[m],
+                                seg.cone[o[m]], ta[m], tb[m])
+    return out
+
+
+def _cone_envelope(wx, wy, dx, dy, z0, dz, l2, wd, cross, R, k, ta, tb) -> np.ndarray:
+    """Minimum of the convex ``f(t) = z0 + dz t + k r(t)`` on ``[ta, tb]`` (a drill's cone).
+
+    With ``u = t - wd / l2`` the distance is ``r = sqrt(p^2 + l2 u^2)``, ``p`` the
+    perpendicular distance from the line; ``f' = 0`` where ``sqrt(l2) u / r = -dz / (k sqrt(l2))``.
+    Convex, so the stationary point clipped to the interval is the minimum; without one
+    (the move is steeper than the flank) an end is.
+    """
+    L = np.sqrt(l2)
+    p = np.abs(cross) / L
+    sgn = -dz / (k * L)
+    interior = np.abs(sgn) < 1.0
+    u = np.where(interior, sgn * p / (L * np.sqrt(np.maximum(1.0 - sgn * sgn, 1e-300))), np.sign(sgn) * np.inf)
+    t = np.clip(wd / l2 + u, ta, tb)
+    r = np.minimum(np.hypot(wx - t * dx, wy - t * dy), R)
+    return z0 + dz * t + k * r
+
+
+def _bisect_envelope(wx, wy, dx, dy, z0, dz, a, rc, ta, tb) -> np.ndarray:
+    """Minimum of the convex ``f(t) = z0 + dz t + h(r(t))`` on ``[ta, tb]``.
+
+    ``f`` is C1 inside the interval (the bull-nose profile is flat at ``r = 0`` and
+    tangent where the corner starts), so its minimum is an end or a zero of the
+    non-decreasing ``f'``, found by bisection on the sign of ``f'``.
+    """
+
+    def f(t: np.ndarray) -> np.ndarray:
+        ex = wx - t * dx
+        ey = wy - t * dy
+        return z0 + dz * t + _profile(np.sqrt(ex * ex + ey * ey), a, rc)
+
+    lo, hi = ta.copy(), tb.copy()
+    rc2 = rc * rc
+    span = float(np.max((tb - ta) * np.sqrt(dx * dx + dy * dy + dz * dz)))
+    steps = int(np.clip(math.ceil(math.log2(max(span, 1e-300) / _BISECT_RESOLUTION)), 1, 60))
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        ex = wx - mid * dx
+        ey = wy - mid * dy
+        r = np.sqrt(ex * ex + ey * ey)
+        d = np.minimum(np.maximum(r - a, 0.0), rc)
+        # f' = dz + h'(r) r'(t), h' = d / sqrt(rc^2 - d^2), r' = -(e . d) / r; the tiny
+        # floors only matter where h' is 0 (d = 0) or the tool rim is reached.
+        slope = dz - d * (ex * dx + ey * dy) / (np.sqrt(np.maximum(rc2 - d * d, 1e-300)) * np.maximum(r, 1e-300))
+        right = slope < 0.0
+        np.copyto(lo, mid, where=right)
+        np.copyto(hi, mid, where=~right)
+    return np.minimum(f(0.5 * (lo + hi)), np.minimum(f(ta), f(tb)))
+
+
+def swept_envelope(q: np.ndarray, start: np.ndarray, end: np.ndarray, tool: Tool) -> np.ndarray:
+    """Lowest point of ``tool`` moved in a straight line from ``start`` to ``end``, above each point.
+
+    Parameters
+    ----------
+    q : (k, 2) float
+        XY query points [mm].
+    start, end : (3,) float
+        Tool tip positions at the ends of the move [mm].
+    tool : Tool
+
+    Returns
+    -------
+    (k,) float
+        Height of the swept tool's lower surface at each point [mm]; ``inf`` where the
+        tool never passes over the point.
+    """
+    q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
+    p0 = np.asarray(start, dtype=np.float64).reshape(1, 3)
+    p1 = np.asarray(end, dtype=np.float64).reshape(1, 3)
+    seg = Segments.between(p0, p1, [tool.radius], [float(tool.corner_radius)], cone=[tool.point_slope])
+    return pair_envelope(q[:, 0].copy(), q[:, 1].copy(), np.zeros(len(q), np.int64), seg)
+
+
+def _row_spans(seg: Segments, grid: Grid) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The grid points each move's tool passes over, as runs of columns on each grid row.
+
+    The region is the set of points within the tool radius of the move's XY segment (a
+    stadium); its intersection with a row is one interval: the union of those of the two
+    end disks and of the band along the segment.
+
+    Returns
+    -------
+    owner, row, first, count : (r,) int64
+        Move, grid row, first column and number of columns of each run (count may be 0).
+    """
+    R = seg.radius * (1 + 1e-9) + 1e-9  # the exact reach test comes later; never lose a point here
+    x1, y1 = seg.x + seg.dx, seg.y + seg.dy
+    j0, j1 = grid.row_range(np.minimum(seg.y, y1) - R, np.maximum(seg.y, y1) + R)
+    nj = np.maximum(j1 - j0 + 1, 0)
+    owner = np.repeat(np.arange(len(seg)), nj)
+    row = np.repeat(j0, nj) + (np.arange(int(nj.sum())) - np.repeat(np.cumsum(nj) - nj, nj))
+    yr = grid.y0 + row * grid.cell
+    Ro = R[owner]
+    ax, ay, dx, dy = seg.x[owner], seg.y[owner], seg.dx[owner], seg.dy[owner]
+
+    def disk(cx, cy):
+        h2 = Ro * Ro - (yr - cy) ** 2
+        half = np.sqrt(np.maximum(h2, 0.0))
+        return np.where(h2 >= 0, cx - half, np.inf), np.where(h2 >= 0, cx + half, -np.inf)
+
+    lo_a, hi_a = disk(ax, ay)
+    lo_b, hi_b = disk(ax + dx, ay + dy)
+    # Band: 0 <= (p - a).d <= |d|^2 and |(p - a) x d| <= R |d|, each linear in x on the row.
+    ey = yr - ay
+    l2 = dx * dx + dy * dy
+    L = np.sqrt(l2)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        u_lo, u_hi = -ey * dy / dx, (l2 - ey * dy) / dx
+        v_lo, v_hi = (ey * dx - Ro * L) / dy, (ey * dx + Ro * L) / dy
+    along_all = (dx == 0) & (ey * dy >= 0) & (ey * dy <= l2)
+    across_all = (dy == 0) & (np.abs(ey * dx) <= Ro * L)
+    lo_u = np.where(dx != 0, np.minimum(u_lo, u_hi), np.where(along_all, -np.inf, np.inf))
+    hi_u = np.where(dx != 0, np.maximum(u_lo, u_hi), np.where(along_all, np.inf, -np.inf))
+    lo_v = np.where(dy != 0, np.minimum(v_lo, v_hi), np.where(across_all, -np.inf, np.inf))
+    hi_v = np.where(dy != 0, np.maximum(v_lo, v_hi), np.where(across_all, np.inf, -np.inf))
+    band = l2 > 1e-18
+    lo_band = np.where(band, ax + np.maximum(lo_u, lo_v), np.inf)
+    hi_band = np.where(band, ax + np.minimum(hi_u, hi_v), -np.inf)
+    lo = np.minimum(np.minimum(lo_a, lo_b), lo_band)
+    hi = np.maximum(np.maximum(hi_a, hi_b), hi_band)
+    first, last = grid.column_range(lo, hi)
+    return owner, row, first, np.maximum(last - first + 1, 0)
+
+
+def grid_pairs(seg: Segments, grid: Grid) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every (segment, grid point) pair within a segment's reach: owner, flat index, column, row."""
+    row_owner, row, first, count = _row_spans(seg, grid)
+    n = int(count.sum())
+    owner = np.repeat(row_owner, count)
+    col = np.repeat(first - (np.cumsum(count) - count), count) + np.arange(n)
+    rows = np.repeat(row, count)
+    return owner, rows * grid.nx + col, col, rows
+
+
+def reach_interval(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray):
+    """Where along each move (``t`` in [0, 1]) the grid point is within the cutting radius.
+
+    Returns ``ta, tb, r0``: the interval's ends and the distance from the axis at the start
+    [mm]; ``ta > tb`` where the point is never within reach.
+    """
+    wx, wy = qx - seg.x[o], qy - seg.y[o]
+    dx, dy, l2, R = seg.dx[o], seg.dy[o], seg.l2[o], seg.radius[o]
+    r0 = np.hypot(wx, wy)
+    has = l2 > 1e-18
+    l2s = np.where(has, l2, 1.0)
+    cross = wx * dy - wy * dx
+    root = np.sqrt(np.maximum(l2 * R * R - cross * cross, 0.0))
+    wd = wx * dx + wy * dy
+    ta = np.where(has, np.clip((wd - root) / l2s, 0.0, 1.0), 0.0)
+    tb = np.where(has, np.clip((wd + root) / l2s, 0.0, 1.0), 1.0)
+    never = (l2 * R * R * (1 + 1e-12) < cross * cross) | (~has & (r0 > R * (1 + 1e-12)))
+    ta = np.where(never, 1.0, ta)
+    tb = np.where(never, 0.0, tb)
+    return ta, tb, r0

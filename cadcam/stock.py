@@ -1,0 +1,827 @@
+"""The stock model: a z-map of the material a program leaves, cut move by move.
+
+The stock is a heightfield: one top height per grid point (:func:`cadcam.heightmap.grid_over`).
+Every move lowers it to the tool's swept lower envelope there (:mod:`cadcam.envelope`), exact at
+the grid points: the remaining stock and the depth a move cuts are true values there, and what
+the grid can miss is detail *between* points (cost grows as ``1 / cell**2``).
+
+(grid point, move) pairs from consecutive moves are evaluated in vectorised batches. A cheap
+lower bound (lowest tip height plus the profile at the nearest approach) skips the exact
+evaluation wherever the move cannot go below the stock. Cuts within a batch commute (the stock
+keeps the minimum); what each move *met* (the column it took off, its engaged depth and width,
+its shank and holder's reach into stock or part) is measured against the stock exactly as every
+earlier move left it, for the verdict (:mod:`cadcam.verify`).
+
+The CAM stages plan on it: what earlier operations left (:func:`stock_after`), how low a tool
+may come without touching it (:func:`clear_height`), and op 2's stock, op 1's turned over
+(:func:`flip_stock`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from cadcam.envelope import Segments, grid_pairs, pair_envelope, reach_interval
+from cadcam.heightmap import Grid, grid_over, upper_envelope
+from cadcam.model import Motion, Operation, ProgramMoves, Setup, Tool
+from factory.core.errors import VerifyError
+
+#: (grid point, move) pairs per vectorised batch: small enough for the work arrays to stay in cache.
+_PAIR_BUDGET = 1 << 16
+
+#: Largest grid the stock model accepts (two float64 maps of this size plus work arrays).
+_MAX_CELLS = 60_000_000
+
+#: Rapids are swept with the cutter's rim drawn in by this much [mm] unless told otherwise: a
+#: rapid whose rim only grazes a wall's skin (a contour's arcs and the posted coordinates'
+#: rounding leave a skin microns thick beside the line a descent comes down on) leaves it.
+#: :attr:`cadcam.verify.VerifyOptions.rapid_tolerance` defaults to it, so the stock a CAM stage
+#: plans on is the stock verify finds.
+RAPID_RIM = 0.01
+
+#: A cut counts as engagement only where it is at least this wide across the move [mm] (see
+#: :func:`_engaged_depth`), unless told otherwise (:attr:`cadcam.verify.VerifyOptions.engaged_width`).
+ENGAGED_WIDTH = 1.0
+
+
+@dataclass(frozen=True)
+class Simulation:
+    """The stock after the program and the part, sampled on the same grid.
+
+    Attributes
+    ----------
+    grid : Grid
+        Covers the stock's XY footprint (:func:`grid_over`): material is only tracked
+        inside the stock box, so a tool overhanging its sides cuts nothing there.
+    stock_top : (ny, nx) float
+        Top of the remaining stock at each grid point after the program [mm] (read-only).
+    part_top : (ny, nx) float
+        Highest part surface at each grid point [mm]; ``-inf`` where there is no part
+        (outside it, through holes) (read-only).
+    stock_bottom : float
+        Bottom of the stock [mm]; the stock top can be cut below it (through cuts).
+    floor_z : float or None
+        The lowest the program may cut (:attr:`Setup.floor_z`) [mm]: below it, where there
+        is no part, lies the holding allowance, left on purpose. None: ``stock_bottom``.
+    """
+
+    grid: Grid
+    stock_top: np.ndarray
+    part_top: np.ndarray
+    stock_bottom: float
+    floor_z: float | None = None
+
+    @property
+    def floor(self) -> float:
+        """:attr:`floor_z`, or the stock bottom when unknown [mm]."""
+        return self.stock_bottom if self.floor_z is None else max(float(self.floor_z), self.stock_bottom)
+
+    @property
+    def remaining(self) -> np.ndarray:
+        """(ny, nx) float stock left above the part [mm]: negative is a gouge, NaN where no part."""
+        with np.errstate(invalid="ignore"):
+            return np.where(np.isfinite(self.part_top), self.stock_top - self.part_top, np.nan)
+
+    #: (ny, nx) float or None: bottom of the stock at each grid point [mm] when its columns do
+    #: not stand on one plane (op 2's turned-over part: :func:`cut_stock` from a :class:`FlippedStock`);
+    #: a column cut through is empty and its ``stock_top`` is ``-inf``; ``stock_bottom`` is the
+    #: lowest of them. None: every column stands on ``stock_bottom``.
+    stock_under: np.ndarray | None = None
+    #: (n,) float or None: the stock volume each move removed [mm³] (grid cell area times the
+    #: height of stock it took off each grid point, down to the stock's bottom), indexed like
+    #: ``ProgramMoves.points`` (0 for ``points[0]`` and for moves that cut nothing): the
+    #: engagement the cutting-power model reads (:mod:`cadcam.cutting_power`). None: not recorded.
+    removed_volume: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class FlippedStock:
+    """The stock one operation left, turned over for the next: a column of material per grid point.
+
+    Attributes
+    ----------
+    grid : Grid
+        The next setup's grid (:func:`cadcam.heightmap.grid_over` of its stock box).
+    top, bottom : (ny, nx) float
+        Top and bottom of the material at each grid point in the next setup's work
+        coordinates [mm]; ``top`` is ``-inf`` where the column is empty (cut through).
+    """
+
+    grid: Grid
+    top: np.ndarray
+    bottom: np.ndarray
+
+
+class MoveRecord:
+    """What each swept move met, filled batch by batch as the stock is cut (all lengths [mm]).
+
+    Arrays of one row per :class:`Segments` row, read-only once the cut is done.
+    ``depth``: deepest *engaged* depth of the move (see :func:`_engaged_depth`);
+    ``width``: lateral extent of the material it removed; ``removed_max``: thickest column
+    it took off one grid point, ``removed_env``: the tool's lowest point there; ``contact``:
+    deepest reach of its shank or holder into the stock or the part, ``contact_z``: the body's
+    lowest point there; ``*_cell``: flat grid index where that happened, -1 if nowhere;
+    ``volume``: stock it removed above ``bottom`` (the stock's bottom) [mm³].
+    """
+
+    def __init__(self, n: int, bottom: float = -np.inf):
+        self.volume = np.zeros(n)
+        self.bottom = bottom
+        self.depth = np.zeros(n)
+        self.depth_cell = np.full(n, -1, np.int64)
+        self.width = np.zeros(n)
+        self.removed_max = np.zeros(n)
+        self.removed_cell = np.full(n, -1, np.int64)
+        self.removed_env = np.zeros(n)
+        self.contact = np.zeros(n)
+        self.contact_cell = np.full(n, -1, np.int64)
+        self.contact_z = np.zeros(n)
+
+    def freeze(self) -> None:
+        """Make every array read-only: the cut is done."""
+        for value in vars(self).values():
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
+
+
+@dataclass(frozen=True)
+class StockCut:
+    """A program cut into the stock model, and what each of its moves met on the way.
+
+    Attributes
+    ----------
+    simulation : Simulation
+        The stock after every move, and the part on the same grid.
+    snapshots : tuple of (ny, nx) float
+        Stock top at each snapshot asked for [mm] (read-only), on ``simulation.grid``.
+    segments : Segments
+        The moves that came below the stock top, in program order, as swept: ``move`` is the
+        index of each one's end point in :attr:`ProgramMoves.points`; rapids with the cutter's
+        rim drawn in by the ``rapid_rim`` of :func:`cut_stock`.
+    met : MoveRecord
+        What each of ``segments`` met, row for row.
+    starts : (n - 1, 3) float
+        Where each move (to ``points[1:]``) starts [mm]: the point before it, or its own end
+        where that is unknown (the move that first makes the position known is checked
+        standing at its end).
+    swept : (n - 1,) bool
+        Moves with both ends known and a tool in the spindle.
+    """
+
+    simulation: Simulation
+    snapshots: tuple[np.ndarray, ...]
+    segments: Segments
+    met: MoveRecord
+    starts: np.ndarray
+    swept: np.ndarray
+
+
+def cut_stock(
+    moves: ProgramMoves,
+    tools: Mapping[int, Tool],
+    setup: Setup,
+    part_triangles: np.ndarray,
+    cell: float,
+    *,
+    snapshot_moves: Sequence[int] = (),
+    start: FlippedStock | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    rapid_rim: float = RAPID_RIM,
+    engaged_width: float = ENGAGED_WIDTH,
+    body_graze: float = 0.0,
+) -> StockCut:
+    """Cut the stock with every move of a program, measuring what each move meets.
+
+    Parameters
+    ----------
+    moves : ProgramMoves
+        The program's moves (tool tip positions in work coordinates [mm]); moves ending at
+        an unknown (NaN) coordinate are skipped, a move from an unknown start is cut as the
+        tool standing at its end; rapids with an empty spindle (tool 0) are skipped too.
+    tools : mapping of int to Tool
+        Tools by number, for every tool the program uses.
+    setup : Setup
+        The stock box (``stock_min``, ``stock_max``) in work coordinates [mm].
+    part_triangles : (m, 3, 3) float
+        The part's triangles in work coordinates [mm].
+    cell : float
+        Grid spacing [mm], > 0 (:attr:`cadcam.verify.VerifyOptions.cell`).
+    snapshot_moves : (s,) sequence of int
+        Indices into ``moves.points``: snapshot ``k`` is the stock once every move up to
+        and including the one ending at ``points[snapshot_moves[k]]`` has cut (0: the
+        uncut stock). Any order; repeats allowed.
+    start : FlippedStock, optional
+        The stock an earlier operation left, turned over (:func:`flip_stock`), on this setup's
+        grid at ``cell``; each column keeps its bottom (``Simulation.stock_under``): a move
+        that cuts a column down to it empties it. None: the setup's stock box.
+    progress : callable, optional
+        ``progress(done, total)`` in moves.
+    rapid_rim : float
+        Rapids are swept with the cutter's rim drawn in by this much [mm] (:data:`RAPID_RIM`).
+    engaged_width : float
+        A cut counts as engagement only where it is at least this wide across the move [mm].
+    body_graze : float
+        A shank or holder reaching sideways into stock or part by no more than this is no
+        contact [mm] (a shank as wide as the cutter rides a finished wall at its radius).
+
+    Raises
+    ------
+    VerifyError
+        If a feed move runs with no tool, or any move with a tool not in ``tools``
+        (``source`` names the G-code line, ``data["line"]`` holds it); if the part, stock,
+        cell or snapshot indices are unusable, or ``start`` lies on another grid.
+    """
+    snap = np.asarray(snapshot_moves, dtype=np.int64).reshape(-1)
+    if len(snap) and (snap.min() < 0 or snap.max() >= len(moves.points)):
+        raise VerifyError(f"snapshot move indices must lie in 0..{len(moves.points) - 1}", source="snapshot_moves")
+    tri = _check_inputs(setup, cell, part_triangles)
+    grid = grid_over(setup.stock_min, setup.stock_max, cell)
+    part_top = upper_envelope(tri, grid)
+    if not np.isfinite(part_top).any():
+        raise VerifyError("the part does not overlap the stock's footprint", source="part")
+    stock, under, top_z, stock_bottom = _starting_stock(setup, grid, start)
+    seg, starts, swept, known = _swept_moves(moves, tools, top_z, rapid_rim)
+    part_flat = np.where(np.isfinite(part_top), part_top, -np.inf).reshape(-1)
+    body = _Body(tools, moves.tool[seg.move], part_flat, engaged_width, body_graze)
+    body.wall_near = _highest_part_near(part_top, grid, _SKIN).reshape(-1)
+
+    n_moves = int(known.sum())
+    done = np.cumsum(known)  # simulated moves up to and including each move, for progress
+    # Segments applied by each snapshot (seg.move is increasing).
+    applied = np.searchsorted(seg.move, snap, side="right")
+    met = MoveRecord(len(seg), bottom=float(setup.stock_min[2]))
+    stocks = _run(seg, body, grid, stock, part_flat, progress, done[seg.move - 1] if len(seg) else done[:0],
+                  n_moves, applied, met, under)
+    met.freeze()
+
+    stock_top = stock.reshape(grid.shape)
+    stock_top.setflags(write=False)
+    part_top.setflags(write=False)
+    removed_volume = np.zeros(len(moves.points))
+    np.add.at(removed_volume, seg.move, met.volume)
+    removed_volume.setflags(write=False)
+    sim = Simulation(grid=grid, stock_top=stock_top, part_top=part_top, stock_bottom=float(setup.stock_min[2]),
+                     floor_z=setup.floor_z, removed_volume=removed_volume)
+    if under is not None:
+        stock_under = under.reshape(grid.shape)
+        stock_under.setflags(write=False)
+        sim = dataclasses.replace(sim, stock_bottom=stock_bottom, stock_under=stock_under)
+    snapshots = tuple(flat.reshape(grid.shape) for flat in stocks)
+    for top in snapshots:
+        top.setflags(write=False)
+    starts.setflags(write=False)
+    swept.setflags(write=False)
+    return StockCut(simulation=sim, snapshots=snapshots, segments=seg, met=met, starts=starts, swept=swept)
+
+
+def _starting_stock(setup: Setup, grid: Grid, start: FlippedStock | None
+                    ) -> tuple[np.ndarray, np.ndarray | None, float, float]:
+    """The stock before the first move, flat on ``grid``: its top and (a flipped stock only) its
+    bottom per grid point, its highest top and its lowest bottom [mm]."""
+    if start is None:
+        top_z = float(setup.stock_max[2])
+        return np.full(grid.size, top_z), None, top_z, float(setup.stock_min[2])
+    if start.grid != grid:
+        raise VerifyError(f"the starting stock's grid {start.grid} is not this setup's {grid}", source="stock")
+    stock = np.array(start.top, dtype=np.float64).reshape(-1)
+    under = np.array(start.bottom, dtype=np.float64).reshape(-1)
+    stock[~(stock > under)] = -np.inf  # empty columns hold nothing to cut
+    finite = stock[np.isfinite(stock)]
+    top_z = float(finite.max()) if len(finite) else float(setup.stock_max[2])
+    stock_bottom = float(under[np.isfinite(stock)].min()) if len(finite) else float(setup.stock_min[2])
+    return stock, under, top_z, stock_bottom
+
+
+def _swept_moves(moves: ProgramMoves, tools: Mapping[int, Tool], top_z: float, rapid_rim: float
+                 ) -> tuple[Segments, np.ndarray, np.ndarray, np.ndarray]:
+    """The moves to sweep, as :class:`Segments`: those with a tool whose tip comes below ``top_z``.
+
+    Returns the segments, each move's start and the moves swept (as :class:`StockCut` holds
+    them) and the moves whose end is known.
+    """
+    pts = moves.points
+    a, b = pts[:-1].copy(), pts[1:]
+    known = np.all(np.isfinite(b), axis=1)
+    # The move that first makes the position known comes from wherever the machine was
+    # (a tool change, the last program): the tool is at least *there* at its end, so it
+    # is checked standing at its end point (a G0 Z-2 as the first move after a tool
+    # change is a crash on that line).
+    arrive = known & ~np.all(np.isfinite(a), axis=1)
+    a[arrive] = b[arrive]
+    rapid = moves.motion[1:] == Motion.RAPID
+    radius, rc, cone = _tool_table(moves, tools, known)
+    # "Reaches more than rapid_tolerance into the stock" holds sideways too: a rapid whose rim
+    # only grazes a wall's skin is not a crash, so rapids are swept with the rim drawn in.
+    radius[rapid] -= rapid_rim
+    rc[rapid] = np.minimum(rc[rapid], radius[rapid])
+    swept = known & np.isfinite(radius)
+    # A move whose tip never comes below the stock top cannot touch the stock.
+    use = swept.copy()
+    use[use] &= np.minimum(a[use, 2], b[use, 2]) < top_z
+    idx = np.flatnonzero(use)
+    seg = Segments.between(a[idx], b[idx], radius[idx], rc[idx], rapid[idx], idx + 1, cone[idx])
+    return seg, a, swept, known
+
+
+def _check_inputs(setup: Setup, cell: float, tri: Any) -> np.ndarray:
+    """The part's triangles as float; VerifyError for an unusable cell, part or stock box."""
+    if not (math.isfinite(cell) and cell > 0):
+        raise VerifyError(f"cell must be a positive number of mm, got {cell}", source="cell")
+    tri = np.asarray(tri, dtype=np.float64)
+    if tri.ndim != 3 or tri.shape[1:] != (3, 3):
+        raise VerifyError(f"part triangles must have shape (m, 3, 3), got {tri.shape}", source="part")
+    if len(tri) == 0:
+        raise VerifyError("the part mesh has no triangles", source="part")
+    if not np.all(np.isfinite(tri)):
+        raise VerifyError("the part mesh holds non-finite coordinates", source="part")
+    size = setup.stock_size
+    if not (np.all(np.isfinite(size)) and np.all(size > 0)):
+        raise VerifyError(
+            f"stock box is empty: {setup.stock_min.tolist()} .. {setup.stock_max.tolist()}", source="stock"
+        )
+    check_grid_size(setup, cell)
+    return tri
+
+
+def check_grid_size(setup: Setup, cell: float, source: str = "cell") -> None:
+    """Refuse a verify grid of more than 60 M cells over the stock's footprint (about 4 GB of
+    height fields), before any work that would be thrown away.
+
+    ``cell``: grid spacing [mm], > 0. Raises VerifyError naming the cell count and the stock size.
+    """
+    size = setup.stock_size
+    cells = math.ceil(size[0] / cell) * math.ceil(size[1] / cell)
+    if cells > _MAX_CELLS:
+        raise VerifyError(
+            f"{cells:,} verify grid cells at {cell} mm over the {size[0]:g} x {size[1]:g} mm stock are too many "
+            f"(limit {_MAX_CELLS:,}); use a coarser grid",
+            source=source,
+        )
+
+
+def _tool_table(moves: ProgramMoves, tools: Mapping[int, Tool],
+                use: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Radius, corner radius and drill point slope of the tool in the spindle for each move; NaN where none.
+
+    Raises VerifyError for a feed move with an empty spindle and for any move with a tool
+    number missing from ``tools`` (among the moves selected by ``use``).
+    """
+    number = moves.tool[1:]
+    radius = np.full(len(number), np.nan)
+    rc = np.full(len(number), np.nan)
+    cone = np.zeros(len(number))
+    cutting = moves.motion[1:] != Motion.RAPID
+    for t in np.unique(number[use]).tolist():
+        sel = use & (number == t)
+        tool = tools.get(t) if t != 0 else None
+        if tool is None:
+            culprits = sel & (cutting | (number != 0))
+            if culprits.any():
+                first = int(np.flatnonzero(culprits)[0])
+                what = "no tool in the spindle" if t == 0 else f"tool T{t} is not in the tool table"
+                line = int(moves.line[first + 1])
+                kind = "feed" if cutting[first] else "rapid"
+                raise VerifyError(f"line {line}: {kind} move with {what}", source=moves.source, line=line)
+            continue  # rapids with an empty spindle: nothing to collide
+        radius[sel] = tool.radius
+        rc[sel] = float(tool.corner_radius)
+        cone[sel] = tool.point_slope
+    return radius, rc, cone
+
+
+#: Material within this sideways of a part wall at least as tall (less this), over part
+#: lower than that, is the wall's skin [mm]: a finishing tool takes it off whatever its
+#: height (raster passes meet walls head-on).
+_SKIN = 1.0
+
+
+def _highest_part_near(part_top: np.ndarray, grid: Grid, reach: float) -> np.ndarray:
+    """(ny, nx) highest part top within ``reach`` [mm] of each grid point (``-inf``: none)."""
+    top = np.where(np.isfinite(part_top), part_top, -np.inf)
+    out = top.copy()
+    k = int(reach // grid.cell)
+    ny, nx = top.shape
+    for dj in range(-k, k + 1):
+        for di in range(-k, k + 1):
+            if (di or dj) and (di * di + dj * dj) * grid.cell**2 <= reach * reach + 1e-12:
+                src = top[max(0, dj):ny + min(0, dj), max(0, di):nx + min(0, di)]
+                dst = out[max(0, -dj):ny + min(0, -dj), max(0, -di):nx + min(0, -di)]
+                np.maximum(dst, src, out=dst)
+    return out
+
+
+class _Body:
+    """The shank and holder of the tool making each segment, as flat cylinders to sweep.
+
+    ``levels[t]``: ``(height above the tip, radius)`` of tool ``t``'s body cylinders
+    (:meth:`Tool.body`), radii growing with height.
+    """
+
+    def __init__(self, tools: Mapping[int, Tool], tool_of_seg: np.ndarray, part_flat: np.ndarray,
+                 engaged_width: float, graze: float = 0.0):
+        self.tool_of_seg = np.asarray(tool_of_seg, dtype=np.int64)
+        self.levels = {t: tools[t].body() for t in np.unique(self.tool_of_seg).tolist() if t in tools}
+        flutes = {t: tools[t].flute_length for t in self.levels}
+        self.flute_of_seg = np.array([flutes.get(t, np.inf) for t in self.tool_of_seg.tolist()], dtype=np.float64)
+        finite = part_flat[np.isfinite(part_flat)]
+        self.part_max = float(finite.max()) if len(finite) else -np.inf
+        self.part = part_flat
+        self.engaged_width = engaged_width
+        # A shank as wide as the cutter rides a finished wall at exactly its radius: a
+        # graze sideways within the contact tolerance is no contact.
+        self.graze = graze
+
+    def pairs(self, seg: Segments, s: int, e: int, grid: Grid, stock: np.ndarray, ceiling: float):
+        """(segment in batch, flat grid index, body envelope) for body parts that come below ``ceiling``."""
+        tool = self.tool_of_seg[s:e]
+        rows, heights, radii = [], [], []
+        for t, levels in self.levels.items():
+            mine = np.flatnonzero(tool == t)
+            if len(mine) == 0:
+                continue
+            for h, r in levels:
+                low = mine[seg.zmin[mine] + h < ceiling]
+                if len(low):
+                    rows.append(low)
+                    heights.append(np.full(len(low), h))
+                    radii.append(np.full(len(low), max(r - self.graze, 1e-6)))
+        if not rows:
+            empty = np.zeros(0, np.int64)
+            return empty, empty, np.zeros(0)
+        k = np.concatenate(rows)
+        h = np.concatenate(heights)
+        lifted = Segments(seg.x[k], seg.y[k], seg.z[k] + h, seg.dx[k], seg.dy[k], seg.dz[k],
+                          np.concatenate(radii), np.zeros(len(k)), seg.rapid[k], seg.move[k])
+        owner, flat, col, row = grid_pairs(lifted, grid)
+        bound = np.maximum(stock[flat], self.part[flat])
+        env = pair_envelope(grid.x0 + col * grid.cell, grid.y0 + row * grid.cell, owner, lifted, bound)
+        hit = np.flatnonzero(np.isfinite(env))
+        return k[owner[hit]], flat[hit], env[hit]
+
+
+def _run(
+    seg: Segments, body: "_Body", grid: Grid, stock: np.ndarray, part: np.ndarray, progress, done, total_moves,
+    snapshot_at: np.ndarray, stats: MoveRecord, under: np.ndarray | None = None,
+) -> list[np.ndarray]:
+    """Apply every move to ``stock`` (flat, modified in place); fill ``stats``; return the snapshots.
+
+    ``done[k]`` is the progress count once segment ``k`` is applied. ``snapshot_at[i]`` is a
+    number of segments: a copy of ``stock`` is taken once that many are applied (the
+    batches are split there; cuts commute, so the final stock is the same).
+    """
+    # Batch boundaries from an estimate of each move's grid points (its stadium's area).
+    L = np.sqrt(seg.l2)
+    est = (L + 2 * seg.radius + 2 * grid.cell) * (2 * seg.radius + 2 * grid.cell) / grid.cell**2
+    cum = np.cumsum(est)
+    bucket = ((cum - est) // _PAIR_BUDGET).astype(np.int64)
+    bounds = np.concatenate([[0], np.flatnonzero(np.diff(bucket)) + 1, [len(seg)]]).astype(np.int64)
+    bounds = np.union1d(bounds, snapshot_at)
+    wanted = set(snapshot_at.tolist())
+    taken = {0: stock.copy()} if 0 in wanted else {}  # segments applied -> stock then
+
+    for c in range(len(bounds) - 1):
+        s, e = int(bounds[c]), int(bounds[c + 1])
+        if e > s:
+            _run_batch(seg, body, s, e, grid, stock, part, stats, under)
+            if progress is not None:
+                progress(int(done[e - 1]), total_moves)
+        if e in wanted:
+            taken[e] = stock.copy()
+    if progress is not None:
+        progress(total_moves, total_moves)
+    return [taken[k] for k in snapshot_at.tolist()]
+
+
+def _segmented_exclusive_min(group: np.ndarray, value: np.ndarray) -> np.ndarray:
+    """Running minimum of ``value`` within each run of equal ``group``, excluding the entry itself.
+
+    ``group`` is sorted; ``inf`` starts each run and stands for ``inf`` in ``value``. Each
+    run is lifted below every earlier one by a multiple of the values' span, so one
+    ``minimum.accumulate`` restarts at every run; the minimum is then read back from the
+    entry that holds it, so it is exact.
+    """
+    out = np.full(len(value), np.inf)
+    if len(value) == 0:
+        return out
+    finite = np.isfinite(value)
+    if not finite.any():
+        return out
+    lo = float(value[finite].min())
+    span = float(value[finite].max()) - lo + 1.0
+    v = np.where(finite, value - lo, span)  # inf -> above every finite value
+    start = np.r_[True, group[1:] != group[:-1]]
+    run = np.cumsum(start) - 1
+    lifted = v + (run[-1] - run) * (2.0 * span)
+    running = np.minimum.accumulate(lifted)
+    # The entry holding each running minimum (every run's first entry holds one), so the
+    # minimum comes back as the exact value, whatever the lift rounded: results do not
+    # depend on how moves are batched.
+    idx = np.arange(len(value))
+    holder = np.maximum.accumulate(np.where(lifted <= running, idx, 0))
+    keep = np.flatnonzero(~start)
+    out[keep] = value[holder[keep - 1]]
+    return out
+
+
+def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, stock: np.ndarray, part: np.ndarray,
+               stats: MoveRecord, under: np.ndarray | None = None) -> None:
+    """Cut segments ``s:e`` into ``stock`` and record what each met.
+
+    Each move is judged against the stock exactly as every earlier move left it (also
+    the earlier moves of this batch): pairs are ordered by grid point and move, and a
+    running minimum of the earlier moves' envelopes gives the stock each move found.
+    ``under`` (flat, per grid point): the bottom of a stock whose columns do not all stand
+    on one plane (a flipped part); a column cut down to it is empty (``-inf``) from then on.
+    """
+    seg = seg_all.sub(s, e)
+    owner, flat, col, row = grid_pairs(seg, grid)
+    before0 = stock[flat]
+    env = pair_envelope(grid.x0 + col * grid.cell, grid.y0 + row * grid.cell, owner, seg, before0)
+    touch = np.flatnonzero(env < before0)
+    owner, flat, col, row, env = owner[touch], flat[touch], col[touch], row[touch], env[touch]
+
+    # Shank and holder: the same sweep with the body's cylinders, only where they can
+    # come below the highest stock or part there is.
+    b_owner, b_flat, b_env = body.pairs(seg, s, e, grid, stock, max(float(stock.max()), body.part_max))
+
+    n_c = len(flat)
+    cells = np.concatenate([flat, b_flat])
+    # At a grid point, every earlier move's cut counts, and for this move's own
+    # shank, not its own cutter (which takes that material off no higher than its flutes).
+    order_key = np.concatenate([owner * 2 + 1, b_owner * 2])
+    value = np.concatenate([env, np.full(len(b_flat), np.inf)])
+    order = np.argsort(cells * (2 * (e - s) + 2) + order_key)
+    earlier = np.empty(len(cells))
+    earlier[order] = _segmented_exclusive_min(cells[order], value[order])
+    found = np.minimum(stock[cells], earlier)
+    if under is not None:  # a column cut through by an earlier move holds nothing
+        found[~(found > under[cells])] = -np.inf
+
+    if len(b_flat):
+        # This move's own flutes take off what they reach first (the tool descends or
+        # moves on into it), up to the flute length above the highest tip position
+        # from which they reach the point; material above that meets the body.
+        qx = grid.x0 + (b_flat % grid.nx) * grid.cell
+        qy = grid.y0 + (b_flat // grid.nx) * grid.cell
+        ta, tb, _ = reach_interval(seg, b_owner, qx, qy)
+        z0, dz = seg.z[b_owner], seg.dz[b_owner]
+        flute_top = np.where(ta <= tb, np.maximum(z0 + dz * ta, z0 + dz * tb) + body.flute_of_seg[b_owner + s], -np.inf)
+        standing = found[n_c:]
+        standing = np.where(standing > flute_top, standing, -np.inf)
+        met = np.maximum(standing, part[b_flat]) - b_env
+        hit = np.flatnonzero(met > 0.0)
+        if len(hit):
+            _record_max(stats.contact, stats.contact_cell, b_owner[hit] + s, met[hit], b_flat[hit],
+                        extra=(stats.contact_z, b_env[hit]))
+
+    before = found[:n_c]
+    removed = before - env
+    cut = np.flatnonzero(removed > 0.0)
+    if len(cut):
+        o, f, r = owner[cut], flat[cut], removed[cut]
+        _record_max(stats.removed_max, stats.removed_cell, o + s, r, f, extra=(stats.removed_env, env[cut]))
+        # A wall's skin is no engagement (see _SKIN); it is still cut, and still counts
+        # for rapids and for the width of the cut.
+        # Only beside a wall: floor allowance (the part right below) is engagement as usual.
+        skin = (body.wall_near[f] >= before[cut] - _SKIN) & (part[f] < before[cut] - _SKIN)
+        _engaged_depth(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
+                       env[cut], f, grid.cell, body.engaged_width, stats, skin)
+        # what the cut took off, counted down to the stock's bottom (a through cut goes on into air)
+        floor = stats.bottom if under is None else under[f]
+        np.add.at(stats.volume, o + s, np.maximum(before[cut] - np.maximum(env[cut], floor), 0.0) * grid.cell**2)
+        np.minimum.at(stock, f, env[cut])
+        if under is not None:
+            through = f[~(stock[f] > under[f])]
+            stock[through] = -np.inf
+
+
+def _record_max(best: np.ndarray, where: np.ndarray, owner: np.ndarray, value: np.ndarray, cell: np.ndarray,
+                extra: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+    """``best[k] = max(value)`` over entries of owner ``k``, with the cell (and ``extra``) where it is reached."""
+    np.maximum.at(best, owner, value)
+    at = np.flatnonzero(value >= best[owner])
+    where[owner[at]] = cell[at]
+    if extra is not None:
+        extra[0][owner[at]] = extra[1][at]
+
+
+#: A grid point counts towards a move's width once the move takes more than this off it [mm].
+_ENGAGED_FILM = 0.02
+
+
+def _engaged_depth(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.ndarray, before: np.ndarray,
+                   env: np.ndarray, cells: np.ndarray, cell: float, min_width: float, stats: MoveRecord,
+                   skin: np.ndarray | None = None) -> None:
+    """Deepest engagement of each move's cutter [mm], in ``stats.depth``; its width in ``stats.width``.
+
+    The column a move takes off a grid point is split in two: as much of it as the tool
+    descends while the point is within its reach is a plunge (taken off from above); the
+    rest the cutter meets moving sideways, and that height is the axial depth of cut
+    ``ap`` there. A tool is buried when
+
+    * sideways: the grid points taken, thickest first, span ``min_width`` across the
+      move's XY direction while still deeper than the depth reported (a tall but thin
+      skin shaved off a wall is not a buried tool, a full-width slot is);
+    * plunging: they cover half the cutter's footprint while still deeper than it (a
+      drill-like entry into solid stock, not a descent past a wall; for a ball that is
+      ``0.29 R`` less than the depth of its tip).
+
+    Grid points ``skin`` (within :data:`_SKIN` of a part wall at least as tall as the
+    material on them, less that distance) are left out: the allowance on a wall is
+    taken off by finishing whatever its height, a raster pass meeting it head-on.
+    """
+    R = seg.radius[o]
+    ta, tb, _ = reach_interval(seg, o, qx, qy)
+    # What the tool takes off a point while it descends over it is a plunge; the rest it
+    # takes moving sideways into the material.
+    removed = before - env
+    plunge = np.minimum(removed, np.maximum(-seg.dz[o], 0.0) * np.maximum(tb - ta, 0.0))
+    side = removed - plunge
+    if skin is not None:  # the skin of a wall: taken off, but no engagement
+        plunge = np.where(skin, 0.0, plunge)
+        side = np.where(skin, 0.0, side)
+
+    L = np.sqrt(seg.l2[o])
+    has = L > 1e-9
+    ux = np.where(has, seg.dx[o] / np.where(has, L, 1.0), 1.0)
+    uy = np.where(has, seg.dy[o] / np.where(has, L, 1.0), 0.0)
+    wx, wy = qx - seg.x[o], qy - seg.y[o]
+    lat = np.where(has, wx * uy - wy * ux, wx)  # signed distance across the move (along X if vertical)
+    film = removed > _ENGAGED_FILM
+    if film.any():
+        lo = np.full(len(seg), np.inf)
+        hi = np.full(len(seg), -np.inf)
+        np.minimum.at(lo, o[film], lat[film])
+        np.maximum.at(hi, o[film], lat[film])
+        k = np.flatnonzero(np.isfinite(lo))
+        width = np.minimum(hi[k] - lo[k] + cell, 2 * seg.radius[k])
+        stats.width[k + s] = np.maximum(stats.width[k + s], width)
+
+    # Sideways: thickest first within each move, running extent of the lateral offsets
+    # (cummax with a per-move offset that lifts each move above every earlier one).
+    sel = np.flatnonzero(side > 0.0)
+    if len(sel):
+        order = sel[np.argsort(o[sel] * (float(side[sel].max()) + 1.0) - side[sel], kind="stable")]
+        os_, lat_s = o[order], lat[order]
+        shift = os_ * (4.0 * float(2 * np.max(seg.radius)) + 4.0)
+        hi = np.maximum.accumulate(lat_s + shift) - shift
+        lo = shift - np.maximum.accumulate(shift - lat_s)
+        wide = np.flatnonzero(hi - lo + cell >= min_width)
+        if len(wide):
+            _record_max(stats.depth, stats.depth_cell, os_[wide] + s, side[order][wide], cells[order][wide])
+    # Plunging: the k-th thickest, k grid points being half the cutter's footprint.
+    sel = np.flatnonzero(plunge > 0.0)
+    if len(sel):
+        order = sel[np.argsort(o[sel] * (float(plunge[sel].max()) + 1.0) - plunge[sel], kind="stable")]
+        os_ = o[order]
+        first = np.r_[True, os_[1:] != os_[:-1]]
+        rank = np.arange(len(order)) - np.maximum.accumulate(np.where(first, np.arange(len(order)), 0))
+        need = np.ceil(0.5 * math.pi * R[order] ** 2 / cell**2) - 1
+        at = np.flatnonzero(rank >= need)
+        if len(at):
+            _record_max(stats.depth, stats.depth_cell, os_[at] + s, plunge[order][at], cells[order][at])
+
+
+def first_line_reaching(moves: ProgramMoves, tools: Mapping[int, Tool], x: float, y: float, z: float) -> int | None:
+    """Source line of the first move whose tool reaches down to ``z`` at ``(x, y)`` [mm]; None if no move does."""
+    a, b = moves.points[:-1], moves.points[1:]
+    known = np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
+    radius, rc, cone = _tool_table(moves, tools, known)
+    sel = np.flatnonzero(known & np.isfinite(radius))
+    seg = Segments.between(a[sel], b[sel], radius[sel], rc[sel], cone=cone[sel])
+    k = len(sel)
+    env = pair_envelope(np.full(k, x), np.full(k, y), np.arange(k), seg)
+    hit = np.flatnonzero(env <= z + 1e-9)
+    return int(moves.line[sel[hit[0]] + 1]) if len(hit) else None
+
+
+def operation_moves(operations: Sequence[Operation]) -> ProgramMoves:
+    """The moves of operations as a controller would run them, without posting G-code.
+
+    PLUNGE moves become feed moves (the simulation does not tell feeds apart); each
+    operation's first point is reached by a rapid from the previous one's last.
+    """
+    points = np.concatenate([op.points for op in operations])
+    motion = np.concatenate([op.motion for op in operations]).astype(np.int8)
+    motion[motion == Motion.PLUNGE] = Motion.CUT
+    tool = np.concatenate([np.full(len(op.points), op.tool.number) for op in operations])
+    feed = np.concatenate([np.where(op.motion == Motion.RAPID, np.nan, op.cutting.feed) for op in operations])
+    return ProgramMoves(points, motion, tool, feed, np.zeros(len(points), dtype=np.int32))
+
+
+def stock_after(operations: Sequence[Operation], setup: Setup, part_triangles: np.ndarray,
+                cell: float = 0.5) -> Simulation:
+    """The stock left by ``operations``, on a grid of ``cell`` [mm], for planning later ones."""
+    tools = {op.tool.number: op.tool for op in operations}
+    return cut_stock(operation_moves(operations), tools, setup, part_triangles, cell).simulation
+
+
+def stock_after_flipped(operations: Sequence[Operation], setup: Setup, part_triangles: np.ndarray, start: FlippedStock,
+                        cell: float) -> Simulation:
+    """:func:`stock_after` from ``start``, the stock an earlier setup left turned over (:func:`flip_stock`):
+    op 2's stock for planning its later operations. ``cell`` [mm] must be the one ``start`` was made on;
+    operations of a single point cut nothing and are left out."""
+    cutting = [op for op in operations if len(op.points) > 1]
+    if not cutting:
+        grid = start.grid
+        present = np.isfinite(start.top)
+        lowest = float(start.bottom[present].min()) if present.any() else float(setup.stock_min[2])
+        return Simulation(grid=grid, stock_top=start.top, part_top=upper_envelope(part_triangles, grid),
+                          stock_bottom=lowest, stock_under=start.bottom)
+    tools = {op.tool.number: op.tool for op in cutting}
+    return cut_stock(operation_moves(cutting), tools, setup, part_triangles, cell, start=start).simulation
+
+
+def clear_height(sim: Simulation, tool: Tool, xy: np.ndarray) -> np.ndarray:
+    """Lowest tool tip height at each ``xy`` that touches none of the stock in ``sim`` [mm].
+
+    Conservative between grid points: the stock is taken as reaching up to a grid point's
+    height anywhere within a cell diagonal of it.
+
+    Parameters
+    ----------
+    sim : Simulation
+    tool : Tool
+    xy : (n, 2) float
+        Tool axis positions [mm].
+
+    Returns
+    -------
+    (n,) float
+        ``-inf`` where no stock lies under the tool.
+    """
+    g = sim.grid
+    slack = g.cell * math.sqrt(2.0)
+    reach = tool.radius + slack
+    k = int(math.ceil(reach / g.cell))
+    di, dj = np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1))
+    di, dj = di.ravel(), dj.ravel()
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    i0 = np.rint((xy[:, 0] - g.x0) / g.cell).astype(np.int64)
+    j0 = np.rint((xy[:, 1] - g.y0) / g.cell).astype(np.int64)
+    out = np.full(len(xy), -np.inf)
+    for a, b in zip(di, dj):
+        i, j = i0 + a, j0 + b
+        inside = (i >= 0) & (i < g.nx) & (j >= 0) & (j < g.ny)
+        if not inside.any():
+            continue
+        ii, jj = i[inside], j[inside]
+        r = np.hypot(g.x0 + ii * g.cell - xy[inside, 0], g.y0 + jj * g.cell - xy[inside, 1])
+        near = r <= reach
+        h = tool.profile_height(np.clip(r - slack, 0.0, tool.radius))
+        need = np.where(near, sim.stock_top[jj, ii] - h, -np.inf)
+        out[inside] = np.maximum(out[inside], need)
+    return out
+
+
+def flip_stock(sim: Simulation, transform: np.ndarray, setup: Setup) -> FlippedStock:
+    """The stock of ``sim`` turned over by ``transform`` into the work coordinates of ``setup``.
+
+    A z-map column ``[bottom, top]`` turned upside down is a column ``[-top, -bottom]`` (plus
+    the transform's offset): its top is the old flat bottom, its bottom the surface the
+    earlier program cut. The next setup's grid must be the old one mirrored, which it is
+    when ``setup``'s stock box is the old one turned over in place (:mod:`cadcam.op2`).
+
+    Parameters
+    ----------
+    sim : Simulation
+        The stock after the earlier program.
+    transform : (4, 4) float
+        Old work coordinates -> new ones [mm]: a half turn about the X axis
+        (``diag(1, -1, -1)``) and a translation.
+    setup : Setup
+        The next setup; its grid is laid over its stock box with ``sim``'s cell.
+
+    Raises
+    ------
+    VerifyError
+        ``transform`` is not a half turn about X, or the grids do not coincide.
+    """
+    t = np.asarray(transform, dtype=np.float64).reshape(4, 4)
+    if not np.allclose(t[:3, :3], np.diag([1.0, -1.0, -1.0]), atol=1e-12):
+        raise VerifyError("the flip must be a half turn about the work X axis", source="flip")
+    g1 = sim.grid
+    grid = grid_over(setup.stock_min, setup.stock_max, g1.cell)
+    # New grid point (x, y) comes from the old point (x - tx, ty - y).
+    i_f = (grid.xs - t[0, 3] - g1.x0) / g1.cell
+    j_f = (t[1, 3] - grid.ys - g1.y0) / g1.cell
+    i, j = np.rint(i_f).astype(np.int64), np.rint(j_f).astype(np.int64)
+    if (grid.shape != g1.shape or np.abs(i_f - i).max() > 1e-6 or np.abs(j_f - j).max() > 1e-6
+            or i.min() < 0 or i.max() >= g1.nx or j.min() < 0 or j.max() >= g1.ny):
+        raise VerifyError("the flipped stock does not land on the next setup's grid: its stock box must be "
+                          "the old one turned over in place", source="flip")
+    old_top = sim.stock_top[np.ix_(j, i)]
+    old_under = (np.full(g1.shape, sim.stock_bottom) if sim.stock_under is None else sim.stock_under)[np.ix_(j, i)]
+    present = old_top > old_under
+    tz = t[2, 3]
+    top = np.where(present, tz - old_under, -np.inf)
+    bottom = np.where(present, tz - old_top, tz - old_under)
+    top.setflags(write=False)
+    bottom.setflags(write=False)
+    return FlippedStock(grid=grid, top=top, bottom=bottom)
