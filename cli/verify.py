@@ -62,20 +62,22 @@ def verify(
     before_ok = True
     with progress_bars(quiet) as bars:
         if first is None:
-            sim, report = run_verify(text, str(program), setup, tools, triangles, options, bars,
-                                     operations=sheet.operations)
+            verified = run_verify(text, str(program), setup, tools, triangles, options, bars,
+                                  operations=sheet.operations)
         else:
             program1, sheet1_path = first
             setup1, tools1, sheet1 = read_sheet(sheet1_path)
-            sim1, report1 = run_verify(_read(program1), str(program1), setup1, tools1,
-                                       part_triangles(part, setup1, sheet1.source_sha256), options, bars,
-                                       operations=sheet1.operations)
-            before_ok = report1.ok
+            verified1 = run_verify(_read(program1), str(program1), setup1, tools1,
+                                   part_triangles(part, setup1, sheet1.source_sha256), options, bars,
+                                   operations=sheet1.operations)
+            before_ok = verified1.report.ok
             if not quiet:
-                stderr.print(f"op 1 ({program1.name}): {report_text(report1)}", highlight=False, markup=False)
-            sim, report = run_verify_after(sim1, flip_of(sheet, setup_path), text, str(program), setup, tools,
-                                           triangles, options, bars, operations=sheet.operations)
-    write_verify_outputs(sim, report, png=png, json_path=json_path, mcap=mcap,
+                stderr.print(f"op 1 ({program1.name}): {report_text(verified1.report)}", highlight=False,
+                             markup=False)
+            verified = run_verify_after(verified1.simulation, flip_of(sheet, setup_path), text, str(program), setup,
+                                        tools, triangles, options, bars, operations=sheet.operations)
+    report = verified.report
+    write_verify_outputs(verified.simulation, report, png=png, json_path=json_path, mcap=mcap,
                          overwrite=overwrite, inputs={str(program): "", str(part): ""})
     if as_json:
         print_json(report.to_dict())

@@ -42,7 +42,7 @@ from cadcam.relief import block_corners
 from cadcam.sheet import setup_sheet
 from cadcam.tools import load_tool_library
 from cadcam.stock import Simulation
-from cadcam.verify import VerifyOptions, VerifyReport
+from cadcam.verify import VerifyOptions, VerifyReport, VerifyResult
 from factory.core.atomic import check_writable, write_bytes, write_text
 from factory.cam import CamRequest, PlannedPart, compute_job, log_job
 from factory.catalog import catalog_record, sha256_file
@@ -441,18 +441,19 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
             raise
     with watch("verify"):  # with the robot: the wait for the second process
         if background is not None:
-            sim, report = background.result()
+            verified = background.result()
         else:
-            sim, report = run_verify(*verify_args, progress, **verify_kwargs)
+            verified = run_verify(*verify_args, progress, **verify_kwargs)
     op2 = None
     if req.ops == 2:
-        op2 = _plan_op2(req, planned, sim, outputs, progress, watch)
+        op2 = _plan_op2(req, planned, verified.simulation, outputs, progress, watch)
         sheet = dataclasses.replace(sheet, next={"program": outputs["program_op2"].name,
                                                  "setup_sheet": outputs["setup_sheet_op2"].name})
-    return PartPlan(req, planned, program, sheet, tending, sim, report, dict(watch.seconds), op2)
+    return PartPlan(req, planned, program, sheet, tending, verified.simulation, verified.report,
+                    dict(watch.seconds), op2)
 
 
-def _verify_quietly(args: tuple, kwargs: dict) -> tuple[Simulation, VerifyReport]:
+def _verify_quietly(args: tuple, kwargs: dict) -> VerifyResult:
     """:func:`run_verify` without progress, for a worker process."""
     return run_verify(*args, None, **kwargs)
 
@@ -473,11 +474,11 @@ def _plan_op2(req: PlanRequest, planned: PlannedPart, op1_sim: Simulation, outpu
         sheet2 = dataclasses.replace(setup_sheet(job2, program2, outputs["program_op2"].name),
                                      **op2_sheet_fields(job2, outputs["program"].name, outputs["setup_sheet"].name))
     with watch("op 2 verify"):
-        sim2, report2 = run_verify_after(op1_sim, flip_transform(job1.setup), program2.text,
+        verified2 = run_verify_after(op1_sim, flip_transform(job1.setup), program2.text,
                                          str(outputs["program_op2"]), job2.setup, {t.number: t for t in job2.tools},
                                          np.asarray(part2.triangles), VerifyOptions(cell=req.grid), progress,
                                          operations=sheet2.operations)
-    return SecondOp(job2, part2, program2, sheet2, sim2, report2)
+    return SecondOp(job2, part2, program2, sheet2, verified2.simulation, verified2.report)
 
 
 @contextlib.contextmanager

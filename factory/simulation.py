@@ -358,10 +358,10 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
         # op 2 cuts op 1's stock turned over: its engagement from the same stock model
         sheet2_path = entry.output("setup_sheet_op2")
         setup2, tools2, sheet2 = read_sheet(sheet2_path)
-        sim2, _ = run_verify_after(last_sim, flip_of(sheet2, sheet2_path), text2, str(program2), setup2, tools2,
-                                   part_triangles(part, setup2, summary["catalog"]["mesh_sha256"]),
-                                   VerifyOptions(cell=STOCK_GRID_MM))
-        spindle_op2 = program_spindle_load(timeline_op2, sim2.removed_volume, library, material)
+        verified2 = run_verify_after(last_sim, flip_of(sheet2, sheet2_path), text2, str(program2), setup2, tools2,
+                                     part_triangles(part, setup2, summary["catalog"]["mesh_sha256"]),
+                                     VerifyOptions(cell=STOCK_GRID_MM))
+        spindle_op2 = program_spindle_load(timeline_op2, verified2.simulation.removed_volume, library, material)
     toolpath = next((m for topic, _, m in read_messages(mcap, ["/cam/toolpath"])), None)
     in_vise = setup_sheet_to_cell(sheet, str(sheet_path))
     loaded = load_part(part, units=units_of_scale(setup.mesh_scale, str(sheet_path)))

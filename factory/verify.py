@@ -17,7 +17,7 @@ from cadcam.model import Setup, Tool
 from cadcam.sheet import read_setup_sheet
 from cadcam.preview import deviation_image
 from cadcam.stock import Simulation, flip_stock
-from cadcam.verify import VerifyOptions, VerifyReport, finishing_moves, simulate, simulate_flipped
+from cadcam.verify import VerifyOptions, VerifyReport, VerifyResult, finishing_moves, simulate, simulate_flipped
 from factory.core.atomic import write_bytes, write_text
 from factory.core.errors import SetupError
 from factory.core.setupsheet import SetupSheet
@@ -53,7 +53,7 @@ def part_triangles(part: Path, setup: Setup, expected_sha256: str = "") -> np.nd
 
 def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int, Tool],
                triangles: np.ndarray, options: VerifyOptions, progress: Progress | None = None,
-               operations: Sequence[Mapping[str, Any]] = ()) -> tuple[Simulation, VerifyReport]:
+               operations: Sequence[Mapping[str, Any]] = ()) -> VerifyResult:
     """Parse and simulate a program against the part (``triangles`` in work coordinates [mm]);
     ``operations`` are the setup sheet's, which tell finishing tools from roughing ones where the
     program's own operation comments do not.
@@ -67,15 +67,14 @@ def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int
     """
     moves = parse_gcode(gcode_text, source=gcode_source)
     finishing = finishing_moves(gcode_text, moves, operations)
-    verified = simulate(moves, tools, setup, triangles, options, progress=stage_callback(progress, "verify"),
-                        finishing=finishing)
-    return verified.simulation, verified.report
+    return simulate(moves, tools, setup, triangles, options, progress=stage_callback(progress, "verify"),
+                    finishing=finishing)
 
 
 def run_verify_after(before: Simulation, flip: np.ndarray, gcode_text: str, gcode_source: str, setup: Setup,
                      tools: dict[int, Tool], triangles: np.ndarray, options: VerifyOptions,
                      progress: Progress | None = None,
-                     operations: Sequence[Mapping[str, Any]] = ()) -> tuple[Simulation, VerifyReport]:
+                     operations: Sequence[Mapping[str, Any]] = ()) -> VerifyResult:
     """:func:`run_verify` of op 2: starting from ``before`` (op 1's simulated stock, on a grid of
     ``options.cell``) turned over by ``flip`` (op-1 -> op-2 work transform [mm]) into ``setup``.
 
@@ -87,9 +86,8 @@ def run_verify_after(before: Simulation, flip: np.ndarray, gcode_text: str, gcod
     moves = parse_gcode(gcode_text, source=gcode_source)
     finishing = finishing_moves(gcode_text, moves, operations)
     start = flip_stock(before, flip, setup)
-    verified = simulate_flipped(moves, tools, setup, triangles, start, options,
-                                progress=stage_callback(progress, "verify op 2"), finishing=finishing)
-    return verified.simulation, verified.report
+    return simulate_flipped(moves, tools, setup, triangles, start, options,
+                            progress=stage_callback(progress, "verify op 2"), finishing=finishing)
 
 
 def op1_of(sheet: SetupSheet, sheet_path: Path, after: Path | None) -> tuple[Path, Path] | None:
