@@ -37,7 +37,8 @@ from factory.core.resources import FIXTURES  # noqa: E402
 from robotprog.cell import load_cell  # noqa: E402
 from robotprog.collision import collision_world  # noqa: E402
 from robotprog.ik import UR_DH, ik_continuous, ur_fk, ur_ik  # noqa: E402
-from robotprog.tending import TendingOptions, _Planner, plan_tending  # noqa: E402
+from robotprog.planner import MotionPlanner  # noqa: E402
+from robotprog.tending import TendingOptions, plan_tending  # noqa: E402
 from robotprog.timing import TimingOptions, time_path  # noqa: E402
 
 #: Stock sizes [mm] of the sample parts (samples/make_samples.py with the default allowances).
@@ -113,7 +114,7 @@ def bench_collision(world, plans: dict, rng: np.random.Generator) -> dict:
 def bench_moves(part: str, cell, world, plan, options: TendingOptions) -> list[dict]:
     """Each move re-planned alone, TOPP-RA alone, and the dense-grid reference."""
     robot = world.robot
-    p = _Planner(cell, robot, world, options)
+    p = MotionPlanner(cell, world, options.planner)
     rows = []
     for mv in plan.moves:
         if mv.kind == "gripper":
@@ -124,8 +125,9 @@ def bench_moves(part: str, cell, world, plan, options: TendingOptions) -> list[d
             qs = p.line(p.tcp_world(wp[0]), mv.transform_world_to_tcp, wp[0], mv.held, mv.name, "bench")
             sampled = False
         else:
-            qs = p.transfer(wp[0], wp[-1], mv.held, mv.name)
-            sampled = len(qs) > 2
+            found = p.transfer(wp[0], wp[-1], mv.held, mv.name)
+            qs = found.waypoints
+            sampled = found.search != "straight"
         p.timed(mv.name, mv.kind, qs, mv.held)
         plan_ms = (time.perf_counter() - t0) * 1e3
 

@@ -395,9 +395,11 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
         raise PlanningError(f"ops must be 1 or 2, got {shown(req.ops)}", source="ops")
     post_options = PostOptions(dialect=req.post, arc_tolerance=req.arc_tolerance)  # refused before the CAM work
     processors()  # and a bad FACTORY_THREADS
-    check_request(req)  # the cell, its robot and the program language
+    robot_cell = req.cell if req.robot else None
+    check_request(robot_cell, req.lang)  # the cell, its robot and the program language
     watch = Stopwatch()
-    planned = compute_job(req.cam, progress, watch, check_setup=lambda setup: check_setup(req, setup))
+    planned = compute_job(req.cam, progress, watch,
+                          check_setup=lambda setup: check_setup(setup, req.grid, req.cam.part, robot_cell))
     job = planned.job
     asked_ops = req.ops
     if req.ops is None:  # a relief stays in its block, right way up, unless asked

@@ -10,7 +10,6 @@ only after all the CAM work.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,39 +22,36 @@ from robotprog.frames import MM_PER_M, check_stock_fits
 from robotprog.programs import LANG_MAKER, check_language
 from robotprog.robots import load_robot
 
-if TYPE_CHECKING:
-    from factory.plan import PlanRequest
-
-
-def check_request(req: PlanRequest) -> None:
+def check_request(cell_path: Path | None, lang: str) -> None:
     """Refuse, before any CAM work, a plan the robot half would refuse: a malformed cell file, an
     unknown robot or a home it cannot take, a program language for another maker's arm.
+    ``cell_path`` None: the plan has no robot half, nothing to refuse.
 
     Raises
     ------
     CellError
         The cell file or its robot (the robot is loaded once: later loads are cached).
     PlanningError
-        ``req.lang`` is another maker's; the message names the shipped cells with an arm that
+        ``lang`` is another maker's; the message names the shipped cells with an arm that
         speaks it and the language this arm speaks.
     """
-    if not req.robot:
+    if cell_path is None:
         return
-    cell = load_cell(req.cell)
+    cell = load_cell(cell_path)
     robot = load_robot(cell.robot.model, flange_frame=cell.robot.flange_frame)
     try:
-        check_language(req.lang, robot)
+        check_language(lang, robot)
     except PlanningError as e:
-        fixes = [f"--cell {_shown(c)}" for c in shipped_cells(LANG_MAKER[req.lang])]
+        fixes = [f"--cell {_shown(c)}" for c in shipped_cells(LANG_MAKER[lang])]
         fixes += [f"--lang {lang}" for lang, maker in LANG_MAKER.items() if maker == robot.maker]
         raise PlanningError(f"{e}: plan with {' or '.join(fixes) or 'a cell with such an arm'}",
-                            source=_shown(req.cell)) from None
+                            source=_shown(cell_path)) from None
 
 
-def check_setup(req: PlanRequest, setup: Setup) -> None:
+def check_setup(setup: Setup, grid: float, part: Path, cell_path: Path | None) -> None:
     """Refuse, once the part is placed in its stock and before any toolpath, what verify and the
     robot would refuse: a verify grid too fine for the stock, a stock the cell's vise cannot clamp
-    or its gripper cannot hold.
+    or its gripper cannot hold. ``grid``: verify's cell size [mm]; ``cell_path`` None: no robot.
 
     Raises
     ------
@@ -65,16 +61,16 @@ def check_setup(req: PlanRequest, setup: Setup) -> None:
         The stock [mm] does not fit the vise's jaw opening or the gripper, or does not stand above
         the jaws; the message names the cell's field and the options that change the stock.
     """
-    check_grid_size(setup, req.grid, source=str(req.cam.part))
-    if not req.robot:
+    check_grid_size(setup, grid, source=str(part))
+    if cell_path is None:
         return
-    cell = load_cell(req.cell, check_robot=False)
+    cell = load_cell(cell_path, check_robot=False)
     try:
         check_stock_fits(np.asarray(setup.stock_size, dtype=float) / MM_PER_M, cell.vise.jaw_opening_min,
                          cell.vise.jaw_opening_max, cell.vise.grip_depth, cell.gripper.opening_max)
     except CellError as e:
         raise CellError(f"{e}: give a --stock (or --holding) that fits, or a --cell whose vise and gripper take it",
-                        source=_shown(req.cell)) from None
+                        source=_shown(cell_path)) from None
 
 
 def shipped_cells(maker: str) -> list[Path]:

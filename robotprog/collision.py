@@ -177,6 +177,11 @@ class CollisionWorld:
     transform_model_to_world : (4, 4) float
         The cell world frame in the Pinocchio model's root frame [m].
     transform_flange_to_tcp : (4, 4) float
+    obstacles : tuple of Box
+        The static boxes beyond the cell's own (:func:`cell_static_boxes`): what stands beside the
+        box being moved (world frame).
+    door_closed : bool
+        Whether the enclosure door is an obstacle.
     """
 
     robot: Robot
@@ -194,6 +199,8 @@ class CollisionWorld:
     #: frame, bounding spheres of the arm link geometries (centre in the geometry's frame, radius) [m]
     _static_spheres: tuple[np.ndarray, np.ndarray, np.ndarray] = field(repr=False, default=None)
     _link_spheres: tuple[np.ndarray, np.ndarray] = field(repr=False, default=None)
+    obstacles: tuple[Box, ...] = ()
+    door_closed: bool = False
 
     def _update(self, q: np.ndarray) -> None:
         q = np.asarray(q, dtype=float)
@@ -331,40 +338,64 @@ def collision_world(cell: Cell, robot: Robot | None = None, *, door_closed: bool
     pin.framesForwardKinematics(model, data, pin.neutral(model))
     t_model_base = data.oMf[model.getFrameId(robot.base_frame)].homogeneous
     t_model_world = t_model_base @ np.linalg.inv(cell.robot.base.matrix())
-
     fid = model.getFrameId(robot.flange_frame)
-    fr = model.frames[fid]
+    gripper = _add_gripper(gm, model, fid, cell)
+    boxes = cell_static_boxes(cell, door_closed=door_closed) + tuple(obstacles)
+    static = _add_static(gm, links, gripper, boxes, t_model_world)
+    home = np.asarray(cell.robot.home, dtype=float)
+    dropped = _add_self_pairs(gm, robot, data, links + [gripper], home)
+    if dropped:
+        log.info("self-collision pairs in contact at home, not checked: %s", dropped)
+
+    gdata = pin.GeometryData(gm)
+    t_model_world.setflags(write=False)
+    tcp = cell.gripper.tcp.matrix()
+    tcp.setflags(write=False)
+    # The held box is checked against the links that do not move with the flange (those
+    # on the flange's joint carry the gripper that holds it).
+    flange_joint = model.frames[fid].parentJoint
+    arm_links = tuple((gm.geometryObjects[i].name, i) for i in links
+                      if gm.geometryObjects[i].parentJoint != flange_joint)
+    world = CollisionWorld(robot, gm, tuple(b.name for b in boxes), tuple(dropped), t_model_world, tcp,
+                           data, gdata, tuple(static), fid, arm_links, _static_bounds(static, boxes),
+                           _link_bounds(gm, arm_links), tuple(obstacles), door_closed)
+    contact = world.first_contact(home)
+    if contact is not None:
+        raise CellError(f"robot.home: the home configuration collides ({contact})", source=cell.source)
+    return world
+
+
+def _add_gripper(gm: pin.GeometryModel, model: pin.Model, flange_id: int, cell: Cell) -> int:
+    """Add the gripper body's box on the flange frame to ``gm``; its geometry index."""
+    fr = model.frames[flange_id]
     g = cell.gripper.body
     gripper_placement = fr.placement.homogeneous @ g.pose.matrix()
-    gripper = gm.addGeometryObject(pin.GeometryObject(
-        "gripper", fr.parentJoint, fid, pin.SE3(gripper_placement), coal.Box(*g.size)))
+    return gm.addGeometryObject(pin.GeometryObject(
+        "gripper", fr.parentJoint, flange_id, pin.SE3(gripper_placement), coal.Box(*g.size)))
 
+
+def _add_static(gm: pin.GeometryModel, links: list[int], gripper: int, boxes: tuple[Box, ...],
+                t_model_world: np.ndarray) -> list[tuple[str, coal.Box, coal.Transform3s]]:
+    """Add ``boxes`` (world frame) to ``gm`` and pair each with every link and the gripper (but
+    the robot's base links with its own pedestal); (name, shape, pose in the model frame) of each."""
     static: list[tuple[str, coal.Box, coal.Transform3s]] = []
     static_ids = []
-    boxes = cell_static_boxes(cell, door_closed=door_closed) + tuple(obstacles)
     for b in boxes:
         t = t_model_world @ b.pose.matrix()
         shape = coal.Box(*b.size)
         static_ids.append(gm.addGeometryObject(pin.GeometryObject(b.name, 0, 0, pin.SE3(t), shape)))
         static.append((b.name, coal.Box(*b.size), coal.Transform3s(t[:3, :3], t[:3, 3])))
-
     base_geoms = {i for i in links if gm.geometryObjects[i].parentJoint == 0}
     for i in links + [gripper]:
         for s, b in zip(static_ids, boxes):
             if b.name == "pedestal" and i in base_geoms:
                 continue
             gm.addCollisionPair(pin.CollisionPair(i, s))
+    return static
 
-    # Self-collision candidates: link/gripper pairs on different, non-adjacent joints.
-    robot_geoms = links + [gripper]
-    self_pairs = []
-    for a in range(len(robot_geoms)):
-        for b in range(a + 1, len(robot_geoms)):
-            ia, ib = robot_geoms[a], robot_geoms[b]
-            ja, jb = gm.geometryObjects[ia].parentJoint, gm.geometryObjects[ib].parentJoint
-            if ja == jb or model.parents[ja] == jb or model.parents[jb] == ja:
-                continue
-            self_pairs.append((ia, ib))
+
+def _srdf_disabled(robot: Robot) -> set[frozenset[str]]:
+    """The link pairs whose collisions the vendor's SRDF disables (none without one)."""
     srdf = robot_srdf(robot)
     disabled: set[frozenset[str]] = set()
     if srdf is not None:
@@ -374,13 +405,30 @@ def collision_world(cell: Cell, robot: Robot | None = None, *, door_closed: bool
             raise CellError(f"cannot read SRDF: {e}", source=srdf) from None
         for e in root.iter("disable_collisions"):
             disabled.add(frozenset((e.get("link1"), e.get("link2"))))
+    return disabled
+
+
+def _add_self_pairs(gm: pin.GeometryModel, robot: Robot, data: pin.Data, robot_geoms: list[int],
+                    home: np.ndarray) -> list[tuple[str, str]]:
+    """Add the self-collision pairs to ``gm``: link / gripper pairs on different, non-adjacent
+    joints that the SRDF does not disable and that are apart at ``home`` [rad]; the names of the
+    pairs dropped because they touch there."""
+    model = robot.model
+    self_pairs = []
+    for a in range(len(robot_geoms)):
+        for b in range(a + 1, len(robot_geoms)):
+            ia, ib = robot_geoms[a], robot_geoms[b]
+            ja, jb = gm.geometryObjects[ia].parentJoint, gm.geometryObjects[ib].parentJoint
+            if ja == jb or model.parents[ja] == jb or model.parents[jb] == ja:
+                continue
+            self_pairs.append((ia, ib))
+    disabled = _srdf_disabled(robot)
 
     def link_of(i: int) -> str:
         f = gm.geometryObjects[i].parentFrame
         return model.frames[f].name if gm.geometryObjects[i].name != "gripper" else "gripper"
 
     candidates = [(a, b) for a, b in self_pairs if frozenset((link_of(a), link_of(b))) not in disabled]
-    home = np.asarray(cell.robot.home, dtype=float)
     probe = pin.GeometryModel()
     for o in gm.geometryObjects:
         probe.addGeometryObject(o)
@@ -395,20 +443,21 @@ def collision_world(cell: Cell, robot: Robot | None = None, *, door_closed: bool
             dropped.append((gm.geometryObjects[a].name, gm.geometryObjects[b].name))
         else:
             gm.addCollisionPair(pin.CollisionPair(a, b))
-    if dropped:
-        log.info("self-collision pairs in contact at home, not checked: %s", dropped)
+    return dropped
 
-    gdata = pin.GeometryData(gm)
-    t_model_world.setflags(write=False)
-    tcp = cell.gripper.tcp.matrix()
-    tcp.setflags(write=False)
-    # The held box is checked against the links that do not move with the flange (those
-    # on the flange's joint carry the gripper that holds it).
-    arm_links = tuple((gm.geometryObjects[i].name, i) for i in links
-                      if gm.geometryObjects[i].parentJoint != fr.parentJoint)
-    static_spheres = (np.array([tf.getRotation() for _, _, tf in static]).reshape(-1, 3, 3),
-                      np.array([tf.getTranslation() for _, _, tf in static]).reshape(-1, 3),
-                      np.array([b.size for b in boxes], dtype=float).reshape(-1, 3) / 2)
+
+def _static_bounds(static: list[tuple[str, coal.Box, coal.Transform3s]],
+                    boxes: tuple[Box, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The riding boxes' broad phase against the static boxes: their rotations (k, 3, 3), centres
+    (k, 3) and half sizes (k, 3) in the model frame [m]."""
+    return (np.array([tf.getRotation() for _, _, tf in static]).reshape(-1, 3, 3),
+            np.array([tf.getTranslation() for _, _, tf in static]).reshape(-1, 3),
+            np.array([b.size for b in boxes], dtype=float).reshape(-1, 3) / 2)
+
+
+def _link_bounds(gm: pin.GeometryModel, arm_links: tuple[tuple[str, int], ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding spheres of the arm link geometries: centres (n, 3) in each geometry's frame and
+    radii (n,) [m]."""
     local, radii = [], []
     for _, i in arm_links:
         geo = gm.geometryObjects[i].geometry
@@ -416,10 +465,4 @@ def collision_world(cell: Cell, robot: Robot | None = None, *, door_closed: bool
         lo, hi = np.asarray(geo.aabb_local.min_), np.asarray(geo.aabb_local.max_)
         local.append((lo + hi) / 2)
         radii.append(float(np.linalg.norm(hi - lo)) / 2)
-    link_spheres = (np.array(local).reshape(-1, 3), np.array(radii))
-    world = CollisionWorld(robot, gm, tuple(b.name for b in boxes), tuple(dropped), t_model_world, tcp,
-                           data, gdata, tuple(static), fid, arm_links, static_spheres, link_spheres)
-    contact = world.first_contact(home)
-    if contact is not None:
-        raise CellError(f"robot.home: the home configuration collides ({contact})", source=cell.source)
-    return world
+    return np.array(local).reshape(-1, 3), np.array(radii)

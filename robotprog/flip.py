@@ -16,7 +16,7 @@ cell's flip station (:class:`robotprog.cell.FlipStation`, a post narrower than t
 
 Every move is collision-checked like the tending moves (arm, gripper body, the fingers at their
 opening, the piece as its two boxes while held and as obstacles while it stands on the post)
-and timed with :func:`robotprog.timing.time_path` (:meth:`robotprog.tending._Planner.timed`).
+and timed with :func:`robotprog.timing.time_path` (:meth:`robotprog.planner.MotionPlanner.timed`).
 
 Frames: the vise frame and the post's top frame (:meth:`FlipStation.transform_world_to_top`)
 are both upright with the piece's box coordinates in them the same (centred, bottom on the
@@ -30,9 +30,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from factory.core.errors import CellError, PlanningError
-from robotprog.cell import Box, Cell, Pose
-from robotprog.collision import HeldBox, collision_world, finger_boxes
+from robotprog.cell import Box, Pose
+from robotprog.collision import HeldBox, Payload, finger_boxes
 from robotprog.frames import MM_PER_M
+from robotprog.grasp import GraspOptions, box_pose, open_fingers, top_grasp
+from robotprog.planner import MotionPlanner, PickPlace, PickPlaceNames, Station, TimedMove, raise_up
 
 #: Below this height [m] the stock has no holding block (its bottom is the part's bottom).
 NO_BLOCK_M = 1e-6
@@ -113,14 +115,6 @@ def _box_through(t: np.ndarray, bmin: np.ndarray, bmax: np.ndarray) -> tuple[np.
     return p.min(axis=0), p.max(axis=0)
 
 
-def box_pose(t_support: np.ndarray, bmin: np.ndarray, bmax: np.ndarray) -> np.ndarray:
-    """(4, 4) pose in the world of the centre of the box [bmin, bmax] of an upright support frame."""
-    box = np.eye(4)
-    box[:3, :3] = t_support[:3, :3]
-    box[:3, 3] = (t_support @ np.append((np.asarray(bmin) + np.asarray(bmax)) / 2, 1.0))[:3]
-    return box
-
-
 def piece_obstacles(piece: Piece, t_support: np.ndarray, name: str) -> tuple[Box, ...]:
     """The piece standing on a surface, as static boxes of the world (its boxes' yaw is the
     support frame's; the frame is upright)."""
@@ -168,7 +162,7 @@ def _backed_off(t: np.ndarray, distance: float) -> np.ndarray:
     return out
 
 
-def _ik_seeded(p, t_world_tcp: np.ndarray, q_ref: np.ndarray, held, what: str) -> np.ndarray:
+def _ik_seeded(p: MotionPlanner, t_world_tcp: np.ndarray, q_ref: np.ndarray, held: Payload, what: str) -> np.ndarray:
     """A collision-free IK solution of a pose, nearest ``q_ref``: for an arm whose IK is numeric
     (one solution near its seed) the seed is also turned a quarter and a half turn at the wrist
     (joints 4 and 6) and taken from home, so a side grip is not missed for the seed's branch."""
@@ -183,7 +177,7 @@ def _ik_seeded(p, t_world_tcp: np.ndarray, q_ref: np.ndarray, held, what: str) -
     found = []
     for seed in seeds:
         try:
-            found.append(p.pick_ik(t_world_tcp, seed, held, what, "flip_station.pose"))
+            found.append(p.ik(t_world_tcp, seed, held, what, "flip_station.pose"))
         except PlanningError:
             continue
     if not found:
@@ -191,173 +185,261 @@ def _ik_seeded(p, t_world_tcp: np.ndarray, q_ref: np.ndarray, held, what: str) -
     return min(found, key=lambda q: float(np.linalg.norm(q - q_ref)))
 
 
-def plan_flip(p, cell: Cell, piece: Piece, q_start: np.ndarray, r_home: np.ndarray, obstacles: tuple[Box, ...],
-              grasp, raise_up) -> tuple[list, Piece]:
+@dataclass(frozen=True, eq=False)
+class FlipPlan:
+    """The flip phase planned.
+
+    Attributes
+    ----------
+    moves : tuple of TimedMove
+        From the start (home, after op 1) to home with the piece turned over in the vise; names
+        ``flip: ...``.
+    turned : Piece
+        The piece turned over, in the vise frame (op 2's).
+    """
+
+    moves: tuple[TimedMove, ...]
+    turned: Piece
+
+
+def plan_flip(planner: MotionPlanner, piece: Piece, q_start: np.ndarray, r_home: np.ndarray,
+              grasp: GraspOptions) -> FlipPlan:
     """The flip phase: from ``q_start`` (home, after op 1) to home with the piece turned over in
     the vise for op 2.
 
+    The piece may stand on the post turned any quarter turn: the first way that plans is used
+    (the side grip along the post's X suits one arm, along its Y another).
+
     Parameters
     ----------
-    p : robotprog.tending._Planner
-        The planner of the tending plan (its world: the cell, door open, with ``obstacles``).
-    cell : Cell
-        Must have a ``flip_station``.
+    planner : MotionPlanner
+        The planner of the tending plan (its world: the cell, door open, with the plan's other
+        obstacles: blanks in the rack, parts in the tray). Its cell must have a ``flip_station``.
     piece : Piece
         The piece after op 1, in the vise frame.
     q_start : (dof,) float
         Configuration the phase starts at [rad].
     r_home : (3, 3) float
         TCP orientation at home (the top-down grasp's yaw nearest to it is used).
-    obstacles : tuple of Box
-        The plan's other obstacles (blanks in the rack, parts in the tray).
-    grasp, raise_up : callables
-        :func:`robotprog.tending._grasp` and ``_raise_up`` (passed in: that module imports this one).
-
-    Returns
-    -------
-    (list of TimedMove, Piece)
-        The moves (names ``flip: ...``) and the turned piece in the vise frame (op 2's).
+    grasp : GraspOptions
 
     Raises
     ------
+    CellError
+        The turned part does not fit the vise jaws for op 2.
     PlanningError
         No flip station, the piece does not fit the gripper across the side it is gripped on,
         its holding block is too thin to grip, or no reachable, collision-free way was found
         (``flip_station.pose``).
     """
-    from robotprog.tending import PickPlaceNames, Station, _Planner  # they live with the tending plan
-
+    cell = planner.cell
     if cell.flip_station is None:
         raise PlanningError("the part has two setups but the cell has no flip_station to turn it over on",
                             source="flip_station")
-    o = p.o
-    up = o.approach_height
-    t_vise = cell.vise.pose.matrix()
-    t_post = cell.flip_station.transform_world_to_top()
-    io = cell.gripper.io
-    clear = cell.gripper.fingers.clearance
-    omax = cell.gripper.opening_max
-
-    def fingers(width: float, open_: bool) -> tuple[HeldBox, ...]:
-        return finger_boxes(cell, min(omax, width + 2 * clear) if open_ else width)
-
-    def planner(extra: tuple[Box, ...]):
-        world = collision_world(cell, p.robot, obstacles=obstacles + extra)
-        return _Planner(cell, p.robot, world, o)
-
-    turned_axis = TURNOVER_AXIS
-    turned = piece.turned(turned_axis)
+    turned = piece.turned(TURNOVER_AXIS)
     width = float(turned.part_max[1] - turned.part_min[1])
     if not cell.vise.jaw_opening_min <= width <= cell.vise.jaw_opening_max:
         raise CellError(f"the part {width * MM_PER_M:.1f} mm wide does not fit the vise jaw opening "
                         f"{cell.vise.jaw_opening_min * MM_PER_M:.1f}..{cell.vise.jaw_opening_max * MM_PER_M:.1f} mm "
                         "for op 2", source="vise.jaw_opening")
-
-    def flip_at(t_top: np.ndarray) -> list:
-        vise_to_top = t_top @ np.linalg.inv(t_vise)
-        on_post = planner(piece_obstacles(piece, t_top, "flip_piece"))
-        turned_on_post = planner(piece_obstacles(turned, t_top, "flip_piece"))
-        moves = []
-
-        # 1. the part out of the vise (gripped from above like the one-setup unload), onto the post
-        g_vise, _ = grasp(cell, t_vise, piece.part_min, piece.part_max, r_home, o, "part")
-        part_w = float(min(np.ptp([piece.part_min[:2], piece.part_max[:2]], axis=0)))
-        open_part = fingers(part_w, True)
-        holding = fingers(part_w, False) + held_piece(piece, t_vise, g_vise)
-        to_post = p.pick_and_place(
-            q_start, Station(g_vise, "vise.pose", "above vise", "approach to part", "retreat from vise"),
-            Station(vise_to_top @ g_vise, "flip_station.pose", "above flip station", "set down on flip station",
-                    "retreat from flip station"),
-            PickPlaceNames("flip: home to above vise", "flip: approach part", "flip: grip part",
-                           "flip: lift part from vise", "flip: transfer to flip station",
-                           "flip: set down on flip station", "flip: release part", "flip: retreat from flip station",
-                           "home to vise", "vise to flip station"),
-            open_=open_part, carried=holding, placed=holding, at_place=on_post)
-        moves += to_post.moves
-        off = to_post.moves[-1].waypoints
-
-        # 2. grip the holding block from the side, lift, turn over, set down, back off
-        other = 1 - turned_axis
-        block_w = float(piece.block_max[other] - piece.block_min[other])
-        if block_w > omax:
-            raise PlanningError(f"the holding block is {block_w * MM_PER_M:.1f} mm across, wider than the gripper "
-                                f"opens ({omax * MM_PER_M:.1f} mm)", source="gripper.opening.max")
-        depth = min(o.grip_depth, float(piece.block_max[turned_axis] - piece.block_min[turned_axis]) / 2)
-        open_side = fingers(block_w, True)
-        flip_t = turnover(turned_axis, piece.top)
-        side = None
-        problems = []
-        for end in (-1.0, 1.0):
-            for closing in (1.0, -1.0):
-                g_side = t_top @ side_grasp(piece, turned_axis, end, closing, depth)
-                g_turned = t_top @ flip_t @ np.linalg.inv(t_top) @ g_side
-                try:
-                    carried = fingers(block_w, False) + held_piece(piece, t_top, g_side)
-                    q_back = _ik_seeded(on_post, _backed_off(g_side, up), off[-1], open_side,
-                                        "beside the piece on the flip station")
-                    into = on_post.line(_backed_off(g_side, up), g_side, q_back, open_side, "approach to the "
-                                        "holding block", "flip_station.pose")
-                    lift = p.line(g_side, raise_up(g_side, up), into[-1], carried, "lift from flip station",
-                                  "flip_station.pose")
-                    # the wrist's own half turn first: seeded with the last joint turned either way
-                    q_over = _ik_seeded(p, raise_up(g_turned, up), lift[-1], carried,
-                                        "above flip station, turned over")
-                    lower = p.line(raise_up(g_turned, up), g_turned, q_over, carried, "set down turned over",
-                                   "flip_station.pose")
-                    back = turned_on_post.line(g_turned, _backed_off(g_turned, up), lower[-1], open_side,
-                                               "back off from the turned piece", "flip_station.pose")
-                    turn = p.transfer(lift[-1], q_over, carried, "turn over")
-                except PlanningError as e:
-                    problems.append(str(e))
-                    continue
-                side = (q_back, into, lift, carried, turn, lower, back)
-                break
-            if side is not None:
-                break
-        if side is None:
-            raise PlanningError("no side grip: " + "; ".join(dict.fromkeys(problems)), source="flip_station.pose")
-        q_back, into, lift, carried, turn, lower, back = side
-        moves.append(on_post.timed("flip: to the side of the piece", "joint",
-                                   on_post.transfer(off[-1], q_back, open_side, "flip station to its side"), open_side))
-        moves.append(on_post.timed("flip: approach holding block", "linear", into, open_side))
-        moves.append(p.gripper("flip: grip holding block", into[-1], io.grip, open_side))
-        moves.append(p.timed("flip: lift", "linear", lift, carried))
-        moves.append(p.timed("flip: turn over", "joint", turn, carried))
-        moves.append(p.timed("flip: set down turned over", "linear", lower, carried))
-        moves.append(p.gripper("flip: release turned piece", lower[-1], io.release, carried))
-        moves.append(turned_on_post.timed("flip: back off", "linear", back, open_side))
-
-        # 3. the holding block, now on top, gripped from above; the piece into the vise for op 2
-        g_top, _ = grasp(cell, t_top, turned.block_min, turned.block_max, r_home, o, "holding block")
-        top_w = float(min(np.ptp([turned.block_min[:2], turned.block_max[:2]], axis=0)))
-        open_top = fingers(top_w, True)
-        lifted = fingers(top_w, False) + held_piece(turned, t_top, g_top)
-        to_vise = p.pick_and_place(
-            back[-1], Station(g_top, "flip_station.pose", "above the turned piece", "approach to the turned piece",
-                              "lift turned piece"),
-            Station(np.linalg.inv(vise_to_top) @ g_top, "vise.pose", "above vise", "place in vise turned over",
-                    "retreat from vise"),
-            PickPlaceNames("flip: above turned piece", "flip: approach turned piece", "flip: grip turned piece",
-                           "flip: lift turned piece", "flip: transfer to vise", "flip: place in vise",
-                           "flip: release in vise", "flip: retreat from vise", "to above the turned piece",
-                           "flip station to vise"),
-            open_=open_top, carried=lifted, placed=lifted, at_pick=turned_on_post)
-        moves += to_vise.moves
-        moves.append(p.timed("flip: return home", "joint",
-                             p.transfer(to_vise.moves[-1].q_end, np.asarray(cell.robot.home, float), open_top,
-                                        "vise to home"), open_top))
-        return moves
-
-    # The piece may stand on the post turned any quarter turn: the first way that plans is used
-    # (the side grip along the post's X suits one arm, along its Y another).
+    t_post = cell.flip_station.transform_world_to_top()
     problems = []
     for quarter in range(4):
-        yaw = np.eye(4)
-        c, s_ = np.cos(quarter * np.pi / 2), np.sin(quarter * np.pi / 2)
-        yaw[:2, :2] = [[c, -s_], [s_, c]]
         try:
-            return flip_at(t_post @ yaw), turned
+            site = _site(planner, piece, turned, t_post @ _quarter_turn(quarter), r_home, grasp)
+            to_post = _onto_post(site, q_start)
+            off = to_post.moves[-1].waypoints
+            side = _side_grip(site, off[-1])
+            over = _turn_over(site, side, off[-1])
+            return FlipPlan(to_post.moves + over + _into_vise(site, side.back[-1]), turned)
         except PlanningError as e:
             problems.append(str(e))
     raise PlanningError("cannot turn the piece over on the flip station: " + "; ".join(dict.fromkeys(problems)),
                         source="flip_station.pose")
+
+
+def _quarter_turn(quarter: int) -> np.ndarray:
+    """(4, 4) rotation by ``quarter`` quarter turns about Z."""
+    yaw = np.eye(4)
+    c, s_ = np.cos(quarter * np.pi / 2), np.sin(quarter * np.pi / 2)
+    yaw[:2, :2] = [[c, -s_], [s_, c]]
+    return yaw
+
+
+@dataclass(frozen=True, eq=False)
+class _Site:
+    """The flip with the piece standing on the post one way: its frames, and planners of the three
+    worlds it passes through.
+
+    Attributes
+    ----------
+    planner : MotionPlanner
+        The tending plan's (the piece in hand, nothing on the post).
+    on_post, turned_on_post : MotionPlanner
+        With the piece standing on the post as it comes from op 1, and turned over.
+    piece, turned : Piece
+        The piece after op 1 and turned over (upright frames).
+    t_top : (4, 4) float
+        The post's top frame, turned as the piece stands on it [m].
+    vise_to_top : (4, 4) float
+        Moves a TCP pose on the piece in the vise to the same grip on it on the post.
+    r_home : (3, 3) float
+    grasp : GraspOptions
+    """
+
+    planner: MotionPlanner
+    on_post: MotionPlanner
+    turned_on_post: MotionPlanner
+    piece: Piece
+    turned: Piece
+    t_top: np.ndarray
+    vise_to_top: np.ndarray
+    r_home: np.ndarray
+    grasp: GraspOptions
+
+
+def _site(planner: MotionPlanner, piece: Piece, turned: Piece, t_top: np.ndarray, r_home: np.ndarray,
+          grasp: GraspOptions) -> _Site:
+    """The flip's site with the post's top frame ``t_top`` (the piece's boxes stand as obstacles in
+    the worlds of ``on_post`` and ``turned_on_post``)."""
+    vise_to_top = t_top @ np.linalg.inv(planner.cell.vise.pose.matrix())
+    return _Site(planner, planner.among(piece_obstacles(piece, t_top, "flip_piece")),
+                 planner.among(piece_obstacles(turned, t_top, "flip_piece")), piece, turned, t_top, vise_to_top,
+                 r_home, grasp)
+
+
+#: The moves of step 1, the part from the vise onto the post.
+TO_POST = PickPlaceNames("flip: home to above vise", "flip: approach part", "flip: grip part",
+                         "flip: lift part from vise", "flip: transfer to flip station",
+                         "flip: set down on flip station", "flip: release part", "flip: retreat from flip station",
+                         "home to vise", "vise to flip station")
+#: The moves of step 3, the turned piece from the post into the vise.
+TO_VISE = PickPlaceNames("flip: above turned piece", "flip: approach turned piece", "flip: grip turned piece",
+                         "flip: lift turned piece", "flip: transfer to vise", "flip: place in vise",
+                         "flip: release in vise", "flip: retreat from vise", "to above the turned piece",
+                         "flip station to vise")
+
+
+def _onto_post(site: _Site, q_start: np.ndarray) -> PickPlace:
+    """Step 1: the part out of the vise (gripped from above like the one-setup unload), set down on
+    the post, the holding block on the post's top."""
+    p, piece, cell = site.planner, site.piece, site.planner.cell
+    g_vise = top_grasp(cell, cell.vise.pose.matrix(), piece.part_min, piece.part_max, site.r_home, site.grasp,
+                       "part").transform_world_to_tcp
+    part_w = float(min(np.ptp([piece.part_min[:2], piece.part_max[:2]], axis=0)))
+    holding = finger_boxes(cell, part_w) + held_piece(piece, cell.vise.pose.matrix(), g_vise)
+    return p.pick_and_place(
+        q_start, Station(g_vise, "vise.pose", "above vise", "approach to part", "retreat from vise"),
+        Station(site.vise_to_top @ g_vise, "flip_station.pose", "above flip station", "set down on flip station",
+                "retreat from flip station"),
+        TO_POST, open_=open_fingers(cell, part_w), carried=holding, placed=holding, at_place=site.on_post)
+
+
+@dataclass(frozen=True, eq=False)
+class _SideGrip:
+    """Step 2 solved, not yet timed: the holding block gripped from the side, lifted, turned over
+    and set down. Joint waypoints (n, dof) [rad].
+
+    Attributes
+    ----------
+    q_back : (dof,) float
+        Beside the piece on the post, backed off along the tool axis.
+    into, lift, lower, back : (n, dof) float
+        The lines into the grip, up, down turned over, and back off along the tool axis.
+    turn : (n, dof) float
+        The transfer that turns the piece over (the wrist's half turn).
+    open_, carried : Payload
+        The fingers open around the block; the fingers closed on it with the piece.
+    """
+
+    q_back: np.ndarray
+    into: np.ndarray
+    lift: np.ndarray
+    turn: np.ndarray
+    lower: np.ndarray
+    back: np.ndarray
+    open_: Payload
+    carried: Payload
+
+
+def _side_grip(site: _Site, q_from: np.ndarray) -> _SideGrip:
+    """Step 2 solved from ``q_from`` [rad] (the arm backed off the piece on the post): the first
+    of the block's ends and the fingers' two ways to close that the arm reaches, free.
+
+    Raises
+    ------
+    PlanningError
+        The block is wider than the gripper opens, or no side grip works.
+    """
+    p, piece, cell, t_top = site.planner, site.piece, site.planner.cell, site.t_top
+    up = p.options.approach_height
+    axis = TURNOVER_AXIS
+    other = 1 - axis
+    omax = cell.gripper.opening_max
+    block_w = float(piece.block_max[other] - piece.block_min[other])
+    if block_w > omax:
+        raise PlanningError(f"the holding block is {block_w * MM_PER_M:.1f} mm across, wider than the gripper "
+                            f"opens ({omax * MM_PER_M:.1f} mm)", source="gripper.opening.max")
+    depth = min(site.grasp.grip_depth, float(piece.block_max[axis] - piece.block_min[axis]) / 2)
+    open_side = open_fingers(cell, block_w)
+    flip_t = turnover(axis, piece.top)
+    problems = []
+    for end in (-1.0, 1.0):
+        for closing in (1.0, -1.0):
+            g_side = t_top @ side_grasp(piece, axis, end, closing, depth)
+            g_turned = t_top @ flip_t @ np.linalg.inv(t_top) @ g_side
+            try:
+                carried = finger_boxes(cell, block_w) + held_piece(piece, t_top, g_side)
+                q_back = _ik_seeded(site.on_post, _backed_off(g_side, up), q_from, open_side,
+                                    "beside the piece on the flip station")
+                into = site.on_post.line(_backed_off(g_side, up), g_side, q_back, open_side, "approach to the "
+                                         "holding block", "flip_station.pose")
+                lift = p.line(g_side, raise_up(g_side, up), into[-1], carried, "lift from flip station",
+                              "flip_station.pose")
+                # the wrist's own half turn first: seeded with the last joint turned either way
+                q_over = _ik_seeded(p, raise_up(g_turned, up), lift[-1], carried, "above flip station, turned over")
+                lower = p.line(raise_up(g_turned, up), g_turned, q_over, carried, "set down turned over",
+                               "flip_station.pose")
+                back = site.turned_on_post.line(g_turned, _backed_off(g_turned, up), lower[-1], open_side,
+                                                "back off from the turned piece", "flip_station.pose")
+                turn = p.transfer(lift[-1], q_over, carried, "turn over").waypoints
+            except PlanningError as e:
+                problems.append(str(e))
+                continue
+            return _SideGrip(q_back, into, lift, turn, lower, back, open_side, carried)
+    raise PlanningError("no side grip: " + "; ".join(dict.fromkeys(problems)), source="flip_station.pose")
+
+
+def _turn_over(site: _Site, side: _SideGrip, q_from: np.ndarray) -> tuple[TimedMove, ...]:
+    """Step 2 timed from ``q_from`` [rad]: to the side of the piece, grip the holding block, lift,
+    turn over, set down, release, back off."""
+    p, io = site.planner, site.planner.cell.gripper.io
+    return (site.on_post.joint_move("flip: to the side of the piece", q_from, side.q_back, side.open_,
+                                    "flip station to its side"),
+            site.on_post.timed("flip: approach holding block", "linear", side.into, side.open_),
+            p.gripper("flip: grip holding block", side.into[-1], io.grip, side.open_),
+            p.timed("flip: lift", "linear", side.lift, side.carried),
+            p.timed("flip: turn over", "joint", side.turn, side.carried),
+            p.timed("flip: set down turned over", "linear", side.lower, side.carried),
+            p.gripper("flip: release turned piece", side.lower[-1], io.release, side.carried),
+            site.turned_on_post.timed("flip: back off", "linear", side.back, side.open_))
+
+
+def _into_vise(site: _Site, q_from: np.ndarray) -> tuple[TimedMove, ...]:
+    """Step 3 from ``q_from`` [rad]: the holding block, now on top, gripped from above; the piece
+    into the vise for op 2, then home."""
+    p, turned, cell = site.planner, site.turned, site.planner.cell
+    g_top = top_grasp(cell, site.t_top, turned.block_min, turned.block_max, site.r_home, site.grasp,
+                      "holding block").transform_world_to_tcp
+    top_w = float(min(np.ptp([turned.block_min[:2], turned.block_max[:2]], axis=0)))
+    open_top = open_fingers(cell, top_w)
+    lifted = finger_boxes(cell, top_w) + held_piece(turned, site.t_top, g_top)
+    to_vise = p.pick_and_place(
+        q_from, Station(g_top, "flip_station.pose", "above the turned piece", "approach to the turned piece",
+                        "lift turned piece"),
+        Station(np.linalg.inv(site.vise_to_top) @ g_top, "vise.pose", "above vise", "place in vise turned over",
+                "retreat from vise"),
+        TO_VISE, open_=open_top, carried=lifted, placed=lifted, at_pick=site.turned_on_post)
+    home = np.asarray(cell.robot.home, float)
+    return to_vise.moves + (p.joint_move("flip: return home", to_vise.moves[-1].q_end, home, open_top,
+                                         "vise to home"),)

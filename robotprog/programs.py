@@ -55,10 +55,11 @@ from robotprog.cell import Cell
 from robotprog.collision import CollisionWorld, collision_world
 from robotprog.controller import LANGS, program_duration
 from robotprog.krl import krl_program
+from robotprog.planner import PlannerOptions, TimedMove
 from robotprog.rapid import rapid_module
 from robotprog.sweep import SweptMotion, swept_motion
-from robotprog.tending import TendingOptions, TendingPlan, TimedMove
 from robotprog.robots import Robot
+from robotprog.tending import TendingPlan
 from robotprog.machineio import machine_cycle, machine_ready, number, to_steps, verdict
 from robotprog.urscript import Branch, Comment, MoveJ, ServoJ, SetOutputs, Step, flat_steps, urscript_program
 
@@ -221,7 +222,7 @@ def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: st
 
 
 def check_posted_path(world: CollisionWorld, plan: TendingPlan, steps: list[Step],
-                      joint_resolution: float = TendingOptions().joint_resolution) -> None:
+                      joint_resolution: float = PlannerOptions().joint_resolution) -> None:
     """Collision-check the path the controller drives for ``steps`` (module docstring).
 
     Raises
@@ -236,7 +237,7 @@ def check_posted_path(world: CollisionWorld, plan: TendingPlan, steps: list[Step
 
 
 def posted_collision(world: CollisionWorld, plan: TendingPlan, steps: list[Step],
-                     joint_resolution: float = TendingOptions().joint_resolution,
+                     joint_resolution: float = PlannerOptions().joint_resolution,
                      sweep: SweptMotion | None = None) -> tuple[int, str] | None:
     """The first move (index into ``plan.moves``, then ``plan.reject`` where the steps branch on the
     verdict) whose posted path collides, and the contact. ``sweep``: ``world``'s continuous checker
@@ -309,7 +310,7 @@ def post_program(lang: str, program: Path, cell: Cell, world: CollisionWorld, pl
     # trajectory closer, down to MIN_SEGMENT_S; then the collision is the error.
     segments: dict[int, float] = {}
     branch = True
-    sweep = swept_motion(proven, TendingOptions().joint_resolution)  # one checker for every try
+    sweep = swept_motion(proven, PlannerOptions().joint_resolution)  # one checker for every try
     while True:
         steps = program_steps(cell, world, plan, lang, segments, branch)
         hit = posted_collision(proven, plan, steps, sweep=sweep)

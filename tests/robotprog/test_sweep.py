@@ -14,9 +14,9 @@ from scipy.interpolate import CubicSpline
 from robotprog.cell import Box, Pose
 from robotprog.collision import HeldBox, collision_world, finger_boxes
 from robotprog.sweep import monotone_breaks, swept_motion
-from robotprog.tending import TendingOptions, _Planner
+from robotprog.planner import MotionPlanner, PlannerOptions
 
-STEP = TendingOptions().joint_resolution
+STEP = PlannerOptions().joint_resolution
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +66,7 @@ ROD = HeldBox.at((0.001, 0.001, 0.1), np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 
 def test_a_graze_between_the_checks_is_caught(world, cell):
     """A 1 mm rod hanging from the TCP passes through a 1 mm plate while the base turns 0.02 rad:
     free at both ends (the planner's discrete check), through the plate in between."""
-    planner = _Planner(cell, world.robot, world, TendingOptions())
+    planner = MotionPlanner(cell, world)
     a = np.asarray(cell.robot.home, dtype=float)
     b = a.copy()
     b[0] += STEP
@@ -132,7 +132,7 @@ def test_a_blended_corner_is_proven_over_its_whole_triangle(world, cell):
     midpoints. A 5 mm cube at the rod's tip where the arm stands at the triangle's centroid lies
     off the corner's polyline and off its chord (the old sampled check passes), inside the
     triangle: the corner proof finds it, and proves the same corner free without the cube."""
-    planner = _Planner(cell, world.robot, world, TendingOptions())
+    planner = MotionPlanner(cell, world)
     c = np.asarray(cell.robot.home, dtype=float)
     a, b = c.copy(), c.copy()
     a[0] -= 0.3  # the base turns into the corner, then the elbow bends out of it

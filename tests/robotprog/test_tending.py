@@ -9,7 +9,7 @@ import pytest
 
 from factory.core.errors import CellError, PlanningError
 from robotprog.cell import Pose
-from robotprog.tending import TendingOptions, _Planner, part_box_in_vise, plan_tending
+from robotprog.tending import TendingOptions, part_box_in_vise, plan_tending
 from robotprog.timing import LIMIT_SLACK
 
 #: Stock sizes [mm] of the sample parts (samples/make_samples.py with the default allowances).
@@ -72,7 +72,7 @@ def test_plan_within_limits_reaches_targets_and_is_collision_free(name, plans, c
             a = _tcp(cell, robot, m.waypoints[0])[:3, 3]
             b = end[:3, 3]
             # Approach and retreat are vertical lines of the approach height.
-            np.testing.assert_allclose(np.abs(b - a), [0.0, 0.0, TendingOptions().approach_height], atol=1e-4)
+            np.testing.assert_allclose(np.abs(b - a), [0.0, 0.0, TendingOptions().planner.approach_height], atol=1e-4)
             for q in s.q[::25]:
                 p = _tcp(cell, robot, q)
                 u = np.clip(np.dot(p[:3, 3] - a, b - a) / np.dot(b - a, b - a), 0, 1)
@@ -192,24 +192,3 @@ def test_blanks_beside_the_picked_one_are_obstacles(cell, world):
     tight = dataclasses.replace(cell, rack=SlotGrid(cell.rack.pose, 2, 3, (0.12, 0.07)))
     with pytest.raises(PlanningError, match="finger <-> rack_blank_r1c0"):
         plan_tending(tight, sheet(104, 60, 30), world=world)
-
-
-def test_rrt_connect_finds_free_deterministic_path_when_direct_move_collides(cell, world):
-    home = np.array(cell.robot.home)
-    a = home.copy()
-    a[:3] = (-1.5, -0.6, 1.0)
-    b = a.copy()
-    b[0] = 1.5  # swinging the low arm across passes through the mill
-    planner = _Planner(cell, world.robot, world, TendingOptions(seed=3))
-    assert not world.in_collision(a) and not world.in_collision(b)
-    assert not planner.edge_free(a, b, None)
-    path = planner.transfer(a, b, None, "test")
-    np.testing.assert_allclose(path[0], a)
-    np.testing.assert_allclose(path[-1], b)
-    assert len(path) >= 3
-    assert world.path_free(planner.densify(path)) is None
-    again = _Planner(cell, world.robot, world, TendingOptions(seed=3)).transfer(a, b, None, "test")
-    np.testing.assert_array_equal(path, again)
-    timed = planner.timed("rrt", "joint", path, None)
-    s = timed.trajectory.resample(200.0)
-    assert world.path_free(s.q) is None
