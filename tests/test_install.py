@@ -58,7 +58,8 @@ def _third_party_paths(farm: Path, project: set[str]) -> list[Path]:
         folder = Path(entry).resolve() if entry else None
         if folder is None or not folder.is_dir() or folder.is_relative_to(stdlib):
             continue
-        assert not folder.is_relative_to(ROOT), f"{folder}: the checkout is on this environment's path"
+        # the checkout itself must not be importable (its venv may well live inside it, as `make test` puts it)
+        assert folder != ROOT.resolve(), f"{folder}: the checkout is on this environment's path"
         mirror = farm / str(i)
         mirror.mkdir()
         for item in folder.iterdir():
