@@ -17,7 +17,7 @@ from cli.common import EXIT_FINDINGS, JsonFlag, Overwrite, Quiet, print_json, pr
 from factory.core.atomic import check_writable, write_bytes, write_text
 from factory.catalog import sha256_file
 from factory.foxglove import layout_json
-from factory.live import LiveView
+from factory.live import Fanout, LiveView
 from factory.pictures import png_bytes
 from factory.core.progress import Stopwatch
 from factory.record import Record
@@ -67,7 +67,12 @@ def simulate(
     db: Annotated[str | None, typer.Option("--db", metavar="FILE|URL", help="Append the run to this process record, event by event: a SQLite file (created if missing) or a SQLAlchemy database URL (sqlite:///cell.sqlite, postgresql+psycopg://user@host/plant). See `factory report`.")] = None,
     serve: Annotated[int | None, typer.Option("--serve", metavar="PORT", help="Stream the run live to the Foxglove app (ws://HOST:PORT) with the channels of the MCAP log.", min=0, max=65535)] = None,
     host: Annotated[str, typer.Option("--host", help="Address the live view binds (with --serve).")] = "127.0.0.1",
-    speed: Annotated[float, typer.Option("--speed", help="With --serve: play the run at this many times real time.", min=1e-3)] = 60.0,
+    speed: Annotated[float, typer.Option("--speed", help="With --serve or --ros2: play the run at this many times real time.", min=1e-3)] = 60.0,
+    ros2: Annotated[bool, typer.Option("--ros2", help="Publish the run live on the ROS 2 graph (domain ROS_DOMAIN_ID) as the cell's nodes, with the topics of the MCAP log.")] = False,
+    ros2_localhost: Annotated[bool, typer.Option("--ros2-localhost", help="With --ros2: keep all DDS traffic on the loopback interface.")] = False,
+    ros_distro: Annotated[str, typer.Option("--ros-distro", help="With --ros2: the distribution of the graph's nodes, humble or jazzy (its discovery-info layout).")] = "jazzy",
+    ros2_keep_all: Annotated[bool, typer.Option("--ros2-keep-all", help="With --ros2: every subscriber gets every message, the run waiting for the slowest (default: the last 10 per topic are kept for a slow one).")] = False,
+    ros2_wait: Annotated[list[str] | None, typer.Option("--ros2-wait", metavar="TOPIC", help="With --ros2: hold this topic's first message until a subscriber has matched it (at most 60 s); repeatable.")] = None,
     robot_rate: Annotated[float, typer.Option("--robot-rate", metavar="HZ", help="Robot joint states and link transforms per second of simulated time in the log and the live view (each move's ends always); lower it for long runs, e.g. 1.", min=1e-3)] = ROBOT_RATE_HZ,
     overwrite: Overwrite = False,
     json_out: JsonFlag = False,
@@ -82,6 +87,8 @@ def simulate(
     setup_logging(quiet)
     if fault_rate is not None and faults is None:
         raise typer.BadParameter("needs --faults SEED", param_hint="--fault-rate")
+    if (ros2_localhost or ros2_keep_all or ros2_wait or ros_distro != "jazzy") and not ros2:
+        raise typer.BadParameter("needs --ros2", param_hint="--ros2-localhost, --ros2-keep-all, --ros2-wait, --ros-distro")
     orders = read_orders(orders_path)
     layout = mcap.with_suffix(".layout.json") if mcap is not None else None
     for p in (mcap, layout, png):
@@ -97,6 +104,12 @@ def simulate(
     if live is not None and not quiet:
         stderr.print(f"live view: ws://{host}:{live.port} (Foxglove: open connection, Foxglove WebSocket)",
                      highlight=False, markup=False)
+    if ros2:  # joined before any work, so discovery runs while the cell is simulated
+        from factory.ros2 import Ros2Graph  # DDS loads only for --ros2
+
+        graph = Ros2Graph(localhost=ros2_localhost, distro=ros_distro, speed=speed, wait_for=tuple(ros2_wait or ()),
+                          keep_all=ros2_keep_all)
+        live = Fanout([s for s in (live, graph) if s is not None])
     record = Record(db) if db is not None else None  # an unreachable record fails before any planning
     recorder = None
     if record is not None:
