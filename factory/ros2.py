@@ -20,7 +20,9 @@ on the same domain see the cell with no ROS installation on this side:
 
 Messages are paced to ``speed`` times log time (:class:`factory.live.Pacer`). A DDS writer is made
 on a topic's first message; with ``wait_for`` the first message of each named topic waits until a
-subscriber has matched it (discovery takes a moment; volatile data sent before is not delivered).
+subscriber has matched it (discovery takes a moment; volatile data sent before is not delivered), and
+the next until the subscriber has acknowledged the first (a reader that matched the writer late may
+take that first one as history and drop it; from then on it gets everything).
 :meth:`Ros2Graph.close` waits (bounded) until every matched reliable reader has acknowledged
 everything, then leaves the graph.
 
@@ -244,6 +246,7 @@ class Ros2Graph:
         self._wait_for = set(wait_for)
         self._wait_s = float(wait_s)
         self._keep_all = keep_all
+        self._acked: set[str] = set()  # topics of wait_for whose first message was acknowledged
         self._writers: dict[str, _Writer] = {}
         # the discovery info's types are the distribution's own (rmw_dds_common/Gid differs)
         self._graph_types = TYPESTORE if distro == "jazzy" else get_typestore(Stores.ROS2_HUMBLE)
@@ -265,12 +268,15 @@ class Ros2Graph:
         # a full history blocks a write until readers acknowledge: 100 ms is rmw's default; keeping all,
         # as long as a reader that stopped answering stays matched (its lease)
         blocking = KEEP_ALL_BLOCKING_S if keep_all else 0.1
+        history = Policy.History.KeepAll if keep_all else \
+            Policy.History.KeepLast(depth or (_DEPTH_LATCHED if latched else _DEPTH))
         policies = [Policy.Reliability.Reliable(max_blocking_time=int(blocking * 1e9)),
-                    Policy.Durability.TransientLocal if latched else Policy.Durability.Volatile,
-                    Policy.History.KeepAll if keep_all else
-                    Policy.History.KeepLast(depth or (_DEPTH_LATCHED if latched else _DEPTH)),
+                    Policy.Durability.TransientLocal if latched else Policy.Durability.Volatile, history,
                     # ROS 2 speaks plain (XCDR1) CDR, the encapsulation rosbags writes
                     Policy.DataRepresentation(use_cdrv0_representation=True)]
+        if latched:  # what a late joiner is sent comes from this history (Cyclone's default keeps 1), as rmw sets it
+            policies.append(Policy.DurabilityService(cleanup_delay=0, history=history, max_samples=-1,
+                                                     max_instances=-1, max_samples_per_instance=-1))
         if user_data:
             policies.append(Policy.Userdata(user_data))
         return Qos(*policies)
@@ -342,7 +348,16 @@ class Ros2Graph:
 
     def publish(self, topic: str, typename: str, data: bytes, *, latched: bool = False) -> None:
         """Publish CDR bytes ``data`` (encapsulation header included) of ROS type ``typename`` on ``topic``."""
-        _write(self._writer(topic, typename, latched).writer, data)
+        writer = self._writer(topic, typename, latched).writer
+        _write(writer, data)
+        if topic in self._wait_for and topic not in self._acked:
+            # Each end matches on its own: a Fast DDS reader may have matched this writer only after
+            # its first messages went out, and takes them as history a volatile reader never asked for.
+            # Once the first message is acknowledged, the reader follows this writer: nothing after is lost.
+            self._acked.add(topic)
+            if not writer.wait_for_acks(int(self._wait_s * 1e9)):
+                raise LiveError(f"the subscriber of {topic} did not acknowledge within {self._wait_s:g} s",
+                                source="--ros2-wait")
 
     @property
     def topics(self) -> dict[str, str]:

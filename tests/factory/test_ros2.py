@@ -10,9 +10,10 @@ ros/. Each test has its own domain id and keeps all traffic on 127.0.0.1; every 
 a message, bounded.
 
 A volatile reader gets what is written once it has matched the writer, and each end matches on its own:
-Fast DDS may take a reader's match as done before it takes the writer's first heartbeat, and then
-counts what came before as history it never asked for. So what rclpy receives is checked to be the
-log's messages from some point on, in order, none missing after it, and always the last.
+Fast DDS may report a match before it follows the writer, and then counts what came before as history it
+never asked for. The graph's ``wait_for`` holds each topic until its first message is acknowledged; what
+rclpy receives is checked to be the log's messages from some point on (the first may be the one lost), in
+order, none missing after it, and always the last.
 """
 
 from __future__ import annotations
@@ -166,7 +167,7 @@ def test_a_ros2_node_sees_decodes_and_joins_late(block_catalog, tmp_path):
         raw.subscribe(topic, typename)
     mcap = tmp_path / "cell.mcap"
     try:
-        with Ros2Graph(domain_id=domain, localhost=True, speed=float("inf"), keep_all=True) as graph:
+        with Ros2Graph(domain_id=domain, localhost=True, speed=float("inf"), keep_all=True, wait_for=tuple(ROS)) as graph:
             # the writers first, then every reader matched (rclpy's matched events, Cyclone's status)
             for topic, typename in {**ROS, **RAW}.items():
                 graph.advertise(topic, typename)
