@@ -128,11 +128,11 @@ def idl_type(typename: str, typestore: Any = TYPESTORE) -> type:
     LiveError
         The type is unknown or has a field kind DDS cannot declare here (``wstring``).
     """
-    return _idl_type(typename, id(typestore), typestore)
+    return _idl_type(typename, typestore)
 
 
-@functools.cache
-def _idl_type(typename: str, _store_id: int, typestore: Any) -> type:
+@functools.cache  # one class per type and typestore: DDS takes one declaration per type name
+def _idl_type(typename: str, typestore: Any) -> type:
     try:
         _, fields = typestore.fielddefs[typename]
     except KeyError:
@@ -148,7 +148,7 @@ def _idl_type(typename: str, _store_id: int, typestore: Any) -> type:
                 raise LiveError(f"{typename}: a {base} field has no DDS declaration here")
             return _BASE[base]
         if kind == Nodetype.NAME:
-            return _idl_type(detail, _store_id, typestore)
+            return _idl_type(detail, typestore)
         sub, length = detail
         if kind == Nodetype.ARRAY:
             return idl.array[member(sub), length]
