@@ -48,7 +48,6 @@ class _EveryTopic:
 
     def __init__(self, domain: int) -> None:
         from cyclonedds.domain import DomainParticipant
-        from cyclonedds.sub import DataReader
 
         localhost_domain(domain)
         self.participant = DomainParticipant(domain)
