@@ -5,6 +5,7 @@
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
+ROS2_VENV := .venv-ros2
 OUT    := build
 PARTS  := $(basename $(notdir $(wildcard samples/*.stl)))
 
@@ -23,8 +24,16 @@ samples/relief.stl: samples/make_relief.py | $(BIN)/.installed
 $(OUT)/%.plan.json: samples/%.stl $(BIN)/.installed
 	$(BIN)/factory plan $< -o $(OUT) --overwrite --quiet || test $$? -eq 3  # 3: written, verify failed (see summary)
 
-test: $(BIN)/.installed
+test: $(BIN)/.installed $(ROS2_VENV)/.installed
 	$(BIN)/python -m pytest -q
+
+# A real ROS 2 node for tests/factory/test_ros2.py (rclpy and message wheels of Jazzy), in its own
+# environment: its rosidl_parser brings lark-parser, whose `lark` module would replace the tests' lark.
+$(ROS2_VENV)/.installed: tests/ros2node-requirements.txt
+	$(PYTHON) -m venv $(ROS2_VENV)
+	$(ROS2_VENV)/bin/python -m pip install --quiet --upgrade pip
+	$(ROS2_VENV)/bin/python -m pip install --quiet -r tests/ros2node-requirements.txt
+	touch $@
 
 # Speed against OpenCAMLib (a benchmark-only extra) and every CAM stage; prints JSON last lines.
 bench: $(BIN)/.installed

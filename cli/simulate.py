@@ -15,7 +15,7 @@ import typer
 from cli.common import EXIT_FINDINGS, JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, \
     setup_logging, stderr
 from factory.core.resources import FIXTURES
-from factory.live import LiveView
+from factory.live import Fanout, LiveView
 from factory.production import SAMPLE_ORDERS, SimulateRequest, simulate_orders
 from factory.simulation import ROBOT_RATE_HZ
 from robotprog.cellsim import SimulationResult
@@ -58,7 +58,12 @@ def simulate(
     db: Annotated[str | None, typer.Option("--db", metavar="FILE|URL", help="Append the run to this process record, event by event: a SQLite file (created if missing) or a SQLAlchemy database URL (sqlite:///cell.sqlite, postgresql+psycopg://user@host/plant). See `factory report`.")] = None,
     serve: Annotated[int | None, typer.Option("--serve", metavar="PORT", help="Stream the run live to the Foxglove app (ws://HOST:PORT) with the channels of the MCAP log.", min=0, max=65535)] = None,
     host: Annotated[str, typer.Option("--host", help="Address the live view binds (with --serve).")] = "127.0.0.1",
-    speed: Annotated[float, typer.Option("--speed", help="With --serve: play the run at this many times real time.", min=1e-3)] = 60.0,
+    speed: Annotated[float, typer.Option("--speed", help="With --serve or --ros2: play the run at this many times real time.", min=1e-3)] = 60.0,
+    ros2: Annotated[bool, typer.Option("--ros2", help="Publish the run live on the ROS 2 graph (domain ROS_DOMAIN_ID) as the cell's nodes, with the topics of the MCAP log.")] = False,
+    ros2_localhost: Annotated[bool, typer.Option("--ros2-localhost", help="With --ros2: keep all DDS traffic on the loopback interface.")] = False,
+    ros_distro: Annotated[str, typer.Option("--ros-distro", help="With --ros2: the distribution of the graph's nodes, humble or jazzy (its discovery-info layout).")] = "jazzy",
+    ros2_keep_all: Annotated[bool, typer.Option("--ros2-keep-all", help="With --ros2: every subscriber gets every message, the run waiting for the slowest (default: the last 10 per topic are kept for a slow one).")] = False,
+    ros2_wait: Annotated[list[str] | None, typer.Option("--ros2-wait", metavar="TOPIC", help="With --ros2: hold this topic's first message until a subscriber has matched it (at most 60 s); repeatable.")] = None,
     robot_rate: Annotated[float, typer.Option("--robot-rate", metavar="HZ", help="Robot joint states and link transforms per second of simulated time in the log and the live view (each move's ends always); lower it for long runs, e.g. 1.", min=1e-3)] = ROBOT_RATE_HZ,
     overwrite: Overwrite = False,
     json_out: JsonFlag = False,
@@ -73,6 +78,8 @@ def simulate(
     setup_logging(quiet)
     if fault_rate is not None and faults is None:
         raise typer.BadParameter("needs --faults SEED", param_hint="--fault-rate")
+    if (ros2_localhost or ros2_keep_all or ros2_wait or ros_distro != "jazzy") and not ros2:
+        raise typer.BadParameter("needs --ros2", param_hint="--ros2-localhost, --ros2-keep-all, --ros2-wait, --ros-distro")
     request = SimulateRequest(orders_path, catalog=catalog, cell=cell_path, camera=camera_path, tools=tools,
                               faults=faults, fault_rate=fault_rate, db=db, robot_rate_hz=robot_rate, mcap=mcap,
                               png=png, overwrite=overwrite)
@@ -82,6 +89,12 @@ def simulate(
     if live is not None and not quiet:
         stderr.print(f"live view: ws://{host}:{live.port} (Foxglove: open connection, Foxglove WebSocket)",
                      highlight=False, markup=False)
+    if ros2:  # joined before any work, so discovery runs while the cell is simulated
+        from factory.ros2 import Ros2Graph  # DDS loads only for --ros2
+
+        graph = Ros2Graph(localhost=ros2_localhost, distro=ros_distro, speed=speed, wait_for=tuple(ros2_wait or ()),
+                          keep_all=ros2_keep_all)
+        live = Fanout([s for s in (live, graph) if s is not None])
     with progress_bars(quiet) as bars:
         done = simulate_orders(request, orders=orders, live=live, progress=bars)
     doc = done.summary

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from factory.core.errors import McapError
 from factory.mcaplog import TYPESTORE, ros_time
 from vision.camera import CameraModel
 from vision.report import bgr_png_bytes
@@ -42,3 +43,15 @@ def camera_info_msg(cam: CameraModel, stamp_ns: int, frame_id: str = FRAME) -> A
         header=header(stamp_ns, frame_id), height=cam.image_size[1], width=cam.image_size[0],
         distortion_model=cam.model, d=np.array(cam.dist, dtype=np.float64), k=cam.K.reshape(-1).copy(),
         r=np.eye(3).reshape(-1), p=cam.P.reshape(-1).copy(), binning_x=0, binning_y=0, roi=roi)
+
+
+def image_msg(image: np.ndarray, stamp_ns: int, frame_id: str = FRAME) -> Any:
+    """``sensor_msgs/Image`` of a picture: ``image`` (h, w) uint8 as ``mono8``, (h, w, 3) uint8 BGR as
+    ``bgr8`` (OpenCV's order, which ROS's cv_bridge reads as is), rows packed (``step`` = w * channels)."""
+    a = np.ascontiguousarray(image)
+    if a.dtype != np.uint8 or not (a.ndim == 2 or (a.ndim == 3 and a.shape[2] == 3)):
+        raise McapError(f"an image must be (h, w) or (h, w, 3) uint8, got {a.shape} {a.dtype}")
+    channels = 1 if a.ndim == 2 else 3
+    return _T["sensor_msgs/msg/Image"](header=header(stamp_ns, frame_id), height=a.shape[0], width=a.shape[1],
+                                       encoding="mono8" if channels == 1 else "bgr8", is_bigendian=0,
+                                       step=a.shape[1] * channels, data=a.reshape(-1).copy())

@@ -16,7 +16,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import Any
+from typing import Any, Protocol
 
 import foxglove
 
@@ -24,6 +24,60 @@ from factory.core.errors import LiveError
 from factory.mcaplog import TYPESTORE, message_definition
 
 log = logging.getLogger(__name__)
+
+
+class LiveSink(Protocol):
+    """Where a run's messages go as they are written: the MCAP log, the Foxglove live view, the ROS 2
+    graph (:class:`factory.ros2.Ros2Graph`). A context manager; leaving it closes the sink."""
+
+    def write(self, topic: str, msg: Any, log_time_ns: int, *, latched: bool = False) -> None: ...
+
+    def __enter__(self) -> Any: ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+
+class Fanout:
+    """``write(topic, msg, log_time_ns, latched=...)`` to every sink in turn; leaving it leaves each."""
+
+    def __init__(self, sinks: list[Any]) -> None:
+        self.sinks = sinks
+
+    def write(self, topic: str, msg: Any, log_time_ns: int, *, latched: bool = False) -> None:
+        for sink in self.sinks:
+            sink.write(topic, msg, log_time_ns, latched=latched)
+
+    def __enter__(self) -> "Fanout":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sink in self.sinks:
+            sink.__exit__(*exc)
+
+
+class Pacer:
+    """Plays log time at ``speed`` times real time: :meth:`wait` returns once the wall clock has
+    reached a message's log time, counted from the first message waited for.
+
+    Several pacers over one stream (a live view and the ROS 2 graph together) agree: the first
+    sleeps, the others find the time already come.
+    """
+
+    def __init__(self, speed: float) -> None:
+        if not speed > 0:
+            raise LiveError(f"speed must be positive, got {speed}", source="--speed")
+        self.speed = float(speed)
+        self._start: tuple[float, int] | None = None  # (wall [s], log time [ns]) of the first message
+
+    def wait(self, log_time_ns: int) -> None:
+        """Sleep until log time ``log_time_ns`` [ns] is due; ``speed`` inf: never sleep."""
+        if self._start is None:
+            self._start = (time.monotonic(), log_time_ns)
+        wall0, t0 = self._start
+        if self.speed != float("inf"):
+            delay = wall0 + (log_time_ns - t0) * 1e-9 / self.speed - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
 
 
 class _Subscriptions(foxglove.ServerListener):
@@ -58,14 +112,12 @@ class LiveView:
     """
 
     def __init__(self, port: int, *, host: str = "127.0.0.1", speed: float = 1.0, name: str = "factory") -> None:
-        if not speed > 0:
-            raise LiveError(f"speed must be positive, got {speed}", source="--speed")
-        self.speed = float(speed)
+        self._pacer = Pacer(speed)
+        self.speed = self._pacer.speed
         self._context = foxglove.Context()
         self._channels: dict[str, Any] = {}
         self._latched: dict[str, bytes] = {}
         self._lock = threading.Lock()
-        self._start: tuple[float, int] | None = None  # (wall [s], log time [ns]) of the first timed message
         try:
             # Time: the app's clock follows the log's (broadcast_time), not the wall clock.
             self._server = foxglove.start_server(name=name, host=host, port=port, context=self._context,
@@ -91,18 +143,9 @@ class LiveView:
             if latched:
                 self._latched[topic] = data
         if log_time_ns > 0:
-            self._pace(log_time_ns)
+            self._pacer.wait(log_time_ns)
+            self._server.broadcast_time(int(log_time_ns))
         channel.log(data, log_time=int(log_time_ns))
-
-    def _pace(self, log_time_ns: int) -> None:
-        if self._start is None:
-            self._start = (time.monotonic(), log_time_ns)
-        wall0, t0 = self._start
-        if self.speed != float("inf"):
-            delay = wall0 + (log_time_ns - t0) * 1e-9 / self.speed - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-        self._server.broadcast_time(int(log_time_ns))
 
     def _resend_latched(self, topic: str) -> None:
         with self._lock:

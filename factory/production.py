@@ -26,7 +26,7 @@ from factory.core.errors import FactoryError
 from factory.core.progress import Progress, Stopwatch
 from factory.core.resources import FIXTURES
 from factory.foxglove import layout_json
-from factory.live import LiveView
+from factory.live import LiveSink
 from factory.pictures import png_bytes
 from factory.record import Record
 from factory.simulation import ROBOT_RATE_HZ, CellRun, PartAssets, run_cell, write_cell_log
@@ -139,7 +139,7 @@ class SimulatedOrders:
 
 
 def simulate_orders(request: SimulateRequest, *, orders: tuple[Order, ...] | None = None,
-                    live: LiveView | None = None, progress: Progress | None = None) -> SimulatedOrders:
+                    live: LiveSink | None = None, progress: Progress | None = None) -> SimulatedOrders:
     """Run ``request``'s orders through the cell and write what it asks for.
 
     ``orders``: as :meth:`SimulateRequest.checked` read them (None: read now, the outputs checked).
@@ -193,7 +193,7 @@ def simulate_orders(request: SimulateRequest, *, orders: tuple[Order, ...] | Non
     return SimulatedOrders(run, doc, dict(watch.seconds))
 
 
-def _write_log(request: SimulateRequest, run: CellRun, db: str | None, db_run: int | None, live: LiveView | None,
+def _write_log(request: SimulateRequest, run: CellRun, db: str | None, db_run: int | None, live: LiveSink | None,
                watch: Stopwatch) -> dict[str, int]:
     """The MCAP log and its layout, and the live view's stream: messages written per topic ({}: neither)."""
     if request.mcap is None and live is None:

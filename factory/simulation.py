@@ -42,7 +42,7 @@ from factory.cellmsgs import (ComponentStatus, Detection, OrderLine, cell_summar
                               robot_state, scheduler_state)
 from factory.diagnostics import door, gripper
 from factory.core.errors import CellError, FactoryError, McapError
-from factory.live import LiveView
+from factory.live import Fanout, LiveSink
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, log_msg, marker_array, read_messages, ros_time,
                              tf_message, transform_stamped, triangle_mesh_marker)
 from factory.plan import PlanRequest, plan_part
@@ -678,8 +678,9 @@ class _Health:
 def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tuple[Path, str], PartAssets],
                    orders: tuple[Order, ...], cell: Cell, world: CollisionWorld, stations: Stations, *,
                    overwrite: bool, inputs: dict[str, str], parameters: dict[str, Any],
-                   live: LiveView | None = None, robot_rate_hz: float = ROBOT_RATE_HZ) -> dict[str, int]:
-    """Write the simulation to MCAP (``path``) and/or stream it to a live view, in log time;
+                   live: LiveSink | None = None, robot_rate_hz: float = ROBOT_RATE_HZ) -> dict[str, int]:
+    """Write the simulation to MCAP (``path``) and/or stream it to a live sink (the Foxglove live view,
+    the ROS 2 graph, or both through :class:`factory.live.Fanout`), in log time;
     returns message counts per topic.
 
     The log streams: each activity and the scheduler's log are generators of their messages in
@@ -745,7 +746,7 @@ def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tup
                 McapLog(path, stage="simulate", overwrite=overwrite, inputs=inputs, parameters=parameters)))
         if live is not None:
             sinks.append(live)
-        m = _Fanout(sinks)
+        m = Fanout(sinks)
         log_cell(m, cell, world)
         cams = []
         for name, st in (("rack_camera", stations.rack), ("tray_camera", stations.tray)):
@@ -946,17 +947,6 @@ def _tool_tf(xyz: np.ndarray, stamp: int) -> Any:
     pose = np.eye(4)
     pose[:3, 3] = xyz
     return tf_message([transform_stamped("work", "tool", pose, stamp)])
-
-
-class _Fanout:
-    """``write(topic, msg, log_time_ns, latched=...)`` to every sink: the MCAP file, the live view."""
-
-    def __init__(self, sinks: list[Any]) -> None:
-        self.sinks = sinks
-
-    def write(self, topic: str, msg: Any, log_time_ns: int, *, latched: bool = False) -> None:
-        for sink in self.sinks:
-            sink.write(topic, msg, log_time_ns, latched=latched)
 
 
 def _stock_msg(p: PartAssets, k: int, t: float) -> Any:
