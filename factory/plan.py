@@ -46,7 +46,7 @@ from cadcam.verify import VerifyOptions, VerifyReport, VerifyResult
 from factory.core.atomic import check_writable, write_bytes, write_text
 from factory.cam import CamRequest, PlannedPart, compute_job, log_job
 from factory.catalog import catalog_record, sha256_file
-from factory.core.errors import PlanningError, shown
+from factory.core.errors import PlanningError, SetupError, shown
 from factory.mcaplog import McapLog
 from factory.pictures import png_bytes
 from factory.refusals import check_request, check_setup
@@ -468,8 +468,11 @@ def _plan_op2(req: PlanRequest, planned: PlannedPart, op1_sim: Simulation, outpu
         library = load_tool_library(req.cam.tools)
         # Op 1's verify simulation is op 2's starting stock: op 1 is not simulated again unless the bottom
         # has features to rest rough (planned on the coarser planning grid).
-        job2, part2 = plan_op2(planned.part_work, job1, library, options=Op2Options(plan=req.cam.plan),
-                               op1_stock=op1_sim, jaws=req.cam.jaws())
+        try:
+            job2, part2 = plan_op2(planned.part_work, job1, library, options=Op2Options(plan=req.cam.plan),
+                                   op1_stock=op1_sim, jaws=req.cam.jaws())
+        except SetupError as e:  # the part cannot be held for op 2: the part is what is wrong
+            raise e.with_source(req.cam.part) from None
     with watch("op 2 post"):
         program2 = post_process(job2, PostOptions(dialect=req.post, arc_tolerance=req.arc_tolerance,
                                                   work_offset=WORK_OFFSET[2], program_number=1002))

@@ -50,7 +50,7 @@ def test_a_sheet_thinner_than_any_grip_is_refused_in_one_line(tmp_path: Path) ->
     r = CliRunner().invoke(app, ["plan", str(stl), "-o", str(tmp_path / "out"), "--quiet", "--no-robot"])
     assert r.exit_code == 1
     lines = [ln for ln in r.output.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error: ") and "1.00 mm tall" in lines[0], r.output
+    assert len(lines) == 1 and lines[0].startswith(f"error: {stl}: ") and "1.00 mm tall" in lines[0], r.output
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
 
 
