@@ -29,7 +29,9 @@ EXIT_ERROR = 1
 EXIT_FINDINGS = 3
 EXIT_VERIFY_FAILED = EXIT_FINDINGS
 
-stderr = Console(stderr=True)
+# soft_wrap: a line is never broken inside a figure (``p95 \n0.005 mm``) when stderr is a pipe or a
+# log, where rich would otherwise wrap at 80 columns; a terminal wraps long lines itself.
+stderr = Console(stderr=True, soft_wrap=True)
 
 Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace output files that exist.")]
 JsonFlag = Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout.")]

@@ -397,7 +397,7 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     processors()  # and a bad FACTORY_THREADS
     robot_cell = req.cell if req.robot else None
     check_request(robot_cell, req.lang)  # the cell, its robot and the program language
-    watch = Stopwatch()
+    watch = Stopwatch(progress)  # every stage shows, the robot's planning too
     planned = compute_job(req.cam, progress, watch,
                           check_setup=lambda setup: check_setup(setup, req.grid, req.cam.part, robot_cell))
     job = planned.job

@@ -155,7 +155,7 @@ def simulate_orders(request: SimulateRequest, *, orders: tuple[Order, ...] | Non
     model = request.fault_model()
     if orders is None:
         orders = request.checked()
-    watch = Stopwatch()
+    watch = Stopwatch(progress)
     record = Record(request.db) if request.db is not None else None  # unreachable: fails before any planning
     recorder = None
     if record is not None:

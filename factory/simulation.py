@@ -470,7 +470,7 @@ def run_cell(orders: tuple[Order, ...], *, catalog: Path, cell_path: Path = FIXT
         The cell or camera file is malformed. A part that cannot be planned fails its orders
         only (see :class:`CellRun` ``assets``).
     """
-    watch = Stopwatch()
+    watch = Stopwatch(progress)
     with watch("cell"):
         cell = load_cell(cell_path)
         world = collision_world(cell)

@@ -22,18 +22,29 @@ def stage_callback(progress: Progress | None, stage: str) -> Callable[[int, int]
 
 
 class Stopwatch:
-    """Wall time per named stage [s], in the order the stages ran."""
+    """Wall time per named stage [s], in the order the stages ran.
 
-    def __init__(self) -> None:
+    With ``progress``, every stage also says when it starts (``progress(name, 0, 1)``) and ends
+    (``progress(name, 1, 1)``), so a stage that reports nothing finer (the robot's planning) still
+    shows which stage is running, and for how long; one that does report finer steps under the same
+    name fills in between.
+    """
+
+    def __init__(self, progress: Progress | None = None) -> None:
         self.seconds: dict[str, float] = {}
+        self._progress = progress
 
     @contextlib.contextmanager
     def __call__(self, name: str) -> Iterator[None]:
+        if self._progress is not None:
+            self._progress(name, 0, 1)
         t0 = time.perf_counter()
         try:
             yield
         finally:
             self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - t0
+            if self._progress is not None:
+                self._progress(name, 1, 1)
 
     def rounded(self) -> dict[str, float]:
         """Seconds per stage, rounded to the millisecond."""

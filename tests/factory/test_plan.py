@@ -75,6 +75,31 @@ def test_plan_part_computes_everything_and_writes_nothing(planned, block):
     assert "\nG55\n" in op2.program.text and op2.report.ok and planned.ok
 
 
+def test_every_stage_shows_as_it_runs_the_robots_planning_too(block):
+    """A progress callback hears every timed stage start and end, in order, the stages that report
+    nothing finer (the robot's planning, posting) included: a long plan is never silent."""
+    heard: list[tuple[str, int, int]] = []
+    done = plan_part(fast_request(block), progress=lambda stage, n, total: heard.append((stage, n, total)))
+    pipeline = ("load", "setup", "post", "cell", "robot plan", "robot program", "verify", "op 2", "op 2 post",
+                "op 2 verify")
+    assert set(pipeline) <= set(done.seconds)
+    for stage in pipeline:
+        starts = [i for i, h in enumerate(heard) if h == (stage, 0, 1)]
+        ends = [i for i, h in enumerate(heard) if h == (stage, 1, 1)]
+        assert starts and ends and starts[0] < ends[-1], (stage, heard)
+    # the CAM's own stages report their steps (n of total) as they go
+    assert {"roughing", "finishing"} & {h[0] for h in heard if h[2] > 1}
+
+
+def test_piped_output_is_never_wrapped(capsys):
+    """stderr to a pipe or a log: a long summary stays one line (rich would wrap it at 80 columns)."""
+    from cli.common import stderr
+
+    line = "verify OK: max gouge 0.0000 mm, remaining stock max 0.010 / mean 0.003 / p95 0.005 mm, 0 rapid crash(es)"
+    stderr.print(line, highlight=False, markup=False)
+    assert capsys.readouterr().err == line + "\n"
+
+
 def test_every_stage_of_the_work_is_timed(planned, block, monkeypatch):
     """What a plan reports per stage is all its work (the workflow's overhead figure is what is left):
     the robot program's posting and the CAM's tool choice and face classes included, and a stage
