@@ -1,6 +1,7 @@
-"""Print one table of what `factory plan` did for each part, from its PART.plan.json files.
+"""What `factory plan` did for each part, from its PART.plan.json files, in at most 100 columns.
 
-    python samples/summarize.py build/*.plan.json
+    python samples/summarize.py build/*.plan.json           # one table of every part
+    python samples/summarize.py --line build/bracket.plan.json   # one line, as `make demo` prints per part
 """
 
 from __future__ import annotations
@@ -9,35 +10,45 @@ import json
 import sys
 from pathlib import Path
 
+HEADER = ["part", "ops", "cycle min", "gouge mm", "left max mm", "unreached", "crashes", "robot s", "plan s"]
+
 
 def row(summary: dict) -> list[str]:
-    ops = summary["operations"]
+    """The table's cells for one plan: op 1 + op 2 cycle, op 1's verify figures, wall time of the plan."""
     v = summary["verify"]
-    s = summary["seconds"]
+    cycles = [s["estimated_cycle_s"] / 60 for s in summary["setups"]]
+    unreached = len(summary.get("unreached", [])) + sum(len(s.get("unreached", [])) for s in summary["setups"][1:])
     return [
         Path(summary["part"]).stem,
-        str(summary["triangles"]),
-        str(len(ops)),
-        f"{sum(o['cut_mm'] for o in ops) / 1000:.2f}",
-        f"{sum(o['rapid_mm'] for o in ops) / 1000:.2f}",
-        f"{summary['estimated_cycle_s'] / 60:.1f}",
-        str(summary["lines"]),
+        str(len(cycles)),
+        " + ".join(f"{c:.1f}" for c in cycles),
         f"{v['max_gouge']:.4f}",
-        f"{v['remaining_max']:.3f}/{v['remaining_mean']:.3f}/{v['remaining_p95']:.3f}",
+        f"{v['remaining_max']:.3f}",
+        str(unreached),
         str(len(v["rapid_crashes"])),
         f"{summary['robot']['motion_s']:.1f}" if summary.get("robot") else "-",
-        " ".join(f"{k}={t:.1f}" for k, t in s.items()),
+        f"{sum(summary['seconds'].values()):.0f}",
     ]
 
 
-def main(paths: list[str]) -> None:
-    header = ["part", "triangles", "ops", "cut m", "rapid m", "cycle min", "lines", "gouge mm",
-              "left max/mean/p95 mm", "crashes", "robot s", "wall s per stage"]
-    rows = [header] + [row(json.loads(Path(p).read_text())) for p in sorted(paths)]
-    print("| " + " | ".join(header) + " |")
-    print("|" + "---|" * len(header))
-    for r in rows[1:]:
-        print("| " + " | ".join(r) + " |")
+def line(summary: dict) -> str:
+    """One line for a part as it finishes: its verdict first."""
+    cells = dict(zip(HEADER, row(summary)))
+    verdict = "verify OK" if summary["verify"]["ok"] else "verify FAILED"
+    return (f"{cells['part']}: {verdict}, {cells['ops']} ops, {cells['cycle min']} min, stock left max "
+            f"{cells['left max mm']} mm, {cells['unreached']} unreached, robot {cells['robot s']} s, "
+            f"planned in {cells['plan s']} s")
+
+
+def main(args: list[str]) -> None:
+    if args[:1] == ["--line"]:
+        for p in args[1:]:
+            print(line(json.loads(Path(p).read_text())))
+        return
+    rows = [HEADER] + [row(json.loads(Path(p).read_text())) for p in sorted(args)]
+    widths = [max(len(r[i]) for r in rows) for i in range(len(HEADER))]
+    for r in rows:
+        print("  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(r, widths))).rstrip())
 
 
 if __name__ == "__main__":
