@@ -22,6 +22,7 @@ A mesh with symmetry gives one of the equivalent yaws.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -64,13 +65,14 @@ class LocateOptions:
     Attributes
     ----------
     min_area_ratio : float
-        A blob is a candidate when its area is within these factors of the part's top face
-        projected at the blob (side faces add area; touching parts double it) (unitless).
+        A blob is a candidate when its area is at least this factor of the part's top face
+        projected at the blob; no upper bound, a shadow or a neighbour may join it (unitless).
     max_rms_px : float
         A fit whose edges miss the picture's by more RMS than this is rejected [px].
     min_coverage : float
-        Share of the part's visible edges the picture must show within a pixel of the fit (0..1);
-        below it no pose is reported (a box, a shadow, a different part).
+        Share of the part's visible outline edges the picture must show within a pixel of the
+        fit (0..1); below it no pose is reported (a box, a shadow, a different part). On the
+        benchmark gallery boxes reach at most 0.40 and correct poses mostly 0.55-1.
     min_contrast : float
         Least departure from the tray model that makes a pixel part of a candidate blob
         (natural log of the brightness ratio; 0.1 is about 10 %).
@@ -455,11 +457,14 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
 
 
 def _chamfer_starts(model: _EdgeModel, edges: np.ndarray, inside: np.ndarray, box: tuple[int, int, int, int],
-                    centre: np.ndarray, ground: callable, yaw_steps: int = 36, keep: int = 3) -> list[np.ndarray]:
+                    centre: np.ndarray, ground: Callable[[np.ndarray], np.ndarray], yaw_steps: int = 36,
+                    keep: int = 3) -> list[np.ndarray]:
     """The best few (x, y, yaw) of a coarse search: model edges against the picture's edge distance map.
 
-    ``box`` (x0, y0, x1, y1) [px] is the window searched (only where ``inside`` (h, w) is set), ``centre`` a pose (x, y) [m] inside it where
-    the model's image is drawn once per yaw and shifted, ``ground`` maps pixels to tray (x, y) [m].
+    ``box`` (x0, y0, x1, y1) [px] is the window searched (only where ``inside`` (h, w) is set),
+    ``centre`` a pose (x, y) [m] inside it where the model's image is drawn once per yaw and
+    shifted (a mean distance map value per shift, by ``cv2.filter2D``), ``ground`` maps pixels to
+    tray (x, y) [m]. Edge distances are capped at 6 px, so missing edges cost a bounded amount.
     """
     x0, y0, x1, y1 = box
     dist = cv2.distanceTransform((edges == 0).astype(np.uint8), cv2.DIST_L2, 3)
