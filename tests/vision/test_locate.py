@@ -83,7 +83,8 @@ def test_finds_blanks_within_a_millimetre_and_half_a_degree(rays, seed):
         near = min(found, key=lambda p: np.hypot(p.x - box.x, p.y - box.y))
         assert np.hypot(near.x - box.x, near.y - box.y) < 1e-3
         assert np.degrees(yaw_error(near.yaw, box.yaw, np.pi)) < 0.5
-        assert near.z == TRAY_Z and near.score > 0.8 and near.rms_px < 0.6
+        # score: the share of the outline's edges found (a wall as bright as the tray hides its foot).
+        assert near.z == TRAY_Z and near.score > 0.7 and near.rms_px < 0.6
         # The expected error is a fraction of a pixel at roughly 1 mm per pixel.
         assert 0.7 < near.mm_per_px < 1.4 and 0.1e-3 < near.sigma_xy < 1e-3
 
