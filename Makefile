@@ -9,10 +9,12 @@ ROS2_VENV := .venv-ros2
 OUT    := build
 PARTS  := $(basename $(notdir $(wildcard samples/*.stl)))
 
-.PHONY: demo test bench venv clean
+.PHONY: demo plans test bench venv clean
 
-demo: $(PARTS:%=$(OUT)/%.plan.json)
-	$(BIN)/python samples/summarize.py $^
+# The parts are planned two at a time (one per core), each printing one line as it finishes.
+demo: $(BIN)/.installed
+	@$(MAKE) --no-print-directory -j2 plans
+	$(BIN)/python samples/summarize.py $(PARTS:%=$(OUT)/%.plan.json)
 	$(BIN)/factory simulate samples/orders.yaml --catalog $(OUT) --mcap $(OUT)/cell.mcap --overwrite \
 	    || test $$? -eq 3  # 3: simulated and written, an order not done (see its reason)
 
@@ -20,9 +22,13 @@ demo: $(PARTS:%=$(OUT)/%.plan.json)
 samples/relief.stl: samples/make_relief.py | $(BIN)/.installed
 	$(BIN)/python samples/make_relief.py
 
-# One part per rule, so `make -j` plans parts in parallel.
+plans: $(PARTS:%=$(OUT)/%.plan.json)
+
+# One part per rule, so `make -j` plans parts in parallel; 3: written, verify failed (its line says so).
 $(OUT)/%.plan.json: samples/%.stl $(BIN)/.installed
-	$(BIN)/factory plan $< -o $(OUT) --overwrite --quiet || test $$? -eq 3  # 3: written, verify failed (see summary)
+	@echo "planning $* ..."
+	@$(BIN)/factory plan $< -o $(OUT) --overwrite --quiet || test $$? -eq 3
+	@$(BIN)/python samples/summarize.py --line $@
 
 test: $(BIN)/.installed $(ROS2_VENV)/.installed
 	$(BIN)/python -m pytest -q

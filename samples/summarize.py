@@ -35,7 +35,8 @@ def line(summary: dict) -> str:
     """One line for a part as it finishes: its verdict first."""
     cells = dict(zip(HEADER, row(summary)))
     verdict = "verify OK" if summary["verify"]["ok"] else "verify FAILED"
-    return (f"{cells['part']}: {verdict}, {cells['ops']} ops, {cells['cycle min']} min, stock left max "
+    ops = "1 op" if cells["ops"] == "1" else f"{cells['ops']} ops"
+    return (f"{cells['part']}: {verdict}, {ops}, {cells['cycle min']} min, stock left max "
             f"{cells['left max mm']} mm, {cells['unreached']} unreached, robot {cells['robot s']} s, "
             f"planned in {cells['plan s']} s")
 

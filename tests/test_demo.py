@@ -1,0 +1,26 @@
+"""`make demo`'s report: one line per part as it finishes, and a table, both within 100 columns."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_demo_summary_fits_100_columns_and_says_the_verdict(block_catalog):
+    catalog, part = block_catalog
+    summary = catalog / f"{part.stem}.plan.json"
+    doc = json.loads(summary.read_text())
+    run = [sys.executable, str(ROOT / "samples" / "summarize.py")]
+    line = subprocess.run([*run, "--line", str(summary)], check=True, capture_output=True, text=True).stdout
+    assert line.count("\n") == 1 and len(line.rstrip("\n")) <= 100, line
+    assert line.startswith(f"{part.stem}: verify {'OK' if doc['verify']['ok'] else 'FAILED'}"), line
+    ops = len(doc["setups"])
+    assert (f"{ops} ops" if ops > 1 else "1 op,") in line and f"stock left max {doc['verify']['remaining_max']:.3f} mm" in line
+    table = subprocess.run([*run, str(summary), str(summary)], check=True, capture_output=True, text=True).stdout
+    rows = table.splitlines()
+    assert len(rows) == 3 and all(len(r) <= 100 for r in rows), table
+    assert rows[0].split()[:2] == ["part", "ops"] and rows[1].split()[0] == part.stem
