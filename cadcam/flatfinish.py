@@ -33,7 +33,7 @@ import trimesh
 
 from cadcam.faces import FLAT, WALL, FaceClasses
 from cadcam.model import CuttingData, Operation, Setup, Tool
-from cadcam.rest import excess
+from cadcam.stock import excess
 from cadcam.roughing import RoughingOptions, zlevel_roughing
 from cadcam.stock import Simulation
 from factory.core.errors import ToolError

@@ -46,11 +46,12 @@ from scipy import ndimage
 from cadcam.finishing import EngagementLimit, raster_finishing
 from cadcam.model import CuttingData, FixtureBox, Job, Motion, Operation, Setup, Tool, ViseJaws
 from cadcam.plan import PlanOptions, choose_tools, rest_tools
-from cadcam.rest import excess, safe_rapids, unreached
+from cadcam.rest import safe_rapids
 from cadcam.roughing import zlevel_roughing
 from cadcam.setup import JAW_CLEARANCE_MM
 from cadcam.tools import ToolLibrary
-from cadcam.stock import FlippedStock, Simulation, clear_height, flip_stock, stock_after, stock_after_flipped
+from cadcam.stock import (FlippedStock, Simulation, clear_height, excess, flip_stock, stock_after, stock_after_flipped,
+                          unreached)
 from factory.core.errors import SetupError, ToolError, ToolpathError
 
 log = logging.getLogger(__name__)

@@ -30,12 +30,12 @@ from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing
 from cadcam.flatfinish import WALL_HAIR, FlatFinishOptions, flat_wall_finishing, left_on_flats_and_walls
 from cadcam.model import CuttingData, Job, Operation, Setup, Tool
 from cadcam.relief import Boundary, keep_outside
-from cadcam.rest import Unreached, excess, safe_rapids, unreached
+from cadcam.rest import safe_rapids
 from cadcam.roughing import RoughingOptions, zlevel_roughing
 from cadcam.shank_clearance import upper_raster
 from cadcam.toolfit import removal_rate, tool_fits
 from cadcam.tools import ToolLibrary
-from cadcam.stock import Simulation, stock_after
+from cadcam.stock import Simulation, Unreached, excess, stock_after, unreached
 from factory.core.errors import ToolError
 
 T = TypeVar("T")

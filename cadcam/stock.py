@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy import ndimage
 
 from cadcam.envelope import Segments, grid_pairs, pair_envelope, reach_interval
 from cadcam.heightmap import Grid, grid_over, upper_envelope
@@ -825,3 +826,79 @@ def flip_stock(sim: Simulation, transform: np.ndarray, setup: Setup) -> FlippedS
     top.setflags(write=False)
     bottom.setflags(write=False)
     return FlippedStock(grid=grid, top=top, bottom=bottom)
+
+
+# What is left: the stock above the part grown sideways by an allowance plus a cell diagonal, so the
+# skin a finished wall leaves in the cells beside it (the grid cannot tell it from stock) is not counted.
+# Where there is no part (through holes, outside it) the floor (Setup.floor_z) is the part: the holding
+# allowance under it stays for the vise.
+
+
+def excess(sim: Simulation, allowance: float, grid_slack: bool = True) -> np.ndarray:
+    """(ny, nx) float: stock above the part grown by ``allowance`` + a cell diagonal [mm] (see above).
+
+    ``grid_slack=False`` grows the part by ``allowance`` only: right for stock a tool has
+    finished against the walls (its side reached them), where a cell beside a wall holds
+    only what the tool's corner could not reach.
+    """
+    g = sim.grid
+    reach = allowance + (g.cell * math.sqrt(2.0) if grid_slack else 0.0)
+    k = int(math.ceil(reach / g.cell))
+    di, dj = np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1))
+    disc = np.hypot(di, dj) * g.cell <= reach
+    part = np.where(np.isfinite(sim.part_top), sim.part_top, -np.inf)
+    grown = ndimage.maximum_filter(part, footprint=disc, mode="constant", cval=-np.inf)
+    return sim.stock_top - np.maximum(grown, sim.floor)
+
+
+@dataclass(frozen=True)
+class Unreached:
+    """Stock no operation could remove and finishing leaves alone.
+
+    Attributes
+    ----------
+    x, y : float
+        Centre of the region's bounding box [mm], work coordinates.
+    size_x, size_y : float
+        Bounding box size [mm].
+    depth : float
+        Most stock left above the part there [mm].
+    z_bottom : float
+        Lowest part surface (or stock bottom) under it [mm].
+    """
+
+    x: float
+    y: float
+    size_x: float
+    size_y: float
+    depth: float
+    z_bottom: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: round(v, 2) for k, v in dataclasses.asdict(self).items()}
+
+    def describe(self) -> str:
+        return (f"{self.size_x:.1f} x {self.size_y:.1f} mm near X{self.x:.1f} Y{self.y:.1f}, "
+                f"{self.depth:.1f} mm of stock down to Z{self.z_bottom:.1f}")
+
+
+def unreached(sim: Simulation, above: float, allowance: float) -> tuple[Unreached, ...]:
+    """Connected regions where more than ``above`` [mm] of stock is left over the part."""
+    ex = excess(sim, allowance)
+    deep = ex > above
+    labels, n = ndimage.label(deep, structure=np.ones((3, 3), dtype=bool))
+    if n == 0:
+        return ()
+    g = sim.grid
+    floor = np.maximum(np.where(np.isfinite(sim.part_top), sim.part_top, -np.inf), sim.floor)
+    out = []
+    for k, sl in enumerate(ndimage.find_objects(labels), start=1):
+        m = labels[sl] == k
+        js, is_ = sl
+        x0, x1 = g.x0 + (is_.start - 0.5) * g.cell, g.x0 + (is_.stop - 0.5) * g.cell
+        y0, y1 = g.y0 + (js.start - 0.5) * g.cell, g.y0 + (js.stop - 0.5) * g.cell
+        out.append(Unreached(
+            x=0.5 * (x0 + x1), y=0.5 * (y0 + y1), size_x=x1 - x0, size_y=y1 - y0,
+            depth=float(ex[sl][m].max()), z_bottom=float(floor[sl][m].min()),
+        ))
+    return tuple(sorted(out, key=lambda u: (-u.depth, u.x, u.y)))

@@ -23,8 +23,8 @@ import numpy as np
 from cadcam.envelope import Segments
 from cadcam.heightmap import Grid, upper_envelope
 from cadcam.model import Motion, ProgramMoves, Setup, Tool
-from cadcam.stock import (ENGAGED_WIDTH, RAPID_RIM, FlippedStock, MoveRecord, Simulation, cut_stock,
-                          first_line_reaching)
+from cadcam.stock import (ENGAGED_WIDTH, RAPID_RIM, FlippedStock, MoveRecord, Simulation, Unreached, cut_stock,
+                          first_line_reaching, unreached)
 from cadcam.workholding import fixture_contacts
 from factory.core.errors import VerifyError
 
@@ -58,6 +58,11 @@ class VerifyOptions:
     contact_tolerance : float
         Shank or holder reaching this far into the stock or the part, or a tool tip this
         far below the stock bottom, is a fault [mm].
+    left_above : float
+        Stock more than this above the part is *left*, listed by region (:attr:`VerifyReport.left`)
+        [mm]; beside a wall the part counts grown by a cell diagonal, so the cells a finished wall
+        passes through are not taken for stock (:func:`cadcam.stock.excess`). Stock under op 1's
+        floor (the holding allowance) is never left: it is op 2's.
     """
 
     cell: float = 0.2
@@ -66,6 +71,7 @@ class VerifyOptions:
     finish_depth: float = 1.0
     engaged_width: float = ENGAGED_WIDTH
     contact_tolerance: float = 0.01
+    left_above: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -209,6 +215,12 @@ class VerifyReport:
         Per tool, in order of tool number.
     rapids_checked : int
         Rapids that came below the stock top and were swept against the stock.
+    left : tuple of Unreached
+        The regions where more than ``left_above`` [mm] of stock stays on the part after the
+        program, deepest first: a sharp inside corner, what no tool reached, what the program
+        skipped. Empty: the part is finished to ``left_above``.
+    left_above : float
+        [mm], see :class:`VerifyOptions`.
     """
 
     max_gouge: float
@@ -228,6 +240,8 @@ class VerifyReport:
     faults: tuple[Fault, ...] = ()
     engagement: tuple[ToolEngagement, ...] = ()
     rapids_checked: int = 0
+    left: tuple[Unreached, ...] = ()
+    left_above: float = 0.1
 
     @property
     def gouged(self) -> bool:
@@ -238,6 +252,11 @@ class VerifyReport:
     def ok(self) -> bool:
         """No gouge beyond tolerance, no rapid into the stock and no other :class:`Fault`."""
         return not self.gouged and not self.rapid_crashes and not self.faults
+
+    @property
+    def finished(self) -> bool:
+        """No stock left above the part beyond ``left_above`` (the program may still be unsafe: :attr:`ok`)."""
+        return not self.left
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (plain floats, ints, lists and None)."""
@@ -260,6 +279,9 @@ class VerifyReport:
             "faults": [f.to_dict() for f in self.faults],
             "engagement": [e.to_dict() for e in self.engagement],
             "rapids_checked": self.rapids_checked,
+            "finished": self.finished,
+            "left_above": self.left_above,
+            "left": [u.to_dict() for u in self.left],
         }
 
 
@@ -507,6 +529,8 @@ def _report(
         faults=tuple(sorted(faults, key=lambda f: (FAULT_KINDS.index(f.kind), f.tool))),
         engagement=tuple(engagement),
         rapids_checked=rapids_checked,
+        left=unreached(sim, options.left_above, 0.0),
+        left_above=options.left_above,
     )
 
 

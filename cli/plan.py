@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from cadcam.rest import Unreached
+from cadcam.stock import Unreached
 from cli import cam
 from cli.common import EXIT_VERIFY_FAILED, JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, \
     setup_logging, stderr
@@ -75,8 +75,9 @@ def plan(
             stderr.print(f"{part.name}: and {len(unreached) - _UNREACHED_SHOWN} more places no tool reaches "
                          f"(listed in {Path(summary['outputs']['summary']).name})", highlight=False, markup=False)
         op1 = "op 1: " if planned.op2 is not None else ""
+        verdict, _, left = report_text(planned.report).partition("\n")  # the regions left under the line
         stderr.print(f"{part.name}: {op1}{len(summary['operations'])} operations, {summary['lines']} lines, estimated "
-                     f"{summary['estimated_cycle_s'] / 60:.1f} min; {report_text(planned.report)}{robot_text}",
+                     f"{summary['estimated_cycle_s'] / 60:.1f} min; {verdict}{robot_text}" + (left and "\n" + left),
                      highlight=False, markup=False)
         if planned.op2 is not None:
             op2 = planned.op2
@@ -87,5 +88,10 @@ def plan(
                          f"{op2.program.line_count} lines, estimated {op2.program.total_time / 60:.1f} min, faces "
                          f"{op2.job.parameters['holding_mm']:g} mm of holding allowance; {report_text(op2.report)}",
                          highlight=False, markup=False)
+    elif not (planned.report.finished and (planned.op2 is None or planned.op2.report.finished) and planned.ok):
+        # Quiet, but what changes the verdict is said: stock left on the part, a failed verify.
+        for label, report in (("", planned.report), ("op 2: ", None if planned.op2 is None else planned.op2.report)):
+            if report is not None and not (report.ok and report.finished):
+                stderr.print(f"{part.name}: {label}{report_text(report)}", highlight=False, markup=False)
     if not planned.ok:
         raise typer.Exit(EXIT_VERIFY_FAILED)

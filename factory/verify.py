@@ -137,12 +137,28 @@ def log_simulation(mcap: McapLog, sim: Simulation) -> None:
     mcap.write("/verify/stock", marker_array([marker]), 0, latched=True)
 
 
+#: Regions of stock left that :func:`report_text` names one by one; the report lists them all.
+LEFT_SHOWN = 5
+
+
 def report_text(report: VerifyReport) -> str:
-    """The verdict in a few lines: gouge, remaining stock, rapid crashes, and each fault with its lines."""
-    verdict = "OK" if report.ok else "FAILED"
-    text = (f"verify {verdict}: max gouge {report.max_gouge:.4f} mm, remaining stock max "
+    """The verdict in a few lines: gouge, remaining stock, rapid crashes, each fault with its lines, and
+    each region of stock left with its place and size. Its first line never says OK over stock left."""
+    if not report.ok:
+        verdict = "verify FAILED"
+    elif report.left:
+        n = len(report.left)
+        verdict = (f"verify: no gouge or crash, but stock left in {n} region{'s' if n > 1 else ''}, up to "
+                   f"{report.left[0].depth:.2f} mm")
+    else:
+        verdict = f"verify OK, finished to {report.left_above:g} mm"
+    text = (f"{verdict}: max gouge {report.max_gouge:.4f} mm, remaining stock max "
             f"{report.remaining_max:.3f} / mean {report.remaining_mean:.3f} / p95 {report.remaining_p95:.3f} mm, "
             f"{len(report.rapid_crashes)} rapid crash(es)")
+    for u in report.left[:LEFT_SHOWN]:
+        text += f"\n  left: {u.describe()}"
+    if len(report.left) > LEFT_SHOWN:
+        text += f"\n  and {len(report.left) - LEFT_SHOWN} more regions of stock left (all in the report)"
     if report.gouged and report.gouge_line is not None:
         text += f"\n  gouge: {report.max_gouge:.3f} mm into the part, line {report.gouge_line}"
     for f in report.faults:

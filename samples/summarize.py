@@ -34,11 +34,13 @@ def row(summary: dict) -> list[str]:
 def line(summary: dict) -> str:
     """One line for a part as it finishes: its verdict first."""
     cells = dict(zip(HEADER, row(summary)))
-    verdict = "verify OK" if summary["verify"]["ok"] else "verify FAILED"
+    reports = [summary["verify"]] + ([summary["verify_op2"]] if summary.get("verify_op2") else [])
+    left = sum(len(r.get("left", [])) for r in reports)
+    verdict = ("verify FAILED" if not summary["verify"]["ok"] else
+               f"stock left in {left} region{'s' if left > 1 else ''}" if left else "verify OK, finished")
     ops = "1 op" if cells["ops"] == "1" else f"{cells['ops']} ops"
-    return (f"{cells['part']}: {verdict}, {ops}, {cells['cycle min']} min, stock left max "
-            f"{cells['left max mm']} mm, {cells['unreached']} unreached, robot {cells['robot s']} s, "
-            f"planned in {cells['plan s']} s")
+    return (f"{cells['part']}: {verdict}, {ops}, {cells['cycle min']} min, left max {cells['left max mm']} mm, "
+            f"robot {cells['robot s']} s, planned in {cells['plan s']} s")
 
 
 def main(args: list[str]) -> None:

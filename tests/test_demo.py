@@ -17,9 +17,12 @@ def test_the_demo_summary_fits_100_columns_and_says_the_verdict(block_catalog):
     run = [sys.executable, str(ROOT / "samples" / "summarize.py")]
     line = subprocess.run([*run, "--line", str(summary)], check=True, capture_output=True, text=True).stdout
     assert line.count("\n") == 1 and len(line.rstrip("\n")) <= 100, line
-    assert line.startswith(f"{part.stem}: verify {'OK' if doc['verify']['ok'] else 'FAILED'}"), line
+    left = len(doc["verify"]["left"]) + len(doc["verify_op2"]["left"] if doc.get("verify_op2") else [])
+    verdict = ("verify FAILED" if not doc["verify"]["ok"] else f"stock left in {left} region" if left else
+               "verify OK, finished")
+    assert line.startswith(f"{part.stem}: {verdict}"), line
     ops = len(doc["setups"])
-    assert (f"{ops} ops" if ops > 1 else "1 op,") in line and f"stock left max {doc['verify']['remaining_max']:.3f} mm" in line
+    assert (f"{ops} ops" if ops > 1 else "1 op,") in line and f"left max {doc['verify']['remaining_max']:.3f} mm" in line
     table = subprocess.run([*run, str(summary), str(summary)], check=True, capture_output=True, text=True).stdout
     rows = table.splitlines()
     assert len(rows) == 3 and all(len(r) <= 100 for r in rows), table

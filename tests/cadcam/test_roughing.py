@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
 from cadcam.model import CuttingData, Motion, Setup, Tool
-from cadcam.rest import excess
+from cadcam.stock import excess
 from cadcam.roughing import RoughingOptions, zlevel_roughing
 from cadcam.stock import stock_after
 from factory.core.errors import ToolError, ToolpathError

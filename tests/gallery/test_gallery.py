@@ -40,9 +40,29 @@ def test_a_gallery_part_plans_and_its_consumers_accept_it(name: str, tmp_path: P
         assert done.returncode == 0 and "error" not in (done.stdout + done.stderr).lower(), done.stderr[-500:]
         # Finished to tolerance: nothing left above the part but the cell size's rounding on walls.
         assert report["remaining_max"] <= 0.05, (setup["op"], report["remaining_max"])
+        assert report["finished"] and report["left"] == [], report["left"]
         for e in report["engagement"]:
             # No tool cuts deeper than its flutes: the shank would rub, the flutes pack.
             assert e["max_depth"] <= library[e["tool"]].flute_length + 1e-6, e
+
+
+def test_stock_left_on_the_part_is_said_with_its_places_never_called_ok(tmp_path: Path) -> None:
+    """Three 4 mm slots the plan does not cut: the verdict says stock is left, where and how much, even
+    with --quiet, and never "verify OK" (the program itself is safe: exit 0)."""
+    stl = BY_NAME["narrow_slots"].write(tmp_path)
+    r = CliRunner().invoke(app, ["plan", str(stl), "-o", str(tmp_path / "out"), "--quiet", "--no-robot"])
+    assert r.exit_code == 0, r.output
+    doc = json.loads((tmp_path / "out" / "narrow_slots.plan.json").read_text())
+    left = doc["verify"]["left"]
+    first = r.output.splitlines()[0]
+    assert first.startswith(f"{stl.name}: verify: no gouge or crash, but stock left in {len(left)} region"), r.output
+    assert "verify OK" not in r.output
+    # the slots, 50 x 4 mm, 6 mm deep and 12 mm apart, each found whole (to a cell or two)
+    slots = sorted(left, key=lambda u: u["y"])
+    assert len(slots) == 3 and not doc["verify"]["finished"]
+    for k, u in enumerate(slots):
+        assert abs(u["size_x"] - 50.0) <= 1.0 and abs(u["size_y"] - 4.0) <= 1.0, u
+        assert abs(u["depth"] - 6.0) <= 0.1 and abs(u["y"] - slots[0]["y"] - 12.0 * k) <= 0.5, u
 
 
 def test_a_sheet_thinner_than_any_grip_is_refused_in_one_line(tmp_path: Path) -> None:
