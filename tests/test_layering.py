@@ -9,7 +9,6 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-import networkx as nx
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -69,3 +68,47 @@ def test_the_import_reader_sees_a_back_arrow(tmp_path: Path) -> None:
         assert _imports(probe) == [("factory.plan", 4)]
     finally:
         probe.unlink()
+
+
+#: The size a maintainer reads in one sitting: no module over 1,000 lines, no function over 120
+#: (decorators and docstring included); the database migrations are generated.
+MAX_FILE_LINES, MAX_FUNCTION_LINES = 1000, 120
+
+
+@pytest.mark.parametrize("path", _sources(*PROJECT), ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_module_or_function_is_too_long_to_read(path: Path) -> None:
+    text = path.read_text()
+    assert len(text.splitlines()) <= MAX_FILE_LINES, f"{path.relative_to(ROOT)}: {len(text.splitlines())} lines"
+    long = [f"{node.name} ({node.end_lineno - min([node.lineno, *(d.lineno for d in node.decorator_list)]) + 1} lines)"
+            for node in ast.walk(ast.parse(text))
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+            and node.end_lineno - min([node.lineno, *(d.lineno for d in node.decorator_list)]) + 1 > MAX_FUNCTION_LINES]
+    assert not long, f"{path.relative_to(ROOT)}: {', '.join(long)}"
+
+
+def test_no_two_modules_import_each_other_in_a_circle() -> None:
+    """Module-level imports of the project, functions' local ones included, form no circle."""
+    edges: dict[str, set[str]] = {}
+    modules = {_module(p): p for p in _sources(*PROJECT)}
+    for name, path in modules.items():
+        edges[name] = {m for m, _ in _imports(path) if m in modules and m != name}
+    # Tarjan-free: a depth-first search that meets a module still on its path has found a circle.
+    state: dict[str, int] = {}
+    path_stack: list[str] = []
+
+    def visit(m: str) -> list[str] | None:
+        state[m] = 1
+        path_stack.append(m)
+        for n in sorted(edges.get(m, ())):
+            if state.get(n) == 1:
+                return path_stack[path_stack.index(n):] + [n]
+            if n not in state and (found := visit(n)):
+                return found
+        state[m] = 2
+        path_stack.pop()
+        return None
+
+    for m in sorted(edges):
+        if m not in state:
+            found = visit(m)
+            assert found is None, " -> ".join(found)
