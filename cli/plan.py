@@ -23,7 +23,7 @@ _UNREACHED_SHOWN = 5
 @reports_errors
 @cam.cam_options
 def plan(
-    part: Annotated[Path, typer.Argument(help="Part mesh: STL, OBJ, 3MF or PLY.", dir_okay=False)],
+    part: Annotated[Path, typer.Argument(help="Part: STL, OBJ, 3MF, PLY or STEP (.step, .stp).", dir_okay=False)],
     out_dir: Annotated[Path, typer.Option("-o", "--output-dir", help="Folder for all outputs.", file_okay=False)] = Path("."),
     cam_flags: cam.CamFlags = cam.CamFlags(),
     post: PostOpt = PlanRequest.post,
