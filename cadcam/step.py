@@ -168,10 +168,10 @@ def read_step(path: str | Path, tolerance: float = CAM_TOLERANCE, body: int | No
     if not tolerance > 0:
         raise MeshError(f"tolerance must be positive, got {tolerance!r} mm", source=path)
     try:
-        head = path.read_bytes()[:4096]
+        data = path.read_bytes()
     except OSError as e:
         raise MeshError(f"cannot read file: {e.strerror or e}", source=path) from None
-    _check_header(head, path)
+    _check_frame(data, path)
     from OCP.IFSelect import IFSelect_ReturnStatus
     from OCP.OCP.collections import Sequence_TCollection_AsciiString
     from OCP.STEPControl import STEPControl_Reader
@@ -219,10 +219,16 @@ def read_step(path: str | Path, tolerance: float = CAM_TOLERANCE, body: int | No
                     body=body if len(solids) > 1 else None, closed=bool(solids), features=features)
 
 
-def _check_header(head: bytes, path: Path) -> None:
-    """Refuse what is not an ISO 10303-21 file before OpenCASCADE sees it."""
-    text = head.lstrip(b"\xef\xbb\xbf \t\r\n")
+def _check_frame(data: bytes, path: Path) -> None:
+    """Refuse what is not a whole ISO 10303-21 file before OpenCASCADE sees it.
+
+    OpenCASCADE reads what it can of a cut-off file and transfers whatever solids survive; the
+    standard's end line is the one sign that the file is whole.
+    """
+    text = data[:4096].lstrip(b"\xef\xbb\xbf \t\r\n")
     if text.startswith(b"ISO-10303-21"):
+        if not data.rstrip().endswith(b"END-ISO-10303-21;"):
+            raise MeshError("truncated STEP file: it does not end with END-ISO-10303-21;", source=path)
         return
     first = text.split(b"\n", 1)[0].rstrip(b"\r")
     if len(first) == 80 and first[72:73] == b"S" and first[73:80].strip().isdigit():
@@ -395,6 +401,7 @@ def recognise(shape, faces: list, vertices: np.ndarray, triangles: np.ndarray, c
     near = _neighbours(shape, faces)
     span = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 1.0
     eps = 1e-7 * max(span, 1.0)  # geometric coincidence [mm]
+    over = _Over.of(vertices, triangles)
     holes: list[RoundHole] = []
     elsewhere: list[SetupHole] = []
     corners: list[InsideCorner] = []
@@ -416,7 +423,7 @@ def recognise(shape, faces: list, vertices: np.ndarray, triangles: np.ndarray, c
             elsewhere.append(_setup_hole(walls, "axis off Z"))
             continue
         hole = _round_hole(walls, group, info, near, eps)
-        if not _open_above(hole, vertices, triangles, chord, eps):
+        if not _open_above(hole, over, chord, eps):
             elsewhere.append(_setup_hole(walls, "covered from above"))
             continue
         holes.append(hole)
@@ -497,21 +504,21 @@ def _round_hole(walls: list[_Face], group: list[int], info: list[_Face], near: l
                      bottom=end, source="step")  # type: ignore[arg-type]
 
 
-def _open_above(hole: RoundHole, vertices: np.ndarray, triangles: np.ndarray, chord: float, eps: float) -> bool:
+def _open_above(hole: RoundHole, over: "_Over", chord: float, eps: float) -> bool:
     """Nothing of the part over the bore: no triangle above its top reaches into its circle (less the chord)."""
-    tri = vertices[triangles]
-    above = tri[:, :, 2].mean(axis=1) > hole.top_z + max(eps, chord)
-    if not above.any():
-        return True
-    t = tri[above][:, :, :2] - np.array([hole.x, hole.y])
     reach = hole.diameter / 2 - 2 * chord
-    # The disk meets a triangle when its centre is inside it or an edge passes within reach.
+    pick = (over.zc > hole.top_z + max(eps, chord)) & np.all(over.lo <= (hole.x + reach, hole.y + reach), axis=1) \
+        & np.all(over.hi >= (hole.x - reach, hole.y - reach), axis=1)
+    if not pick.any():
+        return True
+    t = over.xy[pick] - np.array([hole.x, hole.y])
     a, b, c = t[:, 0], t[:, 1], t[:, 2]
 
     def cross(p, q):
         return p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0]
 
-    s1, s2, s3 = cross(a, b - a) * -1, cross(b, c - b) * -1, cross(c, a - c) * -1
+    # The disk meets a triangle when its centre is inside it or an edge passes within reach.
+    s1, s2, s3 = cross(a, b - a), cross(b, c - b), cross(c, a - c)
     inside = ((s1 >= 0) & (s2 >= 0) & (s3 >= 0)) | ((s1 <= 0) & (s2 <= 0) & (s3 <= 0))
 
     def dist(p, q):
@@ -522,3 +529,20 @@ def _open_above(hole: RoundHole, vertices: np.ndarray, triangles: np.ndarray, ch
 
     near = np.minimum(np.minimum(dist(a, b), dist(b, c)), dist(c, a)) < reach
     return not bool((inside | near).any())
+
+
+@dataclass(frozen=True)
+class _Over:
+    """The tessellation as :func:`_open_above` looks at it: triangles' XY corners (m, 3, 2) [mm], their
+    XY boxes (m, 2) [mm] and the Z of their centroids (m,) [mm]."""
+
+    xy: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    zc: np.ndarray
+
+    @classmethod
+    def of(cls, vertices: np.ndarray, triangles: np.ndarray) -> "_Over":
+        tri = vertices[triangles]
+        xy = tri[:, :, :2]
+        return cls(xy=xy, lo=xy.min(axis=1), hi=xy.max(axis=1), zc=tri[:, :, 2].mean(axis=1))
