@@ -2,8 +2,8 @@
 
 Each builder returns the part and the modelling parameters the recognised features must equal:
 plates with through holes, blind holes with flat and drill-point (118 deg) bottoms, an inch part,
-two solids in one file, an inclined hole, a surfaces-only file, and a pattern of many holes for
-the intake benchmark. Millimetres unless a name says otherwise; the plate's top is at Z = 0.
+two solids in one file, an inclined hole, a surfaces-only file, and a plate of many pockets and
+holes for the intake benchmark. Millimetres unless a name says otherwise; the plate's top is at Z = 0.
 """
 
 from __future__ import annotations
@@ -108,17 +108,25 @@ def pillow_surface():
     return Shell(top)
 
 
-def hole_pattern(columns: int = 12, rows: int = 8, pitch: float = 12.0) -> tuple[object, list[ModelledHole]]:
-    """A plate with ``columns x rows`` holes of cycling sizes and ends (through, flat, drill point): about
-    ``4 * columns * rows + 6`` B-rep faces (500 for 12 x 10)."""
+def feature_plate(columns: int = 10, rows: int = 8, pitch: float = 14.0) -> tuple[object, list[ModelledHole]]:
+    """A plate with a grid of features, alternating a 9 x 7 x 3 mm pocket with R1.5 inside corners (9 faces) and a
+    hole cycling through drill sizes and ends: about 500 B-rep faces at 12 x 8 (the intake benchmark's part)."""
+    from build123d import Align, Axis, Box, Pos, fillet
+
     sizes = [3.3, 4.2, 5.0, 6.8, 8.5]
-    holes = []
+    holes, pockets = [], []
     for i in range(columns):
         for j in range(rows):
             k = i * rows + j
-            x = (i - (columns - 1) / 2) * pitch
-            y = (j - (rows - 1) / 2) * pitch
-            kind = k % 3
-            depth = None if kind == 0 else 6.0 + (k % 4)
-            holes.append(ModelledHole(x, y, sizes[k % len(sizes)], depth, "conical" if kind == 2 else "flat"))
-    return plate((columns * pitch + 10, rows * pitch + 10, 16.0), holes), holes
+            x, y = (i - (columns - 1) / 2) * pitch, (j - (rows - 1) / 2) * pitch
+            if (i + j) % 2:
+                pocket = Pos(x, y, 0) * Box(9, 7, 3, align=(Align.CENTER, Align.CENTER, Align.MAX))
+                pockets.append(fillet(pocket.edges().filter_by(Axis.Z), 1.5))
+            else:
+                kind = k % 3
+                depth = None if kind == 0 else 6.0 + (k % 4)
+                holes.append(ModelledHole(x, y, sizes[k % len(sizes)], depth, "conical" if kind == 2 else "flat"))
+    part = plate((columns * pitch + 10, rows * pitch + 10, 16.0), holes)
+    for pocket in pockets:
+        part = part - pocket
+    return part, holes
