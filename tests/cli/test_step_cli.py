@@ -93,3 +93,17 @@ def test_two_solids_need_a_body(tmp_path):
     assert not (tmp_path / "two.mcap").exists()
     r = run("toolpath", path, "-o", tmp_path / "two.mcap", "--body", "2", "--quiet", "--scallop", "0.02")
     assert r.exit_code == 0, r.output
+
+
+def test_tight_inside_corners_are_reported_before_the_toolpaths(tmp_path, caplog):
+    from build123d import Align, Axis, Box, fillet
+
+    block = Box(40, 30, 8, align=(Align.CENTER, Align.CENTER, Align.MAX))
+    pocket = Box(20, 14, 4, align=(Align.CENTER, Align.CENTER, Align.MAX))
+    path = write_step(block - fillet(pocket.edges().filter_by(Axis.Z), 0.5), tmp_path / "pocket.step")
+    r = run("toolpath", path, "-o", tmp_path / "pocket.mcap", "--scallop", "0.02")
+    assert r.exit_code == 0, r.output
+    said = [rec.getMessage() for rec in caplog.records if rec.levelname == "WARNING"]
+    corners = [i for i, line in enumerate(said) if "inside corner" in line]
+    assert len(corners) == 4 and corners == list(range(4)), said  # the first warnings, before roughing's
+    assert all("R0.500" in said[i] and "the smallest end mill is 2 mm (T6): left with R1" in said[i] for i in corners)
