@@ -138,7 +138,8 @@ class StepPart:
 
     def to_dict(self) -> dict[str, Any]:
         """The intake's figures and features for the plan summary."""
-        return {"format": "step", "unit": self.unit, "scale": self.scale, "tolerance_mm": self.tolerance,
+        return {"format": "step", "unit": self.unit, "units": self.units, "scale": self.scale,
+                "tolerance_mm": self.tolerance,
                 "chordal_deviation_mm": self.chordal_deviation, "chord_share": CHORD_SHARE,
                 "brep_faces": self.brep_faces, "triangles": int(len(self.faces)),
                 "solids": [s.describe() for s in self.solids], "body": self.body, "closed": self.closed,
@@ -210,7 +211,7 @@ def read_step(path: str | Path, tolerance: float = CAM_TOLERANCE, body: int | No
     if not faces:
         raise MeshError("STEP file holds no geometry: no solid and no surface", source=path)
     chord = chordal_deviation(tolerance)
-    vertices, triangles, owner = _tessellate(taken, faces, chord)
+    vertices, triangles = _tessellate(taken, faces, chord)
     if not len(triangles):
         raise MeshError("STEP file's faces tessellate to no triangles", source=path)
     features = recognise(taken, faces, vertices, triangles, chord) if solids else PartFeatures()
@@ -253,8 +254,19 @@ def _quiet_stdout() -> Iterator[None]:
         try:
             yield
         finally:
+            sys.stdout.flush()
+            _flush_c_stdio()  # what OpenCASCADE left in C's buffers goes to the sink, not to stdout later
             os.dup2(saved, 1)
             os.close(saved)
+
+
+def _flush_c_stdio() -> None:
+    import ctypes
+
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):  # no C library to flush: nothing buffered there
+        pass
 
 
 def _shapes(shape, kind) -> list:
@@ -278,8 +290,8 @@ def _box_size(shape) -> tuple[float, float, float]:
     return (hi.X() - lo.X(), hi.Y() - lo.Y(), hi.Z() - lo.Z())
 
 
-def _tessellate(shape, faces: list, chord: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mesh ``shape`` to chordal deviation ``chord`` [mm]: nodes (n, 3), triangles (m, 3), owning face (m,)."""
+def _tessellate(shape, faces: list, chord: float) -> tuple[np.ndarray, np.ndarray]:
+    """Mesh ``shape`` to chordal deviation ``chord`` [mm]: nodes (n, 3) [mm] and triangles (m, 3)."""
     from OCP.BRep import BRep_Tool
     from OCP.BRepMesh import BRepMesh_IncrementalMesh
     from OCP.TopAbs import TopAbs_REVERSED
@@ -287,9 +299,9 @@ def _tessellate(shape, faces: list, chord: float) -> tuple[np.ndarray, np.ndarra
     from OCP.TopoDS import TopoDS
 
     BRepMesh_IncrementalMesh(shape, chord, False, ANGULAR_DEFLECTION, True)
-    nodes, tris, owner = [], [], []
+    nodes, tris = [], []
     base = 0
-    for index, f in enumerate(faces):
+    for f in faces:
         face = TopoDS.Face(f)
         loc = TopLoc_Location()
         mesh = BRep_Tool.Triangulation_s(face, loc)
@@ -304,11 +316,10 @@ def _tessellate(shape, faces: list, chord: float) -> tuple[np.ndarray, np.ndarra
             tri = tri[:, ::-1]
         nodes.append(pts)
         tris.append(tri + base)
-        owner.append(np.full(len(tri), index))
         base += len(pts)
     if not tris:
-        return np.empty((0, 3)), np.empty((0, 3), dtype=np.int64), np.empty(0, dtype=np.int64)
-    return np.concatenate(nodes), np.concatenate(tris), np.concatenate(owner)
+        return np.empty((0, 3)), np.empty((0, 3), dtype=np.int64)
+    return np.concatenate(nodes), np.concatenate(tris)
 
 
 # --------------------------------------------------------------------------- recognition
@@ -370,25 +381,33 @@ def _face_info(index: int, f) -> _Face:
     return _Face(kind="other", location=point, axis=normal, **common)
 
 
-def _neighbours(shape, faces: list) -> list[set[int]]:
-    """For each face (by its index in ``faces``), the indices of the faces sharing an edge with it."""
-    from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE
-    from OCP.OCP.collections import IndexedDataMap_TopoDS_Shape_List_TopoDS_Shape_TopTools_ShapeMapHasher as EdgeFaces
-    from OCP.OCP.collections import IndexedMap_TopoDS_Shape_TopTools_ShapeMapHasher as ShapeMap
-    from OCP.TopExp import TopExp
+class _Adjacency:
+    """Which faces share an edge with a face: OpenCASCADE's edge-to-faces map, asked only for the faces that need it."""
 
-    index = ShapeMap()
-    for f in faces:
-        index.Add(f)
-    edges = EdgeFaces()
-    TopExp.MapShapesAndAncestors_s(shape, TopAbs_EDGE, TopAbs_FACE, edges)
-    out: list[set[int]] = [set() for _ in faces]
-    for e in range(1, edges.Extent() + 1):
-        owners = {index.FindIndex(f) - 1 for f in edges.FindFromIndex(e)}
-        owners.discard(-1)
-        for a in owners:
-            out[a] |= owners - {a}
-    return out
+    def __init__(self, shape, faces: list) -> None:
+        from OCP.OCP.collections import IndexedDataMap_TopoDS_Shape_List_TopoDS_Shape_TopTools_ShapeMapHasher as EdgeFaces
+        from OCP.OCP.collections import IndexedMap_TopoDS_Shape_TopTools_ShapeMapHasher as ShapeMap
+        from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE
+        from OCP.TopExp import TopExp
+
+        self._faces = faces
+        self._index = ShapeMap()
+        for f in faces:
+            self._index.Add(f)
+        self._edges = EdgeFaces()
+        TopExp.MapShapesAndAncestors_s(shape, TopAbs_EDGE, TopAbs_FACE, self._edges)
+
+    def of(self, i: int) -> set[int]:
+        """Indices (into ``faces``) of the faces sharing an edge with face ``i``."""
+        from OCP.TopAbs import TopAbs_EDGE
+
+        out: set[int] = set()
+        for edge in _shapes(self._faces[i], TopAbs_EDGE):
+            for f in self._edges.FindFromKey(edge):
+                out.add(self._index.FindIndex(f) - 1)
+        out.discard(-1)
+        out.discard(i)
+        return out
 
 
 def recognise(shape, faces: list, vertices: np.ndarray, triangles: np.ndarray, chord: float) -> PartFeatures:
@@ -398,7 +417,7 @@ def recognise(shape, faces: list, vertices: np.ndarray, triangles: np.ndarray, c
     to tell whether anything of the part lies over a bore; ``chord`` [mm] its chordal deviation.
     """
     info = [_face_info(i, f) for i, f in enumerate(faces)]
-    near = _neighbours(shape, faces)
+    near = _Adjacency(shape, faces)
     span = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 1.0
     eps = 1e-7 * max(span, 1.0)  # geometric coincidence [mm]
     over = _Over.of(vertices, triangles)
@@ -447,20 +466,23 @@ def _radial(f: _Face) -> np.ndarray:
 
 def _bores(info: list[_Face], eps: float) -> list[list[int]]:
     """Cylindrical faces grouped by their axis line and radius: the pieces of one bore or one fillet."""
-    groups: list[tuple[_Face, list[int]]] = []
+    groups: list[tuple[float, tuple[float, ...], tuple[float, ...], list[int]]] = []
     for f in info:
         if f.kind != "cylinder":
             continue
-        for first, members in groups:
-            off = f.location - first.location
-            off = off - np.dot(off, first.axis) * first.axis
-            if abs(f.radius - first.radius) <= eps and abs(abs(float(np.dot(f.axis, first.axis))) - 1) < 1e-9 \
-                    and float(np.linalg.norm(off)) <= eps:
+        # Plain floats: a part has hundreds of fillets, and numpy's per-call cost would dominate.
+        ax, loc = tuple(float(c) for c in f.axis), tuple(float(c) for c in f.location)
+        for radius, axis, origin, members in groups:
+            if abs(f.radius - radius) > eps or abs(abs(sum(a * b for a, b in zip(ax, axis))) - 1) >= 1e-9:
+                continue
+            off = [p - q for p, q in zip(loc, origin)]
+            along = sum(o * a for o, a in zip(off, axis))
+            if math.dist(off, [along * a for a in axis]) <= eps:
                 members.append(f.index)
                 break
         else:
-            groups.append((f, [f.index]))
-    return [members for _, members in groups]
+            groups.append((f.radius, ax, loc, [f.index]))
+    return [members for *_, members in groups]
 
 
 def _z_range(walls: list[_Face]) -> tuple[float, float]:
@@ -480,14 +502,14 @@ def _setup_hole(walls: list[_Face], reason: str) -> SetupHole:
                      diameter=2 * w.radius, length=t1 - t0, reason=reason, source="step")
 
 
-def _round_hole(walls: list[_Face], group: list[int], info: list[_Face], near: list[set[int]],
+def _round_hole(walls: list[_Face], group: list[int], info: list[_Face], near: _Adjacency,
                 eps: float) -> RoundHole:
     """A full bore along Z: its exact size and what ends it at the bottom."""
     w = walls[0]
     bottom, top = _z_range(walls)
     x, y, r = float(w.location[0]), float(w.location[1]), w.radius
     end, tip = "other", bottom
-    for j in set().union(*(near[i] for i in group)) - set(group):
+    for j in set().union(*(near.of(i) for i in group)) - set(group):
         n = info[j]
         if n.kind == "plane" and abs(abs(float(n.normal[2])) - 1) < _ALONG_Z and abs(float(n.point[2]) - bottom) <= eps:
             if n.normal[2] < 0:

@@ -60,6 +60,11 @@ def plan(
         print_json(summary)
     elif not quiet:
         robot_text = f"; robot load+unload {summary['robot']['motion_s']:.1f} s" if summary["robot"] else ""
+        if summary.get("intake"):  # a STEP part: what its B-rep gave
+            got = summary["intake"]
+            stderr.print(f"{part.name}: STEP in {got['units'] or got['unit']}, {got['brep_faces']} B-rep faces tessellated to "
+                         f"{got['triangles']} triangles within {got['chordal_deviation_mm']:g} mm; "
+                         f"{len(got['features']['holes'])} round holes read exactly", highlight=False, markup=False)
         holes = summary["holes"]
         if holes.get("holes"):
             stderr.print(f"{part.name}: {len(holes['holes'])} round holes, {len(holes['drilled'])} drilled, "

@@ -35,9 +35,10 @@ def plans(tmp_path_factory):
     part = plate((60, 40, 12), HOLES)
     out = {}
     for name, path in (("step", write_step(part, d / "plate.step")), ("stl", write_stl(part, d / "plate.stl"))):
-        r = run("plan", path, "-o", d / name, "--json")
+        r = run("plan", path, "-o", d / name)
         assert r.exit_code == 0, r.output
-        out[name] = (json.loads(r.stdout), d / name)
+        out[name] = (json.loads((d / name / "plate.plan.json").read_text()), d / name)
+        out[f"{name} said"] = r.stderr
     return out
 
 
@@ -56,6 +57,8 @@ def test_step_plan_states_its_intake_and_exact_holes(plans):
     assert sorted(h["diameter"] for h in planned["drilled"]) == pytest.approx([4.2, 5.0, 6.8], abs=1e-6)
     assert sorted(h["diameter"] for h in planned["helixed"]) == pytest.approx([3.3, 8.0], abs=1e-6)
     assert summary["verify"]["ok"] and summary["verify_op2"] is not None
+    assert intake["units"] == "mm" and "plate.step: STEP in mm, " in plans["step said"]
+    assert "triangles within 0.0025 mm; 5 round holes read exactly" in plans["step said"]
 
 
 @pytest.mark.skipif(shutil.which("rs274") is None, reason="LinuxCNC's rs274 is not installed (apt-get install linuxcnc-uspace)")
