@@ -38,7 +38,7 @@ def plans(tmp_path_factory):
         r = run("plan", path, "-o", d / name)
         assert r.exit_code == 0, r.output
         out[name] = (json.loads((d / name / "plate.plan.json").read_text()), d / name)
-        out[f"{name} said"] = r.stderr
+        out[f"{name} said"] = " ".join(r.stderr.split())  # rich wraps lines at the terminal's width
     return out
 
 
