@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
@@ -64,12 +65,12 @@ def test_step_plan_states_its_intake_and_exact_holes(plans):
 @pytest.mark.skipif(shutil.which("rs274") is None, reason="LinuxCNC's rs274 is not installed (apt-get install linuxcnc-uspace)")
 def test_linuxcnc_accepts_both_programs_of_the_step_part(plans, tmp_path):
     summary, out = plans["step"]
+    table = Path(summary["outputs"]["tool_table"])  # the job's own, for both programs
+    assert len(summary["setups"]) == 2
     for i, setup in enumerate(summary["setups"]):
-        sheet = json.loads((out / setup["setup_sheet"].split("/")[-1]).read_text())
-        table = "".join(f"T{t['number']} P{t['number']} Z{t['length']} D{t['diameter']}\n" for t in sheet["tools"])
         folder = tmp_path / f"op{i + 1}"
         folder.mkdir()
-        p = run_rs274(out / setup["program"].split("/")[-1], table, folder, timeout=300)
+        p = run_rs274(Path(setup["program"]), table, folder, timeout=300)
         assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
 
 
