@@ -375,6 +375,7 @@ def plan_holes(
     options: DrillingOptions = DrillingOptions(),
     rough_min_helix: float | None = None,
     allowance: float = 0.0,
+    holes: tuple[Hole, ...] | None = None,
 ) -> HolePlan:
     """Find the part's round holes and the operations that cut them, before roughing.
 
@@ -405,8 +406,11 @@ def plan_holes(
         Narrowest helix the roughing enters with [mm]; default ``0.3 d_rough``.
     allowance : float
         Stock roughing leaves on walls [mm].
+    holes : tuple of Hole, optional
+        The holes, exact, when the part came with them (a STEP file's B-rep,
+        :mod:`cadcam.features`); None: found in the mesh (:func:`find_holes`).
     """
-    holes = find_holes(part, options)
+    holes = find_holes(part, options) if holes is None else holes
     if not holes:
         return HolePlan((), (), (), (), (), ())
     mat = setup.material

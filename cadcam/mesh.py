@@ -38,6 +38,7 @@ from factory.core.errors import MeshError, SetupError
 
 if TYPE_CHECKING:
     from cadcam.relief import SurfaceFound
+    from cadcam.step import StepPart
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +65,7 @@ def units_of_scale(scale: float, source: str | None = None) -> Units:
 #: the file is far more likely in the wrong units than a real job for a milling machine.
 MIN_EXTENT_MM = 1.0
 
-_FORMATS = {".stl": "stl", ".obj": "obj", ".ply": "ply", ".3mf": "3mf"}
+_FORMATS = {".stl": "stl", ".obj": "obj", ".ply": "ply", ".3mf": "3mf", ".step": "step", ".stp": "step"}
 
 
 # Vertices closer than this fraction of the part size are one vertex (1 um on a 100 mm part: far
@@ -102,6 +103,9 @@ class PartMesh:
     surface : SurfaceFound or None
         None for a closed solid; for an open surface, what was found (boundary edges, shells,
         footprint [mm]): it is machined from above as a relief.
+    step : StepPart or None
+        For a STEP file (:mod:`cadcam.step`): its unit, tessellation and the features read from
+        its exact B-rep; None for a mesh file.
     """
 
     mesh: trimesh.Trimesh
@@ -109,19 +113,31 @@ class PartMesh:
     sha256: str
     repairs: tuple[str, ...]
     surface: SurfaceFound | None = None
+    step: StepPart | None = None
+
+    def intake_summary(self) -> dict:
+        """``{"intake": ...}`` for the plan summary of a STEP part (unit, chordal deviation, features); {} for a mesh."""
+        return {} if self.step is None else {"intake": self.step.to_dict()}
 
 
-def load_part(path: str | Path, units: Units = "auto") -> PartMesh:
-    """Read a part mesh file, check and repair it, and scale it to millimetres.
+def load_part(path: str | Path, units: Units = "auto", *, tolerance: float | None = None,
+              body: int | None = None) -> PartMesh:
+    """Read a part file, check and repair it, and scale it to millimetres.
 
     Parameters
     ----------
     path : str or Path
-        STL (ASCII or binary), OBJ, PLY or 3MF file. Multi-body files (scenes) are merged
-        into one mesh.
+        STL (ASCII or binary), OBJ, PLY, 3MF or STEP (``.step``, ``.stp``) file. Multi-body
+        mesh files (scenes) are merged into one mesh; a STEP file's solid is chosen by ``body``.
     units : {"auto", "mm", "inch", "m"}
-        Units of the file's coordinates. ``"auto"`` takes the unit a 3MF file declares, and
-        millimetres for every other format.
+        Units of the file's coordinates. ``"auto"`` takes the unit a 3MF or STEP file declares,
+        and millimetres for every other format. A STEP file's own unit always holds: another
+        ``units`` is refused.
+    tolerance : float, optional
+        STEP only: the CAM tolerance [mm] its tessellation's chordal deviation is a share of
+        (:func:`cadcam.step.chordal_deviation`); default :data:`cadcam.step.CAM_TOLERANCE`.
+    body : int, optional
+        STEP only: which solid (1-based) of a file with several.
 
     Returns
     -------
@@ -142,7 +158,7 @@ def load_part(path: str | Path, units: Units = "auto") -> PartMesh:
     fmt = _FORMATS.get(path.suffix.lower())
     if fmt is None:
         raise MeshError(
-            f"unknown mesh format {path.suffix or '(no extension)'!r}: expected .stl, .obj, .ply or .3mf",
+            f"unknown part format {path.suffix or '(no extension)'!r}: expected .stl, .obj, .ply, .3mf, .step or .stp",
             source=path,
         )
     try:
@@ -157,9 +173,19 @@ def load_part(path: str | Path, units: Units = "auto") -> PartMesh:
         raise MeshError("file is empty", source=path)
     sha = hashlib.sha256(data).hexdigest()
 
-    if fmt == "stl":
-        data = _check_stl_size(data, path)
-    vertices, faces, declared_scale = _read_with_trimesh(data, fmt, path)
+    step = None
+    if fmt == "step":
+        from cadcam.step import CAM_TOLERANCE, read_step  # OpenCASCADE loads only for STEP files
+
+        step = read_step(path, CAM_TOLERANCE if tolerance is None else tolerance, body)
+        if units not in ("auto", step.units):
+            raise MeshError(f"the STEP file states its unit as {step.unit}: --units {units} contradicts it",
+                            source=path)
+        vertices, faces, declared_scale = step.vertices, step.faces, step.scale
+    else:
+        if fmt == "stl":
+            data = _check_stl_size(data, path)
+        vertices, faces, declared_scale = _read_with_trimesh(data, fmt, path)
 
     if units == "auto":
         scale = declared_scale if declared_scale is not None else 1.0
@@ -174,14 +200,14 @@ def load_part(path: str | Path, units: Units = "auto") -> PartMesh:
     if not (mesh.is_watertight and mesh.is_winding_consistent):
         from cadcam.relief import judge_surface  # the relief module needs shapely; solids do not
 
-        mesh, surface, notes = judge_surface(mesh, scale, source=str(path))
+        mesh, surface, notes = judge_surface(mesh, scale if step is None else 1.0, source=str(path))
         repairs += notes
-    if scale != 1.0:
+    if scale != 1.0 and step is None:  # OpenCASCADE gives a STEP file's coordinates in mm already
         mesh.apply_scale(scale)
     _check_size(mesh, units, path)
     for note in repairs:
         log.info("%s: %s", path, note)
-    return PartMesh(mesh=mesh, scale=float(scale), sha256=sha, repairs=tuple(repairs), surface=surface)
+    return PartMesh(mesh=mesh, scale=float(scale), sha256=sha, repairs=tuple(repairs), surface=surface, step=step)
 
 
 def _check_stl_size(data: bytes, path: Path) -> bytes:
@@ -265,7 +291,7 @@ def _make_solid(
     mesh.merge_vertices()
     merged = n0 - len(mesh.vertices)
     # STL stores every triangle's corners separately: merging is reading, not repairing.
-    if merged and fmt != "stl":
+    if merged and fmt not in ("stl", "step"):
         repairs.append(f"merged {merged} duplicate vertices")
     tol = _WELD_TOLERANCE * float(np.ptp(mesh.vertices, axis=0).max())
     mesh, welded = _weld(mesh, tol)

@@ -24,7 +24,7 @@ from typing import Any, TypeVar
 import numpy as np
 import trimesh
 
-from cadcam.drilling import DrillingOptions, HolePlan, plan_holes
+from cadcam.drilling import DrillingOptions, Hole, HolePlan, plan_holes
 from cadcam.faces import SHALLOW, STEEP, FaceClasses, classify_faces
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
 from cadcam.flatfinish import WALL_HAIR, FlatFinishOptions, flat_wall_finishing, left_on_flats_and_walls
@@ -270,6 +270,7 @@ def plan_job(
     options: PlanOptions = PlanOptions(),
     progress: StageProgress | None = None,
     boundary: Boundary | None = None,
+    holes: tuple[Hole, ...] | None = None,
 ) -> PlanJobResult:
     """Compute the operations that cut ``part`` out of the stock described by ``setup``.
 
@@ -293,6 +294,9 @@ def plan_job(
     boundary : Boundary, optional
         A relief's boundary (:mod:`cadcam.relief`): every tool stays within it, and the stock
         outside what it lets the roughing tool cut counts as no excess (nothing unreached there).
+    holes : tuple of Hole, optional
+        The part's round holes in work coordinates when they are known exactly (a STEP file's
+        B-rep, :mod:`cadcam.features`); None: drilling finds them in the mesh.
 
     Returns
     -------
@@ -315,7 +319,7 @@ def plan_job(
         An operation cannot be computed.
     """
     plan = _Planning.start(part, setup, library, options, progress, boundary)
-    holes, operations, stock = _holes_and_roughing(plan)
+    holes, operations, stock = _holes_and_roughing(plan, holes)
     stock = _rest_roughing(plan, operations, stock)
     left = _unreached(plan, stock)
     if plan.faces is not None and stock is not None:
@@ -392,12 +396,15 @@ class _Planning:
         return sim
 
 
-def _holes_and_roughing(plan: _Planning) -> tuple[HolePlan | None, list[Operation], Simulation | None]:
-    """Drilled and helixed holes, then z-level roughing; the operations and the stock they leave."""
+def _holes_and_roughing(plan: _Planning, exact: tuple[Hole, ...] | None = None
+                        ) -> tuple[HolePlan | None, list[Operation], Simulation | None]:
+    """Drilled and helixed holes, then z-level roughing; the operations and the stock they leave.
+
+    ``exact``: the round holes when the part came with them (work coordinates), else found in the mesh."""
     options, setup, part = plan.options, plan.setup, plan.part
     t0 = time.perf_counter()
     holes = plan_holes(part, setup, plan.library, plan.rough_tool, options.drilling, options.roughing.min_helix_diameter,
-                       options.roughing.allowance) if options.holes else None
+                       options.roughing.allowance, exact) if options.holes else None
     plan.seconds.append(("holes", time.perf_counter() - t0))
     rough = plan.timed("roughing", lambda: zlevel_roughing(part, setup, plan.rough_tool, plan.rough_cutting,
                                                             options.roughing, progress=plan.stage_progress("roughing"),

@@ -39,6 +39,7 @@ AllowanceOpt = Annotated[float, typer.Option("--allowance", help="Stock roughing
 ScallopOpt = Annotated[float, typer.Option("--scallop", help=f"Scallop height the ball end mill leaves [mm]; default: {PlanOptions.freeform_scallop:g} on a solid's freeform faces, {SCALLOP:g} over a relief.", min=1e-4, show_default=False)]
 StepdownOpt = Annotated[float | None, typer.Option("--stepdown", help="Roughing depth per level [mm].", min=0.01)]
 WaterlineOpt = Annotated[bool, typer.Option("--waterline/--no-waterline", help="Finish steep walls with waterline loops.")]
+BodyOpt = Annotated[int | None, typer.Option("--body", help="STEP file with several solids: the one to machine (1-based).", min=1)]
 FloorOpt = Annotated[float, typer.Option("--floor", help="Relief (open surface) only: stock left under its lowest point [mm].", min=0.0)]
 BoundaryOpt = Annotated[str, typer.Option("--boundary", help="Relief only: the tool inside, centre on, or outside the footprint's outline: inside, on or outside.")]
 FLOOR = ReliefOptions.floor
@@ -68,12 +69,13 @@ class CamFlags:
     waterline: WaterlineOpt = True
     floor: FloorOpt = FLOOR
     boundary: BoundaryOpt = BOUNDARY
+    body: BodyOpt = None
 
     def request(self, part: Path, cell: Path | None) -> CamRequest:
         """The request for ``part`` held in ``cell``'s vise (see :func:`cam_request`)."""
         return cam_request(part, self.tools, self.stock, self.material, self.units, self.origin, self.rough_tool,
                            self.finish_tool, self.allowance, self.scallop, self.stepdown, self.waterline, self.holding,
-                           cell, self.floor, self.boundary)
+                           cell, self.floor, self.boundary, self.body)
 
 
 def cam_options(command: C) -> C:
@@ -110,7 +112,7 @@ def cam_options(command: C) -> C:
 def cam_request(part: Path, tools: Path | None, stock: str | None, material: str, units: Units, origin: Origin,
                 rough_tool: int | None, finish_tool: int | None, allowance: float, scallop: float, stepdown: float | None,
                 waterline: bool, holding: float | None = HOLDING, cell: Path | None = CELL, floor: float = FLOOR,
-                boundary: str = BOUNDARY) -> CamRequest:
+                boundary: str = BOUNDARY, body: int | None = None) -> CamRequest:
     """The request of one command line; a malformed or unmachinable ``--stock`` or an unknown
     ``--boundary`` is a usage error before any work."""
     if boundary not in ("inside", "on", "outside"):
@@ -123,4 +125,4 @@ def cam_request(part: Path, tools: Path | None, stock: str | None, material: str
             raise typer.BadParameter(e.message, param_hint="--stock") from None
     return CamRequest.from_options(part, tools, size, material, units, origin, rough_tool, finish_tool, allowance,
                                    scallop, stepdown, waterline, holding, cell,
-                                   ReliefOptions(floor=floor, boundary=boundary))  # type: ignore[arg-type]
+                                   ReliefOptions(floor=floor, boundary=boundary), body)  # type: ignore[arg-type]

@@ -23,7 +23,7 @@ _UNREACHED_SHOWN = 5
 @reports_errors
 @cam.cam_options
 def plan(
-    part: Annotated[Path, typer.Argument(help="Part mesh: STL, OBJ, 3MF or PLY.", dir_okay=False)],
+    part: Annotated[Path, typer.Argument(help="Part: STL, OBJ, 3MF, PLY or STEP (.step, .stp).", dir_okay=False)],
     out_dir: Annotated[Path, typer.Option("-o", "--output-dir", help="Folder for all outputs.", file_okay=False)] = Path("."),
     cam_flags: cam.CamFlags = cam.CamFlags(),
     post: PostOpt = PlanRequest.post,
@@ -60,6 +60,11 @@ def plan(
         print_json(summary)
     elif not quiet:
         robot_text = f"; robot load+unload {summary['robot']['motion_s']:.1f} s" if summary["robot"] else ""
+        if summary.get("intake"):  # a STEP part: what its B-rep gave
+            got = summary["intake"]
+            stderr.print(f"{part.name}: STEP in {got['units'] or got['unit']}, {got['brep_faces']} B-rep faces tessellated to "
+                         f"{got['triangles']} triangles within {got['chordal_deviation_mm']:g} mm; "
+                         f"{len(got['features']['holes'])} round holes read exactly", highlight=False, markup=False)
         holes = summary["holes"]
         if holes.get("holes"):
             stderr.print(f"{part.name}: {len(holes['holes'])} round holes, {len(holes['drilled'])} drilled, "

@@ -19,7 +19,7 @@ from factory.core.progress import Stopwatch
 @reports_errors
 @cam.cam_options
 def toolpath(
-    part: Annotated[Path, typer.Argument(help="Part mesh: STL, OBJ, 3MF or PLY.", dir_okay=False)],
+    part: Annotated[Path, typer.Argument(help="Part: STL, OBJ, 3MF, PLY or STEP (.step, .stp).", dir_okay=False)],
     output: Annotated[Path, typer.Option("-o", "--output", help="Toolpath MCAP to write.", dir_okay=False)],
     png: Annotated[Path | None, typer.Option("--png", help="Also write a top-view picture of the toolpaths.", dir_okay=False)] = None,
     cam_flags: cam.CamFlags = cam.CamFlags(),

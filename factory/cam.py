@@ -79,7 +79,8 @@ class CamRequest:
     allowance below); ``holding`` the holding allowance under the part [mm], None for the
     default of :func:`cadcam.setup.default_holding`; ``cell`` the cell file whose vise holds
     the stock (None: no vise, nothing checked against jaws); ``relief`` applies when the mesh is
-    an open surface (:mod:`cadcam.relief`): floor and boundary mode."""
+    an open surface (:mod:`cadcam.relief`): floor and boundary mode; ``body`` picks the solid
+    (1-based) of a STEP file with several."""
 
     part: Path
     tools: Path | None
@@ -91,12 +92,14 @@ class CamRequest:
     holding: float | None = HOLDING
     cell: Path | None = CELL
     relief: ReliefOptions = ReliefOptions()
+    body: int | None = None
 
     @classmethod
     def from_options(cls, part: Path, tools: Path | None, stock: tuple[float, float, float] | None, material: str,
                      units: Units, origin: Origin, rough_tool: int | None, finish_tool: int | None, allowance: float,
                      scallop: float, stepdown: float | None, waterline: bool, holding: float | None = HOLDING,
-                     cell: Path | None = CELL, relief: ReliefOptions = ReliefOptions()) -> "CamRequest":
+                     cell: Path | None = CELL, relief: ReliefOptions = ReliefOptions(),
+                     body: int | None = None) -> "CamRequest":
         """The request from the flat option values of ``factory toolpath`` and ``factory plan``."""
         plan = PlanOptions(
             rough_tool=rough_tool,
@@ -107,7 +110,7 @@ class CamRequest:
         )
         if scallop != SCALLOP:  # a scallop asked for on the command line holds on freeform too
             plan = dataclasses.replace(plan, freeform_scallop=scallop)
-        return cls(part, tools, stock, material, units, origin, plan, holding, cell, relief)
+        return cls(part, tools, stock, material, units, origin, plan, holding, cell, relief, body)
 
     @classmethod
     def defaults(cls, part: Path, material: str = MATERIAL, tools: Path | None = None,
@@ -160,9 +163,11 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
     """
     watch = watch if watch is not None else Stopwatch()
     with watch("load"):
-        loaded = load_part(req.part, units=req.units)
+        loaded = load_part(req.part, units=req.units, body=req.body)
         library = load_tool_library(req.tools)
         jaws = req.jaws()
+    if loaded.step is not None:
+        _report_step_features(loaded, library, req.part)
     boundary = None
     with watch("setup"):
         if loaded.surface is None:
@@ -190,6 +195,9 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
     if boundary is not None:  # shallow nearly everywhere: finer terraces, finishing engages less
         options = dataclasses.replace(options, finish_engagement=min(options.finish_engagement, FINISH_ENGAGEMENT),
                                       terrace_stepdown=min(options.terrace_stepdown, TERRACE_STEPDOWN))
+    exact_holes = None
+    if loaded.step is not None and loaded.surface is None:  # the B-rep's holes, not the mesh's guess
+        exact_holes = loaded.step.features.holes_in_work(setup.transform_mesh_to_work, loaded.step.chordal_deviation)
     planned = plan_job(
         part_work,
         setup,
@@ -199,6 +207,7 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
         options=options,
         progress=progress,
         boundary=boundary,
+        holes=exact_holes,
     )
     job = planned.job
     if boundary is not None and loaded.surface is not None:
@@ -208,6 +217,25 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
     for stage, seconds in planned.timings.seconds:  # a stage that ran more than once (the stock model) adds up
         watch.seconds[stage] = watch.seconds.get(stage, 0.0) + seconds
     return PlannedPart(job, loaded, part_work, boundary)
+
+
+def _report_step_features(loaded: PartMesh, library, part: Path) -> None:
+    """Say, before any toolpath work, what of a STEP part's exact features this setup cannot cut.
+
+    Holes off the Z axis or covered from above need another setup; an inside corner tighter
+    than the library's narrowest flat or bull-nose end mill is left with that tool's radius.
+    """
+    step = loaded.step
+    log.info("%s: STEP in %s, %d B-rep faces tessellated to %d triangles at a chordal deviation of %g mm",
+             part, step.unit, step.brep_faces, len(step.faces), step.chordal_deviation)
+    for hole in step.features.elsewhere:
+        log.warning("%s: %s", part, hole.describe())
+    mills = [t for t in library.tools if t.shape in ("flat", "bull") and not t.is_drill]
+    if mills:
+        smallest = min(mills, key=lambda t: t.diameter)
+        for corner in step.features.unreachable_corners(smallest.radius):
+            log.warning("%s: %s: the smallest end mill is %g mm (T%d): left with R%g", part, corner.describe(),
+                        smallest.diameter, smallest.number, smallest.radius)
 
 
 def log_job(log: McapLog, planned: PlannedPart, transform_world_to_work: np.ndarray | None = None) -> None:

@@ -269,6 +269,7 @@ class PartPlan:
                                       sha256_file(tools_path)),
             "triangles": int(len(self.planned.loaded.mesh.faces)),
             "repairs": list(self.planned.loaded.repairs),
+            **self.planned.loaded.intake_summary(),  # a STEP part: unit, chordal deviation, exact features
             # an open surface machined from above (cadcam.relief): what was found, floor, boundary
             **({"relief": job.parameters["relief"]} if "relief" in job.parameters else {}),
             "stock_mm": job.setup.stock_size.round(3).tolist(),

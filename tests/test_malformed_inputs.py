@@ -178,7 +178,7 @@ def test_any_gcode_program(lines):
 
 
 @FAST
-@given(data=st.binary(max_size=400), ext=st.sampled_from([".stl", ".obj", ".ply", ".3mf"]))
+@given(data=st.binary(max_size=400), ext=st.sampled_from([".stl", ".obj", ".ply", ".3mf", ".step"]))
 def test_any_bytes_as_a_mesh(tmp_path, data, ext):
     p = tmp_path / f"part{ext}"
     p.write_bytes(data)

@@ -191,9 +191,9 @@ def test_missing_file(tmp_path):
 
 
 def test_unknown_extension(tmp_path):
-    path = tmp_path / "part.step"
+    path = tmp_path / "part.iges"
     path.write_text("ISO-10303-21;")
-    expect_error(path, "unknown mesh format", ".step")
+    expect_error(path, "unknown part format", ".iges")
 
 
 @pytest.mark.parametrize("content", [b"", b"   \n"])

@@ -144,6 +144,9 @@ def _plan_args(tmp: Path, part: Path, *extra: str) -> list[str]:
 
 
 BRACKET = str(SAMPLES / "bracket.stl")
+STEP_HEADER = ("ISO-10303-21;\nHEADER;\nFILE_DESCRIPTION(('x'),'2;1');\n"
+               "FILE_NAME('p.step','2026-01-01T00:00:00',(''),(''),'','','');\n"
+               "FILE_SCHEMA(('AUTOMOTIVE_DESIGN { 1 0 10303 214 1 1 1 1 }'));\nENDSEC;\nDATA;\n")
 
 CASES: list[Case] = [
     # YAML: alias bombs, recursion, depth, syntax errors in every YAML input.
@@ -185,6 +188,15 @@ CASES: list[Case] = [
     Case("triangle soup in a 30 mm cube", lambda t: _plan_args(t, _write(t / "soup.stl", triangle_soup())),
          needle="soup.stl"),
     Case("empty STL", lambda t: _plan_args(t, _write(t / "empty.stl", b"")), needle="empty.stl"),
+    # STEP: cut off mid-entity, no geometry, an IGES file under a .step name.
+    Case("damaged STEP", lambda t: _plan_args(t, _write(t / "cut.step", STEP_HEADER + "#1 = CARTESIAN_POINT('',(0.,0.,0.));\n"
+                                                       "#2 = AXIS2_PLACEMENT_3D('',#1,#3,#4);\n#3 = DIRECTION('',(0.,")),
+         needle="cut.step"),
+    Case("STEP with no geometry", lambda t: _plan_args(t, _write(t / "none.step", STEP_HEADER + "ENDSEC;\nEND-ISO-10303-21;\n")),
+         needle="none.step: STEP file holds no geometry"),
+    Case("IGES renamed .step", lambda t: _plan_args(t, _write(t / "part.step", f"{'IGES part':<72}S{1:7d}\n"
+                                                                f"{'1H,,1H;':<72}G{1:7d}\n")),
+         needle="part.step: an IGES file, not STEP"),
     Case("STL claiming 1e9 triangles", lambda t: _plan_args(
         t, _write(t / "liar.stl", b"\0" * 80 + struct.pack("<I", 10**9) + b"\0" * 100)), needle="liar.stl"),
     # Outputs whose folder is a file: refused before any work.

@@ -18,6 +18,7 @@ REPRESENTATIVE = [
     "--stock 2000,2000,31",
     "locate 20000x20000 PNG",
     "triangle soup in a 30 mm cube",
+    "damaged STEP",
     "robot -o afile/r.mcap",
     "verify: unknown word",
 ]

@@ -1,0 +1,179 @@
+"""Machining features recognised in a part: round holes, holes for another setup, flat faces, inside corners.
+
+Each feature is a small frozen value in millimetres, in the part file's own axes (only scaled
+to mm, like :class:`cadcam.mesh.PartMesh`), and says where it was read from: ``source`` is
+``"step"`` for a feature taken from a STEP file's exact B-rep (:mod:`cadcam.step`), ``"mesh"``
+for one guessed from triangles. The drilling stage takes the round holes as its input
+(:meth:`PartFeatures.holes_in_work`) instead of guessing them from the tessellation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from cadcam.drilling import Hole
+
+Source = Literal["step", "mesh"]
+#: How a vertical round hole ends: the three :mod:`cadcam.drilling` cuts, ``stepped`` (its floor
+#: is an annulus around a narrower bore: a counterbore, left to roughing as on a mesh) or ``other``.
+HoleEnd = Literal["through", "flat", "conical", "stepped", "other"]
+
+
+@dataclass(frozen=True)
+class RoundHole:
+    """A full round bore along Z, open to the top.
+
+    Attributes
+    ----------
+    x, y : float
+        Axis position [mm].
+    diameter : float
+        Exact diameter of the cylinder [mm].
+    top_z, bottom_z : float
+        Where the cylindrical wall starts and ends [mm].
+    tip_z : float
+        Lowest point of the hole [mm]: the apex of a drill-point (conical) bottom, else ``bottom_z``.
+    bottom : {"through", "flat", "conical", "stepped", "other"}
+    source : {"step", "mesh"}
+    """
+
+    x: float
+    y: float
+    diameter: float
+    top_z: float
+    bottom_z: float
+    tip_z: float
+    bottom: HoleEnd
+    source: Source
+
+    @property
+    def depth(self) -> float:
+        """From the top of the wall to the lowest point [mm]."""
+        return self.top_z - self.tip_z
+
+    @property
+    def drillable(self) -> bool:
+        """A bore :mod:`cadcam.drilling` cuts: through, flat or drill-point bottom."""
+        return self.bottom in ("through", "flat", "conical")
+
+    def to_hole(self, offset: np.ndarray, chord: float) -> Hole:
+        """The drilling stage's hole in work coordinates.
+
+        ``offset`` (3,) [mm] is the translation from the file's axes to work coordinates
+        (:attr:`cadcam.model.Setup.transform_mesh_to_work`); ``chord`` [mm] the tessellation's
+        chordal deviation: the wall's facets lie up to that far inside the true circle, so a tool
+        ``diameter - 2 chord`` wide cuts nothing of the tessellated wall.
+        """
+        dx, dy, dz = (float(v) for v in offset)
+        return Hole(x=self.x + dx, y=self.y + dy, diameter=self.diameter, inscribed=self.diameter - 2 * chord,
+                    top_z=self.top_z + dz, bottom_z=self.bottom_z + dz, tip_z=self.tip_z + dz,
+                    bottom=self.bottom)  # type: ignore[arg-type]
+
+    def describe(self) -> str:
+        return (f"{self.diameter:.3f} mm {self.bottom} hole at X{self.x:.3f} Y{self.y:.3f}, "
+                f"{self.depth:.3f} mm deep ({self.source})")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**asdict(self), "depth": self.depth}
+
+
+@dataclass(frozen=True)
+class SetupHole:
+    """A round hole this setup cannot cut from the top: off the Z axis, or covered from above.
+
+    Attributes
+    ----------
+    point : (3,) tuple of float
+        A point on the axis, halfway along the wall [mm].
+    direction : (3,) tuple of float
+        Unit axis direction [1], turned to point up (or along +X, +Y when horizontal).
+    diameter, length : float
+        Exact diameter and length of the wall along its axis [mm].
+    reason : str
+        Why another setup (or a 4th axis) is needed.
+    source : {"step", "mesh"}
+    """
+
+    point: tuple[float, float, float]
+    direction: tuple[float, float, float]
+    diameter: float
+    length: float
+    reason: str
+    source: Source
+
+    def describe(self) -> str:
+        x, y, z = self.point
+        i, j, k = self.direction
+        return (f"{self.diameter:.3f} mm hole at X{x:.3f} Y{y:.3f} Z{z:.3f} along ({i:.3f}, {j:.3f}, {k:.3f}), "
+                f"{self.length:.3f} mm long: {self.reason}; needs another setup or a 4th axis")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class FlatFace:
+    """A plane face square to Z at its exact height.
+
+    ``z`` [mm]; ``area`` [mm^2]; ``facing`` ``"up"`` (material below, reached from the top) or ``"down"``.
+    """
+
+    z: float
+    area: float
+    facing: Literal["up", "down"]
+    source: Source
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class InsideCorner:
+    """A concave vertical fillet: the smallest tool radius that finishes it is ``radius``.
+
+    ``x, y`` the fillet's axis [mm], ``radius`` [mm], ``bottom_z, top_z`` its extent [mm].
+    """
+
+    x: float
+    y: float
+    radius: float
+    bottom_z: float
+    top_z: float
+    source: Source
+
+    def describe(self) -> str:
+        return f"inside corner R{self.radius:.3f} at X{self.x:.3f} Y{self.y:.3f} Z{self.bottom_z:.3f}..{self.top_z:.3f}"
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class PartFeatures:
+    """Every feature recognised in one part [mm, the file's axes]."""
+
+    holes: tuple[RoundHole, ...] = ()
+    elsewhere: tuple[SetupHole, ...] = ()
+    flats: tuple[FlatFace, ...] = ()
+    corners: tuple[InsideCorner, ...] = ()
+
+    def holes_in_work(self, transform_mesh_to_work: np.ndarray, chord: float) -> tuple[Hole, ...]:
+        """The drillable holes as :class:`cadcam.drilling.Hole` in work coordinates.
+
+        ``transform_mesh_to_work`` (4, 4) is a pure translation (:func:`cadcam.setup.make_setup`);
+        ``chord`` the tessellation's chordal deviation [mm] (:meth:`RoundHole.to_hole`).
+        """
+        offset = np.asarray(transform_mesh_to_work, dtype=np.float64)[:3, 3]
+        found = [h.to_hole(offset, chord) for h in self.holes if h.drillable]
+        return tuple(sorted(found, key=lambda h: (round(h.x, 6), round(h.y, 6), -h.top_z)))
+
+    def unreachable_corners(self, smallest_radius: float) -> tuple[InsideCorner, ...]:
+        """Inside corners tighter than ``smallest_radius`` [mm] (the library's narrowest end mill)."""
+        return tuple(c for c in self.corners if c.radius < smallest_radius - 1e-9)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"holes": [h.to_dict() for h in self.holes], "elsewhere": [h.to_dict() for h in self.elsewhere],
+                "flats": [f.to_dict() for f in self.flats], "corners": [c.to_dict() for c in self.corners]}

@@ -1,0 +1,277 @@
+"""STEP intake (cadcam.step) and the features read from the B-rep (cadcam.features), on parts modelled with build123d.
+
+Every recognised size is checked against the modelling parameter to 1e-6 mm; the holes then go
+through the drilling stage (cadcam.drilling.plan_holes) and must get a drill or a helix of their size.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+pytest.importorskip("build123d")
+
+from cadcam.drilling import DrillingOptions, plan_holes  # noqa: E402
+from cadcam.mesh import load_part  # noqa: E402
+from cadcam.plan import PlanOptions, choose_tools  # noqa: E402
+from cadcam.setup import make_setup  # noqa: E402
+from cadcam.step import CAM_TOLERANCE, CHORD_SHARE, chordal_deviation  # noqa: E402
+from cadcam.tools import load_tool_library  # noqa: E402
+from cadcam.verify import VerifyOptions  # noqa: E402
+from factory.core.errors import FactoryError, MeshError  # noqa: E402
+from tests.cadcam.stepparts import (ModelledHole, inclined_hole, pillow_surface, plate, two_solids,  # noqa: E402
+                                    write_step)
+
+EXACT = 1e-6  # [mm]
+
+
+def _match(found, modelled: ModelledHole, thickness: float) -> None:
+    """``found`` (a RoundHole) is ``modelled`` to 1e-6 mm: place, size, depth, bottom."""
+    assert found.source == "step"
+    assert abs(found.x - modelled.x) < EXACT and abs(found.y - modelled.y) < EXACT
+    assert abs(found.diameter - modelled.diameter) < EXACT
+    assert abs(found.top_z) < EXACT
+    if modelled.depth is None:
+        assert found.bottom == "through"
+        assert abs(found.bottom_z + thickness) < EXACT and abs(found.depth - thickness) < EXACT
+    else:
+        assert found.bottom == modelled.bottom
+        assert abs(found.bottom_z + modelled.depth) < EXACT
+        assert abs(found.depth - modelled.tip_depth) < EXACT
+
+
+def _by_place(holes):
+    return {(round(h.x, 3), round(h.y, 3)): h for h in holes}
+
+
+def test_the_cam_tolerance_is_verifys():
+    assert CAM_TOLERANCE == VerifyOptions().gouge_tolerance
+    assert chordal_deviation(0.01) == pytest.approx(CHORD_SHARE * 0.01)
+
+
+def test_plate_with_through_and_blind_holes_is_read_exactly(tmp_path):
+    modelled = [ModelledHole(-20, -8, 5.0, None), ModelledHole(-20, 8, 3.3, None),
+                ModelledHole(0, 0, 6.8, 7.0, "flat"), ModelledHole(18, -8, 4.2, 5.5, "conical"),
+                ModelledHole(18, 8, 8.5, 4.0, "conical")]
+    path = write_step(plate((60, 40, 10), modelled), tmp_path / "plate.step")
+    loaded = load_part(path)
+    assert loaded.surface is None and loaded.mesh.is_watertight
+    assert loaded.scale == 1.0 and loaded.step.unit in ("MM", "MILLIMETRE")
+    assert loaded.step.chordal_deviation == pytest.approx(CHORD_SHARE * CAM_TOLERANCE)
+    # the tessellation never lies further than the chordal deviation inside a bore's true wall
+    found = _by_place(loaded.step.features.holes)
+    assert len(found) == len(modelled)
+    for m in modelled:
+        _match(found[(m.x, m.y)], m, 10.0)
+        v = loaded.mesh.vertices
+        r = np.hypot(v[:, 0] - m.x, v[:, 1] - m.y)
+        ring = np.abs(r - m.diameter / 2) < 0.05
+        assert ring.any() and (r[ring] > m.diameter / 2 - loaded.step.chordal_deviation - 1e-9).all()
+    flats = loaded.step.features.flats
+    assert [f.z for f in flats if f.facing == "up"][0] == pytest.approx(0.0, abs=EXACT)
+    assert any(f.facing == "up" and abs(f.z + 7.0) < EXACT for f in flats)  # the flat-bottom hole's floor
+    assert any(f.facing == "down" and abs(f.z + 10.0) < EXACT for f in flats)
+    assert loaded.step.features.elsewhere == ()
+
+
+def test_a_finer_tolerance_tessellates_finer(tmp_path):
+    path = write_step(plate((30, 30, 8), [ModelledHole(0, 0, 10.0, None)]), tmp_path / "p.step")
+    coarse, fine = load_part(path, tolerance=0.04), load_part(path, tolerance=0.004)
+    assert fine.step.chordal_deviation == pytest.approx(0.001)
+    assert len(fine.mesh.faces) > len(coarse.mesh.faces)
+    # the exact hole does not depend on the tessellation
+    assert coarse.step.features.holes == fine.step.features.holes
+
+
+def test_inch_part_takes_its_unit_from_the_file(tmp_path):
+    inch = 25.4
+    modelled = [ModelledHole(0.5 * inch, 0, 0.25 * inch, None), ModelledHole(-0.5 * inch, 0, 0.125 * inch, 0.3 * inch)]
+    part = plate((2 * inch, 1.5 * inch, 0.5 * inch), modelled)
+    path = write_step(part, tmp_path / "inch.step", unit="INCH")
+    assert "INCH" in path.read_text()
+    loaded = load_part(path)
+    assert loaded.scale == inch and loaded.step.units == "inch"
+    assert np.allclose(loaded.mesh.extents, (2 * inch, 1.5 * inch, 0.5 * inch), atol=EXACT)
+    found = _by_place(loaded.step.features.holes)
+    for m in modelled:
+        _match(found[(round(m.x, 3), round(m.y, 3))], m, 0.5 * inch)
+    assert load_part(path, units="inch").scale == inch
+    with pytest.raises(MeshError, match="states its unit as INCH: --units mm contradicts it"):
+        load_part(path, units="mm")
+
+
+def test_two_solids_are_refused_with_their_sizes_unless_one_is_picked(tmp_path):
+    path = write_step(two_solids(), tmp_path / "two.step")
+    with pytest.raises(MeshError) as e:
+        load_part(path)
+    text = str(e.value)
+    assert text.startswith(str(path)) and "\n" not in text
+    assert "2 solids" in text and "40.0 x 30.0 x 10.0 mm" in text and "20.0 x 20.0 x 15.0 mm" in text
+    assert "--body N" in text
+    second = load_part(path, body=2)
+    assert np.allclose(second.mesh.extents, (20, 20, 15), atol=EXACT) and second.step.body == 2
+    assert np.allclose(load_part(path, body=1).mesh.extents, (40, 30, 10), atol=EXACT)
+    with pytest.raises(MeshError, match="--body 3: the file has 2 solids"):
+        load_part(path, body=3)
+
+
+def test_an_inclined_hole_is_reported_for_another_setup(tmp_path):
+    path = write_step(inclined_hole(6.0, 30.0), tmp_path / "inclined.step")
+    features = load_part(path).step.features
+    assert features.holes == ()
+    (hole,) = features.elsewhere
+    assert abs(hole.diameter - 6.0) < EXACT and hole.reason == "axis off Z"
+    assert np.allclose(hole.direction, (0.0, math.sin(math.radians(30)), math.cos(math.radians(30))), atol=1e-9)
+    # the axis passes through the block's centre
+    p, d = np.array(hole.point), np.array(hole.direction)
+    assert np.linalg.norm(p - np.dot(p, d) * d) < EXACT
+    assert "needs another setup" in hole.describe()
+
+
+def test_a_hole_from_below_is_reported_for_another_setup(tmp_path):
+    from build123d import Align, Box, Cylinder, Pos
+
+    block = Box(40, 30, 12, align=(Align.CENTER, Align.CENTER, Align.MAX))
+    part = block - Pos(5, 0, -12) * Cylinder(2.5, 6, align=(Align.CENTER, Align.CENTER, Align.MIN))
+    features = load_part(write_step(part, tmp_path / "below.step")).step.features
+    assert features.holes == ()
+    (hole,) = features.elsewhere
+    assert hole.reason == "covered from above" and abs(hole.diameter - 5.0) < EXACT and abs(hole.length - 6) < EXACT
+
+
+def test_inside_corner_radii_are_read(tmp_path):
+    from build123d import Align, Box, Pos, fillet, Axis
+
+    block = Box(60, 40, 15, align=(Align.CENTER, Align.CENTER, Align.MAX))
+    pocket = Pos(0, 0, 0) * Box(30, 20, 6, align=(Align.CENTER, Align.CENTER, Align.MAX))
+    pocket = fillet(pocket.edges().filter_by(Axis.Z), 1.5)
+    features = load_part(write_step(block - pocket, tmp_path / "pocket.step")).step.features
+    assert len(features.corners) == 4
+    assert all(abs(c.radius - 1.5) < EXACT and abs(c.bottom_z + 6) < EXACT and abs(c.top_z) < EXACT
+               for c in features.corners)
+    assert len(features.unreachable_corners(1.0)) == 0 and len(features.unreachable_corners(2.0)) == 4
+
+
+def test_surfaces_only_go_to_the_relief_path(tmp_path):
+    loaded = load_part(write_step(pillow_surface(), tmp_path / "sheet.step"))
+    assert not loaded.step.closed and loaded.surface is not None
+    assert loaded.surface.footprint_mm == pytest.approx((50.0, 40.0), abs=1e-6)
+    assert loaded.step.features.holes == ()
+
+
+# --- bad files -------------------------------------------------------------------------
+
+HEADER = ("ISO-10303-21;\nHEADER;\nFILE_DESCRIPTION(('x'),'2;1');\n"
+          "FILE_NAME('p.step','2026-01-01T00:00:00',(''),(''),'','','');\n"
+          "FILE_SCHEMA(('AUTOMOTIVE_DESIGN { 1 0 10303 214 1 1 1 1 }'));\nENDSEC;\nDATA;\n")
+
+
+def _one_line(e: FactoryError, path) -> str:
+    text = str(e)
+    assert text.startswith(str(path)) and "\n" not in text and len(text) < len(str(path)) + 400, text
+    return text
+
+
+@pytest.mark.parametrize("name, content, needle", [
+    ("empty.step", HEADER + "ENDSEC;\nEND-ISO-10303-21;\n", "no geometry"),
+    ("cut.step", HEADER + "#1 = CARTESIAN_POINT('',(0.,0.,0.));\n#2 = AXIS2_PLACEMENT_3D('',#1,", "truncated"),
+    ("points.step", HEADER + "#1 = CARTESIAN_POINT('',(0.,0.,0.));\nENDSEC;\nEND-ISO-10303-21;\n", "no geometry"),
+    ("garbage.step", HEADER + "#1 = NOT_AN_ENTITY(((;\nENDSEC;\nEND-ISO-10303-21;\n", "STEP"),
+    ("iges.step", f"{'IGES part':<72}S{1:7d}\n{'1H,,1H;':<72}G{1:7d}\n", "an IGES file, not STEP"),
+    ("text.stp", "solid x\nendsolid x\n", "not a STEP file"),
+    ("nothing.stp", "", "empty"),
+])
+def test_bad_step_files_are_one_line_errors(tmp_path, capfd, name, content, needle):
+    path = tmp_path / name
+    path.write_text(content)
+    with pytest.raises(MeshError) as e:
+        load_part(path)
+    assert needle in _one_line(e.value, path)
+    assert capfd.readouterr().out == ""  # OpenCASCADE's chatter never reaches stdout
+
+
+@pytest.fixture(scope="module")
+def good_step(tmp_path_factory):
+    path = tmp_path_factory.mktemp("good") / "plate.step"
+    return write_step(plate((40, 30, 8), [ModelledHole(0, 0, 5.0, None), ModelledHole(10, 5, 3.3, 4.0, "conical")]),
+                      path).read_bytes()
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(cut=st.floats(0.0, 1.0), flips=st.lists(st.tuples(st.floats(0.0, 1.0), st.integers(0, 255)), max_size=8))
+def test_damaged_step_reads_or_fails_in_one_line(tmp_path, good_step, cut, flips):
+    data = bytearray(good_step[:max(1, int(len(good_step) * cut))] if cut < 1.0 else good_step)
+    for where, byte in flips:
+        data[min(int(where * len(data)), len(data) - 1)] = byte
+    path = tmp_path / "damaged.step"
+    path.write_bytes(bytes(data))
+    try:
+        load_part(path)
+    except FactoryError as e:
+        _one_line(e, path)
+
+
+# --- holes into the drilling stage -----------------------------------------------------------
+
+LIBRARY = load_tool_library()
+DRILLS = sorted({t.diameter for t in LIBRARY.drills("aluminium")})
+OPTIONS = DrillingOptions()
+
+
+def _planned(loaded):
+    setup, part = make_setup(loaded.mesh)
+    holes = loaded.step.features.holes_in_work(setup.transform_mesh_to_work, loaded.step.chordal_deviation)
+    rough = choose_tools(LIBRARY, setup, PlanOptions(), np.asarray(part.triangles))[0]
+    return setup, holes, rough, plan_holes(part, setup, LIBRARY, rough, OPTIONS, None, 0.3, holes)
+
+
+@st.composite
+def hole_patterns(draw):
+    """1 to 4 holes on a 4 x 2 grid of 16 mm cells in a 64 x 32 x 12 mm plate, through or blind with a flat or
+    drill-point bottom, each one the library can cut to size: a drill's size at any depth; between drill sizes,
+    what an end mill can helix (the 2 mm flat reaches 5 mm under the stock top, the 6 mm one 18 mm)."""
+    cells = draw(st.lists(st.tuples(st.integers(0, 3), st.integers(0, 1)), min_size=1, max_size=4, unique=True))
+    blind = st.floats(2.0, 9.0).map(lambda v: round(v, 3))
+    holes = []
+    for i, j in cells:
+        d, depth = draw(st.one_of(
+            st.tuples(st.sampled_from(DRILLS), st.one_of(st.none(), blind)),
+            st.tuples(st.floats(2.7, 7.7).map(lambda v: round(v, 3)), st.floats(2.0, 4.0).map(lambda v: round(v, 3))),
+            st.tuples(st.floats(7.8, 8.3).map(lambda v: round(v, 3)), st.one_of(st.none(), blind))))
+        bottom = draw(st.sampled_from(["flat", "conical"]))
+        dx, dy = draw(st.floats(-2.0, 2.0)), draw(st.floats(-2.0, 2.0))
+        holes.append(ModelledHole(round(-24 + 16 * i + dx, 3), round(-8 + 16 * j + dy, 3), d, depth, bottom))
+    return holes
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                                                  HealthCheck.too_slow])
+@given(modelled=hole_patterns())
+def test_random_hole_patterns_are_recognised_exactly_and_cut_to_size(tmp_path, modelled):
+    loaded = load_part(write_step(plate((64, 32, 12), modelled), tmp_path / "pattern.step", ))
+    found = _by_place(loaded.step.features.holes)
+    assert len(found) == len(modelled)
+    for m in modelled:
+        _match(found[(m.x, m.y)], m, 12.0)
+    setup, holes, rough, plan = _planned(loaded)
+    # every hole is drilled or helixed (none of these is wide enough for the roughing tool)
+    assert len(plan.drilled) + len(plan.helixed) == len(modelled), (plan.undersize, plan.left)
+    cut: dict[tuple[float, float], list[tuple[str, float]]] = {}
+    for op in plan.operations:
+        if op.kind == "drill":
+            for x, y, _ in op.cycle.holes.tolist():
+                cut.setdefault((round(x, 3), round(y, 3)), []).append(("drill", op.tool.diameter))
+        elif op.kind == "helix":
+            x, y = op.points[-1][:2]
+            cut.setdefault((round(x, 3), round(y, 3)), []).append(("helix", op.tool.diameter))
+    for h in holes:
+        (how, d), = cut[(round(h.x, 3), round(h.y, 3))]
+        if how == "drill":  # a drill of the hole's exact size (never one guessed from facets)
+            assert h.diameter - OPTIONS.drill_undersize - 1e-9 <= d <= h.diameter + OPTIONS.drill_oversize
+        else:  # a helix whose end mill fits the bore with room for its path
+            assert d * (1 + OPTIONS.helix_share) <= h.inscribed + 1e-9
+            assert not any(abs(t - h.diameter) <= 0.016 for t in DRILLS) or h.bottom == "flat"

@@ -1,0 +1,113 @@
+"""``factory plan PART.step`` end to end with defaults, judged by LinuxCNC's rs274 and verify, and against the plan of
+a fine STL of the same part."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+pytest.importorskip("build123d")
+
+from cli.main import app  # noqa: E402
+from tests.cadcam.stepparts import ModelledHole, plate, two_solids, write_step, write_stl  # noqa: E402
+from tests.cli.expect import assert_one_line_error  # noqa: E402
+from tests.rs274 import run_rs274  # noqa: E402
+
+runner = CliRunner()
+
+#: Through holes at two drill sizes, a drill-point blind hole, a flat-bottom one and an 8 mm bore no drill fits.
+HOLES = [ModelledHole(-20, -8, 5.0, None), ModelledHole(-20, 8, 6.8, None), ModelledHole(0, 8, 4.2, 6.0, "conical"),
+         ModelledHole(0, -8, 3.3, 5.0, "flat"), ModelledHole(20, 0, 8.0, None)]
+HOLE_KINDS = {"spot", "drill", "helix"}
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args], catch_exceptions=False)
+
+
+@pytest.fixture(scope="module")
+def plans(tmp_path_factory):
+    """The plate planned from its STEP file and from a fine STL of it, both with defaults."""
+    d = tmp_path_factory.mktemp("stepplan")
+    part = plate((60, 40, 12), HOLES)
+    out = {}
+    for name, path in (("step", write_step(part, d / "plate.step")), ("stl", write_stl(part, d / "plate.stl"))):
+        r = run("plan", path, "-o", d / name)
+        assert r.exit_code == 0, r.output
+        out[name] = (json.loads((d / name / "plate.plan.json").read_text()), d / name)
+        out[f"{name} said"] = " ".join(r.stderr.split())  # rich wraps lines at the terminal's width
+    return out
+
+
+def test_step_plan_states_its_intake_and_exact_holes(plans):
+    summary, _ = plans["step"]
+    intake = summary["intake"]
+    assert intake["format"] == "step" and intake["chordal_deviation_mm"] == pytest.approx(0.0025)
+    assert intake["tolerance_mm"] == 0.01 and intake["closed"] and intake["body"] is None
+    holes = intake["features"]["holes"]
+    assert sorted(h["diameter"] for h in holes) == pytest.approx(sorted(h.diameter for h in HOLES), abs=1e-6)
+    assert all(h["source"] == "step" for h in holes)
+    # the drilling stage got the exact sizes: every hole it lists is one of them
+    planned = summary["holes"]
+    assert sorted(h["diameter"] for h in planned["holes"]) == pytest.approx(sorted(h.diameter for h in HOLES), abs=1e-6)
+    # drills of their size for the through and drill-point holes; the flat-bottom 3.3 and the 8 mm bore helixed
+    assert sorted(h["diameter"] for h in planned["drilled"]) == pytest.approx([4.2, 5.0, 6.8], abs=1e-6)
+    assert sorted(h["diameter"] for h in planned["helixed"]) == pytest.approx([3.3, 8.0], abs=1e-6)
+    assert summary["verify"]["ok"] and summary["verify_op2"] is not None
+    assert intake["units"] == "mm" and "plate.step: STEP in mm, " in plans["step said"]
+    assert "triangles within 0.0025 mm; 5 round holes read exactly" in plans["step said"]
+
+
+@pytest.mark.skipif(shutil.which("rs274") is None, reason="LinuxCNC's rs274 is not installed (apt-get install linuxcnc-uspace)")
+def test_linuxcnc_accepts_both_programs_of_the_step_part(plans, tmp_path):
+    summary, out = plans["step"]
+    table = Path(summary["outputs"]["tool_table"])  # the job's own, for both programs
+    assert len(summary["setups"]) == 2
+    for i, setup in enumerate(summary["setups"]):
+        folder = tmp_path / f"op{i + 1}"
+        folder.mkdir()
+        p = run_rs274(Path(setup["program"]), table, folder, timeout=300)
+        assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
+
+
+def test_step_and_its_fine_stl_plan_the_same_operations(plans):
+    step, _ = plans["step"]
+    stl, _ = plans["stl"]
+
+    def milling(summary):
+        return [(op["name"], op["tool"]) for op in summary["operations"] if not op["name"].split()[0] in
+                ("spot", "drill", "peck", "helix")]
+
+    assert milling(step) == milling(stl)
+    assert len(step["holes"]["holes"]) == len(stl["holes"]["holes"]) == len(HOLES)
+    # the mesh guesses the same holes, a hair off; the STEP part's are exact
+    for a, b in zip(step["holes"]["holes"], stl["holes"]["holes"]):
+        assert abs(a["diameter"] - b["diameter"]) < 0.01 and a["bottom"] == b["bottom"]
+    assert "intake" not in stl
+
+
+def test_two_solids_need_a_body(tmp_path):
+    path = write_step(two_solids(), tmp_path / "two.step")
+    r = run("toolpath", path, "-o", tmp_path / "two.mcap")
+    assert_one_line_error(r, str(path), "2 solids", "--body N")
+    assert not (tmp_path / "two.mcap").exists()
+    r = run("toolpath", path, "-o", tmp_path / "two.mcap", "--body", "2", "--quiet", "--scallop", "0.02")
+    assert r.exit_code == 0, r.output
+
+
+def test_tight_inside_corners_are_reported_before_the_toolpaths(tmp_path, caplog):
+    from build123d import Align, Axis, Box, fillet
+
+    block = Box(40, 30, 8, align=(Align.CENTER, Align.CENTER, Align.MAX))
+    pocket = Box(20, 14, 4, align=(Align.CENTER, Align.CENTER, Align.MAX))
+    path = write_step(block - fillet(pocket.edges().filter_by(Axis.Z), 0.5), tmp_path / "pocket.step")
+    r = run("toolpath", path, "-o", tmp_path / "pocket.mcap", "--scallop", "0.02")
+    assert r.exit_code == 0, r.output
+    said = [rec.getMessage() for rec in caplog.records if rec.levelname == "WARNING"]
+    corners = [i for i, line in enumerate(said) if "inside corner" in line]
+    assert len(corners) == 4 and corners == list(range(4)), said  # the first warnings, before roughing's
+    assert all("R0.500" in said[i] and "the smallest end mill is 2 mm (T6): left with R1" in said[i] for i in corners)
