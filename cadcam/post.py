@@ -582,7 +582,8 @@ def post_process(job: Job, options: PostOptions = PostOptions(), *,
     w = _Writer(options)
     moves_before = sum(max(len(op.points) - 1, 0) for op in job.operations)
     fitted = _fitted(job, options, progress, moves_before)
-    estimates = [_write_operation(w, k, op, fitted.get(k), safe_z) for k, op in enumerate(job.operations)]
+    setup = job.parameters.get("op")
+    estimates = [_write_operation(w, k, op, fitted.get(k), safe_z, setup) for k, op in enumerate(job.operations)]
     if progress is not None:
         progress(moves_before, moves_before)
     total = sum(e.cut_time + e.rapid_time for e in estimates) + w.change_seconds
@@ -601,13 +602,17 @@ def _check_job(job: Job) -> None:
         _check_operation(op, k)
 
 
-def _write_operation(w: _Writer, k: int, op: Operation, seg: Segments | None, safe_z: float) -> OperationEstimate:
+def _write_operation(w: _Writer, k: int, op: Operation, seg: Segments | None, safe_z: float,
+                     setup: int | None = None) -> OperationEstimate:
     """Write operation ``k``: its comment, tool change, spindle, approach, cuts and retract to ``safe_z`` [mm].
 
-    ``seg``: its fitted moves; None for a canned cycle the controller makes."""
+    ``seg``: its fitted moves; None for a canned cycle the controller makes. ``setup``: the job's
+    ``parameters["op"]`` (2 for the turned-over part), numbering its operations ``op 2.1``, ``op 2.2``,
+    ... so that no comment of op 2's program reads as op 1's."""
     first_line = len(w.lines)
     t = op.tool.number
-    w.comment(f"op {k + 1}: {op.name} [{op.kind}] T{t} {op.tool.name}")
+    number = f"{k + 1}" if setup is None or int(setup) == 1 else f"{int(setup)}.{k + 1}"
+    w.comment(f"op {number}: {op.name} [{op.kind}] T{t} {op.tool.name}")
     _write_tool_change(w, op)
     w.emit(f"S{max(1, int(round(op.cutting.spindle_rpm)))} M3")
     if w.opt.coolant:

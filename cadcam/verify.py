@@ -584,8 +584,8 @@ def _lowest_part_near(tri: np.ndarray, grid: Grid, part_top: np.ndarray, cells: 
 
 
 #: The comment the post-processor writes at the start of each operation (cadcam.post):
-#: ``(op 2: finish raster [raster] T3 6 mm ball 2FL carbide)``.
-_OP_COMMENT = re.compile(r"\(\s*op\s+\d+\s*:.*\[([^\]]+)\]\s*T(\d+)\b", re.IGNORECASE)
+#: ``(op 2: finish raster [raster] T3 6 mm ball 2FL carbide)``; in op 2's program ``(op 2.1: ...)``.
+_OP_COMMENT = re.compile(r"\(\s*op\s+\d+(?:\.\d+)?\s*:.*\[([^\]]+)\]\s*T(\d+)\b", re.IGNORECASE)
 
 
 def finishing_moves(gcode_text: str, moves: ProgramMoves, operations: Sequence[Mapping[str, Any]] = ()) -> np.ndarray:

@@ -447,3 +447,24 @@ def test_fitting_in_worker_processes_writes_the_same_program(monkeypatch):
     assert parallel.text == serial.text
     assert calls[-1] == (parallel.moves_before_fitting, parallel.moves_before_fitting)
     assert all(a[0] <= b[0] for a, b in zip(calls, calls[1:]))
+
+
+def test_op2_program_numbers_its_operations_as_op_2():
+    """Op 2's program (``parameters["op"] == 2``) says op 2 in every operation comment, under its
+    "op 2: part turned over" note; the code itself is the same as the job posted without it, and
+    verify still reads each comment's kind (a finishing tool stays a finishing tool)."""
+    from cadcam.verify import finishing_moves
+
+    plain = _job()
+    op2 = dataclasses.replace(plain, parameters={"op": 2, "setup_note": "op 2: part turned over"})
+    for d in DIALECTS:
+        a = post_process(plain, PostOptions(dialect=d)).text
+        b = post_process(op2, PostOptions(dialect=d)).text
+        comments = [s for s in b.splitlines() if re.match(r"[(;]\s*op \d", s, re.I)]
+        assert [re.match(r"[(;]\s*op ([\d.]+)", s, re.I).group(1) for s in comments][1:] == ["2.1", "2.2", "2.3"], d
+        assert not re.search(r"op 1\b", b, re.I), d
+        assert [s for s in _code(b) if s] == [s for s in _code(a) if s], d
+    a, b = post_process(plain, PostOptions()).text, post_process(op2, PostOptions()).text
+    fin = finishing_moves(b, parse_gcode(b))
+    assert fin.tolist() == finishing_moves(a, parse_gcode(a)).tolist()
+    assert fin.any() and not fin.all()
