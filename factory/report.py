@@ -392,7 +392,14 @@ def _histogram(d, box: tuple[float, float, float, float], cycle: dict[str, Any])
     d.line([x0, bottom, x1, bottom], fill=_INK)
     d.text((x0, bottom + 4), f"{edges[0]:.0f}", fill=_INK)
     d.text((x1 - 40, bottom + 4), f"{edges[-1]:.0f}", fill=_INK)
-    d.text(((x0 + x1) / 2 - 40, bottom + 4), f"median {cycle['median_s']:.0f}", fill=_INK)
+    # the median where it falls on the time axis, its label centred under it on a row of its own
+    # (below the axis' end labels, which it would hide when the median is near an end)
+    span = edges[-1] - edges[0]
+    xm = x0 + (x1 - x0) * ((cycle["median_s"] - edges[0]) / span if span > 0 else 0.5)
+    d.line([xm, top, xm, bottom + 14], fill=_LINE, width=2)
+    label = f"median {cycle['median_s']:.0f}"
+    half = d.textlength(label) / 2
+    d.text((min(max(xm - half, x0), x1 - 2 * half), bottom + 15), label, fill=_LINE)
 
 
 def _pareto(d, box: tuple[float, float, float, float], pareto: list[dict[str, Any]]) -> None:

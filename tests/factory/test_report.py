@@ -57,3 +57,21 @@ def test_a_parts_alarms_are_set_off_from_its_cycle_time(drawn):
     rows = [s for _, s, _ in texts if s.startswith("R000001-")]
     assert len(rows) == 2 and rows[1] == "R000001-00005 o2 good 100 s"
     assert rows[0].startswith("R000001-00004 o2 good 1180 s; alarms: stock_not_found, grasp")
+
+
+@pytest.mark.parametrize("median", [150.0, 640.0, 1050.0])
+def test_the_median_label_stands_at_the_median(drawn, median):
+    """The histogram's axis runs 100..1100 s over x 620..1184 px: the median's line is at its time,
+    and its label is centred under that line (kept inside the chart near an end)."""
+    texts, lines = drawn
+    dashboard(_report(median))
+    x0, x1 = 620.0, 1200.0 - 16.0
+    xm = x0 + (x1 - x0) * (median - 100.0) / 1000.0
+    (xy, _, width), = [(xy, s, w) for xy, s, w in texts if s == f"median {median:.0f}"]
+    centre = xy[0] + width / 2
+    assert xy[0] >= x0 and xy[0] + width <= x1 + 1
+    if x0 + width / 2 <= xm <= x1 - width / 2:
+        assert centre == pytest.approx(xm, abs=1.0)
+    else:
+        assert xy[0] <= xm <= xy[0] + width
+    assert any(len(p) == 2 and p[0][0] == pytest.approx(xm) and p[1][0] == pytest.approx(xm) for p in lines)
