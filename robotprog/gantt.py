@@ -17,11 +17,13 @@ ROWS = (
 #: Bar colours (RGB) per action.
 COLOURS = {
     "fetch": (66, 133, 244), "missed_grasp": (234, 67, 53), "load": (52, 168, 83), "unload": (251, 188, 5),
-    "unload_reject": (171, 71, 188), "cut": (120, 144, 156), "reset": (234, 67, 53), "locate": (0, 172, 193),
+    "unload_reject": (171, 71, 188), "cut": (120, 144, 156), "reset": (216, 27, 96), "locate": (0, 172, 193),
     "inspect": (0, 137, 123), "flip": (255, 112, 67),
 }
-#: Bar colours of the cuts of a part in two setups, by operation (a one-setup cut is ``cut``'s).
-OP_COLOURS = {1: (120, 144, 156), 2: (69, 90, 100)}
+#: Bar colours of the cuts of a part in two setups, by operation (a one-setup cut is ``cut``'s grey):
+#: each its own, so the legend tells a one-setup cut, op 1 and op 2 apart; dark enough for the white
+#: "op N" drawn on them.
+OP_COLOURS = {1: (57, 73, 171), 2: (109, 76, 65)}
 #: Outcomes drawn with a red frame: faults.
 FAULTS = {"grasp_missed", "stock_not_found", "machine_alarm", "inspect_fail", "timeout"}
 

@@ -51,3 +51,31 @@ def test_two_setups_show_op1_flip_op2():
     assert share("machine", OP_COLOURS[2]) == pytest.approx(busy("cut", 2), abs=0.01)
     assert share("robot", COLOURS["flip"]) == pytest.approx(busy("flip"), abs=0.01)
     assert busy("flip") > 0
+
+
+def test_every_bar_colour_is_its_own_and_named_in_the_legend(monkeypatch):
+    """A one-setup cut, op 1 and op 2 (and every other action) each have a colour no other shares;
+    the legend shows each colour beside its name."""
+    from PIL import ImageDraw
+
+    legend = {**COLOURS, **{f"op {k}": c for k, c in OP_COLOURS.items()}}
+    assert len(set(legend.values())) == len(legend)
+    drawn = []
+    real_text = ImageDraw.ImageDraw.text
+    monkeypatch.setattr(ImageDraw.ImageDraw, "text",
+                        lambda self, xy, s, *a, **k: (drawn.append((xy, s)), real_text(self, xy, s, *a, **k))[1])
+    two = PartProcess(fetch_s=12.0, load_s=15.0, machining_s=300.0, unload_s=14.0, locate_s=2.0, inspect_s=2.5,
+                      reject_s=5.0, regrasp_s=3.0, flip_s=60.0, op2_machining_s=200.0)
+    result = simulate([Order("o1", Path("a.stl"), 2, "steel", 0), Order("o2", Path("b.stl"), 1, "steel", 0)],
+                      {Path("a.stl"): two, Path("b.stl"): PROC})
+    img = activity_chart(result, width=1400)
+    height = img.shape[0]
+    for name, colour in legend.items():
+        (xy, _), = [(xy, s) for xy, s in drawn if s == name and xy[1] == height - 18]
+        swatch = img[height - 11, int(xy[0]) - 9]  # the square left of the name
+        assert tuple(swatch) == colour, name
+    # the machine row holds all three kinds of cut, each in its own colour
+    y = 46 + [r[0] for r in ROWS].index("machine") * (34 + 10) + 17
+    line = img[y, 110:1400 - 20]
+    for colour in (COLOURS["cut"], OP_COLOURS[1], OP_COLOURS[2]):
+        assert np.all(line == colour, axis=1).any(), colour
