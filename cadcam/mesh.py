@@ -65,6 +65,17 @@ def units_of_scale(scale: float, source: str | None = None) -> Units:
 #: the file is far more likely in the wrong units than a real job for a milling machine.
 MIN_EXTENT_MM = 1.0
 
+def inch_hint(extent: float, units: str, scale: float) -> str | None:
+    """The fix to name when a part ``extent`` [mm] across (its largest side) is refused as too small
+    (too thin to grip, ...): ``--units inch``, when its units were guessed (``units`` "auto" and no
+    unit in the file: ``scale`` 1) and the part read as inches (x25.4) is an ordinary size (at most
+    :data:`cadcam.model.MAX_EXTENT_MM`). None when the file's units are known or inches would not help.
+    """
+    if units != "auto" or scale != 1.0 or not MIN_EXTENT_MM <= extent * UNIT_SCALE["inch"] <= MAX_EXTENT_MM:
+        return None
+    return "if the file is in inches, give --units inch"
+
+
 _FORMATS = {".stl": "stl", ".obj": "obj", ".ply": "ply", ".3mf": "3mf", ".step": "step", ".stp": "step"}
 
 

@@ -149,11 +149,12 @@ class PlannedPart:
 
 
 def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwatch | None = None,
-                check_setup: Callable[[Setup], None] | None = None) -> PlannedPart:
+                check_setup: Callable[[Setup, trimesh.Trimesh | None], None] | None = None) -> PlannedPart:
     """Load, set up and plan one part, timing each stage into ``watch``.
 
-    ``check_setup`` is called with the setup before the toolpaths are computed, to refuse early
-    what a later stage would refuse only after that work.
+    ``check_setup`` is called with the setup and the part in work coordinates [mm] (None for a
+    relief) before the toolpaths are computed, to refuse early what a later stage would refuse
+    only after that work.
 
     Raises
     ------
@@ -190,7 +191,7 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
             part_work = machining_surface(surface_work, setup)
         library.material(req.material)  # unknown material: fail early
         if check_setup is not None:
-            check_setup(setup)
+            check_setup(setup, part_work if boundary is None else None)
     options = req.plan
     if boundary is not None:  # shallow nearly everywhere: finer terraces, finishing engages less
         options = dataclasses.replace(options, finish_engagement=min(options.finish_engagement, FINISH_ENGAGEMENT),

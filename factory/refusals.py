@@ -13,12 +13,16 @@ from pathlib import Path
 
 import numpy as np
 
+import trimesh
+
+from cadcam.mesh import inch_hint
 from cadcam.model import Setup
 from cadcam.stock import check_grid_size
 from factory.core.errors import CellError, PlanningError
 from factory.core.resources import FIXTURES
 from robotprog.cell import load_cell
 from robotprog.frames import MM_PER_M, check_stock_fits
+from robotprog.grasp import GraspOptions, tcp_above_bottom
 from robotprog.programs import LANG_MAKER, check_language
 from robotprog.robots import load_robot
 
@@ -48,10 +52,14 @@ def check_request(cell_path: Path | None, lang: str) -> None:
                             source=_shown(cell_path)) from None
 
 
-def check_setup(setup: Setup, grid: float, part: Path, cell_path: Path | None) -> None:
+def check_setup(setup: Setup, grid: float, part: Path, cell_path: Path | None,
+                part_work: trimesh.Trimesh | None = None, units: str = "mm") -> None:
     """Refuse, once the part is placed in its stock and before any toolpath, what verify and the
     robot would refuse: a verify grid too fine for the stock, a stock the cell's vise cannot clamp
-    or its gripper cannot hold. ``grid``: verify's cell size [mm]; ``cell_path`` None: no robot.
+    or its gripper cannot hold, a part (``part_work`` [mm], None for a relief, which leaves in its
+    block) too thin for the gripper to take out. ``grid``: verify's cell size [mm]; ``cell_path``
+    None: no robot; ``units``: the ``--units`` the part was read in (a part too small when its
+    units were guessed gets the hint to give ``--units inch``).
 
     Raises
     ------
@@ -60,6 +68,8 @@ def check_setup(setup: Setup, grid: float, part: Path, cell_path: Path | None) -
     CellError
         The stock [mm] does not fit the vise's jaw opening or the gripper, or does not stand above
         the jaws; the message names the cell's field and the options that change the stock.
+    PlanningError
+        The part is too thin to grip (``source`` the part file).
     """
     check_grid_size(setup, grid, source=str(part))
     if cell_path is None:
@@ -71,6 +81,15 @@ def check_setup(setup: Setup, grid: float, part: Path, cell_path: Path | None) -
     except CellError as e:
         raise CellError(f"{e}: give a --stock (or --holding) that fits, or a --cell whose vise and gripper take it",
                         source=_shown(cell_path)) from None
+    if part_work is None:
+        return
+    size = np.ptp(np.asarray(part_work.vertices), axis=0)
+    try:
+        # the unload's grasp (robotprog.tending), with the options plan_cell takes by default
+        tcp_above_bottom(cell, float(size[2]) / MM_PER_M, GraspOptions(), "part")
+    except PlanningError as e:
+        hint = inch_hint(float(size.max()), units, setup.mesh_scale)
+        raise PlanningError(f"{e.message}; {hint}" if hint else e.message, source=str(part)) from None
 
 
 def shipped_cells(maker: str) -> list[Path]:

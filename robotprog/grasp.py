@@ -96,7 +96,7 @@ def top_grasp(cell: Cell, t_world_support: np.ndarray, bmin: np.ndarray, bmax: n
         raise PlanningError(
             f"{what} {width * MM_PER_M:.1f} mm is narrower than the gripper closes "
             f"({g.opening_min * MM_PER_M:.1f} mm)", source="gripper.opening.min")
-    tcp_above = _tcp_above_bottom(cell, float(size[2]), options, what)
+    tcp_above = tcp_above_bottom(cell, float(size[2]), options, what)
     centre = np.array([(bmin[0] + bmax[0]) / 2, (bmin[1] + bmax[1]) / 2, bmin[2] + tcp_above, 1.0])
     t = np.eye(4)
     t[:3, :3] = _yaw_nearest(t_world_support, narrow, r_home)
@@ -104,8 +104,11 @@ def top_grasp(cell: Cell, t_world_support: np.ndarray, bmin: np.ndarray, bmax: n
     return Grasp(t, HeldBox.at(size, np.linalg.inv(t) @ box_pose(t_world_support, bmin, bmax)))
 
 
-def _tcp_above_bottom(cell: Cell, height: float, options: GraspOptions, what: str) -> float:
+def tcp_above_bottom(cell: Cell, height: float, options: GraspOptions, what: str) -> float:
     """Height of the TCP (the fingertips) above the bottom of a box ``height`` tall [m].
+
+    Raises PlanningError (``gripper.fingers``) when ``what`` is too thin to grip: the check
+    :func:`top_grasp` makes, which ``factory plan`` also makes on the part before any CAM work.
 
     The fingertips must stay ``floor_clearance`` above the surface the box stands on; the body ends
     where the fingers start and must stay ``floor_clearance`` above the box's top, which bounds the

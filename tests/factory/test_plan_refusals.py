@@ -123,3 +123,35 @@ def test_a_stock_the_gripper_cannot_hold_is_refused_before_the_toolpaths(tmp_pat
     # without the robot nothing holds the stock but the vise: the plan goes on to the toolpaths
     with pytest.raises(AssertionError, match="the CAM work ran"):
         plan_part(dataclasses.replace(PlanRequest.defaults(wide, "aluminium"), robot=False))
+
+
+@pytest.fixture
+def inch_part(tmp_path) -> Path:
+    """A 2 x 1.5 x 0.8 inch block in an STL, which states no unit: read as mm under --units auto."""
+    path = tmp_path / "inch.stl"
+    trimesh.creation.box(extents=(2.0, 1.5, 0.8)).export(path)
+    return path
+
+
+def test_an_inch_part_read_as_mm_is_refused_before_the_toolpaths_with_the_units_hint(inch_part, tmp_path, no_cam):
+    out = tmp_path / "out"
+    r = runner.invoke(app, ["plan", str(inch_part), "-o", str(out)])
+    assert_one_line_error(r, f"{inch_part}: part 0.8 mm tall is too thin to grip",
+                          "; if the file is in inches, give --units inch")
+    assert not out.exists()
+    # units said: mm gives no hint (the user knows); inch passes the checks, on to the toolpaths
+    r = runner.invoke(app, ["plan", str(inch_part), "-o", str(out), "--units", "mm"])
+    assert_one_line_error(r, "part 0.8 mm tall is too thin to grip")
+    assert "--units" not in r.output
+    with pytest.raises(AssertionError, match="the CAM work ran"):
+        plan_part(dataclasses.replace(PlanRequest.defaults(inch_part, "aluminium"), cam=dataclasses.replace(
+            PlanRequest.defaults(inch_part, "aluminium").cam, units="inch")))
+
+
+def test_the_inch_hint_only_when_the_units_were_guessed_and_inches_help():
+    from cadcam.mesh import inch_hint
+
+    assert inch_hint(2.0, "auto", 1.0) == "if the file is in inches, give --units inch"
+    assert inch_hint(2.0, "mm", 1.0) is None  # said mm
+    assert inch_hint(2.0, "auto", 25.4) is None  # the file stated its unit
+    assert inch_hint(100.0, "auto", 1.0) is None  # 2.5 m in inches: no ordinary part either
