@@ -17,6 +17,7 @@ which must stay :data:`JAW_CLEARANCE_MM` above the jaws' top and leave at least
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -302,12 +303,19 @@ def orient_setup(part: trimesh.Trimesh, *, fits: Callable[[Setup], None] | None 
         except FactoryError as turned:
             if turned.message == given.message:  # not a matter of orientation
                 raise given from None
-            raise SetupError(f"fits the cell in no orientation: as given, {_said(given, source)}; turned 90 degrees "
-                             f"about Z, {_said(turned, source)}", source=source) from None
+            raise SetupError(f"fits the cell in no orientation: {_both(_said(given, source), _said(turned, source))}",
+                             source=source) from None
         size = setup.stock_size
         log.warning("%s: turned 90 degrees about Z to fit the cell: stock %.1f x %.1f mm (X x Y); as given, %s",
                  source or "part", size[0], size[1], _said(given, source))
         return setup, part_work
+
+
+def _both(given: str, turned: str) -> str:
+    """The errors of both orientations in one clause, an advice both end with (``: give ...``) said once."""
+    tail = os.path.commonprefix([given[::-1], turned[::-1]])[::-1]
+    tail = tail[tail.find(": "):] if ": " in tail else ""
+    return f"as given, {given[:len(given) - len(tail)]}; turned 90 degrees about Z, {turned}"
 
 
 def _said(error: FactoryError, source: str | None) -> str:
