@@ -2,7 +2,8 @@
 
 The part keeps its file's +Z as the spindle axis (it is cut from the top) and, as long as the
 stock fits the vise that way, its file orientation; a stock that fits the jaws (and the robot's
-gripper) only turned 90 degrees about Z is turned (:func:`orient_setup`). The stock is either the part's bounding box grown by :class:`StockMargins` or a
+gripper) only turned 90 degrees about Z is turned (:func:`orient_setup`). The stock is either
+the part's bounding box grown by :class:`StockMargins` or a
 block of given size; the part sits centred in X and Y, its bottom a *holding allowance* above
 the stock's bottom. The work origin is the top of the stock, either at its front-left corner
 or at its centre.
@@ -307,7 +308,7 @@ def orient_setup(part: trimesh.Trimesh, *, fits: Callable[[Setup], None] | None 
                              source=source) from None
         size = setup.stock_size
         log.warning("%s: turned 90 degrees about Z to fit the cell: stock %.1f x %.1f mm (X x Y); as given, %s",
-                 source or "part", size[0], size[1], _said(given, source))
+                    source or "part", size[0], size[1], _said(given, source))
         return setup, part_work
 
 
