@@ -59,16 +59,18 @@ class RoundHole:
         """A bore :mod:`cadcam.drilling` cuts: through, flat or drill-point bottom."""
         return self.bottom in ("through", "flat", "conical")
 
-    def to_hole(self, offset: np.ndarray, chord: float) -> Hole:
+    def to_hole(self, transform_mesh_to_work: np.ndarray, chord: float) -> Hole:
         """The drilling stage's hole in work coordinates.
 
-        ``offset`` (3,) [mm] is the translation from the file's axes to work coordinates
-        (:attr:`cadcam.model.Setup.transform_mesh_to_work`); ``chord`` [mm] the tessellation's
-        chordal deviation: the wall's facets lie up to that far inside the true circle, so a tool
-        ``diameter - 2 chord`` wide cuts nothing of the tessellated wall.
+        ``transform_mesh_to_work`` (4, 4) [mm] takes the file's axes to work coordinates
+        (:attr:`cadcam.model.Setup.transform_mesh_to_work`: a turn about Z, then a translation);
+        ``chord`` [mm] the tessellation's chordal deviation: the wall's facets lie up to that far
+        inside the true circle, so a tool ``diameter - 2 chord`` wide cuts nothing of the tessellated wall.
         """
-        dx, dy, dz = (float(v) for v in offset)
-        return Hole(x=self.x + dx, y=self.y + dy, diameter=self.diameter, inscribed=self.diameter - 2 * chord,
+        t = np.asarray(transform_mesh_to_work, dtype=np.float64)
+        x, y = (float(v) for v in t[:2, :2] @ (self.x, self.y) + t[:2, 3])
+        dz = float(t[2, 3])
+        return Hole(x=x, y=y, diameter=self.diameter, inscribed=self.diameter - 2 * chord,
                     top_z=self.top_z + dz, bottom_z=self.bottom_z + dz, tip_z=self.tip_z + dz,
                     bottom=self.bottom)  # type: ignore[arg-type]
 
@@ -163,11 +165,10 @@ class PartFeatures:
     def holes_in_work(self, transform_mesh_to_work: np.ndarray, chord: float) -> tuple[Hole, ...]:
         """The drillable holes as :class:`cadcam.drilling.Hole` in work coordinates.
 
-        ``transform_mesh_to_work`` (4, 4) is a pure translation (:func:`cadcam.setup.make_setup`);
+        ``transform_mesh_to_work`` (4, 4): a turn about Z, then a translation (:func:`cadcam.setup.make_setup`);
         ``chord`` the tessellation's chordal deviation [mm] (:meth:`RoundHole.to_hole`).
         """
-        offset = np.asarray(transform_mesh_to_work, dtype=np.float64)[:3, 3]
-        found = [h.to_hole(offset, chord) for h in self.holes if h.drillable]
+        found = [h.to_hole(transform_mesh_to_work, chord) for h in self.holes if h.drillable]
         return tuple(sorted(found, key=lambda h: (round(h.x, 6), round(h.y, 6), -h.top_z)))
 
     def unreachable_corners(self, smallest_radius: float) -> tuple[InsideCorner, ...]:

@@ -1,7 +1,9 @@
 """Setup: size the stock around the part and put the work origin where the machinist touches off.
 
-The part keeps its file orientation (the file's +Z is the spindle axis: the part is cut from
-the top). The stock is either the part's bounding box grown by :class:`StockMargins` or a
+The part keeps its file's +Z as the spindle axis (it is cut from the top) and, as long as the
+stock fits the vise that way, its file orientation; a stock that fits the jaws (and the robot's
+gripper) only turned 90 degrees about Z is turned (:func:`orient_setup`). The stock is either
+the part's bounding box grown by :class:`StockMargins` or a
 block of given size; the part sits centred in X and Y, its bottom a *holding allowance* above
 the stock's bottom. The work origin is the top of the stock, either at its front-left corner
 or at its centre.
@@ -16,13 +18,15 @@ which must stay :data:`JAW_CLEARANCE_MM` above the jaws' top and leave at least
 from __future__ import annotations
 
 import logging
+import os
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import trimesh
 
 from cadcam.model import MAX_EXTENT_MM, Setup, ViseJaws, WorkOrigin
-from factory.core.errors import SetupError
+from factory.core.errors import FactoryError, SetupError
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +46,9 @@ BREAKTHROUGH_MM = 0.5
 MIN_HOLDING_LEFT_MM = 3.0
 #: Gap between op 1's deepest feed and the jaws' top [mm].
 JAW_CLEARANCE_MM = 1.0
+#: Turning the part a quarter turn counterclockwise about Z (seen from above): file X goes to
+#: work Y, file Y to work -X.
+TURN_ABOUT_Z = np.array([[0.0, -1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 
 
 def check_stock_size(size: tuple[float, float, float] | np.ndarray, source: str | None = None) -> np.ndarray:
@@ -134,6 +141,40 @@ def check_holding(holding: float, stock_size: np.ndarray, jaws: ViseJaws | None,
                          f"{jaws.opening_min:g}..{jaws.opening_max:g} mm", source=source)
 
 
+def _stock_size(part_size: np.ndarray, stock_size: tuple[float, float, float] | np.ndarray | None,
+                margins: StockMargins, holding: float, jaws: ViseJaws | None, source: str | None) -> np.ndarray:
+    """The stock block (X, Y, Z) [mm]: the part's box plus ``margins`` and the holding allowance, or the
+    given ``stock_size`` checked to hold the part (``part_size`` [mm]) with ``holding`` [mm] under it.
+
+    Raises
+    ------
+    SetupError
+        A negative margin, a non-positive stock size, a part that does not fit the given stock, or
+        stock the vise cannot hold (:func:`check_holding`).
+    """
+    if stock_size is None:
+        for name in ("sides", "top"):
+            v = getattr(margins, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise SetupError(f"stock margin {name} must be >= 0 mm, got {v}", source=source)
+        check_holding(holding, part_size + 2 * margins.sides, jaws, margins.breakthrough, source)
+        return check_stock_size(
+            part_size + np.array([2 * margins.sides, 2 * margins.sides, margins.top + holding]), source)
+    size = check_stock_size(stock_size, source)
+    check_holding(holding, size, jaws, margins.breakthrough, source)
+    for axis, s, p in zip("XYZ", size, part_size):
+        if s < p - _FIT_TOLERANCE:
+            raise SetupError(f"part does not fit the stock in {axis}: part is {p:.3f} mm, stock is {s:.3f} mm",
+                             source=source)
+    if size[2] < part_size[2] + holding - _FIT_TOLERANCE:
+        raise SetupError(
+            f"part {part_size[2]:.3f} mm tall with {holding:g} mm holding allowance under it needs stock "
+            f"{part_size[2] + holding:.3f} mm tall, stock is {size[2]:.3f} mm (--stock, --holding)",
+            source=source,
+        )
+    return size
+
+
 def make_setup(
     part: trimesh.Trimesh,
     *,
@@ -144,6 +185,7 @@ def make_setup(
     safe_height: float = 5.0,
     mesh_scale: float = 1.0,
     jaws: ViseJaws | None = None,
+    turned: bool = False,
     source: str | None = None,
 ) -> tuple[Setup, trimesh.Trimesh]:
     """Size the stock, place the part in it and express both in work coordinates.
@@ -153,7 +195,8 @@ def make_setup(
     part : trimesh.Trimesh
         The part in millimetres, in the file's axes (``PartMesh.mesh``: already scaled).
     stock_size : (3,) float, optional
-        Explicit stock block (X, Y, Z) [mm]. The part is centred in X and Y and its bottom
+        Explicit stock block (X, Y, Z) [mm], along the file's axes (``turned`` turns it with the
+        part: its X then lies along work Y). The part is centred in X and Y and its bottom
         put ``margins.bottom`` (the holding allowance) above the stock bottom. None: part
         bounding box plus ``margins``.
     margins : StockMargins
@@ -172,15 +215,18 @@ def make_setup(
         The vise holding the stock (from the cell file): sets the default holding allowance,
         is checked against the stock, and is placed in the setup as obstacles. None: no vise
         known (the setup's ``jaws`` is None).
+    turned : bool
+        Turn the part (and an explicit stock) 90 degrees about Z (:data:`TURN_ABOUT_Z`) before
+        placing it: what :func:`orient_setup` does when only that fits the vise.
     source : str, optional
         Name for error messages (usually the part file).
 
     Returns
     -------
     setup : Setup
-        ``transform_mesh_to_work`` is a pure translation (4, 4): rotation is never needed
-        because the part is cut along its file's Z, and scaling happened at load time
-        (``mesh_scale``), so it maps the *scaled* mesh into work coordinates.
+        ``transform_mesh_to_work`` (4, 4) maps the *scaled* mesh (scaling happened at load time,
+        ``mesh_scale``) into work coordinates: a pure translation, after :data:`TURN_ABOUT_Z` when
+        ``turned`` (the part is always cut along its file's Z).
     part_work : trimesh.Trimesh
         A new mesh: the part in work coordinates [mm].
 
@@ -195,33 +241,17 @@ def make_setup(
         raise SetupError(f"unknown work origin {origin!r}: expected one of {', '.join(_ORIGINS)}", source=source)
     if not (np.isfinite(safe_height) and safe_height > 0):
         raise SetupError(f"safe height must be > 0 mm, got {safe_height}", source=source)
+    turn = TURN_ABOUT_Z if turned else np.eye(4)
+    if turned:
+        part = part.copy()
+        part.apply_transform(turn)
+        if stock_size is not None:
+            stock_size = check_stock_size(stock_size, source)[[1, 0, 2]]
     lo, hi = np.asarray(part.bounds, dtype=np.float64)
     part_size = hi - lo
     holding = default_holding(jaws, margins.breakthrough) if margins.bottom is None else float(margins.bottom)
 
-    if stock_size is None:
-        for name in ("sides", "top"):
-            v = getattr(margins, name)
-            if not (np.isfinite(v) and v >= 0):
-                raise SetupError(f"stock margin {name} must be >= 0 mm, got {v}", source=source)
-        check_holding(holding, part_size + 2 * margins.sides, jaws, margins.breakthrough, source)
-        size = check_stock_size(
-            part_size + np.array([2 * margins.sides, 2 * margins.sides, margins.top + holding]), source)
-    else:
-        size = check_stock_size(stock_size, source)
-        check_holding(holding, size, jaws, margins.breakthrough, source)
-        for axis, s, p in zip("XYZ", size, part_size):
-            if s < p - _FIT_TOLERANCE:
-                raise SetupError(
-                    f"part does not fit the stock in {axis}: part is {p:.3f} mm, stock is {s:.3f} mm",
-                    source=source,
-                )
-        if size[2] < part_size[2] + holding - _FIT_TOLERANCE:
-            raise SetupError(
-                f"part {part_size[2]:.3f} mm tall with {holding:g} mm holding allowance under it needs stock "
-                f"{part_size[2] + holding:.3f} mm tall, stock is {size[2]:.3f} mm (--stock, --holding)",
-                source=source,
-            )
+    size = _stock_size(part_size, stock_size, margins, holding, jaws, source)
 
     # Part centre in XY and part bottom, in file coordinates, go to where the stock puts them.
     part_centre_xy = (lo[:2] + hi[:2]) / 2
@@ -235,10 +265,11 @@ def make_setup(
     shift[:2] = target_centre_xy - part_centre_xy
     shift[2] = stock_min[2] + holding - lo[2]
 
-    transform = np.eye(4)
-    transform[:3, 3] = shift
+    place = np.eye(4)
+    place[:3, 3] = shift
     part_work = part.copy()
-    part_work.apply_transform(transform)
+    part_work.apply_transform(place)
+    transform = place @ turn
 
     setup = Setup(
         stock_min=stock_min,
@@ -251,5 +282,55 @@ def make_setup(
         floor_z=float(stock_min[2] + holding - margins.breakthrough),
         jaws=None if jaws is None else jaws.place(stock_min, stock_max),
     )
-    log.debug("stock %s mm, part shifted by %s mm", size.round(3).tolist(), shift.round(3).tolist())
+    log.debug("stock %s mm, part shifted by %s mm%s", size.round(3).tolist(), shift.round(3).tolist(),
+              " after a quarter turn about Z" if turned else "")
     return setup, part_work
+
+
+def orient_setup(part: trimesh.Trimesh, *, fits: Callable[[Setup, trimesh.Trimesh], None] | None = None,
+                 source: str | None = None, **options) -> tuple[Setup, trimesh.Trimesh]:
+    """:func:`make_setup` in the file's orientation, or turned 90 degrees about Z when only that
+    fits: the vise clamps across work Y, so a part too long that way may fit turned.
+
+    ``fits`` is called with each candidate setup and the part placed in it [mm], and raises :class:`FactoryError` for one the rest
+    of the cell cannot take (the robot's gripper, ...); ``options`` are :func:`make_setup`'s. The file's
+    orientation is kept whenever it fits, so a part that fits as given is placed exactly as before.
+
+    Raises
+    ------
+    FactoryError
+        Neither orientation fits: the error of the file's orientation when turning changes
+        nothing, else one :class:`SetupError` giving both orientations' figures.
+    """
+    def attempt(turned: bool) -> tuple[Setup, trimesh.Trimesh]:
+        setup, part_work = make_setup(part, turned=turned, source=source, **options)
+        if fits is not None:
+            fits(setup, part_work)
+        return setup, part_work
+
+    try:
+        return attempt(False)
+    except FactoryError as given:
+        try:
+            setup, part_work = attempt(True)
+        except FactoryError as turned:
+            if turned.message == given.message:  # not a matter of orientation
+                raise given from None
+            raise SetupError(f"fits the cell in no orientation: {_both(_said(given, source), _said(turned, source))}",
+                             source=source) from None
+        size = setup.stock_size
+        log.warning("%s: turned 90 degrees about Z to fit the cell: stock %.1f x %.1f mm (X x Y); as given, %s",
+                    source or "part", size[0], size[1], _said(given, source))
+        return setup, part_work
+
+
+def _both(given: str, turned: str) -> str:
+    """The errors of both orientations in one clause, an advice both end with (``: give ...``) said once."""
+    tail = os.path.commonprefix([given[::-1], turned[::-1]])[::-1]
+    tail = tail[tail.find(": "):] if ": " in tail else ""
+    return f"as given, {given[:len(given) - len(tail)]}; turned 90 degrees about Z, {turned}"
+
+
+def _said(error: FactoryError, source: str | None) -> str:
+    """``error`` within another message: its text, and where it is unless that is ``source``."""
+    return error.message if error.source in (None, source) else str(error)

@@ -23,7 +23,7 @@ from cadcam.plan import PlanOptions, plan_job
 from cadcam.relief import (FINISH_ENGAGEMENT, TERRACE_STEPDOWN, Boundary, ReliefOptions, machining_surface,
                            relief_setup)
 from cadcam.roughing import RoughingOptions
-from cadcam.setup import StockMargins, make_setup
+from cadcam.setup import StockMargins, orient_setup
 from cadcam.tools import load_tool_library
 from factory.core.errors import ToolpathError
 from factory.mcaplog import McapLog, read_attachment
@@ -171,9 +171,11 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
         _report_step_features(loaded, library, req.part)
     boundary = None
     with watch("setup"):
-        if loaded.surface is None:
-            setup, part_work = make_setup(
+        library.material(req.material)  # unknown material: fail early
+        if loaded.surface is None:  # turned about Z when only that fits the vise and the gripper
+            setup, part_work = orient_setup(
                 loaded.mesh,
+                fits=check_setup,
                 stock_size=req.stock,
                 margins=StockMargins(bottom=req.holding),
                 jaws=jaws,
@@ -189,9 +191,8 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
                 margins=StockMargins(bottom=req.holding), jaws=jaws, origin=req.origin,
                 material=req.material, mesh_scale=loaded.scale, source=str(req.part))
             part_work = machining_surface(surface_work, setup)
-        library.material(req.material)  # unknown material: fail early
-        if check_setup is not None:
-            check_setup(setup, part_work if boundary is None else None)
+            if check_setup is not None:
+                check_setup(setup, None)  # a relief leaves in its block: no part of its own to grip
     options = req.plan
     if boundary is not None:  # shallow nearly everywhere: finer terraces, finishing engages less
         options = dataclasses.replace(options, finish_engagement=min(options.finish_engagement, FINISH_ENGAGEMENT),

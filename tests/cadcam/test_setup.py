@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from pathlib import Path
 
@@ -13,8 +14,8 @@ from hypothesis import strategies as st
 
 from cadcam.mesh import load_part
 from cadcam.model import FixtureBox, Setup, ViseJaws
-from cadcam.setup import BREAKTHROUGH_MM, MIN_HOLDING_LEFT_MM, StockMargins, default_holding, make_setup
-from factory.core.errors import SetupError
+from cadcam.setup import BREAKTHROUGH_MM, MIN_HOLDING_LEFT_MM, StockMargins, default_holding, make_setup, orient_setup
+from factory.core.errors import CellError, SetupError
 
 SAMPLES = Path(__file__).resolve().parents[2] / "samples"
 EPS = 1e-9
@@ -181,3 +182,58 @@ def test_part_always_inside_stock_with_top_at_zero(extents, at, sides, top, hold
     else:
         np.testing.assert_allclose(setup.stock_min[:2] + setup.stock_max[:2], 0, atol=1e-9)
     assert setup.safe_z > setup.stock_max[2]
+
+
+def test_a_part_too_long_for_the_jaws_is_turned_about_z_and_the_transform_says_so():
+    """50 x 180 mm: stock 184 mm across the jaws (over their 160 mm) as given, 54 mm turned."""
+    part = box((50, 180, 16), at=(5, -20, 2))
+    with pytest.raises(SetupError, match=r"stock 184.0 mm wide \(Y\) does not fit the vise opening 0..160 mm"):
+        make_setup(part, jaws=JAWS)
+    setup, work = orient_setup(part, jaws=JAWS, source="long.stl")
+    np.testing.assert_allclose(setup.stock_size, [184, 54, 16 + 1 + default_holding(JAWS)])
+    np.testing.assert_allclose(work.bounds[:, :2], [[2, 2], [182, 52]])
+    # The setup's transform carries the mesh file to exactly the placed part (verify, sheet and robot read it).
+    moved = part.copy()
+    moved.apply_transform(setup.transform_mesh_to_work)
+    np.testing.assert_allclose(moved.vertices, work.vertices, atol=1e-9)
+    np.testing.assert_allclose(setup.transform_mesh_to_work[:3, :3], [[0, -1, 0], [1, 0, 0], [0, 0, 1]])
+    # The jaws clamp the turned stock across its 54 mm.
+    front, back = setup.jaws[0], setup.jaws[1]
+    assert front.hi[1] == pytest.approx(0) and back.lo[1] == pytest.approx(54)
+    # An explicit stock turns with the part.
+    given, _ = orient_setup(part, jaws=JAWS, stock_size=(60, 190, 30))
+    np.testing.assert_allclose(given.stock_size, [190, 60, 30])
+
+
+def test_a_part_that_fits_as_given_is_placed_exactly_as_before():
+    for name, kwargs in itertools.product(("bracket", "plate_bosses", "stepped_wall", "dome_mould"),
+                                          ({}, {"jaws": JAWS}, {"jaws": JAWS, "origin": "top-centre"})):
+        part = load_part(SAMPLES / f"{name}.stl")
+        before, work_before = make_setup(part.mesh, mesh_scale=part.scale, **kwargs)
+        after, work_after = orient_setup(part.mesh, mesh_scale=part.scale, fits=lambda s, part: None, **kwargs)
+        assert after.to_dict() == before.to_dict()
+        assert np.array_equal(work_after.vertices, work_before.vertices)
+
+
+def test_the_gripper_can_ask_for_the_turn_too():
+    """100 x 150 mm fits the vise as given (154 mm) but not a gripper opening 120 mm: turned, 104 mm."""
+    def gripper(setup: Setup, part: object) -> None:
+        if setup.stock_size[1] > 120:
+            raise CellError(f"stock {setup.stock_size[1]:.1f} mm wide exceeds the gripper opening 120.0 mm",
+                            source="gripper.opening.max")
+
+    setup, _ = orient_setup(box((100, 150, 10), (0, 0, 0)), jaws=JAWS, fits=gripper)
+    np.testing.assert_allclose(setup.stock_size[:2], [154, 104])
+
+
+def test_what_fits_no_orientation_is_refused_in_one_line_with_both_figures():
+    with pytest.raises(SetupError) as info:
+        orient_setup(box((170, 200, 10), (0, 0, 0)), jaws=JAWS, source="plate.stl")
+    msg = str(info.value)
+    assert "\n" not in msg and msg.startswith("plate.stl: fits the cell in no orientation: ")
+    assert "as given, stock 204.0 mm wide (Y) does not fit the vise opening 0..160 mm" in msg
+    assert "turned 90 degrees about Z, stock 174.0 mm wide (Y) does not fit the vise opening 0..160 mm" in msg
+    # What turning cannot change is said once, as it is.
+    with pytest.raises(SetupError) as info:
+        orient_setup(box((80, 50, 15), (0, 0, 0)), margins=StockMargins(bottom=3.4), source="p.stl")
+    assert str(info.value).startswith("p.stl: holding allowance 3.4 mm leaves 2.9 mm")

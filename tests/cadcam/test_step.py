@@ -119,6 +119,22 @@ def test_two_solids_are_refused_with_their_sizes_unless_one_is_picked(tmp_path):
         load_part(path, body=3)
 
 
+def test_a_turned_parts_holes_turn_with_it(tmp_path):
+    """A part turned about Z to fit the jaws: each exact hole lands on its bore in the turned mesh."""
+    modelled = [ModelledHole(-20, -8, 5.0, None), ModelledHole(18, 8, 8.5, 4.0, "conical")]
+    loaded = load_part(write_step(plate((60, 40, 10), modelled), tmp_path / "plate.step"))
+    for turned in (False, True):
+        setup, part = make_setup(loaded.mesh, turned=turned)
+        holes = loaded.step.features.holes_in_work(setup.transform_mesh_to_work, loaded.step.chordal_deviation)
+        assert len(holes) == 2
+        for h in holes:  # the bore's wall, in work coordinates, rings the hole's axis
+            v = part.vertices
+            r = np.hypot(v[:, 0] - h.x, v[:, 1] - h.y)
+            ring = (np.abs(r - h.diameter / 2) < loaded.step.chordal_deviation + 1e-6) & (v[:, 2] < h.top_z - 0.5)
+            assert ring.sum() >= 8, (turned, h)
+        assert np.ptp([[h.x, h.y] for h in holes], axis=0).round(6).tolist() == ([38, 16] if not turned else [16, 38])
+
+
 def test_an_inclined_hole_is_reported_for_another_setup(tmp_path):
     path = write_step(inclined_hole(6.0, 30.0), tmp_path / "inclined.step")
     features = load_part(path).step.features

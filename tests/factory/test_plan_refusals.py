@@ -112,13 +112,14 @@ def test_a_cell_with_an_unknown_robot_is_refused_before_any_cam_stage(part, tmp_
 
 
 def test_a_stock_the_gripper_cannot_hold_is_refused_before_the_toolpaths(tmp_path, no_cam):
-    # 95 mm across the vise: the stock (2 mm each side) fits the jaws (160 mm) but not the fingers (85 mm)
+    # 90 x 95 mm: the stock (2 mm each side) fits the jaws (160 mm) either way but not the fingers (85 mm)
     wide = tmp_path / "wide.stl"
-    pocket_block(size=(40.0, 95.0, 20.0), pocket=(20.0, 40.0, 5.0)).export(wide)
+    pocket_block(size=(90.0, 95.0, 20.0), pocket=(20.0, 40.0, 5.0)).export(wide)
     out = tmp_path / "out"
     r = runner.invoke(app, ["plan", str(wide), "-o", str(out)])
-    assert_one_line_error(r, "gripper.opening.max: stock 99.0 mm wide exceeds the gripper opening 85.0 mm",
-                          "--stock", "--cell")
+    assert_one_line_error(r, "fits the cell in no orientation: as given, ",
+                          "gripper.opening.max: stock 99.0 mm wide exceeds the gripper opening 85.0 mm",
+                          "turned 90 degrees about Z, ", "stock 94.0 mm wide exceeds", "--stock", "--cell")
     assert not out.exists()
     # without the robot nothing holds the stock but the vise: the plan goes on to the toolpaths
     with pytest.raises(AssertionError, match="the CAM work ran"):
