@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from cadcam.model import DEFAULT_HOLDER, CuttingData, HolderSegment, Tool
-from factory.core.errors import ToolError, shown
+from factory.core.errors import ToolError, field_name, shown
 from factory.core.yamlfile import load_yaml
 from factory.core.resources import FIXTURES
 
@@ -271,7 +271,7 @@ class _Parser:
             if key not in allowed:
                 close = difflib.get_close_matches(str(key), sorted(allowed), n=1)
                 hint = f"did you mean {close[0]}?" if close else f"expected one of {', '.join(sorted(allowed))}"
-                raise self.fail(_join(where, str(key)), f"unknown key ({hint})")
+                raise self.fail(_join(where, field_name(key)), f"unknown key ({hint})")
         for key in sorted(required):
             if key not in value:
                 raise self.fail(_join(where, key), "missing")

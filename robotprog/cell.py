@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from factory.core.errors import CellError, shown
+from factory.core.errors import CellError, field_name, shown
 from factory.core.yamlfile import load_yaml
 
 FORMAT = "factory.cell/1"
@@ -395,7 +395,7 @@ class _Reader:
         unknown = sorted(str(k) for k in value if k not in required | optional)
         if unknown:
             allowed = ", ".join(sorted(required | optional))
-            raise self.fail(f"{prefix}{unknown[0]}", f"unknown key (allowed: {allowed})")
+            raise self.fail(f"{prefix}{field_name(unknown[0])}", f"unknown key (allowed: {allowed})")
         for k in sorted(required):
             if k not in value:
                 raise self.fail(f"{prefix}{k}", "missing")

@@ -32,6 +32,13 @@ def shown(value: object) -> str:
     return text if len(text) <= SHOWN_CHARS else text[:SHOWN_CHARS - 3] + "..."
 
 
+def field_name(key: object) -> str:
+    """A mapping key as a step of a field's path (``machine.max_rpm``): bare when it reads as a name,
+    else quoted like :func:`shown`, so a key holding a newline or spaces never breaks the one-line error."""
+    text = str(key)
+    return text if text.replace("-", "_").isidentifier() else shown(key)
+
+
 class FactoryError(Exception):
     """Root of every error factory raises on purpose.
 
