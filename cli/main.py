@@ -36,9 +36,16 @@ _TYPER_SETTINGS: dict[str, Any] = dict(
 
 
 @functools.cache
-def load_command(name: str) -> typer.core.TyperCommand:
-    """The click command ``factory NAME``, its module imported now."""
+def load_command(name: str) -> typer.core.TyperCommand | typer.core.TyperGroup:
+    """The click command ``factory NAME``, its module imported now.
+
+    A module that holds a typer app ``NAME_app`` is a command group (``factory cell warm ...``): its
+    callback is the function ``NAME``, whose docstring is the group's one-line help.
+    """
     module = importlib.import_module(f"cli.{name}")
+    group = getattr(module, f"{name}_app", None)
+    if isinstance(group, typer.Typer):
+        return typer.main.get_group(group)
     single = typer.Typer(**_TYPER_SETTINGS)
     single.command(name)(getattr(module, name))
     return typer.main.get_command(single)
