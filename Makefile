@@ -31,7 +31,7 @@ $(OUT)/%.plan.json: samples/%.stl $(BIN)/.installed
 	@$(BIN)/python samples/summarize.py --line $@
 
 test: $(BIN)/.installed $(ROS2_VENV)/.installed
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist loadfile
 
 # A real ROS 2 node for tests/factory/test_ros2.py (rclpy and message wheels of Jazzy), in its own
 # environment: its rosidl_parser brings lark-parser, whose `lark` module would replace the tests' lark.
