@@ -24,7 +24,7 @@ from factory.catalog import sha256_file
 from factory.core.atomic import check_writable, write_bytes, write_text
 from factory.core.errors import FactoryError
 from factory.core.progress import Progress, Stopwatch
-from factory.core.resources import FIXTURES
+from factory.core.resources import FIXTURES, SAMPLES
 from factory.foxglove import layout_json
 from factory.live import LiveSink
 from factory.pictures import png_bytes
@@ -36,7 +36,7 @@ from robotprog.gantt import activity_chart
 from robotprog.orders import Order, read_orders
 
 #: Orders ``factory simulate`` runs without an ORDERS argument.
-SAMPLE_ORDERS = FIXTURES.parent / "samples" / "orders.yaml"
+SAMPLE_ORDERS = SAMPLES / "orders.yaml"
 
 
 @dataclasses.dataclass(frozen=True)

@@ -40,7 +40,7 @@ def _source_tree(dest: Path) -> Path:
     dest.mkdir()
     for name in ("pyproject.toml", "README.md"):
         shutil.copy2(ROOT / name, dest / name)
-    for name in (*packages, "fixtures", "ros"):
+    for name in (*packages, "fixtures", "ros", "samples"):
         shutil.copytree(ROOT / name, dest / name, symlinks=True,
                         ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
     return dest
@@ -105,13 +105,16 @@ import json
 import cadcam, cli, factory, robotprog, vision
 from factory.core import resources
 from factory.mcaplog import TYPESTORE
+from factory.production import SAMPLE_ORDERS
 from factory.record import Record
+from robotprog.orders import read_orders
 Record(__import__("sys").argv[1]).close()  # the schema from the wheel's migrations
 print(json.dumps({
     "modules": [m.__file__ for m in (cadcam, cli, factory, robotprog, vision)],
     "folders": [str(p) for p in (resources.FIXTURES, resources.ROS_INTERFACES, resources.FOXGLOVE_INTERFACES,
                                  resources.MIGRATIONS)],
     "fixtures": sorted(p.name for p in resources.FIXTURES.glob("*.yaml")),
+    "sample_orders": [str(o.part) for o in read_orders(SAMPLE_ORDERS)],
     "types": sorted(t for t in TYPESTORE.fielddefs if t.startswith(("factory_msgs/", "foxglove_msgs/"))),
 }))
 """
@@ -120,7 +123,10 @@ print(json.dumps({
                        env=_clean_env(), capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     found = json.loads(r.stdout)
-    for path in found["modules"] + found["folders"]:
+    # `factory simulate` with no orders file runs the sample orders: their parts ship too
+    assert found["sample_orders"]
+    for path in found["modules"] + found["folders"] + found["sample_orders"]:
+        assert Path(path).is_file() or Path(path).is_dir(), path
         assert Path(path).is_relative_to(installed), path  # the project comes from the wheel alone
     assert found["fixtures"] == sorted(p.name for p in (ROOT / "fixtures").glob("*.yaml"))
     shipped = {f"factory_msgs/msg/{p.stem}" for p in (ROOT / "ros" / "factory_msgs" / "msg").glob("*.msg")}

@@ -1,8 +1,8 @@
 """Where the data that ships with factory lives (tool library, cells, camera, message definitions, migrations).
 
 Every folder is found through :mod:`importlib.resources` inside the ``factory`` package, so the
-same lookup serves a checkout and an installed wheel. In a checkout, ``factory/fixtures`` and
-``factory/ros`` are links to the repository's own ``fixtures/`` and ``ros/`` (where users and
+same lookup serves a checkout and an installed wheel. In a checkout, ``factory/fixtures``,
+``factory/ros`` and ``factory/samples`` are links to the repository's own ``fixtures/``, ``ros/`` and ``samples/`` (where users and
 ``colcon`` find them by path); a wheel carries them as package data (``pyproject.toml``).
 """
 
@@ -29,5 +29,7 @@ FIXTURES = shipped("fixtures")
 ROS_INTERFACES = shipped("ros")
 #: Foxglove's scene and image-annotation message definitions (``PKG/msg/NAME.msg``).
 FOXGLOVE_INTERFACES = shipped("msg")
+#: The sample parts and the sample orders ``factory simulate`` runs without an orders file.
+SAMPLES = shipped("samples")
 #: The process record's Alembic migrations (:mod:`factory.record`).
 MIGRATIONS = shipped("migrations")

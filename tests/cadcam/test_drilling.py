@@ -36,10 +36,15 @@ def cylinder(cx, cy, r, z0, z1) -> manifold3d.Manifold:
     return manifold3d.Manifold.cylinder(z1 - z0, r, circular_segments=SEGMENTS).translate((cx, cy, z0))
 
 
-def cone_tip(cx, cy, r, z_tip, angle=118.0) -> manifold3d.Manifold:
-    """A drill point's cone, tip at ``z_tip``, full radius ``r`` above it."""
-    h = r / math.tan(math.radians(angle / 2))
-    return manifold3d.Manifold.cylinder(h, 0.0, r, circular_segments=SEGMENTS).translate((cx, cy, z_tip))
+def drilled(cx, cy, r, z_wall, z1, angle=118.0) -> manifold3d.Manifold:
+    """A drill's cut: the wall from ``z_wall`` up to ``z1`` and the point's cone below it.
+
+    One solid of revolution: a cone unioned onto a cylinder meets it at a seam that float rounding can
+    leave as a wafer of material 1e-7 mm thick across the hole, and the part then truly has a flat bottom.
+    """
+    tip = z_wall - r / math.tan(math.radians(angle / 2))
+    profile = manifold3d.CrossSection([[(0.0, tip), (r, z_wall), (r, z1), (0.0, z1)]])
+    return manifold3d.Manifold.revolve(profile, SEGMENTS).translate((cx, cy, 0.0))
 
 
 def plate(size=(60.0, 40.0, 12.0)) -> manifold3d.Manifold:
@@ -53,7 +58,7 @@ def test_finds_through_flat_and_conical_holes_and_skips_bosses_and_slots():
     body = plate()
     body -= cylinder(10, 10, 5.0, -1, 13)  # 10 mm through
     body -= cylinder(25, 10, 3.4, 6, 13)  # 6.8 mm, 6 deep, flat
-    body -= cylinder(40, 10, 2.1, 4, 13) + cone_tip(40, 10, 2.1, 4 - 2.1 / math.tan(math.radians(59)))  # drilled 4.2
+    body -= drilled(40, 10, 2.1, 4, 13)  # drilled 4.2
     body -= manifold3d.Manifold.cube((12, 4, 5)).translate((5, 28, 8))  # a slot: no hole
     body += cylinder(50, 30, 4, 12, 14)  # a boss: no hole
     part = manifold_to_trimesh(body)
@@ -246,9 +251,10 @@ def plates(draw):
         point = d / 2 / math.tan(math.radians(59)) if kind == "conical" else 0.0
         depth = draw(st.floats(2.0, thick - 1.0 - point)) if kind != "through" else thick
         z = thick - depth
-        cut = cylinder(x, y, d / 2, z if kind != "through" else -1.0, thick + 1)
         if kind == "conical":
-            cut += cone_tip(x, y, d / 2, z - d / 2 / math.tan(math.radians(59)))
+            cut = drilled(x, y, d / 2, z, thick + 1)
+        else:
+            cut = cylinder(x, y, d / 2, z if kind != "through" else -1.0, thick + 1)
         body -= cut
         specs.append((x, y, d, kind, z))
     # The roughing end mill decides which holes it enters itself and which get a helix.
