@@ -51,7 +51,7 @@ from cadcam.heightmap import grid_over, upper_envelope
 from cadcam.plan import PlanOptions, choose_tools, deepest_reach, flats_and_walls_from, rest_tools, split_depth
 from cadcam.rest import safe_rapids
 from cadcam.roughing import zlevel_roughing
-from cadcam.setup import JAW_CLEARANCE_MM
+from cadcam.setup import BREAKTHROUGH_MM, JAW_CLEARANCE_MM
 from cadcam.tools import ToolLibrary
 from cadcam.stock import (FlippedStock, Simulation, clear_height, excess, flip_stock, stock_after, stock_after_flipped,
                           unreached)
@@ -395,7 +395,7 @@ def plan_op2(
     # Nothing feeds below the part: under it are the parallels; nor deeper than the tools reach from this side.
     setup = dataclasses.replace(setup, floor_z=float(part.bounds[0][2]),
                                 jaws=None if jaws is None else op2_jaws(jaws, setup, part, face_z))
-    setup = _reachable_floor(setup, library, part, options.plan)
+    setup = _reachable_floor(setup, setup1, library, part, options.plan)
     tool = choose_facing_tool(library, top - face_z, options.facing_tool)
     operations = [facing(setup, face_z, tool, library.cutting_data(tool, setup.material), options.facing)]
 
@@ -426,7 +426,7 @@ def plan_op2(
             return starts[cell]
 
         # Op 1 stopped short of the part's bottom (its tools do not reach so deep): the walls below are op 2's.
-        walls = float(setup1.floor_z) > float(part_work.bounds[0][2])
+        walls = float(setup1.floor_z) > float(part_work.bounds[0][2]) + 1e-9
         operations, stock = _machine_from_below(part, triangles, setup, library, plan, operations, stock, start_at,
                                                 options.cell, left, walls)
     left_regions = unreached(stock, limit, allowance)
@@ -629,22 +629,28 @@ def _discs_at(job: Job, h: float, spacing: float) -> tuple[np.ndarray, np.ndarra
     return np.concatenate(centres), np.concatenate(radii)
 
 
-def _reachable_floor(setup: Setup, library: ToolLibrary, part: trimesh.Trimesh, plan: PlanOptions) -> Setup:
-    """Op 2's setup with its floor no deeper than the library reaches from the turned-over stock's top
-    (:func:`cadcam.plan.split_depth`), and clear of the jaws' top by :data:`cadcam.setup.JAW_CLEARANCE_MM`
-    when that lies higher (a tall part: the tool beside it passes over the jaws)."""
+def _reachable_floor(setup: Setup, setup1: Setup, library: ToolLibrary, part: trimesh.Trimesh,
+                     plan: PlanOptions) -> Setup:
+    """Op 2's setup with its floor where op 2's work ends when op 1 stopped short of the part's bottom
+    (:func:`cadcam.plan.split_depth`): op 1's floor turned over, less the breakthrough (the walls overlap
+    there, :func:`seams`), no deeper than the library reaches from the turned-over stock's top and clear of
+    the jaws' top by :data:`cadcam.setup.JAW_CLEARANCE_MM` (the tool beside the part passes over them).
+    Any other setup is returned as it is."""
     if plan.rough_tool is not None or plan.finish_tool is not None:
         return setup
-    floor = float(setup.floor_z)
-    split = split_depth(setup, library, freeform=bool(classify_faces(part).freeform))
-    if split.short <= 0:
+    seam = float(setup1.stock_min[2]) - float(setup1.floor_z)  # op 1's floor in op-2 work coordinates
+    face_z = float(part.bounds[1][2])  # the part's bottom face, turned over
+    if seam >= face_z - 1e-9:  # op 1 reached the part's bottom: the usual op 2
         return setup
+    floor = max(float(setup.floor_z), seam - BREAKTHROUGH_MM)
+    split = split_depth(dataclasses.replace(setup, floor_z=floor), library,
+                        freeform=bool(classify_faces(part).freeform))
     floor = float(split.setup.floor_z)
     jaws = [b for b in setup.jaws or () if b.name != "parallels"]
     if jaws:
         floor = max(floor, max(float(b.hi[2]) for b in jaws) + JAW_CLEARANCE_MM)
-    log.info("op 2 machines from the top of the turned-over stock down to Z%.2f: its tools reach %.1f mm",
-             floor, split.reach)
+    log.info("op 2 machines from the top of the turned-over stock down to Z%.2f (op 1 stopped at Z%.2f)",
+             floor, seam)
     return dataclasses.replace(setup, floor_z=floor)
 
 

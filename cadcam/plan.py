@@ -242,6 +242,9 @@ def _pick_rough(library: ToolLibrary, setup: Setup, depth: float) -> Tool:
 
 #: How much faster [share] a roughing end mill's estimate must be than a narrower one's to be chosen over it.
 _WIDER_MARGIN = 0.1
+#: Widest roughing end mill by fit, as a share of the stock's narrower side: a wider one leaves the part's
+#: every corner to rest tools and terraces, more than the estimate sees.
+_ROUGH_MOST_OF_WIDTH = 0.4
 
 
 def _pick_rough_by_fit(library: ToolLibrary, setup: Setup, depth: float, triangles: np.ndarray,
@@ -250,13 +253,15 @@ def _pick_rough_by_fit(library: ToolLibrary, setup: Setup, depth: float, triangl
 
     Each candidate clears the stock it reaches (:func:`cadcam.toolfit.tool_fits`) at its removal
     rate; what only narrower flat end mills get to falls to them in turn, widest first, each at
-    its own rate (rest roughing). The least total wins, unless a narrower tool comes within
-    :data:`_WIDER_MARGIN` of it.
+    its own rate (rest roughing). The least total wins, unless a flat one, or a narrower one,
+    comes within :data:`_WIDER_MARGIN` of it.
     """
     mills = [t for t in library.tools if t.shape in ("flat", "bull")]  # a drill does not rough
     reach = by_need(library, [t for t in mills if t.length >= depth])
     if not reach:
         raise _missing(library, "flat or bull-nose end mill for roughing", depth, mills)
+    width = float(min(setup.stock_size[0], setup.stock_size[1]))
+    reach = [t for t in reach if t.diameter <= _ROUGH_MOST_OF_WIDTH * width] or [min(reach, key=lambda t: t.diameter)]
     fits = {f.tool.number: f for f in tool_fits(triangles, setup, reach, options.roughing.allowance,
                                                 terrace_above=options.finish_engagement,
                                                 terrace_stepdown=options.terrace_stepdown)}
@@ -273,16 +278,23 @@ def _pick_rough_by_fit(library: ToolLibrary, setup: Setup, depth: float, triangl
 
     took = {t.number: minutes(t) for t in reach}
     fastest = min(took.values())
-    # A wider tool leaves more in corners to terrace and rest passes than the estimate counts: it has to
-    # win clearly; within the margin the narrower one roughs.
+    # A wider tool leaves more in corners to terrace and rest passes than the estimate counts, a bull-nose
+    # more on floors and in corners than a flat one: either has to win clearly; within the margin the
+    # narrower flat one roughs.
     near = [t for t in reach if took[t.number] <= (1.0 + _WIDER_MARGIN) * fastest]
-    return min(near, key=lambda t: (t.diameter, round(took[t.number], 3), t.shape != "flat", t.number))
+    return min(near, key=lambda t: (t.shape != "flat", t.diameter, round(took[t.number], 3), t.number))
 
 
-def flat_finish_tool(library: ToolLibrary, depth: float) -> Tool | None:
-    """The flat end mill for flats and walls: the widest that reaches ``depth`` [mm] (narrower
-    ones follow where it does not fit, :func:`rest_tools`); None if there is none."""
+def flat_finish_tool(library: ToolLibrary, depth: float, rough: Tool | None = None,
+                     widest: float | None = None) -> Tool | None:
+    """The flat end mill for flats and walls: the roughing end mill ``rough`` when it is a flat one that
+    reaches (no tool change), else the widest that reaches ``depth`` [mm], no wider than ``widest`` [mm]
+    if one is (narrower ones follow where it does not fit, :func:`rest_tools`); None if there is none."""
+    if rough is not None and rough.shape == "flat" and rough.length >= depth:
+        return rough
     fit = by_need(library, [t for t in library.tools if t.shape == "flat" and t.length >= depth])
+    if widest is not None and any(t.diameter <= widest for t in fit):
+        fit = [t for t in fit if t.diameter <= widest]
     return max(fit, key=lambda t: (t.diameter, t.length, -t.number)) if fit else None
 
 
@@ -570,7 +582,8 @@ def _flats_and_walls(plan: _Planning, operations: list[Operation], stock: Simula
     """Flats and walls with flat end mills (:func:`_finish_flats_and_walls`); the stock the ball starts
     from after them (modelled again only if there are freeform surfaces left to finish)."""
     setup = plan.setup
-    flat = flat_finish_tool(plan.library, float(setup.stock_max[2] - setup.floor_z))
+    flat = flat_finish_tool(plan.library, float(setup.stock_max[2] - setup.floor_z), plan.rough_tool,
+                            _ROUGH_MOST_OF_WIDTH * float(min(setup.stock_size[0], setup.stock_size[1])))
     if flat is not None:
         before = len(operations)
         _finish_flats_and_walls(plan, flat, stock, operations)
