@@ -10,9 +10,13 @@ import dataclasses
 import manifold3d
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from cadcam.finishing import FinishingOptions
-from cadcam.op2 import Op2Options, TURN_OVER, choose_face_up, plan_op2, seams, sides_reach
+from cadcam.model import Job
+from cadcam.op2 import (Op2Options, TURN_OVER, _reachable_floor, choose_face_up, flip_part, op2_jaws, op2_setup,
+                        plan_op2, seams, sides_reach)
 from cadcam.plan import PlanOptions, by_need, choose_tools, deepest_reach, plan_job, rest_tools, split_depth
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
@@ -145,3 +149,38 @@ def test_a_part_the_tools_reach_from_the_top_is_placed_as_given():
     setup, part_work = choose_face_up(part, lambda m: make_setup(m, jaws=JAWS), SHORT)
     np.testing.assert_allclose(setup.transform_mesh_to_work[:3, :3], np.eye(3))
     assert sides_reach(part_work, setup, SHORT).unreached_volume == 0.0
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(size=st.tuples(st.floats(20.0, 120.0), st.floats(15.0, 120.0), st.floats(30.0, 160.0)),
+       boss=st.floats(0.2, 0.9), base=st.floats(0.05, 0.5), turned=st.booleans())
+def test_no_part_that_fits_the_vise_is_refused_for_its_depth(size, boss, base, turned):
+    """Random tall blocks (a base and a boss on it, 30-160 mm tall) that fit the vise: the CAM stage's tool
+    choice for op 1 and for op 2 never refuses them for their depth; what neither side reaches is left."""
+    sx, sy, sz = size
+    body = manifold3d.Manifold.cube((sx, sy, base * sz)) + manifold3d.Manifold.cube(
+        (boss * sx, boss * sy, (1.0 - base) * sz + 0.5)).translate(((1 - boss) * sx / 2, (1 - boss) * sy / 2,
+                                                                     base * sz - 0.5))
+    part = manifold_to_trimesh(body)
+    if turned:
+        part.apply_transform(TURN_OVER)
+        part.apply_translation([0.0, 0.0, -part.bounds[0][2]])
+    for library in (LIBRARY, SHORT):
+        setup, part_work = choose_face_up(part, lambda m: make_setup(m, jaws=JAWS), library)
+        split = split_depth(setup, library)
+        rough, finish = choose_tools(library, split.setup, PlanOptions(), np.asarray(part_work.triangles))
+        assert rough.length >= float(split.setup.stock_max[2] - split.setup.floor_z)
+        assert finish.length >= float(split.setup.stock_max[2] - split.setup.floor_z)
+        left = sides_reach(part_work, setup, library)
+        # op 1 stops short exactly when its floor lies deeper than the tools reach
+        assert (split.short > 0) == (float(setup.stock_max[2] - setup.floor_z) > split.reach + 1e-9)
+        if float(setup.stock_size[2]) <= left.reach:  # one side reaches through the stock: nothing left
+            assert left.unreached_volume == 0
+        # op 2's side: its floor within the tools' reach from the turned-over stock, the tools chosen for it
+        job1 = Job(part_name="p", setup=split.setup, operations=())
+        part2 = flip_part(part_work, setup)
+        setup2 = _reachable_floor(dataclasses.replace(op2_setup(setup), floor_z=float(part2.bounds[0][2]),
+                                                      jaws=op2_jaws(JAWS, op2_setup(setup), part2,
+                                                                    float(part2.bounds[1][2]))),
+                                  job1.setup, library, part2, PlanOptions())
+        choose_tools(library, setup2, PlanOptions())
