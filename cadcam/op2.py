@@ -30,6 +30,13 @@ Features seen from below
     left over the turned-over part's upper envelope (a pocket or recess in the bottom face,
     which op 1 could not reach through the part), it is rest roughed with the library's flat
     end mills and finished with the finishing tool, only there (:func:`plan_op2`).
+Depth split
+    A part deeper than the tools reach from the top (:func:`cadcam.plan.split_depth`): op 1
+    stopped at its reach, and op 2 machines from below down to op 1's floor (less the
+    breakthrough, so the walls overlap), within its own reach and clear of the jaws: rest
+    roughing, then flats and walls by the flank as op 1 finishes them. Where the walls meet,
+    :func:`seams` measures the step from both jobs' toolpaths. Which face goes up first is the
+    one that leaves the least no tool reaches from either side (:func:`choose_face_up`).
 """
 
 from __future__ import annotations
@@ -67,6 +74,9 @@ WORK_OFFSET = {1: 1, 2: 2}
 _ORIGIN_WORDS = {"top-front-left": "front-left corner", "top-centre": "centre"}
 #: Stock left over a face from below that counts as finished: the verify's residual target [mm].
 _FINISHED = 0.02
+#: Largest step between op 1's and op 2's walls where they meet [mm]: the stock verify lets a finished
+#: part keep (:attr:`cadcam.verify.VerifyOptions.left_above`).
+SEAM_TOLERANCE = 0.1
 
 
 def flip_transform(setup: Setup) -> np.ndarray:
@@ -375,7 +385,8 @@ def plan_op2(
         In op-2 work coordinates (:func:`op2_setup`). ``parameters``: ``op`` (2),
         ``work_offset`` (2: G55), ``flip`` (axis and the op-1 -> op-2 transform),
         ``face_z`` (the part's original bottom face in op 2 [mm]), ``holding_mm`` (the
-        allowance faced off), ``unreached`` (stock from below no tool reaches) and ``rapids``.
+        allowance faced off), ``unreached`` (stock from below no tool reaches) and ``rapids``; after a
+        depth split (op 1 stopped short of the part's bottom), ``seams`` (:func:`seams`, as dicts).
     part_op2 : trimesh.Trimesh
         The part in op-2 work coordinates.
 
@@ -437,6 +448,14 @@ def plan_op2(
     parameters = _op2_parameters(setup1, setup, part_work, face_z, tool, jaws, options, left_regions, checked, fixed)
     job = Job(part_name=job1.part_name, setup=setup, operations=tuple(safe_ops), source_sha256=job1.source_sha256,
               parameters=parameters)
+    if float(setup1.floor_z) > float(part_work.bounds[0][2]) + 1e-9:  # a depth split: where the walls meet
+        found = seams(part_work, job1, job)
+        for seam in found:
+            if not seam.step <= SEAM_TOLERANCE:  # NaN too: a wall no tool came near
+                log.warning("op 2: the walls of op 1 and op 2 meet at Z%.2f with a %.3f mm step (%.3f above, "
+                            "%.3f below), over the %.2f mm tolerance", seam.z, seam.step, seam.above, seam.below,
+                            SEAM_TOLERANCE)
+        job = dataclasses.replace(job, parameters={**parameters, "seams": [s.to_dict() for s in found]})
     return job, part
 
 

@@ -140,8 +140,9 @@ def choose_tools(library: ToolLibrary, setup: Setup, options: PlanOptions,
     """The roughing and finishing tools: the options' numbers, or chosen by reach and size.
 
     Every tool must reach from the stock top down to the floor (``setup.floor_z``) with its
-    stick-out (``Tool.length``), or the holder would hit the part. Roughing, given the part: the
-    end mill that fits the part's features best (:func:`_pick_rough_by_fit`); without it, the
+    stick-out (``Tool.length``), or the holder would hit the part; of those that do, a long-reach
+    end mill only when no standard one does (:func:`by_need`). Roughing, given the part: the
+    end mill that roughs it soonest (:func:`_pick_rough_by_fit`); without it, the
     widest flat (else bull-nose) end mill no wider than a tenth of the stock's narrower side, or
     the narrowest one that reaches if all are wider.
     Finishing: the widest ball end mill that reaches and is no wider than the roughing tool
@@ -378,6 +379,10 @@ def plan_job(
     holes: tuple[Hole, ...] | None = None,
 ) -> PlanJobResult:
     """Compute the operations that cut ``part`` out of the stock described by ``setup``.
+
+    A part deeper than the library reaches (with neither tool named) is machined down to that reach
+    (:func:`split_depth`): ``job.setup.floor_z`` is raised there, and op 2 machines the rest from below
+    (:func:`cadcam.op2.plan_op2`).
 
     The steps, in cutting order: holes and roughing (:func:`_holes_and_roughing`), rest roughing
     (:func:`_rest_roughing`), what no tool reaches (:func:`_unreached`), flats and walls
