@@ -440,7 +440,10 @@ def plan_op2(
         walls = float(setup1.floor_z) > float(part_work.bounds[0][2]) + 1e-9
         operations, stock = _machine_from_below(part, triangles, setup, library, plan, operations, stock, start_at,
                                                 options.cell, left, walls)
-    left_regions = unreached(stock, limit, allowance)
+    seam = _seam_floor(setup1, part)
+    # what neither side reaches: below op 2's floor, down to where op 1 stopped, is left too
+    left_regions = unreached(stock if seam is None or seam >= float(setup.floor_z) - 1e-9
+                             else dataclasses.replace(stock, floor_z=seam), limit, allowance)
     for u in left_regions:
         log.warning("op 2: no tool reaches %s from below; left uncut", u.describe())
     operations = [op for op in operations if len(op.points) >= 2]
@@ -648,6 +651,16 @@ def _discs_at(job: Job, h: float, spacing: float) -> tuple[np.ndarray, np.ndarra
     return np.concatenate(centres), np.concatenate(radii)
 
 
+def _seam_floor(setup1: Setup, part: trimesh.Trimesh) -> float | None:
+    """Where op 2's work ends after a depth split, in op-2 work coordinates [mm]: op 1's floor turned over,
+    less the breakthrough (the walls overlap there); None when op 1 reached the part's bottom. ``part``: the
+    part turned over (op 2's)."""
+    seam = float(setup1.stock_min[2]) - float(setup1.floor_z)  # op 1's floor in op-2 work coordinates
+    if seam >= float(part.bounds[1][2]) - 1e-9:  # at or above the part's bottom face, turned over
+        return None
+    return max(seam - BREAKTHROUGH_MM, float(part.bounds[0][2]))
+
+
 def _reachable_floor(setup: Setup, setup1: Setup, library: ToolLibrary, part: trimesh.Trimesh,
                      plan: PlanOptions) -> Setup:
     """Op 2's setup with its floor where op 2's work ends when op 1 stopped short of the part's bottom
@@ -657,11 +670,10 @@ def _reachable_floor(setup: Setup, setup1: Setup, library: ToolLibrary, part: tr
     Any other setup is returned as it is."""
     if plan.rough_tool is not None or plan.finish_tool is not None:
         return setup
-    seam = float(setup1.stock_min[2]) - float(setup1.floor_z)  # op 1's floor in op-2 work coordinates
-    face_z = float(part.bounds[1][2])  # the part's bottom face, turned over
-    if seam >= face_z - 1e-9:  # op 1 reached the part's bottom: the usual op 2
+    seam = _seam_floor(setup1, part)
+    if seam is None:  # op 1 reached the part's bottom: the usual op 2
         return setup
-    floor = max(float(setup.floor_z), seam - BREAKTHROUGH_MM)
+    floor = max(float(setup.floor_z), seam)
     split = split_depth(dataclasses.replace(setup, floor_z=floor), library,
                         freeform=bool(classify_faces(part).freeform))
     floor = float(split.setup.floor_z)

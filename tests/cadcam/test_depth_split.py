@@ -184,3 +184,19 @@ def test_no_part_that_fits_the_vise_is_refused_for_its_depth(size, boss, base, t
                                                                     float(part2.bounds[1][2]))),
                                   job1.setup, library, part2, PlanOptions())
         choose_tools(library, setup2, PlanOptions())
+
+
+def test_what_neither_side_reaches_is_reported_with_its_place_and_size_not_refused():
+    """A block 100 mm tall: op 1 reaches 45 mm from the top, op 2 45 mm from the bottom; the band of the
+    2 mm side margin between them is left, reported by op 2 where it is, all round the block."""
+    part = manifold_to_trimesh(manifold3d.Manifold.cube((30.0, 24.0, 100.0)))
+    setup, part_work = make_setup(part, jaws=JAWS)
+    job1 = plan_job(part_work, setup, SHORT, part_name="tall", options=PLAN).job
+    job2, part2 = plan_op2(part_work, job1, SHORT, options=Op2Options(plan=PLAN), jaws=JAWS)
+    (band,) = [u for u in job2.parameters["unreached"] if u["depth"] > 5.0]
+    # from op 2's floor (45 below its top) down to op 1's floor turned over, less the breakthrough
+    op1_floor = float(setup.stock_min[2]) - float(job1.setup.floor_z) - 0.5
+    assert band["depth"] == pytest.approx(float(job2.setup.floor_z) - op1_floor, abs=0.6)
+    assert band["size_x"] == pytest.approx(float(setup.stock_size[0]), abs=1.0)
+    assert band["size_y"] == pytest.approx(float(setup.stock_size[1]), abs=1.0)
+    assert band["z_bottom"] == pytest.approx(op1_floor, abs=0.6)
