@@ -667,12 +667,19 @@ def _reachable_floor(setup: Setup, setup1: Setup, library: ToolLibrary, part: tr
     (:func:`cadcam.plan.split_depth`): op 1's floor turned over, less the breakthrough (the walls overlap
     there, :func:`seams`), no deeper than the library reaches from the turned-over stock's top and clear of
     the jaws' top by :data:`cadcam.setup.JAW_CLEARANCE_MM` (the tool beside the part passes over them).
-    Any other setup is returned as it is."""
+    Any other setup no deeper than the library reaches either (op 1 went through; a feature from below
+    deeper than that is left and reported)."""
     if plan.rough_tool is not None or plan.finish_tool is not None:
         return setup
     seam = _seam_floor(setup1, part)
-    if seam is None:  # op 1 reached the part's bottom: the usual op 2
-        return setup
+    if seam is None:  # op 1 reached the part's bottom: op 2 goes no deeper than its tools reach
+        if float(setup.stock_max[2] - setup.floor_z) <= deepest_reach(library, freeform=True):
+            return setup  # (the usual op 2: every tool that might finish reaches)
+        split = split_depth(setup, library, freeform=bool(classify_faces(part).freeform))
+        if split.short > 0:
+            log.info("op 2 machines from the top of the turned-over stock down to Z%.2f: its tools reach %.1f mm",
+                     split.setup.floor_z, split.reach)
+        return split.setup
     floor = max(float(setup.floor_z), seam)
     split = split_depth(dataclasses.replace(setup, floor_z=floor), library,
                         freeform=bool(classify_faces(part).freeform))
