@@ -420,7 +420,9 @@ def plan_holes(
     initial = max(float(setup.safe_z), r_plane)
     drills = library.drills(mat)
     spots = library.spot_drills(mat) if options.spot else ()
-    mills = sorted((t for t in library.tools if t.shape == "flat"), key=lambda t: (-t.diameter, t.number))
+    # a long-reach end mill (slower) only for a hole no standard one reaches
+    mills = sorted((t for t in library.tools if t.shape == "flat"),
+                   key=lambda t: (library.feed_factor(t) < 1.0, -t.diameter, t.number))
     min_helix = 0.3 * rough_tool.diameter if rough_min_helix is None else rough_min_helix
     chosen = _choose_methods(holes, drills, mills, rough_tool, min_helix, allowance, top, floor, options)
     drilled, helixed = chosen.drilled, chosen.helixed
@@ -464,7 +466,8 @@ def _choose_methods(holes: tuple[Hole, ...], drills: tuple[Tool, ...], mills: li
                     options: DrillingOptions) -> _Methods:
     """Each hole's method, in :func:`plan_holes`' order of preference (``top``: stock top, ``floor``:
     lowest a tool may go, ``min_helix``: narrowest helix the roughing enters with, ``allowance``:
-    stock roughing leaves on walls, all [mm]; ``mills``: flat end mills, widest first)."""
+    stock roughing leaves on walls, all [mm]; ``mills``: flat end mills, the standard ones widest first, then
+    the long-reach ones)."""
 
     def exact(h: Hole, tip_of) -> Tool | None:
         for t in sorted(drills, key=lambda t: -t.diameter):

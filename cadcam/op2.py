@@ -30,6 +30,13 @@ Features seen from below
     left over the turned-over part's upper envelope (a pocket or recess in the bottom face,
     which op 1 could not reach through the part), it is rest roughed with the library's flat
     end mills and finished with the finishing tool, only there (:func:`plan_op2`).
+Depth split
+    A part deeper than the tools reach from the top (:func:`cadcam.plan.split_depth`): op 1
+    stopped at its reach, and op 2 machines from below down to op 1's floor (less the
+    breakthrough, so the walls overlap), within its own reach and clear of the jaws: rest
+    roughing, then flats and walls by the flank as op 1 finishes them. Where the walls meet,
+    :func:`seams` measures the step from both jobs' toolpaths. Which face goes up first is the
+    one that leaves the least no tool reaches from either side (:func:`choose_face_up`).
 """
 
 from __future__ import annotations
@@ -37,6 +44,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -45,14 +53,16 @@ from scipy import ndimage
 
 from cadcam.finishing import EngagementLimit, raster_finishing
 from cadcam.model import CuttingData, FixtureBox, Job, Motion, Operation, Setup, Tool, ViseJaws
-from cadcam.plan import PlanOptions, choose_tools, rest_tools
+from cadcam.faces import classify_faces
+from cadcam.heightmap import grid_over, upper_envelope
+from cadcam.plan import PlanOptions, choose_tools, deepest_reach, flats_and_walls_from, rest_tools, split_depth
 from cadcam.rest import safe_rapids
 from cadcam.roughing import zlevel_roughing
-from cadcam.setup import JAW_CLEARANCE_MM
+from cadcam.setup import BREAKTHROUGH_MM, JAW_CLEARANCE_MM
 from cadcam.tools import ToolLibrary
 from cadcam.stock import (FlippedStock, Simulation, clear_height, excess, flip_stock, stock_after, stock_after_flipped,
                           unreached)
-from factory.core.errors import SetupError, ToolError, ToolpathError
+from factory.core.errors import FactoryError, SetupError, ToolError, ToolpathError
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +74,9 @@ WORK_OFFSET = {1: 1, 2: 2}
 _ORIGIN_WORDS = {"top-front-left": "front-left corner", "top-centre": "centre"}
 #: Stock left over a face from below that counts as finished: the verify's residual target [mm].
 _FINISHED = 0.02
+#: Largest step between op 1's and op 2's walls where they meet [mm]: the stock verify lets a finished
+#: part keep (:attr:`cadcam.verify.VerifyOptions.left_above`).
+SEAM_TOLERANCE = 0.1
 
 
 def flip_transform(setup: Setup) -> np.ndarray:
@@ -372,7 +385,8 @@ def plan_op2(
         In op-2 work coordinates (:func:`op2_setup`). ``parameters``: ``op`` (2),
         ``work_offset`` (2: G55), ``flip`` (axis and the op-1 -> op-2 transform),
         ``face_z`` (the part's original bottom face in op 2 [mm]), ``holding_mm`` (the
-        allowance faced off), ``unreached`` (stock from below no tool reaches) and ``rapids``.
+        allowance faced off), ``unreached`` (stock from below no tool reaches) and ``rapids``; after a
+        depth split (op 1 stopped short of the part's bottom), ``seams`` (:func:`seams`, as dicts).
     part_op2 : trimesh.Trimesh
         The part in op-2 work coordinates.
 
@@ -389,9 +403,10 @@ def plan_op2(
     triangles = np.asarray(part.triangles)
     face_z = float(part.bounds[1][2])
     top = float(setup.stock_max[2])
-    # Nothing feeds below the part: under it are the parallels.
+    # Nothing feeds below the part: under it are the parallels; nor deeper than the tools reach from this side.
     setup = dataclasses.replace(setup, floor_z=float(part.bounds[0][2]),
                                 jaws=None if jaws is None else op2_jaws(jaws, setup, part, face_z))
+    setup = _reachable_floor(setup, setup1, library, part, options.plan)
     tool = choose_facing_tool(library, top - face_z, options.facing_tool)
     operations = [facing(setup, face_z, tool, library.cutting_data(tool, setup.material), options.facing)]
 
@@ -405,16 +420,30 @@ def plan_op2(
 
     plan = options.plan
     allowance, limit = plan.roughing.allowance, plan.finish_engagement
-    left = _left_from_below(stock, 0.0)
+    left = _left_from_below(stock, 0.0) | (excess(stock, allowance) > limit)
     if left.any() and op1_stock.grid.cell != options.cell:
         # Rest roughing reads the stock cell by cell: on the planning grid, not a finer verify grid.
         start = flip_stock(op1_model(), flip_transform(setup1), setup)
         stock = stock_after_flipped(operations, setup, triangles, start, options.cell)
-        left = _left_from_below(stock, 0.0)
+        left = _left_from_below(stock, 0.0) | (excess(stock, allowance) > limit)
     if left.any():
-        operations, stock = _machine_from_below(part, triangles, setup, library, plan, operations, stock, start,
-                                                options.cell, left)
-    left_regions = unreached(stock, limit, allowance)
+        starts = {start.grid.cell: start}
+
+        def start_at(cell: float) -> FlippedStock:
+            """Op 1's stock turned over on a grid of ``cell`` [mm] (the flats and walls read a finer one)."""
+            if cell not in starts:
+                sim1 = stock_after(list(job1.operations), setup1, np.asarray(part_work.triangles), cell)
+                starts[cell] = flip_stock(sim1, flip_transform(setup1), setup)
+            return starts[cell]
+
+        # Op 1 stopped short of the part's bottom (its tools do not reach so deep): the walls below are op 2's.
+        walls = float(setup1.floor_z) > float(part_work.bounds[0][2]) + 1e-9
+        operations, stock = _machine_from_below(part, triangles, setup, library, plan, operations, stock, start_at,
+                                                options.cell, left, walls)
+    seam = _seam_floor(setup1, part)
+    # what neither side reaches: below op 2's floor, down to where op 1 stopped, is left too
+    left_regions = unreached(stock if seam is None or seam >= float(setup.floor_z) - 1e-9
+                             else dataclasses.replace(stock, floor_z=seam), limit, allowance)
     for u in left_regions:
         log.warning("op 2: no tool reaches %s from below; left uncut", u.describe())
     operations = [op for op in operations if len(op.points) >= 2]
@@ -422,17 +451,258 @@ def plan_op2(
     parameters = _op2_parameters(setup1, setup, part_work, face_z, tool, jaws, options, left_regions, checked, fixed)
     job = Job(part_name=job1.part_name, setup=setup, operations=tuple(safe_ops), source_sha256=job1.source_sha256,
               parameters=parameters)
+    if float(setup1.floor_z) > float(part_work.bounds[0][2]) + 1e-9:  # a depth split: where the walls meet
+        found = seams(part_work, job1, job)
+        for seam in found:
+            if not seam.step <= SEAM_TOLERANCE:  # NaN too: a wall no tool came near
+                log.warning("op 2: the walls of op 1 and op 2 meet at Z%.2f with a %.3f mm step (%.3f above, "
+                            "%.3f below), over the %.2f mm tolerance", seam.z, seam.step, seam.above, seam.below,
+                            SEAM_TOLERANCE)
+        job = dataclasses.replace(job, parameters={**parameters, "seams": [s.to_dict() for s in found]})
     return job, part
 
 
+#: The part turned over about work X before it is placed (:func:`choose_face_up`), as a (4, 4) transform.
+TURN_OVER = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+@dataclass(frozen=True)
+class SidesReach:
+    """What the tools of one setup and of the one after the flip leave between them, on a heightmap.
+
+    Attributes
+    ----------
+    unreached_volume : float
+        Stock neither side reaches [mm^3]: above the part deeper than the reach from the top, below it
+        higher than the reach from the bottom, and beside it between the two.
+    reach : float
+        Depth the tools reach from either side [mm] (:func:`cadcam.plan.deepest_reach`).
+    """
+
+    unreached_volume: float
+    reach: float
+
+
+def sides_reach(part_work: trimesh.Trimesh, setup: Setup, library: ToolLibrary, cell: float = 1.0) -> SidesReach:
+    """The stock no tool reaches from the top (op 1) nor, turned over, from the bottom (op 2) [mm^3].
+
+    A column-wise estimate on a grid of ``cell`` [mm]: it counts what lies beyond each side's reach and
+    shadowed from the other by the part, not what a tool's width keeps it from (that is toolfit's).
+    """
+    top, bottom = float(setup.stock_max[2]), float(setup.stock_min[2])
+    if top - bottom <= deepest_reach(library, freeform=True):  # either side reaches through: nothing left
+        return SidesReach(0.0, deepest_reach(library))
+    reach = deepest_reach(library, freeform=bool(classify_faces(part_work).freeform))
+    grid = grid_over(setup.stock_min, setup.stock_max, cell)
+    tri = np.asarray(part_work.triangles, dtype=np.float64)
+    top_of_part = upper_envelope(tri, grid)
+    bottom_of_part = -upper_envelope(tri * np.array([1.0, 1.0, -1.0]), grid)
+    from_top, from_below = top - reach, bottom + reach  # the lowest op 1 reaches, the highest op 2 does
+    part = np.isfinite(top_of_part)
+    left = np.where(part, np.maximum(from_top - np.where(part, top_of_part, 0.0), 0.0)
+                    + np.maximum(np.where(part, bottom_of_part, 0.0) - from_below, 0.0),
+                    max(from_top - from_below, 0.0))
+    return SidesReach(float(left.sum() * cell * cell), reach)
+
+
+def choose_face_up(part: trimesh.Trimesh, place: Callable[[trimesh.Trimesh], tuple[Setup, trimesh.Trimesh]],
+                   library: ToolLibrary) -> tuple[Setup, trimesh.Trimesh]:
+    """The part placed (``place``: :func:`cadcam.setup.orient_setup` with its options) with the face up
+    first that leaves the least stock no tool reaches from either side (:func:`sides_reach`).
+
+    The file's orientation is kept unless turning the part over (:data:`TURN_OVER`, before placing it)
+    leaves less unreached, by more than a cubic millimetre per square millimetre of the stock's footprint
+    (a tenth of a cell in noise), and places at all. The setup's ``transform_mesh_to_work`` then includes
+    the turn. Only a part deeper than the tools reach from one side is weighed: any other is placed as given.
+    """
+    setup, part_work = place(part)
+    given = sides_reach(part_work, setup, library)
+    if given.unreached_volume <= 0:
+        return setup, part_work
+    turned = part.copy()
+    turned.apply_transform(TURN_OVER)
+    try:
+        setup_t, part_t = place(turned)
+    except FactoryError:
+        return setup, part_work
+    other = sides_reach(part_t, setup_t, library)
+    footprint = float(np.prod(setup.stock_size[:2]))
+    if other.unreached_volume < given.unreached_volume - footprint:
+        log.warning("turned over (about X) before op 1: its tools then leave %.0f mm^3 unreached from either side, "
+                    "not %.0f mm^3 as given", other.unreached_volume, given.unreached_volume)
+        return dataclasses.replace(setup_t, transform_mesh_to_work=setup_t.transform_mesh_to_work @ TURN_OVER), part_t
+    return setup, part_work
+
+
+@dataclass(frozen=True)
+class Seam:
+    """Where op 1's and op 2's walls meet, and how well they match.
+
+    Attributes
+    ----------
+    z : float
+        Height of the seam in op-1 work coordinates [mm]: op 1's floor, or the highest op 2 reaches.
+    above, below : float
+        Most stock left on the part's walls after both operations [mm], in a slice ``probe`` above and
+        below ``z`` (negative: the tool cut into the part).
+    """
+
+    z: float
+    above: float
+    below: float
+
+    @property
+    def step(self) -> float:
+        """The step between the walls the two operations leave [mm]."""
+        return abs(self.above - self.below)
+
+    def to_dict(self) -> dict[str, float]:
+        return {"z": round(self.z, 3), "above": round(self.above, 4), "below": round(self.below, 4),
+                "step": round(self.step, 4)}
+
+
+def seams(part_work: trimesh.Trimesh, job1: Job, job2: Job, probe: float = 0.3, spacing: float = 0.05
+          ) -> tuple[Seam, ...]:
+    """The seams between op 1 and op 2 on the part's walls, measured from both jobs' toolpaths.
+
+    A check independent of the stock models: at a height ``h`` the part's section is sampled along its
+    outline every ``spacing`` [mm]; the flutes of every feed move of both operations that span ``h`` (op 2's
+    turned back into op-1 work coordinates) sweep discs, sampled every ``spacing`` along each move; the
+    stock left on the wall at an outline point is its distance to the nearest disc's rim. The seams are at
+    op 1's floor and at the highest op 2 reaches, where they lie within the part's height; ``above`` and
+    ``below`` the most left ``probe`` [mm] either side (outline points no tool came near, a narrow slot,
+    are left out: farther than a tool radius plus ``probe``).
+
+    Returns
+    -------
+    tuple of Seam
+        Lowest first; empty when op 1 reached the part's bottom and op 2 only faced.
+    """
+    from scipy.spatial import cKDTree
+
+    flip = flip_transform(job1.setup)  # its own inverse
+    lo, hi = float(part_work.bounds[0][2]), float(part_work.bounds[1][2])
+    heights = {float(job1.setup.floor_z), float(flip[2, 3] - job2.setup.floor_z)}
+    out = []
+    for z in sorted(h for h in heights if lo + probe < h < hi - probe):
+        left = []
+        for h in (z + probe, z - probe):
+            outline = _outline(part_work, h, spacing)
+            centres, radii = [], []
+            for job, turned in ((job1, False), (job2, True)):
+                c, r = _discs_at(job, float(flip[2, 3] - h) if turned else h, spacing)
+                if turned and len(c):
+                    c = (flip[:2, :2] @ c.T).T + flip[:2, 3]
+                centres.append(c)
+                radii.append(r)
+            c, r = np.concatenate(centres), np.concatenate(radii)
+            if not len(outline) or not len(c):
+                left.append(float("nan"))
+                continue
+            gaps = []
+            for radius in np.unique(r):
+                d, _ = cKDTree(c[r == radius]).query(outline)
+                gaps.append(d - radius)
+            gap = np.min(gaps, axis=0)
+            near = gap <= float(r.max()) + probe
+            left.append(float(gap[near].max()) if near.any() else float("nan"))
+        out.append(Seam(z, left[0], left[1]))
+    return tuple(out)
+
+
+def _outline(part: trimesh.Trimesh, h: float, spacing: float) -> np.ndarray:
+    """(n, 2) points every ``spacing`` [mm] along the part's section at height ``h`` [mm]."""
+    segments = trimesh.intersections.mesh_plane(part, [0.0, 0.0, 1.0], [0.0, 0.0, h])
+    if not len(segments):
+        return np.zeros((0, 2))
+    a, b = segments[:, 0, :2], segments[:, 1, :2]
+    n = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / spacing).astype(int), 1)
+    t = np.concatenate([np.arange(k) / k for k in n])
+    k = np.repeat(np.arange(len(a)), n)
+    return a[k] + (b[k] - a[k]) * t[:, None]
+
+
+def _discs_at(job: Job, h: float, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (n, 2) [mm] and radii (n,) [mm] of the discs the flutes of ``job``'s feed moves sweep at
+    height ``h`` [mm], sampled every ``spacing`` along each move (a bull or ball end narrower near its tip)."""
+    centres, radii = [], []
+    for op in job.operations:
+        tool, p = op.tool, np.asarray(op.points, dtype=np.float64)
+        if tool.is_drill or len(p) < 2:
+            continue
+        feed = np.asarray(op.motion[1:]) != int(Motion.RAPID)
+        a, b = p[:-1][feed], p[1:][feed]
+        if not len(a):
+            continue
+        n = np.maximum(np.ceil(np.linalg.norm(b[:, :2] - a[:, :2], axis=1) / spacing).astype(int), 1)
+        t = np.concatenate([np.arange(k + 1) / k for k in n])
+        k = np.repeat(np.arange(len(a)), n + 1)
+        q = a[k] + (b[k] - a[k]) * t[:, None]
+        up = h - q[:, 2]  # the slice's height above the tip
+        span = (up >= 0) & (up <= tool.flute_length)
+        rc = tool.corner_radius
+        # a torus corner narrows the disc near the tip: r - rc + sqrt(rc^2 - (rc - up)^2)
+        below = np.clip(rc - up[span], 0.0, rc)
+        radius = tool.radius - rc + np.sqrt(np.maximum(rc * rc - below * below, 0.0))
+        centres.append(q[span, :2])
+        radii.append(np.floor(radius * 100.0) / 100.0)  # a hundredth smaller: fewer radii, never less left
+    if not centres:
+        return np.zeros((0, 2)), np.zeros(0)
+    return np.concatenate(centres), np.concatenate(radii)
+
+
+def _seam_floor(setup1: Setup, part: trimesh.Trimesh) -> float | None:
+    """Where op 2's work ends after a depth split, in op-2 work coordinates [mm]: op 1's floor turned over,
+    less the breakthrough (the walls overlap there); None when op 1 reached the part's bottom. ``part``: the
+    part turned over (op 2's)."""
+    seam = float(setup1.stock_min[2]) - float(setup1.floor_z)  # op 1's floor in op-2 work coordinates
+    if seam >= float(part.bounds[1][2]) - 1e-9:  # at or above the part's bottom face, turned over
+        return None
+    return max(seam - BREAKTHROUGH_MM, float(part.bounds[0][2]))
+
+
+def _reachable_floor(setup: Setup, setup1: Setup, library: ToolLibrary, part: trimesh.Trimesh,
+                     plan: PlanOptions) -> Setup:
+    """Op 2's setup with its floor where op 2's work ends when op 1 stopped short of the part's bottom
+    (:func:`cadcam.plan.split_depth`): op 1's floor turned over, less the breakthrough (the walls overlap
+    there, :func:`seams`), no deeper than the library reaches from the turned-over stock's top and clear of
+    the jaws' top by :data:`cadcam.setup.JAW_CLEARANCE_MM` (the tool beside the part passes over them).
+    Any other setup no deeper than the library reaches either (op 1 went through; a feature from below
+    deeper than that is left and reported)."""
+    if plan.rough_tool is not None or plan.finish_tool is not None:
+        return setup
+    seam = _seam_floor(setup1, part)
+    if seam is None:  # op 1 reached the part's bottom: op 2 goes no deeper than its tools reach
+        if float(setup.stock_max[2] - setup.floor_z) <= deepest_reach(library, freeform=True):
+            return setup  # (the usual op 2: every tool that might finish reaches)
+        split = split_depth(setup, library, freeform=bool(classify_faces(part).freeform))
+        if split.short > 0:
+            log.info("op 2 machines from the top of the turned-over stock down to Z%.2f: its tools reach %.1f mm",
+                     split.setup.floor_z, split.reach)
+        return split.setup
+    floor = max(float(setup.floor_z), seam)
+    split = split_depth(dataclasses.replace(setup, floor_z=floor), library,
+                        freeform=bool(classify_faces(part).freeform))
+    floor = float(split.setup.floor_z)
+    jaws = [b for b in setup.jaws or () if b.name != "parallels"]
+    if jaws:
+        floor = max(floor, max(float(b.hi[2]) for b in jaws) + JAW_CLEARANCE_MM)
+    log.info("op 2 machines from the top of the turned-over stock down to Z%.2f (op 1 stopped at Z%.2f)",
+             floor, seam)
+    return dataclasses.replace(setup, floor_z=floor)
+
+
 def _machine_from_below(part: trimesh.Trimesh, triangles: np.ndarray, setup: Setup, library: ToolLibrary,
-                        plan: PlanOptions, operations: list[Operation], stock: Simulation, start: FlippedStock,
-                        cell: float, left: np.ndarray) -> tuple[list[Operation], Simulation]:
+                        plan: PlanOptions, operations: list[Operation], stock: Simulation,
+                        start_at: Callable[[float], FlippedStock], cell: float, left: np.ndarray,
+                        walls: bool = False) -> tuple[list[Operation], Simulation]:
     """Rest rough, then finish, the stock left over faces seen from below (pockets and recesses in the
     bottom face), only there: ``operations`` with those appended, and the stock after them.
 
-    ``stock``: the op-2 stock after ``operations``, from ``start`` (op 1's turned over) on a grid
-    of ``cell`` [mm]; ``left``: its grid points with stock over faces seen from below;
+    ``stock``: the op-2 stock after ``operations``, from ``start_at(cell)`` (op 1's turned over) on a grid
+    of ``cell`` [mm]; ``left``: its grid points with stock left (over faces seen from below, or beyond what
+    op 1 reached from the top); ``walls``: op 1 stopped short of the part's bottom, so its walls and flats
+    below are finished here too;
     ``triangles``: the part's, (m, 3, 3) [mm].
     """
     allowance, limit = plan.roughing.allowance, plan.finish_engagement
@@ -440,7 +710,7 @@ def _machine_from_below(part: trimesh.Trimesh, triangles: np.ndarray, setup: Set
              int(left.sum()))
     operations = list(operations)
     rough_tool, finish_tool = choose_tools(library, setup, plan)
-    for t in [rough_tool, *rest_tools(library, rough_tool)]:
+    for t in [rough_tool, *rest_tools(library, rough_tool, float(setup.stock_max[2] - setup.floor_z))]:
         if not (excess(stock, allowance) > limit).any():
             break
         opts = dataclasses.replace(plan.roughing, stepdown=None, stepover=None, helix_diameter=None,
@@ -449,14 +719,16 @@ def _machine_from_below(part: trimesh.Trimesh, triangles: np.ndarray, setup: Set
                              rest_above=limit)
         if len(op.points) > 1:
             operations.append(op)
-            stock = stock_after_flipped(operations, setup, triangles, start, cell)
+            stock = stock_after_flipped(operations, setup, triangles, start_at(cell), cell)
+    if walls:  # the walls and flats the roughing left at its allowance, by the flank as op 1 finishes them
+        operations, stock = flats_and_walls_from(part, setup, library, plan, operations, start_at)
     raster = raster_finishing(part, setup, finish_tool, library.cutting_data(finish_tool, setup.material),
                               dataclasses.replace(plan.finishing, steep_angle=90.0), stock=stock,
                               limit=EngagementLimit(depth=limit, allowance=allowance))
     raster = _only_where(raster, _left_from_below(stock, 0.0), stock, setup)
     if len(raster.points) > 1:
         operations.append(raster)
-        stock = stock_after_flipped(operations, setup, triangles, start, cell)
+        stock = stock_after_flipped(operations, setup, triangles, start_at(cell), cell)
     return operations, stock
 
 

@@ -35,7 +35,7 @@ from cadcam.roughing import RoughingOptions, zlevel_roughing
 from cadcam.shank_clearance import upper_raster
 from cadcam.toolfit import removal_rate, tool_fits
 from cadcam.tools import ToolLibrary
-from cadcam.stock import Simulation, Unreached, excess, stock_after, unreached
+from cadcam.stock import FlippedStock, Simulation, Unreached, excess, stock_after, stock_after_flipped, unreached
 from factory.core.errors import ToolError
 
 T = TypeVar("T")
@@ -140,8 +140,9 @@ def choose_tools(library: ToolLibrary, setup: Setup, options: PlanOptions,
     """The roughing and finishing tools: the options' numbers, or chosen by reach and size.
 
     Every tool must reach from the stock top down to the floor (``setup.floor_z``) with its
-    stick-out (``Tool.length``), or the holder would hit the part. Roughing, given the part: the
-    end mill that fits the part's features best (:func:`_pick_rough_by_fit`); without it, the
+    stick-out (``Tool.length``), or the holder would hit the part; of those that do, a long-reach
+    end mill only when no standard one does (:func:`by_need`). Roughing, given the part: the
+    end mill that roughs it soonest (:func:`_pick_rough_by_fit`); without it, the
     widest flat (else bull-nose) end mill no wider than a tenth of the stock's narrower side, or
     the narrowest one that reaches if all are wider.
     Finishing: the widest ball end mill that reaches and is no wider than the roughing tool
@@ -159,7 +160,7 @@ def choose_tools(library: ToolLibrary, setup: Setup, options: PlanOptions,
     if options.rough_tool is not None:
         rough = _checked_tool(library, options.rough_tool, depth, "roughing")
     elif part_triangles is not None:
-        rough = _pick_rough_by_fit(library, setup, depth, part_triangles, options.roughing.allowance)
+        rough = _pick_rough_by_fit(library, setup, depth, part_triangles, options)
     else:
         rough = _pick_rough(library, setup, depth)
     if options.finish_tool is not None:
@@ -167,6 +168,58 @@ def choose_tools(library: ToolLibrary, setup: Setup, options: PlanOptions,
     else:
         finish = _pick_finish(library, depth, rough)
     return rough, finish
+
+
+def deepest_reach(library: ToolLibrary, freeform: bool = False) -> float:
+    """How deep below the stock top one setup can machine with ``library`` [mm]: the longest stick-out
+    (``Tool.length``, holder clear of the stock top) of a flat or bull-nose end mill, which roughs and
+    finishes flats and walls; with ``freeform`` surfaces to finish, no deeper than the longest ball
+    reaches too (when the library has a ball). 0 when it has no flat or bull-nose end mill."""
+    mills = [t.length for t in library.tools if t.shape in ("flat", "bull")]
+    reach = max(mills, default=0.0)
+    balls = [t.length for t in library.tools if t.shape == "ball"]
+    if freeform and balls:
+        reach = min(reach, max(balls))
+    return float(reach)
+
+
+@dataclass(frozen=True)
+class DepthSplit:
+    """How the depth of a setup divides between what its tools reach from the top and what is left below.
+
+    Attributes
+    ----------
+    setup : Setup
+        The setup with its floor (``floor_z``) no deeper than the tools reach [mm].
+    reach : float
+        Deepest reach below the stock top [mm] (:func:`deepest_reach`).
+    wanted_floor : float
+        The floor the setup asked for [mm]; ``setup.floor_z`` above it when the tools fall short.
+    """
+
+    setup: Setup
+    reach: float
+    wanted_floor: float
+
+    @property
+    def short(self) -> float:
+        """How much of the asked depth the tools do not reach [mm]; 0 when they reach it all."""
+        return float(self.setup.floor_z - self.wanted_floor)
+
+
+def split_depth(setup: Setup, library: ToolLibrary, freeform: bool = False) -> DepthSplit:
+    """``setup`` with its floor raised to what the library reaches from the top (:func:`deepest_reach`).
+
+    A part deeper than the longest tool is machined from the top down to that reach; what lies below is
+    left for the other side (op 2, turned over, :mod:`cadcam.op2`). A setup whose floor the tools reach
+    is returned unchanged.
+    """
+    wanted = float(setup.floor_z)
+    reach = deepest_reach(library, freeform)
+    top = float(setup.stock_max[2])
+    if reach <= 0 or top - wanted <= reach + 1e-9:
+        return DepthSplit(setup, reach, wanted)
+    return DepthSplit(dataclasses.replace(setup, floor_z=top - reach), reach, wanted)
 
 
 def _missing(library: ToolLibrary, what: str, depth: float, tools: list[Tool]) -> ToolError:
@@ -178,7 +231,7 @@ def _missing(library: ToolLibrary, what: str, depth: float, tools: list[Tool]) -
 
 def _pick_rough(library: ToolLibrary, setup: Setup, depth: float) -> Tool:
     mills = [t for t in library.tools if t.shape in ("flat", "bull")]
-    reach = [t for t in mills if t.length >= depth]
+    reach = by_need(library, [t for t in mills if t.length >= depth])
     if not reach:
         raise _missing(library, "flat or bull-nose end mill for roughing", depth, mills)
     width = float(min(setup.stock_size[0], setup.stock_size[1]))
@@ -188,44 +241,68 @@ def _pick_rough(library: ToolLibrary, setup: Setup, depth: float) -> Tool:
     return min(reach, key=lambda t: (t.diameter, t.shape != "flat", t.number))
 
 
+#: How much faster [share] a roughing end mill's estimate must be than a narrower one's to be chosen over it.
+_WIDER_MARGIN = 0.1
+#: Widest roughing end mill by fit, as a share of the stock's narrower side: a wider one leaves the part's
+#: every corner to rest tools and terraces, more than the estimate sees.
+_ROUGH_MOST_OF_WIDTH = 0.4
+
+
 def _pick_rough_by_fit(library: ToolLibrary, setup: Setup, depth: float, triangles: np.ndarray,
-                       allowance: float) -> Tool:
+                       options: PlanOptions) -> Tool:
     """The flat (else bull-nose) end mill that roughs the part soonest, rest roughing included.
 
     Each candidate clears the stock it reaches (:func:`cadcam.toolfit.tool_fits`) at its removal
     rate; what only narrower flat end mills get to falls to them in turn, widest first, each at
-    its own rate (rest roughing). The least total wins; ties go to the wider tool.
+    its own rate (rest roughing). The least total wins, unless a flat one, or a narrower one,
+    comes within :data:`_WIDER_MARGIN` of it.
     """
     mills = [t for t in library.tools if t.shape in ("flat", "bull")]  # a drill does not rough
-    reach = [t for t in mills if t.length >= depth]
+    reach = by_need(library, [t for t in mills if t.length >= depth])
     if not reach:
         raise _missing(library, "flat or bull-nose end mill for roughing", depth, mills)
-    fits = {f.tool.number: f for f in tool_fits(triangles, setup, reach, allowance)}
-    rate = {t.number: removal_rate(t, library.cutting_data(t, setup.material).feed) for t in reach}
+    width = float(min(setup.stock_size[0], setup.stock_size[1]))
+    reach = [t for t in reach if t.diameter <= _ROUGH_MOST_OF_WIDTH * width] or [min(reach, key=lambda t: t.diameter)]
+    fits = {f.tool.number: f for f in tool_fits(triangles, setup, reach, options.roughing.allowance,
+                                                terrace_above=options.finish_engagement,
+                                                terrace_stepdown=options.terrace_stepdown)}
+    cutting = {t.number: library.cutting_data(t, setup.material) for t in reach}
 
     def minutes(tool: Tool) -> float:
-        done, total = 0.0, 0.0
-        for t in [tool] + [r for r in rest_tools(library, tool) if r.number in fits]:
+        # its own levels, then what only the narrower ones reach at their removal rates
+        done, total = fits[tool.number].reach_volume, fits[tool.number].roughing_minutes(cutting[tool.number])
+        for t in [r for r in rest_tools(library, tool, depth) if r.number in fits]:
             more = max(fits[t.number].reach_volume - done, 0.0)
-            total += more / rate[t.number]
+            total += more / removal_rate(t, cutting[t.number].feed)
             done += more
         return total
 
-    best = min(reach, key=lambda t: (round(minutes(t), 3), t.shape != "flat", -t.diameter, t.number))
-    return best
+    took = {t.number: minutes(t) for t in reach}
+    fastest = min(took.values())
+    # A wider tool leaves more in corners to terrace and rest passes than the estimate counts, a bull-nose
+    # more on floors and in corners than a flat one: either has to win clearly; within the margin the
+    # narrower flat one roughs.
+    near = [t for t in reach if took[t.number] <= (1.0 + _WIDER_MARGIN) * fastest]
+    return min(near, key=lambda t: (t.shape != "flat", t.diameter, round(took[t.number], 3), t.number))
 
 
-def flat_finish_tool(library: ToolLibrary, depth: float) -> Tool | None:
-    """The flat end mill for flats and walls: the widest that reaches ``depth`` [mm] (narrower
-    ones follow where it does not fit, :func:`rest_tools`); None if there is none."""
-    fit = [t for t in library.tools if t.shape == "flat" and t.length >= depth]
+def flat_finish_tool(library: ToolLibrary, depth: float, rough: Tool | None = None,
+                     widest: float | None = None) -> Tool | None:
+    """The flat end mill for flats and walls: the roughing end mill ``rough`` when it is a flat one that
+    reaches (no tool change), else the widest that reaches ``depth`` [mm], no wider than ``widest`` [mm]
+    if one is (narrower ones follow where it does not fit, :func:`rest_tools`); None if there is none."""
+    if rough is not None and rough.shape == "flat" and rough.length >= depth:
+        return rough
+    fit = by_need(library, [t for t in library.tools if t.shape == "flat" and t.length >= depth])
+    if widest is not None and any(t.diameter <= widest for t in fit):
+        fit = [t for t in fit if t.diameter <= widest]
     return max(fit, key=lambda t: (t.diameter, t.length, -t.number)) if fit else None
 
 
 def _pick_finish(library: ToolLibrary, depth: float, rough: Tool) -> Tool:
     reach = [t for t in library.tools if t.length >= depth]
     for shape in ("ball", "bull", "flat"):
-        cands = [t for t in reach if t.shape == shape]
+        cands = by_need(library, [t for t in reach if t.shape == shape])
         fit = [t for t in cands if t.diameter <= rough.diameter]
         if fit:
             return max(fit, key=lambda t: (t.diameter, -t.number))
@@ -234,14 +311,43 @@ def _pick_finish(library: ToolLibrary, depth: float, rough: Tool) -> Tool:
     raise _missing(library, "end mill for finishing", depth, list(library.tools))
 
 
-def rest_tools(library: ToolLibrary, rough: Tool) -> list[Tool]:
-    """Flat end mills narrower than ``rough``, widest first: one per diameter, the longest."""
+def rest_tools(library: ToolLibrary, rough: Tool, depth: float | None = None) -> list[Tool]:
+    """Flat end mills narrower than ``rough``, widest first: one per diameter, the longest.
+
+    Given the ``depth`` [mm] to reach below the stock top: one per diameter that reaches most of it, of
+    those the fastest (:meth:`ToolLibrary.feed_factor`), and a long-reach end mill (feed factor under 1)
+    only where it reaches deeper than every standard one no wider than it (:func:`by_need`)."""
+    flats = [t for t in library.tools if t.shape == "flat" and t.diameter < rough.diameter - 1e-9]
+    if depth is not None:
+        flats = [t for t in flats if _needed(library, t, depth, flats)]
+
+    def rank(t: Tool) -> tuple[float, ...]:
+        if depth is None:
+            return (t.length,)
+        return (min(t.length, depth), library.feed_factor(t), t.length)
+
     by_d: dict[float, Tool] = {}
-    for t in library.tools:
-        if t.shape == "flat" and t.diameter < rough.diameter - 1e-9:
-            if t.diameter not in by_d or t.length > by_d[t.diameter].length:
-                by_d[t.diameter] = t
+    for t in flats:
+        if t.diameter not in by_d or rank(t) > rank(by_d[t.diameter]):
+            by_d[t.diameter] = t
     return [by_d[d] for d in sorted(by_d, reverse=True)]
+
+
+def by_need(library: ToolLibrary, tools: list[Tool]) -> list[Tool]:
+    """Of ``tools`` (all reaching what is asked), the standard-reach ones; the long-reach ones (feed
+    factor under 1: slower, :meth:`ToolLibrary.feed_factor`) only when no standard one is among them."""
+    standard = [t for t in tools if library.feed_factor(t) >= 1.0]
+    return standard or tools
+
+
+def _needed(library: ToolLibrary, tool: Tool, depth: float, tools: list[Tool]) -> bool:
+    """A standard tool always; a long-reach one when, within ``depth`` [mm], it reaches deeper than every
+    standard one of ``tools`` no wider than it (which could go wherever it goes)."""
+    if library.feed_factor(tool) >= 1.0:
+        return True
+    standard = max((t.length for t in tools if library.feed_factor(t) >= 1.0 and t.diameter <= tool.diameter + 1e-9),
+                   default=0.0)
+    return min(tool.length, depth) > standard + 1e-9
 
 
 @dataclass(frozen=True)
@@ -273,6 +379,10 @@ def plan_job(
     holes: tuple[Hole, ...] | None = None,
 ) -> PlanJobResult:
     """Compute the operations that cut ``part`` out of the stock described by ``setup``.
+
+    A part deeper than the library reaches (with neither tool named) is machined down to that reach
+    (:func:`split_depth`): ``job.setup.floor_z`` is raised there, and op 2 machines the rest from below
+    (:func:`cadcam.op2.plan_op2`).
 
     The steps, in cutting order: holes and roughing (:func:`_holes_and_roughing`), rest roughing
     (:func:`_rest_roughing`), what no tool reaches (:func:`_unreached`), flats and walls
@@ -353,6 +463,8 @@ class _Planning:
     rough_within: Callable[[float], Any] | None
     within: Callable[[float], Any] | None
     seconds: list[tuple[str, float]]
+    #: The stock an earlier setup left, turned over, on a grid of the given cell [mm]; None: a fresh block.
+    turned_stock: Callable[[float], FlippedStock] | None = None
 
     @classmethod
     def start(cls, part: trimesh.Trimesh, setup: Setup, library: ToolLibrary, options: PlanOptions,
@@ -360,9 +472,17 @@ class _Planning:
         """Choose the tools and classify the faces (timed as ``tools and faces``)."""
         t_start = time.perf_counter()
         triangles = np.asarray(part.triangles)
-        rough_tool, finish_tool = choose_tools(library, setup, options, triangles)
         # A relief's flats include the base plane outside its boundary: the ball finishes reliefs.
         faces = classify_faces(part) if options.by_faces and boundary is None else None
+        if options.rough_tool is None and options.finish_tool is None:
+            # Deeper than the tools reach: down to their reach, the rest is op 2's from below.
+            split = split_depth(setup, library, freeform=faces is None or bool(faces.freeform))
+            if split.short > 0:
+                log.warning("the stock is %.1f mm deep but the tools reach %.1f mm below their holders: op 1 "
+                            "machines down to Z%.2f, op 2 the rest from below",
+                            float(setup.stock_max[2]) - split.wanted_floor, split.reach, split.setup.floor_z)
+            setup = split.setup
+        rough_tool, finish_tool = choose_tools(library, setup, options, triangles)
         rough_cutting = library.cutting_data(rough_tool, setup.material)
         finish_cutting = library.cutting_data(finish_tool, setup.material)
         rough_within = boundary.centre_region if boundary is not None else None
@@ -389,7 +509,10 @@ class _Planning:
         any cut; a relief's stock outside its boundary kept uncut."""
         cell = _MODEL_CELL if cell is None else cell
         t0 = time.perf_counter()
-        sim = stock_after(ops, self.setup, self.triangles, cell) if any(len(op.points) > 1 for op in ops) else None
+        if self.turned_stock is not None:
+            sim = stock_after_flipped(ops, self.setup, self.triangles, self.turned_stock(cell), cell)
+        else:
+            sim = stock_after(ops, self.setup, self.triangles, cell) if any(len(op.points) > 1 for op in ops) else None
         if sim is not None and self.boundary is not None:
             sim = keep_outside(sim, self.boundary, self.rough_tool.radius)
         self.seconds.append(("stock model", time.perf_counter() - t0))
@@ -433,7 +556,7 @@ def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulati
         if len(op.points) > 1:
             operations.append(op)
             stock = plan.model(operations)
-    for tool in rest_tools(library, plan.rough_tool):
+    for tool in rest_tools(library, plan.rough_tool, float(setup.stock_max[2] - setup.floor_z)):
         if not (excess(stock, allowance) > limit).any():
             break
         # The rest tool's own default stepdown and stepover (they scale with its diameter).
@@ -464,13 +587,30 @@ def _flats_and_walls(plan: _Planning, operations: list[Operation], stock: Simula
     """Flats and walls with flat end mills (:func:`_finish_flats_and_walls`); the stock the ball starts
     from after them (modelled again only if there are freeform surfaces left to finish)."""
     setup = plan.setup
-    flat = flat_finish_tool(plan.library, float(setup.stock_max[2] - setup.floor_z))
+    flat = flat_finish_tool(plan.library, float(setup.stock_max[2] - setup.floor_z), plan.rough_tool,
+                            _ROUGH_MOST_OF_WIDTH * float(min(setup.stock_size[0], setup.stock_size[1])))
     if flat is not None:
         before = len(operations)
         _finish_flats_and_walls(plan, flat, stock, operations)
         if len(operations) > before and plan.faces is not None and plan.faces.freeform:
             stock = plan.model(operations)
     return stock
+
+
+def flats_and_walls_from(part: trimesh.Trimesh, setup: Setup, library: ToolLibrary, options: PlanOptions,
+                         operations: list[Operation], start: Callable[[float], FlippedStock]
+                         ) -> tuple[list[Operation], Simulation]:
+    """Flats and walls finished with flat end mills (as op 1's, :func:`_finish_flats_and_walls`) on stock an
+    earlier setup left: op 2 from below. ``start(cell)`` is that stock turned over on a grid of ``cell`` [mm];
+    ``operations`` those this setup ran before. Returns ``operations`` with the finishing appended and the
+    stock after them (on the planning grid)."""
+    plan = dataclasses.replace(_Planning.start(part, setup, library, options, None, None), turned_stock=start)
+    operations = list(operations)
+    stock = plan.model(operations)
+    if plan.faces is not None:
+        stock = _flats_and_walls(plan, operations, stock)
+        stock = plan.model(operations)
+    return operations, stock
 
 
 def _freeform_finishing(plan: _Planning, operations: list[Operation], stock: Simulation | None) -> None:
@@ -532,7 +672,7 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
     depth = float(setup.stock_max[2] - setup.floor_z)
     skin = _skin_cell(options.roughing.allowance)
     stale = False  # an operation was appended since ``stock`` was modelled
-    for tool in [flat] + [t for t in rest_tools(library, flat) if t.length >= depth]:
+    for tool in [flat] + [t for t in rest_tools(library, flat, depth) if t.length >= depth]:
         if stale:
             stock, stale = plan.model(operations, stock.grid.cell), False
         # (A skin only the finer model below shows, with nothing else left beside it, is no

@@ -146,6 +146,13 @@ class ToolLibrary:
     source: str
     machine_name: str = ""
     spindle_power_kw: float = DEFAULT_SPINDLE_POWER_KW
+    #: ``(tool number, factor)``: the feed of a tool that runs slower than its diameter's chip load (a
+    #: long-reach end mill, whose stick-out bends it), as a share of that feed, in (0, 1]; others 1.
+    feed_factors: tuple[tuple[int, float], ...] = ()
+
+    def feed_factor(self, tool: Tool) -> float:
+        """Share of the material's feed ``tool`` runs at, in (0, 1] (``feed_factor`` in the file, default 1)."""
+        return dict(self.feed_factors).get(tool.number, 1.0)
 
     def tool(self, number: int) -> Tool:
         """The tool with this T number; ToolError naming the numbers there are if missing."""
@@ -189,7 +196,7 @@ class ToolLibrary:
         if tool.is_drill:
             return self._drilling_data(tool, m)
         rpm = min(self.max_rpm, 1000.0 * m.surface_speed / (math.pi * tool.diameter))
-        feed = min(self.max_feed, rpm * tool.flutes * m.chip_load_for(tool.diameter))
+        feed = min(self.max_feed, rpm * tool.flutes * m.chip_load_for(tool.diameter) * self.feed_factor(tool))
         plunge = min(self.max_feed, feed * m.plunge_fraction)
         return CuttingData(spindle_rpm=round(rpm), feed=round(feed, 1), plunge_feed=round(plunge, 1))
 
@@ -324,6 +331,8 @@ class _Parser:
         if not isinstance(tools_doc, list) or not tools_doc:
             raise self.fail("tools", f"must be a non-empty list of tools, got {_kind(tools_doc)}")
         tools = tuple(self.tool(t, f"tools[{i}]") for i, t in enumerate(tools_doc))
+        factors = tuple((tools[i].number, self.share(t["feed_factor"], f"tools[{i}].feed_factor"))
+                        for i, t in enumerate(tools_doc) if "feed_factor" in t)
         first: dict[int, int] = {}
         for i, t in enumerate(tools):
             if t.number in first:
@@ -331,8 +340,15 @@ class _Parser:
             first[t.number] = i
         return ToolLibrary(
             tools=tools, materials=materials, max_rpm=max_rpm, max_feed=max_feed, source=self.source, machine_name=name,
-            spindle_power_kw=power,
+            spindle_power_kw=power, feed_factors=factors,
         )
+
+    def share(self, value: Any, where: str) -> float:
+        """A factor in (0, 1]."""
+        x = self.number(value, where)
+        if x > 1:
+            raise self.fail(where, f"must be in (0, 1], got {x:g}")
+        return x
 
     def material(self, name: str, d: Any) -> MaterialData:
         where = f"materials.{name}"
@@ -379,7 +395,7 @@ class _Parser:
     def tool(self, d: Any, where: str) -> Tool:
         d = self.mapping(
             d, where, {"number", "name", "shape", "diameter", "flute_length", "flutes", "length"},
-            {"corner_radius", "shank_diameter", "holder", "point_angle"},
+            {"corner_radius", "shank_diameter", "holder", "point_angle", "feed_factor"},  # feed_factor: the library's
         )
         number = self.integer(d["number"], f"{where}.number", 1)
         name = self.string(d["name"], f"{where}.name")

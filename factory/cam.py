@@ -19,6 +19,7 @@ import trimesh
 from cadcam.finishing import FinishingOptions
 from cadcam.mesh import PartMesh, load_part
 from cadcam.model import Job, Setup, SoftJaws, ViseJaws
+from cadcam.op2 import choose_face_up
 from cadcam.plan import PlanOptions, plan_job
 from cadcam.relief import (FINISH_ENGAGEMENT, TERRACE_STEPDOWN, Boundary, ReliefOptions, machining_surface,
                            relief_setup)
@@ -173,17 +174,16 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
     with watch("setup"):
         library.material(req.material)  # unknown material: fail early
         if loaded.surface is None:  # turned about Z when only that fits the vise and the gripper
-            setup, part_work = orient_setup(
-                loaded.mesh,
-                fits=check_setup,
-                stock_size=req.stock,
-                margins=StockMargins(bottom=req.holding),
-                jaws=jaws,
-                origin=req.origin,
-                material=req.material,
-                mesh_scale=loaded.scale,
-                source=str(req.part),
-            )
+            def place(mesh: trimesh.Trimesh) -> tuple[Setup, trimesh.Trimesh]:
+                return orient_setup(mesh, fits=check_setup, stock_size=req.stock,
+                                    margins=StockMargins(bottom=req.holding), jaws=jaws, origin=req.origin,
+                                    material=req.material, mesh_scale=loaded.scale, source=str(req.part))
+
+            if req.plan.rough_tool is None and req.plan.finish_tool is None:
+                # deeper than the tools reach: the face up first that leaves the least unreached (op 1 and op 2)
+                setup, part_work = choose_face_up(loaded.mesh, place, library)
+            else:
+                setup, part_work = place(loaded.mesh)
         else:
             log.info("%s: %s", req.part, loaded.surface.describe())
             setup, surface_work, boundary = relief_setup(

@@ -310,7 +310,10 @@ class PartPlan:
                         "operations": [{"name": e.name, "tool": e.tool_number,
                                         "estimated_s": round(e.cut_time + e.rapid_time, 1)}
                                        for e in self.op2.program.estimates],
-                        "unreached": list(self.op2.job.parameters.get("unreached", []))})
+                        "unreached": list(self.op2.job.parameters.get("unreached", [])),
+                        # after a depth split: where op 1's and op 2's walls meet, and the step [mm]
+                        **({"seams": self.op2.job.parameters["seams"]} if "seams" in self.op2.job.parameters
+                           else {})})
         return out
 
     def write(self, out_dir: Path, *, overwrite: bool = False) -> dict[str, Any]:

@@ -42,8 +42,12 @@ def test_a_prismatic_part_is_finished_by_flat_end_mills_alone():
     job, setup, sim, report = _plan_and_verify(body)
     kinds = [(op.kind, op.tool.number) for op in job.operations]
     assert all(op.tool.shape == "flat" for op in job.operations), kinds
-    # the hole is helixed to size by the 6 mm mill (cadcam.drilling) or finished by it
-    assert ("finishing", 2) in kinds and (("finishing", 1) in kinds or ("helix", 1) in kinds), kinds
+    # the flats and walls finished by the roughing end mill (the 16 or 10 mm, whichever roughs sooner); the
+    # hole helixed to size by the 6 mm mill (cadcam.drilling: not the long-neck 8 mm, it is not that deep)
+    # or finished by it
+    rough = job.parameters["rough_tool"]
+    assert rough in (2, 14) and ("finishing", rough) in kinds, kinds
+    assert ("finishing", 1) in kinds or ("helix", 1) in kinds, kinds
     assert report.ok, [f.message for f in report.faults]
     rem = sim.remaining
     covered = np.isfinite(rem)
@@ -109,6 +113,11 @@ def _pocket_body() -> manifold3d.Manifold:
         (12.0, 8.0, 6.0))
 
 
+def _flat_tool(job) -> int:
+    """The number of the flat end mill that finishes the flats and walls first (the roughing one if flat)."""
+    return next(op.tool.number for op in job.operations if op.kind == "finishing" and op.tool.shape == "flat")
+
+
 def _flat_ops(job, tool: int):
     return [op for op in job.operations if op.kind == "finishing" and op.tool.number == tool]
 
@@ -129,7 +138,9 @@ def test_floors_at_a_wide_stepover_are_still_finished():
     rem = sim.remaining
     assert np.percentile(rem[np.isfinite(rem)], 95) <= 0.02
     # fewer loops over the floor than at half the diameter
-    assert sum(map(_cut_length, _flat_ops(wide_job, 2))) < sum(map(_cut_length, _flat_ops(narrow_job, 2)))
+    flat = _flat_tool(wide_job)
+    assert flat == _flat_tool(narrow_job)
+    assert sum(map(_cut_length, _flat_ops(wide_job, flat))) < sum(map(_cut_length, _flat_ops(narrow_job, flat)))
 
 
 def test_a_spring_pass_runs_the_walls_again_and_is_off_by_default():
@@ -140,10 +151,12 @@ def test_a_spring_pass_runs_the_walls_again_and_is_off_by_default():
     plain_job, _, _, _ = _plan_and_verify(_pocket_body(), cell=0.2)
     job, setup, sim, report = _plan_and_verify(_pocket_body(), spring, cell=0.2)
     assert report.ok, [f.message for f in report.faults]
-    (plain,), (sprung,) = _flat_ops(plain_job, 2), _flat_ops(job, 2)
+    flat = _flat_tool(plain_job)
+    (plain,), (sprung,) = _flat_ops(plain_job, flat), _flat_ops(job, flat)
     extra = _cut_length(sprung) - _cut_length(plain)
     # at least the pocket's wall loop (36 x 24 less the tool, corners rounded) once more
-    assert extra >= 2 * (36 - 10 + 24 - 10) - 1.0, extra
+    d = plain.tool.diameter
+    assert extra >= 2 * (36 - d + 24 - d) - 1.0, extra
     # every extra cut point lies on a loop already cut: the spring pass cuts no new ground
     cut = plain.points[1:][plain.motion[1:] == 1]
     extra_pts = sprung.points[1:][sprung.motion[1:] == 1]

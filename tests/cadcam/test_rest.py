@@ -38,12 +38,14 @@ def box_setup(size) -> Setup:
 
 
 def test_a_deep_part_gets_the_tools_that_reach_it():
-    # 34.5 mm deep: T1 (32 mm stick-out) and both balls are too short, T2 (45) and T5 (40) reach.
+    # 34.5 mm deep: T1 (32 mm stick-out) and the standard balls are too short, T2 (45), T5 (40) and T14 (55)
+    # reach; so does the long-neck 6 mm ball T17 (50).
     rough, finish = choose_tools(LIBRARY, box_setup((80.0, 60.0, 34.5)), PlanOptions())
     assert rough.length >= 34.5 and rough.shape != "ball"
     assert finish.length >= 34.5
-    # The narrowest that reaches (a tenth of 60 mm is less than any of them), then the ball-less finish.
-    assert (rough.number, finish.number) == (5, 5)
+    # The narrowest that reaches (a tenth of 60 mm is less than any of them), then the ball that reaches:
+    # a long-neck one, since no standard ball does.
+    assert (rough.number, finish.number) == (5, 17)
 
 
 def test_a_shallow_part_keeps_the_usual_tools():
@@ -59,8 +61,8 @@ def test_overrides_win_and_are_still_checked():
 
 
 def test_refuses_naming_what_is_missing_only_when_nothing_reaches():
-    with pytest.raises(ToolError, match=r"no flat or bull-nose end mill .* 50 mm .* longest is T2 with 45 mm"):
-        choose_tools(LIBRARY, box_setup((80.0, 60.0, 50.0)), PlanOptions())
+    with pytest.raises(ToolError, match=r"no flat or bull-nose end mill .* 70 mm .* longest is T15 with 66 mm"):
+        choose_tools(LIBRARY, box_setup((80.0, 60.0, 70.0)), PlanOptions())
 
 
 def test_a_drill_never_roughs():

@@ -49,4 +49,20 @@ def test_the_wide_mill_roughs_a_plate_with_a_few_small_holes():
         body -= manifold3d.Manifold.cylinder(14.0, 5.5, 5.5, 64).translate((x, 30.0, -1.0))
     setup, tri = _planned(body)
     rough, _ = choose_tools(LIBRARY, setup, PlanOptions(), tri)
-    assert rough.number == 2
+    # not the 6 mm that fits the holes: they are drilled or rest roughed; of the wide ones, the 8 mm 4-flute
+    # bull-nose clears the plate soonest (its feed), and the 16 mm gains too little over it to be taken
+    assert rough.number == 5
+
+
+def test_the_estimate_counts_levels_entries_and_terraces():
+    """A pocket 6 mm deep: the 10 mm's 5 mm stepdown leaves a terrace on the 1 mm the 16 mm's 8 mm does
+    not; every level's area is cleared, and the closed pocket is entered by helix at each level."""
+    body = manifold3d.Manifold.cube((90.0, 60.0, 12.0)) - manifold3d.Manifold.cube((40.0, 30.0, 6.0)).translate(
+        (25.0, 15.0, 7.0))
+    setup, tri = _planned(body)
+    fit = {f.tool.number: f for f in tool_fits(tri, setup, [LIBRARY.tool(2), LIBRARY.tool(14)])}
+    for f in fit.values():
+        assert f.level_area >= f.reach_volume / min(0.5 * f.tool.diameter, f.tool.flute_length) - 1e-6
+        assert f.entry_depth > 0
+        cut = LIBRARY.cutting_data(f.tool, "aluminium")
+        assert f.roughing_minutes(cut) > f.level_area / (0.4 * f.tool.diameter * cut.feed)

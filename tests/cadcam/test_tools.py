@@ -35,17 +35,36 @@ def write(tmp_path: Path, doc) -> Path:
 
 def test_default_library_has_the_shop_tools(lib):
     assert lib.source == str(FIXTURES / "tools.yaml")
-    assert [t.number for t in lib.tools] == list(range(1, 14))
+    assert [t.number for t in lib.tools] == list(range(1, 18))
     assert (lib.tool(1).shape, lib.tool(1).diameter, lib.tool(1).flutes) == ("flat", 6, 3)
     assert (lib.tool(3).shape, lib.tool(3).corner_radius) == ("ball", 3)
     assert (lib.tool(5).shape, lib.tool(5).corner_radius) == ("bull", 1)
     for t in lib.tools:
         assert isinstance(t, Tool)
-        assert t.flute_length >= (0.5 if t.is_drill and t.point_angle <= 90 else 2) * t.diameter
+        # a long-neck end mill has short flutes (about 1.5 D) on its neck
+        least = 0.5 if t.is_drill and t.point_angle <= 90 else 1.5 if lib.feed_factor(t) < 1 else 2
+        assert t.flute_length >= least * t.diameter
         assert t.length >= t.flute_length
     assert [t.diameter for t in lib.drills("aluminium")] == [3.3, 4.2, 5, 6.8, 8.5, 10]
     assert [(t.diameter, t.point_angle) for t in lib.spot_drills("aluminium")] == [(10, 90)]
     assert {"aluminium", "steel", "brass", "plastic"} <= {m.name for m in lib.materials}
+
+
+def test_long_reach_tools_run_at_their_feed_factor(lib, tmp_path):
+    """The long-reach end mills of the default library: 12 mm at 66 mm, 8 mm at 50 mm, a necked 6 mm ball at
+    50 mm, each slower than its diameter's feed; a factor outside (0, 1] is named in one line."""
+    reach = {t.number: (t.diameter, t.length, t.shape) for t in lib.tools if lib.feed_factor(t) < 1}
+    assert reach == {15: (12, 66, "flat"), 16: (8, 50, "flat"), 17: (6, 50, "ball")}
+    for n in reach:
+        t = lib.tool(n)
+        assert t.shank_diameter < t.diameter  # the neck clears the wall the flutes cut
+        # the deeper the reach in diameters, the slower
+    assert lib.feed_factor(lib.tool(15)) > lib.feed_factor(lib.tool(16)) > lib.feed_factor(lib.tool(17))
+    assert lib.feed_factor(lib.tool(2)) == 1.0
+    doc = yaml.safe_load((FIXTURES / "tools.yaml").read_text())
+    doc["tools"][0]["feed_factor"] = 1.5
+    with pytest.raises(ToolError, match=r"tools\[0\]\.feed_factor: must be in \(0, 1\], got 1.5"):
+        load_tool_library(write(tmp_path, doc))
 
 
 def test_missing_tool_lists_the_ones_there_are(lib):

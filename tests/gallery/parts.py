@@ -152,6 +152,11 @@ def stepped_tower() -> mf.Manifold:
     return part + box(30, 22, 35.5, 50, 38, 48)
 
 
+def split_tower() -> mf.Manifold:
+    """A 24 x 18 tower to 72 mm on a 50 x 40 base: deeper than any tool reaches from one side, prismatic."""
+    return box(0, 0, 0, 50, 40, 10) + box(13, 11, 9.5, 37, 29, 72)
+
+
 def l_bracket() -> mf.Manifold:
     """An L-shaped bracket standing on its long leg, a 40 mm upright with two holes."""
     part = box(0, 0, 0, 90, 50, 8) + box(0, 0, 7.5, 10, 50, 48)
@@ -237,6 +242,7 @@ PARTS: tuple[GalleryPart, ...] = (
     GalleryPart("tall_rib", _solid(tall_rib), "plans", "a thin rib 35 mm tall"),
     GalleryPart("stepped_tower", _solid(stepped_tower), "plans", "four flats to 48 mm"),
     GalleryPart("l_bracket", _solid(l_bracket), "plans", "a 40 mm upright on a leg"),
+    GalleryPart("split_tower", _solid(split_tower), "plans", "72 mm: op 1 and op 2 split the depth, walls meet"),
     GalleryPart("hex_boss", _solid(hex_boss), "plans", "a hexagonal boss with a bore"),
     GalleryPart("tiny_part", _solid(tiny_part), "plans", "the smallest stock the cell holds"),
     GalleryPart("frame", _solid(frame), "plans", "a through window"),
