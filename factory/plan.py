@@ -401,7 +401,7 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     watch = Stopwatch(progress)  # every stage shows, the robot's planning too
     planned = compute_job(req.cam, progress, watch,
                           check_setup=lambda setup, part_work: check_setup(setup, req.grid, req.cam.part, robot_cell,
-                                                                            part_work, req.cam.units))
+                                                                            part_work, req.cam.units, req.cam.tools))
     job = planned.job
     asked_ops = req.ops
     if req.ops is None:  # a relief stays in its block, right way up, unless asked

@@ -76,26 +76,26 @@ def test_a_sheet_thinner_than_any_grip_is_refused_in_one_line(tmp_path: Path) ->
 
 
 def test_a_plate_no_orientation_fits_is_refused_in_one_line_with_both(tmp_path: Path) -> None:
-    """170 x 200 mm: its stock is 204 mm across the 160 mm jaws as given and 174 mm turned about Z."""
+    """230 x 250 mm: its stock is 254 mm across the 223.5 mm jaws as given and 234 mm turned about Z."""
     stl = tmp_path / "plate.stl"
-    stl.write_bytes(trimesh.exchange.stl.export_stl(trimesh.creation.box(bounds=[[0, 0, 0], [170, 200, 10]])))
+    stl.write_bytes(trimesh.exchange.stl.export_stl(trimesh.creation.box(bounds=[[0, 0, 0], [230, 250, 10]])))
     r = CliRunner().invoke(app, ["plan", str(stl), "-o", str(tmp_path / "out"), "--quiet", "--no-robot"])
     assert r.exit_code == 1
     lines = [ln for ln in r.output.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith(f"error: {stl}: fits the cell in no orientation: "), r.output
-    assert "as given, stock 204.0 mm wide (Y)" in lines[0] and "turned 90 degrees about Z, stock 174.0 mm" in lines[0]
+    assert "as given, stock 254.0 mm wide (Y)" in lines[0] and "turned 90 degrees about Z, stock 234.0 mm" in lines[0]
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
 
 
 def test_the_turned_part_is_placed_turned_in_every_output(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
-    """long_turned's setup sheet carries the quarter turn about Z the plan made: stock 184 mm along X."""
+    """long_turned's setup sheet carries the quarter turn about Z the plan made: stock 234 mm along X."""
     stl = BY_NAME["long_turned"].write(tmp_path)
     r = CliRunner().invoke(app, ["plan", str(stl), "-o", str(tmp_path / "out"), "--no-robot"])
     assert r.exit_code == 0, r.output
-    assert "turned 90 degrees about Z to fit the cell: stock 184.0 x 54.0 mm" in caplog.text  # the CLI prints it
+    assert "turned 90 degrees about Z to fit the cell: stock 234.0 x 54.0 mm" in caplog.text  # the CLI prints it
     sheet = json.loads((tmp_path / "out" / "long_turned.setup.json").read_text())
     assert [round(v, 6) for v in sheet["transform_mesh_to_work"][0][:3]] == [0, -1, 0]
-    assert sheet["stock"]["size"][:2] == [184.0, 54.0]
+    assert sheet["stock"]["size"][:2] == [234.0, 54.0]
 
 
 def test_every_gallery_part_is_a_closed_solid_of_its_stated_kind() -> None:
