@@ -48,6 +48,7 @@ from cadcam.model import CuttingData, FixtureBox, Job, Motion, Operation, Setup,
 from cadcam.plan import PlanOptions, choose_tools, rest_tools
 from cadcam.rest import safe_rapids
 from cadcam.roughing import zlevel_roughing
+from cadcam.workholding import jaw_keepout
 from cadcam.setup import JAW_CLEARANCE_MM
 from cadcam.tools import ToolLibrary
 from cadcam.stock import (FlippedStock, Simulation, clear_height, excess, flip_stock, stock_after, stock_after_flipped,
@@ -440,19 +441,20 @@ def _machine_from_below(part: trimesh.Trimesh, triangles: np.ndarray, setup: Set
              int(left.sum()))
     operations = list(operations)
     rough_tool, finish_tool = choose_tools(library, setup, plan)
+    within = jaw_keepout(setup, library.tools)  # op 2's jaws grip the part itself: keep every tool off them
     for t in [rough_tool, *rest_tools(library, rough_tool)]:
         if not (excess(stock, allowance) > limit).any():
             break
         opts = dataclasses.replace(plan.roughing, stepdown=None, stepover=None, helix_diameter=None,
                                    min_helix_diameter=None)
         op = zlevel_roughing(part, setup, t, library.cutting_data(t, setup.material), opts, rest=stock,
-                             rest_above=limit)
+                             rest_above=limit, within=within)
         if len(op.points) > 1:
             operations.append(op)
             stock = stock_after_flipped(operations, setup, triangles, start, cell)
     raster = raster_finishing(part, setup, finish_tool, library.cutting_data(finish_tool, setup.material),
                               dataclasses.replace(plan.finishing, steep_angle=90.0), stock=stock,
-                              limit=EngagementLimit(depth=limit, allowance=allowance))
+                              limit=EngagementLimit(depth=limit, allowance=allowance), within=within)
     raster = _only_where(raster, _left_from_below(stock, 0.0), stock, setup)
     if len(raster.points) > 1:
         operations.append(raster)

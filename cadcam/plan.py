@@ -35,6 +35,7 @@ from cadcam.roughing import RoughingOptions, zlevel_roughing
 from cadcam.shank_clearance import upper_raster
 from cadcam.toolfit import removal_rate, tool_fits
 from cadcam.tools import ToolLibrary
+from cadcam.workholding import jaw_keepout, within_both
 from cadcam.stock import Simulation, Unreached, excess, stock_after, unreached
 from factory.core.errors import ToolError
 
@@ -368,6 +369,9 @@ class _Planning:
         rough_within = boundary.centre_region if boundary is not None else None
         # Every later tool keeps off the wall of uncut stock the roughing tool leaves at the boundary.
         within = boundary.after_roughing(rough_tool.radius) if boundary is not None else None
+        # and every tool, shank and holder off the jaws (None where none can reach them)
+        keepout = jaw_keepout(setup, library.tools)
+        rough_within, within = within_both(rough_within, keepout), within_both(within, keepout)
         return cls(part, setup, library, options, progress, boundary, triangles, rough_tool, finish_tool,
                    rough_cutting, finish_cutting, faces, rough_within, within,
                    [("tools and faces", time.perf_counter() - t_start)])
