@@ -272,6 +272,7 @@ def plan_job(
     progress: StageProgress | None = None,
     boundary: Boundary | None = None,
     holes: tuple[Hole, ...] | None = None,
+    rapid_cell: float = 0.5,
 ) -> PlanJobResult:
     """Compute the operations that cut ``part`` out of the stock described by ``setup``.
 
@@ -298,6 +299,9 @@ def plan_job(
     holes : tuple of Hole, optional
         The part's round holes in work coordinates when they are known exactly (a STEP file's
         B-rep, :mod:`cadcam.features`); None: drilling finds them in the mesh.
+    rapid_cell : float
+        Grid [mm] of the stock model every rapid is checked against with its whole cutter
+        (:func:`cadcam.rest.safe_rapids`); a re-plan after verify found a rapid in stock gives verify's.
 
     Returns
     -------
@@ -326,9 +330,9 @@ def plan_job(
     if plan.faces is not None and stock is not None:
         stock = _flats_and_walls(plan, operations, stock)
         if not plan.faces.freeform:
-            return _finished(plan, part_name, operations, source_sha256, left, holes)
+            return _finished(plan, part_name, operations, source_sha256, left, holes, rapid_cell)
     _freeform_finishing(plan, operations, stock)
-    return _finished(plan, part_name, operations, source_sha256, left, holes)
+    return _finished(plan, part_name, operations, source_sha256, left, holes, rapid_cell)
 
 
 @dataclass
@@ -560,14 +564,14 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
 
 
 def _finished(plan: _Planning, part_name: str, operations: list[Operation], source_sha256: str,
-              left: tuple[Unreached, ...], holes: HolePlan | None) -> PlanJobResult:
+              left: tuple[Unreached, ...], holes: HolePlan | None, rapid_cell: float) -> PlanJobResult:
     """The job from its operations: empty ones dropped, every rapid made safe."""
     dropped = [op.kind for op in operations if len(op.points) < 2]
     if dropped:
         log.info("nothing to cut for %s: dropped", ", ".join(dropped))
     operations = [op for op in operations if len(op.points) >= 2]
     t0 = time.perf_counter()
-    safe_ops, checked, fixed = safe_rapids(operations, plan.setup, plan.triangles)
+    safe_ops, checked, fixed = safe_rapids(operations, plan.setup, plan.triangles, rapid_cell)
     plan.seconds.append(("rapid check", time.perf_counter() - t0))
 
     job = Job(

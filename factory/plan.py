@@ -395,7 +395,8 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     """Plan a part: CAM, post, setup sheet, robot load/unload and program, verify. Writes nothing.
 
     A plan that verify fails is never the first answer: the part is planned again with thinner
-    cuts (:func:`conservative`, at each of :data:`REPLAN_SCALES`) until one passes; only the
+    cuts (:func:`conservative`, at each of :data:`REPLAN_SCALES`) and its rapids checked on
+    verify's grid (``CamRequest.rapid_cell``) until one passes; only the
     last is returned failed (``ok`` False), naming its faults. What each re-plan was for is in
     ``replanned``.
 
@@ -414,7 +415,9 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
         why.append(fault)
         log.warning("%s: verify failed (%s): planning again with stepdowns and finishing engagement x%g",
                     request.cam.part, fault, scale)
-        cam = dataclasses.replace(request.cam, plan=conservative(request.cam.plan, plan.planned.job, scale))
+        # the rapids checked on verify's own grid too: what it saw in stock, the check sees
+        cam = dataclasses.replace(request.cam, plan=conservative(request.cam.plan, plan.planned.job, scale),
+                                  rapid_cell=min(request.cam.rapid_cell, request.grid))
         plan = _plan_once(dataclasses.replace(request, cam=cam), progress)
     return dataclasses.replace(plan, replanned=tuple(why))
 

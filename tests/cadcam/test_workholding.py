@@ -176,3 +176,18 @@ def test_without_the_keepout_the_same_plan_runs_into_the_jaws(monkeypatch):
     with pytest.raises(ToolpathError, match="jaw .* would hit the vise"):
         cadcam.plan.plan_job(EDGE_PART, HIGH_SETUP, load_tool_library(), part_name="edge",
                              options=cadcam.plan.PlanOptions(by_faces=False))
+
+
+def test_an_operation_starting_low_is_reached_by_a_checked_descent_from_the_safe_height():
+    """The link into an operation that starts in the stock: a rapid straight down, found to touch the
+    stock and fed the rest of the way, never a diagonal rapid from the last operation's end."""
+    cut = CuttingData(10000, 800, 300)
+    first = Operation("first", "roughing", FLAT, cut, np.array([[5, 5, 5], [5, 5, 2], [5, 5, 5]], float),
+                      np.array([R, C, R], np.int8))
+    low = Operation("low", "roughing", FLAT, cut, np.array([[30, 10, -4], [35, 10, -4]], float),
+                    np.array([R, C], np.int8))
+    ops, checked, fixed = safe_rapids([first, low], SETUP, PART)
+    pts, mot = ops[1].points, ops[1].motion
+    assert pts[0].tolist() == [30, 10, SETUP.safe_z] and pts[-1].tolist() == [35, 10, SETUP.safe_z]
+    # the descent into the stock top (z 0) rapids to the clearance above it and feeds the rest
+    assert fixed == 1 and mot[1] == Motion.RAPID and 0 < pts[1, 2] < SETUP.safe_z and mot[2] == Motion.PLUNGE

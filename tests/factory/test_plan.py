@@ -244,7 +244,7 @@ def test_a_plan_verify_fails_is_made_again_with_thinner_cuts_before_any_is_hande
     asked = []
 
     def first_fails(request, progress=None):
-        asked.append(request.cam.plan)
+        asked.append(request.cam)
         plan = real(request, progress)
         return _with_fault(plan, "T3 engages 1.2 mm, limit 1 mm") if len(asked) == 1 else plan
 
@@ -255,6 +255,8 @@ def test_a_plan_verify_fails_is_made_again_with_thinner_cuts_before_any_is_hande
     assert planned.ok and planned.replanned == ("op 1: T3 engages 1.2 mm, limit 1 mm",)
     assert "verify failed (op 1: T3 engages 1.2 mm, limit 1 mm): planning again" in caplog.text
     first, again = asked
+    assert (first.rapid_cell, again.rapid_cell) == (0.5, request.grid)  # the rapids on verify's grid
+    first, again = first.plan, again.plan
     rough = next(t for t in planned.planned.job.tools if t.number == planned.planned.job.parameters["rough_tool"])
     assert again.roughing.stepdown == pytest.approx(0.5 * min(0.5 * rough.diameter, rough.flute_length))
     assert again.finish_engagement == pytest.approx(0.5 * first.finish_engagement)

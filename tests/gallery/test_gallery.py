@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 import trimesh
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from cadcam.tools import load_tool_library
@@ -21,7 +23,9 @@ from tests.rs274 import run_rs274
 
 #: Parts unlike the samples that the cell plans today: drilled thin plate, island with necks, a through
 #: window, a tall thin rib, a plate wider than the jaws are long, a part that fits the jaws only turned about Z.
-PLANNED = ("thin_plate_holes", "island_pocket", "frame", "tall_rib", "wide_plate_pockets", "long_turned")
+#: And a closed relief whose ripples run out to the stock's edge, over the jaws' top.
+PLANNED = ("thin_plate_holes", "island_pocket", "frame", "tall_rib", "wide_plate_pockets", "long_turned",
+           "relief_to_edge")
 
 
 @pytest.mark.parametrize("name", PLANNED)
@@ -106,3 +110,18 @@ def test_every_gallery_part_is_a_closed_solid_of_its_stated_kind() -> None:
         assert abs(mesh.bounds[0][2]) < 1e-9, part.name
     assert BY_NAME["long_turned"].make().extents[1] > 160 > BY_NAME["long_turned"].make().extents[0]
     assert BY_NAME["boss_on_base"].make().extents[2] >= 60
+
+
+@settings(max_examples=3, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(x=st.floats(24.0, 70.0), y=st.floats(16.0, 60.0), z=st.floats(8.0, 30.0), px=st.floats(0.3, 0.7),
+       py=st.floats(0.3, 0.7), pz=st.floats(0.2, 0.8))
+def test_a_random_machinable_block_that_fits_the_vise_plans_and_passes_verify(tmp_path_factory, x, y, z, px, py, pz):
+    """Small blocks with a pocket, tall ones and thin ones: ``factory plan`` never refuses one that fits
+    the vise (exit 1) and never hands over a program verify fails (exit 3)."""
+    from tests.conftest import pocket_block
+
+    folder = tmp_path_factory.mktemp("random")
+    stl = folder / "block.stl"
+    pocket_block(size=(x, y, z), pocket=(px * x, py * y, pz * z)).export(stl)
+    r = CliRunner().invoke(app, ["plan", str(stl), "-o", str(folder / "out"), "--quiet", "--no-robot"])
+    assert r.exit_code == 0, (x, y, z, px, py, pz, r.output)
