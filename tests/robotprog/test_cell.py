@@ -91,6 +91,8 @@ _DELETE = object()
                                               r"machine\.io\.outputs\.cycle_start: output 1 is also open_door"),
         ("machine.io.inputs.cycle_done", 0, r"machine\.io\.inputs\.cycle_done: input 0 is also door_open"),
         ("reject_bin.size", [0.3, 0.3], r"reject_bin\.size: expected 3 numbers"),
+        ("robot.payload", 0, r"robot\.payload: must be > 0"),
+        ("gripper.mass", 5.0, r"gripper\.mass: 5 kg leaves nothing of the robot's 5 kg payload"),
     ],
 )
 def test_errors_name_the_field(raw: dict, path: str, value, message: str) -> None:
