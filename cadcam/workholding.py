@@ -195,8 +195,11 @@ def jaw_keepout(setup: Setup, tools: Sequence[Tool]) -> Callable[[float], BaseGe
     return within
 
 
-def within_both(a: Callable[[float], BaseGeometry] | None, b: Callable[[float], BaseGeometry] | None) -> Callable[[float], BaseGeometry] | None:
-    """The region both ``a`` and ``b`` allow (either None: the other)."""
+Region = Callable[[float], BaseGeometry]
+
+
+def within_both(a: Region | None, b: Region | None) -> Region | None:
+    """The region ``within(radius)`` both ``a`` and ``b`` allow (either None: the other)."""
     if a is None or b is None:
         return a if b is None else b
     return lambda radius: a(radius).intersection(b(radius))
