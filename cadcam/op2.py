@@ -710,13 +710,14 @@ def _machine_from_below(part: trimesh.Trimesh, triangles: np.ndarray, setup: Set
              int(left.sum()))
     operations = list(operations)
     rough_tool, finish_tool = choose_tools(library, setup, plan)
+    within = jaw_keepout(setup, library.tools)  # op 2's jaws grip the part itself: keep every tool off them
     for t in [rough_tool, *rest_tools(library, rough_tool, float(setup.stock_max[2] - setup.floor_z))]:
         if not (excess(stock, allowance) > limit).any():
             break
         opts = dataclasses.replace(plan.roughing, stepdown=None, stepover=None, helix_diameter=None,
                                    min_helix_diameter=None)
         op = zlevel_roughing(part, setup, t, library.cutting_data(t, setup.material), opts, rest=stock,
-                             rest_above=limit)
+                             rest_above=limit, within=within)
         if len(op.points) > 1:
             operations.append(op)
             stock = stock_after_flipped(operations, setup, triangles, start_at(cell), cell)
@@ -724,7 +725,7 @@ def _machine_from_below(part: trimesh.Trimesh, triangles: np.ndarray, setup: Set
         operations, stock = flats_and_walls_from(part, setup, library, plan, operations, start_at)
     raster = raster_finishing(part, setup, finish_tool, library.cutting_data(finish_tool, setup.material),
                               dataclasses.replace(plan.finishing, steep_angle=90.0), stock=stock,
-                              limit=EngagementLimit(depth=limit, allowance=allowance))
+                              limit=EngagementLimit(depth=limit, allowance=allowance), within=within)
     raster = _only_where(raster, _left_from_below(stock, 0.0), stock, setup)
     if len(raster.points) > 1:
         operations.append(raster)

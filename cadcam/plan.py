@@ -36,6 +36,7 @@ from cadcam.shank_clearance import upper_raster
 from cadcam.toolfit import removal_rate, tool_fits
 from cadcam.tools import ToolLibrary
 from cadcam.stock import FlippedStock, Simulation, Unreached, excess, stock_after, stock_after_flipped, unreached
+from cadcam.workholding import jaw_keepout, within_both
 from factory.core.errors import ToolError
 
 T = TypeVar("T")
@@ -377,6 +378,7 @@ def plan_job(
     progress: StageProgress | None = None,
     boundary: Boundary | None = None,
     holes: tuple[Hole, ...] | None = None,
+    rapid_cell: float = 0.5,
 ) -> PlanJobResult:
     """Compute the operations that cut ``part`` out of the stock described by ``setup``.
 
@@ -407,6 +409,9 @@ def plan_job(
     holes : tuple of Hole, optional
         The part's round holes in work coordinates when they are known exactly (a STEP file's
         B-rep, :mod:`cadcam.features`); None: drilling finds them in the mesh.
+    rapid_cell : float
+        Grid [mm] of the stock model every rapid is checked against with its whole cutter
+        (:func:`cadcam.rest.safe_rapids`); a re-plan after verify found a rapid in stock gives verify's.
 
     Returns
     -------
@@ -435,9 +440,9 @@ def plan_job(
     if plan.faces is not None and stock is not None:
         stock = _flats_and_walls(plan, operations, stock)
         if not plan.faces.freeform:
-            return _finished(plan, part_name, operations, source_sha256, left, holes)
+            return _finished(plan, part_name, operations, source_sha256, left, holes, rapid_cell)
     _freeform_finishing(plan, operations, stock)
-    return _finished(plan, part_name, operations, source_sha256, left, holes)
+    return _finished(plan, part_name, operations, source_sha256, left, holes, rapid_cell)
 
 
 @dataclass
@@ -488,6 +493,9 @@ class _Planning:
         rough_within = boundary.centre_region if boundary is not None else None
         # Every later tool keeps off the wall of uncut stock the roughing tool leaves at the boundary.
         within = boundary.after_roughing(rough_tool.radius) if boundary is not None else None
+        # and every tool, shank and holder off the jaws (None where none can reach them)
+        keepout = jaw_keepout(setup, library.tools)
+        rough_within, within = within_both(rough_within, keepout), within_both(within, keepout)
         return cls(part, setup, library, options, progress, boundary, triangles, rough_tool, finish_tool,
                    rough_cutting, finish_cutting, faces, rough_within, within,
                    [("tools and faces", time.perf_counter() - t_start)])
@@ -696,14 +704,14 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
 
 
 def _finished(plan: _Planning, part_name: str, operations: list[Operation], source_sha256: str,
-              left: tuple[Unreached, ...], holes: HolePlan | None) -> PlanJobResult:
+              left: tuple[Unreached, ...], holes: HolePlan | None, rapid_cell: float) -> PlanJobResult:
     """The job from its operations: empty ones dropped, every rapid made safe."""
     dropped = [op.kind for op in operations if len(op.points) < 2]
     if dropped:
         log.info("nothing to cut for %s: dropped", ", ".join(dropped))
     operations = [op for op in operations if len(op.points) >= 2]
     t0 = time.perf_counter()
-    safe_ops, checked, fixed = safe_rapids(operations, plan.setup, plan.triangles)
+    safe_ops, checked, fixed = safe_rapids(operations, plan.setup, plan.triangles, rapid_cell)
     plan.seconds.append(("rapid check", time.perf_counter() - t0))
 
     job = Job(

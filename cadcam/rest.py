@@ -74,10 +74,28 @@ def _grown(tool: Tool, by: float) -> Tool:
     return dataclasses.replace(tool, diameter=d, corner_radius=rc)
 
 
+def _from_and_to_safe_height(op: Operation, safe_z: float) -> Operation:
+    """``op`` starting and ending at ``safe_z`` [mm]: a rapid straight up or down added where it does
+    not (a canned cycle's motion is the controller's: left as it is)."""
+    pts = op.points
+    if op.cycle is not None or not len(pts) or (pts[0, 2] >= safe_z - 1e-9 and pts[-1, 2] >= safe_z - 1e-9):
+        return op
+    mot = op.motion
+    if pts[0, 2] < safe_z - 1e-9:
+        pts = np.vstack([[pts[0, 0], pts[0, 1], safe_z], pts])
+        mot = np.concatenate([[Motion.RAPID], mot]).astype(op.motion.dtype)
+    if pts[-1, 2] < safe_z - 1e-9:
+        pts = np.vstack([pts, [pts[-1, 0], pts[-1, 1], safe_z]])
+        mot = np.concatenate([mot, [Motion.RAPID]]).astype(op.motion.dtype)
+    return dataclasses.replace(op, points=pts, motion=mot)
+
+
 def safe_rapids(operations: Sequence[Operation], setup: Setup, part_triangles: np.ndarray,
                 cell: float = 0.5) -> tuple[tuple[Operation, ...], int, int]:
     """Make every rapid of ``operations`` clear the in-process stock with the whole tool, and check
-    that no move of any tool reaches the vise's jaws or parallels (``setup.jaws``).
+    that no move of any tool reaches the vise's jaws or parallels (``setup.jaws``). Each operation
+    starts and ends at ``setup.safe_z`` (a rapid straight down and up added where it would not), so
+    the links between operations run above the stock and every descent is one of the rapids checked.
 
     The operations are simulated in order with each tool grown by half a cell diagonal (the
     stock is only known at grid points). A rapid that would touch the stock as the earlier
@@ -98,7 +116,9 @@ def safe_rapids(operations: Sequence[Operation], setup: Setup, part_triangles: n
     ToolpathError
         A move's tool, shank or holder reaches into the jaws or parallels.
     """
-    ops = tuple(operations)
+    # Every link between operations runs at the safe height: an operation that starts or ends
+    # lower gets the rapid up or down there, which is then checked like any other.
+    ops = tuple(_from_and_to_safe_height(op, setup.safe_z) for op in operations)
     if not ops:
         return ops, 0, 0
     by = 0.5 * cell * math.sqrt(2.0)

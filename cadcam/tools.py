@@ -94,6 +94,9 @@ class MaterialData:
         Specific cutting energy (unit power) [W·s/mm³ = J/mm³]: the spindle power a cut
         takes per unit of material removal rate (:mod:`cadcam.cutting_power`); None when the
         library gives none (the spindle load is then not modelled in this material).
+    density : float or None
+        Mass per volume [g/cm³ = kg/dm³]: the stock's mass, checked against what the robot
+        carries (:func:`factory.refusals.check_setup`); None when the library gives none.
     """
 
     name: str
@@ -104,6 +107,11 @@ class MaterialData:
     description: str = ""
     drilling: DrillingData | None = None
     specific_energy: float | None = None
+    density: float | None = None
+
+    def mass_kg(self, volume_mm3: float) -> float | None:
+        """Mass [kg] of ``volume_mm3`` [mm³] of this material; None without a density."""
+        return None if self.density is None else float(volume_mm3) * self.density * 1e-6
 
     def chip_load_for(self, diameter: float) -> float:
         """Chip load per tooth for a tool of this diameter [mm/tooth]."""
@@ -353,7 +361,7 @@ class _Parser:
     def material(self, name: str, d: Any) -> MaterialData:
         where = f"materials.{name}"
         d = self.mapping(d, where, {"surface_speed", "chip_load", "plunge_fraction"},
-                         {"aliases", "description", "drilling", "specific_energy"})
+                         {"aliases", "description", "drilling", "specific_energy", "density"})
         vc = self.number(d["surface_speed"], f"{where}.surface_speed")
         pairs = self.by_diameter(d["chip_load"], f"{where}.chip_load", "fz", "mm/tooth", 1.0)
         frac = self.number(d["plunge_fraction"], f"{where}.plunge_fraction")
@@ -366,7 +374,8 @@ class _Parser:
         desc = self.string(d["description"], f"{where}.description") if "description" in d else ""
         drilling = self.drilling(d["drilling"], f"{where}.drilling") if "drilling" in d else None
         energy = self.number(d["specific_energy"], f"{where}.specific_energy") if "specific_energy" in d else None
-        return MaterialData(name, vc, pairs, frac, aliases_t, desc, drilling, energy)
+        density = self.number(d["density"], f"{where}.density") if "density" in d else None
+        return MaterialData(name, vc, pairs, frac, aliases_t, desc, drilling, energy, density)
 
     def drilling(self, d: Any, where: str) -> DrillingData:
         d = self.mapping(d, where, {"surface_speed", "feed_per_rev", "peck"}, set())

@@ -17,12 +17,19 @@ where the swept body meets the box, and never less than the depth at any one poi
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import shapely
+from shapely.geometry import box as rectangle
+from shapely.geometry.base import BaseGeometry
 
-from cadcam.model import FixtureBox, Tool
+from cadcam.model import FixtureBox, Setup, Tool
+
+#: Gap the planner keeps between a tool's body and the jaws or parallels [mm]: verify's
+#: tolerance for a fixture contact is far below it.
+KEEPOUT_CLEARANCE_MM = 0.5
 
 
 @dataclass(frozen=True)
@@ -147,3 +154,52 @@ def fixture_contacts(start: np.ndarray, end: np.ndarray, tool: np.ndarray, tools
                     which[idx] = k
                     where[idx] = np.where((p0[:, 2] <= p1[:, 2])[:, None], p0, p1)[better]
     return FixtureContacts(depth, which, where)
+
+
+def jaw_keepout(setup: Setup, tools: Sequence[Tool]) -> Callable[[float], BaseGeometry] | None:
+    """Where the planner may put a tool's axis so that no cutter, shank or holder enters the jaws or
+    parallels (``setup.jaws``), as ``within(radius)`` for every operation's machining region.
+
+    Taken as if the tool were at the setup's floor (``setup.floor_z``, the lowest any operation
+    feeds) everywhere: a cylinder of the tool (:func:`tool_cylinders`) whose bottom can come below
+    a box's top keeps its axis its radius plus :data:`KEEPOUT_CLEARANCE_MM` off the box's XY
+    rectangle. The stock left in that shadow stays for the stock model, which reports it as
+    unreached (op 2 takes what lies in its reach). ``tools``: the tools the plan may use, matched by
+    radius [mm] (a radius none of them has keeps off by the cutter alone).
+
+    Returns None when no tool can reach any box (the jaws' top under the floor, the usual op 1):
+    the regions are then the operations' own.
+    """
+    boxes = setup.jaws or ()
+    floor = float(setup.floor_z)
+
+    def reach(cylinders) -> tuple[float, ...]:
+        """How far off each box the axis stays [mm], 0 for a box none of ``cylinders`` gets under."""
+        return tuple(max((r + KEEPOUT_CLEARANCE_MM for h, r in cylinders if b.hi[2] > floor + h + 1e-9), default=0.0)
+                     for b in boxes)
+
+    if not any(b.hi[2] > floor + 1e-9 for b in boxes):  # every cylinder's bottom is at the tip or above
+        return None
+    by_tool = [(float(t.radius), reach(tool_cylinders(t))) for t in tools]
+    lo, hi = np.asarray(setup.stock_min, dtype=np.float64), np.asarray(setup.stock_max, dtype=np.float64)
+    grow = float(np.ptp([lo[:2], hi[:2]], axis=0).max())  # beyond any tool's reach over the stock edge
+    everywhere = rectangle(lo[0] - grow, lo[1] - grow, hi[0] + grow, hi[1] + grow)
+
+    def within(radius: float) -> BaseGeometry:
+        mine = [ds for r, ds in by_tool if abs(r - radius) < 1e-9] or [reach(((0.0, radius),))]
+        off = [max(d[k] for d in mine) for k in range(len(boxes))]
+        shadow = [rectangle(b.lo[0], b.lo[1], b.hi[0], b.hi[1]).buffer(d, quad_segs=16)
+                  for b, d in zip(boxes, off) if d > 0]
+        return everywhere.difference(shapely.unary_union(shadow)) if shadow else everywhere
+
+    return within
+
+
+Region = Callable[[float], BaseGeometry]
+
+
+def within_both(a: Region | None, b: Region | None) -> Region | None:
+    """The region ``within(radius)`` both ``a`` and ``b`` allow (either None: the other)."""
+    if a is None or b is None:
+        return a if b is None else b
+    return lambda radius: a(radius).intersection(b(radius))

@@ -81,7 +81,8 @@ class CamRequest:
     default of :func:`cadcam.setup.default_holding`; ``cell`` the cell file whose vise holds
     the stock (None: no vise, nothing checked against jaws); ``relief`` applies when the mesh is
     an open surface (:mod:`cadcam.relief`): floor and boundary mode; ``body`` picks the solid
-    (1-based) of a STEP file with several."""
+    (1-based) of a STEP file with several; ``rapid_cell`` the grid [mm] every rapid is checked on
+    (``plan_job``'s, finer when :func:`factory.plan.plan_part` plans again after a rapid in stock)."""
 
     part: Path
     tools: Path | None
@@ -94,6 +95,7 @@ class CamRequest:
     cell: Path | None = CELL
     relief: ReliefOptions = ReliefOptions()
     body: int | None = None
+    rapid_cell: float = 0.5
 
     @classmethod
     def from_options(cls, part: Path, tools: Path | None, stock: tuple[float, float, float] | None, material: str,
@@ -210,6 +212,7 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
         progress=progress,
         boundary=boundary,
         holes=exact_holes,
+        rapid_cell=req.rapid_cell,
     )
     job = planned.job
     if boundary is not None and loaded.surface is not None:

@@ -33,6 +33,7 @@ import numpy as np
 import trimesh
 
 from cadcam.model import Job, Setup
+from cadcam.plan import PlanOptions
 from cadcam.parallel import Background, processors
 from cadcam.op2 import (FLIP_AXIS, WORK_OFFSET, Op2Options, flip_transform, op2_setup_image, op2_sheet_fields,
                         plan_op2)
@@ -54,7 +55,7 @@ from factory.core.progress import Progress, Stopwatch
 from factory.core.resources import FIXTURES
 from factory.core.setupsheet import SetupSheet
 from factory.tending import CellPlan, log_tending, plan_cell
-from factory.verify import log_simulation, run_verify, run_verify_after, write_verify_outputs
+from factory.verify import log_simulation, report_text, run_verify, run_verify_after, write_verify_outputs
 from robotprog.programs import PostedProgram, post_program
 
 log = logging.getLogger(__name__)
@@ -240,6 +241,9 @@ class PartPlan:
         Wall time per stage [s].
     op2 : SecondOp or None
         Op 2, None when planned with ``ops=1``.
+    replanned : tuple of str
+        Why each earlier plan of this part was thrown away (its first verify fault), in order;
+        empty when the first plan passed verify (:func:`plan_part`).
     """
 
     request: PlanRequest
@@ -251,6 +255,7 @@ class PartPlan:
     report: VerifyReport
     seconds: dict[str, float]
     op2: SecondOp | None = None
+    replanned: tuple[str, ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -292,6 +297,8 @@ class PartPlan:
                 # the program's reject branch after the verdict (none: it does not branch)
                 "reject_moves": [] if tending.program.planned_reject_s is None else
                 [{"name": m.name, "duration_s": round(m.duration, 3)} for m in tending.plan.reject]},
+            # the verify faults that made the plan be made again, more conservatively (only when it was)
+            **({"replanned": list(self.replanned)} if self.replanned else {}),
             "seconds": {k: round(v, 3) for k, v in self.seconds.items()},
             "outputs": {k: str(v) for k, v in outputs.items()},
         }
@@ -382,8 +389,19 @@ class PartPlan:
                 log_tending(m, tending.cell, tending.world, tending.plan)
 
 
+#: Each re-plan after a failed verify scales the roughing stepdown, the terrace stepdown and the
+#: finishing engagement of the first plan by the next of these: thinner cuts for every tool.
+REPLAN_SCALES = (0.5, 0.25)
+
+
 def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPlan:
     """Plan a part: CAM, post, setup sheet, robot load/unload and program, verify. Writes nothing.
+
+    A plan that verify fails is never the first answer: the part is planned again with thinner
+    cuts (:func:`conservative`, at each of :data:`REPLAN_SCALES`) and its rapids checked on
+    verify's grid (``CamRequest.rapid_cell``) until one passes; only the
+    last is returned failed (``ok`` False), naming its faults. What each re-plan was for is in
+    ``replanned``.
 
     Raises
     ------
@@ -391,6 +409,46 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
         Any stage's error: a bad mesh, an unknown tool or material, an unreachable part, a cell
         the robot cannot tend.
     """
+    plan = _plan_once(request, progress)
+    why: list[str] = []
+    for scale in REPLAN_SCALES:
+        if plan.ok:
+            break
+        fault = _first_fault(plan)
+        why.append(fault)
+        log.warning("%s: verify failed (%s): planning again with stepdowns and finishing engagement x%g",
+                    request.cam.part, fault, scale)
+        # the rapids checked on verify's own grid too: what it saw in stock, the check sees
+        cam = dataclasses.replace(request.cam, plan=conservative(request.cam.plan, plan.planned.job, scale),
+                                  rapid_cell=min(request.cam.rapid_cell, request.grid))
+        plan = _plan_once(dataclasses.replace(request, cam=cam), progress)
+    return dataclasses.replace(plan, replanned=tuple(why))
+
+
+def conservative(options: PlanOptions, job: Job, scale: float) -> PlanOptions:
+    """``options`` with thinner cuts: the roughing stepdown (the job's roughing tool's default when not
+    given, :class:`cadcam.roughing.RoughingOptions`), the terrace stepdown and the finishing engagement
+    [mm] scaled by ``scale`` in (0, 1)."""
+    rough = next((t for t in job.tools if t.number == job.parameters.get("rough_tool")), None)
+    stepdown = options.roughing.stepdown
+    if stepdown is None and rough is not None:
+        stepdown = min(0.5 * rough.diameter, rough.flute_length)
+    roughing = dataclasses.replace(options.roughing, stepdown=None if stepdown is None else stepdown * scale)
+    return dataclasses.replace(options, roughing=roughing, terrace_stepdown=options.terrace_stepdown * scale,
+                               finish_engagement=options.finish_engagement * scale)
+
+
+def _first_fault(plan: PartPlan) -> str:
+    """The first verify fault of the plan's first failing operation, as one clause."""
+    for label, report in (("op 1", plan.report), ("op 2", None if plan.op2 is None else plan.op2.report)):
+        if report is not None and not report.ok:
+            faults = list(report.faults)
+            return f"{label}: {faults[0].message}" if faults else f"{label}: {report_text(report).splitlines()[0]}"
+    return "verify passed"
+
+
+def _plan_once(request: PlanRequest, progress: Progress | None = None) -> PartPlan:
+    """:func:`plan_part` without the re-plans."""
     req = request
     if req.lang not in PROGRAM_SUFFIX:
         raise PlanningError(f"unknown robot program language {shown(req.lang)}: expected {', '.join(PROGRAM_SUFFIX)}",
@@ -404,7 +462,7 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     watch = Stopwatch(progress)  # every stage shows, the robot's planning too
     planned = compute_job(req.cam, progress, watch,
                           check_setup=lambda setup, part_work: check_setup(setup, req.grid, req.cam.part, robot_cell,
-                                                                            part_work, req.cam.units))
+                                                                            part_work, req.cam.units, req.cam.tools))
     job = planned.job
     asked_ops = req.ops
     if req.ops is None:  # a relief stays in its block, right way up, unless asked

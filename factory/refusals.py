@@ -18,9 +18,10 @@ import trimesh
 from cadcam.mesh import inch_hint
 from cadcam.model import Setup
 from cadcam.stock import check_grid_size
+from cadcam.tools import MaterialData, load_tool_library
 from factory.core.errors import CellError, PlanningError
 from factory.core.resources import FIXTURES
-from robotprog.cell import load_cell
+from robotprog.cell import Cell, load_cell
 from robotprog.frames import MM_PER_M, check_stock_fits
 from robotprog.grasp import GraspOptions, tcp_above_bottom
 from robotprog.programs import LANG_MAKER, check_language
@@ -53,13 +54,15 @@ def check_request(cell_path: Path | None, lang: str) -> None:
 
 
 def check_setup(setup: Setup, grid: float, part: Path, cell_path: Path | None,
-                part_work: trimesh.Trimesh | None = None, units: str = "mm") -> None:
+                part_work: trimesh.Trimesh | None = None, units: str = "mm", tools: Path | None = None) -> None:
     """Refuse, once the part is placed in its stock and before any toolpath, what verify and the
-    robot would refuse: a verify grid too fine for the stock, a stock the cell's vise cannot clamp
-    or its gripper cannot hold, a part (``part_work`` [mm], None for a relief, which leaves in its
-    block) too thin for the gripper to take out. ``grid``: verify's cell size [mm]; ``cell_path``
-    None: no robot; ``units``: the ``--units`` the part was read in (a part too small when its
-    units were guessed gets the hint to give ``--units inch``).
+    robot would refuse: a verify grid too fine for the stock, a stock the cell's vise cannot clamp,
+    its gripper cannot hold or its robot cannot carry (:func:`check_stock_mass`), a part
+    (``part_work`` [mm], None for a relief, which leaves in its block) too thin for the gripper to
+    take out. ``grid``: verify's cell size [mm]; ``cell_path`` None: no robot; ``units``: the
+    ``--units`` the part was read in (a part too small when its units were guessed gets the hint
+    to give ``--units inch``); ``tools``: the tool library holding the material's density (None:
+    the bundled one).
 
     Raises
     ------
@@ -81,6 +84,7 @@ def check_setup(setup: Setup, grid: float, part: Path, cell_path: Path | None,
     except CellError as e:
         raise CellError(f"{e}: give a --stock (or --holding) that fits, or a --cell whose vise and gripper take it",
                         source=_shown(cell_path)) from None
+    check_stock_mass(setup, cell, load_tool_library(tools).material(setup.material), cell_path)
     if part_work is None:
         return
     size = np.ptp(np.asarray(part_work.vertices), axis=0)
@@ -90,6 +94,29 @@ def check_setup(setup: Setup, grid: float, part: Path, cell_path: Path | None,
     except PlanningError as e:
         hint = inch_hint(float(size.max()), units, setup.mesh_scale)
         raise PlanningError(f"{e.message}; {hint}" if hint else e.message, source=str(part)) from None
+
+
+def check_stock_mass(setup: Setup, cell: Cell, material: MaterialData, cell_path: Path) -> None:
+    """Refuse a stock block heavier than the robot carries with its gripper: the cell's
+    ``robot.payload`` [kg] less ``gripper.mass`` [kg], the stock's mass from its size [mm] and the
+    material's density [g/cm³]. Nothing is checked without a payload or a density.
+
+    Raises
+    ------
+    CellError
+        The stock is too heavy; the message gives its size, density, mass and what the robot carries.
+    """
+    mass = material.mass_kg(float(np.prod(setup.stock_size)))
+    payload = cell.robot.payload
+    if mass is None or payload is None:
+        return
+    carries = payload - cell.gripper.mass
+    if mass > carries:
+        x, y, z = (float(v) for v in setup.stock_size)
+        raise CellError(f"robot.payload: stock {x:.1f} x {y:.1f} x {z:.1f} mm of {material.name} "
+                        f"({material.density:g} g/cm³) weighs {mass:.2f} kg, over the {carries:.2f} kg the robot "
+                        f"carries ({payload:g} kg payload less the {cell.gripper.mass:g} kg gripper): give a smaller "
+                        f"--stock, a lighter --material, or a --cell whose robot carries it", source=_shown(cell_path))
 
 
 def shipped_cells(maker: str) -> list[Path]:

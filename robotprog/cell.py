@@ -101,12 +101,16 @@ class RobotSpec:
         Home configuration [rad], one per joint.
     flange_frame : str or None
         Override of the model's flange frame (needed for a URDF path).
+    payload : float or None
+        Rated payload at the flange [kg], the gripper's mass included; None: not given (the
+        stock's mass is then not checked).
     """
 
     model: str
     base: Pose
     home: tuple[float, ...]
     flange_frame: str | None = None
+    payload: float | None = None
 
 
 @dataclass(frozen=True)
@@ -228,6 +232,8 @@ class Gripper:
         The gripper body (actuator, housing), pose in the flange frame; it must end at or
         above the fingers' root (``fingers.length`` above the TCP).
     fingers : Fingers
+    mass : float
+        The gripper's own mass [kg], taken off the robot's payload. Default 0.
     """
 
     tcp: Pose
@@ -236,6 +242,7 @@ class Gripper:
     io: GripperIO
     body: Box
     fingers: Fingers
+    mass: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -478,7 +485,7 @@ def read_cell(data: Any, source: str | Path | None = None) -> Cell:
         raise rd.fail("format", f"expected {FORMAT!r}, got {shown(top['format'])}")
     name = rd.string(top.get("name", "cell"), "name")
 
-    r = rd.mapping(top["robot"], "robot", {"base", "home"}, {"model", "urdf", "flange_frame"})
+    r = rd.mapping(top["robot"], "robot", {"base", "home"}, {"model", "urdf", "flange_frame", "payload"})
     if ("model" in r) == ("urdf" in r):
         raise rd.fail("robot", "expected one of model (a known robot's name) or urdf (a .urdf path)")
     if "urdf" in r:
@@ -490,7 +497,8 @@ def read_cell(data: Any, source: str | Path | None = None) -> Cell:
     if src is not None and model.lower().endswith(".urdf") and not Path(model).is_absolute():
         model = str(Path(src).parent / model)
     flange = None if r.get("flange_frame") is None else rd.string(r["flange_frame"], "robot.flange_frame")
-    robot = RobotSpec(model, rd.pose(r["base"], "robot.base"), rd.numbers(r["home"], "robot.home"), flange)
+    payload = rd.number(r["payload"], "robot.payload", positive=True) if "payload" in r else None
+    robot = RobotSpec(model, rd.pose(r["base"], "robot.base"), rd.numbers(r["home"], "robot.home"), flange, payload)
 
     mo = rd.mapping(top["motion"], "motion", {"acceleration_limits"}, {"speed_scaling"})
     accel = rd.numbers(mo["acceleration_limits"], "motion.acceleration_limits", positive=True)
@@ -503,7 +511,7 @@ def read_cell(data: Any, source: str | Path | None = None) -> Cell:
         raise rd.fail("motion.speed_scaling", f"must be in (0, 1], got {scaling}")
     motion = Motion(accel, scaling)
 
-    g = rd.mapping(top["gripper"], "gripper", {"tcp", "opening", "io", "body", "fingers"})
+    g = rd.mapping(top["gripper"], "gripper", {"tcp", "opening", "io", "body", "fingers"}, {"mass"})
     op = rd.mapping(g["opening"], "gripper.opening", {"min", "max"})
     omin = rd.number(op["min"], "gripper.opening.min", nonneg=True)
     omax = rd.number(op["max"], "gripper.opening.max", positive=True)
@@ -534,7 +542,10 @@ def read_cell(data: Any, source: str | Path | None = None) -> Cell:
     if reach > -fingers.length + 1e-9:
         raise rd.fail("gripper.body", f"reaches {(reach + fingers.length) * 1000:.1f} mm past the fingers' root "
                       f"({fingers.length * 1000:.1f} mm above the TCP): the fingers would not reach below it")
-    gripper = Gripper(tcp, omin, omax, gio, body, fingers)
+    mass = rd.number(g.get("mass", 0.0), "gripper.mass", nonneg=True)
+    if payload is not None and mass >= payload:
+        raise rd.fail("gripper.mass", f"{mass:g} kg leaves nothing of the robot's {payload:g} kg payload")
+    gripper = Gripper(tcp, omin, omax, gio, body, fingers, mass)
 
     vise = _vise(rd, top["vise"])
 

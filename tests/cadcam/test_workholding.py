@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import trimesh
+from shapely.geometry import Point
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cadcam.model import CuttingData, FixtureBox, Motion, Operation, ProgramMoves, Setup, Tool, ViseJaws
 from cadcam.rest import safe_rapids
 from cadcam.verify import FAULT_KINDS, simulate
-from cadcam.workholding import fixture_contacts, tool_cylinders
+from cadcam.stock import operation_moves
+from cadcam.workholding import KEEPOUT_CLEARANCE_MM, fixture_contacts, jaw_keepout, tool_cylinders
 from factory.core.errors import ToolpathError
 
 FLAT = Tool(1, "6 mm flat", "flat", 6.0, 0.0, 20.0, 3, 40.0)
@@ -119,3 +123,71 @@ def test_the_planner_refuses_a_toolpath_into_the_vise():
     op = Operation("doctored", "roughing", FLAT, cut, pts, np.array([R, C, R], np.int8))
     with pytest.raises(ToolpathError, match="front jaw .* would hit the vise"):
         safe_rapids([op], SETUP, PART)
+
+
+# Jaws gripping 13 mm of the 15 mm stock: their top (-2) is above the floor (-10.5), so a tool at the
+# stock's Y faces would run into them; the part's block reaches both Y faces of the stock.
+HIGH_JAWS = ViseJaws(jaw_height=48.0, jaw_width=150.0, jaw_thickness=20.0, parallels_height=35.0, opening_min=0.0,
+                     opening_max=160.0)
+HIGH_SETUP = Setup(stock_min=STOCK_MIN, stock_max=STOCK_MAX, transform_mesh_to_work=np.eye(4), floor_z=-10.5,
+                   jaws=HIGH_JAWS.place(STOCK_MIN, STOCK_MAX))
+EDGE_PART = trimesh.creation.box(bounds=[[12, 0, -10], [28, 20, -3]])
+
+
+def test_no_keepout_where_no_tool_reaches_the_jaws():
+    # as make_setup places it: 6.5 mm holding less 0.5 breakthrough, the jaws' top 1 mm under the floor
+    assert jaw_keepout(dataclasses.replace(SETUP, floor_z=-9.0), (FLAT, STUBBY)) is None
+    assert jaw_keepout(HIGH_SETUP, ()) is not None
+
+
+def test_the_keepout_keeps_each_tool_s_cutter_shank_and_holder_off_the_jaws():
+    within = jaw_keepout(HIGH_SETUP, (FLAT,))
+    region = within(FLAT.radius)
+    front = HIGH_SETUP.jaws[0]
+    reach = max(r for h, r in tool_cylinders(FLAT) if front.hi[2] > HIGH_SETUP.floor_z + h) + KEEPOUT_CLEARANCE_MM
+    # an axis just over that reach off the front jaw's face is allowed, just under it is not
+    assert region.contains(Point(20.0, front.hi[1] + reach + 0.01))
+    assert not region.contains(Point(20.0, front.hi[1] + reach - 0.01))
+    # a radius no library tool has keeps off by the cutter alone
+    assert within(1.0).contains(Point(20.0, front.hi[1] + 1.0 + KEEPOUT_CLEARANCE_MM + 0.01))
+
+
+def test_a_plan_whose_floor_is_below_the_jaws_top_never_enters_them_and_reports_the_shadow():
+    """Independent of the planner's regions: every move of every tool, shank and holder swept against the boxes."""
+    from cadcam.plan import PlanOptions, plan_job
+    from cadcam.tools import load_tool_library
+
+    library = load_tool_library()
+    job = plan_job(EDGE_PART, HIGH_SETUP, library, part_name="edge", options=PlanOptions(by_faces=False)).job
+    moves = operation_moves(job.operations)
+    tools = {t.number: t for t in job.tools}
+    hits = fixture_contacts(moves.points[:-1], moves.points[1:], moves.tool[1:], tools, HIGH_SETUP.jaws)
+    assert hits.depth.max() <= 1e-9, hits.depth.max()
+    # the stock in the jaws' shadow is left and said so, not cut and not refused
+    assert job.parameters["unreached"]
+
+
+def test_without_the_keepout_the_same_plan_runs_into_the_jaws(monkeypatch):
+    """The keep-out is what keeps that plan clear: without it the planner's last guard refuses it."""
+    import cadcam.plan
+    from cadcam.tools import load_tool_library
+
+    monkeypatch.setattr(cadcam.plan, "jaw_keepout", lambda setup, tools: None)
+    with pytest.raises(ToolpathError, match="jaw .* would hit the vise"):
+        cadcam.plan.plan_job(EDGE_PART, HIGH_SETUP, load_tool_library(), part_name="edge",
+                             options=cadcam.plan.PlanOptions(by_faces=False))
+
+
+def test_an_operation_starting_low_is_reached_by_a_checked_descent_from_the_safe_height():
+    """The link into an operation that starts in the stock: a rapid straight down, found to touch the
+    stock and fed the rest of the way, never a diagonal rapid from the last operation's end."""
+    cut = CuttingData(10000, 800, 300)
+    first = Operation("first", "roughing", FLAT, cut, np.array([[5, 5, 5], [5, 5, 2], [5, 5, 5]], float),
+                      np.array([R, C, R], np.int8))
+    low = Operation("low", "roughing", FLAT, cut, np.array([[30, 10, -4], [35, 10, -4]], float),
+                    np.array([R, C], np.int8))
+    ops, checked, fixed = safe_rapids([first, low], SETUP, PART)
+    pts, mot = ops[1].points, ops[1].motion
+    assert pts[0].tolist() == [30, 10, SETUP.safe_z] and pts[-1].tolist() == [35, 10, SETUP.safe_z]
+    # the descent into the stock top (z 0) rapids to the clearance above it and feeds the rest
+    assert fixed == 1 and mot[1] == Motion.RAPID and 0 < pts[1, 2] < SETUP.safe_z and mot[2] == Motion.PLUNGE

@@ -296,8 +296,8 @@ def test_simulate_plans_exactly_what_plan_does_with_its_defaults():
     (["--holding", "2"], ["holding allowance 2 mm leaves 1.5 mm under the part", "--holding 6.5"]),
     (["--holding", "6"], ["below the jaws' grip depth 5 mm", "--holding 6.5"]),
     (["--stock", "40,30,12"], ["needs stock 16.500 mm tall, stock is 12.000 mm"]),
-    # too wide across the jaws either way (turned about Z, 40 x 170 would fit: cadcam.setup.orient_setup)
-    (["--stock", "170,170,30"], ["stock 170.0 mm wide (Y) does not fit the vise opening 0..160 mm"]),
+    # too wide across the jaws either way (turned about Z, 40 x 230 would fit: cadcam.setup.orient_setup)
+    (["--stock", "230,230,30"], ["stock 230.0 mm wide (Y) does not fit the vise opening 0..223.5 mm"]),
 ])
 def test_stock_the_vise_cannot_hold_is_one_line_with_its_figures(small_part, tmp_path, args, needles):
     out = tmp_path / "out"

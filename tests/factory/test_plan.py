@@ -227,3 +227,55 @@ def test_the_tool_table_is_an_output_only_for_a_controller_that_reads_one(tmp_pa
     for post in ("grbl", "fanuc"):
         assert "tool_table" not in plan_outputs(part, tmp_path, post=post)
         assert "tool_table" not in dataclasses.replace(fast_request(part), post=post).outputs(tmp_path)
+
+
+def _with_fault(plan, message: str):
+    """``plan`` as if op 1's verify had found a buried finishing tool."""
+    from cadcam.verify import Fault
+
+    fault = Fault("buried", 3, (10,), 1.2, 1.0, (1.0, 2.0, -3.0), message)
+    return dataclasses.replace(plan, report=dataclasses.replace(plan.report, faults=(fault,)))
+
+
+def test_a_plan_verify_fails_is_made_again_with_thinner_cuts_before_any_is_handed_over(block, monkeypatch, caplog):
+    import factory.plan
+
+    real = factory.plan._plan_once
+    asked = []
+
+    def first_fails(request, progress=None):
+        asked.append(request.cam)
+        plan = real(request, progress)
+        return _with_fault(plan, "T3 engages 1.2 mm, limit 1 mm") if len(asked) == 1 else plan
+
+    monkeypatch.setattr(factory.plan, "_plan_once", first_fails)
+    request = dataclasses.replace(fast_request(block, robot=False), ops=1)
+    with caplog.at_level(logging.WARNING, logger="factory.plan"):
+        planned = plan_part(request)
+    assert planned.ok and planned.replanned == ("op 1: T3 engages 1.2 mm, limit 1 mm",)
+    assert "verify failed (op 1: T3 engages 1.2 mm, limit 1 mm): planning again" in caplog.text
+    first, again = asked
+    assert (first.rapid_cell, again.rapid_cell) == (0.5, request.grid)  # the rapids on verify's grid
+    first, again = first.plan, again.plan
+    rough = next(t for t in planned.planned.job.tools if t.number == planned.planned.job.parameters["rough_tool"])
+    assert again.roughing.stepdown == pytest.approx(0.5 * min(0.5 * rough.diameter, rough.flute_length))
+    assert again.finish_engagement == pytest.approx(0.5 * first.finish_engagement)
+    assert again.terrace_stepdown == pytest.approx(0.5 * first.terrace_stepdown)
+    assert planned.summary(Path("out"))["replanned"] == ["op 1: T3 engages 1.2 mm, limit 1 mm"]
+
+
+def test_only_when_every_re_plan_fails_is_the_failed_plan_returned(block, monkeypatch):
+    import factory.plan
+
+    real = factory.plan._plan_once
+    calls = []
+
+    def always_fails(request, progress=None):
+        calls.append(request.cam.plan.finish_engagement)
+        return _with_fault(real(request, progress), f"fault {len(calls)}")
+
+    monkeypatch.setattr(factory.plan, "_plan_once", always_fails)
+    planned = plan_part(dataclasses.replace(fast_request(block, robot=False), ops=1))
+    assert not planned.ok and len(calls) == 1 + len(factory.plan.REPLAN_SCALES)
+    assert calls[1:] == pytest.approx([calls[0] * s for s in factory.plan.REPLAN_SCALES])
+    assert planned.replanned == ("op 1: fault 1", "op 1: fault 2")

@@ -112,7 +112,7 @@ def test_a_cell_with_an_unknown_robot_is_refused_before_any_cam_stage(part, tmp_
 
 
 def test_a_stock_the_gripper_cannot_hold_is_refused_before_the_toolpaths(tmp_path, no_cam):
-    # 90 x 95 mm: the stock (2 mm each side) fits the jaws (160 mm) either way but not the fingers (85 mm)
+    # 90 x 95 mm: the stock (2 mm each side) fits the jaws (223.5 mm) either way but not the fingers (85 mm)
     wide = tmp_path / "wide.stl"
     pocket_block(size=(90.0, 95.0, 20.0), pocket=(20.0, 40.0, 5.0)).export(wide)
     out = tmp_path / "out"
@@ -124,6 +124,23 @@ def test_a_stock_the_gripper_cannot_hold_is_refused_before_the_toolpaths(tmp_pat
     # without the robot nothing holds the stock but the vise: the plan goes on to the toolpaths
     with pytest.raises(AssertionError, match="the CAM work ran"):
         plan_part(dataclasses.replace(PlanRequest.defaults(wide, "aluminium"), robot=False))
+
+
+def test_a_stock_heavier_than_the_robot_carries_is_refused_with_the_figures_before_the_toolpaths(tmp_path, no_cam):
+    # 150 x 76 x 61 mm of steel: 695,400 mm^3 at 7.85 g/cm^3 = 5.46 kg, over the UR5's 5 kg less its
+    # 0.925 kg gripper (4.075 kg); the same block in aluminium (2.81 g/cm^3: 1.95 kg) goes on to the CAM work
+    heavy = tmp_path / "heavy.stl"
+    pocket_block(size=(146.0, 72.0, 53.5), pocket=(40.0, 30.0, 5.0)).export(heavy)
+    out = tmp_path / "out"
+    r = runner.invoke(app, ["plan", str(heavy), "-o", str(out), "--material", "steel"])
+    assert_one_line_error(r, "robot.payload: stock 150.0 x 76.0 x 61.0 mm of steel (7.85 g/cm³) weighs 5.46 kg, "
+                          "over the 4.08 kg the robot carries (5 kg payload less the 0.925 kg gripper)", "--stock",
+                          "--cell")
+    assert not out.exists()
+    with pytest.raises(AssertionError, match="the CAM work ran"):
+        plan_part(PlanRequest.defaults(heavy, "aluminium"))
+    with pytest.raises(AssertionError, match="the CAM work ran"):  # no robot: nothing to carry it
+        plan_part(dataclasses.replace(PlanRequest.defaults(heavy, "steel"), robot=False))
 
 
 @pytest.fixture

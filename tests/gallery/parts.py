@@ -183,9 +183,9 @@ def frame() -> mf.Manifold:
 
 
 def long_turned() -> mf.Manifold:
-    """180 mm along Y and 50 along X: too wide for the jaws' opening unless turned 90 degrees about Z."""
-    part = box(0, 0, 0, 50, 180, 16)
-    for y in (20, 70, 120):
+    """230 mm along Y and 50 along X: too wide for the 6-inch vise's 223.5 mm opening unless turned 90 degrees about Z."""
+    part = box(0, 0, 0, 50, 230, 16)
+    for y in (20, 70, 120, 170):
         part -= rounded_rect(10, y, 40, y + 40, 5, 8, 17)
     return part
 

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 import trimesh
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from cadcam.op2 import SEAM_TOLERANCE
@@ -22,7 +24,9 @@ from tests.rs274 import run_rs274
 
 #: Parts unlike the samples that the cell plans today: drilled thin plate, island with necks, a through
 #: window, a tall thin rib, a plate wider than the jaws are long, a part that fits the jaws only turned about Z.
-PLANNED = ("thin_plate_holes", "island_pocket", "frame", "tall_rib", "wide_plate_pockets", "long_turned")
+#: And a closed relief whose ripples run out to the stock's edge, over the jaws' top.
+PLANNED = ("thin_plate_holes", "island_pocket", "frame", "tall_rib", "wide_plate_pockets", "long_turned",
+           "relief_to_edge")
 #: Tall parts (48-72 mm): the 16 mm end mill reaches the stepped tower's 49.5 mm, the long-reach 12 mm the deep
 #: pocket's floor; the split tower is deeper than any tool reaches from one side (SPLIT): op 1 machines down
 #: to its tools' reach, op 2 the rest from below, and their walls meet within the finishing tolerance.
@@ -89,26 +93,26 @@ def test_a_sheet_thinner_than_any_grip_is_refused_in_one_line(tmp_path: Path) ->
 
 
 def test_a_plate_no_orientation_fits_is_refused_in_one_line_with_both(tmp_path: Path) -> None:
-    """170 x 200 mm: its stock is 204 mm across the 160 mm jaws as given and 174 mm turned about Z."""
+    """230 x 250 mm: its stock is 254 mm across the 223.5 mm jaws as given and 234 mm turned about Z."""
     stl = tmp_path / "plate.stl"
-    stl.write_bytes(trimesh.exchange.stl.export_stl(trimesh.creation.box(bounds=[[0, 0, 0], [170, 200, 10]])))
+    stl.write_bytes(trimesh.exchange.stl.export_stl(trimesh.creation.box(bounds=[[0, 0, 0], [230, 250, 10]])))
     r = CliRunner().invoke(app, ["plan", str(stl), "-o", str(tmp_path / "out"), "--quiet", "--no-robot"])
     assert r.exit_code == 1
     lines = [ln for ln in r.output.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith(f"error: {stl}: fits the cell in no orientation: "), r.output
-    assert "as given, stock 204.0 mm wide (Y)" in lines[0] and "turned 90 degrees about Z, stock 174.0 mm" in lines[0]
+    assert "as given, stock 254.0 mm wide (Y)" in lines[0] and "turned 90 degrees about Z, stock 234.0 mm" in lines[0]
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
 
 
 def test_the_turned_part_is_placed_turned_in_every_output(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
-    """long_turned's setup sheet carries the quarter turn about Z the plan made: stock 184 mm along X."""
+    """long_turned's setup sheet carries the quarter turn about Z the plan made: stock 234 mm along X."""
     stl = BY_NAME["long_turned"].write(tmp_path)
     r = CliRunner().invoke(app, ["plan", str(stl), "-o", str(tmp_path / "out"), "--no-robot"])
     assert r.exit_code == 0, r.output
-    assert "turned 90 degrees about Z to fit the cell: stock 184.0 x 54.0 mm" in caplog.text  # the CLI prints it
+    assert "turned 90 degrees about Z to fit the cell: stock 234.0 x 54.0 mm" in caplog.text  # the CLI prints it
     sheet = json.loads((tmp_path / "out" / "long_turned.setup.json").read_text())
     assert [round(v, 6) for v in sheet["transform_mesh_to_work"][0][:3]] == [0, -1, 0]
-    assert sheet["stock"]["size"][:2] == [184.0, 54.0]
+    assert sheet["stock"]["size"][:2] == [234.0, 54.0]
 
 
 def test_every_gallery_part_is_a_closed_solid_of_its_stated_kind() -> None:
@@ -119,3 +123,18 @@ def test_every_gallery_part_is_a_closed_solid_of_its_stated_kind() -> None:
         assert abs(mesh.bounds[0][2]) < 1e-9, part.name
     assert BY_NAME["long_turned"].make().extents[1] > 160 > BY_NAME["long_turned"].make().extents[0]
     assert BY_NAME["boss_on_base"].make().extents[2] >= 60
+
+
+@settings(max_examples=3, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(x=st.floats(24.0, 70.0), y=st.floats(16.0, 60.0), z=st.floats(8.0, 30.0), px=st.floats(0.3, 0.7),
+       py=st.floats(0.3, 0.7), pz=st.floats(0.2, 0.8))
+def test_a_random_machinable_block_that_fits_the_vise_plans_and_passes_verify(tmp_path_factory, x, y, z, px, py, pz):
+    """Small blocks with a pocket, tall ones and thin ones: ``factory plan`` never refuses one that fits
+    the vise (exit 1) and never hands over a program verify fails (exit 3)."""
+    from tests.conftest import pocket_block
+
+    folder = tmp_path_factory.mktemp("random")
+    stl = folder / "block.stl"
+    pocket_block(size=(x, y, z), pocket=(px * x, py * y, pz * z)).export(stl)
+    r = CliRunner().invoke(app, ["plan", str(stl), "-o", str(folder / "out"), "--quiet", "--no-robot"])
+    assert r.exit_code == 0, (x, y, z, px, py, pz, r.output)

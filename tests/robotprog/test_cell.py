@@ -67,7 +67,7 @@ _DELETE = object()
         ("vise.jaw_height", _DELETE, r"vise\.jaw_height: missing"),
         ("vise.jaw_width", 0, r"vise\.jaw_width: must be > 0, got 0"),
         ("vise.parallels_height", -0.01, r"vise\.parallels_height: must be >= 0"),
-        ("vise.parallels_height", 0.05, r"vise\.parallels_height: 0\.05 m reaches the jaws' top \(0\.04 m above the "
+        ("vise.parallels_height", 0.05, r"vise\.parallels_height: 0\.05 m reaches the jaws' top \(0\.0445 m above the "
                                         r"bed\): the jaws would grip nothing"),
         ("vise.soft_jaws.kind", "magnet", r"vise\.soft_jaws\.kind: expected one of pocket, parallels, got 'magnet'"),
         ("vise.soft_jaws.depth", 0, r"vise\.soft_jaws\.depth: must be > 0"),
@@ -91,6 +91,8 @@ _DELETE = object()
                                               r"machine\.io\.outputs\.cycle_start: output 1 is also open_door"),
         ("machine.io.inputs.cycle_done", 0, r"machine\.io\.inputs\.cycle_done: input 0 is also door_open"),
         ("reject_bin.size", [0.3, 0.3], r"reject_bin\.size: expected 3 numbers"),
+        ("robot.payload", 0, r"robot\.payload: must be > 0"),
+        ("gripper.mass", 5.0, r"gripper\.mass: 5 kg leaves nothing of the robot's 5 kg payload"),
     ],
 )
 def test_errors_name_the_field(raw: dict, path: str, value, message: str) -> None:
@@ -101,7 +103,7 @@ def test_errors_name_the_field(raw: dict, path: str, value, message: str) -> Non
 
 def test_default_vise_grips_5_mm_and_old_vise_sections_still_read(raw: dict) -> None:
     vise = read_cell(raw).vise
-    assert vise.grip_depth == pytest.approx(0.005) and vise.jaw_width == pytest.approx(0.15)
+    assert vise.grip_depth == pytest.approx(0.005) and vise.jaw_width == pytest.approx(0.1524)
     assert vise.soft_jaws is not None and vise.soft_jaws.kind == "parallels"
     old = copy.deepcopy(raw)
     for k in ("jaw_width", "jaw_thickness", "parallels_height", "soft_jaws"):

@@ -112,7 +112,7 @@ def test_stock_wider_than_gripper_names_the_field(cell, world):
 
 def test_stock_too_wide_for_vise(cell, world):
     with pytest.raises(CellError, match="vise.jaw_opening"):
-        plan_tending(cell, sheet(200, 180, 20), world=world)
+        plan_tending(cell, sheet(250, 230, 20), world=world)
 
 
 def test_unreachable_rack_slot_names_the_field(cell, world):
