@@ -168,6 +168,17 @@ class HolePlan:
     undersize: tuple[Hole, ...]
     left: tuple[Hole, ...]
 
+    def cut_at(self, z: float):  # -> shapely geometry (imported here only: detection needs no shapely)
+        """The XY area [mm] of the holes cut to size (drilled, not undersize, or helixed) down to level ``z`` [mm]
+        (a through hole: to the breakthrough below the part, so at every level)."""
+        import shapely
+        from shapely.geometry import Point
+
+        undersize = set(self.undersize)
+        disks = [Point(h.x, h.y).buffer(h.inscribed / 2, quad_segs=16) for h in (*self.drilled, *self.helixed)
+                 if h not in undersize and (h.bottom == "through" or h.bottom_z <= z + 1e-9)]
+        return shapely.union_all(disks)
+
     def to_dict(self) -> dict[str, Any]:
         return {k: [h.to_dict() for h in getattr(self, k)] for k in ("holes", "drilled", "helixed", "undersize", "left")}
 
