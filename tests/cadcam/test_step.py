@@ -326,3 +326,19 @@ def test_counterbores_and_countersinks_are_sized_and_cut(tmp_path):
     sunk_work = next(h for h in holes if abs(h.diameter - 4.5) < EXACT)
     # the 90 deg spot drill's tip where the countersink's cone meets the axis: 4.5 mm under its top
     assert tips[(round(sunk_work.x, 3), round(sunk_work.y, 3))] == pytest.approx(dz - 4.5, abs=EXACT)
+
+
+def test_a_public_two_solid_file_in_metres():
+    """CadQuery's red_cube_blue_cylinder.step (Apache-2.0): two 10 mm solids, written in metres."""
+    from pathlib import Path
+
+    path = Path(__file__).parents[1] / "data" / "step" / "red_cube_blue_cylinder.step"
+    with pytest.raises(MeshError, match=r"2 solids in the file \(1: 10\.0 x 10\.0 x 10\.0 mm, 3 faces; "
+                                        r"2: 10\.0 x 10\.0 x 10\.0 mm, 6 faces\): pick one with --body N"):
+        load_part(path)
+    cylinder, cube = load_part(path, body=1), load_part(path, body=2)
+    assert cylinder.step.units == cube.step.units == "m" and cylinder.scale == 1000.0
+    assert np.allclose(cube.mesh.extents, 10.0, atol=EXACT) and abs(cube.mesh.volume - 1000.0) < 1e-6
+    assert abs(cylinder.mesh.volume - math.pi * 25 * 10) < 0.5  # tessellated within 0.0025 mm
+    assert [round(f.z, 6) for f in cube.step.features.flats] == [round(float(cube.mesh.bounds[1][2]), 6),
+                                                                  round(float(cube.mesh.bounds[0][2]), 6)]
