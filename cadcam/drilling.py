@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -32,6 +32,19 @@ from cadcam.tools import ToolLibrary
 log = logging.getLogger(__name__)
 
 HoleBottom = Literal["through", "flat", "conical"]
+
+
+@dataclass(frozen=True)
+class Countersink:
+    """A cone widening a hole's mouth: ``diameter`` at its top [mm], included ``angle`` [deg], ``top_z`` [mm]."""
+
+    diameter: float
+    angle: float
+    top_z: float
+
+    def tip_z(self) -> float:
+        """Where the cone, continued, meets the hole's axis [mm]: how deep a spot drill of its angle goes."""
+        return self.top_z - self.diameter / 2 / math.tan(math.radians(self.angle) / 2)
 
 
 @dataclass(frozen=True)
@@ -56,6 +69,9 @@ class Hole:
         Lowest point of the hole [mm]: ``bottom_z`` for flat and through holes, the
         cone's tip for a conical bottom.
     bottom : {"through", "flat", "conical"}
+    countersink : Countersink or None
+        The cone at its mouth (known from a STEP file's B-rep), cut by the spot drill when its
+        angle is the spot drill's; None: none known.
     """
 
     x: float
@@ -66,6 +82,7 @@ class Hole:
     bottom_z: float
     tip_z: float
     bottom: HoleBottom
+    countersink: Countersink | None = None
 
     @property
     def depth(self) -> float:
@@ -77,8 +94,11 @@ class Hole:
         return f"{self.diameter:.2f} mm {kind} at X{self.x:.2f} Y{self.y:.2f}, {self.depth:.2f} mm deep"
 
     def to_dict(self) -> dict[str, Any]:
-        return {"x": self.x, "y": self.y, "diameter": self.diameter, "top_z": self.top_z,
-                "bottom_z": self.bottom_z, "tip_z": self.tip_z, "bottom": self.bottom}
+        out = {"x": self.x, "y": self.y, "diameter": self.diameter, "top_z": self.top_z,
+               "bottom_z": self.bottom_z, "tip_z": self.tip_z, "bottom": self.bottom}
+        if self.countersink is not None:
+            out["countersink"] = asdict(self.countersink)
+        return out
 
 
 @dataclass(frozen=True)
@@ -148,11 +168,25 @@ class HolePlan:
     undersize: tuple[Hole, ...]
     left: tuple[Hole, ...]
 
+    def cut_at(self, z: float):  # -> shapely geometry (imported here only: detection needs no shapely)
+        """The XY area [mm] of the holes cut to size (drilled, not undersize, or helixed) down to level ``z`` [mm]
+        (a through hole: to the breakthrough below the part, so at every level)."""
+        import shapely
+        from shapely.geometry import Point
+
+        undersize = set(self.undersize)
+        disks = [Point(h.x, h.y).buffer(h.inscribed / 2, quad_segs=16) for h in (*self.drilled, *self.helixed)
+                 if h not in undersize and (h.bottom == "through" or h.bottom_z <= z + 1e-9)]
+        return shapely.union_all(disks)
+
     def to_dict(self) -> dict[str, Any]:
         return {k: [h.to_dict() for h in getattr(self, k)] for k in ("holes", "drilled", "helixed", "undersize", "left")}
 
 
 # --------------------------------------------------------------------------- detection
+
+#: A countersink's angle is the spot drill's to this [deg] (an 82 deg inch countersink is not a 90 deg spot).
+_SAME_ANGLE = 0.5
 
 #: A face is a wall when its normal is within this of horizontal (sine of the tilt).
 _VERTICAL = 1e-3
@@ -435,8 +469,12 @@ def plan_holes(
     for h, mill in sorted(helixed, key=lambda hm: (-hm[1].diameter, hm[0].x, hm[0].y)):
         bottom = max(h.bottom_z - (options.breakthrough if h.bottom == "through" else 0.0), floor)
         ops.append(helix_operation(h, mill, library.cutting_data(mill, mat), r_plane, bottom, options, initial))
+    spotted = {h for hs in drilled.values() for h, _ in hs if spots and _spots_countersink(spots[0], h.countersink)}
     for h in holes:
         log.debug("hole: %s", h.describe())
+        if h.countersink is not None and h not in spotted:
+            log.warning("%s: its countersink %.2f mm x %g deg is left: only a spot drill of its angle, on a "
+                        "drilled hole, cuts it", h.describe(), h.countersink.diameter, h.countersink.angle)
     log.info("%d round holes: %d drilled (%d undersize), %d helixed, %d left to roughing or unreached",
              len(holes), sum(len(v) for v in drilled.values()), len(chosen.undersize), len(helixed), len(chosen.left))
     return HolePlan(
@@ -520,10 +558,19 @@ def _spot_operation(drilled: dict[int, list[tuple[Hole, float]]], spot: Tool, li
     rows = []
     for i in order:
         h, drill = targets[i]
+        if _spots_countersink(spot, h.countersink):  # the spot drill's cone is the countersink's: cut it to size
+            rows.append((h.x, h.y, h.countersink.tip_z()))
+            continue
         spot_d = min(options.spot_share * drill.diameter, spot.diameter)
         rows.append((h.x, h.y, top - spot.point_slope * spot_d / 2))
     cycle = DrillCycle(code=81, holes=np.array(rows), r_plane=r_plane, peck=0.0, retract="r", initial_z=initial)
     return drill_operation("spot drill", "spot", spot, library.cutting_data(spot, mat), cycle)
+
+
+def _spots_countersink(spot: Tool, countersink: Countersink | None) -> bool:
+    """The spot drill cuts ``countersink`` to size: the same included angle, and at least as wide."""
+    return countersink is not None and abs(spot.point_angle - countersink.angle) <= _SAME_ANGLE \
+        and countersink.diameter <= spot.diameter
 
 
 def _drill_operations(drilled: dict[int, list[tuple[Hole, float]]], library: ToolLibrary, mat: str,

@@ -9,17 +9,32 @@ for one guessed from triangles. The drilling stage takes the round holes as its 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
 import numpy as np
 
-from cadcam.drilling import Hole
+from cadcam.drilling import Countersink, Hole
 
 Source = Literal["step", "mesh"]
 #: How a vertical round hole ends: the three :mod:`cadcam.drilling` cuts, ``stepped`` (its floor
 #: is an annulus around a narrower bore: a counterbore, left to roughing as on a mesh) or ``other``.
 HoleEnd = Literal["through", "flat", "conical", "stepped", "other"]
+
+
+@dataclass(frozen=True)
+class Counterbore:
+    """A wider flat-bottomed bore over a hole, on its axis: ``diameter`` [mm], from ``top_z`` down to ``floor_z`` [mm]."""
+
+    diameter: float
+    top_z: float
+    floor_z: float
+
+    @property
+    def depth(self) -> float:
+        """From its top to its floor [mm]."""
+        return self.top_z - self.floor_z
 
 
 @dataclass(frozen=True)
@@ -38,6 +53,10 @@ class RoundHole:
         Lowest point of the hole [mm]: the apex of a drill-point (conical) bottom, else ``bottom_z``.
     bottom : {"through", "flat", "conical", "stepped", "other"}
     source : {"step", "mesh"}
+    counterbore : Counterbore or None
+        The wider bore over it (its floor is this hole's ``top_z``); None: none.
+    countersink : Countersink or None
+        The cone at its mouth (at the counterbore's floor where there is one); None: none.
     """
 
     x: float
@@ -48,6 +67,8 @@ class RoundHole:
     tip_z: float
     bottom: HoleEnd
     source: Source
+    counterbore: Counterbore | None = None
+    countersink: Countersink | None = None
 
     @property
     def depth(self) -> float:
@@ -70,13 +91,31 @@ class RoundHole:
         t = np.asarray(transform_mesh_to_work, dtype=np.float64)
         x, y = (float(v) for v in t[:2, :2] @ (self.x, self.y) + t[:2, 3])
         dz = float(t[2, 3])
+        sink = self.countersink
+        if sink is not None:
+            sink = dataclasses.replace(sink, top_z=sink.top_z + dz)
         return Hole(x=x, y=y, diameter=self.diameter, inscribed=self.diameter - 2 * chord,
                     top_z=self.top_z + dz, bottom_z=self.bottom_z + dz, tip_z=self.tip_z + dz,
-                    bottom=self.bottom)  # type: ignore[arg-type]
+                    bottom=self.bottom, countersink=sink)  # type: ignore[arg-type]
+
+    def counterbore_hole(self, transform_mesh_to_work: np.ndarray, chord: float) -> Hole | None:
+        """The counterbore as the drilling stage's flat-bottomed hole in work coordinates (the bore
+        below is air once drilled, so its annular floor cuts as a flat one); None without one."""
+        cb = self.counterbore
+        if cb is None:
+            return None
+        bore = dataclasses.replace(self, diameter=cb.diameter, top_z=cb.top_z, bottom_z=cb.floor_z,
+                                   tip_z=cb.floor_z, bottom="flat", counterbore=None, countersink=None)
+        return bore.to_hole(transform_mesh_to_work, chord)
 
     def describe(self) -> str:
+        seat = ""
+        if self.counterbore is not None:
+            seat += f", counterbore {self.counterbore.diameter:.3f} mm x {self.counterbore.depth:.3f} mm deep"
+        if self.countersink is not None:
+            seat += f", countersink {self.countersink.diameter:.3f} mm x {self.countersink.angle:g} deg"
         return (f"{self.diameter:.3f} mm {self.bottom} hole at X{self.x:.3f} Y{self.y:.3f}, "
-                f"{self.depth:.3f} mm deep ({self.source})")
+                f"{self.depth:.3f} mm deep{seat} ({self.source})")
 
     def to_dict(self) -> dict[str, Any]:
         return {**asdict(self), "depth": self.depth}
@@ -169,6 +208,9 @@ class PartFeatures:
         ``chord`` the tessellation's chordal deviation [mm] (:meth:`RoundHole.to_hole`).
         """
         found = [h.to_hole(transform_mesh_to_work, chord) for h in self.holes if h.drillable]
+        # a counterbore is a flat-bottomed hole over its bore: helixed, or left to roughing when wide
+        found += [cb for h in self.holes if h.drillable
+                  if (cb := h.counterbore_hole(transform_mesh_to_work, chord)) is not None]
         return tuple(sorted(found, key=lambda h: (round(h.x, 6), round(h.y, 6), -h.top_z)))
 
     def unreachable_corners(self, smallest_radius: float) -> tuple[InsideCorner, ...]:

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
+from shapely.geometry.base import BaseGeometry
 
 from cadcam.faces import FLAT, WALL, FaceClasses
 from cadcam.model import CuttingData, Operation, Setup, Tool
@@ -118,6 +119,7 @@ def flat_wall_finishing(
     stock: Simulation,
     options: FlatFinishOptions = FlatFinishOptions(),
     progress: Callable[[int, int], None] | None = None,
+    cut_before: Callable[[float], BaseGeometry] | None = None,
 ) -> Operation:
     """Floors at their heights and walls by the flank, with the flat end mill ``tool``.
 
@@ -135,6 +137,8 @@ def flat_wall_finishing(
         The stock the earlier operations left.
     options : FlatFinishOptions
     progress : callable, optional
+    cut_before : callable, optional
+        The holes cut to size by level (:func:`cadcam.roughing.zlevel_roughing`'s): no warning there.
 
     Returns
     -------
@@ -159,5 +163,5 @@ def flat_wall_finishing(
         return Operation(f"finish flats+walls T{tool.number}", "finishing", tool, cutting, np.zeros((0, 3)),
                          np.zeros(0), options.allowance)
     op = zlevel_roughing(part, setup, tool, cutting, rough, progress=progress, rest=_target(stock, left),
-                         rest_above=0.0, air=stock)
+                         rest_above=0.0, air=stock, cut_before=cut_before)
     return dataclasses.replace(op, name=f"finish flats+walls T{tool.number}", kind="finishing")

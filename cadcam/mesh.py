@@ -26,9 +26,10 @@ import hashlib
 import io
 import logging
 import struct
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import trimesh
@@ -126,6 +127,12 @@ class PartMesh:
     surface: SurfaceFound | None = None
     step: StepPart | None = None
 
+    def sheet_record(self) -> dict | None:
+        """A STEP part's ``intake`` for the setup sheet (:meth:`cadcam.step.StepPart.sheet_record`): what
+        :func:`load_planned_part` needs to read it again as planned; None for a mesh (its sheet's
+        ``mesh_scale`` says all)."""
+        return None if self.step is None else self.step.sheet_record()
+
     def intake_summary(self) -> dict:
         """``{"intake": ...}`` for the plan summary of a STEP part (unit, chordal deviation, features); {} for a mesh."""
         return {} if self.step is None else {"intake": self.step.to_dict()}
@@ -219,6 +226,38 @@ def load_part(path: str | Path, units: Units = "auto", *, tolerance: float | Non
     for note in repairs:
         log.info("%s: %s", path, note)
     return PartMesh(mesh=mesh, scale=float(scale), sha256=sha, repairs=tuple(repairs), surface=surface, step=step)
+
+
+def load_planned_part(path: str | Path, mesh_scale: float, intake: Mapping[str, Any] | None = None, *,
+                      tolerance: float | None = None, source: str | None = None) -> PartMesh:
+    """The part file a setup sheet was made for, read as it was planned.
+
+    A mesh is read in the units of the sheet's ``mesh_scale``. A STEP file is read in its own
+    unit, with the solid (``body``) and tessellation tolerance of the sheet's ``intake``
+    (:meth:`PartMesh.sheet_record`); ``tolerance`` [mm], when given and positive, tessellates to that
+    CAM tolerance instead (verify's gouge tolerance: its chordal deviation a share of what is judged).
+
+    Raises
+    ------
+    MeshError
+        The file cannot be read (:func:`load_part`).
+    SetupError
+        With ``source`` (the sheet): ``mesh_scale`` is no unit a mesh is read in, or a STEP file's
+        unit is not the sheet's: not the part the program was made for.
+    """
+    path = Path(path)
+    if _FORMATS.get(path.suffix.lower()) != "step":
+        return load_part(path, units_of_scale(mesh_scale, source))
+    intake = intake or {}
+    if tolerance is None or not tolerance > 0:
+        tolerance = intake.get("tolerance_mm")
+    body = intake.get("body")
+    loaded = load_part(path, "auto", tolerance=None if tolerance is None else float(tolerance),
+                       body=None if body is None else int(body))
+    if loaded.scale != float(mesh_scale):
+        raise SetupError(f"{path} is in {loaded.step.unit} (x{loaded.scale:g} to mm), the sheet's mesh_scale is "
+                         f"{float(mesh_scale):g}: not the part the program was made for", source=source)
+    return loaded
 
 
 def _check_stl_size(data: bytes, path: Path) -> bytes:

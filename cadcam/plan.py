@@ -470,6 +470,9 @@ class _Planning:
     seconds: list[tuple[str, float]]
     #: The stock an earlier setup left, turned over, on a grid of the given cell [mm]; None: a fresh block.
     turned_stock: Callable[[float], FlippedStock] | None = None
+    #: ``cut_before(z)``: the XY area the holes were cut to size down to ``z`` (set once they are
+    #: planned, :meth:`cadcam.drilling.HolePlan.cut_at`): a pocket there too small to enter is no loss.
+    cut_before: Callable[[float], Any] | None = None
 
     @classmethod
     def start(cls, part: trimesh.Trimesh, setup: Setup, library: ToolLibrary, options: PlanOptions,
@@ -537,9 +540,10 @@ def _holes_and_roughing(plan: _Planning, exact: tuple[Hole, ...] | None = None
     holes = plan_holes(part, setup, plan.library, plan.rough_tool, options.drilling, options.roughing.min_helix_diameter,
                        options.roughing.allowance, exact) if options.holes else None
     plan.seconds.append(("holes", time.perf_counter() - t0))
+    plan.cut_before = holes.cut_at if holes is not None else None
     rough = plan.timed("roughing", lambda: zlevel_roughing(part, setup, plan.rough_tool, plan.rough_cutting,
                                                             options.roughing, progress=plan.stage_progress("roughing"),
-                                                            within=plan.rough_within))
+                                                            within=plan.rough_within, cut_before=plan.cut_before))
     # Drilled and helixed holes come first: the stock model below sees them.
     operations = [*(holes.operations if holes is not None else ()), rough]
     # What roughing left lets finishing descend by rapid through air instead of feeding from safe_z.
@@ -560,7 +564,8 @@ def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulati
         terraces = dataclasses.replace(options.roughing, stepdown=options.terrace_stepdown)
         op = plan.timed("terraces", lambda: zlevel_roughing(part, setup, plan.rough_tool, plan.rough_cutting, terraces,
                                                              progress=plan.stage_progress("terraces"), rest=stock,
-                                                             rest_above=options.terrace_stepdown, within=within))
+                                                             rest_above=options.terrace_stepdown, within=within,
+                                                             cut_before=plan.cut_before))
         if len(op.points) > 1:
             operations.append(op)
             stock = plan.model(operations)
@@ -573,7 +578,7 @@ def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulati
         cutting = library.cutting_data(tool, setup.material)
         op = plan.timed(f"rest T{tool.number}", lambda: zlevel_roughing(
             part, setup, tool, cutting, rest_options, progress=plan.stage_progress(f"rest T{tool.number}"),
-            rest=stock, rest_above=limit, within=within))
+            rest=stock, rest_above=limit, within=within, cut_before=plan.cut_before))
         if len(op.points) > 1:
             operations.append(op)
             stock = plan.model(operations)
@@ -697,7 +702,8 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
         cutting = library.cutting_data(tool, setup.material)
         stage = f"flats+walls T{tool.number}"
         op = plan.timed(stage, lambda: flat_wall_finishing(plan.part, setup, tool, cutting, faces, stock,
-                                                           options.flat_finish, progress=plan.stage_progress(stage)))
+                                                           options.flat_finish, progress=plan.stage_progress(stage),
+                                                           cut_before=plan.cut_before))
         if len(op.points) > 1:
             operations.append(op)
             stale = True

@@ -12,13 +12,17 @@ from cadcam.model import Job, Motion, Setup
 from cadcam.stock import Simulation
 from cadcam.verify import VerifyReport
 
-#: RGB per operation kind; rapids are drawn thin and red over everything.
-KIND_COLOURS = {"roughing": (40, 90, 200), "waterline": (230, 140, 20), "raster": (40, 160, 70),
-                "finishing": (150, 60, 170)}
-RAPID_COLOUR = (210, 40, 40)
-_OTHER = (120, 120, 120)
+#: One RGB per tool, in the order the job first uses them (cycled past the last); drawn over pale faces.
+TOOL_COLOURS = ((40, 90, 200), (230, 120, 20), (40, 150, 60), (150, 60, 170), (200, 40, 90), (20, 160, 170),
+                (140, 100, 40), (90, 90, 230), (120, 160, 30), (60, 60, 60))
+#: Rapids: thin and faint, drawn under the cuts so that they never hide the part or a cut.
+RAPID_COLOUR = (245, 175, 175)
+#: The work origin's mark.
+ORIGIN_COLOUR = (220, 0, 0)
 #: Pale RGB per face kind (:mod:`cadcam.faces`), drawn under the toolpaths.
 FACE_COLOURS = {FLAT: (205, 222, 245), SHALLOW: (210, 240, 205), STEEP: (250, 225, 195), WALL: (90, 90, 90)}
+#: Tick spacings the axes choose from [mm].
+_TICKS = (1.0, 2.0, 5.0, 10.0, 20.0, 25.0, 50.0, 100.0, 200.0, 250.0, 500.0)
 
 
 def _runs(motion: np.ndarray) -> list[tuple[int, int, bool]]:
@@ -33,14 +37,38 @@ def _runs(motion: np.ndarray) -> list[tuple[int, int, bool]]:
     return [(int(s), int(e), bool(rapid[s])) for s, e in zip(starts, ends)]
 
 
+def tool_colours(job: Job) -> dict[int, tuple[int, int, int]]:
+    """Tool number -> its RGB in the toolpath picture, in the order the job first uses the tools."""
+    numbers = list(dict.fromkeys(op.tool.number for op in job.operations))
+    return {n: TOOL_COLOURS[i % len(TOOL_COLOURS)] for i, n in enumerate(numbers)}
+
+
+def toolpath_legend(job: Job) -> list[str]:
+    """The legend's lines, one per tool: its number, name and the operations it cuts."""
+    ops: dict[int, list[str]] = {}
+    names: dict[int, str] = {}
+    for op in job.operations:
+        ops.setdefault(op.tool.number, []).append(op.name)
+        names[op.tool.number] = op.tool.name
+    return [f"T{n} {names[n]}: {', '.join(dict.fromkeys(ops[n]))}" for n in ops]
+
+
+def tick_step(span: float, most: int = 10) -> float:
+    """The smallest of 1, 2, 5, 10, ... mm that puts at most ``most`` ticks across ``span`` [mm]."""
+    return next((t for t in _TICKS if span / t <= most), _TICKS[-1])
+
+
 def toolpath_image(job: Job, width: int = 900, faces: FaceClasses | None = None) -> np.ndarray:
-    """Top view (XY) of every operation over the stock outline, with a legend.
+    """Top view (XY) of every operation over the stock outline, with axes in mm, a scale bar, the work
+    origin and a legend of one colour per tool.
+
+    Rapids are drawn thin and faint under the cuts; the part's faces (when given) pale under both.
 
     Parameters
     ----------
     job : Job
     width : int
-        Width of the drawing area [px]; the height follows the stock's aspect ratio.
+        Width of the picture [px]; the height follows the stock's aspect ratio.
     faces : FaceClasses, optional
         The part's faces by kind, drawn under the toolpaths (flats, shallow and steep
         freeform filled pale, walls as dark lines), with their legend.
@@ -52,23 +80,23 @@ def toolpath_image(job: Job, width: int = 900, faces: FaceClasses | None = None)
     """
     from PIL import Image, ImageDraw  # only the stages that draw pay for the import
 
-    lo, hi = job.setup.stock_min[:2], job.setup.stock_max[:2]
+    setup = job.setup
+    lo, hi = setup.stock_min[:2], setup.stock_max[:2]
     reach = max((op.tool.radius for op in job.operations), default=0.0)
     lo, hi = lo - reach - 1.0, hi + reach + 1.0  # the tool centre may run outside the stock
-    scale = (width - 20) / float(hi[0] - lo[0])
-    height = int(round((hi[1] - lo[1]) * scale)) + 20
+    left, right, top, bottom = 56, 14, 12, 44  # room for the Y labels, and the X labels and scale bar below
+    scale = (width - left - right) / float(hi[0] - lo[0])
+    height = int(round((hi[1] - lo[1]) * scale)) + top + bottom
+    colours = tool_colours(job)
     face_kinds = [] if faces is None else [k for k in FACE_COLOURS if (faces.kind == k).any()]
-    legend_h = 22 * (len(job.operations) + 2 + len(face_kinds))
+    legend_h = 22 * (len(colours) + 3 + len(face_kinds))
     img = Image.new("RGB", (width, height + legend_h), (255, 255, 255))
     draw = ImageDraw.Draw(img)
 
     def px(xy: np.ndarray) -> list[tuple[float, float]]:
-        u = 10 + (xy[:, 0] - lo[0]) * scale
-        v = 10 + (hi[1] - xy[:, 1]) * scale  # picture rows grow downwards, Y grows away from the operator
+        u = left + (xy[:, 0] - lo[0]) * scale
+        v = top + (hi[1] - xy[:, 1]) * scale  # picture rows grow downwards, Y grows away from the operator
         return list(zip(u.tolist(), v.tolist()))
-
-    s0 = px(np.array([job.setup.stock_min[:2], job.setup.stock_max[:2]]))
-    draw.rectangle([s0[0][0], s0[1][1], s0[1][0], s0[0][1]], outline=(0, 0, 0), width=2)
 
     if faces is not None:
         for k in (FLAT, SHALLOW, STEEP):
@@ -76,29 +104,64 @@ def toolpath_image(job: Job, width: int = 900, faces: FaceClasses | None = None)
                 draw.polygon(px(tri[:, :2]), fill=FACE_COLOURS[k])
         for tri in faces.triangles[faces.kind == WALL]:
             draw.line(px(tri[[0, 1, 2, 0], :2]), fill=FACE_COLOURS[WALL], width=1)
-
-    rapids = []
-    for op in job.operations:
-        colour = KIND_COLOURS.get(op.kind, _OTHER)
-        for first, last, is_rapid in _runs(op.motion):
-            pts = px(op.points[first:last + 1, :2])
-            if is_rapid:
-                rapids.append(pts)
-            elif len(pts) > 1:
-                draw.line(pts, fill=colour, width=1)
-    for pts in rapids:
-        draw.line(pts, fill=RAPID_COLOUR, width=1)
+    runs = [(op, first, last, is_rapid) for op in job.operations for first, last, is_rapid in _runs(op.motion)]
+    for op, first, last, is_rapid in runs:  # rapids first: the cuts lie over them
+        if is_rapid:
+            draw.line(px(op.points[first:last + 1, :2]), fill=RAPID_COLOUR, width=1)
+    for op, first, last, is_rapid in runs:
+        pts = px(op.points[first:last + 1, :2])
+        if not is_rapid and len(pts) > 1:
+            draw.line(pts, fill=colours[op.tool.number], width=1)
+    for op in job.operations:  # a drill cycle moves only along Z: its holes as circles of the drill's size
+        if op.cycle is not None:
+            r = op.tool.radius * scale
+            for (u, v) in px(np.asarray(op.cycle.holes)[:, :2]):
+                draw.ellipse([u - r, v - r, u + r, v + r], outline=colours[op.tool.number], width=2)
+    s0 = px(np.array([setup.stock_min[:2], setup.stock_max[:2]]))
+    draw.rectangle([s0[0][0], s0[1][1], s0[1][0], s0[0][1]], outline=(0, 0, 0), width=2)
+    _axes(draw, px, lo, hi, height - bottom)
+    _origin_and_scale(draw, px, left, height, float(hi[0] - lo[0]), scale)
 
     y = height + 4
-    entries = [(f"{op.name}: T{op.tool.number} {op.tool.name}", KIND_COLOURS.get(op.kind, _OTHER))
-               for op in job.operations] + [("rapid", RAPID_COLOUR)]
+    entries = [(text, colours[n]) for n, text in zip(colours, toolpath_legend(job))] + [("rapid", RAPID_COLOUR)]
     entries += [(f"face: {KIND_NAMES[k]}", FACE_COLOURS[k]) for k in face_kinds]
     for text, colour in entries:
         draw.rectangle([10, y + 4, 30, y + 14], fill=colour)
         draw.text((38, y + 2), text, fill=(0, 0, 0))
         y += 22
-    draw.text((10, y + 2), f"{job.part_name}: top view, stock outline in black", fill=(0, 0, 0))
+    draw.text((10, y + 2), f"{job.part_name}: top view [mm], work coordinates; stock outline in black, "
+                           f"work origin X0 Y0 in red", fill=(0, 0, 0))
     return np.asarray(img, dtype=np.uint8).copy()
+
+
+def _axes(draw, px, lo: np.ndarray, hi: np.ndarray, axis_v: float) -> None:
+    """Ticks and labels in mm along the bottom (X) and the left (Y) of the drawing, at ``axis_v`` [px] and
+    the drawing's left edge."""
+    step = tick_step(float(max(hi - lo)))
+    u_left = px(np.array([[lo[0], lo[1]]]))[0][0]
+    draw.line([(u_left, px(np.array([[lo[0], hi[1]]]))[0][1]), (u_left, axis_v)], fill=(0, 0, 0))
+    draw.line([(u_left, axis_v), (px(np.array([[hi[0], lo[1]]]))[0][0], axis_v)], fill=(0, 0, 0))
+    for x in np.arange(math.ceil(lo[0] / step) * step, hi[0] + 1e-9, step):
+        u = px(np.array([[x, lo[1]]]))[0][0]
+        draw.line([(u, axis_v), (u, axis_v + 4)], fill=(0, 0, 0))
+        draw.text((u - 8, axis_v + 5), f"{x:g}", fill=(0, 0, 0))
+    for yv in np.arange(math.ceil(lo[1] / step) * step, hi[1] + 1e-9, step):
+        v = px(np.array([[lo[0], yv]]))[0][1]
+        draw.line([(u_left - 4, v), (u_left, v)], fill=(0, 0, 0))
+        draw.text((u_left - 44, v - 6), f"{yv:g}".rjust(6), fill=(0, 0, 0))
+    draw.text((u_left - 50, axis_v + 5), "X, Y mm", fill=(0, 0, 0))
+
+
+def _origin_and_scale(draw, px, left: float, height: int, span: float, scale: float) -> None:
+    """The work origin's cross and label, and a scale bar of a round length under the X axis."""
+    (u, v), = px(np.array([[0.0, 0.0]]))
+    draw.line([(u - 8, v), (u + 8, v)], fill=ORIGIN_COLOUR, width=2)
+    draw.line([(u, v - 8), (u, v + 8)], fill=ORIGIN_COLOUR, width=2)
+    draw.text((u + 5, v + 3), "X0 Y0", fill=ORIGIN_COLOUR)
+    bar = tick_step(span, most=5)
+    y = height - 12
+    draw.rectangle([left, y, left + bar * scale, y + 4], fill=(0, 0, 0))
+    draw.text((left + bar * scale + 6, y - 4), f"{bar:g} mm", fill=(0, 0, 0))
 
 
 #: Colours of the setup picture.

@@ -777,6 +777,7 @@ def zlevel_roughing(
     rest_above: float = 0.0,
     within: Callable[[float], BaseGeometry] | None = None,
     air: Simulation | None = None,
+    cut_before: Callable[[float], BaseGeometry] | None = None,
 ) -> Operation:
     """Clear the stock around ``part`` level by level, leaving ``options.allowance``.
 
@@ -810,6 +811,9 @@ def zlevel_roughing(
     within : callable, optional
         ``within(radius)``: the XY region the tool axis must stay in (a relief's
         :meth:`cadcam.relief.Boundary.centre_region`); None: anywhere around the stock.
+    cut_before : callable, optional
+        ``cut_before(z)``: the XY area earlier operations cut down to level ``z`` [mm] (holes cut to size,
+        :meth:`cadcam.drilling.HolePlan.cut_at`): a pocket there too small to enter is not warned about.
 
     Returns
     -------
@@ -860,7 +864,8 @@ def zlevel_roughing(
         allowed = space
         if rest is not None:
             allowed = allowed.intersection(rest_grown(rest_mask(rest, z, rest_above, p.allowance)))
-        plans, missed = _plan_entries(allowed, space, z, rect_xy, p, tool, known, air_at)
+        plans, missed = _plan_entries(allowed, space, z, rect_xy, p, tool, known, air_at,
+                                      None if cut_before is None else (lambda z=z: cut_before(z)))
         done_regions, failed = _cut_nearest_first(path, plans, z, z_prev, p, air_at, np.array([sx0, sy0]))
         skipped += len(missed) + len(failed)
         if rest is not None:
@@ -901,9 +906,11 @@ def _level_space(z: float, rect: BaseGeometry, shadow: dict, cleared: BaseGeomet
 
 def _plan_entries(allowed: BaseGeometry, space: BaseGeometry, z: float, rect_xy: tuple[float, float, float, float],
                   p: _Params, tool: Tool, known: Simulation | None,
-                  air_at: Callable[[np.ndarray], np.ndarray] | None) -> tuple[list[tuple], list[Polygon]]:
+                  air_at: Callable[[np.ndarray], np.ndarray] | None,
+                  cut_here: Callable[[], BaseGeometry] | None = None) -> tuple[list[tuple], list[Polygon]]:
     """How to enter each region of level ``z`` to cut: ``(region, rings, entry, inside_out)`` each,
-    and the regions no entry fits (warned about, left uncut).
+    and the regions no entry fits (left uncut; warned about unless within ``cut_here()``, what earlier
+    operations cut at this level).
 
     An open region is entered from outside the stock; with a known stock (rest machining), a
     closed one from the air beside it (``space``: where the tool may go at this level); else by
@@ -930,10 +937,11 @@ def _plan_entries(allowed: BaseGeometry, space: BaseGeometry, z: float, rect_xy:
             entry = _closed_entry(region, rings, p)
         if entry is None:
             c = region.representative_point()
-            log.warning(
-                "z=%.3f: pocket near (%.2f, %.2f) is too small to enter with a helix or ramp; skipped",
-                z, c.x, c.y,
-            )
+            # inside a hole already drilled or helixed to size: nothing is left there to warn about
+            cut = cut_here is not None and cut_here().contains(region)
+            log.log(logging.DEBUG if cut else logging.WARNING,
+                    "z=%.3f: pocket near (%.2f, %.2f) is too small to enter with a helix or ramp; skipped%s",
+                    z, c.x, c.y, " (a hole cut before)" if cut else "")
             missed.append(region)
             continue
         plans.append((region, rings, entry, inside_out))

@@ -59,6 +59,7 @@ def setup_sheet(job: Job, program: Program, program_name: str) -> SetupSheet:
         unreached=tuple(job.parameters.get("unreached", [])),
         # a relief (cadcam.relief): what was found, its floor and the boundary the tools kept within
         relief=job.parameters.get("relief"),
+        intake=job.parameters.get("intake"),  # a STEP part: its unit, solid and tessellation tolerance
     )
 
 

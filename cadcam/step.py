@@ -32,6 +32,7 @@ parts, uses the same package, so the test and runtime OpenCASCADE are one.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import math
 import os
@@ -44,7 +45,8 @@ from typing import Any
 
 import numpy as np
 
-from cadcam.features import FlatFace, InsideCorner, PartFeatures, RoundHole, SetupHole
+from cadcam.drilling import Countersink
+from cadcam.features import Counterbore, FlatFace, InsideCorner, PartFeatures, RoundHole, SetupHole
 from factory.core.errors import MeshError
 
 log = logging.getLogger(__name__)
@@ -135,6 +137,13 @@ class StepPart:
     def units(self) -> str | None:
         """The ``--units`` name of the file's unit (``mm``, ``inch``, ``m``), None for another unit."""
         return _UNIT_NAMES.get(self.scale)
+
+    def sheet_record(self) -> dict[str, Any]:
+        """The setup sheet's ``intake``: what reading the file again needs (its format, unit and scale
+        [mm per unit], the solid taken, ``body``, and the CAM tolerance of its tessellation [mm]), and
+        the features read from its B-rep (each with its ``source``), for the machinist."""
+        return {"format": "step", "unit": self.unit, "scale": self.scale, "body": self.body,
+                "tolerance_mm": self.tolerance, "features": self.features.to_dict()}
 
     def to_dict(self) -> dict[str, Any]:
         """The intake's figures and features for the plan summary."""
@@ -337,7 +346,7 @@ class _Face:
     v: tuple[float, float]
     location: np.ndarray  # (3,) [mm] axis location (cylinder, cone) or a point of the plane
     axis: np.ndarray  # (3,) unit axis direction (cylinder, cone) or plane normal as stored
-    radius: float = 0.0  # [mm] cylinder radius
+    radius: float = 0.0  # [mm] cylinder radius; a cone's at its location
     apex: np.ndarray | None = None  # (3,) [mm] cone apex
     semi_angle: float = 0.0  # [rad] cone
     area: float = 0.0  # [mm^2]
@@ -373,7 +382,8 @@ def _face_info(index: int, f) -> _Face:
         c = s.Cone()
         ax = c.Axis()
         return _Face(kind="cone", location=np.array(ax.Location().Coord()), axis=np.array(ax.Direction().Coord()),
-                     apex=np.array(c.Apex().Coord()), semi_angle=float(c.SemiAngle()), **common)
+                     radius=float(c.RefRadius()), apex=np.array(c.Apex().Coord()), semi_angle=float(c.SemiAngle()),
+                     **common)
     if t == GeomAbs_SurfaceType.GeomAbs_Plane:
         pl = s.Plane()
         return _Face(kind="plane", location=np.array(pl.Location().Coord()),
@@ -446,6 +456,7 @@ def recognise(shape, faces: list, vertices: np.ndarray, triangles: np.ndarray, c
             elsewhere.append(_setup_hole(walls, "covered from above"))
             continue
         holes.append(hole)
+    holes = _with_counterbores(holes, eps)
     flats = [FlatFace(z=float(f.point[2]), area=f.area, facing="up" if f.normal[2] > 0 else "down", source="step")
              for f in info if f.kind == "plane" and abs(abs(float(f.normal[2])) - 1.0) < _ALONG_Z]
     features = PartFeatures(
@@ -522,8 +533,44 @@ def _round_hole(walls: list[_Face], group: list[int], info: list[_Face], near: _
                 and math.hypot(n.apex[0] - x, n.apex[1] - y) <= eps and n.apex[2] < bottom - eps:
             end, tip = "conical", float(n.apex[2])
             break
+    sink = None
+    for j in set().union(*(near.of(i) for i in group)) - set(group):
+        n = info[j]
+        if n.kind == "cone" and n.apex is not None and abs(abs(float(n.axis[2])) - 1) < _ALONG_Z \
+                and math.hypot(n.apex[0] - x, n.apex[1] - y) <= eps and n.point[2] > top - eps:
+            sink = _countersink(n)  # a cone over the bore's mouth, widening upwards
+            break
     return RoundHole(x=x, y=y, diameter=2 * r, top_z=top, bottom_z=bottom, tip_z=tip,
-                     bottom=end, source="step")  # type: ignore[arg-type]
+                     bottom=end, source="step", countersink=sink)  # type: ignore[arg-type]
+
+
+def _countersink(cone: _Face) -> Countersink:
+    """The countersink a cone face along Z is: its diameter and height at its upper edge, its included angle.
+
+    OpenCASCADE's cone: at parameter v the radius is ``R + v sin(a)`` and the point lies ``v cos(a)``
+    along the axis from its location (``a`` the semi-angle)."""
+    a = cone.semi_angle
+    ends = [(float(cone.location[2] + cone.axis[2] * v * math.cos(a)), cone.radius + v * math.sin(a)) for v in cone.v]
+    top_z, radius = max(ends)
+    return Countersink(diameter=2 * abs(radius), angle=math.degrees(2 * abs(a)), top_z=top_z)
+
+
+def _with_counterbores(holes: list[RoundHole], eps: float) -> list[RoundHole]:
+    """Each stepped bore whose floor is the mouth of a narrower bore on its axis becomes that bore's counterbore."""
+    stepped = [h for h in holes if h.bottom == "stepped"]
+    taken: set[int] = set()
+    out = []
+    for h in holes:
+        if h.bottom == "stepped":
+            continue
+        for k, wide in enumerate(stepped):
+            if k not in taken and math.hypot(wide.x - h.x, wide.y - h.y) <= eps and wide.diameter > h.diameter \
+                    and abs(wide.bottom_z - h.top_z) <= eps:
+                taken.add(k)
+                h = dataclasses.replace(h, counterbore=Counterbore(wide.diameter, wide.top_z, wide.bottom_z))
+                break
+        out.append(h)
+    return out + [w for k, w in enumerate(stepped) if k not in taken]
 
 
 def _open_above(hole: RoundHole, over: "_Over", chord: float, eps: float) -> bool:

@@ -865,6 +865,9 @@ class Unreached:
         Most stock left above the part there [mm].
     z_bottom : float
         Lowest part surface (or stock bottom) under it [mm].
+    why : str
+        Why it is left (:func:`why_left`): :data:`SHARP_CORNER`, :data:`NO_TOOL` or :data:`FOR_OP2`;
+        ``""``: not judged.
     """
 
     x: float
@@ -873,13 +876,56 @@ class Unreached:
     size_y: float
     depth: float
     z_bottom: float
+    why: str = ""
 
     def to_dict(self) -> dict[str, Any]:
-        return {k: round(v, 2) for k, v in dataclasses.asdict(self).items()}
+        out: dict[str, Any] = {k: round(v, 2) for k, v in dataclasses.asdict(self).items() if k != "why"}
+        if self.why:
+            out["why"] = self.why
+        return out
 
     def describe(self) -> str:
         return (f"{self.size_x:.1f} x {self.size_y:.1f} mm near X{self.x:.1f} Y{self.y:.1f}, "
-                f"{self.depth:.1f} mm of stock down to Z{self.z_bottom:.1f}")
+                f"{self.depth:.1f} mm of stock down to Z{self.z_bottom:.1f}" + (f": {self.why}" if self.why else ""))
+
+
+#: Why a region of stock is left (:attr:`Unreached.why`): it fits in the corner the narrowest end mill's
+#: radius leaves; no tool of the program reaches it (too narrow or too deep); it goes down through the
+#: part to op 1's floor, where op 2 machines it from below.
+SHARP_CORNER = "sharp inside corner"
+NO_TOOL = "no tool reaches"
+FOR_OP2 = "left for op 2"
+
+
+def why_left(left: tuple[Unreached, ...], sim: Simulation, above: float, radius: float,
+             op2_follows: bool = False) -> tuple[Unreached, ...]:
+    """``left`` (:func:`unreached` of ``sim`` over ``above`` [mm]) with each region's reason.
+
+    A region whose bottom is op 1's floor (no part face under it: a slot or hole through the part) is
+    left for op 2 when ``op2_follows``. One no wider than ``radius`` [mm] (the widest end mill that
+    cut, and a grid cell each side) that fills less than :data:`_CORNER_FILL` of its box is the
+    curved triangle a round tool leaves in a sharper inside corner (it fills ``1 - pi/4`` of it).
+    Anything else no tool reached: too narrow or too deep for every tool.
+    """
+    g = sim.grid
+    deep = excess(sim, 0.0) > above
+    out = []
+    for u in left:
+        if op2_follows and u.z_bottom <= sim.floor + g.cell:
+            why = FOR_OP2
+        else:
+            i0, i1 = (int(round((c - g.x0) / g.cell)) for c in (u.x - u.size_x / 2 + g.cell / 2, u.x + u.size_x / 2))
+            j0, j1 = (int(round((c - g.y0) / g.cell)) for c in (u.y - u.size_y / 2 + g.cell / 2, u.y + u.size_y / 2))
+            fill = float(deep[max(j0, 0):j1, max(i0, 0):i1].mean()) if j1 > j0 and i1 > i0 else 1.0
+            small = max(u.size_x, u.size_y) <= radius + 2 * g.cell
+            why = SHARP_CORNER if small and fill < _CORNER_FILL else NO_TOOL
+        out.append(dataclasses.replace(u, why=why))
+    return tuple(out)
+
+
+#: A region filling less of its box than this is a corner's curved triangle, not a pocket (a round or
+#: square pocket fills 0.79 to 1 of it).
+_CORNER_FILL = 0.6
 
 
 def unreached(sim: Simulation, above: float, allowance: float) -> tuple[Unreached, ...]:

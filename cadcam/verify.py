@@ -24,7 +24,7 @@ from cadcam.envelope import Segments
 from cadcam.heightmap import Grid, upper_envelope
 from cadcam.model import Motion, ProgramMoves, Setup, Tool
 from cadcam.stock import (ENGAGED_WIDTH, RAPID_RIM, FlippedStock, MoveRecord, Simulation, Unreached, cut_stock,
-                          first_line_reaching, unreached)
+                          first_line_reaching, unreached, why_left)
 from cadcam.workholding import fixture_contacts
 from factory.core.errors import VerifyError
 
@@ -63,6 +63,9 @@ class VerifyOptions:
         [mm]; beside a wall the part counts grown by a cell diagonal, so the cells a finished wall
         passes through are not taken for stock (:func:`cadcam.stock.excess`). Stock under op 1's
         floor (the holding allowance) is never left: it is op 2's.
+    op2_follows : bool
+        Op 2 machines the part from below after this program: stock left down to the floor is
+        left for it (:func:`cadcam.stock.why_left`).
     """
 
     cell: float = 0.2
@@ -72,6 +75,7 @@ class VerifyOptions:
     engaged_width: float = ENGAGED_WIDTH
     contact_tolerance: float = 0.01
     left_above: float = 0.1
+    op2_follows: bool = False
 
 
 @dataclass(frozen=True)
@@ -529,9 +533,15 @@ def _report(
         faults=tuple(sorted(faults, key=lambda f: (FAULT_KINDS.index(f.kind), f.tool))),
         engagement=tuple(engagement),
         rapids_checked=rapids_checked,
-        left=unreached(sim, options.left_above, 0.0),
+        left=why_left(unreached(sim, options.left_above, 0.0), sim, options.left_above, _widest_mill_radius(tools),
+                      options.op2_follows),
         left_above=options.left_above,
     )
+
+
+def _widest_mill_radius(tools: Mapping[int, Tool]) -> float:
+    """Radius of the widest end mill in ``tools`` [mm]: the largest corner one leaves; 0 with none."""
+    return max((t.radius for t in tools.values() if not t.is_drill), default=0.0)
 
 
 #: Directions [rad] in which :func:`_lowest_part_near` looks sideways: within 22.5 deg of

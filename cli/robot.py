@@ -14,7 +14,7 @@ from typing import Annotated
 import numpy as np
 import typer
 
-from cadcam.mesh import load_part, units_of_scale
+from cadcam.mesh import load_planned_part
 from cli.common import JsonFlag, Overwrite, Quiet, print_json, reports_errors, setup_logging, stderr
 from factory.core.atomic import check_writable, write_text
 from factory.catalog import sha256_file
@@ -50,7 +50,7 @@ def robot(
         setup, _tools, sheet = read_sheet(setup_path)
         vertices = None
         if part is not None:
-            loaded = load_part(part, units=units_of_scale(setup.mesh_scale, str(setup_path)))
+            loaded = load_planned_part(part, setup.mesh_scale, sheet.intake, source=str(setup_path))
             vertices = np.asarray(loaded.mesh.vertices) / float(setup.mesh_scale)
     planned = plan_cell(cell_path, sheet, str(setup_path), vertices, watch, setups=setups)
     cell, world, plan = planned.cell, planned.world, planned.plan

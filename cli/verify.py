@@ -7,6 +7,7 @@ op-1 program); the verdict covers both.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Annotated
 
@@ -56,19 +57,21 @@ def verify(
         check_writable(p, overwrite)
     setup, tools, sheet = read_sheet(setup_path)
     first = op1_of(sheet, setup_path, after)
-    triangles = part_triangles(part, setup, sheet.source_sha256)
+    triangles = part_triangles(part, setup, sheet.source_sha256, sheet.intake, tolerance)
     text = _read(program)
     options = VerifyOptions(cell=grid, gouge_tolerance=tolerance)
     before_ok = True
     with progress_bars(quiet) as bars:
         if first is None:
-            verified = run_verify(text, str(program), setup, tools, triangles, options, bars,
+            verified = run_verify(text, str(program), setup, tools, triangles,
+                                  dataclasses.replace(options, op2_follows=sheet.next is not None), bars,
                                   operations=sheet.operations)
         else:
             program1, sheet1_path = first
             setup1, tools1, sheet1 = read_sheet(sheet1_path)
             verified1 = run_verify(_read(program1), str(program1), setup1, tools1,
-                                   part_triangles(part, setup1, sheet1.source_sha256), options, bars,
+                                   part_triangles(part, setup1, sheet1.source_sha256, sheet1.intake, tolerance),
+                                   dataclasses.replace(options, op2_follows=True), bars,
                                    operations=sheet1.operations)
             before_ok = verified1.report.ok
             if not quiet:

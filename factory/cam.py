@@ -219,6 +219,9 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
         relief = {"found": loaded.surface.describe(), **loaded.surface.to_dict(), **req.relief.to_dict(),
                   "boundary": boundary.to_dict()}
         job = dataclasses.replace(job, parameters={**job.parameters, "relief": relief})
+    intake = loaded.sheet_record()
+    if intake is not None:  # a STEP part: verify, the robot and the cell read it again as planned
+        job = dataclasses.replace(job, parameters={**job.parameters, "intake": intake})
     for stage, seconds in planned.timings.seconds:  # a stage that ran more than once (the stock model) adds up
         watch.seconds[stage] = watch.seconds.get(stage, 0.0) + seconds
     return PlannedPart(job, loaded, part_work, boundary)

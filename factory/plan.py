@@ -473,7 +473,7 @@ def _plan_once(request: PlanRequest, progress: Progress | None = None) -> PartPl
         sheet = dataclasses.replace(setup_sheet(job, program, outputs["program"].name), op=1, work_offset="G54")
     tending = None
     verify_args = (program.text, str(outputs["program"]), job.setup, {t.number: t for t in job.tools},
-                   np.asarray(planned.part_work.triangles), VerifyOptions(cell=req.grid))
+                   np.asarray(planned.part_work.triangles), VerifyOptions(cell=req.grid, op2_follows=req.ops == 2))
     verify_kwargs = dict(operations=sheet.operations)
     background = None
     if req.robot:
@@ -540,6 +540,7 @@ def _plan_op2(req: PlanRequest, planned: PlannedPart, op1_sim: Simulation, outpu
         program2 = post_process(job2, PostOptions(dialect=req.post, arc_tolerance=req.arc_tolerance,
                                                   work_offset=WORK_OFFSET[2], program_number=1002))
         sheet2 = dataclasses.replace(setup_sheet(job2, program2, outputs["program_op2"].name),
+                                     intake=job1.parameters.get("intake"),
                                      **op2_sheet_fields(job2, outputs["program"].name, outputs["setup_sheet"].name))
     with watch("op 2 verify"):
         verified2 = run_verify_after(op1_sim, flip_transform(job1.setup), program2.text,

@@ -29,7 +29,8 @@ import trimesh
 
 from cadcam.cutting_power import SpindleLoad, program_spindle_load
 from cadcam.gcode import parse_gcode
-from cadcam.mesh import load_part, units_of_scale
+from cadcam.mesh import load_planned_part
+from cadcam.model import Setup
 from cadcam.relief import block_corners
 from cadcam.timeline import MachineTimeline, machine_timeline, stock_snapshots
 from cadcam.tools import ToolLibrary, load_tool_library
@@ -42,6 +43,7 @@ from factory.cellmsgs import (ComponentStatus, Detection, OrderLine, cell_summar
                               robot_state, scheduler_state)
 from factory.diagnostics import door, gripper
 from factory.core.errors import CellError, FactoryError, McapError
+from factory.core.setupsheet import SetupSheet
 from factory.live import Fanout, LiveSink
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, log_msg, marker_array, read_messages, ros_time,
                              tf_message, transform_stamped, triangle_mesh_marker)
@@ -324,6 +326,17 @@ def op2_of(summary: dict[str, Any]) -> dict[str, Any] | None:
     return next((s for s in summary.get("setups") or () if s.get("op") == 2), None)
 
 
+def seen_part(part: Path, setup: Setup, sheet: SetupSheet, source: str) -> trimesh.Trimesh:
+    """What the cameras see of a planned part, in the part file's axes [mm]: the part read as its
+    setup sheet says (:func:`cadcam.mesh.load_planned_part`, already in mm), or for a relief, which
+    leaves the machine in its block, that block."""
+    loaded = load_planned_part(part, setup.mesh_scale, sheet.intake, source=source)
+    if loaded.surface is None:
+        return loaded.mesh.copy()
+    corners = block_corners(setup) * float(setup.mesh_scale)  # block_corners: file units
+    return trimesh.creation.box(bounds=[corners.min(axis=0), corners.max(axis=0)])
+
+
 def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stations, camera_sha256: str,
                  planned_now: bool, library: ToolLibrary | None = None) -> PartAssets:
     """Read a catalog plan and derive what the simulation needs (see :class:`PartAssets`);
@@ -338,7 +351,7 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
     program_path = entry.output("program")
     moves = parse_gcode(program_path.read_text(encoding="utf-8"), source=str(program_path))
     timeline = machine_timeline(moves)
-    triangles = part_triangles(part, setup, summary["catalog"]["mesh_sha256"])
+    triangles = part_triangles(part, setup, summary["catalog"]["mesh_sha256"], sheet.intake)
     times = np.linspace(0.0, timeline.duration, STOCK_SNAPSHOTS + 1)
     stock = []
     for t, sim in stock_snapshots(moves, tools, setup, triangles, times, cell=STOCK_GRID_MM,
@@ -359,18 +372,13 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
         sheet2_path = entry.output("setup_sheet_op2")
         setup2, tools2, sheet2 = read_sheet(sheet2_path)
         verified2 = run_verify_after(last_sim, flip_of(sheet2, sheet2_path), text2, str(program2), setup2, tools2,
-                                     part_triangles(part, setup2, summary["catalog"]["mesh_sha256"]),
+                                     part_triangles(part, setup2, summary["catalog"]["mesh_sha256"], sheet2.intake),
                                      VerifyOptions(cell=STOCK_GRID_MM))
         spindle_op2 = program_spindle_load(timeline_op2, verified2.simulation.removed_volume, library, material)
     toolpath = next((m for topic, _, m in read_messages(mcap, ["/cam/toolpath"])), None)
     in_vise = setup_sheet_to_cell(sheet, str(sheet_path))
-    loaded = load_part(part, units=units_of_scale(setup.mesh_scale, str(sheet_path)))
-    mesh_mm = loaded.mesh.copy()
-    mesh_mm.apply_scale(float(setup.mesh_scale))
-    if loaded.surface is not None:  # a relief leaves the machine in its block: the cameras see the block
-        corners = block_corners(setup) * float(setup.mesh_scale)
-        mesh_mm = trimesh.creation.box(bounds=[corners.min(axis=0), corners.max(axis=0)])
-    shots = camera_shots(entry, mesh_mm, np.asarray(setup.stock_size), stations, camera_sha256)
+    shots = camera_shots(entry, seen_part(part, setup, sheet, str(sheet_path)), np.asarray(setup.stock_size),
+                         stations, camera_sha256)
     return PartAssets(
         part=part, material=material, entry=entry,
         process=part_process(motion, float(sheet.estimated_cycle_s), shots,

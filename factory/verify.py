@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from cadcam.gcode import parse_gcode
-from cadcam.mesh import load_part, units_of_scale
+from cadcam.mesh import load_planned_part
 from cadcam.relief import machining_surface
 from cadcam.model import Setup, Tool
 from cadcam.sheet import read_setup_sheet
@@ -39,9 +39,14 @@ def read_sheet(path: Path) -> tuple[Setup, dict[int, Tool], SetupSheet]:
     return setup, tools, sheet
 
 
-def part_triangles(part: Path, setup: Setup, expected_sha256: str = "") -> np.ndarray:
-    """The part's triangles in work coordinates [mm], placed as the setup sheet says (a relief on its base)."""
-    loaded = load_part(part, units=units_of_scale(setup.mesh_scale, "setup sheet"))
+def part_triangles(part: Path, setup: Setup, expected_sha256: str = "", intake: Mapping[str, Any] | None = None,
+                   tolerance: float | None = None) -> np.ndarray:
+    """The part's triangles in work coordinates [mm], placed as the setup sheet says (a relief on its base).
+
+    ``intake``: the sheet's (a STEP part's unit, solid and tessellation tolerance); ``tolerance``
+    [mm]: a STEP part is tessellated to this CAM tolerance instead (verify's gouge tolerance), see
+    :func:`cadcam.mesh.load_planned_part`."""
+    loaded = load_planned_part(part, setup.mesh_scale, intake, tolerance=tolerance, source="setup sheet")
     if expected_sha256 and loaded.sha256 != expected_sha256:
         log.warning("%s differs from the part the program was made for (sha256 mismatch)", part)
     mesh = loaded.mesh.copy()

@@ -46,6 +46,10 @@ Format ``factory.setup/1``::
       "gcode_lines": …,
       "unreached": [{"x": …, "y": …, "size_x": …, "size_y": …, "depth": …, "z_bottom": …}],
       "relief": {…},                      # a relief only (cadcam.relief)
+      "intake": {"format": "step", "unit": "CM", "scale": 10.0, "body": 2, "tolerance_mm": 0.01,
+                 "features": {"holes": […], "elsewhere": […], "flats": […], "corners": […]}},
+                                          # a STEP part only: how to read it again as planned, and
+                                          # what its B-rep gave (each feature with its source)
       "op": 1, "work_offset": "G54",      # in a plan's output set
       "after": {…}, "flip": {…}, "face_z": …, "holding_mm": …, "held_in": …,   # op 2 (cadcam.op2)
       "next": {"program": …, "setup_sheet": …}   # op 1 of two: what runs after it
@@ -125,6 +129,13 @@ class SetupSheet:
         Stock no tool reaches [mm].
     relief : Record or None
         A relief's description (what was found, its floor and boundary [mm]); None: a solid part.
+    intake : Record or None
+        A STEP part's reading (:meth:`cadcam.mesh.PartMesh.sheet_record`): its format, unit and scale
+        [mm per unit], the solid taken (``body``, 1-based, None for a file of one) and the CAM
+        tolerance of its tessellation [mm]; verify, the robot and the cell simulation read the file
+        again with them. Its ``features`` are those read from the B-rep (holes with their counterbores
+        and countersinks, holes for another setup, flats, inside corners [mm, the file's axes]).
+        None: a mesh file (``mesh_scale`` says all).
     op, work_offset : int or None, str or None
         Which operation of a plan this is, and its work offset (``G54``, ``G55``); None: not part of a plan.
     after, flip, face_z, holding_mm, held_in
@@ -155,6 +166,7 @@ class SetupSheet:
     gcode_lines: int | None = None
     unreached: tuple[Record, ...] = ()
     relief: Record | None = None
+    intake: Record | None = None
     op: int | None = None
     work_offset: str | None = None
     after: Any = None
@@ -206,6 +218,8 @@ class SetupSheet:
         }
         if self.relief is not None:
             doc["relief"] = self.relief
+        if self.intake is not None:
+            doc["intake"] = self.intake
         if self.op is not None:
             doc.update(op=self.op, work_offset=self.work_offset)
         if self.after is not None:

@@ -25,6 +25,8 @@ class ModelledHole:
     diameter: float
     depth: float | None
     bottom: str = "flat"  # "flat" or "conical" for blind holes
+    counterbore: tuple[float, float] | None = None  # diameter, depth [mm]
+    countersink: float | None = None  # diameter at the top of a 90 deg countersink [mm]
 
     @property
     def tip_depth(self) -> float | None:
@@ -49,6 +51,14 @@ def plate(size: tuple[float, float, float], holes: list[ModelledHole]):
             height = r / math.tan(math.radians(DRILL_POINT / 2))
             cone = Location((h.x, h.y, -h.depth)) * Cone(0.0, r, height, align=(Align.CENTER, Align.CENTER, Align.MAX))
             cutter = cutter + cone
+        if h.counterbore is not None:
+            d, depth = h.counterbore
+            cutter = cutter + Pos(h.x, h.y, 1.0) * Cylinder(d / 2, depth + 1.0, align=(Align.CENTER, Align.CENTER,
+                                                                                        Align.MAX))
+        if h.countersink is not None:  # 90 deg: as deep as its radius, from the top face down
+            cs = h.countersink / 2
+            cutter = cutter + Location((h.x, h.y, -cs)) * Cone(0.0, cs + 1.0, cs + 1.0,
+                                                               align=(Align.CENTER, Align.CENTER, Align.MIN))
         part = part - cutter
     return part
 

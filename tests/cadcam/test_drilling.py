@@ -319,3 +319,30 @@ def test_random_plates_holes_found_drilled_to_depth_without_gouge(case):
             ii = int(round((h.x + rr * np.cos(a) - g.x0) / g.cell))
             jj = int(round((h.y + rr * np.sin(a) - g.y0) / g.cell))
             assert sim.stock_top[jj, ii] <= mid + 1e-6, (h, a)
+
+
+def test_no_too_small_pocket_warning_for_holes_cut_to_size(caplog):
+    """Roughing meets the helixed bores as pockets too small for its entry: they are cut already, so no warning;
+    a pocket no operation cut still gets its warning."""
+    import logging
+
+    from cadcam.plan import PlanOptions, plan_job
+    from cadcam.setup import make_setup
+
+    # 12 and 12.5 mm through bores (no drill of their size; too narrow for the 10 mm roughing end mill's helix), a
+    # 3.3 mm flat-bottom hole (drilled), and an 11 x 11 mm square pocket 4 mm deep no tool here enters by a helix
+    solid = plate((60.0, 40.0, 12.0)) - cylinder(15, 12, 6.0, -1, 13) - cylinder(15, 28, 6.25, -1, 13) \
+        - cylinder(30, 20, 1.65, 6, 13) - manifold3d.Manifold.cube((11.0, 11.0, 5.0)).translate((40, 14.5, 8))
+    part_mesh = manifold_to_trimesh(solid)
+    setup, part = make_setup(part_mesh)
+    caplog.set_level(logging.DEBUG, logger="cadcam.roughing")
+    result = plan_job(part, setup, LIBRARY, part_name="bores", options=PlanOptions(rough_tool=2))  # 10 mm
+    holes = result.job.parameters["holes"]
+    assert {round(h["diameter"], 1) for h in holes["helixed"]} == {12.0, 12.5}, holes
+    skipped = [r for r in caplog.records if "too small to enter" in r.getMessage()]
+    # roughing met the bores as pockets too small to enter, said only at debug level
+    in_holes = [r for r in skipped if r.getMessage().endswith("skipped (a hole cut before)")]
+    assert in_holes and all(r.levelno == logging.DEBUG for r in in_holes)
+    assert all(abs(float(r.getMessage().split("near (")[1].split(",")[0]) - 17.0) < 6.0 for r in in_holes)  # in a bore
+    warned = {r.getMessage().split("near ")[1][:14] for r in skipped if r.levelno >= logging.WARNING}
+    assert warned == {"(47.50, 22.00)"}  # the sharp pocket the 10 mm roughing end mill cannot enter

@@ -294,3 +294,51 @@ def test_random_hole_patterns_are_recognised_exactly_and_cut_to_size(tmp_path, m
         else:  # a helix whose end mill fits the bore with room for its path
             assert d * (1 + OPTIONS.helix_share) <= h.inscribed + 1e-9
             assert not any(abs(t - h.diameter) <= 0.016 for t in DRILLS) or h.bottom == "flat"
+
+
+def test_counterbores_and_countersinks_are_sized_and_cut(tmp_path):
+    """An M6 counterbore (11 x 6.5 over a 6.6 through bore) and a 90 deg countersink of 9 mm over a 4.5 bore: sized
+    exactly from the coaxial cylinders and cone; the counterbore is helixed to its floor, the spot drill cuts the
+    countersink to size."""
+    modelled = [ModelledHole(-15, 0, 6.6, None, counterbore=(11.0, 6.5)), ModelledHole(15, 0, 4.5, None, countersink=9.0)]
+    loaded = load_part(write_step(plate((60, 30, 14), modelled), tmp_path / "seats.step"))
+    found = _by_place(loaded.step.features.holes)
+    assert len(found) == 2
+    bored, sunk = found[(-15.0, 0.0)], found[(15.0, 0.0)]
+    assert abs(bored.diameter - 6.6) < EXACT and bored.bottom == "through" and bored.countersink is None
+    cb = bored.counterbore
+    assert abs(cb.diameter - 11.0) < EXACT and abs(cb.top_z) < EXACT and abs(cb.floor_z + 6.5) < EXACT
+    assert abs(bored.top_z + 6.5) < EXACT and abs(bored.bottom_z + 14) < EXACT
+    cs = sunk.countersink
+    assert abs(sunk.diameter - 4.5) < EXACT and sunk.counterbore is None and sunk.bottom == "through"
+    assert abs(cs.diameter - 9.0) < EXACT and abs(cs.angle - 90.0) < EXACT and abs(cs.top_z) < EXACT
+    assert abs(sunk.top_z + (9.0 - 4.5) / 2) < EXACT  # the bore starts where the cone ends
+    assert "counterbore 11.000 mm x 6.500 mm deep" in bored.describe() and "countersink 9.000 mm x 90 deg" in sunk.describe()
+    setup, holes, rough, plan = _planned(loaded)
+    dz = float(setup.transform_mesh_to_work[2, 3])
+    assert sorted(round(h.diameter, 6) for h in holes) == [4.5, 6.6, 11.0]
+    seat = next(h for h in holes if abs(h.diameter - 11.0) < EXACT)
+    assert seat.bottom == "flat" and abs(seat.bottom_z - (dz - 6.5)) < EXACT
+    helixed = {round(h.diameter, 6) for h in plan.helixed} | {round(h.diameter, 6) for h in plan.left}
+    assert 11.0 in helixed  # helixed, or wide enough for the roughing end mill
+    spot = next(op for op in plan.operations if op.kind == "spot")
+    tips = {(round(x, 3), round(y, 3)): z for x, y, z in spot.cycle.holes.tolist()}
+    sunk_work = next(h for h in holes if abs(h.diameter - 4.5) < EXACT)
+    # the 90 deg spot drill's tip where the countersink's cone meets the axis: 4.5 mm under its top
+    assert tips[(round(sunk_work.x, 3), round(sunk_work.y, 3))] == pytest.approx(dz - 4.5, abs=EXACT)
+
+
+def test_a_public_two_solid_file_in_metres():
+    """CadQuery's red_cube_blue_cylinder.step (Apache-2.0): two 10 mm solids, written in metres."""
+    from pathlib import Path
+
+    path = Path(__file__).parents[1] / "data" / "step" / "red_cube_blue_cylinder.step"
+    with pytest.raises(MeshError, match=r"2 solids in the file \(1: 10\.0 x 10\.0 x 10\.0 mm, 3 faces; "
+                                        r"2: 10\.0 x 10\.0 x 10\.0 mm, 6 faces\): pick one with --body N"):
+        load_part(path)
+    cylinder, cube = load_part(path, body=1), load_part(path, body=2)
+    assert cylinder.step.units == cube.step.units == "m" and cylinder.scale == 1000.0
+    assert np.allclose(cube.mesh.extents, 10.0, atol=EXACT) and abs(cube.mesh.volume - 1000.0) < 1e-6
+    assert abs(cylinder.mesh.volume - math.pi * 25 * 10) < 0.5  # tessellated within 0.0025 mm
+    assert [round(f.z, 6) for f in cube.step.features.flats] == [round(float(cube.mesh.bounds[1][2]), 6),
+                                                                  round(float(cube.mesh.bounds[0][2]), 6)]

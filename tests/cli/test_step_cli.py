@@ -7,6 +7,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -51,6 +52,8 @@ def test_step_plan_states_its_intake_and_exact_holes(plans):
     holes = intake["features"]["holes"]
     assert sorted(h["diameter"] for h in holes) == pytest.approx(sorted(h.diameter for h in HOLES), abs=1e-6)
     assert all(h["source"] == "step" for h in holes)
+    sheet = json.loads(Path(summary["setup_sheet"]).read_text())  # the machinist's list: the same
+    assert sheet["intake"]["features"]["holes"] == holes
     # the drilling stage got the exact sizes: every hole it lists is one of them
     planned = summary["holes"]
     assert sorted(h["diameter"] for h in planned["holes"]) == pytest.approx(sorted(h.diameter for h in HOLES), abs=1e-6)
@@ -111,3 +114,39 @@ def test_tight_inside_corners_are_reported_before_the_toolpaths(tmp_path, caplog
     corners = [i for i, line in enumerate(said) if "inside corner" in line]
     assert len(corners) == 4 and corners == list(range(4)), said  # the first warnings, before roughing's
     assert all("R0.500" in said[i] and "the smallest end mill is 2 mm (T6): left with R1" in said[i] for i in corners)
+
+
+def test_a_picked_solid_in_centimetres_is_verified_and_unloaded_as_planned(tmp_path):
+    """``--body`` and the file's unit go into the setup sheet; verify and the robot read the file again with them."""
+    path = write_step(two_solids(), tmp_path / "two.step", unit="CM")
+    out = tmp_path / "out"
+    r = run("plan", path, "--body", "2", "--ops", "1", "--no-robot", "--scallop", "0.02", "-o", out, "--quiet")
+    assert r.exit_code == 0, r.output
+    sheet = json.loads((out / "two.setup.json").read_text())
+    assert sheet["mesh_scale"] == 10.0
+    assert sheet["intake"] == {"format": "step", "unit": "CENTIMETRE", "scale": 10.0, "body": 2, "tolerance_mm": 0.01,
+                               "features": sheet["intake"]["features"]}
+    assert [f["z"] for f in sheet["intake"]["features"]["flats"]] == [0.0, -15.0]
+    assert sheet["stock"]["size"][2] > 15.0  # the 20 x 20 x 15 mm solid, not the 40 x 30 x 10 one
+    for tolerance in ("0.01", "0.05"):  # verify's tolerance is the tessellation's
+        r = run("verify", out / "two.nc", "--setup", out / "two.setup.json", "--part", path, "--tolerance", tolerance,
+                "--quiet")
+        assert r.exit_code == 0, r.output
+    r = run("robot", "fixtures/cell.yaml", "--setup", out / "two.setup.json", "--part", path, "-o",
+            tmp_path / "two.robot.mcap", "--quiet")
+    assert r.exit_code == 0, r.output
+
+
+def test_a_step_part_is_read_again_as_its_sheet_says(tmp_path):
+    from cadcam.mesh import load_planned_part
+    from factory.core.errors import SetupError
+
+    path = write_step(two_solids(), tmp_path / "two.step", unit="CM")
+    intake = {"format": "step", "unit": "CENTIMETRE", "scale": 10.0, "body": 2, "tolerance_mm": 0.01}
+    loaded = load_planned_part(path, 10.0, intake)
+    assert np.allclose(loaded.mesh.extents, (20, 20, 15), atol=1e-6) and loaded.step.body == 2
+    assert loaded.step.chordal_deviation == pytest.approx(0.0025)
+    assert load_planned_part(path, 10.0, intake, tolerance=0.04).step.chordal_deviation == pytest.approx(0.01)
+    assert load_planned_part(path, 10.0, intake, tolerance=0.0).step.chordal_deviation == pytest.approx(0.0025)
+    with pytest.raises(SetupError, match="CENTIMETRE .*mesh_scale is 1: not the part the program was made for"):
+        load_planned_part(path, 1.0, intake, source="two.setup.json")

@@ -56,3 +56,20 @@ def test_setups_and_motion_must_agree():
         part_process(_motion([LOAD, UNLOAD]), 300.0, SHOTS, 90.0)
     with pytest.raises(CellError, match="one setup"):
         part_process(_motion([LOAD, FLIP, UNLOAD]), 300.0, SHOTS)
+
+
+def test_the_cameras_see_an_inch_part_at_its_size_in_mm(tmp_path):
+    """The part a setup sheet was made for is read in mm once: an inch part is not scaled by 25.4 again."""
+    import trimesh
+
+    from cadcam.model import Setup
+    from factory.core.setupsheet import SetupSheet
+    from factory.simulation import seen_part
+
+    path = tmp_path / "block.stl"
+    trimesh.creation.box((2.0, 1.5, 0.8)).export(path)  # inches
+    setup = Setup(stock_min=(0, 0, -25), stock_max=(55, 42, 0), transform_mesh_to_work=np.eye(4), mesh_scale=25.4)
+    sheet = SetupSheet(stock_min=setup.stock_min, stock_max=setup.stock_max, transform_mesh_to_work=np.eye(4),
+                       tools=(), mesh_scale=25.4)
+    seen = seen_part(path, setup, sheet, "block.setup.json")
+    assert np.allclose(seen.extents, (50.8, 38.1, 20.32))
