@@ -12,8 +12,9 @@ the camera pose ``T_base_cam`` comes from the hand-eye file. :func:`locate_parts
    turns of the outline are tried and the edges inside it decide.
 4. Judge: the share of the outline's edges found within a pixel must reach a minimum, in both
    of the outline's main directions, and so must the share of all visible edges (steps, bosses,
-   holes), else the blob gets no pose and the refusal says which was short. A shadow, a box or glare do not have the part's edges; a wall as bright as
-   the tray still has its crease with the top face, which the model has as well.
+   holes), else the blob gets no pose and the refusal says which was short. A shadow, a box or
+   glare do not have the part's edges; a wall as bright as the tray still has its crease with
+   the top face, which the model has as well.
 
 The pose returned is ``T_base_part = Trans(x, y, z) Rz(yaw) Trans(-cx, -cy, -zmin)``: ``(cx, cy)`` is
 the centroid of the mesh's footprint and ``zmin`` its lowest point (mesh coordinates), ``z`` the tray.
@@ -465,8 +466,8 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
     rms = float(np.sqrt(np.mean(sol.fun[inliers] ** 2))) if inliers.any() else np.inf
     coverage = float(near[outer].mean()) if outer.any() else float(near.mean())
     axis = _axis_coverage(near[outer], normal[outer]) if outer.any() else _axis_coverage(near, normal)
-    return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis, found=float(near.mean()), rms_px=rms, cost=float(sol.cost),
-                    jac=sol.jac[inliers], residuals=sol.fun[inliers])
+    return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis, found=float(near.mean()), rms_px=rms,
+                    cost=float(sol.cost), jac=sol.jac[inliers], residuals=sol.fun[inliers])
 
 
 def _axis_coverage(near: np.ndarray, normal: np.ndarray) -> float:
