@@ -11,7 +11,8 @@ sample parts at random seeded poses under the five conditions of issue 33. Each 
 
 A picture counts as *found* when the detection nearest the truth is within 1.5 mm and 1 deg of
 it (yaw modulo the mesh's own symmetry); *wrong* when a pose came back but not within that;
-*missed* when locate reported no part. Any other detection more than 20 mm from the part is a
+*missed* when locate reported no part (counted by the reason its refusal gives). Any other
+detection more than 20 mm from the part is a
 *false* one (the box of the distractor condition). *Covered* counts found poses whose error is
 within the reported uncertainty (``sigma_xy`` for position, ``sigma_yaw`` for yaw).
 Rendering takes seconds per picture; ``--cache`` keeps the pictures between runs.
@@ -60,6 +61,18 @@ def picture(station, part: str, condition: str, seed: int, cache: Path | None):
     return scene
 
 
+#: What a refusal may say (vision.locate._refusal), shortened for the table of misses.
+REASONS = {"outline is not there": "outline", "seen along one direction only": "one direction",
+           "inside the outline are not there": "inner edges", "fit loosely": "loose fit"}
+
+
+def _reason(message: str) -> str:
+    """The short name of a refusal's reason ('' for none, 'other' for a message without one)."""
+    if not message:
+        return ""
+    return next((short for text, short in REASONS.items() if text in message), "other")
+
+
 def run(poses: int, cache: Path | None, conditions: list[str], parts: list[str]) -> dict:
     station = cell_station()
     rows = []
@@ -69,14 +82,15 @@ def run(poses: int, cache: Path | None, conditions: list[str], parts: list[str])
             for seed in range(poses):
                 scene = picture(station, part, condition, seed, cache)
                 start = time.perf_counter()
+                refusal = ""
                 try:
                     found = locate_parts(scene.image, station.camera, station.camera_pose, footprint,
                                          station.plane_z)
-                except VisionError:
-                    found = []
+                except VisionError as e:
+                    found, refusal = [], str(e)
                 seconds = time.perf_counter() - start
                 row = {"condition": condition, "part": part, "seed": seed, "seconds": seconds,
-                       "outcome": "missed", "false": 0}
+                       "outcome": "missed", "false": 0, "refusal": _reason(refusal)}
                 if found:
                     dist = [np.hypot(p.x - scene.x, p.y - scene.y) for p in found]
                     best = found[int(np.argmin(dist))]
@@ -117,6 +131,8 @@ def report(rows: list[dict], conditions: list[str], parts: list[str]) -> dict:
         "coverage_found": (sum(x["covered"] for x in found) / len(found)) if found else None,
         "coverage_posed": (sum(x["covered"] for x in posed) / len(posed)) if posed else None,
         "median_seconds": statistics.median([x["seconds"] for x in rows]),
+        "misses_by_reason": {r: sum(x.get("refusal") == r for x in rows)
+                             for r in [*REASONS.values(), "other"] if any(x.get("refusal") == r for x in rows)},
     }
     for k, v in summary.items():
         print(f"{k}: {v if not isinstance(v, float) else round(v, 3)}")

@@ -310,8 +310,10 @@ def inspect_part(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     VisionError
         As :func:`vision.locate.locate_parts` (no part found, bad image).
     """
-    # A defective part must still be found: no outline-fit limit here, the deviation judges it.
-    found = locate_parts(image, camera, base_camera, part, tray_z, LocateOptions(max_rms_px=np.inf), source=source)
+    # A defective part must still be found: no outline-fit limit here, and no share of the inner
+    # edges (a missing boss or hole takes them away); the deviation judges it.
+    found = locate_parts(image, camera, base_camera, part, tray_z, LocateOptions(max_rms_px=np.inf, min_found=0.0),
+                         source=source)
     cam_base = np.linalg.inv(np.asarray(base_camera, dtype=np.float64))
     out = []
     f = np.sqrt(camera.fx * camera.fy)

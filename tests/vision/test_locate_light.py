@@ -11,16 +11,25 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from factory.core.errors import VisionError
 from tests.vision.lit import CONDITIONS, cell_station, gallery_scene, render_lit, sample_mesh
-from vision.locate import locate_parts
+from vision.inspect import inspect_part
+from vision.locate import _axis_coverage, locate_parts
 
 #: (condition, part, seed): the stepped parts, long hard shadows, dim exposure, a box beside the part.
 PICTURES = [("diffuse", "stepped_wall", 0), ("diffuse", "plate_bosses", 2), ("low_angle", "bracket", 0),
             ("low_angle", "stepped_wall", 0), ("dim", "dome_mould", 1), ("distractor", "plate_bosses", 0)]
-#: Glare on a polished part: mostly not located yet (1 of 20 on the benchmark); no wrong pose either.
-GLARE = [("glare", "bracket", 0), ("glare", "dome_mould", 0)]
+#: Glare on a polished part (not located yet, 0 of 20 on the benchmark), and the two pictures where
+#: locate once reported a wrong pose: a stepped wall slid 2.5 mm along itself in dim light (its ends
+#: not seen), a plate with bosses turned 180 deg under glare (its bosses not seen). No wrong pose.
+GLARE = [("glare", "bracket", 0), ("glare", "dome_mould", 0), ("dim", "stepped_wall", 1),
+         ("glare", "plate_bosses", 2)]
+#: What a refusal may say (vision.locate._refusal): which evidence of the part was short.
+REASONS = ("outline is not there", "seen along one direction only", "inside the outline are not there",
+           "fit loosely")
 FOUND_M = 1.5e-3
 FOUND_RAD = np.radians(1.0)
 
@@ -43,7 +52,8 @@ def located(station, condition, part, seed):
     try:
         return scene, locate_parts(scene.image, station.camera, station.camera_pose, footprint, station.plane_z)
     except VisionError as e:
-        assert "no part found" in str(e)
+        # A miss is a refusal with its reason, never a bare "not found".
+        assert "no part found" in str(e) and any(r in str(e) for r in REASONS), str(e)
         return scene, []
 
 
@@ -83,3 +93,45 @@ def test_a_box_alone_is_no_part(station):
         _, footprint, _ = sample_mesh(part)
         with pytest.raises(VisionError, match="no part found"):
             locate_parts(image, station.camera, station.camera_pose, footprint, station.plane_z)
+
+
+@settings(max_examples=60, deadline=None)
+@given(normals=st.lists(st.floats(-np.pi, np.pi), min_size=1, max_size=40),
+       seen=st.lists(st.booleans(), min_size=40, max_size=40), turn=st.floats(-np.pi, np.pi))
+def test_axis_coverage_is_never_above_the_plain_share_and_ignores_the_picture_turn(normals, seen, turn):
+    """The share in the worse edge direction is at most the share of all edges (a weighted mean of
+    the two directions' shares), and turning the picture or flipping a normal changes nothing."""
+    a = np.array(normals)
+    normal = np.column_stack([np.cos(a), np.sin(a)])
+    near = np.array(seen[:len(a)])
+    got = _axis_coverage(near, normal)
+    assert 0.0 <= got <= near.mean() + 1e-9
+    turned = np.column_stack([np.cos(a + turn), np.sin(a + turn)])
+    assert _axis_coverage(near, turned) == pytest.approx(got, abs=1e-9)
+    assert _axis_coverage(near, -normal) == pytest.approx(got, abs=1e-9)
+
+
+def test_axis_coverage_sees_a_long_outline_without_its_ends():
+    """A 100 x 10 px outline whose two short ends are not found: 91 % of its edges, 0 % along it."""
+    sides = np.tile([[0.0, 1.0]], (200, 1))
+    ends = np.tile([[1.0, 0.0]], (20, 1))
+    near = np.r_[np.ones(200, bool), np.zeros(20, bool)]
+    assert near.mean() > 0.9
+    assert _axis_coverage(near, np.vstack([sides, ends])) == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.xfail(strict=True, reason="issue 33 item 4 open: inspect's outline is an iso-line of the picture "
+                   "over the tray model; under real light a wall as bright as the tray cuts it short and a good "
+                   "bracket fails by 13 mm (measured on main and on this branch)")
+def test_a_good_part_passes_inspection_in_diffuse_light(station):
+    """``factory inspect`` under the independent renderer's light: a good bracket must pass.
+
+    Strict: the day inspection's outline survives real light this test passes and must lose its mark.
+    """
+    scene = gallery_scene(station, "bracket", "diffuse", 0)
+    mesh, footprint, _ = sample_mesh("bracket")
+    (result,) = inspect_part(scene.image, station.camera, station.camera_pose, footprint, mesh.vertices,
+                             mesh.faces, station.plane_z)
+    # The pose it inspects at is right (locate's part); the outline is what fails.
+    assert np.hypot(result.part.x - scene.x, result.part.y - scene.y) <= FOUND_M
+    assert result.passed, result.to_dict()
