@@ -21,8 +21,9 @@ import pinocchio as pin
 from factory.core.errors import CellError
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, marker_array, ros_time, string_msg, tf_message,
                              transform_stamped, transforms_stamped)
-from factory.core.progress import Stopwatch
+from factory.core.progress import Stopwatch, stage_callback
 from factory.core.setupsheet import SetupSheet
+from factory.roadmaps import cached_roadmap, roadmap_path
 from factory.scene import visuals_scene
 from robotprog.cell import Cell, load_cell
 from robotprog.collision import CollisionWorld, cell_static_boxes, collision_world
@@ -223,6 +224,12 @@ def plan_cell(cell_path: Path, sheet: SetupSheet | Mapping[str, Any], sheet_sour
         part_box = None
         if part_vertices is not None:
             part_box = part_box_in_vise(setup_sheet_to_cell(sheet, sheet_source), part_vertices)
+    if not roadmap_path(cell).exists():
+        log.warning("%s: no roadmap of this cell cached yet: building it now (once per cell file; "
+                    "`factory cell warm %s` builds it ahead)", cell_path, cell_path)
+    with watch("roadmap"):
+        roadmap = cached_roadmap(cell, world, progress=stage_callback(watch.progress, "roadmap")).roadmap
     with watch("robot plan"):
-        plan = plan_tending(cell, sheet, part_box=part_box, world=world, source=sheet_source, setups=setups)
+        plan = plan_tending(cell, sheet, part_box=part_box, world=world, source=sheet_source, setups=setups,
+                            roadmap=roadmap)
     return CellPlan(cell, world, plan)
