@@ -21,8 +21,9 @@ import pinocchio as pin
 from factory.core.errors import CellError
 from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, marker_array, ros_time, string_msg, tf_message,
                              transform_stamped, transforms_stamped)
-from factory.core.progress import Stopwatch
+from factory.core.progress import Stopwatch, stage_callback
 from factory.core.setupsheet import SetupSheet
+from factory.roadmaps import cached_roadmap, roadmap_path
 from factory.scene import visuals_scene
 from robotprog.cell import Cell, load_cell
 from robotprog.collision import CollisionWorld, cell_static_boxes, collision_world
@@ -205,7 +206,8 @@ def plan_cell(cell_path: Path, sheet: SetupSheet | Mapping[str, Any], sheet_sour
 
     ``part_vertices`` are the part mesh's vertices in mesh file units (the sheet's
     ``mesh_scale`` turns them into mm); without them unload grips the stock box. Wall times
-    go into ``watch`` (stages ``cell`` and ``robot plan``). ``setups`` 2: the part is turned
+    go into ``watch`` (stages ``cell``, ``roadmap``, or ``building the cell's roadmap`` when no
+    roadmap of the cell is cached yet (:mod:`factory.roadmaps`), and ``robot plan``). ``setups`` 2: the part is turned
     over on the cell's flip station between op 1 (``sheet``, the op-1 setup sheet) and op 2
     (:func:`robotprog.tending.plan_tending`).
 
@@ -223,6 +225,17 @@ def plan_cell(cell_path: Path, sheet: SetupSheet | Mapping[str, Any], sheet_sour
         part_box = None
         if part_vertices is not None:
             part_box = part_box_in_vise(setup_sheet_to_cell(sheet, sheet_source), part_vertices)
+    roadmap = None
+    # A cell nobody warmed (`factory cell warm`) has its roadmap built by its first plan, under a
+    # stage that says so (a progress bar, the plan's stage times); not a warning line, which would
+    # stand before the one line of a plan that then fails.
+    stage = "roadmap" if roadmap_path(cell).exists() else "building the cell's roadmap"
+    with watch(stage):
+        try:
+            roadmap = cached_roadmap(cell, world, progress=stage_callback(watch.progress, stage)).roadmap
+        except CellError as e:  # the planner names what is wrong with the cell in its own words
+            log.info("%s: no roadmap (%s); planning without", cell_path, e)
     with watch("robot plan"):
-        plan = plan_tending(cell, sheet, part_box=part_box, world=world, source=sheet_source, setups=setups)
+        plan = plan_tending(cell, sheet, part_box=part_box, world=world, source=sheet_source, setups=setups,
+                            roadmap=roadmap)
     return CellPlan(cell, world, plan)

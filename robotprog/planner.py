@@ -29,13 +29,16 @@ samples and the shortcut pairs are drawn from it in the order the moves are plan
 calls on a planner built the same way give the same moves to the bit. A planner for a world with
 more boxes (:meth:`MotionPlanner.among`) starts its own generator from the same seed.
 
-Where a roadmap fits
---------------------
+The roadmap
+-----------
 :meth:`MotionPlanner.transfer` is the one place a joint path between two configurations is
 searched. The cell is static but for the stock, the part in hand and what stands beside them
 (:attr:`robotprog.collision.CollisionWorld.obstacles`), and its trips repeat (home, rack, vise, flip
-station, out-tray, the "above" poses of the :class:`Station`), so a roadmap of the static cell can
-answer that search with the lines, the timing and the proof left as they are.
+station, out-tray, the "above" poses of the :class:`Station`). A planner given the cell's
+:class:`robotprog.roadmap.Roadmap` looks a transfer that is not straight up there first: the ends
+joined to the roadmap, its segments checked in this planner's world with what is held, the path
+shortcut and pulled taut (deterministic, no random draws), then timed and proven like any other;
+the RRT-Connect is the fall-back (no path through the roadmap, or one the proof refuses).
 
 Frames and units: world frame of the cell; metres, radians, seconds.
 """
@@ -53,6 +56,7 @@ from factory.core.errors import PlanningError
 from robotprog.cell import Box, Cell
 from robotprog.collision import CollisionWorld, Payload, collision_world
 from robotprog.ik import ik_continuous, ik_solutions
+from robotprog.roadmap import Roadmap, joint_box
 from robotprog.sweep import monotone_breaks, swept_motion
 from robotprog.timing import Trajectory, time_path
 
@@ -148,8 +152,8 @@ class JointPath:
     waypoints : (n, dof) float
         From the start to the goal configuration [rad].
     search : str
-        How it was found: ``"straight"`` (the direct joint segment is free) or ``"rrt-connect"``
-        (sampled, then shortcut).
+        How it was found: ``"straight"`` (the direct joint segment is free), ``"roadmap"``
+        (through the cell's roadmap, then shortcut) or ``"rrt-connect"`` (sampled, then shortcut).
     """
 
     waypoints: np.ndarray
@@ -219,6 +223,8 @@ class MotionPlanner:
     world : CollisionWorld
         The cell with the boxes this plan avoids; its robot is the one planned for.
     options : PlannerOptions
+    roadmap : Roadmap, optional
+        The cell's roadmap (:func:`robotprog.roadmap.cell_roadmap`), looked up before a transfer is searched.
 
     Attributes
     ----------
@@ -228,16 +234,17 @@ class MotionPlanner:
         The joint box RRT samples are drawn from [rad]: the joint limits, at most half a turn from home.
     """
 
-    def __init__(self, cell: Cell, world: CollisionWorld, options: PlannerOptions = PlannerOptions()):
+    def __init__(self, cell: Cell, world: CollisionWorld, options: PlannerOptions = PlannerOptions(),
+                 roadmap: Roadmap | None = None):
         robot = world.robot
         self.cell, self.robot, self.world, self.options = cell, robot, world, options
+        self.roadmap = roadmap
         self.t_base_world = np.linalg.inv(cell.robot.base.matrix())
         self.t_tcp_flange = np.linalg.inv(cell.gripper.tcp.matrix())
         self.vmax = robot.v_max * cell.motion.speed_scaling
         self.amax = np.asarray(cell.motion.acceleration_limits, dtype=float) * cell.motion.speed_scaling
         self.rng = np.random.default_rng(options.seed)
-        self.lo = np.maximum(robot.q_lower, np.asarray(cell.robot.home) - np.pi)
-        self.hi = np.minimum(robot.q_upper, np.asarray(cell.robot.home) + np.pi)
+        self.lo, self.hi = joint_box(robot.q_lower, robot.q_upper, np.asarray(cell.robot.home))
         self.sweep = swept_motion(world, options.joint_resolution)
 
     def among(self, obstacles: tuple[Box, ...]) -> "MotionPlanner":
@@ -245,7 +252,7 @@ class MotionPlanner:
         random generator started afresh from the seed."""
         world = collision_world(self.cell, self.robot, door_closed=self.world.door_closed,
                                 obstacles=self.world.obstacles + obstacles)
-        return MotionPlanner(self.cell, world, self.options)
+        return MotionPlanner(self.cell, world, self.options, self.roadmap)
 
     # --- poses -----------------------------------------------------------------------------
 
@@ -323,7 +330,8 @@ class MotionPlanner:
         return self.world.path_free(self.densify(np.array([a, b])), held) is None
 
     def transfer(self, q_a: np.ndarray, q_b: np.ndarray, held: Payload, what: str) -> JointPath:
-        """A joint path from ``q_a`` to ``q_b`` [rad]: straight when that is free, else searched.
+        """A joint path from ``q_a`` to ``q_b`` [rad]: straight when that is free, else through the
+        roadmap (if any), else searched.
 
         Raises
         ------
@@ -332,6 +340,11 @@ class MotionPlanner:
         """
         if self.edge_free(q_a, q_b, held):
             return JointPath(np.array([q_a, q_b]), "straight")
+        if self.roadmap is not None:
+            found = self.roadmap.path(q_a, q_b, lambda a, b: self.edge_free(a, b, held))
+            if found is not None:
+                return JointPath(self.shortcut_greedy(found, held), "roadmap")
+            log.debug("%s: no path through the roadmap; searching", what)
         return JointPath(self._search(q_a, q_b, held, what), "rrt-connect")
 
     def joint_move(self, name: str, q_a: np.ndarray, q_b: np.ndarray, held: Payload, what: str) -> TimedMove:
@@ -408,6 +421,37 @@ class MotionPlanner:
             if self.edge_free(pts[i], pts[j], held):
                 pts = pts[: i + 1] + pts[j:]
         return np.array(pts)
+
+    def shortcut_greedy(self, path: np.ndarray, held: Payload) -> np.ndarray:
+        """``path`` (n, dof) [rad] with each point joined to the farthest later one the straight
+        joint segment reaches free at ``joint_resolution`` (deterministic: no random pairs)."""
+        out, i = [path[0]], 0
+        while i < len(path) - 1:
+            j = len(path) - 1
+            while j > i + 1 and not self.edge_free(path[i], path[j], held):
+                j -= 1
+            out.append(path[j])
+            i = j
+        return self.tighten(np.array(out), held, rounds=10)
+
+    def tighten(self, path: np.ndarray, held: Payload, rounds: int = 6) -> np.ndarray:
+        """``path`` (n, dof) [rad] pulled taut: each inner point moved half way to the midpoint of
+        its neighbours where both its segments stay free at ``joint_resolution`` (``rounds`` passes;
+        a roadmap path's corners sit where the sampled nodes happened to be)."""
+        pts = np.array(path, dtype=float)
+        for _ in range(rounds):
+            moved = False
+            for k in range(1, len(pts) - 1):
+                mid = 0.5 * (pts[k - 1] + pts[k + 1])
+                for f in (0.5, 0.25):  # a smaller pull where the half one grazes something
+                    target = pts[k] + f * (mid - pts[k])
+                    if self.edge_free(pts[k - 1], target, held) and self.edge_free(target, pts[k + 1], held):
+                        pts[k] = target
+                        moved = True
+                        break
+            if not moved:
+                break
+        return pts
 
     # --- timing and the proof --------------------------------------------------------------
 

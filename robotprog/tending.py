@@ -34,6 +34,7 @@ from robotprog.collision import CollisionWorld, HeldBox, Payload, collision_worl
 from robotprog.flip import TURNOVER_AXIS, Piece, plan_flip
 from robotprog.frames import StockInVise, setup_sheet_to_cell, MM_PER_M
 from robotprog.grasp import GraspOptions, box_pose, open_fingers, top_grasp
+from robotprog.roadmap import Roadmap
 from robotprog.planner import MotionPlanner, PickPlace, PickPlaceNames, PlannerOptions, Station, TimedMove
 
 log = logging.getLogger(__name__)
@@ -137,6 +138,7 @@ def plan_tending(
     options: TendingOptions = TendingOptions(),
     source: str | None = None,
     setups: int = 1,
+    roadmap: Roadmap | None = None,
 ) -> TendingPlan:
     """Plan loading the stock of ``sheet`` into the vise and unloading the finished part; with
     two setups, turning the part over on the flip station between them (:mod:`robotprog.flip`).
@@ -158,6 +160,10 @@ def plan_tending(
         1: the part is machined in one operation; 2: op 1 leaves the part on its holding
         block (the stock below ``part_box``), the robot turns it over on the cell's
         ``flip_station`` (moves ``flip: ...``) and op 2 faces the block off.
+    roadmap : Roadmap, optional
+        The cell's roadmap (:func:`robotprog.roadmap.cell_roadmap`): transfers the straight
+        joint segment cannot make are looked up in it before they are searched; every move is
+        proven all the same.
 
     Returns
     -------
@@ -198,7 +204,7 @@ def plan_tending(
     obstacles = (_neighbours(cell.rack, options.rack_slot, stock.size, "rack_blank")
                  + _neighbours(cell.out_tray, options.tray_slot, pmax - pmin, "tray_part"))
     world = collision_world(cell, world.robot if world is not None else None, obstacles=obstacles)
-    p = MotionPlanner(cell, world, options.planner)
+    p = MotionPlanner(cell, world, options.planner, roadmap)
     home = np.asarray(cell.robot.home, dtype=float)
     r_home = p.tcp_world(home)[:3, :3]
     t_rack = _slot(cell.rack, options.rack_slot, "rack")

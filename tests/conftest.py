@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import manifold3d
@@ -51,3 +52,19 @@ def block_catalog(tmp_path_factory) -> tuple[Path, Path]:
                                  "--no-waterline", "--grid", "0.5", "--quiet"])
     assert r.exit_code == 0, r.output
     return root / "catalog", part
+
+
+@pytest.fixture(scope="session", autouse=True)
+def roadmap_cache(tmp_path_factory) -> Iterator[Path]:
+    """factory's cache (the cells' roadmaps, :mod:`factory.roadmaps`) in a folder of this session,
+    for the commands it runs in-process and in subprocesses alike: never the user's ~/.cache."""
+    import os
+
+    folder = tmp_path_factory.mktemp("factory_cache")
+    before = os.environ.get("FACTORY_CACHE_DIR")
+    os.environ["FACTORY_CACHE_DIR"] = str(folder)
+    yield folder
+    if before is None:
+        os.environ.pop("FACTORY_CACHE_DIR", None)
+    else:
+        os.environ["FACTORY_CACHE_DIR"] = before

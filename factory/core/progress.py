@@ -46,6 +46,11 @@ class Stopwatch:
             if self._progress is not None:
                 self._progress(name, 1, 1)
 
+    @property
+    def progress(self) -> Progress | None:
+        """The ``progress`` callback the stages report to (None: nobody listens)."""
+        return self._progress
+
     def rounded(self) -> dict[str, float]:
         """Seconds per stage, rounded to the millisecond."""
         return {k: round(v, 3) for k, v in self.seconds.items()}
