@@ -59,6 +59,7 @@ from cadcam.plan import PlanOptions, choose_tools, deepest_reach, flats_and_wall
 from cadcam.rest import safe_rapids
 from cadcam.roughing import zlevel_roughing
 from cadcam.setup import BREAKTHROUGH_MM, JAW_CLEARANCE_MM
+from cadcam.workholding import jaw_keepout
 from cadcam.tools import ToolLibrary
 from cadcam.stock import (FlippedStock, Simulation, clear_height, excess, flip_stock, stock_after, stock_after_flipped,
                           unreached)
