@@ -25,7 +25,7 @@ import factory
 #: The sub-commands in the order ``factory --help`` lists them: each is the function of its own
 #: name in the module ``cli.<name>``.
 COMMANDS = ("toolpath", "gcode", "verify", "plan", "calibrate", "robot", "handeye", "locate", "inspect",
-            "simulate", "report")
+            "simulate", "cell", "report")
 
 _TYPER_SETTINGS: dict[str, Any] = dict(
     add_completion=False,
