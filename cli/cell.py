@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from cli.cellflags import CameraFile, Catalog, CellFile, Db, FaultRate, Faults, RobotRate, Ros2KeepAll, \
+from cli.cellflags import Bag, CameraFile, Catalog, CellFile, Db, FaultRate, Faults, RobotRate, Ros2KeepAll, \
     Ros2Localhost, RosDistro, Tools
 from cli.common import Overwrite, Quiet, reports_errors, setup_logging, stderr
 from factory.core.resources import FIXTURES
@@ -40,6 +40,7 @@ def cell(
     fault_rate: FaultRate = None,
     db: Db = None,
     mcap: Annotated[Path | None, typer.Option("--mcap", help="Write the session (every run, every order status) to this MCAP file when the cell stops.", dir_okay=False)] = None,
+    bag: Bag = None,
     speed: Annotated[float, typer.Option("--speed", help="Play each run at this many times real time.", min=1e-3)] = 60.0,
     ros2_localhost: Ros2Localhost = False,
     ros_distro: RosDistro = "jazzy",
@@ -63,11 +64,11 @@ def cell(
     _serve(CellOptions(catalog=catalog, cell=cell_path, camera=camera_path, tools=tools, faults=faults,
                        fault_rate=fault_rate, robot_rate_hz=robot_rate, speed=speed),
            Ros2Graph(localhost=ros2_localhost, distro=ros_distro, speed=float("inf"), keep_all=ros2_keep_all),
-           mcap=mcap, db=db, overwrite=overwrite, quiet=quiet)
+           mcap=mcap, bag=bag, db=db, overwrite=overwrite, quiet=quiet)
 
 
-def _serve(options: CellOptions, graph: Ros2Graph, *, mcap: Path | None, db: str | None, overwrite: bool,
-           quiet: bool) -> None:
+def _serve(options: CellOptions, graph: Ros2Graph, *, mcap: Path | None, bag: Path | None, db: str | None,
+           overwrite: bool, quiet: bool) -> None:
     """Serve until SIGINT or SIGTERM: the first stops the service once the run under way is written; a
     second interrupts at once (outputs not yet closed are then discarded, as every output is)."""
     from factory.cellservice import CellService
@@ -81,6 +82,10 @@ def _serve(options: CellOptions, graph: Ros2Graph, *, mcap: Path | None, db: str
         if mcap is not None:
             sinks.append(stack.enter_context(McapLog(mcap, stage="cell", overwrite=overwrite,
                                                      parameters={"catalog": str(options.catalog)})))
+        if bag is not None:
+            from factory.bag import BagLog
+
+            sinks.append(stack.enter_context(BagLog(bag, overwrite=overwrite)))
         record = Record(db) if db is not None else None
         if record is not None:
             stack.callback(record.close)
@@ -99,5 +104,5 @@ def _serve(options: CellOptions, graph: Ros2Graph, *, mcap: Path | None, db: str
                          highlight=False, markup=False)
         service.serve()
     if not quiet:
-        stderr.print(f"cell stopped after {service.runs} runs" + (f"; log: {mcap}" if mcap else ""),
+        stderr.print(f"cell stopped after {service.runs} runs" + (f"; log: {mcap}" if mcap else "") + (f"; bag: {bag}" if bag else ""),
                      highlight=False, markup=False)

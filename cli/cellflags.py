@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-__all__ = ["CameraFile", "Catalog", "CellFile", "Db", "FaultRate", "Faults", "RobotRate", "Ros2KeepAll",
+__all__ = ["Bag", "CameraFile", "Catalog", "CellFile", "Db", "FaultRate", "Faults", "RobotRate", "Ros2KeepAll",
            "Ros2Localhost", "RosDistro", "Tools"]
 
 Catalog = Annotated[Path, typer.Option("--catalog", help="Folder of `factory plan` outputs to reuse; parts not in it are planned into it.", file_okay=False)]
@@ -22,3 +22,4 @@ Ros2Localhost = Annotated[bool, typer.Option("--ros2-localhost", help="With --ro
 RosDistro = Annotated[str, typer.Option("--ros-distro", help="With --ros2: the distribution of the graph's nodes, humble or jazzy (its discovery-info layout).")]
 Ros2KeepAll = Annotated[bool, typer.Option("--ros2-keep-all", help="With --ros2: every subscriber gets every message, the run waiting for the slowest (default: the last 10 per topic are kept for a slow one).")]
 RobotRate = Annotated[float, typer.Option("--robot-rate", metavar="HZ", help="Robot joint states and link transforms per second of simulated time in the log and the live view (each move's ends always); lower it for long runs, e.g. 1.", min=1e-3)]
+Bag = Annotated[Path | None, typer.Option("--bag", metavar="DIR", help="Write the run as a rosbag2 folder (metadata.yaml and MCAP) that `ros2 bag info` and `ros2 bag play` take.", file_okay=False)]

@@ -7,12 +7,13 @@ the live view, and prints the summary.
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from cli.cellflags import CameraFile, Catalog, CellFile, Db, FaultRate, Faults, RobotRate, Ros2KeepAll, \
+from cli.cellflags import Bag, CameraFile, Catalog, CellFile, Db, FaultRate, Faults, RobotRate, Ros2KeepAll, \
     Ros2Localhost, RosDistro, Tools
 from cli.common import EXIT_FINDINGS, JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, \
     setup_logging, stderr
@@ -54,6 +55,7 @@ def simulate(
     cell_path: CellFile = FIXTURES / "cell.yaml",
     camera_path: CameraFile = FIXTURES / "camera.yaml",
     tools: Tools = None,
+    bag: Bag = None,
     png: Annotated[Path | None, typer.Option("--png", help="Write a Gantt chart of the robot, machine and cameras.", dir_okay=False)] = None,
     faults: Faults = None,
     fault_rate: FaultRate = None,
@@ -97,7 +99,12 @@ def simulate(
         graph = Ros2Graph(localhost=ros2_localhost, distro=ros_distro, speed=speed, wait_for=tuple(ros2_wait or ()),
                           keep_all=ros2_keep_all)
         live = Fanout([s for s in (live, graph) if s is not None])
-    with progress_bars(quiet) as bars:
+    # the bag is checked before any work, closed (renamed into place) with the log, and left out if the run fails
+    with contextlib.ExitStack() as outputs, progress_bars(quiet) as bars:
+        if bag is not None:
+            from factory.bag import BagLog  # rosbags' rosbag2 writer loads only for --bag
+
+            live = Fanout([s for s in (live, outputs.enter_context(BagLog(bag, overwrite=overwrite))) if s is not None])
         done = simulate_orders(request, orders=orders, live=live, progress=bars)
     doc = done.summary
     if json_out:

@@ -298,13 +298,14 @@ def test_cell_takes_orders_from_a_ros2_node_and_stops_cleanly_on_sigint(block_ca
     log and record whole."""
     catalog, part = block_catalog
     domain = _domain(4)
-    mcap, db = tmp_path / "cell.mcap", tmp_path / "cell.sqlite"
+    mcap, db, bag = tmp_path / "cell.mcap", tmp_path / "cell.sqlite", tmp_path / "cell_bag"
     proc = _observer(domain, {"ros": {"/joint_states": ROS["/joint_states"]}})
     raw = _RawReaders(domain)
     raw.subscribe("/order_status", "factory_msgs/msg/OrderStatus")
     work = _raw_writer(raw, "/order", "factory_msgs/msg/WorkOrder")
     cell = subprocess.Popen([str(BIN / "factory"), "cell", "--ros2", "--ros2-localhost", "--ros2-keep-all",
-                             "--catalog", str(catalog), "--speed", "1e4", "--mcap", str(mcap), "--db", str(db)],
+                             "--catalog", str(catalog), "--speed", "1e4", "--mcap", str(mcap), "--db", str(db),
+                             "--bag", str(bag)],
                             env={**os.environ, "ROS_DOMAIN_ID": str(domain)}, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     statuses: list = []
@@ -373,6 +374,16 @@ def test_cell_takes_orders_from_a_ros2_node_and_stops_cleanly_on_sigint(block_ca
     assert [plain(m) for t, _, m in logged if t == "/order_status"] == statuses
     stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for t, _, m in logged if t == "/joint_states"]
     assert stamps == sorted(stamps) and len(stamps) > 1
+    # ... and the rosbag2 folder, read by rosbags' reader, every message the log's
+    from rosbags.rosbag2 import Reader
+
+    with Reader(bag) as reader:
+        bagged = [(c.topic, t, bytes(d)) for c, t, d in reader.messages()]
+    with open(mcap, "rb") as f:
+        from mcap.reader import make_reader
+
+        in_log = [(c.topic, m.log_time, bytes(m.data)) for _, c, m in make_reader(f).iter_messages(log_time_order=True)]
+    assert sorted(bagged) == sorted(in_log) and len(bagged) > 100
     from factory.record import Record
     record = Record(str(db), write=False)
     try:
