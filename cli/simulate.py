@@ -7,11 +7,14 @@ the live view, and prints the summary.
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
+from cli.cellflags import Bag, CameraFile, Catalog, CellFile, Db, FaultRate, Faults, RobotRate, Ros2KeepAll, \
+    Ros2Localhost, RosDistro, Tools
 from cli.common import EXIT_FINDINGS, JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, \
     setup_logging, stderr
 from factory.core.resources import FIXTURES
@@ -48,23 +51,24 @@ def summary_text(result: SimulationResult, seconds: float) -> str:
 def simulate(
     orders_path: Annotated[Path, typer.Argument(help="Orders file (YAML or CSV: part, quantity, material, priority); default: the sample orders.", dir_okay=False)] = SAMPLE_ORDERS,
     mcap: Annotated[Path | None, typer.Option("--mcap", help="Write the run to this MCAP file, and OUT.layout.json (Foxglove) beside it.", dir_okay=False)] = None,
-    catalog: Annotated[Path, typer.Option("--catalog", help="Folder of `factory plan` outputs to reuse; parts not in it are planned into it.", file_okay=False)] = Path("build"),
-    cell_path: Annotated[Path, typer.Option("--cell", help="Robot cell file.", exists=True, dir_okay=False)] = FIXTURES / "cell.yaml",
-    camera_path: Annotated[Path, typer.Option("--camera", help="Camera of the rack and out-tray stations (ROS camera_info YAML).", exists=True, dir_okay=False)] = FIXTURES / "camera.yaml",
-    tools: Annotated[Path | None, typer.Option("--tools", help="Tool library YAML (default: fixtures/tools.yaml).", exists=True, dir_okay=False)] = None,
+    catalog: Catalog = Path("build"),
+    cell_path: CellFile = FIXTURES / "cell.yaml",
+    camera_path: CameraFile = FIXTURES / "camera.yaml",
+    tools: Tools = None,
+    bag: Bag = None,
     png: Annotated[Path | None, typer.Option("--png", help="Write a Gantt chart of the robot, machine and cameras.", dir_okay=False)] = None,
-    faults: Annotated[int | None, typer.Option("--faults", help="Inject faults drawn from this seed: missed grasps, missing stock, machine alarms, failed inspections.")] = None,
-    fault_rate: Annotated[float | None, typer.Option("--fault-rate", help="With --faults: probability of each fault per attempt (default: grasp 5 %, stock 5 %, alarm 3 %, inspection 5 %).", min=0.0, max=1.0)] = None,
-    db: Annotated[str | None, typer.Option("--db", metavar="FILE|URL", help="Append the run to this process record, event by event: a SQLite file (created if missing) or a SQLAlchemy database URL (sqlite:///cell.sqlite, postgresql+psycopg://user@host/plant). See `factory report`.")] = None,
+    faults: Faults = None,
+    fault_rate: FaultRate = None,
+    db: Db = None,
     serve: Annotated[int | None, typer.Option("--serve", metavar="PORT", help="Stream the run live to the Foxglove app (ws://HOST:PORT) with the channels of the MCAP log.", min=0, max=65535)] = None,
     host: Annotated[str, typer.Option("--host", help="Address the live view binds (with --serve).")] = "127.0.0.1",
     speed: Annotated[float, typer.Option("--speed", help="With --serve or --ros2: play the run at this many times real time.", min=1e-3)] = 60.0,
     ros2: Annotated[bool, typer.Option("--ros2", help="Publish the run live on the ROS 2 graph (domain ROS_DOMAIN_ID) as the cell's nodes, with the topics of the MCAP log.")] = False,
-    ros2_localhost: Annotated[bool, typer.Option("--ros2-localhost", help="With --ros2: keep all DDS traffic on the loopback interface.")] = False,
-    ros_distro: Annotated[str, typer.Option("--ros-distro", help="With --ros2: the distribution of the graph's nodes, humble or jazzy (its discovery-info layout).")] = "jazzy",
-    ros2_keep_all: Annotated[bool, typer.Option("--ros2-keep-all", help="With --ros2: every subscriber gets every message, the run waiting for the slowest (default: the last 10 per topic are kept for a slow one).")] = False,
+    ros2_localhost: Ros2Localhost = False,
+    ros_distro: RosDistro = "jazzy",
+    ros2_keep_all: Ros2KeepAll = False,
     ros2_wait: Annotated[list[str] | None, typer.Option("--ros2-wait", metavar="TOPIC", help="With --ros2: hold this topic's first message until a subscriber has matched it (at most 60 s); repeatable.")] = None,
-    robot_rate: Annotated[float, typer.Option("--robot-rate", metavar="HZ", help="Robot joint states and link transforms per second of simulated time in the log and the live view (each move's ends always); lower it for long runs, e.g. 1.", min=1e-3)] = ROBOT_RATE_HZ,
+    robot_rate: RobotRate = ROBOT_RATE_HZ,
     overwrite: Overwrite = False,
     json_out: JsonFlag = False,
     quiet: Quiet = False,
@@ -95,7 +99,12 @@ def simulate(
         graph = Ros2Graph(localhost=ros2_localhost, distro=ros_distro, speed=speed, wait_for=tuple(ros2_wait or ()),
                           keep_all=ros2_keep_all)
         live = Fanout([s for s in (live, graph) if s is not None])
-    with progress_bars(quiet) as bars:
+    # the bag is checked before any work, closed (renamed into place) with the log, and left out if the run fails
+    with contextlib.ExitStack() as outputs, progress_bars(quiet) as bars:
+        if bag is not None:
+            from factory.bag import BagLog  # rosbags' rosbag2 writer loads only for --bag
+
+            live = Fanout([s for s in (live, outputs.enter_context(BagLog(bag, overwrite=overwrite))) if s is not None])
         done = simulate_orders(request, orders=orders, live=live, progress=bars)
     doc = done.summary
     if json_out:

@@ -60,13 +60,15 @@ class Pacer:
     reached a message's log time, counted from the first message waited for.
 
     Several pacers over one stream (a live view and the ROS 2 graph together) agree: the first
-    sleeps, the others find the time already come.
+    sleeps, the others find the time already come. Once ``cancel`` (an event) is set, nothing
+    waits any more: the rest of the stream goes out at once.
     """
 
-    def __init__(self, speed: float) -> None:
+    def __init__(self, speed: float, *, cancel: threading.Event | None = None) -> None:
         if not speed > 0:
             raise LiveError(f"speed must be positive, got {speed}", source="--speed")
         self.speed = float(speed)
+        self._cancel = cancel
         self._start: tuple[float, int] | None = None  # (wall [s], log time [ns]) of the first message
 
     def wait(self, log_time_ns: int) -> None:
@@ -77,7 +79,10 @@ class Pacer:
         if self.speed != float("inf"):
             delay = wall0 + (log_time_ns - t0) * 1e-9 / self.speed - time.monotonic()
             if delay > 0:
-                time.sleep(delay)
+                if self._cancel is None:
+                    time.sleep(delay)
+                else:
+                    self._cancel.wait(delay)
 
 
 class _Subscriptions(foxglove.ServerListener):

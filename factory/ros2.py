@@ -46,13 +46,14 @@ from typing import Any
 
 import cv2
 import numpy as np
-from cyclonedds._clayer import ddspy_write  # the binding's own write of serialised bytes
-from cyclonedds.core import DDSException
+from cyclonedds._clayer import ddspy_take, ddspy_write  # the binding's own take and write of serialised bytes
+from cyclonedds.core import DDSException, InstanceState, SampleState, ViewState
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.idl import make_idl_struct
 from cyclonedds.idl import types as idl
 from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy, Qos
+from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.base import Nodetype
@@ -198,6 +199,26 @@ def domain_id_from_env(environ: Any = os.environ) -> int:
 
 
 @dataclass(frozen=True)
+class Received:
+    """One message a subscription of :class:`Ros2Graph` took.
+
+    Attributes
+    ----------
+    topic, typename : str
+        ROS topic and type (``pkg/msg/Name``).
+    msg : object or None
+        The message (:data:`factory.mcaplog.TYPESTORE` type); None when its bytes did not decode.
+    error : str
+        Why they did not decode; empty otherwise.
+    """
+
+    topic: str
+    typename: str
+    msg: Any
+    error: str = ""
+
+
+@dataclass(frozen=True)
 class _Writer:
     writer: DataWriter
     typename: str
@@ -248,6 +269,7 @@ class Ros2Graph:
         self._keep_all = keep_all
         self._acked: set[str] = set()  # topics of wait_for whose first message was acknowledged
         self._writers: dict[str, _Writer] = {}
+        self._readers: dict[tuple[str, str], DataReader] = {}  # (topic, type) -> reader, the scheduler's
         # the discovery info's types are the distribution's own (rmw_dds_common/Gid differs)
         self._graph_types = TYPESTORE if distro == "jazzy" else get_typestore(Stores.ROS2_HUMBLE)
         try:
@@ -293,10 +315,12 @@ class Ros2Graph:
         nodes: dict[str, list[Any]] = {n: [] for n in (*sorted(set(NODES.values())), SCHEDULER_NODE)}
         for w in self._writers.values():
             nodes[w.node].append(self._gid(w.writer.guid))
+        readers = [self._gid(r.guid) for r in self._readers.values()]
         msg = t[self._info_type](
             gid=self._gid(self._participant.guid),
             node_entities_info_seq=[t["rmw_dds_common/msg/NodeEntitiesInfo"](
-                node_namespace="/", node_name=name, reader_gid_seq=[], writer_gid_seq=gids)
+                node_namespace="/", node_name=name, reader_gid_seq=readers if name == SCHEDULER_NODE else [],
+                writer_gid_seq=gids)
                 for name, gids in nodes.items()])
         _write(self._info, bytes(self._graph_types.serialize_cdr(msg, self._info_type)))
 
@@ -359,6 +383,43 @@ class Ros2Graph:
                 raise LiveError(f"the subscriber of {topic} did not acknowledge within {self._wait_s:g} s",
                                 source="--ros2-wait")
 
+    def subscribe(self, topic: str, typename: str) -> None:
+        """Take ``topic``'s messages of type ``typename`` from now on, as the scheduler node
+        (reliable, volatile, keep-all: what is sent once matched is never dropped); :meth:`take`
+        returns them. A topic may be subscribed with several types (``/order``: a work order or a
+        part's name), each its own reader.
+
+        Raises
+        ------
+        LiveError
+            Unknown type, or DDS refuses the reader.
+        """
+        if (topic, typename) in self._readers:
+            return
+        user_data = f"typehash={TYPESTORE.hash_rihs01(typename)};".encode() if self.distro == "jazzy" else b""
+        qos = [Policy.Reliability.Reliable(0), Policy.Durability.Volatile, Policy.History.KeepAll,
+               Policy.DataRepresentation(use_cdrv0_representation=True)]
+        try:
+            dds = Topic(self._participant, dds_topic(topic), idl_type(typename))
+            reader = DataReader(self._participant, dds, Qos(*qos, *([Policy.Userdata(user_data)] if user_data else [])))
+        except DDSException as e:
+            raise LiveError(f"cannot subscribe {topic}: {e}", source="--ros2") from None
+        self._readers[(topic, typename)] = reader
+        self._publish_graph()
+
+    def take(self) -> list[Received]:
+        """Every message the subscriptions got since the last call, per reader in arrival order."""
+        out = []
+        for (topic, typename), reader in self._readers.items():
+            for data, info in ddspy_take(reader._ref, SampleState.Any | ViewState.Any | InstanceState.Any, 256):
+                if not info.valid_data:  # a writer left: no message
+                    continue
+                try:
+                    out.append(Received(topic, typename, TYPESTORE.deserialize_cdr(bytes(data), typename)))
+                except Exception as e:  # rosbags raises several kinds for bytes that are not the type
+                    out.append(Received(topic, typename, None, f"not a {typename}: {e}"))
+        return out
+
     @property
     def topics(self) -> dict[str, str]:
         """ROS type of every topic published so far."""
@@ -378,6 +439,7 @@ class Ros2Graph:
             if not w.writer.wait_for_acks(int(left * 1e9)):
                 log.warning("ROS 2: a reader of %s did not acknowledge everything within %g s", topic, ACK_TIMEOUT_S)
         self._writers.clear()
+        self._readers.clear()
         self._info = self._participant = None  # type: ignore[assignment]  # deleted with the last reference
 
     def __enter__(self) -> "Ros2Graph":
@@ -394,5 +456,5 @@ def _write(writer: DataWriter, data: bytes) -> None:
         raise LiveError(f"DDS write failed on {writer.topic.name} ({DDSException(ret, 'write')})", source="--ros2")
 
 
-__all__ = ["DISTROS", "IMAGE_RAW", "NODES", "Ros2Graph", "SCHEDULER_NODE", "domain_id_from_env", "dds_topic",
+__all__ = ["DISTROS", "IMAGE_RAW", "NODES", "Received", "Ros2Graph", "SCHEDULER_NODE", "domain_id_from_env", "dds_topic",
            "dds_typename", "idl_type", "localhost_config", "localhost_domain", "node_of"]

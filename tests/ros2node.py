@@ -10,7 +10,10 @@ nothing of factory. Run as ``python -m tests.ros2node SPEC`` from the project's 
   volatile, keep-all: the QoS a ROS node asks for when it must not miss a message;
 * ``late`` topics are subscribed only at the end, transient local: what a late joiner gets.
 
-It prints ``{"ready": true}`` once subscribed, then reads JSON lines on stdin: optionally
+It prints ``{"ready": true}`` once subscribed, then reads JSON lines on stdin: any number of
+``{"publish": {"topic": ..., "type": "pkg/msg/Name", "fields": {...}}}`` (published reliable once a
+subscriber matched, 60 s at most, by one writer per topic and type; answered ``{"published": true}``),
+optionally
 ``{"wait_matched": true}``, answered ``{"matched": true}`` once every subscription has matched a
 publisher (60 s at most); then ``{"expect": {topic: n}}`` (spin until that many messages came on each
 topic) or ``{"last": {topic: message}}`` (until that message came last), 120 s at most. It then
@@ -106,7 +109,22 @@ def main() -> None:
                 return json.loads(sys.stdin.readline())
 
     timed_out = []
+    senders: dict[tuple[str, str], Any] = {}  # one writer per topic and type, kept: reliable messages need it
     order = command()
+    while "publish" in order:  # {"publish": {"topic", "type", "fields"}}: once a subscriber matched, answered {"published": bool}
+        what = order["publish"]
+        key = (what["topic"], what["type"])
+        if key not in senders:
+            senders[key] = node.create_publisher(ros_class(what["type"]), what["topic"],
+                                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        publisher = senders[key]
+        ok = spin_until(lambda: publisher.get_subscription_count() > 0, 60)
+        if ok:
+            publisher.publish(ros_class(what["type"])(**what["fields"]))
+        else:
+            timed_out.append("publish")
+        print(json.dumps({"published": ok}), flush=True)
+        order = command()
     if "wait_matched" in order:  # this end matched every topic's writer
         def all_matched() -> bool:
             return all(matched.get(t, 0) > 0 for t in spec.get("ros", {}))

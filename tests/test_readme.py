@@ -42,7 +42,7 @@ def test_every_option_in_the_command_list_is_the_commands_own():
         command = load_command(words[1])
         flags = {f for p in command.params for f in (*p.opts, *p.secondary_opts)}
         for word in words[2:]:
-            flag = re.match(r"\[?(--?[a-z][a-z-]*)", word)
+            flag = re.match(r"\[?(--?[a-z][a-z0-9-]*)", word)
             if flag:
                 assert flag.group(1) in flags, f"README: factory {words[1]} has no {flag.group(1)}"
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -32,6 +33,7 @@ import pytest
 from cyclonedds._clayer import ddspy_take  # noqa: E402
 from cyclonedds.core import InstanceState, SampleState, ViewState  # noqa: E402
 from cyclonedds.domain import DomainParticipant  # noqa: E402
+from cyclonedds.pub import DataWriter  # noqa: E402
 from cyclonedds.qos import Policy, Qos  # noqa: E402
 from cyclonedds.sub import DataReader  # noqa: E402
 from cyclonedds.topic import Topic  # noqa: E402
@@ -40,7 +42,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E
 from factory.camera_msgs import image_msg  # noqa: E402
 from factory.core.errors import LiveError  # noqa: E402
 from factory.mcaplog import TYPESTORE, read_messages  # noqa: E402
-from factory.ros2 import IMAGE_RAW, Ros2Graph, domain_id_from_env, idl_type, localhost_domain, node_of  # noqa: E402
+from factory.ros2 import IMAGE_RAW, Ros2Graph, _write, domain_id_from_env, idl_type, localhost_domain, node_of  # noqa: E402
 from factory.simulation import run_cell, write_cell_log  # noqa: E402
 from robotprog.orders import read_orders  # noqa: E402
 from tests.ros2node import plain  # noqa: E402
@@ -270,3 +272,123 @@ def test_humble_discovery_layout():
             assert store.types["rmw_dds_common/msg/Gid"] is not None
         finally:
             graph.close()
+
+
+def _raw_writer(raw: _RawReaders, topic: str, typename: str) -> DataWriter:
+    """A plain DDS writer (reliable, volatile) of ``typename`` on ``topic``, in the readers' participant."""
+    return DataWriter(raw._participant, Topic(raw._participant, "rt" + topic, idl_type(typename, raw.store)),
+                      Qos(Policy.Reliability.Reliable(int(1e9)), Policy.Durability.Volatile, Policy.History.KeepAll,
+                          Policy.DataRepresentation(use_cdrv0_representation=True)))
+
+
+def _until(done, seconds: float = 120.0) -> bool:
+    deadline = time.monotonic() + seconds
+    while not done():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)  # polled: DDS statuses and the service's answers come on other threads and processes
+    return True
+
+
+def test_cell_takes_orders_from_a_ros2_node_and_stops_cleanly_on_sigint(block_catalog, tmp_path):
+    """`factory cell --ros2`: a real rclpy node sends a catalog part's name (std_msgs/String), a plain DDS
+    writer a factory_msgs/WorkOrder and a malformed one; /order_status answers each (queued, then done;
+    refused with the reason, the cell running on), the run is published (/joint_states reach rclpy), the
+    graph shows the scheduler's /order subscription with both types; then SIGINT: exit 0, the session's
+    log and record whole."""
+    catalog, part = block_catalog
+    domain = _domain(4)
+    mcap, db, bag = tmp_path / "cell.mcap", tmp_path / "cell.sqlite", tmp_path / "cell_bag"
+    proc = _observer(domain, {"ros": {"/joint_states": ROS["/joint_states"]}})
+    raw = _RawReaders(domain)
+    raw.subscribe("/order_status", "factory_msgs/msg/OrderStatus")
+    work = _raw_writer(raw, "/order", "factory_msgs/msg/WorkOrder")
+    cell = subprocess.Popen([str(BIN / "factory"), "cell", "--ros2", "--ros2-localhost", "--ros2-keep-all",
+                             "--catalog", str(catalog), "--speed", "1e4", "--mcap", str(mcap), "--db", str(db),
+                             "--bag", str(bag)],
+                            env={**os.environ, "ROS_DOMAIN_ID": str(domain)}, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    statuses: list = []
+
+    def heard(pred) -> bool:
+        statuses.extend(raw.take("/order_status", 1, seconds=0.05))
+        return any(pred(s) for s in statuses)
+
+    def answered(order_id: str, state: str) -> bool:
+        return heard(lambda s: s["id"] == order_id and s["state"] == state)
+
+    def probe(s: dict) -> bool:
+        return s["state"] == "refused" and s["part"] == ""
+
+    try:
+        # the cell is up once its /order reader and /order_status writer matched ours
+        assert _until(lambda: work.get_matched_subscriptions() and raw.matched()), cell.stderr
+        types = raw.store.types
+        WorkOrder = types["factory_msgs/msg/WorkOrder"]
+        _write(work, bytes(raw.store.serialize_cdr(WorkOrder(id="bad", part="no_such_part", material="", quantity=1,
+                                                             priority=0), "factory_msgs/msg/WorkOrder")))
+        assert _until(lambda: answered("bad", "refused"))
+        _write(work, bytes(raw.store.serialize_cdr(WorkOrder(id="w1", part="block", material="", quantity=1,
+                                                             priority=0), "factory_msgs/msg/WorkOrder")))
+        # Each end matches on its own: rclpy's writer may see the cell's reader before the reader follows it, and
+        # what it sends before is lost. Empty names (malformed: refused) go first until one is answered; from
+        # then on the reader follows this writer, and the part's name cannot be lost.
+        probes = 0
+        while not heard(probe):
+            assert probes < 60, statuses
+            _tell(proc, {"publish": {"topic": "/order", "type": "std_msgs/msg/String", "fields": {"data": ""}}})
+            assert json.loads(proc.stdout.readline()) == {"published": True}
+            probes += 1
+            _until(lambda: heard(probe), 2.0)  # not asserted: an unanswered probe is sent again
+        _tell(proc, {"publish": {"topic": "/order", "type": "std_msgs/msg/String", "fields": {"data": "block"}}})
+        assert json.loads(proc.stdout.readline()) == {"published": True}
+        # the cell numbers orders without an id (r1, r2, ...): the part's name is the one for the block
+        assert _until(lambda: answered("w1", "done") and heard(lambda s: s["id"] != "w1" and s["state"] == "done")), \
+            statuses
+        named, = {s["id"] for s in statuses if s["part"] == part.name and s["id"] != "w1"}
+        seen = _seen(proc, {"expect": {"/joint_states": 1}})
+        assert cell.poll() is None  # still serving
+        cell.send_signal(signal.SIGINT)
+        out, err = cell.communicate(timeout=120)
+    finally:
+        proc.kill()
+        if cell.poll() is None:
+            cell.kill()
+    assert cell.returncode == 0, err
+    # each order answered in turn: queued, running, done; the malformed one refused with why
+    bad = [s for s in statuses if s["id"] == "bad"]
+    assert [s["state"] for s in bad] == ["refused"] and "no part 'no_such_part' in the catalog" in bad[0]["reason"]
+    assert all("no part named" in s["reason"] for s in statuses if s["part"] == "" and s["id"] != "bad")
+    for order_id in ("w1", named):
+        states = [s["state"] for s in statuses if s["id"] == order_id]
+        assert states[0] == "queued" and states[-1] == "done" and set(states) <= {"queued", "running", "done"}, states
+        last = [s for s in statuses if s["id"] == order_id][-1]
+        assert (last["part"], last["material"], last["quantity"], last["good"]) == (part.name, "aluminium", 1, 1)
+    # the graph as rclpy saw it: the cell's nodes, /order taken in both types, the run's joint states
+    assert NODES <= set(seen["nodes"])
+    assert sorted(seen["topics"]["/order"]) == ["factory_msgs/msg/WorkOrder", "std_msgs/msg/String"]
+    assert seen["topics"]["/order_status"] == ["factory_msgs/msg/OrderStatus"]
+    assert seen["messages"]["/joint_states"] and len(seen["messages"]["/joint_states"][0]["position"]) == 6
+    # SIGINT closed the session: the log holds every status sent, on one clock that never goes back
+    logged = read_messages(mcap, ["/order_status", "/joint_states"])
+    assert [plain(m) for t, _, m in logged if t == "/order_status"] == statuses
+    stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for t, _, m in logged if t == "/joint_states"]
+    assert stamps == sorted(stamps) and len(stamps) > 1
+    # ... and the rosbag2 folder, read by rosbags' reader, every message the log's
+    from rosbags.rosbag2 import Reader
+
+    with Reader(bag) as reader:
+        bagged = [(c.topic, t, bytes(d)) for c, t, d in reader.messages()]
+    with open(mcap, "rb") as f:
+        from mcap.reader import make_reader
+
+        in_log = [(c.topic, m.log_time, bytes(m.data)) for _, c, m in make_reader(f).iter_messages(log_time_order=True)]
+    assert sorted(bagged) == sorted(in_log) and len(bagged) > 100
+    from factory.record import Record
+    record = Record(str(db), write=False)
+    try:
+        runs = record.counts()["run"]
+    finally:
+        record.close()
+    assert 1 <= runs <= 2  # the two good orders ran in one run or two, as they came
+    assert not list(tmp_path.glob("*.tmp*")) and not list(tmp_path.glob(".*"))
