@@ -625,19 +625,10 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
             continue
         box = (max(bx, 0), max(by, 0), min(bx + bw, w), min(by + bh, h))
         starts = _chamfer_starts(model, edges, labels == i, box, ground(centroids[i]), ground)
-        fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s) for s in starts) if fit is not None]
-        if not fits:
+        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry)
+        if best is None:
             log.info("blob at (%.0f, %.0f) px: no edge fit", *centroids[i])
             continue
-        # A symmetric outline fits turned as well as not: the edges inside it (steps, bosses) decide.
-        first = max(fits, key=lambda fit: fit.found)
-        turns = [first.pose + np.array([0.0, 0.0, 2 * np.pi * k / part.symmetry]) for k in range(1, part.symmetry)]
-        fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, SEARCH_PX[-2:]) for t in turns)
-                 if fit is not None]
-        # Of the fits that find (nearly) as many edges as the best, the one that lies closest on them.
-        most = max(fit.found for fit in fits)
-        best = min((fit for fit in fits if fit.found >= most - 0.05),
-                   key=lambda fit: fit.cost / max(len(fit.residuals), 1))
         refusal = _refusal(best, options)
         if refusal:
             refusals.append(f"candidate at ({centroids[i][0]:.0f}, {centroids[i][1]:.0f}) px: {refusal}")
@@ -661,6 +652,22 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         raise VisionError("no part found on the tray (check the tray height, the extrinsics and the part file)"
                           + why, source=source)
     return sorted(found, key=lambda p: -p.score)
+
+
+def _best_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
+              symmetry: int) -> _EdgeFit | None:
+    """The edge fit of one blob from its coarse starts (x, y [m], yaw [rad]); None when none converges."""
+    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s) for s in starts) if fit is not None]
+    if not fits:
+        return None
+    # A symmetric outline fits turned as well as not: the edges inside it (steps, bosses) decide.
+    first = max(fits, key=lambda fit: fit.found)
+    turns = [first.pose + np.array([0.0, 0.0, 2 * np.pi * k / symmetry]) for k in range(1, symmetry)]
+    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, SEARCH_PX[-2:]) for t in turns)
+             if fit is not None]
+    # Of the fits that find (nearly) as many edges as the best, the one that lies closest on them.
+    most = max(fit.found for fit in fits)
+    return min((fit for fit in fits if fit.found >= most - 0.05), key=lambda fit: fit.cost / max(len(fit.residuals), 1))
 
 
 def _refusal(fit: _EdgeFit, options: LocateOptions) -> str:
