@@ -50,11 +50,13 @@ RAPID_RIM = 0.01
 #: :func:`_engaged_depth`), unless told otherwise (:attr:`cadcam.verify.VerifyOptions.engaged_width`).
 ENGAGED_WIDTH = 1.0
 
-#: A move is a full-width cut (a slot, an inside corner) where its cutter meets material over at
-#: least this arc of its circumference [deg] (the engagement angle, :func:`_engaged_depth`), unless
-#: told otherwise (:attr:`cadcam.verify.VerifyOptions.full_width_angle`). A slot is 180 deg; a side cut
-#: at half the diameter 90 deg, the widest side cut carbide makers' charts give data for beside slotting.
-FULL_WIDTH_ANGLE = 150.0
+#: A move is a full-width cut (a slot, an inside corner) where its cutter meets material over more
+#: than this arc of its circumference [deg] (the engagement angle, :func:`_engaged_depth`), unless told
+#: otherwise (:attr:`cadcam.verify.VerifyOptions.full_width_angle`). A slot is 180 deg; a side cut at
+#: half the diameter 90 deg, the widest carbide makers' charts give side-milling data for: beyond it
+#: their slotting depth holds. A tool running along a wall into the corner a tool three times wider
+#: left meets 135 deg of it.
+FULL_WIDTH_ANGLE = 90.0
 
 
 @dataclass(frozen=True)
@@ -724,17 +726,19 @@ def _engaged_arc(o: np.ndarray, w: np.ndarray, r: np.ndarray, depth: np.ndarray,
 
     A point at lateral offset ``w`` [mm] from a straight move is met by the leading half of the
     cutter (radius ``r``) at the angle ``asin(w / r)`` from the feed direction; standing for
-    its cell, it covers the angles of ``w`` +- half a cell. Each move's half circle is read in
+    its cell, it covers the angles of ``w`` +- half a cell (a whole cell outwards). Each move's half circle is read in
     :data:`_ARC_BINS` arcs, each holding the thickest column ``depth`` [mm] met there: the
     engagement angle is the arc whose columns are more than a film thick (a slot 180 deg, a
     side cut of width ``ae`` ``acos(1 - ae / r)``, a skin met head-on the chord its thickness
     cuts, two thin skins either side of a slot two small arcs), and the full-width depth is
-    the deepest column that arcs adding up to ``full_width`` [rad] all reach.
+    the deepest column that arcs adding up to more than ``full_width`` [rad] all reach.
     """
     step = math.pi / _ARC_BINS
     n = int(o.max()) + 1
-    lo = np.arcsin(np.clip((w - 0.5 * cell) / r, -1.0, 1.0)) + 0.5 * math.pi
-    hi = np.arcsin(np.clip((w + 0.5 * cell) / r, -1.0, 1.0)) + 0.5 * math.pi
+    # Half a cell towards the axis, a whole one away from it: the band of a cell's width along the
+    # cutter's side may hold no grid point, yet it spans a wide arc (asin is steep there).
+    lo = np.arcsin(np.clip((w - np.where(w < 0, 1.0, 0.5) * cell) / r, -1.0, 1.0)) + 0.5 * math.pi
+    hi = np.arcsin(np.clip((w + np.where(w > 0, 1.0, 0.5) * cell) / r, -1.0, 1.0)) + 0.5 * math.pi
     b0 = np.clip(np.floor(lo / step).astype(np.int64), 0, _ARC_BINS - 1)
     b1 = np.clip(np.ceil(hi / step).astype(np.int64) - 1, b0, _ARC_BINS - 1)
     best = np.zeros(n * _ARC_BINS)
@@ -747,7 +751,7 @@ def _engaged_arc(o: np.ndarray, w: np.ndarray, r: np.ndarray, depth: np.ndarray,
     where = where.reshape(n, _ARC_BINS)[moves]
     arc = np.degrees(np.count_nonzero(best > _ENGAGED_FILM, axis=1) * step)
     stats.angle[moves + s] = np.maximum(stats.angle[moves + s], arc)
-    need = int(math.ceil(full_width / step - 1e-9))
+    need = int(math.floor(full_width / step + 1e-9)) + 1  # more than the full-width arc
     if need > _ARC_BINS:
         return
     kth = np.argsort(-best, axis=1, kind="stable")[:, need - 1]

@@ -75,7 +75,7 @@ class VerifyOptions:
         passes through are not taken for stock (:func:`cadcam.stock.excess`). Stock under op 1's
         floor (the holding allowance) is never left: it is op 2's.
     full_width_angle : float
-        A move whose cutter meets material over this arc or more cuts at full width [deg] (a
+        A move whose cutter meets material over more than this arc cuts at full width [deg] (a
         slot is 180): held to the tool's axial limit (:attr:`cadcam.model.Tool.full_width_limit`).
     engagement_resolution : float
         Engagement is measured on a grid no coarser than this share of each tool's diameter:
