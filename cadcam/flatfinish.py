@@ -138,8 +138,8 @@ def flat_wall_finishing(
     progress : callable, optional
     stepdown : float, optional
         Most a level may lie below the one above it [mm]; default the flute length (a wall's skin
-        is a side cut). A tool that follows a wider one meets the inside corners that one left at
-        full width: it steps down by its axial limit (:attr:`cadcam.model.Tool.full_width_limit`).
+        is a side cut). A tool after a wider one meets the inside corners that one left at full
+        width: the planner steps it down by its axial limit (:attr:`cadcam.model.Tool.full_width_limit`).
 
     Returns
     -------

@@ -52,11 +52,12 @@ ENGAGED_WIDTH = 1.0
 
 #: A move is a full-width cut (a slot, an inside corner) where its cutter meets material over more
 #: than this arc of its circumference [deg] (the engagement angle, :func:`_engaged_depth`), unless told
-#: otherwise (:attr:`cadcam.verify.VerifyOptions.full_width_angle`). A slot is 180 deg; a side cut at
-#: half the diameter 90 deg, the widest carbide makers' charts give side-milling data for: beyond it
-#: their slotting depth holds. A tool running along a wall into the corner a tool three times wider
-#: left meets 135 deg of it.
-FULL_WIDTH_ANGLE = 90.0
+#: otherwise (:attr:`cadcam.verify.VerifyOptions.full_width_angle`). A slot is 180 deg; a side cut of
+#: half the diameter, the widest carbide makers' charts give side-milling data for, 90 deg; this is
+#: halfway, a side cut of 0.75 D. A tool running along a wall into the corner a tool three times wider
+#: left meets 135 deg of it, one twice as wide about 130 deg; a tool in a corner of its own radius,
+#: taking the skin of both walls at once, about 90-100 deg (a side cut, as the charts have it).
+FULL_WIDTH_ANGLE = 120.0
 
 
 @dataclass(frozen=True)
