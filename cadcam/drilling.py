@@ -332,7 +332,8 @@ def helix_operation(hole: Hole, tool: Tool, cutting: CuttingData, start_z: float
                                 np.full(per_turn, bottom_z)])
         pts_parts += [helix, ring]
         # The first helix starts by a rapid; a wider one after a narrower at the feed, from above its bore.
-        mot_parts += [[Motion.RAPID if k == 0 else Motion.CUT], np.full(n, Motion.PLUNGE), np.full(per_turn, Motion.CUT)]
+        mot_parts += [[Motion.RAPID if k == 0 else Motion.CUT], np.full(n, Motion.PLUNGE),
+                      np.full(per_turn, Motion.CUT)]
         if k + 1 < len(radii):
             pts_parts.append(np.array([[ring[-1, 0], ring[-1, 1], start_z]]))
             mot_parts.append([Motion.RAPID])

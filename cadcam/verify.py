@@ -137,7 +137,8 @@ class Fault:
         rapid whose cutter (its full footprint) meets stock; ``holder`` the shank or holder
         meets the stock or the part; ``flute`` a cut engaged deeper than the flute length;
         ``full_width`` a cut at full width (:attr:`VerifyOptions.full_width_angle`) deeper than
-        the tool's axial limit (:attr:`cadcam.model.Tool.full_width_limit`); ``buried`` a finishing tool engaged deeper than :attr:`VerifyOptions.finish_depth`;
+        the tool's axial limit (:attr:`cadcam.model.Tool.full_width_limit`); ``buried`` a
+        finishing tool engaged deeper than :attr:`VerifyOptions.finish_depth`;
         ``drill_side`` a drill fed sideways through stock (a drill's only engagement is
         axial, held to its flute length by ``flute``); ``below_stock`` the tool tip below the stock
         bottom; ``jaws`` the tool, shank or holder reaches into the vise's jaws or parallels
