@@ -713,3 +713,19 @@ def test_the_independent_probe_sees_the_corner_as_verify_does():
         sw = sweep_moves(m.points, m.motion, m.tool, tools, CORNER_SETUP, 0.2, full_width=True)
         assert sw.full_width[m.tool == 6].max() == pytest.approx(deepest, abs=0.2)
         assert sw.full_width[m.tool == 1].max() == pytest.approx(2.0, abs=0.2)
+
+
+def test_a_small_tool_in_op_2_is_measured_finely_from_the_stock_it_starts_on():
+    """Op 2 starts from a stock given per grid point; the finer grid takes it from the nearest point."""
+    from cadcam.heightmap import grid_over
+    from cadcam.stock import FlippedStock
+    from cadcam.verify import simulate_flipped
+
+    grid = grid_over(CORNER_SETUP.stock_min, CORNER_SETUP.stock_max, 0.5)
+    start = FlippedStock(grid=grid, top=np.zeros(grid.shape), bottom=np.full(grid.shape, -10.0))
+    options = VerifyOptions(cell=0.5)
+    tools = {1: FLAT, 6: SMALL}
+    flipped = simulate_flipped(corner_program([-6.0]), tools, CORNER_SETUP, CORNER_PART, start, options).report
+    plain = simulate(corner_program([-6.0]), tools, CORNER_SETUP, CORNER_PART, options).report
+    assert [(f.kind, f.tool) for f in flipped.faults] == [("full_width", 6)]
+    assert {e.tool: e.max_full_depth for e in flipped.engagement} == {e.tool: e.max_full_depth for e in plain.engagement}
