@@ -77,10 +77,11 @@ class VerifyOptions:
     full_width_angle : float
         A move whose cutter meets material over more than this arc cuts at full width [deg] (a
         slot is 180): held to the tool's axial limit (:attr:`cadcam.model.Tool.full_width_limit`).
-    engagement_resolution : float
+    engagement_resolution : float or None
         Engagement is measured on a grid no coarser than this share of each tool's diameter:
         a tool narrower than ``cell / engagement_resolution`` has its moves cut again on a finer
-        grid over their reach (the stock there from every move of the program).
+        grid over their reach (the stock there from every move of the program). None: on ``cell``
+        (for a caller that reads only rapids and contacts).
     """
 
     cell: float = 0.2
@@ -91,7 +92,7 @@ class VerifyOptions:
     contact_tolerance: float = 0.01
     left_above: float = 0.1
     full_width_angle: float = FULL_WIDTH_ANGLE
-    engagement_resolution: float = 0.1
+    engagement_resolution: float | None = 0.1
 
 
 @dataclass(frozen=True)
@@ -470,6 +471,8 @@ def _check_options(options: VerifyOptions) -> None:
     for name in ("cell", "gouge_tolerance", "rapid_tolerance", "finish_depth", "engaged_width", "contact_tolerance",
                  "full_width_angle", "engagement_resolution"):
         v = getattr(options, name)
+        if v is None and name == "engagement_resolution":
+            continue
         positive = name in ("cell", "finish_depth", "full_width_angle", "engagement_resolution")
         if not (math.isfinite(v) and (v > 0 if positive else v >= 0)):
             kind = "positive" if positive else "non-negative"
@@ -541,6 +544,8 @@ def _refined(measured: _Measured, cut: StockCut, moves: ProgramMoves, tools: Map
     from its nearest coarse grid point. A tool whose reach would need more grid points than the stock
     model allows keeps the coarse measure (logged).
     """
+    if options.engagement_resolution is None:
+        return measured
     seg = cut.segments
     tool_of = moves.tool[seg.move]
     out = dataclasses.replace(measured, **{f.name: getattr(measured, f.name).copy()
