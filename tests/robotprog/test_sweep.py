@@ -135,7 +135,9 @@ def test_a_blended_corner_is_proven_over_its_whole_triangle(world, cell):
     planner = MotionPlanner(cell, world)
     c = np.asarray(cell.robot.home, dtype=float)
     a, b = c.copy(), c.copy()
-    a[0] -= 0.3  # the base turns into the corner, then the elbow bends out of it
+    # the base turns into the corner, then the elbow bends out of it; turned away from the vise, whose
+    # 6-inch body the rod's triangle would graze the other way round
+    a[0] += 0.3
     b[2] += 0.3
     centroid = (a + b + c) / 3
     tip = planner.tcp_world(centroid) @ np.array([0.0, 0.0, 0.09, 1.0])
