@@ -16,6 +16,7 @@ import typer
 from cli.cellflags import Bag, CameraFile, Catalog, CellFile, Db, FaultRate, Faults, RobotRate, Ros2KeepAll, \
     Ros2Localhost, RosDistro, Tools
 from cli.common import JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, setup_logging, stderr
+from cli.main import TYPER_SETTINGS
 from factory.core.resources import FIXTURES
 from factory.simulation import ROBOT_RATE_HZ
 
@@ -25,7 +26,7 @@ if TYPE_CHECKING:
 
 __all__ = ["cell", "cell_app"]
 
-cell_app = typer.Typer(name="cell", add_completion=False, pretty_exceptions_enable=False, rich_markup_mode=None)
+cell_app = typer.Typer(name="cell", **TYPER_SETTINGS)
 
 
 @cell_app.callback(invoke_without_command=True)

@@ -27,7 +27,7 @@ import factory
 COMMANDS = ("toolpath", "gcode", "verify", "plan", "calibrate", "robot", "handeye", "locate", "inspect",
             "simulate", "cell", "report")
 
-_TYPER_SETTINGS: dict[str, Any] = dict(
+TYPER_SETTINGS: dict[str, Any] = dict(
     add_completion=False,
     pretty_exceptions_enable=False,
     # Help texts carry units in brackets ("[mm]"); rich markup would swallow them as tags.
@@ -46,7 +46,7 @@ def load_command(name: str) -> typer.core.TyperCommand | typer.core.TyperGroup:
     group = getattr(module, f"{name}_app", None)
     if isinstance(group, typer.Typer):
         return typer.main.get_group(group)
-    single = typer.Typer(**_TYPER_SETTINGS)
+    single = typer.Typer(**TYPER_SETTINGS)
     single.command(name)(getattr(module, name))
     return typer.main.get_command(single)
 
@@ -102,7 +102,7 @@ app = typer.Typer(
     help="From a part's CAD mesh to a running robotic machining cell.",
     no_args_is_help=True,
     cls=LazyGroup,
-    **_TYPER_SETTINGS,
+    **TYPER_SETTINGS,
 )
 
 
