@@ -9,7 +9,7 @@ ROS2_VENV := .venv-ros2
 OUT    := build
 PARTS  := $(basename $(notdir $(wildcard samples/*.stl)))
 
-.PHONY: demo plans test bench venv clean
+.PHONY: demo plans test explore bench venv clean
 
 # The parts are planned two at a time (one per core), each printing one line as it finishes.
 demo: $(BIN)/.installed
@@ -32,6 +32,10 @@ $(OUT)/%.plan.json: samples/%.stl $(BIN)/.installed
 
 test: $(BIN)/.installed $(ROS2_VENV)/.installed
 	$(BIN)/python -m pytest -q -n auto --dist loadfile
+
+# The property tests with fresh random examples (the suite's are fixed): run it to look for new failures.
+explore: $(BIN)/.installed $(ROS2_VENV)/.installed
+	HYPOTHESIS_PROFILE=explore $(BIN)/python -m pytest -q -n auto --dist loadfile -m hypothesis
 
 # A real ROS 2 node for tests/factory/test_ros2.py (rclpy and message wheels of Jazzy), in its own
 # environment: its rosidl_parser brings lark-parser, whose `lark` module would replace the tests' lark.

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -9,6 +10,14 @@ import manifold3d
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import settings
+
+# The suite's property tests draw the same examples on every run (`derandomize`), so a red CI always means
+# a change broke something, never an unlucky draw. `make explore` draws fresh examples to hunt for new
+# failures; a failure it finds becomes an explicit @example in the test it broke.
+settings.register_profile("ci", derandomize=True, print_blob=True)
+settings.register_profile("explore", derandomize=False, print_blob=True)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 ROOT = Path(__file__).resolve().parent.parent
 SAMPLES = ROOT / "samples"
