@@ -36,7 +36,7 @@ OriginOpt = Annotated[Origin, typer.Option("--origin", help="Work origin: top of
 RoughToolOpt = Annotated[int | None, typer.Option("--rough-tool", help="Tool number for roughing (flat or bull-nose); default: chosen by reach and size.")]
 FinishToolOpt = Annotated[int | None, typer.Option("--finish-tool", help="Tool number for finishing; default: chosen by reach and size.")]
 AllowanceOpt = Annotated[float, typer.Option("--allowance", help="Stock roughing leaves for finishing [mm].", min=0.0)]
-ScallopOpt = Annotated[float, typer.Option("--scallop", help=f"Scallop height the ball end mill leaves [mm]; default: {PlanOptions.freeform_scallop:g} on a solid's freeform faces, {SCALLOP:g} over a relief.", min=1e-4, show_default=False)]
+ScallopOpt = Annotated[float | None, typer.Option("--scallop", help=f"Scallop height the ball end mill leaves [mm]; default: {PlanOptions.freeform_scallop:g} on a solid's freeform faces, {SCALLOP:g} over a relief.", min=1e-4, show_default=False)]
 StepdownOpt = Annotated[float | None, typer.Option("--stepdown", help="Roughing depth per level [mm].", min=0.01)]
 WaterlineOpt = Annotated[bool, typer.Option("--waterline/--no-waterline", help="Finish steep walls with waterline loops.")]
 BodyOpt = Annotated[int | None, typer.Option("--body", help="STEP file with several solids: the one to machine (1-based).", min=1)]
@@ -64,7 +64,7 @@ class CamFlags:
     rough_tool: RoughToolOpt = ROUGH_TOOL
     finish_tool: FinishToolOpt = FINISH_TOOL
     allowance: AllowanceOpt = ALLOWANCE
-    scallop: ScallopOpt = SCALLOP
+    scallop: ScallopOpt = None
     stepdown: StepdownOpt = None
     waterline: WaterlineOpt = True
     floor: FloorOpt = FLOOR
@@ -110,7 +110,7 @@ def cam_options(command: C) -> C:
 
 
 def cam_request(part: Path, tools: Path | None, stock: str | None, material: str, units: Units, origin: Origin,
-                rough_tool: int | None, finish_tool: int | None, allowance: float, scallop: float, stepdown: float | None,
+                rough_tool: int | None, finish_tool: int | None, allowance: float, scallop: float | None, stepdown: float | None,
                 waterline: bool, holding: float | None = HOLDING, cell: Path | None = CELL, floor: float = FLOOR,
                 boundary: str = BOUNDARY, body: int | None = None) -> CamRequest:
     """The request of one command line; a malformed or unmachinable ``--stock`` or an unknown

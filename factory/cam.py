@@ -49,7 +49,7 @@ ORIGIN: Origin = "top-front-left"
 ROUGH_TOOL: int | None = None  # None: chosen from the library by reach and size
 FINISH_TOOL: int | None = None
 ALLOWANCE = 0.3  # [mm]
-SCALLOP = 0.005  # [mm]
+SCALLOP = 0.005  # [mm] over a relief and on a mesh's faces; a solid's freeform faces take PlanOptions.freeform_scallop
 HOLDING: float | None = None  # [mm] None: the vise's grip depth + breakthrough + clearance (cadcam.setup)
 CELL = FIXTURES / "cell.yaml"  # whose vise holds the stock
 
@@ -100,18 +100,19 @@ class CamRequest:
     @classmethod
     def from_options(cls, part: Path, tools: Path | None, stock: tuple[float, float, float] | None, material: str,
                      units: Units, origin: Origin, rough_tool: int | None, finish_tool: int | None, allowance: float,
-                     scallop: float, stepdown: float | None, waterline: bool, holding: float | None = HOLDING,
+                     scallop: float | None, stepdown: float | None, waterline: bool, holding: float | None = HOLDING,
                      cell: Path | None = CELL, relief: ReliefOptions = ReliefOptions(),
                      body: int | None = None) -> "CamRequest":
-        """The request from the flat option values of ``factory toolpath`` and ``factory plan``."""
+        """The request from the flat option values of ``factory toolpath`` and ``factory plan``; ``scallop``
+        [mm] None keeps each surface's default, a value holds everywhere, freeform faces included."""
         plan = PlanOptions(
             rough_tool=rough_tool,
             finish_tool=finish_tool,
             roughing=RoughingOptions(allowance=allowance, stepdown=stepdown),
-            finishing=FinishingOptions(scallop=scallop),
+            finishing=FinishingOptions(scallop=SCALLOP if scallop is None else scallop),
             waterline=waterline,
         )
-        if scallop != SCALLOP:  # a scallop asked for on the command line holds on freeform too
+        if scallop is not None:  # asked for on the command line, even at the default's value: it holds on freeform too
             plan = dataclasses.replace(plan, freeform_scallop=scallop)
         return cls(part, tools, stock, material, units, origin, plan, holding, cell, relief, body)
 
@@ -120,7 +121,7 @@ class CamRequest:
                  cell: Path | None = CELL) -> "CamRequest":
         """The request of a command line that gives only the part, material, tool library and cell."""
         return cls.from_options(part, tools, None, material, UNITS, ORIGIN, ROUGH_TOOL, FINISH_TOOL, ALLOWANCE,
-                                SCALLOP, None, True, HOLDING, cell)
+                                None, None, True, HOLDING, cell)
 
     def jaws(self) -> ViseJaws | None:
         """The vise of :attr:`cell` in millimetres, None without a cell.

@@ -292,6 +292,19 @@ def test_simulate_plans_exactly_what_plan_does_with_its_defaults():
     assert PlanRequest.defaults(part, defaults["material"]) == from_cli
 
 
+@pytest.mark.parametrize("given, finishing, freeform", [
+    (None, 0.005, 0.01),  # each surface keeps its own default
+    (0.005, 0.005, 0.005),  # asked for at the default's value: it still holds on a solid's freeform faces
+    (0.02, 0.02, 0.02),
+])
+def test_a_scallop_on_the_command_line_holds_everywhere(given, finishing, freeform):
+    from cli import cam
+
+    request = cam.cam_request(Path("p.stl"), None, None, "aluminium", "auto", "top-front-left", None, None, 0.3,
+                              given, None, True)
+    assert (request.plan.finishing.scallop, request.plan.freeform_scallop) == (finishing, freeform)
+
+
 @pytest.mark.parametrize("args, needles", [
     (["--holding", "2"], ["holding allowance 2 mm leaves 1.5 mm under the part", "--holding 6.5"]),
     (["--holding", "6"], ["below the jaws' grip depth 5 mm", "--holding 6.5"]),
