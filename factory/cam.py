@@ -32,7 +32,7 @@ from factory.core.progress import Progress, Stopwatch
 from factory.core.resources import FIXTURES
 from factory.views import job_messages
 from robotprog.cell import Vise, load_cell
-from robotprog.frames import MM_PER_M
+from factory.core.units import MM_PER_M
 
 log = logging.getLogger(__name__)
 

@@ -22,7 +22,8 @@ from cadcam.tools import MaterialData, load_tool_library
 from factory.core.errors import CellError, PlanningError
 from factory.core.resources import FIXTURES
 from robotprog.cell import Cell, load_cell
-from robotprog.frames import MM_PER_M, check_stock_fits
+from factory.core.units import MM_PER_M
+from robotprog.frames import check_stock_fits
 from robotprog.grasp import GraspOptions, tcp_above_bottom
 from robotprog.programs import LANG_MAKER, check_language
 from robotprog.robots import load_robot

@@ -25,6 +25,7 @@ import numpy as np
 
 from cadcam.model import Job, Motion, Operation
 from factory.core.errors import McapError
+from factory.core.units import MM_PER_M
 from factory.mcaplog import (
     RGBA,
     cube_marker,
@@ -35,8 +36,6 @@ from factory.mcaplog import (
     triangle_mesh_marker,
 )
 
-#: Millimetres per metre: CAM values [mm] / MM_PER_M = ROS values [m].
-MM_PER_M = 1000.0
 #: Frame of work coordinates, and the frame it is placed in.
 WORK_FRAME = "work"
 WORLD_FRAME = "world"

@@ -34,9 +34,7 @@ import numpy as np
 
 from factory.core.errors import CellError
 from factory.core.setupsheet import SetupSheet
-
-#: Millimetres per metre: the CAM → robot unit factor.
-MM_PER_M = 1000.0
+from factory.core.units import MM_PER_M
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ import numpy as np
 from factory.core.errors import PlanningError
 from robotprog.cell import Cell
 from robotprog.collision import HeldBox, finger_boxes
-from robotprog.frames import MM_PER_M
+from factory.core.units import MM_PER_M
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from factory.core.errors import PlanningError
+from factory.core.units import MM_PER_M
 from robotprog.urscript import (Branch, FlowWords, MoveJ, MoveL, Step, check_io_step, comment_text, flat_steps,
                                 flow_lines, way_lines)
 
@@ -53,7 +54,7 @@ def krl_frame(t: np.ndarray) -> str:
     if t.shape != (4, 4) or not np.isfinite(t).all():
         raise PlanningError(f"pose must be a finite 4x4 transform, got shape {t.shape}")
     a, b, c = Rotation.from_matrix(t[:3, :3]).as_euler("ZYX", degrees=True)
-    x, y, z = (v * 1000.0 for v in t[:3, 3])
+    x, y, z = (v * MM_PER_M for v in t[:3, 3])
     vals = [("X", x, DECIMALS_MM), ("Y", y, DECIMALS_MM), ("Z", z, DECIMALS_MM),
             ("A", a, DECIMALS_DEG), ("B", b, DECIMALS_DEG), ("C", c, DECIMALS_DEG)]
     return ",".join(f"{k} {_f(v, d)}" for k, v, d in vals)

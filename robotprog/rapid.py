@@ -25,6 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from factory.core.errors import PlanningError
+from factory.core.units import MM_PER_M
 from robotprog.urscript import (FlowWords, MoveJ, MoveL, Step, check_io_step, comment_text, flow_lines,
                                 way_lines)
 
@@ -56,7 +57,7 @@ def rapid_pose(t: np.ndarray) -> str:
     t = np.asarray(t, dtype=float)
     if t.shape != (4, 4) or not np.isfinite(t).all():
         raise PlanningError(f"pose must be a finite 4x4 transform, got shape {t.shape}")
-    p = ",".join(_f(v * 1000.0, DECIMALS_MM) for v in t[:3, 3])
+    p = ",".join(_f(v * MM_PER_M, DECIMALS_MM) for v in t[:3, 3])
     q = ",".join(_f(v, DECIMALS_QUAT) for v in _quat_wxyz(t[:3, :3]))
     return f"[[{p}],[{q}]]"
 
@@ -131,7 +132,7 @@ def rapid_module(
                     raise PlanningError(f"step {i}: MoveL speed must be finite and > 0, got {st.v}")
                 nl += 1
                 decl.append(f"  CONST robtarget p{nl} := [{rapid_pose(np.asarray(st.pose))[1:-1]},[0,0,0,0],{_EXT}];")
-                v = _f(st.v * 1000.0, 1)
+                v = _f(st.v * MM_PER_M, 1)
                 sname = f"vLine{v.replace('.', '_')}"
                 speeds[sname] = f"  CONST speeddata {sname} := [{v},500,5000,1000];"
                 out.append(f"    MoveL p{nl}, {sname}, {_zone(st.r, zones)}, tGripper;")
@@ -158,7 +159,7 @@ def rapid_module(
 def _zone(r: float, zones: dict[str, str]) -> str:
     if not r > 0:
         return "fine"
-    mm = _f(r * 1000.0, 1)
+    mm = _f(r * MM_PER_M, 1)
     name = f"zBlend{mm.replace('.', '_')}"
     zones[name] = f"  CONST zonedata {name} := [FALSE,{mm},{mm},{mm},{_f(r * 100.0, 2)},{mm},{_f(r * 100.0, 2)}];"
     return name

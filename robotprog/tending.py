@@ -32,7 +32,8 @@ from factory.core.errors import CellError, PlanningError
 from robotprog.cell import Box, Cell, Pose, SlotGrid
 from robotprog.collision import CollisionWorld, HeldBox, Payload, collision_world, finger_boxes
 from robotprog.flip import TURNOVER_AXIS, Piece, plan_flip
-from robotprog.frames import StockInVise, setup_sheet_to_cell, MM_PER_M
+from factory.core.units import MM_PER_M
+from robotprog.frames import StockInVise, setup_sheet_to_cell
 from robotprog.grasp import GraspOptions, box_pose, open_fingers, top_grasp
 from robotprog.roadmap import Roadmap
 from robotprog.planner import MotionPlanner, PickPlace, PickPlaceNames, PlannerOptions, Station, TimedMove

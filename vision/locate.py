@@ -37,12 +37,10 @@ from scipy.optimize import least_squares
 from shapely.geometry import MultiPolygon, Polygon
 
 from factory.core.errors import VisionError
+from factory.core.units import MM_PER_M
 from vision.camera import CameraModel
 
 log = logging.getLogger(__name__)
-
-#: Millimetres to metres; the one door through which CAM sizes enter vision.
-MM_PER_M = 1000.0
 
 
 #: Systematic error of a sub-pixel edge on real pictures (blur, lighting, the iso-line level),
@@ -265,7 +263,6 @@ def _subpixel_outline(grey: np.ndarray, mask: np.ndarray, level: float, bright: 
         return None
     best = max(closed, key=len)
     return best[:-1] + (x0, y0)
-
 
 
 def _tray_ratio(grey: np.ndarray) -> tuple[np.ndarray, float]:

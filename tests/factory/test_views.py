@@ -13,7 +13,8 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from cadcam.model import CuttingData, Job, Motion, Operation, Setup, Tool
-from factory.views import MM_PER_M, heightfield_mesh, job_messages, toolpath_markers
+from factory.core.units import MM_PER_M
+from factory.views import heightfield_mesh, job_messages, toolpath_markers
 from factory.core.errors import McapError
 from factory.mcaplog import McapLog
 
