@@ -104,6 +104,7 @@ def test_damaged_tool_library(tmp_path, path, junk, drop):
 
 @FAST
 @given(path=st.sampled_from(paths_of(CAMERA)), junk=JUNK, drop=st.booleans())
+@example(path=("distortion_coefficients", "rows"), junk=True, drop=False)  # `make explore` found it: True == 1
 def test_damaged_camera(path, junk, drop):
     try:
         CameraModel.from_camera_info_yaml(yaml.safe_dump(damage(CAMERA, path, junk, drop)), source="cam.yaml")

@@ -209,13 +209,16 @@ class CameraModel:
             if not isinstance(m, dict) or not {"rows", "cols", "data"} <= m.keys():
                 raise VisionError(f"field {shown(key)} must have rows, cols and data", source=source)
             r, c, data = m["rows"], m["cols"], m["data"]
+            if any(isinstance(n, bool) or not isinstance(n, int) for n in (r, c)):  # True == 1 would pass as a count
+                raise VisionError(f"field {shown(key)}: rows and cols must be integers, got {shown(r)}x{shown(c)}",
+                                  source=source)
             if (rows is not None and r != rows) or (cols is not None and c != cols):
                 raise VisionError(f"field {shown(key)} must be {rows or 'n'}x{cols or 'n'}, got {shown(r)}x{shown(c)}", source=source)
             try:
                 a = np.array(data, dtype=np.float64)
             except (TypeError, ValueError):
                 raise VisionError(f"field {shown(key)}: data must be numbers", source=source) from None
-            if not isinstance(r, int) or not isinstance(c, int) or a.shape != (r * c,):
+            if a.shape != (r * c,):
                 raise VisionError(f"field {shown(key)}: data must hold rows*cols = {shown(r)}*{shown(c)} numbers", source=source)
             if not np.isfinite(a).all():
                 raise VisionError(f"field {shown(key)}: data must be finite", source=source)
