@@ -129,7 +129,8 @@ def safe_rapids(operations: Sequence[Operation], setup: Setup, part_triangles: n
     first[starts[:-1]] = True
     below = (moves.motion == Motion.RAPID) & ~first & (moves.points[:, 2] < setup.safe_z - 1e-9)
     checked = int(below.sum())
-    verified = simulate(moves, tools, setup, part_triangles, VerifyOptions(cell=cell))
+    # Only rapids and the jaws are read here: no finer grid for the engagement of small tools.
+    verified = simulate(moves, tools, setup, part_triangles, VerifyOptions(cell=cell, engagement_resolution=None))
     final, report = verified.simulation, verified.report
     for f in report.faults:
         if f.kind == "jaws":  # no speed makes a move into the vise safe: the planner is wrong

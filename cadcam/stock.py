@@ -50,6 +50,15 @@ RAPID_RIM = 0.01
 #: :func:`_engaged_depth`), unless told otherwise (:attr:`cadcam.verify.VerifyOptions.engaged_width`).
 ENGAGED_WIDTH = 1.0
 
+#: A move is a full-width cut (a slot, an inside corner) where its cutter meets material over more
+#: than this arc of its circumference [deg] (the engagement angle, :func:`_engaged_depth`), unless told
+#: otherwise (:attr:`cadcam.verify.VerifyOptions.full_width_angle`). A slot is 180 deg; a side cut of
+#: half the diameter, the widest carbide makers' charts give side-milling data for, 90 deg; this is
+#: halfway, a side cut of 0.75 D. A tool running along a wall into the corner a tool three times wider
+#: left meets 135 deg of it, one twice as wide about 130 deg; a tool in a corner of its own radius,
+#: taking the skin of both walls at once, about 90-100 deg (a side cut, as the charts have it).
+FULL_WIDTH_ANGLE = 120.0
+
 
 @dataclass(frozen=True)
 class Simulation:
@@ -128,7 +137,10 @@ class MoveRecord:
     it took off one grid point, ``removed_env``: the tool's lowest point there; ``contact``:
     deepest reach of its shank or holder into the stock or the part, ``contact_z``: the body's
     lowest point there; ``*_cell``: flat grid index where that happened, -1 if nowhere;
-    ``volume``: stock it removed above ``bottom`` (the stock's bottom) [mm³].
+    ``volume``: stock it removed above ``bottom`` (the stock's bottom) [mm³]; ``angle``: its
+    engagement angle [deg], the arc of the cutter's circumference that met material moving
+    sideways, wall skins included; ``full_depth``: the deepest axial cut it took over at least
+    the full-width angle (``full_cell``: where), 0 if it never cut at full width.
     """
 
     def __init__(self, n: int, bottom: float = -np.inf):
@@ -143,6 +155,9 @@ class MoveRecord:
         self.contact = np.zeros(n)
         self.contact_cell = np.full(n, -1, np.int64)
         self.contact_z = np.zeros(n)
+        self.angle = np.zeros(n)
+        self.full_depth = np.zeros(n)
+        self.full_cell = np.full(n, -1, np.int64)
 
     def freeze(self) -> None:
         """Make every array read-only: the cut is done."""
@@ -196,6 +211,7 @@ def cut_stock(
     rapid_rim: float = RAPID_RIM,
     engaged_width: float = ENGAGED_WIDTH,
     body_graze: float = 0.0,
+    full_width_angle: float = FULL_WIDTH_ANGLE,
 ) -> StockCut:
     """Cut the stock with every move of a program, measuring what each move meets.
 
@@ -230,6 +246,9 @@ def cut_stock(
     body_graze : float
         A shank or holder reaching sideways into stock or part by no more than this is no
         contact [mm] (a shank as wide as the cutter rides a finished wall at its radius).
+    full_width_angle : float
+        A move meeting material over this arc of the cutter or more cuts at full width [deg]
+        (:data:`FULL_WIDTH_ANGLE`; ``MoveRecord.full_depth``).
 
     Raises
     ------
@@ -250,6 +269,7 @@ def cut_stock(
     seg, starts, swept, known = _swept_moves(moves, tools, top_z, rapid_rim)
     part_flat = np.where(np.isfinite(part_top), part_top, -np.inf).reshape(-1)
     body = _Body(tools, moves.tool[seg.move], part_flat, engaged_width, body_graze)
+    body.full_width = math.radians(full_width_angle)
     body.wall_near = _highest_part_near(part_top, grid, _SKIN).reshape(-1)
 
     n_moves = int(known.sum())
@@ -434,6 +454,7 @@ class _Body:
         self.part_max = float(finite.max()) if len(finite) else -np.inf
         self.part = part_flat
         self.engaged_width = engaged_width
+        self.full_width = math.radians(FULL_WIDTH_ANGLE)  # [rad]
         # A shank as wide as the cutter rides a finished wall at exactly its radius: a
         # graze sideways within the contact tolerance is no contact.
         self.graze = graze
@@ -592,7 +613,7 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
         # Only beside a wall: floor allowance (the part right below) is engagement as usual.
         skin = (body.wall_near[f] >= before[cut] - _SKIN) & (part[f] < before[cut] - _SKIN)
         _engaged_depth(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
-                       env[cut], f, grid.cell, body.engaged_width, stats, skin)
+                       env[cut], f, grid.cell, body.engaged_width, stats, skin, body.full_width)
         # what the cut took off, counted down to the stock's bottom (a through cut goes on into air)
         floor = stats.bottom if under is None else under[f]
         np.add.at(stats.volume, o + s, np.maximum(before[cut] - np.maximum(env[cut], floor), 0.0) * grid.cell**2)
@@ -618,7 +639,7 @@ _ENGAGED_FILM = 0.02
 
 def _engaged_depth(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.ndarray, before: np.ndarray,
                    env: np.ndarray, cells: np.ndarray, cell: float, min_width: float, stats: MoveRecord,
-                   skin: np.ndarray | None = None) -> None:
+                   skin: np.ndarray | None = None, full_width: float = math.radians(FULL_WIDTH_ANGLE)) -> None:
     """Deepest engagement of each move's cutter [mm], in ``stats.depth``; its width in ``stats.width``.
 
     The column a move takes off a grid point is split in two: as much of it as the tool
@@ -636,6 +657,11 @@ def _engaged_depth(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.
     Grid points ``skin`` (within :data:`_SKIN` of a part wall at least as tall as the
     material on them, less that distance) are left out: the allowance on a wall is
     taken off by finishing whatever its height, a raster pass meeting it head-on.
+
+    The engagement angle (``stats.angle``) is read from the same sideways columns, skins
+    included (:func:`_engaged_arc`); ``stats.full_depth`` is the deepest cut that still
+    meets material over ``full_width`` [rad] of the cutter: the axial depth of a full-width
+    cut, a slot or an inside corner.
     """
     R = seg.radius[o]
     ta, tb, _ = reach_interval(seg, o, qx, qy)
@@ -644,6 +670,7 @@ def _engaged_depth(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.
     removed = before - env
     plunge = np.minimum(removed, np.maximum(-seg.dz[o], 0.0) * np.maximum(tb - ta, 0.0))
     side = removed - plunge
+    met_side = side  # skins included: what the flutes meet, for the engagement angle
     if skin is not None:  # the skin of a wall: taken off, but no engagement
         plunge = np.where(skin, 0.0, plunge)
         side = np.where(skin, 0.0, side)
@@ -668,14 +695,15 @@ def _engaged_depth(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.
     # (cummax with a per-move offset that lifts each move above every earlier one).
     sel = np.flatnonzero(side > 0.0)
     if len(sel):
-        order = sel[np.argsort(o[sel] * (float(side[sel].max()) + 1.0) - side[sel], kind="stable")]
-        os_, lat_s = o[order], lat[order]
-        shift = os_ * (4.0 * float(2 * np.max(seg.radius)) + 4.0)
-        hi = np.maximum.accumulate(lat_s + shift) - shift
-        lo = shift - np.maximum.accumulate(shift - lat_s)
-        wide = np.flatnonzero(hi - lo + cell >= min_width)
+        order = _thickest_first(o, side, sel)
+        spread = _running_spread(o[order], lat[order], lat[order], 2.0 * float(np.max(seg.radius)))
+        wide = np.flatnonzero(spread + cell >= min_width)
         if len(wide):
-            _record_max(stats.depth, stats.depth_cell, os_[wide] + s, side[order][wide], cells[order][wide])
+            _record_max(stats.depth, stats.depth_cell, o[order][wide] + s, side[order][wide], cells[order][wide])
+    # The arc of the cutter meeting material, and how deep that stays at full width (moves across only).
+    sel = np.flatnonzero((met_side > _ENGAGED_FILM) & has)
+    if len(sel):
+        _engaged_arc(o[sel], lat[sel], R[sel], met_side[sel], cells[sel], cell, s, full_width, stats)
     # Plunging: the k-th thickest, k grid points being half the cutter's footprint.
     sel = np.flatnonzero(plunge > 0.0)
     if len(sel):
@@ -687,6 +715,66 @@ def _engaged_depth(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.
         at = np.flatnonzero(rank >= need)
         if len(at):
             _record_max(stats.depth, stats.depth_cell, os_[at] + s, plunge[order][at], cells[order][at])
+
+
+#: The leading half of the cutter is read in this many arcs of equal angle (5 deg each).
+_ARC_BINS = 36
+
+
+def _engaged_arc(o: np.ndarray, w: np.ndarray, r: np.ndarray, depth: np.ndarray, cells: np.ndarray, cell: float,
+                 s: int, full_width: float, stats: MoveRecord) -> None:
+    """Engagement angle and full-width depth of moves ``s + o`` from the points they met sideways.
+
+    A point at lateral offset ``w`` [mm] from a straight move is met by the leading half of the
+    cutter (radius ``r``) at the angle ``asin(w / r)`` from the feed direction; standing for
+    its cell, it covers the angles of ``w`` +- half a cell (a whole cell outwards). Each move's half circle is read in
+    :data:`_ARC_BINS` arcs, each holding the thickest column ``depth`` [mm] met there: the
+    engagement angle is the arc whose columns are more than a film thick (a slot 180 deg, a
+    side cut of width ``ae`` ``acos(1 - ae / r)``, a skin met head-on the chord its thickness
+    cuts, two thin skins either side of a slot two small arcs), and the full-width depth is
+    the deepest column that arcs adding up to more than ``full_width`` [rad] all reach.
+    """
+    step = math.pi / _ARC_BINS
+    n = int(o.max()) + 1
+    # Half a cell towards the axis, a whole one away from it: the band of a cell's width along the
+    # cutter's side may hold no grid point, yet it spans a wide arc (asin is steep there).
+    lo = np.arcsin(np.clip((w - np.where(w < 0, 1.0, 0.5) * cell) / r, -1.0, 1.0)) + 0.5 * math.pi
+    hi = np.arcsin(np.clip((w + np.where(w > 0, 1.0, 0.5) * cell) / r, -1.0, 1.0)) + 0.5 * math.pi
+    b0 = np.clip(np.floor(lo / step).astype(np.int64), 0, _ARC_BINS - 1)
+    b1 = np.clip(np.ceil(hi / step).astype(np.int64) - 1, b0, _ARC_BINS - 1)
+    best = np.zeros(n * _ARC_BINS)
+    where = np.full(n * _ARC_BINS, -1, np.int64)
+    for m in range(int((b1 - b0).max()) + 1):
+        k = np.flatnonzero(b0 + m <= b1)
+        _record_max(best, where, o[k] * _ARC_BINS + b0[k] + m, depth[k], cells[k])
+    moves = np.unique(o)
+    best = best.reshape(n, _ARC_BINS)[moves]
+    where = where.reshape(n, _ARC_BINS)[moves]
+    arc = np.degrees(np.count_nonzero(best > _ENGAGED_FILM, axis=1) * step)
+    stats.angle[moves + s] = np.maximum(stats.angle[moves + s], arc)
+    need = int(math.floor(full_width / step + 1e-9)) + 1  # more than the full-width arc
+    if need > _ARC_BINS:
+        return
+    kth = np.argsort(-best, axis=1, kind="stable")[:, need - 1]
+    rows = np.arange(len(moves))
+    deep, at = best[rows, kth], where[rows, kth]
+    better = deep > stats.full_depth[moves + s]
+    stats.full_depth[moves[better] + s] = deep[better]
+    stats.full_cell[moves[better] + s] = at[better]
+
+
+def _thickest_first(o: np.ndarray, value: np.ndarray, sel: np.ndarray) -> np.ndarray:
+    """The entries ``sel``, grouped by move ``o`` (ascending) and thickest ``value`` first within each."""
+    return sel[np.argsort(o[sel] * (float(value[sel].max()) + 1.0) - value[sel], kind="stable")]
+
+
+def _running_spread(group: np.ndarray, lo: np.ndarray, hi: np.ndarray, span: float) -> np.ndarray:
+    """``max(hi) - min(lo)`` over each entry and the ones before it in its run of equal ``group``
+    (sorted), every value within ``span`` of the others: a cummax with each run lifted above the last."""
+    shift = group * (4.0 * span + 4.0)
+    top = np.maximum.accumulate(hi + shift) - shift
+    bottom = shift - np.maximum.accumulate(shift - lo)
+    return top - bottom
 
 
 def first_line_reaching(moves: ProgramMoves, tools: Mapping[int, Tool], x: float, y: float, z: float) -> int | None:
