@@ -28,11 +28,12 @@ from typing import Any
 
 import numpy as np
 
+from cadcam.engagement import MoveRecord
 from cadcam.envelope import Segments
 from cadcam.heightmap import Grid, upper_envelope
 from cadcam.model import Motion, ProgramMoves, Setup, Tool
 from cadcam.heightmap import grid_over
-from cadcam.stock import (ENGAGED_WIDTH, FULL_WIDTH_ANGLE, RAPID_RIM, FlippedStock, MoveRecord, Simulation, StockCut,
+from cadcam.stock import (ENGAGED_WIDTH, FULL_WIDTH_ANGLE, RAPID_RIM, FlippedStock, Simulation, StockCut,
                           Unreached, cut_stock, first_line_reaching, unreached, why_left)
 from cadcam.workholding import fixture_contacts
 from factory.core.errors import VerifyError
