@@ -81,7 +81,7 @@ from shapely.ops import nearest_points
 
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.gridregion import GrownMaskCache
-from cadcam.rest import rest_mask
+from cadcam.rest import rest_level_masks
 from cadcam.stock import Simulation, clear_height
 from factory.core.errors import MeshError, ToolError, ToolpathError
 
@@ -849,6 +849,10 @@ def zlevel_roughing(
 
     # the rest material grown by the tool radius, remembered per distinct mask of levels
     rest_grown = GrownMaskCache(rest.grid, p.radius, quad_segs=8) if rest is not None else None
+    spaces = [_level_space(float(z), rect, shadow, p) for z in levels]  # rest material or not
+    if rest is not None:
+        masks = rest_level_masks(rest, levels, spaces, p.radius, rest_above, p.allowance, tool.full_width_limit,
+                                 rest_grown)
     known = rest if air is None else air
     air_at = None if known is None else (lambda xy: clear_height(known, tool, xy))
     path = _Path()
@@ -860,10 +864,10 @@ def zlevel_roughing(
     skipped = 0
     for li, z in enumerate(levels):
         z = float(z)
-        space = _level_space(z, rect, shadow, cleared, blocked, p)  # rest material or not
+        space = _bounded(spaces[li], cleared, blocked)
         allowed = space
         if rest is not None:
-            allowed = allowed.intersection(rest_grown(rest_mask(rest, z, rest_above, p.allowance)))
+            allowed = allowed.intersection(rest_grown(masks[li]))
         plans, missed = _plan_entries(allowed, space, z, rect_xy, p, tool, known, air_at,
                                       None if cut_before is None else (lambda z=z: cut_before(z)))
         done_regions, failed = _cut_nearest_first(path, plans, z, z_prev, p, air_at, np.array([sx0, sy0]))
@@ -888,15 +892,18 @@ def zlevel_roughing(
                      motion=motion, allowance=p.allowance)
 
 
-def _level_space(z: float, rect: BaseGeometry, shadow: dict, cleared: BaseGeometry | None,
-                 blocked: list[BaseGeometry], p: _Params) -> BaseGeometry:
+def _level_space(z: float, rect: BaseGeometry, shadow: dict, p: _Params) -> BaseGeometry:
     """Where the tool axis may go at level ``z`` [mm]: the stock rectangle less the part's shadows
-    grown by the tool (:func:`_forbidden_terms`), within what the levels above cleared (None: no
-    bound) and outside the regions ``blocked`` below pockets that could not be entered."""
+    grown by the tool (:func:`_forbidden_terms`)."""
     forbidden = shapely.union_all(
         [_buffer(shadow[zq], dist, p.arc_tolerance) for zq, dist in _forbidden_terms(z, p)]
     )
-    allowed = rect.difference(forbidden)
+    return rect.difference(forbidden)
+
+
+def _bounded(allowed: BaseGeometry, cleared: BaseGeometry | None, blocked: list[BaseGeometry]) -> BaseGeometry:
+    """``allowed`` within what the levels above cleared (None: no bound) and outside the regions
+    ``blocked`` below pockets that could not be entered."""
     if cleared is not None:
         allowed = allowed.intersection(cleared)
     if blocked:
