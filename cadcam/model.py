@@ -76,8 +76,8 @@ DEFAULT_HOLDER: tuple[HolderSegment, ...] = (
 
 #: The full-width axial depth of an end mill whose library entry gives no ``axial_limit``:
 #: ``(share, from_diameter, smaller_share)``, 1 x D from 3 mm up and 0.5 x D below [share of D]
-#: (the slotting depth carbide makers chart for aluminium, halved for micro end mills; see
-#: fixtures/tools.yaml).
+#: (the most a carbide end mill's maker gives for full slotting, halved for miniature end mills;
+#: the sources are cited in fixtures/tools.yaml).
 FULL_WIDTH_DEPTH_RULE = (1.0, 3.0, 0.5)
 
 

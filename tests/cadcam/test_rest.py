@@ -20,11 +20,12 @@ from cadcam.model import CuttingData, Motion, Operation, Setup
 from cadcam.plan import PlanOptions, choose_tools, plan_job
 from cadcam.post import PostOptions, post_process
 from cadcam.rest import safe_rapids
+from cadcam.verify import simulate
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
 from factory.core.errors import ToolError
 from tests.cadcam.sweep import past_axial_limit, rapid_hits, sweep_moves
-from tests.conftest import manifold_to_trimesh
+from tests.conftest import manifold_to_trimesh, pocket_block
 
 LIBRARY = load_tool_library()
 FAST = PlanOptions(finishing=FinishingOptions(scallop=0.05))
@@ -145,6 +146,25 @@ def test_a_slot_too_narrow_for_the_roughing_tool_is_rest_roughed_then_finished()
     assert ("roughing", 6) in kinds, kinds
     assert job.parameters["unreached"] == []
     assert_safe(job, setup, moves, sw, text)
+
+
+def test_rest_roughing_steps_down_through_the_corners_a_wider_tool_left():
+    """The pocketed block: the 8 mm bull-nose and the 6 mm end mill leave slivers in the pocket's corners up to
+    its top, thinner than the excess counts; the 2 mm end mill (1 mm axial limit) takes them a level at a time.
+    It used to enter them at the pocket's floor only and take 3.0 mm at full width at once."""
+    setup, part = make_setup(pocket_block())
+    job = plan_job(part, setup, LIBRARY, part_name="p", options=FAST).job
+    (rest,) = [op for op in job.operations if op.kind == "roughing" and op.tool.number == 6]
+    levels = np.unique(np.round(rest.points[rest.motion == Motion.CUT, 2], 3))[::-1]
+    # from the pocket's floor (Z-5 under the 1 mm on top, plus the allowance) up to its top, 1 mm apart
+    assert levels[-1] == pytest.approx(-4.7) and len(levels) >= 4 and np.all(-np.diff(levels) <= 1.0 + 1e-6), levels
+    text = post_process(job, PostOptions()).text
+    moves = parse_gcode(text)
+    report = simulate(moves, {t.number: t for t in job.tools}, setup, np.asarray(part.triangles),
+                      finishing=finishing_moves(moves, text)).report
+    assert report.ok, [f.message for f in report.faults]
+    t6 = {e.tool: e for e in report.engagement}[6]
+    assert t6.cell <= 0.2 + 1e-9 and t6.max_full_depth <= 1.0 + t6.cell, t6
 
 
 def test_a_hole_no_tool_fits_is_reported_and_left_alone():
