@@ -292,9 +292,10 @@ def test_a_drill_round_trips_and_its_point_is_its_profile(lib):
 
 
 def test_axial_limit_is_read_and_tools_without_it_take_the_rule(lib, doc, tmp_path):
-    """The 2 mm flat and the long-neck ball carry their own full-width depth; the others 1 x D (3 mm up)."""
+    """The 2 mm flat and the long-neck tools carry their own full-width depth, 0.5 x D; the others 1 x D (3 mm up)."""
     assert lib.tool(6).axial_limit == 1.0 and lib.tool(6).full_width_limit == 1.0
     assert lib.tool(4).full_width_limit == 1.5
+    assert [lib.tool(n).full_width_limit for n in (15, 16, 17)] == [6.0, 4.0, 3.0]
     assert lib.tool(1).axial_limit is None and lib.tool(1).full_width_limit == 6.0
     assert lib.tool(2).full_width_limit == 10.0
     # below 3 mm the rule halves it; never beyond the flutes
