@@ -786,6 +786,9 @@ def zlevel_roughing(
     at that level, more than ``rest_above`` [mm] above the part (or the stock bottom
     where there is no part), are cleared, and no level lies deeper than the tool's
     stick-out below the stock top (what it cannot reach stays, for the caller to report).
+    A level also clears the stock a deeper level's cut would meet more than the tool's axial
+    limit of at once (:func:`cadcam.rest.rest_level_masks`): a corner's sliver is taken a level
+    at a time, not at full width from the floor.
 
     Parameters
     ----------
