@@ -2,7 +2,8 @@
 
 Per part: `factory plan`'s exit and one-line refusal, plan wall time, both operations' cycle estimates,
 verify's verdict and the stock it left, what was reported unreached, the deepest and widest engagement
-per tool, and LinuxCNC's `rs274` on every program with the job's tool table (``PART.tbl``). A part
+and the deepest at full width against the axial limit per tool, and LinuxCNC's `rs274` on every program
+with the job's tool table (``PART.tbl``). A part
 ``expect``-ed to plan that is refused, fails verify, or whose program rs274 refuses, is a shortfall; so is
 one expected refused that plans.
 
@@ -62,7 +63,10 @@ def judge(part: GalleryPart, work: Path) -> dict[str, object]:
     reports = [doc["verify"]] + ([doc["verify_op2"]] if doc.get("verify_op2") else [])
     row["remaining_max_mm"] = [round(r["remaining_max"], 2) for r in reports]
     row["unreached"] = len(doc.get("unreached", [])) + sum(len(s.get("unreached", [])) for s in ops[1:])
-    row["engagement"] = {f"op{i + 1}": {f"T{e['tool']}": [round(e["max_depth"], 2), round(e["max_width"], 2)]
+    # per tool: deepest, widest, deepest at full width and its axial limit [mm]
+    row["engagement"] = {f"op{i + 1}": {f"T{e['tool']}": [round(e["max_depth"], 2), round(e["max_width"], 2),
+                                                          round(e.get("max_full_depth", 0.0), 2),
+                                                          e.get("axial_limit")]
                                         for e in r.get("engagement", [])} for i, r in enumerate(reports)}
     table = folder / "out" / f"{part.name}.tbl"
     row["rs274"] = [_rs274(Path(s["program"]), table, folder) for s in ops]

@@ -345,24 +345,51 @@ def helix_operation(hole: Hole, tool: Tool, cutting: CuttingData, start_z: float
     Climb milling (counter-clockwise inside a bore, spindle clockwise): down a helix of
     ``options.helix_angle`` from ``start_z`` to ``bottom_z`` [mm] at the plunge feed, a full
     circle there to cut the ramp's last turn level, to the centre and straight up to ``clear_z``.
+    A helix wider than the tool leaves a pin standing in the middle, which the move to the centre
+    would take at full width over the whole depth (:func:`helix_radii`): narrower helices clear the
+    middle first, each back up to ``start_z`` inside the bore it cut.
     """
-    rh = hole.inscribed / 2 - tool.radius - 0.002  # a hair inside the facets
-    pitch = 2 * math.pi * rh * math.tan(math.radians(options.helix_angle))
-    pitch = max(pitch, 0.02 * tool.diameter)
-    turns = max((start_z - bottom_z) / pitch, 0.0)
-    per_turn = 72
-    n = max(int(math.ceil(turns * per_turn)), 1)
-    theta = np.linspace(0.0, 2 * math.pi * turns, n + 1)
-    z = np.linspace(start_z, bottom_z, n + 1)
-    helix = np.column_stack([hole.x + rh * np.cos(theta), hole.y + rh * np.sin(theta), z])
-    last = theta[-1]
-    ring_t = last + np.linspace(0.0, 2 * math.pi, per_turn + 1)[1:]
-    ring = np.column_stack([hole.x + rh * np.cos(ring_t), hole.y + rh * np.sin(ring_t), np.full(per_turn, bottom_z)])
+    radii = helix_radii(hole.inscribed / 2 - tool.radius - 0.002, tool.radius)  # a hair inside the facets
+    pts_parts, mot_parts = [], []
+    for k, rh in enumerate(radii):
+        pitch = 2 * math.pi * rh * math.tan(math.radians(options.helix_angle))
+        pitch = max(pitch, 0.02 * tool.diameter)
+        turns = max((start_z - bottom_z) / pitch, 0.0)
+        per_turn = 72
+        n = max(int(math.ceil(turns * per_turn)), 1)
+        theta = np.linspace(0.0, 2 * math.pi * turns, n + 1)
+        z = np.linspace(start_z, bottom_z, n + 1)
+        helix = np.column_stack([hole.x + rh * np.cos(theta), hole.y + rh * np.sin(theta), z])
+        last = theta[-1]
+        ring_t = last + np.linspace(0.0, 2 * math.pi, per_turn + 1)[1:]
+        ring = np.column_stack([hole.x + rh * np.cos(ring_t), hole.y + rh * np.sin(ring_t),
+                                np.full(per_turn, bottom_z)])
+        pts_parts += [helix, ring]
+        # The first helix starts by a rapid; a wider one after a narrower at the feed, from above its bore.
+        mot_parts += [[Motion.RAPID if k == 0 else Motion.CUT], np.full(n, Motion.PLUNGE),
+                      np.full(per_turn, Motion.CUT)]
+        if k + 1 < len(radii):
+            pts_parts.append(np.array([[ring[-1, 0], ring[-1, 1], start_z]]))
+            mot_parts.append([Motion.RAPID])
     out = np.array([[hole.x, hole.y, bottom_z], [hole.x, hole.y, clear_z]])
-    pts = np.concatenate([helix, ring, out])
-    mot = np.concatenate([[Motion.RAPID], np.full(n, Motion.PLUNGE), np.full(per_turn + 1, Motion.CUT), [Motion.RAPID]])
+    pts = np.concatenate([*pts_parts, out])
+    mot = np.concatenate([*mot_parts, [Motion.CUT, Motion.RAPID]])
     return Operation(name=f"helix {hole.diameter:.2f} mm bore", kind="helix", tool=tool, cutting=cutting,
                      points=pts, motion=mot.astype(np.int8))
+
+
+def helix_radii(outer: float, tool_radius: float) -> tuple[float, ...]:
+    """Radii of the helices [mm] that take a bore out to a helix of radius ``outer`` and leave no pin.
+
+    A helix of radius ``r`` cuts the ring from ``r - R`` to ``r + R`` (``R`` the tool radius), so
+    one wider than the tool leaves a pin of radius ``r - R`` in the middle. Narrower helices come
+    first, each at most 1.5 R inside the next (the rings overlap by half a radius), the innermost
+    within the tool radius. A bore the tool helixes in one leaves no pin: one radius.
+    """
+    radii = [outer]
+    while radii[0] > tool_radius * (1 + 1e-9):
+        radii.insert(0, max(radii[0] - 1.5 * tool_radius, 0.5 * tool_radius))
+    return tuple(radii)
 
 
 # --------------------------------------------------------------------------- planning

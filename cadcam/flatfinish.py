@@ -120,6 +120,7 @@ def flat_wall_finishing(
     options: FlatFinishOptions = FlatFinishOptions(),
     progress: Callable[[int, int], None] | None = None,
     cut_before: Callable[[float], BaseGeometry] | None = None,
+    stepdown: float | None = None,
 ) -> Operation:
     """Floors at their heights and walls by the flank, with the flat end mill ``tool``.
 
@@ -139,6 +140,10 @@ def flat_wall_finishing(
     progress : callable, optional
     cut_before : callable, optional
         The holes cut to size by level (:func:`cadcam.roughing.zlevel_roughing`'s): no warning there.
+    stepdown : float, optional
+        Most a level may lie below the one above it [mm]; default the flute length (a wall's skin
+        is a side cut). A tool after a wider one meets the inside corners that one left at full
+        width: the planner steps it down by its axial limit (:attr:`cadcam.model.Tool.full_width_limit`).
 
     Returns
     -------
@@ -154,7 +159,8 @@ def flat_wall_finishing(
         raise ToolError(f"T{tool.number} is a {tool.shape} end mill; flats and walls need a flat one")
     wide = FLOOR_STEPOVER * tool.diameter if options.stepover is None else float(options.stepover)
     stepover = min(wide, _MOST_STEPOVER * tool.diameter)
-    rough = RoughingOptions(stepdown=tool.flute_length, stepover=stepover, allowance=options.allowance,
+    level = tool.flute_length if stepdown is None else min(float(stepdown), tool.flute_length)
+    rough = RoughingOptions(stepdown=level, stepover=stepover, allowance=options.allowance,
                             ramp_angle=options.ramp_angle, spring_pass=options.spring_pass)
     # A grid cell of margin: the stock beside a wall lies in the cells next to it.
     left = left_on_flats_and_walls(stock, faces, tool.radius + 2 * stock.grid.cell, options.allowance,

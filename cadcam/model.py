@@ -74,6 +74,13 @@ DEFAULT_HOLDER: tuple[HolderSegment, ...] = (
 )
 
 
+#: The full-width axial depth of an end mill whose library entry gives no ``axial_limit``:
+#: ``(share, from_diameter, smaller_share)``, 1 x D from 3 mm up and 0.5 x D below [share of D]
+#: (the most a carbide end mill's maker gives for full slotting, halved for miniature end mills;
+#: the sources are cited in fixtures/tools.yaml).
+FULL_WIDTH_DEPTH_RULE = (1.0, 3.0, 0.5)
+
+
 @dataclass(frozen=True)
 class Tool:
     """An end mill or a drill.
@@ -112,6 +119,10 @@ class Tool:
     point_angle : float
         Included angle of a drill's point [deg]: 118 for a twist drill, 90 for a spot
         drill; 180 (no point) for end mills.
+    axial_limit : float or None
+        Deepest axial cut at full width, in a slot or an inside corner [mm] (the tool library's
+        ``axial_limit``); None: the rule :data:`FULL_WIDTH_DEPTH_RULE` gives it
+        (:attr:`full_width_limit`). ``factory verify`` fails a move that cuts deeper at full width.
     """
 
     number: int
@@ -125,6 +136,7 @@ class Tool:
     shank_diameter: float | None = None
     holder: tuple[HolderSegment, ...] = DEFAULT_HOLDER
     point_angle: float = 180.0
+    axial_limit: float | None = None
 
     def __post_init__(self) -> None:
         if self.shank_diameter is None:
@@ -140,6 +152,8 @@ class Tool:
             raise ValueError("corner_radius must lie in [0, diameter/2]")
         if (self.shape == "drill") != (self.point_angle < 180.0) or not 0.0 < self.point_angle <= 180.0:
             raise ValueError("a drill needs a point_angle in (0, 180) deg; an end mill has 180")
+        if self.axial_limit is not None and not self.axial_limit > 0.0:
+            raise ValueError("axial_limit must be > 0 mm")
 
     @property
     def is_drill(self) -> bool:
@@ -155,6 +169,15 @@ class Tool:
     def point_length(self) -> float:
         """Height of the drill's conical point from the tip to the full diameter [mm]; 0 for end mills."""
         return self.radius * self.point_slope
+
+    @property
+    def full_width_limit(self) -> float:
+        """Deepest axial cut at full width [mm]: :attr:`axial_limit`, else :data:`FULL_WIDTH_DEPTH_RULE`
+        (never beyond the flutes)."""
+        if self.axial_limit is not None:
+            return float(self.axial_limit)
+        share = FULL_WIDTH_DEPTH_RULE[0] if self.diameter >= FULL_WIDTH_DEPTH_RULE[1] else FULL_WIDTH_DEPTH_RULE[2]
+        return min(share * self.diameter, float(self.flute_length))
 
     @property
     def radius(self) -> float:
@@ -211,14 +234,19 @@ class Tool:
         return tuple(out)
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        d = dataclasses.asdict(self)
+        if d["axial_limit"] is None:  # the rule's: sheets of tools without the key stay as they were
+            del d["axial_limit"]
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "Tool":
         """Read :meth:`to_dict` output; dictionaries from before holders were recorded get
         the cutting diameter as shank and :data:`DEFAULT_HOLDER`."""
         values = {f.name: d[f.name] for f in dataclasses.fields(cls)
-                  if f.name not in ("shank_diameter", "holder", "point_angle")}
+                  if f.name not in ("shank_diameter", "holder", "point_angle", "axial_limit")}
+        if d.get("axial_limit") is not None:
+            values["axial_limit"] = float(d["axial_limit"])
         if d.get("point_angle") is not None:
             values["point_angle"] = float(d["point_angle"])
         if d.get("shank_diameter") is not None:

@@ -701,9 +701,11 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
             stock = plan.model(operations, cell)
         cutting = library.cutting_data(tool, setup.material)
         stage = f"flats+walls T{tool.number}"
+        # After a wider tool, what is left is mostly the inside corners it could not enter, met at full width.
+        stepdown = None if tool is flat else tool.full_width_limit
         op = plan.timed(stage, lambda: flat_wall_finishing(plan.part, setup, tool, cutting, faces, stock,
                                                            options.flat_finish, progress=plan.stage_progress(stage),
-                                                           cut_before=plan.cut_before))
+                                                           cut_before=plan.cut_before, stepdown=stepdown))
         if len(op.points) > 1:
             operations.append(op)
             stale = True

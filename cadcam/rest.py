@@ -11,13 +11,15 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
+import shapely
 from scipy import ndimage
 from shapely.geometry.base import BaseGeometry
 
 from cadcam.gridregion import cells_region
+from cadcam.heightmap import Grid
 from cadcam.model import Motion, Operation, Setup, Tool
 from cadcam.stock import Simulation, clear_height, cut_stock, excess, operation_moves
 from cadcam.verify import VerifyOptions, simulate
@@ -37,6 +39,54 @@ def rest_mask(sim: Simulation, z: float, above: float, allowance: float) -> np.n
 def rest_material(sim: Simulation, z: float, above: float, allowance: float) -> BaseGeometry:
     """XY area of the grid cells whose stock reaches above ``z`` with more than ``above`` [mm] of excess."""
     return cells_region(rest_mask(sim, z, above, allowance), sim.grid)
+
+
+def rest_level_masks(sim: Simulation, levels: Sequence[float], spaces: Sequence[BaseGeometry], radius: float,
+                     above: float, allowance: float, column: float,
+                     grown: Callable[[np.ndarray], BaseGeometry]) -> list[np.ndarray]:
+    """(ny, nx) bool per level (top down): the grid cells a rest tool of ``radius`` [mm] cuts there.
+
+    The rest material of the level (:func:`rest_mask`, more than ``above`` [mm] of excess), and the
+    stock that a deeper level's cut would take more than ``column`` [mm] of at once (the tool's
+    axial limit at full width). A flat end mill at a level takes everything above it within its
+    radius, and the rest material of a deep level reaches into stock the excess does not count:
+    the sliver a wider tool left in an inside corner lies within the cell diagonal of both walls.
+    Entering that corner at the deep level only would cut the sliver's whole height at full
+    width; this way every level in between cuts it too, no more than the levels' spacing at a time.
+
+    ``spaces`` are the levels' tool axis regions (where the axis may go, rest material or not);
+    ``grown(mask)`` the True cells grown by ``radius`` (:class:`cadcam.gridregion.GrownMaskCache`).
+    """
+    g = sim.grid
+    # Stock over the part by more than the allowance with no grid slack: the allowance the earlier
+    # tools left on the walls is no sliver to step down through.
+    solid = (excess(sim, allowance, grid_slack=False) > allowance + _LEVEL_EPS) & np.isfinite(sim.stock_top)
+    reach = np.full(g.shape, np.inf)  # the deepest level whose cut meets each cell [mm]
+    masks: list[np.ndarray] = [np.zeros(g.shape, dtype=bool)] * len(levels)
+    for k in reversed(range(len(levels))):
+        z = float(levels[k])
+        tall = solid & (sim.stock_top > z + _LEVEL_EPS) & (sim.stock_top - reach > column + _LEVEL_EPS)
+        masks[k] = rest_mask(sim, z, above, allowance) | tall
+        if not masks[k].any():
+            continue
+        cut = spaces[k].intersection(grown(masks[k]))
+        if cut.is_empty:
+            continue
+        met = _cells_within(cut.buffer(radius, quad_segs=8), g)
+        reach[met] = np.minimum(reach[met], z)
+    return masks
+
+
+def _cells_within(region: BaseGeometry, grid: Grid) -> np.ndarray:
+    """(ny, nx) bool: the grid points inside ``region``."""
+    out = np.zeros(grid.shape, dtype=bool)
+    x0, y0, x1, y1 = region.bounds
+    (i0,), (i1,) = grid.column_range(np.array([x0]), np.array([x1]))
+    (j0,), (j1,) = grid.row_range(np.array([y0]), np.array([y1]))
+    if i1 >= i0 and j1 >= j0:
+        xs, ys = np.meshgrid(grid.xs[i0:i1 + 1], grid.ys[j0:j1 + 1])
+        out[j0:j1 + 1, i0:i1 + 1] = shapely.contains_xy(region, xs, ys)
+    return out
 
 
 def deep_stock(sim: Simulation, above: float, allowance: float, grid_slack: bool = True) -> Simulation:
@@ -129,7 +179,8 @@ def safe_rapids(operations: Sequence[Operation], setup: Setup, part_triangles: n
     first[starts[:-1]] = True
     below = (moves.motion == Motion.RAPID) & ~first & (moves.points[:, 2] < setup.safe_z - 1e-9)
     checked = int(below.sum())
-    verified = simulate(moves, tools, setup, part_triangles, VerifyOptions(cell=cell))
+    # Only rapids and the jaws are read here: no finer grid for the engagement of small tools.
+    verified = simulate(moves, tools, setup, part_triangles, VerifyOptions(cell=cell, engagement_resolution=None))
     final, report = verified.simulation, verified.report
     for f in report.faults:
         if f.kind == "jaws":  # no speed makes a move into the vise safe: the planner is wrong

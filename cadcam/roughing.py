@@ -81,7 +81,7 @@ from shapely.ops import nearest_points
 
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.gridregion import GrownMaskCache
-from cadcam.rest import rest_mask
+from cadcam.rest import rest_level_masks
 from cadcam.stock import Simulation, clear_height
 from factory.core.errors import MeshError, ToolError, ToolpathError
 
@@ -110,7 +110,7 @@ class RoughingOptions:
     Attributes
     ----------
     stepdown : float, optional
-        Maximum depth of one level [mm]. Default ``min(0.5 * D, flute_length)``: contour
+        Maximum depth of one level [mm]. Default ``min(0.5 * D, axial limit)`` (:attr:`Tool.full_width_limit`): contour
         offsets cannot avoid some full-width cuts (the first loop after a helix, the first
         loop along a wall in an open region), and half a diameter is a safe slotting depth
         for carbide in aluminium.
@@ -175,7 +175,7 @@ def _resolve(options: RoughingOptions, tool: Tool, setup: Setup) -> _Params:
                         "z-level roughing needs a flat or bull-nose end mill")
     if not (d > 0 and math.isfinite(d)):
         raise ToolError(f"T{tool.number} has diameter {d}")
-    stepdown = min(0.5 * d, tool.flute_length) if options.stepdown is None else float(options.stepdown)
+    stepdown = min(0.5 * d, tool.full_width_limit) if options.stepdown is None else float(options.stepdown)
     stepover = 0.4 * d if options.stepover is None else float(options.stepover)
     helix_d = 0.8 * d if options.helix_diameter is None else float(options.helix_diameter)
     min_helix_d = 0.3 * d if options.min_helix_diameter is None else float(options.min_helix_diameter)
@@ -786,6 +786,9 @@ def zlevel_roughing(
     at that level, more than ``rest_above`` [mm] above the part (or the stock bottom
     where there is no part), are cleared, and no level lies deeper than the tool's
     stick-out below the stock top (what it cannot reach stays, for the caller to report).
+    A level also clears the stock a deeper level's cut would meet more than the tool's axial
+    limit of at once (:func:`cadcam.rest.rest_level_masks`): a corner's sliver is taken a level
+    at a time, not at full width from the floor.
 
     Parameters
     ----------
@@ -849,6 +852,10 @@ def zlevel_roughing(
 
     # the rest material grown by the tool radius, remembered per distinct mask of levels
     rest_grown = GrownMaskCache(rest.grid, p.radius, quad_segs=8) if rest is not None else None
+    spaces = [_level_space(float(z), rect, shadow, p) for z in levels]  # rest material or not
+    if rest is not None:
+        masks = rest_level_masks(rest, levels, spaces, p.radius, rest_above, p.allowance, tool.full_width_limit,
+                                 rest_grown)
     known = rest if air is None else air
     air_at = None if known is None else (lambda xy: clear_height(known, tool, xy))
     path = _Path()
@@ -860,10 +867,10 @@ def zlevel_roughing(
     skipped = 0
     for li, z in enumerate(levels):
         z = float(z)
-        space = _level_space(z, rect, shadow, cleared, blocked, p)  # rest material or not
+        space = _bounded(spaces[li], cleared, blocked)
         allowed = space
         if rest is not None:
-            allowed = allowed.intersection(rest_grown(rest_mask(rest, z, rest_above, p.allowance)))
+            allowed = allowed.intersection(rest_grown(masks[li]))
         plans, missed = _plan_entries(allowed, space, z, rect_xy, p, tool, known, air_at,
                                       None if cut_before is None else (lambda z=z: cut_before(z)))
         done_regions, failed = _cut_nearest_first(path, plans, z, z_prev, p, air_at, np.array([sx0, sy0]))
@@ -888,15 +895,18 @@ def zlevel_roughing(
                      motion=motion, allowance=p.allowance)
 
 
-def _level_space(z: float, rect: BaseGeometry, shadow: dict, cleared: BaseGeometry | None,
-                 blocked: list[BaseGeometry], p: _Params) -> BaseGeometry:
+def _level_space(z: float, rect: BaseGeometry, shadow: dict, p: _Params) -> BaseGeometry:
     """Where the tool axis may go at level ``z`` [mm]: the stock rectangle less the part's shadows
-    grown by the tool (:func:`_forbidden_terms`), within what the levels above cleared (None: no
-    bound) and outside the regions ``blocked`` below pockets that could not be entered."""
+    grown by the tool (:func:`_forbidden_terms`)."""
     forbidden = shapely.union_all(
         [_buffer(shadow[zq], dist, p.arc_tolerance) for zq, dist in _forbidden_terms(z, p)]
     )
-    allowed = rect.difference(forbidden)
+    return rect.difference(forbidden)
+
+
+def _bounded(allowed: BaseGeometry, cleared: BaseGeometry | None, blocked: list[BaseGeometry]) -> BaseGeometry:
+    """``allowed`` within what the levels above cleared (None: no bound) and outside the regions
+    ``blocked`` below pockets that could not be entered."""
     if cleared is not None:
         allowed = allowed.intersection(cleared)
     if blocked:

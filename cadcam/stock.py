@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
+from cadcam.engagement import ENGAGED_WIDTH, FULL_WIDTH_ANGLE, MoveRecord, engaged_depth, record_max
 from cadcam.envelope import Segments, grid_pairs, pair_envelope, reach_interval
 from cadcam.heightmap import Grid, grid_over, upper_envelope
 from cadcam.model import Motion, Operation, ProgramMoves, Setup, Tool
@@ -46,9 +47,6 @@ _MAX_CELLS = 60_000_000
 #: plans on is the stock verify finds.
 RAPID_RIM = 0.01
 
-#: A cut counts as engagement only where it is at least this wide across the move [mm] (see
-#: :func:`_engaged_depth`), unless told otherwise (:attr:`cadcam.verify.VerifyOptions.engaged_width`).
-ENGAGED_WIDTH = 1.0
 
 
 @dataclass(frozen=True)
@@ -119,38 +117,6 @@ class FlippedStock:
     bottom: np.ndarray
 
 
-class MoveRecord:
-    """What each swept move met, filled batch by batch as the stock is cut (all lengths [mm]).
-
-    Arrays of one row per :class:`Segments` row, read-only once the cut is done.
-    ``depth``: deepest *engaged* depth of the move (see :func:`_engaged_depth`);
-    ``width``: lateral extent of the material it removed; ``removed_max``: thickest column
-    it took off one grid point, ``removed_env``: the tool's lowest point there; ``contact``:
-    deepest reach of its shank or holder into the stock or the part, ``contact_z``: the body's
-    lowest point there; ``*_cell``: flat grid index where that happened, -1 if nowhere;
-    ``volume``: stock it removed above ``bottom`` (the stock's bottom) [mm³].
-    """
-
-    def __init__(self, n: int, bottom: float = -np.inf):
-        self.volume = np.zeros(n)
-        self.bottom = bottom
-        self.depth = np.zeros(n)
-        self.depth_cell = np.full(n, -1, np.int64)
-        self.width = np.zeros(n)
-        self.removed_max = np.zeros(n)
-        self.removed_cell = np.full(n, -1, np.int64)
-        self.removed_env = np.zeros(n)
-        self.contact = np.zeros(n)
-        self.contact_cell = np.full(n, -1, np.int64)
-        self.contact_z = np.zeros(n)
-
-    def freeze(self) -> None:
-        """Make every array read-only: the cut is done."""
-        for value in vars(self).values():
-            if isinstance(value, np.ndarray):
-                value.setflags(write=False)
-
-
 @dataclass(frozen=True)
 class StockCut:
     """A program cut into the stock model, and what each of its moves met on the way.
@@ -196,6 +162,7 @@ def cut_stock(
     rapid_rim: float = RAPID_RIM,
     engaged_width: float = ENGAGED_WIDTH,
     body_graze: float = 0.0,
+    full_width_angle: float = FULL_WIDTH_ANGLE,
 ) -> StockCut:
     """Cut the stock with every move of a program, measuring what each move meets.
 
@@ -230,6 +197,9 @@ def cut_stock(
     body_graze : float
         A shank or holder reaching sideways into stock or part by no more than this is no
         contact [mm] (a shank as wide as the cutter rides a finished wall at its radius).
+    full_width_angle : float
+        A move meeting material over this arc of the cutter or more cuts at full width [deg]
+        (:data:`FULL_WIDTH_ANGLE`; ``MoveRecord.full_depth``).
 
     Raises
     ------
@@ -250,6 +220,7 @@ def cut_stock(
     seg, starts, swept, known = _swept_moves(moves, tools, top_z, rapid_rim)
     part_flat = np.where(np.isfinite(part_top), part_top, -np.inf).reshape(-1)
     body = _Body(tools, moves.tool[seg.move], part_flat, engaged_width, body_graze)
+    body.full_width = math.radians(full_width_angle)
     body.wall_near = _highest_part_near(part_top, grid, _SKIN).reshape(-1)
 
     n_moves = int(known.sum())
@@ -434,6 +405,7 @@ class _Body:
         self.part_max = float(finite.max()) if len(finite) else -np.inf
         self.part = part_flat
         self.engaged_width = engaged_width
+        self.full_width = math.radians(FULL_WIDTH_ANGLE)  # [rad]
         # A shank as wide as the cutter rides a finished wall at exactly its radius: a
         # graze sideways within the contact tolerance is no contact.
         self.graze = graze
@@ -578,7 +550,7 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
         met = np.maximum(standing, part[b_flat]) - b_env
         hit = np.flatnonzero(met > 0.0)
         if len(hit):
-            _record_max(stats.contact, stats.contact_cell, b_owner[hit] + s, met[hit], b_flat[hit],
+            record_max(stats.contact, stats.contact_cell, b_owner[hit] + s, met[hit], b_flat[hit],
                         extra=(stats.contact_z, b_env[hit]))
 
     before = found[:n_c]
@@ -586,13 +558,13 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
     cut = np.flatnonzero(removed > 0.0)
     if len(cut):
         o, f, r = owner[cut], flat[cut], removed[cut]
-        _record_max(stats.removed_max, stats.removed_cell, o + s, r, f, extra=(stats.removed_env, env[cut]))
+        record_max(stats.removed_max, stats.removed_cell, o + s, r, f, extra=(stats.removed_env, env[cut]))
         # A wall's skin is no engagement (see _SKIN); it is still cut, and still counts
         # for rapids and for the width of the cut.
         # Only beside a wall: floor allowance (the part right below) is engagement as usual.
         skin = (body.wall_near[f] >= before[cut] - _SKIN) & (part[f] < before[cut] - _SKIN)
-        _engaged_depth(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
-                       env[cut], f, grid.cell, body.engaged_width, stats, skin)
+        engaged_depth(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
+                       env[cut], f, grid.cell, body.engaged_width, stats, skin, body.full_width)
         # what the cut took off, counted down to the stock's bottom (a through cut goes on into air)
         floor = stats.bottom if under is None else under[f]
         np.add.at(stats.volume, o + s, np.maximum(before[cut] - np.maximum(env[cut], floor), 0.0) * grid.cell**2)
@@ -600,93 +572,6 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
         if under is not None:
             through = f[~(stock[f] > under[f])]
             stock[through] = -np.inf
-
-
-def _record_max(best: np.ndarray, where: np.ndarray, owner: np.ndarray, value: np.ndarray, cell: np.ndarray,
-                extra: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-    """``best[k] = max(value)`` over entries of owner ``k``, with the cell (and ``extra``) where it is reached."""
-    np.maximum.at(best, owner, value)
-    at = np.flatnonzero(value >= best[owner])
-    where[owner[at]] = cell[at]
-    if extra is not None:
-        extra[0][owner[at]] = extra[1][at]
-
-
-#: A grid point counts towards a move's width once the move takes more than this off it [mm].
-_ENGAGED_FILM = 0.02
-
-
-def _engaged_depth(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.ndarray, before: np.ndarray,
-                   env: np.ndarray, cells: np.ndarray, cell: float, min_width: float, stats: MoveRecord,
-                   skin: np.ndarray | None = None) -> None:
-    """Deepest engagement of each move's cutter [mm], in ``stats.depth``; its width in ``stats.width``.
-
-    The column a move takes off a grid point is split in two: as much of it as the tool
-    descends while the point is within its reach is a plunge (taken off from above); the
-    rest the cutter meets moving sideways, and that height is the axial depth of cut
-    ``ap`` there. A tool is buried when
-
-    * sideways: the grid points taken, thickest first, span ``min_width`` across the
-      move's XY direction while still deeper than the depth reported (a tall but thin
-      skin shaved off a wall is not a buried tool, a full-width slot is);
-    * plunging: they cover half the cutter's footprint while still deeper than it (a
-      drill-like entry into solid stock, not a descent past a wall; for a ball that is
-      ``0.29 R`` less than the depth of its tip).
-
-    Grid points ``skin`` (within :data:`_SKIN` of a part wall at least as tall as the
-    material on them, less that distance) are left out: the allowance on a wall is
-    taken off by finishing whatever its height, a raster pass meeting it head-on.
-    """
-    R = seg.radius[o]
-    ta, tb, _ = reach_interval(seg, o, qx, qy)
-    # What the tool takes off a point while it descends over it is a plunge; the rest it
-    # takes moving sideways into the material.
-    removed = before - env
-    plunge = np.minimum(removed, np.maximum(-seg.dz[o], 0.0) * np.maximum(tb - ta, 0.0))
-    side = removed - plunge
-    if skin is not None:  # the skin of a wall: taken off, but no engagement
-        plunge = np.where(skin, 0.0, plunge)
-        side = np.where(skin, 0.0, side)
-
-    L = np.sqrt(seg.l2[o])
-    has = L > 1e-9
-    ux = np.where(has, seg.dx[o] / np.where(has, L, 1.0), 1.0)
-    uy = np.where(has, seg.dy[o] / np.where(has, L, 1.0), 0.0)
-    wx, wy = qx - seg.x[o], qy - seg.y[o]
-    lat = np.where(has, wx * uy - wy * ux, wx)  # signed distance across the move (along X if vertical)
-    film = removed > _ENGAGED_FILM
-    if film.any():
-        lo = np.full(len(seg), np.inf)
-        hi = np.full(len(seg), -np.inf)
-        np.minimum.at(lo, o[film], lat[film])
-        np.maximum.at(hi, o[film], lat[film])
-        k = np.flatnonzero(np.isfinite(lo))
-        width = np.minimum(hi[k] - lo[k] + cell, 2 * seg.radius[k])
-        stats.width[k + s] = np.maximum(stats.width[k + s], width)
-
-    # Sideways: thickest first within each move, running extent of the lateral offsets
-    # (cummax with a per-move offset that lifts each move above every earlier one).
-    sel = np.flatnonzero(side > 0.0)
-    if len(sel):
-        order = sel[np.argsort(o[sel] * (float(side[sel].max()) + 1.0) - side[sel], kind="stable")]
-        os_, lat_s = o[order], lat[order]
-        shift = os_ * (4.0 * float(2 * np.max(seg.radius)) + 4.0)
-        hi = np.maximum.accumulate(lat_s + shift) - shift
-        lo = shift - np.maximum.accumulate(shift - lat_s)
-        wide = np.flatnonzero(hi - lo + cell >= min_width)
-        if len(wide):
-            _record_max(stats.depth, stats.depth_cell, os_[wide] + s, side[order][wide], cells[order][wide])
-    # Plunging: the k-th thickest, k grid points being half the cutter's footprint.
-    sel = np.flatnonzero(plunge > 0.0)
-    if len(sel):
-        order = sel[np.argsort(o[sel] * (float(plunge[sel].max()) + 1.0) - plunge[sel], kind="stable")]
-        os_ = o[order]
-        first = np.r_[True, os_[1:] != os_[:-1]]
-        rank = np.arange(len(order)) - np.maximum.accumulate(np.where(first, np.arange(len(order)), 0))
-        need = np.ceil(0.5 * math.pi * R[order] ** 2 / cell**2) - 1
-        at = np.flatnonzero(rank >= need)
-        if len(at):
-            _record_max(stats.depth, stats.depth_cell, os_[at] + s, plunge[order][at], cells[order][at])
 
 
 def first_line_reaching(moves: ProgramMoves, tools: Mapping[int, Tool], x: float, y: float, z: float) -> int | None:

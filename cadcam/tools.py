@@ -33,6 +33,8 @@ from factory.core.resources import FIXTURES
 log = logging.getLogger(__name__)
 
 _SHAPES = ("flat", "ball", "bull", "drill")
+#: A tool's optional engagement limits (:meth:`_Parser.axial_limit`).
+_ENGAGEMENT_KEYS = {"axial_limit"}
 #: Rated spindle power when the library's machine gives none [kW]: the continuous (S1) rating
 #: of a small VMC's spindle (fixtures/tools.yaml states its own).
 DEFAULT_SPINDLE_POWER_KW = 7.5
@@ -404,7 +406,7 @@ class _Parser:
     def tool(self, d: Any, where: str) -> Tool:
         d = self.mapping(
             d, where, {"number", "name", "shape", "diameter", "flute_length", "flutes", "length"},
-            {"corner_radius", "shank_diameter", "holder", "point_angle", "feed_factor"},  # feed_factor: the library's
+            {"corner_radius", "shank_diameter", "holder", "point_angle", "feed_factor"} | _ENGAGEMENT_KEYS,  # feed_factor: the library's
         )
         number = self.integer(d["number"], f"{where}.number", 1)
         name = self.string(d["name"], f"{where}.name")
@@ -447,6 +449,7 @@ class _Parser:
         length = self.number(d["length"], f"{where}.length")
         shank = self.number(d["shank_diameter"], f"{where}.shank_diameter") if "shank_diameter" in d else diameter
         holder = self.holder(d["holder"], f"{where}.holder") if "holder" in d else DEFAULT_HOLDER
+        axial_limit = self.axial_limit(d, where, shape, flute_length)
         return Tool(
             number=number,
             name=name,
@@ -459,7 +462,19 @@ class _Parser:
             shank_diameter=shank,
             holder=holder,
             point_angle=point_angle,
+            axial_limit=axial_limit,
         )
+
+    def axial_limit(self, d: dict[str, Any], where: str, shape: str, flute_length: float) -> float | None:
+        """A tool's ``axial_limit`` [mm], None where not given (the rule :data:`cadcam.model.FULL_WIDTH_DEPTH_RULE`)."""
+        if "axial_limit" not in d:
+            return None
+        if shape == "drill":
+            raise self.fail(f"{where}.axial_limit", "a drill cuts only along its axis (its limit is its flute length)")
+        limit = self.number(d["axial_limit"], f"{where}.axial_limit")
+        if limit > flute_length:
+            raise self.fail(f"{where}.axial_limit", f"must be <= flute_length {flute_length:g}, got {limit:g}")
+        return limit
 
     def holder(self, value: Any, where: str) -> tuple[HolderSegment, ...]:
         """A list of ``{diameter, length, top_diameter?}`` from the gauge line up [mm]."""

@@ -6,12 +6,20 @@ left below the part beyond the tolerance, measured from the lowest part top with
 tolerance sideways, so a wall nicked within the tolerance does not read as a cut of the wall's
 height; a rapid that reaches into the stock is a crash; shank or holder in the stock or the
 part, a cut deeper than the flutes, a buried finishing tool, a drill fed sideways, a tip below
-the stock bottom and a tool in the vise's jaws are faults (:data:`FAULT_KINDS`).
+the stock bottom, a tool in the vise's jaws and a full-width cut deeper than the tool's axial limit
+are faults (:data:`FAULT_KINDS`).
+
+Engagement as a machinist reads it: per move, the radial engagement (the width of material across
+the feed), the axial engagement and the engagement angle (the arc of the cutter meeting material),
+and the deepest cut taken at full width (:class:`cadcam.stock.MoveRecord`). Where the grid is
+coarser than a tenth of a tool's diameter, that tool's moves are measured again on a finer grid
+around them (:func:`_refined`), so a small end mill's corner engagement is seen.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import re
 from collections.abc import Callable, Mapping, Sequence
@@ -20,13 +28,17 @@ from typing import Any
 
 import numpy as np
 
+from cadcam.engagement import MoveRecord
 from cadcam.envelope import Segments
 from cadcam.heightmap import Grid, upper_envelope
 from cadcam.model import Motion, ProgramMoves, Setup, Tool
-from cadcam.stock import (ENGAGED_WIDTH, RAPID_RIM, FlippedStock, MoveRecord, Simulation, Unreached, cut_stock,
-                          first_line_reaching, unreached, why_left)
+from cadcam.heightmap import grid_over
+from cadcam.stock import (ENGAGED_WIDTH, FULL_WIDTH_ANGLE, RAPID_RIM, FlippedStock, Simulation, StockCut,
+                          Unreached, cut_stock, first_line_reaching, unreached, why_left)
 from cadcam.workholding import fixture_contacts
 from factory.core.errors import VerifyError
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -66,6 +78,14 @@ class VerifyOptions:
     op2_follows : bool
         Op 2 machines the part from below after this program: stock left down to the floor is
         left for it (:func:`cadcam.stock.why_left`).
+    full_width_angle : float
+        A move whose cutter meets material over more than this arc cuts at full width [deg] (a
+        slot is 180): held to the tool's axial limit (:attr:`cadcam.model.Tool.full_width_limit`).
+    engagement_resolution : float or None
+        Engagement is measured on a grid no coarser than this share of each tool's diameter:
+        a tool narrower than ``cell / engagement_resolution`` has its moves cut again on a finer
+        grid over their reach (the stock there from every move of the program). None: on ``cell``
+        (for a caller that reads only rapids and contacts).
     """
 
     cell: float = 0.2
@@ -76,6 +96,8 @@ class VerifyOptions:
     contact_tolerance: float = 0.01
     left_above: float = 0.1
     op2_follows: bool = False
+    full_width_angle: float = FULL_WIDTH_ANGLE
+    engagement_resolution: float | None = 0.1
 
 
 @dataclass(frozen=True)
@@ -104,7 +126,7 @@ class RapidCrash:
 
 
 #: What :class:`Fault` can say, in the order the report lists them.
-FAULT_KINDS = ("no_cut", "rapid", "holder", "flute", "buried", "drill_side", "below_stock", "jaws")
+FAULT_KINDS = ("no_cut", "rapid", "holder", "flute", "full_width", "buried", "drill_side", "below_stock", "jaws")
 
 #: Setup sheet operation kinds that finish a surface; every other kind removes bulk stock.
 FINISHING_KINDS = frozenset({"raster", "waterline", "finishing"})
@@ -120,7 +142,9 @@ class Fault:
         One of :data:`FAULT_KINDS`: ``no_cut`` the program removes nothing; ``rapid`` a
         rapid whose cutter (its full footprint) meets stock; ``holder`` the shank or holder
         meets the stock or the part; ``flute`` a cut engaged deeper than the flute length;
-        ``buried`` a finishing tool engaged deeper than :attr:`VerifyOptions.finish_depth`;
+        ``full_width`` a cut at full width (:attr:`VerifyOptions.full_width_angle`) deeper than
+        the tool's axial limit (:attr:`cadcam.model.Tool.full_width_limit`); ``buried`` a
+        finishing tool engaged deeper than :attr:`VerifyOptions.finish_depth`;
         ``drill_side`` a drill fed sideways through stock (a drill's only engagement is
         axial, held to its flute length by ``flute``); ``below_stock`` the tool tip below the stock
         bottom; ``jaws`` the tool, shank or holder reaches into the vise's jaws or parallels
@@ -153,9 +177,34 @@ class Fault:
                 "message": self.message}
 
 
+#: Bins of the engagement angle [deg] that :class:`ToolEngagement` counts moves in (the last holds 180).
+ANGLE_BINS = (0.0, 30.0, 60.0, 90.0, 120.0, 150.0, 180.0)
+
+
+@dataclass(frozen=True)
+class Spread:
+    """How a quantity is distributed over a tool's engaged moves: percentiles and the maximum."""
+
+    p50: float
+    p90: float
+    p99: float
+    max: float
+
+    @classmethod
+    def of(cls, values: np.ndarray) -> "Spread":
+        """The spread of ``values`` (all zero when there are none)."""
+        if len(values) == 0:
+            return cls(0.0, 0.0, 0.0, 0.0)
+        p = np.percentile(values, (50, 90, 99))
+        return cls(float(p[0]), float(p[1]), float(p[2]), float(np.max(values)))
+
+    def to_dict(self) -> dict[str, float]:
+        return dataclasses.asdict(self)
+
+
 @dataclass(frozen=True)
 class ToolEngagement:
-    """How hard one tool worked, over its moves (all [mm]).
+    """How hard one tool worked, over its moves (lengths [mm], angles [deg]).
 
     Attributes
     ----------
@@ -165,11 +214,25 @@ class ToolEngagement:
     moves : int
         Its moves that came below the stock top.
     max_depth : float
-        Deepest engagement of any move (:class:`cadcam.stock.MoveRecord`).
+        Deepest engagement of any move (:class:`cadcam.stock.MoveRecord`; the skin of walls left out).
     max_depth_line : int
         Program line of that move (0 if it never engaged).
     max_width : float
         Widest radial engagement of any move.
+    max_full_depth : float
+        Deepest axial cut at full width (``MoveRecord.full_depth``: a slot, an inside corner).
+    max_full_depth_line : int
+        Program line of that move (0 if it never cut at full width).
+    axial_limit : float
+        What that was held to (:attr:`cadcam.model.Tool.full_width_limit`).
+    cell : float
+        Grid the tool's engagement was measured on [mm] (finer than the verify grid for small tools).
+    engaged : int
+        Its feed moves that took material off.
+    depth, width, angle : Spread
+        Axial engagement, radial engagement and engagement angle over those moves.
+    angle_moves : tuple of int
+        How many of them engaged an arc in each bin of :data:`ANGLE_BINS`.
     """
 
     tool: int
@@ -178,9 +241,29 @@ class ToolEngagement:
     max_depth: float
     max_depth_line: int
     max_width: float
+    max_full_depth: float = 0.0
+    max_full_depth_line: int = 0
+    axial_limit: float = math.inf
+    cell: float = 0.0
+    engaged: int = 0
+    depth: Spread = Spread(0.0, 0.0, 0.0, 0.0)
+    width: Spread = Spread(0.0, 0.0, 0.0, 0.0)
+    angle: Spread = Spread(0.0, 0.0, 0.0, 0.0)
+    angle_moves: tuple[int, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        d = dataclasses.asdict(self)
+        d["angle_moves"] = list(self.angle_moves)
+        d["angle_bins"] = list(ANGLE_BINS)
+        return d
+
+    def describe(self) -> str:
+        """One line for people."""
+        bins = ", ".join(f"{a:g}-{b:g}: {n}" for a, b, n in zip(ANGLE_BINS, ANGLE_BINS[1:], self.angle_moves))
+        return (f"T{self.tool}: deepest {self.max_depth:.2f} mm, at full width {self.max_full_depth:.2f} mm "
+                f"(limit {self.axial_limit:g} mm), widest {self.max_width:.2f} mm, angle p50/p90/max "
+                f"{self.angle.p50:.0f}/{self.angle.p90:.0f}/{self.angle.max:.0f} deg over {self.engaged} moves "
+                f"(deg: {bins}), grid {self.cell:g} mm")
 
 
 @dataclass(frozen=True)
@@ -366,7 +449,7 @@ def _verify(moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup, part_t
     _check_options(options)
     cut = cut_stock(moves, tools, setup, part_triangles, options.cell, start=start, progress=progress,
                     rapid_rim=options.rapid_tolerance, engaged_width=options.engaged_width,
-                    body_graze=options.contact_tolerance)
+                    body_graze=options.contact_tolerance, full_width_angle=options.full_width_angle)
     sim, seg = cut.simulation, cut.segments
     pts = moves.points
     finish = np.zeros(len(pts), bool) if finishing is None else np.asarray(finishing, bool).reshape(-1)
@@ -377,7 +460,8 @@ def _verify(moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup, part_t
     rapid = moves.motion[1:] == Motion.RAPID
     length = np.zeros(len(a))
     length[known] = np.linalg.norm(b[known] - a[known], axis=1)
-    crashes, faults, engagement = _judge(seg, cut.met, moves, tools, finish, sim, options)
+    measured = _refined(_measured(cut), cut, moves, tools, setup, part_triangles, options, start)
+    crashes, faults, engagement = _judge(seg, cut.met, measured, moves, tools, finish, sim, options)
     if setup.jaws:
         faults += _jaw_faults(a, b, cut.swept, moves, tools, setup, options)
     report = _report(
@@ -389,9 +473,12 @@ def _verify(moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup, part_t
 
 def _check_options(options: VerifyOptions) -> None:
     """VerifyError naming the first option that is not a usable number of mm."""
-    for name in ("cell", "gouge_tolerance", "rapid_tolerance", "finish_depth", "engaged_width", "contact_tolerance"):
+    for name in ("cell", "gouge_tolerance", "rapid_tolerance", "finish_depth", "engaged_width", "contact_tolerance",
+                 "full_width_angle", "engagement_resolution"):
         v = getattr(options, name)
-        positive = name in ("cell", "finish_depth")
+        if v is None and name == "engagement_resolution":
+            continue
+        positive = name in ("cell", "finish_depth", "full_width_angle", "engagement_resolution")
         if not (math.isfinite(v) and (v > 0 if positive else v >= 0)):
             kind = "positive" if positive else "non-negative"
             raise VerifyError(f"{name} must be a {kind} number of mm, got {v}", source=name)
@@ -424,8 +511,103 @@ def _jaw_faults(a: np.ndarray, b: np.ndarray, use: np.ndarray, moves: ProgramMov
     return out
 
 
-def _judge(seg: Segments, stats: MoveRecord, moves: ProgramMoves, tools: Mapping[int, Tool], finish: np.ndarray,
-           sim: Simulation, options: VerifyOptions):
+@dataclass(frozen=True)
+class _Measured:
+    """Engagement per swept segment (rows of :attr:`StockCut.segments`), on the grid each tool needs.
+
+    ``angle`` [deg], ``width`` (radial) and ``full_depth`` (axial at full width) [mm] as
+    :class:`cadcam.stock.MoveRecord` holds them; ``full_x, full_y`` where the full-width depth
+    was reached [mm] (NaN if nowhere); ``cell`` the grid it was measured on [mm].
+    """
+
+    angle: np.ndarray
+    width: np.ndarray
+    full_depth: np.ndarray
+    full_x: np.ndarray
+    full_y: np.ndarray
+    cell: np.ndarray
+
+
+def _measured(cut: StockCut) -> _Measured:
+    """The engagement of every segment of ``cut`` as its own grid saw it."""
+    g, met = cut.simulation.grid, cut.met
+    jj, ii = np.divmod(met.full_cell, g.nx)
+    nowhere = met.full_cell < 0
+    return _Measured(angle=met.angle.copy(), width=met.width.copy(), full_depth=met.full_depth.copy(),
+                     full_x=np.where(nowhere, np.nan, g.x0 + ii * g.cell),
+                     full_y=np.where(nowhere, np.nan, g.y0 + jj * g.cell), cell=np.full(len(met.angle), g.cell))
+
+
+def _refined(measured: _Measured, cut: StockCut, moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup,
+             part_triangles: np.ndarray, options: VerifyOptions, start: FlippedStock | None) -> _Measured:
+    """``measured`` with the moves of each tool narrower than ``cell / engagement_resolution`` measured
+    again on a grid of ``engagement_resolution`` times its diameter, laid over their reach.
+
+    Every move of the program is cut into that finer grid (a grid point's stock depends on every move
+    that reached it), so the small tool meets the stock exactly as it is there: the sliver a wider tool
+    left in a corner, which the coarse grid holds in a point or two. A flipped start stock is taken
+    from its nearest coarse grid point. A tool whose reach would need more grid points than the stock
+    model allows keeps the coarse measure (logged).
+    """
+    if options.engagement_resolution is None:
+        return measured
+    seg = cut.segments
+    tool_of = moves.tool[seg.move]
+    out = dataclasses.replace(measured, **{f.name: getattr(measured, f.name).copy()
+                                          for f in dataclasses.fields(measured)})
+    for t in np.unique(tool_of[~seg.rapid]).tolist():
+        tool = tools.get(int(t))
+        if tool is None or tool.is_drill:
+            continue
+        fine = tool.diameter * options.engagement_resolution
+        if fine >= options.cell * (1 - 1e-9):
+            continue
+        mine = np.flatnonzero((tool_of == t) & ~seg.rapid)
+        reach = tool.radius + 2 * fine
+        xs = np.concatenate([seg.x[mine], seg.x[mine] + seg.dx[mine]])
+        ys = np.concatenate([seg.y[mine], seg.y[mine] + seg.dy[mine]])
+        lo = np.maximum(setup.stock_min[:2], [xs.min() - reach, ys.min() - reach])
+        hi = np.minimum(setup.stock_max[:2], [xs.max() + reach, ys.max() + reach])
+        if np.any(hi <= lo):
+            continue
+        crop = dataclasses.replace(setup, stock_min=np.array([lo[0], lo[1], setup.stock_min[2]]),
+                                   stock_max=np.array([hi[0], hi[1], setup.stock_max[2]]))
+        try:
+            sub = cut_stock(moves, tools, crop, part_triangles, fine, start=_resampled(start, crop, fine),
+                            rapid_rim=options.rapid_tolerance, engaged_width=options.engaged_width,
+                            body_graze=options.contact_tolerance, full_width_angle=options.full_width_angle)
+        except VerifyError as e:
+            log.warning("T%d's engagement stays measured on the %g mm grid: %s", t, options.cell, e.message)
+            continue
+        fine_m = _measured(sub)
+        at = np.zeros(len(mine), np.int64)
+        ok = np.zeros(len(mine), bool)
+        if len(sub.segments):  # one row per move in both, in program order
+            at = np.clip(np.searchsorted(sub.segments.move, seg.move[mine]), 0, len(sub.segments) - 1)
+            ok = sub.segments.move[at] == seg.move[mine]
+        rows, src = mine[ok], at[ok]
+        for f in dataclasses.fields(out):
+            getattr(out, f.name)[rows] = getattr(fine_m, f.name)[src]
+        # moves the fine grid saw cut nothing (outside its stock): measured as not engaged there
+        gone = mine[~ok]
+        out.angle[gone] = out.width[gone] = out.full_depth[gone] = 0.0
+        out.cell[gone] = fine
+    return out
+
+
+def _resampled(start: FlippedStock | None, setup: Setup, cell: float) -> FlippedStock | None:
+    """``start`` on the grid of ``cell`` [mm] over ``setup``'s stock, each point from the nearest old one."""
+    if start is None:
+        return None
+    g0 = start.grid
+    grid = grid_over(setup.stock_min, setup.stock_max, cell)
+    i = np.clip(np.rint((grid.xs - g0.x0) / g0.cell).astype(np.int64), 0, g0.nx - 1)
+    j = np.clip(np.rint((grid.ys - g0.y0) / g0.cell).astype(np.int64), 0, g0.ny - 1)
+    return FlippedStock(grid=grid, top=start.top[np.ix_(j, i)], bottom=start.bottom[np.ix_(j, i)])
+
+
+def _judge(seg: Segments, stats: MoveRecord, measured: _Measured, moves: ProgramMoves, tools: Mapping[int, Tool],
+           finish: np.ndarray, sim: Simulation, options: VerifyOptions):
     """Rapid crashes, faults and per-tool engagement from the per-move results."""
     g = sim.grid
 
@@ -447,6 +629,9 @@ def _judge(seg: Segments, stats: MoveRecord, moves: ProgramMoves, tools: Mapping
         faults.append(Fault("no_cut", 0, (), 0.0, 0.0, None, "the program removes no material"))
 
     flute = np.array([tools[t].flute_length if t in tools else np.inf for t in tool.tolist()], dtype=np.float64)
+    # A drill never cuts across (drill_side): its flutes are its only limit.
+    axial = np.array([np.inf if t not in tools else tools[t].flute_length if tools[t].is_drill
+                      else tools[t].full_width_limit for t in tool.tolist()], dtype=np.float64)
     # A drill only cuts along its axis: any feed move across the stock breaks it.
     drill = np.array([t in tools and tools[t].is_drill for t in tool.tolist()], dtype=bool)
     sideways = drill & ~seg.rapid & (seg.l2 > 1e-12) & (stats.removed_max > options.gouge_tolerance)
@@ -457,6 +642,10 @@ def _judge(seg: Segments, stats: MoveRecord, moves: ProgramMoves, tools: Mapping
          np.full(len(seg), options.contact_tolerance), "shank or holder of T{t} reaches {w:.2f} mm into the stock or part"),
         ("flute", ~seg.rapid & (stats.depth > flute + options.contact_tolerance), stats.depth, stats.depth_cell,
          flute, "T{t} engaged {w:.2f} mm deep, beyond its {l:g} mm flutes"),
+        # The grid's own step is no depth: a cut within a cell of the limit is taken as at it.
+        ("full_width", ~seg.rapid & (measured.full_depth > axial + measured.cell), measured.full_depth, _FINE,
+         axial, "T{t} cuts {w:.2f} mm deep at full width near X{x:.1f} Y{y:.1f} Z{z:.1f}, beyond its "
+         "{l:g} mm axial limit"),
         ("buried", ~seg.rapid & fin & (stats.depth > options.finish_depth), stats.depth, stats.depth_cell,
          np.full(len(seg), options.finish_depth), "finishing tool T{t} engaged {w:.2f} mm deep (limit {l:g} mm)"),
         ("drill_side", sideways, stats.removed_max, stats.removed_cell, np.full(len(seg), options.gouge_tolerance),
@@ -470,13 +659,16 @@ def _judge(seg: Segments, stats: MoveRecord, moves: ProgramMoves, tools: Mapping
         for t in np.unique(tool[bad]).tolist():
             ks = np.flatnonzero(bad & (tool == t))
             k = int(ks[np.argmax(value[ks])])
-            if where[k] >= 0:
+            if where is _FINE:
+                x, y = float(measured.full_x[k]), float(measured.full_y[k])
+            elif where[k] >= 0:
                 x, y = xy(where[k])
             else:
                 x, y = float(seg.x[k] + (seg.dx[k] if seg.dz[k] < 0 else 0.0)), float(seg.y[k] + (seg.dy[k] if seg.dz[k] < 0 else 0.0))
             w = float(value[k])
+            z = float(seg.zmin[k])
             faults.append(Fault(kind, int(t), tuple(sorted(set(line[ks].tolist()))), w, float(limit[k]),
-                                (x, y, float(seg.zmin[k])), text.format(t=t, w=w, l=float(limit[k]))))
+                                (x, y, z), text.format(t=t, w=w, l=float(limit[k]), x=x, y=y, z=z)))
 
     engagement = []
     for t in np.unique(tool).tolist():
@@ -484,11 +676,23 @@ def _judge(seg: Segments, stats: MoveRecord, moves: ProgramMoves, tools: Mapping
         if len(ks) == 0:
             continue
         k = int(ks[np.argmax(stats.depth[ks])])
+        f = int(ks[np.argmax(measured.full_depth[ks])])
+        cutting = ks[measured.width[ks] > 0.0]  # moves that took material off
+        counts = np.histogram(measured.angle[cutting], bins=ANGLE_BINS)[0]
         engagement.append(ToolEngagement(
             tool=int(t), finishing=bool(fin[ks].any()), moves=int(len(ks)), max_depth=float(stats.depth[k]),
-            max_depth_line=int(line[k]) if stats.depth[k] > 0 else 0, max_width=float(stats.width[ks].max()),
+            max_depth_line=int(line[k]) if stats.depth[k] > 0 else 0, max_width=float(measured.width[ks].max()),
+            max_full_depth=float(measured.full_depth[f]),
+            max_full_depth_line=int(line[f]) if measured.full_depth[f] > 0 else 0,
+            axial_limit=float(axial[ks[0]]), cell=float(measured.cell[ks].min()), engaged=int(len(cutting)),
+            depth=Spread.of(stats.depth[cutting]), width=Spread.of(measured.width[cutting]),
+            angle=Spread.of(measured.angle[cutting]), angle_moves=tuple(int(c) for c in counts),
         ))
     return crashes, faults, tuple(engagement)
+
+
+#: Stands for "the position :class:`_Measured` holds" among the grid cells of :func:`_judge`'s checks.
+_FINE = np.zeros(0, np.int64)
 
 
 def _report(

@@ -48,7 +48,8 @@ def verify(
 
     Exits 3 when the program gouges the part, a rapid or the shank or holder meets stock, a
     tool is engaged deeper than its flutes (a finishing tool: deeper than the allowance plus
-    the roughing terraces), a tool goes below the stock bottom, or nothing is cut. For op 2
+    the roughing terraces) or deeper than its axial limit at full width (a slot, an inside
+    corner), a tool goes below the stock bottom, or nothing is cut. For op 2
     the report, picture and MCAP are op 2's, and op 1 failing fails the command too.
     """
     setup_logging(quiet)

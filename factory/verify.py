@@ -168,6 +168,8 @@ def report_text(report: VerifyReport) -> str:
         text += f"\n  gouge: {report.max_gouge:.3f} mm into the part, line {report.gouge_line}"
     for f in report.faults:
         text += f"\n  {f.kind}: {f.message}" + (f", line(s) {line_ranges(f.lines)}" if f.lines else "")
+    for e in report.engagement:
+        text += f"\n  engagement {e.describe()}"
     return text
 
 

@@ -25,7 +25,7 @@ from cadcam.verify import VerifyOptions, simulate
 from factory.core.resources import FIXTURES
 from factory.cam import vise_jaws
 from robotprog.cell import load_cell
-from tests.cadcam.sweep import sweep_moves
+from tests.cadcam.sweep import past_axial_limit, sweep_moves
 from tests.cadcam.test_rest import assert_safe
 from tests.conftest import SAMPLES, manifold_to_trimesh
 from tests.rs274 import run_rs274, write_tool_table
@@ -93,8 +93,11 @@ def test_sample_never_gouges_and_never_crashes(sample, tmp_path):
     # Finishing actually finished: most of the surface is within the roughing allowance.
     assert report.remaining_p95 <= TEST_PLAN.roughing.allowance + 0.05, report.to_dict()
     # No finishing tool buried, no rapid through stock, by the independent sweep probe.
-    assert_safe(job, job.setup, moves, sweep_moves(moves.points, moves.motion, moves.tool,
-                                                   {t.number: t for t in job.tools}, job.setup, 0.5), program.text)
+    library = {t.number: t for t in job.tools}
+    sw = sweep_moves(moves.points, moves.motion, moves.tool, library, job.setup, 0.5, full_width=True)
+    assert_safe(job, job.setup, moves, sw, program.text)
+    # No tool takes more than its axial limit at full width, by the probe's own leading-edge reading.
+    assert past_axial_limit(sw, moves.tool, library, 0.5) == {}
     if shutil.which("rs274"):
         rs274_accepts(nc, job, tmp_path)
 

@@ -11,7 +11,7 @@ import dataclasses
 import manifold3d
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from cadcam.finishing import FinishingOptions
@@ -20,11 +20,12 @@ from cadcam.model import CuttingData, Motion, Operation, Setup
 from cadcam.plan import PlanOptions, choose_tools, plan_job
 from cadcam.post import PostOptions, post_process
 from cadcam.rest import safe_rapids
+from cadcam.verify import simulate
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
 from factory.core.errors import ToolError
-from tests.cadcam.sweep import rapid_hits, sweep_moves
-from tests.conftest import manifold_to_trimesh
+from tests.cadcam.sweep import past_axial_limit, rapid_hits, sweep_moves
+from tests.conftest import manifold_to_trimesh, pocket_block
 
 LIBRARY = load_tool_library()
 FAST = PlanOptions(finishing=FinishingOptions(scallop=0.05))
@@ -101,13 +102,14 @@ def test_a_rapid_into_stock_is_split_into_rapid_then_plunge(xy):
     assert fixed.motion[1] == Motion.RAPID and fixed.motion[2] == Motion.PLUNGE
 
 
-def probe_plan(body: manifold3d.Manifold, options: PlanOptions = FAST, cell: float = 0.5, library=LIBRARY):
+def probe_plan(body: manifold3d.Manifold, options: PlanOptions = FAST, cell: float = 0.5, library=LIBRARY,
+               full_width: bool = False):
     setup, part = make_setup(manifold_to_trimesh(body))
     job = plan_job(part, setup, library, part_name="p", options=options).job
     text = post_process(job, PostOptions()).text
     moves = parse_gcode(text)
     tools = {t.number: t for t in job.tools}
-    sw = sweep_moves(moves.points, moves.motion, moves.tool, tools, setup, cell)
+    sw = sweep_moves(moves.points, moves.motion, moves.tool, tools, setup, cell, full_width=full_width)
     return job, setup, moves, sw, text
 
 
@@ -146,6 +148,25 @@ def test_a_slot_too_narrow_for_the_roughing_tool_is_rest_roughed_then_finished()
     assert_safe(job, setup, moves, sw, text)
 
 
+def test_rest_roughing_steps_down_through_the_corners_a_wider_tool_left():
+    """The pocketed block: the 8 mm bull-nose and the 6 mm end mill leave slivers in the pocket's corners up to
+    its top, thinner than the excess counts; the 2 mm end mill (1 mm axial limit) takes them a level at a time.
+    It used to enter them at the pocket's floor only and take 3.0 mm at full width at once."""
+    setup, part = make_setup(pocket_block())
+    job = plan_job(part, setup, LIBRARY, part_name="p", options=FAST).job
+    (rest,) = [op for op in job.operations if op.kind == "roughing" and op.tool.number == 6]
+    levels = np.unique(np.round(rest.points[rest.motion == Motion.CUT, 2], 3))[::-1]
+    # from the pocket's floor (Z-5 under the 1 mm on top, plus the allowance) up to its top, 1 mm apart
+    assert levels[-1] == pytest.approx(-4.7) and len(levels) >= 4 and np.all(-np.diff(levels) <= 1.0 + 1e-6), levels
+    text = post_process(job, PostOptions()).text
+    moves = parse_gcode(text)
+    report = simulate(moves, {t.number: t for t in job.tools}, setup, np.asarray(part.triangles),
+                      finishing=finishing_moves(moves, text)).report
+    assert report.ok, [f.message for f in report.faults]
+    t6 = {e.tool: e for e in report.engagement}[6]
+    assert t6.cell <= 0.2 + 1e-9 and t6.max_full_depth <= 1.0 + t6.cell, t6
+
+
 def test_a_hole_no_tool_fits_is_reported_and_left_alone():
     # 4 mm across, in a library whose narrowest end mill is T1 (6 mm): the 2 mm T6 taken out.
     library = dataclasses.replace(LIBRARY, tools=tuple(t for t in LIBRARY.tools if t.number != 6))
@@ -179,11 +200,24 @@ def machinable_blocks(draw):
     return body
 
 
+def _narrow_slot_beside_a_bore() -> manifold3d.Manifold:
+    """Hypothesis found it (seed 1): beside the 2.5 mm slot the 6 mm end mill left, the 2 mm one finished
+    flats and walls in one pass and was buried 2.0 mm at full width."""
+    body = manifold3d.Manifold.cube((30.0, 25.0, 6.0))
+    body -= manifold3d.Manifold.cylinder(3.0, 6.0, 6.0, 32).translate((8.0, 8.0, 4.0))
+    depth = 3.948276768568355
+    return body - manifold3d.Manifold.cube((2.5, 7.83755944262363, depth + 1.0)).translate((2.0, 2.0, 6.0 - depth))
+
+
 @settings(max_examples=3, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(body=machinable_blocks())
+@example(body=_narrow_slot_beside_a_bore())
 def test_random_parts_plan_with_no_buried_finishing_tool_and_no_rapid_into_stock(body):
     options = dataclasses.replace(FAST, waterline=True)
-    assert_safe(*probe_plan(body, options))
+    job, setup, moves, sw, text = probe_plan(body, options, full_width=True)
+    assert_safe(job, setup, moves, sw, text)
+    # No tool past its axial limit at full width, by the probe's leading-edge reading (a grid step of slack).
+    assert past_axial_limit(sw, moves.tool, {t.number: t for t in job.tools}, 0.5) == {}
 
 
 def test_a_part_deeper_than_t1_reaches_plans_with_longer_tools():

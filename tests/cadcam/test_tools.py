@@ -289,3 +289,36 @@ def test_a_drill_round_trips_and_its_point_is_its_profile(lib):
     assert float(d.profile_height(d.radius + 0.1)) == math.inf
     spot = lib.spot_drills("aluminium")[0]
     assert spot.point_slope == pytest.approx(1.0)
+
+
+def test_axial_limit_is_read_and_tools_without_it_take_the_rule(lib, doc, tmp_path):
+    """The 2 mm flat and the long-neck tools carry their own full-width depth, 0.5 x D; the others 1 x D (3 mm up)."""
+    assert lib.tool(6).axial_limit == 1.0 and lib.tool(6).full_width_limit == 1.0
+    assert lib.tool(4).full_width_limit == 1.5
+    assert [lib.tool(n).full_width_limit for n in (15, 16, 17)] == [6.0, 4.0, 3.0]
+    assert lib.tool(1).axial_limit is None and lib.tool(1).full_width_limit == 6.0
+    assert lib.tool(2).full_width_limit == 10.0
+    # below 3 mm the rule halves it; never beyond the flutes
+    small = Tool(20, "1 mm flat", "flat", 1.0, 0.0, 3.0, 2, 10.0)
+    assert small.full_width_limit == 0.5
+    stubby = Tool(21, "12 mm flat, short flutes", "flat", 12.0, 0.0, 8.0, 3, 40.0)
+    assert stubby.full_width_limit == 8.0
+    # a tool table written from the library keeps what the library said, and only that
+    d = lib.tool(6).to_dict()
+    assert d["axial_limit"] == 1.0 and Tool.from_dict(d) == lib.tool(6)
+    assert "axial_limit" not in lib.tool(1).to_dict() and Tool.from_dict(lib.tool(1).to_dict()) == lib.tool(1)
+    _set(doc, ["tools", 0, "axial_limit"], 3)
+    assert load_tool_library(write(tmp_path, doc)).tool(1).full_width_limit == 3.0
+
+
+@pytest.mark.parametrize("index, value, expected", [
+    (0, 0, "tools[0].axial_limit: must be > 0, got 0"),
+    (0, "deep", "tools[0].axial_limit: must be a number, got 'deep'"),
+    (0, 19, "tools[0].axial_limit: must be <= flute_length 18, got 19"),
+    (7, 5, "tools[7].axial_limit: a drill cuts only along its axis"),
+])
+def test_a_bad_axial_limit_names_its_field(tmp_path, doc, index, value, expected):
+    _set(doc, ["tools", index, "axial_limit"], value)
+    with pytest.raises(ToolError) as e:
+        load_tool_library(write(tmp_path, doc))
+    assert expected in str(e.value)

@@ -17,6 +17,7 @@ from cadcam.rest import _grown
 from cadcam.envelope import swept_envelope
 from cadcam.preview import deviation_image
 from cadcam.verify import VerifyOptions, simulate
+from tests.cadcam.sweep import sweep_moves
 from factory.core.errors import VerifyError
 from factory.pictures import png_bytes
 
@@ -377,7 +378,9 @@ def test_a_wall_nicked_within_the_tolerance_is_no_gouge_of_its_height():
     verified = pass_beside_wall(0.002)
     sim, report = verified.simulation, verified.report
     assert np.nanmin(sim.remaining) < -1.0  # the z-map alone would read a 1 mm cut there
-    assert report.max_gouge <= opts.gouge_tolerance and report.ok
+    # No gouge; the pass itself slots the stock 9 mm deep, past the ball's 6 mm axial limit: that, only.
+    assert report.max_gouge <= opts.gouge_tolerance and not report.gouged and not report.rapid_crashes
+    assert [(f.kind, f.tool) for f in report.faults] == [("full_width", 2)]
     # Into the wall by more than the tolerance: the grid point 0.25 mm inside keeps its full
     # cut, from the wall top (z = -5) down to the ball's side (centre at z = -6).
     verified = pass_beside_wall(0.3)
@@ -469,10 +472,12 @@ def test_a_buried_finishing_tool_is_caught_on_its_lines(size, x, y, depth, trave
     assert depth - 0.88 - FAST.cell < buried.worst <= depth + 1e-9
     if travel:
         assert buried.worst > depth - 0.1
-    assert {f.kind for f in report.faults} == {"buried"}  # nothing else: no gouge, no crash
+    # Nothing else (no gouge, no crash) but, travelling, a slot past the ball's 6 mm axial limit.
+    assert {f.kind for f in report.faults} - {"full_width"} == {"buried"}
+    assert ("full_width", 2) not in faults_by_kind(report) or (travel and depth > BALL.full_width_limit)
     # The same moves with a roughing tool are within its 20 mm flutes.
     rough = [ln.replace("[raster] T2", "[roughing] T2") for ln in lines]
-    assert verify_text(rough, part).report.ok
+    assert {f.kind for f in verify_text(rough, part).report.faults} <= {"full_width"}
 
 
 @settings(max_examples=12, deadline=None)
@@ -606,3 +611,121 @@ def test_a_shank_as_wide_as_the_cutter_riding_a_finished_wall_is_no_contact():
     report = simulate(moves, tools, SAFE_STOCK, wall, FAST, finishing=finishing_moves(text, moves)).report
     assert [(f.kind, f.tool) for f in report.faults] == [("holder", 6)]
     assert report.faults[0].lines == (text.splitlines().index("G1 Y25") + 1,)
+
+
+# --- engagement as a machinist reads it: angle, radial and full-width axial depth ----------
+
+SMALL = Tool(6, "2 mm flat", "flat", 2.0, 0.0, 6.0, 2, 16.0, axial_limit=1.0)
+CORNER_SETUP = Setup(stock_min=[0, 0, -10], stock_max=[30, 30, 0], transform_mesh_to_work=np.eye(4))
+# An L of walls round a square pocket 6 mm deep: a sharp inside corner at X10 Y10.
+CORNER_PART = np.concatenate([box([0, 0, -10], [30, 10, 0]), box([0, 0, -10], [10, 30, 0]),
+                              box([0, 0, -10], [30, 30, -6])])
+
+
+def corner_program(levels_small):
+    """The 6 mm end mill clears the pocket in 2 mm levels, leaving its R3 in the corner; then the 2 mm
+    end mill runs along both walls into the corner at each of ``levels_small`` [mm]."""
+    blocks = []
+    for z in (-2.0, -4.0, -6.0):
+        blocks.append((R, 1, (34, 13, 2)))
+        blocks.append((C, 1, (34, 13, z)))
+        for k, y in enumerate(np.arange(13, 34, 4.0)):
+            xs = (34, 13) if k % 2 == 0 else (13, 34)
+            blocks += [(C, 1, (xs[0], y, z)), (C, 1, (xs[1], y, z))]
+        blocks.append((R, 1, (13, 33, 2)))
+    for z in levels_small:
+        blocks += [(R, 6, (20, 11, 2)), (C, 6, (20, 11, z)), (C, 6, (11, 11, z)), (C, 6, (11, 20, z)),
+                   (R, 6, (11, 20, 2))]
+    return program(blocks, start=(34, 13, 5))
+
+
+def test_a_small_end_mill_buried_in_an_inside_corner_fails_with_its_figures():
+    """Issue 34: the 2 mm flat cleans the corner the 6 mm one left in one pass 6 mm down, its flutes
+    5 mm into the corner's sliver at full width; in 1 mm steps it passes."""
+    tools = {1: FLAT, 6: SMALL}
+    report = simulate(corner_program([-6.0]), tools, CORNER_SETUP, CORNER_PART).report
+    assert not report.ok
+    (fault,) = [f for f in report.faults if f.kind == "full_width"]
+    assert fault.tool == 6 and fault.limit == 1.0 and 4.0 <= fault.worst <= 6.0, fault
+    x, y, z = fault.position
+    assert 10 <= x <= 13.5 and 10 <= y <= 13.5 and z == pytest.approx(-6.0), fault
+    assert fault.message.startswith(f"T6 cuts {fault.worst:.2f} mm deep at full width near X{x:.1f} Y{y:.1f} Z-6.0")
+    assert "1 mm axial limit" in fault.message
+    eng = {e.tool: e for e in report.engagement}
+    assert eng[6].max_full_depth == fault.worst and eng[6].axial_limit == 1.0 and eng[6].angle.max >= 120
+    assert eng[1].max_full_depth <= 2.0 + report.cell  # the 6 mm end mill's own 2 mm levels
+    stepped = simulate(corner_program([-1.0, -2.0, -3.0, -4.0, -5.0, -6.0]), tools, CORNER_SETUP, CORNER_PART).report
+    assert stepped.ok, [f.message for f in stepped.faults]
+    assert {e.tool: e for e in stepped.engagement}[6].max_full_depth <= 1.0 + stepped.cell
+
+
+def test_a_coarse_grid_measures_a_small_tool_on_its_own_finer_grid():
+    """At a 0.5 mm grid the 2 mm end mill (D/10 = 0.2 mm) is measured again around its moves."""
+    report = simulate(corner_program([-6.0]), {1: FLAT, 6: SMALL}, CORNER_SETUP, CORNER_PART,
+                      VerifyOptions(cell=0.5)).report
+    eng = {e.tool: e for e in report.engagement}
+    assert eng[6].cell == pytest.approx(0.2) and eng[1].cell == 0.5
+    assert [f.tool for f in report.faults if f.kind == "full_width"] == [6]
+    assert 4.0 <= eng[6].max_full_depth <= 6.0
+
+
+SLOT_SETUP = Setup(stock_min=[0, 0, -15], stock_max=[30, 20, 0], transform_mesh_to_work=np.eye(4))
+SLOT_PART = box([0, 0, -15], [30, 20, -14.5])
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.sampled_from([2.0, 6.0, 10.0]), st.floats(0.2, 0.9), st.floats(0.05, 0.45), st.booleans())
+def test_a_slot_is_full_width_to_its_depth_and_a_side_cut_never(diameter, depth_share, ae_share, slot):
+    """One pass at a random depth: a slot (the cutter's full width in stock) meets material over
+    180 deg and its whole depth counts at full width, failing beyond the axial limit; a side cut of
+    width ``ae`` meets ``acos(1 - 2 ae / D)`` and counts none, however deep."""
+    tool = Tool(1, "flat", "flat", diameter, 0.0, 12.0, 3, 40.0)
+    r = diameter / 2
+    depth = depth_share * tool.flute_length
+    y = 10.0 if slot else -r + ae_share * diameter  # the stock starts at Y0
+    moves = program([(R, 1, (-r - 1, y, 2)), (C, 1, (-r - 1, y, -depth)), (C, 1, (30 + r + 1, y, -depth)),
+                     (R, 1, (30 + r + 1, y, 2))], start=(-r - 1, y, 5))
+    report = simulate(moves, {1: tool}, SLOT_SETUP, SLOT_PART).report
+    (eng,) = report.engagement
+    cell = report.cell
+    faulted = [f for f in report.faults if f.kind == "full_width"]
+    if slot:
+        assert eng.angle.max == pytest.approx(180.0)
+        assert abs(eng.max_full_depth - depth) <= 1e-6, (eng, depth)
+        assert eng.max_width == pytest.approx(diameter)
+        assert bool(faulted) == (depth > tool.full_width_limit + cell)
+    else:
+        ae = ae_share * diameter
+        expected = np.degrees(np.arccos(1 - ae / r))
+        # an arc bin, and a cell either side of the arc's ends
+        slack = 5.0 + np.degrees(np.arcsin(min(1.0, cell / r))) + np.degrees(np.arccos(max(0.0, 1 - cell / r)))
+        assert abs(eng.angle.max - expected) <= slack + 1e-6, (eng.angle, expected)
+        assert eng.max_full_depth == 0.0 and not faulted
+        assert abs(eng.max_width - ae) <= cell + 1e-6
+
+
+def test_the_independent_probe_sees_the_corner_as_verify_does():
+    """tests/cadcam/sweep.py's leading-edge probes (no code of cadcam.stock's engagement) agree: 6 mm of
+    the corner at full width in one pass, its own 1 mm in steps; the 6 mm end mill's 2 mm levels."""
+    tools = {1: FLAT, 6: SMALL}
+    for levels, deepest in (([-6.0], 6.0), ([-1.0, -2.0, -3.0, -4.0, -5.0, -6.0], 1.0)):
+        m = corner_program(levels)
+        sw = sweep_moves(m.points, m.motion, m.tool, tools, CORNER_SETUP, 0.2, full_width=True)
+        assert sw.full_width[m.tool == 6].max() == pytest.approx(deepest, abs=0.2)
+        assert sw.full_width[m.tool == 1].max() == pytest.approx(2.0, abs=0.2)
+
+
+def test_a_small_tool_in_op_2_is_measured_finely_from_the_stock_it_starts_on():
+    """Op 2 starts from a stock given per grid point; the finer grid takes it from the nearest point."""
+    from cadcam.heightmap import grid_over
+    from cadcam.stock import FlippedStock
+    from cadcam.verify import simulate_flipped
+
+    grid = grid_over(CORNER_SETUP.stock_min, CORNER_SETUP.stock_max, 0.5)
+    start = FlippedStock(grid=grid, top=np.zeros(grid.shape), bottom=np.full(grid.shape, -10.0))
+    options = VerifyOptions(cell=0.5)
+    tools = {1: FLAT, 6: SMALL}
+    flipped = simulate_flipped(corner_program([-6.0]), tools, CORNER_SETUP, CORNER_PART, start, options).report
+    plain = simulate(corner_program([-6.0]), tools, CORNER_SETUP, CORNER_PART, options).report
+    assert [(f.kind, f.tool) for f in flipped.faults] == [("full_width", 6)]
+    assert {e.tool: e.max_full_depth for e in flipped.engagement} == {e.tool: e.max_full_depth for e in plain.engagement}

@@ -93,6 +93,18 @@ def test_the_planned_bracket_is_judged_safe_with_its_engagement(bracket):
     assert set(by_tool) == {1, 2}
     assert by_tool[2]["max_depth"] <= 30.0 and by_tool[1]["max_depth"] <= 18.0  # their flutes
     assert report["rapids_checked"] > 0
+    # every tool of the sheet has its deepest engagement in the JSON and in the text: axial, at full
+    # width against its axial limit (1 x D by the rule), radial, and the engagement angle
+    sheet = json.loads(bracket["setup"].read_text())
+    assert set(by_tool) == {op["tool"] for op in sheet["operations"]}
+    text = re.sub(r"\s+", " ", r.output)
+    for t, e in by_tool.items():
+        assert e["axial_limit"] == {1: 6.0, 2: 10.0}[t]
+        assert 0.0 < e["max_full_depth"] <= e["axial_limit"] + report["cell"], e
+        assert 0.0 < e["max_width"] <= {1: 6.0, 2: 10.0}[t] + 1e-9 and 0.0 < e["angle"]["max"] <= 180.0
+        assert sum(e["angle_moves"]) == e["engaged"] > 0
+        assert (f"engagement T{t}: deepest {e['max_depth']:.2f} mm, at full width {e['max_full_depth']:.2f} mm "
+                f"(limit {e['axial_limit']:g} mm), widest {e['max_width']:.2f} mm") in text
 
 
 def test_bracket_with_a_plunge_into_the_front_jaw(bracket):

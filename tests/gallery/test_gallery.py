@@ -16,11 +16,17 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
+from cadcam.gcode import parse_gcode
 from cadcam.op2 import SEAM_TOLERANCE
 from cadcam.tools import load_tool_library
 from cli.main import app
+from factory.verify import read_sheet
+from tests.cadcam.sweep import past_axial_limit, sweep_moves
 from tests.gallery.parts import BY_NAME
 from tests.rs274 import run_rs274
+
+#: The probe's grid [mm]: a tenth of the 2 mm end mill.
+PROBE_CELL = 0.2
 
 #: Parts unlike the samples that the cell plans today: drilled thin plate, island with necks, a through
 #: window, a tall thin rib, a plate wider than the jaws are long, a part that fits the jaws only turned about Z.
@@ -57,6 +63,13 @@ def test_a_gallery_part_plans_and_its_consumers_accept_it(name: str, tmp_path: P
         for e in report["engagement"]:
             # No tool cuts deeper than its flutes: the shank would rub, the flutes pack.
             assert e["max_depth"] <= library[e["tool"]].flute_length + 1e-6, e
+    # Op 1 from its stock box, by the independent probe: no tool past its axial limit at full width
+    # (op 2 starts from what op 1 left, which the probe does not model).
+    op1 = doc["setups"][0]
+    setup, tools, _ = read_sheet(Path(op1["setup_sheet"]))
+    moves = parse_gcode(Path(op1["program"]).read_text(), source=op1["program"])
+    sw = sweep_moves(moves.points, moves.motion, moves.tool, tools, setup, PROBE_CELL, full_width=True)
+    assert past_axial_limit(sw, moves.tool, tools, PROBE_CELL) == {}
     op2 = doc["setups"][1]
     assert ("seams" in op2) == (name in SPLIT), op2.keys()
     for seam in op2.get("seams", []):

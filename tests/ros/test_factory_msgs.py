@@ -246,14 +246,20 @@ def test_machine_state_follows_the_program(cell_log):
     assert all(math.isfinite(m.spindle_load_percent) and 0 <= m.spindle_load_percent < 100 for m in machine)
     assert all(m.spindle_load_percent == 0 for m in machine if m.spindle_speed_rpm == 0)
     assert sum(m.spindle_load_percent > 0.1 for m in cutting) >= 5
-    # roughing loads the spindle more than finishing the same part: the mean load of each
-    # operation's samples (each operation has its own tool)
-    kind = {op["tool"]: op["kind"] for op in sheet["operations"]}
-    mean = {t: np.mean([m.spindle_load_percent for m in cutting if m.tool == t]) for t in kind
-            if any(m.tool == t for m in cutting)}
-    rough = max(v for t, v in mean.items() if kind[t] == "roughing")
-    finish = max(v for t, v in mean.items() if kind[t] == "finishing")
-    assert rough > finish > 0, mean
+    # roughing loads the spindle more than finishing the same part: the mean load of each operation's
+    # samples, a sample belonging to the operation whose "(op N: ...)" comment last precedes its program
+    # line (a tool may rough and finish: the 6 mm end mill rest-roughs, then finishes the walls)
+    program = (cell_log.parent / "catalog" / sheet["program"]).read_text().splitlines()
+    starts = [k for k, line in enumerate(program, start=1) if line.startswith("(op ")]
+    assert len(starts) == len(sheet["operations"])
+    loads: dict[int, list[float]] = {}
+    for m in cutting:
+        loads.setdefault(int(np.searchsorted(starts, m.program_line, side="right")) - 1, []).append(m.spindle_load_percent)
+    mean = {k: float(np.mean(v)) for k, v in loads.items()}
+    kind = [op["kind"] for op in sheet["operations"]]
+    bulk = kind.index("roughing")  # the first roughing takes the stock off the whole part
+    finish = max(v for k, v in mean.items() if kind[k] == "finishing")
+    assert mean[bulk] > finish > 0, (mean, kind)
     # the tool position is the one on /tf (work -> tool) at the same stamp
     tips = {t: x.transform.translation for topic, _, t, msg in msgs if topic == "/tf" for x in msg.transforms
             if x.child_frame_id == "tool"}

@@ -1,0 +1,220 @@
+"""How deep and how wide a cutter meets the stock: a move's engagement, as verify and the stock model read it.
+
+The stock model (:mod:`cadcam.stock`) cuts a program's moves into a z-map; for every move it hands the
+columns the move took off here, which say how deep the cutter was buried (its axial depth of cut), over
+what arc of its circumference (the engagement angle) and how deep the deepest full-width cut was.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from cadcam.envelope import Segments, reach_interval
+
+
+class MoveRecord:
+    """What each swept move met, filled batch by batch as the stock is cut (all lengths [mm]).
+
+    Arrays of one row per :class:`Segments` row, read-only once the cut is done.
+    ``depth``: deepest *engaged* depth of the move (see :func:`engaged_depth`);
+    ``width``: lateral extent of the material it removed; ``removed_max``: thickest column
+    it took off one grid point, ``removed_env``: the tool's lowest point there; ``contact``:
+    deepest reach of its shank or holder into the stock or the part, ``contact_z``: the body's
+    lowest point there; ``*_cell``: flat grid index where that happened, -1 if nowhere;
+    ``volume``: stock it removed above ``bottom`` (the stock's bottom) [mm³]; ``angle``: its
+    engagement angle [deg], the arc of the cutter's circumference that met material moving
+    sideways, wall skins included; ``full_depth``: the deepest axial cut it took over at least
+    the full-width angle (``full_cell``: where), 0 if it never cut at full width.
+    """
+
+    def __init__(self, n: int, bottom: float = -np.inf):
+        self.volume = np.zeros(n)
+        self.bottom = bottom
+        self.depth = np.zeros(n)
+        self.depth_cell = np.full(n, -1, np.int64)
+        self.width = np.zeros(n)
+        self.removed_max = np.zeros(n)
+        self.removed_cell = np.full(n, -1, np.int64)
+        self.removed_env = np.zeros(n)
+        self.contact = np.zeros(n)
+        self.contact_cell = np.full(n, -1, np.int64)
+        self.contact_z = np.zeros(n)
+        self.angle = np.zeros(n)
+        self.full_depth = np.zeros(n)
+        self.full_cell = np.full(n, -1, np.int64)
+
+    def freeze(self) -> None:
+        """Make every array read-only: the cut is done."""
+        for value in vars(self).values():
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
+
+
+#: A cut counts as engagement only where it is at least this wide across the move [mm] (see
+#: :func:`engaged_depth`), unless told otherwise (:attr:`cadcam.verify.VerifyOptions.engaged_width`).
+ENGAGED_WIDTH = 1.0
+
+#: A move is a full-width cut (a slot, an inside corner) where its cutter meets material over more
+#: than this arc of its circumference [deg] (the engagement angle, :func:`engaged_depth`), unless told
+#: otherwise (:attr:`cadcam.verify.VerifyOptions.full_width_angle`). A slot is 180 deg; a side cut of
+#: half the diameter, the widest carbide makers' charts give side-milling data for, 90 deg; this is
+#: halfway, a side cut of 0.75 D. A tool running along a wall into the corner a tool three times wider
+#: left meets 135 deg of it, one twice as wide about 130 deg; a tool in a corner of its own radius,
+#: taking the skin of both walls at once, about 90-100 deg (a side cut, as the charts have it).
+FULL_WIDTH_ANGLE = 120.0
+
+
+def record_max(best: np.ndarray, where: np.ndarray, owner: np.ndarray, value: np.ndarray, cell: np.ndarray,
+                extra: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+    """``best[k] = max(value)`` over entries of owner ``k``, with the cell (and ``extra``) where it is reached."""
+    np.maximum.at(best, owner, value)
+    at = np.flatnonzero(value >= best[owner])
+    where[owner[at]] = cell[at]
+    if extra is not None:
+        extra[0][owner[at]] = extra[1][at]
+
+
+#: A grid point counts towards a move's width once the move takes more than this off it [mm].
+_ENGAGED_FILM = 0.02
+
+
+def engaged_depth(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.ndarray, before: np.ndarray,
+                   env: np.ndarray, cells: np.ndarray, cell: float, min_width: float, stats: MoveRecord,
+                   skin: np.ndarray | None = None, full_width: float = math.radians(FULL_WIDTH_ANGLE)) -> None:
+    """Deepest engagement of each move's cutter [mm], in ``stats.depth``; its width in ``stats.width``.
+
+    The column a move takes off a grid point is split in two: as much of it as the tool
+    descends while the point is within its reach is a plunge (taken off from above); the
+    rest the cutter meets moving sideways, and that height is the axial depth of cut
+    ``ap`` there. A tool is buried when
+
+    * sideways: the grid points taken, thickest first, span ``min_width`` across the
+      move's XY direction while still deeper than the depth reported (a tall but thin
+      skin shaved off a wall is not a buried tool, a full-width slot is);
+    * plunging: they cover half the cutter's footprint while still deeper than it (a
+      drill-like entry into solid stock, not a descent past a wall; for a ball that is
+      ``0.29 R`` less than the depth of its tip).
+
+    Grid points ``skin`` (within :data:`cadcam.stock._SKIN` of a part wall at least as tall as the
+    material on them, less that distance) are left out: the allowance on a wall is
+    taken off by finishing whatever its height, a raster pass meeting it head-on.
+
+    The engagement angle (``stats.angle``) is read from the same sideways columns, skins
+    included (:func:`_engaged_arc`); ``stats.full_depth`` is the deepest cut that still
+    meets material over ``full_width`` [rad] of the cutter: the axial depth of a full-width
+    cut, a slot or an inside corner.
+    """
+    R = seg.radius[o]
+    ta, tb, _ = reach_interval(seg, o, qx, qy)
+    # What the tool takes off a point while it descends over it is a plunge; the rest it
+    # takes moving sideways into the material.
+    removed = before - env
+    plunge = np.minimum(removed, np.maximum(-seg.dz[o], 0.0) * np.maximum(tb - ta, 0.0))
+    side = removed - plunge
+    met_side = side  # skins included: what the flutes meet, for the engagement angle
+    if skin is not None:  # the skin of a wall: taken off, but no engagement
+        plunge = np.where(skin, 0.0, plunge)
+        side = np.where(skin, 0.0, side)
+
+    L = np.sqrt(seg.l2[o])
+    has = L > 1e-9
+    ux = np.where(has, seg.dx[o] / np.where(has, L, 1.0), 1.0)
+    uy = np.where(has, seg.dy[o] / np.where(has, L, 1.0), 0.0)
+    wx, wy = qx - seg.x[o], qy - seg.y[o]
+    lat = np.where(has, wx * uy - wy * ux, wx)  # signed distance across the move (along X if vertical)
+    film = removed > _ENGAGED_FILM
+    if film.any():
+        lo = np.full(len(seg), np.inf)
+        hi = np.full(len(seg), -np.inf)
+        np.minimum.at(lo, o[film], lat[film])
+        np.maximum.at(hi, o[film], lat[film])
+        k = np.flatnonzero(np.isfinite(lo))
+        width = np.minimum(hi[k] - lo[k] + cell, 2 * seg.radius[k])
+        stats.width[k + s] = np.maximum(stats.width[k + s], width)
+
+    # Sideways: thickest first within each move, running extent of the lateral offsets
+    # (cummax with a per-move offset that lifts each move above every earlier one).
+    sel = np.flatnonzero(side > 0.0)
+    if len(sel):
+        order = _thickest_first(o, side, sel)
+        spread = _running_spread(o[order], lat[order], lat[order], 2.0 * float(np.max(seg.radius)))
+        wide = np.flatnonzero(spread + cell >= min_width)
+        if len(wide):
+            record_max(stats.depth, stats.depth_cell, o[order][wide] + s, side[order][wide], cells[order][wide])
+    # The arc of the cutter meeting material, and how deep that stays at full width (moves across only).
+    sel = np.flatnonzero((met_side > _ENGAGED_FILM) & has)
+    if len(sel):
+        _engaged_arc(o[sel], lat[sel], R[sel], met_side[sel], cells[sel], cell, s, full_width, stats)
+    # Plunging: the k-th thickest, k grid points being half the cutter's footprint.
+    sel = np.flatnonzero(plunge > 0.0)
+    if len(sel):
+        order = sel[np.argsort(o[sel] * (float(plunge[sel].max()) + 1.0) - plunge[sel], kind="stable")]
+        os_ = o[order]
+        first = np.r_[True, os_[1:] != os_[:-1]]
+        rank = np.arange(len(order)) - np.maximum.accumulate(np.where(first, np.arange(len(order)), 0))
+        need = np.ceil(0.5 * math.pi * R[order] ** 2 / cell**2) - 1
+        at = np.flatnonzero(rank >= need)
+        if len(at):
+            record_max(stats.depth, stats.depth_cell, os_[at] + s, plunge[order][at], cells[order][at])
+
+
+#: The leading half of the cutter is read in this many arcs of equal angle (5 deg each).
+_ARC_BINS = 36
+
+
+def _engaged_arc(o: np.ndarray, w: np.ndarray, r: np.ndarray, depth: np.ndarray, cells: np.ndarray, cell: float,
+                 s: int, full_width: float, stats: MoveRecord) -> None:
+    """Engagement angle and full-width depth of moves ``s + o`` from the points they met sideways.
+
+    A point at lateral offset ``w`` [mm] from a straight move is met by the leading half of the
+    cutter (radius ``r``) at the angle ``asin(w / r)`` from the feed direction; standing for
+    its cell, it covers the angles of ``w`` +- half a cell (a whole cell outwards). Each move's half circle is read in
+    :data:`_ARC_BINS` arcs, each holding the thickest column ``depth`` [mm] met there: the
+    engagement angle is the arc whose columns are more than a film thick (a slot 180 deg, a
+    side cut of width ``ae`` ``acos(1 - ae / r)``, a skin met head-on the chord its thickness
+    cuts, two thin skins either side of a slot two small arcs), and the full-width depth is
+    the deepest column that arcs adding up to more than ``full_width`` [rad] all reach.
+    """
+    step = math.pi / _ARC_BINS
+    n = int(o.max()) + 1
+    # Half a cell towards the axis, a whole one away from it: the band of a cell's width along the
+    # cutter's side may hold no grid point, yet it spans a wide arc (asin is steep there).
+    lo = np.arcsin(np.clip((w - np.where(w < 0, 1.0, 0.5) * cell) / r, -1.0, 1.0)) + 0.5 * math.pi
+    hi = np.arcsin(np.clip((w + np.where(w > 0, 1.0, 0.5) * cell) / r, -1.0, 1.0)) + 0.5 * math.pi
+    b0 = np.clip(np.floor(lo / step).astype(np.int64), 0, _ARC_BINS - 1)
+    b1 = np.clip(np.ceil(hi / step).astype(np.int64) - 1, b0, _ARC_BINS - 1)
+    best = np.zeros(n * _ARC_BINS)
+    where = np.full(n * _ARC_BINS, -1, np.int64)
+    for m in range(int((b1 - b0).max()) + 1):
+        k = np.flatnonzero(b0 + m <= b1)
+        record_max(best, where, o[k] * _ARC_BINS + b0[k] + m, depth[k], cells[k])
+    moves = np.unique(o)
+    best = best.reshape(n, _ARC_BINS)[moves]
+    where = where.reshape(n, _ARC_BINS)[moves]
+    arc = np.degrees(np.count_nonzero(best > _ENGAGED_FILM, axis=1) * step)
+    stats.angle[moves + s] = np.maximum(stats.angle[moves + s], arc)
+    need = int(math.floor(full_width / step + 1e-9)) + 1  # more than the full-width arc
+    if need > _ARC_BINS:
+        return
+    kth = np.argsort(-best, axis=1, kind="stable")[:, need - 1]
+    rows = np.arange(len(moves))
+    deep, at = best[rows, kth], where[rows, kth]
+    better = deep > stats.full_depth[moves + s]
+    stats.full_depth[moves[better] + s] = deep[better]
+    stats.full_cell[moves[better] + s] = at[better]
+
+
+def _thickest_first(o: np.ndarray, value: np.ndarray, sel: np.ndarray) -> np.ndarray:
+    """The entries ``sel``, grouped by move ``o`` (ascending) and thickest ``value`` first within each."""
+    return sel[np.argsort(o[sel] * (float(value[sel].max()) + 1.0) - value[sel], kind="stable")]
+
+
+def _running_spread(group: np.ndarray, lo: np.ndarray, hi: np.ndarray, span: float) -> np.ndarray:
+    """``max(hi) - min(lo)`` over each entry and the ones before it in its run of equal ``group``
+    (sorted), every value within ``span`` of the others: a cummax with each run lifted above the last."""
+    shift = group * (4.0 * span + 4.0)
+    top = np.maximum.accumulate(hi + shift) - shift
+    bottom = shift - np.maximum.accumulate(shift - lo)
+    return top - bottom
