@@ -842,13 +842,7 @@ def zlevel_roughing(
     heights = [zq for z in levels for zq, _ in _forbidden_terms(float(z), p)]
     shadow = _shadows(part, heights)
 
-    sx0, sy0 = float(setup.stock_min[0]), float(setup.stock_min[1])
-    sx1, sy1 = float(setup.stock_max[0]), float(setup.stock_max[1])
-    g = p.radius
-    rect_xy = (sx0 - g, sy0 - g, sx1 + g, sy1 + g)
-    rect = box(*rect_xy)
-    if within is not None:
-        rect = rect.intersection(within(p.radius))
+    rect_xy, rect = _axis_rect(setup, p, within)
 
     # the rest material grown by the tool radius, remembered per distinct mask of levels
     rest_grown = GrownMaskCache(rest.grid, p.radius, quad_segs=8) if rest is not None else None
@@ -873,7 +867,7 @@ def zlevel_roughing(
             allowed = allowed.intersection(rest_grown(masks[li]))
         plans, missed = _plan_entries(allowed, space, z, rect_xy, p, tool, known, air_at,
                                       None if cut_before is None else (lambda z=z: cut_before(z)))
-        done_regions, failed = _cut_nearest_first(path, plans, z, z_prev, p, air_at, np.array([sx0, sy0]))
+        done_regions, failed = _cut_nearest_first(path, plans, z, z_prev, p, air_at, setup.stock_min[:2])
         skipped += len(missed) + len(failed)
         if rest is not None:
             blocked += [region.buffer(2 * p.radius, quad_segs=4) for region in missed + failed]
@@ -888,11 +882,19 @@ def zlevel_roughing(
     if path.points:
         cur = path.here
         path.add([cur[0], cur[1], p.safe_z], Motion.RAPID)
-    pts = np.array(path.points).reshape(-1, 3)
-    motion = np.array(path.motion, dtype=np.int8)
     name = "rough z-level" if rest is None else f"rest rough T{tool.number}"
-    return Operation(name=name, kind="roughing", tool=tool, cutting=cutting, points=pts,
-                     motion=motion, allowance=p.allowance)
+    return Operation(name=name, kind="roughing", tool=tool, cutting=cutting, points=np.array(path.points).reshape(-1, 3),
+                     motion=np.array(path.motion, dtype=np.int8), allowance=p.allowance)
+
+
+def _axis_rect(setup: Setup, p: _Params, within: Callable[[float], BaseGeometry] | None
+               ) -> tuple[tuple[float, float, float, float], BaseGeometry]:
+    """The box the tool axis may roam in [mm]: the stock grown by the tool radius (so the outer loops
+    clear the stock's sides), as bounds and as a region, cut to ``within`` where it is given."""
+    (sx0, sy0), (sx1, sy1), g = setup.stock_min[:2], setup.stock_max[:2], p.radius
+    rect_xy = (float(sx0) - g, float(sy0) - g, float(sx1) + g, float(sy1) + g)
+    rect = box(*rect_xy)
+    return rect_xy, rect if within is None else rect.intersection(within(p.radius))
 
 
 def _level_space(z: float, rect: BaseGeometry, shadow: dict, p: _Params) -> BaseGeometry:
