@@ -1,6 +1,6 @@
 """Our op 1 against FreeCAD 0.20's Adaptive clearing (issue 32, item 4): same tools, feeds and timer.
 
-    python benchmarks/freecad_peer.py [PART.stl ...] [--cell 0.5]
+    python benchmarks/freecad_peer.py [PART.stl ...] [--cell 0.5] [--keep DIR]
 
 For each part (default: the four prismatic samples and the relief) op 1 is planned as
 ``factory plan --no-robot --ops 1`` plans it (:func:`cadcam.plan.plan_job`, tools from
@@ -15,14 +15,16 @@ Both programs are timed by our program timer, the one the plan's cycle time is
 (:func:`program_minutes`: :func:`cadcam.gcode.parse_gcode`, then
 :func:`cadcam.timeline.machine_timeline`, whose clock is :func:`cadcam.post.move_seconds`),
 and both are judged the same way: ``factory verify``'s simulation (:func:`cadcam.verify.simulate`:
-gouges, rapids through stock, faults, deepest cut per tool) and the tests' independent sweep
+gouges, rapids through stock, faults, deepest cut per tool, the stock left on the part: max
+and mean over its grid points) and the tests' independent sweep
 (tests/cadcam/sweep.py) for plunges, vertical feed moves into stock. (FreeCAD's other entries are
 its helices at 5 degrees, steeper than the 3 the issue allows.)
 
 Prints one JSON line per part and a last ``{"summary": ...}`` line; ``ratio`` is our op 1 over
 FreeCAD's Adaptive (issue 32 asks for at most 0.8). FreeCAD's programs only rough: ``ours_rough_min``
-is the part of our op 1 that roughs (holes bored by helix, roughing and rest roughing).
-Installs nothing: without ``freecadcmd`` on the PATH it prints one line and exits 0.
+is the part of our op 1 that roughs (holes bored by helix or drilled, roughing and rest roughing),
+``rough_ratio`` that part over FreeCAD's.
+``--keep DIR`` writes both programs there (``PART.ngc`` FreeCAD's, ``PART.nc`` ours). Installs nothing: without ``freecadcmd`` on the PATH it prints one line and exits 0.
 
 The issue's "feature-aware lower bound" is not reported: no function in the repository
 computes it yet.
@@ -75,11 +77,15 @@ def program_minutes(text: str, options: PostOptions = PostOptions()) -> float:
     return float(timeline.end[-1]) / 60.0
 
 
-def plunges(moves: ProgramMoves, engagement: np.ndarray) -> int:
-    """Feed moves that go straight down into stock; ``engagement`` [mm] per move, as the sweep gives it."""
+def plunges(moves: ProgramMoves, engagement: np.ndarray, tools: dict[int, Tool]) -> int:
+    """Feed moves of a mill that go straight down into stock (a drill's only way in is not counted).
+
+    ``engagement`` [mm] per move, as :func:`tests.cadcam.sweep.sweep_moves` gives it.
+    """
     step = np.diff(moves.points, axis=0)
+    drills = [n for n, t in tools.items() if t.shape == "drill"]
     down = (moves.motion[1:] != Motion.RAPID) & (step[:, 2] < -1e-3) & (np.hypot(step[:, 0], step[:, 1]) < 1e-3)
-    return int((down & (engagement[1:] > ENGAGED_MM)).sum())
+    return int((down & (engagement[1:] > ENGAGED_MM) & ~np.isin(moves.tool[1:], drills)).sum())
 
 
 def judge(text: str, tools: dict[int, Tool], setup: Setup, triangles: np.ndarray, cell: float) -> dict:
@@ -94,7 +100,9 @@ def judge(text: str, tools: dict[int, Tool], setup: Setup, triangles: np.ndarray
         "worst_rapid_mm": round(max((c.depth for c in crashes), default=0.0), 2),
         "deepest_cut_mm": {f"T{e.tool}": round(e.max_depth, 2) for e in report.engagement},
         "faults": sorted({f"{f.kind}:T{f.tool}" for f in report.faults}),
-        "plunges": plunges(moves, sw.engagement),
+        "plunges": plunges(moves, sw.engagement, tools),
+        "left_max_mm": round(report.remaining_max, 2),
+        "left_mean_mm": round(report.remaining_mean, 2),
     }
 
 
@@ -122,7 +130,7 @@ def freecad_program(freecad: str, triangles: np.ndarray, setup: Setup, rough, fo
     return gcode.read_text(), json.loads(last[-1])
 
 
-def bench_part(path: Path, freecad: str, cell: float) -> dict:
+def bench_part(path: Path, freecad: str, cell: float, keep: Path | None = None) -> dict:
     library = load_tool_library()
     setup, part = make_setup(load_part(path).mesh)
     t0 = time.perf_counter()
@@ -139,6 +147,10 @@ def bench_part(path: Path, freecad: str, cell: float) -> dict:
         t0 = time.perf_counter()
         text, made = freecad_program(freecad, triangles, setup, rough, Path(tmp))
         freecad_s = time.perf_counter() - t0
+    if keep is not None:
+        keep.mkdir(parents=True, exist_ok=True)
+        (keep / f"{path.stem}.ngc").write_text(text)
+        (keep / f"{path.stem}.nc").write_text(program.text)
     ours_min = program_minutes(program.text)
     theirs_min = program_minutes(text)
     return {
@@ -152,6 +164,7 @@ def bench_part(path: Path, freecad: str, cell: float) -> dict:
         "ours_rough_min": round(rough_s / 60.0, 2),
         "freecad_min": round(theirs_min, 2),
         "ratio": round(ours_min / theirs_min, 2),
+        "rough_ratio": round(rough_s / 60.0 / theirs_min, 2),
         "freecad_ops": [f"{o['side']} to Z{o['final_z']:g}" for o in made["ops"]],
         "ours_judged": judge(program.text, tools, setup, triangles, cell),
         "freecad_judged": judge(text, {rough.tool.number: rough.tool}, setup, triangles, cell),
@@ -164,6 +177,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("parts", nargs="*", type=Path)
     ap.add_argument("--cell", type=float, default=0.5, help="grid of verify and the sweep [mm]")
+    ap.add_argument("--keep", type=Path, help="folder to write both programs to")
     args = ap.parse_args()
     freecad = shutil.which("freecadcmd")
     if freecad is None:
@@ -173,7 +187,7 @@ def main() -> None:
     rows, failed = [], {}
     for p in parts:
         try:
-            row = bench_part(p, freecad, args.cell)
+            row = bench_part(p, freecad, args.cell, args.keep)
         except RuntimeError as exc:
             failed[p.stem] = str(exc)
             print(json.dumps({"part": p.stem, "error": str(exc)}), flush=True)

@@ -11,9 +11,9 @@ to open):
 
 It makes the job a machinist makes in the Path workbench with the Adaptive operation at its
 defaults (20 % stepover, helix entry at 5 degrees, no lift between passes, step-down = the tool
-diameter): one Adaptive "Outside" around the part's outline down to ``floor_z``, and one
-Adaptive "Inside" per level of upward flat faces below the stock top, from the stock top down
-to that level. Then FreeCAD's LinuxCNC post writes the program. It prints one JSON line:
+diameter), level by level: for each flat facing up below the stock top, and for ``floor_z``, one
+Adaptive "Outside" the part's section just above that level, from the level above down to it
+(where no part is above the level, around a speck beside the stock: a face pass). Then FreeCAD's LinuxCNC post writes the program. It prints one JSON line:
 ``{"ops": [...], "commands": n, "seconds": wall time of FreeCAD's computation}``.
 """
 
@@ -64,41 +64,46 @@ job.Tools.Group = [tc]
 model = job.Model.Group[0]
 top = hi[2]
 
-faces = list(enumerate(model.Shape.Faces, start=1))
-bottom = min(f.BoundBox.ZMin for _, f in faces)
-levels = {}
-for i, f in faces:
-    n = f.normalAt(0, 0)
-    if n.z > 0.999 and f.BoundBox.ZLength < 1e-3 and f.BoundBox.ZMax < top - 1e-3:
-        levels.setdefault(round(f.BoundBox.ZMax, 3), []).append(f"Face{i}")
-outline = [f"Face{i}" for i, f in faces
-           if f.normalAt(0, 0).z < -0.999 and abs(f.BoundBox.ZMin - bottom) < 1e-3]
+faces = model.Shape.Faces
+bottom = model.Shape.BoundBox.ZMin
+# Levels: every flat that faces up below the stock top, and op 1's floor.
+levels = {round(f.BoundBox.ZMax, 3) for f in faces
+          if f.normalAt(0, 0).z > 0.999 and f.BoundBox.ZLength < 1e-3 and f.BoundBox.ZMax < top - 1e-3}
+levels = sorted(levels | {round(args["floor_z"], 3)}, reverse=True)
 
 
-def adaptive(name, subs, side, final_z, use_outline):
-    """One Adaptive clearing at FreeCAD's defaults but the step-down, which it leaves to the job."""
-    op = PathAdaptive.Create(name, parentJob=job)
+def adaptive(k, start_z, final_z):
+    """Adaptive "Outside" the part's section just above ``final_z``, from ``start_z`` down to it.
+
+    FreeCAD's defaults but the step-down, which it leaves to the job, and the depths, which a
+    machinist sets level by level. A part machinable from above is nowhere wider than just above
+    a level, so the section keeps the tool out of the part; the stock above ``start_z`` there is
+    gone already.
+    """
+    wires = model.Shape.slice(FreeCAD.Vector(0, 0, 1), max(final_z, bottom) + 0.01)
+    section = doc.addObject("Part::Feature", f"Section{k}")
+    if wires:
+        section.Shape = Part.makeFace(wires, "Part::FaceMakerBullseye")
+    else:
+        # Nothing of the part above the level: a face pass over the whole stock, which is what
+        # "Outside" clears around a speck of a face beside the stock.
+        section.Shape = Part.makePlane(0.1, 0.1, FreeCAD.Vector(lo[0] - 50.0, lo[1] - 50.0, final_z))
+    op = PathAdaptive.Create(f"Adaptive{k}", parentJob=job)
     op.ToolController = tc
-    op.Base = [(model, subs)]
-    op.Side = side
+    op.Base = [(section, [f"Face{i + 1}" for i in range(len(section.Shape.Faces))])]
+    op.Side = "Outside"
     op.OperationType = "Clearing"
-    op.UseOutline = use_outline
-    op.setExpression("StepDown", None)
-    op.StepDown = tool["diameter"]
-    op.setExpression("StartDepth", None)
-    op.StartDepth = top
-    op.setExpression("FinalDepth", None)
-    op.FinalDepth = final_z
+    for name, value in (("StepDown", tool["diameter"]), ("StartDepth", start_z), ("FinalDepth", final_z)):
+        op.setExpression(name, None)
+        setattr(op, name, value)
     return op
 
 
-ops = [adaptive("AdaptiveOutside", outline, "Outside", args["floor_z"], True)]
-for k, (z, subs) in enumerate(sorted(levels.items(), reverse=True)):
-    ops.append(adaptive(f"AdaptiveLevel{k}", subs, "Inside", z, False))
+ops = [adaptive(k, start, z) for k, (start, z) in enumerate(zip([top] + levels[:-1], levels))]
 doc.recompute()
 linuxcnc_post.export([tc] + ops, args["gcode"], "--no-show-editor")
 print(json.dumps({
-    "ops": [{"name": op.Name, "side": op.Side, "faces": len(op.Base[0][1]), "final_z": op.FinalDepth.Value,
+    "ops": [{"name": op.Name, "side": op.Side, "start_z": op.StartDepth.Value, "final_z": op.FinalDepth.Value,
              "commands": len(op.Path.Commands)} for op in ops],
     "commands": sum(len(op.Path.Commands) for op in ops),
     "seconds": round(time.perf_counter() - t0, 2),

@@ -6,6 +6,7 @@ writes them (preamble, ``M6 T2`` then ``G43 H2``, every G1 with its F).
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 
 import numpy as np
@@ -75,13 +76,18 @@ def test_timer_is_the_plans_estimate():
 
 
 def test_plunges_count_only_vertical_feeds_into_stock():
+    lib = load_tool_library()
+    mill = lib.tool(2)
+    drill = next(t for t in lib.tools if t.shape == "drill")
     moves = parse_gcode(FREECAD_STYLE)
     feed_down = [i for i in range(1, len(moves.points))
                  if moves.motion[i] != Motion.RAPID and moves.points[i, 2] < moves.points[i - 1, 2]]
     assert len(feed_down) == 2
     engagement = np.zeros(len(moves.points))
-    assert freecad_peer.plunges(moves, engagement) == 0  # both plunges in air
+    assert freecad_peer.plunges(moves, engagement, {2: mill}) == 0  # both plunges in air
     engagement[feed_down[1]] = 3.0
-    assert freecad_peer.plunges(moves, engagement) == 1
+    assert freecad_peer.plunges(moves, engagement, {2: mill}) == 1
     engagement[:] = 3.0  # the sideways cuts and the rapids are no plunges however deep
-    assert freecad_peer.plunges(moves, engagement) == 2
+    assert freecad_peer.plunges(moves, engagement, {2: mill}) == 2
+    # The same program run with a drill as T2: a drill only ever goes in straight down.
+    assert freecad_peer.plunges(moves, engagement, {2: dataclasses.replace(drill, number=2)}) == 0
