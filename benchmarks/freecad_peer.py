@@ -6,25 +6,25 @@ For each part (default: the four prismatic samples and the relief) op 1 is plann
 ``factory plan --no-robot --ops 1`` plans it (:func:`cadcam.plan.plan_job`, tools from
 fixtures/tools.yaml) and posted for LinuxCNC. FreeCAD's Path workbench then clears the same
 stock with op 1's roughing tool, its spindle speed, feed and plunge feed, by Adaptive at its
-defaults (20 % stepover, helix entry at 5 degrees, step-down = the tool diameter): one
-Adaptive around the part's outline down to op 1's floor and one inside each level of upward
-flats (benchmarks/freecad_peer_job.py, run headless by Debian's ``freecadcmd``), posted by
-FreeCAD's LinuxCNC post.
+defaults (20 % stepover, helix entry at 5 degrees, no lift on links, step-down = the tool
+diameter), level by level down to op 1's floor (benchmarks/freecad_peer_job.py, run headless
+by Debian's ``freecadcmd``), and posted by FreeCAD's LinuxCNC post.
 
 Both programs are timed by our program timer, the one the plan's cycle time is
 (:func:`program_minutes`: :func:`cadcam.gcode.parse_gcode`, then
 :func:`cadcam.timeline.machine_timeline`, whose clock is :func:`cadcam.post.move_seconds`),
-and both are judged the same way: ``factory verify``'s simulation (:func:`cadcam.verify.simulate`:
-gouges, rapids through stock, faults, deepest cut per tool, the stock left on the part: max
-and mean over its grid points) and the tests' independent sweep
-(tests/cadcam/sweep.py) for plunges, vertical feed moves into stock. (FreeCAD's other entries are
-its helices at 5 degrees, steeper than the 3 the issue allows.)
+and judged the same way: by ``factory verify``'s simulation (:func:`cadcam.verify.simulate`):
+gouges, rapids through stock, faults, deepest cut per tool, the stock left on the part (max
+and mean over its grid points); by counting the rapids below the stock top; and by the
+tests' independent sweep (tests/cadcam/sweep.py) for plunges, vertical feed moves into stock.
+FreeCAD's other entries are its helices at 5 degrees, steeper than the 3 the issue allows.
 
-Prints one JSON line per part and a last ``{"summary": ...}`` line; ``ratio`` is our op 1 over
-FreeCAD's Adaptive (issue 32 asks for at most 0.8). FreeCAD's programs only rough: ``ours_rough_min``
-is the part of our op 1 that roughs (holes bored by helix or drilled, roughing and rest roughing),
-``rough_ratio`` that part over FreeCAD's.
-``--keep DIR`` writes both programs there (``PART.ngc`` FreeCAD's, ``PART.nc`` ours). Installs nothing: without ``freecadcmd`` on the PATH it prints one line and exits 0.
+Prints one JSON line per part and a last ``{"summary": ...}`` line. ``ratio`` is our op 1 over
+FreeCAD's program (issue 32 asks for at most 0.8). FreeCAD's programs only rough:
+``ours_rough_min`` is the part of our op 1 that roughs (holes bored or drilled, roughing and
+rest roughing) and ``rough_ratio`` that part over FreeCAD's. ``--keep DIR`` writes both
+programs there (``PART.ngc`` FreeCAD's, ``PART.nc`` ours). Installs nothing: without
+``freecadcmd`` on the PATH it prints one line and exits 0.
 
 The issue's "feature-aware lower bound" is not reported: no function in the repository
 computes it yet.
@@ -94,7 +94,10 @@ def judge(text: str, tools: dict[int, Tool], setup: Setup, triangles: np.ndarray
     report = simulate(moves, tools, setup, triangles, VerifyOptions(cell=cell)).report
     sw = sweep_moves(moves.points, moves.motion, moves.tool, tools, setup, cell)
     crashes = report.rapid_crashes
+    lowest = np.minimum(moves.points[1:, 2], moves.points[:-1, 2])
+    low = (moves.motion[1:] == Motion.RAPID) & (lowest < setup.stock_max[2])
     return {
+        "rapids_below_top": int(low.sum()),
         "gouge_mm": round(report.max_gouge, 3),
         "rapids_in_stock": len(crashes),
         "worst_rapid_mm": round(max((c.depth for c in crashes), default=0.0), 2),

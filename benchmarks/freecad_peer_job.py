@@ -13,7 +13,8 @@ It makes the job a machinist makes in the Path workbench with the Adaptive opera
 defaults (20 % stepover, helix entry at 5 degrees, no lift between passes, step-down = the tool
 diameter), level by level: for each flat facing up below the stock top, and for ``floor_z``, one
 Adaptive "Outside" the part's section just above that level, from the level above down to it
-(where no part is above the level, around a speck beside the stock: a face pass). Then FreeCAD's LinuxCNC post writes the program. It prints one JSON line:
+(where no part is above the level, around a speck beside the stock: a face pass). Then
+FreeCAD's LinuxCNC post writes the program. It prints one JSON line:
 ``{"ops": [...], "commands": n, "seconds": wall time of FreeCAD's computation}``.
 """
 
