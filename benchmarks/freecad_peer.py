@@ -1,8 +1,8 @@
 """Our op 1 against FreeCAD 0.20's Adaptive clearing (issue 32, item 4): same tools, feeds and timer.
 
-    python benchmarks/freecad_peer.py [PART.stl ...] [--cell 0.5] [--keep DIR]
+    python benchmarks/freecad_peer.py [PART.stl ...] [--cell 0.5] [--keep DIR] [--timeout 900]
 
-For each part (default: the four prismatic samples and the relief) op 1 is planned as
+For each part (default: the four samples but the relief) op 1 is planned as
 ``factory plan --no-robot --ops 1`` plans it (:func:`cadcam.plan.plan_job`, tools from
 fixtures/tools.yaml) and posted for LinuxCNC. FreeCAD's Path workbench then clears the same
 stock with op 1's roughing tool, its spindle speed, feed and plunge feed, by Adaptive at its
@@ -58,7 +58,10 @@ from cadcam.tools import load_tool_library  # noqa: E402
 from cadcam.verify import VerifyOptions, simulate  # noqa: E402
 from tests.cadcam.sweep import sweep_moves  # noqa: E402
 
-SAMPLES = ("bracket", "plate_bosses", "stepped_wall", "dome_mould", "relief")
+#: The relief is left out: ``factory plan`` plans it inside its boundary (:mod:`cadcam.relief`),
+#: which :func:`bench_part` does not, and FreeCAD was still turning its 19,200 triangles into a
+#: solid after 4 minutes.
+SAMPLES = ("bracket", "plate_bosses", "stepped_wall", "dome_mould")
 JOB_SCRIPT = Path(__file__).resolve().parent / "freecad_peer_job.py"
 #: Operation kinds of our op 1 that rough (the work FreeCAD's Adaptive does).
 ROUGHING_KINDS = ("roughing", "helix", "drill", "peck")
@@ -109,8 +112,12 @@ def judge(text: str, tools: dict[int, Tool], setup: Setup, triangles: np.ndarray
     }
 
 
-def freecad_program(freecad: str, triangles: np.ndarray, setup: Setup, rough, folder: Path) -> tuple[str, dict]:
-    """FreeCAD's Adaptive program for the part with our roughing operation's tool and cutting data."""
+def freecad_program(freecad: str, triangles: np.ndarray, setup: Setup, rough, folder: Path,
+                    timeout: float) -> tuple[str, dict]:
+    """FreeCAD's Adaptive program for the part with our roughing operation's tool and cutting data.
+
+    ``timeout`` [s] for ``freecadcmd``; RuntimeError when it fails or runs out of time.
+    """
     import trimesh
 
     stl, gcode = folder / "part.stl", folder / "freecad.ngc"
@@ -124,8 +131,11 @@ def freecad_program(freecad: str, triangles: np.ndarray, setup: Setup, rough, fo
                     "length": tool.length},
            "spindle_rpm": rough.cutting.spindle_rpm, "feed": rough.cutting.feed,
            "plunge_feed": rough.cutting.plunge_feed}
-    run = subprocess.run([freecad, str(JOB_SCRIPT)], env={**os.environ, "FACTORY_PEER_JOB": json.dumps(job)},
-                         capture_output=True, text=True, cwd=folder)
+    try:
+        run = subprocess.run([freecad, str(JOB_SCRIPT)], env={**os.environ, "FACTORY_PEER_JOB": json.dumps(job)},
+                             capture_output=True, text=True, cwd=folder, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        raise RuntimeError(f"freecadcmd did not finish in {timeout:g} s") from None
     last = [ln for ln in run.stdout.splitlines() if ln.startswith("{")]
     if run.returncode != 0 or not last or not gcode.exists():
         tail = (run.stdout + run.stderr).strip().splitlines()[-3:]
@@ -133,7 +143,7 @@ def freecad_program(freecad: str, triangles: np.ndarray, setup: Setup, rough, fo
     return gcode.read_text(), json.loads(last[-1])
 
 
-def bench_part(path: Path, freecad: str, cell: float, keep: Path | None = None) -> dict:
+def bench_part(path: Path, freecad: str, cell: float, keep: Path | None = None, timeout: float = 900.0) -> dict:
     library = load_tool_library()
     setup, part = make_setup(load_part(path).mesh)
     t0 = time.perf_counter()
@@ -148,7 +158,7 @@ def bench_part(path: Path, freecad: str, cell: float, keep: Path | None = None) 
                   if op.kind in ROUGHING_KINDS)
     with tempfile.TemporaryDirectory(prefix="freecad_peer_") as tmp:
         t0 = time.perf_counter()
-        text, made = freecad_program(freecad, triangles, setup, rough, Path(tmp))
+        text, made = freecad_program(freecad, triangles, setup, rough, Path(tmp), timeout)
         freecad_s = time.perf_counter() - t0
     if keep is not None:
         keep.mkdir(parents=True, exist_ok=True)
@@ -181,6 +191,7 @@ def main() -> None:
     ap.add_argument("parts", nargs="*", type=Path)
     ap.add_argument("--cell", type=float, default=0.5, help="grid of verify and the sweep [mm]")
     ap.add_argument("--keep", type=Path, help="folder to write both programs to")
+    ap.add_argument("--timeout", type=float, default=900.0, help="for FreeCAD per part [s]")
     args = ap.parse_args()
     freecad = shutil.which("freecadcmd")
     if freecad is None:
@@ -190,7 +201,7 @@ def main() -> None:
     rows, failed = [], {}
     for p in parts:
         try:
-            row = bench_part(p, freecad, args.cell, args.keep)
+            row = bench_part(p, freecad, args.cell, args.keep, args.timeout)
         except RuntimeError as exc:
             failed[p.stem] = str(exc)
             print(json.dumps({"part": p.stem, "error": str(exc)}), flush=True)
