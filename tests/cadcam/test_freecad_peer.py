@@ -1,0 +1,93 @@
+"""benchmarks/freecad_peer.py's adapter from a G-code program to our timer, and its plunge count.
+
+No FreeCAD here: the programs are written by hand in the shape FreeCAD 0.20's LinuxCNC post
+writes them (preamble, ``M6 T2`` then ``G43 H2``, every G1 with its F).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+
+import numpy as np
+import pytest
+
+from cadcam.gcode import parse_gcode
+from cadcam.model import Job, Motion
+from cadcam.post import PostOptions, post_process
+from cadcam.roughing import zlevel_roughing
+from cadcam.setup import make_setup
+from cadcam.tools import load_tool_library
+from tests.conftest import ROOT, pocket_block
+
+_spec = importlib.util.spec_from_file_location("freecad_peer", ROOT / "benchmarks" / "freecad_peer.py")
+freecad_peer = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(freecad_peer)
+
+FREECAD_STYLE = """\
+(Exported by FreeCAD)
+(Post Processor: PathScripts.post.linuxcnc_post)
+(begin preamble)
+G17 G54 G40 G49 G80 G90
+G21
+(begin operation: TC2)
+(machine units: mm/min)
+(TC2)
+M5
+M6 T2
+G43 H2
+M3 S9549
+(finish operation: TC2)
+(begin operation: AdaptiveOutside)
+G0 Z5.000
+G0 X10.000 Y0.000 Z5.000
+G1 X10.000 Y0.000 Z-10.000 F687.500
+(Adaptive - depth: -10.000000)
+G1 X50.000 Y0.000 F2291.800
+G1 X50.000 Y30.000 F2291.800
+G0 Z5.000
+G0 X10.000 Y30.000 Z5.000
+G1 X10.000 Y30.000 Z-10.000 F687.500
+(finish operation: AdaptiveOutside)
+M05
+M2
+"""
+
+
+def test_freecad_style_program_by_hand():
+    opt = PostOptions()
+    # The tool change, then: its traverse to X10 Y0 is the change's; 15 mm down at the plunge
+    # feed, 40 + 30 mm at the cutting feed, 15 mm up and 40 mm across at the rapid rate, 15 mm down.
+    expected = (opt.tool_change_time / 60.0 + 30.0 / 687.5 + 70.0 / 2291.8 + 55.0 / opt.rapid_rate)
+    assert freecad_peer.program_minutes(FREECAD_STYLE) == pytest.approx(expected, rel=1e-9)
+    slow = PostOptions(rapid_rate=1000.0)
+    assert freecad_peer.program_minutes(FREECAD_STYLE, slow) == pytest.approx(
+        expected - 55.0 / opt.rapid_rate + 55.0 / 1000.0, rel=1e-9)
+
+
+def test_timer_is_the_plans_estimate():
+    lib = load_tool_library()
+    setup, part = make_setup(pocket_block())
+    tool = lib.tool(1)
+    op = zlevel_roughing(part, setup, tool, lib.cutting_data(tool, setup.material))
+    program = post_process(Job("p", setup, (op,)), PostOptions())
+    # Equal up to what the text rounds and the chords arcs are read back as.
+    assert freecad_peer.program_minutes(program.text) == pytest.approx(program.total_time / 60.0, rel=2e-3)
+
+
+def test_plunges_count_only_vertical_feeds_into_stock():
+    lib = load_tool_library()
+    mill = lib.tool(2)
+    drill = next(t for t in lib.tools if t.shape == "drill")
+    moves = parse_gcode(FREECAD_STYLE)
+    feed_down = [i for i in range(1, len(moves.points))
+                 if moves.motion[i] != Motion.RAPID and moves.points[i, 2] < moves.points[i - 1, 2]]
+    assert len(feed_down) == 2
+    engagement = np.zeros(len(moves.points))
+    assert freecad_peer.plunges(moves, engagement, {2: mill}) == 0  # both plunges in air
+    engagement[feed_down[1]] = 3.0
+    assert freecad_peer.plunges(moves, engagement, {2: mill}) == 1
+    engagement[:] = 3.0  # the sideways cuts and the rapids are no plunges however deep
+    assert freecad_peer.plunges(moves, engagement, {2: mill}) == 2
+    # The same program run with a drill as T2: a drill only ever goes in straight down.
+    assert freecad_peer.plunges(moves, engagement, {2: dataclasses.replace(drill, number=2)}) == 0
