@@ -14,9 +14,9 @@ Timings are single runs on whatever machine this is: compare runs on the same ma
 
 ``--generate N,...``: scale-out instead. For each N, an orders file of N orders (one part each,
 the sample parts in turn, aluminium) runs once through ``factory simulate --mcap`` in its own
-process under ``/usr/bin/time``, which reports its peak resident memory; printed per N: wall time
-[s], peak RSS [MB], MCAP size [MB], simulated hours. Plan the sample parts into the catalog first
-(the first run would plan them inside the timing). With ``--db`` each run also appends to a fresh
+process under ``/usr/bin/time``, which reports its processor time and peak resident memory; printed
+per N: wall and processor time [s], peak RSS [MB], MCAP size [MB], simulated hours. Plan the sample
+parts into the catalog first (the first run would plan them inside the timing). With ``--db`` each run also appends to a fresh
 SQLite process record (``factory simulate --mcap --db``: the log and the record users keep).
 """
 
@@ -74,14 +74,17 @@ def scale_out(catalog: Path, counts: list[int], robot_rate: float | None, faults
             args += ["--db", str(record)]
         rss_file = out / "rss.txt"
         t0 = time.perf_counter()
-        r = subprocess.run(["/usr/bin/time", "-f", "%M", "-o", str(rss_file), *args], capture_output=True,
+        r = subprocess.run(["/usr/bin/time", "-f", "%U %S %M", "-o", str(rss_file), *args], capture_output=True,
                            text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
         wall = time.perf_counter() - t0
         if r.returncode != 0:
             raise SystemExit(f"simulate of {n} orders failed:\n{r.stderr[-2000:]}")
         doc = json.loads(r.stdout)
-        peak_kb = int(rss_file.read_text().split()[-1])  # GNU time's %M: peak resident set [KiB]
-        row = {"orders": n, "wall_s": round(wall, 1), "peak_rss_mb": round(peak_kb / 1024),
+        # GNU time's %U %S: processor seconds (user, system), steadier than wall on a shared machine;
+        # %M: peak resident set [KiB]
+        user_s, system_s, peak_kb = rss_file.read_text().split()[-3:]
+        row = {"orders": n, "wall_s": round(wall, 1), "cpu_s": round(float(user_s) + float(system_s), 1),
+               "peak_rss_mb": round(int(peak_kb) / 1024),
                "mcap_mb": round(mcap.stat().st_size / 1e6, 1),
                "simulated_h": round(doc["summary"]["makespan_s"] / 3600, 1),
                "db_mb": round(record.stat().st_size / 1e6, 1) if db else None,
@@ -89,7 +92,7 @@ def scale_out(catalog: Path, counts: list[int], robot_rate: float | None, faults
                "parts_per_hour": doc["summary"]["parts_per_hour"], "stages_s": doc["seconds"],
                "planned_now": sum(1 for p in doc["parts"] if p.get("planned_now"))}
         rows.append(row)
-        print(f"{n} orders: {row['wall_s']} s wall, peak RSS {row['peak_rss_mb']} MB, MCAP {row['mcap_mb']} MB, "
+        print(f"{n} orders: {row['wall_s']} s wall, {row['cpu_s']} s processor, peak RSS {row['peak_rss_mb']} MB, MCAP {row['mcap_mb']} MB, "
               f"{row['simulated_h']} h simulated, {row['parts_good']} good; stages {row['stages_s']}", flush=True)
         mcap.unlink()
         record.unlink(missing_ok=True)
