@@ -1,7 +1,7 @@
 """Speed and size of ``factory simulate``: the sample orders through the cell, once planned.
 
     python benchmarks/cell.py [--catalog build] [--orders samples/orders.yaml] [--faults 3] [--json]
-    python benchmarks/cell.py --catalog CAT --generate 10,100,1000 [--robot-rate 25] [--json]
+    python benchmarks/cell.py --catalog CAT --generate 10,100,1000 [--robot-rate 25] [--db] [--json]
 
 Plans the sample parts into the catalog first if they are not there (``make demo`` does the
 same into ``build/``; that time is reported apart and is not the simulation's). Then runs
@@ -14,9 +14,10 @@ Timings are single runs on whatever machine this is: compare runs on the same ma
 
 ``--generate N,...``: scale-out instead. For each N, an orders file of N orders (one part each,
 the sample parts in turn, aluminium) runs once through ``factory simulate --mcap`` in its own
-process under ``/usr/bin/time``, which reports its peak resident memory; printed per N: wall time
-[s], peak RSS [MB], MCAP size [MB], simulated hours. Plan the sample parts into the catalog first
-(the first run would plan them inside the timing).
+process under ``/usr/bin/time``, which reports its processor time and peak resident memory; printed
+per N: wall and processor time [s], peak RSS [MB], MCAP size [MB], simulated hours. Plan the sample
+parts into the catalog first (the first run would plan them inside the timing). With ``--db`` each run also appends to a fresh
+SQLite process record (``factory simulate --mcap --db``: the log and the record users keep).
 """
 
 from __future__ import annotations
@@ -51,8 +52,10 @@ def _run(args: list[str]) -> tuple[dict, float]:
 SAMPLE_PARTS = ("bracket.stl", "plate_bosses.stl", "dome_mould.stl", "stepped_wall.stl")
 
 
-def scale_out(catalog: Path, counts: list[int], robot_rate: float | None, faults: int | None) -> list[dict]:
-    """One ``factory simulate --mcap`` process per order count: wall [s], peak RSS [MB], MCAP [MB]."""
+def scale_out(catalog: Path, counts: list[int], robot_rate: float | None, faults: int | None,
+              db: bool = False) -> list[dict]:
+    """One ``factory simulate --mcap`` (``--db``: and a fresh SQLite record) process per order count: wall [s],
+    peak RSS [MB], MCAP [MB], record [MB]."""
     out = Path(tempfile.mkdtemp(prefix="factory-cell-"))
     rows = []
     for n in counts:
@@ -66,24 +69,33 @@ def scale_out(catalog: Path, counts: list[int], robot_rate: float | None, faults
             args += ["--robot-rate", str(robot_rate)]
         if faults is not None:
             args += ["--faults", str(faults)]
+        record = out / f"cell-{n}.sqlite"
+        if db:
+            args += ["--db", str(record)]
         rss_file = out / "rss.txt"
         t0 = time.perf_counter()
-        r = subprocess.run(["/usr/bin/time", "-f", "%M", "-o", str(rss_file), *args], capture_output=True,
+        r = subprocess.run(["/usr/bin/time", "-f", "%U %S %M", "-o", str(rss_file), *args], capture_output=True,
                            text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
         wall = time.perf_counter() - t0
         if r.returncode != 0:
             raise SystemExit(f"simulate of {n} orders failed:\n{r.stderr[-2000:]}")
         doc = json.loads(r.stdout)
-        peak_kb = int(rss_file.read_text().split()[-1])  # GNU time's %M: peak resident set [KiB]
-        row = {"orders": n, "wall_s": round(wall, 1), "peak_rss_mb": round(peak_kb / 1024),
+        # GNU time's %U %S: processor seconds (user, system), steadier than wall on a shared machine;
+        # %M: peak resident set [KiB]
+        user_s, system_s, peak_kb = rss_file.read_text().split()[-3:]
+        row = {"orders": n, "wall_s": round(wall, 1), "cpu_s": round(float(user_s) + float(system_s), 1),
+               "peak_rss_mb": round(int(peak_kb) / 1024),
                "mcap_mb": round(mcap.stat().st_size / 1e6, 1),
                "simulated_h": round(doc["summary"]["makespan_s"] / 3600, 1),
-               "parts_good": doc["summary"]["parts_good"], "stages_s": doc["seconds"],
+               "db_mb": round(record.stat().st_size / 1e6, 1) if db else None,
+               "parts_good": doc["summary"]["parts_good"], "oee": doc["summary"]["oee"],
+               "parts_per_hour": doc["summary"]["parts_per_hour"], "stages_s": doc["seconds"],
                "planned_now": sum(1 for p in doc["parts"] if p.get("planned_now"))}
         rows.append(row)
-        print(f"{n} orders: {row['wall_s']} s wall, peak RSS {row['peak_rss_mb']} MB, MCAP {row['mcap_mb']} MB, "
+        print(f"{n} orders: {row['wall_s']} s wall, {row['cpu_s']} s processor, peak RSS {row['peak_rss_mb']} MB, MCAP {row['mcap_mb']} MB, "
               f"{row['simulated_h']} h simulated, {row['parts_good']} good; stages {row['stages_s']}", flush=True)
         mcap.unlink()
+        record.unlink(missing_ok=True)
     return rows
 
 
@@ -95,12 +107,13 @@ def main() -> None:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--generate", default=None, help="order counts to scale out to, e.g. 10,100,1000")
     ap.add_argument("--robot-rate", type=float, default=None, help="with --generate: simulate --robot-rate [Hz]")
+    ap.add_argument("--db", action="store_true", help="with --generate: also record each run (simulate --db)")
     a = ap.parse_args()
     if a.generate:
-        rows = scale_out(a.catalog, [int(n) for n in a.generate.split(",")], a.robot_rate, a.faults)
+        rows = scale_out(a.catalog, [int(n) for n in a.generate.split(",")], a.robot_rate, a.faults, a.db)
         if a.json:
             print(json.dumps({"machine": platform.processor() or platform.machine(), "robot_rate_hz": a.robot_rate,
-                              "runs": rows}))
+                              "db": a.db, "load_avg": os.getloadavg()[0], "runs": rows}))
         return
 
     out = Path(tempfile.mkdtemp(prefix="factory-cell-"))

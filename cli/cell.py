@@ -61,10 +61,11 @@ def cell(
     if fault_rate is not None and faults is None:
         raise typer.BadParameter("needs --faults SEED", param_hint="--fault-rate")
     from factory.cellservice import CellOptions  # the cell's libraries, DDS among them, load only to serve
+    from factory.production import CellInputs
     from factory.ros2 import Ros2Graph
 
-    _serve(CellOptions(catalog=catalog, cell=cell_path, camera=camera_path, tools=tools, faults=faults,
-                       fault_rate=fault_rate, robot_rate_hz=robot_rate, speed=speed),
+    _serve(CellOptions(CellInputs(catalog=catalog, cell=cell_path, camera=camera_path, tools=tools, faults=faults,
+                                  fault_rate=fault_rate), robot_rate_hz=robot_rate, speed=speed),
            Ros2Graph(localhost=ros2_localhost, distro=ros_distro, speed=float("inf"), keep_all=ros2_keep_all),
            mcap=mcap, bag=bag, db=db, overwrite=overwrite, quiet=quiet)
 
@@ -83,7 +84,7 @@ def _serve(options: CellOptions, graph: Ros2Graph, *, mcap: Path | None, bag: Pa
         sinks: list[Any] = [graph]
         if mcap is not None:
             sinks.append(stack.enter_context(McapLog(mcap, stage="cell", overwrite=overwrite,
-                                                     parameters={"catalog": str(options.catalog)})))
+                                                     parameters={"catalog": str(options.inputs.catalog)})))
         if bag is not None:
             from factory.bag import BagLog
 

@@ -36,14 +36,12 @@ from typing import TYPE_CHECKING, Any
 
 from factory.cellmsgs import OrderLine
 from factory.core.errors import FactoryError, SchedulerError
-from factory.core.resources import FIXTURES
 from factory.live import Pacer
 from factory.mcaplog import TYPESTORE, ros_time
-from factory.production import SimulateRequest
+from factory.production import CellInputs
 from factory.record import Record
 from factory.simulation import ROBOT_RATE_HZ, run_cell, write_cell_log
 from robotprog.cell import load_cell
-from robotprog.cellsim import FaultModel
 from robotprog.orders import Order
 
 if TYPE_CHECKING:  # DDS loads with the graph the caller makes
@@ -159,34 +157,18 @@ class CellOptions:
 
     Attributes
     ----------
-    catalog : Path
-        Folder of ``factory plan`` outputs; parts not in it are planned into it.
-    cell, camera : Path
-        Robot cell file; camera of the rack and out-tray stations.
-    tools : Path, optional
-        Tool library for parts planned now.
-    faults : int, optional
-        Seed of the faults injected in every run (as ``factory simulate --faults``); None: none.
-    fault_rate : float, optional
-        With ``faults``: probability of each fault per attempt; None: each kind's default.
+    inputs : CellInputs
+        The catalog (parts not in it are planned into it), cell, camera, tools and the faults injected
+        in every run (as ``factory simulate --faults``).
     robot_rate_hz : float
         Robot joint states and link transforms per second of simulated time [Hz].
     speed : float
         Runs are streamed at this many times real time (``inf``: at once).
     """
 
-    catalog: Path = Path("build")
-    cell: Path = FIXTURES / "cell.yaml"
-    camera: Path = FIXTURES / "camera.yaml"
-    tools: Path | None = None
-    faults: int | None = None
-    fault_rate: float | None = None
+    inputs: CellInputs = CellInputs()
     robot_rate_hz: float = ROBOT_RATE_HZ
     speed: float = 60.0
-
-    def fault_model(self) -> FaultModel:
-        """The faults to inject (:meth:`factory.production.SimulateRequest.fault_model`)."""
-        return SimulateRequest(faults=self.faults, fault_rate=self.fault_rate).fault_model()
 
 
 class CellService:
@@ -208,8 +190,8 @@ class CellService:
         self.options = options
         self.stop = threading.Event()
         self._graph, self._out, self._record = graph, out, record
-        self._cell_name = load_cell(options.cell).name  # a malformed cell file is refused before any order
-        self._faults = options.fault_model()
+        self._cell_name = load_cell(options.inputs.cell).name  # a malformed cell file is refused before any order
+        self._faults = options.inputs.fault_model()
         self._waiting: list[Order] = []
         self._sent: dict[str, OrderLine] = {}  # last status sent per order id
         self._numbered = 0
@@ -250,7 +232,7 @@ class CellService:
                 if order_id in self._sent:
                     raise SchedulerError(f"order id {order_id!r} was used before in this session",
                                          source=received.topic)
-                order = work_order(received, self.options.catalog, order_id)
+                order = work_order(received, self.options.inputs.catalog, order_id)
             except FactoryError as e:
                 part = received.msg.data if received.typename == PART_NAME and received.msg is not None else \
                     getattr(received.msg, "part", "")
@@ -283,7 +265,8 @@ class CellService:
         self._waiting = []
 
     def _run(self, orders: tuple[Order, ...]) -> None:
-        o = self.options
+        options = self.options
+        o = options.inputs
         recorder = None
         if self._record is not None:
             digest = hashlib.sha256(repr(orders).encode()).hexdigest()
@@ -299,9 +282,9 @@ class CellService:
                 if recorder is not None:
                     recorder.close()
             self._offset_ns = self._now_ns + (1_000_000_000 if self.runs else 0)  # a second between runs
-            session = _RunSink(self, Pacer(o.speed, cancel=self.stop))
+            session = _RunSink(self, Pacer(options.speed, cancel=self.stop))
             write_cell_log(None, run.result, run.ready, orders, run.cell, run.world, run.stations, overwrite=False,
-                           inputs={}, parameters={}, live=session, robot_rate_hz=o.robot_rate_hz)
+                           inputs={}, parameters={}, live=session, robot_rate_hz=options.robot_rate_hz)
         except FactoryError as e:  # this run's orders fail; the cell carries on
             log.error("run of %s failed: %s", ", ".join(x.id for x in orders), e)
             for order in orders:

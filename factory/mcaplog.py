@@ -348,13 +348,13 @@ class McapLog:
         t = _check_time(log_time_ns, "log time")
         cid = self._channel(topic, typename, latched)
         try:
-            data = TYPESTORE.serialize_cdr(msg, typename)
+            data = serialize_cdr(msg, typename)
         except Exception as e:  # struct.error, AttributeError, TypeError... from generated code
             raise McapError(f"cannot serialise {typename} on {topic}: {e}", source=self.path) from None
         seq = self._sequence.get(cid, 0)
         self._sequence[cid] = seq + 1
         self._require_open().add_message(
-            channel_id=cid, log_time=t, data=bytes(data), publish_time=t, sequence=seq & 0xFFFFFFFF
+            channel_id=cid, log_time=t, data=data, publish_time=t, sequence=seq & 0xFFFFFFFF
         )
 
     def attach(self, name: str, media_type: str, data: bytes, log_time_ns: int = 0) -> None:
@@ -482,6 +482,86 @@ def read_metadata(path: str | Path, name: str = FACTORY_METADATA) -> dict[str, s
         except _READ_ERRORS as e:
             raise McapError(f"corrupt MCAP file ({e.__class__.__name__}: {e})", source=p) from None
     raise McapError(f"no metadata record named {name!r}", source=p)
+
+
+# --- CDR of the messages logged most, written directly ------------------------------------
+# A run logs a joint state and the links' transforms per robot sample: most of its messages.
+# rosbags' generic serialiser packs them field by field; these write the same bytes (little-endian
+# plain CDR, each primitive aligned to its size counted after the 4-byte encapsulation header) with
+# one pack per message part. tests/factory/test_mcaplog.py holds them to rosbags' bytes.
+
+_CDR_LE = b"\x00\x01\x00\x00"
+_UINT32, _STAMP, _SEVEN_DOUBLES = struct.Struct("<I"), struct.Struct("<iI"), struct.Struct("<7d")
+
+
+class _Cdr:
+    """A little-endian CDR buffer with its encapsulation header."""
+
+    def __init__(self) -> None:
+        self.buf = bytearray(_CDR_LE)
+
+    def align(self, n: int) -> None:
+        pad = -(len(self.buf) - 4) % n
+        if pad:
+            self.buf += bytes(pad)
+
+    def uint32(self, v: int) -> None:
+        self.align(4)
+        self.buf += _UINT32.pack(v)
+
+    def stamp(self, t: Any) -> None:
+        self.align(4)
+        self.buf += _STAMP.pack(t.sec, t.nanosec)
+
+    def string(self, v: str) -> None:
+        data = v.encode()
+        self.uint32(len(data) + 1)
+        self.buf += data + b"\x00"
+
+    def float64s(self, values: Any) -> None:
+        """A sequence of float64 values [any unit]: its length, then the values."""
+        a = np.asarray(values, dtype="<f8").reshape(-1)
+        self.uint32(len(a))
+        if len(a):
+            self.align(8)
+            self.buf += a.tobytes()
+
+
+def _joint_state_cdr(msg: Any) -> bytes:
+    """CDR of a ``sensor_msgs/JointState``."""
+    w = _Cdr()
+    w.stamp(msg.header.stamp)
+    w.string(msg.header.frame_id)
+    w.uint32(len(msg.name))
+    for name in msg.name:
+        w.string(name)
+    for values in (msg.position, msg.velocity, msg.effort):
+        w.float64s(values)
+    return bytes(w.buf)
+
+
+def _tf_message_cdr(msg: Any) -> bytes:
+    """CDR of a ``tf2_msgs/TFMessage``."""
+    w = _Cdr()
+    w.uint32(len(msg.transforms))
+    for t in msg.transforms:
+        w.stamp(t.header.stamp)
+        w.string(t.header.frame_id)
+        w.string(t.child_frame_id)
+        v, r = t.transform.translation, t.transform.rotation
+        w.align(8)
+        w.buf += _SEVEN_DOUBLES.pack(v.x, v.y, v.z, r.x, r.y, r.z, r.w)
+    return bytes(w.buf)
+
+
+#: Serialisers written directly, by type name; every other type goes through rosbags.
+_FAST_CDR = {"sensor_msgs/msg/JointState": _joint_state_cdr, "tf2_msgs/msg/TFMessage": _tf_message_cdr}
+
+
+def serialize_cdr(msg: Any, typename: str) -> bytes:
+    """CDR bytes of ``msg``, a :data:`TYPESTORE` message of type ``typename`` (what rosbags' would write)."""
+    fast = _FAST_CDR.get(typename)
+    return fast(msg) if fast is not None else bytes(TYPESTORE.serialize_cdr(msg, typename))
 
 
 # --- message builders: pure functions returning rosbags message objects (SI units) -------
@@ -749,7 +829,7 @@ __all__ = [
     "FACTORY_METADATA", "ROSBAG2_METADATA", "ROS_DISTRO", "TYPESTORE", "McapLog", "cube_marker",
     "line_list_marker", "line_strip_marker", "log_msg", "marker_array", "message_definition",
     "offered_qos_profiles",
-    "read_attachment", "read_messages", "read_metadata", "ros_time", "string_msg", "tf_message",
+    "read_attachment", "read_messages", "read_metadata", "ros_time", "serialize_cdr", "string_msg", "tf_message",
     "transform_stamped", "transforms_stamped",
     "triangle_mesh_marker",
 ]

@@ -6,9 +6,9 @@ writes the outputs asked for: the MCAP log with its Foxglove layout beside it, t
 the run and the summary ``factory simulate --json`` prints::
 
     from pathlib import Path
-    from factory.production import SimulateRequest, simulate_orders
+    from factory.production import CellInputs, SimulateRequest, simulate_orders
 
-    done = simulate_orders(SimulateRequest(Path("samples/orders.yaml"), catalog=Path("build"), faults=7,
+    done = simulate_orders(SimulateRequest(Path("samples/orders.yaml"), CellInputs(catalog=Path("build"), faults=7),
                                            mcap=Path("build/cell.mcap"), overwrite=True))
     print(done.summary["summary"]["parts_per_hour"], [o.outcome for o in done.run.result.outcomes])
 """
@@ -40,13 +40,11 @@ SAMPLE_ORDERS = SAMPLES / "orders.yaml"
 
 
 @dataclasses.dataclass(frozen=True)
-class SimulateRequest:
-    """Everything ``factory simulate`` is asked: the orders, the cell, faults, and the outputs to write.
+class CellInputs:
+    """What the cell runs orders with, as ``factory simulate`` and ``factory cell --ros2`` are given it.
 
     Attributes
     ----------
-    orders : Path
-        Orders file (YAML or CSV: part, quantity, material, priority).
     catalog : Path
         Folder of ``factory plan`` outputs to reuse; parts not in it are planned into it.
     cell, camera : Path
@@ -58,33 +56,14 @@ class SimulateRequest:
         inspections); None: no faults.
     fault_rate : float, optional
         With ``faults``: probability of each fault per attempt; None: each kind's default.
-    db : str, optional
-        Process record to append the run to: a SQLite file or a SQLAlchemy database URL.
-    robot_rate_hz : float
-        Robot joint states and link transforms per second of simulated time in the log [Hz].
-    mcap, png : Path, optional
-        The MCAP log (and ``OUT.layout.json`` beside it), the Gantt chart; None: not written.
-    overwrite : bool
-        Replace outputs that exist.
     """
 
-    orders: Path = SAMPLE_ORDERS
     catalog: Path = Path("build")
     cell: Path = FIXTURES / "cell.yaml"
     camera: Path = FIXTURES / "camera.yaml"
     tools: Path | None = None
     faults: int | None = None
     fault_rate: float | None = None
-    db: str | None = None
-    robot_rate_hz: float = ROBOT_RATE_HZ
-    mcap: Path | None = None
-    png: Path | None = None
-    overwrite: bool = False
-
-    @property
-    def layout(self) -> Path | None:
-        """The Foxglove layout written beside the MCAP log."""
-        return self.mcap.with_suffix(".layout.json") if self.mcap is not None else None
 
     def fault_model(self) -> FaultModel:
         """The faults to inject.
@@ -101,6 +80,40 @@ class SimulateRequest:
         if self.fault_rate is None:
             return FaultModel.default(self.faults)
         return FaultModel(self.fault_rate, self.fault_rate, self.fault_rate, self.fault_rate, seed=self.faults)
+
+
+@dataclasses.dataclass(frozen=True)
+class SimulateRequest:
+    """Everything ``factory simulate`` is asked: the orders, the cell's inputs, and the outputs to write.
+
+    Attributes
+    ----------
+    orders : Path
+        Orders file (YAML or CSV: part, quantity, material, priority).
+    inputs : CellInputs
+        The catalog, cell, camera, tools and faults the orders run with.
+    db : str, optional
+        Process record to append the run to: a SQLite file or a SQLAlchemy database URL.
+    robot_rate_hz : float
+        Robot joint states and link transforms per second of simulated time in the log [Hz].
+    mcap, png : Path, optional
+        The MCAP log (and ``OUT.layout.json`` beside it), the Gantt chart; None: not written.
+    overwrite : bool
+        Replace outputs that exist.
+    """
+
+    orders: Path = SAMPLE_ORDERS
+    inputs: CellInputs = CellInputs()
+    db: str | None = None
+    robot_rate_hz: float = ROBOT_RATE_HZ
+    mcap: Path | None = None
+    png: Path | None = None
+    overwrite: bool = False
+
+    @property
+    def layout(self) -> Path | None:
+        """The Foxglove layout written beside the MCAP log."""
+        return self.mcap.with_suffix(".layout.json") if self.mcap is not None else None
 
     def checked(self) -> tuple[Order, ...]:
         """The orders, read, once every output is known to be writable: the refusals that come before any work.
@@ -152,18 +165,19 @@ def simulate_orders(request: SimulateRequest, *, orders: tuple[Order, ...] | Non
         Malformed orders, cell or camera file, an output that exists without ``overwrite``, a process
         record that cannot be opened or written.
     """
-    model = request.fault_model()
+    cell = request.inputs
+    model = cell.fault_model()
     if orders is None:
         orders = request.checked()
     watch = Stopwatch(progress)
     record = Record(request.db) if request.db is not None else None  # unreachable: fails before any planning
     recorder = None
     if record is not None:
-        recorder = record.recorder(cell=load_cell(request.cell).name, orders=orders, orders_file=str(request.orders),
-                                   orders_sha256=sha256_file(request.orders), faults_seed=request.faults)
+        recorder = record.recorder(cell=load_cell(cell.cell).name, orders=orders, orders_file=str(request.orders),
+                                   orders_sha256=sha256_file(request.orders), faults_seed=cell.faults)
     try:
-        run = run_cell(orders, catalog=request.catalog, cell_path=request.cell, camera_path=request.camera,
-                       tools=request.tools, faults=model, progress=progress,
+        run = run_cell(orders, catalog=cell.catalog, cell_path=cell.cell, camera_path=cell.camera,
+                       tools=cell.tools, faults=model, progress=progress,
                        events=recorder.begin if recorder else None)
         if recorder is not None:
             recorder.finish(run.result)
@@ -199,11 +213,12 @@ def _write_log(request: SimulateRequest, run: CellRun, db: str | None, db_run: i
     if request.mcap is None and live is None:
         return {}
     with watch("write"), (live or contextlib.nullcontext()):
-        inputs = {str(request.orders): sha256_file(request.orders), str(request.cell): sha256_file(request.cell)}
+        cell = request.inputs
+        inputs = {str(request.orders): sha256_file(request.orders), str(cell.cell): sha256_file(cell.cell)}
         inputs.update({str(a.part): a.entry.summary["catalog"]["mesh_sha256"] for a in run.ready.values()})
         counts = write_cell_log(request.mcap, run.result, run.ready, run.orders, run.cell, run.world, run.stations,
                                 overwrite=request.overwrite, inputs=inputs,
-                                parameters={"faults_seed": request.faults, "catalog": str(request.catalog),
+                                parameters={"faults_seed": cell.faults, "catalog": str(cell.catalog),
                                             "robot_rate_hz": request.robot_rate_hz,
                                             **({"db": db, "db_run": db_run} if db is not None else {})},
                                 live=live, robot_rate_hz=request.robot_rate_hz)

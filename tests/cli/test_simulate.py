@@ -253,7 +253,7 @@ def test_the_command_is_glue_the_library_call_makes_the_same_run(run_ok, catalog
     """The README's ``simulate_orders`` example, on this module's orders and catalog: the same orders,
     figures, parts and MCAP messages as the command made."""
     from factory.core.errors import FactoryError
-    from factory.production import SimulateRequest, simulate_orders
+    from factory.production import CellInputs, SimulateRequest, simulate_orders
 
     doc, full, orders = run_ok
     folder, _ = catalog
@@ -274,4 +274,4 @@ def test_the_command_is_glue_the_library_call_makes_the_same_run(run_ok, catalog
     ours = [t for _, t, _ in read_messages(tmp_path / "cell.mcap", ["/joint_states"])]
     assert ours == [t for _, t, _ in read_messages(full, ["/joint_states"])]
     with pytest.raises(FactoryError, match="fault rate needs a seed"):
-        simulate_orders(SimulateRequest(orders, catalog=folder, fault_rate=0.5))
+        simulate_orders(SimulateRequest(orders, CellInputs(catalog=folder, fault_rate=0.5)))

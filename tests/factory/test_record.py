@@ -69,6 +69,24 @@ def recorded(block_catalog, tmp_path_factory):
     return db, orders, json.loads(r.stdout)
 
 
+def test_writing_the_log_and_the_record_leaves_every_figure_as_it_was(recorded, block_catalog, tmp_path):
+    """The same orders and faults, simulated bare and with ``--mcap --db``: the log and the record only
+    watch the run, so throughput, OEE, every order's outcome and every event are the same."""
+    _, orders, logged = recorded
+    folder, _ = block_catalog
+    bare = run("simulate", orders, "--catalog", folder, *SIM, "--json", "--quiet")
+    assert bare.exit_code == simulate_exit(json.loads(bare.stdout)), bare.output
+    both = run("simulate", orders, "--catalog", folder, *SIM, "--mcap", tmp_path / "cell.mcap",
+               "--db", tmp_path / "cell.sqlite", "--json", "--quiet")
+    assert both.exit_code == simulate_exit(json.loads(both.stdout)), both.output
+    bare_doc, both_doc = json.loads(bare.stdout), json.loads(both.stdout)
+    assert bare_doc["summary"]["faults"] and bare_doc["summary"]["parts_good"] > 0  # a run with something to lose
+    for doc in (both_doc, logged):
+        for key in ("summary", "orders", "events", "parts"):
+            assert doc[key] == bare_doc[key], key
+    assert sum(both_doc["mcap"]["messages"].values()) > 0 and "mcap" not in bare_doc and "db" not in bare_doc
+
+
 @needs_sqlite3
 def test_rows_match_what_the_simulation_reported(recorded):
     db, _, doc = recorded
