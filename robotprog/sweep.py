@@ -32,6 +32,10 @@ In free space segments longer than ``step`` are proven at once with larger margi
 
 A cubic path (the timed spline) is cut at its breakpoints and at the turning points of every joint,
 so that each piece is monotone; a polyline's straight segments already are.
+A run of several pieces travels, joint by joint, the sum of its pieces' ``|dq|``; each point moves
+at most ``L`` times that, so a run is proven from its two ends like one piece of that travel, and
+split at its middle given parameter where it is not (a posted program's thousands of servo
+targets, a TCP line's samples: mostly a few checks instead of one per sample).
 
 Units: metres, radians.
 """
@@ -315,10 +319,26 @@ class SweptMotion:
         if len(s) == 1:
             hit = ok(0, qs[0], self.finest_level)
             return None if hit is None else (float(s[0]), hit)
+        # Joint travel along the path up to each given parameter (n, dof) [rad]: between two given
+        # parameters every joint moves one way, so a run of pieces travels the difference. A run is
+        # proven from its two ends like one piece (module docstring: the bound holds for the
+        # travel, whichever way the joints turn); a run that is not is split at its middle
+        # parameter, down to single pieces, which are halved as before.
+        travel = np.vstack([np.zeros((1, qs.shape[1])), np.cumsum(np.abs(np.diff(qs, axis=0)), axis=0)])
         counter = [len(s)]
-        stack = [(i, float(s[i]), qs[i], i + 1, float(s[i + 1]), qs[i + 1]) for i in range(len(s) - 1)][::-1]
+        # (key a, s a, q a, key b, s b, q b, whether both ends are given parameters: their keys are
+        # their indices into s)
+        stack = [(0, float(s[0]), qs[0], len(s) - 1, float(s[-1]), qs[-1], True)]
         while stack:
-            ka, sa, qa, kb, sb, qb = stack.pop()
+            ka, sa, qa, kb, sb, qb, given = stack.pop()
+            if given and kb - ka > 1:  # a run of several given pieces
+                level = self._level(travel[kb] - travel[ka], rates, scale)
+                if level >= COARSEST_LEVEL and (ok(ka, qa, level) or ok(kb, qb, level)) is None:
+                    continue
+                km = (ka + kb) // 2
+                stack.append((km, float(s[km]), qs[km], kb, sb, qb, True))
+                stack.append((ka, sa, qa, km, float(s[km]), qs[km], True))
+                continue
             level = self._level(qb - qa, rates, scale)
             if level >= COARSEST_LEVEL:
                 hit = ok(ka, qa, level) or ok(kb, qb, level)
@@ -336,8 +356,8 @@ class SweptMotion:
             qm = np.asarray(path(np.array([sm])), dtype=float).reshape(-1)
             km = counter[0]
             counter[0] += 1
-            stack.append((km, sm, qm, kb, sb, qb))
-            stack.append((ka, sa, qa, km, sm, qm))
+            stack.append((km, sm, qm, kb, sb, qb, False))
+            stack.append((ka, sa, qa, km, sm, qm, False))
         return None
 
     def polyline_contact(self, qs: np.ndarray, held: Payload = None) -> tuple[float, str] | None:
