@@ -32,6 +32,10 @@ In free space segments longer than ``step`` are proven at once with larger margi
 
 A cubic path (the timed spline) is cut at its breakpoints and at the turning points of every joint,
 so that each piece is monotone; a polyline's straight segments already are.
+A run of several pieces travels, joint by joint, the sum of its pieces' ``|dq|``; each point moves
+at most ``L`` times that, so a run is proven from its two ends like one piece of that travel, and
+split at its middle given parameter where it is not (a posted program's thousands of servo
+targets, a TCP line's samples: mostly a few checks instead of one per sample).
 
 Units: metres, radians.
 """
@@ -55,6 +59,8 @@ COARSEST_LEVEL = -3
 FINEST_LEVEL = 12
 #: From this level on, a segment not yet proven has its ends checked at the finest level too [-].
 EXACT_AFTER = 4
+#: Up to this many collision pairs are asked of coal one by one; more, all at once [-].
+PAIRS_ONE_BY_ONE = 24
 #: Collision checks one blended corner's proof may spend before it counts as touching [-].
 CORNER_CHECKS = 2000
 
@@ -226,12 +232,6 @@ class SweptMotion:
 
     # --- checks ----------------------------------------------------------------------------
 
-    def _free(self, q: np.ndarray, level: int, payload: tuple) -> str | None:
-        """``None`` when ``q`` is at least level ``level``'s margins from everything, else the pair."""
-        h = self.step * 2.0 ** -level
-        return self._clear(q, self._gdata(level), payload,
-                           lambda rates: self._margins(rates, h))
-
     def _free_within(self, q: np.ndarray, d: np.ndarray, payload: tuple) -> str | None:
         """``None`` when every configuration within ``d`` (nv,) [rad] of ``q``, joint by joint, is
         free, else the pair: each pair's margin is its own closing rates times ``d``."""
@@ -257,12 +257,22 @@ class SweptMotion:
         if pin.computeCollisions(w.geometry, gd, True):
             for k, res in enumerate(gd.collisionResults):
                 if res.isCollision():
-                    pair = w.geometry.collisionPairs[k]
-                    return (f"{w.geometry.geometryObjects[pair.first].name} <-> "
-                            f"{w.geometry.geometryObjects[pair.second].name}")
+                    return self._pair_name(k)
             return "a pair"  # pragma: no cover - computeCollisions said one collides
+        return self._riding_hit(gd, payload, margins)
+
+    def _pair_name(self, k: int) -> str:
+        g = self.world.geometry
+        pair = g.collisionPairs[k]
+        return f"{g.geometryObjects[pair.first].name} <-> {g.geometryObjects[pair.second].name}"
+
+    def _riding_hit(self, gd: pin.GeometryData, payload: tuple,
+                    margins: Callable[[np.ndarray], np.ndarray]) -> str | None:
+        """The first box on the TCP within ``margins(rates)`` of its closing rates of an arm link or
+        static box, placed as in ``gd`` (after forward kinematics), as ``"box <-> target"``; else ``None``."""
         if not payload:
             return None
+        w = self.world
         t_flange = w._data.oMf[w._flange_id].homogeneous
         nstatic = len(w._static)
         centres = w.link_centres(gd)
@@ -272,6 +282,37 @@ class SweptMotion:
             if hit is not None:
                 return f"{name} <-> {hit}"
         return None
+
+    def _failing(self, q: np.ndarray, level: int, checks: np.ndarray,
+                 payload: tuple) -> tuple[np.ndarray, np.ndarray, str | None]:
+        """Which of ``checks`` (k,) int fail at ``q`` by level ``level``'s margins: (k,) bool
+        failing or not known to pass, (k,) bool known, and the riding boxes' contact when they are
+        checked (index ``len(collisionPairs)``) and fail."""
+        w = self.world
+        model = w.robot.model
+        gd = self._gdata(level)
+        pin.framesForwardKinematics(model, w._data, q)
+        pin.updateGeometryPlacements(model, w._data, w.geometry, gd)
+        npairs = len(w.geometry.collisionPairs)
+        pairs = checks[checks < npairs]
+        hits = np.zeros(len(checks), dtype=bool)
+        known = np.ones(len(checks), dtype=bool)
+        if len(pairs) > PAIRS_ONE_BY_ONE:
+            # coal's own loop over every pair, stopping at the first that fails (one within a
+            # coarse level's margin of a mesh is slow to settle): those before it pass, those
+            # after it are not known
+            if pin.computeCollisions(w.geometry, gd, True):
+                first = next(k for k, res in enumerate(gd.collisionResults) if res.isCollision())
+                hits[:len(pairs)] = pairs >= first
+                known[:len(pairs)] = pairs <= first
+        else:
+            hits[:len(pairs)] = [pin.computeCollision(w.geometry, gd, int(k)) for k in pairs]
+        riding = None
+        if len(pairs) < len(checks):
+            h = self.step * 2.0 ** -level
+            riding = self._riding_hit(gd, payload, lambda rates: self._margins(rates, h))
+            hits[-1] = riding is not None
+        return hits, known, riding
 
     def first_contact(self, path: Callable[[np.ndarray], np.ndarray], s: np.ndarray,
                       held: Payload = None) -> tuple[float, str] | None:
@@ -296,32 +337,77 @@ class SweptMotion:
         qs = np.asarray(path(s), dtype=float).reshape(len(s), -1)
         payload = self._payload(held)
         rates, scale = self._closing_rates(payload)
-        # per sample: highest level known to fail, lowest known to pass
-        state: dict[int, list] = {}
+        # The checks: each collision pair of the cell, then the boxes riding on the TCP as one. A
+        # check that passes at both ends of a stretch is proven on all of it, so the halves of a
+        # stretch not proven ask only the checks that failed at its ends.
+        npairs = len(self.world.geometry.collisionPairs)
+        everything = np.arange(npairs + 1)
+        # per sample and check: highest level known to fail, lowest known to pass
+        state: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        riding_names: dict[int, str] = {}
 
-        def ok(key: int, q: np.ndarray, level: int) -> str | None:
-            st = state.setdefault(key, [COARSEST_LEVEL - 1, self.finest_level + 1, None])
-            if level >= st[1]:
-                return None
-            if level <= st[0]:
-                return st[2]
-            hit = self._free(q, level, payload)
-            if hit is None:
-                st[1] = level
-            else:
-                st[0], st[2] = level, hit
-            return hit
+        def failing(key: int, q: np.ndarray, level: int, checks: np.ndarray) -> np.ndarray:
+            """The checks of ``checks`` that ``q`` fails at ``level``, in index order."""
+            st = state.get(key)
+            if st is None:
+                fail = np.full(npairs + 1, COARSEST_LEVEL - 1)
+                free = np.full(npairs + 1, self.finest_level + 1)
+                if not payload:
+                    free[npairs] = COARSEST_LEVEL - 1
+                st = state[key] = (fail, free)
+            fail, free = st
+            known_fail = level <= fail[checks]
+            todo = checks[(level < free[checks]) & ~known_fail]
+            if len(todo):
+                hits, known, riding = self._failing(q, level, todo, payload)
+                free[todo[~hits]] = level
+                fail[todo[hits & known]] = level
+                if riding is not None:
+                    riding_names[key] = riding
+                return np.union1d(checks[known_fail], todo[hits])
+            return checks[known_fail]
+
+        def name(key: int, failed: np.ndarray) -> str:
+            k = int(failed[0])
+            return riding_names[key] if k == npairs else self._pair_name(k)
+
+        def ends(ka: int, qa: np.ndarray, kb: int, qb: np.ndarray, level: int,
+                 checks: np.ndarray) -> tuple[np.ndarray, str | None]:
+            """The checks not proven on a stretch from its ends at ``level``, and a contact's name."""
+            fa = failing(ka, qa, level, checks)
+            fb = failing(kb, qb, level, np.setdiff1d(checks, fa, assume_unique=True))
+            if not len(fa) and not len(fb):
+                return fa, None
+            return np.union1d(fa, fb), name(ka, fa) if len(fa) else name(kb, fb)
 
         if len(s) == 1:
-            hit = ok(0, qs[0], self.finest_level)
-            return None if hit is None else (float(s[0]), hit)
+            failed = failing(0, qs[0], self.finest_level, everything)
+            return None if not len(failed) else (float(s[0]), name(0, failed))
+        # Joint travel along the path up to each given parameter (n, dof) [rad]: between two given
+        # parameters every joint moves one way, so a run of pieces travels the difference. A run is
+        # proven from its two ends like one piece (module docstring: the bound holds for the
+        # travel, whichever way the joints turn); a run that is not is split at its middle
+        # parameter, down to single pieces, which are halved as before.
+        travel = np.vstack([np.zeros((1, qs.shape[1])), np.cumsum(np.abs(np.diff(qs, axis=0)), axis=0)])
         counter = [len(s)]
-        stack = [(i, float(s[i]), qs[i], i + 1, float(s[i + 1]), qs[i + 1]) for i in range(len(s) - 1)][::-1]
+        # (key a, s a, q a, key b, s b, q b, whether both ends are given parameters (their keys are
+        # their indices into s), the checks not yet proven on the stretch)
+        stack = [(0, float(s[0]), qs[0], len(s) - 1, float(s[-1]), qs[-1], True, everything)]
         while stack:
-            ka, sa, qa, kb, sb, qb = stack.pop()
+            ka, sa, qa, kb, sb, qb, given, live = stack.pop()
+            if given and kb - ka > 1:  # a run of several given pieces
+                level = self._level(travel[kb] - travel[ka], rates, scale)
+                if level >= COARSEST_LEVEL:
+                    live, _ = ends(ka, qa, kb, qb, level, live)
+                    if not len(live):
+                        continue
+                km = (ka + kb) // 2
+                stack.append((km, float(s[km]), qs[km], kb, sb, qb, True, live))
+                stack.append((ka, sa, qa, km, float(s[km]), qs[km], True, live))
+                continue
             level = self._level(qb - qa, rates, scale)
             if level >= COARSEST_LEVEL:
-                hit = ok(ka, qa, level) or ok(kb, qb, level)
+                live, hit = ends(ka, qa, kb, qb, level, live)
                 if hit is None:
                     continue
                 if level >= self.finest_level or sb - sa <= 1e-12 * max(1.0, abs(sb)):
@@ -329,15 +415,15 @@ class SweptMotion:
                 if level >= EXACT_AFTER:
                     # still close after a few halvings: if an end touches outright, stop narrowing down
                     for k, sk, qk in ((ka, sa, qa), (kb, sb, qb)):
-                        touch = ok(k, qk, self.finest_level)
-                        if touch is not None:
-                            return sk, touch
+                        touch = failing(k, qk, self.finest_level, live)
+                        if len(touch):
+                            return sk, name(k, touch)
             sm = 0.5 * (sa + sb)
             qm = np.asarray(path(np.array([sm])), dtype=float).reshape(-1)
             km = counter[0]
             counter[0] += 1
-            stack.append((km, sm, qm, kb, sb, qb))
-            stack.append((ka, sa, qa, km, sm, qm))
+            stack.append((km, sm, qm, kb, sb, qb, False, live))
+            stack.append((ka, sa, qa, km, sm, qm, False, live))
         return None
 
     def polyline_contact(self, qs: np.ndarray, held: Payload = None) -> tuple[float, str] | None:
