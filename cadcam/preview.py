@@ -267,7 +267,8 @@ def _colour(values: np.ndarray, vmax: float, tol: float) -> np.ndarray:
     return rgb
 
 
-def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640) -> np.ndarray:
+def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640,
+                    on_part: np.ndarray | None = None) -> np.ndarray:
     """A top view of the stock left on the part, with a colour bar.
 
     Blue is on size, through cyan, green and yellow to orange at the largest remaining
@@ -282,6 +283,10 @@ def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640) -> 
     report : VerifyReport
     width : int
         Approximate width of the map part of the picture [px].
+    on_part : (ny, nx) bool or None
+        Where the part's own surface lies: the colour scale runs to the most stock left there, and
+        more elsewhere shows in the top colour (a relief's uncut rim outside its boundary,
+        :func:`cadcam.relief.surface_footprint`). None: over every grid point with part under it.
 
     Returns
     -------
@@ -292,7 +297,9 @@ def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640) -> 
 
     grid = sim.grid
     tol = report.gouge_tolerance
-    vmax = report.remaining_max if report.remaining_max > max(tol, 1e-6) else 1.0
+    on = np.isfinite(sim.part_top) if on_part is None else on_part & np.isfinite(sim.part_top)
+    most = float(sim.remaining[on].max()) if on.any() else 0.0
+    vmax = most if most > max(tol, 1e-6) else 1.0
     rgb = _colour(sim.remaining, vmax, tol)[::-1]  # row 0 of the picture is the largest Y
     scale = max(1, width // max(grid.nx, grid.ny))
     step = max(1, math.ceil(max(grid.nx, grid.ny) / width))
@@ -326,7 +333,8 @@ def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640) -> 
     for frac in (0.0, 0.5, 1.0):
         y = margin + int(round((1 - frac) * (ramp_h - 1)))
         draw.line([(bx + bar_w, y), (bx + bar_w + 3, y)], fill=(0, 0, 0))
-        draw.text((tx, y - 6), f"{frac * vmax:.3f} mm", fill=(0, 0, 0), font=font)
+        above = frac == 1.0 and most < report.remaining_max  # more is left off the part's surface
+        draw.text((tx, y - 6), f"{'>= ' if above else ''}{frac * vmax:.3f} mm", fill=(0, 0, 0), font=font)
     draw.text((tx, gy), f"gouge > {tol:g} mm", fill=(0, 0, 0), font=font)
     draw.text((tx, ny_), "no part", fill=(0, 0, 0), font=font)
     caption = f"remaining stock above the part, max gouge {report.max_gouge:.3f} mm"

@@ -35,6 +35,7 @@ import trimesh
 from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
+from cadcam.heightmap import Grid, upper_envelope
 from cadcam.model import Setup, ViseJaws, WorkOrigin
 from cadcam.setup import StockMargins, make_setup
 from factory.core.errors import MeshError, SetupError
@@ -435,9 +436,20 @@ def machining_surface(part_work: trimesh.Trimesh, setup: Setup) -> trimesh.Trime
     grow = float(np.ptp([lo[:2], hi[:2]], axis=0).max())  # beyond any tool's reach over the stock edge
     x0, y0, x1, y1 = lo[0] - grow, lo[1] - grow, hi[0] + grow, hi[1] + grow
     base = np.array([[[x0, y0, z], [x1, y0, z], [x1, y1, z]], [[x0, y0, z], [x1, y1, z], [x0, y1, z]]])
-    allt = np.concatenate([tri, base])
+    allt = np.concatenate([tri, base])  # the base last: surface_footprint leaves it out
     return trimesh.Trimesh(vertices=allt.reshape(-1, 3), faces=np.arange(3 * len(allt)).reshape(-1, 3),
                            process=False, validate=False)
+
+
+def surface_footprint(machining_triangles: np.ndarray, grid: Grid) -> np.ndarray:
+    """(ny, nx) bool: the grid points under the relief's own surface, not under the base plane
+    :func:`machining_surface` lays round it (its last two triangles), where the uncut rim outside
+    the boundary stands."""
+    return np.isfinite(upper_envelope(np.asarray(machining_triangles)[:-_BASE_TRIANGLES], grid))
+
+
+#: Triangles of the base plane :func:`machining_surface` appends to the surface.
+_BASE_TRIANGLES = 2
 
 
 def block_corners(setup: Setup) -> np.ndarray:

@@ -833,3 +833,50 @@ def unreached(sim: Simulation, above: float, allowance: float) -> tuple[Unreache
             depth=float(ex[sl][m].max()), z_bottom=float(floor[sl][m].min()),
         ))
     return tuple(sorted(out, key=lambda u: (-u.depth, u.x, u.y)))
+
+
+#: Of a grid point's 8 neighbours, at least this many hold part walls as high as the stock left on it: the
+#: point lies in an inside corner (a 90 deg corner walls 5 of them), not beside a straight wall (at most 3).
+_CORNER_WALLED = 4
+
+
+def corners_left(sim: Simulation, above: float, listed: tuple[Unreached, ...] = ()) -> tuple[Unreached, ...]:
+    """Sharp inside corners holding more than ``above`` [mm] of stock that :func:`unreached` cannot see.
+
+    :func:`excess` grows the part by a cell diagonal, so that the cells a finished wall passes through are not
+    taken for stock; in a sharp inside corner that growth swallows the whole curved triangle a round tool leaves
+    (under a cell diagonal each way), though the stock there stands the wall's full height. Here a point with
+    more than ``above`` left over the part itself counts when most of its neighbours are walls standing as high as
+    that stock (:data:`_CORNER_WALLED`): a corner, not the skin beside one wall. Points next to a region already
+    ``listed`` (:func:`unreached`'s) are that region's. Each region's ``why`` is :data:`SHARP_CORNER`.
+    """
+    g = sim.grid
+    raw = excess(sim, 0.0, grid_slack=False)
+    left = (raw > above) & ~(excess(sim, 0.0) > above)
+    if not left.any():
+        return ()
+    part = np.where(np.isfinite(sim.part_top), sim.part_top, -np.inf)
+    padded = np.pad(part, 1, constant_values=-np.inf)
+    ny, nx = part.shape
+    walled = np.zeros(part.shape, dtype=np.int64)
+    for dj in (-1, 0, 1):
+        for di in (-1, 0, 1):
+            if di or dj:
+                walled += padded[1 + dj:1 + dj + ny, 1 + di:1 + di + nx] >= sim.stock_top - above
+    corner = left & (walled >= _CORNER_WALLED)
+    seen = np.zeros(part.shape, dtype=bool)
+    for u in listed:  # the cells of the listed regions' boxes, and one round them
+        i0, i1 = (int(round((c - g.x0) / g.cell)) for c in (u.x - u.size_x / 2, u.x + u.size_x / 2))
+        j0, j1 = (int(round((c - g.y0) / g.cell)) for c in (u.y - u.size_y / 2, u.y + u.size_y / 2))
+        seen[max(j0 - 1, 0):j1 + 2, max(i0 - 1, 0):i1 + 2] = True
+    labels, n = ndimage.label(corner & ~seen, structure=np.ones((3, 3), dtype=bool))
+    floor = np.maximum(part, sim.floor)
+    out = []
+    for k, (js, is_) in enumerate(ndimage.find_objects(labels), start=1):
+        m = labels[js, is_] == k
+        x0, x1 = g.x0 + (is_.start - 0.5) * g.cell, g.x0 + (is_.stop - 0.5) * g.cell
+        y0, y1 = g.y0 + (js.start - 0.5) * g.cell, g.y0 + (js.stop - 0.5) * g.cell
+        out.append(Unreached(x=0.5 * (x0 + x1), y=0.5 * (y0 + y1), size_x=x1 - x0, size_y=y1 - y0,
+                             depth=float(raw[js, is_][m].max()), z_bottom=float(floor[js, is_][m].min()),
+                             why=SHARP_CORNER))
+    return tuple(sorted(out, key=lambda u: (-u.depth, u.x, u.y)))

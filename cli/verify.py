@@ -82,7 +82,8 @@ def verify(
                                         tools, triangles, options, bars, operations=sheet.operations)
     report = verified.report
     write_verify_outputs(verified.simulation, report, png=png, json_path=json_path, mcap=mcap,
-                         overwrite=overwrite, inputs={str(program): "", str(part): ""})
+                         overwrite=overwrite, inputs={str(program): "", str(part): ""},
+                         relief=triangles if sheet.relief is not None else None)
     if as_json:
         print_json(report.to_dict())
     if not quiet:

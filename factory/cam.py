@@ -216,6 +216,10 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
         rapid_cell=req.rapid_cell,
     )
     job = planned.job
+    if not job.operations:  # nothing to cut: say so here, not as an empty job a later stage refuses
+        what = ("surfaces only, no solid, and no tool cuts them from above" if loaded.surface is not None
+                else "no tool cuts anything of it")
+        raise ToolpathError(f"nothing to machine: {what}", source=req.part)
     if boundary is not None and loaded.surface is not None:
         relief = {"found": loaded.surface.describe(), **loaded.surface.to_dict(), **req.relief.to_dict(),
                   "boundary": boundary.to_dict()}

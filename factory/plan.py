@@ -358,7 +358,8 @@ class PartPlan:
             tools = [*job.tools, *(self.op2.job.tools if self.op2 is not None else ())]
             write_text(outputs["tool_table"], tool_table_file(PostOptions(dialect=req.post), tools) or "")
         write_verify_outputs(self.simulation, self.report, png=outputs["verify_png"], json_path=outputs["verify_json"],
-                             mcap=None, overwrite=False, inputs={})
+                             mcap=None, overwrite=False, inputs={},
+                             relief=None if planned.boundary is None else np.asarray(planned.part_work.triangles))
         write_bytes(outputs["toolpath_png"], png_bytes(planned.toolpath_picture()))
         write_bytes(outputs["setup_png"], png_bytes(setup_image(job.setup, np.asarray(planned.part_work.triangles),
                                                                job.part_name)))

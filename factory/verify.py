@@ -12,7 +12,7 @@ import numpy as np
 
 from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_planned_part
-from cadcam.relief import machining_surface
+from cadcam.relief import machining_surface, surface_footprint
 from cadcam.model import Setup, Tool
 from cadcam.sheet import read_setup_sheet
 from cadcam.preview import deviation_image
@@ -187,10 +187,15 @@ def line_ranges(lines: Sequence[int], most: int = 12) -> str:
 
 
 def write_verify_outputs(sim: Simulation, report: VerifyReport, *, png: Path | None, json_path: Path | None,
-                         mcap: Path | None, overwrite: bool, inputs: dict[str, str]) -> None:
-    """The report as JSON, the deviation picture, the simulated stock in MCAP: each where asked."""
+                         mcap: Path | None, overwrite: bool, inputs: dict[str, str],
+                         relief: np.ndarray | None = None) -> None:
+    """The report as JSON, the deviation picture, the simulated stock in MCAP: each where asked.
+
+    ``relief``: the (m, 3, 3) triangles [mm, work] a relief was verified against (its machining
+    surface): the picture's colour scale is clipped to the relief's own surface."""
     if png is not None:
-        write_bytes(png, png_bytes(deviation_image(sim, report)), overwrite=overwrite)
+        on_part = None if relief is None else surface_footprint(relief, sim.grid)
+        write_bytes(png, png_bytes(deviation_image(sim, report, on_part=on_part)), overwrite=overwrite)
     if mcap is not None:
         with McapLog(mcap, stage="verify", overwrite=overwrite, inputs=inputs) as m:
             log_simulation(m, sim)

@@ -365,6 +365,34 @@ def test_deviation_image_is_a_sane_picture():
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_a_reliefs_colour_scale_runs_over_its_surface_not_the_uncut_rim():
+    """Issue 30: 0.5 mm left on a relief's 20 x 20 mm surface, 9.9 mm on the uncut rim round it. Clipped to the
+    surface, the 0.5 mm is the scale's top colour; over the rim too it would be near the blue of on size."""
+    from cadcam.heightmap import Grid, upper_envelope
+    from cadcam.preview import _COLOURS
+    from cadcam.relief import machining_surface, surface_footprint
+    from cadcam.stock import Simulation
+    from cadcam.verify import VerifyReport
+
+    sheet = trimesh.Trimesh(vertices=[[10, 10, -9.9], [30, 10, -9.9], [30, 30, -9.9], [10, 30, -9.9]],
+                            faces=[[0, 1, 2], [0, 2, 3]])
+    setup = Setup(stock_min=[0, 0, -20], stock_max=[40, 40, 0], transform_mesh_to_work=np.eye(4))
+    tri = np.asarray(machining_surface(sheet, setup).triangles)
+    grid = Grid(x0=0.5, y0=0.5, cell=1.0, nx=40, ny=40)
+    on = surface_footprint(tri, grid)
+    assert on.sum() == 20 * 20 and not on[0].any()  # the base plane round it is not the surface
+    part_top = upper_envelope(tri, grid)
+    sim = Simulation(grid=grid, stock_top=np.where(on, -9.4, 0.0), part_top=part_top, stock_bottom=-20.0)
+    report = VerifyReport(max_gouge=0.0, gouge_position=None, gouge_line=None, remaining_max=9.9,
+                          remaining_mean=5.0, remaining_p95=9.9, rapid_crashes=(), moves=0, cut_length=0.0,
+                          rapid_length=0.0, cells=grid.size, cell=grid.cell)
+    centre = (12 + 320, 12 + 320)  # margin, then 16 px a grid point
+    clipped = deviation_image(sim, report, on_part=on)[centre]
+    assert np.abs(clipped.astype(float) - _COLOURS[-1]).max() <= 1, clipped
+    whole = deviation_image(sim, report)[centre]
+    assert np.abs(whole.astype(float) - _COLOURS[-1]).max() > 100 and whole[2] > 180, whole  # near on-size blue
+
+
 def test_a_wall_nicked_within_the_tolerance_is_no_gouge_of_its_height():
     # The part's wall at x = 29.8755 leaves grid point x = 29.875 (cell 0.25) 0.5 um inside it.
     part = box([10, 5, -10], [29.8755, 15, -5])

@@ -14,7 +14,8 @@ from typer.testing import CliRunner
 pytest.importorskip("build123d")
 
 from cli.main import app  # noqa: E402
-from tests.cadcam.stepparts import ModelledHole, plate, two_solids, write_step, write_stl  # noqa: E402
+from tests.cadcam.stepparts import (ModelledHole, pillow_surface, plate, two_solids, write_step,  # noqa: E402
+                                    write_stl)
 from tests.cli.expect import assert_one_line_error  # noqa: E402
 from tests.rs274 import run_rs274  # noqa: E402
 
@@ -100,6 +101,26 @@ def test_two_solids_need_a_body(tmp_path):
     assert not (tmp_path / "two.mcap").exists()
     r = run("toolpath", path, "-o", tmp_path / "two.mcap", "--body", "2", "--quiet", "--scallop", "0.02")
     assert r.exit_code == 0, r.output
+
+
+def test_surfaces_no_tool_cuts_are_one_line_not_an_empty_job(tmp_path, monkeypatch):
+    """Issue 29: a surfaces-only file the relief path plans nothing for (a public spline cage did) is refused in one
+    line by ``toolpath``, not written as an empty job that ``plan`` refuses only later."""
+    import dataclasses
+
+    import factory.cam
+
+    real = factory.cam.plan_job
+
+    def nothing_cut(*args, **kwargs):
+        planned = real(*args, **kwargs)
+        return dataclasses.replace(planned, job=dataclasses.replace(planned.job, operations=()))
+
+    monkeypatch.setattr(factory.cam, "plan_job", nothing_cut)
+    path = write_step(pillow_surface(), tmp_path / "sheet.step")
+    r = run("toolpath", path, "-o", tmp_path / "sheet.mcap", "--scallop", "0.05")
+    assert_one_line_error(r, str(path), "nothing to machine", "surfaces only")
+    assert not (tmp_path / "sheet.mcap").exists()
 
 
 def test_tight_inside_corners_are_reported_before_the_toolpaths(tmp_path, caplog):
