@@ -34,7 +34,7 @@ from cadcam.heightmap import Grid, upper_envelope
 from cadcam.model import Motion, ProgramMoves, Setup, Tool
 from cadcam.heightmap import grid_over
 from cadcam.stock import (ENGAGED_WIDTH, FULL_WIDTH_ANGLE, RAPID_RIM, FlippedStock, Simulation, StockCut,
-                          Unreached, corners_left, cut_stock, first_line_reaching, unreached, why_left)
+                          Unreached, cut_stock, first_line_reaching, unreached, why_left)
 from cadcam.workholding import fixture_contacts
 from factory.core.errors import VerifyError
 
@@ -737,18 +737,10 @@ def _report(
         faults=tuple(sorted(faults, key=lambda f: (FAULT_KINDS.index(f.kind), f.tool))),
         engagement=tuple(engagement),
         rapids_checked=rapids_checked,
-        left=_left(sim, tools, options),
+        left=why_left(unreached(sim, options.left_above, 0.0), sim, options.left_above, _widest_mill_radius(tools),
+                      options.op2_follows),
         left_above=options.left_above,
     )
-
-
-def _left(sim: Simulation, tools: Mapping[int, Tool], options: VerifyOptions) -> tuple[Unreached, ...]:
-    """Every region of stock left over ``options.left_above`` with its reason, deepest first: what
-    :func:`cadcam.stock.unreached` finds, and the sharp inside corners its grown part swallows."""
-    found = why_left(unreached(sim, options.left_above, 0.0), sim, options.left_above, _widest_mill_radius(tools),
-                     options.op2_follows)
-    corners = corners_left(sim, options.left_above, found)
-    return tuple(sorted(found + corners, key=lambda u: (-u.depth, u.x, u.y)))
 
 
 def _widest_mill_radius(tools: Mapping[int, Tool]) -> float:

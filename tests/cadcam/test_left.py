@@ -13,7 +13,7 @@ from cadcam.plan import PlanOptions, plan_job
 from cadcam.post import PostOptions, post_process
 from cadcam.setup import make_setup
 from cadcam.heightmap import Grid
-from cadcam.stock import FOR_OP2, NO_TOOL, SHARP_CORNER, Simulation, corners_left, unreached, why_left
+from cadcam.stock import FOR_OP2, NO_TOOL, SHARP_CORNER, Simulation, unreached, why_left
 from cadcam.tools import load_tool_library
 from cadcam.verify import VerifyOptions, simulate
 from tests.conftest import manifold_to_trimesh
@@ -41,28 +41,6 @@ def test_a_corner_a_round_tool_left_is_a_sharp_inside_corner_a_square_patch_is_n
     assert [u.why for u in left if u.x < 4] == [SHARP_CORNER], left
     # a narrower tool than the corner's size: no tool of the program leaves such a corner
     assert {u.why for u in why_left(unreached(sim, 0.1, 0.0), sim, 0.1, radius=1.0)} == {NO_TOOL}
-
-
-def test_a_corner_under_a_cell_diagonal_is_listed_and_a_walls_skin_is_not():
-    """Issue 30: the curved triangle an R0.5 end mill leaves in a sharp corner 8 mm deep lies within the cell
-    diagonal :func:`unreached` grows the part by, so it saw nothing; the corner is listed with its place and depth.
-    A one-cell skin along a single wall stays unlisted (the grid cannot tell it from the wall)."""
-    g = Grid(x0=0.0, y0=0.0, cell=0.2, nx=51, ny=51)
-    x, y = np.meshgrid(g.xs, g.ys)
-    part = np.where((x < 1.0) | (y < 1.0), 0.0, -8.0)
-    corner = (x >= 1.0) & (y >= 1.0) & (x < 1.5) & (y < 1.5) & (np.hypot(x - 1.5, y - 1.5) > 0.5)
-    sim = Simulation(grid=g, stock_top=np.where(corner, 0.0, part), part_top=part, stock_bottom=-20.0)
-    assert unreached(sim, 0.1, 0.0) == ()
-    (u,) = corners_left(sim, 0.1)
-    assert u.why == SHARP_CORNER and u.depth == 8.0 and u.z_bottom == -8.0, u
-    assert abs(u.x - 1.0) <= 0.2 and abs(u.y - 1.0) <= 0.2 and max(u.size_x, u.size_y) <= 0.6, u
-    # an R1.5 corner unreached already lists is not listed twice
-    wide = (x >= 1.0) & (y >= 1.0) & (x < 2.5) & (y < 2.5) & (np.hypot(x - 2.5, y - 2.5) > 1.5)
-    sim = Simulation(grid=g, stock_top=np.where(wide, 0.0, part), part_top=part, stock_bottom=-20.0)
-    assert len(unreached(sim, 0.1, 0.0)) == 1 and corners_left(sim, 0.1, unreached(sim, 0.1, 0.0)) == ()
-    skin = (x >= 1.0) & (x < 1.05) & (y > 2.0)
-    sim = Simulation(grid=g, stock_top=np.where(skin, 0.0, part), part_top=part, stock_bottom=-20.0)
-    assert corners_left(sim, 0.1, unreached(sim, 0.1, 0.0)) == ()
 
 
 def test_each_region_left_says_why():
