@@ -314,7 +314,7 @@ def inspect_part(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     VisionError
         As :func:`vision.locate.locate_parts` with ``options.locate`` (bad image, or no part located
         confidently, with the reason): a part locate refuses is refused here too, never judged at a
-        pose that may be wrong (with its refusals off, low-angle light gave poses 170 mm off).
+        pose that may be wrong (with its refusals off, a glare picture was judged at a pose 3.3 mm off).
     """
     found = locate_parts(image, camera, base_camera, part, tray_z, options.locate, source=source)
     cam_base = np.linalg.inv(np.asarray(base_camera, dtype=np.float64))
