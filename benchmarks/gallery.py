@@ -1,9 +1,9 @@
 """The gallery of parts factory was not tuned for (tests/gallery/parts.py), each planned with defaults and judged.
 
 Per part: `factory plan`'s exit and one-line refusal, plan wall time, both operations' cycle estimates,
-verify's verdict and the stock it left, what was reported unreached, the deepest and widest engagement
-and the deepest at full width against the axial limit per tool, and LinuxCNC's `rs274` on every program
-with the job's tool table (``PART.tbl``). A part
+verify's verdict and the stock it left (its regions, place and size), what the plan reported unreached
+(place and size), the deepest and widest engagement and the deepest at full width against the axial limit
+per tool, and LinuxCNC's `rs274` on every program with the job's tool table (``PART.tbl``). A part
 ``expect``-ed to plan that is refused, fails verify, or whose program rs274 refuses, is a shortfall; so is
 one expected refused that plans.
 
@@ -41,6 +41,19 @@ def _rs274(program: Path, table: Path, folder: Path) -> str:
     return "ok"
 
 
+def _regions(found: list[dict], op: str) -> list[str]:
+    """Regions of stock (:class:`cadcam.stock.Unreached` as JSON) as ``op X.. Y.. size a x b, depth d`` [mm]."""
+    return [f"{op} X{u['x']:.1f} Y{u['y']:.1f} {u['size_x']:.1f} x {u['size_y']:.1f} mm, {u['depth']:.1f} deep"
+            for u in found]
+
+
+def _deepest(engagement: dict[str, dict[str, list]]) -> str:
+    """Each tool's deepest engagement [mm] per operation, ``op1 T3 6.0/6.0`` (deepest / its axial limit)."""
+    return "; ".join(f"{op} " + " ".join(f"{t} {e[0]:g}/{e[3]:g}" if e[3] is not None else f"{t} {e[0]:g}"
+                                         for t, e in tools.items())
+                     for op, tools in engagement.items())
+
+
 def judge(part: GalleryPart, work: Path) -> dict[str, object]:
     folder = work / part.name
     folder.mkdir()
@@ -61,8 +74,12 @@ def judge(part: GalleryPart, work: Path) -> dict[str, object]:
     row["cycle_min"] = [round(s["estimated_cycle_s"] / 60.0, 2) for s in ops]
     row["verify_ok"] = [s["verify_ok"] for s in ops]
     reports = [doc["verify"]] + ([doc["verify_op2"]] if doc.get("verify_op2") else [])
+    # verify's raw figure: the most stock over any grid cell; on a facetted round wall a cell a few microns
+    # outside the wall reads the wall's whole height, so what the verdict calls left is in "left"
     row["remaining_max_mm"] = [round(r["remaining_max"], 2) for r in reports]
-    row["unreached"] = len(doc.get("unreached", [])) + sum(len(s.get("unreached", [])) for s in ops[1:])
+    row["left"] = [_regions(r.get("left", []), f"op{i + 1}") for i, r in enumerate(reports)]
+    row["unreached"] = _regions(doc.get("unreached", []), "op1") + [
+        u for i, s in enumerate(ops[1:]) for u in _regions(s.get("unreached", []), f"op{i + 2}")]
     # per tool: deepest, widest, deepest at full width and its axial limit [mm]
     row["engagement"] = {f"op{i + 1}": {f"T{e['tool']}": [round(e["max_depth"], 2), round(e["max_width"], 2),
                                                           round(e.get("max_full_depth", 0.0), 2),
@@ -84,12 +101,16 @@ def main() -> int:
     parts = [BY_NAME[n] for n in args.parts.split(",")] if args.parts else list(PARTS)
     with tempfile.TemporaryDirectory(prefix="gallery-") as tmp, ThreadPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(lambda p: judge(p, Path(tmp)), parts))
-    print("| part | expect | exit | plan s | cycle op1/op2 min | verify | left max mm | unreached | rs274 | note |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| part | expect | exit | plan s | cycle op1/op2 min | verify | stock left (verify) | unreached (plan) "
+          "| deepest engagement mm / axial limit | rs274 | note |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         note = r.get("error", "") or ("; ".join(x for x in r.get("rs274", []) if x != "ok"))
+        left = [u for op in r.get("left", []) for u in op]
         print(f"| {r['part']} | {r['expect']} | {r['exit']} | {r['plan_s']} | {r.get('cycle_min', '')} | "
-              f"{r.get('verify_ok', '')} | {r.get('remaining_max_mm', '')} | {r.get('unreached', '')} | "
+              f"{r.get('verify_ok', '')} | {'; '.join(left) or ('none' if 'left' in r else '')} | "
+              f"{'; '.join(r.get('unreached', [])) or ('none' if 'left' in r else '')} | "
+              f"{_deepest(r.get('engagement', {}))} | "
               f"{'ok' if all(x == 'ok' for x in r.get('rs274', ['-'])) else 'FAIL'} | {note} |")
     short = [r["part"] for r in rows if r["shortfall"]]
     print(f"\n{len(rows) - len(short)} of {len(rows)} parts as a machinist expects; short: {', '.join(short) or 'none'}")

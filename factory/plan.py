@@ -398,9 +398,10 @@ REPLAN_SCALES = (0.5, 0.25)
 def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPlan:
     """Plan a part: CAM, post, setup sheet, robot load/unload and program, verify. Writes nothing.
 
-    A plan that verify fails is never the first answer: the part is planned again with thinner
-    cuts (:func:`conservative`, at each of :data:`REPLAN_SCALES`) and its rapids checked on
-    verify's grid (``CamRequest.rapid_cell``) until one passes; only the
+    A plan that verify fails is never the first answer: the failing operation is planned again with
+    thinner cuts (:func:`conservative`, at each of :data:`REPLAN_SCALES`) and its rapids checked on
+    verify's grid (``CamRequest.rapid_cell``) until one passes: op 2 alone, from op 1's verified
+    stock, when op 1 passed; the whole part when op 1 failed (op 2 starts from what op 1 leaves). Only the
     last is returned failed (``ok`` False), naming its faults. What each re-plan was for is in
     ``replanned``.
 
@@ -417,12 +418,15 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
             break
         fault = _first_fault(plan)
         why.append(fault)
-        log.warning("%s: verify failed (%s): planning again with stepdowns and finishing engagement x%g",
-                    request.cam.part, fault, scale)
+        op2_only = plan.report.ok and plan.op2 is not None
+        log.warning("%s: verify failed (%s): planning again%s with stepdowns and finishing engagement x%g",
+                    request.cam.part, fault, " (op 2 only)" if op2_only else "", scale)
+        failing = plan.op2.job if op2_only else plan.planned.job
         # the rapids checked on verify's own grid too: what it saw in stock, the check sees
-        cam = dataclasses.replace(request.cam, plan=conservative(request.cam.plan, plan.planned.job, scale),
+        cam = dataclasses.replace(request.cam, plan=conservative(request.cam.plan, failing, scale),
                                   rapid_cell=min(request.cam.rapid_cell, request.grid))
-        plan = _plan_once(dataclasses.replace(request, cam=cam), progress)
+        plan = _replan_op2(plan, cam, progress) if op2_only else _plan_once(dataclasses.replace(request, cam=cam),
+                                                                            progress)
     return dataclasses.replace(plan, replanned=tuple(why))
 
 
@@ -517,6 +521,18 @@ def _plan_once(request: PlanRequest, progress: Progress | None = None) -> PartPl
                                                  "setup_sheet": outputs["setup_sheet_op2"].name})
     return PartPlan(req, planned, program, sheet, tending, verified.simulation, verified.report,
                     dict(watch.seconds), op2)
+
+
+def _replan_op2(plan: PartPlan, cam: CamRequest, progress: Progress | None) -> PartPlan:
+    """``plan`` with op 2 planned again with ``cam``'s options, from op 1's verified stock (op 1, its
+    program, its robot program and its verdict kept); its wall times added to the plan's [s]."""
+    req = dataclasses.replace(plan.request, cam=cam)
+    watch = Stopwatch(progress)
+    op2 = _plan_op2(req, plan.planned, plan.simulation, req.outputs(Path(".")), progress, watch)
+    seconds = dict(plan.seconds)
+    for stage, s in watch.seconds.items():
+        seconds[stage] = seconds.get(stage, 0.0) + s
+    return dataclasses.replace(plan, request=req, op2=op2, seconds=seconds)
 
 
 def _verify_quietly(args: tuple, kwargs: dict) -> VerifyResult:

@@ -279,3 +279,37 @@ def test_only_when_every_re_plan_fails_is_the_failed_plan_returned(block, monkey
     assert not planned.ok and len(calls) == 1 + len(factory.plan.REPLAN_SCALES)
     assert calls[1:] == pytest.approx([calls[0] * s for s in factory.plan.REPLAN_SCALES])
     assert planned.replanned == ("op 1: fault 1", "op 1: fault 2")
+
+
+def test_when_only_op_2_fails_verify_only_op_2_is_planned_again(block, monkeypatch, caplog):
+    """Op 1 passed: it is kept (planned once) and op 2 alone is planned again with thinner cuts,
+    from op 1's verified stock."""
+    import factory.plan
+    from cadcam.verify import Fault
+
+    once, op2 = factory.plan._plan_once, factory.plan._plan_op2
+    ones, twos = [], []
+
+    def count_once(request, progress=None):
+        ones.append(request.cam)
+        return once(request, progress)
+
+    def first_op2_fails(req, planned, op1_sim, outputs, progress, watch):
+        twos.append((req.cam.plan, op1_sim))
+        second = op2(req, planned, op1_sim, outputs, progress, watch)
+        if len(twos) > 1:
+            return second
+        fault = Fault("buried", 3, (10,), 1.2, 1.0, (1.0, 2.0, -3.0), "T3 engages 1.2 mm, limit 1 mm")
+        return dataclasses.replace(second, report=dataclasses.replace(second.report, faults=(fault,)))
+
+    monkeypatch.setattr(factory.plan, "_plan_once", count_once)
+    monkeypatch.setattr(factory.plan, "_plan_op2", first_op2_fails)
+    with caplog.at_level(logging.WARNING, logger="factory.plan"):
+        planned = plan_part(dataclasses.replace(fast_request(block, robot=False), ops=2))
+    assert len(ones) == 1 and len(twos) == 2  # op 1 planned once, op 2 twice
+    assert planned.ok and planned.replanned == ("op 2: T3 engages 1.2 mm, limit 1 mm",)
+    assert "planning again (op 2 only)" in caplog.text
+    (first, stock1), (again, stock2) = twos
+    assert stock1 is stock2 is planned.simulation  # from op 1's verified stock, op 1 kept
+    assert again.finish_engagement == pytest.approx(0.5 * first.finish_engagement)
+    assert planned.op2 is not None and planned.op2.report.ok
