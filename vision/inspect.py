@@ -53,14 +53,10 @@ class InspectOptions:
     refine_rounds : int
         Most rounds of :func:`refine_pose` (refit to the mesh's silhouette, recompute it); 0 keeps
         the prism pose of :func:`vision.locate.locate_parts`.
-    locate : LocateOptions
-        How the parts are located, with locate's refusals: a part that cannot be located
-        confidently is not inspected (its pose could be wrong, and so would the verdict).
     """
 
     tolerance: float = 1e-3
     refine_rounds: int = 8
-    locate: LocateOptions = LocateOptions()
 
 
 @dataclass(frozen=True)
@@ -312,11 +308,12 @@ def inspect_part(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     Raises
     ------
     VisionError
-        As :func:`vision.locate.locate_parts` with ``options.locate`` (bad image, or no part located
-        confidently, with the reason): a part locate refuses is refused here too, never judged at a
-        pose that may be wrong (with its refusals off, a glare picture was judged at a pose 3.3 mm off).
+        As :func:`vision.locate.locate_parts` (no part found, bad image).
     """
-    found = locate_parts(image, camera, base_camera, part, tray_z, options.locate, source=source)
+    # A defective part must still be found: no outline-fit limit here, and no share of the inner
+    # edges (a missing boss or hole takes them away); the deviation judges it.
+    found = locate_parts(image, camera, base_camera, part, tray_z, LocateOptions(max_rms_px=np.inf, min_found=0.0),
+                         source=source)
     cam_base = np.linalg.inv(np.asarray(base_camera, dtype=np.float64))
     out = []
     f = np.sqrt(camera.fx * camera.fy)

@@ -133,11 +133,9 @@ class CameraShot:
         Wall time of the vision call (locate or inspect) on the picture [s].
     passed : bool
         Locate: found within :data:`LOCATE_TOLERANCE_M` and :data:`LOCATE_TOLERANCE_RAD` of the truth.
-        Inspect: the inspection's verdict (False when the part was refused).
+        Inspect: the inspection's verdict.
     error_mm : float
-        Distance of the located footprint centroid from the true one [mm]; NaN when refused.
-    refusal : str
-        Inspect: why no part could be located confidently enough to judge (locate's reason), or ''.
+        Distance of the located footprint centroid from the true one [mm].
     """
 
     image: np.ndarray
@@ -146,7 +144,6 @@ class CameraShot:
     processing_s: float
     passed: bool
     error_mm: float
-    refusal: str = ""
 
     def __post_init__(self) -> None:
         for name in ("image", "annotated"):
@@ -318,16 +315,10 @@ def inspect_shot(station: CameraStation, vertices_mm: np.ndarray, faces: np.ndar
     defect : bool
         Render the part with a corner cut off (it must then fail inspection).
 
-    Returns
-    -------
-    CameraShot
-        Not passed, with no detections and the ``refusal``, when inspection cannot locate the part
-        confidently (:func:`vision.inspect.inspect_part` keeps locate's refusals).
-
     Raises
     ------
     VisionError
-        As :func:`locate_shot` (bad pose or mesh); with ``defect``, also as :func:`cut_corner`.
+        As :func:`locate_shot`; with ``defect``, also as :func:`cut_corner`.
     """
     footprint = footprint_from_mesh(vertices_mm, faces, source="inspect shot")
     truth = _truth(footprint, pose, station.plane_z)
@@ -339,11 +330,7 @@ def inspect_shot(station: CameraStation, vertices_mm: np.ndarray, faces: np.ndar
         found = inspect_part(image, station.camera, station.camera_pose, footprint, vertices_mm, faces,
                              station.plane_z, source="inspect shot")
     except VisionError as e:
-        # Inspection keeps locate's refusals (a damaged part may lose the edges that pin its pose):
-        # a part it cannot judge is not passed, and the shot says why.
-        return CameraShot(image=image, annotated=inspection_image(image, []), detections=(),
-                          processing_s=time.perf_counter() - start, passed=False, error_mm=float("nan"),
-                          refusal=e.message)
+        raise _not_found(e, "the damaged part" if defect else "the part", truth) from None
     processing = time.perf_counter() - start
     inspection, error = _nearest(found, truth, part_of=lambda ins: ins.part)
     summary = {k: v for k, v in inspection.to_dict().items() if k != "pose"}
