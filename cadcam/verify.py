@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy import ndimage
 
 from cadcam.engagement import MoveRecord
 from cadcam.envelope import Segments
@@ -283,7 +284,9 @@ class VerifyReport:
         Source line of the first move that cut that deep there; None without a gouge.
     remaining_max, remaining_mean, remaining_p95 : float
         Stock left above the part over the grid points the part covers [mm] (max, mean,
-        95th percentile; a gouge counts as negative).
+        95th percentile; a gouge counts as negative), each point measured against the highest part
+        top among it and its eight neighbours: a point a micrometre outside a facetted wall, which the
+        finished wall passes beside, would otherwise count the wall's whole height as stock left.
     rapid_crashes : tuple of RapidCrash
         In program order (each also counted in a ``rapid`` :class:`Fault`).
     moves : int
@@ -701,6 +704,8 @@ def _report(
 ) -> VerifyReport:
     covered = np.isfinite(sim.part_top)
     rem = (sim.stock_top - np.where(covered, sim.part_top, 0.0))[covered]
+    beside = ndimage.maximum_filter(np.where(covered, sim.part_top, -np.inf), size=3, mode="constant", cval=-np.inf)
+    left = (sim.stock_top - beside)[covered]
     # Only cuts deeper than the tolerance can fail the verdict; measure those against the
     # part within the tolerance sideways too (see _lowest_part_near).
     deep = np.flatnonzero(rem < -options.gouge_tolerance)
@@ -723,9 +728,9 @@ def _report(
         max_gouge=max_gouge,
         gouge_position=gouge_position,
         gouge_line=gouge_line,
-        remaining_max=float(rem.max()),
-        remaining_mean=float(rem.mean()),
-        remaining_p95=float(np.percentile(rem, 95)),
+        remaining_max=float(left.max()),
+        remaining_mean=float(left.mean()),
+        remaining_p95=float(np.percentile(left, 95)),
         rapid_crashes=tuple(crashes),
         moves=n_moves,
         cut_length=cut_length,
