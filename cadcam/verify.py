@@ -11,7 +11,7 @@ are faults (:data:`FAULT_KINDS`).
 
 Engagement as a machinist reads it: per move, the radial engagement (the width of material across
 the feed), the axial engagement and the engagement angle (the arc of the cutter meeting material),
-and the deepest cut taken at full width (:class:`cadcam.stock.MoveRecord`). Where the grid is
+and the deepest cut taken at full width (:class:`cadcam.engagement.MoveRecord`). Where the grid is
 coarser than a tenth of a tool's diameter, that tool's moves are measured again on a finer grid
 around them (:func:`_refined`), so a small end mill's corner engagement is seen.
 """
@@ -31,9 +31,8 @@ from scipy import ndimage
 
 from cadcam.engagement import MoveRecord
 from cadcam.envelope import Segments
-from cadcam.heightmap import Grid, upper_envelope
+from cadcam.heightmap import Grid, grid_over, upper_envelope
 from cadcam.model import Motion, ProgramMoves, Setup, Tool
-from cadcam.heightmap import grid_over
 from cadcam.stock import (ENGAGED_WIDTH, FULL_WIDTH_ANGLE, RAPID_RIM, FlippedStock, Simulation, StockCut,
                           Unreached, cut_stock, first_line_reaching, unreached, why_left)
 from cadcam.workholding import fixture_contacts
@@ -215,7 +214,7 @@ class ToolEngagement:
     moves : int
         Its moves that came below the stock top.
     max_depth : float
-        Deepest engagement of any move (:class:`cadcam.stock.MoveRecord`; the skin of walls left out).
+        Deepest engagement of any move (:class:`cadcam.engagement.MoveRecord`; the skin of walls left out).
     max_depth_line : int
         Program line of that move (0 if it never engaged).
     max_width : float
@@ -519,7 +518,7 @@ class _Measured:
     """Engagement per swept segment (rows of :attr:`StockCut.segments`), on the grid each tool needs.
 
     ``angle`` [deg], ``width`` (radial) and ``full_depth`` (axial at full width) [mm] as
-    :class:`cadcam.stock.MoveRecord` holds them; ``full_x, full_y`` where the full-width depth
+    :class:`cadcam.engagement.MoveRecord` holds them; ``full_x, full_y`` where the full-width depth
     was reached [mm] (NaN if nowhere); ``cell`` the grid it was measured on [mm].
     """
 

@@ -30,9 +30,9 @@ from factory.core.errors import ToolpathError
 from factory.mcaplog import McapLog, read_attachment
 from factory.core.progress import Progress, Stopwatch
 from factory.core.resources import FIXTURES
+from factory.core.units import MM_PER_M
 from factory.views import job_messages
 from robotprog.cell import Vise, load_cell
-from factory.core.units import MM_PER_M
 
 log = logging.getLogger(__name__)
 

@@ -21,8 +21,8 @@ from cadcam.stock import check_grid_size
 from cadcam.tools import MaterialData, load_tool_library
 from factory.core.errors import CellError, PlanningError
 from factory.core.resources import FIXTURES
-from robotprog.cell import Cell, load_cell
 from factory.core.units import MM_PER_M
+from robotprog.cell import Cell, load_cell
 from robotprog.frames import check_stock_fits
 from robotprog.grasp import GraspOptions, tcp_above_bottom
 from robotprog.programs import LANG_MAKER, check_language

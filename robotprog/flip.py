@@ -30,9 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from factory.core.errors import CellError, PlanningError
+from factory.core.units import MM_PER_M
 from robotprog.cell import Box, Pose
 from robotprog.collision import HeldBox, Payload, finger_boxes
-from factory.core.units import MM_PER_M
 from robotprog.grasp import GraspOptions, box_pose, open_fingers, top_grasp
 from robotprog.planner import MotionPlanner, PickPlace, PickPlaceNames, Station, TimedMove, raise_up
 

@@ -21,9 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from factory.core.errors import PlanningError
+from factory.core.units import MM_PER_M
 from robotprog.cell import Cell
 from robotprog.collision import HeldBox, finger_boxes
-from factory.core.units import MM_PER_M
 
 
 @dataclass(frozen=True)

@@ -29,10 +29,10 @@ from typing import Any
 import numpy as np
 
 from factory.core.errors import CellError, PlanningError
+from factory.core.units import MM_PER_M
 from robotprog.cell import Box, Cell, Pose, SlotGrid
 from robotprog.collision import CollisionWorld, HeldBox, Payload, collision_world, finger_boxes
 from robotprog.flip import TURNOVER_AXIS, Piece, plan_flip
-from factory.core.units import MM_PER_M
 from robotprog.frames import StockInVise, setup_sheet_to_cell
 from robotprog.grasp import GraspOptions, box_pose, open_fingers, top_grasp
 from robotprog.roadmap import Roadmap
