@@ -33,10 +33,10 @@ sys.path.insert(0, str(ROOT))
 from factory.core.resources import FIXTURES  # noqa: E402
 from robotprog.cell import load_cell  # noqa: E402
 from robotprog.collision import collision_world  # noqa: E402
-from robotprog.tending import plan_tending  # noqa: E402
+from robotprog.tending import PartBox, plan_tending  # noqa: E402
 
 STOCK_MM = (104.0, 64.0, 22.0)
-PART_M = (np.array([-0.05, -0.03, 0.006]), np.array([0.05, 0.03, 0.022]))
+PART_M = PartBox(np.array([-0.05, -0.03, 0.006]), np.array([0.05, 0.03, 0.022]))
 
 
 def _sheet(sx: float, sy: float, sz: float) -> dict:

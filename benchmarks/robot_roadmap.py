@@ -33,17 +33,17 @@ from factory.core.resources import FIXTURES  # noqa: E402
 from factory.roadmaps import cached_roadmap  # noqa: E402
 from robotprog.cell import load_cell  # noqa: E402
 from robotprog.collision import collision_world  # noqa: E402
-from robotprog.tending import plan_tending  # noqa: E402
+from robotprog.tending import PartBox, plan_tending  # noqa: E402
 from tests.robotprog.test_tending import SAMPLE_STOCK, sheet  # noqa: E402
 
 #: Holding block under the part after op 1, and the part's allowance on each side [m].
 BLOCK_M, SIDE_M = 0.006, 0.002
 
 
-def part_box(size_mm) -> tuple[np.ndarray, np.ndarray]:
+def part_box(size_mm) -> PartBox:
     """The part inside the stock in the vise frame [m]: the stock less its sides and holding block."""
     sx, sy, sz = (v / 1000 for v in size_mm)
-    return (np.array([-sx / 2 + SIDE_M, -sy / 2 + SIDE_M, BLOCK_M]), np.array([sx / 2 - SIDE_M, sy / 2 - SIDE_M, sz]))
+    return PartBox(np.array([-sx / 2 + SIDE_M, -sy / 2 + SIDE_M, BLOCK_M]), np.array([sx / 2 - SIDE_M, sy / 2 - SIDE_M, sz]))
 
 
 def timed(fn):

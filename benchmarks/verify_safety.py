@@ -38,7 +38,8 @@ def main() -> None:
         nc = next(d.glob("*.nc"))
         name = nc.stem
         sheet = json.loads((d / f"{name}.setup.json").read_text())
-        setup, tools = read_setup_sheet(sheet)
+        read = read_setup_sheet(sheet)
+        setup, tools = read.setup, read.tools
         tri = part_triangles(SAMPLES / f"{name}.stl", setup)
         text = nc.read_text()
         t0 = time.perf_counter()

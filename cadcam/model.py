@@ -180,6 +180,12 @@ class Tool:
         return min(share * self.diameter, float(self.flute_length))
 
     @property
+    def level_stepdown(self) -> float:
+        """Default depth of one roughing level [mm]: half the diameter, never past :attr:`full_width_limit`
+        (a level's first cut into a pocket is a slot)."""
+        return min(0.5 * self.diameter, self.full_width_limit)
+
+    @property
     def radius(self) -> float:
         """Cutting radius [mm]."""
         return self.diameter / 2

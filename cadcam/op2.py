@@ -172,7 +172,7 @@ class FacingOptions:
 
     def check(self, tool: Tool) -> float:
         """The stepdown for ``tool`` [mm]; raises ToolpathError for an option out of range."""
-        stepdown = min(0.5 * tool.diameter, tool.full_width_limit) if self.stepdown is None else float(self.stepdown)
+        stepdown = tool.level_stepdown if self.stepdown is None else float(self.stepdown)
         bad = []
         if not 0 < self.stepover <= 0.9:
             bad.append(f"stepover {self.stepover:g} must lie in (0, 0.9] of the diameter")

@@ -110,7 +110,7 @@ class RoughingOptions:
     Attributes
     ----------
     stepdown : float, optional
-        Maximum depth of one level [mm]. Default ``min(0.5 * D, axial limit)`` (:attr:`Tool.full_width_limit`): contour
+        Maximum depth of one level [mm]. Default :attr:`Tool.level_stepdown` (``min(0.5 * D, axial limit)``): contour
         offsets cannot avoid some full-width cuts (the first loop after a helix, the first
         loop along a wall in an open region), and half a diameter is a safe slotting depth
         for carbide in aluminium.
@@ -175,7 +175,7 @@ def _resolve(options: RoughingOptions, tool: Tool, setup: Setup) -> _Params:
                         "z-level roughing needs a flat or bull-nose end mill")
     if not (d > 0 and math.isfinite(d)):
         raise ToolError(f"T{tool.number} has diameter {d}")
-    stepdown = min(0.5 * d, tool.full_width_limit) if options.stepdown is None else float(options.stepdown)
+    stepdown = tool.level_stepdown if options.stepdown is None else float(options.stepdown)
     stepover = 0.4 * d if options.stepover is None else float(options.stepover)
     helix_d = 0.8 * d if options.helix_diameter is None else float(options.helix_diameter)
     min_helix_d = 0.3 * d if options.min_helix_diameter is None else float(options.min_helix_diameter)

@@ -6,6 +6,8 @@ reads the same file (:func:`robotprog.frames.setup_sheet_to_cell`).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from cadcam.model import FixtureBox, Job, Setup, Tool
@@ -63,7 +65,16 @@ def setup_sheet(job: Job, program: Program, program_name: str) -> SetupSheet:
     )
 
 
-def read_setup_sheet(data: SetupSheet | Any, source: str | None = None) -> tuple[Setup, dict[int, Tool]]:
+@dataclass(frozen=True)
+class SheetSetup:
+    """What a setup sheet gives back: the sheet itself, the setup it describes, and its tool table by number."""
+
+    sheet: SetupSheet
+    setup: Setup
+    tools: Mapping[int, Tool]
+
+
+def read_setup_sheet(data: SetupSheet | Any, source: str | None = None) -> SheetSetup:
     """The setup and tool table a setup sheet describes: a :class:`SetupSheet`, or its JSON document.
 
     Raises
@@ -88,4 +99,4 @@ def read_setup_sheet(data: SetupSheet | Any, source: str | None = None) -> tuple
         tools = {int(t["number"]): Tool.from_dict(dict(t)) for t in sheet.tools}
     except (KeyError, TypeError, ValueError) as e:
         raise SetupError(f"malformed setup sheet: {type(e).__name__}: {clipped(str(e))}", source=source) from None
-    return setup, tools
+    return SheetSetup(sheet, setup, tools)

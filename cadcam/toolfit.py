@@ -121,7 +121,7 @@ def tool_fits(triangles: np.ndarray, setup: Setup, tools: list[Tool], allowance:
         # Outside the stock there is air: the tool may stand there down to the floor.
         stop = ndimage.maximum_filter(part, footprint=disc, mode="constant", cval=bottom)
         reached = np.maximum(ndimage.minimum_filter(stop, footprint=disc, mode="constant", cval=bottom), part)
-        stepdown = min(0.5 * tool.diameter, tool.flute_length)
+        stepdown = tool.level_stepdown
         levels = np.union1d(top - stepdown * np.arange(1, int(np.ceil((top - bottom) / stepdown - 1e-9)) + 1), flats)
         levels = np.unique(np.maximum(levels, bottom))[::-1]
         cleared, entries = 0, 0.0
@@ -159,7 +159,7 @@ def _flat_levels(triangles: np.ndarray, allowance: float, bottom: float, top: fl
 def removal_rate(tool: Tool, feed: float) -> float:
     """Metal removal rate of z-level roughing with ``tool`` at its default engagement [mm^3/min].
 
-    Stepover 0.4 D and stepdown min(0.5 D, flute length), as :class:`cadcam.roughing.RoughingOptions`.
+    Stepover 0.4 D and the tool's :attr:`~cadcam.model.Tool.level_stepdown`, as :class:`cadcam.roughing.RoughingOptions`.
     """
-    return feed * 0.4 * tool.diameter * min(0.5 * tool.diameter, tool.flute_length)
+    return feed * 0.4 * tool.diameter * tool.level_stepdown
 

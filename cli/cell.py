@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from cli.cellflags import Bag, CameraFile, Catalog, CellFile, Db, FaultRate, Faults, RobotRate, Ros2KeepAll, \
-    Ros2Localhost, RosDistro, Tools
+    Ros2Localhost, RosDistro, Tools, cell_inputs
 from cli.common import JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, setup_logging, stderr
 from cli.main import TYPER_SETTINGS
 from factory.core.resources import FIXTURES
@@ -58,14 +58,11 @@ def cell(
         typer.echo(ctx.get_help())
         raise typer.Exit(2)
     setup_logging(quiet)
-    if fault_rate is not None and faults is None:
-        raise typer.BadParameter("needs --faults SEED", param_hint="--fault-rate")
+    inputs = cell_inputs(catalog, cell_path, camera_path, tools, faults, fault_rate)
     from factory.cellservice import CellOptions  # the cell's libraries, DDS among them, load only to serve
-    from factory.production import CellInputs
     from factory.ros2 import Ros2Graph
 
-    _serve(CellOptions(CellInputs(catalog=catalog, cell=cell_path, camera=camera_path, tools=tools, faults=faults,
-                                  fault_rate=fault_rate), robot_rate_hz=robot_rate, speed=speed),
+    _serve(CellOptions(inputs, robot_rate_hz=robot_rate, speed=speed),
            Ros2Graph(localhost=ros2_localhost, distro=ros_distro, speed=float("inf"), keep_all=ros2_keep_all),
            mcap=mcap, bag=bag, db=db, overwrite=overwrite, quiet=quiet)
 

@@ -4,12 +4,15 @@ joins a ROS 2 graph. Defaults sit with each command's parameter."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+if TYPE_CHECKING:
+    from factory.production import CellInputs
+
 __all__ = ["Bag", "CameraFile", "Catalog", "CellFile", "Db", "FaultRate", "Faults", "RobotRate", "Ros2KeepAll",
-           "Ros2Localhost", "RosDistro", "Tools"]
+           "Ros2Localhost", "RosDistro", "Tools", "cell_inputs"]
 
 Catalog = Annotated[Path, typer.Option("--catalog", help="Folder of `factory plan` outputs to reuse; parts not in it are planned into it.", file_okay=False)]
 CellFile = Annotated[Path, typer.Option("--cell", help="Robot cell file.", exists=True, dir_okay=False)]
@@ -23,3 +26,14 @@ RosDistro = Annotated[str, typer.Option("--ros-distro", help="With --ros2: the d
 Ros2KeepAll = Annotated[bool, typer.Option("--ros2-keep-all", help="With --ros2: every subscriber gets every message, the run waiting for the slowest (default: the last 10 per topic are kept for a slow one).")]
 RobotRate = Annotated[float, typer.Option("--robot-rate", metavar="HZ", help="Robot joint states and link transforms per second of simulated time in the log and the live view (each move's ends always); lower it for long runs, e.g. 1.", min=1e-3)]
 Bag = Annotated[Path | None, typer.Option("--bag", metavar="DIR", help="Write the run as a rosbag2 folder (metadata.yaml and MCAP) that `ros2 bag info` and `ros2 bag play` take.", file_okay=False)]
+
+
+def cell_inputs(catalog: Path, cell: Path, camera: Path, tools: Path | None, faults: int | None,
+                fault_rate: float | None) -> CellInputs:
+    """The cell's inputs as both commands are given them; a fault rate without a seed is a usage error
+    (exit 2, naming the option), refused before any file is read."""
+    if fault_rate is not None and faults is None:
+        raise typer.BadParameter("needs --faults SEED", param_hint="--fault-rate")
+    from factory.production import CellInputs
+
+    return CellInputs(catalog=catalog, cell=cell, camera=camera, tools=tools, faults=faults, fault_rate=fault_rate)

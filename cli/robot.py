@@ -47,7 +47,8 @@ def robot(
             check_writable(p, overwrite)
     watch = Stopwatch()
     with watch("load"):
-        setup, _tools, sheet = read_sheet(setup_path)
+        read = read_sheet(setup_path)
+        setup, sheet = read.setup, read.sheet
         vertices = None
         if part is not None:
             loaded = load_planned_part(part, setup.mesh_scale, sheet.intake, source=str(setup_path))

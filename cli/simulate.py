@@ -14,12 +14,12 @@ from typing import Annotated
 import typer
 
 from cli.cellflags import Bag, CameraFile, Catalog, CellFile, Db, FaultRate, Faults, RobotRate, Ros2KeepAll, \
-    Ros2Localhost, RosDistro, Tools
+    Ros2Localhost, RosDistro, Tools, cell_inputs
 from cli.common import EXIT_FINDINGS, JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, \
     setup_logging, stderr
 from factory.core.resources import FIXTURES
 from factory.live import Fanout, LiveView
-from factory.production import SAMPLE_ORDERS, CellInputs, SimulateRequest, simulate_orders
+from factory.production import SAMPLE_ORDERS, SimulateRequest, simulate_orders
 from factory.simulation import ROBOT_RATE_HZ
 from robotprog.cellsim import SimulationResult
 
@@ -80,13 +80,10 @@ def simulate(
     writing everything) when an order ends failed or rejected: the reasons are in the summary.
     """
     setup_logging(quiet)
-    if fault_rate is not None and faults is None:
-        raise typer.BadParameter("needs --faults SEED", param_hint="--fault-rate")
+    inputs = cell_inputs(catalog, cell_path, camera_path, tools, faults, fault_rate)
     if (ros2_localhost or ros2_keep_all or ros2_wait or ros_distro != "jazzy") and not ros2:
         raise typer.BadParameter("needs --ros2", param_hint="--ros2-localhost, --ros2-keep-all, --ros2-wait, --ros-distro")
-    request = SimulateRequest(orders_path, CellInputs(catalog=catalog, cell=cell_path, camera=camera_path, tools=tools,
-                                                      faults=faults, fault_rate=fault_rate),
-                              db=db, robot_rate_hz=robot_rate, mcap=mcap, png=png, overwrite=overwrite)
+    request = SimulateRequest(orders_path, inputs, db=db, robot_rate_hz=robot_rate, mcap=mcap, png=png, overwrite=overwrite)
     orders = request.checked()
     # Bound before any work, so a port in use fails at once; it streams once the run is simulated.
     live = LiveView(serve, host=host, speed=speed) if serve is not None else None

@@ -56,7 +56,8 @@ def verify(
     outputs = [p for p in (png, mcap, json_path) if p is not None]
     for p in outputs:
         check_writable(p, overwrite)
-    setup, tools, sheet = read_sheet(setup_path)
+    read = read_sheet(setup_path)
+    setup, tools, sheet = read.setup, read.tools, read.sheet
     first = op1_of(sheet, setup_path, after)
     triangles = part_triangles(part, setup, sheet.source_sha256, sheet.intake, tolerance)
     text = _read(program)
@@ -69,11 +70,12 @@ def verify(
                                   operations=sheet.operations)
         else:
             program1, sheet1_path = first
-            setup1, tools1, sheet1 = read_sheet(sheet1_path)
-            verified1 = run_verify(_read(program1), str(program1), setup1, tools1,
-                                   part_triangles(part, setup1, sheet1.source_sha256, sheet1.intake, tolerance),
+            op1 = read_sheet(sheet1_path)
+            verified1 = run_verify(_read(program1), str(program1), op1.setup, op1.tools,
+                                   part_triangles(part, op1.setup, op1.sheet.source_sha256, op1.sheet.intake,
+                                                  tolerance),
                                    dataclasses.replace(options, op2_follows=True), bars,
-                                   operations=sheet1.operations)
+                                   operations=op1.sheet.operations)
             before_ok = verified1.report.ok
             if not quiet:
                 stderr.print(f"op 1 ({program1.name}): {report_text(verified1.report)}", highlight=False,

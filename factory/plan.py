@@ -437,7 +437,7 @@ def conservative(options: PlanOptions, job: Job, scale: float) -> PlanOptions:
     rough = next((t for t in job.tools if t.number == job.parameters.get("rough_tool")), None)
     stepdown = options.roughing.stepdown
     if stepdown is None and rough is not None:
-        stepdown = min(0.5 * rough.diameter, rough.full_width_limit)  # cadcam.roughing's default
+        stepdown = rough.level_stepdown
     roughing = dataclasses.replace(options.roughing, stepdown=None if stepdown is None else stepdown * scale)
     return dataclasses.replace(options, roughing=roughing, terrace_stepdown=options.terrace_stepdown * scale,
                                finish_engagement=options.finish_engagement * scale)

@@ -347,7 +347,8 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
     if not summary.get("verify", {}).get("ok", True):
         raise FactoryError("its plan does not verify (gouge or rapid crash)", source=entry.summary_path)
     sheet_path = entry.output("setup_sheet")
-    setup, tools, sheet = read_sheet(sheet_path)
+    read = read_sheet(sheet_path)
+    setup, tools, sheet = read.setup, read.tools, read.sheet
     program_path = entry.output("program")
     moves = parse_gcode(program_path.read_text(encoding="utf-8"), source=str(program_path))
     timeline = machine_timeline(moves)
@@ -370,9 +371,11 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
         timeline_op2 = machine_timeline(parse_gcode(text2, source=str(program2)))
         # op 2 cuts op 1's stock turned over: its engagement from the same stock model
         sheet2_path = entry.output("setup_sheet_op2")
-        setup2, tools2, sheet2 = read_sheet(sheet2_path)
-        verified2 = run_verify_after(last_sim, flip_of(sheet2, sheet2_path), text2, str(program2), setup2, tools2,
-                                     part_triangles(part, setup2, summary["catalog"]["mesh_sha256"], sheet2.intake),
+        op2_sheet = read_sheet(sheet2_path)
+        verified2 = run_verify_after(last_sim, flip_of(op2_sheet.sheet, sheet2_path), text2, str(program2),
+                                     op2_sheet.setup, op2_sheet.tools,
+                                     part_triangles(part, op2_sheet.setup, summary["catalog"]["mesh_sha256"],
+                                                    op2_sheet.sheet.intake),
                                      VerifyOptions(cell=STOCK_GRID_MM))
         spindle_op2 = program_spindle_load(timeline_op2, verified2.simulation.removed_volume, library, material)
     toolpath = next((m for topic, _, m in read_messages(mcap, ["/cam/toolpath"])), None)

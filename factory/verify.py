@@ -14,7 +14,7 @@ from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_planned_part
 from cadcam.relief import machining_surface, surface_footprint
 from cadcam.model import Setup, Tool
-from cadcam.sheet import read_setup_sheet
+from cadcam.sheet import SheetSetup, read_setup_sheet
 from cadcam.preview import deviation_image
 from cadcam.stock import Simulation, flip_stock
 from cadcam.verify import VerifyOptions, VerifyReport, VerifyResult, finishing_moves, simulate, simulate_flipped
@@ -28,15 +28,13 @@ from factory.views import heightfield_mesh
 
 log = logging.getLogger(__name__)
 
-def read_sheet(path: Path) -> tuple[Setup, dict[int, Tool], SetupSheet]:
-    """Setup, tool table and the sheet itself of a setup sheet file."""
+def read_sheet(path: Path) -> SheetSetup:
+    """The sheet, its setup and its tool table, of a setup sheet file."""
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
         raise SetupError(f"cannot read setup sheet: {e}", source=path) from None
-    sheet = SetupSheet.from_json(data, source=str(path))
-    setup, tools = read_setup_sheet(sheet, source=str(path))
-    return setup, tools, sheet
+    return read_setup_sheet(SetupSheet.from_json(data, source=str(path)), source=str(path))
 
 
 def part_triangles(part: Path, setup: Setup, expected_sha256: str = "", intake: Mapping[str, Any] | None = None,

@@ -108,7 +108,15 @@ class TendingPlan:
         return tuple(m for m in self.moves if m.name.startswith(prefix))
 
 
-def part_box_in_vise(stock: StockInVise, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+@dataclass(frozen=True)
+class PartBox:
+    """The finished part's axis-aligned bounding box in the vise frame: corners ``low`` and ``high``, (3,) [m]."""
+
+    low: np.ndarray
+    high: np.ndarray
+
+
+def part_box_in_vise(stock: StockInVise, vertices: np.ndarray) -> PartBox:
     """Bounding box of the part mesh in the vise frame [m].
 
     Parameters
@@ -120,7 +128,7 @@ def part_box_in_vise(stock: StockInVise, vertices: np.ndarray) -> tuple[np.ndarr
     v = np.asarray(vertices, dtype=float) * stock.mesh_scale_m
     t = stock.transform_vise_to_work @ stock.transform_mesh_to_work
     p = v @ t[:3, :3].T + t[:3, 3]
-    return p.min(axis=0), p.max(axis=0)
+    return PartBox(p.min(axis=0), p.max(axis=0))
 
 
 def _slot(grid: SlotGrid, slot: tuple[int, int], field_name: str) -> np.ndarray:
@@ -134,7 +142,7 @@ def plan_tending(
     cell: Cell,
     sheet: dict[str, Any],
     *,
-    part_box: tuple[np.ndarray, np.ndarray] | None = None,
+    part_box: PartBox | None = None,
     world: CollisionWorld | None = None,
     options: TendingOptions = TendingOptions(),
     source: str | None = None,
@@ -149,7 +157,7 @@ def plan_tending(
     cell : Cell
     sheet : dict
         The part's ``factory.setup/1`` setup sheet.
-    part_box : ((3,), (3,)) float, optional
+    part_box : PartBox, optional
         Finished part box in the vise frame [m] (:func:`part_box_in_vise`); default the stock box.
     world : CollisionWorld, optional
         Its loaded robot is reused; the plan's world is the cell (door open) plus the
@@ -194,7 +202,7 @@ def plan_tending(
             f"{cell.vise.jaw_opening_min * MM_PER_M:.1f}..{cell.vise.jaw_opening_max * MM_PER_M:.1f} mm",
             source="vise.jaw_opening")
     pmin, pmax = (stock.stock_min, stock.stock_max) if part_box is None else (
-        np.asarray(part_box[0], dtype=float), np.asarray(part_box[1], dtype=float))
+        np.asarray(part_box.low, dtype=float), np.asarray(part_box.high, dtype=float))
     piece = None
     if setups == 2:
         piece = Piece.after_op1(stock.stock_min, stock.stock_max, pmin, pmax)

@@ -30,7 +30,8 @@ def posted():
 def test_round_trip(posted):
     job, program = posted
     sheet = json.loads(json.dumps(setup_sheet(job, program, "block.nc").to_json()))
-    setup, tools = read_setup_sheet(sheet, source="block.setup.json")
+    read = read_setup_sheet(sheet, source="block.setup.json")
+    setup, tools = read.setup, read.tools
     assert setup.to_dict() == job.setup.to_dict()
     assert tools == {t.number: t for t in job.tools}
     assert sheet["estimated_cycle_s"] == pytest.approx(program.total_time, abs=0.1)
@@ -51,7 +52,7 @@ def test_sheet_carries_holders_and_old_sheets_get_the_default(posted):
     assert all(t["holder"] and t["shank_diameter"] > 0 for t in sheet["tools"])
     for t in sheet["tools"]:  # a sheet written before holders were recorded
         del t["holder"], t["shank_diameter"]
-    _, tools = read_setup_sheet(sheet)
+    tools = read_setup_sheet(sheet).tools
     assert all(t.holder == DEFAULT_HOLDER and t.shank_diameter == t.diameter for t in tools.values())
 
 
@@ -66,7 +67,7 @@ def test_sheet_reads_back_to_the_same_document(posted):
     again = SetupSheet.from_json(json.loads(text), "block.setup.json")
     assert json.dumps(again.to_json(), indent=2) == text
     assert list(json.loads(text))[-7:] == ["op", "work_offset", "after", "flip", "face_z", "holding_mm", "held_in"]
-    assert read_setup_sheet(again)[0].to_dict() == job.setup.to_dict()
+    assert read_setup_sheet(again).setup.to_dict() == job.setup.to_dict()
 
 
 def test_sheet_is_frozen(posted):

@@ -66,9 +66,10 @@ def test_a_gallery_part_plans_and_its_consumers_accept_it(name: str, tmp_path: P
     # Op 1 from its stock box, by the independent probe: no tool past its axial limit at full width
     # (op 2 starts from what op 1 left, which the probe does not model).
     op1 = doc["setups"][0]
-    setup, tools, _ = read_sheet(Path(op1["setup_sheet"]))
+    read = read_sheet(Path(op1["setup_sheet"]))
+    tools = read.tools
     moves = parse_gcode(Path(op1["program"]).read_text(), source=op1["program"])
-    sw = sweep_moves(moves.points, moves.motion, moves.tool, tools, setup, PROBE_CELL, full_width=True)
+    sw = sweep_moves(moves.points, moves.motion, moves.tool, tools, read.setup, PROBE_CELL, full_width=True)
     assert past_axial_limit(sw, moves.tool, tools, PROBE_CELL) == {}
     op2 = doc["setups"][1]
     assert ("seams" in op2) == (name in SPLIT), op2.keys()

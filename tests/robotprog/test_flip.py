@@ -15,13 +15,13 @@ from factory.core.resources import FIXTURES
 from robotprog.cell import load_cell, read_cell
 from robotprog.collision import collision_world
 from robotprog.flip import Piece, turnover
-from robotprog.tending import plan_tending
+from robotprog.tending import PartBox, plan_tending
 from robotprog.timing import LIMIT_SLACK
 
 #: The bracket after op 1 [m, vise frame]: a 100 x 60 x 16 mm part on a 6 mm holding block of
 #: the 104 x 64 mm stock.
 STOCK_MM = (104, 64, 22)
-PART = (np.array([-0.05, -0.03, 0.006]), np.array([0.05, 0.03, 0.022]))
+PART = PartBox(np.array([-0.05, -0.03, 0.006]), np.array([0.05, 0.03, 0.022]))
 CELLS = ["cell.yaml", "cell_abb.yaml", "cell_kuka.yaml"]
 
 

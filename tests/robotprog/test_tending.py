@@ -131,10 +131,10 @@ def test_part_box_from_mesh_sits_in_stock(cell, world):
 
     stock = setup_sheet_to_cell(sheet(100, 60, 20))
     verts = np.array([[5.0, 5.0, -20.0], [95.0, 55.0, -4.0]])  # part in work coords (identity mesh→work)
-    pmin, pmax = part_box_in_vise(stock, verts)
-    np.testing.assert_allclose(pmin, [-0.045, -0.025, 0.0], atol=1e-12)
-    np.testing.assert_allclose(pmax, [0.045, 0.025, 0.016], atol=1e-12)
-    plan = plan_tending(cell, sheet(100, 60, 20), part_box=(pmin, pmax), world=world)
+    box = part_box_in_vise(stock, verts)
+    np.testing.assert_allclose(box.low, [-0.045, -0.025, 0.0], atol=1e-12)
+    np.testing.assert_allclose(box.high, [0.045, 0.025, 0.016], atol=1e-12)
+    plan = plan_tending(cell, sheet(100, 60, 20), part_box=box, world=world)
     grip = {m.name: m for m in plan.moves}["unload: approach part"].transform_world_to_tcp
     assert grip[2, 3] < cell.vise.pose.matrix()[2, 3] + 0.016
     # 4 mm tall: the fingertips, kept 2 mm above the parallels, reach 2 mm below its top (3 needed).
