@@ -1,7 +1,8 @@
 """The Snakemake workflow, run by Snakemake itself: locally, through a detached-job executor, and
 after its driver was killed.
 
-The sample parts are planned with coarse options (the workflow, not the finish, is under test).
+Three of the sample parts are planned, with coarse options: the workflow, not the parts or their
+finish, is under test (tests/cadcam and tests/gallery plan every sample and gallery part).
 Every run's deterministic outputs (G-code, setup sheets, verify reports, robot programs, the plan
 summaries, and the cell's order outcomes) must equal a clean run's.
 """
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -25,11 +27,16 @@ SNAKEFILE = ROOT / "workflow" / "Snakefile"
 PROFILES = ROOT / "workflow" / "profiles"
 BIN = Path(sys.executable).parent
 PARTS = sorted(p.stem for p in SAMPLES.glob("*.stl"))
+# The real runs plan the three quickest samples: enough for jobs in parallel and a driver killed
+# between them, at a third of the five samples' time.
+PLANNED = ("bracket", "plate_bosses", "stepped_wall")
 FAST = {"scallop": 0.05, "grid": 0.5}
 
 
-def _config(folder: Path, options: dict | None = None) -> Path:
-    config = {"parts": str(SAMPLES), "catalog": "catalog", "orders": str(SAMPLES / "one_each.csv"), "out": "out",
+def _config(folder: Path, options: dict | None = None, parts: Path = SAMPLES) -> Path:
+    """Write the workflow's config into ``folder``: the meshes of ``parts`` (a folder with the
+    orders ``one_each.csv``), planned with ``options``."""
+    config = {"parts": str(parts), "catalog": "catalog", "orders": str(parts / "one_each.csv"), "out": "out",
               "factory": str(BIN / "factory"), "options": options or FAST}
     path = folder / "config.yaml"
     path.write_text(yaml.safe_dump(config))
@@ -43,9 +50,9 @@ def _snakemake(folder: Path, *args: str, **kwargs) -> subprocess.CompletedProces
 
 
 def _outputs(folder: Path) -> dict[str, object]:
-    """What a run made that must not depend on how it was run."""
+    """What a run of :data:`PLANNED` made that must not depend on how it was run."""
     out: dict[str, object] = {}
-    for part in PARTS:
+    for part in PLANNED:
         d = folder / "catalog" / part
         for ext in ("nc", "setup.json", "verify.json", "script"):
             out[f"{part}.{ext}"] = (d / f"{part}.{ext}").read_bytes()
@@ -60,9 +67,21 @@ def _outputs(folder: Path) -> dict[str, object]:
 
 
 @pytest.fixture(scope="module")
-def clean(tmp_path_factory) -> tuple[Path, dict[str, object]]:
+def planned(tmp_path_factory) -> Path:
+    """A folder of the :data:`PLANNED` samples and one order of each, shared by every real run (the
+    plans name their mesh's path, so every run must read the same one)."""
+    folder = tmp_path_factory.mktemp("parts")
+    for part in PLANNED:
+        shutil.copyfile(SAMPLES / f"{part}.stl", folder / f"{part}.stl")
+    (folder / "one_each.csv").write_text("part,quantity,material,priority\n"
+                                         + "".join(f"{part}.stl,1,aluminium,0\n" for part in PLANNED))
+    return folder
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory, planned) -> tuple[Path, dict[str, object]]:
     folder = tmp_path_factory.mktemp("clean")
-    _config(folder)
+    _config(folder, parts=planned)
     r = _snakemake(folder, "--profile", str(PROFILES / "local"))
     assert r.returncode == 0, r.stderr[-3000:]
     return folder, _outputs(folder)
@@ -73,10 +92,10 @@ def test_plans_every_sample_then_runs_the_orders(clean):
     with the reason (a plan whose verify fails is written whole, its verdict in its summary)."""
     folder, outputs = clean
     verified = {part: json.loads((folder / "catalog" / part / f"{part}.plan.json").read_text())["verify"]["ok"]
-                for part in PARTS}
-    assert sum(verified.values()) >= len(PARTS) - 1, verified
+                for part in PLANNED}
+    assert sum(verified.values()) >= len(PLANNED) - 1, verified
     cell = json.loads((folder / "out" / "cell.json").read_text())
-    assert len(cell["orders"]) == len(PARTS)
+    assert len(cell["orders"]) == len(PLANNED)
     for o in cell["orders"]:
         if verified[Path(o["part"]).stem]:
             assert (o["outcome"], o["good"]) == ("done", 1), o
@@ -92,7 +111,7 @@ def test_a_rerun_skips_unchanged_parts_and_replans_changed_options(clean):
     r = _snakemake(folder, "--cores", "2", "--dry-run")
     assert r.returncode == 0 and "Nothing to be done" in r.stdout + r.stderr, r.stdout[-2000:]
     config = yaml.safe_load((folder / "config.yaml").read_text())
-    config["part_options"] = {PARTS[0]: {"allowance": 0.4}}
+    config["part_options"] = {PLANNED[0]: {"allowance": 0.4}}
     (folder / "config.yaml").write_text(yaml.safe_dump(config))
     r = _snakemake(folder, "--cores", "2", "--dry-run", "--quiet", "rules")
     assert r.returncode == 0, r.stderr[-2000:]
@@ -108,18 +127,18 @@ def test_unknown_option_names_are_refused_before_any_job(tmp_path):
     assert not (tmp_path / "catalog").exists()
 
 
-def test_detached_jobs_make_what_a_local_run_makes(clean, tmp_path):
-    _config(tmp_path)
+def test_detached_jobs_make_what_a_local_run_makes(clean, planned, tmp_path):
+    _config(tmp_path, parts=planned)
     r = _snakemake(tmp_path, "--profile", str(PROFILES / "detached"))
     assert r.returncode == 0, r.stderr[-3000:]
     assert "Submitted job" in r.stdout + r.stderr and "external jobid" in r.stdout + r.stderr
     assert _outputs(tmp_path) == clean[1]
 
 
-def test_a_driver_killed_mid_run_reruns_to_a_clean_result(clean, tmp_path):
+def test_a_driver_killed_mid_run_reruns_to_a_clean_result(clean, planned, tmp_path):
     """SIGKILL to the driver and every job it started (a lost login node), in the middle of the
     plan jobs; then `--unlock` and the same command again finish with a clean run's outputs."""
-    _config(tmp_path)
+    _config(tmp_path, parts=planned)
     cmd = [str(BIN / "snakemake"), "-s", str(SNAKEFILE), "--configfile", str(tmp_path / "config.yaml"),
            "--directory", str(tmp_path), "--profile", str(PROFILES / "local")]
     driver = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
@@ -131,7 +150,7 @@ def test_a_driver_killed_mid_run_reruns_to_a_clean_result(clean, tmp_path):
     os.killpg(driver.pid, signal.SIGKILL)
     driver.wait()
     done = list((tmp_path / "catalog").glob("*/*.plan.json"))
-    assert 0 < len(done) < len(PARTS), done
+    assert 0 < len(done) < len(PLANNED), done
     assert not (tmp_path / "out" / "cell.json").exists()
 
     assert _snakemake(tmp_path, "--unlock").returncode == 0
