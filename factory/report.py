@@ -31,6 +31,8 @@ Definitions (times in simulated seconds [s]):
 from __future__ import annotations
 
 import statistics
+from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -360,19 +362,29 @@ def dashboard(report: dict[str, Any], width: int = 1200, height: int = 900) -> n
         x, yy = 16 + col * (width - 32) / columns, y + 20 + row * 16
         colour = _GOOD if p["outcome"] == "good" else _BAD if p["outcome"] else (120, 120, 120)
         d.rectangle([x, yy + 3, x + 8, yy + 11], fill=colour)
-        d.text((x + 14, yy), _part_row(p)[:60], fill=_INK)
+        d.text((x + 14, yy), _part_row(p, lambda t: d.textlength(t) <= (width - 32) / columns - 20), fill=_INK)
     if len(rows) > len(shown):
         d.text((16, height - 20), f"... and {len(rows) - len(shown)} more parts (factory report --json)", fill=_INK)
     return np.asarray(img, dtype=np.uint8).copy()
 
 
-def _part_row(p: dict[str, Any]) -> str:
-    """A part's line on the dashboard: serial, order, outcome, cycle time [s], alarms. The alarms
-    follow punctuation, not a bare space: the picture's font draws a space so narrow that
-    ``107 s stock_not_found`` reads as ``107 sstock_not_found``."""
+def _part_row(p: dict[str, Any], fits: Callable[[str], bool] = lambda _: True) -> str:
+    """A part's line on the dashboard: serial, order, outcome, cycle time [s], alarms.
+
+    The alarms follow punctuation, not a bare space: the picture's font draws a space so narrow
+    that ``107 s stock_not_found`` reads as ``107 sstock_not_found``. Repeated kinds are counted
+    (``grasp_missed x3``). When the row does not ``fit`` its column, the last kinds give way to
+    ``+N more``: whole words only, so no alarm is shown misspelt by a cut."""
     cycle = "-" if p["cycle_s"] is None else f"{p['cycle_s']:.0f} s"
-    alarms = ", ".join(a["kind"] for a in p["alarms"])
-    return f"{p['serial']} {p['order']} {p['outcome'] or 'running'} {cycle}" + (f"; alarms: {alarms}" if alarms else "")
+    head = f"{p['serial']} {p['order']} {p['outcome'] or 'running'} {cycle}"
+    counts = Counter(a["kind"] for a in p["alarms"])
+    kinds = [k if n == 1 else f"{k} x{n}" for k, n in counts.items()]
+    for shown in range(len(kinds), 0, -1):
+        rest = len(kinds) - shown
+        row = f"{head}; alarms: {', '.join(kinds[:shown])}" + (f" +{rest} more" if rest else "")
+        if fits(row):
+            return row
+    return f"{head}; {len(p['alarms'])} alarms" if kinds else head
 
 
 def _histogram(d, box: tuple[float, float, float, float], cycle: dict[str, Any]) -> None:

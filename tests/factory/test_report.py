@@ -56,7 +56,25 @@ def test_a_parts_alarms_are_set_off_from_its_cycle_time(drawn):
     dashboard(_report(200.0))
     rows = [s for _, s, _ in texts if s.startswith("R000001-")]
     assert len(rows) == 2 and rows[1] == "R000001-00005 o2 good 100 s"
-    assert rows[0].startswith("R000001-00004 o2 good 1180 s; alarms: stock_not_found, grasp")
+    assert rows[0] == "R000001-00004 o2 good 1180 s; alarms: stock_not_found, grasp_missed"
+
+
+def test_a_part_with_many_alarms_keeps_whole_words_within_its_column(drawn):
+    """A row never runs into the next column, and no alarm kind is cut mid-word: repeats are counted
+    and what does not fit is named as a count."""
+    texts, _ = drawn
+    report = _report(200.0)
+    kinds = ["stock_not_found", "grasp_missed", "machine_alarm", "inspection_failed", "door_fault"]
+    report["parts"][0]["alarms"] = [{"kind": k} for k in kinds] + [{"kind": "stock_not_found"}] * 2
+    dashboard(report)
+    (xy, row, width), = [(xy, s, w) for xy, s, w in texts if s.startswith("R000001-00004")]
+    assert xy[0] + width <= 16 + (1200 - 32) / 3, (row, width)
+    head, alarms = row.split("; alarms: ")
+    assert head == "R000001-00004 o2 good 1180 s"
+    shown, _, more = alarms.partition(" +")
+    names = [a.split(" x")[0] for a in shown.split(", ")]
+    assert names == kinds[:len(names)] and shown.startswith("stock_not_found x3")
+    assert more == f"{len(kinds) - len(names)} more" and len(names) < len(kinds)
 
 
 @pytest.mark.parametrize("median", [150.0, 640.0, 1050.0])
