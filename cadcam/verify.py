@@ -704,7 +704,7 @@ def _report(
     covered = np.isfinite(sim.part_top)
     rem = (sim.stock_top - np.where(covered, sim.part_top, 0.0))[covered]
     beside = ndimage.maximum_filter(np.where(covered, sim.part_top, -np.inf), size=3, mode="constant", cval=-np.inf)
-    left = (sim.stock_top - beside)[covered]
+    left = sim.stock_top[covered] - beside[covered]  # off the part both may be -inf
     # Only cuts deeper than the tolerance can fail the verdict; measure those against the
     # part within the tolerance sideways too (see _lowest_part_near).
     deep = np.flatnonzero(rem < -options.gouge_tolerance)
