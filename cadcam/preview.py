@@ -269,7 +269,8 @@ def _colour(values: np.ndarray, vmax: float, tol: float) -> np.ndarray:
 
 def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640,
                     on_part: np.ndarray | None = None) -> np.ndarray:
-    """A top view of the stock left on the part, with a colour bar.
+    """A top view of the stock left on the part, with axes in mm, a scale bar, the work origin and a
+    colour bar.
 
     Blue is on size, through cyan, green and yellow to orange at the largest remaining
     stock; red is a gouge deeper than the tolerance; grey is where there is no part. The
@@ -308,14 +309,15 @@ def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640,
     px = scale / step  # picture pixels per grid point
     h, w = rgb.shape[:2]
 
-    margin, bar_w, label_w, caption_h = 12, 18, 150, 20
-    H = max(h + 2 * margin + caption_h, 260)
-    W = max(w + 2 * margin + bar_w + label_w, 2 * margin + 420)  # room for the caption
+    # left: room for the Y labels; below the map, the X labels and the scale bar (as toolpath_image)
+    margin, left, axes_h, bar_w, label_w, caption_h = 12, 56, 44, 18, 150, 20
+    H = max(margin + h + axes_h + caption_h, 260)
+    W = max(left + w + margin + bar_w + label_w, left + 420)  # room for the caption
     canvas = np.full((H, W, 3), 255, dtype=np.uint8)
-    canvas[margin:margin + h, margin:margin + w] = np.round(rgb).astype(np.uint8)
+    canvas[margin:margin + h, left:left + w] = np.round(rgb).astype(np.uint8)
 
     # Colour bar: gouge band at the bottom, then 0 .. vmax upwards.
-    bx = margin + w + margin
+    bx = left + w + margin
     bar_h = H - 2 * margin - 40
     gouge_h = 14
     ramp_h = bar_h - gouge_h - 4
@@ -343,12 +345,23 @@ def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640,
     others = [f.kind for f in report.faults if f.kind != "rapid"]
     if others:
         caption += ", " + ", ".join(sorted(set(others)))
-    draw.text((margin, margin + h + 6), caption, fill=(0, 0, 0), font=font)
+    draw.text((margin, margin + h + axes_h + 2), caption, fill=(0, 0, 0), font=font)
 
     def to_px(x: float, y: float) -> tuple[float, float]:
         col = (x - grid.x0) / grid.cell
         row = (grid.ny - 1) - (y - grid.y0) / grid.cell
-        return margin + col * px + px / 2, margin + row * px + px / 2
+        return left + col * px + px / 2, margin + row * px + px / 2
+
+    def xy_px(xy: np.ndarray) -> list[tuple[float, float]]:
+        return [to_px(float(x), float(y)) for x, y in xy]
+
+    # The map's edges in mm: each grid point is a square of one cell round it (the last one may be
+    # cut by the step).
+    y_top = grid.y0 + (grid.ny - 0.5) * grid.cell
+    lo = np.array([grid.x0 - 0.5 * grid.cell, y_top - h / px * grid.cell])
+    hi = np.array([grid.x0 + (w / px - 0.5) * grid.cell, y_top])
+    _axes(draw, xy_px, lo, hi, margin + h)
+    _origin_and_scale(draw, xy_px, left, margin + h + axes_h, float(hi[0] - lo[0]), px / grid.cell)
 
     if report.gouged and report.gouge_position is not None:
         cx, cy = to_px(report.gouge_position[0], report.gouge_position[1])

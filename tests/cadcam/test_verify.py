@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from unittest import mock
 
 import numpy as np
@@ -365,6 +366,43 @@ def test_deviation_image_is_a_sane_picture():
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_the_deviation_picture_has_axes_in_mm_a_scale_bar_and_the_work_origin(monkeypatch):
+    """Issue 30: a machinist finds where stock is left by reading the picture's axes. Each X tick's
+    label stands under the column of the grid point at that X, each Y label beside its row."""
+    from PIL import ImageDraw
+
+    from cadcam.preview import _GOUGE
+
+    drawn = []
+    real = ImageDraw.ImageDraw.text
+
+    def text(self, xy, s, *args, **kwargs):
+        drawn.append((tuple(map(float, xy)), s, float(self.textlength(s))))
+        return real(self, xy, s, *args, **kwargs)
+
+    monkeypatch.setattr(ImageDraw.ImageDraw, "text", text)
+    moves = program([(R, 2, (20, 10, 5)), (C, 2, (20, 10, -5.5)), (C, 2, (30, 10, -4)), (R, 2, (30, 10, 5))])
+    verified = simulate(moves, TOOLS, SETUP, LOW_PART, VerifyOptions(cell=0.25))
+    sim, report = verified.simulation, verified.report
+    img = deviation_image(sim, report)
+    labels = [s.strip() for _, s, _ in drawn]
+    assert "X, Y mm" in labels and "X0 Y0" in labels
+    assert any(re.fullmatch(r"\d+ mm", s) for s in labels), labels  # the scale bar's length
+    # Where the labels say X = 20 and X = 30 stand (each centred under its tick), the gouge's first red
+    # column must stand at the X of the first gouged grid point, less half a cell.
+    (u20, _), = [(xy[0] + w / 2, s) for xy, s, w in drawn if s == "20" and xy[1] > img.shape[0] / 2]
+    (u30, _), = [(xy[0] + w / 2, s) for xy, s, w in drawn if s == "30" and xy[1] > img.shape[0] / 2]
+    per_mm = (u30 - u20) / 10.0
+    g = sim.grid
+    assert per_mm == pytest.approx((640 // g.nx) / g.cell, rel=0.02)  # 4 px a 0.25 mm grid point
+    gouged = sim.remaining < -report.gouge_tolerance
+    x_first = g.x0 + g.cell * np.flatnonzero(gouged.any(axis=0)).min()
+    u_red = np.flatnonzero((img == _GOUGE.astype(np.uint8)).all(axis=2).any(axis=0)).min()
+    assert u_red == pytest.approx(u20 + (x_first - 0.5 * g.cell - 20.0) * per_mm, abs=4.0)
+    ys = sorted((xy[1], float(s)) for xy, s, _ in drawn if re.fullmatch(r"\s+-?\d+", s))
+    assert len(ys) >= 2 and all(a[1] > b[1] for a, b in zip(ys, ys[1:]))  # Y grows up the picture
+
+
 def test_a_reliefs_colour_scale_runs_over_its_surface_not_the_uncut_rim():
     """Issue 30: 0.5 mm left on a relief's 20 x 20 mm surface, 9.9 mm on the uncut rim round it. Clipped to the
     surface, the 0.5 mm is the scale's top colour; over the rim too it would be near the blue of on size."""
@@ -386,7 +424,7 @@ def test_a_reliefs_colour_scale_runs_over_its_surface_not_the_uncut_rim():
     report = VerifyReport(max_gouge=0.0, gouge_position=None, gouge_line=None, remaining_max=9.9,
                           remaining_mean=5.0, remaining_p95=9.9, rapid_crashes=(), moves=0, cut_length=0.0,
                           rapid_length=0.0, cells=grid.size, cell=grid.cell)
-    centre = (12 + 320, 12 + 320)  # margin, then 16 px a grid point
+    centre = (12 + 320, 56 + 320)  # top margin and the Y labels' room, then 16 px a grid point
     clipped = deviation_image(sim, report, on_part=on)[centre]
     assert np.abs(clipped.astype(float) - _COLOURS[-1]).max() <= 1, clipped
     whole = deviation_image(sim, report)[centre]
