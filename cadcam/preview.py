@@ -285,9 +285,10 @@ def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640,
     width : int
         Approximate width of the map part of the picture [px].
     on_part : (ny, nx) bool or None
-        Where the part's own surface lies: the colour scale runs to the most stock left there, and
-        more elsewhere shows in the top colour (a relief's uncut rim outside its boundary,
-        :func:`cadcam.relief.surface_footprint`). None: over every grid point with part under it.
+        Where the part's own surface lies: the colour scale runs to the 99th percentile of the stock
+        left there, and more (there or elsewhere: a relief's uncut rim outside its boundary,
+        :func:`cadcam.relief.surface_footprint`) shows in the top colour. None: every grid point
+        with part under it.
 
     Returns
     -------
@@ -299,8 +300,14 @@ def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640,
     grid = sim.grid
     tol = report.gouge_tolerance
     on = np.isfinite(sim.part_top) if on_part is None else on_part & np.isfinite(sim.part_top)
-    most = float(sim.remaining[on].max()) if on.any() else 0.0
-    vmax = most if most > max(tol, 1e-6) else 1.0
+    left = sim.remaining[on]
+    left = left[np.isfinite(left)]
+    most = float(left.max()) if len(left) else 0.0
+    # The scale runs to the 99th percentile of what is left on the part, so a thin strip of deep
+    # stock (a relief's edge the ball cannot reach) does not wash the rest out to one blue; more
+    # shows in the top colour, labelled ">=". A few points of stock on a finished part still set it.
+    top = float(np.percentile(left, 99.0)) if len(left) else 0.0
+    vmax = top if top > max(tol, 1e-6) else most if most > max(tol, 1e-6) else 1.0
     rgb = _colour(sim.remaining, vmax, tol)[::-1]  # row 0 of the picture is the largest Y
     scale = max(1, width // max(grid.nx, grid.ny))
     step = max(1, math.ceil(max(grid.nx, grid.ny) / width))
@@ -335,7 +342,7 @@ def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640,
     for frac in (0.0, 0.5, 1.0):
         y = margin + int(round((1 - frac) * (ramp_h - 1)))
         draw.line([(bx + bar_w, y), (bx + bar_w + 3, y)], fill=(0, 0, 0))
-        above = frac == 1.0 and most < report.remaining_max  # more is left off the part's surface
+        above = frac == 1.0 and vmax < max(most, report.remaining_max)  # more is left, shown in the top colour
         draw.text((tx, y - 6), f"{'>= ' if above else ''}{frac * vmax:.3f} mm", fill=(0, 0, 0), font=font)
     draw.text((tx, gy), f"gouge > {tol:g} mm", fill=(0, 0, 0), font=font)
     draw.text((tx, ny_), "no part", fill=(0, 0, 0), font=font)
@@ -363,6 +370,13 @@ def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640,
     _axes(draw, xy_px, lo, hi, margin + h)
     _origin_and_scale(draw, xy_px, left, margin + h + axes_h, float(hi[0] - lo[0]), px / grid.cell)
 
+    _mark_faults(draw, report, to_px, font)
+    return np.asarray(img, dtype=np.uint8).copy()
+
+
+def _mark_faults(draw, report: VerifyReport, to_px, font) -> None:
+    """The deepest gouge ringed in white, each rapid crash a magenta cross, every other fault a
+    square labelled with its kind, tool and first line, at ``to_px(x, y)`` [px] of their places [mm]."""
     if report.gouged and report.gouge_position is not None:
         cx, cy = to_px(report.gouge_position[0], report.gouge_position[1])
         for r in (9, 10):
@@ -382,4 +396,3 @@ def deviation_image(sim: Simulation, report: VerifyReport, width: int = 640,
         draw.rectangle([cx - 6, cy - 6, cx + 6, cy + 6], outline=(255, 255, 255), width=1)
         label = f"{fault.kind} T{fault.tool}" + (f" L{fault.lines[0]}" if fault.lines else "")
         draw.text((cx + 10, cy - 6), label, fill=(0, 0, 0), font=font)
-    return np.asarray(img, dtype=np.uint8).copy()

@@ -32,6 +32,7 @@ import shapely
 import shapely.affinity
 import shapely.errors
 import trimesh
+from scipy import ndimage
 from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
@@ -441,11 +442,22 @@ def machining_surface(part_work: trimesh.Trimesh, setup: Setup) -> trimesh.Trime
                            process=False, validate=False)
 
 
+def own_surface(machining: trimesh.Trimesh) -> trimesh.Trimesh:
+    """The relief's own faces of :func:`machining_surface`, without the base plane laid round them
+    (its last two triangles, which span far past the stock)."""
+    return trimesh.Trimesh(vertices=machining.vertices, faces=machining.faces[:-_BASE_TRIANGLES], process=False,
+                           validate=False)
+
+
 def surface_footprint(machining_triangles: np.ndarray, grid: Grid) -> np.ndarray:
-    """(ny, nx) bool: the grid points under the relief's own surface, not under the base plane
-    :func:`machining_surface` lays round it (its last two triangles), where the uncut rim outside
-    the boundary stands."""
-    return np.isfinite(upper_envelope(np.asarray(machining_triangles)[:-_BASE_TRIANGLES], grid))
+    """(ny, nx) bool: the grid points well under the relief's own surface, not under the base plane
+    :func:`machining_surface` lays round it, where the uncut rim outside the boundary stands.
+
+    A grid point counts when its eight neighbours are under the surface too, as verify measures
+    what is left against the part round each point: on the surface's edge the rim's wall stands
+    beside the point, and the point would show the rim's height."""
+    under = np.isfinite(upper_envelope(np.asarray(machining_triangles)[:-_BASE_TRIANGLES], grid))
+    return ndimage.binary_erosion(under, structure=np.ones((3, 3), dtype=bool), border_value=0)
 
 
 #: Triangles of the base plane :func:`machining_surface` appends to the surface.

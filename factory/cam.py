@@ -22,7 +22,7 @@ from cadcam.model import Job, Setup, SoftJaws, ViseJaws
 from cadcam.op2 import choose_face_up
 from cadcam.plan import PlanOptions, plan_job
 from cadcam.relief import (FINISH_ENGAGEMENT, TERRACE_STEPDOWN, Boundary, ReliefOptions, machining_surface,
-                           relief_setup)
+                           own_surface, relief_setup)
 from cadcam.roughing import RoughingOptions
 from cadcam.setup import StockMargins, orient_setup
 from cadcam.tools import load_tool_library
@@ -145,11 +145,13 @@ class PlannedPart:
     boundary: Boundary | None = None
 
     def toolpath_picture(self) -> np.ndarray:
-        """(H, W, 3) uint8 top view of the toolpaths over the part's faces by kind."""
+        """(H, W, 3) uint8 top view of the toolpaths over the part's faces by kind (a relief's own
+        faces: the base plane its machining surface lays round it spans far past the stock)."""
         from cadcam.faces import classify_faces
         from cadcam.preview import toolpath_image
 
-        return toolpath_image(self.job, faces=classify_faces(self.part_work))
+        part = self.part_work if self.boundary is None else own_surface(self.part_work)
+        return toolpath_image(self.job, faces=classify_faces(part))
 
 
 def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwatch | None = None,

@@ -46,6 +46,16 @@ def test_plan_says_what_it_found_and_writes_the_relief_into_the_sheet(relief, tm
     assert v.exit_code == 0, v.output
     alone = json.loads((tmp_path / "v.json").read_text())
     assert alone["max_gouge"] == pytest.approx(summary["verify"]["max_gouge"], abs=1e-3)
+    # Issue 30: the toolpath picture's background is paper, not the base plane the relief is cut
+    # against (it spans far past the stock, and once painted the whole picture the flat faces' blue).
+    from PIL import Image
+
+    from cadcam.faces import FLAT
+    from cadcam.preview import FACE_COLOURS
+
+    picture = np.asarray(Image.open(tmp_path / "sign.toolpath.png").convert("RGB"))
+    assert tuple(picture[2, 2]) == (255, 255, 255) and tuple(picture[-2, -2]) == (255, 255, 255)
+    assert (picture == FACE_COLOURS[FLAT]).all(axis=2).mean() < 0.05
 
 
 def test_toolpath_takes_the_same_floor_and_boundary_as_plan(relief, tmp_path):
