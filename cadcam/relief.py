@@ -449,6 +449,12 @@ def own_surface(machining: trimesh.Trimesh) -> trimesh.Trimesh:
                            validate=False)
 
 
+def surface_under(machining_triangles: np.ndarray, grid: Grid) -> np.ndarray:
+    """(ny, nx) bool: the grid points under the relief's own surface of :func:`machining_surface`'s
+    triangles; the others lie under the base plane round it, outside the relief."""
+    return np.isfinite(upper_envelope(np.asarray(machining_triangles)[:-_BASE_TRIANGLES], grid))
+
+
 def surface_footprint(machining_triangles: np.ndarray, grid: Grid) -> np.ndarray:
     """(ny, nx) bool: the grid points well under the relief's own surface, not under the base plane
     :func:`machining_surface` lays round it, where the uncut rim outside the boundary stands.
@@ -456,7 +462,7 @@ def surface_footprint(machining_triangles: np.ndarray, grid: Grid) -> np.ndarray
     A grid point counts when its eight neighbours are under the surface too, as verify measures
     what is left against the part round each point: on the surface's edge the rim's wall stands
     beside the point, and the point would show the rim's height."""
-    under = np.isfinite(upper_envelope(np.asarray(machining_triangles)[:-_BASE_TRIANGLES], grid))
+    under = surface_under(machining_triangles, grid)
     return ndimage.binary_erosion(under, structure=np.ones((3, 3), dtype=bool), border_value=0)
 
 

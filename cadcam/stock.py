@@ -780,28 +780,35 @@ class Unreached:
 SHARP_CORNER = "sharp inside corner"
 NO_TOOL = "no tool reaches"
 FOR_OP2 = "left for op 2"
+#: ... and a relief's: it stands outside the relief's own surface, the uncut rim round its boundary.
+OUTSIDE_RELIEF = "outside the relief's surface"
 
 
 def why_left(left: tuple[Unreached, ...], sim: Simulation, above: float, radius: float,
-             op2_follows: bool = False) -> tuple[Unreached, ...]:
+             op2_follows: bool = False, outside: np.ndarray | None = None) -> tuple[Unreached, ...]:
     """``left`` (:func:`unreached` of ``sim`` over ``above`` [mm]) with each region's reason.
 
     A region whose bottom is op 1's floor (no part face under it: a slot or hole through the part) is
     left for op 2 when ``op2_follows``. One no wider than ``radius`` [mm] (the widest end mill that
     cut, and a grid cell each side) that fills less than :data:`_CORNER_FILL` of its box is the
     curved triangle a round tool leaves in a sharper inside corner (it fills ``1 - pi/4`` of it).
-    Anything else no tool reached: too narrow or too deep for every tool.
+    Anything else no tool reached: too narrow or too deep for every tool. With ``outside`` ((ny, nx)
+    bool, a relief's grid points off its own surface), a region mostly there is the uncut rim round
+    the relief.
     """
     g = sim.grid
     deep = excess(sim, 0.0) > above
     out = []
     for u in left:
-        if op2_follows and u.z_bottom <= sim.floor + g.cell:
+        i0, i1 = (int(round((c - g.x0) / g.cell)) for c in (u.x - u.size_x / 2 + g.cell / 2, u.x + u.size_x / 2))
+        j0, j1 = (int(round((c - g.y0) / g.cell)) for c in (u.y - u.size_y / 2 + g.cell / 2, u.y + u.size_y / 2))
+        box = np.s_[max(j0, 0):j1, max(i0, 0):i1]
+        if outside is not None and deep[box].any() and outside[box][deep[box]].mean() >= 0.5:
+            why = OUTSIDE_RELIEF
+        elif op2_follows and u.z_bottom <= sim.floor + g.cell:
             why = FOR_OP2
         else:
-            i0, i1 = (int(round((c - g.x0) / g.cell)) for c in (u.x - u.size_x / 2 + g.cell / 2, u.x + u.size_x / 2))
-            j0, j1 = (int(round((c - g.y0) / g.cell)) for c in (u.y - u.size_y / 2 + g.cell / 2, u.y + u.size_y / 2))
-            fill = float(deep[max(j0, 0):j1, max(i0, 0):i1].mean()) if j1 > j0 and i1 > i0 else 1.0
+            fill = float(deep[box].mean()) if j1 > j0 and i1 > i0 else 1.0
             small = max(u.size_x, u.size_y) <= radius + 2 * g.cell
             why = SHARP_CORNER if small and fill < _CORNER_FILL else NO_TOOL
         out.append(dataclasses.replace(u, why=why))

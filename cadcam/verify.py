@@ -33,8 +33,9 @@ from cadcam.engagement import MoveRecord
 from cadcam.envelope import Segments
 from cadcam.heightmap import Grid, grid_over, upper_envelope
 from cadcam.model import Motion, ProgramMoves, Setup, Tool
-from cadcam.stock import (ENGAGED_WIDTH, FULL_WIDTH_ANGLE, RAPID_RIM, FlippedStock, Simulation, StockCut,
-                          Unreached, cut_stock, first_line_reaching, unreached, why_left)
+from cadcam.relief import surface_under
+from cadcam.stock import (ENGAGED_WIDTH, FULL_WIDTH_ANGLE, OUTSIDE_RELIEF, RAPID_RIM, FlippedStock, Simulation,
+                          StockCut, Unreached, cut_stock, first_line_reaching, unreached, why_left)
 from cadcam.workholding import fixture_contacts
 from factory.core.errors import VerifyError
 
@@ -78,6 +79,9 @@ class VerifyOptions:
     op2_follows : bool
         Op 2 machines the part from below after this program: stock left down to the floor is
         left for it (:func:`cadcam.stock.why_left`).
+    relief : bool
+        The part is a relief's machining surface (:func:`cadcam.relief.machining_surface`): stock
+        off its own surface is the uncut rim round it, named so in :attr:`VerifyReport.left`.
     full_width_angle : float
         A move whose cutter meets material over more than this arc cuts at full width [deg] (a
         slot is 180): held to the tool's axial limit (:attr:`cadcam.model.Tool.full_width_limit`).
@@ -96,6 +100,7 @@ class VerifyOptions:
     contact_tolerance: float = 0.01
     left_above: float = 0.1
     op2_follows: bool = False
+    relief: bool = False
     full_width_angle: float = FULL_WIDTH_ANGLE
     engagement_resolution: float | None = 0.1
 
@@ -343,9 +348,15 @@ class VerifyReport:
         return not self.gouged and not self.rapid_crashes and not self.faults
 
     @property
+    def on_part(self) -> tuple[Unreached, ...]:
+        """:attr:`left` on the part itself: without a relief's uncut rim round its surface, which its
+        boundary keeps the tools off by design (:data:`cadcam.stock.OUTSIDE_RELIEF`)."""
+        return tuple(u for u in self.left if u.why != OUTSIDE_RELIEF)
+
+    @property
     def finished(self) -> bool:
-        """No stock left above the part beyond ``left_above`` (the program may still be unsafe: :attr:`ok`)."""
-        return not self.left
+        """No stock left on the part beyond ``left_above`` (the program may still be unsafe: :attr:`ok`)."""
+        return not self.on_part
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (plain floats, ints, lists and None)."""
@@ -742,7 +753,7 @@ def _report(
         engagement=tuple(engagement),
         rapids_checked=rapids_checked,
         left=why_left(unreached(sim, options.left_above, 0.0), sim, options.left_above, _widest_mill_radius(tools),
-                      options.op2_follows),
+                      options.op2_follows, ~surface_under(tri, sim.grid) if options.relief else None),
         left_above=options.left_above,
     )
 

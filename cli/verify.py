@@ -61,7 +61,7 @@ def verify(
     first = op1_of(sheet, setup_path, after)
     triangles = part_triangles(part, setup, sheet.source_sha256, sheet.intake, tolerance)
     text = _read(program)
-    options = VerifyOptions(cell=grid, gouge_tolerance=tolerance)
+    options = VerifyOptions(cell=grid, gouge_tolerance=tolerance, relief=sheet.relief is not None)
     before_ok = True
     with progress_bars(quiet) as bars:
         if first is None:

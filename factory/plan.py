@@ -478,7 +478,8 @@ def _plan_once(request: PlanRequest, progress: Progress | None = None) -> PartPl
         sheet = dataclasses.replace(setup_sheet(job, program, outputs["program"].name), op=1, work_offset="G54")
     tending = None
     verify_args = (program.text, str(outputs["program"]), job.setup, {t.number: t for t in job.tools},
-                   np.asarray(planned.part_work.triangles), VerifyOptions(cell=req.grid, op2_follows=req.ops == 2))
+                   np.asarray(planned.part_work.triangles), VerifyOptions(cell=req.grid, op2_follows=req.ops == 2,
+                                                                          relief=planned.boundary is not None))
     verify_kwargs = dict(operations=sheet.operations)
     background = None
     if req.robot:

@@ -149,10 +149,10 @@ def report_text(report: VerifyReport) -> str:
     each region of stock left with its place and size. Its first line never says OK over stock left."""
     if not report.ok:
         verdict = "verify FAILED"
-    elif report.left:
-        n = len(report.left)
+    elif report.on_part:
+        n = len(report.on_part)
         verdict = (f"verify: no gouge or crash, but stock left in {n} region{'s' if n > 1 else ''}, up to "
-                   f"{report.left[0].depth:.2f} mm")
+                   f"{report.on_part[0].depth:.2f} mm")
     else:
         verdict = f"verify OK, finished to {report.left_above:g} mm"
     text = (f"{verdict}: max gouge {report.max_gouge:.4f} mm, remaining stock max "

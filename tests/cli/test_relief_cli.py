@@ -40,6 +40,15 @@ def test_plan_says_what_it_found_and_writes_the_relief_into_the_sheet(relief, tm
     assert summary["relief"] == sheet["relief"]
     assert sheet["relief"]["boundary"]["mode"] == "on" and sheet["relief"]["floor"] == 3.0
     assert summary["verify"]["max_gouge"] <= 0.01
+    # Issue 30: the uncut rim round the relief's surface is named as such, not as stock no tool
+    # reaches, and is not stock left on the part: the verdict counts only what is on the surface.
+    left = summary["verify"]["left"]
+    rim = [u for u in left if u["why"] == "outside the relief's surface"]
+    assert len(rim) == 1 and rim[0]["size_x"] > 48.0 and rim[0]["size_y"] > 32.0, left
+    on_surface = [u for u in left if u not in rim]
+    assert all(u["size_x"] < 48.0 and u["size_y"] < 32.0 for u in on_surface), left
+    verdict = next(line for line in r.output.splitlines() if "verify" in line)
+    assert (f"stock left in {len(on_surface)} region" in verdict if on_surface else "verify OK" in verdict), verdict
     # `factory verify` on its own judges the program against the same surface on its base.
     v = run("verify", tmp_path / "sign.nc", "--setup", tmp_path / "sign.setup.json", "--part", relief,
             "-o", tmp_path / "v.json")
