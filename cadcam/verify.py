@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
+from cadcam.corners import corners_left, inside_corners
 from cadcam.engagement import MoveRecord
 from cadcam.envelope import Segments
 from cadcam.heightmap import Grid, grid_over, upper_envelope
@@ -752,10 +753,22 @@ def _report(
         faults=tuple(sorted(faults, key=lambda f: (FAULT_KINDS.index(f.kind), f.tool))),
         engagement=tuple(engagement),
         rapids_checked=rapids_checked,
-        left=why_left(unreached(sim, options.left_above, 0.0), sim, options.left_above, _widest_mill_radius(tools),
-                      options.op2_follows, ~surface_under(tri, sim.grid) if options.relief else None),
+        left=_left(sim, tri, tools, options),
         left_above=options.left_above,
     )
+
+
+def _left(sim: Simulation, tri: np.ndarray, tools: Mapping[int, Tool], options: VerifyOptions) -> tuple[Unreached, ...]:
+    """Every region of stock left over ``options.left_above`` with its reason, deepest first: what
+    :func:`cadcam.stock.unreached` finds on the grid, and the part's sharp inside corners that still
+    hold stock (:func:`cadcam.corners.corners_left`; a relief has no walls of its own to corner)."""
+    found = why_left(unreached(sim, options.left_above, 0.0), sim, options.left_above, _widest_mill_radius(tools),
+                     options.op2_follows, ~surface_under(tri, sim.grid) if options.relief else None)
+    if options.relief:
+        return found
+    finest = min((t.radius for t in tools.values() if not t.is_drill), default=0.0)
+    corners = corners_left(sim, inside_corners(tri), options.left_above, finest, found)
+    return tuple(sorted(found + corners, key=lambda u: (-u.depth, u.x, u.y)))
 
 
 def _widest_mill_radius(tools: Mapping[int, Tool]) -> float:

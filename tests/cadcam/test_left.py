@@ -58,3 +58,68 @@ def test_each_region_left_says_why():
     assert {u.why for u in alone.left} == {NO_TOOL}
     assert dataclasses.replace(alone.left[0], why="").to_dict().keys() == {"x", "y", "size_x", "size_y", "depth",
                                                                           "z_bottom"}
+
+
+def _plan_and_verify(solid, op2_follows: bool = True):
+    setup, part = make_setup(manifold_to_trimesh(solid))
+    job = plan_job(part, setup, LIBRARY, part_name="corners", options=PlanOptions()).job
+    moves = parse_gcode(post_process(job, PostOptions()).text, source="corners.nc")
+    tools = {t.number: t for t in job.tools}
+    report = simulate(moves, tools, setup, np.asarray(part.triangles), VerifyOptions(op2_follows=op2_follows)).report
+    return setup, report
+
+
+def test_a_square_cornered_pocket_and_slot_keep_their_corners_and_verify_says_so():
+    """Issue 30: a round tool cannot finish a sharp inside corner. The sliver it leaves lies within a cell
+    diagonal of both walls, where the grid cannot see it, yet it stands the walls' full height; verify
+    lists each corner with its place and depth, and the part is not 'finished'."""
+    plate = manifold3d.Manifold.cube((80.0, 50.0, 12.0))
+    slot = manifold3d.Manifold.cube((30.0, 8.0, 20.0)).translate((25.0, 21.0, -4.0))  # through
+    pocket = manifold3d.Manifold.cube((20.0, 12.0, 20.0)).translate((10.0, 5.0, 6.0))  # 6 mm deep
+    setup, report = _plan_and_verify(plate - slot - pocket)
+    corners = [u for u in report.left if u.why == SHARP_CORNER]
+    assert not report.finished and len(corners) == 8, report.left
+    # back from work coordinates to the model's: the corners stand where the model has them
+    shift = np.asarray(setup.transform_mesh_to_work)[:3, 3]
+    at = sorted((round(u.x - shift[0], 1), round(u.y - shift[1], 1)) for u in corners)
+    assert at == sorted([(25.0, 21.0), (55.0, 21.0), (25.0, 29.0), (55.0, 29.0),
+                         (10.0, 5.0), (30.0, 5.0), (10.0, 17.0), (30.0, 17.0)]), at
+    for u in corners:
+        pocket_corner = u.x - shift[0] in (10.0, 30.0)
+        assert abs(u.depth - (6.0 if pocket_corner else 12.0)) < 0.6, u  # the walls' height (and the skin on top)
+        assert 0.0 < u.size_x <= 0.6 and u.describe().endswith(": sharp inside corner")
+
+
+def test_a_facetted_round_hole_has_no_sharp_corner():
+    """The revert of the first attempt: cells a micrometre outside a facetted round hole were listed as
+    15 mm sharp corners. Between two facets of a 64-gon the walls meet at 174 deg, whose sliver is
+    micrometres: no corner is listed, and the part is finished."""
+    from cadcam.corners import inside_corners, sliver
+
+    plate = manifold3d.Manifold.cube((60.0, 40.0, 15.0))
+    hole = manifold3d.Manifold.cylinder(20.0, 8.0, 8.0, 64).translate((30.0, 20.0, -2.0))
+    solid = plate - hole
+    edges = inside_corners(np.asarray(manifold_to_trimesh(solid).triangles))
+    assert len(edges) >= 64 and np.allclose(edges.angle, 180.0 - 360.0 / 64, atol=1e-6)
+    assert sliver(5.0, edges.angle).max() < 0.01
+    _, report = _plan_and_verify(solid)
+    assert not [u for u in report.left if u.why == SHARP_CORNER], report.left
+
+
+def test_inside_corners_are_the_concave_vertical_edges_at_their_angle():
+    """A square pocket's four corners at 90 deg; an L-shaped pocket's re-entrant corner is convex (not
+    listed) and its five others are; the outside of a block has none."""
+    from cadcam.corners import inside_corners
+
+    block = manifold3d.Manifold.cube((40.0, 30.0, 10.0))
+    assert len(inside_corners(np.asarray(manifold_to_trimesh(block).triangles))) == 0
+    square = block - manifold3d.Manifold.cube((10.0, 10.0, 20.0)).translate((5.0, 5.0, 4.0))
+    edges = inside_corners(np.asarray(manifold_to_trimesh(square).triangles))
+    assert np.allclose(edges.angle, 90.0) and {tuple(np.round(p, 6)) for p in edges.xy} == \
+        {(5.0, 5.0), (15.0, 5.0), (5.0, 15.0), (15.0, 15.0)}
+    assert np.allclose(edges.z_low, 4.0) and np.allclose(edges.z_high, 10.0)
+    ell = block - manifold3d.Manifold.cube((20.0, 8.0, 20.0)).translate((5.0, 5.0, 4.0)) \
+        - manifold3d.Manifold.cube((8.0, 20.0, 20.0)).translate((5.0, 5.0, 4.0))
+    edges = inside_corners(np.asarray(manifold_to_trimesh(ell).triangles))
+    assert {tuple(np.round(p, 6)) for p in edges.xy} == {(5.0, 5.0), (25.0, 5.0), (25.0, 13.0), (13.0, 25.0),
+                                                         (5.0, 25.0)}
