@@ -33,6 +33,7 @@ import shapely
 import trimesh
 from contourpy import LineType, contour_generator
 from scipy.ndimage import map_coordinates
+from scipy.spatial import cKDTree
 from scipy.optimize import least_squares
 from shapely.geometry import MultiPolygon, Polygon
 
@@ -333,6 +334,14 @@ class _EdgeModel:
         self.tvec = cam_base[:3, 3]
         self.eye = -cam_base[:3, :3].T @ cam_base[:3, 3]
 
+    def same_turned(self, k: int, symmetry: int) -> bool:
+        """Whether the mesh's edges turned by ``k`` of ``symmetry`` turns about the footprint's centroid
+        fall on its own edges (within :data:`OUTER_M`): a symmetry of the mesh, not only of its outline."""
+        r = np.eye(3)
+        r[:2, :2] = _rz(2 * np.pi * k / symmetry)
+        d, _ = cKDTree(self.points).query(self.points @ r.T)
+        return bool(np.quantile(d, 0.95) < OUTER_M)
+
     def world(self, p: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Mesh points (centroid/zmin frame) placed at pose ``p = (x, y, yaw)`` [m, rad]."""
         r = np.eye(3)
@@ -370,6 +379,15 @@ OUTER_M = 5e-4
 FIT_SAMPLES = 400
 #: Faces meeting at more than this make an edge a picture can show [deg].
 CREASE_DEG = 25.0
+#: Share of the visible edges hidden in clipped highlights above which a symmetric turn that fits
+#: as well makes the pose ambiguous (unitless).
+AMBIGUOUS_HIDDEN = 0.1
+#: ... and "fits nearly as well" is a share of outline and of all edges found within this of the best.
+AMBIGUOUS_SHARE = 0.2
+#: Share of a fitted bloom [px] that counts as systematic edge error in the uncertainty (unitless).
+BLOOM_BIAS = 0.5
+#: Grey level from which a pixel counts as clipped by the sensor (8-bit) [grey].
+SATURATED_GREY = 250
 #: Search half-widths of the edge fit's rounds, widest first [px].
 SEARCH_PX = (8.0, 4.0, 2.0, 2.0)
 #: Neighbouring edge samples see the same blur and texture: the fit's residuals count as this
@@ -415,7 +433,9 @@ def _find_edges(gx: np.ndarray, gy: np.ndarray, threshold: float, uv: np.ndarray
 @dataclass(frozen=True)
 class _EdgeFit:
     """A fitted pose; ``coverage``: share of the outline's edges found (``axis_coverage``: in the worse
-    of its two main directions), ``found``: of all visible edges."""
+    of its two main directions), ``found``: of all visible edges not hidden in a clipped highlight,
+    ``hidden``: share of the visible edges so hidden; ``ambiguous``: a symmetric turn of the outline,
+    not a symmetry of the mesh, fits as well and the edges that would tell them apart are hidden."""
 
     pose: np.ndarray
     coverage: float
@@ -425,12 +445,55 @@ class _EdgeFit:
     cost: float
     jac: np.ndarray
     residuals: np.ndarray
+    hidden: float = 0.0
+    ambiguous: bool = False
+    bloom_px: float = 0.0
+
+
+def _clipped(saturated: np.ndarray | None, uv: np.ndarray, normal: np.ndarray, off: np.ndarray,
+             gx: np.ndarray, gy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which found edges have a saturated bright side, and the direction (+1/-1 along the normal) of that side.
+
+    A clipped highlight (glare) blurred by the optics spills past its edge: the gradient peak of
+    the clipped profile lies towards the dark side by a common amount (the bloom, fitted).
+    Returns ``(k,)`` bool and ``(k,)`` float (0 where no edge was found).
+    """
+    k = len(uv)
+    ok = np.isfinite(off)
+    edge = uv + np.nan_to_num(off)[:, None] * normal
+    g = map_coordinates(gx, [edge[:, 1], edge[:, 0]], order=1, mode="nearest") * normal[:, 0] + \
+        map_coordinates(gy, [edge[:, 1], edge[:, 0]], order=1, mode="nearest") * normal[:, 1]
+    side = np.where(ok, np.sign(g), 0.0)
+    if saturated is None or not saturated.any():
+        return np.zeros(k, bool), side
+    clipped = np.zeros(k, bool)
+    for step in (1.0, 2.0, 3.0):
+        q = edge + (side * step)[:, None] * normal
+        clipped |= map_coordinates(saturated, [q[:, 1], q[:, 0]], order=0, mode="nearest") > 0
+    return clipped & ok, side
+
+
+def _hidden(saturated: np.ndarray | None, uv: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """``(k,)`` bool: the picture is clipped on both sides of these model edges, so it cannot show them."""
+    if saturated is None or not saturated.any():
+        return np.zeros(len(uv), bool)
+    both = np.ones(len(uv), bool)
+    for step in (-1.5, 1.5):
+        q = uv + step * normal
+        both &= map_coordinates(saturated, [q[:, 1], q[:, 0]], order=0, mode="nearest") > 0
+    return both
 
 
 def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, start: np.ndarray,
-              reaches: tuple[float, ...] = SEARCH_PX) -> _EdgeFit | None:
-    """Fit x, y and yaw so the model's visible edges lie on the picture's edges (rounds of search and fit)."""
+              reaches: tuple[float, ...] = SEARCH_PX, saturated: np.ndarray | None = None) -> _EdgeFit | None:
+    """Fit x, y and yaw so the model's visible edges lie on the picture's edges (rounds of search and fit).
+
+    Edges beside a clipped highlight (``saturated``, (h, w) uint8) are measured with a common
+    bloom [px] fitted with the pose; edges inside the outline that lie in a clipped area on both
+    sides cannot show and are left out of the share found.
+    """
     p = np.asarray(start, dtype=np.float64)
+    bloom = 0.0
     sol = None
     for reach in reaches:
         idx = model.visible(p)
@@ -444,27 +507,38 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
             return None
         target = uv[ok] + off[ok, None] * normal[ok]
         pts, nrm = idx[ok], normal[ok]
+        clipped, side = _clipped(saturated, uv, normal, off, gx, gy)
+        # The bloom moves a clipped edge towards its dark side (-side): it is a parameter only when
+        # enough edges are clipped to fix it.
+        spill = np.where(clipped, side, 0.0)[ok] if clipped.sum() >= 12 else np.zeros(int(ok.sum()))
 
-        def residuals(q: np.ndarray, pts=pts, nrm=nrm, target=target) -> np.ndarray:
-            w = model.world(q, model.points[pts])
+        def residuals(q: np.ndarray, pts=pts, nrm=nrm, target=target, spill=spill) -> np.ndarray:
+            w = model.world(q[:3], model.points[pts])
             uvq = model.camera.project(w, model.rvec, model.tvec)
-            return np.einsum("nj,nj->n", uvq - target, nrm)
+            return np.einsum("nj,nj->n", uvq - target, nrm) - q[3] * spill
 
-        sol = least_squares(residuals, p, x_scale=np.array([1e-3, 1e-3, 1e-2]), diff_step=np.array([1e-6] * 3),
+        sol = least_squares(residuals, np.r_[p, bloom], x_scale=np.array([1e-3, 1e-3, 1e-2, 1.0]),
+                            diff_step=np.array([1e-6] * 3 + [1e-3]), bounds=([-np.inf] * 3 + [0.0], [np.inf] * 3 + [4.0]),
                             method="trf", loss="soft_l1", f_scale=ROBUST_SCALE_PX)
-        p = sol.x
+        p, bloom = sol.x[:3], float(sol.x[3])
     # Judge the final pose: the share of the visible edges found within a pixel of where they should be.
     idx = model.visible(p)
     uv, normal = model.project(p, idx)
-    off = _find_edges(gx, gy, threshold, uv, normal, 1.5)
+    off = _find_edges(gx, gy, threshold, uv, normal, 1.5 + bloom)
+    clipped, side = _clipped(saturated, uv, normal, off, gx, gy)
+    off = off + bloom * np.where(clipped, side, 0.0)
     near = np.abs(np.nan_to_num(off, nan=np.inf)) <= 1.0
     outer = model.outer[idx]
+    # Edges inside the outline within a clipped highlight are unknown, neither found nor missed;
+    # the outline against the tray always counts.
+    seen = outer | ~_hidden(saturated, uv, normal)
     inliers = np.abs(sol.fun) <= 1.5
     rms = float(np.sqrt(np.mean(sol.fun[inliers] ** 2))) if inliers.any() else np.inf
     coverage = float(near[outer].mean()) if outer.any() else float(near.mean())
     axis = _axis_coverage(near[outer], normal[outer]) if outer.any() else _axis_coverage(near, normal)
-    return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis, found=float(near.mean()), rms_px=rms,
-                    cost=float(sol.cost), jac=sol.jac[inliers], residuals=sol.fun[inliers])
+    return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis, found=float(near[seen].mean()), rms_px=rms,
+                    cost=float(sol.cost), jac=sol.jac[inliers][:, :3], residuals=sol.fun[inliers],
+                    hidden=float(1.0 - seen.mean()), bloom_px=bloom)
 
 
 def _axis_coverage(near: np.ndarray, normal: np.ndarray) -> float:
@@ -589,6 +663,8 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     level = max(2.5 * spread, options.min_contrast)
     gx, gy, threshold = _gradients(grey)
     edges = (np.hypot(gx, gy) > threshold).astype(np.uint8)
+    # Clipped pixels (glare) say only "at least this bright": where an edge lies in them is unknown.
+    saturated = (grey >= SATURATED_GREY).astype(np.uint8)
     # Candidates: what departs from the tray, or is dense with edges (a top face as bright as the tray).
     fg = ((np.abs(log_ratio) > level) | (edges > 0)).astype(np.uint8)
     fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((2, 2), np.uint8))
@@ -622,7 +698,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
             continue
         box = (max(bx, 0), max(by, 0), min(bx + bw, w), min(by + bh, h))
         starts = _chamfer_starts(model, edges, labels == i, box, ground(centroids[i]), ground)
-        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry)
+        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated)
         if best is None:
             log.info("blob at (%.0f, %.0f) px: no edge fit", *centroids[i])
             continue
@@ -652,23 +728,44 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
 
 
 def _best_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
-              symmetry: int) -> _EdgeFit | None:
+              symmetry: int, saturated: np.ndarray | None = None) -> _EdgeFit | None:
     """The edge fit of one blob from its coarse starts (x, y [m], yaw [rad]); None when none converges."""
-    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s) for s in starts) if fit is not None]
+    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated) for s in starts)
+            if fit is not None]
     if not fits:
         return None
     # A symmetric outline fits turned as well as not: the edges inside it (steps, bosses) decide.
     first = max(fits, key=lambda fit: fit.found)
     turns = [first.pose + np.array([0.0, 0.0, 2 * np.pi * k / symmetry]) for k in range(1, symmetry)]
-    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, SEARCH_PX[-2:]) for t in turns)
+    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, SEARCH_PX[-2:], saturated) for t in turns)
              if fit is not None]
     # Of the fits that find (nearly) as many edges as the best, the one that lies closest on them.
     most = max(fit.found for fit in fits)
-    return min((fit for fit in fits if fit.found >= most - 0.05), key=lambda fit: fit.cost / max(len(fit.residuals), 1))
+    close = [fit for fit in fits if fit.found >= most - 0.05]
+    best = min(close, key=lambda fit: fit.cost / max(len(fit.residuals), 1))
+    # Glare hides the steps and bosses that tell a turn of the outline from the pose itself (and
+    # the turn that hides more of them finds a larger share of the rest): when a turn that is no
+    # symmetry of the mesh fits nearly as well, the choice is a guess, and a guess must not reach
+    # the robot.
+    if best.hidden > AMBIGUOUS_HIDDEN and any(
+            _turn(fit.pose[2] - best.pose[2], symmetry)
+            and fit.coverage >= best.coverage - AMBIGUOUS_SHARE and fit.found >= best.found - AMBIGUOUS_SHARE
+            and not model.same_turned(_turn(fit.pose[2] - best.pose[2], symmetry), symmetry)
+            for fit in fits):
+        return replace(best, ambiguous=True)
+    return best
+
+
+def _turn(dyaw: float, symmetry: int) -> int:
+    """Which of the outline's symmetric turns (0..symmetry-1) a yaw difference [rad] is nearest."""
+    return int(np.rint(((dyaw % (2 * np.pi)) / (2 * np.pi / symmetry)))) % symmetry
 
 
 def _refusal(fit: _EdgeFit, options: LocateOptions) -> str:
     """Why a fit is not confident enough to report, or '' when it is."""
+    if fit.ambiguous:
+        return (f"the outline fits turned as well, and {100 * fit.hidden:.0f} % of the edges that tell the turns "
+                "apart are hidden in glare: the yaw is not fixed")
     if fit.coverage < options.min_coverage:
         return (f"the part's outline is not there ({100 * fit.coverage:.0f} % of its edges found, "
                 f"{100 * options.min_coverage:.0f} % needed)")
@@ -696,9 +793,11 @@ def _located(fit: _EdgeFit, camera: CameraModel, base_camera: np.ndarray, part: 
     middle = np.linalg.inv(base_camera) @ np.array([p[0], p[1], tray_z + 0.5 * part.height, 1.0])
     metres_per_px = middle[2] / f
     half_length = 0.5 * float(np.ptp(part.outline, axis=0).max())
-    sigma_xy = COVERAGE_FACTOR * float(np.hypot(np.sqrt(np.linalg.eigvalsh(cov[:2, :2]).max()),
-                                                EDGE_BIAS_PX * metres_per_px))
-    sigma_yaw = COVERAGE_FACTOR * float(np.hypot(np.sqrt(cov[2, 2]), EDGE_BIAS_PX * metres_per_px / half_length))
+    # A bloom spills unevenly (parallax, parts of the outline not clipped): half of it counts as
+    # edge bias as well.
+    bias_m = float(np.hypot(EDGE_BIAS_PX, BLOOM_BIAS * fit.bloom_px)) * metres_per_px
+    sigma_xy = COVERAGE_FACTOR * float(np.hypot(np.sqrt(np.linalg.eigvalsh(cov[:2, :2]).max()), bias_m))
+    sigma_yaw = COVERAGE_FACTOR * float(np.hypot(np.sqrt(cov[2, 2]), bias_m / half_length))
     pixel = camera.project(middle[None, :3], np.zeros(3), np.zeros(3))[0]
     return LocatedPart(x=float(p[0]), y=float(p[1]), z=float(tray_z), yaw=float(np.angle(np.exp(1j * p[2]))),
                        score=fit.coverage, rms_px=fit.rms_px, mm_per_px=float(metres_per_px * 1e3),
