@@ -23,7 +23,9 @@ import factory
 from factory.core.errors import McapError, OutputExistsError
 from factory.mcaplog import (
     TYPESTORE,
+    JointStateCdr,
     McapLog,
+    TfCdr,
     cube_marker,
     line_list_marker,
     line_strip_marker,
@@ -38,6 +40,7 @@ from factory.mcaplog import (
     string_msg,
     tf_message,
     transform_stamped,
+    transform_values,
     transforms_stamped,
     triangle_mesh_marker,
 )
@@ -434,3 +437,30 @@ def test_link_transforms_are_written_as_rosbags_writes_them(children, parent, st
     assert data == bytes(TYPESTORE.serialize_cdr(msg, msg.__msgtype__))
     back = TYPESTORE.deserialize_cdr(data, msg.__msgtype__)
     assert [t.child_frame_id for t in back.transforms] == children
+
+
+@given(st.lists(_NAMES, max_size=7), st.integers(0, 2**31 * 10**9 - 1), st.integers(0, 2**32 - 1))
+@settings(max_examples=60, deadline=None)
+def test_joint_states_from_their_template_are_the_messages_bytes(names, stamp_ns, seed):
+    """A robot's joint states packed into their fixed layout (no message object) are the bytes of
+    the message serialised, by rosbags too, whatever the names' lengths do to the alignment."""
+    rng = np.random.default_rng(seed)
+    q, qd = rng.normal(size=len(names)), rng.normal(size=len(names))
+    msg = TYPESTORE.types["sensor_msgs/msg/JointState"](
+        header=TYPESTORE.types["std_msgs/msg/Header"](stamp=ros_time(stamp_ns), frame_id=""), name=names,
+        position=q, velocity=qd, effort=np.zeros(0))
+    assert JointStateCdr(names).cdr(stamp_ns, q, qd) == bytes(TYPESTORE.serialize_cdr(msg, msg.__msgtype__))
+
+
+@given(st.lists(_NAMES, max_size=6), _NAMES, st.integers(0, 2**31 * 10**9 - 1), st.integers(0, 2**32 - 1))
+@settings(max_examples=60, deadline=None)
+def test_link_transforms_from_their_template_are_the_messages_bytes(children, parent, stamp_ns, seed):
+    """The links' /tf packed into their fixed layout (no message objects) are the bytes of
+    :func:`transforms_stamped`'s message serialised by rosbags, quaternion signs included."""
+    rng = np.random.default_rng(seed)
+    m = np.tile(np.eye(4), (len(children), 1, 1))
+    if children:
+        m[:, :3, :3] = Rotation.random(len(children), random_state=seed).as_matrix()
+        m[:, :3, 3] = rng.normal(size=(len(children), 3))
+    msg = tf_message(transforms_stamped(parent, children, m, stamp_ns))
+    assert TfCdr(parent, children).cdr(stamp_ns, transform_values(m)) == bytes(TYPESTORE.serialize_cdr(msg, msg.__msgtype__))
