@@ -45,7 +45,7 @@ from factory.diagnostics import door, gripper
 from factory.core.errors import CellError, FactoryError, McapError
 from factory.core.setupsheet import SetupSheet
 from factory.live import Fanout, LiveSink
-from factory.mcaplog import (TYPESTORE, McapLog, RestampedCdr, Serialized, cube_marker, log_msg, marker_array,
+from factory.mcaplog import (TYPESTORE, McapLog, RestampedCdr, Serialized, TfCdr, cube_marker, log_msg, marker_array,
                              read_messages, ros_time, tf_message, transform_stamped, triangle_mesh_marker)
 from factory.plan import PlanRequest, plan_part
 from factory.core.progress import Progress, Stopwatch, stage_callback
@@ -974,10 +974,16 @@ def _vise_tf(p: PartAssets, t: float) -> Any:
     return tf_message([transform_stamped("vise", "work", p.transform_vise_to_work, _ns(t))])
 
 
-def _tool_tf(xyz: np.ndarray, stamp: int) -> Any:
+#: The tool's /tf in the work frame, written straight into its CDR at every tool sample.
+_TOOL_TF = TfCdr("work", ["tool"])
+
+
+def _tool_tf(xyz: np.ndarray, stamp: int) -> Serialized:
+    """The tool at ``xyz`` (3,) [m] in the work frame, unrotated, at ``stamp`` [ns]."""
     pose = np.eye(4)
     pose[:3, 3] = xyz
-    return tf_message([transform_stamped("work", "tool", pose, stamp)])
+    return Serialized("tf2_msgs/msg/TFMessage", _TOOL_TF.cdr(stamp, np.append(pose[:3, 3], (0.0, 0.0, 0.0, 1.0))),
+                      lambda: tf_message([transform_stamped("work", "tool", pose, stamp)]))
 
 
 def _stock_msg(p: PartAssets, k: int, t: float) -> Any:
