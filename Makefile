@@ -11,9 +11,10 @@ PARTS  := $(basename $(notdir $(wildcard samples/*.stl)))
 
 .PHONY: demo plans test explore bench venv clean
 
-# The parts are planned two at a time (one per core), each printing one line as it finishes.
+# The parts are planned in parallel, one per core this machine has, each printing one line as it finishes.
+JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 demo: $(BIN)/.installed
-	@$(MAKE) --no-print-directory -j2 plans
+	@$(MAKE) --no-print-directory -j$(JOBS) plans
 	$(BIN)/python samples/summarize.py $(PARTS:%=$(OUT)/%.plan.json)
 	$(BIN)/factory simulate samples/orders.yaml --catalog $(OUT) --mcap $(OUT)/cell.mcap --overwrite \
 	    || test $$? -eq 3  # 3: simulated and written, an order not done (see its reason)

@@ -47,6 +47,18 @@ class Fanout:
         for sink in self.sinks:
             sink.write(topic, msg, log_time_ns, latched=latched)
 
+    def write_cdr(self, topic: str, typename: str, data: bytes, log_time_ns: int, make: Any = None, *,
+                  latched: bool = False) -> None:
+        """A message already serialised (``data``, CDR of type ``typename``) to the sinks that take it
+        so (:meth:`factory.mcaplog.McapLog.write_cdr`); the others get the message ``make()`` builds."""
+        msg = None
+        for sink in self.sinks:
+            if hasattr(sink, "write_cdr"):
+                sink.write_cdr(topic, typename, data, log_time_ns, latched=latched)
+            else:
+                msg = make() if msg is None else msg
+                sink.write(topic, msg, log_time_ns, latched=latched)
+
     def __enter__(self) -> "Fanout":
         return self
 

@@ -37,7 +37,8 @@ import json
 import logging
 import struct
 import sys
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -345,12 +346,19 @@ class McapLog:
         if not isinstance(typename, str):
             raise McapError(f"cannot log a {type(msg).__name__} on {topic}: not a ROS message",
                             source=self.path)
-        t = _check_time(log_time_ns, "log time")
-        cid = self._channel(topic, typename, latched)
         try:
             data = serialize_cdr(msg, typename)
         except Exception as e:  # struct.error, AttributeError, TypeError... from generated code
             raise McapError(f"cannot serialise {typename} on {topic}: {e}", source=self.path) from None
+        self.write_cdr(topic, typename, data, log_time_ns, latched=latched)
+
+    def write_cdr(self, topic: str, typename: str, data: bytes, log_time_ns: int, make: Any = None, *,
+                  latched: bool = False) -> None:
+        """Log a message already serialised: ``data``, the CDR (encapsulation header included) of a
+        message of type ``typename``, as :meth:`write` would have made it. ``make`` (which builds the
+        message, for sinks that serialise themselves, see :class:`factory.live.Fanout`) is not needed."""
+        t = _check_time(log_time_ns, "log time")
+        cid = self._channel(topic, typename, latched)
         seq = self._sequence.get(cid, 0)
         self._sequence[cid] = seq + 1
         self._require_open().add_message(
@@ -552,6 +560,154 @@ def _tf_message_cdr(msg: Any) -> bytes:
         w.align(8)
         w.buf += _SEVEN_DOUBLES.pack(v.x, v.y, v.z, r.x, r.y, r.z, r.w)
     return bytes(w.buf)
+
+
+class CdrTemplate(_Cdr):
+    """The CDR of a message whose layout is fixed (its strings and sequence lengths known ahead),
+    written once with :class:`_Cdr`'s own alignment, with holes for the values that change
+    (stamps, numbers): :meth:`fill` joins the constant pieces and the holes' bytes, for messages
+    made many times (a robot's joint states and link transforms at every logged state)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.pieces: list[bytes] = []
+        self.sizes: list[int] = []
+        self._cut = 0
+
+    def hole(self, nbytes: int, align: int) -> None:
+        """Leave ``nbytes`` bytes to fill, aligned to ``align`` bytes."""
+        self.align(align)
+        self.pieces.append(bytes(self.buf[self._cut:]))
+        self.sizes.append(nbytes)
+        self.buf += bytes(nbytes)
+        self._cut = len(self.buf)
+
+    def fill(self, holes: Sequence[bytes]) -> bytes:
+        """The message's bytes, ``holes`` (as many as :meth:`hole` made, each of its size) in place."""
+        out = [None] * (2 * len(holes) + 1)
+        out[0:-1:2] = self.pieces
+        out[1::2] = holes
+        out[-1] = bytes(self.buf[self._cut:])
+        return b"".join(out)
+
+
+class JointStateCdr:
+    """CDR of ``sensor_msgs/JointState`` messages of fixed joint ``names`` and empty frame id and
+    effort, as :func:`serialize_cdr` writes them, from the stamp and the numbers alone."""
+
+    def __init__(self, names: Sequence[str]) -> None:
+        self.n = len(names)
+        t = CdrTemplate()
+        t.hole(_STAMP.size, 4)
+        t.string("")
+        t.uint32(self.n)
+        for name in names:
+            t.string(name)
+        for _ in range(2):  # position, velocity
+            t.uint32(self.n)
+            if self.n:
+                t.hole(8 * self.n, 8)
+        t.uint32(0)  # effort
+        self.template = t
+
+    def cdr(self, stamp_ns: int, position: np.ndarray, velocity: np.ndarray) -> bytes:
+        """``position`` and ``velocity`` (n,) float [rad, rad/s] at ``stamp_ns`` [ns]."""
+        time = ros_time(stamp_ns)
+        stamp = _STAMP.pack(time.sec, time.nanosec)
+        values = [np.asarray(v, dtype="<f8").reshape(self.n).tobytes() for v in (position, velocity)]
+        return self.template.fill([stamp, *values] if self.n else [stamp])
+
+
+class TfCdr:
+    """CDR of ``tf2_msgs/TFMessage`` messages placing fixed ``children`` in one ``parent`` frame at
+    one stamp, as :func:`serialize_cdr` writes :func:`transforms_stamped`'s, from the stamp and the
+    matrices alone (no message objects: a robot's links at each logged state)."""
+
+    def __init__(self, parent: str, children: Sequence[str]) -> None:
+        self.k = len(children)
+        t = CdrTemplate()
+        t.uint32(self.k)
+        for child in children:
+            t.hole(_STAMP.size, 4)
+            t.string(parent)
+            t.string(child)
+            t.hole(_SEVEN_DOUBLES.size, 8)
+        self.template = t
+
+    def cdr(self, stamp_ns: int, poses: np.ndarray) -> bytes:
+        """``poses`` (k, 7) float: each child's pose in the parent, translation [m] and unit
+        quaternion (x, y, z, w) as :func:`transform_values` gives them, at ``stamp_ns`` [ns]."""
+        time = ros_time(stamp_ns)
+        stamp = _STAMP.pack(time.sec, time.nanosec)
+        values = np.asarray(poses, dtype="<f8").reshape(self.k, 7).tobytes()
+        holes: list[bytes] = []
+        for i in range(self.k):
+            holes += (stamp, values[56 * i:56 * (i + 1)])
+        return self.template.fill(holes)
+
+
+def transform_values(matrices: np.ndarray) -> np.ndarray:
+    """(..., 7) float: translation [m] and unit quaternion (x, y, z, w) of rigid transforms
+    ``matrices`` (..., 4, 4), as :func:`transforms_stamped` logs them (not checked: for transforms
+    made by forward kinematics). Vectorised over all of them: a whole move's link transforms at once."""
+    m = np.asarray(matrices, dtype=np.float64)
+    flat = m.reshape(-1, 4, 4)
+    values = np.concatenate([flat[:, :3, 3], _quaternions(flat[:, :3, :3])], axis=1)
+    return values.reshape(*m.shape[:-2], 7)
+
+
+@dataclass(frozen=True)
+class Serialized:
+    """A message already serialised: ``cdr`` of type ``typename``, for
+    :meth:`McapLog.write_cdr`; ``make`` builds the message itself, for sinks that serialise
+    themselves (:meth:`factory.live.Fanout.write_cdr`)."""
+
+    typename: str
+    cdr: bytes
+    make: Callable[[], Any]
+
+
+# Two stamps none of whose eight bytes agree: where two serialisations of one message at these
+# stamps differ is exactly where its stamps are.
+_STAMP_A, _STAMP_B = (0x12345678, 0x1A2B3C4D), (0x23456789, 0x2B3C4D5E)
+
+
+class RestampedCdr:
+    """The CDR of one large message logged again and again at new stamps (a part's stock and
+    toolpath markers at every load): serialised once, and only its stamps packed at each use.
+
+    ``restamp(msg, stamp_ns)`` sets the stamps that change, in place, and returns the message. It
+    is serialised at two stamps; the bytes that differ must be exactly the stamps' (checked, else
+    each use serialises the message whole), and they are the holes filled at :meth:`at`."""
+
+    def __init__(self, msg: Any, restamp: Callable[[Any, int], Any]) -> None:
+        self.msg, self.restamp = msg, restamp
+        self.typename: str = msg.__msgtype__
+        a, b = (_STAMP.pack(*s) for s in (_STAMP_A, _STAMP_B))
+        data_a = serialize_cdr(restamp(msg, _STAMP_A[0] * 1_000_000_000 + _STAMP_A[1]), self.typename)
+        data_b = serialize_cdr(restamp(msg, _STAMP_B[0] * 1_000_000_000 + _STAMP_B[1]), self.typename)
+        where, i = [], data_a.find(a)
+        while i >= 0:
+            where.append(i)
+            i = data_a.find(a, i + len(a))
+        swapped = bytearray(data_a)
+        for i in where:
+            swapped[i:i + len(b)] = b
+        self.pieces: list[bytes] | None = None
+        if len(data_a) == len(data_b) and bytes(swapped) == data_b:
+            cuts = [0, *(j for i in where for j in (i, i + len(a))), len(data_a)]
+            self.pieces = [data_a[cuts[k]:cuts[k + 1]] for k in range(0, len(cuts), 2)]
+
+    def at(self, stamp_ns: int) -> Serialized:
+        """The message at ``stamp_ns`` [ns], serialised."""
+
+        def make() -> Any:
+            return self.restamp(self.msg, stamp_ns)
+
+        if self.pieces is None:
+            return Serialized(self.typename, serialize_cdr(make(), self.typename), make)
+        t = ros_time(stamp_ns)
+        return Serialized(self.typename, _STAMP.pack(t.sec, t.nanosec).join(self.pieces), make)
 
 
 #: Serialisers written directly, by type name; every other type goes through rosbags.
@@ -826,7 +982,8 @@ def log_msg(level: int | str, name: str, text: str, stamp_ns: int, *, file: str 
 
 
 __all__ = [
-    "FACTORY_METADATA", "ROSBAG2_METADATA", "ROS_DISTRO", "TYPESTORE", "McapLog", "cube_marker",
+    "FACTORY_METADATA", "ROSBAG2_METADATA", "ROS_DISTRO", "TYPESTORE", "CdrTemplate", "JointStateCdr", "McapLog",
+    "RestampedCdr", "Serialized", "TfCdr", "cube_marker", "transform_values",
     "line_list_marker", "line_strip_marker", "log_msg", "marker_array", "message_definition",
     "offered_qos_profiles",
     "read_attachment", "read_messages", "read_metadata", "ros_time", "serialize_cdr", "string_msg", "tf_message",

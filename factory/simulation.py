@@ -45,12 +45,12 @@ from factory.diagnostics import door, gripper
 from factory.core.errors import CellError, FactoryError, McapError
 from factory.core.setupsheet import SetupSheet
 from factory.live import Fanout, LiveSink
-from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, log_msg, marker_array, read_messages, ros_time,
-                             tf_message, transform_stamped, triangle_mesh_marker)
+from factory.mcaplog import (TYPESTORE, McapLog, RestampedCdr, Serialized, TfCdr, cube_marker, log_msg, marker_array,
+                             read_messages, ros_time, tf_message, transform_stamped, triangle_mesh_marker)
 from factory.plan import PlanRequest, plan_part
 from factory.core.progress import Progress, Stopwatch, stage_callback
 from factory.core.resources import FIXTURES
-from factory.tending import RobotStateLog, log_cell
+from factory.tending import LinkPoses, RobotStateLog, log_cell
 from factory.verify import flip_of, part_triangles, read_sheet, run_verify_after
 from factory.views import heightfield_mesh
 from robotprog.cell import Cell, load_cell
@@ -509,12 +509,31 @@ def _delete_all(ns: str, frame: str, t: float) -> Any:
     return marker
 
 
-def _restamp(array: Any, t: float) -> Any:
-    """Stamp every header of a MarkerArray ``t`` [s], in place: call it just before writing (the
-    same message is logged at each load)."""
+def _restamp(array: Any, stamp_ns: int) -> Any:
+    """Stamp every header of a MarkerArray ``stamp_ns`` [ns], in place: call it just before writing
+    (the same message is logged at each load)."""
     for mk in array.markers:
-        mk.header.stamp = ros_time(_ns(t))
+        mk.header.stamp = ros_time(stamp_ns)
     return array
+
+
+class _PartMarkers:
+    """Parts' stock snapshots and toolpaths as logged: each serialised once per part and restamped
+    at each use (:class:`RestampedCdr`; a stock snapshot is thousands of points). The few parts
+    under way at once stay cached, not every part the orders name."""
+
+    def __init__(self, assets: dict[tuple[Path, str], PartAssets]) -> None:
+        self._stock = functools.lru_cache(maxsize=4 * (STOCK_SNAPSHOTS + 1))(
+            lambda key, k: RestampedCdr(_stock_msg(assets[key], k, 0.0), _restamp))
+        self._toolpath = functools.lru_cache(maxsize=4)(lambda key: RestampedCdr(assets[key].toolpath, _restamp))
+
+    def stock_at(self, p: PartAssets, k: int, t: float) -> Serialized:
+        """Stock snapshot ``k`` of part ``p`` at ``t`` [s]."""
+        return self._stock((p.part, p.material), k).at(_ns(t))
+
+    def toolpath_at(self, p: PartAssets, t: float) -> Serialized:
+        """Part ``p``'s toolpath at ``t`` [s] (``p.toolpath`` is not None)."""
+        return self._toolpath((p.part, p.material)).at(_ns(t))
 
 
 class _Queue:
@@ -726,22 +745,15 @@ def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tup
         if a.resource == "machine" and a.action == "cut":
             cut_so_far[(a.job, a.op)] = max(done, a.end - a.start)
 
-    # A stock snapshot is thousands of points: made once per part and snapshot, restamped at each
-    # use; the few parts under way at once stay cached, not every part the orders name.
-    @functools.lru_cache(maxsize=4 * (STOCK_SNAPSHOTS + 1))
-    def stock_marker(key: tuple[Path, str], k: int) -> Any:
-        return _stock_msg(assets[key], k, 0.0)
-
-    def stock_at(p: PartAssets, k: int, t: float) -> Any:
-        return _restamp(stock_marker((p.part, p.material), k), t)
-
+    markers = _PartMarkers(assets)
+    links = LinkPoses(world)
     home = np.asarray(cell.robot.home, dtype=float)
     makespan = float(result.summary["makespan_s"])
-    activity_events = (functools.partial(_activity_events, k, a, part_of, cut_before[k], rpm_of, stock_at,
-                                         stations, world, result, robot_rate_hz)
+    activity_events = (functools.partial(_activity_events, k, a, part_of, cut_before[k], rpm_of, markers,
+                                         stations, links, result, robot_rate_hz)
                        for k, a in enumerate(result.activities))
     streams = _staggered(((_ns(a.start), make) for a, make in zip(result.activities, activity_events)),
-                         [iter([(0, -1, -1, 0, "", home, False)]),
+                         [iter([(0, -1, -1, 0, "", (home, None), False)]),
                           _scheduler_events(result, orders, part_of, rpm_of),
                           _signal_events(result, cell),
                           # its own stream: the makespan is rounded to the millisecond, so the
@@ -767,10 +779,15 @@ def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tup
         # One stream in log time, robot state and events interleaved: a live view plays it as it goes.
         for stamp, _, _, _, topic, msg, latched in streams:
             if not topic:
-                states.write(msg, np.zeros_like(msg), stamp)
+                q, poses = msg
+                states.write(q, np.zeros_like(q), stamp, poses)
                 n_states += 1
                 continue
-            m.write(topic, msg() if callable(msg) else msg, stamp, latched=latched)
+            msg = msg() if callable(msg) else msg
+            if isinstance(msg, Serialized):
+                m.write_cdr(topic, msg.typename, msg.cdr, stamp, msg.make, latched=latched)
+            else:
+                m.write(topic, msg, stamp, latched=latched)
             counts[topic] = counts.get(topic, 0) + 1
     counts["/joint_states"] = n_states
     return counts
@@ -778,7 +795,8 @@ def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tup
 
 #: One logged item: (stamp [ns], group, index, position, topic, message or its maker, latched).
 #: Sorting on the first four is log-time order; at one stamp, robot states (group -1) come
-#: first, then the activities' messages (0) in activity order, then the scheduler's (1).
+#: first, then the activities' messages (0) in activity order, then the scheduler's (1). A robot
+#: state's topic is "" and its message (joint positions [rad], the links' poses or None).
 _Item = tuple[int, int, int, int, str, Any, bool]
 
 
@@ -813,10 +831,10 @@ def _staggered(pending: Any, running: list[Any]) -> Any:
 
 
 def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_before: float, rpm_of: Any,
-                     stock_at: Callable[[PartAssets, int, float], Any], stations: Stations,
-                     world: CollisionWorld, result: SimulationResult, robot_rate_hz: float) -> Any:
+                     markers: _PartMarkers, stations: Stations,
+                     links: LinkPoses, result: SimulationResult, robot_rate_hz: float) -> Any:
     """The messages of activity number ``k`` (and its robot states), in log-time order, each made
-    when it is written."""
+    when it is written; the robot's link poses of the whole activity are made at once."""
     order = result.jobs.get(a.job, "?")
     serial = f"{order}-{a.job}"
     out: list[tuple[float, str, Any]] = []  # (time [s], topic, maker), in the order logged before
@@ -847,12 +865,14 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
                 if t + dt <= a.end + 1e-9:  # a timed-out move stops where it was
                     robot.append((_ns(t + dt), -1, k, len(robot), "", qi, False))
             t += t1 - t0
+        poses = links.poses(np.array([item[5] for item in robot]))
+        robot = [(*item[:5], (item[5], pose), item[6]) for item, pose in zip(robot, poses)]
         if a.action == "load":
             add(a.start, "/tf", functools.partial(_vise_tf, p, a.start))
             if p.toolpath is not None:
-                add(a.start, "/machine/toolpath", functools.partial(_restamp, p.toolpath, a.start))
+                add(a.start, "/machine/toolpath", functools.partial(markers.toolpath_at, p, a.start))
         if a.action == "load" and a.outcome == "loaded":
-            add(a.end, "/machine/stock", functools.partial(stock_at, p, 0, a.end))
+            add(a.end, "/machine/stock", functools.partial(markers.stock_at, p, 0, a.end))
         if a.action in UNLOADS:
             add(a.end, "/machine/stock", lambda: marker_array([_delete_all("stock", "work", a.end)]))
             add(a.end, "/machine/toolpath", lambda: marker_array([_delete_all("toolpath", "work", a.end)]))
@@ -881,7 +901,7 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
             # the stock snapshots are op 1's (op 2 faces the turned-over piece)
             for j, (snap_t, _, _) in enumerate(p.stock if a.op in (None, 1) else ()):
                 if cut_before < snap_t <= a.end - a.start:
-                    add(a.start + snap_t, "/machine/stock", functools.partial(stock_at, p, j, a.start + snap_t))
+                    add(a.start + snap_t, "/machine/stock", functools.partial(markers.stock_at, p, j, a.start + snap_t))
     else:
         if a.action == "locate":
             shot = p.shots["locate" if a.outcome != "stock_not_found" else "empty"]
@@ -895,7 +915,7 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
             functools.partial(compressed_image_msg, shot.png, "shot.png", np.zeros(0), stamp, frame))
         add(a.end, "/camera/camera_info", functools.partial(camera_info_msg, stations.rack.camera, stamp, frame))
         add(a.end, "/camera/detections", functools.partial(detected_object_array, found, a.action, a.outcome,
-                                                           frame, stamp, world.robot.base_frame))
+                                                           frame, stamp, links.base_frame))
         add(a.end, "/camera/annotations", functools.partial(image_annotations, found, stamp))
     items = [(_ns(t), 0, k, i, topic, make, False) for i, (t, topic, make) in enumerate(out)]
     return heapq.merge(robot, sorted(items, key=lambda i: i[:4]), key=lambda i: i[:4])
@@ -954,10 +974,16 @@ def _vise_tf(p: PartAssets, t: float) -> Any:
     return tf_message([transform_stamped("vise", "work", p.transform_vise_to_work, _ns(t))])
 
 
-def _tool_tf(xyz: np.ndarray, stamp: int) -> Any:
+#: The tool's /tf in the work frame, written straight into its CDR at every tool sample.
+_TOOL_TF = TfCdr("work", ["tool"])
+
+
+def _tool_tf(xyz: np.ndarray, stamp: int) -> Serialized:
+    """The tool at ``xyz`` (3,) [m] in the work frame, unrotated, at ``stamp`` [ns]."""
     pose = np.eye(4)
     pose[:3, 3] = xyz
-    return tf_message([transform_stamped("work", "tool", pose, stamp)])
+    return Serialized("tf2_msgs/msg/TFMessage", _TOOL_TF.cdr(stamp, np.append(pose[:3, 3], (0.0, 0.0, 0.0, 1.0))),
+                      lambda: tf_message([transform_stamped("work", "tool", pose, stamp)]))
 
 
 def _stock_msg(p: PartAssets, k: int, t: float) -> Any:

@@ -19,8 +19,8 @@ import numpy as np
 import pinocchio as pin
 
 from factory.core.errors import CellError
-from factory.mcaplog import (TYPESTORE, McapLog, cube_marker, marker_array, ros_time, string_msg, tf_message,
-                             transform_stamped, transforms_stamped)
+from factory.mcaplog import (TYPESTORE, JointStateCdr, McapLog, TfCdr, cube_marker, marker_array, ros_time, string_msg,
+                             tf_message, transform_stamped, transform_values, transforms_stamped)
 from factory.core.progress import Stopwatch, stage_callback
 from factory.core.setupsheet import SetupSheet
 from factory.roadmaps import cached_roadmap, roadmap_path
@@ -113,29 +113,60 @@ def log_cell(m: McapLog, cell: Cell, world: CollisionWorld) -> None:
     m.write("/cell/boxes", marker_array(markers), 0, latched=True)
 
 
-class RobotStateLog:
-    """Writes /joint_states and the links' /tf for configurations of one robot."""
+class LinkPoses:
+    """The robot's links in its base frame by forward kinematics, as /tf logs them at each state."""
 
-    def __init__(self, m: McapLog, world: CollisionWorld):
-        self.m = m
-        self.robot = world.robot
-        self.names = list(self.robot.joint_names)
-        self.data = self.robot.model.createData()
+    def __init__(self, world: CollisionWorld):
+        robot = world.robot
+        self.model, self.data = robot.model, robot.model.createData()
+        self.base_frame = robot.base_frame
+        self.base_id = robot.model.getFrameId(robot.base_frame)
         self.frames = link_frames(world)
-        self.frame_names = [name for name, _ in self.frames]
-        self.base_id = self.robot.model.getFrameId(self.robot.base_frame)
+        self.names = [name for name, _ in self.frames]
 
-    def write(self, q: np.ndarray, qd: np.ndarray, stamp_ns: int) -> None:
-        """One sample: q [rad], qd [rad/s] at ``stamp_ns``."""
-        model, data, base = self.robot.model, self.data, self.robot.base_frame
-        self.m.write("/joint_states", _JointState(header=_Header(stamp=ros_time(stamp_ns), frame_id=""),
-                                                  name=self.names, position=np.asarray(q, dtype=float),
-                                                  velocity=np.asarray(qd, dtype=float), effort=np.zeros(0)),
-                     stamp_ns)
-        pin.framesForwardKinematics(model, data, np.asarray(q, dtype=float))
-        ob = data.oMf[self.base_id].actInv
-        matrices = np.array([ob(data.oMf[i]).homogeneous for _, i in self.frames])
-        self.m.write("/tf", tf_message(transforms_stamped(base, self.frame_names, matrices, stamp_ns)), stamp_ns)
+    def matrices(self, q: np.ndarray) -> np.ndarray:
+        """(k, 4, 4) float: each link's pose in the base frame [m] at joint positions ``q`` (dof,) [rad]."""
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
+        ob = self.data.oMf[self.base_id].actInv
+        return np.array([ob(self.data.oMf[i]).homogeneous for _, i in self.frames])
+
+    def poses(self, q: np.ndarray) -> np.ndarray:
+        """(n, k, 7) float: each link's translation [m] and quaternion (x, y, z, w) in the base frame
+        at each of the joint positions ``q`` (n, dof) [rad], converted in one pass."""
+        q = np.asarray(q, dtype=float).reshape(-1, self.model.nq)
+        if not len(q):
+            return np.zeros((0, len(self.frames), 7))
+        return transform_values(np.array([self.matrices(qi) for qi in q]))
+
+
+class RobotStateLog:
+    """Writes /joint_states and the links' /tf for configurations of one robot.
+
+    ``m`` is a log (:class:`McapLog`) or :class:`factory.live.Fanout`: both take the messages'
+    CDR made directly (:class:`JointStateCdr`, :class:`TfCdr`), the same bytes as the messages
+    serialised, without building message objects at every state; sinks that serialise
+    themselves get the messages."""
+
+    def __init__(self, m: Any, world: CollisionWorld):
+        self.m = m
+        self.links = LinkPoses(world)
+        self.names = list(world.robot.joint_names)
+        self.joint_cdr = JointStateCdr(self.names)
+        self.tf_cdr = TfCdr(self.links.base_frame, self.links.names)
+
+    def write(self, q: np.ndarray, qd: np.ndarray, stamp_ns: int, poses: np.ndarray | None = None) -> None:
+        """One sample: q [rad], qd [rad/s] at ``stamp_ns``; ``poses``: the links' (k, 7) at ``q``
+        (:meth:`LinkPoses.poses`) when made beforehand for a whole move."""
+        q, qd = np.asarray(q, dtype=float), np.asarray(qd, dtype=float)
+        self.m.write_cdr("/joint_states", "sensor_msgs/msg/JointState", self.joint_cdr.cdr(stamp_ns, q, qd), stamp_ns,
+                         lambda: _JointState(header=_Header(stamp=ros_time(stamp_ns), frame_id=""), name=self.names,
+                                             position=q, velocity=qd, effort=np.zeros(0)))
+        links = self.links
+        if poses is None:
+            poses = links.poses(q[None])[0]
+        self.m.write_cdr("/tf", "tf2_msgs/msg/TFMessage", self.tf_cdr.cdr(stamp_ns, poses), stamp_ns,
+                         lambda: tf_message(transforms_stamped(links.base_frame, links.names, links.matrices(q),
+                                                               stamp_ns)))
 
 
 def log_tending(m: McapLog, cell: Cell, world: CollisionWorld, plan: TendingPlan) -> int:

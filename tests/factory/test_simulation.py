@@ -73,3 +73,37 @@ def test_the_cameras_see_an_inch_part_at_its_size_in_mm(tmp_path):
                        tools=(), mesh_scale=25.4)
     seen = seen_part(path, setup, sheet, "block.setup.json")
     assert np.allclose(seen.extents, (50.8, 38.1, 20.32))
+
+
+def test_robot_states_written_as_cdr_are_the_bytes_of_the_messages_a_live_sink_gets():
+    """The robot's joint states and link transforms, packed straight into their CDR with the
+    links' poses converted a whole move at once, are byte for byte the messages (built one by
+    one, as before) that sinks serialising themselves get, at every state of a motion."""
+    from factory.core.resources import FIXTURES
+    from factory.mcaplog import serialize_cdr
+    from factory.tending import RobotStateLog
+    from robotprog.cell import load_cell
+    from robotprog.collision import collision_world
+
+    world = collision_world(load_cell(FIXTURES / "cell.yaml"))
+
+    class Recorder:
+        def __init__(self):
+            self.pairs = []
+
+        def write_cdr(self, topic, typename, data, log_time_ns, make=None, *, latched=False):
+            msg = make()
+            self.pairs.append((topic, typename, data, msg.__msgtype__, serialize_cdr(msg, msg.__msgtype__)))
+
+    sink = Recorder()
+    states = RobotStateLog(sink, world)
+    rng = np.random.default_rng(3)
+    lower, upper = world.robot.model.lowerPositionLimit, world.robot.model.upperPositionLimit
+    q = rng.uniform(np.maximum(lower, -np.pi), np.minimum(upper, np.pi), size=(12, len(lower)))
+    poses = states.links.poses(q)
+    for i, qi in enumerate(q):
+        states.write(qi, rng.normal(size=len(qi)), 10**9 * i + 7, poses[i] if i % 2 else None)
+    assert [p[0] for p in sink.pairs] == ["/joint_states", "/tf"] * len(q)
+    assert len(states.links.names) > 3
+    for topic, typename, data, made_type, made in sink.pairs:
+        assert (typename, data) == (made_type, made), topic
