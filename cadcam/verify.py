@@ -35,8 +35,8 @@ from cadcam.envelope import Segments
 from cadcam.heightmap import Grid, grid_over, upper_envelope
 from cadcam.model import Motion, ProgramMoves, Setup, Tool
 from cadcam.relief import surface_under
-from cadcam.stock import (ENGAGED_WIDTH, FULL_WIDTH_ANGLE, OUTSIDE_RELIEF, RAPID_RIM, FlippedStock, Simulation,
-                          StockCut, Unreached, cut_stock, first_line_reaching, unreached, why_left)
+from cadcam.stock import (ENGAGED_WIDTH, FOR_OP2, FULL_WIDTH_ANGLE, OUTSIDE_RELIEF, RAPID_RIM, FlippedStock,
+                          Simulation, StockCut, Unreached, cut_stock, first_line_reaching, unreached, why_left)
 from cadcam.workholding import fixture_contacts
 from factory.core.errors import VerifyError
 
@@ -350,9 +350,11 @@ class VerifyReport:
 
     @property
     def on_part(self) -> tuple[Unreached, ...]:
-        """:attr:`left` on the part itself: without a relief's uncut rim round its surface, which its
-        boundary keeps the tools off by design (:data:`cadcam.stock.OUTSIDE_RELIEF`)."""
-        return tuple(u for u in self.left if u.why != OUTSIDE_RELIEF)
+        """:attr:`left` on the part when this program is done: without a relief's uncut rim round its surface,
+        which its boundary keeps the tools off by design (:data:`cadcam.stock.OUTSIDE_RELIEF`), nor what op 2
+        machines from below (:data:`cadcam.stock.FOR_OP2`): that is op 2's to finish, and op 2's verdict says
+        whether it did."""
+        return tuple(u for u in self.left if u.why not in (OUTSIDE_RELIEF, FOR_OP2))
 
     @property
     def finished(self) -> bool:
@@ -872,3 +874,27 @@ def finishing_moves(gcode_text: str, moves: ProgramMoves, operations: Sequence[M
     from_comment = np.asarray(comment_fin)[at]
     sheet = np.array([by_tool.get(t) == {True} for t in moves.tool.tolist()], dtype=bool)
     return np.where(named_tool == moves.tool, from_comment, sheet)
+
+
+#: :attr:`cadcam.stock.Unreached.why` added to what op 1 left on the side op 2 holds down: op 2 cannot reach it.
+FROM_OP1 = "left by op 1"
+
+
+def with_op1_left(report: VerifyReport, op1: VerifyReport, sim: Simulation, flip: np.ndarray) -> VerifyReport:
+    """Op 2's ``report`` with the regions op 1 left on the part (:attr:`VerifyReport.on_part`) that op 2's
+    stock ``sim`` still holds: op 2 machines the other side, so what op 1 left (a sharp corner of a pocket
+    in op 1's face) stays on the finished part, and op 2's grid, which sees only the stock's top, cannot
+    see it. Each is moved into op 2's work coordinates by ``flip`` ((4, 4) op-1 -> op-2 [mm], a half turn
+    about X) and says that op 1 left it; a region whose column op 2 cut through is gone."""
+    t = np.asarray(flip, dtype=np.float64).reshape(4, 4)
+    g = sim.grid
+    carried = []
+    for u in op1.on_part:
+        x, y = u.x + t[0, 3], t[1, 3] - u.y
+        i, j = int(round((x - g.x0) / g.cell)), int(round((y - g.y0) / g.cell))
+        if 0 <= i < g.nx and 0 <= j < g.ny and not np.isfinite(sim.stock_top[j, i]):
+            continue  # op 2 cut through it
+        carried.append(dataclasses.replace(u, x=x, y=y, z_bottom=t[2, 3] - u.z_bottom,
+                                           why=f"{u.why}, {FROM_OP1}" if u.why else FROM_OP1))
+    left = tuple(sorted(report.left + tuple(carried), key=lambda u: (-u.depth, u.x, u.y)))
+    return dataclasses.replace(report, left=left)

@@ -81,7 +81,8 @@ def verify(
                 stderr.print(f"op 1 ({program1.name}): {report_text(verified1.report)}", highlight=False,
                              markup=False)
             verified = run_verify_after(verified1.simulation, flip_of(sheet, setup_path), text, str(program), setup,
-                                        tools, triangles, options, bars, operations=sheet.operations)
+                                        tools, triangles, options, bars, operations=sheet.operations,
+                                        op1=verified1.report)
     report = verified.report
     write_verify_outputs(verified.simulation, report, png=png, json_path=json_path, mcap=mcap,
                          overwrite=overwrite, inputs={str(program): "", str(part): ""},

@@ -517,7 +517,7 @@ def _plan_once(request: PlanRequest, progress: Progress | None = None) -> PartPl
             verified = run_verify(*verify_args, progress, **verify_kwargs)
     op2 = None
     if req.ops == 2:
-        op2 = _plan_op2(req, planned, verified.simulation, outputs, progress, watch)
+        op2 = _plan_op2(req, planned, verified.simulation, outputs, progress, watch, verified.report)
         sheet = dataclasses.replace(sheet, next={"program": outputs["program_op2"].name,
                                                  "setup_sheet": outputs["setup_sheet_op2"].name})
     return PartPlan(req, planned, program, sheet, tending, verified.simulation, verified.report,
@@ -529,7 +529,7 @@ def _replan_op2(plan: PartPlan, cam: CamRequest, progress: Progress | None) -> P
     program, its robot program and its verdict kept); its wall times added to the plan's [s]."""
     req = dataclasses.replace(plan.request, cam=cam)
     watch = Stopwatch(progress)
-    op2 = _plan_op2(req, plan.planned, plan.simulation, req.outputs(Path(".")), progress, watch)
+    op2 = _plan_op2(req, plan.planned, plan.simulation, req.outputs(Path(".")), progress, watch, plan.report)
     seconds = dict(plan.seconds)
     for stage, s in watch.seconds.items():
         seconds[stage] = seconds.get(stage, 0.0) + s
@@ -542,8 +542,9 @@ def _verify_quietly(args: tuple, kwargs: dict) -> VerifyResult:
 
 
 def _plan_op2(req: PlanRequest, planned: PlannedPart, op1_sim: Simulation, outputs: dict[str, Path],
-              progress: Progress | None, watch: Stopwatch) -> SecondOp:
-    """Op 2 planned, posted in G55 and verified from op 1's simulated stock turned over."""
+              progress: Progress | None, watch: Stopwatch, op1_report: VerifyReport | None = None) -> SecondOp:
+    """Op 2 planned, posted in G55 and verified from op 1's simulated stock turned over (with what op 1
+    left on the part, ``op1_report``'s, that op 2 leaves too)."""
     job1 = planned.job
     with watch("op 2"):
         library = load_tool_library(req.cam.tools)
@@ -564,7 +565,7 @@ def _plan_op2(req: PlanRequest, planned: PlannedPart, op1_sim: Simulation, outpu
         verified2 = run_verify_after(op1_sim, flip_transform(job1.setup), program2.text,
                                          str(outputs["program_op2"]), job2.setup, {t.number: t for t in job2.tools},
                                          np.asarray(part2.triangles), VerifyOptions(cell=req.grid), progress,
-                                         operations=sheet2.operations)
+                                         operations=sheet2.operations, op1=op1_report)
     return SecondOp(job2, part2, program2, sheet2, verified2.simulation, verified2.report)
 
 

@@ -16,8 +16,9 @@ from cadcam.relief import machining_surface, surface_footprint
 from cadcam.model import Setup, Tool
 from cadcam.sheet import SheetSetup, read_setup_sheet
 from cadcam.preview import deviation_image
-from cadcam.stock import Simulation, flip_stock
-from cadcam.verify import VerifyOptions, VerifyReport, VerifyResult, finishing_moves, simulate, simulate_flipped
+from cadcam.stock import FOR_OP2, Simulation, flip_stock
+from cadcam.verify import (VerifyOptions, VerifyReport, VerifyResult, finishing_moves, simulate, simulate_flipped,
+                           with_op1_left)
 from factory.core.atomic import write_bytes, write_text
 from factory.core.errors import SetupError
 from factory.core.setupsheet import SetupSheet
@@ -77,9 +78,11 @@ def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int
 def run_verify_after(before: Simulation, flip: np.ndarray, gcode_text: str, gcode_source: str, setup: Setup,
                      tools: dict[int, Tool], triangles: np.ndarray, options: VerifyOptions,
                      progress: Progress | None = None,
-                     operations: Sequence[Mapping[str, Any]] = ()) -> VerifyResult:
+                     operations: Sequence[Mapping[str, Any]] = (), op1: VerifyReport | None = None) -> VerifyResult:
     """:func:`run_verify` of op 2: starting from ``before`` (op 1's simulated stock, on a grid of
-    ``options.cell``) turned over by ``flip`` (op-1 -> op-2 work transform [mm]) into ``setup``.
+    ``options.cell``) turned over by ``flip`` (op-1 -> op-2 work transform [mm]) into ``setup``. With
+    ``op1``, op 1's verdict, the stock op 1 left on the part and op 2 did not cut away is op 2's too
+    (:func:`cadcam.verify.with_op1_left`): op 2's verdict is the finished part's.
 
     Raises
     ------
@@ -89,8 +92,11 @@ def run_verify_after(before: Simulation, flip: np.ndarray, gcode_text: str, gcod
     moves = parse_gcode(gcode_text, source=gcode_source)
     finishing = finishing_moves(gcode_text, moves, operations)
     start = flip_stock(before, flip, setup)
-    return simulate_flipped(moves, tools, setup, triangles, start, options,
-                            progress=stage_callback(progress, "verify op 2"), finishing=finishing)
+    verified = simulate_flipped(moves, tools, setup, triangles, start, options,
+                                progress=stage_callback(progress, "verify op 2"), finishing=finishing)
+    if op1 is None:
+        return verified
+    return VerifyResult(verified.simulation, with_op1_left(verified.report, op1, verified.simulation, flip))
 
 
 def op1_of(sheet: SetupSheet, sheet_path: Path, after: Path | None) -> tuple[Path, Path] | None:
@@ -146,7 +152,8 @@ LEFT_SHOWN = 5
 
 def report_text(report: VerifyReport) -> str:
     """The verdict in a few lines: gouge, remaining stock, rapid crashes, each fault with its lines, and
-    each region of stock left with its place and size. Its first line never says OK over stock left."""
+    each region of stock left with its place and size. Its first line never says OK over stock left: stock op 2
+    takes from below is named as such after op 1's OK."""
     if not report.ok:
         verdict = "verify FAILED"
     elif report.on_part:
@@ -155,6 +162,10 @@ def report_text(report: VerifyReport) -> str:
                    f"{report.on_part[0].depth:.2f} mm")
     else:
         verdict = f"verify OK, finished to {report.left_above:g} mm"
+    # op 1 is done with what op 2 machines from below, but the part is not: said, not hidden
+    for_op2 = sum(u.why == FOR_OP2 for u in report.left)
+    if report.ok and for_op2:
+        verdict += f" except {for_op2} region{'s' if for_op2 > 1 else ''} left for op 2"
     text = (f"{verdict}: max gouge {report.max_gouge:.4f} mm, remaining stock max "
             f"{report.remaining_max:.3f} / mean {report.remaining_mean:.3f} / p95 {report.remaining_p95:.3f} mm, "
             f"{len(report.rapid_crashes)} rapid crash(es)")

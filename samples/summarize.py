@@ -34,8 +34,9 @@ def row(summary: dict) -> list[str]:
 def line(summary: dict) -> str:
     """One line for a part as it finishes: its verdict first."""
     cells = dict(zip(HEADER, row(summary)))
-    reports = [summary["verify"]] + ([summary["verify_op2"]] if summary.get("verify_op2") else [])
-    left = sum(len(r.get("left", [])) for r in reports)
+    # the finished part's: op 2's verdict carries what op 1 left on the part, and what op 1 left for op 2 is op 2's
+    last = summary.get("verify_op2") or summary["verify"]
+    left = sum(r.get("why") not in ("left for op 2", "outside the relief's surface") for r in last.get("left", []))
     verdict = ("verify FAILED" if not summary["verify"]["ok"] else
                f"stock left in {left} region{'s' if left > 1 else ''}" if left else "verify OK, finished")
     ops = "1 op" if cells["ops"] == "1" else f"{cells['ops']} ops"

@@ -16,6 +16,7 @@ from cadcam.heightmap import Grid
 from cadcam.stock import FOR_OP2, NO_TOOL, SHARP_CORNER, Simulation, unreached, why_left
 from cadcam.tools import load_tool_library
 from cadcam.verify import VerifyOptions, simulate
+from factory.verify import report_text
 from tests.conftest import manifold_to_trimesh
 
 LIBRARY = load_tool_library()
@@ -53,9 +54,15 @@ def test_each_region_left_says_why():
     tools = {t.number: t for t in job.tools}
     report = simulate(moves, tools, setup, np.asarray(part.triangles), VerifyOptions(op2_follows=True)).report
     assert report.left and {u.why for u in report.left} == {FOR_OP2}, report.left
+    # op 1 is done with what op 2 takes from below, and its one-liner says what that leaves (issue 30)
+    n = len(report.left)
+    assert report.finished and report.on_part == ()
+    assert report_text(report).startswith(f"verify OK, finished to 0.1 mm except {n} region{'s' if n > 1 else ''} "
+                                          f"left for op 2: "), report_text(report)
     assert all(u.to_dict()["why"] == u.why and u.describe().endswith(": " + u.why) for u in report.left)
     alone = simulate(moves, tools, setup, np.asarray(part.triangles), VerifyOptions()).report  # no op 2 after
     assert {u.why for u in alone.left} == {NO_TOOL}
+    assert not alone.finished and report_text(alone).startswith("verify: no gouge or crash, but stock left in ")
     assert dataclasses.replace(alone.left[0], why="").to_dict().keys() == {"x", "y", "size_x", "size_y", "depth",
                                                                           "z_bottom"}
 

@@ -163,3 +163,64 @@ def test_op_2_facing_a_millimetre_too_deep_gouges_the_bottom(bracket):
 def test_after_is_refused_for_op_1(bracket):
     r = run("verify", bracket["nc"], "--setup", bracket["setup"], "--part", bracket["part"], "--after", bracket["nc"])
     assert r.exit_code == 1 and "--after is for op 2" in r.output
+
+
+def _plan_part(tmp_path: Path, name: str, solid, *extra) -> tuple[object, str]:
+    """``factory plan`` of a manifold3d solid (mm) without the robot: the result and its output in one line."""
+    from tests.conftest import manifold_to_trimesh
+
+    stl = tmp_path / f"{name}.stl"
+    manifold_to_trimesh(solid).export(stl)
+    r = run("plan", stl, "-o", tmp_path / name, "--no-robot", *extra)
+    return r, re.sub(r"\s+", " ", r.output)
+
+
+def test_a_square_cornered_slots_corners_are_named_by_op_1_and_by_op_2(tmp_path):
+    """Issue 30: a 40 x 10 mm slot 6 mm deep with square corners in an 80 x 50 x 12 mm plate. The 2 mm end mill
+    leaves its R1 curved triangle in each corner, narrower than the cell diagonal verify grows the part by: op 1's
+    one-liner and op 2's (the finished part's: op 2's grid sees only the top of the part turned over) name the
+    four corners with place, size, depth and why, even under --quiet (stock left changes the verdict)."""
+    import manifold3d
+
+    plate = manifold3d.Manifold.cube((80.0, 50.0, 12.0)) \
+        - manifold3d.Manifold.cube((40.0, 10.0, 7.0)).translate((20.0, 20.0, 6.0))
+    r, text = _plan_part(tmp_path, "slot_plate", plate, "--quiet")
+    assert r.exit_code == 0, r.output  # safe: stock left is no failure
+    corner = (r"left: (\d+\.\d) x (\d+\.\d) mm near X(-?\d+\.\d) Y(-?\d+\.\d), (\d+\.\d) mm of stock down to "
+              r"Z-?\d+\.\d: sharp inside corner")
+    op1, _, op2 = text.partition("slot_plate.stl: op 2: ")
+    assert op1.startswith("slot_plate.stl: verify: no gouge or crash, but stock left in 4 regions, up to 6.00 mm"), text
+    assert op2.startswith("verify: no gouge or crash, but stock left in 4 regions, up to 6.00 mm"), text
+    for side, suffix in ((op1, ""), (op2, ", left by op 1")):
+        found = re.findall(corner + re.escape(suffix), side)
+        assert len(found) == 4, side
+        xs = sorted({float(f[2]) for f in found})
+        ys = sorted({float(f[3]) for f in found})
+        # the corners stand 40 mm apart along X and 10 mm along Y, each at most a millimetre each way, 6 mm deep
+        assert len(xs) == len(ys) == 2 and xs[1] - xs[0] == pytest.approx(40.0, abs=0.7), found
+        assert ys[1] - ys[0] == pytest.approx(10.0, abs=0.7), found
+        assert all(0.2 <= float(f[0]) <= 1.2 and 0.2 <= float(f[1]) <= 1.2 and float(f[4]) == 6.0 for f in found)
+    report = json.loads((tmp_path / "slot_plate" / "slot_plate.op2.verify.json").read_text())
+    assert not report["finished"] and {u["why"] for u in report["left"]} == {"sharp inside corner, left by op 1"}
+
+
+def test_a_round_pocket_is_finished_with_no_corner_listed(tmp_path):
+    """Issue 30: a 50 mm round pocket 20 mm deep in a 60 mm box, its wall 96 facets: stock a micrometre outside a
+    facet is the wall's skin, not a sharp corner. Both one-liners say finished."""
+    import manifold3d
+
+    box = manifold3d.Manifold.cube((60.0, 60.0, 30.0)) \
+        - manifold3d.Manifold.cylinder(25.0, 25.0, 25.0, 96).translate((30.0, 30.0, 10.0))
+    r, text = _plan_part(tmp_path, "round_pocket", box)
+    assert r.exit_code == 0, r.output
+    assert text.count("verify OK, finished to 0.1 mm") == 2 and "left:" not in text, text
+
+
+def test_the_bracket_lists_no_false_corners(bracket):
+    """The regression a first corner listing had (reverted): at 0.4 mm it listed grid points a micrometre outside
+    the bracket's facetted round holes as 15 mm sharp inside corners. Op 1 and op 2 are finished."""
+    r, report = verify_op2(bracket, bracket["nc2"].read_text(), "op2_corners.nc")
+    assert report["left"] == [] and report["finished"], report["left"]
+    assert "op 1 (bracket.nc): verify OK, finished" in r.output and "left:" not in r.output, r.output
+    r1, report1 = verify(bracket, bracket["nc"].read_text(), "op1_corners.nc")
+    assert report1["left"] == [] and "verify OK, finished" in r1.output, r1.output

@@ -294,9 +294,9 @@ def test_when_only_op_2_fails_verify_only_op_2_is_planned_again(block, monkeypat
         ones.append(request.cam)
         return once(request, progress)
 
-    def first_op2_fails(req, planned, op1_sim, outputs, progress, watch):
-        twos.append((req.cam.plan, op1_sim))
-        second = op2(req, planned, op1_sim, outputs, progress, watch)
+    def first_op2_fails(req, planned, op1_sim, outputs, progress, watch, op1_report):
+        twos.append((req.cam.plan, op1_sim, op1_report))
+        second = op2(req, planned, op1_sim, outputs, progress, watch, op1_report)
         if len(twos) > 1:
             return second
         fault = Fault("buried", 3, (10,), 1.2, 1.0, (1.0, 2.0, -3.0), "T3 engages 1.2 mm, limit 1 mm")
@@ -309,7 +309,8 @@ def test_when_only_op_2_fails_verify_only_op_2_is_planned_again(block, monkeypat
     assert len(ones) == 1 and len(twos) == 2  # op 1 planned once, op 2 twice
     assert planned.ok and planned.replanned == ("op 2: T3 engages 1.2 mm, limit 1 mm",)
     assert "planning again (op 2 only)" in caplog.text
-    (first, stock1), (again, stock2) = twos
+    (first, stock1, report1), (again, stock2, report2) = twos
     assert stock1 is stock2 is planned.simulation  # from op 1's verified stock, op 1 kept
+    assert report1 is report2 is planned.report  # and op 2's verdict carries what op 1 left
     assert again.finish_engagement == pytest.approx(0.5 * first.finish_engagement)
     assert planned.op2 is not None and planned.op2.report.ok
