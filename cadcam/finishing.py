@@ -31,6 +31,7 @@ from scipy import ndimage
 from shapely.geometry.base import BaseGeometry
 
 from cadcam.dropcutter import TriangleIndex, build_index, drop_profile
+from cadcam.entries import ramp_entries
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.relief import clip_chains
 from cadcam.rest import deep_stock, engagement_ok
@@ -285,6 +286,9 @@ def _assemble(chains: list[np.ndarray], setup: Setup, name: str, kind: str, tool
               limit: EngagementLimit | None = None, within: Within | None = None) -> Operation:
     """Chains of CL points cut in order; retract, rapid, descend between them.
 
+    A chain whose start lies under the stock is entered down a ramp along itself
+    (:func:`cadcam.entries.ramp_entries`), never by a plunge.
+
     Links between chains rapid low through the air the stock model knows (:func:`_link_heights`;
     ``safe_z`` without one). Descents rapid down to ``setup.clearance`` above the highest stock under the tool
     (from ``stock``, the material earlier operations left) and feed only the rest; without
@@ -298,6 +302,8 @@ def _assemble(chains: list[np.ndarray], setup: Setup, name: str, kind: str, tool
     if limit is not None and stock is not None:
         deep = deep_stock(stock, limit.depth, limit.allowance, limit.grid_slack)
         chains = _clip_engagement(chains, tool, deep, limit.depth)
+    # A chain starting under stock is entered down a ramp along itself, never by a plunge.
+    chains = ramp_entries(chains, stock, tool).chains
     points: list[np.ndarray] = []
     motion: list[np.ndarray] = []
     starts = np.array([c[0, :2] for c in chains]).reshape(-1, 2)
@@ -618,7 +624,8 @@ def waterline_finishing(
     by the steepest side, so the foot of a vertical wall counts as steep); shallow gaps
     shorter than the tool diameter are bridged rather than retracted over. Loops are cut
     top level first, nearest loop next, with a retract to
-    ``setup.safe_z``, a rapid, and a plunge to each loop's start.
+    ``setup.safe_z``, a rapid, and a descent to each loop's start: straight down through the
+    air, down a ramp along the loop where stock lies over its start (:func:`_assemble`).
 
     Parameters, returns and raises as :func:`raster_finishing` (``kind="waterline"``).
     """

@@ -624,7 +624,7 @@ def stock_after_flipped(operations: Sequence[Operation], setup: Setup, part_tria
     return cut_stock(operation_moves(cutting), tools, setup, part_triangles, cell, start=start).simulation
 
 
-def clear_height(sim: Simulation, tool: Tool, xy: np.ndarray) -> np.ndarray:
+def clear_height(sim: Simulation, tool: Tool, xy: np.ndarray, within: float | None = None) -> np.ndarray:
     """Lowest tool tip height at each ``xy`` that touches none of the stock in ``sim`` [mm].
 
     Conservative between grid points: the stock is taken as reaching up to a grid point's
@@ -636,6 +636,9 @@ def clear_height(sim: Simulation, tool: Tool, xy: np.ndarray) -> np.ndarray:
     tool : Tool
     xy : (n, 2) float
         Tool axis positions [mm].
+    within : float, optional
+        Only the tool's surface this close to its axis must clear the stock [mm] (its core:
+        the rim beyond may cut); default the whole tool.
 
     Returns
     -------
@@ -644,7 +647,7 @@ def clear_height(sim: Simulation, tool: Tool, xy: np.ndarray) -> np.ndarray:
     """
     g = sim.grid
     slack = g.cell * math.sqrt(2.0)
-    reach = tool.radius + slack
+    reach = (tool.radius if within is None else min(within, tool.radius)) + slack
     k = int(math.ceil(reach / g.cell))
     di, dj = np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1))
     di, dj = di.ravel(), dj.ravel()
