@@ -19,7 +19,8 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Any, Literal
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import trimesh
@@ -28,6 +29,9 @@ from cadcam.gcode import PECK_CLEARANCE
 from cadcam.heightmap import Grid, upper_envelope
 from cadcam.model import CuttingData, DrillCycle, Motion, Operation, Setup, Tool
 from cadcam.tools import ToolLibrary
+
+if TYPE_CHECKING:  # (detection needs no shapely: imported only where a keep-out is used)
+    from cadcam.workholding import Region
 
 log = logging.getLogger(__name__)
 
@@ -437,6 +441,7 @@ def plan_holes(
     rough_min_helix: float | None = None,
     allowance: float = 0.0,
     holes: tuple[Hole, ...] | None = None,
+    within: Region | None = None,
 ) -> HolePlan:
     """Find the part's round holes and the operations that cut them, before roughing.
 
@@ -470,6 +475,10 @@ def plan_holes(
     holes : tuple of Hole, optional
         The holes, exact, when the part came with them (a STEP file's B-rep,
         :mod:`cadcam.features`); None: found in the mesh (:func:`find_holes`).
+    within : callable, optional
+        ``within(radius)``: where a tool of that radius [mm] may put its axis (the jaws' keep-out,
+        :func:`cadcam.workholding.jaw_keepout`). A drill or helix that would leave it is not used:
+        the hole goes to the next method, else is left (and its stock reported as unreached).
     """
     holes = find_holes(part, options) if holes is None else holes
     if not holes:
@@ -485,7 +494,8 @@ def plan_holes(
     mills = sorted((t for t in library.tools if t.shape == "flat"),
                    key=lambda t: (library.feed_factor(t) < 1.0, -t.diameter, t.number))
     min_helix = 0.3 * rough_tool.diameter if rough_min_helix is None else rough_min_helix
-    chosen = _choose_methods(holes, drills, mills, rough_tool, min_helix, allowance, top, floor, options)
+    chosen = _choose_methods(holes, drills, mills, rough_tool, min_helix, allowance, top, floor, options,
+                             _fits(within, spots[:1]))
     drilled, helixed = chosen.drilled, chosen.helixed
 
     ops: list[Operation] = []
@@ -528,23 +538,23 @@ class _Methods:
 
 def _choose_methods(holes: tuple[Hole, ...], drills: tuple[Tool, ...], mills: list[Tool], rough_tool: Tool,
                     min_helix: float, allowance: float, top: float, floor: float,
-                    options: DrillingOptions) -> _Methods:
+                    options: DrillingOptions, fits: Callable[[Hole, Tool], bool] = lambda h, t: True) -> _Methods:
     """Each hole's method, in :func:`plan_holes`' order of preference (``top``: stock top, ``floor``:
     lowest a tool may go, ``min_helix``: narrowest helix the roughing enters with, ``allowance``:
     stock roughing leaves on walls, all [mm]; ``mills``: flat end mills, the standard ones widest first, then
-    the long-reach ones)."""
+    the long-reach ones; ``fits(hole, tool)``: the tool may cut that hole where it lies, :func:`_fits`)."""
 
     def exact(h: Hole, tip_of) -> Tool | None:
         for t in sorted(drills, key=lambda t: -t.diameter):
             if h.inscribed - options.drill_undersize <= t.diameter <= h.inscribed + options.drill_oversize \
-                    and _reaches(t, top, tip_of(t)):
+                    and _reaches(t, top, tip_of(t)) and fits(h, t):
                 return t
         return None
 
     def helix_mill(h: Hole) -> Tool | None:
         bottom = max(h.bottom_z - (options.breakthrough if h.bottom == "through" else 0.0), floor)
         for t in mills:
-            if t.diameter * (1 + options.helix_share) <= h.inscribed and _reaches(t, top, bottom):
+            if t.diameter * (1 + options.helix_share) <= h.inscribed and _reaches(t, top, bottom) and fits(h, t):
                 return t
         return None
 
@@ -564,7 +574,7 @@ def _choose_methods(holes: tuple[Hole, ...], drills: tuple[Tool, ...], mills: li
             out.drilled.setdefault(d.number, []).append((h, tip(d)))
         else:
             under = [t for t in drills if t.diameter < h.inscribed - options.drill_undersize
-                     and h.bottom != "flat" and _reaches(t, top, tip(t))]
+                     and h.bottom != "flat" and _reaches(t, top, tip(t)) and fits(h, t)]
             if under:
                 t = max(under, key=lambda t: t.diameter)
                 out.drilled.setdefault(t.number, []).append((h, tip(t)))
@@ -572,6 +582,22 @@ def _choose_methods(holes: tuple[Hole, ...], drills: tuple[Tool, ...], mills: li
             else:
                 out.left.append(h)
     return out
+
+
+def _fits(within: Region | None, spots: tuple[Tool, ...] = ()) -> Callable[[Hole, Tool], bool]:
+    """``fits(hole, tool)``: every axis position of ``tool`` in ``hole`` (a disc of the hole's radius
+    less the tool's about its centre) lies where ``within(tool radius)`` allows, and for a drill the
+    same for the ``spots`` that spot it first; always, without ``within``."""
+    if within is None:
+        return lambda h, t: True
+    from shapely.geometry import Point
+
+    def one(h: Hole, t: Tool) -> bool:
+        orbit = h.inscribed / 2 - float(t.radius)  # a drill's is about nothing: its axis is the centre
+        axis = Point(h.x, h.y).buffer(orbit, quad_segs=16) if orbit > 1e-9 else Point(h.x, h.y)
+        return bool(within(float(t.radius)).covers(axis))
+
+    return lambda h, t: one(h, t) and (not t.is_drill or all(one(h, s) for s in spots))
 
 
 def _spot_operation(drilled: dict[int, list[tuple[Hole, float]]], spot: Tool, library: ToolLibrary, mat: str,

@@ -121,6 +121,7 @@ def flat_wall_finishing(
     progress: Callable[[int, int], None] | None = None,
     cut_before: Callable[[float], BaseGeometry] | None = None,
     stepdown: float | None = None,
+    within: Callable[[float], BaseGeometry] | None = None,
 ) -> Operation:
     """Floors at their heights and walls by the flank, with the flat end mill ``tool``.
 
@@ -144,6 +145,9 @@ def flat_wall_finishing(
         Most a level may lie below the one above it [mm]; default the flute length (a wall's skin
         is a side cut). A tool after a wider one meets the inside corners that one left at full
         width: the planner steps it down by its axial limit (:attr:`cadcam.model.Tool.full_width_limit`).
+    within : callable, optional
+        ``within(radius)``: where the tool's axis may go (the jaws' keep-out,
+        :func:`cadcam.workholding.jaw_keepout`); what lies outside it is left.
 
     Returns
     -------
@@ -169,5 +173,5 @@ def flat_wall_finishing(
         return Operation(f"finish flats+walls T{tool.number}", "finishing", tool, cutting, np.zeros((0, 3)),
                          np.zeros(0), options.allowance)
     op = zlevel_roughing(part, setup, tool, cutting, rough, progress=progress, rest=_target(stock, left),
-                         rest_above=0.0, air=stock, cut_before=cut_before)
+                         rest_above=0.0, air=stock, cut_before=cut_before, within=within)
     return dataclasses.replace(op, name=f"finish flats+walls T{tool.number}", kind="finishing")

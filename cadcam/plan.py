@@ -473,6 +473,9 @@ class _Planning:
     #: ``cut_before(z)``: the XY area the holes were cut to size down to ``z`` (set once they are
     #: planned, :meth:`cadcam.drilling.HolePlan.cut_at`): a pocket there too small to enter is no loss.
     cut_before: Callable[[float], Any] | None = None
+    #: Where a tool's axis may go clear of the jaws and parallels (:func:`cadcam.workholding.jaw_keepout`,
+    #: also inside ``within``): the holes and flats and walls keep to it. None: no tool can reach them.
+    keepout: Callable[[float], Any] | None = None
 
     @classmethod
     def start(cls, part: trimesh.Trimesh, setup: Setup, library: ToolLibrary, options: PlanOptions,
@@ -501,7 +504,7 @@ class _Planning:
         rough_within, within = within_both(rough_within, keepout), within_both(within, keepout)
         return cls(part, setup, library, options, progress, boundary, triangles, rough_tool, finish_tool,
                    rough_cutting, finish_cutting, faces, rough_within, within,
-                   [("tools and faces", time.perf_counter() - t_start)])
+                   [("tools and faces", time.perf_counter() - t_start)], keepout=keepout)
 
     def stage_progress(self, stage: str) -> Callable[[int, int], None] | None:
         progress = self.progress
@@ -538,7 +541,7 @@ def _holes_and_roughing(plan: _Planning, exact: tuple[Hole, ...] | None = None
     options, setup, part = plan.options, plan.setup, plan.part
     t0 = time.perf_counter()
     holes = plan_holes(part, setup, plan.library, plan.rough_tool, options.drilling, options.roughing.min_helix_diameter,
-                       options.roughing.allowance, exact) if options.holes else None
+                       options.roughing.allowance, exact, within=plan.keepout) if options.holes else None
     plan.seconds.append(("holes", time.perf_counter() - t0))
     plan.cut_before = holes.cut_at if holes is not None else None
     rough = plan.timed("roughing", lambda: zlevel_roughing(part, setup, plan.rough_tool, plan.rough_cutting,
@@ -654,7 +657,8 @@ def _freeform_finishing(plan: _Planning, operations: list[Operation], stock: Sim
     if not options.waterline and stock is not None:
         # Every raster pass goes to full depth at once: first finish the tops of walls taller than the flutes.
         op = plan.timed("upper raster", lambda: upper_raster(part, setup, tool, cutting, raster_options,
-                                                             stock, engagement, plan.stage_progress("upper raster")))
+                                                             stock, engagement, plan.stage_progress("upper raster"),
+                                                             within=within))
         if op is not None:
             operations.append(op)
             stock = plan.model(operations)
@@ -705,7 +709,8 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
         stepdown = None if tool is flat else tool.full_width_limit
         op = plan.timed(stage, lambda: flat_wall_finishing(plan.part, setup, tool, cutting, faces, stock,
                                                            options.flat_finish, progress=plan.stage_progress(stage),
-                                                           cut_before=plan.cut_before, stepdown=stepdown))
+                                                           cut_before=plan.cut_before, stepdown=stepdown,
+                                                           within=plan.keepout))
         if len(op.points) > 1:
             operations.append(op)
             stale = True

@@ -17,7 +17,7 @@ import numpy as np
 import trimesh
 from scipy import ndimage
 
-from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing
+from cadcam.finishing import EngagementLimit, FinishingOptions, Within, raster_finishing
 from cadcam.model import CuttingData, Operation, Setup, Tool
 from cadcam.stock import Simulation
 
@@ -52,7 +52,8 @@ def tall_walls(stock: Simulation, tool: Tool, reach: float) -> tuple[np.ndarray,
 
 def upper_raster(part: trimesh.Trimesh, setup: Setup, tool: Tool, cutting: CuttingData,
                  options: FinishingOptions, stock: Simulation, limit: EngagementLimit | None = None,
-                 progress: Callable[[int, int], None] | None = None) -> Operation | None:
+                 progress: Callable[[int, int], None] | None = None, within: Within | None = None
+                 ) -> Operation | None:
     """A raster round the walls taller than ``tool``'s flutes, its tip within their reach from the stock top.
 
     Run before the full-depth raster, it finishes those walls' upper parts, so the full
@@ -62,8 +63,8 @@ def upper_raster(part: trimesh.Trimesh, setup: Setup, tool: Tool, cutting: Cutti
     ----------
     stock : Simulation
         The stock the earlier operations left (:func:`cadcam.stock.stock_after`).
-    options, limit, progress
-        As for :func:`cadcam.finishing.raster_finishing`.
+    options, limit, progress, within
+        As for :func:`cadcam.finishing.raster_finishing` (``within``: the jaws' keep-out).
     """
     upper = float(setup.stock_max[2]) - tool.flute_length + SHANK_CLEARANCE
     walls = tall_walls(stock, tool, tool.flute_length - SHANK_CLEARANCE)
@@ -75,5 +76,6 @@ def upper_raster(part: trimesh.Trimesh, setup: Setup, tool: Tool, cutting: Cutti
     shallow = dataclasses.replace(setup, stock_min=np.array([*np.maximum(lo, setup.stock_min[:2]), upper]),
                                   stock_max=np.array([*np.minimum(hi, setup.stock_max[:2]), setup.stock_max[2]]),
                                   floor_z=max(upper, float(setup.floor_z)))
-    op = raster_finishing(part, shallow, tool, cutting, options, progress=progress, stock=stock, limit=limit)
+    op = raster_finishing(part, shallow, tool, cutting, options, progress=progress, stock=stock, limit=limit,
+                          within=within)
     return dataclasses.replace(op, name="finish raster upper") if len(op.points) > 1 else None

@@ -25,7 +25,7 @@ from cadcam.relief import (FINISH_ENGAGEMENT, TERRACE_STEPDOWN, Boundary, Relief
                            own_surface, relief_setup)
 from cadcam.roughing import RoughingOptions
 from cadcam.setup import StockMargins, orient_setup
-from cadcam.tools import load_tool_library
+from cadcam.tools import ToolLibrary, load_tool_library
 from factory.core.errors import ToolpathError
 from factory.mcaplog import McapLog, read_attachment
 from factory.core.progress import Progress, Stopwatch
@@ -82,7 +82,8 @@ class CamRequest:
     the stock (None: no vise, nothing checked against jaws); ``relief`` applies when the mesh is
     an open surface (:mod:`cadcam.relief`): floor and boundary mode; ``body`` picks the solid
     (1-based) of a STEP file with several; ``rapid_cell`` the grid [mm] every rapid is checked on
-    (``plan_job``'s, finer when :func:`factory.plan.plan_part` plans again after a rapid in stock)."""
+    (``plan_job``'s, finer when :func:`factory.plan.plan_part` plans again after a rapid in stock);
+    ``set_aside`` the tool numbers the plan may not use (a re-plan after that tool failed verify)."""
 
     part: Path
     tools: Path | None
@@ -96,6 +97,7 @@ class CamRequest:
     relief: ReliefOptions = ReliefOptions()
     body: int | None = None
     rapid_cell: float = 0.5
+    set_aside: tuple[int, ...] = ()
 
     @classmethod
     def from_options(cls, part: Path, tools: Path | None, stock: tuple[float, float, float] | None, material: str,
@@ -122,6 +124,19 @@ class CamRequest:
         """The request of a command line that gives only the part, material, tool library and cell."""
         return cls.from_options(part, tools, None, material, UNITS, ORIGIN, ROUGH_TOOL, FINISH_TOOL, ALLOWANCE,
                                 None, None, True, HOLDING, cell)
+
+    def library(self) -> ToolLibrary:
+        """The tool library of :attr:`tools`, without the tools :attr:`set_aside`.
+
+        Raises
+        ------
+        ToolError
+            The library file cannot be read or is malformed.
+        """
+        library = load_tool_library(self.tools)
+        if not self.set_aside:
+            return library
+        return dataclasses.replace(library, tools=tuple(t for t in library.tools if t.number not in self.set_aside))
 
     def jaws(self) -> ViseJaws | None:
         """The vise of :attr:`cell` in millimetres, None without a cell.
@@ -171,7 +186,7 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
     watch = watch if watch is not None else Stopwatch()
     with watch("load"):
         loaded = load_part(req.part, units=req.units, body=req.body)
-        library = load_tool_library(req.tools)
+        library = req.library()
         jaws = req.jaws()
     if loaded.step is not None:
         _report_step_features(loaded, library, req.part)

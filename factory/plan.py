@@ -41,13 +41,12 @@ from cadcam.post import PostOptions, Program, post_process, tool_table_file
 from cadcam.preview import setup_image
 from cadcam.relief import block_corners
 from cadcam.sheet import setup_sheet
-from cadcam.tools import load_tool_library
 from cadcam.stock import Simulation
 from cadcam.verify import VerifyOptions, VerifyReport, VerifyResult
 from factory.core.atomic import check_writable, write_bytes, write_text
 from factory.cam import CamRequest, PlannedPart, compute_job, log_job
 from factory.catalog import catalog_record, sha256_file
-from factory.core.errors import PlanningError, SetupError, shown
+from factory.core.errors import FactoryError, PlanningError, SetupError, shown
 from factory.mcaplog import McapLog
 from factory.pictures import png_bytes
 from factory.refusals import check_request, check_setup
@@ -401,7 +400,8 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     A plan that verify fails is never the first answer: the failing operation is planned again with
     thinner cuts (:func:`conservative`, at each of :data:`REPLAN_SCALES`) and its rapids checked on
     verify's grid (``CamRequest.rapid_cell``) until one passes: op 2 alone, from op 1's verified
-    stock, when op 1 passed; the whole part when op 1 failed (op 2 starts from what op 1 leaves). Only the
+    stock, when op 1 passed; the whole part when op 1 failed (op 2 starts from what op 1 leaves). When the
+    thinnest cuts fail too, once more without the faulting tool (:func:`_with_the_next_tool`). Only the
     last is returned failed (``ok`` False), naming its faults. What each re-plan was for is in
     ``replanned``.
 
@@ -427,7 +427,37 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
                                   rapid_cell=min(request.cam.rapid_cell, request.grid))
         plan = _replan_op2(plan, cam, progress) if op2_only else _plan_once(dataclasses.replace(request, cam=cam),
                                                                             progress)
+    if not plan.ok:
+        plan = _with_the_next_tool(plan, request, progress, why)
     return dataclasses.replace(plan, replanned=tuple(why))
+
+
+def _with_the_next_tool(plan: PartPlan, request: PlanRequest, progress: Progress | None, why: list[str]) -> PartPlan:
+    """After thinner cuts failed too: the operation planned again with the faulting tool set aside, so the
+    planner takes the next one (narrower, or longer reach) or leaves the region it cannot cut and reports it
+    unreached. ``plan`` itself when the fault names no tool, a tool the user named, or when the library
+    without it cannot plan the part (a tool role no other tool fills); the fault appended to ``why``
+    when it is planned again."""
+    op2_only = plan.report.ok and plan.op2 is not None
+    report = plan.op2.report if op2_only else plan.report
+    tool = next((f.tool for f in report.faults if f.tool), 0)
+    named = (request.cam.plan.rough_tool, request.cam.plan.finish_tool)
+    if not tool or tool in named:
+        return plan
+    fault = _first_fault(plan)
+    cam = dataclasses.replace(request.cam, set_aside=(*request.cam.set_aside, tool),
+                              rapid_cell=min(request.cam.rapid_cell, request.grid))
+    log.warning("%s: verify failed (%s) with thinner cuts too: planning again%s without T%d", request.cam.part,
+                fault, " (op 2 only)" if op2_only else "", tool)
+    try:
+        again = _replan_op2(plan, cam, progress) if op2_only else _plan_once(dataclasses.replace(request, cam=cam),
+                                                                             progress)
+    except FactoryError as e:
+        log.warning("%s: without T%d the part cannot be planned (%s): the plan with it stands", request.cam.part,
+                    tool, e.message)
+        return plan
+    why.append(fault)
+    return again
 
 
 def conservative(options: PlanOptions, job: Job, scale: float) -> PlanOptions:
@@ -547,7 +577,7 @@ def _plan_op2(req: PlanRequest, planned: PlannedPart, op1_sim: Simulation, outpu
     left on the part, ``op1_report``'s, that op 2 leaves too)."""
     job1 = planned.job
     with watch("op 2"):
-        library = load_tool_library(req.cam.tools)
+        library = req.cam.library()
         # Op 1's verify simulation is op 2's starting stock: op 1 is not simulated again unless the bottom
         # has features to rest rough (planned on the coarser planning grid).
         try:

@@ -191,3 +191,60 @@ def test_an_operation_starting_low_is_reached_by_a_checked_descent_from_the_safe
     assert pts[0].tolist() == [30, 10, SETUP.safe_z] and pts[-1].tolist() == [35, 10, SETUP.safe_z]
     # the descent into the stock top (z 0) rapids to the clearance above it and feeds the rest
     assert fixed == 1 and mot[1] == Motion.RAPID and 0 < pts[1, 2] < SETUP.safe_z and mot[2] == Motion.PLUNGE
+
+
+def _plan_clear_of_the_jaws(part: trimesh.Trimesh, setup: Setup, options):
+    """``part`` planned in ``setup``; asserts every move of every tool, shank and holder (the exact sweep,
+    not the planner's regions) stays out of the jaws and parallels. Returns the job."""
+    from cadcam.plan import plan_job
+    from cadcam.tools import load_tool_library
+
+    job = plan_job(part, setup, load_tool_library(), part_name="edge", options=options).job
+    moves = operation_moves(job.operations)
+    hits = fixture_contacts(moves.points[:-1], moves.points[1:], moves.tool[1:], {t.number: t for t in job.tools},
+                            setup.jaws)
+    assert hits.depth.max() <= 1e-9, hits.depth.max()
+    return job
+
+
+def test_flats_and_walls_at_the_jaws_keep_out_of_them_and_report_what_they_leave():
+    """The faces' flat end mill passes (the default plan) at walls that run into the jaws' shadow: planned
+    clear of the jaws, the shadow reported (main refused this part: T1 ran 3.35 mm into the front jaw)."""
+    from cadcam.plan import PlanOptions
+
+    job = _plan_clear_of_the_jaws(EDGE_PART, HIGH_SETUP, PlanOptions())
+    assert any(op.name.startswith("finish flats+walls") for op in job.operations)
+    shadow = [u for u in job.parameters["unreached"] if u["y"] < 1.0 or u["y"] > 19.0]
+    assert len(shadow) == 2 and all(u["size_x"] >= EDGE_PART.extents[0] for u in shadow), shadow
+
+
+def test_a_hole_in_the_jaws_shadow_is_not_drilled_and_one_clear_of_them_is():
+    """Drilling and helixing keep their tools (and the spot drill before a drill) off the jaws: the hole
+    2 mm from the front jaw is left to the milling tools, the one in the middle is spotted and drilled."""
+    from cadcam.plan import PlanOptions
+
+    part = EDGE_PART
+    for x, y in ((16.0, 2.0), (22.0, 10.0)):
+        part = part.difference(trimesh.creation.cylinder(radius=1.65, height=30, sections=64,
+                                                         transform=trimesh.transformations.translation_matrix([x, y, -6])))
+    job = _plan_clear_of_the_jaws(part, HIGH_SETUP, PlanOptions(by_faces=False))
+    holes = job.parameters["holes"]
+    assert [(round(h["x"]), round(h["y"])) for h in holes["drilled"]] == [(22, 10)]
+    assert [(round(h["x"]), round(h["y"])) for h in holes["left"]] == [(16, 2)]
+    assert [op.kind for op in job.operations[:2]] == ["spot", "drill"]
+
+
+# A 40 mm stock gripped to 2 mm under its top: the ball's walls are taller than its flutes, so the raster
+# without waterline begins with the upper raster, beside the jaws.
+TALL_MIN, TALL_MAX = np.array([0.0, 0.0, -40.0]), np.array([40.0, 60.0, 0.0])
+TALL_SETUP = Setup(stock_min=TALL_MIN, stock_max=TALL_MAX, transform_mesh_to_work=np.eye(4), floor_z=-35.5,
+                   jaws=dataclasses.replace(HIGH_JAWS, jaw_height=73.0).place(TALL_MIN, TALL_MAX))
+TALL_EDGE_PART = trimesh.creation.box(bounds=[[12, 0, -35], [28, 60, -3]])
+
+
+def test_the_upper_raster_beside_the_jaws_keeps_out_of_them():
+    from cadcam.plan import PlanOptions
+
+    job = _plan_clear_of_the_jaws(TALL_EDGE_PART, TALL_SETUP, PlanOptions(by_faces=False, waterline=False))
+    assert "finish raster upper" in [op.name for op in job.operations]
+    assert job.parameters["unreached"]

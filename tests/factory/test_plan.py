@@ -229,11 +229,11 @@ def test_the_tool_table_is_an_output_only_for_a_controller_that_reads_one(tmp_pa
         assert "tool_table" not in dataclasses.replace(fast_request(part), post=post).outputs(tmp_path)
 
 
-def _with_fault(plan, message: str):
-    """``plan`` as if op 1's verify had found a buried finishing tool."""
+def _with_fault(plan, message: str, tool: int = 3):
+    """``plan`` as if op 1's verify had found ``tool`` buried."""
     from cadcam.verify import Fault
 
-    fault = Fault("buried", 3, (10,), 1.2, 1.0, (1.0, 2.0, -3.0), message)
+    fault = Fault("buried", tool, (10,), 1.2, 1.0, (1.0, 2.0, -3.0), message)
     return dataclasses.replace(plan, report=dataclasses.replace(plan.report, faults=(fault,)))
 
 
@@ -276,9 +276,35 @@ def test_only_when_every_re_plan_fails_is_the_failed_plan_returned(block, monkey
 
     monkeypatch.setattr(factory.plan, "_plan_once", always_fails)
     planned = plan_part(dataclasses.replace(fast_request(block, robot=False), ops=1))
-    assert not planned.ok and len(calls) == 1 + len(factory.plan.REPLAN_SCALES)
-    assert calls[1:] == pytest.approx([calls[0] * s for s in factory.plan.REPLAN_SCALES])
-    assert planned.replanned == ("op 1: fault 1", "op 1: fault 2")
+    # the first plan, one per thinner scale, then one without the faulting tool (T3), with the first's cuts
+    assert not planned.ok and len(calls) == 1 + len(factory.plan.REPLAN_SCALES) + 1
+    assert calls[1:-1] == pytest.approx([calls[0] * s for s in factory.plan.REPLAN_SCALES])
+    assert calls[-1] == pytest.approx(calls[0])
+    assert planned.replanned == ("op 1: fault 1", "op 1: fault 2", "op 1: fault 3")
+
+
+def test_when_thinner_cuts_fail_too_the_next_tool_is_tried_before_giving_up(block, monkeypatch, caplog):
+    """A tool whose every plan fails verify (whatever the cuts) is set aside: the planner takes the next
+    tool for its work, and that plan, which passes, is handed over (not exit 3)."""
+    import factory.plan
+
+    real = factory.plan._plan_once
+    asked, used = [], []
+
+    def fails_while_t1_cuts(request, progress=None):
+        asked.append(request.cam)
+        plan = real(request, progress)
+        used.append({t.number for t in plan.planned.job.tools})
+        return _with_fault(plan, "T1 engages 1.2 mm, limit 1 mm", tool=1) if 1 in used[-1] else plan
+
+    monkeypatch.setattr(factory.plan, "_plan_once", fails_while_t1_cuts)
+    with caplog.at_level(logging.WARNING, logger="factory.plan"):
+        planned = plan_part(dataclasses.replace(fast_request(block, robot=False), ops=1))
+    assert 1 in used[0]  # the defaults finish the block's flats and walls with T1: the test is not vacuous
+    assert planned.ok and len(asked) == 1 + len(factory.plan.REPLAN_SCALES) + 1
+    assert [c.set_aside for c in asked] == [()] * (1 + len(factory.plan.REPLAN_SCALES)) + [(1,)]
+    assert 1 not in used[-1] and used[-1] == {t.number for t in planned.planned.job.tools}
+    assert len(planned.replanned) == 3 and "planning again without T1" in caplog.text
 
 
 def test_when_only_op_2_fails_verify_only_op_2_is_planned_again(block, monkeypatch, caplog):

@@ -139,11 +139,13 @@ def test_every_gallery_part_is_a_closed_solid_of_its_stated_kind() -> None:
     assert BY_NAME["boss_on_base"].make().extents[2] >= 60
 
 
-@settings(max_examples=3, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(x=st.floats(24.0, 70.0), y=st.floats(16.0, 60.0), z=st.floats(8.0, 30.0), px=st.floats(0.3, 0.7),
-       py=st.floats(0.3, 0.7), pz=st.floats(0.2, 0.8))
+# The profile (tests/conftest.py) fixes the draws in the suite ("ci") or makes them fresh ("explore").
+@settings(max_examples=3, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(x=st.floats(24.0, 70.0), y=st.floats(12.0, 60.0), z=st.floats(8.0, 70.0), px=st.floats(0.3, 0.85),
+       py=st.floats(0.3, 0.85), pz=st.floats(0.2, 0.8))
 def test_a_random_machinable_block_that_fits_the_vise_plans_and_passes_verify(tmp_path_factory, x, y, z, px, py, pz):
-    """Small blocks with a pocket, tall ones and thin ones: ``factory plan`` never refuses one that fits
+    """Small blocks with a pocket, tall ones (to 70 mm: op 1 and op 2 split the depth) and thin ones (12 mm
+    across, pocket walls to 15 % of the block): ``factory plan`` never refuses one that fits
     the vise (exit 1) and never hands over a program verify fails (exit 3)."""
     from tests.conftest import pocket_block
 
