@@ -34,9 +34,8 @@ _PAIR_BUDGET = 1 << 21
 #: model and verify. Keyed by content, not passed along, because those are five modules' calls.
 _ENVELOPES: OrderedDict[tuple[bytes, Grid], np.ndarray] = OrderedDict()
 _ENVELOPES_LOCK = threading.Lock()
-#: How many envelopes are kept, and the largest grid kept [points] (4 M points: 32 MB).
-_ENVELOPES_KEPT = 6
-_ENVELOPE_KEPT_POINTS = 4_000_000
+#: The most bytes of envelopes kept (the oldest go first); a larger grid than half of it is not kept.
+_ENVELOPES_KEPT_BYTES = 64 << 20
 
 
 @dataclass(frozen=True)
@@ -165,7 +164,7 @@ def upper_envelope(triangles: np.ndarray, grid: Grid) -> np.ndarray:
     (ny, nx) float
         Highest z at each grid point [mm]; ``-inf`` where no triangle covers the point
         (outside the part, inside through holes). Read-only: the same triangles on the same
-        grid give the same array again (the last few are kept, :data:`_ENVELOPES`).
+        grid give the same array again (the last ones are kept, :data:`_ENVELOPES`).
 
     Raises
     ------
@@ -177,7 +176,7 @@ def upper_envelope(triangles: np.ndarray, grid: Grid) -> np.ndarray:
         raise MeshError(f"triangles must have shape (m, 3, 3), got {tri.shape}")
     if not np.all(np.isfinite(tri)):
         raise MeshError("triangles hold non-finite coordinates")
-    if grid.size > _ENVELOPE_KEPT_POINTS:
+    if grid.size * 8 > _ENVELOPES_KEPT_BYTES // 2:
         top = _rasterised(tri, grid)
         top.setflags(write=False)
         return top
@@ -191,7 +190,7 @@ def upper_envelope(triangles: np.ndarray, grid: Grid) -> np.ndarray:
     top.setflags(write=False)
     with _ENVELOPES_LOCK:
         _ENVELOPES[key] = top
-        while len(_ENVELOPES) > _ENVELOPES_KEPT:
+        while sum(a.nbytes for a in _ENVELOPES.values()) > _ENVELOPES_KEPT_BYTES:
             _ENVELOPES.popitem(last=False)
     return top
 

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
-from collections import Counter
-from pathlib import Path
+import hashlib
+from collections import Counter, OrderedDict
 
-import numpy as np
-
+import cadcam.heightmap
 import cadcam.stock
 from cadcam.stock import Simulation, operation_moves
 from factory.plan import PlanRequest, plan_part
@@ -37,3 +36,21 @@ def test_op_1_is_cut_into_each_stock_model_once_in_a_plan(monkeypatch):
     moves = len(operation_moves(plan.planned.job.operations).points) - 1
     for cell, n in op1.items():
         assert n <= moves, f"op 1's {moves} moves cut {n} times into the {cell} mm stock models"
+
+
+def test_a_plan_rasterises_each_part_on_each_grid_once(monkeypatch):
+    # Choosing tools, the stock models, the rapid check, verify, op 2's model and its verify all want
+    # the part's upper envelope, mostly on the same few grids (cadcam.heightmap.upper_envelope).
+    rasterised = cadcam.heightmap._rasterised
+    seen: Counter[tuple[bytes, cadcam.heightmap.Grid]] = Counter()
+
+    def counted(tri, grid):
+        seen[hashlib.sha1(tri.tobytes()).digest(), grid] += 1
+        return rasterised(tri, grid)
+
+    monkeypatch.setattr(cadcam.heightmap, "_ENVELOPES", OrderedDict())  # none kept from earlier tests
+    monkeypatch.setattr(cadcam.heightmap, "_rasterised", counted)
+    plan_part(dataclasses.replace(PlanRequest.defaults(SAMPLES / "bracket.stl", "aluminium"), robot=False))
+    assert len(seen) > 10  # tools, models, op 1, op 2, the holes, verify's sideways looks
+    again = {grid: n for (_, grid), n in seen.items() if n > 1}
+    assert not again, again
