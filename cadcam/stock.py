@@ -263,17 +263,15 @@ def _starting_stock(setup: Setup, grid: Grid, start: FlippedStock | Simulation |
     if start is None:
         top_z = float(setup.stock_max[2])
         return np.full(grid.size, top_z), None, top_z, float(setup.stock_min[2])
+    if start.grid != grid:
+        raise VerifyError(f"the starting stock's grid {start.grid} is not this setup's {grid}", source="stock")
     if isinstance(start, Simulation):
-        if start.grid != grid:
-            raise VerifyError(f"the starting stock's grid {start.grid} is not this setup's {grid}", source="stock")
         stock = np.array(start.stock_top, dtype=np.float64).reshape(-1)
         if start.stock_under is None:  # the setup's block, cut: moves over its top cut nothing, as from the block
             return stock, None, float(setup.stock_max[2]), start.stock_bottom
         under = np.array(start.stock_under, dtype=np.float64).reshape(-1)
         finite = stock[np.isfinite(stock)]
         return stock, under, float(finite.max()) if len(finite) else float(setup.stock_max[2]), start.stock_bottom
-    if start.grid != grid:
-        raise VerifyError(f"the starting stock's grid {start.grid} is not this setup's {grid}", source="stock")
     stock = np.array(start.top, dtype=np.float64).reshape(-1)
     under = np.array(start.bottom, dtype=np.float64).reshape(-1)
     stock[~(stock > under)] = -np.inf  # empty columns hold nothing to cut
