@@ -9,8 +9,11 @@ same points never reports a gouge that is an artefact of the grid.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,6 +28,14 @@ EDGE_TOLERANCE = 1e-7
 
 #: Grid point / triangle pairs evaluated per vectorised batch (bounds peak memory).
 _PAIR_BUDGET = 1 << 21
+
+#: The last upper envelopes computed, by the triangles' content and the grid: one plan rasterises the
+#: same part on the same grid for choosing tools, the stock models, the rapid check, verify and op 2's
+#: model and verify. Keyed by content, not passed along, because those are five modules' calls.
+_ENVELOPES: OrderedDict[tuple[bytes, Grid], np.ndarray] = OrderedDict()
+_ENVELOPES_LOCK = threading.Lock()
+#: The most bytes of envelopes kept (the oldest go first); a larger grid than half of it is not kept.
+_ENVELOPES_KEPT_BYTES = 64 << 20
 
 
 @dataclass(frozen=True)
@@ -152,18 +163,40 @@ def upper_envelope(triangles: np.ndarray, grid: Grid) -> np.ndarray:
     -------
     (ny, nx) float
         Highest z at each grid point [mm]; ``-inf`` where no triangle covers the point
-        (outside the part, inside through holes).
+        (outside the part, inside through holes). Read-only: the same triangles on the same
+        grid give the same array again (the last ones are kept, :data:`_ENVELOPES`).
 
     Raises
     ------
     MeshError
         If ``triangles`` is not ``(m, 3, 3)`` or holds non-finite values.
     """
-    tri = np.asarray(triangles, dtype=np.float64)
+    tri = np.ascontiguousarray(triangles, dtype=np.float64)
     if tri.ndim != 3 or tri.shape[1:] != (3, 3):
         raise MeshError(f"triangles must have shape (m, 3, 3), got {tri.shape}")
     if not np.all(np.isfinite(tri)):
         raise MeshError("triangles hold non-finite coordinates")
+    if grid.size * 8 > _ENVELOPES_KEPT_BYTES // 2:
+        top = _rasterised(tri, grid)
+        top.setflags(write=False)
+        return top
+    key = (hashlib.blake2b(tri.tobytes(), digest_size=20).digest() + str(tri.shape).encode(), grid)
+    with _ENVELOPES_LOCK:
+        kept = _ENVELOPES.get(key)
+        if kept is not None:
+            _ENVELOPES.move_to_end(key)
+            return kept
+    top = _rasterised(tri, grid)
+    top.setflags(write=False)
+    with _ENVELOPES_LOCK:
+        _ENVELOPES[key] = top
+        while sum(a.nbytes for a in _ENVELOPES.values()) > _ENVELOPES_KEPT_BYTES:
+            _ENVELOPES.popitem(last=False)
+    return top
+
+
+def _rasterised(tri: np.ndarray, grid: Grid) -> np.ndarray:
+    """:func:`upper_envelope` of checked triangles, computed: a new (ny, nx) array [mm]."""
     top = np.full(grid.size, -np.inf)
     if len(tri) == 0:
         return top.reshape(grid.shape)

@@ -35,7 +35,8 @@ from cadcam.roughing import RoughingOptions, zlevel_roughing
 from cadcam.shank_clearance import upper_raster
 from cadcam.toolfit import removal_rate, tool_fits
 from cadcam.tools import ToolLibrary
-from cadcam.stock import FlippedStock, Simulation, Unreached, excess, stock_after, stock_after_flipped, unreached
+from cadcam.stock import (FlippedStock, OperationsCut, Simulation, Unreached, excess, stock_after, stock_after_flipped,
+                          unreached)
 from cadcam.workholding import jaw_keepout, within_both
 from factory.core.errors import ToolError
 
@@ -476,6 +477,9 @@ class _Planning:
     #: Where a tool's axis may go clear of the jaws and parallels (:func:`cadcam.workholding.jaw_keepout`,
     #: also inside ``within``): the holes and flats and walls keep to it. None: no tool can reach them.
     keepout: Callable[[float], Any] | None = None
+    #: The last stock model per grid cell [mm] (before a relief's outside is kept): the next model on that
+    #: grid cuts only the operations added since into it (:func:`cadcam.stock.stock_after`).
+    models: dict[float, OperationsCut] = field(default_factory=dict)
 
     @classmethod
     def start(cls, part: trimesh.Trimesh, setup: Setup, library: ToolLibrary, options: PlanOptions,
@@ -523,10 +527,14 @@ class _Planning:
         any cut; a relief's stock outside its boundary kept uncut."""
         cell = _MODEL_CELL if cell is None else cell
         t0 = time.perf_counter()
+        earlier = self.models.get(cell)
         if self.turned_stock is not None:
-            sim = stock_after_flipped(ops, self.setup, self.triangles, self.turned_stock(cell), cell)
+            sim = stock_after_flipped(ops, self.setup, self.triangles, self.turned_stock(cell), cell, earlier)
         else:
-            sim = stock_after(ops, self.setup, self.triangles, cell) if any(len(op.points) > 1 for op in ops) else None
+            sim = (stock_after(ops, self.setup, self.triangles, cell, earlier) if any(len(op.points) > 1 for op in ops)
+                   else None)
+        if sim is not None:
+            self.models[cell] = OperationsCut(tuple(ops), sim)
         if sim is not None and self.boundary is not None:
             sim = keep_outside(sim, self.boundary, self.rough_tool.radius)
         self.seconds.append(("stock model", time.perf_counter() - t0))

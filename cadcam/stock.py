@@ -157,7 +157,7 @@ def cut_stock(
     cell: float,
     *,
     snapshot_moves: Sequence[int] = (),
-    start: FlippedStock | None = None,
+    start: FlippedStock | Simulation | None = None,
     progress: Callable[[int, int], None] | None = None,
     rapid_rim: float = RAPID_RIM,
     engaged_width: float = ENGAGED_WIDTH,
@@ -184,10 +184,13 @@ def cut_stock(
         Indices into ``moves.points``: snapshot ``k`` is the stock once every move up to
         and including the one ending at ``points[snapshot_moves[k]]`` has cut (0: the
         uncut stock). Any order; repeats allowed.
-    start : FlippedStock, optional
+    start : FlippedStock or Simulation, optional
         The stock an earlier operation left, turned over (:func:`flip_stock`), on this setup's
         grid at ``cell``; each column keeps its bottom (``Simulation.stock_under``): a move
-        that cuts a column down to it empties it. None: the setup's stock box.
+        that cuts a column down to it empties it. Or the stock earlier moves of this program left
+        (a :class:`Simulation` of this setup and part at ``cell``): these moves cut on into it,
+        its part top is taken as it is, and the stock they leave is the one cutting all the moves
+        would leave (cuts commute: each grid point keeps the lowest). None: the setup's stock box.
     progress : callable, optional
         ``progress(done, total)`` in moves.
     rapid_rim : float
@@ -213,7 +216,8 @@ def cut_stock(
         raise VerifyError(f"snapshot move indices must lie in 0..{len(moves.points) - 1}", source="snapshot_moves")
     tri = _check_inputs(setup, cell, part_triangles)
     grid = grid_over(setup.stock_min, setup.stock_max, cell)
-    part_top = upper_envelope(tri, grid)
+    # Cutting on from earlier moves: the part was rasterised on this grid then.
+    part_top = start.part_top if isinstance(start, Simulation) and start.grid == grid else upper_envelope(tri, grid)
     if not np.isfinite(part_top).any():
         raise VerifyError("the part does not overlap the stock's footprint", source="part")
     stock, under, top_z, stock_bottom = _starting_stock(setup, grid, start)
@@ -252,7 +256,7 @@ def cut_stock(
     return StockCut(simulation=sim, snapshots=snapshots, segments=seg, met=met, starts=starts, swept=swept)
 
 
-def _starting_stock(setup: Setup, grid: Grid, start: FlippedStock | None
+def _starting_stock(setup: Setup, grid: Grid, start: FlippedStock | Simulation | None
                     ) -> tuple[np.ndarray, np.ndarray | None, float, float]:
     """The stock before the first move, flat on ``grid``: its top and (a flipped stock only) its
     bottom per grid point, its highest top and its lowest bottom [mm]."""
@@ -261,6 +265,13 @@ def _starting_stock(setup: Setup, grid: Grid, start: FlippedStock | None
         return np.full(grid.size, top_z), None, top_z, float(setup.stock_min[2])
     if start.grid != grid:
         raise VerifyError(f"the starting stock's grid {start.grid} is not this setup's {grid}", source="stock")
+    if isinstance(start, Simulation):
+        stock = np.array(start.stock_top, dtype=np.float64).reshape(-1)
+        if start.stock_under is None:  # the setup's block, cut: moves over its top cut nothing, as from the block
+            return stock, None, float(setup.stock_max[2]), start.stock_bottom
+        under = np.array(start.stock_under, dtype=np.float64).reshape(-1)
+        finite = stock[np.isfinite(stock)]
+        return stock, under, float(finite.max()) if len(finite) else float(setup.stock_max[2]), start.stock_bottom
     stock = np.array(start.top, dtype=np.float64).reshape(-1)
     under = np.array(start.bottom, dtype=np.float64).reshape(-1)
     stock[~(stock > under)] = -np.inf  # empty columns hold nothing to cut
@@ -601,18 +612,39 @@ def operation_moves(operations: Sequence[Operation]) -> ProgramMoves:
     return ProgramMoves(points, motion, tool, feed, np.zeros(len(points), dtype=np.int32))
 
 
+@dataclass(frozen=True)
+class OperationsCut:
+    """Operations cut into the stock model (:func:`stock_after`), kept so that the operations planned after
+    them are cut into the stock they left instead of simulating them all again (``earlier`` of :func:`stock_after`).
+
+    Attributes
+    ----------
+    operations : tuple of Operation
+        The operations cut, in order.
+    simulation : Simulation
+        The stock they left (what :func:`stock_after` of them returned).
+    """
+
+    operations: tuple[Operation, ...]
+    simulation: Simulation
+
+
 def stock_after(operations: Sequence[Operation], setup: Setup, part_triangles: np.ndarray,
-                cell: float = 0.5) -> Simulation:
-    """The stock left by ``operations``, on a grid of ``cell`` [mm], for planning later ones."""
-    tools = {op.tool.number: op.tool for op in operations}
-    return cut_stock(operation_moves(operations), tools, setup, part_triangles, cell).simulation
+                cell: float = 0.5, earlier: OperationsCut | None = None) -> Simulation:
+    """The stock left by ``operations``, on a grid of ``cell`` [mm], for planning later ones.
+
+    ``earlier``: the stock the first of ``operations`` left, on this grid, of this setup and part: only
+    the operations after them (and the rapid to the first of them) are cut, into that stock. The result
+    is the same to the bit as cutting every operation (each grid point keeps its lowest cut)."""
+    return _stock_after(operations, setup, part_triangles, cell, None, earlier)
 
 
 def stock_after_flipped(operations: Sequence[Operation], setup: Setup, part_triangles: np.ndarray, start: FlippedStock,
-                        cell: float) -> Simulation:
+                        cell: float, earlier: OperationsCut | None = None) -> Simulation:
     """:func:`stock_after` from ``start``, the stock an earlier setup left turned over (:func:`flip_stock`):
     op 2's stock for planning its later operations. ``cell`` [mm] must be the one ``start`` was made on;
-    operations of a single point cut nothing and are left out."""
+    operations of a single point cut nothing and are left out. ``earlier``: as :func:`stock_after`'s,
+    from the same ``start``."""
     cutting = [op for op in operations if len(op.points) > 1]
     if not cutting:
         grid = start.grid
@@ -620,8 +652,34 @@ def stock_after_flipped(operations: Sequence[Operation], setup: Setup, part_tria
         lowest = float(start.bottom[present].min()) if present.any() else float(setup.stock_min[2])
         return Simulation(grid=grid, stock_top=start.top, part_top=upper_envelope(part_triangles, grid),
                           stock_bottom=lowest, stock_under=start.bottom)
-    tools = {op.tool.number: op.tool for op in cutting}
-    return cut_stock(operation_moves(cutting), tools, setup, part_triangles, cell, start=start).simulation
+    if earlier is not None:  # the operations it cut, as this list holds them
+        earlier = OperationsCut(tuple(op for op in earlier.operations if len(op.points) > 1), earlier.simulation)
+    return _stock_after(cutting, setup, part_triangles, cell, start, earlier)
+
+
+def _stock_after(operations: Sequence[Operation], setup: Setup, part_triangles: np.ndarray, cell: float,
+                 start: FlippedStock | None, earlier: OperationsCut | None) -> Simulation:
+    """:func:`stock_after` (from ``start`` when given): cut on from ``earlier`` when it holds the first of
+    ``operations`` (the same objects, with the same tools) on this grid, else every operation from the start."""
+    tools = {op.tool.number: op.tool for op in operations}
+    moves = operation_moves(operations)
+    done = () if earlier is None else earlier.operations
+    first = sum(len(op.points) for op in done)  # points of the operations already cut
+    if (earlier is None or first == 0 or len(done) > len(operations) or earlier.simulation.grid.cell != cell
+            or any(a is not b or tools[a.tool.number] is not a.tool for a, b in zip(done, operations))):
+        return cut_stock(moves, tools, setup, part_triangles, cell, start=start).simulation
+    if len(done) == len(operations):
+        return earlier.simulation
+    # The moves from the last point already cut: the rapid to the next operation is the first one cut.
+    rest = ProgramMoves(moves.points[first - 1:], moves.motion[first - 1:], moves.tool[first - 1:],
+                        moves.feed[first - 1:], moves.line[first - 1:])
+    sim = cut_stock(rest, tools, setup, part_triangles, cell, start=earlier.simulation).simulation
+    before = earlier.simulation.removed_volume
+    if before is None:
+        return dataclasses.replace(sim, removed_volume=None)
+    volume = np.concatenate([before, sim.removed_volume[1:]])
+    volume.setflags(write=False)
+    return dataclasses.replace(sim, removed_volume=volume)
 
 
 def clear_height(sim: Simulation, tool: Tool, xy: np.ndarray, within: float | None = None) -> np.ndarray:
