@@ -75,9 +75,14 @@ def plan(path: Path, body: int | None, out: Path) -> dict:
         errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
         return {**row, "refused": errors[-1] if errors else done.stderr.strip()[-300:], "operations": []}
     doc = json.loads(summary.read_text())
-    ops = [f"op {s['op']}: {o['name']} (T{o['tool']})" for s in doc["setups"] for o in s.get("operations", [])] \
-        or [f"op 1: {o['name']} (T{o['tool']})" for o in doc["operations"]]
-    return {**row, "load_s": doc["seconds"].get("load"), "verify_ok": doc["verify"].get("ok"), "operations": ops}
+    return {**row, "load_s": doc["seconds"].get("load"), "verify_ok": doc["verify"].get("ok"),
+            "operations": operations(doc)}
+
+
+def operations(doc: dict) -> list[str]:
+    """A plan summary's operations as ``"op N: name (T#)"``: op 1's, then op 2's (its setup entry lists them)."""
+    ops = [f"op 1: {o['name']} (T{o['tool']})" for o in doc["operations"]]
+    return ops + [f"op {s['op']}: {o['name']} (T{o['tool']})" for s in doc["setups"][1:] for o in s.get("operations", [])]
 
 
 def plan_both(path: Path, body: int | None, out: Path) -> dict:
