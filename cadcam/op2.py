@@ -137,6 +137,53 @@ def op2_jaws(jaws: ViseJaws, setup: Setup, part: trimesh.Trimesh, face_z: float)
     return held.place(np.array([setup.stock_min[0], lo[1], lo[2]]), np.array([setup.stock_max[0], hi[1], face_z]))
 
 
+#: A face looks up in op 2 (down in op 1, so op 1's tools never cut it) when its normal's Z is over this [1].
+_LOOKS_UP = 0.05
+
+
+def check_op2_grip(part_work: trimesh.Trimesh, setup: Setup, jaws: ViseJaws, library: ToolLibrary) -> None:
+    """Refuse, before any toolpath, a part whose op 2 must cut faces where the vise holds it.
+
+    Op 1 cuts from above, so a face looking down (an undercut, a thread's flank, the cone under
+    a countersunk head) is op 2's. Turned over, the part is held by its Y faces at its old top
+    (:func:`op2_jaws`); a face op 2 must cut below the jaws' top, closer to a jaw than the radius
+    of the library's narrowest end mill, cannot be cut without the tool running into that jaw.
+    Verify finds it only after all the CAM work (the public M6 countersunk screw: 8 minutes).
+
+    ``part_work``: the part in op-1 work coordinates [mm]; ``setup``: op 1's; ``jaws``: the
+    cell's vise [mm].
+
+    Raises
+    ------
+    SetupError
+        Such faces: how deep the jaws grip, where the faces are (op-1 Z and Y), the tool; the fixes.
+    """
+    mills = [t for t in library.tools if t.shape in ("flat", "bull") and not t.is_drill]
+    if not mills or not len(part_work.faces):
+        return
+    narrowest = min(mills, key=lambda t: t.diameter)
+    op2 = op2_setup(setup)
+    part = flip_part(part_work, setup)
+    face_z = float(part.bounds[1][2])
+    held = [b for b in op2_jaws(jaws, op2, part, face_z) if b.name != "parallels"]
+    jaw_top = max(float(b.hi[2]) for b in held)
+    lo, hi = np.asarray(part.bounds, dtype=np.float64)
+    centre, normal = np.asarray(part.triangles_center), np.asarray(part.face_normals)
+    to_jaw = np.minimum(centre[:, 1] - lo[1], hi[1] - centre[:, 1])
+    clash = (normal[:, 2] > _LOOKS_UP) & (centre[:, 2] < min(jaw_top, face_z - 1e-6)) & (to_jaw < narrowest.radius)
+    if not clash.any():
+        return
+    flip = flip_transform(setup)  # its own inverse: op-2 points back to op 1's
+    z1 = centre[clash] @ flip[2, :3] + flip[2, 3]
+    worst = int(np.argmin(to_jaw[clash]))
+    y1 = float(centre[clash][worst] @ flip[1, :3] + flip[1, 3])
+    raise SetupError(f"op 2 holds the turned-over part {jaw_top - lo[2]:.1f} mm deep in the jaws, where it must cut "
+                     f"faces op 1 cannot see from above (Z{z1.min():.2f} to Z{z1.max():.2f} in op 1, "
+                     f"{float(to_jaw[clash][worst]):.2f} mm from a jaw at Y{y1:.2f}, closer than the "
+                     f"{narrowest.diameter:g} mm end mill's radius): plan op 1 only (--ops 1) and leave them, or give "
+                     "a --cell whose soft jaws grip it less deep")
+
+
 def flip_part(part_work: trimesh.Trimesh, setup: Setup) -> trimesh.Trimesh:
     """The part in op-1 work coordinates, turned over into op 2's (a new mesh)."""
     out = part_work.copy()

@@ -12,7 +12,12 @@ flat faces at their exact Z, and inside corner radii.
 * **Tessellation**: the chordal deviation is :data:`CHORD_SHARE` of the CAM tolerance (the
   gouge tolerance ``factory verify`` judges by, 0.01 mm by default, so 0.0025 mm): a tool of a
   hole's exact size then cuts at most that far into the tessellated wall, well inside what
-  verify accepts.
+  verify accepts. The triangle count is bounded before the fine mesh is made: the part is
+  meshed first at the whole tolerance (cheap), the count at the finer deviation estimated
+  from it, and a part that would exceed :data:`MAX_TRIANGLES` (the public 11752.stp: 748k
+  triangles, 473 s to read) is tessellated coarser, never past the CAM tolerance, and says so
+  (:class:`Coarsened`); one that exceeds :data:`REFUSE_TRIANGLES` even at the whole tolerance is
+  refused in one line.
 * **Bodies**: a file with several solids is refused, naming each with its size, unless
   ``body`` picks one; a file with no solid, only surfaces, gives its faces as an open
   surface (the relief path, :mod:`cadcam.relief`); a file with neither is refused.
@@ -57,6 +62,15 @@ CHORD_SHARE = 0.25
 ANGULAR_DEFLECTION = 0.5
 #: The CAM tolerance without one given: ``factory verify``'s default gouge tolerance [mm].
 CAM_TOLERANCE = 0.01
+#: Triangles a STEP part is tessellated to at most before its chordal deviation grows (up to the
+#: CAM tolerance): reading, planning and verifying grow with them [1].
+MAX_TRIANGLES = 250_000
+#: Triangles at the whole CAM tolerance past which a STEP part is refused: no coarsening the
+#: tolerance allows brings it within bounded time and memory [1].
+REFUSE_TRIANGLES = 1_000_000
+#: How a B-rep's triangle count grows as the chordal deviation shrinks: about as its -0.8th power
+#: (11752.stp: 93,760, 247,512 and 748,408 triangles at 0.04, 0.01 and 0.0025 mm) [1].
+COUNT_EXPONENT = 0.8
 
 #: Factor from the length units a STEP file may declare (as OpenCASCADE names them) to mm.
 _UNITS_MM: dict[str, float] = {
@@ -91,6 +105,29 @@ class StepSolid:
 
 
 @dataclass(frozen=True)
+class Coarsened:
+    """A tessellation made coarser than the tolerance asked for, to stay within :data:`MAX_TRIANGLES`.
+
+    ``asked``: the chordal deviation the CAM tolerance asks for [mm]; ``estimate``: the triangles
+    it would give, estimated from the mesh at the whole tolerance; ``taken``: the deviation used
+    [mm]; ``triangles``: what that gave; ``limit``: :data:`MAX_TRIANGLES` at the time."""
+
+    asked: float
+    estimate: int
+    taken: float
+    triangles: int
+    limit: int
+
+    def describe(self) -> str:
+        return (f"tessellated to {self.taken:.4g} mm, not {self.asked:.4g} mm: about {self.estimate:,} triangles "
+                f"there, more than the {self.limit:,} planned in bounded time ({self.triangles:,} taken)")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"asked_mm": self.asked, "estimate": self.estimate, "taken_mm": self.taken,
+                "triangles": self.triangles, "limit": self.limit, "said": self.describe()}
+
+
+@dataclass(frozen=True)
 class StepPart:
     """A STEP file read, tessellated and recognised.
 
@@ -119,6 +156,8 @@ class StepPart:
         True: a solid; False: only surfaces (machined from above as a relief).
     features : PartFeatures
         What was recognised on the exact B-rep (nothing for surfaces).
+    coarsened : Coarsened or None
+        Set when the part was tessellated coarser than :data:`CHORD_SHARE` of ``tolerance``.
     """
 
     vertices: np.ndarray
@@ -132,6 +171,7 @@ class StepPart:
     body: int | None
     closed: bool
     features: PartFeatures = field(default_factory=PartFeatures)
+    coarsened: Coarsened | None = None
 
     @property
     def units(self) -> str | None:
@@ -149,13 +189,16 @@ class StepPart:
         """The intake's figures and features for the plan summary."""
         return {"format": "step", "unit": self.unit, "units": self.units, "scale": self.scale,
                 "tolerance_mm": self.tolerance,
-                "chordal_deviation_mm": self.chordal_deviation, "chord_share": CHORD_SHARE,
+                "chordal_deviation_mm": self.chordal_deviation,
+                "chord_share": round(self.chordal_deviation / self.tolerance, 6),
+                "coarsened": None if self.coarsened is None else self.coarsened.to_dict(),
                 "brep_faces": self.brep_faces, "triangles": int(len(self.faces)),
                 "solids": [s.describe() for s in self.solids], "body": self.body, "closed": self.closed,
                 "features": self.features.to_dict()}
 
 
-def read_step(path: str | Path, tolerance: float = CAM_TOLERANCE, body: int | None = None) -> StepPart:
+def read_step(path: str | Path, tolerance: float = CAM_TOLERANCE, body: int | None = None, *,
+              max_triangles: int = MAX_TRIANGLES, refuse_triangles: int = REFUSE_TRIANGLES) -> StepPart:
     """Read a STEP file, choose its solid, tessellate it to ``CHORD_SHARE * tolerance`` and recognise its features.
 
     Parameters
@@ -166,13 +209,16 @@ def read_step(path: str | Path, tolerance: float = CAM_TOLERANCE, body: int | No
         The CAM tolerance [mm]; the tessellation deviates at most :data:`CHORD_SHARE` of it.
     body : int, optional
         The solid to take (1-based) when the file has several.
+    max_triangles, refuse_triangles : int
+        The tessellation's bounds (:data:`MAX_TRIANGLES`, :data:`REFUSE_TRIANGLES`).
 
     Raises
     ------
     MeshError
         With ``source=path``: not a STEP file (an IGES file named ``.step`` says so), damaged or
         truncated, no geometry, several solids and no ``body`` (lists them with their sizes), a
-        ``body`` the file does not have, a tolerance that is not positive.
+        ``body`` the file does not have, a tolerance that is not positive, more than
+        ``refuse_triangles`` triangles even at the whole tolerance.
     """
     path = Path(path)
     if not tolerance > 0:
@@ -219,14 +265,15 @@ def read_step(path: str | Path, tolerance: float = CAM_TOLERANCE, body: int | No
     faces = _shapes(taken, TopAbs_FACE)
     if not faces:
         raise MeshError("STEP file holds no geometry: no solid and no surface", source=path)
-    chord = chordal_deviation(tolerance)
-    vertices, triangles = _tessellate(taken, faces, chord)
+    chord, coarsened = _bounded_mesh(taken, faces, float(tolerance), max_triangles, refuse_triangles, path)
+    vertices, triangles = _tessellate(faces)
     if not len(triangles):
         raise MeshError("STEP file's faces tessellate to no triangles", source=path)
     features = recognise(taken, faces, vertices, triangles, chord) if solids else PartFeatures()
     return StepPart(vertices=vertices, faces=triangles, unit=unit, scale=_UNITS_MM[unit], chordal_deviation=chord,
                     tolerance=float(tolerance), brep_faces=len(faces), solids=listed,
-                    body=body if len(solids) > 1 else None, closed=bool(solids), features=features)
+                    body=body if len(solids) > 1 else None, closed=bool(solids), features=features,
+                    coarsened=coarsened)
 
 
 def _check_frame(data: bytes, path: Path) -> None:
@@ -299,15 +346,75 @@ def _box_size(shape) -> tuple[float, float, float]:
     return (hi.X() - lo.X(), hi.Y() - lo.Y(), hi.Z() - lo.Z())
 
 
-def _tessellate(shape, faces: list, chord: float) -> tuple[np.ndarray, np.ndarray]:
-    """Mesh ``shape`` to chordal deviation ``chord`` [mm]: nodes (n, 3) [mm] and triangles (m, 3)."""
-    from OCP.BRep import BRep_Tool
+def _mesh(shape, chord: float) -> None:
+    """Mesh ``shape`` afresh to chordal deviation ``chord`` [mm]; OpenCASCADE keeps the mesh on its faces."""
     from OCP.BRepMesh import BRepMesh_IncrementalMesh
+    from OCP.BRepTools import BRepTools
+
+    BRepTools.Clean_s(shape)  # a mesh already there, coarser or finer, would be kept
+    BRepMesh_IncrementalMesh(shape, chord, False, ANGULAR_DEFLECTION, True)
+
+
+def _triangle_count(faces: list) -> int:
+    """Triangles of the faces' current meshes."""
+    from OCP.BRep import BRep_Tool
+    from OCP.TopLoc import TopLoc_Location
+    from OCP.TopoDS import TopoDS
+
+    meshes = (BRep_Tool.Triangulation_s(TopoDS.Face(f), TopLoc_Location()) for f in faces)
+    return sum(m.NbTriangles() for m in meshes if m is not None)
+
+
+def _bounded_mesh(shape, faces: list, tolerance: float, limit: int, refuse: int,
+                  path: Path) -> tuple[float, Coarsened | None]:
+    """Mesh ``shape`` to :data:`CHORD_SHARE` of ``tolerance`` [mm], or coarser (up to ``tolerance``)
+    when that would give more than ``limit`` triangles; the chordal deviation taken [mm], and how
+    it was coarsened (None: not).
+
+    The count is estimated before the fine mesh is made, from a mesh at the whole tolerance (a
+    few seconds on 11752.stp, where the fine mesh alone takes 20 s and reading its triangles
+    minutes) and :data:`COUNT_EXPONENT`; each coarser try aims where the last count says.
+
+    Raises
+    ------
+    MeshError
+        More than ``refuse`` triangles even at the whole tolerance (the figures and the fix).
+    """
+    asked = chordal_deviation(tolerance)
+    _mesh(shape, tolerance)
+    coarse = _triangle_count(faces)
+    if coarse > refuse:
+        raise MeshError(f"{len(faces)} B-rep faces tessellate to {coarse:,} triangles even at the whole CAM "
+                        f"tolerance of {tolerance:g} mm, more than the {refuse:,} factory plans in bounded time and "
+                        "memory: machine a simpler model (threads, lettering and fine fillets removed) or one solid "
+                        "of it", source=path)
+    estimate = round(coarse * (tolerance / asked) ** COUNT_EXPONENT)
+    chord, count = tolerance, coarse
+    want = asked if estimate <= limit else min(tolerance, asked * (estimate / limit) ** (1 / COUNT_EXPONENT))
+    while want < tolerance:
+        _mesh(shape, want)
+        chord, count = want, _triangle_count(faces)
+        if count <= limit:
+            break
+        want = min(tolerance, want * (count / limit) ** (1 / COUNT_EXPONENT) * 1.05)  # 5 % more each try
+    else:
+        if chord != tolerance:  # every finer try was too many: the whole tolerance, already counted
+            _mesh(shape, tolerance)
+            chord, count = tolerance, coarse
+    if chord <= asked:
+        return chord, None
+    coarsened = Coarsened(asked=asked, estimate=estimate, taken=chord, triangles=count, limit=limit)
+    log.warning("%s: %s", path, coarsened.describe())
+    return chord, coarsened
+
+
+def _tessellate(faces: list) -> tuple[np.ndarray, np.ndarray]:
+    """The faces' meshes (:func:`_bounded_mesh`): nodes (n, 3) [mm] and triangles (m, 3)."""
+    from OCP.BRep import BRep_Tool
     from OCP.TopAbs import TopAbs_REVERSED
     from OCP.TopLoc import TopLoc_Location
     from OCP.TopoDS import TopoDS
 
-    BRepMesh_IncrementalMesh(shape, chord, False, ANGULAR_DEFLECTION, True)
     nodes, tris = [], []
     base = 0
     for f in faces:

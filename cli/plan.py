@@ -65,6 +65,8 @@ def plan(
             stderr.print(f"{part.name}: STEP in {got['units'] or got['unit']}, {got['brep_faces']} B-rep faces tessellated to "
                          f"{got['triangles']} triangles within {got['chordal_deviation_mm']:g} mm; "
                          f"{len(got['features']['holes'])} round holes read exactly", highlight=False, markup=False)
+            if got.get("coarsened"):  # more triangles than planned in bounded time at the share asked
+                stderr.print(f"{part.name}: {got['coarsened']['said']}", highlight=False, markup=False)
         holes = summary["holes"]
         if holes.get("holes"):
             stderr.print(f"{part.name}: {len(holes['holes'])} round holes, {len(holes['drilled'])} drilled, "

@@ -49,7 +49,7 @@ from factory.catalog import catalog_record, sha256_file
 from factory.core.errors import FactoryError, PlanningError, SetupError, shown
 from factory.mcaplog import McapLog
 from factory.pictures import png_bytes
-from factory.refusals import check_request, check_setup
+from factory.refusals import check_op2_grip, check_request, check_setup
 from factory.core.progress import Progress, Stopwatch
 from factory.core.resources import FIXTURES
 from factory.core.setupsheet import SetupSheet
@@ -495,9 +495,13 @@ def _plan_once(request: PlanRequest, progress: Progress | None = None) -> PartPl
     robot_cell = req.cell if req.robot else None
     check_request(robot_cell, req.lang)  # the cell, its robot and the program language
     watch = Stopwatch(progress)  # every stage shows, the robot's planning too
-    planned = compute_job(req.cam, progress, watch,
-                          check_setup=lambda setup, part_work: check_setup(setup, req.grid, req.cam.part, robot_cell,
-                                                                            part_work, req.cam.units, req.cam.tools))
+    jaws = req.cam.jaws() if req.ops != 1 else None  # op 2 will hold the part turned over in them
+
+    def refuse_early(setup: Setup, part_work: trimesh.Trimesh | None) -> None:
+        check_setup(setup, req.grid, req.cam.part, robot_cell, part_work, req.cam.units, req.cam.tools)
+        check_op2_grip(setup, part_work, jaws, req.cam.part, req.cam.tools)
+
+    planned = compute_job(req.cam, progress, watch, check_setup=refuse_early)
     job = planned.job
     asked_ops = req.ops
     if req.ops is None:  # a relief stays in its block, right way up, unless asked

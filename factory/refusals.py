@@ -16,10 +16,11 @@ import numpy as np
 import trimesh
 
 from cadcam.mesh import inch_hint
-from cadcam.model import Setup
+from cadcam.model import Setup, ViseJaws
+from cadcam.op2 import check_op2_grip as check_grip
 from cadcam.stock import check_grid_size
 from cadcam.tools import MaterialData, load_tool_library
-from factory.core.errors import CellError, PlanningError
+from factory.core.errors import CellError, PlanningError, SetupError
 from factory.core.resources import FIXTURES
 from factory.core.units import MM_PER_M
 from robotprog.cell import Cell, load_cell
@@ -95,6 +96,25 @@ def check_setup(setup: Setup, grid: float, part: Path, cell_path: Path | None,
     except PlanningError as e:
         hint = inch_hint(float(size.max()), units, setup.mesh_scale)
         raise PlanningError(f"{e.message}; {hint}" if hint else e.message, source=str(part)) from None
+
+
+def check_op2_grip(setup: Setup, part_work: trimesh.Trimesh | None, jaws: ViseJaws | None, part: Path,
+                   tools: Path | None = None) -> None:
+    """Refuse, before any toolpath, a part op 2 would have to cut where its jaws hold it
+    (:func:`cadcam.op2.check_op2_grip`). Nothing is checked without op 2's vise (``jaws`` None:
+    no cell, or op 1 only) or for a relief (``part_work`` None: it stays in its block).
+
+    Raises
+    ------
+    SetupError
+        With the figures and the fixes, ``source`` the part file.
+    """
+    if jaws is None or part_work is None:
+        return
+    try:
+        check_grip(part_work, setup, jaws, load_tool_library(tools))
+    except SetupError as e:
+        raise SetupError(e.message, source=str(part)) from None
 
 
 def check_stock_mass(setup: Setup, cell: Cell, material: MaterialData, cell_path: Path) -> None:

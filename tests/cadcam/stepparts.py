@@ -99,6 +99,16 @@ def two_solids():
     return Compound([a, b])
 
 
+def countersunk_head(shank: float = 6.0, length: float = 10.0, head: float = 12.0):
+    """A countersunk screw's blank, thread left out: a ``shank`` mm cylinder ``length`` mm long under a 90 deg cone
+    widening to ``head`` mm at the top face (Z = 0): the cone looks down, so only op 2 cuts it, where its jaws hold it."""
+    from build123d import Align, Cone, Cylinder, Pos
+
+    sink = (head - shank) / 2  # the 90 deg cone's height [mm]
+    cone = Cone(shank / 2, head / 2, sink, align=(Align.CENTER, Align.CENTER, Align.MAX))
+    return cone + Pos(0, 0, -sink) * Cylinder(shank / 2, length, align=(Align.CENTER, Align.CENTER, Align.MAX))
+
+
 def inclined_hole(diameter: float = 6.0, tilt_deg: float = 30.0):
     """A 60 x 40 x 20 mm block with a through hole tilted ``tilt_deg`` from Z towards +Y, through its centre."""
     from build123d import Align, Box, Cylinder, Rot

@@ -19,7 +19,7 @@ from cadcam.drilling import DrillingOptions, plan_holes  # noqa: E402
 from cadcam.mesh import load_part  # noqa: E402
 from cadcam.plan import PlanOptions, choose_tools  # noqa: E402
 from cadcam.setup import make_setup  # noqa: E402
-from cadcam.step import CAM_TOLERANCE, CHORD_SHARE, chordal_deviation  # noqa: E402
+from cadcam.step import CAM_TOLERANCE, CHORD_SHARE, chordal_deviation, read_step  # noqa: E402
 from cadcam.tools import load_tool_library  # noqa: E402
 from cadcam.verify import VerifyOptions  # noqa: E402
 from factory.core.errors import FactoryError, MeshError  # noqa: E402
@@ -85,6 +85,47 @@ def test_a_finer_tolerance_tessellates_finer(tmp_path):
     assert len(fine.mesh.faces) > len(coarse.mesh.faces)
     # the exact hole does not depend on the tessellation
     assert coarse.step.features.holes == fine.step.features.holes
+
+
+def _six_holes(tmp_path):
+    holes = [ModelledHole(x, y, 6.0, None) for x in (-15, 0, 15) for y in (-8, 8)]
+    return write_step(plate((60, 40, 10), holes), tmp_path / "six.step")
+
+
+def test_a_part_past_the_triangle_bound_is_tessellated_coarser_and_says_so(tmp_path, caplog):
+    path = _six_holes(tmp_path)
+    free = read_step(path)
+    at_tolerance = read_step(path, tolerance=CAM_TOLERANCE / CHORD_SHARE)  # meshed to the whole 0.01 mm
+    assert free.coarsened is None and free.chordal_deviation == chordal_deviation(CAM_TOLERANCE)
+    assert len(at_tolerance.faces) < len(free.faces)
+    limit = (len(free.faces) + len(at_tolerance.faces)) // 2  # trips the bound, within reach of the tolerance
+    bounded = read_step(path, max_triangles=limit)
+    got = bounded.coarsened
+    assert got is not None and len(bounded.faces) <= limit and got.triangles == len(bounded.faces)
+    assert free.chordal_deviation == got.asked < bounded.chordal_deviation == got.taken <= CAM_TOLERANCE
+    assert got.estimate > limit  # estimated before the fine mesh, from the mesh at the whole tolerance
+    assert bounded.features == free.features  # the exact features do not depend on the tessellation
+    summary = bounded.to_dict()  # the plan summary's intake
+    assert summary["chordal_deviation_mm"] == got.taken and summary["coarsened"]["limit"] == limit
+    assert f"not {got.asked:.4g} mm" in summary["coarsened"]["said"] and f"{limit:,} planned" in caplog.text
+    # a bound the whole tolerance cannot meet either: the whole tolerance, said
+    least = read_step(path, max_triangles=len(at_tolerance.faces) - 1)
+    assert least.chordal_deviation == CAM_TOLERANCE and len(least.faces) == len(at_tolerance.faces)
+
+
+def test_a_part_past_the_refusal_bound_is_refused_in_one_line_before_the_fine_mesh(tmp_path, monkeypatch):
+    import cadcam.step
+
+    path = _six_holes(tmp_path)
+    meshed = []
+    real = cadcam.step._mesh
+    monkeypatch.setattr(cadcam.step, "_mesh", lambda shape, chord: (meshed.append(chord), real(shape, chord)))
+    with pytest.raises(MeshError) as e:
+        read_step(path, refuse_triangles=100)
+    text = _one_line(e.value, path)
+    assert "triangles even at the whole CAM tolerance of 0.01 mm, more than the 100 factory plans" in text
+    assert "machine a simpler model" in text
+    assert meshed == [CAM_TOLERANCE]  # refused from the coarse mesh alone
 
 
 def test_inch_part_takes_its_unit_from_the_file(tmp_path):

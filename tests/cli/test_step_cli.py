@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 pytest.importorskip("build123d")
 
 from cli.main import app  # noqa: E402
-from tests.cadcam.stepparts import (ModelledHole, pillow_surface, plate, two_solids, write_step,  # noqa: E402
+from tests.cadcam.stepparts import (ModelledHole, countersunk_head, pillow_surface, plate, two_solids, write_step,  # noqa: E402
                                     write_stl)
 from tests.cli.expect import assert_one_line_error  # noqa: E402
 from tests.rs274 import run_rs274  # noqa: E402
@@ -171,3 +171,20 @@ def test_a_step_part_is_read_again_as_its_sheet_says(tmp_path):
     assert load_planned_part(path, 10.0, intake, tolerance=0.0).step.chordal_deviation == pytest.approx(0.0025)
     with pytest.raises(SetupError, match="CENTIMETRE .*mesh_scale is 1: not the part the program was made for"):
         load_planned_part(path, 1.0, intake, source="two.setup.json")
+
+
+def test_a_part_op_2_must_cut_in_its_jaws_is_refused_before_any_toolpath(tmp_path, monkeypatch):
+    """The public M6 countersunk screw was refused by verify (T1 runs into the back jaw) after 8 minutes of CAM work:
+    the cone under its head looks down, and turned over for op 2 the jaws hold the head."""
+    import factory.cam
+
+    def no_toolpaths(*args, **kwargs):
+        raise AssertionError("toolpaths were computed before the refusal")
+
+    monkeypatch.setattr(factory.cam, "plan_job", no_toolpaths)
+    path = write_step(countersunk_head(), tmp_path / "screw.step")
+    r = run("plan", path, "-o", tmp_path / "out")
+    assert_one_line_error(r, "screw.step: op 2 holds the turned-over part", "mm deep in the jaws",
+                          "in op 1, 0.17 mm from a jaw at Y", "closer than the 2 mm end mill's radius",
+                          "plan op 1 only (--ops 1)", code=r.exit_code or 1)
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
