@@ -424,15 +424,20 @@ def test_joint_states_are_written_as_rosbags_writes_them(names, frame_id, stamp_
     assert serialize_cdr(msg, msg.__msgtype__) == bytes(TYPESTORE.serialize_cdr(msg, msg.__msgtype__))
 
 
+def _random_links(n: int, seed: int) -> np.ndarray:
+    """(n, 4, 4) random link poses [m]: rotations and offsets drawn from ``seed``."""
+    m = np.tile(np.eye(4), (n, 1, 1))
+    if n:
+        m[:, :3, :3] = Rotation.random(n, random_state=seed).as_matrix()
+        m[:, :3, 3] = np.random.default_rng(seed).normal(size=(n, 3))
+    return m
+
+
 @given(st.lists(_NAMES, max_size=6), _NAMES, st.integers(0, 2**31 * 10**9 - 1), st.integers(0, 2**32 - 1))
 @settings(max_examples=60, deadline=None)
 def test_link_transforms_are_written_as_rosbags_writes_them(children, parent, stamp_ns, seed):
     """The links' /tf CDR, written directly, is rosbags' byte for byte, and reads back as written."""
-    rng = np.random.default_rng(seed)
-    m = np.tile(np.eye(4), (len(children), 1, 1))
-    if children:
-        m[:, :3, :3] = Rotation.random(len(children), random_state=seed).as_matrix()
-        m[:, :3, 3] = rng.normal(size=(len(children), 3))
+    m = _random_links(len(children), seed)
     msg = tf_message(transforms_stamped(parent, children, m, stamp_ns))
     data = serialize_cdr(msg, msg.__msgtype__)
     assert data == bytes(TYPESTORE.serialize_cdr(msg, msg.__msgtype__))
@@ -458,11 +463,7 @@ def test_joint_states_from_their_template_are_the_messages_bytes(names, stamp_ns
 def test_link_transforms_from_their_template_are_the_messages_bytes(children, parent, stamp_ns, seed):
     """The links' /tf packed into their fixed layout (no message objects) are the bytes of
     :func:`transforms_stamped`'s message serialised by rosbags, quaternion signs included."""
-    rng = np.random.default_rng(seed)
-    m = np.tile(np.eye(4), (len(children), 1, 1))
-    if children:
-        m[:, :3, :3] = Rotation.random(len(children), random_state=seed).as_matrix()
-        m[:, :3, 3] = rng.normal(size=(len(children), 3))
+    m = _random_links(len(children), seed)
     msg = tf_message(transforms_stamped(parent, children, m, stamp_ns))
     expected = bytes(TYPESTORE.serialize_cdr(msg, msg.__msgtype__))
     assert TfCdr(parent, children).cdr(stamp_ns, transform_values(m)) == expected
