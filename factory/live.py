@@ -53,8 +53,8 @@ class Fanout:
         so (:meth:`factory.mcaplog.McapLog.write_cdr`); the others get the message ``make()`` builds."""
         msg = None
         for sink in self.sinks:
-            if hasattr(sink, "write_cdr"):
-                sink.write_cdr(topic, typename, data, log_time_ns, latched=latched)
+            if hasattr(sink, "write_cdr"):  # a log, or a fanout of its own: it passes ``make`` on
+                sink.write_cdr(topic, typename, data, log_time_ns, make, latched=latched)
             else:
                 msg = make() if msg is None else msg
                 sink.write(topic, msg, log_time_ns, latched=latched)
