@@ -58,18 +58,22 @@ def located(station, condition, part, seed):
         return scene, []
 
 
-@pytest.mark.parametrize("condition, part, seed", PICTURES)
-def test_located_within_bounds_and_its_own_uncertainty(station, condition, part, seed):
-    scene, found = located(station, condition, part, seed)
-    # One part on the tray, so one pose (the box beside it is not the part).
+def _found_within_its_uncertainty(scene, found):
+    """The one pose found (the box beside the part is not the part), within the bounds and within the
+    uncertainty it reports: the reported uncertainty is honest."""
     assert len(found) == 1
     p = found[0]
     error = np.hypot(p.x - scene.x, p.y - scene.y)
     turn = yaw_error(p.yaw, scene.yaw, scene.symmetry)
     assert error <= FOUND_M and turn <= FOUND_RAD, (error, np.degrees(turn))
-    # The reported uncertainty is honest: the true error is within it ...
     assert error <= p.sigma_xy and turn <= p.sigma_yaw, (error, p.sigma_xy, turn, p.sigma_yaw)
-    # ... and not a blanket: about a pixel.
+    return p
+
+
+@pytest.mark.parametrize("condition, part, seed", PICTURES)
+def test_located_within_bounds_and_its_own_uncertainty(station, condition, part, seed):
+    p = _found_within_its_uncertainty(*located(station, condition, part, seed))
+    # ... and the uncertainty is not a blanket: about a pixel.
     assert p.sigma_xy < 1.5 * p.mm_per_px * 1e-3
 
 
@@ -83,13 +87,7 @@ def test_under_glare_no_pose_rather_than_a_wrong_one(station, condition, part, s
 
 def test_glare_a_polished_bracket_is_found_despite_its_clipped_top(station):
     """Its top is clipped white and spills past the outline (the bloom): found, within its uncertainty."""
-    scene, found = located(station, "glare", "bracket", 0)
-    assert len(found) == 1
-    p = found[0]
-    error = np.hypot(p.x - scene.x, p.y - scene.y)
-    turn = yaw_error(p.yaw, scene.yaw, scene.symmetry)
-    assert error <= FOUND_M and turn <= FOUND_RAD, (error, np.degrees(turn))
-    assert error <= p.sigma_xy and turn <= p.sigma_yaw, (error, p.sigma_xy, turn, p.sigma_yaw)
+    _found_within_its_uncertainty(*located(station, "glare", "bracket", 0))
 
 
 def test_glare_hiding_the_bosses_refuses_the_turn_it_cannot_tell(station):
