@@ -166,7 +166,9 @@ def report_text(report: VerifyReport) -> str:
     for_op2 = sum(u.why == FOR_OP2 for u in report.left)
     if report.ok and for_op2:
         verdict += f" except {for_op2} region{'s' if for_op2 > 1 else ''} left for op 2"
-    text = (f"{verdict}: max gouge {report.max_gouge:.4f} mm, remaining stock max "
+    # The grid's figures are named as the grid's: a corner's sliver is finer than a cell, so beside
+    # "stock left up to 12 mm" a bare "remaining stock max 0.005" read as a contradiction.
+    text = (f"{verdict}: max gouge {report.max_gouge:.4f} mm, stock over the {report.cell:g} mm grid max "
             f"{report.remaining_max:.3f} / mean {report.remaining_mean:.3f} / p95 {report.remaining_p95:.3f} mm, "
             f"{len(report.rapid_crashes)} rapid crash(es)")
     for u in report.left[:LEFT_SHOWN]:

@@ -95,7 +95,7 @@ def test_piped_output_is_never_wrapped(capsys):
     """stderr to a pipe or a log: a long summary stays one line (rich would wrap it at 80 columns)."""
     from cli.common import stderr
 
-    line = "verify OK: max gouge 0.0000 mm, remaining stock max 0.010 / mean 0.003 / p95 0.005 mm, 0 rapid crash(es)"
+    line = "verify OK: max gouge 0.0000 mm, stock over the 0.4 mm grid max 0.010 / mean 0.003 / p95 0.005 mm, 0 rapid crash(es)"
     stderr.print(line, highlight=False, markup=False)
     assert capsys.readouterr().err == line + "\n"
 
