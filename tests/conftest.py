@@ -77,3 +77,43 @@ def roadmap_cache(tmp_path_factory) -> Iterator[Path]:
         os.environ.pop("FACTORY_CACHE_DIR", None)
     else:
         os.environ["FACTORY_CACHE_DIR"] = before
+
+
+
+# How the suite spreads over pytest-xdist's workers (`make test` runs `--dist loadfile`).
+# A module's tests stay together on one worker, because many modules plan a part once in a module fixture
+# and a second worker would plan it again. A module listed in SPREAD shares no fixture wider than a
+# function's, so each of its tests goes to whichever worker is free: the gallery's ten plans no longer
+# queue on one worker. SPREAD and LONG modules start first, so the run does not end with one worker alone on
+# minutes of work while the other idles. (xdist's own `--dist loadgroup` cannot do this under pytest 9: it
+# renames the item's `_nodeid`, which pytest 9 no longer reads, so its groups are silently ignored.)
+#: Modules whose tests each plan their own part [paths from the checkout's root].
+SPREAD = ("tests/gallery/test_gallery.py",)
+#: Modules that take minutes of work on one worker, longest first.
+LONG = ("tests/workflow/test_snakemake.py", "tests/robotprog/test_programs.py", "tests/cadcam/test_plan.py",
+        "tests/cli/test_simulate.py")
+
+
+def _module(nodeid: str) -> str:
+    return nodeid.split("::", 1)[0]
+
+
+def pytest_xdist_make_scheduler(config: pytest.Config, log):
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class SpreadScheduling(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return nodeid if _module(nodeid) in SPREAD else _module(nodeid)
+
+    # The work units go out in collection order (pytest_collection_modifyitems below), not sorted by their
+    # number of tests: that would send the spread tests, one unit each, last.
+    config.option.loadscopereorder = False
+    return SpreadScheduling(config, log)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    first = {m: n for n, m in enumerate(SPREAD + LONG)}
+    # a stable sort: within a module, and among the other modules, the order stays as collected
+    items.sort(key=lambda item: first.get(_module(item.nodeid), len(first)))
