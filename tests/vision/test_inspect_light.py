@@ -59,7 +59,7 @@ def test_a_good_part_passes_inspection_in_diffuse_light(station):
 
 @pytest.mark.parametrize("condition, part, seed, defect, where_mm", [
     ("diffuse", "bracket", 0, "missing_hole", (92.0, 52.0, 15.0)),
-    ("low_angle", "bracket", 0, "missing_hole", (92.0, 52.0, 15.0)),
+    ("distractor", "bracket", 0, "missing_hole", (92.0, 52.0, 15.0)),
     ("diffuse", "plate_bosses", 0, "missing_boss", (78.0, 56.0, 14.0)),
 ])
 def test_a_missing_feature_is_found_missing_where_it_is(station, condition, part, seed, defect, where_mm):
