@@ -33,6 +33,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from factory.core.errors import VisionError  # noqa: E402
+from tests.vision.defects import defective_mesh  # noqa: E402
 from tests.vision.lit import CONDITIONS, SAMPLE_PARTS, LitScene, cell_station, gallery_scene, sample_mesh  # noqa: E402
 from vision.locate import locate_parts  # noqa: E402
 
@@ -48,15 +49,18 @@ def yaw_error(a: float, b: float, symmetry: int) -> float:
     return float(min(d, period - d))
 
 
-def picture(station, part: str, condition: str, seed: int, cache: Path | None):
+def picture(station, part: str, condition: str, seed: int, cache: Path | None, defect: str | None = None):
+    """The gallery picture (kept in ``cache`` when given); with ``defect`` (tests/vision/defects.py) the
+    part drawn has it, at the good part's pose and light."""
+    shown = None if defect is None else defective_mesh(part, defect)
     if cache is None:
-        return gallery_scene(station, part, condition, seed)
+        return gallery_scene(station, part, condition, seed, shown=shown)
     cache.mkdir(parents=True, exist_ok=True)
-    f = cache / f"{condition}-{part}-{seed}.npz"
+    f = cache / (f"{condition}-{part}-{seed}.npz" if defect is None else f"{condition}-{part}-{defect}-{seed}.npz")
     if f.exists():
         d = np.load(f)
         return LitScene(d["image"], float(d["x"]), float(d["y"]), float(d["yaw"]), int(d["symmetry"]))
-    scene = gallery_scene(station, part, condition, seed)
+    scene = gallery_scene(station, part, condition, seed, shown=shown)
     np.savez_compressed(f, image=scene.image, x=scene.x, y=scene.y, yaw=scene.yaw, symmetry=scene.symmetry)
     return scene
 

@@ -27,8 +27,8 @@ def inspect(
                                                   dir_okay=False)],
     part_file: Annotated[Path, typer.Option("--part", help="Part mesh (STL/OBJ/PLY/3MF), lying on the tray with "
                                                            "its mesh z up.", dir_okay=False)],
-    tolerance: Annotated[float, typer.Option("--tolerance", help="Largest outline deviation that passes [mm].",
-                                             min=0.0)] = 1.0,
+    tolerance: Annotated[float, typer.Option("--tolerance", help="Largest deviation of the outline or of a "
+                                                                 "feature that passes [mm].", min=0.0)] = 0.7,
     tray_z: Annotated[float | None, typer.Option("--tray-z", help="Tray height in the robot base frame [m]; "
                                                                   "default: tray_z of the extrinsics file.")] = None,
     flange: Annotated[str | None, typer.Option("--flange", help="Flange pose of the picture, x,y,z,rx,ry,rz "
@@ -40,10 +40,13 @@ def inspect(
     json_out: JsonFlag = False,
     quiet: Quiet = False,
 ) -> None:
-    """Compare each part's outline in the picture with its mesh's projected silhouette.
+    """Compare each part's edges in the picture with its mesh's: the outline (a burr, a broken
+    corner) and the features inside it (a hole not drilled, a boss not there).
 
-    Exits 3 when a part deviates by more than --tolerance. --json prints a list of
-    {pass, tolerance_mm, max/p95/mean_deviation_mm, excess_mm, missing_mm, pose}.
+    Exits 3 when a part deviates by more than --tolerance, or is refused (too little of it can be
+    judged: glare, shadow). A part that cannot be located confidently is an error, with the reason.
+    --json prints a list of {pass, refusal, tolerance_mm, max/p95_deviation_mm, excess_mm, missing_mm,
+    outline_seen, missing_features, pose}.
     """
     setup_logging(quiet)
     flange_pose = parse_flange(flange)
@@ -60,9 +63,9 @@ def inspect(
     if not quiet:
         for r in results:
             p = r.part
-            stderr.print(f"{'PASS' if r.passed else 'FAIL'}  max {r.max_deviation * 1e3:.2f} mm "
-                         f"(tolerance {tolerance:g} mm, {p.mm_per_px:.2f} mm/px) at x {p.x:.4f} y {p.y:.4f} m",
-                         highlight=False, markup=False)
+            verdict = f"REFUSED  {r.refusal}" if r.refusal else f"{'PASS' if r.passed else 'FAIL'}  max " \
+                f"{r.max_deviation * 1e3:.2f} mm (tolerance {tolerance:g} mm, {p.mm_per_px:.2f} mm/px)"
+            stderr.print(f"{verdict} at x {p.x:.4f} y {p.y:.4f} m", highlight=False, markup=False)
     if json_out:
         print_json([r.to_dict() for r in results])
     if not all(r.passed for r in results):

@@ -1,24 +1,34 @@
-"""Silhouette inspection: does the part in the picture have the outline its mesh says it should?
+"""Inspection: does the part in the picture have the edges its mesh says it should, where it says?
 
-The part is located on the tray (:func:`vision.locate.locate_parts`, robust fit of its footprint
-prism). Its whole mesh, placed at a pose, is projected through the camera (pinhole in the
-normalised image plane; the picture's outline has its distortion removed instead) and the union
-of its triangles is the expected silhouette.
+The part is located on the tray first (:func:`vision.locate.locate_parts`: the mesh's visible
+edges fitted to the picture's, with locate's refusals). A part locate cannot place confidently is
+not judged: its pose could be wrong, and so would the verdict; the refusal and its reason come
+back instead (:class:`factory.core.errors.VisionError`).
 
-The prism is the full height everywhere, so a part whose top is stepped (lower tops look smaller
-in perspective) is located off by a millimetre or two. The pose is therefore refined against the
-mesh's own silhouette (:func:`refine_pose`): each piece of the silhouette ring is the projection of
-one mesh edge, so the outline is fitted (x, y, yaw on the tray, robust soft-L1 loss) to those
-edges' projections, then the silhouette is recomputed at the new pose and the fit repeated until
-the pose stops moving (a few rounds, like ICP).
+At the located pose every visible edge of the mesh (its outline at every height, steps, bosses,
+holes) is looked for in the picture along its image normal, as locate looks for it: gradient
+peaks across the edge (:func:`vision.locate._edge_peaks`). Edges are judged by what light cannot
+fake, and never by a threshold of brightness (a side wall as bright as the tray, a shadow darker
+than it, a clipped highlight moved such an outline by millimetres):
 
-Each point of the picture's sub-pixel outline then gets its signed distance to the silhouette
-(positive outside: extra material or a burr; negative inside: missing material), converted to
-millimetres by the pixel size at the part's distance. The part passes when every point is within
-the tolerance.
+- **The outline**, where a face turned up meets the side (the top edge of each wall and step; at
+  a wall's foot the tray may lie in the part's own shadow, as dark as the wall). Every sample,
+  signed outward: the picture's edge within :data:`OWN_PX` of the expected one (inside it: there,
+  a narrow wall's blur pushes it in), else the nearest edge along the normal out to ``reach``
+  (a burr) or in to ``depth`` (a broken corner) that no other expected edge explains, else
+  unseen. Each is taken against the level of its straight line (the pose's error and the blur
+  shift a whole side alike; a burr or a broken corner only a stretch of it), and the deviation is
+  the median over ``window`` along the outline, so one noisy sample neither passes nor fails a part:
+  material sticking out (+) or missing (-). A whole side off by less than ``reach`` is not seen.
+- **Features inside it** (each set of connected mesh edges: a hole, a boss, a pocket): the share
+  of the feature's visible edges the picture shows within :data:`OWN_PX`. A feature whose edges
+  are nearly all absent is missing (a hole not drilled, a boss not there); its deviation is the
+  whole ``reach`` (its edges are at least that far from where they should be).
 
-Because the pose is fitted to the same outline, a defect pulls the pose a little (the robust
-loss limits that); deviations are therefore a lower bound on the defect for large defects.
+Edges near a clipped highlight (glare spills past them) are unknown, neither found nor missed.
+When too little of the outline or of a feature can be judged the part is refused with the reason,
+not passed. Otherwise it passes when no window of its outline and no feature is off by more than
+the tolerance. The thresholds were set on ``benchmarks/inspect_real_light.py``'s pictures.
 """
 
 from __future__ import annotations
@@ -28,18 +38,27 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 import shapely
-from scipy.optimize import least_squares
+from scipy.ndimage import map_coordinates
+from scipy.spatial import cKDTree
 from shapely.geometry import MultiPolygon, Polygon
 
 from factory.core.errors import VisionError
 from vision.camera import CameraModel
-from vision.locate import ROBUST_SCALE_PX, Footprint, LocatedPart, LocateOptions, locate_parts, mm_to_m
+from vision.locate import (SATURATED_GREY, Footprint, LocatedPart, LocateOptions, _edge_peaks, _EdgeModel,
+                           _gradients, _grey, _peak_offset, locate_parts, mm_to_m)
 
-#: A ring piece lies on a mesh edge when its midpoint is this close to the edge's projection
-#: (normalised image units; ~1e-4 px, far above the 1e-9 the silhouette is buffered by).
-_ON_EDGE = 1e-7
-#: Refinement stops when a round moves the part less than these [m], [rad].
-_STILL_M, _STILL_RAD = 1e-7, 1e-6
+#: A picture edge this close to the expected one along its normal is that edge [px].
+OWN_PX = 1.5
+#: A picture edge this close to another expected edge is that edge, not a defect [px].
+EXPLAINED_PX = 1.0
+#: Edges within this of a clipped pixel are unknown [px].
+GLARE_PX = 3
+#: Outline samples this close to a corner of the footprint are not judged [m].
+CORNER_M = 1.5e-3
+#: A wall this turned to the camera (cosine with the view) shows beside its crease (unitless).
+FACING_COS = 0.1
+#: Outline edges whose direction is steeper than this are the part's vertical corners: no outward side.
+_STEEP = 0.7
 
 
 @dataclass(frozen=True)
@@ -49,14 +68,59 @@ class InspectOptions:
     Attributes
     ----------
     tolerance : float
-        Largest deviation of the outline from the expected silhouette that passes [m].
-    refine_rounds : int
-        Most rounds of :func:`refine_pose` (refit to the mesh's silhouette, recompute it); 0 keeps
-        the prism pose of :func:`vision.locate.locate_parts`.
+        Largest deviation of a window of the outline, or of a feature, that passes [m].
+    reach : float
+        How far out along each outline edge's normal extra material is looked for [m]; a feature
+        whose edges are absent counts as off by this much.
+    depth : float
+        How far in along each outline edge's normal missing material is looked for [m].
+    window : float
+        Length of outline over which the deviation is a median [m].
+    min_feature_found : float
+        Least share of a feature's visible edges the picture must show (0..1); below it the
+        feature is missing.
+    min_feature_edges : int
+        Features with fewer visible edge samples (about a millimetre each) are too small to judge.
+    min_seen : float
+        Least share of the outline, and of each feature's edges, the picture must let be judged
+        (0..1); below it (glare, an edge lost in shadow) the part is refused, not passed.
+    locate : LocateOptions
+        How the parts are located, with locate's refusals; a smaller share of all edges found than
+        locate asks for by default, since a defect (a boss not there) takes edges away and must be
+        judged, not refused (wrong poses reach 0.49 on locate's gallery, only when the outline's own
+        checks let them through).
     """
 
-    tolerance: float = 1e-3
-    refine_rounds: int = 8
+    tolerance: float = 0.7e-3
+    reach: float = 3e-3
+    depth: float = 25e-3
+    window: float = 8e-3
+    min_feature_found: float = 0.3
+    min_feature_edges: int = 12
+    min_seen: float = 0.5
+    locate: LocateOptions = LocateOptions(min_found=0.35)
+
+
+@dataclass(frozen=True)
+class Feature:
+    """One set of connected mesh edges inside the outline (a hole, a boss, a pocket) as the picture shows it.
+
+    Attributes
+    ----------
+    pixel : (float, float)
+        Centre of its visible edges in the image [px].
+    edges : int
+        Visible edge samples judged (about one per millimetre of edge).
+    found : float
+        Share of them the picture shows within :data:`OWN_PX` (0..1).
+    present : bool
+        Whether the share reaches ``InspectOptions.min_feature_found``.
+    """
+
+    pixel: tuple[float, float]
+    edges: int
+    found: float
+    present: bool
 
 
 @dataclass(frozen=True)
@@ -67,38 +131,58 @@ class Inspection:
     ----------
     part : LocatedPart
         Where the part was found.
+    outline_px : (n, 2) float
+        The expected outline's edge samples in the image [px].
     deviation : (n,) float
-        Signed deviation of each outline point (positive outside the expected silhouette) [m].
+        Signed deviation of the outline there, a median over ``InspectOptions.window`` (positive
+        outside the expected outline: extra material, a burr; negative inside: missing material);
+        NaN where the picture does not show enough of the outline to tell [m].
+    features : tuple of Feature
+        The features inside the outline, and whether each is there.
+    reach : float
+        Deviation counted for a missing feature [m].
     silhouette_px : (m, 2) float
         The expected silhouette, closed ring, in (distorted) image coordinates [px].
     tolerance : float
         [m]
+    refusal : str
+        Why the part is not judged ('' when it is): too little of its outline or of a feature shows.
     """
 
     part: LocatedPart
+    outline_px: np.ndarray
     deviation: np.ndarray
+    features: tuple[Feature, ...]
+    reach: float
     silhouette_px: np.ndarray
     tolerance: float
+    refusal: str = ""
+
+    @property
+    def missing_features(self) -> tuple[Feature, ...]:
+        return tuple(f for f in self.features if not f.present)
 
     @property
     def max_deviation(self) -> float:
-        """Largest absolute deviation [m]."""
-        return float(np.abs(self.deviation).max()) if len(self.deviation) else 0.0
+        """Largest absolute deviation of the outline or of a feature (a missing one: ``reach``) [m]."""
+        seen = np.abs(self.deviation[np.isfinite(self.deviation)])
+        return max(float(seen.max(initial=0.0)), self.reach if self.missing_features else 0.0)
 
     @property
     def passed(self) -> bool:
-        """Whether every outline point is within the tolerance."""
-        return self.max_deviation <= self.tolerance
+        """Whether the part was judged and its outline and every feature are within the tolerance."""
+        return not self.refusal and self.max_deviation <= self.tolerance
 
     def to_dict(self) -> dict:
         """JSON-ready summary (deviations in mm, as machinists read them)."""
-        d = np.abs(self.deviation) * 1e3
-        return {"pass": self.passed, "tolerance_mm": self.tolerance * 1e3,
-                "max_deviation_mm": float(d.max()) if len(d) else 0.0,
-                "p95_deviation_mm": float(np.percentile(d, 95)) if len(d) else 0.0,
-                "mean_deviation_mm": float(d.mean()) if len(d) else 0.0,
-                "excess_mm": float(max(self.deviation.max(initial=0.0), 0.0) * 1e3),
-                "missing_mm": float(max(-self.deviation.min(initial=0.0), 0.0) * 1e3),
+        d = self.deviation[np.isfinite(self.deviation)] * 1e3
+        return {"pass": self.passed, "refusal": self.refusal, "tolerance_mm": self.tolerance * 1e3,
+                "max_deviation_mm": self.max_deviation * 1e3,
+                "p95_deviation_mm": float(np.percentile(np.abs(d), 95)) if len(d) else 0.0,
+                "excess_mm": float(max(d.max(initial=0.0), 0.0)),
+                "missing_mm": float(max(-d.min(initial=0.0), 0.0)),
+                "outline_seen": float(np.isfinite(self.deviation).mean()) if len(self.deviation) else 0.0,
+                "missing_features": [{"pixel": list(f.pixel), "found": f.found} for f in self.missing_features],
                 "pose": self.part.to_dict()}
 
 
@@ -128,7 +212,10 @@ def expected_silhouette(vertices_mm: np.ndarray, faces: np.ndarray, cam_part: np
     VisionError
         Part (partly) behind the camera.
     """
-    uv = _project(mm_to_m(np.asarray(vertices_mm, dtype=np.float64)), cam_part)
+    v = mm_to_m(np.asarray(vertices_mm, dtype=np.float64)) @ cam_part[:3, :3].T + cam_part[:3, 3]
+    if (v[:, 2] <= 1e-6).any():
+        raise VisionError("part is (partly) behind the camera")
+    uv = v[:, :2] / v[:, 2:3]
     tri = uv[np.asarray(faces, dtype=np.int64)]
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
     cross = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
@@ -142,199 +229,210 @@ def expected_silhouette(vertices_mm: np.ndarray, faces: np.ndarray, cam_part: np
     return Polygon(shape.exterior)
 
 
-def _project(points_m: np.ndarray, cam_part: np.ndarray) -> np.ndarray:
-    """``(n, 2)`` points of the part [m] in the normalised image plane; VisionError if behind the camera."""
-    v = points_m @ cam_part[:3, :3].T + cam_part[:3, 3]
-    if (v[..., 2] <= 1e-6).any():
-        raise VisionError("part is (partly) behind the camera")
-    return v[..., :2] / v[..., 2:3]
-
-
-def _mesh_edges(faces: np.ndarray) -> np.ndarray:
-    """``(e, 2)`` int: every edge of the triangles once."""
-    f = np.asarray(faces, dtype=np.int64)
-    return np.unique(np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
-
-
-def _ring_edges(ring: np.ndarray, uv: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The mesh edge each piece of a silhouette ring lies on.
-
-    Parameters
-    ----------
-    ring : (m, 2) float
-        Closed silhouette ring (normalised image plane).
-    uv : (n, 2) float
-        Projected mesh vertices (same plane).
-    edges : (e, 2) int
-
-    Returns
-    -------
-    pieces : (k,) int
-        Ring pieces (``ring[i]`` to ``ring[i + 1]``) that lie on a mesh edge.
-    edge : (k,) int
-        The (most nearly parallel) edge each of them lies on.
-    """
-    a, b = ring[:-1], ring[1:]
-    d = b - a
-    length = np.hypot(d[:, 0], d[:, 1])
-    # The silhouette's 1e-9 buffer rounds convex corners with arcs of that size: not edges.
-    pieces = np.flatnonzero(length > 100 * _ON_EDGE)
-    tree = shapely.STRtree(shapely.linestrings(uv[edges]))
-    piece, edge = tree.query(shapely.points(0.5 * (a + b)[pieces]), predicate="dwithin", distance=_ON_EDGE)
-    e = uv[edges[edge, 1]] - uv[edges[edge, 0]]
-    u = d[pieces[piece]] / length[pieces[piece], None]
-    sine = np.abs(u[:, 0] * e[:, 1] - u[:, 1] * e[:, 0]) / np.maximum(np.hypot(e[:, 0], e[:, 1]), 1e-300)
-    # Per piece, the edge most nearly along it; edges that merely cross the midpoint are not it.
-    order = np.lexsort((sine, piece))
-    first = order[np.r_[True, piece[order][1:] != piece[order][:-1]]]
-    first = first[sine[first] < 1e-3]
-    return pieces[piece[first]], edge[first]
-
-
-def refine_pose(camera: CameraModel, cam_base: np.ndarray, part: Footprint, located: LocatedPart,
-                vertices_mm: np.ndarray, faces: np.ndarray, rounds: int = 8) -> LocatedPart:
-    """The located pose refitted to the mesh's own silhouette instead of the footprint prism.
-
-    Each round computes :func:`expected_silhouette` at the current pose, finds the mesh edge every
-    piece of its ring lies on, pairs each outline point with its nearest piece and fits x, y and yaw
-    (:func:`scipy.optimize.least_squares`, soft-L1 loss at :data:`vision.locate.ROBUST_SCALE_PX`,
-    so missing material of a defective part does not drag the pose) to minimise the outline points'
-    distances to their edges' projected lines [px]. Rounds stop when the pose stops moving.
-    A footprint with symmetry leaves the mesh's yaw open: each symmetric yaw gets a first round
-    and the one the outline fits best is carried on.
-
-    Parameters
-    ----------
-    camera : CameraModel
-    cam_base : (4, 4) float
-        ``T_cam_base`` [m].
-    part : Footprint
-    located : LocatedPart
-        The starting pose, with the sub-pixel ``outline`` [px] it was found by.
-    vertices_mm : (n, 3) float
-        Mesh vertices [mm].
-    faces : (m, 3) int
-    rounds : int
-        Most rounds (0 returns ``located`` unchanged).
-
-    Returns
-    -------
-    LocatedPart
-        ``located`` with the refined ``x``, ``y`` [m], ``yaw`` [rad] and ``rms_px`` [px] (the robust
-        fit's RMS); its score, uncertainties and pixel stay those of the prism fit.
-
-    Raises
-    ------
-    VisionError
-        Part (partly) behind the camera.
-    """
-    return _refine(camera, cam_base, part, located, vertices_mm, faces, rounds)[0]
-
-
-def _refine(camera: CameraModel, cam_base: np.ndarray, part: Footprint, located: LocatedPart,
-            vertices_mm: np.ndarray, faces: np.ndarray, rounds: int) -> tuple[LocatedPart, Polygon | None]:
-    """:func:`refine_pose`, and :func:`expected_silhouette` at the refined pose when the last round
-    computed it there (the pose stood still after it), so :func:`inspect_part` need not compute it again.
-    """
-    vertices = mm_to_m(np.asarray(vertices_mm, dtype=np.float64))
-    edges = _mesh_edges(faces)
-    obs = camera.rays(located.outline)[:, :2]
-    if rounds <= 0 or len(obs) < 3:
-        return located, None
-    f = np.sqrt(camera.fx * camera.fy)
-    p = np.array([located.x, located.y, located.yaw])
-
-    def cam_part(q: np.ndarray) -> np.ndarray:
-        return cam_base @ part_transform(part, replace(located, x=q[0], y=q[1], yaw=q[2]))
-
-    def fit_round(p: np.ndarray):
-        """One round from pose ``p``: (new pose, robust cost, RMS [px], step, silhouette at ``p``) or None."""
-        uv = _project(vertices, cam_part(p))
-        sil = expected_silhouette(vertices_mm, faces, cam_part(p))
-        ring = np.array(sil.exterior.coords)
-        pieces, edge = _ring_edges(ring, uv, edges)
-        if len(pieces) == 0:
-            return None
-        nearest = shapely.STRtree(shapely.linestrings(np.stack([ring[pieces], ring[pieces + 1]], axis=1)))
-        _, which = nearest.query_nearest(shapely.points(obs), all_matches=False)
-        ends = vertices[edges[edge[which]]]  # (n, 2, 3) the mesh edge of each outline point [m]
-
-        def residuals(q: np.ndarray) -> np.ndarray:
-            uv_ends = _project(ends, cam_part(q))
-            d = uv_ends[:, 1] - uv_ends[:, 0]
-            w = obs - uv_ends[:, 0]
-            return f * (d[:, 0] * w[:, 1] - d[:, 1] * w[:, 0]) / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-300)
-
-        sol = least_squares(residuals, p, x_scale=np.array([1e-3, 1e-3, 1e-2]), method="trf",
-                            loss="soft_l1", f_scale=ROBUST_SCALE_PX)
-        return sol.x, float(sol.cost), float(np.sqrt(np.mean(sol.fun ** 2))), sol.x - p, sil
-
-    def still(step: np.ndarray) -> bool:
-        return np.hypot(step[0], step[1]) < _STILL_M and abs(step[2]) < _STILL_RAD
-
-    # The prism knows the yaw only modulo its footprint's symmetry; the mesh need not share it
-    # (a stepped top): one round from each symmetric yaw, then the best one is carried on.
-    turns = 2 * np.pi * np.arange(part.symmetry) / part.symmetry
-    tried = [r for r in (fit_round(p + np.array([0.0, 0.0, t])) for t in turns) if r is not None]
-    if not tried:
-        return located, None
-    p, _, rms, step, sil = min(tried, key=lambda r: r[1])
-    for _ in range(rounds - 1):
-        if still(step):
-            break
-        again = fit_round(p)
-        if again is None:
-            break
-        p, _, rms, step, sil = again
-    refined = replace(located, x=float(p[0]), y=float(p[1]), yaw=float(np.angle(np.exp(1j * p[2]))), rms_px=rms)
-    return refined, sil if still(step) else None
-
-
 def inspect_part(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray, part: Footprint,
                  vertices_mm: np.ndarray, faces: np.ndarray, tray_z: float,
                  options: InspectOptions = InspectOptions(), *, source: str = "image") -> list[Inspection]:
     """Inspect every copy of the part on the tray (best located first).
-
-    Each copy's prism pose from :func:`vision.locate.locate_parts` is refined to the mesh's own
-    silhouette (:func:`refine_pose`, ``options.refine_rounds``) before its outline is judged.
 
     Parameters
     ----------
     image, camera, base_camera, part, tray_z
         As :func:`vision.locate.locate_parts` (``base_camera`` = ``T_base_cam`` [m], ``tray_z`` [m]).
     vertices_mm, faces
-        The part mesh [mm] whose silhouette is expected.
+        The part mesh [mm] whose edges are expected.
 
     Raises
     ------
     VisionError
-        As :func:`vision.locate.locate_parts` (no part found, bad image).
+        As :func:`vision.locate.locate_parts` with ``options.locate`` (bad image, or no part located
+        confidently, with the reason): a part locate refuses is refused here too, never judged at a
+        pose that may be wrong.
     """
-    # A defective part must still be found: no outline-fit limit here, and no share of the inner
-    # edges (a missing boss or hole takes them away); the deviation judges it.
-    found = locate_parts(image, camera, base_camera, part, tray_z, LocateOptions(max_rms_px=np.inf, min_found=0.0),
-                         source=source)
+    found = locate_parts(image, camera, base_camera, part, tray_z, options.locate, source=source)
+    grey = _grey(image, source)
+    gx, gy, threshold = _gradients(grey)
+    saturated = (grey >= SATURATED_GREY).astype(np.uint8)
     cam_base = np.linalg.inv(np.asarray(base_camera, dtype=np.float64))
+    mesh = replace(part, vertices=mm_to_m(np.asarray(vertices_mm, dtype=np.float64)),
+                   faces=np.asarray(faces, dtype=np.int64))
+    model = _EdgeModel(mesh, camera, cam_base, tray_z)
+    # Next to a clipped highlight the optics spill light past the edge (the bloom, up to a few
+    # pixels): where an edge lies there is unknown, neither found nor missed.
+    glare = cv2.dilate(saturated, np.ones((2 * GLARE_PX + 1, 2 * GLARE_PX + 1), np.uint8))
     out = []
-    f = np.sqrt(camera.fx * camera.fy)
     for located in found:
-        located, sil = _refine(camera, cam_base, part, located, vertices_mm, faces, options.refine_rounds)
-        if sil is None:
-            sil = expected_silhouette(vertices_mm, faces, cam_base @ part_transform(part, located))
-        obs = camera.rays(located.outline)[:, :2]
-        ring = shapely.geometry.LineString(sil.exterior.coords)
-        dist = shapely.distance(shapely.points(obs), ring)
-        inside = shapely.contains_xy(sil, obs[:, 0], obs[:, 1])
-        deviation = np.where(inside, -dist, dist) * f * located.mm_per_px * 1e-3
-        ring_px = camera.project(np.column_stack([np.array(sil.exterior.coords), np.ones(len(sil.exterior.coords))]),
-                                 np.zeros(3), np.zeros(3))
-        out.append(Inspection(part=located, deviation=deviation, silhouette_px=ring_px, tolerance=options.tolerance))
+        sil = expected_silhouette(vertices_mm, faces, cam_base @ part_transform(part, located))
+        ring = np.array(sil.exterior.coords)
+        ring_px = camera.project(np.column_stack([ring, np.ones(len(ring))]), np.zeros(3), np.zeros(3))
+        out.append(_judge(model, part, located, gx, gy, threshold, glare, options, ring_px))
+    return out
+
+
+def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, gx: np.ndarray, gy: np.ndarray,
+           threshold: float, glare: np.ndarray, options: InspectOptions, ring_px: np.ndarray) -> Inspection:
+    """The inspection of one located part: its outline's windowed deviations and its features."""
+    p = np.array([located.x, located.y, located.yaw])
+    idx = model.visible(p)
+    uv, normal = model.project(p, idx)
+    px_m = located.mm_per_px * 1e-3  # metres per pixel at the part
+    steps, resp, peak = _edge_peaks(gx, gy, threshold, uv, normal, max(options.reach, options.depth) / px_m)
+    offset = np.where(peak, steps[None, :], np.nan)
+    unknown = map_coordinates(glare, [uv[:, 1], uv[:, 0]], order=0, mode="nearest") > 0
+    # The own edge: the nearest peak within a pixel.
+    near = np.where(peak & (np.abs(steps) <= OWN_PX)[None, :], np.abs(steps)[None, :], np.inf)
+    own_j = np.argmin(near, axis=1)
+    own = np.isfinite(near[np.arange(len(idx)), own_j])
+    # Peaks further out that lie on another expected edge are that edge: they say nothing here.
+    spots = uv[:, None, :] + np.nan_to_num(offset)[..., None] * normal[:, None, :]
+    dist, _ = cKDTree(uv).query(spots.reshape(-1, 2), distance_upper_bound=EXPLAINED_PX)
+    explained = np.isfinite(dist.reshape(peak.shape))
+    # The outline is judged where a face turned up meets the side (the top of a wall, a step): the
+    # part's own face lies inside. At a wall's foot the tray beside it may lie in the part's own
+    # shadow, and the wall may be as dark as that shadow; no edge there says anything.
+    up = np.maximum(model.n1[idx, 2], model.n2[idx, 2]) > 0.5
+    outer = model.outer[idx] & (np.abs(model.direction[idx, 2]) < _STEEP) & up & \
+        ~_near_corner(part.outline, model.points[idx, :2])
+    sign = np.ones(len(idx))
+    sign[outer] = _outward(model, part, p, idx[outer], uv[outer], normal[outer])
+    # The nearest edge beyond the own one, out to ``reach`` (a burr; shadows lie further out) or
+    # in to ``depth`` (a broken corner), is a defect's unless it is another expected edge: then the
+    # material is there up to it, and this edge is unseen.
+    out_steps = steps[None, :] * sign[:, None]
+    beyond = peak & (np.abs(steps) > OWN_PX)[None, :] & (out_steps <= options.reach / px_m) & \
+        (out_steps >= -options.depth / px_m)
+    other = np.where(beyond, np.abs(steps)[None, :], np.inf)
+    free_j = np.argmin(other, axis=1)
+    rows = np.arange(len(idx))
+    has_free = np.isfinite(other[rows, free_j]) & ~explained[rows, free_j]
+    j = np.where(own, own_j, free_j)
+    measured = np.where(own | has_free, _peak_offset(steps, resp, j), np.nan)
+    measured[unknown] = np.nan
+
+    signed = sign[outer] * measured[outer]
+    # An edge within OWN_PX inside the expected one is there: a narrow wall between the top and the
+    # tray blurs into one dark band whose two edges the blur pushes apart by up to a pixel.
+    signed = np.where(own[outer] & (signed < 0), 0.0, signed)
+    # Against the rest of its own straight edge: the pose's error (a few tenths of a millimetre)
+    # and the blur of a narrow wall shift a whole side alike, a burr or a broken corner only a stretch.
+    signed = signed - _line_level(model.points[idx[outer]], model.direction[idx[outer]],
+                                  np.where(own[outer], signed, np.nan))
+    deviation = _windowed(model.points[idx[outer]], signed, options.window) * px_m
+
+    features = []
+    refusals = []
+    seen = float(np.isfinite(deviation).mean()) if len(deviation) else 0.0
+    if seen < options.min_seen:
+        refusals.append(f"{100 * seen:.0f} % of the outline can be judged, {100 * options.min_seen:.0f} % needed")
+    outline_features = set(model.feature[idx[model.outer[idx]]])
+    # A feature is judged by its creases with a wall turned to the camera: a step between two faces
+    # turned up, its wall seen edge-on or from behind, may show no edge at all (the faces alike).
+    showing = model.crease[idx] & _wall_facing(model, p, idx)
+    for f in np.unique(model.feature[idx]):
+        every = (model.feature[idx] == f) & showing
+        if f in outline_features or every.sum() < options.min_feature_edges:
+            continue
+        on = every & ~unknown
+        centre = uv[every].mean(axis=0)
+        if on.sum() < options.min_seen * every.sum():
+            refusals.append(f"the feature at ({centre[0]:.0f}, {centre[1]:.0f}) px is hidden in glare")
+            continue
+        share = float(own[on].mean())
+        features.append(Feature(pixel=(float(centre[0]), float(centre[1])), edges=int(on.sum()), found=share,
+                                present=share >= options.min_feature_found))
+    return Inspection(part=located, outline_px=uv[outer], deviation=deviation, features=tuple(features),
+                      reach=options.reach, silhouette_px=ring_px, tolerance=options.tolerance,
+                      refusal="; ".join(refusals))
+
+
+def _wall_facing(model: _EdgeModel, p: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """``(k,)`` bool: an edge sample borders a wall (a face within 60 deg of vertical) turned to the
+    camera by at least :data:`FACING_COS` (its cosine with the view)."""
+    r = np.eye(3)
+    r[:2, :2] = [[np.cos(p[2]), -np.sin(p[2])], [np.sin(p[2]), np.cos(p[2])]]
+    view = model.eye - model.world(p, model.points[idx])
+    view /= np.linalg.norm(view, axis=1, keepdims=True)
+    facing = np.zeros(len(idx), bool)
+    for n in (model.n1[idx] @ r.T, model.n2[idx] @ r.T):
+        facing |= (np.abs(n[:, 2]) < 0.5) & (np.einsum("nj,nj->n", n, view) >= FACING_COS)
+    return facing
+
+
+def _outward(model: _EdgeModel, part: Footprint, p: np.ndarray, idx: np.ndarray, uv: np.ndarray,
+             normal: np.ndarray) -> np.ndarray:
+    """``(k,)`` +1 or -1: the sign that turns each outline sample's image normal outward (away from the part)."""
+    d = model.direction[idx, :2]
+    n = np.column_stack([d[:, 1], -d[:, 0]]) / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    step = 3e-4  # [m]: well inside the thinnest wall, well beyond float noise
+    probe = model.points[idx, :2] + step * n
+    inside = shapely.contains_xy(Polygon(part.outline), probe[:, 0], probe[:, 1])
+    n = np.where(inside[:, None], -n, n)
+    pushed = model.camera.project(model.world(p, model.points[idx] + step * np.column_stack([n, np.zeros(len(n))])),
+                                  model.rvec, model.tvec)
+    return np.where(np.einsum("nj,nj->n", pushed - uv, normal) >= 0, 1.0, -1.0)
+
+
+def _near_corner(outline: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """``(k,)`` bool: points (x, y) [m] within :data:`CORNER_M` of a corner of the footprint ``outline``
+    (a turn of more than 20 deg): along a normal there the picture has two edges blurred into one."""
+    a, b = np.roll(outline, 1, axis=0), np.roll(outline, -1, axis=0)
+    u, v = outline - a, b - outline
+    turn = np.abs(np.arctan2(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0], np.einsum("ij,ij->i", u, v)))
+    corners = outline[turn > np.radians(20.0)]
+    if len(corners) == 0 or len(points) == 0:
+        return np.zeros(len(points), bool)
+    return cKDTree(corners).query(points)[0] < CORNER_M
+
+
+def _line_level(points: np.ndarray, direction: np.ndarray, values: np.ndarray, least: int = 8) -> np.ndarray:
+    """``(k,)`` the level of each sample's straight line at the sample: a straight line fitted to the
+    finite ``values`` [px] along it (twice, the second time without those more than :data:`OWN_PX`
+    off the one before, starting flat at their median), 0 on lines with fewer than ``least`` of them.
+
+    A yaw error of the pose tilts a side's deviations, a shift moves them all: neither is the part's.
+    The caller passes only the samples whose edge the picture shows at its place, so a defect's
+    stretch does not set the level. ``points`` [m] and unit ``direction`` (k, 3): collinear samples
+    of the many mesh edges a straight side is triangulated into share one line.
+    """
+    angle = np.mod(np.arctan2(direction[:, 1], direction[:, 0]), np.pi)
+    along = points[:, 0] * np.cos(angle) + points[:, 1] * np.sin(angle)  # [m]
+    across = points[:, 1] * np.cos(angle) - points[:, 0] * np.sin(angle)  # the line's offset [m]
+    key = np.column_stack([np.rint(np.degrees(angle)) % 180, np.rint(across / 5e-4), np.rint(points[:, 2] / 5e-4)])
+    line = np.unique(key, axis=0, return_inverse=True)[1].ravel()
+    out = np.zeros(len(values))
+    for e in np.unique(line):
+        on = line == e
+        s, v = along[on], values[on]
+        ok = np.isfinite(v)
+        if ok.sum() < least or np.ptp(s[ok]) < 1e-3:
+            continue
+        fit = np.array([0.0, np.median(v[ok])])  # flat at the median first: a stretch must not tilt it
+        for _ in range(2):
+            near = ok & (np.abs(np.polyval(fit, s) - np.nan_to_num(v, nan=np.inf)) <= OWN_PX)
+            if near.sum() < least:
+                break
+            fit = np.polyfit(s[near], v[near], 1)
+        out[on] = np.polyval(fit, s)
+    return out
+
+
+def _windowed(points: np.ndarray, values: np.ndarray, window: float) -> np.ndarray:
+    """``(k,)`` median of the finite ``values`` of the samples within ``window / 2`` of each point [m]
+    (3D, so the top and the foot of a wall stay apart); NaN where fewer than half are finite."""
+    out = np.full(len(points), np.nan)
+    if len(points) == 0:
+        return out
+    for i, near in enumerate(cKDTree(points).query_ball_point(points, 0.5 * window)):
+        v = values[near]
+        ok = np.isfinite(v)
+        if ok.sum() >= 5 and ok.mean() >= 0.5:
+            out[i] = np.median(v[ok])
     return out
 
 
 def inspection_image(image: np.ndarray, inspections: list[Inspection]) -> np.ndarray:
-    """The picture with the expected silhouette (blue) and the outline coloured by deviation
-    (green within tolerance, red beyond), and PASS/FAIL with the largest deviation per part.
+    """The picture with the expected silhouette (blue), the outline coloured by deviation (green
+    within tolerance, red beyond, grey unseen), missing features ringed red, and PASS/FAIL with the
+    largest deviation per part.
 
     Returns
     -------
@@ -343,13 +441,17 @@ def inspection_image(image: np.ndarray, inspections: list[Inspection]) -> np.nda
     """
     img = np.asarray(image)
     canvas = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img.copy()
+    h, w = canvas.shape[:2]
     for ins in inspections:
         ring = np.rint(ins.silhouette_px * 4).astype(np.int32)  # 2 fractional bits for a smooth line
         cv2.polylines(canvas, [ring.reshape(-1, 1, 2)], True, (255, 120, 0), 1, cv2.LINE_AA, shift=2)
-        bad = np.abs(ins.deviation) > ins.tolerance
-        for (u, v), b in zip(np.rint(ins.part.outline).astype(int), bad):
-            canvas[np.clip(v, 0, canvas.shape[0] - 1), np.clip(u, 0, canvas.shape[1] - 1)] = \
-                (0, 0, 255) if b else (0, 200, 0)
+        for (u, v), dev in zip(np.rint(ins.outline_px).astype(int), ins.deviation):
+            colour = (160, 160, 160) if not np.isfinite(dev) else (0, 0, 255) if abs(dev) > ins.tolerance \
+                else (0, 200, 0)
+            canvas[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)] = colour
+        radius = max(int(round(3.0 / max(ins.part.mm_per_px, 1e-3))), 4)  # a ring about 6 mm across
+        for f in ins.missing_features:
+            cv2.circle(canvas, (int(round(f.pixel[0])), int(round(f.pixel[1]))), radius, (0, 0, 255), 2, cv2.LINE_AA)
         u, v = (int(round(c)) for c in ins.part.pixel)
         label = f"{'PASS' if ins.passed else 'FAIL'} {ins.max_deviation * 1e3:.2f} mm"
         cv2.putText(canvas, label, (u - 40, v), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)

@@ -33,6 +33,8 @@ import shapely
 import trimesh
 from contourpy import LineType, contour_generator
 from scipy.ndimage import map_coordinates
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 from scipy.optimize import least_squares
 from shapely.geometry import MultiPolygon, Polygon
@@ -325,6 +327,11 @@ class _EdgeModel:
         self.n1 = mesh.face_normals[adj[keep, 0]][edge]
         self.n2 = mesh.face_normals[adj[keep, 1]][edge]
         self.crease = (angle[keep] > np.radians(CREASE_DEG))[edge]
+        # Edges that share vertices make one feature (a hole, a boss, the outline), for inspection.
+        pairs = mesh.face_adjacency_edges[keep]
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(mesh.vertices),) * 2)
+        self.feature = connected_components(graph, directed=False)[1][pairs[:, 0]][edge]
+        self.edge = edge  # the mesh edge each sample lies on
         # Edges on the footprint's outline (at any height) make the part's outline against the tray:
         # glare or a dim top may hide the edges inside it, never these.
         ring = shapely.LinearRing(part.outline)
@@ -408,9 +415,11 @@ def _gradients(grey: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     return gx, gy, max(4.0 * float(np.median(mag)), 1.0)
 
 
-def _find_edges(gx: np.ndarray, gy: np.ndarray, threshold: float, uv: np.ndarray, normal: np.ndarray,
-                reach: float) -> np.ndarray:
-    """``(k,)`` signed offset [px] along each normal of the nearest edge within ``reach``, NaN where none."""
+def _edge_peaks(gx: np.ndarray, gy: np.ndarray, threshold: float, uv: np.ndarray, normal: np.ndarray,
+                reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The picture's edges across each model edge sample: ``steps`` (s,) offsets along the normal
+    every half pixel within ``reach`` [px], ``resp`` (k, s) the gradient across the normal [grey/px]
+    and ``peak`` (k, s) bool, its local maxima above ``threshold``."""
     steps = np.arange(-reach, reach + 1e-9, 0.5)
     q = uv[:, None, :] + steps[None, :, None] * normal[:, None, :]
     coords = [q[..., 1].ravel(), q[..., 0].ravel()]
@@ -419,15 +428,28 @@ def _find_edges(gx: np.ndarray, gy: np.ndarray, threshold: float, uv: np.ndarray
     resp = np.abs(gxs * normal[:, 0:1] + gys * normal[:, 1:2])
     peak = np.zeros_like(resp, bool)
     peak[:, 1:-1] = (resp[:, 1:-1] >= resp[:, :-2]) & (resp[:, 1:-1] > resp[:, 2:]) & (resp[:, 1:-1] > threshold)
+    return steps, resp, peak
+
+
+def _peak_offset(steps: np.ndarray, resp: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """``(k,)`` sub-pixel offset [px] of the peak at column ``j`` (k,) of each row of ``resp`` (parabola)."""
+    jj = np.clip(j, 1, len(steps) - 2)
+    rows = np.arange(len(jj))
+    r0, r1, r2 = (resp[rows, jj + d] for d in (-1, 0, 1))
+    denom = r0 - 2 * r1 + r2
+    frac = np.where(np.abs(denom) > 1e-9, 0.5 * (r0 - r2) / np.where(np.abs(denom) > 1e-9, denom, 1), 0.0)
+    return steps[jj] + 0.5 * np.clip(frac, -1, 1)
+
+
+def _find_edges(gx: np.ndarray, gy: np.ndarray, threshold: float, uv: np.ndarray, normal: np.ndarray,
+                reach: float) -> np.ndarray:
+    """``(k,)`` signed offset [px] along each normal of the nearest edge within ``reach``, NaN where none."""
+    steps, resp, peak = _edge_peaks(gx, gy, threshold, uv, normal, reach)
     # The nearest strong peak: a shadow's or a texture's edge further out must not pull the fit.
     dist = np.where(peak, np.abs(steps)[None, :], np.inf)
     j = np.argmin(dist, axis=1)
     found = np.isfinite(dist[np.arange(len(j)), j])
-    jj = np.clip(j, 1, len(steps) - 2)
-    r0, r1, r2 = (resp[np.arange(len(j)), jj + d] for d in (-1, 0, 1))
-    denom = r0 - 2 * r1 + r2
-    frac = np.where(np.abs(denom) > 1e-9, 0.5 * (r0 - r2) / np.where(np.abs(denom) > 1e-9, denom, 1), 0.0)
-    return np.where(found, steps[jj] + 0.5 * np.clip(frac, -1, 1), np.nan)
+    return np.where(found, _peak_offset(steps, resp, j), np.nan)
 
 
 @dataclass(frozen=True)

@@ -389,12 +389,17 @@ SPREAD_M = (0.13, 0.09)
 
 
 def gallery_scene(station: CameraStation, part: str, condition: str, seed: int, *,
-                  supersample: int = 2) -> LitScene:
-    """One seeded picture of a sample part at a random pose under one of :data:`CONDITIONS`."""
+                  supersample: int = 2, shown: trimesh.Trimesh | None = None) -> LitScene:
+    """One seeded picture of a sample part at a random pose under one of :data:`CONDITIONS`.
+
+    ``shown`` (a mesh [mm] in the sample's own frame, e.g. a defective copy of it) is drawn in the
+    sample's place: same pose, light and noise as the sample's picture of that seed.
+    """
     cond = CONDITIONS[condition]
     rng = np.random.default_rng([seed, SAMPLE_PARTS.index(part) if part in SAMPLE_PARTS else 9,
                                  list(CONDITIONS).index(condition)])
     mesh, fp, symmetry = sample_mesh(part)
+    mesh = mesh if shown is None else shown
     centre = station.camera_pose[:2, 3]
     x, y = centre + rng.uniform(-1, 1, 2) * SPREAD_M
     yaw = rng.uniform(-np.pi, np.pi)

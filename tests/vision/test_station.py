@@ -100,7 +100,9 @@ def test_good_part_passes_and_damaged_part_fails(station, name):
     assert good.passed and g["pass"] and g["max_deviation_mm"] < 0.6 and good.error_mm < 0.5
     assert not bad.passed and not b["pass"]
     # The missing corner is ~9 mm deep (18 % legs of the footprint): material missing, none extra.
-    assert b["missing_mm"] > 5 and b["excess_mm"] < 1.5
+    # Inspection measures the depth only up to the first expected edge inside (the bracket's corner
+    # hole is 2.5 mm in): at least that.
+    assert b["missing_mm"] > 2 and b["excess_mm"] < 1.5
     assert good.processing_s > 0 and bad.processing_s > 0
     assert good.annotated.shape == bad.annotated.shape == (480, 640, 3)
     red = lambda img: ((img[..., 2] > 200) & (img[..., 1] < 80) & (img[..., 0] < 80)).sum()  # noqa: E731
@@ -130,9 +132,10 @@ def test_every_sample_passes_good_and_fails_damaged_from_above_and_tilted(far_st
     bad = inspect_shot(far_station, part.vertices, part.faces, pose, defect=True, seed=3)
     (g,), (b,) = good.detections, bad.detections
     assert good.passed and g["max_deviation_mm"] < 0.8 and good.error_mm < 0.5
-    # The refined yaw is the one the silhouette shows, not only the footprint's modulo its symmetry.
-    assert np.degrees(yaw_error(g["yaw"], pose[2], SILHOUETTE_PERIOD[name])) < 0.5
-    assert not bad.passed and b["missing_mm"] > 4 and b["excess_mm"] < 1.0
+    # The yaw is the one the silhouette shows, not only the footprint's modulo its symmetry (locate's
+    # own yaw, about a degree at most here: inspection judges each side against its own line).
+    assert np.degrees(yaw_error(g["yaw"], pose[2], SILHOUETTE_PERIOD[name])) < 1.5
+    assert not bad.passed and b["missing_mm"] > 2 and b["excess_mm"] < 1.0
     # The robust refit keeps the damaged part where it lies rather than fitting the cut away.
     assert bad.error_mm < 0.5
 

@@ -1,0 +1,106 @@
+"""Inspection in real light: pictures from tests/vision/lit.py (not vision.render), good and defective.
+
+A few pictures of ``benchmarks/inspect_real_light.py`` (which runs them all): the same pose and
+light with the good part and with a defect (tests/vision/defects.py), so a verdict cannot come
+from the light alone. A good part passes; a missing hole or boss is found missing where it is; a
+1 mm burr is extra material at the burr; glare that hides the outline gets a refusal with its
+reason, never a pass; a part locate cannot place is refused with locate's reason.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from factory.core.errors import VisionError
+from tests.vision.defects import defective_mesh
+from tests.vision.lit import cell_station, gallery_scene, sample_mesh
+from vision.inspect import inspect_part, part_transform
+from vision.locate import LocatedPart, mm_to_m
+
+FOUND_M = 1.5e-3
+
+
+@pytest.fixture(scope="module")
+def station():
+    return cell_station()
+
+
+def inspected(station, condition: str, part: str, seed: int, defect: str | None = None):
+    """The picture's truth and the one inspection of the part in it (expecting the good mesh)."""
+    shown = None if defect is None else defective_mesh(part, defect)
+    scene = gallery_scene(station, part, condition, seed, shown=shown)
+    mesh, footprint, _ = sample_mesh(part)
+    (result,) = inspect_part(scene.image, station.camera, station.camera_pose, footprint, mesh.vertices,
+                             mesh.faces, station.plane_z)
+    # Every verdict is given at the right pose.
+    assert np.hypot(result.part.x - scene.x, result.part.y - scene.y) <= FOUND_M
+    return scene, result
+
+
+def pixel_of(station, part: str, scene, point_mm) -> np.ndarray:
+    """Where a point of the part's mesh [mm] is in the picture [px], the part placed at the truth."""
+    _, footprint, _ = sample_mesh(part)
+    truth = LocatedPart(x=scene.x, y=scene.y, z=station.plane_z, yaw=scene.yaw, score=1.0, rms_px=0.0,
+                        mm_per_px=float("nan"), sigma_xy=0.0, sigma_yaw=0.0, pixel=(0.0, 0.0))
+    t = station.world_to_camera @ part_transform(footprint, truth)
+    p = t[:3, :3] @ mm_to_m(np.asarray(point_mm, dtype=np.float64)) + t[:3, 3]
+    return station.camera.project(p[None], np.zeros(3), np.zeros(3))[0]
+
+
+def test_a_good_part_passes_inspection_in_diffuse_light(station):
+    """``factory inspect`` under the independent renderer's light: a good bracket passes, judged
+    on nearly all of its outline, every hole there."""
+    _, result = inspected(station, "diffuse", "bracket", 0)
+    assert result.passed and not result.refusal, result.to_dict()
+    assert result.to_dict()["outline_seen"] > 0.9 and not result.missing_features
+    assert len(result.features) >= 5  # five holes, two pockets: each judged
+
+
+@pytest.mark.parametrize("condition, part, seed, defect, where_mm", [
+    ("diffuse", "bracket", 0, "missing_hole", (92.0, 52.0, 15.0)),
+    ("distractor", "bracket", 0, "missing_hole", (92.0, 52.0, 15.0)),
+    ("diffuse", "plate_bosses", 0, "missing_boss", (78.0, 56.0, 14.0)),
+])
+def test_a_missing_feature_is_found_missing_where_it_is(station, condition, part, seed, defect, where_mm):
+    """The same picture with the good part passes; with the feature left out the part fails, and
+    the one feature found missing is the one left out."""
+    _, good = inspected(station, condition, part, seed)
+    assert good.passed, good.to_dict()
+    scene, bad = inspected(station, condition, part, seed, defect)
+    assert not bad.passed and not bad.refusal
+    (missing,) = bad.missing_features
+    assert np.hypot(*(np.array(missing.pixel) - pixel_of(station, part, scene, where_mm))) < 8  # [px]
+    assert missing.found < 0.3 and bad.max_deviation == bad.reach
+
+
+def test_a_burr_is_extra_material_at_the_burr(station):
+    """A 1 x 1 mm lip along 15 mm of the dome mould's top edge: the good part passes, the burred
+    one fails by extra material, about a millimetre, where the lip is."""
+    _, good = inspected(station, "diffuse", "dome_mould", 0)
+    assert good.passed, good.to_dict()
+    scene, bad = inspected(station, "diffuse", "dome_mould", 0, "burr")
+    summary = bad.to_dict()
+    assert not bad.passed and not bad.missing_features
+    assert 0.6 < summary["excess_mm"] < 1.5 and summary["missing_mm"] < 0.6
+    worst = bad.outline_px[np.nanargmax(bad.deviation)]
+    assert np.hypot(*(worst - pixel_of(station, "dome_mould", scene, (44.5, 70.5, 30.0)))) < 12  # [px]
+
+
+def test_glare_that_hides_the_outline_is_refused_not_passed(station):
+    """A polished bracket under glare: its top and its holes are clipped white. No verdict on edges
+    that cannot be seen: a refusal with its reason, for the good part and the one missing a hole."""
+    for defect in (None, "missing_hole"):
+        _, result = inspected(station, "glare", "bracket", 0, defect)
+        assert not result.passed and "can be judged" in result.refusal
+        assert result.to_dict()["refusal"] == result.refusal
+
+
+def test_a_part_locate_cannot_place_is_refused_with_locate_reason(station):
+    """A stepped wall in dim light whose ends do not show: locate gives no pose, so inspection
+    gives no verdict, and says why."""
+    scene = gallery_scene(station, "stepped_wall", "dim", 1)
+    mesh, footprint, _ = sample_mesh("stepped_wall")
+    with pytest.raises(VisionError, match="no part found.*the position along it is not fixed"):
+        inspect_part(scene.image, station.camera, station.camera_pose, footprint, mesh.vertices, mesh.faces,
+                     station.plane_z)
