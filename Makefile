@@ -23,7 +23,8 @@ demo: $(BIN)/.installed
 samples/relief.stl: samples/make_relief.py | $(BIN)/.installed
 	$(BIN)/python samples/make_relief.py
 
-plans: $(PARTS:%=$(OUT)/%.plan.json)
+# Largest file first: the longest plans start first, so no long one starts last and runs alone at the end.
+plans: $(addsuffix .plan.json,$(addprefix $(OUT)/,$(basename $(notdir $(shell ls -S samples/*.stl)))))
 
 # One part per rule, so `make -j` plans parts in parallel; 3: written, verify failed (its line says so).
 $(OUT)/%.plan.json: samples/%.stl $(BIN)/.installed

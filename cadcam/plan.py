@@ -517,9 +517,16 @@ class _Planning:
         return lambda done, total: progress(stage, done, total)
 
     def timed(self, stage: str, compute: Callable[[], T]) -> T:
+        """``compute()``, timed as ``stage``, which shows as it starts and ends (as a ``Stopwatch``
+        stage does), also when ``compute`` reports nothing finer."""
+        say = self.stage_progress(stage)
+        if say is not None:
+            say(0, 1)
         t0 = time.perf_counter()
         result = compute()
         self.seconds.append((stage, time.perf_counter() - t0))
+        if say is not None:
+            say(1, 1)
         return result
 
     def model(self, ops: list[Operation], cell: float | None = None) -> Simulation | None:
@@ -731,9 +738,8 @@ def _finished(plan: _Planning, part_name: str, operations: list[Operation], sour
     if dropped:
         log.info("nothing to cut for %s: dropped", ", ".join(dropped))
     operations = [op for op in operations if len(op.points) >= 2]
-    t0 = time.perf_counter()
-    safe_ops, checked, fixed = safe_rapids(operations, plan.setup, plan.triangles, rapid_cell)
-    plan.seconds.append(("rapid check", time.perf_counter() - t0))
+    safe_ops, checked, fixed = plan.timed("rapid check", lambda: safe_rapids(operations, plan.setup, plan.triangles,
+                                                                             rapid_cell))
 
     job = Job(
         part_name=part_name,

@@ -22,7 +22,7 @@ from cadcam.gridregion import cells_region
 from cadcam.heightmap import Grid
 from cadcam.model import Motion, Operation, Setup, Tool
 from cadcam.stock import Simulation, clear_height, cut_stock, excess, operation_moves
-from cadcam.verify import VerifyOptions, simulate
+from cadcam.verify import rapid_check
 from factory.core.errors import ToolpathError
 
 log = logging.getLogger(__name__)
@@ -179,17 +179,18 @@ def safe_rapids(operations: Sequence[Operation], setup: Setup, part_triangles: n
     first[starts[:-1]] = True
     below = (moves.motion == Motion.RAPID) & ~first & (moves.points[:, 2] < setup.safe_z - 1e-9)
     checked = int(below.sum())
-    # Only rapids and the jaws are read here: no finer grid for the engagement of small tools.
-    verified = simulate(moves, tools, setup, part_triangles, VerifyOptions(cell=cell, engagement_resolution=None))
-    final, report = verified.simulation, verified.report
-    for f in report.faults:
-        if f.kind == "jaws":  # no speed makes a move into the vise safe: the planner is wrong
-            x, y, z = f.position or (math.nan,) * 3
-            raise ToolpathError(f"{f.message} near X{x:.1f} Y{y:.1f} Z{z:.1f}: the toolpath would hit the vise")
-    bad = sorted({c.move for c in report.rapid_crashes if not first[c.move]})
+    # Only rapids and the jaws are read here: no engagement, contacts, gouges or stock left.
+    found = rapid_check(moves, tools, setup, part_triangles, cell)
+    final = found.simulation
+    for f in found.jaw_faults:  # no speed makes a move into the vise safe: the planner is wrong
+        x, y, z = f.position or (math.nan,) * 3
+        raise ToolpathError(f"{f.message} near X{x:.1f} Y{y:.1f} Z{z:.1f}: the toolpath would hit the vise")
+    bad = sorted({c.move for c in found.rapid_crashes if not first[c.move]})
     if not bad:
         return ops, checked, 0
-    snaps = cut_stock(moves, tools, setup, part_triangles, cell, snapshot_moves=[m - 1 for m in bad]).snapshots
+    # the stock each bad rapid found: only the stock, nothing measured
+    snaps = cut_stock(moves, tools, setup, part_triangles, cell, snapshot_moves=[m - 1 for m in bad],
+                      measure=False).snapshots
     edits: dict[int, list[tuple[int, float | None]]] = {}
     for m, snap in zip(bad, snaps):
         k = int(np.searchsorted(starts, m, side="right") - 1)

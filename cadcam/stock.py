@@ -163,6 +163,7 @@ def cut_stock(
     engaged_width: float = ENGAGED_WIDTH,
     body_graze: float = 0.0,
     full_width_angle: float = FULL_WIDTH_ANGLE,
+    measure: bool = True,
 ) -> StockCut:
     """Cut the stock with every move of a program, measuring what each move meets.
 
@@ -203,6 +204,11 @@ def cut_stock(
     full_width_angle : float
         A move meeting material over this arc of the cutter or more cuts at full width [deg]
         (:data:`FULL_WIDTH_ANGLE`; ``MoveRecord.full_depth``).
+    measure : bool
+        False: only the stock and what each move removed (``MoveRecord.removed_*``, the volume)
+        are recorded; the engagement (depth, width, angle) and the shank and holder contacts are
+        not measured, and stay zero. The stock is the same either way. For a caller that reads only
+        rapids (:func:`cadcam.verify.rapid_check`), this saves most of the work beside the cut.
 
     Raises
     ------
@@ -225,7 +231,9 @@ def cut_stock(
     part_flat = np.where(np.isfinite(part_top), part_top, -np.inf).reshape(-1)
     body = _Body(tools, moves.tool[seg.move], part_flat, engaged_width, body_graze)
     body.full_width = math.radians(full_width_angle)
-    body.wall_near = _highest_part_near(part_top, grid, _SKIN).reshape(-1)
+    body.measure = measure
+    if measure:  # the skin of walls is no engagement: only engagement reads it
+        body.wall_near = _highest_part_near(part_top, grid, _SKIN).reshape(-1)
 
     n_moves = int(known.sum())
     done = np.cumsum(known)  # simulated moves up to and including each move, for progress
@@ -420,6 +428,8 @@ class _Body:
         # A shank as wide as the cutter rides a finished wall at exactly its radius: a
         # graze sideways within the contact tolerance is no contact.
         self.graze = graze
+        # False: only the cut itself (see cut_stock's ``measure``); no body, no engagement.
+        self.measure = True
 
     def pairs(self, seg: Segments, s: int, e: int, grid: Grid, stock: np.ndarray, ceiling: float):
         """(segment in batch, flat grid index, body envelope) for body parts that come below ``ceiling``."""
@@ -532,7 +542,11 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
 
     # Shank and holder: the same sweep with the body's cylinders, only where they can
     # come below the highest stock or part there is.
-    b_owner, b_flat, b_env = body.pairs(seg, s, e, grid, stock, max(float(stock.max()), body.part_max))
+    if body.measure:
+        b_owner, b_flat, b_env = body.pairs(seg, s, e, grid, stock, max(float(stock.max()), body.part_max))
+    else:
+        b_owner = b_flat = np.zeros(0, np.int64)
+        b_env = np.zeros(0)
 
     n_c = len(flat)
     cells = np.concatenate([flat, b_flat])
@@ -573,9 +587,10 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
         # A wall's skin is no engagement (see _SKIN); it is still cut, and still counts
         # for rapids and for the width of the cut.
         # Only beside a wall: floor allowance (the part right below) is engagement as usual.
-        skin = (body.wall_near[f] >= before[cut] - _SKIN) & (part[f] < before[cut] - _SKIN)
-        engaged_depth(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
-                       env[cut], f, grid.cell, body.engaged_width, stats, skin, body.full_width)
+        if body.measure:
+            skin = (body.wall_near[f] >= before[cut] - _SKIN) & (part[f] < before[cut] - _SKIN)
+            engaged_depth(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
+                           env[cut], f, grid.cell, body.engaged_width, stats, skin, body.full_width)
         # what the cut took off, counted down to the stock's bottom (a through cut goes on into air)
         floor = stats.bottom if under is None else under[f]
         np.add.at(stats.volume, o + s, np.maximum(before[cut] - np.maximum(env[cut], floor), 0.0) * grid.cell**2)

@@ -487,6 +487,39 @@ def _verify(moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup, part_t
     return VerifyResult(simulation=sim, report=report)
 
 
+@dataclass(frozen=True)
+class RapidCheck:
+    """What :func:`rapid_check` found: ``simulation``, the stock the program leaves; ``rapid_crashes``,
+    the rapids into it, in program order; ``jaw_faults``, one ``jaws`` :class:`Fault` per tool that
+    reaches into the vise's jaws or parallels (as :func:`simulate` reports them both)."""
+
+    simulation: Simulation
+    rapid_crashes: tuple[RapidCrash, ...]
+    jaw_faults: tuple[Fault, ...]
+
+
+def rapid_check(moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup, part_triangles: np.ndarray,
+                cell: float, rapid_tolerance: float = RAPID_RIM, contact_tolerance: float = 0.01) -> RapidCheck:
+    """Only the rapids and the jaws of :func:`simulate`: the same stock, the same rapid crashes and
+    ``jaws`` faults, without measuring engagement, shank and holder contacts, gouges or the stock
+    left (the planner's check of its own rapids reads nothing else). ``cell``, the tolerances [mm]
+    as :class:`VerifyOptions` holds them.
+
+    Raises
+    ------
+    VerifyError
+        As :func:`simulate`.
+    """
+    options = VerifyOptions(cell=cell, rapid_tolerance=rapid_tolerance, contact_tolerance=contact_tolerance,
+                            engagement_resolution=None)
+    _check_options(options)
+    cut = cut_stock(moves, tools, setup, part_triangles, cell, rapid_rim=rapid_tolerance, body_graze=contact_tolerance,
+                    measure=False)
+    faults = _jaw_faults(cut.starts, moves.points[1:], cut.swept, moves, tools, setup, options) if setup.jaws else []
+    return RapidCheck(simulation=cut.simulation, rapid_crashes=_crashes(cut.segments, cut.met, moves, cut.simulation,
+                                                                        rapid_tolerance), jaw_faults=tuple(faults))
+
+
 def _check_options(options: VerifyOptions) -> None:
     """VerifyError naming the first option that is not a usable number of mm."""
     for name in ("cell", "gouge_tolerance", "rapid_tolerance", "finish_depth", "engaged_width", "contact_tolerance",
@@ -634,11 +667,7 @@ def _judge(seg: Segments, stats: MoveRecord, measured: _Measured, moves: Program
     line = moves.line[seg.move].astype(np.int64)
     tool = moves.tool[seg.move].astype(np.int64)
     fin = finish[seg.move]
-    crashes = []
-    for k in np.flatnonzero(seg.rapid & (stats.removed_max > options.rapid_tolerance)).tolist():
-        x, y = xy(stats.removed_cell[k])
-        crashes.append(RapidCrash(line=int(line[k]), depth=float(stats.removed_max[k]),
-                                  position=(x, y, float(stats.removed_env[k])), move=int(seg.move[k])))
+    crashes = _crashes(seg, stats, moves, sim, options.rapid_tolerance)
     faults: list[Fault] = []
     # A program whose feed moves take nothing off proves nothing (an empty or truncated file).
     if not np.any(stats.removed_max[~seg.rapid] > options.gouge_tolerance):
@@ -705,6 +734,19 @@ def _judge(seg: Segments, stats: MoveRecord, measured: _Measured, moves: Program
             angle=Spread.of(measured.angle[cutting]), angle_moves=tuple(int(c) for c in counts),
         ))
     return crashes, faults, tuple(engagement)
+
+
+def _crashes(seg: Segments, stats: MoveRecord, moves: ProgramMoves, sim: Simulation,
+             rapid_tolerance: float) -> tuple[RapidCrash, ...]:
+    """The rapids that removed more than ``rapid_tolerance`` [mm] of stock, in program order."""
+    g = sim.grid
+    crashes = []
+    for k in np.flatnonzero(seg.rapid & (stats.removed_max > rapid_tolerance)).tolist():
+        jj, ii = divmod(int(stats.removed_cell[k]), g.nx)
+        crashes.append(RapidCrash(line=int(moves.line[seg.move[k]]), depth=float(stats.removed_max[k]),
+                                  position=(float(g.x0 + ii * g.cell), float(g.y0 + jj * g.cell),
+                                            float(stats.removed_env[k])), move=int(seg.move[k])))
+    return tuple(crashes)
 
 
 #: Stands for "the position :class:`_Measured` holds" among the grid cells of :func:`_judge`'s checks.

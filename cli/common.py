@@ -12,7 +12,9 @@ import contextlib
 import functools
 import json
 import logging
+import re
 import sys
+import time
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
@@ -83,12 +85,46 @@ class StageProgress:
         return lambda done, total: self(name, done, total)
 
 
+#: A line :class:`StageLines` writes: ``[  12.3 s] waterline ...`` as a stage starts, ``[  20.1 s]
+#: waterline done in 7.8 s`` as it ends (seconds since the command started).
+STAGE_LINE = re.compile(r"^\[ *\d+\.\d s\] \S.*( \.\.\.| done in \d+\.\d s)$")
+
+
+class StageLines(StageProgress):
+    """Stages as plain lines on stderr (:data:`STAGE_LINE`), for a pipe or a log, where bars cannot show.
+
+    A stage shows when it first reports and when it reaches its total; once ended, it shows again
+    only when it starts over from 0 (a stage timed twice), so a stage that reports its end more than
+    once, or steps on after it, adds no lines.
+    """
+
+    def __init__(self) -> None:
+        super().__init__(None)
+        self._t0 = time.perf_counter()
+        self._open: dict[str, float] = {}  # running stage -> when it started
+        self._ended: set[str] = set()
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        now = time.perf_counter()
+        if stage not in self._open and (stage not in self._ended or done == 0):
+            self._ended.discard(stage)
+            self._open[stage] = now
+            self._line(now, f"{stage} ...")
+        if stage in self._open and done >= total:
+            self._line(now, f"{stage} done in {now - self._open.pop(stage):.1f} s")
+            self._ended.add(stage)
+
+    def _line(self, now: float, text: str) -> None:
+        stderr.print(f"[{now - self._t0:6.1f} s] {text}", highlight=False, markup=False)
+
+
 @contextlib.contextmanager
-def progress_bars(quiet: bool) -> Iterator[StageProgress]:
-    """Progress bars on stderr (nothing when ``quiet``, or when stderr is not a terminal: a
-    transient bar there leaves only a blank line, before any ``error:`` line)."""
+def progress_bars(quiet: bool, lines_when_piped: bool = False) -> Iterator[StageProgress]:
+    """Progress bars on stderr (nothing when ``quiet``; when stderr is not a terminal, where a
+    transient bar leaves only a blank line, nothing, or with ``lines_when_piped`` one line as each
+    stage starts and ends, :class:`StageLines`, for a command that can run for minutes)."""
     if quiet or not stderr.is_terminal:
-        yield StageProgress(None)
+        yield StageLines() if lines_when_piped and not quiet else StageProgress(None)
         return
     # Here, not at the top: a quiet run (every workflow job) draws no bars.
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn

@@ -53,7 +53,7 @@ def plan(
                           lang=lang, ops=ops)
     for p in request.outputs(out_dir).values():  # before the work, not after it
         check_writable(p, overwrite)
-    with progress_bars(quiet) as bars:
+    with progress_bars(quiet, lines_when_piped=True) as bars:  # a big part plans for minutes: show where
         planned = plan_part(request, bars)
     summary = planned.write(out_dir, overwrite=overwrite)
     if json_out:

@@ -29,3 +29,17 @@ def test_the_demo_summary_fits_100_columns_and_says_the_verdict(block_catalog):
     rows = table.splitlines()
     assert len(rows) == 3 and all(len(r) <= 100 for r in rows), table
     assert rows[0].split()[:2] == ["part", "ops"] and rows[1].split()[0] == part.stem
+
+
+def test_the_demo_starts_the_largest_sample_first(tmp_path):
+    """`make -j` starts the plans in the order `plans` lists them: the longest first, so that no long plan
+    starts last and runs alone on one core at the end."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    (bin_dir / ".installed").touch()  # newer than pyproject.toml: nothing to install
+    dry = subprocess.run(["make", "-n", "plans", f"BIN={bin_dir}", f"OUT={tmp_path / 'out'}"], cwd=ROOT, check=True,
+                         capture_output=True, text=True).stdout
+    planned = [line.split(" plan samples/", 1)[1].split(".stl", 1)[0] for line in dry.splitlines()
+               if " plan samples/" in line]
+    by_size = sorted(ROOT.glob("samples/*.stl"), key=lambda p: -p.stat().st_size)
+    assert planned == [p.stem for p in by_size] and planned[0] == "relief", dry

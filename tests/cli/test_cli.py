@@ -262,6 +262,23 @@ def test_plan_ops_1_writes_op_1_only(small_part, tmp_path):
     assert r.exit_code == 2
 
 
+def test_plan_in_a_pipe_shows_each_stage_as_it_starts_and_ends(small_part, tmp_path):
+    """stderr is no terminal here (no bars): each stage still shows, the CAM's inner ones and the rapid check too."""
+    from cli.common import STAGE_LINE
+
+    r = run("plan", small_part, "-o", tmp_path / "out", "--no-robot", "--ops", "1", "--scallop", "0.05")
+    assert r.exit_code == 0, r.output
+    lines = r.stderr.splitlines()
+    staged = [ln for ln in lines if STAGE_LINE.match(ln)]
+    started = [ln.split("] ", 1)[1][:-len(" ...")] for ln in staged if ln.endswith(" ...")]
+    ended = [ln.split("] ", 1)[1].rsplit(" done in ", 1)[0] for ln in staged if " done in " in ln]
+    assert started[:2] == ["load", "setup"] and {"roughing", "rapid check", "post", "verify"} <= set(started)
+    assert sorted(started) == sorted(ended)  # every stage that started ended, once
+    seconds = [float(ln[1:].split(" s]")[0]) for ln in staged]
+    assert seconds == sorted(seconds) and lines[:len(staged)] == staged  # in order, before the summary
+    assert "block.stl" in lines[len(staged)]
+
+
 def test_plan_with_a_broken_cell_writes_nothing(small_part, tmp_path):
     from factory.core.resources import FIXTURES
 
