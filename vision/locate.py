@@ -384,8 +384,13 @@ CREASE_DEG = 25.0
 AMBIGUOUS_HIDDEN = 0.1
 #: ... and "fits nearly as well" is a share of outline and of all edges found within this of the best.
 AMBIGUOUS_SHARE = 0.2
+#: ... unless the share of the picture's edges inside the outline one turn explains beats every
+#: other's by this much (:func:`_explained`) (unitless).
+TURN_MARGIN = 0.15
 #: Share of a fitted bloom [px] that counts as systematic edge error in the uncertainty (unitless).
 BLOOM_BIAS = 0.5
+#: A pixel this much darker than the tray model is in deep shadow (brightness ratio, unitless).
+SHADOW_RATIO = 0.5
 #: Grey level from which a pixel counts as clipped by the sensor (8-bit) [grey].
 SATURATED_GREY = 250
 #: Search half-widths of the edge fit's rounds, widest first [px].
@@ -473,24 +478,27 @@ def _clipped(saturated: np.ndarray | None, uv: np.ndarray, normal: np.ndarray, o
     return clipped & ok, side
 
 
-def _hidden(saturated: np.ndarray | None, uv: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """``(k,)`` bool: the picture is clipped on both sides of these model edges, so it cannot show them."""
-    if saturated is None or not saturated.any():
+def _hidden(mask: np.ndarray | None, uv: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """``(k,)`` bool: ``mask`` ((h, w) uint8: clipped highlight, or deep shadow) is set on both sides of
+    these model edges, so the picture cannot show them."""
+    if mask is None or not mask.any():
         return np.zeros(len(uv), bool)
     both = np.ones(len(uv), bool)
     for step in (-1.5, 1.5):
         q = uv + step * normal
-        both &= map_coordinates(saturated, [q[:, 1], q[:, 0]], order=0, mode="nearest") > 0
+        both &= map_coordinates(mask, [q[:, 1], q[:, 0]], order=0, mode="nearest") > 0
     return both
 
 
 def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, start: np.ndarray,
-              reaches: tuple[float, ...] = SEARCH_PX, saturated: np.ndarray | None = None) -> _EdgeFit | None:
+              reaches: tuple[float, ...] = SEARCH_PX, saturated: np.ndarray | None = None,
+              dark: np.ndarray | None = None) -> _EdgeFit | None:
     """Fit x, y and yaw so the model's visible edges lie on the picture's edges (rounds of search and fit).
 
     Edges beside a clipped highlight (``saturated``, (h, w) uint8) are measured with a common
     bloom [px] fitted with the pose; edges inside the outline that lie in a clipped area on both
-    sides cannot show and are left out of the share found.
+    sides cannot show and are left out of the share found; so are edges in deep shadow (``dark``,
+    (h, w) uint8) on both sides.
     """
     p = np.asarray(start, dtype=np.float64)
     bloom = 0.0
@@ -532,11 +540,19 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
     # Edges inside the outline within a clipped highlight are unknown, neither found nor missed;
     # the outline against the tray always counts.
     seen = outer | ~_hidden(saturated, uv, normal)
+    # So is any edge with deep shadow on both sides: the foot of a wall turned from a low light
+    # meets its own cast shadow there, dark against dark. The outline's denominator keeps at
+    # least half of it, so a pose that sits in a shadow finds no outline there.
+    lit = ~_hidden(dark, uv, normal)
     inliers = np.abs(sol.fun) <= 1.5
     rms = float(np.sqrt(np.mean(sol.fun[inliers] ** 2))) if inliers.any() else np.inf
-    coverage = float(near[outer].mean()) if outer.any() else float(near.mean())
-    axis = _axis_coverage(near[outer], normal[outer]) if outer.any() else _axis_coverage(near, normal)
-    return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis, found=float(near[seen].mean()), rms_px=rms,
+    ring = outer if outer.any() else np.ones(len(outer), bool)
+    shown = ring & lit
+    coverage = float(near[shown].sum() / max(shown.sum(), 0.5 * ring.sum()))
+    axis = _axis_coverage(near[shown], normal[shown]) if shown.sum() >= 0.5 * ring.sum() else 0.0
+    counted = seen & lit
+    return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis,
+                    found=float(near[counted].sum() / max(counted.sum(), 0.5 * seen.sum())), rms_px=rms,
                     cost=float(sol.cost), jac=sol.jac[inliers][:, :3], residuals=sol.fun[inliers],
                     hidden=float(1.0 - seen.mean()), bloom_px=bloom)
 
@@ -606,6 +622,84 @@ def _chamfer_starts(model: _EdgeModel, edges: np.ndarray, inside: np.ndarray, bo
     return starts
 
 
+#: Edge directions are told apart in this many bins of the half turn (an edge counts in its own
+#: and the two neighbouring bins, so within about 34 deg) for the oriented distance maps.
+ORIENTATION_BINS = 8
+#: The local search around each coarse start: yaw steps [deg] either side, and shifts [px] either side.
+REFINE_YAW_DEG = (1.0, 6)
+REFINE_SHIFT_PX = 8
+
+
+def _oriented_distances(gx: np.ndarray, gy: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """``(ORIENTATION_BINS, h, w)`` float32 distance [px, capped at 6] to the nearest (thin) edge pixel whose
+    gradient direction (modulo a half turn) lies in or beside each bin.
+
+    A model edge only matches a picture edge that runs the same way: the texture, a shadow's
+    penumbra or a boss nearby rarely do, so the local search is not pulled onto them.
+    """
+    angle = np.mod(np.arctan2(gy, gx), np.pi)
+    b = np.minimum((angle / np.pi * ORIENTATION_BINS).astype(np.int64), ORIENTATION_BINS - 1)
+    maps = np.empty((ORIENTATION_BINS, *edges.shape), np.float32)
+    for k in range(ORIENTATION_BINS):
+        near = (edges > 0) & ((b == k) | (b == (k + 1) % ORIENTATION_BINS) | (b == (k - 1) % ORIENTATION_BINS))
+        maps[k] = np.minimum(cv2.distanceTransform((~near).astype(np.uint8), cv2.DIST_L2, 3), 6.0)
+    return maps
+
+
+def _thin_edges(gx: np.ndarray, gy: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """``(h, w)`` bool: the edge pixels on their ridge (non-maximum suppression across the edge).
+
+    A strong edge's band is 3-5 px wide; a band leaves a distance map flat over its width.
+    """
+    angle = np.arctan2(gy, gx)
+    mag = np.hypot(gx, gy)
+    near_x = np.rint(np.cos(angle)).astype(np.int64)
+    near_y = np.rint(np.sin(angle)).astype(np.int64)
+    h, w = mag.shape
+    vv, uu = np.mgrid[0:h, 0:w]
+    ahead = mag[(vv + near_y).clip(0, h - 1), (uu + near_x).clip(0, w - 1)]
+    behind = mag[(vv - near_y).clip(0, h - 1), (uu - near_x).clip(0, w - 1)]
+    return (edges > 0) & (mag >= ahead) & (mag >= behind)
+
+
+def _refine_start(model: _EdgeModel, maps: np.ndarray, start: np.ndarray, ground: Callable[[np.ndarray], np.ndarray]
+                  ) -> tuple[float, np.ndarray]:
+    """The pose near a coarse start (x, y [m], yaw [rad]) whose edges lie closest on picture edges of
+    the same direction: every :data:`REFINE_YAW_DEG` step and pixel shift within reach, scored by the
+    mean oriented distance (``maps``, :func:`_oriented_distances`). Returns (score [px], pose).
+
+    The coarse search's 10 deg yaw grid leaves a 100 mm part's ends 5-8 px off; from there the
+    edge fit's nearest-peak search can lock onto a boss or a shadow. This brings the start within
+    a pixel and a degree first.
+    """
+    step, n = np.radians(REFINE_YAW_DEG[0]), REFINE_YAW_DEG[1]
+    r = REFINE_SHIFT_PX
+    shifts = np.stack(np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1)), axis=-1).reshape(-1, 2)
+    _, h, w = maps.shape
+    ref = model.camera.project(np.array([[start[0], start[1], model.tray_z]]), model.rvec, model.tvec)[0]
+    best = (np.inf, start)
+    for dyaw in np.arange(-n, n + 1) * step:
+        p = np.array([start[0], start[1], start[2] + dyaw])
+        idx = model.visible(p)
+        if len(idx) < 12:
+            continue
+        idx = idx[:: max(1, len(idx) // FIT_SAMPLES)]
+        uv, normal = model.project(p, idx)
+        # The picture's gradient runs along the model edge's image normal.
+        b = np.minimum((np.mod(np.arctan2(normal[:, 1], normal[:, 0]), np.pi) / np.pi * ORIENTATION_BINS)
+                       .astype(np.int64), ORIENTATION_BINS - 1)
+        u = np.rint(uv[:, 0]).astype(np.int64)[None, :] + shifts[:, :1]
+        v = np.rint(uv[:, 1]).astype(np.int64)[None, :] + shifts[:, 1:]
+        inside = (u >= 0) & (v >= 0) & (u < w) & (v < h)
+        d = np.where(inside, maps[b[None, :], v.clip(0, h - 1), u.clip(0, w - 1)], 6.0)
+        score = d.mean(axis=1)
+        k = int(np.argmin(score))
+        if score[k] < best[0]:
+            xy = start[:2] + ground(ref + shifts[k]) - ground(ref)
+            best = (float(score[k]), np.r_[xy, start[2] + dyaw])
+    return best
+
+
 def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray, part: Footprint,
                  tray_z: float, options: LocateOptions = LocateOptions(), *, source: str = "image"
                  ) -> list[LocatedPart]:
@@ -665,12 +759,16 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     edges = (np.hypot(gx, gy) > threshold).astype(np.uint8)
     # Clipped pixels (glare) say only "at least this bright": where an edge lies in them is unknown.
     saturated = (grey >= SATURATED_GREY).astype(np.uint8)
+    # Deep shadow (a low light's cast shadow, a wall turned from it): an edge between two of these shows nothing.
+    dark = (ratio < SHADOW_RATIO).astype(np.uint8)
     # Candidates: what departs from the tray, or is dense with edges (a top face as bright as the tray).
     fg = ((np.abs(log_ratio) > level) | (edges > 0)).astype(np.uint8)
     fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((2, 2), np.uint8))
     fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, np.ones((9, 9), np.uint8))
     fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(fg, connectivity=8)
+    thin = _thin_edges(gx, gy, edges)
+    maps = _oriented_distances(gx, gy, thin)
     model = _EdgeModel(part, camera, cam_base, tray_z)
     f = np.sqrt(camera.fx * camera.fy)
     w, h = camera.image_size
@@ -698,7 +796,9 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
             continue
         box = (max(bx, 0), max(by, 0), min(bx + bw, w), min(by + bh, h))
         starts = _chamfer_starts(model, edges, labels == i, box, ground(centroids[i]), ground)
-        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated)
+        starts = [pose for _, pose in sorted((_refine_start(model, maps, s, ground) for s in starts),
+                                             key=lambda r: r[0])]
+        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin, dark)
         if best is None:
             log.info("blob at (%.0f, %.0f) px: no edge fit", *centroids[i])
             continue
@@ -727,17 +827,50 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     return sorted(found, key=lambda p: -p.score)
 
 
+def _explained(model: _EdgeModel, pose: np.ndarray, thin: np.ndarray) -> float:
+    """Share of the picture's edge pixels inside the part's outline that lie on a model edge at ``pose``.
+
+    ``thin`` (h, w) bool are the picture's edges (:func:`_thin_edges`). Only the pixels more than
+    :data:`EXPLAIN_PX` inside the outline count, and they count as explained within that of an edge
+    the model shows there. Turns of a symmetric outline share it, so this compares what lies inside:
+    a boss's bore seen in glare is explained by the pose that has it there, not by its turn (which
+    hides its own bosses in the clipped top and so finds a larger share of its fewer edges) (0..1).
+    """
+    idx = model.visible(pose)
+    uv, _ = model.project(pose, idx)
+    outer = uv[model.outer[idx]]
+    if len(outer) < 3 or len(uv) == len(outer):
+        return 0.0
+    hull = cv2.convexHull(outer.astype(np.float32))
+    x, y, w, h = cv2.boundingRect(hull)
+    vs, us = np.nonzero(thin[max(y, 0):y + h, max(x, 0):x + w])
+    pix = np.column_stack([us + max(x, 0), vs + max(y, 0)]).astype(np.float64)
+    if len(pix) == 0:
+        return 0.0
+    inside = np.array([cv2.pointPolygonTest(hull, (float(u), float(v)), True) > EXPLAIN_PX for u, v in pix])
+    pix = pix[inside]
+    if len(pix) == 0:
+        return 0.0
+    d, _ = cKDTree(uv[~model.outer[idx]]).query(pix)
+    return float(np.mean(d <= EXPLAIN_PX))
+
+
+#: A picture edge pixel this close to a model edge [px] is explained by it (:func:`_explained`).
+EXPLAIN_PX = 2.0
+
+
 def _best_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
-              symmetry: int, saturated: np.ndarray | None = None) -> _EdgeFit | None:
+              symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None,
+              dark: np.ndarray | None = None) -> _EdgeFit | None:
     """The edge fit of one blob from its coarse starts (x, y [m], yaw [rad]); None when none converges."""
-    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated) for s in starts)
+    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated, dark=dark) for s in starts)
             if fit is not None]
     if not fits:
         return None
     # A symmetric outline fits turned as well as not: the edges inside it (steps, bosses) decide.
     first = max(fits, key=lambda fit: fit.found)
     turns = [first.pose + np.array([0.0, 0.0, 2 * np.pi * k / symmetry]) for k in range(1, symmetry)]
-    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, SEARCH_PX[-2:], saturated) for t in turns)
+    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, SEARCH_PX[-2:], saturated, dark) for t in turns)
              if fit is not None]
     # Of the fits that find (nearly) as many edges as the best, the one that lies closest on them.
     most = max(fit.found for fit in fits)
@@ -747,12 +880,22 @@ def _best_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
     # the turn that hides more of them finds a larger share of the rest): when a turn that is no
     # symmetry of the mesh fits nearly as well, the choice is a guess, and a guess must not reach
     # the robot.
-    if best.hidden > AMBIGUOUS_HIDDEN and any(
-            _turn(fit.pose[2] - best.pose[2], symmetry)
-            and fit.coverage >= best.coverage - AMBIGUOUS_SHARE and fit.found >= best.found - AMBIGUOUS_SHARE
-            and not model.same_turned(_turn(fit.pose[2] - best.pose[2], symmetry), symmetry)
-            for fit in fits):
-        return replace(best, ambiguous=True)
+    rivals = [fit for fit in fits if _turn(fit.pose[2] - best.pose[2], symmetry)
+              and fit.coverage >= best.coverage - AMBIGUOUS_SHARE and fit.found >= best.found - AMBIGUOUS_SHARE
+              and not model.same_turned(_turn(fit.pose[2] - best.pose[2], symmetry), symmetry)]
+    if best.hidden > AMBIGUOUS_HIDDEN and rivals:
+        # What the picture shows inside the outline may still tell them apart: the turn whose edges
+        # explain clearly more of it is the part's, else the yaw is a guess.
+        if thin is None:
+            return replace(best, ambiguous=True)
+        by_turn: dict[int, _EdgeFit] = {}
+        for fit in sorted([best, *rivals], key=lambda fit: -fit.found):
+            by_turn.setdefault(_turn(fit.pose[2] - best.pose[2], symmetry), fit)
+        told = sorted(((_explained(model, fit.pose, thin), turn) for turn, fit in by_turn.items()), reverse=True)
+        log.info("turns of the outline explain %s of the edges inside it", [round(e, 2) for e, _ in told])
+        if told[0][0] - told[1][0] < TURN_MARGIN:
+            return replace(best, ambiguous=True)
+        return by_turn[told[0][1]]
     return best
 
 
