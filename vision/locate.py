@@ -389,8 +389,6 @@ AMBIGUOUS_SHARE = 0.2
 TURN_MARGIN = 0.15
 #: Share of a fitted bloom [px] that counts as systematic edge error in the uncertainty (unitless).
 BLOOM_BIAS = 0.5
-#: A pixel this much darker than the tray model is in deep shadow (brightness ratio, unitless).
-SHADOW_RATIO = 0.5
 #: Grey level from which a pixel counts as clipped by the sensor (8-bit) [grey].
 SATURATED_GREY = 250
 #: Search half-widths of the edge fit's rounds, widest first [px].
@@ -478,27 +476,24 @@ def _clipped(saturated: np.ndarray | None, uv: np.ndarray, normal: np.ndarray, o
     return clipped & ok, side
 
 
-def _hidden(mask: np.ndarray | None, uv: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """``(k,)`` bool: ``mask`` ((h, w) uint8: clipped highlight, or deep shadow) is set on both sides of
-    these model edges, so the picture cannot show them."""
-    if mask is None or not mask.any():
+def _hidden(saturated: np.ndarray | None, uv: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """``(k,)`` bool: the picture is clipped on both sides of these model edges, so it cannot show them."""
+    if saturated is None or not saturated.any():
         return np.zeros(len(uv), bool)
     both = np.ones(len(uv), bool)
     for step in (-1.5, 1.5):
         q = uv + step * normal
-        both &= map_coordinates(mask, [q[:, 1], q[:, 0]], order=0, mode="nearest") > 0
+        both &= map_coordinates(saturated, [q[:, 1], q[:, 0]], order=0, mode="nearest") > 0
     return both
 
 
 def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, start: np.ndarray,
-              reaches: tuple[float, ...] = SEARCH_PX, saturated: np.ndarray | None = None,
-              dark: np.ndarray | None = None) -> _EdgeFit | None:
+              reaches: tuple[float, ...] = SEARCH_PX, saturated: np.ndarray | None = None) -> _EdgeFit | None:
     """Fit x, y and yaw so the model's visible edges lie on the picture's edges (rounds of search and fit).
 
     Edges beside a clipped highlight (``saturated``, (h, w) uint8) are measured with a common
     bloom [px] fitted with the pose; edges inside the outline that lie in a clipped area on both
-    sides cannot show and are left out of the share found; so are edges in deep shadow (``dark``,
-    (h, w) uint8) on both sides.
+    sides cannot show and are left out of the share found.
     """
     p = np.asarray(start, dtype=np.float64)
     bloom = 0.0
@@ -540,19 +535,11 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
     # Edges inside the outline within a clipped highlight are unknown, neither found nor missed;
     # the outline against the tray always counts.
     seen = outer | ~_hidden(saturated, uv, normal)
-    # So is any edge with deep shadow on both sides: the foot of a wall turned from a low light
-    # meets its own cast shadow there, dark against dark. The outline's denominator keeps at
-    # least half of it, so a pose that sits in a shadow finds no outline there.
-    lit = ~_hidden(dark, uv, normal)
     inliers = np.abs(sol.fun) <= 1.5
     rms = float(np.sqrt(np.mean(sol.fun[inliers] ** 2))) if inliers.any() else np.inf
-    ring = outer if outer.any() else np.ones(len(outer), bool)
-    shown = ring & lit
-    coverage = float(near[shown].sum() / max(shown.sum(), 0.5 * ring.sum()))
-    axis = _axis_coverage(near[shown], normal[shown]) if shown.sum() >= 0.5 * ring.sum() else 0.0
-    counted = seen & lit
-    return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis,
-                    found=float(near[counted].sum() / max(counted.sum(), 0.5 * seen.sum())), rms_px=rms,
+    coverage = float(near[outer].mean()) if outer.any() else float(near.mean())
+    axis = _axis_coverage(near[outer], normal[outer]) if outer.any() else _axis_coverage(near, normal)
+    return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis, found=float(near[seen].mean()), rms_px=rms,
                     cost=float(sol.cost), jac=sol.jac[inliers][:, :3], residuals=sol.fun[inliers],
                     hidden=float(1.0 - seen.mean()), bloom_px=bloom)
 
@@ -759,8 +746,6 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     edges = (np.hypot(gx, gy) > threshold).astype(np.uint8)
     # Clipped pixels (glare) say only "at least this bright": where an edge lies in them is unknown.
     saturated = (grey >= SATURATED_GREY).astype(np.uint8)
-    # Deep shadow (a low light's cast shadow, a wall turned from it): an edge between two of these shows nothing.
-    dark = (ratio < SHADOW_RATIO).astype(np.uint8)
     # Candidates: what departs from the tray, or is dense with edges (a top face as bright as the tray).
     fg = ((np.abs(log_ratio) > level) | (edges > 0)).astype(np.uint8)
     fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((2, 2), np.uint8))
@@ -798,7 +783,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         starts = _chamfer_starts(model, edges, labels == i, box, ground(centroids[i]), ground)
         starts = [pose for _, pose in sorted((_refine_start(model, maps, s, ground) for s in starts),
                                              key=lambda r: r[0])]
-        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin, dark)
+        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin)
         if best is None:
             log.info("blob at (%.0f, %.0f) px: no edge fit", *centroids[i])
             continue
@@ -860,17 +845,17 @@ EXPLAIN_PX = 2.0
 
 
 def _best_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
-              symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None,
-              dark: np.ndarray | None = None) -> _EdgeFit | None:
+              symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None
+              ) -> _EdgeFit | None:
     """The edge fit of one blob from its coarse starts (x, y [m], yaw [rad]); None when none converges."""
-    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated, dark=dark) for s in starts)
+    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated) for s in starts)
             if fit is not None]
     if not fits:
         return None
     # A symmetric outline fits turned as well as not: the edges inside it (steps, bosses) decide.
     first = max(fits, key=lambda fit: fit.found)
     turns = [first.pose + np.array([0.0, 0.0, 2 * np.pi * k / symmetry]) for k in range(1, symmetry)]
-    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, SEARCH_PX[-2:], saturated, dark) for t in turns)
+    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, SEARCH_PX[-2:], saturated) for t in turns)
              if fit is not None]
     # Of the fits that find (nearly) as many edges as the best, the one that lies closest on them.
     most = max(fit.found for fit in fits)
