@@ -35,7 +35,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from factory.core.errors import VisionError  # noqa: E402
-from tests.vision.lit import CONDITIONS, OWN_PARTS, SAMPLE_PARTS, LitScene, cell_station, gallery_scene, sample_mesh  # noqa: E402
+from tests.vision.lit import (CONDITIONS, OWN_PARTS, SAMPLE_PARTS, LitScene, cell_station,  # noqa: E402
+                              gallery_scene, sample_mesh)
 from vision.locate import locate_parts  # noqa: E402
 
 FOUND_M = 1.5e-3
@@ -110,6 +111,22 @@ def run(poses: int, cache: Path | None, conditions: list[str], parts: list[str],
     return {"rows": rows}
 
 
+def errors_table(rows: list[dict], conditions: list[str], parts: list[str]) -> None:
+    """Per condition and part: found, median / max position error [mm] and median / max yaw error [deg]."""
+    print("\n| condition | part | found | position median / max [mm] | yaw median / max [deg] |")
+    print("|---|---|---|---|---|")
+    for c in conditions:
+        for p in parts:
+            r = [x for x in rows if x["condition"] == c and x["part"] == p]
+            f = [x for x in r if x["outcome"] == "found"]
+            mm = [x["error_mm"] for x in f]
+            deg = [x["yaw_error_deg"] for x in f]
+            figures = (f"{statistics.median(mm):.2f} / {max(mm):.2f} | {statistics.median(deg):.2f} / {max(deg):.2f}"
+                       if f else "- | -")
+            print(f"| {c} | {p} | {len(f)}/{len(r)} | {figures} |")
+    print()
+
+
 def report(rows: list[dict], conditions: list[str], parts: list[str]) -> dict:
     print("| condition | " + " | ".join(parts) + " | all |")
     print("|---|" + "---|" * (len(parts) + 1))
@@ -121,6 +138,7 @@ def report(rows: list[dict], conditions: list[str], parts: list[str]) -> dict:
         r = [x for x in rows if x["condition"] == c]
         cells.append(f"{sum(x['outcome'] == 'found' for x in r)}/{len(r)}")
         print(f"| {c} | " + " | ".join(cells) + " |")
+    errors_table(rows, conditions, parts)
     found = [x for x in rows if x["outcome"] == "found"]
     posed = [x for x in rows if x["outcome"] != "missed"]
     summary = {

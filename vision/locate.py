@@ -6,10 +6,13 @@ the camera pose ``T_base_cam`` comes from the hand-eye file. :func:`locate_parts
 1. Tray model: the picture over a smooth model of the empty tray (vignetting, uneven light);
    what departs from it or is dense with edges makes the candidate blobs (part and shadow).
 2. Coarse search per blob: the mesh's visible edges (top outline, steps, bosses, holes at their
-   real heights) against the distance map of the picture's edges, every 10 deg of yaw.
+   real heights) against the distance map of the picture's edges, every 10 deg of yaw; then a
+   local search every degree and pixel against the distance to picture edges of the same
+   direction (thinned to their ridge), so the fit starts within a pixel of the part.
 3. Edge fit: each visible model edge takes the nearest sub-pixel gradient peak along its image
    normal, and x, y, yaw are fitted to them (soft-L1) in rounds of narrowing search; symmetric
-   turns of the outline are tried and the edges inside it decide.
+   turns of the outline are tried and the edges inside it decide (in glare, which turn explains
+   the picture's edges inside the outline).
 4. Judge: the share of the outline's edges found within a pixel must reach a minimum, in both
    of the outline's main directions, and so must the share of all visible edges (steps, bosses,
    holes), else the blob gets no pose and the refusal says which was short. A shadow, a box or
@@ -561,14 +564,16 @@ def _axis_coverage(near: np.ndarray, normal: np.ndarray) -> float:
 
 
 def _chamfer_starts(model: _EdgeModel, edges: np.ndarray, inside: np.ndarray, box: tuple[int, int, int, int],
-                    centre: np.ndarray, ground: Callable[[np.ndarray], np.ndarray], yaw_steps: int = 36,
-                    keep: int = 3) -> list[np.ndarray]:
+                    centre: np.ndarray, ground: Callable[[np.ndarray], np.ndarray], maps: np.ndarray,
+                    yaw_steps: int = 36, keep: int = 3) -> list[np.ndarray]:
     """The best few (x, y, yaw) of a coarse search: model edges against the picture's edge distance map.
 
     ``box`` (x0, y0, x1, y1) [px] is the window searched (only where ``inside`` (h, w) is set),
     ``centre`` a pose (x, y) [m] inside it where the model's image is drawn once per yaw and
     shifted (a mean distance map value per shift, by ``cv2.filter2D``), ``ground`` maps pixels to
     tray (x, y) [m]. Edge distances are capped at 6 px, so missing edges cost a bounded amount.
+    Each start is then brought within a pixel and a degree on the oriented distances ``maps``
+    (:func:`_refine_start`), best first.
     """
     x0, y0, x1, y1 = box
     dist = cv2.distanceTransform((edges == 0).astype(np.uint8), cv2.DIST_L2, 3)
@@ -606,7 +611,7 @@ def _chamfer_starts(model: _EdgeModel, edges: np.ndarray, inside: np.ndarray, bo
             starts.append(np.r_[xy, yaw])
         if len(starts) == keep:
             break
-    return starts
+    return [pose for _, pose in sorted((_refine_start(model, maps, s, ground) for s in starts), key=lambda r: r[0])]
 
 
 #: Edge directions are told apart in this many bins of the half turn (an edge counts in its own
@@ -697,7 +702,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
        darker (walls, shadows), makes the candidate blobs.
     2. Coarse search per blob: the mesh's visible edges (:class:`_EdgeModel`: top outline,
        steps, bosses at their real heights) against the distance map of the picture's edges,
-       every 10 deg of yaw; the best three poses go on.
+       every 10 deg of yaw, then every degree and pixel near the best three (:func:`_refine_start`).
     3. Edge fit: each visible model edge looks along its image normal for the nearest edge of
        the picture (sub-pixel gradient peak), and x, y, yaw are fitted to them (soft-L1), in
        rounds of narrowing search. A shadow has edges too, but not the model's shape; a wall as
@@ -752,8 +757,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, np.ones((9, 9), np.uint8))
     fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(fg, connectivity=8)
-    thin = _thin_edges(gx, gy, edges)
-    maps = _oriented_distances(gx, gy, thin)
+    maps = _oriented_distances(gx, gy, thin := _thin_edges(gx, gy, edges))
     model = _EdgeModel(part, camera, cam_base, tray_z)
     f = np.sqrt(camera.fx * camera.fy)
     w, h = camera.image_size
@@ -780,9 +784,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         if any(np.hypot(p.pixel[0] - centroids[i][0], p.pixel[1] - centroids[i][1]) < radius_px for p in found):
             continue
         box = (max(bx, 0), max(by, 0), min(bx + bw, w), min(by + bh, h))
-        starts = _chamfer_starts(model, edges, labels == i, box, ground(centroids[i]), ground)
-        starts = [pose for _, pose in sorted((_refine_start(model, maps, s, ground) for s in starts),
-                                             key=lambda r: r[0])]
+        starts = _chamfer_starts(model, edges, labels == i, box, ground(centroids[i]), ground, maps)
         best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin)
         if best is None:
             log.info("blob at (%.0f, %.0f) px: no edge fit", *centroids[i])
