@@ -387,6 +387,8 @@ CREASE_DEG = 25.0
 AMBIGUOUS_HIDDEN = 0.1
 #: ... and "fits nearly as well" is a share of outline and of all edges found within this of the best.
 AMBIGUOUS_SHARE = 0.2
+#: Fits of two turns whose centroids lie within this of each other lie on the same outline [m].
+SAME_OUTLINE_M = 3e-3
 #: ... unless the share of the picture's edges inside the outline one turn explains beats every
 #: other's by this much (:func:`_explained`) (unitless).
 TURN_MARGIN = 0.15
@@ -867,10 +869,14 @@ def _best_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
     # the turn that hides more of them finds a larger share of the rest): when a turn that is no
     # symmetry of the mesh fits nearly as well, the choice is a guess, and a guess must not reach
     # the robot.
+    # In glare the shares of different turns are not comparable (each hides other edges), so every
+    # turn fitted onto the same outline is a rival, however its shares compare.
+    glare = best.hidden > AMBIGUOUS_HIDDEN
     rivals = [fit for fit in fits if _turn(fit.pose[2] - best.pose[2], symmetry)
-              and fit.coverage >= best.coverage - AMBIGUOUS_SHARE and fit.found >= best.found - AMBIGUOUS_SHARE
+              and ((glare and np.hypot(*(fit.pose[:2] - best.pose[:2])) < SAME_OUTLINE_M)
+                   or (fit.coverage >= best.coverage - AMBIGUOUS_SHARE and fit.found >= best.found - AMBIGUOUS_SHARE))
               and not model.same_turned(_turn(fit.pose[2] - best.pose[2], symmetry), symmetry)]
-    if best.hidden > AMBIGUOUS_HIDDEN and rivals:
+    if glare and rivals:
         # What the picture shows inside the outline may still tell them apart: the turn whose edges
         # explain clearly more of it is the part's, else the yaw is a guess.
         if thin is None:
