@@ -1,12 +1,14 @@
 """``locate`` in real light: found / total per condition and part, pose errors, reported vs real uncertainty.
 
-    python benchmarks/locate_real_light.py [--poses 5] [--cache /tmp/lit-gallery] [--json]
+    python benchmarks/locate_real_light.py [--poses 5] [--first-seed 0] [--cache /tmp/lit-gallery] [--json]
 
 The pictures come from ``tests/vision/lit.py``, a ray caster independent of :mod:`vision.render`
 (brushed and polished aluminium with specular highlights, self- and cast shadows, a textured
 satin tray, vignetting, defocus, auto-exposure, sensor noise), taken by the sample cell's camera
 (``fixtures/camera.yaml``, 0.5 m straight above the out-tray, about 0.82 mm per pixel) of the four
-sample parts at random seeded poses under the five conditions of issue 33. Each picture goes to
+sample parts and two shapes of the parts gallery (``OWN_PARTS``) at random seeded poses under the
+five conditions of issue 33 (``--first-seed 5`` draws poses held out from the ones locate was tuned
+on, seeds 0-4). Each picture goes to
 ``locate_parts`` as ``factory locate`` calls it.
 
 A picture counts as *found* when the detection nearest the truth is within 1.5 mm and 1 deg of
@@ -34,7 +36,8 @@ sys.path.insert(0, str(ROOT))
 
 from factory.core.errors import VisionError  # noqa: E402
 from tests.vision.defects import defective_mesh  # noqa: E402
-from tests.vision.lit import CONDITIONS, SAMPLE_PARTS, LitScene, cell_station, gallery_scene, sample_mesh  # noqa: E402
+from tests.vision.lit import (CONDITIONS, OWN_PARTS, SAMPLE_PARTS, LitScene, cell_station,  # noqa: E402
+                              gallery_scene, sample_mesh)
 from vision.locate import locate_parts  # noqa: E402
 
 FOUND_M = 1.5e-3
@@ -78,23 +81,23 @@ def _reason(message: str) -> str:
     return next((short for text, short in REASONS.items() if text in message), "other")
 
 
-def run(poses: int, cache: Path | None, conditions: list[str], parts: list[str]) -> dict:
+def run(poses: int, cache: Path | None, conditions: list[str], parts: list[str], first_seed: int = 0) -> dict:
     station = cell_station()
     rows = []
     for condition in conditions:
         for part in parts:
             _, footprint, _ = sample_mesh(part)
-            for seed in range(poses):
+            for seed in range(first_seed, first_seed + poses):
                 scene = picture(station, part, condition, seed, cache)
-                start = time.perf_counter()
+                start, cpu = time.perf_counter(), time.process_time()
                 refusal = ""
                 try:
                     found = locate_parts(scene.image, station.camera, station.camera_pose, footprint,
                                          station.plane_z)
                 except VisionError as e:
                     found, refusal = [], str(e)
-                seconds = time.perf_counter() - start
-                row = {"condition": condition, "part": part, "seed": seed, "seconds": seconds,
+                seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
+                row = {"condition": condition, "part": part, "seed": seed, "seconds": seconds, "cpu_seconds": cpu,
                        "outcome": "missed", "false": 0, "refusal": _reason(refusal)}
                 if found:
                     dist = [np.hypot(p.x - scene.x, p.y - scene.y) for p in found]
@@ -112,6 +115,22 @@ def run(poses: int, cache: Path | None, conditions: list[str], parts: list[str])
     return {"rows": rows}
 
 
+def errors_table(rows: list[dict], conditions: list[str], parts: list[str]) -> None:
+    """Per condition and part: found, median / max position error [mm] and median / max yaw error [deg]."""
+    print("\n| condition | part | found | position median / max [mm] | yaw median / max [deg] |")
+    print("|---|---|---|---|---|")
+    for c in conditions:
+        for p in parts:
+            r = [x for x in rows if x["condition"] == c and x["part"] == p]
+            f = [x for x in r if x["outcome"] == "found"]
+            mm = [x["error_mm"] for x in f]
+            deg = [x["yaw_error_deg"] for x in f]
+            figures = (f"{statistics.median(mm):.2f} / {max(mm):.2f} | {statistics.median(deg):.2f} / {max(deg):.2f}"
+                       if f else "- | -")
+            print(f"| {c} | {p} | {len(f)}/{len(r)} | {figures} |")
+    print()
+
+
 def report(rows: list[dict], conditions: list[str], parts: list[str]) -> dict:
     print("| condition | " + " | ".join(parts) + " | all |")
     print("|---|" + "---|" * (len(parts) + 1))
@@ -123,6 +142,7 @@ def report(rows: list[dict], conditions: list[str], parts: list[str]) -> dict:
         r = [x for x in rows if x["condition"] == c]
         cells.append(f"{sum(x['outcome'] == 'found' for x in r)}/{len(r)}")
         print(f"| {c} | " + " | ".join(cells) + " |")
+    errors_table(rows, conditions, parts)
     found = [x for x in rows if x["outcome"] == "found"]
     posed = [x for x in rows if x["outcome"] != "missed"]
     summary = {
@@ -136,6 +156,8 @@ def report(rows: list[dict], conditions: list[str], parts: list[str]) -> dict:
         "coverage_found": (sum(x["covered"] for x in found) / len(found)) if found else None,
         "coverage_posed": (sum(x["covered"] for x in posed) / len(posed)) if posed else None,
         "median_seconds": statistics.median([x["seconds"] for x in rows]),
+        "median_cpu_seconds": statistics.median([x["cpu_seconds"] for x in rows]),
+        "max_cpu_seconds": max(x["cpu_seconds"] for x in rows),
         "misses_by_reason": {r: sum(x.get("refusal") == r for x in rows)
                              for r in [*REASONS.values(), "other"] if any(x.get("refusal") == r for x in rows)},
     }
@@ -149,11 +171,12 @@ def main() -> None:
     ap.add_argument("--poses", type=int, default=5)
     ap.add_argument("--cache", type=Path, default=None)
     ap.add_argument("--conditions", default=",".join(CONDITIONS))
-    ap.add_argument("--parts", default=",".join(SAMPLE_PARTS))
+    ap.add_argument("--first-seed", type=int, default=0)
+    ap.add_argument("--parts", default=",".join(SAMPLE_PARTS + OWN_PARTS))
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
     conditions, parts = a.conditions.split(","), a.parts.split(",")
-    rows = run(a.poses, a.cache, conditions, parts)["rows"]
+    rows = run(a.poses, a.cache, conditions, parts, a.first_seed)["rows"]
     summary = report(rows, conditions, parts)
     if a.json:
         print(json.dumps({"summary": summary, "rows": rows}))

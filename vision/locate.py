@@ -6,10 +6,13 @@ the camera pose ``T_base_cam`` comes from the hand-eye file. :func:`locate_parts
 1. Tray model: the picture over a smooth model of the empty tray (vignetting, uneven light);
    what departs from it or is dense with edges makes the candidate blobs (part and shadow).
 2. Coarse search per blob: the mesh's visible edges (top outline, steps, bosses, holes at their
-   real heights) against the distance map of the picture's edges, every 10 deg of yaw.
+   real heights) against the distance map of the picture's edges, every 10 deg of yaw; then a
+   local search every degree and pixel against the distance to picture edges of the same
+   direction (thinned to their ridge), so the fit starts within a pixel of the part.
 3. Edge fit: each visible model edge takes the nearest sub-pixel gradient peak along its image
    normal, and x, y, yaw are fitted to them (soft-L1) in rounds of narrowing search; symmetric
-   turns of the outline are tried and the edges inside it decide.
+   turns of the outline are tried and the edges inside it decide (in glare, which turn explains
+   the picture's edges inside the outline).
 4. Judge: the share of the outline's edges found within a pixel must reach a minimum, in both
    of the outline's main directions, and so must the share of all visible edges (steps, bosses,
    holes), else the blob gets no pose and the refusal says which was short. A shadow, a box or
@@ -75,7 +78,8 @@ class LocateOptions:
     min_coverage : float
         Share of the part's visible outline edges the picture must show within a pixel of the
         fit (0..1); below it no pose is reported (a box, a shadow, a different part). On the
-        benchmark gallery boxes reach at most 0.40 and correct poses mostly 0.55-1.
+        benchmark gallery boxes reach at most 0.40 and correct poses mostly 0.55-1 (with the two
+        gallery shapes, a box fitted as the hexagonal boss reached 0.51, and 0.26 of all its edges).
     min_axis_coverage : float
         The same share in the worse of the outline's two main edge directions (0..1): a long
         part's ends must be seen too, or the pose may be slid along it (2.5 mm, 0.47 on the gallery).
@@ -391,6 +395,11 @@ CREASE_DEG = 25.0
 AMBIGUOUS_HIDDEN = 0.1
 #: ... and "fits nearly as well" is a share of outline and of all edges found within this of the best.
 AMBIGUOUS_SHARE = 0.2
+#: Fits of two turns whose centroids lie within this of each other lie on the same outline [m].
+SAME_OUTLINE_M = 3e-3
+#: ... unless the share of the picture's edges inside the outline one turn explains beats every
+#: other's by this much (:func:`_explained`) (unitless).
+TURN_MARGIN = 0.15
 #: Share of a fitted bloom [px] that counts as systematic edge error in the uncertainty (unitless).
 BLOOM_BIAS = 0.5
 #: Grey level from which a pixel counts as clipped by the sensor (8-bit) [grey].
@@ -580,14 +589,16 @@ def _axis_coverage(near: np.ndarray, normal: np.ndarray) -> float:
 
 
 def _chamfer_starts(model: _EdgeModel, edges: np.ndarray, inside: np.ndarray, box: tuple[int, int, int, int],
-                    centre: np.ndarray, ground: Callable[[np.ndarray], np.ndarray], yaw_steps: int = 36,
-                    keep: int = 3) -> list[np.ndarray]:
+                    centre: np.ndarray, ground: Callable[[np.ndarray], np.ndarray], maps: np.ndarray,
+                    yaw_steps: int = 36, keep: int = 3) -> list[np.ndarray]:
     """The best few (x, y, yaw) of a coarse search: model edges against the picture's edge distance map.
 
     ``box`` (x0, y0, x1, y1) [px] is the window searched (only where ``inside`` (h, w) is set),
     ``centre`` a pose (x, y) [m] inside it where the model's image is drawn once per yaw and
     shifted (a mean distance map value per shift, by ``cv2.filter2D``), ``ground`` maps pixels to
     tray (x, y) [m]. Edge distances are capped at 6 px, so missing edges cost a bounded amount.
+    Each start is then brought within a pixel and a degree on the oriented distances ``maps``
+    (:func:`_refine_start`), best first.
     """
     x0, y0, x1, y1 = box
     dist = cv2.distanceTransform((edges == 0).astype(np.uint8), cv2.DIST_L2, 3)
@@ -625,7 +636,85 @@ def _chamfer_starts(model: _EdgeModel, edges: np.ndarray, inside: np.ndarray, bo
             starts.append(np.r_[xy, yaw])
         if len(starts) == keep:
             break
-    return starts
+    return [pose for _, pose in sorted((_refine_start(model, maps, s, ground) for s in starts), key=lambda r: r[0])]
+
+
+#: Edge directions are told apart in this many bins of the half turn (an edge counts in its own
+#: and the two neighbouring bins, so within about 34 deg) for the oriented distance maps.
+ORIENTATION_BINS = 8
+#: The local search around each coarse start: yaw steps [deg] either side, and shifts [px] either side.
+REFINE_YAW_DEG = (1.0, 6)
+REFINE_SHIFT_PX = 8
+
+
+def _oriented_distances(gx: np.ndarray, gy: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """``(ORIENTATION_BINS, h, w)`` float32 distance [px, capped at 6] to the nearest (thin) edge pixel whose
+    gradient direction (modulo a half turn) lies in or beside each bin.
+
+    A model edge only matches a picture edge that runs the same way: the texture, a shadow's
+    penumbra or a boss nearby rarely do, so the local search is not pulled onto them.
+    """
+    angle = np.mod(np.arctan2(gy, gx), np.pi)
+    b = np.minimum((angle / np.pi * ORIENTATION_BINS).astype(np.int64), ORIENTATION_BINS - 1)
+    maps = np.empty((ORIENTATION_BINS, *edges.shape), np.float32)
+    for k in range(ORIENTATION_BINS):
+        near = (edges > 0) & ((b == k) | (b == (k + 1) % ORIENTATION_BINS) | (b == (k - 1) % ORIENTATION_BINS))
+        maps[k] = np.minimum(cv2.distanceTransform((~near).astype(np.uint8), cv2.DIST_L2, 3), 6.0)
+    return maps
+
+
+def _thin_edges(gx: np.ndarray, gy: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """``(h, w)`` bool: the edge pixels on their ridge (non-maximum suppression across the edge).
+
+    A strong edge's band is 3-5 px wide; a band leaves a distance map flat over its width.
+    """
+    angle = np.arctan2(gy, gx)
+    mag = np.hypot(gx, gy)
+    near_x = np.rint(np.cos(angle)).astype(np.int64)
+    near_y = np.rint(np.sin(angle)).astype(np.int64)
+    h, w = mag.shape
+    vv, uu = np.mgrid[0:h, 0:w]
+    ahead = mag[(vv + near_y).clip(0, h - 1), (uu + near_x).clip(0, w - 1)]
+    behind = mag[(vv - near_y).clip(0, h - 1), (uu - near_x).clip(0, w - 1)]
+    return (edges > 0) & (mag >= ahead) & (mag >= behind)
+
+
+def _refine_start(model: _EdgeModel, maps: np.ndarray, start: np.ndarray, ground: Callable[[np.ndarray], np.ndarray]
+                  ) -> tuple[float, np.ndarray]:
+    """The pose near a coarse start (x, y [m], yaw [rad]) whose edges lie closest on picture edges of
+    the same direction: every :data:`REFINE_YAW_DEG` step and pixel shift within reach, scored by the
+    mean oriented distance (``maps``, :func:`_oriented_distances`). Returns (score [px], pose).
+
+    The coarse search's 10 deg yaw grid leaves a 100 mm part's ends 5-8 px off; from there the
+    edge fit's nearest-peak search can lock onto a boss or a shadow. This brings the start within
+    a pixel and a degree first.
+    """
+    step, n = np.radians(REFINE_YAW_DEG[0]), REFINE_YAW_DEG[1]
+    r = REFINE_SHIFT_PX
+    shifts = np.stack(np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1)), axis=-1).reshape(-1, 2)
+    _, h, w = maps.shape
+    ref = model.camera.project(np.array([[start[0], start[1], model.tray_z]]), model.rvec, model.tvec)[0]
+    best = (np.inf, start)
+    for dyaw in np.arange(-n, n + 1) * step:
+        p = np.array([start[0], start[1], start[2] + dyaw])
+        idx = model.visible(p)
+        if len(idx) < 12:
+            continue
+        idx = idx[:: max(1, len(idx) // FIT_SAMPLES)]
+        uv, normal = model.project(p, idx)
+        # The picture's gradient runs along the model edge's image normal.
+        b = np.minimum((np.mod(np.arctan2(normal[:, 1], normal[:, 0]), np.pi) / np.pi * ORIENTATION_BINS)
+                       .astype(np.int64), ORIENTATION_BINS - 1)
+        u = np.rint(uv[:, 0]).astype(np.int64)[None, :] + shifts[:, :1]
+        v = np.rint(uv[:, 1]).astype(np.int64)[None, :] + shifts[:, 1:]
+        inside = (u >= 0) & (v >= 0) & (u < w) & (v < h)
+        d = np.where(inside, maps[b[None, :], v.clip(0, h - 1), u.clip(0, w - 1)], 6.0)
+        score = d.mean(axis=1)
+        k = int(np.argmin(score))
+        if score[k] < best[0]:
+            xy = start[:2] + ground(ref + shifts[k]) - ground(ref)
+            best = (float(score[k]), np.r_[xy, start[2] + dyaw])
+    return best
 
 
 def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray, part: Footprint,
@@ -638,7 +727,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
        darker (walls, shadows), makes the candidate blobs.
     2. Coarse search per blob: the mesh's visible edges (:class:`_EdgeModel`: top outline,
        steps, bosses at their real heights) against the distance map of the picture's edges,
-       every 10 deg of yaw; the best three poses go on.
+       every 10 deg of yaw, then every degree and pixel near the best three (:func:`_refine_start`).
     3. Edge fit: each visible model edge looks along its image normal for the nearest edge of
        the picture (sub-pixel gradient peak), and x, y, yaw are fitted to them (soft-L1), in
        rounds of narrowing search. A shadow has edges too, but not the model's shape; a wall as
@@ -693,6 +782,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, np.ones((9, 9), np.uint8))
     fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(fg, connectivity=8)
+    maps = _oriented_distances(gx, gy, thin := _thin_edges(gx, gy, edges))
     model = _EdgeModel(part, camera, cam_base, tray_z)
     f = np.sqrt(camera.fx * camera.fy)
     w, h = camera.image_size
@@ -719,8 +809,8 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         if any(np.hypot(p.pixel[0] - centroids[i][0], p.pixel[1] - centroids[i][1]) < radius_px for p in found):
             continue
         box = (max(bx, 0), max(by, 0), min(bx + bw, w), min(by + bh, h))
-        starts = _chamfer_starts(model, edges, labels == i, box, ground(centroids[i]), ground)
-        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated)
+        starts = _chamfer_starts(model, edges, labels == i, box, ground(centroids[i]), ground, maps)
+        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin)
         if best is None:
             log.info("blob at (%.0f, %.0f) px: no edge fit", *centroids[i])
             continue
@@ -749,8 +839,41 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     return sorted(found, key=lambda p: -p.score)
 
 
+def _explained(model: _EdgeModel, pose: np.ndarray, thin: np.ndarray) -> float:
+    """Share of the picture's edge pixels inside the part's outline that lie on a model edge at ``pose``.
+
+    ``thin`` (h, w) bool are the picture's edges (:func:`_thin_edges`). Only the pixels more than
+    :data:`EXPLAIN_PX` inside the outline count, and they count as explained within that of an edge
+    the model shows there. Turns of a symmetric outline share it, so this compares what lies inside:
+    a boss's bore seen in glare is explained by the pose that has it there, not by its turn (which
+    hides its own bosses in the clipped top and so finds a larger share of its fewer edges) (0..1).
+    """
+    idx = model.visible(pose)
+    uv, _ = model.project(pose, idx)
+    outer = uv[model.outer[idx]]
+    if len(outer) < 3 or len(uv) == len(outer):
+        return 0.0
+    hull = cv2.convexHull(outer.astype(np.float32))
+    x, y, w, h = cv2.boundingRect(hull)
+    vs, us = np.nonzero(thin[max(y, 0):y + h, max(x, 0):x + w])
+    pix = np.column_stack([us + max(x, 0), vs + max(y, 0)]).astype(np.float64)
+    if len(pix) == 0:
+        return 0.0
+    inside = np.array([cv2.pointPolygonTest(hull, (float(u), float(v)), True) > EXPLAIN_PX for u, v in pix])
+    pix = pix[inside]
+    if len(pix) == 0:
+        return 0.0
+    d, _ = cKDTree(uv[~model.outer[idx]]).query(pix)
+    return float(np.mean(d <= EXPLAIN_PX))
+
+
+#: A picture edge pixel this close to a model edge [px] is explained by it (:func:`_explained`).
+EXPLAIN_PX = 2.0
+
+
 def _best_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
-              symmetry: int, saturated: np.ndarray | None = None) -> _EdgeFit | None:
+              symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None
+              ) -> _EdgeFit | None:
     """The edge fit of one blob from its coarse starts (x, y [m], yaw [rad]); None when none converges."""
     fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated) for s in starts)
             if fit is not None]
@@ -769,12 +892,26 @@ def _best_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
     # the turn that hides more of them finds a larger share of the rest): when a turn that is no
     # symmetry of the mesh fits nearly as well, the choice is a guess, and a guess must not reach
     # the robot.
-    if best.hidden > AMBIGUOUS_HIDDEN and any(
-            _turn(fit.pose[2] - best.pose[2], symmetry)
-            and fit.coverage >= best.coverage - AMBIGUOUS_SHARE and fit.found >= best.found - AMBIGUOUS_SHARE
-            and not model.same_turned(_turn(fit.pose[2] - best.pose[2], symmetry), symmetry)
-            for fit in fits):
-        return replace(best, ambiguous=True)
+    # In glare the shares of different turns are not comparable (each hides other edges), so every
+    # turn fitted onto the same outline is a rival, however its shares compare.
+    glare = best.hidden > AMBIGUOUS_HIDDEN
+    rivals = [fit for fit in fits if _turn(fit.pose[2] - best.pose[2], symmetry)
+              and ((glare and np.hypot(*(fit.pose[:2] - best.pose[:2])) < SAME_OUTLINE_M)
+                   or (fit.coverage >= best.coverage - AMBIGUOUS_SHARE and fit.found >= best.found - AMBIGUOUS_SHARE))
+              and not model.same_turned(_turn(fit.pose[2] - best.pose[2], symmetry), symmetry)]
+    if glare and rivals:
+        # What the picture shows inside the outline may still tell them apart: the turn whose edges
+        # explain clearly more of it is the part's, else the yaw is a guess.
+        if thin is None:
+            return replace(best, ambiguous=True)
+        by_turn: dict[int, _EdgeFit] = {}
+        for fit in sorted([best, *rivals], key=lambda fit: -fit.found):
+            by_turn.setdefault(_turn(fit.pose[2] - best.pose[2], symmetry), fit)
+        told = sorted(((_explained(model, fit.pose, thin), turn) for turn, fit in by_turn.items()), reverse=True)
+        log.info("turns of the outline explain %s of the edges inside it", [round(e, 2) for e, _ in told])
+        if told[0][0] - told[1][0] < TURN_MARGIN:
+            return replace(best, ambiguous=True)
+        return by_turn[told[0][1]]
     return best
 
 

@@ -35,6 +35,10 @@ from vision.station import CameraStation, station_above
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE_PARTS = ("bracket", "stepped_wall", "plate_bosses", "dome_mould")
+#: Shapes beyond the samples, from the parts gallery (tests/gallery/parts.py): an L standing on its
+#: long leg (a 48 mm upright far above the tray, a long shadow, an outline whose turn its upright tells)
+#: and a hexagonal boss with a bore on a round-cornered base (a freeform-cornered outline).
+OWN_PARTS = ("l_bracket", "hex_boss")
 #: Height of the cell's camera over the out-tray [m] (factory.simulation.CAMERA_HEIGHT_M).
 CAMERA_HEIGHT_M = 0.5
 TRAY_Z = 0.78
@@ -105,8 +109,13 @@ class LitScene:
 
 @lru_cache(maxsize=None)
 def sample_mesh(name: str) -> tuple[trimesh.Trimesh, Footprint, int]:
-    """A sample part's mesh [mm], its footprint and its mesh symmetry order."""
-    mesh = trimesh.load(ROOT / "samples" / f"{name}.stl")
+    """A sample part's (or one of :data:`OWN_PARTS`') mesh [mm], its footprint and its mesh symmetry order."""
+    if name in OWN_PARTS:
+        from tests.gallery import parts as gallery  # manifold3d builds them; only the own shapes need it
+
+        mesh = next(p for p in gallery.PARTS if p.name == name).make()
+    else:
+        mesh = trimesh.load(ROOT / "samples" / f"{name}.stl")
     return mesh, footprint_from_mesh(mesh.vertices, mesh.faces, source=name), mesh_symmetry(mesh)
 
 
@@ -396,7 +405,8 @@ def gallery_scene(station: CameraStation, part: str, condition: str, seed: int, 
     sample's place: same pose, light and noise as the sample's picture of that seed.
     """
     cond = CONDITIONS[condition]
-    rng = np.random.default_rng([seed, SAMPLE_PARTS.index(part) if part in SAMPLE_PARTS else 9,
+    parts = SAMPLE_PARTS + OWN_PARTS
+    rng = np.random.default_rng([seed, parts.index(part) if part in parts else 9,
                                  list(CONDITIONS).index(condition)])
     mesh, fp, symmetry = sample_mesh(part)
     mesh = mesh if shown is None else shown
