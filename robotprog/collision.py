@@ -19,11 +19,13 @@ contact at the home configuration (e.g. the gripper box against the wrist links 
 bolted next to) are dropped, and :attr:`CollisionWorld.dropped_pairs` lists them.
 
 The fingers (at the opening of the move, :func:`finger_boxes`) and a held box (the stock or
-finished part, :class:`HeldBox`) ride on the TCP (a :data:`Payload`); each is checked
-against the static boxes with coal directly. It is shrunk by :attr:`HeldBox.clearance` per
-face so that a part resting on a surface (stock on the vise parallels, in its rack slot)
-is not a contact, and against the arm's links except those on the flange's joint (the
-last wrist link, which carries the gripper holding it).
+finished part, :class:`HeldBox`) ride on the TCP (a :data:`Payload`). Each is shrunk by
+:attr:`HeldBox.clearance` per face so that a part resting on a surface (stock on the vise
+parallels, in its rack slot) is not a contact, and checked against the static boxes and the
+arm's links except those on the flange's joint (the last wrist link, which carries the gripper
+holding it). For that the world's geometry is copied once per payload with the riding boxes as
+objects of their own on the flange's joint and those pairs added after the world's
+(:meth:`CollisionWorld.riding`), so one coal pass checks everything, pair by pair.
 
 Frames: everything is placed in the Pinocchio model's root frame; the cell's world frame
 enters through ``cell.robot.base`` (``transform_world_to_base``). Units: metres, radians.
@@ -195,12 +197,11 @@ class CollisionWorld:
     _static: tuple[tuple[str, coal.Box, coal.Transform3s], ...] = field(repr=False)
     _flange_id: int = field(repr=False)
     _arm_links: tuple[tuple[str, int], ...] = field(repr=False, default=())
-    #: the riding boxes' broad phase: static boxes (rotation, centre, half size) in the model
-    #: frame, bounding spheres of the arm link geometries (centre in the geometry's frame, radius) [m]
-    _static_spheres: tuple[np.ndarray, np.ndarray, np.ndarray] = field(repr=False, default=None)
-    _link_spheres: tuple[np.ndarray, np.ndarray] = field(repr=False, default=None)
+    #: geometry index of each static box, in the order of ``_static``
+    _static_ids: tuple[int, ...] = field(repr=False, default=())
     obstacles: tuple[Box, ...] = ()
     door_closed: bool = False
+    _riders: dict = field(repr=False, default_factory=dict)
 
     def _update(self, q: np.ndarray) -> None:
         q = np.asarray(q, dtype=float)
@@ -209,78 +210,27 @@ class CollisionWorld:
         pin.framesForwardKinematics(self.robot.model, self._data, q)
         pin.updateGeometryPlacements(self.robot.model, self._data, self.geometry, self._gdata)
 
-    def _held_contact(self, held: Payload) -> str | None:
-        centres = self.link_centres() if held is not None else None
-        for box in _riding(held):
-            name = self._box_contact(box, centres)
-            if name is not None:
-                return f"{box.name} <-> {name}"
-        return None
-
-    def link_centres(self, gdata: pin.GeometryData | None = None) -> np.ndarray:
-        """(nlinks, 3) centres of the arm links' bounding spheres in the model frame [m], placed as
-        in ``gdata`` (default the world's own, after :meth:`_update`)."""
-        gd = self._gdata if gdata is None else gdata
-        local = self._link_spheres[0]
-        return np.array([gd.oMg[i].act(local[k]) for k, (_, i) in enumerate(self._arm_links)]).reshape(-1, 3)
-
-    def _box_contact(self, held: HeldBox, centres: np.ndarray | None = None) -> str | None:
-        size = np.asarray(held.size) - 2 * held.clearance
-        if (size <= 0).any():
-            return None
-        shape = coal.Box(*size)
-        t = self._data.oMf[self._flange_id].homogeneous @ self.transform_flange_to_tcp @ np.asarray(
-            held.transform_tcp_to_box)
-        return self.riding_contact(shape, t, float(np.linalg.norm(size)) / 2, centres=centres)
-
-    def riding_contact(self, shape: coal.CollisionGeometry, t: np.ndarray, radius: float,
-                       link_margins: np.ndarray | None = None,
-                       static_margins: np.ndarray | None = None, centres: np.ndarray | None = None,
-                       gdata: pin.GeometryData | None = None) -> str | None:
-        """Name of the first arm link or static box within its margin of ``shape`` at pose ``t``
-        (4, 4) in the model frame (after :meth:`_update`), or ``None``.
-
-        ``radius`` [m] bounds the shape around ``t``'s origin; margins [m] (one per entry of
-        ``_arm_links`` / ``_static``, default 0) ask for that much clearance. Only the targets
-        whose bounding spheres come within reach are handed to coal; ``centres`` are
-        :meth:`link_centres` when the caller has them. The links are placed as in ``gdata``
-        (default the world's own).
-        """
-        gd = self._gdata if gdata is None else gdata
-        tf = coal.Transform3s(t[:3, :3], t[:3, 3])
-        c = t[:3, 3]
-        lm = np.zeros(len(self._arm_links)) if link_margins is None else link_margins
-        sm = np.zeros(len(self._static)) if static_margins is None else static_margins
-        if self._arm_links:
-            centres = self.link_centres(gd) if centres is None else centres
-            d = np.sqrt(((centres - c) ** 2).sum(axis=1))
-            near = np.flatnonzero(d - self._link_spheres[1] - radius <= lm)
-            for k in near:
-                name, i = self._arm_links[k]
-                req = coal.CollisionRequest()
-                req.security_margin = float(lm[k])
-                m = gd.oMg[i]
-                if coal.collide(shape, tf, self.geometry.geometryObjects[i].geometry,
-                                coal.Transform3s(m.rotation, m.translation), req, coal.CollisionResult()):
-                    return name
-        # distance from the shape's centre to each static box, in the box's frame
-        rot, centre, half = self._static_spheres
-        local = np.abs(np.einsum("kji,kj->ki", rot, c - centre)) - half
-        gap = np.sqrt((np.maximum(local, 0.0) ** 2).sum(axis=1)) - radius
-        for k in np.flatnonzero(gap <= sm):
-            name, box, btf = self._static[k]
-            req = coal.CollisionRequest()
-            req.security_margin = float(sm[k])
-            if coal.collide(shape, tf, box, btf, req, coal.CollisionResult()):
-                return name
-        return None
+    def riding(self, held: Payload) -> "RidingGeometry":
+        """The world's geometry with the boxes of ``held`` riding on the TCP (made once per payload)."""
+        key = _riding(held)
+        got = self._riders.get(key)
+        if got is None:
+            got = self._riders[key] = _riding_geometry(self, key)
+        return got
 
     def in_collision(self, q: np.ndarray, held: Payload = None) -> bool:
         """Whether configuration ``q`` (dof,) [rad] (holding ``held``) touches anything."""
+        gm, gd = self._placed(q, held)
+        return bool(pin.computeCollisions(gm, gd, True))
+
+    def _placed(self, q: np.ndarray, held: Payload) -> tuple[pin.GeometryModel, pin.GeometryData]:
+        """The geometry holding ``held`` and its data, placed at ``q``."""
         self._update(q)
-        if pin.computeCollisions(self.geometry, self._gdata, True):
-            return True
-        return self._held_contact(held) is not None
+        if held is None:
+            return self.geometry, self._gdata
+        rider = self.riding(held)
+        pin.updateGeometryPlacements(self.robot.model, self._data, rider.geometry, rider.data)
+        return rider.geometry, rider.data
 
     def first_contact(self, q: np.ndarray, held: Payload = None) -> str | None:
         """``"body_a <-> body_b"`` for the first colliding pair at ``q``, or ``None`` when free.
@@ -288,15 +238,12 @@ class CollisionWorld:
         Robot bodies are named by their geometry (``forearm_link_0``, ``gripper``,
         ``held``), static ones by the cell's box name (``mill_table``, ``vise_body``).
         """
-        self._update(q)
-        if pin.computeCollisions(self.geometry, self._gdata, False):
-            for k, res in enumerate(self._gdata.collisionResults):
+        gm, gd = self._placed(q, held)
+        if pin.computeCollisions(gm, gd, False):
+            for k, res in enumerate(gd.collisionResults):
                 if res.isCollision():
-                    pair = self.geometry.collisionPairs[k]
-                    a = self.geometry.geometryObjects[pair.first].name
-                    b = self.geometry.geometryObjects[pair.second].name
-                    return f"{a} <-> {b}"
-        return self._held_contact(held)
+                    return pair_name(gm, k)
+        return None
 
     def path_free(self, qs: np.ndarray, held: Payload = None) -> int | None:
         """Index of the first colliding configuration of ``qs`` (n, dof) [rad], ``None`` if all are free."""
@@ -357,8 +304,8 @@ def collision_world(cell: Cell, robot: Robot | None = None, *, door_closed: bool
     arm_links = tuple((gm.geometryObjects[i].name, i) for i in links
                       if gm.geometryObjects[i].parentJoint != flange_joint)
     world = CollisionWorld(robot, gm, tuple(b.name for b in boxes), tuple(dropped), t_model_world, tcp,
-                           data, gdata, tuple(static), fid, arm_links, _static_bounds(static, boxes),
-                           _link_bounds(gm, arm_links), tuple(obstacles), door_closed)
+                           data, gdata, tuple(static), fid, arm_links, tuple(range(gripper + 1, gripper + 1 + len(boxes))),
+                           tuple(obstacles), door_closed)
     contact = world.first_contact(home)
     if contact is not None:
         raise CellError(f"robot.home: the home configuration collides ({contact})", source=cell.source)
@@ -446,23 +393,54 @@ def _add_self_pairs(gm: pin.GeometryModel, robot: Robot, data: pin.Data, robot_g
     return dropped
 
 
-def _static_bounds(static: list[tuple[str, coal.Box, coal.Transform3s]],
-                    boxes: tuple[Box, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The riding boxes' broad phase against the static boxes: their rotations (k, 3, 3), centres
-    (k, 3) and half sizes (k, 3) in the model frame [m]."""
-    return (np.array([tf.getRotation() for _, _, tf in static]).reshape(-1, 3, 3),
-            np.array([tf.getTranslation() for _, _, tf in static]).reshape(-1, 3),
-            np.array([b.size for b in boxes], dtype=float).reshape(-1, 3) / 2)
+def pair_name(gm: pin.GeometryModel, k: int) -> str:
+    """``"body_a <-> body_b"`` of collision pair ``k`` of ``gm``."""
+    pair = gm.collisionPairs[k]
+    return f"{gm.geometryObjects[pair.first].name} <-> {gm.geometryObjects[pair.second].name}"
 
 
-def _link_bounds(gm: pin.GeometryModel, arm_links: tuple[tuple[str, int], ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Bounding spheres of the arm link geometries: centres (n, 3) in each geometry's frame and
-    radii (n,) [m]."""
-    local, radii = [], []
-    for _, i in arm_links:
-        geo = gm.geometryObjects[i].geometry
-        geo.computeLocalAABB()
-        lo, hi = np.asarray(geo.aabb_local.min_), np.asarray(geo.aabb_local.max_)
-        local.append((lo + hi) / 2)
-        radii.append(float(np.linalg.norm(hi - lo)) / 2)
-    return np.array(local).reshape(-1, 3), np.array(radii)
+@dataclass(frozen=True, eq=False)
+class RidingGeometry:
+    """A world's geometry with the boxes riding on the TCP added (:meth:`CollisionWorld.riding`).
+
+    Attributes
+    ----------
+    geometry : pinocchio.GeometryModel
+        The world's objects and pairs first, at the same indices; then one object per riding box
+        (on the flange's joint, named as the box); then, box by box, its pair with each arm link
+        (``CollisionWorld._arm_links``, in order) and each static box (in order). Read-only.
+    data : pinocchio.GeometryData
+    boxes : tuple of HeldBox
+        The riding boxes checked (a box its clearance shrinks to nothing is not), in order.
+    placements : tuple of (4, 4) float
+        Each box's centre in the flange frame [m].
+    """
+
+    geometry: pin.GeometryModel
+    data: pin.GeometryData
+    boxes: tuple[HeldBox, ...]
+    placements: tuple[np.ndarray, ...]
+
+
+def _riding_geometry(world: CollisionWorld, riding: tuple[HeldBox, ...]) -> RidingGeometry:
+    """The riding boxes ``riding`` added to a copy of ``world``'s geometry (:class:`RidingGeometry`)."""
+    gm = world.geometry.copy()
+    model = world.robot.model
+    fr = model.frames[world._flange_id]
+    t_joint_flange = fr.placement.homogeneous
+    boxes, placements, objects = [], [], []
+    for box in riding:
+        size = np.asarray(box.size) - 2 * box.clearance
+        if (size <= 0).any():
+            continue
+        t_flange_box = world.transform_flange_to_tcp @ np.asarray(box.transform_tcp_to_box)
+        objects.append(gm.addGeometryObject(pin.GeometryObject(
+            box.name, fr.parentJoint, world._flange_id, pin.SE3(t_joint_flange @ t_flange_box), coal.Box(*size))))
+        boxes.append(box)
+        placements.append(t_flange_box)
+    for i in objects:
+        for _, link in world._arm_links:
+            gm.addCollisionPair(pin.CollisionPair(i, link))
+        for s in world._static_ids:
+            gm.addCollisionPair(pin.CollisionPair(i, s))
+    return RidingGeometry(gm, pin.GeometryData(gm), tuple(boxes), tuple(placements))
