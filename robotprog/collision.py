@@ -58,6 +58,9 @@ VISE_BODY_MARGIN = 0.12
 STAND_MARGIN = 0.05
 #: Pedestal footprint under the robot base [m] (square).
 PEDESTAL_SIZE = 0.25
+#: A pair whose broad-phase bound keeps it this much farther apart than its margin is not asked of
+#: coal [m] (beyond rounding: the bound is exact for spheres and boxes).
+BROAD_PHASE_SLACK = 1e-6
 
 
 @dataclass(frozen=True)
@@ -202,6 +205,7 @@ class CollisionWorld:
     obstacles: tuple[Box, ...] = ()
     door_closed: bool = False
     _riders: dict = field(repr=False, default_factory=dict)
+    _bounds: "PairBounds" = field(repr=False, default=None)
 
     def _update(self, q: np.ndarray) -> None:
         q = np.asarray(q, dtype=float)
@@ -220,17 +224,7 @@ class CollisionWorld:
 
     def in_collision(self, q: np.ndarray, held: Payload = None) -> bool:
         """Whether configuration ``q`` (dof,) [rad] (holding ``held``) touches anything."""
-        gm, gd = self._placed(q, held)
-        return bool(pin.computeCollisions(gm, gd, True))
-
-    def _placed(self, q: np.ndarray, held: Payload) -> tuple[pin.GeometryModel, pin.GeometryData]:
-        """The geometry holding ``held`` and its data, placed at ``q``."""
-        self._update(q)
-        if held is None:
-            return self.geometry, self._gdata
-        rider = self.riding(held)
-        pin.updateGeometryPlacements(self.robot.model, self._data, rider.geometry, rider.data)
-        return rider.geometry, rider.data
+        return self.first_contact(q, held) is not None
 
     def first_contact(self, q: np.ndarray, held: Payload = None) -> str | None:
         """``"body_a <-> body_b"`` for the first colliding pair at ``q``, or ``None`` when free.
@@ -238,11 +232,17 @@ class CollisionWorld:
         Robot bodies are named by their geometry (``forearm_link_0``, ``gripper``,
         ``held``), static ones by the cell's box name (``mill_table``, ``vise_body``).
         """
-        gm, gd = self._placed(q, held)
-        if pin.computeCollisions(gm, gd, False):
-            for k, res in enumerate(gd.collisionResults):
-                if res.isCollision():
-                    return pair_name(gm, k)
+        self._update(q)
+        if held is None:
+            gm, gd, bounds = self.geometry, self._gdata, self._bounds
+        else:
+            rider = self.riding(held)
+            gm, gd, bounds = rider.geometry, rider.data, rider.bounds
+            pin.updateGeometryPlacements(self.robot.model, self._data, gm, gd)
+        # only the pairs the broad phase cannot keep apart are asked of coal, in order
+        for k in np.flatnonzero(bounds.lower(self._data) <= BROAD_PHASE_SLACK):
+            if pin.computeCollision(gm, gd, int(k)):
+                return pair_name(gm, int(k))
         return None
 
     def path_free(self, qs: np.ndarray, held: Payload = None) -> int | None:
@@ -303,9 +303,10 @@ def collision_world(cell: Cell, robot: Robot | None = None, *, door_closed: bool
     flange_joint = model.frames[fid].parentJoint
     arm_links = tuple((gm.geometryObjects[i].name, i) for i in links
                       if gm.geometryObjects[i].parentJoint != flange_joint)
+    static_ids = tuple(range(gripper + 1, gripper + 1 + len(boxes)))
     world = CollisionWorld(robot, gm, tuple(b.name for b in boxes), tuple(dropped), t_model_world, tcp,
-                           data, gdata, tuple(static), fid, arm_links, tuple(range(gripper + 1, gripper + 1 + len(boxes))),
-                           tuple(obstacles), door_closed)
+                           data, gdata, tuple(static), fid, arm_links, static_ids, tuple(obstacles), door_closed,
+                           _bounds=pair_bounds(gm, static_ids))
     contact = world.first_contact(home)
     if contact is not None:
         raise CellError(f"robot.home: the home configuration collides ({contact})", source=cell.source)
@@ -400,6 +401,95 @@ def pair_name(gm: pin.GeometryModel, k: int) -> str:
 
 
 @dataclass(frozen=True, eq=False)
+class PairBounds:
+    """The broad phase of a geometry model's collision pairs: a lower bound on each pair's distance
+    from a bounding sphere of each body that moves with a joint (its local bounding box's, in its
+    joint's frame) and the static boxes themselves. A pair the bound keeps farther apart than its
+    margin needs no coal query.
+
+    Attributes
+    ----------
+    joints : (nm,) int
+        Each moving body's joint (0 for the robot's base links).
+    centres : (nm, 4) float
+        Each moving body's sphere centre in its joint's frame (homogeneous) [m].
+    radii : (nm,) float
+        Its radius [m].
+    near_pairs, near_a, near_b : (k,) int
+        The pairs of two moving bodies and their two bodies.
+    box_pairs, box_body : (k,) int
+        The pairs of a moving body and a static box, and the moving body.
+    box_rotation, box_centre, box_half : (k, 3, 3), (k, 3), (k, 3) float
+        That pair's static box in the model frame [m].
+    npairs : int
+    """
+
+    joints: np.ndarray
+    centres: np.ndarray
+    radii: np.ndarray
+    near_pairs: np.ndarray
+    near_a: np.ndarray
+    near_b: np.ndarray
+    box_pairs: np.ndarray
+    box_body: np.ndarray
+    box_rotation: np.ndarray
+    box_centre: np.ndarray
+    box_half: np.ndarray
+    npairs: int
+
+    def lower(self, data: pin.Data) -> np.ndarray:
+        """(npairs,) lower bounds [m] on every pair's distance with the joints placed as in ``data``
+        (after forward kinematics); negative where the bounds overlap."""
+        t = np.array([data.oMi[int(j)].homogeneous for j in self.joints])
+        c = np.einsum("kij,kj->ki", t[:, :3], self.centres)
+        out = np.empty(self.npairs)
+        d = c[self.near_a] - c[self.near_b]
+        out[self.near_pairs] = np.sqrt((d * d).sum(axis=1)) - self.radii[self.near_a] - self.radii[self.near_b]
+        local = np.abs(np.einsum("kji,kj->ki", self.box_rotation, c[self.box_body] - self.box_centre)) - self.box_half
+        gap = np.maximum(local, 0.0)
+        out[self.box_pairs] = np.sqrt((gap * gap).sum(axis=1)) - self.radii[self.box_body]
+        return out
+
+
+def pair_bounds(gm: pin.GeometryModel, static_ids: tuple[int, ...]) -> PairBounds:
+    """The broad phase of ``gm``'s pairs (:class:`PairBounds`); ``static_ids`` are its static boxes."""
+    static = set(static_ids)
+    moving: dict[int, int] = {}
+    joints, centres, radii = [], [], []
+    near, near_a, near_b, box, box_body, rot, centre, half = [], [], [], [], [], [], [], []
+
+    def body(i: int) -> int:
+        if i not in moving:
+            g = gm.geometryObjects[i]
+            g.geometry.computeLocalAABB()
+            lo, hi = np.asarray(g.geometry.aabb_local.min_), np.asarray(g.geometry.aabb_local.max_)
+            moving[i] = len(joints)
+            joints.append(int(g.parentJoint))
+            centres.append(g.placement.homogeneous @ np.append((lo + hi) / 2, 1.0))
+            radii.append(float(np.linalg.norm(hi - lo)) / 2)
+        return moving[i]
+
+    for k, pair in enumerate(gm.collisionPairs):
+        a, b = pair.first, pair.second
+        if a in static or b in static:
+            s, m = (a, b) if a in static else (b, a)
+            g = gm.geometryObjects[s]
+            box.append(k)
+            box_body.append(body(m))
+            rot.append(g.placement.rotation)
+            centre.append(g.placement.translation)
+            half.append(np.asarray(g.geometry.halfSide))
+        else:
+            near.append(k)
+            near_a.append(body(a))
+            near_b.append(body(b))
+    ints = lambda v: np.array(v, dtype=np.int64)  # noqa: E731
+    return PairBounds(ints(joints), np.array(centres).reshape(-1, 4), np.array(radii), ints(near), ints(near_a),
+                      ints(near_b), ints(box), ints(box_body), np.array(rot).reshape(-1, 3, 3),
+                      np.array(centre).reshape(-1, 3), np.array(half).reshape(-1, 3), len(gm.collisionPairs))
+
+
+@dataclass(frozen=True, eq=False)
 class RidingGeometry:
     """A world's geometry with the boxes riding on the TCP added (:meth:`CollisionWorld.riding`).
 
@@ -414,12 +504,15 @@ class RidingGeometry:
         The riding boxes checked (a box its clearance shrinks to nothing is not), in order.
     placements : tuple of (4, 4) float
         Each box's centre in the flange frame [m].
+    bounds : PairBounds
+        The broad phase of ``geometry``'s pairs.
     """
 
     geometry: pin.GeometryModel
     data: pin.GeometryData
     boxes: tuple[HeldBox, ...]
     placements: tuple[np.ndarray, ...]
+    bounds: PairBounds
 
 
 def _riding_geometry(world: CollisionWorld, riding: tuple[HeldBox, ...]) -> RidingGeometry:
@@ -443,4 +536,5 @@ def _riding_geometry(world: CollisionWorld, riding: tuple[HeldBox, ...]) -> Ridi
             gm.addCollisionPair(pin.CollisionPair(i, link))
         for s in world._static_ids:
             gm.addCollisionPair(pin.CollisionPair(i, s))
-    return RidingGeometry(gm, pin.GeometryData(gm), tuple(boxes), tuple(placements))
+    return RidingGeometry(gm, pin.GeometryData(gm), tuple(boxes), tuple(placements),
+                          pair_bounds(gm, world._static_ids))

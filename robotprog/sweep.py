@@ -51,7 +51,7 @@ import numpy as np
 import pinocchio as pin
 
 from factory.core.errors import CellError
-from robotprog.collision import CollisionWorld, Payload, _riding, pair_name
+from robotprog.collision import BROAD_PHASE_SLACK, CollisionWorld, PairBounds, Payload, _riding, pair_name
 
 #: Coarsest margin level: segments of up to ``step * 2**-COARSEST_LEVEL`` are proven in one piece [-].
 COARSEST_LEVEL = -3
@@ -143,6 +143,7 @@ class _Rider:
     ``scale``), and geometry data whose pair requests carry a margin level's margins (made once)."""
 
     geometry: pin.GeometryModel
+    bounds: PairBounds
     rates: np.ndarray
     live: np.ndarray
     scale: np.ndarray
@@ -178,16 +179,17 @@ class SweptMotion:
 
     # --- margins ---------------------------------------------------------------------------
 
-    def _gdata(self, rider: _Rider, level: int) -> pin.GeometryData:
-        """Geometry data of ``rider`` whose pair requests carry level ``level``'s margins (made once)."""
-        gd = rider.levels.get(level)
-        if gd is None:
+    def _gdata(self, rider: _Rider, level: int) -> tuple[pin.GeometryData, np.ndarray]:
+        """Geometry data of ``rider`` whose pair requests carry level ``level``'s margins, and the
+        margins (npairs,) [m] (made once)."""
+        got = rider.levels.get(level)
+        if got is None:
             gd = pin.GeometryData(rider.geometry)
-            h = self.step * 2.0 ** -level
-            for k, m in enumerate(self._margins(rider.rates, h)):
+            margins = self._margins(rider.rates, self.step * 2.0 ** -level)
+            for k, m in enumerate(margins):
                 gd.collisionRequests[k].security_margin = float(m)
-            rider.levels[level] = gd
-        return gd
+            got = rider.levels[level] = (gd, margins)
+        return got
 
     @staticmethod
     def _margins(rates: np.ndarray, h: float) -> np.ndarray:
@@ -203,10 +205,10 @@ class SweptMotion:
             return got
         w = self.world
         if not key:
-            geometry, rows = w.geometry, [self.pair_rates]
+            geometry, bounds, rows = w.geometry, w._bounds, [self.pair_rates]
         else:
             riding = w.riding(key)
-            geometry, rows = riding.geometry, [self.pair_rates]
+            geometry, bounds, rows = riding.geometry, riding.bounds, [self.pair_rates]
             mine = set(self._chain.ancestors(self._flange_joint))
             for box, t_flange_box in zip(riding.boxes, riding.placements):
                 size = np.asarray(box.size) - 2 * box.clearance
@@ -221,7 +223,7 @@ class SweptMotion:
         rates.setflags(write=False)
         scale = rates.sum(axis=1)
         live = scale > 0
-        got = self._riders[key] = _Rider(geometry, rates, rates[live], scale[live])
+        got = self._riders[key] = _Rider(geometry, bounds, rates, rates[live], scale[live])
         return got
 
     def _level(self, travel: np.ndarray, rider: _Rider) -> int:
@@ -249,35 +251,35 @@ class SweptMotion:
         gd = rider.levels.get("within")  # beside the levels' buffers, one whose margins each check sets
         if gd is None:
             gd = rider.levels["within"] = pin.GeometryData(rider.geometry)
-        for k, m in enumerate(rider.rates @ d * (1 + 1e-6) + 1e-9):
-            gd.collisionRequests[k].security_margin = float(m)
+        margins = rider.rates @ d * (1 + 1e-6) + 1e-9
         self._place(q, rider, gd)
-        if pin.computeCollisions(rider.geometry, gd, True):
-            for k, res in enumerate(gd.collisionResults):
-                if res.isCollision():
-                    return pair_name(rider.geometry, k)
-            return "a pair"  # pragma: no cover - computeCollisions said one collides
+        for k in np.flatnonzero(rider.bounds.lower(self.world._data) <= margins + BROAD_PHASE_SLACK):
+            gd.collisionRequests[int(k)].security_margin = float(margins[k])
+            if pin.computeCollision(rider.geometry, gd, int(k)):
+                return pair_name(rider.geometry, int(k))
         return None
 
     def _failing(self, q: np.ndarray, level: int, checks: np.ndarray,
                  rider: _Rider) -> tuple[np.ndarray, np.ndarray]:
         """Which pairs of ``checks`` (k,) int fail at ``q`` by level ``level``'s margins: (k,) bool
         failing or not known to pass, and (k,) bool known."""
-        gd = self._gdata(rider, level)
+        gd, margins = self._gdata(rider, level)
         self._place(q, rider, gd)
         hits = np.zeros(len(checks), dtype=bool)
         known = np.ones(len(checks), dtype=bool)
-        if len(checks) > PAIRS_ONE_BY_ONE:
-            # coal's own loop over every pair, stopping at the first that fails (one within a
-            # coarse level's margin of a mesh is slow to settle): those before it pass, those
-            # after it are not known
-            if pin.computeCollisions(rider.geometry, gd, True):
-                first = next(k for k, res in enumerate(gd.collisionResults) if res.isCollision())
-                hits[:] = checks >= first
-                known[:] = checks <= first
+        # the pairs the broad phase keeps farther apart than their margins pass; the rest ask coal
+        near = np.flatnonzero(rider.bounds.lower(self.world._data)[checks] <= margins[checks] + BROAD_PHASE_SLACK)
+        g = rider.geometry
+        if len(near) > PAIRS_ONE_BY_ONE:
+            # many near ones (a coarse level): stop at the first that fails (one within a coarse
+            # level's margin of a mesh is slow to settle); those after it are not known
+            for n, i in enumerate(near):
+                if pin.computeCollision(g, gd, int(checks[i])):
+                    hits[near[n:]] = True
+                    known[near[n + 1:]] = False
+                    break
         else:
-            g = rider.geometry
-            hits[:] = [pin.computeCollision(g, gd, int(k)) for k in checks]
+            hits[near] = [pin.computeCollision(g, gd, int(checks[i])) for i in near]
         return hits, known
 
     def first_contact(self, path: Callable[[np.ndarray], np.ndarray], s: np.ndarray,
