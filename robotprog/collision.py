@@ -306,7 +306,7 @@ def collision_world(cell: Cell, robot: Robot | None = None, *, door_closed: bool
     static_ids = tuple(range(gripper + 1, gripper + 1 + len(boxes)))
     world = CollisionWorld(robot, gm, tuple(b.name for b in boxes), tuple(dropped), t_model_world, tcp,
                            data, gdata, tuple(static), fid, arm_links, static_ids, tuple(obstacles), door_closed,
-                           _bounds=pair_bounds(gm, static_ids))
+                           _bounds=pair_bounds(gm, static_ids, model.njoints))
     contact = world.first_contact(home)
     if contact is not None:
         raise CellError(f"robot.home: the home configuration collides ({contact})", source=cell.source)
@@ -422,6 +422,8 @@ class PairBounds:
     box_rotation, box_centre, box_half : (k, 3, 3), (k, 3), (k, 3) float
         That pair's static box in the model frame [m].
     npairs : int
+    njoints : int
+        Joints of the model (with the universe).
     """
 
     joints: np.ndarray
@@ -436,12 +438,13 @@ class PairBounds:
     box_centre: np.ndarray
     box_half: np.ndarray
     npairs: int
+    njoints: int
 
     def lower(self, data: pin.Data) -> np.ndarray:
         """(npairs,) lower bounds [m] on every pair's distance with the joints placed as in ``data``
         (after forward kinematics); negative where the bounds overlap."""
-        t = np.array([data.oMi[int(j)].homogeneous for j in self.joints])
-        c = np.einsum("kij,kj->ki", t[:, :3], self.centres)
+        t = np.array([data.oMi[j].homogeneous[:3] for j in range(self.njoints)])[self.joints]
+        c = np.einsum("kij,kj->ki", t, self.centres)
         out = np.empty(self.npairs)
         d = c[self.near_a] - c[self.near_b]
         out[self.near_pairs] = np.sqrt((d * d).sum(axis=1)) - self.radii[self.near_a] - self.radii[self.near_b]
@@ -451,7 +454,7 @@ class PairBounds:
         return out
 
 
-def pair_bounds(gm: pin.GeometryModel, static_ids: tuple[int, ...]) -> PairBounds:
+def pair_bounds(gm: pin.GeometryModel, static_ids: tuple[int, ...], njoints: int) -> PairBounds:
     """The broad phase of ``gm``'s pairs (:class:`PairBounds`); ``static_ids`` are its static boxes."""
     static = set(static_ids)
     moving: dict[int, int] = {}
@@ -486,7 +489,8 @@ def pair_bounds(gm: pin.GeometryModel, static_ids: tuple[int, ...]) -> PairBound
     ints = lambda v: np.array(v, dtype=np.int64)  # noqa: E731
     return PairBounds(ints(joints), np.array(centres).reshape(-1, 4), np.array(radii), ints(near), ints(near_a),
                       ints(near_b), ints(box), ints(box_body), np.array(rot).reshape(-1, 3, 3),
-                      np.array(centre).reshape(-1, 3), np.array(half).reshape(-1, 3), len(gm.collisionPairs))
+                      np.array(centre).reshape(-1, 3), np.array(half).reshape(-1, 3), len(gm.collisionPairs),
+                      njoints)
 
 
 @dataclass(frozen=True, eq=False)
@@ -537,4 +541,4 @@ def _riding_geometry(world: CollisionWorld, riding: tuple[HeldBox, ...]) -> Ridi
         for s in world._static_ids:
             gm.addCollisionPair(pin.CollisionPair(i, s))
     return RidingGeometry(gm, pin.GeometryData(gm), tuple(boxes), tuple(placements),
-                          pair_bounds(gm, world._static_ids))
+                          pair_bounds(gm, world._static_ids, model.njoints))

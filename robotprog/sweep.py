@@ -147,6 +147,7 @@ class _Rider:
     rates: np.ndarray
     live: np.ndarray
     scale: np.ndarray
+    pair_bodies: tuple[np.ndarray, np.ndarray]
     levels: dict = field(default_factory=dict)
 
 
@@ -186,8 +187,9 @@ class SweptMotion:
         if got is None:
             gd = pin.GeometryData(rider.geometry)
             margins = self._margins(rider.rates, self.step * 2.0 ** -level)
-            for k, m in enumerate(margins):
-                gd.collisionRequests[k].security_margin = float(m)
+            by_bodies = np.zeros((rider.geometry.ngeoms, rider.geometry.ngeoms))
+            by_bodies[rider.pair_bodies[0], rider.pair_bodies[1]] = margins
+            gd.setSecurityMargins(rider.geometry, by_bodies, True, False)
             got = rider.levels[level] = (gd, margins)
         return got
 
@@ -223,7 +225,11 @@ class SweptMotion:
         rates.setflags(write=False)
         scale = rates.sum(axis=1)
         live = scale > 0
-        got = self._riders[key] = _Rider(geometry, bounds, rates, rates[live], scale[live])
+        first = np.array([p.first for p in geometry.collisionPairs], dtype=np.int64)
+        second = np.array([p.second for p in geometry.collisionPairs], dtype=np.int64)
+        # each pair's two bodies, the lower index first (how Pinocchio reads a margin per pair of bodies)
+        bodies = (np.minimum(first, second), np.maximum(first, second))
+        got = self._riders[key] = _Rider(geometry, bounds, rates, rates[live], scale[live], bodies)
         return got
 
     def _level(self, travel: np.ndarray, rider: _Rider) -> int:
@@ -267,8 +273,10 @@ class SweptMotion:
         self._place(q, rider, gd)
         hits = np.zeros(len(checks), dtype=bool)
         known = np.ones(len(checks), dtype=bool)
-        # the pairs the broad phase keeps farther apart than their margins pass; the rest ask coal
-        near = np.flatnonzero(rider.bounds.lower(self.world._data)[checks] <= margins[checks] + BROAD_PHASE_SLACK)
+        near = np.arange(len(checks))
+        if len(checks) > PAIRS_ONE_BY_ONE:
+            # the pairs the broad phase keeps farther apart than their margins pass; the rest ask coal
+            near = near[rider.bounds.lower(self.world._data)[checks] <= margins[checks] + BROAD_PHASE_SLACK]
         g = rider.geometry
         if len(near) > PAIRS_ONE_BY_ONE:
             # many near ones (a coarse level): stop at the first that fails (one within a coarse
@@ -331,14 +339,15 @@ class SweptMotion:
             return pair_name(rider.geometry, int(np.argmax(failed)))
 
         def ends(ka: int, qa: np.ndarray, kb: int, qb: np.ndarray, level: int,
-                 checks: np.ndarray) -> tuple[np.ndarray, str | None]:
-            """The pairs not proven on a stretch from its ends at ``level``, and a contact's name."""
+                 checks: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+            """The pairs not proven on a stretch from its ends at ``level``, and those failing at the
+            first end that fails (to name a contact), or None."""
             fa = failing(ka, qa, level, checks)
             fb = failing(kb, qb, level, checks & ~fa)
             a, b = fa.any(), fb.any()
             if not a and not b:
                 return fa, None
-            return fa | fb, name(fa) if a else name(fb)
+            return fa | fb, fa if a else fb
 
         if len(s) == 1:
             failed = failing(0, qs[0], self.finest_level, everything)
@@ -371,7 +380,7 @@ class SweptMotion:
                 if hit is None:
                     continue
                 if level >= self.finest_level or sb - sa <= 1e-12 * max(1.0, abs(sb)):
-                    return sb, hit
+                    return sb, name(hit)
                 if level >= EXACT_AFTER:
                     # still close after a few halvings: if an end touches outright, stop narrowing down
                     for k, sk, qk in ((ka, sa, qa), (kb, sb, qb)):
