@@ -23,7 +23,10 @@ If a pair is at least ``m`` apart at both ends of a segment and the segment move
 ``2 m``, no configuration between touches: a configuration a fraction of the way along is at most
 ``L . |dq_a|`` from one end and ``L . |dq_b|`` from the other, and the two add up to ``L . |dq|``.
 The distance ``>= m`` is asked of coal as a collision query with ``security_margin = m`` (about as
-fast as a plain collision query, much faster than a distance query on meshes). Margins come in
+fast as a plain collision query, much faster than a distance query on meshes), pair by pair, the boxes
+riding on the TCP included (:meth:`robotprog.collision.CollisionWorld.riding`); where many pairs are
+asked, a pair whose broad-phase bound (:class:`robotprog.collision.PairBounds`, never more than the
+distance) is already beyond ``m`` passes without a query. Margins come in
 levels: level ``k`` covers segments of effective joint step ``step * 2**-k`` (``step`` the planner's
 joint resolution; a pair's margin ``step * 2**-k * sum(L) / 2``). A segment whose ends are not free
 at its level is halved (at the mid-parameter of the path: halves of a monotone segment are
