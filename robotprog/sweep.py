@@ -141,9 +141,11 @@ def _chain(model: pin.Model) -> _Chain:
 
 @dataclass(frozen=True, eq=False)
 class _Rider:
-    """The checks of one payload: its geometry (:meth:`CollisionWorld.riding`), every pair's
-    closing rates [m/rad] (npairs, nv), those that can close (``live`` rows, with their row sums
-    ``scale``), and geometry data whose pair requests carry a margin level's margins (made once)."""
+    """The checks of one payload: its geometry (:meth:`CollisionWorld.riding`) and its broad phase,
+    every pair's closing rates [m/rad] (npairs, nv), those that can close (``live`` rows, with their
+    row sums ``scale``), each pair's two bodies (lower index first), one geometry data buffer, and
+    per margin level its margins (npairs,) [m] and the same by pair of bodies (made once; one buffer
+    whose margins are set per check, as a buffer per level costs a megabyte each)."""
 
     geometry: pin.GeometryModel
     bounds: PairBounds
@@ -151,7 +153,10 @@ class _Rider:
     live: np.ndarray
     scale: np.ndarray
     pair_bodies: tuple[np.ndarray, np.ndarray]
+    data: pin.GeometryData
     levels: dict = field(default_factory=dict)
+    #: the level whose margins ``data`` holds (None: others)
+    holds: list = field(default_factory=lambda: [None])
 
 
 @dataclass(frozen=True, eq=False)
@@ -184,17 +189,18 @@ class SweptMotion:
     # --- margins ---------------------------------------------------------------------------
 
     def _gdata(self, rider: _Rider, level: int) -> tuple[pin.GeometryData, np.ndarray]:
-        """Geometry data of ``rider`` whose pair requests carry level ``level``'s margins, and the
-        margins (npairs,) [m] (made once)."""
+        """``rider``'s geometry data with its pair requests at level ``level``'s margins, and the
+        margins (npairs,) [m]."""
         got = rider.levels.get(level)
         if got is None:
-            gd = pin.GeometryData(rider.geometry)
             margins = self._margins(rider.rates, self.step * 2.0 ** -level)
             by_bodies = np.zeros((rider.geometry.ngeoms, rider.geometry.ngeoms))
             by_bodies[rider.pair_bodies[0], rider.pair_bodies[1]] = margins
-            gd.setSecurityMargins(rider.geometry, by_bodies, True, False)
-            got = rider.levels[level] = (gd, margins)
-        return got
+            got = rider.levels[level] = (by_bodies, margins)
+        if rider.holds[0] != level:
+            rider.data.setSecurityMargins(rider.geometry, got[0], True, False)
+            rider.holds[0] = level
+        return rider.data, got[1]
 
     @staticmethod
     def _margins(rates: np.ndarray, h: float) -> np.ndarray:
@@ -232,7 +238,8 @@ class SweptMotion:
         second = np.array([p.second for p in geometry.collisionPairs], dtype=np.int64)
         # each pair's two bodies, the lower index first (how Pinocchio reads a margin per pair of bodies)
         bodies = (np.minimum(first, second), np.maximum(first, second))
-        got = self._riders[key] = _Rider(geometry, bounds, rates, rates[live], scale[live], bodies)
+        got = self._riders[key] = _Rider(geometry, bounds, rates, rates[live], scale[live], bodies,
+                                         pin.GeometryData(geometry))
         return got
 
     def _level(self, travel: np.ndarray, rider: _Rider) -> int:
@@ -257,9 +264,8 @@ class SweptMotion:
     def _free_within(self, q: np.ndarray, d: np.ndarray, rider: _Rider) -> str | None:
         """``None`` when every configuration within ``d`` (nv,) [rad] of ``q``, joint by joint, is
         free, else the pair: each pair's margin is its own closing rates times ``d``."""
-        gd = rider.levels.get("within")  # beside the levels' buffers, one whose margins each check sets
-        if gd is None:
-            gd = rider.levels["within"] = pin.GeometryData(rider.geometry)
+        gd = rider.data
+        rider.holds[0] = None  # its margins are this check's
         margins = rider.rates @ d * (1 + 1e-6) + 1e-9
         self._place(q, rider, gd)
         for k in np.flatnonzero(rider.bounds.lower(self.world._data) <= margins + BROAD_PHASE_SLACK):
