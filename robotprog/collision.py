@@ -19,11 +19,13 @@ contact at the home configuration (e.g. the gripper box against the wrist links 
 bolted next to) are dropped, and :attr:`CollisionWorld.dropped_pairs` lists them.
 
 The fingers (at the opening of the move, :func:`finger_boxes`) and a held box (the stock or
-finished part, :class:`HeldBox`) ride on the TCP (a :data:`Payload`); each is checked
-against the static boxes with coal directly. It is shrunk by :attr:`HeldBox.clearance` per
-face so that a part resting on a surface (stock on the vise parallels, in its rack slot)
-is not a contact, and against the arm's links except those on the flange's joint (the
-last wrist link, which carries the gripper holding it).
+finished part, :class:`HeldBox`) ride on the TCP (a :data:`Payload`). Each is shrunk by
+:attr:`HeldBox.clearance` per face so that a part resting on a surface (stock on the vise
+parallels, in its rack slot) is not a contact, and checked against the static boxes and the
+arm's links except those on the flange's joint (the last wrist link, which carries the gripper
+holding it). For that the world's geometry is copied once per payload with the riding boxes as
+objects of their own on the flange's joint and those pairs added after the world's
+(:meth:`CollisionWorld.riding`), so one coal pass checks everything, pair by pair.
 
 Frames: everything is placed in the Pinocchio model's root frame; the cell's world frame
 enters through ``cell.robot.base`` (``transform_world_to_base``). Units: metres, radians.
@@ -56,6 +58,9 @@ VISE_BODY_MARGIN = 0.12
 STAND_MARGIN = 0.05
 #: Pedestal footprint under the robot base [m] (square).
 PEDESTAL_SIZE = 0.25
+#: A pair whose broad-phase bound keeps it this much farther apart than its margin is not asked of
+#: coal [m] (beyond rounding: the bound is exact for spheres and boxes).
+BROAD_PHASE_SLACK = 1e-6
 
 
 @dataclass(frozen=True)
@@ -195,12 +200,12 @@ class CollisionWorld:
     _static: tuple[tuple[str, coal.Box, coal.Transform3s], ...] = field(repr=False)
     _flange_id: int = field(repr=False)
     _arm_links: tuple[tuple[str, int], ...] = field(repr=False, default=())
-    #: the riding boxes' broad phase: static boxes (rotation, centre, half size) in the model
-    #: frame, bounding spheres of the arm link geometries (centre in the geometry's frame, radius) [m]
-    _static_spheres: tuple[np.ndarray, np.ndarray, np.ndarray] = field(repr=False, default=None)
-    _link_spheres: tuple[np.ndarray, np.ndarray] = field(repr=False, default=None)
+    #: geometry index of each static box, in the order of ``_static``
+    _static_ids: tuple[int, ...] = field(repr=False, default=())
     obstacles: tuple[Box, ...] = ()
     door_closed: bool = False
+    _riders: dict = field(repr=False, default_factory=dict)
+    _bounds: "PairBounds" = field(repr=False, default=None)
 
     def _update(self, q: np.ndarray) -> None:
         q = np.asarray(q, dtype=float)
@@ -209,78 +214,17 @@ class CollisionWorld:
         pin.framesForwardKinematics(self.robot.model, self._data, q)
         pin.updateGeometryPlacements(self.robot.model, self._data, self.geometry, self._gdata)
 
-    def _held_contact(self, held: Payload) -> str | None:
-        centres = self.link_centres() if held is not None else None
-        for box in _riding(held):
-            name = self._box_contact(box, centres)
-            if name is not None:
-                return f"{box.name} <-> {name}"
-        return None
-
-    def link_centres(self, gdata: pin.GeometryData | None = None) -> np.ndarray:
-        """(nlinks, 3) centres of the arm links' bounding spheres in the model frame [m], placed as
-        in ``gdata`` (default the world's own, after :meth:`_update`)."""
-        gd = self._gdata if gdata is None else gdata
-        local = self._link_spheres[0]
-        return np.array([gd.oMg[i].act(local[k]) for k, (_, i) in enumerate(self._arm_links)]).reshape(-1, 3)
-
-    def _box_contact(self, held: HeldBox, centres: np.ndarray | None = None) -> str | None:
-        size = np.asarray(held.size) - 2 * held.clearance
-        if (size <= 0).any():
-            return None
-        shape = coal.Box(*size)
-        t = self._data.oMf[self._flange_id].homogeneous @ self.transform_flange_to_tcp @ np.asarray(
-            held.transform_tcp_to_box)
-        return self.riding_contact(shape, t, float(np.linalg.norm(size)) / 2, centres=centres)
-
-    def riding_contact(self, shape: coal.CollisionGeometry, t: np.ndarray, radius: float,
-                       link_margins: np.ndarray | None = None,
-                       static_margins: np.ndarray | None = None, centres: np.ndarray | None = None,
-                       gdata: pin.GeometryData | None = None) -> str | None:
-        """Name of the first arm link or static box within its margin of ``shape`` at pose ``t``
-        (4, 4) in the model frame (after :meth:`_update`), or ``None``.
-
-        ``radius`` [m] bounds the shape around ``t``'s origin; margins [m] (one per entry of
-        ``_arm_links`` / ``_static``, default 0) ask for that much clearance. Only the targets
-        whose bounding spheres come within reach are handed to coal; ``centres`` are
-        :meth:`link_centres` when the caller has them. The links are placed as in ``gdata``
-        (default the world's own).
-        """
-        gd = self._gdata if gdata is None else gdata
-        tf = coal.Transform3s(t[:3, :3], t[:3, 3])
-        c = t[:3, 3]
-        lm = np.zeros(len(self._arm_links)) if link_margins is None else link_margins
-        sm = np.zeros(len(self._static)) if static_margins is None else static_margins
-        if self._arm_links:
-            centres = self.link_centres(gd) if centres is None else centres
-            d = np.sqrt(((centres - c) ** 2).sum(axis=1))
-            near = np.flatnonzero(d - self._link_spheres[1] - radius <= lm)
-            for k in near:
-                name, i = self._arm_links[k]
-                req = coal.CollisionRequest()
-                req.security_margin = float(lm[k])
-                m = gd.oMg[i]
-                if coal.collide(shape, tf, self.geometry.geometryObjects[i].geometry,
-                                coal.Transform3s(m.rotation, m.translation), req, coal.CollisionResult()):
-                    return name
-        # distance from the shape's centre to each static box, in the box's frame
-        rot, centre, half = self._static_spheres
-        local = np.abs(np.einsum("kji,kj->ki", rot, c - centre)) - half
-        gap = np.sqrt((np.maximum(local, 0.0) ** 2).sum(axis=1)) - radius
-        for k in np.flatnonzero(gap <= sm):
-            name, box, btf = self._static[k]
-            req = coal.CollisionRequest()
-            req.security_margin = float(sm[k])
-            if coal.collide(shape, tf, box, btf, req, coal.CollisionResult()):
-                return name
-        return None
+    def riding(self, held: Payload) -> "RidingGeometry":
+        """The world's geometry with the boxes of ``held`` riding on the TCP (made once per payload)."""
+        key = _riding(held)
+        got = self._riders.get(key)
+        if got is None:
+            got = self._riders[key] = _riding_geometry(self, key)
+        return got
 
     def in_collision(self, q: np.ndarray, held: Payload = None) -> bool:
         """Whether configuration ``q`` (dof,) [rad] (holding ``held``) touches anything."""
-        self._update(q)
-        if pin.computeCollisions(self.geometry, self._gdata, True):
-            return True
-        return self._held_contact(held) is not None
+        return self.first_contact(q, held) is not None
 
     def first_contact(self, q: np.ndarray, held: Payload = None) -> str | None:
         """``"body_a <-> body_b"`` for the first colliding pair at ``q``, or ``None`` when free.
@@ -289,14 +233,17 @@ class CollisionWorld:
         ``held``), static ones by the cell's box name (``mill_table``, ``vise_body``).
         """
         self._update(q)
-        if pin.computeCollisions(self.geometry, self._gdata, False):
-            for k, res in enumerate(self._gdata.collisionResults):
-                if res.isCollision():
-                    pair = self.geometry.collisionPairs[k]
-                    a = self.geometry.geometryObjects[pair.first].name
-                    b = self.geometry.geometryObjects[pair.second].name
-                    return f"{a} <-> {b}"
-        return self._held_contact(held)
+        if held is None:
+            gm, gd, bounds = self.geometry, self._gdata, self._bounds
+        else:
+            rider = self.riding(held)
+            gm, gd, bounds = rider.geometry, rider.data, rider.bounds
+            pin.updateGeometryPlacements(self.robot.model, self._data, gm, gd)
+        # only the pairs the broad phase cannot keep apart are asked of coal, in order
+        for k in np.flatnonzero(bounds.lower(self._data) <= BROAD_PHASE_SLACK):
+            if pin.computeCollision(gm, gd, int(k)):
+                return pair_name(gm, int(k))
+        return None
 
     def path_free(self, qs: np.ndarray, held: Payload = None) -> int | None:
         """Index of the first colliding configuration of ``qs`` (n, dof) [rad], ``None`` if all are free."""
@@ -356,9 +303,10 @@ def collision_world(cell: Cell, robot: Robot | None = None, *, door_closed: bool
     flange_joint = model.frames[fid].parentJoint
     arm_links = tuple((gm.geometryObjects[i].name, i) for i in links
                       if gm.geometryObjects[i].parentJoint != flange_joint)
+    static_ids = tuple(range(gripper + 1, gripper + 1 + len(boxes)))
     world = CollisionWorld(robot, gm, tuple(b.name for b in boxes), tuple(dropped), t_model_world, tcp,
-                           data, gdata, tuple(static), fid, arm_links, _static_bounds(static, boxes),
-                           _link_bounds(gm, arm_links), tuple(obstacles), door_closed)
+                           data, gdata, tuple(static), fid, arm_links, static_ids, tuple(obstacles), door_closed,
+                           _bounds=pair_bounds(gm, static_ids, model.njoints))
     contact = world.first_contact(home)
     if contact is not None:
         raise CellError(f"robot.home: the home configuration collides ({contact})", source=cell.source)
@@ -446,23 +394,151 @@ def _add_self_pairs(gm: pin.GeometryModel, robot: Robot, data: pin.Data, robot_g
     return dropped
 
 
-def _static_bounds(static: list[tuple[str, coal.Box, coal.Transform3s]],
-                    boxes: tuple[Box, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The riding boxes' broad phase against the static boxes: their rotations (k, 3, 3), centres
-    (k, 3) and half sizes (k, 3) in the model frame [m]."""
-    return (np.array([tf.getRotation() for _, _, tf in static]).reshape(-1, 3, 3),
-            np.array([tf.getTranslation() for _, _, tf in static]).reshape(-1, 3),
-            np.array([b.size for b in boxes], dtype=float).reshape(-1, 3) / 2)
+def pair_name(gm: pin.GeometryModel, k: int) -> str:
+    """``"body_a <-> body_b"`` of collision pair ``k`` of ``gm``."""
+    pair = gm.collisionPairs[k]
+    return f"{gm.geometryObjects[pair.first].name} <-> {gm.geometryObjects[pair.second].name}"
 
 
-def _link_bounds(gm: pin.GeometryModel, arm_links: tuple[tuple[str, int], ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Bounding spheres of the arm link geometries: centres (n, 3) in each geometry's frame and
-    radii (n,) [m]."""
-    local, radii = [], []
-    for _, i in arm_links:
-        geo = gm.geometryObjects[i].geometry
-        geo.computeLocalAABB()
-        lo, hi = np.asarray(geo.aabb_local.min_), np.asarray(geo.aabb_local.max_)
-        local.append((lo + hi) / 2)
-        radii.append(float(np.linalg.norm(hi - lo)) / 2)
-    return np.array(local).reshape(-1, 3), np.array(radii)
+@dataclass(frozen=True, eq=False)
+class PairBounds:
+    """The broad phase of a geometry model's collision pairs: a lower bound on each pair's distance
+    from a bounding sphere of each body that moves with a joint (its local bounding box's, in its
+    joint's frame) and the static boxes themselves. A pair the bound keeps farther apart than its
+    margin needs no coal query.
+
+    Attributes
+    ----------
+    joints : (nm,) int
+        Each moving body's joint (0 for the robot's base links).
+    centres : (nm, 4) float
+        Each moving body's sphere centre in its joint's frame (homogeneous) [m].
+    radii : (nm,) float
+        Its radius [m].
+    near_pairs, near_a, near_b : (k,) int
+        The pairs of two moving bodies and their two bodies.
+    box_pairs, box_body : (k,) int
+        The pairs of a moving body and a static box, and the moving body.
+    box_rotation, box_centre, box_half : (k, 3, 3), (k, 3), (k, 3) float
+        That pair's static box in the model frame [m].
+    npairs : int
+    njoints : int
+        Joints of the model (with the universe).
+    """
+
+    joints: np.ndarray
+    centres: np.ndarray
+    radii: np.ndarray
+    near_pairs: np.ndarray
+    near_a: np.ndarray
+    near_b: np.ndarray
+    box_pairs: np.ndarray
+    box_body: np.ndarray
+    box_rotation: np.ndarray
+    box_centre: np.ndarray
+    box_half: np.ndarray
+    npairs: int
+    njoints: int
+
+    def lower(self, data: pin.Data) -> np.ndarray:
+        """(npairs,) lower bounds [m] on every pair's distance with the joints placed as in ``data``
+        (after forward kinematics); negative where the bounds overlap."""
+        t = np.array([data.oMi[j].homogeneous[:3] for j in range(self.njoints)])[self.joints]
+        c = np.einsum("kij,kj->ki", t, self.centres)
+        out = np.empty(self.npairs)
+        d = c[self.near_a] - c[self.near_b]
+        out[self.near_pairs] = np.sqrt((d * d).sum(axis=1)) - self.radii[self.near_a] - self.radii[self.near_b]
+        local = np.abs(np.einsum("kji,kj->ki", self.box_rotation, c[self.box_body] - self.box_centre)) - self.box_half
+        gap = np.maximum(local, 0.0)
+        out[self.box_pairs] = np.sqrt((gap * gap).sum(axis=1)) - self.radii[self.box_body]
+        return out
+
+
+def pair_bounds(gm: pin.GeometryModel, static_ids: tuple[int, ...], njoints: int) -> PairBounds:
+    """The broad phase of ``gm``'s pairs (:class:`PairBounds`); ``static_ids`` are its static boxes."""
+    static = set(static_ids)
+    moving: dict[int, int] = {}
+    joints, centres, radii = [], [], []
+    near, near_a, near_b, box, box_body, rot, centre, half = [], [], [], [], [], [], [], []
+
+    def body(i: int) -> int:
+        if i not in moving:
+            g = gm.geometryObjects[i]
+            g.geometry.computeLocalAABB()
+            lo, hi = np.asarray(g.geometry.aabb_local.min_), np.asarray(g.geometry.aabb_local.max_)
+            moving[i] = len(joints)
+            joints.append(int(g.parentJoint))
+            centres.append(g.placement.homogeneous @ np.append((lo + hi) / 2, 1.0))
+            radii.append(float(np.linalg.norm(hi - lo)) / 2)
+        return moving[i]
+
+    for k, pair in enumerate(gm.collisionPairs):
+        a, b = pair.first, pair.second
+        if a in static or b in static:
+            s, m = (a, b) if a in static else (b, a)
+            g = gm.geometryObjects[s]
+            box.append(k)
+            box_body.append(body(m))
+            rot.append(g.placement.rotation)
+            centre.append(g.placement.translation)
+            half.append(np.asarray(g.geometry.halfSide))
+        else:
+            near.append(k)
+            near_a.append(body(a))
+            near_b.append(body(b))
+    ints = lambda v: np.array(v, dtype=np.int64)  # noqa: E731
+    return PairBounds(ints(joints), np.array(centres).reshape(-1, 4), np.array(radii), ints(near), ints(near_a),
+                      ints(near_b), ints(box), ints(box_body), np.array(rot).reshape(-1, 3, 3),
+                      np.array(centre).reshape(-1, 3), np.array(half).reshape(-1, 3), len(gm.collisionPairs),
+                      njoints)
+
+
+@dataclass(frozen=True, eq=False)
+class RidingGeometry:
+    """A world's geometry with the boxes riding on the TCP added (:meth:`CollisionWorld.riding`).
+
+    Attributes
+    ----------
+    geometry : pinocchio.GeometryModel
+        The world's objects and pairs first, at the same indices; then one object per riding box
+        (on the flange's joint, named as the box); then, box by box, its pair with each arm link
+        (``CollisionWorld._arm_links``, in order) and each static box (in order). Read-only.
+    data : pinocchio.GeometryData
+    boxes : tuple of HeldBox
+        The riding boxes checked (a box its clearance shrinks to nothing is not), in order.
+    placements : tuple of (4, 4) float
+        Each box's centre in the flange frame [m].
+    bounds : PairBounds
+        The broad phase of ``geometry``'s pairs.
+    """
+
+    geometry: pin.GeometryModel
+    data: pin.GeometryData
+    boxes: tuple[HeldBox, ...]
+    placements: tuple[np.ndarray, ...]
+    bounds: PairBounds
+
+
+def _riding_geometry(world: CollisionWorld, riding: tuple[HeldBox, ...]) -> RidingGeometry:
+    """The riding boxes ``riding`` added to a copy of ``world``'s geometry (:class:`RidingGeometry`)."""
+    gm = world.geometry.copy()
+    model = world.robot.model
+    fr = model.frames[world._flange_id]
+    t_joint_flange = fr.placement.homogeneous
+    boxes, placements, objects = [], [], []
+    for box in riding:
+        size = np.asarray(box.size) - 2 * box.clearance
+        if (size <= 0).any():
+            continue
+        t_flange_box = world.transform_flange_to_tcp @ np.asarray(box.transform_tcp_to_box)
+        objects.append(gm.addGeometryObject(pin.GeometryObject(
+            box.name, fr.parentJoint, world._flange_id, pin.SE3(t_joint_flange @ t_flange_box), coal.Box(*size))))
+        boxes.append(box)
+        placements.append(t_flange_box)
+    for i in objects:
+        for _, link in world._arm_links:
+            gm.addCollisionPair(pin.CollisionPair(i, link))
+        for s in world._static_ids:
+            gm.addCollisionPair(pin.CollisionPair(i, s))
+    return RidingGeometry(gm, pin.GeometryData(gm), tuple(boxes), tuple(placements),
+                          pair_bounds(gm, world._static_ids, model.njoints))

@@ -23,7 +23,10 @@ If a pair is at least ``m`` apart at both ends of a segment and the segment move
 ``2 m``, no configuration between touches: a configuration a fraction of the way along is at most
 ``L . |dq_a|`` from one end and ``L . |dq_b|`` from the other, and the two add up to ``L . |dq|``.
 The distance ``>= m`` is asked of coal as a collision query with ``security_margin = m`` (about as
-fast as a plain collision query, much faster than a distance query on meshes). Margins come in
+fast as a plain collision query, much faster than a distance query on meshes), pair by pair, the boxes
+riding on the TCP included (:meth:`robotprog.collision.CollisionWorld.riding`); where many pairs are
+asked, a pair whose broad-phase bound (:class:`robotprog.collision.PairBounds`, never more than the
+distance) is already beyond ``m`` passes without a query. Margins come in
 levels: level ``k`` covers segments of effective joint step ``step * 2**-k`` (``step`` the planner's
 joint resolution; a pair's margin ``step * 2**-k * sum(L) / 2``). A segment whose ends are not free
 at its level is halved (at the mid-parameter of the path: halves of a monotone segment are
@@ -51,7 +54,7 @@ import numpy as np
 import pinocchio as pin
 
 from factory.core.errors import CellError
-from robotprog.collision import CollisionWorld, Payload, _riding
+from robotprog.collision import BROAD_PHASE_SLACK, CollisionWorld, PairBounds, Payload, _riding, pair_name
 
 #: Coarsest margin level: segments of up to ``step * 2**-COARSEST_LEVEL`` are proven in one piece [-].
 COARSEST_LEVEL = -3
@@ -137,6 +140,26 @@ def _chain(model: pin.Model) -> _Chain:
 
 
 @dataclass(frozen=True, eq=False)
+class _Rider:
+    """The checks of one payload: its geometry (:meth:`CollisionWorld.riding`) and its broad phase,
+    every pair's closing rates [m/rad] (npairs, nv), those that can close (``live`` rows, with their
+    row sums ``scale``), each pair's two bodies (lower index first), one geometry data buffer, and
+    per margin level its margins (npairs,) [m] and the same by pair of bodies (made once; one buffer
+    whose margins are set per check, as a buffer per level costs a megabyte each)."""
+
+    geometry: pin.GeometryModel
+    bounds: PairBounds
+    rates: np.ndarray
+    live: np.ndarray
+    scale: np.ndarray
+    pair_bodies: tuple[np.ndarray, np.ndarray]
+    data: pin.GeometryData
+    levels: dict = field(default_factory=dict)
+    #: the level whose margins ``data`` holds (None: others)
+    holds: list = field(default_factory=lambda: [None])
+
+
+@dataclass(frozen=True, eq=False)
 class SweptMotion:
     """Proves joint motions collision-free between their samples. Build with :func:`swept_motion`.
 
@@ -161,67 +184,67 @@ class SweptMotion:
     _flange_joint: int = field(repr=False, default=0)
     _flange_placement: np.ndarray = field(repr=False, default=None)
     _link_rates: dict = field(repr=False, default_factory=dict)
-    _levels: dict = field(repr=False, default_factory=dict)
-    _payloads: dict = field(repr=False, default_factory=dict)
+    _riders: dict = field(repr=False, default_factory=dict)
 
     # --- margins ---------------------------------------------------------------------------
 
-    def _gdata(self, level: int) -> pin.GeometryData:
-        """Geometry data whose pair requests carry level ``level``'s margins (made once)."""
-        gd = self._levels.get(level)
-        if gd is None:
-            gd = pin.GeometryData(self.world.geometry)
-            h = self.step * 2.0 ** -level
-            for k, m in enumerate(self._margins(self.pair_rates, h)):
-                gd.collisionRequests[k].security_margin = float(m)
-            self._levels[level] = gd
-        return gd
+    def _gdata(self, rider: _Rider, level: int) -> tuple[pin.GeometryData, np.ndarray]:
+        """``rider``'s geometry data with its pair requests at level ``level``'s margins, and the
+        margins (npairs,) [m]."""
+        got = rider.levels.get(level)
+        if got is None:
+            margins = self._margins(rider.rates, self.step * 2.0 ** -level)
+            by_bodies = np.zeros((rider.geometry.ngeoms, rider.geometry.ngeoms))
+            by_bodies[rider.pair_bodies[0], rider.pair_bodies[1]] = margins
+            got = rider.levels[level] = (by_bodies, margins)
+        if rider.holds[0] != level:
+            rider.data.setSecurityMargins(rider.geometry, got[0], True, False)
+            rider.holds[0] = level
+        return rider.data, got[1]
 
     @staticmethod
     def _margins(rates: np.ndarray, h: float) -> np.ndarray:
         # half the motion of a segment of effective step h, a hair more so that equality is free
         return h * rates.sum(axis=1) / 2 * (1 + 1e-6) + 1e-9
 
-    def _payload(self, held: Payload) -> tuple:
-        """For each box riding on the TCP: (name, shape, (4, 4) flange->box transform, bounding
-        radius [m], closing rates [m/rad] against the arm links (nlinks, nv) and the static boxes (nv,))."""
+    def _rider(self, held: Payload) -> _Rider:
+        """The checks of ``held``: the world's pairs, then each box riding on the TCP against the arm
+        links (rates: the joints between them) and the static boxes (the flange's whole chain)."""
         key = _riding(held)
-        got = self._payloads.get(key)
+        got = self._riders.get(key)
         if got is not None:
             return got
         w = self.world
-        out = []
-        mine = set(self._chain.ancestors(self._flange_joint))
-        for box in key:
-            size = np.asarray(box.size) - 2 * box.clearance
-            if (size <= 0).any():
-                continue
-            t_flange_box = w.transform_flange_to_tcp @ np.asarray(box.transform_tcp_to_box)
-            corners = _box_corners(-size / 2, size / 2) @ t_flange_box[:3, :3].T + t_flange_box[:3, 3]
-            corners = corners @ self._flange_placement[:3, :3].T + self._flange_placement[:3, 3]
-            c = self._chain.coefficients(self._flange_joint, corners)
-            links = []
-            for _, i in w._arm_links:
-                theirs = set(self._chain.ancestors(w.geometry.geometryObjects[i].parentJoint))
-                links.append(c * self._mask(mine - theirs) + self._link_rates[i] * self._mask(theirs - mine))
-            links = np.array(links).reshape(-1, self._chain.nv)
-            out.append((box.name, coal.Box(*size), t_flange_box, float(np.linalg.norm(size)) / 2, links, c))
-        got = tuple(out)
-        self._payloads[key] = got
-        return got
-
-    def _closing_rates(self, payload: tuple) -> tuple[np.ndarray, np.ndarray]:
-        """(rates [m/rad] of every pair that can close, arm's and held boxes', (n, nv); their row sums)."""
-        rates = self.pair_rates
-        if payload:
-            rates = np.vstack([rates] + [np.vstack([links, static]) for *_, links, static in payload])
+        if not key:
+            geometry, bounds, rows = w.geometry, w._bounds, [self.pair_rates]
+        else:
+            riding = w.riding(key)
+            geometry, bounds, rows = riding.geometry, riding.bounds, [self.pair_rates]
+            mine = set(self._chain.ancestors(self._flange_joint))
+            for box, t_flange_box in zip(riding.boxes, riding.placements):
+                size = np.asarray(box.size) - 2 * box.clearance
+                corners = _box_corners(-size / 2, size / 2) @ t_flange_box[:3, :3].T + t_flange_box[:3, 3]
+                corners = corners @ self._flange_placement[:3, :3].T + self._flange_placement[:3, 3]
+                c = self._chain.coefficients(self._flange_joint, corners)
+                for _, i in w._arm_links:
+                    theirs = set(self._chain.ancestors(w.geometry.geometryObjects[i].parentJoint))
+                    rows.append((c * self._mask(mine - theirs) + self._link_rates[i] * self._mask(theirs - mine))[None])
+                rows.append(np.tile(c, (len(w._static_ids), 1)))
+        rates = np.vstack(rows)
+        rates.setflags(write=False)
         scale = rates.sum(axis=1)
         live = scale > 0
-        return rates[live], scale[live]
+        first = np.array([p.first for p in geometry.collisionPairs], dtype=np.int64)
+        second = np.array([p.second for p in geometry.collisionPairs], dtype=np.int64)
+        # each pair's two bodies, the lower index first (how Pinocchio reads a margin per pair of bodies)
+        bodies = (np.minimum(first, second), np.maximum(first, second))
+        got = self._riders[key] = _Rider(geometry, bounds, rates, rates[live], scale[live], bodies,
+                                         pin.GeometryData(geometry))
+        return got
 
-    def _level(self, travel: np.ndarray, rates: np.ndarray, scale: np.ndarray) -> int:
+    def _level(self, travel: np.ndarray, rider: _Rider) -> int:
         """The margin level that covers a segment of joint travel ``travel`` (nv,) [rad] from its ends."""
-        e = float(np.max(rates @ np.abs(travel) / scale)) if len(scale) else 0.0
+        e = float(np.max(rider.live @ np.abs(travel) / rider.scale)) if len(rider.scale) else 0.0
         return self.finest_level if e <= 0 else min(self.finest_level, math.floor(math.log2(self.step / e)))
 
     def _mask(self, joints) -> np.ndarray:
@@ -232,87 +255,49 @@ class SweptMotion:
 
     # --- checks ----------------------------------------------------------------------------
 
-    def _free_within(self, q: np.ndarray, d: np.ndarray, payload: tuple) -> str | None:
-        """``None`` when every configuration within ``d`` (nv,) [rad] of ``q``, joint by joint, is
-        free, else the pair: each pair's margin is its own closing rates times ``d``."""
-        gd = self._levels.get("within")  # beside the levels' buffers, one whose margins each check sets
-        if gd is None:
-            gd = self._levels["within"] = pin.GeometryData(self.world.geometry)
-        for k, m in enumerate(self._within(self.pair_rates, d)):
-            gd.collisionRequests[k].security_margin = float(m)
-        return self._clear(q, gd, payload, lambda rates: self._within(rates, d))
-
-    @staticmethod
-    def _within(rates: np.ndarray, d: np.ndarray) -> np.ndarray:
-        return rates @ d * (1 + 1e-6) + 1e-9
-
-    def _clear(self, q: np.ndarray, gd: pin.GeometryData, payload: tuple,
-               margins: Callable[[np.ndarray], np.ndarray]) -> str | None:
-        """``None`` when ``q`` is clear of everything by ``gd``'s pair margins and, for each box on
-        the TCP, ``margins(rates)`` of its closing rates, else the pair."""
+    def _place(self, q: np.ndarray, rider: _Rider, gd: pin.GeometryData) -> None:
         w = self.world
         model = w.robot.model
-        pin.framesForwardKinematics(model, w._data, q)
-        pin.updateGeometryPlacements(model, w._data, w.geometry, gd)
-        if pin.computeCollisions(w.geometry, gd, True):
-            for k, res in enumerate(gd.collisionResults):
-                if res.isCollision():
-                    return self._pair_name(k)
-            return "a pair"  # pragma: no cover - computeCollisions said one collides
-        return self._riding_hit(gd, payload, margins)
+        pin.forwardKinematics(model, w._data, q)
+        pin.updateGeometryPlacements(model, w._data, rider.geometry, gd)
 
-    def _pair_name(self, k: int) -> str:
-        g = self.world.geometry
-        pair = g.collisionPairs[k]
-        return f"{g.geometryObjects[pair.first].name} <-> {g.geometryObjects[pair.second].name}"
-
-    def _riding_hit(self, gd: pin.GeometryData, payload: tuple,
-                    margins: Callable[[np.ndarray], np.ndarray]) -> str | None:
-        """The first box on the TCP within ``margins(rates)`` of its closing rates of an arm link or
-        static box, placed as in ``gd`` (after forward kinematics), as ``"box <-> target"``; else ``None``."""
-        if not payload:
-            return None
-        w = self.world
-        t_flange = w._data.oMf[w._flange_id].homogeneous
-        nstatic = len(w._static)
-        centres = w.link_centres(gd)
-        for name, shape, t_flange_box, radius, links, static in payload:
-            hit = w.riding_contact(shape, t_flange @ t_flange_box, radius, margins(links),
-                                   np.full(nstatic, margins(static[None])[0]), centres, gd)
-            if hit is not None:
-                return f"{name} <-> {hit}"
+    def _free_within(self, q: np.ndarray, d: np.ndarray, rider: _Rider) -> str | None:
+        """``None`` when every configuration within ``d`` (nv,) [rad] of ``q``, joint by joint, is
+        free, else the pair: each pair's margin is its own closing rates times ``d``."""
+        gd = rider.data
+        rider.holds[0] = None  # its margins are this check's
+        margins = rider.rates @ d * (1 + 1e-6) + 1e-9
+        self._place(q, rider, gd)
+        for k in np.flatnonzero(rider.bounds.lower(self.world._data) <= margins + BROAD_PHASE_SLACK):
+            gd.collisionRequests[int(k)].security_margin = float(margins[k])
+            if pin.computeCollision(rider.geometry, gd, int(k)):
+                return pair_name(rider.geometry, int(k))
         return None
 
     def _failing(self, q: np.ndarray, level: int, checks: np.ndarray,
-                 payload: tuple) -> tuple[np.ndarray, np.ndarray, str | None]:
-        """Which of ``checks`` (k,) int fail at ``q`` by level ``level``'s margins: (k,) bool
-        failing or not known to pass, (k,) bool known, and the riding boxes' contact when they are
-        checked (index ``len(collisionPairs)``) and fail."""
-        w = self.world
-        model = w.robot.model
-        gd = self._gdata(level)
-        pin.framesForwardKinematics(model, w._data, q)
-        pin.updateGeometryPlacements(model, w._data, w.geometry, gd)
-        npairs = len(w.geometry.collisionPairs)
-        pairs = checks[checks < npairs]
+                 rider: _Rider) -> tuple[np.ndarray, np.ndarray]:
+        """Which pairs of ``checks`` (k,) int fail at ``q`` by level ``level``'s margins: (k,) bool
+        failing or not known to pass, and (k,) bool known."""
+        gd, margins = self._gdata(rider, level)
+        self._place(q, rider, gd)
         hits = np.zeros(len(checks), dtype=bool)
         known = np.ones(len(checks), dtype=bool)
-        if len(pairs) > PAIRS_ONE_BY_ONE:
-            # coal's own loop over every pair, stopping at the first that fails (one within a
-            # coarse level's margin of a mesh is slow to settle): those before it pass, those
-            # after it are not known
-            if pin.computeCollisions(w.geometry, gd, True):
-                first = next(k for k, res in enumerate(gd.collisionResults) if res.isCollision())
-                hits[:len(pairs)] = pairs >= first
-                known[:len(pairs)] = pairs <= first
+        near = np.arange(len(checks))
+        if len(checks) > PAIRS_ONE_BY_ONE:
+            # the pairs the broad phase keeps farther apart than their margins pass; the rest ask coal
+            near = near[rider.bounds.lower(self.world._data)[checks] <= margins[checks] + BROAD_PHASE_SLACK]
+        g = rider.geometry
+        if len(near) > PAIRS_ONE_BY_ONE:
+            # many near ones (a coarse level): stop at the first that fails (one within a coarse
+            # level's margin of a mesh is slow to settle); those after it are not known
+            for n, i in enumerate(near):
+                if pin.computeCollision(g, gd, int(checks[i])):
+                    hits[near[n:]] = True
+                    known[near[n + 1:]] = False
+                    break
         else:
-            hits[:len(pairs)] = [pin.computeCollision(w.geometry, gd, int(k)) for k in pairs]
-        riding = None
-        if len(pairs) < len(checks):
-            h = self.step * 2.0 ** -level
-            riding = self._riding_hit(gd, payload, lambda rates: self._margins(rates, h))
-            hits[-1] = riding is not None
-        return hits, known, riding
+            hits[near] = [pin.computeCollision(g, gd, int(checks[i])) for i in near]
+        return hits, known
 
     def first_contact(self, path: Callable[[np.ndarray], np.ndarray], s: np.ndarray,
                       held: Payload = None) -> tuple[float, str] | None:
@@ -335,54 +320,47 @@ class SweptMotion:
         """
         s = np.asarray(s, dtype=float)
         qs = np.asarray(path(s), dtype=float).reshape(len(s), -1)
-        payload = self._payload(held)
-        rates, scale = self._closing_rates(payload)
-        # The checks: each collision pair of the cell, then the boxes riding on the TCP as one. A
-        # check that passes at both ends of a stretch is proven on all of it, so the halves of a
-        # stretch not proven ask only the checks that failed at its ends.
-        npairs = len(self.world.geometry.collisionPairs)
-        everything = np.arange(npairs + 1)
-        # per sample and check: highest level known to fail, lowest known to pass
+        rider = self._rider(held)
+        # The checks: each collision pair, the cell's and the boxes' riding on the TCP. A pair that
+        # passes at both ends of a stretch is proven on all of it, so the halves of a stretch not
+        # proven ask only the pairs that failed at its ends.
+        npairs = len(rider.geometry.collisionPairs)
+        everything = np.ones(npairs, dtype=bool)
+        # per sample and pair: highest level known to fail, lowest known to pass
         state: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        riding_names: dict[int, str] = {}
 
         def failing(key: int, q: np.ndarray, level: int, checks: np.ndarray) -> np.ndarray:
-            """The checks of ``checks`` that ``q`` fails at ``level``, in index order."""
+            """The pairs of ``checks`` (npairs,) bool that ``q`` fails at ``level``, as a mask."""
             st = state.get(key)
             if st is None:
-                fail = np.full(npairs + 1, COARSEST_LEVEL - 1)
-                free = np.full(npairs + 1, self.finest_level + 1)
-                if not payload:
-                    free[npairs] = COARSEST_LEVEL - 1
-                st = state[key] = (fail, free)
+                st = state[key] = (np.full(npairs, COARSEST_LEVEL - 1), np.full(npairs, self.finest_level + 1))
             fail, free = st
-            known_fail = level <= fail[checks]
-            todo = checks[(level < free[checks]) & ~known_fail]
+            out = checks & (level <= fail)
+            todo = np.flatnonzero(checks & (level < free) & ~out)
             if len(todo):
-                hits, known, riding = self._failing(q, level, todo, payload)
+                hits, known = self._failing(q, level, todo, rider)
                 free[todo[~hits]] = level
                 fail[todo[hits & known]] = level
-                if riding is not None:
-                    riding_names[key] = riding
-                return np.union1d(checks[known_fail], todo[hits])
-            return checks[known_fail]
+                out[todo[hits]] = True
+            return out
 
-        def name(key: int, failed: np.ndarray) -> str:
-            k = int(failed[0])
-            return riding_names[key] if k == npairs else self._pair_name(k)
+        def name(failed: np.ndarray) -> str:
+            return pair_name(rider.geometry, int(np.argmax(failed)))
 
         def ends(ka: int, qa: np.ndarray, kb: int, qb: np.ndarray, level: int,
-                 checks: np.ndarray) -> tuple[np.ndarray, str | None]:
-            """The checks not proven on a stretch from its ends at ``level``, and a contact's name."""
+                 checks: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+            """The pairs not proven on a stretch from its ends at ``level``, and those failing at the
+            first end that fails (to name a contact), or None."""
             fa = failing(ka, qa, level, checks)
-            fb = failing(kb, qb, level, np.setdiff1d(checks, fa, assume_unique=True))
-            if not len(fa) and not len(fb):
+            fb = failing(kb, qb, level, checks & ~fa)
+            a, b = fa.any(), fb.any()
+            if not a and not b:
                 return fa, None
-            return np.union1d(fa, fb), name(ka, fa) if len(fa) else name(kb, fb)
+            return fa | fb, fa if a else fb
 
         if len(s) == 1:
             failed = failing(0, qs[0], self.finest_level, everything)
-            return None if not len(failed) else (float(s[0]), name(0, failed))
+            return None if not failed.any() else (float(s[0]), name(failed))
         # Joint travel along the path up to each given parameter (n, dof) [rad]: between two given
         # parameters every joint moves one way, so a run of pieces travels the difference. A run is
         # proven from its two ends like one piece (module docstring: the bound holds for the
@@ -391,33 +369,33 @@ class SweptMotion:
         travel = np.vstack([np.zeros((1, qs.shape[1])), np.cumsum(np.abs(np.diff(qs, axis=0)), axis=0)])
         counter = [len(s)]
         # (key a, s a, q a, key b, s b, q b, whether both ends are given parameters (their keys are
-        # their indices into s), the checks not yet proven on the stretch)
+        # their indices into s), the pairs not yet proven on the stretch)
         stack = [(0, float(s[0]), qs[0], len(s) - 1, float(s[-1]), qs[-1], True, everything)]
         while stack:
             ka, sa, qa, kb, sb, qb, given, live = stack.pop()
             if given and kb - ka > 1:  # a run of several given pieces
-                level = self._level(travel[kb] - travel[ka], rates, scale)
+                level = self._level(travel[kb] - travel[ka], rider)
                 if level >= COARSEST_LEVEL:
                     live, _ = ends(ka, qa, kb, qb, level, live)
-                    if not len(live):
+                    if not live.any():
                         continue
                 km = (ka + kb) // 2
                 stack.append((km, float(s[km]), qs[km], kb, sb, qb, True, live))
                 stack.append((ka, sa, qa, km, float(s[km]), qs[km], True, live))
                 continue
-            level = self._level(qb - qa, rates, scale)
+            level = self._level(qb - qa, rider)
             if level >= COARSEST_LEVEL:
                 live, hit = ends(ka, qa, kb, qb, level, live)
                 if hit is None:
                     continue
                 if level >= self.finest_level or sb - sa <= 1e-12 * max(1.0, abs(sb)):
-                    return sb, hit
+                    return sb, name(hit)
                 if level >= EXACT_AFTER:
                     # still close after a few halvings: if an end touches outright, stop narrowing down
                     for k, sk, qk in ((ka, sa, qa), (kb, sb, qb)):
                         touch = failing(k, qk, self.finest_level, live)
-                        if len(touch):
-                            return sk, name(k, touch)
+                        if touch.any():
+                            return sk, name(touch)
             sm = 0.5 * (sa + sb)
             qm = np.asarray(path(np.array([sm])), dtype=float).reshape(-1)
             km = counter[0]
@@ -455,8 +433,7 @@ class SweptMotion:
             None when every point of the triangle is free, else the pair nearest where the proof
             stopped (a touch, or the check budget spent close to something).
         """
-        payload = self._payload(held)
-        rates, scale = self._closing_rates(payload)
+        rider = self._rider(held)
         # a triangle this small [rad] (the finest level's joint step) still not clear touches
         finest = self.step * 2.0 ** -self.finest_level
         stack = [(np.asarray(a, dtype=float), np.asarray(c, dtype=float), np.asarray(b, dtype=float))]
@@ -465,11 +442,11 @@ class SweptMotion:
             p = np.stack(stack.pop())
             g = p.mean(axis=0)
             d = np.abs(p - g).max(axis=0)
-            hit = self._free_within(g, d, payload)
+            hit = self._free_within(g, d, rider)
             checks += 1
             if hit is None:
                 continue
-            if float(np.max(rates @ d / scale)) <= finest or checks >= max_checks:
+            if float(np.max(rider.live @ d / rider.scale)) <= finest or checks >= max_checks:
                 return hit
             m01, m12, m20 = (p[0] + p[1]) / 2, (p[1] + p[2]) / 2, (p[2] + p[0]) / 2
             stack += [(p[0], m01, m20), (m01, p[1], m12), (m20, m12, p[2]), (m01, m12, m20)]
