@@ -57,20 +57,23 @@ def test_a_good_part_passes_inspection_in_diffuse_light(station):
     assert len(result.features) >= 5  # five holes, two pockets: each judged
 
 
-@pytest.mark.parametrize("condition, part, seed, defect, where_mm", [
-    ("diffuse", "bracket", 0, "missing_hole", (92.0, 52.0, 15.0)),
-    ("distractor", "bracket", 0, "missing_hole", (92.0, 52.0, 15.0)),
-    ("diffuse", "plate_bosses", 0, "missing_boss", (78.0, 56.0, 14.0)),
+@pytest.mark.parametrize("condition, part, seed, defect, where_mm, radius_mm", [
+    ("diffuse", "bracket", 0, "missing_hole", (92.0, 52.0, 15.0), 5.8),
+    ("distractor", "bracket", 0, "missing_hole", (92.0, 52.0, 15.0), 5.8),
+    ("diffuse", "plate_bosses", 0, "missing_boss", (78.0, 56.0, 14.0), 8.6),
 ])
-def test_a_missing_feature_is_found_missing_where_it_is(station, condition, part, seed, defect, where_mm):
+def test_a_missing_feature_is_found_missing_where_it_is(station, condition, part, seed, defect, where_mm, radius_mm):
     """The same picture with the good part passes; with the feature left out the part fails, and
-    the one feature found missing is the one left out."""
+    the one feature found missing is the one left out: it is placed inside that feature's outline
+    (the edges judged are the ones beside walls the camera sees, so their middle is off the axis)."""
     _, good = inspected(station, condition, part, seed)
     assert good.passed, good.to_dict()
     scene, bad = inspected(station, condition, part, seed, defect)
     assert not bad.passed and not bad.refusal
     (missing,) = bad.missing_features
-    assert np.hypot(*(np.array(missing.pixel) - pixel_of(station, part, scene, where_mm))) < 8  # [px]
+    centre = pixel_of(station, part, scene, where_mm)
+    radius_px = np.hypot(*(pixel_of(station, part, scene, np.add(where_mm, (radius_mm, 0.0, 0.0))) - centre))
+    assert np.hypot(*(np.array(missing.pixel) - centre)) < radius_px
     assert missing.found < 0.3 and bad.max_deviation == bad.reach
 
 
