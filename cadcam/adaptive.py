@@ -37,6 +37,7 @@ All lengths in millimetres, feeds in mm/min.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -48,6 +49,8 @@ from shapely.geometry.base import BaseGeometry
 from shapely.ops import linemerge
 
 from cadcam.model import CuttingData, Motion, Tool
+
+log = logging.getLogger(__name__)
 
 #: A region of a level counts as the same as the band floor's when it is no more than this wider [mm].
 _SAME = 0.05
@@ -297,6 +300,7 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
             break
         wanted = np.vstack(over)
     else:
+        log.debug("deep cut at z=%.3f: more than %d passes", z, _MAX_PASSES)
         return None
     left = material
     pts: list[np.ndarray] = []
@@ -309,9 +313,11 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
         for chain, kept in ring:
             routes = _runs(chain, kept, left, r, beta)
             if routes is None:
+                log.debug("deep cut at z=%.3f: no lead-in from the air", z)
                 return None
             for route in routes:
                 if inside.intersects(LineString(route)):
+                    log.debug("deep cut at z=%.3f: a lead-in crosses the part", z)
                     return None
                 _emit(pts, mot, route, z, g)
                 cut.append(LineString(route))
@@ -323,6 +329,7 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
     motion = np.array(mot, dtype=np.int8)
     engagement = measure_engagement(points, motion, z, material, g.stock, r)
     if engagement > limit + 1e-6:
+        log.debug("deep cut at z=%.3f: engagement %.3f mm over %.3f", z, engagement, limit)
         return None
     seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
     length = float(seg[motion[1:] != Motion.RAPID].sum())
@@ -441,15 +448,21 @@ def _lead_in(back: np.ndarray, left: BaseGeometry, r: float, beta: float) -> np.
     depth = float(_penetration(start[None], left, r)[0])
     if depth <= -_AIR_GAP:
         return back[:1].copy()
-    need = depth + 2 * _AIR_GAP
-    length = need / math.tan(beta)
     seg = np.linalg.norm(np.diff(back, axis=0), axis=1)
     cum = np.concatenate([[0.0], np.cumsum(seg)])
     if cum[-1] < 1e-9:
         return None
-    span = min(length, float(cum[-1]))
-    s = np.unique(np.concatenate([cum[cum < span], np.linspace(0, span, max(2, int(span / _RESAMPLE) + 1))]))
-    base = np.column_stack([np.interp(s, cum, back[:, 0]), np.interp(s, cum, back[:, 1])])
+    # shift far enough to clear the deepest stock along the way (a lead-in passing a corner's)
+    need = depth + 2 * _AIR_GAP
+    for _ in range(4):
+        length = need / math.tan(beta)
+        span = min(length, float(cum[-1]))
+        s = np.unique(np.concatenate([cum[cum < span], np.linspace(0, span, max(2, int(span / _RESAMPLE) + 1))]))
+        base = np.column_stack([np.interp(s, cum, back[:, 0]), np.interp(s, cum, back[:, 1])])
+        deepest = max(depth, float(_penetration(base, left, r).max()))
+        if deepest + 2 * _AIR_GAP <= need + 1e-6:
+            break
+        need = deepest + 2 * _AIR_GAP
     idx = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
     # travel runs from back[k + 1] to back[k]: its right-hand side, away from the wall
     travel = (back[idx] - back[idx + 1]) / np.maximum(seg[idx], 1e-12)[:, None]
