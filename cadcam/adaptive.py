@@ -44,11 +44,16 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
-from shapely.geometry import LineString, MultiLineString, Polygon
+from shapely.geometry import LineString, MultiLineString, Polygon, box
 from shapely.geometry.base import BaseGeometry
 from shapely.ops import linemerge
 
-from cadcam.model import CuttingData, Motion, Tool
+import trimesh
+
+from cadcam import roughing
+from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
+from cadcam.roughing import RoughingOptions, zlevel_roughing
+from factory.core.errors import MeshError
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +69,8 @@ _MAX_PASSES = 12
 _CELL_SHARE = 0.025
 #: Spacing of the engagement check's samples along a move, in raster cells.
 _SAMPLE_CELLS = 2.0
+#: Longest link fed at depth from one run to the next [mm]; farther, the tool lifts and rapids.
+_LINK_MAX = 40.0
 #: Longest segment of a pass's chain [mm]: where the stock is met is judged point by point.
 _RESAMPLE = 0.5
 #: Samples over the cutter's leading half for the engagement angle.
@@ -138,6 +145,57 @@ def chip_thinned_feed(cutting: CuttingData, tool: Tool, engagement: float, max_f
                        plunge_feed=cutting.plunge_feed)
 
 
+def adaptive_roughing(
+    part: trimesh.Trimesh,
+    setup: Setup,
+    tool: Tool,
+    cutting: CuttingData,
+    max_feed: float,
+    options: RoughingOptions = RoughingOptions(),
+    adaptive: AdaptiveOptions = AdaptiveOptions(),
+    progress: Callable[[int, int], None] | None = None,
+    within: Callable[[float], BaseGeometry] | None = None,
+    cut_before: Callable[[float], BaseGeometry] | None = None,
+) -> tuple[Operation, ...]:
+    """Roughing by levels, with deep constant-engagement cuts where they are faster (module docstring).
+
+    The levels' operation (:func:`cadcam.roughing.zlevel_roughing`, less the regions taken deep) comes
+    first, then ``"rough adaptive"``: the deep cuts top down, at the chip-thinned feed of their largest
+    engagement, capped at ``max_feed`` [mm/min]. Inside a relief's boundary or beside the jaws (``within``)
+    only levels. Parameters and errors as :func:`cadcam.roughing.zlevel_roughing`; returns the levels'
+    operation (empty where the deep cuts took everything) and the deep cuts' if there are any.
+    """
+    if part is None or len(part.faces) == 0:
+        raise MeshError("part mesh is empty")
+    plan = None
+    if within is None:
+        p = roughing._resolve(options, tool, setup)
+        levels = roughing._levels(part, setup, p)
+        shadow = roughing._shadows(part, [zq for z in levels for zq, _ in roughing._forbidden_terms(float(z), p)])
+        _, rect = roughing._axis_rect(setup, p, None)
+        spaces = tuple(roughing._level_space(float(z), rect, shadow, p) for z in levels)
+        geometry = BandGeometry(
+            levels=tuple(float(z) for z in levels), spaces=spaces, top=float(setup.stock_max[2]),
+            stock=box(*setup.stock_min[:2], *setup.stock_max[:2]), axis_box=rect, allowance=p.allowance,
+            clear_z=p.clear_z, lead_gap=p.lead_gap)
+        plan = plan_deep_cuts(geometry, tool, cutting, max_feed,
+                              lambda region: sum(r.line.length for r in roughing._rings(region, p)), adaptive)
+    exclude = plan.excluded if plan is not None and plan.cuts else None
+    ops = [zlevel_roughing(part, setup, tool, cutting, options, progress=progress, within=within,
+                           cut_before=cut_before, exclude=exclude)]
+    if exclude is not None:
+        feed = chip_thinned_feed(cutting, tool, max(c.engagement for c in plan.cuts), max_feed)
+        first = plan.cuts[0].points[0]
+        points = np.vstack([[[first[0], first[1], setup.safe_z]], *[c.points for c in plan.cuts]])
+        motion = np.concatenate([[int(Motion.RAPID)], *[c.motion for c in plan.cuts]]).astype(np.int8)
+        last = points[-1]
+        points = np.vstack([points, [[last[0], last[1], setup.safe_z]]])
+        motion = np.append(motion, np.int8(Motion.RAPID))
+        ops.append(Operation(name="rough adaptive", kind="roughing", tool=tool, cutting=feed, points=points,
+                             motion=motion, allowance=options.allowance))
+    return tuple(ops)
+
+
 # --------------------------------------------------------------------------- choosing the regions
 
 
@@ -181,14 +239,13 @@ def plan_deep_cuts(g: BandGeometry, tool: Tool, cutting: CuttingData, max_feed: 
     deep: list[list[Polygon]] = [[] for _ in range(n)]  # per level: regions taken deep
     shallow: list[list[Polygon]] = [[] for _ in range(n)]  # per level: regions left to the levels
     cuts: list[DeepCut] = []
-    i = n - 1
-    claimed = [set() for _ in range(n)]  # indices of comps already part of a deep band
+    claimed: list[set[int]] = [set() for _ in range(n)]  # indices of comps already part of a deep band
     for i in range(n - 1, -1, -1):
         for ci, c in enumerate(comps[i]):
             if ci in claimed[i]:
                 continue
-            cut = _band_cut(g, i, c, comps, claimed, deep, shallow, tool, cutting, max_feed, levels_length,
-                            max_depth, options)
+            cut = _band_cut(g, i, c, comps, claimed, shallow, tool, cutting, max_feed, levels_length, max_depth,
+                            options)
             if cut is None:
                 shallow[i].append(c)
                 continue
@@ -196,17 +253,19 @@ def plan_deep_cuts(g: BandGeometry, tool: Tool, cutting: CuttingData, max_feed: 
             for li in cut.levels:
                 deep[li].append(cut.region)
     cuts.sort(key=lambda c: (-c.z_top, -c.z))
-    taken = tuple(shapely.union_all([r.buffer(_SAME, quad_segs=4) for r in deep[li]]) if deep[li] else None
+    # a little wider than the regions' own tolerance: no sliver of a deep region is left to the levels
+    taken = tuple(shapely.union_all([r.buffer(2 * _SAME, quad_segs=4) for r in deep[li]]) if deep[li] else None
                   for li in range(n))
     return DeepPlan(cuts=tuple(cuts), taken=taken)
 
 
-def _band_cut(g: BandGeometry, i: int, c: Polygon, comps: list[list[Polygon]], claimed: list[set],
-              deep: list[list[Polygon]], shallow: list[list[Polygon]], tool: Tool, cutting: CuttingData,
+def _band_cut(g: BandGeometry, i: int, c: Polygon, comps: list[list[Polygon]], claimed: list[set[int]],
+              shallow: list[list[Polygon]], tool: Tool, cutting: CuttingData,
               max_feed: float, levels_length: Callable[[Polygon], float], max_depth: float,
               options: AdaptiveOptions) -> DeepCut | None:
     """The deep cut of region ``c`` of level ``i`` up through the levels above where the region stays the same,
-    or None where it does not pay or is not safe."""
+    or None where it does not pay or is not safe. A region with no air beside it (a closed pocket) finds no
+    lead-in (:func:`deep_cut_moves`) and stays with the levels. Marks the levels it takes in ``claimed``."""
     # Everything under it that it overlaps must be deep as well: the z-level pass comes first and must
     # never cut below stock a deep cut has still to take.
     below = i + 1
@@ -309,7 +368,6 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
                                          - math.acos(1 - min(step, tool.diameter) / r)))
     inside = walls.buffer(-1e-4)
     for ring in passes[::-1]:
-        cut: list[LineString] = []
         for chain, kept in ring:
             routes = _runs(chain, kept, left, r, beta)
             if routes is None:
@@ -319,10 +377,8 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
                 if inside.intersects(LineString(route)):
                     log.debug("deep cut at z=%.3f: a lead-in crosses the part", z)
                     return None
-                _emit(pts, mot, route, z, g)
-                cut.append(LineString(route))
-        if cut:
-            left = left.difference(shapely.union_all([q.buffer(r, quad_segs=16) for q in cut]))
+                _emit(pts, mot, route, z, g, _stays_down(pts, route, left, inside, r))
+                left = left.difference(LineString(route).buffer(r, quad_segs=16))
     if not pts:
         return None
     points = np.array(pts)
@@ -366,21 +422,44 @@ def _oriented(line: LineString, walls: BaseGeometry) -> np.ndarray:
     return c
 
 
-def _emit(pts: list[np.ndarray], mot: list[int], route: np.ndarray, z: float, g: BandGeometry) -> None:
-    """One run: rapid over its start, down in the air, along it at ``z``, and back up."""
-    pts.append(np.array([*route[0], g.clear_z]))
-    mot.append(int(Motion.RAPID))
-    air = z + g.lead_gap
-    if air < g.clear_z:
-        pts.append(np.array([*route[0], air]))
+def _emit(pts: list[np.ndarray], mot: list[int], route: np.ndarray, z: float, g: BandGeometry,
+          linked: bool = False) -> None:
+    """One run at ``z``: fed straight on from where the last one ended (``linked``), else from a rapid over its
+    start down in the air; it ends back up at ``g.clear_z`` (taken back off when the next run links on)."""
+    if linked:
+        pts.pop()  # stay down: the last run's lift
+        mot.pop()
+        pts.append(np.array([*route[0], z]))
+        mot.append(int(Motion.CUT))
+    else:
+        pts.append(np.array([*route[0], g.clear_z]))
         mot.append(int(Motion.RAPID))
-    for k, q in enumerate(route):
+        air = z + g.lead_gap
+        if air < g.clear_z:
+            pts.append(np.array([*route[0], air]))
+            mot.append(int(Motion.RAPID))
+        pts.append(np.array([*route[0], z]))
+        mot.append(int(Motion.PLUNGE))
+    for q in route[1:]:
         pts.append(np.array([*q, z]))
-        mot.append(int(Motion.PLUNGE if k == 0 else Motion.CUT))
+        mot.append(int(Motion.CUT))
     pts.append(np.array([*route[-1], g.clear_z]))
     mot.append(int(Motion.RAPID))
 
 
+def _stays_down(pts: list[np.ndarray], route: np.ndarray, left: BaseGeometry, inside: BaseGeometry,
+                r: float) -> bool:
+    """Whether the tool, down at the end of the last run, feeds straight to ``route``'s start: a short link
+    whose disc meets none of the stock ``left`` (with the air gap to spare) and that keeps off the part."""
+    if len(pts) < 2:
+        return False
+    here = pts[-2][:2]  # the last run's end, before its lift
+    link = LineString([here, route[0]]) if np.linalg.norm(route[0] - here) > 1e-9 else None
+    if link is None:
+        return True
+    if link.length > _LINK_MAX or inside.intersects(link):
+        return False
+    return left.is_empty or link.distance(left) >= r + _AIR_GAP
 def _near(chain: np.ndarray, points: np.ndarray, distance: float) -> np.ndarray:
     """(n,) bool: the chain's points within ``distance`` [mm] of any of ``points`` (m, 2)."""
     from scipy.spatial import cKDTree

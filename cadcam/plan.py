@@ -31,8 +31,8 @@ from cadcam.flatfinish import WALL_HAIR, FlatFinishOptions, flat_wall_finishing,
 from cadcam.model import CuttingData, Job, Operation, Setup, Tool
 from cadcam.relief import Boundary, keep_outside
 from cadcam.rest import safe_rapids
-from cadcam.adaptive import AdaptiveOptions
-from cadcam.roughing import RoughingOptions, adaptive_roughing, zlevel_roughing
+from cadcam.adaptive import AdaptiveOptions, adaptive_roughing
+from cadcam.roughing import RoughingOptions, zlevel_roughing
 from cadcam.shank_clearance import upper_raster
 from cadcam.toolfit import removal_rate, tool_fits
 from cadcam.tools import ToolLibrary

@@ -79,7 +79,6 @@ from shapely.geometry.base import BaseGeometry
 from shapely.geometry.polygon import orient
 from shapely.ops import nearest_points
 
-from cadcam.adaptive import AdaptiveOptions, BandGeometry, chip_thinned_feed, plan_deep_cuts
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.gridregion import GrownMaskCache
 from cadcam.rest import rest_level_masks
@@ -783,14 +782,12 @@ def zlevel_roughing(
 ) -> Operation:
     """Clear the stock around ``part`` level by level, leaving ``options.allowance``.
 
-    With ``rest`` (the stock earlier operations left) this is *rest roughing*: at each
-    level only the regions within the tool radius of material that ``rest`` still holds
-    at that level, more than ``rest_above`` [mm] above the part (or the stock bottom
-    where there is no part), are cleared, and no level lies deeper than the tool's
-    stick-out below the stock top (what it cannot reach stays, for the caller to report).
-    A level also clears the stock a deeper level's cut would meet more than the tool's axial
-    limit of at once (:func:`cadcam.rest.rest_level_masks`): a corner's sliver is taken a level
-    at a time, not at full width from the floor.
+    With ``rest`` (the stock earlier operations left) this is *rest roughing*: at each level only the regions
+    within the tool radius of material that ``rest`` still holds at that level, more than ``rest_above`` [mm]
+    above the part (or the stock bottom where there is no part), are cleared, and no level lies deeper than
+    the tool's stick-out below the stock top (what it cannot reach stays, for the caller to report). A level
+    also clears the stock a deeper level's cut would meet more than the tool's axial limit of at once
+    (:func:`cadcam.rest.rest_level_masks`): a corner's sliver is taken a level at a time, not at full width.
 
     Parameters
     ----------
@@ -820,8 +817,7 @@ def zlevel_roughing(
         ``cut_before(z)``: the XY area earlier operations cut down to level ``z`` [mm] (holes cut to size,
         :meth:`cadcam.drilling.HolePlan.cut_at`): a pocket there too small to enter is not warned about.
     exclude : callable, optional
-        ``exclude(i)``: the tool-centre area level ``i`` leaves to another operation (deep cuts,
-        :func:`adaptive_roughing`), None for none.
+        ``exclude(i)``: the area (tool centres) level ``i`` leaves to deep cuts (:mod:`cadcam.adaptive`) or None.
 
     Returns
     -------
@@ -866,10 +862,7 @@ def zlevel_roughing(
     skipped = 0
     for li, z in enumerate(levels):
         z = float(z)
-        space = _bounded(spaces[li], cleared, blocked)
-        taken = exclude(li) if exclude is not None else None
-        if taken is not None:
-            space = space.difference(taken)
+        space = _bounded(spaces[li], cleared, blocked, exclude(li) if exclude is not None else None)
         allowed = space
         if rest is not None:
             allowed = allowed.intersection(rest_grown(masks[li]))
@@ -895,56 +888,6 @@ def zlevel_roughing(
                      motion=np.array(path.motion, dtype=np.int8), allowance=p.allowance)
 
 
-def adaptive_roughing(
-    part: trimesh.Trimesh,
-    setup: Setup,
-    tool: Tool,
-    cutting: CuttingData,
-    max_feed: float,
-    options: RoughingOptions = RoughingOptions(),
-    adaptive: AdaptiveOptions = AdaptiveOptions(),
-    progress: Callable[[int, int], None] | None = None,
-    within: Callable[[float], BaseGeometry] | None = None,
-    cut_before: Callable[[float], BaseGeometry] | None = None,
-) -> tuple[Operation, ...]:
-    """Roughing by levels, with deep constant-engagement cuts where they are faster (:mod:`cadcam.adaptive`).
-
-    The levels' operation (:func:`zlevel_roughing`, less the regions taken deep) comes first, then
-    ``"rough adaptive"``: the deep cuts top down, at the chip-thinned feed of their largest engagement,
-    capped at ``max_feed`` [mm/min]. Inside a relief's boundary or beside the jaws (``within``) only levels.
-    Parameters and errors as :func:`zlevel_roughing`; returns the levels' operation (empty where the deep cuts
-    took everything) and the deep cuts' if there are any.
-    """
-    if part is None or len(part.faces) == 0:
-        raise MeshError("part mesh is empty")
-    plan = None
-    if within is None:
-        p = _resolve(options, tool, setup)
-        levels = _levels(part, setup, p)
-        shadow = _shadows(part, [zq for z in levels for zq, _ in _forbidden_terms(float(z), p)])
-        _, rect = _axis_rect(setup, p, None)
-        geometry = BandGeometry(
-            levels=tuple(float(z) for z in levels), spaces=tuple(_level_space(float(z), rect, shadow, p) for z in levels),
-            top=float(setup.stock_max[2]), stock=box(*setup.stock_min[:2], *setup.stock_max[:2]), axis_box=rect,
-            allowance=p.allowance, clear_z=p.clear_z, lead_gap=p.lead_gap)
-        plan = plan_deep_cuts(geometry, tool, cutting, max_feed,
-                              lambda region: sum(r.line.length for r in _rings(region, p)), adaptive)
-    exclude = plan.excluded if plan is not None and plan.cuts else None
-    ops = [zlevel_roughing(part, setup, tool, cutting, options, progress=progress, within=within,
-                           cut_before=cut_before, exclude=exclude)]
-    if exclude is not None:
-        feed = chip_thinned_feed(cutting, tool, max(c.engagement for c in plan.cuts), max_feed)
-        first = plan.cuts[0].points[0]
-        points = np.vstack([[[first[0], first[1], setup.safe_z]], *[c.points for c in plan.cuts]])
-        motion = np.concatenate([[int(Motion.RAPID)], *[c.motion for c in plan.cuts]]).astype(np.int8)
-        last = points[-1]
-        points = np.vstack([points, [[last[0], last[1], setup.safe_z]]])
-        motion = np.append(motion, np.int8(Motion.RAPID))
-        ops.append(Operation(name="rough adaptive", kind="roughing", tool=tool, cutting=feed, points=points,
-                             motion=motion, allowance=options.allowance))
-    return tuple(ops)
-
-
 def _axis_rect(setup: Setup, p: _Params, within: Callable[[float], BaseGeometry] | None
                ) -> tuple[tuple[float, float, float, float], BaseGeometry]:
     """The box the tool axis may roam in [mm]: the stock grown by the tool radius (so the outer loops
@@ -964,13 +907,14 @@ def _level_space(z: float, rect: BaseGeometry, shadow: dict, p: _Params) -> Base
     return rect.difference(forbidden)
 
 
-def _bounded(allowed: BaseGeometry, cleared: BaseGeometry | None, blocked: list[BaseGeometry]) -> BaseGeometry:
-    """``allowed`` within what the levels above cleared (None: no bound) and outside the regions
-    ``blocked`` below pockets that could not be entered."""
+def _bounded(allowed: BaseGeometry, cleared: BaseGeometry | None, blocked: list[BaseGeometry],
+             taken: BaseGeometry | None = None) -> BaseGeometry:
+    """``allowed`` within what the levels above cleared (None: no bound), outside the regions ``blocked``
+    below pockets that could not be entered and outside what deep cuts take (``taken``, None: nothing)."""
     if cleared is not None:
         allowed = allowed.intersection(cleared)
-    if blocked:
-        allowed = allowed.difference(shapely.union_all(blocked))
+    if blocked or taken is not None:
+        allowed = allowed.difference(shapely.union_all([*blocked, *([] if taken is None else [taken])]))
     return allowed
 
 

@@ -41,15 +41,16 @@ CELL_SHARE = 0.02
 
 
 def tool(d: float) -> Tool:
-    return Tool(number=1, name=f"{d:g} mm flat", shape="flat", diameter=d, corner_radius=0.0, flute_length=3 * d, flutes=3,
-                length=5 * d)
+    return Tool(number=1, name=f"{d:g} mm flat", shape="flat", diameter=d, corner_radius=0.0, flute_length=3 * d,
+                flutes=3, length=5 * d)
 
 
 def band(part: BaseGeometry, stock: Polygon, r: float) -> tuple[Polygon, BandGeometry]:
     """The tool-centre region beside ``part`` (XY outline) in ``stock``, as the z-level strategy makes it, and
     the band's geometry."""
     axis_box = box(*stock.buffer(r, join_style="mitre").bounds)
-    region = max(shapely.get_parts(axis_box.difference(part.buffer(r + ALLOW, quad_segs=32))), key=lambda q: q.area)
+    grown = part.buffer(r + ALLOW, quad_segs=32)
+    region = max(shapely.get_parts(axis_box.difference(grown)), key=lambda q: q.area)
     geometry = BandGeometry(levels=(Z,), spaces=(region,), top=Z_TOP, stock=stock, axis_box=axis_box,
                             allowance=ALLOW, clear_z=5.0, lead_gap=1.0)
     return region, geometry
