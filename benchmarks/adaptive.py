@@ -74,7 +74,7 @@ def bench_part(path: Path, strategy: str) -> dict:
         "plan_cpu_s": round(cpu, 1), "verify_ok": plan.report.ok,
         "engagement": {f"T{e.tool}": {"radial_mm": round(e.max_width, 2), "axial_mm": round(e.max_depth, 2),
                                       "angle_deg": round(e.angle.max, 1), "full_width_mm": round(e.max_full_depth, 2)}
-                       for e in plan.report.engagement if not e.finishing},
+                       for e in plan.report.engagement},
     }
 
 
@@ -88,7 +88,7 @@ def main() -> None:
     print(f"# {platform.processor() or platform.machine()}, python {platform.python_version()}, "
           f"load {os.getloadavg()[0]:.1f}")
     print(f"{'part':14s} {'strategy':9s} {'op 1':>6s} {'op 2':>6s} {'rough':>6s} {'bound':>6s} {'x bound':>7s} "
-          f"{'cpu [s]':>8s}  verify  engagement per roughing tool (radial/axial mm, angle deg)")
+          f"{'cpu [s]':>8s}  verify  engagement per tool of op 1 (radial/axial mm, angle deg)")
     for path in args.parts:
         bound = lower_bound(path)
         for strategy in ("levels", "adaptive"):

@@ -31,8 +31,11 @@ This module plans such passes and lets the z-level strategy keep everything else
   runs at ``fz * D / (2 sqrt(ae (D - ae)))`` with ``ae`` the largest measured engagement
   (:func:`chip_thinned_feed`), capped by the machine's feed.
 * **Climb milling** (M3): the uncut stock, on the wall's side, is on the left of the travel.
+* **Links.** From one run to the next the tool feeds straight across at depth where its disc meets no stock
+  left and keeps off the part (and the link is short); otherwise it lifts to the clearance height.
 
-All lengths in millimetres, feeds in mm/min.
+:func:`adaptive_roughing` is the plan's roughing (:class:`cadcam.plan.PlanOptions` ``adaptive``; None keeps
+levels only): the levels' operation first, the deep cuts after it. All lengths in millimetres, feeds in mm/min.
 """
 
 from __future__ import annotations
@@ -44,11 +47,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
+import trimesh
+from scipy.spatial import cKDTree
 from shapely.geometry import LineString, MultiLineString, Polygon, box
 from shapely.geometry.base import BaseGeometry
 from shapely.ops import linemerge
-
-import trimesh
 
 from cadcam import roughing
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
@@ -462,8 +465,6 @@ def _stays_down(pts: list[np.ndarray], route: np.ndarray, left: BaseGeometry, in
     return left.is_empty or link.distance(left) >= r + _AIR_GAP
 def _near(chain: np.ndarray, points: np.ndarray, distance: float) -> np.ndarray:
     """(n,) bool: the chain's points within ``distance`` [mm] of any of ``points`` (m, 2)."""
-    from scipy.spatial import cKDTree
-
     d, _ = cKDTree(points).query(chain, distance_upper_bound=distance)
     return np.isfinite(d)
 

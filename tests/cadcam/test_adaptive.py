@@ -26,6 +26,7 @@ from cadcam.model import CuttingData, Motion, Tool
 from cadcam.plan import PlanOptions, plan_job
 from cadcam.post import PostOptions, post_process
 from cadcam.setup import make_setup
+from cadcam.stock import stock_after
 from cadcam.tools import load_tool_library
 from cadcam.verify import VerifyOptions, simulate
 from tests.cadcam.sweep import past_axial_limit, sweep_moves
@@ -221,7 +222,7 @@ needs_rs274 = pytest.mark.skipif(shutil.which("rs274") is None, reason="LinuxCNC
 def test_bracket_takes_its_skin_deep_safely(tmp_path):
     """The bracket's op 1 by default: its skin taken deep at the chip-thinned feed, sooner than by levels; by the
     tests' own sweep no mill feeds straight down into stock or past its axial limits; verify passes; rs274 runs
-    the program with the job's tool table."""
+    the program with the job's tool table; its roughing leaves nowhere more stock than the levels' alone."""
     library = load_tool_library()
     setup, part = make_setup(load_part(SAMPLES / "bracket.stl").mesh)
     planned = plan_job(part, setup, library, part_name="bracket")
@@ -245,6 +246,10 @@ def test_bracket_takes_its_skin_deep_safely(tmp_path):
     nc.write_text(program.text)
     p = run_rs274(nc, write_tool_table(nc, job.tools), tmp_path)
     assert p.returncode == 0, (p.stdout[-1500:], p.stderr[-1500:])
-    levels = post_process(plan_job(part, setup, library, part_name="bracket", options=PlanOptions(adaptive=None)).job,
-                          PostOptions())
-    assert program.total_time < levels.total_time
+    by_levels = plan_job(part, setup, library, part_name="bracket", options=PlanOptions(adaptive=None)).job
+    assert program.total_time < post_process(by_levels, PostOptions()).total_time
+    # every place the levels alone roughed is roughed as deep (the stock model of the roughing, holes first)
+    triangles = np.asarray(part.triangles)
+    roughed = [stock_after([op for op in j.operations if op.kind != "waterline" and not op.name.startswith("finish")],
+                           job.setup, triangles, 0.5).stock_top for j in (job, by_levels)]
+    assert np.all(roughed[0] <= roughed[1] + 0.05), float(np.max(roughed[0] - roughed[1]))
