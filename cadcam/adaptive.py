@@ -78,7 +78,7 @@ _LINK_MAX = 40.0
 _RESAMPLE = 0.5
 #: Samples over the cutter's leading half for the engagement angle.
 _ARC_SAMPLES = 180
-#: Rapid rate the choice between a deep cut and levels assumes [mm/min] (links are short against cuts).
+#: Rapid rate the choice between a deep cut and levels assumes [mm/min]: the post's default timer's.
 _RAPID_ESTIMATE = 5000.0
 
 
@@ -295,7 +295,8 @@ def _band_cut(g: BandGeometry, i: int, c: Polygon, comps: list[list[Polygon]], c
     feed = chip_thinned_feed(cutting, tool, engagement, max_feed).feed
     seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
     rapid = float(seg[motion[1:] == Motion.RAPID].sum())
-    deep_min = length / feed + rapid / _RAPID_ESTIMATE
+    plunge = float(seg[motion[1:] == Motion.PLUNGE].sum())
+    deep_min = (length - plunge) / feed + plunge / cutting.plunge_feed + rapid / _RAPID_ESTIMATE
     levels_min = len(levels) * levels_length(c) / cutting.feed
     if deep_min >= levels_min:
         return None

@@ -24,6 +24,7 @@ from typing import Any, TypeVar
 import numpy as np
 import trimesh
 
+from cadcam.adaptive import AdaptiveOptions, adaptive_roughing
 from cadcam.drilling import DrillingOptions, Hole, HolePlan, plan_holes
 from cadcam.faces import SHALLOW, STEEP, FaceClasses, classify_faces
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
@@ -31,7 +32,6 @@ from cadcam.flatfinish import WALL_HAIR, FlatFinishOptions, flat_wall_finishing,
 from cadcam.model import CuttingData, Job, Operation, Setup, Tool
 from cadcam.relief import Boundary, keep_outside
 from cadcam.rest import safe_rapids
-from cadcam.adaptive import AdaptiveOptions, adaptive_roughing
 from cadcam.roughing import RoughingOptions, zlevel_roughing
 from cadcam.shank_clearance import upper_raster
 from cadcam.toolfit import removal_rate, tool_fits
@@ -62,7 +62,7 @@ class PlanOptions:
         Tool number of the finishing end mill (ball, bull-nose or flat). None: chosen.
     roughing : RoughingOptions
     adaptive : AdaptiveOptions or None
-        Deep constant-engagement cuts where they are faster than levels (:func:`cadcam.roughing.adaptive_roughing`);
+        Deep constant-engagement cuts where they are faster than levels (:func:`cadcam.adaptive.adaptive_roughing`);
         None: levels only.
     finishing : FinishingOptions
     waterline : bool
