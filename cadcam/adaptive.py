@@ -74,6 +74,8 @@ _CELL_SHARE = 0.025
 _SAMPLE_CELLS = 2.0
 #: Longest link fed at depth from one run to the next [mm]; farther, the tool lifts and rapids.
 _LINK_MAX = 40.0
+#: Deviation allowed when a run's points are thinned to its corners [mm].
+_SIMPLIFY = 0.001
 #: Longest segment of a pass's chain [mm]: where the stock is met is judged point by point.
 _RESAMPLE = 0.5
 #: Samples over the cutter's leading half for the engagement angle.
@@ -378,6 +380,8 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
                 log.debug("deep cut at z=%.3f: no lead-in from the air", z)
                 return None
             for route in routes:
+                # the chains are sampled finely to judge them; the moves need only their corners
+                route = shapely.get_coordinates(LineString(route).simplify(_SIMPLIFY, preserve_topology=False))
                 if inside.intersects(LineString(route)):
                     log.debug("deep cut at z=%.3f: a lead-in crosses the part", z)
                     return None
