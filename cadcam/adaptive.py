@@ -74,8 +74,9 @@ _CELL_SHARE = 0.025
 _SAMPLE_CELLS = 2.0
 #: Longest link fed at depth from one run to the next [mm]; farther, the tool lifts and rapids.
 _LINK_MAX = 40.0
-#: Deviation allowed when a run's points are thinned to its corners [mm].
-_SIMPLIFY = 0.001
+#: Deviation allowed when a run's points are thinned to its corners [mm]: under the 1e-4 mm the walls are
+#: checked with, so a thinned arc never cuts into them.
+_SIMPLIFY = 5e-5
 #: Longest segment of a pass's chain [mm]: where the stock is met is judged point by point.
 _RESAMPLE = 0.5
 #: Samples over the cutter's leading half for the engagement angle.
