@@ -24,6 +24,7 @@ from typing import Any, TypeVar
 import numpy as np
 import trimesh
 
+from cadcam.adaptive import AdaptiveOptions, adaptive_roughing
 from cadcam.drilling import DrillingOptions, Hole, HolePlan, plan_holes
 from cadcam.faces import SHALLOW, STEEP, FaceClasses, classify_faces
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
@@ -60,6 +61,9 @@ class PlanOptions:
     finish_tool : int, optional
         Tool number of the finishing end mill (ball, bull-nose or flat). None: chosen.
     roughing : RoughingOptions
+    adaptive : AdaptiveOptions or None
+        Deep constant-engagement cuts where they are faster than levels (:func:`cadcam.adaptive.adaptive_roughing`);
+        None: levels only.
     finishing : FinishingOptions
     waterline : bool
         Finish steep walls with waterline loops (otherwise the raster covers everything).
@@ -92,6 +96,7 @@ class PlanOptions:
     rough_tool: int | None = None
     finish_tool: int | None = None
     roughing: RoughingOptions = field(default_factory=RoughingOptions)
+    adaptive: AdaptiveOptions | None = field(default_factory=AdaptiveOptions)
     finishing: FinishingOptions = field(default_factory=FinishingOptions)
     waterline: bool = True
     rest_roughing: bool = True
@@ -559,11 +564,17 @@ def _holes_and_roughing(plan: _Planning, exact: tuple[Hole, ...] | None = None
                        options.roughing.allowance, exact, within=plan.keepout) if options.holes else None
     plan.seconds.append(("holes", time.perf_counter() - t0))
     plan.cut_before = holes.cut_at if holes is not None else None
-    rough = plan.timed("roughing", lambda: zlevel_roughing(part, setup, plan.rough_tool, plan.rough_cutting,
-                                                            options.roughing, progress=plan.stage_progress("roughing"),
-                                                            within=plan.rough_within, cut_before=plan.cut_before))
+    if options.adaptive is None:
+        rough = plan.timed("roughing", lambda: (zlevel_roughing(
+            part, setup, plan.rough_tool, plan.rough_cutting, options.roughing,
+            progress=plan.stage_progress("roughing"), within=plan.rough_within, cut_before=plan.cut_before),))
+    else:
+        rough = plan.timed("roughing", lambda: adaptive_roughing(
+            part, setup, plan.rough_tool, plan.rough_cutting, plan.library.max_feed, options.roughing,
+            options.adaptive, progress=plan.stage_progress("roughing"), within=plan.rough_within,
+            cut_before=plan.cut_before))
     # Drilled and helixed holes come first: the stock model below sees them.
-    operations = [*(holes.operations if holes is not None else ()), rough]
+    operations = [*(holes.operations if holes is not None else ()), *rough]
     # What roughing left lets finishing descend by rapid through air instead of feeding from safe_z.
     return holes, operations, plan.model(operations)
 

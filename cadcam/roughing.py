@@ -778,17 +778,16 @@ def zlevel_roughing(
     within: Callable[[float], BaseGeometry] | None = None,
     air: Simulation | None = None,
     cut_before: Callable[[float], BaseGeometry] | None = None,
+    exclude: Callable[[int], BaseGeometry | None] | None = None,
 ) -> Operation:
     """Clear the stock around ``part`` level by level, leaving ``options.allowance``.
 
-    With ``rest`` (the stock earlier operations left) this is *rest roughing*: at each
-    level only the regions within the tool radius of material that ``rest`` still holds
-    at that level, more than ``rest_above`` [mm] above the part (or the stock bottom
-    where there is no part), are cleared, and no level lies deeper than the tool's
-    stick-out below the stock top (what it cannot reach stays, for the caller to report).
-    A level also clears the stock a deeper level's cut would meet more than the tool's axial
-    limit of at once (:func:`cadcam.rest.rest_level_masks`): a corner's sliver is taken a level
-    at a time, not at full width from the floor.
+    With ``rest`` (the stock earlier operations left) this is *rest roughing*: at each level only the regions
+    within the tool radius of material that ``rest`` still holds at that level, more than ``rest_above`` [mm]
+    above the part (or the stock bottom where there is no part), are cleared, and no level lies deeper than
+    the tool's stick-out below the stock top (what it cannot reach stays, for the caller to report). A level
+    also clears the stock a deeper level's cut would meet more than the tool's axial limit of at once
+    (:func:`cadcam.rest.rest_level_masks`): a corner's sliver is taken a level at a time, not at full width.
 
     Parameters
     ----------
@@ -817,6 +816,8 @@ def zlevel_roughing(
     cut_before : callable, optional
         ``cut_before(z)``: the XY area earlier operations cut down to level ``z`` [mm] (holes cut to size,
         :meth:`cadcam.drilling.HolePlan.cut_at`): a pocket there too small to enter is not warned about.
+    exclude : callable, optional
+        ``exclude(i)``: the area (tool centres) level ``i`` leaves to deep cuts (:mod:`cadcam.adaptive`) or None.
 
     Returns
     -------
@@ -861,7 +862,7 @@ def zlevel_roughing(
     skipped = 0
     for li, z in enumerate(levels):
         z = float(z)
-        space = _bounded(spaces[li], cleared, blocked)
+        space = _bounded(spaces[li], cleared, blocked, exclude(li) if exclude is not None else None)
         allowed = space
         if rest is not None:
             allowed = allowed.intersection(rest_grown(masks[li]))
@@ -906,13 +907,14 @@ def _level_space(z: float, rect: BaseGeometry, shadow: dict, p: _Params) -> Base
     return rect.difference(forbidden)
 
 
-def _bounded(allowed: BaseGeometry, cleared: BaseGeometry | None, blocked: list[BaseGeometry]) -> BaseGeometry:
-    """``allowed`` within what the levels above cleared (None: no bound) and outside the regions
-    ``blocked`` below pockets that could not be entered."""
+def _bounded(allowed: BaseGeometry, cleared: BaseGeometry | None, blocked: list[BaseGeometry],
+             taken: BaseGeometry | None = None) -> BaseGeometry:
+    """``allowed`` within what the levels above cleared (None: no bound), outside the regions ``blocked``
+    below pockets that could not be entered and outside what deep cuts take (``taken``, None: nothing)."""
     if cleared is not None:
         allowed = allowed.intersection(cleared)
-    if blocked:
-        allowed = allowed.difference(shapely.union_all(blocked))
+    if blocked or taken is not None:
+        allowed = allowed.difference(shapely.union_all([*blocked, *([] if taken is None else [taken])]))
     return allowed
 
 

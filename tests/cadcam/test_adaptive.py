@@ -1,0 +1,255 @@
+"""Deep constant-engagement wall cuts (cadcam.adaptive), checked by an independent replay.
+
+The replay shares nothing with the engine but the moves: the band's material is a pixel grid made
+from the part's own outline (not the engine's grown walls), every feed move at depth clears the tool's
+disc from it sample by sample, and at every sample the engagement angle is read the way a machinist
+pictures it: the arc of the cutter's leading half that meets material the earlier positions (more than
+half a radius back) left, given as the side cut that makes that angle, ``R (1 - cos angle)``.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+
+import numpy as np
+import pytest
+import shapely
+from hypothesis import HealthCheck, example, given, settings
+from hypothesis import strategies as st
+from shapely.geometry import Polygon, box
+
+from cadcam.adaptive import AdaptiveOptions, BandGeometry, chip_thinned_feed, deep_cut_moves
+from cadcam.gcode import parse_gcode
+from cadcam.mesh import load_part
+from cadcam.model import CuttingData, Motion, Tool
+from cadcam.plan import PlanOptions, plan_job
+from cadcam.post import PostOptions, post_process
+from cadcam.setup import make_setup
+from cadcam.stock import stock_after
+from cadcam.tools import load_tool_library
+from cadcam.verify import VerifyOptions, simulate
+from tests.cadcam.sweep import past_axial_limit, sweep_moves
+from tests.conftest import SAMPLES
+from tests.rs274 import run_rs274, write_tool_table
+
+BaseGeometry = shapely.Geometry
+OPTIONS = AdaptiveOptions()
+ALLOW = 0.3
+Z_TOP, Z = 0.0, -15.0
+#: Raster pitch of the replay, as a share of the radius.
+CELL_SHARE = 0.02
+
+
+def tool(d: float) -> Tool:
+    return Tool(number=1, name=f"{d:g} mm flat", shape="flat", diameter=d, corner_radius=0.0, flute_length=3 * d,
+                flutes=3, length=5 * d)
+
+
+def band(part: BaseGeometry, stock: Polygon, r: float) -> tuple[Polygon, BandGeometry]:
+    """The tool-centre region beside ``part`` (XY outline) in ``stock``, as the z-level strategy makes it, and
+    the band's geometry."""
+    axis_box = box(*stock.buffer(r, join_style="mitre").bounds)
+    grown = part.buffer(r + ALLOW, quad_segs=32)
+    region = max(shapely.get_parts(axis_box.difference(grown)), key=lambda q: q.area)
+    geometry = BandGeometry(levels=(Z,), spaces=(region,), top=Z_TOP, stock=stock, axis_box=axis_box,
+                            allowance=ALLOW, clear_z=5.0, lead_gap=1.0)
+    return region, geometry
+
+
+class Replay:
+    """The band's material on a pixel grid (the stock less the part grown by the allowance)."""
+
+    def __init__(self, part: BaseGeometry, stock: Polygon, r: float):
+        self.r = r
+        self.cell = CELL_SHARE * r
+        x0, y0, x1, y1 = stock.bounds
+        self.x0, self.y0 = x0, y0
+        xs = np.arange(x0 + self.cell / 2, x1, self.cell)
+        ys = np.arange(y0 + self.cell / 2, y1, self.cell)
+        self.gx, self.gy = np.meshgrid(xs, ys)
+        keep_out = part.buffer(ALLOW, quad_segs=32)
+        self.solid = ~shapely.contains_xy(keep_out, self.gx, self.gy)
+        self.part = part
+
+    def material_at(self, xy: np.ndarray) -> np.ndarray:
+        j = np.floor((xy[:, 0] - self.x0) / self.cell).astype(int)
+        i = np.floor((xy[:, 1] - self.y0) / self.cell).astype(int)
+        ok = (i >= 0) & (j >= 0) & (i < self.solid.shape[0]) & (j < self.solid.shape[1])
+        out = np.zeros(len(xy), bool)
+        out[ok] = self.solid[i[ok], j[ok]]
+        return out
+
+    def _window(self, p: np.ndarray) -> tuple[slice, slice]:
+        k = int(math.ceil(self.r / self.cell)) + 2
+        i = int(math.floor((p[1] - self.y0) / self.cell))
+        j = int(math.floor((p[0] - self.x0) / self.cell))
+        return slice(max(i - k, 0), max(i + k + 1, 0)), slice(max(j - k, 0), max(j + k + 1, 0))
+
+    def disc_meets(self, p: np.ndarray) -> bool:
+        w = self._window(p)
+        d2 = (self.gx[w] - p[0]) ** 2 + (self.gy[w] - p[1]) ** 2
+        return bool((self.solid[w] & (d2 < (self.r - self.cell) ** 2)).any())
+
+    def cut(self, p: np.ndarray) -> None:
+        w = self._window(p)
+        self.solid[w] &= (self.gx[w] - p[0]) ** 2 + (self.gy[w] - p[1]) ** 2 > self.r ** 2
+
+
+def replay(points: np.ndarray, motion: np.ndarray, rp: Replay) -> np.ndarray:
+    """Radial engagement [mm] at every sample of every feed move at depth; asserts the descents are in the air
+    and nothing is cut below the floor or into the part on the way."""
+    r = rp.r
+    lag = 0.5 * r
+    angles = np.linspace(0.0, math.pi, 361)[1:-1]
+    rr = r - rp.cell
+    out = []
+    pending: list[tuple[float, np.ndarray]] = []
+    travelled = 0.0
+    assert points[:, 2].min() >= Z - 1e-9, "below the floor"
+    for a, b, m in zip(points[:-1], points[1:], motion[1:]):
+        if b[2] < Z_TOP and np.linalg.norm(b[:2] - a[:2]) < 1e-9 and b[2] < a[2] - 1e-9:
+            assert m != Motion.CUT or not rp.disc_meets(b[:2]), "a straight feed down into stock"
+            for _, q in pending:
+                rp.cut(q)
+            pending.clear()
+            assert not rp.disc_meets(b[:2]), f"a descent onto stock at {b[:2]}"
+            continue
+        if m == Motion.RAPID or abs(a[2] - Z) > 1e-9 or abs(b[2] - Z) > 1e-9:
+            for _, q in pending:
+                rp.cut(q)
+            pending.clear()
+            if m == Motion.RAPID and min(a[2], b[2]) < Z_TOP:
+                assert np.linalg.norm(b[:2] - a[:2]) < 1e-9, "a rapid across at depth"
+            continue
+        length = float(np.linalg.norm(b[:2] - a[:2]))
+        u = (b[:2] - a[:2]) / length
+        left = np.array([-u[1], u[0]])
+        arc = rr * (np.cos(angles)[:, None] * left + np.sin(angles)[:, None] * u)
+        n = max(1, math.ceil(length / rp.cell))
+        for t in np.linspace(0.0, 1.0, n + 1)[1:]:
+            p = a[:2] + t * (b[:2] - a[:2])
+            travelled += length / n
+            while pending and travelled - pending[0][0] >= lag:
+                rp.cut(pending.pop(0)[1])
+            hits = rp.material_at(p[None] + arc)
+            angle = math.pi * hits.mean()
+            out.append(r - rr * math.cos(angle) if hits.any() else 0.0)
+            pending.append((travelled, p))
+    for _, q in pending:
+        rp.cut(q)
+    # nothing into the part: every cutter location keeps the allowance from it
+    at_depth = points[np.abs(points[:, 2] - Z) < 1e-9, :2]
+    gap = shapely.distance(rp.part, shapely.points(at_depth))
+    assert gap.min() >= r + ALLOW - 0.01, f"{r + ALLOW - gap.min():.3f} mm into the allowance"
+    return np.array(out)
+
+
+def assert_deep_cut_holds(part: BaseGeometry, stock: Polygon, d: float) -> float | None:
+    """The engine's deep cut beside ``part`` (if it takes one) holds the band, enters from the air and leaves
+    no stock; returns the largest engagement replayed [mm], None where the engine left the region to levels."""
+    t = tool(d)
+    region, geometry = band(part, stock, t.radius)
+    moves = deep_cut_moves(region, geometry, Z, Z_TOP, t, OPTIONS)
+    if moves is None:
+        return None
+    points, motion, _, _ = moves
+    rp = Replay(part, stock, t.radius)
+    ae = replay(points, motion, rp)
+    limit = (OPTIONS.engagement + OPTIONS.band) * d
+    # the raster reads up to a cell or two more than the true engagement
+    assert ae.max() <= limit + 2 * rp.cell, (ae.max(), limit)
+    # every cut run ends by lifting straight up from where it cut (never a rapid across at depth)
+    left = rp.solid.sum() * rp.cell ** 2
+    assert left <= 0.002 * stock.area + 0.5, f"{left:.2f} mm² of stock left"
+    return float(ae.max())
+
+
+def test_skin_of_a_block_is_one_lap_at_the_margin():
+    """A rounded block with 2 mm of stock round it: one lap round it (plus the stock's corners) at 1.7 mm."""
+    part = box(2, 2, 102, 62).buffer(-3).buffer(3, quad_segs=32)
+    stock = box(0, 0, 104, 64)
+    ae = assert_deep_cut_holds(part, stock, 10.0)
+    assert ae is not None, "the engine refused the plainest skin"
+    assert ae == pytest.approx(2 - ALLOW, abs=0.15)
+
+
+def test_sharp_corners_and_a_notch():
+    """A block with sharp corners and an inside notch: the notch's inside corners would bury an offset lap; the
+    engine either holds the band there (extra passes) or leaves the region to the levels."""
+    part = box(2, 2, 102, 62).difference(box(40, 50, 60, 70))
+    stock = box(0, 0, 104, 64)
+    assert_deep_cut_holds(part, stock, 10.0)
+    plain = box(2, 2, 52, 32)
+    assert assert_deep_cut_holds(plain, box(0, 0, 54, 34), 16.0) is not None
+
+
+rects = st.tuples(st.floats(0, 40), st.floats(0, 30), st.floats(6, 40), st.floats(6, 30))
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(rects, min_size=1, max_size=3), st.floats(0.5, 6.0), st.sampled_from([6.0, 10.0, 16.0]),
+       st.floats(0.0, 4.0))
+@example([(0.0, 0.0, 40.0, 30.0)], 2.0, 10.0, 0.0)
+def test_random_outlines_hold_the_band(boxes, margin, d, rounding):
+    """Unions of boxes (rounded or not) in a stock ``margin`` wider: any deep cut the engine takes holds the
+    band, descends only in the air, keeps off the part and leaves no stock."""
+    part = shapely.union_all([box(x, y, x + w, y + h) for x, y, w, h in boxes])
+    if rounding > 0:
+        part = part.buffer(-rounding).buffer(rounding, quad_segs=16)
+    if part.is_empty or part.area < 1:
+        return
+    x0, y0, x1, y1 = part.bounds
+    stock = box(x0 - margin, y0 - margin, x1 + margin, y1 + margin)
+    assert_deep_cut_holds(part, stock, d)
+
+
+def test_chip_thinned_feed_matches_the_formula():
+    t = tool(10.0)
+    base = CuttingData(spindle_rpm=9549.0, feed=2292.0, plunge_feed=687.6)
+    for ae in (0.5, 1.5, 2.0, 4.9):
+        thinned = chip_thinned_feed(base, t, ae, 10000.0)
+        assert thinned.feed == pytest.approx(2292.0 * 10 / (2 * math.sqrt(ae * (10 - ae))))
+        assert thinned.plunge_feed == base.plunge_feed and thinned.spindle_rpm == base.spindle_rpm
+    assert chip_thinned_feed(base, t, 0.1, 5000.0).feed == 5000.0  # the machine's cap
+    assert chip_thinned_feed(base, t, 5.0, 10000.0) == base  # half the diameter and more: as is
+
+
+needs_rs274 = pytest.mark.skipif(shutil.which("rs274") is None, reason="LinuxCNC's rs274 is not installed")
+
+
+@needs_rs274
+def test_bracket_takes_its_skin_deep_safely(tmp_path):
+    """The bracket's op 1 by default: its skin taken deep at the chip-thinned feed, sooner than by levels; by the
+    tests' own sweep no mill feeds straight down into stock or past its axial limits; verify passes; rs274 runs
+    the program with the job's tool table; its roughing leaves nowhere more stock than the levels' alone."""
+    library = load_tool_library()
+    setup, part = make_setup(load_part(SAMPLES / "bracket.stl").mesh)
+    planned = plan_job(part, setup, library, part_name="bracket")
+    job = planned.job
+    deep = [op for op in job.operations if op.name == "rough adaptive"]
+    assert len(deep) == 1
+    base = library.cutting_data(deep[0].tool, setup.material)
+    assert deep[0].cutting.feed > base.feed and deep[0].cutting.plunge_feed == base.plunge_feed
+    program = post_process(job, PostOptions())
+    moves = parse_gcode(program.text)
+    tools = {t.number: t for t in job.tools}
+    sweep = sweep_moves(moves.points, moves.motion, moves.tool, tools, job.setup, 0.5, full_width=True)
+    step = np.diff(moves.points, axis=0)
+    down = (moves.motion[1:] != Motion.RAPID) & (step[:, 2] < -1e-3) & (np.hypot(step[:, 0], step[:, 1]) < 1e-3)
+    mills = ~np.isin(moves.tool[1:], [n for n, t in tools.items() if t.shape == "drill"])
+    assert not np.any(down & mills & (sweep.buried[1:] > 0.05))
+    assert past_axial_limit(sweep, moves.tool, tools, 0.25) == {}
+    report = simulate(moves, tools, job.setup, np.asarray(part.triangles), VerifyOptions(cell=0.5)).report
+    assert report.ok, [f.message for f in report.faults]
+    nc = tmp_path / "bracket.nc"
+    nc.write_text(program.text)
+    p = run_rs274(nc, write_tool_table(nc, job.tools), tmp_path)
+    assert p.returncode == 0, (p.stdout[-1500:], p.stderr[-1500:])
+    by_levels = plan_job(part, setup, library, part_name="bracket", options=PlanOptions(adaptive=None)).job
+    assert program.total_time < post_process(by_levels, PostOptions()).total_time
+    # every place the levels alone roughed is roughed as deep (the stock model of the roughing, holes first)
+    triangles = np.asarray(part.triangles)
+    roughed = [stock_after([op for op in j.operations if op.kind != "waterline" and not op.name.startswith("finish")],
+                           job.setup, triangles, 0.5).stock_top for j in (job, by_levels)]
+    assert np.all(roughed[0] <= roughed[1] + 0.05), float(np.max(roughed[0] - roughed[1]))
