@@ -1,4 +1,4 @@
-"""Machining features recognised in a part: round holes, holes for another setup, flat faces, inside corners.
+"""Machining features recognised in a part: round holes, holes for another setup, undercuts, flat faces, inside corners.
 
 Each feature is a small frozen value in millimetres, in the part file's own axes (only scaled
 to mm, like :class:`cadcam.mesh.PartMesh`), and says where it was read from: ``source`` is
@@ -156,6 +156,43 @@ class SetupHole:
 
 
 @dataclass(frozen=True)
+class Undercut:
+    """A face that looks down with the part under it: no tool from the top reaches it (the material
+    lies over it), nor one from below once the part is turned over (the material under it is in
+    the way), as under a T-slot's lips or on a dovetail's flanks.
+
+    Attributes
+    ----------
+    point : (3,) tuple of float
+        Where it is [mm]: the middle of the face's covered triangles, weighted by their area.
+    direction : (3,) tuple of float
+        Unit vector [1] out of the material there (the face's mean outward normal): the way a
+        tool must come from, in another setup or on a 4th axis.
+    area : float
+        Area of the face's triangles that look down with the part under them [mm^2].
+    face : int
+        The B-rep face (0-based, in the solid's order).
+    source : {"step", "mesh"}
+    """
+
+    point: tuple[float, float, float]
+    direction: tuple[float, float, float]
+    area: float
+    face: int
+    source: Source
+
+    def describe(self) -> str:
+        x, y, z = self.point
+        i, j, k = self.direction
+        return (f"undercut face {self.face} at X{x:.3f} Y{y:.3f} Z{z:.3f} facing ({i:.3f}, {j:.3f}, {k:.3f}), "
+                f"{self.area:.1f} mm^2: looks down with the part under it, no tool from the top or from below "
+                "reaches it; needs another setup or a 4th axis")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
 class FlatFace:
     """A plane face square to Z at its exact height.
 
@@ -200,6 +237,7 @@ class PartFeatures:
     elsewhere: tuple[SetupHole, ...] = ()
     flats: tuple[FlatFace, ...] = ()
     corners: tuple[InsideCorner, ...] = ()
+    undercuts: tuple[Undercut, ...] = ()
 
     def holes_in_work(self, transform_mesh_to_work: np.ndarray, chord: float) -> tuple[Hole, ...]:
         """The drillable holes as :class:`cadcam.drilling.Hole` in work coordinates.
@@ -219,4 +257,5 @@ class PartFeatures:
 
     def to_dict(self) -> dict[str, Any]:
         return {"holes": [h.to_dict() for h in self.holes], "elsewhere": [h.to_dict() for h in self.elsewhere],
-                "flats": [f.to_dict() for f in self.flats], "corners": [c.to_dict() for c in self.corners]}
+                "flats": [f.to_dict() for f in self.flats], "corners": [c.to_dict() for c in self.corners],
+                "undercuts": [u.to_dict() for u in self.undercuts]}

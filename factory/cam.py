@@ -252,7 +252,8 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
 def _report_step_features(loaded: PartMesh, library, part: Path) -> None:
     """Say, before any toolpath work, what of a STEP part's exact features this setup cannot cut.
 
-    Holes off the Z axis or covered from above need another setup; an inside corner tighter
+    Holes off the Z axis or covered from above, and faces that look down with the part under them
+    (undercuts), need another setup; an inside corner tighter
     than the library's narrowest flat or bull-nose end mill is left with that tool's radius.
     """
     step = loaded.step
@@ -260,6 +261,8 @@ def _report_step_features(loaded: PartMesh, library, part: Path) -> None:
              part, step.unit, step.brep_faces, len(step.faces), step.chordal_deviation)
     for hole in step.features.elsewhere:
         log.warning("%s: %s", part, hole.describe())
+    for face in step.features.undercuts:
+        log.warning("%s: %s", part, face.describe())
     mills = [t for t in library.tools if t.shape in ("flat", "bull") and not t.is_drill]
     if mills:
         smallest = min(mills, key=lambda t: t.diameter)
