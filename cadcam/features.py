@@ -23,6 +23,12 @@ Source = Literal["step", "mesh"]
 HoleEnd = Literal["through", "flat", "conical", "stepped", "other"]
 
 
+def _placed(point: tuple[float, float, float], how: str, direction: tuple[float, float, float]) -> str:
+    """``at X.. Y.. Z.. <how> (i, j, k)``: a place [mm] and a direction [1] as a report gives them."""
+    x, y, z, i, j, k = (c + 0.0 for c in (*point, *direction))  # + 0.0: a -0.0 reads 0.000
+    return f"at X{x:.3f} Y{y:.3f} Z{z:.3f} {how} ({i:.3f}, {j:.3f}, {k:.3f})"
+
+
 @dataclass(frozen=True)
 class Counterbore:
     """A wider flat-bottomed bore over a hole, on its axis: ``diameter`` [mm], from ``top_z`` down to ``floor_z`` [mm]."""
@@ -146,9 +152,7 @@ class SetupHole:
     source: Source
 
     def describe(self) -> str:
-        x, y, z = self.point
-        i, j, k = self.direction
-        return (f"{self.diameter:.3f} mm hole at X{x:.3f} Y{y:.3f} Z{z:.3f} along ({i:.3f}, {j:.3f}, {k:.3f}), "
+        return (f"{self.diameter:.3f} mm hole {_placed(self.point, 'along', self.direction)}, "
                 f"{self.length:.3f} mm long: {self.reason}; needs another setup or a 4th axis")
 
     def to_dict(self) -> dict[str, Any]:
@@ -163,6 +167,8 @@ class Undercut:
 
     Attributes
     ----------
+    face : int
+        The B-rep face (0-based, in the solid's order).
     point : (3,) tuple of float
         Where it is [mm]: the middle of the face's covered triangles, weighted by their area.
     direction : (3,) tuple of float
@@ -170,23 +176,19 @@ class Undercut:
         tool must come from, in another setup or on a 4th axis.
     area : float
         Area of the face's triangles that look down with the part under them [mm^2].
-    face : int
-        The B-rep face (0-based, in the solid's order).
     source : {"step", "mesh"}
     """
 
+    face: int
     point: tuple[float, float, float]
     direction: tuple[float, float, float]
     area: float
-    face: int
     source: Source
 
     def describe(self) -> str:
-        x, y, z = self.point
-        i, j, k = self.direction
-        return (f"undercut face {self.face} at X{x:.3f} Y{y:.3f} Z{z:.3f} facing ({i:.3f}, {j:.3f}, {k:.3f}), "
-                f"{self.area:.1f} mm^2: looks down with the part under it, no tool from the top or from below "
-                "reaches it; needs another setup or a 4th axis")
+        return (f"undercut face {self.face} {_placed(self.point, 'facing', self.direction)}, {self.area:.1f} mm^2: "
+                "looks down with the part under it, no tool from the top or from below reaches it; needs another "
+                "setup or a 4th axis")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
