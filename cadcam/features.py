@@ -240,6 +240,9 @@ class PartFeatures:
     flats: tuple[FlatFace, ...] = ()
     corners: tuple[InsideCorner, ...] = ()
     undercuts: tuple[Undercut, ...] = ()
+    #: B-rep faces of free-form surfaces (B-spline, Bezier, extrusion, revolution, offset): a bore made
+    #: of them (the public as1-oc-214's holes are extrusions) is not read as a round hole.
+    freeform: int = 0
 
     def holes_in_work(self, transform_mesh_to_work: np.ndarray, chord: float) -> tuple[Hole, ...]:
         """The drillable holes as :class:`cadcam.drilling.Hole` in work coordinates.
@@ -260,4 +263,4 @@ class PartFeatures:
     def to_dict(self) -> dict[str, Any]:
         return {"holes": [h.to_dict() for h in self.holes], "elsewhere": [h.to_dict() for h in self.elsewhere],
                 "flats": [f.to_dict() for f in self.flats], "corners": [c.to_dict() for c in self.corners],
-                "undercuts": [u.to_dict() for u in self.undercuts]}
+                "undercuts": [u.to_dict() for u in self.undercuts], "freeform": self.freeform}

@@ -485,7 +485,7 @@ class _Face:
     """What recognition needs of one B-rep face: its kind, geometry and outward normal at its middle."""
 
     index: int
-    kind: str  # "plane", "cylinder", "cone", "other"
+    kind: str  # "plane", "cylinder", "cone", "other" (sphere, torus), "freeform" (B-spline, extrusion, ...)
     normal: np.ndarray  # (3,) outward unit normal at the middle of the face's parameters
     point: np.ndarray  # (3,) [mm] the point there
     u: tuple[float, float]
@@ -534,7 +534,8 @@ def _face_info(index: int, f) -> _Face:
         pl = s.Plane()
         return _Face(kind="plane", location=np.array(pl.Location().Coord()),
                      axis=np.array(pl.Axis().Direction().Coord()), **common)
-    return _Face(kind="other", location=point, axis=normal, **common)
+    analytic = (GeomAbs_SurfaceType.GeomAbs_Sphere, GeomAbs_SurfaceType.GeomAbs_Torus)
+    return _Face(kind="other" if t in analytic else "freeform", location=point, axis=normal, **common)
 
 
 class _Adjacency:
@@ -616,7 +617,8 @@ def recognise(shape, faces: list, vertices: np.ndarray, triangles: np.ndarray, c
     features = PartFeatures(
         holes=tuple(sorted(holes, key=lambda h: (round(h.x, 6), round(h.y, 6), -h.top_z))),
         elsewhere=tuple(elsewhere), flats=tuple(sorted(flats, key=lambda f: (-f.z, f.facing))),
-        corners=tuple(sorted(corners, key=lambda c: (c.radius, c.x, c.y))), undercuts=tuple(undercuts))
+        corners=tuple(sorted(corners, key=lambda c: (c.radius, c.x, c.y))), undercuts=tuple(undercuts),
+        freeform=sum(f.kind == "freeform" for f in info))
     log.info("recognised on the B-rep: %d round holes, %d for another setup, %d flat faces, %d inside corners, "
              "%d undercut faces", len(features.holes), len(features.elsewhere), len(features.flats),
              len(features.corners), len(features.undercuts))

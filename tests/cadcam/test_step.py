@@ -276,6 +276,20 @@ def test_faces_that_op_2_reaches_are_not_undercuts(tmp_path):
         assert load_part(write_step(part, tmp_path / f"{name}.step")).step.features.undercuts == (), name
 
 
+def test_free_form_faces_are_counted_so_their_bores_are_left_to_the_mesh(tmp_path):
+    """A bore made of B-spline faces (the public as1-oc-214's holes are extrusions) is no round hole on the B-rep:
+    the free-form faces are counted, and ``factory`` then finds the holes in the mesh."""
+    from build123d import Solid
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
+
+    part = plate((40, 30, 8), [ModelledHole(0, 0, 5.0, None)])
+    exact = load_part(write_step(part, tmp_path / "exact.step")).step.features
+    assert len(exact.holes) == 1 and exact.freeform == 0
+    nurbs = Solid(BRepBuilderAPI_NurbsConvert(part.wrapped, True).Shape())
+    converted = load_part(write_step(nurbs, tmp_path / "nurbs.step")).step.features
+    assert converted.holes == () and converted.freeform == 7  # the block's six faces and the bore's wall
+
+
 def test_inside_corner_radii_are_read(tmp_path):
     from build123d import Align, Box, Pos, fillet, Axis
 
