@@ -61,7 +61,7 @@ def main() -> None:
     f = step.features
     row = {
         "brep_faces": step.brep_faces, "triangles": int(len(step.faces)), "chordal_deviation_mm": step.chordal_deviation,
-        "holes_modelled": len(holes), "holes": len(f.holes), "corners": len(f.corners), "flats": len(f.flats),
+        "holes_modelled": len(holes), "holes": len(f.holes), "corners": len(f.corners), "flats": len(f.flats), "undercuts": len(f.undercuts),
         "read_step_cpu_s": round(read_cpu, 3), "read_step_wall_s": round(read_wall, 3),
         "load_part_cpu_s": round(load_cpu, 3), "load_part_wall_s": round(load_wall, 3),
         "watertight": bool(loaded.mesh.is_watertight), "model_s": round(model_s, 1),

@@ -10,6 +10,8 @@ fetch them into DIR first, from these commits (paths within each repository):
 | 11752.stp, as1_pe_203.stp, as1-oc-214.stp, face_recognition_sample_part.stp, splinecage.stp | tpaviot/pythonocc-demos @ 8158b217efc313889162e7c4dfefba87078d1270, assets/models/ | none stated in the repository: not redistributed |
 | M6-1x12-countersunk-screw.step | gumyr/build123d @ fdd4dc610b3bb121f656b79fce438db322291aa1, docs/ | Apache-2.0 (503 KB: too large to keep) |
 | red_cube_blue_cylinder.step | CadQuery/cadquery @ d6729f51bf1ed183f110aacdbc6238e4a5110c96, tests/testdata/ | Apache-2.0: kept in tests/data/step |
+| nist_ctc_01..05, nist_ftc_06..11 (``_asme1_r?.stp``, geometry only) | NIST MBE PMI test models, as mirrored in tsun7170/STEPswiftcode @ 1da6b4088bfc834b4fb9b70c1a6e90a7bacf25ac, swiftP21read/TestCases/NIST_CTC_STEP_PMI/ (NIST: pages.nist.gov/CAD-PMI-Testing/models.html) | US Government work: public domain (17 U.S.C. 105) |
+| screw.step, linkrods.step | OpenCASCADE's sample data (Debian package occt-misc: /usr/share/opencascade/data/step/) | LGPL-2.1 with the OCCT exception |
 
 For each ``*.step``/``*.stp`` in DIR (every solid of a file of several, as ``--body N``): the
 file's unit, B-rep faces, the chordal deviation [mm] and the triangles it gave (and whether the
@@ -56,7 +58,7 @@ def intake(path: Path, body: int | None = None) -> dict:
             "triangles": int(len(step.faces)), "closed": step.closed,
             "size_mm": [round(float(v), 1) for v in loaded.mesh.extents],
             "holes": len(features.holes), "elsewhere": len(features.elsewhere), "flats": len(features.flats),
-            "corners": len(features.corners), "wall_s": round(time.perf_counter() - wall, 2),
+            "corners": len(features.corners), "undercuts": len(features.undercuts), "wall_s": round(time.perf_counter() - wall, 2),
             "cpu_s": round(time.process_time() - cpu, 2)}
 
 

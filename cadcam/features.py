@@ -1,4 +1,4 @@
-"""Machining features recognised in a part: round holes, holes for another setup, flat faces, inside corners.
+"""Machining features recognised in a part: round holes, holes for another setup, undercuts, flat faces, inside corners.
 
 Each feature is a small frozen value in millimetres, in the part file's own axes (only scaled
 to mm, like :class:`cadcam.mesh.PartMesh`), and says where it was read from: ``source`` is
@@ -21,6 +21,12 @@ Source = Literal["step", "mesh"]
 #: How a vertical round hole ends: the three :mod:`cadcam.drilling` cuts, ``stepped`` (its floor
 #: is an annulus around a narrower bore: a counterbore, left to roughing as on a mesh) or ``other``.
 HoleEnd = Literal["through", "flat", "conical", "stepped", "other"]
+
+
+def _placed(point: tuple[float, float, float], how: str, direction: tuple[float, float, float]) -> str:
+    """``at X.. Y.. Z.. <how> (i, j, k)``: a place [mm] and a direction [1] as a report gives them."""
+    x, y, z, i, j, k = (c + 0.0 for c in (*point, *direction))  # + 0.0: a -0.0 reads 0.000
+    return f"at X{x:.3f} Y{y:.3f} Z{z:.3f} {how} ({i:.3f}, {j:.3f}, {k:.3f})"
 
 
 @dataclass(frozen=True)
@@ -146,10 +152,43 @@ class SetupHole:
     source: Source
 
     def describe(self) -> str:
-        x, y, z = self.point
-        i, j, k = self.direction
-        return (f"{self.diameter:.3f} mm hole at X{x:.3f} Y{y:.3f} Z{z:.3f} along ({i:.3f}, {j:.3f}, {k:.3f}), "
+        return (f"{self.diameter:.3f} mm hole {_placed(self.point, 'along', self.direction)}, "
                 f"{self.length:.3f} mm long: {self.reason}; needs another setup or a 4th axis")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Undercut:
+    """A face that looks down with the part under it: no tool from the top reaches it (the material
+    lies over it), nor one from below once the part is turned over (the material under it is in
+    the way), as under a T-slot's lips or on a dovetail's flanks.
+
+    Attributes
+    ----------
+    face : int
+        The B-rep face (0-based, in the solid's order).
+    point : (3,) tuple of float
+        Where it is [mm]: the middle of the face's covered triangles, weighted by their area.
+    direction : (3,) tuple of float
+        Unit vector [1] out of the material there (the face's mean outward normal): the way a
+        tool must come from, in another setup or on a 4th axis.
+    area : float
+        Area of the face's triangles that look down with the part under them [mm^2].
+    source : {"step", "mesh"}
+    """
+
+    face: int
+    point: tuple[float, float, float]
+    direction: tuple[float, float, float]
+    area: float
+    source: Source
+
+    def describe(self) -> str:
+        return (f"undercut face {self.face} {_placed(self.point, 'facing', self.direction)}, {self.area:.1f} mm^2: "
+                "looks down with the part under it, no tool from the top or from below reaches it; needs another "
+                "setup or a 4th axis")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -200,6 +239,10 @@ class PartFeatures:
     elsewhere: tuple[SetupHole, ...] = ()
     flats: tuple[FlatFace, ...] = ()
     corners: tuple[InsideCorner, ...] = ()
+    undercuts: tuple[Undercut, ...] = ()
+    #: B-rep faces of free-form surfaces (B-spline, Bezier, extrusion, revolution, offset): a bore made
+    #: of them (the public as1-oc-214's holes are extrusions) is not read as a round hole.
+    freeform: int = 0
 
     def holes_in_work(self, transform_mesh_to_work: np.ndarray, chord: float) -> tuple[Hole, ...]:
         """The drillable holes as :class:`cadcam.drilling.Hole` in work coordinates.
@@ -219,4 +262,5 @@ class PartFeatures:
 
     def to_dict(self) -> dict[str, Any]:
         return {"holes": [h.to_dict() for h in self.holes], "elsewhere": [h.to_dict() for h in self.elsewhere],
-                "flats": [f.to_dict() for f in self.flats], "corners": [c.to_dict() for c in self.corners]}
+                "flats": [f.to_dict() for f in self.flats], "corners": [c.to_dict() for c in self.corners],
+                "undercuts": [u.to_dict() for u in self.undercuts], "freeform": self.freeform}

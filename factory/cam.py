@@ -218,7 +218,8 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
         options = dataclasses.replace(options, finish_engagement=min(options.finish_engagement, FINISH_ENGAGEMENT),
                                       terrace_stepdown=min(options.terrace_stepdown, TERRACE_STEPDOWN))
     exact_holes = None
-    if loaded.step is not None and loaded.surface is None:  # the B-rep's holes, not the mesh's guess
+    if loaded.step is not None and loaded.surface is None and not loaded.step.features.freeform:
+        # the B-rep's holes, not the mesh's guess; with free-form faces, which may be bores, the mesh's
         exact_holes = loaded.step.features.holes_in_work(setup.transform_mesh_to_work, loaded.step.chordal_deviation)
     planned = plan_job(
         part_work,
@@ -252,14 +253,20 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
 def _report_step_features(loaded: PartMesh, library, part: Path) -> None:
     """Say, before any toolpath work, what of a STEP part's exact features this setup cannot cut.
 
-    Holes off the Z axis or covered from above need another setup; an inside corner tighter
+    Holes off the Z axis or covered from above, and faces that look down with the part under them
+    (undercuts), need another setup; an inside corner tighter
     than the library's narrowest flat or bull-nose end mill is left with that tool's radius.
     """
     step = loaded.step
     log.info("%s: STEP in %s, %d B-rep faces tessellated to %d triangles at a chordal deviation of %g mm",
              part, step.unit, step.brep_faces, len(step.faces), step.chordal_deviation)
+    if step.features.freeform:
+        log.info("%s: %d free-form B-rep faces, which may be bores: the holes are found in the mesh", part,
+                 step.features.freeform)
     for hole in step.features.elsewhere:
         log.warning("%s: %s", part, hole.describe())
+    for face in step.features.undercuts:
+        log.warning("%s: %s", part, face.describe())
     mills = [t for t in library.tools if t.shape in ("flat", "bull") and not t.is_drill]
     if mills:
         smallest = min(mills, key=lambda t: t.diameter)

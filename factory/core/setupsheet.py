@@ -47,7 +47,7 @@ Format ``factory.setup/1``::
       "unreached": [{"x": …, "y": …, "size_x": …, "size_y": …, "depth": …, "z_bottom": …}],
       "relief": {…},                      # a relief only (cadcam.relief)
       "intake": {"format": "step", "unit": "CM", "scale": 10.0, "body": 2, "tolerance_mm": 0.01,
-                 "features": {"holes": […], "elsewhere": […], "flats": […], "corners": […]}},
+                 "features": {"holes": […], "elsewhere": […], "flats": […], "corners": […], "undercuts": […]}},
                                           # a STEP part only: how to read it again as planned, and
                                           # what its B-rep gave (each feature with its source)
       "op": 1, "work_offset": "G54",      # in a plan's output set

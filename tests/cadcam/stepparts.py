@@ -150,3 +150,28 @@ def feature_plate(columns: int = 10, rows: int = 8, pitch: float = 14.0) -> tupl
     for pocket in pockets:
         part = part - pocket
     return part, holes
+
+
+def t_slot(length: float = 60.0, neck: float = 8.0, neck_depth: float = 8.0, head: float = 18.0,
+           head_depth: float = 6.0):
+    """A ``length`` x 40 x 30 mm block with a T-slot along X through it: a ``neck`` mm wide slot from the top face
+    (Z = 0) down ``neck_depth`` mm, over a ``head`` mm wide one ``head_depth`` mm tall. The lips' undersides at
+    Z = -``neck_depth`` look down over the slot's floor: undercuts."""
+    from build123d import Align, Box, Pos
+
+    block = Box(length, 40, 30, align=(Align.CENTER, Align.CENTER, Align.MAX))
+    top = Pos(0, 0, 1) * Box(length + 2, neck, neck_depth + 1, align=(Align.CENTER, Align.CENTER, Align.MAX))
+    low = Pos(0, 0, -neck_depth) * Box(length + 2, head, head_depth, align=(Align.CENTER, Align.CENTER, Align.MAX))
+    return block - top - low
+
+
+def dovetail(length: float = 60.0, mouth: float = 10.0, floor: float = 20.0, depth: float = 8.0):
+    """A ``length`` x 40 x 30 mm block with a dovetail slot along X through it: ``mouth`` mm wide at the top face
+    (Z = 0), ``floor`` mm wide at its floor ``depth`` mm down. Its flanks look down over the floor: undercuts."""
+    from build123d import Align, Box, Plane, Polygon, extrude
+
+    block = Box(length, 40, 30, align=(Align.CENTER, Align.CENTER, Align.MAX))
+    # the slot's section in the YZ plane (its local X, Y are Y, Z), carried 1 mm past both ends
+    section = Plane.YZ * Polygon((-mouth / 2, 0), (mouth / 2, 0), (floor / 2, -depth), (-floor / 2, -depth),
+                                 align=None)
+    return block - extrude(section, amount=length / 2 + 1, both=True)

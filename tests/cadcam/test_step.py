@@ -23,8 +23,8 @@ from cadcam.step import CAM_TOLERANCE, CHORD_SHARE, chordal_deviation, read_step
 from cadcam.tools import load_tool_library  # noqa: E402
 from cadcam.verify import VerifyOptions  # noqa: E402
 from factory.core.errors import FactoryError, MeshError  # noqa: E402
-from tests.cadcam.stepparts import (ModelledHole, inclined_hole, pillow_surface, plate, two_solids,  # noqa: E402
-                                    write_step)
+from tests.cadcam.stepparts import (ModelledHole, countersunk_head, dovetail, inclined_hole,  # noqa: E402
+                                    pillow_surface, plate, t_slot, two_solids, write_step)
 
 EXACT = 1e-6  # [mm]
 
@@ -119,13 +119,50 @@ def test_a_part_past_the_refusal_bound_is_refused_in_one_line_before_the_fine_me
     path = _six_holes(tmp_path)
     meshed = []
     real = cadcam.step._mesh
-    monkeypatch.setattr(cadcam.step, "_mesh", lambda shape, chord: (meshed.append(chord), real(shape, chord)))
+    monkeypatch.setattr(cadcam.step, "_mesh",
+                        lambda shape, chord, tolerance: (meshed.append(chord), real(shape, chord, tolerance)))
     with pytest.raises(MeshError) as e:
         read_step(path, refuse_triangles=100)
     text = _one_line(e.value, path)
     assert "triangles even at the whole CAM tolerance of 0.01 mm, more than the 100 factory plans" in text
     assert "machine a simpler model" in text
     assert meshed == [CAM_TOLERANCE]  # refused from the coarse mesh alone
+
+
+def test_the_fast_triangulation_keeps_watsons_nodes_and_falls_back_to_it(tmp_path, caplog):
+    """Delabella triangulates the planes (here: a top face with five holes) on the same nodes as OpenCASCADE's default,
+    Watson; a part it meshes further from the surface than the tolerance is meshed again with Watson."""
+    import logging
+
+    from OCP.BRepMesh import BRepMesh_IncrementalMesh
+    from OCP.BRepTools import BRepTools
+    from OCP.STEPControl import STEPControl_Reader
+    from OCP.TopAbs import TopAbs_FACE
+
+    import cadcam.step as step
+
+    holes = [ModelledHole(-20, -8, 5.0, None), ModelledHole(0, 0, 6.8, 7.0, "flat"), ModelledHole(18, -8, 4.2, 5.5,
+             "conical"), ModelledHole(18, 8, 8.5, 4.0, "conical"), ModelledHole(-20, 8, 3.3, None)]
+    reader = STEPControl_Reader()
+    reader.ReadFile(str(write_step(plate((60, 40, 10), holes), tmp_path / "plate.step")))
+    reader.TransferRoots()
+    shape = reader.OneShape()
+    faces = step._shapes(shape, TopAbs_FACE)
+    chord = chordal_deviation(CAM_TOLERANCE)
+    BRepTools.Clean_s(shape)
+    BRepMesh_IncrementalMesh(shape, chord, False, step.ANGULAR_DEFLECTION, False)
+    watson_nodes, watson_triangles, _ = step._tessellate(faces)
+    with caplog.at_level(logging.INFO, logger="cadcam.step"):
+        step._mesh(shape, chord, CAM_TOLERANCE)
+        fast_nodes, fast_triangles, _ = step._tessellate(faces)
+        assert "more than the" not in caplog.text
+        step._mesh(shape, chord, 1e-9)  # no mesh is that close: Watson's, said
+        again_nodes, again_triangles, _ = step._tessellate(faces)
+    # the same nodes (a face's may come in another order) and as many triangles
+    assert np.array_equal(np.unique(fast_nodes, axis=0), np.unique(watson_nodes, axis=0))
+    assert len(fast_nodes) == len(watson_nodes) and len(fast_triangles) == len(watson_triangles)
+    assert "Delabella meshed faces to" in caplog.text and "more than the 1e-09 mm tolerance" in caplog.text
+    assert np.array_equal(again_nodes, watson_nodes) and np.array_equal(again_triangles, watson_triangles)
 
 
 def test_inch_part_takes_its_unit_from_the_file(tmp_path):
@@ -198,6 +235,59 @@ def test_a_hole_from_below_is_reported_for_another_setup(tmp_path):
     assert features.holes == ()
     (hole,) = features.elsewhere
     assert hole.reason == "covered from above" and abs(hole.diameter - 5.0) < EXACT and abs(hole.length - 6) < EXACT
+
+
+def test_a_t_slots_lips_are_reported_as_undercuts(tmp_path):
+    """A T-slot (8 mm neck 8 mm deep over an 18 mm head 6 mm tall, through a 60 mm block): each lip's underside looks
+    down over the slot's floor, so neither op 1 from the top nor op 2 from below reaches it."""
+    features = load_part(write_step(t_slot(), tmp_path / "tslot.step")).step.features
+    assert features.holes == () and features.elsewhere == ()
+    found = sorted(features.undercuts, key=lambda u: u.point[1])
+    assert len(found) == 2 and all(u.source == "step" for u in found)
+    for u, y in zip(found, (-6.5, 6.5)):  # the middle of each 60 x 5 mm lip
+        assert np.allclose(u.point, (0.0, y, -8.0), atol=EXACT)
+        assert np.allclose(u.direction, (0.0, 0.0, -1.0), atol=EXACT)
+        assert abs(u.area - 300.0) < 1e-6
+        assert "needs another setup or a 4th axis" in u.describe() and f"Y{y:.3f} Z-8.000" in u.describe()
+
+
+def test_a_dovetails_flanks_are_reported_as_undercuts_with_their_direction(tmp_path):
+    """A dovetail 10 mm wide at the top, 20 mm at its floor 8 mm down: each flank leans over the floor."""
+    features = load_part(write_step(dovetail(), tmp_path / "dovetail.step")).step.features
+    found = sorted(features.undercuts, key=lambda u: u.point[1])
+    assert len(found) == 2
+    flank = math.hypot(5.0, 8.0)  # each flank's width in the section [mm]
+    for u, side in zip(found, (-1, 1)):
+        assert np.allclose(u.point, (0.0, side * 7.5, -4.0), atol=EXACT)
+        # out of the material: towards the slot's middle and down, square to the flank
+        assert np.allclose(u.direction, (0.0, -side * 8.0 / flank, -5.0 / flank), atol=EXACT)
+        assert abs(u.area - 60.0 * flank) < 1e-6
+
+
+def test_faces_that_op_2_reaches_are_not_undercuts(tmp_path):
+    """Faces that look down with nothing of the part under them are op 2's (the plate's underside, a hole's ceiling
+    from below, a countersunk head's cone); an inclined hole's wall is reported as its hole, not again."""
+    from build123d import Align, Box, Cylinder, Pos
+
+    block = Box(40, 30, 12, align=(Align.CENTER, Align.CENTER, Align.MAX))
+    from_below = block - Pos(5, 0, -12) * Cylinder(2.5, 6, align=(Align.CENTER, Align.CENTER, Align.MIN))
+    for name, part in (("below", from_below), ("head", countersunk_head()), ("inclined", inclined_hole()),
+                       ("plate", plate((40, 30, 8), [ModelledHole(0, 0, 5.0, None)]))):
+        assert load_part(write_step(part, tmp_path / f"{name}.step")).step.features.undercuts == (), name
+
+
+def test_free_form_faces_are_counted_so_their_bores_are_left_to_the_mesh(tmp_path):
+    """A bore made of B-spline faces (the public as1-oc-214's holes are extrusions) is no round hole on the B-rep:
+    the free-form faces are counted, and ``factory`` then finds the holes in the mesh."""
+    from build123d import Solid
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
+
+    part = plate((40, 30, 8), [ModelledHole(0, 0, 5.0, None)])
+    exact = load_part(write_step(part, tmp_path / "exact.step")).step.features
+    assert len(exact.holes) == 1 and exact.freeform == 0
+    nurbs = Solid(BRepBuilderAPI_NurbsConvert(part.wrapped, True).Shape())
+    converted = load_part(write_step(nurbs, tmp_path / "nurbs.step")).step.features
+    assert converted.holes == () and converted.freeform == 7  # the block's six faces and the bore's wall
 
 
 def test_inside_corner_radii_are_read(tmp_path):

@@ -14,8 +14,8 @@ from typer.testing import CliRunner
 pytest.importorskip("build123d")
 
 from cli.main import app  # noqa: E402
-from tests.cadcam.stepparts import (ModelledHole, countersunk_head, pillow_surface, plate, two_solids, write_step,  # noqa: E402
-                                    write_stl)
+from tests.cadcam.stepparts import (ModelledHole, countersunk_head, pillow_surface, plate, t_slot,  # noqa: E402
+                                    two_solids, write_step, write_stl)
 from tests.cli.expect import assert_one_line_error  # noqa: E402
 from tests.rs274 import run_rs274  # noqa: E402
 
@@ -188,3 +188,24 @@ def test_a_part_op_2_must_cut_in_its_jaws_is_refused_before_any_toolpath(tmp_pat
                           "in op 1, 0.17 mm from a jaw at Y", "closer than the 2 mm end mill's radius",
                           "plan op 1 only (--ops 1)", code=r.exit_code or 1)
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_undercuts_are_reported_before_any_toolpath(tmp_path, monkeypatch, caplog):
+    """A T-slot's lips look down over its floor: each is said with its place and direction before the toolpaths."""
+    import factory.cam
+
+    class Stopped(Exception):
+        pass
+
+    def stop(*args, **kwargs):
+        raise Stopped
+
+    monkeypatch.setattr(factory.cam, "plan_job", stop)
+    path = write_step(t_slot(), tmp_path / "tslot.step")
+    with pytest.raises(Stopped):
+        run("toolpath", path, "-o", tmp_path / "tslot.mcap")
+    said = [rec.getMessage() for rec in caplog.records if rec.levelname == "WARNING" and "undercut" in rec.getMessage()]
+    assert len(said) == 2, said
+    for line, y in zip(sorted(said), ("-6.500", "6.500")):
+        assert "tslot.step: undercut face" in line and f"at X0.000 Y{y} Z-8.000 facing (0.000, 0.000, -1.000)" in line
+        assert "300.0 mm^2" in line and "needs another setup or a 4th axis" in line
