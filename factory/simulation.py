@@ -23,7 +23,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-import cv2
 import numpy as np
 import trimesh
 
@@ -36,8 +35,8 @@ from cadcam.timeline import MachineTimeline, machine_timeline, stock_snapshots
 from cadcam.tools import ToolLibrary, load_tool_library
 from cadcam.verify import VerifyOptions
 from factory.camera_msgs import camera_info_msg, compressed_image_msg
-from factory.core.atomic import write_bytes, write_text
 from factory.catalog import CatalogEntry, catalog_record, find_entry, sha256_file
+from factory.cellcameras import Shot, Stations, camera_shots, cell_stations
 from factory.cellmsgs import (ComponentStatus, Detection, OrderLine, cell_summary, detected_object_array,
                               diagnostic_array, image_annotations, machine_signal, machine_state, order_queue,
                               robot_state, scheduler_state)
@@ -63,9 +62,6 @@ from robotprog.programs import VERDICT_AFTER
 from robotprog.orders import Order
 from vision.camera import CameraModel
 from vision.handeye import invert
-from vision.render import render_mesh
-from vision.report import bgr_png_bytes
-from vision.station import CameraShot, CameraStation, inspect_shot, locate_shot, station_above
 
 log = logging.getLogger(__name__)
 
@@ -74,8 +70,6 @@ _Marker = _T["visualization_msgs/msg/Marker"]
 
 #: Exposure and image transfer of one camera picture [s], added to the measured processing time.
 CAMERA_OVERHEAD_S = 0.1
-#: Height of the fixed cameras above the rack and the out-tray [m].
-CAMERA_HEIGHT_M = 0.5
 #: Rates of the logged robot state and machine tool position [Hz of simulated time].
 ROBOT_RATE_HZ = 25.0
 TOOL_RATE_HZ = 0.2
@@ -90,7 +84,6 @@ FIRST_FETCH_MOVE = "load: home to above rack"
 #: The flip phase of a part in two setups: its first and last moves (:mod:`robotprog.flip`).
 FIRST_FLIP_MOVE = "flip: home to above vise"
 LAST_FLIP_MOVE = "flip: return home"
-SHOTS_FORMAT = "factory.camera-shots/1"
 
 
 # --- robot motion of a plan --------------------------------------------------------------
@@ -153,16 +146,6 @@ def read_motion(mcap: Path) -> RobotMotion:
 
 
 @dataclass(frozen=True)
-class Shot:
-    """One camera picture as logged: annotated PNG, detections, measured processing [s]."""
-
-    png: bytes
-    detections: list[dict[str, Any]]
-    processing_s: float
-    passed: bool
-
-
-@dataclass(frozen=True)
 class PartAssets:
     """Everything the simulation and its log need of one planned part."""
 
@@ -191,84 +174,6 @@ class PartAssets:
     def spindle_of(self, op: int | None) -> SpindleLoad:
         """The cutting power along operation ``op``'s program (None or 1: op 1's)."""
         return self.spindle_op2 if op == 2 and self.spindle_op2 is not None else self.spindle
-
-
-@dataclass(frozen=True)
-class Stations:
-    """The cell's two fixed cameras, and where the blank and the finished part lie under them."""
-
-    rack: CameraStation
-    tray: CameraStation
-    rack_xy: tuple[float, float]
-    tray_xy: tuple[float, float]
-
-
-def cell_stations(cell: Cell, camera: CameraModel) -> Stations:
-    """A camera :data:`CAMERA_HEIGHT_M` above rack slot (0, 0) and one above out-tray slot (0, 0)."""
-    rack = cell.rack.pose.xyz
-    tray = cell.out_tray.pose.xyz
-    return Stations(station_above(camera, np.asarray(rack, dtype=float), CAMERA_HEIGHT_M),
-                    station_above(camera, np.asarray(tray, dtype=float), CAMERA_HEIGHT_M),
-                    (float(rack[0]), float(rack[1])), (float(tray[0]), float(tray[1])))
-
-
-def _empty_frame(station: CameraStation) -> np.ndarray:
-    grey = render_mesh(station.rays, station.world_to_camera, np.zeros((0, 3)), np.zeros((0, 3), np.int64),
-                       plane_z=station.plane_z, noise_sigma=2.0, seed=0)
-    canvas = cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
-    cv2.putText(canvas, "NO STOCK FOUND", (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.0, (0, 0, 255), 2, cv2.LINE_AA)
-    return canvas
-
-
-def _shot(shot: CameraShot) -> Shot:
-    # rounded as the cache keeps it, so a fresh and a cached run time their camera steps alike
-    return Shot(bgr_png_bytes(shot.annotated), list(shot.detections), round(float(shot.processing_s), 4),
-                bool(shot.passed))
-
-
-def camera_shots(entry: CatalogEntry, part_mesh: trimesh.Trimesh, stock_mm: np.ndarray, stations: Stations,
-                 camera_sha256: str) -> dict[str, Shot]:
-    """Locate (blank, empty slot) and inspect (good, damaged part) pictures for one part, kept in the
-    catalog beside its plan (``PART.camera.json`` + PNGs) and reused while the camera is unchanged."""
-    stem = Path(entry.summary["part"]).stem
-    folder = entry.summary_path.parent
-    index = folder / f"{stem}.camera.json"
-    names = ("locate", "empty", "inspect", "reject")
-    if index.is_file():
-        try:
-            doc = json.loads(index.read_text(encoding="utf-8"))
-            if doc.get("format") == SHOTS_FORMAT and doc.get("key") == entry.key and \
-                    doc.get("camera_sha256") == camera_sha256:
-                return {n: Shot((folder / doc["shots"][n]["png"]).read_bytes(), doc["shots"][n]["detections"],
-                                doc["shots"][n]["processing_s"], doc["shots"][n]["passed"]) for n in names}
-        except (OSError, ValueError, KeyError, TypeError):
-            log.warning("%s: unreadable camera shots, taken again", index)
-    blank = trimesh.creation.box(stock_mm)
-    blank.apply_translation(np.asarray(stock_mm) / 2)
-    v, f = np.asarray(part_mesh.vertices), np.asarray(part_mesh.faces)
-    rx, ry = stations.rack_xy
-    tx, ty = stations.tray_xy
-    shots = {
-        "locate": _shot(locate_shot(stations.rack, np.asarray(blank.vertices), np.asarray(blank.faces),
-                                    (rx, ry, 0.0), seed=1)),
-        "empty": Shot(bgr_png_bytes(_empty_frame(stations.rack)), [], 0.0, False),
-        "inspect": _shot(inspect_shot(stations.tray, v, f, (tx, ty, 0.0), defect=False, seed=2)),
-        "reject": _shot(inspect_shot(stations.tray, v, f, (tx, ty, 0.0), defect=True, seed=3)),
-    }
-    if not shots["locate"].passed:
-        log.warning("%s: the rack camera did not locate the rendered blank within tolerance", stem)
-    if not shots["inspect"].passed or shots["reject"].passed:
-        log.warning("%s: inspection of the rendered parts disagrees with the truth (good %s, damaged %s)", stem,
-                    "passed" if shots["inspect"].passed else "failed",
-                    "passed" if shots["reject"].passed else "failed")
-    doc = {"format": SHOTS_FORMAT, "key": entry.key, "camera_sha256": camera_sha256, "shots": {}}
-    for n, s in shots.items():
-        png = f"{stem}.{n}.png"
-        write_bytes(folder / png, s.png, overwrite=True)  # a stale cache is replaced
-        doc["shots"][n] = {"png": png, "detections": s.detections, "processing_s": s.processing_s,
-                           "passed": s.passed}
-    write_text(index, json.dumps(doc, indent=2) + "\n", overwrite=True)
-    return shots
 
 
 def part_process(motion: RobotMotion, machining_s: float, shots: dict[str, Shot],

@@ -35,7 +35,7 @@ from vision.station import CameraStation, station_above
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE_PARTS = ("bracket", "stepped_wall", "plate_bosses", "dome_mould")
-#: Height of the cell's camera over the out-tray [m] (factory.simulation.CAMERA_HEIGHT_M).
+#: Height of the cell's camera over the out-tray [m] (factory.cellcameras.CAMERA_HEIGHT_M).
 CAMERA_HEIGHT_M = 0.5
 TRAY_Z = 0.78
 
