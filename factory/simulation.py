@@ -37,6 +37,7 @@ from cadcam.verify import VerifyOptions
 from factory.camera_msgs import camera_info_msg, compressed_image_msg
 from factory.catalog import CatalogEntry, catalog_record, find_entry, sha256_file
 from factory.cellcameras import Shot, Stations, camera_shots, cell_stations
+from factory.rackloop import BlankPart, RackLoop, RackPick, blank_part
 from factory.cellmsgs import (ComponentStatus, Detection, OrderLine, cell_summary, detected_object_array,
                               diagnostic_array, image_annotations, machine_signal, machine_state, order_queue,
                               robot_state, scheduler_state)
@@ -55,6 +56,7 @@ from factory.views import heightfield_mesh
 from robotprog.cell import Cell, load_cell
 from robotprog.cellsim import (EventSink, FaultModel, PartProcess, RunningSummary, SimulationResult,
                               simulate as run_simulation)
+from robotprog.rackpick import BlankScatter
 from robotprog.collision import CollisionWorld, collision_world
 from robotprog.frames import setup_sheet_to_cell
 from robotprog.machineio import SIGNALS, UNLOADS
@@ -166,6 +168,8 @@ class PartAssets:
     #: move removed in the stock model (:mod:`cadcam.cutting_power`).
     spindle: SpindleLoad | None = None
     spindle_op2: SpindleLoad | None = None
+    #: Its blank and the plan's pick, for the rack camera's closed loop (:mod:`factory.rackloop`).
+    blank: BlankPart | None = None
 
     def timeline_of(self, op: int | None) -> MachineTimeline:
         """The program timeline of operation ``op`` (None or 1: op 1's)."""
@@ -293,7 +297,8 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
                              None if op2 is None else float(op2["estimated_cycle_s"]), reject_moves(summary)),
         motion=motion, transform_vise_to_work=in_vise.transform_vise_to_work, toolpath=toolpath,
         timeline=timeline, stock=tuple((t, v, f) for t, v, f, _ in stock), shots=shots, planned_now=planned_now,
-        timeline_op2=timeline_op2, spindle=spindle, spindle_op2=spindle_op2)
+        timeline_op2=timeline_op2, spindle=spindle, spindle_op2=spindle_op2,
+        blank=blank_part(np.asarray(setup.stock_size, dtype=float), motion))
 
 
 def plan_parts(orders: tuple[Order, ...], catalog: Path, cell_path: Path, tools: Path | None, stations: Stations,
@@ -352,6 +357,9 @@ class CellRun:
         The scheduler's log, activities, order outcomes and summary figures.
     seconds : dict
         Wall time per stage [s].
+    picks : tuple of RackPick
+        With blank offsets: every picture of a blank the rack camera took, what it located and the
+        grasp it led to (:mod:`factory.rackloop`), in the order taken.
     """
 
     orders: tuple[Order, ...]
@@ -361,6 +369,7 @@ class CellRun:
     assets: dict[tuple[Path, str], PartAssets | str]
     result: SimulationResult
     seconds: dict[str, float]
+    picks: tuple[RackPick, ...] = ()
 
     @property
     def ready(self) -> dict[tuple[Path, str], PartAssets]:
@@ -371,7 +380,8 @@ class CellRun:
 def run_cell(orders: tuple[Order, ...], *, catalog: Path, cell_path: Path = FIXTURES / "cell.yaml",
              camera_path: Path = FIXTURES / "camera.yaml", tools: Path | None = None,
              faults: FaultModel = FaultModel(), progress: Progress | None = None,
-             events: Callable[[dict[tuple[Path, str], PartAssets | str]], EventSink] | None = None) -> CellRun:
+             events: Callable[[dict[tuple[Path, str], PartAssets | str]], EventSink] | None = None,
+             scatter: BlankScatter | None = None) -> CellRun:
     """Run ``orders`` through the cell: plans from ``catalog`` (planning what it lacks into it),
     camera steps, then the discrete-event simulation. Writes nothing but the catalog (and what
     ``events`` writes).
@@ -379,6 +389,9 @@ def run_cell(orders: tuple[Order, ...], *, catalog: Path, cell_path: Path = FIXT
     ``events``, if given, is called once the parts are planned, with what :class:`CellRun` ``assets``
     holds, and returns the sink the simulation tells every event as it goes (for example
     :meth:`factory.record.RunRecorder.begin`).
+
+    ``scatter``, if given, stands each blank off its slot's centre and closes the loop: the rack
+    camera locates it, the pick is corrected and proven, or the grasp refused (:mod:`factory.rackloop`).
 
     Raises
     ------
@@ -394,10 +407,14 @@ def run_cell(orders: tuple[Order, ...], *, catalog: Path, cell_path: Path = FIXT
         stations = cell_stations(cell, camera)
     assets = plan_parts(orders, catalog, cell_path, tools, stations, sha256_file(camera_path), progress, watch)
     processes = {k: (v.process if isinstance(v, PartAssets) else v) for k, v in assets.items()}
+    loop = None if scatter is None else RackLoop(
+        cell, world.robot, stations, {k: v.blank for k, v in assets.items() if isinstance(v, PartAssets)}, scatter)
     with watch("simulate"):
         sink = events(assets) if events is not None else None
-        result = run_simulation(orders, processes, faults, progress=stage_callback(progress, "orders"), sink=sink)
-    return CellRun(orders, cell, world, stations, assets, result, dict(watch.seconds))
+        result = run_simulation(orders, processes, faults, progress=stage_callback(progress, "orders"), sink=sink,
+                                picks=loop)
+    return CellRun(orders, cell, world, stations, assets, result, dict(watch.seconds),
+                   () if loop is None else tuple(loop.picks))
 
 
 # --- the log --------------------------------------------------------------------------------
@@ -613,7 +630,8 @@ class _Health:
 def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tuple[Path, str], PartAssets],
                    orders: tuple[Order, ...], cell: Cell, world: CollisionWorld, stations: Stations, *,
                    overwrite: bool, inputs: dict[str, str], parameters: dict[str, Any],
-                   live: LiveSink | None = None, robot_rate_hz: float = ROBOT_RATE_HZ) -> dict[str, int]:
+                   live: LiveSink | None = None, robot_rate_hz: float = ROBOT_RATE_HZ,
+                   picks: Sequence[RackPick] = ()) -> dict[str, int]:
     """Write the simulation to MCAP (``path``) and/or stream it to a live sink (the Foxglove live view,
     the ROS 2 graph, or both through :class:`factory.live.Fanout`), in log time;
     returns message counts per topic.
@@ -622,7 +640,8 @@ def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tup
     time order, merged as the clock reaches them, and a message is made only when it is written,
     so memory stays flat however many orders ran. ``robot_rate_hz`` [Hz of simulated time] is the
     rate of the robot's joint states and link transforms (the ends of each motion always logged):
-    lower it for long runs.
+    lower it for long runs. ``picks``: the run's :attr:`CellRun.picks`; a corrected fetch is logged
+    as it moved, each rack picture as taken, and each decision on ``/cell/rack_pick``.
     """
     if not robot_rate_hz > 0:
         raise CellError(f"the robot state rate must be positive, got {robot_rate_hz} Hz", source="--robot-rate")
@@ -655,7 +674,7 @@ def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tup
     home = np.asarray(cell.robot.home, dtype=float)
     makespan = float(result.summary["makespan_s"])
     activity_events = (functools.partial(_activity_events, k, a, part_of, cut_before[k], rpm_of, markers,
-                                         stations, links, result, robot_rate_hz)
+                                         stations, links, result, robot_rate_hz, picks)
                        for k, a in enumerate(result.activities))
     streams = _staggered(((_ns(a.start), make) for a, make in zip(result.activities, activity_events)),
                          [iter([(0, -1, -1, 0, "", (home, None), False)]),
@@ -737,7 +756,8 @@ def _staggered(pending: Any, running: list[Any]) -> Any:
 
 def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_before: float, rpm_of: Any,
                      markers: _PartMarkers, stations: Stations,
-                     links: LinkPoses, result: SimulationResult, robot_rate_hz: float) -> Any:
+                     links: LinkPoses, result: SimulationResult, robot_rate_hz: float,
+                     picks: Sequence[RackPick] = ()) -> Any:
     """The messages of activity number ``k`` (and its robot states), in log-time order, each made
     when it is written; the robot's link poses of the whole activity are made at once."""
     order = result.jobs.get(a.job, "?")
@@ -760,16 +780,14 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
                  "unload": [("unload: home to above vise", "unload: return home", False)],
                  # the plan's log holds the out-tray way only: the reject way shows up to the verdict
                  "unload_reject": [("unload: home to above vise", VERDICT_AFTER, False)]}.get(a.action, [])
+        corrected = picks[a.pick].pick if a.pick is not None and a.action == "fetch" else None
         t = a.start
-        for first, last, backwards in spans:
-            t0, t1 = p.motion.span(first, last)
-            ts, q = p.motion.samples(t0, t1, robot_rate_hz)
-            if backwards:
-                q = q[::-1]
-            for dt, qi in zip(ts - t0, q):
+        for dt_q in (_motion_samples(p, spans, robot_rate_hz) if corrected is None
+                     else corrected_samples(p, corrected, robot_rate_hz)):
+            for dt, qi in zip(*dt_q):
                 if t + dt <= a.end + 1e-9:  # a timed-out move stops where it was
                     robot.append((_ns(t + dt), -1, k, len(robot), "", qi, False))
-            t += t1 - t0
+            t += dt_q[0][-1]
         poses = links.poses(np.array([item[5] for item in robot]))
         robot = [(*item[:5], (item[5], pose), item[6]) for item, pose in zip(robot, poses)]
         if a.action == "load":
@@ -808,7 +826,13 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
                 if cut_before < snap_t <= a.end - a.start:
                     add(a.start + snap_t, "/machine/stock", functools.partial(markers.stock_at, p, j, a.start + snap_t))
     else:
-        if a.action == "locate":
+        taken = picks[a.pick] if a.pick is not None and a.action == "locate" else None
+        if taken is not None:
+            shot = Shot(taken.png or p.shots["empty"].png, [taken.detection] if taken.detection else [], 0.0,
+                        not taken.refusal)
+            frame = "rack_camera"
+            add(a.end, "/cell/rack_pick", functools.partial(rack_pick_msg, taken, serial, _ns(a.end)))
+        elif a.action == "locate":
             shot = p.shots["locate" if a.outcome != "stock_not_found" else "empty"]
             frame = "rack_camera"
         else:
@@ -824,6 +848,42 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
         add(a.end, "/camera/annotations", functools.partial(image_annotations, found, stamp))
     items = [(_ns(t), 0, k, i, topic, make, False) for i, (t, topic, make) in enumerate(out)]
     return heapq.merge(robot, sorted(items, key=lambda i: i[:4]), key=lambda i: i[:4])
+
+
+def _motion_samples(p: PartAssets, spans: list[tuple[str, str, bool]], rate_hz: float) -> Any:
+    """(times from the span's start [s], joint positions [rad]) of each planned span, at ``rate_hz``."""
+    for first, last, backwards in spans:
+        t0, t1 = p.motion.span(first, last)
+        ts, q = p.motion.samples(t0, t1, rate_hz)
+        yield ts - t0, (q[::-1] if backwards else q)
+
+
+def corrected_samples(p: PartAssets, corrected: Any, rate_hz: float) -> Any:
+    """The corrected fetch as it moved: the planned move from home to above the rack, then each of
+    the corrected pick's moves (:class:`robotprog.rackpick.CorrectedPick`), at ``rate_hz``."""
+    yield from _motion_samples(p, [(FIRST_FETCH_MOVE, FIRST_FETCH_MOVE, False)], rate_hz)
+    for m in corrected.moves:
+        ts = np.append(np.arange(0.0, m.duration, 1.0 / rate_hz), m.duration)
+        q = (np.repeat(m.waypoints[-1:], len(ts), axis=0) if m.kind == "gripper"
+             else m.trajectory.sample(np.minimum(ts, m.trajectory.duration))[0])
+        yield ts, q
+
+
+def rack_pick_msg(pick: RackPick, serial: str, stamp: int) -> Any:
+    """One decision of the rack camera's closed loop as a ``DiagnosticArray`` of one status
+    (``cell/rack_pick``, ERROR when refused; values in mm and deg, units in the keys)."""
+    values = {"serial": serial, "slot": str(pick.slot), "attempt": str(pick.attempt)}
+    doc = pick.to_dict()
+    for name in ("offset", "located", "correction"):
+        for axis, v in (doc[name] or {}).items():
+            values[f"{name}_{axis}"] = f"{v:.3f}"
+    for name in ("error_mm", "error_deg", "reported_mm", "reported_deg"):
+        if doc[name] is not None:
+            values[name] = f"{doc[name]:.3f}"
+    values["proven"] = "yes" if pick.pick is not None else "no"
+    values["fetch_s"] = f"{pick.fetch_s:.3f}"
+    status = ComponentStatus("cell/rack_pick", "ERROR" if pick.refusal else "OK", pick.message(), values)
+    return diagnostic_array([status], stamp)
 
 
 def _signal_events(result: SimulationResult, cell: Cell) -> Any:
