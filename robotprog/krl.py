@@ -81,6 +81,33 @@ _KRL_WORDS = FlowWords(
 )
 
 
+def _lin_pose(st: MoveL, i: int, slots: list[np.ndarray]) -> np.ndarray:
+    """A LIN's point (4, 4) [m]: in the robot's base frame, or a corrected one in the rack slot's frame
+    (``slots``: the slots of the corrections read so far)."""
+    if not st.corrected:
+        return np.asarray(st.pose, dtype=float)
+    if not slots:
+        raise PlanningError(f"step {i}: a corrected LIN before the correction is read")
+    return np.linalg.inv(slots[-1]) @ np.asarray(st.pose, dtype=float)
+
+
+def _correction_decl(st: ReadCorrection) -> list[str]:
+    """The ``.dat`` lines of the rack camera's correction: the global frame the cell's controller
+    writes, and the rack slot's frame."""
+    return ["  DECL GLOBAL FRAME RACK_CORR={X 0.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0}",
+            f"  DECL FRAME RACK_SLOT={{{krl_frame(np.asarray(st.slot, dtype=float))}}}"]
+
+
+def _correction_check(st: ReadCorrection) -> list[str]:
+    """The ``.src`` lines that stop the program on a correction beyond the step's bounds."""
+    out = [f"  ; {comment_text(st.label)}".rstrip()] if st.label else []
+    bounds = (_f(st.bounds[0] * MM_PER_M, DECIMALS_MM), _f(st.bounds[1] * MM_PER_M, DECIMALS_MM),
+              _f(math.degrees(st.bounds[2]), DECIMALS_DEG))
+    for axis, bound in zip("XYA", bounds):
+        out += [f"  IF ABS(RACK_CORR.{axis}) > {bound} THEN", "    HALT", "  ENDIF"]
+    return out
+
+
 def krl_program(
     steps: Sequence[Step],
     *,
@@ -161,29 +188,19 @@ def krl_program(
                 if not (math.isfinite(st.v) and st.v > 0):
                     raise PlanningError(f"step {i}: LIN speed must be finite and > 0, got {st.v}")
                 nl += 1
-                pose = np.asarray(st.pose, dtype=float)
-                if st.corrected:
-                    if not slot_of:
-                        raise PlanningError(f"step {i}: a corrected LIN before the correction is read")
-                    pose = np.linalg.inv(slot_of[-1]) @ pose  # in the rack slot's frame
                 if st.corrected != in_slot:
                     out.append("  $BASE = RACK_SLOT : RACK_CORR" if st.corrected else "  $BASE = $NULLFRAME")
                     in_slot = st.corrected
-                dat.append(f"  DECL E6POS XP{nl}={{{krl_frame(pose)},"
+                dat.append(f"  DECL E6POS XP{nl}={{{krl_frame(_lin_pose(st, i, slot_of))},"
                            "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}")
                 out.append(f"  $VEL.CP = {_f(st.v, 4)}")
                 out.append(f"  LIN XP{nl}")
             elif isinstance(st, ReadCorrection):
                 check_bounds(st, i)
                 if not slot_of:
-                    dat[2:2] = ["  DECL GLOBAL FRAME RACK_CORR={X 0.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0}",
-                                f"  DECL FRAME RACK_SLOT={{{krl_frame(np.asarray(st.slot, dtype=float))}}}"]
+                    dat[2:2] = _correction_decl(st)
                 slot_of.append(np.asarray(st.slot, dtype=float))
-                out += [f"  ; {comment_text(st.label)}".rstrip()] if st.label else []
-                bounds = (_f(st.bounds[0] * MM_PER_M, DECIMALS_MM), _f(st.bounds[1] * MM_PER_M, DECIMALS_MM),
-                          _f(math.degrees(st.bounds[2]), DECIMALS_DEG))
-                for axis, bound in zip("XYA", bounds):
-                    out += [f"  IF ABS(RACK_CORR.{axis}) > {bound} THEN", "    HALT", "  ENDIF"]
+                out += _correction_check(st)
             elif isinstance(st, Branch):
                 at, pct = q_prev, current_pct
                 ends: list[tuple[np.ndarray | None, int | None]] = []
