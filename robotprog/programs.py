@@ -92,11 +92,24 @@ MIN_SEGMENT_S = 0.0125
 ZONE_M = 0.005
 #: The rack pick's moves the program runs corrected by the rack camera (the module docstring).
 RACK_APPROACH, RACK_RETREAT = "load: approach stock", "load: retreat from rack"
-#: Speed [m/s] and acceleration [m/s^2] of the corrected straight moves at the rack.
+#: Speed [m/s] and acceleration [m/s^2] of the move over the located blank (a few mm); the lines
+#: down to it and up from it run in the plan's time (:func:`line_speed`).
 RACK_LINE_V, RACK_LINE_A = 0.1, 0.5
 #: Largest turn of a blank in its slot the program takes from the camera [rad]: a box turned
 #: further is not standing in a rack slot as a blank can.
 RACK_MAX_YAW = math.radians(5.0)
+
+
+def line_speed(distance: float, duration: float, a: float = RACK_LINE_A) -> tuple[float, float]:
+    """(speed [m/s], acceleration [m/s^2]) of a rest-to-rest straight move of ``distance`` [m] whose
+    trapezoid takes ``duration`` [s], the plan's time for it: at acceleration ``a``, or the higher
+    one a triangle in that time needs."""
+    if distance <= 0 or duration <= 0:
+        return RACK_LINE_V, a
+    if a * duration * duration < 4 * distance:  # too short to reach cruise at a: a triangle
+        a = 4 * distance / (duration * duration)
+        return a * duration / 2, a
+    return (a * duration - math.sqrt(a * a * duration * duration - 4 * a * distance)) / 2, a
 
 
 def correction_bounds(cell: Cell, size: np.ndarray) -> tuple[float, float, float]:
@@ -213,6 +226,10 @@ def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: st
         """The TCP pose (4, 4) at ``q`` [rad] in the robot's base frame (base_link) [m]."""
         return robot.fk(q) @ tcp
 
+    def line(mv: TimedMove) -> tuple[float, float]:
+        """A straight move's TCP travel [m] and the plan's time for it [s]."""
+        return float(np.linalg.norm(pose(mv.q_end)[:3, 3] - pose(mv.waypoints[0])[:3, 3])), mv.duration
+
     def move_steps(k: int, mv: TimedMove, stops: bool) -> list[Step]:
         out: list[Step] = [Comment(mv.name)]
         if mv.name == RACK_APPROACH:  # over the blank as the camera found it, then down to it
@@ -220,9 +237,9 @@ def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: st
             return out + [ReadCorrection.at(base_inv @ cell.rack.slot_transform(0, 0), correction_bounds(cell, size),
                                             "the rack camera's correction of the blank in its slot"),
                           MoveL.to(pose(mv.waypoints[0]), RACK_LINE_A, RACK_LINE_V, corrected=True),
-                          MoveL.to(pose(mv.q_end), RACK_LINE_A, RACK_LINE_V, corrected=True, q_end=mv.q_end)]
+                          MoveL.to(pose(mv.q_end), *line_speed(*line(mv))[::-1], corrected=True, q_end=mv.q_end)]
         if mv.name == RACK_RETREAT:  # straight up, then to where the planned retreat ends
-            return out + [MoveL.to(pose(mv.q_end), RACK_LINE_A, RACK_LINE_V, corrected=True, q_end=mv.q_end),
+            return out + [MoveL.to(pose(mv.q_end), *line_speed(*line(mv))[::-1], corrected=True, q_end=mv.q_end),
                           MoveJ(tuple(float(v) for v in mv.q_end), amax, vmax)]
         if mv.kind == "gripper":
             out.append(SetOutputs(mv.outputs, mv.settle_s))
