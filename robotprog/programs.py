@@ -112,6 +112,13 @@ def line_speed(distance: float, duration: float, a: float = RACK_LINE_A) -> tupl
     return (a * duration - math.sqrt(a * a * duration * duration - 4 * a * distance)) / 2, a
 
 
+def tcp_of(cell: Cell, robot: Robot):
+    """``q -> transform_base_link_to_tcp`` (4, 4) [m] of the cell's arm and gripper: what the
+    controller's timer needs for a straight move after a joint move."""
+    tcp = cell.gripper.tcp.matrix()
+    return lambda q: robot.fk(np.asarray(q, dtype=float)) @ tcp
+
+
 def correction_bounds(cell: Cell, size: np.ndarray) -> tuple[float, float, float]:
     """How far the rack camera's correction may move the grasp of a blank ``size`` (3,) [m]: x, y
     [m] as far as the blank can stand off its slot's centre (:func:`robotprog.rackpick.slot_room`,
@@ -220,11 +227,7 @@ def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: st
     branch_at = verdict_index(cell, plan) if branch else None
 
     base_inv = np.linalg.inv(cell.robot.base.matrix())
-    tcp = cell.gripper.tcp.matrix()
-
-    def pose(q: np.ndarray) -> np.ndarray:
-        """The TCP pose (4, 4) at ``q`` [rad] in the robot's base frame (base_link) [m]."""
-        return robot.fk(q) @ tcp
+    pose = tcp_of(cell, robot)  # the TCP pose (4, 4) at q [rad] in the robot's base frame [m]
 
     def line(mv: TimedMove) -> tuple[float, float]:
         """A straight move's TCP travel [m] and the plan's time for it [s]."""
@@ -395,15 +398,11 @@ def post_program(lang: str, program: Path, cell: Cell, world: CollisionWorld, pl
             raise PlanningError(f"{(plan.moves + plan.reject)[k].name}: the posted path collides ({contact})")
         segments[k] = seg
     home = np.asarray(cell.robot.home, dtype=float)
-    tcp = cell.gripper.tcp.matrix()
-
-    def tcp_of(q: np.ndarray) -> np.ndarray:
-        return robot.fk(q) @ tcp
-
-    predicted = program_duration(steps, home, lang=lang, axis_speed=robot.v_max, tcp_of=tcp_of)
+    tcp_at = tcp_of(cell, robot)
+    predicted = program_duration(steps, home, lang=lang, axis_speed=robot.v_max, tcp_of=tcp_at)
     planned_reject = reject_planned_s(cell, plan) if branch else None
     predicted_reject = (None if planned_reject is None else
-                        program_duration(steps, home, lang=lang, axis_speed=robot.v_max, verdict=False, tcp_of=tcp_of))
+                        program_duration(steps, home, lang=lang, axis_speed=robot.v_max, verdict=False, tcp_of=tcp_at))
     targets = sum(len(s.targets) if isinstance(s, ServoJ) else 1 for s in flat_steps(steps)[1:]
                   if isinstance(s, ServoJ | MoveJ))
     how = {"urscript": f"servoj stream at {1 / SERVO_PERIOD_S:.0f} Hz",

@@ -17,7 +17,7 @@ from factory.core.resources import FIXTURES
 from robotprog.cell import load_cell
 from robotprog.collision import collision_world
 from robotprog.programs import (LANG_NAME, SERVO_PERIOD_S, VERDICT_AFTER, check_posted_path, post_program,
-                                program_name, program_steps)
+                                program_name, program_steps, tcp_of)
 from robotprog.tending import plan_tending
 from robotprog.timing import LIMIT_SLACK
 from robotprog.urscript import Branch, ServoJ, flat_steps
@@ -74,7 +74,8 @@ def test_controller_runs_the_planned_duration(name, lang, plans, cell, world, ar
     header = next(iter(posted.texts.values())).splitlines()[:6]
     assert any(f"planned motion {plan.duration:.2f} s, controller {posted.predicted_s:.2f} s" in h for h in header)
     # the number is the timer's on the posted steps, from home
-    again = program_duration(posted.steps, np.asarray(cell.robot.home), lang=lang, axis_speed=world.robot.v_max)
+    again = program_duration(posted.steps, np.asarray(cell.robot.home), lang=lang, axis_speed=world.robot.v_max,
+                             tcp_of=tcp_of(cell, world.robot))
     assert again == pytest.approx(posted.predicted_s)
     # the reject way: the plan up to the verdict, then the planned reject branch, timed the same way
     k = [m.name for m in plan.moves].index(VERDICT_AFTER)
