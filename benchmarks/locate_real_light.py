@@ -1,6 +1,7 @@
 """``locate`` in real light: found / total per condition and part, pose errors, reported vs real uncertainty.
 
     python benchmarks/locate_real_light.py [--poses 5] [--first-seed 0] [--cache /tmp/lit-gallery] [--json]
+        [--camera fixtures/camera_5mp.yaml] [--binning 2]
 
 The pictures come from ``tests/vision/lit.py``, a ray caster independent of :mod:`vision.render`
 (brushed and polished aluminium with specular highlights, self- and cast shadows, a textured
@@ -18,6 +19,12 @@ detection more than 20 mm from the part is a
 *false* one (the box of the distractor condition). *Covered* counts found poses whose error is
 within the reported uncertainty (``sigma_xy`` for position, ``sigma_yaw`` for yaw).
 Rendering takes seconds per picture; ``--cache`` keeps the pictures between runs.
+
+``--camera`` takes another cell camera file (``fixtures/camera_5mp.yaml``: 2448 x 2048, 0.144 mm per
+pixel), put at the same place. A camera of more than 2 MP is rendered with one ray per pixel, not
+four (its pixels are a sixth as wide; four rays would take minutes per picture). ``--binning N``
+averages N x N pixels into one before locate, as the camera's own binning mode does, and locate
+gets the camera model of that mode (:func:`binned`).
 """
 
 from __future__ import annotations
@@ -38,7 +45,9 @@ from factory.core.errors import VisionError  # noqa: E402
 from tests.vision.defects import defective_mesh  # noqa: E402
 from tests.vision.lit import (CONDITIONS, OWN_PARTS, SAMPLE_PARTS, LitScene, cell_station,  # noqa: E402
                               gallery_scene, sample_mesh)
+from vision.camera import CameraModel  # noqa: E402
 from vision.locate import locate_parts  # noqa: E402
+from vision.station import CameraStation  # noqa: E402
 
 FOUND_M = 1.5e-3
 FOUND_RAD = float(np.radians(1.0))
@@ -52,18 +61,49 @@ def yaw_error(a: float, b: float, symmetry: int) -> float:
     return float(min(d, period - d))
 
 
+#: Pixels above which a picture is rendered with one ray per pixel (see the module docstring).
+FINE_CAMERA_PX = 2_000_000
+
+
+def binned(camera: CameraModel, n: int) -> CameraModel:
+    """The camera in its ``n`` x ``n`` binning mode: a pixel is the mean of ``n`` x ``n`` sensor pixels,
+    so focal lengths and the principal point scale by 1/n (pixel centres: (c + 0.5) / n - 0.5) and
+    the distortion, a function of the normalised image point, is unchanged."""
+    if n == 1:
+        return camera
+    k = np.array(camera.K, dtype=float)
+    k[:2, :3] /= n
+    k[:2, 2] += (1.0 / n - 1.0) / 2
+    w, h = camera.image_size
+    return CameraModel(K=k, dist=np.asarray(camera.dist), model=camera.model, image_size=(w // n, h // n),
+                       name=f"{camera.name}_bin{n}")
+
+
+def bin_image(image: np.ndarray, n: int) -> np.ndarray:
+    """Mean of each ``n`` x ``n`` block of a grey picture (uint8), edges that do not fill a block dropped."""
+    if n == 1:
+        return image
+    h, w = (image.shape[0] // n) * n, (image.shape[1] // n) * n
+    blocks = image[:h, :w].reshape(h // n, n, w // n, n).astype(np.float64)
+    return np.clip(np.rint(blocks.mean(axis=(1, 3))), 0, 255).astype(np.uint8)
+
+
 def picture(station, part: str, condition: str, seed: int, cache: Path | None, defect: str | None = None):
     """The gallery picture (kept in ``cache`` when given); with ``defect`` (tests/vision/defects.py) the
     part drawn has it, at the good part's pose and light."""
     shown = None if defect is None else defective_mesh(part, defect)
+    w, h = station.camera.image_size
+    supersample = 1 if w * h > FINE_CAMERA_PX else 2
     if cache is None:
-        return gallery_scene(station, part, condition, seed, shown=shown)
+        return gallery_scene(station, part, condition, seed, supersample=supersample, shown=shown)
     cache.mkdir(parents=True, exist_ok=True)
-    f = cache / (f"{condition}-{part}-{seed}.npz" if defect is None else f"{condition}-{part}-{defect}-{seed}.npz")
+    name = "" if station.camera.name == "cell_camera" else f"{station.camera.name}-"
+    what = part if defect is None else f"{part}-{defect}"
+    f = cache / f"{name}{condition}-{what}-{seed}.npz"
     if f.exists():
         d = np.load(f)
         return LitScene(d["image"], float(d["x"]), float(d["y"]), float(d["yaw"]), int(d["symmetry"]))
-    scene = gallery_scene(station, part, condition, seed, shown=shown)
+    scene = gallery_scene(station, part, condition, seed, supersample=supersample, shown=shown)
     np.savez_compressed(f, image=scene.image, x=scene.x, y=scene.y, yaw=scene.yaw, symmetry=scene.symmetry)
     return scene
 
@@ -81,8 +121,10 @@ def _reason(message: str) -> str:
     return next((short for text, short in REASONS.items() if text in message), "other")
 
 
-def run(poses: int, cache: Path | None, conditions: list[str], parts: list[str], first_seed: int = 0) -> dict:
-    station = cell_station()
+def run(poses: int, cache: Path | None, conditions: list[str], parts: list[str], first_seed: int = 0,
+        camera: Path | None = None, binning: int = 1) -> dict:
+    station = cell_station(CameraModel.read(camera) if camera is not None else None)
+    seen = CameraStation(binned(station.camera, binning), station.world_to_camera, station.plane_z)
     rows = []
     for condition in conditions:
         for part in parts:
@@ -92,8 +134,8 @@ def run(poses: int, cache: Path | None, conditions: list[str], parts: list[str],
                 start, cpu = time.perf_counter(), time.process_time()
                 refusal = ""
                 try:
-                    found = locate_parts(scene.image, station.camera, station.camera_pose, footprint,
-                                         station.plane_z)
+                    found = locate_parts(bin_image(scene.image, binning), seen.camera, seen.camera_pose, footprint,
+                                         seen.plane_z)
                 except VisionError as e:
                     found, refusal = [], str(e)
                 seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
@@ -174,9 +216,13 @@ def main() -> None:
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--parts", default=",".join(SAMPLE_PARTS + OWN_PARTS))
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--camera", type=Path, default=None, help="cell camera file (default fixtures/camera.yaml)")
+    ap.add_argument("--binning", type=int, default=1, help="locate on N x N binned pictures")
     a = ap.parse_args()
+    if a.binning < 1:
+        ap.error(f"--binning must be 1 or more, got {a.binning}")
     conditions, parts = a.conditions.split(","), a.parts.split(",")
-    rows = run(a.poses, a.cache, conditions, parts, a.first_seed)["rows"]
+    rows = run(a.poses, a.cache, conditions, parts, a.first_seed, a.camera, a.binning)["rows"]
     summary = report(rows, conditions, parts)
     if a.json:
         print(json.dumps({"summary": summary, "rows": rows}))

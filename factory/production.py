@@ -30,6 +30,7 @@ from factory.live import LiveSink
 from factory.pictures import png_bytes
 from factory.record import Record
 from factory.simulation import ROBOT_RATE_HZ, CellRun, PartAssets, run_cell, write_cell_log
+from robotprog.rackpick import BlankScatter
 from robotprog.cell import load_cell
 from robotprog.cellsim import FaultModel
 from robotprog.gantt import activity_chart
@@ -56,6 +57,10 @@ class CellInputs:
         inspections); None: no faults.
     fault_rate : float, optional
         With ``faults``: probability of each fault per attempt; None: each kind's default.
+    blank_offsets : int, optional
+        Seed of the blanks' offsets in their rack slots: each blank stands a few mm and degrees off
+        its slot's centre, and the rack camera's located offset corrects the grasp
+        (:mod:`factory.rackloop`); None: every blank stands where the plan put it.
     """
 
     catalog: Path = Path("build")
@@ -64,6 +69,11 @@ class CellInputs:
     tools: Path | None = None
     faults: int | None = None
     fault_rate: float | None = None
+    blank_offsets: int | None = None
+
+    def scatter(self) -> BlankScatter | None:
+        """How the blanks stand off their slots' centres (None: they do not)."""
+        return None if self.blank_offsets is None else BlankScatter(seed=self.blank_offsets)
 
     def fault_model(self) -> FaultModel:
         """The faults to inject.
@@ -178,7 +188,7 @@ def simulate_orders(request: SimulateRequest, *, orders: tuple[Order, ...] | Non
     try:
         run = run_cell(orders, catalog=cell.catalog, cell_path=cell.cell, camera_path=cell.camera,
                        tools=cell.tools, faults=model, progress=progress,
-                       events=recorder.begin if recorder else None)
+                       events=recorder.begin if recorder else None, scatter=cell.scatter())
         if recorder is not None:
             recorder.finish(run.result)
     finally:
@@ -198,6 +208,8 @@ def simulate_orders(request: SimulateRequest, *, orders: tuple[Order, ...] | Non
                            for f in v.process.__dataclass_fields__}}
             if isinstance(v, PartAssets) else {"error": v})}
         for k, v in run.assets.items()]
+    if run.picks:
+        doc["rack_picks"] = [p.to_dict() for p in run.picks]
     doc["seconds"] = watch.rounded()
     if request.mcap is not None:
         doc["mcap"] = {"path": str(request.mcap), "layout": str(request.layout), "bytes": request.mcap.stat().st_size,
@@ -219,9 +231,11 @@ def _write_log(request: SimulateRequest, run: CellRun, db: str | None, db_run: i
         counts = write_cell_log(request.mcap, run.result, run.ready, run.orders, run.cell, run.world, run.stations,
                                 overwrite=request.overwrite, inputs=inputs,
                                 parameters={"faults_seed": cell.faults, "catalog": str(cell.catalog),
+                                            **({"blank_offsets_seed": cell.blank_offsets}
+                                               if cell.blank_offsets is not None else {}),
                                             "robot_rate_hz": request.robot_rate_hz,
                                             **({"db": db, "db_run": db_run} if db is not None else {})},
-                                live=live, robot_rate_hz=request.robot_rate_hz)
+                                live=live, robot_rate_hz=request.robot_rate_hz, picks=run.picks)
         if request.layout is not None:
             write_text(request.layout, layout_json(), overwrite=request.overwrite)
     return counts

@@ -23,7 +23,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-import cv2
 import numpy as np
 import trimesh
 
@@ -36,8 +35,9 @@ from cadcam.timeline import MachineTimeline, machine_timeline, stock_snapshots
 from cadcam.tools import ToolLibrary, load_tool_library
 from cadcam.verify import VerifyOptions
 from factory.camera_msgs import camera_info_msg, compressed_image_msg
-from factory.core.atomic import write_bytes, write_text
 from factory.catalog import CatalogEntry, catalog_record, find_entry, sha256_file
+from factory.cellcameras import Shot, Stations, camera_shots, cell_stations
+from factory.rackloop import BlankPart, RackLoop, RackPick, blank_part
 from factory.cellmsgs import (ComponentStatus, Detection, OrderLine, cell_summary, detected_object_array,
                               diagnostic_array, image_annotations, machine_signal, machine_state, order_queue,
                               robot_state, scheduler_state)
@@ -56,6 +56,7 @@ from factory.views import heightfield_mesh
 from robotprog.cell import Cell, load_cell
 from robotprog.cellsim import (EventSink, FaultModel, PartProcess, RunningSummary, SimulationResult,
                               simulate as run_simulation)
+from robotprog.rackpick import BlankScatter
 from robotprog.collision import CollisionWorld, collision_world
 from robotprog.frames import setup_sheet_to_cell
 from robotprog.machineio import SIGNALS, UNLOADS
@@ -63,9 +64,6 @@ from robotprog.programs import VERDICT_AFTER
 from robotprog.orders import Order
 from vision.camera import CameraModel
 from vision.handeye import invert
-from vision.render import render_mesh
-from vision.report import bgr_png_bytes
-from vision.station import CameraShot, CameraStation, inspect_shot, locate_shot, station_above
 
 log = logging.getLogger(__name__)
 
@@ -74,8 +72,6 @@ _Marker = _T["visualization_msgs/msg/Marker"]
 
 #: Exposure and image transfer of one camera picture [s], added to the measured processing time.
 CAMERA_OVERHEAD_S = 0.1
-#: Height of the fixed cameras above the rack and the out-tray [m].
-CAMERA_HEIGHT_M = 0.5
 #: Rates of the logged robot state and machine tool position [Hz of simulated time].
 ROBOT_RATE_HZ = 25.0
 TOOL_RATE_HZ = 0.2
@@ -90,7 +86,6 @@ FIRST_FETCH_MOVE = "load: home to above rack"
 #: The flip phase of a part in two setups: its first and last moves (:mod:`robotprog.flip`).
 FIRST_FLIP_MOVE = "flip: home to above vise"
 LAST_FLIP_MOVE = "flip: return home"
-SHOTS_FORMAT = "factory.camera-shots/1"
 
 
 # --- robot motion of a plan --------------------------------------------------------------
@@ -153,16 +148,6 @@ def read_motion(mcap: Path) -> RobotMotion:
 
 
 @dataclass(frozen=True)
-class Shot:
-    """One camera picture as logged: annotated PNG, detections, measured processing [s]."""
-
-    png: bytes
-    detections: list[dict[str, Any]]
-    processing_s: float
-    passed: bool
-
-
-@dataclass(frozen=True)
 class PartAssets:
     """Everything the simulation and its log need of one planned part."""
 
@@ -183,6 +168,8 @@ class PartAssets:
     #: move removed in the stock model (:mod:`cadcam.cutting_power`).
     spindle: SpindleLoad | None = None
     spindle_op2: SpindleLoad | None = None
+    #: Its blank and the plan's pick, for the rack camera's closed loop (:mod:`factory.rackloop`).
+    blank: BlankPart | None = None
 
     def timeline_of(self, op: int | None) -> MachineTimeline:
         """The program timeline of operation ``op`` (None or 1: op 1's)."""
@@ -191,84 +178,6 @@ class PartAssets:
     def spindle_of(self, op: int | None) -> SpindleLoad:
         """The cutting power along operation ``op``'s program (None or 1: op 1's)."""
         return self.spindle_op2 if op == 2 and self.spindle_op2 is not None else self.spindle
-
-
-@dataclass(frozen=True)
-class Stations:
-    """The cell's two fixed cameras, and where the blank and the finished part lie under them."""
-
-    rack: CameraStation
-    tray: CameraStation
-    rack_xy: tuple[float, float]
-    tray_xy: tuple[float, float]
-
-
-def cell_stations(cell: Cell, camera: CameraModel) -> Stations:
-    """A camera :data:`CAMERA_HEIGHT_M` above rack slot (0, 0) and one above out-tray slot (0, 0)."""
-    rack = cell.rack.pose.xyz
-    tray = cell.out_tray.pose.xyz
-    return Stations(station_above(camera, np.asarray(rack, dtype=float), CAMERA_HEIGHT_M),
-                    station_above(camera, np.asarray(tray, dtype=float), CAMERA_HEIGHT_M),
-                    (float(rack[0]), float(rack[1])), (float(tray[0]), float(tray[1])))
-
-
-def _empty_frame(station: CameraStation) -> np.ndarray:
-    grey = render_mesh(station.rays, station.world_to_camera, np.zeros((0, 3)), np.zeros((0, 3), np.int64),
-                       plane_z=station.plane_z, noise_sigma=2.0, seed=0)
-    canvas = cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
-    cv2.putText(canvas, "NO STOCK FOUND", (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.0, (0, 0, 255), 2, cv2.LINE_AA)
-    return canvas
-
-
-def _shot(shot: CameraShot) -> Shot:
-    # rounded as the cache keeps it, so a fresh and a cached run time their camera steps alike
-    return Shot(bgr_png_bytes(shot.annotated), list(shot.detections), round(float(shot.processing_s), 4),
-                bool(shot.passed))
-
-
-def camera_shots(entry: CatalogEntry, part_mesh: trimesh.Trimesh, stock_mm: np.ndarray, stations: Stations,
-                 camera_sha256: str) -> dict[str, Shot]:
-    """Locate (blank, empty slot) and inspect (good, damaged part) pictures for one part, kept in the
-    catalog beside its plan (``PART.camera.json`` + PNGs) and reused while the camera is unchanged."""
-    stem = Path(entry.summary["part"]).stem
-    folder = entry.summary_path.parent
-    index = folder / f"{stem}.camera.json"
-    names = ("locate", "empty", "inspect", "reject")
-    if index.is_file():
-        try:
-            doc = json.loads(index.read_text(encoding="utf-8"))
-            if doc.get("format") == SHOTS_FORMAT and doc.get("key") == entry.key and \
-                    doc.get("camera_sha256") == camera_sha256:
-                return {n: Shot((folder / doc["shots"][n]["png"]).read_bytes(), doc["shots"][n]["detections"],
-                                doc["shots"][n]["processing_s"], doc["shots"][n]["passed"]) for n in names}
-        except (OSError, ValueError, KeyError, TypeError):
-            log.warning("%s: unreadable camera shots, taken again", index)
-    blank = trimesh.creation.box(stock_mm)
-    blank.apply_translation(np.asarray(stock_mm) / 2)
-    v, f = np.asarray(part_mesh.vertices), np.asarray(part_mesh.faces)
-    rx, ry = stations.rack_xy
-    tx, ty = stations.tray_xy
-    shots = {
-        "locate": _shot(locate_shot(stations.rack, np.asarray(blank.vertices), np.asarray(blank.faces),
-                                    (rx, ry, 0.0), seed=1)),
-        "empty": Shot(bgr_png_bytes(_empty_frame(stations.rack)), [], 0.0, False),
-        "inspect": _shot(inspect_shot(stations.tray, v, f, (tx, ty, 0.0), defect=False, seed=2)),
-        "reject": _shot(inspect_shot(stations.tray, v, f, (tx, ty, 0.0), defect=True, seed=3)),
-    }
-    if not shots["locate"].passed:
-        log.warning("%s: the rack camera did not locate the rendered blank within tolerance", stem)
-    if not shots["inspect"].passed or shots["reject"].passed:
-        log.warning("%s: inspection of the rendered parts disagrees with the truth (good %s, damaged %s)", stem,
-                    "passed" if shots["inspect"].passed else "failed",
-                    "passed" if shots["reject"].passed else "failed")
-    doc = {"format": SHOTS_FORMAT, "key": entry.key, "camera_sha256": camera_sha256, "shots": {}}
-    for n, s in shots.items():
-        png = f"{stem}.{n}.png"
-        write_bytes(folder / png, s.png, overwrite=True)  # a stale cache is replaced
-        doc["shots"][n] = {"png": png, "detections": s.detections, "processing_s": s.processing_s,
-                           "passed": s.passed}
-    write_text(index, json.dumps(doc, indent=2) + "\n", overwrite=True)
-    return shots
 
 
 def part_process(motion: RobotMotion, machining_s: float, shots: dict[str, Shot],
@@ -388,7 +297,8 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
                              None if op2 is None else float(op2["estimated_cycle_s"]), reject_moves(summary)),
         motion=motion, transform_vise_to_work=in_vise.transform_vise_to_work, toolpath=toolpath,
         timeline=timeline, stock=tuple((t, v, f) for t, v, f, _ in stock), shots=shots, planned_now=planned_now,
-        timeline_op2=timeline_op2, spindle=spindle, spindle_op2=spindle_op2)
+        timeline_op2=timeline_op2, spindle=spindle, spindle_op2=spindle_op2,
+        blank=blank_part(np.asarray(setup.stock_size, dtype=float), motion))
 
 
 def plan_parts(orders: tuple[Order, ...], catalog: Path, cell_path: Path, tools: Path | None, stations: Stations,
@@ -447,6 +357,9 @@ class CellRun:
         The scheduler's log, activities, order outcomes and summary figures.
     seconds : dict
         Wall time per stage [s].
+    picks : tuple of RackPick
+        With blank offsets: every picture of a blank the rack camera took, what it located and the
+        grasp it led to (:mod:`factory.rackloop`), in the order taken.
     """
 
     orders: tuple[Order, ...]
@@ -456,6 +369,7 @@ class CellRun:
     assets: dict[tuple[Path, str], PartAssets | str]
     result: SimulationResult
     seconds: dict[str, float]
+    picks: tuple[RackPick, ...] = ()
 
     @property
     def ready(self) -> dict[tuple[Path, str], PartAssets]:
@@ -466,7 +380,8 @@ class CellRun:
 def run_cell(orders: tuple[Order, ...], *, catalog: Path, cell_path: Path = FIXTURES / "cell.yaml",
              camera_path: Path = FIXTURES / "camera.yaml", tools: Path | None = None,
              faults: FaultModel = FaultModel(), progress: Progress | None = None,
-             events: Callable[[dict[tuple[Path, str], PartAssets | str]], EventSink] | None = None) -> CellRun:
+             events: Callable[[dict[tuple[Path, str], PartAssets | str]], EventSink] | None = None,
+             scatter: BlankScatter | None = None) -> CellRun:
     """Run ``orders`` through the cell: plans from ``catalog`` (planning what it lacks into it),
     camera steps, then the discrete-event simulation. Writes nothing but the catalog (and what
     ``events`` writes).
@@ -474,6 +389,9 @@ def run_cell(orders: tuple[Order, ...], *, catalog: Path, cell_path: Path = FIXT
     ``events``, if given, is called once the parts are planned, with what :class:`CellRun` ``assets``
     holds, and returns the sink the simulation tells every event as it goes (for example
     :meth:`factory.record.RunRecorder.begin`).
+
+    ``scatter``, if given, stands each blank off its slot's centre and closes the loop: the rack
+    camera locates it, the pick is corrected and proven, or the grasp refused (:mod:`factory.rackloop`).
 
     Raises
     ------
@@ -489,10 +407,14 @@ def run_cell(orders: tuple[Order, ...], *, catalog: Path, cell_path: Path = FIXT
         stations = cell_stations(cell, camera)
     assets = plan_parts(orders, catalog, cell_path, tools, stations, sha256_file(camera_path), progress, watch)
     processes = {k: (v.process if isinstance(v, PartAssets) else v) for k, v in assets.items()}
+    loop = None if scatter is None else RackLoop(
+        cell, world.robot, stations, {k: v.blank for k, v in assets.items() if isinstance(v, PartAssets)}, scatter)
     with watch("simulate"):
         sink = events(assets) if events is not None else None
-        result = run_simulation(orders, processes, faults, progress=stage_callback(progress, "orders"), sink=sink)
-    return CellRun(orders, cell, world, stations, assets, result, dict(watch.seconds))
+        result = run_simulation(orders, processes, faults, progress=stage_callback(progress, "orders"), sink=sink,
+                                picks=loop)
+    return CellRun(orders, cell, world, stations, assets, result, dict(watch.seconds),
+                   () if loop is None else tuple(loop.picks))
 
 
 # --- the log --------------------------------------------------------------------------------
@@ -708,7 +630,8 @@ class _Health:
 def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tuple[Path, str], PartAssets],
                    orders: tuple[Order, ...], cell: Cell, world: CollisionWorld, stations: Stations, *,
                    overwrite: bool, inputs: dict[str, str], parameters: dict[str, Any],
-                   live: LiveSink | None = None, robot_rate_hz: float = ROBOT_RATE_HZ) -> dict[str, int]:
+                   live: LiveSink | None = None, robot_rate_hz: float = ROBOT_RATE_HZ,
+                   picks: Sequence[RackPick] = ()) -> dict[str, int]:
     """Write the simulation to MCAP (``path``) and/or stream it to a live sink (the Foxglove live view,
     the ROS 2 graph, or both through :class:`factory.live.Fanout`), in log time;
     returns message counts per topic.
@@ -717,7 +640,8 @@ def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tup
     time order, merged as the clock reaches them, and a message is made only when it is written,
     so memory stays flat however many orders ran. ``robot_rate_hz`` [Hz of simulated time] is the
     rate of the robot's joint states and link transforms (the ends of each motion always logged):
-    lower it for long runs.
+    lower it for long runs. ``picks``: the run's :attr:`CellRun.picks`; a corrected fetch is logged
+    as it moved, each rack picture as taken, and each decision on ``/cell/rack_pick``.
     """
     if not robot_rate_hz > 0:
         raise CellError(f"the robot state rate must be positive, got {robot_rate_hz} Hz", source="--robot-rate")
@@ -750,7 +674,7 @@ def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tup
     home = np.asarray(cell.robot.home, dtype=float)
     makespan = float(result.summary["makespan_s"])
     activity_events = (functools.partial(_activity_events, k, a, part_of, cut_before[k], rpm_of, markers,
-                                         stations, links, result, robot_rate_hz)
+                                         stations, links, result, robot_rate_hz, picks)
                        for k, a in enumerate(result.activities))
     streams = _staggered(((_ns(a.start), make) for a, make in zip(result.activities, activity_events)),
                          [iter([(0, -1, -1, 0, "", (home, None), False)]),
@@ -832,7 +756,8 @@ def _staggered(pending: Any, running: list[Any]) -> Any:
 
 def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_before: float, rpm_of: Any,
                      markers: _PartMarkers, stations: Stations,
-                     links: LinkPoses, result: SimulationResult, robot_rate_hz: float) -> Any:
+                     links: LinkPoses, result: SimulationResult, robot_rate_hz: float,
+                     picks: Sequence[RackPick] = ()) -> Any:
     """The messages of activity number ``k`` (and its robot states), in log-time order, each made
     when it is written; the robot's link poses of the whole activity are made at once."""
     order = result.jobs.get(a.job, "?")
@@ -855,16 +780,14 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
                  "unload": [("unload: home to above vise", "unload: return home", False)],
                  # the plan's log holds the out-tray way only: the reject way shows up to the verdict
                  "unload_reject": [("unload: home to above vise", VERDICT_AFTER, False)]}.get(a.action, [])
+        corrected = picks[a.pick].pick if a.pick is not None and a.action == "fetch" else None
         t = a.start
-        for first, last, backwards in spans:
-            t0, t1 = p.motion.span(first, last)
-            ts, q = p.motion.samples(t0, t1, robot_rate_hz)
-            if backwards:
-                q = q[::-1]
-            for dt, qi in zip(ts - t0, q):
+        for dt_q in (_motion_samples(p, spans, robot_rate_hz) if corrected is None
+                     else corrected_samples(p, corrected, robot_rate_hz)):
+            for dt, qi in zip(*dt_q):
                 if t + dt <= a.end + 1e-9:  # a timed-out move stops where it was
                     robot.append((_ns(t + dt), -1, k, len(robot), "", qi, False))
-            t += t1 - t0
+            t += dt_q[0][-1]
         poses = links.poses(np.array([item[5] for item in robot]))
         robot = [(*item[:5], (item[5], pose), item[6]) for item, pose in zip(robot, poses)]
         if a.action == "load":
@@ -903,7 +826,13 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
                 if cut_before < snap_t <= a.end - a.start:
                     add(a.start + snap_t, "/machine/stock", functools.partial(markers.stock_at, p, j, a.start + snap_t))
     else:
-        if a.action == "locate":
+        taken = picks[a.pick] if a.pick is not None and a.action == "locate" else None
+        if taken is not None:
+            shot = Shot(taken.png or p.shots["empty"].png, [taken.detection] if taken.detection else [], 0.0,
+                        not taken.refusal)
+            frame = "rack_camera"
+            add(a.end, "/cell/rack_pick", functools.partial(rack_pick_msg, taken, serial, _ns(a.end)))
+        elif a.action == "locate":
             shot = p.shots["locate" if a.outcome != "stock_not_found" else "empty"]
             frame = "rack_camera"
         else:
@@ -919,6 +848,42 @@ def _activity_events(k: int, a: Any, part_of: Callable[[int], PartAssets], cut_b
         add(a.end, "/camera/annotations", functools.partial(image_annotations, found, stamp))
     items = [(_ns(t), 0, k, i, topic, make, False) for i, (t, topic, make) in enumerate(out)]
     return heapq.merge(robot, sorted(items, key=lambda i: i[:4]), key=lambda i: i[:4])
+
+
+def _motion_samples(p: PartAssets, spans: list[tuple[str, str, bool]], rate_hz: float) -> Any:
+    """(times from the span's start [s], joint positions [rad]) of each planned span, at ``rate_hz``."""
+    for first, last, backwards in spans:
+        t0, t1 = p.motion.span(first, last)
+        ts, q = p.motion.samples(t0, t1, rate_hz)
+        yield ts - t0, (q[::-1] if backwards else q)
+
+
+def corrected_samples(p: PartAssets, corrected: Any, rate_hz: float) -> Any:
+    """The corrected fetch as it moved: the planned move from home to above the rack, then each of
+    the corrected pick's moves (:class:`robotprog.rackpick.CorrectedPick`), at ``rate_hz``."""
+    yield from _motion_samples(p, [(FIRST_FETCH_MOVE, FIRST_FETCH_MOVE, False)], rate_hz)
+    for m in corrected.moves:
+        ts = np.append(np.arange(0.0, m.duration, 1.0 / rate_hz), m.duration)
+        q = (np.repeat(m.waypoints[-1:], len(ts), axis=0) if m.kind == "gripper"
+             else m.trajectory.sample(np.minimum(ts, m.trajectory.duration))[0])
+        yield ts, q
+
+
+def rack_pick_msg(pick: RackPick, serial: str, stamp: int) -> Any:
+    """One decision of the rack camera's closed loop as a ``DiagnosticArray`` of one status
+    (``cell/rack_pick``, ERROR when refused; values in mm and deg, units in the keys)."""
+    values = {"serial": serial, "slot": str(pick.slot), "attempt": str(pick.attempt)}
+    doc = pick.to_dict()
+    for name in ("offset", "located", "correction"):
+        for axis, v in (doc[name] or {}).items():
+            values[f"{name}_{axis}"] = f"{v:.3f}"
+    for name in ("error_mm", "error_deg", "reported_mm", "reported_deg"):
+        if doc[name] is not None:
+            values[name] = f"{doc[name]:.3f}"
+    values["proven"] = "yes" if pick.pick is not None else "no"
+    values["fetch_s"] = f"{pick.fetch_s:.3f}"
+    status = ComponentStatus("cell/rack_pick", "ERROR" if pick.refusal else "OK", pick.message(), values)
+    return diagnostic_array([status], stamp)
 
 
 def _signal_events(result: SimulationResult, cell: Cell) -> Any:

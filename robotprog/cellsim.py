@@ -206,6 +206,9 @@ class Activity:
     op : int or None
         The operation of a part in two setups a ``cut`` (1 or 2) or its ``reset`` belongs to;
         None for a part in one setup and for the other actions.
+    pick : int or None
+        With a :data:`PickSource`: the :attr:`PickStep.index` of the located blank a ``locate``,
+        ``fetch`` or ``missed_grasp`` works on, else None.
     """
 
     resource: str
@@ -217,6 +220,36 @@ class Activity:
     fraction: float = 1.0
     slot: int | None = None
     op: int | None = None
+    pick: int | None = None
+
+
+@dataclass(frozen=True)
+class PickStep:
+    """What the rack camera made of one blank, and the grasp it leads to (a :data:`PickSource`'s answer).
+
+    Attributes
+    ----------
+    index : int
+        The source's number for this picture of this blank (:attr:`Activity.pick`).
+    fetch_s : float
+        Robot: home → the corrected pick → back over the slot [s] (instead of :attr:`PartProcess.fetch_s`).
+    refusal : str
+        Why no grasp is attempted (the blank not located confidently, or its corrected pick not
+        proven); '' when the grasp goes ahead.
+    message : str
+        What the fetch's log entry says (the offset, the located pose, the correction).
+    """
+
+    index: int
+    fetch_s: float
+    refusal: str = ""
+    message: str = ""
+
+
+#: Asked at each locate of a blank with (job, the part's process key, rack slot): the closed loop
+#: of the rack camera and the grasp (:mod:`factory.rackloop`). A refusal stops the robot with a
+#: ``stock_not_found`` fault and its reason; no grasp is attempted.
+PickSource = Callable[[int, Any, int], PickStep]
 
 
 @dataclass(frozen=True)
@@ -316,6 +349,7 @@ def simulate(
     options: SchedulerOptions = SchedulerOptions(),
     progress: Callable[[int, int], None] | None = None,
     sink: EventSink | None = None,
+    picks: PickSource | None = None,
 ) -> SimulationResult:
     """Run orders through the cell until every order has ended.
 
@@ -335,6 +369,10 @@ def simulate(
     sink : EventSink, optional
         Called with every event as it is decided (see :data:`CellEvent`): first the orders that
         cannot run (their ``order_failed`` entry, then their outcome), then the run.
+    picks : PickSource, optional
+        The rack camera's closed loop: asked at every locate the injected faults let through; its
+        answer times the fetch or refuses the grasp. Without it every blank stands where the plan
+        put it and the fetch takes :attr:`PartProcess.fetch_s`.
 
     Returns
     -------
@@ -356,7 +394,7 @@ def simulate(
             failed[o.id] = f"{o.part}: no plan for this part"
         elif not isinstance(proc, PartProcess):
             failed[o.id] = f"{o.part}: cannot be planned: {proc}"
-    return _Sim(orders, processes, faults, options, failed, progress, sink).run()
+    return _Sim(orders, processes, faults, options, failed, progress, sink, picks).run()
 
 
 def running_summary(result: SimulationResult, t: float) -> dict[str, Any]:
@@ -461,13 +499,19 @@ def process_of(processes: Mapping, order: Order) -> PartProcess | str | Exceptio
     return processes.get(order.part) if found is None else found
 
 
+def _key(order: Order) -> tuple[Path, str]:
+    """The (part, material) key of an order's process (:func:`process_of` looks it up first)."""
+    return (order.part, order.material)
+
+
 def _outcome(p) -> OrderOutcome:
     return OrderOutcome(p.order.id, str(p.order.part), p.order.quantity, p.good, p.rejected,
                         p.outcome or "failed", p.reason)
 
 
 class _Sim:
-    def __init__(self, orders, processes, faults, options, failed, progress, sink):
+    def __init__(self, orders, processes, faults, options, failed, progress, sink, picks=None):
+        self.picks = picks
         self.orders = {o.id: o for o in orders}
         self.rank = {o.id: i for i, o in enumerate(orders)}
         self.processes = processes
@@ -560,7 +604,7 @@ class _Sim:
 
     def activity(self, resource: str, action: str, job_id: int, state: State, duration: float,
                  event: Event | None, message: str = "", *, start_after: float = 0.0, share: float = 1.0,
-                 slot: int | None = None, op: int | None = None) -> float:
+                 slot: int | None = None, op: int | None = None, pick: int | None = None) -> float:
         """Record an activity starting ``start_after`` seconds from now and schedule ``event`` at its
         end (none for ``None``: a later activity ends the step), or TIMEOUT if the state's timeout,
         counted from now, comes first. ``share`` scales the recorded fraction (a cut an alarm stops
@@ -579,7 +623,7 @@ class _Sim:
             outcome = event.value if event is not None else "done"
         fraction = used / duration if duration > 0 else 1.0
         self.add_activity(Activity(resource, action, job_id, start, start + used, outcome, share * fraction, slot,
-                                   op))
+                                   op, pick))
         return used
 
     def start_machining(self, job_id: int, rerun: bool) -> None:
@@ -611,16 +655,24 @@ class _Sim:
                 self.activity("camera", "locate", job_id, job.state, p.locate_s, Event.STOCK_NOT_FOUND,
                               f"no stock in rack slot {job.slot}", slot=job.slot)
                 return
-            seen = self.activity("camera", "locate", job_id, job.state, p.locate_s, None, slot=job.slot)
+            pick = None if self.picks is None else self.picks(job_id, _key(self.orders[job.order]), job.slot)
+            if pick is not None and pick.refusal:
+                self.activity("camera", "locate", job_id, job.state, p.locate_s, Event.STOCK_NOT_FOUND,
+                              pick.refusal, slot=job.slot, pick=pick.index)
+                return
+            seen = self.activity("camera", "locate", job_id, job.state, p.locate_s, None, slot=job.slot,
+                                 pick=None if pick is None else pick.index)
             if self.activities[-1].outcome == Event.TIMEOUT.value:
                 return
+            fetch_s = p.fetch_s if pick is None else pick.fetch_s
+            index = None if pick is None else pick.index
             if self.rng.random() < self.faults.grasp_miss:
-                self.activity("robot", "missed_grasp", job_id, job.state, p.fetch_s + p.regrasp_s,
+                self.activity("robot", "missed_grasp", job_id, job.state, fetch_s + p.regrasp_s,
                               Event.GRASP_MISSED, f"grasp missed at rack slot {job.slot}", start_after=seen,
-                              slot=job.slot)
+                              slot=job.slot, pick=index)
             else:
-                self.activity("robot", "fetch", job_id, job.state, p.fetch_s, Event.FETCHED, start_after=seen,
-                              slot=job.slot)
+                self.activity("robot", "fetch", job_id, job.state, fetch_s, Event.FETCHED,
+                              "" if pick is None else pick.message, start_after=seen, slot=job.slot, pick=index)
         elif action == "load":
             self.machine_job, self.hold_start = job_id, self.now
             self.activity("robot", "load", job_id, job.state, p.load_s, Event.LOADED)

@@ -17,6 +17,8 @@ controller runs it, from the numbers the program states, so the two can be compa
   (needs the TCP position, hence ``tcp_of``);
 * gripper outputs wait their settle time, ``sleep`` / ``WaitTime`` / ``WAIT SEC`` their
   seconds; comments take no time;
+* reading the rack camera's correction takes no time, and a corrected ``movel`` is timed to the
+  pose the plan put it at (the correction is a few millimetres);
 * a wait on a digital input (the machine's door, its cycle) counts nothing: that is the
   machine's time, which the plan does not contain either; the robot stands still meanwhile;
 * a branch on an input (``if`` / ``IF``) runs one of its two ways, the one ``verdict`` names
@@ -33,7 +35,7 @@ import numpy as np
 
 from factory.core.errors import PlanningError
 from robotprog.krl import ptp_percent
-from robotprog.urscript import Branch, Comment, MoveJ, MoveL, ServoJ, SetOutputs, Step, Wait, WaitInput
+from robotprog.urscript import Branch, Comment, MoveJ, MoveL, ReadCorrection, ServoJ, SetOutputs, Step, Wait, WaitInput
 
 LANGS = ("urscript", "rapid", "krl")
 
@@ -154,7 +156,7 @@ def program_duration(
                 pos = np.asarray(tcp_of(q), dtype=float)[:3, 3]
             total += trapezoid_time(float(np.linalg.norm(p1 - pos)), st.v, st.a)
             pos = p1
-            q = np.full_like(q, math.nan)
+            q = np.asarray(st.q_end, dtype=float) if len(st.q_end) == len(q) else np.full_like(q, math.nan)
         elif isinstance(st, ServoJ):
             total += flush() + flush_krl()
             total += len(st.targets) * st.t
@@ -166,7 +168,7 @@ def program_duration(
             total += flush() + flush_krl() + st.seconds
         elif isinstance(st, WaitInput):
             total += flush() + flush_krl()  # the machine's time (door, cycle), not the robot's
-        elif isinstance(st, Comment):
+        elif isinstance(st, Comment | ReadCorrection):  # reading the rack camera's correction: no motion
             continue
         else:
             raise PlanningError(f"step {i}: not a program step: {type(st).__name__}")

@@ -8,6 +8,12 @@ base frame (``base_link``; ``$BASE`` is ``$NULLFRAME``), without Status/Turn (th
 controller keeps the current configuration on a LIN). Digital output ``n`` is KRL's
 ``$OUT[n + 1]``, input ``n`` is ``$IN[n + 1]`` (KRL numbers them from 1). The TCP is written to ``$TOOL``.
 
+The rack camera's correction (:class:`robotprog.urscript.ReadCorrection`) is the global ``FRAME``
+``RACK_CORR`` the ``.dat`` declares (``DECL GLOBAL``: the cell's controller writes it before each
+pick, e.g. through the KUKA.Ethernet KRL or a PLC's variable server): X, Y [mm] and A [deg] of the
+blank in its slot. A corrected ``LIN`` runs with ``$BASE = RACK_SLOT : RACK_CORR`` to a point in the
+slot's frame; ``$BASE`` goes back to ``$NULLFRAME`` for the next uncorrected one.
+
 Speeds: PTP moves at ``$VEL_AXIS`` / ``$ACC_AXIS`` percentages (``axis_percent``), a
 timed step (``t`` > 0) at the percentage that runs it in ``t`` (``BAS(#VEL_PTP, pct)``),
 LIN at ``$VEL.CP`` = the step's ``v`` [m/s]. A step with a blend radius is approximated
@@ -25,8 +31,8 @@ from scipy.spatial.transform import Rotation
 
 from factory.core.errors import PlanningError
 from factory.core.units import MM_PER_M
-from robotprog.urscript import (Branch, FlowWords, MoveJ, MoveL, Step, check_io_step, comment_text, flat_steps,
-                                flow_lines, way_lines)
+from robotprog.urscript import (Branch, FlowWords, MoveJ, MoveL, ReadCorrection, Step, check_bounds, check_io_step,
+                                comment_text, flat_steps, flow_lines, way_lines)
 
 DECIMALS_MM = 3
 DECIMALS_DEG = 4
@@ -73,6 +79,33 @@ _KRL_WORDS = FlowWords(
     else_line="  ELSE",
     end_if="  ENDIF",
 )
+
+
+def _lin_pose(st: MoveL, i: int, slots: list[np.ndarray]) -> np.ndarray:
+    """A LIN's point (4, 4) [m]: in the robot's base frame, or a corrected one in the rack slot's frame
+    (``slots``: the slots of the corrections read so far)."""
+    if not st.corrected:
+        return np.asarray(st.pose, dtype=float)
+    if not slots:
+        raise PlanningError(f"step {i}: a corrected LIN before the correction is read")
+    return np.linalg.inv(slots[-1]) @ np.asarray(st.pose, dtype=float)
+
+
+def _correction_decl(st: ReadCorrection) -> list[str]:
+    """The ``.dat`` lines of the rack camera's correction: the global frame the cell's controller
+    writes, and the rack slot's frame."""
+    return ["  DECL GLOBAL FRAME RACK_CORR={X 0.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0}",
+            f"  DECL FRAME RACK_SLOT={{{krl_frame(np.asarray(st.slot, dtype=float))}}}"]
+
+
+def _correction_check(st: ReadCorrection) -> list[str]:
+    """The ``.src`` lines that stop the program on a correction beyond the step's bounds."""
+    out = [f"  ; {comment_text(st.label)}".rstrip()] if st.label else []
+    bounds = (_f(st.bounds[0] * MM_PER_M, DECIMALS_MM), _f(st.bounds[1] * MM_PER_M, DECIMALS_MM),
+              _f(math.degrees(st.bounds[2]), DECIMALS_DEG))
+    for axis, bound in zip("XYA", bounds):
+        out += [f"  IF ABS(RACK_CORR.{axis}) > {bound} THEN", "    HALT", "  ENDIF"]
+    return out
 
 
 def krl_program(
@@ -122,15 +155,20 @@ def krl_program(
     nj = nl = 0
     q_prev: np.ndarray | None = None
     current_pct: int | None = None
+    slot_of: list[np.ndarray] = []
+    in_slot = False  # $BASE is the corrected rack slot
 
     def emit(seq: Sequence[Step], out: list[str], first: int) -> None:
-        nonlocal nj, nl, q_prev, current_pct
+        nonlocal nj, nl, q_prev, current_pct, in_slot
         for i, st in enumerate(seq, first):
             check_io_step(i, st)
             if isinstance(st, MoveJ):
                 q = np.asarray(st.q, dtype=float)
                 if q.shape != (6,) or not np.isfinite(q).all():
                     raise PlanningError(f"step {i}: PTP needs 6 finite joint angles, got {st.q}")
+                if in_slot:  # the corrected moves are over: back to the robot's base
+                    out.append("  $BASE = $NULLFRAME")
+                    in_slot = False
                 nj += 1
                 axes = ",".join(f"A{k + 1} {_f(math.degrees(v), DECIMALS_DEG)}" for k, v in enumerate(q))
                 dat.append(f"  DECL E6AXIS XJ{nj}={{{axes},E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}}")
@@ -150,10 +188,19 @@ def krl_program(
                 if not (math.isfinite(st.v) and st.v > 0):
                     raise PlanningError(f"step {i}: LIN speed must be finite and > 0, got {st.v}")
                 nl += 1
-                dat.append(f"  DECL E6POS XP{nl}={{{krl_frame(np.asarray(st.pose))},"
+                if st.corrected != in_slot:
+                    out.append("  $BASE = RACK_SLOT : RACK_CORR" if st.corrected else "  $BASE = $NULLFRAME")
+                    in_slot = st.corrected
+                dat.append(f"  DECL E6POS XP{nl}={{{krl_frame(_lin_pose(st, i, slot_of))},"
                            "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}")
                 out.append(f"  $VEL.CP = {_f(st.v, 4)}")
                 out.append(f"  LIN XP{nl}")
+            elif isinstance(st, ReadCorrection):
+                check_bounds(st, i)
+                if not slot_of:
+                    dat[2:2] = _correction_decl(st)
+                slot_of.append(np.asarray(st.slot, dtype=float))
+                out += _correction_check(st)
             elif isinstance(st, Branch):
                 at, pct = q_prev, current_pct
                 ends: list[tuple[np.ndarray | None, int | None]] = []

@@ -27,6 +27,15 @@ in that move; a move whose posted path collides is posted again with
 segments half as long (down to :data:`MIN_SEGMENT_S`), hugging the proven trajectory closer. Each segment's speed is its joint travel over the
 sample time of a trajectory proven within the limits, so it is within them too.
 
+The pick at the rack takes the rack camera's correction at run time (:mod:`robotprog.rackpick`):
+the program reads the blank's offset in its slot from the cell's controller (URScript: RTDE input
+registers; RAPID: a ``PERS wobjdata``; KRL: a global ``FRAME``), stops on one beyond the slot
+(:func:`correction_bounds`), then goes straight (``movel`` / ``MoveL`` / ``LIN``) over the corrected
+grasp, down to it, grips, straight up, and back to the end of the planned retreat with a joint
+move; the planned transfer to the vise goes on from there. With no correction (all zeros) that is
+the plan's own path, proven here; each corrected pick is proven by the cell before the robot is
+told to make it (:mod:`factory.rackloop`).
+
 With ``cell.machine`` the program also drives the machine tool through its digital I/O, the
 handshake :mod:`robotprog.machineio` defines once for programs and the cell simulation alike:
 wait until it is idle, open the door, load; close the door, start the cycle, wait for it
@@ -61,7 +70,9 @@ from robotprog.sweep import SweptMotion, swept_motion
 from robotprog.robots import Robot
 from robotprog.tending import TendingPlan
 from robotprog.machineio import machine_cycle, machine_ready, number, to_steps, verdict
-from robotprog.urscript import Branch, Comment, MoveJ, ServoJ, SetOutputs, Step, flat_steps, urscript_program
+from robotprog.rackpick import slot_room
+from robotprog.urscript import (Branch, Comment, MoveJ, MoveL, ReadCorrection, ServoJ, SetOutputs, Step, flat_steps,
+                                urscript_program)
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +90,42 @@ SEGMENT_S = 0.1
 MIN_SEGMENT_S = 0.0125
 #: RAPID zone radius of the blended samples [m] (the controller shrinks it to half a segment).
 ZONE_M = 0.005
+#: The rack pick's moves the program runs corrected by the rack camera (the module docstring).
+RACK_APPROACH, RACK_RETREAT = "load: approach stock", "load: retreat from rack"
+#: Speed [m/s] and acceleration [m/s^2] of the move over the located blank (a few mm); the lines
+#: down to it and up from it run in the plan's time (:func:`line_speed`).
+RACK_LINE_V, RACK_LINE_A = 0.1, 0.5
+#: Largest turn of a blank in its slot the program takes from the camera [rad]: a box turned
+#: further is not standing in a rack slot as a blank can.
+RACK_MAX_YAW = math.radians(5.0)
+
+
+def line_speed(distance: float, duration: float, a: float = RACK_LINE_A) -> tuple[float, float]:
+    """(speed [m/s], acceleration [m/s^2]) of a rest-to-rest straight move of ``distance`` [m] whose
+    trapezoid takes ``duration`` [s], the plan's time for it: at acceleration ``a``, or the higher
+    one a triangle in that time needs."""
+    if distance <= 0 or duration <= 0:
+        return RACK_LINE_V, a
+    if a * duration * duration < 4 * distance:  # too short to reach cruise at a: a triangle
+        a = 4 * distance / (duration * duration)
+        return a * duration / 2, a
+    return (a * duration - math.sqrt(a * a * duration * duration - 4 * a * distance)) / 2, a
+
+
+def tcp_of(cell: Cell, robot: Robot):
+    """``q -> transform_base_link_to_tcp`` (4, 4) [m] of the cell's arm and gripper: what the
+    controller's timer needs for a straight move after a joint move."""
+    tcp = cell.gripper.tcp.matrix()
+    return lambda q: robot.fk(np.asarray(q, dtype=float)) @ tcp
+
+
+def correction_bounds(cell: Cell, size: np.ndarray) -> tuple[float, float, float]:
+    """How far the rack camera's correction may move the grasp of a blank ``size`` (3,) [m]: x, y
+    [m] as far as the blank can stand off its slot's centre (:func:`robotprog.rackpick.slot_room`,
+    unturned) plus half the fingers' clearance (the camera's error), and :data:`RACK_MAX_YAW` [rad]."""
+    room = slot_room(cell, size, 0.0)
+    margin = cell.gripper.fingers.clearance / 2
+    return room.dx + margin, room.dy + margin, RACK_MAX_YAW
 
 
 @dataclass(frozen=True, eq=False)
@@ -179,8 +226,24 @@ def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: st
                 and phase[k - 1] != phase[k]} if machine is not None else set()
     branch_at = verdict_index(cell, plan) if branch else None
 
+    base_inv = np.linalg.inv(cell.robot.base.matrix())
+    pose = tcp_of(cell, robot)  # the TCP pose (4, 4) at q [rad] in the robot's base frame [m]
+
+    def line(mv: TimedMove) -> tuple[float, float]:
+        """A straight move's TCP travel [m] and the plan's time for it [s]."""
+        return float(np.linalg.norm(pose(mv.q_end)[:3, 3] - pose(mv.waypoints[0])[:3, 3])), mv.duration
+
     def move_steps(k: int, mv: TimedMove, stops: bool) -> list[Step]:
         out: list[Step] = [Comment(mv.name)]
+        if mv.name == RACK_APPROACH:  # over the blank as the camera found it, then down to it
+            size = np.asarray(plan.stock.size, dtype=float)
+            return out + [ReadCorrection.at(base_inv @ cell.rack.slot_transform(0, 0), correction_bounds(cell, size),
+                                            "the rack camera's correction of the blank in its slot"),
+                          MoveL.to(pose(mv.waypoints[0]), RACK_LINE_A, RACK_LINE_V, corrected=True),
+                          MoveL.to(pose(mv.q_end), *line_speed(*line(mv))[::-1], corrected=True, q_end=mv.q_end)]
+        if mv.name == RACK_RETREAT:  # straight up, then to where the planned retreat ends
+            return out + [MoveL.to(pose(mv.q_end), *line_speed(*line(mv))[::-1], corrected=True, q_end=mv.q_end),
+                          MoveJ(tuple(float(v) for v in mv.q_end), amax, vmax)]
         if mv.kind == "gripper":
             out.append(SetOutputs(mv.outputs, mv.settle_s))
             return out
@@ -206,7 +269,8 @@ def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: st
     for k, mv in enumerate(moves):
         if k in cycle_at and machine is not None:
             body += to_steps(machine_cycle(), machine)
-        stops = k + 1 == len(moves) or moves[k + 1].kind == "gripper" or k + 1 in cycle_at
+        stops = (k + 1 == len(moves) or moves[k + 1].kind == "gripper" or k + 1 in cycle_at
+                 or moves[k + 1].name == RACK_APPROACH)  # the straight moves start from a standing arm
         body += move_steps(k, mv, stops)
         if k == branch_at:
             # The machine's verdict picks the way on: the rest of the unload to the out-tray, or the
@@ -255,8 +319,13 @@ def posted_collision(world: CollisionWorld, plan: TendingPlan, steps: list[Step]
             continue
         pts = [mv.waypoints[0]]
         blended: list[bool] = [False]
+        lines = False
         for st in posted:
-            if isinstance(st, ServoJ):
+            if isinstance(st, MoveL) and not lines:  # the plan's straight line: the correction zero
+                lines = True
+                pts += list(mv.waypoints[1:])
+                blended += [False] * (len(mv.waypoints) - 1)
+            elif isinstance(st, ServoJ):
                 pts += list(np.asarray(st.targets, dtype=float))
                 blended += [False] * len(st.targets)
             elif isinstance(st, MoveJ):
@@ -329,10 +398,11 @@ def post_program(lang: str, program: Path, cell: Cell, world: CollisionWorld, pl
             raise PlanningError(f"{(plan.moves + plan.reject)[k].name}: the posted path collides ({contact})")
         segments[k] = seg
     home = np.asarray(cell.robot.home, dtype=float)
-    predicted = program_duration(steps, home, lang=lang, axis_speed=robot.v_max)
+    tcp_at = tcp_of(cell, robot)
+    predicted = program_duration(steps, home, lang=lang, axis_speed=robot.v_max, tcp_of=tcp_at)
     planned_reject = reject_planned_s(cell, plan) if branch else None
     predicted_reject = (None if planned_reject is None else
-                        program_duration(steps, home, lang=lang, axis_speed=robot.v_max, verdict=False))
+                        program_duration(steps, home, lang=lang, axis_speed=robot.v_max, verdict=False, tcp_of=tcp_at))
     targets = sum(len(s.targets) if isinstance(s, ServoJ) else 1 for s in flat_steps(steps)[1:]
                   if isinstance(s, ServoJ | MoveJ))
     how = {"urscript": f"servoj stream at {1 / SERVO_PERIOD_S:.0f} Hz",

@@ -9,6 +9,11 @@ q4] = [w, x, y, z]`` in the robot's base frame, ``base_link``), with the configu
 Digital outputs ``n`` are the signals ``do<n>``, inputs ``di<n>`` (named in the controller's
 I/O configuration). The TCP is ``tGripper`` built from ``transform_flange_to_tcp``.
 
+The rack camera's correction (:class:`robotprog.urscript.ReadCorrection`) is the object frame of the
+work object ``wRack`` (``PERS wobjdata``: its user frame the rack slot, fixed; its object frame the
+blank's offset in the slot, written by the cell's controller before each pick, e.g. over Robot Web
+Services); a corrected ``MoveL`` goes to a robtarget in the slot's frame ``\\WObj:=wRack``.
+
 Speeds: joint moves run at ``vJoint`` (TCP 1000 mm/s, the controller's axis limits govern),
 or take the step's time ``t`` (``vJoint\\T:=t``: the controller stretches the move to last ``t``
 seconds), and lines at their ``v`` [m/s] (``vLine<k>``), all ``fine`` (stop at each point) unless a
@@ -26,8 +31,8 @@ from scipy.spatial.transform import Rotation
 
 from factory.core.errors import PlanningError
 from factory.core.units import MM_PER_M
-from robotprog.urscript import (FlowWords, MoveJ, MoveL, Step, check_io_step, comment_text, flow_lines,
-                                way_lines)
+from robotprog.urscript import (FlowWords, MoveJ, MoveL, ReadCorrection, Step, check_bounds, check_io_step,
+                                comment_text, flow_lines, way_lines)
 
 #: Decimals of millimetres and degrees (1 µm, 1e-4 deg) and quaternions.
 DECIMALS_MM = 3
@@ -108,6 +113,8 @@ def rapid_module(
     speeds: dict[str, str] = {}
     zones: dict[str, str] = {}
     nj = nl = 0
+    rack: list[str] = []  # the wRack declaration, once the correction is read
+    slot_of: list[np.ndarray] = []
 
     def emit(seq: Sequence[Step], out: list[str], first: int) -> None:
         nonlocal nj, nl
@@ -131,11 +138,28 @@ def rapid_module(
                 if not (math.isfinite(st.v) and st.v > 0):
                     raise PlanningError(f"step {i}: MoveL speed must be finite and > 0, got {st.v}")
                 nl += 1
-                decl.append(f"  CONST robtarget p{nl} := [{rapid_pose(np.asarray(st.pose))[1:-1]},[0,0,0,0],{_EXT}];")
+                pose = np.asarray(st.pose, dtype=float)
+                if st.corrected:
+                    if not slot_of:
+                        raise PlanningError(f"step {i}: a corrected MoveL before the correction is read")
+                    pose = np.linalg.inv(slot_of[-1]) @ pose  # in the rack slot's frame, wRack's user frame
+                decl.append(f"  CONST robtarget p{nl} := [{rapid_pose(pose)[1:-1]},[0,0,0,0],{_EXT}];")
                 v = _f(st.v * MM_PER_M, 1)
                 sname = f"vLine{v.replace('.', '_')}"
                 speeds[sname] = f"  CONST speeddata {sname} := [{v},500,5000,1000];"
-                out.append(f"    MoveL p{nl}, {sname}, {_zone(st.r, zones)}, tGripper;")
+                wobj = "\\WObj:=wRack" if st.corrected else ""
+                out.append(f"    MoveL p{nl}, {sname}, {_zone(st.r, zones)}, tGripper{wobj};")
+            elif isinstance(st, ReadCorrection):
+                check_bounds(st, i)
+                slot_of.append(np.asarray(st.slot, dtype=float))
+                rack[:] = [f"  PERS wobjdata wRack := [FALSE,TRUE,\"\",{rapid_pose(slot_of[-1])},[[0,0,0],[1,0,0,0]]];"]
+                bx, by = (_f(b * MM_PER_M, DECIMALS_MM) for b in st.bounds[:2])
+                byaw = _f(math.degrees(st.bounds[2]), DECIMALS_DEG)
+                out += [f"    ! {comment_text(st.label)}".rstrip()] if st.label else []
+                out += [f"    IF Abs(wRack.oframe.trans.x) > {bx} OR Abs(wRack.oframe.trans.y) > {by} "
+                        f"OR Abs(EulerZYX(\\Z, wRack.oframe.rot)) > {byaw} THEN",
+                        '      ErrWrite "rack camera", "correction beyond the rack slot";',
+                        "      Stop;", "    ENDIF"]
             else:
                 lines_of = flow_lines(i, st, _RAPID_WORDS, lambda seq, first: way_lines(emit, seq, first))
                 if lines_of is None:
@@ -149,6 +173,7 @@ def rapid_module(
     lines.append(f"  PERS tooldata tGripper := [TRUE,{rapid_pose(tcp)},[{_f(tool_mass_kg, 3)},[0,0,{cog}],"
                  "[1,0,0,0],0,0,0]];")
     lines.append("  CONST speeddata vJoint := [1000,500,5000,1000];")
+    lines += rack
     lines += [speeds[k] for k in sorted(speeds)]
     lines += [zones[k] for k in sorted(zones)]
     lines += decl

@@ -29,6 +29,10 @@ from robotprog.ik import TRANSFORM_BASE_LINK_TO_UR_BASE
 DECIMALS = 6
 #: Standard digital inputs and outputs of a UR controller (numbers 0..7).
 UR_DIGITAL_IO = 8
+#: RTDE input float registers (``input_double_register_<n>``) the cell's controller writes the rack
+#: camera's correction to before each pick: x [m], y [m], yaw [rad] in the slot's frame. Registers
+#: 0..23 are the general-purpose ones (24..47 belong to the fieldbus adapters).
+RACK_REGISTERS = (0, 1, 2)
 
 
 @dataclass(frozen=True)
@@ -61,17 +65,44 @@ class ServoJ:
 @dataclass(frozen=True)
 class MoveL:
     """Straight tool move to ``pose`` = ``transform_base_link_to_tcp`` (4, 4) [m], tool
-    acceleration ``a`` [m/s^2], speed ``v`` [m/s], blend radius ``r`` [m]."""
+    acceleration ``a`` [m/s^2], speed ``v`` [m/s], blend radius ``r`` [m]. ``corrected``: the pose
+    is where the plan put it, and the program moves it by the correction the last
+    :class:`ReadCorrection` read (the blank as the rack camera found it). ``q_end``: the joint
+    position [rad] the plan reaches the pose at (empty: unknown), for a timer of a joint move after it."""
 
     pose: tuple[tuple[float, ...], ...]
     a: float
     v: float
     r: float = 0.0
+    corrected: bool = False
+    q_end: tuple[float, ...] = ()
 
     @staticmethod
-    def to(pose: np.ndarray, a: float, v: float, r: float = 0.0) -> "MoveL":
+    def to(pose: np.ndarray, a: float, v: float, r: float = 0.0, corrected: bool = False,
+           q_end: np.ndarray | None = None) -> "MoveL":
         """A MoveL from a (4, 4) array."""
-        return MoveL(tuple(tuple(float(x) for x in row) for row in np.asarray(pose, dtype=float)), a, v, r)
+        return MoveL(tuple(tuple(float(x) for x in row) for row in np.asarray(pose, dtype=float)), a, v, r,
+                     corrected, () if q_end is None else tuple(float(v) for v in q_end))
+
+
+@dataclass(frozen=True)
+class ReadCorrection:
+    """Read the rack camera's correction from the cell's controller at run time: the blank's offset
+    in its slot, ``x``, ``y`` [m] along the slot's axes and ``yaw`` [rad] about its z (URScript: the
+    RTDE input registers :data:`RACK_REGISTERS`; RAPID: the ``PERS wobjdata`` whose object frame it
+    is; KRL: the global ``FRAME`` ``RACK_CORR``), and stop the program on one beyond ``bounds``
+    (x [m], y [m], yaw [rad]). ``slot`` is ``transform_base_link_to_slot`` (4, 4) [m]; the
+    corrected :class:`MoveL` steps after it go to ``slot @ offset @ inv(slot) @ pose``."""
+
+    slot: tuple[tuple[float, ...], ...]
+    bounds: tuple[float, float, float]
+    label: str = ""
+
+    @staticmethod
+    def at(slot: np.ndarray, bounds: tuple[float, float, float], label: str = "") -> "ReadCorrection":
+        """A ReadCorrection from a (4, 4) array."""
+        return ReadCorrection(tuple(tuple(float(x) for x in row) for row in np.asarray(slot, dtype=float)),
+                              tuple(float(b) for b in bounds), label)
 
 
 @dataclass(frozen=True)
@@ -121,7 +152,7 @@ class Branch:
     label: str = ""
 
 
-Step = MoveJ | MoveL | ServoJ | SetOutputs | WaitInput | Wait | Comment | Branch
+Step = MoveJ | MoveL | ServoJ | SetOutputs | WaitInput | Wait | Comment | Branch | ReadCorrection
 
 
 def flat_steps(steps: Sequence[Step]) -> list[Step]:
@@ -298,9 +329,10 @@ def urscript_program(
         lines.append(f"  set_tcp({ur_pose(transform_flange_to_tcp)})")
     to_ur = np.linalg.inv(TRANSFORM_BASE_LINK_TO_UR_BASE)
     n_tables = 0
+    read = False
 
     def emit(seq: Sequence[Step], out: list[str], first: int) -> None:
-        nonlocal n_tables
+        nonlocal n_tables, read
         for i, st in enumerate(seq, first):
             check_io_step(i, st, inputs=UR_DIGITAL_IO, outputs=UR_DIGITAL_IO)
             if isinstance(st, MoveJ):
@@ -320,7 +352,14 @@ def urscript_program(
                 _positive(st.v, f"step {i} movel v")
                 blend = f", r={_num(st.r)}" if st.r > 0 else ""
                 pose = ur_pose(to_ur @ np.asarray(st.pose, dtype=float))
+                if st.corrected:
+                    if not read:
+                        raise PlanningError(f"step {i}: a corrected movel before the correction is read")
+                    pose = f"pose_trans(rack_corr, {pose})"
                 out.append(f"  movel({pose}, a={_num(st.a)}, v={_num(st.v)}{blend})")
+            elif isinstance(st, ReadCorrection):
+                read = True
+                out += _correction_lines(st, to_ur)
             else:
                 lines_of = flow_lines(i, st, _UR_WORDS, lambda seq, first: way_lines(emit, seq, first))
                 if lines_of is None:
@@ -330,6 +369,33 @@ def urscript_program(
     emit(steps, lines, 0)
     lines.append("end")
     return "\n".join(lines) + "\n"
+
+
+def check_bounds(st: ReadCorrection, i: int | None = None) -> None:
+    """Refuse a correction step whose bounds are not finite and >= 0, or whose slot is not a pose."""
+    slot = np.asarray(st.slot, dtype=float)
+    if slot.shape != (4, 4) or not np.isfinite(slot).all():
+        raise PlanningError(f"{'' if i is None else f'step {i}: '}the rack slot must be a finite 4x4 pose")
+    if len(st.bounds) != 3 or not all(math.isfinite(b) and b >= 0 for b in st.bounds):
+        raise PlanningError(f"{'' if i is None else f'step {i}: '}correction bounds must be 3 finite values >= 0, "
+                            f"got {st.bounds}")
+
+
+def _correction_lines(st: ReadCorrection, to_ur: np.ndarray) -> list[str]:
+    """Read the correction from the RTDE registers, stop on one beyond the bounds, and compose
+    ``rack_corr`` = slot * offset * inverse(slot) in the controller's base frame."""
+    check_bounds(st)
+    lines = [f"  # {comment_text(st.label)}".rstrip()] if st.label else []
+    names = ("rack_dx", "rack_dy", "rack_dyaw")
+    lines += [f"  {n} = read_input_float_register({r})" for n, r in zip(names, RACK_REGISTERS)]
+    for n, bound in zip(names, st.bounds):
+        lines += [f"  if norm({n}) > {_num(bound)}:",
+                  f'    popup("rack camera correction {n} beyond the slot", error=True, blocking=True)',
+                  "    halt", "  end"]
+    lines.append(f"  rack_slot = {ur_pose(to_ur @ np.asarray(st.slot, dtype=float))}")
+    lines.append("  rack_corr = pose_trans(pose_trans(rack_slot, p[rack_dx, rack_dy, 0, 0, 0, rack_dyaw]), "
+                 "pose_inv(rack_slot))")
+    return lines
 
 
 #: Rows per servoj table: URScript lists are fixed-length values; short tables keep each

@@ -619,8 +619,10 @@ def _chamfer_starts(model: _EdgeModel, edges: np.ndarray, inside: np.ndarray, bo
         kernel /= kernel.sum()
         # The window's scores need the distance map from (x0, y0) + lo to (x1, y1) + hi.
         rx0, ry0 = x0 + lo[0], y0 + lo[1]
-        pad = cv2.copyMakeBorder(dist, 200, 200, 200, 200, cv2.BORDER_CONSTANT, value=6.0)
-        roi = pad[ry0 + 200:y1 + hi[1] + 201, rx0 + 200:x1 + hi[0] + 201]
+        # padded by the kernel's reach at least (a fine camera's kernels span more than 200 px)
+        m = int(max(200, np.abs(lo).max(), np.abs(hi).max()) + 1)
+        pad = cv2.copyMakeBorder(dist, m, m, m, m, cv2.BORDER_CONSTANT, value=6.0)
+        roi = pad[ry0 + m:y1 + hi[1] + m + 1, rx0 + m:x1 + hi[0] + m + 1]
         # filter2D correlates: anchor (0, 0) puts kernel[0, 0] (offset lo) at each output pixel.
         score = cv2.filter2D(roi, -1, kernel, anchor=(0, 0), borderType=cv2.BORDER_CONSTANT)
         score = score[:y1 - y0, :x1 - x0]

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from factory.core.errors import CellError
-from factory.simulation import RobotMotion, Shot, op2_of, part_process
+from factory.cellcameras import Shot
+from factory.simulation import RobotMotion, op2_of, part_process
 from robotprog.cellsim import simulate
 from robotprog.orders import Order
 

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from factory.core.errors import PlanningError
-from factory.simulation import RobotMotion, Shot, part_process
+from factory.cellcameras import Shot
+from factory.simulation import RobotMotion, part_process
 from robotprog.cellsim import Activity, FaultModel, PartProcess, simulate
 from robotprog.krl import krl_program
 from robotprog.machineio import (CYCLE_START_OPS, INPUT, OUTPUT, READ, SET, SIGNALS, WAIT, IoOp, machine_cycle,

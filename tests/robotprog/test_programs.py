@@ -17,7 +17,7 @@ from factory.core.resources import FIXTURES
 from robotprog.cell import load_cell
 from robotprog.collision import collision_world
 from robotprog.programs import (LANG_NAME, SERVO_PERIOD_S, VERDICT_AFTER, check_posted_path, post_program,
-                                program_name, program_steps)
+                                program_name, program_steps, tcp_of)
 from robotprog.tending import plan_tending
 from robotprog.timing import LIMIT_SLACK
 from robotprog.urscript import Branch, ServoJ, flat_steps
@@ -74,7 +74,8 @@ def test_controller_runs_the_planned_duration(name, lang, plans, cell, world, ar
     header = next(iter(posted.texts.values())).splitlines()[:6]
     assert any(f"planned motion {plan.duration:.2f} s, controller {posted.predicted_s:.2f} s" in h for h in header)
     # the number is the timer's on the posted steps, from home
-    again = program_duration(posted.steps, np.asarray(cell.robot.home), lang=lang, axis_speed=world.robot.v_max)
+    again = program_duration(posted.steps, np.asarray(cell.robot.home), lang=lang, axis_speed=world.robot.v_max,
+                             tcp_of=tcp_of(cell, world.robot))
     assert again == pytest.approx(posted.predicted_s)
     # the reject way: the plan up to the verdict, then the planned reject branch, timed the same way
     k = [m.name for m in plan.moves].index(VERDICT_AFTER)
@@ -241,3 +242,87 @@ def test_a_posted_move_that_would_cut_into_an_obstacle_is_posted_finer(arm_cells
     coarse = program_steps(cell, world, plan, "rapid")
     assert posted.targets > sum(1 for s in flat_steps(coarse)[1:] if hasattr(s, "q"))
     assert 0.95 * plan.duration <= posted.predicted_s <= 1.05 * plan.duration
+
+
+def _matrix(xyz, rot) -> np.ndarray:
+    t = np.eye(4)
+    t[:3, :3], t[:3, 3] = rot.as_matrix(), xyz
+    return t
+
+
+def _corrected_targets(lang: str, texts: dict) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Read from a posted program's text the rack slot (4, 4) and the corrected straight moves'
+    targets (4, 4) in the slot's frame (URScript: in the controller's base frame), in metres."""
+    from scipy.spatial.transform import Rotation as R
+
+    def nums(s):
+        return [float(v) for v in re.findall(r"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?", s)]
+
+    if lang == "urscript":
+        text = next(iter(texts.values()))
+        slot = nums(re.search(r"rack_slot = p\[([^\]]*)\]", text).group(1))
+        moves = [nums(m) for m in re.findall(r"movel\(pose_trans\(rack_corr, p\[([^\]]*)\]\)", text)]
+        return (_matrix(slot[:3], R.from_rotvec(slot[3:])), [_matrix(m[:3], R.from_rotvec(m[3:])) for m in moves])
+    if lang == "rapid":
+        text = next(iter(texts.values()))
+        m = re.search(r'wobjdata wRack := \[FALSE,TRUE,"",\[\[([^\]]*)\],\[([^\]]*)\]\]', text)
+        u = nums(m.group(1)) + nums(m.group(2))
+        names = re.findall(r"MoveL (p\d+), \w+, \w+, tGripper\\WObj:=wRack;", text)
+        pts = {n: nums(v) for n, v in re.findall(r"CONST robtarget (p\d+) := \[\[([^\]]*\],\[[^\]]*)\]", text)}
+
+        def pose(v):  # [mm] and quaternion w, x, y, z
+            return _matrix(np.array(v[:3]) / 1000.0, R.from_quat([v[4], v[5], v[6], v[3]]))
+        return pose(u), [pose(pts[n]) for n in names]
+    src, dat = texts[Path("part.src")], texts[Path("part.dat")]
+
+    def frame(v):  # X, Y, Z [mm], A, B, C [deg] (Z, Y', X'')
+        return _matrix(np.array(v[:3]) / 1000.0, R.from_euler("ZYX", v[3:6], degrees=True))
+    slot = frame(nums(re.search(r"DECL FRAME RACK_SLOT=\{([^}]*)\}", dat).group(1)))
+    after = src[src.index("$BASE = RACK_SLOT : RACK_CORR"):src.index("$BASE = $NULLFRAME", src.index("RACK_CORR\n"))]
+    names = re.findall(r"LIN (XP\d+)", after)
+    pts = {n: nums(v)[:6] for n, v in re.findall(r"DECL E6POS (XP\d+)=\{([^}]*)\}", dat)}
+    return slot, [frame(pts[n]) for n in names]
+
+
+@pytest.mark.parametrize("lang", ["urscript", "rapid", "krl"])
+def test_the_pick_at_the_rack_takes_the_correction_at_run_time(lang, plans, cell, world, arm_cells):
+    """Each language reads the rack camera's correction from the cell's controller (URScript: RTDE input
+    registers; RAPID: a PERS work object's object frame; KRL: a global FRAME) and moves the grasp by it:
+    read back from the program's text and composed as that controller does, a correction of (x, y,
+    yaw) puts each corrected target where the proven corrected pick goes (slot * offset * slot^-1 * target)."""
+    from robotprog.rackpick import SlotOffset
+    from robotprog.urscript import TRANSFORM_BASE_LINK_TO_UR_BASE, MoveL, ReadCorrection
+
+    plan, c, w = _for(lang, "bracket", plans, cell, world, arm_cells)
+    program = Path(LANG_FILES[lang])
+    posted = post_program(lang, program, c, w, plan)
+    steps = flat_steps(list(posted.steps))
+    (read,) = [s for s in steps if isinstance(s, ReadCorrection)]
+    nominal = [np.asarray(s.pose) for s in steps if isinstance(s, MoveL) and s.corrected]
+    assert len(nominal) == 3  # over the blank, down to it, back up
+    texts = posted.texts
+    if lang == "urscript":
+        text = texts[program]
+        assert all(f"read_input_float_register({n})" in text for n in range(3)) and "halt" in text
+        parse_urscript(text)
+    elif lang == "rapid":
+        assert "PERS wobjdata wRack" in texts[program] and rapid_errors(texts[program]) == []
+    else:
+        assert "DECL GLOBAL FRAME RACK_CORR=" in texts[program.with_suffix(".dat")]
+        parse_krl(texts[program], texts[program.with_suffix(".dat")])
+    slot, targets = _corrected_targets(lang, texts)
+    assert len(targets) == 3
+    offset = SlotOffset(0.0021, -0.0013, np.radians(2.4))
+    d = offset.transform(np.eye(4))  # the offset in the slot's own frame
+    to_ur = np.linalg.inv(TRANSFORM_BASE_LINK_TO_UR_BASE)
+    base_slot = np.asarray(read.slot)
+    for target, want in zip(targets, nominal):
+        expected = offset.transform(base_slot) @ want  # base_link, as the cell proves the pick
+        if lang == "urscript":  # rack_corr = slot * offset * slot^-1, then pose_trans(rack_corr, target)
+            got = np.linalg.inv(to_ur) @ (slot @ d @ np.linalg.inv(slot) @ target)
+        else:  # RAPID's uframe * oframe * robtarget; KRL's $BASE = RACK_SLOT : RACK_CORR, then the point
+            got = slot @ d @ target
+        np.testing.assert_allclose(got[:3, 3], expected[:3, 3], atol=2e-6)
+        np.testing.assert_allclose(got[:3, :3], expected[:3, :3], atol=1e-5)
+    # the bounds the program stops beyond: the slot's room and the camera's error, a few degrees
+    assert 0.002 < read.bounds[0] < 0.03 and 0.002 < read.bounds[1] < 0.03 and read.bounds[2] == np.radians(5.0)

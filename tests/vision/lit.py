@@ -39,7 +39,7 @@ SAMPLE_PARTS = ("bracket", "stepped_wall", "plate_bosses", "dome_mould")
 #: long leg (a 48 mm upright far above the tray, a long shadow, an outline whose turn its upright tells)
 #: and a hexagonal boss with a bore on a round-cornered base (a freeform-cornered outline).
 OWN_PARTS = ("l_bracket", "hex_boss")
-#: Height of the cell's camera over the out-tray [m] (factory.simulation.CAMERA_HEIGHT_M).
+#: Height of the cell's camera over the out-tray [m] (factory.cellcameras.CAMERA_HEIGHT_M).
 CAMERA_HEIGHT_M = 0.5
 TRAY_Z = 0.78
 

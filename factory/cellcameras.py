@@ -1,0 +1,122 @@
+"""The cell's two fixed cameras, over the rack and over the out-tray, and the pictures they take of a part.
+
+:func:`cell_stations` puts the cell camera file's camera :data:`CAMERA_HEIGHT_M` above rack slot
+(0, 0) and above out-tray slot (0, 0). :func:`camera_shots` takes, once per planned part, the
+pictures the simulation shows and times its camera steps by: the blank located in the rack, the
+empty slot, the good and the damaged part inspected in the out-tray (:mod:`vision.station` renders
+each and runs the real vision on it); they are kept in the catalog beside the plan.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import trimesh
+
+from factory.catalog import CatalogEntry
+from factory.core.atomic import write_bytes, write_text
+from robotprog.cell import Cell
+from vision.camera import CameraModel
+from vision.render import render_mesh
+from vision.report import bgr_png_bytes
+from vision.station import CameraShot, CameraStation, inspect_shot, locate_shot, station_above
+
+log = logging.getLogger(__name__)
+
+#: Height of the fixed cameras above the rack and the out-tray [m].
+CAMERA_HEIGHT_M = 0.5
+SHOTS_FORMAT = "factory.camera-shots/1"
+
+
+@dataclass(frozen=True)
+class Shot:
+    """One camera picture as logged: annotated PNG, detections, measured processing [s]."""
+
+    png: bytes
+    detections: list[dict[str, Any]]
+    processing_s: float
+    passed: bool
+
+
+@dataclass(frozen=True)
+class Stations:
+    """The cell's two fixed cameras, and where the blank and the finished part lie under them."""
+
+    rack: CameraStation
+    tray: CameraStation
+    rack_xy: tuple[float, float]
+    tray_xy: tuple[float, float]
+
+
+def cell_stations(cell: Cell, camera: CameraModel) -> Stations:
+    """A camera :data:`CAMERA_HEIGHT_M` above rack slot (0, 0) and one above out-tray slot (0, 0)."""
+    rack = cell.rack.pose.xyz
+    tray = cell.out_tray.pose.xyz
+    return Stations(station_above(camera, np.asarray(rack, dtype=float), CAMERA_HEIGHT_M),
+                    station_above(camera, np.asarray(tray, dtype=float), CAMERA_HEIGHT_M),
+                    (float(rack[0]), float(rack[1])), (float(tray[0]), float(tray[1])))
+
+
+def _empty_frame(station: CameraStation) -> np.ndarray:
+    grey = render_mesh(station.rays, station.world_to_camera, np.zeros((0, 3)), np.zeros((0, 3), np.int64),
+                       plane_z=station.plane_z, noise_sigma=2.0, seed=0)
+    canvas = cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
+    cv2.putText(canvas, "NO STOCK FOUND", (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.0, (0, 0, 255), 2, cv2.LINE_AA)
+    return canvas
+
+
+def _shot(shot: CameraShot) -> Shot:
+    # rounded as the cache keeps it, so a fresh and a cached run time their camera steps alike
+    return Shot(bgr_png_bytes(shot.annotated), list(shot.detections), round(float(shot.processing_s), 4),
+                bool(shot.passed))
+
+
+def camera_shots(entry: CatalogEntry, part_mesh: trimesh.Trimesh, stock_mm: np.ndarray, stations: Stations,
+                 camera_sha256: str) -> dict[str, Shot]:
+    """Locate (blank, empty slot) and inspect (good, damaged part) pictures for one part, kept in the
+    catalog beside its plan (``PART.camera.json`` + PNGs) and reused while the camera is unchanged."""
+    stem = Path(entry.summary["part"]).stem
+    folder = entry.summary_path.parent
+    index = folder / f"{stem}.camera.json"
+    names = ("locate", "empty", "inspect", "reject")
+    if index.is_file():
+        try:
+            doc = json.loads(index.read_text(encoding="utf-8"))
+            if doc.get("format") == SHOTS_FORMAT and doc.get("key") == entry.key and \
+                    doc.get("camera_sha256") == camera_sha256:
+                return {n: Shot((folder / doc["shots"][n]["png"]).read_bytes(), doc["shots"][n]["detections"],
+                                doc["shots"][n]["processing_s"], doc["shots"][n]["passed"]) for n in names}
+        except (OSError, ValueError, KeyError, TypeError):
+            log.warning("%s: unreadable camera shots, taken again", index)
+    blank = trimesh.creation.box(stock_mm)
+    blank.apply_translation(np.asarray(stock_mm) / 2)
+    v, f = np.asarray(part_mesh.vertices), np.asarray(part_mesh.faces)
+    rx, ry = stations.rack_xy
+    tx, ty = stations.tray_xy
+    shots = {
+        "locate": _shot(locate_shot(stations.rack, np.asarray(blank.vertices), np.asarray(blank.faces),
+                                    (rx, ry, 0.0), seed=1)),
+        "empty": Shot(bgr_png_bytes(_empty_frame(stations.rack)), [], 0.0, False),
+        "inspect": _shot(inspect_shot(stations.tray, v, f, (tx, ty, 0.0), defect=False, seed=2)),
+        "reject": _shot(inspect_shot(stations.tray, v, f, (tx, ty, 0.0), defect=True, seed=3)),
+    }
+    if not shots["locate"].passed:
+        log.warning("%s: the rack camera did not locate the rendered blank within tolerance", stem)
+    if not shots["inspect"].passed or shots["reject"].passed:
+        log.warning("%s: inspection of the rendered parts disagrees with the truth (good %s, damaged %s)", stem,
+                    "passed" if shots["inspect"].passed else "failed",
+                    "passed" if shots["reject"].passed else "failed")
+    doc = {"format": SHOTS_FORMAT, "key": entry.key, "camera_sha256": camera_sha256, "shots": {}}
+    for n, s in shots.items():
+        png = f"{stem}.{n}.png"
+        write_bytes(folder / png, s.png, overwrite=True)  # a stale cache is replaced
+        doc["shots"][n] = {"png": png, "detections": s.detections, "processing_s": s.processing_s,
+                           "passed": s.passed}
+    write_text(index, json.dumps(doc, indent=2) + "\n", overwrite=True)
+    return shots

@@ -1,0 +1,110 @@
+"""The rack camera closes the loop: each blank off its slot's centre is located, its grasp corrected and
+proven, or the grasp refused with the reason (``factory simulate --blank-offsets SEED``)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import sqlite3
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from cli.main import app
+from factory.mcaplog import read_messages
+from factory.rackloop import RackLoop
+from factory.simulation import run_cell
+from robotprog.cellsim import simulate
+from robotprog.orders import read_orders
+from robotprog.rackpick import CORRECTED_MOVES, BlankScatter
+from tests.cli.expect import simulate_exit
+from tests.foxglovecheck import check_foxglove_decodes
+
+
+def _orders(folder, part, quantity):
+    path = folder / "orders.csv"
+    path.write_text(f"part,quantity,material,priority\n{part},{quantity},aluminium,0\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def looped(block_catalog, tmp_path_factory):
+    """(JSON of the run, MCAP, record): three blanks off their slots' centres, run with a log and a record."""
+    folder, part = block_catalog
+    out = tmp_path_factory.mktemp("rackloop")
+    mcap, db = out / "cell.mcap", out / "cell.sqlite"
+    r = CliRunner().invoke(app, ["simulate", str(_orders(out, part, 3)), "--catalog", str(folder),
+                                 "--blank-offsets", "5", "--mcap", str(mcap), "--db", str(db), "--json", "--quiet"])
+    doc = json.loads(r.stdout)
+    assert r.exit_code == simulate_exit(doc) == 0, r.output
+    return doc, mcap, db
+
+
+def test_every_blank_is_located_and_its_grasp_corrected_and_proven(looped):
+    doc, _, _ = looped
+    picks = doc["rack_picks"]
+    assert doc["summary"]["parts_good"] == 3 and len(picks) == 3
+    for p in picks:
+        off, loc, corr = p["offset"], p["located"], p["correction"]
+        assert p["proven"] and not p["refusal"]
+        # a few mm and degrees off, found to a fraction of a mm, and the grasp moved by what was found
+        assert 0.05 < math.hypot(off["x_mm"], off["y_mm"]) <= 3.0 * math.sqrt(2) and abs(off["yaw_deg"]) <= 3.0
+        assert p["error_mm"] == pytest.approx(math.hypot(loc["x_mm"] - off["x_mm"], loc["y_mm"] - off["y_mm"]),
+                                              abs=1e-3)
+        assert p["error_mm"] < 0.5 and p["error_deg"] < 0.5
+        assert corr == loc
+        assert p["fetch_s"] > doc["parts"][0]["process_s"]["fetch_s"] * 0.5
+    assert len({(p["offset"]["x_mm"], p["offset"]["y_mm"]) for p in picks}) == 3  # each blank stands its own way
+
+
+def test_the_log_and_the_record_carry_each_offset_located_pose_and_correction(looped):
+    doc, mcap, db = looped
+    picks = doc["rack_picks"]
+    logged = [m for _, _, m in read_messages(mcap, ["/cell/rack_pick"])]
+    assert len(logged) == len(picks)
+    for msg, p in zip(logged, picks):
+        (status,) = msg.status
+        values = {kv.key: kv.value for kv in status.values}
+        assert status.name == "cell/rack_pick" and values["proven"] == "yes"
+        for name in ("offset", "located", "correction"):
+            assert float(values[f"{name}_x_mm"]) == pytest.approx(p[name]["x_mm"], abs=1e-3)
+            assert float(values[f"{name}_yaw_deg"]) == pytest.approx(p[name]["yaw_deg"], abs=1e-3)
+    # the corrected fetch is logged as it moved: its joint states end where the plan's retreat ends,
+    # after the camera's picture of the blank where it stood
+    assert sum(1 for _ in read_messages(mcap, ["/camera/image/compressed"])) >= len(picks)
+    with sqlite3.connect(db) as c:
+        said = [m for (m,) in c.execute("SELECT message FROM job_state WHERE event = 'fetched' ORDER BY seq")]
+    assert len(said) == 3 and all("grasp corrected by" in m and "located" in m and "blank offset" in m for m in said)
+    counts = check_foxglove_decodes(mcap)
+    assert counts["/cell/rack_pick"] == len(picks)
+
+
+def test_a_blank_not_located_confidently_stops_the_robot_and_no_grasp_is_attempted(block_catalog, tmp_path):
+    """First the blank is picked as it should be: the corrected moves, timed as the fetch. Then with fingers
+    opened only 0.4 mm beyond the blank, less room than the camera's reported uncertainty, every picture
+    is refused: the robot stops with a stock_not_found fault and the reason, and never reaches for it."""
+    folder, part = block_catalog
+    orders = read_orders(_orders(tmp_path, part, 1))
+    run = run_cell(orders, catalog=folder, scatter=BlankScatter(seed=2))
+    (picked,) = run.picks
+    assert tuple(m.name for m in picked.pick.moves) == CORRECTED_MOVES
+    fetch = next(a for a in run.result.activities if a.action == "fetch")
+    assert fetch.pick == 0 and fetch.end - fetch.start == pytest.approx(picked.fetch_s)
+    planned = next(iter(run.ready.values())).blank.planned
+    np.testing.assert_allclose(picked.pick.moves[-1].q_end, planned.q_lifted, atol=1e-9)
+    fingers = dataclasses.replace(run.cell.gripper.fingers, clearance=0.0004)
+    tight = dataclasses.replace(run.cell, gripper=dataclasses.replace(run.cell.gripper, fingers=fingers))
+    loop = RackLoop(tight, run.world.robot, run.stations, {k: v.blank for k, v in run.ready.items()},
+                    BlankScatter(seed=2))
+    result = simulate(orders, {k: v.process for k, v in run.ready.items()}, picks=loop)
+    assert loop.picks and all(p.pick is None and "located too loosely" in p.refusal for p in loop.picks)
+    assert not [a for a in result.activities if a.resource == "robot" and a.action in ("fetch", "missed_grasp")]
+    faults = [e for e in result.log if e.event == "stock_not_found"]
+    assert len(faults) == len(loop.picks) and all("the open fingers allow 0.20 mm" in e.message for e in faults)
+    assert result.outcomes[0].outcome == "failed"
+    # the first refused picture is of the same blank the run above picked, found where it was found then
+    assert loop.picks[0].offset == run.picks[0].offset
+    np.testing.assert_allclose([loop.picks[0].located.dx, loop.picks[0].located.dy],
+                               [run.picks[0].located.dx, run.picks[0].located.dy], atol=1e-9)
