@@ -31,7 +31,7 @@ from cadcam.flatfinish import WALL_HAIR, FlatFinishOptions, flat_wall_finishing,
 from cadcam.model import CuttingData, Job, Operation, Setup, Tool
 from cadcam.relief import Boundary, keep_outside
 from cadcam.rest import safe_rapids
-from cadcam.roughing import RoughingOptions, zlevel_roughing
+from cadcam.roughing import RoughingOptions, part_shadows, zlevel_roughing
 from cadcam.shank_clearance import upper_raster
 from cadcam.toolfit import removal_rate, tool_fits
 from cadcam.tools import ToolLibrary
@@ -504,7 +504,7 @@ class _Planning:
         # Every later tool keeps off the wall of uncut stock the roughing tool leaves at the boundary.
         within = boundary.after_roughing(rough_tool.radius) if boundary is not None else None
         # and every tool, shank and holder off the jaws (None where none can reach them)
-        keepout = jaw_keepout(setup, library.tools)
+        keepout = jaw_keepout(setup, library.tools, shadows=lambda heights: part_shadows(part, heights))
         rough_within, within = within_both(rough_within, keepout), within_both(within, keepout)
         return cls(part, setup, library, options, progress, boundary, triangles, rough_tool, finish_tool,
                    rough_cutting, finish_cutting, faces, rough_within, within,
@@ -697,7 +697,9 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
     depth = float(setup.stock_max[2] - setup.floor_z)
     skin = _skin_cell(options.roughing.allowance)
     stale = False  # an operation was appended since ``stock`` was modelled
-    for tool in [flat] + [t for t in rest_tools(library, flat, depth) if t.length >= depth]:
+    # A narrower tool shorter than the stock is deep still finishes what lies within its stick-out (its
+    # levels end there, :func:`cadcam.roughing.zlevel_roughing`): a shallow slot only a small end mill enters.
+    for tool in [flat] + rest_tools(library, flat, depth):
         if stale:
             stock, stale = plan.model(operations, stock.grid.cell), False
         # (A skin only the finer model below shows, with nothing else left beside it, is no
