@@ -9,7 +9,10 @@ one expected refused that plans.
 
     .venv/bin/python benchmarks/gallery.py [--parts a,b] [--mesh FILE ...] [--jobs 2] [--json out.json]
 
-``--mesh`` adds mesh files from elsewhere (public CAM test parts), each expected to plan. Prints one JSON
+``--mesh`` adds mesh files from elsewhere (public CAM test parts), each expected to plan. The public ones
+judged so far are OpenCAMLib's test meshes (aewallin/opencamlib @ 95b036fe28ce6d77c97b98e5fbc337904ae49560,
+``stl/``: sphere_on_plate.stl, sphere_cutout.stl, wheel_in_box.stl, failedinpycam.stl; LGPL-2.1, fetched,
+not kept here). Prints one JSON
 line per part as it finishes (so a long run on a loaded machine leaves what it found), then a Markdown table.
 """
 
