@@ -697,9 +697,7 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
     depth = float(setup.stock_max[2] - setup.floor_z)
     skin = _skin_cell(options.roughing.allowance)
     stale = False  # an operation was appended since ``stock`` was modelled
-    # A narrower tool shorter than the stock is deep still finishes what lies within its stick-out (its
-    # levels end there, :func:`cadcam.roughing.zlevel_roughing`): a shallow slot only a small end mill enters.
-    for tool in [flat] + rest_tools(library, flat, depth):
+    for tool in [flat] + [t for t in rest_tools(library, flat, depth) if t.length >= depth]:
         if stale:
             stock, stale = plan.model(operations, stock.grid.cell), False
         # (A skin only the finer model below shows, with nothing else left beside it, is no
