@@ -131,7 +131,7 @@ def main() -> int:
               f"{r.get('verify_ok', '')} | {'; '.join(left) or ('none' if 'left' in r else '')} | "
               f"{'; '.join(r.get('unreached', [])) or ('none' if 'left' in r else '')} | "
               f"{_deepest(r.get('engagement', {}))} | "
-              f"{'ok' if all(x == 'ok' for x in r.get('rs274', ['-'])) else 'FAIL'} | {note} |")
+              f"{'' if 'rs274' not in r else 'ok' if all(x == 'ok' for x in r['rs274']) else 'FAIL'} | {note} |")
     short = [r["part"] for r in rows if r["shortfall"]]
     print(f"\n{len(rows) - len(short)} of {len(rows)} parts as a machinist expects; short: {', '.join(short) or 'none'}")
     if args.json:
