@@ -7,9 +7,13 @@ per tool, and LinuxCNC's `rs274` on every program with the job's tool table (``P
 ``expect``-ed to plan that is refused, fails verify, or whose program rs274 refuses, is a shortfall; so is
 one expected refused that plans.
 
-    .venv/bin/python benchmarks/gallery.py [--parts a,b] [--jobs 2] [--json out.json]
+    .venv/bin/python benchmarks/gallery.py [--parts a,b] [--mesh FILE ...] [--jobs 2] [--json out.json]
 
-Prints a Markdown table, then one JSON line per part.
+``--mesh`` adds mesh files from elsewhere (public CAM test parts), each expected to plan. The public ones
+judged so far are OpenCAMLib's test meshes (aewallin/opencamlib @ 95b036fe28ce6d77c97b98e5fbc337904ae49560,
+``stl/``: sphere_on_plate.stl, sphere_cutout.stl, wheel_in_box.stl, failedinpycam.stl; LGPL-2.1, fetched,
+not kept here). Prints one JSON
+line per part as it finishes (so a long run on a loaded machine leaves what it found), then a Markdown table.
 """
 
 from __future__ import annotations
@@ -21,8 +25,10 @@ import subprocess
 import sys
 import tempfile
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
+
+import trimesh
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -54,10 +60,15 @@ def _deepest(engagement: dict[str, dict[str, list]]) -> str:
                      for op, tools in engagement.items())
 
 
-def judge(part: GalleryPart, work: Path) -> dict[str, object]:
+def _external(path: Path) -> GalleryPart:
+    """A mesh file from elsewhere as a gallery part a machinist expects to plan."""
+    return GalleryPart(path.stem, lambda: trimesh.load(path, force="mesh"), "plans", f"public mesh {path.name}")
+
+
+def judge(part: GalleryPart, work: Path, source: Path | None = None) -> dict[str, object]:
     folder = work / part.name
     folder.mkdir()
-    stl = part.write(folder)
+    stl = part.write(folder) if source is None else source
     t0 = time.perf_counter()
     done = subprocess.run([sys.executable, "-c", "from cli.main import main; main()", "plan", str(stl),
                            "-o", str(folder / "out"), "--quiet", "--no-robot"],
@@ -95,12 +106,21 @@ def judge(part: GalleryPart, work: Path) -> dict[str, object]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--parts", help="comma-separated part names (default: the whole gallery)")
+    ap.add_argument("--mesh", type=Path, nargs="*", default=[], help="mesh files from elsewhere, expected to plan")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--json", type=Path, help="write the rows here too")
     args = ap.parse_args()
-    parts = [BY_NAME[n] for n in args.parts.split(",")] if args.parts else list(PARTS)
+    parts: list[tuple[GalleryPart, Path | None]] = [(BY_NAME[n], None) for n in args.parts.split(",")] \
+        if args.parts else [(p, None) for p in PARTS] if not args.mesh else []
+    parts += [(_external(m), m.resolve()) for m in args.mesh]
     with tempfile.TemporaryDirectory(prefix="gallery-") as tmp, ThreadPoolExecutor(args.jobs) as pool:
-        rows = list(pool.map(lambda p: judge(p, Path(tmp)), parts))
+        todo = {pool.submit(judge, p, Path(tmp), src): p.name for p, src in parts}
+        done = {}
+        for f in as_completed(todo):
+            done[todo[f]] = f.result()
+            print(json.dumps(done[todo[f]]), flush=True)
+        rows = [done[p.name] for p, _ in parts]
+    print()
     print("| part | expect | exit | plan s | cycle op1/op2 min | verify | stock left (verify) | unreached (plan) "
           "| deepest engagement mm / axial limit | rs274 | note |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
@@ -111,11 +131,9 @@ def main() -> int:
               f"{r.get('verify_ok', '')} | {'; '.join(left) or ('none' if 'left' in r else '')} | "
               f"{'; '.join(r.get('unreached', [])) or ('none' if 'left' in r else '')} | "
               f"{_deepest(r.get('engagement', {}))} | "
-              f"{'ok' if all(x == 'ok' for x in r.get('rs274', ['-'])) else 'FAIL'} | {note} |")
+              f"{'' if 'rs274' not in r else 'ok' if all(x == 'ok' for x in r['rs274']) else 'FAIL'} | {note} |")
     short = [r["part"] for r in rows if r["shortfall"]]
     print(f"\n{len(rows) - len(short)} of {len(rows)} parts as a machinist expects; short: {', '.join(short) or 'none'}")
-    for r in rows:
-        print(json.dumps(r))
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1) + "\n")
     return 0

@@ -32,7 +32,7 @@ from cadcam.flatfinish import WALL_HAIR, FlatFinishOptions, flat_wall_finishing,
 from cadcam.model import CuttingData, Job, Operation, Setup, Tool
 from cadcam.relief import Boundary, keep_outside
 from cadcam.rest import safe_rapids
-from cadcam.roughing import RoughingOptions, zlevel_roughing
+from cadcam.roughing import RoughingOptions, part_shadows, zlevel_roughing
 from cadcam.shank_clearance import upper_raster
 from cadcam.toolfit import removal_rate, tool_fits
 from cadcam.tools import ToolLibrary
@@ -509,7 +509,7 @@ class _Planning:
         # Every later tool keeps off the wall of uncut stock the roughing tool leaves at the boundary.
         within = boundary.after_roughing(rough_tool.radius) if boundary is not None else None
         # and every tool, shank and holder off the jaws (None where none can reach them)
-        keepout = jaw_keepout(setup, library.tools)
+        keepout = jaw_keepout(setup, library.tools, shadows=lambda heights: part_shadows(part, heights))
         rough_within, within = within_both(rough_within, keepout), within_both(within, keepout)
         return cls(part, setup, library, options, progress, boundary, triangles, rough_tool, finish_tool,
                    rough_cutting, finish_cutting, faces, rough_within, within,

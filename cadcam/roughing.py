@@ -67,7 +67,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -282,8 +282,8 @@ def _clip_projections(tri: np.ndarray, z: float) -> np.ndarray:
     return polys[shapely.area(polys) > 1e-12]
 
 
-def _shadows(part: trimesh.Trimesh, heights: list[float]) -> dict[float, BaseGeometry]:
-    """XY shadow of the part's material at or above each height.
+def part_shadows(part: trimesh.Trimesh, heights: Sequence[float]) -> dict[float, BaseGeometry]:
+    """XY shadow of the part's material at or above each height [mm]: where a tool's tip cannot come lower.
 
     Computed top down, each height adding only the triangles reaching into the slab
     below the previous one, so many heights cost little more than one.
@@ -841,7 +841,7 @@ def zlevel_roughing(
     if rest is not None:
         levels = levels[levels >= float(setup.stock_max[2]) - tool.length - 1e-9]
     heights = [zq for z in levels for zq, _ in _forbidden_terms(float(z), p)]
-    shadow = _shadows(part, heights)
+    shadow = part_shadows(part, heights)
 
     rect_xy, rect = _axis_rect(setup, p, within)
 

@@ -156,41 +156,66 @@ def fixture_contacts(start: np.ndarray, end: np.ndarray, tool: np.ndarray, tools
     return FixtureContacts(depth, which, where)
 
 
-def jaw_keepout(setup: Setup, tools: Sequence[Tool]) -> Callable[[float], BaseGeometry] | None:
+#: ``shadows(heights)``: for each height [mm], the XY area over which the part's material reaches that
+#: height or higher (:func:`cadcam.roughing.part_shadows`).
+Shadows = Callable[[Sequence[float]], Mapping[float, BaseGeometry]]
+
+
+def _under_boxes(cylinders: Sequence[tuple[float, float]], point_length: float, boxes: Sequence[FixtureBox],
+                 floor: float) -> tuple[tuple[int, float, float], ...]:
+    """``(box index, keep-off distance, height)`` [mm] for each of a tool's ``cylinders`` whose bottom can
+    come below a box's top at the ``floor``: the axis keeps the cylinder's radius plus
+    :data:`KEEPOUT_CLEARANCE_MM` off the box, except over the part where its material reaches ``height``,
+    where the tip (never below the part's top at the axis, less a drill's ``point_length``) holds the
+    cylinder's bottom that clearance above the box's top."""
+    return tuple((k, r + KEEPOUT_CLEARANCE_MM, float(b.hi[2]) - h + KEEPOUT_CLEARANCE_MM + point_length)
+                 for h, r in cylinders for k, b in enumerate(boxes) if b.hi[2] > floor + h + 1e-9)
+
+
+def jaw_keepout(setup: Setup, tools: Sequence[Tool], shadows: Shadows | None = None
+                ) -> Callable[[float], BaseGeometry] | None:
     """Where the planner may put a tool's axis so that no cutter, shank or holder enters the jaws or
     parallels (``setup.jaws``), as ``within(radius)`` for every operation's machining region.
 
-    Taken as if the tool were at the setup's floor (``setup.floor_z``, the lowest any operation
-    feeds) everywhere: a cylinder of the tool (:func:`tool_cylinders`) whose bottom can come below
-    a box's top keeps its axis its radius plus :data:`KEEPOUT_CLEARANCE_MM` off the box's XY
-    rectangle. The stock left in that shadow stays for the stock model, which reports it as
-    unreached (op 2 takes what lies in its reach). ``tools``: the tools the plan may use, matched by
-    radius [mm] (a radius none of them has keeps off by the cutter alone).
+    A cylinder of a tool (:func:`tool_cylinders`) whose bottom can come below a box's top, with the tip
+    at the setup's floor (``setup.floor_z``, the lowest any operation feeds), keeps its axis its radius
+    plus :data:`KEEPOUT_CLEARANCE_MM` off the box's XY rectangle, except where the tool cannot get that
+    low. A tool's tip never comes below the part's highest material on its axis (the body above the
+    tip would be in the part: a gouge), less a drill's point: over the part's ``shadows`` at the height
+    that holds the cylinder's bottom :data:`KEEPOUT_CLEARANCE_MM` above the box's top, the axis may go
+    (a shallow hole or pocket beside a jaw whose top lies well below it). Without ``shadows`` every tool
+    is taken at the floor everywhere. The stock left in the keep-out stays for the stock model, which
+    reports it as unreached (op 2 takes what lies in its reach). ``tools``: the tools the plan may use,
+    matched by radius [mm] (a radius none of them has keeps off by the cutter alone). Each radius's region
+    is computed once.
 
     Returns None when no tool can reach any box (the jaws' top under the floor, the usual op 1):
     the regions are then the operations' own.
     """
     boxes = setup.jaws or ()
     floor = float(setup.floor_z)
-
-    def reach(cylinders) -> tuple[float, ...]:
-        """How far off each box the axis stays [mm], 0 for a box none of ``cylinders`` gets under."""
-        return tuple(max((r + KEEPOUT_CLEARANCE_MM for h, r in cylinders if b.hi[2] > floor + h + 1e-9), default=0.0)
-                     for b in boxes)
-
     if not any(b.hi[2] > floor + 1e-9 for b in boxes):  # every cylinder's bottom is at the tip or above
         return None
-    by_tool = [(float(t.radius), reach(tool_cylinders(t))) for t in tools]
+    by_tool = [(float(t.radius), _under_boxes(tool_cylinders(t), t.point_length, boxes, floor)) for t in tools]
+    heights = sorted({z for _, under in by_tool for _, _, z in under})
+    high = shadows(heights) if shadows is not None and heights else {}
     lo, hi = np.asarray(setup.stock_min, dtype=np.float64), np.asarray(setup.stock_max, dtype=np.float64)
     grow = float(np.ptp([lo[:2], hi[:2]], axis=0).max())  # beyond any tool's reach over the stock edge
     everywhere = rectangle(lo[0] - grow, lo[1] - grow, hi[0] + grow, hi[1] + grow)
+    regions: dict[float, BaseGeometry] = {}
 
     def within(radius: float) -> BaseGeometry:
-        mine = [ds for r, ds in by_tool if abs(r - radius) < 1e-9] or [reach(((0.0, radius),))]
-        off = [max(d[k] for d in mine) for k in range(len(boxes))]
-        shadow = [rectangle(b.lo[0], b.lo[1], b.hi[0], b.hi[1]).buffer(d, quad_segs=16)
-                  for b, d in zip(boxes, off) if d > 0]
-        return everywhere.difference(shapely.unary_union(shadow)) if shadow else everywhere
+        key = round(float(radius), 9)
+        if key not in regions:
+            mine = [u for r, u in by_tool if abs(r - radius) < 1e-9] or [
+                _under_boxes(((0.0, float(radius)),), 0.0, boxes, floor)]
+            zones = []
+            for k, off, z in sorted({c for under in mine for c in under}):
+                b = boxes[k]
+                zone = rectangle(b.lo[0], b.lo[1], b.hi[0], b.hi[1]).buffer(off, quad_segs=16)
+                zones.append(zone.difference(high[z]) if z in high else zone)
+            regions[key] = everywhere.difference(shapely.unary_union(zones)) if zones else everywhere
+        return regions[key]
 
     return within
 

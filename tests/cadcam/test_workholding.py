@@ -172,7 +172,7 @@ def test_without_the_keepout_the_same_plan_runs_into_the_jaws(monkeypatch):
     import cadcam.plan
     from cadcam.tools import load_tool_library
 
-    monkeypatch.setattr(cadcam.plan, "jaw_keepout", lambda setup, tools: None)
+    monkeypatch.setattr(cadcam.plan, "jaw_keepout", lambda setup, tools, shadows=None: None)
     with pytest.raises(ToolpathError, match="jaw .* would hit the vise"):
         cadcam.plan.plan_job(EDGE_PART, HIGH_SETUP, load_tool_library(), part_name="edge",
                              options=cadcam.plan.PlanOptions(by_faces=False))
@@ -248,3 +248,50 @@ def test_the_upper_raster_beside_the_jaws_keeps_out_of_them():
     job = _plan_clear_of_the_jaws(TALL_EDGE_PART, TALL_SETUP, PlanOptions(by_faces=False, waterline=False))
     assert "finish raster upper" in [op.name for op in job.operations]
     assert job.parameters["unreached"]
+
+
+# Jaws gripping 15 mm of a 30 mm stock, their top 10 mm under the part's top; the part fills the stock's Y and
+# is gripped on it. A rebate 4 mm wide runs along the front jaw, 5 mm deep, and a 3.3 mm hole with a drill
+# point's cone for its bottom lies 2 mm from the back jaw, its tip 7 mm under the top: both far above the
+# jaws' top, though within a tool's radius of them.
+DEEP_MIN, DEEP_MAX = np.array([0.0, 0.0, -30.0]), np.array([40.0, 20.0, 0.0])
+DEEP_SETUP = Setup(stock_min=DEEP_MIN, stock_max=DEEP_MAX, transform_mesh_to_work=np.eye(4), floor_z=-25.5,
+                   jaws=dataclasses.replace(HIGH_JAWS, jaw_height=50.0).place(DEEP_MIN, DEEP_MAX))
+
+
+def _rebated_part() -> trimesh.Trimesh:
+    import manifold3d as mf
+
+    from samples.make_samples import SEGMENTS, box, to_trimesh
+
+    r, tip = 1.65, 1.65 / np.tan(np.radians(59.0))  # a 118 degree drill's point under the 3.3 mm bore
+    hole = (mf.Manifold.cylinder(6.0, r, r, circular_segments=SEGMENTS).translate((20.0, 18.0, -6.0))
+            + mf.Manifold.cylinder(tip, 0.0, r, circular_segments=SEGMENTS).translate((20.0, 18.0, -6.0 - tip)))
+    return to_trimesh(box(5, 0, -25, 35, 20, -1) - box(4, -1, -6, 36, 4, 0) - hole)
+
+
+def test_a_tool_that_stays_above_the_jaws_top_beside_them_is_let_near_them():
+    """The keep-out counts how deep each tool really goes near a jaw: no deeper than the part's top on its
+    axis. The rebate along the front jaw and the hole 2 mm from the back jaw are far above the jaws' top:
+    both are cut (every move still swept clear of the jaws), where taking every tool at the floor leaves them."""
+    import cadcam.plan
+    from cadcam.plan import PlanOptions
+
+    part = _rebated_part()
+    job = _plan_clear_of_the_jaws(part, DEEP_SETUP, PlanOptions())
+    holes = job.parameters["holes"]
+    assert [(round(h["x"]), round(h["y"])) for h in holes["drilled"]] == [(20, 18)], holes
+    # left: only the stock beside the part's ends, down to the floor in the jaws' shadow, none over the part
+    assert all(abs(u["x"] - 20.0) - u["size_x"] / 2 >= 15.0 - 1e-6 for u in job.parameters["unreached"]), \
+        job.parameters["unreached"]
+    # the rebate's floor runs right up to the front jaw: its finishing tool overhangs the stock's face there
+    finishing = [op for op in job.operations if op.kind == "finishing"]
+    assert min(float(op.points[op.points[:, 2] < -5.0, 1].min()) for op in finishing if (op.points[:, 2] < -5.0).any()) <= 0.0
+
+    # every tool taken at the floor everywhere: the hole is left, the rebate's strip at the jaw reported
+    floor_only = lambda setup, tools, shadows=None: jaw_keepout(setup, tools)  # noqa: E731
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(cadcam.plan, "jaw_keepout", floor_only)
+        old = _plan_clear_of_the_jaws(part, DEEP_SETUP, PlanOptions()).parameters
+    assert [(round(h["x"]), round(h["y"])) for h in old["holes"]["left"]] == [(20, 18)]
+    assert any(u["y"] < 4.0 and abs(u["x"] - 20.0) < 15.0 for u in old["unreached"]), old["unreached"]
