@@ -177,7 +177,7 @@ def adaptive_roughing(
     if within is None:
         p = roughing._resolve(options, tool, setup)
         levels = roughing._levels(part, setup, p)
-        shadow = roughing._shadows(part, [zq for z in levels for zq, _ in roughing._forbidden_terms(float(z), p)])
+        shadow = roughing.part_shadows(part, [zq for z in levels for zq, _ in roughing._forbidden_terms(float(z), p)])
         _, rect = roughing._axis_rect(setup, p, None)
         spaces = tuple(roughing._level_space(float(z), rect, shadow, p) for z in levels)
         geometry = BandGeometry(
