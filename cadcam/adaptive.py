@@ -224,14 +224,6 @@ class BandGeometry:
     lead_gap: float
 
 
-def _polygons(geom: BaseGeometry) -> list[Polygon]:
-    if geom.is_empty:
-        return []
-    if isinstance(geom, Polygon):
-        return [geom]
-    return [g for g in getattr(geom, "geoms", []) if isinstance(g, Polygon) and not g.is_empty]
-
-
 def plan_deep_cuts(g: BandGeometry, tool: Tool, cutting: CuttingData, max_feed: float,
                    levels_length: Callable[[Polygon], float], options: AdaptiveOptions = AdaptiveOptions()
                    ) -> DeepPlan:
@@ -241,7 +233,7 @@ def plan_deep_cuts(g: BandGeometry, tool: Tool, cutting: CuttingData, max_feed: 
     for the time comparison (at the tool's feed, against the deep cut's at its thinned feed)."""
     n = len(g.levels)
     max_depth = min(options.axial_depth * tool.diameter, float(tool.flute_length))
-    comps = [[c for c in _polygons(s) if c.area > _SLIVER] for s in g.spaces]
+    comps = [[c for c in roughing._polygons(s) if c.area > _SLIVER] for s in g.spaces]
     deep: list[list[Polygon]] = [[] for _ in range(n)]  # per level: regions taken deep
     shallow: list[list[Polygon]] = [[] for _ in range(n)]  # per level: regions left to the levels
     cuts: list[DeepCut] = []
