@@ -17,7 +17,11 @@ machining over the stock earlier operations left, with:
   height between two levels;
 * **where**: only within reach of the flat and wall faces (:mod:`cadcam.faces`), and only
   where the stock still holds more than ``rest_above`` over the part. Freeform surfaces are
-  left to the ball end mill, and what this tool cannot reach to a narrower one.
+  left to the ball end mill, and what this tool cannot reach to a narrower one;
+* **not** into what no tool reaches: with an engagement limit, no level comes nearer the stock
+  left deeper than the limit over the part (a sharp inside corner the narrowest tool could not
+  rest-rough, which the planner reports unreached) than it may cut of it. The flank pass would
+  otherwise take that sliver's whole height at once.
 
 The operation's kind is ``finishing``: ``factory verify`` holds it to the finishing depth.
 """
@@ -25,6 +29,7 @@ The operation's kind is ``finishing``: ``factory verify`` holds it to the finish
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -32,11 +37,14 @@ import numpy as np
 import trimesh
 from shapely.geometry.base import BaseGeometry
 
+from cadcam import roughing
 from cadcam.faces import FLAT, WALL, FaceClasses
+from cadcam.finishing import EngagementLimit
+from cadcam.gridregion import grown_cells_region
 from cadcam.model import CuttingData, Operation, Setup, Tool
-from cadcam.stock import excess
+from cadcam.rest import deep_stock
 from cadcam.roughing import RoughingOptions, zlevel_roughing
-from cadcam.stock import Simulation
+from cadcam.stock import Simulation, excess
 from factory.core.errors import ToolError
 
 
@@ -122,6 +130,8 @@ def flat_wall_finishing(
     cut_before: Callable[[float], BaseGeometry] | None = None,
     stepdown: float | None = None,
     within: Callable[[float], BaseGeometry] | None = None,
+    limit: EngagementLimit | None = None,
+    unreached_in: Simulation | None = None,
 ) -> Operation:
     """Floors at their heights and walls by the flank, with the flat end mill ``tool``.
 
@@ -148,6 +158,13 @@ def flat_wall_finishing(
     within : callable, optional
         ``within(radius)``: where the tool's axis may go (the jaws' keep-out,
         :func:`cadcam.workholding.jaw_keepout`); what lies outside it is left.
+    limit : EngagementLimit, optional
+        With it, no level's tool comes within reach of the stock that lies more than ``limit.depth``
+        [mm] over the part (:func:`cadcam.rest.deep_stock`) and reaches more than that above the level:
+        what no tool reaches (:func:`cadcam.stock.unreached`, which the planner warns of) is left alone.
+    unreached_in : Simulation, optional
+        The stock model that deep stock is read from; default ``stock``. The planner gives the model it
+        reported the unreached stock from, so that what it says finishing leaves alone is what it leaves.
 
     Returns
     -------
@@ -172,6 +189,42 @@ def flat_wall_finishing(
     if not left.any():
         return Operation(f"finish flats+walls T{tool.number}", "finishing", tool, cutting, np.zeros((0, 3)),
                          np.zeros(0), options.allowance)
+    keep_off = None
+    if limit is not None:
+        deep = deep_stock(stock if unreached_in is None else unreached_in, limit.depth, limit.allowance,
+                          limit.grid_slack)
+        keep_off = _keep_off(deep, part, setup, tool, rough, limit.depth)
     op = zlevel_roughing(part, setup, tool, cutting, rough, progress=progress, rest=_target(stock, left),
-                         rest_above=0.0, air=stock, cut_before=cut_before, within=within)
+                         rest_above=0.0, air=stock, cut_before=cut_before, within=within, exclude=keep_off)
     return dataclasses.replace(op, name=f"finish flats+walls T{tool.number}", kind="finishing")
+
+
+def _keep_off(deep: Simulation, part: trimesh.Trimesh, setup: Setup, tool: Tool, options: RoughingOptions,
+              depth: float) -> Callable[[int], BaseGeometry | None] | None:
+    """``exclude(i)`` for :func:`cadcam.roughing.zlevel_roughing`: the tool axis positions [mm] where its
+    level ``i`` would cut more than ``depth`` [mm] of the ``deep`` stock; None when there is none.
+
+    A grid point's stock may reach anywhere within a cell diagonal of it (as
+    :func:`cadcam.stock.clear_height` takes it), so the axis keeps the tool radius and a diagonal off.
+    The levels are the ones z-level clearing computes (rest machining keeps a prefix of them), as
+    :mod:`cadcam.adaptive` reads them too.
+    """
+    present = np.isfinite(deep.stock_top)
+    if not present.any():
+        return None
+    levels = roughing._levels(part, setup, roughing._resolve(options, tool, setup))
+    grow = tool.radius + deep.grid.cell * math.sqrt(2.0)
+    regions: dict[bytes, BaseGeometry] = {}  # levels under the same deep stock share a region
+
+    def excluded(index: int) -> BaseGeometry | None:
+        if not 0 <= index < len(levels):
+            return None
+        mask = present & (deep.stock_top > float(levels[index]) + depth)
+        if not mask.any():
+            return None
+        key = np.packbits(mask).tobytes()
+        if key not in regions:
+            regions[key] = grown_cells_region(mask, deep.grid, grow)
+        return regions[key]
+
+    return excluded

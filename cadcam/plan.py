@@ -714,6 +714,8 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
     ff = options.flat_finish
     depth = float(setup.stock_max[2] - setup.floor_z)
     skin = _skin_cell(options.roughing.allowance)
+    # What no tool reaches (:func:`_unreached` reads this same model): every flat end mill leaves it alone.
+    limit, unreached_in = EngagementLimit(depth=options.finish_engagement, allowance=options.roughing.allowance), stock
     stale = False  # an operation was appended since ``stock`` was modelled
     for tool in [flat] + [t for t in rest_tools(library, flat, depth) if t.length >= depth]:
         if stale:
@@ -736,7 +738,8 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
         op = plan.timed(stage, lambda: flat_wall_finishing(plan.part, setup, tool, cutting, faces, stock,
                                                            options.flat_finish, progress=plan.stage_progress(stage),
                                                            cut_before=plan.cut_before, stepdown=stepdown,
-                                                           within=plan.keepout))
+                                                           within=plan.keepout, limit=limit,
+                                                           unreached_in=unreached_in))
         if len(op.points) > 1:
             operations.append(op)
             stale = True

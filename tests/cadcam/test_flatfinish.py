@@ -13,6 +13,7 @@ from cadcam.finishing import FinishingOptions
 from cadcam.gcode import parse_gcode
 from cadcam.plan import PlanOptions, plan_job
 from cadcam.post import PostOptions, post_process
+from cadcam.stock import SHARP_CORNER
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
 from cadcam.verify import VerifyOptions, finishing_moves, simulate
@@ -22,9 +23,9 @@ LIBRARY = load_tool_library()
 FAST = PlanOptions(finishing=FinishingOptions(scallop=0.05))
 
 
-def _plan_and_verify(body: manifold3d.Manifold, options: PlanOptions = FAST, cell: float = 0.1):
+def _plan_and_verify(body: manifold3d.Manifold, options: PlanOptions = FAST, cell: float = 0.1, library=LIBRARY):
     setup, part = make_setup(manifold_to_trimesh(body))
-    job = plan_job(part, setup, LIBRARY, part_name="p", options=options).job
+    job = plan_job(part, setup, library, part_name="p", options=options).job
     text = post_process(job, PostOptions()).text
     moves = parse_gcode(text)
     sheet_ops = [{"kind": op.kind, "tool": op.tool.number} for op in job.operations]
@@ -185,3 +186,31 @@ def test_a_wall_taller_than_the_flutes_is_finished_in_steps_even_where_the_model
     X, Y = np.meshgrid(g.x0 + g.cell * np.arange(g.nx), g.y0 + g.cell * np.arange(g.ny))
     slot = (X > 12.233 + 1.0) & (X < 22.233 - 1.0) & (Y > 13.39) & (Y < 17.39)
     assert sim.remaining[slot].max() <= 0.02, float(sim.remaining[slot].max())
+
+
+def test_a_sharp_inside_corner_no_tool_reaches_is_left_alone_not_taken_whole_by_the_flank():
+    # face_recognition_sample_part's fault (issue 29), small: a sharp inside corner between a 20 mm wall and
+    # an 8 mm ledge, with no end mill narrower than the 10 mm one. Rest roughing leaves the corner's curved
+    # triangle more than the finishing engagement over the part; the planner reports it unreached ("finishing
+    # leaves it alone"), yet the flats-and-walls pass at the floor took its whole height at once (verify: T2
+    # buried 8.51 mm, limit 1 mm).
+    only_10 = dataclasses.replace(LIBRARY, tools=(LIBRARY.tool(2), LIBRARY.tool(3)), feed_factors=())
+    body = manifold3d.Manifold.cube((30.0, 8.0, 20.0)) + manifold3d.Manifold.cube((12.0, 18.0, 8.0)).translate(
+        (18.0, 8.0, 0.0))
+    job, setup, sim, report = _plan_and_verify(body, cell=0.2, library=only_10)
+    assert ("finishing", 2) in [(op.kind, op.tool.number) for op in job.operations]
+    assert report.ok, [f.message for f in report.faults]
+    corner = np.array([18.0, 8.0]) + 2.0  # make_setup's 2 mm margin
+    (unreached,) = job.parameters["unreached"]
+    assert np.hypot(unreached["x"] - corner[0], unreached["y"] - corner[1]) < 3.0
+    # left, and said to be the corner a round tool cannot enter: verify's region holds the planner's
+    (left,) = report.left
+    assert left.why == SHARP_CORNER
+    assert abs(left.x - unreached["x"]) <= (left.size_x - unreached["size_x"]) / 2 + 0.2
+    assert abs(left.y - unreached["y"]) <= (left.size_y - unreached["size_y"]) / 2 + 0.2
+    # the walls and the ledge are finished up to a tool radius of the corner
+    g = sim.grid
+    X, Y = np.meshgrid(g.x0 + g.cell * np.arange(g.nx), g.y0 + g.cell * np.arange(g.ny))
+    rem = sim.remaining
+    away = np.isfinite(rem) & (np.hypot(X - corner[0], Y - corner[1]) > 5.0)
+    assert rem[away].max() <= 0.02, float(rem[away].max())
