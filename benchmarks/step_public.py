@@ -1,6 +1,6 @@
 """Public STEP parts through factory's intake: what each gives and how long it takes.
 
-    python benchmarks/step_public.py DIR [--json] [--plan OUT] [--generated]
+    python benchmarks/step_public.py DIR [--json] [--plan OUT] [--generated] [--build123d CHECKOUT]
 
 The parts are not in this repository (their licences do not allow it, or they are too large);
 fetch them into DIR first, from these commits (paths within each repository):
@@ -12,13 +12,15 @@ fetch them into DIR first, from these commits (paths within each repository):
 | red_cube_blue_cylinder.step | CadQuery/cadquery @ d6729f51bf1ed183f110aacdbc6238e4a5110c96, tests/testdata/ | Apache-2.0: kept in tests/data/step |
 | nist_ctc_01..05, nist_ftc_06..11 (``_asme1_r?.stp``, geometry only) | NIST MBE PMI test models, as mirrored in tsun7170/STEPswiftcode @ 1da6b4088bfc834b4fb9b70c1a6e90a7bacf25ac, swiftP21read/TestCases/NIST_CTC_STEP_PMI/ (NIST: pages.nist.gov/CAD-PMI-Testing/models.html) | US Government work: public domain (17 U.S.C. 105) |
 | screw.step, linkrods.step | OpenCASCADE's sample data (Debian package occt-misc: /usr/share/opencascade/data/step/) | LGPL-2.1 with the OCCT exception |
+| pillow_block.step, ttt-ppp01NN.step (:data:`BUILD123D_EXAMPLES`) | gumyr/build123d @ fdd4dc610b3bb121f656b79fce438db322291aa1: its example scripts run and their part exported (``--build123d CHECKOUT``) | Apache-2.0 (the Too Tall Toby parts are modelled from that site's published practice drawings) |
 
 For each ``*.step``/``*.stp`` in DIR (every solid of a file of several, as ``--body N``): the
 file's unit, B-rep faces, the chordal deviation [mm] and the triangles it gave (and whether the
 tessellation was coarsened to stay within ``cadcam.step.MAX_TRIANGLES``), the features
 recognised, and the wall and process CPU time of :func:`cadcam.mesh.load_part` [s], or the
 one-line refusal. ``--generated`` first writes the tests' build123d parts
-(``tests/cadcam/stepparts.py``) into DIR.
+(``tests/cadcam/stepparts.py``) into DIR; ``--build123d CHECKOUT`` the parts of build123d's examples
+(:data:`BUILD123D_EXAMPLES`), from a checkout of it at the commit above.
 
 ``--plan OUT`` also runs ``factory plan PART [--body N] --no-robot`` on each part that reads, and
 on an STL of its own tessellation, each in a subprocess under OUT: the plan's wall time [s], its
@@ -118,15 +120,51 @@ def write_generated(folder: Path) -> None:
     sp.write_step(sp.plate((60, 40, 12), holes[:2]), folder / "gen_inch_plate.step", unit="INCH")
 
 
+#: build123d's example parts that are machined parts (prismatic, inside the vise): STEP name -> (script in a
+#: checkout of gumyr/build123d at the commit of the module docstring, the name its part is built under).
+BUILD123D_EXAMPLES = {
+    "pillow_block": ("examples/pillow_block.py", "pillow_block"),  # 80 x 60 x 10, counterbored holes
+    "ttt-ppp0103": ("docs/assets/ttt/ttt-ppp0103.py", "ppp0103"),  # C clamp base, 42 x 104 x 16
+    "ttt-ppp0106": ("docs/assets/ttt/ttt-ppp0106.py", "p"),  # bearing jig, 64 x 69 x 36
+}
+
+
+def write_build123d(checkout: Path, folder: Path) -> None:
+    """Run each of :data:`BUILD123D_EXAMPLES` from ``checkout`` and write its part as STEP into ``folder``.
+
+    The scripts show their part in the OCP CAD Viewer (``ocp_vscode``); a stand-in that shows nothing
+    is imported in its place when the viewer is not installed."""
+    import runpy
+    import types
+
+    from build123d import export_step
+
+    if "ocp_vscode" not in sys.modules:
+        try:
+            import ocp_vscode  # noqa: F401
+        except ImportError:
+            viewer = types.ModuleType("ocp_vscode")
+            viewer.show = viewer.show_object = lambda *shapes, **options: None
+            sys.modules["ocp_vscode"] = viewer
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, (script, built) in BUILD123D_EXAMPLES.items():
+        done = runpy.run_path(str(checkout / script), run_name="__main__")
+        export_step(done[built].part, str(folder / f"{name}.step"))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("folder", type=Path)
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--plan", type=Path, metavar="OUT", help="also plan each part as STEP and as STL under OUT")
     ap.add_argument("--generated", action="store_true", help="first write the tests' build123d parts into DIR")
+    ap.add_argument("--build123d", type=Path, metavar="CHECKOUT",
+                    help="first write build123d's example parts into DIR, from a checkout of gumyr/build123d")
     args = ap.parse_args()
     if args.generated:
         write_generated(args.folder)
+    if args.build123d is not None:
+        write_build123d(args.build123d, args.folder)
     rows = []
     for path in sorted(p for p in args.folder.iterdir() if p.suffix.lower() in (".step", ".stp")):
         row = intake(path)
