@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import time
@@ -65,22 +66,30 @@ def intake(path: Path, body: int | None = None) -> dict:
 
 
 def plan(path: Path, body: int | None, out: Path) -> dict:
-    """``factory plan`` of ``path`` in a subprocess: wall time [s], exit code, its load stage [s], its
-    operations as ``"op N: name (T#)"`` (empty when refused: the refusal's line instead)."""
+    """``factory plan`` of ``path`` in a subprocess: wall time [s], CPU time [s] (the subprocess and its
+    workers, the figure to compare on a shared machine), exit code, its load stage [s], its operations as
+    ``"op N: name (T#)"`` (empty when refused: the refusal's line instead)."""
     cmd = [sys.executable, "-c", "from cli.main import main; main()", "plan", str(path), "-o", str(out), "--no-robot",
            "--overwrite"]
     cmd += ["--body", str(body)] if body else []
-    wall = time.perf_counter()
+    wall, cpu = time.perf_counter(), _children_cpu()
     done = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT,
                           env={**os.environ, "PYTHONPATH": str(ROOT)})
-    row = {"plan_wall_s": round(time.perf_counter() - wall, 1), "exit": done.returncode}
+    row = {"plan_wall_s": round(time.perf_counter() - wall, 1), "plan_cpu_s": round(_children_cpu() - cpu, 1),
+           "exit": done.returncode}
     summary = next(out.glob("*.plan.json"), None) if out.is_dir() else None
     if summary is None:
         errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
         return {**row, "refused": errors[-1] if errors else done.stderr.strip()[-300:], "operations": []}
     doc = json.loads(summary.read_text())
     return {**row, "load_s": doc["seconds"].get("load"), "verify_ok": doc["verify"].get("ok"),
-            "operations": operations(doc)}
+            "verify_op2_ok": (doc.get("verify_op2") or {}).get("ok"), "operations": operations(doc)}
+
+
+def _children_cpu() -> float:
+    """User and system CPU time [s] of this process's finished subprocesses (and theirs, once waited for)."""
+    used = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return used.ru_utime + used.ru_stime
 
 
 def operations(doc: dict) -> list[str]:

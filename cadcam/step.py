@@ -718,7 +718,32 @@ def _bores(info: list[_Face], eps: float) -> list[list[int]]:
                 break
         else:
             groups.append((f.radius, ax, loc, [f.index]))
-    return [members for *_, members in groups]
+    return [run for _, axis, origin, members in groups for run in _runs_along(info, members, axis, origin, eps)]
+
+
+def _runs_along(info: list[_Face], members: list[int], axis: tuple[float, ...], origin: tuple[float, ...],
+                eps: float) -> list[list[int]]:
+    """``members`` (cylinder faces on one axis line) split where their spans along it leave a gap wider than
+    ``eps`` [mm]: coaxial bores of one size in two plates with air between are two holes, not one through both.
+
+    A face's span is its V range (the point at parameter v lies ``v`` along its own axis from its location),
+    measured along ``axis`` from ``origin``."""
+    spans = []
+    for i in members:
+        f = info[i]
+        start = sum((p - q) * a for p, q, a in zip((float(c) for c in f.location), origin, axis))
+        along = sum(float(b) * a for b, a in zip(f.axis, axis))  # +1 or -1
+        ends = [start + along * float(v) for v in f.v]
+        spans.append((min(ends), max(ends), i))
+    spans.sort()
+    runs: list[list[int]] = []
+    reach = -math.inf
+    for lo, hi, i in spans:
+        if lo > reach + eps:
+            runs.append([])
+        runs[-1].append(i)
+        reach = max(reach, hi)
+    return runs
 
 
 def _z_range(walls: list[_Face]) -> tuple[float, float]:

@@ -175,3 +175,15 @@ def dovetail(length: float = 60.0, mouth: float = 10.0, floor: float = 20.0, dep
     section = Plane.YZ * Polygon((-mouth / 2, 0), (mouth / 2, 0), (floor / 2, -depth), (-floor / 2, -depth),
                                  align=None)
     return block - extrude(section, amount=length / 2 + 1, both=True)
+
+
+def bored_plates(diameter: float = 13.0, plate: float = 6.0, gap: float = 10.0):
+    """Two ``plate`` mm plates 40 x 30 mm, ``gap`` mm of air between them, joined by a 6 mm back wall (Y = 15), and
+    one ``diameter`` mm bore along Z at X = 0, Y = -4 through both. The top face is at Z = 0. The two bores
+    are separate holes on one axis (a bearing jig's, Too Tall Toby 01-06)."""
+    from build123d import Align, Box, Cylinder, Pos
+
+    block = Box(40, 30, 2 * plate + gap, align=(Align.CENTER, Align.CENTER, Align.MAX))
+    slot = Pos(0, -3 - 1, -plate) * Box(42, 24 + 2, gap, align=(Align.CENTER, Align.CENTER, Align.MAX))
+    bore = Pos(0, -4, 1) * Cylinder(diameter / 2, 2 * plate + gap + 2, align=(Align.CENTER, Align.CENTER, Align.MAX))
+    return block - slot - bore

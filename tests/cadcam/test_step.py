@@ -23,8 +23,8 @@ from cadcam.step import CAM_TOLERANCE, CHORD_SHARE, chordal_deviation, read_step
 from cadcam.tools import load_tool_library  # noqa: E402
 from cadcam.verify import VerifyOptions  # noqa: E402
 from factory.core.errors import FactoryError, MeshError  # noqa: E402
-from tests.cadcam.stepparts import (ModelledHole, countersunk_head, dovetail, inclined_hole,  # noqa: E402
-                                    pillow_surface, plate, t_slot, two_solids, write_step)
+from tests.cadcam.stepparts import (ModelledHole, bored_plates, countersunk_head, dovetail,  # noqa: E402
+                                    inclined_hole, pillow_surface, plate, t_slot, two_solids, write_step)
 
 EXACT = 1e-6  # [mm]
 
@@ -195,6 +195,19 @@ def test_two_solids_are_refused_with_their_sizes_unless_one_is_picked(tmp_path):
     assert np.allclose(load_part(path, body=1).mesh.extents, (40, 30, 10), atol=EXACT)
     with pytest.raises(MeshError, match="--body 3: the file has 2 solids"):
         load_part(path, body=3)
+
+
+def test_coaxial_bores_with_air_between_are_two_holes(tmp_path):
+    # Too Tall Toby 01-06's bearing jig: one 13 mm bore through two 6 mm plates 10 mm apart was read as one
+    # hole 22 mm deep, too deep for the helix the mesh's two 6 mm bores got.
+    loaded = load_part(write_step(bored_plates(13.0, 6.0, 10.0), tmp_path / "jig.step"))
+    holes = sorted(loaded.step.features.holes, key=lambda h: -h.top_z)
+    assert [(h.bottom, round(h.top_z, 6), round(h.bottom_z, 6)) for h in holes] == [
+        ("through", 0.0, -6.0), ("through", -16.0, -22.0)]
+    for h in holes:
+        assert abs(h.x) < EXACT and abs(h.y + 4.0) < EXACT and abs(h.diameter - 13.0) < EXACT
+        assert abs(h.depth - 6.0) < EXACT
+    assert loaded.step.features.elsewhere == ()
 
 
 def test_a_turned_parts_holes_turn_with_it(tmp_path):
