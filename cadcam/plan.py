@@ -666,7 +666,7 @@ def _freeform_finishing(plan: _Planning, operations: list[Operation], stock: Sim
     if not options.waterline:
         # Without waterline the raster must cover steep walls too.
         raster_options = dataclasses.replace(raster_options, steep_angle=90.0)
-    where = None if faces is None else faces.near((STEEP, SHALLOW), tool.radius + 0.5)
+    where = None if faces is None else _ball_finishes(faces, tool)
     ball_options = options.finishing
     if faces is not None and options.freeform_scallop is not None:
         ball_options = dataclasses.replace(ball_options, scallop=options.freeform_scallop)
@@ -693,6 +693,11 @@ def _freeform_finishing(plan: _Planning, operations: list[Operation], stock: Sim
         limit=engagement, within=within, where=where)))
 
 
+def _ball_finishes(faces: FaceClasses, ball: Tool) -> Callable[[np.ndarray], np.ndarray]:
+    """``inside(xy) -> (m,) bool``: where the ball ``ball`` finishes, near the freeform surfaces [mm]."""
+    return faces.near((STEEP, SHALLOW), ball.radius + 0.5)
+
+
 #: Grid spacing of the in-process stock model the operations are planned from [mm].
 _MODEL_CELL = 0.5
 #: Finest stock model the flats and walls are planned from [mm] (verify's default grid).
@@ -709,19 +714,28 @@ def _skin_cell(allowance: float) -> float:
 def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, operations: list[Operation]) -> None:
     """Flats and walls with ``flat``, then with each narrower flat end mill where stock is left.
 
+    The narrower ones that reach the whole depth first; then those shorter than the stock is deep, each
+    within its stick-out (a 4 mm slot only a small end mill enters), but only on the skin the reaching
+    tools left: not beside the freeform surfaces, which the ball finishes after them.
     Appends the operations to ``operations``; ``stock`` is the model before them."""
     setup, library, options, faces = plan.setup, plan.library, plan.options, plan.faces
     ff = options.flat_finish
     depth = float(setup.stock_max[2] - setup.floor_z)
     skin = _skin_cell(options.roughing.allowance)
     stale = False  # an operation was appended since ``stock`` was modelled
-    for tool in [flat] + [t for t in rest_tools(library, flat, depth) if t.length >= depth]:
+    narrower = rest_tools(library, flat, depth)
+    short = [t for t in narrower if t.length < depth]
+    # Where a ball finishes anyway, a shorter tool's pass would only add a tool change and its cycle
+    # (dome_mould: +127 s of a 2 mm end mill round the cavity's rim, the same verdict after).
+    ball = _ball_finishes(faces, plan.finish_tool) if faces.freeform else None
+    for tool in [flat] + [t for t in narrower if t not in short] + short:
+        leave = ball if tool in short else None
         if stale:
             stock, stale = plan.model(operations, stock.grid.cell), False
         # (A skin only the finer model below shows, with nothing else left beside it, is no
         # danger: no pass goes there.)
         if not plan.timed("rest check", lambda: left_on_flats_and_walls(stock, faces, tool.radius, ff.allowance,
-                                                                         ff.rest_above)).any():
+                                                                         ff.rest_above, leave)).any():
             break
         # A tool whose flutes are shorter than the part is deep takes a wall in steps, at levels
         # where the stock model shows the skin roughing left on it; if the model missed it, the
@@ -736,7 +750,7 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
         op = plan.timed(stage, lambda: flat_wall_finishing(plan.part, setup, tool, cutting, faces, stock,
                                                            options.flat_finish, progress=plan.stage_progress(stage),
                                                            cut_before=plan.cut_before, stepdown=stepdown,
-                                                           within=plan.keepout))
+                                                           within=plan.keepout, leave=leave))
         if len(op.points) > 1:
             operations.append(op)
             stale = True
