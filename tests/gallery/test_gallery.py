@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import trimesh
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
@@ -148,6 +148,9 @@ def test_every_gallery_part_is_a_closed_solid_of_its_stated_kind() -> None:
 
 # The profile (tests/conftest.py) fixes the draws in the suite ("ci") or makes them fresh ("explore").
 @settings(max_examples=3, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+# an explore run's find: a pocket 11 mm wide and 54 deep that no tool roughs (too narrow to enter for the ones that
+# reach that deep); the end mills shorter than the stock is deep must not finish its walls (T16 buried 3.8 mm: exit 3)
+@example(x=60.0, y=36.569791510449306, z=69.31306942161947, px=0.4344263935729999, py=0.3, pz=0.7765299578632021)
 @given(x=st.floats(24.0, 70.0), y=st.floats(12.0, 60.0), z=st.floats(8.0, 70.0), px=st.floats(0.3, 0.85),
        py=st.floats(0.3, 0.85), pz=st.floats(0.2, 0.8))
 def test_a_random_machinable_block_that_fits_the_vise_plans_and_passes_verify(tmp_path_factory, x, y, z, px, py, pz):
