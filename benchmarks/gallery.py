@@ -1,6 +1,7 @@
 """The gallery of parts factory was not tuned for (tests/gallery/parts.py), each planned with defaults and judged.
 
-Per part: `factory plan`'s exit and one-line refusal, plan wall time, both operations' cycle estimates,
+Per part: `factory plan`'s exit and one-line refusal, plan wall time and CPU seconds (user + system: on a
+shared machine the wall time grows with the load, the CPU seconds much less), both operations' cycle estimates,
 verify's verdict and the stock it left (its regions, place and size), what the plan reported unreached
 (place and size), the deepest and widest engagement and the deepest at full width against the axial limit
 per tool, and LinuxCNC's `rs274` on every program with the job's tool table (``PART.tbl``). A part
@@ -54,10 +55,22 @@ def _regions(found: list[dict], op: str) -> list[str]:
 
 
 def _deepest(engagement: dict[str, dict[str, list]]) -> str:
-    """Each tool's deepest engagement [mm] per operation, ``op1 T3 6.0/6.0`` (deepest / its axial limit)."""
-    return "; ".join(f"{op} " + " ".join(f"{t} {e[0]:g}/{e[3]:g}" if e[3] is not None else f"{t} {e[0]:g}"
+    """Each tool's deepest engagement [mm] per operation, ``op1 T5 12.6 (3.6/8)``: deepest (a side cut may take
+    the flutes), then deepest at full width / its axial limit, which holds only there."""
+    return "; ".join(f"{op} " + " ".join(f"{t} {e[0]:g} ({e[2]:g}/{e[3]:g})" if e[3] is not None else f"{t} {e[0]:g}"
                                          for t, e in tools.items())
                      for op, tools in engagement.items())
+
+
+#: ``factory plan`` that writes its CPU seconds (user + system, its own and its children's) to ``{cpu}`` as it
+#: exits: a figure the machine's load inflates much less than the wall time, and right with ``--jobs`` > 1 too.
+_PLAN_COUNTING_CPU = (
+    "import atexit, pathlib, resource\n"
+    "def cpu():\n"
+    "    r = [resource.getrusage(w) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]\n"
+    "    pathlib.Path({cpu!r}).write_text(str(sum(u.ru_utime + u.ru_stime for u in r)))\n"
+    "atexit.register(cpu)\n"
+    "from cli.main import main; main()")
 
 
 def _external(path: Path) -> GalleryPart:
@@ -70,11 +83,13 @@ def judge(part: GalleryPart, work: Path, source: Path | None = None) -> dict[str
     folder.mkdir()
     stl = part.write(folder) if source is None else source
     t0 = time.perf_counter()
-    done = subprocess.run([sys.executable, "-c", "from cli.main import main; main()", "plan", str(stl),
+    cpu = folder / "plan_cpu_s"
+    done = subprocess.run([sys.executable, "-c", _PLAN_COUNTING_CPU.format(cpu=str(cpu)), "plan", str(stl),
                            "-o", str(folder / "out"), "--quiet", "--no-robot"],
                           cwd=ROOT, capture_output=True, text=True, env=dict(os.environ, FACTORY_THREADS="1"))
     row: dict[str, object] = {"part": part.name, "expect": part.expect, "exit": done.returncode,
-                              "plan_s": round(time.perf_counter() - t0, 1)}
+                              "plan_s": round(time.perf_counter() - t0, 1),
+                              "plan_cpu_s": round(float(cpu.read_text()), 1) if cpu.exists() else None}
     summary = folder / "out" / f"{part.name}.plan.json"
     if not summary.exists():
         row["error"] = done.stderr.strip().splitlines()[-1][:200] if done.stderr.strip() else ""
@@ -121,13 +136,13 @@ def main() -> int:
             print(json.dumps(done[todo[f]]), flush=True)
         rows = [done[p.name] for p, _ in parts]
     print()
-    print("| part | expect | exit | plan s | cycle op1/op2 min | verify | stock left (verify) | unreached (plan) "
-          "| deepest engagement mm / axial limit | rs274 | note |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| part | expect | exit | plan s | plan CPU s | cycle op1/op2 min | verify | stock left (verify) | unreached (plan) "
+          "| deepest engagement mm (at full width / axial limit) | rs274 | note |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         note = r.get("error", "") or ("; ".join(x for x in r.get("rs274", []) if x != "ok"))
         left = [u for op in r.get("left", []) for u in op]
-        print(f"| {r['part']} | {r['expect']} | {r['exit']} | {r['plan_s']} | {r.get('cycle_min', '')} | "
+        print(f"| {r['part']} | {r['expect']} | {r['exit']} | {r['plan_s']} | {r['plan_cpu_s']} | {r.get('cycle_min', '')} | "
               f"{r.get('verify_ok', '')} | {'; '.join(left) or ('none' if 'left' in r else '')} | "
               f"{'; '.join(r.get('unreached', [])) or ('none' if 'left' in r else '')} | "
               f"{_deepest(r.get('engagement', {}))} | "

@@ -87,13 +87,14 @@ class FlatFinishOptions:
 
 
 def left_on_flats_and_walls(stock: Simulation, faces: FaceClasses, reach: float, allowance: float,
-                            above: float) -> np.ndarray:
+                            above: float, leave: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
     """(ny, nx) bool: grid points within ``reach`` [mm] of a flat or a wall where ``stock`` holds
     more than ``above`` [mm] over the part grown by ``allowance`` [mm].
 
     Without the grid slack of :func:`cadcam.rest.excess`: the skin roughing leaves on a wall is
     thinner than a cell diagonal, and it is what this finishing is for. Grid points within
-    :data:`WALL_HAIR` of a wall are not counted: what they hold is the finishing allowance.
+    :data:`WALL_HAIR` of a wall are not counted: what they hold is the finishing allowance; nor
+    those ``leave(xy) -> (m,) bool`` holds (another tool finishes there), given ``leave``.
     """
     g = stock.grid
     x = g.x0 + g.cell * np.arange(g.nx)
@@ -102,6 +103,8 @@ def left_on_flats_and_walls(stock: Simulation, faces: FaceClasses, reach: float,
     xy = np.column_stack([X.ravel(), Y.ravel()])
     near = faces.near((FLAT, WALL), reach)(xy).reshape(X.shape)
     near &= ~faces.near((WALL,), WALL_HAIR)(xy).reshape(X.shape)
+    if leave is not None:
+        near &= ~leave(xy).reshape(X.shape)
     return near & (excess(stock, allowance, grid_slack=False) > above)
 
 
@@ -132,6 +135,7 @@ def flat_wall_finishing(
     within: Callable[[float], BaseGeometry] | None = None,
     limit: EngagementLimit | None = None,
     unreached_in: Simulation | None = None,
+    leave: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> Operation:
     """Floors at their heights and walls by the flank, with the flat end mill ``tool``.
 
@@ -165,6 +169,9 @@ def flat_wall_finishing(
     unreached_in : Simulation, optional
         The stock model that deep stock is read from; default ``stock``. The planner gives the model it
         reported the unreached stock from, so that what it says finishing leaves alone is what it leaves.
+    leave : callable, optional
+        ``leave(xy) -> (m,) bool``: XY [mm] where another tool finishes (a ball on the freeform
+        surfaces): the skin there is not this tool's (:func:`left_on_flats_and_walls`).
 
     Returns
     -------
@@ -185,7 +192,7 @@ def flat_wall_finishing(
                             ramp_angle=options.ramp_angle, spring_pass=options.spring_pass)
     # A grid cell of margin: the stock beside a wall lies in the cells next to it.
     left = left_on_flats_and_walls(stock, faces, tool.radius + 2 * stock.grid.cell, options.allowance,
-                                   options.rest_above)
+                                   options.rest_above, leave)
     if not left.any():
         return Operation(f"finish flats+walls T{tool.number}", "finishing", tool, cutting, np.zeros((0, 3)),
                          np.zeros(0), options.allowance)

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import numpy as np
+import shapely
 import trimesh
 
 from cadcam.adaptive import AdaptiveOptions, adaptive_roughing
@@ -29,6 +30,7 @@ from cadcam.drilling import DrillingOptions, Hole, HolePlan, plan_holes
 from cadcam.faces import SHALLOW, STEEP, FaceClasses, classify_faces
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
 from cadcam.flatfinish import WALL_HAIR, FlatFinishOptions, flat_wall_finishing, left_on_flats_and_walls
+from cadcam.gridregion import grown_cells_region
 from cadcam.model import CuttingData, Job, Operation, Setup, Tool
 from cadcam.relief import Boundary, keep_outside
 from cadcam.rest import safe_rapids
@@ -666,7 +668,7 @@ def _freeform_finishing(plan: _Planning, operations: list[Operation], stock: Sim
     if not options.waterline:
         # Without waterline the raster must cover steep walls too.
         raster_options = dataclasses.replace(raster_options, steep_angle=90.0)
-    where = None if faces is None else faces.near((STEEP, SHALLOW), tool.radius + 0.5)
+    where = None if faces is None else _ball_finishes(faces, tool)
     ball_options = options.finishing
     if faces is not None and options.freeform_scallop is not None:
         ball_options = dataclasses.replace(ball_options, scallop=options.freeform_scallop)
@@ -693,6 +695,34 @@ def _freeform_finishing(plan: _Planning, operations: list[Operation], stock: Sim
         limit=engagement, within=within, where=where)))
 
 
+def _ball_finishes(faces: FaceClasses, ball: Tool) -> Callable[[np.ndarray], np.ndarray]:
+    """``inside(xy) -> (m,) bool``: where the ball ``ball`` finishes, near the freeform surfaces [mm]."""
+    return faces.near((STEEP, SHALLOW), ball.radius + 0.5)
+
+
+def _short_tool_leaves(stock: Simulation, tool: Tool, options: PlanOptions,
+                       ball: Callable[[np.ndarray], np.ndarray] | None) -> Callable[[np.ndarray], np.ndarray]:
+    """``leave(xy) -> (m,) bool``: where ``tool``, shorter than the stock is deep, finishes no skin [mm].
+
+    Its flats and walls pass is for the skin rest roughing left, so it keeps its cutter off stock that roughing
+    left whole: more than ``options.finish_engagement`` over the part grown by roughing's allowance and the
+    tool's radius, where it would stand in that stock rather than beside it (a pocket no tool could enter,
+    which a finishing pass would plunge into). No skin within its diameter of that is its; nor the skin the
+    ball finishes (``ball``, :func:`_ball_finishes`), if any. The ends of a slot rest roughing left thicker
+    than its allowance, but within the radius, stay its."""
+    g = stock.grid
+    whole = excess(stock, options.roughing.allowance + tool.radius) > options.finish_engagement
+    near = grown_cells_region(whole, g, tool.diameter + g.cell, quad_segs=4)
+    shapely.prepare(near)
+
+    def leave(xy: np.ndarray) -> np.ndarray:
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        out = shapely.contains_xy(near, xy[:, 0], xy[:, 1])
+        return out | ball(xy) if ball is not None else out
+
+    return leave
+
+
 #: Grid spacing of the in-process stock model the operations are planned from [mm].
 _MODEL_CELL = 0.5
 #: Finest stock model the flats and walls are planned from [mm] (verify's default grid).
@@ -709,6 +739,9 @@ def _skin_cell(allowance: float) -> float:
 def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, operations: list[Operation]) -> None:
     """Flats and walls with ``flat``, then with each narrower flat end mill where stock is left.
 
+    The narrower ones that reach the whole depth first; then those shorter than the stock is deep, each
+    within its stick-out (a 4 mm slot only a small end mill enters), but only on the skin the reaching
+    tools left: not beside the freeform surfaces, which the ball finishes after them.
     Appends the operations to ``operations``; ``stock`` is the model before them."""
     setup, library, options, faces = plan.setup, plan.library, plan.options, plan.faces
     ff = options.flat_finish
@@ -717,13 +750,19 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
     # What no tool reaches (:func:`_unreached` reads this same model): every flat end mill leaves it alone.
     limit, unreached_in = EngagementLimit(depth=options.finish_engagement, allowance=options.roughing.allowance), stock
     stale = False  # an operation was appended since ``stock`` was modelled
-    for tool in [flat] + [t for t in rest_tools(library, flat, depth) if t.length >= depth]:
+    narrower = rest_tools(library, flat, depth)
+    short = [t for t in narrower if t.length < depth]
+    # Where a ball finishes anyway, a shorter tool's pass would only add a tool change and its cycle
+    # (dome_mould: +127 s of a 2 mm end mill round the cavity's rim, the same verdict after).
+    ball = _ball_finishes(faces, plan.finish_tool) if faces.freeform else None
+    for tool in [flat] + [t for t in narrower if t not in short] + short:
         if stale:
             stock, stale = plan.model(operations, stock.grid.cell), False
+        leave = _short_tool_leaves(stock, tool, options, ball) if tool in short else None
         # (A skin only the finer model below shows, with nothing else left beside it, is no
         # danger: no pass goes there.)
         if not plan.timed("rest check", lambda: left_on_flats_and_walls(stock, faces, tool.radius, ff.allowance,
-                                                                         ff.rest_above)).any():
+                                                                         ff.rest_above, leave)).any():
             break
         # A tool whose flutes are shorter than the part is deep takes a wall in steps, at levels
         # where the stock model shows the skin roughing left on it; if the model missed it, the
@@ -739,7 +778,7 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
                                                            options.flat_finish, progress=plan.stage_progress(stage),
                                                            cut_before=plan.cut_before, stepdown=stepdown,
                                                            within=plan.keepout, limit=limit,
-                                                           unreached_in=unreached_in))
+                                                           unreached_in=unreached_in, leave=leave))
         if len(op.points) > 1:
             operations.append(op)
             stale = True

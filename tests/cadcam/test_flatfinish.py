@@ -214,3 +214,28 @@ def test_a_sharp_inside_corner_no_tool_reaches_is_left_alone_not_taken_whole_by_
     rem = sim.remaining
     away = np.isfinite(rem) & (np.hypot(X - corner[0], Y - corner[1]) > 5.0)
     assert rem[away].max() <= 0.02, float(rem[away].max())
+
+
+def test_an_end_mill_shorter_than_the_stock_finishes_a_narrow_slot_but_not_where_the_ball_finishes():
+    # 18 mm tall: the 2 mm T6 reaches 16 mm below its holder, less than the stock is deep. It alone enters
+    # the 4 mm slot, within its stick-out; the skin round the dimple's rim, which the wider flat end mills
+    # leave and the ball finishes after them, is not its work (a tool change and minutes for nothing).
+    body = manifold3d.Manifold.cube((50.0, 40.0, 18.0))
+    body -= manifold3d.Manifold.sphere(10.0, 96).translate((14.0, 20.0, 22.0))
+    body -= manifold3d.Manifold.cube((16.0, 4.0, 5.0)).translate((30.0, 18.0, 14.0))
+    job, setup, sim, report = _plan_and_verify(body, cell=0.2)
+    t6 = LIBRARY.tool(6)
+    assert float(setup.stock_max[2] - setup.floor_z) > t6.length
+    finishing = [op for op in job.operations if op.kind == "finishing" and op.tool.number == 6]
+    assert len(finishing) == 1, [op.name for op in job.operations]
+    op = finishing[0]
+    cut = op.points[1:][op.motion[1:] != 0]
+    # every T6 cut inside the slot (work X 32..48, Y 20..24: make_setup's 2 mm margin), none round the dimple
+    assert cut[:, 0].min() >= 32.0 + t6.radius - 0.05 and cut[:, 0].max() <= 48.0 - t6.radius + 0.05, cut[:, 0]
+    assert cut[:, 1].min() >= 20.0 + t6.radius - 0.05 and cut[:, 1].max() <= 24.0 - t6.radius + 0.05, cut[:, 1]
+    assert report.ok, [f.message for f in report.faults]
+    # the slot's floor and walls are finished: only its four sharp corners keep stock
+    g = sim.grid
+    X, Y = np.meshgrid(g.x0 + g.cell * np.arange(g.nx), g.y0 + g.cell * np.arange(g.ny))
+    slot = (X > 32.0 + 1.0) & (X < 48.0 - 1.0) & (Y > 20.0) & (Y < 24.0)
+    assert sim.remaining[slot].max() <= 0.02, float(sim.remaining[slot].max())

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import trimesh
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
@@ -78,23 +78,30 @@ def test_a_gallery_part_plans_and_its_consumers_accept_it(name: str, tmp_path: P
         assert seam["step"] <= SEAM_TOLERANCE and max(seam["above"], seam["below"]) <= SEAM_TOLERANCE, seam
 
 
-def test_stock_left_on_the_part_is_said_with_its_places_never_called_ok(tmp_path: Path) -> None:
-    """Three 4 mm slots the plan does not cut: the verdict says stock is left, where and how much, even
-    with --quiet, and never "verify OK" (the program itself is safe: exit 0)."""
+def test_narrow_slots_are_finished_by_the_short_end_mill_and_only_their_sharp_corners_are_left(tmp_path: Path) -> None:
+    """Three 4 mm slots 6 mm deep that only the 2 mm end mill enters, and it reaches 16 mm below its holder where
+    the stock is 16.5 deep: it roughs and finishes them within its stick-out, never past its 1 mm axial limit at
+    full width. What a round tool cannot cut, the sharp inside corners at the slots' ends, is said with its
+    places, even with --quiet, and never called "verify OK" (the program itself is safe: exit 0)."""
     stl = BY_NAME["narrow_slots"].write(tmp_path)
     r = CliRunner().invoke(app, ["plan", str(stl), "-o", str(tmp_path / "out"), "--quiet", "--no-robot"])
     assert r.exit_code == 0, r.output
     doc = json.loads((tmp_path / "out" / "narrow_slots.plan.json").read_text())
+    op1 = doc["setups"][0]
+    assert op1["verify_ok"] and "finish flats+walls T6" in [o["name"] for o in doc["operations"]], doc["operations"]
+    tools = {e["tool"]: e for e in doc["verify"]["engagement"]}
+    assert tools[6]["max_full_depth"] <= tools[6]["axial_limit"] + 1e-6, tools[6]
+    assert tools[6]["max_depth"] <= 1.0 + 1e-6, tools[6]  # it takes the wall's skin a level at a time
     left = doc["verify"]["left"]
     first = r.output.splitlines()[0]
     assert first.startswith(f"{stl.name}: verify: no gouge or crash, but stock left in {len(left)} region"), r.output
     assert "verify OK" not in r.output
-    # the slots, 50 x 4 mm, 6 mm deep and 12 mm apart, each found whole (to a cell or two)
-    slots = sorted(left, key=lambda u: u["y"])
-    assert len(slots) == 3 and not doc["verify"]["finished"]
-    for k, u in enumerate(slots):
-        assert abs(u["size_x"] - 50.0) <= 1.0 and abs(u["size_y"] - 4.0) <= 1.0, u
-        assert abs(u["depth"] - 6.0) <= 0.1 and abs(u["y"] - slots[0]["y"] - 12.0 * k) <= 0.5, u
+    # the slots run X12..62 at Y8..12, 20..24, 32..36 (work): a corner sliver at each end of each wall, no skin
+    assert len(left) == 12 and not doc["verify"]["finished"]
+    corners = sorted((round(u["x"]), round(u["y"])) for u in left)
+    assert corners == sorted((x, y0 + dy) for x in (12, 62) for y0 in (8, 20, 32) for dy in (0, 4)), corners
+    for u in left:
+        assert u["why"] == "sharp inside corner" and max(u["size_x"], u["size_y"]) <= 0.5, u
 
 
 def test_a_sheet_thinner_than_any_grip_is_refused_in_one_line(tmp_path: Path) -> None:
@@ -141,6 +148,9 @@ def test_every_gallery_part_is_a_closed_solid_of_its_stated_kind() -> None:
 
 # The profile (tests/conftest.py) fixes the draws in the suite ("ci") or makes them fresh ("explore").
 @settings(max_examples=3, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+# an explore run's find: a pocket 11 mm wide and 54 deep that no tool roughs (too narrow to enter for the ones that
+# reach that deep); the end mills shorter than the stock is deep must not finish its walls (T16 buried 3.8 mm: exit 3)
+@example(x=60.0, y=36.569791510449306, z=69.31306942161947, px=0.4344263935729999, py=0.3, pz=0.7765299578632021)
 @given(x=st.floats(24.0, 70.0), y=st.floats(12.0, 60.0), z=st.floats(8.0, 70.0), px=st.floats(0.3, 0.85),
        py=st.floats(0.3, 0.85), pz=st.floats(0.2, 0.8))
 def test_a_random_machinable_block_that_fits_the_vise_plans_and_passes_verify(tmp_path_factory, x, y, z, px, py, pz):
