@@ -51,6 +51,7 @@ import trimesh
 from scipy.spatial import cKDTree
 from shapely.geometry import LineString, MultiLineString, Polygon, box
 from shapely.geometry.base import BaseGeometry
+from shapely.geometry.polygon import orient
 from shapely.ops import linemerge
 
 from cadcam import roughing
@@ -83,6 +84,20 @@ _RESAMPLE = 0.5
 _ARC_SAMPLES = 180
 #: Rapid rate the choice between a deep cut and levels assumes [mm/min]: the post's default timer's.
 _RAPID_ESTIMATE = 5000.0
+#: Most fronts of one pocket: a pocket needing more is left to the levels.
+_MAX_FRONTS = 150
+#: Smallest step of a front, as a share of the target's: where even that would pass the band, levels.
+_MIN_STEP_SHARE = 0.15
+#: Angular step of a helix entry [deg].
+_HELIX_STEP_DEG = 5.0
+#: Samples over the cutter's leading half when a front's engagement is read.
+_FRONT_ARC = 48
+#: A front's lead-ins start this far clear of the stock [mm]: they come from the cleared side, where the tool
+#: already is, not from the air beside the stock (:data:`_AIR_GAP`); the lead-in stays short.
+_FRONT_GAP = 0.05
+#: Radii a front's convex corners are rounded with, as shares of the tool radius, tried in turn: the largest
+#: that still lets the front advance (a narrow slot takes a small one) and holds the band.
+_FRONT_ROUNDING = (0.4, 0.15)
 
 
 @dataclass(frozen=True)
@@ -183,7 +198,8 @@ def adaptive_roughing(
         geometry = BandGeometry(
             levels=tuple(float(z) for z in levels), spaces=spaces, top=float(setup.stock_max[2]),
             stock=box(*setup.stock_min[:2], *setup.stock_max[:2]), axis_box=rect, allowance=p.allowance,
-            clear_z=p.clear_z, lead_gap=p.lead_gap)
+            clear_z=p.clear_z, lead_gap=p.lead_gap, tan_ramp=p.tan_ramp, helix_radius=p.helix_radius,
+            min_helix_radius=p.min_helix_radius)
         plan = plan_deep_cuts(geometry, tool, cutting, max_feed,
                               lambda region: sum(r.line.length for r in roughing._rings(region, p)), adaptive)
     exclude = plan.excluded if plan is not None and plan.cuts else None
@@ -212,7 +228,10 @@ class BandGeometry:
     ``levels``: level heights, top down; ``spaces``: the tool-centre region of each level; ``top``: the
     stock top; ``stock``: the stock's XY rectangle; ``axis_box``: the box the tool axis roams in (the
     stock grown by the radius); ``allowance``: stock left on the part; ``clear_z``: the links' height;
-    ``lead_gap``: the height above a floor where descents slow to the plunge feed."""
+    ``lead_gap``: the height above a floor where descents slow to the plunge feed; ``tan_ramp``: the slope
+    of a helix entry (the roughing's ramp angle); ``helix_radius``/``min_helix_radius``: the radius of the
+    circle a helix entry's centre follows, as large as the pocket allows up to the first, at least the second
+    (None: 0.4 D and 0.15 D, the roughing's defaults)."""
 
     levels: tuple[float, ...]
     spaces: tuple[BaseGeometry, ...]
@@ -222,6 +241,9 @@ class BandGeometry:
     allowance: float
     clear_z: float
     lead_gap: float
+    tan_ramp: float = math.tan(math.radians(3.0))
+    helix_radius: float | None = None
+    min_helix_radius: float | None = None
 
 
 def plan_deep_cuts(g: BandGeometry, tool: Tool, cutting: CuttingData, max_feed: float,
@@ -283,7 +305,13 @@ def _band_cut(g: BandGeometry, i: int, c: Polygon, comps: list[list[Polygon]], c
     if z_top - z > max_depth + 1e-9:
         return None
     levels = tuple(range(top_index, i + 1))
+    levels_min = len(levels) * levels_length(c) / cutting.feed
     moves = deep_cut_moves(c, g, z, z_top, tool, options)
+    if moves is None:
+        # no lead-in from the air beside the walls (a pocket, a slot, a neck): fronts from a helix or the air,
+        # tried only where they can pay (their feed length is at least the stock's area over the step)
+        target = chip_thinned_feed(cutting, tool, options.engagement * tool.diameter, max_feed).feed
+        moves = front_cut_moves(c, g, z, z_top, tool, options, budget=levels_min * target)
     if moves is None:
         return None
     points, motion, engagement, length = moves
@@ -292,7 +320,6 @@ def _band_cut(g: BandGeometry, i: int, c: Polygon, comps: list[list[Polygon]], c
     rapid = float(seg[motion[1:] == Motion.RAPID].sum())
     plunge = float(seg[motion[1:] == Motion.PLUNGE].sum())
     deep_min = (length - plunge) / feed + plunge / cutting.plunge_feed + rapid / _RAPID_ESTIMATE
-    levels_min = len(levels) * levels_length(c) / cutting.feed
     if deep_min >= levels_min:
         return None
     for k in levels:
@@ -393,6 +420,205 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
     return points, motion, engagement, length
 
 
+# --------------------------------------------------------------------------- fronts: pockets, slots, necks
+
+
+def front_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, tool: Tool,
+                    options: AdaptiveOptions = AdaptiveOptions(), budget: float = math.inf
+                    ) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+    """The moves taking ``region`` from ``z_top`` down to ``z`` by fronts growing out of what is cleared.
+
+    Where the walls' offsets find no lead-in from the air (a closed pocket, a slot, a neck between islands, a
+    pocket open on one side only), the cut starts from the air the region holds (the tool-centre places
+    whose disc meets no stock) or, with none, from a helix at the roughing's ramp angle down the whole band
+    at the place farthest from the walls (its radius as :attr:`BandGeometry.helix_radius` allows, at least
+    :attr:`BandGeometry.min_helix_radius`), followed by one lap at the floor. Each next front is the
+    cleared tool-centre region closed by the radius (its inside corners rounded, where an offset would bury
+    the tool), grown by a step, within the region: the step is the target engagement, smaller where the
+    front's engagement, read along its leading half, would pass the target plus half the band (tight turns,
+    the first laps round the helix). Only the stretches of a front that meet stock are cut, climb, each
+    led in sideways from the cleared side; in a slot or a neck these are the front's two ends, trochoidal
+    arcs. Links stay down across what is cleared.
+
+    Returns as :func:`deep_cut_moves` (the engagement measured with the helix's bore taken as cleared: the
+    helix itself is the one place the band does not hold), or None where no helix fits, a step below
+    :data:`_MIN_STEP_SHARE` of the target would still pass the band, a lead-in crosses the part, the cut
+    needs more than :data:`_MAX_FRONTS` fronts or more than ``budget`` [mm] of feed, or the replay
+    measures more than the band allows."""
+    r = tool.radius
+    step = options.engagement * tool.diameter
+    limit = (options.engagement + options.band) * tool.diameter
+    planned = (options.engagement + 0.5 * options.band) * tool.diameter
+    walls = g.axis_box.difference(region)
+    material = g.stock.intersection(region.buffer(r, quad_segs=16)).difference(walls.buffer(-r, quad_segs=16))
+    if material.area < _SLIVER or material.area / step > budget:
+        return None
+    inside = walls.buffer(-1e-4)
+    left = material
+    pts: list[np.ndarray] = []
+    mot: list[int] = []
+    # a pocket open on a side grows from the air there: the region, with a strip past the box the levels keep
+    # to (where the tool's disc clears the stock by the air gap), beside it
+    strip = g.stock.buffer(r + 2 * _AIR_GAP, join_style="mitre").difference(walls).intersection(
+        region.buffer(2 * _AIR_GAP, quad_segs=4))
+    region = region.union(strip)
+    air = region.difference(material.buffer(r + _AIR_GAP, quad_segs=16))
+    bore: BaseGeometry = Polygon()
+    if air.area > _SLIVER:
+        cleared = air
+    else:
+        helix = _helix(region, g, z, z_top, tool)
+        if helix is None:
+            return None
+        centre, radius, h_points, h_motion = helix
+        pts.extend(h_points)
+        mot.extend(int(m) for m in h_motion)
+        cleared = shapely.Point(*centre).buffer(radius, quad_segs=32)
+        bore = shapely.Point(*centre).buffer(radius + r, quad_segs=32)
+        left = left.difference(bore)
+    beta = max(math.radians(0.5), 0.5 * (math.acos(1 - min(limit, tool.diameter) / r)
+                                         - math.acos(1 - min(step, tool.diameter) / r)))
+    length = 0.0
+    for _ in range(_MAX_FRONTS):
+        if left.area < _SLIVER:
+            break
+        last = region.difference(cleared).area < _SLIVER  # the front is the walls: this lap is the last
+        # the target plus a quarter of the band where a step holds it, else plus half: the front's reading
+        # is a little short of the replay's at tight turns
+        front = (_next_front(cleared, region, left, r, step, step + 0.25 * options.band * tool.diameter)
+                 or _next_front(cleared, region, left, r, step, planned))
+        if front is None:
+            log.debug("deep cut at z=%.3f: no front holds the band", z)
+            return None
+        if not front[1]:
+            break  # the front reaches no farther: what is left lies in corners sharper than its rounding
+        cleared, chains = front
+        for chain in chains:
+            routes = _runs(chain, np.ones(len(chain), bool), left, r, beta, gap=_FRONT_GAP)
+            if routes is None:
+                log.debug("deep cut at z=%.3f: a front finds no lead-in", z)
+                return None
+            for route in routes:
+                route = shapely.get_coordinates(LineString(route).simplify(_SIMPLIFY, preserve_topology=False))
+                line = LineString(route)
+                if inside.intersects(line):
+                    log.debug("deep cut at z=%.3f: a lead-in crosses the part", z)
+                    return None
+                _emit(pts, mot, route, z, g, _stays_down(pts, route, left, inside, r, gap=-_FRONT_GAP))
+                left = left.difference(line.buffer(r, quad_segs=16))
+                length += line.length
+        if length > budget:
+            return None
+        if last:
+            break
+    else:
+        log.debug("deep cut at z=%.3f: more than %d fronts", z, _MAX_FRONTS)
+        return None
+    if not pts:
+        return None
+    points = np.array(pts)
+    motion = np.array(mot, dtype=np.int8)
+    engagement = measure_engagement(points, motion, z, material.difference(bore), g.stock, r)
+    if engagement > limit + 1e-6:
+        log.debug("deep cut at z=%.3f: engagement %.3f mm over %.3f", z, engagement, limit)
+        return None
+    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    return points, motion, engagement, float(seg[motion[1:] != Motion.RAPID].sum())
+
+
+def _helix(region: Polygon, g: BandGeometry, z: float, z_top: float, tool: Tool
+           ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray] | None:
+    """The helix entry of a pocket with no air: its centre (2,), radius [mm], points (n, 3) and motion (n,) (rapid over its start at
+    ``g.clear_z``, rapid down to :data:`_AIR_GAP` over ``z_top`` (cleared by the levels above), the helix turning
+    clockwise (climb) at ``g.tan_ramp`` down to ``z``, one lap at ``z``, the lift back to ``g.clear_z``); None
+    where the widest circle in the region is smaller than the least helix."""
+    r = tool.radius
+    centre = shapely.get_coordinates(shapely.maximum_inscribed_circle(region, 1e-3))[0]
+    room = float(region.exterior.distance(shapely.Point(*centre)))
+    if region.interiors:
+        room = min(room, min(float(shapely.LinearRing(q).distance(shapely.Point(*centre))) for q in region.interiors))
+    most = 0.4 * tool.diameter if g.helix_radius is None else g.helix_radius
+    least = 0.15 * tool.diameter if g.min_helix_radius is None else g.min_helix_radius
+    radius = min(most, room - 1e-3)
+    if radius < least:
+        return None
+    z0 = min(z_top + _AIR_GAP, g.clear_z)
+    turn = radius * g.tan_ramp  # descent per radian [mm]
+    span = (z0 - z) / turn
+    n = max(2, int(math.ceil(math.degrees(span) / _HELIX_STEP_DEG)))
+    theta = -np.linspace(0.0, span, n + 1)  # clockwise
+    lap = -span - np.linspace(0.0, 2 * math.pi, 73)[1:]
+    ring = np.column_stack([centre[0] + radius * np.cos(theta), centre[1] + radius * np.sin(theta),
+                            z0 - turn * np.linspace(0.0, span, n + 1)])
+    ring[-1, 2] = z
+    flat = np.column_stack([centre[0] + radius * np.cos(lap), centre[1] + radius * np.sin(lap), np.full(len(lap), z)])
+    points = np.vstack([[[ring[0, 0], ring[0, 1], g.clear_z]], ring, flat, [[flat[-1, 0], flat[-1, 1], g.clear_z]]])
+    motion = np.array([Motion.RAPID, Motion.RAPID, *[Motion.PLUNGE] * (len(ring) - 1), *[Motion.CUT] * len(flat),
+                       Motion.RAPID], dtype=np.int8)
+    return centre, radius, points, motion
+
+
+def _next_front(cleared: BaseGeometry, region: Polygon, left: BaseGeometry, r: float, step: float,
+                planned: float) -> tuple[BaseGeometry, list[np.ndarray]] | None:
+    """The next front from the ``cleared`` tool-centre region: closed by ``r`` (its inside corners rounded),
+    grown by the largest step from ``step`` down (by 0.7 each time, to :data:`_MIN_STEP_SHARE` of it) whose
+    engagement (:func:`_front_engagement`) against the stock ``left`` is at most ``planned`` [mm], within
+    ``region``. Returns the new cleared region and its rings, oriented for climb (stock on the left: the
+    outer rings clockwise, the holes' counter-clockwise), at most :data:`_RESAMPLE` apart; None where no step
+    holds."""
+    base = cleared.buffer(r, quad_segs=16).buffer(-r, quad_segs=16)
+    shapely.prepare(left)
+    s = step
+    stuck = True
+    while s >= _MIN_STEP_SHARE * step:
+        raw = base.buffer(s, quad_segs=16).intersection(region)
+        for rounding in _FRONT_ROUNDING:
+            # the front's convex corners rounded (where it meets the walls): the tool turns onto the front's
+            # end gradually instead of ploughing along the wall into it
+            grown = raw.buffer(-rounding * r, quad_segs=16).buffer(rounding * r, quad_segs=16)
+            grown = grown.intersection(region).union(cleared)
+            if grown.area - cleared.area < _SLIVER:
+                continue  # a channel narrower than the rounding: less rounding
+            stuck = False
+            chains = _front_chains(grown)
+            if chains and max(_front_engagement(c, left, r) for c in chains) <= planned:
+                return grown, chains
+        s *= 0.7
+    return (cleared, []) if stuck else None
+
+
+def _front_chains(front: BaseGeometry) -> list[np.ndarray]:
+    """The rings of ``front`` as chains (n, 2) at most :data:`_RESAMPLE` apart, oriented for climb: the stock
+    outside on the left (the outer rings clockwise, the holes' counter-clockwise)."""
+    chains = []
+    for poly in roughing._polygons(front):
+        poly = orient(poly, sign=-1.0)
+        for ring in (poly.exterior, *poly.interiors):
+            c = shapely.get_coordinates(shapely.segmentize(ring, _RESAMPLE))
+            keep = np.ones(len(c), bool)
+            keep[1:] = np.linalg.norm(np.diff(c, axis=0), axis=1) > 1e-9
+            if keep.sum() > 3:
+                chains.append(c[keep])
+    return chains
+
+
+def _front_engagement(chain: np.ndarray, left: BaseGeometry, r: float) -> float:
+    """Largest radial engagement [mm] along ``chain`` (n, 2) into the stock ``left`` (prepared): at each point,
+    the share of the cutter's leading half (travel to the next point) in the stock, as the side cut making that
+    angle, ``R (1 - cos angle)``. Only what the front meets before it is cut: a front turning back on itself
+    reads a little more than it will cut (the replay, :func:`measure_engagement`, is the judge)."""
+    u = np.diff(chain, axis=0)
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    normal = np.column_stack([-u[:, 1], u[:, 0]])
+    psi = (np.arange(_FRONT_ARC) + 0.5) * math.pi / _FRONT_ARC
+    rr = r * (1 - 1e-3)
+    arc = rr * (np.cos(psi)[None, :, None] * normal[:, None, :] + np.sin(psi)[None, :, None] * u[:, None, :])
+    q = chain[:-1, None, :] + arc
+    hits = shapely.contains_xy(left, q[..., 0].ravel(), q[..., 1].ravel()).reshape(len(u), _FRONT_ARC)
+    angle = math.pi * hits.mean(axis=1)
+    return float((r - r * np.cos(angle)).max()) if len(angle) else 0.0
+
+
 def _lines(geom: BaseGeometry) -> list[LineString]:
     if geom.is_empty:
         return []
@@ -449,9 +675,9 @@ def _emit(pts: list[np.ndarray], mot: list[int], route: np.ndarray, z: float, g:
 
 
 def _stays_down(pts: list[np.ndarray], route: np.ndarray, left: BaseGeometry, inside: BaseGeometry,
-                r: float) -> bool:
+                r: float, gap: float = _AIR_GAP) -> bool:
     """Whether the tool, down at the end of the last run, feeds straight to ``route``'s start: a short link
-    whose disc meets none of the stock ``left`` (with the air gap to spare) and that keeps off the part."""
+    whose disc meets none of the stock ``left`` (with ``gap`` [mm] to spare) and that keeps off the part."""
     if len(pts) < 2:
         return False
     here = pts[-2][:2]  # the last run's end, before its lift
@@ -460,7 +686,7 @@ def _stays_down(pts: list[np.ndarray], route: np.ndarray, left: BaseGeometry, in
         return True
     if link.length > _LINK_MAX or inside.intersects(link):
         return False
-    return left.is_empty or link.distance(left) >= r + _AIR_GAP
+    return left.is_empty or link.distance(left) >= r + gap
 def _near(chain: np.ndarray, points: np.ndarray, distance: float) -> np.ndarray:
     """(n,) bool: the chain's points within ``distance`` [mm] of any of ``points`` (m, 2)."""
     d, _ = cKDTree(points).query(chain, distance_upper_bound=distance)
@@ -480,10 +706,11 @@ def _penetration(xy: np.ndarray, material: BaseGeometry, r: float) -> np.ndarray
     return out
 
 
-def _runs(chain: np.ndarray, kept: np.ndarray, left: BaseGeometry, r: float, beta: float) -> list[np.ndarray] | None:
+def _runs(chain: np.ndarray, kept: np.ndarray, left: BaseGeometry, r: float, beta: float,
+          gap: float = _AIR_GAP) -> list[np.ndarray] | None:
     """The stretches of a pass to cut: where it is kept and meets the stock ``left``; each starting in the air or
-    led in from it (:func:`_lead_in`); a closed chain that meets stock all round as one lap. (n, 2) point
-    routes; None where a lead-in finds no air."""
+    led in from it (:func:`_lead_in`, clear of the stock by ``gap`` [mm]); a closed chain that meets stock all
+    round as one lap. (n, 2) point routes; None where a lead-in finds no air."""
     pen = _penetration(chain, left, r)
     cutting = kept & (pen > 0)
     if not cutting.any():
@@ -494,7 +721,7 @@ def _runs(chain: np.ndarray, kept: np.ndarray, left: BaseGeometry, r: float, bet
         if cutting[:-1].all():
             k = int(np.argmin(pen[:-1]))  # one lap from the point nearest the air
             lap = np.vstack([ring[k:], ring[:k + 1]])
-            lead = _lead_in(np.vstack([ring[k::-1], ring[:k:-1], ring[k:k + 1]]), left, r, beta)
+            lead = _lead_in(np.vstack([ring[k::-1], ring[:k:-1], ring[k:k + 1]]), left, r, beta, gap)
             return None if lead is None else [np.vstack([lead, lap[1:]])]
         k = int(np.flatnonzero(~cutting[:-1])[0])  # walk from a point not cut: no run wraps
         order = np.concatenate([np.arange(k, len(ring)), np.arange(0, k)])
@@ -510,43 +737,45 @@ def _runs(chain: np.ndarray, kept: np.ndarray, left: BaseGeometry, r: float, bet
         idx = order[i:j + 1]
         # back along the chain from the run's start (wrapping round a closed one) for the lead-in
         back = np.concatenate([order[i::-1], order[:i:-1]]) if closed else order[i::-1]
-        lead = _lead_in(chain[back], left, r, beta)
+        lead = _lead_in(chain[back], left, r, beta, gap)
         if lead is None:
             return None
         routes.append(np.vstack([lead, chain[idx[1:]]]) if len(idx) > 1 else lead)
     return routes
 
 
-def _lead_in(back: np.ndarray, left: BaseGeometry, r: float, beta: float) -> np.ndarray | None:
+def _lead_in(back: np.ndarray, left: BaseGeometry, r: float, beta: float,
+             gap: float = _AIR_GAP) -> np.ndarray | None:
     """The lead-in onto a run starting at ``back[0]``, ``back`` (n, 2) the chain behind it (nearest first): from
     the air beside the stock ``left``, the chain shifted to its right (away from the wall), the shift shrinking
-    linearly to nothing (slant ``beta`` [rad]); just the start where it is in the air. (m, 2) points ending at
+    linearly to nothing (slant ``beta`` [rad]), its first point ``gap`` [mm] clear of it; just the start where
+    it is that clear. (m, 2) points ending at
     the start; None where the chain behind is too short to reach the air."""
     start = back[0]
     depth = float(_penetration(start[None], left, r)[0])
-    if depth <= -_AIR_GAP:
+    if depth <= -gap:
         return back[:1].copy()
     seg = np.linalg.norm(np.diff(back, axis=0), axis=1)
     cum = np.concatenate([[0.0], np.cumsum(seg)])
     if cum[-1] < 1e-9:
         return None
     # shift far enough to clear the deepest stock along the way (a lead-in passing a corner's)
-    need = depth + 2 * _AIR_GAP
+    need = depth + 2 * gap
     for _ in range(4):
         length = need / math.tan(beta)
         span = min(length, float(cum[-1]))
         s = np.unique(np.concatenate([cum[cum < span], np.linspace(0, span, max(2, int(span / _RESAMPLE) + 1))]))
         base = np.column_stack([np.interp(s, cum, back[:, 0]), np.interp(s, cum, back[:, 1])])
         deepest = max(depth, float(_penetration(base, left, r).max()))
-        if deepest + 2 * _AIR_GAP <= need + 1e-6:
+        if deepest + 2 * gap <= need + 1e-6:
             break
-        need = deepest + 2 * _AIR_GAP
+        need = deepest + 2 * gap
     idx = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
     # travel runs from back[k + 1] to back[k]: its right-hand side, away from the wall
     travel = (back[idx] - back[idx + 1]) / np.maximum(seg[idx], 1e-12)[:, None]
     right = np.column_stack([travel[:, 1], -travel[:, 0]])
     shifted = base + (need * s / length)[:, None] * right
-    if _penetration(shifted[-1:], left, r)[0] > -0.5 * _AIR_GAP:
+    if _penetration(shifted[-1:], left, r)[0] > -0.5 * gap:
         return None
     return shifted[::-1].copy()
 

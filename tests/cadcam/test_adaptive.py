@@ -115,6 +115,13 @@ def replay(points: np.ndarray, motion: np.ndarray, rp: Replay) -> np.ndarray:
             pending.clear()
             assert not rp.disc_meets(b[:2]), f"a descent onto stock at {b[:2]}"
             continue
+        if m == Motion.PLUNGE and b[2] < a[2] - 1e-9:
+            # a helix entry (fed down and across): the one place the band need not hold; it clears its disc
+            for _, q in pending:
+                rp.cut(q)
+            pending.clear()
+            rp.cut(b[:2])
+            continue
         if m == Motion.RAPID or abs(a[2] - Z) > 1e-9 or abs(b[2] - Z) > 1e-9:
             for _, q in pending:
                 rp.cut(q)
