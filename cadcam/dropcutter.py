@@ -67,9 +67,9 @@ _HEAD = 24
 #: candidates of buckets of R/8, each one a gathered and bounded pair.
 _CELL_PER_RADIUS = 0.125
 #: Bucket entries (a vertex or edge listed in a bucket within the tool's reach of it) at most per
-#: prepared tool: each holds ~32 B, and finer buckets list each primitive in more of them, so a big
-#: mesh gets coarser buckets (never coarser than the index's own).
-_MAX_ENTRIES = 6_000_000
+#: prepared tool: each holds 12 B (~40 B while they are sorted), and finer buckets list each primitive
+#: in more of them, so a big mesh gets coarser buckets (never coarser than before, R/2).
+_MAX_ENTRIES = 10_000_000
 #: Query buckets at most (the bucket pointers take 8 B each).
 _MAX_BUCKETS = 4_000_000
 #: Entries made at once while bucketing (bounds the temporaries, ~150 B each).
@@ -270,10 +270,13 @@ def _query_grid(index: TriangleIndex, radius: float, lo: np.ndarray, hi: np.ndar
     the index's buckets merged to half the radius at most."""
     extent = np.array(index.shape, dtype=np.float64) * index.cell
     coarsest = index.cell * max(1, int(math.ceil(0.5 * radius / index.cell)))
-    grown = (hi - lo) + 2.0 * radius
+    lo, hi = lo - index.origin - radius, hi - index.origin + radius
     cell = max(_CELL_PER_RADIUS * radius, math.sqrt(float(extent[0] * extent[1]) / _MAX_BUCKETS))
-    # Each box spans at most (its grown width / cell + 2) buckets a side: coarsen until they fit.
-    while cell < coarsest and float(np.sum(np.prod(grown / cell + 2.0, axis=1))) > _MAX_ENTRIES:
+
+    def entries(c: float) -> float:  # the buckets each grown box spans (a few more than _bucket keeps)
+        return float(np.sum(np.prod(np.floor(hi / c) - np.floor(lo / c) + 1.0, axis=1)))
+
+    while cell < coarsest and entries(cell) > _MAX_ENTRIES:
         cell *= 1.25
     cell = min(cell, coarsest)
     nx = int(extent[0] // cell) + 1
@@ -322,12 +325,13 @@ def _bucket(grid: _Grid, lo: np.ndarray, hi: np.ndarray, top: np.ndarray,
     cuts = np.unique(np.searchsorted(ends, np.arange(_ENTRY_CHUNK, int(ends[-1]) if len(ends) else 0, _ENTRY_CHUNK)))
     pieces = [_entries(grid, lo, hi, top, radius, corner, ix0, iy0, wx, counts, a, b)
               for a, b in zip([0, *cuts.tolist()], [*cuts.tolist(), len(lo)]) if b > a]
-    item = np.concatenate([q[0] for q in pieces]) if pieces else np.zeros(0, np.int64)
-    bucket = np.concatenate([q[1] for q in pieces]) if pieces else np.zeros(0, np.int64)
+    item = np.concatenate([q[0] for q in pieces]) if pieces else np.zeros(0, np.int32)
+    bucket = np.concatenate([q[1] for q in pieces]) if pieces else np.zeros(0, np.int32)
     value = np.concatenate([q[2] for q in pieces]) if pieces else np.zeros(0)
     z_hi = float(value.max(initial=0.0)) + 1.0
     z_span = z_hi - float(value.min(initial=0.0)) + 1.0
     key = bucket + (z_hi - value) / z_span
+    del value  # (a fine grid's entries are many: only what the lists keep stays)
     # One float sort (not lexsort): the key itself must be sorted for searchsorted in stop().
     order = np.argsort(key)
     ptr = np.zeros(grid.nx * grid.ny + 1, dtype=np.int64)
@@ -359,7 +363,8 @@ def _entries(grid: _Grid, lo: np.ndarray, hi: np.ndarray, top: np.ndarray, radiu
         near = d <= radius
         item, bx, by, value, d = item[near], bx[near], by[near], value[near], d[near]
         value = value - _height(d, radius, corner)
-    return item, by * grid.nx + bx, value
+    # 32-bit: a fine grid lists each primitive many times (the index and the grid stay far below 2**31).
+    return item.astype(np.int32), (by * grid.nx + bx).astype(np.int32), value
 
 
 def _pairs(items: np.ndarray, start: np.ndarray, stop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
