@@ -61,8 +61,19 @@ _PAIR_BUDGET = 400_000
 _BISECT_STEPS = 32
 #: Highest vertex candidates per point evaluated first, for a lower bound that culls the rest.
 _HEAD = 24
-#: Query bucket size as a share of the tool radius (smaller: tighter bounds, more entries).
-_CELL_PER_RADIUS = 0.5
+#: Query bucket size as a share of the tool radius (smaller: tighter bounds, more entries). A
+#: bucket's bound on a primitive takes the primitive as near as the bucket's nearest point: on a
+#: steep wall, where most of a waterline's queries are, buckets of R/2 let in about twice the
+#: candidates of buckets of R/8, each one a gathered and bounded pair.
+_CELL_PER_RADIUS = 0.125
+#: Bucket entries (a vertex or edge listed in a bucket within the tool's reach of it) at most per
+#: prepared tool: each holds 12 B (~40 B while they are sorted), and finer buckets list each primitive
+#: in more of them, so a big mesh gets coarser buckets (never coarser than before, R/2).
+_MAX_ENTRIES = 10_000_000
+#: Query buckets at most (the bucket pointers take 8 B each).
+_MAX_BUCKETS = 4_000_000
+#: Entries made at once while bucketing (bounds the temporaries, ~150 B each).
+_ENTRY_CHUNK = 1_000_000
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -252,12 +263,24 @@ class _Grid:
         return ix, iy
 
 
-def _query_grid(index: TriangleIndex, radius: float) -> _Grid:
-    # Buckets much smaller than the tool make every primitive sit in many buckets.
-    factor = max(1, int(math.ceil(_CELL_PER_RADIUS * radius / index.cell)))
-    cell = index.cell * factor
-    nx = (index.shape[0] - 1) // factor + 1
-    ny = (index.shape[1] - 1) // factor + 1
+def _query_grid(index: TriangleIndex, radius: float, lo: np.ndarray, hi: np.ndarray) -> _Grid:
+    """Buckets of about :data:`_CELL_PER_RADIUS` x ``radius`` [mm] over the index's extent, coarser where
+    the vertices' and edges' boxes ``lo``, ``hi`` (k, 2) [mm] listed within ``radius`` of them would make
+    more than :data:`_MAX_ENTRIES` entries (or the grid more than :data:`_MAX_BUCKETS` buckets), up to
+    the index's buckets merged to half the radius at most."""
+    extent = np.array(index.shape, dtype=np.float64) * index.cell
+    coarsest = index.cell * max(1, int(math.ceil(0.5 * radius / index.cell)))
+    lo, hi = lo - index.origin - radius, hi - index.origin + radius
+    cell = max(_CELL_PER_RADIUS * radius, math.sqrt(float(extent[0] * extent[1]) / _MAX_BUCKETS))
+
+    def entries(c: float) -> float:  # the buckets each grown box spans (a few more than _bucket keeps)
+        return float(np.sum(np.prod(np.floor(hi / c) - np.floor(lo / c) + 1.0, axis=1)))
+
+    while cell < coarsest and entries(cell) > _MAX_ENTRIES:
+        cell *= 1.25
+    cell = min(cell, coarsest)
+    nx = int(extent[0] // cell) + 1
+    ny = int(extent[1] // cell) + 1
     return _Grid(index.origin, cell, nx, ny)
 
 
@@ -293,14 +316,36 @@ def _bucket(grid: _Grid, lo: np.ndarray, hi: np.ndarray, top: np.ndarray,
     box and ``h`` the profile: no tool axis in that bucket can get a higher contact from a
     primitive inside the box, and most primitives far from a bucket drop out of its prefix.
     """
-    k = len(lo)
     ix0, iy0 = grid.cells(lo[:, 0] - radius, lo[:, 1] - radius)
     ix1, iy1 = grid.cells(hi[:, 0] + radius, hi[:, 1] + radius)
     wx = ix1 - ix0 + 1
     counts = wx * (iy1 - iy0 + 1)
-    total = int(counts.sum())
-    item = np.repeat(np.arange(k), counts)
-    local = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
+    # In chunks of boxes: the temporaries of a fine grid's entries would outweigh the lists kept.
+    ends = np.cumsum(counts)
+    cuts = np.unique(np.searchsorted(ends, np.arange(_ENTRY_CHUNK, int(ends[-1]) if len(ends) else 0, _ENTRY_CHUNK)))
+    pieces = [_entries(grid, lo, hi, top, radius, corner, ix0, iy0, wx, counts, a, b)
+              for a, b in zip([0, *cuts.tolist()], [*cuts.tolist(), len(lo)]) if b > a]
+    item = np.concatenate([q[0] for q in pieces]) if pieces else np.zeros(0, np.int32)
+    bucket = np.concatenate([q[1] for q in pieces]) if pieces else np.zeros(0, np.int32)
+    value = np.concatenate([q[2] for q in pieces]) if pieces else np.zeros(0)
+    z_hi = float(value.max(initial=0.0)) + 1.0
+    z_span = z_hi - float(value.min(initial=0.0)) + 1.0
+    key = bucket + (z_hi - value) / z_span
+    del value  # (a fine grid's entries are many: only what the lists keep stays)
+    # One float sort (not lexsort): the key itself must be sorted for searchsorted in stop().
+    order = np.argsort(key)
+    ptr = np.zeros(grid.nx * grid.ny + 1, dtype=np.int64)
+    np.cumsum(np.bincount(bucket, minlength=grid.nx * grid.ny), out=ptr[1:])
+    return _Buckets(ptr, item[order], key[order], z_hi, z_span)
+
+
+def _entries(grid: _Grid, lo: np.ndarray, hi: np.ndarray, top: np.ndarray, radius: float, corner: float,
+             ix0: np.ndarray, iy0: np.ndarray, wx: np.ndarray, counts: np.ndarray, a: int, b: int
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_bucket`'s entries of boxes ``a:b``: (box, bucket, ranking value)."""
+    total = int(counts[a:b].sum())
+    item = a + np.repeat(np.arange(b - a), counts[a:b])
+    local = np.arange(total) - np.repeat(np.cumsum(counts[a:b]) - counts[a:b], counts[a:b])
     w = wx[item]
     bx = ix0[item] + local % w
     by = iy0[item] + local // w
@@ -318,15 +363,8 @@ def _bucket(grid: _Grid, lo: np.ndarray, hi: np.ndarray, top: np.ndarray,
         near = d <= radius
         item, bx, by, value, d = item[near], bx[near], by[near], value[near], d[near]
         value = value - _height(d, radius, corner)
-    bucket = by * grid.nx + bx
-    z_hi = float(value.max(initial=0.0)) + 1.0
-    z_span = z_hi - float(value.min(initial=0.0)) + 1.0
-    key = bucket + (z_hi - value) / z_span
-    # One float sort (not lexsort): the key itself must be sorted for searchsorted in stop().
-    order = np.argsort(key)
-    ptr = np.zeros(grid.nx * grid.ny + 1, dtype=np.int64)
-    np.cumsum(np.bincount(bucket, minlength=grid.nx * grid.ny), out=ptr[1:])
-    return _Buckets(ptr, item[order], key[order], z_hi, z_span)
+    # 32-bit: a fine grid lists each primitive many times (the index and the grid stay far below 2**31).
+    return item.astype(np.int32), (by * grid.nx + bx).astype(np.int32), value
 
 
 def _pairs(items: np.ndarray, start: np.ndarray, stop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -465,14 +503,14 @@ def _prepared(index: TriangleIndex, radius: float, corner_radius: float) -> tupl
 
 def _prepare(index: TriangleIndex, radius: float, corner_radius: float) -> tuple:
     """Query grid, the three bucket lists and packed tables for one tool on one index."""
-    grid = _query_grid(index, radius)
     v = index.vertices
-    vbuckets = _bucket(grid, v[:, :2], v[:, :2], v[:, 2], radius, corner_radius)
     p0 = index.edge_start
     p1 = np.concatenate([p0[:, :2] + index.edge_dir * index.edge_length[:, None],
                          (p0[:, 2] + index.edge_slope * index.edge_length)[:, None]], axis=1)
     elo = np.minimum(p0[:, :2], p1[:, :2])
     ehi = np.maximum(p0[:, :2], p1[:, :2])
+    grid = _query_grid(index, radius, np.concatenate([v[:, :2], elo]), np.concatenate([v[:, :2], ehi]))
+    vbuckets = _bucket(grid, v[:, :2], v[:, :2], v[:, 2], radius, corner_radius)
     ebuckets = _bucket(grid, elo, ehi, np.maximum(p0[:, 2], p1[:, 2]), radius, corner_radius)
     offsets = _facet_offsets(index, radius, corner_radius)
     tables = _Tables(offsets, np.column_stack([p0, index.edge_dir, index.edge_length, index.edge_slope]))

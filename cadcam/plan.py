@@ -42,6 +42,7 @@ from cadcam.stock import (FlippedStock, OperationsCut, Simulation, Unreached, ex
                           unreached)
 from cadcam.workholding import jaw_keepout, within_both
 from factory.core.errors import ToolError
+from factory.core.progress import held_open
 
 T = TypeVar("T")
 
@@ -491,7 +492,9 @@ class _Planning:
     @classmethod
     def start(cls, part: trimesh.Trimesh, setup: Setup, library: ToolLibrary, options: PlanOptions,
               progress: StageProgress | None, boundary: Boundary | None) -> "_Planning":
-        """Choose the tools and classify the faces (timed as ``tools and faces``)."""
+        """Choose the tools and classify the faces (timed as ``tools and faces``, shown as :meth:`timed` does)."""
+        if progress is not None:
+            progress("tools and faces", 0, 1)
         t_start = time.perf_counter()
         triangles = np.asarray(part.triangles)
         # A relief's flats include the base plane outside its boundary: the ball finishes reliefs.
@@ -513,12 +516,17 @@ class _Planning:
         # and every tool, shank and holder off the jaws (None where none can reach them)
         keepout = jaw_keepout(setup, library.tools, shadows=lambda heights: part_shadows(part, heights))
         rough_within, within = within_both(rough_within, keepout), within_both(within, keepout)
-        return cls(part, setup, library, options, progress, boundary, triangles, rough_tool, finish_tool,
+        plan = cls(part, setup, library, options, progress, boundary, triangles, rough_tool, finish_tool,
                    rough_cutting, finish_cutting, faces, rough_within, within,
                    [("tools and faces", time.perf_counter() - t_start)], keepout=keepout)
+        if progress is not None:
+            progress("tools and faces", 1, 1)
+        return plan
 
     def stage_progress(self, stage: str) -> Callable[[int, int], None] | None:
-        progress = self.progress
+        """``progress(done, total)`` for the finer steps of ``stage`` inside :meth:`timed`: they never end
+        it (:func:`factory.core.progress.held_open`), :meth:`timed` does, when all its work is done."""
+        progress = held_open(self.progress)
         if progress is None:
             return None
         return lambda done, total: progress(stage, done, total)
@@ -526,21 +534,22 @@ class _Planning:
     def timed(self, stage: str, compute: Callable[[], T]) -> T:
         """``compute()``, timed as ``stage``, which shows as it starts and ends (as a ``Stopwatch``
         stage does), also when ``compute`` reports nothing finer."""
-        say = self.stage_progress(stage)
-        if say is not None:
-            say(0, 1)
+        if self.progress is not None:
+            self.progress(stage, 0, 1)
         t0 = time.perf_counter()
         result = compute()
         self.seconds.append((stage, time.perf_counter() - t0))
-        if say is not None:
-            say(1, 1)
+        if self.progress is not None:
+            self.progress(stage, 1, 1)
         return result
 
     def model(self, ops: list[Operation], cell: float | None = None) -> Simulation | None:
         """The stock ``ops`` leave on a grid of ``cell`` [mm] (default the planning model's), None before
         any cut; a relief's stock outside its boundary kept uncut."""
         cell = _MODEL_CELL if cell is None else cell
-        t0 = time.perf_counter()
+        return self.timed("stock model", lambda: self._model(ops, cell))
+
+    def _model(self, ops: list[Operation], cell: float) -> Simulation | None:
         earlier = self.models.get(cell)
         if self.turned_stock is not None:
             sim = stock_after_flipped(ops, self.setup, self.triangles, self.turned_stock(cell), cell, earlier)
@@ -551,7 +560,6 @@ class _Planning:
             self.models[cell] = OperationsCut(tuple(ops), sim)
         if sim is not None and self.boundary is not None:
             sim = keep_outside(sim, self.boundary, self.rough_tool.radius)
-        self.seconds.append(("stock model", time.perf_counter() - t0))
         return sim
 
 
@@ -561,10 +569,9 @@ def _holes_and_roughing(plan: _Planning, exact: tuple[Hole, ...] | None = None
 
     ``exact``: the round holes when the part came with them (work coordinates), else found in the mesh."""
     options, setup, part = plan.options, plan.setup, plan.part
-    t0 = time.perf_counter()
-    holes = plan_holes(part, setup, plan.library, plan.rough_tool, options.drilling, options.roughing.min_helix_diameter,
-                       options.roughing.allowance, exact, within=plan.keepout) if options.holes else None
-    plan.seconds.append(("holes", time.perf_counter() - t0))
+    holes = plan.timed("holes", lambda: plan_holes(
+        part, setup, plan.library, plan.rough_tool, options.drilling, options.roughing.min_helix_diameter,
+        options.roughing.allowance, exact, within=plan.keepout) if options.holes else None)
     plan.cut_before = holes.cut_at if holes is not None else None
     if options.adaptive is None:
         rough = plan.timed("roughing", lambda: (zlevel_roughing(
@@ -668,7 +675,8 @@ def _freeform_finishing(plan: _Planning, operations: list[Operation], stock: Sim
     if not options.waterline:
         # Without waterline the raster must cover steep walls too.
         raster_options = dataclasses.replace(raster_options, steep_angle=90.0)
-    where = None if faces is None else _ball_finishes(faces, tool)
+    # (the union of the steep and shallow faces' triangles: seconds on a big part, so a stage of its own)
+    where = None if faces is None else plan.timed("freeform area", lambda: _ball_finishes(faces, tool))
     ball_options = options.finishing
     if faces is not None and options.freeform_scallop is not None:
         ball_options = dataclasses.replace(ball_options, scallop=options.freeform_scallop)

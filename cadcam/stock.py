@@ -682,13 +682,14 @@ def _stock_after(operations: Sequence[Operation], setup: Setup, part_triangles: 
     first = sum(len(op.points) for op in done)  # points of the operations already cut
     if (earlier is None or first == 0 or len(done) > len(operations) or earlier.simulation.grid.cell != cell
             or any(a is not b or tools[a.tool.number] is not a.tool for a, b in zip(done, operations))):
-        return cut_stock(moves, tools, setup, part_triangles, cell, start=start).simulation
+        # Only the stock is kept: the engagement and body contacts cut_stock would measure are not.
+        return cut_stock(moves, tools, setup, part_triangles, cell, start=start, measure=False).simulation
     if len(done) == len(operations):
         return earlier.simulation
     # The moves from the last point already cut: the rapid to the next operation is the first one cut.
     rest = ProgramMoves(moves.points[first - 1:], moves.motion[first - 1:], moves.tool[first - 1:],
                         moves.feed[first - 1:], moves.line[first - 1:])
-    sim = cut_stock(rest, tools, setup, part_triangles, cell, start=earlier.simulation).simulation
+    sim = cut_stock(rest, tools, setup, part_triangles, cell, start=earlier.simulation, measure=False).simulation
     before = earlier.simulation.removed_volume
     if before is None:
         return dataclasses.replace(sim, removed_volume=None)

@@ -55,7 +55,7 @@ def plan(
         check_writable(p, overwrite)
     with progress_bars(quiet, lines_when_piped=True) as bars:  # a big part plans for minutes: show where
         planned = plan_part(request, bars)
-    summary = planned.write(out_dir, overwrite=overwrite)
+        summary = planned.write(out_dir, overwrite=overwrite, progress=bars)
     if json_out:
         print_json(summary)
     elif not quiet:

@@ -50,12 +50,13 @@ from factory.core.errors import FactoryError, PlanningError, SetupError, shown
 from factory.mcaplog import McapLog
 from factory.pictures import png_bytes
 from factory.refusals import check_op2_grip, check_request, check_setup
-from factory.core.progress import Progress, Stopwatch
+from factory.core.progress import Progress, Stopwatch, held_open
 from factory.core.resources import FIXTURES
 from factory.core.setupsheet import SetupSheet
 from factory.tending import CellPlan, log_tending, plan_cell
 from factory.verify import log_simulation, report_text, run_verify, run_verify_after, write_verify_outputs
 from robotprog.programs import PostedProgram, post_program
+from robotprog.visuals import robot_visuals
 
 log = logging.getLogger(__name__)
 
@@ -322,8 +323,10 @@ class PartPlan:
                            else {})})
         return out
 
-    def write(self, out_dir: Path, *, overwrite: bool = False) -> dict[str, Any]:
+    def write(self, out_dir: Path, *, overwrite: bool = False, progress: Progress | None = None) -> dict[str, Any]:
         """Write every output into ``out_dir`` as one set, the summary last; returns the summary.
+
+        ``progress`` shows the stage ``write`` (the pictures and the MCAP) as it starts and ends.
 
         Raises
         ------
@@ -333,7 +336,7 @@ class PartPlan:
         final = self.request.outputs(out_dir)
         for p in final.values():
             check_writable(p, overwrite)
-        watch = Stopwatch()
+        watch = Stopwatch(progress)
         with watch("write"), _staging(out_dir, self.request.cam.part.stem) as stage:
             self._write_files(self.request.outputs(stage))
             for p in final.values():  # a file that appeared meanwhile is not clobbered
@@ -541,6 +544,8 @@ def _plan_once(request: PlanRequest, progress: Progress | None = None) -> PartPl
             with watch("robot program"):
                 tending = Tending(cell, world, tplan, post_program(req.lang, outputs["robot_program"], cell, world,
                                                                    tplan))
+            with watch("robot visuals"):  # read (and cached) for the log while verify runs in its process
+                robot_visuals(world.robot)
         except BaseException:
             background.cancel()  # no verification left running for a plan that failed
             raise
@@ -548,7 +553,7 @@ def _plan_once(request: PlanRequest, progress: Progress | None = None) -> PartPl
         if background is not None:
             verified = background.result()
         else:
-            verified = run_verify(*verify_args, progress, **verify_kwargs)
+            verified = run_verify(*verify_args, held_open(progress), **verify_kwargs)
     op2 = None
     if req.ops == 2:
         op2 = _plan_op2(req, planned, verified.simulation, outputs, progress, watch, verified.report)

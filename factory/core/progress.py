@@ -21,6 +21,17 @@ def stage_callback(progress: Progress | None, stage: str) -> Callable[[int, int]
     return lambda done, total: progress(stage, done, total)
 
 
+def held_open(progress: Progress | None) -> Progress | None:
+    """``progress`` for the finer steps of stages timed around them: each of its stages counts to one
+    more than the total it is given, so the counted steps never end the stage. The timer around
+    them (a :class:`Stopwatch` stage of the same name) ends it, after the work that follows the
+    counted steps (a finishing pass counts its grid, then links and checks its moves uncounted), so
+    a pipe's line ``... done in`` comes when the stage is done. None stays None."""
+    if progress is None:
+        return None
+    return lambda stage, done, total: progress(stage, done, total + 1)
+
+
 class Stopwatch:
     """Wall time per named stage [s], in the order the stages ran.
 

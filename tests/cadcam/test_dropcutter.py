@@ -227,3 +227,34 @@ def test_threads_give_the_single_thread_answer(shape, monkeypatch):
     np.testing.assert_array_equal(many, one)
     assert seen and seen[-1] == (len(xy), len(xy))
     assert all(total == len(xy) and 0 < done <= total for done, total in seen)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    count=st.integers(1, 60),
+    spread=st.floats(0.2, 4.0),
+    shape=st.sampled_from(["flat", "bull", "ball"]),
+    radius=st.floats(0.3, 6.0),
+)
+def test_the_query_buckets_change_which_candidates_are_tried_never_the_answer(seed, count, spread, shape, radius):
+    """Fine buckets (issue 35: a waterline's queries on steep walls), the old half-radius ones, and fine ones
+    coarsened by the entry budget and made in chunks give the same CL z to the bit: buckets only cull."""
+    import cadcam.dropcutter as dc
+
+    rng = np.random.default_rng(seed)
+    tri = rng.uniform(0, 20, (count, 1, 3)) + rng.normal(0, spread, (count, 3, 3))
+    xy = rng.uniform(-3, 23, (300, 2))
+    rc = {"flat": 0.0, "bull": radius / 3, "ball": radius}[shape]
+
+    def drop() -> np.ndarray:
+        return drop_profile(build_index(tri), radius, rc, xy, -50.0)  # a fresh index: nothing prepared
+
+    fine = drop()
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(dc, "_CELL_PER_RADIUS", 0.5)
+        assert np.array_equal(drop(), fine)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(dc, "_MAX_ENTRIES", 50)
+        mp.setattr(dc, "_ENTRY_CHUNK", 7)
+        assert np.array_equal(drop(), fine)

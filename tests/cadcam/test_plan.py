@@ -183,3 +183,31 @@ def test_raster_only_keeps_the_shank_off_a_wall_taller_than_the_flutes(tmp_path)
     assert job.operations[-2].points[:, 2].min() >= job.setup.stock_max[2] - LIBRARY.tool(3).flute_length
     assert [f.kind for f in report.faults] == [], report.faults
     assert report.ok and report.max_gouge <= 0.01
+
+
+def test_in_a_pipe_a_stage_ends_when_its_work_does_not_when_its_counted_steps_do(monkeypatch):
+    """Waterline and raster count their CL grid, then refine, link and check their moves uncounted; the
+    stock model between stages counts nothing. A pipe's ``done`` line comes after all of that (issue 35:
+    dome_mould showed gaps of seconds no stage accounted for)."""
+    import cadcam.finishing
+    from cli.common import StageLines
+
+    events: list[str] = []
+    real = cadcam.finishing._assemble
+
+    def assembling(*args, **kwargs):  # the last step of each finishing pass, after its counted grid
+        events.append(f"assemble {args[3]}")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(cadcam.finishing, "_assemble", assembling)
+    lines = StageLines()
+    monkeypatch.setattr(lines, "_line", lambda now, text: events.append(text))
+    dome = manifold3d.Manifold.cube((26.0, 20.0, 5.0)) + manifold3d.Manifold.sphere(6.0, 32).translate((13.0, 10.0, 3.0))
+    setup, part = make_setup(manifold_to_trimesh(dome), jaws=JAWS)
+    plan_job(part, setup, LIBRARY, part_name="dome", options=TEST_PLAN, progress=lines)
+    for stage in ("waterline", "raster"):
+        start, end = events.index(f"{stage} ..."), next(i for i, e in enumerate(events) if e.startswith(f"{stage} done"))
+        assert f"assemble {stage}" in events[start:end], events[start:end + 1]
+    started = [e[:-len(" ...")] for e in events if e.endswith(" ...")]
+    assert started.count("stock model") >= 2 and "freeform area" in started  # the work between stages shows
+    assert sorted(started) == sorted(e.split(" done in ")[0] for e in events if " done in " in e)

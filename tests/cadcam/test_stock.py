@@ -14,6 +14,7 @@ from cadcam.setup import make_setup
 from cadcam.stock import OperationsCut, flip_stock, stock_after, stock_after_flipped
 from cadcam.tools import load_tool_library
 from tests.cadcam.test_plan import TEST_PLAN
+from tests.cadcam.test_rapid_check import _counted
 from tests.conftest import SAMPLES
 
 
@@ -48,6 +49,23 @@ def test_cutting_on_from_the_first_operations_leaves_the_stock_cutting_all_of_th
     for k in range(1, len(ops) + 1):
         earlier = OperationsCut(tuple(ops[:k]), stock_after(ops[:k], job.setup, tri, cell, earlier=earlier))
     assert_same_stock(earlier.simulation, whole)
+
+
+def test_the_planners_model_is_the_measured_cut_without_measuring_engagement_or_the_body(bracket, monkeypatch):
+    """The stock model is cut_stock's measured stock to the bit, and measures nothing beside the cut (issue 35)."""
+    import cadcam.stock
+
+    part_work, job = bracket
+    ops, tri = list(job.operations), np.asarray(part_work.triangles)
+    tools = {op.tool.number: op.tool for op in ops}
+    measured = cadcam.stock.cut_stock(cadcam.stock.operation_moves(ops), tools, job.setup, tri, 0.5)
+    assert measured.met.depth.max() > 0  # the measured cut does measure engagement
+    engagement = _counted(monkeypatch, cadcam.stock, "engaged_depth")
+    body = _counted(monkeypatch, cadcam.stock._Body, "pairs")
+    assert_same_stock(stock_after(ops, job.setup, tri, 0.5), measured.simulation)
+    earlier = OperationsCut(tuple(ops[:1]), stock_after(ops[:1], job.setup, tri, 0.5))
+    assert_same_stock(stock_after(ops, job.setup, tri, 0.5, earlier=earlier), measured.simulation)
+    assert engagement[0] == body[0] == 0
 
 
 def test_an_earlier_stock_that_does_not_hold_the_first_operations_is_not_cut_on(bracket):
