@@ -14,6 +14,7 @@ import json
 import logging
 import re
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Annotated, Any, TypeVar
@@ -89,20 +90,36 @@ class StageProgress:
 #: waterline done in 7.8 s`` as it ends (seconds since the command started).
 STAGE_LINE = re.compile(r"^\[ *\d+\.\d s\] \S.*( \.\.\.| done in \d+\.\d s)$")
 
+#: How long [s] a command runs before its stage lines show. Bad input fails within it and says only its
+#: one ``error:`` line (the slowest, a STEP file with no geometry, takes 2 s loaded: OpenCASCADE's
+#: start-up); a command that runs on shows the lines held back, then each as it comes. A plan of the
+#: smallest sample takes 5 s.
+STAGE_LINES_AFTER_S = 3.0
+
 
 class StageLines(StageProgress):
     """Stages as plain lines on stderr (:data:`STAGE_LINE`), for a pipe or a log, where bars cannot show.
 
     A stage shows when it first reports and when it reaches its total; once ended, it shows again
     only when it starts over from 0 (a stage timed twice), so a stage that reports its end more than
-    once, or steps on after it, adds no lines.
+    once, or steps on after it, adds no lines. A stage that fails shows no end: the error says why.
+
+    The lines are held back for the command's first ``after`` seconds [s] (a timer then prints them,
+    with the times they happened at); :meth:`close` prints those still held when the command succeeded
+    sooner, and drops them when it failed, so a quick failure leaves its ``error:`` line alone.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, after: float = STAGE_LINES_AFTER_S) -> None:
         super().__init__(None)
         self._t0 = time.perf_counter()
         self._open: dict[str, float] = {}  # running stage -> when it started
         self._ended: set[str] = set()
+        # Printing under the lock keeps the lines in order when the timer releases them as a stage reports.
+        self._lock = threading.Lock()
+        self._held: list[str] | None = []  # None once released
+        self._timer = threading.Timer(after, self._release)
+        self._timer.daemon = True  # never keeps a finished command alive
+        self._timer.start()
 
     def __call__(self, stage: str, done: int, total: int) -> None:
         now = time.perf_counter()
@@ -114,8 +131,28 @@ class StageLines(StageProgress):
             self._line(now, f"{stage} done in {now - self._open.pop(stage):.1f} s")
             self._ended.add(stage)
 
+    def close(self, failed: bool) -> None:
+        """The command's stages are over: print the lines still held back, or drop them if it ``failed``."""
+        self._timer.cancel()
+        if failed:
+            with self._lock:
+                self._held = None
+        else:
+            self._release()
+
     def _line(self, now: float, text: str) -> None:
-        stderr.print(f"[{now - self._t0:6.1f} s] {text}", highlight=False, markup=False)
+        line = f"[{now - self._t0:6.1f} s] {text}"
+        with self._lock:
+            if self._held is not None:
+                self._held.append(line)
+            else:
+                stderr.print(line, highlight=False, markup=False)
+
+    def _release(self) -> None:
+        with self._lock:
+            for line in self._held or ():
+                stderr.print(line, highlight=False, markup=False)
+            self._held = None
 
 
 @contextlib.contextmanager
@@ -124,7 +161,19 @@ def progress_bars(quiet: bool, lines_when_piped: bool = False) -> Iterator[Stage
     transient bar leaves only a blank line, nothing, or with ``lines_when_piped`` one line as each
     stage starts and ends, :class:`StageLines`, for a command that can run for minutes)."""
     if quiet or not stderr.is_terminal:
-        yield StageLines() if lines_when_piped and not quiet else StageProgress(None)
+        if not (lines_when_piped and not quiet):
+            yield StageProgress(None)
+            return
+        lines = StageLines()
+        try:
+            yield lines
+        except typer.Exit as e:  # a command's own exit: it ran (3: with findings), or was told to stop
+            lines.close(failed=e.exit_code not in (0, EXIT_FINDINGS))
+            raise
+        except BaseException:
+            lines.close(failed=True)
+            raise
+        lines.close(failed=False)
         return
     # Here, not at the top: a quiet run (every workflow job) draws no bars.
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn

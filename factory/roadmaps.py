@@ -4,19 +4,21 @@ A roadmap (:mod:`robotprog.roadmap`) is keyed by the SHA-256 of the cell file's 
 on (:func:`roadmap_path`) and of the code that builds and proves it (:func:`code_version`), so an
 edited cell or a changed proof never reads a stale one. The cache folder is ``$FACTORY_CACHE_DIR`` if set (tests point it at a
 temporary folder), else ``$XDG_CACHE_HOME/factory``, else ``~/.cache/factory``; roadmaps live in
-its ``roadmaps/`` folder as ``<key>.npz``, written atomically (two plans building the same one
-at once both write whole files).
+its ``roadmaps/`` folder as ``<key>.npz``, written atomically; plans that need the same one at once
+build it once (the first builds, the others wait for it and read it).
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import functools
 import hashlib
 import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 from factory.core.atomic import write_bytes
 from factory.core.errors import CellError
@@ -93,12 +95,41 @@ def cached_roadmap(cell: Cell, world: CollisionWorld, *, rebuild: bool = False,
         The roadmap cannot be built (:func:`robotprog.roadmap.build_roadmap`).
     """
     path = roadmap_path(cell, options)
-    if path.exists() and not rebuild:
-        try:
-            return CachedRoadmap(Roadmap.from_bytes(path.read_bytes(), world.robot.dof, str(path)), path, False)
-        except (CellError, OSError) as e:
-            log.warning("%s: cached roadmap unreadable (%s); building it again", path, e)
-    roadmap = cell_roadmap(cell, world, options, progress)
+    found = None if rebuild else _read(path, world, say=False)  # said under the lock, once
+    if found is not None:
+        return CachedRoadmap(found, path, False)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_bytes(path, roadmap.to_bytes(), overwrite=True)
+    with _one_builder(path):
+        # Plans started together (make demo's, a workflow's, the test workers') build a roadmap once: the
+        # others wait here for it and read it, instead of spending the same processor minute each.
+        found = None if rebuild else _read(path, world)
+        if found is not None:
+            return CachedRoadmap(found, path, False)
+        roadmap = cell_roadmap(cell, world, options, progress)
+        write_bytes(path, roadmap.to_bytes(), overwrite=True)
     return CachedRoadmap(roadmap, path, True)
+
+
+def _read(path: Path, world: CollisionWorld, say: bool = True) -> Roadmap | None:
+    """The roadmap kept at ``path``; None when there is none, or it cannot be read (logged if ``say``:
+    it is built again)."""
+    if not path.exists():
+        return None
+    try:
+        return Roadmap.from_bytes(path.read_bytes(), world.robot.dof, str(path))
+    except (CellError, OSError) as e:
+        if say:
+            log.warning("%s: cached roadmap unreadable (%s); building it again", path, e)
+        return None
+
+
+@contextlib.contextmanager
+def _one_builder(path: Path) -> Iterator[None]:
+    """Hold ``path``'s build lock (``<key>.lock`` beside it, an advisory ``flock`` the system drops
+    with the process, so a killed build leaves no lock held)."""
+    with open(path.with_suffix(".lock"), "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)

@@ -65,11 +65,17 @@ def block_catalog(tmp_path_factory) -> tuple[Path, Path]:
 
 @pytest.fixture(scope="session", autouse=True)
 def roadmap_cache(tmp_path_factory) -> Iterator[Path]:
-    """factory's cache (the cells' roadmaps, :mod:`factory.roadmaps`) in a folder of this session,
-    for the commands it runs in-process and in subprocesses alike: never the user's ~/.cache."""
+    """factory's cache (the cells' roadmaps, :mod:`factory.roadmaps`) in a folder of this session (its
+    workers share it), for the commands it runs in-process and in subprocesses alike: never the user's ~/.cache."""
     import os
 
-    folder = tmp_path_factory.mktemp("factory_cache")
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        # One folder for all the session's workers (each has its own basetemp in the session's): a cell's
+        # roadmap is built once, a worker that needs it while another builds it waits for that build.
+        folder = tmp_path_factory.getbasetemp().parent / "factory_cache"
+        folder.mkdir(exist_ok=True)
+    else:
+        folder = tmp_path_factory.mktemp("factory_cache")
     before = os.environ.get("FACTORY_CACHE_DIR")
     os.environ["FACTORY_CACHE_DIR"] = str(folder)
     yield folder

@@ -43,3 +43,21 @@ def test_the_demo_starts_the_largest_sample_first(tmp_path):
                if " plan samples/" in line]
     by_size = sorted(ROOT.glob("samples/*.stl"), key=lambda p: -p.stat().st_size)
     assert planned == [p.stem for p in by_size] and planned[0] == "relief", dry
+
+
+def test_the_demo_told_not_to_install_never_installs_and_warms_the_cell_first(tmp_path):
+    """`make -o STAMP demo` with a stamp older than pyproject.toml: neither make nor the plans' sub-make
+    (which is not passed `-o`) installs into the venv; the cell's roadmap is warmed before the plans."""
+    import os
+
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    stamp = bin_dir / ".installed"
+    stamp.touch()
+    os.utime(stamp, (0, 0))  # older than pyproject.toml: a reinstall is due, but -o says never
+    dry = subprocess.run(["make", "-n", "-o", str(stamp), "demo", f"BIN={bin_dir}", f"OUT={tmp_path / 'out'}"],
+                         cwd=ROOT, check=True, capture_output=True, text=True).stdout
+    assert "pip install" not in dry and " -m venv " not in dry, dry
+    commands = [line for line in dry.splitlines() if line.startswith(str(bin_dir / "factory"))]
+    assert commands[0].endswith("factory cell warm fixtures/cell.yaml"), dry
+    assert sum(" plan samples/" in c for c in commands) == len(list(ROOT.glob("samples/*.stl"))), dry

@@ -35,10 +35,10 @@ def held_open(progress: Progress | None) -> Progress | None:
 class Stopwatch:
     """Wall time per named stage [s], in the order the stages ran.
 
-    With ``progress``, every stage also says when it starts (``progress(name, 0, 1)``) and ends
-    (``progress(name, 1, 1)``), so a stage that reports nothing finer (the robot's planning) still
-    shows which stage is running, and for how long; one that does report finer steps under the same
-    name fills in between.
+    With ``progress``, every stage also says when it starts (``progress(name, 0, 1)``) and, unless it
+    raised, when it ends (``progress(name, 1, 1)``), so a stage that reports nothing finer (the robot's
+    planning) still shows which stage is running, and for how long; one that does report finer steps
+    under the same name fills in between.
     """
 
     def __init__(self, progress: Progress | None = None) -> None:
@@ -54,8 +54,9 @@ class Stopwatch:
             yield
         finally:
             self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - t0
-            if self._progress is not None:
-                self._progress(name, 1, 1)
+        # Only a stage that got through ends: a failed one is not "done", its error says what happened.
+        if self._progress is not None:
+            self._progress(name, 1, 1)
 
     @property
     def progress(self) -> Progress | None:

@@ -93,9 +93,25 @@ def sweep_moves(points: np.ndarray, motion: np.ndarray, tools: np.ndarray, libra
         ys = g.y0 + g.cell * np.arange(j0, j1 + 1)
         env = np.full((len(ys), len(xs)), np.inf)
         for chunk in np.array_split(np.arange(ns), max(1, ns // 64)):
-            d = np.hypot(xs[None, None, :] - p[chunk, 0, None, None], ys[None, :, None] - p[chunk, 1, None, None])
-            z = p[chunk, 2, None, None] + tool.profile_height(d)
-            env = np.minimum(env, z.min(axis=0))
+            # Only the cells within the tool's reach of this chunk's samples: the profile is inf beyond
+            # its radius, so the rest of the move's window would take nothing (a long move's window is
+            # hundreds of times a chunk's reach).
+            q = p[chunk]
+            c0 = max(int(math.floor((q[:, 0].min() - r - g.x0) / g.cell)) - i0, 0)
+            c1 = min(int(math.ceil((q[:, 0].max() + r - g.x0) / g.cell)) - i0, len(xs) - 1)
+            r0 = max(int(math.floor((q[:, 1].min() - r - g.y0) / g.cell)) - j0, 0)
+            r1 = min(int(math.ceil((q[:, 1].max() + r - g.y0) / g.cell)) - j0, len(ys) - 1)
+            if c1 < c0 or r1 < r0:
+                continue
+            d = np.hypot(xs[None, None, c0:c1 + 1] - q[:, 0, None, None], ys[None, r0:r1 + 1, None] - q[:, 1, None, None])
+            if a[2] == b[2]:
+                # A level move: the profile rises with the distance, so its lowest over the samples is
+                # at the nearest one (the same number, to the bit, as taking the profile at each).
+                low = a[2] + tool.profile_height(d.min(axis=0))
+            else:
+                low = (q[:, 2, None, None] + tool.profile_height(d)).min(axis=0)
+            window = env[r0:r1 + 1, c0:c1 + 1]
+            np.minimum(window, low, out=window)
         if full_width and motion[i] != Motion.RAPID and not tool.is_drill:
             full[i] = _full_width_depth(stock, g, p, tool)
         block = stock[j0:j1 + 1, i0:i1 + 1]

@@ -245,10 +245,8 @@ def run_case(case: Case, tmp: Path, python: str = sys.executable, env: dict | No
         err = f"killed by signal {-code} (memory or processor-time limit)\n" + err
     written = sorted(str(p.relative_to(tmp)) for p in set(tmp.rglob("*")) - before
                      if p.is_file() or not any(p.iterdir()))
-    from cli.common import STAGE_LINE  # here: run as a script, the checkout joins sys.path in __main__
-
-    # the stages that ran before the error, as `factory plan` shows them in a pipe
-    lines = [line for line in err.splitlines() if line.strip() and not STAGE_LINE.match(line)]
+    # Every line, stage lines too: a quick failure shows no stage (cli.common.STAGE_LINES_AFTER_S).
+    lines = [line for line in err.splitlines() if line.strip()]
     if case.code == 2:
         # A command-line mistake: click's usage message (a few lines) naming the option.
         one_line = "Traceback" not in err and any(line.startswith("Error: ") for line in lines)

@@ -279,6 +279,57 @@ def test_plan_in_a_pipe_shows_each_stage_as_it_starts_and_ends(small_part, tmp_p
     assert "block.stl" in lines[len(staged)]
 
 
+def _stage_lines(monkeypatch, after: float):
+    """A :class:`cli.common.StageLines` that prints into a string (its second value) instead of stderr."""
+    import io
+
+    from rich.console import Console
+
+    import cli.common
+
+    said = io.StringIO()
+    monkeypatch.setattr(cli.common, "stderr", Console(file=said, soft_wrap=True))
+    return cli.common.StageLines(after), said
+
+
+def test_stage_lines_held_back_print_in_order_when_the_command_succeeds(monkeypatch):
+    from cli.common import STAGE_LINE
+    from factory.core.progress import Stopwatch
+
+    lines, said = _stage_lines(monkeypatch, after=3600.0)
+    watch = Stopwatch(lines)
+    for name in ("load", "setup"):
+        with watch(name):
+            pass
+    assert said.getvalue() == ""  # held back: the command has not run its first seconds
+    lines.close(failed=False)
+    shown = said.getvalue().splitlines()
+    assert [ln.split("] ", 1)[1] for ln in shown][::2] == ["load ...", "setup ..."]
+    assert len(shown) == 4 and all(STAGE_LINE.match(ln) for ln in shown) and "load done in" in shown[1]
+
+
+def test_a_quick_failure_shows_no_stage_and_a_failed_stage_never_says_done(monkeypatch):
+    from factory.core.errors import FactoryError
+    from factory.core.progress import Stopwatch
+
+    lines, said = _stage_lines(monkeypatch, after=3600.0)
+    watch = Stopwatch(lines)
+    with watch("load"):
+        pass
+    with pytest.raises(FactoryError), watch("setup"):
+        raise FactoryError("part.stl: fits the cell in no orientation")
+    lines.close(failed=True)
+    assert said.getvalue() == ""
+    # once the lines show (here at once), a stage that failed shows its start and no end
+    lines, said = _stage_lines(monkeypatch, after=0.0)
+    lines._timer.join()  # the release has happened: no waiting on the clock
+    watch = Stopwatch(lines)
+    with pytest.raises(FactoryError), watch("setup"):
+        raise FactoryError("part.stl: fits the cell in no orientation")
+    lines.close(failed=True)
+    assert [ln.split("] ", 1)[1] for ln in said.getvalue().splitlines()] == ["setup ..."]
+
+
 def test_plan_with_a_broken_cell_writes_nothing(small_part, tmp_path):
     from factory.core.resources import FIXTURES
 

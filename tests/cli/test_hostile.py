@@ -1,6 +1,7 @@
 """Hostile inputs through the real ``factory`` command, in a subprocess capped at 1.5 GB of
-address space and 30 s of processor time: each ends in one ``error:`` line (exit 1) or a
-usage error (exit 2), and writes nothing.
+address space and 30 s of processor time: each ends in one ``error:`` line (exit 1), the only line on
+stderr (no stage line of ``factory plan`` in a pipe: a quick failure shows none), or a usage error
+(exit 2), and writes nothing.
 
 Each run pays the command's start-up (about 2 s of processor time), so this runs one case of
 each kind; ``python -m tests.cli.hostile`` runs them all (the issue's list and more).

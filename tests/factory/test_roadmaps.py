@@ -51,6 +51,39 @@ def test_built_once_then_read_and_rebuilt_when_unreadable(monkeypatch, tmp_path,
     np.testing.assert_array_equal(third.roadmap.edges, first.roadmap.edges)
 
 
+def test_a_plan_that_finds_the_roadmap_being_built_waits_and_reads_it(monkeypatch, tmp_path, cell, world):
+    """Two plans at once (make demo's, the test workers') build a cell's roadmap once: the second waits
+    on the build lock and reads what the first wrote."""
+    import threading
+
+    import factory.roadmaps as roadmaps
+
+    monkeypatch.setenv("FACTORY_CACHE_DIR", str(tmp_path / "elsewhere"))
+    made = cached_roadmap(cell, world, options=TINY).roadmap  # the first plan's build, made ahead
+    monkeypatch.setenv("FACTORY_CACHE_DIR", str(tmp_path))
+    path = roadmap_path(cell, TINY)
+    path.parent.mkdir(parents=True)
+    builds, looked = [], threading.Event()
+    monkeypatch.setattr(roadmaps, "cell_roadmap", lambda *a, **k: builds.append(1) or made)
+    real_read = roadmaps._read
+
+    def read(*args, **kwargs):
+        found = real_read(*args, **kwargs)
+        looked.set()  # the second plan found nothing: next it takes the lock
+        return found
+
+    monkeypatch.setattr(roadmaps, "_read", read)
+    got = []
+    with roadmaps._one_builder(path):  # the first plan, building
+        second = threading.Thread(target=lambda: got.append(cached_roadmap(cell, world, options=TINY)))
+        second.start()
+        assert looked.wait(60)
+        path.write_bytes(made.to_bytes())  # the first plan's build lands
+    second.join(60)
+    assert builds == [] and len(got) == 1 and not got[0].built
+    np.testing.assert_array_equal(got[0].roadmap.edges, made.edges)
+
+
 def test_key_changes_with_the_static_cell_not_with_its_speed(cell):
     key = roadmap_path(cell, TINY)
     slower = dataclasses.replace(cell, motion=dataclasses.replace(cell.motion, speed_scaling=0.5))
