@@ -45,6 +45,7 @@ from shapely.geometry import MultiPolygon, Polygon
 from factory.core.errors import VisionError
 from factory.core.units import MM_PER_M
 from vision.camera import CameraModel
+from vision.shadow import DARK_LOG, estimate_light, height_field, shadow_evidence
 
 log = logging.getLogger(__name__)
 
@@ -344,6 +345,7 @@ class _EdgeModel:
         self.rvec = cv2.Rodrigues(cam_base[:3, :3])[0].ravel()
         self.tvec = cam_base[:3, 3]
         self.eye = -cam_base[:3, :3].T @ cam_base[:3, 3]
+        self.field = height_field(mesh.vertices, mesh.faces)  # for the light and the shadows it casts
 
     def same_turned(self, k: int, symmetry: int) -> bool:
         """Whether the mesh's edges turned by ``k`` of ``symmetry`` turns about the footprint's centroid
@@ -370,16 +372,27 @@ class _EdgeModel:
 
     def project(self, p: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(k, 2)`` pixel positions of the sample points ``idx`` at pose ``p`` and their unit image normals."""
-        w = self.world(p, self.points[idx])
+        return self.image_of(p, self.points[idx], self.direction[idx])
+
+    def image_of(self, p: np.ndarray, points: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(k, 2)`` pixel positions of part-frame ``points`` (k, 3) [m] at pose ``p`` and the unit image
+        normals of lines through them along ``direction`` (k, 3)."""
+        w = self.world(p, points)
         r = np.eye(3)
         r[:2, :2] = _rz(p[2])
-        ahead = w + 1e-4 * (self.direction[idx] @ r.T)
+        ahead = w + 1e-4 * (direction @ r.T)
         uv = self.camera.project(np.vstack([w, ahead]), self.rvec, self.tvec)
-        k = len(idx)
+        k = len(points)
         tangent = uv[k:] - uv[:k]
         normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
         normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
         return uv[:k], normal
+
+    def in_part_frame(self, p: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The camera's eye (3,) [m] and a base-frame ``direction`` (3,) in the part's frame at pose ``p``."""
+        r = np.eye(3)
+        r[:2, :2] = _rz(p[2])
+        return (self.eye - np.array([p[0], p[1], self.tray_z])) @ r, np.asarray(direction) @ r
 
 
 #: Spacing of the model's edge samples [m] (about a pixel at the cell camera's distance).
@@ -516,12 +529,15 @@ def _hidden(saturated: np.ndarray | None, uv: np.ndarray, normal: np.ndarray) ->
 
 
 def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, start: np.ndarray,
-              reaches: tuple[float, ...] = SEARCH_PX, saturated: np.ndarray | None = None) -> _EdgeFit | None:
+              reaches: tuple[float, ...] = SEARCH_PX, saturated: np.ndarray | None = None,
+              light: np.ndarray | None = None) -> _EdgeFit | None:
     """Fit x, y and yaw so the model's visible edges lie on the picture's edges (rounds of search and fit).
 
     Edges beside a clipped highlight (``saturated``, (h, w) uint8) are measured with a common
     bloom [px] fitted with the pose; edges inside the outline that lie in a clipped area on both
-    sides cannot show and are left out of the share found.
+    sides cannot show and are left out of the share found. Under a key light (``light``, unit (3,)
+    towards it, base frame; :func:`vision.shadow.estimate_light`) the edges dark on both sides are
+    left out as well, and the edge of the shadow the part casts on the tray counts with its outline.
     """
     p = np.asarray(start, dtype=np.float64)
     bloom = 0.0
@@ -565,9 +581,20 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
     seen = outer | ~_hidden(saturated, uv, normal)
     inliers = np.abs(sol.fun) <= 1.5
     rms = float(np.sqrt(np.mean(sol.fun[inliers] ** 2))) if inliers.any() else np.inf
-    coverage = float(near[outer].mean()) if outer.any() else float(near.mean())
-    axis = _axis_coverage(near[outer], normal[outer]) if outer.any() else _axis_coverage(near, normal)
-    return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis, found=float(near[seen].mean()), rms_px=rms,
+    outer_near, outer_normal = near[outer], normal[outer]
+    found = near[seen]
+    if light is not None:
+        eye, towards = model.in_part_frame(p, light)
+        shade = shadow_evidence(model.field, model.points, model.direction, model.n1, model.n2, idx, eye, towards,
+                                lambda pts, d: model.image_of(p, pts, d),
+                                lambda uv, n, reach: _find_edges(gx, gy, threshold, uv, n, reach))
+        outer_near = np.r_[near[outer & ~shade.unknown], shade.near]
+        outer_normal = np.vstack([normal[outer & ~shade.unknown], shade.normal])
+        found = np.r_[near[seen & ~shade.unknown], shade.near]
+    coverage = float(outer_near.mean()) if len(outer_near) else float(near.mean())
+    axis = _axis_coverage(outer_near, outer_normal) if len(outer_near) else _axis_coverage(near, normal)
+    return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis, found=float(found.mean()) if len(found) else 0.0,
+                    rms_px=rms,
                     cost=float(sol.cost), jac=sol.jac[inliers][:, :3], residuals=sol.fun[inliers],
                     hidden=float(1.0 - seen.mean()), bloom_px=bloom)
 
@@ -812,7 +839,8 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
             continue
         box = (max(bx, 0), max(by, 0), min(bx + bw, w), min(by + bh, h))
         starts = _chamfer_starts(model, edges, labels == i, box, ground(centroids[i]), ground, maps)
-        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin)
+        light = _key_light(model, starts[0], log_ratio, box) if starts else None
+        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin, light)
         if best is None:
             log.info("blob at (%.0f, %.0f) px: no edge fit", *centroids[i])
             continue
@@ -839,6 +867,40 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         raise VisionError("no part found on the tray (check the tray height, the extrinsics and the part file)"
                           + why, source=source)
     return sorted(found, key=lambda p: -p.score)
+
+
+def _key_light(model: _EdgeModel, pose: np.ndarray, log_ratio: np.ndarray, box: tuple[int, int, int, int]
+               ) -> np.ndarray | None:
+    """The key light's unit direction (base frame) from the shadow around a blob's part at ``pose``, or None.
+
+    The tray's pixels every :data:`LIGHT_PIXEL_STEP` px of the blob's box ``box`` (x0, y0, x1, y1)
+    and a margin of the part's size, hard shadow where ``log_ratio`` (the picture over the tray
+    model) is below :data:`vision.shadow.DARK_LOG` (:func:`vision.shadow.estimate_light`).
+    """
+    h, w = log_ratio.shape
+    x0, y0, x1, y1 = box
+    margin = max(x1 - x0, y1 - y0) // 2
+    vs, us = np.mgrid[max(y0 - margin, 0):min(y1 + margin, h):LIGHT_PIXEL_STEP,
+                      max(x0 - margin, 0):min(x1 + margin, w):LIGHT_PIXEL_STEP]
+    pix = np.column_stack([us.ravel(), vs.ravel()]).astype(np.float64)
+    rays = model.camera.rays(pix) @ cv2.Rodrigues(model.rvec)[0]  # base frame: R_base_cam @ ray
+    eye = model.eye
+    tray = eye[:2] + ((model.tray_z - eye[2]) / rays[:, 2])[:, None] * rays[:, :2]
+    eye_part, _ = model.in_part_frame(pose, np.zeros(3))
+    tray_part = (tray - pose[:2]) @ _rz(pose[2])
+    dark = log_ratio[vs.ravel(), us.ravel()] < DARK_LOG
+    light = estimate_light(model.field, tray_part, dark, eye_part, min_dark=MIN_DARK_PIXELS)
+    if light is None:
+        return None
+    r = np.eye(3)
+    r[:2, :2] = _rz(pose[2])
+    return r @ light
+
+
+#: The tray around a blob is looked at every this many pixels for the light (:func:`_key_light`).
+LIGHT_PIXEL_STEP = 3
+#: Fewest dark tray pixels (of those looked at) that make a hard shadow to take the light from.
+MIN_DARK_PIXELS = 40
 
 
 def _explained(model: _EdgeModel, pose: np.ndarray, thin: np.ndarray) -> float:
@@ -874,17 +936,18 @@ EXPLAIN_PX = 2.0
 
 
 def _best_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
-              symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None
-              ) -> _EdgeFit | None:
-    """The edge fit of one blob from its coarse starts (x, y [m], yaw [rad]); None when none converges."""
-    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated) for s in starts)
-            if fit is not None]
+              symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None,
+              light: np.ndarray | None = None) -> _EdgeFit | None:
+    """The edge fit of one blob from its coarse starts (x, y [m], yaw [rad]); None when none converges.
+    ``light``: the key light's unit direction (base frame), None for diffuse light."""
+    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated, light=light)
+                            for s in starts) if fit is not None]
     if not fits:
         return None
     # A symmetric outline fits turned as well as not: the edges inside it (steps, bosses) decide.
     first = max(fits, key=lambda fit: fit.found)
     turns = [first.pose + np.array([0.0, 0.0, 2 * np.pi * k / symmetry]) for k in range(1, symmetry)]
-    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, SEARCH_PX[-2:], saturated) for t in turns)
+    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, SEARCH_PX[-2:], saturated, light) for t in turns)
              if fit is not None]
     # Of the fits that find (nearly) as many edges as the best, the one that lies closest on them.
     most = max(fit.found for fit in fits)
