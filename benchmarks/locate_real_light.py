@@ -24,7 +24,7 @@ Rendering takes seconds per picture; ``--cache`` keeps the pictures between runs
 pixel), put at the same place. A camera of more than 2 MP is rendered with one ray per pixel, not
 four (its pixels are a sixth as wide; four rays would take minutes per picture). ``--binning N``
 averages N x N pixels into one before locate, as the camera's own binning mode does, and locate
-gets the camera model of that mode (:func:`binned`).
+gets the camera model of that mode (:func:`vision.camera.binned_camera`).
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from factory.core.errors import VisionError  # noqa: E402
 from tests.vision.defects import defective_mesh  # noqa: E402
 from tests.vision.lit import (CONDITIONS, OWN_PARTS, SAMPLE_PARTS, LitScene, cell_station,  # noqa: E402
                               gallery_scene, sample_mesh)
-from vision.camera import CameraModel  # noqa: E402
+from vision.camera import CameraModel, bin_image, binned_camera  # noqa: E402
 from vision.locate import locate_parts  # noqa: E402
 from vision.station import CameraStation  # noqa: E402
 
@@ -63,29 +63,6 @@ def yaw_error(a: float, b: float, symmetry: int) -> float:
 
 #: Pixels above which a picture is rendered with one ray per pixel (see the module docstring).
 FINE_CAMERA_PX = 2_000_000
-
-
-def binned(camera: CameraModel, n: int) -> CameraModel:
-    """The camera in its ``n`` x ``n`` binning mode: a pixel is the mean of ``n`` x ``n`` sensor pixels,
-    so focal lengths and the principal point scale by 1/n (pixel centres: (c + 0.5) / n - 0.5) and
-    the distortion, a function of the normalised image point, is unchanged."""
-    if n == 1:
-        return camera
-    k = np.array(camera.K, dtype=float)
-    k[:2, :3] /= n
-    k[:2, 2] += (1.0 / n - 1.0) / 2
-    w, h = camera.image_size
-    return CameraModel(K=k, dist=np.asarray(camera.dist), model=camera.model, image_size=(w // n, h // n),
-                       name=f"{camera.name}_bin{n}")
-
-
-def bin_image(image: np.ndarray, n: int) -> np.ndarray:
-    """Mean of each ``n`` x ``n`` block of a grey picture (uint8), edges that do not fill a block dropped."""
-    if n == 1:
-        return image
-    h, w = (image.shape[0] // n) * n, (image.shape[1] // n) * n
-    blocks = image[:h, :w].reshape(h // n, n, w // n, n).astype(np.float64)
-    return np.clip(np.rint(blocks.mean(axis=(1, 3))), 0, 255).astype(np.uint8)
 
 
 def picture(station, part: str, condition: str, seed: int, cache: Path | None, defect: str | None = None):
@@ -124,7 +101,7 @@ def _reason(message: str) -> str:
 def run(poses: int, cache: Path | None, conditions: list[str], parts: list[str], first_seed: int = 0,
         camera: Path | None = None, binning: int = 1) -> dict:
     station = cell_station(CameraModel.read(camera) if camera is not None else None)
-    seen = CameraStation(binned(station.camera, binning), station.world_to_camera, station.plane_z)
+    seen = CameraStation(binned_camera(station.camera, binning), station.world_to_camera, station.plane_z)
     rows = []
     for condition in conditions:
         for part in parts:

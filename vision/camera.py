@@ -264,3 +264,26 @@ def _yaml_scalar(text: str) -> str:
     """``text`` as a YAML scalar that reads back as the same string."""
     dumped = yaml.safe_dump(str(text), default_flow_style=True, width=math.inf)
     return dumped.removesuffix("\n...\n").strip()
+
+
+def binned_camera(camera: CameraModel, n: int) -> CameraModel:
+    """The camera in its ``n`` x ``n`` binning mode: a pixel is the mean of ``n`` x ``n`` sensor pixels,
+    so focal lengths and the principal point scale by 1/n (pixel centres: (c + 0.5) / n - 0.5) and
+    the distortion, a function of the normalised image point, is unchanged."""
+    if n == 1:
+        return camera
+    k = np.array(camera.K, dtype=float)
+    k[:2, :3] /= n
+    k[:2, 2] += (1.0 / n - 1.0) / 2
+    w, h = camera.image_size
+    return CameraModel(K=k, dist=np.asarray(camera.dist), model=camera.model, image_size=(w // n, h // n),
+                       name=f"{camera.name}_bin{n}")
+
+
+def bin_image(image: np.ndarray, n: int) -> np.ndarray:
+    """Mean of each ``n`` x ``n`` block of a grey picture (uint8), edges that do not fill a block dropped."""
+    if n == 1:
+        return image
+    h, w = (image.shape[0] // n) * n, (image.shape[1] // n) * n
+    blocks = image[:h, :w].reshape(h // n, n, w // n, n).astype(np.float64)
+    return np.clip(np.rint(blocks.mean(axis=(1, 3))), 0, 255).astype(np.uint8)

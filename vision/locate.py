@@ -27,7 +27,6 @@ A mesh with symmetry gives one of the equivalent yaws.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -44,7 +43,9 @@ from shapely.geometry import MultiPolygon, Polygon
 
 from factory.core.errors import VisionError
 from factory.core.units import MM_PER_M
-from vision.camera import CameraModel
+from vision.camera import CameraModel, bin_image, binned_camera
+from vision.locate_search import FIT_SAMPLES, chamfer_starts, oriented_distances, thin_edges
+from vision.shadow import DARK_LOG, dark_both_sides, estimate_light, height_field, shadow_evidence
 
 log = logging.getLogger(__name__)
 
@@ -344,6 +345,7 @@ class _EdgeModel:
         self.rvec = cv2.Rodrigues(cam_base[:3, :3])[0].ravel()
         self.tvec = cam_base[:3, 3]
         self.eye = -cam_base[:3, :3].T @ cam_base[:3, 3]
+        self.field = height_field(mesh.vertices, mesh.faces)  # for the light and the shadows it casts
 
     def same_turned(self, k: int, symmetry: int) -> bool:
         """Whether the mesh's edges turned by ``k`` of ``symmetry`` turns about the footprint's centroid
@@ -370,24 +372,33 @@ class _EdgeModel:
 
     def project(self, p: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(k, 2)`` pixel positions of the sample points ``idx`` at pose ``p`` and their unit image normals."""
-        w = self.world(p, self.points[idx])
+        return self.image_of(p, self.points[idx], self.direction[idx])
+
+    def image_of(self, p: np.ndarray, points: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(k, 2)`` pixel positions of part-frame ``points`` (k, 3) [m] at pose ``p`` and the unit image
+        normals of lines through them along ``direction`` (k, 3)."""
+        w = self.world(p, points)
         r = np.eye(3)
         r[:2, :2] = _rz(p[2])
-        ahead = w + 1e-4 * (self.direction[idx] @ r.T)
+        ahead = w + 1e-4 * (direction @ r.T)
         uv = self.camera.project(np.vstack([w, ahead]), self.rvec, self.tvec)
-        k = len(idx)
+        k = len(points)
         tangent = uv[k:] - uv[:k]
         normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
         normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
         return uv[:k], normal
+
+    def in_part_frame(self, p: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The camera's eye (3,) [m] and a base-frame ``direction`` (3,) in the part's frame at pose ``p``."""
+        r = np.eye(3)
+        r[:2, :2] = _rz(p[2])
+        return (self.eye - np.array([p[0], p[1], self.tray_z])) @ r, np.asarray(direction) @ r
 
 
 #: Spacing of the model's edge samples [m] (about a pixel at the cell camera's distance).
 EDGE_SAMPLE_M = 8e-4
 #: Edge samples closer than this to the footprint's outline (in x, y) are on the part's outline [m].
 OUTER_M = 5e-4
-#: Most edge samples a round of the edge fit uses (evenly thinned; the final judgement uses all).
-FIT_SAMPLES = 400
 #: Faces meeting at more than this make an edge a picture can show [deg].
 CREASE_DEG = 25.0
 #: Share of the visible edges hidden in clipped highlights above which a symmetric turn that fits
@@ -516,18 +527,28 @@ def _hidden(saturated: np.ndarray | None, uv: np.ndarray, normal: np.ndarray) ->
 
 
 def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, start: np.ndarray,
-              reaches: tuple[float, ...] = SEARCH_PX, saturated: np.ndarray | None = None) -> _EdgeFit | None:
+              reaches: tuple[float, ...] = SEARCH_PX, saturated: np.ndarray | None = None,
+              light: np.ndarray | None = None) -> _EdgeFit | None:
     """Fit x, y and yaw so the model's visible edges lie on the picture's edges (rounds of search and fit).
 
     Edges beside a clipped highlight (``saturated``, (h, w) uint8) are measured with a common
     bloom [px] fitted with the pose; edges inside the outline that lie in a clipped area on both
-    sides cannot show and are left out of the share found.
+    sides cannot show and are left out of the share found. Under a key light (``light``, unit (3,)
+    towards it, base frame; :func:`vision.shadow.estimate_light`) the edges dark on both sides are
+    left out as well (of the fit too: what they find nearby is another edge, often the shadow's),
+    and the edge of the shadow the part casts on the tray counts with its outline.
     """
     p = np.asarray(start, dtype=np.float64)
     bloom = 0.0
     sol = None
+    unknown = np.zeros(len(model.points), bool)
+    if light is not None:
+        idx = model.visible(p)
+        eye, towards = model.in_part_frame(p, light)
+        unknown[idx] = dark_both_sides(model.field, model.points[idx], model.n1[idx], model.n2[idx], eye, towards)
     for reach in reaches:
         idx = model.visible(p)
+        idx = idx[~unknown[idx]]
         if len(idx) < 12:
             return None
         idx = idx[:: max(1, len(idx) // FIT_SAMPLES)]
@@ -565,9 +586,20 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
     seen = outer | ~_hidden(saturated, uv, normal)
     inliers = np.abs(sol.fun) <= 1.5
     rms = float(np.sqrt(np.mean(sol.fun[inliers] ** 2))) if inliers.any() else np.inf
-    coverage = float(near[outer].mean()) if outer.any() else float(near.mean())
-    axis = _axis_coverage(near[outer], normal[outer]) if outer.any() else _axis_coverage(near, normal)
-    return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis, found=float(near[seen].mean()), rms_px=rms,
+    outer_near, outer_normal = near[outer], normal[outer]
+    found = near[seen]
+    if light is not None:
+        eye, towards = model.in_part_frame(p, light)
+        shade = shadow_evidence(model.field, model.points, model.direction, model.n1, model.n2, idx, eye, towards,
+                                lambda pts, d: model.image_of(p, pts, d),
+                                lambda uv, n, reach: _find_edges(gx, gy, threshold, uv, n, reach))
+        outer_near = np.r_[near[outer & ~shade.unknown], shade.near]
+        outer_normal = np.vstack([normal[outer & ~shade.unknown], shade.normal])
+        found = np.r_[near[seen & ~shade.unknown], shade.near]
+    coverage = float(outer_near.mean()) if len(outer_near) else float(near.mean())
+    axis = _axis_coverage(outer_near, outer_normal) if len(outer_near) else _axis_coverage(near, normal)
+    return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis, found=float(found.mean()) if len(found) else 0.0,
+                    rms_px=rms,
                     cost=float(sol.cost), jac=sol.jac[inliers][:, :3], residuals=sol.fun[inliers],
                     hidden=float(1.0 - seen.mean()), bloom_px=bloom)
 
@@ -588,137 +620,6 @@ def _axis_coverage(near: np.ndarray, normal: np.ndarray) -> float:
     return float(np.min(found / np.maximum(weight.sum(axis=0), 1e-12)))
 
 
-def _chamfer_starts(model: _EdgeModel, edges: np.ndarray, inside: np.ndarray, box: tuple[int, int, int, int],
-                    centre: np.ndarray, ground: Callable[[np.ndarray], np.ndarray], maps: np.ndarray,
-                    yaw_steps: int = 36, keep: int = 3) -> list[np.ndarray]:
-    """The best few (x, y, yaw) of a coarse search: model edges against the picture's edge distance map.
-
-    ``box`` (x0, y0, x1, y1) [px] is the window searched (only where ``inside`` (h, w) is set),
-    ``centre`` a pose (x, y) [m] inside it where the model's image is drawn once per yaw and
-    shifted (a mean distance map value per shift, by ``cv2.filter2D``), ``ground`` maps pixels to
-    tray (x, y) [m]. Edge distances are capped at 6 px, so missing edges cost a bounded amount.
-    Each start is then brought within a pixel and a degree on the oriented distances ``maps``
-    (:func:`_refine_start`), best first.
-    """
-    x0, y0, x1, y1 = box
-    dist = cv2.distanceTransform((edges == 0).astype(np.uint8), cv2.DIST_L2, 3)
-    dist = np.minimum(dist, 6.0).astype(np.float32)
-    h, w = dist.shape
-    ref = model.camera.project(np.array([[centre[0], centre[1], model.tray_z]]), model.rvec, model.tvec)[0]
-    results = []
-    for yaw in np.arange(yaw_steps) * 2 * np.pi / yaw_steps:
-        p = np.array([centre[0], centre[1], yaw])
-        idx = model.visible(p)
-        if len(idx) == 0:
-            continue
-        uv, _ = model.project(p, idx)
-        off = np.rint(uv - ref).astype(int)
-        lo, hi = off.min(axis=0), off.max(axis=0)
-        kernel = np.zeros((hi[1] - lo[1] + 1, hi[0] - lo[0] + 1), np.float32)
-        kernel[off[:, 1] - lo[1], off[:, 0] - lo[0]] = 1.0
-        kernel /= kernel.sum()
-        # The window's scores need the distance map from (x0, y0) + lo to (x1, y1) + hi.
-        rx0, ry0 = x0 + lo[0], y0 + lo[1]
-        # padded by the kernel's reach at least (a fine camera's kernels span more than 200 px)
-        m = int(max(200, np.abs(lo).max(), np.abs(hi).max()) + 1)
-        pad = cv2.copyMakeBorder(dist, m, m, m, m, cv2.BORDER_CONSTANT, value=6.0)
-        roi = pad[ry0 + m:y1 + hi[1] + m + 1, rx0 + m:x1 + hi[0] + m + 1]
-        # filter2D correlates: anchor (0, 0) puts kernel[0, 0] (offset lo) at each output pixel.
-        score = cv2.filter2D(roi, -1, kernel, anchor=(0, 0), borderType=cv2.BORDER_CONSTANT)
-        score = score[:y1 - y0, :x1 - x0]
-        score = np.where(inside[y0:y1, x0:x1] > 0, score, np.inf)
-        for flat in np.argsort(score, axis=None)[:keep]:
-            v, u = divmod(int(flat), score.shape[1])
-            results.append((float(score[v, u]), np.array([u + x0, v + y0]), yaw))
-    results.sort(key=lambda r: r[0])
-    starts: list[np.ndarray] = []
-    for score, pixel, yaw in results:
-        xy = ground(pixel.astype(float))
-        if all(np.hypot(*(xy - s[:2])) > 4e-3 or abs(np.angle(np.exp(1j * (yaw - s[2])))) > 0.3 for s in starts):
-            starts.append(np.r_[xy, yaw])
-        if len(starts) == keep:
-            break
-    return [pose for _, pose in sorted((_refine_start(model, maps, s, ground) for s in starts), key=lambda r: r[0])]
-
-
-#: Edge directions are told apart in this many bins of the half turn (an edge counts in its own
-#: and the two neighbouring bins, so within about 34 deg) for the oriented distance maps.
-ORIENTATION_BINS = 8
-#: The local search around each coarse start: yaw steps [deg] either side, and shifts [px] either side.
-REFINE_YAW_DEG = (1.0, 6)
-REFINE_SHIFT_PX = 8
-
-
-def _oriented_distances(gx: np.ndarray, gy: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """``(ORIENTATION_BINS, h, w)`` float32 distance [px, capped at 6] to the nearest (thin) edge pixel whose
-    gradient direction (modulo a half turn) lies in or beside each bin.
-
-    A model edge only matches a picture edge that runs the same way: the texture, a shadow's
-    penumbra or a boss nearby rarely do, so the local search is not pulled onto them.
-    """
-    angle = np.mod(np.arctan2(gy, gx), np.pi)
-    b = np.minimum((angle / np.pi * ORIENTATION_BINS).astype(np.int64), ORIENTATION_BINS - 1)
-    maps = np.empty((ORIENTATION_BINS, *edges.shape), np.float32)
-    for k in range(ORIENTATION_BINS):
-        near = (edges > 0) & ((b == k) | (b == (k + 1) % ORIENTATION_BINS) | (b == (k - 1) % ORIENTATION_BINS))
-        maps[k] = np.minimum(cv2.distanceTransform((~near).astype(np.uint8), cv2.DIST_L2, 3), 6.0)
-    return maps
-
-
-def _thin_edges(gx: np.ndarray, gy: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """``(h, w)`` bool: the edge pixels on their ridge (non-maximum suppression across the edge).
-
-    A strong edge's band is 3-5 px wide; a band leaves a distance map flat over its width.
-    """
-    angle = np.arctan2(gy, gx)
-    mag = np.hypot(gx, gy)
-    near_x = np.rint(np.cos(angle)).astype(np.int64)
-    near_y = np.rint(np.sin(angle)).astype(np.int64)
-    h, w = mag.shape
-    vv, uu = np.mgrid[0:h, 0:w]
-    ahead = mag[(vv + near_y).clip(0, h - 1), (uu + near_x).clip(0, w - 1)]
-    behind = mag[(vv - near_y).clip(0, h - 1), (uu - near_x).clip(0, w - 1)]
-    return (edges > 0) & (mag >= ahead) & (mag >= behind)
-
-
-def _refine_start(model: _EdgeModel, maps: np.ndarray, start: np.ndarray, ground: Callable[[np.ndarray], np.ndarray]
-                  ) -> tuple[float, np.ndarray]:
-    """The pose near a coarse start (x, y [m], yaw [rad]) whose edges lie closest on picture edges of
-    the same direction: every :data:`REFINE_YAW_DEG` step and pixel shift within reach, scored by the
-    mean oriented distance (``maps``, :func:`_oriented_distances`). Returns (score [px], pose).
-
-    The coarse search's 10 deg yaw grid leaves a 100 mm part's ends 5-8 px off; from there the
-    edge fit's nearest-peak search can lock onto a boss or a shadow. This brings the start within
-    a pixel and a degree first.
-    """
-    step, n = np.radians(REFINE_YAW_DEG[0]), REFINE_YAW_DEG[1]
-    r = REFINE_SHIFT_PX
-    shifts = np.stack(np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1)), axis=-1).reshape(-1, 2)
-    _, h, w = maps.shape
-    ref = model.camera.project(np.array([[start[0], start[1], model.tray_z]]), model.rvec, model.tvec)[0]
-    best = (np.inf, start)
-    for dyaw in np.arange(-n, n + 1) * step:
-        p = np.array([start[0], start[1], start[2] + dyaw])
-        idx = model.visible(p)
-        if len(idx) < 12:
-            continue
-        idx = idx[:: max(1, len(idx) // FIT_SAMPLES)]
-        uv, normal = model.project(p, idx)
-        # The picture's gradient runs along the model edge's image normal.
-        b = np.minimum((np.mod(np.arctan2(normal[:, 1], normal[:, 0]), np.pi) / np.pi * ORIENTATION_BINS)
-                       .astype(np.int64), ORIENTATION_BINS - 1)
-        u = np.rint(uv[:, 0]).astype(np.int64)[None, :] + shifts[:, :1]
-        v = np.rint(uv[:, 1]).astype(np.int64)[None, :] + shifts[:, 1:]
-        inside = (u >= 0) & (v >= 0) & (u < w) & (v < h)
-        d = np.where(inside, maps[b[None, :], v.clip(0, h - 1), u.clip(0, w - 1)], 6.0)
-        score = d.mean(axis=1)
-        k = int(np.argmin(score))
-        if score[k] < best[0]:
-            xy = start[:2] + ground(ref + shifts[k]) - ground(ref)
-            best = (float(score[k]), np.r_[xy, start[2] + dyaw])
-    return best
-
-
 def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray, part: Footprint,
                  tray_z: float, options: LocateOptions = LocateOptions(), *, source: str = "image"
                  ) -> list[LocatedPart]:
@@ -729,7 +630,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
        darker (walls, shadows), makes the candidate blobs.
     2. Coarse search per blob: the mesh's visible edges (:class:`_EdgeModel`: top outline,
        steps, bosses at their real heights) against the distance map of the picture's edges,
-       every 10 deg of yaw, then every degree and pixel near the best three (:func:`_refine_start`).
+       every 10 deg of yaw, then every degree and pixel near the best three (:func:`vision.locate_search.refine_start`).
     3. Edge fit: each visible model edge looks along its image normal for the nearest edge of
        the picture (sub-pixel gradient peak), and x, y, yaw are fitted to them (soft-L1), in
        rounds of narrowing search. A shadow has edges too, but not the model's shape; a wall as
@@ -770,6 +671,14 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
                           f"(z {tray_z:.3f} m + {part.height:.3f} m)", source=source)
     if len(part.faces) == 0:
         part = _prism_mesh(part)
+    # The search's steps and the judgement's "within a pixel" are in pixels: a fine camera is
+    # searched and judged on its binned picture, about as coarse as the cell camera's, and each
+    # pose is then refined on the full picture (:func:`_refined`).
+    binning = int(SEARCH_PIXEL_M / ((cam_pos[2] - tray_z) / np.sqrt(camera.fx * camera.fy)))
+    if binning >= 2:
+        coarse = locate_parts(bin_image(grey, binning), binned_camera(camera, binning), base_camera, part, tray_z,
+                              options, source=source)
+        return [_refined(p, grey, camera, base_camera, part, tray_z, binning) for p in coarse]
 
     ratio, spread = _tray_ratio(grey)
     log_ratio = np.log(ratio)
@@ -784,7 +693,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, np.ones((9, 9), np.uint8))
     fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(fg, connectivity=8)
-    maps = _oriented_distances(gx, gy, thin := _thin_edges(gx, gy, edges))
+    maps = oriented_distances(gx, gy, thin := thin_edges(gx, gy, edges))
     model = _EdgeModel(part, camera, cam_base, tray_z)
     f = np.sqrt(camera.fx * camera.fy)
     w, h = camera.image_size
@@ -811,8 +720,9 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         if any(np.hypot(p.pixel[0] - centroids[i][0], p.pixel[1] - centroids[i][1]) < radius_px for p in found):
             continue
         box = (max(bx, 0), max(by, 0), min(bx + bw, w), min(by + bh, h))
-        starts = _chamfer_starts(model, edges, labels == i, box, ground(centroids[i]), ground, maps)
-        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin)
+        starts = chamfer_starts(model, edges, labels == i, box, ground(centroids[i]), ground, maps)
+        light = _key_light(model, starts[0], log_ratio, box) if starts else None
+        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin, light)
         if best is None:
             log.info("blob at (%.0f, %.0f) px: no edge fit", *centroids[i])
             continue
@@ -841,10 +751,44 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     return sorted(found, key=lambda p: -p.score)
 
 
+def _key_light(model: _EdgeModel, pose: np.ndarray, log_ratio: np.ndarray, box: tuple[int, int, int, int]
+               ) -> np.ndarray | None:
+    """The key light's unit direction (base frame) from the shadow around a blob's part at ``pose``, or None.
+
+    The tray's pixels every :data:`LIGHT_PIXEL_STEP` px of the blob's box ``box`` (x0, y0, x1, y1)
+    and a margin of the part's size, hard shadow where ``log_ratio`` (the picture over the tray
+    model) is below :data:`vision.shadow.DARK_LOG` (:func:`vision.shadow.estimate_light`).
+    """
+    h, w = log_ratio.shape
+    x0, y0, x1, y1 = box
+    margin = max(x1 - x0, y1 - y0) // 2
+    vs, us = np.mgrid[max(y0 - margin, 0):min(y1 + margin, h):LIGHT_PIXEL_STEP,
+                      max(x0 - margin, 0):min(x1 + margin, w):LIGHT_PIXEL_STEP]
+    pix = np.column_stack([us.ravel(), vs.ravel()]).astype(np.float64)
+    rays = model.camera.rays(pix) @ cv2.Rodrigues(model.rvec)[0]  # base frame: R_base_cam @ ray
+    eye = model.eye
+    tray = eye[:2] + ((model.tray_z - eye[2]) / rays[:, 2])[:, None] * rays[:, :2]
+    eye_part, _ = model.in_part_frame(pose, np.zeros(3))
+    tray_part = (tray - pose[:2]) @ _rz(pose[2])
+    dark = log_ratio[vs.ravel(), us.ravel()] < DARK_LOG
+    light = estimate_light(model.field, tray_part, dark, eye_part, min_dark=MIN_DARK_PIXELS)
+    if light is None:
+        return None
+    r = np.eye(3)
+    r[:2, :2] = _rz(pose[2])
+    return r @ light
+
+
+#: The tray around a blob is looked at every this many pixels for the light (:func:`_key_light`).
+LIGHT_PIXEL_STEP = 3
+#: Fewest dark tray pixels (of those looked at) that make a hard shadow to take the light from.
+MIN_DARK_PIXELS = 40
+
+
 def _explained(model: _EdgeModel, pose: np.ndarray, thin: np.ndarray) -> float:
     """Share of the picture's edge pixels inside the part's outline that lie on a model edge at ``pose``.
 
-    ``thin`` (h, w) bool are the picture's edges (:func:`_thin_edges`). Only the pixels more than
+    ``thin`` (h, w) bool are the picture's edges (:func:`vision.locate_search.thin_edges`). Only the pixels more than
     :data:`EXPLAIN_PX` inside the outline count, and they count as explained within that of an edge
     the model shows there. Turns of a symmetric outline share it, so this compares what lies inside:
     a boss's bore seen in glare is explained by the pose that has it there, not by its turn (which
@@ -874,17 +818,18 @@ EXPLAIN_PX = 2.0
 
 
 def _best_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
-              symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None
-              ) -> _EdgeFit | None:
-    """The edge fit of one blob from its coarse starts (x, y [m], yaw [rad]); None when none converges."""
-    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated) for s in starts)
-            if fit is not None]
+              symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None,
+              light: np.ndarray | None = None) -> _EdgeFit | None:
+    """The edge fit of one blob from its coarse starts (x, y [m], yaw [rad]); None when none converges.
+    ``light``: the key light's unit direction (base frame), None for diffuse light."""
+    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated, light=light)
+                            for s in starts) if fit is not None]
     if not fits:
         return None
     # A symmetric outline fits turned as well as not: the edges inside it (steps, bosses) decide.
     first = max(fits, key=lambda fit: fit.found)
     turns = [first.pose + np.array([0.0, 0.0, 2 * np.pi * k / symmetry]) for k in range(1, symmetry)]
-    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, SEARCH_PX[-2:], saturated) for t in turns)
+    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, SEARCH_PX[-2:], saturated, light) for t in turns)
              if fit is not None]
     # Of the fits that find (nearly) as many edges as the best, the one that lies closest on them.
     most = max(fit.found for fit in fits)
@@ -963,6 +908,31 @@ def _located(fit: _EdgeFit, camera: CameraModel, base_camera: np.ndarray, part: 
     return LocatedPart(x=float(p[0]), y=float(p[1]), z=float(tray_z), yaw=float(np.angle(np.exp(1j * p[2]))),
                        score=fit.coverage, rms_px=fit.rms_px, mm_per_px=float(metres_per_px * 1e3),
                        sigma_xy=sigma_xy, sigma_yaw=sigma_yaw, pixel=(float(pixel[0]), float(pixel[1])))
+
+
+#: A camera whose pixel on the tray is smaller than half this is searched on its binned picture, with
+#: pixels of about this size [m] (the cell camera's 0.82 mm; 0.58 mm for the 5 MP camera, 4 x 4).
+SEARCH_PIXEL_M = 6e-4
+
+
+def _refined(coarse: LocatedPart, grey: np.ndarray, camera: CameraModel, base_camera: np.ndarray, part: Footprint,
+             tray_z: float, binning: int) -> LocatedPart:
+    """A pose found on the ``binning`` x ``binning`` binned picture, refined on the full picture ``grey``.
+
+    The edge fit starts from the coarse pose (within a binned pixel or so) and runs its narrowing
+    rounds on the full picture; the pose, RMS and uncertainty are then the full picture's. A fit that
+    wanders further than a binned pixel from its start found other edges: the coarse pose stands.
+    The judgement (score, refusals) is the binned picture's.
+    """
+    model = _EdgeModel(part, camera, np.linalg.inv(base_camera), tray_z)
+    gx, gy, threshold = _gradients(grey)
+    start = np.array([coarse.x, coarse.y, coarse.yaw])
+    fit = _edge_fit(model, gx, gy, threshold, start, saturated=(grey >= SATURATED_GREY).astype(np.uint8))
+    outline = (coarse.outline + 0.5) * binning - 0.5  # binned pixel centres on the full picture
+    if fit is None or np.hypot(*(fit.pose[:2] - start[:2])) > coarse.mm_per_px * 1e-3:
+        return replace(coarse, outline=outline)
+    fine = _located(fit, camera, base_camera, part, tray_z, np.sqrt(camera.fx * camera.fy))
+    return replace(fine, score=coarse.score, outline=outline)
 
 
 def _prism_mesh(part: Footprint) -> Footprint:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import cv2
 import numpy as np
 import pytest
 import trimesh
@@ -9,9 +12,13 @@ from shapely.geometry import Polygon
 
 from factory.core.errors import VisionError
 from tests.vision import TRUE_CAMERA
+from vision.camera import CameraModel, bin_image, binned_camera
 from vision.handeye import invert
 from vision.locate import footprint_from_mesh, locate_parts, mm_to_m
 from vision.render import Box, look_at_pose, pixel_rays, render_boxes
+from vision.station import station_above
+
+ROOT = Path(__file__).resolve().parents[2]
 
 TRAY_Z = 0.05
 BLANK_MM = (80.0, 50.0, 20.0)
@@ -135,3 +142,41 @@ def test_rendered_box_top_lands_where_projection_says():
     vs, us = np.mgrid[0:240, 0:320]
     centre = cam.project(np.array([[box.x, box.y, 0.1]]) @ down[:3, :3].T + down[:3, 3], np.zeros(3), np.zeros(3))[0]
     np.testing.assert_allclose([(img * us).sum() / img.sum(), (img * vs).sum() / img.sum()], centre, atol=0.02)
+
+
+def test_a_binned_camera_sees_each_point_at_the_mean_of_its_sensor_pixels():
+    """A point's pixel in the n x n binning mode is its sensor pixel's centre mapped onto the bins:
+    (u + 0.5) / n - 0.5 (vision.camera.binned_camera), for the 5 MP camera's distortion too."""
+    camera = CameraModel.read(ROOT / "fixtures" / "camera_5mp.yaml")
+    points = np.random.default_rng(0).uniform([-0.15, -0.12, 0.45], [0.15, 0.12, 0.55], (50, 3))
+    full = camera.project(points, np.zeros(3), np.zeros(3))
+    for n in (2, 4):
+        coarse = binned_camera(camera, n)
+        assert coarse.image_size == (camera.image_size[0] // n, camera.image_size[1] // n)
+        np.testing.assert_allclose(coarse.project(points, np.zeros(3), np.zeros(3)), (full + 0.5) / n - 0.5,
+                                   atol=1e-9)
+    image = np.arange(16, dtype=np.uint8).reshape(4, 4)
+    np.testing.assert_array_equal(bin_image(image, 2), [[2, 4], [10, 12]])  # rint(2.5) = 2, rint(4.5) = 4
+
+
+def test_a_5_mp_camera_locates_on_its_binned_picture_and_refines_on_the_full_one():
+    """The 5 MP cell camera (0.144 mm per pixel) over a blank: searched and judged on its 4 x 4
+    binned picture (0.58 mm per pixel), refined on the full one, so the pose is within 0.05 mm and
+    0.05 deg, within its uncertainty, and that uncertainty is the full picture's (under 0.2 mm, a
+    third of a binned pixel); the outline for inspection is in full-picture pixels."""
+    camera = CameraModel.read(ROOT / "fixtures" / "camera_5mp.yaml")
+    station = station_above(camera, np.array([0.05, 0.40, 0.78]), 0.5)
+    blank = Box(0.07, 0.38, 0.4, tuple(np.array(BLANK_MM) / 1e3))
+    image = render_boxes(pixel_rays(camera, 1), station.world_to_camera, [blank], plane_z=station.plane_z)
+    mesh = blank_mesh()
+    (p,) = locate_parts(image, camera, station.camera_pose, footprint_from_mesh(mesh.vertices, mesh.faces),
+                        station.plane_z)
+    error = np.hypot(p.x - blank.x, p.y - blank.y)
+    turn = yaw_error(p.yaw, blank.yaw, np.pi)
+    assert error < 5e-5 and turn < np.radians(0.05), (error, np.degrees(turn))
+    assert error <= p.sigma_xy < 2e-4 and turn <= p.sigma_yaw
+    assert p.mm_per_px == pytest.approx(0.14, abs=0.01)
+    rvec = cv2.Rodrigues(station.world_to_camera[:3, :3])[0].ravel()
+    middle = camera.project(np.array([[blank.x, blank.y, station.plane_z + BLANK_MM[2] / 2e3]]), rvec,
+                            station.world_to_camera[:3, 3])[0]
+    assert np.hypot(*(np.mean(p.outline, axis=0) - middle)) < 8.0  # px of the full picture

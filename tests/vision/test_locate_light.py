@@ -17,16 +17,19 @@ from hypothesis import strategies as st
 
 from factory.core.errors import VisionError
 from tests.vision.lit import CONDITIONS, OWN_PARTS, SAMPLE_PARTS, cell_station, gallery_scene, render_lit, sample_mesh
-from vision.locate import (_axis_coverage, _EdgeModel, _gradients, _oriented_distances, _refine_start, _thin_edges,
-                           locate_parts)
+from vision.locate import _axis_coverage, _EdgeModel, _gradients, locate_parts
+from vision.locate_search import oriented_distances, refine_start, thin_edges
 
 #: (condition, part, seed): the stepped parts, long hard shadows, dim exposure, a box beside the part;
 #: two plates whose bosses once pulled the edge fit 4-5 mm off a coarse start (diffuse 1, dim 0); the
-#: two shapes of the benchmark beyond the samples (an L with a tall upright, a hexagonal boss).
+#: two shapes of the benchmark beyond the samples (an L with a tall upright, a hexagonal boss); a plate
+#: and a boss under a low key light, whose outline is half in shadow and half as grey as the tray
+#: (found once the key light is estimated: the edges dark on both sides are left out and the edge of
+#: the shadow cast on the tray counts, vision/shadow.py).
 PICTURES = [("diffuse", "stepped_wall", 0), ("diffuse", "plate_bosses", 2), ("low_angle", "bracket", 0),
             ("low_angle", "stepped_wall", 0), ("dim", "dome_mould", 1), ("distractor", "plate_bosses", 0),
             ("diffuse", "plate_bosses", 1), ("dim", "plate_bosses", 0), ("dim", "l_bracket", 2),
-            ("diffuse", "hex_boss", 0)]
+            ("diffuse", "hex_boss", 0), ("low_angle", "plate_bosses", 3), ("low_angle", "hex_boss", 1)]
 #: Glare on a polished part, and the two pictures where locate once reported a wrong pose: a stepped
 #: wall slid 2.5 mm along itself in dim light (its ends not seen), a plate with bosses turned 180 deg
 #: under glare (its bosses not seen); an L whose turn fits nearly as well in glare. No wrong pose.
@@ -132,7 +135,7 @@ def test_a_coarse_start_some_pixels_and_degrees_off_is_brought_within_a_pixel_an
     _, footprint, _ = sample_mesh("plate_bosses")
     model = _EdgeModel(footprint, station.camera, np.linalg.inv(station.camera_pose), station.plane_z)
     gx, gy, threshold = _gradients(scene.image)
-    maps = _oriented_distances(gx, gy, _thin_edges(gx, gy, np.hypot(gx, gy) > threshold))
+    maps = oriented_distances(gx, gy, thin_edges(gx, gy, np.hypot(gx, gy) > threshold))
 
     def ground(pixel):
         ray = station.camera_pose[:3, :3] @ station.camera.rays(pixel[None])[0]
@@ -140,7 +143,7 @@ def test_a_coarse_start_some_pixels_and_degrees_off_is_brought_within_a_pixel_an
         return eye[:2] + (station.plane_z - eye[2]) / ray[2] * ray[:2]
 
     truth = np.array([scene.x, scene.y, scene.yaw])
-    score, pose = _refine_start(model, maps, truth + [0.003, -0.0027, np.radians(3.0)], ground)
+    score, pose = refine_start(model, maps, truth + [0.003, -0.0027, np.radians(3.0)], ground)
     assert np.hypot(*(pose[:2] - truth[:2])) < 1e-3 and abs(pose[2] - truth[2]) < np.radians(1.0)
     assert score < 3.0  # mean distance to a picture edge of the same direction [px]
 
@@ -151,7 +154,7 @@ def test_thin_edges_leave_one_pixel_of_a_blurred_disc_on_its_rim():
     cv2.circle(image, (60, 60), 30, 200, -1)
     image = cv2.GaussianBlur(image, (0, 0), 1.2)
     gx, gy, threshold = _gradients(image)
-    thin = _thin_edges(gx, gy, np.hypot(gx, gy) > threshold)
+    thin = thin_edges(gx, gy, np.hypot(gx, gy) > threshold)
     v, u = np.nonzero(thin)
     r = np.hypot(u - 60, v - 60)
     assert np.all(np.abs(r - 30) < 1.6)

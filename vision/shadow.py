@@ -1,0 +1,382 @@
+"""Where a part lying on the tray is in shadow: the key light's direction from the picture, and which of
+the part's edges lie in shadow on both sides, so that a picture cannot show them.
+
+Under a low, hard light the wall turned away from it is dark, and so is the tray at its foot, in the
+wall's own cast shadow: the crease between them shows nothing. A boss's shadow falls across the
+plate's edge the same way. These edges are not missing from the picture, they are unknowable there,
+and :func:`vision.locate.locate_parts` leaves them out of the shares it judges a pose by, as it
+leaves out edges inside a clipped highlight. Which edges they are follows from the mesh at the
+hypothesised pose and the light, not from how dark the picture happens to be there, so a wrong pose
+cannot excuse its missing edges by lying on a shadow.
+
+Everything here is in the part's frame of :class:`vision.locate._EdgeModel` (footprint centroid at
+x = y = 0, lowest point at z = 0; metres) unless a name says otherwise.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+
+#: Cell size of the part's height field [m].
+TEXEL_M = 5e-4
+#: A point is shadowed only by what stands this far above the line to the light (the height field's
+#: cells take their triangle's highest point) [m].
+SHADOW_BIAS_M = 4e-4
+#: Points an edge's sides are looked at, this far off the edge into the open air [m].
+SIDE_M = 6e-4
+#: A face lit at a smaller cosine than this is counted dark (grazing light) (unitless).
+GRAZING_COS = 0.15
+#: Log brightness under the tray model below which a pixel is in a hard shadow (about 35 % darker).
+DARK_LOG = -0.45
+#: Fewer dark pixels around the part than this share of its own area: no hard shadow, no key light
+#: to account for (diffuse or overhead light) (unitless).
+MIN_DARK_SHARE = 0.08
+#: A key light higher than this [rad] is not taken into account: its shadows are short, and the
+#: room's light shows the walls turned away from it (on the benchmark, from 50 deg up the outline
+#: is found as well without; with, polished parts in glare came out 1.5 mm off instead of refused).
+LOW_LIGHT = np.radians(40.0)
+#: Tray points the light is estimated from, at most, and the step of the look towards the light [m].
+LIGHT_POINTS = 600
+LIGHT_STEP_M = 1e-3
+
+
+@dataclass(frozen=True)
+class HeightField:
+    """The part seen from straight above: the height of its highest point in each cell.
+
+    Attributes
+    ----------
+    heights : (rows, cols) float32
+        Height above the part's lowest point [m]; 0 where there is no part (the tray).
+    origin : (2,) float
+        x, y of the centre of cell (0, 0) [m].
+    """
+
+    heights: np.ndarray
+    origin: np.ndarray
+
+    def at(self, xy: np.ndarray) -> np.ndarray:
+        """``(n,)`` heights [m] at ``xy`` (n, 2) [m]; 0 outside the field."""
+        q = np.rint((np.asarray(xy) - self.origin) / TEXEL_M).astype(np.int64)
+        rows, cols = self.heights.shape
+        inside = (q[:, 0] >= 0) & (q[:, 1] >= 0) & (q[:, 0] < cols) & (q[:, 1] < rows)
+        out = np.zeros(len(q), np.float32)
+        out[inside] = self.heights[q[inside, 1], q[inside, 0]]
+        return out
+
+
+def height_field(vertices: np.ndarray, faces: np.ndarray) -> HeightField:
+    """The height field of a mesh (vertices (n, 3) [m], part frame; faces (m, 3) int).
+
+    Each triangle is drawn at its highest vertex, lowest first, so every cell keeps the highest
+    triangle over it (a wall, seen edge-on, draws its top line). Good to a cell's size on freeform
+    faces, exact on the flat tops and walls of prismatic parts.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    tri = v[np.asarray(faces)]
+    origin = v[:, :2].min(axis=0) - 2 * TEXEL_M
+    size = np.ceil((v[:, :2].max(axis=0) + 2 * TEXEL_M - origin) / TEXEL_M).astype(int) + 1
+    heights = np.zeros((size[1], size[0]), np.float32)
+    top = tri[:, :, 2].max(axis=1)
+    # Sub-cell vertex positions (4 fractional bits) so thin walls land where they stand.
+    pts = np.rint((tri[:, :, :2] - origin) / TEXEL_M * 16).astype(np.int32)
+    for k in np.argsort(top):
+        cv2.fillConvexPoly(heights, pts[k], float(top[k]), lineType=cv2.LINE_8, shift=4)
+    heights.setflags(write=False)
+    return HeightField(heights=heights, origin=origin)
+
+
+def shadowed(field: HeightField, points: np.ndarray, light: np.ndarray) -> np.ndarray:
+    """``(n,)`` bool: the part stands between each point (n, 3) [m] and the light (unit, z > 0).
+
+    ``light`` is one direction (3,) or one per point (n, 3) (towards the camera's eye, the same
+    test says whether the part hides a tray point from it). March from each point towards the
+    light, a cell at a time, until the line to the light is above the part's highest point.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    d = np.broadcast_to(np.asarray(light, dtype=np.float64), p.shape)
+    flat = np.hypot(d[:, 0], d[:, 1])
+    out = np.zeros(len(p), bool)
+    if len(p) == 0:
+        return out
+    steep = flat < 1e-6
+    rise = d[:, 2] / np.where(steep, 1.0, flat)  # height gained per metre along the tray
+    ahead = d[:, :2] / np.where(steep, 1.0, flat)[:, None]
+    top = float(field.heights.max())
+    # Straight up: only the point's own column can cover it.
+    out[steep] = field.at(p[steep, :2]) > p[steep, 2] + SHADOW_BIAS_M
+    live = ~steep & (p[:, 2] < top)
+    s = TEXEL_M
+    while live.any():
+        i = np.flatnonzero(live)
+        z = p[i, 2] + s * rise[i]
+        hit = field.at(p[i, :2] + s * ahead[i]) > z + SHADOW_BIAS_M
+        out[i[hit]] = True
+        live[i[hit | (z >= top)]] = False
+        s += TEXEL_M
+    return out
+
+
+def _lit(field: HeightField, points: np.ndarray, normals: np.ndarray, light: np.ndarray) -> np.ndarray:
+    """``(n,)`` bool: a surface at ``points`` (n, 3) [m] with ``normals`` (n, 3) gets the key light."""
+    return (normals @ light > GRAZING_COS) & ~shadowed(field, points, light)
+
+
+def _horizontal(v: np.ndarray) -> np.ndarray:
+    """Unit horizontal part of each vector (n, 3) (zero where it has none)."""
+    h = np.column_stack([v[:, 0], v[:, 1], np.zeros(len(v))])
+    n = np.linalg.norm(h, axis=1, keepdims=True)
+    return np.where(n > 1e-6, h / np.maximum(n, 1e-12), 0.0)
+
+
+def landing(field: HeightField, start: np.ndarray, eye: np.ndarray) -> np.ndarray:
+    """``(n, 3)`` where each line of sight from ``eye`` (3,) [m] through ``start`` (n, 3) [m], beyond
+    it, first meets the part or the tray (z = 0)."""
+    p = np.asarray(start, dtype=np.float64).copy()
+    d = p - eye
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    # Steps of at most a cell across or down.
+    dt = TEXEL_M / np.maximum(np.hypot(d[:, 0], d[:, 1]), -d[:, 2])
+    live = (p[:, 2] > 0) & (field.at(p[:, :2]) <= p[:, 2])
+    while live.any():
+        i = np.flatnonzero(live)
+        q = p[i] + dt[i, None] * d[i]
+        q[:, 2] = np.maximum(q[:, 2], 0.0)
+        p[i] = q
+        live[i[(q[:, 2] <= 0) | (field.at(q[:, :2]) >= q[:, 2])]] = False
+    p[:, 2] = np.maximum(p[:, 2], field.at(p[:, :2]))
+    return p
+
+
+def dark_both_sides(field: HeightField, points: np.ndarray, n1: np.ndarray, n2: np.ndarray, eye: np.ndarray,
+                    light: np.ndarray) -> np.ndarray:
+    """``(k,)`` bool: the surfaces the camera sees on both sides of each edge sample are dark.
+
+    ``points`` (k, 3) are edge samples between faces of normals ``n1``, ``n2`` (k, 3); ``eye`` (3,) the
+    camera and ``light`` (3,) the unit direction towards the key light, all in the part's frame [m].
+    A side is a face turned to the camera, or, where only one is, what the line of sight meets beyond
+    the edge (the tray past a wall turned away, the tray at a wall's foot, a lower step). A side is
+    dark when the light grazes or misses its face, or the part stands between it and the light.
+    """
+    x = np.asarray(points, dtype=np.float64)
+    view = eye - x
+    faces = []
+    for n in (n1, n2):
+        sees = np.einsum("nj,nj->n", n, view) > 0
+        lit = _lit(field, x + SIDE_M * n, n, light)
+        faces.append((sees, lit))
+    (s1, l1), (s2, l2) = faces
+    # One face turned away: the other side is what the line of sight meets past the edge, looked at
+    # just beyond the hidden face (or beyond the visible one, when the hidden face is the bottom).
+    hidden = np.where(s1[:, None], n2, n1)
+    shown = np.where(s1[:, None], n1, n2)
+    away = _horizontal(hidden)
+    away = np.where(np.linalg.norm(away, axis=1, keepdims=True) > 0, away, _horizontal(shown))
+    beyond = landing(field, x + SIDE_M * away, eye)
+    up = np.tile([0.0, 0.0, 1.0], (len(x), 1))
+    l_beyond = _lit(field, beyond + 0.5 * SIDE_M * up, up, light)
+    both = s1 & s2
+    dark = np.where(both, ~l1 & ~l2, ~np.where(s1, l1, l2) & ~l_beyond)
+    return dark
+
+
+def estimate_light(field: HeightField, tray: np.ndarray, dark: np.ndarray, eye: np.ndarray, *,
+                   min_dark: int) -> np.ndarray | None:
+    """The key light's direction (unit (3,), part frame) from the part's cast shadow on the tray, or None.
+
+    ``tray`` (n, 2) [m] are tray points around the part (z = 0), ``dark`` (n,) bool those in a hard
+    shadow in the picture, ``eye`` (3,) the camera [m]. Tray points the part hides from the camera
+    are left out. A tray point lies in the part's shadow when, looking from it towards the light's
+    azimuth, the part rises above the line to the light somewhere: at the steepest slope ``m`` of the
+    part seen from it, ``m >= tan(elevation)``. Every azimuth (15 deg, then 3 deg around the best)
+    is tried with the elevation that best tells the dark points from the others; the one that tells
+    them apart best wins. None when fewer than ``min_dark`` seen points are dark (diffuse light),
+    the best light explains less than half of them (the dark is not this part's shadow), or the
+    light is higher than :data:`LOW_LIGHT`.
+    """
+    t = np.column_stack([tray, np.zeros(len(tray))])
+    to_eye = eye - t
+    seen = ~shadowed(field, t, to_eye / np.linalg.norm(to_eye, axis=1, keepdims=True))
+    t, dark = t[seen], np.asarray(dark)[seen]
+    if dark.sum() < min_dark:
+        return None
+    # Enough points to measure a shadow by, evenly taken.
+    keep = slice(None, None, max(1, len(t) // LIGHT_POINTS))
+    t, dark = t[keep], dark[keep]
+    rows, cols = field.heights.shape
+    corner = np.abs(np.r_[field.origin, field.origin + TEXEL_M * np.array([cols, rows])]).max()
+    reach = float(np.linalg.norm(t[:, :2], axis=1).max() + np.sqrt(2) * corner)
+    steps = np.arange(0.5 * TEXEL_M, reach, LIGHT_STEP_M)
+
+    def steepest(az: float) -> np.ndarray:
+        ahead = np.array([np.cos(az), np.sin(az)])
+        q = t[None, :, :2] + steps[:, None, None] * ahead  # (steps, n, 2)
+        h = field.at(q.reshape(-1, 2)).reshape(len(steps), len(t))
+        return (h / steps[:, None]).max(axis=0)
+
+    def told(az: float) -> tuple[float, float, float]:
+        m = steepest(az)
+        order = np.argsort(-m)
+        gain = np.cumsum(np.where(dark[order], 1.0, -1.0))
+        k = int(np.argmax(gain))
+        return float(gain[k]), float(m[order[k]]), float(dark[order[:k + 1]].sum())
+
+    coarse = max((told(az) + (az,) for az in np.radians(np.arange(0.0, 360.0, 15.0))), key=lambda r: r[0])
+    fine = max((told(az) + (az,) for az in coarse[3] + np.radians(np.arange(-12.0, 12.1, 3.0))),
+               key=lambda r: r[0])
+    _, slope, explained, az = fine
+    if slope <= 0 or explained < 0.5 * dark.sum():
+        return None
+    el = np.arctan(slope)
+    if el > LOW_LIGHT:
+        return None
+    return np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+
+
+def shadow_edges(field: HeightField, points: np.ndarray, direction: np.ndarray, n1: np.ndarray, n2: np.ndarray,
+                 eye: np.ndarray, light: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The edge of the part's cast shadow on the tray that the camera sees, from the mesh's edges.
+
+    ``points``, ``direction``, ``n1``, ``n2`` (k, 3): the mesh's edge samples, their unit directions and
+    the normals of their two faces; ``eye`` (3,) the camera and ``light`` (3,) the unit direction
+    towards the key light, all in the part's frame [m]. The shadow's edge is cast by the edges
+    between a face the light reaches and one it does not; each is followed along the light to the
+    tray (z = 0), and kept where the tray beside it is lit on one side and shadowed on the other,
+    outside the part and not hidden from the camera. Returns the indices into ``points`` (s,) of
+    the casting samples, their shadows on the tray (s, 3) [m] and the shadow edge's unit directions
+    (s, 3).
+    """
+    p = np.asarray(points, dtype=np.float64)
+    casting = np.flatnonzero((n1 @ light > 0) != (n2 @ light > 0))
+    x = p[casting]
+    cast = x - (x[:, 2] / light[2])[:, None] * light
+    ahead = x + 1e-3 * direction[casting]
+    tangent = (ahead - (ahead[:, 2] / light[2])[:, None] * light) - cast
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-12)
+    across = np.column_stack([-tangent[:, 1], tangent[:, 0], np.zeros(len(tangent))])
+    one = shadowed(field, cast + SIDE_M * across, light)
+    other = shadowed(field, cast - SIDE_M * across, light)
+    to_eye = eye - cast
+    seen = ~shadowed(field, cast, to_eye / np.linalg.norm(to_eye, axis=1, keepdims=True))
+    outside = (field.at((cast + SIDE_M * across)[:, :2]) <= 0) & (field.at((cast - SIDE_M * across)[:, :2]) <= 0)
+    keep = (one != other) & seen & outside
+    return casting[keep], cast[keep], tangent[keep]
+
+
+@dataclass(frozen=True)
+class ShadowEvidence:
+    """What the key light explains at one pose.
+
+    Attributes
+    ----------
+    unknown : (k,) bool
+        The visible edge samples dark on both sides (:func:`dark_both_sides`): a picture cannot show them.
+    near : (s,) bool
+        The samples of the cast shadow's edge on the tray (:func:`shadow_edges`) the picture shows
+        within a pixel, at the light fitted to them.
+    normal : (s, 2) float
+        Their unit image normals.
+    light : (3,) float
+        The fitted unit direction towards the key light, part frame.
+    """
+
+    unknown: np.ndarray
+    near: np.ndarray
+    normal: np.ndarray
+    light: np.ndarray
+
+
+#: Search half-widths [px] of the rounds that fit the light to the shadow's edge, widest first.
+LIGHT_SEARCH_PX = (3.0, 1.5)
+#: How far the fit may turn the estimated light's azimuth and tilt its elevation [rad].
+LIGHT_TURN = np.radians(6.0)
+LIGHT_TILT = np.radians(4.0)
+#: A fitted light that explains this share of the shadow's edge is taken without comparing (unitless).
+SHADOW_FOUND = 0.85
+#: Fewest shadow edge samples that make the shadow evidence.
+MIN_SHADOW_SAMPLES = 12
+
+
+def _towards(az: float, el: float) -> np.ndarray:
+    return np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+
+
+def shadow_evidence(field: HeightField, points: np.ndarray, direction: np.ndarray, n1: np.ndarray,
+                    n2: np.ndarray, visible: np.ndarray, eye: np.ndarray, light: np.ndarray,
+                    to_image: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
+                    find: Callable[[np.ndarray, np.ndarray, float], np.ndarray]) -> ShadowEvidence:
+    """The edges a pose leaves in the dark and the cast shadow's edge it explains, under the key light.
+
+    ``points``, ``direction``, ``n1``, ``n2`` (k, 3) are all the mesh's edge samples (part frame [m]),
+    ``visible`` (v,) the indices of those the camera can see, ``eye`` (3,) the camera and ``light``
+    (3,) the estimated key light (:func:`estimate_light`), part frame. ``to_image(points, directions)``
+    gives the image positions (n, 2) [px] and unit image normals (n, 2) of part-frame points and
+    directions at the pose; ``find(uv, normal, reach)`` the signed offset [px] of the nearest picture
+    edge along each normal within ``reach`` (NaN where none).
+
+    A shadow's length grows with the cotangent of the light's elevation (a degree at 19 deg moves
+    a 48 mm upright's shadow 9 mm), so the light is first fitted: azimuth and elevation such that
+    the cast shadow's edge lies on the picture's edges, in rounds of narrowing search.
+    """
+    casting = np.flatnonzero((n1 @ light > 0) != (n2 @ light > 0))
+    az, el = float(np.arctan2(light[1], light[0])), float(np.arcsin(np.clip(light[2], -1, 1)))
+    x, d = points[casting], direction[casting]
+
+    def cast(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        lq = _towards(*q)
+        on = x - (x[:, 2] / lq[2])[:, None] * lq
+        ahead = x + 1e-3 * d
+        t = ahead - (ahead[:, 2] / lq[2])[:, None] * lq - on
+        return on, t / np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
+
+    q = np.array([az, el])
+    if len(casting) >= MIN_SHADOW_SAMPLES:
+        # Only the samples that cast the edge the camera sees at the estimate take part.
+        kept, _, _ = shadow_edges(field, points, direction, n1, n2, eye, light)
+        use = np.isin(casting, kept)
+        for reach in LIGHT_SEARCH_PX:
+            if use.sum() < MIN_SHADOW_SAMPLES:
+                break
+            on, t = cast(q)
+            uv, normal = to_image(on[use], t[use])
+            off = find(uv, normal, reach)
+            ok = np.isfinite(off)
+            if ok.sum() < MIN_SHADOW_SAMPLES:
+                break
+            target, nrm, sub = uv[ok] + off[ok, None] * normal[ok], normal[ok], np.flatnonzero(use)[ok]
+
+            def residuals(r: np.ndarray, target=target, nrm=nrm, sub=sub) -> np.ndarray:
+                on_r, t_r = cast(r)
+                return np.einsum("nj,nj->n", to_image(on_r[sub], t_r[sub])[0] - target, nrm)
+
+            q = least_squares(residuals, q, x_scale=np.array([0.01, 0.01]), diff_step=1e-6,
+                              bounds=([az - LIGHT_TURN, max(el - LIGHT_TILT, np.radians(5.0))],
+                                      [az + LIGHT_TURN, min(el + LIGHT_TILT, np.radians(89.0))]),
+                              loss="soft_l1", f_scale=1.0).x
+    # The fit may run off onto other edges (a tall wall's shadow moves centimetres with the
+    # elevation): the estimate stands unless the fitted light explains more of the shadow's edge.
+    fitted = _evidence(field, points, direction, n1, n2, visible, eye, _towards(*q), to_image, find)
+    if len(fitted.near) and fitted.near.mean() >= SHADOW_FOUND:
+        return fitted
+    estimated = _evidence(field, points, direction, n1, n2, visible, eye, light, to_image, find)
+    return max((fitted, estimated), key=lambda e: e.near.mean() if len(e.near) else -1.0)
+
+
+def _evidence(field: HeightField, points: np.ndarray, direction: np.ndarray, n1: np.ndarray, n2: np.ndarray,
+              visible: np.ndarray, eye: np.ndarray, light: np.ndarray,
+              to_image: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
+              find: Callable[[np.ndarray, np.ndarray, float], np.ndarray]) -> ShadowEvidence:
+    """:class:`ShadowEvidence` under one light (arguments as :func:`shadow_evidence`)."""
+    unknown = dark_both_sides(field, points[visible], n1[visible], n2[visible], eye, light)
+    _, on, t = shadow_edges(field, points, direction, n1, n2, eye, light)
+    if len(on) < MIN_SHADOW_SAMPLES:
+        return ShadowEvidence(unknown=unknown, near=np.zeros(0, bool), normal=np.zeros((0, 2)), light=light)
+    uv, normal = to_image(on, t)
+    off = find(uv, normal, 1.5)
+    near = np.abs(np.nan_to_num(off, nan=np.inf)) <= 1.0
+    return ShadowEvidence(unknown=unknown, near=near, normal=normal, light=light)
