@@ -27,7 +27,7 @@ Units: metres and radians in the world frame (z up, the tray at the station's ``
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -36,8 +36,16 @@ from scipy.ndimage import map_coordinates
 
 from vision.camera import CameraModel
 
-if TYPE_CHECKING:  # vision.station takes its lit pictures from here
-    from vision.station import CameraStation
+
+class Station(Protocol):
+    """What a picture needs of a camera station (:class:`vision.station.CameraStation`, which
+    takes its pictures in real light from here): the camera, ``camera_pose`` ``T_world_cam`` and
+    ``world_to_camera`` ``T_cam_world`` (4, 4) [m], the tray's height ``plane_z`` [m]."""
+
+    camera: CameraModel
+    camera_pose: np.ndarray
+    world_to_camera: np.ndarray
+    plane_z: float
 
 @dataclass(frozen=True)
 class Condition:
@@ -171,7 +179,7 @@ def _jitter(direction: np.ndarray, radius: float, rng: np.random.Generator, n: i
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def render_lit(station: CameraStation, meshes: list[tuple[trimesh.Trimesh, Material]], condition: Condition,
+def render_lit(station: Station, meshes: list[tuple[trimesh.Trimesh, Material]], condition: Condition,
                light: np.ndarray, rng: np.random.Generator, *, supersample: int = 2) -> np.ndarray:
     """The grey picture of meshes [m, world frame] lying on the station's tray under ``condition``.
 
@@ -281,9 +289,13 @@ def render_lit(station: CameraStation, meshes: list[tuple[trimesh.Trimesh, Mater
         spec = mat.specular * seen[on] * (n_dot_l[on] > 0) * n_dot_h[on] ** mat.shininess * \
             (mat.shininess + 8) / 60
         radiance[on] = a * (fill[on] + vis[on]) + spec
-    img = radiance.reshape(h, s, w, s).mean(axis=(1, 3))
+    return _exposed(radiance.reshape(h, s, w, s).mean(axis=(1, 3)), cam, condition, rng)
 
-    # Lens: fall-off, defocus; sensor: exposure to the target mean, shot and read noise.
+
+
+def _exposed(img: np.ndarray, cam: CameraModel, condition: Condition, rng: np.random.Generator) -> np.ndarray:
+    """The radiance ``img`` (h, w) through the lens (fall-off, defocus) onto the sensor (exposure to
+    the condition's mean grey, shot and read noise, 8-bit clipping): the (h, w) uint8 picture."""
     ray_z = _camera_rays(cam, 1)[..., 2]
     # A lens whose cos^4 law is partly compensated: about 30 % darker in the corners.
     img = img * ray_z ** 2
