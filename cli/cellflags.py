@@ -11,7 +11,7 @@ import typer
 if TYPE_CHECKING:
     from factory.production import CellInputs
 
-__all__ = ["Bag", "BlankOffsets", "CameraFile", "Catalog", "CellFile", "Db", "FaultRate", "Faults", "RobotRate", "Ros2KeepAll",
+__all__ = ["Bag", "BlankOffsets", "RackLight", "CameraFile", "Catalog", "CellFile", "Db", "FaultRate", "Faults", "RobotRate", "Ros2KeepAll",
            "Ros2Localhost", "RosDistro", "Tools", "cell_inputs"]
 
 Catalog = Annotated[Path, typer.Option("--catalog", help="Folder of `factory plan` outputs to reuse; parts not in it are planned into it.", file_okay=False)]
@@ -21,6 +21,7 @@ Tools = Annotated[Path | None, typer.Option("--tools", help="Tool library YAML (
 Faults = Annotated[int | None, typer.Option("--faults", help="Inject faults drawn from this seed: missed grasps, missing stock, machine alarms, failed inspections.")]
 FaultRate = Annotated[float | None, typer.Option("--fault-rate", help="With --faults: probability of each fault per attempt (default: grasp 5 %, stock 5 %, alarm 3 %, inspection 5 %).", min=0.0, max=1.0)]
 BlankOffsets = Annotated[int | None, typer.Option("--blank-offsets", metavar="SEED", help="Stand each blank a few mm and degrees off its rack slot's centre (drawn from this seed): the rack camera locates it, the grasp is corrected and proven, or refused with the reason.")]
+RackLight = Annotated[str | None, typer.Option("--rack-light", metavar="LIGHT", help="With --blank-offsets: the rack camera takes its pictures in real light (aluminium, shadows, exposure, noise): diffuse, low_angle, dim, glare or distractor (default: exact pictures).")]
 Db = Annotated[str | None, typer.Option("--db", metavar="FILE|URL", help="Append the run to this process record, event by event: a SQLite file (created if missing) or a SQLAlchemy database URL (sqlite:///cell.sqlite, postgresql+psycopg://user@host/plant). See `factory report`.")]
 Ros2Localhost = Annotated[bool, typer.Option("--ros2-localhost", help="With --ros2: keep all DDS traffic on the loopback interface.")]
 RosDistro = Annotated[str, typer.Option("--ros-distro", help="With --ros2: the distribution of the graph's nodes, humble or jazzy (its discovery-info layout).")]
@@ -30,7 +31,8 @@ Bag = Annotated[Path | None, typer.Option("--bag", metavar="DIR", help="Write th
 
 
 def cell_inputs(catalog: Path, cell: Path, camera: Path, tools: Path | None, faults: int | None,
-                fault_rate: float | None, blank_offsets: int | None = None) -> CellInputs:
+                fault_rate: float | None, blank_offsets: int | None = None,
+                rack_light: str | None = None) -> CellInputs:
     """The cell's inputs as both commands are given them; a fault rate without a seed is a usage error
     (exit 2, naming the option), refused before any file is read."""
     if fault_rate is not None and faults is None:
@@ -38,4 +40,4 @@ def cell_inputs(catalog: Path, cell: Path, camera: Path, tools: Path | None, fau
     from factory.production import CellInputs
 
     return CellInputs(catalog=catalog, cell=cell, camera=camera, tools=tools, faults=faults, fault_rate=fault_rate,
-                      blank_offsets=blank_offsets)
+                      blank_offsets=blank_offsets, rack_light=rack_light)

@@ -13,8 +13,8 @@ from typing import Annotated
 
 import typer
 
-from cli.cellflags import Bag, BlankOffsets, CameraFile, Catalog, CellFile, Db, FaultRate, Faults, RobotRate, Ros2KeepAll, \
-    Ros2Localhost, RosDistro, Tools, cell_inputs
+from cli.cellflags import Bag, BlankOffsets, CameraFile, Catalog, CellFile, Db, FaultRate, Faults, RackLight, \
+    RobotRate, Ros2KeepAll, Ros2Localhost, RosDistro, Tools, cell_inputs
 from cli.common import EXIT_FINDINGS, JsonFlag, Overwrite, Quiet, print_json, progress_bars, reports_errors, \
     setup_logging, stderr
 from factory.core.resources import FIXTURES
@@ -59,6 +59,7 @@ def simulate(
     png: Annotated[Path | None, typer.Option("--png", help="Write a Gantt chart of the robot, machine and cameras.", dir_okay=False)] = None,
     faults: Faults = None,
     blank_offsets: BlankOffsets = None,
+    rack_light: RackLight = None,
     fault_rate: FaultRate = None,
     db: Db = None,
     serve: Annotated[int | None, typer.Option("--serve", metavar="PORT", help="Stream the run live to the Foxglove app (ws://HOST:PORT) with the channels of the MCAP log.", min=0, max=65535)] = None,
@@ -81,7 +82,7 @@ def simulate(
     writing everything) when an order ends failed or rejected: the reasons are in the summary.
     """
     setup_logging(quiet)
-    inputs = cell_inputs(catalog, cell_path, camera_path, tools, faults, fault_rate, blank_offsets)
+    inputs = cell_inputs(catalog, cell_path, camera_path, tools, faults, fault_rate, blank_offsets, rack_light)
     if (ros2_localhost or ros2_keep_all or ros2_wait or ros_distro != "jazzy") and not ros2:
         raise typer.BadParameter("needs --ros2", param_hint="--ros2-localhost, --ros2-keep-all, --ros2-wait, --ros-distro")
     request = SimulateRequest(orders_path, inputs, db=db, robot_rate_hz=robot_rate, mcap=mcap, png=png, overwrite=overwrite)

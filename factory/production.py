@@ -35,6 +35,7 @@ from robotprog.cell import load_cell
 from robotprog.cellsim import FaultModel
 from robotprog.gantt import activity_chart
 from robotprog.orders import Order, read_orders
+from vision.lit import CONDITIONS, Condition
 
 #: Orders ``factory simulate`` runs without an ORDERS argument.
 SAMPLE_ORDERS = SAMPLES / "orders.yaml"
@@ -61,6 +62,9 @@ class CellInputs:
         Seed of the blanks' offsets in their rack slots: each blank stands a few mm and degrees off
         its slot's centre, and the rack camera's located offset corrects the grasp
         (:mod:`factory.rackloop`); None: every blank stands where the plan put it.
+    rack_light : str, optional
+        With ``blank_offsets``: the rack camera takes its pictures in this real light, one of
+        :data:`vision.lit.CONDITIONS` (``diffuse``, ``low_angle``, ...); None: exact pictures.
     """
 
     catalog: Path = Path("build")
@@ -70,10 +74,24 @@ class CellInputs:
     faults: int | None = None
     fault_rate: float | None = None
     blank_offsets: int | None = None
+    rack_light: str | None = None
+
+    def __post_init__(self) -> None:
+        # refused before any file is read or written
+        if self.rack_light is not None and self.blank_offsets is None:
+            raise FactoryError("a rack light needs blank offsets: the rack camera locates only blanks off their slot",
+                               source="rack_light")
+        if self.rack_light is not None and self.rack_light not in CONDITIONS:
+            raise FactoryError(f"unknown rack light {self.rack_light!r}; one of {', '.join(CONDITIONS)}",
+                               source="rack_light")
 
     def scatter(self) -> BlankScatter | None:
         """How the blanks stand off their slots' centres (None: they do not)."""
         return None if self.blank_offsets is None else BlankScatter(seed=self.blank_offsets)
+
+    def rack_condition(self) -> Condition | None:
+        """The real light of the rack camera's pictures (None: exact pictures)."""
+        return None if self.rack_light is None else CONDITIONS[self.rack_light]
 
     def fault_model(self) -> FaultModel:
         """The faults to inject.
@@ -188,7 +206,8 @@ def simulate_orders(request: SimulateRequest, *, orders: tuple[Order, ...] | Non
     try:
         run = run_cell(orders, catalog=cell.catalog, cell_path=cell.cell, camera_path=cell.camera,
                        tools=cell.tools, faults=model, progress=progress,
-                       events=recorder.begin if recorder else None, scatter=cell.scatter())
+                       events=recorder.begin if recorder else None, scatter=cell.scatter(),
+                       rack_light=cell.rack_condition())
         if recorder is not None:
             recorder.finish(run.result)
     finally:
@@ -233,6 +252,7 @@ def _write_log(request: SimulateRequest, run: CellRun, db: str | None, db_run: i
                                 parameters={"faults_seed": cell.faults, "catalog": str(cell.catalog),
                                             **({"blank_offsets_seed": cell.blank_offsets}
                                                if cell.blank_offsets is not None else {}),
+                                            **({"rack_light": cell.rack_light} if cell.rack_light is not None else {}),
                                             "robot_rate_hz": request.robot_rate_hz,
                                             **({"db": db, "db_run": db_run} if db is not None else {})},
                                 live=live, robot_rate_hz=request.robot_rate_hz, picks=run.picks)

@@ -2,8 +2,8 @@
 
 With ``factory simulate --blank-offsets SEED`` each blank stands in its rack slot off the slot's
 centre (:func:`robotprog.rackpick.draw_offset`). At each locate the rack camera takes a picture of
-the blank where it truly stands (:func:`vision.station.locate_shot`: rendered, then the real
-``locate``), and :class:`RackLoop` decides:
+the blank where it truly stands (:func:`vision.station.locate_shot`: rendered, exactly or with
+``--rack-light`` in real light, then the real ``locate``), and :class:`RackLoop` decides:
 
 - not located, or located with more uncertainty than the open fingers' clearance allows, or
   further off the slot's centre than the slot leaves room for: no grasp; the robot stops with a
@@ -34,6 +34,7 @@ from robotprog.planner import PlannerOptions
 from robotprog.rackpick import BlankScatter, CorrectedPick, PlannedPick, SlotOffset, corrected_pick, draw_offset, \
     slot_room
 from robotprog.robots import Robot
+from vision.lit import Condition
 from vision.locate import footprint_from_mesh
 from vision.report import bgr_png_bytes
 from vision.station import locate_shot
@@ -158,7 +159,8 @@ def blank_part(stock_mm: np.ndarray, motion: Any) -> BlankPart:
 @dataclass
 class RackLoop:
     """The :data:`robotprog.cellsim.PickSource` of a run: locates each blank, decides, corrects and
-    proves its pick; :attr:`picks` keeps every decision in the order taken."""
+    proves its pick; :attr:`picks` keeps every decision in the order taken. ``light``: the rack
+    camera's pictures are taken in this real light (:data:`vision.lit.CONDITIONS`); None: exact."""
 
     cell: Cell
     robot: Robot
@@ -167,6 +169,7 @@ class RackLoop:
     scatter: BlankScatter
     options: PlannerOptions = field(default_factory=PlannerOptions)
     picks: list[RackPick] = field(default_factory=list)
+    light: Condition | None = None
 
     def __call__(self, job: int, key: Any, slot: int) -> PickStep:
         part = self.parts[key]
@@ -191,7 +194,7 @@ class RackLoop:
 
         try:
             shot = locate_shot(self.stations.rack, part.vertices_mm, part.faces,
-                               (rx + offset.dx, ry + offset.dy, offset.dyaw), seed=seed)
+                               (rx + offset.dx, ry + offset.dy, offset.dyaw), seed=seed, light=self.light)
         except VisionError as e:
             return refused(f"the rack camera did not locate the blank: {e.message}")
         d = shot.detections[0]

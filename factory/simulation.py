@@ -64,6 +64,7 @@ from robotprog.programs import VERDICT_AFTER
 from robotprog.orders import Order
 from vision.camera import CameraModel
 from vision.handeye import invert
+from vision.lit import Condition
 
 log = logging.getLogger(__name__)
 
@@ -381,7 +382,7 @@ def run_cell(orders: tuple[Order, ...], *, catalog: Path, cell_path: Path = FIXT
              camera_path: Path = FIXTURES / "camera.yaml", tools: Path | None = None,
              faults: FaultModel = FaultModel(), progress: Progress | None = None,
              events: Callable[[dict[tuple[Path, str], PartAssets | str]], EventSink] | None = None,
-             scatter: BlankScatter | None = None) -> CellRun:
+             scatter: BlankScatter | None = None, rack_light: Condition | None = None) -> CellRun:
     """Run ``orders`` through the cell: plans from ``catalog`` (planning what it lacks into it),
     camera steps, then the discrete-event simulation. Writes nothing but the catalog (and what
     ``events`` writes).
@@ -391,7 +392,8 @@ def run_cell(orders: tuple[Order, ...], *, catalog: Path, cell_path: Path = FIXT
     :meth:`factory.record.RunRecorder.begin`).
 
     ``scatter``, if given, stands each blank off its slot's centre and closes the loop: the rack
-    camera locates it, the pick is corrected and proven, or the grasp refused (:mod:`factory.rackloop`).
+    camera locates it, the pick is corrected and proven, or the grasp refused (:mod:`factory.rackloop`);
+    with ``rack_light`` the rack camera's pictures are taken in that real light (:mod:`vision.lit`).
 
     Raises
     ------
@@ -408,7 +410,8 @@ def run_cell(orders: tuple[Order, ...], *, catalog: Path, cell_path: Path = FIXT
     assets = plan_parts(orders, catalog, cell_path, tools, stations, sha256_file(camera_path), progress, watch)
     processes = {k: (v.process if isinstance(v, PartAssets) else v) for k, v in assets.items()}
     loop = None if scatter is None else RackLoop(
-        cell, world.robot, stations, {k: v.blank for k, v in assets.items() if isinstance(v, PartAssets)}, scatter)
+        cell, world.robot, stations, {k: v.blank for k, v in assets.items() if isinstance(v, PartAssets)}, scatter,
+        light=rack_light)
     with watch("simulate"):
         sink = events(assets) if events is not None else None
         result = run_simulation(orders, processes, faults, progress=stage_callback(progress, "orders"), sink=sink,

@@ -25,10 +25,18 @@ than it, a clipped highlight moved such an outline by millimetres):
   are nearly all absent is missing (a hole not drilled, a boss not there); its deviation is the
   whole ``reach`` (its edges are at least that far from where they should be).
 
-Edges near a clipped highlight (glare spills past them) are unknown, neither found nor missed.
-When too little of the outline or of a feature can be judged the part is refused with the reason,
-not passed. Otherwise it passes when no window of its outline and no feature is off by more than
-the tolerance. The thresholds were set on ``benchmarks/inspect_real_light.py``'s pictures.
+An edge beyond the own one says *defect* only when the greys agree (:func:`_material_agrees`):
+between the line and a burr's edge lies something like the part's face, between the line and a
+broken corner's edge something like the tray; a shadow's or a boss's edge, or the far side of a
+lit rim, leave a band like neither. Glare (a clipped highlight) hides an edge only where it lies
+on both sides of it (a pocket in a white top); beside one side the edge shows, pushed out by the
+optics' spill (the bloom), which the side's level absorbs like a pose error.
+
+When too little of the outline or a feature can be judged the part is refused with the reason,
+not passed; but with its top in glare (pockets hidden in the white, the rest in sharp contrast) a
+window of its outline or a feature off by more than the tolerance fails it all the same.
+Otherwise it passes when no window of its outline and no feature is off by more than the tolerance. The thresholds were set on
+``benchmarks/inspect_real_light.py``'s pictures (seeds 0-1).
 """
 
 from __future__ import annotations
@@ -51,10 +59,14 @@ from vision.locate import (SATURATED_GREY, Footprint, LocatedPart, LocateOptions
 OWN_PX = 1.5
 #: A picture edge this close to another expected edge is that edge, not a defect [px].
 EXPLAINED_PX = 1.0
-#: Edges within this of a clipped pixel are unknown [px].
+#: Edges within this of a clipped pixel are unknown, and a clipped face's spill reaches this far [px].
 GLARE_PX = 3
+#: Share of the part's silhouette clipped white from which its top is in glare (0..1).
+TOP_GLARE = 0.3
 #: Outline samples this close to a corner of the footprint are not judged [m].
 CORNER_M = 1.5e-3
+#: A short line of the outline takes the level of the fitted lines this close [m] (:func:`_line_level`).
+NEIGHBOUR_M = 5e-3
 #: A wall this turned to the camera (cosine with the view) shows beside its crease (unitless).
 FACING_COS = 0.1
 #: Outline edges whose direction is steeper than this are the part's vertical corners: no outward side.
@@ -146,7 +158,11 @@ class Inspection:
     tolerance : float
         [m]
     refusal : str
-        Why the part is not judged ('' when it is): too little of its outline or of a feature shows.
+        Why the part is not judged ('' when it is): too little of its outline or of a feature shows
+        (unless its top is in glare and what does show is out of tolerance: then it fails).
+    hidden : str
+        What could not be judged (glare, an edge lost in shadow), also when the part fails on what
+        shows ('' when everything was judged).
     """
 
     part: LocatedPart
@@ -157,6 +173,7 @@ class Inspection:
     silhouette_px: np.ndarray
     tolerance: float
     refusal: str = ""
+    hidden: str = ""
 
     @property
     def missing_features(self) -> tuple[Feature, ...]:
@@ -176,7 +193,8 @@ class Inspection:
     def to_dict(self) -> dict:
         """JSON-ready summary (deviations in mm, as machinists read them)."""
         d = self.deviation[np.isfinite(self.deviation)] * 1e3
-        return {"pass": self.passed, "refusal": self.refusal, "tolerance_mm": self.tolerance * 1e3,
+        return {"pass": self.passed, "refusal": self.refusal, "hidden": self.hidden,
+                "tolerance_mm": self.tolerance * 1e3,
                 "max_deviation_mm": self.max_deviation * 1e3,
                 "p95_deviation_mm": float(np.percentile(np.abs(d), 95)) if len(d) else 0.0,
                 "excess_mm": float(max(d.max(initial=0.0), 0.0)),
@@ -256,31 +274,43 @@ def inspect_part(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     mesh = replace(part, vertices=mm_to_m(np.asarray(vertices_mm, dtype=np.float64)),
                    faces=np.asarray(faces, dtype=np.int64))
     model = _EdgeModel(mesh, camera, cam_base, tray_z)
-    # Next to a clipped highlight the optics spill light past the edge (the bloom, up to a few
-    # pixels): where an edge lies there is unknown, neither found nor missed.
-    glare = cv2.dilate(saturated, np.ones((2 * GLARE_PX + 1, 2 * GLARE_PX + 1), np.uint8))
     out = []
     for located in found:
         sil = expected_silhouette(vertices_mm, faces, cam_base @ part_transform(part, located))
         ring = np.array(sil.exterior.coords)
         ring_px = camera.project(np.column_stack([ring, np.ones(len(ring))]), np.zeros(3), np.zeros(3))
-        out.append(_judge(model, part, located, gx, gy, threshold, glare, options, ring_px))
+        out.append(_judge(model, part, located, grey, (gx, gy, threshold), saturated, options, ring_px))
     return out
 
 
-def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, gx: np.ndarray, gy: np.ndarray,
-           threshold: float, glare: np.ndarray, options: InspectOptions, ring_px: np.ndarray) -> Inspection:
-    """The inspection of one located part: its outline's windowed deviations and its features."""
+def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.ndarray,
+           gradients: tuple[np.ndarray, np.ndarray, float], saturated: np.ndarray, options: InspectOptions,
+           ring_px: np.ndarray) -> Inspection:
+    """The inspection of one located part: its outline's windowed deviations and its features
+    (``grey`` the picture, ``gradients`` its ``gx, gy, threshold`` as :func:`vision.locate._gradients`,
+    ``saturated`` its clipped pixels, uint8 1/0, ``ring_px`` its expected silhouette)."""
+    gx, gy, threshold = gradients
+    inside = np.zeros_like(saturated)
+    cv2.fillPoly(inside, [np.rint(ring_px).astype(np.int32).reshape(-1, 1, 2)], 1)
+    # Glare on the top: a good share of the part's silhouette clipped white (not a lit wall's band).
+    top_glare = saturated[inside > 0].mean() >= TOP_GLARE if inside.any() else False
     p = np.array([located.x, located.y, located.yaw])
     idx = model.visible(p)
     uv, normal = model.project(p, idx)
     px_m = located.mm_per_px * 1e-3  # metres per pixel at the part
     steps, resp, peak = _edge_peaks(gx, gy, threshold, uv, normal, max(options.reach, options.depth) / px_m)
     offset = np.where(peak, steps[None, :], np.nan)
-    unknown = map_coordinates(glare, [uv[:, 1], uv[:, 0]], order=0, mode="nearest") > 0
-    # The own edge: the nearest peak within a pixel.
-    near = np.where(peak & (np.abs(steps) <= OWN_PX)[None, :], np.abs(steps)[None, :], np.inf)
-    own_j = np.argmin(near, axis=1)
+    # A clipped highlight on both sides of an edge (a pocket in a white top) hides it: unknown,
+    # neither found nor missed. On one side only, the edge shows, pushed into the other side by
+    # the optics' spill (the bloom, up to GLARE_PX): its own edge is looked for that much further.
+    unknown, bloom = _clipped_sides(saturated, uv, normal, top_glare)
+    lo = -OWN_PX - GLARE_PX * bloom[:, 1]
+    hi = OWN_PX + GLARE_PX * bloom[:, 0]
+    # The own edge: the strongest peak within OWN_PX. Where two edges lie that close (a lit rim,
+    # a narrow wall's two sides) the nearer one flips from sample to sample with the noise; the
+    # stronger one stays the same along a side, and the side's level absorbs where it lies.
+    near = np.where(peak & (steps[None, :] >= lo[:, None]) & (steps[None, :] <= hi[:, None]), resp, -np.inf)
+    own_j = np.argmax(near, axis=1)
     own = np.isfinite(near[np.arange(len(idx)), own_j])
     # Peaks further out that lie on another expected edge are that edge: they say nothing here.
     spots = uv[:, None, :] + np.nan_to_num(offset)[..., None] * normal[:, None, :]
@@ -298,8 +328,8 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, gx: np.ndar
     # in to ``depth`` (a broken corner), is a defect's unless it is another expected edge: then the
     # material is there up to it, and this edge is unseen.
     out_steps = steps[None, :] * sign[:, None]
-    beyond = peak & (np.abs(steps) > OWN_PX)[None, :] & (out_steps <= options.reach / px_m) & \
-        (out_steps >= -options.depth / px_m)
+    beyond = peak & ((steps[None, :] < lo[:, None]) | (steps[None, :] > hi[:, None])) & \
+        (out_steps <= options.reach / px_m) & (out_steps >= -options.depth / px_m)
     other = np.where(beyond, np.abs(steps)[None, :], np.inf)
     free_j = np.argmin(other, axis=1)
     rows = np.arange(len(idx))
@@ -314,8 +344,13 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, gx: np.ndar
     signed = np.where(own[outer] & (signed < 0), 0.0, signed)
     # Against the rest of its own straight edge: the pose's error (a few tenths of a millimetre)
     # and the blur of a narrow wall shift a whole side alike, a burr or a broken corner only a stretch.
-    signed = signed - _line_level(model.points[idx[outer]], model.direction[idx[outer]],
-                                  np.where(own[outer], signed, np.nan))
+    level = _line_level(model.points[idx[outer]], model.direction[idx[outer]], np.where(own[outer], signed, np.nan))
+    # An edge beyond the own one is a defect's only if what lies between is the other side's: the
+    # part's face out to a burr's edge, the tray in to a broken corner's. A shadow's edge outside an
+    # edge lost in low contrast, a boss's inside it, or the two sides of a lit rim, are not.
+    material = _material_agrees(grey, uv[outer], normal[outer] * sign[outer, None], signed, level, threshold,
+                                _lines(model.points[idx[outer]], model.direction[idx[outer]])[0], own[outer])
+    signed = np.where(own[outer] | material, signed, np.nan) - level
     deviation = _windowed(model.points[idx[outer]], signed, options.window) * px_m
 
     features = []
@@ -339,9 +374,109 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, gx: np.ndar
         share = float(own[on].mean())
         features.append(Feature(pixel=(float(centre[0]), float(centre[1])), edges=int(on.sum()), found=share,
                                 present=share >= options.min_feature_found))
-    return Inspection(part=located, outline_px=uv[outer], deviation=deviation, features=tuple(features),
-                      reach=options.reach, silhouette_px=ring_px, tolerance=options.tolerance,
-                      refusal="; ".join(refusals))
+    hidden = "; ".join(refusals)
+    judged = Inspection(part=located, outline_px=uv[outer], deviation=deviation, features=tuple(features),
+                        reach=options.reach, silhouette_px=ring_px, tolerance=options.tolerance, hidden=hidden)
+    # Glare on the top hides pockets in the white, but the rest shows in sharp contrast: what shows
+    # and fails, fails the part. Otherwise (low-angle light: lit walls, a hole's wall clipped) what
+    # is hidden may be what misleads the rest: no verdict, with the reason.
+    fails = top_glare and judged.max_deviation > options.tolerance
+    return judged if fails or not hidden else replace(judged, refusal=hidden)
+
+
+def _clipped_sides(saturated: np.ndarray, uv: np.ndarray, normal: np.ndarray, top_glare: bool
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """How glare lies about each edge sample: ``unknown`` (k,) bool, the edge cannot show, and
+    ``bloom`` (k, 2) bool, the side against the image ``normal`` (column 0) or along it (column 1)
+    is clipped and the edge shows, pushed by the optics' spill into the other side.
+
+    With ``top_glare`` (the part's top mirrors the light: broad white faces) the sides are looked
+    at just beyond the bloom (:data:`GLARE_PX` + 1 and + 2 px): clipped on both (a pocket in a
+    white top) is unknown, on one the edge shows. Otherwise a clipped pixel within
+    :data:`GLARE_PX` of the edge (a lit wall's narrow band, a rim's highlight, low-angle light)
+    leaves where the edge lies untold: unknown.
+    """
+    def clipped(t: float, dilated: np.ndarray = saturated) -> np.ndarray:
+        q = uv + t * normal
+        return map_coordinates(dilated, [q[:, 1], q[:, 0]], order=0, mode="nearest") > 0
+
+    if not top_glare:
+        dilated = cv2.dilate(saturated, np.ones((2 * GLARE_PX + 1, 2 * GLARE_PX + 1), np.uint8))
+        return clipped(0.0, dilated), np.zeros((len(uv), 2), bool)
+    side = np.zeros((len(uv), 2), bool)
+    for col, sign in enumerate((-1.0, 1.0)):
+        for t in (GLARE_PX + 1, GLARE_PX + 2):
+            side[:, col] |= clipped(sign * t)
+    unknown = side.all(axis=1)
+    return unknown, side & ~unknown[:, None]
+
+
+def _material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signed: np.ndarray,
+                     level: np.ndarray, contrast: float, line: np.ndarray, own: np.ndarray) -> np.ndarray:
+    """``(k,)`` bool: the picture between each outline sample's line level and its edge found
+    ``signed`` [px] outward (+: extra material, -: missing) looks like what the defect says is there.
+
+    Three greys along the outward normal: the *face* (the part's side of the edges: 1.5-3 px inside
+    the line for extra material, beyond the found edge for missing), the *tray* (the other side)
+    and the *band* between the line and the found edge. Where the band sits between tray (0) and
+    face (1): extra material is face-like (0.5..1.5), missing material tray-like (-0.5..0.5), and
+    face and tray differ by at least ``contrast`` [grey]. Greys, not edges: a shadow's edge
+    outside an edge lost in low contrast, a boss's inside it, the two sides of a lit rim make
+    edges but leave a band like neither side. ``outward`` (k, 2) unit image directions away from
+    the part; NaN ``signed`` gives False.
+
+    The band's grey is its median (a shadow's dark fringe at one end must not drag it). Face and
+    tray are taken twice: beside the sample, and as the medians of the samples of its own straight
+    ``line`` whose edge is where expected (``own``); both must agree, and what lies past the found
+    edge must be the line's own other side (its tray past a burr, its face within a broken corner).
+    """
+    ok = np.isfinite(level) & (np.isfinite(signed) | own)
+    out = np.zeros(len(signed), bool)
+    if not ok.any():
+        return out
+    s, lv = np.where(np.isfinite(signed), signed, level)[ok], level[ok]
+    lo = np.floor(np.minimum(s, lv).min()) - 3.5
+    hi = np.ceil(np.maximum(s, lv).max()) + 3.5
+    t = np.arange(lo, hi + 1e-9, 0.5)  # [px] outward
+    q = uv[ok, None, :] + t[None, :, None] * outward[ok, None, :]
+    profile = map_coordinates(grey.astype(np.float32), [q[..., 1].ravel(), q[..., 0].ravel()], order=1,
+                              mode="nearest").reshape(q.shape[:2])
+
+    def median(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Median grey of each row's profile over t in [a, b] (the nearest step when the span is empty)."""
+        inside = (t[None, :] >= a[:, None] - 1e-9) & (t[None, :] <= b[:, None] + 1e-9)
+        nearest = np.abs(t[None, :] - 0.5 * (a + b)[:, None]).argmin(axis=1)
+        inside[np.arange(len(a)), nearest] |= ~inside.any(axis=1)
+        return np.nanmedian(np.where(inside, profile, np.nan), axis=1)
+
+    def share(band: np.ndarray, face: np.ndarray, tray: np.ndarray) -> np.ndarray:
+        """Where the band sits from tray (0) to face (1); NaN where the two are too alike to tell."""
+        return (band - tray) / np.where(np.abs(face - tray) >= contrast, face - tray, np.nan)
+
+    extra = s > lv
+    band = median(np.minimum(s, lv) + 0.5, np.maximum(s, lv) - 0.5)
+    beyond = np.where(extra, median(s + 1.5, s + 3.0), median(s - 3.0, s - 1.5))  # past the found edge
+    local = share(band, np.where(extra, median(lv - 3.0, lv - 1.5), beyond),
+                  np.where(extra, beyond, median(lv + 1.5, lv + 3.0)))
+    # The line's own face and tray, beside the samples whose edge is where expected.
+    here, where = line[ok], own[ok]
+    face_line, tray_line = np.full(len(s), np.nan), np.full(len(s), np.nan)
+    inner, outer = median(lv - 3.0, lv - 1.5), median(lv + 1.5, lv + 3.0)
+    for e in np.unique(here[where]):
+        on = here == e
+        face_line[on] = np.median(inner[on & where])
+        tray_line[on] = np.median(outer[on & where])
+    lined = share(band, face_line, tray_line)  # NaN on a line with no edge where expected: not told
+
+    def agrees(x: np.ndarray) -> np.ndarray:
+        return np.where(extra, (x >= 0.5) & (x <= 1.5), (x >= -0.5) & (x < 0.5))
+
+    # Past the found edge lies what the line shows on that side: the tray beyond a burr, the
+    # part's face within a broken corner (not a boss's shadow, not the shadow beyond the part).
+    past = share(beyond, face_line, tray_line)
+    past_ok = np.where(extra, (past > -0.5) & (past < 0.5), (past >= 0.5) & (past < 1.5))
+    out[ok] = agrees(local) & agrees(lined) & past_ok & np.isfinite(signed[ok])
+    return out
 
 
 def _wall_facing(model: _EdgeModel, p: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -383,22 +518,32 @@ def _near_corner(outline: np.ndarray, points: np.ndarray) -> np.ndarray:
     return cKDTree(corners).query(points)[0] < CORNER_M
 
 
+def _lines(points: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(k,)`` int: which straight line of the outline each sample is on (collinear samples of the
+    many mesh edges a straight side is triangulated into share one), and ``(k,)`` its place along
+    it [m]; ``points`` [m] and unit ``direction`` (k, 3)."""
+    angle = np.mod(np.arctan2(direction[:, 1], direction[:, 0]), np.pi)
+    along = points[:, 0] * np.cos(angle) + points[:, 1] * np.sin(angle)  # [m]
+    across = points[:, 1] * np.cos(angle) - points[:, 0] * np.sin(angle)  # the line's offset [m]
+    key = np.column_stack([np.rint(np.degrees(angle)) % 180, np.rint(across / 5e-4), np.rint(points[:, 2] / 5e-4)])
+    return np.unique(key, axis=0, return_inverse=True)[1].ravel(), along
+
+
 def _line_level(points: np.ndarray, direction: np.ndarray, values: np.ndarray, least: int = 8) -> np.ndarray:
     """``(k,)`` the level of each sample's straight line at the sample: a straight line fitted to the
     finite ``values`` [px] along it (twice, the second time without those more than :data:`OWN_PX`
-    off the one before, starting flat at their median), 0 on lines with fewer than ``least`` of them.
+    off the one before, starting flat at their median). A line with fewer than ``least`` of them (an
+    arc's many short chords, a short step) takes the median level of the fitted samples within
+    :data:`NEIGHBOUR_M` (the sides it joins: a bloom or a pose shift moves them alike), else 0.
 
     A yaw error of the pose tilts a side's deviations, a shift moves them all: neither is the part's.
     The caller passes only the samples whose edge the picture shows at its place, so a defect's
     stretch does not set the level. ``points`` [m] and unit ``direction`` (k, 3): collinear samples
     of the many mesh edges a straight side is triangulated into share one line.
     """
-    angle = np.mod(np.arctan2(direction[:, 1], direction[:, 0]), np.pi)
-    along = points[:, 0] * np.cos(angle) + points[:, 1] * np.sin(angle)  # [m]
-    across = points[:, 1] * np.cos(angle) - points[:, 0] * np.sin(angle)  # the line's offset [m]
-    key = np.column_stack([np.rint(np.degrees(angle)) % 180, np.rint(across / 5e-4), np.rint(points[:, 2] / 5e-4)])
-    line = np.unique(key, axis=0, return_inverse=True)[1].ravel()
+    line, along = _lines(points, direction)
     out = np.zeros(len(values))
+    fitted = np.zeros(len(values), bool)
     for e in np.unique(line):
         on = line == e
         s, v = along[on], values[on]
@@ -412,6 +557,11 @@ def _line_level(points: np.ndarray, direction: np.ndarray, values: np.ndarray, l
                 break
             fit = np.polyfit(s[near], v[near], 1)
         out[on] = np.polyval(fit, s)
+        fitted[on] = True
+    if fitted.any() and not fitted.all():
+        rest = np.flatnonzero(~fitted)
+        for i, near in zip(rest, cKDTree(points[fitted]).query_ball_point(points[rest], NEIGHBOUR_M)):
+            out[i] = np.median(out[fitted][near]) if near else 0.0
     return out
 
 

@@ -4,7 +4,8 @@ A :class:`CameraStation` is a calibrated camera at a known pose over a flat surf
 rack, the out-tray). For each part the cell takes, once, a picture of the raw blank to *locate*
 it (:func:`locate_shot`) and pictures of the finished part to *inspect* it, good or with a corner
 broken off (:func:`inspect_shot`). The pictures are rendered exactly (:func:`vision.render.render_mesh`,
-the camera's distortion included, sensor noise added) and handed to the same
+the camera's distortion included, sensor noise added), or the blank's in real light
+(:func:`vision.lit.render_lit`: aluminium, shadows, exposure, noise), and handed to the same
 :func:`vision.locate.locate_parts` and :func:`vision.inspect.inspect_part` a real cell runs; the
 wall time of that call is the step's processing time. Because the truth is known, each shot also
 says how far the located pose is from where the part was put.
@@ -29,6 +30,7 @@ from factory.core.errors import VisionError
 from vision.camera import CameraModel
 from vision.handeye import invert
 from vision.inspect import inspect_part, inspection_image, part_transform
+from vision.lit import Condition, key_light, metal, render_lit
 from vision.locate import Footprint, LocatedPart, footprint_from_mesh, locate_parts, mm_to_m
 from vision.render import PixelRays, look_at_pose, pixel_rays, render_mesh
 
@@ -36,6 +38,8 @@ from vision.render import PixelRays, look_at_pose, pixel_rays, render_mesh
 SUPERSAMPLE = 3
 #: Sensor noise of the rendered pictures [grey levels of 255].
 NOISE_SIGMA = 2.0
+#: Rays per pixel side of the pictures in real light (:func:`vision.lit.render_lit`; 2 as its test gallery).
+LIT_SUPERSAMPLE = 2
 #: A located part is where it was put when its position and yaw are within these [m], [rad].
 LOCATE_TOLERANCE_M = 1e-3
 LOCATE_TOLERANCE_RAD = float(np.radians(1.0))
@@ -162,12 +166,19 @@ def _truth(footprint: Footprint, pose: tuple[float, float, float], plane_z: floa
 
 
 def _picture(station: CameraStation, footprint: Footprint, truth: LocatedPart, vertices_mm: np.ndarray,
-             faces: np.ndarray, seed: int) -> np.ndarray:
-    """The rendered picture of a mesh [mm, its own frame] placed at ``truth``."""
+             faces: np.ndarray, seed: int, light: Condition | None = None) -> np.ndarray:
+    """The rendered picture of a mesh [mm, its own frame] placed at ``truth``: exact
+    (:func:`vision.render.render_mesh`), or in real light ``light`` (:func:`vision.lit.render_lit`:
+    aluminium, shadows, exposure, noise, the key light drawn from ``seed``)."""
     t = part_transform(footprint, truth)
     world = mm_to_m(np.asarray(vertices_mm, dtype=np.float64)) @ t[:3, :3].T + t[:3, 3]
-    return render_mesh(station.rays, station.world_to_camera, world, faces, plane_z=station.plane_z,
-                       noise_sigma=NOISE_SIGMA, seed=seed)
+    if light is None:
+        return render_mesh(station.rays, station.world_to_camera, world, faces, plane_z=station.plane_z,
+                           noise_sigma=NOISE_SIGMA, seed=seed)
+    rng = np.random.default_rng(seed)
+    sun = key_light(light, rng, np.array([truth.x, truth.y, station.plane_z]), station.camera_pose[:3, 3])
+    mesh = trimesh.Trimesh(world, np.asarray(faces, dtype=np.int64), process=False)
+    return render_lit(station, [(mesh, metal(light, t))], light, sun, rng, supersample=LIT_SUPERSAMPLE)
 
 
 def _nearest(found: list, truth: LocatedPart, part_of=lambda p: p):
@@ -182,7 +193,7 @@ def _not_found(e: VisionError, what: str, truth: LocatedPart) -> VisionError:
 
 
 def locate_shot(station: CameraStation, vertices_mm: np.ndarray, faces: np.ndarray,
-                pose: tuple[float, float, float], *, seed: int = 0) -> CameraShot:
+                pose: tuple[float, float, float], *, seed: int = 0, light: Condition | None = None) -> CameraShot:
     """Render a part (a raw blank) lying on the station's surface and locate it.
 
     Parameters
@@ -195,7 +206,10 @@ def locate_shot(station: CameraStation, vertices_mm: np.ndarray, faces: np.ndarr
         Where the part is put: its footprint centroid at ``x, y`` [m] on the surface, turned by
         ``yaw`` [rad] about world z.
     seed : int
-        Seed of the picture's noise.
+        Seed of the picture's noise (and, in real light, of its key light and textures).
+    light : Condition, optional
+        Take the picture in this real light (:data:`vision.lit.CONDITIONS`: brushed aluminium,
+        shadows, exposure, noise); None: the exact picture of :func:`vision.render.render_mesh`.
 
     Raises
     ------
@@ -205,7 +219,7 @@ def locate_shot(station: CameraStation, vertices_mm: np.ndarray, faces: np.ndarr
     """
     footprint = footprint_from_mesh(vertices_mm, faces, source="locate shot")
     truth = _truth(footprint, pose, station.plane_z)
-    image = _picture(station, footprint, truth, vertices_mm, faces, seed)
+    image = _picture(station, footprint, truth, vertices_mm, faces, seed, light)
     start = time.perf_counter()
     try:
         found = locate_parts(image, station.camera, station.camera_pose, footprint, station.plane_z,

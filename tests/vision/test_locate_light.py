@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 
 from factory.core.errors import VisionError
 from tests.vision.lit import CONDITIONS, OWN_PARTS, SAMPLE_PARTS, cell_station, gallery_scene, render_lit, sample_mesh
+from vision.lit import Material
 from vision.locate import _axis_coverage, _EdgeModel, _gradients, locate_parts
 from vision.locate_search import oriented_distances, refine_start, thin_edges
 
@@ -119,8 +120,8 @@ def test_a_box_alone_is_no_part(station):
     frame = np.eye(4)
     frame[:3, 3] = [station.camera_pose[0, 3] + 0.03, station.camera_pose[1, 3] - 0.02, station.plane_z + 0.015]
     box.apply_transform(frame)
-    image = render_lit(station, [(box, {"albedo": 0.7, "brushed": 0.0, "specular": 0.05, "shininess": 5.0,
-                                        "frame": frame})], CONDITIONS["distractor"],
+    image = render_lit(station, [(box, Material(albedo=0.7, brushed=0.0, specular=0.05, shininess=5.0, frame=frame))],
+                       CONDITIONS["distractor"],
                        np.array([0.3, 0.2, 0.93]) / np.linalg.norm([0.3, 0.2, 0.93]), np.random.default_rng(3))
     for part in SAMPLE_PARTS + OWN_PARTS:
         _, footprint, _ = sample_mesh(part)

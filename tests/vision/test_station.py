@@ -15,6 +15,7 @@ from factory.core.errors import VisionError
 from tests.conftest import SAMPLES
 from tests.vision import TRUE_CAMERA
 from tests.vision.test_locate import yaw_error
+from vision.lit import CONDITIONS
 from vision.locate import footprint_from_mesh
 from vision.station import CORNER_CUT, CameraStation, cut_corner, inspect_shot, locate_shot, station_above
 
@@ -161,3 +162,19 @@ def test_cut_corner_errors():
         cut_corner(box.vertices, box.faces, share=0.6)
     with pytest.raises(VisionError, match="not closed"):
         cut_corner(box.vertices, box.faces[:-2])
+
+
+def test_a_blank_in_real_light_is_located_where_it_stands(station, blank):
+    """The rack camera's picture in real light (:mod:`vision.lit`: brushed aluminium, a cast shadow, a
+    textured tray, vignetting, noise), not the exact one: the blank is still found within half a
+    millimetre and half a degree of where it stands."""
+    pose = (TARGET[0] + 0.002, TARGET[1] - 0.0015, np.radians(2.0))
+    exact = locate_shot(station, blank.vertices, blank.faces, pose, seed=3)
+    lit = locate_shot(station, blank.vertices, blank.faces, pose, seed=3, light=CONDITIONS["diffuse"])
+    assert lit.passed and lit.error_mm < 0.5, lit.detections
+    assert np.degrees(abs(lit.detections[0]["yaw"] - pose[2])) < 0.5
+    # another picture altogether: its greys differ by more than the exact picture's noise
+    assert np.mean(np.abs(lit.image.astype(float) - exact.image)) > 10
+    # the light is drawn from the seed: the same seed, the same picture
+    again = locate_shot(station, blank.vertices, blank.faces, pose, seed=3, light=CONDITIONS["diffuse"])
+    np.testing.assert_array_equal(again.image, lit.image)
