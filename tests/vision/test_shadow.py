@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from tests.vision.lit import ROOT, _lit_by
+from tests.vision.lit import ROOT
+from vision.lit import _lit_by
 from vision.locate import footprint_from_mesh
 from vision.shadow import LOW_LIGHT, dark_both_sides, estimate_light, height_field, shadowed
 
