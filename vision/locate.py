@@ -674,12 +674,10 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     # The search's steps and the judgement's "within a pixel" are in pixels: a fine camera is
     # searched and judged on its binned picture, about as coarse as the cell camera's, and each
     # pose is then refined on the full picture (:func:`_refined`).
-    binning = int(SEARCH_PIXEL_M / ((cam_pos[2] - tray_z) / np.sqrt(camera.fx * camera.fy)))
-    if binning >= 2:
-        coarse = locate_parts(bin_image(grey, binning), binned_camera(camera, binning), base_camera, part, tray_z,
-                              options, source=source)
-        return [_refined(p, grey, camera, base_camera, part, tray_z, binning) for p in coarse]
-
+    if (binning := int(SEARCH_PIXEL_M / ((cam_pos[2] - tray_z) / np.sqrt(camera.fx * camera.fy)))) >= 2:
+        return [_refined(p, grey, camera, base_camera, part, tray_z, binning) for p in
+                locate_parts(bin_image(grey, binning), binned_camera(camera, binning), base_camera, part, tray_z,
+                             options, source=source)]
     ratio, spread = _tray_ratio(grey)
     log_ratio = np.log(ratio)
     level = max(2.5 * spread, options.min_contrast)
@@ -735,20 +733,24 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         if any(np.hypot(p.x - located.x, p.y - located.y) < 0.5 * radius_px * located.mm_per_px * 1e-3
                for p in found):
             continue
-        mask = (labels == i).astype(np.uint8)
-        # The outline for inspection: the iso-line a quarter of the way from the tray to the part's
-        # typical brightness (as far from the sensor noise as from dim side faces).
-        inside = log_ratio[(mask > 0) & (np.abs(log_ratio) > level)]
-        typical = float(np.median(inside)) if len(inside) else level
-        iso = np.sign(typical) * max(abs(typical) / 4, level)
-        outline = _subpixel_outline(log_ratio, mask, iso, typical > 0)
-        found.append(replace(located, outline=outline if outline is not None else np.zeros((0, 2))))
+        found.append(replace(located, outline=_blob_outline(log_ratio, (labels == i).astype(np.uint8), level)))
     if not found:
         # The best refused candidate says why: a wrong pose never leaves here, a reason does.
         why = f"; {refusals[0]}" if refusals else "; nothing on the tray departs from it like a part"
         raise VisionError("no part found on the tray (check the tray height, the extrinsics and the part file)"
                           + why, source=source)
     return sorted(found, key=lambda p: -p.score)
+
+
+def _blob_outline(log_ratio: np.ndarray, mask: np.ndarray, level: float) -> np.ndarray:
+    """The outline of a blob (``mask`` (h, w) uint8) for inspection [px]: the iso-line of ``log_ratio`` a
+    quarter of the way from the tray to the part's typical brightness (as far from the sensor noise as
+    from dim side faces), ``level`` at least; (0, 2) when there is none."""
+    inside = log_ratio[(mask > 0) & (np.abs(log_ratio) > level)]
+    typical = float(np.median(inside)) if len(inside) else level
+    iso = np.sign(typical) * max(abs(typical) / 4, level)
+    outline = _subpixel_outline(log_ratio, mask, iso, typical > 0)
+    return outline if outline is not None else np.zeros((0, 2))
 
 
 def _key_light(model: _EdgeModel, pose: np.ndarray, log_ratio: np.ndarray, box: tuple[int, int, int, int]

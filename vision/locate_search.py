@@ -12,19 +12,32 @@ starts there.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import cv2
 import numpy as np
 
-if TYPE_CHECKING:
-    from vision.locate import _EdgeModel
+from vision.camera import CameraModel
+
+
+class EdgeModel(Protocol):
+    """What the search needs of :class:`vision.locate._EdgeModel`: the camera and the tray, and the
+    model's visible edge samples at a pose (x, y [m], yaw [rad]) and where they fall in the image."""
+
+    camera: CameraModel
+    tray_z: float
+    rvec: np.ndarray
+    tvec: np.ndarray
+
+    def visible(self, p: np.ndarray) -> np.ndarray: ...
+
+    def project(self, p: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
 
 #: Most edge samples a round of the edge fit uses (evenly thinned; the final judgement uses all).
 FIT_SAMPLES = 400
 
 
-def chamfer_starts(model: _EdgeModel, edges: np.ndarray, inside: np.ndarray, box: tuple[int, int, int, int],
+def chamfer_starts(model: EdgeModel, edges: np.ndarray, inside: np.ndarray, box: tuple[int, int, int, int],
                     centre: np.ndarray, ground: Callable[[np.ndarray], np.ndarray], maps: np.ndarray,
                     yaw_steps: int = 36, keep: int = 3) -> list[np.ndarray]:
     """The best few (x, y, yaw) of a coarse search: model edges against the picture's edge distance map.
@@ -117,7 +130,7 @@ def thin_edges(gx: np.ndarray, gy: np.ndarray, edges: np.ndarray) -> np.ndarray:
     return (edges > 0) & (mag >= ahead) & (mag >= behind)
 
 
-def refine_start(model: _EdgeModel, maps: np.ndarray, start: np.ndarray, ground: Callable[[np.ndarray], np.ndarray]
+def refine_start(model: EdgeModel, maps: np.ndarray, start: np.ndarray, ground: Callable[[np.ndarray], np.ndarray]
                   ) -> tuple[float, np.ndarray]:
     """The pose near a coarse start (x, y [m], yaw [rad]) whose edges lie closest on picture edges of
     the same direction: every :data:`REFINE_YAW_DEG` step and pixel shift within reach, scored by the
