@@ -444,8 +444,7 @@ def front_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, to
     the tool), grown by a step, within the region: the step is the target engagement, smaller where the
     front's engagement, read along its leading half, would pass the target plus half the band (tight turns,
     the first laps round the helix). Only the stretches of a front that meet stock are cut, climb, each
-    led in sideways from the cleared side; in a slot or a neck these are the front's two ends, trochoidal
-    arcs. Links stay down across what is cleared.
+    led in sideways from the cleared side (in a slot, the front's two ends: trochoidal arcs); links stay down.
 
     Returns as :func:`deep_cut_moves` (the engagement measured with the helix's bore taken as cleared: the
     helix itself is the one place the band does not hold), or None where no helix fits, a step below
@@ -529,11 +528,8 @@ def front_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, to
                     return None
                 _emit(pts, mot, route, z, g, _stays_down(pts, route, left, inside, r, gap=-_FRONT_GAP))
                 left = left.difference(line.buffer(r, quad_segs=16))
-        if len(pts) > counted + 1:
-            seg = np.linalg.norm(np.diff(np.array(pts[max(counted - 1, 0):]), axis=0), axis=1)
-            rapid = np.array(mot[max(counted, 1):]) == Motion.RAPID
-            cost += float(seg[~rapid].sum() + rapid_share * seg[rapid].sum())
-            counted = len(pts)
+        cost += _feed_cost(pts[max(counted - 1, 0):], mot[max(counted, 1):], rapid_share)
+        counted = len(pts)
         if cost > budget:
             log.debug("deep cut at z=%.3f: fronts slower than the levels", z)
             return None
@@ -544,8 +540,7 @@ def front_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, to
         return None
     if not pts:
         return None
-    points = np.array(pts)
-    motion = np.array(mot, dtype=np.int8)
+    points, motion = np.array(pts).reshape(-1, 3), np.array(mot, dtype=np.int8)
     engagement = measure_engagement(points, motion, z, material.difference(bore), g.stock, r)
     # within two raster cells of the band: the raster reads a front's tight turns up to that much deep
     if engagement > limit + 2 * _CELL_SHARE * r:
@@ -553,6 +548,16 @@ def front_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, to
         return None
     seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
     return points, motion, engagement, float(seg[motion[1:] != Motion.RAPID].sum())
+
+
+def _feed_cost(pts: list[np.ndarray], mot: list[int], rapid_share: float) -> float:
+    """Feed length [mm] of the moves from ``pts[0]`` on (``mot``: the motion of each move), rapids counted at
+    ``rapid_share`` of their length."""
+    if len(pts) < 2:
+        return 0.0
+    seg = np.linalg.norm(np.diff(np.array(pts), axis=0), axis=1)
+    rapid = np.array(mot[-len(seg):]) == Motion.RAPID
+    return float(seg[~rapid].sum() + rapid_share * seg[rapid].sum())
 
 
 def _helix(region: Polygon, g: BandGeometry, z: float, z_top: float, tool: Tool
