@@ -98,6 +98,11 @@ _FRONT_GAP = 0.05
 #: Radii a front's convex corners are rounded with, as shares of the tool radius, tried in turn: the largest
 #: that still lets the front advance (a narrow slot takes a small one) and holds the band.
 _FRONT_ROUNDING = (0.4, 0.15)
+#: Fronts in a row gaining less than a quarter step squared before the fronts stop (creeping into a cusp or a
+#: corner, each front dearer than the stock it takes).
+_CREEP = 3
+#: What a front's reading may pass the target by, as shares of the band, tried in turn.
+_FRONT_READINGS = (0.0, 0.25, 0.5)
 
 
 @dataclass(frozen=True)
@@ -311,7 +316,8 @@ def _band_cut(g: BandGeometry, i: int, c: Polygon, comps: list[list[Polygon]], c
         # no lead-in from the air beside the walls (a pocket, a slot, a neck): fronts from a helix or the air,
         # tried only where they can pay (their feed length is at least the stock's area over the step)
         target = chip_thinned_feed(cutting, tool, options.engagement * tool.diameter, max_feed).feed
-        moves = front_cut_moves(c, g, z, z_top, tool, options, budget=levels_min * target)
+        moves = front_cut_moves(c, g, z, z_top, tool, options, budget=levels_min * target,
+                                rapid_share=target / _RAPID_ESTIMATE)
     if moves is None:
         return None
     points, motion, engagement, length = moves
@@ -424,7 +430,7 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
 
 
 def front_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, tool: Tool,
-                    options: AdaptiveOptions = AdaptiveOptions(), budget: float = math.inf
+                    options: AdaptiveOptions = AdaptiveOptions(), budget: float = math.inf, rapid_share: float = 0.0
                     ) -> tuple[np.ndarray, np.ndarray, float, float] | None:
     """The moves taking ``region`` from ``z_top`` down to ``z`` by fronts growing out of what is cleared.
 
@@ -432,19 +438,20 @@ def front_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, to
     pocket open on one side only), the cut starts from the air the region holds (the tool-centre places
     whose disc meets no stock) or, with none, from a helix at the roughing's ramp angle down the whole band
     at the place farthest from the walls (its radius as :attr:`BandGeometry.helix_radius` allows, at least
-    :attr:`BandGeometry.min_helix_radius`), followed by one lap at the floor. Each next front is the
+    :attr:`BandGeometry.min_helix_radius`), followed by one lap at the floor (and so again beyond a neck the
+    fronts cannot pass). Each next front is the
     cleared tool-centre region closed by the radius (its inside corners rounded, where an offset would bury
     the tool), grown by a step, within the region: the step is the target engagement, smaller where the
     front's engagement, read along its leading half, would pass the target plus half the band (tight turns,
     the first laps round the helix). Only the stretches of a front that meet stock are cut, climb, each
-    led in sideways from the cleared side; in a slot or a neck these are the front's two ends, trochoidal
-    arcs. Links stay down across what is cleared.
+    led in sideways from the cleared side (in a slot, the front's two ends: trochoidal arcs); links stay down.
 
     Returns as :func:`deep_cut_moves` (the engagement measured with the helix's bore taken as cleared: the
     helix itself is the one place the band does not hold), or None where no helix fits, a step below
     :data:`_MIN_STEP_SHARE` of the target would still pass the band, a lead-in crosses the part, the cut
-    needs more than :data:`_MAX_FRONTS` fronts or more than ``budget`` [mm] of feed, or the replay
-    measures more than the band allows."""
+    needs more than :data:`_MAX_FRONTS` fronts or more than ``budget`` [mm] of feed (rapids counted at
+    ``rapid_share`` of their length: the feed over the rapid rate), or the replay measures more than the band
+    allows."""
     r = tool.radius
     step = options.engagement * tool.diameter
     limit = (options.engagement + options.band) * tool.diameter
@@ -464,34 +471,49 @@ def front_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, to
     region = region.union(strip)
     air = region.difference(material.buffer(r + _AIR_GAP, quad_segs=16))
     bore: BaseGeometry = Polygon()
-    if air.area > _SLIVER:
-        cleared = air
-    else:
-        helix = _helix(region, g, z, z_top, tool)
+    cleared: BaseGeometry = air if air.area > _SLIVER else Polygon()
+
+    def enter(space: Polygon) -> bool:
+        """A helix in ``space``, where it fits: its moves emitted, its bore cleared."""
+        nonlocal cleared, bore, left
+        helix = _helix(space, g, z, z_top, tool)
         if helix is None:
-            return None
+            return False
         centre, radius, h_points, h_motion = helix
         pts.extend(h_points)
         mot.extend(int(m) for m in h_motion)
-        cleared = shapely.Point(*centre).buffer(radius, quad_segs=32)
-        bore = shapely.Point(*centre).buffer(radius + r, quad_segs=32)
-        left = left.difference(bore)
+        cleared = cleared.union(shapely.Point(*centre).buffer(radius, quad_segs=32))
+        hole = shapely.Point(*centre).buffer(radius + r, quad_segs=32)
+        bore = bore.union(hole)
+        left = left.difference(hole)
+        return True
+
+    if cleared.is_empty and not enter(region):
+        return None
     beta = max(math.radians(0.5), 0.5 * (math.acos(1 - min(limit, tool.diameter) / r)
                                          - math.acos(1 - min(step, tool.diameter) / r)))
-    length = 0.0
+    cost, counted = 0.0, 0  # feed length so far [mm], rapids at their share; points counted
+    creeping = 0  # fronts in a row that gained less than a quarter step squared
     for _ in range(_MAX_FRONTS):
         if left.area < _SLIVER:
             break
         last = region.difference(cleared).area < _SLIVER  # the front is the walls: this lap is the last
-        # the target plus a quarter of the band where a step holds it, else plus half: the front's reading
-        # is a little short of the replay's at tight turns
-        front = (_next_front(cleared, region, left, r, step, step + 0.25 * options.band * tool.diameter)
-                 or _next_front(cleared, region, left, r, step, planned))
+        # the front's reading is a little short of the replay's at tight turns: the strictest that a step holds
+        front = _next_front(cleared, region, left, r, step,
+                            tuple(step + share * options.band * tool.diameter for share in _FRONT_READINGS))
         if front is None:
             log.debug("deep cut at z=%.3f: no front holds the band", z)
             return None
-        if not front[1]:
-            break  # the front reaches no farther: what is left lies in corners sharper than its rounding
+        creeping = creeping + 1 if front[1] and front[0].area - cleared.area < 0.25 * step * step else 0
+        if not front[1] or creeping > _CREEP:
+            # the front reaches no farther: what is left lies in corners sharper than its rounding, or beyond a
+            # neck narrower than it, which gets a helix of its own; fronts that only creep into a cusp stop too
+            creeping = 0
+            rest = sorted((q for q in roughing._polygons(region.difference(cleared))
+                           if q.area > step * step), key=lambda q: -q.area)
+            if not any(enter(q) for q in rest):
+                break
+            continue
         cleared, chains = front
         for chain in chains:
             routes = _runs(chain, np.ones(len(chain), bool), left, r, beta, gap=_FRONT_GAP)
@@ -506,8 +528,10 @@ def front_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, to
                     return None
                 _emit(pts, mot, route, z, g, _stays_down(pts, route, left, inside, r, gap=-_FRONT_GAP))
                 left = left.difference(line.buffer(r, quad_segs=16))
-                length += line.length
-        if length > budget:
+        cost += _feed_cost(pts[max(counted - 1, 0):], mot[max(counted, 1):], rapid_share)
+        counted = len(pts)
+        if cost > budget:
+            log.debug("deep cut at z=%.3f: fronts slower than the levels", z)
             return None
         if last:
             break
@@ -516,14 +540,24 @@ def front_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, to
         return None
     if not pts:
         return None
-    points = np.array(pts)
-    motion = np.array(mot, dtype=np.int8)
+    points, motion = np.array(pts).reshape(-1, 3), np.array(mot, dtype=np.int8)
     engagement = measure_engagement(points, motion, z, material.difference(bore), g.stock, r)
-    if engagement > limit + 1e-6:
+    # within two raster cells of the band: the raster reads a front's tight turns up to that much deep
+    if engagement > limit + 2 * _CELL_SHARE * r:
         log.debug("deep cut at z=%.3f: engagement %.3f mm over %.3f", z, engagement, limit)
         return None
     seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
     return points, motion, engagement, float(seg[motion[1:] != Motion.RAPID].sum())
+
+
+def _feed_cost(pts: list[np.ndarray], mot: list[int], rapid_share: float) -> float:
+    """Feed length [mm] of the moves from ``pts[0]`` on (``mot``: the motion of each move), rapids counted at
+    ``rapid_share`` of their length."""
+    if len(pts) < 2:
+        return 0.0
+    seg = np.linalg.norm(np.diff(np.array(pts), axis=0), axis=1)
+    rapid = np.array(mot[-len(seg):]) == Motion.RAPID
+    return float(seg[~rapid].sum() + rapid_share * seg[rapid].sum())
 
 
 def _helix(region: Polygon, g: BandGeometry, z: float, z_top: float, tool: Tool
@@ -559,17 +593,17 @@ def _helix(region: Polygon, g: BandGeometry, z: float, z_top: float, tool: Tool
 
 
 def _next_front(cleared: BaseGeometry, region: Polygon, left: BaseGeometry, r: float, step: float,
-                planned: float) -> tuple[BaseGeometry, list[np.ndarray]] | None:
+                limits: tuple[float, ...]) -> tuple[BaseGeometry, list[np.ndarray]] | None:
     """The next front from the ``cleared`` tool-centre region: closed by ``r`` (its inside corners rounded),
-    grown by the largest step from ``step`` down (by 0.7 each time, to :data:`_MIN_STEP_SHARE` of it) whose
-    engagement (:func:`_front_engagement`) against the stock ``left`` is at most ``planned`` [mm], within
-    ``region``. Returns the new cleared region and its rings, oriented for climb (stock on the left: the
-    outer rings clockwise, the holes' counter-clockwise), at most :data:`_RESAMPLE` apart; None where no step
-    holds."""
+    grown by a step from ``step`` down (by 0.7 each time, to :data:`_MIN_STEP_SHARE` of it), its convex
+    corners rounded (:data:`_FRONT_ROUNDING`), within ``region``: the first whose reading (:func:`_reading`)
+    against the stock ``left`` is within ``limits[0]`` [mm], else within the next limit, and so on. Returns
+    the new cleared region and its rings (:func:`_front_chains`); ``(cleared, [])`` where no step advances
+    it and the walls' lap does not hold either; None where steps advance but none holds."""
     base = cleared.buffer(r, quad_segs=16).buffer(-r, quad_segs=16)
     shapely.prepare(left)
+    tried: list[tuple[float, BaseGeometry, list[np.ndarray]]] = []
     s = step
-    stuck = True
     while s >= _MIN_STEP_SHARE * step:
         raw = base.buffer(s, quad_segs=16).intersection(region)
         for rounding in _FRONT_ROUNDING:
@@ -579,12 +613,39 @@ def _next_front(cleared: BaseGeometry, region: Polygon, left: BaseGeometry, r: f
             grown = grown.intersection(region).union(cleared)
             if grown.area - cleared.area < _SLIVER:
                 continue  # a channel narrower than the rounding: less rounding
-            stuck = False
             chains = _front_chains(grown)
-            if chains and max(_front_engagement(c, left, r) for c in chains) <= planned:
+            reading = _reading(chains, left, r, limits[-1])
+            if reading <= limits[0]:
                 return grown, chains
+            tried.append((reading, grown, chains))
         s *= 0.7
-    return (cleared, []) if stuck else None
+    for limit in limits[1:]:
+        for reading, grown, chains in tried:
+            if reading <= limit:
+                return grown, chains
+    if tried:
+        return None
+    # the rounded fronts reach no farther: the last lap follows the walls into the corners and the cusps beside
+    # the islands, where that holds the band; else the corners keep their stock
+    grown = region.union(cleared)
+    if grown.area - cleared.area >= _SLIVER:
+        chains = _front_chains(grown)
+        if _reading(chains, left, r, limits[-1]) <= limits[-1]:
+            return grown, chains
+    return cleared, []
+
+
+def _reading(chains: list[np.ndarray], left: BaseGeometry, r: float, most: float) -> float:
+    """How deep [mm] the fronts ``chains`` take the tool into the stock ``left``: the larger of the disc's
+    deepest reach into it (a front that would bury the tool where its leading half reads little: the start of
+    a run) and the leading half's engagement (:func:`_front_engagement`, read only where the reach is within
+    ``most``); inf with no chains."""
+    if not chains:
+        return math.inf
+    reach = max(float(_penetration(c, left, r).max()) for c in chains)
+    if reach > most:
+        return reach
+    return max(reach, max(_front_engagement(c, left, r) for c in chains))
 
 
 def _front_chains(front: BaseGeometry) -> list[np.ndarray]:

@@ -60,9 +60,9 @@ def band(part: BaseGeometry, stock: Polygon, r: float) -> tuple[Polygon, BandGeo
 class Replay:
     """The band's material on a pixel grid (the stock less the part grown by the allowance)."""
 
-    def __init__(self, part: BaseGeometry, stock: Polygon, r: float):
+    def __init__(self, part: BaseGeometry, stock: Polygon, r: float, cell_share: float = CELL_SHARE):
         self.r = r
-        self.cell = CELL_SHARE * r
+        self.cell = cell_share * r
         x0, y0, x1, y1 = stock.bounds
         self.x0, self.y0 = x0, y0
         xs = np.arange(x0 + self.cell / 2, x1, self.cell)
