@@ -70,6 +70,9 @@ _CELL_PER_RADIUS = 0.125
 #: prepared tool: each holds 12 B (~40 B while they are sorted), and finer buckets list each primitive
 #: in more of them, so a big mesh gets coarser buckets (never coarser than before, R/2).
 _MAX_ENTRIES = 10_000_000
+#: ... and at most this many per vertex and edge: a small mesh (or a small tool on a wide one) would
+#: otherwise spend the whole budget, and its memory, on buckets finer than its queries repay.
+_ENTRIES_PER_PRIMITIVE = 100
 #: Query buckets at most (the bucket pointers take 8 B each).
 _MAX_BUCKETS = 4_000_000
 #: Entries made at once while bucketing (bounds the temporaries, ~150 B each).
@@ -266,8 +269,8 @@ class _Grid:
 def _query_grid(index: TriangleIndex, radius: float, lo: np.ndarray, hi: np.ndarray) -> _Grid:
     """Buckets of about :data:`_CELL_PER_RADIUS` x ``radius`` [mm] over the index's extent, coarser where
     the vertices' and edges' boxes ``lo``, ``hi`` (k, 2) [mm] listed within ``radius`` of them would make
-    more than :data:`_MAX_ENTRIES` entries (or the grid more than :data:`_MAX_BUCKETS` buckets), up to
-    the index's buckets merged to half the radius at most."""
+    more than :data:`_MAX_ENTRIES` entries, or :data:`_ENTRIES_PER_PRIMITIVE` per box (or the grid more
+    than :data:`_MAX_BUCKETS` buckets), up to the index's buckets merged to half the radius at most."""
     extent = np.array(index.shape, dtype=np.float64) * index.cell
     coarsest = index.cell * max(1, int(math.ceil(0.5 * radius / index.cell)))
     lo, hi = lo - index.origin - radius, hi - index.origin + radius
@@ -276,7 +279,8 @@ def _query_grid(index: TriangleIndex, radius: float, lo: np.ndarray, hi: np.ndar
     def entries(c: float) -> float:  # the buckets each grown box spans (a few more than _bucket keeps)
         return float(np.sum(np.prod(np.floor(hi / c) - np.floor(lo / c) + 1.0, axis=1)))
 
-    while cell < coarsest and entries(cell) > _MAX_ENTRIES:
+    budget = min(_MAX_ENTRIES, _ENTRIES_PER_PRIMITIVE * len(lo))
+    while cell < coarsest and entries(cell) > budget:
         cell *= 1.25
     cell = min(cell, coarsest)
     nx = int(extent[0] // cell) + 1
