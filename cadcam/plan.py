@@ -30,7 +30,6 @@ from cadcam.drilling import DrillingOptions, Hole, HolePlan, plan_holes
 from cadcam.faces import SHALLOW, STEEP, FaceClasses, classify_faces
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
 from cadcam.flatfinish import WALL_HAIR, FlatFinishOptions, flat_wall_finishing, left_on_flats_and_walls
-from cadcam.gridregion import grown_cells_region
 from cadcam.model import CuttingData, Job, Operation, Setup, Tool
 from cadcam.relief import Boundary, keep_outside
 from cadcam.rest import safe_rapids
@@ -708,29 +707,6 @@ def _ball_finishes(faces: FaceClasses, ball: Tool) -> Callable[[np.ndarray], np.
     return faces.near((STEEP, SHALLOW), ball.radius + 0.5)
 
 
-def _short_tool_leaves(stock: Simulation, tool: Tool, options: PlanOptions,
-                       ball: Callable[[np.ndarray], np.ndarray] | None) -> Callable[[np.ndarray], np.ndarray]:
-    """``leave(xy) -> (m,) bool``: where ``tool``, shorter than the stock is deep, finishes no skin [mm].
-
-    Its flats and walls pass is for the skin rest roughing left, so it keeps its cutter off stock that roughing
-    left whole: more than ``options.finish_engagement`` over the part grown by roughing's allowance and the
-    tool's radius, where it would stand in that stock rather than beside it (a pocket no tool could enter,
-    which a finishing pass would plunge into). No skin within its diameter of that is its; nor the skin the
-    ball finishes (``ball``, :func:`_ball_finishes`), if any. The ends of a slot rest roughing left thicker
-    than its allowance, but within the radius, stay its."""
-    g = stock.grid
-    whole = excess(stock, options.roughing.allowance + tool.radius) > options.finish_engagement
-    near = grown_cells_region(whole, g, tool.diameter + g.cell, quad_segs=4)
-    shapely.prepare(near)
-
-    def leave(xy: np.ndarray) -> np.ndarray:
-        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-        out = shapely.contains_xy(near, xy[:, 0], xy[:, 1])
-        return out | ball(xy) if ball is not None else out
-
-    return leave
-
-
 #: Grid spacing of the in-process stock model the operations are planned from [mm].
 _MODEL_CELL = 0.5
 #: Finest stock model the flats and walls are planned from [mm] (verify's default grid).
@@ -766,7 +742,9 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
     for tool in [flat] + [t for t in narrower if t not in short] + short:
         if stale:
             stock, stale = plan.model(operations, stock.grid.cell), False
-        leave = _short_tool_leaves(stock, tool, options, ball) if tool in short else None
+        # A short tool keeps off the skin the ball finishes; off a pocket no tool entered it keeps by
+        # ``limit`` below, as every flat end mill does (what no tool reaches is left alone).
+        leave = ball if tool in short else None
         # (A skin only the finer model below shows, with nothing else left beside it, is no
         # danger: no pass goes there.)
         if not plan.timed("rest check", lambda: left_on_flats_and_walls(stock, faces, tool.radius, ff.allowance,
