@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import numpy as np
-import shapely
 import trimesh
 
 from cadcam.adaptive import AdaptiveOptions, adaptive_roughing
