@@ -220,6 +220,14 @@ def test_a_cutter_wider_than_the_part_leaves_no_stock():
     assert_deep_cut_holds(box(0, 0, 6, 6), box(-1.5, -1.5, 7.5, 7.5), 16.0)
 
 
+@pytest.mark.xfail(strict=True, reason="issue 32: a 6 mm cutter round a part with 1 mm rounded corners in a stock "
+                                       "1.05 mm wider leaves 0.83 mm² at the stock's corners in its deep cut (found "
+                                       "by the full suite's draw, 2026-11-27; on main before too)")
+def test_stock_corners_beyond_a_small_round_are_cut():
+    part = box(0, 0, 6, 12).buffer(-1.0).buffer(1.0, quad_segs=16)
+    assert_deep_cut_holds(part, box(-1.05, -1.05, 7.05, 13.05), 6.0)
+
+
 def test_chip_thinned_feed_matches_the_formula():
     t = tool(10.0)
     base = CuttingData(spindle_rpm=9549.0, feed=2292.0, plunge_feed=687.6)
