@@ -170,12 +170,15 @@ class PlannedPart:
 
 
 def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwatch | None = None,
-                check_setup: Callable[[Setup, trimesh.Trimesh | None], None] | None = None) -> PlannedPart:
+                check_setup: Callable[[Setup, trimesh.Trimesh | None], None] | None = None,
+                on_setup: Callable[[Setup, PartMesh, Boundary | None], None] | None = None) -> PlannedPart:
     """Load, set up and plan one part, timing each stage into ``watch``.
 
     ``check_setup`` is called with the setup and the part in work coordinates [mm] (None for a
     relief) before the toolpaths are computed, to refuse early what a later stage would refuse
-    only after that work.
+    only after that work. ``on_setup`` is called once with the setup chosen, the part as loaded and
+    a relief's boundary (None for a solid) before the toolpaths are computed, to start work that
+    needs no toolpath (the robot's).
 
     Raises
     ------
@@ -213,6 +216,8 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
             part_work = machining_surface(surface_work, setup)
             if check_setup is not None:
                 check_setup(setup, None)  # a relief leaves in its block: no part of its own to grip
+    if on_setup is not None:
+        on_setup(setup, loaded, boundary)
     options = req.plan
     if boundary is not None:  # shallow nearly everywhere: finer terraces, finishing engages less
         options = dataclasses.replace(options, finish_engagement=min(options.finish_engagement, FINISH_ENGAGEMENT),

@@ -39,7 +39,8 @@ from cadcam.op2 import (FLIP_AXIS, WORK_OFFSET, Op2Options, flip_transform, op2_
                         plan_op2)
 from cadcam.post import PostOptions, Program, post_process, tool_table_file
 from cadcam.preview import setup_image
-from cadcam.relief import block_corners
+from cadcam.mesh import PartMesh
+from cadcam.relief import Boundary, block_corners
 from cadcam.sheet import setup_sheet
 from cadcam.stock import Simulation
 from cadcam.verify import VerifyOptions, VerifyReport, VerifyResult
@@ -53,10 +54,11 @@ from factory.refusals import check_op2_grip, check_request, check_setup
 from factory.core.progress import Progress, Stopwatch, held_open
 from factory.core.resources import FIXTURES
 from factory.core.setupsheet import SetupSheet
-from factory.tending import CellPlan, log_tending, plan_cell
+from factory.robotwork import BackgroundRobot, RobotTask, stock_sheet
+from factory.tending import CellPlan, log_tending
 from factory.verify import log_simulation, report_text, run_verify, run_verify_after, write_verify_outputs
-from robotprog.programs import PostedProgram, post_program
-from robotprog.visuals import robot_visuals
+from robotprog.programs import PostedProgram
+from robotprog.visuals import LinkVisual
 
 log = logging.getLogger(__name__)
 
@@ -181,10 +183,11 @@ class PlanRequest:
 @dataclasses.dataclass(frozen=True)
 class Tending(CellPlan):
     """The robot's load and unload of one part (the cell, its collision world, the timed plan: a
-    :class:`~factory.tending.CellPlan`) and the posted robot program (its texts keyed by file name:
-    KRL has a ``.src`` and a ``.dat``)."""
+    :class:`~factory.tending.CellPlan`), the posted robot program (its texts keyed by file name:
+    KRL has a ``.src`` and a ``.dat``) and the robot's meshes for the log (None: read when logged)."""
 
     program: PostedProgram
+    visuals: tuple[LinkVisual, ...] | None = None
 
     @property
     def programs(self) -> dict[str, str]:
@@ -389,7 +392,7 @@ class PartPlan:
             log_job(m, planned, world_work)
             log_simulation(m, self.simulation)
             if tending is not None:
-                log_tending(m, tending.cell, tending.world, tending.plan)
+                log_tending(m, tending.cell, tending.world, tending.plan, tending.visuals)
 
 
 #: Each re-plan after a failed verify scales the roughing stepdown, the terrace stepdown and the
@@ -504,9 +507,33 @@ def _plan_once(request: PlanRequest, progress: Progress | None = None) -> PartPl
         check_setup(setup, req.grid, req.cam.part, robot_cell, part_work, req.cam.units, req.cam.tools)
         check_op2_grip(setup, part_work, jaws, req.cam.part, req.cam.tools)
 
-    planned = compute_job(req.cam, progress, watch, check_setup=refuse_early)
+    robot: BackgroundRobot | None = None
+
+    def start_robot(setup: Setup, loaded: PartMesh, boundary: Boundary | None) -> None:
+        """The robot's share, planned in a second process meanwhile (:mod:`factory.robotwork`)."""
+        nonlocal robot
+        ops = req.ops if req.ops is not None else 1 if boundary is not None else 2
+        outputs = dataclasses.replace(req, ops=ops).outputs(Path("."))
+        # a relief leaves in its block: the robot holds the block
+        vertices = (block_corners(setup) if boundary is not None
+                    else np.asarray(loaded.mesh.vertices) / float(setup.mesh_scale))
+        robot = BackgroundRobot(RobotTask(req.cell, stock_sheet(setup), str(outputs["setup_sheet"]), vertices, ops,
+                                          req.ops is None, req.lang, outputs["robot_program"]), watch)
+
+    try:
+        return _plan_with(req, progress, watch, post_options,
+                          compute_job(req.cam, progress, watch, check_setup=refuse_early,
+                                      on_setup=start_robot if req.robot else None), robot)
+    finally:
+        if robot is not None:
+            robot.cancel()  # no robot left planning for a plan that failed (taken: nothing to end)
+
+
+def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, post_options: PostOptions,
+               planned: PlannedPart, robot: BackgroundRobot | None) -> PartPlan:
+    """:func:`_plan_once` after the toolpaths: post, verify (in a second process while the robot's
+    share is waited for), op 2."""
     job = planned.job
-    asked_ops = req.ops
     if req.ops is None:  # a relief stays in its block, right way up, unless asked
         req = dataclasses.replace(req, ops=1 if planned.boundary is not None else 2)
     outputs = req.outputs(Path("."))
@@ -519,36 +546,23 @@ def _plan_once(request: PlanRequest, progress: Progress | None = None) -> PartPl
                                                                           relief=planned.boundary is not None))
     verify_kwargs = dict(operations=sheet.operations)
     background = None
-    if req.robot:
+    if robot is not None:
         # Verification does not depend on the robot: it runs in a second process meanwhile (no
         # progress bar of its own then).
         background = Background(_verify_quietly, verify_args, verify_kwargs)
         try:
-            vertices = np.asarray(planned.loaded.mesh.vertices) / float(job.setup.mesh_scale)
-            if planned.boundary is not None:  # a relief leaves in its block: the robot holds the block
-                vertices = block_corners(job.setup)
-            try:
-                planned_cell = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch,
-                                         setups=req.ops)
-            except PlanningError as e:
-                if asked_ops is not None or req.ops != 2:
-                    raise
-                # Not asked for two operations, and the robot cannot turn this part over on the cell's
-                # flip station: op 1 alone, said loudly (the holding allowance stays on the part).
-                log.warning("%s: op 1 only, the holding allowance stays: the robot cannot turn the part over: %s",
-                            req.cam.part, e.message)
-                req = dataclasses.replace(req, ops=1)
-                outputs = req.outputs(Path("."))
-                planned_cell = plan_cell(req.cell, sheet, str(outputs["setup_sheet"]), vertices, watch)
-            cell, world, tplan = planned_cell.cell, planned_cell.world, planned_cell.plan
-            with watch("robot program"):
-                tending = Tending(cell, world, tplan, post_program(req.lang, outputs["robot_program"], cell, world,
-                                                                   tplan))
-            with watch("robot visuals"):  # read (and cached) for the log while verify runs in its process
-                robot_visuals(world.robot)
+            work = robot.result(sheet)
         except BaseException:
             background.cancel()  # no verification left running for a plan that failed
             raise
+        if work.dropped_op2 is not None:
+            # Not asked for two operations, and the robot cannot turn this part over on the cell's
+            # flip station: op 1 alone, said loudly (the holding allowance stays on the part).
+            log.warning("%s: op 1 only, the holding allowance stays: the robot cannot turn the part over: %s",
+                        req.cam.part, work.dropped_op2)
+            req = dataclasses.replace(req, ops=1)
+            outputs = req.outputs(Path("."))
+        tending = Tending(robot.cell, robot.world, work.plan, work.program, work.visuals)
     with watch("verify"):  # with the robot: the wait for the second process
         if background is not None:
             verified = background.result()

@@ -29,7 +29,7 @@ from robotprog.cell import Cell, load_cell
 from robotprog.collision import CollisionWorld, cell_static_boxes, collision_world
 from robotprog.frames import setup_sheet_to_cell
 from robotprog.tending import TendingPlan, part_box_in_vise, plan_tending
-from robotprog.visuals import robot_visuals
+from robotprog.visuals import LinkVisual, robot_visuals
 
 log = logging.getLogger(__name__)
 
@@ -88,12 +88,14 @@ def read_urdf(world: CollisionWorld) -> str:
         raise CellError(f"cannot read URDF: {e.strerror}", source=world.robot.urdf) from None
 
 
-def log_cell(m: McapLog, cell: Cell, world: CollisionWorld) -> None:
-    """The cell at time 0: /robot_description, /robot/visuals (the links' meshes), /tf_static
-    (robot base, TCP, vise, rack, out-tray) and /cell/boxes, all latched."""
+def log_cell(m: McapLog, cell: Cell, world: CollisionWorld, visuals: tuple[LinkVisual, ...] | None = None) -> None:
+    """The cell at time 0: /robot_description, /robot/visuals (the links' meshes: ``visuals``, read
+    from the robot's URDF when None), /tf_static (robot base, TCP, vise, rack, out-tray) and
+    /cell/boxes, all latched."""
     robot = world.robot
     m.write("/robot_description", string_msg(read_urdf(world)), 0, latched=True)
-    m.write("/robot/visuals", visuals_scene(robot_visuals(robot), 0), 0, latched=True)
+    m.write("/robot/visuals", visuals_scene(robot_visuals(robot) if visuals is None else visuals, 0), 0,
+            latched=True)
     static = [
         transform_stamped("world", robot.base_frame, cell.robot.base.matrix(), 0),
         transform_stamped(robot.flange_frame, "tcp", cell.gripper.tcp.matrix(), 0),
@@ -169,13 +171,14 @@ class RobotStateLog:
                                                                stamp_ns)))
 
 
-def log_tending(m: McapLog, cell: Cell, world: CollisionWorld, plan: TendingPlan) -> int:
-    """Write the cell and the plan's motion (from time 0) into an open log; returns the number of
-    joint-state samples."""
+def log_tending(m: McapLog, cell: Cell, world: CollisionWorld, plan: TendingPlan,
+                visuals: tuple[LinkVisual, ...] | None = None) -> int:
+    """Write the cell (the robot's meshes ``visuals``, read when None: :func:`log_cell`) and the plan's
+    motion (from time 0) into an open log; returns the number of joint-state samples."""
     robot = world.robot
     names = list(robot.joint_names)
     base = robot.base_frame
-    log_cell(m, cell, world)
+    log_cell(m, cell, world, visuals)
     states = RobotStateLog(m, world)
     t0 = 0.0
     n_states = 0
@@ -237,9 +240,8 @@ def plan_cell(cell_path: Path, sheet: SetupSheet | Mapping[str, Any], sheet_sour
 
     ``part_vertices`` are the part mesh's vertices in mesh file units (the sheet's
     ``mesh_scale`` turns them into mm); without them unload grips the stock box. Wall times
-    go into ``watch`` (stages ``cell``, ``roadmap``, or ``building the cell's roadmap`` when no
-    roadmap of the cell is cached yet (:mod:`factory.roadmaps`), and ``robot plan``). ``setups`` 2: the part is turned
-    over on the cell's flip station between op 1 (``sheet``, the op-1 setup sheet) and op 2
+    go into ``watch`` (stages ``cell``, then those of :func:`plan_in_cell`). ``setups`` 2: the part is
+    turned over on the cell's flip station between op 1 (``sheet``, the op-1 setup sheet) and op 2
     (:func:`robotprog.tending.plan_tending`).
 
     Raises
@@ -253,9 +255,18 @@ def plan_cell(cell_path: Path, sheet: SetupSheet | Mapping[str, Any], sheet_sour
     with watch("cell"):
         cell = load_cell(cell_path)
         world = collision_world(cell)
-        part_box = None
-        if part_vertices is not None:
-            part_box = part_box_in_vise(setup_sheet_to_cell(sheet, sheet_source), part_vertices)
+    return CellPlan(cell, world, plan_in_cell(cell, world, cell_path, sheet, sheet_source, part_vertices, watch,
+                                              setups))
+
+
+def plan_in_cell(cell: Cell, world: CollisionWorld, cell_path: Path, sheet: SetupSheet | Mapping[str, Any],
+                 sheet_source: str, part_vertices: np.ndarray | None, watch: Stopwatch, setups: int = 1) -> TendingPlan:
+    """:func:`plan_cell` in a cell already loaded from ``cell_path`` (named in messages), with its
+    collision world: stages ``roadmap``, or ``building the cell's roadmap`` when no roadmap of the
+    cell is cached yet (:mod:`factory.roadmaps`), and ``robot plan``."""
+    part_box = None
+    if part_vertices is not None:
+        part_box = part_box_in_vise(setup_sheet_to_cell(sheet, sheet_source), part_vertices)
     roadmap = None
     # A cell nobody warmed (`factory cell warm`) has its roadmap built by its first plan, under a
     # stage that says so (a progress bar, the plan's stage times); not a warning line, which would
@@ -267,6 +278,5 @@ def plan_cell(cell_path: Path, sheet: SetupSheet | Mapping[str, Any], sheet_sour
         except CellError as e:  # the planner names what is wrong with the cell in its own words
             log.info("%s: no roadmap (%s); planning without", cell_path, e)
     with watch("robot plan"):
-        plan = plan_tending(cell, sheet, part_box=part_box, world=world, source=sheet_source, setups=setups,
+        return plan_tending(cell, sheet, part_box=part_box, world=world, source=sheet_source, setups=setups,
                             roadmap=roadmap)
-    return CellPlan(cell, world, plan)

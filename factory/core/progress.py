@@ -7,6 +7,9 @@ draws it as progress bars, a script may log it or pass ``None``.
 from __future__ import annotations
 
 import contextlib
+import multiprocessing
+import os
+import threading
 import time
 from collections.abc import Callable, Iterator
 
@@ -66,3 +69,58 @@ class Stopwatch:
     def rounded(self) -> dict[str, float]:
         """Seconds per stage, rounded to the millisecond."""
         return {k: round(v, 3) for k, v in self.seconds.items()}
+
+
+class ProgressRelay:
+    """``progress`` for work in a forked process, shown here as it happens.
+
+    Call the relay as a :data:`Progress` in the child (it inherits the relay when forked): each report
+    crosses a pipe and a thread here hands it to ``progress`` at once, so a stage running beside this
+    process's own says when it starts and ends. Called in this process (the work run here after all),
+    it reports directly. :meth:`close` returns when every report sent before it has been shown.
+    With ``progress`` None it reports nothing and starts no thread.
+    """
+
+    def __init__(self, progress: Progress | None) -> None:
+        self._progress = progress
+        self._pid = os.getpid()
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+        if progress is not None:
+            self._recv, self._send = multiprocessing.Pipe(duplex=False)
+            self._thread = threading.Thread(target=self._show, name="progress relay", daemon=True)
+            self._thread.start()
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if self._progress is None:
+            return
+        if os.getpid() == self._pid:
+            self._progress(stage, done, total)
+        else:  # one small message: one write to the pipe, whole even beside other writers
+            self._send.send((stage, done, total))
+
+    def _show(self) -> None:
+        while True:
+            try:
+                report = self._recv.recv()
+            except (EOFError, OSError):
+                return
+            if report is None:
+                return
+            try:
+                self._progress(*report)  # type: ignore[misc]
+            except Exception as e:  # noqa: BLE001 - raised by close(); the pipe is drained meanwhile
+                self._error = self._error or e
+
+    def close(self) -> None:
+        """Show what the child sent (it has finished or been ended) and stop the thread."""
+        if self._thread is None:
+            return
+        # after everything the child wrote before it finished: the pipe keeps the order of writes
+        self._send.send(None)
+        self._thread.join()
+        self._thread = None
+        self._send.close()
+        self._recv.close()
+        if self._error is not None:
+            raise self._error
