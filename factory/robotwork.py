@@ -88,8 +88,8 @@ class RobotTask:
         Op 1's setup sheet, or :func:`stock_sheet` of its setup.
     sheet_source : str
         The sheet's file name, for messages.
-    part_vertices : (n, 3) float
-        The part (a relief: its block's corners) in mesh file units.
+    part_vertices : (n, 3) float or None
+        The part (a relief: its block's corners) in mesh file units; None: the robot grips the stock box.
     ops : int
         1 or 2 setups.
     may_drop_op2 : bool
@@ -103,7 +103,7 @@ class RobotTask:
     cell_path: Path
     sheet: SetupSheet
     sheet_source: str
-    part_vertices: np.ndarray
+    part_vertices: np.ndarray | None
     ops: int
     may_drop_op2: bool
     lang: str
