@@ -199,11 +199,13 @@ def log_tending(m: McapLog, cell: Cell, world: CollisionWorld, plan: TendingPlan
         ts = np.arange(0.0, dur, 1.0 / STATE_RATE_HZ)
         if mv is plan.moves[-1]:
             ts = np.append(ts, dur)
-        for t in ts:
-            q, qd, _ = traj.sample(min(float(t), traj.duration))
-            if mv.kind == "gripper":
-                qd = np.zeros_like(qd)
-            states.write(q, qd, _ns(t0 + float(t)))
+        # the move's states and its links' poses at once: the same numbers as one by one
+        qs, qds, _ = traj.sample(np.minimum(ts, traj.duration))
+        if mv.kind == "gripper":
+            qds = np.zeros_like(qds)
+        poses = states.links.poses(qs)
+        for t, q, qd, pose in zip(ts, qs, qds, poses):
+            states.write(q, qd, _ns(t0 + float(t)), pose)
             n_states += 1
         t0 += dur
     return n_states
