@@ -16,7 +16,8 @@ from cli.common import JsonFlag, Overwrite, Quiet, print_json, progress_bars, re
 from factory.core.atomic import check_writable, write_bytes, write_text
 from factory.core.errors import CalibrationError, VisionError
 from factory.camera_msgs import camera_info_msg, compressed_image_msg, header as _header
-from factory.mcaplog import TYPESTORE, McapLog
+from factory.mcaplog import McapLog
+from factory.rosmsgs import TYPESTORE
 from vision.board import BOARD_SYNTAX, BoardSpec
 from vision.imagefile import decode_grey
 from vision.calibrate import CalibrationResult, Detection, calibrate as run_calibration, detect

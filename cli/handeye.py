@@ -17,7 +17,8 @@ from cli.common import JsonFlag, Overwrite, Quiet, print_json, progress_bars, re
 from factory.core.atomic import check_writable, write_bytes, write_text
 from factory.camera_msgs import camera_info_msg, compressed_image_msg
 from factory.core.errors import CalibrationError, VisionError
-from factory.mcaplog import McapLog, cube_marker, marker_array, tf_message, transforms_stamped
+from factory.mcaplog import McapLog
+from factory.rosmsgs import cube_marker, marker_array, tf_message, transforms_stamped
 from vision.board import BOARD_SYNTAX, BoardSpec
 from vision.calibrate import Detection, detect
 from vision.camera import CameraModel

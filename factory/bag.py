@@ -2,7 +2,7 @@
 
 :class:`BagLog` takes the same ``write(topic, msg, log_time_ns, latched=...)`` calls as
 :class:`factory.mcaplog.McapLog` and writes each message with rosbags' rosbag2 writer (bag format 9,
-the MCAP storage plugin): the same CDR bytes, types (:data:`factory.mcaplog.TYPESTORE`, with their
+the MCAP storage plugin): the same CDR bytes, types (:data:`factory.rosmsgs.TYPESTORE`, with their
 RIHS01 hashes) and offered QoS (:func:`factory.mcaplog.offered_qos_profiles`: a latched topic is
 replayed transient local) as the MCAP log. The folder appears only when the ``with`` block ends
 without an exception: it is written beside, under a hidden name, and renamed, so an interrupted run
@@ -22,7 +22,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.rosbag2.metadata import parse_qos
 
 from factory.core.errors import McapError, OutputError, OutputExistsError
-from factory.mcaplog import TYPESTORE, offered_qos_profiles
+from factory.mcaplog import offered_qos_profiles
+from factory.rosmsgs import TYPESTORE
 
 log = logging.getLogger(__name__)
 

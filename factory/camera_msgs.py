@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from factory.core.errors import McapError
-from factory.mcaplog import TYPESTORE, ros_time
+from factory.rosmsgs import TYPESTORE, ros_time
 from vision.camera import CameraModel
 from vision.report import bgr_png_bytes
 

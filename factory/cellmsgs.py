@@ -1,6 +1,6 @@
 """Typed messages of the cell log: detections, their image overlay, and health on /diagnostics.
 
-Pure builders returning :data:`factory.mcaplog.TYPESTORE` message objects:
+Pure builders returning :data:`factory.rosmsgs.TYPESTORE` message objects:
 
 * ``factory_msgs/DetectedObjectArray`` (``ros/factory_msgs``): what a camera station found in
   one image, each part with the perception seed's fields (class, image centre and radius,
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from factory.core.errors import McapError
-from factory.mcaplog import TYPESTORE, ros_time
+from factory.rosmsgs import TYPESTORE, ros_time
 
 _T = TYPESTORE.types
 _Header = _T["std_msgs/msg/Header"]

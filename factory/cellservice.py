@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 from factory.cellmsgs import OrderLine
 from factory.core.errors import FactoryError, SchedulerError
 from factory.live import Pacer
-from factory.mcaplog import TYPESTORE, ros_time
+from factory.rosmsgs import TYPESTORE, ros_time
 from factory.production import CellInputs
 from factory.record import Record
 from factory.simulation import ROBOT_RATE_HZ, run_cell, write_cell_log

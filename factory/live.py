@@ -21,7 +21,7 @@ from typing import Any, Protocol
 import foxglove
 
 from factory.core.errors import LiveError
-from factory.mcaplog import TYPESTORE, message_definition
+from factory.rosmsgs import TYPESTORE, message_definition
 
 log = logging.getLogger(__name__)
 

@@ -8,7 +8,7 @@ on the same domain see the cell with no ROS installation on this side:
 
 * topic ``/a/b`` is the DDS topic ``rt/a/b``; type ``pkg/msg/Name`` is ``pkg::msg::dds_::Name_``;
 * the payload is the CDR the MCAP log holds, byte for byte: rosbags' serialiser
-  (:data:`factory.mcaplog.TYPESTORE`) makes it once; the DDS type declared for discovery is built
+  (:data:`factory.rosmsgs.TYPESTORE`) makes it once; the DDS type declared for discovery is built
   from the same message definitions;
 * QoS as :func:`factory.mcaplog.offered_qos_profiles` records it: latched topics (``/robot_description``,
   ``/tf_static``, the cell's boxes) reliable and transient local, as ``robot_state_publisher`` offers
@@ -61,7 +61,7 @@ from rosbags.typesys.base import Nodetype
 from factory.camera_msgs import image_msg
 from factory.core.errors import LiveError
 from factory.live import Pacer
-from factory.mcaplog import TYPESTORE
+from factory.rosmsgs import TYPESTORE
 
 log = logging.getLogger(__name__)
 
@@ -207,7 +207,7 @@ class Received:
     topic, typename : str
         ROS topic and type (``pkg/msg/Name``).
     msg : object or None
-        The message (:data:`factory.mcaplog.TYPESTORE` type); None when its bytes did not decode.
+        The message (:data:`factory.rosmsgs.TYPESTORE` type); None when its bytes did not decode.
     error : str
         Why they did not decode; empty otherwise.
     """

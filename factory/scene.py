@@ -22,7 +22,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from factory.core.errors import McapError
-from factory.mcaplog import TYPESTORE, ros_time
+from factory.rosmsgs import TYPESTORE, ros_time
 
 if TYPE_CHECKING:
     from robotprog.visuals import LinkVisual

@@ -45,8 +45,9 @@ from factory.diagnostics import door, gripper
 from factory.core.errors import CellError, FactoryError, McapError
 from factory.core.setupsheet import SetupSheet
 from factory.live import Fanout, LiveSink
-from factory.mcaplog import (TYPESTORE, McapLog, RestampedCdr, Serialized, TfCdr, cube_marker, log_msg, marker_array,
-                             read_messages, ros_time, tf_message, transform_stamped, triangle_mesh_marker)
+from factory.mcaplog import McapLog, read_messages
+from factory.rosmsgs import (TYPESTORE, RestampedCdr, Serialized, TfCdr, cube_marker, log_msg, marker_array, ros_time,
+                             tf_message, transform_stamped, triangle_mesh_marker)
 from factory.plan import PlanRequest, plan_part
 from factory.core.progress import Progress, Stopwatch, stage_callback
 from factory.core.resources import FIXTURES

@@ -19,7 +19,8 @@ import numpy as np
 import pinocchio as pin
 
 from factory.core.errors import CellError
-from factory.mcaplog import (TYPESTORE, JointStateCdr, McapLog, TfCdr, cube_marker, marker_array, ros_time, string_msg,
+from factory.mcaplog import McapLog
+from factory.rosmsgs import (TYPESTORE, JointStateCdr, TfCdr, cube_marker, marker_array, ros_time, string_msg,
                              tf_message, transform_stamped, transform_values, transforms_stamped)
 from factory.core.progress import Stopwatch, stage_callback
 from factory.core.setupsheet import SetupSheet

@@ -23,7 +23,8 @@ from factory.core.atomic import write_bytes, write_text
 from factory.core.errors import SetupError
 from factory.core.setupsheet import SetupSheet
 from factory.pictures import png_bytes
-from factory.mcaplog import McapLog, marker_array, triangle_mesh_marker
+from factory.mcaplog import McapLog
+from factory.rosmsgs import marker_array, triangle_mesh_marker
 from factory.core.progress import Progress, stage_callback
 from factory.views import heightfield_mesh
 

@@ -26,15 +26,8 @@ import numpy as np
 from cadcam.model import Job, Motion, Operation
 from factory.core.errors import McapError
 from factory.core.units import MM_PER_M
-from factory.mcaplog import (
-    RGBA,
-    cube_marker,
-    line_list_marker,
-    marker_array,
-    tf_message,
-    transform_stamped,
-    triangle_mesh_marker,
-)
+from factory.rosmsgs import (RGBA, cube_marker, line_list_marker, marker_array, tf_message, transform_stamped,
+                             triangle_mesh_marker)
 
 #: Frame of work coordinates, and the frame it is placed in.
 WORK_FRAME = "work"

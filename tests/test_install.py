@@ -104,7 +104,7 @@ def test_the_wheel_carries_its_data(installed):
 import json
 import cadcam, cli, factory, robotprog, vision
 from factory.core import resources
-from factory.mcaplog import TYPESTORE
+from factory.rosmsgs import TYPESTORE
 from factory.production import SAMPLE_ORDERS
 from factory.record import Record
 from robotprog.orders import read_orders

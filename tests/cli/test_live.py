@@ -17,7 +17,7 @@ from pathlib import Path
 
 from websockets.sync.client import connect
 
-from factory.mcaplog import TYPESTORE
+from factory.rosmsgs import TYPESTORE
 
 BIN = Path(sys.executable).parent
 

@@ -14,7 +14,7 @@ from rosbags.rosbag2 import Reader
 
 from factory.bag import BagLog
 from factory.cellmsgs import OrderLine, order_queue
-from factory.mcaplog import TYPESTORE
+from factory.rosmsgs import TYPESTORE
 
 BIN = Path(sys.executable).parent
 

@@ -8,7 +8,7 @@ import pytest
 
 from factory.cellmsgs import ComponentStatus, Detection, detected_object_array, diagnostic_array, image_annotations
 from factory.core.errors import McapError
-from factory.mcaplog import TYPESTORE
+from factory.rosmsgs import TYPESTORE
 
 PART = Detection(class_name="part", center_px=(320.0, 240.0), radius_px=40.0, confidence=0.93,
                  xyz=(0.15, 0.4, 0.78), yaw=math.pi / 2, serial="o1-3", inspected=True, passed=False,

@@ -21,30 +21,11 @@ from scipy.spatial.transform import Rotation
 
 import factory
 from factory.core.errors import McapError, OutputExistsError
-from factory.mcaplog import (
-    TYPESTORE,
-    JointStateCdr,
-    McapLog,
-    RestampedCdr,
-    TfCdr,
-    cube_marker,
-    line_list_marker,
-    line_strip_marker,
-    log_msg,
-    marker_array,
-    message_definition,
-    offered_qos_profiles,
-    read_attachment,
-    read_metadata,
-    ros_time,
-    serialize_cdr,
-    string_msg,
-    tf_message,
-    transform_stamped,
-    transform_values,
-    transforms_stamped,
-    triangle_mesh_marker,
-)
+from factory.mcaplog import McapLog, offered_qos_profiles, read_attachment, read_metadata
+from factory.rosmsgs import (TYPESTORE, JointStateCdr, RestampedCdr, TfCdr, cube_marker, line_list_marker,
+                             line_strip_marker, log_msg, marker_array, message_definition, ros_time, serialize_cdr,
+                             string_msg, tf_message, transform_stamped, transform_values, transforms_stamped,
+                             triangle_mesh_marker)
 from tests.mcapcheck import check_rosbag2_mcap
 
 STRIP = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, -0.001], [0.01, 0.02, -0.001], [0.0, 0.02, 0.005]])
@@ -389,7 +370,7 @@ def test_rosbag2_check_rejects_a_broken_file(tmp_path: Path, broken: dict, messa
 def test_transforms_stamped_matches_one_at_a_time_and_names_the_bad_one():
     from scipy.spatial.transform import Rotation
 
-    from factory.mcaplog import transforms_stamped
+    from factory.rosmsgs import transforms_stamped
 
     rng = np.random.default_rng(4)
     mats = np.tile(np.eye(4), (5, 1, 1))

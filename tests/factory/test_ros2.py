@@ -41,7 +41,8 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E
 
 from factory.camera_msgs import image_msg  # noqa: E402
 from factory.core.errors import LiveError  # noqa: E402
-from factory.mcaplog import TYPESTORE, read_messages  # noqa: E402
+from factory.mcaplog import read_messages
+from factory.rosmsgs import TYPESTORE  # noqa: E402
 from factory.ros2 import IMAGE_RAW, Ros2Graph, _write, domain_id_from_env, idl_type, localhost_domain, node_of  # noqa: E402
 from factory.simulation import run_cell, write_cell_log  # noqa: E402
 from robotprog.orders import read_orders  # noqa: E402

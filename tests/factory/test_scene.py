@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from factory.core.errors import McapError
-from factory.mcaplog import TYPESTORE
+from factory.rosmsgs import TYPESTORE
 from factory.scene import GLB_MEDIA_TYPE, glb_bytes, model_entity, scene_update
 
 # What Foxglove's ModelCache does to every glTF model it loads: rotateX(+pi/2) (Y-up -> Z-up).

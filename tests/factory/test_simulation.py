@@ -81,7 +81,7 @@ def test_robot_states_written_as_cdr_are_the_bytes_of_the_messages_a_live_sink_g
     links' poses converted a whole move at once, are byte for byte the messages (built one by
     one, as before) that sinks serialising themselves get, at every state of a motion."""
     from factory.core.resources import FIXTURES
-    from factory.mcaplog import serialize_cdr
+    from factory.rosmsgs import serialize_cdr
     from factory.tending import RobotStateLog
     from robotprog.cell import load_cell
     from robotprog.collision import collision_world

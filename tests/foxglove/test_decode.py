@@ -17,7 +17,7 @@ from mcap.reader import make_reader
 from typer.testing import CliRunner
 
 from cli.main import app
-from factory.mcaplog import MSG_DIRS, message_definition
+from factory.rosmsgs import MSG_DIRS, message_definition
 from factory.core.resources import FIXTURES
 from tests.cli.expect import simulate_exit
 from tests.cli.test_handeye import BOARD, args, scene  # noqa: F401  (scene is a fixture)

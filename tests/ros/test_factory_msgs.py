@@ -21,7 +21,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from typer.testing import CliRunner
 
 from cli.main import app
-from factory.mcaplog import MSG_DIRS
+from factory.rosmsgs import MSG_DIRS
 from factory.core.resources import ROS_INTERFACES
 from tests.cli.expect import simulate_exit
 from tests.conftest import pocket_block
