@@ -27,7 +27,7 @@ from cadcam.roughing import RoughingOptions
 from cadcam.setup import StockMargins, orient_setup
 from cadcam.tools import ToolLibrary, load_tool_library
 from factory.core.errors import ToolpathError
-from factory.mcaplog import McapLog, read_attachment
+from factory.mcaplog import LogBuffer, McapLog, read_attachment
 from factory.core.progress import Progress, Stopwatch
 from factory.core.resources import FIXTURES
 from factory.core.units import MM_PER_M
@@ -280,7 +280,8 @@ def _report_step_features(loaded: PartMesh, library, part: Path) -> None:
                         smallest.diameter, smallest.number, smallest.radius)
 
 
-def log_job(log: McapLog, planned: PlannedPart, transform_world_to_work: np.ndarray | None = None) -> None:
+def log_job(log: McapLog | LogBuffer, planned: PlannedPart,
+            transform_world_to_work: np.ndarray | None = None) -> None:
     """Views of the job for Foxglove, and the job itself as an attachment for ``factory gcode``.
 
     ``transform_world_to_work``: pose of the work frame in ``world`` [m] (default identity)."""

@@ -271,14 +271,7 @@ class McapLog:
         latched : bool
             Offer transient local durability (``/tf_static``, static scene topics).
         """
-        typename = getattr(msg, "__msgtype__", None)
-        if not isinstance(typename, str):
-            raise McapError(f"cannot log a {type(msg).__name__} on {topic}: not a ROS message",
-                            source=self.path)
-        try:
-            data = serialize_cdr(msg, typename)
-        except Exception as e:  # struct.error, AttributeError, TypeError... from generated code
-            raise McapError(f"cannot serialise {typename} on {topic}: {e}", source=self.path) from None
+        typename, data = _serialized(topic, msg, self.path)
         self.write_cdr(topic, typename, data, log_time_ns, latched=latched)
 
     def write_cdr(self, topic: str, typename: str, data: bytes, log_time_ns: int, make: Any = None, *,
@@ -316,6 +309,50 @@ class McapLog:
         t = _check_time(log_time_ns, "attachment log time")
         writer.add_attachment(create_time=t, log_time=t, name=name, media_type=media_type, data=bytes(data))
         self._attachments.add(name)
+
+
+def _serialized(topic: str, msg: Any, source: Any) -> tuple[str, bytes]:
+    """The type name and CDR of ``msg`` to log on ``topic``, or a McapError naming ``source``."""
+    typename = getattr(msg, "__msgtype__", None)
+    if not isinstance(typename, str):
+        raise McapError(f"cannot log a {type(msg).__name__} on {topic}: not a ROS message", source=source)
+    try:
+        return typename, serialize_cdr(msg, typename)
+    except Exception as e:  # struct.error, AttributeError, TypeError... from generated code
+        raise McapError(f"cannot serialise {typename} on {topic}: {e}", source=source) from None
+
+
+class LogBuffer:
+    """What a pipeline logs, serialised now and written into a log later, in the same order.
+
+    It takes :class:`McapLog`'s :meth:`~McapLog.write`, :meth:`~McapLog.write_cdr` and
+    :meth:`~McapLog.attach`, so a function that logs into an open log logs into it as well: its work
+    is done while something else is waited for (a plan's messages while verify runs in its own
+    process); :meth:`replay` hands the same bytes to the log.
+    """
+
+    def __init__(self) -> None:
+        self._calls: list[tuple[Any, ...]] = []
+
+    def write(self, topic: str, msg: Any, log_time_ns: int, *, latched: bool = False) -> None:
+        typename, data = _serialized(topic, msg, None)
+        self._calls.append((topic, typename, data, log_time_ns, latched))
+
+    def write_cdr(self, topic: str, typename: str, data: bytes, log_time_ns: int, make: Any = None, *,
+                  latched: bool = False) -> None:
+        self._calls.append((topic, typename, data, log_time_ns, latched))
+
+    def attach(self, name: str, media_type: str, data: bytes, log_time_ns: int = 0) -> None:
+        self._calls.append((name, media_type, bytes(data), log_time_ns))
+
+    def replay(self, log: McapLog) -> None:
+        """Write everything logged here into ``log``, in order."""
+        for call in self._calls:
+            if len(call) == 5:
+                topic, typename, data, t, latched = call
+                log.write_cdr(topic, typename, data, t, latched=latched)
+            else:
+                log.attach(*call)
 
 
 def _factory_metadata(stage: str, inputs: Mapping[str, str], parameters: Mapping[str, object]) -> dict[str, str]:
@@ -422,6 +459,6 @@ def read_metadata(path: str | Path, name: str = FACTORY_METADATA) -> dict[str, s
 
 
 __all__ = [
-    "FACTORY_METADATA", "ROSBAG2_METADATA", "McapLog", "offered_qos_profiles", "read_attachment", "read_messages",
-    "read_metadata",
+    "FACTORY_METADATA", "ROSBAG2_METADATA", "LogBuffer", "McapLog", "offered_qos_profiles", "read_attachment",
+    "read_messages", "read_metadata",
 ]

@@ -48,7 +48,7 @@ from factory.core.atomic import check_writable, write_bytes, write_text
 from factory.cam import CamRequest, PlannedPart, compute_job, log_job
 from factory.catalog import catalog_record, sha256_file
 from factory.core.errors import FactoryError, PlanningError, SetupError, shown
-from factory.mcaplog import McapLog
+from factory.mcaplog import LogBuffer, McapLog
 from factory.pictures import png_bytes
 from factory.refusals import check_op2_grip, check_request, check_setup
 from factory.core.progress import Progress, Stopwatch, held_open
@@ -221,6 +221,40 @@ class SecondOp:
     report: VerifyReport
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class WriteAhead:
+    """The outputs of a plan that do not depend on its verification, made while verify runs in its
+    process (:func:`write_ahead`) and written by :meth:`PartPlan.write` as they are.
+
+    Attributes
+    ----------
+    toolpath_png, setup_png : bytes
+        Op 1's toolpath and setup pictures.
+    job_log, robot_log : LogBuffer
+        The log's messages of op 1's job, and of the robot's cell and motion (empty without a robot).
+    """
+
+    toolpath_png: bytes
+    setup_png: bytes
+    job_log: LogBuffer
+    robot_log: LogBuffer
+
+
+def write_ahead(planned: PlannedPart, tending: Tending | None) -> WriteAhead:
+    """:class:`WriteAhead` of op 1 ``planned`` and the robot's ``tending`` (None: no robot). With a robot
+    the log's work frame sits in the cell's vise."""
+    job = planned.job
+    job_log, robot_log = LogBuffer(), LogBuffer()
+    world_work = None
+    if tending is not None:
+        world_work = tending.cell.vise.pose.matrix() @ tending.plan.stock.transform_vise_to_work
+        log_tending(robot_log, tending.cell, tending.world, tending.plan, tending.visuals)
+    log_job(job_log, planned, world_work)
+    return WriteAhead(png_bytes(planned.toolpath_picture()),
+                      png_bytes(setup_image(job.setup, np.asarray(planned.part_work.triangles), job.part_name)),
+                      job_log, robot_log)
+
+
 @dataclasses.dataclass(frozen=True)
 class PartPlan:
     """A planned part, computed and not yet written (see :func:`plan_part`).
@@ -259,6 +293,7 @@ class PartPlan:
     seconds: dict[str, float]
     op2: SecondOp | None = None
     replanned: tuple[str, ...] = ()
+    ahead: WriteAhead | None = dataclasses.field(default=None, compare=False, repr=False)
 
     @property
     def ok(self) -> bool:
@@ -365,9 +400,9 @@ class PartPlan:
         write_verify_outputs(self.simulation, self.report, png=outputs["verify_png"], json_path=outputs["verify_json"],
                              mcap=None, overwrite=False, inputs={},
                              relief=None if planned.boundary is None else np.asarray(planned.part_work.triangles))
-        write_bytes(outputs["toolpath_png"], png_bytes(planned.toolpath_picture()))
-        write_bytes(outputs["setup_png"], png_bytes(setup_image(job.setup, np.asarray(planned.part_work.triangles),
-                                                               job.part_name)))
+        ahead = self.ahead if self.ahead is not None else write_ahead(planned, tending)
+        write_bytes(outputs["toolpath_png"], ahead.toolpath_png)
+        write_bytes(outputs["setup_png"], ahead.setup_png)
         if self.op2 is not None:
             op2 = self.op2
             write_text(outputs["setup_sheet_op2"], json.dumps(op2.setup_sheet.to_json(), indent=2) + "\n")
@@ -386,13 +421,9 @@ class PartPlan:
                 write_text(outputs["summary"].parent / name, text)
         # One log of the whole plan: with a robot, the work frame sits in the cell's vise.
         with McapLog(outputs["mcap"], stage="plan", inputs=inputs, parameters=parameters) as m:
-            world_work = None
-            if tending is not None:
-                world_work = tending.cell.vise.pose.matrix() @ tending.plan.stock.transform_vise_to_work
-            log_job(m, planned, world_work)
+            ahead.job_log.replay(m)
             log_simulation(m, self.simulation)
-            if tending is not None:
-                log_tending(m, tending.cell, tending.world, tending.plan, tending.visuals)
+            ahead.robot_log.replay(m)
 
 
 #: Each re-plan after a failed verify scales the roughing stepdown, the terrace stepdown and the
@@ -563,6 +594,10 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
             req = dataclasses.replace(req, ops=1)
             outputs = req.outputs(Path("."))
         tending = Tending(robot.cell, robot.world, work.plan, work.program, work.visuals)
+    ahead = None
+    if background is not None:  # what is written whatever verify finds, made meanwhile (else: when written)
+        with watch("pictures and log"):
+            ahead = write_ahead(planned, tending)
     with watch("verify"):  # with the robot: the wait for the second process
         if background is not None:
             verified = background.result()
@@ -574,7 +609,7 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
         sheet = dataclasses.replace(sheet, next={"program": outputs["program_op2"].name,
                                                  "setup_sheet": outputs["setup_sheet_op2"].name})
     return PartPlan(req, planned, program, sheet, tending, verified.simulation, verified.report,
-                    dict(watch.seconds), op2)
+                    dict(watch.seconds), op2, ahead=ahead)
 
 
 def _replan_op2(plan: PartPlan, cam: CamRequest, progress: Progress | None) -> PartPlan:

@@ -19,7 +19,7 @@ import numpy as np
 import pinocchio as pin
 
 from factory.core.errors import CellError
-from factory.mcaplog import McapLog
+from factory.mcaplog import LogBuffer, McapLog
 from factory.rosmsgs import (TYPESTORE, JointStateCdr, TfCdr, cube_marker, marker_array, ros_time, string_msg,
                              tf_message, transform_stamped, transform_values, transforms_stamped)
 from factory.core.progress import Stopwatch, stage_callback
@@ -89,7 +89,8 @@ def read_urdf(world: CollisionWorld) -> str:
         raise CellError(f"cannot read URDF: {e.strerror}", source=world.robot.urdf) from None
 
 
-def log_cell(m: McapLog, cell: Cell, world: CollisionWorld, visuals: tuple[LinkVisual, ...] | None = None) -> None:
+def log_cell(m: McapLog | LogBuffer, cell: Cell, world: CollisionWorld,
+             visuals: tuple[LinkVisual, ...] | None = None) -> None:
     """The cell at time 0: /robot_description, /robot/visuals (the links' meshes: ``visuals``, read
     from the robot's URDF when None), /tf_static (robot base, TCP, vise, rack, out-tray) and
     /cell/boxes, all latched."""
@@ -172,7 +173,7 @@ class RobotStateLog:
                                                                stamp_ns)))
 
 
-def log_tending(m: McapLog, cell: Cell, world: CollisionWorld, plan: TendingPlan,
+def log_tending(m: McapLog | LogBuffer, cell: Cell, world: CollisionWorld, plan: TendingPlan,
                 visuals: tuple[LinkVisual, ...] | None = None) -> int:
     """Write the cell (the robot's meshes ``visuals``, read when None: :func:`log_cell`) and the plan's
     motion (from time 0) into an open log; returns the number of joint-state samples."""

@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 import factory
 from factory.core.errors import McapError, OutputExistsError
-from factory.mcaplog import McapLog, offered_qos_profiles, read_attachment, read_metadata
+from factory.mcaplog import LogBuffer, McapLog, offered_qos_profiles, read_attachment, read_metadata
 from factory.rosmsgs import (TYPESTORE, JointStateCdr, RestampedCdr, TfCdr, cube_marker, line_list_marker,
                              line_strip_marker, log_msg, marker_array, message_definition, ros_time, serialize_cdr,
                              string_msg, tf_message, transform_stamped, transform_values, transforms_stamped,
@@ -41,19 +41,24 @@ WORK_IN_WORLD = np.array([[0.0, -1.0, 0.0, 0.1], [1.0, 0.0, 0.0, 0.2], [0.0, 0.0
 def write_sample(path: Path) -> None:
     """Five messages on four topics, one attachment; the metadata comes from McapLog."""
     with McapLog(path, stage="test", inputs=INPUTS, parameters=PARAMETERS) as log:
-        log.write("/tf_static", tf_message([transform_stamped("world", "work", WORK_IN_WORLD, 0)]), 0,
-                  latched=True)
-        markers = marker_array([
-            line_strip_marker("path", 0, STRIP, (0.0, 0.0, 1.0, 1.0), 0.0005, "work", 1_000),
-            line_list_marker("path", 1, SEGMENTS, (1.0, 0.2, 0.0, 0.5), 0.0002, "work", 1_000),
-            triangle_mesh_marker("part", 0, VERTICES, FACES, (0.6, 0.6, 0.6, 1.0), "work", 1_000),
-            cube_marker("stock", 0, (0.05, 0.04, -0.01), (0.1, 0.08, 0.02), (0.8, 0.7, 0.5, 0.2), "work", 1_000),
-        ])
-        log.write("/cam/toolpath", markers, 1_000, latched=True)
-        log.write("/status", string_msg("roughing done"), 2_000)
-        log.write("/rosout", log_msg(logging.INFO, "factory.cam", "hello", 2_500), 2_500)
-        log.write("/rosout", log_msg("error", "factory.cam", "bad", 3_000_000_001), 3_000_000_001)
-        log.attach("factory.job.json", "application/json", JOB_BYTES)
+        log_sample(log)
+
+
+def log_sample(log: McapLog | LogBuffer) -> None:
+    """:func:`write_sample`'s messages and attachment, into an open log or a buffer."""
+    log.write("/tf_static", tf_message([transform_stamped("world", "work", WORK_IN_WORLD, 0)]), 0,
+              latched=True)
+    markers = marker_array([
+        line_strip_marker("path", 0, STRIP, (0.0, 0.0, 1.0, 1.0), 0.0005, "work", 1_000),
+        line_list_marker("path", 1, SEGMENTS, (1.0, 0.2, 0.0, 0.5), 0.0002, "work", 1_000),
+        triangle_mesh_marker("part", 0, VERTICES, FACES, (0.6, 0.6, 0.6, 1.0), "work", 1_000),
+        cube_marker("stock", 0, (0.05, 0.04, -0.01), (0.1, 0.08, 0.02), (0.8, 0.7, 0.5, 0.2), "work", 1_000),
+    ])
+    log.write("/cam/toolpath", markers, 1_000, latched=True)
+    log.write("/status", string_msg("roughing done"), 2_000)
+    log.write("/rosout", log_msg(logging.INFO, "factory.cam", "hello", 2_500), 2_500)
+    log.write("/rosout", log_msg("error", "factory.cam", "bad", 3_000_000_001), 3_000_000_001)
+    log.attach("factory.job.json", "application/json", JOB_BYTES)
 
 
 @pytest.fixture(scope="module")
@@ -500,3 +505,24 @@ def test_a_sink_that_serialises_itself_gets_the_message_beside_one_that_takes_cd
     with open(tmp_path / "x.mcap", "rb") as f:
         (_, _, message), = make_reader(f).iter_messages()
     assert message.data == bytes(TYPESTORE.serialize_cdr(msg, msg.__msgtype__))
+
+
+def test_a_buffered_log_replays_into_the_same_file(sample, tmp_path):
+    """Logged into a buffer first (a plan's messages while verify runs) and replayed, the file is the
+    same to the byte: same order, channels, CDR and attachment; a joint state given as CDR too."""
+    buffer = LogBuffer()
+    log_sample(buffer)
+    replayed = tmp_path / "replayed.mcap"
+    with McapLog(replayed, stage="test", inputs=INPUTS, parameters=PARAMETERS) as log:
+        buffer.replay(log)
+    assert replayed.read_bytes() == sample.read_bytes()
+    states, direct = LogBuffer(), tmp_path / "direct.mcap"
+    cdr = JointStateCdr(["a", "b"]).cdr(5, np.array([0.1, 0.2]), np.zeros(2))
+    states.write_cdr("/joint_states", "sensor_msgs/msg/JointState", cdr, 5)
+    with McapLog(direct, stage="test") as log:
+        log.write_cdr("/joint_states", "sensor_msgs/msg/JointState", cdr, 5)
+    with McapLog(tmp_path / "again.mcap", stage="test") as log:
+        states.replay(log)
+    assert (tmp_path / "again.mcap").read_bytes() == direct.read_bytes()
+    with pytest.raises(McapError, match="not a ROS message"):
+        buffer.write("/status", "plain text", 0)
