@@ -66,12 +66,13 @@ def flip_motion(cell_file: str) -> dict:
 
 def throughput(catalog: Path, orders_path: Path, flip_s: float) -> dict:
     """Parts per hour of the sample orders, one setup (as planned) and two (flip + op 2 added)."""
+    from factory.cellinputs import CellInputs
     from factory.simulation import PartAssets, op2_of, run_cell
     from robotprog.cellsim import simulate
     from robotprog.orders import read_orders
 
     orders = read_orders(orders_path)
-    run = run_cell(orders, catalog=catalog)
+    run = run_cell(orders, CellInputs(catalog=catalog))
     before = run.result.summary
     processes, op2 = {}, {}
     for key, asset in run.assets.items():

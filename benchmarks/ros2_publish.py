@@ -26,6 +26,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from factory.cellinputs import CellInputs  # noqa: E402
 from factory.simulation import run_cell, write_cell_log  # noqa: E402
 from factory.ros2 import Ros2Graph, domain_id_from_env, localhost_domain  # noqa: E402
 from robotprog.orders import read_orders  # noqa: E402
@@ -88,7 +89,7 @@ def main() -> None:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     orders = read_orders(args.orders)
-    run = run_cell(orders, catalog=args.catalog)
+    run = run_cell(orders, CellInputs(catalog=args.catalog))
     mcap = Path(os.environ.get("TMPDIR", "/tmp")) / f"ros2-publish-{os.getpid()}.mcap"
     domain = domain_id_from_env()
     rows = {}

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 if TYPE_CHECKING:
-    from factory.production import CellInputs
+    from factory.cellinputs import CellInputs
 
 __all__ = ["Bag", "BlankOffsets", "RackLight", "CameraFile", "Catalog", "CellFile", "Db", "FaultRate", "Faults", "RobotRate", "Ros2KeepAll",
            "Ros2Localhost", "RosDistro", "Tools", "cell_inputs"]
@@ -37,7 +37,7 @@ def cell_inputs(catalog: Path, cell: Path, camera: Path, tools: Path | None, fau
     (exit 2, naming the option), refused before any file is read."""
     if fault_rate is not None and faults is None:
         raise typer.BadParameter("needs --faults SEED", param_hint="--fault-rate")
-    from factory.production import CellInputs
+    from factory.cellinputs import CellInputs
 
     return CellInputs(catalog=catalog, cell=cell, camera=camera, tools=tools, faults=faults, fault_rate=fault_rate,
                       blank_offsets=blank_offsets, rack_light=rack_light)

@@ -38,7 +38,7 @@ from factory.cellmsgs import OrderLine
 from factory.core.errors import FactoryError, SchedulerError
 from factory.live import Pacer
 from factory.rosmsgs import TYPESTORE, ros_time
-from factory.production import CellInputs
+from factory.cellinputs import CellInputs
 from factory.record import Record
 from factory.simulation import ROBOT_RATE_HZ, run_cell, write_cell_log
 from robotprog.cell import load_cell
@@ -274,8 +274,7 @@ class CellService:
                                              orders_sha256=digest, faults_seed=o.faults)
         try:
             try:
-                run = run_cell(orders, catalog=o.catalog, cell_path=o.cell, camera_path=o.camera, tools=o.tools,
-                               faults=self._faults, events=recorder.begin if recorder else None)
+                run = run_cell(orders, o, events=recorder.begin if recorder else None)
                 if recorder is not None:
                     recorder.finish(run.result)
             finally:

@@ -35,6 +35,7 @@ from cadcam.timeline import MachineTimeline, machine_timeline, stock_snapshots
 from cadcam.tools import ToolLibrary, load_tool_library
 from cadcam.verify import VerifyOptions
 from factory.camera_msgs import camera_info_msg, compressed_image_msg
+from factory.cellinputs import CellInputs
 from factory.catalog import CatalogEntry, catalog_record, find_entry, sha256_file
 from factory.cellcameras import Shot, Stations, camera_shots, cell_stations
 from factory.rackloop import BlankPart, RackLoop, RackPick, blank_part
@@ -55,9 +56,7 @@ from factory.tending import LinkPoses, RobotStateLog, log_cell
 from factory.verify import flip_of, part_triangles, read_sheet, run_verify_after
 from factory.views import heightfield_mesh
 from robotprog.cell import Cell, load_cell
-from robotprog.cellsim import (EventSink, FaultModel, PartProcess, RunningSummary, SimulationResult,
-                              simulate as run_simulation)
-from robotprog.rackpick import BlankScatter
+from robotprog.cellsim import EventSink, PartProcess, RunningSummary, SimulationResult, simulate as run_simulation
 from robotprog.collision import CollisionWorld, collision_world
 from robotprog.frames import setup_sheet_to_cell
 from robotprog.machineio import SIGNALS, UNLOADS
@@ -65,7 +64,6 @@ from robotprog.programs import VERDICT_AFTER
 from robotprog.orders import Order
 from vision.camera import CameraModel
 from vision.handeye import invert
-from vision.lit import Condition
 
 log = logging.getLogger(__name__)
 
@@ -379,40 +377,41 @@ class CellRun:
         return {k: v for k, v in self.assets.items() if isinstance(v, PartAssets)}
 
 
-def run_cell(orders: tuple[Order, ...], *, catalog: Path, cell_path: Path = FIXTURES / "cell.yaml",
-             camera_path: Path = FIXTURES / "camera.yaml", tools: Path | None = None,
-             faults: FaultModel = FaultModel(), progress: Progress | None = None,
-             events: Callable[[dict[tuple[Path, str], PartAssets | str]], EventSink] | None = None,
-             scatter: BlankScatter | None = None, rack_light: Condition | None = None) -> CellRun:
-    """Run ``orders`` through the cell: plans from ``catalog`` (planning what it lacks into it),
-    camera steps, then the discrete-event simulation. Writes nothing but the catalog (and what
-    ``events`` writes).
+def run_cell(orders: tuple[Order, ...], inputs: CellInputs = CellInputs(), *, progress: Progress | None = None,
+             events: Callable[[dict[tuple[Path, str], PartAssets | str]], EventSink] | None = None) -> CellRun:
+    """Run ``orders`` through the cell ``inputs`` name: plans from their catalog (planning what it lacks
+    into it), camera steps, then the discrete-event simulation with their faults. Writes nothing but
+    the catalog (and what ``events`` writes).
 
     ``events``, if given, is called once the parts are planned, with what :class:`CellRun` ``assets``
     holds, and returns the sink the simulation tells every event as it goes (for example
     :meth:`factory.record.RunRecorder.begin`).
 
-    ``scatter``, if given, stands each blank off its slot's centre and closes the loop: the rack
-    camera locates it, the pick is corrected and proven, or the grasp refused (:mod:`factory.rackloop`);
-    with ``rack_light`` the rack camera's pictures are taken in that real light (:mod:`vision.lit`).
+    With the inputs' blank offsets each blank stands off its slot's centre and the loop is closed: the
+    rack camera locates it, the pick is corrected and proven, or the grasp refused (:mod:`factory.rackloop`);
+    with their rack light the rack camera's pictures are taken in that real light (:mod:`vision.lit`).
 
     Raises
     ------
     CellError, VisionError
         The cell or camera file is malformed. A part that cannot be planned fails its orders
         only (see :class:`CellRun` ``assets``).
+    FactoryError
+        A fault rate without a seed of faults.
     """
+    faults, scatter = inputs.fault_model(), inputs.scatter()
     watch = Stopwatch(progress)
     with watch("cell"):
-        cell = load_cell(cell_path)
+        cell = load_cell(inputs.cell)
         world = collision_world(cell)
-        camera = CameraModel.read(camera_path)
+        camera = CameraModel.read(inputs.camera)
         stations = cell_stations(cell, camera)
-    assets = plan_parts(orders, catalog, cell_path, tools, stations, sha256_file(camera_path), progress, watch)
+    assets = plan_parts(orders, inputs.catalog, inputs.cell, inputs.tools, stations, sha256_file(inputs.camera),
+                        progress, watch)
     processes = {k: (v.process if isinstance(v, PartAssets) else v) for k, v in assets.items()}
     loop = None if scatter is None else RackLoop(
         cell, world.robot, stations, {k: v.blank for k, v in assets.items() if isinstance(v, PartAssets)}, scatter,
-        light=rack_light)
+        light=inputs.rack_condition())
     with watch("simulate"):
         sink = events(assets) if events is not None else None
         result = run_simulation(orders, processes, faults, progress=stage_callback(progress, "orders"), sink=sink,

@@ -253,7 +253,8 @@ def test_the_command_is_glue_the_library_call_makes_the_same_run(run_ok, catalog
     """The README's ``simulate_orders`` example, on this module's orders and catalog: the same orders,
     figures, parts and MCAP messages as the command made."""
     from factory.core.errors import FactoryError
-    from factory.production import CellInputs, SimulateRequest, simulate_orders
+    from factory.cellinputs import CellInputs
+    from factory.production import SimulateRequest, simulate_orders
 
     doc, full, orders = run_ok
     folder, _ = catalog

@@ -15,13 +15,13 @@ from typer.testing import CliRunner
 from cli.main import app
 from factory.mcaplog import read_messages
 from factory.rackloop import RackLoop
+from factory.cellinputs import CellInputs
 from factory.simulation import run_cell
 from robotprog.cellsim import simulate
 from robotprog.orders import read_orders
 from robotprog.rackpick import CORRECTED_MOVES, BlankScatter
 from tests.cli.expect import simulate_exit
 from tests.foxglovecheck import check_foxglove_decodes
-from vision.lit import CONDITIONS
 
 
 def _orders(folder, part, quantity):
@@ -88,7 +88,7 @@ def test_a_blank_not_located_confidently_stops_the_robot_and_no_grasp_is_attempt
     is refused: the robot stops with a stock_not_found fault and the reason, and never reaches for it."""
     folder, part = block_catalog
     orders = read_orders(_orders(tmp_path, part, 1))
-    run = run_cell(orders, catalog=folder, scatter=BlankScatter(seed=2))
+    run = run_cell(orders, CellInputs(catalog=folder, blank_offsets=2))
     (picked,) = run.picks
     assert tuple(m.name for m in picked.pick.moves) == CORRECTED_MOVES
     fetch = next(a for a in run.result.activities if a.action == "fetch")
@@ -117,7 +117,7 @@ def test_the_rack_camera_in_real_light_locates_the_blank_and_the_grasp_is_correc
     pick corrected and proven."""
     folder, part = block_catalog
     orders = read_orders(_orders(tmp_path, part, 1))
-    lit = run_cell(orders, catalog=folder, scatter=BlankScatter(seed=2), rack_light=CONDITIONS["diffuse"])
+    lit = run_cell(orders, CellInputs(catalog=folder, blank_offsets=2, rack_light="diffuse"))
     (shot,) = lit.picks
     assert shot.pick is not None and not shot.refusal and tuple(m.name for m in shot.pick.moves) == CORRECTED_MOVES
     assert 0.05e-3 < shot.offset.shift_m and shot.error.shift_m < 0.5e-3 and abs(shot.error.dyaw) < math.radians(0.5)

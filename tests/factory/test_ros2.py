@@ -44,6 +44,7 @@ from factory.core.errors import LiveError  # noqa: E402
 from factory.mcaplog import read_messages
 from factory.rosmsgs import TYPESTORE  # noqa: E402
 from factory.ros2 import IMAGE_RAW, Ros2Graph, _write, domain_id_from_env, idl_type, localhost_domain, node_of  # noqa: E402
+from factory.cellinputs import CellInputs  # noqa: E402
 from factory.simulation import run_cell, write_cell_log  # noqa: E402
 from robotprog.orders import read_orders  # noqa: E402
 from tests.ros2node import plain  # noqa: E402
@@ -162,7 +163,7 @@ def _image_raw(compressed: list) -> list:
 def test_a_ros2_node_sees_decodes_and_joins_late(block_catalog, tmp_path):
     catalog, part = block_catalog
     orders = read_orders(_orders(tmp_path, part))
-    run = run_cell(orders, catalog=catalog)
+    run = run_cell(orders, CellInputs(catalog=catalog))
     domain = _domain(0)
     proc = _observer(domain, {"ros": ROS, "late": LATE_ROS})
     raw = _RawReaders(domain)
