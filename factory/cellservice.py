@@ -191,7 +191,7 @@ class CellService:
         self.stop = threading.Event()
         self._graph, self._out, self._record = graph, out, record
         self._cell_name = load_cell(options.inputs.cell).name  # a malformed cell file is refused before any order
-        self._faults = options.inputs.fault_model()
+        options.inputs.fault_model()  # a fault rate without a seed is refused before any order
         self._waiting: list[Order] = []
         self._sent: dict[str, OrderLine] = {}  # last status sent per order id
         self._numbered = 0
