@@ -99,6 +99,7 @@ def message_definition(typename: str) -> str:
 
 _CDR_LE = b"\x00\x01\x00\x00"
 _UINT32, _STAMP, _SEVEN_DOUBLES = struct.Struct("<I"), struct.Struct("<iI"), struct.Struct("<7d")
+_THREE_INT32, _TEN_DOUBLES, _FOUR_FLOATS = struct.Struct("<3i"), struct.Struct("<10d"), struct.Struct("<4f")
 
 
 class _Cdr:
@@ -342,12 +343,18 @@ def _color(rgba: Sequence[float]) -> Any:
     return _ColorRGBA(r=float(c[0]), g=float(c[1]), b=float(c[2]), a=float(c[3]))
 
 
-def _points(points: np.ndarray, what: str) -> list[Any]:
+def _checked_points(points: np.ndarray, what: str) -> np.ndarray:
+    """(n, 3) float64 ``points``, or a McapError naming ``what``: not (n, 3), or not finite."""
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3:
         raise McapError(f"{what}: points must have shape (n, 3), got {p.shape}")
     if not np.isfinite(p).all():
         raise McapError(f"{what}: {int((~np.isfinite(p)).any(axis=1).sum())} non-finite points")
+    return p
+
+
+def _points(points: np.ndarray, what: str) -> list[Any]:
+    p = _checked_points(points, what)
     # rosbags serialises sequences of structs from objects; map() keeps the loop in C.
     return list(map(_Point, *p.T.tolist())) if len(p) else []
 
@@ -506,6 +513,14 @@ def triangle_mesh_marker(ns: str, id: int, vertices: np.ndarray, faces: np.ndarr
         has no index buffer, so the message carries ``3 m`` points.
     color : (r, g, b, a) float
     """
+    # scale 1: RViz multiplies TRIANGLE_LIST points by scale.
+    return _marker(ns, id, _Marker.TRIANGLE_LIST, frame_id, stamp_ns, color=color, scale=(1.0, 1.0, 1.0),
+                   points=_points(_triangle_corners(ns, id, vertices, faces), f"marker {ns}/{id}"))
+
+
+def _triangle_corners(ns: str, id: int, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(3 m, 3) float: each of the ``faces``' (m, 3) corners of ``vertices`` (n, 3) [m], in order; a
+    McapError naming marker ``ns``/``id`` for faces that are not (m, 3) integers in range."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
     if f.size == 0:
@@ -516,9 +531,45 @@ def triangle_mesh_marker(ns: str, id: int, vertices: np.ndarray, faces: np.ndarr
         raise McapError(f"marker {ns}/{id}: vertices must have shape (n, 3), got {v.shape}")
     if f.size and (f.min() < 0 or f.max() >= len(v)):
         raise McapError(f"marker {ns}/{id}: face index out of range [0, {len(v)})")
-    # scale 1: RViz multiplies TRIANGLE_LIST points by scale.
-    return _marker(ns, id, _Marker.TRIANGLE_LIST, frame_id, stamp_ns, color=color,
-                   scale=(1.0, 1.0, 1.0), points=_points(v[f.reshape(-1)], f"marker {ns}/{id}"))
+    return v[f.reshape(-1)]
+
+
+def triangle_mesh_marker_array(ns: str, id: int, vertices: np.ndarray, faces: np.ndarray, color: RGBA,
+                               frame_id: str, stamp_ns: int) -> Serialized:
+    """``visualization_msgs/MarkerArray`` of the one :func:`triangle_mesh_marker`, serialised from the
+    arrays: the message's bytes without an object per corner (a verified stock's mesh has hundreds of
+    thousands); its ``make`` builds the message. Same parameters as :func:`triangle_mesh_marker`."""
+    corners = _checked_points(_triangle_corners(ns, id, vertices, faces), f"marker {ns}/{id}")
+    rgba = _color(color)  # checked as the message's
+    w = _Cdr()
+    w.uint32(1)  # one marker
+    w.stamp(ros_time(stamp_ns))
+    w.string(frame_id)
+    w.string(ns)
+    w.align(4)
+    w.buf += _THREE_INT32.pack(int(id), _Marker.TRIANGLE_LIST, _Marker.ADD)
+    w.align(8)
+    w.buf += _TEN_DOUBLES.pack(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0)  # pose: identity; scale 1
+    w.buf += _FOUR_FLOATS.pack(rgba.r, rgba.g, rgba.b, rgba.a)
+    w.buf += _STAMP.pack(0, 0) + b"\x00"  # lifetime 0 (forever); frame_locked false
+    w.uint32(len(corners))
+    if len(corners):
+        w.align(8)
+        w.buf += np.ascontiguousarray(corners, dtype="<f8").tobytes()
+    w.uint32(0)  # colors
+    w.string("")  # texture_resource
+    w.stamp(ros_time(0))  # texture: header, format, data
+    w.string("")
+    w.string("")
+    w.uint32(0)
+    w.uint32(0)  # uv_coordinates
+    w.string("")  # text
+    w.string("")  # mesh_resource
+    w.string("")  # mesh_file: filename, data
+    w.uint32(0)
+    w.buf += b"\x00"  # mesh_use_embedded_materials false
+    return Serialized("visualization_msgs/msg/MarkerArray", bytes(w.buf), lambda: marker_array(
+        [triangle_mesh_marker(ns, id, vertices, faces, color, frame_id, stamp_ns)]))
 
 
 def cube_marker(ns: str, id: int, center: Sequence[float], size: Sequence[float], color: RGBA,
@@ -584,5 +635,5 @@ __all__ = [
     "MSG_DIRS", "RGBA", "ROS_DISTRO", "TYPESTORE", "CdrTemplate", "JointStateCdr", "RestampedCdr", "Serialized",
     "TfCdr", "cube_marker", "line_list_marker", "line_strip_marker", "log_msg", "marker_array", "message_definition",
     "register_msg_files", "ros_time", "serialize_cdr", "string_msg", "tf_message", "transform_stamped",
-    "transform_values", "transforms_stamped", "triangle_mesh_marker",
+    "transform_values", "transforms_stamped", "triangle_mesh_marker", "triangle_mesh_marker_array",
 ]

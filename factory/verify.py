@@ -24,7 +24,7 @@ from factory.core.errors import SetupError
 from factory.core.setupsheet import SetupSheet
 from factory.pictures import png_bytes
 from factory.mcaplog import McapLog
-from factory.rosmsgs import marker_array, triangle_mesh_marker
+from factory.rosmsgs import triangle_mesh_marker_array
 from factory.core.progress import Progress, stage_callback
 from factory.views import heightfield_mesh
 
@@ -143,8 +143,8 @@ def log_simulation(mcap: McapLog, sim: Simulation) -> None:
     top = sim.stock_top if sim.stock_under is None else np.where(np.isfinite(sim.stock_top), sim.stock_top,
                                                                    sim.stock_under)  # cut through: drawn at its bottom
     vertices, faces = heightfield_mesh(sim.grid.xs, sim.grid.ys, top)
-    marker = triangle_mesh_marker("verify_stock", 0, vertices / 1000.0, faces, (0.75, 0.75, 0.8, 1.0), "work", 0)
-    mcap.write("/verify/stock", marker_array([marker]), 0, latched=True)
+    stock = triangle_mesh_marker_array("verify_stock", 0, vertices / 1000.0, faces, (0.75, 0.75, 0.8, 1.0), "work", 0)
+    mcap.write_cdr("/verify/stock", stock.typename, stock.cdr, 0, stock.make, latched=True)
 
 
 #: Regions of stock left that :func:`report_text` names one by one; the report lists them all.
