@@ -583,21 +583,21 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
         background = Background(_verify_quietly, verify_args, verify_kwargs)
         try:
             work = robot.result(sheet)
+            if work.dropped_op2 is not None:
+                # Not asked for two operations, and the robot cannot turn this part over on the cell's
+                # flip station: op 1 alone, said loudly (the holding allowance stays on the part).
+                log.warning("%s: op 1 only, the holding allowance stays: the robot cannot turn the part over: %s",
+                            req.cam.part, work.dropped_op2)
+                req = dataclasses.replace(req, ops=1)
+                outputs = req.outputs(Path("."))
+            tending = Tending(robot.cell, robot.world, work.plan, work.program, work.visuals)
+            with watch("pictures and log"):  # what is written whatever verify finds, made meanwhile
+                ahead = write_ahead(planned, tending)
         except BaseException:
             background.cancel()  # no verification left running for a plan that failed
             raise
-        if work.dropped_op2 is not None:
-            # Not asked for two operations, and the robot cannot turn this part over on the cell's
-            # flip station: op 1 alone, said loudly (the holding allowance stays on the part).
-            log.warning("%s: op 1 only, the holding allowance stays: the robot cannot turn the part over: %s",
-                        req.cam.part, work.dropped_op2)
-            req = dataclasses.replace(req, ops=1)
-            outputs = req.outputs(Path("."))
-        tending = Tending(robot.cell, robot.world, work.plan, work.program, work.visuals)
-    ahead = None
-    if background is not None:  # what is written whatever verify finds, made meanwhile (else: when written)
-        with watch("pictures and log"):
-            ahead = write_ahead(planned, tending)
+    else:
+        ahead = None  # made when written
     with watch("verify"):  # with the robot: the wait for the second process
         if background is not None:
             verified = background.result()
