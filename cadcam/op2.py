@@ -61,6 +61,7 @@ from cadcam.roughing import zlevel_roughing
 from cadcam.setup import BREAKTHROUGH_MM, JAW_CLEARANCE_MM
 from cadcam.workholding import jaw_keepout
 from cadcam.tools import ToolLibrary
+from cadcam.verify import Fault
 from cadcam.stock import (FlippedStock, Simulation, clear_height, excess, flip_stock, stock_after, stock_after_flipped,
                           unreached)
 from factory.core.errors import FactoryError, SetupError, ToolError, ToolpathError
@@ -500,12 +501,8 @@ def plan_op2(
     job = Job(part_name=job1.part_name, setup=setup, operations=tuple(safe_ops), source_sha256=job1.source_sha256,
               parameters=parameters)
     if float(setup1.floor_z) > float(part_work.bounds[0][2]) + 1e-9:  # a depth split: where the walls meet
+        # (op 2's verdict fails a step over the tolerance: :meth:`Seam.fault`, :func:`seam_faults`)
         found = seams(part_work, job1, job)
-        for seam in found:
-            if not seam.step <= SEAM_TOLERANCE:  # NaN too: a wall no tool came near
-                log.warning("op 2: the walls of op 1 and op 2 meet at Z%.2f with a %.3f mm step (%.3f above, "
-                            "%.3f below), over the %.2f mm tolerance", seam.z, seam.step, seam.above, seam.below,
-                            SEAM_TOLERANCE)
         job = dataclasses.replace(job, parameters={**parameters, "seams": [s.to_dict() for s in found]})
     return job, part
 
@@ -593,11 +590,15 @@ class Seam:
     above, below : float
         Most stock left on the part's walls after both operations [mm], in a slice ``probe`` above and
         below ``z`` (negative: the tool cut into the part).
+    x, y : float
+        Where on the wall the side with more left has it most [mm] (op-1 work coordinates).
     """
 
     z: float
     above: float
     below: float
+    x: float = math.nan
+    y: float = math.nan
 
     @property
     def step(self) -> float:
@@ -606,7 +607,23 @@ class Seam:
 
     def to_dict(self) -> dict[str, float]:
         return {"z": round(self.z, 3), "above": round(self.above, 4), "below": round(self.below, 4),
-                "step": round(self.step, 4)}
+                "step": round(self.step, 4), **{k: None if math.isnan(v) else round(v, 2)
+                                                for k, v in (("x", self.x), ("y", self.y))}}
+
+    def fault(self) -> Fault | None:
+        """The seam as a verify fault of op 2 when its step is over :data:`SEAM_TOLERANCE` (or no tool came
+        near a wall there), else None: a part whose walls do not meet is not finished, and no warning makes
+        it so."""
+        if self.step <= SEAM_TOLERANCE:
+            return None
+        step = "no tool finished one side" if math.isnan(self.step) else f"a {self.step:.3f} mm step"
+        known = not math.isnan(self.x)
+        return Fault("seam", 0, (), float(np.nan_to_num(self.step, nan=math.inf)), SEAM_TOLERANCE,
+                     (self.x, self.y, self.z) if known else None,
+                     f"the walls of op 1 and op 2 meet at Z{self.z:.2f}"
+                     + (f" near X{self.x:.1f} Y{self.y:.1f}" if known else "")
+                     + f" with {step} ({self.above:.3f} mm left above, {self.below:.3f} below), over the "
+                     f"{SEAM_TOLERANCE:g} mm tolerance")
 
 
 def seams(part_work: trimesh.Trimesh, job1: Job, job2: Job, probe: float = 0.3, spacing: float = 0.05
@@ -633,7 +650,7 @@ def seams(part_work: trimesh.Trimesh, job1: Job, job2: Job, probe: float = 0.3, 
     heights = {float(job1.setup.floor_z), float(flip[2, 3] - job2.setup.floor_z)}
     out = []
     for z in sorted(h for h in heights if lo + probe < h < hi - probe):
-        left = []
+        left, where = [], []
         for h in (z + probe, z - probe):
             outline = _outline(part_work, h, spacing)
             centres, radii = [], []
@@ -646,6 +663,7 @@ def seams(part_work: trimesh.Trimesh, job1: Job, job2: Job, probe: float = 0.3, 
             c, r = np.concatenate(centres), np.concatenate(radii)
             if not len(outline) or not len(c):
                 left.append(float("nan"))
+                where.append(outline[0] if len(outline) else (math.nan, math.nan))
                 continue
             gaps = []
             for radius in np.unique(r):
@@ -653,9 +671,21 @@ def seams(part_work: trimesh.Trimesh, job1: Job, job2: Job, probe: float = 0.3, 
                 gaps.append(d - radius)
             gap = np.min(gaps, axis=0)
             near = gap <= float(r.max()) + probe
-            left.append(float(gap[near].max()) if near.any() else float("nan"))
-        out.append(Seam(z, left[0], left[1]))
+            worst = int(np.argmax(np.where(near, gap, -np.inf)))
+            left.append(float(gap[worst]) if near.any() else float("nan"))
+            where.append(outline[worst])
+        side = 1 if np.isnan(left[1]) or left[1] > left[0] else 0  # the side with more left
+        out.append(Seam(z, left[0], left[1], float(where[side][0]), float(where[side][1])))
     return tuple(out)
+
+
+def seam_faults(job2: Job) -> tuple[Fault, ...]:
+    """Op 2's faults for the seams where its walls meet op 1's with a step over :data:`SEAM_TOLERANCE`
+    (its ``parameters["seams"]``, :func:`plan_op2`): verify's own simulation cannot tell op 1's walls from
+    op 2's, the seams are measured from both jobs' toolpaths."""
+    found = (Seam(s["z"], s["above"], s["below"], *(math.nan if s.get(k) is None else s[k] for k in ("x", "y")))
+             for s in job2.parameters.get("seams", ()))
+    return tuple(f for f in (s.fault() for s in found) if f is not None)
 
 
 def _outline(part: trimesh.Trimesh, h: float, spacing: float) -> np.ndarray:

@@ -751,8 +751,10 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
             break
         # A tool whose flutes are shorter than the part is deep takes a wall in steps, at levels
         # where the stock model shows the skin roughing left on it; if the model missed it, the
-        # flank pass at the floor would take the whole wall at once, shank in the skin.
-        cell = _MODEL_CELL if tool.flute_length >= depth else skin
+        # flank pass at the floor would take the whole wall at once, shank in the skin. And below
+        # a depth split (op 2) its walls meet op 1's: a skin the planning grid passes by between
+        # its points would stay there, a step at the seam (issue 34: 0.3 mm on a block's long sides).
+        cell = _MODEL_CELL if tool.flute_length >= depth and plan.turned_stock is None else skin
         if abs(stock.grid.cell - cell) > 1e-9:
             stock = plan.model(operations, cell)
         cutting = library.cutting_data(tool, setup.material)

@@ -77,6 +77,29 @@ def rest_level_masks(sim: Simulation, levels: Sequence[float], spaces: Sequence[
     return masks
 
 
+def levels_within_reach(levels: np.ndarray, top: float, stick_out: float) -> np.ndarray:
+    """The ``levels`` [mm] (top down) a rest tool reaches with its ``stick_out`` [mm] below the stock's ``top``,
+    ending at that reach where the levels pass it by: it goes as deep as it reaches (a long-neck end mill's
+    last millimetres in a deep pocket), never deeper (its holder would meet the stock)."""
+    reach = top - stick_out
+    kept = levels[levels >= reach - 1e-9]
+    if len(kept) < len(levels) and (not len(kept) or kept[-1] > reach + _LEVEL_EPS):
+        kept = np.append(kept, reach)
+    return kept
+
+
+def rooms_round(regions: Sequence[BaseGeometry], space: BaseGeometry, by: float) -> list[BaseGeometry]:
+    """The room round rest regions too small to enter on their own: the polygons of ``space`` (where the
+    tool axis may go at the level) within ``by`` [mm] of ``regions`` that hold some of them.
+
+    The corners a wider tool left in a narrow pocket are slivers a helix or a ramp of their own does not
+    fit; the pocket round them, which that tool cleared, has room for a ramp along it (issue 34).
+    """
+    grown = shapely.union_all([r.buffer(by, quad_segs=8) for r in regions]).intersection(space)
+    rooms = [q for q in shapely.get_parts(grown) if q.geom_type == "Polygon" and q.area > 0.0]
+    return [q for q in rooms if any(q.intersects(r) for r in regions)]
+
+
 def _cells_within(region: BaseGeometry, grid: Grid) -> np.ndarray:
     """(ny, nx) bool: the grid points inside ``region``."""
     out = np.zeros(grid.shape, dtype=bool)

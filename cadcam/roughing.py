@@ -81,7 +81,7 @@ from shapely.ops import nearest_points
 
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.gridregion import GrownMaskCache
-from cadcam.rest import rest_level_masks
+from cadcam.rest import levels_within_reach, rest_level_masks, rooms_round
 from cadcam.stock import Simulation, clear_height
 from factory.core.errors import MeshError, ToolError, ToolpathError
 
@@ -839,7 +839,7 @@ def zlevel_roughing(
     p = _resolve(options, tool, setup)
     levels = _levels(part, setup, p)
     if rest is not None:
-        levels = levels[levels >= float(setup.stock_max[2]) - tool.length - 1e-9]
+        levels = levels_within_reach(levels, float(setup.stock_max[2]), tool.length)
     heights = [zq for z in levels for zq, _ in _forbidden_terms(float(z), p)]
     shadow = part_shadows(part, heights)
 
@@ -928,7 +928,7 @@ def _plan_entries(allowed: BaseGeometry, space: BaseGeometry, z: float, rect_xy:
 
     An open region is entered from outside the stock; with a known stock (rest machining), a
     closed one from the air beside it (``space``: where the tool may go at this level); else by
-    a helix or ramp inside it.
+    a helix or ramp inside it, or in rest machining in the room round it (:func:`cadcam.rest.rooms_round`).
     """
     regions = [r for r in _polygons(allowed) if r.area > _MIN_AREA]
     plans, missed = [], []
@@ -950,15 +950,25 @@ def _plan_entries(allowed: BaseGeometry, space: BaseGeometry, z: float, rect_xy:
         if entry is None:
             entry = _closed_entry(region, rings, p)
         if entry is None:
-            c = region.representative_point()
-            # inside a hole already drilled or helixed to size: nothing is left there to warn about
-            cut = cut_here is not None and cut_here().contains(region)
-            log.log(logging.DEBUG if cut else logging.WARNING,
-                    "z=%.3f: pocket near (%.2f, %.2f) is too small to enter with a helix or ramp; skipped%s",
-                    z, c.x, c.y, " (a hole cut before)" if cut else "")
             missed.append(region)
             continue
         plans.append((region, rings, entry, inside_out))
+    # inside a hole already drilled or helixed to size: nothing is left there to enter or warn about
+    holes = [m for m in missed if cut_here is not None and cut_here().contains(m)]
+    if air_at is not None and len(holes) < len(missed):
+        # Rest machining: a region too small for a helix or ramp of its own (the corner a wider tool left in
+        # a narrow pocket) is cut with the room round it, a diameter wide, entered by a ramp along that.
+        for room in rooms_round([m for m in missed if m not in holes], space, 2 * p.radius):
+            rings = _rings(room, p)
+            entry = _closed_entry(room, rings, p) if rings else None
+            if entry is not None:
+                plans.append((room, rings, entry, True))
+                missed = [m for m in missed if m in holes or not room.buffer(_COVER_TOL).contains(m)]
+    for region in missed:
+        c = region.representative_point()
+        log.log(logging.DEBUG if region in holes else logging.WARNING,
+                "z=%.3f: pocket near (%.2f, %.2f) is too small to enter with a helix or ramp; skipped%s",
+                z, c.x, c.y, " (a hole cut before)" if region in holes else "")
     return plans, missed
 
 

@@ -132,7 +132,8 @@ class RapidCrash:
 
 
 #: What :class:`Fault` can say, in the order the report lists them.
-FAULT_KINDS = ("no_cut", "rapid", "holder", "flute", "full_width", "buried", "drill_side", "below_stock", "jaws")
+FAULT_KINDS = ("no_cut", "rapid", "holder", "flute", "full_width", "buried", "drill_side", "below_stock", "seam",
+               "jaws")
 
 #: Setup sheet operation kinds that finish a surface; every other kind removes bulk stock.
 FINISHING_KINDS = frozenset({"raster", "waterline", "finishing"})
@@ -153,7 +154,8 @@ class Fault:
         finishing tool engaged deeper than :attr:`VerifyOptions.finish_depth`;
         ``drill_side`` a drill fed sideways through stock (a drill's only engagement is
         axial, held to its flute length by ``flute``); ``below_stock`` the tool tip below the stock
-        bottom; ``jaws`` the tool, shank or holder reaches into the vise's jaws or parallels
+        bottom; ``seam`` op 2's walls meet op 1's with a step over the finishing tolerance (op 2 after
+        a depth split, :meth:`cadcam.op2.Seam.fault`); ``jaws`` the tool, shank or holder reaches into the vise's jaws or parallels
         (:attr:`Setup.jaws`).
     tool : int
         Tool number (0 for ``no_cut``).
@@ -263,13 +265,25 @@ class ToolEngagement:
         d["angle_bins"] = list(ANGLE_BINS)
         return d
 
-    def describe(self) -> str:
-        """One line for people."""
+    def describe(self, engaged_width: float = ENGAGED_WIDTH, full_width_angle: float = FULL_WIDTH_ANGLE) -> str:
+        """One line for people.
+
+        The two depths are measured on different moves and need not be in order: "deepest" counts a cut
+        only where it is at least ``engaged_width`` [mm] wide across the move (a wall's skin is not a cut),
+        "at full width" any cut that meets the cutter over more than ``full_width_angle`` [deg], however
+        narrow (a small end mill in a corner's sliver). The line names each one's move."""
         bins = ", ".join(f"{a:g}-{b:g}: {n}" for a, b, n in zip(ANGLE_BINS, ANGLE_BINS[1:], self.angle_moves))
-        return (f"T{self.tool}: deepest {self.max_depth:.2f} mm, at full width {self.max_full_depth:.2f} mm "
-                f"(limit {self.axial_limit:g} mm), widest {self.max_width:.2f} mm, angle p50/p90/max "
+        return (f"T{self.tool}: deepest {self.max_depth:.2f} mm where {engaged_width:g} mm wide or more"
+                f"{_on_line(self.max_depth_line)}; at full width (over {full_width_angle:g} deg of the cutter) "
+                f"up to {self.max_full_depth:.2f} mm{_on_line(self.max_full_depth_line)}, limit {self.axial_limit:g} mm; "
+                f"widest {self.max_width:.2f} mm, angle p50/p90/max "
                 f"{self.angle.p50:.0f}/{self.angle.p90:.0f}/{self.angle.max:.0f} deg over {self.engaged} moves "
                 f"(deg: {bins}), grid {self.cell:g} mm")
+
+
+def _on_line(line: int) -> str:
+    """`` (line N)`` for a program line, nothing for 0 (no such move)."""
+    return f" (line {line})" if line > 0 else ""
 
 
 @dataclass(frozen=True)

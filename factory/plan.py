@@ -36,7 +36,7 @@ from cadcam.model import Job, Setup
 from cadcam.plan import PlanOptions
 from cadcam.parallel import Background, processors
 from cadcam.op2 import (FLIP_AXIS, WORK_OFFSET, Op2Options, flip_transform, op2_setup_image, op2_sheet_fields,
-                        plan_op2)
+                        plan_op2, seam_faults)
 from cadcam.post import PostOptions, Program, post_process, tool_table_file
 from cadcam.preview import setup_image
 from cadcam.mesh import PartMesh
@@ -654,7 +654,11 @@ def _plan_op2(req: PlanRequest, planned: PlannedPart, op1_sim: Simulation, outpu
                                          str(outputs["program_op2"]), job2.setup, {t.number: t for t in job2.tools},
                                          np.asarray(part2.triangles), VerifyOptions(cell=req.grid), progress,
                                          operations=sheet2.operations, op1=op1_report)
-    return SecondOp(job2, part2, program2, sheet2, verified2.simulation, verified2.report)
+    # where op 2's walls meet op 1's (a depth split): a step over the tolerance fails op 2 as a fault does
+    report2 = verified2.report
+    if seam_faults(job2):
+        report2 = dataclasses.replace(report2, faults=report2.faults + seam_faults(job2))
+    return SecondOp(job2, part2, program2, sheet2, verified2.simulation, report2)
 
 
 @contextlib.contextmanager

@@ -7,6 +7,7 @@ planner's own stock model.
 from __future__ import annotations
 
 import dataclasses
+import logging
 
 import manifold3d
 import numpy as np
@@ -19,7 +20,9 @@ from cadcam.gcode import parse_gcode
 from cadcam.model import CuttingData, Motion, Operation, Setup
 from cadcam.plan import PlanOptions, choose_tools, plan_job
 from cadcam.post import PostOptions, post_process
-from cadcam.rest import safe_rapids
+from cadcam.rest import levels_within_reach, safe_rapids
+from cadcam.roughing import zlevel_roughing
+from cadcam.stock import operation_moves, stock_after
 from cadcam.verify import simulate
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
@@ -149,22 +152,27 @@ def test_a_slot_too_narrow_for_the_roughing_tool_is_rest_roughed_then_finished()
 
 
 def test_rest_roughing_steps_down_through_the_corners_a_wider_tool_left():
-    """The pocketed block: the 8 mm bull-nose and the 6 mm end mill leave slivers in the pocket's corners up to
-    its top, thinner than the excess counts; the 2 mm end mill (1 mm axial limit) takes them a level at a time.
-    It used to enter them at the pocket's floor only and take 3.0 mm at full width at once."""
+    """The pocketed block: the 8 mm bull-nose leaves slivers in the pocket's corners up to its top, thinner than
+    the excess counts; the rest tools take them a level at a time, never deeper apart than their axial limit
+    (the 2 mm end mill used to enter them at the pocket's floor only and take 3.0 mm at full width at once; the
+    narrower end mills now reach them from the room round them in the pocket, issue 34)."""
     setup, part = make_setup(pocket_block())
     job = plan_job(part, setup, LIBRARY, part_name="p", options=FAST).job
-    (rest,) = [op for op in job.operations if op.kind == "roughing" and op.tool.number == 6]
-    levels = np.unique(np.round(rest.points[rest.motion == Motion.CUT, 2], 3))[::-1]
-    # from the pocket's floor (Z-5 under the 1 mm on top, plus the allowance) up to its top, 1 mm apart
-    assert levels[-1] == pytest.approx(-4.7) and len(levels) >= 4 and np.all(-np.diff(levels) <= 1.0 + 1e-6), levels
+    rests = [op for op in job.operations if op.kind == "roughing" and op.name.startswith("rest rough")]
+    assert rests
+    for rest in rests:
+        levels = np.unique(np.round(rest.points[rest.motion == Motion.CUT, 2], 3))[::-1]
+        assert np.all(-np.diff(levels) <= rest.tool.full_width_limit + 1e-6), (rest.name, levels)
+    # down to the pocket's floor (Z-5 under the 1 mm on top, plus the allowance)
+    assert min(float(op.points[:, 2].min()) for op in rests) == pytest.approx(-4.7)
     text = post_process(job, PostOptions()).text
     moves = parse_gcode(text)
     report = simulate(moves, {t.number: t for t in job.tools}, setup, np.asarray(part.triangles),
                       finishing=finishing_moves(moves, text)).report
     assert report.ok, [f.message for f in report.faults]
-    t6 = {e.tool: e for e in report.engagement}[6]
-    assert t6.cell <= 0.2 + 1e-9 and t6.max_full_depth <= 1.0 + t6.cell, t6
+    for e in report.engagement:
+        assert e.max_full_depth <= e.axial_limit + e.cell, e
+    assert {e.tool: e for e in report.engagement}[6].cell <= 0.2 + 1e-9
 
 
 def test_a_hole_no_tool_fits_is_reported_and_left_alone():
@@ -230,3 +238,52 @@ def test_a_part_deeper_than_t1_reaches_plans_with_longer_tools():
     assert float(setup.stock_max[2] - setup.floor_z) == pytest.approx(36.0)
     assert all(op.tool.length >= 36.0 for op in job.operations)
     assert_safe(job, setup, moves, sw, text)
+
+
+def test_the_corners_a_wider_tool_left_in_a_narrow_deep_pocket_are_entered_by_a_ramp_along_the_pocket(caplog):
+    """An 11 mm pocket 30 mm deep (issue 34's explore block, shortened): the 10 mm end mill roughs it, ramping
+    along its 0.4 mm wide centre region, and leaves a sliver in each corner. The 8 mm end mill's regions at
+    those corners are slivers no helix or ramp of their own fits; they used to be skipped, and barred the
+    pocket below them. Now each is cut with the room round it, entered by a ramp of at most 3 degrees along
+    the pocket, level by level at the tool's axial limit, never deeper at full width."""
+    body = manifold3d.Manifold.cube((40.0, 25.0, 32.0)) - manifold3d.Manifold.cube((26.07, 10.97, 31.0)).translate(
+        (6.965, 7.015, 2.0))
+    setup, part = make_setup(manifold_to_trimesh(body))
+    tri = np.asarray(part.triangles)
+    t10, t8 = LIBRARY.tool(2), LIBRARY.tool(16)
+    cut = CuttingData(9000.0, 2000.0, 600.0)
+    first = zlevel_roughing(part, setup, t10, cut)
+    stock = stock_after([first], setup, tri, 0.5)
+    with caplog.at_level(logging.WARNING, logger="cadcam.roughing"):
+        rest = zlevel_roughing(part, setup, t8, cut, rest=stock, rest_above=LIMIT)
+    assert "too small to enter" not in caplog.text
+    floor = float(part.bounds[0][2]) + 2.0  # the pocket's floor in work coordinates
+    cuts = rest.points[rest.motion == Motion.CUT]
+    levels = np.unique(np.round(cuts[:, 2], 3))[::-1]
+    # every level down to the floor (plus the allowance), no more than the axial limit apart
+    assert levels[-1] == pytest.approx(floor + 0.3, abs=1e-3) and np.all(-np.diff(levels) <= t8.full_width_limit + 1e-6)
+    # into all four corners of the pocket, as near as the 8 mm tool comes (4.3 mm off both walls: 6.1 mm from
+    # the corner), nearer than the 10 mm one could (5.3 and 5.5 mm off: 7.6 mm)
+    (x0, y0), (x1, y1) = part.bounds[0][:2] + [6.965, 7.015], part.bounds[0][:2] + [6.965 + 26.07, 7.015 + 10.97]
+    inside = cuts[(cuts[:, 0] > x0) & (cuts[:, 0] < x1) & (cuts[:, 1] > y0) & (cuts[:, 1] < y1)]
+    for cx, cy in ((x0, y0), (x0, y1), (x1, y0), (x1, y1)):
+        assert (np.hypot(inside[:, 0] - cx, inside[:, 1] - cy) < 6.5).any(), (cx, cy)
+    # entered by ramps no steeper than 3 degrees: every feed move down with a run sideways
+    p, m = rest.points, rest.motion
+    down = (m[1:] == Motion.PLUNGE) & (p[1:, 2] < p[:-1, 2] - 1e-9)
+    run = np.hypot(*(p[1:, :2] - p[:-1, :2]).T)[down]
+    drop = (p[:-1, 2] - p[1:, 2])[down]
+    sideways = run > 1e-6
+    assert sideways.any() and np.all(drop[sideways] <= run[sideways] * np.tan(np.radians(3.0)) + 1e-6)
+    report = simulate(operation_moves([first, rest]), {2: t10, 16: t8}, setup, tri).report
+    assert report.ok, [f.message for f in report.faults]
+    t8_engaged = {e.tool: e for e in report.engagement}[16]
+    assert t8_engaged.max_full_depth <= t8.full_width_limit + t8_engaged.cell, t8_engaged
+
+
+def test_a_rest_tool_goes_as_deep_as_it_reaches_and_no_deeper():
+    levels = np.array([-4.0, -8.0, -12.0, -16.0])
+    assert levels_within_reach(levels, 0.0, 13.5).tolist() == [-4.0, -8.0, -12.0, -13.5]
+    assert levels_within_reach(levels, 0.0, 16.0).tolist() == levels.tolist()
+    assert levels_within_reach(levels, 0.0, 12.0).tolist() == [-4.0, -8.0, -12.0]
+    assert levels_within_reach(levels, 0.0, 3.0).tolist() == [-3.0]

@@ -103,8 +103,11 @@ def test_the_planned_bracket_is_judged_safe_with_its_engagement(bracket):
         assert 0.0 < e["max_full_depth"] <= e["axial_limit"] + report["cell"], e
         assert 0.0 < e["max_width"] <= {1: 6.0, 2: 10.0}[t] + 1e-9 and 0.0 < e["angle"]["max"] <= 180.0
         assert sum(e["angle_moves"]) == e["engaged"] > 0
-        assert (f"engagement T{t}: deepest {e['max_depth']:.2f} mm, at full width {e['max_full_depth']:.2f} mm "
-                f"(limit {e['axial_limit']:g} mm), widest {e['max_width']:.2f} mm") in text
+        # the two depths come from different moves (a skin is no cut, a corner's sliver is one at full width):
+        # each says what it counts and names its move, so a "full width" deeper than "deepest" reads right
+        assert (f"engagement T{t}: deepest {e['max_depth']:.2f} mm where 1 mm wide or more (line "
+                f"{e['max_depth_line']}); at full width (over 120 deg of the cutter) up to {e['max_full_depth']:.2f} mm "
+                f"(line {e['max_full_depth_line']}), limit {e['axial_limit']:g} mm; widest {e['max_width']:.2f} mm") in text
 
 
 def test_bracket_with_a_plunge_into_the_front_jaw(bracket):
