@@ -75,6 +75,9 @@ _MAX_ENTRIES = 10_000_000
 _ENTRIES_PER_PRIMITIVE = 100
 #: Query buckets at most (the bucket pointers take 8 B each).
 _MAX_BUCKETS = 4_000_000
+#: A tool radius below this share of the index's bucket (about twice the median triangle) is a pin: its
+#: query buckets are no finer than the index's divided as a tool's radius is (no milling tool is as fine).
+_PIN_RADIUS = 1e-3
 #: Entries made at once while bucketing (bounds the temporaries, ~150 B each).
 _ENTRY_CHUNK = 1_000_000
 
@@ -275,6 +278,11 @@ def _query_grid(index: TriangleIndex, radius: float, lo: np.ndarray, hi: np.ndar
     coarsest = index.cell * max(1, int(math.ceil(0.5 * radius / index.cell)))
     lo, hi = lo - index.origin - radius, hi - index.origin + radius
     cell = max(_CELL_PER_RADIUS * radius, math.sqrt(float(extent[0] * extent[1]) / _MAX_BUCKETS))
+    if radius < _PIN_RADIUS * index.cell:
+        # A pin far finer than the triangles (cadcam.relief reads which facets are seen from above with
+        # one): buckets finer than a share of a triangle list the same few primitives again and again,
+        # and making millions of them cost a relief's intake 1 s (issue 35). Heights do not depend on it.
+        cell = max(cell, index.cell * _CELL_PER_RADIUS)
 
     def entries(c: float) -> float:  # the buckets each grown box spans (a few more than _bucket keeps)
         return float(np.sum(np.prod(np.floor(hi / c) - np.floor(lo / c) + 1.0, axis=1)))

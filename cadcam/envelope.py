@@ -26,6 +26,7 @@ those (grid point, move) pairs in vectorised batches with :func:`pair_envelope`.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -341,14 +342,40 @@ def _row_spans(seg: Segments, grid: Grid) -> tuple[np.ndarray, np.ndarray, np.nd
     return owner, row, first, np.maximum(last - first + 1, 0)
 
 
-def grid_pairs(seg: Segments, grid: Grid) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Every (segment, grid point) pair within a segment's reach: owner, flat index, column, row."""
+def grid_pairs(seg: Segments, grid: Grid, above: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every (segment, grid point) pair within a segment's reach: owner, flat index, column, row.
+
+    ``above(row, first, count)``: optional, an upper bound on the heights of interest [mm] over each
+    run of ``count`` columns from ``first`` on grid ``row`` (the stock there); a run over which the
+    move's tool cannot come below it (:func:`row_lower`) gives no pairs, as :func:`pair_envelope`
+    with that bound would give them no envelope. The other pairs come in the same order."""
     row_owner, row, first, count = _row_spans(seg, grid)
+    if above is not None and len(count):
+        live = np.flatnonzero(count > 0)
+        lower = row_lower(seg, row_owner[live], grid.y0 + row[live] * grid.cell)
+        count[live[lower >= above(row[live], first[live], count[live])]] = 0
     n = int(count.sum())
     owner = np.repeat(row_owner, count)
     col = np.repeat(first - (np.cumsum(count) - count), count) + np.arange(n)
     rows = np.repeat(row, count)
     return owner, rows * grid.nx + col, col, rows
+
+
+def row_lower(seg: Segments, owner: np.ndarray, yr: np.ndarray) -> np.ndarray:
+    """A lower bound [mm] of :func:`pair_envelope`'s cheap bound ``lower`` (lowest tip height plus the
+    profile at the nearest approach) at every point of grid row ``yr`` [mm], for the move of each row
+    ``owner``: the nearest approach of a point of the row is at least the distance between the row's
+    line and the move's XY segment, and the profile only rises with distance (rounding included: the
+    distance is taken 1e-7 mm short, far beyond any rounding of it)."""
+    y0 = seg.y[owner]
+    y1 = y0 + seg.dy[owner]
+    gap = np.maximum(np.maximum(np.minimum(y0, y1) - yr, yr - np.maximum(y0, y1)), 0.0)
+    dist = np.maximum(gap - 1e-7, 0.0)
+    lower = seg.zmin[owner]
+    lower += _profile(dist, seg.flat_radius[owner], seg.rc[owner])
+    lower += seg.cone[owner] * np.minimum(dist, seg.radius[owner])
+    return lower
 
 
 def reach_interval(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray):

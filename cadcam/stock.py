@@ -479,10 +479,13 @@ def _run(
     wanted = set(snapshot_at.tolist())
     taken = {0: stock.copy()} if 0 in wanted else {}  # segments applied -> stock then
 
+    tops = None
     for c in range(len(bounds) - 1):
         s, e = int(bounds[c]), int(bounds[c + 1])
         if e > s:
-            _run_batch(seg, body, s, e, grid, stock, part, stats, under)
+            if tops is None or c % _SPAN_TOPS_EVERY == 0:
+                tops = _SpanTops(stock, grid)  # the stock only falls: older tops stay upper bounds
+            _run_batch(seg, body, s, e, grid, stock, part, stats, under, tops)
             if progress is not None:
                 progress(int(done[e - 1]), total_moves)
         if e in wanted:
@@ -524,7 +527,7 @@ def _segmented_exclusive_min(group: np.ndarray, value: np.ndarray) -> np.ndarray
 
 
 def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, stock: np.ndarray, part: np.ndarray,
-               stats: MoveRecord, under: np.ndarray | None = None) -> None:
+               stats: MoveRecord, under: np.ndarray | None = None, tops: "_SpanTops | None" = None) -> None:
     """Cut segments ``s:e`` into ``stock`` and record what each met.
 
     Each move is judged against the stock exactly as every earlier move left it (also
@@ -532,9 +535,12 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
     running minimum of the earlier moves' envelopes gives the stock each move found.
     ``under`` (flat, per grid point): the bottom of a stock whose columns do not all stand
     on one plane (a flipped part); a column cut down to it is empty (``-inf``) from then on.
+    ``tops``: upper bounds of the stock on runs of grid columns (:class:`_SpanTops`, made from this
+    stock or an earlier state of it): the runs of a move's grid points it provably cannot cut are
+    not paired at all (:func:`cadcam.envelope.grid_pairs`), which changes nothing else.
     """
     seg = seg_all.sub(s, e)
-    owner, flat, col, row = grid_pairs(seg, grid)
+    owner, flat, col, row = grid_pairs(seg, grid, None if tops is None else tops.above)
     before0 = stock[flat]
     env = pair_envelope(grid.x0 + col * grid.cell, grid.y0 + row * grid.cell, owner, seg, before0)
     touch = np.flatnonzero(env < before0)
@@ -598,6 +604,40 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
         if under is not None:
             through = f[~(stock[f] > under[f])]
             stock[through] = -np.inf
+
+
+#: Batches between fresh :class:`_SpanTops` (the stock only falls, so older ones are upper bounds, only looser).
+_SPAN_TOPS_EVERY = 16
+
+
+class _SpanTops:
+    """Upper bounds of a stock z-map [mm] on any run of columns of a grid row: the maxima of blocks of
+    :data:`_BLOCK` columns, in a sparse table over each row (the maximum of ``2**k`` blocks from each
+    block), so a run's bound is the larger of two table entries."""
+
+    _BLOCK = 16
+
+    def __init__(self, stock: np.ndarray, grid: Grid):
+        top = stock.reshape(grid.ny, grid.nx)
+        nb = -(-grid.nx // self._BLOCK)
+        padded = np.full((grid.ny, nb * self._BLOCK), -np.inf)
+        padded[:, :grid.nx] = top
+        level = padded.reshape(grid.ny, nb, self._BLOCK).max(axis=2)
+        levels = [level]
+        width = 1
+        while 2 * width <= nb:
+            nxt = np.full_like(level, -np.inf)
+            nxt[:, :nb - width] = np.maximum(level[:, :nb - width], level[:, width:])
+            levels.append(nxt)
+            level, width = nxt, 2 * width
+        self.table = np.stack(levels)  # (levels, ny, blocks)
+
+    def above(self, row: np.ndarray, first: np.ndarray, count: np.ndarray) -> np.ndarray:
+        """(r,) the highest the stock is over columns ``first .. first + count - 1`` (count >= 1) of ``row``, or more [mm]."""
+        b0 = first // self._BLOCK
+        b1 = (first + count - 1) // self._BLOCK
+        k = np.frexp(b1 - b0 + 1)[1].astype(np.int64) - 1  # floor(log2), exactly
+        return np.maximum(self.table[k, row, b0], self.table[k, row, b1 - (1 << k) + 1])
 
 
 def first_line_reaching(moves: ProgramMoves, tools: Mapping[int, Tool], x: float, y: float, z: float) -> int | None:
@@ -724,23 +764,32 @@ def clear_height(sim: Simulation, tool: Tool, xy: np.ndarray, within: float | No
     reach = (tool.radius if within is None else min(within, tool.radius)) + slack
     k = int(math.ceil(reach / g.cell))
     di, dj = np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1))
-    di, dj = di.ravel(), dj.ravel()
+    # An axis lies within half a cell diagonal of the grid point it rounds to, so a point further
+    # than that beyond the reach from it is never near (it would only add -inf to the maximum).
+    can = np.hypot(di, dj) * g.cell <= reach + g.cell
+    di, dj = di[can], dj[can]
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     i0 = np.rint((xy[:, 0] - g.x0) / g.cell).astype(np.int64)
     j0 = np.rint((xy[:, 1] - g.y0) / g.cell).astype(np.int64)
     out = np.full(len(xy), -np.inf)
-    for a, b in zip(di, dj):
-        i, j = i0 + a, j0 + b
+    # Every (axis, grid point near it) pair at once, in chunks of axes: the per-offset loop this
+    # replaces spent its time in numpy's per-call overhead. Each pair's number is computed as it
+    # was, and the maximum is exact, so the heights are the same to the bit.
+    step = max(1, _CLEAR_PAIRS // len(di))
+    for s in range(0, len(xy), step):
+        x, y = xy[s:s + step, 0, None], xy[s:s + step, 1, None]
+        i, j = i0[s:s + step, None] + di, j0[s:s + step, None] + dj
         inside = (i >= 0) & (i < g.nx) & (j >= 0) & (j < g.ny)
-        if not inside.any():
-            continue
-        ii, jj = i[inside], j[inside]
-        r = np.hypot(g.x0 + ii * g.cell - xy[inside, 0], g.y0 + jj * g.cell - xy[inside, 1])
-        near = r <= reach
+        ii, jj = np.clip(i, 0, g.nx - 1), np.clip(j, 0, g.ny - 1)  # outside ones are masked below
+        r = np.hypot(g.x0 + ii * g.cell - x, g.y0 + jj * g.cell - y)
         h = tool.profile_height(np.clip(r - slack, 0.0, tool.radius))
-        need = np.where(near, sim.stock_top[jj, ii] - h, -np.inf)
-        out[inside] = np.maximum(out[inside], need)
+        need = np.where(inside & (r <= reach), sim.stock_top[jj, ii] - h, -np.inf)
+        out[s:s + step] = need.max(axis=1, initial=-np.inf)
     return out
+
+
+#: (axis, grid point) pairs :func:`clear_height` evaluates at once (bounds its temporaries, ~80 B each).
+_CLEAR_PAIRS = 400_000
 
 
 def flip_stock(sim: Simulation, transform: np.ndarray, setup: Setup) -> FlippedStock:

@@ -258,3 +258,30 @@ def test_the_query_buckets_change_which_candidates_are_tried_never_the_answer(se
         mp.setattr(dc, "_MAX_ENTRIES", 50)
         mp.setattr(dc, "_ENTRY_CHUNK", 7)
         assert np.array_equal(drop(), fine)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), count=st.integers(1, 80), spread=st.floats(0.2, 4.0),
+       pin=st.sampled_from([1e-9, 1e-7, 1e-5]), shape=st.sampled_from(["flat", "ball"]))
+def test_a_pins_coarser_buckets_give_the_fine_buckets_answer(seed, count, spread, pin, shape):
+    """A pin (a radius far below the triangles: cadcam.relief reads which facets are seen from above with
+    one) is queried on buckets of a share of a triangle, not of its radius (issue 35: millions of buckets
+    cost a relief's intake 1 s): the CL z is the same to the bit, at the facets' centres and anywhere."""
+    import cadcam.dropcutter as dc
+
+    rng = np.random.default_rng(seed)
+    tri = rng.uniform(0, 20, (count, 1, 3)) + rng.normal(0, spread, (count, 3, 3))
+    xy = np.concatenate([tri.mean(axis=1)[:, :2], rng.uniform(-3, 23, (200, 2))])
+    radius = pin * 20.0
+    rc = radius if shape == "ball" else 0.0
+
+    def drop() -> tuple[np.ndarray, float]:
+        index = build_index(tri)  # fresh: nothing prepared
+        return drop_profile(index, radius, rc, xy, -50.0), dc._prepared(index, radius, rc)[0].cell
+
+    coarse, coarse_cell = drop()
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(dc, "_PIN_RADIUS", 0.0)  # the radius-scaled buckets, as before
+        fine, fine_cell = drop()
+    assert coarse_cell > fine_cell  # the pin's buckets are coarser here
+    assert np.array_equal(coarse, fine)

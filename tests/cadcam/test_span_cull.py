@@ -1,0 +1,82 @@
+"""cadcam.stock: the runs of grid points a move provably cannot cut are not paired at all, and the cut is the same to the bit (issue 35)."""
+
+from __future__ import annotations
+
+import contextlib
+from unittest import mock
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import cadcam.envelope
+import cadcam.stock as stock
+from cadcam.stock import cut_stock
+from tests.cadcam.test_verify import LOW_PART, SETUP, TOOLS, C, R, box, moves_strategy, program
+
+#: A part with a sloped top and a step, so moves meet the part and the stock at many heights.
+SLOPED = np.concatenate([LOW_PART, box([2, 2, -10], [12, 18, -2]), box([28, 3, -10], [38, 9, -1])])
+
+
+def _cut(moves, part, cull: bool):
+    """Every array cut_stock returns, with the run cull on or off (``above`` then bounds nothing)."""
+    with contextlib.ExitStack() as patches:
+        if not cull:
+            patches.enter_context(mock.patch.object(stock._SpanTops, "above",
+                                                    lambda self, row, first, count: np.full(len(row), np.inf)))
+        c = cut_stock(moves, TOOLS, SETUP, part, 0.5)
+    arrays = {"stock_top": c.simulation.stock_top, "removed_volume": c.simulation.removed_volume}
+    arrays.update({k: v for k, v in vars(c.met).items() if isinstance(v, np.ndarray)})
+    return arrays
+
+
+def assert_identical(a, b) -> None:
+    assert a.keys() == b.keys()
+    for k in a:
+        assert a[k].shape == b[k].shape and np.array_equal(a[k], b[k]), k  # to the bit
+
+
+@settings(max_examples=40, deadline=None)
+@given(blocks=moves_strategy, again=st.booleans(), part=st.sampled_from(["low", "sloped"]),
+       budget=st.sampled_from([300, 1 << 16]), every=st.sampled_from([1, 16]), block=st.sampled_from([1, 4, 16]))
+def test_culling_the_runs_a_move_cannot_cut_changes_nothing(blocks, again, part, budget, every, block):
+    """Whatever the batches, the tops' staleness and their blocks: the stock, what each move met and
+    removed are the unculled cut's (a program run twice: runs of its second pass are culled)."""
+    moves = program(blocks + blocks if again else blocks, start=(20, 10, 5))
+    tri = LOW_PART if part == "low" else SLOPED
+    with mock.patch.object(stock, "_PAIR_BUDGET", budget), mock.patch.object(stock, "_SPAN_TOPS_EVERY", every), \
+            mock.patch.object(stock._SpanTops, "_BLOCK", block):
+        assert_identical(_cut(moves, tri, cull=True), _cut(moves, tri, cull=False))
+
+
+def _finishing_twice():
+    """A ball finishing pass at one height over the sloped part, then the same pass again: the second cuts nothing."""
+    rows = [(C, 2, (x, y, -1.5)) for y in np.arange(2.0, 18.0, 1.0) for x in (2.0, 38.0)]
+    return program([(R, 2, (2.0, 2.0, 5.0))] + rows + [(R, 2, (38.0, 18.0, 5.0)), (R, 2, (2.0, 2.0, 5.0))] + rows,
+                   start=(20, 10, 5))
+
+
+def test_the_cull_drops_pairs_and_a_wrong_bound_is_caught():
+    """The test above can fail: the cull does drop pairs here, and tops that claim the stock lower than it
+    is (so runs it does cut are dropped) change the cut."""
+    moves = _finishing_twice()
+    counted = []
+    real = cadcam.envelope.grid_pairs
+
+    def counting(seg, grid, above=None):
+        out = real(seg, grid, above)
+        if above is not None:  # the cutter's pairs (the shank's are never culled)
+            counted.append(len(out[0]))
+        return out
+
+    with mock.patch.object(stock, "_PAIR_BUDGET", 300), mock.patch.object(stock, "_SPAN_TOPS_EVERY", 1):
+        with mock.patch.object(stock, "grid_pairs", counting):
+            culled = _cut(moves, SLOPED, cull=True)
+            n_culled, counted[:] = sum(counted), []
+            whole = _cut(moves, SLOPED, cull=False)
+            n_whole = sum(counted)
+        assert_identical(culled, whole)
+        assert n_culled < 0.85 * n_whole, (n_culled, n_whole)  # runs of the second pass are dropped
+        with mock.patch.object(stock._SpanTops, "above", lambda self, row, first, count: np.full(len(row), -np.inf)):
+            wrong = _cut(moves, SLOPED, cull=True)
+    assert not np.array_equal(wrong["stock_top"], whole["stock_top"])
