@@ -98,6 +98,11 @@ def assert_ramp_holds(c: np.ndarray, rise: float) -> None:
 @example(([(0.0, 0.0, 0.0), (0.001, 0.0, -5.0), (0.0, 1.0, 0.0)], False, 1.0))  # a drop nearly straight down
 @example(([(0.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 1.0, 0.0)], True, 1.0))  # a loop stepping straight down
 @example(([(0.0, 0.0, -1.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0)], False, 1.0))  # one climbing straight to the top
+# Found by an explore run (2026-11-27): a repeated start before the climb, and drops over 1e-9 to 1e-8 mm sideways,
+# where the chain's height at the meeting point is ill-conditioned.
+@example(([(1.0, 0.0, -1.0), (1.0, 0.0, -1.0), (1.0, 0.0, 0.0), (0.0, 0.0, 0.0)], False, 1.0))
+@example(([(0.0, 0.0, 0.0), (0.0, 1e-09, -1.0), (0.0, 1.0, -1.0)], False, 1.0))
+@example(([(0.0, 1.0, -3.875), (0.0, 0.0, -3.0), (0.0, 1.3687929638389273e-08, 0.0)], False, 1.0))
 def test_ramp_falls_no_steeper_than_the_angle_and_cuts_the_whole_chain(drawn):
     pts, closed, rise = drawn
     c = np.array(pts, dtype=float)
