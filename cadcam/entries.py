@@ -4,9 +4,10 @@ A finishing chain (a waterline loop, a raster line) whose first point lies below
 earlier operation left is not entered by feeding straight down: the tool would plunge through
 the stock with its centre, where a ball or flat end mill does not cut well (issue 32: entries by
 helix or ramp of at most :data:`RAMP_ANGLE`, never a plunge). The tool instead starts on the
-stock's top above the chain's first point and descends along the chain itself at the ramp angle,
-following the chain once the slope meets it. A closed loop is then cut once round from there; an
-open chain's ramped stretch is cut back to its start and the chain cut as before. The ramp is cut
+stock's top above the chain's first point and descends along the chain itself at the ramp angle
+against the horizontal (out and back where the chain falls away under it), following the chain
+once the slope meets it. A closed loop is then cut once round from there; an open chain's ramped
+stretch is cut back to its start and the chain cut as before. The ramp is cut
 at the chain's feed, not the plunge feed: it takes the same finishing skin, at most
 :data:`RAMP_ANGLE` deeper per millimetre, so its chip is no thicker than the chain's own.
 
@@ -79,42 +80,76 @@ def ramp_entries(chains: list[np.ndarray], stock: Simulation | None, tool: Tool,
 
 
 def _ramped(c: np.ndarray, z_top: float, tan: float) -> tuple[np.ndarray, int]:
-    """Chain ``c`` entered from ``z_top`` down a slope ``tan`` along itself; (chain, ramp moves)."""
+    """Chain ``c`` entered from ``z_top`` down a slope ``tan`` along itself; (chain, ramp moves).
+
+    The ramp's own height falls ``tan`` per millimetre walked sideways, whatever the chain under it
+    does. A ramp that kept its height over the chain instead would copy the chain's drops: a raster
+    stepping straight down off a wall's edge became a straight descent through stock, and on the
+    dome 123 of 146 ramps fell steeper than the angle, up to 32 deg.
+
+    The ramp walks out along the chain (round a loop, back and forth along an open chain shorter
+    than the ramp) as far as a ramp on a level chain would, ``(z_top - c[0, 2]) / tan``, and back
+    the way it came: where the chain falls away under it, it meets the chain on the way back, by
+    the chain's start at the latest. A loop is then cut once round from where the ramp met it, in
+    its own direction; an open chain is cut from the meeting point back to its start along the
+    ramp's way, and then from its start as before.
+    """
     closed = bool(np.allclose(c[0], c[-1]))
     seg = np.linalg.norm(np.diff(c[:, :2], axis=0), axis=1)
     length = float(seg.sum())
-    if length < 1e-9:  # a chain that goes nowhere sideways cannot be ramped along
-        return c, 0
     rise = z_top - float(c[0, 2])
-    need = rise / tan  # how far along the chain the ramp runs
+    if length < 1e-9 or rise <= 0:  # a chain that goes nowhere sideways cannot be ramped along
+        return c, 0
+    need = rise / tan  # how far the ramp runs on a level chain
     laps = int(math.ceil(need / length)) + 1
-    if closed:
-        walk = np.vstack([c] + [c[1:]] * laps)
+    m = len(c) - 1
+    if closed:  # round and round: c[m] is c[0]
+        idx = np.concatenate([np.arange(m + 1)] + [np.arange(1, m + 1)] * laps)
     else:  # back and forth along the chain
-        there, back = c, c[::-1]
-        walk = np.vstack([c] + [(back if k % 2 == 0 else there)[1:] for k in range(laps)])
+        there, back = np.arange(m + 1), np.arange(m, -1, -1)
+        idx = np.concatenate([there] + [(back if k % 2 == 0 else there)[1:] for k in range(laps)])
+    walk = c[idx]
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(walk[:, :2], axis=0), axis=1))])
-    i = int(np.searchsorted(s, need, side="right"))  # walked points 0..i-1 lie before the meet
-    meet = _at(walk, s, need)
-    # The ramp's height over the chain falls at the ramp angle: on a chain that itself falls (a
-    # raster down a slope) the tool goes down into the stock no steeper than the angle.
-    down = walk[:i].copy()
-    down[:, 2] += rise - s[:i] * tan
+    j = int(np.argmax(s >= need))  # out to the first walked point a level ramp's length along, then back
+    way = np.concatenate([np.arange(j + 1), np.arange(j - 1, -1, -1)])
+    along_way = np.concatenate([s[:j + 1], 2.0 * s[j] - s[j - 1::-1]])
+    slope = float(c[0, 2]) + (rise - along_way * tan)  # the ramp's height over each point of its way
+    # Back at the chain's start the slope is ``rise`` under it: the ramp has met the chain by then.
+    i = int(np.argmax(slope <= walk[way, 2]))  # points 0..i-1 of the way lie under the ramp, before the meet
+    meet, along = _meet(walk[way[i - 1]], walk[way[i]], along_way[i - 1], along_way[i], float(c[0, 2]), rise, tan)
+    down = walk[way[:i]]
+    down[:, 2] = slope[:i]
     ramp = np.vstack([down, meet])
     if closed:
-        # Once round the loop from where the ramp meets it: the walk repeats every ring.
-        ahead = walk[i:][s[i:] < need + length - 1e-9]
-        end = _at(walk, s, need + length)
-        rest = np.vstack([ahead, end])
+        # Once round the loop from where the ramp meets it, in the loop's own direction.
+        a, b = idx[way[i - 1]], idx[way[i]]
+        lo = min(a, b) if abs(a - b) == 1 else 0  # c[m] to c[1] is the loop's first segment
+        end = meet
+        if i <= j and s[i] > s[i - 1]:  # met on the way out: where the walk's next ring passes it
+            end = np.array([np.interp(along + length, s[i - 1 + m:i + 1 + m], walk[i - 1 + m:i + 1 + m, k])
+                            for k in range(3)])
+        rest = np.vstack([c[lo + 1:], c[1:lo + 1], end])
     else:
-        # Back over the ramped stretch at the chain's height, then the chain from its start.
-        rest = np.vstack([walk[:i][::-1], c[1:]])
+        # Back to the start along the ramp's way at the chain's height, then the chain from its start.
+        rest = np.vstack([walk[way[:i]][::-1] if i <= j else walk[way[i:]], c[1:]])
     out = np.vstack([ramp, rest])
     # A slope meeting the chain on a walked point repeats it: no zero-length moves.
     keep = np.concatenate([[True], np.linalg.norm(np.diff(out, axis=0), axis=1) > 1e-9])
     return out[keep], int(keep[:len(ramp)].sum()) - 1
 
 
-def _at(walk: np.ndarray, s: np.ndarray, where: float) -> np.ndarray:
-    """The walked point ``where`` [mm] along the walk (``s`` its cumulative lengths)."""
-    return np.array([np.interp(where, s, walk[:, k]) for k in range(3)])
+def _meet(a: np.ndarray, b: np.ndarray, sa: float, sb: float, base: float, rise: float, tan: float
+          ) -> tuple[np.ndarray, float]:
+    """Where the slope ``base + rise - s * tan`` meets the walked move ``a``-``b`` (at ``sa``-``sb`` [mm] along
+    the walk), which it enters above and leaves on or under; (the point, how far along the walk [mm])."""
+    if sb == sa:  # a move straight up or down: the slope meets it at its own height there
+        return np.array([b[0], b[1], base + (rise - sa * tan)]), sa
+    # Both are straight in s: slope(s) - base = rise - s tan, chain(s) - base = h + k (s - sa). Heights are
+    # taken over ``base`` so that on a level chain (h = k = 0) the meet is rise / tan exactly.
+    h = a[2] - base
+    k = (b[2] - a[2]) / (sb - sa)
+    along = (rise - h + k * sa) / (tan + k)
+    x, y, z = (np.interp(along, [sa, sb], [a[j], b[j]]) for j in range(3))
+    if abs(k) > 1.0:  # on a move steeper than 45 deg the slope's height there is the better conditioned
+        z = base + (rise - along * tan)
+    return np.array([x, y, z]), along
