@@ -150,8 +150,8 @@ class Fault:
         rapid whose cutter (its full footprint) meets stock; ``holder`` the shank or holder
         meets the stock or the part; ``flute`` a cut engaged deeper than the flute length;
         ``full_width`` a cut at full width (:attr:`VerifyOptions.full_width_angle`) deeper than
-        the tool's axial limit (:attr:`cadcam.model.Tool.full_width_limit`); ``radial`` a cut deeper
-        than that limit and radially wider than the tool's radial limit for such cuts
+        the tool's axial limit (:attr:`cadcam.model.Tool.full_width_limit`); ``radial`` a side cut
+        (not at full width) deeper than that limit and radially wider than the tool's radial limit
         (:attr:`cadcam.model.Tool.deep_radial_limit`, the library's ``radial_limit``); ``buried`` a
         finishing tool engaged deeper than :attr:`VerifyOptions.finish_depth`;
         ``drill_side`` a drill fed sideways through stock (a drill's only engagement is
@@ -682,9 +682,13 @@ def _judge(seg: Segments, stats: MoveRecord, measured: _Measured, moves: Program
                       else tools[t].full_width_limit for t in tool.tolist()], dtype=np.float64)
     radial = np.array([np.inf if t not in tools or tools[t].is_drill else tools[t].deep_radial_limit
                        for t in tool.tolist()], dtype=np.float64)
-    # Deeper than the full-width limit a cut must be a side cut within the tool's radial limit (a grid cell of
-    # slack on both, as for full width).
-    deep_wide = ~seg.rapid & (stats.depth > axial + measured.cell) & (measured.width > radial + measured.cell)
+    # Deeper than the full-width limit a move across the stock must be a side cut within the tool's radial limit
+    # (a grid cell of slack on both, as for full width); one at full width that deep is a ``full_width`` fault
+    # already, and a move straight down has no side cut to judge (its width is the crescent it bores).
+    too_deep_slot = ~seg.rapid & (measured.full_depth > axial + measured.cell)
+    across = np.hypot(seg.dx, seg.dy) > measured.cell
+    deep_wide = (~seg.rapid & ~too_deep_slot & across & (stats.depth > axial + measured.cell)
+                 & (measured.width > radial + measured.cell))
     # A drill only cuts along its axis: any feed move across the stock breaks it.
     drill = np.array([t in tools and tools[t].is_drill for t in tool.tolist()], dtype=bool)
     sideways = drill & ~seg.rapid & (seg.l2 > 1e-12) & (stats.removed_max > options.gouge_tolerance)
@@ -696,7 +700,7 @@ def _judge(seg: Segments, stats: MoveRecord, measured: _Measured, moves: Program
         ("flute", ~seg.rapid & (stats.depth > flute + options.contact_tolerance), stats.depth, stats.depth_cell,
          flute, "T{t} engaged {w:.2f} mm deep, beyond its {l:g} mm flutes"),
         # The grid's own step is no depth: a cut within a cell of the limit is taken as at it.
-        ("full_width", ~seg.rapid & (measured.full_depth > axial + measured.cell), measured.full_depth, _FINE,
+        ("full_width", too_deep_slot, measured.full_depth, _FINE,
          axial, "T{t} cuts {w:.2f} mm deep at full width near X{x:.1f} Y{y:.1f} Z{z:.1f}, beyond its "
          "{l:g} mm axial limit"),
         ("radial", deep_wide, measured.width, stats.depth_cell, radial,
