@@ -21,12 +21,11 @@ It makes the program a machinist makes in the Path workbench (issue 32's peer):
    for each flat facing up below the stock top, and for ``floor_z``, one Adaptive "Outside" the
    part's section just above that level, from the level above down to the level plus the
    allowance (where no part is above the level, around a speck beside the stock: a face pass).
-2. **A face pass** (MillFace at its defaults: 50 % stepover, zigzag at 45 degrees) over each
-   height of flats, "Face Region" (inside the flats' own outline) excluding raised areas (without,
-   it faces over the bosses inside a flat), one pass at their height.
-3. **Wall profiles** (Profile at its defaults: outside, climb, step-down = the tool diameter) of
-   each level's section, its outline and its holes (pockets and bores), from the level above
-   down to the level.
+2. **A face pass** over each height of flats, inside the flats' own outline and round the raised
+   areas inside them, one pass at their height, at MillFace's default 50 % stepover (zigzag at 45
+   degrees), made by Pocket Shape (:func:`face_pass` says why not MillFace).
+3. **Wall profiles**: the part's contour (Profile at its defaults: outside, climb, step-down = the
+   tool diameter) from the stock top down to op 1's floor; not the inner walls (:func:`profile`).
 4. **A 3D surface** (Surface, OpenCAMLib's drop-cutter) with the ball over the model, kept to the
    box of its freeform faces (neither flat nor vertical) grown by the ball's radius by FreeCAD's
    Boundary dressup, at ``ball_stepover`` and FreeCAD's other defaults (lines along X, 1 mm sample
@@ -51,7 +50,7 @@ import Mesh  # noqa: E402
 import Part  # noqa: E402
 import PathScripts.PathAdaptive as PathAdaptive  # noqa: E402
 import PathScripts.PathJob as PathJob  # noqa: E402
-import PathScripts.PathMillFace as PathMillFace  # noqa: E402
+import PathScripts.PathPocketShape as PathPocketShape  # noqa: E402
 import PathScripts.PathProfile as PathProfile  # noqa: E402
 import PathScripts.PathStock as PathStock  # noqa: E402
 import PathScripts.PathToolBit as PathToolBit  # noqa: E402
@@ -129,7 +128,7 @@ def set_depths(op, **depths):
 
 
 def section(k, z):
-    """The part's section just above ``z``: the face an Adaptive clears outside of and a Profile follows.
+    """The part's section just above ``z``: the face an Adaptive clears outside of.
 
     A part machinable from above is nowhere wider than just above a level, so the section keeps
     the tool out of the part down to the level.
@@ -158,23 +157,31 @@ def adaptive(k, start_z, final_z, cut):
     return op
 
 
-def profile(k, start_z, final_z, cut):
-    """Profile of ``cut``'s outline and holes (a section's walls) from ``start_z`` down to ``final_z``."""
-    op = created(PathProfile, f"Profile{k}", args["finish"])
-    op.Base = [(cut, [f"Face{i + 1}" for i in range(len(cut.Shape.Faces))])]
-    op.processHoles = True
-    op.processCircles = True
-    set_depths(op, StartDepth=start_z, FinalDepth=final_z)
+def profile():
+    """The part's contour (Profile with no base geometry: outside the model's silhouette) from the stock top down
+    to op 1's floor.
+
+    Profiles of each level's section, the walls between the flats too, cut into the part on stepped_wall
+    (FreeCAD 0.20 offsets one of its two loops inward, 16 mm into the upper step), so only the outer walls are
+    profiled: the inner ones keep the Adaptive's allowance, which makes FreeCAD's program shorter than a
+    finished part's, not longer.
+    """
+    op = created(PathProfile, "Profile", args["finish"])
+    set_depths(op, StartDepth=top, FinalDepth=levels[-1])
     return op
 
 
 def face_pass(k, z, group):
-    """MillFace over the flats ``group`` at height ``z``, inside their own outline, one pass."""
-    op = created(PathMillFace, f"Face{k}", args["finish"])
+    """A face pass over the flats ``group`` at height ``z``, inside their own outline and round the raised areas
+    inside them, one pass at MillFace's default 50 % stepover.
+
+    Made with Pocket Shape on the flats: MillFace's "Face Region" faces over the bosses inside a flat (a
+    20 mm gouge on stepped_wall) unless ExcludeRaisedAreas is set, and with it set FreeCAD 0.20 makes no path
+    on these solids ("shape is not planar"). A pocket of a flat keeps its raised areas as islands.
+    """
+    op = created(PathPocketShape, f"Face{k}", args["finish"])
     op.Base = [(model, [f"Face{faces.index(f) + 1}" for f in group])]
-    op.BoundaryShape = "Face Region"
-    # Raised areas inside a flat are holes in its face, which the region would face over otherwise.
-    op.ExcludeRaisedAreas = True
+    op.StepOver = 50
     set_depths(op, StartDepth=z, FinalDepth=z)
     return op
 
@@ -212,7 +219,7 @@ groups = {
     "adaptive": [adaptive(k, start, z, cut) for k, ((start, z), cut) in enumerate(zip(bands, cuts))],
     "face": [face_pass(k, z, [f for f in flats if abs(f.BoundBox.ZMax - z) < 1e-3])
              for k, z in enumerate(levels) if any(abs(f.BoundBox.ZMax - z) < 1e-3 for f in flats)],
-    "profile": [profile(k, start, z, cut) for k, ((start, z), cut) in enumerate(zip(bands, cuts)) if cut.Shape.Area > 1.0],
+    "profile": [profile()],
 }
 freeform, posted_as = 0, {}
 if args.get("ball") is not None:

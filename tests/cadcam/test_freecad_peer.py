@@ -115,3 +115,8 @@ def test_the_peer_takes_our_op_1s_tools_for_each_of_its_operations():
     assert 0.3 < peer.ball_stepover < 0.6  # a 6 mm ball at 0.01 mm scallop
     bare = freecad_peer.peer_tools(Job("p", setup, (op("roughing", 2),)))
     assert bare.finish is bare.rough and bare.ball is None and bare.ball_stepover == 0.0
+
+
+def test_a_group_freecad_made_no_path_for_takes_no_time():
+    assert freecad_peer.group_minutes("(begin operation: Face0)\nG0 Z5.000\n") == 0.0
+    assert freecad_peer.group_minutes(FREECAD_STYLE) == freecad_peer.program_minutes(FREECAD_STYLE)
