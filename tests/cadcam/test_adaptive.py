@@ -193,7 +193,7 @@ def test_the_tools_own_engagement_is_held():
     takes in one 1.7 mm lap is cut in narrower passes, none past the tool's own 1.2 mm."""
     part = box(2, 2, 102, 62).buffer(-3).buffer(3, quad_segs=32)
     narrow = tool(10.0, engagement=0.08, radial_limit=0.12)
-    ae = assert_deep_cut_holds(part, box(0, 0, 104, 64), 10.0, narrow)
+    ae = assert_deep_cut_holds(part, box(0, 0, 104, 64), 10.0, t=narrow)
     assert ae is not None, "the engine refused the plainest skin"
     assert ae <= 1.2 + 0.1 and held_to(narrow) == pytest.approx(1.2)
 
