@@ -36,7 +36,7 @@ from factory.plan import PlanRequest, plan_part  # noqa: E402
 
 def lower_bound(path: Path, tool_number: int = 2) -> float:
     """A feature-aware lower bound of both operations [min]: the stock's volume less the part's removed at the
-    best rate the library's 10 mm end mill (T2) has in aluminium, a side cut at the target engagement
+    best rate the library's 10 mm end mill (T2) has in aluminium, a side cut at its library target engagement
     (0.15 D) two diameters deep at its chip-thinned feed, plus the part's upward flats faced once at 70 %
     stepover and its walls' outline taken once at the tool's feed. No tool change, rapid or entry is
     counted, nor the ball on freeform surfaces, so every real program takes longer."""
@@ -45,7 +45,7 @@ def lower_bound(path: Path, tool_number: int = 2) -> float:
     tool = library.tool(tool_number)
     cutting = library.cutting_data(tool, setup.material)
     options = AdaptiveOptions()
-    ae = options.engagement * tool.diameter
+    ae = options.target(tool)  # the tool's own target (fixtures/tools.yaml)
     feed = chip_thinned_feed(cutting, tool, ae, library.max_feed).feed
     rate = ae * min(options.axial_depth * tool.diameter, float(tool.flute_length)) * feed  # [mm³/min]
     size = setup.stock_max - setup.stock_min

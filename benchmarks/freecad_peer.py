@@ -1,14 +1,20 @@
-"""Our op 1 against FreeCAD 0.20's Adaptive clearing (issue 32, item 4): same tools, feeds and timer.
+"""Our op 1 against FreeCAD 0.20's whole program (issue 32, item 4): same tools, feeds and timer.
 
     python benchmarks/freecad_peer.py [PART.stl ...] [--cell 0.5] [--keep DIR] [--timeout 900]
 
 For each part (default: the four samples but the relief) op 1 is planned as
 ``factory plan --no-robot --ops 1`` plans it (:func:`cadcam.plan.plan_job`, tools from
-fixtures/tools.yaml) and posted for LinuxCNC. FreeCAD's Path workbench then clears the same
-stock with op 1's roughing tool, its spindle speed, feed and plunge feed, by Adaptive at its
-defaults (20 % stepover, helix entry at 5 degrees, no lift on links, step-down = the tool
-diameter), level by level down to op 1's floor (benchmarks/freecad_peer_job.py, run headless
-by Debian's ``freecadcmd``), and posted by FreeCAD's LinuxCNC post.
+fixtures/tools.yaml) and posted for LinuxCNC. FreeCAD's Path workbench (run headless by Debian's
+``freecadcmd``, benchmarks/freecad_peer_job.py) then makes the issue's program for the same stock
+with op 1's tools, spindle speeds, feeds and plunge feeds (:func:`peer_tools`): Adaptive clearing
+with our roughing tool at its defaults (20 % stepover, helix at 5 degrees, no lift on links,
+step-down = the tool diameter), level by level down to op 1's floor, leaving our roughing's
+allowance; a face pass over the flats and a profile of the part's contour (not its inner walls:
+benchmarks/freecad_peer_job.py says why) with our first flats-and-walls finishing tool; and, where our op 1 finishes freeform with a ball, a 3D surface (drop-cutter)
+with that ball at our raster's stepover. On such parts (the dome) it also makes the program
+"made safe" (the issue's target compares against it): the Adaptive lifts :data:`SAFE_LIFT_MM`
+on its links and the surface goes down in layers :data:`SAFE_BALL_STEPDOWN_MM` apart. FreeCAD's
+LinuxCNC post writes the programs.
 
 Both programs are timed by our program timer, the one the plan's cycle time is
 (:func:`program_minutes`: :func:`cadcam.gcode.parse_gcode`, then
@@ -20,19 +26,22 @@ tests' independent sweep (tests/cadcam/sweep.py) for plunges, vertical feed move
 FreeCAD's other entries are its helices at 5 degrees, steeper than the 3 the issue allows.
 
 Prints one JSON line per part and a last ``{"summary": ...}`` line. ``ratio`` is our op 1 over
-FreeCAD's program (issue 32 asks for at most 0.8). FreeCAD's programs only rough:
-``ours_rough_min`` is the part of our op 1 that roughs (holes bored or drilled, roughing and
-rest roughing) and ``rough_ratio`` that part over FreeCAD's. ``--keep DIR`` writes both
-programs there (``PART.ngc`` FreeCAD's, ``PART.nc`` ours). Installs nothing: without
-``freecadcmd`` on the PATH it prints one line and exits 0.
-
-The issue's "feature-aware lower bound" is not reported: no function in the repository
-computes it yet.
+FreeCAD's program, ``ratio_safe`` over the one made safe (issue 32 asks for at most 0.8);
+``freecad.groups_min`` times each group of FreeCAD's operations posted on its own (no tool
+change between groups), ``rough_ratio`` is the part of our op 1 that roughs (holes bored or
+drilled, roughing and rest roughing) over FreeCAD's Adaptive. ``bound_min`` is
+:func:`benchmarks.adaptive.lower_bound`, the feature-aware lower bound of BOTH operations (stock
+removed at T2's adaptive rate, flats at 70 % stepover, the walls' outline once; no ball, bores,
+rapids or tool changes), and ``ours_bound_ratio``/``freecad_bound_ratio`` op 1 over it.
+``--keep DIR`` writes the programs there. Installs nothing: without ``freecadcmd`` on the PATH it
+prints one line and exits 0; a part whose surface needs OpenCAMLib (the ``bench`` extra) and
+does not find it is reported as failed.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import shutil
@@ -40,6 +49,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -47,15 +57,18 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.adaptive import lower_bound  # noqa: E402
+from cadcam.finishing import stepover_for  # noqa: E402
 from cadcam.gcode import parse_gcode  # noqa: E402
 from cadcam.mesh import load_part  # noqa: E402
-from cadcam.model import Motion, ProgramMoves, Setup, Tool  # noqa: E402
-from cadcam.plan import plan_job  # noqa: E402
+from cadcam.model import Motion, Operation, ProgramMoves, Setup, Tool  # noqa: E402
+from cadcam.plan import PlanOptions, plan_job  # noqa: E402
 from cadcam.post import PostOptions, post_process  # noqa: E402
 from cadcam.setup import make_setup  # noqa: E402
 from cadcam.timeline import machine_timeline  # noqa: E402
 from cadcam.tools import load_tool_library  # noqa: E402
 from cadcam.verify import VerifyOptions, simulate  # noqa: E402
+from factory.core.errors import GcodeError  # noqa: E402
 from tests.cadcam.sweep import sweep_moves  # noqa: E402
 
 #: The relief is left out: ``factory plan`` plans it inside its boundary (:mod:`cadcam.relief`),
@@ -78,6 +91,15 @@ def program_minutes(text: str, options: PostOptions = PostOptions()) -> float:
     """
     timeline = machine_timeline(parse_gcode(text), options)
     return float(timeline.end[-1]) / 60.0
+
+
+def group_minutes(text: str) -> float:
+    """:func:`program_minutes` of one group of FreeCAD's operations posted on its own; 0 for a group FreeCAD made
+    no path for (its program never moves across, so the timer has no position to start from)."""
+    try:
+        return program_minutes(text)
+    except GcodeError:
+        return 0.0
 
 
 def plunges(moves: ProgramMoves, engagement: np.ndarray, tools: dict[int, Tool]) -> int:
@@ -112,25 +134,71 @@ def judge(text: str, tools: dict[int, Tool], setup: Setup, triangles: np.ndarray
     }
 
 
-def freecad_program(freecad: str, triangles: np.ndarray, setup: Setup, rough, folder: Path,
-                    timeout: float) -> tuple[str, dict]:
-    """FreeCAD's Adaptive program for the part with our roughing operation's tool and cutting data.
+#: The peer "made safe" (issue 32, on parts with freeform, where FreeCAD's ball cuts deep): the Adaptive lifts
+#: this much on its links inside cleared stock (FreeCAD's ``LiftDistance``, 0 by default) [mm], and the 3D
+#: surface goes down in layers this far apart ("Multi-pass"), so the ball never takes more [mm].
+SAFE_LIFT_MM = 1.0
+SAFE_BALL_STEPDOWN_MM = 1.0
+#: The FreeCAD program's groups of operations (benchmarks/freecad_peer_job.py posts each on its own too).
+GROUPS = ("adaptive", "face", "profile", "surface")
 
-    ``timeout`` [s] for ``freecadcmd``; RuntimeError when it fails or runs out of time.
+
+def opencamlib_folder() -> str | None:
+    """The folder of OpenCAMLib's ``ocl`` module (PyPI ``opencamlib``, the ``bench`` extra), which FreeCAD's
+    3D surface imports; None when it is not installed."""
+    spec = importlib.util.find_spec("opencamlib")
+    return None if spec is None or spec.origin is None else str(Path(spec.origin).parent)
+
+
+@dataclass(frozen=True)
+class PeerTools:
+    """Which of our op 1's tools FreeCAD's operations use, with their cutting data and stock left."""
+
+    rough: Operation  # our first roughing operation: tool and cutting data of the Adaptive
+    finish: Operation  # our first flats-and-walls finish (else the roughing): the face pass and profiles
+    ball: Operation | None  # our first ball finish on freeform: the 3D surface; None: no surface
+    ball_stepover: float  # our freeform raster's stepover [mm] (0 without a ball)
+
+
+def peer_tools(job) -> PeerTools:
+    """The operations of our op 1 whose tools and cutting data FreeCAD's program takes."""
+    rough = next(op for op in job.operations if op.kind == "roughing")
+    finish = next((op for op in job.operations if op.kind == "finishing"), rough)
+    ball = next((op for op in job.operations if op.kind in ("raster", "waterline") and op.tool.shape == "ball"), None)
+    scallop = PlanOptions().freeform_scallop
+    stepover = stepover_for(ball.tool, scallop) if ball is not None and scallop is not None else 0.0
+    return PeerTools(rough, finish, ball, stepover)
+
+
+def freecad_program(freecad: str, triangles: np.ndarray, setup: Setup, peer: PeerTools, folder: Path,
+                    timeout: float, safe: bool = False) -> tuple[dict[str, str], dict]:
+    """FreeCAD's program for the part with our op 1's tools and cutting data (benchmarks/freecad_peer_job.py).
+
+    Returns the posted programs, the whole one under ``"all"`` and each group of operations under its
+    name (:data:`GROUPS`), and the job's own report. ``safe``: the variant made safe (:data:`SAFE_LIFT_MM`,
+    :data:`SAFE_BALL_STEPDOWN_MM`). ``timeout`` [s] for ``freecadcmd``; RuntimeError when it fails or
+    runs out of time, or when the surface needs OpenCAMLib and it is not installed.
     """
     import trimesh
 
+    ocl = opencamlib_folder()
+    if peer.ball is not None and ocl is None:
+        raise RuntimeError("FreeCAD's 3D surface needs OpenCAMLib: pip install '.[bench]'")
     stl, gcode = folder / "part.stl", folder / "freecad.ngc"
     mesh = trimesh.Trimesh(**trimesh.triangles.to_kwargs(triangles))
     mesh.merge_vertices()
     mesh.export(stl)
-    tool = rough.tool
+    ops = [op for op in (peer.rough, peer.finish, peer.ball) if op is not None]
+    tools = {op.tool.number: {"number": op.tool.number, "diameter": op.tool.diameter,
+                              "flute_length": op.tool.flute_length, "length": op.tool.length,
+                              "spindle_rpm": op.cutting.spindle_rpm, "feed": op.cutting.feed,
+                              "plunge_feed": op.cutting.plunge_feed} for op in reversed(ops)}
     job = {"stl": str(stl), "gcode": str(gcode), "stock_min": [float(v) for v in setup.stock_min],
            "stock_max": [float(v) for v in setup.stock_max], "floor_z": float(setup.floor_z),
-           "tool": {"number": tool.number, "diameter": tool.diameter, "flute_length": tool.flute_length,
-                    "length": tool.length},
-           "spindle_rpm": rough.cutting.spindle_rpm, "feed": rough.cutting.feed,
-           "plunge_feed": rough.cutting.plunge_feed}
+           "tools": list(tools.values()), "rough": peer.rough.tool.number, "finish": peer.finish.tool.number,
+           "ball": None if peer.ball is None else peer.ball.tool.number, "allowance": peer.rough.allowance,
+           "ball_stepover": peer.ball_stepover, "ocl": ocl,
+           "lift": SAFE_LIFT_MM if safe else 0.0, "ball_stepdown": SAFE_BALL_STEPDOWN_MM if safe else None}
     try:
         run = subprocess.run([freecad, str(JOB_SCRIPT)], env={**os.environ, "FACTORY_PEER_JOB": json.dumps(job)},
                              capture_output=True, text=True, cwd=folder, timeout=timeout)
@@ -140,57 +208,85 @@ def freecad_program(freecad: str, triangles: np.ndarray, setup: Setup, rough, fo
     if run.returncode != 0 or not last or not gcode.exists():
         tail = (run.stdout + run.stderr).strip().splitlines()[-3:]
         raise RuntimeError(f"freecadcmd failed: {' | '.join(tail)}")
-    return gcode.read_text(), json.loads(last[-1])
+    texts = {"all": gcode.read_text()}
+    for name in GROUPS:
+        part = gcode.with_suffix(f".{name}.ngc")
+        if part.exists():
+            texts[name] = part.read_text()
+    return texts, json.loads(last[-1])
+
+
+def peer_row(freecad: str, triangles: np.ndarray, setup: Setup, peer: PeerTools, tools: dict[int, Tool],
+             cell: float, timeout: float, safe: bool, keep: Path | None, stem: str) -> dict:
+    """FreeCAD's program for one part timed by our timer (whole and per group [min]) and judged."""
+    with tempfile.TemporaryDirectory(prefix="freecad_peer_") as tmp:
+        t0 = time.perf_counter()
+        texts, made = freecad_program(freecad, triangles, setup, peer, Path(tmp), timeout, safe)
+        seconds = time.perf_counter() - t0
+    if keep is not None:
+        keep.mkdir(parents=True, exist_ok=True)
+        (keep / f"{stem}{'.safe' if safe else ''}.ngc").write_text(texts["all"])
+    used = {op.tool.number: op.tool for op in (peer.rough, peer.finish, peer.ball) if op is not None}
+    return {
+        "min": round(program_minutes(texts["all"]), 2),
+        "groups_min": {name: round(group_minutes(texts[name]), 2) for name in GROUPS if name in texts},
+        "ops": [f"{o['group']} {o['name']} Z{o['start_z']:g}>{o['final_z']:g}" for o in made["ops"]],
+        "freeform_faces": made["freeform_faces"],
+        "judged": judge(texts["all"], {**tools, **used}, setup, triangles, cell),
+        "seconds": round(seconds, 1),
+    }
 
 
 def bench_part(path: Path, freecad: str, cell: float, keep: Path | None = None, timeout: float = 900.0) -> dict:
     library = load_tool_library()
     setup, part = make_setup(load_part(path).mesh)
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     job = plan_job(part, setup, library, part_name=path.stem).job
-    plan_s = time.perf_counter() - t0
+    plan_cpu = time.process_time() - t0
     setup = job.setup  # a deep part's floor is raised for op 2
     program = post_process(job, PostOptions())
     tools = {t.number: t for t in job.tools}
     triangles = np.asarray(part.triangles, dtype=np.float64)
-    rough = next(op for op in job.operations if op.kind == "roughing")
+    peer = peer_tools(job)
     rough_s = sum(e.cut_time + e.rapid_time for e, op in zip(program.estimates, job.operations)
                   if op.kind in ROUGHING_KINDS)
-    with tempfile.TemporaryDirectory(prefix="freecad_peer_") as tmp:
-        t0 = time.perf_counter()
-        text, made = freecad_program(freecad, triangles, setup, rough, Path(tmp), timeout)
-        freecad_s = time.perf_counter() - t0
     if keep is not None:
         keep.mkdir(parents=True, exist_ok=True)
-        (keep / f"{path.stem}.ngc").write_text(text)
         (keep / f"{path.stem}.nc").write_text(program.text)
+    full = peer_row(freecad, triangles, setup, peer, tools, cell, timeout, False, keep, path.stem)
+    safe = (peer_row(freecad, triangles, setup, peer, tools, cell, timeout, True, keep, path.stem)
+            if peer.ball is not None else None)
     ours_min = program_minutes(program.text)
-    theirs_min = program_minutes(text)
-    return {
+    bound = lower_bound(path)
+    row = {
         "part": path.stem,
-        "tool": f"T{rough.tool.number} {rough.tool.name}",
-        "spindle_rpm": round(rough.cutting.spindle_rpm),
-        "feed_mm_min": round(rough.cutting.feed, 1),
-        "plunge_mm_min": round(rough.cutting.plunge_feed, 1),
+        "tools": {role: f"T{op.tool.number} {op.tool.name}, S{round(op.cutting.spindle_rpm)} F{op.cutting.feed:.0f}"
+                  for role, op in (("adaptive", peer.rough), ("face+profile", peer.finish), ("surface", peer.ball))
+                  if op is not None},
+        "ball_stepover_mm": round(peer.ball_stepover, 3),
         "ours_min": round(ours_min, 2),
         "ours_estimate_min": round(program.total_time / 60.0, 2),
         "ours_rough_min": round(rough_s / 60.0, 2),
-        "freecad_min": round(theirs_min, 2),
-        "ratio": round(ours_min / theirs_min, 2),
-        "rough_ratio": round(rough_s / 60.0 / theirs_min, 2),
-        "freecad_ops": [f"{o['side']} to Z{o['final_z']:g}" for o in made["ops"]],
+        "freecad_min": full["min"],
+        "ratio": round(ours_min / full["min"], 2),
+        "rough_ratio": round(rough_s / 60.0 / full["groups_min"]["adaptive"], 2),
+        "bound_min": round(bound, 2),
+        "ours_bound_ratio": round(ours_min / bound, 2),
+        "freecad_bound_ratio": round(full["min"] / bound, 2),
+        "freecad": full,
         "ours_judged": judge(program.text, tools, setup, triangles, cell),
-        "freecad_judged": judge(text, {rough.tool.number: rough.tool}, setup, triangles, cell),
-        "plan_s": round(plan_s, 1),
-        "freecad_s": round(freecad_s, 1),
+        "plan_cpu_s": round(plan_cpu, 1),
     }
+    if safe is not None:
+        row.update(freecad_safe_min=safe["min"], ratio_safe=round(ours_min / safe["min"], 2), freecad_safe=safe)
+    return row
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("parts", nargs="*", type=Path)
     ap.add_argument("--cell", type=float, default=0.5, help="grid of verify and the sweep [mm]")
-    ap.add_argument("--keep", type=Path, help="folder to write both programs to")
+    ap.add_argument("--keep", type=Path, help="folder to write the programs to (PART.nc ours, PART.ngc and PART.safe.ngc FreeCAD's)")
     ap.add_argument("--timeout", type=float, default=900.0, help="for FreeCAD per part [s]")
     args = ap.parse_args()
     freecad = shutil.which("freecadcmd")
@@ -208,14 +304,15 @@ def main() -> None:
             continue
         rows.append(row)
         print(json.dumps(row), flush=True)
-    ratios = [r["ratio"] for r in rows]
+    ratios = [r.get("ratio_safe", r["ratio"]) for r in rows]
     print(json.dumps({"summary": {
         "parts": len(rows), "failed": failed,
+        # Against the program made safe where there is one (the target's comparison on the dome).
         "ratio_min": min(ratios, default=None), "ratio_max": max(ratios, default=None),
         "ours_min": round(sum(r["ours_min"] for r in rows), 2),
         "freecad_min": round(sum(r["freecad_min"] for r in rows), 2),
-        "freecad_plunges": sum(r["freecad_judged"]["plunges"] for r in rows),
-        "freecad_rapids_in_stock": sum(r["freecad_judged"]["rapids_in_stock"] for r in rows),
+        "freecad_plunges": sum(r["freecad"]["judged"]["plunges"] for r in rows),
+        "freecad_rapids_in_stock": sum(r["freecad"]["judged"]["rapids_in_stock"] for r in rows),
         "ours_plunges": sum(r["ours_judged"]["plunges"] for r in rows),
         "ours_rapids_in_stock": sum(r["ours_judged"]["rapids_in_stock"] for r in rows),
     }}), flush=True)

@@ -1,4 +1,4 @@
-"""FreeCAD 0.20's Adaptive clearing of one part, run inside ``freecadcmd`` by benchmarks/freecad_peer.py.
+"""FreeCAD 0.20's program for one part (issue 32's peer), run inside ``freecadcmd`` by benchmarks/freecad_peer.py.
 
 Not imported by factory: FreeCAD's own Python runs it. Its inputs come as one JSON document in
 the environment variable ``FACTORY_PEER_JOB`` (``freecadcmd`` takes every argument for a file
@@ -6,35 +6,61 @@ to open):
 
     {"stl": part in work coordinates [mm], "gcode": where to write the posted program,
      "stock_min": [x, y, z], "stock_max": [x, y, z], "floor_z": lowest Z op 1 cuts to [mm],
-     "tool": {"number", "diameter", "flute_length", "length"} [mm],
-     "spindle_rpm", "feed", "plunge_feed" [rev/min, mm/min]}
+     "tools": [{"number", "diameter", "flute_length", "length" [mm],
+                "spindle_rpm", "feed", "plunge_feed" [rev/min, mm/min]}, ...],
+     "rough": tool number of the Adaptive, "finish": of the face pass and the wall profiles,
+     "ball": of the 3D surface or null (no surface), "allowance": stock the Adaptive leaves [mm],
+     "ball_stepover": the surface's stepover [mm], "ocl": folder holding OpenCAMLib's ``ocl``
+     module or null, "lift": the Adaptive's lift on links [mm] (0: FreeCAD's default, no lift),
+     "ball_stepdown": the surface's layers [mm] or null (FreeCAD's default, one pass)}
 
-It makes the job a machinist makes in the Path workbench with the Adaptive operation at its
-defaults (20 % stepover, helix entry at 5 degrees, no lift between passes, step-down = the tool
-diameter), level by level: for each flat facing up below the stock top, and for ``floor_z``, one
-Adaptive "Outside" the part's section just above that level, from the level above down to it
-(where no part is above the level, around a speck beside the stock: a face pass). Then
-FreeCAD's LinuxCNC post writes the program. It prints one JSON line:
-``{"ops": [...], "commands": n, "seconds": wall time of FreeCAD's computation}``.
+It makes the program a machinist makes in the Path workbench (issue 32's peer):
+1. **Adaptive clearing** at FreeCAD's defaults (20 % stepover, helix entry at 5 degrees,
+   KeepToolDownRatio 3, step-down = the tool diameter) but ``lift`` and ``StockToLeave`` (our
+   roughing's allowance, so that the finishing below has something even to cut), level by level:
+   for each flat facing up below the stock top, and for ``floor_z``, one Adaptive "Outside" the
+   part's section just above that level, from the level above down to the level plus the
+   allowance (where no part is above the level, around a speck beside the stock: a face pass).
+2. **A face pass** over each height of flats, inside the flats' own outline and round the raised
+   areas inside them, one pass at their height, at MillFace's default 50 % stepover (zigzag at 45
+   degrees), made by Pocket Shape (:func:`face_pass` says why not MillFace).
+3. **Wall profiles**: the part's contour (Profile at its defaults: outside, climb, step-down = the
+   tool diameter) from the stock top down to op 1's floor; not the inner walls (:func:`profile`).
+4. **A 3D surface** (Surface, OpenCAMLib's drop-cutter) with the ball over the model, kept to the
+   box of its freeform faces (neither flat nor vertical) grown by the ball's radius by FreeCAD's
+   Boundary dressup, at ``ball_stepover`` and FreeCAD's other defaults (lines along X, 1 mm sample
+   interval, one pass; ``ball_stepdown`` makes it "Multi-pass").
+Then FreeCAD's LinuxCNC post writes the program, and each group of operations on its own to
+``gcode`` with ``.adaptive``/``.face``/``.profile``/``.surface`` before the suffix. It prints one
+JSON line: ``{"ops": [...], "commands": n, "seconds": wall time of FreeCAD's computation}``.
 """
 
 import json
 import os
+import sys
 import time
 
-import FreeCAD
-import Mesh
-import Part
-import PathScripts.PathAdaptive as PathAdaptive
-import PathScripts.PathJob as PathJob
-import PathScripts.PathStock as PathStock
-import PathScripts.PathToolBit as PathToolBit
-import PathScripts.PathToolController as PathToolController
-from PathScripts.post import linuxcnc_post
-
-ENDMILL = "/usr/share/freecad/Mod/Path/Tools/Shape/endmill.fcstd"
-
 args = json.loads(os.environ["FACTORY_PEER_JOB"])
+if args.get("ocl"):
+    # PathSurface imports OpenCAMLib as ``ocl``; PyPI's wheel ships that module inside ``opencamlib``.
+    sys.path.insert(0, args["ocl"])
+
+import FreeCAD  # noqa: E402
+import Mesh  # noqa: E402
+import Part  # noqa: E402
+import PathScripts.PathAdaptive as PathAdaptive  # noqa: E402
+import PathScripts.PathJob as PathJob  # noqa: E402
+import PathScripts.PathPocketShape as PathPocketShape  # noqa: E402
+import PathScripts.PathProfile as PathProfile  # noqa: E402
+import PathScripts.PathStock as PathStock  # noqa: E402
+import PathScripts.PathToolBit as PathToolBit  # noqa: E402
+import PathScripts.PathToolController as PathToolController  # noqa: E402
+from PathScripts.post import linuxcnc_post  # noqa: E402
+
+SHAPES = "/usr/share/freecad/Mod/Path/Tools/Shape/"
+#: A face this close to flat (|n_z|) is a flat, this close to vertical a wall; the rest is freeform.
+FLAT, WALL = 0.999, 0.02
+
 t0 = time.perf_counter()
 doc = FreeCAD.newDocument("peer")
 mesh = Mesh.Mesh(args["stl"])
@@ -52,60 +78,179 @@ doc.removeObject(job.Stock.Name)
 job.Stock = PathStock.CreateBox(
     job, FreeCAD.Vector(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]),
     FreeCAD.Placement(FreeCAD.Vector(*lo), FreeCAD.Rotation()))
-tool = args["tool"]
-bit = PathToolBit.Factory.Create(f"T{tool['number']}", ENDMILL)
-bit.Diameter = tool["diameter"]
-bit.CuttingEdgeHeight = tool["flute_length"]
-bit.Length = tool["length"]
-tc = PathToolController.Create(f"TC{tool['number']}", bit, tool["number"], assignViewProvider=False)
-tc.HorizFeed = f"{args['feed']} mm/min"
-tc.VertFeed = f"{args['plunge_feed']} mm/min"
-tc.SpindleSpeed = float(args["spindle_rpm"])
-job.Tools.Group = [tc]
+tools = {t["number"]: t for t in args["tools"]}
+
+
+def controller(number):
+    """FreeCAD's tool controller for one of our tools, with its spindle speed and feeds."""
+    tool = tools[number]
+    ball = number == args.get("ball")
+    bit = PathToolBit.Factory.Create(f"T{number}", SHAPES + ("ballend.fcstd" if ball else "endmill.fcstd"))
+    bit.Diameter = tool["diameter"]
+    bit.CuttingEdgeHeight = tool["flute_length"]
+    bit.Length = tool["length"]
+    tc = PathToolController.Create(f"TC{number}", bit, number, assignViewProvider=False)
+    tc.HorizFeed = f"{tool['feed']} mm/min"
+    tc.VertFeed = f"{tool['plunge_feed']} mm/min"
+    tc.SpindleSpeed = float(tool["spindle_rpm"])
+    return tc
+
+
+controllers = {n: controller(n) for n in {args["rough"], args["finish"], args.get("ball")} - {None}}
+
+
+def created(module, name, number):
+    """An operation of ``module`` (PathAdaptive, ...) with tool ``number``'s controller. Headless, FreeCAD can
+    only default an operation's controller when the job holds one (it would ask the user which), so the job
+    holds just that one while the operation is made; all of them are put back before the recompute."""
+    job.Tools.Group = [controllers[number]]
+    op = module.Create(name, parentJob=job)
+    op.ToolController = controllers[number]
+    return op
+
 model = job.Model.Group[0]
 top = hi[2]
+allowance = float(args["allowance"])
 
 faces = model.Shape.Faces
 bottom = model.Shape.BoundBox.ZMin
+flats = [f for f in faces if f.normalAt(0, 0).z > FLAT and f.BoundBox.ZLength < 1e-3 and f.BoundBox.ZMax < top - 1e-3]
 # Levels: every flat that faces up below the stock top, and op 1's floor.
-levels = {round(f.BoundBox.ZMax, 3) for f in faces
-          if f.normalAt(0, 0).z > 0.999 and f.BoundBox.ZLength < 1e-3 and f.BoundBox.ZMax < top - 1e-3}
-levels = sorted(levels | {round(args["floor_z"], 3)}, reverse=True)
+levels = sorted({round(f.BoundBox.ZMax, 3) for f in flats} | {round(args["floor_z"], 3)}, reverse=True)
+bands = list(zip([top] + levels[:-1], levels))
 
 
-def adaptive(k, start_z, final_z):
-    """Adaptive "Outside" the part's section just above ``final_z``, from ``start_z`` down to it.
-
-    FreeCAD's defaults but the step-down, which it leaves to the job, and the depths, which a
-    machinist sets level by level. A part machinable from above is nowhere wider than just above
-    a level, so the section keeps the tool out of the part; the stock above ``start_z`` there is
-    gone already.
-    """
-    wires = model.Shape.slice(FreeCAD.Vector(0, 0, 1), max(final_z, bottom) + 0.01)
-    section = doc.addObject("Part::Feature", f"Section{k}")
-    if wires:
-        section.Shape = Part.makeFace(wires, "Part::FaceMakerBullseye")
-    else:
-        # Nothing of the part above the level: a face pass over the whole stock, which is what
-        # "Outside" clears around a speck of a face beside the stock.
-        section.Shape = Part.makePlane(0.1, 0.1, FreeCAD.Vector(lo[0] - 50.0, lo[1] - 50.0, final_z))
-    op = PathAdaptive.Create(f"Adaptive{k}", parentJob=job)
-    op.ToolController = tc
-    op.Base = [(section, [f"Face{i + 1}" for i in range(len(section.Shape.Faces))])]
-    op.Side = "Outside"
-    op.OperationType = "Clearing"
-    for name, value in (("StepDown", tool["diameter"]), ("StartDepth", start_z), ("FinalDepth", final_z)):
+def set_depths(op, **depths):
+    """Set depths FreeCAD otherwise computes by expression (StartDepth, FinalDepth, StepDown) [mm]."""
+    for name, value in depths.items():
         op.setExpression(name, None)
         setattr(op, name, value)
+
+
+def section(k, z):
+    """The part's section just above ``z``: the face an Adaptive clears outside of.
+
+    A part machinable from above is nowhere wider than just above a level, so the section keeps
+    the tool out of the part down to the level.
+    """
+    wires = model.Shape.slice(FreeCAD.Vector(0, 0, 1), max(z, bottom) + 0.01)
+    obj = doc.addObject("Part::Feature", f"Section{k}")
+    if wires:
+        obj.Shape = Part.makeFace(wires, "Part::FaceMakerBullseye")
+    else:
+        # Nothing of the part above the level: a speck beside the stock, which "Outside" clears
+        # around (a face pass over the whole stock).
+        obj.Shape = Part.makePlane(0.1, 0.1, FreeCAD.Vector(lo[0] - 50.0, lo[1] - 50.0, z))
+    return obj
+
+
+def adaptive(k, start_z, final_z, cut):
+    """Adaptive "Outside" ``cut`` (a section) from ``start_z`` down to ``final_z`` + the allowance."""
+    op = created(PathAdaptive, f"Adaptive{k}", args["rough"])
+    op.Base = [(cut, [f"Face{i + 1}" for i in range(len(cut.Shape.Faces))])]
+    op.Side = "Outside"
+    op.OperationType = "Clearing"
+    op.StockToLeave = allowance
+    op.LiftDistance = float(args.get("lift") or 0.0)
+    set_depths(op, StepDown=tools[args["rough"]]["diameter"], StartDepth=start_z,
+               FinalDepth=min(final_z + allowance, start_z))
     return op
 
 
-ops = [adaptive(k, start, z) for k, (start, z) in enumerate(zip([top] + levels[:-1], levels))]
+def profile():
+    """The part's contour (Profile with no base geometry: outside the model's silhouette) from the stock top down
+    to op 1's floor.
+
+    Profiles of each level's section, the walls between the flats too, cut into the part on stepped_wall
+    (FreeCAD 0.20 offsets one of its two loops inward, 16 mm into the upper step), so only the outer walls are
+    profiled: the inner ones keep the Adaptive's allowance, which makes FreeCAD's program shorter than a
+    finished part's, not longer.
+    """
+    op = created(PathProfile, "Profile", args["finish"])
+    set_depths(op, StartDepth=top, FinalDepth=levels[-1])
+    return op
+
+
+def face_pass(k, z, group):
+    """A face pass over the flats ``group`` at height ``z``, inside their own outline and round the raised areas
+    inside them, one pass at MillFace's default 50 % stepover.
+
+    Made with Pocket Shape on the flats: MillFace's "Face Region" faces over the bosses inside a flat (a
+    20 mm gouge on stepped_wall) unless ExcludeRaisedAreas is set, and with it set FreeCAD 0.20 makes no path
+    on these solids ("shape is not planar"). A pocket of a flat keeps its raised areas as islands.
+    """
+    op = created(PathPocketShape, f"Face{k}", args["finish"])
+    op.Base = [(model, [f"Face{faces.index(f) + 1}" for f in group])]
+    op.StepOver = 50
+    set_depths(op, StartDepth=z, FinalDepth=z)
+    return op
+
+
+def surface():
+    """3D surface with the ball over the model, kept to the freeform faces' box (drop-cutter lines, FreeCAD's
+    defaults but the stepover), and the Boundary dressup that keeps it there.
+
+    A machinist picks the dome's face; the part here comes from a mesh, whose dome is some 9,000 triangles,
+    and FreeCAD fuses selected faces first (it ran past 15 minutes). So the surface runs over the whole model
+    and a Boundary dressup (FreeCAD's own) keeps the lines over the freeform faces' box grown by the ball's
+    radius. Returns the dressup and the number of freeform faces.
+    """
+    import PathScripts.PathDressupPathBoundary as PathDressupPathBoundary
+    import PathScripts.PathSurface as PathSurface  # needs ``ocl``: imported only when there is a ball
+
+    freeform = [f for f in faces if WALL < abs(f.normalAt(0, 0).z) < FLAT]
+    op = created(PathSurface, "Surface", args["ball"])
+    op.StepOver = 100.0 * float(args["ball_stepover"]) / tools[args["ball"]]["diameter"]
+    if args.get("ball_stepdown"):
+        op.LayerMode = "Multi-pass"
+        set_depths(op, StepDown=float(args["ball_stepdown"]))
+    bound = Part.makeCompound(freeform).BoundBox
+    grow = tools[args["ball"]]["diameter"] / 2
+    keep = PathDressupPathBoundary.Create(op, "SurfaceBoundary")
+    doc.removeObject(keep.Stock.Name)
+    keep.Stock = PathStock.CreateBox(
+        job, FreeCAD.Vector(bound.XLength + 2 * grow, bound.YLength + 2 * grow, hi[2] - lo[2] + 20.0),
+        FreeCAD.Placement(FreeCAD.Vector(bound.XMin - grow, bound.YMin - grow, lo[2] - 10.0), FreeCAD.Rotation()))
+    return op, keep, len(freeform)
+
+
+cuts = [section(k, z) for k, (_, z) in enumerate(bands)]
+groups = {
+    "adaptive": [adaptive(k, start, z, cut) for k, ((start, z), cut) in enumerate(zip(bands, cuts))],
+    "face": [face_pass(k, z, [f for f in flats if abs(f.BoundBox.ZMax - z) < 1e-3])
+             for k, z in enumerate(levels) if any(abs(f.BoundBox.ZMax - z) < 1e-3 for f in flats)],
+    "profile": [profile()],
+}
+freeform, posted_as = 0, {}
+if args.get("ball") is not None:
+    op, keep, freeform = surface()
+    groups["surface"] = [op]
+    posted_as[op.Name] = keep
+job.Tools.Group = list(controllers.values())
 doc.recompute()
-linuxcnc_post.export([tc] + ops, args["gcode"], "--no-show-editor")
+ops = [op for group in groups.values() for op in group]
+
+
+def posted(path, selected):
+    """Post ``selected`` operations with their tool controllers, in order, to ``path``."""
+    items, current = [], None
+    for op in selected:
+        if op.ToolController is not current:
+            current = op.ToolController
+            items.append(current)
+        items.append(posted_as.get(op.Name, op))
+    linuxcnc_post.export(items, path, "--no-show-editor")
+
+
+gcode = args["gcode"]
+posted(gcode, ops)
+stem, suffix = os.path.splitext(gcode)
+for name, group in groups.items():
+    posted(f"{stem}.{name}{suffix}", group)
 print(json.dumps({
-    "ops": [{"name": op.Name, "side": op.Side, "start_z": op.StartDepth.Value, "final_z": op.FinalDepth.Value,
-             "commands": len(op.Path.Commands)} for op in ops],
+    "ops": [{"name": op.Name, "group": name, "start_z": op.StartDepth.Value, "final_z": op.FinalDepth.Value,
+             "commands": len(op.Path.Commands)} for name, group in groups.items() for op in group],
+    "freeform_faces": freeform,
     "commands": sum(len(op.Path.Commands) for op in ops),
     "seconds": round(time.perf_counter() - t0, 2),
 }))

@@ -111,21 +111,36 @@ class AdaptiveOptions:
 
     Attributes
     ----------
-    engagement : float
-        Target radial engagement, as a share of D: the wall offsets' step. Default 0.15 (WIDIA's
-        trochoidal range is 5-15 %).
+    engagement : float or None
+        Target radial engagement, as a share of D: the wall offsets' step. None (the default): the
+        tool's own, from the tool library (:attr:`cadcam.model.Tool.engagement_share`, 0.15 unless the
+        library says otherwise; WIDIA's trochoidal range is 5-15 %).
     band : float
         Tolerance over the target, as a share of D: no sample of a deep cut may engage more than
-        ``(engagement + band) * D``. Default 0.05.
+        ``target + band * D``, nor more than the tool's radial limit (:meth:`ceiling`). Default 0.05.
     axial_depth : float
         Deepest band, in diameters (never past the flutes). Default 2: side cuts at a small radial
         engagement run to about twice the diameter (high-efficiency milling practice, well inside the
         30 mm flutes of the library's 10 mm end mill).
     """
 
-    engagement: float = 0.15
+    engagement: float | None = None
     band: float = 0.05
     axial_depth: float = 2.0
+
+    def share(self, tool: Tool) -> float:
+        """The radial engagement to hold with ``tool`` [share of D]: :attr:`engagement`, else the tool's own."""
+        return tool.engagement_share if self.engagement is None else self.engagement
+
+    def target(self, tool: Tool) -> float:
+        """The radial engagement to hold with ``tool`` [mm]."""
+        return self.share(tool) * tool.diameter
+
+    def ceiling(self, tool: Tool) -> float:
+        """The most radial engagement any sample of a deep cut with ``tool`` may take [mm]: the target and
+        the band, never past the tool's radial limit for cuts deeper than its full-width limit
+        (:attr:`cadcam.model.Tool.deep_radial_limit`, which ``factory verify`` holds it to)."""
+        return min((self.share(tool) + self.band) * tool.diameter, tool.deep_radial_limit)
 
 
 @dataclass(frozen=True)
@@ -315,7 +330,7 @@ def _band_cut(g: BandGeometry, i: int, c: Polygon, comps: list[list[Polygon]], c
     if moves is None:
         # no lead-in from the air beside the walls (a pocket, a slot, a neck): fronts from a helix or the air,
         # tried only where they can pay (their feed length is at least the stock's area over the step)
-        target = chip_thinned_feed(cutting, tool, options.engagement * tool.diameter, max_feed).feed
+        target = chip_thinned_feed(cutting, tool, options.target(tool), max_feed).feed
         moves = front_cut_moves(c, g, z, z_top, tool, options, budget=levels_min * target,
                                 rapid_share=target / _RAPID_ESTIMATE)
     if moves is None:
@@ -362,9 +377,9 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
     more than :data:`_MAX_PASSES` passes, a lead-in would cross the part, or the replay measures more than
     the band allows. Each run starts at ``g.clear_z`` over its descent and ends back there."""
     r = tool.radius
-    step = options.engagement * tool.diameter
-    limit = (options.engagement + options.band) * tool.diameter
-    planned = (options.engagement + 0.5 * options.band) * tool.diameter
+    step = options.target(tool)
+    limit = options.ceiling(tool)
+    planned = min((options.share(tool) + 0.5 * options.band) * tool.diameter, limit)
     walls = g.axis_box.difference(region)  # the part grown by the tool and the allowance, within the box
     if walls.is_empty or walls.area < _SLIVER:
         return None  # no wall: a face, the z-level strategy's
@@ -453,9 +468,9 @@ def front_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, to
     ``rapid_share`` of their length: the feed over the rapid rate), or the replay measures more than the band
     allows."""
     r = tool.radius
-    step = options.engagement * tool.diameter
-    limit = (options.engagement + options.band) * tool.diameter
-    planned = (options.engagement + 0.5 * options.band) * tool.diameter
+    step = options.target(tool)
+    limit = options.ceiling(tool)
+    planned = min((options.share(tool) + 0.5 * options.band) * tool.diameter, limit)
     walls = g.axis_box.difference(region)
     material = g.stock.intersection(region.buffer(r, quad_segs=16)).difference(walls.buffer(-r, quad_segs=16))
     if material.area < _SLIVER or material.area / step > budget:

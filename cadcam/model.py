@@ -80,6 +80,12 @@ DEFAULT_HOLDER: tuple[HolderSegment, ...] = (
 #: the sources are cited in fixtures/tools.yaml).
 FULL_WIDTH_DEPTH_RULE = (1.0, 3.0, 0.5)
 
+#: The radial engagement of an end mill whose library entry gives no ``engagement``/``radial_limit``:
+#: ``(target, limit)`` [share of D]. ``target``: what adaptive clearing holds its cut to (the middle of
+#: the 10-20 % of D issue 32 asks for; WIDIA's trochoidal range is 5-15 %). ``limit``: the widest a cut
+#: deeper than the tool's full-width limit may take (fixtures/tools.yaml cites the sources).
+RADIAL_ENGAGEMENT_RULE = (0.15, 0.3)
+
 
 @dataclass(frozen=True)
 class Tool:
@@ -123,6 +129,13 @@ class Tool:
         Deepest axial cut at full width, in a slot or an inside corner [mm] (the tool library's
         ``axial_limit``); None: the rule :data:`FULL_WIDTH_DEPTH_RULE` gives it
         (:attr:`full_width_limit`). ``factory verify`` fails a move that cuts deeper at full width.
+    engagement : float or None
+        Radial engagement adaptive clearing holds this end mill to, as a share of D (the tool library's
+        ``engagement``); None: :data:`RADIAL_ENGAGEMENT_RULE` (:attr:`engagement_target`).
+    radial_limit : float or None
+        Widest radial engagement of a cut deeper than :attr:`full_width_limit`, as a share of D (the
+        library's ``radial_limit``); None: :data:`RADIAL_ENGAGEMENT_RULE` (:attr:`deep_radial_limit`).
+        ``factory verify`` fails a deeper move that cuts wider.
     """
 
     number: int
@@ -137,6 +150,8 @@ class Tool:
     holder: tuple[HolderSegment, ...] = DEFAULT_HOLDER
     point_angle: float = 180.0
     axial_limit: float | None = None
+    engagement: float | None = None
+    radial_limit: float | None = None
 
     def __post_init__(self) -> None:
         if self.shank_diameter is None:
@@ -154,6 +169,8 @@ class Tool:
             raise ValueError("a drill needs a point_angle in (0, 180) deg; an end mill has 180")
         if self.axial_limit is not None and not self.axial_limit > 0.0:
             raise ValueError("axial_limit must be > 0 mm")
+        if not 0.0 < self.engagement_share < 0.5 or not self.engagement_share <= self.radial_limit_share <= 1.0:
+            raise ValueError("engagement must lie in (0, 0.5) D and radial_limit in [engagement, 1] D")
 
     @property
     def is_drill(self) -> bool:
@@ -178,6 +195,26 @@ class Tool:
             return float(self.axial_limit)
         share = FULL_WIDTH_DEPTH_RULE[0] if self.diameter >= FULL_WIDTH_DEPTH_RULE[1] else FULL_WIDTH_DEPTH_RULE[2]
         return min(share * self.diameter, float(self.flute_length))
+
+    @property
+    def engagement_share(self) -> float:
+        """Radial engagement target of adaptive clearing [share of D]: :attr:`engagement`, else the rule's."""
+        return RADIAL_ENGAGEMENT_RULE[0] if self.engagement is None else float(self.engagement)
+
+    @property
+    def radial_limit_share(self) -> float:
+        """Widest radial engagement below :attr:`full_width_limit` [share of D]: :attr:`radial_limit`, else the rule's."""
+        return RADIAL_ENGAGEMENT_RULE[1] if self.radial_limit is None else float(self.radial_limit)
+
+    @property
+    def engagement_target(self) -> float:
+        """Radial engagement adaptive clearing holds this tool to [mm]."""
+        return self.engagement_share * self.diameter
+
+    @property
+    def deep_radial_limit(self) -> float:
+        """Widest radial engagement [mm] of a cut deeper than :attr:`full_width_limit`."""
+        return self.radial_limit_share * self.diameter
 
     @property
     def level_stepdown(self) -> float:
@@ -241,8 +278,9 @@ class Tool:
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
-        if d["axial_limit"] is None:  # the rule's: sheets of tools without the key stay as they were
-            del d["axial_limit"]
+        for key in ("axial_limit", "engagement", "radial_limit"):
+            if d[key] is None:  # the rule's: sheets of tools without the key stay as they were
+                del d[key]
         return d
 
     @classmethod
@@ -250,9 +288,11 @@ class Tool:
         """Read :meth:`to_dict` output; dictionaries from before holders were recorded get
         the cutting diameter as shank and :data:`DEFAULT_HOLDER`."""
         values = {f.name: d[f.name] for f in dataclasses.fields(cls)
-                  if f.name not in ("shank_diameter", "holder", "point_angle", "axial_limit")}
-        if d.get("axial_limit") is not None:
-            values["axial_limit"] = float(d["axial_limit"])
+                  if f.name not in ("shank_diameter", "holder", "point_angle", "axial_limit", "engagement",
+                                    "radial_limit")}
+        for key in ("axial_limit", "engagement", "radial_limit"):
+            if d.get(key) is not None:
+                values[key] = float(d[key])
         if d.get("point_angle") is not None:
             values["point_angle"] = float(d["point_angle"])
         if d.get("shank_diameter") is not None:

@@ -25,7 +25,7 @@ import numpy as np
 from pathlib import Path
 from typing import Any
 
-from cadcam.model import DEFAULT_HOLDER, CuttingData, HolderSegment, Tool
+from cadcam.model import DEFAULT_HOLDER, RADIAL_ENGAGEMENT_RULE, CuttingData, HolderSegment, Tool
 from factory.core.errors import ToolError, field_name, shown
 from factory.core.yamlfile import load_yaml
 from factory.core.resources import FIXTURES
@@ -33,8 +33,8 @@ from factory.core.resources import FIXTURES
 log = logging.getLogger(__name__)
 
 _SHAPES = ("flat", "ball", "bull", "drill")
-#: A tool's optional engagement limits (:meth:`_Parser.axial_limit`).
-_ENGAGEMENT_KEYS = {"axial_limit"}
+#: A tool's optional engagement target and limits (:meth:`_Parser.axial_limit`, :meth:`_Parser.radial`).
+_ENGAGEMENT_KEYS = {"axial_limit", "engagement", "radial_limit"}
 #: Rated spindle power when the library's machine gives none [kW]: the continuous (S1) rating
 #: of a small VMC's spindle (fixtures/tools.yaml states its own).
 DEFAULT_SPINDLE_POWER_KW = 7.5
@@ -450,6 +450,7 @@ class _Parser:
         shank = self.number(d["shank_diameter"], f"{where}.shank_diameter") if "shank_diameter" in d else diameter
         holder = self.holder(d["holder"], f"{where}.holder") if "holder" in d else DEFAULT_HOLDER
         axial_limit = self.axial_limit(d, where, shape, flute_length)
+        engagement, radial_limit = self.radial(d, where, shape)
         return Tool(
             number=number,
             name=name,
@@ -463,6 +464,8 @@ class _Parser:
             holder=holder,
             point_angle=point_angle,
             axial_limit=axial_limit,
+            engagement=engagement,
+            radial_limit=radial_limit,
         )
 
     def axial_limit(self, d: dict[str, Any], where: str, shape: str, flute_length: float) -> float | None:
@@ -475,6 +478,24 @@ class _Parser:
         if limit > flute_length:
             raise self.fail(f"{where}.axial_limit", f"must be <= flute_length {flute_length:g}, got {limit:g}")
         return limit
+
+    def radial(self, d: dict[str, Any], where: str, shape: str) -> tuple[float | None, float | None]:
+        """A tool's ``engagement`` (target, in (0, 0.5) D) and ``radial_limit`` (in [target, 1] D), each None where
+        not given (the rule :data:`cadcam.model.RADIAL_ENGAGEMENT_RULE`)."""
+        given = {key: self.number(d[key], f"{where}.{key}") for key in ("engagement", "radial_limit") if key in d}
+        if given and shape == "drill":
+            key = next(iter(given))
+            raise self.fail(f"{where}.{key}", "a drill cuts only along its axis (it has no radial engagement)")
+        target = given.get("engagement", RADIAL_ENGAGEMENT_RULE[0])
+        limit = given.get("radial_limit", RADIAL_ENGAGEMENT_RULE[1])
+        if not target < 0.5:
+            raise self.fail(f"{where}.engagement", f"must be < 0.5 (a share of the diameter), got {target:g}")
+        if limit > 1:
+            raise self.fail(f"{where}.radial_limit", f"must be <= 1 (a share of the diameter), got {limit:g}")
+        if limit < target:
+            key = "radial_limit" if "radial_limit" in given else "engagement"
+            raise self.fail(f"{where}.{key}", f"radial_limit {limit:g} must be >= engagement {target:g}")
+        return given.get("engagement"), given.get("radial_limit")
 
     def holder(self, value: Any, where: str) -> tuple[HolderSegment, ...]:
         """A list of ``{diameter, length, top_diameter?}`` from the gauge line up [mm]."""

@@ -132,8 +132,8 @@ class RapidCrash:
 
 
 #: What :class:`Fault` can say, in the order the report lists them.
-FAULT_KINDS = ("no_cut", "rapid", "holder", "flute", "full_width", "buried", "drill_side", "below_stock", "seam",
-               "jaws")
+FAULT_KINDS = ("no_cut", "rapid", "holder", "flute", "full_width", "radial", "buried", "drill_side", "below_stock",
+               "seam", "jaws")
 
 #: Setup sheet operation kinds that finish a surface; every other kind removes bulk stock.
 FINISHING_KINDS = frozenset({"raster", "waterline", "finishing"})
@@ -150,7 +150,9 @@ class Fault:
         rapid whose cutter (its full footprint) meets stock; ``holder`` the shank or holder
         meets the stock or the part; ``flute`` a cut engaged deeper than the flute length;
         ``full_width`` a cut at full width (:attr:`VerifyOptions.full_width_angle`) deeper than
-        the tool's axial limit (:attr:`cadcam.model.Tool.full_width_limit`); ``buried`` a
+        the tool's axial limit (:attr:`cadcam.model.Tool.full_width_limit`); ``radial`` a side cut
+        (not at full width) deeper than that limit and radially wider than the tool's radial limit
+        (:attr:`cadcam.model.Tool.deep_radial_limit`, the library's ``radial_limit``); ``buried`` a
         finishing tool engaged deeper than :attr:`VerifyOptions.finish_depth`;
         ``drill_side`` a drill fed sideways through stock (a drill's only engagement is
         axial, held to its flute length by ``flute``); ``below_stock`` the tool tip below the stock
@@ -691,6 +693,15 @@ def _judge(seg: Segments, stats: MoveRecord, measured: _Measured, moves: Program
     # A drill never cuts across (drill_side): its flutes are its only limit.
     axial = np.array([np.inf if t not in tools else tools[t].flute_length if tools[t].is_drill
                       else tools[t].full_width_limit for t in tool.tolist()], dtype=np.float64)
+    radial = np.array([np.inf if t not in tools or tools[t].is_drill else tools[t].deep_radial_limit
+                       for t in tool.tolist()], dtype=np.float64)
+    # Deeper than the full-width limit a move across the stock must be a side cut within the tool's radial limit
+    # (a grid cell of slack on both, as for full width); one at full width that deep is a ``full_width`` fault
+    # already, and a move straight down has no side cut to judge (its width is the crescent it bores).
+    too_deep_slot = ~seg.rapid & (measured.full_depth > axial + measured.cell)
+    across = np.hypot(seg.dx, seg.dy) > measured.cell
+    deep_wide = (~seg.rapid & ~too_deep_slot & across & (stats.depth > axial + measured.cell)
+                 & (measured.width > radial + measured.cell))
     # A drill only cuts along its axis: any feed move across the stock breaks it.
     drill = np.array([t in tools and tools[t].is_drill for t in tool.tolist()], dtype=bool)
     sideways = drill & ~seg.rapid & (seg.l2 > 1e-12) & (stats.removed_max > options.gouge_tolerance)
@@ -702,9 +713,12 @@ def _judge(seg: Segments, stats: MoveRecord, measured: _Measured, moves: Program
         ("flute", ~seg.rapid & (stats.depth > flute + options.contact_tolerance), stats.depth, stats.depth_cell,
          flute, "T{t} engaged {w:.2f} mm deep, beyond its {l:g} mm flutes"),
         # The grid's own step is no depth: a cut within a cell of the limit is taken as at it.
-        ("full_width", ~seg.rapid & (measured.full_depth > axial + measured.cell), measured.full_depth, _FINE,
+        ("full_width", too_deep_slot, measured.full_depth, _FINE,
          axial, "T{t} cuts {w:.2f} mm deep at full width near X{x:.1f} Y{y:.1f} Z{z:.1f}, beyond its "
          "{l:g} mm axial limit"),
+        ("radial", deep_wide, measured.width, stats.depth_cell, radial,
+         "T{t} cuts {w:.2f} mm wide below its full-width depth near X{x:.1f} Y{y:.1f} Z{z:.1f}, beyond its "
+         "{l:g} mm radial limit"),
         ("buried", ~seg.rapid & fin & (stats.depth > options.finish_depth), stats.depth, stats.depth_cell,
          np.full(len(seg), options.finish_depth), "finishing tool T{t} engaged {w:.2f} mm deep (limit {l:g} mm)"),
         ("drill_side", sideways, stats.removed_max, stats.removed_cell, np.full(len(seg), options.gouge_tolerance),

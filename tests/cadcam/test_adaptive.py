@@ -47,9 +47,15 @@ CELL_SHARE = 0.02
 ON_THE_EDGE = 1e-4
 
 
-def tool(d: float) -> Tool:
+def tool(d: float, engagement: float | None = None, radial_limit: float | None = None) -> Tool:
     return Tool(number=1, name=f"{d:g} mm flat", shape="flat", diameter=d, corner_radius=0.0, flute_length=3 * d,
-                flutes=3, length=5 * d)
+                flutes=3, length=5 * d, engagement=engagement, radial_limit=radial_limit)
+
+
+def held_to(t: Tool) -> float:
+    """The most a deep cut with ``t`` may engage radially [mm], from the tool's own library values: its target
+    and the engine's band, never past its radial limit."""
+    return min((t.engagement_share + OPTIONS.band) * t.diameter, t.radial_limit_share * t.diameter)
 
 
 def band(part: BaseGeometry, stock: Polygon, r: float) -> tuple[Polygon, BandGeometry]:
@@ -159,12 +165,13 @@ def replay(points: np.ndarray, motion: np.ndarray, rp: Replay) -> np.ndarray:
     return np.array(out)
 
 
-def assert_deep_cut_holds(part: BaseGeometry, stock: Polygon, d: float, left_cells: int | None = None
-                          ) -> float | None:
+def assert_deep_cut_holds(part: BaseGeometry, stock: Polygon, d: float, left_cells: int | None = None,
+                          t: Tool | None = None) -> float | None:
     """The engine's deep cut beside ``part`` (if it takes one) holds the band, enters from the air and leaves
     no stock (at most 0.2 % of the stock's area and 0.5 mm², or with ``left_cells`` that many of the replay's
-    cells); returns the largest engagement replayed [mm], None where the engine left the region to levels."""
-    t = tool(d)
+    cells); returns the largest engagement replayed [mm], None where the engine left the region to levels.
+    ``t``: the tool (default: a plain ``d`` mm flat end mill, the library's default engagement)."""
+    t = tool(d) if t is None else t
     region, geometry = band(part, stock, t.radius)
     moves = deep_cut_moves(region, geometry, Z, Z_TOP, t, OPTIONS)
     if moves is None:
@@ -172,7 +179,7 @@ def assert_deep_cut_holds(part: BaseGeometry, stock: Polygon, d: float, left_cel
     points, motion, _, _ = moves
     rp = Replay(part, stock, t.radius)
     ae = replay(points, motion, rp)
-    limit = (OPTIONS.engagement + OPTIONS.band) * d
+    limit = held_to(t)
     # the raster reads up to a cell or two more than the true engagement
     assert ae.max() <= limit + 2 * rp.cell, (ae.max(), limit)
     # every cut run ends by lifting straight up from where it cut (never a rapid across at depth)
@@ -189,6 +196,16 @@ def test_skin_of_a_block_is_one_lap_at_the_margin():
     ae = assert_deep_cut_holds(part, stock, 10.0)
     assert ae is not None, "the engine refused the plainest skin"
     assert ae == pytest.approx(2 - ALLOW, abs=0.15)
+
+
+def test_the_tools_own_engagement_is_held():
+    """A tool whose library entry asks for less (target 0.08 D, radial limit 0.12 D): the skin the default tool
+    takes in one 1.7 mm lap is cut in narrower passes, none past the tool's own 1.2 mm."""
+    part = box(2, 2, 102, 62).buffer(-3).buffer(3, quad_segs=32)
+    narrow = tool(10.0, engagement=0.08, radial_limit=0.12)
+    ae = assert_deep_cut_holds(part, box(0, 0, 104, 64), 10.0, t=narrow)
+    assert ae is not None, "the engine refused the plainest skin"
+    assert ae <= 1.2 + 0.1 and held_to(narrow) == pytest.approx(1.2)
 
 
 def test_sharp_corners_and_a_notch():

@@ -20,7 +20,7 @@ from shapely.geometry import Point, Polygon, box
 
 from cadcam.adaptive import AdaptiveOptions, BandGeometry, front_cut_moves
 from cadcam.model import Motion
-from tests.cadcam.test_adaptive import ALLOW, OPTIONS, Z, Z_TOP, Replay, replay, tool
+from tests.cadcam.test_adaptive import ALLOW, OPTIONS, Z, Z_TOP, Replay, held_to, replay, tool
 
 BaseGeometry = shapely.Geometry
 RAMP = 3.0  # the roughing's ramp angle [deg]
@@ -72,7 +72,7 @@ def assert_fronts_hold(part: BaseGeometry, stock: Polygon, d: float) -> tuple[np
     r = d / 2
     rp = Replay(part, stock, r, CELL_SHARE)
     ae = replay(points, motion, rp)
-    limit = (OPTIONS.engagement + OPTIONS.band) * d
+    limit = held_to(tool(d))
     assert ae.max() <= limit + 2 * rp.cell, (ae.max(), limit)
     helix = helix_moves(points, motion)
     if helix.any():

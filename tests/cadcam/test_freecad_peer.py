@@ -8,12 +8,15 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.util
+import sys
 
 import numpy as np
 import pytest
 
+from cadcam.finishing import stepover_for
 from cadcam.gcode import parse_gcode
-from cadcam.model import Job, Motion
+from cadcam.model import Job, Motion, Operation
+from cadcam.plan import PlanOptions
 from cadcam.post import PostOptions, post_process
 from cadcam.roughing import zlevel_roughing
 from cadcam.setup import make_setup
@@ -22,6 +25,7 @@ from tests.conftest import ROOT, pocket_block
 
 _spec = importlib.util.spec_from_file_location("freecad_peer", ROOT / "benchmarks" / "freecad_peer.py")
 freecad_peer = importlib.util.module_from_spec(_spec)
+sys.modules[_spec.name] = freecad_peer  # its dataclasses look their module up while it loads
 _spec.loader.exec_module(freecad_peer)
 
 FREECAD_STYLE = """\
@@ -91,3 +95,28 @@ def test_plunges_count_only_vertical_feeds_into_stock():
     assert freecad_peer.plunges(moves, engagement, {2: mill}) == 2
     # The same program run with a drill as T2: a drill only ever goes in straight down.
     assert freecad_peer.plunges(moves, engagement, {2: dataclasses.replace(drill, number=2)}) == 0
+
+
+def test_the_peer_takes_our_op_1s_tools_for_each_of_its_operations():
+    """FreeCAD's Adaptive gets our first roughing tool, its face pass and profiles our first flats-and-walls
+    finishing tool (else the roughing one), its 3D surface our ball at our freeform raster's stepover."""
+    lib = load_tool_library()
+    setup, _ = make_setup(pocket_block())
+
+    def op(kind: str, number: int) -> Operation:
+        tool = lib.tool(number)
+        return Operation(f"{kind} T{number}", kind, tool, lib.cutting_data(tool, setup.material),
+                         np.zeros((2, 3)), np.zeros(2, np.int8))
+
+    peer = freecad_peer.peer_tools(Job("p", setup, (op("helix", 1), op("roughing", 14), op("roughing", 2),
+                                                   op("finishing", 2), op("finishing", 1), op("waterline", 3))))
+    assert (peer.rough.tool.number, peer.finish.tool.number, peer.ball.tool.number) == (14, 2, 3)
+    assert peer.ball_stepover == pytest.approx(stepover_for(lib.tool(3), PlanOptions().freeform_scallop))
+    assert 0.3 < peer.ball_stepover < 0.6  # a 6 mm ball at 0.01 mm scallop
+    bare = freecad_peer.peer_tools(Job("p", setup, (op("roughing", 2),)))
+    assert bare.finish is bare.rough and bare.ball is None and bare.ball_stepover == 0.0
+
+
+def test_a_group_freecad_made_no_path_for_takes_no_time():
+    assert freecad_peer.group_minutes("(begin operation: Face0)\nG0 Z5.000\n") == 0.0
+    assert freecad_peer.group_minutes(FREECAD_STYLE) == freecad_peer.program_minutes(FREECAD_STYLE)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import pytest
@@ -309,6 +310,37 @@ def test_axial_limit_is_read_and_tools_without_it_take_the_rule(lib, doc, tmp_pa
     assert "axial_limit" not in lib.tool(1).to_dict() and Tool.from_dict(lib.tool(1).to_dict()) == lib.tool(1)
     _set(doc, ["tools", 0, "axial_limit"], 3)
     assert load_tool_library(write(tmp_path, doc)).tool(1).full_width_limit == 3.0
+
+
+def test_engagement_and_radial_limit_are_read_and_tools_without_them_take_the_rule(lib, doc, tmp_path):
+    """The long-neck flat end mills hold 0.1 D and at most 0.2 D below their full-width depth; the others the
+    rule's 0.15 D and 0.3 D. A tool table written from the library keeps what the library said, and only that."""
+    for n in (15, 16):
+        t = lib.tool(n)
+        assert (t.engagement, t.radial_limit) == (0.1, 0.2)
+        assert t.engagement_target == pytest.approx(0.1 * t.diameter)
+        assert t.deep_radial_limit == pytest.approx(0.2 * t.diameter)
+        assert Tool.from_dict(t.to_dict()) == t and t.to_dict()["radial_limit"] == 0.2
+    t = lib.tool(2)
+    assert (t.engagement, t.radial_limit) == (None, None)
+    assert (t.engagement_target, t.deep_radial_limit) == (pytest.approx(1.5), pytest.approx(3.0))
+    assert "engagement" not in t.to_dict() and "radial_limit" not in t.to_dict()
+    _set(doc, ["tools", 1, "engagement"], 0.12)
+    assert load_tool_library(write(tmp_path, doc)).tool(2).engagement_target == pytest.approx(1.2)
+
+
+@pytest.mark.parametrize("key, index, value, expected", [
+    ("engagement", 0, 0, "tools[0].engagement: must be > 0, got 0"),
+    ("engagement", 0, 0.5, "tools[0].engagement: must be < 0.5 (a share of the diameter), got 0.5"),
+    ("radial_limit", 0, 1.5, "tools[0].radial_limit: must be <= 1 (a share of the diameter), got 1.5"),
+    ("radial_limit", 0, 0.1, "tools[0].radial_limit: radial_limit 0.1 must be >= engagement 0.15"),
+    ("engagement", 0, 0.4, "tools[0].engagement: radial_limit 0.3 must be >= engagement 0.4"),
+    ("radial_limit", 7, 0.2, "tools[7].radial_limit: a drill cuts only along its axis"),
+])
+def test_a_bad_engagement_names_its_field(tmp_path, doc, key, index, value, expected):
+    _set(doc, ["tools", index, key], value)
+    with pytest.raises(ToolError, match=re.escape(expected)):
+        load_tool_library(write(tmp_path, doc))
 
 
 @pytest.mark.parametrize("index, value, expected", [

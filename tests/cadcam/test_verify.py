@@ -770,6 +770,29 @@ def test_a_slot_is_full_width_to_its_depth_and_a_side_cut_never(diameter, depth_
         assert abs(eng.max_width - ae) <= cell + 1e-6
 
 
+@pytest.mark.parametrize("ae, radial_limit, depth, faulted", [
+    (1.2, None, 12.0, False),  # 0.2 D, 12 mm deep: the side cut adaptive clearing takes
+    (2.7, None, 12.0, True),  # 0.45 D that deep: past the rule's 0.3 D
+    (2.7, 0.5, 12.0, False),  # ... within a tool whose library allows 0.5 D
+    (2.7, None, 5.0, False),  # ... within the full-width depth (6 mm): any width
+])
+def test_a_deep_side_cut_is_held_to_the_tools_radial_limit(ae, radial_limit, depth, faulted):
+    """Below its full-width depth a cut must be a side cut within the tool's own radial limit (its library's
+    ``radial_limit``, else 0.3 D): verify fails a wider one as ``radial``, naming the tool and its limit."""
+    tool = Tool(3, "6 mm flat", "flat", 6.0, 0.0, 18.0, 3, 40.0, radial_limit=radial_limit)
+    y = -3.0 + ae  # the stock starts at Y0
+    moves = program([(R, 3, (-4, y, 2)), (C, 3, (-4, y, -depth)), (C, 3, (34, y, -depth)), (R, 3, (34, y, 2))],
+                    start=(-4, y, 5))
+    report = simulate(moves, {3: tool}, SLOT_SETUP, SLOT_PART).report
+    radial = [f for f in report.faults if f.kind == "radial"]
+    assert not [f for f in report.faults if f.kind == "full_width"]
+    assert bool(radial) == faulted, [f.message for f in report.faults]
+    if faulted:
+        (fault,) = radial
+        assert fault.tool == 3 and fault.limit == pytest.approx(1.8) and fault.worst == pytest.approx(ae, abs=report.cell)
+        assert "T3" in fault.message and "1.8 mm radial limit" in fault.message
+
+
 def test_the_independent_probe_sees_the_corner_as_verify_does():
     """tests/cadcam/sweep.py's leading-edge probes (no code of cadcam.stock's engagement) agree: 6 mm of
     the corner at full width in one pass, its own 1 mm in steps; the 6 mm end mill's 2 mm levels."""
