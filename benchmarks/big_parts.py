@@ -4,6 +4,7 @@ and the plan's stage times (issue 35: at most 60 s and 1.5 GB up to 100k triangl
 
     python benchmarks/big_parts.py [--only NAME,...] [--keep DIR] [--json]
     python benchmarks/big_parts.py --write DIR      # only write the STL files
+    python benchmarks/big_parts.py --only none --file PART.stp   # plan a file of your own the same way
     PYTHONPATH=/other/checkout python benchmarks/big_parts.py   # plans with that checkout's code
 
 The reliefs are what scans and sculpting exports come as: open heightfield *patches* that overlap
@@ -124,8 +125,10 @@ def main() -> None:
     ap.add_argument("--write", type=Path, help="only write the parts' STL files into this folder")
     ap.add_argument("--keep", type=Path, help="write the plans' outputs here (else a temporary folder)")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--file", type=Path, action="append", default=[],
+                    help="also plan this part file (STL, STEP...), e.g. NIST FTC 10 (benchmarks/step_public.py says where from)")
     args = ap.parse_args()
-    names = args.only.split(",")
+    names = [n for n in args.only.split(",") if n != "none"]
     if args.write:
         args.write.mkdir(parents=True, exist_ok=True)
         for n in names:
@@ -146,6 +149,10 @@ def main() -> None:
                  "plan_once; from pathlib import Path; print(json.dumps(plan_once(Path(%r), Path(%r))))"
                  % (str(ROOT), str(Path(tmp) / f"{n}.stl"), str(out))],
                 capture_output=True, text=True, check=True).stdout)
+            rows.append(row)
+            print(json.dumps(row) if args.json else row, flush=True)
+        for path in args.file:
+            row = plan_once(path.resolve(), out)
             rows.append(row)
             print(json.dumps(row) if args.json else row, flush=True)
         if args.json:

@@ -13,7 +13,8 @@ cleared with contour-parallel offset loops. The pieces:
   ``z`` (the end mill is a cylinder going up forever from its tip). The XY shadow is the
   union of the projections of the part's upward-facing triangles clipped to ``z' >= z``:
   exact for any watertight mesh, undercuts included (every vertical line through the
-  solid leaves it through an upward-facing face), not just at sampled section heights.
+  solid leaves it through an upward-facing face), not just at sampled section heights
+  (:mod:`cadcam.shadow`).
 * **Forbidden region**: material at depth ``t * allowance`` below the tip must stay at
   least ``R + allowance * sqrt(1 - t^2)`` away from the axis (the tool grown by a ball of
   radius ``allowance``); this is approximated conservatively by a small staircase of
@@ -82,6 +83,7 @@ from shapely.ops import nearest_points
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.gridregion import GrownMaskCache
 from cadcam.rest import levels_within_reach, rest_level_masks, rooms_round
+from cadcam.shadow import part_shadows
 from cadcam.stock import Simulation, clear_height
 from factory.core.errors import MeshError, ToolError, ToolpathError
 
@@ -251,58 +253,6 @@ def _levels(part: trimesh.Trimesh, setup: Setup, p: _Params) -> np.ndarray:
         levels[-1] = m
         hi = m
     return np.array(levels)
-
-
-# --------------------------------------------------------------------------- shadows
-
-
-def _clip_projections(tri: np.ndarray, z: float) -> np.ndarray:
-    """XY projections of triangles clipped to ``z' >= z``, as shapely polygons.
-
-    tri : (m, 3, 3) float, each triangle reaching at least up to ``z``.
-    """
-    m = len(tri)
-    a = tri
-    b = np.roll(tri, -1, axis=1)
-    ha, hb = a[:, :, 2], b[:, :, 2]
-    above_a, above_b = ha >= z, hb >= z
-    cross = above_a != above_b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(cross, (z - ha) / np.where(cross, hb - ha, 1.0), 0.0)
-    x = a[:, :, :2] + t[..., None] * (b[:, :, :2] - a[:, :, :2])
-    cand = np.stack([a[:, :, :2], x], axis=2).reshape(m, 6, 2)
-    valid = np.stack([above_a, cross], axis=2).reshape(m, 6)
-    counts = valid.sum(axis=1)
-    keep = counts >= 3
-    if not keep.any():
-        return np.empty(0, dtype=object)
-    coords = cand[keep][valid[keep]]
-    idx = np.repeat(np.arange(int(keep.sum())), counts[keep])
-    polys = shapely.polygons(shapely.linearrings(coords, indices=idx))
-    return polys[shapely.area(polys) > 1e-12]
-
-
-def part_shadows(part: trimesh.Trimesh, heights: Sequence[float]) -> dict[float, BaseGeometry]:
-    """XY shadow of the part's material at or above each height [mm]: where a tool's tip cannot come lower.
-
-    Computed top down, each height adding only the triangles reaching into the slab
-    below the previous one, so many heights cost little more than one.
-    """
-    up = part.face_normals[:, 2] > 1e-9
-    tri = np.asarray(part.triangles)[up]
-    zmin, zmax = tri[:, :, 2].min(axis=1), tri[:, :, 2].max(axis=1)
-    out: dict[float, BaseGeometry] = {}
-    acc: BaseGeometry = Polygon()
-    z_last = math.inf
-    for z in sorted(set(heights), reverse=True):
-        sel = (zmax >= z) & (zmin < z_last)
-        if sel.any():
-            polys = _clip_projections(tri[sel], z)
-            if len(polys):
-                acc = shapely.union_all(np.concatenate([polys, [acc]]))
-        out[z] = acc
-        z_last = z
-    return out
 
 
 def _buffer(geom: BaseGeometry, distance: float, tol: float) -> BaseGeometry:
