@@ -23,14 +23,18 @@ than it, a clipped highlight moved such an outline by millimetres):
 - **Features inside it** (each set of connected mesh edges: a hole, a boss, a pocket): the share
   of the feature's visible edges the picture shows within :data:`OWN_PX`. A feature whose edges
   are nearly all absent is missing (a hole not drilled, a boss not there); its deviation is the
-  whole ``reach`` (its edges are at least that far from where they should be).
+  whole ``reach`` (its edges are at least that far from where they should be). Edges found where
+  the mesh puts them say *there* whatever hides the rest; a through-hole's rim is judged from
+  every side (straight down a hole its wall is seen edge-on), and white over it in glare is
+  material where the hole should be (:func:`_judge_features`).
 
 An edge beyond the own one says *defect* only when the greys agree (:func:`_material_agrees`):
 between the line and a burr's edge lies something like the part's face, between the line and a
 broken corner's edge something like the tray; a shadow's or a boss's edge, or the far side of a
 lit rim, leave a band like neither. Glare (a clipped highlight) hides an edge only where it lies
 on both sides of it (a pocket in a white top); beside one side the edge shows, pushed out by the
-optics' spill (the bloom), which the side's level absorbs like a pose error.
+optics' spill (the bloom), which the side's level absorbs like a pose error. Deep shadow on both
+sides (well below the tray model) hides an edge as well.
 
 When too little of the outline or a feature can be judged the part is refused with the reason,
 not passed; but with its top in glare (pockets hidden in the white, the rest in sharp contrast) a
