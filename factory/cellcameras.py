@@ -31,6 +31,13 @@ log = logging.getLogger(__name__)
 
 #: Height of the fixed cameras above the rack and the out-tray [m].
 CAMERA_HEIGHT_M = 0.5
+#: Diffuse reflectance of the rack's floor under its camera (0..1): dark grey anodised, as a vision
+#: cell puts a contrasting background under bright metal. The camera looks straight down on a blank
+#: and sees no side of it, only its top; under a low key light that top and a floor as grey as the
+#: out-tray's (:data:`vision.lit.TRAY_ALBEDO`) take the same light and differ by their albedo alone
+#: (about 15 grey levels over two pixels, below locate's edge threshold), so the lit sides of the
+#: top do not show and the blank is refused. Against this floor they show in every light.
+RACK_FLOOR_ALBEDO = 0.25
 SHOTS_FORMAT = "factory.camera-shots/1"
 
 
@@ -55,10 +62,12 @@ class Stations:
 
 
 def cell_stations(cell: Cell, camera: CameraModel) -> Stations:
-    """A camera :data:`CAMERA_HEIGHT_M` above rack slot (0, 0) and one above out-tray slot (0, 0)."""
+    """A camera :data:`CAMERA_HEIGHT_M` above rack slot (0, 0) (its floor :data:`RACK_FLOOR_ALBEDO`) and
+    one above out-tray slot (0, 0)."""
     rack = cell.rack.pose.xyz
     tray = cell.out_tray.pose.xyz
-    return Stations(station_above(camera, np.asarray(rack, dtype=float), CAMERA_HEIGHT_M),
+    return Stations(station_above(camera, np.asarray(rack, dtype=float), CAMERA_HEIGHT_M,
+                                  surface_albedo=RACK_FLOOR_ALBEDO),
                     station_above(camera, np.asarray(tray, dtype=float), CAMERA_HEIGHT_M),
                     (float(rack[0]), float(rack[1])), (float(tray[0]), float(tray[1])))
 

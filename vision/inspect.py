@@ -23,14 +23,18 @@ than it, a clipped highlight moved such an outline by millimetres):
 - **Features inside it** (each set of connected mesh edges: a hole, a boss, a pocket): the share
   of the feature's visible edges the picture shows within :data:`OWN_PX`. A feature whose edges
   are nearly all absent is missing (a hole not drilled, a boss not there); its deviation is the
-  whole ``reach`` (its edges are at least that far from where they should be).
+  whole ``reach`` (its edges are at least that far from where they should be). Edges found where
+  the mesh puts them say *there* whatever hides the rest; a through-hole's rim is judged from
+  every side (straight down a hole its wall is seen edge-on), and white over it in glare is
+  material where the hole should be (:func:`_judge_features`).
 
 An edge beyond the own one says *defect* only when the greys agree (:func:`_material_agrees`):
 between the line and a burr's edge lies something like the part's face, between the line and a
 broken corner's edge something like the tray; a shadow's or a boss's edge, or the far side of a
 lit rim, leave a band like neither. Glare (a clipped highlight) hides an edge only where it lies
 on both sides of it (a pocket in a white top); beside one side the edge shows, pushed out by the
-optics' spill (the bloom), which the side's level absorbs like a pose error.
+optics' spill (the bloom), which the side's level absorbs like a pose error. Deep shadow on both
+sides (well below the tray model) hides an edge as well.
 
 When too little of the outline or a feature can be judged the part is refused with the reason,
 not passed; but with its top in glare (pockets hidden in the white, the rest in sharp contrast) a
@@ -53,7 +57,8 @@ from shapely.geometry import MultiPolygon, Polygon
 from factory.core.errors import VisionError
 from vision.camera import CameraModel
 from vision.locate import (SATURATED_GREY, Footprint, LocatedPart, LocateOptions, _edge_peaks, _EdgeModel,
-                           _gradients, _grey, _peak_offset, locate_parts, mm_to_m)
+                           _gradients, _grey, _peak_offset, _tray_ratio, locate_parts, mm_to_m)
+from vision.shadow import DARK_LOG
 
 #: A picture edge this close to the expected one along its normal is that edge [px].
 OWN_PX = 1.5
@@ -61,6 +66,8 @@ OWN_PX = 1.5
 EXPLAINED_PX = 1.0
 #: Edges within this of a clipped pixel are unknown, and a clipped face's spill reaches this far [px].
 GLARE_PX = 3
+#: An edge with deep shadow this far on both sides cannot show [px].
+SHADOW_SIDE_PX = 2.5
 #: Share of the part's silhouette clipped white from which its top is in glare (0..1).
 TOP_GLARE = 0.3
 #: Outline samples this close to a corner of the footprint are not judged [m].
@@ -69,6 +76,10 @@ CORNER_M = 1.5e-3
 NEIGHBOUR_M = 5e-3
 #: A wall this turned to the camera (cosine with the view) shows beside its crease (unitless).
 FACING_COS = 0.1
+#: A through-hole's rim is judged from every side where no other feature's edge lies this close [px].
+RIM_CLEAR_PX = 5.0
+#: The mesh under a feature's middle lower than this is none: a through-hole [m].
+THROUGH_M = 2e-4
 #: Outline edges whose direction is steeper than this are the part's vertical corners: no outward side.
 _STEEP = 0.7
 
@@ -270,6 +281,8 @@ def inspect_part(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     grey = _grey(image, source)
     gx, gy, threshold = _gradients(grey)
     saturated = (grey >= SATURATED_GREY).astype(np.uint8)
+    # Deep shadow (well below the tray model): an edge with it on both sides cannot show.
+    dark = (np.log(_tray_ratio(grey)[0]) < DARK_LOG).astype(np.uint8)
     cam_base = np.linalg.inv(np.asarray(base_camera, dtype=np.float64))
     mesh = replace(part, vertices=mm_to_m(np.asarray(vertices_mm, dtype=np.float64)),
                    faces=np.asarray(faces, dtype=np.int64))
@@ -279,17 +292,18 @@ def inspect_part(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         sil = expected_silhouette(vertices_mm, faces, cam_base @ part_transform(part, located))
         ring = np.array(sil.exterior.coords)
         ring_px = camera.project(np.column_stack([ring, np.ones(len(ring))]), np.zeros(3), np.zeros(3))
-        out.append(_judge(model, part, located, grey, (gx, gy, threshold), saturated, options, ring_px))
+        out.append(_judge(model, part, located, grey, (gx, gy, threshold), (saturated, dark), options, ring_px))
     return out
 
 
 def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.ndarray,
-           gradients: tuple[np.ndarray, np.ndarray, float], saturated: np.ndarray, options: InspectOptions,
-           ring_px: np.ndarray) -> Inspection:
+           gradients: tuple[np.ndarray, np.ndarray, float], masks: tuple[np.ndarray, np.ndarray],
+           options: InspectOptions, ring_px: np.ndarray) -> Inspection:
     """The inspection of one located part: its outline's windowed deviations and its features
     (``grey`` the picture, ``gradients`` its ``gx, gy, threshold`` as :func:`vision.locate._gradients`,
-    ``saturated`` its clipped pixels, uint8 1/0, ``ring_px`` its expected silhouette)."""
+    ``masks`` its clipped pixels and its deep shadow, uint8 1/0, ``ring_px`` its expected silhouette)."""
     gx, gy, threshold = gradients
+    saturated, dark = masks
     inside = np.zeros_like(saturated)
     cv2.fillPoly(inside, [np.rint(ring_px).astype(np.int32).reshape(-1, 1, 2)], 1)
     # Glare on the top: a good share of the part's silhouette clipped white (not a lit wall's band).
@@ -304,6 +318,9 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.nd
     # neither found nor missed. On one side only, the edge shows, pushed into the other side by
     # the optics' spill (the bloom, up to GLARE_PX): its own edge is looked for that much further.
     unknown, bloom = _clipped_sides(saturated, uv, normal, top_glare)
+    # Deep shadow on both sides (a hole at the foot of a counterbore under a low light) hides an
+    # edge as glare does: unknown, not missing.
+    unknown |= _both_sides(dark, uv, normal, SHADOW_SIDE_PX)
     lo = -OWN_PX - GLARE_PX * bloom[:, 1]
     hi = OWN_PX + GLARE_PX * bloom[:, 0]
     # The own edge: the strongest peak within OWN_PX. Where two edges lie that close (a lit rim,
@@ -358,22 +375,8 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.nd
     seen = float(np.isfinite(deviation).mean()) if len(deviation) else 0.0
     if seen < options.min_seen:
         refusals.append(f"{100 * seen:.0f} % of the outline can be judged, {100 * options.min_seen:.0f} % needed")
-    outline_features = set(model.feature[idx[model.outer[idx]]])
-    # A feature is judged by its creases with a wall turned to the camera: a step between two faces
-    # turned up, its wall seen edge-on or from behind, may show no edge at all (the faces alike).
-    showing = model.crease[idx] & _wall_facing(model, p, idx)
-    for f in np.unique(model.feature[idx]):
-        every = (model.feature[idx] == f) & showing
-        if f in outline_features or every.sum() < options.min_feature_edges:
-            continue
-        on = every & ~unknown
-        centre = uv[every].mean(axis=0)
-        if on.sum() < options.min_seen * every.sum():
-            refusals.append(f"the feature at ({centre[0]:.0f}, {centre[1]:.0f}) px is hidden in glare")
-            continue
-        share = float(own[on].mean())
-        features.append(Feature(pixel=(float(centre[0]), float(centre[1])), edges=int(on.sum()), found=share,
-                                present=share >= options.min_feature_found))
+    features, hidden_features = _judge_features(model, p, idx, uv, own, unknown, top_glare, options)
+    refusals += hidden_features
     hidden = "; ".join(refusals)
     judged = Inspection(part=located, outline_px=uv[outer], deviation=deviation, features=tuple(features),
                         reach=options.reach, silhouette_px=ring_px, tolerance=options.tolerance, hidden=hidden)
@@ -382,6 +385,64 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.nd
     # is hidden may be what misleads the rest: no verdict, with the reason.
     fails = top_glare and judged.max_deviation > options.tolerance
     return judged if fails or not hidden else replace(judged, refusal=hidden)
+
+
+def _judge_features(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, own: np.ndarray,
+                    unknown: np.ndarray, top_glare: bool, options: InspectOptions) -> tuple[list[Feature], list[str]]:
+    """The features inside the outline at pose ``p``, and the refusals of those hidden in glare.
+
+    ``idx`` the visible edge samples, ``uv`` (k, 2) where they are [px], ``own`` (k,) bool their
+    edge found where expected, ``unknown`` (k,) bool their edge hidden by clipped pixels.
+
+    A feature is judged by its creases with a wall turned to the camera: a step between two faces
+    turned up, its wall seen edge-on or from behind, may show no edge at all (the faces alike).
+    An edge found where the mesh puts it is the feature's, glare or not (a filled hole, a boss not
+    there, leave a flat face and no edge there): a feature whose edges show, counting those beside
+    clipped pixels as not found, is there. A feature hidden in glare is missing when nothing of the
+    part can be white over it: a through-hole shows the tray or its walls, never a clipped top, so
+    white on both sides of its edges is material where the hole should be. A pocket's or a bore's
+    floor, a boss's top, mirror the light as the top does: hidden, not judged.
+    """
+    outline_features = set(model.feature[idx[model.outer[idx]]])
+    facing = model.crease[idx] & _wall_facing(model, p, idx)
+    features, refusals = [], []
+    for f in np.unique(model.feature[idx]):
+        mine = model.feature[idx] == f
+        through = _through(model, f)
+        # A through-hole's rim shows from every side: the top against the hole's dark inside
+        # (straight down a hole its wall is seen edge-on, and the rim is all there is to judge),
+        # unless another feature's edges lie near (a counterbore's wall and its shadow on the floor).
+        rim = mine & model.crease[idx] & through & \
+            (model.points[idx, 2] >= model.points[model.feature == f, 2].max() - THROUGH_M)
+        if rim.any() and (~mine).any():
+            rim[rim] = cKDTree(uv[~mine]).query(uv[rim])[0] > RIM_CLEAR_PX
+        every = mine & (facing | rim)
+        if f in outline_features or every.sum() < options.min_feature_edges:
+            continue
+        on = every & ~unknown
+        centre = uv[every].mean(axis=0)
+        pixel = (float(centre[0]), float(centre[1]))
+        anywhere = float(own[every].mean())
+        if anywhere >= options.min_feature_found:
+            features.append(Feature(pixel=pixel, edges=int(every.sum()), found=anywhere, present=True))
+        elif on.sum() >= options.min_seen * every.sum():
+            share = float(own[on].mean())
+            features.append(Feature(pixel=pixel, edges=int(on.sum()), found=share,
+                                    present=share >= options.min_feature_found))
+        elif top_glare and through:
+            features.append(Feature(pixel=pixel, edges=int(every.sum()), found=anywhere, present=False))
+        else:
+            refusals.append(f"the feature at ({centre[0]:.0f}, {centre[1]:.0f}) px is hidden in glare or shadow")
+    return features, refusals
+
+
+def _through(model: _EdgeModel, feature: int) -> bool:
+    """Whether a feature is a through-hole: its edges reach the part's underside and the mesh has
+    no material under its middle (the tray shows through it; a counterbore over a hole has its own
+    floor), from the height field (:func:`vision.shadow.height_field`)."""
+    points = model.points[model.feature == feature]
+    middle = points[:, :2].mean(axis=0)
+    return bool(points[:, 2].min() < THROUGH_M and model.field.at(middle[None])[0] < THROUGH_M)
 
 
 def _clipped_sides(saturated: np.ndarray, uv: np.ndarray, normal: np.ndarray, top_glare: bool
@@ -409,6 +470,15 @@ def _clipped_sides(saturated: np.ndarray, uv: np.ndarray, normal: np.ndarray, to
             side[:, col] |= clipped(sign * t)
     unknown = side.all(axis=1)
     return unknown, side & ~unknown[:, None]
+
+
+def _both_sides(mask: np.ndarray, uv: np.ndarray, normal: np.ndarray, t: float) -> np.ndarray:
+    """``(k,)`` bool: ``mask`` (h, w) uint8 is set ``t`` [px] along and against each edge sample's image normal."""
+    both = np.ones(len(uv), bool)
+    for step in (-t, t):
+        q = uv + step * normal
+        both &= map_coordinates(mask, [q[:, 1], q[:, 0]], order=0, mode="nearest") > 0
+    return both
 
 
 def _material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signed: np.ndarray,

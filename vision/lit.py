@@ -79,6 +79,9 @@ class Condition:
     distractor: bool = False
 
 
+#: Diffuse reflectance of the satin grey tray (0..1): a little darker than brushed aluminium.
+TRAY_ALBEDO = 0.45
+
 CONDITIONS: dict[str, Condition] = {
     "diffuse": Condition((60.0, 80.0), 12.0, 0.6, 120.0),
     "low_angle": Condition((14.0, 22.0), 0.5, 0.12, 115.0),
@@ -180,7 +183,8 @@ def _jitter(direction: np.ndarray, radius: float, rng: np.random.Generator, n: i
 
 
 def render_lit(station: Station, meshes: list[tuple[trimesh.Trimesh, Material]], condition: Condition,
-               light: np.ndarray, rng: np.random.Generator, *, supersample: int = 2) -> np.ndarray:
+               light: np.ndarray, rng: np.random.Generator, *, supersample: int = 2,
+               tray_albedo: float = TRAY_ALBEDO) -> np.ndarray:
     """The grey picture of meshes [m, world frame] lying on the station's tray under ``condition``.
 
     Parameters
@@ -193,6 +197,8 @@ def render_lit(station: Station, meshes: list[tuple[trimesh.Trimesh, Material]],
         Draws the light's jitter, the textures, the defocus and the noise.
     supersample : int
         Rays per pixel side.
+    tray_albedo : float
+        Diffuse reflectance of the surface the meshes lie on (0..1), its texture on top.
 
     Returns
     -------
@@ -275,7 +281,7 @@ def render_lit(station: Station, meshes: list[tuple[trimesh.Trimesh, Material]],
     extent = 0.5
     origin = station.camera_pose[:2, 3] - extent / 2
     tex = (0.06 * _smooth_noise(rng, (500, 500), 6.0) + 0.03 * _smooth_noise(rng, (500, 500), 1.0))
-    albedo = 0.45 * (1 + _sample(tex, origin, extent / 500, point[tray, :2]))
+    albedo = tray_albedo * (1 + _sample(tex, origin, extent / 500, point[tray, :2]))
     radiance[tray] = albedo * (fill[tray] + vis[tray]) + 0.06 * seen[tray] * n_dot_h[tray] ** 8
     for i, (_, mat) in enumerate(meshes):
         on = which == i

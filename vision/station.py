@@ -30,7 +30,7 @@ from factory.core.errors import VisionError
 from vision.camera import CameraModel
 from vision.handeye import invert
 from vision.inspect import inspect_part, inspection_image, part_transform
-from vision.lit import Condition, key_light, metal, render_lit
+from vision.lit import TRAY_ALBEDO, Condition, key_light, metal, render_lit
 from vision.locate import Footprint, LocatedPart, footprint_from_mesh, locate_parts, mm_to_m
 from vision.render import PixelRays, look_at_pose, pixel_rays, render_mesh
 
@@ -58,11 +58,16 @@ class CameraStation:
         ``T_cam_world`` (``X_camera = T @ X_world``, translation [m]); read-only.
     plane_z : float
         Height of the surface in the world frame [m] (world z up).
+    surface_albedo : float
+        Diffuse reflectance of the surface in pictures in real light (0..1; the exact pictures of
+        :func:`vision.render.render_mesh` have their own flat grey): by default the satin grey tray
+        of :mod:`vision.lit`, about as bright as brushed aluminium under a low light.
     """
 
     camera: CameraModel
     world_to_camera: np.ndarray
     plane_z: float
+    surface_albedo: float = TRAY_ALBEDO
 
     def __post_init__(self) -> None:
         t = np.array(self.world_to_camera, dtype=np.float64)
@@ -74,6 +79,8 @@ class CameraStation:
             raise VisionError("world_to_camera is not a rigid transform")
         if not np.isfinite(self.plane_z):
             raise VisionError(f"plane_z must be finite, got {self.plane_z}")
+        if not 0.0 < self.surface_albedo <= 1.0:
+            raise VisionError(f"surface_albedo must be in (0, 1], got {self.surface_albedo}")
         t.setflags(write=False)
         object.__setattr__(self, "world_to_camera", t)
         object.__setattr__(self, "plane_z", float(self.plane_z))
@@ -89,8 +96,8 @@ class CameraStation:
         return pixel_rays(self.camera, SUPERSAMPLE)
 
 
-def station_above(camera: CameraModel, target_xyz: np.ndarray, height: float, *, tilt: float = 0.0
-                  ) -> CameraStation:
+def station_above(camera: CameraModel, target_xyz: np.ndarray, height: float, *, tilt: float = 0.0,
+                  surface_albedo: float = TRAY_ALBEDO) -> CameraStation:
     """A camera ``height`` above a point of the surface, looking at it (image x = world x, image up = world +y).
 
     Parameters
@@ -102,6 +109,8 @@ def station_above(camera: CameraModel, target_xyz: np.ndarray, height: float, *,
         Camera height above the surface [m], > 0.
     tilt : float
         Angle of the viewing direction from straight down [rad]; the camera moves toward world -y.
+    surface_albedo : float
+        The surface's diffuse reflectance in real light (:attr:`CameraStation.surface_albedo`).
 
     Raises
     ------
@@ -116,7 +125,8 @@ def station_above(camera: CameraModel, target_xyz: np.ndarray, height: float, *,
     if not abs(tilt) < np.radians(80):
         raise VisionError(f"camera tilt must be below 80 deg, got {np.degrees(tilt):.1f} deg")
     eye = target + np.array([0.0, -height * np.tan(tilt), height])
-    return CameraStation(camera, look_at_pose(eye, target, up=np.array([0.0, 1.0, 0.0])), float(target[2]))
+    return CameraStation(camera, look_at_pose(eye, target, up=np.array([0.0, 1.0, 0.0])), float(target[2]),
+                         float(surface_albedo))
 
 
 @dataclass(frozen=True)
@@ -178,7 +188,8 @@ def _picture(station: CameraStation, footprint: Footprint, truth: LocatedPart, v
     rng = np.random.default_rng(seed)
     sun = key_light(light, rng, np.array([truth.x, truth.y, station.plane_z]), station.camera_pose[:3, 3])
     mesh = trimesh.Trimesh(world, np.asarray(faces, dtype=np.int64), process=False)
-    return render_lit(station, [(mesh, metal(light, t))], light, sun, rng, supersample=LIT_SUPERSAMPLE)
+    return render_lit(station, [(mesh, metal(light, t))], light, sun, rng, supersample=LIT_SUPERSAMPLE,
+                      tray_albedo=station.surface_albedo)
 
 
 def _nearest(found: list, truth: LocatedPart, part_of=lambda p: p):

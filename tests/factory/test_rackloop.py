@@ -12,16 +12,25 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+import trimesh
+
 from cli.main import app
+from factory.cellcameras import cell_stations
+from factory.cellinputs import CellInputs
+from factory.core.errors import VisionError
+from factory.core.resources import FIXTURES
 from factory.mcaplog import read_messages
 from factory.rackloop import RackLoop
-from factory.cellinputs import CellInputs
 from factory.simulation import run_cell
+from robotprog.cell import load_cell
 from robotprog.cellsim import simulate
 from robotprog.orders import read_orders
 from robotprog.rackpick import CORRECTED_MOVES, BlankScatter
 from tests.cli.expect import simulate_exit
 from tests.foxglovecheck import check_foxglove_decodes
+from vision.camera import CameraModel
+from vision.lit import CONDITIONS, TRAY_ALBEDO
+from vision.station import locate_shot
 
 
 def _orders(folder, part, quantity):
@@ -121,6 +130,24 @@ def test_the_rack_camera_in_real_light_locates_the_blank_and_the_grasp_is_correc
     (shot,) = lit.picks
     assert shot.pick is not None and not shot.refusal and tuple(m.name for m in shot.pick.moves) == CORRECTED_MOVES
     assert 0.05e-3 < shot.offset.shift_m and shot.error.shift_m < 0.5e-3 and abs(shot.error.dyaw) < math.radians(0.5)
+
+
+def test_the_rack_floor_shows_a_blank_under_a_low_light():
+    """Straight under the rack camera a blank shows its top only, no side. Under a low key light its
+    top and a floor as grey as the out-tray's take the same light and differ by their albedo alone:
+    the lit sides do not show, and the blank is refused with the reason. Against the rack's dark
+    floor every side shows, and the same blank in the same light is located to a fraction of a mm."""
+    rack = cell_stations(load_cell(FIXTURES / "cell.yaml"), CameraModel.read(FIXTURES / "camera.yaml")).rack
+    blank = trimesh.creation.box((104.0, 64.0, 22.5))  # the bracket's stock [mm]
+    blank.apply_translation(np.array([104.0, 64.0, 22.5]) / 2)
+    x, y = rack.camera_pose[:2, 3]
+    pose = (x + 0.002, y - 0.001, math.radians(1.5))
+    args = (np.asarray(blank.vertices), np.asarray(blank.faces), pose)
+    shot = locate_shot(rack, *args, seed=0, light=CONDITIONS["low_angle"])
+    assert shot.passed and shot.error_mm < 0.3
+    grey = dataclasses.replace(rack, surface_albedo=TRAY_ALBEDO)
+    with pytest.raises(VisionError, match="outline is not there"):
+        locate_shot(grey, *args, seed=0, light=CONDITIONS["low_angle"])
 
 
 def test_a_rack_light_needs_blank_offsets_and_a_known_light(block_catalog, tmp_path):

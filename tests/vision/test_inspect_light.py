@@ -61,6 +61,8 @@ def test_a_good_part_passes_inspection_in_diffuse_light(station):
     ("diffuse", "bracket", 0, "missing_hole", (92.0, 52.0, 15.0), 5.8),
     ("distractor", "bracket", 0, "missing_hole", (92.0, 52.0, 15.0), 5.8),
     ("diffuse", "plate_bosses", 0, "missing_boss", (78.0, 56.0, 14.0), 8.6),
+    # straight under the camera: the hole's wall is seen edge-on, and its rim is what shows
+    ("diffuse", "bracket", 1, "missing_hole", (92.0, 52.0, 15.0), 5.8),
 ])
 def test_a_missing_feature_is_found_missing_where_it_is(station, condition, part, seed, defect, where_mm, radius_mm):
     """The same picture with the good part passes; with the feature left out the part fails, and
@@ -102,16 +104,35 @@ def test_glare_on_the_top_judges_what_shows_and_refuses_only_what_it_hides(stati
     _, burred = inspected(station, "glare", "bracket", 0, "burr")
     assert not burred.passed and not burred.refusal and "hidden in glare" in burred.hidden
     assert burred.to_dict()["excess_mm"] > 0.7
+    # A through-hole shows the tray or its walls, never the white top: white over it is material
+    # where the hole should be, and the part fails while its pockets stay hidden.
+    scene, holed = inspected(station, "glare", "bracket", 0, "missing_hole")
+    assert not holed.passed and not holed.refusal and "hidden in glare" in holed.hidden
+    (missing,) = holed.missing_features
+    centre = pixel_of(station, "bracket", scene, (92.0, 52.0, 15.0))
+    assert np.hypot(*(np.array(missing.pixel) - centre)) < 7.0  # [px], the hole's radius
 
 
-@pytest.mark.parametrize("condition, part, seed", [("distractor", "plate_bosses", 1), ("dim", "plate_bosses", 1)])
+@pytest.mark.parametrize("condition, part, seed", [("distractor", "plate_bosses", 1), ("dim", "plate_bosses", 1),
+                                                    ("low_angle", "bracket", 0)])
 def test_a_good_part_is_not_rejected_for_an_edge_the_light_does_not_show(station, condition, part, seed):
     """Two good plates that were rejected: beside the box a boss's shadow darkens the top by one
     side, so the top edge does not show there and the shadow's edge 2 mm out looked like a burr; in
     dim light a side's top edge is as grey as the tray, and a boss's shadow 12 mm in looked like a
-    broken corner. Between the line and such an edge lies neither the part's face nor the tray."""
+    broken corner. Between the line and such an edge lies neither the part's face nor the tray.
+    A bracket under a low light whose pocket's lit wall clips white: the pocket's other edges
+    show where the mesh puts them, so it is there, judged and passed, not refused."""
     _, result = inspected(station, condition, part, seed)
     assert result.passed, result.to_dict()
+
+
+def test_a_feature_in_deep_shadow_is_hidden_not_missing(station):
+    """A good plate under a low light: its bosses' through-holes lie at the foot of counterbores in
+    their own shadow, dark on both sides of the rim, and show no edge. They are hidden, and the part
+    gets no verdict with the reason, never a reject."""
+    _, result = inspected(station, "low_angle", "plate_bosses", 1)
+    assert not result.passed and "hidden in glare or shadow" in result.refusal
+    assert not result.missing_features
 
 
 def test_a_part_locate_cannot_place_is_refused_with_locate_reason(station):

@@ -57,6 +57,9 @@ def test_station_above_looks_straight_down_at_the_target():
         station_above(TRUE_CAMERA, TARGET, 0.0)
     with pytest.raises(VisionError, match="rigid"):
         CameraStation(TRUE_CAMERA, np.diag([2.0, 1.0, 1.0, 1.0]), 0.0)
+    assert station_above(TRUE_CAMERA, TARGET, 0.3, surface_albedo=0.25).surface_albedo == 0.25
+    with pytest.raises(VisionError, match="surface_albedo"):
+        station_above(TRUE_CAMERA, TARGET, 0.3, surface_albedo=1.5)
 
 
 @settings(max_examples=5, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
