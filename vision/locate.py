@@ -44,7 +44,8 @@ from shapely.geometry import MultiPolygon, Polygon
 from factory.core.errors import VisionError
 from factory.core.units import MM_PER_M
 from vision.camera import CameraModel, bin_image, binned_camera
-from vision.locate_search import FIT_SAMPLES, chamfer_starts, oriented_distances, thin_edges
+from vision.locate_spread import pose_spread
+from vision.locate_search import FIT_SAMPLES, chamfer_starts, claimed_twice, oriented_distances, thin_edges
 from vision.shadow import DARK_LOG, dark_both_sides, estimate_light, height_field, shadow_evidence
 
 log = logging.getLogger(__name__)
@@ -91,6 +92,11 @@ class LocateOptions:
     min_contrast : float
         Least departure from the tray model that makes a pixel part of a candidate blob
         (natural log of the brightness ratio; 0.1 is about 10 %).
+    max_disagreement : float
+        Most the pose's spread from how its edges pull one against another (each mesh edge one
+        cluster of residuals) may exceed the spread the residuals give alone (a ratio of standard
+        deviations). A rigid part's edges agree; edges fitted onto a shadow's or a wall's other
+        edge pull apart (on the benchmark correct poses reach 2.3, a pose 1.6 deg off 4.1).
     """
 
     min_area_ratio: float = 0.3
@@ -99,6 +105,7 @@ class LocateOptions:
     min_axis_coverage: float = 0.5
     min_found: float = 0.5
     min_contrast: float = 0.1
+    max_disagreement: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -388,6 +395,18 @@ class _EdgeModel:
         normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
         return uv[:k], normal
 
+    def wall_px(self, p: np.ndarray, idx: np.ndarray) -> float:
+        """How wide the outline's walls look at pose ``p`` [px]: the median image distance between the
+        visible outline samples ``idx`` above the tray and the tray points straight below them (0 when
+        none stands above it). A wall turned to the camera shows this wide between its top and foot."""
+        top = idx[self.outer[idx] & (self.points[idx, 2] > OUTER_M)]
+        if len(top) == 0:
+            return 0.0
+        foot = self.points[top] * np.array([1.0, 1.0, 0.0])
+        uv = self.camera.project(np.vstack([self.world(p, self.points[top]), self.world(p, foot)]), self.rvec,
+                                 self.tvec)
+        return float(np.median(np.linalg.norm(uv[:len(top)] - uv[len(top):], axis=1)))
+
     def in_part_frame(self, p: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The camera's eye (3,) [m] and a base-frame ``direction`` (3,) in the part's frame at pose ``p``."""
         r = np.eye(3)
@@ -413,13 +432,15 @@ SAME_OUTLINE_M = 3e-3
 TURN_MARGIN = 0.15
 #: Share of a fitted bloom [px] that counts as systematic edge error in the uncertainty (unitless).
 BLOOM_BIAS = 0.5
+#: A fitted bloom above this [px] means the outline is clipped white (glare) ...
+CLIPPED_BLOOM_PX = 0.2
+#: ... and then this share of its walls' width in the picture (:meth:`_EdgeModel.wall_px`) counts as
+#: systematic error of the position: on the benchmark, glare poses lie 0-0.4 of it outward (unitless).
+CLIPPED_WALL_SHARE = 0.15
 #: Grey level from which a pixel counts as clipped by the sensor (8-bit) [grey].
 SATURATED_GREY = 250
 #: Search half-widths of the edge fit's rounds, widest first [px].
 SEARCH_PX = (8.0, 4.0, 2.0, 2.0)
-#: Neighbouring edge samples see the same blur and texture: the fit's residuals count as this
-#: many times fewer independent ones when the uncertainty is estimated (unitless).
-CORRELATED_SAMPLES = 4.0
 #: The reported uncertainty is this many fit standard deviations, so the true error lies within
 #: it in at least 90 % of pictures (calibrated on benchmarks/locate_real_light.py) (unitless).
 COVERAGE_FACTOR = 2.5
@@ -477,7 +498,9 @@ class _EdgeFit:
     """A fitted pose; ``coverage``: share of the outline's edges found (``axis_coverage``: in the worse
     of its two main directions), ``found``: of all visible edges not hidden in a clipped highlight,
     ``hidden``: share of the visible edges so hidden; ``ambiguous``: a symmetric turn of the outline,
-    not a symmetry of the mesh, fits as well and the edges that would tell them apart are hidden."""
+    not a symmetry of the mesh, fits as well and the edges that would tell them apart are hidden;
+    ``jac`` (k, 4) and ``residuals`` (k,) [px] of the inlier samples (x, y, yaw and the bloom), each
+    sample on the mesh edge ``clusters`` (k,); ``wall_px``: :meth:`_EdgeModel.wall_px` at the pose."""
 
     pose: np.ndarray
     coverage: float
@@ -490,6 +513,8 @@ class _EdgeFit:
     hidden: float = 0.0
     ambiguous: bool = False
     bloom_px: float = 0.0
+    clusters: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    wall_px: float = 0.0
 
 
 def _clipped(saturated: np.ndarray | None, uv: np.ndarray, normal: np.ndarray, off: np.ndarray,
@@ -554,6 +579,7 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
         idx = idx[:: max(1, len(idx) // FIT_SAMPLES)]
         uv, normal = model.project(p, idx)
         off = _find_edges(gx, gy, threshold, uv, normal, reach)
+        off[claimed_twice(model.edge[idx], uv, normal, off)] = np.nan
         ok = np.isfinite(off)
         if ok.sum() < 12:
             return None
@@ -600,8 +626,8 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
     axis = _axis_coverage(outer_near, outer_normal) if len(outer_near) else _axis_coverage(near, normal)
     return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis, found=float(found.mean()) if len(found) else 0.0,
                     rms_px=rms,
-                    cost=float(sol.cost), jac=sol.jac[inliers][:, :3], residuals=sol.fun[inliers],
-                    hidden=float(1.0 - seen.mean()), bloom_px=bloom)
+                    cost=float(sol.cost), jac=sol.jac[inliers], residuals=sol.fun[inliers],
+                    clusters=model.edge[pts[inliers]], wall_px=model.wall_px(p, idx), hidden=float(1.0 - seen.mean()), bloom_px=bloom)
 
 
 def _axis_coverage(near: np.ndarray, normal: np.ndarray) -> float:
@@ -885,6 +911,10 @@ def _refusal(fit: _EdgeFit, options: LocateOptions) -> str:
                 f"edges found, {100 * options.min_found:.0f} % needed): the pose may be turned or shifted")
     if fit.rms_px > options.max_rms_px:
         return f"the edges fit loosely (RMS {fit.rms_px:.2f} px, {options.max_rms_px:.2f} px allowed)"
+    disagreement = pose_spread(fit.jac, fit.residuals, fit.clusters).disagreement
+    if disagreement > options.max_disagreement:
+        return (f"the part's edges disagree on the pose (their pulls spread it {disagreement:.1f} times as far as "
+                f"the residuals alone, {options.max_disagreement:.1f} allowed): some lie on other edges")
     return ""
 
 
@@ -892,20 +922,18 @@ def _located(fit: _EdgeFit, camera: CameraModel, base_camera: np.ndarray, part: 
              f: float) -> LocatedPart:
     """The fitted pose as a LocatedPart, with an uncertainty that covers the true error (see COVERAGE_FACTOR)."""
     p = fit.pose
-    n = max(len(fit.residuals), 4)
-    variance = max(float(np.sum(fit.residuals ** 2)) / max(n - 3, 1), 0.05 ** 2)
-    try:
-        cov = np.linalg.inv(fit.jac.T @ fit.jac) * variance * CORRELATED_SAMPLES
-    except np.linalg.LinAlgError:
-        cov = np.diag([np.inf] * 3)
+    spread = pose_spread(fit.jac, fit.residuals, fit.clusters)
     middle = np.linalg.inv(base_camera) @ np.array([p[0], p[1], tray_z + 0.5 * part.height, 1.0])
     metres_per_px = middle[2] / f
     half_length = 0.5 * float(np.ptp(part.outline, axis=0).max())
     # A bloom spills unevenly (parallax, parts of the outline not clipped): half of it counts as
     # edge bias as well.
     bias_m = float(np.hypot(EDGE_BIAS_PX, BLOOM_BIAS * fit.bloom_px)) * metres_per_px
-    sigma_xy = COVERAGE_FACTOR * float(np.hypot(np.sqrt(np.linalg.eigvalsh(cov[:2, :2]).max()), bias_m))
-    sigma_yaw = COVERAGE_FACTOR * float(np.hypot(np.sqrt(cov[2, 2]), bias_m / half_length))
+    # Where the outline is clipped, its walls turned to the camera bloom as well: whether an edge is a
+    # wall's top or its foot is known to a share of the wall's width. That moves the part, not its turn.
+    wall_m = (CLIPPED_WALL_SHARE * fit.wall_px if fit.bloom_px > CLIPPED_BLOOM_PX else 0.0) * metres_per_px
+    sigma_xy = COVERAGE_FACTOR * float(np.hypot(spread.xy, np.hypot(bias_m, wall_m)))
+    sigma_yaw = COVERAGE_FACTOR * float(np.hypot(spread.yaw, bias_m / half_length))
     pixel = camera.project(middle[None, :3], np.zeros(3), np.zeros(3))[0]
     return LocatedPart(x=float(p[0]), y=float(p[1]), z=float(tray_z), yaw=float(np.angle(np.exp(1j * p[2]))),
                        score=fit.coverage, rms_px=fit.rms_px, mm_per_px=float(metres_per_px * 1e3),

@@ -38,7 +38,7 @@ GLARE = [("glare", "bracket", 0), ("glare", "dome_mould", 0), ("dim", "stepped_w
          ("glare", "plate_bosses", 2), ("glare", "l_bracket", 3)]
 #: What a refusal may say (vision.locate._refusal): which evidence of the part was short.
 REASONS = ("outline is not there", "seen along one direction only", "inside the outline are not there",
-           "fit loosely", "the yaw is not fixed")
+           "fit loosely", "the yaw is not fixed", "edges disagree")
 FOUND_M = 1.5e-3
 FOUND_RAD = np.radians(1.0)
 
