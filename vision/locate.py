@@ -432,7 +432,7 @@ SAME_OUTLINE_M = 3e-3
 TURN_MARGIN = 0.15
 #: Share of a fitted bloom [px] that counts as systematic edge error in the uncertainty (unitless).
 BLOOM_BIAS = 0.5
-#: A fitted bloom above this [px] means the outline is clipped white (glare) ...
+#: A fitted bloom above this [px] with a top clipped white (edges hidden in it) is glare ...
 CLIPPED_BLOOM_PX = 0.2
 #: ... and then this share of its walls' width in the picture (:meth:`_EdgeModel.wall_px`) counts as
 #: systematic error of the position: on the benchmark, glare poses lie 0-0.4 of it outward (unitless).
@@ -929,9 +929,11 @@ def _located(fit: _EdgeFit, camera: CameraModel, base_camera: np.ndarray, part: 
     # A bloom spills unevenly (parallax, parts of the outline not clipped): half of it counts as
     # edge bias as well.
     bias_m = float(np.hypot(EDGE_BIAS_PX, BLOOM_BIAS * fit.bloom_px)) * metres_per_px
-    # Where the outline is clipped, its walls turned to the camera bloom as well: whether an edge is a
-    # wall's top or its foot is known to a share of the wall's width. That moves the part, not its turn.
-    wall_m = (CLIPPED_WALL_SHARE * fit.wall_px if fit.bloom_px > CLIPPED_BLOOM_PX else 0.0) * metres_per_px
+    # Where the top is clipped white (glare: edges hidden in it) and blooms past the outline, it
+    # blooms over the walls turned to the camera as well: whether an edge is a wall's top or its foot
+    # is known to a share of the wall's width. That moves the part, not its turn.
+    glare = fit.hidden > 0 and fit.bloom_px > CLIPPED_BLOOM_PX
+    wall_m = (CLIPPED_WALL_SHARE * fit.wall_px if glare else 0.0) * metres_per_px
     sigma_xy = COVERAGE_FACTOR * float(np.hypot(spread.xy, np.hypot(bias_m, wall_m)))
     sigma_yaw = COVERAGE_FACTOR * float(np.hypot(spread.yaw, bias_m / half_length))
     pixel = camera.project(middle[None, :3], np.zeros(3), np.zeros(3))[0]
