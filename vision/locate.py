@@ -44,8 +44,7 @@ from shapely.geometry import MultiPolygon, Polygon
 from factory.core.errors import VisionError
 from factory.core.units import MM_PER_M
 from vision.camera import CameraModel, bin_image, binned_camera
-from vision.locate_spread import pose_spread
-from vision.locate_search import FIT_SAMPLES, chamfer_starts, claimed_twice, oriented_distances, thin_edges
+from vision.locate_search import FIT_SAMPLES, chamfer_starts, oriented_distances, thin_edges
 from vision.shadow import DARK_LOG, dark_both_sides, estimate_light, height_field, shadow_evidence
 
 log = logging.getLogger(__name__)
@@ -92,11 +91,6 @@ class LocateOptions:
     min_contrast : float
         Least departure from the tray model that makes a pixel part of a candidate blob
         (natural log of the brightness ratio; 0.1 is about 10 %).
-    max_disagreement : float
-        Most the pose's spread from how its edges pull one against another (each mesh edge one
-        cluster of residuals) may exceed the spread the residuals give alone (a ratio of standard
-        deviations). A rigid part's edges agree; edges fitted onto a shadow's or a wall's other
-        edge pull apart (on the benchmark correct poses reach 2.3, a pose 1.6 deg off 4.1).
     """
 
     min_area_ratio: float = 0.3
@@ -105,7 +99,6 @@ class LocateOptions:
     min_axis_coverage: float = 0.5
     min_found: float = 0.5
     min_contrast: float = 0.1
-    max_disagreement: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -441,6 +434,9 @@ CLIPPED_WALL_SHARE = 0.15
 SATURATED_GREY = 250
 #: Search half-widths of the edge fit's rounds, widest first [px].
 SEARCH_PX = (8.0, 4.0, 2.0, 2.0)
+#: Neighbouring edge samples see the same blur and texture: the fit's residuals count as this
+#: many times fewer independent ones when the uncertainty is estimated (unitless).
+CORRELATED_SAMPLES = 4.0
 #: The reported uncertainty is this many fit standard deviations, so the true error lies within
 #: it in at least 90 % of pictures (calibrated on benchmarks/locate_real_light.py) (unitless).
 COVERAGE_FACTOR = 2.5
@@ -499,8 +495,7 @@ class _EdgeFit:
     of its two main directions), ``found``: of all visible edges not hidden in a clipped highlight,
     ``hidden``: share of the visible edges so hidden; ``ambiguous``: a symmetric turn of the outline,
     not a symmetry of the mesh, fits as well and the edges that would tell them apart are hidden;
-    ``jac`` (k, 4) and ``residuals`` (k,) [px] of the inlier samples (x, y, yaw and the bloom), each
-    sample on the mesh edge ``clusters`` (k,); ``wall_px``: :meth:`_EdgeModel.wall_px` at the pose."""
+    ``wall_px``: :meth:`_EdgeModel.wall_px` at the pose."""
 
     pose: np.ndarray
     coverage: float
@@ -513,7 +508,6 @@ class _EdgeFit:
     hidden: float = 0.0
     ambiguous: bool = False
     bloom_px: float = 0.0
-    clusters: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     wall_px: float = 0.0
 
 
@@ -579,7 +573,6 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
         idx = idx[:: max(1, len(idx) // FIT_SAMPLES)]
         uv, normal = model.project(p, idx)
         off = _find_edges(gx, gy, threshold, uv, normal, reach)
-        off[claimed_twice(model.edge[idx], uv, normal, off)] = np.nan
         ok = np.isfinite(off)
         if ok.sum() < 12:
             return None
@@ -626,8 +619,8 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
     axis = _axis_coverage(outer_near, outer_normal) if len(outer_near) else _axis_coverage(near, normal)
     return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis, found=float(found.mean()) if len(found) else 0.0,
                     rms_px=rms,
-                    cost=float(sol.cost), jac=sol.jac[inliers], residuals=sol.fun[inliers],
-                    clusters=model.edge[pts[inliers]], wall_px=model.wall_px(p, idx), hidden=float(1.0 - seen.mean()), bloom_px=bloom)
+                    cost=float(sol.cost), jac=sol.jac[inliers][:, :3], residuals=sol.fun[inliers],
+                    wall_px=model.wall_px(p, idx), hidden=float(1.0 - seen.mean()), bloom_px=bloom)
 
 
 def _axis_coverage(near: np.ndarray, normal: np.ndarray) -> float:
@@ -911,10 +904,6 @@ def _refusal(fit: _EdgeFit, options: LocateOptions) -> str:
                 f"edges found, {100 * options.min_found:.0f} % needed): the pose may be turned or shifted")
     if fit.rms_px > options.max_rms_px:
         return f"the edges fit loosely (RMS {fit.rms_px:.2f} px, {options.max_rms_px:.2f} px allowed)"
-    disagreement = pose_spread(fit.jac, fit.residuals, fit.clusters).disagreement
-    if disagreement > options.max_disagreement:
-        return (f"the part's edges disagree on the pose (their pulls spread it {disagreement:.1f} times as far as "
-                f"the residuals alone, {options.max_disagreement:.1f} allowed): some lie on other edges")
     return ""
 
 
@@ -922,7 +911,12 @@ def _located(fit: _EdgeFit, camera: CameraModel, base_camera: np.ndarray, part: 
              f: float) -> LocatedPart:
     """The fitted pose as a LocatedPart, with an uncertainty that covers the true error (see COVERAGE_FACTOR)."""
     p = fit.pose
-    spread = pose_spread(fit.jac, fit.residuals, fit.clusters)
+    n = max(len(fit.residuals), 4)
+    variance = max(float(np.sum(fit.residuals ** 2)) / max(n - 3, 1), 0.05 ** 2)
+    try:
+        cov = np.linalg.inv(fit.jac.T @ fit.jac) * variance * CORRELATED_SAMPLES
+    except np.linalg.LinAlgError:
+        cov = np.diag([np.inf] * 3)
     middle = np.linalg.inv(base_camera) @ np.array([p[0], p[1], tray_z + 0.5 * part.height, 1.0])
     metres_per_px = middle[2] / f
     half_length = 0.5 * float(np.ptp(part.outline, axis=0).max())
@@ -934,8 +928,9 @@ def _located(fit: _EdgeFit, camera: CameraModel, base_camera: np.ndarray, part: 
     # is known to a share of the wall's width. That moves the part, not its turn.
     glare = fit.hidden > 0 and fit.bloom_px > CLIPPED_BLOOM_PX
     wall_m = (CLIPPED_WALL_SHARE * fit.wall_px if glare else 0.0) * metres_per_px
-    sigma_xy = COVERAGE_FACTOR * float(np.hypot(spread.xy, np.hypot(bias_m, wall_m)))
-    sigma_yaw = COVERAGE_FACTOR * float(np.hypot(spread.yaw, bias_m / half_length))
+    sigma_xy = COVERAGE_FACTOR * float(np.hypot(np.sqrt(np.linalg.eigvalsh(cov[:2, :2]).max()),
+                                                np.hypot(bias_m, wall_m)))
+    sigma_yaw = COVERAGE_FACTOR * float(np.hypot(np.sqrt(cov[2, 2]), bias_m / half_length))
     pixel = camera.project(middle[None, :3], np.zeros(3), np.zeros(3))[0]
     return LocatedPart(x=float(p[0]), y=float(p[1]), z=float(tray_z), yaw=float(np.angle(np.exp(1j * p[2]))),
                        score=fit.coverage, rms_px=fit.rms_px, mm_per_px=float(metres_per_px * 1e3),

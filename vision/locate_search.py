@@ -7,9 +7,6 @@ starts there.
 2. :func:`refine_start`: around each of the best few, every degree and pixel against the distance
    to picture edges of the same direction (:func:`oriented_distances`), thinned to their ridge
    (:func:`thin_edges`).
-
-And, for the edge fit, which model edge a picture edge belongs to when two found it
-(:func:`claimed_twice`).
 """
 
 from __future__ import annotations
@@ -19,7 +16,6 @@ from typing import Protocol
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
 
 from vision.camera import CameraModel
 
@@ -170,35 +166,3 @@ def refine_start(model: EdgeModel, maps: np.ndarray, start: np.ndarray, ground: 
             xy = start[:2] + ground(ref + shifts[k]) - ground(ref)
             best = (float(score[k]), np.r_[xy, start[2] + dyaw])
     return best
-
-
-def claimed_twice(edge: np.ndarray, uv: np.ndarray, normal: np.ndarray, off: np.ndarray) -> np.ndarray:
-    """``(k,)`` bool: model edge samples whose picture edge another, nearer model edge found as well.
-
-    A wall seen at a slant shows its top crease and its foot a pixel or two apart; where only one of
-    the two shows (a wall as grey as the tray), both model edges find the same picture edge, and the
-    fit would split the difference, half a wall's width off. Of samples of different mesh edges
-    (``edge`` (k,) int), side by side across their (parallel) normals, whose found edges
-    (``uv + off * normal`` [px]) lie within :data:`SAME_EDGE_PX` of each other, only the one that
-    found it nearer keeps it.
-    """
-    ok = np.flatnonzero(np.isfinite(off))
-    twice = np.zeros(len(off), bool)
-    if len(ok) < 2:
-        return twice
-    target = uv[ok] + off[ok, None] * normal[ok]
-    pairs = cKDTree(target).query_pairs(SAME_EDGE_PX, output_type="ndarray")
-    if len(pairs) == 0:
-        return twice
-    i, j = ok[pairs[:, 0]], ok[pairs[:, 1]]
-    apart = np.abs(np.einsum("nj,nj->n", uv[i] - uv[j], normal[i])) > SAME_EDGE_PX
-    parallel = np.abs(np.einsum("nj,nj->n", normal[i], normal[j])) > 0.9
-    keep = (edge[i] != edge[j]) & apart & parallel
-    i, j = i[keep], j[keep]
-    farther = np.where(np.abs(off[i]) > np.abs(off[j]), i, j)
-    twice[farther] = True
-    return twice
-
-
-#: Two model edges whose found picture edges lie this close found the same one [px] (:func:`claimed_twice`).
-SAME_EDGE_PX = 0.5

@@ -38,7 +38,7 @@ GLARE = [("glare", "bracket", 0), ("glare", "dome_mould", 0), ("dim", "stepped_w
          ("glare", "plate_bosses", 2), ("glare", "l_bracket", 3)]
 #: What a refusal may say (vision.locate._refusal): which evidence of the part was short.
 REASONS = ("outline is not there", "seen along one direction only", "inside the outline are not there",
-           "fit loosely", "the yaw is not fixed", "edges disagree")
+           "fit loosely", "the yaw is not fixed")
 FOUND_M = 1.5e-3
 FOUND_RAD = np.radians(1.0)
 
@@ -111,16 +111,6 @@ def test_glare_an_l_whose_turn_fits_nearly_as_well_is_refused_with_the_reason(st
     scene = gallery_scene(station, "l_bracket", "glare", 3)
     _, footprint, _ = sample_mesh("l_bracket")
     with pytest.raises(VisionError, match="the yaw is not fixed"):
-        locate_parts(scene.image, station.camera, station.camera_pose, footprint, station.plane_z)
-
-
-def test_low_angle_an_l_fitted_onto_other_edges_is_refused_because_its_edges_disagree(station):
-    """Under a low light the L's leg lies in its upright's shadow; the fit once came 1.6 mm and 2 deg off
-    (its long side on the lit wall's far edge) and reported +-0.53 mm. Its mesh edges pull the pose
-    apart four times as far as its residuals' noise: no pose, and the reason."""
-    scene = gallery_scene(station, "l_bracket", "low_angle", 1)
-    _, footprint, _ = sample_mesh("l_bracket")
-    with pytest.raises(VisionError, match="edges disagree on the pose"):
         locate_parts(scene.image, station.camera, station.camera_pose, footprint, station.plane_z)
 
 
