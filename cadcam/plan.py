@@ -744,17 +744,20 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
         # A short tool keeps off the skin the ball finishes; off a pocket no tool entered it keeps by
         # ``limit`` below, as every flat end mill does (what no tool reaches is left alone).
         leave = ball if tool in short else None
-        # (A skin only the finer model below shows, with nothing else left beside it, is no
-        # danger: no pass goes there.)
-        if not plan.timed("rest check", lambda: left_on_flats_and_walls(stock, faces, tool.radius, ff.allowance,
-                                                                         ff.rest_above, leave)).any():
-            break
         # A tool whose flutes are shorter than the part is deep takes a wall in steps, at levels
         # where the stock model shows the skin roughing left on it; if the model missed it, the
         # flank pass at the floor would take the whole wall at once, shank in the skin. And below
         # a depth split (op 2) its walls meet op 1's: a skin the planning grid passes by between
-        # its points would stay there, a step at the seam (issue 34: 0.3 mm on a block's long sides).
+        # its points would stay there, a step at the seam (issue 34: 0.3 mm on a block's long sides),
+        # so op 2 looks for that skin on the finer model too, not only cuts it there.
         cell = _MODEL_CELL if tool.flute_length >= depth and plan.turned_stock is None else skin
+        if plan.turned_stock is not None and abs(stock.grid.cell - cell) > 1e-9:
+            stock = plan.model(operations, cell)
+        # (In op 1, a skin only the finer model below shows, with nothing else left beside it, is no
+        # danger: no pass goes there.)
+        if not plan.timed("rest check", lambda: left_on_flats_and_walls(stock, faces, tool.radius, ff.allowance,
+                                                                         ff.rest_above, leave)).any():
+            break
         if abs(stock.grid.cell - cell) > 1e-9:
             stock = plan.model(operations, cell)
         cutting = library.cutting_data(tool, setup.material)

@@ -153,6 +153,10 @@ def test_every_gallery_part_is_a_closed_solid_of_its_stated_kind() -> None:
 # an explore run's find: a pocket 11 mm wide and 54 deep that no tool roughs (too narrow to enter for the ones that
 # reach that deep); the end mills shorter than the stock is deep must not finish its walls (T16 buried 3.8 mm: exit 3)
 @example(x=60.0, y=36.569791510449306, z=69.31306942161947, px=0.4344263935729999, py=0.3, pz=0.7765299578632021)
+# explore finds: tall blocks whose op 2 found no wall skin on the planning grid, so no flats-and-walls pass ran
+# below the depth split and the walls kept their 0.3 mm allowance: a 0.295 mm step at the seam (exit 3)
+@example(x=33.55, y=42.75, z=67.02, px=0.816, py=0.757, pz=0.317)
+@example(x=42.18, y=52.31, z=68.04, px=0.326, py=0.451, pz=0.2)
 @given(x=st.floats(24.0, 70.0), y=st.floats(12.0, 60.0), z=st.floats(8.0, 70.0), px=st.floats(0.3, 0.85),
        py=st.floats(0.3, 0.85), pz=st.floats(0.2, 0.8))
 def test_a_random_machinable_block_that_fits_the_vise_plans_and_passes_verify(tmp_path_factory, x, y, z, px, py, pz):
