@@ -486,6 +486,8 @@ class _Planning:
     #: The last stock model per grid cell [mm] (before a relief's outside is kept): the next model on that
     #: grid cuts only the operations added since into it (:func:`cadcam.stock.stock_after`).
     models: dict[float, OperationsCut] = field(default_factory=dict)
+    #: Where the ball finishes (:meth:`ball_finishes`), built on first use.
+    _ball_area: Callable[[np.ndarray], np.ndarray] | None = None
 
     @classmethod
     def start(cls, part: trimesh.Trimesh, setup: Setup, library: ToolLibrary, options: PlanOptions,
@@ -540,6 +542,14 @@ class _Planning:
         if self.progress is not None:
             self.progress(stage, 1, 1)
         return result
+
+    def ball_finishes(self) -> Callable[[np.ndarray], np.ndarray]:
+        """``inside(xy) -> (m,) bool``: where the finishing ball finishes, near the freeform surfaces
+        (:func:`_ball_finishes`): the short flat end mills keep off it, the ball's passes keep to it. The union
+        of the faces takes seconds on a big part, so it is built once, as a stage of its own."""
+        if self._ball_area is None:
+            self._ball_area = self.timed("freeform area", lambda: _ball_finishes(self.faces, self.finish_tool))
+        return self._ball_area
 
     def model(self, ops: list[Operation], cell: float | None = None) -> Simulation | None:
         """The stock ``ops`` leave on a grid of ``cell`` [mm] (default the planning model's), None before
@@ -673,8 +683,7 @@ def _freeform_finishing(plan: _Planning, operations: list[Operation], stock: Sim
     if not options.waterline:
         # Without waterline the raster must cover steep walls too.
         raster_options = dataclasses.replace(raster_options, steep_angle=90.0)
-    # (the union of the steep and shallow faces' triangles: seconds on a big part, so a stage of its own)
-    where = None if faces is None else plan.timed("freeform area", lambda: _ball_finishes(faces, tool))
+    where = None if faces is None else plan.ball_finishes()
     ball_options = options.finishing
     if faces is not None and options.freeform_scallop is not None:
         ball_options = dataclasses.replace(ball_options, scallop=options.freeform_scallop)
@@ -737,7 +746,7 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
     short = [t for t in narrower if t.length < depth]
     # Where a ball finishes anyway, a shorter tool's pass would only add a tool change and its cycle
     # (dome_mould: +127 s of a 2 mm end mill round the cavity's rim, the same verdict after).
-    ball = _ball_finishes(faces, plan.finish_tool) if faces.freeform else None
+    ball = plan.ball_finishes() if faces.freeform else None
     for tool in [flat] + [t for t in narrower if t not in short] + short:
         if stale:
             stock, stale = plan.model(operations, stock.grid.cell), False
