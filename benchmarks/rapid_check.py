@@ -22,7 +22,7 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from cadcam.rest import _from_and_to_safe_height, _grown  # noqa: E402
+from cadcam.rest import from_and_to_safe_height, _grown  # noqa: E402
 from cadcam.stock import operation_moves  # noqa: E402
 from cadcam.verify import VerifyOptions, rapid_check, simulate  # noqa: E402
 from factory.cam import CamRequest, compute_job  # noqa: E402
@@ -49,7 +49,7 @@ def main() -> None:
         req = CamRequest.defaults(path)
         planned = compute_job(req)
         setup, cell = planned.job.setup, req.rapid_cell
-        ops = tuple(_from_and_to_safe_height(op, setup.safe_z) for op in planned.job.operations)
+        ops = tuple(from_and_to_safe_height(op, setup.safe_z) for op in planned.job.operations)
         tools = {op.tool.number: _grown(op.tool, 0.5 * cell * math.sqrt(2.0)) for op in ops}
         moves = operation_moves(ops)
         tri = np.asarray(planned.part_work.triangles)

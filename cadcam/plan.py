@@ -386,6 +386,7 @@ def plan_job(
     boundary: Boundary | None = None,
     holes: tuple[Hole, ...] | None = None,
     rapid_cell: float = 0.5,
+    on_operations: Callable[[list[Operation], Setup], None] | None = None,
 ) -> PlanJobResult:
     """Compute the operations that cut ``part`` out of the stock described by ``setup``.
 
@@ -419,6 +420,10 @@ def plan_job(
     rapid_cell : float
         Grid [mm] of the stock model every rapid is checked against with its whole cutter
         (:func:`cadcam.rest.safe_rapids`); a re-plan after verify found a rapid in stock gives verify's.
+    on_operations : callable, optional
+        ``on_operations(operations, setup)`` with the operations planned so far, in cutting order,
+        and the setup they cut, each time more are planned and once with them all before the rapid
+        check: to start work on them (their arc fitting) while the next are planned.
 
     Returns
     -------
@@ -441,6 +446,7 @@ def plan_job(
         An operation cannot be computed.
     """
     plan = _Planning.start(part, setup, library, options, progress, boundary)
+    plan.on_operations = on_operations
     holes, operations, stock = _holes_and_roughing(plan, holes)
     stock = _rest_roughing(plan, operations, stock)
     left = _unreached(plan, stock)
@@ -488,6 +494,8 @@ class _Planning:
     models: dict[float, OperationsCut] = field(default_factory=dict)
     #: Where the ball finishes (:meth:`ball_finishes`), built on first use.
     _ball_area: Callable[[np.ndarray], np.ndarray] | None = None
+    #: Told of the operations each time more are planned (see :func:`plan_job`); None: nobody listens.
+    on_operations: Callable[[list[Operation], Setup], None] | None = None
 
     @classmethod
     def start(cls, part: trimesh.Trimesh, setup: Setup, library: ToolLibrary, options: PlanOptions,
@@ -555,6 +563,8 @@ class _Planning:
         """The stock ``ops`` leave on a grid of ``cell`` [mm] (default the planning model's), None before
         any cut; a relief's stock outside its boundary kept uncut."""
         cell = _MODEL_CELL if cell is None else cell
+        if self.on_operations is not None:  # every stock model follows new operations
+            self.on_operations(list(ops), self.setup)
         return self.timed("stock model", lambda: self._model(ops, cell))
 
     def _model(self, ops: list[Operation], cell: float) -> Simulation | None:
@@ -790,6 +800,8 @@ def _finished(plan: _Planning, part_name: str, operations: list[Operation], sour
     if dropped:
         log.info("nothing to cut for %s: dropped", ", ".join(dropped))
     operations = [op for op in operations if len(op.points) >= 2]
+    if plan.on_operations is not None:
+        plan.on_operations(list(operations), plan.setup)
     safe_ops, checked, fixed = plan.timed("rapid check", lambda: safe_rapids(operations, plan.setup, plan.triangles,
                                                                              rapid_cell))
 

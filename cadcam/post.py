@@ -49,7 +49,7 @@ import numpy as np
 
 from cadcam.arcs import FitOptions, SegmentKind, Segments, fit_segments
 from cadcam.model import Job, Motion, Operation, Tool
-from cadcam.parallel import process_map
+from cadcam.parallel import Background, process_map
 from factory.core.errors import GcodeError
 
 log = logging.getLogger(__name__)
@@ -528,18 +528,68 @@ def _fit_one(points: np.ndarray, motion: np.ndarray, fit: FitOptions) -> Segment
     return fit_segments(points, motion, fit)
 
 
+class FitAhead:
+    """Arc fitting of operations started before the job is posted, each in a forked process of its own
+    (:class:`cadcam.parallel.Background`), while the planner plans the next ones.
+
+    :func:`post_process` takes a fit made here only for an operation whose cutter locations and motion
+    are equal, value for value, to the ones fitted, under the same :class:`PostOptions`'s fitting: the
+    text is the one posting without it gives. An operation offered that the job does not hold as it
+    was offered (the rapid check changed it) is fitted again when posted. Where processes cannot be
+    had, :meth:`take` fits here (:class:`~cadcam.parallel.Background`'s fallback).
+    """
+
+    def __init__(self, options: PostOptions):
+        self.fit = _fit_options(options)
+        self._started: list[tuple[np.ndarray, np.ndarray, Background]] = []
+        self._taken: dict[int, Segments] = {}  # by index into _started
+
+    def offer(self, operations: Iterable[Operation]) -> None:
+        """Start fitting each of ``operations`` not offered before (one equal in points and motion was)."""
+        for op in operations:
+            if len(op.points) < 2 or self._find(op) is not None:
+                continue
+            pts, mot = np.array(op.points), np.array(op.motion)  # copies: what was fitted stays as it was
+            self._started.append((pts, mot, Background(_fit_one, pts, mot, self.fit)))
+
+    def take(self, op: Operation, fit: FitOptions) -> Segments | None:
+        """The fit of ``op`` under ``fit`` if one was started (waiting for it), else None."""
+        k = self._find(op) if fit == self.fit else None
+        if k is None:
+            return None
+        if k not in self._taken:
+            self._taken[k] = self._started[k][2].result()
+        return self._taken[k]
+
+    def cancel(self) -> None:
+        """End the fits still running (the plan failed, or they were not wanted)."""
+        for _, _, job in self._started:
+            job.cancel()
+
+    def _find(self, op: Operation) -> int | None:
+        for k, (pts, mot, _) in enumerate(self._started):
+            if (pts.shape == op.points.shape and pts.dtype == op.points.dtype and mot.dtype == op.motion.dtype
+                    and np.array_equal(pts, op.points) and np.array_equal(mot, op.motion)):
+                return k
+        return None
+
+
 def _fitted(job: Job, opt: PostOptions, progress: Callable[[int, int], None] | None,
-            total: int) -> dict[int, Segments]:
+            total: int, ahead: FitAhead | None = None) -> dict[int, Segments]:
     """Segments of every operation written as moves (all but the canned cycles the controller makes),
     by operation index, fitted in parallel when large.
 
     Arc fitting is pure Python per operation and operations are independent, so a large
     job's are fitted in forked processes (:func:`cadcam.parallel.process_map`); the result
-    is the serial one. Progress then advances an operation at a time."""
+    is the serial one. Progress then advances an operation at a time. Operations ``ahead``
+    fitted already (:class:`FitAhead`) are taken from there."""
     fit = _fit_options(opt)
     todo = [k for k, op in enumerate(job.operations) if op.cycle is None or not opt.controller.canned_cycles]
+    known = {k: ahead.take(job.operations[k], fit) for k in todo} if ahead is not None else {}
+    known = {k: seg for k, seg in known.items() if seg is not None}
+    todo = [k for k in todo if k not in known]
     moves = [max(len(job.operations[k].points) - 1, 0) for k in todo]
-    finished = [0]
+    finished = [sum(max(len(job.operations[k].points) - 1, 0) for k in known)]
 
     def done(i: int) -> None:
         finished[0] += moves[i]
@@ -548,12 +598,12 @@ def _fitted(job: Job, opt: PostOptions, progress: Callable[[int, int], None] | N
 
     segs = process_map(_fit_one, [(job.operations[k].points, job.operations[k].motion, fit) for k in todo],
                        moves, _PARALLEL_FIT_MOVES, done)
-    return dict(zip(todo, segs))
+    return {**known, **dict(zip(todo, segs))}
 
 
 
 def post_process(job: Job, options: PostOptions = PostOptions(), *,
-                 progress: Callable[[int, int], None] | None = None) -> Program:
+                 progress: Callable[[int, int], None] | None = None, ahead: FitAhead | None = None) -> Program:
     """Write a job as a G-code program.
 
     Parameters
@@ -564,6 +614,9 @@ def post_process(job: Job, options: PostOptions = PostOptions(), *,
     options : PostOptions
     progress : callable, optional
         Called as ``progress(moves_done, moves_total)``.
+    ahead : FitAhead, optional
+        Operations whose arc fitting started earlier: their fits are taken where they are the
+        job's operations as they stand (the text is the same either way).
 
     Returns
     -------
@@ -581,7 +634,7 @@ def post_process(job: Job, options: PostOptions = PostOptions(), *,
     safe_z = max(float(job.setup.safe_z), max(float(op.points[:, 2].max()) for op in job.operations))
     w = _Writer(options)
     moves_before = sum(max(len(op.points) - 1, 0) for op in job.operations)
-    fitted = _fitted(job, options, progress, moves_before)
+    fitted = _fitted(job, options, progress, moves_before, ahead)
     setup = job.parameters.get("op")
     estimates = [_write_operation(w, k, op, fitted.get(k), safe_z, setup) for k, op in enumerate(job.operations)]
     if progress is not None:

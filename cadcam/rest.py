@@ -147,7 +147,7 @@ def _grown(tool: Tool, by: float) -> Tool:
     return dataclasses.replace(tool, diameter=d, corner_radius=rc)
 
 
-def _from_and_to_safe_height(op: Operation, safe_z: float) -> Operation:
+def from_and_to_safe_height(op: Operation, safe_z: float) -> Operation:
     """``op`` starting and ending at ``safe_z`` [mm]: a rapid straight up or down added where it does
     not (a canned cycle's motion is the controller's: left as it is)."""
     pts = op.points
@@ -191,7 +191,7 @@ def safe_rapids(operations: Sequence[Operation], setup: Setup, part_triangles: n
     """
     # Every link between operations runs at the safe height: an operation that starts or ends
     # lower gets the rapid up or down there, which is then checked like any other.
-    ops = tuple(_from_and_to_safe_height(op, setup.safe_z) for op in operations)
+    ops = tuple(from_and_to_safe_height(op, setup.safe_z) for op in operations)
     if not ops:
         return ops, 0, 0
     by = 0.5 * cell * math.sqrt(2.0)

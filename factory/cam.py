@@ -18,7 +18,7 @@ import trimesh
 
 from cadcam.finishing import FinishingOptions
 from cadcam.mesh import PartMesh, load_part
-from cadcam.model import Job, Setup, SoftJaws, ViseJaws
+from cadcam.model import Job, Operation, Setup, SoftJaws, ViseJaws
 from cadcam.op2 import choose_face_up
 from cadcam.plan import PlanOptions, plan_job
 from cadcam.relief import (FINISH_ENGAGEMENT, TERRACE_STEPDOWN, Boundary, ReliefOptions, machining_surface,
@@ -171,14 +171,16 @@ class PlannedPart:
 
 def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwatch | None = None,
                 check_setup: Callable[[Setup, trimesh.Trimesh | None], None] | None = None,
-                on_setup: Callable[[Setup, PartMesh, Boundary | None], None] | None = None) -> PlannedPart:
+                on_setup: Callable[[Setup, PartMesh, Boundary | None], None] | None = None,
+                on_operations: Callable[[list[Operation], Setup], None] | None = None) -> PlannedPart:
     """Load, set up and plan one part, timing each stage into ``watch``.
 
     ``check_setup`` is called with the setup and the part in work coordinates [mm] (None for a
     relief) before the toolpaths are computed, to refuse early what a later stage would refuse
     only after that work. ``on_setup`` is called once with the setup chosen, the part as loaded and
     a relief's boundary (None for a solid) before the toolpaths are computed, to start work that
-    needs no toolpath (the robot's).
+    needs no toolpath (the robot's). ``on_operations`` is :func:`cadcam.plan.plan_job`'s: told of the
+    operations as they are planned, to start work on them meanwhile (their arc fitting).
 
     Raises
     ------
@@ -237,6 +239,7 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
         boundary=boundary,
         holes=exact_holes,
         rapid_cell=req.rapid_cell,
+        on_operations=on_operations,
     )
     job = planned.job
     if not job.operations:  # nothing to cut: say so here, not as an empty job a later stage refuses

@@ -32,15 +32,16 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from cadcam.model import Job, Setup
+from cadcam.model import Job, Operation, Setup
 from cadcam.plan import PlanOptions
 from cadcam.parallel import Background, processors
 from cadcam.op2 import (FLIP_AXIS, WORK_OFFSET, Op2Options, flip_transform, op2_setup_image, op2_sheet_fields,
                         plan_op2, seam_faults)
-from cadcam.post import PostOptions, Program, post_process, tool_table_file
+from cadcam.post import FitAhead, PostOptions, Program, post_process, tool_table_file
 from cadcam.preview import setup_image
 from cadcam.mesh import PartMesh
 from cadcam.relief import Boundary, block_corners
+from cadcam.rest import from_and_to_safe_height
 from cadcam.sheet import setup_sheet
 from cadcam.stock import Simulation
 from cadcam.verify import VerifyOptions, VerifyReport, VerifyResult
@@ -551,17 +552,27 @@ def _plan_once(request: PlanRequest, progress: Progress | None = None) -> PartPl
         robot = BackgroundRobot(RobotTask(req.cell, stock_sheet(setup), str(outputs["setup_sheet"]), vertices, ops,
                                           req.ops is None, req.lang, outputs["robot_program"]), watch)
 
+    # Each operation's arcs are fitted in a process of its own as soon as it is planned, as the rapid
+    # check will hand it to the post (every operation from and to the safe height); posting takes a fit
+    # only for an operation that is still that one (:class:`cadcam.post.FitAhead`).
+    ahead = FitAhead(post_options)
+
+    def fit_ahead(operations: list[Operation], setup: Setup) -> None:
+        ahead.offer(from_and_to_safe_height(op, setup.safe_z) for op in operations)
+
     try:
         return _plan_with(req, progress, watch, post_options,
                           compute_job(req.cam, progress, watch, check_setup=refuse_early,
-                                      on_setup=start_robot if req.robot else None), robot)
+                                      on_setup=start_robot if req.robot else None, on_operations=fit_ahead),
+                          robot, ahead)
     finally:
+        ahead.cancel()  # none left fitting for a plan that failed (taken: nothing to end)
         if robot is not None:
             robot.cancel()  # no robot left planning for a plan that failed (taken: nothing to end)
 
 
 def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, post_options: PostOptions,
-               planned: PlannedPart, robot: BackgroundRobot | None) -> PartPlan:
+               planned: PlannedPart, robot: BackgroundRobot | None, ahead: FitAhead | None = None) -> PartPlan:
     """:func:`_plan_once` after the toolpaths: post, verify (in a second process while the robot's
     share is waited for), op 2."""
     job = planned.job
@@ -569,7 +580,7 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
         req = dataclasses.replace(req, ops=1 if planned.boundary is not None else 2)
     outputs = req.outputs(Path("."))
     with watch("post"):
-        program = post_process(job, post_options)
+        program = post_process(job, post_options, ahead=ahead)
         sheet = dataclasses.replace(setup_sheet(job, program, outputs["program"].name), op=1, work_offset="G54")
     tending = None
     verify_args = (program.text, str(outputs["program"]), job.setup, {t.number: t for t in job.tools},
