@@ -129,6 +129,16 @@ class Background:
             log.info("no worker process (%s): %s runs here", e, getattr(fn, "__name__", fn))
             self.cancel()
 
+    def ready(self) -> bool:
+        """Whether the child has answered, so that :meth:`result` returns at once. False while it works, for
+        a child that ended without an answer, and with no child (:meth:`result` does the work here then)."""
+        if self._proc is None:
+            return False
+        try:
+            return bool(self._conn.poll())
+        except (EOFError, OSError):
+            return False
+
     def result(self) -> Any:
         if self._proc is not None:
             ok, value = False, None

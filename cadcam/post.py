@@ -546,6 +546,10 @@ class FitAhead:
 
     def offer(self, operations: Iterable[Operation]) -> None:
         """Start fitting each of ``operations`` not offered before (one equal in points and motion was)."""
+        # Fits already made are taken now: a child that has answered ends, and holds no memory meanwhile.
+        for k, (_, _, job) in enumerate(self._started):
+            if k not in self._taken and job.ready():
+                self._taken[k] = job.result()
         for op in operations:
             if len(op.points) < 2 or self._find(op) is not None:
                 continue

@@ -1,6 +1,7 @@
 """Work in forked processes answers as the serial loop does, errors included."""
 
 import os
+import time
 
 import pytest
 
@@ -37,6 +38,20 @@ def test_background_result_and_error_are_the_serial_ones(monkeypatch):
     assert value == 49 and pid != os.getpid()
     with pytest.raises(ToolpathError, match="no path for 3"):
         par.Background(fails, 3).result()
+
+
+def test_background_is_ready_once_the_child_has_answered(monkeypatch):
+    monkeypatch.setenv(par.THREADS_ENV, "2")
+    b = par.Background(square_and_pid, 5)
+    for _ in range(2000):  # the child's answer arrives (at most 20 s on a loaded machine)
+        if b.ready():
+            break
+        time.sleep(0.01)
+    assert b.ready()
+    assert b.result()[0] == 25
+    assert not b.ready()  # taken: no child left to answer
+    monkeypatch.setenv(par.THREADS_ENV, "1")
+    assert not par.Background(square_and_pid, 5).ready()  # no child: the work is done by result, here
 
 
 def test_background_cancel_ends_the_child(monkeypatch):
