@@ -30,7 +30,7 @@ import trimesh
 from scipy import ndimage
 from shapely.geometry.base import BaseGeometry
 
-from cadcam.dropcutter import TriangleIndex, build_index, drop_profile
+from cadcam.dropcutter import TriangleIndex, drop_profile, shared_index
 from cadcam.entries import ramp_entries
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.relief import clip_chains
@@ -138,7 +138,7 @@ def _surface(part: trimesh.Trimesh, setup: Setup, tool: Tool, options: Finishing
     if tool.is_drill:
         raise ToolpathError(f"T{tool.number} is a drill: finishing needs an end mill")
     # workholding: the tool drops no lower than the setup's floor (the holding allowance stays)
-    return _Surface(build_index(tris), tool.radius, tool.corner_radius, options.allowance, float(setup.floor_z))
+    return _Surface(shared_index(tris), tool.radius, tool.corner_radius, options.allowance, float(setup.floor_z))
 
 
 def _work_box(part: trimesh.Trimesh, setup: Setup, reach: float) -> tuple[np.ndarray, np.ndarray]:

@@ -119,7 +119,11 @@ class SurfaceFound:
 def _edge_groups(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per face-edge (3 per face, in face order) its undirected edge id, and each edge's use count."""
     e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, inverse, counts = np.unique(e, axis=0, return_inverse=True, return_counts=True)
+    if len(e) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    # One integer per edge orders edges as np.unique(axis=0) does, several times faster.
+    span = np.int64(e.max()) + 1
+    _, inverse, counts = np.unique(e[:, 0] * span + e[:, 1], return_inverse=True, return_counts=True)
     return inverse.reshape(-1), counts
 
 

@@ -24,8 +24,12 @@ The general unions are snap-rounded to :data:`_GRID`, which is robust.
 
 from __future__ import annotations
 
+import collections
+import concurrent.futures
 import math
-from collections.abc import Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 import shapely
@@ -34,6 +38,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
+
+from cadcam.parallel import processors
 
 #: A clipped projection smaller than this is dropped [mm^2]: a triangle seen edge-on.
 _MIN_AREA = 1e-12
@@ -48,38 +54,86 @@ def part_shadows(part: trimesh.Trimesh, heights: Sequence[float]) -> dict[float,
     """XY shadow of the part's material at or above each height [mm]: where a tool's tip cannot come lower.
 
     Computed top down, each height adding only the triangles reaching into the slab
-    below the previous one, so many heights cost little more than one.
+    below the previous one, so many heights cost little more than one. Each slab's pieces are
+    made in threads (GEOS runs without the interpreter lock) while this thread joins them in
+    order: the same calls on the same geometry as one after another, so the same shadows.
     """
     up = part.face_normals[:, 2] > 1e-9
     tri = np.asarray(part.triangles)[up]
     zmin, zmax = tri[:, :, 2].min(axis=1), tri[:, :, 2].max(axis=1)
-    sheet: np.ndarray | None = None  # each triangle's sheet, found the first time a slab is no coverage
-    out: dict[float, BaseGeometry] = {}
+    sheets = _Sheets(tri)  # each triangle's sheet, found the first time a slab is no coverage
+    levels = sorted(set(heights), reverse=True)
+
+    def slab(k: int) -> tuple[BaseGeometry | None, BaseGeometry | None]:
+        """The union of the triangles of height ``k``'s slab wholly above it, and of those it cuts (None: none)."""
+        z, z_last = levels[k], levels[k - 1] if k else math.inf
+        sel = np.flatnonzero((zmax >= z) & (zmin < z_last))
+        polys, kept = _clip_projections(tri[sel], z)
+        which = sel[kept]
+        done = zmin[which] >= z
+        pieces: list[BaseGeometry | None] = []
+        for part_of in (done, ~done):
+            if not part_of.any():
+                pieces.append(None)
+                continue
+            union = _dissolved(polys[part_of])
+            if union is None:  # the slab's sheets overlap: dissolve each sheet on its own
+                union = _by_sheet(polys[part_of], sheets()[which[part_of]])
+            pieces.append(union)
+        return pieces[0], pieces[1]
+
     # The triangles wholly above the last height, united; each height adds the ones it cuts to a
     # copy. Uniting into the last height's shadow instead would keep every earlier cut's points on
     # straight outline edges: the outline, and each union with it, would grow with every height.
     whole: BaseGeometry = Polygon()
     join = _Join()
-    z_last = math.inf
-    for z in sorted(set(heights), reverse=True):
-        sel = np.flatnonzero((zmax >= z) & (zmin < z_last))
-        polys, kept = _clip_projections(tri[sel], z)
-        which = sel[kept]
-        done = zmin[which] >= z
-        for part_of in (done, ~done):
-            if not part_of.any():
-                continue
-            pieces = _dissolved(polys[part_of])
-            if pieces is None:  # the slab's sheets overlap: dissolve each sheet on its own
-                sheet = _sheets(tri) if sheet is None else sheet
-                pieces = _by_sheet(polys[part_of], sheet[which[part_of]])
-            if part_of is done:
-                whole = join(whole, pieces)
-            else:
-                out[z] = join(whole, pieces)
-        out.setdefault(z, whole)
-        z_last = z
-    return out
+    workers = processors() if len(levels) > 1 else 1
+    with concurrent.futures.ThreadPoolExecutor(max_workers=workers, thread_name_prefix="shadow") as pool:
+        shadows: list[BaseGeometry | concurrent.futures.Future] = []
+        for above, cut in _in_order(slab, len(levels), pool if workers > 1 else None, 2 * workers):
+            if above is not None:
+                whole = join(whole, above)
+            if cut is None:
+                shadows.append(whole)
+            elif join.dissolving or workers == 1:
+                shadows.append(join(whole, cut))
+            else:  # no state left to change: this height's union is on its own
+                shadows.append(pool.submit(_joined, whole, cut))
+        return {z: s.result() if isinstance(s, concurrent.futures.Future) else s for z, s in zip(levels, shadows)}
+
+
+def _in_order(fn: Callable[[int], Any], n: int, pool: concurrent.futures.Executor | None, ahead: int
+              ) -> Iterator[Any]:
+    """``fn(0), fn(1), ... fn(n - 1)`` in order, worked out up to ``ahead`` calls ahead in ``pool`` (None: here,
+    one by one). ``fn`` must depend on nothing another call changes."""
+    if pool is None:
+        yield from (fn(k) for k in range(n))
+        return
+    pending = collections.deque(pool.submit(fn, k) for k in range(min(n, ahead)))
+    try:
+        for k in range(n):
+            result = pending.popleft().result()
+            if k + ahead < n:
+                pending.append(pool.submit(fn, k + ahead))
+            yield result
+    finally:
+        for f in pending:
+            f.cancel()
+
+
+class _Sheets:
+    """``sheets()``: :func:`_sheets` of ``tri``, worked out on first call (once, whichever thread asks)."""
+
+    def __init__(self, tri: np.ndarray) -> None:
+        self._tri = tri
+        self._sheet: np.ndarray | None = None
+        self._lock = threading.Lock()
+
+    def __call__(self) -> np.ndarray:
+        with self._lock:
+            if self._sheet is None:
+                self._sheet = _sheets(self._tri)
+            return self._sheet
 
 
 class _Join:
@@ -91,14 +145,19 @@ class _Join:
         self.dissolving = True
 
     def __call__(self, a: BaseGeometry, b: BaseGeometry) -> BaseGeometry:
-        if a.is_empty or b.is_empty:
-            return b if a.is_empty else a
-        if self.dissolving:
+        if self.dissolving and not (a.is_empty or b.is_empty):
             union = _dissolved(np.array([a, b], dtype=object))
             if union is not None:
                 return union
             self.dissolving = False
-        return _union([a, b])
+        return _joined(a, b)
+
+
+def _joined(a: BaseGeometry, b: BaseGeometry) -> BaseGeometry:
+    """The general union of two pieces (either alone if the other is empty)."""
+    if a.is_empty or b.is_empty:
+        return b if a.is_empty else a
+    return _union([a, b])
 
 
 def _union(geoms) -> BaseGeometry:

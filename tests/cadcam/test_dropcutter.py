@@ -10,7 +10,7 @@ import trimesh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cadcam.dropcutter import build_index, drop_cutter, drop_profile
+from cadcam.dropcutter import build_index, drop_cutter, drop_profile, shared_index
 from cadcam.model import Tool
 from factory.core.errors import MeshError, ToolpathError
 
@@ -285,3 +285,21 @@ def test_a_pins_coarser_buckets_give_the_fine_buckets_answer(seed, count, spread
         fine, fine_cell = drop()
     assert coarse_cell > fine_cell  # the pin's buckets are coarser here
     assert np.array_equal(coarse, fine)
+
+
+def test_the_shared_index_is_reused_only_for_the_same_triangles():
+    """The waterline's index (and its prepared buckets) serves the raster of the same part, and only it:
+    the heights are those of a fresh index, and other triangles get their own."""
+    rng = np.random.default_rng(7)
+    tris = rng.uniform(0.0, 10.0, (60, 3, 3))
+    first = shared_index(tris)
+    xy = rng.uniform(0.0, 10.0, (300, 2))
+    z = drop_profile(first, 1.5, 1.5, xy, -1.0)
+    assert shared_index(tris.copy()) is first and first.prepared
+    assert np.array_equal(drop_profile(shared_index(tris), 1.5, 1.5, xy, -1.0), z)
+    assert np.array_equal(drop_profile(build_index(tris), 1.5, 1.5, xy, -1.0), z)
+    moved = tris.copy()
+    moved[0, 0, 2] += 1e-9
+    other = shared_index(moved)
+    assert other is not first and not other.prepared
+    assert shared_index(tris.reshape(60, 3, 3)) is not other

@@ -8,6 +8,8 @@ them all with shapely, height by height: no sheets, no coverage, no slabs. The s
 
 from __future__ import annotations
 
+from unittest import mock
+
 import manifold3d
 import numpy as np
 import pytest
@@ -161,3 +163,17 @@ def test_the_check_catches_a_shadow_smaller_than_the_part(monkeypatch, break_it)
         monkeypatch.setitem(globals(), "part_shadows", shadow.part_shadows)
     with pytest.raises(AssertionError, match="misses part of the part"):
         assert_exact(part, [2.0])
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(sheets(), st.lists(mm(-2.0, 8.0), min_size=2, max_size=14), st.sampled_from([2, 3, 4]))
+def test_threaded_shadows_are_the_serial_ones_to_the_byte(spec, heights, workers):
+    """Slabs worked out ahead in threads, and general unions of the heights handed to them, give the
+    very geometries (WKB) of the one-by-one construction: the plans do not change with the processors."""
+    part = sheet_mesh(*spec)
+    with mock.patch.object(shadow, "processors", lambda: 1):
+        serial = part_shadows(part, heights)
+    with mock.patch.object(shadow, "processors", lambda: workers):
+        threaded = part_shadows(part, heights)
+    assert list(threaded) == list(serial)
+    assert [g.wkb for g in threaded.values()] == [g.wkb for g in serial.values()]
