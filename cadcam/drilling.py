@@ -28,7 +28,7 @@ import trimesh
 from cadcam.gcode import PECK_CLEARANCE
 from cadcam.heightmap import Grid, upper_envelope
 from cadcam.model import CuttingData, DrillCycle, Motion, Operation, Setup, Tool
-from cadcam.tools import ToolLibrary
+from cadcam.tools import ToolLibrary, internal_arc_feed
 
 if TYPE_CHECKING:  # (detection needs no shapely: imported only where a keep-out is used)
     from cadcam.workholding import Region
@@ -346,18 +346,18 @@ def helix_operation(hole: Hole, tool: Tool, cutting: CuttingData, start_z: float
                     options: DrillingOptions, clear_z: float) -> Operation:
     """Helical interpolation of a hole to its inscribed size with an end mill.
 
-    Climb milling (counter-clockwise inside a bore, spindle clockwise): down a helix of
-    ``options.helix_angle`` from ``start_z`` to ``bottom_z`` [mm] at the plunge feed, a full
-    circle there to cut the ramp's last turn level, to the centre and straight up to ``clear_z``.
-    A helix wider than the tool leaves a pin standing in the middle, which the move to the centre
-    would take at full width over the whole depth (:func:`helix_radii`): narrower helices clear the
-    middle first, each back up to ``start_z`` inside the bore it cut.
+    Climb milling (counter-clockwise inside a bore, spindle clockwise): down a helix from ``start_z``
+    to ``bottom_z`` [mm], a full circle there to cut the ramp's last turn level, to the centre and
+    straight up to ``clear_z``. A helix wider than the tool leaves a pin standing in the middle, which
+    the move to the centre would take at full width over the whole depth (:func:`helix_radii`):
+    narrower helices clear the middle first, each back up to ``start_z`` inside the bore it cut.
+    Its pitch and feed are :func:`helix_pitch` and :func:`helix_cutting` (``cutting``: the tool's
+    cutting data in the material).
     """
     radii = helix_radii(hole.inscribed / 2 - tool.radius - 0.002, tool.radius)  # a hair inside the facets
     pts_parts, mot_parts = [], []
     for k, rh in enumerate(radii):
-        pitch = 2 * math.pi * rh * math.tan(math.radians(options.helix_angle))
-        pitch = max(pitch, 0.02 * tool.diameter)
+        pitch = helix_pitch(rh, tool, options.helix_angle)
         turns = max((start_z - bottom_z) / pitch, 0.0)
         per_turn = 72
         n = max(int(math.ceil(turns * per_turn)), 1)
@@ -378,8 +378,37 @@ def helix_operation(hole: Hole, tool: Tool, cutting: CuttingData, start_z: float
     out = np.array([[hole.x, hole.y, bottom_z], [hole.x, hole.y, clear_z]])
     pts = np.concatenate([*pts_parts, out])
     mot = np.concatenate([*mot_parts, [Motion.CUT, Motion.RAPID]])
-    return Operation(name=f"helix {hole.diameter:.2f} mm bore", kind="helix", tool=tool, cutting=cutting,
-                     points=pts, motion=mot.astype(np.int8))
+    return Operation(name=f"helix {hole.diameter:.2f} mm bore", kind="helix", tool=tool,
+                     cutting=helix_cutting(cutting, tool, radii), points=pts, motion=mot.astype(np.int8))
+
+
+def helix_pitch(radius: float, tool: Tool, angle: float) -> float:
+    """Depth a bore's helix of ``radius`` [mm] (its centre line) descends per turn [mm].
+
+    The ramp rule (``angle`` [deg] along the centre line, :data:`cadcam.entries.RAMP_ANGLE`),
+    and no deeper than the tool's full-width depth (:attr:`~cadcam.model.Tool.full_width_limit`): a
+    helix from solid cuts its bottom turn at full width, and Sandvik Coromant sets the pitch of
+    circular ramping by the cutter's largest depth of cut (*Heat resistant super alloys* application
+    guide, "Circular ramping from solid"). At least 2 % of D, so that a helix near the axis ends.
+    """
+    pitch = 2 * math.pi * radius * math.tan(math.radians(angle))
+    return max(min(pitch, tool.full_width_limit), 0.02 * tool.diameter)
+
+
+def helix_cutting(cutting: CuttingData, tool: Tool, radii: tuple[float, ...]) -> CuttingData:
+    """The feed of a bore's helices [mm/min]: the tool's cutting feed at its edge, at the centre line.
+
+    A helix is a ramp, and ramping is fed as slot milling (Dormer Pramet, milling catalogue
+    2021-2022, "Ramping": "when choosing the feed speed, we advise following the recommendation
+    given for slot milling"), so the edge takes the library's chip load ``cutting.feed``; the
+    controller feeds the centre line, slower on an internal arc (:func:`cadcam.tools.internal_arc_feed`,
+    Dh = 2 (r + R)), and the narrowest helix sets the operation's feed. No chip-thinning rise: a
+    bore's helix from solid cuts at full width (each wider helix takes 1.5 R more, over D/2).
+    The helices, their last circle and the move to the centre all run at it; the spindle is ``cutting``'s.
+    """
+    feed = min(internal_arc_feed(cutting.feed, tool.diameter, 2 * (r + tool.radius)) for r in radii)
+    feed = round(feed, 1)
+    return CuttingData(spindle_rpm=cutting.spindle_rpm, feed=feed, plunge_feed=feed)
 
 
 def helix_radii(outer: float, tool_radius: float) -> tuple[float, ...]:

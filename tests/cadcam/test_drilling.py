@@ -346,3 +346,47 @@ def test_no_too_small_pocket_warning_for_holes_cut_to_size(caplog):
     assert all(abs(float(r.getMessage().split("near (")[1].split(",")[0]) - 17.0) < 6.0 for r in in_holes)  # in a bore
     warned = {r.getMessage().split("near ")[1][:14] for r in skipped if r.levelno >= logging.WARNING}
     assert warned == {"(47.50, 22.00)"}  # the sharp pocket the 10 mm roughing end mill cannot enter
+
+
+# --------------------------------------------------------------------------- helices
+
+
+@pytest.mark.parametrize("diameter", [11.0, 12.0, 12.8])
+def test_helix_feeds_its_edge_at_the_cutting_feed_down_the_ramp_rule(diameter):
+    """A bore no drill matches is helixed at the cutting feed at its edge (the centre line slower by
+    (Dh - D) / Dh on the internal arc), descending at most 3 deg along the centre line and no deeper per
+    turn than the tool's full-width depth; verify passes it with no fault and its full-width cut within
+    the axial limit. 12.8 mm takes two helices (the narrower clears the pin; the 10 mm end mill needs 13)."""
+    part0 = manifold_to_trimesh(plate((40.0, 40.0, 15.0)) - cylinder(20, 20, diameter / 2, -1, 16))
+    setup, part = make_setup(part0)
+    hp = plan_holes(part, setup, LIBRARY, LIBRARY.tool(14), allowance=0.3)  # 16 mm roughing: too wide to enter
+    (op,) = [o for o in hp.operations if o.kind == "helix"]
+    tool = op.tool
+    assert tool.number == 1 and len(hp.helixed) == 1
+    (h,) = hp.helixed
+    feed = LIBRARY.cutting_data(tool, setup.material).feed
+    helix = op.motion == Motion.PLUNGE
+    step = np.diff(op.points, axis=0)
+    down = step[helix[1:]]
+    ends = op.points[1:][helix[1:]]
+    radius = np.hypot(ends[:, 0] - h.x, ends[:, 1] - h.y)
+    # the narrowest helix sets the feed: its edge, on a circle of 2 (r + R), at the library's feed
+    r0 = float(radius.min())
+    edge = op.cutting.feed * (r0 + tool.radius) / r0
+    assert edge == pytest.approx(feed, rel=1e-3)
+    assert op.cutting.plunge_feed == op.cutting.feed
+    assert len(set(np.round(radius, 6))) == (2 if diameter > 12.5 else 1)
+    starts = op.points[:-1][helix[1:]]
+    turned = np.abs(np.angle(np.exp(1j * (np.arctan2(ends[:, 1] - h.y, ends[:, 0] - h.x)
+                                          - np.arctan2(starts[:, 1] - h.y, starts[:, 0] - h.x)))))
+    along = radius * turned  # along the helix (its chords are a hair shorter)
+    assert (-down[:, 2] <= along * math.tan(math.radians(3.0)) + 1e-9).all()  # the ramp rule
+    for r in set(np.round(radius, 6)):  # per turn, no deeper than the full-width depth
+        on = np.isclose(radius, r, atol=1e-6)
+        turn_fall = -down[on, 2].sum() / (along[on].sum() / (2 * math.pi * r))
+        assert turn_fall <= tool.full_width_limit + 1e-9
+    report = simulate(operation_moves([op]), {1: tool}, setup, part.triangles, VerifyOptions(cell=0.2)).report
+    assert [f.kind for f in report.faults] == [] and report.ok, report.faults
+    assert report.max_gouge <= 0.01
+    (eng,) = report.engagement
+    assert eng.max_full_depth <= tool.full_width_limit
