@@ -404,6 +404,9 @@ def helix_operation(hole: Hole, tool: Tool, cutting: CuttingData, start_z: float
     out = np.array([[hole.x, hole.y, bottom_z], [hole.x, hole.y, clear_z]])
     pts = np.concatenate([*pts_parts, out])
     mot = np.concatenate([*mot_parts, [Motion.CUT, Motion.RAPID]])
+    # a predrilled hole whose drill went as deep as the helix has no turns to make: no zero-length moves
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9])
+    pts, mot = pts[keep], mot[keep]
     return Operation(name=f"helix {hole.diameter:.2f} mm bore", kind="helix", tool=tool,
                      cutting=helix_cutting(cutting, tool, radii), points=pts, motion=mot.astype(np.int8))
 
