@@ -139,9 +139,10 @@ class DrillingOptions:
         tool diameter across (the tool must be narrower than ``D / (1 + share)``) [1].
     predrill : bool
         Drill a bore the end mill helixes in one first, with the widest drill the end mill goes
-        down inside (:data:`PREDRILL_ROOM`) leaving a wall it may take at its full flute length
-        (:attr:`cadcam.model.Tool.deep_radial_limit`); the helix then starts where the drill's
-        point begins. Only where the holes' operations take less time so (tool changes counted).
+        down inside (:data:`PREDRILL_ROOM`); the helices then start where the drill's point begins,
+        each taking a ring of the wall the mill may take at its full flute length
+        (:func:`predrilled_radii`). Only where the holes' operations take less time so (tool changes
+        counted).
     """
 
     fit_tolerance: float = 0.02
@@ -356,7 +357,8 @@ def drill_operation(name: str, kind: str, tool: Tool, cutting: CuttingData, cycl
 
 
 def helix_operation(hole: Hole, tool: Tool, cutting: CuttingData, start_z: float, bottom_z: float,
-                    options: DrillingOptions, clear_z: float, from_z: float | None = None) -> Operation:
+                    options: DrillingOptions, clear_z: float, predrilled: tuple[float, float] | None = None
+                    ) -> Operation:
     """Helical interpolation of a hole to its inscribed size with an end mill.
 
     Climb milling (counter-clockwise inside a bore, spindle clockwise): down a helix from ``start_z``
@@ -367,27 +369,39 @@ def helix_operation(hole: Hole, tool: Tool, cutting: CuttingData, start_z: float
     Its pitch and feed are :func:`helix_pitch` and :func:`helix_cutting` (``cutting``: the tool's
     cutting data in the material).
 
-    ``from_z`` [mm]: a drill took the middle out down to there (at its full diameter, at least the tool's
-    and :data:`PREDRILL_ROOM` wider): the tool goes down its axis by rapid, out to the helix on a half
-    circle (no straight move into the wall) and the helix starts there. A bore of one helix only.
+    ``predrilled``: (``from_z``, ``drilled`` [mm]): a drill of radius ``drilled`` took the middle out down to
+    ``from_z`` (at its full diameter, at least the tool's and :data:`PREDRILL_ROOM` wider): the tool goes
+    down its axis by rapid, out to the first helix on a half circle (no straight move into the wall),
+    and each helix (:func:`predrilled_radii`) starts there at ``from_z``, the next one reached the same
+    way from where the last ended, after a rapid back up inside the bore it cut. A bore of one helix from
+    solid only.
     """
     radii = helix_radii(hole.inscribed / 2 - tool.radius - 0.002, tool.radius)  # a hair inside the facets
-    if from_z is not None and len(radii) > 1:
-        raise ValueError("a predrilled bore is helixed in one turn round")
+    from_z = None if predrilled is None else predrilled[0]
+    if predrilled is not None:
+        if len(radii) > 1:
+            raise ValueError("a predrilled bore is one the end mill helixes in one turn round")
+        radii = predrilled_radii(predrilled[1], radii[0], tool)
     pts_parts, mot_parts = [], []
-    if from_z is not None:
-        rh = radii[0]
-        a = np.linspace(math.pi, 2 * math.pi, 19)[1:]  # the half circle from the axis out to the helix, turning CCW
-        lead = np.column_stack([hole.x + rh / 2 * (1 + np.cos(a)), hole.y + rh / 2 * np.sin(a), np.full(len(a), from_z)])
-        pts_parts += [np.array([[hole.x, hole.y, start_z], [hole.x, hole.y, from_z]]), lead[:-1]]
-        mot_parts += [[Motion.RAPID, Motion.RAPID], np.full(len(lead) - 1, Motion.CUT)]
     top = start_z if from_z is None else from_z
+    start = 0.0  # where the helix begins round the bore [rad]
     for k, rh in enumerate(radii):
+        if from_z is not None:  # from the axis or the last helix's end, a half circle out to this one
+            inner = 0.0 if k == 0 else radii[k - 1]
+            if k == 0:  # down the drilled hole's axis
+                pts_parts.append(np.array([[hole.x, hole.y, start_z], [hole.x, hole.y, from_z]]))
+                mot_parts.append([Motion.RAPID, Motion.RAPID])
+            else:  # back up inside the bore the last helix cut
+                pts_parts.append(_on_circle(hole, inner, start, from_z)[None])
+                mot_parts.append([Motion.RAPID])
+            lead = _lead_out(hole, inner, rh, start, from_z)
+            pts_parts.append(lead[:-1])
+            mot_parts.append(np.full(len(lead) - 1, Motion.CUT))
         pitch = helix_pitch(rh, tool, options.helix_angle)
         turns = max((top - bottom_z) / pitch, 0.0)
         per_turn = 72
         n = max(int(math.ceil(turns * per_turn)), 1)
-        theta = np.linspace(0.0, 2 * math.pi * turns, n + 1)
+        theta = start + np.linspace(0.0, 2 * math.pi * turns, n + 1)
         z = np.linspace(top, bottom_z, n + 1)
         helix = np.column_stack([hole.x + rh * np.cos(theta), hole.y + rh * np.sin(theta), z])
         last = theta[-1]
@@ -398,7 +412,8 @@ def helix_operation(hole: Hole, tool: Tool, cutting: CuttingData, start_z: float
         # The first helix starts by a rapid; a wider one after a narrower at the feed, from above its bore.
         mot_parts += [[Motion.RAPID if k == 0 and from_z is None else Motion.CUT], np.full(n, Motion.PLUNGE),
                       np.full(per_turn, Motion.CUT)]
-        if k + 1 < len(radii):
+        start = float(ring_t[-1]) if from_z is not None else 0.0
+        if k + 1 < len(radii) and from_z is None:
             pts_parts.append(np.array([[ring[-1, 0], ring[-1, 1], start_z]]))
             mot_parts.append([Motion.RAPID])
     out = np.array([[hole.x, hole.y, bottom_z], [hole.x, hole.y, clear_z]])
@@ -409,6 +424,43 @@ def helix_operation(hole: Hole, tool: Tool, cutting: CuttingData, start_z: float
     pts, mot = pts[keep], mot[keep]
     return Operation(name=f"helix {hole.diameter:.2f} mm bore", kind="helix", tool=tool,
                      cutting=helix_cutting(cutting, tool, radii), points=pts, motion=mot.astype(np.int8))
+
+
+def _on_circle(hole: Hole, radius: float, angle: float, z: float) -> np.ndarray:
+    """The point ``radius`` [mm] from the hole's axis at ``angle`` [rad] round it, at height ``z`` [mm]."""
+    return np.array([hole.x + radius * math.cos(angle), hole.y + radius * math.sin(angle), z])
+
+
+def _lead_out(hole: Hole, inner: float, outer: float, angle: float, z: float) -> np.ndarray:
+    """A half circle at height ``z`` from ``inner`` out to ``outer`` [mm] from the hole's axis, along the
+    radius at ``angle`` [rad], meeting the circle of ``outer`` tangentially, counter-clockwise (climb milling):
+    (18, 3) points, the last on that circle."""
+    u = np.array([math.cos(angle), math.sin(angle)])
+    v = np.array([-u[1], u[0]])
+    a = np.linspace(math.pi, 2 * math.pi, 19)[1:]
+    mid, half = (inner + outer) / 2, (outer - inner) / 2
+    xy = np.array([hole.x, hole.y]) + np.outer(mid + half * np.cos(a), u) + np.outer(half * np.sin(a), v)
+    return np.column_stack([xy, np.full(len(a), z)])
+
+
+def predrilled_radii(drilled: float, outer: float, tool: Tool) -> tuple[float, ...]:
+    """Radii of the helices [mm] that take a hole drilled to radius ``drilled`` out to a helix of radius ``outer``.
+
+    Each takes a ring of the wall at most :data:`_RING_SHARE` of the tool's deep radial limit wide by its
+    engagement (:func:`ring_engagement`; the wall's whole height is a side cut at the flutes' length):
+    the widest such ring each time, the last one out to ``outer``.
+    """
+    limit = _RING_SHARE * tool.deep_radial_limit
+    radii: list[float] = []
+    inner = drilled
+    while ring_engagement(outer + tool.radius, inner, tool.radius) > limit and len(radii) < 16:
+        lo, hi = max(inner - tool.radius, 0.0), outer
+        for _ in range(60):  # the widest helix whose ring stays within the limit
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if ring_engagement(mid + tool.radius, inner, tool.radius) <= limit else (lo, mid)
+        radii.append(lo)
+        inner = lo + tool.radius
+    return (*radii, outer)
 
 
 def helix_pitch(radius: float, tool: Tool, angle: float) -> float:
@@ -599,14 +651,14 @@ class _Methods:
     ``drilled``: drill number -> (hole, tip height [mm]), to size or undersize, predrilled ones too;
     ``helixed``: (hole, flat end mill); ``undersize``: drilled with a narrower drill (rest roughing
     takes the rest); ``left``: to roughing or to nothing in the library; ``predrilled``: helixed
-    hole -> where its drill's full diameter ends [mm], the helix's start.
+    hole -> (where its drill's full diameter ends, the drill's radius) [mm]: the helices' start.
     """
 
     drilled: dict[int, list[tuple[Hole, float]]] = field(default_factory=dict)
     helixed: list[tuple[Hole, Tool]] = field(default_factory=list)
     undersize: list[Hole] = field(default_factory=list)
     left: list[Hole] = field(default_factory=list)
-    predrilled: dict[Hole, float] = field(default_factory=dict)
+    predrilled: dict[Hole, tuple[float, float]] = field(default_factory=dict)
 
 
 def _choose_methods(holes: tuple[Hole, ...], drills: tuple[Tool, ...], mills: list[Tool], rough_tool: Tool,
@@ -632,11 +684,10 @@ def _choose_methods(holes: tuple[Hole, ...], drills: tuple[Tool, ...], mills: li
         return None
 
     def predrill(h: Hole, mill: Tool, tip_of) -> Tool | None:
-        """The widest drill the mill goes down inside, leaving a wall the mill may take at full flute length."""
+        """The widest drill the mill goes down inside (the helices take the wall in rings, :func:`predrilled_radii`)."""
         if not options.predrill or h.bottom == "conical" or h.inscribed / 2 - mill.radius > mill.radius:
             return None
         ok = [t for t in drills if mill.diameter + 2 * PREDRILL_ROOM <= t.diameter < h.inscribed - options.drill_undersize
-              and ring_engagement(h.inscribed / 2, t.radius, mill.radius) <= _RING_SHARE * mill.deep_radial_limit
               and _reaches(t, top, tip_of(t)) and fits(h, t)]
         return max(ok, key=lambda t: (t.diameter, -t.number), default=None)
 
@@ -655,7 +706,7 @@ def _choose_methods(holes: tuple[Hole, ...], drills: tuple[Tool, ...], mills: li
             pre = predrill(h, mill, tip)
             if pre is not None:
                 out.drilled.setdefault(pre.number, []).append((h, tip(pre)))
-                out.predrilled[h] = tip(pre) + pre.point_length
+                out.predrilled[h] = (tip(pre) + pre.point_length, pre.radius)
         elif d is not None:
             out.drilled.setdefault(d.number, []).append((h, tip(d)))
         else:

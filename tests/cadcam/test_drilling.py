@@ -392,18 +392,20 @@ def test_helix_feeds_its_edge_at_the_cutting_feed_down_the_ramp_rule(diameter):
     assert eng.max_full_depth <= tool.full_width_limit
 
 
-def test_predrilled_bores_are_quicker_and_clean(tmp_path):
-    """Four 11 mm bores (no drill of their size; the 10 mm one leaves a 0.5 mm wall the 6 mm end mill takes at
-    full flute length): spot, drill 10 mm, then helices from where the drill's point begins, quicker by the
-    program's clock than four helices from solid; verify and the independent sweep find no fault, no rapid
-    into stock, no plunge, no full-width cut past the axial limit; the bores are cut to size; rs274 runs it.
-    One such bore alone is helixed from solid: two more tool changes would cost more than the drill saves."""
+@pytest.mark.parametrize("diameter, rings", [(11.0, 1), (12.0, 2)])
+def test_predrilled_bores_are_quicker_and_clean(tmp_path, diameter, rings):
+    """Four bores no drill matches: spot, drill 10 mm, then helices from where the drill's point begins, quicker
+    by the program's clock than four helices from solid. The 6 mm end mill takes the 11 mm bores' wall in one
+    ring (its engagement within the tool's deep radial limit at full flute length), the 12 mm ones' in two.
+    Verify and the independent sweep find no fault, no rapid into stock, no plunge, no full-width cut past the
+    axial limit; the bores are cut to size; rs274 runs it. One such bore alone is helixed from solid: two more
+    tool changes would cost more than the drill saves."""
     from tests.cadcam.sweep import past_axial_limit, rapid_hits, sweep_moves
 
     centres = [(10, 10), (30, 10), (10, 30), (30, 30)]
     solid = plate((40.0, 40.0, 15.0))
     for x, y in centres:
-        solid -= cylinder(x, y, 5.5, -1, 16)
+        solid -= cylinder(x, y, diameter / 2, -1, 16)
     setup, part = make_setup(manifold_to_trimesh(solid))
     hp = plan_holes(part, setup, LIBRARY, LIBRARY.tool(2), allowance=0.3)
     assert len(hp.predrilled) == len(hp.helixed) == 4 and hp.drilled == () and hp.undersize == ()
@@ -419,6 +421,8 @@ def test_predrilled_bores_are_quicker_and_clean(tmp_path):
         # down the drilled hole's axis by rapid to where its point begins, then out on a half circle
         np.testing.assert_allclose(op.points[first - 1], [h.x, h.y, tip + drill.point_length], atol=1e-9)
         assert np.hypot(*(op.points[:first, :2] - [h.x, h.y]).T).max() < 1e-9
+        helix = op.points[1:][op.motion[1:] == Motion.PLUNGE]
+        assert len(set(np.round(np.hypot(helix[:, 0] - h.x, helix[:, 1] - h.y), 6))) == rings
     plain = plan_holes(part, setup, LIBRARY, LIBRARY.tool(2), DrillingOptions(predrill=False), allowance=0.3)
     job = Job(part_name="bores", setup=setup, operations=tuple(ops))
     slower = Job(part_name="bores", setup=setup, operations=plain.operations)
@@ -443,7 +447,7 @@ def test_predrilled_bores_are_quicker_and_clean(tmp_path):
             assert sim.stock_top[j, i] <= 0.5 * (h.top_z + h.bottom_z)
     res = _rs274(tmp_path, job, post_process(job).text)
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
-    one = manifold_to_trimesh(plate((40.0, 40.0, 15.0)) - cylinder(20, 20, 5.5, -1, 16))
+    one = manifold_to_trimesh(plate((40.0, 40.0, 15.0)) - cylinder(20, 20, diameter / 2, -1, 16))
     setup1, part1 = make_setup(one)
     alone = plan_holes(part1, setup1, LIBRARY, LIBRARY.tool(2), allowance=0.3)
     assert len(alone.helixed) == 1 and alone.predrilled == () and [o.kind for o in alone.operations] == ["helix"]
