@@ -562,7 +562,10 @@ def plan_holes(
     2. the roughing tool can enter it (``D - 2 allowance - d_rough >= rough_min_helix``):
        left to roughing;
     3. a flat end mill can helix it (narrower than ``D / (1 + helix_share)``, reaching):
-       helix it to size (a flat floor stays flat);
+       helix it to size (a flat floor stays flat); a through or flat-bottom bore it helixes in one,
+       after the widest drill it goes down inside (``DrillingOptions.predrill``) where the holes'
+       operations take less time so by the program's clock (:func:`cadcam.post.move_seconds`, tool
+       changes at ``PostOptions.tool_change_time``) than with helices from solid;
     4. a drill of its size (a flat-bottom hole no end mill fits): drill, tip on the floor;
        the corner the point leaves goes to rest roughing;
     5. the widest drill narrower than the hole that reaches (through and conical holes):
