@@ -4,7 +4,8 @@ A machinist drills a round hole with a drill of its size rather than pocketing i
 drill centres it, a twist drill takes it to depth in one feed (``G81``) or, deeper than
 about three diameters, in pecks that clear the chips (``G83``). A hole no drill in the
 library matches, too small for the roughing end mill to enter, is cut to size by helical
-interpolation (``G2``/``G3`` with Z) with a smaller flat end mill.
+interpolation (``G2``/``G3`` with Z) with a smaller flat end mill, after a narrower drill has taken
+out its middle where that is quicker.
 
 :func:`find_holes` reads the holes from the mesh: connected bands of vertical faces whose
 vertices lie on a circle, facing its axis, open to the top (nothing of the part over the
@@ -16,6 +17,7 @@ with canned cycles (:func:`cycle_moves` expands one, as LinuxCNC moves it).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import asdict, dataclass, field
@@ -28,7 +30,8 @@ import trimesh
 from cadcam.gcode import PECK_CLEARANCE
 from cadcam.heightmap import Grid, upper_envelope
 from cadcam.model import CuttingData, DrillCycle, Motion, Operation, Setup, Tool
-from cadcam.tools import ToolLibrary
+from cadcam.post import PostOptions, move_seconds
+from cadcam.tools import ToolLibrary, internal_arc_feed
 
 if TYPE_CHECKING:  # (detection needs no shapely: imported only where a keep-out is used)
     from cadcam.workholding import Region
@@ -134,6 +137,12 @@ class DrillingOptions:
     helix_share : float
         An end mill helixes a hole when the helix's path is at least this share of the
         tool diameter across (the tool must be narrower than ``D / (1 + share)``) [1].
+    predrill : bool
+        Drill a bore the end mill helixes in one first, with the widest drill the end mill goes
+        down inside (:data:`PREDRILL_ROOM`); the helices then start where the drill's point begins,
+        each taking a ring of the wall the mill may take at its full flute length
+        (:func:`predrilled_radii`). Only where the holes' operations take less time so (tool changes
+        counted).
     """
 
     fit_tolerance: float = 0.02
@@ -145,6 +154,7 @@ class DrillingOptions:
     spot_share: float = 0.8
     helix_angle: float = 3.0
     helix_share: float = 0.3
+    predrill: bool = True
 
 
 @dataclass(frozen=True)
@@ -159,6 +169,8 @@ class HolePlan:
         Spot drilling, drilling and helical operations, in cutting order.
     drilled, helixed : tuple of Hole
         Holes taken to depth by a drill (to size, or undersize where ``undersize``) and by a helix.
+    predrilled : tuple of Hole
+        Helixed holes a narrower drill took the middle of first (``DrillingOptions.predrill``).
     undersize : tuple of Hole
         Drilled holes whose drill is narrower than the hole: rest roughing takes the rest.
     left : tuple of Hole
@@ -171,6 +183,7 @@ class HolePlan:
     helixed: tuple[Hole, ...]
     undersize: tuple[Hole, ...]
     left: tuple[Hole, ...]
+    predrilled: tuple[Hole, ...] = ()
 
     def cut_at(self, z: float):  # -> shapely geometry (imported here only: detection needs no shapely)
         """The XY area [mm] of the holes cut to size (drilled, not undersize, or helixed) down to level ``z`` [mm]
@@ -184,7 +197,8 @@ class HolePlan:
         return shapely.union_all(disks)
 
     def to_dict(self) -> dict[str, Any]:
-        return {k: [h.to_dict() for h in getattr(self, k)] for k in ("holes", "drilled", "helixed", "undersize", "left")}
+        return {k: [h.to_dict() for h in getattr(self, k)]
+                for k in ("holes", "drilled", "helixed", "undersize", "left", "predrilled")}
 
 
 # --------------------------------------------------------------------------- detection
@@ -343,26 +357,52 @@ def drill_operation(name: str, kind: str, tool: Tool, cutting: CuttingData, cycl
 
 
 def helix_operation(hole: Hole, tool: Tool, cutting: CuttingData, start_z: float, bottom_z: float,
-                    options: DrillingOptions, clear_z: float) -> Operation:
+                    options: DrillingOptions, clear_z: float, predrilled: tuple[float, float] | None = None
+                    ) -> Operation:
     """Helical interpolation of a hole to its inscribed size with an end mill.
 
-    Climb milling (counter-clockwise inside a bore, spindle clockwise): down a helix of
-    ``options.helix_angle`` from ``start_z`` to ``bottom_z`` [mm] at the plunge feed, a full
-    circle there to cut the ramp's last turn level, to the centre and straight up to ``clear_z``.
-    A helix wider than the tool leaves a pin standing in the middle, which the move to the centre
-    would take at full width over the whole depth (:func:`helix_radii`): narrower helices clear the
-    middle first, each back up to ``start_z`` inside the bore it cut.
+    Climb milling (counter-clockwise inside a bore, spindle clockwise): down a helix from ``start_z``
+    to ``bottom_z`` [mm], a full circle there to cut the ramp's last turn level, to the centre and
+    straight up to ``clear_z``. A helix wider than the tool leaves a pin standing in the middle, which
+    the move to the centre would take at full width over the whole depth (:func:`helix_radii`):
+    narrower helices clear the middle first, each back up to ``start_z`` inside the bore it cut.
+    Its pitch and feed are :func:`helix_pitch` and :func:`helix_cutting` (``cutting``: the tool's
+    cutting data in the material).
+
+    ``predrilled``: (``from_z``, ``drilled`` [mm]): a drill of radius ``drilled`` took the middle out down to
+    ``from_z`` (at its full diameter, at least the tool's and :data:`PREDRILL_ROOM` wider): the tool goes
+    down its axis by rapid, out to the first helix on a half circle (no straight move into the wall),
+    and each helix (:func:`predrilled_radii`) starts there at ``from_z``, the next one reached the same
+    way from where the last ended, after a rapid back up inside the bore it cut. A bore of one helix from
+    solid only.
     """
     radii = helix_radii(hole.inscribed / 2 - tool.radius - 0.002, tool.radius)  # a hair inside the facets
+    from_z = None if predrilled is None else predrilled[0]
+    if predrilled is not None:
+        if len(radii) > 1:
+            raise ValueError("a predrilled bore is one the end mill helixes in one turn round")
+        radii = predrilled_radii(predrilled[1], radii[0], tool)
     pts_parts, mot_parts = [], []
+    top = start_z if from_z is None else from_z
+    start = 0.0  # where the helix begins round the bore [rad]
     for k, rh in enumerate(radii):
-        pitch = 2 * math.pi * rh * math.tan(math.radians(options.helix_angle))
-        pitch = max(pitch, 0.02 * tool.diameter)
-        turns = max((start_z - bottom_z) / pitch, 0.0)
+        if from_z is not None:  # from the axis or the last helix's end, a half circle out to this one
+            inner = 0.0 if k == 0 else radii[k - 1]
+            if k == 0:  # down the drilled hole's axis
+                pts_parts.append(np.array([[hole.x, hole.y, start_z], [hole.x, hole.y, from_z]]))
+                mot_parts.append([Motion.RAPID, Motion.RAPID])
+            else:  # back up inside the bore the last helix cut
+                pts_parts.append(_on_circle(hole, inner, start, from_z)[None])
+                mot_parts.append([Motion.RAPID])
+            lead = _lead_out(hole, inner, rh, start, from_z)
+            pts_parts.append(lead[:-1])
+            mot_parts.append(np.full(len(lead) - 1, Motion.CUT))
+        pitch = helix_pitch(rh, tool, options.helix_angle)
+        turns = max((top - bottom_z) / pitch, 0.0)
         per_turn = 72
         n = max(int(math.ceil(turns * per_turn)), 1)
-        theta = np.linspace(0.0, 2 * math.pi * turns, n + 1)
-        z = np.linspace(start_z, bottom_z, n + 1)
+        theta = start + np.linspace(0.0, 2 * math.pi * turns, n + 1)
+        z = np.linspace(top, bottom_z, n + 1)
         helix = np.column_stack([hole.x + rh * np.cos(theta), hole.y + rh * np.sin(theta), z])
         last = theta[-1]
         ring_t = last + np.linspace(0.0, 2 * math.pi, per_turn + 1)[1:]
@@ -370,16 +410,86 @@ def helix_operation(hole: Hole, tool: Tool, cutting: CuttingData, start_z: float
                                 np.full(per_turn, bottom_z)])
         pts_parts += [helix, ring]
         # The first helix starts by a rapid; a wider one after a narrower at the feed, from above its bore.
-        mot_parts += [[Motion.RAPID if k == 0 else Motion.CUT], np.full(n, Motion.PLUNGE),
+        mot_parts += [[Motion.RAPID if k == 0 and from_z is None else Motion.CUT], np.full(n, Motion.PLUNGE),
                       np.full(per_turn, Motion.CUT)]
-        if k + 1 < len(radii):
+        start = float(ring_t[-1]) if from_z is not None else 0.0
+        if k + 1 < len(radii) and from_z is None:
             pts_parts.append(np.array([[ring[-1, 0], ring[-1, 1], start_z]]))
             mot_parts.append([Motion.RAPID])
     out = np.array([[hole.x, hole.y, bottom_z], [hole.x, hole.y, clear_z]])
     pts = np.concatenate([*pts_parts, out])
     mot = np.concatenate([*mot_parts, [Motion.CUT, Motion.RAPID]])
-    return Operation(name=f"helix {hole.diameter:.2f} mm bore", kind="helix", tool=tool, cutting=cutting,
-                     points=pts, motion=mot.astype(np.int8))
+    # a predrilled hole whose drill went as deep as the helix has no turns to make: no zero-length moves
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9])
+    pts, mot = pts[keep], mot[keep]
+    return Operation(name=f"helix {hole.diameter:.2f} mm bore", kind="helix", tool=tool,
+                     cutting=helix_cutting(cutting, tool, radii), points=pts, motion=mot.astype(np.int8))
+
+
+def _on_circle(hole: Hole, radius: float, angle: float, z: float) -> np.ndarray:
+    """The point ``radius`` [mm] from the hole's axis at ``angle`` [rad] round it, at height ``z`` [mm]."""
+    return np.array([hole.x + radius * math.cos(angle), hole.y + radius * math.sin(angle), z])
+
+
+def _lead_out(hole: Hole, inner: float, outer: float, angle: float, z: float) -> np.ndarray:
+    """A half circle at height ``z`` from ``inner`` out to ``outer`` [mm] from the hole's axis, along the
+    radius at ``angle`` [rad], meeting the circle of ``outer`` tangentially, counter-clockwise (climb milling):
+    (18, 3) points, the last on that circle."""
+    u = np.array([math.cos(angle), math.sin(angle)])
+    v = np.array([-u[1], u[0]])
+    a = np.linspace(math.pi, 2 * math.pi, 19)[1:]
+    mid, half = (inner + outer) / 2, (outer - inner) / 2
+    xy = np.array([hole.x, hole.y]) + np.outer(mid + half * np.cos(a), u) + np.outer(half * np.sin(a), v)
+    return np.column_stack([xy, np.full(len(a), z)])
+
+
+def predrilled_radii(drilled: float, outer: float, tool: Tool) -> tuple[float, ...]:
+    """Radii of the helices [mm] that take a hole drilled to radius ``drilled`` out to a helix of radius ``outer``.
+
+    Each takes a ring of the wall at most :data:`_RING_SHARE` of the tool's deep radial limit wide by its
+    engagement (:func:`ring_engagement`; the wall's whole height is a side cut at the flutes' length):
+    the widest such ring each time, the last one out to ``outer``.
+    """
+    limit = _RING_SHARE * tool.deep_radial_limit
+    radii: list[float] = []
+    inner = drilled
+    while ring_engagement(outer + tool.radius, inner, tool.radius) > limit and len(radii) < 16:
+        lo, hi = max(inner - tool.radius, 0.0), outer
+        for _ in range(60):  # the widest helix whose ring stays within the limit
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if ring_engagement(mid + tool.radius, inner, tool.radius) <= limit else (lo, mid)
+        radii.append(lo)
+        inner = lo + tool.radius
+    return (*radii, outer)
+
+
+def helix_pitch(radius: float, tool: Tool, angle: float) -> float:
+    """Depth a bore's helix of ``radius`` [mm] (its centre line) descends per turn [mm].
+
+    The ramp rule (``angle`` [deg] along the centre line, :data:`cadcam.entries.RAMP_ANGLE`),
+    and no deeper than the tool's full-width depth (:attr:`~cadcam.model.Tool.full_width_limit`): a
+    helix from solid cuts its bottom turn at full width, and Sandvik Coromant sets the pitch of
+    circular ramping by the cutter's largest depth of cut (*Heat resistant super alloys* application
+    guide, "Circular ramping from solid"). At least 2 % of D, so that a helix near the axis ends.
+    """
+    pitch = 2 * math.pi * radius * math.tan(math.radians(angle))
+    return max(min(pitch, tool.full_width_limit), 0.02 * tool.diameter)
+
+
+def helix_cutting(cutting: CuttingData, tool: Tool, radii: tuple[float, ...]) -> CuttingData:
+    """The feed of a bore's helices [mm/min]: the tool's cutting feed at its edge, at the centre line.
+
+    A helix is a ramp, and ramping is fed as slot milling (Dormer Pramet, milling catalogue
+    2021-2022, "Ramping": "when choosing the feed speed, we advise following the recommendation
+    given for slot milling"), so the edge takes the library's chip load ``cutting.feed``; the
+    controller feeds the centre line, slower on an internal arc (:func:`cadcam.tools.internal_arc_feed`,
+    Dh = 2 (r + R)), and the narrowest helix sets the operation's feed. No chip-thinning rise: a
+    bore's helix from solid cuts at full width (each wider helix takes 1.5 R more, over D/2).
+    The helices, their last circle and the move to the centre all run at it; the spindle is ``cutting``'s.
+    """
+    feed = min(internal_arc_feed(cutting.feed, tool.diameter, 2 * (r + tool.radius)) for r in radii)
+    feed = round(feed, 1)
+    return CuttingData(spindle_rpm=cutting.spindle_rpm, feed=feed, plunge_feed=feed)
 
 
 def helix_radii(outer: float, tool_radius: float) -> tuple[float, ...]:
@@ -452,7 +562,10 @@ def plan_holes(
     2. the roughing tool can enter it (``D - 2 allowance - d_rough >= rough_min_helix``):
        left to roughing;
     3. a flat end mill can helix it (narrower than ``D / (1 + helix_share)``, reaching):
-       helix it to size (a flat floor stays flat);
+       helix it to size (a flat floor stays flat); a through or flat-bottom bore it helixes in one,
+       after the widest drill it goes down inside (``DrillingOptions.predrill``) where the holes'
+       operations take less time so by the program's clock (:func:`cadcam.post.move_seconds`, tool
+       changes at ``PostOptions.tool_change_time``) than with helices from solid;
     4. a drill of its size (a flat-bottom hole no end mill fits): drill, tip on the floor;
        the corner the point leaves goes to rest roughing;
     5. the widest drill narrower than the hole that reaches (through and conical holes):
@@ -494,30 +607,43 @@ def plan_holes(
     mills = sorted((t for t in library.tools if t.shape == "flat"),
                    key=lambda t: (library.feed_factor(t) < 1.0, -t.diameter, t.number))
     min_helix = 0.3 * rough_tool.diameter if rough_min_helix is None else rough_min_helix
-    chosen = _choose_methods(holes, drills, mills, rough_tool, min_helix, allowance, top, floor, options,
-                             _fits(within, spots[:1]))
-    drilled, helixed = chosen.drilled, chosen.helixed
-
-    ops: list[Operation] = []
+    fits = _fits(within, spots[:1])
     origin = np.array([float(setup.stock_min[0]), float(setup.stock_min[1])])
-    if drilled and spots:
-        ops.append(_spot_operation(drilled, spots[0], library, mat, top, r_plane, initial, origin, options))
-    ops += _drill_operations(drilled, library, mat, r_plane, initial, origin, options)
-    for h, mill in sorted(helixed, key=lambda hm: (-hm[1].diameter, hm[0].x, hm[0].y)):
-        bottom = max(h.bottom_z - (options.breakthrough if h.bottom == "through" else 0.0), floor)
-        ops.append(helix_operation(h, mill, library.cutting_data(mill, mat), r_plane, bottom, options, initial))
+
+    def operations(methods: _Methods) -> list[Operation]:
+        ops: list[Operation] = []
+        if methods.drilled and spots:
+            ops.append(_spot_operation(methods.drilled, spots[0], library, mat, top, r_plane, initial, origin, options))
+        ops += _drill_operations(methods.drilled, library, mat, r_plane, initial, origin, options)
+        for h, mill in sorted(methods.helixed, key=lambda hm: (-hm[1].diameter, hm[0].x, hm[0].y)):
+            bottom = max(h.bottom_z - (options.breakthrough if h.bottom == "through" else 0.0), floor)
+            ops.append(helix_operation(h, mill, library.cutting_data(mill, mat), r_plane, bottom, options, initial,
+                                       methods.predrilled.get(h)))
+        return ops
+
+    chosen = _choose_methods(holes, drills, mills, rough_tool, min_helix, allowance, top, floor, options, fits)
+    ops = operations(chosen)
+    if chosen.predrilled:  # drilling first pays only for enough metal: else the helices from solid
+        plain = _choose_methods(holes, drills, mills, rough_tool, min_helix, allowance, top, floor,
+                                dataclasses.replace(options, predrill=False), fits)
+        plain_ops = operations(plain)
+        if _seconds(plain_ops) <= _seconds(ops):
+            chosen, ops = plain, plain_ops
+    drilled, helixed = chosen.drilled, chosen.helixed
     spotted = {h for hs in drilled.values() for h, _ in hs if spots and _spots_countersink(spots[0], h.countersink)}
     for h in holes:
         log.debug("hole: %s", h.describe())
         if h.countersink is not None and h not in spotted:
             log.warning("%s: its countersink %.2f mm x %g deg is left: only a spot drill of its angle, on a "
                         "drilled hole, cuts it", h.describe(), h.countersink.diameter, h.countersink.angle)
-    log.info("%d round holes: %d drilled (%d undersize), %d helixed, %d left to roughing or unreached",
-             len(holes), sum(len(v) for v in drilled.values()), len(chosen.undersize), len(helixed), len(chosen.left))
+    log.info("%d round holes: %d drilled (%d undersize), %d helixed (%d predrilled), %d left to roughing or "
+             "unreached", len(holes), sum(len(v) for v in drilled.values()) - len(chosen.predrilled),
+             len(chosen.undersize), len(helixed), len(chosen.predrilled), len(chosen.left))
     return HolePlan(
         holes=holes, operations=tuple(ops),
-        drilled=tuple(h for hs in drilled.values() for h, _ in hs),
+        drilled=tuple(h for hs in drilled.values() for h, _ in hs if h not in chosen.predrilled),
         helixed=tuple(h for h, _ in helixed), undersize=tuple(chosen.undersize), left=tuple(chosen.left),
+        predrilled=tuple(h for h, _ in helixed if h in chosen.predrilled),
     )
 
 
@@ -525,15 +651,17 @@ def plan_holes(
 class _Methods:
     """How :func:`plan_holes` takes each hole, in the order the holes were found.
 
-    ``drilled``: drill number -> (hole, tip height [mm]), to size or undersize; ``helixed``:
-    (hole, flat end mill); ``undersize``: drilled with a narrower drill; ``left``: to roughing
-    or to nothing in the library.
+    ``drilled``: drill number -> (hole, tip height [mm]), to size or undersize, predrilled ones too;
+    ``helixed``: (hole, flat end mill); ``undersize``: drilled with a narrower drill (rest roughing
+    takes the rest); ``left``: to roughing or to nothing in the library; ``predrilled``: helixed
+    hole -> (where its drill's full diameter ends, the drill's radius) [mm]: the helices' start.
     """
 
     drilled: dict[int, list[tuple[Hole, float]]] = field(default_factory=dict)
     helixed: list[tuple[Hole, Tool]] = field(default_factory=list)
     undersize: list[Hole] = field(default_factory=list)
     left: list[Hole] = field(default_factory=list)
+    predrilled: dict[Hole, tuple[float, float]] = field(default_factory=dict)
 
 
 def _choose_methods(holes: tuple[Hole, ...], drills: tuple[Tool, ...], mills: list[Tool], rough_tool: Tool,
@@ -558,6 +686,14 @@ def _choose_methods(holes: tuple[Hole, ...], drills: tuple[Tool, ...], mills: li
                 return t
         return None
 
+    def predrill(h: Hole, mill: Tool, tip_of) -> Tool | None:
+        """The widest drill the mill goes down inside (the helices take the wall in rings, :func:`predrilled_radii`)."""
+        if not options.predrill or h.bottom == "conical" or h.inscribed / 2 - mill.radius > mill.radius:
+            return None
+        ok = [t for t in drills if mill.diameter + 2 * PREDRILL_ROOM <= t.diameter < h.inscribed - options.drill_undersize
+              and _reaches(t, top, tip_of(t)) and fits(h, t)]
+        return max(ok, key=lambda t: (t.diameter, -t.number), default=None)
+
     out = _Methods()
     for h in holes:
         def tip(t: Tool, h=h) -> float:
@@ -570,6 +706,10 @@ def _choose_methods(holes: tuple[Hole, ...], drills: tuple[Tool, ...], mills: li
             out.left.append(h)
         elif mill is not None:
             out.helixed.append((h, mill))
+            pre = predrill(h, mill, tip)
+            if pre is not None:
+                out.drilled.setdefault(pre.number, []).append((h, tip(pre)))
+                out.predrilled[h] = (tip(pre) + pre.point_length, pre.radius)
         elif d is not None:
             out.drilled.setdefault(d.number, []).append((h, tip(d)))
         else:
@@ -598,6 +738,39 @@ def _fits(within: Region | None, spots: tuple[Tool, ...] = ()) -> Callable[[Hole
         return bool(within(float(t.radius)).covers(axis))
 
     return lambda h, t: one(h, t) and (not t.is_drill or all(one(h, s) for s in spots))
+
+
+#: Radial room [mm] an end mill keeps from a predrilled hole's wall on its way down the hole's axis by rapid.
+PREDRILL_ROOM = 0.5
+#: Share of the end mill's deep radial limit a predrilled bore's wall may load it to: verify measures the
+#: engagement on its grid, a little over the exact figure.
+_RING_SHARE = 0.9
+
+
+def ring_engagement(hole_radius: float, drilled_radius: float, tool_radius: float) -> float:
+    """Radial engagement [mm] of an end mill circling inside a bore, cutting it out from ``drilled_radius`` to
+    ``hole_radius`` [mm]: ``R (1 - cos b)``, ``b`` the angle at the tool's centre from the bore's radius
+    out to where the tool's edge crosses the drilled wall (on an internal arc more than the wall's width)."""
+    rh = hole_radius - tool_radius
+    if drilled_radius >= hole_radius:
+        return 0.0
+    if rh <= 0.0:
+        return 2 * tool_radius
+    cos_b = (drilled_radius ** 2 - rh ** 2 - tool_radius ** 2) / (2 * rh * tool_radius)
+    return tool_radius * (1.0 - max(-1.0, min(1.0, cos_b)))
+
+
+def _seconds(ops: list[Operation], post: PostOptions = PostOptions()) -> float:
+    """What ``ops`` take by the program's clock [s] (:func:`cadcam.post.move_seconds`), each change of tool counted."""
+    total, tool = 0.0, None
+    for op in ops:
+        if op.tool.number != tool:
+            total, tool = total + post.tool_change_time, op.tool.number
+        seg = np.linalg.norm(np.diff(op.points, axis=0), axis=1)
+        m = op.motion[1:]
+        feed = np.where(m == Motion.RAPID, np.nan, np.where(m == Motion.PLUNGE, op.cutting.plunge_feed, op.cutting.feed))
+        total += float(move_seconds(seg, feed, post.rapid_rate).sum())
+    return total
 
 
 def _spot_operation(drilled: dict[int, list[tuple[Hole, float]]], spot: Tool, library: ToolLibrary, mat: str,

@@ -11,7 +11,8 @@ Speeds and feeds follow the usual shop formulas::
     plunge = vf * plunge_fraction
 
 with ``fz`` (chip load per tooth [mm]) interpolated linearly in the tool diameter from the
-material's table.
+material's table. On an internal arc the edge runs faster than the centre the controller feeds
+(:func:`internal_arc_feed`).
 """
 
 from __future__ import annotations
@@ -62,6 +63,21 @@ class DrillingData:
     def feed_per_rev_for(self, diameter: float) -> float:
         """Feed per revolution for a drill of this diameter [mm/rev]."""
         return _interpolated(self.feed_per_rev, diameter)
+
+
+def internal_arc_feed(feed: float, tool_diameter: float, edge_diameter: float) -> float:
+    """The feed at the cutter's centre [mm/min] that gives the edge ``feed`` [mm/min] on an internal arc.
+
+    Inside a bore the cutting edge, on a circle of ``edge_diameter`` Dh [mm], travels faster than
+    the centre line, on a circle of Dh - D (``tool_diameter`` D [mm]); controllers feed the centre
+    line, so a program written with the straight-line feed overloads each tooth by Dh / (Dh - D).
+    The centre's feed is ``feed * (Dh - D) / Dh`` (Sandvik Coromant, *Heat resistant super alloys*
+    application guide, "Circular ramping from solid": vf = vfm * Dvf / Dm, Dvf = Dm - D3).
+    A path on the tool's axis (Dh <= D) gets none: ValueError.
+    """
+    if not edge_diameter > tool_diameter > 0:
+        raise ValueError(f"an internal arc needs the edge's diameter {edge_diameter:g} > the tool's {tool_diameter:g} mm")
+    return feed * (edge_diameter - tool_diameter) / edge_diameter
 
 
 def _interpolated(table: tuple[tuple[float, float], ...], x: float) -> float:

@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cadcam.drilling import cycle_moves, drill_operation, find_holes, plan_holes
+from cadcam.drilling import DrillingOptions, cycle_moves, drill_operation, find_holes, plan_holes
 from cadcam.gcode import parse_gcode
 from cadcam.model import DrillCycle, Job, Motion, Operation, Setup
 from cadcam.plan import PlanOptions, choose_tools
@@ -346,3 +346,108 @@ def test_no_too_small_pocket_warning_for_holes_cut_to_size(caplog):
     assert all(abs(float(r.getMessage().split("near (")[1].split(",")[0]) - 17.0) < 6.0 for r in in_holes)  # in a bore
     warned = {r.getMessage().split("near ")[1][:14] for r in skipped if r.levelno >= logging.WARNING}
     assert warned == {"(47.50, 22.00)"}  # the sharp pocket the 10 mm roughing end mill cannot enter
+
+
+# --------------------------------------------------------------------------- helices
+
+
+@pytest.mark.parametrize("diameter", [11.0, 12.0, 12.8])
+def test_helix_feeds_its_edge_at_the_cutting_feed_down_the_ramp_rule(diameter):
+    """A bore no drill matches is helixed at the cutting feed at its edge (the centre line slower by
+    (Dh - D) / Dh on the internal arc), descending at most 3 deg along the centre line and no deeper per
+    turn than the tool's full-width depth; verify passes it with no fault and its full-width cut within
+    the axial limit. 12.8 mm takes two helices (the narrower clears the pin; the 10 mm end mill needs 13)."""
+    part0 = manifold_to_trimesh(plate((40.0, 40.0, 15.0)) - cylinder(20, 20, diameter / 2, -1, 16))
+    setup, part = make_setup(part0)
+    hp = plan_holes(part, setup, LIBRARY, LIBRARY.tool(14), allowance=0.3)  # 16 mm roughing: too wide to enter
+    (op,) = [o for o in hp.operations if o.kind == "helix"]
+    tool = op.tool
+    assert tool.number == 1 and len(hp.helixed) == 1
+    (h,) = hp.helixed
+    feed = LIBRARY.cutting_data(tool, setup.material).feed
+    helix = op.motion == Motion.PLUNGE
+    step = np.diff(op.points, axis=0)
+    down = step[helix[1:]]
+    ends = op.points[1:][helix[1:]]
+    radius = np.hypot(ends[:, 0] - h.x, ends[:, 1] - h.y)
+    # the narrowest helix sets the feed: its edge, on a circle of 2 (r + R), at the library's feed
+    r0 = float(radius.min())
+    edge = op.cutting.feed * (r0 + tool.radius) / r0
+    assert edge == pytest.approx(feed, rel=1e-3)
+    assert op.cutting.plunge_feed == op.cutting.feed
+    assert len(set(np.round(radius, 6))) == (2 if diameter > 12.5 else 1)
+    starts = op.points[:-1][helix[1:]]
+    turned = np.abs(np.angle(np.exp(1j * (np.arctan2(ends[:, 1] - h.y, ends[:, 0] - h.x)
+                                          - np.arctan2(starts[:, 1] - h.y, starts[:, 0] - h.x)))))
+    along = radius * turned  # along the helix (its chords are a hair shorter)
+    assert (-down[:, 2] <= along * math.tan(math.radians(3.0)) + 1e-9).all()  # the ramp rule
+    for r in set(np.round(radius, 6)):  # per turn, no deeper than the full-width depth
+        on = np.isclose(radius, r, atol=1e-6)
+        turn_fall = -down[on, 2].sum() / (along[on].sum() / (2 * math.pi * r))
+        assert turn_fall <= tool.full_width_limit + 1e-9
+    report = simulate(operation_moves([op]), {1: tool}, setup, part.triangles, VerifyOptions(cell=0.2)).report
+    assert [f.kind for f in report.faults] == [] and report.ok, report.faults
+    assert report.max_gouge <= 0.01
+    (eng,) = report.engagement
+    assert eng.max_full_depth <= tool.full_width_limit
+
+
+@pytest.mark.parametrize("diameter, rings", [(11.0, 1), (12.0, 2)])
+def test_predrilled_bores_are_quicker_and_clean(tmp_path, diameter, rings):
+    """Four bores no drill matches: spot, drill 10 mm, then helices from where the drill's point begins, quicker
+    by the program's clock than four helices from solid. The 6 mm end mill takes the 11 mm bores' wall in one
+    ring (its engagement within the tool's deep radial limit at full flute length), the 12 mm ones' in two.
+    Verify and the independent sweep find no fault, no rapid into stock, no plunge, no full-width cut past the
+    axial limit; the bores are cut to size; rs274 runs it. One such bore alone is helixed from solid: two more
+    tool changes would cost more than the drill saves."""
+    from tests.cadcam.sweep import past_axial_limit, rapid_hits, sweep_moves
+
+    centres = [(10, 10), (30, 10), (10, 30), (30, 30)]
+    solid = plate((40.0, 40.0, 15.0))
+    for x, y in centres:
+        solid -= cylinder(x, y, diameter / 2, -1, 16)
+    setup, part = make_setup(manifold_to_trimesh(solid))
+    hp = plan_holes(part, setup, LIBRARY, LIBRARY.tool(2), allowance=0.3)
+    assert len(hp.predrilled) == len(hp.helixed) == 4 and hp.drilled == () and hp.undersize == ()
+    ops = list(hp.operations)
+    assert [o.kind for o in ops] == ["spot", "drill"] + ["helix"] * 4
+    drill = ops[1].tool
+    assert drill.diameter == 10.0
+    tip = float(ops[1].cycle.holes[0, 2])
+    for op in ops[2:]:
+        feed = op.motion != Motion.RAPID
+        first = int(np.flatnonzero(feed)[0])
+        h = min(hp.helixed, key=lambda h: math.hypot(h.x - op.points[0, 0], h.y - op.points[0, 1]))
+        # down the drilled hole's axis by rapid to where its point begins, then out on a half circle
+        np.testing.assert_allclose(op.points[first - 1], [h.x, h.y, tip + drill.point_length], atol=1e-9)
+        assert np.hypot(*(op.points[:first, :2] - [h.x, h.y]).T).max() < 1e-9
+        helix = op.points[1:][op.motion[1:] == Motion.PLUNGE]
+        assert len(set(np.round(np.hypot(helix[:, 0] - h.x, helix[:, 1] - h.y), 6))) == rings
+    plain = plan_holes(part, setup, LIBRARY, LIBRARY.tool(2), DrillingOptions(predrill=False), allowance=0.3)
+    job = Job(part_name="bores", setup=setup, operations=tuple(ops))
+    slower = Job(part_name="bores", setup=setup, operations=plain.operations)
+    assert post_process(job).total_time < post_process(slower).total_time
+    tools = {o.tool.number: o.tool for o in ops}
+    moves = operation_moves(ops)
+    verified = simulate(moves, tools, setup, part.triangles, VerifyOptions(cell=0.2))
+    rep, sim = verified.report, verified.simulation
+    assert rep.ok and rep.faults == () and rep.rapid_crashes == () and rep.max_gouge <= 0.01, rep.faults
+    sw = sweep_moves(moves.points, moves.motion, moves.tool, tools, setup, cell=0.25, full_width=True)
+    assert rapid_hits(sw, moves.motion).size == 0
+    assert past_axial_limit(sw, moves.tool, tools, slack=0.25) == {}
+    step = np.diff(moves.points, axis=0)
+    vertical = (moves.motion[1:] != Motion.RAPID) & (np.hypot(step[:, 0], step[:, 1]) < 1e-6) & (step[:, 2] < -1e-6)
+    mill = ~np.isin(moves.tool[1:], [n for n, t in tools.items() if t.is_drill])
+    assert not (vertical & mill & (sw.engagement[1:] > 0.05)).any()  # no plunge
+    g = sim.grid
+    for h in hp.helixed:  # to size at mid depth of the wall
+        for a in np.linspace(0, 2 * np.pi, 16, endpoint=False):
+            rr = h.inscribed / 2 - 0.1 - g.cell
+            i, j = int(round((h.x + rr * np.cos(a) - g.x0) / g.cell)), int(round((h.y + rr * np.sin(a) - g.y0) / g.cell))
+            assert sim.stock_top[j, i] <= 0.5 * (h.top_z + h.bottom_z)
+    res = _rs274(tmp_path, job, post_process(job).text)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    one = manifold_to_trimesh(plate((40.0, 40.0, 15.0)) - cylinder(20, 20, diameter / 2, -1, 16))
+    setup1, part1 = make_setup(one)
+    alone = plan_holes(part1, setup1, LIBRARY, LIBRARY.tool(2), allowance=0.3)
+    assert len(alone.helixed) == 1 and alone.predrilled == () and [o.kind for o in alone.operations] == ["helix"]

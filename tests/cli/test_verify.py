@@ -65,7 +65,7 @@ def test_bracket_without_its_roughing_buries_the_finishing_ball(bracket):
 
 def test_bracket_with_a_rapid_whose_edge_cuts_the_stock(bracket):
     lines = bracket["nc"].read_text().splitlines()
-    change = next(i for i, ln in enumerate(lines) if re.match(r"T\d+\s+M6", ln))
+    change = next(i for i, ln in enumerate(lines) if re.match(r"T1\s+M6", ln))  # the 6 mm flat end mill
     doctored = lines[:change + 1] + ["G0 X-1 Y20", "G0 Z-2"] + lines[change + 1:]
     r, report = verify(bracket, "\n".join(doctored) + "\n", "rapid_edge.nc")
     assert r.exit_code == EXIT_VERIFY_FAILED, r.output
@@ -89,8 +89,9 @@ def test_the_planned_bracket_is_judged_safe_with_its_engagement(bracket):
     assert r.exit_code == 0, r.output
     by_tool = {e["tool"]: e for e in report["engagement"]}
     # flats and walls only: the 10 mm and 6 mm flat end mills rough and finish, no ball; exit 0
-    # says no finishing move was buried deeper than 1 mm
-    assert set(by_tool) == {1, 2}
+    # says no finishing move was buried deeper than 1 mm. The spot drill and the 10 mm drill take the middle
+    # out of the four 11 mm bores the 6 mm end mill then helixes (cadcam.drilling, predrill).
+    assert set(by_tool) == {1, 2, 7, 13}
     assert by_tool[2]["max_depth"] <= 30.0 and by_tool[1]["max_depth"] <= 18.0  # their flutes
     assert report["rapids_checked"] > 0
     # every tool of the sheet has its deepest engagement in the JSON and in the text: axial, at full
@@ -99,15 +100,20 @@ def test_the_planned_bracket_is_judged_safe_with_its_engagement(bracket):
     assert set(by_tool) == {op["tool"] for op in sheet["operations"]}
     text = re.sub(r"\s+", " ", r.output)
     for t, e in by_tool.items():
-        assert e["axial_limit"] == {1: 6.0, 2: 10.0}[t]
-        assert 0.0 < e["max_full_depth"] <= e["axial_limit"] + report["cell"], e
-        assert 0.0 < e["max_width"] <= {1: 6.0, 2: 10.0}[t] + 1e-9 and 0.0 < e["angle"]["max"] <= 180.0
+        if t in (7, 13):  # the drills cut along their axis only: nothing at full width beside it
+            assert e["max_full_depth"] == 0.0 and 0.0 < e["max_width"] <= {7: 10.0, 13: 10.0}[t] + 1e-9
+        else:
+            assert e["axial_limit"] == {1: 6.0, 2: 10.0}[t]
+            assert 0.0 < e["max_full_depth"] <= e["axial_limit"] + report["cell"], e
+            assert 0.0 < e["max_width"] <= {1: 6.0, 2: 10.0}[t] + 1e-9 and 0.0 < e["angle"]["max"] <= 180.0
         assert sum(e["angle_moves"]) == e["engaged"] > 0
         # the two depths come from different moves (a skin is no cut, a corner's sliver is one at full width):
         # each says what it counts and names its move, so a "full width" deeper than "deepest" reads right
-        assert (f"engagement T{t}: deepest {e['max_depth']:.2f} mm where 1 mm wide or more (line "
-                f"{e['max_depth_line']}); at full width (over 120 deg of the cutter) up to {e['max_full_depth']:.2f} mm "
-                f"(line {e['max_full_depth_line']}), limit {e['axial_limit']:g} mm; widest {e['max_width']:.2f} mm") in text
+        def on(n: int) -> str:  # a depth no move reached (a drill's at full width) names no line
+            return f" (line {n})" if n else ""
+        assert (f"engagement T{t}: deepest {e['max_depth']:.2f} mm where 1 mm wide or more{on(e['max_depth_line'])}; "
+                f"at full width (over 120 deg of the cutter) up to {e['max_full_depth']:.2f} mm"
+                f"{on(e['max_full_depth_line'])}, limit {e['axial_limit']:g} mm; widest {e['max_width']:.2f} mm") in text
 
 
 def test_bracket_with_a_plunge_into_the_front_jaw(bracket):
