@@ -623,7 +623,8 @@ def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulati
         rest_options = dataclasses.replace(options.roughing, stepdown=None, stepover=None, helix_diameter=None,
                                            min_helix_diameter=None)
         cutting = library.cutting_data(tool, setup.material)
-        def levels(stock: Simulation, tool: Tool = tool, cutting: CuttingData = cutting) -> Operation:
+
+        def levels(stock: Simulation) -> Operation:
             return plan.timed(f"rest T{tool.number}", lambda: zlevel_roughing(
                 part, setup, tool, cutting, rest_options, progress=plan.stage_progress(f"rest T{tool.number}"),
                 rest=stock, rest_above=limit, within=within, cut_before=plan.cut_before))
