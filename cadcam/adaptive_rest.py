@@ -10,7 +10,7 @@ axial depth allow, at the tool's own held radial engagement and its chip-thinned
   (:attr:`cadcam.adaptive.AdaptiveOptions.axial_depth` diameters, never past the flutes): every flat of the part
   still gets its own floor (:func:`cadcam.roughing._levels`), and none lies deeper than the tool reaches
   (:func:`cadcam.rest.levels_within_reach`). They are taken top down.
-* **Material.** A band's material is the rest the stock model holds above its floor (:func:`_rest_at`: more than
+* **Material.** A band's material is the rest the stock model holds above its floor (more than
   ``rest_above`` over the part grown by the allowance), as the cells' squares grown by a cell diagonal: it holds
   the true edge of what the bigger tool cut, which the grid only samples, so the engagement the engine reads and
   replays is not less than the cut's (the engine keeps its cuts off the part grown by the allowance itself). Stock thinner than ``rest_above`` (the skin on the
@@ -49,7 +49,7 @@ from shapely.geometry.base import BaseGeometry
 
 from cadcam import roughing
 from cadcam.adaptive import AdaptiveOptions, BandGeometry, chip_thinned_feed, deep_cut_moves, front_cut_moves
-from cadcam.gridregion import cells_region
+from cadcam.gridregion import grown_cells_region
 from cadcam.heightmap import Grid
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.post import move_seconds
@@ -68,6 +68,9 @@ _AIR_GAP = 0.5
 _SLIVER = 1e-3
 #: Rapid rate the time comparison assumes [mm/min] (as :mod:`cadcam.adaptive`'s).
 _RAPID_ESTIMATE = 5000.0
+#: Least time the levels spend in a piece for the engine to be tried there [min]: below it the most it could save
+#: is seconds, and trying costs a planning second or more.
+_WORTH = 0.1
 #: Material less than this above a level counts as the level itself [mm] (:mod:`cadcam.rest`'s).
 _LEVEL_EPS = 1e-3
 
@@ -137,7 +140,11 @@ def plan_rest_cuts(part: trimesh.Trimesh, setup: Setup, tool: Tool, cutting: Cut
     floors = levels_within_reach(roughing._levels(part, setup, dataclasses.replace(p, stepdown=max_depth)), top,
                                  tool.length)
     spent = None if levels is None else _move_minutes(levels)
-    shadow = part_shadows(part, [zq for z in floors for zq, _ in roughing._forbidden_terms(float(z), p)])
+    # the rest: more than ``rest_above`` over the part grown by the allowance alone (not rest.rest_mask, which grows
+    # it a cell diagonal more and so does not see the rest that near the walls: the engine would read its side cuts
+    # there too thin)
+    over = excess(rest, options.allowance, grid_slack=False) > rest_above
+    shadow = None  # the part's shadows at the floors, when a band first needs them
     _, rect = roughing._axis_rect(setup, p, None)
     grid = rest.grid
     grow = grid.cell * math.sqrt(2.0)
@@ -150,20 +157,24 @@ def plan_rest_cuts(part: trimesh.Trimesh, setup: Setup, tool: Tool, cutting: Cut
         if z_top - z > max_depth + 1e-9:  # the first band below a reach cut short
             z_top, swept = z, Polygon()
             continue
-        here = _rest_at(rest, z, rest_above, options.allowance)
-        if not here.any():
+        here = (rest.stock_top > z + _LEVEL_EPS) & over
+        in_band = None if levels is None else _within(levels.points, None, z, z_top)
+        if not here.any() or (in_band is not None and float(spent[in_band].sum()) < _WORTH):
+            # no rest, or too little of the levels' time to try the engine on: the band stays the levels'
             z_top, swept = z, Polygon()
             continue
-        material = cells_region(here, grid).buffer(grow, quad_segs=4)
+        material = grown_cells_region(here, grid, grow, quad_segs=4)
         # rest standing over the band's top that the band above did not sweep (judged at the cells' centres)
-        standing = _rest_at(rest, z_top, rest_above, options.allowance)
+        standing = (rest.stock_top > z_top + _LEVEL_EPS) & over
         if standing.any() and not swept.is_empty:
             jj, ii = np.nonzero(standing)
             taken = shapely.contains_xy(swept, grid.xs[ii], grid.ys[jj])
             standing[jj[taken], ii[taken]] = False
-        still = cells_region(standing, grid).buffer(grow, quad_segs=4) if standing.any() else Polygon()
+        still = grown_cells_region(standing, grid, grow, quad_segs=4) if standing.any() else Polygon()
+        if shadow is None:
+            shadow = part_shadows(part, [zq for f in floors for zq, _ in roughing._forbidden_terms(float(f), p)])
         space = roughing._level_space(z, rect, shadow, p)
-        zone = space.intersection(material.buffer(r + _ROOM * tool.diameter, quad_segs=8))
+        zone = space.intersection(grown_cells_region(here, grid, grow + r + _ROOM * tool.diameter, quad_segs=4))
         if not still.is_empty:
             zone = zone.difference(still.buffer(r + _AIR_GAP, quad_segs=8))
         g = BandGeometry(levels=(z,), spaces=(zone,), top=z_top, stock=material, axis_box=rect,
@@ -182,19 +193,13 @@ def plan_rest_cuts(part: trimesh.Trimesh, setup: Setup, tool: Tool, cutting: Cut
     return cuts
 
 
-def _rest_at(sim: Simulation, z: float, above: float, allowance: float) -> np.ndarray:
-    """(ny, nx) bool: the grid points whose stock reaches above ``z`` [mm] more than ``above`` over the part grown
-    by ``allowance`` [mm] alone. Not :func:`cadcam.rest.rest_mask`, which grows the part by a cell diagonal more
-    and so does not see the rest that far from the walls: the engine would read the side cut there too thin."""
-    return (sim.stock_top > z + _LEVEL_EPS) & (excess(sim, allowance, grid_slack=False) > above)
-
-
-def _within(points: np.ndarray, region: Polygon, z: float, z_top: float) -> np.ndarray:
+def _within(points: np.ndarray, region: Polygon | None, z: float, z_top: float) -> np.ndarray:
     """(n - 1,) bool: the moves between ``points`` (n, 3) [mm] that lie in the band from ``z_top`` down to ``z`` and
-    start and end in ``region``."""
-    near = region.buffer(1e-3)
+    start and end in ``region`` (None: anywhere)."""
     zs = points[:, 2]
-    low = (zs < z_top - 1e-9) & (zs > z - 1e-9) & shapely.contains_xy(near, points[:, 0], points[:, 1])
+    low = (zs < z_top - 1e-9) & (zs > z - 1e-9)
+    if region is not None:
+        low &= shapely.contains_xy(region.buffer(1e-3), points[:, 0], points[:, 1])
     return low[:-1] & low[1:]
 
 
@@ -215,11 +220,15 @@ def _rest_cut(region: Polygon, g: BandGeometry, z: float, z_top: float, tool: To
     """The engine's cut of one piece, or None where it refuses it, is no faster than ``levels_min`` [min] (the
     levels' time in the piece), or leaves rest the levels would come back for: a grid point of ``rest`` (the
     band's rest mask over ``grid``) within the tool's reach from the piece that its cutter did not sweep."""
-    if levels_min <= 0.0:
+    if levels_min < _WORTH:
         return None
-    # the engine's least time, the band's rest at the target step and thinned feed, already no faster: not tried
-    if g.stock.intersection(region.buffer(tool.radius, quad_segs=8)).area / (adaptive.target(tool) * target) \
-            >= levels_min:
+    # the engine's least time already no faster, not tried: the piece's rest at the target step and thinned feed,
+    # and where no air is beside it, the helix down the band at the ramp angle and the plunge feed
+    material = g.stock.intersection(region.buffer(tool.radius, quad_segs=8))
+    least = material.area / (adaptive.target(tool) * target)
+    if region.difference(material.buffer(tool.radius + _AIR_GAP, quad_segs=8)).area < _SLIVER:
+        least += (z_top - z) / g.tan_ramp / cutting.plunge_feed
+    if least >= levels_min:
         return None
     moves = deep_cut_moves(region, g, z, z_top, tool, adaptive)
     if moves is None:
