@@ -13,8 +13,8 @@ axial depth allow, at the tool's own held radial engagement and its chip-thinned
 * **Material.** A band's material is the rest the stock model holds above its floor (more than
   ``rest_above`` over the part grown by the allowance), as the cells' squares grown by a cell diagonal: it holds
   the true edge of what the bigger tool cut, which the grid only samples, so the engagement the engine reads and
-  replays is not less than the cut's (the engine keeps its cuts off the part grown by the allowance itself). Stock thinner than ``rest_above`` (the skin on the
-  walls) is left to finishing, as the levels leave it.
+  replays is not less than the cut's (the engine keeps its cuts off the part grown by the allowance itself).
+  Stock thinner than ``rest_above`` (the skin on the walls) is left to finishing, as the levels leave it.
 * **Where.** Each connected piece of the level's tool-centre region within a radius and a tool diameter of the
   material (:data:`_ROOM`): the air round the rest is where the fronts grow from and link in. Rest reaching above
   the band's top that the band above did not take keeps the tool a radius and the air gap away: a band never
@@ -26,7 +26,9 @@ axial depth allow, at the tool's own held radial engagement and its chip-thinned
 * **When.** A piece is taken only where the engine's time (the program timer's model) is less than what rest
   roughing by levels spends there: the time of the levels' own moves in the band within the piece, entries and
   links included, and only where the engine leaves no grid point of rest within its reach, which the levels would
-  come back for. What the engine refuses the levels take after it, on the stock model that knows what it cut.
+  come back for; it is tried only where the levels spend :data:`_WORTH` or more and its least time (the rest at
+  its step and feed, a helix where no air is) is less. What the engine refuses the levels take after it, on the
+  stock model that knows what it cut.
   Rest is narrow by its nature (the next tool down is the widest that fits), and there a full-width level at half a
   diameter removes more per minute than a side cut at 15 % of D, whose fronts in a slot advance by tenths of a
   millimetre to hold the band: on the samples the levels win every piece.
