@@ -9,7 +9,9 @@ benchmark reads), the roughing operations' own [min], the plan's process CPU tim
 on a shared machine), verify's verdict, and per tool of op 1 verify's largest radial engagement, axial
 engagement and engagement angle (:class:`cadcam.verify.ToolEngagement`; the skin of walls left out of the
 axial figure). Also the feature-aware lower bound of both operations (:func:`lower_bound`) and the ratio.
-With ``--json`` the last line is ``{"rows": [...]}``. Single runs: compare runs on the same machine.
+With ``--json`` the last line is ``{"rows": [...]}``; with ``--ops`` each part's minutes per operation of both
+operations follow its row (the program timer's per-operation figures: cutting and rapid, tool changes apart), to
+see where the time goes against the bound. Single runs: compare runs on the same machine.
 """
 
 from __future__ import annotations
@@ -66,12 +68,15 @@ def bench_part(path: Path, strategy: str) -> dict:
     plan = plan_part(dataclasses.replace(request, cam=cam, robot=False))
     cpu = time.process_time() - c0
     rough = [e for e in plan.program.estimates if e.name.startswith("rough")]
+    programs = [("op 1", plan.program), *([("op 2", plan.op2.program)] if plan.op2 is not None else [])]
+    per_op = [{"op": op, "name": e.name, "tool": e.tool_number, "cut_min": round(e.cut_time / 60, 2),
+               "rapid_min": round(e.rapid_time / 60, 2)} for op, program in programs for e in program.estimates]
     op2 = plan.op2.program.total_time / 60 if plan.op2 is not None else 0.0
     return {
         "part": path.stem, "strategy": strategy,
         "op1_min": round(plan.program.total_time / 60, 2), "op2_min": round(op2, 2),
         "rough_min": round(sum(e.cut_time + e.rapid_time for e in rough) / 60, 2),
-        "plan_cpu_s": round(cpu, 1), "verify_ok": plan.report.ok,
+        "plan_cpu_s": round(cpu, 1), "verify_ok": plan.report.ok, "operations": per_op,
         "engagement": {f"T{e.tool}": {"radial_mm": round(e.max_width, 2), "axial_mm": round(e.max_depth, 2),
                                       "angle_deg": round(e.angle.max, 1), "full_width_mm": round(e.max_full_depth, 2)}
                        for e in plan.report.engagement},
@@ -83,6 +88,8 @@ def main() -> None:
     ap.add_argument("parts", nargs="*", type=Path,
                     default=sorted(p for p in (ROOT / "samples").glob("*.stl") if p.stem != "relief"))
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--ops", action="store_true", help="minutes per operation of both operations")
+    ap.add_argument("--strategy", choices=("levels", "adaptive", "both"), default="both")
     args = ap.parse_args()
     rows = []
     print(f"# {platform.processor() or platform.machine()}, python {platform.python_version()}, "
@@ -91,7 +98,7 @@ def main() -> None:
           f"{'cpu [s]':>8s}  verify  engagement per tool of op 1 (radial/axial mm, angle deg)")
     for path in args.parts:
         bound = lower_bound(path)
-        for strategy in ("levels", "adaptive"):
+        for strategy in (("levels", "adaptive") if args.strategy == "both" else (args.strategy,)):
             row = bench_part(path, strategy)
             row["bound_min"] = round(bound, 2)
             row["bound_ratio"] = round((row["op1_min"] + row["op2_min"]) / bound, 2) if bound > 0 else math.nan
@@ -100,6 +107,10 @@ def main() -> None:
             print(f"{row['part']:14s} {strategy:9s} {row['op1_min']:6.2f} {row['op2_min']:6.2f} {row['rough_min']:6.2f} "
                   f"{bound:6.2f} {row['bound_ratio']:7.2f} {row['plan_cpu_s']:8.1f}  "
                   f"{'OK' if row['verify_ok'] else 'FAILED':6s}  {eng}", flush=True)
+            if args.ops:
+                for o in row["operations"]:
+                    print(f"    {o['op']}  T{o['tool']:<3d} {o['cut_min'] + o['rapid_min']:6.2f} min (cut {o['cut_min']:.2f}, "
+                          f"rapid {o['rapid_min']:.2f})  {o['name']}", flush=True)
     if args.json:
         print(json.dumps({"rows": rows}))
 

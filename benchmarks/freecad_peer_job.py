@@ -157,9 +157,14 @@ def adaptive(k, start_z, final_z, cut):
     return op
 
 
-def profile():
-    """The part's contour (Profile with no base geometry: outside the model's silhouette) from the stock top down
-    to op 1's floor.
+def profile(outline):
+    """The part's contour from the stock top down to op 1's floor: Profile of ``outline``'s perimeter, the section
+    just above the floor (for a part machinable from above, its silhouette).
+
+    Not Profile with no base geometry, which is the same contour (outside the model's silhouette): FreeCAD then
+    projects every face of the model onto the plane (PathUtils.getEnvelope, Path.Area.makeSections with
+    project=True), and on the dome's 10,958 triangles that ran past 12 minutes (py-spy: every sample there)
+    before its 3D surface began.
 
     Profiles of each level's section, the walls between the flats too, cut into the part on stepped_wall
     (FreeCAD 0.20 offsets one of its two loops inward, 16 mm into the upper step), so only the outer walls are
@@ -167,6 +172,8 @@ def profile():
     finished part's, not longer.
     """
     op = created(PathProfile, "Profile", args["finish"])
+    op.Base = [(outline, [f"Face{i + 1}" for i in range(len(outline.Shape.Faces))])]
+    op.processPerimeter, op.processHoles, op.processCircles = True, False, False
     set_depths(op, StartDepth=top, FinalDepth=levels[-1])
     return op
 
@@ -201,6 +208,12 @@ def surface():
     freeform = [f for f in faces if WALL < abs(f.normalAt(0, 0).z) < FLAT]
     op = created(PathSurface, "Surface", args["ball"])
     op.StepOver = 100.0 * float(args["ball_stepover"]) / tools[args["ball"]]["diameter"]
+    # The scan's region from the stock box, not the model's silhouette: with "BaseBoundBox" FreeCAD projects every
+    # face of the model (PathSurfaceSupport._preProcessEntireBase, PathUtils.getEnvelope), which on the dome's
+    # 10,958 triangles ran for minutes before a line was dropped. The lines still follow the model and the Boundary
+    # dressup below keeps them over the freeform faces; the final depth stays the model's bottom, as it was.
+    op.BoundBox = "Stock"
+    set_depths(op, FinalDepth=bottom)
     if args.get("ball_stepdown"):
         op.LayerMode = "Multi-pass"
         set_depths(op, StepDown=float(args["ball_stepdown"]))
@@ -219,7 +232,7 @@ groups = {
     "adaptive": [adaptive(k, start, z, cut) for k, ((start, z), cut) in enumerate(zip(bands, cuts))],
     "face": [face_pass(k, z, [f for f in flats if abs(f.BoundBox.ZMax - z) < 1e-3])
              for k, z in enumerate(levels) if any(abs(f.BoundBox.ZMax - z) < 1e-3 for f in flats)],
-    "profile": [profile()],
+    "profile": [profile(cuts[-1])],
 }
 freeform, posted_as = 0, {}
 if args.get("ball") is not None:

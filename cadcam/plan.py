@@ -25,6 +25,7 @@ import numpy as np
 import trimesh
 
 from cadcam.adaptive import AdaptiveOptions, adaptive_roughing
+from cadcam.adaptive_rest import adaptive_rest_roughing
 from cadcam.drilling import DrillingOptions, Hole, HolePlan, plan_holes
 from cadcam.faces import SHALLOW, STEEP, FaceClasses, classify_faces
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
@@ -632,9 +633,21 @@ def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulati
         rest_options = dataclasses.replace(options.roughing, stepdown=None, stepover=None, helix_diameter=None,
                                            min_helix_diameter=None)
         cutting = library.cutting_data(tool, setup.material)
-        op = plan.timed(f"rest T{tool.number}", lambda: zlevel_roughing(
-            part, setup, tool, cutting, rest_options, progress=plan.stage_progress(f"rest T{tool.number}"),
-            rest=stock, rest_above=limit, within=within, cut_before=plan.cut_before))
+
+        def levels(stock: Simulation) -> Operation:
+            return plan.timed(f"rest T{tool.number}", lambda: zlevel_roughing(
+                part, setup, tool, cutting, rest_options, progress=plan.stage_progress(f"rest T{tool.number}"),
+                rest=stock, rest_above=limit, within=within, cut_before=plan.cut_before))
+
+        op = levels(stock)
+        if options.adaptive is not None and within is None and len(op.points) > 1:
+            # the adaptive engine where it beats the levels (cadcam.adaptive_rest); the levels take what it leaves
+            fronts = plan.timed(f"rest adaptive T{tool.number}", lambda: adaptive_rest_roughing(
+                part, setup, tool, cutting, library.max_feed, stock, limit, op, rest_options, options.adaptive))
+            if fronts is not None:
+                operations.append(fronts)
+                stock = plan.model(operations)
+                op = levels(stock)
         if len(op.points) > 1:
             operations.append(op)
             stock = plan.model(operations)

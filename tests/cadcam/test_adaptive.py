@@ -109,9 +109,9 @@ class Replay:
         self.solid[w] &= (self.gx[w] - p[0]) ** 2 + (self.gy[w] - p[1]) ** 2 > self.r ** 2
 
 
-def replay(points: np.ndarray, motion: np.ndarray, rp: Replay) -> np.ndarray:
-    """Radial engagement [mm] at every sample of every feed move at depth; asserts the descents are in the air
-    and nothing is cut below the floor or into the part on the way."""
+def replay(points: np.ndarray, motion: np.ndarray, rp: Replay, z: float = Z, z_top: float = Z_TOP) -> np.ndarray:
+    """Radial engagement [mm] at every sample of every feed move at depth ``z`` (the band's floor; ``z_top`` its
+    top); asserts the descents are in the air and nothing is cut below the floor or into the part on the way."""
     r = rp.r
     lag = 0.5 * r
     angles = np.linspace(0.0, math.pi, 361)[1:-1]
@@ -119,9 +119,9 @@ def replay(points: np.ndarray, motion: np.ndarray, rp: Replay) -> np.ndarray:
     out = []
     pending: list[tuple[float, np.ndarray]] = []
     travelled = 0.0
-    assert points[:, 2].min() >= Z - 1e-9, "below the floor"
+    assert points[:, 2].min() >= z - 1e-9, "below the floor"
     for a, b, m in zip(points[:-1], points[1:], motion[1:]):
-        if b[2] < Z_TOP and np.linalg.norm(b[:2] - a[:2]) < 1e-9 and b[2] < a[2] - 1e-9:
+        if b[2] < z_top and np.linalg.norm(b[:2] - a[:2]) < 1e-9 and b[2] < a[2] - 1e-9:
             assert m != Motion.CUT or not rp.disc_meets(b[:2]), "a straight feed down into stock"
             for _, q in pending:
                 rp.cut(q)
@@ -135,11 +135,11 @@ def replay(points: np.ndarray, motion: np.ndarray, rp: Replay) -> np.ndarray:
             pending.clear()
             rp.cut(b[:2])
             continue
-        if m == Motion.RAPID or abs(a[2] - Z) > 1e-9 or abs(b[2] - Z) > 1e-9:
+        if m == Motion.RAPID or abs(a[2] - z) > 1e-9 or abs(b[2] - z) > 1e-9:
             for _, q in pending:
                 rp.cut(q)
             pending.clear()
-            if m == Motion.RAPID and min(a[2], b[2]) < Z_TOP:
+            if m == Motion.RAPID and min(a[2], b[2]) < z_top:
                 assert np.linalg.norm(b[:2] - a[:2]) < 1e-9, "a rapid across at depth"
             continue
         length = float(np.linalg.norm(b[:2] - a[:2]))
@@ -159,7 +159,7 @@ def replay(points: np.ndarray, motion: np.ndarray, rp: Replay) -> np.ndarray:
     for _, q in pending:
         rp.cut(q)
     # nothing into the part: every cutter location keeps the allowance from it
-    at_depth = points[np.abs(points[:, 2] - Z) < 1e-9, :2]
+    at_depth = points[np.abs(points[:, 2] - z) < 1e-9, :2]
     gap = shapely.distance(rp.part, shapely.points(at_depth))
     assert gap.min() >= r + ALLOW - 0.01, f"{r + ALLOW - gap.min():.3f} mm into the allowance"
     return np.array(out)
