@@ -880,8 +880,7 @@ class Unreached:
         Why it is left (:func:`why_left`): :data:`SHARP_CORNER`, :data:`NO_TOOL`, :data:`FOR_OP2`, a
         relief's :data:`OUTSIDE_RELIEF` or :data:`AT_BOUNDARY`; ``""``: not judged.
     band : float or None
-        A band of stock along a relief's boundary (:data:`AT_BOUNDARY`): how far it reaches in from the
-        boundary [mm] (its box is the whole surface's); None: any other region.
+        Stock along a relief's boundary (:data:`AT_BOUNDARY`): how far in from it it reaches [mm]; else None.
     """
 
     x: float
@@ -914,9 +913,8 @@ class Unreached:
 SHARP_CORNER = "sharp inside corner"
 NO_TOOL = "no tool reaches"
 FOR_OP2 = "left for op 2"
-#: ... and a relief's: it stands outside the relief's own surface, the uncut rim round its boundary; it
-#: stands on the surface along the boundary, where the tools keep off the rim's wall (the roughing tool
-#: rounds the boundary's corners with its radius, every later tool keeps a clearance off what it leaves).
+#: ... and a relief's: outside its own surface, the uncut rim; on the surface along the boundary, which keeps
+#: the roughing tool's radius off its corners and every later tool a clearance off the rim's wall.
 OUTSIDE_RELIEF = "outside the relief's surface"
 AT_BOUNDARY = "at the relief's boundary, which keeps the tools off"
 
@@ -960,14 +958,9 @@ def unreached(sim: Simulation, above: float, allowance: float, outside: np.ndarr
               band: float = 0.0) -> tuple[Unreached, ...]:
     """Connected regions where more than ``above`` [mm] of stock is left over the part.
 
-    ``outside``: (ny, nx) bool, a relief's grid points off its own surface (:func:`cadcam.relief.surface_footprint`).
-    The uncut rim there, the band of the surface within ``band`` [mm] of it (verify's: the widest end mill's
-    radius, the roughing tool's) and the rest of the surface are labelled apart. Joined, the stock left on the
-    surface near its edge made the rim and the surface one region: the relief sample's "124 x 84 mm near X62
-    Y42, 9.9 mm: no tool reaches" was the rim's height, joined through four corners the roughing tool's radius
-    rounds and the band the later tools keep off to pockets further in. The rim is :data:`OUTSIDE_RELIEF`; the
-    band's regions :data:`AT_BOUNDARY`, each with how far in it reaches (:attr:`Unreached.band`): its box alone
-    would say "the whole surface".
+    ``outside``: (ny, nx) bool, a relief's grid points off its own surface. The uncut rim there
+    (:data:`OUTSIDE_RELIEF`), the surface within ``band`` [mm] of it (:data:`AT_BOUNDARY`) and the rest are
+    labelled apart: joined, the relief sample's rim, corners and pockets read "124 x 84 mm near X62 Y42, 9.9 mm".
     """
     ex = excess(sim, allowance)
     deep = ex > above
@@ -983,9 +976,8 @@ def unreached(sim: Simulation, above: float, allowance: float, outside: np.ndarr
 
 def _regions(sim: Simulation, ex: np.ndarray, deep: np.ndarray, why: str,
              band: np.ndarray | None = None) -> tuple[Unreached, ...]:
-    """The connected regions of ``deep`` ((ny, nx) bool) as :class:`Unreached` named ``why``, deepest first (see
-    :func:`unreached`; ``ex``: its :func:`excess` [mm]); with ``band`` ((ny, nx) float [mm]), each region's
-    :attr:`Unreached.band` is its largest value."""
+    """The regions of ``deep`` ((ny, nx) bool) named ``why`` (``ex``: :func:`excess` [mm]; ``band``: (ny, nx)
+    float [mm], its largest value over each region is :attr:`Unreached.band`)."""
     labels, _ = ndimage.label(deep, structure=np.ones((3, 3), dtype=bool))
     g = sim.grid
     floor = np.maximum(np.where(np.isfinite(sim.part_top), sim.part_top, -np.inf), sim.floor)
