@@ -34,6 +34,7 @@ import trimesh
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from cadcam.stock import OUTSIDE_RELIEF  # noqa: E402
 from tests.gallery.parts import BY_NAME, PARTS, GalleryPart  # noqa: E402
 from tests.rs274 import run_rs274  # noqa: E402
 
@@ -49,9 +50,11 @@ def _rs274(program: Path, table: Path, folder: Path) -> str:
 
 
 def _regions(found: list[dict], op: str) -> list[str]:
-    """Regions of stock (:class:`cadcam.stock.Unreached` as JSON) as ``op X.. Y.. size a x b, depth d`` [mm]."""
+    """Regions of stock (:class:`cadcam.stock.Unreached` as JSON) as ``op X.. Y.. size a x b, depth d`` [mm]; a
+    relief's stock along its boundary says how far in it reaches, its uncut rim (not the part) is left out."""
     return [f"{op} X{u['x']:.1f} Y{u['y']:.1f} {u['size_x']:.1f} x {u['size_y']:.1f} mm, {u['depth']:.1f} deep"
-            for u in found]
+            + (f" within {u['band']:.1f} mm of the boundary" if "band" in u else "")
+            for u in found if u.get("why") != OUTSIDE_RELIEF]
 
 
 def _deepest(engagement: dict[str, dict[str, list]]) -> str:

@@ -877,8 +877,10 @@ class Unreached:
     z_bottom : float
         Lowest part surface (or stock bottom) under it [mm].
     why : str
-        Why it is left (:func:`why_left`): :data:`SHARP_CORNER`, :data:`NO_TOOL` or :data:`FOR_OP2`;
-        ``""``: not judged.
+        Why it is left (:func:`why_left`): :data:`SHARP_CORNER`, :data:`NO_TOOL`, :data:`FOR_OP2`, a
+        relief's :data:`OUTSIDE_RELIEF` or :data:`AT_BOUNDARY`; ``""``: not judged.
+    band : float or None
+        Stock along a relief's boundary (:data:`AT_BOUNDARY`): how far in from it it reaches [mm]; else None.
     """
 
     x: float
@@ -888,16 +890,21 @@ class Unreached:
     depth: float
     z_bottom: float
     why: str = ""
+    band: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {k: round(v, 2) for k, v in dataclasses.asdict(self).items() if k != "why"}
+        out: dict[str, Any] = {k: round(v, 2) for k, v in dataclasses.asdict(self).items()
+                               if k != "why" and v is not None}
         if self.why:
             out["why"] = self.why
         return out
 
     def describe(self) -> str:
-        return (f"{self.size_x:.1f} x {self.size_y:.1f} mm near X{self.x:.1f} Y{self.y:.1f}, "
-                f"{self.depth:.1f} mm of stock down to Z{self.z_bottom:.1f}" + (f": {self.why}" if self.why else ""))
+        where = f"{self.size_x:.1f} x {self.size_y:.1f} mm near X{self.x:.1f} Y{self.y:.1f}"
+        if self.band is not None:  # a ring round the surface has the surface's box: how far in it is says where
+            where += f" up to {self.band:.1f} mm in from the boundary"
+        return (f"{where}, {self.depth:.1f} mm of stock down to Z{self.z_bottom:.1f}"
+                + (f": {self.why}" if self.why else ""))
 
 
 #: Why a region of stock is left (:attr:`Unreached.why`): it fits in the corner the narrowest end mill's
@@ -906,21 +913,22 @@ class Unreached:
 SHARP_CORNER = "sharp inside corner"
 NO_TOOL = "no tool reaches"
 FOR_OP2 = "left for op 2"
-#: ... and a relief's: it stands outside the relief's own surface, the uncut rim round its boundary.
+#: ... and a relief's: outside its own surface, the uncut rim; on the surface along the boundary, which keeps
+#: the roughing tool's radius off its corners and every later tool a clearance off the rim's wall.
 OUTSIDE_RELIEF = "outside the relief's surface"
+AT_BOUNDARY = "at the relief's boundary, which keeps the tools off"
 
 
 def why_left(left: tuple[Unreached, ...], sim: Simulation, above: float, radius: float,
-             op2_follows: bool = False, outside: np.ndarray | None = None) -> tuple[Unreached, ...]:
+             op2_follows: bool = False) -> tuple[Unreached, ...]:
     """``left`` (:func:`unreached` of ``sim`` over ``above`` [mm]) with each region's reason.
 
     A region whose bottom is op 1's floor (no part face under it: a slot or hole through the part) is
     left for op 2 when ``op2_follows``. One no wider than ``radius`` [mm] (the widest end mill that
     cut, and a grid cell each side) that fills less than :data:`_CORNER_FILL` of its box is the
     curved triangle a round tool leaves in a sharper inside corner (it fills ``1 - pi/4`` of it).
-    Anything else no tool reached: too narrow or too deep for every tool. With ``outside`` ((ny, nx)
-    bool, a relief's grid points off its own surface), a region mostly there is the uncut rim round
-    the relief.
+    Anything else no tool reached: too narrow or too deep for every tool. A region that has its reason
+    already (a relief's uncut rim, :func:`unreached` with ``outside``) keeps it.
     """
     g = sim.grid
     deep = excess(sim, 0.0) > above
@@ -929,8 +937,8 @@ def why_left(left: tuple[Unreached, ...], sim: Simulation, above: float, radius:
         i0, i1 = (int(round((c - g.x0) / g.cell)) for c in (u.x - u.size_x / 2 + g.cell / 2, u.x + u.size_x / 2))
         j0, j1 = (int(round((c - g.y0) / g.cell)) for c in (u.y - u.size_y / 2 + g.cell / 2, u.y + u.size_y / 2))
         box = np.s_[max(j0, 0):j1, max(i0, 0):i1]
-        if outside is not None and deep[box].any() and outside[box][deep[box]].mean() >= 0.5:
-            why = OUTSIDE_RELIEF
+        if u.why:
+            why = u.why
         elif op2_follows and u.z_bottom <= sim.floor + g.cell:
             why = FOR_OP2
         else:
@@ -946,13 +954,31 @@ def why_left(left: tuple[Unreached, ...], sim: Simulation, above: float, radius:
 _CORNER_FILL = 0.6
 
 
-def unreached(sim: Simulation, above: float, allowance: float) -> tuple[Unreached, ...]:
-    """Connected regions where more than ``above`` [mm] of stock is left over the part."""
+def unreached(sim: Simulation, above: float, allowance: float, outside: np.ndarray | None = None,
+              band: float = 0.0) -> tuple[Unreached, ...]:
+    """Connected regions where more than ``above`` [mm] of stock is left over the part.
+
+    ``outside``: (ny, nx) bool, a relief's grid points off its own surface. The uncut rim there
+    (:data:`OUTSIDE_RELIEF`), the surface within ``band`` [mm] of it (:data:`AT_BOUNDARY`) and the rest are
+    labelled apart: joined, the relief sample's rim, corners and pockets read "124 x 84 mm near X62 Y42, 9.9 mm".
+    """
     ex = excess(sim, allowance)
     deep = ex > above
-    labels, n = ndimage.label(deep, structure=np.ones((3, 3), dtype=bool))
-    if n == 0:
-        return ()
+    if outside is None:
+        return _regions(sim, ex, deep, "")
+    inward = ndimage.distance_transform_edt(~outside) * sim.grid.cell  # from the boundary into the surface [mm]
+    near = ~outside & (inward <= band)
+    rim = _regions(sim, ex, deep & outside, OUTSIDE_RELIEF)
+    edge = _regions(sim, ex, deep & near, AT_BOUNDARY, inward)
+    rest = _regions(sim, ex, deep & ~outside & ~near, "")
+    return tuple(sorted(rim + edge + rest, key=lambda u: (-u.depth, u.x, u.y)))
+
+
+def _regions(sim: Simulation, ex: np.ndarray, deep: np.ndarray, why: str,
+             band: np.ndarray | None = None) -> tuple[Unreached, ...]:
+    """The regions of ``deep`` ((ny, nx) bool) named ``why`` (``ex``: :func:`excess` [mm]; ``band``: (ny, nx)
+    float [mm], its largest value over each region is :attr:`Unreached.band`)."""
+    labels, _ = ndimage.label(deep, structure=np.ones((3, 3), dtype=bool))
     g = sim.grid
     floor = np.maximum(np.where(np.isfinite(sim.part_top), sim.part_top, -np.inf), sim.floor)
     out = []
@@ -963,6 +989,7 @@ def unreached(sim: Simulation, above: float, allowance: float) -> tuple[Unreache
         y0, y1 = g.y0 + (js.start - 0.5) * g.cell, g.y0 + (js.stop - 0.5) * g.cell
         out.append(Unreached(
             x=0.5 * (x0 + x1), y=0.5 * (y0 + y1), size_x=x1 - x0, size_y=y1 - y0,
-            depth=float(ex[sl][m].max()), z_bottom=float(floor[sl][m].min()),
+            depth=float(ex[sl][m].max()), z_bottom=float(floor[sl][m].min()), why=why,
+            band=None if band is None else float(band[sl][m].max()),
         ))
     return tuple(sorted(out, key=lambda u: (-u.depth, u.x, u.y)))

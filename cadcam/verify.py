@@ -30,11 +30,11 @@ import numpy as np
 from scipy import ndimage
 
 from cadcam.corners import corners_left, inside_corners
-from cadcam.engagement import MoveRecord
+from cadcam.engagement import FINISH_DEPTH, MoveRecord
 from cadcam.envelope import Segments
 from cadcam.heightmap import Grid, grid_over, upper_envelope
 from cadcam.model import Motion, ProgramMoves, Setup, Tool
-from cadcam.relief import surface_under
+from cadcam.relief import surface_footprint
 from cadcam.stock import (ENGAGED_WIDTH, FOR_OP2, FULL_WIDTH_ANGLE, OUTSIDE_RELIEF, RAPID_RIM, FlippedStock,
                           Simulation, StockCut, Unreached, cut_stock, first_line_reaching, unreached, why_left)
 from cadcam.workholding import fixture_contacts
@@ -65,7 +65,8 @@ class VerifyOptions:
         roughing leaves between its passes and levels: the 6 mm ball finishing the four
         samples after their roughing engages at most 0.49 mm, while with the roughing
         deleted from the bracket program it slots 1.6 mm deep at full width (the skin of
-        walls left out, as :mod:`cadcam.stock` measures it).
+        walls left out, as :mod:`cadcam.stock` measures it). The planner's own limit
+        (:data:`cadcam.engagement.FINISH_DEPTH`).
     engaged_width : float
         A cut counts as engagement only where it is at least this wide across the move
         [mm] (as :mod:`cadcam.stock` measures it): a thinner band is a skin shaved off a wall.
@@ -96,7 +97,7 @@ class VerifyOptions:
     cell: float = 0.2
     gouge_tolerance: float = 0.01
     rapid_tolerance: float = RAPID_RIM
-    finish_depth: float = 1.0
+    finish_depth: float = FINISH_DEPTH
     engaged_width: float = ENGAGED_WIDTH
     contact_tolerance: float = 0.01
     left_above: float = 0.1
@@ -307,7 +308,8 @@ class VerifyReport:
         Stock left above the part over the grid points the part covers [mm] (max, mean,
         95th percentile; a gouge counts as negative), each point measured against the highest part
         top among it and its eight neighbours: a point a micrometre outside a facetted wall, which the
-        finished wall passes beside, would otherwise count the wall's whole height as stock left.
+        finished wall passes beside, would otherwise count the wall's whole height as stock left. On a
+        relief, over its own surface: not the uncut rim round it.
     rapid_crashes : tuple of RapidCrash
         In program order (each also counted in a ``rapid`` :class:`Fault`).
     moves : int
@@ -786,9 +788,13 @@ def _report(
     cut_length, rapid_length, faults=(), engagement=(), rapids_checked=0,
 ) -> VerifyReport:
     covered = np.isfinite(sim.part_top)
+    # a relief's base plane covers the whole grid, and the uncut rim round its surface stands on it to the
+    # stock's top: figures over the rim would say "stock over the grid max 9.9 mm" of a finished relief
+    outside = ~surface_footprint(tri, sim.grid) if options.relief else None
+    on_part = covered if outside is None else covered & ~outside
     rem = (sim.stock_top - np.where(covered, sim.part_top, 0.0))[covered]
     beside = ndimage.maximum_filter(np.where(covered, sim.part_top, -np.inf), size=3, mode="constant", cval=-np.inf)
-    left = sim.stock_top[covered] - beside[covered]  # off the part both may be -inf
+    left = sim.stock_top[on_part] - beside[on_part]  # off the part both may be -inf
     # Only cuts deeper than the tolerance can fail the verdict; measure those against the
     # part within the tolerance sideways too (see _lowest_part_near).
     deep = np.flatnonzero(rem < -options.gouge_tolerance)
@@ -825,17 +831,21 @@ def _report(
         faults=tuple(sorted(faults, key=lambda f: (FAULT_KINDS.index(f.kind), f.tool))),
         engagement=tuple(engagement),
         rapids_checked=rapids_checked,
-        left=_left(sim, tri, tools, options),
+        left=_left(sim, tri, tools, options, outside),
         left_above=options.left_above,
     )
 
 
-def _left(sim: Simulation, tri: np.ndarray, tools: Mapping[int, Tool], options: VerifyOptions) -> tuple[Unreached, ...]:
+def _left(sim: Simulation, tri: np.ndarray, tools: Mapping[int, Tool], options: VerifyOptions,
+          outside: np.ndarray | None = None) -> tuple[Unreached, ...]:
     """Every region of stock left over ``options.left_above`` with its reason, deepest first: what
     :func:`cadcam.stock.unreached` finds on the grid, and the part's sharp inside corners that still
-    hold stock (:func:`cadcam.corners.corners_left`; a relief has no walls of its own to corner)."""
-    found = why_left(unreached(sim, options.left_above, 0.0), sim, options.left_above, _widest_mill_radius(tools),
-                     options.op2_follows, ~surface_under(tri, sim.grid) if options.relief else None)
+    hold stock (:func:`cadcam.corners.corners_left`; a relief has no walls of its own to corner).
+    ``outside``: a relief's grid points off its own surface, where the uncut rim stands; stock on the surface
+    within the roughing tool's radius of it is the boundary's (:data:`cadcam.stock.AT_BOUNDARY`)."""
+    radius = _widest_mill_radius(tools)  # a relief's roughing tool, which the boundary keeps off its band
+    found = why_left(unreached(sim, options.left_above, 0.0, outside, band=radius), sim, options.left_above, radius,
+                     options.op2_follows)
     if options.relief:
         return found
     finest = min((t.radius for t in tools.values() if not t.is_drill), default=0.0)

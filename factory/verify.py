@@ -16,7 +16,7 @@ from cadcam.relief import machining_surface, surface_footprint
 from cadcam.model import Setup, Tool
 from cadcam.sheet import SheetSetup, read_setup_sheet
 from cadcam.preview import deviation_image
-from cadcam.stock import FOR_OP2, Simulation, flip_stock
+from cadcam.stock import FOR_OP2, OUTSIDE_RELIEF, Simulation, flip_stock
 from cadcam.verify import (VerifyOptions, VerifyReport, VerifyResult, finishing_moves, simulate, simulate_flipped,
                            with_op1_left)
 from factory.core.atomic import write_bytes, write_text
@@ -172,10 +172,12 @@ def report_text(report: VerifyReport) -> str:
     text = (f"{verdict}: max gouge {report.max_gouge:.4f} mm, stock over the {report.cell:g} mm grid max "
             f"{report.remaining_max:.3f} / mean {report.remaining_mean:.3f} / p95 {report.remaining_p95:.3f} mm, "
             f"{len(report.rapid_crashes)} rapid crash(es)")
-    for u in report.left[:LEFT_SHOWN]:
+    # a relief's uncut rim is the block round it, left by design: in the JSON report, named, not listed here
+    shown = [u for u in report.left if u.why != OUTSIDE_RELIEF]
+    for u in shown[:LEFT_SHOWN]:
         text += f"\n  left: {u.describe()}"
-    if len(report.left) > LEFT_SHOWN:
-        text += f"\n  and {len(report.left) - LEFT_SHOWN} more regions of stock left (all in the report)"
+    if len(shown) > LEFT_SHOWN:
+        text += f"\n  and {len(shown) - LEFT_SHOWN} more regions of stock left (all in the report)"
     if report.gouged and report.gouge_line is not None:
         text += f"\n  gouge: {report.max_gouge:.3f} mm into the part, line {report.gouge_line}"
     for f in report.faults:

@@ -130,3 +130,51 @@ def test_inside_corners_are_the_concave_vertical_edges_at_their_angle():
     edges = inside_corners(np.asarray(manifold_to_trimesh(ell).triangles))
     assert {tuple(np.round(p, 6)) for p in edges.xy} == {(5.0, 5.0), (25.0, 5.0), (25.0, 13.0), (13.0, 25.0),
                                                          (5.0, 25.0)}
+
+
+def test_a_reliefs_rim_its_boundary_band_and_stock_on_its_surface_are_told_apart():
+    """Issue 34: the relief sample's verify said "124.0 x 84.0 mm near X62.0 Y42.0, 9.9 mm of stock: no tool
+    reaches": the uncut rim round the surface, joined through the stock along the boundary to pockets on the
+    surface. A 20 x 20 mm relief at Z-9.9 in a 40 x 40 mm block: the rim stands 9.9 mm round it, the R4 roughing
+    tool left the surface's four corners whole, a 1.2 mm patch runs 8 mm in from the boundary, and a 4 x 4 mm
+    pocket 1 mm deep lies in the middle. Each is named at its own place and size."""
+    import trimesh
+
+    from cadcam.heightmap import upper_envelope
+    from cadcam.model import Setup
+    from cadcam.relief import machining_surface, surface_footprint
+    from cadcam.stock import AT_BOUNDARY, OUTSIDE_RELIEF
+    from cadcam.verify import VerifyReport
+
+    sheet = trimesh.Trimesh(vertices=[[10, 10, -9.9], [30, 10, -9.9], [30, 30, -9.9], [10, 30, -9.9]],
+                            faces=[[0, 1, 2], [0, 2, 3]])
+    setup = Setup(stock_min=[0, 0, -20], stock_max=[40, 40, 0], transform_mesh_to_work=np.eye(4))
+    tri = np.asarray(machining_surface(sheet, setup).triangles)
+    g = Grid(x0=0.25, y0=0.25, cell=0.5, nx=80, ny=80)
+    x, y = np.meshgrid(g.xs, g.ys)
+    on = surface_footprint(tri, g)
+    corners = np.zeros_like(on)
+    for kx, ky in ((10, 10), (10, 30), (30, 10), (30, 30)):  # beyond the R4 tool's centre nearest each corner
+        cx, cy = kx + (4 if kx < 20 else -4), ky + (4 if ky < 20 else -4)
+        corners |= ((x - cx) * (kx - cx) > 0) & ((y - cy) * (ky - cy) > 0) & (np.hypot(x - cx, y - cy) > 4.0)
+    patch = (x > 18.0) & (x < 24.0) & (y < 18.0)
+    pocket = (x > 18.0) & (x < 22.0) & (y > 20.0) & (y < 24.0)
+    stock = np.where(~on | corners, 0.0, np.where(patch, -8.7, np.where(pocket, -8.9, -9.9)))
+    sim = Simulation(grid=g, stock_top=stock, part_top=upper_envelope(tri, g), stock_bottom=-20.0)
+    left = why_left(unreached(sim, 0.1, 0.0, ~on, band=4.0), sim, 0.1, radius=4.0)
+    rim = [u for u in left if u.why == OUTSIDE_RELIEF]
+    assert len(rim) == 1 and rim[0].size_x == rim[0].size_y == 40.0 and rim[0].depth > 9.8, left
+    edge = sorted((round(u.x), round(u.y), round(u.depth, 1)) for u in left if u.why == AT_BOUNDARY)
+    assert edge == [(11, 11, 9.9), (11, 29, 9.9), (21, 12, 1.2), (29, 11, 9.9), (29, 29, 9.9)], left
+    assert all(u.band <= 4.0 + g.cell for u in left if u.why == AT_BOUNDARY), left
+    # further in than the roughing tool's radius: the patch's inner 4 mm and the pocket, each where it is
+    rest = sorted((round(u.x), round(u.y), round(u.size_x), round(u.size_y), round(u.depth, 1))
+                  for u in left if u.why not in (OUTSIDE_RELIEF, AT_BOUNDARY))
+    assert rest == [(20, 22, 4, 4, 1.0), (21, 16, 6, 4, 1.2)], left
+    # the verdict's lines list what is on the part, the boundary's stock by how far in it is, not the rim
+    report = VerifyReport(max_gouge=0.0, gouge_position=None, gouge_line=None, remaining_max=9.9,
+                          remaining_mean=1.0, remaining_p95=1.2, rapid_crashes=(), moves=1, cut_length=1.0,
+                          rapid_length=0.0, cells=g.size, cell=g.cell, left=left)
+    text = report_text(report)
+    assert OUTSIDE_RELIEF not in text and f"stock left in {len(left) - 1} regions" in text, text
+    assert "left: 1.0 x 1.0 mm near X11.0 Y11.0 up to 0.5 mm in from the boundary, 9.9 mm of stock" in text, text
