@@ -88,10 +88,9 @@ class LocateOptions:
         The same share in the worse of the outline's two main edge directions (0..1): a long
         part's ends must be seen too, or the pose may be slid along it. Fits seen weakly along one
         direction are slid along the outline first (:func:`_slid`), which brought stepped walls
-        slid 2-2.5 mm (0.47-0.58) back.
-    min_axis_coverage_glare : float
-        The same for a fit with a clipped top (glare), which is not slid: a glare stepped wall slid
-        2.2 mm reached 0.29, one turned 180 deg 0.47 (unitless, 0..1).
+        slid 2-2.5 mm (0.47-0.58) back. Below 0.5 wrong poses remain: a glare stepped wall turned
+        180 deg (0.47, not slid in glare) and a blank located on a tray plane 30 mm too high
+        (about 0.5: it finds one of each pair of opposite sides), so 0.5 stands.
     min_found : float
         Share of all visible model edges (outline, steps, bosses, holes) found within a pixel
         (0..1): the edges inside the outline tell a pose turned or shifted onto a look-alike
@@ -104,8 +103,7 @@ class LocateOptions:
     min_area_ratio: float = 0.3
     max_rms_px: float = 1.5
     min_coverage: float = 0.5
-    min_axis_coverage: float = 0.4
-    min_axis_coverage_glare: float = 0.5
+    min_axis_coverage: float = 0.5
     min_found: float = 0.5
     min_contrast: float = 0.1
 
@@ -899,11 +897,9 @@ def _refusal(fit: _EdgeFit, options: LocateOptions) -> str:
     if fit.coverage < options.min_coverage:
         return (f"the part's outline is not there ({100 * fit.coverage:.0f} % of its edges found, "
                 f"{100 * options.min_coverage:.0f} % needed)")
-    # A fit in glare is not slid along its outline (_slid), so there the outline must be seen across as well.
-    across = options.min_axis_coverage_glare if fit.hidden > AMBIGUOUS_HIDDEN else options.min_axis_coverage
-    if fit.axis_coverage < across:
+    if fit.axis_coverage < options.min_axis_coverage:
         return (f"the outline is seen along one direction only ({100 * fit.axis_coverage:.0f} % across it, "
-                f"{100 * across:.0f} % needed): the position along it is not fixed")
+                f"{100 * options.min_axis_coverage:.0f} % needed): the position along it is not fixed")
     if fit.found < options.min_found:
         return (f"the steps, bosses and holes inside the outline are not there ({100 * fit.found:.0f} % of all "
                 f"edges found, {100 * options.min_found:.0f} % needed): the pose may be turned or shifted")

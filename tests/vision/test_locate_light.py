@@ -34,8 +34,8 @@ PICTURES = [("diffuse", "stepped_wall", 0), ("diffuse", "plate_bosses", 2), ("lo
 #: Glare on a polished part, and the two pictures where locate once reported a wrong pose: a stepped
 #: wall slid 2.5 mm along itself in dim light (its ends not seen), a plate with bosses turned 180 deg
 #: under glare (its bosses not seen); an L whose turn fits nearly as well in glare; a glare stepped
-#: wall whose turn, 3.2 mm off, sees its outline across at 0.47 (a glare fit is not slid, so it needs
-#: 0.5; seed 25 was held out until the slides and the lower 0.4 elsewhere were final). No wrong pose.
+#: wall whose turn, 3.2 mm off, sees its outline across at 0.47 (it passed when 0.4 was tried; seed
+#: 25 was held out until then). No wrong pose.
 GLARE = [("glare", "bracket", 0), ("glare", "dome_mould", 0), ("dim", "stepped_wall", 1),
          ("glare", "plate_bosses", 2), ("glare", "l_bracket", 3), ("glare", "stepped_wall", 25)]
 #: Pictures where locate once reported a wrong pose, now corrected: an L under a low light turned 2 deg
