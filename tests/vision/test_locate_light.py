@@ -33,9 +33,16 @@ PICTURES = [("diffuse", "stepped_wall", 0), ("diffuse", "plate_bosses", 2), ("lo
             ("diffuse", "hex_boss", 0), ("low_angle", "plate_bosses", 3), ("low_angle", "hex_boss", 1)]
 #: Glare on a polished part, and the two pictures where locate once reported a wrong pose: a stepped
 #: wall slid 2.5 mm along itself in dim light (its ends not seen), a plate with bosses turned 180 deg
-#: under glare (its bosses not seen); an L whose turn fits nearly as well in glare. No wrong pose.
+#: under glare (its bosses not seen); an L whose turn fits nearly as well in glare; a glare stepped
+#: wall whose turn, 3.2 mm off, sees its outline across at 0.47 (it passed when 0.4 was tried; seed
+#: 25 was held out until then). No wrong pose.
 GLARE = [("glare", "bracket", 0), ("glare", "dome_mould", 0), ("dim", "stepped_wall", 1),
-         ("glare", "plate_bosses", 2), ("glare", "l_bracket", 3)]
+         ("glare", "plate_bosses", 2), ("glare", "l_bracket", 3), ("glare", "stepped_wall", 25)]
+#: Pictures where locate once reported a wrong pose, now corrected: an L under a low light turned 2 deg
+#: about its upright onto the lit edge of its base and a dim stepped wall slid 2.25 mm along itself
+#: (both brought back by the slides along the outline), a glare stepped wall turned 180 deg (its
+#: turn found 0.73 of the outline at its real heights against 0.99, so it is no rival in glare).
+ONCE_WRONG = [("low_angle", "l_bracket", 1), ("dim", "stepped_wall", 17), ("glare", "stepped_wall", 15)]
 #: What a refusal may say (vision.locate._refusal): which evidence of the part was short.
 REASONS = ("outline is not there", "seen along one direction only", "inside the outline are not there",
            "fit loosely", "the yaw is not fixed")
@@ -91,6 +98,11 @@ def test_under_glare_no_pose_rather_than_a_wrong_one(station, condition, part, s
     for p in found:
         assert np.hypot(p.x - scene.x, p.y - scene.y) <= FOUND_M
         assert yaw_error(p.yaw, scene.yaw, scene.symmetry) <= FOUND_RAD
+
+
+@pytest.mark.parametrize("condition, part, seed", ONCE_WRONG)
+def test_a_pose_once_wrong_is_now_found_within_its_uncertainty(station, condition, part, seed):
+    _found_within_its_uncertainty(*located(station, condition, part, seed))
 
 
 def test_glare_a_polished_bracket_is_found_despite_its_clipped_top(station):
