@@ -45,6 +45,7 @@ Otherwise it passes when no window of its outline and no feature is off by more 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import cv2
@@ -80,6 +81,16 @@ FACING_COS = 0.1
 RIM_CLEAR_PX = 5.0
 #: The mesh under a feature's middle lower than this is none: a through-hole [m].
 THROUGH_M = 2e-4
+#: A wall this wide in the picture [px] or narrower shows as one band with the top edge (:func:`_wall_width`).
+NARROW_WALL_PX = 1.0
+#: Grey profiles across the outline are compared over this span either side of the edge [px].
+SHIFT_SPAN_PX = 3.0
+#: A profile is the line's when its contrast is at least this share of the line's median profile's ...
+SHIFT_GAIN = 0.35
+#: ... and what the shifted median profile leaves is at most this share of that contrast (RMS).
+SHIFT_RESIDUAL = 0.15
+#: A side's trend of profile shifts is fitted to those within this of it: a burr's stretch lies further [px].
+SHIFT_BAND_PX = 0.5
 #: Outline edges whose direction is steeper than this are the part's vertical corners: no outward side.
 _STEEP = 0.7
 
@@ -104,6 +115,10 @@ class InspectOptions:
         feature is missing.
     min_feature_edges : int
         Features with fewer visible edge samples (about a millimetre each) are too small to judge.
+    min_whole_found : float
+        Share of all a feature's visible edges (not only its creases with a wall turned to the
+        camera) the picture shows from which it is there whatever its walls show (0..1): on the
+        benchmark's pictures features that are there show 0.39-1, features left out up to 0.28.
     min_seen : float
         Least share of the outline, and of each feature's edges, the picture must let be judged
         (0..1); below it (glare, an edge lost in shadow) the part is refused, not passed.
@@ -120,6 +135,7 @@ class InspectOptions:
     window: float = 8e-3
     min_feature_found: float = 0.3
     min_feature_edges: int = 12
+    min_whole_found: float = 0.45
     min_seen: float = 0.5
     locate: LocateOptions = LocateOptions(min_found=0.35)
 
@@ -185,6 +201,7 @@ class Inspection:
     tolerance: float
     refusal: str = ""
     hidden: str = ""
+    shift: np.ndarray | None = None
 
     @property
     def missing_features(self) -> tuple[Feature, ...]:
@@ -321,18 +338,6 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.nd
     # Deep shadow on both sides (a hole at the foot of a counterbore under a low light) hides an
     # edge as glare does: unknown, not missing.
     unknown |= _both_sides(dark, uv, normal, SHADOW_SIDE_PX)
-    lo = -OWN_PX - GLARE_PX * bloom[:, 1]
-    hi = OWN_PX + GLARE_PX * bloom[:, 0]
-    # The own edge: the strongest peak within OWN_PX. Where two edges lie that close (a lit rim,
-    # a narrow wall's two sides) the nearer one flips from sample to sample with the noise; the
-    # stronger one stays the same along a side, and the side's level absorbs where it lies.
-    near = np.where(peak & (steps[None, :] >= lo[:, None]) & (steps[None, :] <= hi[:, None]), resp, -np.inf)
-    own_j = np.argmax(near, axis=1)
-    own = np.isfinite(near[np.arange(len(idx)), own_j])
-    # Peaks further out that lie on another expected edge are that edge: they say nothing here.
-    spots = uv[:, None, :] + np.nan_to_num(offset)[..., None] * normal[:, None, :]
-    dist, _ = cKDTree(uv).query(spots.reshape(-1, 2), distance_upper_bound=EXPLAINED_PX)
-    explained = np.isfinite(dist.reshape(peak.shape))
     # The outline is judged where a face turned up meets the side (the top of a wall, a step): the
     # part's own face lies inside. At a wall's foot the tray beside it may lie in the part's own
     # shadow, and the wall may be as dark as that shadow; no edge there says anything.
@@ -341,6 +346,31 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.nd
         ~_near_corner(part.outline, model.points[idx, :2])
     sign = np.ones(len(idx))
     sign[outer] = _outward(model, part, p, idx[outer], uv[outer], normal[outer])
+    lo = -OWN_PX - GLARE_PX * bloom[:, 1]
+    hi = OWN_PX + GLARE_PX * bloom[:, 0]
+    # A wall turned to the camera shows beyond its top edge out to its foot: a narrow one as one
+    # band whose far side the blur pushes just beyond OWN_PX, so the own edge is looked for that
+    # much further out (up to NARROW_WALL_PX, not out to a wide wall's foot).
+    width = _wall_width(model, p, idx[outer], uv[outer], normal[outer] * sign[outer, None])
+    wall = np.clip(width, 0.0, NARROW_WALL_PX)
+    lo[outer] -= np.where(sign[outer] < 0, wall, 0.0)
+    hi[outer] += np.where(sign[outer] > 0, wall, 0.0)
+    # The own edge: the strongest peak within OWN_PX. Where two edges lie that close (a lit rim,
+    # a narrow wall's two sides) the nearer one flips from sample to sample with the noise; the
+    # stronger one stays the same along a side, and the side's level absorbs where it lies.
+    near = np.where(peak & (steps[None, :] >= lo[:, None]) & (steps[None, :] <= hi[:, None]), resp, -np.inf)
+    own_j = np.argmax(near, axis=1)
+    own = np.isfinite(near[np.arange(len(idx)), own_j])
+    # On the outline the two are a narrow wall's sides (a lit wall under a low light: bright between
+    # a greyer top and tray) of opposite polarity: along each straight side, the polarity its
+    # samples show stronger on average is taken, so the level does not flip between them.
+    line = _lines(model.points[idx[outer]], model.direction[idx[outer]])[0]
+    rising = _rising(gx, gy, uv[outer], normal[outer] * sign[outer, None], steps * sign[outer, None])
+    own_j[outer] = _one_polarity(near[outer], rising, line)
+    # Peaks further out that lie on another expected edge are that edge: they say nothing here.
+    spots = uv[:, None, :] + np.nan_to_num(offset)[..., None] * normal[:, None, :]
+    dist, _ = cKDTree(uv).query(spots.reshape(-1, 2), distance_upper_bound=EXPLAINED_PX)
+    explained = np.isfinite(dist.reshape(peak.shape))
     # The nearest edge beyond the own one, out to ``reach`` (a burr; shadows lie further out) or
     # in to ``depth`` (a broken corner), is a defect's unless it is another expected edge: then the
     # material is there up to it, and this edge is unseen.
@@ -357,18 +387,27 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.nd
 
     signed = sign[outer] * measured[outer]
     # An edge within OWN_PX inside the expected one is there: a narrow wall between the top and the
-    # tray blurs into one dark band whose two edges the blur pushes apart by up to a pixel.
-    signed = np.where(own[outer] & (signed < 0), 0.0, signed)
+    # tray blurs into one dark band whose two edges the blur pushes apart by up to a pixel. Where the
+    # wall is turned away the top edge is the silhouette, and where it lies is where the side is.
+    signed = np.where(own[outer] & (signed < 0) & (width > 0), 0.0, signed)
     # Against the rest of its own straight edge: the pose's error (a few tenths of a millimetre)
     # and the blur of a narrow wall shift a whole side alike, a burr or a broken corner only a stretch.
-    level = _line_level(model.points[idx[outer]], model.direction[idx[outer]], np.where(own[outer], signed, np.nan))
+    level = _line_level(model.points[idx[outer]], model.direction[idx[outer]], np.where(own[outer], signed, np.nan),
+                        rigid=lambda lv, fitted: _pose_level(model, p, idx[outer], uv[outer], normal[outer] * sign[outer, None],
+                                                             lv, fitted))
     # An edge beyond the own one is a defect's only if what lies between is the other side's: the
     # part's face out to a burr's edge, the tray in to a broken corner's. A shadow's edge outside an
     # edge lost in low contrast, a boss's inside it, or the two sides of a lit rim, are not.
     material = _material_agrees(grey, uv[outer], normal[outer] * sign[outer, None], signed, level, threshold,
-                                _lines(model.points[idx[outer]], model.direction[idx[outer]])[0], own[outer])
+                                line, own[outer])
     signed = np.where(own[outer] | material, signed, np.nan) - level
     deviation = _windowed(model.points[idx[outer]], signed, options.window) * px_m
+    # Extra material along the outline from the whole grey profile across it (a burr moves the top
+    # edge by a pixel, often beside a stronger wall edge it does not move, which the peaks follow).
+    shift = _profile_shift(grey, uv[outer], normal[outer] * sign[outer, None], line, threshold)
+    shift[unknown[outer]] = np.nan
+    trend = _line_level(model.points[idx[outer]], model.direction[idx[outer]], shift, band=SHIFT_BAND_PX)
+    excess = _windowed(model.points[idx[outer]], shift - trend, options.window) * px_m
 
     features = []
     refusals = []
@@ -379,7 +418,8 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.nd
     refusals += hidden_features
     hidden = "; ".join(refusals)
     judged = Inspection(part=located, outline_px=uv[outer], deviation=deviation, features=tuple(features),
-                        reach=options.reach, silhouette_px=ring_px, tolerance=options.tolerance, hidden=hidden)
+                        reach=options.reach, silhouette_px=ring_px, tolerance=options.tolerance, hidden=hidden,
+                        shift=excess)
     # Glare on the top hides pockets in the white, but the rest shows in sharp contrast: what shows
     # and fails, fails the part. Otherwise (low-angle light: lit walls, a hole's wall clipped) what
     # is hidden may be what misleads the rest: no verdict, with the reason.
@@ -396,6 +436,9 @@ def _judge_features(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.nd
 
     A feature is judged by its creases with a wall turned to the camera: a step between two faces
     turned up, its wall seen edge-on or from behind, may show no edge at all (the faces alike).
+    Seen from straight above (too few such creases: a boss or a thin wall under the camera) it is
+    judged by all its visible edges, and one whose edges nearly all show where the mesh puts them
+    (``min_whole_found``) is there whatever its walls turned to the camera show.
     An edge found where the mesh puts it is the feature's, glare or not (a filled hole, a boss not
     there, leave a flat face and no edge there): a feature whose edges show, counting those beside
     clipped pixels as not found, is there. A feature hidden in glare is missing when nothing of the
@@ -417,14 +460,26 @@ def _judge_features(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.nd
         if rim.any() and (~mine).any():
             rim[rim] = cKDTree(uv[~mine]).query(uv[rim])[0] > RIM_CLEAR_PX
         every = mine & (facing | rim)
-        if f in outline_features or every.sum() < options.min_feature_edges:
+        # All its edges the light does not hide: where the mesh puts a crease or a contour the
+        # picture shows one for most of a feature that is there, and for almost none of one that is not.
+        whole = mine & ~unknown
+        if f in outline_features or (every.sum() < options.min_feature_edges and whole.sum() < options.min_feature_edges):
+            continue
+        whole_found = float(own[whole].mean()) if whole.sum() >= options.min_feature_edges else 0.0
+        if every.sum() < options.min_feature_edges:
+            # Seen from straight above, its walls edge-on: a boss, a thin wall, judged by all its edges.
+            centre = uv[whole].mean(axis=0)
+            features.append(Feature(pixel=(float(centre[0]), float(centre[1])), edges=int(whole.sum()),
+                                    found=whole_found, present=whole_found >= options.min_feature_found))
             continue
         on = every & ~unknown
         centre = uv[every].mean(axis=0)
         pixel = (float(centre[0]), float(centre[1]))
         anywhere = float(own[every].mean())
-        if anywhere >= options.min_feature_found:
-            features.append(Feature(pixel=pixel, edges=int(every.sum()), found=anywhere, present=True))
+        if anywhere >= options.min_feature_found or whole_found >= options.min_whole_found:
+            # A wall turned to the camera may show little against its floor (dim light, a shadow in
+            # a counterbore) while the rest of the feature's edges are all there.
+            features.append(Feature(pixel=pixel, edges=int(every.sum()), found=max(anywhere, whole_found), present=True))
         elif on.sum() >= options.min_seen * every.sum():
             share = float(own[on].mean())
             features.append(Feature(pixel=pixel, edges=int(on.sum()), found=share,
@@ -549,6 +604,109 @@ def _material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, sign
     return out
 
 
+def _profile_shift(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, line: np.ndarray,
+                   contrast: float) -> np.ndarray:
+    """``(k,)`` how far outward [px] each outline sample's grey profile across its edge lies from the
+    median profile of its straight ``line`` (k,) int: the least-squares shift over
+    :data:`SHIFT_SPAN_PX` either side, whatever the profile's shape (a silhouette's step, a narrow lit
+    or dark wall's band). NaN on a line of fewer than 8 samples or whose median profile has no
+    gradient of ``contrast`` [grey/px]. ``uv`` (k, 2) [px] and unit ``outward`` (k, 2).
+    """
+    t = np.arange(-SHIFT_SPAN_PX - 1.5, SHIFT_SPAN_PX + 1.5 + 1e-9, 0.25)
+    q = uv[:, None, :] + t[None, :, None] * outward[:, None, :]
+    profile = map_coordinates(grey.astype(np.float32), [q[..., 1].ravel(), q[..., 0].ravel()], order=1,
+                              mode="nearest").reshape(q.shape[:2]).astype(np.float64)
+    span = np.abs(t) <= SHIFT_SPAN_PX + 1e-9
+    out = np.full(len(uv), np.nan)
+    for e in np.unique(line):
+        on = np.flatnonzero(line == e)
+        ref = np.median(profile[on], axis=0)
+        slope = np.gradient(ref, t)
+        if len(on) < 8 or np.abs(slope[span]).max() < contrast:
+            continue
+        seen = profile[on][:, span]
+        d = np.zeros(len(on))
+        for _ in range(4):  # Gauss-Newton on P(t) = a + b R(t - d): a shadow or the light along the side
+            at = t[span][None, :] - d[:, None]  # changes the greys' level and contrast, not where the edge is
+            r = np.interp(at, t, ref)
+            g = np.interp(at, t, slope)
+            rc = r - r.mean(axis=1, keepdims=True)
+            b = np.sum(rc * (seen - seen.mean(axis=1, keepdims=True)), axis=1) / np.maximum(np.sum(rc * rc, axis=1), 1e-9)
+            a = seen.mean(axis=1) - b * r.mean(axis=1)
+            res = seen - a[:, None] - b[:, None] * r
+            bg = b[:, None] * g
+            d = np.clip(d - np.sum(res * bg, axis=1) / np.maximum(np.sum(bg * bg, axis=1), 1e-9), -SHIFT_SPAN_PX, SHIFT_SPAN_PX)
+        # Where the profile is not the line's (its contrast a third or less, reversed, or another shape
+        # left over), the shift says nothing.
+        fits = (b > SHIFT_GAIN) & (np.sqrt(np.mean(res * res, axis=1)) < SHIFT_RESIDUAL * b * np.ptp(ref[span]))
+        d[~fits] = np.nan
+        out[on] = d
+    return out
+
+
+def _wall_width(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, outward: np.ndarray) -> np.ndarray:
+    """``(k,)`` how far beyond each outline sample ``idx`` (at ``uv`` (k, 2) [px], ``outward`` (k, 2)
+    unit) its wall's foot on the tray lies in the picture at pose ``p`` [px]: the wall shows that
+    wide; at most 0 where it is turned away and the top edge is the silhouette."""
+    pts = model.points[idx] * np.array([1.0, 1.0, 0.0])
+    at = model.camera.project(model.world(p, pts), model.rvec, model.tvec)
+    return np.einsum("nj,nj->n", at - uv, outward)
+
+
+def _rising(gx: np.ndarray, gy: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """``(k, s)`` bool: the grey rises outward at each of the ``steps`` (k, s) [px] along each sample's
+    normal from ``uv`` (k, 2) [px]; ``outward`` (k, 2) the unit image directions away from the part
+    (the steps are taken along the normal, ``steps * outward`` alike)."""
+    q = uv[:, None, :] + steps[..., None] * outward[:, None, :]
+    coords = [q[..., 1].ravel(), q[..., 0].ravel()]
+    g = map_coordinates(gx, coords, order=1, mode="nearest").reshape(q.shape[:2]) * outward[:, 0:1] + \
+        map_coordinates(gy, coords, order=1, mode="nearest").reshape(q.shape[:2]) * outward[:, 1:2]
+    return g > 0
+
+
+def _one_polarity(near: np.ndarray, rising: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """``(k,)`` column of each outline sample's own edge: the strongest peak of ``near`` (k, s)
+    (its strength, -inf where no peak lies within reach), but where peaks of both polarities lie
+    there (``rising`` (k, s) bool: the grey rises outward), the strongest of the polarity that the
+    samples of its straight ``line`` (k,) int with both show stronger on average."""
+    rows = np.arange(len(near))
+    up, down = np.where(rising, near, -np.inf), np.where(rising, -np.inf, near)
+    j_up, j_down = np.argmax(up, axis=1), np.argmax(down, axis=1)
+    s_up, s_down = up[rows, j_up], down[rows, j_down]
+    j = np.argmax(near, axis=1)
+    both = np.isfinite(s_up) & np.isfinite(s_down)
+    for e in np.unique(line[both]):
+        on = both & (line == e)
+        j[on] = j_up[on] if s_up[on].mean() >= s_down[on].mean() else j_down[on]
+    return j
+
+
+def _pose_level(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, outward: np.ndarray,
+                level: np.ndarray, fitted: np.ndarray) -> np.ndarray:
+    """``(k,)`` the offset [px] along each outline sample's ``outward`` (k, 2) image direction that a
+    small error of the pose ``p`` (x, y, yaw) and one push common to every edge (blur, bloom) give,
+    fitted to the ``level`` (k,) [px] of the samples whose straight line the picture shows
+    (``fitted`` (k,) bool); 0 where too few are. A side whose edges lie beyond OWN_PX of the
+    located pose (its yaw a little off) takes its level from the rest of the part, not from a
+    neighbouring side's nor from none."""
+    if fitted.sum() < 12:
+        return np.zeros(len(idx))
+    cols = [np.ones(len(idx))]
+    for k, eps in enumerate((1e-4, 1e-4, 1e-3)):  # [m, m, rad]: well within the fit's linear range
+        q = p.copy()
+        q[k] += eps
+        cols.append(np.einsum("nj,nj->n", model.project(q, idx)[0] - uv, outward) / eps)
+    a = np.column_stack(cols)
+    use = fitted.copy()
+    for _ in range(2):  # once more without the sides the first fit leaves more than OWN_PX off
+        c = np.linalg.lstsq(a[use], level[use], rcond=None)[0]
+        keep = fitted & (np.abs(a @ c - level) <= OWN_PX)
+        if keep.sum() < 12:
+            break
+        use = keep
+    return a @ c
+
+
 def _wall_facing(model: _EdgeModel, p: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """``(k,)`` bool: an edge sample borders a wall (a face within 60 deg of vertical) turned to the
     camera by at least :data:`FACING_COS` (its cosine with the view)."""
@@ -599,12 +757,16 @@ def _lines(points: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.nd
     return np.unique(key, axis=0, return_inverse=True)[1].ravel(), along
 
 
-def _line_level(points: np.ndarray, direction: np.ndarray, values: np.ndarray, least: int = 8) -> np.ndarray:
+def _line_level(points: np.ndarray, direction: np.ndarray, values: np.ndarray, least: int = 8,
+                rigid: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None, band: float = OWN_PX) -> np.ndarray:
     """``(k,)`` the level of each sample's straight line at the sample: a straight line fitted to the
     finite ``values`` [px] along it (twice, the second time without those more than :data:`OWN_PX`
     off the one before, starting flat at their median). A line with fewer than ``least`` of them (an
     arc's many short chords, a short step) takes the median level of the fitted samples within
-    :data:`NEIGHBOUR_M` (the sides it joins: a bloom or a pose shift moves them alike), else 0.
+    :data:`NEIGHBOUR_M` (the sides it joins: a bloom or a pose shift moves them alike), else 0;
+    with ``rigid`` (the levels of the pose's error fitted to those of the fitted lines, ``(level,
+    fitted) -> (k,)``, :func:`_pose_level`), a long side of ``least`` samples or more takes its
+    level from there, as does a short one with no fitted neighbour.
 
     A yaw error of the pose tilts a side's deviations, a shift moves them all: neither is the part's.
     The caller passes only the samples whose edge the picture shows at its place, so a defect's
@@ -622,16 +784,24 @@ def _line_level(points: np.ndarray, direction: np.ndarray, values: np.ndarray, l
             continue
         fit = np.array([0.0, np.median(v[ok])])  # flat at the median first: a stretch must not tilt it
         for _ in range(2):
-            near = ok & (np.abs(np.polyval(fit, s) - np.nan_to_num(v, nan=np.inf)) <= OWN_PX)
+            near = ok & (np.abs(np.polyval(fit, s) - np.nan_to_num(v, nan=np.inf)) <= band)
             if near.sum() < least:
                 break
             fit = np.polyfit(s[near], v[near], 1)
         out[on] = np.polyval(fit, s)
         fitted[on] = True
-    if fitted.any() and not fitted.all():
-        rest = np.flatnonzero(~fitted)
-        for i, near in zip(rest, cKDTree(points[fitted]).query_ball_point(points[rest], NEIGHBOUR_M)):
-            out[i] = np.median(out[fitted][near]) if near else 0.0
+    if fitted.all() or not fitted.any():
+        return out
+    # A long side the picture does not show at its place (its edge beyond OWN_PX: the located yaw
+    # a little off) takes the level the rest of the part's sides give it, not a neighbouring side's.
+    from_pose = rigid(out, fitted) if rigid is not None else None
+    rest = ~fitted
+    if from_pose is not None:
+        long_side = np.bincount(line)[line] >= least
+        out[rest & long_side] = from_pose[rest & long_side]
+        rest &= ~long_side
+    for i, near in zip(np.flatnonzero(rest), cKDTree(points[fitted]).query_ball_point(points[rest], NEIGHBOUR_M)):
+        out[i] = np.median(out[fitted][near]) if near else (0.0 if from_pose is None else from_pose[i])
     return out
 
 
