@@ -20,13 +20,23 @@ than it, a clipped highlight moved such an outline by millimetres):
   shift a whole side alike; a burr or a broken corner only a stretch of it), and the deviation is
   the median over ``window`` along the outline, so one noisy sample neither passes nor fails a part:
   material sticking out (+) or missing (-). A whole side off by less than ``reach`` is not seen.
+  A narrow wall turned to the camera shows as one band about the top edge: one polarity of its two
+  sides is taken along each side. A side with no edge at its place takes the level the pose's
+  error fitted to the other sides gives it (:func:`_pose_level`).
+- **The outline's grey profile**: a burr moves the top edge by about a pixel, often beside a
+  stronger wall edge it does not move, which the peaks follow. Each sample's whole profile across
+  the edge is compared with the median profile of the rest of its side (shifted, with the greys'
+  level and contrast free: a shadow along the side), and the shift against the side's trend,
+  a median over ``window``, is extra material (:func:`_profile_shift`); only on sides whose
+  contrast stands well above the picture's noise and texture.
 - **Features inside it** (each set of connected mesh edges: a hole, a boss, a pocket): the share
   of the feature's visible edges the picture shows within :data:`OWN_PX`. A feature whose edges
   are nearly all absent is missing (a hole not drilled, a boss not there); its deviation is the
-  whole ``reach`` (its edges are at least that far from where they should be). Edges found where
-  the mesh puts them say *there* whatever hides the rest; a through-hole's rim is judged from
-  every side (straight down a hole its wall is seen edge-on), and white over it in glare is
-  material where the hole should be (:func:`_judge_features`).
+  whole ``reach`` (its edges are at least that far from where they should be). A feature seen
+  from straight above (its walls edge-on) is judged by all its edges, and one whose edges mostly
+  show is there. Edges found where the mesh puts them say *there* whatever hides the rest; a
+  through-hole's rim is judged from every side (straight down a hole its wall is seen edge-on),
+  and white over it in glare is material where the hole should be (:func:`_judge_features`).
 
 An edge beyond the own one says *defect* only when the greys agree (:func:`_material_agrees`):
 between the line and a burr's edge lies something like the part's face, between the line and a
@@ -85,6 +95,10 @@ THROUGH_M = 2e-4
 NARROW_WALL_PX = 1.0
 #: Grey profiles across the outline are compared over this span either side of the edge [px].
 SHIFT_SPAN_PX = 3.0
+#: A side's grey profile is compared when it spans this many times the picture's edge threshold:
+#: below it the tray's texture and the light along a low-contrast side move it by most of a pixel
+#: (set on benchmarks/inspect_real_light.py seeds 0-1: good parts' sides read up to 0.72 mm at 5.2).
+SHIFT_CONTRAST = 5.5
 #: A profile is the line's when its contrast is at least this share of the line's median profile's ...
 SHIFT_GAIN = 0.35
 #: ... and what the shifted median profile leaves is at most this share of that contrast (RMS).
@@ -190,6 +204,11 @@ class Inspection:
     hidden : str
         What could not be judged (glare, an edge lost in shadow), also when the part fails on what
         shows ('' when everything was judged).
+    excess : (n,) float or None
+        Extra material outside the outline from the grey profile across it, a median over
+        ``InspectOptions.window`` like ``deviation`` (:func:`_profile_shift`: a burr moves the top
+        edge, often beside a stronger wall edge it does not move); NaN where a side's profile
+        cannot tell [m].
     """
 
     part: LocatedPart
@@ -201,17 +220,25 @@ class Inspection:
     tolerance: float
     refusal: str = ""
     hidden: str = ""
-    shift: np.ndarray | None = None
+    excess: np.ndarray | None = None
 
     @property
     def missing_features(self) -> tuple[Feature, ...]:
         return tuple(f for f in self.features if not f.present)
 
     @property
+    def profile_excess(self) -> float:
+        """Largest extra material the outline's grey profiles show (0 when none) [m]."""
+        if self.excess is None:
+            return 0.0
+        return float(np.clip(self.excess[np.isfinite(self.excess)], 0.0, None).max(initial=0.0))
+
+    @property
     def max_deviation(self) -> float:
-        """Largest absolute deviation of the outline or of a feature (a missing one: ``reach``) [m]."""
+        """Largest absolute deviation of the outline (its edges or its profile's extra material) or of
+        a feature (a missing one: ``reach``) [m]."""
         seen = np.abs(self.deviation[np.isfinite(self.deviation)])
-        return max(float(seen.max(initial=0.0)), self.reach if self.missing_features else 0.0)
+        return max(float(seen.max(initial=0.0)), self.profile_excess, self.reach if self.missing_features else 0.0)
 
     @property
     def passed(self) -> bool:
@@ -226,6 +253,7 @@ class Inspection:
                 "max_deviation_mm": self.max_deviation * 1e3,
                 "p95_deviation_mm": float(np.percentile(np.abs(d), 95)) if len(d) else 0.0,
                 "excess_mm": float(max(d.max(initial=0.0), 0.0)),
+                "profile_excess_mm": self.profile_excess * 1e3,
                 "missing_mm": float(max(-d.min(initial=0.0), 0.0)),
                 "outline_seen": float(np.isfinite(self.deviation).mean()) if len(self.deviation) else 0.0,
                 "missing_features": [{"pixel": list(f.pixel), "found": f.found} for f in self.missing_features],
@@ -364,7 +392,7 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.nd
     # On the outline the two are a narrow wall's sides (a lit wall under a low light: bright between
     # a greyer top and tray) of opposite polarity: along each straight side, the polarity its
     # samples show stronger on average is taken, so the level does not flip between them.
-    line = _lines(model.points[idx[outer]], model.direction[idx[outer]])[0]
+    line, along = _lines(model.points[idx[outer]], model.direction[idx[outer]])
     rising = _rising(gx, gy, uv[outer], normal[outer] * sign[outer, None], steps * sign[outer, None])
     own_j[outer] = _one_polarity(near[outer], rising, line)
     # Peaks further out that lie on another expected edge are that edge: they say nothing here.
@@ -404,8 +432,12 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.nd
     deviation = _windowed(model.points[idx[outer]], signed, options.window) * px_m
     # Extra material along the outline from the whole grey profile across it (a burr moves the top
     # edge by a pixel, often beside a stronger wall edge it does not move, which the peaks follow).
-    shift = _profile_shift(grey, uv[outer], normal[outer] * sign[outer, None], line, threshold)
+    shift = _profile_shift(grey, uv[outer], normal[outer] * sign[outer, None], line, along, threshold, options.window)
     shift[unknown[outer]] = np.nan
+    # A feature's edge within the compared span (a hole 2.5 mm inside the outline) is not the side's.
+    inside_uv = uv[~model.outer[idx]]
+    if len(inside_uv):
+        shift[cKDTree(inside_uv).query(uv[outer])[0] < SHIFT_SPAN_PX + 1.0] = np.nan
     trend = _line_level(model.points[idx[outer]], model.direction[idx[outer]], shift, band=SHIFT_BAND_PX)
     excess = _windowed(model.points[idx[outer]], shift - trend, options.window) * px_m
 
@@ -419,7 +451,7 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.nd
     hidden = "; ".join(refusals)
     judged = Inspection(part=located, outline_px=uv[outer], deviation=deviation, features=tuple(features),
                         reach=options.reach, silhouette_px=ring_px, tolerance=options.tolerance, hidden=hidden,
-                        shift=excess)
+                        excess=excess)
     # Glare on the top hides pockets in the white, but the rest shows in sharp contrast: what shows
     # and fails, fails the part. Otherwise (low-angle light: lit walls, a hole's wall clipped) what
     # is hidden may be what misleads the rest: no verdict, with the reason.
@@ -465,9 +497,14 @@ def _judge_features(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.nd
         whole = mine & ~unknown
         if f in outline_features or (every.sum() < options.min_feature_edges and whole.sum() < options.min_feature_edges):
             continue
-        whole_found = float(own[whole].mean()) if whole.sum() >= options.min_feature_edges else 0.0
+        # ... counted only where the light leaves most of them to be judged (a thin wall's few edges
+        # clear of a white top say nothing of the rest).
+        told = whole.sum() >= max(options.min_feature_edges, options.min_seen * mine.sum())
+        whole_found = float(own[whole].mean()) if told else 0.0
         if every.sum() < options.min_feature_edges:
             # Seen from straight above, its walls edge-on: a boss, a thin wall, judged by all its edges.
+            if not told:
+                continue
             centre = uv[whole].mean(axis=0)
             features.append(Feature(pixel=(float(centre[0]), float(centre[1])), edges=int(whole.sum()),
                                     found=whole_found, present=whole_found >= options.min_feature_found))
@@ -604,13 +641,17 @@ def _material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, sign
     return out
 
 
-def _profile_shift(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, line: np.ndarray,
-                   contrast: float) -> np.ndarray:
+def _profile_shift(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, line: np.ndarray, along: np.ndarray,
+                   contrast: float, window: float) -> np.ndarray:
     """``(k,)`` how far outward [px] each outline sample's grey profile across its edge lies from the
-    median profile of its straight ``line`` (k,) int: the least-squares shift over
+    median profile of the rest of its straight ``line`` (k,) int: the least-squares shift over
     :data:`SHIFT_SPAN_PX` either side, whatever the profile's shape (a silhouette's step, a narrow lit
-    or dark wall's band). NaN on a line of fewer than 8 samples or whose median profile has no
-    gradient of ``contrast`` [grey/px]. ``uv`` (k, 2) [px] and unit ``outward`` (k, 2).
+    or dark wall's band). The rest is the line's samples more than ``window`` / 2 + 1 mm away along
+    it (``along`` (k,) [m]), so a burr along half a short side is not its own reference (the whole
+    line where fewer than 8 are). NaN on a line of fewer than 8 samples, whose median profile spans
+    less than :data:`SHIFT_CONTRAST` times ``contrast`` (the picture's edge threshold [grey/px]: its
+    noise and texture), or where the profile is not the line's.
+    ``uv`` (k, 2) [px] and unit ``outward`` (k, 2).
     """
     t = np.arange(-SHIFT_SPAN_PX - 1.5, SHIFT_SPAN_PX + 1.5 + 1e-9, 0.25)
     q = uv[:, None, :] + t[None, :, None] * outward[:, None, :]
@@ -620,16 +661,21 @@ def _profile_shift(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, line: 
     out = np.full(len(uv), np.nan)
     for e in np.unique(line):
         on = np.flatnonzero(line == e)
-        ref = np.median(profile[on], axis=0)
-        slope = np.gradient(ref, t)
-        if len(on) < 8 or np.abs(slope[span]).max() < contrast:
+        if len(on) < 8:
+            continue
+        whole = np.median(profile[on], axis=0)
+        apart = np.abs(along[on][:, None] - along[on][None, :]) > 0.5 * window + 1e-3
+        apart[apart.sum(axis=1) < 8] = True
+        ref = np.nanmedian(np.where(apart[..., None], profile[on][None, :, :], np.nan), axis=1)  # (n, t)
+        slope = np.gradient(ref, t, axis=1)
+        if np.ptp(whole[span]) < SHIFT_CONTRAST * contrast:
             continue
         seen = profile[on][:, span]
         d = np.zeros(len(on))
-        for _ in range(4):  # Gauss-Newton on P(t) = a + b R(t - d): a shadow or the light along the side
+        for _ in range(10):  # Gauss-Newton on P(t) = a + b R(t - d): a shadow or the light along the side
             at = t[span][None, :] - d[:, None]  # changes the greys' level and contrast, not where the edge is
-            r = np.interp(at, t, ref)
-            g = np.interp(at, t, slope)
+            r = _rows_interp(at, t, ref)
+            g = _rows_interp(at, t, slope)
             rc = r - r.mean(axis=1, keepdims=True)
             b = np.sum(rc * (seen - seen.mean(axis=1, keepdims=True)), axis=1) / np.maximum(np.sum(rc * rc, axis=1), 1e-9)
             a = seen.mean(axis=1) - b * r.mean(axis=1)
@@ -638,10 +684,20 @@ def _profile_shift(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, line: 
             d = np.clip(d - np.sum(res * bg, axis=1) / np.maximum(np.sum(bg * bg, axis=1), 1e-9), -SHIFT_SPAN_PX, SHIFT_SPAN_PX)
         # Where the profile is not the line's (its contrast a third or less, reversed, or another shape
         # left over), the shift says nothing.
-        fits = (b > SHIFT_GAIN) & (np.sqrt(np.mean(res * res, axis=1)) < SHIFT_RESIDUAL * b * np.ptp(ref[span]))
+        fits = (b > SHIFT_GAIN) & (np.sqrt(np.mean(res * res, axis=1)) < SHIFT_RESIDUAL * b * np.ptp(ref[:, span], axis=1))
         d[~fits] = np.nan
         out[on] = d
     return out
+
+
+def _rows_interp(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
+    """``(n, m)``: each row of ``fp`` (n, len(xp)), sampled on the increasing, evenly spaced ``xp``,
+    linearly interpolated at that row of ``x`` (n, m) (held at the ends)."""
+    pos = np.clip((x - xp[0]) / (xp[1] - xp[0]), 0, len(xp) - 1 - 1e-9)
+    i = np.floor(pos).astype(int)
+    w = pos - i
+    rows = np.arange(len(fp))[:, None]
+    return fp[rows, i] * (1 - w) + fp[rows, np.minimum(i + 1, len(xp) - 1)] * w
 
 
 def _wall_width(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, outward: np.ndarray) -> np.ndarray:
@@ -835,9 +891,10 @@ def inspection_image(image: np.ndarray, inspections: list[Inspection]) -> np.nda
     for ins in inspections:
         ring = np.rint(ins.silhouette_px * 4).astype(np.int32)  # 2 fractional bits for a smooth line
         cv2.polylines(canvas, [ring.reshape(-1, 1, 2)], True, (255, 120, 0), 1, cv2.LINE_AA, shift=2)
-        for (u, v), dev in zip(np.rint(ins.outline_px).astype(int), ins.deviation):
-            colour = (160, 160, 160) if not np.isfinite(dev) else (0, 0, 255) if abs(dev) > ins.tolerance \
-                else (0, 200, 0)
+        extra = ins.excess if ins.excess is not None else np.full(len(ins.deviation), np.nan)
+        for (u, v), dev, more in zip(np.rint(ins.outline_px).astype(int), ins.deviation, extra):
+            colour = (160, 160, 160) if not np.isfinite(dev) else \
+                (0, 0, 255) if abs(dev) > ins.tolerance or more > ins.tolerance else (0, 200, 0)
             canvas[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)] = colour
         radius = max(int(round(3.0 / max(ins.part.mm_per_px, 1e-3))), 4)  # a ring about 6 mm across
         for f in ins.missing_features:
