@@ -438,7 +438,9 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.nd
     inside_uv = uv[~model.outer[idx]]
     if len(inside_uv):
         shift[cKDTree(inside_uv).query(uv[outer])[0] < SHIFT_SPAN_PX + 1.0] = np.nan
-    trend = _line_level(model.points[idx[outer]], model.direction[idx[outer]], shift, band=SHIFT_BAND_PX)
+    # Each shift is against the rest of its side already: the trend (a yaw error tilting the side)
+    # starts at 0, not at the median, which a burr along half a short side would be.
+    trend = _line_level(model.points[idx[outer]], model.direction[idx[outer]], shift, band=SHIFT_BAND_PX, start=0.0)
     excess = _windowed(model.points[idx[outer]], shift - trend, options.window) * px_m
 
     features = []
@@ -814,7 +816,8 @@ def _lines(points: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def _line_level(points: np.ndarray, direction: np.ndarray, values: np.ndarray, least: int = 8,
-                rigid: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None, band: float = OWN_PX) -> np.ndarray:
+                rigid: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None, band: float = OWN_PX,
+                start: float | None = None) -> np.ndarray:
     """``(k,)`` the level of each sample's straight line at the sample: a straight line fitted to the
     finite ``values`` [px] along it (twice, the second time without those more than :data:`OWN_PX`
     off the one before, starting flat at their median). A line with fewer than ``least`` of them (an
@@ -822,7 +825,8 @@ def _line_level(points: np.ndarray, direction: np.ndarray, values: np.ndarray, l
     :data:`NEIGHBOUR_M` (the sides it joins: a bloom or a pose shift moves them alike), else 0;
     with ``rigid`` (the levels of the pose's error fitted to those of the fitted lines, ``(level,
     fitted) -> (k,)``, :func:`_pose_level`), a long side of ``least`` samples or more takes its
-    level from there, as does a short one with no fitted neighbour.
+    level from there, as does a short one with no fitted neighbour. Only values within ``band``
+    [px] of the fit count, starting flat at ``start`` [px] (None: their median).
 
     A yaw error of the pose tilts a side's deviations, a shift moves them all: neither is the part's.
     The caller passes only the samples whose edge the picture shows at its place, so a defect's
@@ -838,7 +842,7 @@ def _line_level(points: np.ndarray, direction: np.ndarray, values: np.ndarray, l
         ok = np.isfinite(v)
         if ok.sum() < least or np.ptp(s[ok]) < 1e-3:
             continue
-        fit = np.array([0.0, np.median(v[ok])])  # flat at the median first: a stretch must not tilt it
+        fit = np.array([0.0, np.median(v[ok]) if start is None else start])  # flat first: a stretch must not tilt it
         for _ in range(2):
             near = ok & (np.abs(np.polyval(fit, s) - np.nan_to_num(v, nan=np.inf)) <= band)
             if near.sum() < least:
