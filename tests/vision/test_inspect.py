@@ -204,3 +204,15 @@ def test_a_stretch_of_profile_shifted_outward_reads_its_shift_whatever_the_contr
     burr = (u >= 84) & (u <= 95)
     assert np.allclose(shift[burr], 1.2, atol=0.15)
     assert np.allclose(shift[(u < 70) | (u > 110)], 0.0, atol=0.1)
+
+
+def test_a_burr_along_most_of_a_short_side_stands_out_from_a_trend_started_at_zero():
+    """Shifts against the rest of their side: a 25 mm side whose middle 15 mm reads +1 px (a
+    burr), the rest about 0. Started flat at the median, the side's level is the burr's and hides
+    it; started at 0, the burr reads 1 px."""
+    points = np.column_stack([np.arange(25) * 1e-3, np.zeros(25), np.full(25, 0.01)])
+    direction = np.tile([1.0, 0.0, 0.0], (25, 1))
+    values = np.where((np.arange(25) >= 5) & (np.arange(25) < 20), 1.0, 0.0) + 0.05 * np.sin(np.arange(25))
+    hidden = _windowed(points, values - _line_level(points, direction, values, band=0.5), 8e-3)
+    shown = _windowed(points, values - _line_level(points, direction, values, band=0.5, start=0.0), 8e-3)
+    assert abs(hidden[12]) < 0.2 and shown[12] == pytest.approx(1.0, abs=0.1)
