@@ -39,13 +39,14 @@ from factory.core.errors import VisionError  # noqa: E402
 from tests.vision.defects import DEFECTS, defect_parts  # noqa: E402
 from tests.vision.lit import CONDITIONS, SAMPLE_PARTS, cell_station, sample_mesh  # noqa: E402
 from vision.camera import CameraModel  # noqa: E402
-from vision.inspect import inspect_part  # noqa: E402
+from vision.inspect import InspectOptions, inspect_part  # noqa: E402
 
 KINDS = ("good", *DEFECTS)
 OUTCOMES = ("passed", "rejected", "refused")
 
 
-def judge(station, part: str, condition: str, seed: int, kind: str, cache: Path | None) -> dict:
+def judge(station, part: str, condition: str, seed: int, kind: str, cache: Path | None,
+          options: InspectOptions = InspectOptions()) -> dict:
     """Inspect one picture: the row of the table (outcome, deviation, why refused)."""
     scene = picture(station, part, condition, seed, cache, None if kind == "good" else kind)
     mesh, footprint, _ = sample_mesh(part)
@@ -53,7 +54,7 @@ def judge(station, part: str, condition: str, seed: int, kind: str, cache: Path 
     start = time.perf_counter()
     try:
         found = inspect_part(scene.image, station.camera, station.camera_pose, footprint, mesh.vertices,
-                             mesh.faces, station.plane_z)
+                             mesh.faces, station.plane_z, options)
     except VisionError as e:
         return {**row, "seconds": time.perf_counter() - start, "outcome": "refused",
                 "reason": str(e).split("; ", 1)[-1]}
@@ -72,7 +73,8 @@ def judge(station, part: str, condition: str, seed: int, kind: str, cache: Path 
 
 
 def run(poses: int, cache: Path | None, conditions: list[str], kinds: list[str], first_seed: int = 0,
-        camera: Path | None = None, parts: list[str] | None = None) -> list[dict]:
+        camera: Path | None = None, parts: list[str] | None = None,
+        options: InspectOptions = InspectOptions()) -> list[dict]:
     station = cell_station(CameraModel.read(camera) if camera is not None else None)
     rows = []
     for condition in conditions:
@@ -81,7 +83,7 @@ def run(poses: int, cache: Path | None, conditions: list[str], kinds: list[str],
                 if parts and part not in parts:
                     continue
                 for seed in range(first_seed, first_seed + poses):
-                    row = judge(station, part, condition, seed, kind, cache)
+                    row = judge(station, part, condition, seed, kind, cache, options)
                     rows.append(row)
                     print(json.dumps(row), file=sys.stderr, flush=True)
     return rows
@@ -119,9 +121,12 @@ def main() -> None:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--camera", type=Path, default=None, help="cell camera file (default fixtures/camera.yaml)")
     ap.add_argument("--parts", default="", help="only these sample parts (comma-separated; default all)")
+    ap.add_argument("--from-above", action="store_true",
+                    help="judge features seen from straight above by all their edges (InspectOptions.judge_from_above)")
     a = ap.parse_args()
     conditions, kinds = a.conditions.split(","), a.kinds.split(",")
-    rows = run(a.poses, a.cache, conditions, kinds, a.first_seed, a.camera, [p for p in a.parts.split(",") if p])
+    rows = run(a.poses, a.cache, conditions, kinds, a.first_seed, a.camera, [p for p in a.parts.split(",") if p],
+               InspectOptions(judge_from_above=a.from_above))
     counts = table(rows, conditions, kinds)
     if a.json:
         print(json.dumps({"counts": counts, "rows": rows}))
