@@ -32,9 +32,9 @@ than it, a clipped highlight moved such an outline by millimetres):
 - **Features inside it** (each set of connected mesh edges: a hole, a boss, a pocket): the share
   of the feature's visible edges the picture shows within :data:`OWN_PX`. A feature whose edges
   are nearly all absent is missing (a hole not drilled, a boss not there); its deviation is the
-  whole ``reach`` (its edges are at least that far from where they should be). A feature seen
-  from straight above (its walls edge-on) is judged by all its edges, and one whose edges mostly
-  show is there. Edges found where the mesh puts them say *there* whatever hides the rest; a
+  whole ``reach`` (its edges are at least that far from where they should be). With
+  ``judge_from_above`` a feature seen from straight above (its walls edge-on) is judged by all its
+  edges; one whose edges mostly show is there. Edges found where the mesh puts them say *there* whatever hides the rest; a
   through-hole's rim is judged from every side (straight down a hole its wall is seen edge-on),
   and white over it in glare is material where the hole should be (:func:`_judge_features`).
 
@@ -477,7 +477,8 @@ def _judge_features(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.nd
     A feature is judged by its creases with a wall turned to the camera: a step between two faces
     turned up, its wall seen edge-on or from behind, may show no edge at all (the faces alike).
     Seen from straight above (too few such creases: a boss or a thin wall under the camera) it is
-    judged by all its visible edges, and one whose edges nearly all show where the mesh puts them
+    judged by all its visible edges with ``judge_from_above``; one whose edges mostly show where the
+    mesh puts them
     (``min_whole_found``) is there whatever its walls turned to the camera show.
     An edge found where the mesh puts it is the feature's, glare or not (a filled hole, a boss not
     there, leave a flat face and no edge there): a feature whose edges show, counting those beside
