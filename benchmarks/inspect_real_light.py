@@ -1,6 +1,7 @@
 """``inspect`` in real light: good parts against defective ones, per light condition (issue 33 item 4).
 
     python benchmarks/inspect_real_light.py [--poses 2] [--first-seed 0] [--cache /tmp/lit-gallery] [--json]
+        [--camera fixtures/camera_5mp.yaml] [--parts bracket,dome_mould]
 
 The pictures are those of ``benchmarks/locate_real_light.py`` (``tests/vision/lit.py``: brushed
 and polished aluminium, shadows, glare, a box beside the part, dim exposure, noise, taken by the
@@ -37,13 +38,15 @@ from benchmarks.locate_real_light import FOUND_M, FOUND_RAD, picture, yaw_error 
 from factory.core.errors import VisionError  # noqa: E402
 from tests.vision.defects import DEFECTS, defect_parts  # noqa: E402
 from tests.vision.lit import CONDITIONS, SAMPLE_PARTS, cell_station, sample_mesh  # noqa: E402
-from vision.inspect import inspect_part  # noqa: E402
+from vision.camera import CameraModel  # noqa: E402
+from vision.inspect import InspectOptions, inspect_part  # noqa: E402
 
 KINDS = ("good", *DEFECTS)
 OUTCOMES = ("passed", "rejected", "refused")
 
 
-def judge(station, part: str, condition: str, seed: int, kind: str, cache: Path | None) -> dict:
+def judge(station, part: str, condition: str, seed: int, kind: str, cache: Path | None,
+          options: InspectOptions = InspectOptions()) -> dict:
     """Inspect one picture: the row of the table (outcome, deviation, why refused)."""
     scene = picture(station, part, condition, seed, cache, None if kind == "good" else kind)
     mesh, footprint, _ = sample_mesh(part)
@@ -51,7 +54,7 @@ def judge(station, part: str, condition: str, seed: int, kind: str, cache: Path 
     start = time.perf_counter()
     try:
         found = inspect_part(scene.image, station.camera, station.camera_pose, footprint, mesh.vertices,
-                             mesh.faces, station.plane_z)
+                             mesh.faces, station.plane_z, options)
     except VisionError as e:
         return {**row, "seconds": time.perf_counter() - start, "outcome": "refused",
                 "reason": str(e).split("; ", 1)[-1]}
@@ -64,18 +67,23 @@ def judge(station, part: str, condition: str, seed: int, kind: str, cache: Path 
     return {**row, "seconds": time.perf_counter() - start, "outcome": outcome, "reason": ins.refusal,
             "hidden": ins.hidden,
             "misplaced": not placed, "max_deviation_mm": summary["max_deviation_mm"],
-            "excess_mm": summary["excess_mm"], "missing_mm": summary["missing_mm"],
+            "excess_mm": summary["excess_mm"], "profile_excess_mm": summary["profile_excess_mm"],
+            "missing_mm": summary["missing_mm"],
             "outline_seen": summary["outline_seen"], "missing_features": len(summary["missing_features"])}
 
 
-def run(poses: int, cache: Path | None, conditions: list[str], kinds: list[str], first_seed: int = 0) -> list[dict]:
-    station = cell_station()
+def run(poses: int, cache: Path | None, conditions: list[str], kinds: list[str], first_seed: int = 0,
+        camera: Path | None = None, parts: list[str] | None = None,
+        options: InspectOptions = InspectOptions()) -> list[dict]:
+    station = cell_station(CameraModel.read(camera) if camera is not None else None)
     rows = []
     for condition in conditions:
         for kind in kinds:
             for part in SAMPLE_PARTS if kind == "good" else defect_parts(kind):
+                if parts and part not in parts:
+                    continue
                 for seed in range(first_seed, first_seed + poses):
-                    row = judge(station, part, condition, seed, kind, cache)
+                    row = judge(station, part, condition, seed, kind, cache, options)
                     rows.append(row)
                     print(json.dumps(row), file=sys.stderr, flush=True)
     return rows
@@ -111,9 +119,14 @@ def main() -> None:
     ap.add_argument("--conditions", default=",".join(CONDITIONS))
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--camera", type=Path, default=None, help="cell camera file (default fixtures/camera.yaml)")
+    ap.add_argument("--parts", default="", help="only these sample parts (comma-separated; default all)")
+    ap.add_argument("--from-above", action="store_true",
+                    help="judge features seen from straight above by all their edges (InspectOptions.judge_from_above)")
     a = ap.parse_args()
     conditions, kinds = a.conditions.split(","), a.kinds.split(",")
-    rows = run(a.poses, a.cache, conditions, kinds, a.first_seed)
+    rows = run(a.poses, a.cache, conditions, kinds, a.first_seed, a.camera, [p for p in a.parts.split(",") if p],
+               InspectOptions(judge_from_above=a.from_above))
     counts = table(rows, conditions, kinds)
     if a.json:
         print(json.dumps({"counts": counts, "rows": rows}))

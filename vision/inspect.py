@@ -20,13 +20,23 @@ than it, a clipped highlight moved such an outline by millimetres):
   shift a whole side alike; a burr or a broken corner only a stretch of it), and the deviation is
   the median over ``window`` along the outline, so one noisy sample neither passes nor fails a part:
   material sticking out (+) or missing (-). A whole side off by less than ``reach`` is not seen.
+  A narrow wall turned to the camera shows as one band about the top edge: one polarity of its two
+  sides is taken along each side. A side with no edge at its place takes the level the pose's
+  error fitted to the other sides gives it (:func:`_pose_level`).
+- **The outline's grey profile**: a burr moves the top edge by about a pixel, often beside a
+  stronger wall edge it does not move, which the peaks follow. Each sample's whole profile across
+  the edge is compared with the median profile of the rest of its side (shifted, with the greys'
+  level and contrast free: a shadow along the side), and the shift against the side's trend,
+  a median over ``window``, is extra material (:func:`_profile_shift`); only on sides whose
+  contrast stands well above the picture's noise and texture.
 - **Features inside it** (each set of connected mesh edges: a hole, a boss, a pocket): the share
   of the feature's visible edges the picture shows within :data:`OWN_PX`. A feature whose edges
   are nearly all absent is missing (a hole not drilled, a boss not there); its deviation is the
-  whole ``reach`` (its edges are at least that far from where they should be). Edges found where
-  the mesh puts them say *there* whatever hides the rest; a through-hole's rim is judged from
-  every side (straight down a hole its wall is seen edge-on), and white over it in glare is
-  material where the hole should be (:func:`_judge_features`).
+  whole ``reach`` (its edges are at least that far from where they should be). With
+  ``judge_from_above`` a feature seen from straight above (its walls edge-on) is judged by all its
+  edges; one whose edges mostly show is there. Edges found where the mesh puts them say *there* whatever hides the rest; a
+  through-hole's rim is judged from every side (straight down a hole its wall is seen edge-on),
+  and white over it in glare is material where the hole should be (:func:`_judge_features`).
 
 An edge beyond the own one says *defect* only when the greys agree (:func:`_material_agrees`):
 between the line and a burr's edge lies something like the part's face, between the line and a
@@ -45,6 +55,7 @@ Otherwise it passes when no window of its outline and no feature is off by more 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import cv2
@@ -80,6 +91,20 @@ FACING_COS = 0.1
 RIM_CLEAR_PX = 5.0
 #: The mesh under a feature's middle lower than this is none: a through-hole [m].
 THROUGH_M = 2e-4
+#: A wall this wide in the picture [px] or narrower shows as one band with the top edge (:func:`_wall_width`).
+NARROW_WALL_PX = 1.0
+#: Grey profiles across the outline are compared over this span either side of the edge [px].
+SHIFT_SPAN_PX = 3.0
+#: A side's grey profile is compared when it spans this many times the picture's edge threshold:
+#: below it the tray's texture and the light along a low-contrast side move it by most of a pixel
+#: (set on benchmarks/inspect_real_light.py seeds 0-1: good parts' sides read up to 0.72 mm at 5.2).
+SHIFT_CONTRAST = 5.5
+#: A profile is the line's when its contrast is at least this share of the line's median profile's ...
+SHIFT_GAIN = 0.35
+#: ... and what the shifted median profile leaves is at most this share of that contrast (RMS).
+SHIFT_RESIDUAL = 0.15
+#: A side's trend of profile shifts is fitted to those within this of it: a burr's stretch lies further [px].
+SHIFT_BAND_PX = 0.5
 #: Outline edges whose direction is steeper than this are the part's vertical corners: no outward side.
 _STEEP = 0.7
 
@@ -104,6 +129,16 @@ class InspectOptions:
         feature is missing.
     min_feature_edges : int
         Features with fewer visible edge samples (about a millimetre each) are too small to judge.
+    min_whole_found : float
+        Share of all a feature's visible edges (not only its creases with a wall turned to the
+        camera) the picture shows from which it is there whatever its walls show (0..1): on the
+        benchmark's pictures features that are there show 0.39-1, features left out up to 0.28.
+    judge_from_above : bool
+        Judge a feature with too few creases beside a wall turned to the camera (a boss, a thin
+        wall seen from straight above) by all its edges. In real light its wall's shading and
+        shadow show it (bosses there 0.39-1 of their edges, left out 0-0.03 on the benchmark), but
+        with flat shading (the exact renderer) its top and the face it stands on look alike and a
+        good boss shows 0.11: off by default.
     min_seen : float
         Least share of the outline, and of each feature's edges, the picture must let be judged
         (0..1); below it (glare, an edge lost in shadow) the part is refused, not passed.
@@ -120,6 +155,8 @@ class InspectOptions:
     window: float = 8e-3
     min_feature_found: float = 0.3
     min_feature_edges: int = 12
+    min_whole_found: float = 0.45
+    judge_from_above: bool = False
     min_seen: float = 0.5
     locate: LocateOptions = LocateOptions(min_found=0.35)
 
@@ -174,6 +211,11 @@ class Inspection:
     hidden : str
         What could not be judged (glare, an edge lost in shadow), also when the part fails on what
         shows ('' when everything was judged).
+    excess : (n,) float or None
+        Extra material outside the outline from the grey profile across it, a median over
+        ``InspectOptions.window`` like ``deviation`` (:func:`_profile_shift`: a burr moves the top
+        edge, often beside a stronger wall edge it does not move); NaN where a side's profile
+        cannot tell [m].
     """
 
     part: LocatedPart
@@ -185,16 +227,25 @@ class Inspection:
     tolerance: float
     refusal: str = ""
     hidden: str = ""
+    excess: np.ndarray | None = None
 
     @property
     def missing_features(self) -> tuple[Feature, ...]:
         return tuple(f for f in self.features if not f.present)
 
     @property
+    def profile_excess(self) -> float:
+        """Largest extra material the outline's grey profiles show (0 when none) [m]."""
+        if self.excess is None:
+            return 0.0
+        return float(np.clip(self.excess[np.isfinite(self.excess)], 0.0, None).max(initial=0.0))
+
+    @property
     def max_deviation(self) -> float:
-        """Largest absolute deviation of the outline or of a feature (a missing one: ``reach``) [m]."""
+        """Largest absolute deviation of the outline (its edges or its profile's extra material) or of
+        a feature (a missing one: ``reach``) [m]."""
         seen = np.abs(self.deviation[np.isfinite(self.deviation)])
-        return max(float(seen.max(initial=0.0)), self.reach if self.missing_features else 0.0)
+        return max(float(seen.max(initial=0.0)), self.profile_excess, self.reach if self.missing_features else 0.0)
 
     @property
     def passed(self) -> bool:
@@ -209,6 +260,7 @@ class Inspection:
                 "max_deviation_mm": self.max_deviation * 1e3,
                 "p95_deviation_mm": float(np.percentile(np.abs(d), 95)) if len(d) else 0.0,
                 "excess_mm": float(max(d.max(initial=0.0), 0.0)),
+                "profile_excess_mm": self.profile_excess * 1e3,
                 "missing_mm": float(max(-d.min(initial=0.0), 0.0)),
                 "outline_seen": float(np.isfinite(self.deviation).mean()) if len(self.deviation) else 0.0,
                 "missing_features": [{"pixel": list(f.pixel), "found": f.found} for f in self.missing_features],
@@ -321,18 +373,6 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.nd
     # Deep shadow on both sides (a hole at the foot of a counterbore under a low light) hides an
     # edge as glare does: unknown, not missing.
     unknown |= _both_sides(dark, uv, normal, SHADOW_SIDE_PX)
-    lo = -OWN_PX - GLARE_PX * bloom[:, 1]
-    hi = OWN_PX + GLARE_PX * bloom[:, 0]
-    # The own edge: the strongest peak within OWN_PX. Where two edges lie that close (a lit rim,
-    # a narrow wall's two sides) the nearer one flips from sample to sample with the noise; the
-    # stronger one stays the same along a side, and the side's level absorbs where it lies.
-    near = np.where(peak & (steps[None, :] >= lo[:, None]) & (steps[None, :] <= hi[:, None]), resp, -np.inf)
-    own_j = np.argmax(near, axis=1)
-    own = np.isfinite(near[np.arange(len(idx)), own_j])
-    # Peaks further out that lie on another expected edge are that edge: they say nothing here.
-    spots = uv[:, None, :] + np.nan_to_num(offset)[..., None] * normal[:, None, :]
-    dist, _ = cKDTree(uv).query(spots.reshape(-1, 2), distance_upper_bound=EXPLAINED_PX)
-    explained = np.isfinite(dist.reshape(peak.shape))
     # The outline is judged where a face turned up meets the side (the top of a wall, a step): the
     # part's own face lies inside. At a wall's foot the tray beside it may lie in the part's own
     # shadow, and the wall may be as dark as that shadow; no edge there says anything.
@@ -341,6 +381,31 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.nd
         ~_near_corner(part.outline, model.points[idx, :2])
     sign = np.ones(len(idx))
     sign[outer] = _outward(model, part, p, idx[outer], uv[outer], normal[outer])
+    lo = -OWN_PX - GLARE_PX * bloom[:, 1]
+    hi = OWN_PX + GLARE_PX * bloom[:, 0]
+    # A wall turned to the camera shows beyond its top edge out to its foot: a narrow one as one
+    # band whose far side the blur pushes just beyond OWN_PX, so the own edge is looked for that
+    # much further out (up to NARROW_WALL_PX, not out to a wide wall's foot).
+    width = _wall_width(model, p, idx[outer], uv[outer], normal[outer] * sign[outer, None])
+    wall = np.clip(width, 0.0, NARROW_WALL_PX)
+    lo[outer] -= np.where(sign[outer] < 0, wall, 0.0)
+    hi[outer] += np.where(sign[outer] > 0, wall, 0.0)
+    # The own edge: the strongest peak within OWN_PX. Where two edges lie that close (a lit rim,
+    # a narrow wall's two sides) the nearer one flips from sample to sample with the noise; the
+    # stronger one stays the same along a side, and the side's level absorbs where it lies.
+    near = np.where(peak & (steps[None, :] >= lo[:, None]) & (steps[None, :] <= hi[:, None]), resp, -np.inf)
+    own_j = np.argmax(near, axis=1)
+    own = np.isfinite(near[np.arange(len(idx)), own_j])
+    # On the outline the two are a narrow wall's sides (a lit wall under a low light: bright between
+    # a greyer top and tray) of opposite polarity: along each straight side, the polarity its
+    # samples show stronger on average is taken, so the level does not flip between them.
+    line, along = _lines(model.points[idx[outer]], model.direction[idx[outer]])
+    rising = _rising(gx, gy, uv[outer], normal[outer] * sign[outer, None], steps * sign[outer, None])
+    own_j[outer] = _one_polarity(near[outer], rising, line)
+    # Peaks further out that lie on another expected edge are that edge: they say nothing here.
+    spots = uv[:, None, :] + np.nan_to_num(offset)[..., None] * normal[:, None, :]
+    dist, _ = cKDTree(uv).query(spots.reshape(-1, 2), distance_upper_bound=EXPLAINED_PX)
+    explained = np.isfinite(dist.reshape(peak.shape))
     # The nearest edge beyond the own one, out to ``reach`` (a burr; shadows lie further out) or
     # in to ``depth`` (a broken corner), is a defect's unless it is another expected edge: then the
     # material is there up to it, and this edge is unseen.
@@ -361,14 +426,28 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.nd
     signed = np.where(own[outer] & (signed < 0), 0.0, signed)
     # Against the rest of its own straight edge: the pose's error (a few tenths of a millimetre)
     # and the blur of a narrow wall shift a whole side alike, a burr or a broken corner only a stretch.
-    level = _line_level(model.points[idx[outer]], model.direction[idx[outer]], np.where(own[outer], signed, np.nan))
+    level = _line_level(model.points[idx[outer]], model.direction[idx[outer]], np.where(own[outer], signed, np.nan),
+                        rigid=lambda lv, fitted: _pose_level(model, p, idx[outer], uv[outer], normal[outer] * sign[outer, None],
+                                                             lv, fitted))
     # An edge beyond the own one is a defect's only if what lies between is the other side's: the
     # part's face out to a burr's edge, the tray in to a broken corner's. A shadow's edge outside an
     # edge lost in low contrast, a boss's inside it, or the two sides of a lit rim, are not.
     material = _material_agrees(grey, uv[outer], normal[outer] * sign[outer, None], signed, level, threshold,
-                                _lines(model.points[idx[outer]], model.direction[idx[outer]])[0], own[outer])
+                                line, own[outer])
     signed = np.where(own[outer] | material, signed, np.nan) - level
     deviation = _windowed(model.points[idx[outer]], signed, options.window) * px_m
+    # Extra material along the outline from the whole grey profile across it (a burr moves the top
+    # edge by a pixel, often beside a stronger wall edge it does not move, which the peaks follow).
+    shift = _profile_shift(grey, uv[outer], normal[outer] * sign[outer, None], line, along, threshold, options.window)
+    shift[unknown[outer]] = np.nan
+    # A feature's edge within the compared span (a hole 2.5 mm inside the outline) is not the side's.
+    inside_uv = uv[~model.outer[idx]]
+    if len(inside_uv):
+        shift[cKDTree(inside_uv).query(uv[outer])[0] < SHIFT_SPAN_PX + 1.0] = np.nan
+    # Each shift is against the rest of its side already: the trend (a yaw error tilting the side)
+    # starts at 0, not at the median, which a burr along half a short side would be.
+    trend = _line_level(model.points[idx[outer]], model.direction[idx[outer]], shift, band=SHIFT_BAND_PX, start=0.0)
+    excess = _windowed(model.points[idx[outer]], shift - trend, options.window) * px_m
 
     features = []
     refusals = []
@@ -379,7 +458,8 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.nd
     refusals += hidden_features
     hidden = "; ".join(refusals)
     judged = Inspection(part=located, outline_px=uv[outer], deviation=deviation, features=tuple(features),
-                        reach=options.reach, silhouette_px=ring_px, tolerance=options.tolerance, hidden=hidden)
+                        reach=options.reach, silhouette_px=ring_px, tolerance=options.tolerance, hidden=hidden,
+                        excess=excess)
     # Glare on the top hides pockets in the white, but the rest shows in sharp contrast: what shows
     # and fails, fails the part. Otherwise (low-angle light: lit walls, a hole's wall clipped) what
     # is hidden may be what misleads the rest: no verdict, with the reason.
@@ -396,6 +476,10 @@ def _judge_features(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.nd
 
     A feature is judged by its creases with a wall turned to the camera: a step between two faces
     turned up, its wall seen edge-on or from behind, may show no edge at all (the faces alike).
+    Seen from straight above (too few such creases: a boss or a thin wall under the camera) it is
+    judged by all its visible edges with ``judge_from_above``; one whose edges mostly show where the
+    mesh puts them
+    (``min_whole_found``) is there whatever its walls turned to the camera show.
     An edge found where the mesh puts it is the feature's, glare or not (a filled hole, a boss not
     there, leave a flat face and no edge there): a feature whose edges show, counting those beside
     clipped pixels as not found, is there. A feature hidden in glare is missing when nothing of the
@@ -417,14 +501,32 @@ def _judge_features(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.nd
         if rim.any() and (~mine).any():
             rim[rim] = cKDTree(uv[~mine]).query(uv[rim])[0] > RIM_CLEAR_PX
         every = mine & (facing | rim)
-        if f in outline_features or every.sum() < options.min_feature_edges:
+        # All its edges the light does not hide: where the mesh puts a crease or a contour the
+        # picture shows one for most of a feature that is there, and for almost none of one that is not.
+        whole = mine & ~unknown
+        if f in outline_features or (every.sum() < options.min_feature_edges and whole.sum() < options.min_feature_edges):
+            continue
+        # ... counted only where the light leaves most of them to be judged (a thin wall's few edges
+        # clear of a white top say nothing of the rest).
+        told = whole.sum() >= max(options.min_feature_edges, options.min_seen * mine.sum())
+        whole_found = float(own[whole].mean()) if told else 0.0
+        if every.sum() < options.min_feature_edges:
+            # Seen from straight above, its walls edge-on: a boss, a thin wall, judged by all its edges
+            # (with flat shading its top and the face it stands on look alike: off, the default).
+            if not told or not options.judge_from_above:
+                continue
+            centre = uv[whole].mean(axis=0)
+            features.append(Feature(pixel=(float(centre[0]), float(centre[1])), edges=int(whole.sum()),
+                                    found=whole_found, present=whole_found >= options.min_feature_found))
             continue
         on = every & ~unknown
         centre = uv[every].mean(axis=0)
         pixel = (float(centre[0]), float(centre[1]))
         anywhere = float(own[every].mean())
-        if anywhere >= options.min_feature_found:
-            features.append(Feature(pixel=pixel, edges=int(every.sum()), found=anywhere, present=True))
+        if anywhere >= options.min_feature_found or whole_found >= options.min_whole_found:
+            # A wall turned to the camera may show little against its floor (dim light, a shadow in
+            # a counterbore) while the rest of the feature's edges are all there.
+            features.append(Feature(pixel=pixel, edges=int(every.sum()), found=max(anywhere, whole_found), present=True))
         elif on.sum() >= options.min_seen * every.sum():
             share = float(own[on].mean())
             features.append(Feature(pixel=pixel, edges=int(on.sum()), found=share,
@@ -549,6 +651,128 @@ def _material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, sign
     return out
 
 
+def _profile_shift(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, line: np.ndarray, along: np.ndarray,
+                   contrast: float, window: float) -> np.ndarray:
+    """``(k,)`` how far outward [px] each outline sample's grey profile across its edge lies from the
+    median profile of the rest of its straight ``line`` (k,) int: the least-squares shift over
+    :data:`SHIFT_SPAN_PX` either side, whatever the profile's shape (a silhouette's step, a narrow lit
+    or dark wall's band). The rest is the line's samples more than ``window`` / 2 + 1 mm away along
+    it (``along`` (k,) [m]), so a burr along half a short side is not its own reference (the whole
+    line where fewer than 8 are). NaN on a line of fewer than 8 samples, whose median profile spans
+    less than :data:`SHIFT_CONTRAST` times ``contrast`` (the picture's edge threshold [grey/px]: its
+    noise and texture), or where the profile is not the line's.
+    ``uv`` (k, 2) [px] and unit ``outward`` (k, 2).
+    """
+    t = np.arange(-SHIFT_SPAN_PX - 1.5, SHIFT_SPAN_PX + 1.5 + 1e-9, 0.25)
+    q = uv[:, None, :] + t[None, :, None] * outward[:, None, :]
+    profile = map_coordinates(grey.astype(np.float32), [q[..., 1].ravel(), q[..., 0].ravel()], order=1,
+                              mode="nearest").reshape(q.shape[:2]).astype(np.float64)
+    span = np.abs(t) <= SHIFT_SPAN_PX + 1e-9
+    out = np.full(len(uv), np.nan)
+    for e in np.unique(line):
+        on = np.flatnonzero(line == e)
+        if len(on) < 8:
+            continue
+        whole = np.median(profile[on], axis=0)
+        apart = np.abs(along[on][:, None] - along[on][None, :]) > 0.5 * window + 1e-3
+        apart[apart.sum(axis=1) < 8] = True
+        ref = np.nanmedian(np.where(apart[..., None], profile[on][None, :, :], np.nan), axis=1)  # (n, t)
+        slope = np.gradient(ref, t, axis=1)
+        if np.ptp(whole[span]) < SHIFT_CONTRAST * contrast:
+            continue
+        seen = profile[on][:, span]
+        d = np.zeros(len(on))
+        for _ in range(10):  # Gauss-Newton on P(t) = a + b R(t - d): a shadow or the light along the side
+            at = t[span][None, :] - d[:, None]  # changes the greys' level and contrast, not where the edge is
+            r = _rows_interp(at, t, ref)
+            g = _rows_interp(at, t, slope)
+            rc = r - r.mean(axis=1, keepdims=True)
+            b = np.sum(rc * (seen - seen.mean(axis=1, keepdims=True)), axis=1) / np.maximum(np.sum(rc * rc, axis=1), 1e-9)
+            a = seen.mean(axis=1) - b * r.mean(axis=1)
+            res = seen - a[:, None] - b[:, None] * r
+            bg = b[:, None] * g
+            d = np.clip(d - np.sum(res * bg, axis=1) / np.maximum(np.sum(bg * bg, axis=1), 1e-9), -SHIFT_SPAN_PX, SHIFT_SPAN_PX)
+        # Where the profile is not the line's (its contrast a third or less, reversed, or another shape
+        # left over), the shift says nothing.
+        fits = (b > SHIFT_GAIN) & (np.sqrt(np.mean(res * res, axis=1)) < SHIFT_RESIDUAL * b * np.ptp(ref[:, span], axis=1))
+        d[~fits] = np.nan
+        out[on] = d
+    return out
+
+
+def _rows_interp(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
+    """``(n, m)``: each row of ``fp`` (n, len(xp)), sampled on the increasing, evenly spaced ``xp``,
+    linearly interpolated at that row of ``x`` (n, m) (held at the ends)."""
+    pos = np.clip((x - xp[0]) / (xp[1] - xp[0]), 0, len(xp) - 1 - 1e-9)
+    i = np.floor(pos).astype(int)
+    w = pos - i
+    rows = np.arange(len(fp))[:, None]
+    return fp[rows, i] * (1 - w) + fp[rows, np.minimum(i + 1, len(xp) - 1)] * w
+
+
+def _wall_width(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, outward: np.ndarray) -> np.ndarray:
+    """``(k,)`` how far beyond each outline sample ``idx`` (at ``uv`` (k, 2) [px], ``outward`` (k, 2)
+    unit) its wall's foot on the tray lies in the picture at pose ``p`` [px]: the wall shows that
+    wide; at most 0 where it is turned away and the top edge is the silhouette."""
+    pts = model.points[idx] * np.array([1.0, 1.0, 0.0])
+    at = model.camera.project(model.world(p, pts), model.rvec, model.tvec)
+    return np.einsum("nj,nj->n", at - uv, outward)
+
+
+def _rising(gx: np.ndarray, gy: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """``(k, s)`` bool: the grey rises outward at each of the ``steps`` (k, s) [px] along each sample's
+    normal from ``uv`` (k, 2) [px]; ``outward`` (k, 2) the unit image directions away from the part
+    (the steps are taken along the normal, ``steps * outward`` alike)."""
+    q = uv[:, None, :] + steps[..., None] * outward[:, None, :]
+    coords = [q[..., 1].ravel(), q[..., 0].ravel()]
+    g = map_coordinates(gx, coords, order=1, mode="nearest").reshape(q.shape[:2]) * outward[:, 0:1] + \
+        map_coordinates(gy, coords, order=1, mode="nearest").reshape(q.shape[:2]) * outward[:, 1:2]
+    return g > 0
+
+
+def _one_polarity(near: np.ndarray, rising: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """``(k,)`` column of each outline sample's own edge: the strongest peak of ``near`` (k, s)
+    (its strength, -inf where no peak lies within reach), but where peaks of both polarities lie
+    there (``rising`` (k, s) bool: the grey rises outward), the strongest of the polarity that the
+    samples of its straight ``line`` (k,) int with both show stronger on average."""
+    rows = np.arange(len(near))
+    up, down = np.where(rising, near, -np.inf), np.where(rising, -np.inf, near)
+    j_up, j_down = np.argmax(up, axis=1), np.argmax(down, axis=1)
+    s_up, s_down = up[rows, j_up], down[rows, j_down]
+    j = np.argmax(near, axis=1)
+    both = np.isfinite(s_up) & np.isfinite(s_down)
+    for e in np.unique(line[both]):
+        on = both & (line == e)
+        j[on] = j_up[on] if s_up[on].mean() >= s_down[on].mean() else j_down[on]
+    return j
+
+
+def _pose_level(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, outward: np.ndarray,
+                level: np.ndarray, fitted: np.ndarray) -> np.ndarray:
+    """``(k,)`` the offset [px] along each outline sample's ``outward`` (k, 2) image direction that a
+    small error of the pose ``p`` (x, y, yaw) and one push common to every edge (blur, bloom) give,
+    fitted to the ``level`` (k,) [px] of the samples whose straight line the picture shows
+    (``fitted`` (k,) bool); 0 where too few are. A side whose edges lie beyond OWN_PX of the
+    located pose (its yaw a little off) takes its level from the rest of the part, not from a
+    neighbouring side's nor from none."""
+    if fitted.sum() < 12:
+        return np.zeros(len(idx))
+    cols = [np.ones(len(idx))]
+    for k, eps in enumerate((1e-4, 1e-4, 1e-3)):  # [m, m, rad]: well within the fit's linear range
+        q = p.copy()
+        q[k] += eps
+        cols.append(np.einsum("nj,nj->n", model.project(q, idx)[0] - uv, outward) / eps)
+    a = np.column_stack(cols)
+    use = fitted.copy()
+    for _ in range(2):  # once more without the sides the first fit leaves more than OWN_PX off
+        c = np.linalg.lstsq(a[use], level[use], rcond=None)[0]
+        keep = fitted & (np.abs(a @ c - level) <= OWN_PX)
+        if keep.sum() < 12:
+            break
+        use = keep
+    return a @ c
+
+
 def _wall_facing(model: _EdgeModel, p: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """``(k,)`` bool: an edge sample borders a wall (a face within 60 deg of vertical) turned to the
     camera by at least :data:`FACING_COS` (its cosine with the view)."""
@@ -599,12 +823,18 @@ def _lines(points: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.nd
     return np.unique(key, axis=0, return_inverse=True)[1].ravel(), along
 
 
-def _line_level(points: np.ndarray, direction: np.ndarray, values: np.ndarray, least: int = 8) -> np.ndarray:
+def _line_level(points: np.ndarray, direction: np.ndarray, values: np.ndarray, least: int = 8,
+                rigid: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None, band: float = OWN_PX,
+                start: float | None = None) -> np.ndarray:
     """``(k,)`` the level of each sample's straight line at the sample: a straight line fitted to the
     finite ``values`` [px] along it (twice, the second time without those more than :data:`OWN_PX`
     off the one before, starting flat at their median). A line with fewer than ``least`` of them (an
     arc's many short chords, a short step) takes the median level of the fitted samples within
-    :data:`NEIGHBOUR_M` (the sides it joins: a bloom or a pose shift moves them alike), else 0.
+    :data:`NEIGHBOUR_M` (the sides it joins: a bloom or a pose shift moves them alike), else 0;
+    with ``rigid`` (the levels of the pose's error fitted to those of the fitted lines, ``(level,
+    fitted) -> (k,)``, :func:`_pose_level`), a long side of ``least`` samples or more takes its
+    level from there, as does a short one with no fitted neighbour. Only values within ``band``
+    [px] of the fit count, starting flat at ``start`` [px] (None: their median).
 
     A yaw error of the pose tilts a side's deviations, a shift moves them all: neither is the part's.
     The caller passes only the samples whose edge the picture shows at its place, so a defect's
@@ -620,18 +850,26 @@ def _line_level(points: np.ndarray, direction: np.ndarray, values: np.ndarray, l
         ok = np.isfinite(v)
         if ok.sum() < least or np.ptp(s[ok]) < 1e-3:
             continue
-        fit = np.array([0.0, np.median(v[ok])])  # flat at the median first: a stretch must not tilt it
+        fit = np.array([0.0, np.median(v[ok]) if start is None else start])  # flat first: a stretch must not tilt it
         for _ in range(2):
-            near = ok & (np.abs(np.polyval(fit, s) - np.nan_to_num(v, nan=np.inf)) <= OWN_PX)
+            near = ok & (np.abs(np.polyval(fit, s) - np.nan_to_num(v, nan=np.inf)) <= band)
             if near.sum() < least:
                 break
             fit = np.polyfit(s[near], v[near], 1)
         out[on] = np.polyval(fit, s)
         fitted[on] = True
-    if fitted.any() and not fitted.all():
-        rest = np.flatnonzero(~fitted)
-        for i, near in zip(rest, cKDTree(points[fitted]).query_ball_point(points[rest], NEIGHBOUR_M)):
-            out[i] = np.median(out[fitted][near]) if near else 0.0
+    if fitted.all() or not fitted.any():
+        return out
+    # A long side the picture does not show at its place (its edge beyond OWN_PX: the located yaw
+    # a little off) takes the level the rest of the part's sides give it, not a neighbouring side's.
+    from_pose = rigid(out, fitted) if rigid is not None else None
+    rest = ~fitted
+    if from_pose is not None:
+        long_side = np.bincount(line)[line] >= least
+        out[rest & long_side] = from_pose[rest & long_side]
+        rest &= ~long_side
+    for i, near in zip(np.flatnonzero(rest), cKDTree(points[fitted]).query_ball_point(points[rest], NEIGHBOUR_M)):
+        out[i] = np.median(out[fitted][near]) if near else (0.0 if from_pose is None else from_pose[i])
     return out
 
 
@@ -665,9 +903,10 @@ def inspection_image(image: np.ndarray, inspections: list[Inspection]) -> np.nda
     for ins in inspections:
         ring = np.rint(ins.silhouette_px * 4).astype(np.int32)  # 2 fractional bits for a smooth line
         cv2.polylines(canvas, [ring.reshape(-1, 1, 2)], True, (255, 120, 0), 1, cv2.LINE_AA, shift=2)
-        for (u, v), dev in zip(np.rint(ins.outline_px).astype(int), ins.deviation):
-            colour = (160, 160, 160) if not np.isfinite(dev) else (0, 0, 255) if abs(dev) > ins.tolerance \
-                else (0, 200, 0)
+        extra = ins.excess if ins.excess is not None else np.full(len(ins.deviation), np.nan)
+        for (u, v), dev, more in zip(np.rint(ins.outline_px).astype(int), ins.deviation, extra):
+            colour = (160, 160, 160) if not np.isfinite(dev) else \
+                (0, 0, 255) if abs(dev) > ins.tolerance or more > ins.tolerance else (0, 200, 0)
             canvas[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)] = colour
         radius = max(int(round(3.0 / max(ins.part.mm_per_px, 1e-3))), 4)  # a ring about 6 mm across
         for f in ins.missing_features:

@@ -20,7 +20,8 @@ from tests.conftest import SAMPLES
 from tests.vision import TRUE_CAMERA
 from tests.vision.test_locate import BASE_CAM, TRAY_Z, blank_mesh
 from vision.handeye import invert
-from vision.inspect import InspectOptions, _line_level, _windowed, inspect_part, inspection_image, part_transform
+from vision.inspect import (InspectOptions, _line_level, _one_polarity, _profile_shift, _windowed, inspect_part,
+                            inspection_image, part_transform)
 from vision.locate import LocatedPart, footprint_from_mesh, mm_to_m
 from vision.render import Box, pixel_rays, render_boxes, render_mesh
 from vision.station import cut_corner
@@ -145,3 +146,73 @@ def test_a_stretch_off_its_line_stands_out_and_the_line_own_level_does_not(level
         assert got[middle] == pytest.approx(step, abs=1e-6)
     far = [i for i in range(100) if (i < start - 5 or i > start + length + 5) and np.isfinite(got[i])]
     assert np.allclose(got[far], 0.0, atol=1e-6)
+
+
+def test_a_long_side_with_no_edge_at_its_place_takes_the_pose_level_not_a_neighbour():
+    """Two sides at a corner: one shows its edges (level 0.3 px), the other none within reach (its
+    yaw a little off). The unseen long side takes the level the pose gives it, not its neighbour's;
+    without a pose level it keeps the neighbour's near the corner and 0 beyond."""
+    a = np.column_stack([np.arange(30) * 1e-3, np.zeros(30), np.full(30, 0.01)])
+    b = np.column_stack([np.full(30, 0.03), np.arange(1, 31) * 1e-3, np.full(30, 0.01)])
+    points = np.vstack([a, b])
+    direction = np.vstack([np.tile([1.0, 0.0, 0.0], (30, 1)), np.tile([0.0, 1.0, 0.0], (30, 1))])
+    values = np.r_[np.full(30, 0.3), np.full(30, np.nan)]
+    calls = []
+
+    def rigid(level, fitted):
+        calls.append(fitted.copy())
+        return np.where(fitted, level, -1.4)
+
+    got = _line_level(points, direction, values, rigid=rigid)
+    assert np.allclose(got[:30], 0.3) and np.allclose(got[30:], -1.4)
+    assert calls and calls[0][:30].all() and not calls[0][30:].any()
+    plain = _line_level(points, direction, values)
+    assert np.allclose(plain[30:34], 0.3) and np.allclose(plain[40:], 0.0)
+
+
+def test_one_polarity_along_a_side_where_a_narrow_band_two_edges_alternate():
+    """A narrow lit wall: every sample of a side has a rising and a falling edge within reach, the
+    stronger one alternating with the noise. All take the side's stronger polarity on average; a
+    sample with one edge only keeps it, and another side chooses for itself."""
+    near = np.full((6, 5), -np.inf)
+    rising = np.zeros((6, 5), bool)
+    rising[:, 1] = True
+    near[:4, 1] = [10.0, 9.0, 10.0, 9.0]  # rising, column 1
+    near[:4, 3] = [9.0, 9.5, 9.0, 9.5]    # falling, column 3: stronger in samples 1 and 3, weaker on average
+    near[4, 3] = 7.0                       # one falling edge only
+    near[5, 1], near[5, 3] = 1.0, 2.0      # another side, both: falling stronger
+    line = np.array([0, 0, 0, 0, 0, 1])
+    assert _one_polarity(near, rising, line).tolist() == [1, 1, 1, 1, 3, 3]
+
+
+def test_a_stretch_of_profile_shifted_outward_reads_its_shift_whatever_the_contrast():
+    """A straight dark-to-bright edge whose contrast halves along it (a shadow on the tray), with a
+    stretch 1.2 px further out (a burr): the profile shift reads 1.2 px there and 0 elsewhere."""
+    h, w = 60, 200
+    x = np.arange(w, dtype=float)
+    edge = np.full(w, 30.0)
+    edge[80:100] -= 1.2
+    contrast = np.linspace(120.0, 60.0, w)
+    yy = np.arange(h, dtype=float)[:, None]
+    soft = 1.0 / (1.0 + np.exp(-(yy - edge[None, :]) / 0.6))  # the part (bright) below row 30
+    grey = (60.0 + contrast[None, :] * soft).astype(np.float32)
+    u = np.arange(10, 190, 1.0)
+    uv = np.column_stack([u, np.full(len(u), 30.0)])
+    outward = np.tile([0.0, -1.0], (len(u), 1))
+    along = u * 8e-4
+    shift = _profile_shift(grey, uv, outward, np.zeros(len(u), int), along, 4.0, 8e-3)
+    burr = (u >= 84) & (u <= 95)
+    assert np.allclose(shift[burr], 1.2, atol=0.15)
+    assert np.allclose(shift[(u < 70) | (u > 110)], 0.0, atol=0.1)
+
+
+def test_a_burr_along_most_of_a_short_side_stands_out_from_a_trend_started_at_zero():
+    """Shifts against the rest of their side: a 25 mm side whose middle 15 mm reads +1 px (a
+    burr), the rest about 0. Started flat at the median, the side's level is the burr's and hides
+    it; started at 0, the burr reads 1 px."""
+    points = np.column_stack([np.arange(25) * 1e-3, np.zeros(25), np.full(25, 0.01)])
+    direction = np.tile([1.0, 0.0, 0.0], (25, 1))
+    values = np.where((np.arange(25) >= 5) & (np.arange(25) < 20), 1.0, 0.0) + 0.05 * np.sin(np.arange(25))
+    hidden = _windowed(points, values - _line_level(points, direction, values, band=0.5), 8e-3)
+    shown = _windowed(points, values - _line_level(points, direction, values, band=0.5, start=0.0), 8e-3)
+    assert abs(hidden[12]) < 0.2 and shown[12] == pytest.approx(1.0, abs=0.1)

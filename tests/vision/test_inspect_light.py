@@ -15,7 +15,7 @@ import pytest
 from factory.core.errors import VisionError
 from tests.vision.defects import defective_mesh
 from tests.vision.lit import cell_station, gallery_scene, sample_mesh
-from vision.inspect import inspect_part, part_transform
+from vision.inspect import InspectOptions, inspect_part, part_transform
 from vision.locate import LocatedPart, mm_to_m
 
 FOUND_M = 1.5e-3
@@ -26,13 +26,14 @@ def station():
     return cell_station()
 
 
-def inspected(station, condition: str, part: str, seed: int, defect: str | None = None):
+def inspected(station, condition: str, part: str, seed: int, defect: str | None = None,
+              options: InspectOptions = InspectOptions()):
     """The picture's truth and the one inspection of the part in it (expecting the good mesh)."""
     shown = None if defect is None else defective_mesh(part, defect)
     scene = gallery_scene(station, part, condition, seed, shown=shown)
     mesh, footprint, _ = sample_mesh(part)
     (result,) = inspect_part(scene.image, station.camera, station.camera_pose, footprint, mesh.vertices,
-                             mesh.faces, station.plane_z)
+                             mesh.faces, station.plane_z, options)
     # Every verdict is given at the right pose.
     assert np.hypot(result.part.x - scene.x, result.part.y - scene.y) <= FOUND_M
     return scene, result
@@ -114,14 +115,19 @@ def test_glare_on_the_top_judges_what_shows_and_refuses_only_what_it_hides(stati
 
 
 @pytest.mark.parametrize("condition, part, seed", [("distractor", "plate_bosses", 1), ("dim", "plate_bosses", 1),
-                                                    ("low_angle", "bracket", 0)])
+                                                    ("low_angle", "bracket", 0), ("low_angle", "dome_mould", 1),
+                                                    ("diffuse", "plate_bosses", 5)])
 def test_a_good_part_is_not_rejected_for_an_edge_the_light_does_not_show(station, condition, part, seed):
     """Two good plates that were rejected: beside the box a boss's shadow darkens the top by one
     side, so the top edge does not show there and the shadow's edge 2 mm out looked like a burr; in
     dim light a side's top edge is as grey as the tray, and a boss's shadow 12 mm in looked like a
     broken corner. Between the line and such an edge lies neither the part's face nor the tray.
     A bracket under a low light whose pocket's lit wall clips white: the pocket's other edges
-    show where the mesh puts them, so it is there, judged and passed, not refused."""
+    show where the mesh puts them, so it is there, judged and passed, not refused.
+    A dome mould under a low light whose narrow lit wall makes a bright band about its top edge:
+    the band's two sides, one either side of the edge, no longer alternate along the side. A plate
+    whose counterbore's wall turned to the camera shows little against its shadowed floor, while
+    the rest of its edges are there."""
     _, result = inspected(station, condition, part, seed)
     assert result.passed, result.to_dict()
 
@@ -144,3 +150,20 @@ def test_a_part_locate_cannot_place_is_refused_with_locate_reason(station):
     with pytest.raises(VisionError, match="no part found.*the position along it is not fixed"):
         inspect_part(scene.image, station.camera, station.camera_pose, footprint, mesh.vertices, mesh.faces,
                      station.plane_z)
+
+
+def test_a_boss_seen_from_straight_above_is_judged_by_all_its_edges(station):
+    """A plate whose plain boss stands near the point under the camera: its walls are seen edge-on,
+    no crease with a wall turned to the camera shows it, and a plate without it passes by default.
+    Judged by all its edges (``judge_from_above``: real light shades its wall and casts its
+    shadow), the good boss is there and the one left out is missing where it should be."""
+    above = InspectOptions(judge_from_above=True)
+    _, good = inspected(station, "diffuse", "plate_bosses", 1, options=above)
+    assert good.passed, good.to_dict()
+    _, plain = inspected(station, "diffuse", "plate_bosses", 1, "missing_boss")
+    assert plain.passed  # the limit the option lifts
+    scene, bad = inspected(station, "diffuse", "plate_bosses", 1, "missing_boss", options=above)
+    assert not bad.passed and not bad.refusal
+    (missing,) = bad.missing_features
+    centre = pixel_of(station, "plate_bosses", scene, (78.0, 56.0, 14.0))
+    assert np.hypot(*(np.array(missing.pixel) - centre)) < 10.0 and missing.found < 0.1  # [px]: the boss's radius
