@@ -66,21 +66,6 @@ ENGAGED_WIDTH = 1.0
 FULL_WIDTH_ANGLE = 120.0
 
 
-#: Deepest a finishing tool may cut into the stock the earlier operations left [mm]: the planner keeps finishing
-#: out of deeper stock and leaves it to rest roughing or reports it unreached
-#: (:attr:`cadcam.plan.PlanOptions.finish_engagement`), and verify fails a finishing move engaged deeper
-#: (:attr:`cadcam.verify.VerifyOptions.finish_depth`). One number, so the planner never hands over a finishing
-#: pass its own verify fails (issue 34: T16 finished a pocket's wall 1.15 mm deep under the planner's 1.5 mm).
-FINISH_DEPTH = 1.0
-
-#: The roughing tool's stepdown between its levels where they left more than :data:`FINISH_DEPTH` [mm]
-#: (:attr:`cadcam.plan.PlanOptions.terrace_stepdown`): a terrace this high plus the 0.3 mm allowance, 0.8 mm,
-#: stays under the finish depth with room for the planner's coarser grid. At 0.7 the terraces met the finish
-#: depth exactly: on the dome sample the raster kept out of a 48 x 35 mm patch of them (1.0 mm left,
-#: 953 -> 1163 s); at 0.5 the terraces take 40 s longer and the raster finishes everything.
-TERRACE_STEPDOWN = 0.5
-
-
 def record_max(best: np.ndarray, where: np.ndarray, owner: np.ndarray, value: np.ndarray, cell: np.ndarray,
                 extra: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """``best[k] = max(value)`` over entries of owner ``k``, with the cell (and ``extra``) where it is reached."""

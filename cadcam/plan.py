@@ -27,7 +27,6 @@ import trimesh
 from cadcam.adaptive import AdaptiveOptions, adaptive_roughing
 from cadcam.adaptive_rest import adaptive_rest_roughing
 from cadcam.drilling import DrillingOptions, Hole, HolePlan, plan_holes
-from cadcam.engagement import FINISH_DEPTH, TERRACE_STEPDOWN
 from cadcam.faces import SHALLOW, STEEP, FaceClasses, classify_faces
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
 from cadcam.flatfinish import WALL_HAIR, FlatFinishOptions, flat_wall_finishing, left_on_flats_and_walls
@@ -76,13 +75,11 @@ class PlanOptions:
     finish_engagement : float
         Deepest a finishing move may cut into the stock earlier operations left [mm]:
         finishing never descends where more than this is left above the part; such places
-        are reported as unreached (``Job.parameters["unreached"]``). Default verify's limit for a
-        finishing move (:data:`cadcam.engagement.FINISH_DEPTH`).
+        are reported as unreached (``Job.parameters["unreached"]``).
     terrace_stepdown : float
         Z-level roughing leaves terraces up to a stepdown high on shallow surfaces. Where more
         than ``finish_engagement`` is left, the roughing tool steps down again between its levels
-        by this much [mm], so that the finishing tool meets at most about this plus the allowance
-        (:data:`cadcam.engagement.TERRACE_STEPDOWN`).
+        by this much [mm], so that the finishing tool meets at most about this plus the allowance.
     holes : bool
         Drill round holes (spot, G81/G83) and helix those no drill and no roughing tool
         fits, before roughing (:func:`cadcam.drilling.plan_holes`).
@@ -105,8 +102,8 @@ class PlanOptions:
     finishing: FinishingOptions = field(default_factory=FinishingOptions)
     waterline: bool = True
     rest_roughing: bool = True
-    finish_engagement: float = FINISH_DEPTH
-    terrace_stepdown: float = TERRACE_STEPDOWN
+    finish_engagement: float = 1.5
+    terrace_stepdown: float = 0.7
     holes: bool = True
     drilling: DrillingOptions = field(default_factory=DrillingOptions)
     by_faces: bool = True

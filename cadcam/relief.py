@@ -66,8 +66,7 @@ GAP_CLOSING = 0.2
 #: Deepest a finishing move may cut into what roughing left on a relief [mm] (``PlanOptions.
 #: finish_engagement``), and the terrace stepdown that keeps the terraces under it. A relief is
 #: shallow surface nearly everywhere, where z-level roughing leaves terraces a stepdown plus the
-#: allowance high; the verify lets a finishing tool engage 1 mm (:data:`cadcam.engagement.FINISH_DEPTH`),
-#: and the planner's stock model,
+#: allowance high; the verify lets a finishing tool engage 1 mm, and the planner's stock model,
 #: on a coarser grid, must stay clear of that with room to spare.
 FINISH_ENGAGEMENT = 0.8
 TERRACE_STEPDOWN = 0.4

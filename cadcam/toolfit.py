@@ -19,7 +19,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from cadcam.engagement import FINISH_DEPTH, TERRACE_STEPDOWN
 from cadcam.heightmap import grid_over, upper_envelope
 from cadcam.model import CuttingData, Setup, Tool
 
@@ -86,7 +85,7 @@ def _disc(radius: float) -> np.ndarray:
 
 
 def tool_fits(triangles: np.ndarray, setup: Setup, tools: list[Tool], allowance: float = 0.3, *,
-              terrace_above: float = FINISH_DEPTH, terrace_stepdown: float = TERRACE_STEPDOWN) -> list[ToolFit]:
+              terrace_above: float = 1.5, terrace_stepdown: float = 0.7) -> list[ToolFit]:
     """The stock each of ``tools`` (flat or bull-nose, taken as flat) can reach and enter [mm^3].
 
     Parameters

@@ -30,7 +30,7 @@ import numpy as np
 from scipy import ndimage
 
 from cadcam.corners import corners_left, inside_corners
-from cadcam.engagement import FINISH_DEPTH, MoveRecord
+from cadcam.engagement import MoveRecord
 from cadcam.envelope import Segments
 from cadcam.heightmap import Grid, grid_over, upper_envelope
 from cadcam.model import Motion, ProgramMoves, Setup, Tool
@@ -65,8 +65,7 @@ class VerifyOptions:
         roughing leaves between its passes and levels: the 6 mm ball finishing the four
         samples after their roughing engages at most 0.49 mm, while with the roughing
         deleted from the bracket program it slots 1.6 mm deep at full width (the skin of
-        walls left out, as :mod:`cadcam.stock` measures it). The planner's own limit
-        (:data:`cadcam.engagement.FINISH_DEPTH`).
+        walls left out, as :mod:`cadcam.stock` measures it).
     engaged_width : float
         A cut counts as engagement only where it is at least this wide across the move
         [mm] (as :mod:`cadcam.stock` measures it): a thinner band is a skin shaved off a wall.
@@ -97,7 +96,7 @@ class VerifyOptions:
     cell: float = 0.2
     gouge_tolerance: float = 0.01
     rapid_tolerance: float = RAPID_RIM
-    finish_depth: float = FINISH_DEPTH
+    finish_depth: float = 1.0
     engaged_width: float = ENGAGED_WIDTH
     contact_tolerance: float = 0.01
     left_above: float = 0.1

@@ -211,15 +211,3 @@ def test_in_a_pipe_a_stage_ends_when_its_work_does_not_when_its_counted_steps_do
     started = [e[:-len(" ...")] for e in events if e.endswith(" ...")]
     assert started.count("stock model") >= 2 and "freeform area" in started  # the work between stages shows
     assert sorted(started) == sorted(e.split(" done in ")[0] for e in events if " done in " in e)
-
-
-def test_the_planner_finishes_within_the_depth_verify_holds_finishing_to():
-    """Issue 34: the planner let finishing meet 1.5 mm of stock, verify failed a finishing move past 1.0 mm; one
-    number now (cadcam.engagement.FINISH_DEPTH). The terraces the roughing tool leaves between its levels, plus
-    the allowance, stay under it: at 0.7 + 0.3 they met it, and the dome sample's raster kept out of a 48 x 35 mm
-    patch of them."""
-    from cadcam.engagement import FINISH_DEPTH
-
-    options = PlanOptions()
-    assert options.finish_engagement == VerifyOptions().finish_depth == FINISH_DEPTH
-    assert options.terrace_stepdown + options.roughing.allowance < FINISH_DEPTH
