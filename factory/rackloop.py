@@ -5,7 +5,8 @@ centre (:func:`robotprog.rackpick.draw_offset`). At each locate the rack camera 
 the blank where it truly stands (:func:`vision.station.locate_shot`: rendered, exactly or with
 ``--rack-light`` in real light, then the real ``locate``), and :class:`RackLoop` decides:
 
-- not located, or located with more uncertainty than the open fingers' clearance allows, or
+- not located, or located with more uncertainty than the open fingers' room beside it allows (their
+  clearance, or less where the gripper's stroke ends first: :func:`robotprog.grasp.finger_room`), or
   further off the slot's centre than the slot leaves room for: no grasp; the robot stops with a
   ``stock_not_found`` fault and the reason (the scheduler re-images, then skips to the next slot);
 - else the grasp and its approach move by the located offset and the pick is planned again and
@@ -34,6 +35,7 @@ from factory.core.errors import CellError, PlanningError, VisionError
 from factory.cellcameras import Stations, rack_slots_seen
 from robotprog.cell import Box, Cell
 from robotprog.cellsim import PickStep
+from robotprog.grasp import finger_room
 from robotprog.planner import PlannerOptions
 from robotprog.rackpick import BlankScatter, CorrectedPick, PlannedPick, SlotOffset, corrected_pick, draw_offset, \
     slot_room
@@ -293,10 +295,15 @@ class RackLoop:
         residual = Residual(sigma[0] / 1e3, math.radians(sigma[1]))
         # how far a finger may find the blank's side off where the correction puts it [m]
         spread = residual.at_sides(part.planned.size)
-        allowed = UNCERTAINTY_SHARE * self.cell.gripper.fingers.clearance
+        width = float(min(part.planned.size[:2]))
+        fingers = finger_room(self.cell, width)
+        allowed = UNCERTAINTY_SHARE * fingers
         if spread > allowed:
+            stroke = "" if fingers >= self.cell.gripper.fingers.clearance else (
+                f" (the gripper opens {self.cell.gripper.opening_max * 1e3:.1f} mm, {fingers * 1e3:.2f} mm beyond the "
+                f"blank's {width * 1e3:.1f} mm on each side)")
             return refused(f"located too loosely: +-{spread * 1e3:.2f} mm at the blank's sides, the open fingers "
-                           f"allow {allowed * 1e3:.2f} mm", located, sigma, png, d)
+                           f"allow {allowed * 1e3:.2f} mm{stroke}", located, sigma, png, d)
         if abs(located.dx) > room.dx + spread or abs(located.dy) > room.dy + spread:
             return refused(f"located {located.describe()}, further off the slot's centre than the slot leaves room "
                            f"for (x {room.dx * 1e3:.2f} y {room.dy * 1e3:.2f} mm)", located, sigma, png, d)
