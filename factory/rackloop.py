@@ -147,7 +147,9 @@ class RackPick:
         err = self.error
         return {"job": self.job, "slot": self.slot, "attempt": self.attempt,
                 "rack_slot": None if self.rack is None else list(self.rack.cell),
-                "rack_load": None if self.rack is None else self.rack.load, "offset": mmdeg(self.offset),
+                "rack_load": None if self.rack is None else self.rack.load,
+                "rack_passed_over": [] if self.rack is None else list(self.rack.passed_over),
+                "offset": mmdeg(self.offset),
                 "located": mmdeg(self.located),
                 "error_mm": None if err is None else round(err.shift_m * 1e3, 4),
                 "error_deg": None if err is None else round(abs(math.degrees(err.dyaw)), 4),

@@ -84,14 +84,14 @@ _KRL_WORDS = FlowWords(
 )
 
 
-def _lin_pose(st: MoveL, i: int, slots: list[np.ndarray]) -> np.ndarray:
+def _lin_pose(st: MoveL, i: int, reads: list[ReadCorrection]) -> np.ndarray:
     """A LIN's point (4, 4) [m]: in the robot's base frame, or a corrected one in the rack slot's frame
-    (``slots``: the slots of the corrections read so far)."""
+    (``reads``: the corrections read so far)."""
     if not st.corrected:
         return np.asarray(st.pose, dtype=float)
-    if not slots:
+    if not reads:
         raise PlanningError(f"step {i}: a corrected LIN before the correction is read")
-    return np.linalg.inv(slots[-1]) @ np.asarray(st.pose, dtype=float)
+    return np.linalg.inv(np.asarray(reads[-1].slot, dtype=float)) @ np.asarray(st.pose, dtype=float)
 
 
 #: The frame the corrected LINs run in: the plan's rack slot, moved to the slot the blank stands in
@@ -175,8 +175,7 @@ def krl_program(
     nj = nl = 0
     q_prev: np.ndarray | None = None
     current_pct: int | None = None
-    slot_of: list[np.ndarray] = []
-    stepped: list[int] = []  # 1 where the correction read steps to the blank's rack slot
+    reads: list[ReadCorrection] = []
     in_slot = False  # $BASE is the corrected rack slot
 
     def emit(seq: Sequence[Step], out: list[str], first: int) -> None:
@@ -210,18 +209,17 @@ def krl_program(
                     raise PlanningError(f"step {i}: LIN speed must be finite and > 0, got {st.v}")
                 nl += 1
                 if st.corrected != in_slot:
-                    out.append(_RACK_BASE[stepped[-1]] if st.corrected and stepped else "  $BASE = $NULLFRAME")
+                    out.append(_RACK_BASE[reads[-1].slots] if st.corrected and reads else "  $BASE = $NULLFRAME")
                     in_slot = st.corrected
-                dat.append(f"  DECL E6POS XP{nl}={{{krl_frame(_lin_pose(st, i, slot_of))},"
+                dat.append(f"  DECL E6POS XP{nl}={{{krl_frame(_lin_pose(st, i, reads))},"
                            "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}")
                 out.append(f"  $VEL.CP = {_f(st.v, 4)}")
                 out.append(f"  LIN XP{nl}")
             elif isinstance(st, ReadCorrection):
                 check_bounds(st, i)
-                if not slot_of:
+                if not reads:
                     dat[2:2] = _correction_decl(st)
-                slot_of.append(np.asarray(st.slot, dtype=float))
-                stepped.append(int(st.slots))
+                reads.append(st)
                 out += _correction_check(st)
             elif isinstance(st, Branch):
                 at, pct = q_prev, current_pct

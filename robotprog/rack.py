@@ -31,14 +31,15 @@ from robotprog.cell import Box, Pose, SlotGrid
 @dataclass(frozen=True)
 class RackSlot:
     """Where one blank stands: the scheduler's running slot number ``index``, the rack slot
-    (``row``, ``column``), which filling of the rack ``load`` (0: the first), and the blank's
-    ``size`` (3,) [m]."""
+    (``row``, ``column``), which filling of the rack ``load`` (0: the first), the blank's ``size``
+    (3,) [m], and why the free slots before it were ``passed_over`` (:func:`slot_refusal`)."""
 
     index: int
     row: int
     column: int
     load: int
     size: tuple[float, float, float]
+    passed_over: tuple[str, ...] = ()
 
     @property
     def cell(self) -> tuple[int, int]:
@@ -99,9 +100,13 @@ def next_slot(grid: SlotGrid, index: int, size: Sequence[float], standing: Seque
     load = max((s.load for s in standing), default=0)
     now = [s for s in standing if s.load == load]
     order = [(r, c) for r in range(grid.rows) for c in range(grid.columns) if (r, c) in seen]
+    passed: list[str] = []
     for slot in order:
-        if not slot_refusal(grid, slot, size, now):
-            return RackSlot(index, slot[0], slot[1], load, size)
+        why = slot_refusal(grid, slot, size, now)
+        if not why:
+            return RackSlot(index, slot[0], slot[1], load, size, tuple(passed))
+        if not any(s.cell == slot for s in now):  # a free slot this blank does not fit
+            passed.append(why)
     if not now:
         raise CellError(f"the rack camera sees no rack slot that holds a {describe_size(size)} blank whole "
                         f"(it sees {', '.join(map(str, order)) or 'none'})", source="rack")

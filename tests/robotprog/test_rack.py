@@ -32,6 +32,11 @@ def test_the_rack_is_filled_row_by_row_where_each_blank_fits_and_refilled_when_f
         ((1, 2), 0),  # (1, 1) would stand between two reliefs
         ((0, 0), 1), ((0, 1), 1)]  # nothing left for a relief: the rack is refilled
     assert placed[-1].index == 6 and placed[-1].size == BRACKET
+    # each says why it passed a free slot over
+    assert placed[2].passed_over == ("a 124.0 x 84.0 mm blank does not fit rack slot (0, 2): it would overlap the "
+                                     "124.0 x 84.0 mm blank in slot (0, 1) by 4.0 mm (the rack's pitch is 120 x 100 mm)",)
+    assert placed[4].passed_over[0].startswith("a 124.0 x 84.0 mm blank does not fit rack slot (1, 1)")
+    assert placed[0].passed_over == placed[3].passed_over == ()
 
 
 def test_a_blank_that_does_not_fit_a_slot_is_refused_with_the_figures(cell):
