@@ -157,7 +157,8 @@ class RackPick:
                 "reported_deg": None if self.located is None else round(self.sigma_deg, 4),
                 "correction": mmdeg(None if self.pick is None else self.pick.correction),
                 "proven": self.pick is not None,
-                "seat_mm": None if self.seat is None else round(self.seat.at_sides * 1e3, 4),
+                "seat_across_mm": None if self.seat is None else round(self.seat.across * 1e3, 4),
+                "seat_along_mm": None if self.seat is None else round(self.seat.along * 1e3, 4),
                 "fetch_s": round(self.fetch_s, 4), "refusal": self.refusal}
 
 
@@ -246,8 +247,8 @@ class RackLoop:
     def _reach(self, size: np.ndarray) -> float:
         """How far any point of a blank of ``size`` (3,) [m] stands off its slot's place at most [m]."""
         room = slot_room(self.cell, size, self.scatter.max_yaw)
-        return Residual(math.hypot(min(room.dx, self.scatter.max_shift), min(room.dy, self.scatter.max_shift)),
-                        min(room.dyaw, self.scatter.max_yaw)).at_sides(size)
+        return float(Residual(math.hypot(min(room.dx, self.scatter.max_shift), min(room.dy, self.scatter.max_shift)),
+                              min(room.dyaw, self.scatter.max_yaw)).growth(size).max())
 
     def _beside(self, where: RackSlot) -> tuple[Box, ...]:
         """The blanks standing in the rack while ``where``'s is picked (see the class docstring)."""
@@ -295,8 +296,9 @@ class RackLoop:
         sigma = (float(d["expected_error_mm"]), float(d["expected_error_deg"]))
         png = bgr_png_bytes(shot.annotated)
         residual = Residual(sigma[0] / 1e3, math.radians(sigma[1]))
-        # how far a finger may find the blank's side off where the correction puts it [m]
-        spread = residual.at_sides(part.planned.size)
+        # how far a finger may find the blank's side off where the correction puts it [m]: along the
+        # axis the fingers close on, the blank's narrower (robotprog.grasp.top_grasp)
+        spread = float(residual.growth(part.planned.size)[int(np.argmin(part.planned.size[:2]))])
         width = float(min(part.planned.size[:2]))
         fingers = finger_room(self.cell, width)
         allowed = UNCERTAINTY_SHARE * fingers

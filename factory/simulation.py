@@ -889,8 +889,9 @@ def rack_pick_msg(pick: RackPick, serial: str, stamp: int) -> Any:
     if doc["rack_slot"] is not None:
         values["rack_row"], values["rack_column"] = (str(v) for v in doc["rack_slot"])
         values["rack_load"] = str(doc["rack_load"])
-    if doc["seat_mm"] is not None:
-        values["seat_mm"] = f"{doc['seat_mm']:.3f}"
+    for name in ("seat_across_mm", "seat_along_mm"):
+        if doc[name] is not None:
+            values[name] = f"{doc[name]:.3f}"
     for name in ("offset", "located", "correction"):
         for axis, v in (doc[name] or {}).items():
             values[f"{name}_{axis}"] = f"{v:.3f}"

@@ -3,18 +3,20 @@
 The rack camera's correction (:mod:`robotprog.rackpick`) moves the grasp to where the blank was
 located, so the blank hangs in the fingers off by the camera's error only, and the planned transfer
 sets it in the vise off by as much. The error is bounded by the located pose's reported
-uncertainty (:class:`Residual`, a shift and a turn): a point of the blank's outline lands at most
-:meth:`Residual.at_sides` off its planned place. What that does, in the order it happens:
+uncertainty (:class:`Residual`, a shift and a turn): the blank lies within its planned box grown
+by :meth:`Residual.growth` along each of its axes (the bounding box of every pose within the
+bound). What that does, in the order it happens:
 
 1. **Setting it down.** The vise's jaws stand open :attr:`robotprog.cell.Vise.place_clearance`
-   beside the blank's planned sides. A blank that may land further off than that lands on a jaw:
-   refused with the figures. Else the transfer to the vise and the place are proven carrying the
-   blank grown by the residual on every side, with the open jaws as obstacles.
+   beside the blank's planned sides. A blank that may land further off than that across the jaws
+   lands on a jaw: refused with the figures. Else the transfer to the vise and the place are proven
+   carrying the grown blank, with the open jaws as obstacles.
 2. **Letting go.** The open fingers go up from around the blank; the grown blank is an obstacle.
 3. **Clamped.** The jaws close flat on the blank's sides across the vise (its Y): that takes out
    its offset across the jaws and its turn, and leaves its offset along the jaws (X), up to the
-   residual. Op 1's program cuts the part where the plan put it, so the part moves in the stock
-   by that much along the jaws: the part must still lie inside the stock there
+   growth along X (the shift, and what squaring a turned blank about a corner moves its centre
+   along the jaws). Op 1's program cuts the part where the plan put it, so the part moves in the
+   stock by that much along the jaws: the part must still lie inside the stock there
    (:attr:`SeatMoves.margin_along_jaws`, the stock's margin beyond the part's nearer end), or op 1
    would cut the part short at one end: refused with the figures. The jaws' top, which op 1's
    deepest feed keeps clear of by :data:`cadcam.setup.JAW_CLEARANCE_MM`, is a height: a shift
@@ -57,11 +59,12 @@ class Residual:
             raise PlanningError(f"a residual must be finite and >= 0, got {self.shift} m, {self.turn} rad",
                                 source="rack.pose")
 
-    def at_sides(self, size: np.ndarray) -> float:
-        """How far any point of the outline of a blank of ``size`` (3,) [m] may be off [m]: the
-        shift plus the turn's chord at the blank's corners (its half-diagonal)."""
-        half_diagonal = math.hypot(float(size[0]), float(size[1])) / 2
-        return self.shift + 2 * half_diagonal * math.sin(min(self.turn, math.pi) / 2)
+    def growth(self, size: np.ndarray) -> np.ndarray:
+        """How far the bounding box of a blank of ``size`` (3,) [m] reaches beyond its planned one
+        along the blank's x and y, (2,) [m]: the shift, plus what the turn swings each half-side
+        out across the other axis (a box turned by t reaches ``hx cos t + hy sin t`` along x)."""
+        swing = math.sin(min(self.turn, math.pi / 2))
+        return self.shift + np.array([float(size[1]), float(size[0])]) / 2 * swing
 
     def describe(self) -> str:
         """``+-0.50 mm, +-0.60 deg``."""
@@ -94,21 +97,23 @@ class SeatMoves:
 
 @dataclass(frozen=True)
 class Seat:
-    """A proven seat: the ``residual`` taken, how far the blank's sides may land off
-    (``at_sides`` [m]) against the open jaws' ``place_clearance`` [m], and the part's ``margin``
-    [m] along the jaws; the names of the moves proven with the grown blank."""
+    """A proven seat: the ``residual`` taken, how far the blank may land off ``across`` the jaws
+    [m] (against the open jaws' ``place_clearance`` [m]) and sit off ``along`` them once clamped
+    [m] (against the part's ``margin`` [m] in the stock there); the names of the moves proven with
+    the grown blank."""
 
     residual: Residual
-    at_sides: float
+    across: float
+    along: float
     place_clearance: float
     margin: float
     moves: tuple[str, ...]
 
     def describe(self) -> str:
         """One line for the log."""
-        return (f"seat in the vise proven for {self.residual.describe()}: the blank's sides within "
-                f"{self.at_sides * MM_PER_M:.2f} mm (open jaws {self.place_clearance * MM_PER_M:.2f} mm, "
-                f"the part {self.margin * MM_PER_M:.2f} mm inside the stock along the jaws)")
+        return (f"seat in the vise proven for {self.residual.describe()}: within {self.across * MM_PER_M:.2f} mm "
+                f"across the jaws (open {self.place_clearance * MM_PER_M:.2f} mm) and {self.along * MM_PER_M:.2f} mm "
+                f"along them (the part {self.margin * MM_PER_M:.2f} mm inside the stock)")
 
 
 def open_jaws(cell: Cell, stock_size: np.ndarray) -> tuple[Box, ...]:
@@ -128,8 +133,9 @@ def open_jaws(cell: Cell, stock_size: np.ndarray) -> tuple[Box, ...]:
     return tuple(out)
 
 
-def check_seat(cell: Cell, moves: SeatMoves, residual: Residual) -> float:
-    """How far the blank's sides may land off [m], if the vise takes it (see the module docstring).
+def check_seat(cell: Cell, moves: SeatMoves, residual: Residual) -> np.ndarray:
+    """How far the blank may land off along the jaws and across them, (2,) [m] (vise X, Y), if the
+    vise takes it (see the module docstring).
 
     Raises
     ------
@@ -138,19 +144,18 @@ def check_seat(cell: Cell, moves: SeatMoves, residual: Residual) -> float:
         the jaws; the message gives the figures.
     """
     size = np.asarray(moves.stock_size, dtype=float)
-    off = residual.at_sides(size)
+    along, across = residual.growth(size)
     clearance = cell.vise.place_clearance
-    why = (f"the rack camera's {residual.describe()} over the blank's "
-           f"{math.hypot(size[0], size[1]) / 2 * MM_PER_M:.1f} mm half-diagonal")
-    if off > clearance:
-        raise PlanningError(f"the blank may land {off * MM_PER_M:.2f} mm off its place in the vise ({why}), more "
-                            f"than the {clearance * MM_PER_M:.2f} mm the open jaws leave beside it",
+    why = f"the rack camera's {residual.describe()} on the {size[0] * MM_PER_M:.1f} x {size[1] * MM_PER_M:.1f} mm blank"
+    if across > clearance:
+        raise PlanningError(f"the blank may land {across * MM_PER_M:.2f} mm off its place across the jaws ({why}), "
+                            f"more than the {clearance * MM_PER_M:.2f} mm the open jaws leave beside it",
                             source="vise.place_clearance")
-    if off > moves.margin_along_jaws:
-        raise PlanningError(f"the blank may sit {off * MM_PER_M:.2f} mm off along the jaws ({why}), more than the "
+    if along > moves.margin_along_jaws:
+        raise PlanningError(f"the blank may sit {along * MM_PER_M:.2f} mm off along the jaws ({why}), more than the "
                             f"{moves.margin_along_jaws * MM_PER_M:.2f} mm of stock beyond the part there: op 1 "
                             "would cut the part past the stock's end", source="vise.pose")
-    return off
+    return np.array([along, across])
 
 
 def prove_seat(cell: Cell, robot: Robot, moves: SeatMoves, residual: Residual,
@@ -176,7 +181,7 @@ def prove_seat(cell: Cell, robot: Robot, moves: SeatMoves, residual: Residual,
     """
     off = check_seat(cell, moves, residual)
     size = np.asarray(moves.stock_size, dtype=float)
-    grow = np.array([off, off, 0.0])
+    grow = np.array([off[0], off[1], 0.0])
     lo, hi = np.array([-size[0] / 2, -size[1] / 2, 0.0]) - grow, np.array([size[0] / 2, size[1] / 2, size[2]]) + grow
     t_vise = cell.vise.pose.matrix()
     placed = box_pose(t_vise, lo, hi)
@@ -191,12 +196,13 @@ def prove_seat(cell: Cell, robot: Robot, moves: SeatMoves, residual: Residual,
     for name, qs in zip(CARRIED_MOVES, moves.carried):
         hit = p.sweep.polyline_contact(qs, carried)
         if hit is not None:
-            raise PlanningError(f"{name}: the blank off by up to {off * MM_PER_M:.2f} mm collides ({hit[1]})",
+            raise PlanningError(f"{name}: the blank off by up to {off.max() * MM_PER_M:.2f} mm collides ({hit[1]})",
                                 source="vise.pose")
     around = MotionPlanner(cell, collision_world(cell, robot, obstacles=jaws + (grown,)), options)
     for name, qs in zip(RELEASED_MOVES, moves.released):
         hit = around.sweep.polyline_contact(qs, open_fingers(cell, width))
         if hit is not None:
-            raise PlanningError(f"{name}: the open fingers hit the blank off by up to {off * MM_PER_M:.2f} mm "
+            raise PlanningError(f"{name}: the open fingers hit the blank off by up to {off.max() * MM_PER_M:.2f} mm "
                                 f"({hit[1]})", source="vise.pose")
-    return Seat(residual, off, cell.vise.place_clearance, moves.margin_along_jaws, CARRIED_MOVES + RELEASED_MOVES)
+    return Seat(residual, float(off[1]), float(off[0]), cell.vise.place_clearance, moves.margin_along_jaws,
+                CARRIED_MOVES + RELEASED_MOVES)

@@ -71,7 +71,7 @@ def test_every_blank_is_located_and_its_grasp_corrected_and_proven(looped):
     assert len({(p["offset"]["x_mm"], p["offset"]["y_mm"]) for p in picks}) == 3  # each blank stands its own way
     # each from its own rack slot, row by row, and each seated in the vise within what it tolerates
     assert [p["rack_slot"] for p in picks] == [[0, 0], [0, 1], [0, 2]] and {p["rack_load"] for p in picks} == {0}
-    assert all(0 < p["seat_mm"] < 3.0 for p in picks)
+    assert all(0 < p["seat_across_mm"] < 3.0 and 0 < p["seat_along_mm"] < 2.0 for p in picks)
 
 
 def test_the_log_and_the_record_carry_each_offset_located_pose_and_correction(looped):
@@ -136,8 +136,8 @@ def test_a_blank_whose_seat_in_the_vise_is_not_proven_is_not_picked(block_catalo
     (picked,) = run.picks
     seat = picked.seat
     assert seat is not None and seat.residual.shift == pytest.approx(picked.sigma_mm / 1e3)
-    assert 0 < seat.at_sides < seat.place_clearance == run.cell.vise.place_clearance
-    assert "seat in the vise proven for" in picked.message() and picked.to_dict()["seat_mm"] > 0
+    assert 0 < seat.across < seat.place_clearance == run.cell.vise.place_clearance and 0 < seat.along < seat.margin
+    assert "seat in the vise proven for" in picked.message() and picked.to_dict()["seat_across_mm"] > 0
     blanks = {k: v.blank for k, v in run.ready.items()}
     planned = next(iter(blanks.values())).planned
     again = corrected_pick(run.cell, run.world.robot, planned, picked.located, picked.offset, slot=picked.rack.cell)

@@ -24,11 +24,16 @@ def bracket(cell, world):
                            tuple(by[n].waypoints for n in RELEASED_MOVES), np.asarray(plan.stock.size), 0.002)
 
 
-def test_the_residual_reaches_the_blanks_sides_by_its_shift_and_its_turn():
+def test_the_residual_grows_the_blanks_box_by_its_shift_and_its_turn():
     size = np.array([0.104, 0.064, 0.016])
-    assert Residual(0.0005, 0.0).at_sides(size) == pytest.approx(0.0005)
-    # turned 1 deg about its centre, a corner 61.06 mm out moves by its chord
-    assert Residual(0.0, math.radians(1.0)).at_sides(size) == pytest.approx(0.06106 * math.radians(1.0), rel=1e-4)
+    np.testing.assert_allclose(Residual(0.0005, 0.0).growth(size), [0.0005, 0.0005])
+    # turned 1 deg, the 104 x 64 mm box reaches out along x by 32 mm * sin 1 deg less what its 52 mm half
+    # shortens, along y by 52 mm * sin 1 deg less what its 32 mm half shortens: the bound is the sine
+    t = math.radians(1.0)
+    turned = np.array([0.052 * math.cos(t) + 0.032 * math.sin(t) - 0.052, 0.052 * math.sin(t) + 0.032 * math.cos(t) - 0.032])
+    grown = Residual(0.0, t).growth(size)
+    np.testing.assert_allclose(grown, [0.032 * math.sin(t), 0.052 * math.sin(t)])
+    assert (turned <= grown).all() and (grown - turned < 2e-5).all()
     with pytest.raises(PlanningError):
         Residual(-0.001, 0.0)
 
@@ -37,8 +42,9 @@ def test_a_normal_uncertainty_seats_and_the_place_is_proven_with_the_blank_grown
     plan, moves = bracket
     before = [m.waypoints.copy() for m in plan.moves]
     seat = prove_seat(cell, world.robot, moves, Residual(0.0005, math.radians(0.6)))  # the 640 camera's figures
-    assert seat.at_sides == pytest.approx(0.0005 + 0.06106 * math.radians(0.6), rel=1e-3)
-    assert seat.at_sides < seat.place_clearance == cell.vise.place_clearance and seat.at_sides < seat.margin
+    assert seat.along == pytest.approx(0.0005 + 0.032 * math.sin(math.radians(0.6)))
+    assert seat.across == pytest.approx(0.0005 + 0.052 * math.sin(math.radians(0.6)))
+    assert seat.across < seat.place_clearance == cell.vise.place_clearance and seat.along < seat.margin
     assert seat.moves == CARRIED_MOVES + RELEASED_MOVES
     # the proof sweeps the plan's motion again; it does not change it
     assert all(np.array_equal(a, m.waypoints) for a, m in zip(before, plan.moves))
@@ -47,17 +53,17 @@ def test_a_normal_uncertainty_seats_and_the_place_is_proven_with_the_blank_grown
 def test_an_uncertainty_over_the_open_jaws_clearance_is_refused_with_the_figures(cell, world, bracket):
     _, moves = bracket
     with pytest.raises(PlanningError) as e:
-        prove_seat(cell, world.robot, moves, Residual(0.002, math.radians(1.0)))
+        prove_seat(cell, world.robot, moves, Residual(0.002, math.radians(1.2)))
     assert e.value.source == "vise.place_clearance"
-    assert "may land 3.07 mm off its place in the vise" in str(e.value)
-    assert "+-2.00 mm, +-1.00 deg over the blank's 61.1 mm half-diagonal" in str(e.value)
+    assert "may land 3.09 mm off its place across the jaws" in str(e.value)
+    assert "the rack camera's +-2.00 mm, +-1.20 deg on the 104.0 x 64.0 mm blank" in str(e.value)
     assert "more than the 3.00 mm the open jaws leave beside it" in str(e.value)
 
 
 def test_a_shift_along_the_jaws_past_the_parts_margin_in_the_stock_is_refused(cell, bracket):
     _, moves = bracket
     thin = dataclasses.replace(moves, margin_along_jaws=0.0005)
-    with pytest.raises(PlanningError, match=r"may sit 1\.14 mm off along the jaws .* more than the 0\.50 mm of stock "
+    with pytest.raises(PlanningError, match=r"may sit 0\.84 mm off along the jaws .* more than the 0\.50 mm of stock "
                                             r"beyond the part there: op 1 would cut the part past the stock's end"):
         check_seat(cell, thin, Residual(0.0005, math.radians(0.6)))
 
