@@ -155,6 +155,9 @@ class RackPick:
                 "error_deg": None if err is None else round(abs(math.degrees(err.dyaw)), 4),
                 "reported_mm": None if self.located is None else round(self.sigma_mm, 4),
                 "reported_deg": None if self.located is None else round(self.sigma_deg, 4),
+                # whether the camera's true error lay within what it reported: the bound the seat's proof rests on
+                "error_within_reported": None if err is None else bool(
+                    err.shift_m * 1e3 <= self.sigma_mm and abs(math.degrees(err.dyaw)) <= self.sigma_deg),
                 "correction": mmdeg(None if self.pick is None else self.pick.correction),
                 "proven": self.pick is not None,
                 "seat_across_mm": None if self.seat is None else round(self.seat.across * 1e3, 4),
