@@ -1,7 +1,8 @@
 """The cell's two fixed cameras, over the rack and over the out-tray, and the pictures they take of a part.
 
-:func:`cell_stations` puts the cell camera file's camera :data:`CAMERA_HEIGHT_M` above rack slot
-(0, 0) and above out-tray slot (0, 0). :func:`camera_shots` takes, once per planned part, the
+:func:`cell_stations` puts the cell camera file's camera :data:`CAMERA_HEIGHT_M` above the middle of
+the rack's slots (one camera for every slot; :func:`rack_slots_seen` says which slots it sees a
+blank in whole) and above out-tray slot (0, 0). :func:`camera_shots` takes, once per planned part, the
 pictures the simulation shows and times its camera steps by: the blank located in the rack, the
 empty slot, the good and the damaged part inspected in the out-tray (:mod:`vision.station` renders
 each and runs the real vision on it); they are kept in the catalog beside the plan.
@@ -31,6 +32,9 @@ log = logging.getLogger(__name__)
 
 #: Height of the fixed cameras above the rack and the out-tray [m].
 CAMERA_HEIGHT_M = 0.5
+#: Margin a blank keeps from the picture's edges for the rack camera to see it whole [px]: locate
+#: needs the floor around it.
+VIEW_MARGIN_PX = 8
 #: Diffuse reflectance of the rack's floor under its camera (0..1): dark grey anodised, as a vision
 #: cell puts a contrasting background under bright metal. The camera looks straight down on a blank
 #: and sees no side of it, only its top; under a low key light that top and a floor as grey as the
@@ -53,7 +57,8 @@ class Shot:
 
 @dataclass(frozen=True)
 class Stations:
-    """The cell's two fixed cameras, and where the blank and the finished part lie under them."""
+    """The cell's two fixed cameras, and where the blank (in rack slot (0, 0), the plan's) and the
+    finished part lie under them [m]."""
 
     rack: CameraStation
     tray: CameraStation
@@ -61,15 +66,44 @@ class Stations:
     tray_xy: tuple[float, float]
 
 
+def rack_middle(cell: Cell) -> np.ndarray:
+    """The middle of the rack's slots, at slot height (3,) [m]: between its first and last slot."""
+    grid = cell.rack
+    first, last = grid.slot_transform(0, 0), grid.slot_transform(grid.rows - 1, grid.columns - 1)
+    return (first[:3, 3] + last[:3, 3]) / 2
+
+
 def cell_stations(cell: Cell, camera: CameraModel) -> Stations:
-    """A camera :data:`CAMERA_HEIGHT_M` above rack slot (0, 0) (its floor :data:`RACK_FLOOR_ALBEDO`) and
-    one above out-tray slot (0, 0)."""
+    """A camera :data:`CAMERA_HEIGHT_M` above the middle of the rack's slots (its floor
+    :data:`RACK_FLOOR_ALBEDO`) and one above out-tray slot (0, 0)."""
     rack = cell.rack.pose.xyz
     tray = cell.out_tray.pose.xyz
-    return Stations(station_above(camera, np.asarray(rack, dtype=float), CAMERA_HEIGHT_M,
-                                  surface_albedo=RACK_FLOOR_ALBEDO),
+    return Stations(station_above(camera, rack_middle(cell), CAMERA_HEIGHT_M, surface_albedo=RACK_FLOOR_ALBEDO),
                     station_above(camera, np.asarray(tray, dtype=float), CAMERA_HEIGHT_M),
                     (float(rack[0]), float(rack[1])), (float(tray[0]), float(tray[1])))
+
+
+def rack_slots_seen(stations: Stations, cell: Cell, size: np.ndarray, reach: float) -> frozenset[tuple[int, int]]:
+    """The rack slots (row, column) in which the rack camera sees a blank of ``size`` (3,) [m] whole,
+    its top's corners standing up to ``reach`` [m] off their place in any direction, at least
+    :data:`VIEW_MARGIN_PX` inside the picture."""
+    station = stations.rack
+    w, h = station.camera.image_size
+    t = station.world_to_camera
+    rvec = cv2.Rodrigues(np.asarray(t[:3, :3], dtype=np.float64))[0].reshape(3)
+    half = np.asarray(size[:2], dtype=float) / 2 + reach
+    corners = np.array([[sx * half[0], sy * half[1], float(size[2]), 1.0] for sx in (-1, 1) for sy in (-1, 1)])
+    grid = cell.rack
+    seen = set()
+    for r in range(grid.rows):
+        for c in range(grid.columns):
+            world = (grid.slot_transform(r, c) @ corners.T).T[:, :3]
+            uv = station.camera.project(world, rvec, t[:3, 3])
+            inside = (uv >= VIEW_MARGIN_PX).all() and (uv[:, 0] <= w - 1 - VIEW_MARGIN_PX).all() and \
+                (uv[:, 1] <= h - 1 - VIEW_MARGIN_PX).all()
+            if inside:
+                seen.add((r, c))
+    return frozenset(seen)
 
 
 def _empty_frame(station: CameraStation) -> np.ndarray:
@@ -78,6 +112,11 @@ def _empty_frame(station: CameraStation) -> np.ndarray:
     canvas = cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
     cv2.putText(canvas, "NO STOCK FOUND", (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.0, (0, 0, 255), 2, cv2.LINE_AA)
     return canvas
+
+
+def _rack_view(stations: Stations) -> list[float]:
+    """Where the rack camera stands [m, rounded to a micrometre]: shots taken from elsewhere are taken again."""
+    return [round(float(v), 6) for v in stations.rack.camera_pose[:3, 3]]
 
 
 def _shot(shot: CameraShot) -> Shot:
@@ -98,7 +137,7 @@ def camera_shots(entry: CatalogEntry, part_mesh: trimesh.Trimesh, stock_mm: np.n
         try:
             doc = json.loads(index.read_text(encoding="utf-8"))
             if doc.get("format") == SHOTS_FORMAT and doc.get("key") == entry.key and \
-                    doc.get("camera_sha256") == camera_sha256:
+                    doc.get("camera_sha256") == camera_sha256 and doc.get("rack_view") == _rack_view(stations):
                 return {n: Shot((folder / doc["shots"][n]["png"]).read_bytes(), doc["shots"][n]["detections"],
                                 doc["shots"][n]["processing_s"], doc["shots"][n]["passed"]) for n in names}
         except (OSError, ValueError, KeyError, TypeError):
@@ -121,7 +160,8 @@ def camera_shots(entry: CatalogEntry, part_mesh: trimesh.Trimesh, stock_mm: np.n
         log.warning("%s: inspection of the rendered parts disagrees with the truth (good %s, damaged %s)", stem,
                     "passed" if shots["inspect"].passed else "failed",
                     "passed" if shots["reject"].passed else "failed")
-    doc = {"format": SHOTS_FORMAT, "key": entry.key, "camera_sha256": camera_sha256, "shots": {}}
+    doc = {"format": SHOTS_FORMAT, "key": entry.key, "camera_sha256": camera_sha256,
+           "rack_view": _rack_view(stations), "shots": {}}
     for n, s in shots.items():
         png = f"{stem}.{n}.png"
         write_bytes(folder / png, s.png, overwrite=True)  # a stale cache is replaced

@@ -5,12 +5,17 @@ centre (:func:`robotprog.rackpick.draw_offset`). At each locate the rack camera 
 the blank where it truly stands (:func:`vision.station.locate_shot`: rendered, exactly or with
 ``--rack-light`` in real light, then the real ``locate``), and :class:`RackLoop` decides:
 
-- not located, or located with more uncertainty than the open fingers' clearance allows, or
+- not located, or located with more uncertainty than the open fingers' room beside it allows (their
+  clearance, or less where the gripper's stroke ends first: :func:`robotprog.grasp.finger_room`), or
   further off the slot's centre than the slot leaves room for: no grasp; the robot stops with a
   ``stock_not_found`` fault and the reason (the scheduler re-images, then skips to the next slot);
 - else the grasp and its approach move by the located offset and the pick is planned again and
   proven (:func:`robotprog.rackpick.corrected_pick`, against the blank where it truly stands);
-  a pick the proof refuses is a fault as above.
+  a pick the proof refuses is a fault as above;
+- the blank then sits in the vise off by the camera's error, up to the located pose's reported
+  uncertainty: the plan's place in the vise and the retreat from it are proven again for a blank
+  that far off, and the seat refused where the open jaws or the part's margin in the stock along
+  the jaws cannot take it (:func:`robotprog.seat.prove_seat`), a fault as above.
 
 Each decision is a :class:`RackPick`: the true offset, the located one, the camera's error, the
 correction and the corrected moves; the cell log and the run's output carry them.
@@ -26,14 +31,17 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from factory.core.errors import PlanningError, VisionError
-from factory.cellcameras import Stations
-from robotprog.cell import Cell
+from factory.core.errors import CellError, PlanningError, VisionError
+from factory.cellcameras import Stations, rack_slots_seen
+from robotprog.cell import Box, Cell
 from robotprog.cellsim import PickStep
+from robotprog.grasp import finger_room
 from robotprog.planner import PlannerOptions
 from robotprog.rackpick import BlankScatter, CorrectedPick, PlannedPick, SlotOffset, corrected_pick, draw_offset, \
     slot_room
+from robotprog.rack import RackSlot, next_slot, slot_refusal
 from robotprog.robots import Robot
+from robotprog.seat import CARRIED_MOVES, RELEASED_MOVES, Residual, Seat, SeatMoves, prove_seat
 from vision.lit import Condition
 from vision.locate import footprint_from_mesh
 from vision.report import bgr_png_bytes
@@ -49,13 +57,14 @@ UNCERTAINTY_SHARE = 0.5
 @dataclass(frozen=True)
 class BlankPart:
     """What the closed loop needs of one planned part: its blank's mesh [mm] (a box, corner at
-    the origin) and what the plan does at the rack; ``to_above_s`` [s] is the planned move from
-    home to above the slot, which the corrected pick starts after."""
+    the origin), what the plan does at the rack and at the vise (``seat``); ``to_above_s`` [s] is
+    the planned move from home to above the slot, which the corrected pick starts after."""
 
     vertices_mm: np.ndarray
     faces: np.ndarray
     planned: PlannedPick
     to_above_s: float
+    seat: SeatMoves
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,6 +87,10 @@ class RackPick:
         Why no grasp was attempted ('' when it was).
     pick : CorrectedPick or None
         The corrected, proven pick (None when refused).
+    seat : Seat or None
+        Its seat in the vise, proven for the located pose's uncertainty (None when refused).
+    rack : RackSlot or None
+        Where the blank stands in the rack (None: it fits no slot the camera sees).
     fetch_s : float
         Home to the corrected pick and back over the slot [s] (0 when refused).
     png : bytes
@@ -99,6 +112,8 @@ class RackPick:
     fetch_s: float
     png: bytes
     detection: dict[str, Any] | None
+    seat: Seat | None = None
+    rack: RackSlot | None = None
 
     @property
     def error(self) -> SlotOffset | None:
@@ -110,8 +125,9 @@ class RackPick:
         return PickStep(self.index, self.fetch_s, self.refusal, self.message())
 
     def message(self) -> str:
-        """One line: the offset, the located pose and its error, the correction or the refusal."""
-        text = f"blank offset {self.offset.describe()}"
+        """One line: the rack slot, the offset, the located pose and its error, the correction or the refusal."""
+        text = "" if self.rack is None else f"rack slot {self.rack.cell}: "
+        text += f"blank offset {self.offset.describe()}"
         if self.located is not None:
             err = self.error
             text += (f"; located {self.located.describe()} (error {err.shift_m * 1e3:.2f} mm, "
@@ -119,6 +135,8 @@ class RackPick:
                      f"+-{self.sigma_deg:.2f} deg)")
         if self.pick is not None:
             text += f"; grasp corrected by {self.pick.correction.describe()}, proven"
+        if self.seat is not None:
+            text += f"; {self.seat.describe()}"
         return text + (f"; {self.refusal}" if self.refusal else "")
 
     def to_dict(self) -> dict[str, Any]:
@@ -127,14 +145,24 @@ class RackPick:
             return None if o is None else {"x_mm": round(o.dx * 1e3, 4), "y_mm": round(o.dy * 1e3, 4),
                                            "yaw_deg": round(math.degrees(o.dyaw), 4)}
         err = self.error
-        return {"job": self.job, "slot": self.slot, "attempt": self.attempt, "offset": mmdeg(self.offset),
+        return {"job": self.job, "slot": self.slot, "attempt": self.attempt,
+                "rack_slot": None if self.rack is None else list(self.rack.cell),
+                "rack_load": None if self.rack is None else self.rack.load,
+                "rack_passed_over": [] if self.rack is None else list(self.rack.passed_over),
+                "offset": mmdeg(self.offset),
                 "located": mmdeg(self.located),
                 "error_mm": None if err is None else round(err.shift_m * 1e3, 4),
                 "error_deg": None if err is None else round(abs(math.degrees(err.dyaw)), 4),
                 "reported_mm": None if self.located is None else round(self.sigma_mm, 4),
                 "reported_deg": None if self.located is None else round(self.sigma_deg, 4),
+                # whether the camera's true error lay within what it reported: the bound the seat's proof rests on
+                "error_within_reported": None if err is None else bool(
+                    err.shift_m * 1e3 <= self.sigma_mm and abs(math.degrees(err.dyaw)) <= self.sigma_deg),
                 "correction": mmdeg(None if self.pick is None else self.pick.correction),
-                "proven": self.pick is not None, "fetch_s": round(self.fetch_s, 4), "refusal": self.refusal}
+                "proven": self.pick is not None,
+                "seat_across_mm": None if self.seat is None else round(self.seat.across * 1e3, 4),
+                "seat_along_mm": None if self.seat is None else round(self.seat.along * 1e3, 4),
+                "fetch_s": round(self.fetch_s, 4), "refusal": self.refusal}
 
 
 def planned_pick(motion: Any, size_m: np.ndarray) -> tuple[PlannedPick, float]:
@@ -148,19 +176,42 @@ def planned_pick(motion: Any, size_m: np.ndarray) -> tuple[PlannedPick, float]:
     return planned, motion.duration("load: home to above rack", "load: home to above rack")
 
 
-def blank_part(stock_mm: np.ndarray, motion: Any) -> BlankPart:
-    """The :class:`BlankPart` of a part whose stock is ``stock_mm`` (3,) [mm]."""
+def seat_moves(motion: Any, size_m: np.ndarray, margin_along_jaws_m: float) -> SeatMoves:
+    """The plan's moves at the vise, read from a part's :class:`factory.simulation.RobotMotion`: the
+    recorded joint samples of each move, its ends included."""
+    def samples(name: str) -> np.ndarray:
+        t0, t1 = motion.span(name, name)
+        inside = (motion.t > t0) & (motion.t < t1)
+        ends = np.array([[np.interp(t, motion.t, motion.q[:, j]) for j in range(motion.q.shape[1])] for t in (t0, t1)])
+        return np.vstack([ends[:1], motion.q[inside], ends[1:]])
+    return SeatMoves(tuple(samples(n) for n in CARRIED_MOVES), tuple(samples(n) for n in RELEASED_MOVES),
+                     np.asarray(size_m, dtype=float), float(margin_along_jaws_m))
+
+
+def blank_part(stock_mm: np.ndarray, motion: Any, margin_along_jaws_mm: float) -> BlankPart:
+    """The :class:`BlankPart` of a part whose stock is ``stock_mm`` (3,) [mm] and reaches
+    ``margin_along_jaws_mm`` [mm] beyond the part along the jaws (work X), at its nearer end."""
     box = trimesh.creation.box(stock_mm)
     box.apply_translation(np.asarray(stock_mm, dtype=float) / 2)
-    planned, to_above = planned_pick(motion, np.asarray(stock_mm, dtype=float) / 1000.0)
-    return BlankPart(np.asarray(box.vertices), np.asarray(box.faces), planned, to_above)
+    size_m = np.asarray(stock_mm, dtype=float) / 1000.0
+    planned, to_above = planned_pick(motion, size_m)
+    return BlankPart(np.asarray(box.vertices), np.asarray(box.faces), planned, to_above,
+                     seat_moves(motion, size_m, margin_along_jaws_mm / 1000.0))
 
 
 @dataclass
 class RackLoop:
-    """The :data:`robotprog.cellsim.PickSource` of a run: locates each blank, decides, corrects and
-    proves its pick; :attr:`picks` keeps every decision in the order taken. ``light``: the rack
-    camera's pictures are taken in this real light (:data:`vision.lit.CONDITIONS`); None: exact."""
+    """The :data:`robotprog.cellsim.PickSource` of a run: puts each blank in its rack slot, locates it,
+    decides, corrects and proves its pick; :attr:`picks` keeps every decision in the order taken.
+    ``light``: the rack camera's pictures are taken in this real light (:data:`vision.lit.CONDITIONS`);
+    None: exact.
+
+    The scheduler's slot numbers count blanks; :attr:`slots` says where each stands in the rack
+    (:func:`robotprog.rack.next_slot`: the first slot, row by row, the camera sees whole and the
+    blank fits beside the blanks of the same filling; the rack refilled when full). While a blank is
+    picked, the blanks of its filling not yet picked stand beside it, and each slot still free holds,
+    for the proof, the largest blank of the run that fits there (the operator fills the rack before
+    the robot picks from it)."""
 
     cell: Cell
     robot: Robot
@@ -170,52 +221,107 @@ class RackLoop:
     options: PlannerOptions = field(default_factory=PlannerOptions)
     picks: list[RackPick] = field(default_factory=list)
     light: Condition | None = None
+    slots: dict[int, RackSlot] = field(default_factory=dict)
 
     def __call__(self, job: int, key: Any, slot: int) -> PickStep:
         part = self.parts[key]
         attempt = sum(1 for p in self.picks if p.job == job and p.slot == slot)
         room = slot_room(self.cell, part.planned.size, self.scatter.max_yaw)
         offset = draw_offset(self.scatter, room, job, slot)
-        pick = self._decide(len(self.picks), job, slot, attempt, part, room, offset)
+        try:
+            where = self._put(slot, part)
+        except CellError as e:
+            pick = RackPick(len(self.picks), job, slot, attempt, offset, None, math.nan, math.nan,
+                            f"no rack slot for the blank: {e.message}", None, 0.0, b"", None)
+        else:
+            pick = self._decide(len(self.picks), job, where, attempt, part, room, offset)
         self.picks.append(pick)
         log.info("job %d slot %d: %s", job, slot, pick.message())
         return pick.step()
 
-    def _decide(self, index: int, job: int, slot: int, attempt: int, part: BlankPart, room: SlotOffset,
+    def _put(self, index: int, part: BlankPart) -> RackSlot:
+        """The rack slot of the scheduler's slot number ``index`` (put there on first asking)."""
+        if index not in self.slots:
+            size = part.planned.size
+            seen = rack_slots_seen(self.stations, self.cell, size, self._reach(size))
+            self.slots[index] = next_slot(self.cell.rack, index, size, tuple(self.slots.values()), seen)
+        return self.slots[index]
+
+    def _reach(self, size: np.ndarray) -> float:
+        """How far any point of a blank of ``size`` (3,) [m] stands off its slot's place at most [m]."""
+        room = slot_room(self.cell, size, self.scatter.max_yaw)
+        return float(Residual(math.hypot(min(room.dx, self.scatter.max_shift), min(room.dy, self.scatter.max_shift)),
+                              min(room.dyaw, self.scatter.max_yaw)).growth(size).max())
+
+    def _beside(self, where: RackSlot) -> tuple[Box, ...]:
+        """The blanks standing in the rack while ``where``'s is picked (see the class docstring)."""
+        taken = {p.slot for p in self.picks if p.pick is not None}
+        load = [s for s in self.slots.values() if s.load == where.load]
+        standing = [s for s in load if s.index != where.index and s.index not in taken]
+        grid = self.cell.rack
+        largest = sorted({tuple(float(v) for v in b.planned.size) for b in self.parts.values()},
+                         key=lambda v: -v[0] * v[1])
+        free = []
+        for r in range(grid.rows):
+            for c in range(grid.columns):
+                if any(s.cell == (r, c) for s in load):
+                    continue
+                size = next((v for v in largest if not slot_refusal(grid, (r, c), v, load)), None)
+                if size is not None:
+                    free.append(RackSlot(-1, r, c, where.load, size))
+        return tuple(s.box(grid) for s in standing + free)
+
+    def _decide(self, index: int, job: int, where: RackSlot, attempt: int, part: BlankPart, room: SlotOffset,
                 offset: SlotOffset) -> RackPick:
-        rx, ry = self.stations.rack_xy
+        slot = where.index
+        t_slot = self.cell.rack.slot_transform(*where.cell)
+        slot_yaw = math.atan2(t_slot[1, 0], t_slot[0, 0])
         footprint = footprint_from_mesh(part.vertices_mm, part.faces, source="blank")
         seed = int(np.random.default_rng([self.scatter.seed, job, slot + 1, attempt]).integers(2 ** 31))
 
         def refused(reason: str, located: SlotOffset | None = None, sigma: tuple[float, float] = (math.nan,) * 2,
                     png: bytes = b"", detection: dict | None = None) -> RackPick:
             return RackPick(index, job, slot, attempt, offset, located, sigma[0], sigma[1], reason, None, 0.0, png,
-                            detection)
+                            detection, rack=where)
 
+        true_xy = (t_slot @ np.array([offset.dx, offset.dy, 0.0, 1.0]))[:2]
         try:
             shot = locate_shot(self.stations.rack, part.vertices_mm, part.faces,
-                               (rx + offset.dx, ry + offset.dy, offset.dyaw), seed=seed, light=self.light)
+                               (float(true_xy[0]), float(true_xy[1]), slot_yaw + offset.dyaw), seed=seed,
+                               light=self.light)
         except VisionError as e:
-            return refused(f"the rack camera did not locate the blank: {e.message}")
+            return refused(f"the rack camera did not locate the blank in rack slot {where.cell}: {e.message}")
         d = shot.detections[0]
         period = 2 * math.pi / footprint.symmetry  # a box's yaw is known modulo its symmetry
-        yaw = (float(d["yaw"]) + period / 2) % period - period / 2
-        located = SlotOffset(float(d["x"]) - rx, float(d["y"]) - ry, yaw)
+        yaw = (float(d["yaw"]) - slot_yaw + period / 2) % period - period / 2
+        in_slot = np.linalg.inv(t_slot) @ np.array([float(d["x"]), float(d["y"]), t_slot[2, 3], 1.0])
+        located = SlotOffset(float(in_slot[0]), float(in_slot[1]), yaw)
         sigma = (float(d["expected_error_mm"]), float(d["expected_error_deg"]))
         png = bgr_png_bytes(shot.annotated)
-        half = float(max(part.planned.size[:2])) / 2
-        # how far a finger may find the blank's side off where the correction puts it [m]
-        spread = sigma[0] / 1e3 + half * math.radians(sigma[1])
-        allowed = UNCERTAINTY_SHARE * self.cell.gripper.fingers.clearance
+        residual = Residual(sigma[0] / 1e3, math.radians(sigma[1]))
+        # how far a finger may find the blank's side off where the correction puts it [m]: along the
+        # axis the fingers close on, the blank's narrower (robotprog.grasp.top_grasp)
+        spread = float(residual.growth(part.planned.size)[int(np.argmin(part.planned.size[:2]))])
+        width = float(min(part.planned.size[:2]))
+        fingers = finger_room(self.cell, width)
+        allowed = UNCERTAINTY_SHARE * fingers
         if spread > allowed:
+            stroke = "" if fingers >= self.cell.gripper.fingers.clearance else (
+                f" (the gripper opens {self.cell.gripper.opening_max * 1e3:.1f} mm, {fingers * 1e3:.2f} mm beyond the "
+                f"blank's {width * 1e3:.1f} mm on each side)")
             return refused(f"located too loosely: +-{spread * 1e3:.2f} mm at the blank's sides, the open fingers "
-                           f"allow {allowed * 1e3:.2f} mm", located, sigma, png, d)
+                           f"allow {allowed * 1e3:.2f} mm{stroke}", located, sigma, png, d)
         if abs(located.dx) > room.dx + spread or abs(located.dy) > room.dy + spread:
             return refused(f"located {located.describe()}, further off the slot's centre than the slot leaves room "
                            f"for (x {room.dx * 1e3:.2f} y {room.dy * 1e3:.2f} mm)", located, sigma, png, d)
         try:
-            pick = corrected_pick(self.cell, self.robot, part.planned, located, offset, self.options)
+            pick = corrected_pick(self.cell, self.robot, part.planned, located, offset, self.options,
+                                  slot=where.cell, neighbours=self._beside(where))
         except PlanningError as e:
             return refused(f"the corrected pick is not proven: {e}", located, sigma, png, d)
+        try:
+            seat = prove_seat(self.cell, self.robot, part.seat, residual, self.options)
+        except PlanningError as e:
+            return refused(f"the blank's seat in the vise is not proven: {e}", located, sigma, png, d)
         return RackPick(index, job, slot, attempt, offset, located, sigma[0], sigma[1], "", pick,
-                        part.to_above_s + pick.duration, png, d)
+                        part.to_above_s + pick.duration, png, d, seat, where)

@@ -246,6 +246,15 @@ def seen_part(part: Path, setup: Setup, sheet: SetupSheet, source: str) -> trime
     return trimesh.creation.box(bounds=[corners.min(axis=0), corners.max(axis=0)])
 
 
+def margin_along_jaws(part: Path, setup: Setup, sheet: SetupSheet, source: str) -> float:
+    """How far the stock reaches beyond the part along the vise's jaws (work X) at the part's nearer
+    end [mm]: how far the blank may sit off along the jaws before op 1 cuts the part past the stock's
+    end. The part as its file has it (a relief: its surface, not the base verify puts under it)."""
+    loaded = load_planned_part(part, setup.mesh_scale, sheet.intake, source=source)
+    xs = trimesh.transform_points(np.asarray(loaded.mesh.vertices), setup.transform_mesh_to_work)[:, 0]
+    return float(max(0.0, min(xs.min() - setup.stock_min[0], setup.stock_max[0] - xs.max())))
+
+
 def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stations, camera_sha256: str,
                  planned_now: bool, library: ToolLibrary | None = None) -> PartAssets:
     """Read a catalog plan and derive what the simulation needs (see :class:`PartAssets`);
@@ -298,7 +307,7 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
         motion=motion, transform_vise_to_work=in_vise.transform_vise_to_work, toolpath=toolpath,
         timeline=timeline, stock=tuple((t, v, f) for t, v, f, _ in stock), shots=shots, planned_now=planned_now,
         timeline_op2=timeline_op2, spindle=spindle, spindle_op2=spindle_op2,
-        blank=blank_part(np.asarray(setup.stock_size, dtype=float), motion))
+        blank=blank_part(np.asarray(setup.stock_size, dtype=float), motion, margin_along_jaws(part, setup, sheet, str(sheet_path))))
 
 
 def plan_parts(orders: tuple[Order, ...], catalog: Path, cell_path: Path, tools: Path | None, stations: Stations,
@@ -877,6 +886,12 @@ def rack_pick_msg(pick: RackPick, serial: str, stamp: int) -> Any:
     (``cell/rack_pick``, ERROR when refused; values in mm and deg, units in the keys)."""
     values = {"serial": serial, "slot": str(pick.slot), "attempt": str(pick.attempt)}
     doc = pick.to_dict()
+    if doc["rack_slot"] is not None:
+        values["rack_row"], values["rack_column"] = (str(v) for v in doc["rack_slot"])
+        values["rack_load"] = str(doc["rack_load"])
+    for name in ("seat_across_mm", "seat_along_mm"):
+        if doc[name] is not None:
+            values[name] = f"{doc[name]:.3f}"
     for name in ("offset", "located", "correction"):
         for axis, v in (doc[name] or {}).items():
             values[f"{name}_{axis}"] = f"{v:.3f}"

@@ -292,6 +292,12 @@ class SoftJaws:
     depth: float
 
 
+#: Default gap between each open jaw and the blank's side as the robot sets it down [m]: the jaws
+#: of a vise a robot loads stand open a few millimetres beyond the blank (an automatic vise's
+#: stroke per jaw is 2.5-6 mm), and close on it once the robot has let go.
+PLACE_CLEARANCE = 0.003
+
+
 @dataclass(frozen=True)
 class Vise:
     """The machine vise and how it holds the stock in op 1.
@@ -316,6 +322,10 @@ class Vise:
         Thickness of each jaw plate along vise Y [m] (drawn and checked as an obstacle).
     soft_jaws : SoftJaws or None
         Soft jaws for op 2; None: op 2 uses the plain jaws on parallels.
+    place_clearance : float
+        How far each open jaw stands off the blank's side when the robot sets the blank down
+        between them [m] (:mod:`robotprog.seat`): a blank set down further off than this lands
+        on a jaw. Default :data:`PLACE_CLEARANCE`.
     """
 
     pose: Pose
@@ -326,6 +336,7 @@ class Vise:
     parallels_height: float = 0.0
     jaw_thickness: float = 0.02
     soft_jaws: SoftJaws | None = None
+    place_clearance: float = PLACE_CLEARANCE
 
     @property
     def grip_depth(self) -> float:
@@ -566,7 +577,7 @@ def read_cell(data: Any, source: str | Path | None = None) -> Cell:
 
 def _vise(rd: _Reader, value: Any) -> Vise:
     v = rd.mapping(value, "vise", {"pose", "jaw_opening", "jaw_height"},
-                   {"jaw_width", "jaw_thickness", "parallels_height", "soft_jaws"})
+                   {"jaw_width", "jaw_thickness", "parallels_height", "soft_jaws", "place_clearance"})
     jo = rd.mapping(v["jaw_opening"], "vise.jaw_opening", {"min", "max"})
     jmin = rd.number(jo["min"], "vise.jaw_opening.min", nonneg=True)
     jmax = rd.number(jo["max"], "vise.jaw_opening.max", positive=True)
@@ -586,7 +597,8 @@ def _vise(rd: _Reader, value: Any) -> Vise:
         soft = SoftJaws(kind, rd.number(sj["depth"], "vise.soft_jaws.depth", positive=True))
     return Vise(rd.pose(v["pose"], "vise.pose"), jmin, jmax, jaw_height,
                 rd.number(v.get("jaw_width", 0.15), "vise.jaw_width", positive=True), parallels,
-                rd.number(v.get("jaw_thickness", 0.02), "vise.jaw_thickness", positive=True), soft)
+                rd.number(v.get("jaw_thickness", 0.02), "vise.jaw_thickness", positive=True), soft,
+                rd.number(v.get("place_clearance", PLACE_CLEARANCE), "vise.place_clearance", nonneg=True))
 
 
 def _machine_io(rd: _Reader, value: Any, gripper: GripperIO) -> MachineIO:

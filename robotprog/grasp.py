@@ -74,6 +74,12 @@ def open_fingers(cell: Cell, width: float) -> tuple[HeldBox, ...]:
     return finger_boxes(cell, min(cell.gripper.opening_max, width + 2 * cell.gripper.fingers.clearance))
 
 
+def finger_room(cell: Cell, width: float) -> float:
+    """How far each open finger stands off the side of a box ``width`` [m] across [m]: the fingers'
+    clearance, or less where the gripper's stroke ends first (< 0 for a box wider than it opens)."""
+    return (min(cell.gripper.opening_max, width + 2 * cell.gripper.fingers.clearance) - width) / 2
+
+
 def top_grasp(cell: Cell, t_world_support: np.ndarray, bmin: np.ndarray, bmax: np.ndarray,
               r_home: np.ndarray, options: GraspOptions, what: str) -> Grasp:
     """The top-down grasp of the box [bmin, bmax] (3,) of the support frame ``t_world_support``

@@ -12,7 +12,10 @@ The rack camera's correction (:class:`robotprog.urscript.ReadCorrection`) is the
 ``RACK_CORR`` the ``.dat`` declares (``DECL GLOBAL``: the cell's controller writes it before each
 pick, e.g. through the KUKA.Ethernet KRL or a PLC's variable server): X, Y [mm] and A [deg] of the
 blank in its slot. A corrected ``LIN`` runs with ``$BASE = RACK_SLOT : RACK_CORR`` to a point in the
-slot's frame; ``$BASE`` goes back to ``$NULLFRAME`` for the next uncorrected one.
+slot's frame; ``$BASE`` goes back to ``$NULLFRAME`` for the next uncorrected one. In a rack of
+several slots the controller also writes the slot the blank stands in (global ``INT`` ``RACK_ROW``,
+``RACK_COLUMN``); the program halts on one outside the rack and runs the corrected ``LIN`` s with
+``$BASE = RACK_SLOT : RACK_STEP : RACK_CORR``, ``RACK_STEP`` the whole pitches to that slot.
 
 Speeds: PTP moves at ``$VEL_AXIS`` / ``$ACC_AXIS`` percentages (``axis_percent``), a
 timed step (``t`` > 0) at the percentage that runs it in ``t`` (``BAS(#VEL_PTP, pct)``),
@@ -81,30 +84,47 @@ _KRL_WORDS = FlowWords(
 )
 
 
-def _lin_pose(st: MoveL, i: int, slots: list[np.ndarray]) -> np.ndarray:
+def _lin_pose(st: MoveL, i: int, reads: list[ReadCorrection]) -> np.ndarray:
     """A LIN's point (4, 4) [m]: in the robot's base frame, or a corrected one in the rack slot's frame
-    (``slots``: the slots of the corrections read so far)."""
+    (``reads``: the corrections read so far)."""
     if not st.corrected:
         return np.asarray(st.pose, dtype=float)
-    if not slots:
+    if not reads:
         raise PlanningError(f"step {i}: a corrected LIN before the correction is read")
-    return np.linalg.inv(slots[-1]) @ np.asarray(st.pose, dtype=float)
+    return np.linalg.inv(np.asarray(reads[-1].slot, dtype=float)) @ np.asarray(st.pose, dtype=float)
+
+
+#: The frame the corrected LINs run in: the plan's rack slot, moved to the slot the blank stands in
+#: when the rack has more than one (``RACK_STEP``), then the camera's correction.
+_RACK_BASE = ("  $BASE = RACK_SLOT : RACK_CORR", "  $BASE = RACK_SLOT : RACK_STEP : RACK_CORR")
 
 
 def _correction_decl(st: ReadCorrection) -> list[str]:
     """The ``.dat`` lines of the rack camera's correction: the global frame the cell's controller
-    writes, and the rack slot's frame."""
-    return ["  DECL GLOBAL FRAME RACK_CORR={X 0.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0}",
-            f"  DECL FRAME RACK_SLOT={{{krl_frame(np.asarray(st.slot, dtype=float))}}}"]
+    writes, the rack slot's frame, and with more than one slot the global row and column it writes
+    and the step to that slot."""
+    out = ["  DECL GLOBAL FRAME RACK_CORR={X 0.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0}",
+           f"  DECL FRAME RACK_SLOT={{{krl_frame(np.asarray(st.slot, dtype=float))}}}"]
+    if st.slots:
+        out += ["  DECL GLOBAL INT RACK_ROW=0", "  DECL GLOBAL INT RACK_COLUMN=0",
+                "  DECL FRAME RACK_STEP={X 0.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0}"]
+    return out
 
 
 def _correction_check(st: ReadCorrection) -> list[str]:
-    """The ``.src`` lines that stop the program on a correction beyond the step's bounds."""
+    """The ``.src`` lines that stop the program on a correction beyond the step's bounds (and on a
+    slot outside the rack, then step to that slot)."""
     out = [f"  ; {comment_text(st.label)}".rstrip()] if st.label else []
     bounds = (_f(st.bounds[0] * MM_PER_M, DECIMALS_MM), _f(st.bounds[1] * MM_PER_M, DECIMALS_MM),
               _f(math.degrees(st.bounds[2]), DECIMALS_DEG))
     for axis, bound in zip("XYA", bounds):
         out += [f"  IF ABS(RACK_CORR.{axis}) > {bound} THEN", "    HALT", "  ENDIF"]
+    if st.slots:
+        for name, count in zip(("RACK_ROW", "RACK_COLUMN"), st.grid):
+            for test in ("< 0", f"> {count - 1}"):
+                out += [f"  IF {name} {test} THEN", "    HALT", "  ENDIF"]
+        out += [f"  RACK_STEP.X = RACK_COLUMN * {_f(st.pitch[0] * MM_PER_M, DECIMALS_MM)}",
+                f"  RACK_STEP.Y = RACK_ROW * {_f(st.pitch[1] * MM_PER_M, DECIMALS_MM)}"]
     return out
 
 
@@ -155,7 +175,7 @@ def krl_program(
     nj = nl = 0
     q_prev: np.ndarray | None = None
     current_pct: int | None = None
-    slot_of: list[np.ndarray] = []
+    reads: list[ReadCorrection] = []
     in_slot = False  # $BASE is the corrected rack slot
 
     def emit(seq: Sequence[Step], out: list[str], first: int) -> None:
@@ -189,17 +209,17 @@ def krl_program(
                     raise PlanningError(f"step {i}: LIN speed must be finite and > 0, got {st.v}")
                 nl += 1
                 if st.corrected != in_slot:
-                    out.append("  $BASE = RACK_SLOT : RACK_CORR" if st.corrected else "  $BASE = $NULLFRAME")
+                    out.append(_RACK_BASE[reads[-1].slots] if st.corrected and reads else "  $BASE = $NULLFRAME")
                     in_slot = st.corrected
-                dat.append(f"  DECL E6POS XP{nl}={{{krl_frame(_lin_pose(st, i, slot_of))},"
+                dat.append(f"  DECL E6POS XP{nl}={{{krl_frame(_lin_pose(st, i, reads))},"
                            "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}")
                 out.append(f"  $VEL.CP = {_f(st.v, 4)}")
                 out.append(f"  LIN XP{nl}")
             elif isinstance(st, ReadCorrection):
                 check_bounds(st, i)
-                if not slot_of:
+                if not reads:
                     dat[2:2] = _correction_decl(st)
-                slot_of.append(np.asarray(st.slot, dtype=float))
+                reads.append(st)
                 out += _correction_check(st)
             elif isinstance(st, Branch):
                 at, pct = q_prev, current_pct

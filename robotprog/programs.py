@@ -30,9 +30,12 @@ sample time of a trajectory proven within the limits, so it is within them too.
 The pick at the rack takes the rack camera's correction at run time (:mod:`robotprog.rackpick`):
 the program reads the blank's offset in its slot from the cell's controller (URScript: RTDE input
 registers; RAPID: a ``PERS wobjdata``; KRL: a global ``FRAME``), stops on one beyond the slot
-(:func:`correction_bounds`), then goes straight (``movel`` / ``MoveL`` / ``LIN``) over the corrected
-grasp, down to it, grips, straight up, and back to the end of the planned retreat with a joint
-move; the planned transfer to the vise goes on from there. With no correction (all zeros) that is
+(:func:`correction_bounds`), and in a rack of several slots the slot the blank stands in (its row and
+column, stopping on one outside the rack: :class:`robotprog.urscript.ReadCorrection`), then goes
+straight (``movel`` / ``MoveL`` / ``LIN``) over the corrected grasp in that slot, down to it, grips,
+straight up, and back to the end of the planned retreat over the plan's slot with a joint move; the
+planned transfer to the vise goes on from there (:func:`robotprog.rackpick.corrected_pick` plans and
+proves the same moves). With no correction (all zeros) that is
 the plan's own path, proven here; each corrected pick is proven by the cell before the robot is
 told to make it (:mod:`factory.rackloop`).
 
@@ -238,7 +241,8 @@ def program_steps(cell: Cell, world: CollisionWorld, plan: TendingPlan, lang: st
         if mv.name == RACK_APPROACH:  # over the blank as the camera found it, then down to it
             size = np.asarray(plan.stock.size, dtype=float)
             return out + [ReadCorrection.at(base_inv @ cell.rack.slot_transform(0, 0), correction_bounds(cell, size),
-                                            "the rack camera's correction of the blank in its slot"),
+                                            "the rack camera's correction of the blank in its slot",
+                                            (cell.rack.rows, cell.rack.columns), cell.rack.pitch),
                           MoveL.to(pose(mv.waypoints[0]), RACK_LINE_A, RACK_LINE_V, corrected=True),
                           MoveL.to(pose(mv.q_end), *line_speed(*line(mv))[::-1], corrected=True, q_end=mv.q_end)]
         if mv.name == RACK_RETREAT:  # straight up, then to where the planned retreat ends

@@ -148,18 +148,24 @@ class PlannedPick:
     """What the plan does at the rack, read back from its joint motion: the configurations above
     the slot (``q_above``, the end of ``load: home to above rack``), at the grasp (``q_grasp``, the
     end of ``load: approach stock``) and lifted (``q_lifted``, the end of ``load: retreat from
-    rack``) [rad], and the blank's ``size`` (3,) [m]."""
+    rack``) [rad], the blank's ``size`` (3,) [m], and the rack ``slot`` (row, column) the plan picks
+    from."""
 
     q_above: np.ndarray
     q_grasp: np.ndarray
     q_lifted: np.ndarray
     size: np.ndarray
+    slot: tuple[int, int] = (0, 0)
 
 
 def corrected_pick(cell: Cell, robot: Robot, planned: PlannedPick, located: SlotOffset, true: SlotOffset,
-                   options: PlannerOptions = PlannerOptions(), slot: tuple[int, int] = (0, 0)) -> CorrectedPick:
+                   options: PlannerOptions = PlannerOptions(), slot: tuple[int, int] = (0, 0),
+                   neighbours: tuple[Box, ...] | None = None) -> CorrectedPick:
     """Plan the pick of the blank in rack ``slot`` at the ``located`` offset, proven against the
-    blank where it ``true``-ly stands (see the module docstring).
+    blank where it ``true``-ly stands (see the module docstring). A slot other than the plan's
+    (:attr:`PlannedPick.slot`) is reached the same way: the line over the located blank runs from
+    above the plan's slot to above this one, and the joint move back ends where the plan's retreat
+    does, over the plan's slot.
 
     Parameters
     ----------
@@ -172,7 +178,10 @@ def corrected_pick(cell: Cell, robot: Robot, planned: PlannedPick, located: Slot
     options : PlannerOptions
         The plan's (line step, joint resolution, seed).
     slot : (int, int)
-        (row, column) of the rack slot the plan picks from.
+        (row, column) of the rack slot the blank stands in.
+    neighbours : tuple of Box, optional
+        The blanks standing in the rack beside it (:meth:`robotprog.rack.RackSlot.box`); default, as
+        the plan has them, one of the same size in every slot that can hold one beside it.
 
     Raises
     ------
@@ -183,7 +192,8 @@ def corrected_pick(cell: Cell, robot: Robot, planned: PlannedPick, located: Slot
     t_slot = cell.rack.slot_transform(*slot)
     size = np.asarray(planned.size, dtype=float)
     bmin, bmax = np.array([-size[0] / 2, -size[1] / 2, 0.0]), np.array([size[0] / 2, size[1] / 2, size[2]])
-    neighbours = _neighbours(cell.rack, slot, size, "rack_blank")
+    if neighbours is None:
+        neighbours = _neighbours(cell.rack, slot, size, "rack_blank")
     true_box = true.transform(t_slot) @ box_pose(t_slot, bmin, bmax)
     yaw = float(math.atan2(true_box[1, 0], true_box[0, 0]))
     blank = Box("picked_blank", tuple(float(v) for v in size), Pose(tuple(float(v) for v in true_box[:3, 3]),
@@ -192,6 +202,7 @@ def corrected_pick(cell: Cell, robot: Robot, planned: PlannedPick, located: Slot
     clear = MotionPlanner(cell, collision_world(cell, robot, obstacles=neighbours), options)
     grasp = clear.tcp_world(planned.q_grasp)
     height = float(clear.tcp_world(planned.q_above)[2, 3] - grasp[2, 3])
+    grasp = t_slot @ np.linalg.inv(cell.rack.slot_transform(*planned.slot)) @ grasp  # the same grasp in this slot
     grasp_c = located.transform(t_slot) @ grasp
     width = float(min(size[0], size[1]))
     open_ = open_fingers(cell, width)

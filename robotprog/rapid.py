@@ -12,7 +12,10 @@ I/O configuration). The TCP is ``tGripper`` built from ``transform_flange_to_tcp
 The rack camera's correction (:class:`robotprog.urscript.ReadCorrection`) is the object frame of the
 work object ``wRack`` (``PERS wobjdata``: its user frame the rack slot, fixed; its object frame the
 blank's offset in the slot, written by the cell's controller before each pick, e.g. over Robot Web
-Services); a corrected ``MoveL`` goes to a robtarget in the slot's frame ``\\WObj:=wRack``.
+Services); a corrected ``MoveL`` goes to a robtarget in the slot's frame ``\\WObj:=wRack``. In a rack
+of several slots the controller also writes the slot the blank stands in (``PERS num`` ``nRackRow``,
+``nRackColumn``); the program stops on one outside the rack and sets the user frame to the plan's
+slot ``pRackSlot`` moved by whole pitches to it.
 
 Speeds: joint moves run at ``vJoint`` (TCP 1000 mm/s, the controller's axis limits govern),
 or take the step's time ``t`` (``vJoint\\T:=t``: the controller stretches the move to last ``t``
@@ -160,6 +163,16 @@ def rapid_module(
                         f"OR Abs(EulerZYX(\\Z, wRack.oframe.rot)) > {byaw} THEN",
                         '      ErrWrite "rack camera", "correction beyond the rack slot";',
                         "      Stop;", "    ENDIF"]
+                if st.slots:  # the user frame: the plan's slot moved to the one the blank stands in
+                    rows, columns = st.grid
+                    rack.extend(["  PERS num nRackRow := 0;", "  PERS num nRackColumn := 0;",
+                                 f"  CONST pose pRackSlot := {rapid_pose(slot_of[-1])};"])
+                    px, py = (_f(v * MM_PER_M, DECIMALS_MM) for v in st.pitch)
+                    out += [f"    IF nRackRow < 0 OR nRackRow > {rows - 1} OR nRackColumn < 0 "
+                            f"OR nRackColumn > {columns - 1} THEN",
+                            '      ErrWrite "rack camera", "rack slot beyond the rack";', "      Stop;", "    ENDIF",
+                            f"    wRack.uframe := PoseMult(pRackSlot, [[nRackColumn * {px}, nRackRow * {py}, 0], "
+                            "[1, 0, 0, 0]]);"]
             else:
                 lines_of = flow_lines(i, st, _RAPID_WORDS, lambda seq, first: way_lines(emit, seq, first))
                 if lines_of is None:

@@ -33,6 +33,9 @@ UR_DIGITAL_IO = 8
 #: camera's correction to before each pick: x [m], y [m], yaw [rad] in the slot's frame. Registers
 #: 0..23 are the general-purpose ones (24..47 belong to the fieldbus adapters).
 RACK_REGISTERS = (0, 1, 2)
+#: RTDE input integer registers (``input_int_register_<n>``) it writes the rack slot the blank stands
+#: in to: its row and its column (from 0).
+RACK_SLOT_REGISTERS = (0, 1)
 
 
 @dataclass(frozen=True)
@@ -91,18 +94,41 @@ class ReadCorrection:
     in its slot, ``x``, ``y`` [m] along the slot's axes and ``yaw`` [rad] about its z (URScript: the
     RTDE input registers :data:`RACK_REGISTERS`; RAPID: the ``PERS wobjdata`` whose object frame it
     is; KRL: the global ``FRAME`` ``RACK_CORR``), and stop the program on one beyond ``bounds``
-    (x [m], y [m], yaw [rad]). ``slot`` is ``transform_base_link_to_slot`` (4, 4) [m]; the
-    corrected :class:`MoveL` steps after it go to ``slot @ offset @ inv(slot) @ pose``."""
+    (x [m], y [m], yaw [rad]). ``slot`` is ``transform_base_link_to_slot`` (4, 4) [m] of the slot
+    the plan picks from; the corrected :class:`MoveL` steps after it go to
+    ``slot @ offset @ inv(slot) @ pose``.
+
+    A rack of more than one slot (``grid``: rows, columns at ``pitch`` [m] along the slot's x and y)
+    also reads the slot the blank stands in, its row and column (URScript: the RTDE integer
+    registers :data:`RACK_SLOT_REGISTERS`; RAPID: ``PERS num`` ``nRackRow``, ``nRackColumn``; KRL:
+    global ``INT`` ``RACK_ROW``, ``RACK_COLUMN``), stops on one outside the grid, and the corrected
+    steps go to ``there @ offset @ inv(slot) @ pose``, ``there = slot @ (column * pitch[0],
+    row * pitch[1], 0)``: the plan's pick moved to that slot."""
 
     slot: tuple[tuple[float, ...], ...]
     bounds: tuple[float, float, float]
     label: str = ""
+    grid: tuple[int, int] = (1, 1)
+    pitch: tuple[float, float] = (0.0, 0.0)
 
     @staticmethod
-    def at(slot: np.ndarray, bounds: tuple[float, float, float], label: str = "") -> "ReadCorrection":
+    def at(slot: np.ndarray, bounds: tuple[float, float, float], label: str = "", grid: tuple[int, int] = (1, 1),
+           pitch: tuple[float, float] = (0.0, 0.0)) -> "ReadCorrection":
         """A ReadCorrection from a (4, 4) array."""
         return ReadCorrection(tuple(tuple(float(x) for x in row) for row in np.asarray(slot, dtype=float)),
-                              tuple(float(b) for b in bounds), label)
+                              tuple(float(b) for b in bounds), label, (int(grid[0]), int(grid[1])),
+                              (float(pitch[0]), float(pitch[1])))
+
+    @property
+    def slots(self) -> bool:
+        """Whether the program reads the slot too (a rack of more than one slot)."""
+        return self.grid != (1, 1)
+
+    def there(self, row: int, column: int) -> np.ndarray:
+        """``transform_base_link_to_slot`` (4, 4) [m] of slot (``row``, ``column``)."""
+        step = np.eye(4)
+        step[:2, 3] = column * self.pitch[0], row * self.pitch[1]
+        return np.asarray(self.slot, dtype=float) @ step
 
 
 @dataclass(frozen=True)
@@ -379,6 +405,10 @@ def check_bounds(st: ReadCorrection, i: int | None = None) -> None:
     if len(st.bounds) != 3 or not all(math.isfinite(b) and b >= 0 for b in st.bounds):
         raise PlanningError(f"{'' if i is None else f'step {i}: '}correction bounds must be 3 finite values >= 0, "
                             f"got {st.bounds}")
+    if len(st.grid) != 2 or min(st.grid) < 1 or len(st.pitch) != 2 or \
+            not all(math.isfinite(v) and v >= 0 for v in st.pitch):
+        raise PlanningError(f"{'' if i is None else f'step {i}: '}the rack must have >= 1 row and column at a "
+                            f"finite pitch >= 0, got {st.grid} at {st.pitch}")
 
 
 def _correction_lines(st: ReadCorrection, to_ur: np.ndarray) -> list[str]:
@@ -393,7 +423,18 @@ def _correction_lines(st: ReadCorrection, to_ur: np.ndarray) -> list[str]:
                   f'    popup("rack camera correction {n} beyond the slot", error=True, blocking=True)',
                   "    halt", "  end"]
     lines.append(f"  rack_slot = {ur_pose(to_ur @ np.asarray(st.slot, dtype=float))}")
-    lines.append("  rack_corr = pose_trans(pose_trans(rack_slot, p[rack_dx, rack_dy, 0, 0, 0, rack_dyaw]), "
+    there = "rack_slot"
+    if st.slots:  # the slot the blank stands in: the plan's slot moved by whole pitches
+        slot_names = ("rack_row", "rack_column")
+        lines += [f"  {n} = read_input_integer_register({r})" for n, r in zip(slot_names, RACK_SLOT_REGISTERS)]
+        for n, count in zip(slot_names, st.grid):
+            for test in ("< 0", f"> {count - 1}"):
+                lines += [f"  if {n} {test}:", f'    popup("rack slot {n} beyond the rack", error=True, blocking=True)',
+                          "    halt", "  end"]
+        lines.append(f"  rack_there = pose_trans(rack_slot, p[rack_column * {_num(st.pitch[0])}, "
+                     f"rack_row * {_num(st.pitch[1])}, 0, 0, 0, 0])")
+        there = "rack_there"
+    lines.append(f"  rack_corr = pose_trans(pose_trans({there}, p[rack_dx, rack_dy, 0, 0, 0, rack_dyaw]), "
                  "pose_inv(rack_slot))")
     return lines
 

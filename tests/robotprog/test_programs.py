@@ -250,9 +250,10 @@ def _matrix(xyz, rot) -> np.ndarray:
     return t
 
 
-def _corrected_targets(lang: str, texts: dict) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Read from a posted program's text the rack slot (4, 4) and the corrected straight moves'
-    targets (4, 4) in the slot's frame (URScript: in the controller's base frame), in metres."""
+def _corrected_targets(lang: str, texts: dict) -> tuple[np.ndarray, tuple[float, float], list[np.ndarray]]:
+    """Read from a posted program's text the rack slot (4, 4), the pitch (x, y) it steps by to the
+    slot the blank stands in, and the corrected straight moves' targets (4, 4) in the slot's frame
+    (URScript: in the controller's base frame), in metres."""
     from scipy.spatial.transform import Rotation as R
 
     def nums(s):
@@ -261,27 +262,34 @@ def _corrected_targets(lang: str, texts: dict) -> tuple[np.ndarray, list[np.ndar
     if lang == "urscript":
         text = next(iter(texts.values()))
         slot = nums(re.search(r"rack_slot = p\[([^\]]*)\]", text).group(1))
+        pitch = nums(re.search(r"rack_there = pose_trans\(rack_slot, p\[rack_column \* ([^,]*), rack_row \* ([^,]*),",
+                               text).group(0).split("p[", 1)[1])
         moves = [nums(m) for m in re.findall(r"movel\(pose_trans\(rack_corr, p\[([^\]]*)\]\)", text)]
-        return (_matrix(slot[:3], R.from_rotvec(slot[3:])), [_matrix(m[:3], R.from_rotvec(m[3:])) for m in moves])
+        return (_matrix(slot[:3], R.from_rotvec(slot[3:])), (pitch[0], pitch[1]),
+                [_matrix(m[:3], R.from_rotvec(m[3:])) for m in moves])
     if lang == "rapid":
         text = next(iter(texts.values()))
-        m = re.search(r'wobjdata wRack := \[FALSE,TRUE,"",\[\[([^\]]*)\],\[([^\]]*)\]\]', text)
+        m = re.search(r"CONST pose pRackSlot := \[\[([^\]]*)\],\[([^\]]*)\]\]", text)
         u = nums(m.group(1)) + nums(m.group(2))
+        step = re.search(r"PoseMult\(pRackSlot, \[\[nRackColumn \* ([^,]*), nRackRow \* ([^,]*), 0\]", text)
         names = re.findall(r"MoveL (p\d+), \w+, \w+, tGripper\\WObj:=wRack;", text)
         pts = {n: nums(v) for n, v in re.findall(r"CONST robtarget (p\d+) := \[\[([^\]]*\],\[[^\]]*)\]", text)}
 
         def pose(v):  # [mm] and quaternion w, x, y, z
             return _matrix(np.array(v[:3]) / 1000.0, R.from_quat([v[4], v[5], v[6], v[3]]))
-        return pose(u), [pose(pts[n]) for n in names]
+        return pose(u), (float(step.group(1)) / 1000.0, float(step.group(2)) / 1000.0), [pose(pts[n]) for n in names]
     src, dat = texts[Path("part.src")], texts[Path("part.dat")]
 
     def frame(v):  # X, Y, Z [mm], A, B, C [deg] (Z, Y', X'')
         return _matrix(np.array(v[:3]) / 1000.0, R.from_euler("ZYX", v[3:6], degrees=True))
     slot = frame(nums(re.search(r"DECL FRAME RACK_SLOT=\{([^}]*)\}", dat).group(1)))
-    after = src[src.index("$BASE = RACK_SLOT : RACK_CORR"):src.index("$BASE = $NULLFRAME", src.index("RACK_CORR\n"))]
+    px = float(re.search(r"RACK_STEP\.X = RACK_COLUMN \* (\S+)", src).group(1)) / 1000.0
+    py = float(re.search(r"RACK_STEP\.Y = RACK_ROW \* (\S+)", src).group(1)) / 1000.0
+    base = "$BASE = RACK_SLOT : RACK_STEP : RACK_CORR"
+    after = src[src.index(base):src.index("$BASE = $NULLFRAME", src.index(base))]
     names = re.findall(r"LIN (XP\d+)", after)
     pts = {n: nums(v)[:6] for n, v in re.findall(r"DECL E6POS (XP\d+)=\{([^}]*)\}", dat)}
-    return slot, [frame(pts[n]) for n in names]
+    return slot, (px, py), [frame(pts[n]) for n in names]
 
 
 @pytest.mark.parametrize("lang", ["urscript", "rapid", "krl"])
@@ -304,25 +312,36 @@ def test_the_pick_at_the_rack_takes_the_correction_at_run_time(lang, plans, cell
     if lang == "urscript":
         text = texts[program]
         assert all(f"read_input_float_register({n})" in text for n in range(3)) and "halt" in text
+        assert all(f"read_input_integer_register({n})" in text for n in range(2))
         parse_urscript(text)
     elif lang == "rapid":
         assert "PERS wobjdata wRack" in texts[program] and rapid_errors(texts[program]) == []
+        assert "PERS num nRackRow" in texts[program] and "PERS num nRackColumn" in texts[program]
     else:
         assert "DECL GLOBAL FRAME RACK_CORR=" in texts[program.with_suffix(".dat")]
+        assert "DECL GLOBAL INT RACK_ROW=0" in texts[program.with_suffix(".dat")]
         parse_krl(texts[program], texts[program.with_suffix(".dat")])
-    slot, targets = _corrected_targets(lang, texts)
+    slot, pitch, targets = _corrected_targets(lang, texts)
     assert len(targets) == 3
+    assert read.grid == (c.rack.rows, c.rack.columns) and pitch == pytest.approx(c.rack.pitch, abs=1e-9)
     offset = SlotOffset(0.0021, -0.0013, np.radians(2.4))
     d = offset.transform(np.eye(4))  # the offset in the slot's own frame
     to_ur = np.linalg.inv(TRANSFORM_BASE_LINK_TO_UR_BASE)
     base_slot = np.asarray(read.slot)
-    for target, want in zip(targets, nominal):
-        expected = offset.transform(base_slot) @ want  # base_link, as the cell proves the pick
-        if lang == "urscript":  # rack_corr = slot * offset * slot^-1, then pose_trans(rack_corr, target)
-            got = np.linalg.inv(to_ur) @ (slot @ d @ np.linalg.inv(slot) @ target)
-        else:  # RAPID's uframe * oframe * robtarget; KRL's $BASE = RACK_SLOT : RACK_CORR, then the point
-            got = slot @ d @ target
-        np.testing.assert_allclose(got[:3, 3], expected[:3, 3], atol=2e-6)
-        np.testing.assert_allclose(got[:3, :3], expected[:3, :3], atol=1e-5)
+    for row, column in ((0, 0), (c.rack.rows - 1, c.rack.columns - 1)):  # the plan's slot and the farthest
+        step = np.eye(4)
+        step[:2, 3] = column * pitch[0], row * pitch[1]  # as the program steps to the slot it reads
+        there = read.there(row, column)
+        np.testing.assert_allclose(there, np.linalg.inv(c.robot.base.matrix()) @ c.rack.slot_transform(row, column),
+                                   atol=1e-9)
+        for target, want in zip(targets, nominal):
+            # base_link, as the cell proves the pick from that slot (robotprog.rackpick.corrected_pick)
+            expected = offset.transform(there) @ there @ np.linalg.inv(base_slot) @ want
+            if lang == "urscript":  # rack_corr = slot * step * offset * slot^-1, then pose_trans(rack_corr, target)
+                got = np.linalg.inv(to_ur) @ (slot @ step @ d @ np.linalg.inv(slot) @ target)
+            else:  # RAPID's uframe (slot * step) * oframe * robtarget; KRL's RACK_SLOT : RACK_STEP : RACK_CORR
+                got = slot @ step @ d @ target
+            np.testing.assert_allclose(got[:3, 3], expected[:3, 3], atol=2e-6)
+            np.testing.assert_allclose(got[:3, :3], expected[:3, :3], atol=1e-5)
     # the bounds the program stops beyond: the slot's room and the camera's error, a few degrees
     assert 0.002 < read.bounds[0] < 0.03 and 0.002 < read.bounds[1] < 0.03 and read.bounds[2] == np.radians(5.0)

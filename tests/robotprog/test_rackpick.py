@@ -79,3 +79,26 @@ def test_a_pick_corrected_by_a_wrong_location_hits_the_blank_and_is_refused(cell
     # located 10 mm off across the fingers, beyond their 8 mm clearance: a finger comes down on the blank
     with pytest.raises(PlanningError, match="collides"):
         corrected_pick(cell, world.robot, bracket, SlotOffset(0.0, 0.010, 0.0), true)
+
+
+def test_a_blank_in_another_slot_is_picked_from_its_own_slot_and_the_pick_is_proven(cell, world, bracket):
+    """The plan picks from slot (0, 0); a blank in slot (1, 2) is reached by the corrected pick: over it,
+    down, grip, up, and the joint move back to where the plan's retreat ends, every move proven."""
+    from robotprog.rack import RackSlot
+    true = SlotOffset(0.001, -0.0015, math.radians(1.0))
+    located = SlotOffset(0.00105, -0.00148, math.radians(1.05))
+    standing = tuple(RackSlot(i, r, c, 0, tuple(bracket.size)).box(cell.rack)
+                     for i, (r, c) in enumerate(((0, 0), (0, 1), (0, 2), (1, 0), (1, 1))))
+    pick = corrected_pick(cell, world.robot, bracket, located, true, slot=(1, 2), neighbours=standing)
+    p = MotionPlanner(cell, world)
+    t_far, t_plan = cell.rack.slot_transform(1, 2), cell.rack.slot_transform(0, 0)
+    grasp = p.tcp_world(pick.moves[1].q_end)
+    np.testing.assert_allclose(grasp, located.transform(t_far) @ t_far @ np.linalg.inv(t_plan)
+                               @ p.tcp_world(bracket.q_grasp), atol=1e-6)
+    assert np.linalg.norm(grasp[:2, 3] - t_far[:2, 3]) < 0.003  # over slot (1, 2), 260 mm from the plan's slot
+    np.testing.assert_allclose(pick.moves[0].waypoints[0], bracket.q_above, atol=1e-9)
+    np.testing.assert_allclose(pick.moves[-1].q_end, bracket.q_lifted, atol=1e-9)
+    # the neighbours given are the obstacles: a blank standing where the fingers go down is hit
+    crowded = standing + (Box("in_the_way", (0.02, 0.02, 0.05), Pose(tuple(grasp[:3, 3] + [0.0, 0.04, -0.03]))),)
+    with pytest.raises(PlanningError, match="collides"):
+        corrected_pick(cell, world.robot, bracket, located, true, slot=(1, 2), neighbours=crowded)
