@@ -336,12 +336,7 @@ def _band_cut(g: BandGeometry, i: int, c: Polygon, comps: list[list[Polygon]], c
     if moves is None:
         return None
     points, motion, engagement, length = moves
-    feed = chip_thinned_feed(cutting, tool, engagement, max_feed).feed
-    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    rapid = float(seg[motion[1:] == Motion.RAPID].sum())
-    plunge = float(seg[motion[1:] == Motion.PLUNGE].sum())
-    deep_min = (length - plunge) / feed + plunge / cutting.plunge_feed + rapid / _RAPID_ESTIMATE
-    if deep_min >= levels_min:
+    if engine_minutes(moves, tool, cutting, max_feed) >= levels_min:
         return None
     for k in levels:
         if k != i:
@@ -359,6 +354,19 @@ def _same_region(c: Polygon, level_comps: list[Polygon]) -> Polygon | None:
     if q.difference(c.buffer(_SAME, quad_segs=4)).area > _SLIVER:
         return None
     return q
+
+
+def engine_minutes(moves: tuple[np.ndarray, np.ndarray, float, float], tool: Tool, cutting: CuttingData,
+                   max_feed: float) -> float:
+    """Minutes the engine's ``moves`` (``deep_cut_moves``/``front_cut_moves``' points, motion, engagement [mm]
+    and feed length [mm]) take: cuts at the chip-thinned feed, plunges at the plunge feed, rapids at
+    :data:`_RAPID_ESTIMATE` [mm/min]. The engine is kept only where this beats the levels it would replace."""
+    points, motion, engagement, length = moves
+    feed = chip_thinned_feed(cutting, tool, engagement, max_feed).feed
+    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    rapid = float(seg[motion[1:] == Motion.RAPID].sum())
+    plunge = float(seg[motion[1:] == Motion.PLUNGE].sum())
+    return (length - plunge) / feed + plunge / cutting.plunge_feed + rapid / _RAPID_ESTIMATE
 
 
 # --------------------------------------------------------------------------- one deep cut

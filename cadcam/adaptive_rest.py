@@ -50,7 +50,8 @@ from shapely.geometry import LineString, Polygon
 from shapely.geometry.base import BaseGeometry
 
 from cadcam import roughing
-from cadcam.adaptive import AdaptiveOptions, BandGeometry, chip_thinned_feed, deep_cut_moves, front_cut_moves
+from cadcam.adaptive import (AdaptiveOptions, BandGeometry, chip_thinned_feed, deep_cut_moves, engine_minutes,
+                             front_cut_moves)
 from cadcam.gridregion import grown_cells_region
 from cadcam.heightmap import Grid
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
@@ -238,12 +239,8 @@ def _rest_cut(region: Polygon, g: BandGeometry, z: float, z_top: float, tool: To
                                 rapid_share=target / _RAPID_ESTIMATE)
     if moves is None:
         return None
-    points, motion, engagement, length = moves
-    feed = chip_thinned_feed(cutting, tool, engagement, max_feed).feed
-    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    rapid = float(seg[motion[1:] == Motion.RAPID].sum())
-    plunge = float(seg[motion[1:] == Motion.PLUNGE].sum())
-    minutes = (length - plunge) / feed + plunge / cutting.plunge_feed + rapid / _RAPID_ESTIMATE
+    points, motion, engagement, _ = moves
+    minutes = engine_minutes(moves, tool, cutting, max_feed)
     if math.isfinite(levels_min) and minutes >= levels_min:
         log.debug("rest piece at z=%.3f: %.2f min by the engine, %.2f by levels", z, minutes, levels_min)
         return None
