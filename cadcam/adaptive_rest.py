@@ -55,7 +55,7 @@ from cadcam.adaptive import (AdaptiveOptions, BandGeometry, chip_thinned_feed, d
 from cadcam.gridregion import grown_cells_region
 from cadcam.heightmap import Grid
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
-from cadcam.post import move_seconds
+from cadcam.post import operation_move_seconds
 from cadcam.rest import levels_within_reach
 from cadcam.shadow import part_shadows
 from cadcam.stock import Simulation, excess
@@ -207,14 +207,10 @@ def _within(points: np.ndarray, region: Polygon | None, z: float, z_top: float) 
 
 
 def _move_minutes(op: Operation) -> np.ndarray:
-    """(n - 1,) the time [min] of each move of ``op`` by the program timer's model (:func:`cadcam.post.move_seconds`:
+    """(n - 1,) the time [min] of each move of ``op`` by the program timer's model
+    (:func:`cadcam.post.operation_move_seconds`:
     feed moves at the cutting feed, plunges at the plunge feed, rapids at :data:`_RAPID_ESTIMATE`)."""
-    if len(op.points) < 2:
-        return np.zeros(0)
-    length = np.linalg.norm(np.diff(op.points, axis=0), axis=1)
-    m = op.motion[1:]
-    feed = np.where(m == Motion.RAPID, np.nan, np.where(m == Motion.PLUNGE, op.cutting.plunge_feed, op.cutting.feed))
-    return move_seconds(length, feed, _RAPID_ESTIMATE) / 60.0
+    return operation_move_seconds(op, _RAPID_ESTIMATE) / 60.0
 
 
 def _rest_cut(region: Polygon, g: BandGeometry, z: float, z_top: float, tool: Tool, cutting: CuttingData,

@@ -30,7 +30,7 @@ import trimesh
 from cadcam.gcode import PECK_CLEARANCE
 from cadcam.heightmap import Grid, upper_envelope
 from cadcam.model import CuttingData, DrillCycle, Motion, Operation, Setup, Tool
-from cadcam.post import PostOptions, move_seconds
+from cadcam.post import PostOptions, operation_move_seconds
 from cadcam.tools import ToolLibrary, internal_arc_feed
 
 if TYPE_CHECKING:  # (detection needs no shapely: imported only where a keep-out is used)
@@ -564,7 +564,7 @@ def plan_holes(
     3. a flat end mill can helix it (narrower than ``D / (1 + helix_share)``, reaching):
        helix it to size (a flat floor stays flat); a through or flat-bottom bore it helixes in one,
        after the widest drill it goes down inside (``DrillingOptions.predrill``) where the holes'
-       operations take less time so by the program's clock (:func:`cadcam.post.move_seconds`, tool
+       operations take less time so by the program's clock (:func:`cadcam.post.operation_move_seconds`, tool
        changes at ``PostOptions.tool_change_time``) than with helices from solid;
     4. a drill of its size (a flat-bottom hole no end mill fits): drill, tip on the floor;
        the corner the point leaves goes to rest roughing;
@@ -761,15 +761,13 @@ def ring_engagement(hole_radius: float, drilled_radius: float, tool_radius: floa
 
 
 def _seconds(ops: list[Operation], post: PostOptions = PostOptions()) -> float:
-    """What ``ops`` take by the program's clock [s] (:func:`cadcam.post.move_seconds`), each change of tool counted."""
+    """What ``ops`` take by the program's clock [s] (:func:`cadcam.post.operation_move_seconds`), each change of
+    tool counted."""
     total, tool = 0.0, None
     for op in ops:
         if op.tool.number != tool:
             total, tool = total + post.tool_change_time, op.tool.number
-        seg = np.linalg.norm(np.diff(op.points, axis=0), axis=1)
-        m = op.motion[1:]
-        feed = np.where(m == Motion.RAPID, np.nan, np.where(m == Motion.PLUNGE, op.cutting.plunge_feed, op.cutting.feed))
-        total += float(move_seconds(seg, feed, post.rapid_rate).sum())
+        total += float(operation_move_seconds(op, post.rapid_rate).sum())
     return total
 
 

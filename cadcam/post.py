@@ -205,6 +205,17 @@ def move_seconds(length: np.ndarray | float, feed: np.ndarray | float, rapid_rat
     return np.asarray(length, dtype=np.float64) / rate * 60.0
 
 
+def operation_move_seconds(op: Operation, rapid_rate: float) -> np.ndarray:
+    """(n - 1,) the time [s] of each move of ``op`` by :func:`move_seconds` (its moves unfitted): feed moves at
+    ``op.cutting.feed``, plunges at its plunge feed, rapids at ``rapid_rate`` [mm/min]. For planners that weigh
+    one way of cutting against another by the program's clock."""
+    if len(op.points) < 2:
+        return np.zeros(0)
+    m = op.motion[1:]
+    feed = np.where(m == Motion.RAPID, np.nan, np.where(m == Motion.PLUNGE, op.cutting.plunge_feed, op.cutting.feed))
+    return move_seconds(np.linalg.norm(np.diff(op.points, axis=0), axis=1), feed, rapid_rate)
+
+
 def tool_change_seconds(first_load: bool, options: PostOptions) -> float:
     """Time the cycle-time estimate gives one tool change [s].
 
