@@ -351,7 +351,9 @@ class _EdgeModel:
         nearest edge: the foot of a wall seen nearly edge-on takes its top's crease, a wall's width off.
         Under glare the clipped top blooms over the thin wall and the crease is all there is; a
         dome mould 117 mm off the camera's axis was fitted 1.7 mm outward by its feet alone. The
-        higher edge (the top face's, lit and facing the camera) is the one the picture shows.
+        higher edge (the top face's, lit and facing the camera) is the one the picture shows, so the
+        fit leaves the lower out. The judgement keeps them (missed when the picture has one edge there):
+        left out, a stepped wall slid 12 mm along itself beside a box found 0.58 of its edges, not 0.46.
         """
         if len(idx) == 0:
             return np.zeros(0, bool)
@@ -552,12 +554,9 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
                             diff_step=np.array([1e-6] * 3 + [1e-3]), bounds=([-np.inf] * 3 + [0.0], [np.inf] * 3 + [4.0]),
                             method="trf", loss="soft_l1", f_scale=ROBUST_SCALE_PX)
         p, bloom = sol.x[:3], float(sol.x[3])
-    # Judge the final pose: the share of the visible edges found within a pixel of where they should be
-    # (of those the picture can show apart from a higher edge beside them).
+    # Judge the final pose: the share of the visible edges found within a pixel of where they should be.
     idx = model.visible(p)
     uv, normal = model.project(p, idx)
-    keep = ~model.unresolved(uv, normal, idx)
-    idx, uv, normal = idx[keep], uv[keep], normal[keep]
     off = _find_edges(gx, gy, threshold, uv, normal, 1.5 + bloom)
     clipped, side = _clipped(saturated, uv, normal, off, gx, gy)
     off = off + bloom * np.where(clipped, side, 0.0)
