@@ -517,9 +517,11 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
         if len(idx) < 12:
             return None
         uv, normal = model.project(p, idx)
-        # Under a key light the shading tells a wall from its top (and the edges dark on both sides are
-        # out already): there the feet stay in (left out, an L under a low light turned 1.9 deg).
-        keep = ~model.unresolved(uv, normal, idx) if light is None else np.ones(len(idx), bool)
+        # Only where a clipped top can bloom over its thin walls (glare) do the feet go: under a key light
+        # the shading tells a wall from its top (left out, an L under a low light turned 1.9 deg), and
+        # in even light the feet found by inspection's tests stay where they were.
+        glare = light is None and saturated is not None and bool(saturated.any())
+        keep = ~model.unresolved(uv, normal, idx) if glare else np.ones(len(idx), bool)
         idx, uv, normal = (a[keep][:: max(1, int(keep.sum()) // FIT_SAMPLES)] for a in (idx, uv, normal))
         off = _find_edges(gx, gy, threshold, uv, normal, reach)
         ok = np.isfinite(off)
