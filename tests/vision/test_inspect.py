@@ -152,7 +152,8 @@ def test_a_window_by_a_corner_runs_along_its_own_side():
     """Two sides at a corner: one judged all along at 0, the other hidden (a lit wall clipped white)
     but for its three samples by the corner, which read 1.8 px (its wall's foot). Counted with the
     judged side round the corner those three made a window's median; along their own side they are
-    too few to tell. Away from the corner the judged side still reads its own 0."""
+    too few to tell; their own side's count decides. Away from the corner the judged side still
+    reads its own 0."""
     a = np.column_stack([np.arange(30) * 1e-3, np.zeros(30), np.full(30, 0.01)])
     b = np.column_stack([np.full(30, 0.0), -np.arange(1, 31) * 1e-3, np.full(30, 0.01)])
     points = np.vstack([a, b])

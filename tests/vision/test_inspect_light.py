@@ -159,15 +159,16 @@ def test_a_part_locate_cannot_place_is_refused_with_locate_reason(station):
 
 def test_a_boss_seen_from_straight_above_is_judged_by_all_its_edges(station):
     """A plate whose plain boss stands near the point under the camera: its walls are seen edge-on,
-    no crease with a wall turned to the camera shows it, and a plate without it passes by default.
-    Judged by all its edges (``judge_from_above``: real light shades its wall and casts its
-    shadow), the good boss is there and the one left out is missing where it should be."""
-    above = InspectOptions(judge_from_above=True)
-    _, good = inspected(station, "diffuse", "plate_bosses", 1, options=above)
+    no crease with a wall turned to the camera shows it, and judged as the simulated cell's
+    flat-shaded pictures are (``judge_from_above`` off) a plate without it passes. Judged by all
+    its edges (the default: real light shades its wall and casts its shadow), the good boss is
+    there and the one left out is missing where it should be."""
+    _, good = inspected(station, "diffuse", "plate_bosses", 1)
     assert good.passed, good.to_dict()
-    _, plain = inspected(station, "diffuse", "plate_bosses", 1, "missing_boss")
-    assert plain.passed  # the limit the option lifts
-    scene, bad = inspected(station, "diffuse", "plate_bosses", 1, "missing_boss", options=above)
+    _, plain = inspected(station, "diffuse", "plate_bosses", 1, "missing_boss",
+                         options=InspectOptions(judge_from_above=False))
+    assert plain.passed  # the limit judging from above lifts
+    scene, bad = inspected(station, "diffuse", "plate_bosses", 1, "missing_boss")
     assert not bad.passed and not bad.refusal
     (missing,) = bad.missing_features
     centre = pixel_of(station, "plate_bosses", scene, (78.0, 56.0, 14.0))
