@@ -59,7 +59,7 @@ from cadcam.plan import PlanOptions, choose_tools, deepest_reach, flats_and_wall
 from cadcam.rest import safe_rapids
 from cadcam.roughing import part_shadows, zlevel_roughing
 from cadcam.setup import BREAKTHROUGH_MM, JAW_CLEARANCE_MM, MIN_HOLDING_LEFT_MM
-from cadcam.workholding import jaw_keepout
+from cadcam.workholding import jaw_keepout, lowest_beside_jaws
 from cadcam.tools import ToolLibrary
 from cadcam.verify import Fault
 from cadcam.stock import (FlippedStock, Simulation, clear_height, excess, flip_stock, stock_after, stock_after_flipped,
@@ -117,7 +117,8 @@ def op2_jaws(jaws: ViseJaws, setup: Setup, part: trimesh.Trimesh, face_z: float)
     The jaws grip the part's finished Y faces (its bounding box across the jaws), its old top
     resting on the parallels; they reach ``soft_jaws.depth`` up the part with soft jaws, the
     vise's grip depth without, and never closer than :data:`cadcam.setup.JAW_CLEARANCE_MM`
-    under the face being cut (the facing passes over them).
+    under the face being cut (the facing passes over them), nor under a lower face op 2 cuts beside them
+    (:func:`cadcam.workholding.lowest_beside_jaws`) while the part still stands ``MIN_HOLDING_LEFT_MM`` in them.
 
     Raises
     ------
@@ -127,7 +128,7 @@ def op2_jaws(jaws: ViseJaws, setup: Setup, part: trimesh.Trimesh, face_z: float)
     lo, hi = np.asarray(part.bounds, dtype=np.float64)
     grip = jaws.soft_jaws.depth if jaws.soft_jaws is not None else jaws.grip_depth
     room = face_z - JAW_CLEARANCE_MM - float(lo[2])
-    beside = _lowest_beside_jaws(part, face_z) - JAW_CLEARANCE_MM - float(lo[2])
+    beside = lowest_beside_jaws(part, face_z) - JAW_CLEARANCE_MM - float(lo[2])
     if MIN_HOLDING_LEFT_MM - 1e-9 <= beside < min(grip, room):
         # a face op 2 cuts beside a jaw lies under the face: gripped to the face, the jaw would keep every
         # tool off a strip along it (the plate under the OCL sphere: 76 x 3 mm, 3.2 deep, left along each jaw)
@@ -143,25 +144,6 @@ def op2_jaws(jaws: ViseJaws, setup: Setup, part: trimesh.Trimesh, face_z: float)
         grip = room
     held = dataclasses.replace(jaws, jaw_height=jaws.parallels_height + grip)
     return held.place(np.array([setup.stock_min[0], lo[1], lo[2]]), np.array([setup.stock_max[0], hi[1], face_z]))
-
-
-#: How far in from the part's Y faces op 2's jaws keep a tool off when they stand above what it cuts there [mm]:
-#: the widest end mill's radius (the 16 mm) plus the keep-out's clearance, with room.
-_BESIDE_JAWS_MM = 10.0
-
-
-def _lowest_beside_jaws(part: trimesh.Trimesh, face_z: float, cell: float = 0.5) -> float:
-    """The lowest face of the turned-over ``part`` that op 2 sees from above within :data:`_BESIDE_JAWS_MM` of
-    its Y faces (where the jaws grip) [mm, op-2 work Z], ``face_z`` at the most; where nothing of the part but
-    its bottom lies under a grid point (a through hole, the outline's corners) it is not counted."""
-    lo, hi = np.asarray(part.bounds, dtype=np.float64)
-    grid = grid_over(lo, hi, cell)
-    top = upper_envelope(np.asarray(part.triangles), grid)
-    ys = grid.ys
-    near = (ys - lo[1] <= _BESIDE_JAWS_MM) | (hi[1] - ys <= _BESIDE_JAWS_MM)
-    seen = top[near]
-    seen = seen[np.isfinite(seen) & (seen > lo[2] + 1e-6)]
-    return min(float(seen.min()), face_z) if seen.size else face_z
 
 
 #: A face looks up in op 2 (down in op 1, so op 1's tools never cut it) when its normal's Z is over this [1].
