@@ -57,9 +57,9 @@ from cadcam.faces import classify_faces
 from cadcam.heightmap import grid_over, upper_envelope
 from cadcam.plan import PlanOptions, choose_tools, deepest_reach, flats_and_walls_from, rest_tools, split_depth
 from cadcam.rest import safe_rapids
-from cadcam.roughing import zlevel_roughing
-from cadcam.setup import BREAKTHROUGH_MM, JAW_CLEARANCE_MM
-from cadcam.workholding import jaw_keepout
+from cadcam.roughing import part_shadows, zlevel_roughing
+from cadcam.setup import BREAKTHROUGH_MM, JAW_CLEARANCE_MM, MIN_HOLDING_LEFT_MM
+from cadcam.workholding import jaw_keepout, lowest_beside_jaws
 from cadcam.tools import ToolLibrary
 from cadcam.verify import Fault
 from cadcam.stock import (FlippedStock, Simulation, clear_height, excess, flip_stock, stock_after, stock_after_flipped,
@@ -117,7 +117,8 @@ def op2_jaws(jaws: ViseJaws, setup: Setup, part: trimesh.Trimesh, face_z: float)
     The jaws grip the part's finished Y faces (its bounding box across the jaws), its old top
     resting on the parallels; they reach ``soft_jaws.depth`` up the part with soft jaws, the
     vise's grip depth without, and never closer than :data:`cadcam.setup.JAW_CLEARANCE_MM`
-    under the face being cut (the facing passes over them).
+    under the face being cut (the facing passes over them), nor under a lower face op 2 cuts beside them
+    (:func:`cadcam.workholding.lowest_beside_jaws`) while the part still stands ``MIN_HOLDING_LEFT_MM`` in them.
 
     Raises
     ------
@@ -127,6 +128,13 @@ def op2_jaws(jaws: ViseJaws, setup: Setup, part: trimesh.Trimesh, face_z: float)
     lo, hi = np.asarray(part.bounds, dtype=np.float64)
     grip = jaws.soft_jaws.depth if jaws.soft_jaws is not None else jaws.grip_depth
     room = face_z - JAW_CLEARANCE_MM - float(lo[2])
+    beside = lowest_beside_jaws(part, face_z) - JAW_CLEARANCE_MM - float(lo[2])
+    if MIN_HOLDING_LEFT_MM - 1e-9 <= beside < min(grip, room):
+        # a face op 2 cuts beside a jaw lies under the face: gripped to the face, the jaw would keep every
+        # tool off a strip along it (the plate under the OCL sphere: 76 x 3 mm, 3.2 deep, left along each jaw)
+        log.info("op 2 grips the part %.2f mm deep, under the face %.2f mm below its top beside the jaws",
+                 beside, face_z - beside - JAW_CLEARANCE_MM - float(lo[2]))
+        room = beside
     if room <= 0:
         raise SetupError(f"the part is {face_z - lo[2]:.2f} mm tall: op 2 cannot grip it {JAW_CLEARANCE_MM:g} mm "
                          f"below the face it cuts")
@@ -788,7 +796,9 @@ def _machine_from_below(part: trimesh.Trimesh, triangles: np.ndarray, setup: Set
              int(left.sum()))
     operations = list(operations)
     rough_tool, finish_tool = choose_tools(library, setup, plan)
-    within = jaw_keepout(setup, library.tools)  # op 2's jaws grip the part itself: keep every tool off them
+    # op 2's jaws grip the part itself: keep every tool off them, but over the part's material standing clear
+    # of their top (op2_jaws grips under the faces beside them) a tool may pass above them
+    within = jaw_keepout(setup, library.tools, shadows=lambda heights: part_shadows(part, heights))
     for t in [rough_tool, *rest_tools(library, rough_tool, float(setup.stock_max[2] - setup.floor_z))]:
         if not (excess(stock, allowance) > limit).any():
             break

@@ -490,7 +490,9 @@ def clip_chains(chains: list[np.ndarray], region: BaseGeometry, iterations: int 
 
     chains : list of (n, 3) float [mm]. A move leaving or entering the region is cut at the
     crossing, found by bisection along the move (so the new end lies on the original move,
-    inside the region). Pieces of fewer than two points are dropped.
+    inside the region). A move with both ends outside that crosses the region keeps the part
+    inside (a finishing line over a flat is one move from edge to edge: op 2's raster across a
+    plate between the jaws' keep-outs was dropped whole). Pieces of fewer than two points are dropped.
     """
     if region.is_empty:
         return []
@@ -498,6 +500,8 @@ def clip_chains(chains: list[np.ndarray], region: BaseGeometry, iterations: int 
     out: list[np.ndarray] = []
     for c in chains:
         inside = shapely.contains_xy(region, c[:, 0], c[:, 1])
+        if not inside.all():
+            c, inside = _through_moves(c, inside, region)
         if inside.all():
             out.append(c)
             continue
@@ -516,6 +520,43 @@ def clip_chains(chains: list[np.ndarray], region: BaseGeometry, iterations: int 
             if len(p) >= 2:
                 out.append(p)
     return out
+
+
+def _through_moves(c: np.ndarray, inside: np.ndarray, region: BaseGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """``c`` ((n, 3) [mm]) with a point inside ``region`` added on each move whose ends both lie outside but which
+    passes through it, one per piece it passes through, and a point outside between two pieces; with its
+    ``inside`` flags. The runs of inside points then find each piece's crossings by bisection."""
+    out = np.flatnonzero(~inside[:-1] & ~inside[1:])
+    if not len(out):
+        return c, inside
+    lines = shapely.linestrings(np.stack([c[out, :2], c[out + 1, :2]], axis=1))
+    hit = out[shapely.intersects(lines, region) & ~shapely.touches(lines, region)]
+    if not len(hit):
+        return c, inside
+    points, flags = [c[:hit[0] + 1]], [inside[:hit[0] + 1]]
+    for n, k in enumerate(hit):
+        a, b = c[k], c[k + 1]
+        length = float(np.hypot(*(b[:2] - a[:2])))
+        along = lambda q: float(np.hypot(*(np.asarray(q) - a[:2]))) / length  # noqa: E731
+        cut = shapely.intersection(shapely.linestrings([a[:2], b[:2]]), region)
+        pieces = sorted(tuple(sorted((along(g.coords[0]), along(g.coords[-1]))))
+                        for g in getattr(cut, "geoms", [cut]) if g.geom_type == "LineString" and g.length > 1e-9)
+        ts: list[float] = []
+        fs: list[bool] = []
+        for i, (t0, t1) in enumerate(pieces):
+            if i:  # outside between two pieces
+                ts.append(0.5 * (pieces[i - 1][1] + t0))
+                fs.append(False)
+            ts.append(0.5 * (t0 + t1))
+            fs.append(True)
+        if ts:
+            t = np.asarray(ts)[:, None]
+            points.append(a + t * (b - a))
+            flags.append(np.asarray(fs))
+        end = hit[n + 1] + 1 if n + 1 < len(hit) else len(c)
+        points.append(c[k + 1:end])
+        flags.append(inside[k + 1:end])
+    return np.concatenate(points), np.concatenate(flags)
 
 
 def _crossing(region: BaseGeometry, inside: np.ndarray, outside: np.ndarray, iterations: int) -> np.ndarray:

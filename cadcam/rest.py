@@ -18,7 +18,7 @@ import shapely
 from scipy import ndimage
 from shapely.geometry.base import BaseGeometry
 
-from cadcam.gridregion import cells_region
+from cadcam.gridregion import cells_region, grown_cells_region
 from cadcam.heightmap import Grid
 from cadcam.model import Motion, Operation, Setup, Tool
 from cadcam.stock import Simulation, clear_height, cut_stock, excess, operation_moves
@@ -86,6 +86,41 @@ def levels_within_reach(levels: np.ndarray, top: float, stick_out: float) -> np.
     if len(kept) < len(levels) and (not len(kept) or kept[-1] > reach + _LEVEL_EPS):
         kept = np.append(kept, reach)
     return kept
+
+
+#: How far a rest tool's holder keeps off the stock below its reach [mm]: the jaws' keep-out clearance.
+HOLDER_CLEARANCE_MM = 0.5
+
+
+def rest_levels(levels: np.ndarray, top: float, stick_out: float) -> tuple[np.ndarray, int]:
+    """A rest tool's levels [mm] (top down): those it reaches with its ``stick_out`` [mm] below the stock's
+    ``top`` (:func:`levels_within_reach`), then the deeper ones, and how many those are. It cuts at a deeper
+    level only where its holder clears the stock (:func:`without_holder`): a hole in a leg beside a tall
+    upright, once roughing opened the leg (issue 34's l_bracket)."""
+    deep = levels[levels < top - stick_out - _LEVEL_EPS]
+    return np.concatenate([levels_within_reach(levels, top, stick_out), deep]), len(deep)
+
+
+def without_holder(spaces: list[BaseGeometry], levels: np.ndarray, deep: int, sim: Simulation | None,
+                   tool: Tool) -> list[BaseGeometry]:
+    """``spaces`` (where the axis may go at each of ``levels`` [mm]), the last ``deep`` of them less
+    :func:`holder_keepout` at their level."""
+    n = len(levels) - deep
+    if sim is None or not deep:
+        return spaces
+    return spaces[:n] + [s.difference(holder_keepout(sim, tool, float(z))) for s, z in zip(spaces[n:], levels[n:])]
+
+
+def holder_keepout(sim: Simulation, tool: Tool, z: float) -> BaseGeometry:
+    """Where ``tool``'s axis may not go with its tip at ``z`` [mm]: its holder (from :attr:`Tool.length` above
+    the tip up, :meth:`Tool.body`) would come within :data:`HOLDER_CLEARANCE_MM` of stock in ``sim`` (the stock
+    before the operation: the cut only lowers it, so the region is on the safe side)."""
+    g = sim.grid
+    top = np.where(np.isfinite(sim.stock_top), sim.stock_top, -np.inf)
+    cylinders = [(h, r) for h, r in tool.body() if h >= float(tool.length) - 1e-9]
+    zones = [grown_cells_region(top > z + h - HOLDER_CLEARANCE_MM, g, r + HOLDER_CLEARANCE_MM, quad_segs=8)
+             for h, r in cylinders]
+    return shapely.union_all(zones) if zones else shapely.Polygon()
 
 
 def rooms_round(regions: Sequence[BaseGeometry], space: BaseGeometry, by: float) -> list[BaseGeometry]:

@@ -82,7 +82,7 @@ from shapely.ops import nearest_points
 
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.gridregion import GrownMaskCache
-from cadcam.rest import levels_within_reach, rest_level_masks, rooms_round
+from cadcam.rest import rest_level_masks, rest_levels, rooms_round, without_holder
 from cadcam.shadow import part_shadows
 from cadcam.stock import Simulation, clear_height
 from factory.core.errors import MeshError, ToolError, ToolpathError
@@ -787,9 +787,9 @@ def zlevel_roughing(
     if part is None or len(part.faces) == 0:
         raise MeshError("part mesh is empty")
     p = _resolve(options, tool, setup)
-    levels = _levels(part, setup, p)
-    if rest is not None:
-        levels = levels_within_reach(levels, float(setup.stock_max[2]), tool.length)
+    levels, deep = _levels(part, setup, p), 0
+    if rest is not None:  # the last ``deep`` levels lie below its reach: only where its holder clears the stock
+        levels, deep = rest_levels(levels, float(setup.stock_max[2]), tool.length)
     heights = [zq for z in levels for zq, _ in _forbidden_terms(float(z), p)]
     shadow = part_shadows(part, heights)
 
@@ -797,7 +797,7 @@ def zlevel_roughing(
 
     # the rest material grown by the tool radius, remembered per distinct mask of levels
     rest_grown = GrownMaskCache(rest.grid, p.radius, quad_segs=8) if rest is not None else None
-    spaces = [_level_space(float(z), rect, shadow, p) for z in levels]  # rest material or not
+    spaces = without_holder([_level_space(float(z), rect, shadow, p) for z in levels], levels, deep, rest, tool)
     if rest is not None:
         masks = rest_level_masks(rest, levels, spaces, p.radius, rest_above, p.allowance, tool.full_width_limit,
                                  rest_grown)

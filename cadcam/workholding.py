@@ -22,9 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
+import trimesh
 from shapely.geometry import box as rectangle
 from shapely.geometry.base import BaseGeometry
 
+from cadcam.heightmap import grid_over, upper_envelope
 from cadcam.model import FixtureBox, Setup, Tool
 
 #: Gap the planner keeps between a tool's body and the jaws or parallels [mm]: verify's
@@ -170,6 +172,25 @@ def _under_boxes(cylinders: Sequence[tuple[float, float]], point_length: float, 
     cylinder's bottom that clearance above the box's top."""
     return tuple((k, r + KEEPOUT_CLEARANCE_MM, float(b.hi[2]) - h + KEEPOUT_CLEARANCE_MM + point_length)
                  for h, r in cylinders for k, b in enumerate(boxes) if b.hi[2] > floor + h + 1e-9)
+
+
+#: How far in from the part's Y faces op 2's jaws (:func:`cadcam.op2.op2_jaws`) keep a tool off when they stand
+#: above what it cuts there [mm]: the widest end mill's radius (the 16 mm) plus the keep-out's clearance, with room.
+BESIDE_JAWS_MM = 10.0
+
+
+def lowest_beside_jaws(part: trimesh.Trimesh, face_z: float, cell: float = 0.5) -> float:
+    """The lowest face of the turned-over ``part`` that op 2 sees from above within :data:`BESIDE_JAWS_MM` of
+    its Y faces (where the jaws grip) [mm, op-2 work Z], ``face_z`` at the most; where nothing of the part but
+    its bottom lies under a grid point (a through hole, the outline's corners) it is not counted."""
+    lo, hi = np.asarray(part.bounds, dtype=np.float64)
+    grid = grid_over(lo, hi, cell)
+    top = upper_envelope(np.asarray(part.triangles), grid)
+    ys = grid.ys
+    near = (ys - lo[1] <= BESIDE_JAWS_MM) | (hi[1] - ys <= BESIDE_JAWS_MM)
+    seen = top[near]
+    seen = seen[np.isfinite(seen) & (seen > lo[2] + 1e-6)]
+    return min(float(seen.min()), face_z) if seen.size else face_z
 
 
 def jaw_keepout(setup: Setup, tools: Sequence[Tool], shadows: Shadows | None = None

@@ -6,6 +6,7 @@ import dataclasses
 import math
 from pathlib import Path
 
+import manifold3d
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -307,3 +308,26 @@ def test_random_parts_give_two_programs_that_finish_the_bottom(body, tmp_path):
     assert r2.remaining_p95 <= 0.02  # the bottom: random blocks have flat bottoms
     # Op 2 starts from op 1's stock: its material never exceeds the holding allowance plus the part.
     assert np.isfinite(sim2.stock_top).any()
+
+
+def test_op_2_jaws_grip_below_a_face_it_cuts_beside_them(tmp_path):
+    """Issue 34, OpenCAMLib's sphere_on_plate: a boss stands 3 mm under a plate, so turned over the face op 2
+    faces to is the boss's, and the plate's underside, out to the jaws, lies 3 mm lower. Gripped to 1 mm under
+    the face, the jaws kept every tool off a strip along each of them (76 x 3 mm, 3.2 deep, left): they grip
+    under the plate's underside instead, and op 2 cleans it to the edges."""
+    plate = manifold3d.Manifold.cube((40.0, 30.0, 10.0)).translate((0.0, 0.0, 3.0))
+    boss = manifold3d.Manifold.cylinder(3.5, 6.0, 6.0, circular_segments=48).translate((20.0, 15.0, 0.0))
+    job1, job2, part2, _, _, (sim2, r2), _ = op1_then_op2(manifold_to_trimesh(plate + boss), "boss_under", tmp_path,
+                                                          cell=0.5)
+    underside = float(part2.bounds[1][2]) - 3.0  # the plate's old bottom, turned over
+    front, back = job2.setup.jaws[:2]
+    assert max(front.hi[2], back.hi[2]) <= underside - 1.0 + 1e-9
+    assert front.hi[2] - float(part2.bounds[0][2]) >= 3.0 - 1e-9  # still held
+    assert not job2.parameters["unreached"], job2.parameters["unreached"]
+    assert r2.ok, r2.to_dict()
+    lo, hi = part2.bounds
+    # (the 6 mm ball leaves its radius in the corner round the boss, as in any pocket's floor: not along the jaws)
+    assert all(lo[1] + 4.0 < u.y - u.size_y / 2 and u.y + u.size_y / 2 < hi[1] - 4.0 for u in r2.left), r2.left
+    ys = sim2.grid.ys
+    along = np.isfinite(sim2.part_top) & ((ys < lo[1] + 4.0) | (ys > hi[1] - 4.0))[:, None]
+    assert (sim2.stock_top - sim2.part_top)[along].max() <= 0.35  # along the jaws: the allowance at most

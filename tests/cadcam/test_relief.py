@@ -216,6 +216,19 @@ def test_chains_are_cut_where_they_leave_the_region():
     assert all(shapely.contains_xy(region, c[:, 0], c[:, 1]).all() for c in out)
 
 
+def test_a_move_through_the_region_keeps_its_pieces_inside_though_both_ends_lie_outside():
+    """A raster line over a flat is one move from edge to edge: op 2's across a plate whose ends lie in the
+    jaws' keep-out was dropped whole (issue 34, OpenCAMLib's sphere_on_plate). Each piece inside stays, on the
+    move, and nothing of the gap between them."""
+    region = shapely.box(2, 0, 42, 10).difference(shapely.box(20, 0, 22, 10))
+    out = clip_chains([np.array([[0.0, 5, -1], [44, 5, -3]]), np.array([[0.0, 20, 0], [44, 20, 0]])], region)
+    assert len(out) == 2
+    assert [(c[0, 0], c[-1, 0]) for c in out] == [pytest.approx((2, 20), abs=1e-6), pytest.approx((22, 42), abs=1e-6)]
+    for c in out:
+        assert shapely.contains_xy(region, *c[1:-1, :2].T).all()
+        assert c[:, 2] == pytest.approx(-1 - 2 * c[:, 0] / 44)  # on the original move
+
+
 def test_the_sample_relief_is_made_by_its_script_and_is_a_relief(tmp_path):
     import runpy
 

@@ -108,6 +108,23 @@ def test_narrow_slots_are_finished_by_the_short_end_mill_and_only_their_sharp_co
         assert u["why"] == "sharp inside corner" and max(u["size_x"], u["size_y"]) <= 0.5, u
 
 
+def test_the_l_bracket_s_holes_beside_its_upright_are_rest_roughed_by_a_tool_whose_holder_clears(tmp_path: Path) -> None:
+    """Issue 34: the two 9 mm holes in the bracket's 8 mm leg lie 40 mm under the upright's top. Roughing opens
+    the leg; no drill and no end mill narrow enough reaches the holes from the stock's top, so op 1 left both
+    (8.4 x 8.4 mm, 8.5 deep) and op 2 found 16 slivers. Below its reach from the top a rest tool now cuts
+    wherever its holder clears the stock (the 6 mm end mill's holder over the open leg): nothing is left and no
+    tool cuts past its axial limit at full width."""
+    stl = BY_NAME["l_bracket"].write(tmp_path)
+    r = CliRunner().invoke(app, ["plan", str(stl), "-o", str(tmp_path / "out"), "--quiet", "--no-robot"])
+    assert r.exit_code == 0, r.output
+    doc = json.loads((tmp_path / "out" / "l_bracket.plan.json").read_text())
+    assert not doc.get("unreached") and not any(s.get("unreached") for s in doc["setups"][1:]), doc.get("unreached")
+    for report in (doc["verify"], doc["verify_op2"]):
+        assert report["ok"] and report["left"] == [], report["left"]
+        for e in report["engagement"]:
+            assert e["axial_limit"] is None or e["max_full_depth"] <= e["axial_limit"] + 1e-6, e
+
+
 def test_a_sheet_thinner_than_any_grip_is_refused_in_one_line(tmp_path: Path) -> None:
     stl = BY_NAME["sheet_1mm"].write(tmp_path)
     r = CliRunner().invoke(app, ["plan", str(stl), "-o", str(tmp_path / "out"), "--quiet", "--no-robot"])
