@@ -455,8 +455,8 @@ def plan_op2(
     # Nothing feeds below the part: under it are the parallels; nor deeper than the tools reach from this side.
     setup = dataclasses.replace(setup, floor_z=float(part.bounds[0][2]),
                                 jaws=None if jaws is None else op2_jaws(jaws, setup, part, face_z))
-    setup = _reachable_floor(setup, setup1, library, part, options.plan)
     tool = choose_facing_tool(library, top - face_z, options.facing_tool)
+    # (facing reads the stock box, not the floor: the floor follows from the stock it leaves)
     operations = [facing(setup, face_z, tool, library.cutting_data(tool, setup.material), options.facing)]
 
     def op1_model() -> Simulation:
@@ -469,6 +469,10 @@ def plan_op2(
 
     plan = options.plan
     allowance, limit = plan.roughing.allowance, plan.finish_engagement
+    left = _left_from_below(stock, 0.0) | (excess(stock, allowance) > limit)
+    # how deep op 2 goes: what op 1 left over the part, seen from below, down to the part's bottom
+    setup = _reachable_floor(setup, setup1, library, part, plan, _deepest_left(stock, left))
+    stock = dataclasses.replace(stock, floor_z=setup.floor_z)
     left = _left_from_below(stock, 0.0) | (excess(stock, allowance) > limit)
     if left.any() and op1_stock.grid.cell != options.cell:
         # Rest roughing reads the stock cell by cell: on the planning grid, not a finer verify grid.
@@ -634,7 +638,8 @@ def seams(part_work: trimesh.Trimesh, job1: Job, job2: Job, probe: float = 0.3, 
     outline every ``spacing`` [mm]; the flutes of every feed move of both operations that span ``h`` (op 2's
     turned back into op-1 work coordinates) sweep discs, sampled every ``spacing`` along each move; the
     stock left on the wall at an outline point is its distance to the nearest disc's rim. The seams are at
-    op 1's floor and at the highest op 2 reaches, where they lie within the part's height; ``above`` and
+    op 1's floor and at the highest op 2 reaches (unless that lies past the walls' overlap: a pocket's bottom,
+    :func:`_deepest_left`), where they lie within the part's height; ``above`` and
     ``below`` the most left ``probe`` [mm] either side (outline points no tool came near, a narrow slot,
     are left out: farther than a tool radius plus ``probe``).
 
@@ -647,7 +652,10 @@ def seams(part_work: trimesh.Trimesh, job1: Job, job2: Job, probe: float = 0.3, 
 
     flip = flip_transform(job1.setup)  # its own inverse
     lo, hi = float(part_work.bounds[0][2]), float(part_work.bounds[1][2])
-    heights = {float(job1.setup.floor_z), float(flip[2, 3] - job2.setup.floor_z)}
+    floor1, top2 = float(job1.setup.floor_z), float(flip[2, 3] - job2.setup.floor_z)
+    # Op 2 reaching past the walls' overlap went there for a pocket op 1 never saw (:func:`_deepest_left`): its
+    # walls end on that pocket's bottom, no wall of op 1's meets them there.
+    heights = {floor1, top2} if top2 <= floor1 + BREAKTHROUGH_MM + 1e-6 else {floor1}
     out = []
     for z in sorted(h for h in heights if lo + probe < h < hi - probe):
         left, where = [], []
@@ -740,13 +748,14 @@ def _seam_floor(setup1: Setup, part: trimesh.Trimesh) -> float | None:
 
 
 def _reachable_floor(setup: Setup, setup1: Setup, library: ToolLibrary, part: trimesh.Trimesh,
-                     plan: PlanOptions) -> Setup:
+                     plan: PlanOptions, needed: float | None = None) -> Setup:
     """Op 2's setup with its floor where op 2's work ends when op 1 stopped short of the part's bottom
     (:func:`cadcam.plan.split_depth`): op 1's floor turned over, less the breakthrough (the walls overlap
-    there, :func:`seams`), no deeper than the library reaches from the turned-over stock's top and clear of
-    the jaws' top by :data:`cadcam.setup.JAW_CLEARANCE_MM` (the tool beside the part passes over them).
-    Any other setup no deeper than the library reaches either (op 1 went through; a feature from below
-    deeper than that is left and reported)."""
+    there, :func:`seams`), or deeper, down to ``needed`` [mm] (:func:`_deepest_left`: a pocket in the bottom
+    face op 1 could not see, under a web, goes past op 1's floor), no deeper than the library reaches from
+    the turned-over stock's top and clear of the jaws' top by :data:`cadcam.setup.JAW_CLEARANCE_MM` (the
+    tool beside the part passes over them). Any other setup no deeper than the library reaches either (op 1
+    went through; a feature from below deeper than that is left and reported)."""
     if plan.rough_tool is not None or plan.finish_tool is not None:
         return setup
     seam = _seam_floor(setup1, part)
@@ -758,7 +767,7 @@ def _reachable_floor(setup: Setup, setup1: Setup, library: ToolLibrary, part: tr
             log.info("op 2 machines from the top of the turned-over stock down to Z%.2f: its tools reach %.1f mm",
                      split.setup.floor_z, split.reach)
         return split.setup
-    floor = max(float(setup.floor_z), seam)
+    floor = max(float(setup.floor_z), seam if needed is None else min(seam, needed))
     split = split_depth(dataclasses.replace(setup, floor_z=floor), library,
                         freeform=bool(classify_faces(part).freeform))
     floor = float(split.setup.floor_z)
@@ -768,6 +777,21 @@ def _reachable_floor(setup: Setup, setup1: Setup, library: ToolLibrary, part: tr
     log.info("op 2 machines from the top of the turned-over stock down to Z%.2f (op 1 stopped at Z%.2f)",
              floor, seam)
     return dataclasses.replace(setup, floor_z=floor)
+
+
+def _deepest_left(stock: Simulation, left: np.ndarray) -> float | None:
+    """The lowest op 2 must reach to take the stock of ``left`` ((ny, nx) bool grid points of ``stock``, op 1's
+    stock turned over) [mm]: the part's top under it, or where there is no part, the bottom of the column, where
+    op 1's cut from the other side ends. None when nothing is left.
+
+    After a depth split, op 1 finished every wall it saw down to its floor; but a pocket in the bottom face under
+    a web (a wheel's rim under its spokes' plate) it never saw, and op 2 must finish it to its bottom, past the
+    seam, or its walls meet op 1's with the whole pocket's depth as their step."""
+    if not left.any():
+        return None
+    under = np.full(stock.grid.shape, stock.stock_bottom) if stock.stock_under is None else stock.stock_under
+    ends = np.maximum(np.where(np.isfinite(stock.part_top), stock.part_top, -np.inf), under)
+    return float(ends[left].min())
 
 
 def _machine_from_below(part: trimesh.Trimesh, triangles: np.ndarray, setup: Setup, library: ToolLibrary,
