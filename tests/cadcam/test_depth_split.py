@@ -17,7 +17,8 @@ from hypothesis import strategies as st
 from cadcam.finishing import FinishingOptions
 from cadcam.model import Job
 from cadcam.op2 import (Op2Options, TURN_OVER, _reachable_floor, choose_face_up, flip_part, op2_jaws, op2_setup,
-                        plan_op2, seam_faults, seams, sides_reach)
+                        plan_op2, sides_reach)
+from cadcam.seam import seam_faults, seams
 from cadcam.plan import PlanOptions, by_need, choose_tools, deepest_reach, plan_job, rest_tools, split_depth
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
