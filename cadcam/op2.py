@@ -35,7 +35,7 @@ Depth split
     stopped at its reach, and op 2 machines from below down to op 1's floor (less the
     breakthrough, so the walls overlap), within its own reach and clear of the jaws: rest
     roughing, then flats and walls by the flank as op 1 finishes them. Where the walls meet,
-    :func:`seams` measures the step from both jobs' toolpaths. Which face goes up first is the
+    :func:`cadcam.seam.seams` measures the step from both jobs' toolpaths. Which face goes up first is the
     one that leaves the least no tool reaches from either side (:func:`choose_face_up`).
 """
 
@@ -61,7 +61,7 @@ from cadcam.roughing import part_shadows, zlevel_roughing
 from cadcam.setup import BREAKTHROUGH_MM, JAW_CLEARANCE_MM, MIN_HOLDING_LEFT_MM
 from cadcam.workholding import jaw_keepout, lowest_beside_jaws
 from cadcam.tools import ToolLibrary
-from cadcam.verify import Fault
+from cadcam.seam import seams
 from cadcam.stock import (FlippedStock, Simulation, clear_height, excess, flip_stock, stock_after, stock_after_flipped,
                           unreached)
 from factory.core.errors import FactoryError, SetupError, ToolError, ToolpathError
@@ -76,9 +76,6 @@ WORK_OFFSET = {1: 1, 2: 2}
 _ORIGIN_WORDS = {"top-front-left": "front-left corner", "top-centre": "centre"}
 #: Stock left over a face from below that counts as finished: the verify's residual target [mm].
 _FINISHED = 0.02
-#: Largest step between op 1's and op 2's walls where they meet [mm]: the stock verify lets a finished
-#: part keep (:attr:`cadcam.verify.VerifyOptions.left_above`).
-SEAM_TOLERANCE = 0.1
 
 
 def flip_transform(setup: Setup) -> np.ndarray:
@@ -443,7 +440,7 @@ def plan_op2(
         ``work_offset`` (2: G55), ``flip`` (axis and the op-1 -> op-2 transform),
         ``face_z`` (the part's original bottom face in op 2 [mm]), ``holding_mm`` (the
         allowance faced off), ``unreached`` (stock from below no tool reaches) and ``rapids``; after a
-        depth split (op 1 stopped short of the part's bottom), ``seams`` (:func:`seams`, as dicts).
+        depth split (op 1 stopped short of the part's bottom), ``seams`` (:func:`cadcam.seam.seams`, as dicts).
     part_op2 : trimesh.Trimesh
         The part in op-2 work coordinates.
 
@@ -463,8 +460,8 @@ def plan_op2(
     # Nothing feeds below the part: under it are the parallels; nor deeper than the tools reach from this side.
     setup = dataclasses.replace(setup, floor_z=float(part.bounds[0][2]),
                                 jaws=None if jaws is None else op2_jaws(jaws, setup, part, face_z))
-    setup = _reachable_floor(setup, setup1, library, part, options.plan)
     tool = choose_facing_tool(library, top - face_z, options.facing_tool)
+    # (facing reads the stock box, not the floor: the floor follows from the stock it leaves)
     operations = [facing(setup, face_z, tool, library.cutting_data(tool, setup.material), options.facing)]
 
     def op1_model() -> Simulation:
@@ -477,6 +474,10 @@ def plan_op2(
 
     plan = options.plan
     allowance, limit = plan.roughing.allowance, plan.finish_engagement
+    left = _left_from_below(stock, 0.0) | (excess(stock, allowance) > limit)
+    # how deep op 2 goes: what op 1 left over the part, seen from below, down to the part's bottom
+    setup = _reachable_floor(setup, setup1, library, part, plan, _deepest_left(stock, left))
+    stock = dataclasses.replace(stock, floor_z=setup.floor_z)
     left = _left_from_below(stock, 0.0) | (excess(stock, allowance) > limit)
     if left.any() and op1_stock.grid.cell != options.cell:
         # Rest roughing reads the stock cell by cell: on the planning grid, not a finer verify grid.
@@ -509,7 +510,8 @@ def plan_op2(
     job = Job(part_name=job1.part_name, setup=setup, operations=tuple(safe_ops), source_sha256=job1.source_sha256,
               parameters=parameters)
     if float(setup1.floor_z) > float(part_work.bounds[0][2]) + 1e-9:  # a depth split: where the walls meet
-        # (op 2's verdict fails a step over the tolerance: :meth:`Seam.fault`, :func:`seam_faults`)
+        # (op 2's verdict fails a step over the tolerance: :meth:`cadcam.seam.Seam.fault`,
+        # :func:`cadcam.seam.seam_faults`)
         found = seams(part_work, job1, job)
         job = dataclasses.replace(job, parameters={**parameters, "seams": [s.to_dict() for s in found]})
     return job, part
@@ -587,156 +589,6 @@ def choose_face_up(part: trimesh.Trimesh, place: Callable[[trimesh.Trimesh], tup
     return setup, part_work
 
 
-@dataclass(frozen=True)
-class Seam:
-    """Where op 1's and op 2's walls meet, and how well they match.
-
-    Attributes
-    ----------
-    z : float
-        Height of the seam in op-1 work coordinates [mm]: op 1's floor, or the highest op 2 reaches.
-    above, below : float
-        Most stock left on the part's walls after both operations [mm], in a slice ``probe`` above and
-        below ``z`` (negative: the tool cut into the part).
-    x, y : float
-        Where on the wall the side with more left has it most [mm] (op-1 work coordinates).
-    """
-
-    z: float
-    above: float
-    below: float
-    x: float = math.nan
-    y: float = math.nan
-
-    @property
-    def step(self) -> float:
-        """The step between the walls the two operations leave [mm]."""
-        return abs(self.above - self.below)
-
-    def to_dict(self) -> dict[str, float]:
-        return {"z": round(self.z, 3), "above": round(self.above, 4), "below": round(self.below, 4),
-                "step": round(self.step, 4), **{k: None if math.isnan(v) else round(v, 2)
-                                                for k, v in (("x", self.x), ("y", self.y))}}
-
-    def fault(self) -> Fault | None:
-        """The seam as a verify fault of op 2 when its step is over :data:`SEAM_TOLERANCE` (or no tool came
-        near a wall there), else None: a part whose walls do not meet is not finished, and no warning makes
-        it so."""
-        if self.step <= SEAM_TOLERANCE:
-            return None
-        step = "no tool finished one side" if math.isnan(self.step) else f"a {self.step:.3f} mm step"
-        known = not math.isnan(self.x)
-        return Fault("seam", 0, (), float(np.nan_to_num(self.step, nan=math.inf)), SEAM_TOLERANCE,
-                     (self.x, self.y, self.z) if known else None,
-                     f"the walls of op 1 and op 2 meet at Z{self.z:.2f}"
-                     + (f" near X{self.x:.1f} Y{self.y:.1f}" if known else "")
-                     + f" with {step} ({self.above:.3f} mm left above, {self.below:.3f} below), over the "
-                     f"{SEAM_TOLERANCE:g} mm tolerance")
-
-
-def seams(part_work: trimesh.Trimesh, job1: Job, job2: Job, probe: float = 0.3, spacing: float = 0.05
-          ) -> tuple[Seam, ...]:
-    """The seams between op 1 and op 2 on the part's walls, measured from both jobs' toolpaths.
-
-    A check independent of the stock models: at a height ``h`` the part's section is sampled along its
-    outline every ``spacing`` [mm]; the flutes of every feed move of both operations that span ``h`` (op 2's
-    turned back into op-1 work coordinates) sweep discs, sampled every ``spacing`` along each move; the
-    stock left on the wall at an outline point is its distance to the nearest disc's rim. The seams are at
-    op 1's floor and at the highest op 2 reaches, where they lie within the part's height; ``above`` and
-    ``below`` the most left ``probe`` [mm] either side (outline points no tool came near, a narrow slot,
-    are left out: farther than a tool radius plus ``probe``).
-
-    Returns
-    -------
-    tuple of Seam
-        Lowest first; empty when op 1 reached the part's bottom and op 2 only faced.
-    """
-    from scipy.spatial import cKDTree
-
-    flip = flip_transform(job1.setup)  # its own inverse
-    lo, hi = float(part_work.bounds[0][2]), float(part_work.bounds[1][2])
-    heights = {float(job1.setup.floor_z), float(flip[2, 3] - job2.setup.floor_z)}
-    out = []
-    for z in sorted(h for h in heights if lo + probe < h < hi - probe):
-        left, where = [], []
-        for h in (z + probe, z - probe):
-            outline = _outline(part_work, h, spacing)
-            centres, radii = [], []
-            for job, turned in ((job1, False), (job2, True)):
-                c, r = _discs_at(job, float(flip[2, 3] - h) if turned else h, spacing)
-                if turned and len(c):
-                    c = (flip[:2, :2] @ c.T).T + flip[:2, 3]
-                centres.append(c)
-                radii.append(r)
-            c, r = np.concatenate(centres), np.concatenate(radii)
-            if not len(outline) or not len(c):
-                left.append(float("nan"))
-                where.append(outline[0] if len(outline) else (math.nan, math.nan))
-                continue
-            gaps = []
-            for radius in np.unique(r):
-                d, _ = cKDTree(c[r == radius]).query(outline)
-                gaps.append(d - radius)
-            gap = np.min(gaps, axis=0)
-            near = gap <= float(r.max()) + probe
-            worst = int(np.argmax(np.where(near, gap, -np.inf)))
-            left.append(float(gap[worst]) if near.any() else float("nan"))
-            where.append(outline[worst])
-        side = 1 if np.isnan(left[1]) or left[1] > left[0] else 0  # the side with more left
-        out.append(Seam(z, left[0], left[1], float(where[side][0]), float(where[side][1])))
-    return tuple(out)
-
-
-def seam_faults(job2: Job) -> tuple[Fault, ...]:
-    """Op 2's faults for the seams where its walls meet op 1's with a step over :data:`SEAM_TOLERANCE`
-    (its ``parameters["seams"]``, :func:`plan_op2`): verify's own simulation cannot tell op 1's walls from
-    op 2's, the seams are measured from both jobs' toolpaths."""
-    found = (Seam(s["z"], s["above"], s["below"], *(math.nan if s.get(k) is None else s[k] for k in ("x", "y")))
-             for s in job2.parameters.get("seams", ()))
-    return tuple(f for f in (s.fault() for s in found) if f is not None)
-
-
-def _outline(part: trimesh.Trimesh, h: float, spacing: float) -> np.ndarray:
-    """(n, 2) points every ``spacing`` [mm] along the part's section at height ``h`` [mm]."""
-    segments = trimesh.intersections.mesh_plane(part, [0.0, 0.0, 1.0], [0.0, 0.0, h])
-    if not len(segments):
-        return np.zeros((0, 2))
-    a, b = segments[:, 0, :2], segments[:, 1, :2]
-    n = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / spacing).astype(int), 1)
-    t = np.concatenate([np.arange(k) / k for k in n])
-    k = np.repeat(np.arange(len(a)), n)
-    return a[k] + (b[k] - a[k]) * t[:, None]
-
-
-def _discs_at(job: Job, h: float, spacing: float) -> tuple[np.ndarray, np.ndarray]:
-    """Centres (n, 2) [mm] and radii (n,) [mm] of the discs the flutes of ``job``'s feed moves sweep at
-    height ``h`` [mm], sampled every ``spacing`` along each move (a bull or ball end narrower near its tip)."""
-    centres, radii = [], []
-    for op in job.operations:
-        tool, p = op.tool, np.asarray(op.points, dtype=np.float64)
-        if tool.is_drill or len(p) < 2:
-            continue
-        feed = np.asarray(op.motion[1:]) != int(Motion.RAPID)
-        a, b = p[:-1][feed], p[1:][feed]
-        if not len(a):
-            continue
-        n = np.maximum(np.ceil(np.linalg.norm(b[:, :2] - a[:, :2], axis=1) / spacing).astype(int), 1)
-        t = np.concatenate([np.arange(k + 1) / k for k in n])
-        k = np.repeat(np.arange(len(a)), n + 1)
-        q = a[k] + (b[k] - a[k]) * t[:, None]
-        up = h - q[:, 2]  # the slice's height above the tip
-        span = (up >= 0) & (up <= tool.flute_length)
-        rc = tool.corner_radius
-        # a torus corner narrows the disc near the tip: r - rc + sqrt(rc^2 - (rc - up)^2)
-        below = np.clip(rc - up[span], 0.0, rc)
-        radius = tool.radius - rc + np.sqrt(np.maximum(rc * rc - below * below, 0.0))
-        centres.append(q[span, :2])
-        radii.append(np.floor(radius * 100.0) / 100.0)  # a hundredth smaller: fewer radii, never less left
-    if not centres:
-        return np.zeros((0, 2)), np.zeros(0)
-    return np.concatenate(centres), np.concatenate(radii)
-
-
 def _seam_floor(setup1: Setup, part: trimesh.Trimesh) -> float | None:
     """Where op 2's work ends after a depth split, in op-2 work coordinates [mm]: op 1's floor turned over,
     less the breakthrough (the walls overlap there); None when op 1 reached the part's bottom. ``part``: the
@@ -748,13 +600,14 @@ def _seam_floor(setup1: Setup, part: trimesh.Trimesh) -> float | None:
 
 
 def _reachable_floor(setup: Setup, setup1: Setup, library: ToolLibrary, part: trimesh.Trimesh,
-                     plan: PlanOptions) -> Setup:
+                     plan: PlanOptions, needed: float | None = None) -> Setup:
     """Op 2's setup with its floor where op 2's work ends when op 1 stopped short of the part's bottom
     (:func:`cadcam.plan.split_depth`): op 1's floor turned over, less the breakthrough (the walls overlap
-    there, :func:`seams`), no deeper than the library reaches from the turned-over stock's top and clear of
-    the jaws' top by :data:`cadcam.setup.JAW_CLEARANCE_MM` (the tool beside the part passes over them).
-    Any other setup no deeper than the library reaches either (op 1 went through; a feature from below
-    deeper than that is left and reported)."""
+    there, :func:`cadcam.seam.seams`), or deeper, down to ``needed`` [mm] (:func:`_deepest_left`: a pocket in the
+    bottom face op 1 could not see, under a web, goes past op 1's floor), no deeper than the library reaches from
+    the turned-over stock's top and clear of the jaws' top by :data:`cadcam.setup.JAW_CLEARANCE_MM` (the
+    tool beside the part passes over them). Any other setup no deeper than the library reaches either (op 1
+    went through; a feature from below deeper than that is left and reported)."""
     if plan.rough_tool is not None or plan.finish_tool is not None:
         return setup
     seam = _seam_floor(setup1, part)
@@ -766,7 +619,7 @@ def _reachable_floor(setup: Setup, setup1: Setup, library: ToolLibrary, part: tr
             log.info("op 2 machines from the top of the turned-over stock down to Z%.2f: its tools reach %.1f mm",
                      split.setup.floor_z, split.reach)
         return split.setup
-    floor = max(float(setup.floor_z), seam)
+    floor = max(float(setup.floor_z), seam if needed is None else min(seam, needed))
     split = split_depth(dataclasses.replace(setup, floor_z=floor), library,
                         freeform=bool(classify_faces(part).freeform))
     floor = float(split.setup.floor_z)
@@ -776,6 +629,21 @@ def _reachable_floor(setup: Setup, setup1: Setup, library: ToolLibrary, part: tr
     log.info("op 2 machines from the top of the turned-over stock down to Z%.2f (op 1 stopped at Z%.2f)",
              floor, seam)
     return dataclasses.replace(setup, floor_z=floor)
+
+
+def _deepest_left(stock: Simulation, left: np.ndarray) -> float | None:
+    """The lowest op 2 must reach to take the stock of ``left`` ((ny, nx) bool grid points of ``stock``, op 1's
+    stock turned over) [mm]: the part's top under it, or where there is no part, the bottom of the column, where
+    op 1's cut from the other side ends. None when nothing is left.
+
+    After a depth split, op 1 finished every wall it saw down to its floor; but a pocket in the bottom face under
+    a web (a wheel's rim under its spokes' plate) it never saw, and op 2 must finish it to its bottom, past the
+    seam, or its walls meet op 1's with the whole pocket's depth as their step."""
+    if not left.any():
+        return None
+    under = np.full(stock.grid.shape, stock.stock_bottom) if stock.stock_under is None else stock.stock_under
+    ends = np.maximum(np.where(np.isfinite(stock.part_top), stock.part_top, -np.inf), under)
+    return float(ends[left].min())
 
 
 def _machine_from_below(part: trimesh.Trimesh, triangles: np.ndarray, setup: Setup, library: ToolLibrary,

@@ -157,7 +157,7 @@ class Fault:
         ``drill_side`` a drill fed sideways through stock (a drill's only engagement is
         axial, held to its flute length by ``flute``); ``below_stock`` the tool tip below the stock
         bottom; ``seam`` op 2's walls meet op 1's with a step over the finishing tolerance (op 2 after
-        a depth split, :meth:`cadcam.op2.Seam.fault`); ``jaws`` the tool, shank or holder reaches into the vise's jaws or parallels
+        a depth split, :meth:`cadcam.seam.Seam.fault`); ``jaws`` the tool, shank or holder reaches into the vise's jaws or parallels
         (:attr:`Setup.jaws`).
     tool : int
         Tool number (0 for ``no_cut``).

@@ -36,7 +36,8 @@ from cadcam.model import Job, Operation, Setup
 from cadcam.plan import PlanOptions
 from cadcam.parallel import Background, processors
 from cadcam.op2 import (FLIP_AXIS, WORK_OFFSET, Op2Options, flip_transform, op2_setup_image, op2_sheet_fields,
-                        plan_op2, seam_faults)
+                        plan_op2)
+from cadcam.seam import seam_faults
 from cadcam.post import FitAhead, PostOptions, Program, post_process, tool_table_file
 from cadcam.preview import setup_image
 from cadcam.mesh import PartMesh

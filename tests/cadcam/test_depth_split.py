@@ -10,19 +10,22 @@ import dataclasses
 import manifold3d
 import numpy as np
 import pytest
+from scipy import ndimage
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from cadcam.finishing import FinishingOptions
 from cadcam.model import Job
 from cadcam.op2 import (Op2Options, TURN_OVER, _reachable_floor, choose_face_up, flip_part, op2_jaws, op2_setup,
-                        plan_op2, seams, sides_reach)
+                        plan_op2, sides_reach)
+from cadcam.seam import seam_faults, seams
 from cadcam.plan import PlanOptions, by_need, choose_tools, deepest_reach, plan_job, rest_tools, split_depth
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
 from cadcam.verify import VerifyOptions
-from tests.cadcam.test_op2 import JAWS
+from tests.cadcam.test_op2 import JAWS, verify_both
 from tests.conftest import manifold_to_trimesh
+from tests.gallery.parts import web_in_tube
 
 LIBRARY = load_tool_library()
 #: A shop with short tools only: the 6 mm flat (32 mm below its holder), the 10 mm flat (45) and the 6 mm ball (32).
@@ -116,6 +119,39 @@ def test_the_seam_check_sees_a_wall_op_2_left_unfinished(tower_jobs):
     seam = min(seams(part_work, job1, rough_only), key=lambda s: abs(s.z - float(job1.setup.floor_z)))
     assert seam.below == pytest.approx(PLAN.roughing.allowance, abs=0.06)
     assert seam.step > VerifyOptions().left_above
+
+
+@pytest.fixture(scope="module")
+def web_jobs(tmp_path_factory):
+    """A tube 50 mm tall with a web across it 8 to 13 mm up, planned with the short tools and verified: op 1
+    reaches 45 mm from the top, its floor 6 mm up the part, under the web it never sees."""
+    part = manifold_to_trimesh(web_in_tube(50.0, (8.0, 13.0)))
+    setup, part_work = make_setup(part, jaws=JAWS)
+    job1 = plan_job(part_work, setup, SHORT, part_name="web", options=PLAN).job
+    job2, part2 = plan_op2(part_work, job1, SHORT, options=Op2Options(plan=PLAN), jaws=JAWS)
+    return part_work, verify_both(job1, job2, part_work, part2, "web", tmp_path_factory.mktemp("web"), 0.5)
+
+
+def test_op_2_finishes_the_pocket_under_a_web_past_op_1s_floor(web_jobs):
+    """The pocket under the web goes 2 mm past where the walls of op 1 and op 2 overlap (OpenCAMLib's
+    wheel_in_box: the rim under the wheel's plate). Op 2 finishes it to the web, its walls flush with op 1's."""
+    part_work, (job1, job2, part2, _, (_, r1), (sim2, r2), _) = web_jobs
+    bottom = float(part_work.bounds[0][2])
+    web = bottom + 8.0  # the web's underside in op 1's work coordinates
+    assert bottom < float(job1.setup.floor_z) < web - 1.0  # a depth split; op 1 ends beside the pocket, under the web
+    # op 2 reaches the web's underside: its floor turned back into op 1's coordinates is no lower
+    flip_z = float(job1.setup.stock_min[2])
+    assert flip_z - float(job2.setup.floor_z) >= web - 1e-6
+    assert seam_faults(job2) == ()
+    found = seams(part_work, job1, job2)
+    assert found and all(s.step <= VerifyOptions().left_above for s in found), found
+    assert job2.parameters["unreached"] == []
+    assert r1.max_gouge <= 0.01 and r2.ok, r2.to_dict()
+    # the web's underside, seen from below, is finished (away from the pocket's walls, where a cell sees the wall)
+    ceiling = np.isclose(sim2.part_top, flip_z - web, atol=1e-6)
+    inner = ndimage.binary_erosion(ceiling, iterations=2)
+    assert inner.sum() > 100
+    assert float(sim2.remaining[inner].max()) <= VerifyOptions().left_above
 
 
 def test_the_face_up_first_is_the_one_that_leaves_less_unreached():

@@ -191,6 +191,12 @@ def op1(mesh, name: str, options: PlanOptions = PLAN):
 def op1_then_op2(mesh, name: str, tmp_path: Path, cell: float = 0.25, options: PlanOptions = PLAN):
     job1, part = op1(mesh, name, options)
     job2, part2 = plan_op2(part, job1, LIBRARY, options=Op2Options(plan=options), jaws=JAWS)
+    return verify_both(job1, job2, part, part2, name, tmp_path, cell)
+
+
+def verify_both(job1, job2, part, part2, name: str, tmp_path: Path, cell: float):
+    """Both jobs posted and verified, op 2 from op 1's verified stock turned over (``part``: op 1's, ``part2``:
+    op 2's): the jobs, the programs, (stock, report) of each and op 2's moves; op 2's program in ``tmp_path``."""
     p1 = post_process(job1)
     p2 = post_process(job2, PostOptions(work_offset=2))
     opts = VerifyOptions(cell=cell)

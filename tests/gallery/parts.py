@@ -157,6 +157,14 @@ def split_tower() -> mf.Manifold:
     return box(0, 0, 0, 50, 40, 10) + box(13, 11, 9.5, 37, 29, 72)
 
 
+def web_in_tube(height: float = 72.0, web: tuple[float, float] = (10.0, 16.0)) -> mf.Manifold:
+    """A 44 x 36 tube ``height`` tall with 5 mm walls and a web across it at ``web`` (bottom, top) [mm]: the
+    pocket under the web only op 2 sees, and it reaches past where op 1 stops from the top (OpenCAMLib's
+    wheel_in_box: the rim under the wheel's plate). Deeper than the tools reach from one side by default."""
+    inside = (5.0, 5.0, 39.0, 31.0, 4.0)
+    return box(0, 0, 0, 44, 36, height) - rounded_rect(*inside, -1, web[0]) - rounded_rect(*inside, web[1], height + 1)
+
+
 def l_bracket() -> mf.Manifold:
     """An L-shaped bracket standing on its long leg, a 40 mm upright with two holes."""
     part = box(0, 0, 0, 90, 50, 8) + box(0, 0, 7.5, 10, 50, 48)
@@ -243,6 +251,8 @@ PARTS: tuple[GalleryPart, ...] = (
     GalleryPart("stepped_tower", _solid(stepped_tower), "plans", "four flats to 48 mm"),
     GalleryPart("l_bracket", _solid(l_bracket), "plans", "a 40 mm upright on a leg"),
     GalleryPart("split_tower", _solid(split_tower), "plans", "72 mm: op 1 and op 2 split the depth, walls meet"),
+    GalleryPart("web_in_tube", _solid(web_in_tube), "plans",
+                "72 mm: op 2 reaches past op 1's floor into the pocket under a web"),
     GalleryPart("hex_boss", _solid(hex_boss), "plans", "a hexagonal boss with a bore"),
     GalleryPart("tiny_part", _solid(tiny_part), "plans", "the smallest stock the cell holds"),
     GalleryPart("frame", _solid(frame), "plans", "a through window"),

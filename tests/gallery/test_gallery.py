@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from cadcam.gcode import parse_gcode
-from cadcam.op2 import SEAM_TOLERANCE, Seam
+from cadcam.seam import SEAM_TOLERANCE, Seam
 from cadcam.tools import load_tool_library
 from cli.main import app
 from factory.verify import read_sheet
