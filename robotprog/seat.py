@@ -21,7 +21,13 @@ bound). What that does, in the order it happens:
    would cut the part short at one end: refused with the figures. The jaws' top, which op 1's
    deepest feed keeps clear of by :data:`cadcam.setup.JAW_CLEARANCE_MM`, is a height: a shift
    along the floor does not bring a tool nearer to it.
-4. **The unload** grips the finished part where op 1 cut it, where the plan grips it.
+4. **After op 1** (:func:`prove_after_seat`) the part is where the plan put it, but what op 1 left
+   of the stock, its own faces (the holding block under the part; a relief's whole block), sits off
+   along the jaws by up to the seat's figure there. The flip (grip, turn-over on the post, re-place
+   for op 2) and the unload are swept again with that piece, followed through the plan's gripper
+   actions; op 2's facing must still start in the air beside the block. The flip is planned with the
+   block off along the jaws by the part's margin in the stock (:attr:`robotprog.flip.Piece.slack`),
+   the most a seat is accepted for.
 
 Frames and units: the vise frame of :attr:`robotprog.cell.Vise.pose`; metres, radians.
 """
