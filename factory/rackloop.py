@@ -238,21 +238,22 @@ def seat_moves(motion: Any, size_m: np.ndarray, margin_along_jaws_m: float) -> S
 class AfterOp1:
     """What the plan leaves in the vise after op 1, in the vise frame [m]: the stock box
     (``stock_min``, ``stock_max``), the finished part's box (``part_min``, ``part_max``; a relief:
-    its block), the ``setups`` (2: turned over and faced by op 2) and op 2's ``facing_gap`` [m]."""
+    its block), the ``setups`` (2: turned over and faced by op 2) and how far op 2's facing lets the
+    holding block reach (``facing_reach`` [m], :func:`cadcam.op2.facing_reach`)."""
 
     stock_min: np.ndarray
     stock_max: np.ndarray
     part_min: np.ndarray
     part_max: np.ndarray
     setups: int
-    facing_gap: float = 0.0
+    facing_reach: float = math.inf
 
 
 def after_moves(motion: Any, after: AfterOp1) -> AfterMoves:
     """The plan's flip and unload, read from a part's :class:`factory.simulation.RobotMotion`."""
     names = [m[0] for m in motion.moves if m[0].startswith(("flip:", "unload:"))]
     return AfterMoves(tuple((n, move_samples(motion, n)) for n in names), after.stock_min, after.stock_max,
-                      after.part_min, after.part_max, after.setups, after.facing_gap)
+                      after.part_min, after.part_max, after.setups, after.facing_reach)
 
 
 def blank_part(stock_mm: np.ndarray, motion: Any, margin_along_jaws_mm: float, after: AfterOp1) -> BlankPart:

@@ -19,6 +19,7 @@ import functools
 import heapq
 import json
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -30,7 +31,7 @@ from cadcam.cutting_power import SpindleLoad, program_spindle_load
 from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_planned_part
 from cadcam.model import Setup
-from cadcam.op2 import facing_gap
+from cadcam.op2 import facing_reach
 from cadcam.relief import block_corners
 from cadcam.timeline import MachineTimeline, machine_timeline, stock_snapshots
 from cadcam.tools import ToolLibrary, load_tool_library
@@ -304,8 +305,9 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
     seen = seen_part(part, setup, sheet, str(sheet_path))
     shots = camera_shots(entry, seen, np.asarray(setup.stock_size), stations, camera_sha256)
     box = part_box_in_vise(in_vise, np.asarray(seen.vertices) / float(setup.mesh_scale))  # as the plan's robot had it
+    reach = None if op2 is None else facing_reach(op2_sheet.setup, op2_sheet.sheet.operations, op2_sheet.tools)
     after = AfterOp1(in_vise.stock_min, in_vise.stock_max, box.low, box.high, 1 if op2 is None else 2,
-                     0.0 if op2 is None else facing_gap(op2_sheet.setup) / MM_PER_M)
+                     math.inf if reach is None else reach / MM_PER_M)
     return PartAssets(
         part=part, material=material, entry=entry,
         process=part_process(motion, float(sheet.estimated_cycle_s), shots,

@@ -25,7 +25,7 @@ bound). What that does, in the order it happens:
    of the stock, its own faces (the holding block under the part; a relief's whole block), sits off
    along the jaws by up to the seat's figure there. The flip (grip, turn-over on the post, re-place
    for op 2) and the unload are swept again with that piece, followed through the plan's gripper
-   actions; op 2's facing must still start in the air beside the block. The flip is planned with the
+   actions; op 2's facing ramps must not meet the block with the tool's centre. The flip is planned with the
    block off along the jaws by the part's margin in the stock (:attr:`robotprog.flip.Piece.slack`),
    the most a seat is accepted for.
 
@@ -255,9 +255,10 @@ class AfterMoves:
         The finished part's box in the vise frame as op 1 leaves it [m] (a relief: its block).
     setups : int
         2: the flip turns the piece over and op 2 faces the holding block off before the unload.
-    facing_gap : float
-        How far op 2's facing passes end clear of the stock's faces along the jaws [m]
-        (:func:`cadcam.op2.facing_gap`; 0 with one setup).
+    facing_reach : float
+        How far the holding block may reach beyond its planned ends along the jaws before op 2's
+        facing ramps meet it with the tool's centre [m] (:func:`cadcam.op2.facing_reach`: the
+        passes' clearance beyond the stock plus the tool's radius; inf: op 2 faces nothing).
     """
 
     moves: tuple[tuple[str, np.ndarray], ...]
@@ -266,7 +267,7 @@ class AfterMoves:
     part_min: np.ndarray
     part_max: np.ndarray
     setups: int
-    facing_gap: float = 0.0
+    facing_reach: float = math.inf
 
 
 @dataclass(frozen=True)
@@ -337,8 +338,8 @@ def prove_after_seat(cell: Cell, robot: Robot, moves: AfterMoves, seat: Seat,
     the flip station, the out-tray). Fingers that close along a box's offset square it up in them:
     it is then where the plan has it, and the rest of the piece off by ``seat.along``. A grip along
     the offset (the side grip of the flip) must keep the grip depth and stay clear of the gripper
-    body at both ends of it, and with two setups op 2's facing must still start in the air beside
-    the block, and cut the part where the plan put it.
+    body at both ends of it, and with two setups op 2's facing ramps must not meet the block with
+    the tool's centre, and op 2 must cut the part where the plan put it.
 
     Raises
     ------
@@ -454,8 +455,8 @@ def _check_grip(cell: Cell, name: str, gripped: _Body, tcp: np.ndarray, grasp: G
 
 
 def _op2(bodies: list[_Body], moves: AfterMoves) -> list[_Body]:
-    """Op 2 faces the holding block off: its passes must start in the air beside a block off along
-    the jaws, and the part must sit where op 2 cuts it.
+    """Op 2 faces the holding block off: its ramps must not meet a block off along the jaws with the
+    tool's centre, and the part must sit where op 2 cuts it.
 
     Raises
     ------
@@ -463,10 +464,10 @@ def _op2(bodies: list[_Body], moves: AfterMoves) -> list[_Body]:
         With the figures.
     """
     block = next((b for b in bodies if b.name == "holding_block"), None)
-    if block is not None and block.off > moves.facing_gap:
+    if block is not None and block.off > moves.facing_reach:
         raise PlanningError(f"op 2: the holding block may reach {block.off * MM_PER_M:.2f} mm further along the jaws "
-                            f"than planned, the facing's passes start {moves.facing_gap * MM_PER_M:.2f} mm clear of "
-                            "it: a ramp would end in the block", source="vise.pose")
+                            f"than planned, op 2's facing ramps meet it with the tool's centre past "
+                            f"{moves.facing_reach * MM_PER_M:.2f} mm", source="vise.pose")
     part = next(b for b in bodies if b.name == "part")
     if part.off > 0:
         raise PlanningError(f"op 2: the fingers squared the holding block up and moved the part up to "

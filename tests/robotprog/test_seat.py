@@ -95,7 +95,7 @@ def flipped(cell, world):
     stock) and what its plan does after op 1."""
     plan = plan_tending(cell, flip_sheet(*FLIP_STOCK_MM), part_box=FLIP_PART, world=world, setups=2)
     moves = AfterMoves(tuple((m.name, m.waypoints) for m in plan.moves if m.name.startswith(("flip:", "unload:"))),
-                       plan.stock.stock_min, plan.stock.stock_max, FLIP_PART.low, FLIP_PART.high, 2, 0.001)
+                       plan.stock.stock_min, plan.stock.stock_max, FLIP_PART.low, FLIP_PART.high, 2, 0.009)
     by = {m.name: m for m in plan.moves}
     seat_moves = SeatMoves(tuple(by[n].waypoints for n in CARRIED_MOVES), tuple(by[n].waypoints for n in RELEASED_MOVES),
                            np.asarray(plan.stock.size), 0.002)
@@ -126,7 +126,7 @@ def test_what_op1_leaves_off_along_the_jaws_is_the_stocks_own_faces(cell):
     relief's block (its box the stock's along the jaws) sits off whole."""
     t_vise = cell.vise.pose.matrix()
     stock_min, stock_max = np.array([-0.052, -0.032, 0.0]), np.array([0.052, 0.032, 0.022])
-    solid = AfterMoves((), stock_min, stock_max, FLIP_PART.low, FLIP_PART.high, 2, 0.001)
+    solid = AfterMoves((), stock_min, stock_max, FLIP_PART.low, FLIP_PART.high, 2, 0.009)
     assert [(b.name, b.off) for b in after_op1(solid, 0.0008, t_vise)] == [("part", 0.0), ("holding_block", 0.0008)]
     # the holding block as it is (the flip's plan grows it by the part's margin in the stock; the proof by the seat's)
     block = after_op1(solid, 0.0008, t_vise)[1]
@@ -152,11 +152,11 @@ def test_the_residual_along_the_jaws_is_what_makes_the_flip_collide(cell, world,
         prove_after_seat(walled, world.robot, moves, _seat(0.0018))
 
 
-def test_op2s_facing_must_start_beside_a_block_off_along_the_jaws(cell, world, flipped):
+def test_op2s_facing_ramps_must_not_meet_a_block_off_along_the_jaws_with_the_tools_centre(cell, world, flipped):
     _, moves, _ = flipped
-    tight = dataclasses.replace(moves, facing_gap=0.0005)
+    tight = dataclasses.replace(moves, facing_reach=0.0005)  # a facing that lets the block reach 0.5 mm
     with pytest.raises(PlanningError, match=r"op 2: the holding block may reach 0\.84 mm further along the jaws than "
-                                            r"planned, the facing's passes start 0\.50 mm clear of it"):
+                                            r"planned, op 2's facing ramps meet it with the tool's centre past 0\.50 mm"):
         prove_after_seat(cell, world.robot, tight, _seat(0.00084))
     assert prove_after_seat(cell, world.robot, tight, _seat(0.0004)).along == 0.0004
 
