@@ -44,9 +44,8 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 import trimesh
@@ -257,19 +256,8 @@ def facing_levels(top: float, face_z: float, stepdown: float, finish_depth: floa
 
 def facing_gap(setup: Setup) -> float:
     """How far the facing's passes end clear of the stock's X faces, the tool's edge beyond them
-    [mm]: the ramps down to each level end there, in the air."""
+    [mm]: the ramps down to each level end there, in the air (:func:`factory.rackloop.facing_reach`)."""
     return max(float(setup.clearance), 0.5)
-
-
-def facing_reach(setup: Setup, operations: Sequence[Mapping[str, Any]], tools: Mapping[int, Tool]) -> float | None:
-    """How far op 2's stock may reach beyond its planned X faces before a facing ramp meets it with
-    the tool's centre [mm]: :func:`facing_gap` plus the facing tool's radius, of op 2's ``setup``,
-    ``operations`` (the setup sheet's records) and ``tools`` by number; None: op 2 faces nothing. A
-    holding block seated off along the jaws (:mod:`robotprog.seat`) that reaches less far meets the
-    ramp's end and the step-overs beside it with the tool's side, a cut narrower than the passes'
-    own; further, the end mill's centre would meet it on the ramp."""
-    number = next((int(op["tool"]) for op in operations if op.get("kind") == "facing"), None)
-    return None if number is None else facing_gap(setup) + float(tools[number].radius)
 
 
 def facing(setup: Setup, face_z: float, tool: Tool, cutting: CuttingData,

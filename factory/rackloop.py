@@ -28,12 +28,15 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import trimesh
 
+from cadcam.model import Setup, Tool
+from cadcam.op2 import facing_gap
 from factory.core.errors import CellError, PlanningError, VisionError
 from factory.cellcameras import Stations, rack_slots_seen
 from robotprog.cell import Box, Cell
@@ -247,6 +250,17 @@ class AfterOp1:
     part_max: np.ndarray
     setups: int
     facing_reach: float = math.inf
+
+
+def facing_reach(setup: Setup, operations: Sequence[Mapping[str, Any]], tools: Mapping[int, Tool]) -> float | None:
+    """How far op 2's stock may reach beyond its planned X faces before a facing ramp meets it with
+    the tool's centre [mm]: :func:`cadcam.op2.facing_gap` plus the facing tool's radius, of op 2's
+    ``setup``, ``operations`` (the setup sheet's records) and ``tools`` by number; None: op 2 faces
+    nothing. A holding block seated off along the jaws that reaches less far meets the ramp's end
+    and the step-overs beside it with the tool's side, a cut narrower than the passes' own; further,
+    the end mill's centre would meet it on the ramp."""
+    number = next((int(op["tool"]) for op in operations if op.get("kind") == "facing"), None)
+    return None if number is None else facing_gap(setup) + float(tools[number].radius)
 
 
 def after_moves(motion: Any, after: AfterOp1) -> AfterMoves:

@@ -31,7 +31,6 @@ from cadcam.cutting_power import SpindleLoad, program_spindle_load
 from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_planned_part
 from cadcam.model import Setup
-from cadcam.op2 import facing_reach
 from cadcam.relief import block_corners
 from cadcam.timeline import MachineTimeline, machine_timeline, stock_snapshots
 from cadcam.tools import ToolLibrary, load_tool_library
@@ -40,7 +39,7 @@ from factory.camera_msgs import camera_info_msg, compressed_image_msg
 from factory.cellinputs import CellInputs
 from factory.catalog import CatalogEntry, catalog_record, find_entry, sha256_file
 from factory.cellcameras import Shot, Stations, camera_shots, cell_stations
-from factory.rackloop import AfterOp1, BlankPart, RackLoop, RackPick, blank_part
+from factory.rackloop import AfterOp1, BlankPart, RackLoop, RackPick, blank_part, facing_reach
 from factory.cellmsgs import (ComponentStatus, Detection, OrderLine, cell_summary, detected_object_array,
                               diagnostic_array, image_annotations, machine_signal, machine_state, order_queue,
                               robot_state, scheduler_state)

@@ -307,17 +307,3 @@ def test_random_parts_give_two_programs_that_finish_the_bottom(body, tmp_path):
     assert r2.remaining_p95 <= 0.02  # the bottom: random blocks have flat bottoms
     # Op 2 starts from op 1's stock: its material never exceeds the holding allowance plus the part.
     assert np.isfinite(sim2.stock_top).any()
-
-
-def test_the_facings_reach_is_its_pass_ends_clearance_plus_the_tools_radius():
-    """How far a holding block seated off along the jaws may reach before a facing ramp meets it with
-    the end mill's centre (robotprog.seat's op 2 figure)."""
-    from cadcam.model import Tool
-    from cadcam.op2 import facing_gap, facing_reach
-
-    setup = Setup(stock_min=[0, 0, -20], stock_max=[104, 64, 0], transform_mesh_to_work=np.eye(4))
-    mill = Tool(number=14, name="16 mm flat", shape="flat", diameter=16.0, corner_radius=0.0, flute_length=30.0, flutes=3,
-                length=60.0)
-    ops = ({"kind": "facing", "tool": 14}, {"kind": "rest", "tool": 3})
-    assert facing_gap(setup) == 1.0 and facing_reach(setup, ops, {14: mill}) == 9.0
-    assert facing_reach(setup, ops[1:], {14: mill}) is None

@@ -223,3 +223,19 @@ def test_each_pick_says_whether_the_blank_as_it_truly_came_lay_within_its_proven
     assert beyond.seat_holds() is False
     assert beyond.to_dict()["seat_true_across_mm"] == pytest.approx(1.2, abs=0.02)
     assert "beyond what its seat was proven for, the reported uncertainty did not hold" in beyond.message()
+
+
+def test_the_facings_reach_is_its_pass_ends_clearance_plus_the_tools_radius():
+    """How far a holding block seated off along the jaws may reach before a facing ramp meets it with
+    the end mill's centre (robotprog.seat's op 2 figure)."""
+    from cadcam.model import Tool
+    from cadcam.model import Setup
+    from cadcam.op2 import facing_gap
+    from factory.rackloop import facing_reach
+
+    setup = Setup(stock_min=[0, 0, -20], stock_max=[104, 64, 0], transform_mesh_to_work=np.eye(4))
+    mill = Tool(number=14, name="16 mm flat", shape="flat", diameter=16.0, corner_radius=0.0, flute_length=30.0, flutes=3,
+                length=60.0)
+    ops = ({"kind": "facing", "tool": 14}, {"kind": "rest", "tool": 3})
+    assert facing_gap(setup) == 1.0 and facing_reach(setup, ops, {14: mill}) == 9.0
+    assert facing_reach(setup, ops[1:], {14: mill}) is None
