@@ -26,6 +26,7 @@ correction and the corrected moves; the cell log and the run's output carry them
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections.abc import Mapping, Sequence
@@ -237,21 +238,6 @@ def seat_moves(motion: Any, size_m: np.ndarray, margin_along_jaws_m: float) -> S
                      np.asarray(size_m, dtype=float), float(margin_along_jaws_m))
 
 
-@dataclass(frozen=True)
-class AfterOp1:
-    """What the plan leaves in the vise after op 1, in the vise frame [m]: the stock box
-    (``stock_min``, ``stock_max``), the finished part's box (``part_min``, ``part_max``; a relief:
-    its block), the ``setups`` (2: turned over and faced by op 2) and how far op 2's facing lets the
-    holding block reach (``facing_reach`` [m], :func:`cadcam.op2.facing_reach`)."""
-
-    stock_min: np.ndarray
-    stock_max: np.ndarray
-    part_min: np.ndarray
-    part_max: np.ndarray
-    setups: int
-    facing_reach: float = math.inf
-
-
 def facing_reach(setup: Setup, operations: Sequence[Mapping[str, Any]], tools: Mapping[int, Tool]) -> float | None:
     """How far op 2's stock may reach beyond its planned X faces before a facing ramp meets it with
     the tool's centre [mm]: :func:`cadcam.op2.facing_gap` plus the facing tool's radius, of op 2's
@@ -263,14 +249,14 @@ def facing_reach(setup: Setup, operations: Sequence[Mapping[str, Any]], tools: M
     return None if number is None else facing_gap(setup) + float(tools[number].radius)
 
 
-def after_moves(motion: Any, after: AfterOp1) -> AfterMoves:
-    """The plan's flip and unload, read from a part's :class:`factory.simulation.RobotMotion`."""
+def after_moves(motion: Any, after: AfterMoves) -> AfterMoves:
+    """``after`` (what op 1 leaves in the vise; its moves not read yet) with the plan's flip and
+    unload, read from a part's :class:`factory.simulation.RobotMotion`."""
     names = [m[0] for m in motion.moves if m[0].startswith(("flip:", "unload:"))]
-    return AfterMoves(tuple((n, move_samples(motion, n)) for n in names), after.stock_min, after.stock_max,
-                      after.part_min, after.part_max, after.setups, after.facing_reach)
+    return dataclasses.replace(after, moves=tuple((n, move_samples(motion, n)) for n in names))
 
 
-def blank_part(stock_mm: np.ndarray, motion: Any, margin_along_jaws_mm: float, after: AfterOp1) -> BlankPart:
+def blank_part(stock_mm: np.ndarray, motion: Any, margin_along_jaws_mm: float, after: AfterMoves) -> BlankPart:
     """The :class:`BlankPart` of a part whose stock is ``stock_mm`` (3,) [mm], reaches
     ``margin_along_jaws_mm`` [mm] beyond the part along the jaws (work X) at its nearer end, and
     leaves op 1 as ``after`` says."""

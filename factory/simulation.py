@@ -39,7 +39,7 @@ from factory.camera_msgs import camera_info_msg, compressed_image_msg
 from factory.cellinputs import CellInputs
 from factory.catalog import CatalogEntry, catalog_record, find_entry, sha256_file
 from factory.cellcameras import Shot, Stations, camera_shots, cell_stations
-from factory.rackloop import AfterOp1, BlankPart, RackLoop, RackPick, blank_part, facing_reach
+from factory.rackloop import BlankPart, RackLoop, RackPick, blank_part, facing_reach
 from factory.cellmsgs import (ComponentStatus, Detection, OrderLine, cell_summary, detected_object_array,
                               diagnostic_array, image_annotations, machine_signal, machine_state, order_queue,
                               robot_state, scheduler_state)
@@ -61,6 +61,7 @@ from robotprog.cell import Cell, load_cell
 from robotprog.cellsim import EventSink, PartProcess, RunningSummary, SimulationResult, simulate as run_simulation
 from robotprog.collision import CollisionWorld, collision_world
 from robotprog.frames import setup_sheet_to_cell
+from robotprog.seat import AfterMoves
 from robotprog.tending import part_box_in_vise
 from robotprog.machineio import SIGNALS, UNLOADS
 from robotprog.programs import VERDICT_AFTER
@@ -305,8 +306,8 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
     shots = camera_shots(entry, seen, np.asarray(setup.stock_size), stations, camera_sha256)
     box = part_box_in_vise(in_vise, np.asarray(seen.vertices) / float(setup.mesh_scale))  # as the plan's robot had it
     reach = None if op2 is None else facing_reach(op2_sheet.setup, op2_sheet.sheet.operations, op2_sheet.tools)
-    after = AfterOp1(in_vise.stock_min, in_vise.stock_max, box.low, box.high, 1 if op2 is None else 2,
-                     math.inf if reach is None else reach / MM_PER_M)
+    after = AfterMoves((), in_vise.stock_min, in_vise.stock_max, box.low, box.high, 1 if op2 is None else 2,
+                       math.inf if reach is None else reach / MM_PER_M)
     return PartAssets(
         part=part, material=material, entry=entry,
         process=part_process(motion, float(sheet.estimated_cycle_s), shots,

@@ -257,7 +257,7 @@ class AfterMoves:
         2: the flip turns the piece over and op 2 faces the holding block off before the unload.
     facing_reach : float
         How far the holding block may reach beyond its planned ends along the jaws before op 2's
-        facing ramps meet it with the tool's centre [m] (:func:`cadcam.op2.facing_reach`: the
+        facing ramps meet it with the tool's centre [m] (:func:`factory.rackloop.facing_reach`: the
         passes' clearance beyond the stock plus the tool's radius; inf: op 2 faces nothing).
     """
 
