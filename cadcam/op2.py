@@ -259,6 +259,12 @@ def facing_levels(top: float, face_z: float, stepdown: float, finish_depth: floa
     return np.asarray(levels)
 
 
+def facing_gap(setup: Setup) -> float:
+    """How far the facing's passes end clear of the stock's X faces, the tool's edge beyond them
+    [mm]: the ramps down to each level end there, in the air (:func:`factory.rackloop.facing_reach`)."""
+    return max(float(setup.clearance), 0.5)
+
+
 def facing(setup: Setup, face_z: float, tool: Tool, cutting: CuttingData,
            options: FacingOptions = FacingOptions()) -> Operation:
     """Face the whole stock top of ``setup`` down to ``face_z`` with a flat end mill.
@@ -301,7 +307,7 @@ def facing(setup: Setup, face_z: float, tool: Tool, cutting: CuttingData,
     R, D = tool.radius, tool.diameter
     x0, y0 = float(setup.stock_min[0]), float(setup.stock_min[1])
     x1, y1 = float(setup.stock_max[0]), float(setup.stock_max[1])
-    gap = max(float(setup.clearance), 0.5)
+    gap = facing_gap(setup)
     # Pass ends: the tool clear of the stock's X faces by the clearance.
     xa, xb = x0 - R - gap, x1 + R + gap
     # Pass centres: the tool's edge overhangs each Y face by the overhang, passes evenly spaced.

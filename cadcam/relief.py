@@ -373,6 +373,29 @@ class Boundary:
                 "bounds_mm": [round(v, 3) for v in (x0, y0, x1, y1)]}
 
 
+def block_margins(found: SurfaceFound, margins: StockMargins, gripped: float | None) -> StockMargins:
+    """The margins of a relief's block: ``margins``, less across the jaws where the gripper needs it.
+
+    A relief leaves the machine in its block, and the rim beyond its footprint is stock op 1 never
+    cuts. Along the jaws (work X) the rim is what lets a blank seated off along them still hold the
+    whole relief (:mod:`robotprog.seat`); across them the jaws square the blank up, and the rim holds
+    nothing. The robot's fingers close across the block's narrower side: where that is work Y and the
+    block with its rim is wider than ``gripped`` [mm] (the widest blank the gripper opens its fingers'
+    clearance beside), the rim across Y is trimmed to what leaves that clearance, down to none: the
+    footprint's own width, a flat bar that wide. A block the fingers would close across X, or one
+    that leaves the clearance already, keeps ``margins``; ``gripped`` None (no cell): ``margins``.
+    """
+    fx, fy = (float(v) for v in found.footprint_mm)
+    sides = margins.sides_xy
+    if gripped is None or fy + 2 * sides[1] > fx + 2 * sides[0] or fy + 2 * sides[1] <= gripped:
+        return margins
+    across = max(0.0, (gripped - fy) / 2)
+    log.info("relief block: %.1f mm across the jaws, not %.1f: the rim there trimmed to %.2f mm so the gripper "
+             "opens its fingers' clearance beside it where it can (it takes %.1f mm with it)",
+             fy + 2 * across, fy + 2 * sides[1], across, gripped)
+    return dataclasses.replace(margins, across=across)
+
+
 def relief_setup(
     part: trimesh.Trimesh,
     found: SurfaceFound,

@@ -82,6 +82,9 @@ class StockMargins:
     ----------
     sides : float
         Added on each of the four sides (X-, X+, Y-, Y+) [mm]. Default 2.
+    across : float or None
+        Added on each Y side (across the vise's jaws) instead of ``sides`` [mm]; None: ``sides``.
+        A relief's block takes less where the gripper needs its room (:func:`cadcam.relief.block_margins`).
     top : float
         Added above the part's highest point, to be faced off [mm]. Default 1.
     bottom : float or None
@@ -96,6 +99,12 @@ class StockMargins:
     top: float = 1.0
     bottom: float | None = None
     breakthrough: float = BREAKTHROUGH_MM
+    across: float | None = None
+
+    @property
+    def sides_xy(self) -> np.ndarray:
+        """(2,) [mm]: what is added on each X side and on each Y side."""
+        return np.array([self.sides, self.sides if self.across is None else self.across], dtype=np.float64)
 
 
 def default_holding(jaws: ViseJaws | None, breakthrough: float = BREAKTHROUGH_MM) -> float:
@@ -153,13 +162,14 @@ def _stock_size(part_size: np.ndarray, stock_size: tuple[float, float, float] | 
         stock the vise cannot hold (:func:`check_holding`).
     """
     if stock_size is None:
-        for name in ("sides", "top"):
+        for name in ("sides", "top", "across"):
             v = getattr(margins, name)
-            if not (np.isfinite(v) and v >= 0):
+            if v is not None and not (np.isfinite(v) and v >= 0):
                 raise SetupError(f"stock margin {name} must be >= 0 mm, got {v}", source=source)
-        check_holding(holding, part_size + 2 * margins.sides, jaws, margins.breakthrough, source)
+        sides = margins.sides_xy
+        check_holding(holding, part_size + 2 * np.append(sides, 0.0), jaws, margins.breakthrough, source)
         return check_stock_size(
-            part_size + np.array([2 * margins.sides, 2 * margins.sides, margins.top + holding]), source)
+            part_size + np.array([2 * sides[0], 2 * sides[1], margins.top + holding]), source)
     size = check_stock_size(stock_size, source)
     check_holding(holding, size, jaws, margins.breakthrough, source)
     for axis, s, p in zip("XYZ", size, part_size):

@@ -21,8 +21,8 @@ from cadcam.mesh import PartMesh, load_part
 from cadcam.model import Job, Operation, Setup, SoftJaws, ViseJaws
 from cadcam.op2 import choose_face_up
 from cadcam.plan import PlanOptions, plan_job
-from cadcam.relief import (FINISH_ENGAGEMENT, TERRACE_STEPDOWN, Boundary, ReliefOptions, machining_surface,
-                           own_surface, relief_setup)
+from cadcam.relief import (FINISH_ENGAGEMENT, TERRACE_STEPDOWN, Boundary, ReliefOptions, block_margins,
+                           machining_surface, own_surface, relief_setup)
 from cadcam.roughing import RoughingOptions
 from cadcam.setup import StockMargins, orient_setup
 from cadcam.tools import ToolLibrary, load_tool_library
@@ -148,6 +148,20 @@ class CamRequest:
         """
         return None if self.cell is None else vise_jaws(load_cell(self.cell, check_robot=False).vise)
 
+    def gripped(self) -> float | None:
+        """The widest blank [mm] the gripper of :attr:`cell` opens its fingers' clearance beside
+        (:func:`robotprog.grasp.finger_room`), None without a cell.
+
+        Raises
+        ------
+        CellError
+            The cell file cannot be read or is malformed.
+        """
+        if self.cell is None:
+            return None
+        gripper = load_cell(self.cell, check_robot=False).gripper
+        return (gripper.opening_max - 2 * gripper.fingers.clearance) * MM_PER_M
+
 
 @dataclasses.dataclass(frozen=True)
 class PlannedPart:
@@ -211,9 +225,10 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
                 setup, part_work = place(loaded.mesh)
         else:
             log.info("%s: %s", req.part, loaded.surface.describe())
+            margins = block_margins(loaded.surface, StockMargins(bottom=req.holding), req.gripped())
             setup, surface_work, boundary = relief_setup(
                 loaded.mesh, loaded.surface, req.relief, stock_size=req.stock,
-                margins=StockMargins(bottom=req.holding), jaws=jaws, origin=req.origin,
+                margins=margins, jaws=jaws, origin=req.origin,
                 material=req.material, mesh_scale=loaded.scale, source=str(req.part))
             part_work = machining_surface(surface_work, setup)
             if check_setup is not None:

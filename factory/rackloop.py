@@ -15,7 +15,10 @@ the blank where it truly stands (:func:`vision.station.locate_shot`: rendered, e
 - the blank then sits in the vise off by the camera's error, up to the located pose's reported
   uncertainty: the plan's place in the vise and the retreat from it are proven again for a blank
   that far off, and the seat refused where the open jaws or the part's margin in the stock along
-  the jaws cannot take it (:func:`robotprog.seat.prove_seat`), a fault as above.
+  the jaws cannot take it (:func:`robotprog.seat.prove_seat`), a fault as above;
+- what op 1 leaves of the stock then sits off along the jaws as the seat allows: the plan's flip
+  (grip, turn-over, re-place) and unload are proven again with it, or refused with the figures
+  (:func:`robotprog.seat.prove_after_seat`), a fault as above.
 
 Each decision is a :class:`RackPick`: the true offset, the located one, the camera's error, the
 correction and the corrected moves; the cell log and the run's output carry them.
@@ -23,14 +26,18 @@ correction and the corrected moves; the cell log and the run's output carry them
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import trimesh
 
+from cadcam.model import Setup, Tool
+from cadcam.op2 import facing_gap
 from factory.core.errors import CellError, PlanningError, VisionError
 from factory.cellcameras import Stations, rack_slots_seen
 from robotprog.cell import Box, Cell
@@ -41,7 +48,8 @@ from robotprog.rackpick import BlankScatter, CorrectedPick, PlannedPick, SlotOff
     slot_room
 from robotprog.rack import RackSlot, next_slot, slot_refusal
 from robotprog.robots import Robot
-from robotprog.seat import CARRIED_MOVES, RELEASED_MOVES, Residual, Seat, SeatMoves, prove_seat
+from robotprog.seat import CARRIED_MOVES, RELEASED_MOVES, AfterMoves, AfterSeat, Residual, Seat, SeatMoves, \
+    prove_after_seat, prove_seat, reach
 from vision.lit import Condition
 from vision.locate import footprint_from_mesh
 from vision.report import bgr_png_bytes
@@ -57,14 +65,16 @@ UNCERTAINTY_SHARE = 0.5
 @dataclass(frozen=True)
 class BlankPart:
     """What the closed loop needs of one planned part: its blank's mesh [mm] (a box, corner at
-    the origin), what the plan does at the rack and at the vise (``seat``); ``to_above_s`` [s] is
-    the planned move from home to above the slot, which the corrected pick starts after."""
+    the origin), what the plan does at the rack, at the vise (``seat``) and after op 1 (``after``:
+    the flip and the unload); ``to_above_s`` [s] is the planned move from home to above the slot,
+    which the corrected pick starts after."""
 
     vertices_mm: np.ndarray
     faces: np.ndarray
     planned: PlannedPick
     to_above_s: float
     seat: SeatMoves
+    after: AfterMoves
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,6 +99,8 @@ class RackPick:
         The corrected, proven pick (None when refused).
     seat : Seat or None
         Its seat in the vise, proven for the located pose's uncertainty (None when refused).
+    after : AfterSeat or None
+        The flip and the unload, proven for that seat (None when refused).
     rack : RackSlot or None
         Where the blank stands in the rack (None: it fits no slot the camera sees).
     fetch_s : float
@@ -114,6 +126,7 @@ class RackPick:
     detection: dict[str, Any] | None
     seat: Seat | None = None
     rack: RackSlot | None = None
+    after: AfterSeat | None = None
 
     @property
     def error(self) -> SlotOffset | None:
@@ -137,7 +150,37 @@ class RackPick:
             text += f"; grasp corrected by {self.pick.correction.describe()}, proven"
         if self.seat is not None:
             text += f"; {self.seat.describe()}"
+        if self.after is not None:
+            text += f"; {self.after.describe()}"
+        if self.seat_holds() is False:
+            true = self.true_reach()
+            text += (f"; the blank truly lands {true[0] * 1e3:.2f} mm off along the jaws and {true[1] * 1e3:.2f} mm "
+                     "across them: beyond what its seat was proven for, the reported uncertainty did not hold")
         return text + (f"; {self.refusal}" if self.refusal else "")
+
+    def true_reach(self) -> np.ndarray | None:
+        """How far the blank truly lands off its place in the vise along the jaws and across them,
+        (2,) [m], by the camera's true error (:func:`robotprog.seat.reach`; the error taken along
+        the blank's own axes); None when no seat was proven."""
+        err = self.error
+        if self.seat is None or err is None or self.rack is None:
+            return None
+        c, s = math.cos(self.offset.dyaw), math.sin(self.offset.dyaw)
+        along_blank = np.array([c * err.dx + s * err.dy, -s * err.dx + c * err.dy])
+        return reach(np.asarray(self.rack.size), along_blank, err.dyaw)
+
+    def seat_holds(self) -> bool | None:
+        """Whether the blank as it truly came lies within what its seat was proven for (None when
+        no seat was proven): the proof rests on the reported uncertainty, which may not hold."""
+        true = self.true_reach()
+        return None if true is None else bool(true[0] <= self.seat.along + 1e-9
+                                                and true[1] <= self.seat.across + 1e-9)
+
+    def _seat_audit(self) -> dict[str, Any]:
+        true = self.true_reach()
+        return {"seat_true_along_mm": None if true is None else round(float(true[0]) * 1e3, 4),
+                "seat_true_across_mm": None if true is None else round(float(true[1]) * 1e3, 4),
+                "seat_holds": self.seat_holds()}
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready, in mm and degrees for people."""
@@ -160,8 +203,11 @@ class RackPick:
                     err.shift_m * 1e3 <= self.sigma_mm and abs(math.degrees(err.dyaw)) <= self.sigma_deg),
                 "correction": mmdeg(None if self.pick is None else self.pick.correction),
                 "proven": self.pick is not None,
+                **self._seat_audit(),
                 "seat_across_mm": None if self.seat is None else round(self.seat.across * 1e3, 4),
                 "seat_along_mm": None if self.seat is None else round(self.seat.along * 1e3, 4),
+                "after_proven": [] if self.after is None else list(self.after.moves),
+                "unload_part_off_mm": None if self.after is None else round(self.after.part_off * 1e3, 4),
                 "fetch_s": round(self.fetch_s, 4), "refusal": self.refusal}
 
 
@@ -176,27 +222,50 @@ def planned_pick(motion: Any, size_m: np.ndarray) -> tuple[PlannedPick, float]:
     return planned, motion.duration("load: home to above rack", "load: home to above rack")
 
 
+def move_samples(motion: Any, name: str) -> np.ndarray:
+    """The recorded joint samples (n, dof) [rad] of the move ``name`` of a part's
+    :class:`factory.simulation.RobotMotion`, its ends included."""
+    t0, t1 = motion.span(name, name)
+    inside = (motion.t > t0) & (motion.t < t1)
+    ends = np.array([[np.interp(t, motion.t, motion.q[:, j]) for j in range(motion.q.shape[1])] for t in (t0, t1)])
+    return np.vstack([ends[:1], motion.q[inside], ends[1:]])
+
+
 def seat_moves(motion: Any, size_m: np.ndarray, margin_along_jaws_m: float) -> SeatMoves:
-    """The plan's moves at the vise, read from a part's :class:`factory.simulation.RobotMotion`: the
-    recorded joint samples of each move, its ends included."""
-    def samples(name: str) -> np.ndarray:
-        t0, t1 = motion.span(name, name)
-        inside = (motion.t > t0) & (motion.t < t1)
-        ends = np.array([[np.interp(t, motion.t, motion.q[:, j]) for j in range(motion.q.shape[1])] for t in (t0, t1)])
-        return np.vstack([ends[:1], motion.q[inside], ends[1:]])
-    return SeatMoves(tuple(samples(n) for n in CARRIED_MOVES), tuple(samples(n) for n in RELEASED_MOVES),
+    """The plan's moves at the vise, read from a part's :class:`factory.simulation.RobotMotion`."""
+    return SeatMoves(tuple(move_samples(motion, n) for n in CARRIED_MOVES),
+                     tuple(move_samples(motion, n) for n in RELEASED_MOVES),
                      np.asarray(size_m, dtype=float), float(margin_along_jaws_m))
 
 
-def blank_part(stock_mm: np.ndarray, motion: Any, margin_along_jaws_mm: float) -> BlankPart:
-    """The :class:`BlankPart` of a part whose stock is ``stock_mm`` (3,) [mm] and reaches
-    ``margin_along_jaws_mm`` [mm] beyond the part along the jaws (work X), at its nearer end."""
+def facing_reach(setup: Setup, operations: Sequence[Mapping[str, Any]], tools: Mapping[int, Tool]) -> float | None:
+    """How far op 2's stock may reach beyond its planned X faces before a facing ramp meets it with
+    the tool's centre [mm]: :func:`cadcam.op2.facing_gap` plus the facing tool's radius, of op 2's
+    ``setup``, ``operations`` (the setup sheet's records) and ``tools`` by number; None: op 2 faces
+    nothing. A holding block seated off along the jaws that reaches less far meets the ramp's end
+    and the step-overs beside it with the tool's side, a cut narrower than the passes' own; further,
+    the end mill's centre would meet it on the ramp."""
+    number = next((int(op["tool"]) for op in operations if op.get("kind") == "facing"), None)
+    return None if number is None else facing_gap(setup) + float(tools[number].radius)
+
+
+def after_moves(motion: Any, after: AfterMoves) -> AfterMoves:
+    """``after`` (what op 1 leaves in the vise; its moves not read yet) with the plan's flip and
+    unload, read from a part's :class:`factory.simulation.RobotMotion`."""
+    names = [m[0] for m in motion.moves if m[0].startswith(("flip:", "unload:"))]
+    return dataclasses.replace(after, moves=tuple((n, move_samples(motion, n)) for n in names))
+
+
+def blank_part(stock_mm: np.ndarray, motion: Any, margin_along_jaws_mm: float, after: AfterMoves) -> BlankPart:
+    """The :class:`BlankPart` of a part whose stock is ``stock_mm`` (3,) [mm], reaches
+    ``margin_along_jaws_mm`` [mm] beyond the part along the jaws (work X) at its nearer end, and
+    leaves op 1 as ``after`` says."""
     box = trimesh.creation.box(stock_mm)
     box.apply_translation(np.asarray(stock_mm, dtype=float) / 2)
     size_m = np.asarray(stock_mm, dtype=float) / 1000.0
     planned, to_above = planned_pick(motion, size_m)
     return BlankPart(np.asarray(box.vertices), np.asarray(box.faces), planned, to_above,
-                     seat_moves(motion, size_m, margin_along_jaws_mm / 1000.0))
+                     seat_moves(motion, size_m, margin_along_jaws_mm / 1000.0), after_moves(motion, after))
 
 
 @dataclass
@@ -323,5 +392,10 @@ class RackLoop:
             seat = prove_seat(self.cell, self.robot, part.seat, residual, self.options)
         except PlanningError as e:
             return refused(f"the blank's seat in the vise is not proven: {e}", located, sigma, png, d)
+        try:
+            after = prove_after_seat(self.cell, self.robot, part.after, seat, self.options)
+        except PlanningError as e:
+            return refused(f"the part's way out of the vise is not proven for the blank's seat: {e}", located, sigma,
+                           png, d)
         return RackPick(index, job, slot, attempt, offset, located, sigma[0], sigma[1], "", pick,
-                        part.to_above_s + pick.duration, png, d, seat, where)
+                        part.to_above_s + pick.duration, png, d, seat, where, after)

@@ -19,6 +19,7 @@ import functools
 import heapq
 import json
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -38,7 +39,7 @@ from factory.camera_msgs import camera_info_msg, compressed_image_msg
 from factory.cellinputs import CellInputs
 from factory.catalog import CatalogEntry, catalog_record, find_entry, sha256_file
 from factory.cellcameras import Shot, Stations, camera_shots, cell_stations
-from factory.rackloop import BlankPart, RackLoop, RackPick, blank_part
+from factory.rackloop import BlankPart, RackLoop, RackPick, blank_part, facing_reach
 from factory.cellmsgs import (ComponentStatus, Detection, OrderLine, cell_summary, detected_object_array,
                               diagnostic_array, image_annotations, machine_signal, machine_state, order_queue,
                               robot_state, scheduler_state)
@@ -52,6 +53,7 @@ from factory.rosmsgs import (TYPESTORE, RestampedCdr, Serialized, TfCdr, cube_ma
 from factory.plan import PlanRequest, plan_part
 from factory.core.progress import Progress, Stopwatch, stage_callback
 from factory.core.resources import FIXTURES
+from factory.core.units import MM_PER_M
 from factory.tending import LinkPoses, RobotStateLog, log_cell
 from factory.verify import flip_of, part_triangles, read_sheet, run_verify_after
 from factory.views import heightfield_mesh
@@ -59,6 +61,8 @@ from robotprog.cell import Cell, load_cell
 from robotprog.cellsim import EventSink, PartProcess, RunningSummary, SimulationResult, simulate as run_simulation
 from robotprog.collision import CollisionWorld, collision_world
 from robotprog.frames import setup_sheet_to_cell
+from robotprog.seat import AfterMoves
+from robotprog.tending import part_box_in_vise
 from robotprog.machineio import SIGNALS, UNLOADS
 from robotprog.programs import VERDICT_AFTER
 from robotprog.orders import Order
@@ -298,8 +302,12 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
         spindle_op2 = program_spindle_load(timeline_op2, verified2.simulation.removed_volume, library, material)
     toolpath = next((m for topic, _, m in read_messages(mcap, ["/cam/toolpath"])), None)
     in_vise = setup_sheet_to_cell(sheet, str(sheet_path))
-    shots = camera_shots(entry, seen_part(part, setup, sheet, str(sheet_path)), np.asarray(setup.stock_size),
-                         stations, camera_sha256)
+    seen = seen_part(part, setup, sheet, str(sheet_path))
+    shots = camera_shots(entry, seen, np.asarray(setup.stock_size), stations, camera_sha256)
+    box = part_box_in_vise(in_vise, np.asarray(seen.vertices) / float(setup.mesh_scale))  # as the plan's robot had it
+    reach = None if op2 is None else facing_reach(op2_sheet.setup, op2_sheet.sheet.operations, op2_sheet.tools)
+    after = AfterMoves((), in_vise.stock_min, in_vise.stock_max, box.low, box.high, 1 if op2 is None else 2,
+                       math.inf if reach is None else reach / MM_PER_M)
     return PartAssets(
         part=part, material=material, entry=entry,
         process=part_process(motion, float(sheet.estimated_cycle_s), shots,
@@ -307,7 +315,8 @@ def prepare_part(part: Path, material: str, entry: CatalogEntry, stations: Stati
         motion=motion, transform_vise_to_work=in_vise.transform_vise_to_work, toolpath=toolpath,
         timeline=timeline, stock=tuple((t, v, f) for t, v, f, _ in stock), shots=shots, planned_now=planned_now,
         timeline_op2=timeline_op2, spindle=spindle, spindle_op2=spindle_op2,
-        blank=blank_part(np.asarray(setup.stock_size, dtype=float), motion, margin_along_jaws(part, setup, sheet, str(sheet_path))))
+        blank=blank_part(np.asarray(setup.stock_size, dtype=float), motion, margin_along_jaws(part, setup, sheet,
+                                                                                               str(sheet_path)), after))
 
 
 def plan_parts(orders: tuple[Order, ...], catalog: Path, cell_path: Path, tools: Path | None, stations: Stations,

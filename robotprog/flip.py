@@ -51,23 +51,32 @@ class Piece:
         Finished part box [m].
     block_min, block_max : (3,) float
         Holding block box [m] (zero height when the stock has no holding allowance).
+    slack : float
+        How far the holding block may sit off along x [m], the part where the plan has it: the
+        blank is seated in the vise only up to the part's margin in the stock along the jaws
+        (:func:`robotprog.seat.check_seat`), and op 1 cuts the part where the plan put it. The
+        block's boxes (:meth:`boxes`) reach that much further at both ends, so every move of the
+        flip keeps that room from it.
     """
 
     part_min: np.ndarray
     part_max: np.ndarray
     block_min: np.ndarray
     block_max: np.ndarray
+    slack: float = 0.0
 
     @staticmethod
     def after_op1(stock_min: np.ndarray, stock_max: np.ndarray, part_min: np.ndarray,
                   part_max: np.ndarray) -> "Piece":
         """The part on what is left of the stock below it (the stock's footprint, from its bottom
-        up to the part's bottom)."""
+        up to the part's bottom), which may sit off along x by the part's margin in the stock there
+        (at its nearer end)."""
         smin, smax = np.asarray(stock_min, float), np.asarray(stock_max, float)
         pmin, pmax = np.asarray(part_min, float), np.asarray(part_max, float)
         bmax = smax.copy()
         bmax[2] = max(pmin[2], smin[2])
-        return Piece(pmin, pmax, smin.copy(), bmax)
+        slack = max(0.0, min(float(pmin[0] - smin[0]), float(smax[0] - pmax[0])))
+        return Piece(pmin, pmax, smin.copy(), bmax, slack)
 
     @property
     def has_block(self) -> bool:
@@ -84,13 +93,15 @@ class Piece:
         t = turnover(axis, self.top)
         pmin, pmax = _box_through(t, self.part_min, self.part_max)
         bmin, bmax = _box_through(t, self.block_min, self.block_max)
-        return Piece(pmin, pmax, bmin, bmax)
+        return Piece(pmin, pmax, bmin, bmax, self.slack)
 
     def boxes(self) -> tuple[tuple[str, np.ndarray, np.ndarray], ...]:
-        """(name, min, max) of the part and, if any, the holding block."""
+        """(name, min, max) of the part and, if any, the holding block (reaching its :attr:`slack`
+        further at both ends along x)."""
         out = [("part", self.part_min, self.part_max)]
         if self.has_block:
-            out.append(("holding_block", self.block_min, self.block_max))
+            grow = np.array([self.slack, 0.0, 0.0])
+            out.append(("holding_block", self.block_min - grow, self.block_max + grow))
         return tuple(out)
 
 
@@ -410,18 +421,25 @@ def _side_grip(site: _Site, q_from: np.ndarray) -> _SideGrip:
     raise PlanningError("no side grip: " + "; ".join(dict.fromkeys(problems)), source="flip_station.pose")
 
 
+#: Step 2's first move, to the side of the piece; its gripper actions: the fingers close on the
+#: holding block from its side, and let the turned piece go.
+SIDE_START = "flip: to the side of the piece"
+SIDE_GRIP = "flip: grip holding block"
+SIDE_RELEASE = "flip: release turned piece"
+
+
 def _turn_over(site: _Site, side: _SideGrip, q_from: np.ndarray) -> tuple[TimedMove, ...]:
     """Step 2 timed from ``q_from`` [rad]: to the side of the piece, grip the holding block, lift,
     turn over, set down, release, back off."""
     p, io = site.planner, site.planner.cell.gripper.io
-    return (site.on_post.joint_move("flip: to the side of the piece", q_from, side.q_back, side.open_,
+    return (site.on_post.joint_move(SIDE_START, q_from, side.q_back, side.open_,
                                     "flip station to its side"),
             site.on_post.timed("flip: approach holding block", "linear", side.into, side.open_),
-            p.gripper("flip: grip holding block", side.into[-1], io.grip, side.open_),
+            p.gripper(SIDE_GRIP, side.into[-1], io.grip, side.open_),
             p.timed("flip: lift", "linear", side.lift, side.carried),
             p.timed("flip: turn over", "joint", side.turn, side.carried),
             p.timed("flip: set down turned over", "linear", side.lower, side.carried),
-            p.gripper("flip: release turned piece", side.lower[-1], io.release, side.carried),
+            p.gripper(SIDE_RELEASE, side.lower[-1], io.release, side.carried),
             site.turned_on_post.timed("flip: back off", "linear", side.back, side.open_))
 
 

@@ -119,11 +119,7 @@ def tcp_above_bottom(cell: Cell, height: float, options: GraspOptions, what: str
     The fingertips must stay ``floor_clearance`` above the surface the box stands on; the body ends
     where the fingers start and must stay ``floor_clearance`` above the box's top, which bounds the
     grip depth by the finger length."""
-    g = cell.gripper
-    t_tcp_body = np.linalg.inv(g.tcp.matrix()) @ g.body.pose.matrix()
-    corners = np.array([[sx, sy, sz] for sx in (-.5, .5) for sy in (-.5, .5) for sz in (-.5, .5)]) * g.body.size
-    body_above = -float(((corners @ t_tcp_body[:3, :3].T) + t_tcp_body[:3, 3])[:, 2].max())
-    depth = min(height / 2, options.grip_depth, body_above - options.floor_clearance)
+    depth = min(height / 2, options.grip_depth, body_above_tips(cell) - options.floor_clearance)
     tcp_above = max(height - depth, options.floor_clearance)
     if height - tcp_above < options.min_grip_depth - 1e-9:
         raise PlanningError(
@@ -132,6 +128,15 @@ def tcp_above_bottom(cell: Cell, height: float, options: GraspOptions, what: str
             f"needed, fingertips {options.floor_clearance * MM_PER_M:.1f} mm above what it stands on",
             source="gripper.fingers")
     return tcp_above
+
+
+def body_above_tips(cell: Cell) -> float:
+    """How far the gripper body stands behind the fingertips along the tool axis [m]: where the
+    fingers start, the deepest a box's face may come between them."""
+    g = cell.gripper
+    t_tcp_body = np.linalg.inv(g.tcp.matrix()) @ g.body.pose.matrix()
+    corners = np.array([[sx, sy, sz] for sx in (-.5, .5) for sy in (-.5, .5) for sz in (-.5, .5)]) * g.body.size
+    return -float(((corners @ t_tcp_body[:3, :3].T) + t_tcp_body[:3, 3])[:, 2].max())
 
 
 def _yaw_nearest(t_world_support: np.ndarray, narrow: int, r_home: np.ndarray) -> np.ndarray:

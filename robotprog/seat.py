@@ -21,25 +21,36 @@ bound). What that does, in the order it happens:
    would cut the part short at one end: refused with the figures. The jaws' top, which op 1's
    deepest feed keeps clear of by :data:`cadcam.setup.JAW_CLEARANCE_MM`, is a height: a shift
    along the floor does not bring a tool nearer to it.
-4. **The unload** grips the finished part where op 1 cut it, where the plan grips it.
+4. **After op 1** (:func:`prove_after_seat`) the part is where the plan put it, but what op 1 left
+   of the stock, its own faces (the holding block under the part; a relief's whole block), sits off
+   along the jaws by up to the seat's figure there. The flip (grip, turn-over on the post, re-place
+   for op 2) and the unload are swept again with that piece, followed through the plan's gripper
+   actions; op 2's facing ramps must not meet the block with the tool's centre. The flip is planned with the
+   block off along the jaws by the part's margin in the stock (:attr:`robotprog.flip.Piece.slack`),
+   the most a seat is accepted for.
 
 Frames and units: the vise frame of :attr:`robotprog.cell.Vise.pose`; metres, radians.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from scipy.spatial.transform import Rotation
+
 from factory.core.errors import PlanningError
 from factory.core.units import MM_PER_M
 from robotprog.cell import Box, Cell, Pose
 from robotprog.collision import HeldBox, collision_world, finger_boxes
-from robotprog.grasp import box_pose, open_fingers
+from robotprog.flip import SIDE_GRIP, SIDE_RELEASE, SIDE_START, TO_POST, TO_VISE, TURNOVER_AXIS, Piece
+from robotprog.grasp import GraspOptions, body_above_tips, box_pose, open_fingers
 from robotprog.planner import MotionPlanner, PlannerOptions
 from robotprog.robots import Robot
+from robotprog.tending import UNLOAD
 
 #: The plan's moves the seat proof sweeps again with the grown blank (:class:`SeatMoves`).
 CARRIED_MOVES = ("load: transfer to vise", "load: place in vise")
@@ -69,6 +80,17 @@ class Residual:
     def describe(self) -> str:
         """``+-0.50 mm, +-0.60 deg``."""
         return f"+-{self.shift * MM_PER_M:.2f} mm, +-{math.degrees(self.turn):.2f} deg"
+
+
+def reach(size: np.ndarray, shift: np.ndarray, turn: float) -> np.ndarray:
+    """How far a blank of ``size`` (3,) [m], its centre off by ``shift`` (2,) [m] along its own x and
+    y and turned by ``turn`` [rad], reaches beyond its planned box along x and y, (2,) [m]: the
+    bounding box of that one pose, which :meth:`Residual.growth` bounds for every pose within a
+    shift and a turn. For a simulation, which knows the camera's true error: whether the seat's
+    proof, which rests on the reported uncertainty, covered the blank as it truly came."""
+    hx, hy = float(size[0]) / 2, float(size[1]) / 2
+    c, s = math.cos(turn), abs(math.sin(turn))
+    return np.abs(np.asarray(shift, dtype=float)) + np.array([hx * c + hy * s - hx, hy * c + hx * s - hy])
 
 
 @dataclass(frozen=True, eq=False)
@@ -206,3 +228,248 @@ def prove_seat(cell: Cell, robot: Robot, moves: SeatMoves, residual: Residual,
                                 f"({hit[1]})", source="vise.pose")
     return Seat(residual, float(off[1]), float(off[0]), cell.vise.place_clearance, moves.margin_along_jaws,
                 CARRIED_MOVES + RELEASED_MOVES)
+
+
+# --- after op 1: the flip and the unload ------------------------------------------------------------
+
+#: The plan's gripper actions after op 1: the fingers close on the piece (flip: from above in the
+#: vise, from the side on the post, from above turned over; the unload) or let it go.
+GRIPS = (TO_POST.grip, SIDE_GRIP, TO_VISE.grip, UNLOAD.grip)
+RELEASES = (TO_POST.release, SIDE_RELEASE, TO_VISE.release, UNLOAD.release)
+#: The first move of each trip to a grip: from there the fingers open for the box they will grip.
+TRIP_STARTS = (TO_POST.to_pick, SIDE_START, TO_VISE.to_pick, UNLOAD.to_pick)
+
+
+@dataclass(frozen=True, eq=False)
+class AfterMoves:
+    """What the plan does with the piece after op 1.
+
+    Attributes
+    ----------
+    moves : tuple of (str, (n, dof) float)
+        The flip's and the unload's moves in the plan's order, each with its recorded joint
+        samples [rad], its ends included.
+    stock_min, stock_max : (3,) float
+        The stock in the vise frame [m].
+    part_min, part_max : (3,) float
+        The finished part's box in the vise frame as op 1 leaves it [m] (a relief: its block).
+    setups : int
+        2: the flip turns the piece over and op 2 faces the holding block off before the unload.
+    facing_reach : float
+        How far the holding block may reach beyond its planned ends along the jaws before op 2's
+        facing ramps meet it with the tool's centre [m] (:func:`factory.rackloop.facing_reach`: the
+        passes' clearance beyond the stock plus the tool's radius; inf: op 2 faces nothing).
+    """
+
+    moves: tuple[tuple[str, np.ndarray], ...]
+    stock_min: np.ndarray
+    stock_max: np.ndarray
+    part_min: np.ndarray
+    part_max: np.ndarray
+    setups: int
+    facing_reach: float = math.inf
+
+
+@dataclass(frozen=True)
+class AfterSeat:
+    """The flip and the unload proven for a blank seated up to ``along`` [m] off along the jaws:
+    the stock's own faces (the holding block, a relief's block) that far off, the part where op 1
+    cut it, or ``part_off`` [m] off where the fingers squared the piece up on the block; the
+    ``moves`` proven with them."""
+
+    along: float
+    part_off: float
+    moves: tuple[str, ...]
+
+    def describe(self) -> str:
+        """One line for the log."""
+        return (f"flip and unload proven with the stock's faces up to {self.along * MM_PER_M:.2f} mm off along "
+                f"the jaws (the part {self.part_off * MM_PER_M:.2f} mm)")
+
+
+@dataclass
+class _Body:
+    """One box of the piece as the proof follows it: true ``size`` (3,) [m], the ``pose`` (4, 4) of
+    its centre in the world, and how far it may sit ``off`` along its own x [m] (the vise's X as op 1
+    left it: the piece is carried rigidly, so that axis stays the piece's)."""
+
+    name: str
+    size: np.ndarray
+    pose: np.ndarray
+    off: float
+
+    def grown(self) -> np.ndarray:
+        return self.size + np.array([2 * self.off, 0.0, 0.0])
+
+    def box(self) -> Box:
+        rpy = Rotation.from_matrix(self.pose[:3, :3]).as_euler("xyz")
+        return Box(f"piece_{self.name}", tuple(float(v) for v in self.grown()),
+                   Pose(tuple(float(v) for v in self.pose[:3, 3]), tuple(float(v) for v in rpy)))
+
+    def holds(self, point: np.ndarray) -> bool:
+        """Whether ``point`` (3,) [m] of the world lies within the true box (1 mm slack)."""
+        local = np.linalg.inv(self.pose) @ np.append(point, 1.0)
+        return bool((np.abs(local[:3]) <= self.size / 2 + 1e-3).all())
+
+
+def after_op1(moves: AfterMoves, along: float, t_vise: np.ndarray) -> list[_Body]:
+    """The piece in the vise after op 1 (:class:`robotprog.flip.Piece`): the part where the plan put
+    it, unless it is the stock's own box along the jaws (a relief's block), and the holding block
+    ``along`` [m] off with the blank."""
+    piece = Piece.after_op1(moves.stock_min, moves.stock_max, moves.part_min, moves.part_max)
+    uncut = (float(piece.part_min[0]) <= float(moves.stock_min[0]) + 1e-6
+             and float(piece.part_max[0]) >= float(moves.stock_max[0]) - 1e-6)
+    true = dataclasses.replace(piece, slack=0.0)  # the boxes as they are; the proof grows them by ``along``
+    return [_Body(name, np.asarray(hi, float) - np.asarray(lo, float), box_pose(t_vise, lo, hi),
+                  along if (name != "part" or uncut) else 0.0) for name, lo, hi in true.boxes()]
+
+
+def prove_after_seat(cell: Cell, robot: Robot, moves: AfterMoves, seat: Seat,
+                     options: PlannerOptions = PlannerOptions(), grasp: GraspOptions = GraspOptions()) -> AfterSeat:
+    """Prove the plan's flip and unload for a blank seated as ``seat`` says; the plan's motion is
+    swept again, not changed.
+
+    The jaws square the blank up across them, and op 1 cuts the part where the plan put it, so
+    what is left off is what op 1 did not cut, the stock's faces, up to ``seat.along`` along the
+    jaws: the holding block under the part, or a relief's whole block. The proof follows the piece
+    through the plan's gripper actions, carried rigidly: each box grown along its own x by how far
+    it may sit off, riding on the fingers (closed on the box they grip) while held, and standing as
+    an obstacle for the open fingers where it was let go (the vise with its jaws open beside it,
+    the flip station, the out-tray). Fingers that close along a box's offset square it up in them:
+    it is then where the plan has it, and the rest of the piece off by ``seat.along``. A grip along
+    the offset (the side grip of the flip) must keep the grip depth and stay clear of the gripper
+    body at both ends of it, and with two setups op 2's facing ramps must not meet the block with
+    the tool's centre, and op 2 must cut the part where the plan put it.
+
+    Raises
+    ------
+    PlanningError
+        A move collides with the grown piece, or a figure above does not hold; the message names the
+        move and gives the figures.
+    """
+    t_vise = cell.vise.pose.matrix()
+    along = float(seat.along)
+    bodies = after_op1(moves, along, t_vise)
+    stock_y = float(moves.stock_max[1] - moves.stock_min[1])
+    jaws = open_jaws(cell, np.array([0.0, stock_y, 0.0]))
+    planners: dict[tuple, MotionPlanner] = {}
+
+    def planner(standing: tuple[_Body, ...]) -> MotionPlanner:
+        key = (id(jaws),) + tuple((b.name, tuple(np.round(b.pose, 9).ravel()), b.off) for b in standing)
+        if key not in planners:
+            planners[key] = MotionPlanner(cell, collision_world(cell, robot, obstacles=jaws + tuple(
+                b.box() for b in standing)), options)
+        return planners[key]
+
+    base = planner(())
+    held: list[tuple[_Body, np.ndarray]] = []
+    width = 0.0  # the opening of the fingers is the plan's: the box of their trip's grip
+    faced = moves.setups == 1
+    proven = []
+    for i, (name, qs) in enumerate(moves.moves):
+        if not faced and name.startswith("unload"):
+            bodies = _op2(bodies, moves)
+            faced = True
+        if name in TRIP_STARTS:
+            grip = next(((n, q) for n, q in moves.moves[i:] if n in GRIPS), None)
+            if grip is not None:
+                width = _gripped(bodies, base.tcp_world(grip[1][-1]), grip[0])[1]
+        if name in GRIPS:
+            tcp = base.tcp_world(qs[-1])
+            gripped, width = _gripped(bodies, tcp, name)
+            _check_grip(cell, name, gripped, tcp, grasp)
+            if abs(float(gripped.pose[:3, 0] @ tcp[:3, 1])) > 0.5 and gripped.off > 0:
+                # the fingers close along the gripped box's offset and square it up; the rest moves with it
+                for b in bodies:
+                    b.off = 0.0 if b is gripped else along
+            held = [(b, np.linalg.inv(tcp) @ b.pose) for b in bodies]
+        if held:
+            payload = finger_boxes(cell, width) + tuple(
+                HeldBox.at(b.grown(), rel, name=f"held_{b.name}") for b, rel in held)
+            hit = base.sweep.polyline_contact(qs, payload)
+        else:
+            hit = planner(tuple(bodies)).sweep.polyline_contact(qs, open_fingers(cell, width) if width else None)
+        if hit is not None:
+            off = max(b.off for b in bodies)
+            raise PlanningError(f"{name}: with the piece off by up to {off * MM_PER_M:.2f} mm along the jaws "
+                                f"(the blank seated {seat.residual.describe()} off) it collides ({hit[1]})",
+                                source="vise.pose")
+        proven.append(name)
+        if name in RELEASES:
+            tcp = base.tcp_world(qs[-1])
+            for b, rel in held:
+                b.pose = tcp @ rel
+            held = []
+            if name == TO_POST.release and moves.setups == 2:  # the vise opens beside the part for op 2
+                turned = Piece.after_op1(moves.stock_min, moves.stock_max, moves.part_min,
+                                         moves.part_max).turned(TURNOVER_AXIS)
+                jaws = open_jaws(cell, turned.part_max - turned.part_min)
+                planners.clear()
+                base = planner(())
+    part_off = max((b.off for b in bodies if b.name == "part"), default=0.0)
+    return AfterSeat(along, part_off, tuple(proven))
+
+
+def _gripped(bodies: list[_Body], tcp: np.ndarray, name: str) -> tuple[_Body, float]:
+    """The box of the piece the fingers close on at the TCP pose ``tcp`` (4, 4), and its width
+    across them [m].
+
+    Raises
+    ------
+    PlanningError
+        The fingertips are in no box of the piece: the plan grips something else.
+    """
+    gripped = next((b for b in bodies if b.holds(tcp[:3, 3])), None)
+    if gripped is None:
+        raise PlanningError(f"{name}: the fingers close on no box of the piece", source="vise.pose")
+    return gripped, float(np.abs(gripped.pose[:3, :3].T @ tcp[:3, 1]) @ gripped.size)
+
+
+def _check_grip(cell: Cell, name: str, gripped: _Body, tcp: np.ndarray, grasp: GraspOptions) -> None:
+    """A grip whose tool axis lies along the box's offset (the flip's side grip) reaches into the
+    box by its planned depth less or more the offset: at least the shallowest grip, and its face
+    clear of the gripper body where the fingers start.
+
+    Raises
+    ------
+    PlanningError
+        With the figures.
+    """
+    axis = gripped.pose[:3, 0]
+    if abs(float(axis @ tcp[:3, 2])) < 0.5 or gripped.off <= 0:
+        return
+    local = (np.linalg.inv(gripped.pose) @ np.append(tcp[:3, 3], 1.0))[0]
+    # the face the tool axis enters by: the end of the box's x nearest the gripper body
+    entering = -float(np.sign(axis @ tcp[:3, 2]))
+    depth = gripped.size[0] / 2 - entering * local
+    room = body_above_tips(cell) - grasp.floor_clearance
+    if depth - gripped.off < grasp.min_grip_depth - 1e-9:
+        raise PlanningError(f"{name}: the fingers reach {depth * MM_PER_M:.2f} mm into the {gripped.name} as planned, "
+                            f"{(depth - gripped.off) * MM_PER_M:.2f} mm where it sits {gripped.off * MM_PER_M:.2f} mm "
+                            f"off along the jaws: under the {grasp.min_grip_depth * MM_PER_M:.1f} mm grip",
+                            source="gripper.fingers")
+    if depth + gripped.off > room + 1e-9:
+        raise PlanningError(f"{name}: the {gripped.name} sitting {gripped.off * MM_PER_M:.2f} mm off along the jaws "
+                            f"comes {(depth + gripped.off) * MM_PER_M:.2f} mm between the fingers, the gripper body "
+                            f"{room * MM_PER_M:.2f} mm behind the tips less the clearance", source="gripper.fingers")
+
+
+def _op2(bodies: list[_Body], moves: AfterMoves) -> list[_Body]:
+    """Op 2 faces the holding block off: its ramps must not meet a block off along the jaws with the
+    tool's centre, and the part must sit where op 2 cuts it.
+
+    Raises
+    ------
+    PlanningError
+        With the figures.
+    """
+    block = next((b for b in bodies if b.name == "holding_block"), None)
+    if block is not None and block.off > moves.facing_reach:
+        raise PlanningError(f"op 2: the holding block may reach {block.off * MM_PER_M:.2f} mm further along the jaws "
+                            f"than planned, op 2's facing ramps meet it with the tool's centre past "
+                            f"{moves.facing_reach * MM_PER_M:.2f} mm", source="vise.pose")
+    part = next(b for b in bodies if b.name == "part")
+    if part.off > 0:
+        raise PlanningError(f"op 2: the fingers squared the holding block up and moved the part up to "
+                            f"{part.off * MM_PER_M:.2f} mm along the jaws off where op 2 cuts it", source="vise.pose")
+    return [part]

@@ -21,6 +21,7 @@ origin, its edges along the slot axes, bottom at slot height; in the vise per
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -32,7 +33,7 @@ from factory.core.errors import CellError, PlanningError
 from factory.core.units import MM_PER_M
 from robotprog.cell import Box, Cell, Pose, SlotGrid
 from robotprog.collision import CollisionWorld, HeldBox, Payload, collision_world, finger_boxes
-from robotprog.flip import TURNOVER_AXIS, Piece, plan_flip
+from robotprog.flip import TURNOVER_AXIS, Piece, held_piece, plan_flip
 from robotprog.frames import StockInVise, setup_sheet_to_cell
 from robotprog.grasp import GraspOptions, box_pose, open_fingers, top_grasp
 from robotprog.roadmap import Roadmap
@@ -203,15 +204,16 @@ def plan_tending(
             source="vise.jaw_opening")
     pmin, pmax = (stock.stock_min, stock.stock_max) if part_box is None else (
         np.asarray(part_box.low, dtype=float), np.asarray(part_box.high, dtype=float))
-    piece = None
+    piece = Piece.after_op1(stock.stock_min, stock.stock_max, pmin, pmax)
+    leaves = dataclasses.replace(piece, slack=0.0)  # what the unload takes out: with one setup, the piece
     if setups == 2:
-        piece = Piece.after_op1(stock.stock_min, stock.stock_max, pmin, pmax)
-        # op 2 holds the part upside down, on its finished faces; unload grips it there
+        # op 2 holds the part upside down, on its finished faces, and faced the block off; unload grips it there
         turned = piece.turned(TURNOVER_AXIS)
         pmin, pmax = turned.part_min, turned.part_max
+        leaves = Piece(pmin, pmax, pmin.copy(), np.append(pmax[:2], pmin[2]))
     # The blanks beside the one picked and the parts already in the out-tray are obstacles.
     obstacles = (_neighbours(cell.rack, options.rack_slot, stock.size, "rack_blank")
-                 + _neighbours(cell.out_tray, options.tray_slot, pmax - pmin, "tray_part"))
+                 + _neighbours(cell.out_tray, options.tray_slot, _whole(leaves)[1] - _whole(leaves)[0], "tray_part"))
     world = collision_world(cell, world.robot if world is not None else None, obstacles=obstacles)
     p = MotionPlanner(cell, world, options.planner, roadmap)
     home = np.asarray(cell.robot.home, dtype=float)
@@ -220,14 +222,15 @@ def plan_tending(
     t_tray = _slot(cell.out_tray, options.tray_slot, "out_tray")
     # Every grasp is solved before anything moves: a box the gripper cannot take fails fast.
     load = _load_trip(cell, stock, t_rack, r_home, options.grasp)
-    unload = _unload_trip(cell, pmin, pmax, t_tray, r_home, options.grasp)
+    unload = _unload_trip(cell, leaves, t_tray, r_home, options.grasp)
 
     moves = list(_trip_moves(p, home, load, LOAD, "load: return home", "vise to home").moves)
-    if piece is not None:
+    if setups == 2:
         moves += plan_flip(p, piece, home, r_home, options.grasp).moves
     unloaded = _trip_moves(p, home, unload, UNLOAD, "unload: return home", "out-tray to home")
     moves += unloaded.moves
-    reject = _reject_moves(p, unload, unloaded.q_lifted, pmin, options) if cell.reject_bin is not None else ()
+    reject = (_reject_moves(p, unload, unloaded.q_lifted, _whole(leaves)[0], options) if cell.reject_bin is not None
+              else ())
     for m in moves + list(reject):
         m.waypoints.setflags(write=False)
     pmin = pmin.copy()
@@ -283,22 +286,38 @@ def _load_trip(cell: Cell, stock: StockInVise, t_rack: np.ndarray, r_home: np.nd
         open_fingers(cell, stock_width), closed + (rack.held,), closed + (vise.held,))
 
 
-def _unload_trip(cell: Cell, pmin: np.ndarray, pmax: np.ndarray, t_tray: np.ndarray, r_home: np.ndarray,
-                 options: GraspOptions) -> _Trip:
-    """The finished part, box [pmin, pmax] (3,) in the vise frame [m], from the vise to its out-tray
-    slot ``t_tray`` (4, 4), held from above."""
+def _whole(piece: Piece) -> tuple[np.ndarray, np.ndarray]:
+    """The bounding box (min, max) (3,) [m] of the piece's boxes."""
+    boxes = piece.boxes()
+    return np.min([b[1] for b in boxes], axis=0), np.max([b[2] for b in boxes], axis=0)
+
+
+def _unload_trip(cell: Cell, piece: Piece, t_tray: np.ndarray, r_home: np.ndarray, options: GraspOptions) -> _Trip:
+    """What leaves the vise, ``piece`` in the vise frame [m], to its out-tray slot ``t_tray`` (4, 4),
+    the finished part held from above: a part in one setup leaves on its holding block (the stock
+    op 1 left under it), which rides under it and stands on the tray; the piece centred on the slot."""
+    pmin, pmax = piece.part_min, piece.part_max
     psize = pmax - pmin
     t_vise = cell.vise.pose.matrix()
     vise = top_grasp(cell, t_vise, pmin, pmax, r_home, options, "part")
     tray_min, tray_max = -_ON_SLOT * psize, psize - _ON_SLOT * psize
+    if piece.has_block:
+        low, high = _whole(piece)
+        shift = -_ON_SLOT * (high - low) - low  # the piece's box centred on the slot, bottom on it
+        tray_min, tray_max = pmin + shift, pmax + shift
     g_tray = top_grasp(cell, t_tray, tray_min, tray_max, r_home, options, "part").transform_world_to_tcp
     part_width = float(min(psize[0], psize[1]))
     closed = finger_boxes(cell, part_width)
-    held_tray = HeldBox.at(psize, np.linalg.inv(g_tray) @ box_pose(t_tray, tray_min, tray_max))
+    held_vise, held_tray = (vise.held,), (HeldBox.at(psize, np.linalg.inv(g_tray) @ box_pose(t_tray, tray_min,
+                                                                                             tray_max)),)
+    if piece.has_block:
+        in_tray = Piece(tray_min, tray_max, piece.block_min + shift, piece.block_max + shift)
+        held_vise = held_piece(piece, t_vise, vise.transform_world_to_tcp)
+        held_tray = held_piece(in_tray, t_tray, g_tray)
     return _Trip(
         Station(vise.transform_world_to_tcp, "vise.pose", "above vise", "approach to part", "retreat from vise"),
         Station(g_tray, "out_tray.pose", "above out-tray slot", "place in out-tray", "retreat from out-tray"),
-        open_fingers(cell, part_width), closed + (vise.held,), closed + (held_tray,))
+        open_fingers(cell, part_width), closed + held_vise, closed + held_tray)
 
 
 def _trip_moves(p: MotionPlanner, home: np.ndarray, trip: _Trip, names: PickPlaceNames, home_name: str,

@@ -239,3 +239,52 @@ def test_the_sample_relief_is_made_by_its_script_and_is_a_relief(tmp_path):
     found = load_part(SAMPLES / "relief.stl").surface
     assert found.describe() == ("open surface, machined from above as a relief: 400 boundary edges, 1 shell, "
                                 "footprint 120.0 \u00d7 80.0 mm")
+
+
+def _found(fx: float, fy: float):
+    """What intake finds of a relief whose footprint is ``fx`` x ``fy`` mm."""
+    from cadcam.relief import SurfaceFound
+    return SurfaceFound(40, 1, (fx, fy), 0.0, 0.0, shapely.box(0.0, 0.0, fx, fy))
+
+
+@pytest.mark.parametrize("footprint, gripped, across", [
+    ((120.0, 80.0), 69.0, 0.0),  # the sample relief in the sample cell's 85 mm gripper: the footprint's own width
+    ((120.0, 66.0), 69.0, 1.5),  # trimmed to what leaves the fingers' clearance
+    ((120.0, 60.0), 69.0, None),  # 64 mm leaves it already
+    ((60.0, 80.0), 69.0, None),  # the fingers close across X, where the rim holds the seat: not trimmed
+    ((120.0, 80.0), None, None),  # no cell, no gripper
+])
+def test_a_reliefs_rim_across_the_jaws_gives_way_to_the_grippers_room(footprint, gripped, across):
+    from cadcam.relief import block_margins
+    from cadcam.setup import StockMargins
+
+    margins = block_margins(_found(*footprint), StockMargins(bottom=7.5), gripped)
+    assert margins.across == across and margins.sides == 2.0 and margins.bottom == 7.5
+
+
+def test_the_sample_cells_relief_block_leaves_the_gripper_its_room(tmp_path):
+    """A relief 90 x 75 mm: with 2 mm of rim the block is 79 mm across the jaws, 4 mm open beside it in the
+    sample cell's 85 mm gripper, not the 8 mm its fingers open beside a box; the rim across the jaws goes
+    (the jaws square the blank up there), along them it stays for the seat."""
+    from robotprog.cell import load_cell
+    from robotprog.grasp import finger_room
+
+    x, y = np.linspace(0.0, 90.0, 10), np.linspace(0.0, 75.0, 9)
+    path = _write(tmp_path, "wide", heightfield_sheet(x, y, 2.0 + 0.1 * np.add.outer(y, x) / 10.0))
+    req = CamRequest.defaults(path)
+    assert req.gripped() == pytest.approx(69.0)
+    seen = []
+
+    class Placed(Exception):
+        pass
+
+    def stop(setup, part_work):  # before any toolpath
+        seen.append(setup)
+        raise Placed
+
+    with pytest.raises(Placed):
+        compute_job(req, check_setup=stop)
+    size = seen[0].stock_size
+    assert size[:2] == pytest.approx([94.0, 75.0])
+    gripper = load_cell(req.cell, check_robot=False)
+    assert finger_room(gripper, size[1] / 1000) == pytest.approx(0.005)

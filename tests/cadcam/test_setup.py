@@ -237,3 +237,14 @@ def test_what_fits_no_orientation_is_refused_in_one_line_with_both_figures():
     with pytest.raises(SetupError) as info:
         orient_setup(box((80, 50, 15), (0, 0, 0)), margins=StockMargins(bottom=3.4), source="p.stl")
     assert str(info.value).startswith("p.stl: holding allowance 3.4 mm leaves 2.9 mm")
+
+
+def test_the_margin_across_the_jaws_may_differ_from_the_sides():
+    part = box((80, 50, 15), (0, 0, 0))
+    setup, work = make_setup(part, margins=StockMargins(sides=2, across=0.0, bottom=7))
+    assert setup.stock_size == pytest.approx([84.0, 50.0, 15 + 1 + 7])
+    # the part still centred across the jaws: flush with the stock's Y faces
+    lo, hi = np.asarray(work.bounds)
+    assert lo[1] == pytest.approx(setup.stock_min[1]) and hi[1] == pytest.approx(setup.stock_max[1])
+    with pytest.raises(SetupError, match="stock margin across must be >= 0 mm"):
+        make_setup(part, margins=StockMargins(across=-0.5, bottom=7))

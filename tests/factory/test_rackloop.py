@@ -196,3 +196,46 @@ def test_a_rack_light_needs_blank_offsets_and_a_known_light(block_catalog, tmp_p
         r = CliRunner().invoke(app, ["simulate", str(orders), "--catalog", str(folder), "--quiet", *extra])
         assert r.exit_code != 0 and said in r.output, r.output
         assert len(r.output.strip().splitlines()) == 1
+
+
+def test_each_pick_says_whether_the_blank_as_it_truly_came_lay_within_its_proven_seat():
+    """The seat is proven for the reported uncertainty; the simulation knows the camera's true error and
+    says, per blank, whether the blank truly landed within what was proven (a real cell cannot)."""
+    from factory.rackloop import RackPick
+    from robotprog.rack import RackSlot
+    from robotprog.rackpick import SlotOffset
+    from robotprog.seat import Residual, Seat
+
+    size = (0.104, 0.064, 0.016)
+    seat = Seat(Residual(0.0005, math.radians(0.6)), 0.00104, 0.00084, 0.003, 0.002, ())
+    offset = SlotOffset(0.001, -0.002, math.radians(1.0))
+
+    def pick(err_x, err_y, err_deg):
+        located = SlotOffset(offset.dx + err_x, offset.dy + err_y, offset.dyaw + math.radians(err_deg))
+        return RackPick(0, 1, 0, 0, offset, located, 0.5, 0.6, "", None, 1.0, b"", None, seat, RackSlot(0, 0, 0, 0, size))
+
+    within = pick(0.0003, 0.0, 0.1)
+    reach = within.true_reach()
+    # 0.30 mm along the jaws plus what 0.1 deg swings the 32 mm half-side out; across, the 52 mm half-side's swing
+    assert reach[0] == pytest.approx(0.0003 + 0.032 * math.sin(math.radians(0.1)) + 0.052 * (math.cos(math.radians(0.1)) - 1), abs=2e-6)
+    assert within.seat_holds() is True and within.to_dict()["seat_holds"] is True
+    beyond = pick(0.0, 0.0012, 0.0)  # 1.2 mm across the jaws: the seat was proven for 1.04 mm
+    assert beyond.seat_holds() is False
+    assert beyond.to_dict()["seat_true_across_mm"] == pytest.approx(1.2, abs=0.02)
+    assert "beyond what its seat was proven for, the reported uncertainty did not hold" in beyond.message()
+
+
+def test_the_facings_reach_is_its_pass_ends_clearance_plus_the_tools_radius():
+    """How far a holding block seated off along the jaws may reach before a facing ramp meets it with
+    the end mill's centre (robotprog.seat's op 2 figure)."""
+    from cadcam.model import Tool
+    from cadcam.model import Setup
+    from cadcam.op2 import facing_gap
+    from factory.rackloop import facing_reach
+
+    setup = Setup(stock_min=[0, 0, -20], stock_max=[104, 64, 0], transform_mesh_to_work=np.eye(4))
+    mill = Tool(number=14, name="16 mm flat", shape="flat", diameter=16.0, corner_radius=0.0, flute_length=30.0, flutes=3,
+                length=60.0)
+    ops = ({"kind": "facing", "tool": 14}, {"kind": "rest", "tool": 3})
+    assert facing_gap(setup) == 1.0 and facing_reach(setup, ops, {14: mill}) == 9.0
+    assert facing_reach(setup, ops[1:], {14: mill}) is None

@@ -7,10 +7,15 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, strategies as st
 
 from factory.core.errors import PlanningError
-from robotprog.seat import CARRIED_MOVES, RELEASED_MOVES, Residual, SeatMoves, check_seat, open_jaws, prove_seat
+from robotprog.cell import Box, Pose
+from robotprog.grasp import GraspOptions
+from robotprog.seat import (CARRIED_MOVES, GRIPS, RELEASED_MOVES, AfterMoves, Residual, Seat, SeatMoves, after_op1,
+                            check_seat, open_jaws, prove_after_seat, prove_seat, reach)
 from robotprog.tending import plan_tending
+from tests.robotprog.test_flip import PART as FLIP_PART, STOCK_MM as FLIP_STOCK_MM, sheet as flip_sheet
 from tests.robotprog.test_tending import SAMPLE_STOCK, sheet
 
 
@@ -80,3 +85,99 @@ def test_the_proof_sweeps_the_place_between_the_open_jaws(cell, world, bracket):
         0.032 + tall.vise.place_clearance + tall.vise.jaw_thickness / 2)
     with pytest.raises(PlanningError, match=r"load: (transfer to|place in) vise: .* collides \(.*jaw_open"):
         prove_seat(tall, world.robot, moves, Residual(0.0, 0.0))
+
+
+# --- after op 1: the flip and the unload, with what op 1 left of the stock off along the jaws ------
+
+@pytest.fixture(scope="module")
+def flipped(cell, world):
+    """The bracket in two setups (a 100 x 60 x 16 mm part on a 6 mm holding block of the 104 x 64 mm
+    stock) and what its plan does after op 1."""
+    plan = plan_tending(cell, flip_sheet(*FLIP_STOCK_MM), part_box=FLIP_PART, world=world, setups=2)
+    moves = AfterMoves(tuple((m.name, m.waypoints) for m in plan.moves if m.name.startswith(("flip:", "unload:"))),
+                       plan.stock.stock_min, plan.stock.stock_max, FLIP_PART.low, FLIP_PART.high, 2, 0.009)
+    by = {m.name: m for m in plan.moves}
+    seat_moves = SeatMoves(tuple(by[n].waypoints for n in CARRIED_MOVES), tuple(by[n].waypoints for n in RELEASED_MOVES),
+                           np.asarray(plan.stock.size), 0.002)
+    return plan, moves, seat_moves
+
+
+def _seat(along: float) -> Seat:
+    """A seat proven for a blank up to ``along`` [m] off along the jaws (a plain shift)."""
+    return Seat(Residual(along, 0.0), along, along, 0.003, 0.002, ())
+
+
+def test_the_flip_and_the_unload_are_proven_with_the_holding_block_off_along_the_jaws(cell, world, flipped):
+    plan, moves, seat_moves = flipped
+    before = [m.waypoints.copy() for m in plan.moves]
+    seat = prove_seat(cell, world.robot, seat_moves, Residual(0.0005, math.radians(0.6)))  # the 640 camera's figures
+    after = prove_after_seat(cell, world.robot, moves, seat)
+    assert after.along == seat.along == pytest.approx(0.0005 + 0.032 * math.sin(math.radians(0.6)))
+    # every move of the flip (grip, turn-over, re-place) and of the unload, in the plan's order
+    assert after.moves == tuple(n for n, _ in moves.moves)
+    assert {GRIPS[0], GRIPS[1], GRIPS[2], GRIPS[3], "flip: turn over", "flip: place in vise",
+            "unload: transfer to out-tray"} <= set(after.moves)
+    assert after.part_off == 0.0  # op 1 cut the part where the plan put it; nothing squared the block up
+    assert all(np.array_equal(a, m.waypoints) for a, m in zip(before, plan.moves))
+
+
+def test_what_op1_leaves_off_along_the_jaws_is_the_stocks_own_faces(cell):
+    """A solid part is cut where the plan put it, its holding block sits off with the blank; a
+    relief's block (its box the stock's along the jaws) sits off whole."""
+    t_vise = cell.vise.pose.matrix()
+    stock_min, stock_max = np.array([-0.052, -0.032, 0.0]), np.array([0.052, 0.032, 0.022])
+    solid = AfterMoves((), stock_min, stock_max, FLIP_PART.low, FLIP_PART.high, 2, 0.009)
+    assert [(b.name, b.off) for b in after_op1(solid, 0.0008, t_vise)] == [("part", 0.0), ("holding_block", 0.0008)]
+    # the holding block as it is (the flip's plan grows it by the part's margin in the stock; the proof by the seat's)
+    block = after_op1(solid, 0.0008, t_vise)[1]
+    np.testing.assert_allclose(block.size, [0.104, 0.064, 0.006])
+    relief = AfterMoves((), stock_min, stock_max, stock_min, stock_max, 1)
+    assert [(b.name, b.off) for b in after_op1(relief, 0.0008, t_vise)] == [("part", 0.0008)]
+
+
+def test_the_residual_along_the_jaws_is_what_makes_the_flip_collide(cell, world, flipped):
+    """A plate 0.5 mm beyond the stock's end along the jaws, as high as the holding block: the planned
+    grip and lift out of the vise clear it (the held piece rides 1 mm in from its faces), the block
+    1.8 mm off along the jaws does not. Ignoring the residual would prove it."""
+    _, moves, _ = flipped
+    t_vise = cell.vise.pose.matrix()
+    end = t_vise @ np.array([float(moves.stock_max[0]) + 0.0005 + 0.001, 0.0, 0.003, 1.0])
+    plate = Box("end_plate", (0.002, 0.064, 0.006), Pose(tuple(float(v) for v in end[:3]),
+                                                          (0.0, 0.0, math.atan2(t_vise[1, 0], t_vise[0, 0]))))
+    walled = dataclasses.replace(cell, enclosure=dataclasses.replace(cell.enclosure,
+                                                                       walls=cell.enclosure.walls + (plate,)))
+    assert prove_after_seat(walled, world.robot, moves, _seat(0.0)).along == 0.0
+    with pytest.raises(PlanningError, match=r"flip: grip part: with the piece off by up to 1\.80 mm along "
+                                            r"the jaws .* collides \(.*end_plate"):
+        prove_after_seat(walled, world.robot, moves, _seat(0.0018))
+
+
+def test_op2s_facing_ramps_must_not_meet_a_block_off_along_the_jaws_with_the_tools_centre(cell, world, flipped):
+    _, moves, _ = flipped
+    tight = dataclasses.replace(moves, facing_reach=0.0005)  # a facing that lets the block reach 0.5 mm
+    with pytest.raises(PlanningError, match=r"op 2: the holding block may reach 0\.84 mm further along the jaws than "
+                                            r"planned, op 2's facing ramps meet it with the tool's centre past 0\.50 mm"):
+        prove_after_seat(cell, world.robot, tight, _seat(0.00084))
+    assert prove_after_seat(cell, world.robot, tight, _seat(0.0004)).along == 0.0004
+
+
+def test_the_side_grip_keeps_its_depth_with_the_block_off_along_its_tool_axis(cell, world, flipped):
+    """The flip grips the holding block from its end, the tool axis along the jaws: a block off that
+    way takes the grip's depth; the shallowest grip accepted must still hold."""
+    _, moves, _ = flipped
+    shallow = GraspOptions(min_grip_depth=0.0145)  # the plan's side grip reaches 15 mm in
+    with pytest.raises(PlanningError, match=r"flip: grip holding block: the fingers reach 15\.00 mm into the "
+                                            r"holding_block as planned, 14\.16 mm where it sits 0\.84 mm off"):
+        prove_after_seat(cell, world.robot, moves, _seat(0.00084), grasp=shallow)
+    prove_after_seat(cell, world.robot, moves, _seat(0.0004), grasp=shallow)
+
+
+@given(st.floats(0, 0.003), st.floats(0, 2 * math.pi), st.floats(-0.05, 0.05), st.floats(0.02, 0.15),
+       st.floats(0.02, 0.15))
+def test_one_poses_reach_lies_within_the_growth_of_every_pose_within_its_shift_and_turn(shift, way, turn, sx, sy):
+    size = np.array([sx, sy, 0.02])
+    error = shift * np.array([math.cos(way), math.sin(way)])
+    true = reach(size, error, turn)
+    assert (true <= Residual(shift, abs(turn)).growth(size) + 1e-12).all()
+    # a shift along one axis and no turn reaches exactly that far along it
+    np.testing.assert_allclose(reach(size, np.array([shift, 0.0]), 0.0), [shift, 0.0], atol=1e-15)

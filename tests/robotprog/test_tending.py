@@ -9,7 +9,7 @@ import pytest
 
 from factory.core.errors import CellError, PlanningError
 from robotprog.cell import Pose
-from robotprog.tending import TendingOptions, part_box_in_vise, plan_tending
+from robotprog.tending import PartBox, TendingOptions, part_box_in_vise, plan_tending
 from robotprog.timing import LIMIT_SLACK
 
 #: Stock sizes [mm] of the sample parts (samples/make_samples.py with the default allowances).
@@ -192,3 +192,21 @@ def test_blanks_beside_the_picked_one_are_obstacles(cell, world):
     tight = dataclasses.replace(cell, rack=SlotGrid(cell.rack.pose, 2, 3, (0.12, 0.07)))
     with pytest.raises(PlanningError, match="finger <-> rack_blank_r1c0"):
         plan_tending(tight, sheet(104, 60, 30), world=world)
+
+
+def test_a_part_in_one_setup_leaves_on_its_holding_block_and_stands_on_it_in_the_tray(cell, world):
+    """Op 1 alone leaves the part on the stock under it: the unload carries that block under the part
+    (it rode unseen before, and was set down through the tray) and stands it on the tray slot."""
+    stock = sheet(104, 64, 22)
+    box = PartBox(np.array([-0.05, -0.03, 0.006]), np.array([0.05, 0.03, 0.022]))  # 100 x 60 x 16 on a 6 mm block
+    plan = plan_tending(cell, stock, part_box=box, world=world)
+    place = {m.name: m for m in plan.moves}["unload: place in out-tray"]
+    held = {h.name: h for h in place.held}
+    assert {"finger", "held_part", "held_holding_block"} <= set(held)
+    tcp = place.transform_world_to_tcp
+    block = tcp @ np.asarray(held["held_holding_block"].transform_tcp_to_box)
+    part = tcp @ np.asarray(held["held_part"].transform_tcp_to_box)
+    slot_z = cell.out_tray.slot_transform(0, 0)[2, 3]
+    assert block[2, 3] - 0.003 == pytest.approx(slot_z, abs=1e-9)  # the 6 mm block's bottom on the slot
+    assert part[2, 3] - 0.008 == pytest.approx(slot_z + 0.006, abs=1e-9)  # the part on the block
+    np.testing.assert_allclose(held["held_holding_block"].size, [0.104, 0.064, 0.006])
