@@ -222,12 +222,13 @@ def simulate(op, setup, ramp_angle, radius=TOOL.radius):
         n = max(1, math.ceil(np.linalg.norm(b - a) / (0.5 * hf.cell)))
         samples = a + np.linspace(0, 1, n + 1)[:, None] * (b - a)
         if M[i] == Motion.RAPID:
-            if horiz > 1e-9 and min(a[2], b[2]) < clear_z - 1e-9:
-                bad.append(f"move {i}: horizontal rapid below clearance height")
-            # Rapid descents below the clearance plane are fine through air: checked next.
+            # Rapid descents below the clearance plane are fine through air; so are links across below it
+            # (rest machining lifts only over the stock it knows), but those clear the stock with the whole
+            # tool, not just the cells surely under it.
+            low = horiz > 1e-9 and min(a[2], b[2]) < clear_z - 1e-9
             for s in samples:
-                if hf.highest(s[:2], inner) > s[2] + 0.02:
-                    bad.append(f"move {i}: rapid touches stock at {s}")
+                if hf.highest(s[:2], radius if low else inner) > s[2] + (0.0 if low else 0.02):
+                    bad.append(f"move {i}: {'horizontal ' if low else ''}rapid touches stock at {s}")
                     break
             continue
         steep = a[2] - b[2] > 1e-9 and a[2] - b[2] > horiz * tan_ramp
