@@ -48,11 +48,8 @@ cleared with contour-parallel offset loops. The pieces:
   the stock edge outside-in; each next loop is the uncut loop nearest to what is already
   cut, linked by a short horizontal cut that is checked to stay inside the region. When
   the tool is not already there it retracts to the clearance height, rapids, and descends
-  vertically on a path already cut at this level (air all the way down). In rest machining
-  the regions are cut stack by stack (the regions whose tool sweeps meet, top down, before
-  the next stack: the same moves meet the same stock), and between regions the tool lifts
-  only ``lead_gap`` over the stock it knows along the straight way (before the operation,
-  less what its regions cut so far), not to the clearance height.
+  vertically on a path already cut at this level (air all the way down). Rest machining cuts
+  its regions stack by stack and links them low (:mod:`cadcam.restlinks`).
 * **Descents** run by rapid to ``lead_gap`` above the deepest floor known to be cleared
   under the whole tool (the previous level's, or this level's on a cut path), and at the
   plunge feed only for the last ``lead_gap``: the cleared-neighbourhood property above
@@ -85,7 +82,7 @@ from shapely.geometry.polygon import orient
 from shapely.ops import nearest_points
 
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
-from cadcam.post import PostOptions
+from cadcam.restlinks import Links, Piece, cut_stacked
 from cadcam.gridregion import GrownMaskCache
 from cadcam.rest import levels_within_reach, rest_level_masks, rooms_round
 from cadcam.shadow import part_shadows
@@ -811,11 +808,8 @@ def zlevel_roughing(
     levels = _levels(part, setup, p)
     if rest is not None:
         levels = levels_within_reach(levels, float(setup.stock_max[2]), tool.length)
-    heights = [zq for z in levels for zq, _ in _forbidden_terms(float(z), p)]
-    shadow = part_shadows(part, heights)
-
+    shadow = part_shadows(part, [zq for z in levels for zq, _ in _forbidden_terms(float(z), p)])
     rect_xy, rect = _axis_rect(setup, p, within)
-
     # the rest material grown by the tool radius, remembered per distinct mask of levels
     rest_grown = GrownMaskCache(rest.grid, p.radius, quad_segs=8) if rest is not None else None
     spaces = [_level_space(float(z), rect, shadow, p) for z in levels]  # rest material or not
@@ -829,12 +823,8 @@ def zlevel_roughing(
     # Rest machining knows the air from the stock model (entries and descents use it), so a
     # skipped pocket only bars the levels below it, not every place this level had nothing to cut.
     blocked: list[BaseGeometry] = []
-    z_prev = float(setup.stock_max[2])
-    skipped = 0
-    # Rest machining cuts a few regions round the part's features on many levels: they are cut stack by stack
-    # (:func:`_stacked`), each linked to the next as low as the known stock allows (:class:`_Links`).
-    pieces: list[_Piece] | None = [] if known is not None else None
-    here = setup.stock_min[:2]
+    z_prev, skipped, here = float(setup.stock_max[2]), 0, setup.stock_min[:2]
+    pieces: list[Piece] | None = [] if known is not None else None  # rest machining's, cut stack by stack
     for li, z in enumerate(levels):
         z = float(z)
         space = _bounded(spaces[li], cleared, blocked, exclude(li) if exclude is not None else None)
@@ -843,10 +833,8 @@ def zlevel_roughing(
             allowed = allowed.intersection(rest_grown(masks[li]))
         plans, missed = _plan_entries(allowed, space, z, rect_xy, p, tool, known, air_at,
                                       None if cut_before is None else (lambda z=z: cut_before(z)))
-        if pieces is None:
-            done_regions, failed = _cut_nearest_first(path, plans, z, z_prev, p, air_at, setup.stock_min[:2])
-        else:
-            done_regions, failed, here = _cut_pieces(pieces, li, plans, z, z_prev, p, air_at, here)
+        done_regions, failed, here = (_cut_pieces(pieces, li, plans, z, z_prev, p, air_at, here) if pieces is not None
+                                      else (*_cut_nearest_first(path, plans, z, z_prev, p, air_at, here), here))
         skipped += len(missed) + len(failed)
         if rest is not None:
             blocked += [region.buffer(2 * p.radius, quad_segs=4) for region in missed + failed]
@@ -857,108 +845,14 @@ def zlevel_roughing(
         z_prev = z
         if progress is not None:
             progress(li + 1, len(levels))
-    links = _Links(known, tool, rect) if pieces else None
-    path.link_height = None if links is None else links.height
-    for piece in _stacked(pieces or []):
-        first = 0
-        if not path.points:
-            path.add([*piece.start_xy, p.safe_z], Motion.RAPID)
-            path.add([*piece.start_xy, p.clear_z], Motion.RAPID)
-        elif piece.z <= path.here[2] + 1e-9 and _stay_down(links, path.here, piece.start_xy, cutting.feed, p):
-            # Over what is cut at this height: feed across and go on down, no lift and back.
-            path.add([*piece.start_xy, path.here[2]], Motion.CUT)
-            while (first < len(piece.points) and piece.motion[first] == Motion.RAPID
-                   and piece.points[first, 2] >= path.here[2] - 1e-9):
-                first += 1  # the piece's rapid down to its descent, from higher up
-        else:
-            path.go_to(piece.start_xy, p)
-        for q, kind in zip(piece.points[first:], piece.motion[first:]):
-            path.add(q, Motion(int(kind)))
-        links.cut(piece)
-
+    if pieces:  # linked low (cadcam.restlinks)
+        cut_stacked(path, pieces, Links(known, tool, rect), cutting.feed, p)
     if path.points:
         cur = path.here
         path.add([cur[0], cur[1], p.safe_z], Motion.RAPID)
-    name = "rough z-level" if rest is None else f"rest rough T{tool.number}"
-    return Operation(name=name, kind="roughing", tool=tool, cutting=cutting, points=np.array(path.points).reshape(-1, 3),
+    return Operation(name="rough z-level" if rest is None else f"rest rough T{tool.number}", kind="roughing",
+                     tool=tool, cutting=cutting, points=np.array(path.points).reshape(-1, 3),
                      motion=np.array(path.motion, dtype=np.int8), allowance=p.allowance)
-
-
-def _stay_down(links: "_Links", here: np.ndarray, xy: np.ndarray, feed: float, p: _Params) -> bool:
-    """Whether the tool at ``here`` [mm] goes on to XY ``xy`` [mm] at its height, at the cutting ``feed``
-    [mm/min] (:meth:`_Links.stays_down`), rather than lifting over the stock and rapiding across
-    (:meth:`_Path.go_to`): where it may, and where the feed across takes no longer than the lift, the
-    rapid across and the way back down by the program's clock (:class:`cadcam.post.PostOptions`)."""
-    z, length = float(here[2]), float(np.linalg.norm(xy - here[:2]))
-    if not links.stays_down(here[:2], xy, z):
-        return False
-    lift = min(p.clear_z, max(z, links.height(here[:2], xy) + p.lead_gap)) - z
-    return length / feed <= (length + 2.0 * lift) / PostOptions().rapid_rate
-
-
-class _Links:
-    """How low the tool may link across in rest machining: the stock known before the operation, lowered
-    where the pieces cut so far took it (:meth:`cut`).
-
-    ``height(a, b)`` is the lowest tip height [mm] at which the tool may rapid straight from XY ``a`` to
-    ``b`` touching none of that stock, inf where the way leaves ``rect`` (where the axis may go: outside it
-    lie the jaws). The way is sampled every quarter cell, each sample's height :func:`cadcam.stock.clear_height`
-    (which takes a grid point's stock as reaching a cell diagonal round it), so the tool between two samples
-    lies within an eighth of a cell of one of them; the rapid check of the whole program runs after."""
-
-    def __init__(self, known: Simulation, tool: Tool, rect: BaseGeometry) -> None:
-        self.top = np.array(known.stock_top, dtype=np.float64)  # lowered as the pieces cut
-        self.stock = dataclasses.replace(known, stock_top=self.top)
-        self.tool, self.rect = tool, rect
-        shapely.prepare(rect)
-
-    def height(self, a: np.ndarray, b: np.ndarray) -> float:
-        length = float(np.linalg.norm(b - a))
-        if length > 1e-9 and not self.rect.covers(LineString([a, b])):
-            return math.inf
-        t = np.linspace(0.0, 1.0, max(2, int(math.ceil(length / (0.25 * self.stock.grid.cell))) + 1))
-        return float(np.max(clear_height(self.stock, self.tool, a + t[:, None] * (b - a))))
-
-    def stays_down(self, a: np.ndarray, b: np.ndarray, z: float) -> bool:
-        """Whether the tool may feed straight from XY ``a`` to ``b`` [mm] at tip height ``z`` [mm] meeting
-        nothing: no grid point strictly within its radius of the way holds stock above ``z``. A feed move,
-        not a rapid: it may graze what its last loop grazed (the skin on a wall), and what lies between the
-        grid points is no more than the slivers every cut of the model leaves."""
-        g, r = self.stock.grid, self.tool.radius - 1e-6
-        length = float(np.linalg.norm(b - a))
-        t = np.linspace(0.0, 1.0, max(2, int(math.ceil(length / (0.25 * g.cell))) + 1))
-        xy = a + t[:, None] * (b - a)
-        k = int(math.ceil(r / g.cell)) + 1
-        di, dj = (d.ravel() for d in np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1)))
-        i = np.rint((xy[:, 0, None] - g.x0) / g.cell).astype(np.int64) + di
-        j = np.rint((xy[:, 1, None] - g.y0) / g.cell).astype(np.int64) + dj
-        inside = (i >= 0) & (i < g.nx) & (j >= 0) & (j < g.ny)
-        ii, jj = np.clip(i, 0, g.nx - 1), np.clip(j, 0, g.ny - 1)
-        near = inside & (np.hypot(g.x0 + ii * g.cell - xy[:, 0, None], g.y0 + jj * g.cell - xy[:, 1, None]) < r)
-        return bool(np.all(self.top[jj[near], ii[near]] <= z + 1e-6)) and (
-            length <= 1e-9 or self.rect.covers(LineString([a, b])))
-
-    def cut(self, piece: "_Piece") -> None:
-        """Lower the stock to the piece's level wherever a feed move of it at that level swept the tool's
-        flat end (the grid points within the radius of the moves): there nothing is left above it."""
-        pts, z = piece.points, piece.z
-        at = (np.abs(pts[1:, 2] - z) < 1e-9) & (np.abs(pts[:-1, 2] - z) < 1e-9) & (piece.motion[1:] != int(Motion.RAPID))
-        if not at.any():
-            return
-        # the runs of such moves, each one line
-        edges = np.flatnonzero(np.diff(np.r_[0, at.astype(np.int8), 0]))
-        lines = [LineString(pts[s:e + 1, :2]) for s, e in zip(edges[::2], edges[1::2])]
-        swept = shapely.union_all(shapely.buffer(lines, self.tool.radius - 1e-6, quad_segs=4))
-        g = self.stock.grid
-        x0, y0, x1, y1 = swept.bounds
-        i0, i1 = max(0, int(math.floor((x0 - g.x0) / g.cell))), min(g.nx, int(math.ceil((x1 - g.x0) / g.cell)) + 1)
-        j0, j1 = max(0, int(math.floor((y0 - g.y0) / g.cell))), min(g.ny, int(math.ceil((y1 - g.y0) / g.cell)) + 1)
-        if i0 >= i1 or j0 >= j1:
-            return
-        X, Y = np.meshgrid(g.x0 + g.cell * np.arange(i0, i1), g.y0 + g.cell * np.arange(j0, j1))
-        inside = shapely.contains_xy(swept, X, Y)
-        sub = self.top[j0:j1, i0:i1]
-        sub[inside] = np.minimum(sub[inside], z)
 
 
 def _axis_rect(setup: Setup, p: _Params, within: Callable[[float], BaseGeometry] | None
@@ -1045,6 +939,12 @@ def _plan_entries(allowed: BaseGeometry, space: BaseGeometry, z: float, rect_xy:
     return plans, missed
 
 
+def _nearest(plans: list[tuple], here: np.ndarray) -> int:
+    """The index of the planned region (:func:`_plan_entries`) whose entry is nearest to XY ``here`` [mm]."""
+    return min(range(len(plans)), key=lambda i: np.linalg.norm(
+        (plans[i][2].air_xy if plans[i][2].air_xy is not None else plans[i][2].start_xy) - here))
+
+
 def _cut_nearest_first(path: _Path, plans: list[tuple], z: float, z_prev: float, p: _Params,
                        air_at: Callable[[np.ndarray], np.ndarray] | None,
                        start_xy: np.ndarray) -> tuple[list[Polygon], list[Polygon]]:
@@ -1053,10 +953,7 @@ def _cut_nearest_first(path: _Path, plans: list[tuple], z: float, z_prev: float,
     regions cut and those :func:`_cut_region` could not cut."""
     done, failed = [], []
     while plans:
-        here = path.here[:2] if path.points else start_xy
-        i = min(range(len(plans)), key=lambda i: np.linalg.norm(
-            (plans[i][2].air_xy if plans[i][2].air_xy is not None else plans[i][2].start_xy) - here))
-        region, rings, entry, inside_out = plans.pop(i)
+        region, rings, entry, inside_out = plans.pop(_nearest(plans, path.here[:2] if path.points else start_xy))
         if not path.points:
             first = entry.air_xy if entry.air_xy is not None else entry.start_xy
             path.add([first[0], first[1], p.safe_z], Motion.RAPID)
@@ -1067,35 +964,17 @@ def _cut_nearest_first(path: _Path, plans: list[tuple], z: float, z_prev: float,
     return done, failed
 
 
-@dataclass(frozen=True)
-class _Piece:
-    """One region's moves at one level, cut on their own (rest machining, :func:`_cut_pieces`).
-
-    ``start_xy`` [mm]: where the tool stands over at the clearance height before ``points`` (the
-    descent, the entry and the loops, as :func:`_cut_region` emits them); ``footprint``: the XY area its
-    tool sweeps while feeding (the feed moves' axis grown by the tool radius)."""
-
-    level: int
-    z: float
-    start_xy: np.ndarray
-    points: np.ndarray
-    motion: np.ndarray
-    footprint: BaseGeometry
-
-
-def _cut_pieces(pieces: list[_Piece], level: int, plans: list[tuple], z: float, z_prev: float, p: _Params,
+def _cut_pieces(pieces: list[Piece], level: int, plans: list[tuple], z: float, z_prev: float, p: _Params,
                 air_at: Callable[[np.ndarray], np.ndarray] | None,
                 start_xy: np.ndarray) -> tuple[list[Polygon], list[Polygon], np.ndarray]:
     """As :func:`_cut_nearest_first`, each region onto a path of its own, appended to ``pieces`` for
-    :func:`_stacked` to order; also returns where the tool ends [mm]. The regions are taken in the
+    :func:`cadcam.restlinks.stacked` to order; also returns where the tool ends [mm]. The regions are taken in the
     same order and cut with the same moves: each starts at the clearance height over its entry, as
     every region there does."""
     done, failed = [], []
     here = np.asarray(start_xy, dtype=np.float64)
     while plans:
-        i = min(range(len(plans)), key=lambda i: np.linalg.norm(
-            (plans[i][2].air_xy if plans[i][2].air_xy is not None else plans[i][2].start_xy) - here))
-        region, rings, entry, inside_out = plans.pop(i)
+        region, rings, entry, inside_out = plans.pop(_nearest(plans, here))
         first = entry.air_xy if entry.air_xy is not None else entry.start_xy
         own = _Path()
         own.add([first[0], first[1], p.clear_z], Motion.RAPID)
@@ -1103,42 +982,10 @@ def _cut_pieces(pieces: list[_Piece], level: int, plans: list[tuple], z: float, 
             done.append(region)
         else:
             failed.append(region)
-        pts, motion = np.array(own.points), np.array(own.motion, dtype=np.int8)
-        # the rapids at the clearance height to the entry (:meth:`_Path.go_to`): the pieces are linked anew
-        lead = 1
-        while lead < len(pts) and pts[lead, 2] >= p.clear_z - 1e-9:
-            lead += 1
-        here = pts[-1, :2]
-        if lead >= len(pts):
-            continue
-        fed = np.flatnonzero(motion[lead:] != int(Motion.RAPID)) + lead  # feed moves pts[i - 1] -> pts[i]
-        feeding = pts[np.unique(np.concatenate([fed - 1, fed]))]
-        footprint = (LineString(feeding[:, :2]) if len(feeding) > 1 else Point(feeding[0, :2]) if len(feeding)
-                     else Point(pts[lead, :2])).buffer(p.radius + _COVER_TOL, quad_segs=4)
-        pieces.append(_Piece(level, z, pts[lead - 1, :2], pts[lead:], motion[lead:], footprint))
+        here = own.here[:2]
+        piece = Piece.of(level, z, np.array(own.points), np.array(own.motion, dtype=np.int8), p.clear_z, p.radius)
+        if piece is not None:
+            pieces.append(piece)
     return done, failed, here
 
 
-def _stacked(pieces: list[_Piece]) -> list[_Piece]:
-    """``pieces`` (in the level-by-level order they were planned) stack by stack: pieces whose tool sweeps
-    meet, directly or through others, form a stack, cut top down in their planned order before the next
-    stack (ordered by its first piece). No feed move meets other stock than it did level by level: a
-    piece's stock is changed only by the pieces whose sweeps meet its own, all of its stack, which keep
-    their order. The tool descends a stack's levels instead of going round every stack on each level."""
-    if len(pieces) < 2:
-        return list(pieces)
-    parent = list(range(len(pieces)))
-
-    def root(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    tree = shapely.STRtree([q.footprint for q in pieces])
-    a, b = tree.query([q.footprint for q in pieces], predicate="intersects")
-    for i, j in zip(a.tolist(), b.tolist()):
-        ri, rj = root(i), root(j)
-        if ri != rj:
-            parent[max(ri, rj)] = min(ri, rj)  # a stack's root is its first piece
-    return [pieces[i] for i in sorted(range(len(pieces)), key=lambda i: (root(i), i))]
