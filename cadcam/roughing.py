@@ -48,7 +48,8 @@ cleared with contour-parallel offset loops. The pieces:
   the stock edge outside-in; each next loop is the uncut loop nearest to what is already
   cut, linked by a short horizontal cut that is checked to stay inside the region. When
   the tool is not already there it retracts to the clearance height, rapids, and descends
-  vertically on a path already cut at this level (air all the way down).
+  vertically on a path already cut at this level (air all the way down). Rest machining cuts
+  its regions stack by stack and links them low (:mod:`cadcam.restlinks`).
 * **Descents** run by rapid to ``lead_gap`` above the deepest floor known to be cleared
   under the whole tool (the previous level's, or this level's on a cut path), and at the
   plunge feed only for the last ``lead_gap``: the cleared-neighbourhood property above
@@ -81,6 +82,7 @@ from shapely.geometry.polygon import orient
 from shapely.ops import nearest_points
 
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
+from cadcam.restlinks import Links, Piece, cut_stacked
 from cadcam.gridregion import GrownMaskCache
 from cadcam.rest import rest_level_masks, rest_levels, rooms_round, without_holder
 from cadcam.shadow import part_shadows
@@ -382,9 +384,16 @@ def _climb(ring: np.ndarray, uncut_dir: np.ndarray | None, inside_out: bool) -> 
 
 
 class _Path:
-    def __init__(self) -> None:
+    """The moves of an operation as they are emitted.
+
+    ``link_height(a, b)``, given, is the lowest tip height [mm] at which the tool may rapid straight from
+    XY ``a`` to ``b`` clear of the stock known to be there (inf: not at all); links then lift only that
+    high plus ``lead_gap``, not to the clearance height (:meth:`go_to`)."""
+
+    def __init__(self, link_height: Callable[[np.ndarray, np.ndarray], float] | None = None) -> None:
         self.points: list[np.ndarray] = []
         self.motion: list[int] = []
+        self.link_height = link_height
 
     def add(self, xyz, kind: Motion) -> None:
         q = np.asarray(xyz, dtype=np.float64)
@@ -402,8 +411,17 @@ class _Path:
         return self.points[-1]
 
     def go_to(self, xy, p: _Params) -> None:
-        """Retract to clearance height and rapid over ``xy``."""
+        """Retract to clearance height and rapid over ``xy``; with ``link_height``, from below the clearance
+        height, lift only ``lead_gap`` over the known stock along the straight way there (not lower than
+        the tool is), and rapid across at that height: in rest machining most links run over stock
+        already cleared, and a lift to the clearance and back costs more than the way across."""
         cur = self.here
+        if self.link_height is not None and cur[2] < p.clear_z - 1e-9:
+            low = max(float(cur[2]), self.link_height(cur[:2], np.asarray(xy, dtype=np.float64)) + p.lead_gap)
+            if low < p.clear_z - 1e-9:
+                self.add([cur[0], cur[1], low], Motion.RAPID)
+                self.add([xy[0], xy[1], low], Motion.RAPID)
+                return
         if cur[2] < p.clear_z - 1e-9:
             self.add([cur[0], cur[1], p.clear_z], Motion.RAPID)
         elif cur[2] > p.clear_z + 1e-9 and np.linalg.norm(cur[:2] - np.asarray(xy)) > 1e-9:
@@ -790,11 +808,8 @@ def zlevel_roughing(
     levels, deep = _levels(part, setup, p), 0
     if rest is not None:  # the last ``deep`` levels lie below its reach: only where its holder clears the stock
         levels, deep = rest_levels(levels, float(setup.stock_max[2]), tool.length)
-    heights = [zq for z in levels for zq, _ in _forbidden_terms(float(z), p)]
-    shadow = part_shadows(part, heights)
-
+    shadow = part_shadows(part, [zq for z in levels for zq, _ in _forbidden_terms(float(z), p)])
     rect_xy, rect = _axis_rect(setup, p, within)
-
     # the rest material grown by the tool radius, remembered per distinct mask of levels
     rest_grown = GrownMaskCache(rest.grid, p.radius, quad_segs=8) if rest is not None else None
     spaces = without_holder([_level_space(float(z), rect, shadow, p) for z in levels], levels, deep, rest, tool)
@@ -808,8 +823,8 @@ def zlevel_roughing(
     # Rest machining knows the air from the stock model (entries and descents use it), so a
     # skipped pocket only bars the levels below it, not every place this level had nothing to cut.
     blocked: list[BaseGeometry] = []
-    z_prev = float(setup.stock_max[2])
-    skipped = 0
+    z_prev, skipped, here = float(setup.stock_max[2]), 0, setup.stock_min[:2]
+    pieces: list[Piece] | None = [] if known is not None else None  # rest machining's, cut stack by stack
     for li, z in enumerate(levels):
         z = float(z)
         space = _bounded(spaces[li], cleared, blocked, exclude(li) if exclude is not None else None)
@@ -818,7 +833,8 @@ def zlevel_roughing(
             allowed = allowed.intersection(rest_grown(masks[li]))
         plans, missed = _plan_entries(allowed, space, z, rect_xy, p, tool, known, air_at,
                                       None if cut_before is None else (lambda z=z: cut_before(z)))
-        done_regions, failed = _cut_nearest_first(path, plans, z, z_prev, p, air_at, setup.stock_min[:2])
+        done_regions, failed, here = (_cut_pieces(pieces, li, plans, z, z_prev, p, air_at, here) if pieces is not None
+                                      else (*_cut_nearest_first(path, plans, z, z_prev, p, air_at, here), here))
         skipped += len(missed) + len(failed)
         if rest is not None:
             blocked += [region.buffer(2 * p.radius, quad_segs=4) for region in missed + failed]
@@ -829,12 +845,13 @@ def zlevel_roughing(
         z_prev = z
         if progress is not None:
             progress(li + 1, len(levels))
-
+    if pieces:  # linked low (cadcam.restlinks)
+        cut_stacked(path, pieces, Links(known, tool, rect), cutting.feed, p)
     if path.points:
         cur = path.here
         path.add([cur[0], cur[1], p.safe_z], Motion.RAPID)
-    name = "rough z-level" if rest is None else f"rest rough T{tool.number}"
-    return Operation(name=name, kind="roughing", tool=tool, cutting=cutting, points=np.array(path.points).reshape(-1, 3),
+    return Operation(name="rough z-level" if rest is None else f"rest rough T{tool.number}", kind="roughing",
+                     tool=tool, cutting=cutting, points=np.array(path.points).reshape(-1, 3),
                      motion=np.array(path.motion, dtype=np.int8), allowance=p.allowance)
 
 
@@ -922,6 +939,12 @@ def _plan_entries(allowed: BaseGeometry, space: BaseGeometry, z: float, rect_xy:
     return plans, missed
 
 
+def _nearest(plans: list[tuple], here: np.ndarray) -> int:
+    """The index of the planned region (:func:`_plan_entries`) whose entry is nearest to XY ``here`` [mm]."""
+    return min(range(len(plans)), key=lambda i: np.linalg.norm(
+        (plans[i][2].air_xy if plans[i][2].air_xy is not None else plans[i][2].start_xy) - here))
+
+
 def _cut_nearest_first(path: _Path, plans: list[tuple], z: float, z_prev: float, p: _Params,
                        air_at: Callable[[np.ndarray], np.ndarray] | None,
                        start_xy: np.ndarray) -> tuple[list[Polygon], list[Polygon]]:
@@ -930,10 +953,7 @@ def _cut_nearest_first(path: _Path, plans: list[tuple], z: float, z_prev: float,
     regions cut and those :func:`_cut_region` could not cut."""
     done, failed = [], []
     while plans:
-        here = path.here[:2] if path.points else start_xy
-        i = min(range(len(plans)), key=lambda i: np.linalg.norm(
-            (plans[i][2].air_xy if plans[i][2].air_xy is not None else plans[i][2].start_xy) - here))
-        region, rings, entry, inside_out = plans.pop(i)
+        region, rings, entry, inside_out = plans.pop(_nearest(plans, path.here[:2] if path.points else start_xy))
         if not path.points:
             first = entry.air_xy if entry.air_xy is not None else entry.start_xy
             path.add([first[0], first[1], p.safe_z], Motion.RAPID)
@@ -942,3 +962,30 @@ def _cut_nearest_first(path: _Path, plans: list[tuple], z: float, z_prev: float,
         else:
             failed.append(region)
     return done, failed
+
+
+def _cut_pieces(pieces: list[Piece], level: int, plans: list[tuple], z: float, z_prev: float, p: _Params,
+                air_at: Callable[[np.ndarray], np.ndarray] | None,
+                start_xy: np.ndarray) -> tuple[list[Polygon], list[Polygon], np.ndarray]:
+    """As :func:`_cut_nearest_first`, each region onto a path of its own, appended to ``pieces`` for
+    :func:`cadcam.restlinks.stacked` to order; also returns where the tool ends [mm]. The regions are taken in the
+    same order and cut with the same moves: each starts at the clearance height over its entry, as
+    every region there does."""
+    done, failed = [], []
+    here = np.asarray(start_xy, dtype=np.float64)
+    while plans:
+        region, rings, entry, inside_out = plans.pop(_nearest(plans, here))
+        first = entry.air_xy if entry.air_xy is not None else entry.start_xy
+        own = _Path()
+        own.add([first[0], first[1], p.clear_z], Motion.RAPID)
+        if _cut_region(own, region, rings, entry, z, z_prev, inside_out, p, air_at):
+            done.append(region)
+        else:
+            failed.append(region)
+        here = own.here[:2]
+        piece = Piece.of(level, z, np.array(own.points), np.array(own.motion, dtype=np.int8), p.clear_z, p.radius)
+        if piece is not None:
+            pieces.append(piece)
+    return done, failed, here
+
+

@@ -222,12 +222,13 @@ def simulate(op, setup, ramp_angle, radius=TOOL.radius):
         n = max(1, math.ceil(np.linalg.norm(b - a) / (0.5 * hf.cell)))
         samples = a + np.linspace(0, 1, n + 1)[:, None] * (b - a)
         if M[i] == Motion.RAPID:
-            if horiz > 1e-9 and min(a[2], b[2]) < clear_z - 1e-9:
-                bad.append(f"move {i}: horizontal rapid below clearance height")
-            # Rapid descents below the clearance plane are fine through air: checked next.
+            # Rapid descents below the clearance plane are fine through air; so are links across below it
+            # (rest machining lifts only over the stock it knows), but those clear the stock with the whole
+            # tool, not just the cells surely under it.
+            low = horiz > 1e-9 and min(a[2], b[2]) < clear_z - 1e-9
             for s in samples:
-                if hf.highest(s[:2], inner) > s[2] + 0.02:
-                    bad.append(f"move {i}: rapid touches stock at {s}")
+                if hf.highest(s[:2], radius if low else inner) > s[2] + (0.0 if low else 0.02):
+                    bad.append(f"move {i}: {'horizontal ' if low else ''}rapid touches stock at {s}")
                     break
             continue
         steep = a[2] - b[2] > 1e-9 and a[2] - b[2] > horiz * tan_ramp
@@ -515,3 +516,46 @@ def test_random_blocks_wide_stepover_cuts_what_the_default_cuts(part_setup, shar
     hf_usual, _ = simulate(usual, setup, 3.0)
     left = left_beyond(hf_wide, hf_usual)
     assert left.max() <= 0.05
+
+
+@functools.cache
+def three_domes_part() -> trimesh.Trimesh:
+    """Three hemispheres of radius 7 on a plate 90 x 30 mm, 30 mm apart; their tops at z = -1."""
+    domes = []
+    for x in DOMES:
+        sphere = trimesh.creation.icosphere(subdivisions=3, radius=7.0)
+        sphere.apply_translation((x, 15.0, -8.0))
+        domes.append(difference(sphere, box((0, 0, -30), (90, 30, -8))))
+    return union(box((0, 0, -12), (90, 30, -8)), *domes)
+
+
+#: X of the three domes' centres [mm] (:func:`three_domes_part`).
+DOMES = (15.0, 45.0, 75.0)
+
+
+def test_rest_terraces_are_cut_dome_by_dome_and_linked_low():
+    # The terraces round three domes: each dome's levels top down before the next dome's, instead of going
+    # round every dome on every level.
+    part, setup = three_domes_part(), make_setup((90.0, 30.0, 12.0))
+    first = zlevel_roughing(part, setup, TOOL, CUTTING, RoughingOptions(stepdown=3.0))
+    stock = stock_after([first], setup, np.asarray(part.triangles))
+    terraces = zlevel_roughing(part, setup, TOOL, CUTTING, RoughingOptions(stepdown=0.7), rest=stock,
+                               rest_above=0.7)
+    P, M = terraces.points, terraces.motion
+    clear_z = setup.stock_max[2] + setup.clearance
+    levels = sorted({round(float(z), 6) for z, m in zip(P[1:, 2], M[1:]) if m == Motion.CUT})
+    assert len(levels) >= 4  # terraces on several levels round each dome
+    # a link over the stock only (the simulation below holds every low rapid to the whole tool): from one
+    # dome to the next over the floor between them, not by the clearance height
+    low = ((M[1:] == Motion.RAPID) & (np.abs(np.diff(P[:, 0])) > 10.0)
+           & (np.maximum(P[1:, 2], P[:-1, 2]) < clear_z - 1e-9))
+    assert low.any()
+    # each dome's cuts in one run: the nearest dome of the cut moves changes only twice
+    cut = P[1:][M[1:] == Motion.CUT]
+    dome = np.argmin(np.abs(cut[:, 0, None] - np.array(DOMES)), axis=1)
+    assert int(np.count_nonzero(np.diff(dome))) == 2
+    after = stock_after([first, terraces], setup, np.asarray(part.triangles))
+    assert float(excess(after, 0.3).max()) <= 1.5
+    assert_no_gouge(part, terraces, 0.3)
+    _, bad = simulate(joined(first, terraces), setup, 3.0)
+    assert not bad, "\n".join(bad[:5])

@@ -1,0 +1,190 @@
+"""The order and the links of rest machining's regions (:func:`cadcam.roughing.zlevel_roughing` with a known stock).
+
+Rest machining cuts a few regions round the part's features on many levels: the terraces on a boss's
+flanks, the skin on a wall. Level by level the tool goes round every feature on each level and lifts to the
+clearance height between them. Here the regions are cut stack by stack (:func:`stacked`) and linked as low
+as the stock allows (:class:`Links`): across at the level where it is cut (:func:`stays_down`), else lifted
+only a little over the stock known along the straight way.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import shapely
+from shapely.geometry import LineString, Point
+from shapely.geometry.base import BaseGeometry
+
+from cadcam.model import Motion, Tool
+from cadcam.post import PostOptions
+from cadcam.stock import Simulation, clear_height
+
+
+@dataclass(frozen=True)
+class Piece:
+    """One region's moves at one level, cut on their own.
+
+    ``z`` [mm]: its level; ``start_xy`` [mm]: where the tool stands over at the clearance height before
+    ``points`` (the descent, the entry and the loops, as :func:`cadcam.roughing._cut_region` emits them;
+    ``motion`` theirs); ``footprint``: the XY area its tool sweeps while feeding (the feed moves' axis grown
+    by the tool radius)."""
+
+    level: int
+    z: float
+    start_xy: np.ndarray
+    points: np.ndarray
+    motion: np.ndarray
+    footprint: BaseGeometry
+
+    @classmethod
+    def of(cls, level: int, z: float, points: np.ndarray, motion: np.ndarray, clear_z: float,
+           radius: float) -> Piece | None:
+        """The piece of a region cut at level ``z`` [mm] on a path of its own that starts at the clearance
+        height ``clear_z`` [mm] over its entry (``points``, ``motion``), for a tool of ``radius`` [mm]; the
+        rapids there to the entry are left out (the pieces are linked anew). None: it holds nothing else."""
+        lead = 1
+        while lead < len(points) and points[lead, 2] >= clear_z - 1e-9:
+            lead += 1
+        if lead >= len(points):
+            return None
+        fed = np.flatnonzero(motion[lead:] != int(Motion.RAPID)) + lead  # feed moves points[i - 1] -> points[i]
+        feeding = points[np.unique(np.concatenate([fed - 1, fed]))][:, :2]
+        way = LineString(feeding) if len(feeding) > 1 else Point(feeding[0] if len(feeding) else points[lead, :2])
+        return cls(level, z, points[lead - 1, :2], points[lead:], motion[lead:],
+                   way.buffer(radius + 1e-5, quad_segs=4))
+
+
+def stacked(pieces: list[Piece]) -> list[Piece]:
+    """``pieces`` (in the level-by-level order they were planned) stack by stack: pieces whose tool sweeps
+    meet, directly or through others, form a stack, cut top down in their planned order before the next
+    stack (ordered by its first piece). No feed move meets other stock than it did level by level: a
+    piece's stock is changed only by the pieces whose sweeps meet its own, all of its stack, which keep
+    their order. The tool descends a stack's levels instead of going round every stack on each level."""
+    if len(pieces) < 2:
+        return list(pieces)
+    parent = list(range(len(pieces)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    tree = shapely.STRtree([q.footprint for q in pieces])
+    a, b = tree.query([q.footprint for q in pieces], predicate="intersects")
+    for i, j in zip(a.tolist(), b.tolist()):
+        ri, rj = root(i), root(j)
+        if ri != rj:
+            parent[max(ri, rj)] = min(ri, rj)  # a stack's root is its first piece
+    return [pieces[i] for i in sorted(range(len(pieces)), key=lambda i: (root(i), i))]
+
+
+class Links:
+    """How low the tool may link across: the stock known before the operation, lowered where the pieces
+    cut so far took it (:meth:`cut`).
+
+    ``height(a, b)`` is the lowest tip height [mm] at which the tool may rapid straight from XY ``a`` to
+    ``b`` touching none of that stock, inf where the way leaves ``rect`` (where the axis may go: outside it
+    lie the jaws). The way is sampled every quarter cell, each sample's height :func:`cadcam.stock.clear_height`
+    (which takes a grid point's stock as reaching a cell diagonal round it), so the tool between two samples
+    lies within an eighth of a cell of one of them; the rapid check of the whole program runs after."""
+
+    def __init__(self, known: Simulation, tool: Tool, rect: BaseGeometry) -> None:
+        self.top = np.array(known.stock_top, dtype=np.float64)  # lowered as the pieces cut
+        self.stock = dataclasses.replace(known, stock_top=self.top)
+        self.tool, self.rect = tool, rect
+        shapely.prepare(rect)
+
+    def _way(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """(n, 2) samples of the straight way from ``a`` to ``b``, a quarter cell apart at most [mm]."""
+        length = float(np.linalg.norm(b - a))
+        t = np.linspace(0.0, 1.0, max(2, int(math.ceil(length / (0.25 * self.stock.grid.cell))) + 1))
+        return a + t[:, None] * (b - a)
+
+    def _within(self, a: np.ndarray, b: np.ndarray) -> bool:
+        return float(np.linalg.norm(b - a)) <= 1e-9 or self.rect.covers(LineString([a, b]))
+
+    def height(self, a: np.ndarray, b: np.ndarray) -> float:
+        if not self._within(a, b):
+            return math.inf
+        return float(np.max(clear_height(self.stock, self.tool, self._way(a, b))))
+
+    def stays_down(self, a: np.ndarray, b: np.ndarray, z: float) -> bool:
+        """Whether the tool may feed straight from XY ``a`` to ``b`` [mm] at tip height ``z`` [mm] meeting
+        nothing: no grid point strictly within its radius of the way holds stock above ``z``. A feed move,
+        not a rapid: it may graze what its last loop grazed (the skin on a wall), and what lies between the
+        grid points is no more than the slivers every cut of the model leaves."""
+        g, r = self.stock.grid, self.tool.radius - 1e-6
+        xy = self._way(a, b)
+        k = int(math.ceil(r / g.cell)) + 1
+        di, dj = (d.ravel() for d in np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1)))
+        i = np.rint((xy[:, 0, None] - g.x0) / g.cell).astype(np.int64) + di
+        j = np.rint((xy[:, 1, None] - g.y0) / g.cell).astype(np.int64) + dj
+        inside = (i >= 0) & (i < g.nx) & (j >= 0) & (j < g.ny)
+        ii, jj = np.clip(i, 0, g.nx - 1), np.clip(j, 0, g.ny - 1)
+        near = inside & (np.hypot(g.x0 + ii * g.cell - xy[:, 0, None], g.y0 + jj * g.cell - xy[:, 1, None]) < r)
+        return bool(np.all(self.top[jj[near], ii[near]] <= z + 1e-6)) and self._within(a, b)
+
+    def cut(self, piece: Piece) -> None:
+        """Lower the stock to the piece's level wherever a feed move of it at that level swept the tool's
+        flat end (the grid points within the radius of the moves): there nothing is left above it."""
+        pts, z = piece.points, piece.z
+        at = ((np.abs(pts[1:, 2] - z) < 1e-9) & (np.abs(pts[:-1, 2] - z) < 1e-9)
+              & (piece.motion[1:] != int(Motion.RAPID)))
+        if not at.any():
+            return
+        # the runs of such moves, each one line
+        edges = np.flatnonzero(np.diff(np.r_[0, at.astype(np.int8), 0]))
+        lines = [LineString(pts[s:e + 1, :2]) for s, e in zip(edges[::2], edges[1::2])]
+        swept = shapely.union_all(shapely.buffer(lines, self.tool.radius - 1e-6, quad_segs=4))
+        g = self.stock.grid
+        x0, y0, x1, y1 = swept.bounds
+        i0, i1 = max(0, int(math.floor((x0 - g.x0) / g.cell))), min(g.nx, int(math.ceil((x1 - g.x0) / g.cell)) + 1)
+        j0, j1 = max(0, int(math.floor((y0 - g.y0) / g.cell))), min(g.ny, int(math.ceil((y1 - g.y0) / g.cell)) + 1)
+        if i0 >= i1 or j0 >= j1:
+            return
+        X, Y = np.meshgrid(g.x0 + g.cell * np.arange(i0, i1), g.y0 + g.cell * np.arange(j0, j1))
+        inside = shapely.contains_xy(swept, X, Y)
+        sub = self.top[j0:j1, i0:i1]
+        sub[inside] = np.minimum(sub[inside], z)
+
+
+def stays_down(links: Links, here: np.ndarray, xy: np.ndarray, feed: float, clear_z: float, lead_gap: float) -> bool:
+    """Whether the tool at ``here`` [mm] goes on to XY ``xy`` [mm] at its height, at the cutting ``feed``
+    [mm/min] (:meth:`Links.stays_down`), rather than lifting ``lead_gap`` [mm] over the stock (no higher than
+    ``clear_z`` [mm]) and rapiding across: where it may, and where the feed across takes no longer than the
+    lift, the rapid across and the way back down by the program's clock (:class:`cadcam.post.PostOptions`)."""
+    z, length = float(here[2]), float(np.linalg.norm(xy - here[:2]))
+    if not links.stays_down(here[:2], xy, z):
+        return False
+    lift = min(clear_z, max(z, links.height(here[:2], xy) + lead_gap)) - z
+    return length / feed <= (length + 2.0 * lift) / PostOptions().rapid_rate
+
+
+def cut_stacked(path: Any, pieces: list[Piece], links: Links, feed: float, p: Any) -> None:
+    """The ``pieces`` of a rest machining onto ``path`` (:class:`cadcam.roughing._Path`, with its
+    parameters ``p``) stack by stack (:func:`stacked`), each linked to the next low (:class:`Links`): fed
+    across at its level where that is quicker (:func:`stays_down`, at the cutting ``feed`` [mm/min]), else
+    lifted only over the stock along the way (``path.go_to`` with ``path.link_height``)."""
+    path.link_height = links.height
+    for piece in stacked(pieces):
+        first = 0
+        if not path.points:
+            path.add([*piece.start_xy, p.safe_z], Motion.RAPID)
+            path.add([*piece.start_xy, p.clear_z], Motion.RAPID)
+        elif piece.z <= path.here[2] + 1e-9 and stays_down(links, path.here, piece.start_xy, feed, p.clear_z,
+                                                             p.lead_gap):
+            # Over what is cut at this height: feed across and go on down, no lift and back.
+            path.add([*piece.start_xy, path.here[2]], Motion.CUT)
+            while (first < len(piece.points) and piece.motion[first] == Motion.RAPID
+                   and piece.points[first, 2] >= path.here[2] - 1e-9):
+                first += 1  # the piece's rapid down to its descent, from higher up
+        else:
+            path.go_to(piece.start_xy, p)
+        for q, kind in zip(piece.points[first:], piece.motion[first:]):
+            path.add(q, Motion(int(kind)))
+        links.cut(piece)
