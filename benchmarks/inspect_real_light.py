@@ -121,8 +121,9 @@ def main() -> None:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--camera", type=Path, default=None, help="cell camera file (default fixtures/camera.yaml)")
     ap.add_argument("--parts", default="", help="only these sample parts (comma-separated; default all)")
-    ap.add_argument("--from-above", action="store_true",
-                    help="judge features seen from straight above by all their edges (InspectOptions.judge_from_above)")
+    ap.add_argument("--from-above", action=argparse.BooleanOptionalAction, default=True,
+                    help="judge features seen from straight above by all their edges (InspectOptions.judge_from_above, "
+                         "the default; --no-from-above as the simulated cell's flat-shaded pictures are judged)")
     a = ap.parse_args()
     conditions, kinds = a.conditions.split(","), a.kinds.split(",")
     rows = run(a.poses, a.cache, conditions, kinds, a.first_seed, a.camera, [p for p in a.parts.split(",") if p],

@@ -148,6 +148,24 @@ def test_a_stretch_off_its_line_stands_out_and_the_line_own_level_does_not(level
     assert np.allclose(got[far], 0.0, atol=1e-6)
 
 
+def test_a_window_by_a_corner_runs_along_its_own_side():
+    """Two sides at a corner: one judged all along at 0, the other hidden (a lit wall clipped white)
+    but for its three samples by the corner, which read 1.8 px (its wall's foot). Counted with the
+    judged side round the corner those three made a window's median; along their own side they are
+    too few to tell; their own side's count decides. Away from the corner the judged side still
+    reads its own 0."""
+    a = np.column_stack([np.arange(30) * 1e-3, np.zeros(30), np.full(30, 0.01)])
+    b = np.column_stack([np.full(30, 0.0), -np.arange(1, 31) * 1e-3, np.full(30, 0.01)])
+    points = np.vstack([a, b])
+    direction = np.vstack([np.tile([1.0, 0.0, 0.0], (30, 1)), np.tile([0.0, -1.0, 0.0], (30, 1))])
+    values = np.r_[np.zeros(30), np.full(30, np.nan)]
+    values[30:33] = 1.8
+    assert np.isfinite(_windowed(points, values, 8e-3)[31])  # the old window, round the corner
+    got = _windowed(points, values, 8e-3, direction)
+    assert np.isnan(got[30:33]).all()
+    assert np.allclose(got[:30][np.isfinite(got[:30])], 0.0) and np.isfinite(got[5:30]).all()
+
+
 def test_a_long_side_with_no_edge_at_its_place_takes_the_pose_level_not_a_neighbour():
     """Two sides at a corner: one shows its edges (level 0.3 px), the other none within reach (its
     yaw a little off). The unseen long side takes the level the pose gives it, not its neighbour's;

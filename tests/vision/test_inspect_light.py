@@ -116,7 +116,8 @@ def test_glare_on_the_top_judges_what_shows_and_refuses_only_what_it_hides(stati
 
 @pytest.mark.parametrize("condition, part, seed", [("distractor", "plate_bosses", 1), ("dim", "plate_bosses", 1),
                                                     ("low_angle", "bracket", 0), ("low_angle", "dome_mould", 1),
-                                                    ("diffuse", "plate_bosses", 5)])
+                                                    ("diffuse", "plate_bosses", 5), ("low_angle", "dome_mould", 9),
+                                                    ("dim", "plate_bosses", 5)])
 def test_a_good_part_is_not_rejected_for_an_edge_the_light_does_not_show(station, condition, part, seed):
     """Two good plates that were rejected: beside the box a boss's shadow darkens the top by one
     side, so the top edge does not show there and the shadow's edge 2 mm out looked like a burr; in
@@ -127,7 +128,11 @@ def test_a_good_part_is_not_rejected_for_an_edge_the_light_does_not_show(station
     A dome mould under a low light whose narrow lit wall makes a bright band about its top edge:
     the band's two sides, one either side of the edge, no longer alternate along the side. A plate
     whose counterbore's wall turned to the camera shows little against its shadowed floor, while
-    the rest of its edges are there."""
+    the rest of its edges are there.
+    A dome mould under a low light whose lit wall clips white along one side but for a few samples
+    by a corner, which find the wall's foot 1.8 px out: a window of the outline runs along its own
+    side, and those few cannot tell. A dim plate whose side has a highlight along its rim: the grey
+    profile across it changes shape there, which a shift does not explain; it is not read as a burr."""
     _, result = inspected(station, condition, part, seed)
     assert result.passed, result.to_dict()
 
@@ -154,15 +159,16 @@ def test_a_part_locate_cannot_place_is_refused_with_locate_reason(station):
 
 def test_a_boss_seen_from_straight_above_is_judged_by_all_its_edges(station):
     """A plate whose plain boss stands near the point under the camera: its walls are seen edge-on,
-    no crease with a wall turned to the camera shows it, and a plate without it passes by default.
-    Judged by all its edges (``judge_from_above``: real light shades its wall and casts its
-    shadow), the good boss is there and the one left out is missing where it should be."""
-    above = InspectOptions(judge_from_above=True)
-    _, good = inspected(station, "diffuse", "plate_bosses", 1, options=above)
+    no crease with a wall turned to the camera shows it, and judged as the simulated cell's
+    flat-shaded pictures are (``judge_from_above`` off) a plate without it passes. Judged by all
+    its edges (the default: real light shades its wall and casts its shadow), the good boss is
+    there and the one left out is missing where it should be."""
+    _, good = inspected(station, "diffuse", "plate_bosses", 1)
     assert good.passed, good.to_dict()
-    _, plain = inspected(station, "diffuse", "plate_bosses", 1, "missing_boss")
-    assert plain.passed  # the limit the option lifts
-    scene, bad = inspected(station, "diffuse", "plate_bosses", 1, "missing_boss", options=above)
+    _, plain = inspected(station, "diffuse", "plate_bosses", 1, "missing_boss",
+                         options=InspectOptions(judge_from_above=False))
+    assert plain.passed  # the limit judging from above lifts
+    scene, bad = inspected(station, "diffuse", "plate_bosses", 1, "missing_boss")
     assert not bad.passed and not bad.refusal
     (missing,) = bad.missing_features
     centre = pixel_of(station, "plate_bosses", scene, (78.0, 56.0, 14.0))
