@@ -639,17 +639,18 @@ def _reachable_floor(setup: Setup, setup1: Setup, library: ToolLibrary, part: tr
 
 def _deepest_left(stock: Simulation, left: np.ndarray) -> float | None:
     """The lowest op 2 must reach to take the stock of ``left`` ((ny, nx) bool grid points of ``stock``, op 1's
-    stock turned over) [mm]: the part's top under it, or where there is no part, the bottom of the column, where
-    op 1's cut from the other side ends. None when nothing is left.
+    stock turned over) [mm]: the part's top under it, only where there is part. None when none is left over it.
 
     After a depth split, op 1 finished every wall it saw down to its floor; but a pocket in the bottom face under
     a web (a wheel's rim under its spokes' plate) it never saw, and op 2 must finish it to its bottom, past the
-    seam, or its walls meet op 1's with the whole pocket's depth as their step."""
-    if not left.any():
+    seam, or its walls meet op 1's with the whole pocket's depth as their step. Columns with no part (op 1's
+    slivers in a through pocket's sharp inside corners) do not count: their stock ends where op 1's cut from the
+    other side does, and reaching for it would pull op 2's floor to the bottom of the stock (wheel_in_box: -41.5
+    where its pockets need -11.5)."""
+    over_part = left & np.isfinite(stock.part_top)
+    if not over_part.any():
         return None
-    under = np.full(stock.grid.shape, stock.stock_bottom) if stock.stock_under is None else stock.stock_under
-    ends = np.maximum(np.where(np.isfinite(stock.part_top), stock.part_top, -np.inf), under)
-    return float(ends[left].min())
+    return float(stock.part_top[over_part].min())
 
 
 def _machine_from_below(part: trimesh.Trimesh, triangles: np.ndarray, setup: Setup, library: ToolLibrary,
