@@ -345,9 +345,10 @@ def cut_ahead(
     """
     cut = _Cut(moves, tools, setup, part_triangles, cell, start, rapid_rim, engaged_width, body_graze,
                full_width_angle, measure, np.zeros(0, np.int64))
-    # the batches that end at or before the first segment of a move not taken (seg.move is increasing)
+    # the batches that end at or before the first segment of a move not taken (seg.move is increasing); the
+    # end of these moves is no boundary of the whole program's batches (the last may go on past it)
     stable = int(np.searchsorted(cut.seg.move, before, side="left"))
-    last = int(np.searchsorted(cut.bounds, stable, side="right")) - 1
+    last = int(np.searchsorted(cut.bounds[:-1], stable, side="right")) - 1
     first, tops = (0, None) if resume is None else cut.resume(resume)
     if last <= first:  # nothing more to cut: the state given holds as much as is known
         return resume if first > 0 else None

@@ -53,10 +53,11 @@ TAIL = [(R, 2, (1.0, 1.0, 5.0)), (C, 2, (1.0, 19.0, -3.0))]
 
 @settings(max_examples=40, deadline=None)
 @given(first=moves_strategy, rest=moves_strategy, part=st.sampled_from(["low", "sloped"]),
-       every=st.sampled_from([1, 3, 16]), steps=st.integers(1, 3))
-def test_resuming_a_cut_made_ahead_is_the_cut_made_in_one_go(first, rest, part, every, steps):
+       every=st.sampled_from([1, 3, 16]), steps=st.integers(1, 3), tail=st.booleans())
+def test_resuming_a_cut_made_ahead_is_the_cut_made_in_one_go(first, rest, part, every, steps, tail):
     """Whatever the batches (one move or a few each), the stock bounds' schedule and however many steps the
-    cut ahead was made in: the cut resumed from it is the plain one, and it did resume (fewer batches)."""
+    cut ahead was made in, with or without moves after the ones known: the cut resumed from it is the plain
+    one, and it did resume (fewer batches)."""
     tri = LOW_PART if part == "low" else SLOPED
     whole = program(first + rest, start=START)
     with mock.patch.object(stock, "_PAIR_BUDGET", 300), mock.patch.object(stock, "_SPAN_TOPS_EVERY", every):
@@ -64,7 +65,7 @@ def test_resuming_a_cut_made_ahead_is_the_cut_made_in_one_go(first, rest, part, 
         state = None
         for k in range(1, steps + 1):  # the first moves known in steps, each cut on from the last
             known = first[:max(1, len(first) * k // steps)]
-            ahead = program(known + TAIL, start=START)
+            ahead = program(known + (TAIL if tail else []), start=START)
             state = cut_ahead(ahead, TOOLS, SETUP, tri, 0.5, before=len(known) + 1, resume=state)
         resumed, n_resumed = _cut(whole, tri, resume=state)
     assert_identical(resumed, plain)
