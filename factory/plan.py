@@ -606,9 +606,9 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
     if req.ops is None:  # a relief stays in its block, right way up, unless asked
         req = dataclasses.replace(req, ops=1 if planned.boundary is not None else 2)
     outputs = req.outputs(Path("."))
-    with watch("post"):
-        # a round of verify ahead under way fits operations the post needs: waited for first
+    with watch("verify ahead"):  # a round under way fits operations the post needs: waited for first
         resume = verify_ahead.state(job.operations) if verify_ahead is not None else None
+    with watch("post"):
         program = post_process(job, post_options, ahead=ahead)
         sheet = dataclasses.replace(setup_sheet(job, program, outputs["program"].name), op=1, work_offset="G54")
     tending = None
