@@ -20,7 +20,6 @@ may come without touching it (:func:`clear_height`), and op 2's stock, op 1's tu
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -31,6 +30,7 @@ from scipy import ndimage
 
 from cadcam.engagement import ENGAGED_WIDTH, FULL_WIDTH_ANGLE, MoveRecord, engaged_depth, record_max
 from cadcam.envelope import Segments, grid_pairs, pair_envelope, reach_interval
+from cadcam.envelope import SpanTops as _SpanTops
 from cadcam.heightmap import Grid, grid_over, upper_envelope
 from cadcam.model import Motion, Operation, ProgramMoves, Setup, Tool
 from factory.core.errors import VerifyError
@@ -150,53 +150,6 @@ class StockCut:
     swept: np.ndarray
 
 
-@dataclass(frozen=True)
-class CutState:
-    """A program's first moves cut into the stock model, stopped at a boundary between two of the cut's
-    batches (:func:`cut_ahead`): :func:`cut_stock` given it as ``resume`` starts there instead of at the
-    first move, when the program it cuts begins with exactly these moves, swept alike, cut into the same
-    stock and part on the same grid with the same options; else it starts at the first move. Either way
-    its result is the same to the bit.
-
-    Why only at a batch boundary: a batch's moves are measured together, and the engagement orders them
-    by a key scaled to the batch (:func:`cadcam.engagement.engaged_depth`): a cut split inside a batch
-    would not be the cut made in one go.
-
-    Attributes
-    ----------
-    segments : Segments
-        The moves cut, as swept: rows ``0 .. n`` of the program's (:attr:`StockCut.segments`).
-    tool_of_seg : (n,) int
-        The tool making each.
-    bounds : (b + 1,) int
-        The batch boundaries up to ``n``, the last.
-    stock : (ny * nx,) float
-        Stock top after them [mm], flat.
-    under : (ny * nx,) float or None
-        A flipped stock's column bottoms after them [mm] (None: the stock stands on its bottom plane).
-    met : dict of str to (n,) array
-        What each of them met (the arrays of :class:`cadcam.engagement.MoveRecord`).
-    tops : (levels, ny, blocks) float
-        The upper bounds of the stock the next batch pairs its moves with (:class:`_SpanTops`).
-    key : str
-        SHA-256 of everything else the cut depends on: grid, part, starting stock, options and the tools.
-    """
-
-    segments: Segments
-    tool_of_seg: np.ndarray
-    bounds: np.ndarray
-    stock: np.ndarray
-    under: np.ndarray | None
-    met: dict[str, np.ndarray]
-    tops: np.ndarray
-    key: str
-
-    @property
-    def moves(self) -> int:
-        """Moves of the program (:attr:`ProgramMoves.points` after the first) up to the last one cut."""
-        return int(self.segments.move[-1]) if len(self.segments) else 0
-
-
 def cut_stock(
     moves: ProgramMoves,
     tools: Mapping[int, Tool],
@@ -212,7 +165,7 @@ def cut_stock(
     body_graze: float = 0.0,
     full_width_angle: float = FULL_WIDTH_ANGLE,
     measure: bool = True,
-    resume: CutState | None = None,
+    resume: Any = None,
 ) -> StockCut:
     """Cut the stock with every move of a program, measuring what each move meets.
 
@@ -258,11 +211,11 @@ def cut_stock(
         are recorded; the engagement (depth, width, angle) and the shank and holder contacts are
         not measured, and stay zero. The stock is the same either way. For a caller that reads only
         rapids (:func:`cadcam.verify.rapid_check`), this saves most of the work beside the cut.
-    resume : CutState, optional
-        The first moves of this program cut already (:func:`cut_ahead`, in another process meanwhile):
-        the cut goes on from there when they are this program's first moves, swept alike, into this
-        stock and part with these options (:class:`CutState`), else it starts at the first move; the
-        result is the same. Not read with ``snapshot_moves``.
+    resume : cadcam.cutahead.CutState, optional
+        The first moves of this program cut already (:func:`cadcam.cutahead.cut_ahead`, in another process
+        meanwhile): the cut goes on from there when they are this program's first moves, swept alike, into
+        this stock and part with these options (:class:`cadcam.cutahead.CutState`), else it starts at the
+        first move; the result is the same. Not read with ``snapshot_moves``.
 
     Raises
     ------
@@ -278,7 +231,7 @@ def cut_stock(
                full_width_angle, measure, snap)
     grid, stock, under, seg, met = cut.grid, cut.stock, cut.under, cut.seg, cut.met
     part_top, stock_bottom, starts, swept = cut.part_top, cut.stock_bottom, cut.starts, cut.swept
-    first, tops = (0, None) if resume is None or len(snap) else cut.resume(resume)
+    first, tops = (0, None) if resume is None or len(snap) else resume.restore(cut)
     stocks = _run(cut, progress, cut.bounds, first, tops)
     met.freeze()
 
@@ -300,60 +253,6 @@ def cut_stock(
     starts.setflags(write=False)
     swept.setflags(write=False)
     return StockCut(simulation=sim, snapshots=snapshots, segments=seg, met=met, starts=starts, swept=swept)
-
-
-def cut_ahead(
-    moves: ProgramMoves,
-    tools: Mapping[int, Tool],
-    setup: Setup,
-    part_triangles: np.ndarray,
-    cell: float,
-    *,
-    before: int,
-    start: FlippedStock | Simulation | None = None,
-    rapid_rim: float = RAPID_RIM,
-    engaged_width: float = ENGAGED_WIDTH,
-    body_graze: float = 0.0,
-    full_width_angle: float = FULL_WIDTH_ANGLE,
-    measure: bool = True,
-    resume: CutState | None = None,
-) -> CutState | None:
-    """The first moves of a program cut as :func:`cut_stock` cuts them, for it to go on from (its ``resume``).
-
-    For a program known only so far: ``moves`` ends with moves the whole program will not have (the end of
-    a program posted from its first operations), and only its moves before ``points[before]`` are taken
-    to be the whole program's. The cut stops at the last batch boundary among them.
-
-    Parameters
-    ----------
-    moves, tools, setup, part_triangles, cell, start, rapid_rim, engaged_width, body_graze, full_width_angle, measure
-        As :func:`cut_stock` takes them.
-    before : int
-        Index into ``moves.points``: the moves ending there and after it are not cut.
-    resume : CutState, optional
-        An earlier state of this cut (of fewer moves), to go on from, as :func:`cut_stock`'s.
-
-    Returns
-    -------
-    CutState or None
-        None where not one batch ends before ``points[before]``.
-
-    Raises
-    ------
-    VerifyError
-        As :func:`cut_stock`.
-    """
-    cut = _Cut(moves, tools, setup, part_triangles, cell, start, rapid_rim, engaged_width, body_graze,
-               full_width_angle, measure, np.zeros(0, np.int64))
-    # the batches that end at or before the first segment of a move not taken (seg.move is increasing); the
-    # end of these moves is no boundary of the whole program's batches (the last may go on past it)
-    stable = int(np.searchsorted(cut.seg.move, before, side="left"))
-    last = int(np.searchsorted(cut.bounds[:-1], stable, side="right")) - 1
-    first, tops = (0, None) if resume is None else cut.resume(resume)
-    if last <= first:  # nothing more to cut: the state given holds as much as is known
-        return resume if first > 0 else None
-    _run(cut, None, cut.bounds, first, tops, last)
-    return cut.state(last, cut.tops)
 
 
 def _starting_stock(setup: Setup, grid: Grid, start: FlippedStock | Simulation | None
@@ -552,8 +451,8 @@ class _Body:
 
 
 class _Cut:
-    """One program being cut into the stock model: its moves as swept, the stock, the part and what each
-    move met, and the batches the moves are cut in (:func:`cut_stock` and :func:`cut_ahead` share it)."""
+    """A program being cut into the stock model: its moves as swept, the stock, the part, what each move
+    met, the batches (:func:`cut_stock`'s, and :func:`cadcam.cutahead.cut_ahead`'s)."""
 
     def __init__(self, moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup, part_triangles: np.ndarray,
                  cell: float, start: FlippedStock | Simulation | None, rapid_rim: float, engaged_width: float,
@@ -583,48 +482,9 @@ class _Cut:
         self.snapshot_at = np.searchsorted(seg.move, snap, side="right")
         self.bounds = _batch_bounds(seg, grid, self.snapshot_at)
         self.met = MoveRecord(len(seg), bottom=float(setup.stock_min[2]))
-        # What the cut depends on besides its moves and tools, before any move has cut (CutState.key).
-        h = hashlib.sha256(repr((grid, float(setup.stock_min[2]), rapid_rim, engaged_width, body_graze,
-                                 full_width_angle, measure)).encode())
-        for a in (part_flat, stock, under):
-            h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
-        self._start_digest = h.hexdigest()
-
-    def key(self, tool_numbers: np.ndarray) -> str:
-        """:attr:`CutState.key` of a state whose moves use these tools."""
-        used = sorted(set(np.asarray(tool_numbers).tolist()))
-        tools = [(t, self.tools[t].body(), self.tools[t].flute_length) if t in self.tools else (t,) for t in used]
-        return hashlib.sha256(repr((self._start_digest, tools)).encode()).hexdigest()
-
-    def state(self, c: int, tops: "_SpanTops") -> CutState:
-        """The cut after its first ``c`` batches (the next one's stock bounds ``tops``)."""
-        n = int(self.bounds[c])
-        tool_of_seg = self.body.tool_of_seg[:n].copy()
-        met = {name: value[:n].copy() for name, value in vars(self.met).items() if isinstance(value, np.ndarray)}
-        seg = self.seg.sub(0, n)
-        seg = Segments(*(np.array(getattr(seg, f.name)) for f in dataclasses.fields(Segments)))
-        return CutState(seg, tool_of_seg, self.bounds[:c + 1].copy(), self.stock.copy(),
-                        None if self.under is None else self.under.copy(), met, tops.table.copy(),
-                        self.key(tool_of_seg))
-
-    def resume(self, state: CutState) -> tuple[int, "_SpanTops | None"]:
-        """Go on from ``state`` where it is this cut's beginning (the stock and records taken from it): the
-        batch to start at, and the stock bounds it is to use; ``(0, None)`` where it is not."""
-        c, n = len(state.bounds) - 1, len(state.segments)
-        if (c < 1 or len(self.bounds) <= c or not np.array_equal(self.bounds[:c + 1], state.bounds)
-                or not np.array_equal(self.body.tool_of_seg[:n], state.tool_of_seg)
-                or (self.under is None) != (state.under is None)
-                or any(not np.array_equal(getattr(self.seg, f.name)[:n], getattr(state.segments, f.name))
-                       for f in dataclasses.fields(Segments))
-                or self.key(state.tool_of_seg) != state.key):
-            return 0, None
-        self.stock[:] = state.stock
-        if self.under is not None:
-            self.under[:] = state.under
-        for name, value in state.met.items():
-            getattr(self.met, name)[:n] = value
-        return c, _SpanTops.of_table(state.tops)
-
+        # what the cut depends on besides its moves and tools (cadcam.cutahead.CutState.key)
+        self.options = (grid, float(setup.stock_min[2]), rapid_rim, engaged_width, body_graze, full_width_angle,
+                        measure)
 
 def _batch_bounds(seg: Segments, grid: Grid, snapshot_at: np.ndarray) -> np.ndarray:
     """The segment indices the batches start at, and ``len(seg)`` last: from an estimate of each move's grid
@@ -640,13 +500,11 @@ def _batch_bounds(seg: Segments, grid: Grid, snapshot_at: np.ndarray) -> np.ndar
 
 def _run(cut: _Cut, progress, bounds: np.ndarray, first: int = 0, tops: "_SpanTops | None" = None,
          last: int | None = None) -> list[np.ndarray]:
-    """Apply batches ``first`` to ``last`` (default: to the end) of ``cut`` to its stock (modified in place),
-    filling its records; return the snapshots (all taken only when run from the first batch to the end).
-
-    ``tops``: the stock bounds batch ``first`` uses when it is not one that makes them afresh. ``done[k]`` of
-    the cut is the progress count once segment ``k`` is applied; ``snapshot_at[i]`` a number of segments: a
-    copy of the stock is taken once that many are applied (the batches are split there).
-    """
+    """Apply batches ``first`` to ``last`` (default: to the end) of ``cut`` to its stock (in place), filling its
+    records; return the snapshots (taken only when run from the first batch to the end). ``tops``: the stock
+    bounds batch ``first`` uses unless it makes them afresh. ``done[k]`` of the cut is the progress count once
+    segment ``k`` is applied; ``snapshot_at[i]`` a number of segments: a copy of the stock is taken once that
+    many are applied (the batches are split there)."""
     seg, body, grid, stock, part, stats, under = cut.seg, cut.body, cut.grid, cut.stock, cut.part, cut.met, cut.under
     snapshot_at = cut.snapshot_at
     wanted = set(snapshot_at.tolist())
@@ -781,43 +639,6 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
 
 #: Batches between fresh :class:`_SpanTops` (the stock only falls, so older ones are upper bounds, only looser).
 _SPAN_TOPS_EVERY = 16
-
-
-class _SpanTops:
-    """Upper bounds of a stock z-map [mm] on any run of columns of a grid row: the maxima of blocks of
-    :data:`_BLOCK` columns, in a sparse table over each row (the maximum of ``2**k`` blocks from each
-    block), so a run's bound is the larger of two table entries."""
-
-    _BLOCK = 16
-
-    def __init__(self, stock: np.ndarray, grid: Grid):
-        top = stock.reshape(grid.ny, grid.nx)
-        nb = -(-grid.nx // self._BLOCK)
-        padded = np.full((grid.ny, nb * self._BLOCK), -np.inf)
-        padded[:, :grid.nx] = top
-        level = padded.reshape(grid.ny, nb, self._BLOCK).max(axis=2)
-        levels = [level]
-        width = 1
-        while 2 * width <= nb:
-            nxt = np.full_like(level, -np.inf)
-            nxt[:, :nb - width] = np.maximum(level[:, :nb - width], level[:, width:])
-            levels.append(nxt)
-            level, width = nxt, 2 * width
-        self.table = np.stack(levels)  # (levels, ny, blocks)
-
-    @classmethod
-    def of_table(cls, table: np.ndarray) -> "_SpanTops":
-        """The bounds whose table is ``table`` (as :attr:`table` holds it)."""
-        out = object.__new__(cls)
-        out.table = table
-        return out
-
-    def above(self, row: np.ndarray, first: np.ndarray, count: np.ndarray) -> np.ndarray:
-        """(r,) the highest the stock is over columns ``first .. first + count - 1`` (count >= 1) of ``row``, or more [mm]."""
-        b0 = first // self._BLOCK
-        b1 = (first + count - 1) // self._BLOCK
-        k = np.frexp(b1 - b0 + 1)[1].astype(np.int64) - 1  # floor(log2), exactly
-        return np.maximum(self.table[k, row, b0], self.table[k, row, b1 - (1 << k) + 1])
 
 
 def first_line_reaching(moves: ProgramMoves, tools: Mapping[int, Tool], x: float, y: float, z: float) -> int | None:

@@ -35,9 +35,9 @@ from cadcam.envelope import Segments
 from cadcam.heightmap import Grid, grid_over, upper_envelope
 from cadcam.model import Motion, ProgramMoves, Setup, Tool
 from cadcam.relief import surface_footprint
-from cadcam.stock import (ENGAGED_WIDTH, FOR_OP2, FULL_WIDTH_ANGLE, OUTSIDE_RELIEF, RAPID_RIM, CutState, FlippedStock,
-                          Simulation, StockCut, Unreached, cut_ahead, cut_stock, first_line_reaching, unreached,
-                          why_left)
+from cadcam.cutahead import CutState, cut_ahead
+from cadcam.stock import (ENGAGED_WIDTH, FOR_OP2, FULL_WIDTH_ANGLE, OUTSIDE_RELIEF, RAPID_RIM, FlippedStock,
+                          Simulation, StockCut, Unreached, cut_stock, first_line_reaching, unreached, why_left)
 from cadcam.workholding import fixture_contacts
 from factory.core.errors import VerifyError
 
@@ -457,15 +457,9 @@ def simulate(
 
 def verify_ahead(moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup, part_triangles: np.ndarray,
                  options: VerifyOptions, before: int, resume: CutState | None = None) -> CutState | None:
-    """The first moves of a program known so far, cut as :func:`simulate` cuts them, for it to resume from
-    (its ``resume``): only the moves before ``moves.points[before]`` are taken to be the whole program's
-    (:func:`cadcam.stock.cut_ahead`). ``resume``: an earlier such state of fewer moves, cut on from.
-
-    Raises
-    ------
-    VerifyError
-        As :func:`simulate`.
-    """
+    """The first moves of a program known so far, cut as :func:`simulate` cuts them, for it to resume from (its
+    ``resume``): only the moves before ``moves.points[before]`` are taken to be the whole program's
+    (:func:`cadcam.cutahead.cut_ahead`). ``resume``: an earlier such state of fewer moves. VerifyError as simulate."""
     _check_options(options)
     return cut_ahead(moves, tools, setup, part_triangles, options.cell, before=before, resume=resume,
                      **_cut_options(options))

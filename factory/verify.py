@@ -22,7 +22,8 @@ from cadcam.post import FitAhead, PostOptions, operations_end, post_process
 from cadcam.rest import from_and_to_safe_height
 from cadcam.sheet import SheetSetup, read_setup_sheet
 from cadcam.preview import deviation_image
-from cadcam.stock import FOR_OP2, OUTSIDE_RELIEF, CutState, Simulation, flip_stock
+from cadcam.cutahead import CutState
+from cadcam.stock import FOR_OP2, OUTSIDE_RELIEF, Simulation, flip_stock
 from cadcam.verify import (VerifyOptions, VerifyReport, VerifyResult, finishing_moves, simulate, simulate_flipped,
                            verify_ahead,
                            with_op1_left)

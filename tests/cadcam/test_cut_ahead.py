@@ -1,4 +1,4 @@
-"""cadcam.stock: a program's first moves cut ahead (cut_ahead, in another process meanwhile) and the cut resumed
+"""cadcam.cutahead: a program's first moves cut ahead (cut_ahead, in another process meanwhile) and the cut resumed
 from there is the cut made in one go, to the bit; a state that is not the program's beginning is not used (issue 35)."""
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import cadcam.stock as stock
-from cadcam.stock import cut_ahead, cut_stock
+from cadcam.cutahead import cut_ahead
+from cadcam.stock import cut_stock
 from tests.cadcam.test_span_cull import SLOPED, assert_identical
 from tests.cadcam.test_verify import LOW_PART, SETUP, TOOLS, C, R, moves_strategy, program
 

@@ -89,8 +89,9 @@ def test_verify_resumed_from_rounds_ahead_is_verify_from_the_first_move(two_proc
     assert post_process(job, POST, ahead=ahead.fits).text == post_process(job, POST).text
 
 
-@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(changed=st.integers(0, 3), how=st.sampled_from(["slowed", "moved"]), rounds=st.sampled_from([(1, 2, 3), (2,), (3,)]))
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(changed=st.integers(0, 3), how=st.sampled_from(["slowed", "moved"]),
+       rounds=st.sampled_from([(1, 2, 3), (2,), (3,)]))
 def test_a_round_invalidated_by_a_changed_operation_gives_the_plain_verdict(two_processors, changed, how, rounds):
     """The speculation invalidated: after the rounds, the rapid check changes one operation (a rapid slowed to
     the plunge feed, or a point moved): verify resumes only from a state of the operations before it, and its
