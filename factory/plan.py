@@ -41,7 +41,6 @@ from cadcam.post import FitAhead, PostOptions, Program, post_process, tool_table
 from cadcam.preview import setup_image
 from cadcam.mesh import PartMesh
 from cadcam.relief import Boundary, block_corners
-from cadcam.rest import from_and_to_safe_height
 from cadcam.sheet import setup_sheet
 from cadcam.stock import Simulation
 from cadcam.verify import VerifyOptions, VerifyReport, VerifyResult
@@ -564,17 +563,11 @@ def _plan_once(request: PlanRequest, progress: Progress | None = None) -> PartPl
         robot = BackgroundRobot(RobotTask(req.cell, stock_sheet(setup), str(outputs["setup_sheet"]), vertices, ops,
                                           req.ops is None, req.lang, outputs["robot_program"]), watch)
 
-    def planning(operations: list[Operation], setup: Setup) -> None:
-        if verify_ahead is None:
-            ahead.offer(from_and_to_safe_height(op, setup.safe_z) for op in operations)
-        else:
-            verify_ahead.offer(operations, setup)
+    def planning(operations: list[Operation], setup: Setup) -> None:  # (the part is placed before any is planned)
+        verify_ahead.offer(operations, setup)
 
     def all_planned(operations: list[Operation], setup: Setup) -> None:
-        if verify_ahead is None:
-            ahead.offer(from_and_to_safe_height(op, setup.safe_z) for op in operations)
-        else:
-            verify_ahead.offer_all(operations, setup)
+        verify_ahead.offer_all(operations, setup)
 
     try:
         return _plan_with(req, progress, watch, post_options,
