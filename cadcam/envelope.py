@@ -398,3 +398,41 @@ def reach_interval(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray)
     ta = np.where(never, 1.0, ta)
     tb = np.where(never, 0.0, tb)
     return ta, tb, r0
+
+
+class SpanTops:
+    """Upper bounds of a stock z-map [mm] on any run of columns of a grid row: the maxima of blocks of
+    :data:`_BLOCK` columns, in a sparse table over each row (the maximum of ``2**k`` blocks from each
+    block), so a run's bound is the larger of two table entries. :func:`grid_pairs` reads them (``above``)
+    to leave out the runs of grid points a move provably cannot cut (:mod:`cadcam.stock`)."""
+
+    _BLOCK = 16
+
+    def __init__(self, stock: np.ndarray, grid: Grid):
+        top = stock.reshape(grid.ny, grid.nx)
+        nb = -(-grid.nx // self._BLOCK)
+        padded = np.full((grid.ny, nb * self._BLOCK), -np.inf)
+        padded[:, :grid.nx] = top
+        level = padded.reshape(grid.ny, nb, self._BLOCK).max(axis=2)
+        levels = [level]
+        width = 1
+        while 2 * width <= nb:
+            nxt = np.full_like(level, -np.inf)
+            nxt[:, :nb - width] = np.maximum(level[:, :nb - width], level[:, width:])
+            levels.append(nxt)
+            level, width = nxt, 2 * width
+        self.table = np.stack(levels)  # (levels, ny, blocks)
+
+    @classmethod
+    def of_table(cls, table: np.ndarray) -> "SpanTops":
+        """The bounds whose table is ``table`` (as :attr:`table` holds it)."""
+        out = object.__new__(cls)
+        out.table = table
+        return out
+
+    def above(self, row: np.ndarray, first: np.ndarray, count: np.ndarray) -> np.ndarray:
+        """(r,) the highest the stock is over columns ``first .. first + count - 1`` (count >= 1) of ``row``, or more [mm]."""
+        b0 = first // self._BLOCK
+        b1 = (first + count - 1) // self._BLOCK
+        k = np.frexp(b1 - b0 + 1)[1].astype(np.int64) - 1  # floor(log2), exactly
+        return np.maximum(self.table[k, row, b0], self.table[k, row, b1 - (1 << k) + 1])

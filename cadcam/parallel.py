@@ -139,6 +139,18 @@ class Background:
         except (EOFError, OSError):
             return False
 
+    def outcome(self) -> tuple[bool, Any]:
+        """``(True, value)`` of the child, waiting for it; ``(False, None)`` with no child or one that failed:
+        nothing is run here (for work only worth doing meanwhile, :class:`factory.verify.VerifyAhead`)."""
+        ok, value = False, None
+        if self._proc is not None:
+            try:
+                ok, value = self._conn.recv()
+            except (EOFError, OSError):
+                pass
+        self.cancel()
+        return ok, value
+
     def result(self) -> Any:
         if self._proc is not None:
             ok, value = False, None

@@ -388,6 +388,7 @@ def plan_job(
     holes: tuple[Hole, ...] | None = None,
     rapid_cell: float = 0.5,
     on_operations: Callable[[list[Operation], Setup], None] | None = None,
+    on_planned: Callable[[list[Operation], Setup], None] | None = None,
 ) -> PlanJobResult:
     """Compute the operations that cut ``part`` out of the stock described by ``setup``.
 
@@ -425,6 +426,8 @@ def plan_job(
         ``on_operations(operations, setup)`` with the operations planned so far, in cutting order,
         and the setup they cut, each time more are planned and once with them all before the rapid
         check: to start work on them (their arc fitting) while the next are planned.
+    on_planned : callable, optional
+        Told instead of ``on_operations`` of them all before the rapid check (none follow).
 
     Returns
     -------
@@ -447,7 +450,7 @@ def plan_job(
         An operation cannot be computed.
     """
     plan = _Planning.start(part, setup, library, options, progress, boundary)
-    plan.on_operations = on_operations
+    plan.on_operations, plan.on_planned = on_operations, on_planned
     holes, operations, stock = _holes_and_roughing(plan, holes)
     stock = _rest_roughing(plan, operations, stock)
     left = _unreached(plan, stock)
@@ -497,6 +500,8 @@ class _Planning:
     _ball_area: Callable[[np.ndarray], np.ndarray] | None = None
     #: Told of the operations each time more are planned (see :func:`plan_job`); None: nobody listens.
     on_operations: Callable[[list[Operation], Setup], None] | None = None
+    #: Told of them all before the rapid check (see :func:`plan_job`); None: ``on_operations`` is.
+    on_planned: Callable[[list[Operation], Setup], None] | None = None
 
     @classmethod
     def start(cls, part: trimesh.Trimesh, setup: Setup, library: ToolLibrary, options: PlanOptions,
@@ -813,8 +818,9 @@ def _finished(plan: _Planning, part_name: str, operations: list[Operation], sour
     if dropped:
         log.info("nothing to cut for %s: dropped", ", ".join(dropped))
     operations = [op for op in operations if len(op.points) >= 2]
-    if plan.on_operations is not None:
-        plan.on_operations(list(operations), plan.setup)
+    told = plan.on_planned if plan.on_planned is not None else plan.on_operations
+    if told is not None:
+        told(list(operations), plan.setup)
     safe_ops, checked, fixed = plan.timed("rapid check", lambda: safe_rapids(operations, plan.setup, plan.triangles,
                                                                              rapid_cell))
 

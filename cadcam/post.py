@@ -552,7 +552,7 @@ class FitAhead:
 
     def __init__(self, options: PostOptions):
         self.fit = _fit_options(options)
-        self._started: list[tuple[np.ndarray, np.ndarray, Background]] = []
+        self._started: list[tuple[np.ndarray, np.ndarray, Background | None]] = []  # None: known (know)
         self._taken: dict[int, Segments] = {}  # by index into _started
 
     def offer(self, operations: Iterable[Operation]) -> None:
@@ -567,6 +567,24 @@ class FitAhead:
             pts, mot = np.array(op.points), np.array(op.motion)  # copies: what was fitted stays as it was
             self._started.append((pts, mot, Background(_fit_one, pts, mot, self.fit)))
 
+    def know(self, op: Operation, segments: Segments) -> None:
+        """Keep ``segments``, the fit of ``op`` (its cutter locations and motion as they are now) under this
+        fitting, made elsewhere (:class:`factory.verify.VerifyAhead`): it is not fitted again."""
+        if self._find(op) is None:
+            self._taken[len(self._started)] = segments
+            self._started.append((np.array(op.points), np.array(op.motion), None))
+
+    def started(self, op: Operation) -> bool:
+        """Whether a fit of ``op`` was started (or is known)."""
+        return self._find(op) is not None
+
+    def fitted(self, op: Operation) -> Segments | None:
+        """The fit of ``op`` if one has been made (never waiting for one), else None."""
+        k = self._find(op)
+        if k is not None and k not in self._taken and self._started[k][2].ready():
+            self._taken[k] = self._started[k][2].result()
+        return None if k is None else self._taken.get(k)
+
     def take(self, op: Operation, fit: FitOptions) -> Segments | None:
         """The fit of ``op`` under ``fit`` if one was started (waiting for it), else None."""
         k = self._find(op) if fit == self.fit else None
@@ -579,7 +597,8 @@ class FitAhead:
     def cancel(self) -> None:
         """End the fits still running (the plan failed, or they were not wanted)."""
         for _, _, job in self._started:
-            job.cancel()
+            if job is not None:
+                job.cancel()
 
     def _find(self, op: Operation) -> int | None:
         for k, (pts, mot, _) in enumerate(self._started):
@@ -779,6 +798,12 @@ def _write_moves(w: _Writer, op: Operation, seg: Segments) -> _Cutting:
         else:
             w.move(kind, seg.end[i], feed, centre=seg.centre[i])
     return _Cutting(cut_len, cut_time, tuple(rapids), seg.end[-1] if len(seg) else op.points[0])
+
+
+def operations_end(program: Program, options: PostOptions) -> int:
+    """Lines of ``program`` (posted with ``options``) up to the end of its last operation: all but the tail
+    that ends the program (spindle off, park, program end), whose moves a longer job would not make there."""
+    return program.line_count - len(_tail(options))
 
 
 def _header(job: Job, opt: PostOptions, num: _Numbers, total: float) -> list[str]:

@@ -30,6 +30,7 @@ from scipy import ndimage
 
 from cadcam.engagement import ENGAGED_WIDTH, FULL_WIDTH_ANGLE, MoveRecord, engaged_depth, record_max
 from cadcam.envelope import Segments, grid_pairs, pair_envelope, reach_interval
+from cadcam.envelope import SpanTops as _SpanTops
 from cadcam.heightmap import Grid, grid_over, upper_envelope
 from cadcam.model import Motion, Operation, ProgramMoves, Setup, Tool
 from factory.core.errors import VerifyError
@@ -164,6 +165,7 @@ def cut_stock(
     body_graze: float = 0.0,
     full_width_angle: float = FULL_WIDTH_ANGLE,
     measure: bool = True,
+    resume: Any = None,
 ) -> StockCut:
     """Cut the stock with every move of a program, measuring what each move meets.
 
@@ -209,6 +211,11 @@ def cut_stock(
         are recorded; the engagement (depth, width, angle) and the shank and holder contacts are
         not measured, and stay zero. The stock is the same either way. For a caller that reads only
         rapids (:func:`cadcam.verify.rapid_check`), this saves most of the work beside the cut.
+    resume : cadcam.cutahead.CutState, optional
+        The first moves of this program cut already (:func:`cadcam.cutahead.cut_ahead`, in another process
+        meanwhile): the cut goes on from there when they are this program's first moves, swept alike, into
+        this stock and part with these options (:class:`cadcam.cutahead.CutState`), else it starts at the
+        first move; the result is the same. Not read with ``snapshot_moves``.
 
     Raises
     ------
@@ -220,28 +227,12 @@ def cut_stock(
     snap = np.asarray(snapshot_moves, dtype=np.int64).reshape(-1)
     if len(snap) and (snap.min() < 0 or snap.max() >= len(moves.points)):
         raise VerifyError(f"snapshot move indices must lie in 0..{len(moves.points) - 1}", source="snapshot_moves")
-    tri = _check_inputs(setup, cell, part_triangles)
-    grid = grid_over(setup.stock_min, setup.stock_max, cell)
-    # Cutting on from earlier moves: the part was rasterised on this grid then.
-    part_top = start.part_top if isinstance(start, Simulation) and start.grid == grid else upper_envelope(tri, grid)
-    if not np.isfinite(part_top).any():
-        raise VerifyError("the part does not overlap the stock's footprint", source="part")
-    stock, under, top_z, stock_bottom = _starting_stock(setup, grid, start)
-    seg, starts, swept, known = _swept_moves(moves, tools, top_z, rapid_rim)
-    part_flat = np.where(np.isfinite(part_top), part_top, -np.inf).reshape(-1)
-    body = _Body(tools, moves.tool[seg.move], part_flat, engaged_width, body_graze)
-    body.full_width = math.radians(full_width_angle)
-    body.measure = measure
-    if measure:  # the skin of walls is no engagement: only engagement reads it
-        body.wall_near = _highest_part_near(part_top, grid, _SKIN).reshape(-1)
-
-    n_moves = int(known.sum())
-    done = np.cumsum(known)  # simulated moves up to and including each move, for progress
-    # Segments applied by each snapshot (seg.move is increasing).
-    applied = np.searchsorted(seg.move, snap, side="right")
-    met = MoveRecord(len(seg), bottom=float(setup.stock_min[2]))
-    stocks = _run(seg, body, grid, stock, part_flat, progress, done[seg.move - 1] if len(seg) else done[:0],
-                  n_moves, applied, met, under)
+    cut = _Cut(moves, tools, setup, part_triangles, cell, start, rapid_rim, engaged_width, body_graze,
+               full_width_angle, measure, snap)
+    grid, stock, under, seg, met = cut.grid, cut.stock, cut.under, cut.seg, cut.met
+    part_top, stock_bottom, starts, swept = cut.part_top, cut.stock_bottom, cut.starts, cut.swept
+    first, tops = (0, None) if resume is None or len(snap) else resume.restore(cut)
+    stocks = _run(cut, progress, cut.bounds, first, tops)
     met.freeze()
 
     stock_top = stock.reshape(grid.shape)
@@ -459,40 +450,80 @@ class _Body:
         return k[owner[hit]], flat[hit], env[hit]
 
 
-def _run(
-    seg: Segments, body: "_Body", grid: Grid, stock: np.ndarray, part: np.ndarray, progress, done, total_moves,
-    snapshot_at: np.ndarray, stats: MoveRecord, under: np.ndarray | None = None,
-) -> list[np.ndarray]:
-    """Apply every move to ``stock`` (flat, modified in place); fill ``stats``; return the snapshots.
+class _Cut:
+    """A program being cut into the stock model: its moves as swept, the stock, the part, what each move
+    met, the batches (:func:`cut_stock`'s, and :func:`cadcam.cutahead.cut_ahead`'s)."""
 
-    ``done[k]`` is the progress count once segment ``k`` is applied. ``snapshot_at[i]`` is a
-    number of segments: a copy of ``stock`` is taken once that many are applied (the
-    batches are split there; cuts commute, so the final stock is the same).
-    """
-    # Batch boundaries from an estimate of each move's grid points (its stadium's area).
+    def __init__(self, moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup, part_triangles: np.ndarray,
+                 cell: float, start: FlippedStock | Simulation | None, rapid_rim: float, engaged_width: float,
+                 body_graze: float, full_width_angle: float, measure: bool, snap: np.ndarray):
+        tri = _check_inputs(setup, cell, part_triangles)
+        grid = grid_over(setup.stock_min, setup.stock_max, cell)
+        # Cutting on from earlier moves: the part was rasterised on this grid then.
+        part_top = (start.part_top if isinstance(start, Simulation) and start.grid == grid
+                    else upper_envelope(tri, grid))
+        if not np.isfinite(part_top).any():
+            raise VerifyError("the part does not overlap the stock's footprint", source="part")
+        stock, under, top_z, stock_bottom = _starting_stock(setup, grid, start)
+        seg, starts, swept, known = _swept_moves(moves, tools, top_z, rapid_rim)
+        part_flat = np.where(np.isfinite(part_top), part_top, -np.inf).reshape(-1)
+        body = _Body(tools, moves.tool[seg.move], part_flat, engaged_width, body_graze)
+        body.full_width = math.radians(full_width_angle)
+        body.measure = measure
+        if measure:  # the skin of walls is no engagement: only engagement reads it
+            body.wall_near = _highest_part_near(part_top, grid, _SKIN).reshape(-1)
+        self.grid, self.part_top, self.part = grid, part_top, part_flat
+        self.stock, self.under, self.stock_bottom = stock, under, stock_bottom
+        self.seg, self.starts, self.swept, self.body, self.tools = seg, starts, swept, body, tools
+        self.n_moves = int(known.sum())
+        done = np.cumsum(known)  # simulated moves up to and including each move, for progress
+        self.done = done[seg.move - 1] if len(seg) else done[:0]
+        # Segments applied by each snapshot (seg.move is increasing).
+        self.snapshot_at = np.searchsorted(seg.move, snap, side="right")
+        self.bounds = _batch_bounds(seg, grid, self.snapshot_at)
+        self.met = MoveRecord(len(seg), bottom=float(setup.stock_min[2]))
+        # what the cut depends on besides its moves and tools (cadcam.cutahead.CutState.key)
+        self.options = (grid, float(setup.stock_min[2]), rapid_rim, engaged_width, body_graze, full_width_angle,
+                        measure)
+
+def _batch_bounds(seg: Segments, grid: Grid, snapshot_at: np.ndarray) -> np.ndarray:
+    """The segment indices the batches start at, and ``len(seg)`` last: from an estimate of each move's grid
+    points (its stadium's area), and split at ``snapshot_at`` (cuts commute, so the final stock is the same).
+    The batches of a program's first moves do not depend on the moves after them."""
     L = np.sqrt(seg.l2)
     est = (L + 2 * seg.radius + 2 * grid.cell) * (2 * seg.radius + 2 * grid.cell) / grid.cell**2
     cum = np.cumsum(est)
     bucket = ((cum - est) // _PAIR_BUDGET).astype(np.int64)
     bounds = np.concatenate([[0], np.flatnonzero(np.diff(bucket)) + 1, [len(seg)]]).astype(np.int64)
-    bounds = np.union1d(bounds, snapshot_at)
+    return np.union1d(bounds, snapshot_at)
+
+
+def _run(cut: _Cut, progress, bounds: np.ndarray, first: int = 0, tops: "_SpanTops | None" = None,
+         last: int | None = None) -> list[np.ndarray]:
+    """Apply batches ``first`` to ``last`` (default: to the end) of ``cut`` to its stock (in place), filling its
+    records; return the snapshots (taken only when run from the first batch to the end). ``tops``: the stock
+    bounds batch ``first`` uses unless it makes them afresh. ``done[k]`` of the cut is the progress count once
+    segment ``k`` is applied; ``snapshot_at[i]`` a number of segments: a copy of the stock is taken once that
+    many are applied (the batches are split there)."""
+    seg, body, grid, stock, part, stats, under = cut.seg, cut.body, cut.grid, cut.stock, cut.part, cut.met, cut.under
+    snapshot_at = cut.snapshot_at
     wanted = set(snapshot_at.tolist())
     taken = {0: stock.copy()} if 0 in wanted else {}  # segments applied -> stock then
-
-    tops = None
-    for c in range(len(bounds) - 1):
+    last = len(bounds) - 1 if last is None else last
+    for c in range(first, last):
         s, e = int(bounds[c]), int(bounds[c + 1])
         if e > s:
             if tops is None or c % _SPAN_TOPS_EVERY == 0:
                 tops = _SpanTops(stock, grid)  # the stock only falls: older tops stay upper bounds
             _run_batch(seg, body, s, e, grid, stock, part, stats, under, tops)
             if progress is not None:
-                progress(int(done[e - 1]), total_moves)
+                progress(int(cut.done[e - 1]), cut.n_moves)
         if e in wanted:
             taken[e] = stock.copy()
-    if progress is not None:
-        progress(total_moves, total_moves)
-    return [taken[k] for k in snapshot_at.tolist()]
+    cut.tops = tops
+    if progress is not None and last == len(bounds) - 1:
+        progress(cut.n_moves, cut.n_moves)
+    return [taken[k] for k in snapshot_at.tolist()] if first == 0 and last == len(bounds) - 1 else []
 
 
 def _segmented_exclusive_min(group: np.ndarray, value: np.ndarray) -> np.ndarray:
@@ -608,36 +639,6 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
 
 #: Batches between fresh :class:`_SpanTops` (the stock only falls, so older ones are upper bounds, only looser).
 _SPAN_TOPS_EVERY = 16
-
-
-class _SpanTops:
-    """Upper bounds of a stock z-map [mm] on any run of columns of a grid row: the maxima of blocks of
-    :data:`_BLOCK` columns, in a sparse table over each row (the maximum of ``2**k`` blocks from each
-    block), so a run's bound is the larger of two table entries."""
-
-    _BLOCK = 16
-
-    def __init__(self, stock: np.ndarray, grid: Grid):
-        top = stock.reshape(grid.ny, grid.nx)
-        nb = -(-grid.nx // self._BLOCK)
-        padded = np.full((grid.ny, nb * self._BLOCK), -np.inf)
-        padded[:, :grid.nx] = top
-        level = padded.reshape(grid.ny, nb, self._BLOCK).max(axis=2)
-        levels = [level]
-        width = 1
-        while 2 * width <= nb:
-            nxt = np.full_like(level, -np.inf)
-            nxt[:, :nb - width] = np.maximum(level[:, :nb - width], level[:, width:])
-            levels.append(nxt)
-            level, width = nxt, 2 * width
-        self.table = np.stack(levels)  # (levels, ny, blocks)
-
-    def above(self, row: np.ndarray, first: np.ndarray, count: np.ndarray) -> np.ndarray:
-        """(r,) the highest the stock is over columns ``first .. first + count - 1`` (count >= 1) of ``row``, or more [mm]."""
-        b0 = first // self._BLOCK
-        b1 = (first + count - 1) // self._BLOCK
-        k = np.frexp(b1 - b0 + 1)[1].astype(np.int64) - 1  # floor(log2), exactly
-        return np.maximum(self.table[k, row, b0], self.table[k, row, b1 - (1 << k) + 1])
 
 
 def first_line_reaching(moves: ProgramMoves, tools: Mapping[int, Tool], x: float, y: float, z: float) -> int | None:

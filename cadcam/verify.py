@@ -35,6 +35,7 @@ from cadcam.envelope import Segments
 from cadcam.heightmap import Grid, grid_over, upper_envelope
 from cadcam.model import Motion, ProgramMoves, Setup, Tool
 from cadcam.relief import surface_footprint
+from cadcam.cutahead import CutState, cut_ahead
 from cadcam.stock import (ENGAGED_WIDTH, FOR_OP2, FULL_WIDTH_ANGLE, OUTSIDE_RELIEF, RAPID_RIM, FlippedStock,
                           Simulation, StockCut, Unreached, cut_stock, first_line_reaching, unreached, why_left)
 from cadcam.workholding import fixture_contacts
@@ -422,6 +423,7 @@ def simulate(
     options: VerifyOptions = VerifyOptions(),
     progress: Callable[[int, int], None] | None = None,
     finishing: np.ndarray | None = None,
+    resume: CutState | None = None,
 ) -> VerifyResult:
     """Cut the stock with every move of a program and compare the result with the part.
 
@@ -434,6 +436,9 @@ def simulate(
     finishing : (n,) bool, optional
         True for moves (indexed like ``moves.points``) a finishing operation makes, held
         to :attr:`VerifyOptions.finish_depth` (see :func:`finishing_moves`); default none.
+    resume : CutState, optional
+        The program's first moves cut already (:func:`verify_ahead`): the cut goes on from there where they
+        are this program's (:func:`cadcam.stock.cut_stock`'s ``resume``); the result is the same.
 
     Returns
     -------
@@ -447,7 +452,23 @@ def simulate(
         (``source`` names the G-code line, ``data["line"]`` holds it); if the part, stock
         or options are unusable.
     """
-    return _verify(moves, tools, setup, part_triangles, options, progress, finishing, None)
+    return _verify(moves, tools, setup, part_triangles, options, progress, finishing, None, resume)
+
+
+def verify_ahead(moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup, part_triangles: np.ndarray,
+                 options: VerifyOptions, before: int, resume: CutState | None = None) -> CutState | None:
+    """The first moves of a program known so far, cut as :func:`simulate` cuts them, for it to resume from (its
+    ``resume``): only the moves before ``moves.points[before]`` are taken to be the whole program's
+    (:func:`cadcam.cutahead.cut_ahead`). ``resume``: an earlier such state of fewer moves. VerifyError as simulate."""
+    _check_options(options)
+    return cut_ahead(moves, tools, setup, part_triangles, options.cell, before=before, resume=resume,
+                     **_cut_options(options))
+
+
+def _cut_options(options: VerifyOptions) -> dict[str, float]:
+    """:func:`cadcam.stock.cut_stock`'s options as verify cuts the program (one place for both cuts)."""
+    return dict(rapid_rim=options.rapid_tolerance, engaged_width=options.engaged_width,
+                body_graze=options.contact_tolerance, full_width_angle=options.full_width_angle)
 
 
 def simulate_flipped(
@@ -477,12 +498,11 @@ def simulate_flipped(
 
 def _verify(moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup, part_triangles: np.ndarray,
             options: VerifyOptions, progress: Callable[[int, int], None] | None, finishing: np.ndarray | None,
-            start: FlippedStock | None) -> VerifyResult:
+            start: FlippedStock | None, resume: CutState | None = None) -> VerifyResult:
     """:func:`simulate` from the setup's stock box (``start`` None) or from a stock given per grid point."""
     _check_options(options)
     cut = cut_stock(moves, tools, setup, part_triangles, options.cell, start=start, progress=progress,
-                    rapid_rim=options.rapid_tolerance, engaged_width=options.engaged_width,
-                    body_graze=options.contact_tolerance, full_width_angle=options.full_width_angle)
+                    resume=resume, **_cut_options(options))
     sim, seg = cut.simulation, cut.segments
     pts = moves.points
     finish = np.zeros(len(pts), bool) if finishing is None else np.asarray(finishing, bool).reshape(-1)
@@ -640,8 +660,7 @@ def _refined(measured: _Measured, cut: StockCut, moves: ProgramMoves, tools: Map
                                    stock_max=np.array([hi[0], hi[1], setup.stock_max[2]]))
         try:
             sub = cut_stock(moves, tools, crop, part_triangles, fine, start=_resampled(start, crop, fine),
-                            rapid_rim=options.rapid_tolerance, engaged_width=options.engaged_width,
-                            body_graze=options.contact_tolerance, full_width_angle=options.full_width_angle)
+                            **_cut_options(options))
         except VerifyError as e:
             log.warning("T%d's engagement stays measured on the %g mm grid: %s", t, options.cell, e.message)
             continue

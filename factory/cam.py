@@ -185,16 +185,19 @@ class PlannedPart:
 
 def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwatch | None = None,
                 check_setup: Callable[[Setup, trimesh.Trimesh | None], None] | None = None,
-                on_setup: Callable[[Setup, PartMesh, Boundary | None], None] | None = None,
-                on_operations: Callable[[list[Operation], Setup], None] | None = None) -> PlannedPart:
+                on_setup: Callable[[Setup, PartMesh, Boundary | None, trimesh.Trimesh], None] | None = None,
+                on_operations: Callable[[list[Operation], Setup], None] | None = None,
+                on_planned: Callable[[list[Operation], Setup], None] | None = None) -> PlannedPart:
     """Load, set up and plan one part, timing each stage into ``watch``.
 
     ``check_setup`` is called with the setup and the part in work coordinates [mm] (None for a
     relief) before the toolpaths are computed, to refuse early what a later stage would refuse
     only after that work. ``on_setup`` is called once with the setup chosen, the part as loaded and
-    a relief's boundary (None for a solid) before the toolpaths are computed, to start work that
-    needs no toolpath (the robot's). ``on_operations`` is :func:`cadcam.plan.plan_job`'s: told of the
-    operations as they are planned, to start work on them meanwhile (their arc fitting).
+    a relief's boundary (None for a solid) and the part the toolpaths are planned against (work
+    coordinates [mm]) before the toolpaths are computed, to start work that needs no toolpath (the
+    robot's), or that needs the part placed (verify's). ``on_operations`` is :func:`cadcam.plan.plan_job`'s: told of the
+    operations as they are planned, to start work on them meanwhile (their arc fitting); ``on_planned``
+    its too: told of them all, before the rapid check.
 
     Raises
     ------
@@ -234,7 +237,7 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
             if check_setup is not None:
                 check_setup(setup, None)  # a relief leaves in its block: no part of its own to grip
     if on_setup is not None:
-        on_setup(setup, loaded, boundary)
+        on_setup(setup, loaded, boundary, part_work)
     options = req.plan
     if boundary is not None:  # shallow nearly everywhere: finer terraces, finishing engages less
         options = dataclasses.replace(options, finish_engagement=min(options.finish_engagement, FINISH_ENGAGEMENT),
@@ -255,6 +258,7 @@ def compute_job(req: CamRequest, progress: Progress | None = None, watch: Stopwa
         holes=exact_holes,
         rapid_cell=req.rapid_cell,
         on_operations=on_operations,
+        on_planned=on_planned,
     )
     job = planned.job
     if not job.operations:  # nothing to cut: say so here, not as an empty job a later stage refuses

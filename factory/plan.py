@@ -42,7 +42,6 @@ from cadcam.post import FitAhead, PostOptions, Program, post_process, tool_table
 from cadcam.preview import setup_image
 from cadcam.mesh import PartMesh
 from cadcam.relief import Boundary, block_corners
-from cadcam.rest import from_and_to_safe_height
 from cadcam.sheet import setup_sheet
 from cadcam.stock import Simulation
 from cadcam.verify import VerifyOptions, VerifyReport, VerifyResult
@@ -58,7 +57,8 @@ from factory.core.resources import FIXTURES
 from factory.core.setupsheet import SetupSheet
 from factory.robotwork import BackgroundRobot, RobotTask, stock_sheet
 from factory.tending import CellPlan, log_tending
-from factory.verify import log_simulation, report_text, run_verify, run_verify_after, write_verify_outputs
+from factory.verify import (VerifyAhead, log_simulation, report_text, run_verify, run_verify_after,
+                            write_verify_outputs)
 from robotprog.programs import PostedProgram
 from robotprog.visuals import LinkVisual
 
@@ -541,10 +541,21 @@ def _plan_once(request: PlanRequest, progress: Progress | None = None) -> PartPl
         check_op2_grip(setup, part_work, jaws, req.cam.part, req.cam.tools)
 
     robot: BackgroundRobot | None = None
+    # Each operation's arcs are fitted as soon as it is planned, as the rapid check will hand it to the
+    # post (every operation from and to the safe height); posting takes a fit only for an operation that is
+    # still that one (:class:`cadcam.post.FitAhead`). Verify of the first operations begins meanwhile, where
+    # a processor is idle, fitting them itself (:class:`factory.verify.VerifyAhead`, made once the part is placed).
+    ahead = FitAhead(post_options)
+    verify_ahead: VerifyAhead | None = None
 
-    def start_robot(setup: Setup, loaded: PartMesh, boundary: Boundary | None) -> None:
-        """The robot's share, planned in a second process meanwhile (:mod:`factory.robotwork`)."""
-        nonlocal robot
+    def placed(setup: Setup, loaded: PartMesh, boundary: Boundary | None, part_work: trimesh.Trimesh) -> None:
+        """Verify begun ahead from here on; the robot's share planned in a second process meanwhile
+        (:mod:`factory.robotwork`)."""
+        nonlocal robot, verify_ahead
+        verify_ahead = VerifyAhead(ahead, post_options, _verify_options(req, boundary is not None),
+                                   np.asarray(part_work.triangles))
+        if not req.robot:
+            return
         ops = req.ops if req.ops is not None else 1 if boundary is not None else 2
         outputs = dataclasses.replace(req, ops=ops).outputs(Path("."))
         # a relief leaves in its block: the robot holds the block
@@ -553,41 +564,51 @@ def _plan_once(request: PlanRequest, progress: Progress | None = None) -> PartPl
         robot = BackgroundRobot(RobotTask(req.cell, stock_sheet(setup), str(outputs["setup_sheet"]), vertices, ops,
                                           req.ops is None, req.lang, outputs["robot_program"]), watch)
 
-    # Each operation's arcs are fitted in a process of its own as soon as it is planned, as the rapid
-    # check will hand it to the post (every operation from and to the safe height); posting takes a fit
-    # only for an operation that is still that one (:class:`cadcam.post.FitAhead`).
-    ahead = FitAhead(post_options)
+    def planning(operations: list[Operation], setup: Setup) -> None:  # (the part is placed before any is planned)
+        verify_ahead.offer(operations, setup)
 
-    def fit_ahead(operations: list[Operation], setup: Setup) -> None:
-        ahead.offer(from_and_to_safe_height(op, setup.safe_z) for op in operations)
+    def all_planned(operations: list[Operation], setup: Setup) -> None:
+        verify_ahead.offer_all(operations, setup)
 
     try:
         return _plan_with(req, progress, watch, post_options,
-                          compute_job(req.cam, progress, watch, check_setup=refuse_early,
-                                      on_setup=start_robot if req.robot else None, on_operations=fit_ahead),
-                          robot, ahead)
+                          compute_job(req.cam, progress, watch, check_setup=refuse_early, on_setup=placed,
+                                      on_operations=planning, on_planned=all_planned),
+                          robot, ahead, verify_ahead)
     finally:
         ahead.cancel()  # none left fitting for a plan that failed (taken: nothing to end)
+        if verify_ahead is not None:
+            verify_ahead.cancel()
         if robot is not None:
             robot.cancel()  # no robot left planning for a plan that failed (taken: nothing to end)
 
 
+def _verify_options(req: PlanRequest, relief: bool) -> VerifyOptions:
+    """How op 1 is verified: on the request's grid, stock left for op 2 where it follows (a relief stays in
+    its block, right way up, unless asked)."""
+    ops = req.ops if req.ops is not None else 1 if relief else 2
+    return VerifyOptions(cell=req.grid, op2_follows=ops == 2, relief=relief)
+
+
 def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, post_options: PostOptions,
-               planned: PlannedPart, robot: BackgroundRobot | None, ahead: FitAhead | None = None) -> PartPlan:
+               planned: PlannedPart, robot: BackgroundRobot | None, ahead: FitAhead | None = None,
+               verify_ahead: VerifyAhead | None = None) -> PartPlan:
     """:func:`_plan_once` after the toolpaths: post, verify (in a second process while the robot's
-    share is waited for), op 2."""
+    share is waited for, on from what ``verify_ahead`` cut meanwhile), op 2."""
     job = planned.job
+    options = _verify_options(req, planned.boundary is not None)
     if req.ops is None:  # a relief stays in its block, right way up, unless asked
         req = dataclasses.replace(req, ops=1 if planned.boundary is not None else 2)
     outputs = req.outputs(Path("."))
+    with watch("verify ahead"):  # a round under way fits operations the post needs: waited for first
+        resume = verify_ahead.state(job.operations) if verify_ahead is not None else None
     with watch("post"):
         program = post_process(job, post_options, ahead=ahead)
         sheet = dataclasses.replace(setup_sheet(job, program, outputs["program"].name), op=1, work_offset="G54")
     tending = None
     verify_args = (program.text, str(outputs["program"]), job.setup, {t.number: t for t in job.tools},
-                   np.asarray(planned.part_work.triangles), VerifyOptions(cell=req.grid, op2_follows=req.ops == 2,
-                                                                          relief=planned.boundary is not None))
-    verify_kwargs = dict(operations=sheet.operations)
+                   np.asarray(planned.part_work.triangles), options)
+    verify_kwargs = dict(operations=sheet.operations, resume=resume)
     background = None
     if robot is not None:
         # Verification does not depend on the robot: it runs in a second process meanwhile (no

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import logging
+import multiprocessing
+import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -13,11 +15,17 @@ import numpy as np
 from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_planned_part
 from cadcam.relief import machining_surface, surface_footprint
-from cadcam.model import Setup, Tool
+from cadcam.model import Job, Operation, Setup, Tool
+from cadcam.arcs import fit_segments
+from cadcam.parallel import Background, processors
+from cadcam.post import FitAhead, PostOptions, operations_end, post_process
+from cadcam.rest import from_and_to_safe_height
 from cadcam.sheet import SheetSetup, read_setup_sheet
 from cadcam.preview import deviation_image
+from cadcam.cutahead import CutState
 from cadcam.stock import FOR_OP2, OUTSIDE_RELIEF, Simulation, flip_stock
 from cadcam.verify import (VerifyOptions, VerifyReport, VerifyResult, finishing_moves, simulate, simulate_flipped,
+                           verify_ahead,
                            with_op1_left)
 from factory.core.atomic import write_bytes, write_text
 from factory.core.errors import SetupError
@@ -58,10 +66,11 @@ def part_triangles(part: Path, setup: Setup, expected_sha256: str = "", intake: 
 
 def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int, Tool],
                triangles: np.ndarray, options: VerifyOptions, progress: Progress | None = None,
-               operations: Sequence[Mapping[str, Any]] = ()) -> VerifyResult:
+               operations: Sequence[Mapping[str, Any]] = (), resume: CutState | None = None) -> VerifyResult:
     """Parse and simulate a program against the part (``triangles`` in work coordinates [mm]);
     ``operations`` are the setup sheet's, which tell finishing tools from roughing ones where the
-    program's own operation comments do not.
+    program's own operation comments do not. ``resume``: the program's first moves cut already
+    (:class:`VerifyAhead`), gone on from where they are this program's; the result is the same.
 
     Raises
     ------
@@ -73,7 +82,138 @@ def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int
     moves = parse_gcode(gcode_text, source=gcode_source)
     finishing = finishing_moves(gcode_text, moves, operations)
     return simulate(moves, tools, setup, triangles, options, progress=stage_callback(progress, "verify"),
-                    finishing=finishing)
+                    finishing=finishing, resume=resume)
+
+
+#: Niceness added to a round of :class:`VerifyAhead`: it takes a processor the planning leaves idle, not one
+#: the planner, its arc fitting or the robot's planning would use.
+AHEAD_NICENESS = 5
+
+
+class VerifyAhead:
+    """Op 1's verify begun while the planner plans its later operations, on a processor it leaves idle.
+
+    Each time more operations are planned (:func:`cadcam.plan.plan_job`'s ``on_operations``) and no round
+    is under way, a round starts in a forked process of lower priority (:data:`AHEAD_NICENESS`): it fits
+    the arcs of the operations new since the last round (kept for posting, :meth:`cadcam.post.FitAhead.know`:
+    they are not fitted twice), posts the operations so far, and cuts that program's moves into verify's
+    stock model, on from the last round's state (:func:`cadcam.verify.verify_ahead`). Operations planned
+    while a round is under way, and the last one (planned as the rapid check starts, :meth:`offer_all`), are
+    fitted as :class:`cadcam.post.FitAhead` fits them, each in a process of its own.
+
+    Verify resumes from the last state whose operations the job still holds as they were (:meth:`state`);
+    :func:`cadcam.stock.cut_stock` checks it move by move and cuts from the first move where it does not
+    hold (the rapid check changed an operation): the outputs are those of verify from the first move.
+    With one processor (``FACTORY_THREADS=1``) or no ``fork`` nothing is begun ahead.
+    """
+
+    def __init__(self, fits: FitAhead, post: PostOptions, options: VerifyOptions, triangles: np.ndarray):
+        self.fits, self.post, self.options, self.triangles = fits, post, options, triangles
+        self.enabled = processors() >= 2 and "fork" in multiprocessing.get_all_start_methods()
+        self._covered: list[Operation] = []  # the operations of the rounds made and under way, in order
+        self._states: list[tuple[int, CutState]] = []  # (operations cut, state after them), in order
+        self._round: Background | None = None
+        self._from = 0  # the first operation new in the round under way
+
+    def offer(self, operations: Sequence[Operation], setup: Setup) -> None:
+        """More operations planned (all so far, in cutting order): a round on the new ones when none is
+        under way; the rest fitted in processes of their own."""
+        # as the rapid check hands them on, without those the job drops
+        ops = [from_and_to_safe_height(op, setup.safe_z) for op in operations if len(op.points) >= 2]
+        if self.enabled:
+            self._collect(wait=False)
+            if self._round is None:
+                self._start(ops, setup)
+        self.fits.offer(ops[len(self._covered):])
+
+    def offer_all(self, operations: Sequence[Operation], setup: Setup) -> None:
+        """Every operation planned, the rapid check next: fitted in processes of their own, no round started
+        (the last one's would hold up the post, which needs its fit at once)."""
+        self.fits.offer(from_and_to_safe_height(op, setup.safe_z) for op in operations)
+
+    def state(self, operations: Sequence[Operation]) -> CutState | None:
+        """The state verify of the job's ``operations`` (as posted) resumes from: the round under way waited
+        for when the job holds its operations as they were (else ended), then the last state whose operations
+        it holds; None without one."""
+        if self._round is not None:
+            if _holds(operations, self._covered):
+                self._collect(wait=True)
+            else:
+                self.cancel()
+        for n, state in reversed(self._states):
+            if _holds(operations, self._covered[:n]):
+                return state
+        return None
+
+    def cancel(self) -> None:
+        """End the round under way (the plan failed, or it is not wanted)."""
+        if self._round is not None:
+            self._round.cancel()
+            self._round = None
+
+    def _start(self, ops: list[Operation], setup: Setup) -> None:
+        n0 = len(self._covered)
+        if not _holds(ops, self._covered):  # an operation changed after it was cut ahead: no more rounds
+            self.enabled = False
+            return
+        new: list[Operation] = []
+        known = []
+        for op in ops[n0:]:
+            fit = self.fits.fitted(op)
+            if fit is None and self.fits.started(op):
+                break  # being fitted in a process of its own: the next round takes it, fitted
+            new.append(op)
+            known.append(fit)
+        if not new:
+            return
+        last = self._states[-1][1] if self._states else None
+        self._covered = ops[:n0 + len(new)]
+        self._from = n0
+        self._round = Background(_verify_round, tuple(self._covered), n0, tuple(known), setup, self.fits, self.post,
+                                 self.options, self.triangles, last)
+
+    def _collect(self, wait: bool) -> None:
+        if self._round is None or not (wait or self._round.ready()):
+            return
+        ok, value = self._round.outcome()
+        self._round = None
+        new = self._covered[self._from:]
+        if not ok:  # the round failed: its operations are fitted as the others, and no more rounds
+            log.info("verify ahead of %d operation(s) failed: verify cuts them itself", len(new))
+            self._covered = self._covered[:self._from]
+            self.enabled = False
+            return
+        fitted, cut = value
+        for op, seg in zip(new, fitted):
+            self.fits.know(op, seg)
+        if cut is not None:
+            self._states.append((len(self._covered), cut))
+
+
+def _holds(operations: Sequence[Operation], cut: Sequence[Operation]) -> bool:
+    """``operations`` begin with ``cut``, each with the same tool, cutter locations and motion."""
+    return len(operations) >= len(cut) and all(
+        a.tool.number == b.tool.number and a.points.shape == b.points.shape and np.array_equal(a.points, b.points)
+        and np.array_equal(a.motion, b.motion) for a, b in zip(operations, cut))
+
+
+def _verify_round(ops: tuple[Operation, ...], n0: int, known: tuple, setup: Setup, fits: FitAhead,
+                  post: PostOptions, options: VerifyOptions, triangles: np.ndarray,
+                  state: CutState | None) -> tuple[list, CutState | None]:
+    """One round of :class:`VerifyAhead`, in its process: the fits of ``ops[n0:]`` and the verify cut of the
+    program of ``ops`` (on from ``state``), up to the end of its last operation."""
+    os.nice(AHEAD_NICENESS)
+    fitted = []
+    for op, fit in zip(ops[n0:], known):
+        if fit is None:
+            fit = fit_segments(op.points, op.motion, fits.fit)
+        fits.know(op, fit)  # this process's copy: posted below without fitting again
+        fitted.append(fit)
+    program = post_process(Job(part_name="ahead", setup=setup, operations=ops), post, ahead=fits)
+    lines = program.text.splitlines()[:operations_end(program, post)]
+    moves = parse_gcode("\n".join(lines) + "\n", source="verify ahead")
+    tools = {op.tool.number: op.tool for op in ops}
+    return fitted, verify_ahead(moves, tools, setup, triangles, options, before=len(moves.points), resume=state)
 
 
 def run_verify_after(before: Simulation, flip: np.ndarray, gcode_text: str, gcode_source: str, setup: Setup,

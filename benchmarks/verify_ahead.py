@@ -1,0 +1,74 @@
+"""Wall and CPU time of `factory plan` with op 1's verify begun ahead (factory.verify.VerifyAhead) and without.
+
+    python benchmarks/verify_ahead.py [--parts relief,dome_mould] [--no-robot] [--json]
+
+Plans each sample twice in this process, with rounds of verify ahead and with them switched off (the plain
+pipeline), and prints the wall time [s], the CPU time of this process and of its children [s] (forked rounds,
+arc fits, the robot's planning, verify's second process) and the stage times of the tail: ``verify ahead``
+(the wait for the round under way), ``post`` and ``verify`` (the wait for verify's process, or verify here).
+Wall time counts the other processes on the machine: run it quiet, or compare CPU. With ``--json`` the last
+line is one JSON object. The outputs are the same either way (benchmarks/identical_outputs.py).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import platform
+import resource
+import sys
+import time
+from pathlib import Path
+from unittest import mock
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+import factory.verify  # noqa: E402
+from factory.plan import PlanRequest, plan_part  # noqa: E402
+
+
+def _cpu() -> tuple[float, float]:
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime, kids.ru_utime + kids.ru_stime
+
+
+def _run(part: Path, robot: bool, ahead: bool) -> dict:
+    request = PlanRequest.defaults(part, "aluminium")
+    if not robot:
+        request = dataclasses.replace(request, robot=False)
+    real = factory.verify.VerifyAhead.__init__
+
+    def switched_off(self, *args, **kwargs):
+        real(self, *args, **kwargs)
+        self.enabled = False
+
+    (own0, kids0), t0 = _cpu(), time.perf_counter()
+    with mock.patch.object(factory.verify.VerifyAhead, "__init__", real if ahead else switched_off):
+        plan = plan_part(request)
+    (own1, kids1), wall = _cpu(), time.perf_counter() - t0
+    stages = {k: round(plan.seconds.get(k, 0.0), 2) for k in ("verify ahead", "post", "verify", "rapid check")}
+    return {"part": part.stem, "ahead": ahead, "wall_s": round(wall, 2), "cpu_s": round(own1 - own0, 2),
+            "children_cpu_s": round(kids1 - kids0, 2), "stages_s": stages, "ok": plan.ok}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--parts", default="relief,dome_mould")
+    ap.add_argument("--no-robot", action="store_true")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args()
+    rows = []
+    for name in args.parts.split(","):
+        for ahead in (False, True):
+            row = _run(ROOT / "samples" / f"{name}.stl", not args.no_robot, ahead)
+            rows.append(row)
+            print(f"{row['part']:12} ahead={str(ahead):5} wall {row['wall_s']:7.2f} s  cpu {row['cpu_s']:7.2f} s  "
+                  f"children {row['children_cpu_s']:7.2f} s  {row['stages_s']}", flush=True)
+    if args.json:
+        print(json.dumps({"machine": platform.node(), "rows": rows}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,127 @@
+"""factory.verify.VerifyAhead: op 1's verify begun in rounds while later operations are planned gives the verdict
+and stock verify from the first move gives, also when the rapid check then changes an operation (issue 35)."""
+
+from __future__ import annotations
+
+import dataclasses
+from unittest import mock
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import cadcam.stock as stock
+from cadcam.model import Job, Motion
+from cadcam.post import FitAhead, PostOptions, post_process
+from cadcam.rest import from_and_to_safe_height
+from cadcam.verify import VerifyOptions
+from factory.verify import VerifyAhead, run_verify
+from tests.cadcam.test_post import BALL, CUT, FLAT, SETUP, SLOW, _pocket_op, _raster_op
+from tests.cadcam.test_verify import box
+
+POST = PostOptions()
+OPTIONS = VerifyOptions(cell=0.5)
+#: The part: a block under the cuts, so verify holds every move against it.
+PART = box([2, 2, -20], [78, 58, -6])
+
+
+def _operations():
+    """Four operations, two tools: a pocket, a raster with the ball, the pocket again (cutting little), a raster
+    with the flat end mill."""
+    pocket = _pocket_op()
+    again = dataclasses.replace(pocket, name="pocket again", points=pocket.points + [0.5, 0.5, 0.0])
+    return [pocket, _raster_op(BALL, SLOW, "raster ball"), again, _raster_op(FLAT, CUT, "raster flat")]
+
+
+def _verified(job: Job, resume=None):
+    program = post_process(job, POST)
+    batches = [0]
+    real = stock._run_batch
+
+    def counting(*args, **kwargs):
+        batches[0] += 1
+        return real(*args, **kwargs)
+
+    with mock.patch.object(stock, "_run_batch", counting):
+        result = run_verify(program.text, "p.nc", job.setup, {t.number: t for t in job.tools}, np.asarray(PART),
+                            OPTIONS, resume=resume)
+    return result, batches[0]
+
+
+def _same(a, b) -> None:
+    assert a.report.to_dict() == b.report.to_dict()
+    for name in ("stock_top", "part_top", "removed_volume"):
+        x, y = getattr(a.simulation, name), getattr(b.simulation, name)
+        assert np.array_equal(x, y), name  # to the bit
+
+
+def _ahead(ops, rounds):
+    """A VerifyAhead told of ``ops`` as a planner plans them: after each of ``rounds`` operations, each
+    round waited for (as a processor idle meanwhile would finish it), then all of them."""
+    ahead = VerifyAhead(FitAhead(POST), POST, OPTIONS, np.asarray(PART))
+    assert ahead.enabled
+    for k in rounds:
+        ahead.offer(ops[:k], SETUP)
+        ahead.state([from_and_to_safe_height(op, SETUP.safe_z) for op in ops])  # waits for the round
+    ahead.offer_all(ops, SETUP)
+    return ahead
+
+
+@pytest.fixture
+def two_processors(monkeypatch):
+    monkeypatch.setenv("FACTORY_THREADS", "2")
+    with mock.patch.object(stock, "_PAIR_BUDGET", 4000):  # many batches, in the forked rounds too
+        yield
+
+
+def test_verify_resumed_from_rounds_ahead_is_verify_from_the_first_move(two_processors):
+    ops = _operations()
+    ahead = _ahead(ops, rounds=(1, 2, 3))
+    job = Job("p", SETUP, tuple(from_and_to_safe_height(op, SETUP.safe_z) for op in ops))
+    state = ahead.state(job.operations)
+    assert state is not None and len(state.bounds) > 2
+    plain, n_plain = _verified(job)
+    resumed, n_resumed = _verified(job, state)
+    _same(resumed, plain)
+    assert n_resumed == n_plain - (len(state.bounds) - 1)  # the batches cut ahead were not cut again
+    # the rounds' fits are the post's: posting with them is posting without
+    assert post_process(job, POST, ahead=ahead.fits).text == post_process(job, POST).text
+
+
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(changed=st.integers(0, 3), how=st.sampled_from(["slowed", "moved"]),
+       rounds=st.sampled_from([(1, 2, 3), (2,), (3,)]))
+def test_a_round_invalidated_by_a_changed_operation_gives_the_plain_verdict(two_processors, changed, how, rounds):
+    """The speculation invalidated: after the rounds, the rapid check changes one operation (a rapid slowed to
+    the plunge feed, or a point moved): verify resumes only from a state of the operations before it, and its
+    verdict and stock are those of verify from the first move."""
+    ops = _operations()
+    ahead = _ahead(ops, rounds)
+    final = [from_and_to_safe_height(op, SETUP.safe_z) for op in ops]
+    op = final[changed]
+    rapid = np.flatnonzero(op.motion == Motion.RAPID)
+    if how == "slowed":
+        motion = op.motion.copy()
+        motion[rapid[-1]] = Motion.PLUNGE
+        final[changed] = dataclasses.replace(op, motion=motion)
+    else:
+        points = op.points.copy()
+        points[len(points) // 2, 2] -= 0.25
+        final[changed] = dataclasses.replace(op, points=points)
+    job = Job("p", SETUP, tuple(final))
+    state = ahead.state(job.operations)
+    if changed == 0:  # nothing the job holds as it was cut ahead
+        assert state is None
+    plain, n_plain = _verified(job)
+    resumed, _ = _verified(job, state)
+    _same(resumed, plain)
+
+
+def test_with_one_processor_nothing_is_begun_ahead(monkeypatch):
+    monkeypatch.setenv("FACTORY_THREADS", "1")
+    ops = _operations()
+    ahead = VerifyAhead(FitAhead(POST), POST, OPTIONS, np.asarray(PART))
+    assert not ahead.enabled
+    ahead.offer(ops[:2], SETUP)
+    assert ahead.state([from_and_to_safe_height(op, SETUP.safe_z) for op in ops]) is None
