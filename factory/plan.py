@@ -609,7 +609,7 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
     verify_args = (program.text, str(outputs["program"]), job.setup, {t.number: t for t in job.tools},
                    np.asarray(planned.part_work.triangles), options)
     verify_kwargs = dict(operations=sheet.operations, resume=resume)
-    background = None
+    background = drawing = None
     if robot is not None:
         # Verification does not depend on the robot: it runs in a second process meanwhile (no
         # progress bar of its own then).
@@ -630,12 +630,24 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
             background.cancel()  # no verification left running for a plan that failed
             raise
     else:
-        ahead = None  # made when written
-    with watch("verify"):  # with the robot: the wait for the second process
-        if background is not None:
-            verified = background.result()
-        else:
-            verified = run_verify(*verify_args, held_open(progress), **verify_kwargs)
+        # Without a robot the pictures and the log's messages, which do not depend on verify, are made
+        # in a second process while verify runs here (issue 35: they were most of the `write` stage).
+        # On one processor they are made when written, as before.
+        drawing = Background(write_ahead, planned, None) if processors() > 1 else None
+        ahead = None  # otherwise made when written
+    try:
+        with watch("verify"):  # with the robot: the wait for the second process
+            if background is not None:
+                verified = background.result()
+            else:
+                verified = run_verify(*verify_args, held_open(progress), **verify_kwargs)
+    except BaseException:
+        if drawing is not None:
+            drawing.cancel()  # no drawing left running for a plan that failed
+        raise
+    if drawing is not None:
+        with watch("pictures and log"):  # the wait for the second process, if it is still drawing
+            ahead = drawing.result()
     op2 = None
     if req.ops == 2:
         op2 = _plan_op2(req, planned, verified.simulation, outputs, progress, watch, verified.report)

@@ -340,3 +340,42 @@ def test_when_only_op_2_fails_verify_only_op_2_is_planned_again(block, monkeypat
     assert report1 is report2 is planned.report  # and op 2's verdict carries what op 1 left
     assert again.finish_engagement == pytest.approx(0.5 * first.finish_engagement)
     assert planned.op2 is not None and planned.op2.report.ok
+
+
+def _written(out: Path) -> dict[str, object]:
+    """Every output in ``out`` but the summary (its wall times): bytes with the folder named, or for the
+    MCAP each message's channel, log time and payload in order."""
+    from mcap.reader import make_reader
+
+    files: dict[str, object] = {}
+    for path in sorted(out.iterdir()):
+        if path.name.endswith(".plan.json"):
+            continue
+        if path.suffix == ".mcap":
+            with path.open("rb") as f:
+                files[path.name] = [(c.topic, m.log_time, m.data)
+                                    for _, c, m in make_reader(f).iter_messages(log_time_order=False)]
+        else:
+            files[path.name] = path.read_bytes().replace(str(out).encode(), b"<OUT>")
+    return files
+
+
+def test_without_a_robot_the_pictures_drawn_while_verify_runs_are_those_drawn_when_written(block, tmp_path,
+                                                                                            monkeypatch):
+    """Without a robot the pictures and the log's messages are drawn in a second process while verify
+    runs (two processors), or when the plan is written (one): the same bytes either way (issue 35)."""
+    request = dataclasses.replace(fast_request(block, robot=False), ops=1)
+    written = {}
+    for threads in ("1", "2"):
+        monkeypatch.setenv("FACTORY_THREADS", threads)
+        plan = plan_part(request)
+        drawn_meanwhile = threads == "2"
+        assert (plan.ahead is not None) == drawn_meanwhile
+        assert ("pictures and log" in plan.seconds) == drawn_meanwhile
+        plan.write(tmp_path / threads)
+        written[threads] = _written(tmp_path / threads)
+    assert {"verify_png", "toolpath_png", "setup_png", "mcap"} <= set(request.outputs(tmp_path))
+    assert written["1"] == written["2"]
+    # the log holds what was drawn ahead (the job's part and toolpath) and what verify found
+    topics = {topic for name, messages in written["2"].items() if name.endswith(".mcap") for topic, _, _ in messages}
+    assert {"/cam/part", "/cam/toolpath", "/verify/stock"} <= topics
