@@ -50,6 +50,19 @@ def processors() -> int:
     return max(1, min(MAX_WORKERS, n))
 
 
+def idle_processors() -> float:
+    """Processors of the whole machine that no runnable process uses now: its processor count less its
+    one-minute load average (the runnable processes, this one included) [processors]; :func:`processors`
+    where the system keeps no load average. Work begun on speculation (it may be thrown away) waits for an
+    idle processor: on a machine a test suite's workers or a workflow's jobs keep busy it would only slow
+    the work that counts."""
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):
+        return float(processors())
+    return (os.cpu_count() or 1) - load
+
+
 def process_map(fn: Callable[..., Any], jobs: Sequence[tuple], weights: Sequence[float], min_total: float,
                 done: Callable[[int], None] | None = None) -> list[Any]:
     """``[fn(*args) for args in jobs]``, in forked worker processes when the work is worth it.

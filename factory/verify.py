@@ -17,7 +17,7 @@ from cadcam.mesh import load_planned_part
 from cadcam.relief import machining_surface, surface_footprint
 from cadcam.model import Job, Operation, Setup, Tool
 from cadcam.arcs import fit_segments
-from cadcam.parallel import Background, processors
+from cadcam.parallel import Background, idle_processors, processors
 from cadcam.post import FitAhead, PostOptions, operations_end, post_process
 from cadcam.rest import from_and_to_safe_height
 from cadcam.sheet import SheetSetup, read_setup_sheet
@@ -104,7 +104,9 @@ class VerifyAhead:
     Verify resumes from the last state whose operations the job still holds as they were (:meth:`state`);
     :func:`cadcam.stock.cut_stock` checks it move by move and cuts from the first move where it does not
     hold (the rapid check changed an operation): the outputs are those of verify from the first move.
-    With one processor (``FACTORY_THREADS=1``) or no ``fork`` nothing is begun ahead.
+    With one processor (``FACTORY_THREADS=1``) or no ``fork`` nothing is begun ahead, and a round starts only
+    while the machine has a processor idle (:func:`cadcam.parallel.idle_processors`): a round runs at lower
+    priority, so on a machine other work keeps busy it would hardly advance, and verify would wait for it.
     """
 
     def __init__(self, fits: FitAhead, post: PostOptions, options: VerifyOptions, triangles: np.ndarray):
@@ -152,6 +154,8 @@ class VerifyAhead:
             self._round = None
 
     def _start(self, ops: list[Operation], setup: Setup) -> None:
+        if idle_processors() < 1:  # no processor to run it on: the next offer looks again
+            return
         n0 = len(self._covered)
         if not _holds(ops, self._covered):  # an operation changed after it was cut ahead: no more rounds
             self.enabled = False

@@ -12,6 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import cadcam.stock as stock
+import factory.verify
 from cadcam.model import Job, Motion
 from cadcam.post import FitAhead, PostOptions, post_process
 from cadcam.rest import from_and_to_safe_height
@@ -71,6 +72,8 @@ def _ahead(ops, rounds):
 @pytest.fixture
 def two_processors(monkeypatch):
     monkeypatch.setenv("FACTORY_THREADS", "2")
+    # a processor idle, whatever else the machine runs meanwhile (the suite's other workers)
+    monkeypatch.setattr(factory.verify, "idle_processors", lambda: 2.0)
     with mock.patch.object(stock, "_PAIR_BUDGET", 4000):  # many batches, in the forked rounds too
         yield
 
@@ -125,3 +128,20 @@ def test_with_one_processor_nothing_is_begun_ahead(monkeypatch):
     assert not ahead.enabled
     ahead.offer(ops[:2], SETUP)
     assert ahead.state([from_and_to_safe_height(op, SETUP.safe_z) for op in ops]) is None
+
+
+def test_on_a_busy_machine_no_round_is_begun_and_verify_is_the_plain_one(monkeypatch):
+    """Two processors, both kept busy by other work (a suite's workers, a workflow's jobs): no round starts, as
+    it would hardly advance at its lower priority and verify would wait for it; the operations are fitted as
+    without verify ahead, and verify cuts from the first move."""
+    monkeypatch.setenv("FACTORY_THREADS", "2")
+    monkeypatch.setattr(factory.verify, "idle_processors", lambda: 0.4)
+    ops = _operations()
+    ahead = VerifyAhead(FitAhead(POST), POST, OPTIONS, np.asarray(PART))
+    for k in (1, 2, 3):
+        ahead.offer(ops[:k], SETUP)
+        assert ahead._round is None
+    ahead.offer_all(ops, SETUP)
+    job = Job("p", SETUP, tuple(from_and_to_safe_height(op, SETUP.safe_z) for op in ops))
+    assert ahead.state(job.operations) is None
+    assert post_process(job, POST, ahead=ahead.fits).text == post_process(job, POST).text
