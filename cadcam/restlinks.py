@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -22,6 +23,9 @@ from shapely.geometry.base import BaseGeometry
 from cadcam.model import Motion, Tool
 from cadcam.post import PostOptions
 from cadcam.stock import Simulation, clear_height
+
+#: Slack when checking that a link lies in the space the axis may go [mm] (the loops lie on its outline).
+COVER_TOL = 1e-5
 
 
 @dataclass(frozen=True)
@@ -93,10 +97,11 @@ class Links:
     (which takes a grid point's stock as reaching a cell diagonal round it), so the tool between two samples
     lies within an eighth of a cell of one of them; the rapid check of the whole program runs after."""
 
-    def __init__(self, known: Simulation, tool: Tool, rect: BaseGeometry) -> None:
+    def __init__(self, known: Simulation, tool: Tool, rect: BaseGeometry, spaces: Sequence[BaseGeometry]) -> None:
         self.top = np.array(known.stock_top, dtype=np.float64)  # lowered as the pieces cut
         self.stock = dataclasses.replace(known, stock_top=self.top)
-        self.tool, self.rect = tool, rect
+        self.tool, self.rect, self.spaces = tool, rect, spaces
+        self._covering: dict[int, BaseGeometry] = {}  # spaces[level] grown by COVER_TOL, made when first asked
         shapely.prepare(rect)
 
     def _way(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -113,11 +118,16 @@ class Links:
             return math.inf
         return float(np.max(clear_height(self.stock, self.tool, self._way(a, b))))
 
-    def stays_down(self, a: np.ndarray, b: np.ndarray, z: float) -> bool:
+    def stays_down(self, a: np.ndarray, b: np.ndarray, z: float, level: int) -> bool:
         """Whether the tool may feed straight from XY ``a`` to ``b`` [mm] at tip height ``z`` [mm] meeting
-        nothing: no grid point strictly within its radius of the way holds stock above ``z``. A feed move,
-        not a rapid: it may graze what its last loop grazed (the skin on a wall), and what lies between the
-        grid points is no more than the slivers every cut of the model leaves."""
+        nothing: the way lies in ``spaces[level]`` (where the axis may go at that level, at or under ``z``:
+        off the part by the allowance, exactly, between the grid points too), and no grid point strictly
+        within its radius of the way holds stock above ``z``. A feed move, not a rapid: it may graze what its
+        last loop grazed (the skin on a wall), and what stock lies between the grid points is no more than the
+        slivers every cut of the model leaves. (Without the space, a chord across a wall's outside corner cut
+        into the part between grid points: long_turned's 16 mm end mill 0.14 mm into a corner, 8 mm deep.)"""
+        if not self._in_space(a, b, level):
+            return False
         g, r = self.stock.grid, self.tool.radius - 1e-6
         xy = self._way(a, b)
         k = int(math.ceil(r / g.cell)) + 1
@@ -128,6 +138,13 @@ class Links:
         ii, jj = np.clip(i, 0, g.nx - 1), np.clip(j, 0, g.ny - 1)
         near = inside & (np.hypot(g.x0 + ii * g.cell - xy[:, 0, None], g.y0 + jj * g.cell - xy[:, 1, None]) < r)
         return bool(np.all(self.top[jj[near], ii[near]] <= z + 1e-6)) and self._within(a, b)
+
+    def _in_space(self, a: np.ndarray, b: np.ndarray, level: int) -> bool:
+        covering = self._covering.get(level)
+        if covering is None:
+            covering = self._covering[level] = self.spaces[level].buffer(COVER_TOL)
+            shapely.prepare(covering)
+        return bool(covering.covers(LineString([a, b]) if float(np.linalg.norm(b - a)) > 1e-9 else Point(a)))
 
     def cut(self, piece: Piece) -> None:
         """Lower the stock to the piece's level wherever a feed move of it at that level swept the tool's
@@ -153,13 +170,15 @@ class Links:
         sub[inside] = np.minimum(sub[inside], z)
 
 
-def stays_down(links: Links, here: np.ndarray, xy: np.ndarray, feed: float, clear_z: float, lead_gap: float) -> bool:
-    """Whether the tool at ``here`` [mm] goes on to XY ``xy`` [mm] at its height, at the cutting ``feed``
-    [mm/min] (:meth:`Links.stays_down`), rather than lifting ``lead_gap`` [mm] over the stock (no higher than
-    ``clear_z`` [mm]) and rapiding across: where it may, and where the feed across takes no longer than the
-    lift, the rapid across and the way back down by the program's clock (:class:`cadcam.post.PostOptions`)."""
+def stays_down(links: Links, here: np.ndarray, xy: np.ndarray, feed: float, clear_z: float, lead_gap: float,
+               level: int) -> bool:
+    """Whether the tool at ``here`` [mm], at or over level ``level``, goes on to XY ``xy`` [mm] at its height,
+    at the cutting ``feed`` [mm/min] (:meth:`Links.stays_down`), rather than lifting ``lead_gap`` [mm] over the
+    stock (no higher than ``clear_z`` [mm]) and rapiding across: where it may, and where the feed across takes
+    no longer than the lift, the rapid across and the way back down by the program's clock
+    (:class:`cadcam.post.PostOptions`)."""
     z, length = float(here[2]), float(np.linalg.norm(xy - here[:2]))
-    if not links.stays_down(here[:2], xy, z):
+    if not links.stays_down(here[:2], xy, z, level):
         return False
     lift = min(clear_z, max(z, links.height(here[:2], xy) + lead_gap)) - z
     return length / feed <= (length + 2.0 * lift) / PostOptions().rapid_rate
@@ -171,13 +190,14 @@ def cut_stacked(path: Any, pieces: list[Piece], links: Links, feed: float, p: An
     across at its level where that is quicker (:func:`stays_down`, at the cutting ``feed`` [mm/min]), else
     lifted only over the stock along the way (``path.go_to`` with ``path.link_height``)."""
     path.link_height = links.height
+    last: Piece | None = None
     for piece in stacked(pieces):
         first = 0
         if not path.points:
             path.add([*piece.start_xy, p.safe_z], Motion.RAPID)
             path.add([*piece.start_xy, p.clear_z], Motion.RAPID)
-        elif piece.z <= path.here[2] + 1e-9 and stays_down(links, path.here, piece.start_xy, feed, p.clear_z,
-                                                             p.lead_gap):
+        elif last is not None and piece.z <= path.here[2] + 1e-9 and stays_down(
+                links, path.here, piece.start_xy, feed, p.clear_z, p.lead_gap, last.level):
             # Over what is cut at this height: feed across and go on down, no lift and back.
             path.add([*piece.start_xy, path.here[2]], Motion.CUT)
             while (first < len(piece.points) and piece.motion[first] == Motion.RAPID
@@ -188,3 +208,4 @@ def cut_stacked(path: Any, pieces: list[Piece], links: Links, feed: float, p: An
         for q, kind in zip(piece.points[first:], piece.motion[first:]):
             path.add(q, Motion(int(kind)))
         links.cut(piece)
+        last = piece

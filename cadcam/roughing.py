@@ -82,7 +82,7 @@ from shapely.geometry.polygon import orient
 from shapely.ops import nearest_points
 
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
-from cadcam.restlinks import Links, Piece, cut_stacked
+from cadcam.restlinks import COVER_TOL, Links, Piece, cut_stacked
 from cadcam.gridregion import GrownMaskCache
 from cadcam.rest import rest_level_masks, rest_levels, rooms_round, without_holder
 from cadcam.shadow import part_shadows
@@ -99,8 +99,6 @@ _CORNER_T = (0.0, 0.5, 0.75, 0.9, 1.0)
 _LEVEL_MERGE = 0.02
 #: Angular step of helix cutter locations [deg].
 _HELIX_STEP_DEG = 5.0
-#: Slack when checking that a link segment lies in the region [mm].
-_COVER_TOL = 1e-5
 #: Regions smaller than this are numerical slivers [mm^2].
 _MIN_AREA = 1e-6
 #: A ramp loop shorter than this many tool diameters is too short to enter on.
@@ -591,7 +589,7 @@ def _side_entry(region: Polygon, rings: list[_Ring], space: BaseGeometry,
     outer = [j for j, r in enumerate(rings) if r.k == 0]
     if not outer:
         return None
-    covered = space.buffer(_COVER_TOL)
+    covered = space.buffer(COVER_TOL)
     shapely.prepare(covered)
     for cells in _SIDE_ENTRY_CELLS:
         d = cells * cell
@@ -624,7 +622,7 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
         if air_at is None:
             return z_prev
         return min(z_prev, max(float(np.max(air_at(np.asarray(xy).reshape(-1, 2)))), z))
-    covered = region.buffer(_COVER_TOL)
+    covered = region.buffer(COVER_TOL)
     shapely.prepare(covered)
     cut: list[LineString] = []
     uncut = list(range(len(rings)))
@@ -846,7 +844,7 @@ def zlevel_roughing(
         if progress is not None:
             progress(li + 1, len(levels))
     if pieces:  # linked low (cadcam.restlinks)
-        cut_stacked(path, pieces, Links(known, tool, rect), cutting.feed, p)
+        cut_stacked(path, pieces, Links(known, tool, rect, spaces), cutting.feed, p)
     if path.points:
         cur = path.here
         path.add([cur[0], cur[1], p.safe_z], Motion.RAPID)
@@ -930,7 +928,7 @@ def _plan_entries(allowed: BaseGeometry, space: BaseGeometry, z: float, rect_xy:
             entry = _closed_entry(room, rings, p) if rings else None
             if entry is not None:
                 plans.append((room, rings, entry, True))
-                missed = [m for m in missed if m in holes or not room.buffer(_COVER_TOL).contains(m)]
+                missed = [m for m in missed if m in holes or not room.buffer(COVER_TOL).contains(m)]
     for region in missed:
         c = region.representative_point()
         log.log(logging.DEBUG if region in holes else logging.WARNING,

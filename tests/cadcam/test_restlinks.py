@@ -1,0 +1,58 @@
+"""cadcam.restlinks: rest machining's pieces linked low never feed across the part, between grid points included."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from shapely.geometry import LineString, Point, box
+
+from cadcam.heightmap import Grid
+from cadcam.restlinks import Links
+from cadcam.stock import Simulation
+from tests.cadcam.test_post import FLAT
+
+#: The part: a block 20.3..59.7 x 20.3..49.7 mm, 10 mm tall (its top at Z0), its corners between the points of a
+#: grid of 0.5 mm.
+PART_XY = (20.3, 20.3, 59.7, 49.7)
+CELL = 0.5
+
+
+def _links() -> tuple[Links, Simulation]:
+    grid = Grid(x0=0.0, y0=0.0, cell=CELL, nx=161, ny=141)
+    x, y = np.meshgrid(grid.x0 + CELL * np.arange(grid.nx), grid.y0 + CELL * np.arange(grid.ny))
+    on = (x >= PART_XY[0]) & (x <= PART_XY[2]) & (y >= PART_XY[1]) & (y <= PART_XY[3])
+    part_top = np.where(on, 0.0, -np.inf)
+    # everything round the part already cut to Z-10: only the part stands
+    stock = Simulation(grid=grid, stock_top=np.where(on, 0.0, -10.0), part_top=part_top, stock_bottom=-10.0)
+    rect = box(-FLAT.radius, -FLAT.radius, 80 + FLAT.radius, 70 + FLAT.radius)
+    # where the axis may go at the one level, Z-5: the part grown by the radius, its corners round
+    space = rect.difference(box(*PART_XY).buffer(FLAT.radius, quad_segs=16))
+    return Links(stock, FLAT, rect, [space]), stock
+
+
+@settings(max_examples=60, deadline=None)
+@given(a=st.floats(0.0, 1.0), b=st.floats(0.0, 1.0), corner=st.sampled_from(range(4)))
+def test_a_feed_across_a_corner_never_comes_nearer_the_part_than_the_tool_radius(a, b, corner):
+    """Two points on the arc the tool's axis goes round an outside corner of the part (a finishing loop's):
+    the feed straight between them is allowed only where the tool's whole way keeps off the part, though the
+    part's corner lies between the stock model's grid points."""
+    links, _ = _links()
+    x0, y0, x1, y1 = PART_XY
+    cx, cy = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)][corner]
+    start = [np.pi, 1.5 * np.pi, 0.0, 0.5 * np.pi][corner]  # the quarter arc about it facing away from the part
+    r = FLAT.radius + 0.0069  # as a finishing loop goes round it, a few microns off
+    p, q = (np.array([cx + r * np.cos(start + t * np.pi / 2), cy + r * np.sin(start + t * np.pi / 2)]) for t in (a, b))
+    down = links.stays_down(p, q, -5.0, 0)
+    nearest = (LineString([p, q]) if np.linalg.norm(q - p) > 1e-9 else Point(p)).distance(box(*PART_XY))
+    if down:
+        assert nearest >= FLAT.radius - 1e-4
+    if abs(a - b) > 0.2:  # a chord that cuts the corner by more than a hundredth of a millimetre: never
+        assert not down
+
+
+def test_a_feed_along_a_wall_off_the_part_stays_down():
+    """A way that keeps a radius off the part over stock already cut to the level is fed across."""
+    links, _ = _links()
+    y = PART_XY[1] - FLAT.radius - 0.5
+    assert links.stays_down(np.array([25.0, y]), np.array([55.0, y]), -5.0, 0)
