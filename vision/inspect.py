@@ -109,6 +109,8 @@ SHIFT_RESIDUAL = 0.10
 SHIFT_BAND_PX = 0.5
 #: A window of the outline runs along one side: samples whose edge turns more than this from its own are another side's [deg].
 SIDE_TURN_DEG = 20.0
+#: ... as the cosine between their directions (unitless).
+_SIDE_TURN_COS = np.cos(np.radians(SIDE_TURN_DEG))
 #: Outline edges whose direction is steeper than this are the part's vertical corners: no outward side.
 _STEEP = 0.7
 
@@ -903,7 +905,7 @@ def _windowed(points: np.ndarray, values: np.ndarray, window: float, direction: 
         ok = np.isfinite(v)
         told = ok
         if flat is not None:
-            told = ok[np.abs(flat[near] @ flat[i]) >= np.cos(np.radians(SIDE_TURN_DEG))]
+            told = ok[np.abs(flat[near] @ flat[i]) >= _SIDE_TURN_COS]
         if ok.sum() >= 5 and ok.mean() >= 0.5 and told.sum() >= 5 and told.mean() >= 0.5:
             out[i] = np.median(v[ok])
     return out

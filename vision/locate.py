@@ -511,16 +511,16 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
     bloom = 0.0
     sol = None
     unknown = _dark_edges(model, p, light) if dark is None else dark
+    # Only where a clipped top can bloom over its thin walls (glare) do the feet go: under a key light
+    # the shading tells a wall from its top (left out, an L under a low light turned 1.9 deg), and
+    # in even light the feet found by inspection's tests stay where they were.
+    glare = light is None and saturated is not None and bool(saturated.any())
     for reach in reaches:
         idx = model.visible(p)
         idx = idx[~unknown[idx]]
         if len(idx) < 12:
             return None
         uv, normal = model.project(p, idx)
-        # Only where a clipped top can bloom over its thin walls (glare) do the feet go: under a key light
-        # the shading tells a wall from its top (left out, an L under a low light turned 1.9 deg), and
-        # in even light the feet found by inspection's tests stay where they were.
-        glare = light is None and saturated is not None and bool(saturated.any())
         keep = ~model.unresolved(uv, normal, idx) if glare else np.ones(len(idx), bool)
         idx, uv, normal = (a[keep][:: max(1, int(keep.sum()) // FIT_SAMPLES)] for a in (idx, uv, normal))
         off = _find_edges(gx, gy, threshold, uv, normal, reach)
