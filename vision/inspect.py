@@ -528,8 +528,8 @@ def _judge_features(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.nd
             centre = uv[whole].mean(axis=0)
             # Each loop of its creases on its own: a counterbored boss's through-hole not drilled keeps
             # its rim's share from the counterbore's floor 3 mm off (0.43-0.46), while its foot, where
-            # the tray shows through, shows 0.17-0.20 (one there: 0.94-0.97; every loop of features
-            # there judged so 0.41 or more on seeds 8-9).
+            # the tray shows through, shows 0.17-0.20 (one there: 0.94-0.97; the loops of features
+            # there judged so read 0.41 or more in diffuse, dim and low light, seeds 8-9).
             found = min(whole_found, _least_loop(model, idx, own, whole, options))
             features.append(Feature(pixel=(float(centre[0]), float(centre[1])), edges=int(whole.sum()),
                                     found=found, present=found >= options.min_feature_found))
