@@ -280,6 +280,13 @@ def _subpixel_outline(grey: np.ndarray, mask: np.ndarray, level: float, bright: 
     return best[:-1] + (x0, y0)
 
 
+def _components(pairs: np.ndarray, vertices: int, of: np.ndarray | None = None) -> np.ndarray:
+    """The connected component of each edge in ``of`` (default ``pairs``; (m, 2) vertex indices) in the
+    graph of the edges ``pairs`` (k, 2) over ``vertices`` vertices: ``(m,)`` int."""
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(vertices,) * 2)
+    return connected_components(graph, directed=False)[1][(pairs if of is None else of)[:, 0]]
+
+
 class _EdgeModel:
     """The mesh's edges that can show in a picture, sampled about every :data:`EDGE_SAMPLE_M`.
 
@@ -303,11 +310,15 @@ class _EdgeModel:
         self.direction = (ends[:, 1] - ends[:, 0])[edge] / np.maximum(length[edge, None], 1e-12)
         self.n1 = mesh.face_normals[adj[keep, 0]][edge]
         self.n2 = mesh.face_normals[adj[keep, 1]][edge]
-        self.crease = (angle[keep] > np.radians(CREASE_DEG))[edge]
+        sharp = angle[keep] > np.radians(CREASE_DEG)
+        self.crease = sharp[edge]
         # Edges that share vertices make one feature (a hole, a boss, the outline), for inspection.
         pairs = mesh.face_adjacency_edges[keep]
-        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(mesh.vertices),) * 2)
-        self.feature = connected_components(graph, directed=False)[1][pairs[:, 0]][edge]
+        self.feature = _components(pairs, len(mesh.vertices))[edge]
+        # Creases alone that share vertices make one loop of a feature (a through-hole's rim, its foot
+        # on the underside, a counterbore's floor, a boss's top): the facets of a round wall join them
+        # into one feature, and inspection judges each loop on its own (-1: no crease).
+        self.loop = np.where(self.crease, _components(pairs[sharp], len(mesh.vertices), pairs)[edge], -1)
         self.edge = edge  # the mesh edge each sample lies on
         # Edges on the footprint's outline (at any height) make the part's outline against the tray:
         # glare or a dim top may hide the edges inside it, never these.
@@ -511,16 +522,16 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
     bloom = 0.0
     sol = None
     unknown = _dark_edges(model, p, light) if dark is None else dark
+    # Only where a clipped top can bloom over its thin walls (glare) do the feet go: under a key light
+    # the shading tells a wall from its top (left out, an L under a low light turned 1.9 deg), and
+    # in even light the feet found by inspection's tests stay where they were.
+    glare = light is None and saturated is not None and bool(saturated.any())
     for reach in reaches:
         idx = model.visible(p)
         idx = idx[~unknown[idx]]
         if len(idx) < 12:
             return None
         uv, normal = model.project(p, idx)
-        # Only where a clipped top can bloom over its thin walls (glare) do the feet go: under a key light
-        # the shading tells a wall from its top (left out, an L under a low light turned 1.9 deg), and
-        # in even light the feet found by inspection's tests stay where they were.
-        glare = light is None and saturated is not None and bool(saturated.any())
         keep = ~model.unresolved(uv, normal, idx) if glare else np.ones(len(idx), bool)
         idx, uv, normal = (a[keep][:: max(1, int(keep.sum()) // FIT_SAMPLES)] for a in (idx, uv, normal))
         off = _find_edges(gx, gy, threshold, uv, normal, reach)

@@ -9,6 +9,8 @@ reason, never a pass; a part locate cannot place is refused with locate's reason
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -16,7 +18,7 @@ from factory.core.errors import VisionError
 from tests.vision.defects import defective_mesh
 from tests.vision.lit import cell_station, gallery_scene, sample_mesh
 from vision.inspect import InspectOptions, inspect_part, part_transform
-from vision.locate import LocatedPart, mm_to_m
+from vision.locate import LocatedPart, _EdgeModel, mm_to_m
 
 FOUND_M = 1.5e-3
 
@@ -64,6 +66,9 @@ def test_a_good_part_passes_inspection_in_diffuse_light(station):
     ("diffuse", "plate_bosses", 0, "missing_boss", (78.0, 56.0, 14.0), 8.6),
     # straight under the camera: the hole's wall is seen edge-on, and its rim is what shows
     ("diffuse", "bracket", 1, "missing_hole", (92.0, 52.0, 15.0), 5.8),
+    # a counterbored boss's through-hole seen from above: its rim on the counterbore's floor finds the
+    # floor's corner 3 mm off, its foot (where the tray shows through) nothing: each loop is judged
+    ("diffuse", "plate_bosses", 8, "missing_hole", (68.0, 20.0, 15.0), 5.3),
 ])
 def test_a_missing_feature_is_found_missing_where_it_is(station, condition, part, seed, defect, where_mm, radius_mm):
     """The same picture with the good part passes; with the feature left out the part fails, and
@@ -78,6 +83,28 @@ def test_a_missing_feature_is_found_missing_where_it_is(station, condition, part
     radius_px = np.hypot(*(pixel_of(station, part, scene, np.add(where_mm, (radius_mm, 0.0, 0.0))) - centre))
     assert np.hypot(*(np.array(missing.pixel) - centre)) < radius_px
     assert missing.found < 0.3 and bad.max_deviation == bad.reach
+
+
+def test_each_loop_of_creases_of_a_counterbored_hole_is_its_own(station):
+    """The plate's counterbored boss at (68, 20) mm: the facets of the through-hole's round wall join
+    its rim on the counterbore's floor (z 15 mm) and its foot on the underside (z 0) into one feature;
+    its creases alone make two loops, each all of one height, apart from the counterbore's and the
+    boss's, which inspection judges each on its own."""
+    mesh, footprint, _ = sample_mesh("plate_bosses")
+    part = replace(footprint, vertices=mm_to_m(np.asarray(mesh.vertices, dtype=np.float64)),
+                   faces=np.asarray(mesh.faces))
+    model = _EdgeModel(part, station.camera, np.linalg.inv(station.camera_pose), station.plane_z)
+    xy = model.points[:, :2] + np.asarray(footprint.centroid)  # [m] in the mesh's frame
+    r = np.hypot(xy[:, 0] - 0.068, xy[:, 1] - 0.020)
+    hole = np.abs(r - 5e-3) < 2e-4
+    (feature,) = np.unique(model.feature[hole])
+    assert np.all(model.loop[~model.crease] == -1) and np.all(model.loop[model.crease] >= 0)
+    loops = np.unique(model.loop[(model.feature == feature) & model.crease])
+    heights = [np.unique(np.round(model.points[model.loop == loop, 2] * 1e3, 3)) for loop in loops]  # [mm]
+    assert sorted(float(h[0]) for h in heights) == [0.0, 15.0] and all(len(h) == 1 for h in heights)
+    # the counterbore (r 8 mm) and the boss (r 13 mm) around it: loops of their own
+    around = model.crease & ((np.abs(r - 8e-3) < 2e-4) | (np.abs(r - 13e-3) < 2e-4))
+    assert not set(model.loop[around]) & set(loops) and len(set(model.loop[around])) == 4
 
 
 def test_a_burr_is_extra_material_at_the_burr(station):
