@@ -29,6 +29,7 @@ from factory.scene import visuals_scene
 from robotprog.cell import Cell, load_cell
 from robotprog.collision import CollisionWorld, cell_static_boxes, collision_world
 from robotprog.frames import setup_sheet_to_cell
+from robotprog.roadmap import Roadmap, RoadmapOnDemand
 from robotprog.tending import TendingPlan, part_box_in_vise, plan_tending
 from robotprog.visuals import LinkVisual, robot_visuals
 
@@ -266,21 +267,26 @@ def plan_cell(cell_path: Path, sheet: SetupSheet | Mapping[str, Any], sheet_sour
 def plan_in_cell(cell: Cell, world: CollisionWorld, cell_path: Path, sheet: SetupSheet | Mapping[str, Any],
                  sheet_source: str, part_vertices: np.ndarray | None, watch: Stopwatch, setups: int = 1) -> TendingPlan:
     """:func:`plan_cell` in a cell already loaded from ``cell_path`` (named in messages), with its
-    collision world: stages ``roadmap``, or ``building the cell's roadmap`` when no roadmap of the
-    cell is cached yet (:mod:`factory.roadmaps`), and ``robot plan``."""
+    collision world: stage ``robot plan``, and within it, when a transfer first needs the cell's
+    roadmap, ``roadmap``, or ``building the cell's roadmap`` when none is cached yet
+    (:mod:`factory.roadmaps`); each second is counted in one stage."""
     part_box = None
     if part_vertices is not None:
         part_box = part_box_in_vise(setup_sheet_to_cell(sheet, sheet_source), part_vertices)
-    roadmap = None
-    # A cell nobody warmed (`factory cell warm`) has its roadmap built by its first plan, under a
-    # stage that says so (a progress bar, the plan's stage times); not a warning line, which would
-    # stand before the one line of a plan that then fails.
-    stage = "roadmap" if roadmap_path(cell).exists() else "building the cell's roadmap"
-    with watch(stage):
-        try:
-            roadmap = cached_roadmap(cell, world, progress=stage_callback(watch.progress, stage)).roadmap
-        except CellError as e:  # the planner names what is wrong with the cell in its own words
-            log.info("%s: no roadmap (%s); planning without", cell_path, e)
+
+    def roadmap() -> Roadmap | None:
+        # A cell nobody warmed (`factory cell warm`) has its roadmap built by its first plan that needs
+        # it, under a stage that says so (a progress bar, the plan's stage times); not a warning line,
+        # which would stand before the one line of a plan that then fails. A part the gripper cannot
+        # take, or a slot out of reach, fails before: it never waits minutes for a roadmap.
+        stage = "roadmap" if roadmap_path(cell).exists() else "building the cell's roadmap"
+        with watch(stage):
+            try:
+                return cached_roadmap(cell, world, progress=stage_callback(watch.progress, stage)).roadmap
+            except CellError as e:  # the planner names what is wrong with the cell in its own words
+                log.info("%s: no roadmap (%s); planning without", cell_path, e)
+                return None
+
     with watch("robot plan"):
         return plan_tending(cell, sheet, part_box=part_box, world=world, source=sheet_source, setups=setups,
-                            roadmap=roadmap)
+                            roadmap=RoadmapOnDemand(roadmap))

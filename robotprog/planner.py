@@ -56,7 +56,7 @@ from factory.core.errors import PlanningError
 from robotprog.cell import Box, Cell
 from robotprog.collision import CollisionWorld, Payload, collision_world
 from robotprog.ik import ik_continuous, ik_solutions
-from robotprog.roadmap import Roadmap, joint_box
+from robotprog.roadmap import Roadmap, RoadmapOnDemand, joint_box
 from robotprog.sweep import monotone_breaks, swept_motion
 from robotprog.timing import Trajectory, time_path
 
@@ -223,8 +223,9 @@ class MotionPlanner:
     world : CollisionWorld
         The cell with the boxes this plan avoids; its robot is the one planned for.
     options : PlannerOptions
-    roadmap : Roadmap, optional
-        The cell's roadmap (:func:`robotprog.roadmap.cell_roadmap`), looked up before a transfer is searched.
+    roadmap : Roadmap or RoadmapOnDemand, optional
+        The cell's roadmap (:func:`robotprog.roadmap.cell_roadmap`), looked up before a transfer is searched
+        (on demand: got when the first transfer needs it).
 
     Attributes
     ----------
@@ -235,7 +236,7 @@ class MotionPlanner:
     """
 
     def __init__(self, cell: Cell, world: CollisionWorld, options: PlannerOptions = PlannerOptions(),
-                 roadmap: Roadmap | None = None):
+                 roadmap: Roadmap | RoadmapOnDemand | None = None):
         robot = world.robot
         self.cell, self.robot, self.world, self.options = cell, robot, world, options
         self.roadmap = roadmap

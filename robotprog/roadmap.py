@@ -155,6 +155,35 @@ class Roadmap:
         return None
 
 
+class RoadmapOnDemand:
+    """A cell's roadmap got (read from the cache or built) the first time a transfer asks it for a path.
+
+    Building a cell's roadmap takes minutes; a plan that fails on a grasp or an unreachable pose, which
+    it finds before any transfer, fails without waiting for it, and a plan whose transfers are all
+    straight never needs it. ``get`` returns the roadmap, or None where there is none to be had; it is
+    called once, and the copies of a planner (:meth:`robotprog.planner.MotionPlanner.among`) share it.
+    """
+
+    def __init__(self, get: Callable[[], Roadmap | None]) -> None:
+        self._get: Callable[[], Roadmap | None] | None = get
+        self._roadmap: Roadmap | None = None
+
+    @property
+    def asked(self) -> bool:
+        """Whether a transfer has asked for the roadmap (and ``get`` was called)."""
+        return self._get is None
+
+    def path(self, q_a: np.ndarray, q_b: np.ndarray, edge_free: Callable[[np.ndarray, np.ndarray], bool],
+             connect: int = 10, max_checks: int = 200) -> np.ndarray | None:
+        """:meth:`Roadmap.path` on the roadmap, got now if no transfer asked before; None without one."""
+        if self._get is not None:
+            get, self._get = self._get, None
+            self._roadmap = get()
+        if self._roadmap is None:
+            return None
+        return self._roadmap.path(q_a, q_b, edge_free, connect, max_checks)
+
+
 def _shortest(pts: np.ndarray, adj: dict[int, set[int]], start: int, goal: int) -> list[int] | None:
     """Dijkstra from ``start`` to ``goal``; edge length the largest joint step [rad]."""
     dist = {start: 0.0}

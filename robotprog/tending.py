@@ -36,7 +36,7 @@ from robotprog.collision import CollisionWorld, HeldBox, Payload, collision_worl
 from robotprog.flip import TURNOVER_AXIS, Piece, held_piece, plan_flip
 from robotprog.frames import StockInVise, setup_sheet_to_cell
 from robotprog.grasp import GraspOptions, box_pose, open_fingers, top_grasp
-from robotprog.roadmap import Roadmap
+from robotprog.roadmap import Roadmap, RoadmapOnDemand
 from robotprog.planner import MotionPlanner, PickPlace, PickPlaceNames, PlannerOptions, Station, TimedMove
 
 log = logging.getLogger(__name__)
@@ -148,7 +148,7 @@ def plan_tending(
     options: TendingOptions = TendingOptions(),
     source: str | None = None,
     setups: int = 1,
-    roadmap: Roadmap | None = None,
+    roadmap: Roadmap | RoadmapOnDemand | None = None,
 ) -> TendingPlan:
     """Plan loading the stock of ``sheet`` into the vise and unloading the finished part; with
     two setups, turning the part over on the flip station between them (:mod:`robotprog.flip`).
@@ -170,7 +170,7 @@ def plan_tending(
         1: the part is machined in one operation; 2: op 1 leaves the part on its holding
         block (the stock below ``part_box``), the robot turns it over on the cell's
         ``flip_station`` (moves ``flip: ...``) and op 2 faces the block off.
-    roadmap : Roadmap, optional
+    roadmap : Roadmap or RoadmapOnDemand, optional
         The cell's roadmap (:func:`robotprog.roadmap.cell_roadmap`): transfers the straight
         joint segment cannot make are looked up in it before they are searched; every move is
         proven all the same.

@@ -38,25 +38,36 @@ def held_open(progress: Progress | None) -> Progress | None:
 class Stopwatch:
     """Wall time per named stage [s], in the order the stages ran.
 
+    A stage begun inside another (on the same thread: the roadmap a robot plan asks for on its way)
+    has its seconds counted in its own name only, not in the enclosing stage's too, so the stages'
+    seconds add up to the run's.
+
     With ``progress``, every stage also says when it starts (``progress(name, 0, 1)``) and, unless it
     raised, when it ends (``progress(name, 1, 1)``), so a stage that reports nothing finer (the robot's
     planning) still shows which stage is running, and for how long; one that does report finer steps
     under the same name fills in between.
     """
 
-    def __init__(self, progress: Progress | None = None) -> None:
+    def __init__(self, progress: Progress | None = None, clock: Callable[[], float] = time.perf_counter) -> None:
         self.seconds: dict[str, float] = {}
         self._progress = progress
+        self._clock = clock  # [s]
+        self._open = threading.local()  # per thread: seconds spent in stages begun inside each open one
 
     @contextlib.contextmanager
     def __call__(self, name: str) -> Iterator[None]:
         if self._progress is not None:
             self._progress(name, 0, 1)
-        t0 = time.perf_counter()
+        inner: list[float] = self._open.__dict__.setdefault("inner", [])
+        inner.append(0.0)
+        t0 = self._clock()
         try:
             yield
         finally:
-            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - t0
+            took = self._clock() - t0
+            self.seconds[name] = self.seconds.get(name, 0.0) + took - inner.pop()
+            if inner:
+                inner[-1] += took
         # Only a stage that got through ends: a failed one is not "done", its error says what happened.
         if self._progress is not None:
             self._progress(name, 1, 1)

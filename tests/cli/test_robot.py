@@ -154,13 +154,26 @@ def test_typo_in_cell_file(tmp_path):
     _fails(tmp_path, cell, sheet, "jaw_hieght")
 
 
-def test_part_wider_than_gripper(tmp_path):
+@pytest.fixture
+def no_roadmap(monkeypatch):
+    """Fails the test if a plan asks for the cell's roadmap (building a new cell's takes minutes)."""
+    import factory.tending
+
+    def asked(*args, **kwargs):
+        raise AssertionError("the cell's roadmap was asked for")
+
+    monkeypatch.setattr(factory.tending, "cached_roadmap", asked)
+
+
+def test_part_wider_than_gripper(tmp_path, no_roadmap):
+    """Refused from the grasp, before the changed cell's roadmap would be built."""
     sheet = _sheet(tmp_path / "p.setup.json", SAMPLES / "bracket.stl")
     cell = _cell(tmp_path, lambda d: d["gripper"]["opening"].update(max=0.05))
     _fails(tmp_path, cell, sheet, "gripper.opening.max")
 
 
-def test_unreachable_slot(tmp_path):
+def test_unreachable_slot(tmp_path, no_roadmap):
+    """Refused from the pose above the slot, before any transfer asks for the cell's roadmap."""
     sheet = _sheet(tmp_path / "p.setup.json", SAMPLES / "bracket.stl")
     cell = _cell(tmp_path, lambda d: d["rack"]["pose"].update(xyz=[1.6, -1.2, 0.8]))
     _fails(tmp_path, cell, sheet, "rack.pose")

@@ -122,6 +122,23 @@ def test_every_stage_of_the_work_is_timed(planned, block, monkeypatch):
     assert watch.seconds["stock model"] == 3.0 and watch.seconds["roughing"] == 0.5
 
 
+def test_a_stage_begun_inside_another_counts_its_seconds_once():
+    """The roadmap a robot plan asks for on its way is timed as its own stage, not twice."""
+    from factory.core import progress
+
+    clock = iter([0.0, 1.0, 4.0, 6.0, 10.0, 11.0])  # robot plan 0-6 with roadmap 1-4 inside; then post 10-11
+    heard: list[tuple[str, int, int]] = []
+    watch = progress.Stopwatch(lambda *report: heard.append(report), clock=lambda: next(clock))
+    with watch("robot plan"):
+        with watch("roadmap"):
+            pass
+    with watch("post"):
+        pass
+    assert watch.seconds == {"roadmap": 3.0, "robot plan": 3.0, "post": 1.0}
+    assert heard == [("robot plan", 0, 1), ("roadmap", 0, 1), ("roadmap", 1, 1), ("robot plan", 1, 1),
+                     ("post", 0, 1), ("post", 1, 1)]
+
+
 def test_write_makes_the_whole_set_and_no_staging_is_left(planned, tmp_path, tmp_path_factory):
     summary = planned.write(tmp_path)
     outputs = plan_outputs(planned.request.cam.part, tmp_path)
