@@ -125,8 +125,9 @@ class DrillingOptions:
     peck_ratio : float
         Holes deeper than this many drill diameters are peck drilled (G83) [D].
     breakthrough : float
-        A through hole's drill goes this far past its full diameter below the part [mm],
-        never below ``Setup.floor_z`` (the stock bottom when the setup has none).
+        A through hole's drill goes this far past its full diameter below the part [mm], on into
+        the holding allowance op 2 faces off (to :data:`POINT_CLEARANCE_MM` over the stock's bottom);
+        never below ``Setup.floor_z`` where there is no holding allowance.
     spot : bool
         Spot drill every drilled hole first (when the library has a spot drill).
     spot_share : float
@@ -515,10 +516,24 @@ def _floor(setup: Setup) -> float:
     return float(setup.stock_min[2]) if floor is None else float(floor)
 
 
-def _drill_tip(hole: Hole, drill: Tool, options: DrillingOptions, floor: float) -> float:
-    """Lowest the drill's tip goes in ``hole`` [mm], its cone never below the hole's bottom."""
+#: A through hole's drill point stays this far above the stock's bottom [mm] (the parallels are under it).
+POINT_CLEARANCE_MM = 1.0
+
+
+def _point_floor(setup: Setup, floor: float) -> float:
+    """Lowest a through hole's drill point may go [mm]: on into the holding allowance under the part, which
+    op 2 faces off, to :data:`POINT_CLEARANCE_MM` over the stock's bottom; ``floor`` where there is none."""
+    return min(floor, float(setup.stock_min[2]) + POINT_CLEARANCE_MM)
+
+
+def _drill_tip(hole: Hole, drill: Tool, options: DrillingOptions, floor: float, point_floor: float) -> float:
+    """Lowest the drill's tip goes in ``hole`` [mm], its cone never below the hole's bottom; a through hole's
+    never below ``point_floor`` (:func:`_point_floor`), other holes' never below ``floor``."""
     if hole.bottom == "through":
-        return max(hole.bottom_z - drill.point_length - options.breakthrough, floor)
+        # The point goes on below the part, so the full diameter breaks through: held at the floor, it would
+        # leave a cone of stock in the hole that a rest tool then digs out at full width (issue 34's
+        # counterbored plate: the 6 mm end mill 2.9 mm wide below its full-width depth).
+        return max(hole.bottom_z - drill.point_length - options.breakthrough, point_floor)
     # Flat: tip on the floor. Conical: the tip of the hole's cone, unless that is steeper
     # than the drill's, whose cone then meets the wall's bottom edge first.
     return max(hole.tip_z, hole.bottom_z - drill.point_slope * drill.radius, floor)
@@ -621,10 +636,12 @@ def plan_holes(
                                        methods.predrilled.get(h)))
         return ops
 
-    chosen = _choose_methods(holes, drills, mills, rough_tool, min_helix, allowance, top, floor, options, fits)
+    point_floor = _point_floor(setup, floor)
+    chosen = _choose_methods(holes, drills, mills, rough_tool, min_helix, allowance, top, floor, point_floor,
+                             options, fits)
     ops = operations(chosen)
     if chosen.predrilled:  # drilling first pays only for enough metal: else the helices from solid
-        plain = _choose_methods(holes, drills, mills, rough_tool, min_helix, allowance, top, floor,
+        plain = _choose_methods(holes, drills, mills, rough_tool, min_helix, allowance, top, floor, point_floor,
                                 dataclasses.replace(options, predrill=False), fits)
         plain_ops = operations(plain)
         if _seconds(plain_ops) <= _seconds(ops):
@@ -665,10 +682,10 @@ class _Methods:
 
 
 def _choose_methods(holes: tuple[Hole, ...], drills: tuple[Tool, ...], mills: list[Tool], rough_tool: Tool,
-                    min_helix: float, allowance: float, top: float, floor: float,
+                    min_helix: float, allowance: float, top: float, floor: float, point_floor: float,
                     options: DrillingOptions, fits: Callable[[Hole, Tool], bool] = lambda h, t: True) -> _Methods:
     """Each hole's method, in :func:`plan_holes`' order of preference (``top``: stock top, ``floor``:
-    lowest a tool may go, ``min_helix``: narrowest helix the roughing enters with, ``allowance``:
+    lowest a tool may go, ``point_floor``: a through hole's drill point (:func:`_drill_tip`), ``min_helix``: narrowest helix the roughing enters with, ``allowance``:
     stock roughing leaves on walls, all [mm]; ``mills``: flat end mills, the standard ones widest first, then
     the long-reach ones; ``fits(hole, tool)``: the tool may cut that hole where it lies, :func:`_fits`)."""
 
@@ -697,7 +714,8 @@ def _choose_methods(holes: tuple[Hole, ...], drills: tuple[Tool, ...], mills: li
     out = _Methods()
     for h in holes:
         def tip(t: Tool, h=h) -> float:
-            return _drill_tip(h, t, options, floor)
+            deep = _drill_tip(h, t, options, floor, point_floor)  # a drill too short for it stops at the floor
+            return deep if _reaches(t, top, deep) else _drill_tip(h, t, options, floor, floor)
         d = exact(h, tip)
         mill = helix_mill(h)
         if d is not None and h.bottom != "flat":

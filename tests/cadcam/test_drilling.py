@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cadcam.drilling import DrillingOptions, cycle_moves, drill_operation, find_holes, plan_holes
+from cadcam.drilling import POINT_CLEARANCE_MM, DrillingOptions, cycle_moves, drill_operation, find_holes, plan_holes
 from cadcam.gcode import parse_gcode
 from cadcam.model import DrillCycle, Job, Motion, Operation, Setup
 from cadcam.plan import PlanOptions, choose_tools
@@ -297,14 +297,21 @@ def test_random_plates_holes_found_drilled_to_depth_without_gouge(case):
         top = float(sim.stock_top[j, i])
         # a drill to the hole's tip (an undersize one until its point meets the wall's bottom),
         # an end mill to the wall's bottom; never below the floor
-        rows = np.concatenate([op.cycle.holes for op in ops if op.cycle is not None and op.kind == "drill"] or
-                              [np.zeros((0, 3))])
-        drilled_to = rows[np.hypot(rows[:, 0] - h.x, rows[:, 1] - h.y) < 1e-6, 2]
+        drilled_by = [(op.tool, row[2]) for op in ops if op.cycle is not None and op.kind == "drill"
+                      for row in op.cycle.holes if math.hypot(row[0] - h.x, row[1] - h.y) < 1e-6]
         if h in hp.drilled:
-            assert len(drilled_to) == 1
-            if h not in hp.undersize:
-                assert drilled_to[0] == pytest.approx(max(h.tip_z, floor) if h.bottom != "through" else floor)
-            depth = float(drilled_to[0])
+            assert len(drilled_by) == 1
+            drill, drilled_to = drilled_by[0]
+            if h.bottom == "through":
+                # on into the holding allowance, so the full diameter breaks through the part's underside
+                # (no cone of stock left in the hole), but never near the stock's bottom
+                assert drilled_to == pytest.approx(max(h.bottom_z - drill.point_length - DrillingOptions().breakthrough,
+                                                       float(setup.stock_min[2]) + POINT_CLEARANCE_MM))
+                assert drilled_to + drill.point_length <= h.bottom_z or drilled_to == pytest.approx(
+                    float(setup.stock_min[2]) + POINT_CLEARANCE_MM)
+            elif h not in hp.undersize:
+                assert drilled_to == pytest.approx(max(h.tip_z, floor))
+            depth = float(drilled_to)
         else:
             depth = h.bottom_z
         off = math.hypot(g.x0 + i * g.cell - h.x, g.y0 + j * g.cell - h.y)  # the grid point is off the axis:
