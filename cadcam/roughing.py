@@ -775,7 +775,8 @@ def zlevel_roughing(
         Rest material thinner than this over the part is left [mm].
     air : Simulation, optional
         The stock known to be there before this operation, default ``rest``: entries start
-        just above it rather than at the previous level (no helix through air).
+        just above it rather than at the previous level (no helix through air), and below the
+        tool's reach its holder keeps off it (:func:`cadcam.rest.without_holder`).
     within : callable, optional
         ``within(radius)``: the XY region the tool axis must stay in (a relief's
         :meth:`cadcam.relief.Boundary.centre_region`); None: anywhere around the stock.
@@ -810,11 +811,11 @@ def zlevel_roughing(
     rect_xy, rect = _axis_rect(setup, p, within)
     # the rest material grown by the tool radius, remembered per distinct mask of levels
     rest_grown = GrownMaskCache(rest.grid, p.radius, quad_segs=8) if rest is not None else None
-    spaces = without_holder([_level_space(float(z), rect, shadow, p) for z in levels], levels, deep, rest, tool)
+    known = rest if air is None else air  # the holder kept off all the stock, not only this operation's target
+    spaces = without_holder([_level_space(float(z), rect, shadow, p) for z in levels], levels, deep, known, tool)
     if rest is not None:
         masks = rest_level_masks(rest, levels, spaces, p.radius, rest_above, p.allowance, tool.full_width_limit,
                                  rest_grown)
-    known = rest if air is None else air
     air_at = None if known is None else (lambda xy: clear_height(known, tool, xy))
     path = _Path()
     cleared: BaseGeometry | None = None  # None: nothing was ever skipped

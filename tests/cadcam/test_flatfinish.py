@@ -239,3 +239,42 @@ def test_an_end_mill_shorter_than_the_stock_finishes_a_narrow_slot_but_not_where
     X, Y = np.meshgrid(g.x0 + g.cell * np.arange(g.nx), g.y0 + g.cell * np.arange(g.ny))
     slot = (X > 32.0 + 1.0) & (X < 48.0 - 1.0) & (Y > 20.0) & (Y < 24.0)
     assert sim.remaining[slot].max() <= 0.02, float(sim.remaining[slot].max())
+
+
+def test_below_its_reach_a_finishing_tool_s_holder_keeps_off_the_walls_not_only_off_the_skin_it_finishes():
+    """Finishing flats and walls cuts a stand-in stock that holds only the skin to finish (the walls are taken
+    away); below the tool's reach its holder must still keep off the walls themselves. Issue 34's web_in_tube:
+    the 2 mm end mill finished the floor of a 56 mm deep tube along its walls, its 16 mm holder 40 mm into them."""
+    from cadcam.model import CuttingData, Operation
+    from cadcam.rest import HOLDER_CLEARANCE_MM
+    from cadcam.roughing import RoughingOptions, zlevel_roughing
+    from cadcam.stock import stock_after
+
+    body = manifold3d.Manifold.cube((54.0, 50.0, 30.0)) - manifold3d.Manifold.cube((40.0, 36.0, 30.0)).translate(
+        (7.0, 7.0, 4.0))  # a pocket 26 mm deep, its floor 4 mm over the part's bottom
+    setup, part = make_setup(manifold_to_trimesh(body))
+    t6 = LIBRARY.tool(6)
+    cut = CuttingData(20000.0, 600.0, 200.0)
+    above = Operation("above", "roughing", t6, cut, np.array([[0.0, 0.0, 10.0]]), np.zeros(1))  # cuts nothing
+    stock = stock_after([above], setup, np.asarray(part.triangles), 0.25)
+    g = stock.grid
+    X, Y = np.meshgrid(g.x0 + g.cell * np.arange(g.nx), g.y0 + g.cell * np.arange(g.ny))
+    lo, hi = part.bounds[0][:2] + 7.0, part.bounds[0][:2] + [47.0, 43.0]  # the pocket's walls
+    inside = (X > lo[0]) & (X < hi[0]) & (Y > lo[1]) & (Y < hi[1])
+    floor = float(part.bounds[0][2]) + 4.0
+    # the pocket roughed to 0.3 mm over its floor and walls: the skin along the floor's edge and a patch in its
+    # middle are what is left
+    middle = np.hypot(X - (lo[0] + hi[0]) / 2, Y - (lo[1] + hi[1]) / 2) < 3.0
+    near = inside & ((X < lo[0] + 3) | (X > hi[0] - 3) | (Y < lo[1] + 3) | (Y > hi[1] - 3) | middle)
+    air_top = np.where(inside, floor + 0.3, stock.stock_top)
+    air = dataclasses.replace(stock, stock_top=air_top)
+    target = dataclasses.replace(stock, stock_top=np.where(near, floor + 0.3, -np.inf),
+                                 part_top=np.full_like(stock.part_top, -np.inf))
+    assert float(setup.stock_max[2]) - floor > t6.length  # the floor lies below the 2 mm end mill's reach
+    op = zlevel_roughing(part, setup, t6, cut, RoughingOptions(stepdown=1.0, allowance=0.0),
+                         rest=target, rest_above=0.0, air=air)
+    deep = op.points[op.points[:, 2] < float(setup.stock_max[2]) - t6.length]
+    assert len(deep), "the patch in the floor's middle, away from the walls, is finished"
+    holder = min(r for h, r in t6.body() if h >= t6.length)  # its narrowest, lowest part
+    off_walls = np.minimum.reduce([deep[:, 0] - lo[0], hi[0] - deep[:, 0], deep[:, 1] - lo[1], hi[1] - deep[:, 1]])
+    assert off_walls.min() >= holder + HOLDER_CLEARANCE_MM - g.cell * np.sqrt(2.0) - 1e-6, off_walls.min()
