@@ -12,6 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from cadcam.drilling import POINT_CLEARANCE_MM
 from cadcam.finishing import FinishingOptions
 from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_part
@@ -41,10 +42,16 @@ JAWS = vise_jaws(load_cell(FIXTURES / "cell.yaml", check_robot=False).vise)
 
 def assert_held(job, moves, part) -> None:
     """Op 1 leaves the holding allowance: no feed below the part's bottom by more than 0.6 mm,
-    at least 3 mm of stock under it, the jaws clear (read from the posted G-code)."""
+    at least 3 mm of stock under it, the jaws clear (read from the posted G-code). A through hole's
+    drill point alone goes on into the allowance, so the drill's full diameter breaks through, and
+    stops short of the stock's bottom."""
     setup = job.setup
-    feed = moves.motion[1:] != Motion.RAPID
-    z = moves.points[1:, 2][feed & np.isfinite(moves.points[1:, 2])]
+    drills = [t.number for t in job.tools if t.is_drill]
+    feed = (moves.motion[1:] != Motion.RAPID) & np.isfinite(moves.points[1:, 2])
+    drilling = feed & np.isin(moves.tool[1:], drills)
+    if drilling.any():
+        assert moves.points[1:, 2][drilling].min() >= float(setup.stock_min[2]) + POINT_CLEARANCE_MM - 1e-9
+    z = moves.points[1:, 2][feed & ~drilling]
     part_bottom = float(part.bounds[0][2])
     assert z.min() >= part_bottom - 0.6, (z.min(), part_bottom)
     assert z.min() - setup.stock_min[2] >= MIN_HOLDING_LEFT_MM - 1e-9

@@ -104,7 +104,8 @@ def test_the_planned_bracket_is_judged_safe_with_its_engagement(bracket):
             assert e["max_full_depth"] == 0.0 and 0.0 < e["max_width"] <= {7: 10.0, 13: 10.0}[t] + 1e-9
         else:
             assert e["axial_limit"] == {1: 6.0, 2: 10.0}[t]
-            assert 0.0 < e["max_full_depth"] <= e["axial_limit"] + report["cell"], e
+            # the roughing 10 mm cuts at full width somewhere; the 6 mm may not (the drills leave it no cone)
+            assert (0.0 if t == 1 else 1e-9) <= e["max_full_depth"] <= e["axial_limit"] + report["cell"], e
             assert 0.0 < e["max_width"] <= {1: 6.0, 2: 10.0}[t] + 1e-9 and 0.0 < e["angle"]["max"] <= 180.0
         assert sum(e["angle_moves"]) == e["engaged"] > 0
         # the two depths come from different moves (a skin is no cut, a corner's sliver is one at full width):
