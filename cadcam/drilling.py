@@ -685,8 +685,9 @@ def _choose_methods(holes: tuple[Hole, ...], drills: tuple[Tool, ...], mills: li
                     min_helix: float, allowance: float, top: float, floor: float, point_floor: float,
                     options: DrillingOptions, fits: Callable[[Hole, Tool], bool] = lambda h, t: True) -> _Methods:
     """Each hole's method, in :func:`plan_holes`' order of preference (``top``: stock top, ``floor``:
-    lowest a tool may go, ``point_floor``: a through hole's drill point (:func:`_drill_tip`), ``min_helix``: narrowest helix the roughing enters with, ``allowance``:
-    stock roughing leaves on walls, all [mm]; ``mills``: flat end mills, the standard ones widest first, then
+    lowest a tool may go, ``point_floor``: lowest a through hole's drill point may go (:func:`_drill_tip`),
+    ``min_helix``: narrowest helix the roughing enters with, ``allowance``: stock roughing leaves on walls,
+    all [mm]; ``mills``: flat end mills, the standard ones widest first, then
     the long-reach ones; ``fits(hole, tool)``: the tool may cut that hole where it lies, :func:`_fits`)."""
 
     def exact(h: Hole, tip_of) -> Tool | None:

@@ -168,11 +168,6 @@ class RoadmapOnDemand:
         self._get: Callable[[], Roadmap | None] | None = get
         self._roadmap: Roadmap | None = None
 
-    @property
-    def asked(self) -> bool:
-        """Whether a transfer has asked for the roadmap (and ``get`` was called)."""
-        return self._get is None
-
     def path(self, q_a: np.ndarray, q_b: np.ndarray, edge_free: Callable[[np.ndarray, np.ndarray], bool],
              connect: int = 10, max_checks: int = 200) -> np.ndarray | None:
         """:meth:`Roadmap.path` on the roadmap, got now if no transfer asked before; None without one."""
