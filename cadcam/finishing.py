@@ -500,6 +500,9 @@ def raster_finishing(
         shallow = region & (slope < math.tan(math.radians(options.steep_angle)))
 
     chains_xy: list[np.ndarray] = []
+    # The exact CL z of each chain point where the grid above already has it (NaN on the step-over
+    # bridges): the same XY to the last bit, so the same z, and no second query for it.
+    chains_z: list[np.ndarray] = []
     last_line = -1
     link = tool.diameter
     for j in range(nv):
@@ -513,11 +516,13 @@ def raster_finishing(
                 k = max(int(math.ceil(np.hypot(*gap) / step)), 1)
                 bridge = chains_xy[-1][-1] + gap * (np.arange(1, k) / k)[:, None]
                 chains_xy[-1] = np.concatenate([chains_xy[-1], bridge, line])
+                chains_z[-1] = np.concatenate([chains_z[-1], np.full(len(bridge), np.nan), gz[j, idx]])
             else:
                 chains_xy.append(line)
+                chains_z.append(gz[j, idx])
             last_line = j
 
-    chains = _finish_chains(surface, chains_xy, options.tolerance)
+    chains = _finish_chains(surface, chains_xy, chains_z, options.tolerance)
     return _assemble(_only_where(chains, where), setup, "finish raster", "raster", tool, cutting,
                      options.allowance, stock, limit, within)
 
@@ -555,13 +560,21 @@ def _runs(keep: np.ndarray, inside: np.ndarray, max_gap: int) -> list[tuple[int,
     return [(s, e) for s, e in runs if e > s]
 
 
-def _finish_chains(surface: _Surface, chains_xy: list[np.ndarray], tolerance: float) -> list[np.ndarray]:
-    """Exact z, adaptive refinement and merging for polylines cut along the CL surface."""
+def _finish_chains(surface: _Surface, chains_xy: list[np.ndarray], chains_z: list[np.ndarray],
+                   tolerance: float) -> list[np.ndarray]:
+    """Exact z, adaptive refinement and merging for polylines cut along the CL surface.
+
+    ``chains_z``: each point's exact CL z [mm] where already known, NaN where not (only
+    those are queried).
+    """
     if not chains_xy:
         return []
     sizes = np.array([len(c) for c in chains_xy])
     xy = np.concatenate(chains_xy)
-    z = surface.z(xy)
+    z = np.concatenate(chains_z)
+    unknown = np.isnan(z)
+    if np.any(unknown):
+        z[unknown] = surface.z(xy[unknown])
     joined = np.ones(len(xy) - 1, dtype=bool)
     ends = np.cumsum(sizes)[:-1]
     joined[ends - 1] = False
