@@ -872,16 +872,36 @@ def _onto_level(surface: _Surface, pi, po, lv, zi=None, zo=None):
 def _tighten_chords(surface: _Surface, loops, outs, tolerance):
     """Insert pushed-out vertices where a chord rises above ``level + tolerance/2``.
 
-    Chords are sampled ``s = min(0.05, sqrt(R * tolerance))`` apart and each sample is
-    tested ``s^2 / 8R`` inside the chord: where the CL surface jumps (vertical walls) any
-    intrusion is a gouge, and the boundary of the region the tool must avoid bends with
-    radius >= R, so it cannot reach the chord between two samples that pass. The new vertex goes where the chord cuts
-    in deepest, moved along the chord's normal onto the iso-line (and off a wall, see
-    :func:`_onto_iso`). Only chords made in the previous round are checked again.
+    Chords are sampled ``s = sqrt(R * tolerance)`` apart and each sample is tested ``m``
+    inside the chord, ``m = R - sqrt(R^2 - s^2/4)`` the sagitta of an arc of radius ``R``
+    over ``s`` (about ``s^2 / 8R = tolerance / 8``). Where the CL surface jumps (vertical
+    walls) any intrusion is a gouge, and the boundary of the region the tool must avoid
+    bends with radius >= R, so it cannot reach the chord between two samples that pass.
+    Elsewhere the chord rises at most ``m`` above the samples' bound between two that pass
+    (below), so a chord that passes stays within ``tolerance/2 + tolerance/8`` of its level.
+    The new vertex goes where the chord cuts in deepest, moved along the chord's normal onto
+    the iso-line (and off a wall, see :func:`_onto_iso`). Only chords made in the previous
+    round are checked again.
     """
     tol = 0.5 * tolerance
-    spacing = min(0.05, math.sqrt(surface.radius * tolerance))
-    margin = spacing * spacing / (8.0 * surface.radius)
+    # Why any s < 2R keeps the argument, and why this one. The CL surface is the upper
+    # envelope over the part's points p of z_p(x) = p_z - h(|x - p_xy|), h the tool's bottom
+    # profile (ball: h(d) = R - sqrt(R^2 - d^2); no contact beyond R; with an allowance the
+    # grown tool's R + a > R only shrinks the sagitta below m). Where one z_p exceeds
+    # level + tol is a disc of radius rho <= R, centred on the part's side of the chord (a
+    # centre beyond it would sit in the thin cap between chord and loop, nearer the loop than
+    # rho). To reach the chord yet miss every sample on the line m inside it, the centre must
+    # lie e from that line with e > sqrt(rho^2 - s^2/4) and e + m < rho. A wall (rho = R, h jumps at R) then needs sqrt(R^2 - s^2/4) + m < R,
+    # which the exact sagitta rules out. A smaller disc rises over the chord by at most
+    # h(sqrt(e^2 + s^2/4)) - h(e + m), for the ball largest at e = 0:
+    # sqrt(R^2 - m^2) - (R - m) < m (a bull nose rises less, a flat end mill not at all).
+    # So s sets only the margin's size: sqrt(R * tolerance) keeps it at tolerance/8, the
+    # vertical slack a passing chord may add to tol and the outward nudge of _clear_margin.
+    # (A 0.05 mm cap here sampled a 3 mm ball at tolerance 0.002 1.5x finer than needed.)
+    R = surface.radius
+    spacing = min(math.sqrt(R * tolerance), R)  # at most R: the sagitta needs s < 2R
+    half = 0.5 * spacing
+    margin = half * half / (R + math.sqrt(R * R - half * half))  # R - sqrt(R^2 - half^2), without cancelling
     sizes = np.array([len(c) for c in loops])
     p = np.concatenate(loops)
     o = np.concatenate(outs)
