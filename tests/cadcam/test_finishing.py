@@ -281,3 +281,14 @@ def test_onto_level_keeps_the_gouge_free_end_and_locates_the_crossing(name):
     d = po0 - pi0
     cross = d[:, 0] * (po - pi0)[:, 1] - d[:, 1] * (po - pi0)[:, 0]
     assert np.max(np.abs(cross)) <= 1e-9 * (1 + np.max(np.abs(d)) ** 2)
+
+
+@pytest.mark.parametrize("name", ["boss", "pocket", "hemisphere"])
+def test_waterline_chords_within_half_tolerance_and_the_margin(name):
+    """Sampled every 0.01 mm, no move rises into the CL surface by more than the chord test's
+    tolerance/2 plus its margin (tolerance/8): the bound of _tighten_chords' argument, which
+    holds whatever its sample spacing, on vertical walls (boss, pocket) and a dome."""
+    part, setup, t = PARTS[name](), setup_for(), tool("ball")
+    op = waterline_finishing(part, setup, t, CUTTING, FinishingOptions(scallop=0.05, tolerance=TOL))
+    # The margin is the exact sagitta, a hair over TOL / 8.
+    assert worst_gouge(op, part, t, setup.stock_min[2], step=0.01) <= TOL / 2 + 1.001 * TOL / 8
