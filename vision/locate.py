@@ -576,13 +576,10 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
         sol = least_squares(residuals, np.r_[p, bloom], x_scale=np.array([1e-3, 1e-3, 1e-2, 1.0]),
                             diff_step=np.array([1e-6] * 3 + [1e-3]), bounds=([-np.inf] * 3 + [0.0], [np.inf] * 3 + [4.0]),
                             method="trf", loss="soft_l1", f_scale=ROBUST_SCALE_PX)
-        # Each round fits to the edges found from where it began: in even light the last reach is
-        # repeated until the edges no longer move (a stepped wall beside a box stopped 0.9 deg off, a
-        # round short of 0.46). Not in glare, where the bloom trades with the pose from round to round
-        # (a glare L 0.63 mm off went on to a pose that finds 0.41 of its outline), nor under a key light
-        # (not measured there).
+        # Each round fits to the edges found from where it began: the last reach is repeated until the
+        # edges no longer move (a stepped wall beside a box stopped 0.9 deg off, a round short of 0.46).
         moved = float(np.abs(model.project(sol.x[:3], idx)[0] - uv).max())
-        if not rounds and moved > SETTLED_PX and extra < EXTRA_ROUNDS and light is None and not glare:
+        if not rounds and moved > SETTLED_PX and extra < EXTRA_ROUNDS:
             rounds.append(reaches[-1])
             extra += 1
         p, bloom = sol.x[:3], float(sol.x[3])
