@@ -366,27 +366,18 @@ class _EdgeModel:
         fit leaves the lower out. The judgement keeps them (missed when the picture has one edge there):
         left out, a stepped wall slid 12 mm along itself beside a box found 0.58 of its edges, not 0.46.
         """
-        return self.beside(uv, normal, idx) >= 0
-
-    def beside(self, uv: np.ndarray, normal: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        """``(k,)`` int over the visible samples ``idx`` (as :meth:`unresolved`): for each, the position (in
-        ``idx``) of the nearest higher parallel visible sample within :data:`RESOLVE_PX` in the picture,
-        or -1 where there is none (the sample is resolved)."""
-        partner = np.full(len(idx), -1)
         if len(idx) == 0:
-            return partner
+            return np.zeros(0, bool)
         z = self.points[idx, 2]
         pairs = cKDTree(uv).query_pairs(RESOLVE_PX, output_type="ndarray")
         if len(pairs) == 0:
-            return partner
+            return np.zeros(len(idx), bool)
         i, j = pairs[:, 0], pairs[:, 1]
         parallel = np.abs(np.einsum("nj,nj->n", normal[i], normal[j])) > RESOLVE_COS
-        up, down = parallel & (z[j] > z[i] + RESOLVE_DZ_M), parallel & (z[i] > z[j] + RESOLVE_DZ_M)
-        lower, higher = np.r_[i[up], j[down]], np.r_[j[up], i[down]]
-        # The nearest higher one is written last.
-        order = np.argsort(-np.linalg.norm(uv[lower] - uv[higher], axis=1), kind="stable")
-        partner[lower[order]] = higher[order]
-        return partner
+        lower = np.zeros(len(idx), bool)
+        lower[i[parallel & (z[j] > z[i] + RESOLVE_DZ_M)]] = True
+        lower[j[parallel & (z[i] > z[j] + RESOLVE_DZ_M)]] = True
+        return lower
 
     def project(self, p: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(k, 2)`` pixel positions of the sample points ``idx`` at pose ``p`` and their unit image normals."""
@@ -426,8 +417,6 @@ RESOLVE_PX = 3.5
 RESOLVE_COS = 0.9
 #: ... and one lies higher than the other by more than this [m].
 RESOLVE_DZ_M = 1e-3
-#: In even light a foot whose found edge lies this close to its top's edge took the top's (:func:`_edge_fit`) [px].
-TOOK_TOP_PX = 0.5
 #: Share of the visible edges hidden in clipped highlights above which a symmetric turn that fits
 #: as well makes the pose ambiguous (unitless).
 AMBIGUOUS_HIDDEN = 0.1
@@ -537,28 +526,16 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
     # the shading tells a wall from its top (left out, an L under a low light turned 1.9 deg), and
     # in even light the feet found by inspection's tests stay where they were.
     glare = light is None and saturated is not None and bool(saturated.any())
-    rounds, extra = list(reaches), 0
-    while rounds:
-        reach = rounds.pop(0)
+    for reach in reaches:
         idx = model.visible(p)
         idx = idx[~unknown[idx]]
         if len(idx) < 12:
             return None
         uv, normal = model.project(p, idx)
-        partner = model.beside(uv, normal, idx)
-        keep = partner < 0 if glare else np.ones(len(idx), bool)
-        # Where the higher edge beside a foot would be, along the foot's normal [px].
-        top = np.where(partner >= 0, np.einsum("nj,nj->n", uv[partner] - uv, normal), np.nan)
-        idx, uv, normal, top = (a[keep][:: max(1, int(keep.sum()) // FIT_SAMPLES)] for a in (idx, uv, normal, top))
+        keep = ~model.unresolved(uv, normal, idx) if glare else np.ones(len(idx), bool)
+        idx, uv, normal = (a[keep][:: max(1, int(keep.sum()) // FIT_SAMPLES)] for a in (idx, uv, normal))
         off = _find_edges(gx, gy, threshold, uv, normal, reach)
         ok = np.isfinite(off)
-        if light is None and not glare:
-            # In even light a foot stays unless the edge it found lies on its top's edge (within
-            # TOOK_TOP_PX, nearer it than its own place): then it took its top's edge. A stepped wall
-            # beside a box turned 1.2 deg on such feet; all feet out (as in glare) moved inspection's
-            # poses of whole parts in even light by enough to change what it measures.
-            took = np.abs(off - top)
-            ok &= ~((took < TOOK_TOP_PX) & (took < np.abs(off)))
         if ok.sum() < 12:
             return None
         target = uv[ok] + off[ok, None] * normal[ok]
@@ -576,12 +553,6 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
         sol = least_squares(residuals, np.r_[p, bloom], x_scale=np.array([1e-3, 1e-3, 1e-2, 1.0]),
                             diff_step=np.array([1e-6] * 3 + [1e-3]), bounds=([-np.inf] * 3 + [0.0], [np.inf] * 3 + [4.0]),
                             method="trf", loss="soft_l1", f_scale=ROBUST_SCALE_PX)
-        # Each round fits to the edges found from where it began: the last reach is repeated until the
-        # edges no longer move (a stepped wall beside a box stopped 0.9 deg off, a round short of 0.46).
-        moved = float(np.abs(model.project(sol.x[:3], idx)[0] - uv).max())
-        if not rounds and moved > SETTLED_PX and extra < EXTRA_ROUNDS:
-            rounds.append(reaches[-1])
-            extra += 1
         p, bloom = sol.x[:3], float(sol.x[3])
     # Judge the final pose: the share of the visible edges found within a pixel of where they should be.
     idx = model.visible(p)
@@ -891,10 +862,6 @@ def _slid(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, b
     return slid if slid.evidence > best.evidence + SLIDE_GAIN else best
 
 
-#: An edge fit's last round is repeated (:data:`EXTRA_ROUNDS` times at most) while it moves the model's
-#: edges by more than this in the picture [px].
-SETTLED_PX = 0.1
-EXTRA_ROUNDS = 3
 #: Slides of a fitted pose along each main direction of the outline, refitted from (:func:`_slid`) [m].
 SLIDES_M = (-3e-3, -1.5e-3, 1.5e-3, 3e-3)
 #: ... and under a key light [m].

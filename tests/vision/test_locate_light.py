@@ -44,10 +44,9 @@ GLARE = [("glare", "bracket", 0), ("glare", "dome_mould", 0), ("dim", "stepped_w
 #: turn found 0.73 of the outline at its real heights against 0.99, so it is no rival in glare).
 #: Also a glare dome mould 117 mm off the camera's axis, once 1.75 mm off outward reporting +-0.62 mm: the
 #: feet of walls seen nearly edge-on took the crease of the clipped top beside them
-#: (:meth:`vision.locate._EdgeModel.unresolved`). And a stepped wall beside a box, once 1.16 deg off
-#: reporting +-0.71 deg: feet of its walls took their tops' edges, and its fit stopped a round short.
+#: (:meth:`vision.locate._EdgeModel.unresolved`).
 ONCE_WRONG = [("low_angle", "l_bracket", 1), ("dim", "stepped_wall", 17), ("glare", "stepped_wall", 15),
-              ("glare", "dome_mould", 15), ("distractor", "stepped_wall", 2)]
+              ("glare", "dome_mould", 15)]
 #: Glare pictures once refused although they fix the pose: two Ls whose turn was taken for a rival (the
 #: turns' share of the picture inside the outline explained left out the upright's top edge, outline
 #: but well inside the hull off the camera's axis, and the bores a bloom smaller than their rims: 0.28
@@ -239,10 +238,3 @@ def test_the_foot_of_a_wall_beside_its_top_in_the_picture_is_unresolved(station,
         assert lower[toward].all()
     else:
         assert not lower[toward].any()
-    # Each unresolved foot's partner is a higher edge beside it in the picture, parallel to it.
-    partner = model.beside(uv, normal, idx)
-    assert np.array_equal(partner >= 0, lower)
-    i, j = np.flatnonzero(lower), partner[lower]
-    assert (z[j] > z[i] + 1e-3).all()
-    assert (np.linalg.norm(uv[j] - uv[i], axis=1) <= RESOLVE_PX).all()
-    assert (np.abs(np.einsum("nj,nj->n", normal[i], normal[j])) > 0.9).all()
