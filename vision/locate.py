@@ -712,7 +712,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         box = (max(bx, 0), max(by, 0), min(bx + bw, w), min(by + bh, h))
         starts = chamfer_starts(model, edges, labels == i, box, ground(centroids[i]), ground, maps)
         light = _key_light(model, starts[0], log_ratio, box) if starts else None
-        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin, light)
+        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin, light, options.min_coverage)
         if best is None:
             log.info("blob at (%.0f, %.0f) px: no edge fit", *centroids[i])
             continue
@@ -779,14 +779,20 @@ LIGHT_PIXEL_STEP = 3
 MIN_DARK_PIXELS = 40
 
 
-def _explained(model: _EdgeModel, pose: np.ndarray, thin: np.ndarray) -> float:
+def _explained(model: _EdgeModel, pose: np.ndarray, thin: np.ndarray, bloom: float = 0.0) -> float:
     """Share of the picture's edge pixels inside the part's outline that lie on a model edge at ``pose``.
 
     ``thin`` (h, w) bool are the picture's edges (:func:`vision.locate_search.thin_edges`). Only the pixels more than
-    :data:`EXPLAIN_PX` inside the outline count, and they count as explained within that of an edge
-    the model shows there. Turns of a symmetric outline share it, so this compares what lies inside:
-    a boss's bore seen in glare is explained by the pose that has it there, not by its turn (which
-    hides its own bosses in the clipped top and so finds a larger share of its fewer edges) (0..1).
+    :data:`EXPLAIN_PX` inside the outline count, and they count as explained within that (and the
+    ``bloom`` [px]) of any edge the model shows there. Turns of a symmetric outline share it, so this
+    compares what lies inside: a boss's bore seen in glare is explained by the pose that has it there,
+    not by its turn (which hides its own bosses in the clipped top and so finds a larger share of its
+    fewer edges) (0..1).
+
+    Any edge, the outline's too: a tall upright's top edge is outline, but seen off the camera's axis
+    it lies well inside the outline's hull, and a glare L's true pose explained 0.30 of the picture
+    (its turn 0.27) until it counted. And with the bloom: a clipped top blooms into its dark bores,
+    their edges lie a bloom inside the model's rims.
     """
     idx = model.visible(pose)
     uv, _ = model.project(pose, idx)
@@ -803,8 +809,8 @@ def _explained(model: _EdgeModel, pose: np.ndarray, thin: np.ndarray) -> float:
     pix = pix[inside]
     if len(pix) == 0:
         return 0.0
-    d, _ = cKDTree(uv[~model.outer[idx]]).query(pix)
-    return float(np.mean(d <= EXPLAIN_PX))
+    d, _ = cKDTree(uv).query(pix)
+    return float(np.mean(d <= EXPLAIN_PX + bloom))
 
 
 #: A picture edge pixel this close to a model edge [px] is explained by it (:func:`_explained`).
@@ -813,11 +819,11 @@ EXPLAIN_PX = 2.0
 
 def _best_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
               symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None,
-              light: np.ndarray | None = None) -> _EdgeFit | None:
+              light: np.ndarray | None = None, min_coverage: float = LocateOptions.min_coverage) -> _EdgeFit | None:
     """The edge fit of one blob from its coarse starts (x, y [m], yaw [rad]); None when none converges.
     ``light``: the key light's unit direction (base frame), None for diffuse light. The fit chosen
     among the starts and turns (:func:`_chosen_fit`) is then slid along the outline (:func:`_slid`)."""
-    best = _chosen_fit(model, gx, gy, threshold, starts, symmetry, saturated, thin, light)
+    best = _chosen_fit(model, gx, gy, threshold, starts, symmetry, saturated, thin, light, min_coverage)
     if best is None or best.ambiguous:
         return best
     return _slid(model, gx, gy, threshold, best, saturated, light)
@@ -871,8 +877,9 @@ SLIDE_GAIN = 0.05
 
 def _chosen_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
                 symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None,
-                light: np.ndarray | None = None) -> _EdgeFit | None:
-    """The edge fit of one blob from its coarse starts and the turns of the outline (see :func:`_best_fit`)."""
+                light: np.ndarray | None = None, min_coverage: float = LocateOptions.min_coverage) -> _EdgeFit | None:
+    """The edge fit of one blob from its coarse starts and the turns of the outline (see :func:`_best_fit`).
+    ``min_coverage``: the share of the outline a reported pose finds (:attr:`LocateOptions.min_coverage`)."""
     fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated, light=light)
                             for s in starts) if fit is not None]
     if not fits:
@@ -880,7 +887,11 @@ def _chosen_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: fl
     # A symmetric outline fits turned as well as not: the edges inside it (steps, bosses) decide.
     first = max(fits, key=lambda fit: fit.found)
     turns = [first.pose + np.array([0.0, 0.0, 2 * np.pi * k / symmetry]) for k in range(1, symmetry)]
-    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, SEARCH_PX[-2:], saturated, light) for t in turns)
+    # A first fit that misses most of its outline sits on a turn that does not fit, its yaw left
+    # where the coarse search put it (a glare stepped wall's, 6 deg off): its turn is fitted from as
+    # wide a reach as a start, else it stays those degrees off the part.
+    reaches = SEARCH_PX if first.coverage < min_coverage else SEARCH_PX[-2:]
+    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, reaches, saturated, light) for t in turns)
              if fit is not None]
     # Of the fits that find (nearly) as many edges as the best, the one that lies closest on them.
     most = max(fit.found for fit in fits)
@@ -909,7 +920,8 @@ def _chosen_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: fl
         by_turn: dict[int, _EdgeFit] = {}
         for fit in sorted([best, *rivals], key=lambda fit: -fit.found):
             by_turn.setdefault(_turn(fit.pose[2] - best.pose[2], symmetry), fit)
-        told = sorted(((_explained(model, fit.pose, thin), turn) for turn, fit in by_turn.items()), reverse=True)
+        bloom = max(fit.bloom_px for fit in by_turn.values())
+        told = sorted(((_explained(model, fit.pose, thin, bloom), turn) for turn, fit in by_turn.items()), reverse=True)
         log.info("turns of the outline explain %s of the edges inside it", [round(e, 2) for e, _ in told])
         if told[0][0] - told[1][0] < TURN_MARGIN:
             return replace(best, ambiguous=True)

@@ -33,7 +33,7 @@ PICTURES = [("diffuse", "stepped_wall", 0), ("diffuse", "plate_bosses", 2), ("lo
             ("diffuse", "hex_boss", 0), ("low_angle", "plate_bosses", 3), ("low_angle", "hex_boss", 1)]
 #: Glare on a polished part, and the two pictures where locate once reported a wrong pose: a stepped
 #: wall slid 2.5 mm along itself in dim light (its ends not seen), a plate with bosses turned 180 deg
-#: under glare (its bosses not seen); an L whose turn fits nearly as well in glare; a glare stepped
+#: under glare (its bosses not seen); an L whose turn was once refused as a rival in glare; a glare stepped
 #: wall whose turn, 3.2 mm off, sees its outline across at 0.47 (it passed when 0.4 was tried; seed
 #: 25 was held out until then). No wrong pose.
 GLARE = [("glare", "bracket", 0), ("glare", "dome_mould", 0), ("dim", "stepped_wall", 1),
@@ -47,6 +47,12 @@ GLARE = [("glare", "bracket", 0), ("glare", "dome_mould", 0), ("dim", "stepped_w
 #: (:meth:`vision.locate._EdgeModel.unresolved`).
 ONCE_WRONG = [("low_angle", "l_bracket", 1), ("dim", "stepped_wall", 17), ("glare", "stepped_wall", 15),
               ("glare", "dome_mould", 15)]
+#: Glare pictures once refused although they fix the pose: two Ls whose turn was taken for a rival (the
+#: turns' share of the picture inside the outline explained left out the upright's top edge, outline
+#: but well inside the hull off the camera's axis, and the bores a bloom smaller than their rims: 0.28
+#: against 0.28, now 0.92 against 0.69), and a stepped wall whose coarse start was its turn 6 deg off
+#: (the turn of that fit, which misses most of its outline, is fitted from as wide a reach as a start).
+ONCE_REFUSED = [("glare", "l_bracket", 2), ("glare", "l_bracket", 3), ("glare", "stepped_wall", 1)]
 #: What a refusal may say (vision.locate._refusal): which evidence of the part was short.
 REASONS = ("outline is not there", "seen along one direction only", "inside the outline are not there",
            "fit loosely", "the yaw is not fixed")
@@ -109,6 +115,11 @@ def test_a_pose_once_wrong_is_now_found_within_its_uncertainty(station, conditio
     _found_within_its_uncertainty(*located(station, condition, part, seed))
 
 
+@pytest.mark.parametrize("condition, part, seed", ONCE_REFUSED)
+def test_a_glare_picture_once_refused_is_now_found_within_its_uncertainty(station, condition, part, seed):
+    _found_within_its_uncertainty(*located(station, condition, part, seed))
+
+
 def test_glare_a_polished_bracket_is_found_despite_its_clipped_top(station):
     """Its top is clipped white and spills past the outline (the bloom): found, within its uncertainty."""
     _found_within_its_uncertainty(*located(station, "glare", "bracket", 0))
@@ -119,15 +130,6 @@ def test_glare_the_bores_seen_in_a_clipped_top_tell_the_turn(station):
     The turned pose hides its own bosses in the clipped top (so it finds a larger share of its fewer
     edges), but only the true pose explains the dark bores the picture shows inside the outline."""
     _found_within_its_uncertainty(*located(station, "glare", "plate_bosses", 2))
-
-
-def test_glare_an_l_whose_turn_fits_nearly_as_well_is_refused_with_the_reason(station):
-    """The L's outline is a rectangle; glare clips its top, and the turn that puts the upright at the
-    other end finds nearly as many edges and explains the picture inside the outline about as well."""
-    scene = gallery_scene(station, "l_bracket", "glare", 3)
-    _, footprint, _ = sample_mesh("l_bracket")
-    with pytest.raises(VisionError, match="the yaw is not fixed"):
-        locate_parts(scene.image, station.camera, station.camera_pose, footprint, station.plane_z)
 
 
 def test_glare_a_plate_pushed_outward_by_its_blooming_walls_is_within_its_uncertainty(station):
