@@ -68,8 +68,9 @@ from shapely.geometry import MultiPolygon, Polygon
 
 from factory.core.errors import VisionError
 from vision.camera import CameraModel
-from vision.locate import (SATURATED_GREY, Footprint, LocatedPart, LocateOptions, _edge_peaks, _EdgeModel,
-                           _gradients, _grey, _peak_offset, _tray_ratio, locate_parts, mm_to_m)
+from vision.locate import (SATURATED_GREY, Footprint, LocatedPart, LocateOptions, _edge_peaks, _gradients, _grey,
+                           _peak_offset, _tray_ratio, locate_parts, mm_to_m)
+from vision.mesh_edges import MeshEdges
 from vision.shadow import DARK_LOG
 
 #: A picture edge this close to the expected one along its normal is that edge [px].
@@ -348,7 +349,7 @@ def inspect_part(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     cam_base = np.linalg.inv(np.asarray(base_camera, dtype=np.float64))
     mesh = replace(part, vertices=mm_to_m(np.asarray(vertices_mm, dtype=np.float64)),
                    faces=np.asarray(faces, dtype=np.int64))
-    model = _EdgeModel(mesh, camera, cam_base, tray_z)
+    model = MeshEdges(mesh, camera, cam_base, tray_z)
     out = []
     for located in found:
         sil = expected_silhouette(vertices_mm, faces, cam_base @ part_transform(part, located))
@@ -358,7 +359,7 @@ def inspect_part(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     return out
 
 
-def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.ndarray,
+def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.ndarray,
            gradients: tuple[np.ndarray, np.ndarray, float], masks: tuple[np.ndarray, np.ndarray],
            options: InspectOptions, ring_px: np.ndarray) -> Inspection:
     """The inspection of one located part: its outline's windowed deviations and its features
@@ -477,7 +478,7 @@ def _judge(model: _EdgeModel, part: Footprint, located: LocatedPart, grey: np.nd
     return judged if fails or not hidden else replace(judged, refusal=hidden)
 
 
-def _judge_features(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, own: np.ndarray,
+def _judge_features(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, own: np.ndarray,
                     unknown: np.ndarray, top_glare: bool, options: InspectOptions) -> tuple[list[Feature], list[str]]:
     """The features inside the outline at pose ``p``, and the refusals of those hidden in glare.
 
@@ -553,9 +554,9 @@ def _judge_features(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.nd
     return features, refusals
 
 
-def _least_loop(model: _EdgeModel, idx: np.ndarray, own: np.ndarray, whole: np.ndarray,
+def _least_loop(model: MeshEdges, idx: np.ndarray, own: np.ndarray, whole: np.ndarray,
                 options: InspectOptions) -> float:
-    """The least share of its edges found over one feature's loops of creases (:attr:`_EdgeModel.loop`)
+    """The least share of its edges found over one feature's loops of creases (:attr:`MeshEdges.loop`)
     the light lets be judged, as a whole feature is (``whole`` (k,) bool its visible samples ``idx`` not
     hidden, ``own`` (k,) bool their edge found where expected); 1 when no loop can be judged."""
     loops = model.loop[idx]
@@ -568,7 +569,7 @@ def _least_loop(model: _EdgeModel, idx: np.ndarray, own: np.ndarray, whole: np.n
     return least
 
 
-def _through(model: _EdgeModel, feature: int) -> bool:
+def _through(model: MeshEdges, feature: int) -> bool:
     """Whether a feature is a through-hole: its edges reach the part's underside and the mesh has
     no material under its middle (the tray shows through it; a counterbore over a hole has its own
     floor), from the height field (:func:`vision.shadow.height_field`)."""
@@ -740,7 +741,7 @@ def _rows_interp(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     return fp[rows, i] * (1 - w) + fp[rows, np.minimum(i + 1, len(xp) - 1)] * w
 
 
-def _wall_width(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, outward: np.ndarray) -> np.ndarray:
+def _wall_width(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, outward: np.ndarray) -> np.ndarray:
     """``(k,)`` how far beyond each outline sample ``idx`` (at ``uv`` (k, 2) [px], ``outward`` (k, 2)
     unit) its wall's foot on the tray lies in the picture at pose ``p`` [px]: the wall shows that
     wide; at most 0 where it is turned away and the top edge is the silhouette."""
@@ -777,7 +778,7 @@ def _one_polarity(near: np.ndarray, rising: np.ndarray, line: np.ndarray) -> np.
     return j
 
 
-def _pose_level(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, outward: np.ndarray,
+def _pose_level(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, outward: np.ndarray,
                 level: np.ndarray, fitted: np.ndarray) -> np.ndarray:
     """``(k,)`` the offset [px] along each outline sample's ``outward`` (k, 2) image direction that a
     small error of the pose ``p`` (x, y, yaw) and one push common to every edge (blur, bloom) give,
@@ -803,7 +804,7 @@ def _pose_level(model: _EdgeModel, p: np.ndarray, idx: np.ndarray, uv: np.ndarra
     return a @ c
 
 
-def _wall_facing(model: _EdgeModel, p: np.ndarray, idx: np.ndarray) -> np.ndarray:
+def _wall_facing(model: MeshEdges, p: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """``(k,)`` bool: an edge sample borders a wall (a face within 60 deg of vertical) turned to the
     camera by at least :data:`FACING_COS` (its cosine with the view)."""
     r = np.eye(3)
@@ -816,7 +817,7 @@ def _wall_facing(model: _EdgeModel, p: np.ndarray, idx: np.ndarray) -> np.ndarra
     return facing
 
 
-def _outward(model: _EdgeModel, part: Footprint, p: np.ndarray, idx: np.ndarray, uv: np.ndarray,
+def _outward(model: MeshEdges, part: Footprint, p: np.ndarray, idx: np.ndarray, uv: np.ndarray,
              normal: np.ndarray) -> np.ndarray:
     """``(k,)`` +1 or -1: the sign that turns each outline sample's image normal outward (away from the part)."""
     d = model.direction[idx, :2]

@@ -35,8 +35,6 @@ import shapely
 import trimesh
 from contourpy import LineType, contour_generator
 from scipy.ndimage import map_coordinates
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 from scipy.optimize import least_squares
 from shapely.geometry import MultiPolygon, Polygon
@@ -45,9 +43,10 @@ from factory.core.errors import VisionError
 from factory.core.units import MM_PER_M
 from vision.camera import CameraModel, bin_image, binned_camera
 from vision.locate_search import FIT_SAMPLES, chamfer_starts, oriented_distances, thin_edges
+from vision.mesh_edges import MeshEdges, yaw_rotation
 # _edge_peaks and _peak_offset stay importable from here: vision.inspect takes them with the rest.
 from vision.picture_edges import _edge_peaks, _find_edges, _gradients, _peak_offset, _tray_ratio  # noqa: F401
-from vision.shadow import DARK_LOG, dark_both_sides, estimate_light, height_field, shadow_evidence
+from vision.shadow import DARK_LOG, dark_both_sides, estimate_light, shadow_evidence
 
 log = logging.getLogger(__name__)
 
@@ -247,11 +246,6 @@ class LocatedPart:
                 "pixel": list(self.pixel)}
 
 
-def _rz(yaw: float) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s], [s, c]])
-
-
 def _grey(image: np.ndarray, source: str) -> np.ndarray:
     img = np.asarray(image)
     if img.dtype != np.uint8 or img.ndim not in (2, 3) or min(img.shape[:2]) < 16:
@@ -280,143 +274,6 @@ def _subpixel_outline(grey: np.ndarray, mask: np.ndarray, level: float, bright: 
     return best[:-1] + (x0, y0)
 
 
-def _components(pairs: np.ndarray, vertices: int, of: np.ndarray | None = None) -> np.ndarray:
-    """The connected component of each edge in ``of`` (default ``pairs``; (m, 2) vertex indices) in the
-    graph of the edges ``pairs`` (k, 2) over ``vertices`` vertices: ``(m,)`` int."""
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(vertices,) * 2)
-    return connected_components(graph, directed=False)[1][(pairs if of is None else of)[:, 0]]
-
-
-class _EdgeModel:
-    """The mesh's edges that can show in a picture, sampled about every :data:`EDGE_SAMPLE_M`.
-
-    Creases (faces meeting at more than :data:`CREASE_DEG`) that border a face turned to the
-    camera, and contour edges (one face turned to the camera, the other away) of smooth surfaces:
-    the top outline, steps, bosses, holes and the silhouette at their real heights.
-    """
-
-    def __init__(self, part: Footprint, camera: CameraModel, cam_base: np.ndarray, tray_z: float):
-        mesh = trimesh.Trimesh(np.asarray(part.vertices) - np.r_[part.centroid, part.zmin], part.faces,
-                               process=True)
-        adj = mesh.face_adjacency
-        angle = mesh.face_adjacency_angles
-        keep = angle > np.radians(1.0)  # coplanar triangles of one face never show their edge
-        ends = mesh.vertices[mesh.face_adjacency_edges[keep]]
-        length = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
-        n = np.maximum(np.ceil(length / EDGE_SAMPLE_M), 1).astype(int)
-        edge = np.repeat(np.arange(len(n)), n)
-        t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + 0.5) / n[edge]
-        self.points = ends[edge, 0] + t[:, None] * (ends[edge, 1] - ends[edge, 0])
-        self.direction = (ends[:, 1] - ends[:, 0])[edge] / np.maximum(length[edge, None], 1e-12)
-        self.n1 = mesh.face_normals[adj[keep, 0]][edge]
-        self.n2 = mesh.face_normals[adj[keep, 1]][edge]
-        sharp = angle[keep] > np.radians(CREASE_DEG)
-        self.crease = sharp[edge]
-        # Edges that share vertices make one feature (a hole, a boss, the outline), for inspection.
-        pairs = mesh.face_adjacency_edges[keep]
-        self.feature = _components(pairs, len(mesh.vertices))[edge]
-        # Creases alone that share vertices make one loop of a feature (a through-hole's rim, its foot
-        # on the underside, a counterbore's floor, a boss's top): the facets of a round wall join them
-        # into one feature, and inspection judges each loop on its own (-1: no crease).
-        self.loop = np.where(self.crease, _components(pairs[sharp], len(mesh.vertices), pairs)[edge], -1)
-        self.edge = edge  # the mesh edge each sample lies on
-        # Edges on the footprint's outline (at any height) make the part's outline against the tray:
-        # glare or a dim top may hide the edges inside it, never these.
-        ring = shapely.LinearRing(part.outline)
-        self.axes = np.linalg.eigh(part.outline.T @ part.outline)[1]  # the outline's main directions (columns)
-        self.outer = shapely.distance(shapely.points(self.points[:, :2]), ring) < OUTER_M
-        self.camera, self.tray_z = camera, tray_z
-        self.rvec = cv2.Rodrigues(cam_base[:3, :3])[0].ravel()
-        self.tvec = cam_base[:3, 3]
-        self.eye = -cam_base[:3, :3].T @ cam_base[:3, 3]
-        self.field = height_field(mesh.vertices, mesh.faces)  # for the light and the shadows it casts
-
-    def same_turned(self, k: int, symmetry: int) -> bool:
-        """Whether the mesh's edges turned by ``k`` of ``symmetry`` turns about the footprint's centroid
-        fall on its own edges (within :data:`OUTER_M`): a symmetry of the mesh, not only of its outline."""
-        r = np.eye(3)
-        r[:2, :2] = _rz(2 * np.pi * k / symmetry)
-        d, _ = cKDTree(self.points).query(self.points @ r.T)
-        return bool(np.quantile(d, 0.95) < OUTER_M)
-
-    def world(self, p: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """Mesh points (centroid/zmin frame) placed at pose ``p = (x, y, yaw)`` [m, rad]."""
-        r = np.eye(3)
-        r[:2, :2] = _rz(p[2])
-        return points @ r.T + np.array([p[0], p[1], self.tray_z])
-
-    def visible(self, p: np.ndarray) -> np.ndarray:
-        """Indices of the sample points that can show at pose ``p``."""
-        r = np.eye(3)
-        r[:2, :2] = _rz(p[2])
-        view = self.eye - self.world(p, self.points)
-        f1 = np.einsum("nj,nj->n", self.n1 @ r.T, view) > 0
-        f2 = np.einsum("nj,nj->n", self.n2 @ r.T, view) > 0
-        return np.flatnonzero((self.crease & (f1 | f2)) | (f1 != f2))
-
-    def unresolved(self, uv: np.ndarray, normal: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        """``(k,)`` bool over the visible samples ``idx`` (their pixels ``uv`` and image normals ``normal``,
-        :meth:`project`): those a higher visible edge runs beside within :data:`RESOLVE_PX`, parallel.
-
-        Two such edges make one edge in the picture (the blur is about as wide), and a sample takes the
-        nearest edge: the foot of a wall seen nearly edge-on takes its top's crease, a wall's width off.
-        Under glare the clipped top blooms over the thin wall and the crease is all there is; a
-        dome mould 117 mm off the camera's axis was fitted 1.7 mm outward by its feet alone. The
-        higher edge (the top face's, lit and facing the camera) is the one the picture shows, so the
-        fit leaves the lower out. The judgement keeps them (missed when the picture has one edge there):
-        left out, a stepped wall slid 12 mm along itself beside a box found 0.58 of its edges, not 0.46.
-        """
-        if len(idx) == 0:
-            return np.zeros(0, bool)
-        z = self.points[idx, 2]
-        pairs = cKDTree(uv).query_pairs(RESOLVE_PX, output_type="ndarray")
-        if len(pairs) == 0:
-            return np.zeros(len(idx), bool)
-        i, j = pairs[:, 0], pairs[:, 1]
-        parallel = np.abs(np.einsum("nj,nj->n", normal[i], normal[j])) > RESOLVE_COS
-        lower = np.zeros(len(idx), bool)
-        lower[i[parallel & (z[j] > z[i] + RESOLVE_DZ_M)]] = True
-        lower[j[parallel & (z[i] > z[j] + RESOLVE_DZ_M)]] = True
-        return lower
-
-    def project(self, p: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(k, 2)`` pixel positions of the sample points ``idx`` at pose ``p`` and their unit image normals."""
-        return self.image_of(p, self.points[idx], self.direction[idx])
-
-    def image_of(self, p: np.ndarray, points: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(k, 2)`` pixel positions of part-frame ``points`` (k, 3) [m] at pose ``p`` and the unit image
-        normals of lines through them along ``direction`` (k, 3)."""
-        w = self.world(p, points)
-        r = np.eye(3)
-        r[:2, :2] = _rz(p[2])
-        ahead = w + 1e-4 * (direction @ r.T)
-        uv = self.camera.project(np.vstack([w, ahead]), self.rvec, self.tvec)
-        k = len(points)
-        tangent = uv[k:] - uv[:k]
-        normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
-        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
-        return uv[:k], normal
-
-    def in_part_frame(self, p: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The camera's eye (3,) [m] and a base-frame ``direction`` (3,) in the part's frame at pose ``p``."""
-        r = np.eye(3)
-        r[:2, :2] = _rz(p[2])
-        return (self.eye - np.array([p[0], p[1], self.tray_z])) @ r, np.asarray(direction) @ r
-
-
-#: Spacing of the model's edge samples [m] (about a pixel at the cell camera's distance).
-EDGE_SAMPLE_M = 8e-4
-#: Edge samples closer than this to the footprint's outline (in x, y) are on the part's outline [m].
-OUTER_M = 5e-4
-#: Faces meeting at more than this make an edge a picture can show [deg].
-CREASE_DEG = 25.0
-#: Two parallel model edges closer than this in the picture make one edge there (the gradient's
-#: smoothing and the optics' blur) (:meth:`_EdgeModel.unresolved`) [px] ...
-RESOLVE_PX = 3.5
-#: ... when their image normals' |cosine| is above this (about 25 deg) (unitless) ...
-RESOLVE_COS = 0.9
-#: ... and one lies higher than the other by more than this [m].
-RESOLVE_DZ_M = 1e-3
 #: Share of the visible edges hidden in clipped highlights above which a symmetric turn that fits
 #: as well makes the pose ambiguous (unitless).
 AMBIGUOUS_HIDDEN = 0.1
@@ -429,7 +286,7 @@ SAME_OUTLINE_M = 3e-3
 TURN_MARGIN = 0.15
 #: Share of a fitted bloom [px] that counts as systematic edge error in the uncertainty (unitless): a
 #: clipped top blooms unevenly (parts of its outline not clipped, parallax). With the walls' feet out of
-#: the fit (:meth:`_EdgeModel.unresolved`) glare poses no longer lie outward by a share of the walls'
+#: the fit (:meth:`vision.mesh_edges.MeshEdges.unresolved`) glare poses no longer lie outward by a share of the walls'
 #: width, and 0.2 of the bloom (1-1.6 px) covers 29 of 30 glare poses of held-out seeds 15-19.
 BLOOM_BIAS = 0.2
 #: Grey level from which a pixel counts as clipped by the sensor (8-bit) [grey].
@@ -505,7 +362,7 @@ def _hidden(saturated: np.ndarray | None, uv: np.ndarray, normal: np.ndarray) ->
     return both
 
 
-def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, start: np.ndarray,
+def _edge_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, start: np.ndarray,
               reaches: tuple[float, ...] = SEARCH_PX, saturated: np.ndarray | None = None,
               light: np.ndarray | None = None, dark: np.ndarray | None = None) -> _EdgeFit | None:
     """Fit x, y and yaw so the model's visible edges lie on the picture's edges (rounds of search and fit).
@@ -585,7 +442,7 @@ def _edge_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
                     hidden=float(1.0 - seen.mean()), bloom_px=bloom)
 
 
-def _dark_edges(model: _EdgeModel, p: np.ndarray, light: np.ndarray | None) -> np.ndarray:
+def _dark_edges(model: MeshEdges, p: np.ndarray, light: np.ndarray | None) -> np.ndarray:
     """``(n,)`` bool over the model's samples: visible at pose ``p`` and dark on both sides under the key
     light ``light`` (none without one), so a picture cannot show them."""
     unknown = np.zeros(len(model.points), bool)
@@ -620,7 +477,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     1. Tray model: the picture over a smooth model of the empty tray (:func:`_tray_ratio`), so
        vignetting and uneven light cancel; what departs from it, brighter (metal, glare) or
        darker (walls, shadows), makes the candidate blobs.
-    2. Coarse search per blob: the mesh's visible edges (:class:`_EdgeModel`: top outline,
+    2. Coarse search per blob: the mesh's visible edges (:class:`vision.mesh_edges.MeshEdges`: top outline,
        steps, bosses at their real heights) against the distance map of the picture's edges,
        every 10 deg of yaw, then every degree and pixel near the best three (:func:`vision.locate_search.refine_start`).
     3. Edge fit: each visible model edge looks along its image normal for the nearest edge of
@@ -684,7 +541,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(fg, connectivity=8)
     maps = oriented_distances(gx, gy, thin := thin_edges(gx, gy, edges))
-    model = _EdgeModel(part, camera, cam_base, tray_z)
+    model = MeshEdges(part, camera, cam_base, tray_z)
     f = np.sqrt(camera.fx * camera.fy)
     w, h = camera.image_size
     top_area = Polygon(part.outline).area
@@ -745,7 +602,7 @@ def _blob_outline(log_ratio: np.ndarray, mask: np.ndarray, level: float) -> np.n
     return outline if outline is not None else np.zeros((0, 2))
 
 
-def _key_light(model: _EdgeModel, pose: np.ndarray, log_ratio: np.ndarray, box: tuple[int, int, int, int]
+def _key_light(model: MeshEdges, pose: np.ndarray, log_ratio: np.ndarray, box: tuple[int, int, int, int]
                ) -> np.ndarray | None:
     """The key light's unit direction (base frame) from the shadow around a blob's part at ``pose``, or None.
 
@@ -763,13 +620,13 @@ def _key_light(model: _EdgeModel, pose: np.ndarray, log_ratio: np.ndarray, box: 
     eye = model.eye
     tray = eye[:2] + ((model.tray_z - eye[2]) / rays[:, 2])[:, None] * rays[:, :2]
     eye_part, _ = model.in_part_frame(pose, np.zeros(3))
-    tray_part = (tray - pose[:2]) @ _rz(pose[2])
+    tray_part = (tray - pose[:2]) @ yaw_rotation(pose[2])
     dark = log_ratio[vs.ravel(), us.ravel()] < DARK_LOG
     light = estimate_light(model.field, tray_part, dark, eye_part, min_dark=MIN_DARK_PIXELS)
     if light is None:
         return None
     r = np.eye(3)
-    r[:2, :2] = _rz(pose[2])
+    r[:2, :2] = yaw_rotation(pose[2])
     return r @ light
 
 
@@ -779,7 +636,7 @@ LIGHT_PIXEL_STEP = 3
 MIN_DARK_PIXELS = 40
 
 
-def _explained(model: _EdgeModel, pose: np.ndarray, thin: np.ndarray, bloom: float = 0.0) -> float:
+def _explained(model: MeshEdges, pose: np.ndarray, thin: np.ndarray, bloom: float = 0.0) -> float:
     """Share of the picture's edge pixels inside the part's outline that lie on a model edge at ``pose``.
 
     ``thin`` (h, w) bool are the picture's edges (:func:`vision.locate_search.thin_edges`). Only the pixels more than
@@ -817,7 +674,7 @@ def _explained(model: _EdgeModel, pose: np.ndarray, thin: np.ndarray, bloom: flo
 EXPLAIN_PX = 2.0
 
 
-def _best_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
+def _best_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
               symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None,
               light: np.ndarray | None = None, min_coverage: float = LocateOptions.min_coverage) -> _EdgeFit | None:
     """The edge fit of one blob from its coarse starts (x, y [m], yaw [rad]); None when none converges.
@@ -829,7 +686,7 @@ def _best_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: floa
     return _slid(model, gx, gy, threshold, best, saturated, light)
 
 
-def _slid(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, best: _EdgeFit,
+def _slid(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, best: _EdgeFit,
           saturated: np.ndarray | None, light: np.ndarray | None) -> _EdgeFit:
     """``best``, or a fit started from it slid along the outline's main directions (:data:`SLIDES_M`)
     that shows clearly more of the part (:attr:`_EdgeFit.evidence`, :data:`SLIDE_GAIN`).
@@ -848,7 +705,7 @@ def _slid(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, b
     # same ones, found once), and each slide's judgement counts the cast shadow: some 8 times the cost
     # of a fit without a light, so there the slides go 1.5 mm each way only (:data:`LIT_SLIDES_M`).
     dark = _dark_edges(model, best.pose, light) if light is not None else None
-    r = _rz(best.pose[2])
+    r = yaw_rotation(best.pose[2])
     fits = [best]
     for axis in model.axes.T:
         for d in SLIDES_M if light is None else LIT_SLIDES_M:
@@ -875,7 +732,7 @@ SLIDE_AXIS_COVERAGE = 0.75
 SLIDE_GAIN = 0.05
 
 
-def _chosen_fit(model: _EdgeModel, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
+def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
                 symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None,
                 light: np.ndarray | None = None, min_coverage: float = LocateOptions.min_coverage) -> _EdgeFit | None:
     """The edge fit of one blob from its coarse starts and the turns of the outline (see :func:`_best_fit`).
@@ -991,7 +848,7 @@ def _refined(coarse: LocatedPart, grey: np.ndarray, camera: CameraModel, base_ca
     wanders further than a binned pixel from its start found other edges: the coarse pose stands.
     The judgement (score, refusals) is the binned picture's.
     """
-    model = _EdgeModel(part, camera, np.linalg.inv(base_camera), tray_z)
+    model = MeshEdges(part, camera, np.linalg.inv(base_camera), tray_z)
     gx, gy, threshold = _gradients(grey)
     start = np.array([coarse.x, coarse.y, coarse.yaw])
     fit = _edge_fit(model, gx, gy, threshold, start, saturated=(grey >= SATURATED_GREY).astype(np.uint8))

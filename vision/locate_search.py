@@ -21,7 +21,7 @@ from vision.camera import CameraModel
 
 
 class EdgeModel(Protocol):
-    """What the search needs of :class:`vision.locate._EdgeModel`: the camera and the tray, and the
+    """What the search needs of :class:`vision.mesh_edges.MeshEdges`: the camera and the tray, and the
     model's visible edge samples at a pose (x, y [m], yaw [rad]) and where they fall in the image."""
 
     camera: CameraModel

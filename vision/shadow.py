@@ -9,7 +9,7 @@ leaves out edges inside a clipped highlight. Which edges they are follows from t
 hypothesised pose and the light, not from how dark the picture happens to be there, so a wrong pose
 cannot excuse its missing edges by lying on a shadow.
 
-Everything here is in the part's frame of :class:`vision.locate._EdgeModel` (footprint centroid at
+Everything here is in the part's frame of :class:`vision.mesh_edges.MeshEdges` (footprint centroid at
 x = y = 0, lowest point at z = 0; metres) unless a name says otherwise.
 """
 

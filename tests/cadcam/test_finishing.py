@@ -256,7 +256,8 @@ def test_waterline_leaves_shallow_areas_to_the_raster():
 @pytest.mark.parametrize("name", ["hemisphere", "pocket"])
 def test_onto_level_keeps_the_gouge_free_end_and_locates_the_crossing(name):
     """Brackets shrink onto the level: the outside end never above it, the bracket tiny or on it."""
-    from cadcam.finishing import _ISO_RESOLUTION, _ISO_Z_RESOLUTION, _onto_level, _Surface
+    from cadcam.finishing import _Surface
+    from cadcam.isoline import _ISO_RESOLUTION, _ISO_Z_RESOLUTION, onto_level
 
     part, setup, t = PARTS[name](), setup_for(), tool("ball")
     surface = _Surface(build_index(part.triangles), t.radius, t.corner_radius, 0.0, float(setup.stock_min[2]))
@@ -270,7 +271,7 @@ def test_onto_level_keeps_the_gouge_free_end_and_locates_the_crossing(name):
     pi0 = np.where(inside_a[:, None], a, b)[keep]
     po0 = np.where(inside_a[:, None], b, a)[keep]
     assert len(pi0) > 100
-    pi, po, lv = _onto_level(surface, pi0, po0, lv[keep])
+    pi, po, lv = onto_level(surface, pi0, po0, lv[keep])
     zi, zo = surface.z(pi), surface.z(po)
     assert np.all(zo <= lv)
     assert np.all(zi > lv)

@@ -18,7 +18,8 @@ from factory.core.errors import VisionError
 from tests.vision.defects import defective_mesh
 from tests.vision.lit import cell_station, gallery_scene, sample_mesh
 from vision.inspect import InspectOptions, inspect_part, part_transform
-from vision.locate import LocatedPart, _EdgeModel, mm_to_m
+from vision.locate import LocatedPart, mm_to_m
+from vision.mesh_edges import MeshEdges
 
 FOUND_M = 1.5e-3
 
@@ -93,7 +94,7 @@ def test_each_loop_of_creases_of_a_counterbored_hole_is_its_own(station):
     mesh, footprint, _ = sample_mesh("plate_bosses")
     part = replace(footprint, vertices=mm_to_m(np.asarray(mesh.vertices, dtype=np.float64)),
                    faces=np.asarray(mesh.faces))
-    model = _EdgeModel(part, station.camera, np.linalg.inv(station.camera_pose), station.plane_z)
+    model = MeshEdges(part, station.camera, np.linalg.inv(station.camera_pose), station.plane_z)
     xy = model.points[:, :2] + np.asarray(footprint.centroid)  # [m] in the mesh's frame
     r = np.hypot(xy[:, 0] - 0.068, xy[:, 1] - 0.020)
     hole = np.abs(r - 5e-3) < 2e-4

@@ -18,8 +18,9 @@ from hypothesis import strategies as st
 from factory.core.errors import VisionError
 from tests.vision.lit import CONDITIONS, OWN_PARTS, SAMPLE_PARTS, cell_station, gallery_scene, render_lit, sample_mesh
 from vision.lit import Material
-from vision.locate import RESOLVE_PX, _axis_coverage, _EdgeModel, _gradients, footprint_from_mesh, locate_parts
+from vision.locate import _axis_coverage, _gradients, footprint_from_mesh, locate_parts
 from vision.locate_search import oriented_distances, refine_start, thin_edges
+from vision.mesh_edges import RESOLVE_PX, MeshEdges
 
 #: (condition, part, seed): the stepped parts, long hard shadows, dim exposure, a box beside the part;
 #: two plates whose bosses once pulled the edge fit 4-5 mm off a coarse start (diffuse 1, dim 0); the
@@ -44,7 +45,7 @@ GLARE = [("glare", "bracket", 0), ("glare", "dome_mould", 0), ("dim", "stepped_w
 #: turn found 0.73 of the outline at its real heights against 0.99, so it is no rival in glare).
 #: Also a glare dome mould 117 mm off the camera's axis, once 1.75 mm off outward reporting +-0.62 mm: the
 #: feet of walls seen nearly edge-on took the crease of the clipped top beside them
-#: (:meth:`vision.locate._EdgeModel.unresolved`).
+#: (:meth:`vision.mesh_edges.MeshEdges.unresolved`).
 ONCE_WRONG = [("low_angle", "l_bracket", 1), ("dim", "stepped_wall", 17), ("glare", "stepped_wall", 15),
               ("glare", "dome_mould", 15)]
 #: Glare pictures once refused although they fix the pose: two Ls whose turn was taken for a rival (the
@@ -158,7 +159,7 @@ def test_a_coarse_start_some_pixels_and_degrees_off_is_brought_within_a_pixel_an
     fit 4.8 mm off: from 4 mm and 3 deg off it lands within a millimetre and a degree."""
     scene = gallery_scene(station, "plate_bosses", "dim", 0)
     _, footprint, _ = sample_mesh("plate_bosses")
-    model = _EdgeModel(footprint, station.camera, np.linalg.inv(station.camera_pose), station.plane_z)
+    model = MeshEdges(footprint, station.camera, np.linalg.inv(station.camera_pose), station.plane_z)
     gx, gy, threshold = _gradients(scene.image)
     maps = oriented_distances(gx, gy, thin_edges(gx, gy, np.hypot(gx, gy) > threshold))
 
@@ -218,7 +219,7 @@ def test_the_foot_of_a_wall_beside_its_top_in_the_picture_is_unresolved(station,
     wider. The wall turned to the axis lies 10 mm from it (0.4 mm wide in the picture) or 120 mm
     (120 * 20 / 480 = 5 mm, about 6 px)."""
     box = trimesh.creation.box((60.0, 40.0, 20.0))
-    model = _EdgeModel(footprint_from_mesh(box.vertices, box.faces), station.camera, station.world_to_camera,
+    model = MeshEdges(footprint_from_mesh(box.vertices, box.faces), station.camera, station.world_to_camera,
                        station.plane_z)
     axis = station.camera_pose[:2, 3]
     pose = np.array([axis[0] + offset_m, axis[1], 0.0])
