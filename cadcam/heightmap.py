@@ -171,11 +171,7 @@ def upper_envelope(triangles: np.ndarray, grid: Grid) -> np.ndarray:
     MeshError
         If ``triangles`` is not ``(m, 3, 3)`` or holds non-finite values.
     """
-    tri = np.ascontiguousarray(triangles, dtype=np.float64)
-    if tri.ndim != 3 or tri.shape[1:] != (3, 3):
-        raise MeshError(f"triangles must have shape (m, 3, 3), got {tri.shape}")
-    if not np.all(np.isfinite(tri)):
-        raise MeshError("triangles hold non-finite coordinates")
+    tri = _checked(triangles)
     if grid.size * 8 > _ENVELOPES_KEPT_BYTES // 2:
         top = _rasterised(tri, grid)
         top.setflags(write=False)
@@ -195,35 +191,84 @@ def upper_envelope(triangles: np.ndarray, grid: Grid) -> np.ndarray:
     return top
 
 
+def upper_envelope_at(triangles: np.ndarray, grid: Grid, cells: np.ndarray, tile: int = 8) -> np.ndarray:
+    """:func:`upper_envelope` at some of the grid's points only: ``(k,)`` heights [mm] at the flat
+    (row-major) indices ``cells``, the very values the whole envelope holds there.
+
+    Only the ``tile`` x ``tile`` blocks of the grid that hold some of ``cells`` are rasterised, with
+    each node placed as the whole grid places it: a few scattered points (verify's look beside the
+    cells it found cut too deep) cost a few blocks, not the grid.
+    """
+    tri = _checked(triangles)
+    cells = np.asarray(cells, dtype=np.int64).reshape(-1)
+    top = np.full(grid.size, -np.inf)
+    if len(tri) == 0 or len(cells) == 0:
+        return top[cells]
+    jj, ii = np.divmod(cells, grid.nx)
+    blocks = np.unique((jj // tile) * (grid.nx // tile + 1) + ii // tile)
+    if len(blocks) * tile * tile >= grid.size // 4:  # most of the grid: one pass over it is cheaper
+        return _rasterised(tri, grid).reshape(-1)[cells]
+    cover = _Coverage(tri, grid)
+    for bj, bi in zip(*np.divmod(blocks, grid.nx // tile + 1)):
+        cover.raster(tri, grid, top, (bi * tile, min(bi * tile + tile, grid.nx) - 1),
+                     (bj * tile, min(bj * tile + tile, grid.ny) - 1))
+    return top[cells]
+
+
+def _checked(triangles: np.ndarray) -> np.ndarray:
+    """``triangles`` as a contiguous (m, 3, 3) float array; :class:`MeshError` if they are not that or not finite."""
+    tri = np.ascontiguousarray(triangles, dtype=np.float64)
+    if tri.ndim != 3 or tri.shape[1:] != (3, 3):
+        raise MeshError(f"triangles must have shape (m, 3, 3), got {tri.shape}")
+    if not np.all(np.isfinite(tri)):
+        raise MeshError("triangles hold non-finite coordinates")
+    return tri
+
+
+class _Coverage:
+    """Which grid points each triangle may cover (its XY box grown by :data:`EDGE_TOLERANCE`), and
+    what rasterising it needs, for :func:`_rasterised` and :func:`upper_envelope_at`."""
+
+    def __init__(self, tri: np.ndarray, grid: Grid):
+        tol = EDGE_TOLERANCE
+        xy = tri[:, :, :2]
+        self.i0, self.i1 = grid.column_range(xy[:, :, 0].min(1) - tol, xy[:, :, 0].max(1) + tol)
+        self.j0, self.j1 = grid.row_range(xy[:, :, 1].min(1) - tol, xy[:, :, 1].max(1) + tol)
+        e1 = xy[:, 1] - xy[:, 0]
+        e2 = xy[:, 2] - xy[:, 0]
+        self.area2 = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+        self.edge_len = np.linalg.norm(xy[:, [1, 2, 0]] - xy, axis=2)  # edge k runs from corner k to k+1
+        longest = self.edge_len.max(1)
+        # Thinner than the edge tolerance in XY: barycentric coordinates are ill-conditioned,
+        # treat the triangle as the vertical wall it (nearly) is.
+        self.vertical = np.abs(self.area2) <= tol * np.maximum(longest, tol)
+
+    def raster(self, tri: np.ndarray, grid: Grid, top: np.ndarray, columns: tuple[int, int] | None = None,
+               rows: tuple[int, int] | None = None) -> None:
+        """Raise ``top`` (flat, the grid's size) to every triangle over the grid's points, only those
+        in the ``columns`` and ``rows`` (first, last) given."""
+        i0, i1, j0, j1 = self.i0, self.i1, self.j0, self.j1
+        if columns is not None:
+            i0, i1 = np.maximum(i0, columns[0]), np.minimum(i1, columns[1])
+        if rows is not None:
+            j0, j1 = np.maximum(j0, rows[0]), np.minimum(j1, rows[1])
+        ni = np.maximum(i1 - i0 + 1, 0)
+        nj = np.maximum(j1 - j0 + 1, 0)
+        counts = ni * nj
+        flat_sel = np.flatnonzero(~self.vertical & (counts > 0))
+        wall_sel = np.flatnonzero(self.vertical & (counts > 0))
+        if len(flat_sel):
+            _raster_triangles(tri, flat_sel, self.area2, self.edge_len, i0, j0, ni, counts, grid, top)
+        if len(wall_sel):
+            _raster_walls(tri, wall_sel, i0, j0, ni, counts, grid, top)
+
+
 def _rasterised(tri: np.ndarray, grid: Grid) -> np.ndarray:
     """:func:`upper_envelope` of checked triangles, computed: a new (ny, nx) array [mm]."""
     top = np.full(grid.size, -np.inf)
     if len(tri) == 0:
         return top.reshape(grid.shape)
-
-    tol = EDGE_TOLERANCE
-    xy = tri[:, :, :2]
-    i0, i1 = grid.column_range(xy[:, :, 0].min(1) - tol, xy[:, :, 0].max(1) + tol)
-    j0, j1 = grid.row_range(xy[:, :, 1].min(1) - tol, xy[:, :, 1].max(1) + tol)
-    ni = np.maximum(i1 - i0 + 1, 0)
-    nj = np.maximum(j1 - j0 + 1, 0)
-    counts = ni * nj
-
-    e1 = xy[:, 1] - xy[:, 0]
-    e2 = xy[:, 2] - xy[:, 0]
-    area2 = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    edge_len = np.linalg.norm(xy[:, [1, 2, 0]] - xy, axis=2)  # edge k runs from corner k to k+1
-    longest = edge_len.max(1)
-    # Thinner than the edge tolerance in XY: barycentric coordinates are ill-conditioned,
-    # treat the triangle as the vertical wall it (nearly) is.
-    vertical = np.abs(area2) <= tol * np.maximum(longest, tol)
-
-    flat_sel = np.flatnonzero(~vertical & (counts > 0))
-    wall_sel = np.flatnonzero(vertical & (counts > 0))
-    if len(flat_sel):
-        _raster_triangles(tri, flat_sel, area2, edge_len, i0, j0, ni, counts, grid, top)
-    if len(wall_sel):
-        _raster_walls(tri, wall_sel, i0, j0, ni, counts, grid, top)
+    _Coverage(tri, grid).raster(tri, grid, top)
     return top.reshape(grid.shape)
 
 

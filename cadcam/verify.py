@@ -32,7 +32,7 @@ from scipy import ndimage
 from cadcam.corners import corners_left, inside_corners
 from cadcam.engagement import MoveRecord
 from cadcam.envelope import Segments
-from cadcam.heightmap import Grid, grid_over, upper_envelope
+from cadcam.heightmap import Grid, grid_over, upper_envelope_at
 from cadcam.model import Motion, ProgramMoves, Setup, Tool
 from cadcam.relief import surface_footprint
 from cadcam.cutahead import CutState, cut_ahead
@@ -915,13 +915,13 @@ def _lowest_part_near(tri: np.ndarray, grid: Grid, part_top: np.ndarray, cells: 
     i0, j0 = int(ii.min()), int(jj.min())
     low = np.asarray(part_top, dtype=np.float64).copy()
     for angle in _SIDEWAYS:
-        # The grid points' bounding box, shifted: one rasterisation per direction.
+        # The grid points' bounding box, shifted; read at the points only (they are few: walls nicked).
         shifted = Grid(
             x0=grid.x0 + i0 * grid.cell + reach * math.cos(angle),
             y0=grid.y0 + j0 * grid.cell + reach * math.sin(angle),
             cell=grid.cell, nx=int(ii.max()) - i0 + 1, ny=int(jj.max()) - j0 + 1,
         )
-        low = np.minimum(low, upper_envelope(tri, shifted)[jj - j0, ii - i0])
+        low = np.minimum(low, upper_envelope_at(tri, shifted, (jj - j0) * shifted.nx + (ii - i0)))
     return low
 
 

@@ -8,7 +8,7 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cadcam.heightmap import Grid, grid_over, upper_envelope
+from cadcam.heightmap import Grid, grid_over, upper_envelope, upper_envelope_at
 from factory.core.errors import MeshError, SetupError
 
 
@@ -160,3 +160,18 @@ def test_heightfield_mesh_envelope_is_exact_and_gap_free(mesh):
     assert np.all(np.isfinite(top)), "a grid point on a shared edge or vertex was missed"
     expected = np.array([[interpolate(cell, k, z, flip, x, y) for x in g.xs] for y in g.ys])
     assert np.allclose(top, expected, atol=1e-9)
+
+
+@settings(max_examples=60, deadline=None)
+@given(heightfield_meshes(), st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.data())
+def test_the_envelope_at_some_points_is_the_whole_envelope_there(mesh, dx, dy, data):
+    """Verify looks beside a few cells only (upper_envelope_at): it must read exactly what the whole envelope
+    holds there, on a grid shifted off the mesh's own points, walls and points off the part included."""
+    cell, k, z, flip, with_walls = mesh
+    my, mx = flip.shape
+    g = Grid(x0=dx - cell, y0=dy - cell, cell=cell, nx=mx * k + 4, ny=my * k + 4)
+    tri = triangulate(*mesh)
+    cells = np.array(data.draw(st.lists(st.integers(0, g.size - 1), min_size=1, max_size=40)))
+    whole = upper_envelope(tri, g).reshape(-1)
+    for tile in (1, 2, 8):
+        assert np.array_equal(upper_envelope_at(tri, g, cells, tile=tile), whole[cells])
