@@ -310,7 +310,7 @@ def _raster_triangles(tri, sel, area2, edge_len, i0, j0, ni, counts, grid, top) 
         z = t[:, :, 2]
         zlo, zhi = z.min(1), z.max(1)
 
-        owner, flat, qx, qy = _pairs(batch, i0, j0, ni, counts, grid)
+        owner, flat, qx, qy = _row_spans(batch, i0, j0, ni, counts, grid, gx, gy, g0 + slack)
         inside = np.ones(len(owner), dtype=bool)
         zq = np.zeros(len(owner))
         for k in range(3):
@@ -321,6 +321,38 @@ def _raster_triangles(tri, sel, area2, edge_len, i0, j0, ni, counts, grid, top) 
         # tolerance from picking up an extrapolated height on a steep triangle.
         zq = np.clip(zq, zlo[owner], zhi[owner])
         np.maximum.at(top, flat[inside], zq[inside])
+
+
+def _row_spans(batch: np.ndarray, i0, j0, ni, counts, grid: Grid, gx, gy, reach):
+    """:func:`_pairs` of a batch of triangles, only the grid points of each row that may lie inside.
+
+    A long thin triangle across the grid covers a few per cent of its box (a plate's top face in two
+    triangles: 7.3 million pairs in the boxes, 0.3 million inside). Per row, the three weights
+    ``reach + gx x + gy y >= 0`` (``reach``: the offset and the edge slack, (b, 3)) bound x; the span
+    keeps a column more each side, so float rounding in the bounds loses no point the exact test
+    (which the caller still makes) would take. Returns the same arrays as :func:`_pairs`.
+    """
+    nj = counts[batch] // np.maximum(ni[batch], 1)
+    row_owner = np.repeat(np.arange(len(batch)), nj)
+    first_row = np.cumsum(nj) - nj
+    jj = np.repeat(j0[batch], nj) + np.arange(int(nj.sum()), dtype=np.int64) - np.repeat(first_row, nj)
+    y = grid.y0 + jj * grid.cell
+    c = reach[row_owner] + gy[row_owner] * y[:, None]
+    a = gx[row_owner]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bound = -c / a
+    lower = np.where(a > 0, bound, -np.inf).max(axis=1)
+    upper = np.where(a < 0, bound, np.inf).min(axis=1)
+    lo_col = np.repeat(i0[batch], nj)
+    hi_col = lo_col + np.repeat(ni[batch], nj) - 1
+    first = np.clip(np.ceil((lower - grid.x0) / grid.cell) - 1, lo_col, hi_col + 1).astype(np.int64)
+    last = np.clip(np.floor((upper - grid.x0) / grid.cell) + 1, lo_col - 1, hi_col).astype(np.int64)
+    n = np.maximum(last - first + 1, 0)
+    owner = np.repeat(row_owner, n)
+    offset = np.cumsum(n) - n
+    ii = np.repeat(first, n) + np.arange(int(n.sum()), dtype=np.int64) - np.repeat(offset, n)
+    jj = np.repeat(jj, n)
+    return owner, jj * grid.nx + ii, grid.x0 + ii * grid.cell, grid.y0 + jj * grid.cell
 
 
 def _raster_walls(tri, sel, i0, j0, ni, counts, grid, top) -> None:
