@@ -19,10 +19,33 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
+from scipy import ndimage
 from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
 from cadcam.heightmap import Grid
+
+
+def near_cells(mask: np.ndarray, reach: float, cell: float = 1.0) -> np.ndarray:
+    """(ny, nx) bool: the points of a grid of ``cell`` [mm] within ``reach`` [mm] of a True point of ``mask``,
+    points off the grid counting as False: ``ndimage.binary_dilation`` by the disc of offsets
+    ``hypot(di, dj) * cell <= reach``, exactly.
+
+    The dilation pays per point of the disc (a 16 mm end mill on a 0.5 mm grid: 1,100 of them, for every
+    level of every roughing pass); the Euclidean distance transform does not. The nearest True point's
+    offset is read back as integers, so the disc's edge is decided exactly as the dilation decides it.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    if not mask.any():
+        return np.zeros(mask.shape, dtype=bool)
+    k = int(np.floor(reach / cell)) + 1
+    offsets = np.arange(-k, k + 1)
+    di, dj = np.meshgrid(offsets, offsets)
+    inside = np.hypot(di, dj) * cell <= reach
+    farthest = int((di[inside] ** 2 + dj[inside] ** 2).max(initial=-1))  # the disc holds exactly d2 <= this
+    rows, cols = ndimage.distance_transform_edt(~mask, return_distances=False, return_indices=True)
+    jj, ii = np.indices(mask.shape)
+    return (jj - rows) ** 2 + (ii - cols) ** 2 <= farthest
 
 
 def cell_runs(mask: np.ndarray, grid: Grid) -> np.ndarray:

@@ -49,11 +49,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
-from scipy import ndimage
 
 from cadcam.finishing import EngagementLimit, raster_finishing
 from cadcam.model import CuttingData, FixtureBox, Job, Motion, Operation, Setup, Tool, ViseJaws
 from cadcam.faces import classify_faces
+from cadcam.gridregion import near_cells
 from cadcam.heightmap import grid_over, upper_envelope
 from cadcam.plan import PlanOptions, choose_tools, deepest_reach, flats_and_walls_from, rest_tools, split_depth
 from cadcam.rest import safe_rapids
@@ -727,9 +727,7 @@ def _only_where(op: Operation, left: np.ndarray, stock: Simulation, setup: Setup
     walls towards the vise; only where stock is left from below is it wanted.
     """
     g = stock.grid
-    reach = int(math.ceil((op.tool.radius + g.cell) / g.cell))
-    yy, xx = np.mgrid[-reach:reach + 1, -reach:reach + 1]
-    near = ndimage.binary_dilation(left, structure=(np.hypot(xx, yy) <= reach))
+    near = near_cells(left, math.ceil((op.tool.radius + g.cell) / g.cell))
     i = np.clip(np.rint((op.points[:, 0] - g.x0) / g.cell).astype(np.int64), 0, g.nx - 1)
     j = np.clip(np.rint((op.points[:, 1] - g.y0) / g.cell).astype(np.int64), 0, g.ny - 1)
     keep = near[j, i] & (op.motion != Motion.RAPID)

@@ -75,7 +75,6 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 import trimesh
-from scipy import ndimage
 from shapely.geometry import LineString, MultiLineString, Point, Polygon, box
 from shapely.geometry.base import BaseGeometry
 from shapely.geometry.polygon import orient
@@ -83,7 +82,7 @@ from shapely.ops import nearest_points
 
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.restlinks import COVER_TOL, Links, Piece, cut_stacked
-from cadcam.gridregion import GrownMaskCache
+from cadcam.gridregion import GrownMaskCache, near_cells
 from cadcam.rest import rest_level_masks, rest_levels, rooms_round, without_holder
 from cadcam.shadow import part_shadows
 from cadcam.stock import Simulation, clear_height
@@ -558,9 +557,7 @@ def _clear_down_to(known: Simulation, tool: Tool, z: float) -> Callable[[np.ndar
     """
     g = known.grid
     reach = tool.radius + g.cell * math.sqrt(2.0) + 0.5 * g.cell * math.sqrt(2.0)
-    k = int(math.ceil(reach / g.cell))
-    di, dj = np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1))
-    blocked = ndimage.binary_dilation(known.stock_top > z + 1e-9, structure=np.hypot(di, dj) * g.cell <= reach)
+    blocked = near_cells(known.stock_top > z + 1e-9, reach, g.cell)
 
     def clear(xy: np.ndarray) -> np.ndarray:
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)

@@ -1,12 +1,13 @@
 """Cell regions built from row runs against the plain union of every cell's square."""
 
 import numpy as np
+from scipy import ndimage
 import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from cadcam.gridregion import GrownMaskCache, cell_runs, cells_region, grown_cells_region
+from cadcam.gridregion import GrownMaskCache, cell_runs, cells_region, grown_cells_region, near_cells
 from cadcam.heightmap import Grid
 
 GRID = Grid(x0=1.25, y0=-3.5, cell=0.5, nx=12, ny=9)
@@ -64,3 +65,16 @@ def test_cache_answers_a_repeated_mask_with_the_same_region():
     other[0, 0] = True
     assert cache(other) is not first
     assert cache(other).area > first.area
+
+
+@settings(max_examples=150, deadline=None)
+@given(arrays(bool, st.tuples(st.integers(1, 40), st.integers(1, 40))), st.floats(0.0, 15.0),
+       st.sampled_from([1.0, 0.2, 0.25, 0.5, 0.7]))
+def test_the_points_near_a_mask_are_its_dilation_by_the_disc(mask, reach_cells, cell):
+    """near_cells (a distance transform) stands in for a dilation by a disc of offsets: the same points, the disc's
+    edge decided the same way (reaches of whole cells and of square roots of sums of squares included)."""
+    for reach in (reach_cells * cell, float(np.sqrt(np.round(reach_cells ** 2))) * cell):
+        k = int(np.ceil(reach / cell)) + 1
+        di, dj = np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1))
+        dilated = ndimage.binary_dilation(mask, structure=np.hypot(di, dj) * cell <= reach)
+        assert np.array_equal(near_cells(mask, reach, cell), dilated)
