@@ -813,14 +813,7 @@ def _report(
     rem = (sim.stock_top - np.where(covered, sim.part_top, 0.0))[covered]
     beside = ndimage.maximum_filter(np.where(covered, sim.part_top, -np.inf), size=3, mode="constant", cval=-np.inf)
     left = sim.stock_top[on_part] - beside[on_part]  # off the part both may be -inf
-    # Only cuts deeper than the tolerance can fail the verdict; measure those against the
-    # part within the tolerance sideways too (see _lowest_part_near).
-    deep = np.flatnonzero(rem < -options.gouge_tolerance)
-    gouge = -rem
-    if len(deep) and options.gouge_tolerance > 0:
-        cells = np.flatnonzero(covered.reshape(-1))[deep]
-        low = _lowest_part_near(tri, sim.grid, sim.part_top.reshape(-1)[cells], cells, options.gouge_tolerance)
-        gouge[deep] = low - sim.stock_top.reshape(-1)[cells]
+    gouge = _gouge_depths(sim, tri, covered, rem, options.gouge_tolerance)
     k = int(np.argmax(gouge))
     max_gouge = max(0.0, float(gouge[k]))  # never -0.0: max keeps its first argument on a tie
     gouge_position = gouge_line = None
@@ -874,6 +867,26 @@ def _left(sim: Simulation, tri: np.ndarray, tools: Mapping[int, Tool], options: 
 def _widest_mill_radius(tools: Mapping[int, Tool]) -> float:
     """Radius of the widest end mill in ``tools`` [mm]: the largest corner one leaves; 0 with none."""
     return max((t.radius for t in tools.values() if not t.is_drill), default=0.0)
+
+
+def _gouge_depths(sim: Simulation, tri: np.ndarray, covered: np.ndarray, rem: np.ndarray,
+                  tolerance: float) -> np.ndarray:
+    """How deep the program cut into the part at each ``covered`` grid point [mm] (negative: stock left over it),
+    ``rem`` the stock over the part there.
+
+    Only cuts deeper than the tolerance can fail the verdict; those are measured against the part within the
+    tolerance sideways too (:func:`_lowest_part_near`). Where no part lies that near in some direction, the
+    cut is a nick of a wall's edge however deep: no gouge, also where the column was cut through (the stock's
+    ``-inf`` against the look's ``-inf``, which as NaN would have hidden every real gouge from the argmax).
+    """
+    deep = np.flatnonzero(rem < -tolerance)
+    gouge = -rem
+    if len(deep) and tolerance > 0:
+        cells = np.flatnonzero(covered.reshape(-1))[deep]
+        low = _lowest_part_near(tri, sim.grid, sim.part_top.reshape(-1)[cells], cells, tolerance)
+        with np.errstate(invalid="ignore"):  # -inf - -inf, replaced
+            gouge[deep] = np.where(np.isneginf(low), -np.inf, low - sim.stock_top.reshape(-1)[cells])
+    return gouge
 
 
 #: Directions [rad] in which :func:`_lowest_part_near` looks sideways: within 22.5 deg of

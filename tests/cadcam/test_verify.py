@@ -818,3 +818,35 @@ def test_a_small_tool_in_op_2_is_measured_finely_from_the_stock_it_starts_on():
     plain = simulate(corner_program([-6.0]), tools, CORNER_SETUP, CORNER_PART, options).report
     assert [(f.kind, f.tool) for f in flipped.faults] == [("full_width", 6)]
     assert {e.tool: e.max_full_depth for e in flipped.engagement} == {e.tool: e.max_full_depth for e in plain.engagement}
+
+
+def test_a_column_cut_through_at_a_hole_s_edge_hides_no_gouge_elsewhere():
+    """A grid point on a through hole's wall whose column a drill took through the bottom (stock -inf) has no
+    part within the tolerance on the hole's side (the look sideways gives -inf too): no gouge there, and the
+    real gouge elsewhere is still the one reported. As -inf - -inf it was NaN, which argmax takes for the
+    maximum, and verify said 0 mm over a 0.5 mm gouge."""
+    from types import SimpleNamespace
+
+    from cadcam.heightmap import Grid, upper_envelope
+    from cadcam.verify import _gouge_depths
+
+    plate = trimesh.creation.box(extents=(20.0, 20.0, 5.0))
+    plate.apply_translation((10.0, 10.0, 2.5))
+    hole = trimesh.creation.box(extents=(4.0, 4.0, 7.0))
+    hole.apply_translation((10.0, 10.0, 2.5))
+    part = plate.difference(hole)
+    tri = np.asarray(part.triangles)
+    g = Grid(x0=0.0, y0=0.0, cell=0.2, nx=101, ny=101)
+    top = upper_envelope(tri, g)
+    covered = np.isfinite(top)
+    stock_top = np.where(covered, top, -np.inf)
+    wall, nick = (50, 40), (20, 20)  # (row, column): x = 8 on the hole's wall; x = y = 4 on the top face
+    assert covered[wall] and covered[nick]
+    stock_top[wall] = -np.inf  # the drill's column, cut through
+    stock_top[nick] = top[nick] - 0.5  # a real gouge
+    rem = (stock_top - np.where(covered, top, 0.0))[covered]
+    gouge = _gouge_depths(SimpleNamespace(grid=g, part_top=top, stock_top=stock_top), tri, covered, rem, 0.01)
+    assert not np.isnan(gouge).any()
+    k = int(np.argmax(gouge))
+    assert np.flatnonzero(covered.reshape(-1))[k] == nick[0] * g.nx + nick[1]
+    assert gouge[k] == pytest.approx(0.5)
