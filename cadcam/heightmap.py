@@ -28,6 +28,10 @@ EDGE_TOLERANCE = 1e-7
 
 #: Grid point / triangle pairs evaluated per vectorised batch (bounds peak memory).
 _PAIR_BUDGET = 1 << 21
+#: Above this many grid points per triangle's box (on average over a batch) a triangle is rasterised row by
+#: row over the span it covers (:func:`_row_spans`), below it over its box: a fine mesh's triangles cover
+#: a few points each, where working out the spans costs more than it saves (relief: 0.08 -> 0.10 s).
+_SPAN_POINTS = 16
 
 #: The last upper envelopes computed, by the triangles' content and the grid: one plan rasterises the
 #: same part on the same grid for choosing tools, the stock models, the rapid check, verify and op 2's
@@ -310,7 +314,10 @@ def _raster_triangles(tri, sel, area2, edge_len, i0, j0, ni, counts, grid, top) 
         z = t[:, :, 2]
         zlo, zhi = z.min(1), z.max(1)
 
-        owner, flat, qx, qy = _row_spans(batch, i0, j0, ni, counts, grid, gx, gy, g0 + slack)
+        if counts[batch].mean() > _SPAN_POINTS:  # big ones: their rows' spans; small ones: their boxes
+            owner, flat, qx, qy = _row_spans(batch, i0, j0, ni, counts, grid, gx, gy, g0 + slack)
+        else:
+            owner, flat, qx, qy = _pairs(batch, i0, j0, ni, counts, grid)
         inside = np.ones(len(owner), dtype=bool)
         zq = np.zeros(len(owner))
         for k in range(3):

@@ -8,6 +8,7 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from cadcam import heightmap
 from cadcam.heightmap import Grid, grid_over, upper_envelope, upper_envelope_at
 from factory.core.errors import MeshError, SetupError
 
@@ -217,4 +218,8 @@ def test_the_rasteriser_takes_every_point_inside_each_triangle_however_thin(corn
     if not len(tri):
         return
     g = Grid(x0=-3.2 + dx, y0=-3.2 + dy, cell=cell, nx=int(6.4 / cell) + 2, ny=int(6.4 / cell) + 2)
-    assert np.array_equal(upper_envelope(tri, g), _every_node(tri, g))
+    expected = _every_node(tri, g)
+    for span_points in (-1.0, float("inf")):  # every triangle by its rows' spans; every one by its box
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(heightmap, "_SPAN_POINTS", span_points)
+            assert np.array_equal(heightmap._rasterised(tri, g), expected)
