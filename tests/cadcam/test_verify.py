@@ -828,7 +828,7 @@ def test_a_column_cut_through_at_a_hole_s_edge_hides_no_gouge_elsewhere():
     from types import SimpleNamespace
 
     from cadcam.heightmap import Grid, upper_envelope
-    from cadcam.verify import _gouge_depths
+    from cadcam.gouge import gouge_depths
 
     plate = trimesh.creation.box(extents=(20.0, 20.0, 5.0))
     plate.apply_translation((10.0, 10.0, 2.5))
@@ -845,7 +845,7 @@ def test_a_column_cut_through_at_a_hole_s_edge_hides_no_gouge_elsewhere():
     stock_top[wall] = -np.inf  # the drill's column, cut through
     stock_top[nick] = top[nick] - 0.5  # a real gouge
     rem = (stock_top - np.where(covered, top, 0.0))[covered]
-    gouge = _gouge_depths(SimpleNamespace(grid=g, part_top=top, stock_top=stock_top), tri, covered, rem, 0.01)
+    gouge = gouge_depths(SimpleNamespace(grid=g, part_top=top, stock_top=stock_top), tri, covered, rem, 0.01)
     assert not np.isnan(gouge).any()
     k = int(np.argmax(gouge))
     assert np.flatnonzero(covered.reshape(-1))[k] == nick[0] * g.nx + nick[1]
