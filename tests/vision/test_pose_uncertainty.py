@@ -59,20 +59,21 @@ def test_two_halves_of_an_edge_that_disagree_count_in_yaw():
     assert np.sqrt(held[2, 2]) > 2 * np.sqrt(scattered[2, 2])
 
 
-def test_feet_that_pull_the_pose_add_their_shift():
-    """One long side's samples are feet (unresolved) 0.6 px off the rest: leaving them out moves the pose
-    across that side by about their pull, and the covariance grows by that shift squared."""
+def test_feet_that_pull_the_pose_add_their_turn():
+    """Half of one long side's samples are feet (unresolved) 0.6 px off the rest: leaving them out moves
+    the pose across that side and turns it, and the yaw's variance grows by that turn squared."""
     jac, edge = rectangle()
-    feet = edge == 2
+    feet = (edge == 2) & (np.arange(len(jac)) % 40 >= 20)
     residuals = np.where(feet, 0.6, 0.0)
     # The fit balances its residuals: take them relative to the least-squares pose.
     residuals = residuals - jac @ np.linalg.lstsq(jac, residuals, rcond=None)[0]
     shift = feet_shift(jac, residuals, feet)
-    assert abs(shift[1]) * PX_PER_M > 0.3  # across the side [px]
-    assert abs(shift[0]) * PX_PER_M < 1e-6
+    assert abs(shift[1]) * PX_PER_M > 0.1  # across the side [px]
+    assert abs(shift[2]) * 40 > 0.1  # at the side's end, 40 px from the middle [px]
     without = pose_covariance(jac, residuals, edge, np.zeros(len(jac), bool), 4.0)
     with_feet = pose_covariance(jac, residuals, edge, feet, 4.0)
-    assert with_feet[1, 1] == pytest.approx(without[1, 1] + shift[1] ** 2)
+    assert with_feet[2, 2] == pytest.approx(without[2, 2] + shift[2] ** 2)
+    assert with_feet[1, 1] == without[1, 1]
 
 
 def test_no_feet_no_shift():
