@@ -46,6 +46,7 @@ from vision.locate_search import FIT_SAMPLES, chamfer_starts, oriented_distances
 from vision.mesh_edges import MeshEdges, yaw_rotation
 # _edge_peaks and _peak_offset stay importable from here: vision.inspect takes them with the rest.
 from vision.picture_edges import _edge_peaks, _find_edges, _gradients, _peak_offset, _tray_ratio  # noqa: F401
+from vision.pose_uncertainty import pose_covariance
 from vision.shadow import DARK_LOG, dark_both_sides, estimate_light, shadow_evidence
 
 log = logging.getLogger(__name__)
@@ -307,7 +308,8 @@ class _EdgeFit:
     of its two main directions), ``found``: of all visible edges not hidden in a clipped highlight,
     ``hidden``: share of the visible edges so hidden; ``ambiguous``: a symmetric turn of the outline,
     not a symmetry of the mesh, fits as well and the edges that would tell them apart are hidden;
-    ``bloom_px``: how far a clipped highlight spills past its edges [px]."""
+    ``bloom_px``: how far a clipped highlight spills past its edges [px]; ``samples``: the model sample
+    (:class:`vision.mesh_edges.MeshEdges`) of each of ``residuals`` and ``jac``'s rows."""
 
     pose: np.ndarray
     coverage: float
@@ -320,6 +322,7 @@ class _EdgeFit:
     hidden: float = 0.0
     ambiguous: bool = False
     bloom_px: float = 0.0
+    samples: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False, compare=False)
 
     @property
     def evidence(self) -> float:
@@ -439,7 +442,7 @@ def _edge_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
     return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis, found=float(found.mean()) if len(found) else 0.0,
                     rms_px=rms,
                     cost=float(sol.cost), jac=sol.jac[inliers][:, :3], residuals=sol.fun[inliers],
-                    hidden=float(1.0 - seen.mean()), bloom_px=bloom)
+                    hidden=float(1.0 - seen.mean()), bloom_px=bloom, samples=pts[inliers])
 
 
 def _dark_edges(model: MeshEdges, p: np.ndarray, light: np.ndarray | None) -> np.ndarray:
@@ -578,7 +581,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
             refusals.append(f"candidate at ({centroids[i][0]:.0f}, {centroids[i][1]:.0f}) px: {refusal}")
             log.info("blob at (%.0f, %.0f) px: %s", *centroids[i], refusal)
             continue
-        located = _located(best, camera, base_camera, part, tray_z, f)
+        located = _located(best, model, camera, base_camera, part, tray_z, f)
         if any(np.hypot(p.x - located.x, p.y - located.y) < 0.5 * radius_px * located.mm_per_px * 1e-3
                for p in found):
             continue
@@ -810,16 +813,14 @@ def _refusal(fit: _EdgeFit, options: LocateOptions) -> str:
     return ""
 
 
-def _located(fit: _EdgeFit, camera: CameraModel, base_camera: np.ndarray, part: Footprint, tray_z: float,
-             f: float) -> LocatedPart:
-    """The fitted pose as a LocatedPart, with an uncertainty that covers the true error (see COVERAGE_FACTOR)."""
+def _located(fit: _EdgeFit, model: MeshEdges, camera: CameraModel, base_camera: np.ndarray, part: Footprint,
+             tray_z: float, f: float) -> LocatedPart:
+    """The fitted pose as a LocatedPart, with an uncertainty that covers the true error (see COVERAGE_FACTOR
+    and :func:`vision.pose_uncertainty.pose_covariance`)."""
     p = fit.pose
-    n = max(len(fit.residuals), 4)
-    variance = max(float(np.sum(fit.residuals ** 2)) / max(n - 3, 1), 0.05 ** 2)
-    try:
-        cov = np.linalg.inv(fit.jac.T @ fit.jac) * variance * CORRELATED_SAMPLES
-    except np.linalg.LinAlgError:
-        cov = np.diag([np.inf] * 3)
+    idx = model.visible(p)
+    unresolved = np.isin(fit.samples, idx[model.unresolved(*model.project(p, idx), idx)])
+    cov = pose_covariance(fit.jac, fit.residuals, model.edge[fit.samples], unresolved, CORRELATED_SAMPLES)
     middle = np.linalg.inv(base_camera) @ np.array([p[0], p[1], tray_z + 0.5 * part.height, 1.0])
     metres_per_px = middle[2] / f
     half_length = 0.5 * float(np.ptp(part.outline, axis=0).max())
@@ -855,7 +856,7 @@ def _refined(coarse: LocatedPart, grey: np.ndarray, camera: CameraModel, base_ca
     outline = (coarse.outline + 0.5) * binning - 0.5  # binned pixel centres on the full picture
     if fit is None or np.hypot(*(fit.pose[:2] - start[:2])) > coarse.mm_per_px * 1e-3:
         return replace(coarse, outline=outline)
-    fine = _located(fit, camera, base_camera, part, tray_z, np.sqrt(camera.fx * camera.fy))
+    fine = _located(fit, model, camera, base_camera, part, tray_z, np.sqrt(camera.fx * camera.fy))
     return replace(fine, score=coarse.score, outline=outline)
 
 
