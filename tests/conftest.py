@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import os
+import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -89,12 +90,11 @@ def shared_work(tmp_path_factory) -> Path:
 BLOCK_PLAN = ("--scallop", "0.05", "--no-waterline", "--grid", "0.5", "--quiet")
 
 
-@pytest.fixture(scope="session")
-def block_catalog(shared_work) -> tuple[Path, Path]:
-    """(catalog folder, part): a 30x20x16 mm pocketed block planned with fast options (:data:`BLOCK_PLAN`)
-    once in the run, for tests that run the cell (``factory simulate``) and what reads its output. Both are
-    shared by every module on either worker: read them, never write into them (``simulate`` with a part the
-    catalog has writes nothing there)."""
+def copy_block_catalog(dest: Path) -> tuple[Path, Path]:
+    """(catalog folder, part): a 30x20x16 mm pocketed block planned with fast options (:data:`BLOCK_PLAN`),
+    planned once in the run (:mod:`tests.shared`), its catalog copied into ``dest``. A copy: ``simulate``
+    keeps its camera pictures and their measured times in the catalog (factory.cellcameras), so each user
+    keeps its own, as when each planned its own; the part, which the plan names, is the run's one."""
     from tests.shared import key_of, once_folder
 
     def make(root: Path) -> None:
@@ -107,7 +107,15 @@ def block_catalog(shared_work) -> tuple[Path, Path]:
         assert r.exit_code == 0, r.output
 
     root = once_folder("block_catalog", key_of(BLOCK_PLAN), make)
-    return root / "catalog", root / "block.stl"
+    shutil.copytree(root / "catalog", dest / "catalog")
+    return dest / "catalog", root / "block.stl"
+
+
+@pytest.fixture(scope="session")
+def block_catalog(shared_work, tmp_path_factory) -> tuple[Path, Path]:
+    """(catalog folder, part): :func:`copy_block_catalog` once per session (per worker), for tests that
+    run the cell (``factory simulate``) and what reads its output."""
+    return copy_block_catalog(tmp_path_factory.mktemp("block_catalog"))
 
 
 @pytest.fixture(scope="session", autouse=True)
