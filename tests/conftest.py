@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import os
+import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -66,21 +67,55 @@ def small_part(tmp_path: Path) -> Path:
     return path
 
 
+def _run_folder(tmp_path_factory, name: str) -> Path:
+    """A folder of this test run that all its xdist workers share (each has its own basetemp in the
+    run's), or the session's own without xdist."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        folder = tmp_path_factory.getbasetemp().parent / name
+        folder.mkdir(exist_ok=True)
+        return folder
+    return tmp_path_factory.mktemp(name)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def shared_work(tmp_path_factory) -> Path:
+    """The run's folder of work shared by modules and workers (:mod:`tests.shared`)."""
+    from tests import shared
+
+    shared.FOLDER = _run_folder(tmp_path_factory, "shared_work")
+    return shared.FOLDER
+
+
+#: The options :func:`block_catalog` plans with (fast CAM: the cell, not the finish, is under test).
+BLOCK_PLAN = ("--scallop", "0.05", "--no-waterline", "--grid", "0.5", "--quiet")
+
+
+def copy_block_catalog(dest: Path) -> tuple[Path, Path]:
+    """(catalog folder, part): a 30x20x16 mm pocketed block planned with fast options (:data:`BLOCK_PLAN`),
+    planned once in the run (:mod:`tests.shared`), its catalog copied into ``dest``. A copy: ``simulate``
+    keeps its camera pictures and their measured times in the catalog (factory.cellcameras), so each user
+    keeps its own, as when each planned its own; the part, which the plan names, is the run's one."""
+    from tests.shared import key_of, once_folder
+
+    def make(root: Path) -> None:
+        from typer.testing import CliRunner
+
+        from cli.main import app
+
+        pocket_block(size=(30.0, 20.0, 16.0)).export(root / "block.stl")
+        r = CliRunner().invoke(app, ["plan", str(root / "block.stl"), "-o", str(root / "catalog"), *BLOCK_PLAN])
+        assert r.exit_code == 0, r.output
+
+    root = once_folder("block_catalog", key_of(BLOCK_PLAN), make)
+    shutil.copytree(root / "catalog", dest / "catalog")
+    return dest / "catalog", root / "block.stl"
+
+
 @pytest.fixture(scope="session")
-def block_catalog(tmp_path_factory) -> tuple[Path, Path]:
-    """(catalog folder, part): a 30x20x16 mm pocketed block planned once per session with fast options,
-    for tests that run the cell (``factory simulate``) and what reads its output."""
-    from typer.testing import CliRunner
-
-    from cli.main import app
-
-    root = tmp_path_factory.mktemp("block_catalog")
-    part = root / "block.stl"
-    pocket_block(size=(30.0, 20.0, 16.0)).export(part)
-    r = CliRunner().invoke(app, ["plan", str(part), "-o", str(root / "catalog"), "--scallop", "0.05",
-                                 "--no-waterline", "--grid", "0.5", "--quiet"])
-    assert r.exit_code == 0, r.output
-    return root / "catalog", part
+def block_catalog(shared_work, tmp_path_factory) -> tuple[Path, Path]:
+    """(catalog folder, part): :func:`copy_block_catalog` once per session (per worker), for tests that
+    run the cell (``factory simulate``) and what reads its output."""
+    return copy_block_catalog(tmp_path_factory.mktemp("block_catalog"))
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -89,13 +124,9 @@ def roadmap_cache(tmp_path_factory) -> Iterator[Path]:
     workers share it), for the commands it runs in-process and in subprocesses alike: never the user's ~/.cache."""
     import os
 
-    if os.environ.get("PYTEST_XDIST_WORKER"):
-        # One folder for all the session's workers (each has its own basetemp in the session's): a cell's
-        # roadmap is built once, a worker that needs it while another builds it waits for that build.
-        folder = tmp_path_factory.getbasetemp().parent / "factory_cache"
-        folder.mkdir(exist_ok=True)
-    else:
-        folder = tmp_path_factory.mktemp("factory_cache")
+    # One folder for all the run's workers: a cell's roadmap is built once, a worker that needs it while
+    # another builds it waits for that build.
+    folder = _run_folder(tmp_path_factory, "factory_cache")
     before = os.environ.get("FACTORY_CACHE_DIR")
     os.environ["FACTORY_CACHE_DIR"] = str(folder)
     yield folder

@@ -29,6 +29,7 @@ from robotprog.cell import load_cell
 from tests.cadcam.sweep import past_axial_limit, sweep_moves
 from tests.cadcam.test_rest import assert_safe
 from tests.conftest import SAMPLES, manifold_to_trimesh
+from tests.shared import content, key_of, once
 from tests.rs274 import run_rs274, write_tool_table
 
 LIBRARY = load_tool_library()
@@ -38,6 +39,19 @@ TEST_PLAN = PlanOptions(finishing=FinishingOptions(scallop=0.02))
 SAMPLE_PARTS = sorted(p for p in SAMPLES.glob("*.stl") if p.stem != "relief")
 #: The default cell's vise [mm]: every plan here is held in it, as `factory plan` holds it.
 JAWS = vise_jaws(load_cell(FIXTURES / "cell.yaml", check_robot=False).vise)
+
+
+def sample_op1(name: str):
+    """(setup, part in the work frame, job): the sample ``name``'s op 1 as :func:`cadcam.setup.make_setup`
+    holds it by default, planned with :data:`TEST_PLAN`. Several modules want the bracket's: it is planned
+    once in the run (:mod:`tests.shared`), each caller getting its own copy."""
+    path = SAMPLES / f"{name}.stl"
+
+    def compute():
+        setup, part = make_setup(load_part(path).mesh)
+        return setup, part, plan_job(part, setup, LIBRARY, part_name=name, options=TEST_PLAN).job
+
+    return once("sample_op1", key_of(content(path), name, repr(TEST_PLAN)), compute)
 
 
 def assert_held(job, moves, part) -> None:
@@ -113,8 +127,7 @@ def test_sample_never_gouges_and_never_crashes(sample, tmp_path):
 @pytest.mark.parametrize("dialect", ["linuxcnc", "fanuc"])
 def test_rs274_accepts_every_dialect_it_knows(dialect, tmp_path):
     # LinuxCNC's interpreter also reads Fanuc-style programs (% bounds, O-number words aside).
-    setup, part = make_setup(load_part(SAMPLE_PARTS[0]).mesh)
-    job = plan_job(part, setup, LIBRARY, part_name="p", options=TEST_PLAN).job
+    _, _, job = sample_op1(SAMPLE_PARTS[0].stem)  # one plan for both dialects (and tests/cadcam/test_stock.py)
     nc = tmp_path / "p.nc"
     nc.write_text(post_process(job, PostOptions(dialect=dialect)).text)
     rs274_accepts(nc, job, tmp_path)

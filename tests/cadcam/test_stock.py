@@ -7,22 +7,16 @@ import dataclasses
 import numpy as np
 import pytest
 
-from cadcam.mesh import load_part
 from cadcam.op2 import flip_part, flip_transform, op2_setup
-from cadcam.plan import plan_job
-from cadcam.setup import make_setup
 from cadcam.stock import OperationsCut, flip_stock, stock_after, stock_after_flipped
-from cadcam.tools import load_tool_library
-from tests.cadcam.test_plan import TEST_PLAN
+from tests.cadcam.test_plan import sample_op1
 from tests.cadcam.test_rapid_check import _counted
-from tests.conftest import SAMPLES
 
 
 @pytest.fixture(scope="module")
 def bracket():
     """The sample bracket's op 1: helixed holes, roughing, flats and walls (several operations, two tools)."""
-    setup, part_work = make_setup(load_part(SAMPLES / "bracket.stl").mesh)
-    job = plan_job(part_work, setup, load_tool_library(), part_name="bracket", options=TEST_PLAN).job
+    _, part_work, job = sample_op1("bracket")  # planned once in the run, tests/cadcam/test_plan.py's too
     return part_work, job
 
 

@@ -1,6 +1,6 @@
 """`factory simulate`: orders through the cell from a catalog of plans, one MCAP, a Foxglove layout.
 
-A small pocketed block is planned once per module (fast CAM options) into a catalog; the
+A small pocketed block is planned once per run (fast CAM options) into a catalog; the
 simulation must find it there by its key, run every order to an outcome, and log motion that a
 real robot could make (inside the joint limits, no jumps) to an MCAP that rosbag2's readers take.
 """
@@ -22,7 +22,7 @@ from factory.core.resources import FIXTURES
 from robotprog.cell import load_cell
 from robotprog.robots import load_robot
 from tests.cli.expect import assert_one_line_error, simulate_exit
-from tests.conftest import pocket_block
+from tests.conftest import copy_block_catalog
 from tests.mcapcheck import check_rosbag2_mcap
 
 runner = CliRunner()
@@ -33,14 +33,10 @@ def run(*args):
 
 
 @pytest.fixture(scope="module")
-def catalog(tmp_path_factory) -> tuple[Path, Path]:
-    """(catalog folder, part): a 30x20x16 mm pocketed block planned with fast options."""
-    root = tmp_path_factory.mktemp("sim")
-    part = root / "block.stl"
-    pocket_block(size=(30.0, 20.0, 16.0)).export(part)
-    r = run("plan", part, "-o", root / "catalog", "--scallop", "0.05", "--no-waterline", "--grid", "0.5", "--quiet")
-    assert r.exit_code == 0, r.output
-    return root / "catalog", part
+def catalog(shared_work, tmp_path_factory) -> tuple[Path, Path]:
+    """(catalog folder, part): a 30x20x16 mm pocketed block planned with fast options, the module's own copy
+    of the run's one plan (:func:`tests.conftest.copy_block_catalog`: the block and options it planned)."""
+    return copy_block_catalog(tmp_path_factory.mktemp("sim"))
 
 
 def _orders(folder: Path, rows: list[str]) -> Path:

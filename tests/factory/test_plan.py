@@ -9,10 +9,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import os
 import shutil
-import subprocess
-import sys
-import textwrap
+import signal
 from pathlib import Path
 
 import pytest
@@ -59,8 +58,17 @@ def test_a_part_the_robot_cannot_turn_over_is_op_1_only_unless_op_2_is_asked(tmp
 
 
 @pytest.fixture(scope="module")
-def planned(block):
-    return plan_part(fast_request(block))
+def heard_planning(block) -> tuple[object, list[tuple[str, int, int]]]:
+    """The block planned with the robot (fast CAM), and what its progress callback heard: one plan for the
+    module's tests of the plan, of its progress and of a write killed half-way."""
+    heard: list[tuple[str, int, int]] = []
+    done = plan_part(fast_request(block), progress=lambda stage, n, total: heard.append((stage, n, total)))
+    return done, heard
+
+
+@pytest.fixture(scope="module")
+def planned(heard_planning):
+    return heard_planning[0]
 
 
 def test_plan_part_computes_everything_and_writes_nothing(planned, block):
@@ -75,11 +83,10 @@ def test_plan_part_computes_everything_and_writes_nothing(planned, block):
     assert "\nG55\n" in op2.program.text and op2.report.ok and planned.ok
 
 
-def test_every_stage_shows_as_it_runs_the_robots_planning_too(block):
+def test_every_stage_shows_as_it_runs_the_robots_planning_too(heard_planning):
     """A progress callback hears every timed stage start and end, in order, the stages that report
     nothing finer (the robot's planning, posting) included: a long plan is never silent."""
-    heard: list[tuple[str, int, int]] = []
-    done = plan_part(fast_request(block), progress=lambda stage, n, total: heard.append((stage, n, total)))
+    done, heard = heard_planning
     pipeline = ("load", "setup", "post", "cell", "robot plan", "robot program", "verify", "op 2", "op 2 post",
                 "op 2 verify")
     assert set(pipeline) <= set(done.seconds)
@@ -161,49 +168,46 @@ def test_write_makes_the_whole_set_and_no_staging_is_left(planned, tmp_path, tmp
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in outputs.values())
 
 
-# The child plans the part, then dies by SIGKILL at a chosen point of the write phase: while the
-# files are staged (after the first one), or while they are renamed into place (after the second).
-_KILLER = textwrap.dedent("""
-    import os, signal, sys
-    from pathlib import Path
+def _killed_write(planned, out: Path, when: str) -> None:
+    """``planned`` written to ``out`` by a forked copy of this process that dies by SIGKILL at a chosen point
+    of the write phase: while the files are staged (after the first one), or while they are renamed into
+    place (after the second). Forked, so it writes the module's plan as planned (planning it again in a
+    fresh process made the same plan, minutes of it; the plan holds the robot's world, which does not pickle)."""
     import factory.plan as fp
-    from tests.factory.test_plan import fast_request
 
-    part, out, when = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
-    plan = fp.plan_part(fast_request(part))
-    calls = [0]
+    pid = os.fork()
+    if pid == 0:  # the child: its patches and its death are its own
+        try:
+            calls = [0]
 
-    def dying(real):
-        def call(*args, **kwargs):
-            real(*args, **kwargs)
-            calls[0] += 1
-            if calls[0] == 2:
-                os.kill(os.getpid(), signal.SIGKILL)
-        return call
+            def dying(real):
+                def call(*args, **kwargs):
+                    real(*args, **kwargs)
+                    calls[0] += 1
+                    if calls[0] == 2:
+                        os.kill(os.getpid(), signal.SIGKILL)
+                return call
 
-    if when == "staging":
-        fp.write_text = dying(fp.write_text)
-    else:
-        fp.os.replace = dying(os.replace)
-    plan.write(out)
-""")
-
-
-def _killed_write(part: Path, out: Path, when: str) -> None:
-    r = subprocess.run([sys.executable, "-c", _KILLER, str(part), str(out), when], cwd=ROOT,
-                       capture_output=True, text=True, timeout=600)
-    assert r.returncode == -9, r.stderr
+            if when == "staging":
+                fp.write_text = dying(fp.write_text)
+            else:
+                fp.os.replace = dying(os.replace)
+            planned.write(out)
+        finally:
+            os._exit(1)  # not killed where it should have been: the parent's assertion says so
+    _, status = os.waitpid(pid, 0)
+    assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGKILL, status
 
 
 @pytest.mark.parametrize("when", ["staging", "renaming"])
-def test_a_plan_killed_while_writing_poisons_nothing(block, tmp_path, when):
+def test_a_plan_killed_while_writing_poisons_nothing(block, planned, tmp_path, when):
     """kill -9 in the write phase, into the catalog's own folder for the part; then `factory
     simulate` finds no plan there, plans the part again over the leftovers, and runs the order."""
     catalog = tmp_path / "catalog"
     key = catalog_record(sha256_file(block), "aluminium", sha256_file(FIXTURES / "cell.yaml"),
                          sha256_file(FIXTURES / "tools.yaml"))["key"]
     folder = catalog / f"block-aluminium-{key[:8]}"
-    _killed_write(block, folder, when)
+    _killed_write(planned, folder, when)
     assert not (folder / "block.plan.json").exists()
     assert any(folder.iterdir())  # it died with something written
     assert find_entry(catalog, key) is None
@@ -218,12 +222,13 @@ def test_a_plan_killed_while_writing_poisons_nothing(block, tmp_path, when):
     assert not [p for p in folder.iterdir() if p.name.startswith(".")], "staging or temp files left behind"
 
 
-def test_a_plain_plan_after_a_killed_one_starts_clean(block, tmp_path):
+def test_a_plain_plan_after_a_killed_one_starts_clean(planned, tmp_path):
     """Staging left by a dead process is removed by the next write of the part."""
-    _killed_write(block, tmp_path, "staging")
-    assert [p for p in tmp_path.iterdir() if p.name.startswith(".block.plan-")]
-    plan_part(fast_request(block, robot=False)).write(tmp_path, overwrite=True)
-    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+    out = tmp_path / "out"
+    _killed_write(planned, out, "staging")
+    assert [p for p in out.iterdir() if p.name.startswith(".block.plan-")]
+    planned.write(out, overwrite=True)
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]
 
 
 def test_readme_python_example_runs(tmp_path, monkeypatch):

@@ -21,11 +21,11 @@ from factory.rosmsgs import MSG_DIRS, message_definition
 from factory.core.resources import FIXTURES
 from tests.cli.expect import simulate_exit
 from tests.cli.test_handeye import BOARD, args, scene  # noqa: F401  (scene is a fixture)
-from tests.conftest import pocket_block
+from tests.conftest import BLOCK_PLAN, copy_block_catalog
 from tests.foxglovecheck import check_foxglove_decodes, foxglove_decode, foxglove_schema_differences
 
 runner = CliRunner()
-FAST = ["--scallop", "0.05", "--no-waterline", "--grid", "0.5", "--quiet"]
+FAST = list(BLOCK_PLAN)
 
 
 def run(*argv) -> None:
@@ -34,24 +34,23 @@ def run(*argv) -> None:
 
 
 @pytest.fixture(scope="module")
-def logs(tmp_path_factory, scene) -> dict[str, Path]:  # noqa: F811
-    """stage -> the MCAP it wrote."""
+def logs(shared_work, tmp_path_factory, scene) -> dict[str, Path]:  # noqa: F811
+    """stage -> the MCAP it wrote. The plan is the module's copy of the run's plan of the block (the same
+    options as :data:`FAST`, :data:`tests.conftest.BLOCK_PLAN`)."""
     d = tmp_path_factory.mktemp("logs")
-    part = d / "block.stl"
-    pocket_block(size=(30.0, 20.0, 16.0)).export(part)
-    out = {"toolpath": d / "block.toolpath.mcap", "verify": d / "verify.mcap", "plan": d / "catalog" / "block.mcap",
+    catalog, part = copy_block_catalog(d)
+    out = {"toolpath": d / "block.toolpath.mcap", "verify": d / "verify.mcap", "plan": catalog / "block.mcap",
            "robot": d / "robot.mcap", "simulate": d / "cell.mcap", "calibrate": d / "calibrate.mcap",
            "handeye": d / "handeye.mcap"}
     run("toolpath", part, "-o", out["toolpath"], *FAST[:-3])
     run("gcode", out["toolpath"], "-o", d / "block.nc", "--quiet")
     run("verify", d / "block.nc", "--setup", d / "block.setup.json", "--part", part, "--mcap", out["verify"],
         "--quiet")
-    run("plan", part, "-o", d / "catalog", *FAST)
-    run("robot", FIXTURES / "cell.yaml", "--setup", d / "catalog" / "block.setup.json", "--part", part,
+    run("robot", FIXTURES / "cell.yaml", "--setup", catalog / "block.setup.json", "--part", part,
         "-o", out["robot"], "--quiet")
     orders = d / "orders.csv"
     orders.write_text(f"part,quantity,material,priority\n{part},2,aluminium,0\n")
-    r = runner.invoke(app, [str(a) for a in ("simulate", orders, "--catalog", d / "catalog", "--mcap",
+    r = runner.invoke(app, [str(a) for a in ("simulate", orders, "--catalog", catalog, "--mcap",
                                              out["simulate"], "--faults", "3", "--fault-rate", "0.3", "--quiet",
                                              "--json")], catch_exceptions=False)
     assert r.exit_code == simulate_exit(json.loads(r.stdout)), r.output  # 3: an order not done

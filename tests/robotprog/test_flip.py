@@ -32,10 +32,10 @@ def sheet(sx: float, sy: float, sz: float) -> dict:
 
 
 @pytest.fixture(scope="module", params=CELLS)
-def flipped(request):
+def flipped(request, tending):
     cell = load_cell(FIXTURES / request.param)
     world = collision_world(cell)
-    return cell, world, plan_tending(cell, sheet(*STOCK_MM), part_box=PART, world=world, setups=2)
+    return cell, world, tending(request.param, sheet(*STOCK_MM), part_box=PART, setups=2)
 
 
 def _tcp(cell, robot, q):
@@ -95,9 +95,9 @@ def test_the_piece_is_turned_over_and_put_back_upside_down(flipped):
     assert vise[2, 3] < unload[2, 3] < vise[2, 3] + 0.016
 
 
-def test_one_setup_plan_has_no_flip(flipped):
-    cell, world, _ = flipped
-    plan = plan_tending(cell, sheet(*STOCK_MM), part_box=PART, world=world)
+def test_one_setup_plan_has_no_flip(flipped, request, tending):
+    cell_file = request.node.callspec.params["flipped"]  # the cell `flipped` was planned in
+    plan = tending(cell_file, sheet(*STOCK_MM), part_box=PART)
     assert not plan.phase("flip") and [m.kind for m in plan.moves].count("gripper") == 4
 
 

@@ -20,7 +20,6 @@ from robotprog.orders import Order
 from robotprog.programs import VERDICT_AFTER, post_program, program_steps
 from robotprog.scheduler import SchedulerOptions
 from robotprog.rapid import rapid_module
-from robotprog.tending import plan_tending
 from robotprog.urscript import Branch, urscript_program
 from tests.robotprog.test_tending import SAMPLE_STOCK, sheet
 
@@ -33,8 +32,8 @@ def keys(ops):
 
 
 @pytest.fixture(scope="module")
-def bracket_plan(cell, world):
-    return plan_tending(cell, sheet(*SAMPLE_STOCK["bracket"]), world=world)
+def bracket_plan(tending):
+    return tending("cell.yaml", sheet(*SAMPLE_STOCK["bracket"]))
 
 
 @pytest.fixture(scope="module")

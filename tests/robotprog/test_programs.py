@@ -40,8 +40,8 @@ ARM_STOCK = (*sorted(SAMPLE_STOCK), "plate0")
 
 
 @pytest.fixture(scope="module")
-def plans(cell, world):
-    return {name: plan_tending(cell, sheet(*s), world=world) for name, s in {**SAMPLE_STOCK, **RANDOM_STOCK}.items()}
+def plans(tending):
+    return {name: tending("cell.yaml", sheet(*s)) for name, s in {**SAMPLE_STOCK, **RANDOM_STOCK}.items()}
 
 
 @pytest.fixture(scope="module")

@@ -14,14 +14,14 @@ from robotprog.grasp import box_pose
 from robotprog.planner import MotionPlanner
 from robotprog.rackpick import (CORRECTED_MOVES, BlankScatter, PlannedPick, SlotOffset, corrected_pick, draw_offset,
                                 slot_room)
-from robotprog.tending import _neighbours, plan_tending
+from robotprog.tending import _neighbours
 from tests.robotprog.test_tending import SAMPLE_STOCK, sheet
 
 
 @pytest.fixture(scope="module")
-def bracket(cell, world) -> PlannedPick:
+def bracket(tending) -> PlannedPick:
     """The plan's pick of the bracket's blank (104 x 64 x 16 mm) in rack slot (0, 0)."""
-    plan = plan_tending(cell, sheet(*SAMPLE_STOCK["bracket"]), world=world)
+    plan = tending("cell.yaml", sheet(*SAMPLE_STOCK["bracket"]))
     end = {m.name: m.q_end for m in plan.moves}
     return PlannedPick(end["load: home to above rack"], end["load: approach stock"], end["load: retreat from rack"],
                        np.asarray(plan.stock.size, dtype=float))

@@ -76,9 +76,9 @@ def test_roadmap_round_trips_and_refuses_what_is_not_one(roadmap):
 
 
 @pytest.mark.parametrize("name", ["bracket", "stepped_wall"])
-def test_plan_through_the_roadmap_is_proven_all_along(name, roadmap, cell, world):
+def test_plan_through_the_roadmap_is_proven_all_along(name, roadmap, cell, world, tending):
     plan = plan_tending(cell, sheet(*SAMPLE_STOCK[name]), world=world, roadmap=roadmap)
-    bare = plan_tending(cell, sheet(*SAMPLE_STOCK[name]), world=world)
+    bare = tending("cell.yaml", sheet(*SAMPLE_STOCK[name]))
     assert [m.name for m in plan.moves] == [m.name for m in bare.moves]
     # The posted motion proven again, independently of the planner: the timed spline all along,
     # in the world of the plan (the blanks beside and the tray parts as obstacles).

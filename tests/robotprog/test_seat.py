@@ -14,16 +14,15 @@ from robotprog.cell import Box, Pose
 from robotprog.grasp import GraspOptions
 from robotprog.seat import (CARRIED_MOVES, GRIPS, RELEASED_MOVES, AfterMoves, Residual, Seat, SeatMoves, after_op1,
                             check_seat, open_jaws, prove_after_seat, prove_seat, reach)
-from robotprog.tending import plan_tending
 from tests.robotprog.test_flip import PART as FLIP_PART, STOCK_MM as FLIP_STOCK_MM, sheet as flip_sheet
 from tests.robotprog.test_tending import SAMPLE_STOCK, sheet
 
 
 @pytest.fixture(scope="module")
-def bracket(cell, world):
+def bracket(tending):
     """The plan of the bracket's blank (104 x 64 x 16 mm), and its moves at the vise with the part 2 mm
     inside the stock along the jaws (the default side margin)."""
-    plan = plan_tending(cell, sheet(*SAMPLE_STOCK["bracket"]), world=world)
+    plan = tending("cell.yaml", sheet(*SAMPLE_STOCK["bracket"]))
     by = {m.name: m for m in plan.moves}
     return plan, SeatMoves(tuple(by[n].waypoints for n in CARRIED_MOVES),
                            tuple(by[n].waypoints for n in RELEASED_MOVES), np.asarray(plan.stock.size), 0.002)
@@ -90,10 +89,10 @@ def test_the_proof_sweeps_the_place_between_the_open_jaws(cell, world, bracket):
 # --- after op 1: the flip and the unload, with what op 1 left of the stock off along the jaws ------
 
 @pytest.fixture(scope="module")
-def flipped(cell, world):
+def flipped(tending):
     """The bracket in two setups (a 100 x 60 x 16 mm part on a 6 mm holding block of the 104 x 64 mm
     stock) and what its plan does after op 1."""
-    plan = plan_tending(cell, flip_sheet(*FLIP_STOCK_MM), part_box=FLIP_PART, world=world, setups=2)
+    plan = tending("cell.yaml", flip_sheet(*FLIP_STOCK_MM), part_box=FLIP_PART, setups=2)
     moves = AfterMoves(tuple((m.name, m.waypoints) for m in plan.moves if m.name.startswith(("flip:", "unload:"))),
                        plan.stock.stock_min, plan.stock.stock_max, FLIP_PART.low, FLIP_PART.high, 2, 0.009)
     by = {m.name: m for m in plan.moves}

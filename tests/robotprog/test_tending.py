@@ -36,8 +36,8 @@ def sheet(sx: float, sy: float, sz: float) -> dict:
 
 
 @pytest.fixture(scope="module")
-def plans(cell, world):
-    return {name: plan_tending(cell, sheet(*s), world=world) for name, s in SAMPLE_STOCK.items()}
+def plans(tending):
+    return {name: tending("cell.yaml", sheet(*s)) for name, s in SAMPLE_STOCK.items()}
 
 
 def _tcp(cell, robot, q):
@@ -194,12 +194,12 @@ def test_blanks_beside_the_picked_one_are_obstacles(cell, world):
         plan_tending(tight, sheet(104, 60, 30), world=world)
 
 
-def test_a_part_in_one_setup_leaves_on_its_holding_block_and_stands_on_it_in_the_tray(cell, world):
+def test_a_part_in_one_setup_leaves_on_its_holding_block_and_stands_on_it_in_the_tray(cell, tending):
     """Op 1 alone leaves the part on the stock under it: the unload carries that block under the part
     (it rode unseen before, and was set down through the tray) and stands it on the tray slot."""
     stock = sheet(104, 64, 22)
     box = PartBox(np.array([-0.05, -0.03, 0.006]), np.array([0.05, 0.03, 0.022]))  # 100 x 60 x 16 on a 6 mm block
-    plan = plan_tending(cell, stock, part_box=box, world=world)
+    plan = tending("cell.yaml", stock, part_box=box)  # the same plan as tests/robotprog/test_flip.py's one setup
     place = {m.name: m for m in plan.moves}["unload: place in out-tray"]
     held = {h.name: h for h in place.held}
     assert {"finger", "held_part", "held_holding_block"} <= set(held)

@@ -24,7 +24,7 @@ from cli.main import app
 from factory.rosmsgs import MSG_DIRS
 from factory.core.resources import ROS_INTERFACES
 from tests.cli.expect import simulate_exit
-from tests.conftest import pocket_block
+from tests.conftest import copy_block_catalog
 
 PACKAGE = ROS_INTERFACES / "factory_msgs"
 runner = CliRunner()
@@ -50,17 +50,14 @@ def fields_of(text: str) -> tuple[list[str], list[str]]:
 
 
 @pytest.fixture(scope="module")
-def cell_log(tmp_path_factory) -> Path:
+def cell_log(shared_work, tmp_path_factory) -> Path:
+    """A cell run with faults, logged, from the module's copy of the run's pocketed block plan (fast options)."""
     d = tmp_path_factory.mktemp("cell")
-    part = d / "block.stl"
-    pocket_block(size=(30.0, 20.0, 16.0)).export(part)
+    catalog, part = copy_block_catalog(d)
     orders = d / "orders.csv"
     orders.write_text(f"part,quantity,material,priority\n{part},3,aluminium,0\n")
     mcap = d / "cell.mcap"
-    r = runner.invoke(app, [str(a) for a in ("plan", part, "-o", d / "catalog", "--scallop", "0.05",
-                                             "--no-waterline", "--grid", "0.5", "--quiet")])
-    assert r.exit_code == 0, r.output
-    r = runner.invoke(app, [str(a) for a in ("simulate", orders, "--catalog", d / "catalog", "--mcap", mcap,
+    r = runner.invoke(app, [str(a) for a in ("simulate", orders, "--catalog", catalog, "--mcap", mcap,
                                              "--faults", "3", "--fault-rate", "0.3", "--quiet", "--json")])
     assert r.exit_code == simulate_exit(json.loads(r.stdout)), r.output
     (mcap.parent / "run.json").write_text(r.stdout)
