@@ -209,11 +209,12 @@ def upper_envelope_at(triangles: np.ndarray, grid: Grid, cells: np.ndarray, tile
     if len(tri) == 0 or len(cells) == 0:
         return top[cells]
     jj, ii = np.divmod(cells, grid.nx)
-    blocks = np.unique((jj // tile) * (grid.nx // tile + 1) + ii // tile)
+    per_row = grid.nx // tile + 1  # blocks numbered row by row
+    blocks = np.unique((jj // tile) * per_row + ii // tile)
     if len(blocks) * tile * tile >= grid.size // 4:  # most of the grid: one pass over it is cheaper
         return _rasterised(tri, grid).reshape(-1)[cells]
     cover = _Coverage(tri, grid)
-    for bj, bi in zip(*np.divmod(blocks, grid.nx // tile + 1)):
+    for bj, bi in zip(*np.divmod(blocks, per_row)):
         cover.raster(tri, grid, top, (bi * tile, min(bi * tile + tile, grid.nx) - 1),
                      (bj * tile, min(bj * tile + tile, grid.ny) - 1))
     return top[cells]
@@ -285,12 +286,16 @@ def _batches(sel: np.ndarray, counts: np.ndarray):
     yield from np.split(sel, cuts)
 
 
+def _runs(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Runs of ``n[k]`` entries each, laid end to end: each entry's run ``k`` and its place in the run."""
+    owner = np.repeat(np.arange(len(n)), n)
+    return owner, np.arange(int(n.sum()), dtype=np.int64) - np.repeat(np.cumsum(n) - n, n)
+
+
 def _pairs(batch: np.ndarray, i0, j0, ni, counts, grid: Grid):
     """Expand triangles into (triangle position in batch, flat grid index, x, y) pairs."""
     c = counts[batch]
-    owner = np.repeat(np.arange(len(batch)), c)
-    offset = np.cumsum(c) - c
-    local = np.arange(int(c.sum()), dtype=np.int64) - np.repeat(offset, c)
+    owner, local = _runs(c)
     nib = np.repeat(ni[batch], c)
     ii = np.repeat(i0[batch], c) + local % nib
     jj = np.repeat(j0[batch], c) + local // nib
@@ -340,9 +345,8 @@ def _row_spans(batch: np.ndarray, i0, j0, ni, counts, grid: Grid, gx, gy, reach)
     (which the caller still makes) would take. Returns the same arrays as :func:`_pairs`.
     """
     nj = counts[batch] // np.maximum(ni[batch], 1)
-    row_owner = np.repeat(np.arange(len(batch)), nj)
-    first_row = np.cumsum(nj) - nj
-    jj = np.repeat(j0[batch], nj) + np.arange(int(nj.sum()), dtype=np.int64) - np.repeat(first_row, nj)
+    row_owner, row = _runs(nj)
+    jj = np.repeat(j0[batch], nj) + row
     y = grid.y0 + jj * grid.cell
     c = reach[row_owner] + gy[row_owner] * y[:, None]
     a = gx[row_owner]
@@ -355,10 +359,10 @@ def _row_spans(batch: np.ndarray, i0, j0, ni, counts, grid: Grid, gx, gy, reach)
     first = np.clip(np.ceil((lower - grid.x0) / grid.cell) - 1, lo_col, hi_col + 1).astype(np.int64)
     last = np.clip(np.floor((upper - grid.x0) / grid.cell) + 1, lo_col - 1, hi_col).astype(np.int64)
     n = np.maximum(last - first + 1, 0)
-    owner = np.repeat(row_owner, n)
-    offset = np.cumsum(n) - n
-    ii = np.repeat(first, n) + np.arange(int(n.sum()), dtype=np.int64) - np.repeat(offset, n)
-    jj = np.repeat(jj, n)
+    span, column = _runs(n)
+    owner = row_owner[span]
+    ii = first[span] + column
+    jj = jj[span]
     return owner, jj * grid.nx + ii, grid.x0 + ii * grid.cell, grid.y0 + jj * grid.cell
 
 

@@ -57,13 +57,13 @@ def pose_covariance(jac: np.ndarray, residuals: np.ndarray, edge: np.ndarray, un
     independent = inverse * variance * correlated
     groups = np.unique(edge, return_inverse=True)[1].ravel()
     count = int(groups.max()) + 1 if len(groups) else 0
-    pull = np.zeros((count, 3))
-    np.add.at(pull, groups, jac * residuals[:, None])
-    by_edge = inverse @ (pull.T @ pull) @ inverse * count / max(count - 1, 1)
+    by_edge = np.zeros((3, 3))
+    if count >= MIN_EDGES:
+        pull = np.zeros((count, 3))
+        np.add.at(pull, groups, jac * residuals[:, None])
+        by_edge = inverse @ (pull.T @ pull) @ inverse * count / (count - 1)
     # The larger of the two, in position (its worse direction) and in yaw.
     cov = independent.copy()
-    if count < MIN_EDGES:
-        by_edge = np.zeros((3, 3))
     if np.linalg.eigvalsh(by_edge[:2, :2]).max() > np.linalg.eigvalsh(independent[:2, :2]).max():
         cov[:2, :2] = by_edge[:2, :2]
     cov[2, 2] = max(cov[2, 2], by_edge[2, 2])
