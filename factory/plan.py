@@ -44,7 +44,7 @@ from cadcam.mesh import PartMesh
 from cadcam.relief import Boundary, block_corners
 from cadcam.sheet import setup_sheet
 from cadcam.stock import Simulation
-from cadcam.verify import VerifyOptions, VerifyReport, VerifyResult
+from cadcam.verify import VerifyOptions, VerifyReport
 from factory.core.atomic import check_writable, write_bytes, write_text
 from factory.cam import CamRequest, PlannedPart, compute_job, log_job
 from factory.catalog import catalog_record, sha256_file
@@ -56,9 +56,11 @@ from factory.core.progress import Progress, Stopwatch, held_open
 from factory.core.resources import FIXTURES
 from factory.core.setupsheet import SetupSheet
 from factory.robotwork import BackgroundRobot, RobotTask, stock_sheet
-from factory.tending import CellPlan, log_tending
+from factory.tending import CellPlan, log_cell, log_motion
 from factory.verify import (VerifyAhead, log_simulation, report_text, run_verify, run_verify_after,
                             write_verify_outputs)
+from robotprog.cell import Cell
+from robotprog.collision import CollisionWorld
 from robotprog.programs import PostedProgram
 from robotprog.visuals import LinkVisual
 
@@ -242,19 +244,49 @@ class WriteAhead:
     robot_log: LogBuffer
 
 
-def write_ahead(planned: PlannedPart, tending: Tending | None) -> WriteAhead:
-    """:class:`WriteAhead` of op 1 ``planned`` and the robot's ``tending`` (None: no robot). With a robot
-    the log's work frame sits in the cell's vise."""
+@dataclasses.dataclass(frozen=True, eq=False)
+class Drawn:
+    """What of :class:`WriteAhead` needs no robot motion, made while the robot's is planned (:func:`drawn`).
+
+    Attributes
+    ----------
+    toolpath_png, setup_png : bytes
+        Op 1's toolpath and setup pictures.
+    robot_log : LogBuffer
+        The cell in the log (:func:`factory.tending.log_cell`), its motion to follow; empty without a robot.
+    """
+
+    toolpath_png: bytes
+    setup_png: bytes
+    robot_log: LogBuffer
+
+
+def drawn(planned: PlannedPart, cell: Cell | None = None, world: CollisionWorld | None = None,
+          visuals: tuple[LinkVisual, ...] | None = None) -> Drawn:
+    """:class:`Drawn` of op 1 ``planned``, and of ``cell`` with its collision ``world`` and the robot's meshes
+    ``visuals`` (no cell: no robot)."""
     job = planned.job
-    job_log, robot_log = LogBuffer(), LogBuffer()
+    robot_log = LogBuffer()
+    if cell is not None:
+        log_cell(robot_log, cell, world, visuals)
+    return Drawn(png_bytes(planned.toolpath_picture()),
+                 png_bytes(setup_image(job.setup, np.asarray(planned.part_work.triangles), job.part_name)),
+                 robot_log)
+
+
+def write_ahead(planned: PlannedPart, tending: Tending | None, ahead: Drawn | None = None) -> WriteAhead:
+    """:class:`WriteAhead` of op 1 ``planned`` and the robot's ``tending`` (None: no robot), on from what was
+    ``ahead`` :func:`drawn` for them (drawn here when None). With a robot the log's work frame sits in the
+    cell's vise."""
+    if ahead is None:
+        ahead = drawn(planned) if tending is None else drawn(planned, tending.cell, tending.world, tending.visuals)
+    job_log = LogBuffer()
     world_work = None
     if tending is not None:
         world_work = tending.cell.vise.pose.matrix() @ tending.plan.stock.transform_vise_to_work
-        log_tending(robot_log, tending.cell, tending.world, tending.plan, tending.visuals)
+        log_motion(ahead.robot_log, tending.world, tending.plan)
     log_job(job_log, planned, world_work)
-    return WriteAhead(png_bytes(planned.toolpath_picture()),
-                      png_bytes(setup_image(job.setup, np.asarray(planned.part_work.triangles), job.part_name)),
-                      job_log, robot_log)
+    return WriteAhead(ahead.toolpath_png, ahead.setup_png, job_log, ahead.robot_log)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -593,8 +625,9 @@ def _verify_options(req: PlanRequest, relief: bool) -> VerifyOptions:
 def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, post_options: PostOptions,
                planned: PlannedPart, robot: BackgroundRobot | None, ahead: FitAhead | None = None,
                verify_ahead: VerifyAhead | None = None) -> PartPlan:
-    """:func:`_plan_once` after the toolpaths: post, verify (in a second process while the robot's
-    share is waited for, on from what ``verify_ahead`` cut meanwhile), op 2."""
+    """:func:`_plan_once` after the toolpaths: post, verify (on from what ``verify_ahead`` cut meanwhile),
+    op 2. With a robot, all of it runs here while the robot's share is planned in its process, and the
+    robot's meshes are read before its work is waited for: the robot's share is the longer."""
     job = planned.job
     options = _verify_options(req, planned.boundary is not None)
     if req.ops is None:  # a relief stays in its block, right way up, unless asked
@@ -605,52 +638,49 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
     with watch("post"):
         program = post_process(job, post_options, ahead=ahead)
         sheet = dataclasses.replace(setup_sheet(job, program, outputs["program"].name), op=1, work_offset="G54")
-    tending = None
-    verify_args = (program.text, str(outputs["program"]), job.setup, {t.number: t for t in job.tools},
-                   np.asarray(planned.part_work.triangles), options)
-    verify_kwargs = dict(operations=sheet.operations, resume=resume)
-    background = drawing = None
-    if robot is not None:
-        # Verification does not depend on the robot: it runs in a second process meanwhile (no
-        # progress bar of its own then).
-        background = Background(_verify_quietly, verify_args, verify_kwargs)
-        try:
-            work = robot.result(sheet)
-            if work.dropped_op2 is not None:
-                # Not asked for two operations, and the robot cannot turn this part over on the cell's
-                # flip station: op 1 alone, said loudly (the holding allowance stays on the part).
-                log.warning("%s: op 1 only, the holding allowance stays: the robot cannot turn the part over: %s",
-                            req.cam.part, work.dropped_op2)
-                req = dataclasses.replace(req, ops=1)
-                outputs = req.outputs(Path("."))
-            tending = Tending(robot.cell, robot.world, work.plan, work.program, work.visuals)
-            with watch("pictures and log"):  # what is written whatever verify finds, made meanwhile
-                ahead = write_ahead(planned, tending)
-        except BaseException:
-            background.cancel()  # no verification left running for a plan that failed
-            raise
-    else:
-        # Without a robot the pictures and the log's messages, which do not depend on verify, are made
-        # in a second process while verify runs here (issue 35: they were most of the `write` stage).
-        # On one processor they are made when written, as before.
-        drawing = Background(write_ahead, planned, None) if processors() > 1 else None
-        ahead = None  # otherwise made when written
+    # Without a robot the pictures and the log's messages, which do not depend on verify, are made in a
+    # second process while verify runs here (issue 35: they were most of the `write` stage). On one
+    # processor they are made when written, as before.
+    drawing = Background(write_ahead, planned, None) if robot is None and processors() > 1 else None
     try:
-        with watch("verify"):  # with the robot: the wait for the second process
-            if background is not None:
-                verified = background.result()
-            else:
-                verified = run_verify(*verify_args, held_open(progress), **verify_kwargs)
+        with watch("verify"):
+            verified = run_verify(program.text, str(outputs["program"]), job.setup, {t.number: t for t in job.tools},
+                                  np.asarray(planned.part_work.triangles), options, held_open(progress),
+                                  operations=sheet.operations, resume=resume)
     except BaseException:
         if drawing is not None:
             drawing.cancel()  # no drawing left running for a plan that failed
         raise
-    if drawing is not None:
+    op2 = op2_error = None
+    if req.ops == 2:
+        try:
+            op2 = _plan_op2(req, planned, verified.simulation, outputs, progress, watch, verified.report)
+        except FactoryError as e:
+            if robot is None:
+                raise
+            op2_error = e  # stands only if the robot turns the part over: its answer decides
+    tending = ahead = None
+    if robot is not None:
+        visuals = robot.visuals()
+        with watch("pictures"):  # and the cell in the log: what needs no robot motion
+            pictures = drawn(planned, robot.cell, robot.world, visuals)
+        work = robot.result(sheet)
+        if work.dropped_op2 is not None:
+            # Not asked for two operations, and the robot cannot turn this part over on the cell's
+            # flip station: op 1 alone, said loudly (the holding allowance stays on the part).
+            log.warning("%s: op 1 only, the holding allowance stays: the robot cannot turn the part over: %s",
+                        req.cam.part, work.dropped_op2)
+            req, op2, op2_error = dataclasses.replace(req, ops=1), None, None
+            outputs = req.outputs(Path("."))
+        if op2_error is not None:
+            raise op2_error
+        tending = Tending(robot.cell, robot.world, work.plan, work.program, visuals)
+        with watch("log"):
+            ahead = write_ahead(planned, tending, pictures)
+    elif drawing is not None:
         with watch("pictures and log"):  # the wait for the second process, if it is still drawing
             ahead = drawing.result()
-    op2 = None
-    if req.ops == 2:
-        op2 = _plan_op2(req, planned, verified.simulation, outputs, progress, watch, verified.report)
+    if op2 is not None:
         sheet = dataclasses.replace(sheet, next={"program": outputs["program_op2"].name,
                                                  "setup_sheet": outputs["setup_sheet_op2"].name})
     return PartPlan(req, planned, program, sheet, tending, verified.simulation, verified.report,
@@ -667,11 +697,6 @@ def _replan_op2(plan: PartPlan, cam: CamRequest, progress: Progress | None) -> P
     for stage, s in watch.seconds.items():
         seconds[stage] = seconds.get(stage, 0.0) + s
     return dataclasses.replace(plan, request=req, op2=op2, seconds=seconds)
-
-
-def _verify_quietly(args: tuple, kwargs: dict) -> VerifyResult:
-    """:func:`run_verify` without progress, for a worker process."""
-    return run_verify(*args, None, **kwargs)
 
 
 def _plan_op2(req: PlanRequest, planned: PlannedPart, op1_sim: Simulation, outputs: dict[str, Path],

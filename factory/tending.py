@@ -178,10 +178,17 @@ def log_tending(m: McapLog | LogBuffer, cell: Cell, world: CollisionWorld, plan:
                 visuals: tuple[LinkVisual, ...] | None = None) -> int:
     """Write the cell (the robot's meshes ``visuals``, read when None: :func:`log_cell`) and the plan's
     motion (from time 0) into an open log; returns the number of joint-state samples."""
+    log_cell(m, cell, world, visuals)
+    return log_motion(m, world, plan)
+
+
+def log_motion(m: McapLog | LogBuffer, world: CollisionWorld, plan: TendingPlan) -> int:
+    """Write the plan's motion (from time 0) into an open log, after its cell (:func:`log_cell`): each move's
+    trajectory and event, the robot's joint states and link poses; returns the number of joint-state
+    samples."""
     robot = world.robot
     names = list(robot.joint_names)
     base = robot.base_frame
-    log_cell(m, cell, world, visuals)
     states = RobotStateLog(m, world)
     t0 = 0.0
     n_states = 0

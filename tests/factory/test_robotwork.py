@@ -73,7 +73,7 @@ def test_the_work_in_the_background_is_the_work_done_here_and_follows_the_posted
     work = robot.result(started.sheet)
     here = robot_work(robot.cell, robot.world, started)
     assert work.program.texts == here.program.texts and work.plan.durations == here.plan.durations
-    assert work.dropped_op2 is None and len(work.visuals) > 0
+    assert work.dropped_op2 is None and len(robot.visuals()) > 0  # read here, meanwhile
     for stage in ("cell", "robot plan", "robot program", "robot visuals"):
         assert (stage, 0, 1) in heard and (stage, 1, 1) in heard and watch.seconds[stage] > 0
 
