@@ -105,13 +105,35 @@ def offered_qos_profiles(latched: bool) -> str:
 
 
 
-def _check_time(ns: int, what: str) -> int:
+def check_time(ns: int, what: str) -> int:
+    """``ns`` as an int, or a McapError where it is not a log time [ns] an MCAP can hold."""
     if isinstance(ns, bool) or not isinstance(ns, (int, np.integer)):
         raise McapError(f"{what} must be an integer number of nanoseconds, got {ns!r}")
     ns = int(ns)
     if not 0 <= ns <= _UINT64_MAX:
         raise McapError(f"{what} {ns} ns is outside the MCAP time range [0, 2^64)")
     return ns
+
+
+def check_channel(topic: str, typename: str, latched: bool, known: tuple[str, bool] | None, source: Any) -> bool:
+    """Whether a message of ``typename`` (``latched`` or not) may go on ``topic``, which carries ``known`` (its
+    type and latching; None: a topic not used yet): True on a known topic, False on a new one.
+
+    Raises
+    ------
+    McapError
+        (naming ``source``) The topic carries another type or latching, or a new topic is not absolute.
+    """
+    if known is not None:
+        ktype, klatched = known
+        if ktype != typename:
+            raise McapError(f"topic {topic} carries {ktype}, not {typename}", source=source)
+        if klatched != latched:
+            raise McapError(f"topic {topic} was {'' if klatched else 'not '}latched before", source=source)
+        return True
+    if not topic.startswith("/"):
+        raise McapError(f"topic {topic!r} must be absolute (start with '/')", source=source)
+    return False
 
 
 class McapLog:
@@ -225,16 +247,8 @@ class McapLog:
     def _channel(self, topic: str, typename: str, latched: bool) -> int:
         writer = self._require_open()
         known = self._channels.get(topic)
-        if known is not None:
-            cid, ktype, klatched = known
-            if ktype != typename:
-                raise McapError(f"topic {topic} carries {ktype}, not {typename}", source=self.path)
-            if klatched != latched:
-                raise McapError(f"topic {topic} was {'' if klatched else 'not '}latched before",
-                                source=self.path)
-            return cid
-        if not topic.startswith("/"):
-            raise McapError(f"topic {topic!r} must be absolute (start with '/')", source=self.path)
+        if check_channel(topic, typename, latched, None if known is None else known[1:], self.path):
+            return known[0]
         sid = self._schemas.get(typename)
         if sid is None:
             try:
@@ -271,7 +285,7 @@ class McapLog:
         latched : bool
             Offer transient local durability (``/tf_static``, static scene topics).
         """
-        typename, data = _serialized(topic, msg, self.path)
+        typename, data = serialized(topic, msg, self.path)
         self.write_cdr(topic, typename, data, log_time_ns, latched=latched)
 
     def write_cdr(self, topic: str, typename: str, data: bytes, log_time_ns: int, make: Any = None, *,
@@ -279,7 +293,7 @@ class McapLog:
         """Log a message already serialised: ``data``, the CDR (encapsulation header included) of a
         message of type ``typename``, as :meth:`write` would have made it. ``make`` (which builds the
         message, for sinks that serialise themselves, see :class:`factory.live.Fanout`) is not needed."""
-        t = _check_time(log_time_ns, "log time")
+        t = check_time(log_time_ns, "log time")
         cid = self._channel(topic, typename, latched)
         seq = self._sequence.get(cid, 0)
         self._sequence[cid] = seq + 1
@@ -306,12 +320,12 @@ class McapLog:
         if not isinstance(data, (bytes, bytearray, memoryview)):
             raise McapError(f"attachment {name!r} must be bytes, got {type(data).__name__}",
                             source=self.path)
-        t = _check_time(log_time_ns, "attachment log time")
+        t = check_time(log_time_ns, "attachment log time")
         writer.add_attachment(create_time=t, log_time=t, name=name, media_type=media_type, data=bytes(data))
         self._attachments.add(name)
 
 
-def _serialized(topic: str, msg: Any, source: Any) -> tuple[str, bytes]:
+def serialized(topic: str, msg: Any, source: Any) -> tuple[str, bytes]:
     """The type name and CDR of ``msg`` to log on ``topic``, or a McapError naming ``source``."""
     typename = getattr(msg, "__msgtype__", None)
     if not isinstance(typename, str):
@@ -335,7 +349,7 @@ class LogBuffer:
         self._calls: list[tuple[Any, ...]] = []
 
     def write(self, topic: str, msg: Any, log_time_ns: int, *, latched: bool = False) -> None:
-        typename, data = _serialized(topic, msg, None)
+        typename, data = serialized(topic, msg, None)
         self._calls.append((topic, typename, data, log_time_ns, latched))
 
     def write_cdr(self, topic: str, typename: str, data: bytes, log_time_ns: int, make: Any = None, *,

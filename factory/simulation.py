@@ -47,7 +47,8 @@ from factory.diagnostics import door, gripper
 from factory.core.errors import CellError, FactoryError, McapError
 from factory.core.setupsheet import SetupSheet
 from factory.live import Fanout, LiveSink
-from factory.mcaplog import McapLog, read_messages
+from factory.mcapfork import big_log
+from factory.mcaplog import read_messages
 from factory.rosmsgs import (TYPESTORE, RestampedCdr, Serialized, TfCdr, cube_marker, log_msg, marker_array, ros_time,
                              tf_message, transform_stamped, triangle_mesh_marker)
 from factory.plan import PlanRequest, plan_part
@@ -711,7 +712,7 @@ def write_cell_log(path: Path | None, result: SimulationResult, assets: dict[tup
         sinks: list[Any] = []
         if path is not None:
             sinks.append(stack.enter_context(
-                McapLog(path, stage="simulate", overwrite=overwrite, inputs=inputs, parameters=parameters)))
+                big_log(path, stage="simulate", overwrite=overwrite, inputs=inputs, parameters=parameters)))
         if live is not None:
             sinks.append(live)
         m = Fanout(sinks)

@@ -9,6 +9,7 @@ program is :func:`robotprog.programs.post_program`. ``factory robot`` and ``fact
 
 from __future__ import annotations
 
+import collections
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -118,8 +119,17 @@ def log_cell(m: McapLog | LogBuffer, cell: Cell, world: CollisionWorld,
     m.write("/cell/boxes", marker_array(markers), 0, latched=True)
 
 
+#: Joint paths whose link poses :class:`LinkPoses` keeps [-]: a cell run repeats each part's few moves for every
+#: order, so a handful per part serve them all.
+POSE_PATHS_KEPT = 64
+
+
 class LinkPoses:
-    """The robot's links in its base frame by forward kinematics, as /tf logs them at each state."""
+    """The robot's links in its base frame by forward kinematics, as /tf logs them at each state.
+
+    :meth:`poses` keeps its last :data:`POSE_PATHS_KEPT` answers by the joint positions' bytes: a cell
+    simulation logs the same planned moves, sampled alike, once per order (the forward kinematics were
+    most of writing its log), and the same positions give the same poses."""
 
     def __init__(self, world: CollisionWorld):
         robot = world.robot
@@ -128,6 +138,7 @@ class LinkPoses:
         self.base_id = robot.model.getFrameId(robot.base_frame)
         self.frames = link_frames(world)
         self.names = [name for name, _ in self.frames]
+        self._kept: collections.OrderedDict[bytes, np.ndarray] = collections.OrderedDict()
 
     def matrices(self, q: np.ndarray) -> np.ndarray:
         """(k, 4, 4) float: each link's pose in the base frame [m] at joint positions ``q`` (dof,) [rad]."""
@@ -141,7 +152,17 @@ class LinkPoses:
         q = np.asarray(q, dtype=float).reshape(-1, self.model.nq)
         if not len(q):
             return np.zeros((0, len(self.frames), 7))
-        return transform_values(np.array([self.matrices(qi) for qi in q]))
+        key = q.tobytes()
+        poses = self._kept.get(key)
+        if poses is None:
+            poses = transform_values(np.array([self.matrices(qi) for qi in q]))
+            poses.flags.writeable = False  # shared by every caller that asks for these positions
+            self._kept[key] = poses
+            if len(self._kept) > POSE_PATHS_KEPT:
+                self._kept.popitem(last=False)
+        else:
+            self._kept.move_to_end(key)
+        return poses
 
 
 class RobotStateLog:
