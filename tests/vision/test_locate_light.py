@@ -301,7 +301,7 @@ def test_the_walls_seen_beside_their_tops_widen_off_the_camera_axis(station):
                       station.plane_z)
     axis = station.camera_pose[:2, 3]
     widths = [model.feet_width(np.array([axis[0], axis[1] + d, 0.0])) for d in (0.02, 0.04, 0.06)]
-    assert widths[0] == pytest.approx(0.0, abs=1e-9)
+    assert widths[0] == pytest.approx(0.0, abs=1e-3)
     assert 0.0 < widths[1] < widths[2]
     # Per outline sample: the near wall is 60 of the 200 mm around, at most about 2 px wide.
     assert widths[2] < 0.3 * 2.5
