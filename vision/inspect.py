@@ -157,7 +157,8 @@ class InspectOptions:
         How the parts are located, with locate's refusals; a smaller share of all edges found than
         locate asks for by default, since a defect (a boss not there) takes edges away and must be
         judged, not refused (wrong poses reach 0.49 on locate's gallery, only when the outline's own
-        checks let them through).
+        checks let them through); not refined (:attr:`vision.locate.LocateOptions.refine`): the
+        depths of its defects were measured and bounded at the pose fitted to all the edges.
     """
 
     tolerance: float = 0.7e-3
@@ -169,7 +170,7 @@ class InspectOptions:
     min_whole_found: float = 0.45
     judge_from_above: bool = True
     min_seen: float = 0.5
-    locate: LocateOptions = LocateOptions(min_found=0.35)
+    locate: LocateOptions = LocateOptions(min_found=0.35, refine=False)
 
 
 @dataclass(frozen=True)

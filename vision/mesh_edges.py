@@ -138,18 +138,39 @@ class MeshEdges:
         fit leaves the lower out. The judgement keeps them (missed when the picture has one edge there):
         left out, a stepped wall slid 12 mm along itself beside a box found 0.58 of its edges, not 0.46.
         """
+        return self.beside(uv, normal, idx) >= 0
+
+    def beside(self, uv: np.ndarray, normal: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """``(k,)`` int over the visible samples ``idx`` (as :meth:`unresolved`): for each, the position (in
+        ``idx``) of the nearest higher parallel visible sample within :data:`RESOLVE_PX` in the picture,
+        or -1 where there is none (the sample is resolved)."""
+        partner = np.full(len(idx), -1)
         if len(idx) == 0:
-            return np.zeros(0, bool)
+            return partner
         z = self.points[idx, 2]
         pairs = cKDTree(uv).query_pairs(RESOLVE_PX, output_type="ndarray")
         if len(pairs) == 0:
-            return np.zeros(len(idx), bool)
+            return partner
         i, j = pairs[:, 0], pairs[:, 1]
         parallel = np.abs(np.einsum("nj,nj->n", normal[i], normal[j])) > RESOLVE_COS
-        lower = np.zeros(len(idx), bool)
-        lower[i[parallel & (z[j] > z[i] + RESOLVE_DZ_M)]] = True
-        lower[j[parallel & (z[i] > z[j] + RESOLVE_DZ_M)]] = True
-        return lower
+        up, down = parallel & (z[j] > z[i] + RESOLVE_DZ_M), parallel & (z[i] > z[j] + RESOLVE_DZ_M)
+        lower, higher = np.r_[i[up], j[down]], np.r_[j[up], i[down]]
+        # Written farthest first, so the nearest higher one is written last and stays.
+        order = np.argsort(-np.linalg.norm(uv[lower] - uv[higher], axis=1), kind="stable")
+        partner[lower[order]] = higher[order]
+        return partner
+
+    def feet_width(self, p: np.ndarray) -> float:
+        """How wide the walls whose feet lie beside their tops (:meth:`beside`) look at pose ``p``: the feet's
+        distances from their tops across the edge, summed, per visible outline sample [px]. Stacked
+        walls (a plate and its bosses) count each foot."""
+        idx = self.visible(p)
+        uv, normal = self.project(p, idx)
+        partner = self.beside(uv, normal, idx)
+        foot = np.flatnonzero(partner >= 0)
+        top = partner[foot]
+        width = np.abs(np.einsum("nj,nj->n", uv[foot] - uv[top], normal[top]))
+        return float(width.sum()) / max(int(self.outer[idx].sum()), 1)
 
     def project(self, p: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(k, 2)`` pixel positions of the sample points ``idx`` at pose ``p`` and their unit image normals."""

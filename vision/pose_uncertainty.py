@@ -25,7 +25,14 @@ import numpy as np
 
 #: Least residual variance counted, for a fit that lies exactly on its edges [px^2].
 MIN_VARIANCE_PX2 = 0.05 ** 2
-#: Fewest mesh edges in a fit for their pulls to count (:func:`pose_covariance`, 2).
+#: Fewest mesh edges in a fit for their pulls to count (:func:`pose_covariance`, 2). Argued from the
+#: statistics, not fitted: G edges' pulls estimate a variance of 3 parameters with G - 3 degrees of
+#: freedom, so the deviation they give is itself uncertain by about 1 / sqrt(2 (G - 3)) of itself; at
+#: 16 edges that is 0.2 (a fifth of the +-), at a blank's 8 edges 0.3 (it reported +-1.03 mm for poses
+#: 0.01-0.15 mm off). The gallery bounds it without fixing it: on the tuning seeds 0-4 (40 found poses,
+#: 14-263 edges) every threshold from 0 to none covers 40/40; over all 158 cached poses any threshold
+#: up to 16 covers 156, 24 loses a stepped wall held out with 19 edges (0.58 mm, +-0.91 by edges,
+#: +-0.57 without) and 32 one more (30 edges).
 MIN_EDGES = 16
 #: Fewest samples that must remain when the unresolved feet leave the fit to take their shift.
 MIN_REMAINING = 12

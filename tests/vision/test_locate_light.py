@@ -46,9 +46,11 @@ GLARE = [("glare", "bracket", 0), ("glare", "dome_mould", 0), ("dim", "stepped_w
 #: turn found 0.73 of the outline at its real heights against 0.99, so it is no rival in glare).
 #: Also a glare dome mould 117 mm off the camera's axis, once 1.75 mm off outward reporting +-0.62 mm: the
 #: feet of walls seen nearly edge-on took the crease of the clipped top beside them
-#: (:meth:`vision.mesh_edges.MeshEdges.unresolved`).
+#: (:meth:`vision.mesh_edges.MeshEdges.unresolved`). And a stepped wall beside a box, once turned 1.16 deg
+#: (within its +-1.36 deg, but beyond 1 deg) by the feet of its walls, which took their tops' edges in
+#: even light: the chosen fit is settled without them (vision.locate._settled), 0.7 deg.
 ONCE_WRONG = [("low_angle", "l_bracket", 1), ("dim", "stepped_wall", 17), ("glare", "stepped_wall", 15),
-              ("glare", "dome_mould", 15)]
+              ("glare", "dome_mould", 15), ("distractor", "stepped_wall", 2)]
 #: Glare pictures once refused although they fix the pose: two Ls whose turn was taken for a rival (the
 #: turns' share of the picture inside the outline explained left out the upright's top edge, outline
 #: but well inside the hull off the camera's axis, and the bores a bloom smaller than their rims: 0.28
@@ -56,10 +58,12 @@ ONCE_WRONG = [("low_angle", "l_bracket", 1), ("dim", "stepped_wall", 17), ("glar
 #: (the turn of that fit, which misses most of its outline, is fitted from as wide a reach as a start).
 ONCE_REFUSED = [("glare", "l_bracket", 2), ("glare", "l_bracket", 3), ("glare", "stepped_wall", 1)]
 #: Pictures whose error once lay beyond the uncertainty reported with it, now within it (vision/pose_uncertainty.py):
-#: a stepped wall beside a box turned 1.16 deg by the feet of its walls, which took their tops' edges in
-#: even light (+-0.71 deg; the shift of the pose when they leave the fit now counts), and a glare L 0.91 mm
-#: off held by a few edges that disagree (+-0.66 mm; the residuals of one mesh edge now count as one).
-ONCE_UNCOVERED = [("distractor", "stepped_wall", 2), ("glare", "l_bracket", 17)]
+#: a glare L 0.91 mm off held by a few edges that disagree (+-0.66 mm; the residuals of one mesh edge now
+#: count as one). (The stepped wall beside a box once here, 1.16 deg against +-0.71, is in ONCE_WRONG.)
+#: And a glare plate with bosses 137 mm off the camera's axis, 0.83 mm outward against +-0.72 mm: glare
+#: poses lie outward by a share of their walls' seen width, now taken off (vision.locate.GLARE_WALL_SHIFT,
+#: measured on the tuning seeds 0-4; this is an unseen seed).
+ONCE_UNCOVERED = [("glare", "l_bracket", 17), ("glare", "plate_bosses", 30)]
 #: What a refusal may say (vision.locate._refusal): which evidence of the part was short.
 REASONS = ("outline is not there", "seen along one direction only", "inside the outline are not there",
            "fit loosely", "the yaw is not fixed")
@@ -129,8 +133,8 @@ def test_a_glare_picture_once_refused_is_now_found_within_its_uncertainty(statio
 
 @pytest.mark.parametrize("condition, part, seed", ONCE_UNCOVERED)
 def test_a_pose_once_beyond_its_uncertainty_is_now_within_it(station, condition, part, seed):
-    """The one pose found lies within the uncertainty it reports, and within 1.5 mm and 1.5 deg (the
-    stepped wall is still 1.16 deg off: an honest +- rather than a right yaw), and the +- is no blanket."""
+    """The one pose found lies within the uncertainty it reports, and within 1.5 mm and 1.5 deg, and the
+    +- is no blanket."""
     scene, found = located(station, condition, part, seed)
     assert len(found) == 1
     p = found[0]
@@ -285,3 +289,19 @@ def test_the_foot_of_a_wall_beside_its_top_in_the_picture_is_unresolved(station,
         assert lower[toward].all()
     else:
         assert not lower[toward].any()
+
+
+def test_the_walls_seen_beside_their_tops_widen_off_the_camera_axis(station):
+    """A 60 x 40 x 20 mm box slid along y off the camera's axis: only a wall turned to the axis is seen from
+    the side. Its near wall 0, 20 and 40 mm from the axis looks 0, 0.8 and 1.7 mm wide (20 mm x distance /
+    480 mm), under RESOLVE_PX, so the walls' seen width (and the glare pose's outward shift taken off,
+    vision.locate.GLARE_WALL_SHIFT) grows with the distance from the axis, from none."""
+    box = trimesh.creation.box((60.0, 40.0, 20.0))
+    model = MeshEdges(footprint_from_mesh(box.vertices, box.faces), station.camera, station.world_to_camera,
+                      station.plane_z)
+    axis = station.camera_pose[:2, 3]
+    widths = [model.feet_width(np.array([axis[0], axis[1] + d, 0.0])) for d in (0.02, 0.04, 0.06)]
+    assert widths[0] == pytest.approx(0.0, abs=1e-3)
+    assert 0.0 < widths[1] < widths[2]
+    # Per outline sample: the near wall is 60 of the 200 mm around, at most about 2 px wide.
+    assert widths[2] < 0.3 * 2.5
