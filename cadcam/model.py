@@ -318,11 +318,16 @@ class CuttingData:
         Cutting feed [mm/min].
     plunge_feed : float
         Feed for ramps, helices and vertical entries [mm/min].
+    chip_load : float or None
+        The library's feed per tooth ``fz`` for this tool in this material [mm/tooth]: the thickest chip
+        the tool may cut, whatever the feed (a feed raised for chip thinning keeps it, and ``factory verify``
+        holds every move's chip to it). None where unknown (a job written before it was recorded).
     """
 
     spindle_rpm: float
     feed: float
     plunge_feed: float
+    chip_load: float | None = None
 
 
 class Motion(enum.IntEnum):
