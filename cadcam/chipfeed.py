@@ -6,10 +6,12 @@ engagement), and much of a flats-and-walls pass crosses stock cut away already. 
 (``2 sqrt(ae (D - ae)) / D``, :func:`cadcam.adaptive.chip_thinned_feed`); a move in air cuts none. So each
 cutting move runs at the library's feed per tooth over that sine, capped by the machine's feed.
 
-The engagement is the one the planner knows: the pass is cut into the stock model before it
-(:func:`cadcam.stock.cut_stock`) with the tool grown by half a grid diagonal, so that the stock between the
-model's grid points, which the real tool may meet, is met by the grown one (as the rapid check grows it,
-:func:`cadcam.rest.safe_rapids`); each move's chip is read as verify reads it (``MoveRecord.chip``).
+The engagement is the one the planner knows: the pass is cut (:func:`cadcam.stock.cut_stock`) into the stock
+model before it, laid on verify's grid (:data:`CHIP_CELL`), each fine point as high as the
+highest of the four coarse points round it, so that the stock between the model's points, which the tool may
+meet, is there (beside a wall that reads a skin up to a coarse cell thicker: slower, never faster); each move's
+chip is read as verify reads it (``MoveRecord.chip``), the largest of the moves within the tool's radius along
+the path (a move shorter than a cell reaches no new grid point and would read as air).
 ``factory verify`` judges the result independently, on its own grid from the program (``chip`` faults).
 Feeds are taken down to a ladder of steps (:data:`FEED_STEP`) so that the program changes feed only where
 the engagement does. Lengths in millimetres, feeds in mm/min.
@@ -22,13 +24,15 @@ import math
 
 import numpy as np
 
+from cadcam.heightmap import grid_over
 from cadcam.model import Motion, Operation, Setup
-from cadcam.rest import _grown
-from cadcam.stock import Simulation, cut_stock, operation_moves
+from cadcam.stock import FlippedStock, Simulation, cut_stock, operation_moves
 
 #: Raised feeds are a power of this times the operation's feed (or the machine's cap): the program
 #: changes F only where the engagement changes by more than a step, each step at most this much slower.
 FEED_STEP = 1.25
+#: Grid the pass's engagement is measured on [mm]: verify's default, which judges it.
+CHIP_CELL = 0.2
 
 
 def chip_feeds(op: Operation, stock: Simulation, setup: Setup, part_triangles: np.ndarray,
@@ -39,12 +43,11 @@ def chip_feeds(op: Operation, stock: Simulation, setup: Setup, part_triangles: n
     c = op.cutting
     if c.chip_load is None or op.tool.is_drill or op.cycle is not None or len(op.points) < 2:
         return op
-    grown = _grown(op.tool, 0.5 * stock.grid.cell * math.sqrt(2.0))
-    cut = cut_stock(operation_moves([op]), {op.tool.number: grown}, setup, part_triangles, stock.grid.cell,
-                    start=stock)
+    cut = cut_stock(operation_moves([op]), {op.tool.number: op.tool}, setup, part_triangles, CHIP_CELL,
+                    start=_finer(stock, setup, CHIP_CELL))
     share = np.zeros(len(op.points))  # the thickest chip of the move ending at each point, a share of fz
     np.maximum.at(share, cut.segments.move, cut.met.chip)
-    share = _nearby_max(op.points, share, op.tool.radius + stock.grid.cell)
+    share = _nearby_max(op.points, share, op.tool.radius + CHIP_CELL)
     full = c.spindle_rpm * op.tool.flutes * c.chip_load  # the feed at which a full-width chip is fz
     want = np.where(share > 0, full / np.maximum(share, 1e-9), np.inf)
     steps = np.floor(np.log(np.maximum(want, c.feed) / c.feed) / math.log(FEED_STEP) + 1e-9)
@@ -68,3 +71,25 @@ def _nearby_max(points: np.ndarray, share: np.ndarray, reach: float) -> np.ndarr
     for i in np.flatnonzero(hi - lo > 1):
         out[i] = share[lo[i]:hi[i]].max()
     return out
+
+
+def _finer(stock: Simulation, setup: Setup, cell: float) -> FlippedStock:
+    """``stock`` on the grid of ``cell`` [mm] over ``setup``'s stock box: each point's top the highest of the
+    four model points round it, its bottom the lowest (never less stock than the model may hold there)."""
+    g0, grid = stock.grid, grid_over(setup.stock_min, setup.stock_max, cell)
+
+    def around(at: np.ndarray, start: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+        i = np.clip(np.floor((at - start) / g0.cell).astype(np.int64), 0, n - 1)
+        return i, np.minimum(i + 1, n - 1)
+
+    (i0, i1), (j0, j1) = around(grid.xs, g0.x0, g0.nx), around(grid.ys, g0.y0, g0.ny)
+    top0 = np.where(np.isfinite(stock.stock_top), stock.stock_top, -np.inf)
+    top = np.maximum.reduce([top0[np.ix_(j, i)] for j in (j0, j1) for i in (i0, i1)])
+    under = stock.stock_under
+    if under is None:
+        bottom = np.full(top.shape, stock.stock_bottom)
+    else:
+        low = np.where(np.isfinite(under), under, np.inf)
+        bottom = np.minimum.reduce([low[np.ix_(j, i)] for j in (j0, j1) for i in (i0, i1)])
+        bottom = np.where(np.isfinite(bottom), bottom, stock.stock_bottom)
+    return FlippedStock(grid=grid, top=top, bottom=bottom)
