@@ -40,6 +40,7 @@ levels only): the levels' operation first, the deep cuts after it. All lengths i
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections.abc import Callable
@@ -182,8 +183,7 @@ def chip_thinned_feed(cutting: CuttingData, tool: Tool, engagement: float, max_f
     if not 0 < engagement < d / 2:
         return cutting
     factor = d / (2.0 * math.sqrt(engagement * (d - engagement)))
-    return CuttingData(spindle_rpm=cutting.spindle_rpm, feed=min(max_feed, max(cutting.feed, cutting.feed * factor)),
-                       plunge_feed=cutting.plunge_feed)
+    return dataclasses.replace(cutting, feed=min(max_feed, max(cutting.feed, cutting.feed * factor)))
 
 
 def adaptive_roughing(

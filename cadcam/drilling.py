@@ -490,7 +490,7 @@ def helix_cutting(cutting: CuttingData, tool: Tool, radii: tuple[float, ...]) ->
     """
     feed = min(internal_arc_feed(cutting.feed, tool.diameter, 2 * (r + tool.radius)) for r in radii)
     feed = round(feed, 1)
-    return CuttingData(spindle_rpm=cutting.spindle_rpm, feed=feed, plunge_feed=feed)
+    return dataclasses.replace(cutting, feed=feed, plunge_feed=feed)
 
 
 def helix_radii(outer: float, tool_radius: float) -> tuple[float, ...]:

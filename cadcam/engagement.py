@@ -8,10 +8,14 @@ what arc of its circumference (the engagement angle) and how deep the deepest fu
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from cadcam.envelope import Segments, reach_interval
+from cadcam.model import ProgramMoves, Tool
 
 
 class MoveRecord:
@@ -26,7 +30,9 @@ class MoveRecord:
     ``volume``: stock it removed above ``bottom`` (the stock's bottom) [mm³]; ``angle``: its
     engagement angle [deg], the arc of the cutter's circumference that met material moving
     sideways, wall skins included; ``full_depth``: the deepest axial cut it took over at least
-    the full-width angle (``full_cell``: where), 0 if it never cut at full width.
+    the full-width angle (``full_cell``: where), 0 if it never cut at full width; ``chip``: the thickest
+    chip it cut as a share of its feed per tooth, ``sin`` of the engagement angle up to 90 deg and 1 past it
+    (:func:`_engaged_arc`), 0 if it met nothing sideways.
     """
 
     def __init__(self, n: int, bottom: float = -np.inf):
@@ -44,6 +50,7 @@ class MoveRecord:
         self.angle = np.zeros(n)
         self.full_depth = np.zeros(n)
         self.full_cell = np.full(n, -1, np.int64)
+        self.chip = np.zeros(n)
 
     def freeze(self) -> None:
         """Make every array read-only: the cut is done."""
@@ -176,9 +183,18 @@ def _engaged_arc(o: np.ndarray, w: np.ndarray, r: np.ndarray, depth: np.ndarray,
     side cut of width ``ae`` ``acos(1 - ae / r)``, a skin met head-on the chord its thickness
     cuts, two thin skins either side of a slot two small arcs), and the full-width depth is
     the deepest column that arcs adding up to more than ``full_width`` [rad] all reach.
+
+    The chip (``stats.chip``) is read from the same points without the arcs' steps: a tooth meeting the
+    material at lateral offset ``w`` cuts a chip ``fz * sqrt(1 - (w / r)^2)`` thick (the feed per tooth
+    across its edge), thickest at the point nearest the move's line, taken half a cell nearer it as the
+    arcs take it: for a side cut of width ``ae``, ``fz`` times the sine of its engagement angle
+    ``acos(1 - ae / r)`` (``2 sqrt(ae (D - ae)) / D``, the rule of :func:`cadcam.adaptive.chip_thinned_feed`);
+    1 where the material reaches the line (a slot, a side cut of half the diameter or more).
     """
     step = math.pi / _ARC_BINS
     n = int(o.max()) + 1
+    near = np.clip((np.abs(w) - 0.5 * cell) / r, 0.0, 1.0)
+    np.maximum.at(stats.chip, o + s, np.sqrt(1.0 - near * near))
     # Half a cell towards the axis, a whole one away from it: the band of a cell's width along the
     # cutter's side may hold no grid point, yet it spans a wide arc (asin is steep there).
     lo = np.arcsin(np.clip((w - np.where(w < 0, 1.0, 0.5) * cell) / r, -1.0, 1.0)) + 0.5 * math.pi
@@ -218,3 +234,45 @@ def _running_spread(group: np.ndarray, lo: np.ndarray, hi: np.ndarray, span: flo
     top = np.maximum.accumulate(hi + shift) - shift
     bottom = shift - np.maximum.accumulate(shift - lo)
     return top - bottom
+
+
+@dataclass(frozen=True)
+class ChipLoad:
+    """What one tool's chip is held to: the library's feed per tooth ``fz`` [mm] in the job's material, the
+    tool run at ``spindle_rpm`` [rev/min] (its feed per tooth is the programmed feed over ``rpm * flutes``)."""
+
+    fz: float
+    spindle_rpm: float
+
+
+def chip_loads(operations: Sequence[Mapping[str, Any]]) -> dict[int, ChipLoad]:
+    """Each tool's :class:`ChipLoad` from a setup sheet's ``operations`` (``tool``, ``spindle_rpm`` and
+    ``chip_load_mm``, :func:`cadcam.sheet.setup_sheet`): the smallest of both over the tool's operations (the
+    slower spindle makes the thicker chip of a feed). A tool no operation gives a chip load for is not judged."""
+    out: dict[int, ChipLoad] = {}
+    for op in operations:
+        try:
+            tool, fz, rpm = int(op["tool"]), float(op["chip_load_mm"]), float(op["spindle_rpm"])
+        except (KeyError, TypeError, ValueError):
+            continue
+        if not (fz > 0 and rpm > 0 and math.isfinite(fz) and math.isfinite(rpm)):
+            continue
+        had = out.get(tool)
+        out[tool] = ChipLoad(fz, rpm) if had is None else ChipLoad(min(had.fz, fz), min(had.spindle_rpm, rpm))
+    return out
+
+
+def move_chips(seg: Segments, share: np.ndarray, moves: ProgramMoves, tool: np.ndarray, tools: Mapping[int, Tool],
+               chips: Mapping[int, ChipLoad]) -> tuple[np.ndarray, np.ndarray]:
+    """Per segment (``tool`` its tool number), the thickest chip it cut [mm]: its programmed feed per tooth
+    times ``share``, the chip as a share of it (``MoveRecord.chip``); 0 for rapids, drills and tools not in
+    ``chips``. And the feed per tooth it is held to [mm] (inf where not judged)."""
+    per_tooth = np.zeros(len(seg))
+    fz = np.full(len(seg), np.inf)
+    for t, load in chips.items():
+        if t not in tools or tools[t].is_drill:
+            continue
+        mine = (tool == t) & ~seg.rapid
+        per_tooth[mine] = np.nan_to_num(moves.feed[seg.move[mine]]) / (load.spindle_rpm * tools[t].flutes)
+        fz[mine] = load.fz
+    return per_tooth * share, fz

@@ -318,11 +318,16 @@ class CuttingData:
         Cutting feed [mm/min].
     plunge_feed : float
         Feed for ramps, helices and vertical entries [mm/min].
+    chip_load : float or None
+        The library's feed per tooth ``fz`` for this tool in this material [mm/tooth]: the thickest chip
+        the tool may cut, whatever the feed (a feed raised for chip thinning keeps it, and ``factory verify``
+        holds every move's chip to it). None where unknown (a job written before it was recorded).
     """
 
     spindle_rpm: float
     feed: float
     plunge_feed: float
+    chip_load: float | None = None
 
 
 class Motion(enum.IntEnum):
@@ -407,6 +412,10 @@ class Operation:
     cycle : DrillCycle or None
         For drilling operations, the canned cycle the points expand (see
         :mod:`cadcam.drilling`); None for everything else.
+    feeds : (n,) float or None
+        ``feeds[i]``: the feed of the cutting move that ends at ``points[i]`` [mm/min] where it is not
+        ``cutting.feed`` (a pass raised for the chip its engagement allows, :mod:`cadcam.chipfeed`), NaN where it
+        is; read for :attr:`Motion.CUT` moves only. None: every cutting move at ``cutting.feed``.
     """
 
     name: str
@@ -417,12 +426,25 @@ class Operation:
     motion: np.ndarray
     allowance: float = 0.0
     cycle: DrillCycle | None = None
+    feeds: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "points", frozen_array(self.points, (3,)).reshape(-1, 3))
         object.__setattr__(self, "motion", frozen_array(self.motion, dtype=np.int8).reshape(-1))
         if len(self.points) != len(self.motion):
             raise ValueError("points and motion must have the same length")
+        if self.feeds is not None:
+            object.__setattr__(self, "feeds", frozen_array(self.feeds).reshape(-1))
+            if len(self.feeds) != len(self.points):
+                raise ValueError("feeds and points must have the same length")
+
+    def move_feeds(self) -> np.ndarray:
+        """(n,) the feed of the move ending at each point [mm/min]: a cutting move's (``feeds`` or
+        ``cutting.feed``), a plunge's ``cutting.plunge_feed``, NaN for rapids (``[0]`` is no move)."""
+        m = self.motion
+        cut = np.full(len(m), self.cutting.feed) if self.feeds is None else np.where(
+            np.isnan(self.feeds), self.cutting.feed, self.feeds)
+        return np.where(m == Motion.RAPID, np.nan, np.where(m == Motion.PLUNGE, self.cutting.plunge_feed, cut))
 
     def lengths(self) -> dict[str, float]:
         """Path length by motion kind [mm]: ``{"rapid": .., "cut": .., "plunge": ..}``."""
@@ -440,6 +462,8 @@ class Operation:
             "points": np.round(self.points, 6).tolist(),
             "motion": self.motion.tolist(),
             **({"cycle": self.cycle.to_dict()} if self.cycle is not None else {}),
+            **({"feeds": [None if np.isnan(f) else round(float(f), 1) for f in self.feeds]}
+               if self.feeds is not None else {}),
         }
 
     @classmethod
@@ -453,6 +477,7 @@ class Operation:
             motion=np.asarray(d["motion"], dtype=np.int8),
             allowance=float(d.get("allowance", 0.0)),
             cycle=DrillCycle.from_dict(d["cycle"]) if d.get("cycle") else None,
+            feeds=None if d.get("feeds") is None else np.array([np.nan if f is None else f for f in d["feeds"]], float),
         )
 
 

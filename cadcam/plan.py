@@ -29,6 +29,7 @@ from cadcam.adaptive_rest import adaptive_rest_roughing
 from cadcam.drilling import DrillingOptions, Hole, HolePlan, plan_holes
 from cadcam.faces import SHALLOW, STEEP, FaceClasses, classify_faces
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
+from cadcam.chipfeed import chip_feeds
 from cadcam.flatfinish import WALL_HAIR, FlatFinishOptions, flat_wall_finishing, left_on_flats_and_walls
 from cadcam.model import CuttingData, Job, Operation, Setup, Tool
 from cadcam.relief import Boundary, keep_outside
@@ -807,7 +808,9 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
                                                            within=plan.keepout, limit=limit,
                                                            unreached_in=unreached_in, leave=leave))
         if len(op.points) > 1:
-            operations.append(op)
+            # each move at the feed its chip allows on the stock before it: walls' skins and air faster
+            operations.append(plan.timed("chip feeds", lambda: chip_feeds(op, stock, setup, plan.triangles,
+                                                                          library.max_feed)))
             stale = True
 
 

@@ -207,13 +207,11 @@ def move_seconds(length: np.ndarray | float, feed: np.ndarray | float, rapid_rat
 
 def operation_move_seconds(op: Operation, rapid_rate: float) -> np.ndarray:
     """(n - 1,) the time [s] of each move of ``op`` by :func:`move_seconds` (its moves unfitted): feed moves at
-    ``op.cutting.feed``, plunges at its plunge feed, rapids at ``rapid_rate`` [mm/min]. For planners that weigh
+    their feeds (:meth:`cadcam.model.Operation.move_feeds`), plunges at its plunge feed, rapids at ``rapid_rate`` [mm/min]. For planners that weigh
     one way of cutting against another by the program's clock."""
     if len(op.points) < 2:
         return np.zeros(0)
-    m = op.motion[1:]
-    feed = np.where(m == Motion.RAPID, np.nan, np.where(m == Motion.PLUNGE, op.cutting.plunge_feed, op.cutting.feed))
-    return move_seconds(np.linalg.norm(np.diff(op.points, axis=0), axis=1), feed, rapid_rate)
+    return move_seconds(np.linalg.norm(np.diff(op.points, axis=0), axis=1), op.move_feeds()[1:], rapid_rate)
 
 
 def tool_change_seconds(first_load: bool, options: PostOptions) -> float:
@@ -776,9 +774,8 @@ def _write_approach(w: _Writer, op: Operation, safe_z: float) -> float:
 
 def _write_moves(w: _Writer, op: Operation, seg: Segments) -> _Cutting:
     """Write an operation's fitted segments as G0/G1/G2/G3 blocks."""
-    c = op.cutting
     lengths = seg.lengths()
-    feeds = np.select([seg.motion == Motion.CUT, seg.motion == Motion.PLUNGE], [c.feed, c.plunge_feed], np.nan)
+    feeds = segment_feeds(op, seg)
     seconds = move_seconds(lengths, feeds, w.opt.rapid_rate)
     cut_len = 0.0
     cut_time = 0.0
@@ -789,7 +786,7 @@ def _write_moves(w: _Writer, op: Operation, seg: Segments) -> _Cutting:
             w.move(0, seg.end[i])
             rapids.append(float(lengths[i]))
             continue
-        feed = c.feed if m == Motion.CUT else c.plunge_feed
+        feed = float(feeds[i])
         cut_len += float(lengths[i])
         cut_time += float(seconds[i])
         kind = int(seg.kind[i])
@@ -798,6 +795,16 @@ def _write_moves(w: _Writer, op: Operation, seg: Segments) -> _Cutting:
         else:
             w.move(kind, seg.end[i], feed, centre=seg.centre[i])
     return _Cutting(cut_len, cut_time, tuple(rapids), seg.end[-1] if len(seg) else op.points[0])
+
+
+def segment_feeds(op: Operation, seg: Segments) -> np.ndarray:
+    """(m,) the feed of each fitted segment of ``op`` [mm/min], NaN for rapids: the slowest of the moves it
+    replaces (``seg.source_end``), so an arc over moves of different feeds never runs one faster than planned."""
+    per_move = op.move_feeds()[1:]  # the move ending at point j + 1
+    if not len(seg) or not len(per_move):
+        return np.full(len(seg), np.nan)
+    first = np.minimum(np.r_[0, seg.source_end[:-1]], len(per_move) - 1)
+    return np.where(seg.motion == Motion.RAPID, np.nan, np.fmin.reduceat(per_move, first))
 
 
 def operations_end(program: Program, options: PostOptions) -> int:

@@ -188,14 +188,16 @@ def from_and_to_safe_height(op: Operation, safe_z: float) -> Operation:
     pts = op.points
     if op.cycle is not None or not len(pts) or (pts[0, 2] >= safe_z - 1e-9 and pts[-1, 2] >= safe_z - 1e-9):
         return op
-    mot = op.motion
+    mot, feeds = op.motion, op.feeds
     if pts[0, 2] < safe_z - 1e-9:
         pts = np.vstack([[pts[0, 0], pts[0, 1], safe_z], pts])
         mot = np.concatenate([[Motion.RAPID], mot]).astype(op.motion.dtype)
+        feeds = None if feeds is None else np.r_[np.nan, feeds]
     if pts[-1, 2] < safe_z - 1e-9:
         pts = np.vstack([pts, [pts[-1, 0], pts[-1, 1], safe_z]])
         mot = np.concatenate([mot, [Motion.RAPID]]).astype(op.motion.dtype)
-    return dataclasses.replace(op, points=pts, motion=mot)
+        feeds = None if feeds is None else np.r_[feeds, np.nan]
+    return dataclasses.replace(op, points=pts, motion=mot, feeds=feeds)
 
 
 def safe_rapids(operations: Sequence[Operation], setup: Setup, part_triangles: np.ndarray,
@@ -268,6 +270,7 @@ def safe_rapids(operations: Sequence[Operation], setup: Setup, part_triangles: n
     for k, changes in edits.items():
         op = ops[k]
         pts, mot = op.points.copy(), op.motion.copy()
+        feeds = None if op.feeds is None else op.feeds.copy()
         inserts = []
         for i, split in changes:
             mot[i] = Motion.PLUNGE
@@ -276,6 +279,7 @@ def safe_rapids(operations: Sequence[Operation], setup: Setup, part_triangles: n
         for i, p in sorted(inserts, key=lambda t: -t[0]):
             pts = np.insert(pts, i, p, axis=0)
             mot = np.insert(mot, i, Motion.RAPID)
-        out[k] = dataclasses.replace(op, points=pts, motion=mot)
+            feeds = None if feeds is None else np.insert(feeds, i, np.nan)
+        out[k] = dataclasses.replace(op, points=pts, motion=mot, feeds=feeds)
     log.info("%d of %d rapids below the safe plane would touch the stock: split or slowed", len(bad), checked)
     return tuple(out), checked, len(bad)

@@ -33,6 +33,8 @@ def setup_sheet(job: Job, program: Program, program_name: str) -> SetupSheet:
                 "spindle_rpm": round(op.cutting.spindle_rpm),
                 "feed_mm_min": round(op.cutting.feed, 1),
                 "plunge_feed_mm_min": round(op.cutting.plunge_feed, 1),
+                # the library's feed per tooth the tool's chip is held to (factory verify)
+                **({"chip_load_mm": op.cutting.chip_load} if op.cutting.chip_load is not None else {}),
                 "allowance_mm": op.allowance,
                 "cut_mm": round(e.cut_length, 1) if e else None,
                 "rapid_mm": round(e.rapid_length, 1) if e else None,

@@ -664,7 +664,8 @@ def operation_moves(operations: Sequence[Operation]) -> ProgramMoves:
     motion = np.concatenate([op.motion for op in operations]).astype(np.int8)
     motion[motion == Motion.PLUNGE] = Motion.CUT
     tool = np.concatenate([np.full(len(op.points), op.tool.number) for op in operations])
-    feed = np.concatenate([np.where(op.motion == Motion.RAPID, np.nan, op.cutting.feed) for op in operations])
+    # plunges at the cutting feed, as the planners' estimates have always counted them
+    feed = np.concatenate([np.where(op.motion == Motion.PLUNGE, op.cutting.feed, op.move_feeds()) for op in operations])
     return ProgramMoves(points, motion, tool, feed, np.zeros(len(points), dtype=np.int32))
 
 

@@ -222,9 +222,11 @@ class ToolLibrary:
         if tool.is_drill:
             return self._drilling_data(tool, m)
         rpm = min(self.max_rpm, 1000.0 * m.surface_speed / (math.pi * tool.diameter))
-        feed = min(self.max_feed, rpm * tool.flutes * m.chip_load_for(tool.diameter) * self.feed_factor(tool))
+        fz = m.chip_load_for(tool.diameter) * self.feed_factor(tool)
+        feed = min(self.max_feed, rpm * tool.flutes * fz)
         plunge = min(self.max_feed, feed * m.plunge_fraction)
-        return CuttingData(spindle_rpm=round(rpm), feed=round(feed, 1), plunge_feed=round(plunge, 1))
+        return CuttingData(spindle_rpm=round(rpm), feed=round(feed, 1), plunge_feed=round(plunge, 1),
+                           chip_load=round(fz, 6))
 
     def _drilling_data(self, tool: Tool, m: MaterialData) -> CuttingData:
         # A drill only feeds along its axis: feed = plunge feed = n * f.

@@ -30,7 +30,7 @@ import numpy as np
 from scipy import ndimage
 
 from cadcam.corners import corners_left, inside_corners
-from cadcam.engagement import MoveRecord
+from cadcam.engagement import ChipLoad, MoveRecord, chip_loads, move_chips
 from cadcam.envelope import Segments
 from cadcam.gouge import gouge_depths
 from cadcam.heightmap import grid_over
@@ -93,6 +93,13 @@ class VerifyOptions:
         a tool narrower than ``cell / engagement_resolution`` has its moves cut again on a finer
         grid over their reach (the stock there from every move of the program). None: on ``cell``
         (for a caller that reads only rapids and contacts).
+    chip_tolerance : float
+        A move's chip may be this share thicker than the tool's feed per tooth before it is a ``chip``
+        fault (:class:`cadcam.engagement.ChipLoad`). The chip is read from where the stock met the cutter, to half a grid
+        cell (:func:`cadcam.engagement.engaged_depth`): a wall's 0.3 mm skin on a 0.2 mm grid reads
+        0.2-0.4 mm wide, its chip 0.85-1.15 times the true one on a 10 mm end mill. 0.2: that, and the
+        dome_mould's adaptive lead-ins (T5, 8 mm bull-nose, 15 mm deep), which verify reads at 1.16 fz while
+        the adaptive planner's own replay holds them within its band (issue 32: to be looked into).
     """
 
     cell: float = 0.2
@@ -106,6 +113,7 @@ class VerifyOptions:
     relief: bool = False
     full_width_angle: float = FULL_WIDTH_ANGLE
     engagement_resolution: float | None = 0.1
+    chip_tolerance: float = 0.2
 
 
 @dataclass(frozen=True)
@@ -134,8 +142,8 @@ class RapidCrash:
 
 
 #: What :class:`Fault` can say, in the order the report lists them.
-FAULT_KINDS = ("no_cut", "rapid", "holder", "flute", "full_width", "radial", "buried", "drill_side", "below_stock",
-               "seam", "jaws")
+FAULT_KINDS = ("no_cut", "rapid", "holder", "flute", "full_width", "radial", "chip", "buried", "drill_side",
+               "below_stock", "seam", "jaws")
 
 #: Setup sheet operation kinds that finish a surface; every other kind removes bulk stock.
 FINISHING_KINDS = frozenset({"raster", "waterline", "finishing"})
@@ -154,7 +162,9 @@ class Fault:
         ``full_width`` a cut at full width (:attr:`VerifyOptions.full_width_angle`) deeper than
         the tool's axial limit (:attr:`cadcam.model.Tool.full_width_limit`); ``radial`` a side cut
         (not at full width) deeper than that limit and radially wider than the tool's radial limit
-        (:attr:`cadcam.model.Tool.deep_radial_limit`, the library's ``radial_limit``); ``buried`` a
+        (:attr:`cadcam.model.Tool.deep_radial_limit`, the library's ``radial_limit``); ``chip`` a move's
+        chip (:attr:`ToolEngagement.max_chip`) thicker than the tool's feed per tooth by more than
+        :attr:`VerifyOptions.chip_tolerance` (:class:`cadcam.engagement.ChipLoad`); ``buried`` a
         finishing tool engaged deeper than :attr:`VerifyOptions.finish_depth`;
         ``drill_side`` a drill fed sideways through stock (a drill's only engagement is
         axial, held to its flute length by ``flute``); ``below_stock`` the tool tip below the stock
@@ -245,6 +255,14 @@ class ToolEngagement:
         Axial engagement, radial engagement and engagement angle over those moves.
     angle_moves : tuple of int
         How many of them engaged an arc in each bin of :data:`ANGLE_BINS`.
+    max_chip : float
+        Thickest chip of any feed move [mm]: its feed per tooth (programmed feed over the spindle speed and
+        the flutes) times the sine of its engagement angle, 1 past 90 deg (``MoveRecord.chip``); 0 where the
+        tool's :class:`ChipLoad` is unknown.
+    max_chip_line : int
+        Program line of that move (0 if none).
+    chip_load : float
+        What that was held to, the library's feed per tooth [mm] (0: not judged).
     """
 
     tool: int
@@ -262,6 +280,9 @@ class ToolEngagement:
     width: Spread = Spread(0.0, 0.0, 0.0, 0.0)
     angle: Spread = Spread(0.0, 0.0, 0.0, 0.0)
     angle_moves: tuple[int, ...] = ()
+    max_chip: float = 0.0
+    max_chip_line: int = 0
+    chip_load: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -282,7 +303,14 @@ class ToolEngagement:
                 f"up to {self.max_full_depth:.2f} mm{_on_line(self.max_full_depth_line)}, limit {self.axial_limit:g} mm; "
                 f"widest {self.max_width:.2f} mm, angle p50/p90/max "
                 f"{self.angle.p50:.0f}/{self.angle.p90:.0f}/{self.angle.max:.0f} deg over {self.engaged} moves "
-                f"(deg: {bins}), grid {self.cell:g} mm")
+                f"(deg: {bins}), grid {self.cell:g} mm{self._chip()}")
+
+    def _chip(self) -> str:
+        """``; chip up to ... against fz ...`` where the chip was judged, nothing where not."""
+        if self.chip_load <= 0:
+            return ""
+        return (f"; chip up to {self.max_chip:.4f} mm{_on_line(self.max_chip_line)}, fz {self.chip_load:g} mm "
+                f"({self.max_chip / self.chip_load:.0%})")
 
 
 def _on_line(line: int) -> str:
@@ -425,6 +453,7 @@ def simulate(
     progress: Callable[[int, int], None] | None = None,
     finishing: np.ndarray | None = None,
     resume: CutState | None = None,
+    chips: Mapping[int, ChipLoad] | None = None,
 ) -> VerifyResult:
     """Cut the stock with every move of a program and compare the result with the part.
 
@@ -440,6 +469,9 @@ def simulate(
     resume : CutState, optional
         The program's first moves cut already (:func:`verify_ahead`): the cut goes on from there where they
         are this program's (:func:`cadcam.stock.cut_stock`'s ``resume``); the result is the same.
+    chips : mapping of int to ChipLoad, optional
+        By tool number, what each tool's chip is held to (:func:`chip_loads` reads it from a setup sheet);
+        the tools not in it are not judged on their chip.
 
     Returns
     -------
@@ -453,7 +485,7 @@ def simulate(
         (``source`` names the G-code line, ``data["line"]`` holds it); if the part, stock
         or options are unusable.
     """
-    return _verify(moves, tools, setup, part_triangles, options, progress, finishing, None, resume)
+    return _verify(moves, tools, setup, part_triangles, options, progress, finishing, None, resume, chips)
 
 
 def verify_ahead(moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup, part_triangles: np.ndarray,
@@ -481,6 +513,7 @@ def simulate_flipped(
     options: VerifyOptions = VerifyOptions(),
     progress: Callable[[int, int], None] | None = None,
     finishing: np.ndarray | None = None,
+    chips: Mapping[int, ChipLoad] | None = None,
 ) -> VerifyResult:
     """:func:`simulate` starting from the stock an earlier operation left, turned over.
 
@@ -494,12 +527,13 @@ def simulate_flipped(
     VerifyError
         As :func:`simulate`; also when ``start`` lies on another grid than this setup's.
     """
-    return _verify(moves, tools, setup, part_triangles, options, progress, finishing, start)
+    return _verify(moves, tools, setup, part_triangles, options, progress, finishing, start, chips=chips)
 
 
 def _verify(moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup, part_triangles: np.ndarray,
             options: VerifyOptions, progress: Callable[[int, int], None] | None, finishing: np.ndarray | None,
-            start: FlippedStock | None, resume: CutState | None = None) -> VerifyResult:
+            start: FlippedStock | None, resume: CutState | None = None,
+            chips: Mapping[int, ChipLoad] | None = None) -> VerifyResult:
     """:func:`simulate` from the setup's stock box (``start`` None) or from a stock given per grid point."""
     _check_options(options)
     cut = cut_stock(moves, tools, setup, part_triangles, options.cell, start=start, progress=progress,
@@ -515,7 +549,7 @@ def _verify(moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup, part_t
     length = np.zeros(len(a))
     length[known] = np.linalg.norm(b[known] - a[known], axis=1)
     measured = _refined(_measured(cut), cut, moves, tools, setup, part_triangles, options, start)
-    crashes, faults, engagement = _judge(seg, cut.met, measured, moves, tools, finish, sim, options)
+    crashes, faults, engagement = _judge(seg, cut.met, measured, moves, tools, finish, sim, options, chips or {})
     if setup.jaws:
         faults += _jaw_faults(a, b, cut.swept, moves, tools, setup, options)
     report = _report(
@@ -602,7 +636,7 @@ def _jaw_faults(a: np.ndarray, b: np.ndarray, use: np.ndarray, moves: ProgramMov
 class _Measured:
     """Engagement per swept segment (rows of :attr:`StockCut.segments`), on the grid each tool needs.
 
-    ``angle`` [deg], ``width`` (radial) and ``full_depth`` (axial at full width) [mm] as
+    ``angle`` [deg], ``width`` (radial), ``full_depth`` (axial at full width) [mm] and ``chip`` (share) as
     :class:`cadcam.engagement.MoveRecord` holds them; ``full_x, full_y`` where the full-width depth
     was reached [mm] (NaN if nowhere); ``cell`` the grid it was measured on [mm].
     """
@@ -610,6 +644,7 @@ class _Measured:
     angle: np.ndarray
     width: np.ndarray
     full_depth: np.ndarray
+    chip: np.ndarray
     full_x: np.ndarray
     full_y: np.ndarray
     cell: np.ndarray
@@ -621,6 +656,7 @@ def _measured(cut: StockCut) -> _Measured:
     jj, ii = np.divmod(met.full_cell, g.nx)
     nowhere = met.full_cell < 0
     return _Measured(angle=met.angle.copy(), width=met.width.copy(), full_depth=met.full_depth.copy(),
+                     chip=met.chip.copy(),
                      full_x=np.where(nowhere, np.nan, g.x0 + ii * g.cell),
                      full_y=np.where(nowhere, np.nan, g.y0 + jj * g.cell), cell=np.full(len(met.angle), g.cell))
 
@@ -676,7 +712,7 @@ def _refined(measured: _Measured, cut: StockCut, moves: ProgramMoves, tools: Map
             getattr(out, f.name)[rows] = getattr(fine_m, f.name)[src]
         # moves the fine grid saw cut nothing (outside its stock): measured as not engaged there
         gone = mine[~ok]
-        out.angle[gone] = out.width[gone] = out.full_depth[gone] = 0.0
+        out.angle[gone] = out.width[gone] = out.full_depth[gone] = out.chip[gone] = 0.0
         out.cell[gone] = fine
     return out
 
@@ -693,7 +729,7 @@ def _resampled(start: FlippedStock | None, setup: Setup, cell: float) -> Flipped
 
 
 def _judge(seg: Segments, stats: MoveRecord, measured: _Measured, moves: ProgramMoves, tools: Mapping[int, Tool],
-           finish: np.ndarray, sim: Simulation, options: VerifyOptions):
+           finish: np.ndarray, sim: Simulation, options: VerifyOptions, chips: Mapping[int, ChipLoad]):
     """Rapid crashes, faults and per-tool engagement from the per-move results."""
     g = sim.grid
 
@@ -726,6 +762,7 @@ def _judge(seg: Segments, stats: MoveRecord, measured: _Measured, moves: Program
     # A drill only cuts along its axis: any feed move across the stock breaks it.
     drill = np.array([t in tools and tools[t].is_drill for t in tool.tolist()], dtype=bool)
     sideways = drill & ~seg.rapid & (seg.l2 > 1e-12) & (stats.removed_max > options.gouge_tolerance)
+    chip, fz = move_chips(seg, measured.chip, moves, tool, tools, chips)
     checks = (
         ("rapid", seg.rapid & (stats.removed_max > options.rapid_tolerance), stats.removed_max, stats.removed_cell,
          np.full(len(seg), options.rapid_tolerance), "rapid with T{t} goes {w:.2f} mm into the stock"),
@@ -740,6 +777,8 @@ def _judge(seg: Segments, stats: MoveRecord, measured: _Measured, moves: Program
         ("radial", deep_wide, measured.width, stats.depth_cell, radial,
          "T{t} cuts {w:.2f} mm wide below its full-width depth near X{x:.1f} Y{y:.1f} Z{z:.1f}, beyond its "
          "{l:g} mm radial limit"),
+        ("chip", chip > fz * (1.0 + options.chip_tolerance), chip, stats.depth_cell, fz,
+         "T{t} cuts a {w:.4f} mm chip, over its feed per tooth of {l:g} mm"),
         ("buried", ~seg.rapid & fin & (stats.depth > options.finish_depth), stats.depth, stats.depth_cell,
          np.full(len(seg), options.finish_depth), "finishing tool T{t} engaged {w:.2f} mm deep (limit {l:g} mm)"),
         ("drill_side", sideways, stats.removed_max, stats.removed_cell, np.full(len(seg), options.gouge_tolerance),
@@ -771,6 +810,7 @@ def _judge(seg: Segments, stats: MoveRecord, measured: _Measured, moves: Program
             continue
         k = int(ks[np.argmax(stats.depth[ks])])
         f = int(ks[np.argmax(measured.full_depth[ks])])
+        c = int(ks[np.argmax(chip[ks])])
         cutting = ks[measured.width[ks] > 0.0]  # moves that took material off
         counts = np.histogram(measured.angle[cutting], bins=ANGLE_BINS)[0]
         engagement.append(ToolEngagement(
@@ -781,6 +821,8 @@ def _judge(seg: Segments, stats: MoveRecord, measured: _Measured, moves: Program
             axial_limit=float(axial[ks[0]]), cell=float(measured.cell[ks].min()), engaged=int(len(cutting)),
             depth=Spread.of(stats.depth[cutting]), width=Spread.of(measured.width[cutting]),
             angle=Spread.of(measured.angle[cutting]), angle_moves=tuple(int(c) for c in counts),
+            max_chip=float(chip[c]), max_chip_line=int(line[c]) if chip[c] > 0 else 0,
+            chip_load=float(np.nan_to_num(fz[ks[0]], posinf=0.0)),
         ))
     return crashes, faults, tuple(engagement)
 

@@ -24,9 +24,8 @@ from cadcam.sheet import SheetSetup, read_setup_sheet
 from cadcam.preview import deviation_image
 from cadcam.cutahead import CutState
 from cadcam.stock import FOR_OP2, OUTSIDE_RELIEF, Simulation, flip_stock
-from cadcam.verify import (VerifyOptions, VerifyReport, VerifyResult, finishing_moves, simulate, simulate_flipped,
-                           verify_ahead,
-                           with_op1_left)
+from cadcam.verify import (VerifyOptions, VerifyReport, VerifyResult, chip_loads, finishing_moves, simulate,
+                           simulate_flipped, verify_ahead, with_op1_left)
 from factory.core.atomic import write_bytes, write_text
 from factory.core.errors import SetupError
 from factory.core.setupsheet import SetupSheet
@@ -69,7 +68,8 @@ def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int
                operations: Sequence[Mapping[str, Any]] = (), resume: CutState | None = None) -> VerifyResult:
     """Parse and simulate a program against the part (``triangles`` in work coordinates [mm]);
     ``operations`` are the setup sheet's, which tell finishing tools from roughing ones where the
-    program's own operation comments do not. ``resume``: the program's first moves cut already
+    program's own operation comments do not, and each tool's chip load (:func:`cadcam.verify.chip_loads`).
+    ``resume``: the program's first moves cut already
     (:class:`VerifyAhead`), gone on from where they are this program's; the result is the same.
 
     Raises
@@ -82,7 +82,7 @@ def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int
     moves = parse_gcode(gcode_text, source=gcode_source)
     finishing = finishing_moves(gcode_text, moves, operations)
     return simulate(moves, tools, setup, triangles, options, progress=stage_callback(progress, "verify"),
-                    finishing=finishing, resume=resume)
+                    finishing=finishing, resume=resume, chips=chip_loads(operations))
 
 
 #: Niceness added to a round of :class:`VerifyAhead`: it takes a processor the planning leaves idle, not one
@@ -238,7 +238,8 @@ def run_verify_after(before: Simulation, flip: np.ndarray, gcode_text: str, gcod
     finishing = finishing_moves(gcode_text, moves, operations)
     start = flip_stock(before, flip, setup)
     verified = simulate_flipped(moves, tools, setup, triangles, start, options,
-                                progress=stage_callback(progress, "verify op 2"), finishing=finishing)
+                                progress=stage_callback(progress, "verify op 2"), finishing=finishing,
+                                chips=chip_loads(operations))
     if op1 is None:
         return verified
     return VerifyResult(verified.simulation, with_op1_left(verified.report, op1, verified.simulation, flip))

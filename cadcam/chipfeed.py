@@ -1,0 +1,95 @@
+"""Each cutting move of a pass at the feed its chip allows (issue 32): a finishing pass raised where it meets little.
+
+A finishing pass along a wall takes only the roughing allowance off it (0.3 mm on a 10 mm end mill: a 20 deg
+engagement), and much of a flats-and-walls pass crosses stock cut away already. At a radial engagement
+``ae < D/2`` the chip at the edge is thinner than the feed per tooth, by the sine of the engagement angle
+(``2 sqrt(ae (D - ae)) / D``, :func:`cadcam.adaptive.chip_thinned_feed`); a move in air cuts none. So each
+cutting move runs at the library's feed per tooth over that sine, capped by the machine's feed.
+
+The engagement is the one the planner knows: the pass is cut (:func:`cadcam.stock.cut_stock`) into the stock
+model before it, laid on verify's grid (:data:`CHIP_CELL`), each fine point as high as the
+highest of the four coarse points round it, so that the stock between the model's points, which the tool may
+meet, is there (beside a wall that reads a skin up to a coarse cell thicker: slower, never faster); each move's
+chip is read as verify reads it (``MoveRecord.chip``), the largest of the moves within the tool's radius along
+the path (a move shorter than a cell reaches no new grid point and would read as air).
+``factory verify`` judges the result independently, on its own grid from the program (``chip`` faults).
+Feeds are taken down to a ladder of steps (:data:`FEED_STEP`) so that the program changes feed only where
+the engagement does. Lengths in millimetres, feeds in mm/min.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from cadcam.heightmap import grid_over
+from cadcam.model import Motion, Operation, Setup
+from cadcam.stock import FlippedStock, Simulation, cut_stock, operation_moves
+
+#: Raised feeds are a power of this times the operation's feed (or the machine's cap): the program
+#: changes F only where the engagement changes by more than a step, each step at most this much slower.
+FEED_STEP = 1.25
+#: Grid the pass's engagement is measured on [mm]: verify's default, which judges it.
+CHIP_CELL = 0.2
+
+
+def chip_feeds(op: Operation, stock: Simulation, setup: Setup, part_triangles: np.ndarray,
+               max_feed: float) -> Operation:
+    """``op`` with each cutting move's feed raised to what its chip allows on ``stock`` (module docstring),
+    at most ``max_feed`` [mm/min], never below ``op.cutting.feed``; ``op`` itself where nothing is raised,
+    its cutting data gives no chip load, or it is a drill's or a canned cycle's."""
+    c = op.cutting
+    if c.chip_load is None or op.tool.is_drill or op.cycle is not None or len(op.points) < 2:
+        return op
+    cut = cut_stock(operation_moves([op]), {op.tool.number: op.tool}, setup, part_triangles, CHIP_CELL,
+                    start=_finer(stock, setup, CHIP_CELL))
+    share = np.zeros(len(op.points))  # the thickest chip of the move ending at each point, a share of fz
+    np.maximum.at(share, cut.segments.move, cut.met.chip)
+    share = _nearby_max(op.points, share, op.tool.radius + CHIP_CELL)
+    full = c.spindle_rpm * op.tool.flutes * c.chip_load  # the feed at which a full-width chip is fz
+    want = np.where(share > 0, full / np.maximum(share, 1e-9), np.inf)
+    steps = np.floor(np.log(np.maximum(want, c.feed) / c.feed) / math.log(FEED_STEP) + 1e-9)
+    feed = np.where(want >= max_feed, max_feed, np.minimum(c.feed * FEED_STEP ** steps, max_feed))
+    raised = (op.motion == Motion.CUT) & (feed > c.feed * (1 + 1e-9))
+    raised[0] = False
+    if not raised.any():
+        return op
+    return dataclasses.replace(op, feeds=np.where(raised, np.round(feed, 1), np.nan))
+
+
+def _nearby_max(points: np.ndarray, share: np.ndarray, reach: float) -> np.ndarray:
+    """``share`` of each move raised to the largest of the moves within ``reach`` [mm] of it along the path.
+
+    The model measures a move by the grid points its sweep newly reaches: a move shorter than a cell may reach
+    none and read as air while it cuts between them what the moves beside it were measured cutting."""
+    s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]
+    lo = np.searchsorted(s, s - reach, side="left")
+    hi = np.searchsorted(s, s + reach, side="right")
+    out = share.copy()
+    for i in np.flatnonzero(hi - lo > 1):
+        out[i] = share[lo[i]:hi[i]].max()
+    return out
+
+
+def _finer(stock: Simulation, setup: Setup, cell: float) -> FlippedStock:
+    """``stock`` on the grid of ``cell`` [mm] over ``setup``'s stock box: each point's top the highest of the
+    four model points round it, its bottom the lowest (never less stock than the model may hold there)."""
+    g0, grid = stock.grid, grid_over(setup.stock_min, setup.stock_max, cell)
+
+    def around(at: np.ndarray, start: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+        i = np.clip(np.floor((at - start) / g0.cell).astype(np.int64), 0, n - 1)
+        return i, np.minimum(i + 1, n - 1)
+
+    (i0, i1), (j0, j1) = around(grid.xs, g0.x0, g0.nx), around(grid.ys, g0.y0, g0.ny)
+    top0 = np.where(np.isfinite(stock.stock_top), stock.stock_top, -np.inf)
+    top = np.maximum.reduce([top0[np.ix_(j, i)] for j in (j0, j1) for i in (i0, i1)])
+    under = stock.stock_under
+    if under is None:
+        bottom = np.full(top.shape, stock.stock_bottom)
+    else:
+        low = np.where(np.isfinite(under), under, np.inf)
+        bottom = np.minimum.reduce([low[np.ix_(j, i)] for j in (j0, j1) for i in (i0, i1)])
+        bottom = np.where(np.isfinite(bottom), bottom, stock.stock_bottom)
+    return FlippedStock(grid=grid, top=top, bottom=bottom)
