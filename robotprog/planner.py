@@ -14,12 +14,18 @@ Moves
   collision-free at :attr:`PlannerOptions.joint_resolution`; otherwise an RRT-Connect in joint space
   finds a path, which is then shortcut (random pairs of path points joined when the straight joint
   segment between them is free at that resolution). The result is a :class:`JointPath` that says
-  which of the two found it. The transfer's polyline is then proven free all along, not only at the
-  checks (else it is planned again).
+  which of the two found it. The transfer is then proven free all along, not only at the checks
+  (else it is planned again): its timed spline, and its polyline where the spline touches.
 * Each move is timed with :func:`robotprog.timing.time_path` (:meth:`MotionPlanner.timed`) and the
   timed spline, the path the controller drives, is proven free all along too (the cubic spline
   through the waypoints need not follow the polyline); where it is not, the waypoints are densified
-  and the move re-timed.
+  and the move re-timed. A transfer's timed spline is proven first: where it is free, the polyline
+  it was timed through is never driven and needs no proof; only where it touches is the polyline
+  proven, to tell a path to plan again from a spline to pin down.
+* The timed spline is proven with room around it (:attr:`TimedMove.tube`): every configuration
+  within the chord deviation of its samples every :data:`CHORD_PERIOD_S` is free too, so the posted
+  servo stream, the polyline through those samples, is proven by that bound
+  (:func:`robotprog.programs.posted_collision`) instead of being proven again.
 * *Gripper* actions (:meth:`MotionPlanner.gripper`) set digital outputs and wait the settle time.
 
 Reproducible plans
@@ -61,6 +67,11 @@ from robotprog.sweep import monotone_breaks, swept_motion
 from robotprog.timing import Trajectory, time_path
 
 log = logging.getLogger(__name__)
+
+#: The timed path is proven with room for the chords between its samples this far apart [s]: the
+#: URScript servo stream's period (:data:`robotprog.programs.SERVO_PERIOD_S`), whose polyline is then
+#: proven by that bound (:attr:`TimedMove.tube`).
+CHORD_PERIOD_S = 0.008
 
 #: Largest joint step between two IK samples of a straight line before it counts as the arm
 #: flipping its configuration [rad].
@@ -121,6 +132,11 @@ class TimedMove:
         Wait after a gripper action [s].
     transform_world_to_tcp : (4, 4) float
         TCP pose at the end of the move [m].
+    tube : (dof,) float or None
+        Room [rad] proven free around the timed path, joint by joint (with ``held``, in the world
+        the move was planned in): at least the chord deviation of its samples every
+        :data:`CHORD_PERIOD_S` (:meth:`robotprog.timing.Trajectory.chord_deviation`). None: the
+        path alone is proven.
     """
 
     name: str
@@ -131,6 +147,7 @@ class TimedMove:
     outputs: tuple[tuple[int, bool], ...] = ()
     settle_s: float = 0.0
     transform_world_to_tcp: np.ndarray = field(default_factory=lambda: np.eye(4))
+    tube: np.ndarray | None = None
 
     @property
     def duration(self) -> float:
@@ -459,10 +476,12 @@ class MotionPlanner:
     def timed(self, name: str, kind: str, qs: np.ndarray, held: Payload) -> TimedMove:
         """Time the path through ``qs`` (n, dof) [rad] and prove the timed path free all along.
 
-        A joint transfer's polyline is proven first (its RRT edges and shortcuts were only checked
-        every joint_resolution); a transfer whose polyline or timed path still touches something
-        (a graze between those checks) is planned again, up to three times (the seeded generator
-        has moved on, so the new path differs and plans stay reproducible).
+        A joint transfer's timed path is proven first, as it is timed; where it touches, its
+        polyline is proven (its RRT edges and shortcuts were only checked every joint_resolution):
+        a transfer whose polyline or timed path still touches something (a graze between those
+        checks) is planned again, up to three times (the seeded generator has moved on, so the new
+        path differs and plans stay reproducible). The timed path is proven with room for the
+        chords of its samples (:attr:`TimedMove.tube`) where it has that room.
 
         Raises
         ------
@@ -470,6 +489,13 @@ class MotionPlanner:
             The path cannot be timed within the joint limits or proven free.
         """
         qs = np.asarray(qs, dtype=float)
+        if kind == "joint":
+            # The motion that runs is the timed spline: proven as it is, the polyline it was timed
+            # through needs no proof of its own; only where it touches is the polyline asked, to
+            # tell a graze of the search's path from the spline straying off a free one.
+            move = self._timed_proven(name, kind, qs, held)
+            if move is not None:
+                return move
         for _ in range(3):
             if kind == "joint":
                 hit = self.sweep.polyline_contact(qs, held)
@@ -489,6 +515,30 @@ class MotionPlanner:
             raise PlanningError(f"{name}: the path collides ({hit[1]})")
         return self._timed_once(name, kind, qs, held)
 
+    def _timed_proven(self, name: str, kind: str, qs: np.ndarray, held: Payload) -> TimedMove | None:
+        """``qs`` timed once and its timed path proven (:meth:`_proven`), or None where either fails."""
+        try:
+            traj = time_path(qs, self.vmax, self.amax, q_lower=self.robot.q_lower, q_upper=self.robot.q_upper)
+        except PlanningError:
+            return None
+        tube, hit = self._proven(traj, held)
+        if hit is not None:
+            return None
+        return TimedMove(name, traj, kind, qs, held, transform_world_to_tcp=self.tcp_world(qs[-1]), tube=tube)
+
+    def _proven(self, traj: Trajectory, held: Payload) -> tuple[np.ndarray | None, tuple[float, str] | None]:
+        """Proves the timed path of ``traj`` free all along, with room for the chords of its samples
+        every :data:`CHORD_PERIOD_S` (that tube), else the path alone (tube None: only a graze
+        closer than the tube); returns (tube, None), or (None, the contact) where it touches."""
+        path = PPoly(traj.coefficients, traj.breakpoints)
+        # The whole driven path, not samples of it: cut where a joint turns, then proven piece by
+        # piece (robotprog.sweep).
+        breaks = monotone_breaks(traj.breakpoints, traj.coefficients)
+        tube = traj.chord_deviation(CHORD_PERIOD_S)
+        if self.sweep.first_contact(path, breaks, held, tube) is None:
+            return tube, None
+        return None, self.sweep.first_contact(path, breaks, held)
+
     def _timed_once(self, name: str, kind: str, qs: np.ndarray, held: Payload, proven: bool = False) -> TimedMove:
         """Time ``qs`` and prove the timed path; ``proven``: the polyline through ``qs`` is (so a
         spline that is one straight segment, as through two waypoints, needs no second proof)."""
@@ -500,14 +550,11 @@ class MotionPlanner:
             except PlanningError as e:  # the spline overshot a joint limit between waypoints
                 problem = str(e)
             else:
-                path = PPoly(traj.coefficients, traj.breakpoints)
-                # The whole driven path, not samples of it: cut where a joint turns, then proven
-                # piece by piece (robotprog.sweep).
-                breaks = monotone_breaks(traj.breakpoints, traj.coefficients)
                 straight = proven and traj.coefficients.shape[1] == 1 and not np.any(traj.coefficients[:2])
-                hit = None if straight else self.sweep.first_contact(path, breaks, held)
+                tube, hit = (None, None) if straight else self._proven(traj, held)
                 if hit is None:
-                    return TimedMove(name, traj, kind, wp, held, transform_world_to_tcp=self.tcp_world(wp[-1]))
+                    return TimedMove(name, traj, kind, wp, held, transform_world_to_tcp=self.tcp_world(wp[-1]),
+                                     tube=tube)
                 problem = f"the timed path collides ({hit[1]})"
             # The spline strayed from the checked polyline: pin it down with waypoints on the
             # polyline, every joint_resolution, then twice and four times as dense (a spline

@@ -18,7 +18,11 @@ controller invents between waypoints. Per language:
   that runs the segment in its time, rounded up), the last of each move exact (``fine`` /
   no ``C_PTP``) where the plan stops anyway.
 
-Proof of the posted path: the controller drives the polyline through the posted targets,
+Proof of the posted path: a URScript servo stream samples a move's timed path every
+:data:`SERVO_PERIOD_S`; the planner proved that path with room for the chords between such samples
+(:attr:`robotprog.planner.TimedMove.tube`), so the stream's polyline is proven by that bound, no
+query of its own (where the room was not proven, as below). Otherwise
+the controller drives the polyline through the posted targets,
 cutting each blended corner within the triangle of the corner and its two segments' midpoints
 (RAPID and KRL shrink a zone to at most half of its segments; a blend is a convex combination
 of its two segments). :func:`check_posted_path` proves that polyline and every corner's
@@ -67,7 +71,7 @@ from robotprog.cell import Cell
 from robotprog.collision import CollisionWorld, collision_world
 from robotprog.controller import LANGS, program_duration
 from robotprog.krl import krl_program
-from robotprog.planner import PlannerOptions, TimedMove
+from robotprog.planner import CHORD_PERIOD_S, PlannerOptions, TimedMove
 from robotprog.rapid import rapid_module
 from robotprog.sweep import SweptMotion, swept_motion
 from robotprog.robots import Robot
@@ -80,7 +84,7 @@ from robotprog.urscript import (Branch, Comment, MoveJ, MoveL, ReadCorrection, S
 log = logging.getLogger(__name__)
 
 #: servoj period [s]: the CB3 controller's cycle (125 Hz).
-SERVO_PERIOD_S = 0.008
+SERVO_PERIOD_S = CHORD_PERIOD_S
 #: servoj lookahead [s] (the smallest the controller takes: least lag behind the table) and gain.
 SERVO_LOOKAHEAD_S = 0.03
 SERVO_GAIN = 300.0
@@ -306,10 +310,13 @@ def check_posted_path(world: CollisionWorld, plan: TendingPlan, steps: list[Step
 
 def posted_collision(world: CollisionWorld, plan: TendingPlan, steps: list[Step],
                      joint_resolution: float = PlannerOptions().joint_resolution,
-                     sweep: SweptMotion | None = None) -> tuple[int, str] | None:
+                     sweep: SweptMotion | None = None, planned_world: bool = False) -> tuple[int, str] | None:
     """The first move (index into ``plan.moves``, then ``plan.reject`` where the steps branch on the
     verdict) whose posted path collides, and the contact. ``sweep``: ``world``'s continuous checker
-    at ``joint_resolution``, when the caller checks several posts of one plan (made here if not)."""
+    at ``joint_resolution``, when the caller checks several posts of one plan (made here if not).
+    ``planned_world``: ``world`` is the one the plan was proven in (the cell, door open, with
+    ``plan.obstacles``), so a servo stream within the room proven around its move
+    (:func:`_servo_in_tube`) needs no proof of its own."""
     per_move: list[list[Step]] = []
     for st in flat_steps(steps):
         if isinstance(st, Comment):
@@ -335,6 +342,8 @@ def posted_collision(world: CollisionWorld, plan: TendingPlan, steps: list[Step]
             elif isinstance(st, MoveJ):
                 pts.append(np.asarray(st.q, dtype=float))
                 blended.append(st.r > 0)
+        if planned_world and _servo_in_tube(mv, posted):
+            continue
         qs = np.array(pts)
         hit = sweep.polyline_contact(qs, mv.held)
         if hit is not None:
@@ -345,6 +354,24 @@ def posted_collision(world: CollisionWorld, plan: TendingPlan, steps: list[Step]
                 if contact is not None:
                     return k, contact
     return None
+
+
+def _servo_in_tube(mv: TimedMove, posted: list[Step]) -> bool:
+    """Whether ``posted``, the steps of ``mv``, are one servo stream of its timed path, sampled every
+    period from its start (then its last target repeated), within the room the planner proved
+    around that path (:attr:`TimedMove.tube`): each of its segments strays from the path between its
+    two samples by at most the chord deviation (:meth:`robotprog.timing.Trajectory.chord_deviation`),
+    so the polyline from the move's start through the targets is proven free without a query."""
+    if mv.tube is None or len(posted) != 1 or not isinstance(posted[0], ServoJ):
+        return False
+    st = posted[0]
+    q, _ = _samples(mv, st.t, exact=False)
+    targets = np.asarray(st.targets, dtype=float)
+    if len(targets) < len(q) or not np.array_equal(targets[:len(q)], q) or not (targets[len(q):] == q[-1]).all():
+        return False
+    start, _, _ = mv.trajectory.sample(0.0)
+    return bool(np.array_equal(start, mv.waypoints[0])
+                and (mv.trajectory.chord_deviation(st.t) <= mv.tube).all())
 
 
 def check_language(lang: str, robot: Robot) -> None:
@@ -384,9 +411,11 @@ def post_program(lang: str, program: Path, cell: Cell, world: CollisionWorld, pl
     segments: dict[int, float] = {}
     branch = True
     sweep = swept_motion(proven, PlannerOptions().joint_resolution)  # one checker for every try
+    # the plan's moves were proven in the cell, door open, with its obstacles: their proven room holds here
+    planned = not proven.door_closed and proven.obstacles == plan.obstacles
     while True:
         steps = program_steps(cell, world, plan, lang, segments, branch)
-        hit = posted_collision(proven, plan, steps, sweep=sweep)
+        hit = posted_collision(proven, plan, steps, sweep=sweep, planned_world=planned)
         if hit is None:
             break
         k, contact = hit

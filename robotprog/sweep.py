@@ -33,6 +33,16 @@ at its level is halved (at the mid-parameter of the path: halves of a monotone s
 monotone), down to :attr:`SweptMotion.finest_level`; then the motion is taken to touch.
 In free space segments longer than ``step`` are proven at once with larger margins (negative levels).
 
+Room around a path
+------------------
+Asked for a tube ``t`` (dof,) [rad], each pair's margin grows by ``rates . t``: a stretch whose
+ends clear a pair by ``m + rates . t`` and that moves it by at most ``2 m`` keeps it at least
+``rates . t`` apart all along, so every configuration within ``t`` of the path, joint by joint, is
+free too (a straight joint segment of travel at most ``t`` moves the pair by at most ``rates . t``).
+The planner proves its timed spline so, with room for the chords between its servo samples
+(:meth:`robotprog.timing.Trajectory.chord_deviation`); the posted servo stream is then proven by
+that bound, without queries of its own (:func:`robotprog.programs.posted_collision`).
+
 A cubic path (the timed spline) is cut at its breakpoints and at the turning points of every joint,
 so that each piece is monotone; a polyline's straight segments already are.
 A run of several pieces travels, joint by joint, the sum of its pieces' ``|dq|``; each point moves
@@ -188,18 +198,25 @@ class SweptMotion:
 
     # --- margins ---------------------------------------------------------------------------
 
-    def _gdata(self, rider: _Rider, level: int) -> tuple[pin.GeometryData, np.ndarray]:
+    def _gdata(self, rider: _Rider, level: int, tube: np.ndarray | None = None) -> tuple[pin.GeometryData, np.ndarray]:
         """``rider``'s geometry data with its pair requests at level ``level``'s margins, and the
-        margins (npairs,) [m]."""
-        got = rider.levels.get(level)
+        margins (npairs,) [m]; with ``tube`` (nv,) [rad], each pair's margin grown by its closing
+        rates times ``tube`` (:meth:`first_contact`)."""
+        key = level if tube is None else (level, tube.tobytes())
+        got = rider.levels.get(key)
         if got is None:
             margins = self._margins(rider.rates, self.step * 2.0 ** -level)
+            if tube is not None:
+                margins = margins + rider.rates @ tube * (1 + 1e-6)
+                # one tube at a time is kept (a move's): the others' margins go
+                for old in [k for k in rider.levels if isinstance(k, tuple) and k[1] != key[1]]:
+                    del rider.levels[old]
             by_bodies = np.zeros((rider.geometry.ngeoms, rider.geometry.ngeoms))
             by_bodies[rider.pair_bodies[0], rider.pair_bodies[1]] = margins
-            got = rider.levels[level] = (by_bodies, margins)
-        if rider.holds[0] != level:
+            got = rider.levels[key] = (by_bodies, margins)
+        if rider.holds[0] != key:
             rider.data.setSecurityMargins(rider.geometry, got[0], True, False)
-            rider.holds[0] = level
+            rider.holds[0] = key
         return rider.data, got[1]
 
     @staticmethod
@@ -275,10 +292,10 @@ class SweptMotion:
         return None
 
     def _failing(self, q: np.ndarray, level: int, checks: np.ndarray,
-                 rider: _Rider) -> tuple[np.ndarray, np.ndarray]:
-        """Which pairs of ``checks`` (k,) int fail at ``q`` by level ``level``'s margins: (k,) bool
-        failing or not known to pass, and (k,) bool known."""
-        gd, margins = self._gdata(rider, level)
+                 rider: _Rider, tube: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Which pairs of ``checks`` (k,) int fail at ``q`` by level ``level``'s margins (grown by
+        ``tube``): (k,) bool failing or not known to pass, and (k,) bool known."""
+        gd, margins = self._gdata(rider, level, tube)
         self._place(q, rider, gd)
         hits = np.zeros(len(checks), dtype=bool)
         known = np.ones(len(checks), dtype=bool)
@@ -300,8 +317,14 @@ class SweptMotion:
         return hits, known
 
     def first_contact(self, path: Callable[[np.ndarray], np.ndarray], s: np.ndarray,
-                      held: Payload = None) -> tuple[float, str] | None:
+                      held: Payload = None, tube: np.ndarray | None = None) -> tuple[float, str] | None:
         """The first stretch of ``path`` not proven free, or ``None`` when all of it is.
+
+        With ``tube`` every configuration within ``tube`` of the path, joint by joint, is proven
+        free too: each pair's margin is grown by its closing rates times ``tube``. A stretch whose
+        ends clear a pair by ``m + rates . tube`` and that moves it by at most ``2 m`` keeps it at
+        least ``rates . tube`` apart all along (module docstring), and a configuration within
+        ``tube`` of one on the stretch is at most that much closer.
 
         Parameters
         ----------
@@ -312,6 +335,8 @@ class SweptMotion:
             (:func:`monotone_breaks` for a cubic spline, the vertices for a polyline).
         held : Payload
             What rides on the TCP.
+        tube : (dof,) float, optional
+            Room [rad] proven around the path, joint by joint (default none).
 
         Returns
         -------
@@ -319,6 +344,7 @@ class SweptMotion:
             The path parameter where the unproven stretch ends and the pair nearest there.
         """
         s = np.asarray(s, dtype=float)
+        tube = None if tube is None else np.ascontiguousarray(tube, dtype=float)
         qs = np.asarray(path(s), dtype=float).reshape(len(s), -1)
         rider = self._rider(held)
         # The checks: each collision pair, the cell's and the boxes' riding on the TCP. A pair that
@@ -338,7 +364,7 @@ class SweptMotion:
             out = checks & (level <= fail)
             todo = np.flatnonzero(checks & (level < free) & ~out)
             if len(todo):
-                hits, known = self._failing(q, level, todo, rider)
+                hits, known = self._failing(q, level, todo, rider, tube)
                 free[todo[~hits]] = level
                 fail[todo[hits & known]] = level
                 out[todo[hits]] = True

@@ -138,6 +138,32 @@ class Trajectory:
             return q[0], qd[0], qdd[0]
         return q, qd, qdd
 
+    def chord_deviation(self, period: float) -> np.ndarray:
+        """(dof,) bound [rad] per joint on how far the straight segment between two samples at most
+        ``period`` [s] apart strays from the path between them.
+
+        ``q(t) = path(s(t))`` has a continuous first derivative (the spline is C2 in ``s``, the path
+        speed continuous in ``t``) and ``q'' = path''(s) sd^2 + path'(s) sdd``; a function with
+        ``|q''| <= a`` strays from its chord over ``h`` by at most ``a h^2 / 8``. ``a`` is bounded
+        from the spline's pieces (``path''`` is linear on each, ``path'`` quadratic: their largest
+        values exactly) and the largest path speed and acceleration."""
+        if len(self.sdd) == 0:
+            return np.zeros(self.dof)
+        c = np.asarray(self.coefficients, dtype=float)
+        h = np.diff(self.breakpoints)[:, None]
+        # path'' = 6 c0 u + 2 c1 on [0, h]: largest at an end
+        second = np.maximum(np.abs(2 * c[1]), np.abs(6 * c[0] * h + 2 * c[1])).max(axis=0)
+        # path' = 3 c0 u^2 + 2 c1 u + c2: at the ends and at its vertex where that is inside
+        ends = np.maximum(np.abs(c[2]), np.abs(3 * c[0] * h * h + 2 * c[1] * h + c[2]))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = np.where(c[0] != 0, -c[1] / (3 * c[0]), -1.0)
+        inside = (u > 0) & (u < h)
+        vertex = np.where(inside, np.abs(3 * c[0] * u * u + 2 * c[1] * u + c[2]), 0.0)
+        first = np.maximum(ends, vertex).max(axis=0)
+        a = second * float(np.max(self.sd)) ** 2 + first * float(np.max(np.abs(self.sdd)))
+        # a hair more for the rounding of the samples themselves (the bound is exact on a straight move)
+        return a * period * period / 8 * (1 + 1e-9) + 1e-12
+
     def resample(self, rate_hz: float = 1000.0) -> Samples:
         """Samples at ``rate_hz`` [Hz] from t = 0, plus the final instant (so the end is included)."""
         if rate_hz <= 0:

@@ -345,3 +345,35 @@ def test_the_pick_at_the_rack_takes_the_correction_at_run_time(lang, plans, cell
             np.testing.assert_allclose(got[:3, :3], expected[:3, :3], atol=1e-5)
     # the bounds the program stops beyond: the slot's room and the camera's error, a few degrees
     assert 0.002 < read.bounds[0] < 0.03 and 0.002 < read.bounds[1] < 0.03 and read.bounds[2] == np.radians(5.0)
+
+
+def test_a_servo_stream_in_the_proven_room_is_free(plans, cell, world):
+    """The planner proves room around each timed path for the chords of its servo samples, and the
+    post takes the stream as proven by it: the bound covers the stream (each target the path's own
+    sample), and the polyline through the targets, proven on its own, is free; in another world
+    than the plan's the stream is proven again."""
+    from robotprog.programs import _servo_in_tube, posted_collision
+    from robotprog.sweep import swept_motion
+
+    plan = plans["bracket"]
+    steps = program_steps(cell, world, plan, "urscript")
+    per_move, moves = [], plan.moves + plan.reject
+    for st in flat_steps(steps):
+        if type(st).__name__ == "Comment":
+            per_move.append([])
+        elif per_move:
+            per_move[-1].append(st)
+    proven = collision_world(cell, world.robot, obstacles=plan.obstacles)
+    sweep = swept_motion(proven, 0.02)
+    covered = 0
+    for mv, posted in zip(moves, per_move):
+        if mv.kind == "gripper" or not _servo_in_tube(mv, posted):
+            continue
+        covered += 1
+        assert (mv.trajectory.chord_deviation(SERVO_PERIOD_S) <= mv.tube).all()
+        qs = np.vstack([mv.waypoints[:1], posted[0].targets])
+        assert sweep.polyline_contact(qs, mv.held) is None
+    assert covered >= len([m for m in plan.moves if m.kind != "gripper"]) - 4
+    assert posted_collision(proven, plan, steps, planned_world=True) is None
+    # in a world the plan was not proven in every stream is proven as posted (the cell alone: free too)
+    assert posted_collision(world, plan, steps) is None

@@ -161,3 +161,37 @@ def test_a_corner_proven_free_is_free_inside(world, sweep, cell, offsets, u, v):
     held = finger_boxes(cell, 0.08) + (HeldBox.at((0.1, 0.06, 0.02), np.eye(4)),)
     if sweep.corner_contact(a, c, b, held) is None:
         assert not world.in_collision(c + u * (a - c) + v * (b - c), held)
+
+
+def test_room_proven_around_a_path_is_free(world, sweep, cell):
+    """A path proven with a tube: every configuration within the tube of it, joint by joint, is
+    free; a tube wider than a path's clearance is refused where the path alone is proven."""
+    rng = np.random.default_rng(11)
+    home = np.asarray(cell.robot.home)
+    held = finger_boxes(cell, 0.08) + (HeldBox.at((0.1, 0.06, 0.02), np.eye(4)),)
+    tube = np.full(6, 0.01)
+    proven = 0
+    for _ in range(40):
+        a = home + rng.normal(0, 0.4, 6)
+        b = a + rng.normal(0, 0.3, 6)
+        if sweep.polyline_contact(np.array([a, b]), held) is not None:
+            continue
+        path = lambda s: a + np.asarray(s)[:, None] * (b - a)  # noqa: E731
+        if sweep.first_contact(path, np.array([0.0, 1.0]), held, tube) is None:
+            proven += 1
+            f = rng.random(300)[:, None]
+            corners = path(f[:, 0]) + tube * rng.choice([-1.0, 1.0], (300, 6))
+            assert world.path_free(corners, held) is None
+    assert proven >= 3
+    # standing still next to the mill table, clear by less than a wide tube's reach
+    near = home.copy()
+    lo, hi = home[1], -0.6
+    for _ in range(40):  # the shoulder angle where the arm just clears the table
+        mid = 0.5 * (lo + hi)
+        near[1] = mid
+        lo, hi = (mid, hi) if sweep.polyline_contact(np.array([near])) is None else (lo, mid)
+    near[1] = lo
+    assert sweep.polyline_contact(np.array([near, near])) is None
+    wide = np.full(6, 0.05)
+    assert sweep.first_contact(lambda s: np.repeat(near[None], len(s), 0), np.array([0.0, 1.0]), None,
+                               wide) is not None

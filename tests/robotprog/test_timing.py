@@ -137,3 +137,26 @@ def test_spline_leaving_position_limits() -> None:
 def test_bad_input(wp, vmax, amax, message) -> None:
     with pytest.raises(PlanningError, match=message):
         time_path(wp, vmax, amax)
+
+
+@settings(max_examples=12, deadline=None)
+@given(n=st.integers(2, 6), seed=st.integers(0, 2**31 - 1), period=st.sampled_from([0.004, 0.008, 0.05]))
+def test_chords_of_samples_stay_within_the_chord_deviation(n: int, seed: int, period: float) -> None:
+    """The straight segment between two samples ``period`` apart strays from the timed path between
+    them by at most :meth:`Trajectory.chord_deviation`, joint by joint (what lets the posted servo
+    stream be proven by the room proven around the path)."""
+    wp = np.random.default_rng(seed).uniform(-2.5, 2.5, (n, 6))
+    traj = time_path(wp, VMAX, AMAX)
+    bound = traj.chord_deviation(period)
+    starts = np.arange(0.0, traj.duration, period)
+    f = np.linspace(0.0, 1.0, 41)
+    worst = np.zeros(6)
+    for t0 in starts:
+        t1 = min(t0 + period, traj.duration)
+        qa, _, _ = traj.sample(t0)
+        qb, _, _ = traj.sample(t1)
+        q, _, _ = traj.sample(t0 + f * (t1 - t0))
+        worst = np.maximum(worst, np.abs(q - (qa + f[:, None] * (qb - qa))).max(axis=0))
+    assert (worst <= bound).all()
+    assert np.isfinite(bound).all() and worst.max() > 0
+    assert (traj.chord_deviation(period / 2) <= bound / 4 + 1e-12).all()
