@@ -20,7 +20,7 @@ from typing import Any, Mapping
 from cadcam.parallel import processors
 from factory.core.atomic import check_writable
 from factory.core.errors import McapError
-from factory.mcaplog import LogBuffer, McapLog, check_channel, check_time, serialized
+from factory.mcaplog import LogBuffer, McapLog, check_attachment, check_channel, check_time, serialized
 
 #: Message bytes gathered before a batch goes to the writer [bytes]: few enough sends that the
 #: pipe's cost is small, small enough that the two processes overlap.
@@ -95,11 +95,7 @@ class ForkedMcapLog:
     def attach(self, name: str, media_type: str, data: bytes, log_time_ns: int = 0) -> None:
         """As :meth:`factory.mcaplog.McapLog.attach`."""
         self._require_open()
-        if name in self._attachments:
-            raise McapError(f"attachment {name!r} written twice", source=self.path)
-        if not isinstance(data, (bytes, bytearray, memoryview)):
-            raise McapError(f"attachment {name!r} must be bytes, got {type(data).__name__}", source=self.path)
-        check_time(log_time_ns, "attachment log time")
+        check_attachment(name, data, log_time_ns, self._attachments, self.path)
         self._attachments.add(name)
         self._batch.attach(name, media_type, data, log_time_ns)
         self._gathered(len(data))
@@ -117,8 +113,11 @@ class ForkedMcapLog:
         try:
             self._conn.send(self._batch)
         except OSError as e:  # the writer died: its error, if it sent one, is the one to give
-            failure = self._conn.recv() if self._conn.poll() else f"the log's writer process ended early: {e}"
-            raise McapError(failure, source=self.path) from None
+            try:
+                failure = self._conn.recv() if self._conn.poll() else None
+            except EOFError:
+                failure = None
+            raise McapError(failure or f"the log's writer process ended early: {e}", source=self.path) from None
         self._batch, self._bytes = LogBuffer(), 0
 
 

@@ -136,6 +136,21 @@ def check_channel(topic: str, typename: str, latched: bool, known: tuple[str, bo
     return False
 
 
+def check_attachment(name: str, data: bytes, log_time_ns: int, attached: set[str], source: Any) -> int:
+    """The log time [ns] of attachment ``name``, new to ``attached`` (the names a log holds), with bytes ``data``.
+
+    Raises
+    ------
+    McapError
+        (naming ``source``) The name is attached already, ``data`` is not bytes, or the time is out of range.
+    """
+    if name in attached:
+        raise McapError(f"attachment {name!r} written twice", source=source)
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise McapError(f"attachment {name!r} must be bytes, got {type(data).__name__}", source=source)
+    return check_time(log_time_ns, "attachment log time")
+
+
 class McapLog:
     """Writes one MCAP file of ROS 2 messages, atomically. Use as a context manager.
 
@@ -315,12 +330,7 @@ class McapLog:
             Log time of the attachment [ns].
         """
         writer = self._require_open()
-        if name in self._attachments:
-            raise McapError(f"attachment {name!r} written twice", source=self.path)
-        if not isinstance(data, (bytes, bytearray, memoryview)):
-            raise McapError(f"attachment {name!r} must be bytes, got {type(data).__name__}",
-                            source=self.path)
-        t = check_time(log_time_ns, "attachment log time")
+        t = check_attachment(name, data, log_time_ns, self._attachments, self.path)
         writer.add_attachment(create_time=t, log_time=t, name=name, media_type=media_type, data=bytes(data))
         self._attachments.add(name)
 

@@ -4,7 +4,8 @@ What the robot does with a part depends on the cell, the stock box, where the pa
 setup) and the part's mesh, not on any toolpath. So :class:`BackgroundRobot` starts as soon as the setup
 is made, in a forked process (:class:`cadcam.parallel.Background`): the cell's roadmap read, the load,
 turnover and unload planned and proven, the robot program posted and proven. The robot's meshes for the
-log are read here meanwhile (:meth:`BackgroundRobot.visuals`): the child's share is the longer. Its stages show as they run (:class:`factory.core.progress.ProgressRelay`).
+log are read here meanwhile (:meth:`BackgroundRobot.visuals`): the child's share is the longer. Its
+stages show as they run (:class:`factory.core.progress.ProgressRelay`).
 :meth:`BackgroundRobot.result` takes the work once the setup sheet is posted; the robot is planned again
 here if the sheet's stock is not the one the work was started for, so the answer is always the one
 planning after the CAM would give.
