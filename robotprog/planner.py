@@ -493,9 +493,10 @@ class MotionPlanner:
             # The motion that runs is the timed spline: proven as it is, the polyline it was timed
             # through needs no proof of its own; only where it touches is the polyline asked, to
             # tell a graze of the search's path from the spline straying off a free one.
-            move = self._timed_proven(name, kind, qs, held)
-            if move is not None:
-                return move
+            try:
+                return self._timed_once(name, kind, qs, held, attempts=1)
+            except PlanningError:
+                pass
         for _ in range(3):
             if kind == "joint":
                 hit = self.sweep.polyline_contact(qs, held)
@@ -515,17 +516,6 @@ class MotionPlanner:
             raise PlanningError(f"{name}: the path collides ({hit[1]})")
         return self._timed_once(name, kind, qs, held)
 
-    def _timed_proven(self, name: str, kind: str, qs: np.ndarray, held: Payload) -> TimedMove | None:
-        """``qs`` timed once and its timed path proven (:meth:`_proven`), or None where either fails."""
-        try:
-            traj = time_path(qs, self.vmax, self.amax, q_lower=self.robot.q_lower, q_upper=self.robot.q_upper)
-        except PlanningError:
-            return None
-        tube, hit = self._proven(traj, held)
-        if hit is not None:
-            return None
-        return TimedMove(name, traj, kind, qs, held, transform_world_to_tcp=self.tcp_world(qs[-1]), tube=tube)
-
     def _proven(self, traj: Trajectory, held: Payload) -> tuple[np.ndarray | None, tuple[float, str] | None]:
         """Proves the timed path of ``traj`` free all along, with room for the chords of its samples
         every :data:`CHORD_PERIOD_S` (that tube), else the path alone (tube None: only a graze
@@ -539,27 +529,30 @@ class MotionPlanner:
             return tube, None
         return None, self.sweep.first_contact(path, breaks, held)
 
-    def _timed_once(self, name: str, kind: str, qs: np.ndarray, held: Payload, proven: bool = False) -> TimedMove:
-        """Time ``qs`` and prove the timed path; ``proven``: the polyline through ``qs`` is (so a
-        spline that is one straight segment, as through two waypoints, needs no second proof)."""
+    def _timed_once(self, name: str, kind: str, qs: np.ndarray, held: Payload, proven: bool = False,
+                    attempts: int = 4) -> TimedMove:
+        """Time ``qs`` and prove the timed path, pinned down by denser waypoints where it strays, in up to
+        ``attempts`` tries; ``proven``: the polyline through ``qs`` is (so a spline that is one straight
+        segment, as through two waypoints, needs no second proof)."""
         wp = np.asarray(qs, dtype=float)
         problem = ""
-        for attempt in range(4):
+        for attempt in range(attempts):
+            if attempt:
+                # The spline strayed from the checked polyline: pin it down with waypoints on the
+                # polyline, every joint_resolution, then twice and four times as dense (a spline
+                # through dense points of a free polyline stays within a shrinking distance of it).
+                wp = self.densify(wp, self.options.joint_resolution / 2 ** (attempt - 2) if attempt > 1 else None)
             try:
                 traj = time_path(wp, self.vmax, self.amax, q_lower=self.robot.q_lower, q_upper=self.robot.q_upper)
             except PlanningError as e:  # the spline overshot a joint limit between waypoints
                 problem = str(e)
-            else:
-                straight = proven and traj.coefficients.shape[1] == 1 and not np.any(traj.coefficients[:2])
-                tube, hit = (None, None) if straight else self._proven(traj, held)
-                if hit is None:
-                    return TimedMove(name, traj, kind, wp, held, transform_world_to_tcp=self.tcp_world(wp[-1]),
-                                     tube=tube)
-                problem = f"the timed path collides ({hit[1]})"
-            # The spline strayed from the checked polyline: pin it down with waypoints on the
-            # polyline, every joint_resolution, then twice and four times as dense (a spline
-            # through dense points of a free polyline stays within a shrinking distance of it).
-            wp = self.densify(wp, self.options.joint_resolution / 2 ** max(0, attempt - 1) if attempt else None)
+                continue
+            straight = proven and traj.coefficients.shape[1] == 1 and not np.any(traj.coefficients[:2])
+            tube, hit = (None, None) if straight else self._proven(traj, held)
+            if hit is None:
+                return TimedMove(name, traj, kind, wp, held, transform_world_to_tcp=self.tcp_world(wp[-1]),
+                                 tube=tube)
+            problem = f"the timed path collides ({hit[1]})"
         raise PlanningError(f"{name}: {problem}")
 
     def gripper(self, name: str, q: np.ndarray, outputs, held: Payload) -> TimedMove:
