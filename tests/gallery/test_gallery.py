@@ -16,30 +16,25 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from cadcam.gcode import parse_gcode
 from cadcam.seam import SEAM_TOLERANCE, Seam
-from cadcam.tools import load_tool_library
 from cli.main import app
-from factory.verify import read_sheet
-from tests.cadcam.sweep import past_axial_limit, sweep_moves
+from tests.gallery.judge import check_consumers_accept
 from tests.gallery.parts import BY_NAME
-from tests.rs274 import run_rs274
 
-#: The probe's grid [mm]: a tenth of the 2 mm end mill.
-PROBE_CELL = 0.2
-
-#: Parts unlike the samples that the cell plans today: drilled thin plate, island with necks, a through
-#: window, a tall thin rib, a plate wider than the jaws are long, a part that fits the jaws only turned about Z.
-#: And a closed relief whose ripples run out to the stock's edge, over the jaws' top.
-PLANNED = ("thin_plate_holes", "island_pocket", "frame", "tall_rib", "wide_plate_pockets", "long_turned",
-           "relief_to_edge")
-#: Tall parts (48-72 mm): the 16 mm end mill reaches the stepped tower's 49.5 mm, the long-reach 12 mm the deep
-#: pocket's floor; the split tower is deeper than any tool reaches from one side (SPLIT): op 1 machines down
-#: to its tools' reach, op 2 the rest from below, and their walls meet within the finishing tolerance.
-#: Each plans in under a minute; the boss on its base and the freeform tall ones (cone, sphere) are judged
-#: in benchmarks/gallery.py.
-TALL = ("stepped_tower", "deep_pocket", "split_tower")
-SPLIT = ("split_tower",)
+#: Parts unlike the samples that the cell plans today, each the one in the suite for what it tries: drilled
+#: thin plate, island with necks, a through window, a tall thin rib, a pocketed plate that fits the jaws only
+#: turned about Z and is then 234 mm along them (longer than the jaws, as the 200 mm wide_plate_pockets that
+#: benchmarks/gallery.py judges), and a closed relief whose ripples run out to the stock's edge, over the
+#: jaws' top.
+PLANNED = ("thin_plate_holes", "island_pocket", "frame", "tall_rib", "long_turned", "relief_to_edge")
+#: Tall parts (60-72 mm): the long-reach 12 mm end mill reaches the deep pocket's floor; the
+#: split tower is deeper than any tool reaches from one side (judge.SPLIT): op 1 machines down to its
+#: tools' reach, op 2 the rest from below, and their walls meet within the finishing tolerance. The tall
+#: parts' other cases are judged in benchmarks/gallery.py by the same checks (tests/gallery/judge.py): the
+#: stepped tower (its flats at several heights are the stepped_wall sample's, tests/cadcam/test_plan.py; its
+#: 48 mm in the open is the split tower's op 1 to its tools' reach), the boss on its base and the freeform
+#: tall ones (cone, sphere).
+TALL = ("deep_pocket", "split_tower")
 
 
 @pytest.mark.parametrize("name", PLANNED + TALL)
@@ -53,33 +48,7 @@ def test_a_gallery_part_plans_and_its_consumers_accept_it(name: str, tmp_path: P
     assert r.exit_code == 0, r.output
     if name == "long_turned":
         _placed_turned(tmp_path / "out", caplog.text)
-    doc = json.loads((tmp_path / "out" / f"{name}.plan.json").read_text())
-    library = {t.number: t for t in load_tool_library().tools}
-    table = tmp_path / "out" / f"{name}.tbl"  # the job's tool table, as a LinuxCNC user runs rs274
-    reports = [doc["verify"], doc["verify_op2"]]
-    for setup, report in zip(doc["setups"], reports, strict=True):
-        assert setup["verify_ok"] and report["ok"], (setup["op"], report["faults"])
-        done = run_rs274(Path(setup["program"]), table, tmp_path, timeout=120)
-        assert done.returncode == 0 and "error" not in (done.stdout + done.stderr).lower(), done.stderr[-500:]
-        # Finished to tolerance: nothing left above the part but the cell size's rounding on walls.
-        assert report["remaining_max"] <= 0.05, (setup["op"], report["remaining_max"])
-        assert report["finished"] and report["left"] == [], report["left"]
-        for e in report["engagement"]:
-            # No tool cuts deeper than its flutes: the shank would rub, the flutes pack.
-            assert e["max_depth"] <= library[e["tool"]].flute_length + 1e-6, e
-    # Op 1 from its stock box, by the independent probe: no tool past its axial limit at full width
-    # (op 2 starts from what op 1 left, which the probe does not model).
-    op1 = doc["setups"][0]
-    read = read_sheet(Path(op1["setup_sheet"]))
-    tools = read.tools
-    moves = parse_gcode(Path(op1["program"]).read_text(), source=op1["program"])
-    sw = sweep_moves(moves.points, moves.motion, moves.tool, tools, read.setup, PROBE_CELL, full_width=True)
-    assert past_axial_limit(sw, moves.tool, tools, PROBE_CELL) == {}
-    op2 = doc["setups"][1]
-    assert ("seams" in op2) == (name in SPLIT), op2.keys()
-    for seam in op2.get("seams", []):
-        # where op 1's walls end and op 2's begin: both finished, no step between them
-        assert seam["step"] <= SEAM_TOLERANCE and max(seam["above"], seam["below"]) <= SEAM_TOLERANCE, seam
+    check_consumers_accept(name, tmp_path / "out", tmp_path)
 
 
 def test_narrow_slots_are_finished_by_the_short_end_mill_and_only_their_sharp_corners_are_left(tmp_path: Path) -> None:
