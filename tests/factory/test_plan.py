@@ -25,6 +25,7 @@ from factory.plan import PlanRequest, plan_outputs, plan_part
 from factory.core.resources import FIXTURES
 from tests.conftest import ROOT, pocket_block
 from tests.rs274 import run_rs274
+from tests.shared import content, key_of, once
 
 
 def fast_request(part: Path, robot: bool = True) -> PlanRequest:
@@ -251,6 +252,20 @@ def test_the_tool_table_is_an_output_only_for_a_controller_that_reads_one(tmp_pa
         assert "tool_table" not in dataclasses.replace(fast_request(part), post=post).outputs(tmp_path)
 
 
+def _planned_once(real):
+    """``real`` (factory.plan._plan_once) with each request planned once in the run: the re-plan tests below
+    fault plans of the same block with the same requests (the defaults, then each of REPLAN_SCALES' thinner
+    cuts), and a plan depends on nothing but its request, the part's and the cell's content and the processors
+    it may use. Each call gets its own copy (:func:`tests.shared.once`), so each test judges a plan of its own."""
+    def plan(request, progress=None):
+        if progress is not None:
+            return real(request, progress)
+        key = key_of(repr(request), content(request.cam.part), content(request.cam.cell),
+                     os.environ.get("FACTORY_THREADS"))
+        return once("factory_plan_once", key, lambda: real(request))
+    return plan
+
+
 def _with_fault(plan, message: str, tool: int = 3):
     """``plan`` as if op 1's verify had found ``tool`` buried."""
     from cadcam.verify import Fault
@@ -262,7 +277,7 @@ def _with_fault(plan, message: str, tool: int = 3):
 def test_a_plan_verify_fails_is_made_again_with_thinner_cuts_before_any_is_handed_over(block, monkeypatch, caplog):
     import factory.plan
 
-    real = factory.plan._plan_once
+    real = _planned_once(factory.plan._plan_once)
     asked = []
 
     def first_fails(request, progress=None):
@@ -289,7 +304,7 @@ def test_a_plan_verify_fails_is_made_again_with_thinner_cuts_before_any_is_hande
 def test_only_when_every_re_plan_fails_is_the_failed_plan_returned(block, monkeypatch):
     import factory.plan
 
-    real = factory.plan._plan_once
+    real = _planned_once(factory.plan._plan_once)
     calls = []
 
     def always_fails(request, progress=None):
@@ -310,7 +325,7 @@ def test_when_thinner_cuts_fail_too_the_next_tool_is_tried_before_giving_up(bloc
     tool for its work, and that plan, which passes, is handed over (not exit 3)."""
     import factory.plan
 
-    real = factory.plan._plan_once
+    real = _planned_once(factory.plan._plan_once)
     asked, used = [], []
 
     def fails_while_t1_cuts(request, progress=None):
