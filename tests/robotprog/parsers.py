@@ -32,7 +32,21 @@ def parse_krl(src: str, dat: str) -> tuple[Tree, Tree]:
 
 
 def rapid_errors(text: str) -> list[str]:
-    """rapidchecker's findings for a RAPID module (it prints them and exits 0, so tests read them here)."""
+    """rapidchecker's findings for a RAPID module (it prints them and exits 0, so tests read them here).
+
+    rapidchecker takes 20-40 s on a tending program, and its findings depend on the text alone (it resets
+    its indent count and pyparsing its packrat cache at every parse): a text already checked in the test run
+    (the bracket's ABB program, in two tests of test_programs) is read from the run's record
+    (:func:`tests.shared.once`, keyed by the text's digest), not checked again."""
+    import hashlib
+
     from rapidchecker.cli import check_file
 
-    return [str(e) for e in check_file(text)]
+    from tests import shared
+
+    def check() -> list[str]:
+        return [str(e) for e in check_file(text)]
+
+    if shared.FOLDER is None:  # outside a pytest session
+        return check()
+    return shared.once("rapidchecker", hashlib.sha256(text.encode()).hexdigest()[:20], check)
