@@ -419,11 +419,11 @@ class _Body:
         # A shank as wide as the cutter rides a finished wall at exactly its radius: a
         # graze sideways within the contact tolerance is no contact.
         self.graze = graze
-        # False: only the cut itself (see cut_stock's ``measure``); no body, no engagement.
-        self.measure = True
+        # measure False: only the cut itself (see cut_stock's ``measure``); no body, no engagement. _tops: pairs'.
+        self.measure, self._tops = True, None
 
-    def pairs(self, seg: Segments, s: int, e: int, grid: Grid, stock: np.ndarray, ceiling: float):
-        """(segment in batch, flat grid index, body envelope) for body parts that come below ``ceiling``."""
+    def pairs(self, seg: Segments, s: int, e: int, grid: Grid, stock: np.ndarray, ceiling: float, tops=None):
+        """(segment in batch, flat grid index, body envelope) for body parts below ``ceiling``, near stock or part."""
         tool = self.tool_of_seg[s:e]
         rows, heights, radii = [], [], []
         for t, levels in self.levels.items():
@@ -443,7 +443,10 @@ class _Body:
         h = np.concatenate(heights)
         lifted = Segments(seg.x[k], seg.y[k], seg.z[k] + h, seg.dx[k], seg.dy[k], seg.dz[k],
                           np.concatenate(radii), np.zeros(len(k)), seg.rapid[k], seg.move[k])
-        owner, flat, col, row = grid_pairs(lifted, grid)
+        # with the batch's ``tops``, no runs where the body stays over stock and part (bounds made once per tops)
+        if tops is not None and (self._tops is None or self._tops[0] is not tops):
+            self._tops = (tops, _SpanTops(np.maximum(stock, self.part), grid))
+        owner, flat, col, row = grid_pairs(lifted, grid, None if tops is None else self._tops[1].above)
         bound = np.maximum(stock[flat], self.part[flat])
         env = pair_envelope(grid.x0 + col * grid.cell, grid.y0 + row * grid.cell, owner, lifted, bound)
         hit = np.flatnonzero(np.isfinite(env))
@@ -580,7 +583,7 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
     # Shank and holder: the same sweep with the body's cylinders, only where they can
     # come below the highest stock or part there is.
     if body.measure:
-        b_owner, b_flat, b_env = body.pairs(seg, s, e, grid, stock, max(float(stock.max()), body.part_max))
+        b_owner, b_flat, b_env = body.pairs(seg, s, e, grid, stock, max(float(stock.max()), body.part_max), tops)
     else:
         b_owner = b_flat = np.zeros(0, np.int64)
         b_env = np.zeros(0)

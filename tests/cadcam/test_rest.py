@@ -12,8 +12,10 @@ import logging
 import manifold3d
 import numpy as np
 import pytest
+import shapely
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
+from scipy.spatial import cKDTree
 
 from cadcam.drilling import POINT_CLEARANCE_MM
 from cadcam.finishing import FinishingOptions
@@ -21,9 +23,10 @@ from cadcam.gcode import parse_gcode
 from cadcam.model import CuttingData, Motion, Operation, Setup
 from cadcam.plan import PlanOptions, choose_tools, plan_job
 from cadcam.post import PostOptions, post_process
-from cadcam.rest import levels_within_reach, safe_rapids
+from cadcam.heightmap import Grid
+from cadcam.rest import holder_keepout, levels_within_reach, safe_rapids
 from cadcam.roughing import zlevel_roughing
-from cadcam.stock import operation_moves, stock_after
+from cadcam.stock import Simulation, operation_moves, stock_after
 from cadcam.verify import simulate
 from cadcam.setup import make_setup
 from cadcam.tools import load_tool_library
@@ -292,3 +295,42 @@ def test_a_rest_tool_goes_as_deep_as_it_reaches_and_no_deeper():
     assert levels_within_reach(levels, 0.0, 16.0).tolist() == levels.tolist()
     assert levels_within_reach(levels, 0.0, 12.0).tolist() == [-4.0, -8.0, -12.0]
     assert levels_within_reach(levels, 0.0, 3.0).tolist() == [-3.0]
+
+
+def _cornered_stock(cell: float, cut: shapely.Geometry, size=(40.0, 30.0), top=0.0, floor=-25.0) -> Simulation:
+    """A stock box of ``size`` [mm] sampled every ``cell`` (points half a cell in from its edges, as
+    :func:`cadcam.heightmap.grid_over` lays them), cut down to ``floor`` inside ``cut``, whole (``top``) outside."""
+    nx, ny = int(round(size[0] / cell)), int(round(size[1] / cell))
+    grid = Grid(0.5 * cell, 0.5 * cell, cell, nx, ny)
+    x, y = np.meshgrid(grid.xs, grid.ys)
+    stock = np.where(shapely.contains_xy(cut, x, y), floor, top)
+    return Simulation(grid, stock, np.full_like(stock, -np.inf), -30.0)
+
+
+def test_below_its_reach_a_holder_kept_out_on_the_planning_grid_clears_the_rim_a_finer_grid_sees():
+    """A relief's roughing leaves a rim of whole stock in the block's corners (the round corners of its
+    8 mm end mill's region) that thins to nothing along the edges. On the planning model's 0.5 mm grid the
+    first row, a quarter of a millimetre in, reads the rim ending 0.8 mm short of where verify's finer
+    grid finds it: T6 (2 mm, 16 mm out of an ER11 chuck) rest-roughing 25 mm down beside it ran its holder
+    into it (the 100k-triangle relief failed verify on its first plan). Every axis position outside
+    holder_keepout on the coarse model must keep each holder cylinder off the stock of the fine one."""
+    box = shapely.box(0.0, 0.0, 40.0, 30.0)
+    cut = box.buffer(-8.1, join_style="mitre").buffer(8.1, quad_segs=32)  # the roughing tool's region, round corners
+    coarse, fine = _cornered_stock(0.5, cut), _cornered_stock(0.1, cut)
+    tool = LIBRARY.tool(6)
+    z = -25.0
+    assert z < 0.0 - tool.length  # below its reach: the holder is lower than the stock top
+    keepout = holder_keepout(coarse, tool, z)
+    ax, ay = np.meshgrid(np.arange(0.0, 30.0, 0.1), np.arange(0.0, 20.0, 0.1))
+    free = ~shapely.contains_xy(keepout, ax, ay) & shapely.contains_xy(cut, ax, ay)
+    assert free.sum() > 1000  # room is left to cut
+    axes = np.column_stack([ax[free], ay[free]])
+    fx, fy = np.meshgrid(fine.grid.xs, fine.grid.ys)
+    for h, r in tool.body():
+        if h < tool.length:
+            continue  # the shank: the flutes' own reach, not the holder's
+        above = fine.stock_top > z + h
+        if not above.any():
+            continue
+        near, _ = cKDTree(np.column_stack([fx[above], fy[above]])).query(axes)
+        assert near.min() >= r, (h, r, axes[np.argmin(near)], near.min())

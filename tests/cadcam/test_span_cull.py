@@ -12,19 +12,19 @@ from hypothesis import strategies as st
 import cadcam.envelope
 import cadcam.stock as stock
 from cadcam.stock import cut_stock
-from tests.cadcam.test_verify import LOW_PART, SETUP, TOOLS, C, R, box, moves_strategy, program
+from tests.cadcam.test_verify import LOW_PART, SETUP, STUBBY, TOOLS, C, R, box, moves_strategy, program
 
 #: A part with a sloped top and a step, so moves meet the part and the stock at many heights.
 SLOPED = np.concatenate([LOW_PART, box([2, 2, -10], [12, 18, -2]), box([28, 3, -10], [38, 9, -1])])
 
 
-def _cut(moves, part, cull: bool):
+def _cut(moves, part, cull: bool, tools=TOOLS):
     """Every array cut_stock returns, with the run cull on or off (``above`` then bounds nothing)."""
     with contextlib.ExitStack() as patches:
         if not cull:
             patches.enter_context(mock.patch.object(stock._SpanTops, "above",
                                                     lambda self, row, first, count: np.full(len(row), np.inf)))
-        c = cut_stock(moves, TOOLS, SETUP, part, 0.5)
+        c = cut_stock(moves, tools, SETUP, part, 0.5)
     arrays = {"stock_top": c.simulation.stock_top, "removed_volume": c.simulation.removed_volume}
     arrays.update({k: v for k, v in vars(c.met).items() if isinstance(v, np.ndarray)})
     return arrays
@@ -65,7 +65,7 @@ def test_the_cull_drops_pairs_and_a_wrong_bound_is_caught():
 
     def counting(seg, grid, above=None):
         out = real(seg, grid, above)
-        if above is not None:  # the cutter's pairs (the shank's are never culled)
+        if above is not None:  # the cutter's pairs and the body's
             counted.append(len(out[0]))
         return out
 
@@ -80,3 +80,35 @@ def test_the_cull_drops_pairs_and_a_wrong_bound_is_caught():
         with mock.patch.object(stock._SpanTops, "above", lambda self, row, first, count: np.full(len(row), -np.inf)):
             wrong = _cut(moves, SLOPED, cull=True)
     assert not np.array_equal(wrong["stock_top"], whole["stock_top"])
+
+
+def test_a_holder_swept_low_beside_tall_stock_meets_it_as_unculled_and_pairs_only_near_it():
+    """The shank and holder are culled too (where they stay over the stock and the part, which they meet): the
+    10 mm end mill faces the stock's right side 3 mm down; a short tool (16 mm holder 8 mm over its tip) cuts a
+    narrow pocket 1 mm a level down to 9 mm on the left, its holder on the whole stock round it, then feeds
+    9.5 mm deep beside the part's low box under the faced side: the contacts are the unculled ones to the bit,
+    and far fewer body pairs are made (the holder stays over the faced stock)."""
+    face = [(C, 4, (x, y, -3.0)) for y in (0.0, 5.0, 10.0, 15.0, 20.0) for x in (14.0, 40.0)]
+    pocket = [(C, 5, (x, 10.0, -z)) for z in np.arange(1.0, 10.0) for x in (3.0, 6.0, 3.0)]
+    floor = [(C, 5, (x, y, -9.5)) for y in (2.0, 18.0) for x in (24.0, 38.0, 24.0)]
+    moves = program([(R, 4, (14.0, 0.0, 2.0))] + face + [(R, 4, (40.0, 20.0, 2.0)), (R, 5, (3.0, 10.0, 2.0))] + pocket
+                    + [(R, 5, (3.0, 10.0, 2.0)), (R, 5, (24.0, 2.0, 2.0))] + floor, start=(20, 10, 5))
+    tools = {**TOOLS, 5: STUBBY}
+    counted = []
+    real = stock.grid_pairs
+
+    def counting(seg, grid, above=None):
+        out = real(seg, grid, above)
+        if np.any(seg.radius >= STUBBY.holder[0].diameter / 2 - 1e-9):  # the body's (the cutters are narrower)
+            counted.append(len(out[0]))
+        return out
+
+    with mock.patch.object(stock, "_PAIR_BUDGET", 300), mock.patch.object(stock, "_SPAN_TOPS_EVERY", 1), \
+            mock.patch.object(stock, "grid_pairs", counting):
+        culled = _cut(moves, LOW_PART, cull=True, tools=tools)
+        n_culled, counted[:] = sum(counted), []
+        whole = _cut(moves, LOW_PART, cull=False, tools=tools)
+        n_whole = sum(counted)
+    assert_identical(culled, whole)
+    assert whole["contact"].max() == 1.0  # the holder came 9 - 8 mm down onto the stock round the pocket
+    assert n_culled < 0.7 * n_whole, (n_culled, n_whole)
