@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -35,18 +36,35 @@ FEED_STEP = 1.25
 CHIP_CELL = 0.2
 
 
-def chip_feeds(op: Operation, stock: Simulation, setup: Setup, part_triangles: np.ndarray,
+def chip_feeds(op: Operation, stock: Simulation | None, setup: Setup, part_triangles: np.ndarray,
                max_feed: float) -> Operation:
     """``op`` with each cutting move's feed raised to what its chip allows on ``stock`` (module docstring),
     at most ``max_feed`` [mm/min], never below ``op.cutting.feed``; ``op`` itself where nothing is raised,
-    its cutting data gives no chip load, or it is a drill's or a canned cycle's."""
-    c = op.cutting
-    if c.chip_load is None or op.tool.is_drill or op.cycle is not None or len(op.points) < 2:
-        return op
-    cut = cut_stock(operation_moves([op]), {op.tool.number: op.tool}, setup, part_triangles, CHIP_CELL,
-                    start=_finer(stock, setup, CHIP_CELL))
-    share = np.zeros(len(op.points))  # the thickest chip of the move ending at each point, a share of fz
+    its cutting data gives no chip load, or it is a drill's or a canned cycle's. ``stock`` None: the
+    setup's whole block."""
+    return chained_chip_feeds([op], stock, setup, part_triangles, max_feed)[0]
+
+
+def chained_chip_feeds(ops: Sequence[Operation], stock: Simulation | None, setup: Setup,
+                       part_triangles: np.ndarray, max_feed: float) -> list[Operation]:
+    """:func:`chip_feeds` of operations that run one after the other from ``stock``: each measured on the stock
+    the ones before it leave, all cut into the model once (roughing's levels, then its deep cuts)."""
+    judged = [op for op in ops if op.cutting.chip_load is not None and not op.tool.is_drill and op.cycle is None
+              and len(op.points) >= 2]
+    if not judged:
+        return list(ops)
+    cut = cut_stock(operation_moves(judged), {op.tool.number: op.tool for op in judged}, setup, part_triangles,
+                    CHIP_CELL, start=None if stock is None else _finer(stock, setup, CHIP_CELL))
+    share = np.zeros(sum(len(op.points) for op in judged))  # the thickest chip of the move ending at each point
     np.maximum.at(share, cut.segments.move, cut.met.chip)
+    first = np.cumsum([0] + [len(op.points) for op in judged])
+    fed = {id(op): _raised(op, share[a:b], max_feed) for op, a, b in zip(judged, first[:-1], first[1:])}
+    return [fed.get(id(op), op) for op in ops]
+
+
+def _raised(op: Operation, share: np.ndarray, max_feed: float) -> Operation:
+    """``op`` with its cutting moves at the feed their chip ``share`` (of fz, per point) allows."""
+    c = op.cutting
     share = _nearby_max(op.points, share, op.tool.radius + CHIP_CELL)
     full = c.spindle_rpm * op.tool.flutes * c.chip_load  # the feed at which a full-width chip is fz
     want = np.where(share > 0, full / np.maximum(share, 1e-9), np.inf)
@@ -56,7 +74,10 @@ def chip_feeds(op: Operation, stock: Simulation, setup: Setup, part_triangles: n
     raised[0] = False
     if not raised.any():
         return op
-    return dataclasses.replace(op, feeds=np.where(raised, np.round(feed, 1), np.nan))
+    if op.feeds is not None:  # feeds already raised (the adaptive cuts'): never lower one
+        raised &= ~(op.feeds >= feed)
+    return dataclasses.replace(op, feeds=np.where(raised, np.round(feed, 1), op.feeds if op.feeds is not None
+                                                  else np.nan))
 
 
 def _nearby_max(points: np.ndarray, share: np.ndarray, reach: float) -> np.ndarray:

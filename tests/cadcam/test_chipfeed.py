@@ -7,7 +7,7 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cadcam.chipfeed import chip_feeds
+from cadcam.chipfeed import chained_chip_feeds, chip_feeds
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.post import PostOptions, post_process
 from cadcam.gcode import parse_gcode
@@ -69,3 +69,22 @@ def test_a_slot_keeps_its_feed_and_a_pass_in_air_runs_at_the_machines():
     assert air.move_feeds()[2] == MAX_FEED
     assert air.move_feeds()[1] == NOMINAL.plunge_feed  # plunges are not raised
     assert verdict([op("rough", 16.0), air])[1].ok
+
+
+@settings(max_examples=6, deadline=None)
+@given(st.floats(15.0, 16.0), st.floats(0.5, 6.0))
+def test_chained_passes_are_each_measured_on_the_stock_the_ones_before_leave(y, step):
+    """Roughing from the fresh block (no model yet), clear of the wall at Y 10: the first pass slots at the library's feed, a second pass
+    ``step`` over is raised by its thinner chip (to the cap where it meets nothing), and verify passes both."""
+    first, second = op("slot", y), op("beside", min(y + step, 19.0))
+    fed = chained_chip_feeds([first, second], None, SETUP, PART, MAX_FEED)
+    assert fed[0].feeds is None or np.all(np.isnan(fed[0].feeds[fed[0].motion == Motion.CUT]))
+    ae = min(y + step, 19.0) - y  # the second pass's radial engagement
+    cut = fed[1].move_feeds()[2]
+    if ae < 2.5:  # a chip thinner than a slot's by more than a feed step (and the grid's cell): raised
+        assert cut > NOMINAL.feed
+    assert cut <= MAX_FEED
+    # chip_feeds of one is the chain of one
+    assert chip_feeds(first, None, SETUP, PART, MAX_FEED) is first or fed[0].feeds is not None
+    text, report = verdict(fed)
+    assert report.ok, [f.message for f in report.faults]
