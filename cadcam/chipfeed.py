@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -33,30 +34,98 @@ from cadcam.stock import FlippedStock, Simulation, cut_stock, operation_moves
 FEED_STEP = 1.25
 #: Grid the pass's engagement is measured on [mm]: verify's default, which judges it.
 CHIP_CELL = 0.2
+#: A plunge move no steeper than this (rise over run) is a ramp or a helix: it cuts with the side, its chip
+#: read as a cutting move's (roughing's ramps and helices descend at 3 deg, tan 0.052); a steeper one keeps
+#: the plunge feed.
+RAMP_SLOPE = math.tan(math.radians(5.0))
 
 
-def chip_feeds(op: Operation, stock: Simulation, setup: Setup, part_triangles: np.ndarray,
+def chip_feeds(op: Operation, stock: Simulation | None, setup: Setup, part_triangles: np.ndarray,
                max_feed: float) -> Operation:
     """``op`` with each cutting move's feed raised to what its chip allows on ``stock`` (module docstring),
     at most ``max_feed`` [mm/min], never below ``op.cutting.feed``; ``op`` itself where nothing is raised,
-    its cutting data gives no chip load, or it is a drill's or a canned cycle's."""
-    c = op.cutting
-    if c.chip_load is None or op.tool.is_drill or op.cycle is not None or len(op.points) < 2:
-        return op
-    cut = cut_stock(operation_moves([op]), {op.tool.number: op.tool}, setup, part_triangles, CHIP_CELL,
-                    start=_finer(stock, setup, CHIP_CELL))
-    share = np.zeros(len(op.points))  # the thickest chip of the move ending at each point, a share of fz
+    its cutting data gives no chip load, or it is a drill's or a canned cycle's. ``stock`` None: the
+    setup's whole block."""
+    return chained_chip_feeds([op], stock, setup, part_triangles, max_feed)[0]
+
+
+def chained_chip_feeds(ops: Sequence[Operation], stock: Simulation | None, setup: Setup,
+                       part_triangles: np.ndarray, max_feed: float) -> list[Operation]:
+    """:func:`chip_feeds` of operations that run one after the other from ``stock``: each measured on the stock
+    the ones before it leave, all cut into the model once (roughing's levels, then its deep cuts)."""
+    judged = [op for op in ops if op.cutting.chip_load is not None and not op.tool.is_drill and op.cycle is None
+              and len(op.points) >= 2]
+    if not judged:
+        return list(ops)
+    cut = cut_stock(operation_moves(judged), {op.tool.number: op.tool for op in judged}, setup, part_triangles,
+                    CHIP_CELL, start=None if stock is None else _finer(stock, setup, CHIP_CELL))
+    share = np.zeros(sum(len(op.points) for op in judged))  # the thickest chip of the move ending at each point
     np.maximum.at(share, cut.segments.move, cut.met.chip)
+    first = np.cumsum([0] + [len(op.points) for op in judged])
+    fed = {id(op): _raised(op, share[a:b], max_feed) for op, a, b in zip(judged, first[:-1], first[1:])}
+    return [fed.get(id(op), op) for op in ops]
+
+
+def _raised(op: Operation, share: np.ndarray, max_feed: float) -> Operation:
+    """``op`` with its cutting moves at the feed their chip ``share`` (of fz, per point) allows."""
+    c = op.cutting
     share = _nearby_max(op.points, share, op.tool.radius + CHIP_CELL)
     full = c.spindle_rpm * op.tool.flutes * c.chip_load  # the feed at which a full-width chip is fz
     want = np.where(share > 0, full / np.maximum(share, 1e-9), np.inf)
     steps = np.floor(np.log(np.maximum(want, c.feed) / c.feed) / math.log(FEED_STEP) + 1e-9)
     feed = np.where(want >= max_feed, max_feed, np.minimum(c.feed * FEED_STEP ** steps, max_feed))
     raised = (op.motion == Motion.CUT) & (feed > c.feed * (1 + 1e-9))
+    ramp = _ramp_feeds(op, want, max_feed)
+    feed = np.where(np.isnan(ramp), feed, ramp)
+    raised = (raised | ~np.isnan(ramp))
     raised[0] = False
     if not raised.any():
         return op
-    return dataclasses.replace(op, feeds=np.where(raised, np.round(feed, 1), np.nan))
+    if op.feeds is not None:  # feeds already raised (the adaptive cuts'): never lower one
+        raised &= ~(op.feeds >= feed)
+    return dataclasses.replace(op, feeds=np.where(raised, np.round(feed, 1), op.feeds if op.feeds is not None
+                                                  else np.nan))
+
+
+def _ramp_feeds(op: Operation, want: np.ndarray, max_feed: float) -> np.ndarray:
+    """(n,) the feed of each ramp and helix move of ``op`` (a PLUNGE move across, no steeper than
+    :data:`RAMP_SLOPE`) where its chip allows more than the plunge feed [mm/min], NaN elsewhere.
+
+    ``want``: the feed at which the move's chip at the cutter's centre is fz. A helix turns about the hole it
+    cuts, the stock outside it: the edge that cuts runs ``(r + R) / r`` times the centre's feed on a centre path
+    of radius ``r`` (a tool of radius ``R``), so the centre's feed is that much less. The steps climb from
+    the plunge feed."""
+    c, n = op.cutting, len(op.points)
+    out = np.full(n, np.nan)
+    step = np.diff(op.points, axis=0)
+    across = np.linalg.norm(step[:, :2], axis=1)
+    ramp = np.r_[False, (op.motion[1:] == Motion.PLUNGE) & (across > 1e-6) & (-step[:, 2] <= RAMP_SLOPE * across)]
+    if not ramp.any():
+        return out
+    r = _turn_radius(op.points[:, :2])
+    r_move = np.minimum(r, np.r_[np.inf, r[:-1]])  # the tighter turn of the move's two ends
+    edge = np.where(np.isfinite(r_move), (np.minimum(r_move, 1e12) + op.tool.radius) / r_move, 1.0)
+    wanted = want / edge
+    steps = np.floor(np.log(np.maximum(wanted, c.plunge_feed) / c.plunge_feed) / math.log(FEED_STEP) + 1e-9)
+    feed = np.minimum(c.plunge_feed * FEED_STEP ** steps, max_feed)
+    fast = ramp & (feed > c.plunge_feed * (1 + 1e-9))
+    out[fast] = feed[fast]
+    return out
+
+
+def _turn_radius(xy: np.ndarray) -> np.ndarray:
+    """(n,) radius [mm] of the circle through each point and its two neighbours in XY (inf where straight,
+    at the ends, or where a neighbour coincides)."""
+    r = np.full(len(xy), np.inf)
+    if len(xy) < 3:
+        return r
+    a, b, o = xy[:-2], xy[2:], xy[1:-1]
+    ab, ao, bo = (np.linalg.norm(u, axis=1) for u in (b - a, o - a, o - b))
+    cross = np.abs((o - a)[:, 0] * (b - a)[:, 1] - (o - a)[:, 1] * (b - a)[:, 0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rr = ab * ao * bo / (2 * cross)
+    r[1:-1] = np.where((cross > 1e-12) & (ao > 1e-9) & (bo > 1e-9), rr, np.inf)
+    return r
 
 
 def _nearby_max(points: np.ndarray, share: np.ndarray, reach: float) -> np.ndarray:

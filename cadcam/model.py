@@ -413,9 +413,9 @@ class Operation:
         For drilling operations, the canned cycle the points expand (see
         :mod:`cadcam.drilling`); None for everything else.
     feeds : (n,) float or None
-        ``feeds[i]``: the feed of the cutting move that ends at ``points[i]`` [mm/min] where it is not
-        ``cutting.feed`` (a pass raised for the chip its engagement allows, :mod:`cadcam.chipfeed`), NaN where it
-        is; read for :attr:`Motion.CUT` moves only. None: every cutting move at ``cutting.feed``.
+        ``feeds[i]``: the feed of the feed move that ends at ``points[i]`` [mm/min] where it is not its kind's
+        (``cutting.feed``, or ``cutting.plunge_feed`` for a ramp or helix): a move raised for the chip its
+        engagement allows, :mod:`cadcam.chipfeed`; NaN where it is. None: every move at its kind's feed.
     """
 
     name: str
@@ -439,12 +439,12 @@ class Operation:
                 raise ValueError("feeds and points must have the same length")
 
     def move_feeds(self) -> np.ndarray:
-        """(n,) the feed of the move ending at each point [mm/min]: a cutting move's (``feeds`` or
-        ``cutting.feed``), a plunge's ``cutting.plunge_feed``, NaN for rapids (``[0]`` is no move)."""
+        """(n,) the feed of the move ending at each point [mm/min]: ``feeds`` where it gives one, else a cutting
+        move's ``cutting.feed`` and a plunge's ``cutting.plunge_feed``; NaN for rapids (``[0]`` is no move)."""
         m = self.motion
-        cut = np.full(len(m), self.cutting.feed) if self.feeds is None else np.where(
-            np.isnan(self.feeds), self.cutting.feed, self.feeds)
-        return np.where(m == Motion.RAPID, np.nan, np.where(m == Motion.PLUNGE, self.cutting.plunge_feed, cut))
+        given = np.full(len(m), np.nan) if self.feeds is None else self.feeds
+        own = np.where(m == Motion.PLUNGE, self.cutting.plunge_feed, self.cutting.feed)
+        return np.where(m == Motion.RAPID, np.nan, np.where(np.isnan(given), own, given))
 
     def lengths(self) -> dict[str, float]:
         """Path length by motion kind [mm]: ``{"rapid": .., "cut": .., "plunge": ..}``."""

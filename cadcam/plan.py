@@ -29,7 +29,7 @@ from cadcam.adaptive_rest import adaptive_rest_roughing
 from cadcam.drilling import DrillingOptions, Hole, HolePlan, plan_holes
 from cadcam.faces import SHALLOW, STEEP, FaceClasses, classify_faces
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
-from cadcam.chipfeed import chip_feeds
+from cadcam.chipfeed import chained_chip_feeds, chip_feeds
 from cadcam.flatfinish import WALL_HAIR, FlatFinishOptions, flat_wall_finishing, left_on_flats_and_walls
 from cadcam.model import CuttingData, Job, Operation, Setup, Tool
 from cadcam.relief import Boundary, keep_outside
@@ -608,7 +608,13 @@ def _holes_and_roughing(plan: _Planning, exact: tuple[Hole, ...] | None = None
             options.adaptive, progress=plan.stage_progress("roughing"), within=plan.rough_within,
             cut_before=plan.cut_before))
     # Drilled and helixed holes come first: the stock model below sees them.
-    operations = [*(holes.operations if holes is not None else ()), *rough]
+    drilled = [*(holes.operations if holes is not None else ())]
+    # each roughing move at the feed its chip allows: links and levels through stock the holes or the level
+    # above took, and the light cuts round the rings, faster (the full-width ones keep the library's feed)
+    before = plan.model(drilled)
+    rough = plan.timed("chip feeds", lambda: chained_chip_feeds(rough, before, setup, plan.triangles,
+                                                                plan.library.max_feed))
+    operations = [*drilled, *rough]
     # What roughing left lets finishing descend by rapid through air instead of feeding from safe_z.
     return holes, operations, plan.model(operations)
 

@@ -7,7 +7,7 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cadcam.chipfeed import chip_feeds
+from cadcam.chipfeed import chained_chip_feeds, chip_feeds
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.post import PostOptions, post_process
 from cadcam.gcode import parse_gcode
@@ -69,3 +69,74 @@ def test_a_slot_keeps_its_feed_and_a_pass_in_air_runs_at_the_machines():
     assert air.move_feeds()[2] == MAX_FEED
     assert air.move_feeds()[1] == NOMINAL.plunge_feed  # plunges are not raised
     assert verdict([op("rough", 16.0), air])[1].ok
+
+
+@settings(max_examples=6, deadline=None)
+@given(st.floats(15.0, 16.0), st.floats(0.5, 6.0))
+def test_chained_passes_are_each_measured_on_the_stock_the_ones_before_leave(y, step):
+    """Roughing from the fresh block (no model yet), clear of the wall at Y 10: the first pass slots at the library's feed, a second pass
+    ``step`` over is raised by its thinner chip (to the cap where it meets nothing), and verify passes both."""
+    first, second = op("slot", y), op("beside", min(y + step, 19.0))
+    fed = chained_chip_feeds([first, second], None, SETUP, PART, MAX_FEED)
+    assert fed[0].feeds is None or np.all(np.isnan(fed[0].feeds[fed[0].motion == Motion.CUT]))
+    ae = min(y + step, 19.0) - y  # the second pass's radial engagement
+    cut = fed[1].move_feeds()[2]
+    if ae < 2.5:  # a chip thinner than a slot's by more than a feed step (and the grid's cell): raised
+        assert cut > NOMINAL.feed
+    assert cut <= MAX_FEED
+    # chip_feeds of one is the chain of one
+    assert chip_feeds(first, None, SETUP, PART, MAX_FEED) is first or fed[0].feeds is not None
+    text, report = verdict(fed)
+    assert report.ok, [f.message for f in report.faults]
+
+
+BIG = Setup(stock_min=[0, 0, -10], stock_max=[60, 60, 0], transform_mesh_to_work=np.eye(4), safe_z=10.0)
+CORNER = trimesh.creation.box(bounds=[[0, 0, -10], [5, 5, 0]]).triangles  # a part out of the helix's way
+
+
+def helix(r: float, depth: float = 3.0, centre=(35.0, 35.0)) -> Operation:
+    """From the air above, a 3 deg helix of centre-path radius ``r`` down to ``-depth``, a circle there, out."""
+    per_turn = 2 * np.pi * r * np.tan(np.radians(3.0))
+    a = np.radians(np.arange(0.0, 360.0 * (depth + 1.0) / per_turn + 10.0, 10.0))
+    z = np.maximum(1.0 - a / (2 * np.pi) * per_turn, -depth)
+    ring = np.c_[centre[0] + r * np.cos(a), centre[1] + r * np.sin(a), z]
+    pts = np.vstack([ring[:1] + [0, 0, 9], ring, ring[-1:] + [0, 0, 11]])
+    mot = np.array([Motion.RAPID, Motion.RAPID, *[Motion.PLUNGE] * (len(ring) - 1), Motion.RAPID], np.int8)
+    mot[2:-1][np.diff(z) == 0] = Motion.CUT
+    return Operation("helix", "roughing", MILL, NOMINAL, pts, mot)
+
+
+@settings(max_examples=8, deadline=None)
+@given(st.floats(1.5, 5.0))
+def test_a_helix_runs_at_the_feed_its_edge_allows_and_verify_passes_it(r):
+    """A helix turns inside the bore it cuts: its edge runs (r + R) / r times the centre's feed, so a helix into
+    the solid block takes at most the library's feed times r / (r + R) at its centre (the plunge feed where that
+    is less), and moves raised over it only in the air above."""
+    h = helix(r)
+    fed = chip_feeds(h, None, BIG, CORNER, MAX_FEED)
+    f = fed.move_feeds()
+    ramp = (h.motion == Motion.PLUNGE)
+    deep = ramp & (h.points[:, 2] < -0.5)  # moves wholly in the stock
+    edge_limit = NOMINAL.feed * r / (r + MILL.radius)
+    assert np.all(f[ramp] >= NOMINAL.plunge_feed - 1e-9)
+    assert np.all(f[deep] <= max(NOMINAL.plunge_feed, edge_limit) + 1e-6)
+    if edge_limit >= NOMINAL.plunge_feed * 1.25:
+        assert np.any(f[deep] > NOMINAL.plunge_feed)  # raised where the edge allows a feed step
+    # the posted program carries the feeds, and verify holds every chip to fz
+    text = post_process(Job(part_name="p", setup=BIG, operations=(fed,)), PostOptions()).text
+    report = simulate(parse_gcode(text), {MILL.number: MILL}, BIG, CORNER, VerifyOptions(cell=0.2),
+                      chips={MILL.number: ChipLoad(FZ, RPM)}).report
+    assert report.ok, [f.message for f in report.faults]
+
+
+def test_a_helix_through_a_bore_cut_before_is_raised_past_one_into_the_solid():
+    """The same helix again once the bore is cut (the finishing's descent): it meets air and runs faster."""
+    first = helix(3.0)
+    again = chip_feeds(helix(3.0), stock_after([first], BIG, CORNER, 0.5), BIG, CORNER, MAX_FEED)
+    solid = chip_feeds(helix(3.0), None, BIG, CORNER, MAX_FEED)
+    deep = (first.motion == Motion.PLUNGE) & (first.points[:, 2] < -0.5)
+    assert np.median(again.move_feeds()[deep]) > np.max(solid.move_feeds()[deep])
+    # a vertical plunge is never raised
+    down = Operation("down", "roughing", MILL, NOMINAL, np.array([[35, 35, 5.0], [35, 35, 1], [35, 35, -2]]),
+                     np.array([Motion.RAPID, Motion.RAPID, Motion.PLUNGE], np.int8))
+    assert chip_feeds(down, None, BIG, CORNER, MAX_FEED).move_feeds()[2] == NOMINAL.plunge_feed
