@@ -140,6 +140,22 @@ class CameraModel:
                                   np.asarray(tvec, np.float64).reshape(3, 1), self.K, self.dist)
         return uv.reshape(-1, 2)
 
+    def project_with_jacobian(self, points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray
+                              ) -> tuple[np.ndarray, np.ndarray]:
+        """Image positions of 3D points (as :meth:`project`) and how they move with the points.
+
+        Returns ``(n, 2)`` pixel positions [px] and ``(n, 2, 3)`` their derivatives by the points'
+        object-frame coordinates [px/m] (OpenCV's derivative by ``tvec`` is the one by the point in the
+        camera frame; the object frame's is that times the rotation).
+        """
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 1, 3)
+        if len(p) == 0:
+            return np.zeros((0, 2)), np.zeros((0, 2, 3))
+        r = np.asarray(rvec, np.float64).reshape(3, 1)
+        uv, jac = cv2.projectPoints(p, r, np.asarray(tvec, np.float64).reshape(3, 1), self.K, self.dist)
+        by_camera = jac[:, 3:6].reshape(-1, 2, 3)
+        return uv.reshape(-1, 2), by_camera @ cv2.Rodrigues(r)[0]
+
     def rays(self, pixels: np.ndarray) -> np.ndarray:
         """Normalised viewing rays ``(x, y, 1)`` through pixel positions, distortion removed.
 

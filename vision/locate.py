@@ -402,7 +402,8 @@ def _edge_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
         if len(idx) < 12:
             return None
         uv, normal = model.project(p, idx)
-        partner = model.beside(uv, normal, idx)
+        # Which feet lie beside their tops matters only in glare (they go) and settling (TOOK_TOP_PX).
+        partner = model.beside(uv, normal, idx) if glare or settle else np.full(len(idx), -1)
         keep = partner < 0 if glare else np.ones(len(idx), bool)
         # Where the higher edge beside a foot lies, along the foot's normal [px].
         top = np.where(partner >= 0, np.einsum("nj,nj->n", uv[partner] - uv, normal), np.nan)
@@ -423,14 +424,7 @@ def _edge_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
         # enough edges are clipped to fix it.
         spill = np.where(clipped, side, 0.0)[ok] if clipped.sum() >= 12 else np.zeros(int(ok.sum()))
 
-        def residuals(q: np.ndarray, pts=pts, nrm=nrm, target=target, spill=spill) -> np.ndarray:
-            w = model.world(q[:3], model.points[pts])
-            uvq = model.camera.project(w, model.rvec, model.tvec)
-            return np.einsum("nj,nj->n", uvq - target, nrm) - q[3] * spill
-
-        sol = least_squares(residuals, np.r_[p, bloom], x_scale=np.array([1e-3, 1e-3, 1e-2, 1.0]),
-                            diff_step=np.array([1e-6] * 3 + [1e-3]), bounds=([-np.inf] * 3 + [0.0], [np.inf] * 3 + [4.0]),
-                            method="trf", loss="soft_l1", f_scale=ROBUST_SCALE_PX)
+        sol = _pulled(model, model.points[pts], nrm, target, spill, np.r_[p, bloom])
         # Each round fits to the edges found from where it began: settling, the last reach is repeated
         # until the edges no longer move (the stepped wall above stopped 0.9 deg off, a round short of 0.46).
         if settle and not rounds and extra < EXTRA_ROUNDS and \
@@ -467,6 +461,42 @@ def _edge_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
                     rms_px=rms,
                     cost=float(sol.cost), jac=sol.jac[inliers][:, :3], residuals=sol.fun[inliers],
                     hidden=float(1.0 - seen.mean()), bloom_px=bloom, samples=pts[inliers])
+
+
+def _pulled(model: MeshEdges, points: np.ndarray, normal: np.ndarray, target: np.ndarray, spill: np.ndarray,
+            start: np.ndarray):
+    """One round's least-squares fit (soft-L1) of ``q = (x, y, yaw, bloom)`` [m, m, rad, px] from ``start``: each
+    model edge sample (part-frame ``points`` (k, 3) [m]) onto its found edge ``target`` (k, 2) [px] along its
+    image ``normal`` (k, 2), less the bloom on the clipped ones (``spill`` (k,): +-1 towards a clipped side,
+    else 0) [px]. Returns scipy's result over all four (``x``, ``fun``, ``jac``, ``cost``).
+
+    The Jacobian is the projection's own (finite differences took four projections per step). Without a
+    clipped edge the bloom is no parameter: held at its bound (0) it slowed every step of the bounded
+    solver (about 19 evaluations a fit), so x, y and yaw are fitted alone and unbounded.
+    """
+
+    def residuals(q: np.ndarray) -> np.ndarray:
+        uv = model.camera.project(model.world(q[:3], points), model.rvec, model.tvec)
+        return np.einsum("nj,nj->n", uv - target, normal) - (q[3] * spill if len(q) > 3 else 0.0)
+
+    def jacobian(q: np.ndarray) -> np.ndarray:
+        by_pose = np.einsum("nj,njk->nk", normal, model.placed(q[:3], points)[1])
+        return np.column_stack([by_pose, -spill]) if len(q) > 3 else by_pose
+
+    if spill.any():
+        return least_squares(residuals, start, jac=jacobian, x_scale=np.array([1e-3, 1e-3, 1e-2, 1.0]),
+                             bounds=([-np.inf] * 3 + [0.0], [np.inf] * 3 + [4.0]), xtol=FIT_XTOL, ftol=FIT_XTOL,
+                             method="trf", loss="soft_l1", f_scale=ROBUST_SCALE_PX)
+    sol = least_squares(residuals, start[:3], jac=jacobian, x_scale=np.array([1e-3, 1e-3, 1e-2]), xtol=FIT_XTOL,
+                        ftol=FIT_XTOL, method="trf", loss="soft_l1", f_scale=ROBUST_SCALE_PX)
+    sol.x = np.r_[sol.x, start[3]]
+    sol.jac = np.column_stack([sol.jac, np.zeros(len(sol.jac))])
+    return sol
+
+
+#: The edge fit's steps stop below this share of the pose (x, y, yaw [m, rad]: a fraction of a micrometre)
+#: and of the cost (unitless).
+FIT_XTOL = 1e-6
 
 
 def _dark_edges(model: MeshEdges, p: np.ndarray, light: np.ndarray | None) -> np.ndarray:

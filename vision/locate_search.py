@@ -55,6 +55,7 @@ def chamfer_starts(model: EdgeModel, edges: np.ndarray, inside: np.ndarray, box:
     h, w = dist.shape
     ref = model.camera.project(np.array([[centre[0], centre[1], model.tray_z]]), model.rvec, model.tvec)[0]
     results = []
+    pads: dict[int, np.ndarray] = {}
     for yaw in np.arange(yaw_steps) * 2 * np.pi / yaw_steps:
         p = np.array([centre[0], centre[1], yaw])
         idx = model.visible(p)
@@ -70,13 +71,17 @@ def chamfer_starts(model: EdgeModel, edges: np.ndarray, inside: np.ndarray, box:
         rx0, ry0 = x0 + lo[0], y0 + lo[1]
         # padded by the kernel's reach at least (a fine camera's kernels span more than 200 px)
         m = int(max(200, np.abs(lo).max(), np.abs(hi).max()) + 1)
-        pad = cv2.copyMakeBorder(dist, m, m, m, m, cv2.BORDER_CONSTANT, value=6.0)
+        if m not in pads:
+            pads[m] = cv2.copyMakeBorder(dist, m, m, m, m, cv2.BORDER_CONSTANT, value=6.0)
+        pad = pads[m]
         roi = pad[ry0 + m:y1 + hi[1] + m + 1, rx0 + m:x1 + hi[0] + m + 1]
         # filter2D correlates: anchor (0, 0) puts kernel[0, 0] (offset lo) at each output pixel.
         score = cv2.filter2D(roi, -1, kernel, anchor=(0, 0), borderType=cv2.BORDER_CONSTANT)
         score = score[:y1 - y0, :x1 - x0]
         score = np.where(inside[y0:y1, x0:x1] > 0, score, np.inf)
-        for flat in np.argsort(score, axis=None)[:keep]:
+        # The best few only (ties by position): a full sort of the window cost as much as the correlation.
+        best = np.argpartition(score, keep, axis=None)[:keep] if score.size > keep else np.arange(score.size)
+        for flat in best[np.lexsort((best, score.ravel()[best]))]:
             v, u = divmod(int(flat), score.shape[1])
             results.append((float(score[v, u]), np.array([u + x0, v + y0]), yaw))
     results.sort(key=lambda r: r[0])
@@ -87,7 +92,8 @@ def chamfer_starts(model: EdgeModel, edges: np.ndarray, inside: np.ndarray, box:
             starts.append(np.r_[xy, yaw])
         if len(starts) == keep:
             break
-    return [pose for _, pose in sorted((refine_start(model, maps, s, ground) for s in starts), key=lambda r: r[0])]
+    ringed = _ringed(maps)
+    return [pose for _, pose in sorted((_refined_start(model, ringed, s, ground) for s in starts), key=lambda r: r[0])]
 
 
 #: Edge directions are told apart in this many bins of the half turn (an edge counts in its own
@@ -140,10 +146,25 @@ def refine_start(model: EdgeModel, maps: np.ndarray, start: np.ndarray, ground: 
     edge fit's nearest-peak search can lock onto a boss or a shadow. This brings the start within
     a pixel and a degree first.
     """
+    return _refined_start(model, _ringed(maps), start, ground)
+
+
+def _ringed(maps: np.ndarray) -> np.ndarray:
+    """The oriented distance maps (k, h, w) in a ring of one pixel of the cap (6 px), for :func:`_refined_start`."""
+    return np.pad(maps, ((0, 0), (1, 1), (1, 1)), constant_values=6.0)
+
+
+def _refined_start(model: EdgeModel, ringed: np.ndarray, start: np.ndarray, ground: Callable[[np.ndarray], np.ndarray]
+                   ) -> tuple[float, np.ndarray]:
+    """:func:`refine_start` on the maps in their ring (:func:`_ringed`): every look outside the picture reads
+    the ring's cap, one flat gather per yaw (indexing the three axes with bounds masks cost half the search)."""
     step, n = np.radians(REFINE_YAW_DEG[0]), REFINE_YAW_DEG[1]
     r = REFINE_SHIFT_PX
     shifts = np.stack(np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1)), axis=-1).reshape(-1, 2)
-    _, h, w = maps.shape
+    _, hr, wr = ringed.shape
+    h, w = hr - 2, wr - 2
+    flat = ringed.ravel()
+    shift_at = shifts[:, 1:] * wr + shifts[:, :1]  # (s, 1) flat offsets of the shifts
     ref = model.camera.project(np.array([[start[0], start[1], model.tray_z]]), model.rvec, model.tvec)[0]
     best = (np.inf, start)
     for dyaw in np.arange(-n, n + 1) * step:
@@ -156,10 +177,19 @@ def refine_start(model: EdgeModel, maps: np.ndarray, start: np.ndarray, ground: 
         # The picture's gradient runs along the model edge's image normal.
         b = np.minimum((np.mod(np.arctan2(normal[:, 1], normal[:, 0]), np.pi) / np.pi * ORIENTATION_BINS)
                        .astype(np.int64), ORIENTATION_BINS - 1)
-        u = np.rint(uv[:, 0]).astype(np.int64)[None, :] + shifts[:, :1]
-        v = np.rint(uv[:, 1]).astype(np.int64)[None, :] + shifts[:, 1:]
-        inside = (u >= 0) & (v >= 0) & (u < w) & (v < h)
-        d = np.where(inside, maps[b[None, :], v.clip(0, h - 1), u.clip(0, w - 1)], 6.0)
+        u = np.rint(uv[:, 0]).astype(np.int64)
+        v = np.rint(uv[:, 1]).astype(np.int64)
+        # Samples within the reach of the picture's edge look inside the ring; any further out read the cap.
+        near = (u >= -r) & (v >= -r) & (u < w + r) & (v < h + r)
+        inner = (u >= r) & (v >= r) & (u < w - r) & (v < h - r)
+        at = (b * hr + v + 1) * wr + u + 1
+        d = np.full((len(shifts), len(u)), 6.0, np.float32)
+        d[:, inner] = flat[at[inner][None, :] + shift_at]
+        edge = near & ~inner
+        if edge.any():
+            uu = (u[edge][None, :] + shifts[:, :1]).clip(-1, w) + 1
+            vv = (v[edge][None, :] + shifts[:, 1:]).clip(-1, h) + 1
+            d[:, edge] = flat[(b[edge][None, :] * hr + vv) * wr + uu]
         score = d.mean(axis=1)
         k = int(np.argmin(score))
         if score[k] < best[0]:

@@ -102,6 +102,10 @@ class MeshEdges:
         self.tvec = cam_base[:3, 3]
         self.eye = -cam_base[:3, :3].T @ cam_base[:3, 3]
         self.field = height_field(mesh.vertices, mesh.faces)  # for the light and the shadows it casts
+        # Each face normal's reach to its sample, n . point: a face is turned to the eye e (part frame) where
+        # n . e > n . point, one product per sample at any pose (:meth:`visible`).
+        self.reach1 = np.einsum("nj,nj->n", self.n1, self.points)
+        self.reach2 = np.einsum("nj,nj->n", self.n2, self.points)
 
     def same_turned(self, k: int, symmetry: int) -> bool:
         """Whether the mesh's edges turned by ``k`` of ``symmetry`` turns about the footprint's centroid
@@ -119,11 +123,9 @@ class MeshEdges:
 
     def visible(self, p: np.ndarray) -> np.ndarray:
         """Indices of the sample points that can show at pose ``p``."""
-        r = np.eye(3)
-        r[:2, :2] = yaw_rotation(p[2])
-        view = self.eye - self.world(p, self.points)
-        f1 = np.einsum("nj,nj->n", self.n1 @ r.T, view) > 0
-        f2 = np.einsum("nj,nj->n", self.n2 @ r.T, view) > 0
+        eye, _ = self.in_part_frame(p, np.zeros(3))
+        f1 = self.n1 @ eye > self.reach1
+        f2 = self.n2 @ eye > self.reach2
         return np.flatnonzero((self.crease & (f1 | f2)) | (f1 != f2))
 
     def unresolved(self, uv: np.ndarray, normal: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -171,6 +173,17 @@ class MeshEdges:
         top = partner[foot]
         width = np.abs(np.einsum("nj,nj->n", uv[foot] - uv[top], normal[top]))
         return float(width.sum()) / max(int(self.outer[idx].sum()), 1)
+
+    def placed(self, p: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(k, 2)`` pixel positions of part-frame ``points`` (k, 3) [m] at pose ``p`` and ``(k, 2, 3)`` their
+        derivatives by the pose's x, y [px/m] and yaw [px/rad], for the edge fit's Jacobian."""
+        w = self.world(p, points)
+        uv, by_point = self.camera.project_with_jacobian(w, self.rvec, self.tvec)
+        # d(world)/d(x, y, yaw): the unit x and y, and the point's lever about the pose turned a right angle.
+        lever = np.zeros((len(w), 3, 3))
+        lever[:, 0, 0] = lever[:, 1, 1] = 1.0
+        lever[:, 0, 2], lever[:, 1, 2] = -(w[:, 1] - p[1]), w[:, 0] - p[0]
+        return uv, by_point @ lever
 
     def project(self, p: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(k, 2)`` pixel positions of the sample points ``idx`` at pose ``p`` and their unit image normals."""
