@@ -43,7 +43,7 @@ from factory.core.errors import VisionError
 from factory.core.units import MM_PER_M
 from vision.camera import CameraModel, bin_image, binned_camera
 from vision.locate_search import FIT_SAMPLES, chamfer_starts, oriented_distances, thin_edges
-from vision.mesh_edges import MeshEdges, yaw_rotation
+from vision.mesh_edges import MeshEdges, edge_model, yaw_rotation
 # _edge_peaks and _peak_offset stay importable from here: vision.inspect takes them with the rest.
 from vision.picture_edges import _edge_peaks, _find_edges, _gradients, _peak_offset, _tray_ratio  # noqa: F401
 from vision.pose_uncertainty import pose_covariance
@@ -597,7 +597,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(fg, connectivity=8)
     maps = oriented_distances(gx, gy, thin := thin_edges(gx, gy, edges))
-    model = MeshEdges(part, camera, cam_base, tray_z)
+    model = edge_model(part, camera, cam_base, tray_z)
     f = np.sqrt(camera.fx * camera.fy)
     w, h = camera.image_size
     top_area = Polygon(part.outline).area
@@ -941,7 +941,7 @@ def _refined(coarse: LocatedPart, grey: np.ndarray, camera: CameraModel, base_ca
     The judgement (score, refusals) is the binned picture's. ``refine``: a glare pose's outward shift
     is taken off (:func:`_located`), as :attr:`LocateOptions.refine`.
     """
-    model = MeshEdges(part, camera, np.linalg.inv(base_camera), tray_z)
+    model = edge_model(part, camera, np.linalg.inv(base_camera), tray_z)
     gx, gy, threshold = _gradients(grey)
     start = np.array([coarse.x, coarse.y, coarse.yaw])
     fit = _edge_fit(model, gx, gy, threshold, start, saturated=(grey >= SATURATED_GREY).astype(np.uint8))

@@ -31,6 +31,11 @@ class EdgeModel(Protocol):
 
     def visible(self, p: np.ndarray) -> np.ndarray: ...
 
+    @property
+    def points(self) -> np.ndarray: ...
+
+    def world(self, p: np.ndarray, points: np.ndarray) -> np.ndarray: ...
+
     def project(self, p: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
 
 #: Most edge samples a round of the edge fit uses (evenly thinned; the final judgement uses all).
@@ -61,7 +66,8 @@ def chamfer_starts(model: EdgeModel, edges: np.ndarray, inside: np.ndarray, box:
         idx = model.visible(p)
         if len(idx) == 0:
             continue
-        uv, _ = model.project(p, idx)
+        # Where the samples fall is all the correlation needs (their normals are not).
+        uv = model.camera.project(model.world(p, model.points[idx]), model.rvec, model.tvec)
         off = np.rint(uv - ref).astype(int)
         lo, hi = off.min(axis=0), off.max(axis=0)
         kernel = np.zeros((hi[1] - lo[1] + 1, hi[0] - lo[0] + 1), np.float32)

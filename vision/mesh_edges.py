@@ -46,6 +46,27 @@ RESOLVE_COS = 0.9
 RESOLVE_DZ_M = 1e-3
 
 
+#: The edge models last made (:func:`edge_model`), newest last, at most :data:`KEPT_MODELS`.
+_MODELS: list[tuple[tuple, "MeshEdges"]] = []
+KEPT_MODELS = 8
+
+
+def edge_model(part: PartMesh, camera: CameraModel, cam_base: np.ndarray, tray_z: float) -> "MeshEdges":
+    """The :class:`MeshEdges` of ``part`` seen by ``camera`` at ``cam_base`` over the tray at ``tray_z`` [m], made
+    once for the same part (the same object), camera and pose: a cell locates the same part in picture after
+    picture, and making the model (the mesh's creases, its height field) cost a tenth of a locate."""
+    key = (id(part), np.asarray(camera.K).tobytes(), np.asarray(camera.dist).tobytes(), tuple(camera.image_size),
+           np.asarray(cam_base, np.float64).tobytes(), float(tray_z))
+    for k, (known, model) in enumerate(_MODELS):
+        if known == key and model.part is part:
+            _MODELS.append(_MODELS.pop(k))
+            return model
+    model = MeshEdges(part, camera, cam_base, tray_z)
+    _MODELS.append((key, model))
+    del _MODELS[:-KEPT_MODELS]
+    return model
+
+
 def yaw_rotation(yaw: float) -> np.ndarray:
     """The 2 x 2 rotation by ``yaw`` [rad] about z."""
     c, s = np.cos(yaw), np.sin(yaw)
@@ -68,6 +89,7 @@ class MeshEdges:
     """
 
     def __init__(self, part: PartMesh, camera: CameraModel, cam_base: np.ndarray, tray_z: float):
+        self.part = part  # what it was made from (:func:`edge_model` tells parts apart by it)
         mesh = trimesh.Trimesh(np.asarray(part.vertices) - np.r_[part.centroid, part.zmin], part.faces,
                                process=True)
         adj = mesh.face_adjacency
@@ -106,14 +128,17 @@ class MeshEdges:
         # n . e > n . point, one product per sample at any pose (:meth:`visible`).
         self.reach1 = np.einsum("nj,nj->n", self.n1, self.points)
         self.reach2 = np.einsum("nj,nj->n", self.n2, self.points)
+        self._turned: dict[tuple[int, int], bool] = {}
 
     def same_turned(self, k: int, symmetry: int) -> bool:
         """Whether the mesh's edges turned by ``k`` of ``symmetry`` turns about the footprint's centroid
         fall on its own edges (within :data:`OUTER_M`): a symmetry of the mesh, not only of its outline."""
-        r = np.eye(3)
-        r[:2, :2] = yaw_rotation(2 * np.pi * k / symmetry)
-        d, _ = cKDTree(self.points).query(self.points @ r.T)
-        return bool(np.quantile(d, 0.95) < OUTER_M)
+        if (k, symmetry) not in self._turned:  # a tree over every sample: asked per rival turn, made once
+            r = np.eye(3)
+            r[:2, :2] = yaw_rotation(2 * np.pi * k / symmetry)
+            d, _ = cKDTree(self.points).query(self.points @ r.T)
+            self._turned[k, symmetry] = bool(np.quantile(d, 0.95) < OUTER_M)
+        return self._turned[k, symmetry]
 
     def world(self, p: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Mesh points (centroid/zmin frame) placed at pose ``p = (x, y, yaw)`` [m, rad]."""

@@ -116,6 +116,11 @@ def shadowed(field: HeightField, points: np.ndarray, light: np.ndarray) -> np.nd
     # Straight up: only the point's own column can cover it.
     out[steep] = field.at(p[steep, :2]) > p[steep, 2] + SHADOW_BIAS_M
     live = ~steep & (p[:, 2] < top)
+    # Past the field's box (or never crossing it) a line above the tray meets only tray: its march ends
+    # there, not only once it rises above the part's top (a low light's lines rose for 15 cm).
+    enter, leave = _crossing(field, p[:, :2], ahead)
+    above = p[:, 2] + SHADOW_BIAS_M >= 0
+    live &= ~above | ((leave >= np.maximum(enter, 0.0)) & (enter < np.inf))
     # A block of cells per look: once a line is above the part's top nothing further hides it, so
     # the cells a block looks at past that point change nothing.
     s = TEXEL_M * np.arange(1, MARCH_BLOCK + 1)
@@ -125,9 +130,28 @@ def shadowed(field: HeightField, points: np.ndarray, light: np.ndarray) -> np.nd
         q = p[i, None, :2] + s[None, :, None] * ahead[i, None, :]
         hit = (field.at(q.reshape(-1, 2)).reshape(z.shape) > z + SHADOW_BIAS_M).any(axis=1)
         out[i[hit]] = True
-        live[i[hit | (z[:, -1] >= top)]] = False
+        live[i[hit | (z[:, -1] >= top) | (above[i] & (s[-1] >= leave[i]))]] = False
         s = s + MARCH_BLOCK * TEXEL_M
     return out
+
+
+def _crossing(field: HeightField, xy: np.ndarray, ahead: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(n,)`` and ``(n,)``: how far [m] the looks from ``xy`` (n, 2) [m] along ``ahead`` (2,) or (n, 2) (unit)
+    enter and leave the box the field's cells lie in (a cell beyond its edge, for the rounding); enter is
+    inf for a look that never crosses it. Outside that box every height is 0."""
+    rows, cols = field.heights.shape
+    lo = field.origin - 1.5 * TEXEL_M
+    hi = field.origin + TEXEL_M * (np.array([cols, rows]) + 0.5)
+    ahead = np.broadcast_to(ahead, xy.shape)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, b = (lo - xy) / ahead, (hi - xy) / ahead
+    # Along an axis the look does not move, it is within the box's slab for good or never.
+    within = (xy >= lo) & (xy <= hi)
+    a = np.where(ahead == 0, np.where(within, -np.inf, np.inf), a)
+    b = np.where(ahead == 0, np.inf, b)
+    enter = np.minimum(a, b).max(axis=1)
+    leave = np.maximum(a, b).min(axis=1)
+    return np.where(leave >= enter, enter, np.inf), leave
 
 
 #: Cells :func:`shadowed` looks at per step of its march towards the light.
@@ -225,22 +249,12 @@ def estimate_light(field: HeightField, tray: np.ndarray, dark: np.ndarray, eye: 
     reach = float(np.linalg.norm(t[:, :2], axis=1).max() + np.sqrt(2) * corner)
     steps = np.arange(0.5 * TEXEL_M, reach, LIGHT_STEP_M)
 
-    # The field's cells lie within this box (a cell beyond the edge for the rounding) [m]: a look that never
-    # crosses it sees only tray, slope 0 (heights are never below it), so only the looks that cross it are
-    # marched, and only over the steps where they do (the march over all of them cost a locate a quarter).
-    lo = field.origin - 1.5 * TEXEL_M
-    hi = field.origin + TEXEL_M * (np.array([cols, rows]) + 0.5)
-
     def steepest(az: float) -> np.ndarray:
+        # A look that never crosses the field's box sees only tray, slope 0 (heights are never below it):
+        # only the looks that cross it are marched, over the steps where they do (all of them cost a
+        # locate a quarter).
         ahead = np.array([np.cos(az), np.sin(az)])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            a, b = (lo - t[:, :2]) / ahead, (hi - t[:, :2]) / ahead
-        # Along an axis the look does not move, it is within the box's slab for good or never.
-        within = (t[:, :2] >= lo) & (t[:, :2] <= hi)
-        a = np.where(ahead == 0, np.where(within, -np.inf, np.inf), a)
-        b = np.where(ahead == 0, np.inf, b)
-        enter = np.minimum(a, b).max(axis=1)
-        leave = np.maximum(a, b).min(axis=1)
+        enter, leave = _crossing(field, t[:, :2], ahead)
         cross = np.flatnonzero((leave >= np.maximum(enter, 0.0)) & (enter <= steps[-1]))
         m = np.zeros(len(t))
         if len(cross) == 0:
