@@ -1,0 +1,80 @@
+"""The shortcuts that made locate fast must not change what it computes (no timings here: those are in
+benchmarks/locate_real_light.py and the reports): the edge fit's Jacobian is the projection's own, a
+line's march to the light ends past the part's box, and the edge model is made once per part and view."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tests.vision.lit import cell_station, sample_mesh
+from vision.mesh_edges import MeshEdges, edge_model
+from vision.shadow import MARCH_BLOCK, SHADOW_BIAS_M, TEXEL_M, height_field, shadowed
+
+STATION = cell_station(None)
+
+
+def _model(part: str = "bracket") -> MeshEdges:
+    return MeshEdges(sample_mesh(part)[1], STATION.camera, np.linalg.inv(STATION.camera_pose), STATION.plane_z)
+
+
+@settings(max_examples=20, deadline=None)
+@given(x=st.floats(-0.12, 0.12), y=st.floats(-0.1, 0.1), yaw=st.floats(-np.pi, np.pi))
+def test_the_edge_fits_jacobian_is_the_projections_own(x, y, yaw):
+    """MeshEdges.placed's derivatives by x, y [px/m] and yaw [px/rad] match central differences of the
+    projection to 1e-4 of their size, anywhere in the view (the lens's distortion included)."""
+    model = _model()
+    p = np.array([STATION.camera_pose[0, 3] + x, STATION.camera_pose[1, 3] + y, yaw])  # off the camera's axis by x, y [m]
+    pts = model.points[model.visible(p)]
+    uv, by_pose = model.placed(p, pts)
+    for k, h in enumerate((1e-6, 1e-6, 1e-5)):
+        dp = np.zeros(3)
+        dp[k] = h
+        numeric = (model.placed(p + dp, pts)[0] - model.placed(p - dp, pts)[0]) / (2 * h)
+        assert np.abs(numeric - by_pose[:, :, k]).max() <= 1e-4 * np.abs(by_pose[:, :, k]).max() + 1e-3
+
+
+def _marched(field, points, light):
+    """shadowed() as it was: every line marched until it rises above the part's top, no box."""
+    p = np.asarray(points, dtype=np.float64)
+    d = np.broadcast_to(light, p.shape)
+    flat = np.hypot(d[:, 0], d[:, 1])
+    rise, ahead = d[:, 2] / flat, d[:, :2] / flat[:, None]
+    top = float(field.heights.max())
+    out, live = np.zeros(len(p), bool), p[:, 2] < top
+    s = TEXEL_M * np.arange(1, MARCH_BLOCK + 1)
+    while live.any():
+        i = np.flatnonzero(live)
+        z = p[i, 2, None] + s[None, :] * rise[i, None]
+        q = p[i, None, :2] + s[None, :, None] * ahead[i, None, :]
+        hit = (field.at(q.reshape(-1, 2)).reshape(z.shape) > z + SHADOW_BIAS_M).any(axis=1)
+        out[i[hit]] = True
+        live[i[hit | (z[:, -1] >= top)]] = False
+        s = s + MARCH_BLOCK * TEXEL_M
+    return out
+
+
+@settings(max_examples=15, deadline=None)
+@given(part=st.sampled_from(["bracket", "stepped_wall", "plate_bosses", "l_bracket"]),
+       az=st.floats(0.0, 2 * np.pi), el=st.floats(np.radians(5.0), np.radians(80.0)), seed=st.integers(0, 99))
+def test_a_march_ended_past_the_parts_box_shadows_the_same_points(part, az, el, seed):
+    """Points on and around a part (some just below the tray, as a bottom face's side points are): shadowed
+    with the march ended past the height field's box says what the full march says, point for point."""
+    footprint = sample_mesh(part)[1]
+    field = height_field(np.asarray(footprint.vertices) - np.r_[footprint.centroid, footprint.zmin], footprint.faces)
+    rng = np.random.default_rng(seed)
+    points = np.column_stack([rng.uniform(-0.12, 0.12, (3000, 2)), rng.uniform(-2e-3, 0.05, 3000)])
+    light = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    assert np.array_equal(shadowed(field, points, light), _marched(field, points, light))
+
+
+def test_the_edge_model_is_made_once_per_part_and_view():
+    """The same part object, camera and pose give the same model; another tray height or another part a new one."""
+    part = sample_mesh("bracket")[1]
+    cam_base = np.linalg.inv(STATION.camera_pose)
+    first = edge_model(part, STATION.camera, cam_base, STATION.plane_z)
+    assert edge_model(part, STATION.camera, cam_base.copy(), STATION.plane_z) is first
+    assert edge_model(part, STATION.camera, cam_base, STATION.plane_z + 0.01) is not first
+    other = edge_model(sample_mesh("hex_boss")[1], STATION.camera, cam_base, STATION.plane_z)
+    assert other is not first and other.part is sample_mesh("hex_boss")[1]
