@@ -91,10 +91,11 @@ def _ramp_feeds(op: Operation, want: np.ndarray, max_feed: float) -> np.ndarray:
     """(n,) the feed of each ramp and helix move of ``op`` (a PLUNGE move across, no steeper than
     :data:`RAMP_SLOPE`) where its chip allows more than the plunge feed [mm/min], NaN elsewhere.
 
-    ``want``: the feed at which the move's chip at the cutter's centre is fz. A helix turns about the hole it
-    cuts, the stock outside it: the edge that cuts runs ``(r + R) / r`` times the centre's feed on a centre path
-    of radius ``r`` (a tool of radius ``R``), so the centre's feed is that much less. The steps climb from
-    the plunge feed."""
+    ``want``: the feed at which the move's chip is fz, as verify reads it from the stock the move meets: on a
+    helix the curved wall of the bore wraps round the cutter and the measured engagement is the wider one that
+    gives (``tests/cadcam/test_verify_chip.py``, closed form). The edge's own speed, ``(r + R) / r`` the
+    centre's, runs along the edge and adds no thickness to the chip, so it is not divided out again. The steps
+    climb from the plunge feed."""
     c, n = op.cutting, len(op.points)
     out = np.full(n, np.nan)
     step = np.diff(op.points, axis=0)
@@ -102,30 +103,11 @@ def _ramp_feeds(op: Operation, want: np.ndarray, max_feed: float) -> np.ndarray:
     ramp = np.r_[False, (op.motion[1:] == Motion.PLUNGE) & (across > 1e-6) & (-step[:, 2] <= RAMP_SLOPE * across)]
     if not ramp.any():
         return out
-    r = _turn_radius(op.points[:, :2])
-    r_move = np.minimum(r, np.r_[np.inf, r[:-1]])  # the tighter turn of the move's two ends
-    edge = np.where(np.isfinite(r_move), (np.minimum(r_move, 1e12) + op.tool.radius) / r_move, 1.0)
-    wanted = want / edge
-    steps = np.floor(np.log(np.maximum(wanted, c.plunge_feed) / c.plunge_feed) / math.log(FEED_STEP) + 1e-9)
+    steps = np.floor(np.log(np.maximum(want, c.plunge_feed) / c.plunge_feed) / math.log(FEED_STEP) + 1e-9)
     feed = np.minimum(c.plunge_feed * FEED_STEP ** steps, max_feed)
     fast = ramp & (feed > c.plunge_feed * (1 + 1e-9))
     out[fast] = feed[fast]
     return out
-
-
-def _turn_radius(xy: np.ndarray) -> np.ndarray:
-    """(n,) radius [mm] of the circle through each point and its two neighbours in XY (inf where straight,
-    at the ends, or where a neighbour coincides)."""
-    r = np.full(len(xy), np.inf)
-    if len(xy) < 3:
-        return r
-    a, b, o = xy[:-2], xy[2:], xy[1:-1]
-    ab, ao, bo = (np.linalg.norm(u, axis=1) for u in (b - a, o - a, o - b))
-    cross = np.abs((o - a)[:, 0] * (b - a)[:, 1] - (o - a)[:, 1] * (b - a)[:, 0])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rr = ab * ao * bo / (2 * cross)
-    r[1:-1] = np.where((cross > 1e-12) & (ao > 1e-9) & (bo > 1e-9), rr, np.inf)
-    return r
 
 
 def _nearby_max(points: np.ndarray, share: np.ndarray, reach: float) -> np.ndarray:

@@ -7,7 +7,7 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cadcam.chipfeed import chained_chip_feeds, chip_feeds
+from cadcam.chipfeed import FEED_STEP, chained_chip_feeds, chip_feeds
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.post import PostOptions, post_process
 from cadcam.gcode import parse_gcode
@@ -109,19 +109,19 @@ def helix(r: float, depth: float = 3.0, centre=(35.0, 35.0)) -> Operation:
 @settings(max_examples=8, deadline=None)
 @given(st.floats(1.5, 5.0))
 def test_a_helix_runs_at_the_feed_its_edge_allows_and_verify_passes_it(r):
-    """A helix turns inside the bore it cuts: its edge runs (r + R) / r times the centre's feed, so a helix into
-    the solid block takes at most the library's feed times r / (r + R) at its centre (the plunge feed where that
-    is less), and moves raised over it only in the air above."""
+    """A helix turns inside the bore it cuts, the bore's wall wrapped round the cutter: into the solid block its
+    chip is the full feed per tooth (a slot), so it runs raised from the plunge feed up to the library's feed and
+    no faster (the edge's own speed, (r + R) / r the centre's, runs along the edge: no thicker chip, not divided
+    out again); faster only in the air above. Verify, which reads the curved wall's engagement, passes it."""
     h = helix(r)
     fed = chip_feeds(h, None, BIG, CORNER, MAX_FEED)
     f = fed.move_feeds()
     ramp = (h.motion == Motion.PLUNGE)
     deep = ramp & (h.points[:, 2] < -0.5)  # moves wholly in the stock
-    edge_limit = NOMINAL.feed * r / (r + MILL.radius)
+    full = RPM * MILL.flutes * FZ  # the feed whose chip at full engagement is fz
     assert np.all(f[ramp] >= NOMINAL.plunge_feed - 1e-9)
-    assert np.all(f[deep] <= max(NOMINAL.plunge_feed, edge_limit) + 1e-6)
-    if edge_limit >= NOMINAL.plunge_feed * 1.25:
-        assert np.any(f[deep] > NOMINAL.plunge_feed)  # raised where the edge allows a feed step
+    assert np.all(f[deep] <= full + 1e-6)
+    assert np.all(f[deep] > full / FEED_STEP)  # at the ladder's step under it: the full chip's feed
     # the posted program carries the feeds, and verify holds every chip to fz
     text = post_process(Job(part_name="p", setup=BIG, operations=(fed,)), PostOptions()).text
     report = simulate(parse_gcode(text), {MILL.number: MILL}, BIG, CORNER, VerifyOptions(cell=0.2),

@@ -11,8 +11,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cadcam.adaptive import chip_thinned_feed
+from cadcam.gcode import parse_gcode
+from cadcam.heightmap import grid_over
+from cadcam.stock import FlippedStock
 from cadcam.model import CuttingData, Motion, ProgramMoves, Setup, Tool
-from cadcam.verify import ChipLoad, VerifyOptions, chip_loads, simulate
+from cadcam.verify import ChipLoad, VerifyOptions, chip_loads, simulate, simulate_flipped
 
 MILL = Tool(4, "10 mm flat", "flat", 10.0, 0.0, 20.0, 3, 40.0)
 RPM, FZ = 6000.0, 0.08
@@ -93,3 +96,58 @@ def test_the_library_gives_each_cutting_its_feed_per_tooth_and_thinning_keeps_it
         assert math.isclose(c.chip_load, fz, rel_tol=1e-5)
         assert c.feed <= c.spindle_rpm * tool.flutes * fz * (1 + 1e-3)  # the feed never asks for more
         assert chip_thinned_feed(c, tool, 0.1 * tool.diameter, library.max_feed).chip_load == c.chip_load
+
+
+
+def bore_pass(r: float, ae: float, feed: float) -> tuple[ProgramMoves, FlippedStock, Setup, np.ndarray]:
+    """A pocket of radius ``r + R - ae`` [mm] 4 mm deep, its wall taken ``ae`` [mm] wider by a full circle (G3)
+    of centre radius ``r`` 3 mm deep at ``feed``, entered from the pocket's middle at a crawl (its own chip thin)."""
+    setup = Setup(stock_min=[0, 0, -10], stock_max=[60, 60, 0], transform_mesh_to_work=np.eye(4))
+    part = trimesh.creation.box(bounds=[[0, 0, -10], [60, 60, -8]]).triangles
+    grid = grid_over(setup.stock_min, setup.stock_max, CELL)
+    inside = np.hypot(grid.xs[None, :] - 30.0, grid.ys[:, None] - 30.0) < r + MILL.radius - ae
+    start = FlippedStock(grid=grid, top=np.where(inside, -4.0, 0.0), bottom=np.full(inside.shape, -10.0))
+    text = "\n".join(["G21 G90 G17", f"T{MILL.number} M6", f"S{RPM:g} M3", "G0 X30 Y30 Z5", "G1 Z-3 F50",
+                      f"G1 X{30 + r:.4f} F5", f"G3 X{30 + r:.4f} Y30 I{-r:.4f} J0 F{feed:.1f}", "G1 X30 F50", "G0 Z5",
+                      "M30"])
+    return parse_gcode(text), start, setup, part
+
+
+def concave_chip(r: float, ae: float, feed: float) -> float:
+    """The thickest chip of a tool of radius R on a concave wall of radius r + R taking ``ae`` [mm] off it: the
+    feed per tooth at the centre times the sine of the engagement angle the curved wall gives, from the
+    direction across the path (its cosine ``((r + R - ae)^2 - r^2 - R^2) / (2 r R)``; a straight wall's is
+    ``1 - ae / R``). The edge's own speed, (r + R) / r the centre's, runs along the edge and adds no thickness:
+    the chip is what the centre's advance between two teeth brings the edge into the material."""
+    R = MILL.radius
+    c = ((r + R - ae) ** 2 - r * r - R * R) / (2 * r * R)
+    share = 1.0 if c <= 0 else math.sqrt(max(1 - c * c, 0.0))
+    return feed / (RPM * MILL.flutes) * share
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.floats(1.0, 12.0), st.floats(0.3, 2.0))
+def test_a_concave_arcs_chip_is_read_with_the_engagement_its_curved_wall_gives(r, ae):
+    """On a concave arc the wall wraps round the cutter: the same ``ae`` engages a wider angle than on a straight
+    wall, and verify (which measures the stock the curved wall left, chord by chord) reads that thicker chip, to a
+    grid cell of ``ae``. A tight arc at the straight wall's chip-thinned feed is over fz where the curve makes it."""
+    nominal = RPM * MILL.flutes * FZ
+    moves, start, setup, part = bore_pass(r, ae, nominal)
+    report = simulate_flipped(moves, {MILL.number: MILL}, setup, part, start, VerifyOptions(cell=CELL),
+                              chips={MILL.number: ChipLoad(FZ, RPM)}).report
+    (e,) = report.engagement
+    lo, hi = concave_chip(r, max(ae - CELL, 0.01), nominal), concave_chip(r, ae + CELL, nominal)
+    assert lo - 1e-9 <= e.max_chip <= hi + 1e-9
+    assert e.max_chip_line == 7  # the arc's
+    straight = closed_form(ae + CELL, nominal)
+    if concave_chip(r, ae - CELL, nominal) > straight * 1.05:
+        assert e.max_chip > straight  # the curve's engagement seen, not the straight wall's
+    thinned = chip_thinned_feed(CuttingData(RPM, nominal, nominal / 2, FZ), MILL, ae, 1e9).feed
+    chip = concave_chip(r, ae, thinned)
+    faults = [f for f in simulate_flipped(bore_pass(r, ae, thinned)[0], {MILL.number: MILL}, setup, part, start,
+                                          VerifyOptions(cell=CELL), chips={MILL.number: ChipLoad(FZ, RPM)}
+                                          ).report.faults if f.kind == "chip"]
+    if concave_chip(r, max(ae - CELL, 0.01), thinned) > FZ * (1 + VerifyOptions().chip_tolerance) * 1.01:
+        assert faults
+    elif chip < FZ:
+        assert not faults
