@@ -277,10 +277,10 @@ def _line_error(p: np.ndarray) -> float:
     v = p - a
     dd = float(d @ d)
     if dd <= _SAME_POINT**2:
-        return float(np.sqrt(np.einsum("ij,ij->i", v, v).max()))
-    t = np.clip((v @ d) / dd, 0.0, 1.0)
+        return math.sqrt(float(np.einsum("ij,ij->i", v, v).max()))
+    t = np.minimum(np.maximum((v @ d) / dd, 0.0), 1.0)  # np.clip's values, without its wrapper's cost
     w = v - t[:, None] * d
-    return float(np.sqrt(np.einsum("ij,ij->i", w, w).max()))
+    return math.sqrt(float(np.einsum("ij,ij->i", w, w).max()))
 
 
 def _fit_arc(p: np.ndarray, opt: FitOptions) -> tuple[np.ndarray, bool] | None:
@@ -313,11 +313,11 @@ def _fit_arc(p: np.ndarray, opt: FitOptions) -> tuple[np.ndarray, bool] | None:
     centre = m + t * nrm
     v = xy - centre
     ang = np.arctan2(v[:, 1], v[:, 0])
-    dth = np.diff(ang)
+    dth = ang[1:] - ang[:-1]
     dth = (dth + np.pi) % (2 * np.pi) - np.pi
-    if np.all(dth > 0):
+    if (dth > 0).all():
         cw = False
-    elif np.all(dth < 0):
+    elif (dth < 0).all():
         cw = True
     else:
         return None
@@ -342,6 +342,143 @@ def _fit_arc(p: np.ndarray, opt: FitOptions) -> tuple[np.ndarray, bool] | None:
     if float((rad_err * rad_err + z_err * z_err).max()) > tol2:
         return None
     return centre, cw
+
+
+#: Windows of up to this many moves are first judged for every start at once (:class:`_Screen`).
+_SCREEN_MOVES = 4
+#: Starts judged per batch of array operations (bounds the screen's memory).
+_SCREEN_BATCH = 16_384
+#: A bound on the relative rounding of one floating-point operation, with room to spare (eps is 2.2e-16).
+_ROUND = 1e-15
+
+
+class _Screen:
+    """The short windows' tests, judged for every start at once where the answer is sure.
+
+    :func:`fit_segments` asks its windows one at a time, each a dozen small numpy calls, and most are
+    short: a relief's raster asks 3 to 5 points at a time, over hundreds of thousands of starts. Here
+    each window length is one set of array operations over all starts. Its sums run in another order
+    than the exact tests' (a BLAS dot may fuse a multiply and an add), so it judges a window only where
+    the answer is clear of every limit by more than a bound on that rounding: a line surely within or
+    surely beyond tolerance, an arc that surely fails. An arc that may fit is left to :func:`_fit_arc`
+    (which gives its centre), as is any window nearer a limit: the fit is the one the exact tests give.
+
+    ``line[s, k]``: 1 (within), 0 (beyond) or -1 (ask) for the line ``s .. s + k``; ``arc_fails[s, k]``:
+    the arc ``s .. s + k`` surely fails.
+    """
+
+    def __init__(self, pts: np.ndarray, opt: FitOptions):
+        n = len(pts)
+        moves = max(min(_SCREEN_MOVES, n - 1), 0)
+        self.moves = moves
+        self.line = np.full((n, moves + 1), -1, dtype=np.int8)
+        self.arc_fails = np.zeros((n, moves + 1), dtype=bool)
+        for k in range(2, moves + 1):
+            for s0 in range(0, n - k, _SCREEN_BATCH):
+                s1 = min(s0 + _SCREEN_BATCH, n - k)
+                win = np.stack([pts[s0 + j:s1 + j] for j in range(k + 1)])  # (k + 1, starts, 3)
+                self.line[s0:s1, k] = _lines_within(win, opt.tolerance)
+                if opt.arcs:
+                    self.arc_fails[s0:s1, k] = _arcs_fail(win, opt)
+
+    def line_within(self, s: int, e: int) -> int:
+        """1, 0 or -1 (ask :func:`_line_error`) for the line from point ``s`` to ``e``."""
+        return int(self.line[s, e - s]) if e - s <= self.moves else -1
+
+    def arc_surely_fails(self, s: int, e: int) -> bool:
+        return e - s <= self.moves and bool(self.arc_fails[s, e - s])
+
+
+def _lines_within(win: np.ndarray, tol: float) -> np.ndarray:
+    """:func:`_line_error` <= ``tol`` of each window ``win[:, i]`` ((k + 1, m, 3)): 1, 0, or -1 where unsure."""
+    a = win[0]
+    d = win[-1] - a
+    v = win - a
+    dd = (d * d).sum(-1)
+    with np.errstate(all="ignore"):
+        t = np.minimum(np.maximum((v * d).sum(-1) / dd, 0.0), 1.0)
+    w = v - t[..., None] * d
+    err = np.sqrt((w * w).sum(-1).max(0))
+    # Rounding moves t by a few eps * |v| / |d| and so w by a few eps * |v|, whatever |d| is.
+    slack = 64 * _ROUND * (np.abs(v).sum(-1).max(0) + 1.0)
+    out = np.where(err <= tol - slack, 1, np.where(err > tol + slack, 0, -1)).astype(np.int8)
+    out[~(dd > 4 * _SAME_POINT**2)] = -1  # (near) one point: _line_error measures from it
+    return out
+
+
+def _arcs_fail(win: np.ndarray, opt: FitOptions) -> np.ndarray:
+    """Whether :func:`_fit_arc` surely returns None for each window ``win[:, i]`` ((k + 1, m, 3)).
+
+    The same quantities, each carried with a bound on how far rounding may have moved it from the exact
+    test's; a check fails surely when it fails by more than that bound."""
+    e = _ROUND
+    xy, z = win[..., :2], win[..., 2]
+    a, b = xy[0], xy[-1]
+    chord = b - a  # as the exact test: the same subtraction
+    c_len = np.hypot(chord[:, 0], chord[:, 1])
+    # Points on one line x = const or y = const (a raster's pass): the exact test's every d . nrm is a sum of
+    # products each exactly zero, so its den is 0 whatever the order of the sum.
+    straight = (xy[..., 0] == xy[0, :, 0]).all(0) | (xy[..., 1] == xy[0, :, 1]).all(0)
+    fail = (c_len < opt.min_chord * (1 - 4 * e)) | straight
+    judge = (c_len > opt.min_chord * (1 + 4 * e)) & ~straight
+    with np.errstate(all="ignore"):
+        m = 0.5 * (a + b)
+        nrm = np.stack([-chord[:, 1], chord[:, 0]], axis=-1) / c_len[:, None]
+        h2 = 0.25 * c_len * c_len
+        d = xy[1:-1] - m
+        coef = 2.0 * (d * nrm).sum(-1)
+        lhs = (d * d).sum(-1) - h2
+        e_coef = 16 * e * np.abs(d).sum(-1)
+        e_lhs = 16 * e * ((d * d).sum(-1) + h2)
+        den = (coef * coef).sum(0)
+        den_hi = ((np.abs(coef) + e_coef) ** 2).sum(0) * (1 + 8 * e)
+        den_lo = (np.maximum(np.abs(coef) - e_coef, 0.0) ** 2).sum(0) * (1 - 8 * e)
+        fail |= judge & (den_hi <= 1e-30)
+        judge &= den_lo > 1e-30
+        num = (lhs * coef).sum(0)
+        t = num / den
+        e_num = (np.abs(lhs) * e_coef + e_lhs * np.abs(coef) + e_coef * e_lhs).sum(0) + 8 * e * np.abs(lhs * coef).sum(0)
+        e_den = den_hi - den_lo + 8 * e * den
+        e_t = (e_num + np.abs(t) * e_den) / den_lo + 8 * e * np.abs(t)
+        r = np.sqrt(h2 + t * t)
+        e_r = e_t + 8 * e * r
+        fail |= judge & ((r - e_r > opt.max_radius) | (r + e_r < opt.min_radius))
+        judge &= (r - e_r >= opt.min_radius) & (r + e_r <= opt.max_radius)
+        centre = m + t[:, None] * nrm
+        e_c = e_t + 16 * e * (np.abs(m).sum(-1) + np.abs(t) + 1.0)  # the centre's shift [mm]
+        v = xy - centre
+        rho = np.hypot(v[..., 0], v[..., 1])
+        ang = np.arctan2(v[..., 1], v[..., 0])
+        e_ang = ((e_c + 16 * e * rho) / rho + 16 * e).max(0)  # each angle's [rad]
+        dth = ang[1:] - ang[:-1]
+        dth = (dth + np.pi) % (2 * np.pi) - np.pi
+        de = 2 * e_ang + 16 * e
+        # Only where each shift is small beside the point's distance, and no step is near the half turn
+        # that the wrap would flip.
+        judge &= (e_c < 1e-6 * rho.min(0)) & (np.abs(dth) < np.pi - 1e-6).all(0)
+        pos, neg = (dth > de).all(0), (dth < -de).all(0)
+        fail |= judge & (dth > de).any(0) & (dth < -de).any(0)
+        judge &= pos | neg
+        theta = np.concatenate([np.zeros((1, dth.shape[1])), np.cumsum(dth, axis=0)])
+        total = theta[-1]
+        k = len(dth)
+        e_tot = k * de + 16 * e * k * np.abs(total)
+        sweep = math.radians(opt.max_sweep) + 1e-12
+        fail |= judge & (np.abs(total) - e_tot > sweep)
+        judge &= (np.abs(total) + e_tot <= sweep) & (np.abs(total) > 2 * e_tot)
+        z0, z1 = z[0], z[-1]
+        # How far each point's distance from the exact test's arc may have moved [mm].
+        bound = (e_c + e_r + 16 * e * (rho.max(0) + r) + np.abs(z1 - z0) * 4 * e_tot / np.abs(total)
+                 + 16 * e * (np.abs(z).max(0) + 1.0))
+        far = opt.tolerance + 2 * bound
+        err = np.hypot(rho - r, z - (z0 + (z1 - z0) * theta / total)).max(0)
+        f = _CHORD_SAMPLES[None, :, None, None]
+        q = win[:-1, None] * (1.0 - f) + win[1:, None] * f  # (k, s, m, 3)
+        th = theta[:-1, None] * (1.0 - f[..., 0]) + theta[1:, None] * f[..., 0]
+        qv = q[..., :2] - centre
+        q_err = np.hypot(np.hypot(qv[..., 0], qv[..., 1]) - r, q[..., 2] - (z0 + (z1 - z0) * th / total))
+        fail |= judge & ((err > far) | (q_err.max(axis=(0, 1)) > far))
+    return fail
 
 
 def _longest(ok: Callable[[int, int], object], s: int, first: int, stop: int, step: int) -> tuple[int, object]:
@@ -419,11 +556,16 @@ def fit_segments(points: np.ndarray, motion: np.ndarray, options: FitOptions = F
     n = len(pts)
     tol = options.tolerance
 
+    screen = _Screen(pts, options)  # the short windows judged at once, where sure
+
     def line_ok(s: int, e: int) -> bool:
-        return e == s + 1 or _line_error(pts[s:e + 1]) <= tol
+        if e == s + 1:
+            return True
+        sure = screen.line_within(s, e)
+        return bool(sure) if sure >= 0 else _line_error(pts[s:e + 1]) <= tol
 
     def arc_ok(s: int, e: int) -> tuple[np.ndarray, bool] | None:
-        return _fit_arc(pts[s:e + 1], options)
+        return None if screen.arc_surely_fails(s, e) else _fit_arc(pts[s:e + 1], options)
 
     ends: list[int] = []
     kinds: list[int] = []

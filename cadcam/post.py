@@ -242,17 +242,28 @@ class _Numbers:
     def __init__(self, decimals: int, point: bool):
         self.decimals = decimals
         self.point = point
+        # Words by value: a program repeats its values (a raster's Y, a level's Z) many times over.
+        self._words: dict[float, str] = {}
 
     def __call__(self, v: float) -> str:
-        s = f"{v:.{self.decimals}f}"
-        if float(s) == 0.0:  # no "-0.0000"
-            s = f"{0.0:.{self.decimals}f}"
-        s = s.rstrip("0")
-        return s if self.point else s.rstrip(".")
+        w = self._words.get(v)
+        if w is None:
+            if len(self._words) >= _WORDS_KEPT:
+                self._words.clear()
+            s = f"{v:.{self.decimals}f}"
+            if float(s) == 0.0:  # no "-0.0000" (and -0.0 == 0.0 as a key: the same word)
+                s = f"{0.0:.{self.decimals}f}"
+            s = s.rstrip("0")
+            w = self._words[v] = s if self.point else s.rstrip(".")
+        return w
 
     def rounded(self, v: float) -> float:
         """The value the controller will read for ``v``."""
         return float(self(v))
+
+
+#: Number words :class:`_Numbers` keeps for reuse (about 100 bytes each).
+_WORDS_KEPT = 1 << 20
 
 
 #: Longest tool comment LinuxCNC keeps (``CANON_TOOL_COMMENT_SIZE`` - 1); it truncates longer ones with a warning.
@@ -780,20 +791,20 @@ def _write_moves(w: _Writer, op: Operation, seg: Segments) -> _Cutting:
     cut_len = 0.0
     cut_time = 0.0
     rapids: list[float] = []
-    for i in range(len(seg)):
-        m = int(seg.motion[i])
+    # As Python numbers, once: the same values, without a numpy scalar per word.
+    ends, centres, kinds = seg.end.tolist(), seg.centre.tolist(), seg.kind.tolist()
+    for i, (m, length, feed, time) in enumerate(zip(seg.motion.tolist(), lengths.tolist(), feeds.tolist(),
+                                                    seconds.tolist())):
         if m == Motion.RAPID:
-            w.move(0, seg.end[i])
-            rapids.append(float(lengths[i]))
+            w.move(0, ends[i])
+            rapids.append(length)
             continue
-        feed = float(feeds[i])
-        cut_len += float(lengths[i])
-        cut_time += float(seconds[i])
-        kind = int(seg.kind[i])
-        if kind == SegmentKind.LINE:
-            w.move(1, seg.end[i], feed)
+        cut_len += length
+        cut_time += time
+        if kinds[i] == SegmentKind.LINE:
+            w.move(1, ends[i], feed)
         else:
-            w.move(kind, seg.end[i], feed, centre=seg.centre[i])
+            w.move(kinds[i], ends[i], feed, centre=centres[i])
     return _Cutting(cut_len, cut_time, tuple(rapids), seg.end[-1] if len(seg) else op.points[0])
 
 

@@ -472,7 +472,8 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     thinner cuts (:func:`conservative`, at each of :data:`REPLAN_SCALES`) and its rapids checked on
     verify's grid (``CamRequest.rapid_cell``) until one passes: op 2 alone, from op 1's verified
     stock, when op 1 passed; the whole part when op 1 failed (op 2 starts from what op 1 leaves). When the
-    thinnest cuts fail too, once more without the faulting tool (:func:`_with_the_next_tool`). Only the
+    thinnest cuts fail too, once more without the faulting tool (:func:`_with_the_next_tool`); at once when
+    that fault is the tool's holder (:func:`_holder_at_fault`), which thinner cuts cannot move. Only the
     last is returned failed (``ok`` False), naming its faults. What each re-plan was for is in
     ``replanned``.
 
@@ -485,7 +486,7 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     plan = _plan_once(request, progress)
     why: list[str] = []
     for scale in REPLAN_SCALES:
-        if plan.ok:
+        if plan.ok or _holder_at_fault(plan):
             break
         fault = _first_fault(plan)
         why.append(fault)
@@ -501,6 +502,13 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
     if not plan.ok:
         plan = _with_the_next_tool(plan, request, progress, why)
     return dataclasses.replace(plan, replanned=tuple(why))
+
+
+def _holder_at_fault(plan: PartPlan) -> bool:
+    """Whether the fault :func:`_with_the_next_tool` acts on is a tool's shank or holder meeting the stock or
+    the part: thinner cuts leave the holder as low beside the same stock, so only the next tool can help."""
+    report = plan.op2.report if plan.report.ok and plan.op2 is not None else plan.report
+    return next((f.kind for f in report.faults if f.tool), None) == "holder"
 
 
 def _with_the_next_tool(plan: PartPlan, request: PlanRequest, progress: Progress | None, why: list[str]) -> PartPlan:

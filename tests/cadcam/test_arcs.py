@@ -197,3 +197,48 @@ def test_circles_get_fewer_lines(r, dz, seed, noise_frac):
     seg = check_within(p, np.full(n, Motion.CUT), FitOptions())
     assert len(seg) <= max(4, (n - 1) // 4)
     assert np.any(seg.kind != SegmentKind.LINE)
+
+
+@st.composite
+def screened_paths(draw):
+    """:func:`polylines` with what the screen must not misjudge: a raster's passes (x or y exactly constant,
+    z rippling), and zigzags whose points sit within an ulp or a nanometre of the tolerance off their chord."""
+    points, motion = draw(polylines())
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    pieces, motions = [points], [motion]
+    for _ in range(draw(st.integers(1, 3))):
+        start = pieces[-1][-1]
+        n = draw(st.integers(3, 60))
+        u = np.arange(1, n + 1) * rng.uniform(0.05, 1.0)
+        if draw(st.booleans()):  # a raster pass
+            axis = draw(st.integers(0, 1))
+            pts = np.repeat(start[None], n, axis=0)
+            pts[:, axis] += u
+            pts[:, 2] += 0.3 * np.sin(u / rng.uniform(0.5, 5)) * draw(st.sampled_from([0.0, 1.0]))
+        else:  # zigzag at the tolerance, across a pass (lines decide) or beside it (arcs decide)
+            off = TOL * (1 + draw(st.sampled_from([0.0, 1e-12, -1e-12, 1e-9, -1e-9, 1e-6, -1e-6, 0.5, -0.5])))
+            a = draw(st.sampled_from([0.0, 0.5 * np.pi, rng.uniform(0, 2 * np.pi)]))
+            direction = np.array([np.cos(a), np.sin(a), 0.0])
+            side = np.array([0, 0, 1.0]) if draw(st.booleans()) else np.array([-np.sin(a), np.cos(a), 0.0])
+            pts = start + u[:, None] * direction + (np.arange(n) % 2 * 2 - 1)[:, None] * 0.5 * off * side
+        pieces.append(pts)
+        motions.append(np.full(n, int(Motion.CUT)))
+    return np.vstack(pieces), np.concatenate(motions)
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(screened_paths(), st.sampled_from([0.002, 0.01]))
+def test_the_short_windows_judged_at_once_give_the_very_fit_the_exact_tests_give(path, tol):
+    """The screen (cadcam.arcs._Screen) judges only where it is sure: the fit is bit for bit the one
+    each window's exact test alone gives (no screen)."""
+    import cadcam.arcs
+
+    points, motion = path
+    opt = FitOptions(tolerance=tol)
+    screened = fit_segments(points, motion, opt)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(cadcam.arcs, "_SCREEN_MOVES", 1)  # no window judged at once
+        exact = fit_segments(points, motion, opt)
+    for name in ("start", "end", "kind", "centre", "motion", "source_end"):
+        a, b = np.asarray(getattr(screened, name)), np.asarray(getattr(exact, name))
+        assert a.shape == b.shape and a.tobytes() == b.tobytes(), name

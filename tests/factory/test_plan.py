@@ -266,12 +266,25 @@ def _planned_once(real):
     return plan
 
 
-def _with_fault(plan, message: str, tool: int = 3):
-    """``plan`` as if op 1's verify had found ``tool`` buried."""
+def _with_fault(plan, message: str, tool: int = 3, kind: str = "buried"):
+    """``plan`` as if op 1's verify had found ``tool`` at fault (``kind``: buried by default)."""
     from cadcam.verify import Fault
 
-    fault = Fault("buried", tool, (10,), 1.2, 1.0, (1.0, 2.0, -3.0), message)
+    fault = Fault(kind, tool, (10,), 1.2, 1.0, (1.0, 2.0, -3.0), message)
     return dataclasses.replace(plan, report=dataclasses.replace(plan.report, faults=(fault,)))
+
+
+def _faulted_while_cutting(real, tool: int, message: str, kind: str = "buried"):
+    """``real`` planning, with each plan that cuts with ``tool`` faulted (:func:`_with_fault`); also what each
+    plan was asked (its CamRequest) and the tools it used, in order."""
+    asked, used = [], []
+
+    def plan(request, progress=None):
+        asked.append(request.cam)
+        planned = real(request, progress)
+        used.append({t.number for t in planned.planned.job.tools})
+        return _with_fault(planned, message, tool=tool, kind=kind) if tool in used[-1] else planned
+    return plan, asked, used
 
 
 def test_a_plan_verify_fails_is_made_again_with_thinner_cuts_before_any_is_handed_over(block, monkeypatch, caplog):
@@ -325,15 +338,8 @@ def test_when_thinner_cuts_fail_too_the_next_tool_is_tried_before_giving_up(bloc
     tool for its work, and that plan, which passes, is handed over (not exit 3)."""
     import factory.plan
 
-    real = _planned_once(factory.plan._plan_once)
-    asked, used = [], []
-
-    def fails_while_t1_cuts(request, progress=None):
-        asked.append(request.cam)
-        plan = real(request, progress)
-        used.append({t.number for t in plan.planned.job.tools})
-        return _with_fault(plan, "T1 engages 1.2 mm, limit 1 mm", tool=1) if 1 in used[-1] else plan
-
+    fails_while_t1_cuts, asked, used = _faulted_while_cutting(_planned_once(factory.plan._plan_once), 1,
+                                                              "T1 engages 1.2 mm, limit 1 mm")
     monkeypatch.setattr(factory.plan, "_plan_once", fails_while_t1_cuts)
     with caplog.at_level(logging.WARNING, logger="factory.plan"):
         planned = plan_part(dataclasses.replace(fast_request(block, robot=False), ops=1))
@@ -342,6 +348,23 @@ def test_when_thinner_cuts_fail_too_the_next_tool_is_tried_before_giving_up(bloc
     assert [c.set_aside for c in asked] == [()] * (1 + len(factory.plan.REPLAN_SCALES)) + [(1,)]
     assert 1 not in used[-1] and used[-1] == {t.number for t in planned.planned.job.tools}
     assert len(planned.replanned) == 3 and "planning again without T1" in caplog.text
+
+
+def test_a_holder_fault_goes_straight_to_the_next_tool(block, monkeypatch, caplog):
+    """Thinner cuts leave a tool's holder as low beside the same stock: a plan whose holder verify finds in
+    the stock is planned again at once without that tool, not first with each of REPLAN_SCALES' cuts."""
+    import factory.plan
+
+    holder_hits_while_t1_cuts, asked, used = _faulted_while_cutting(
+        _planned_once(factory.plan._plan_once), 1, "T1's holder 2.30 mm into the stock", kind="holder")
+    monkeypatch.setattr(factory.plan, "_plan_once", holder_hits_while_t1_cuts)
+    with caplog.at_level(logging.WARNING, logger="factory.plan"):
+        planned = plan_part(dataclasses.replace(fast_request(block, robot=False), ops=1))
+    assert 1 in used[0]  # the defaults cut with T1: the test is not vacuous
+    assert [c.set_aside for c in asked] == [(), (1,)]  # no plan with thinner cuts between
+    assert asked[1].plan == asked[0].plan  # the first plan's cuts, without T1
+    assert planned.ok and 1 not in used[-1] and planned.replanned == ("op 1: T1's holder 2.30 mm into the stock",)
+    assert "planning again without T1" in caplog.text and "stepdowns and finishing engagement" not in caplog.text
 
 
 def test_when_only_op_2_fails_verify_only_op_2_is_planned_again(block, monkeypatch, caplog):
