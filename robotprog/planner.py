@@ -9,7 +9,12 @@ Moves
 -----
 * *Approach* and *retreat* (:meth:`MotionPlanner.line`) are straight lines of the TCP, IK-sampled
   every :attr:`PlannerOptions.line_step` with :func:`robotprog.ik.ik_continuous` (the branch
-  continuous with the previous sample), and proven collision-free all along (:mod:`robotprog.sweep`).
+  continuous with the previous sample), and proven collision-free all along (:mod:`robotprog.sweep`)
+  before anything is timed, so that a line that cannot be made fails fast
+  (:meth:`MotionPlanner.prove_line`): the motion that runs, the timed spline through the samples, is
+  proven there, as :meth:`MotionPlanner.timed` would prove it, and kept for it (a line is proven once);
+  only where that spline cannot be timed or touches is the polyline of the samples proven instead,
+  and the spline is then timed and proven by :meth:`MotionPlanner.timed` as any other.
 * *Transfers* (:meth:`MotionPlanner.transfer`) are straight in joint space when that is
   collision-free at :attr:`PlannerOptions.joint_resolution`; otherwise an RRT-Connect in joint space
   finds a path, which is then shortcut (random pairs of path points joined when the straight joint
@@ -60,7 +65,7 @@ from scipy.interpolate import PPoly
 
 from factory.core.errors import PlanningError
 from robotprog.cell import Box, Cell
-from robotprog.collision import CollisionWorld, Payload, collision_world
+from robotprog.collision import CollisionWorld, Payload, _riding, collision_world
 from robotprog.ik import ik_continuous, ik_solutions
 from robotprog.roadmap import Roadmap, RoadmapOnDemand, joint_box
 from robotprog.sweep import monotone_breaks, swept_motion
@@ -264,6 +269,8 @@ class MotionPlanner:
         self.rng = np.random.default_rng(options.seed)
         self.lo, self.hi = joint_box(robot.q_lower, robot.q_upper, np.asarray(cell.robot.home))
         self.sweep = swept_motion(world, options.joint_resolution)
+        #: lines proven by :meth:`prove_line`, by their samples and payload: (timed path, its room)
+        self._lines: dict[tuple[bytes, tuple], tuple[Trajectory, np.ndarray | None]] = {}
 
     def among(self, obstacles: tuple[Box, ...]) -> "MotionPlanner":
         """A planner with the same options for this world plus ``obstacles`` (world frame), its
@@ -302,7 +309,7 @@ class MotionPlanner:
     def line(self, t_a: np.ndarray, t_b: np.ndarray, q_a: np.ndarray, held: Payload,
              what: str, field_name: str) -> np.ndarray:
         """The TCP's straight line from pose ``t_a`` to ``t_b`` (orientation of ``t_a``) from ``q_a``:
-        (n, dof) joint samples [rad], every ``line_step``, proven free all along.
+        (n, dof) joint samples [rad], every ``line_step``, proven free all along (:meth:`prove_line`).
 
         Raises
         ------
@@ -324,10 +331,38 @@ class MotionPlanner:
                 raise PlanningError(f"{what}: the arm flips configuration along the line", source=field_name)
             qs.append(q)
         qs = np.array(qs)
+        self.prove_line(qs, held, what, field_name)
+        return qs
+
+    def prove_line(self, qs: np.ndarray, held: Payload, what: str, field_name: str) -> None:
+        """Proves the TCP line through the joint samples ``qs`` (n, dof) [rad] free all along, before it
+        is timed: the timed spline through them (the motion that runs, proven exactly as :meth:`timed`
+        proves it, which then takes it as it is), else, where that spline cannot be timed or touches,
+        the polyline of the samples (the spline is then pinned down by :meth:`timed`).
+
+        Raises
+        ------
+        PlanningError
+            The polyline collides (blamed on ``field_name``).
+        """
+        try:
+            traj = self._time(qs)
+        except PlanningError:  # the spline overshoots a joint limit: timed() pins it down
+            traj = None
+        if traj is not None:
+            tube, hit = self._proven(traj, held)
+            if hit is None:
+                self._lines[self._line_key(qs, held)] = (traj, tube)
+                return
         hit = self.sweep.polyline_contact(qs, held)
         if hit is not None:
             raise PlanningError(f"{what} collides ({hit[1]})", source=field_name)
-        return qs
+
+    @staticmethod
+    def _line_key(qs: np.ndarray, held: Payload) -> tuple[bytes, tuple]:
+        """What a line's proof depends on besides this planner's world: its samples and what rides."""
+        q = np.ascontiguousarray(qs, dtype=float)
+        return q.tobytes() + repr(q.shape).encode(), _riding(held)
 
     # --- joint transfers -------------------------------------------------------------------
 
@@ -489,6 +524,11 @@ class MotionPlanner:
             The path cannot be timed within the joint limits or proven free.
         """
         qs = np.asarray(qs, dtype=float)
+        if kind == "linear":
+            proven = self._lines.pop(self._line_key(qs, held), None)
+            if proven is not None:  # its timed path was proven as it was solved (prove_line)
+                return TimedMove(name, proven[0], kind, qs, held, transform_world_to_tcp=self.tcp_world(qs[-1]),
+                                 tube=proven[1])
         if kind == "joint":
             # The motion that runs is the timed spline: proven as it is, the polyline it was timed
             # through needs no proof of its own; only where it touches is the polyline asked, to
@@ -543,7 +583,7 @@ class MotionPlanner:
                 # through dense points of a free polyline stays within a shrinking distance of it).
                 wp = self.densify(wp, self.options.joint_resolution / 2 ** (attempt - 2) if attempt > 1 else None)
             try:
-                traj = time_path(wp, self.vmax, self.amax, q_lower=self.robot.q_lower, q_upper=self.robot.q_upper)
+                traj = self._time(wp)
             except PlanningError as e:  # the spline overshot a joint limit between waypoints
                 problem = str(e)
                 continue
@@ -554,6 +594,10 @@ class MotionPlanner:
                                  tube=tube)
             problem = f"the timed path collides ({hit[1]})"
         raise PlanningError(f"{name}: {problem}")
+
+    def _time(self, wp: np.ndarray) -> Trajectory:
+        """The time-optimal timing of the path through ``wp`` (n, dof) [rad] within the joint limits."""
+        return time_path(wp, self.vmax, self.amax, q_lower=self.robot.q_lower, q_upper=self.robot.q_upper)
 
     def gripper(self, name: str, q: np.ndarray, outputs, held: Payload) -> TimedMove:
         """A gripper action at ``q`` [rad]: set ``outputs`` ((int, bool) pairs), wait the settle time."""

@@ -228,7 +228,8 @@ def corrected_pick(cell: Cell, robot: Robot, planned: PlannedPick, located: Slot
 def turning_line(p: MotionPlanner, t_a: np.ndarray, t_b: np.ndarray, q_a: np.ndarray, held, what: str) -> np.ndarray:
     """The TCP's straight line from pose ``t_a`` to ``t_b`` (4, 4), its orientation turning evenly
     (slerp) on the way, from ``q_a``: (n, dof) joint samples [rad] every ``line_step`` of travel
-    (at least 2 and one per degree turned), proven free all along (a controller's ``movel``).
+    (at least 2 and one per degree turned), proven free all along (a controller's ``movel``;
+    :meth:`MotionPlanner.prove_line`).
 
     Raises
     ------
@@ -252,7 +253,5 @@ def turning_line(p: MotionPlanner, t_a: np.ndarray, t_b: np.ndarray, q_a: np.nda
             raise PlanningError(f"{what}: the arm flips configuration along the line", source="rack.pose")
         qs.append(q)
     out = np.array(qs)
-    hit = p.sweep.polyline_contact(out, held)
-    if hit is not None:
-        raise PlanningError(f"{what} collides ({hit[1]})", source="rack.pose")
+    p.prove_line(out, held, what, "rack.pose")
     return out

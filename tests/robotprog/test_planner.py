@@ -100,3 +100,40 @@ def test_options_are_values():
     with pytest.raises(dataclasses.FrozenInstanceError):
         o.seed = 1  # type: ignore[misc]
     assert dataclasses.replace(o, seed=1).seed == 1 and o.seed == 0
+
+
+def test_a_line_is_proven_once_as_the_motion_that_runs_and_only_in_its_own_world(cell, world):
+    """A TCP line's timed spline is proven as the line is solved (prove_line) and timed() takes it: the
+    same timing and room as proving it afresh, the room proven free by an independent call; a planner
+    with a box in the line's way proves it again and refuses it; a line into that box is refused as
+    it is solved."""
+    from scipy.interpolate import PPoly
+
+    from robotprog.planner import CHORD_PERIOD_S
+    from robotprog.sweep import monotone_breaks
+
+    home = np.asarray(cell.robot.home, dtype=float)
+    p = MotionPlanner(cell, world)
+    t_a = p.tcp_world(home)
+    t_b = raise_up(t_a, -0.2)
+    qs = p.line(t_a, t_b, home, None, "down", "test")
+    assert len(p._lines) == 1
+    move = p.timed("down", "linear", qs, None)
+    assert not p._lines  # taken, not kept
+    fresh = MotionPlanner(cell, world)._timed_once("down", "linear", qs, None)
+    np.testing.assert_array_equal(move.trajectory.coefficients, fresh.trajectory.coefficients)
+    np.testing.assert_array_equal(move.trajectory.breakpoints, fresh.trajectory.breakpoints)
+    assert move.tube is not None
+    np.testing.assert_array_equal(move.tube, fresh.tube)
+    assert np.all(move.tube >= move.trajectory.chord_deviation(CHORD_PERIOD_S))
+    traj = move.trajectory
+    assert p.sweep.first_contact(PPoly(traj.coefficients, traj.breakpoints),
+                                 monotone_breaks(traj.breakpoints, traj.coefficients), None, move.tube) is None
+    # a box where the line ends: another world, so the line proven above is not taken as proven there
+    blocked = p.among((Box("in_the_way", (0.2, 0.2, 0.24), Pose(tuple(t_b[:3, 3]))),))
+    p.line(t_a, t_b, home, None, "down", "test")
+    with pytest.raises(PlanningError, match="collides"):
+        blocked.timed("down", "linear", qs, None)
+    with pytest.raises(PlanningError, match="down collides"):
+        blocked.line(t_a, t_b, home, None, "down", "test")
+    assert not blocked._lines
