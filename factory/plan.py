@@ -44,7 +44,7 @@ from cadcam.mesh import PartMesh
 from cadcam.relief import Boundary, block_corners
 from cadcam.sheet import setup_sheet
 from cadcam.stock import Simulation
-from cadcam.verify import VerifyOptions, VerifyReport
+from cadcam.verify import Fault, VerifyOptions, VerifyReport
 from factory.core.atomic import check_writable, write_bytes, write_text
 from factory.cam import CamRequest, PlannedPart, compute_job, log_job
 from factory.catalog import catalog_record, sha256_file
@@ -507,8 +507,19 @@ def plan_part(request: PlanRequest, progress: Progress | None = None) -> PartPla
 def _holder_at_fault(plan: PartPlan) -> bool:
     """Whether the fault :func:`_with_the_next_tool` acts on is a tool's shank or holder meeting the stock or
     the part: thinner cuts leave the holder as low beside the same stock, so only the next tool can help."""
-    report = plan.op2.report if plan.report.ok and plan.op2 is not None else plan.report
-    return next((f.kind for f in report.faults if f.tool), None) == "holder"
+    fault = _tool_fault(plan)
+    return fault is not None and fault.kind == "holder"
+
+
+def _op2_only(plan: PartPlan) -> bool:
+    """Whether only op 2 failed verify (op 1 passed), so a re-plan is op 2's alone."""
+    return plan.report.ok and plan.op2 is not None
+
+
+def _tool_fault(plan: PartPlan) -> Fault | None:
+    """The first fault naming a tool in the operation a re-plan acts on (:func:`_op2_only`), None if none does."""
+    report = plan.op2.report if _op2_only(plan) else plan.report
+    return next((f for f in report.faults if f.tool), None)
 
 
 def _with_the_next_tool(plan: PartPlan, request: PlanRequest, progress: Progress | None, why: list[str]) -> PartPlan:
@@ -517,9 +528,9 @@ def _with_the_next_tool(plan: PartPlan, request: PlanRequest, progress: Progress
     unreached. ``plan`` itself when the fault names no tool, a tool the user named, or when the library
     without it cannot plan the part (a tool role no other tool fills); the fault appended to ``why``
     when it is planned again."""
-    op2_only = plan.report.ok and plan.op2 is not None
-    report = plan.op2.report if op2_only else plan.report
-    tool = next((f.tool for f in report.faults if f.tool), 0)
+    op2_only = _op2_only(plan)
+    fault = _tool_fault(plan)
+    tool = 0 if fault is None else fault.tool
     named = (request.cam.plan.rough_tool, request.cam.plan.finish_tool)
     if not tool or tool in named:
         return plan
