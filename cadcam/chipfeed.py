@@ -72,8 +72,7 @@ def _raised(op: Operation, share: np.ndarray, max_feed: float) -> Operation:
     share = _nearby_max(op.points, share, op.tool.radius + CHIP_CELL)
     full = c.spindle_rpm * op.tool.flutes * c.chip_load  # the feed at which a full-width chip is fz
     want = np.where(share > 0, full / np.maximum(share, 1e-9), np.inf)
-    steps = np.floor(np.log(np.maximum(want, c.feed) / c.feed) / math.log(FEED_STEP) + 1e-9)
-    feed = np.where(want >= max_feed, max_feed, np.minimum(c.feed * FEED_STEP ** steps, max_feed))
+    feed = np.where(want >= max_feed, max_feed, _ladder(want, c.feed, max_feed))
     raised = (op.motion == Motion.CUT) & (feed > c.feed * (1 + 1e-9))
     ramp = _ramp_feeds(op, want, max_feed)
     feed = np.where(np.isnan(ramp), feed, ramp)
@@ -85,6 +84,13 @@ def _raised(op: Operation, share: np.ndarray, max_feed: float) -> Operation:
         raised &= ~(op.feeds >= feed)
     return dataclasses.replace(op, feeds=np.where(raised, np.round(feed, 1), op.feeds if op.feeds is not None
                                                   else np.nan))
+
+
+def _ladder(want: np.ndarray, base: float, max_feed: float) -> np.ndarray:
+    """(n,) the highest step of the feed ladder up from ``base`` (``base`` x :data:`FEED_STEP` ** k, k >= 0) at
+    or under each ``want``, at most ``max_feed`` [mm/min]; ``base`` where ``want`` is below it."""
+    steps = np.floor(np.log(np.maximum(want, base) / base) / math.log(FEED_STEP) + 1e-9)
+    return np.minimum(base * FEED_STEP ** steps, max_feed)
 
 
 def _ramp_feeds(op: Operation, want: np.ndarray, max_feed: float) -> np.ndarray:
@@ -103,8 +109,7 @@ def _ramp_feeds(op: Operation, want: np.ndarray, max_feed: float) -> np.ndarray:
     ramp = np.r_[False, (op.motion[1:] == Motion.PLUNGE) & (across > 1e-6) & (-step[:, 2] <= RAMP_SLOPE * across)]
     if not ramp.any():
         return out
-    steps = np.floor(np.log(np.maximum(want, c.plunge_feed) / c.plunge_feed) / math.log(FEED_STEP) + 1e-9)
-    feed = np.minimum(c.plunge_feed * FEED_STEP ** steps, max_feed)
+    feed = _ladder(want, c.plunge_feed, max_feed)
     fast = ramp & (feed > c.plunge_feed * (1 + 1e-9))
     out[fast] = feed[fast]
     return out
