@@ -16,8 +16,8 @@ x = y = 0, lowest point at z = 0; metres) unless a name says otherwise.
 from __future__ import annotations
 
 from collections.abc import Callable
-import dataclasses
 from dataclasses import dataclass
+import functools
 
 import cv2
 import numpy as np
@@ -56,20 +56,22 @@ class HeightField:
         Height above the part's lowest point [m]; 0 where there is no part (the tray).
     origin : (2,) float
         x, y of the centre of cell (0, 0) [m].
-    ringed : (rows + 2, cols + 2) float32 or None
-        ``heights`` in a ring of tray (0), for :meth:`at` (made there when None) [m].
     """
 
     heights: np.ndarray
     origin: np.ndarray
-    ringed: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
+
+    @functools.cached_property
+    def ringed(self) -> np.ndarray:
+        """(rows + 2, cols + 2) ``heights`` in a ring of tray (0) [m], for :meth:`at`: made once per field."""
+        return np.pad(self.heights, 1)
 
     def at(self, xy: np.ndarray) -> np.ndarray:
         """``(n,)`` heights [m] at ``xy`` (n, 2) [m]; 0 outside the field."""
         q = np.rint((np.asarray(xy) - self.origin) / TEXEL_M)
         rows, cols = self.heights.shape
         # The field with a ring of tray (0) around it: every cell outside reads the ring.
-        ring = np.pad(self.heights, 1) if self.ringed is None else self.ringed
+        ring = self.ringed
         col = np.clip(q[:, 0], -1, cols).astype(np.int64) + 1
         row = np.clip(q[:, 1], -1, rows).astype(np.int64) + 1
         return ring.ravel()[row * (cols + 2) + col]
@@ -93,7 +95,7 @@ def height_field(vertices: np.ndarray, faces: np.ndarray) -> HeightField:
     for k in np.argsort(top):
         cv2.fillConvexPoly(heights, pts[k], float(top[k]), lineType=cv2.LINE_8, shift=4)
     heights.setflags(write=False)
-    return HeightField(heights=heights, origin=origin, ringed=np.pad(heights, 1))
+    return HeightField(heights=heights, origin=origin)
 
 
 def shadowed(field: HeightField, points: np.ndarray, light: np.ndarray) -> np.ndarray:
