@@ -9,9 +9,11 @@ suite's own checks (tests/gallery/judge.py: finished to 0.05 mm, no tool past it
 past no axial limit at full width, the seam within the tolerance), which hold the gallery parts the suite
 does not plan (tests/gallery/test_gallery.py keeps a representative subset) to what it holds its own. A part
 ``expect``-ed to plan that is refused, fails verify or those checks, or whose program rs274 refuses, is a
-shortfall; so is one expected refused that plans.
+shortfall; so is one expected refused that plans. The whole gallery's run (no ``--parts``, no ``--mesh``) also
+runs the suite's random-block property with the examples the suite leaves to it (tests/gallery/test_gallery.py,
+``SEAM_EXAMPLES``; ``--random-blocks`` runs it alone); a property that fails is a shortfall.
 
-    .venv/bin/python benchmarks/gallery.py [--parts a,b] [--mesh FILE ...] [--jobs 2] [--json out.json]
+    .venv/bin/python benchmarks/gallery.py [--parts a,b] [--mesh FILE ...] [--random-blocks] [--jobs 2] [--json out.json]
 
 ``--mesh`` adds mesh files from elsewhere (public CAM test parts), each expected to plan. The public ones
 judged so far are OpenCAMLib's test meshes (aewallin/opencamlib @ 95b036fe28ce6d77c97b98e5fbc337904ae49560,
@@ -25,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -137,15 +140,40 @@ def judge(part: GalleryPart, work: Path, source: Path | None = None) -> dict[str
     return row
 
 
+#: The property the suite runs with fewer examples (tests/gallery/test_gallery.py), here with all of them.
+PROPERTY = "tests/gallery/test_gallery.py::test_a_random_machinable_block_that_fits_the_vise_plans_and_passes_verify"
+
+
+def random_blocks() -> dict[str, object]:
+    """The suite's random-block property with its every example (``GALLERY_FULL=1``), by pytest: its exit, its
+    wall time and CPU seconds (its children's: pytest runs in one), and the last lines it printed if it failed."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", PROPERTY], cwd=ROOT,
+                          capture_output=True, text=True, env=dict(os.environ, GALLERY_FULL="1"))
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    row: dict[str, object] = {
+        "part": "random_blocks_property", "expect": "plans", "exit": done.returncode,
+        "plan_s": round(time.perf_counter() - t0, 1),
+        "plan_cpu_s": round(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, 1),
+        "shortfall": done.returncode != 0}
+    if done.returncode != 0:
+        row["error"] = " | ".join(done.stdout.strip().splitlines()[-3:])[:300]
+    return row
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--parts", help="comma-separated part names (default: the whole gallery)")
     ap.add_argument("--mesh", type=Path, nargs="*", default=[], help="mesh files from elsewhere, expected to plan")
+    ap.add_argument("--random-blocks", action="store_true",
+                    help="run the suite's random-block property with all its examples (the whole gallery's run does)")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--json", type=Path, help="write the rows here too")
     args = ap.parse_args()
+    whole = not (args.parts or args.mesh or args.random_blocks)
     parts: list[tuple[GalleryPart, Path | None]] = [(BY_NAME[n], None) for n in args.parts.split(",")] \
-        if args.parts else [(p, None) for p in PARTS] if not args.mesh else []
+        if args.parts else [(p, None) for p in PARTS] if whole else []
     parts += [(_external(m), m.resolve()) for m in args.mesh]
     with tempfile.TemporaryDirectory(prefix="gallery-") as tmp, ThreadPoolExecutor(args.jobs) as pool:
         todo = {pool.submit(judge, p, Path(tmp), src): p.name for p, src in parts}
@@ -154,6 +182,9 @@ def main() -> int:
             done[todo[f]] = f.result()
             print(json.dumps(done[todo[f]]), flush=True)
         rows = [done[p.name] for p, _ in parts]
+    if args.random_blocks or whole:
+        rows.append(random_blocks())
+        print(json.dumps(rows[-1]), flush=True)
     print()
     print("| part | expect | exit | plan s | plan CPU s | cycle op1/op2 min | verify | stock left (verify) | unreached (plan) "
           "| deepest engagement mm (at full width / axial limit) | rs274 | note |")

@@ -7,7 +7,9 @@ The whole gallery, with the parts the engine does not plan yet, is ``benchmarks/
 
 from __future__ import annotations
 
+import functools
 import json
+import os
 from pathlib import Path
 
 import pytest
@@ -22,19 +24,21 @@ from tests.gallery.judge import check_consumers_accept
 from tests.gallery.parts import BY_NAME
 
 #: Parts unlike the samples that the cell plans today, each the one in the suite for what it tries: drilled
-#: thin plate, island with necks, a through window, a tall thin rib, a pocketed plate that fits the jaws only
-#: turned about Z and is then 234 mm along them (longer than the jaws, as the 200 mm wide_plate_pockets that
-#: benchmarks/gallery.py judges), and a closed relief whose ripples run out to the stock's edge, over the
-#: jaws' top.
-PLANNED = ("thin_plate_holes", "island_pocket", "frame", "tall_rib", "long_turned", "relief_to_edge")
-#: Tall parts (60-72 mm): the long-reach 12 mm end mill reaches the deep pocket's floor; the
-#: split tower is deeper than any tool reaches from one side (judge.SPLIT): op 1 machines down to its
-#: tools' reach, op 2 the rest from below, and their walls meet within the finishing tolerance. The tall
-#: parts' other cases are judged in benchmarks/gallery.py by the same checks (tests/gallery/judge.py): the
-#: stepped tower (its flats at several heights are the stepped_wall sample's, tests/cadcam/test_plan.py; its
-#: 48 mm in the open is the split tower's op 1 to its tools' reach), the boss on its base and the freeform
-#: tall ones (cone, sphere).
-TALL = ("deep_pocket", "split_tower")
+#: thin plate, island with necks, a through window, a pocketed plate that fits the jaws only turned about Z and
+#: is then 234 mm along them (longer than the jaws, as the 200 mm wide_plate_pockets that benchmarks/gallery.py
+#: judges), and a closed relief whose ripples run out to the stock's edge, over the jaws' top.
+PLANNED = ("thin_plate_holes", "island_pocket", "frame", "long_turned", "relief_to_edge")
+#: A tall part (60 mm): the long-reach 12 mm end mill down a 50 mm pocket it must enter from the top. The
+#: gallery's other cases are judged in benchmarks/gallery.py by the same checks (tests/gallery/judge.py), each
+#: a case the suite holds elsewhere: the split tower's depth, deeper than any tool reaches from one side, split
+#: between op 1 (the long-reach mill to its reach, as down deep_pocket) and op 2 with the walls meeting at the
+#: seam within the tolerance, is the 69 mm block's below (test_a_tall_block_s_walls_meet_at_the_seam_...) and
+#: the random block property's 69 mm example; the tall rib's thin wall standing free is the stepped_wall
+#: sample's 3 mm wall 21 mm above its step (tests/cadcam/test_plan.py: no gouge, no tool past its axial
+#: limit by the probe, rs274); the stepped tower (its flats at several heights are the stepped_wall sample's;
+#: its 48 mm in the open is the split tower's op 1), the boss on its base and the freeform tall ones (cone,
+#: sphere).
+TALL = ("deep_pocket",)
 
 
 @pytest.mark.parametrize("name", PLANNED + TALL)
@@ -134,15 +138,28 @@ def test_every_gallery_part_is_a_closed_solid_of_its_stated_kind() -> None:
     assert BY_NAME["boss_on_base"].make().extents[2] >= 60
 
 
+#: The random-block property's examples the suite does not plan: benchmarks/gallery.py runs the property with
+#: them (``GALLERY_FULL=1``). Explore finds: tall blocks whose op 2 found no wall skin on the planning grid, so
+#: no flats-and-walls pass ran below the depth split and the walls kept their 0.3 mm allowance: a 0.295 mm step
+#: at the seam (exit 3). That fault is the 69 mm block's below (test_a_tall_block_s_walls_meet_at_the_seam_...),
+#: planned with its seam's figures asserted; these two plan 46 s of CPU to find it again.
+SEAM_EXAMPLES = ({"x": 33.55, "y": 42.75, "z": 67.02, "px": 0.816, "py": 0.757, "pz": 0.317},
+                 {"x": 42.18, "y": 52.31, "z": 68.04, "px": 0.326, "py": 0.451, "pz": 0.2})
+#: Set by benchmarks/gallery.py: the property also plans :data:`SEAM_EXAMPLES`.
+FULL = os.environ.get("GALLERY_FULL") == "1"
+
+
+def _in_the_benchmark(examples: tuple[dict[str, float], ...]):
+    """Hypothesis ``@example`` for each of ``examples`` when the benchmark runs the property (:data:`FULL`)."""
+    return lambda test: functools.reduce(lambda t, kw: example(**kw)(t), reversed(examples), test) if FULL else test
+
+
 # The profile (tests/conftest.py) fixes the draws in the suite ("ci") or makes them fresh ("explore").
 @settings(max_examples=3, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 # an explore run's find: a pocket 11 mm wide and 54 deep that no tool roughs (too narrow to enter for the ones that
 # reach that deep); the end mills shorter than the stock is deep must not finish its walls (T16 buried 3.8 mm: exit 3)
 @example(x=60.0, y=36.569791510449306, z=69.31306942161947, px=0.4344263935729999, py=0.3, pz=0.7765299578632021)
-# explore finds: tall blocks whose op 2 found no wall skin on the planning grid, so no flats-and-walls pass ran
-# below the depth split and the walls kept their 0.3 mm allowance: a 0.295 mm step at the seam (exit 3)
-@example(x=33.55, y=42.75, z=67.02, px=0.816, py=0.757, pz=0.317)
-@example(x=42.18, y=52.31, z=68.04, px=0.326, py=0.451, pz=0.2)
+@_in_the_benchmark(SEAM_EXAMPLES)
 @given(x=st.floats(24.0, 70.0), y=st.floats(12.0, 60.0), z=st.floats(8.0, 70.0), px=st.floats(0.3, 0.85),
        py=st.floats(0.3, 0.85), pz=st.floats(0.2, 0.8))
 def test_a_random_machinable_block_that_fits_the_vise_plans_and_passes_verify(tmp_path_factory, x, y, z, px, py, pz):
