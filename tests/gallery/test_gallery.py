@@ -41,6 +41,16 @@ PLANNED = ("thin_plate_holes", "island_pocket", "frame", "long_turned", "relief_
 TALL = ("deep_pocket",)
 
 
+@pytest.fixture(autouse=True)
+def _one_process(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each plan here in one process (``FACTORY_THREADS=1``, as benchmarks/gallery.py plans): the suite's
+    workers already fill the machine's cores, so a plan's own worker processes only add their start-up and
+    hand-over. The gallery judges parts; that worker threads and processes give one process's answer is held
+    where they are made (tests/cadcam/test_dropcutter.py's threads, tests/factory/test_verify_ahead.py's verify
+    begun ahead, tests/factory/test_mcapfork.py's forked log), and every other plan in the suite runs the default."""
+    monkeypatch.setenv("FACTORY_THREADS", "1")
+
+
 @pytest.mark.parametrize("name", PLANNED + TALL)
 def test_a_gallery_part_plans_and_its_consumers_accept_it(name: str, tmp_path: Path,
                                                           caplog: pytest.LogCaptureFixture) -> None:
