@@ -6,8 +6,9 @@ asks which direction makes *this* part, at *this* pose, cast the dark it sees. A
 half a turn or 15 mm off (a low light's long shadow wins the coarse search's first places), a stepped
 wall's shadow was explained by a light 15-59 deg off the true one, and the fit from a start on the part
 then left out the wrong edges and was refused (0.31 of its outline found under that light, 0.71 under
-the light estimated where it lies). So each start gets the light estimated at its own pose
-(:class:`LightAt`), and a fit is judged under the light of the pose it began from.
+the light estimated where it lies). So when the fits under the first estimate are refused, each start
+gets the light estimated at its own pose (:class:`LightAt`), and a fit is judged under the light of the
+pose it began from (:func:`vision.locate._best_fit`).
 """
 
 from __future__ import annotations

@@ -27,6 +27,7 @@ A mesh with symmetry gives one of the equivalent yaws.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -626,9 +627,9 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
             continue
         box = (max(bx, 0), max(by, 0), min(bx + bw, w), min(by + bh, h))
         starts, spare = chamfer_starts(model, edges, labels == i, box, ground(centroids[i]), ground, maps, spare=LIT_SPARE)
-        if light := lights_at(model, starts, log_ratio, box):  # the shadow's edges may have won the first starts
-            starts += refined_starts(model, maps, spare, ground)
-        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin, light, options)
+        light = lights_at(model, starts, log_ratio, box)
+        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin, light, options,
+                         lambda spare=spare: refined_starts(model, maps, spare, ground))
         if best is None:
             log.info("blob at (%.0f, %.0f) px: no edge fit", *centroids[i])
             continue
@@ -700,24 +701,53 @@ def _explained(model: MeshEdges, pose: np.ndarray, thin: np.ndarray, bloom: floa
 EXPLAIN_PX = 2.0
 
 
+#: Slides of a fitted pose along each main direction of the outline, refitted from (:func:`_slid`) [m].
+SLIDES_M = (-3e-3, -1.5e-3, 1.5e-3, 3e-3)
+#: ... and under a key light [m] ...
+LIT_SLIDES_M = (-1.5e-3, 1.5e-3)
+#: ... and when the first fit under a key light was refused (:func:`_best_fit`) [m]: a stepped wall whose fit
+#: stopped 0.75 mm along itself, its outline seen across at 0.42, came back from 1.5 mm either way onto the
+#: same wrong place; from 0.75 mm back it found 0.56.
+LIT_RETRY_SLIDES_M = (-1.5e-3, -0.75e-3, 0.75e-3, 1.5e-3)
+
+
 def _best_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
               symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None,
-              light: LightAt | None = None, options: LocateOptions = LocateOptions()) -> _EdgeFit | None:
+              light: LightAt | None = None, options: LocateOptions = LocateOptions(),
+              spare: Callable[[], list[np.ndarray]] | None = None) -> _EdgeFit | None:
     """The edge fit of one blob from its coarse starts (x, y [m], yaw [rad]); None when none converges.
     ``light``: the key light's unit direction (base frame) at each pose (:class:`vision.key_light.LightAt`),
-    None for diffuse light: each start is fitted under the light estimated there. The fit chosen
-    among the starts and turns (:func:`_chosen_fit`) is then slid along the outline (:func:`_slid`),
-    and in even light (no key light, nothing clipped) settled (:func:`_settled`, ``options.refine``)."""
+    None for diffuse light. Every start is fitted under the light estimated at the first (:func:`_fitted`);
+    only when that fit is refused are they fitted again, with the ``spare`` starts (more of the coarse
+    search's), each under the light its own pose explains, and slid 0.75 mm as well
+    (:data:`LIT_RETRY_SLIDES_M`): a low light's long shadow can win the first starts, and the light
+    estimated at a wrong pose leaves out the wrong edges (vision/key_light.py). A fit that passes is
+    not refitted, so its pose stays the one the first light gave."""
+    best = _fitted(model, gx, gy, threshold, starts, symmetry, saturated, thin, light and light.first, options)
+    if light is None or spare is None or (best is not None and not _refusal(best, options)):
+        return best
+    again = _fitted(model, gx, gy, threshold, starts + spare(), symmetry, saturated, thin, light, options,
+                    LIT_RETRY_SLIDES_M)
+    return again if again is not None and not _refusal(again, options) else best
+
+
+def _fitted(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
+            symmetry: int, saturated: np.ndarray | None, thin: np.ndarray | None, light: LightAt | np.ndarray | None,
+            options: LocateOptions, slides: tuple[float, ...] = LIT_SLIDES_M) -> _EdgeFit | None:
+    """:func:`_best_fit` under one light (``light``: a unit direction, base frame, or one per pose; None
+    without a key light): the fit chosen among the starts and turns (:func:`_chosen_fit`) slid along the
+    outline (:func:`_slid`, under a key light by ``slides`` [m]), and in even light (no key light, nothing
+    clipped) settled (:func:`_settled`, ``options.refine``)."""
     best = _chosen_fit(model, gx, gy, threshold, starts, symmetry, saturated, thin, light, options.min_coverage)
     if best is None or best.ambiguous:
         return best
-    best = _slid(model, gx, gy, threshold, best, saturated)
+    best = _slid(model, gx, gy, threshold, best, saturated, slides)
     even = light is None and (saturated is None or not saturated.any())
     return _settled(model, gx, gy, threshold, best, options) if options.refine and even else best
 
 
 def _slid(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, best: _EdgeFit,
-          saturated: np.ndarray | None) -> _EdgeFit:
+          saturated: np.ndarray | None, lit_slides: tuple[float, ...] = LIT_SLIDES_M) -> _EdgeFit:
     """``best``, or a fit started from it slid along the outline's main directions (:data:`SLIDES_M`)
     that shows clearly more of the part (:attr:`_EdgeFit.evidence`, :data:`SLIDE_GAIN`).
 
@@ -739,7 +769,7 @@ def _slid(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, be
     r = yaw_rotation(best.pose[2])
     fits = [best]
     for axis in model.axes.T:
-        for d in SLIDES_M if light is None else LIT_SLIDES_M:
+        for d in SLIDES_M if light is None else lit_slides:
             start = best.pose + np.r_[r @ axis * d, 0.0]
             fit = _edge_fit(model, gx, gy, threshold, start, SEARCH_PX[-2:], saturated, light, dark)
             if fit is not None and fit.hidden <= AMBIGUOUS_HIDDEN:
@@ -773,11 +803,6 @@ SETTLED_PX = 0.1
 EXTRA_ROUNDS = 3
 #: A wall's foot whose found edge lies this close to its top's edge took the top's (settling only) [px].
 TOOK_TOP_PX = 0.5
-#: Slides of a fitted pose along each main direction of the outline, refitted from (:func:`_slid`) [m].
-SLIDES_M = (-3e-3, -1.5e-3, 1.5e-3, 3e-3)
-#: ... and under a key light [m] (a stepped wall whose fit stopped 0.75 mm along itself, its outline seen
-#: across at 0.42, came back 1.5 mm either way onto the same wrong place; 0.75 mm back it found 0.56).
-LIT_SLIDES_M = (-1.5e-3, -0.75e-3, 0.75e-3, 1.5e-3)
 #: Only a fit that finds at least this share of its outline ... (unitless)
 SLIDE_COVERAGE = 0.4
 #: ... and less than this in the outline's worse direction is slid (unitless).
@@ -792,10 +817,11 @@ SLIDE_GAIN = 0.05
 
 def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
                 symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None,
-                light: LightAt | None = None, min_coverage: float = LocateOptions.min_coverage) -> _EdgeFit | None:
+                light: LightAt | np.ndarray | None = None, min_coverage: float = LocateOptions.min_coverage
+                ) -> _EdgeFit | None:
     """The edge fit of one blob from its coarse starts and the turns of the outline (see :func:`_best_fit`).
     ``min_coverage``: the share of the outline a reported pose finds (:attr:`LocateOptions.min_coverage`)."""
-    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated, light=light and light(s))
+    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated, light=_light_at(light, s))
                             for s in starts) if fit is not None]
     if not fits:
         return None
@@ -806,7 +832,7 @@ def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: flo
     # where the coarse search put it (a glare stepped wall's, 6 deg off): its turn is fitted from as
     # wide a reach as a start, else it stays those degrees off the part.
     reaches = SEARCH_PX if first.coverage < min_coverage else SEARCH_PX[-2:]
-    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, reaches, saturated, light and light(t))
+    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, reaches, saturated, _light_at(light, t))
                              for t in turns) if fit is not None]
     # Of the fits that find (nearly) as many edges as the best, the one that lies closest on them.
     most = max(fit.found for fit in fits)
@@ -842,6 +868,12 @@ def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: flo
             return replace(best, ambiguous=True)
         return by_turn[told[0][1]]
     return best
+
+
+def _light_at(light: LightAt | np.ndarray | None, pose: np.ndarray) -> np.ndarray | None:
+    """The key light (unit (3,), base frame) a fit from ``pose`` is judged under: one for every pose, or
+    the one estimated at it (:class:`vision.key_light.LightAt`)."""
+    return light(pose) if isinstance(light, LightAt) else light
 
 
 def _turn(dyaw: float, symmetry: int) -> int:

@@ -60,9 +60,10 @@ ONCE_REFUSED = [("glare", "l_bracket", 2), ("glare", "l_bracket", 3), ("glare", 
 #: Stepped walls under a low light once refused although their pictures fix the pose: the long shadow's
 #: edges took the coarse search's first three places (15 mm off, turned half a turn), and the light
 #: estimated at the first of them, 59 deg off the true one, left out the wrong edges (0.31 of the outline
-#: found from the true pose; 0.71 under the light estimated there): now each start is fitted under the
-#: light its own pose explains, from three more starts (vision/key_light.py). And one whose fit stopped
-#: 0.75 mm along itself (its outline seen across at 0.42), brought back by a slide of 0.75 mm.
+#: found from the true pose; 0.71 under the light estimated there): a blob refused under a key light is
+#: fitted again, from three more starts, each under the light its own pose explains (vision/key_light.py).
+#: And one whose fit stopped 0.75 mm along itself (its outline seen across at 0.42), brought back on that
+#: second try by a slide of 0.75 mm.
 ONCE_REFUSED_LOW = [("low_angle", "stepped_wall", 15), ("low_angle", "stepped_wall", 19)]
 #: Pictures whose error once lay beyond the uncertainty reported with it, now within it (vision/pose_uncertainty.py):
 #: a glare L 0.91 mm off held by a few edges that disagree (+-0.66 mm; the residuals of one mesh edge now
