@@ -455,7 +455,8 @@ def _edge_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
         eye, towards = model.in_part_frame(p, light)
         shade = shadow_evidence(model.field, model.points, model.direction, model.n1, model.n2, idx, eye, towards,
                                 lambda pts, d: model.image_of(p, pts, d),
-                                lambda uv, n, reach: _find_edges(gx, gy, threshold, uv, n, reach))
+                                lambda uv, n, reach: _find_edges(gx, gy, threshold, uv, n, reach),
+                                lambda pts: model.pixels(p, pts))
         outer_near = np.r_[near[outer & ~shade.unknown], shade.near]
         outer_normal = np.vstack([normal[outer & ~shade.unknown], shade.normal])
         found = np.r_[near[seen & ~shade.unknown], shade.near]

@@ -366,7 +366,8 @@ def _towards(az: float, el: float) -> np.ndarray:
 def shadow_evidence(field: HeightField, points: np.ndarray, direction: np.ndarray, n1: np.ndarray,
                     n2: np.ndarray, visible: np.ndarray, eye: np.ndarray, light: np.ndarray,
                     to_image: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
-                    find: Callable[[np.ndarray, np.ndarray, float], np.ndarray]) -> ShadowEvidence:
+                    find: Callable[[np.ndarray, np.ndarray, float], np.ndarray],
+                    to_pixels: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None) -> ShadowEvidence:
     """The edges a pose leaves in the dark and the cast shadow's edge it explains, under the key light.
 
     ``points``, ``direction``, ``n1``, ``n2`` (k, 3) are all the mesh's edge samples (part frame [m]),
@@ -374,7 +375,9 @@ def shadow_evidence(field: HeightField, points: np.ndarray, direction: np.ndarra
     (3,) the estimated key light (:func:`estimate_light`), part frame. ``to_image(points, directions)``
     gives the image positions (n, 2) [px] and unit image normals (n, 2) of part-frame points and
     directions at the pose; ``find(uv, normal, reach)`` the signed offset [px] of the nearest picture
-    edge along each normal within ``reach`` (NaN where none).
+    edge along each normal within ``reach`` (NaN where none); ``to_pixels(points)`` the image positions
+    (n, 2) [px] alone (the light's fit needs no normals) and their derivatives (n, 2, 3) by the part-frame
+    points [px/m], for the light fit's Jacobian (finite differences when not given).
 
     A shadow's length grows with the cotangent of the light's elevation (a degree at 19 deg moves
     a 48 mm upright's shadow 9 mm), so the light is first fitted: azimuth and elevation such that
@@ -390,6 +393,7 @@ def shadow_evidence(field: HeightField, points: np.ndarray, direction: np.ndarra
         ahead = x + 1e-3 * d
         t = ahead - (ahead[:, 2] / lq[2])[:, None] * lq - on
         return on, t / np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
+
 
     q = np.array([az, el])
     at_estimate = shadow_edges(field, points, direction, n1, n2, eye, light)  # made once, used twice
@@ -407,11 +411,8 @@ def shadow_evidence(field: HeightField, points: np.ndarray, direction: np.ndarra
                 break
             target, nrm, sub = uv[ok] + off[ok, None] * normal[ok], normal[ok], np.flatnonzero(use)[ok]
 
-            def residuals(r: np.ndarray, target=target, nrm=nrm, sub=sub) -> np.ndarray:
-                on_r, t_r = cast(r)
-                return np.einsum("nj,nj->n", to_image(on_r[sub], t_r[sub])[0] - target, nrm)
-
-            q = least_squares(residuals, q, x_scale=np.array([0.01, 0.01]), diff_step=1e-6,
+            residuals, jacobian = _light_residuals(x[sub], d[sub], target, nrm, to_image, to_pixels)
+            q = least_squares(residuals, q, jac=jacobian, x_scale=np.array([0.01, 0.01]), diff_step=1e-6,
                               bounds=([az - LIGHT_TURN, max(el - LIGHT_TILT, np.radians(5.0))],
                                       [az + LIGHT_TURN, min(el + LIGHT_TILT, np.radians(89.0))]),
                               loss="soft_l1", f_scale=1.0).x
@@ -422,6 +423,45 @@ def shadow_evidence(field: HeightField, points: np.ndarray, direction: np.ndarra
         return fitted
     estimated = _evidence(field, points, direction, n1, n2, visible, eye, light, to_image, find, at_estimate)
     return max((fitted, estimated), key=lambda e: e.near.mean() if len(e.near) else -1.0)
+
+
+def _light_residuals(x: np.ndarray, d: np.ndarray, target: np.ndarray, normal: np.ndarray,
+                     to_image: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
+                     to_pixels: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None
+                     ) -> tuple[Callable[[np.ndarray], np.ndarray], Callable[[np.ndarray], np.ndarray] | str]:
+    """The light fit's residuals [px] of ``q = (azimuth, elevation)`` [rad]: how far the shadows on the tray
+    of the casting samples ``x`` (k, 3) (their directions ``d``, part frame [m]) lie from their found
+    edges ``target`` (k, 2) [px] along the edges' image normals ``normal`` (k, 2); and their Jacobian (k, 2)
+    [px/rad], the projection's own through ``to_pixels`` (else "2-point", finite differences).
+
+    A sample's shadow is ``on = x - x_z (l / l_z)`` with ``l / l_z = (cot el cos az, cot el sin az, 1)``.
+    """
+    z = x[:, 2, None]
+    last: dict[str, np.ndarray] = {}
+
+    def on(q: np.ndarray) -> np.ndarray:
+        lq = _towards(*q)
+        return x - (x[:, 2] / lq[2])[:, None] * lq
+
+    def residuals(q: np.ndarray) -> np.ndarray:
+        if to_pixels is None:
+            uv = to_image(on(q), d)[0]
+        else:
+            uv, last["jac"] = to_pixels(on(q))
+            last["q"] = np.array(q)
+        return np.einsum("nj,nj->n", uv - target, normal)
+
+    def jacobian(q: np.ndarray) -> np.ndarray:
+        if "q" not in last or not np.array_equal(last["q"], q):
+            residuals(q)
+        az, el = q
+        cot, csc2 = np.cos(el) / np.sin(el), 1.0 / np.sin(el) ** 2
+        by_q = np.zeros((len(x), 3, 2))
+        by_q[:, :2, 0] = -z * np.array([-cot * np.sin(az), cot * np.cos(az)])
+        by_q[:, :2, 1] = -z * np.array([-csc2 * np.cos(az), -csc2 * np.sin(az)])
+        return np.einsum("nj,njk,nkq->nq", normal, last["jac"], by_q)
+
+    return residuals, (jacobian if to_pixels is not None else "2-point")
 
 
 def _evidence(field: HeightField, points: np.ndarray, direction: np.ndarray, n1: np.ndarray, n2: np.ndarray,
