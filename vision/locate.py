@@ -27,6 +27,7 @@ A mesh with symmetry gives one of the equivalent yaws.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -42,12 +43,13 @@ from shapely.geometry import MultiPolygon, Polygon
 from factory.core.errors import VisionError
 from factory.core.units import MM_PER_M
 from vision.camera import CameraModel, bin_image, binned_camera
-from vision.locate_search import FIT_SAMPLES, chamfer_starts, oriented_distances, thin_edges
+from vision.locate_search import FIT_SAMPLES, chamfer_starts, oriented_distances, refined_starts, thin_edges
 from vision.mesh_edges import MeshEdges, edge_model, yaw_rotation
 # _edge_peaks and _peak_offset stay importable from here: vision.inspect takes them with the rest.
 from vision.picture_edges import _edge_peaks, _find_edges, _gradients, _peak_offset, _tray_ratio  # noqa: F401
 from vision.pose_uncertainty import pose_covariance
-from vision.shadow import DARK_LOG, dark_both_sides, estimate_light, shadow_evidence
+from vision.key_light import LightAt, lights_at
+from vision.shadow import dark_both_sides, shadow_evidence
 
 log = logging.getLogger(__name__)
 
@@ -314,7 +316,8 @@ class _EdgeFit:
     ``hidden``: share of the visible edges so hidden; ``ambiguous``: a symmetric turn of the outline,
     not a symmetry of the mesh, fits as well and the edges that would tell them apart are hidden;
     ``bloom_px``: how far a clipped highlight spills past its edges [px]; ``samples``: the model sample
-    (:class:`vision.mesh_edges.MeshEdges`) of each of ``residuals`` and ``jac``'s rows."""
+    (:class:`vision.mesh_edges.MeshEdges`) of each of ``residuals`` and ``jac``'s rows; ``light``: the key
+    light it was judged under (unit (3,), base frame; None without one)."""
 
     pose: np.ndarray
     coverage: float
@@ -328,6 +331,7 @@ class _EdgeFit:
     ambiguous: bool = False
     bloom_px: float = 0.0
     samples: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False, compare=False)
+    light: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def evidence(self) -> float:
@@ -451,7 +455,8 @@ def _edge_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
         eye, towards = model.in_part_frame(p, light)
         shade = shadow_evidence(model.field, model.points, model.direction, model.n1, model.n2, idx, eye, towards,
                                 lambda pts, d: model.image_of(p, pts, d),
-                                lambda uv, n, reach: _find_edges(gx, gy, threshold, uv, n, reach))
+                                lambda uv, n, reach: _find_edges(gx, gy, threshold, uv, n, reach),
+                                lambda pts: model.pixels(p, pts))
         outer_near = np.r_[near[outer & ~shade.unknown], shade.near]
         outer_normal = np.vstack([normal[outer & ~shade.unknown], shade.normal])
         found = np.r_[near[seen & ~shade.unknown], shade.near]
@@ -460,7 +465,7 @@ def _edge_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
     return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis, found=float(found.mean()) if len(found) else 0.0,
                     rms_px=rms,
                     cost=float(sol.cost), jac=sol.jac[inliers][:, :3], residuals=sol.fun[inliers],
-                    hidden=float(1.0 - seen.mean()), bloom_px=bloom, samples=pts[inliers])
+                    hidden=float(1.0 - seen.mean()), bloom_px=bloom, samples=pts[inliers], light=light)
 
 
 def _pulled(model: MeshEdges, points: np.ndarray, normal: np.ndarray, target: np.ndarray, spill: np.ndarray,
@@ -598,8 +603,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(fg, connectivity=8)
     maps = oriented_distances(gx, gy, thin := thin_edges(gx, gy, edges))
     model = edge_model(part, camera, cam_base, tray_z)
-    f = np.sqrt(camera.fx * camera.fy)
-    w, h = camera.image_size
+    f, (w, h) = np.sqrt(camera.fx * camera.fy), camera.image_size
     top_area = Polygon(part.outline).area
     radius_px = 0.5 * float(np.ptp(part.outline, axis=0).max()) * f / (cam_pos[2] - tray_z)
 
@@ -623,9 +627,10 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         if any(np.hypot(p.pixel[0] - centroids[i][0], p.pixel[1] - centroids[i][1]) < radius_px for p in found):
             continue
         box = (max(bx, 0), max(by, 0), min(bx + bw, w), min(by + bh, h))
-        starts = chamfer_starts(model, edges, labels == i, box, ground(centroids[i]), ground, maps)
-        light = _key_light(model, starts[0], log_ratio, box) if starts else None
-        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin, light, options)
+        starts, spare = chamfer_starts(model, edges, labels == i, box, ground(centroids[i]), ground, maps, spare=LIT_SPARE)
+        light = lights_at(model, starts, log_ratio, box)
+        best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin, light, options,
+                         lambda spare=spare: refined_starts(model, maps, spare, ground))
         if best is None:
             log.info("blob at (%.0f, %.0f) px: no edge fit", *centroids[i])
             continue
@@ -657,40 +662,6 @@ def _blob_outline(log_ratio: np.ndarray, mask: np.ndarray, level: float) -> np.n
     iso = np.sign(typical) * max(abs(typical) / 4, level)
     outline = _subpixel_outline(log_ratio, mask, iso, typical > 0)
     return outline if outline is not None else np.zeros((0, 2))
-
-
-def _key_light(model: MeshEdges, pose: np.ndarray, log_ratio: np.ndarray, box: tuple[int, int, int, int]
-               ) -> np.ndarray | None:
-    """The key light's unit direction (base frame) from the shadow around a blob's part at ``pose``, or None.
-
-    The tray's pixels every :data:`LIGHT_PIXEL_STEP` px of the blob's box ``box`` (x0, y0, x1, y1)
-    and a margin of the part's size, hard shadow where ``log_ratio`` (the picture over the tray
-    model) is below :data:`vision.shadow.DARK_LOG` (:func:`vision.shadow.estimate_light`).
-    """
-    h, w = log_ratio.shape
-    x0, y0, x1, y1 = box
-    margin = max(x1 - x0, y1 - y0) // 2
-    vs, us = np.mgrid[max(y0 - margin, 0):min(y1 + margin, h):LIGHT_PIXEL_STEP,
-                      max(x0 - margin, 0):min(x1 + margin, w):LIGHT_PIXEL_STEP]
-    pix = np.column_stack([us.ravel(), vs.ravel()]).astype(np.float64)
-    rays = model.camera.rays(pix) @ cv2.Rodrigues(model.rvec)[0]  # base frame: R_base_cam @ ray
-    eye = model.eye
-    tray = eye[:2] + ((model.tray_z - eye[2]) / rays[:, 2])[:, None] * rays[:, :2]
-    eye_part, _ = model.in_part_frame(pose, np.zeros(3))
-    tray_part = (tray - pose[:2]) @ yaw_rotation(pose[2])
-    dark = log_ratio[vs.ravel(), us.ravel()] < DARK_LOG
-    light = estimate_light(model.field, tray_part, dark, eye_part, min_dark=MIN_DARK_PIXELS)
-    if light is None:
-        return None
-    r = np.eye(3)
-    r[:2, :2] = yaw_rotation(pose[2])
-    return r @ light
-
-
-#: The tray around a blob is looked at every this many pixels for the light (:func:`_key_light`).
-LIGHT_PIXEL_STEP = 3
-#: Fewest dark tray pixels (of those looked at) that make a hard shadow to take the light from.
-MIN_DARK_PIXELS = 40
 
 
 def _explained(model: MeshEdges, pose: np.ndarray, thin: np.ndarray, bloom: float = 0.0) -> float:
@@ -731,23 +702,53 @@ def _explained(model: MeshEdges, pose: np.ndarray, thin: np.ndarray, bloom: floa
 EXPLAIN_PX = 2.0
 
 
+#: Slides of a fitted pose along each main direction of the outline, refitted from (:func:`_slid`) [m].
+SLIDES_M = (-3e-3, -1.5e-3, 1.5e-3, 3e-3)
+#: ... and under a key light [m] ...
+LIT_SLIDES_M = (-1.5e-3, 1.5e-3)
+#: ... and when the first fit under a key light was refused (:func:`_best_fit`) [m]: a stepped wall whose fit
+#: stopped 0.75 mm along itself, its outline seen across at 0.42, came back from 1.5 mm either way onto the
+#: same wrong place; from 0.75 mm back it found 0.56.
+LIT_RETRY_SLIDES_M = (-1.5e-3, -0.75e-3, 0.75e-3, 1.5e-3)
+
+
 def _best_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
               symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None,
-              light: np.ndarray | None = None, options: LocateOptions = LocateOptions()) -> _EdgeFit | None:
+              light: LightAt | None = None, options: LocateOptions = LocateOptions(),
+              spare: Callable[[], list[np.ndarray]] | None = None) -> _EdgeFit | None:
     """The edge fit of one blob from its coarse starts (x, y [m], yaw [rad]); None when none converges.
-    ``light``: the key light's unit direction (base frame), None for diffuse light. The fit chosen
-    among the starts and turns (:func:`_chosen_fit`) is then slid along the outline (:func:`_slid`),
-    and in even light (no key light, nothing clipped) settled (:func:`_settled`, ``options.refine``)."""
+    ``light``: the key light's unit direction (base frame) at each pose (:class:`vision.key_light.LightAt`),
+    None for diffuse light. Every start is fitted under the light estimated at the first (:func:`_fitted`);
+    only when that fit is refused are they fitted again, with the ``spare`` starts (more of the coarse
+    search's), each under the light its own pose explains, and slid 0.75 mm as well
+    (:data:`LIT_RETRY_SLIDES_M`): a low light's long shadow can win the first starts, and the light
+    estimated at a wrong pose leaves out the wrong edges (vision/key_light.py). A fit that passes is
+    not refitted, so its pose stays the one the first light gave."""
+    best = _fitted(model, gx, gy, threshold, starts, symmetry, saturated, thin, light and light.first, options)
+    if light is None or spare is None or (best is not None and not _refusal(best, options)):
+        return best
+    again = _fitted(model, gx, gy, threshold, starts + spare(), symmetry, saturated, thin, light, options,
+                    LIT_RETRY_SLIDES_M)
+    return again if again is not None and not _refusal(again, options) else best
+
+
+def _fitted(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
+            symmetry: int, saturated: np.ndarray | None, thin: np.ndarray | None, light: LightAt | np.ndarray | None,
+            options: LocateOptions, slides: tuple[float, ...] = LIT_SLIDES_M) -> _EdgeFit | None:
+    """:func:`_best_fit` under one light (``light``: a unit direction, base frame, or one per pose; None
+    without a key light): the fit chosen among the starts and turns (:func:`_chosen_fit`) slid along the
+    outline (:func:`_slid`, under a key light by ``slides`` [m]), and in even light (no key light, nothing
+    clipped) settled (:func:`_settled`, ``options.refine``)."""
     best = _chosen_fit(model, gx, gy, threshold, starts, symmetry, saturated, thin, light, options.min_coverage)
     if best is None or best.ambiguous:
         return best
-    best = _slid(model, gx, gy, threshold, best, saturated, light)
+    best = _slid(model, gx, gy, threshold, best, saturated, slides)
     even = light is None and (saturated is None or not saturated.any())
     return _settled(model, gx, gy, threshold, best, options) if options.refine and even else best
 
 
 def _slid(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, best: _EdgeFit,
-          saturated: np.ndarray | None, light: np.ndarray | None) -> _EdgeFit:
+          saturated: np.ndarray | None, lit_slides: tuple[float, ...] = LIT_SLIDES_M) -> _EdgeFit:
     """``best``, or a fit started from it slid along the outline's main directions (:data:`SLIDES_M`)
     that shows clearly more of the part (:attr:`_EdgeFit.evidence`, :data:`SLIDE_GAIN`).
 
@@ -763,12 +764,13 @@ def _slid(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, be
         return best
     # Under a key light the edges dark on both sides at the fitted pose are left out of every slide (the
     # same ones, found once), and each slide's judgement counts the cast shadow: some 8 times the cost
-    # of a fit without a light, so there the slides go 1.5 mm each way only (:data:`LIT_SLIDES_M`).
+    # of a fit without a light, so there the slides go 1.5 mm each way at most (:data:`LIT_SLIDES_M`).
+    light = best.light  # the slides are judged under the light ``best`` was
     dark = _dark_edges(model, best.pose, light) if light is not None else None
     r = yaw_rotation(best.pose[2])
     fits = [best]
     for axis in model.axes.T:
-        for d in SLIDES_M if light is None else LIT_SLIDES_M:
+        for d in SLIDES_M if light is None else lit_slides:
             start = best.pose + np.r_[r @ axis * d, 0.0]
             fit = _edge_fit(model, gx, gy, threshold, start, SEARCH_PX[-2:], saturated, light, dark)
             if fit is not None and fit.hidden <= AMBIGUOUS_HIDDEN:
@@ -802,14 +804,13 @@ SETTLED_PX = 0.1
 EXTRA_ROUNDS = 3
 #: A wall's foot whose found edge lies this close to its top's edge took the top's (settling only) [px].
 TOOK_TOP_PX = 0.5
-#: Slides of a fitted pose along each main direction of the outline, refitted from (:func:`_slid`) [m].
-SLIDES_M = (-3e-3, -1.5e-3, 1.5e-3, 3e-3)
-#: ... and under a key light [m].
-LIT_SLIDES_M = (-1.5e-3, 1.5e-3)
 #: Only a fit that finds at least this share of its outline ... (unitless)
 SLIDE_COVERAGE = 0.4
 #: ... and less than this in the outline's worse direction is slid (unitless).
 SLIDE_AXIS_COVERAGE = 0.75
+#: Coarse starts beyond the best three that a blob under a key light is fitted from as well (a low light's
+#: long shadow took the first three places of a stepped wall's coarse search; its fourth lay 1.5 mm off it).
+LIT_SPARE = 3
 #: A slide replaces the fit when its :attr:`_EdgeFit.evidence` is more by this (unitless, of 3; the
 #: corrected L gained 0.07, the slid stepped walls 0.4-0.5).
 SLIDE_GAIN = 0.05
@@ -817,10 +818,11 @@ SLIDE_GAIN = 0.05
 
 def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
                 symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None,
-                light: np.ndarray | None = None, min_coverage: float = LocateOptions.min_coverage) -> _EdgeFit | None:
+                light: LightAt | np.ndarray | None = None, min_coverage: float = LocateOptions.min_coverage
+                ) -> _EdgeFit | None:
     """The edge fit of one blob from its coarse starts and the turns of the outline (see :func:`_best_fit`).
     ``min_coverage``: the share of the outline a reported pose finds (:attr:`LocateOptions.min_coverage`)."""
-    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated, light=light)
+    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated, light=_light_at(light, s))
                             for s in starts) if fit is not None]
     if not fits:
         return None
@@ -831,8 +833,8 @@ def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: flo
     # where the coarse search put it (a glare stepped wall's, 6 deg off): its turn is fitted from as
     # wide a reach as a start, else it stays those degrees off the part.
     reaches = SEARCH_PX if first.coverage < min_coverage else SEARCH_PX[-2:]
-    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, reaches, saturated, light) for t in turns)
-             if fit is not None]
+    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, reaches, saturated, _light_at(light, t))
+                             for t in turns) if fit is not None]
     # Of the fits that find (nearly) as many edges as the best, the one that lies closest on them.
     most = max(fit.found for fit in fits)
     close = [fit for fit in fits if fit.found >= most - 0.05]
@@ -867,6 +869,12 @@ def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: flo
             return replace(best, ambiguous=True)
         return by_turn[told[0][1]]
     return best
+
+
+def _light_at(light: LightAt | np.ndarray | None, pose: np.ndarray) -> np.ndarray | None:
+    """The key light (unit (3,), base frame) a fit from ``pose`` is judged under: one for every pose, or
+    the one estimated at it (:class:`vision.key_light.LightAt`)."""
+    return light(pose) if isinstance(light, LightAt) else light
 
 
 def _turn(dyaw: float, symmetry: int) -> int:

@@ -44,7 +44,7 @@ FIT_SAMPLES = 400
 
 def chamfer_starts(model: EdgeModel, edges: np.ndarray, inside: np.ndarray, box: tuple[int, int, int, int],
                     centre: np.ndarray, ground: Callable[[np.ndarray], np.ndarray], maps: np.ndarray,
-                    yaw_steps: int = 36, keep: int = 3) -> list[np.ndarray]:
+                    yaw_steps: int = 36, keep: int = 3, spare: int = 0) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """The best few (x, y, yaw) of a coarse search: model edges against the picture's edge distance map.
 
     ``box`` (x0, y0, x1, y1) [px] is the window searched (only where ``inside`` (h, w) is set),
@@ -52,7 +52,9 @@ def chamfer_starts(model: EdgeModel, edges: np.ndarray, inside: np.ndarray, box:
     shifted (a mean distance map value per shift, by ``cv2.filter2D``), ``ground`` maps pixels to
     tray (x, y) [m]. Edge distances are capped at 6 px, so missing edges cost a bounded amount.
     Each start is then brought within a pixel and a degree on the oriented distances ``maps``
-    (:func:`refine_start`), best first.
+    (:func:`refine_start`), best first. Returns those ``keep`` starts and the next ``spare`` distinct ones
+    of the coarse search as they are (:func:`refined_starts` brings them in where they are wanted: a
+    low light's shadow wins the first few, and refining them always cost every picture).
     """
     x0, y0, x1, y1 = box
     dist = cv2.distanceTransform((edges == 0).astype(np.uint8), cv2.DIST_L2, 3)
@@ -96,8 +98,15 @@ def chamfer_starts(model: EdgeModel, edges: np.ndarray, inside: np.ndarray, box:
         xy = ground(pixel.astype(float))
         if all(np.hypot(*(xy - s[:2])) > 4e-3 or abs(np.angle(np.exp(1j * (yaw - s[2])))) > 0.3 for s in starts):
             starts.append(np.r_[xy, yaw])
-        if len(starts) == keep:
+        if len(starts) == keep + spare:
             break
+    return refined_starts(model, maps, starts[:keep], ground), starts[keep:]
+
+
+def refined_starts(model: EdgeModel, maps: np.ndarray, starts: list[np.ndarray],
+                   ground: Callable[[np.ndarray], np.ndarray]) -> list[np.ndarray]:
+    """Coarse ``starts`` (x, y [m], yaw [rad]) each brought within a pixel and a degree (:func:`refine_start`
+    on the oriented distances ``maps``), best first."""
     ringed = _ringed(maps)
     return [pose for _, pose in sorted((_refined_start(model, ringed, s, ground) for s in starts), key=lambda r: r[0])]
 

@@ -210,6 +210,14 @@ class MeshEdges:
         lever[:, 0, 2], lever[:, 1, 2] = -(w[:, 1] - p[1]), w[:, 0] - p[0]
         return uv, by_point @ lever
 
+    def pixels(self, p: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(k, 2)`` pixel positions of part-frame ``points`` (k, 3) [m] at pose ``p`` and ``(k, 2, 3)`` their
+        derivatives by the points' part-frame coordinates [px/m]."""
+        uv, by_point = self.camera.project_with_jacobian(self.world(p, points), self.rvec, self.tvec)
+        r = np.eye(3)
+        r[:2, :2] = yaw_rotation(p[2])
+        return uv, by_point @ r
+
     def project(self, p: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(k, 2)`` pixel positions of the sample points ``idx`` at pose ``p`` and their unit image normals."""
         return self.image_of(p, self.points[idx], self.direction[idx])

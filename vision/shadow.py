@@ -161,8 +161,11 @@ MARCH_BLOCK = 16
 
 
 def _lit(field: HeightField, points: np.ndarray, normals: np.ndarray, light: np.ndarray) -> np.ndarray:
-    """``(n,)`` bool: a surface at ``points`` (n, 3) [m] with ``normals`` (n, 3) gets the key light."""
-    return (normals @ light > GRAZING_COS) & ~shadowed(field, points, light)
+    """``(n,)`` bool: a surface at ``points`` (n, 3) [m] with ``normals`` (n, 3) gets the key light (unit (3,)).
+    Only the surfaces turned to it are marched towards it (:func:`shadowed`)."""
+    lit = normals @ light > GRAZING_COS
+    lit[lit] = ~shadowed(field, points[lit], light)
+    return lit
 
 
 def _horizontal(v: np.ndarray) -> np.ndarray:
@@ -203,24 +206,26 @@ def dark_both_sides(field: HeightField, points: np.ndarray, n1: np.ndarray, n2: 
     """
     x = np.asarray(points, dtype=np.float64)
     view = eye - x
-    faces = []
-    for n in (n1, n2):
-        sees = np.einsum("nj,nj->n", n, view) > 0
-        lit = _lit(field, x + SIDE_M * n, n, light)
-        faces.append((sees, lit))
-    (s1, l1), (s2, l2) = faces
+    s1, s2 = (np.einsum("nj,nj->n", n, view) > 0 for n in (n1, n2))
+    both = s1 & s2
     # One face turned away: the other side is what the line of sight meets past the edge, looked at
     # just beyond the hidden face (or beyond the visible one, when the hidden face is the bottom).
     hidden = np.where(s1[:, None], n2, n1)
     shown = np.where(s1[:, None], n1, n2)
     away = _horizontal(hidden)
     away = np.where(np.linalg.norm(away, axis=1, keepdims=True) > 0, away, _horizontal(shown))
-    beyond = landing(field, x + SIDE_M * away, eye)
+    one = ~both  # only these look beyond the edge
+    beyond = np.zeros_like(x)
+    beyond[one] = landing(field, x[one] + SIDE_M * away[one], eye)
     up = np.tile([0.0, 0.0, 1.0], (len(x), 1))
-    l_beyond = _lit(field, beyond + 0.5 * SIDE_M * up, up, light)
-    both = s1 & s2
-    dark = np.where(both, ~l1 & ~l2, ~np.where(s1, l1, l2) & ~l_beyond)
-    return dark
+    # Each side is marched towards the light only where the answer uses it, all in one march: the marches
+    # cost a low-angle locate a third.
+    use = (s1, s2 | ~s1, one)
+    where = np.r_[(x + SIDE_M * n1)[s1], (x + SIDE_M * n2)[use[1]], (beyond + 0.5 * SIDE_M * up)[one]]
+    lit = np.split(_lit(field, where, np.r_[n1[s1], n2[use[1]], up[one]], light), np.cumsum([u.sum() for u in use])[:2])
+    l1, l2, l_beyond = (np.zeros(len(x), bool) for _ in range(3))
+    l1[s1], l2[use[1]], l_beyond[one] = lit
+    return np.where(both, ~l1 & ~l2, ~np.where(s1, l1, l2) & ~l_beyond)
 
 
 def estimate_light(field: HeightField, tray: np.ndarray, dark: np.ndarray, eye: np.ndarray, *,
@@ -308,10 +313,13 @@ def shadow_edges(field: HeightField, points: np.ndarray, direction: np.ndarray, 
     tangent = (ahead - (ahead[:, 2] / light[2])[:, None] * light) - cast
     tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-12)
     across = np.column_stack([-tangent[:, 1], tangent[:, 0], np.zeros(len(tangent))])
-    one = shadowed(field, cast + SIDE_M * across, light)
-    other = shadowed(field, cast - SIDE_M * across, light)
     to_eye = eye - cast
-    seen = ~shadowed(field, cast, to_eye / np.linalg.norm(to_eye, axis=1, keepdims=True))
+    # Both sides towards the light and the shadow towards the eye in one march.
+    k = len(cast)
+    towards = np.r_[np.broadcast_to(light, (2 * k, 3)), to_eye / np.linalg.norm(to_eye, axis=1, keepdims=True)]
+    one, other, hid = np.split(shadowed(field, np.r_[cast + SIDE_M * across, cast - SIDE_M * across, cast], towards),
+                               [k, 2 * k])
+    seen = ~hid
     outside = (field.at((cast + SIDE_M * across)[:, :2]) <= 0) & (field.at((cast - SIDE_M * across)[:, :2]) <= 0)
     keep = (one != other) & seen & outside
     return casting[keep], cast[keep], tangent[keep]
@@ -358,7 +366,8 @@ def _towards(az: float, el: float) -> np.ndarray:
 def shadow_evidence(field: HeightField, points: np.ndarray, direction: np.ndarray, n1: np.ndarray,
                     n2: np.ndarray, visible: np.ndarray, eye: np.ndarray, light: np.ndarray,
                     to_image: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
-                    find: Callable[[np.ndarray, np.ndarray, float], np.ndarray]) -> ShadowEvidence:
+                    find: Callable[[np.ndarray, np.ndarray, float], np.ndarray],
+                    to_pixels: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None) -> ShadowEvidence:
     """The edges a pose leaves in the dark and the cast shadow's edge it explains, under the key light.
 
     ``points``, ``direction``, ``n1``, ``n2`` (k, 3) are all the mesh's edge samples (part frame [m]),
@@ -366,7 +375,9 @@ def shadow_evidence(field: HeightField, points: np.ndarray, direction: np.ndarra
     (3,) the estimated key light (:func:`estimate_light`), part frame. ``to_image(points, directions)``
     gives the image positions (n, 2) [px] and unit image normals (n, 2) of part-frame points and
     directions at the pose; ``find(uv, normal, reach)`` the signed offset [px] of the nearest picture
-    edge along each normal within ``reach`` (NaN where none).
+    edge along each normal within ``reach`` (NaN where none); ``to_pixels(points)`` the image positions
+    (n, 2) [px] alone (the light's fit needs no normals) and their derivatives (n, 2, 3) by the part-frame
+    points [px/m], for the light fit's Jacobian (finite differences when not given).
 
     A shadow's length grows with the cotangent of the light's elevation (a degree at 19 deg moves
     a 48 mm upright's shadow 9 mm), so the light is first fitted: azimuth and elevation such that
@@ -383,11 +394,12 @@ def shadow_evidence(field: HeightField, points: np.ndarray, direction: np.ndarra
         t = ahead - (ahead[:, 2] / lq[2])[:, None] * lq - on
         return on, t / np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
 
+
     q = np.array([az, el])
+    at_estimate = shadow_edges(field, points, direction, n1, n2, eye, light)  # made once, used twice
     if len(casting) >= MIN_SHADOW_SAMPLES:
         # Only the samples that cast the edge the camera sees at the estimate take part.
-        kept, _, _ = shadow_edges(field, points, direction, n1, n2, eye, light)
-        use = np.isin(casting, kept)
+        use = np.isin(casting, at_estimate[0])
         for reach in LIGHT_SEARCH_PX:
             if use.sum() < MIN_SHADOW_SAMPLES:
                 break
@@ -399,11 +411,8 @@ def shadow_evidence(field: HeightField, points: np.ndarray, direction: np.ndarra
                 break
             target, nrm, sub = uv[ok] + off[ok, None] * normal[ok], normal[ok], np.flatnonzero(use)[ok]
 
-            def residuals(r: np.ndarray, target=target, nrm=nrm, sub=sub) -> np.ndarray:
-                on_r, t_r = cast(r)
-                return np.einsum("nj,nj->n", to_image(on_r[sub], t_r[sub])[0] - target, nrm)
-
-            q = least_squares(residuals, q, x_scale=np.array([0.01, 0.01]), diff_step=1e-6,
+            residuals, jacobian = _light_residuals(x[sub], d[sub], target, nrm, to_image, to_pixels)
+            q = least_squares(residuals, q, jac=jacobian, x_scale=np.array([0.01, 0.01]), diff_step=1e-6,
                               bounds=([az - LIGHT_TURN, max(el - LIGHT_TILT, np.radians(5.0))],
                                       [az + LIGHT_TURN, min(el + LIGHT_TILT, np.radians(89.0))]),
                               loss="soft_l1", f_scale=1.0).x
@@ -412,17 +421,58 @@ def shadow_evidence(field: HeightField, points: np.ndarray, direction: np.ndarra
     fitted = _evidence(field, points, direction, n1, n2, visible, eye, _towards(*q), to_image, find)
     if len(fitted.near) and fitted.near.mean() >= SHADOW_FOUND:
         return fitted
-    estimated = _evidence(field, points, direction, n1, n2, visible, eye, light, to_image, find)
+    estimated = _evidence(field, points, direction, n1, n2, visible, eye, light, to_image, find, at_estimate)
     return max((fitted, estimated), key=lambda e: e.near.mean() if len(e.near) else -1.0)
+
+
+def _light_residuals(x: np.ndarray, d: np.ndarray, target: np.ndarray, normal: np.ndarray,
+                     to_image: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
+                     to_pixels: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None
+                     ) -> tuple[Callable[[np.ndarray], np.ndarray], Callable[[np.ndarray], np.ndarray] | str]:
+    """The light fit's residuals [px] of ``q = (azimuth, elevation)`` [rad]: how far the shadows on the tray
+    of the casting samples ``x`` (k, 3) (their directions ``d``, part frame [m]) lie from their found
+    edges ``target`` (k, 2) [px] along the edges' image normals ``normal`` (k, 2); and their Jacobian (k, 2)
+    [px/rad], the projection's own through ``to_pixels`` (else "2-point", finite differences).
+
+    A sample's shadow is ``on = x - x_z (l / l_z)`` with ``l / l_z = (cot el cos az, cot el sin az, 1)``.
+    """
+    z = x[:, 2, None]
+    last: dict[str, np.ndarray] = {}
+
+    def on(q: np.ndarray) -> np.ndarray:
+        lq = _towards(*q)
+        return x - (x[:, 2] / lq[2])[:, None] * lq
+
+    def residuals(q: np.ndarray) -> np.ndarray:
+        if to_pixels is None:
+            uv = to_image(on(q), d)[0]
+        else:
+            uv, last["jac"] = to_pixels(on(q))
+            last["q"] = np.array(q)
+        return np.einsum("nj,nj->n", uv - target, normal)
+
+    def jacobian(q: np.ndarray) -> np.ndarray:
+        if "q" not in last or not np.array_equal(last["q"], q):
+            residuals(q)
+        az, el = q
+        cot, csc2 = np.cos(el) / np.sin(el), 1.0 / np.sin(el) ** 2
+        by_q = np.zeros((len(x), 3, 2))
+        by_q[:, :2, 0] = -z * np.array([-cot * np.sin(az), cot * np.cos(az)])
+        by_q[:, :2, 1] = -z * np.array([-csc2 * np.cos(az), -csc2 * np.sin(az)])
+        return np.einsum("nj,njk,nkq->nq", normal, last["jac"], by_q)
+
+    return residuals, (jacobian if to_pixels is not None else "2-point")
 
 
 def _evidence(field: HeightField, points: np.ndarray, direction: np.ndarray, n1: np.ndarray, n2: np.ndarray,
               visible: np.ndarray, eye: np.ndarray, light: np.ndarray,
               to_image: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
-              find: Callable[[np.ndarray, np.ndarray, float], np.ndarray]) -> ShadowEvidence:
-    """:class:`ShadowEvidence` under one light (arguments as :func:`shadow_evidence`)."""
+              find: Callable[[np.ndarray, np.ndarray, float], np.ndarray],
+              edges: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> ShadowEvidence:
+    """:class:`ShadowEvidence` under one light (arguments as :func:`shadow_evidence`; ``edges``: its
+    :func:`shadow_edges` when made already)."""
     unknown = dark_both_sides(field, points[visible], n1[visible], n2[visible], eye, light)
-    _, on, t = shadow_edges(field, points, direction, n1, n2, eye, light)
+    _, on, t = shadow_edges(field, points, direction, n1, n2, eye, light) if edges is None else edges
     if len(on) < MIN_SHADOW_SAMPLES:
         return ShadowEvidence(unknown=unknown, near=np.zeros(0, bool), normal=np.zeros((0, 2)), light=light)
     uv, normal = to_image(on, t)

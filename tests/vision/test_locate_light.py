@@ -57,6 +57,14 @@ ONCE_WRONG = [("low_angle", "l_bracket", 1), ("dim", "stepped_wall", 17), ("glar
 #: against 0.28, now 0.92 against 0.69), and a stepped wall whose coarse start was its turn 6 deg off
 #: (the turn of that fit, which misses most of its outline, is fitted from as wide a reach as a start).
 ONCE_REFUSED = [("glare", "l_bracket", 2), ("glare", "l_bracket", 3), ("glare", "stepped_wall", 1)]
+#: Stepped walls under a low light once refused although their pictures fix the pose: the long shadow's
+#: edges took the coarse search's first three places (15 mm off, turned half a turn), and the light
+#: estimated at the first of them, 59 deg off the true one, left out the wrong edges (0.31 of the outline
+#: found from the true pose; 0.71 under the light estimated there): a blob refused under a key light is
+#: fitted again, from three more starts, each under the light its own pose explains (vision/key_light.py).
+#: And one whose fit stopped 0.75 mm along itself (its outline seen across at 0.42), brought back on that
+#: second try by a slide of 0.75 mm.
+ONCE_REFUSED_LOW = [("low_angle", "stepped_wall", 15), ("low_angle", "stepped_wall", 19)]
 #: Pictures whose error once lay beyond the uncertainty reported with it, now within it (vision/pose_uncertainty.py):
 #: a glare L 0.91 mm off held by a few edges that disagree (+-0.66 mm; the residuals of one mesh edge now
 #: count as one). (The stepped wall beside a box once here, 1.16 deg against +-0.71, is in ONCE_WRONG.)
@@ -128,6 +136,11 @@ def test_a_pose_once_wrong_is_now_found_within_its_uncertainty(station, conditio
 
 @pytest.mark.parametrize("condition, part, seed", ONCE_REFUSED)
 def test_a_glare_picture_once_refused_is_now_found_within_its_uncertainty(station, condition, part, seed):
+    _found_within_its_uncertainty(*located(station, condition, part, seed))
+
+
+@pytest.mark.parametrize("condition, part, seed", ONCE_REFUSED_LOW)
+def test_a_low_light_stepped_wall_once_refused_is_now_found_within_its_uncertainty(station, condition, part, seed):
     _found_within_its_uncertainty(*located(station, condition, part, seed))
 
 
