@@ -13,7 +13,7 @@ from scipy.interpolate import CubicSpline
 
 from robotprog.cell import Box, Pose
 from robotprog.collision import HeldBox, collision_world, finger_boxes
-from robotprog.sweep import monotone_breaks, swept_motion
+from robotprog.sweep import WIDE_MARGIN_M, _wide, _within, monotone_breaks, swept_motion
 from robotprog.planner import MotionPlanner, PlannerOptions
 
 STEP = PlannerOptions().joint_resolution
@@ -195,3 +195,39 @@ def test_room_proven_around_a_path_is_free(world, sweep, cell):
     wide = np.full(6, 0.05)
     assert sweep.first_contact(lambda s: np.repeat(near[None], len(s), 0), np.array([0.0, 1.0]), None,
                                wide) is not None
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.lists(st.floats(-3.0, 3.0), min_size=6, max_size=6), st.floats(0.0, 0.4))
+def test_a_wide_margin_between_meshes_asked_by_distance_is_the_collision_query(world, sweep, q, margin):
+    """Between two meshes a wide margin is asked by coal's distance query (robotprog.sweep._within): it
+    answers as the collision query with that security margin, pair by pair, wide or not."""
+    rider = sweep._rider(None)
+    g, gd = rider.geometry, pin.GeometryData(rider.geometry)
+    pin.framesForwardKinematics(world.robot.model, world._data, np.array(q))
+    pin.updateGeometryPlacements(world.robot.model, world._data, g, gd)
+    margins = np.full(len(g.collisionPairs), margin)
+    wide = _wide(rider.meshes, margins)
+    assert (wide is not None) == (margin > WIDE_MARGIN_M) and rider.meshes.any()
+    for k in np.flatnonzero(rider.meshes):
+        gd.collisionRequests[int(k)].security_margin = margin
+        d = pin.computeDistance(g, gd, int(k)).min_distance
+        if abs(d - margin) > 1e-9:  # not on the margin itself, where either answer is a rounding
+            assert bool(_within(g, gd, int(k), margins, wide)) == pin.computeCollision(g, gd, int(k))
+
+
+def test_a_path_proven_with_wide_margins_by_distance_is_proven_alike(world, cell, monkeypatch):
+    """The proof of a long transfer past the arm's own base (coarse levels: margins wider than
+    WIDE_MARGIN_M between its meshes) finds the same as with every margin asked by collision query."""
+    import robotprog.sweep as sweep_module
+
+    p = MotionPlanner(cell, world)
+    home = np.array(cell.robot.home)
+    far = home + np.array([-1.1, 0.45, 0.05, 0.7, 0.45, -1.5])
+    qs = p.densify(np.array([home, far]), 0.3)
+    swept = swept_motion(world, STEP)
+    found = swept.polyline_contact(qs)
+    rider = swept._rider(None)  # the coarsest level asks some pair of meshes by distance
+    assert _wide(rider.meshes, swept._margins(rider.rates, STEP * 2.0 ** -sweep_module.COARSEST_LEVEL)) is not None
+    monkeypatch.setattr(sweep_module, "WIDE_MARGIN_M", np.inf)
+    assert swept_motion(world, STEP).polyline_contact(qs) == found
