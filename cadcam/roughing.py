@@ -116,7 +116,7 @@ class RoughingOptions:
         loop along a wall in an open region), and half a diameter is a safe slotting depth
         for carbide in aluminium.
     stepover : float, optional
-        Radial step between offset loops [mm], in ``(0, D)``. Default ``0.4 * D``.
+        Radial step between offset loops [mm], in ``(0, D)``. Default :attr:`Tool.level_stepover` (0.7 D).
         Above the tool radius, the islands of stock that would survive between loops are
         cut by extra loops (module docstring).
     allowance : float
@@ -177,7 +177,7 @@ def _resolve(options: RoughingOptions, tool: Tool, setup: Setup) -> _Params:
     if not (d > 0 and math.isfinite(d)):
         raise ToolError(f"T{tool.number} has diameter {d}")
     stepdown = tool.level_stepdown if options.stepdown is None else float(options.stepdown)
-    stepover = 0.4 * d if options.stepover is None else float(options.stepover)
+    stepover = tool.level_stepover if options.stepover is None else float(options.stepover)
     helix_d = 0.8 * d if options.helix_diameter is None else float(options.helix_diameter)
     min_helix_d = 0.3 * d if options.min_helix_diameter is None else float(options.min_helix_diameter)
     if not 0 < stepdown <= tool.flute_length:
@@ -431,7 +431,8 @@ class _Path:
 
         ``air_z`` is the lowest height known to be clear under the whole tool here: every
         tool centre of a level lies inside the previous level's region, which was cleared
-        with stepover <= R, so everything within R of it is cut down to that level's floor.
+        to within R of every point (gap loops where the stepover is wider than R, :func:`_gap_rings`),
+        so everything within R of it is cut down to that level's floor.
         """
         cur = self.here
         rapid_to = air_z + p.lead_gap
