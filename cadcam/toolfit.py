@@ -60,10 +60,11 @@ class ToolFit:
 
     def roughing_minutes(self, cutting: CuttingData) -> float:
         """Z-level roughing time of this tool's share [min]: every level's area cleared at the default
-        stepover, 0.4 D, at the cutting feed (so a level the part's flats add costs as much as one of the
-        stepdown's), and every closed region entered by a helix at the default 3 degrees at the plunge feed
-        (:class:`cadcam.roughing.RoughingOptions`): a wide tool's deep levels take long to enter."""
-        cutting_min = (self.level_area + self.terrace_area) / (0.4 * self.tool.diameter * cutting.feed)
+        stepover (:attr:`~cadcam.model.Tool.level_stepover`), at the cutting feed (so a level the part's
+        flats add costs as much as one of the stepdown's), and every closed region entered by a helix at the
+        default 3 degrees at the plunge feed (:class:`cadcam.roughing.RoughingOptions`): a wide tool's deep
+        levels take long to enter."""
+        cutting_min = (self.level_area + self.terrace_area) / (self.tool.level_stepover * cutting.feed)
         return cutting_min + self.entry_depth / math.tan(math.radians(_RAMP_DEG)) / cutting.plunge_feed
 
     @property
@@ -159,7 +160,8 @@ def _flat_levels(triangles: np.ndarray, allowance: float, bottom: float, top: fl
 def removal_rate(tool: Tool, feed: float) -> float:
     """Metal removal rate of z-level roughing with ``tool`` at its default engagement [mm^3/min].
 
-    Stepover 0.4 D and the tool's :attr:`~cadcam.model.Tool.level_stepdown`, as :class:`cadcam.roughing.RoughingOptions`.
+    The tool's :attr:`~cadcam.model.Tool.level_stepover` and :attr:`~cadcam.model.Tool.level_stepdown`, as
+    :class:`cadcam.roughing.RoughingOptions`.
     """
-    return feed * 0.4 * tool.diameter * tool.level_stepdown
+    return feed * tool.level_stepover * tool.level_stepdown
 

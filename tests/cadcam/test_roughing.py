@@ -483,13 +483,17 @@ def left_beyond(hf, reference):
     return left
 
 
+#: A stepover of at most a radius, which leaves no gap between loops: what a wider one is held to.
+NARROW = 0.4 * TOOL.diameter
+
+
 @pytest.mark.parametrize("name", ["pocket", "boss", "slot"])
 @pytest.mark.parametrize("share", [0.6, 0.75, 0.89])
-def test_a_wide_stepover_leaves_no_island_the_default_one_cuts(name, share):
+def test_a_wide_stepover_leaves_no_island_a_narrow_one_cuts(name, share):
     # Loops more than a radius apart leave cusps between them; the loops added over those gaps
-    # must cut everything the default stepover (at most a radius: no gaps) cuts.
+    # must cut everything a stepover of at most a radius (no gaps) cuts.
     part, setup, wide, options = rough(name, stepover=share * TOOL.diameter)
-    _, _, usual, _ = rough(name)
+    _, _, usual, _ = rough(name, stepover=NARROW)
     motion_basics(wide, setup)
     assert_no_gouge(part, wide, options.allowance)
     hf_wide, bad = simulate(wide, setup, options.ramp_angle)
@@ -501,15 +505,61 @@ def test_a_wide_stepover_leaves_no_island_the_default_one_cuts(name, share):
     assert cut[0] <= cut[1] + 1e-6, cut
 
 
+@pytest.mark.parametrize("name", ["boss", "dome"])  # open levels wide enough for loops (a pocket's fill with gaps)
+def test_the_default_levels_take_the_stock_wide_in_less_path(name):
+    # A level is no deeper than the full-width limit, so the default step is wide (the chip is fz either
+    # way): the same stock in much less cutting path, everything a narrow step cuts cut, no plunge or gouge.
+    part, setup, op, options = rough(name)
+    _, _, narrow, _ = rough(name, stepover=NARROW)
+    assert_no_gouge(part, op, options.allowance)
+    hf, bad = simulate(op, setup, options.ramp_angle)
+    assert not bad, "\n".join(bad[:5])
+    hf_narrow, _ = simulate(narrow, setup, options.ramp_angle)
+    assert left_beyond(hf, hf_narrow).max() <= 0.05
+    cut = [np.linalg.norm(np.diff(o.points, axis=0), axis=1)[o.motion[1:] == Motion.CUT].sum() for o in (op, narrow)]
+    assert cut[0] <= 0.85 * cut[1], cut  # boss 0.67, dome 0.79
+    depth = np.diff(np.unique(op.points[op.motion == Motion.CUT, 2].round(6)))
+    assert np.all(depth <= TOOL.full_width_limit + 1e-9)
+
+
+def cut_heights(op) -> np.ndarray:
+    return np.unique(op.points[op.motion == Motion.CUT, 2].round(6))
+
+
+def test_a_skin_on_the_top_floor_within_the_skim_is_left_whole_to_the_finishing():
+    # The top floor 1 mm under the stock top, a pocket in it: its 0.7 mm level is not cut; the level under
+    # it cuts no deeper than the full-width limit; nothing is left that the level did not leave but its skin.
+    part = difference(box((2, 2, -12), (38, 28, -1)), box((10, 8, -5), (30, 22, 1)))
+    setup = make_setup()
+    plain = zlevel_roughing(part, setup, TOOL, CUTTING)
+    options = RoughingOptions(skim=1.2)
+    skimmed = zlevel_roughing(part, setup, TOOL, CUTTING, options)
+    assert -0.7 in cut_heights(plain) and -0.7 not in cut_heights(skimmed)
+    assert setup.stock_max[2] - cut_heights(skimmed).max() <= TOOL.full_width_limit + 1e-9
+    assert_no_gouge(part, skimmed, options.allowance)
+    hf, bad = simulate(skimmed, setup, options.ramp_angle)
+    assert not bad, "\n".join(bad[:5])
+    hf_plain, _ = simulate(plain, setup, options.ramp_angle)
+    assert left_beyond(hf, hf_plain).max() <= 0.7 + 0.05  # the top floor's skin, nothing deeper
+
+
+def test_the_top_level_is_kept_where_only_it_enters_a_gap():
+    # Two bosses 4 mm apart, their tops the top floor 1 mm under the stock top: the 6 mm end mill enters the
+    # gap at the top level only, so that level stays (else a rest tool would meet the gap's stock from the top).
+    part = union(box((0, 0, -12), (40, 30, -8)), box((4, 4, -8), (18, 26, -1)), box((22, 4, -8), (36, 26, -1)))
+    skimmed = zlevel_roughing(part, make_setup(), TOOL, CUTTING, RoughingOptions(skim=1.2))
+    assert -0.7 in cut_heights(skimmed)
+
+
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(random_parts(), st.floats(0.55, 0.89))
 # `make explore` found it: along the pocket's wall the two plans' loops differ by 2 um at a cell's centre
 @example((difference(box((0, 0, -6), (28, 24, 0)), box((2, 2, -1), (20.402036666870117, 18.75, 1))),
           make_setup((28, 24, 6))), 0.75)
-def test_random_blocks_wide_stepover_cuts_what_the_default_cuts(part_setup, share):
+def test_random_blocks_wide_stepover_cuts_what_a_narrow_one_cuts(part_setup, share):
     part, setup = part_setup
     wide = zlevel_roughing(part, setup, TOOL, CUTTING, RoughingOptions(stepover=share * TOOL.diameter))
-    usual = zlevel_roughing(part, setup, TOOL, CUTTING)
+    usual = zlevel_roughing(part, setup, TOOL, CUTTING, RoughingOptions(stepover=NARROW))
     assert_no_gouge(part, wide, 0.3)
     hf_wide, bad = simulate(wide, setup, 3.0)
     assert not bad, "\n".join(bad[:5])

@@ -65,4 +65,4 @@ def test_the_estimate_counts_levels_entries_and_terraces():
         assert f.level_area >= f.reach_volume / min(0.5 * f.tool.diameter, f.tool.flute_length) - 1e-6
         assert f.entry_depth > 0
         cut = LIBRARY.cutting_data(f.tool, "aluminium")
-        assert f.roughing_minutes(cut) > f.level_area / (0.4 * f.tool.diameter * cut.feed)
+        assert f.roughing_minutes(cut) > f.level_area / (f.tool.level_stepover * cut.feed)
