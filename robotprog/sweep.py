@@ -326,8 +326,6 @@ class SweptMotion:
                     hits[near[n:]] = True
                     known[near[n + 1:]] = False
                     break
-        elif wide is None:
-            hits[near] = [pin.computeCollision(g, gd, int(checks[i])) for i in near]
         else:
             hits[near] = [_within(g, gd, int(checks[i]), margins, wide) for i in near]
         return hits, known
