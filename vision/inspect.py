@@ -70,7 +70,7 @@ from factory.core.errors import VisionError
 from vision.camera import CameraModel
 from vision.locate import (SATURATED_GREY, Footprint, LocatedPart, LocateOptions, _edge_peaks, _gradients, _grey,
                            _peak_offset, _tray_ratio, locate_parts, mm_to_m)
-from vision.mesh_edges import MeshEdges
+from vision.mesh_edges import MeshEdges, yaw_rotation_3d
 from vision.shadow import DARK_LOG
 
 #: A picture edge this close to the expected one along its normal is that edge [px].
@@ -808,8 +808,7 @@ def _pose_level(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray
 def _wall_facing(model: MeshEdges, p: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """``(k,)`` bool: an edge sample borders a wall (a face within 60 deg of vertical) turned to the
     camera by at least :data:`FACING_COS` (its cosine with the view)."""
-    r = np.eye(3)
-    r[:2, :2] = [[np.cos(p[2]), -np.sin(p[2])], [np.sin(p[2]), np.cos(p[2])]]
+    r = yaw_rotation_3d(p[2])
     view = model.eye - model.world(p, model.points[idx])
     view /= np.linalg.norm(view, axis=1, keepdims=True)
     facing = np.zeros(len(idx), bool)

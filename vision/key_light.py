@@ -16,7 +16,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from vision.mesh_edges import MeshEdges, yaw_rotation
+from vision.mesh_edges import MeshEdges, yaw_rotation, yaw_rotation_3d
 from vision.shadow import DARK_LOG, estimate_light
 
 #: The tray around a blob is looked at every this many pixels for the light (:func:`key_light`).
@@ -52,9 +52,7 @@ def key_light(model: MeshEdges, pose: np.ndarray, log_ratio: np.ndarray, box: tu
     light = estimate_light(model.field, tray_part, dark, eye_part, min_dark=MIN_DARK_PIXELS)
     if light is None:
         return None
-    r = np.eye(3)
-    r[:2, :2] = yaw_rotation(pose[2])
-    return r @ light
+    return yaw_rotation_3d(pose[2]) @ light
 
 
 class LightAt:

@@ -73,6 +73,13 @@ def yaw_rotation(yaw: float) -> np.ndarray:
     return np.array([[c, -s], [s, c]])
 
 
+def yaw_rotation_3d(yaw: float) -> np.ndarray:
+    """The 3 x 3 rotation by ``yaw`` [rad] about z (:func:`yaw_rotation`, z kept)."""
+    r = np.eye(3)
+    r[:2, :2] = yaw_rotation(yaw)
+    return r
+
+
 def _components(pairs: np.ndarray, vertices: int, of: np.ndarray | None = None) -> np.ndarray:
     """The connected component of each edge in ``of`` (default ``pairs``; (m, 2) vertex indices) in the
     graph of the edges ``pairs`` (k, 2) over ``vertices`` vertices: ``(m,)`` int."""
@@ -134,17 +141,14 @@ class MeshEdges:
         """Whether the mesh's edges turned by ``k`` of ``symmetry`` turns about the footprint's centroid
         fall on its own edges (within :data:`OUTER_M`): a symmetry of the mesh, not only of its outline."""
         if (k, symmetry) not in self._turned:  # a tree over every sample: asked per rival turn, made once
-            r = np.eye(3)
-            r[:2, :2] = yaw_rotation(2 * np.pi * k / symmetry)
+            r = yaw_rotation_3d(2 * np.pi * k / symmetry)
             d, _ = cKDTree(self.points).query(self.points @ r.T)
             self._turned[k, symmetry] = bool(np.quantile(d, 0.95) < OUTER_M)
         return self._turned[k, symmetry]
 
     def world(self, p: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Mesh points (centroid/zmin frame) placed at pose ``p = (x, y, yaw)`` [m, rad]."""
-        r = np.eye(3)
-        r[:2, :2] = yaw_rotation(p[2])
-        return points @ r.T + np.array([p[0], p[1], self.tray_z])
+        return points @ yaw_rotation_3d(p[2]).T + np.array([p[0], p[1], self.tray_z])
 
     def visible(self, p: np.ndarray) -> np.ndarray:
         """Indices of the sample points that can show at pose ``p``."""
@@ -214,9 +218,7 @@ class MeshEdges:
         """``(k, 2)`` pixel positions of part-frame ``points`` (k, 3) [m] at pose ``p`` and ``(k, 2, 3)`` their
         derivatives by the points' part-frame coordinates [px/m]."""
         uv, by_point = self.camera.project_with_jacobian(self.world(p, points), self.rvec, self.tvec)
-        r = np.eye(3)
-        r[:2, :2] = yaw_rotation(p[2])
-        return uv, by_point @ r
+        return uv, by_point @ yaw_rotation_3d(p[2])
 
     def project(self, p: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(k, 2)`` pixel positions of the sample points ``idx`` at pose ``p`` and their unit image normals."""

@@ -394,7 +394,6 @@ def shadow_evidence(field: HeightField, points: np.ndarray, direction: np.ndarra
         t = ahead - (ahead[:, 2] / lq[2])[:, None] * lq - on
         return on, t / np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
 
-
     q = np.array([az, el])
     at_estimate = shadow_edges(field, points, direction, n1, n2, eye, light)  # made once, used twice
     if len(casting) >= MIN_SHADOW_SAMPLES:
