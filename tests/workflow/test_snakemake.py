@@ -28,7 +28,7 @@ PROFILES = ROOT / "workflow" / "profiles"
 BIN = Path(sys.executable).parent
 PARTS = sorted(p.stem for p in SAMPLES.glob("*.stl"))
 # The real runs plan the two quickest samples: enough for two jobs at once and a driver killed between
-# them (the quicker is done while the other is under way), at a fifth of the five samples' time.
+# them (one done while the other is held under way), at a fifth of the five samples' time.
 PLANNED = ("bracket", "stepped_wall")
 FAST = {"scallop": 0.05, "grid": 0.5}
 
@@ -135,24 +135,41 @@ def test_detached_jobs_make_what_a_local_run_makes(clean, planned, tmp_path):
     assert _outputs(tmp_path) == clean[1]
 
 
+# The real `factory`, with one part's plan held until a file named `hold` beside it is gone: the driver
+# is killed with one plan done and the other surely under way, however the two parts' times compare on
+# a loaded machine (unheld, the two samples can finish within one poll of each other).
+_HOLD_ONE_PART = """#!/bin/sh
+case "$*" in *{held}*) while [ -e "$(dirname "$0")/hold" ]; do sleep 0.1; done;; esac
+exec {factory} "$@"
+"""
+
+
 def test_a_driver_killed_mid_run_reruns_to_a_clean_result(clean, planned, tmp_path):
     """SIGKILL to the driver and every job it started (a lost login node), in the middle of the
     plan jobs; then `--unlock` and the same command again finish with a clean run's outputs."""
+    first, held = PLANNED
+    gate = tmp_path / "factory"
+    gate.write_text(_HOLD_ONE_PART.format(held=held, factory=BIN / "factory"))
+    gate.chmod(0o755)
+    (tmp_path / "hold").touch()
     _config(tmp_path, parts=planned)
+    config = yaml.safe_load((tmp_path / "config.yaml").read_text())
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump({**config, "factory": str(gate)}))
     cmd = [str(BIN / "snakemake"), "-s", str(SNAKEFILE), "--configfile", str(tmp_path / "config.yaml"),
            "--directory", str(tmp_path), "--profile", str(PROFILES / "local")]
     driver = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.monotonic() + 600
-    # Kill once the first part is planned and others are under way.
-    while not list((tmp_path / "catalog").glob("*/*.plan.json")) and time.monotonic() < deadline:
+    # Kill once the first part is planned while the other's job is under way (held).
+    while not (tmp_path / "catalog" / first / f"{first}.plan.json").exists() and time.monotonic() < deadline:
         assert driver.poll() is None, "the workflow ended before it could be killed"
         time.sleep(0.2)
     os.killpg(driver.pid, signal.SIGKILL)
     driver.wait()
-    done = list((tmp_path / "catalog").glob("*/*.plan.json"))
-    assert 0 < len(done) < len(PLANNED), done
+    done = sorted(p.name for p in (tmp_path / "catalog").glob("*/*.plan.json"))
+    assert done == [f"{first}.plan.json"], done
     assert not (tmp_path / "out" / "cell.json").exists()
 
+    (tmp_path / "hold").unlink()
     assert _snakemake(tmp_path, "--unlock").returncode == 0
     r = _snakemake(tmp_path, "--profile", str(PROFILES / "local"))
     assert r.returncode == 0, r.stderr[-3000:]
