@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 from robotprog.krl import krl_program
 from robotprog.rapid import rapid_module
 from robotprog.urscript import Branch, Comment, MoveJ, MoveL, ServoJ, SetOutputs, Wait, WaitInput, urscript_program
-from tests.robotprog.parsers import parse_krl, parse_urscript, rapid_errors
+from tests.robotprog.parsers import parse_krl, parse_urscript, rapid_errors, rapid_shape
 
 GOLDEN = Path(__file__).parent / "golden"
 AXIS_SPEED = np.full(6, 3.15)
@@ -43,6 +43,38 @@ def test_the_checkers_reject_broken_programs():
     assert rapid_errors(mod.replace("tGripper;", "tGripper", 1))
     assert rapid_errors(mod.replace("\\T:=", "\\T=", 1))
 
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.lists(st.integers(0, 9), min_size=10, max_size=10), st.integers(1, 3))
+def test_a_rapid_shape_is_shared_by_other_numbers_and_more_lines_alike(digits, extra):
+    """The golden module with every digit replaced (a digit d by digits[d]) and one move repeated has the
+    golden's shape (rapid_errors(by_shape=True) gives it the golden's verdict), and rapidchecker itself
+    finds nothing in it either."""
+    import re
+
+    mod = (GOLDEN / "tending.mod").read_text()
+    move = next(line for line in mod.splitlines(keepends=True) if line.strip().startswith("MoveAbsJ"))
+    other = re.sub(r"\d", lambda m: str(digits[int(m.group())]), mod.replace(move, move * (1 + extra), 1))
+    assert rapid_shape(other) == rapid_shape(mod)
+    assert rapid_errors(other) == []
+
+
+def test_a_rapid_shape_differs_wherever_rapidchecker_could_read_otherwise():
+    """What rapidchecker refuses, or could, changes the shape: a token lost or changed, a statement's indent,
+    a trailing space, the final newline, an empty line more, a sign that is an operator, a digit starting a
+    name, a '#' of the text's own, a continued statement's line repeated."""
+    mod = (GOLDEN / "tending.mod").read_text()
+    move = next(line for line in mod.splitlines(keepends=True) if line.strip().startswith("MoveAbsJ"))
+    broken = [mod.replace("tGripper;", "tGripper", 1), mod.replace("\\T:=", "\\T=", 1),
+              mod.replace("  ENDPROC", "ENDPROC"), mod.replace(move, " " + move, 1), mod.replace(move, move[:-1] + " \n", 1),
+              mod.rstrip("\n"), mod.replace("\n\n", "\n\n\n", 1), mod.replace(move, move.replace(", ", ", -", 1), 1),
+              mod.replace("MoveAbsJ j", "MoveAbsJ 1j", 1), mod.replace("MoveAbsJ j", "MoveAbsJ #", 1),
+              mod.replace(move, move.replace(", ", ",\n    ", 1), 1)]
+    split = move.replace(", ", ",\n    ", 1)
+    broken.append(mod.replace(move, split + split.split("\n", 1)[1], 1))
+    assert all(b != mod for b in broken)
+    assert len({rapid_shape(b) for b in broken} | {rapid_shape(mod)}) == len(broken) + 1
 
 _angle = st.floats(-3.1, 3.1, allow_nan=False)
 _q = st.tuples(*[_angle] * 6)
