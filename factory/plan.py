@@ -645,8 +645,8 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
                planned: PlannedPart, robot: BackgroundRobot | None, ahead: FitAhead | None = None,
                verify_ahead: VerifyAhead | None = None) -> PartPlan:
     """:func:`_plan_once` after the toolpaths: post, verify (on from what ``verify_ahead`` cut meanwhile),
-    op 2. With a robot, all of it runs here while the robot's share is planned in its process, and the
-    robot's meshes are read before its work is waited for: the robot's share is the longer."""
+    op 2. With a robot, all of it runs here while the robot's share is planned in its process (which reads
+    the robot's meshes for the log too): this share is the longer."""
     job = planned.job
     options = _verify_options(req, planned.boundary is not None)
     if req.ops is None:  # a relief stays in its block, right way up, unless asked
@@ -680,10 +680,10 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
             op2_error = e  # stands only if the robot turns the part over: its answer decides
     tending = ahead = None
     if robot is not None:
-        visuals = robot.visuals()
+        work = robot.result(sheet)
+        visuals = work.visuals
         with watch("pictures"):  # and the cell in the log: what needs no robot motion
             pictures = drawn(planned, robot.cell, robot.world, visuals)
-        work = robot.result(sheet)
         if work.dropped_op2 is not None:
             # Not asked for two operations, and the robot cannot turn this part over on the cell's
             # flip station: op 1 alone, said loudly (the holding allowance stays on the part).

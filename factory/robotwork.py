@@ -3,9 +3,10 @@
 What the robot does with a part depends on the cell, the stock box, where the part sits in it (the
 setup) and the part's mesh, not on any toolpath. So :class:`BackgroundRobot` starts as soon as the setup
 is made, in a forked process (:class:`cadcam.parallel.Background`): the cell's roadmap read, the load,
-turnover and unload planned and proven, the robot program posted and proven. The robot's meshes for the
-log are read here meanwhile (:meth:`BackgroundRobot.visuals`): the child's share is the longer. Its
-stages show as they run (:class:`factory.core.progress.ProgressRelay`).
+turnover and unload planned and proven, the robot program posted and proven, and then the robot's meshes
+for the log read (0.4 s for the UR5's): the CAM's share is the longer now (issue 35), so they are read
+where they cost the plan no wall time. Its stages show as they run
+(:class:`factory.core.progress.ProgressRelay`).
 :meth:`BackgroundRobot.result` takes the work once the setup sheet is posted; the robot is planned again
 here if the sheet's stock is not the one the work was started for, so the answer is always the one
 planning after the CAM would give.
@@ -48,8 +49,10 @@ class RobotWork:
         The timed, proven moves.
     program : PostedProgram
         The robot program, its posted path proven.
+    visuals : tuple of LinkVisual
+        The robot's meshes for the log (:func:`robotprog.visuals.robot_visuals`).
     seconds : dict
-        Wall time of its stages (``roadmap``, ``robot plan``, ``robot program``) [s].
+        Wall time of its stages (``roadmap``, ``robot plan``, ``robot program``, ``robot visuals``) [s].
     dropped_op2 : str or None
         Why op 2 was dropped (the turnover's planning error), None when it was not.
     """
@@ -57,6 +60,7 @@ class RobotWork:
     ops: int
     plan: TendingPlan
     program: PostedProgram
+    visuals: tuple[LinkVisual, ...]
     seconds: dict[str, float]
     dropped_op2: str | None = None
 
@@ -109,8 +113,8 @@ class RobotTask:
 
 
 def robot_work(cell: Cell, world: CollisionWorld, task: RobotTask, progress: Progress | None = None) -> RobotWork:
-    """Plan, post and prove the robot's load, turnover and unload of ``task``'s part in ``cell``; stages into
-    ``progress``.
+    """Plan, post and prove the robot's load, turnover and unload of ``task``'s part in ``cell``, and read
+    the robot's meshes for the log; stages into ``progress``.
 
     Raises
     ------
@@ -132,7 +136,9 @@ def robot_work(cell: Cell, world: CollisionWorld, task: RobotTask, progress: Pro
         plan = plan_in_cell(cell, world, task.cell_path, task.sheet, task.sheet_source, task.part_vertices, watch)
     with watch("robot program"):
         program = post_program(task.lang, task.program_path, cell, world, plan)
-    return RobotWork(ops, plan, program, dict(watch.seconds), dropped)
+    with watch("robot visuals"):
+        visuals = robot_visuals(world.robot)
+    return RobotWork(ops, plan, program, visuals, dict(watch.seconds), dropped)
 
 
 class BackgroundRobot:
@@ -150,18 +156,6 @@ class BackgroundRobot:
         self._watch = watch
         self._relay = ProgressRelay(watch.progress)
         self._background: Background | None = Background(robot_work, self.cell, self.world, task, self._relay)
-
-    def visuals(self) -> tuple[LinkVisual, ...]:
-        """The robot's meshes for the log (stage ``robot visuals``), read in this process while the work goes
-        on in the other.
-
-        Raises
-        ------
-        CellError
-            A visual mesh cannot be read.
-        """
-        with self._watch("robot visuals"):
-            return robot_visuals(self.world.robot)
 
     def result(self, sheet: SetupSheet) -> RobotWork:
         """The work, for op 1's posted setup sheet ``sheet`` (planned again here for it when its stock is

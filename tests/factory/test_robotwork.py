@@ -73,7 +73,9 @@ def test_the_work_in_the_background_is_the_work_done_here_and_follows_the_posted
     work = robot.result(started.sheet)
     here = robot_work(robot.cell, robot.world, started)
     assert work.program.texts == here.program.texts and work.plan.durations == here.plan.durations
-    assert work.dropped_op2 is None and len(robot.visuals()) > 0  # read here, meanwhile
+    assert work.dropped_op2 is None and len(work.visuals) == len(here.visuals) > 0  # read there, after the work
+    assert all(np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces)
+               for a, b in zip(work.visuals, here.visuals))
     for stage in ("cell", "robot plan", "robot program", "robot visuals"):
         assert (stage, 0, 1) in heard and (stage, 1, 1) in heard and watch.seconds[stage] > 0
 
