@@ -56,6 +56,7 @@ from shapely.geometry.polygon import orient
 from shapely.ops import linemerge
 
 from cadcam import roughing
+from cadcam.levelskim import without_skimmed
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.roughing import RoughingOptions, zlevel_roughing
 from factory.core.errors import MeshError
@@ -215,6 +216,8 @@ def adaptive_roughing(
         shadow = roughing.part_shadows(part, [zq for z in levels for zq, _ in roughing._forbidden_terms(float(z), p)])
         _, rect = roughing._axis_rect(setup, p, None)
         spaces = tuple(roughing._level_space(float(z), rect, shadow, p) for z in levels)
+        levels, spaces = without_skimmed(part, levels, spaces, float(setup.stock_max[2]), p.skim, p.allowance,
+                                         p.radius, roughing._FLOOR_EPS)  # as the levels' own roughing does
         geometry = BandGeometry(
             levels=tuple(float(z) for z in levels), spaces=spaces, top=float(setup.stock_max[2]),
             stock=box(*setup.stock_min[:2], *setup.stock_max[:2]), axis_box=rect, allowance=p.allowance,
