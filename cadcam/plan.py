@@ -602,8 +602,7 @@ def _holes_and_roughing(plan: _Planning, exact: tuple[Hole, ...] | None = None
     plan.cut_before = holes.cut_at if holes is not None else None
     # Where flat end mills finish the flats, a skin on the top floor within their engagement is theirs whole:
     # their facing pass takes 1 mm at the feed it takes 0.3 mm, and a roughing level there costs a full level.
-    # Not beside freeform faces: on dome_mould the terraces then took 131 -> 937 s (op 1 14 -> 27 min).
-    roughing = options.roughing if plan.faces is None or plan.faces.freeform else dataclasses.replace(
+    roughing = options.roughing if plan.faces is None else dataclasses.replace(
         options.roughing, skim=options.finish_engagement - options.roughing.allowance)
     plan.skim = roughing.skim
     if options.adaptive is None:
