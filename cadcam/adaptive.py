@@ -431,7 +431,7 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
             if routes is None:
                 log.debug("deep cut at z=%.3f: no lead-in from the air", z)
                 return None
-            for route in routes:
+            for route in _nearest_first(routes, pts):
                 # the chains are sampled finely to judge them; the moves need only their corners
                 route = shapely.get_coordinates(LineString(route).simplify(_SIMPLIFY, preserve_topology=False))
                 if inside.intersects(LineString(route)):
@@ -774,6 +774,24 @@ def _stays_down(pts: list[np.ndarray], route: np.ndarray, left: BaseGeometry, in
     if link.length > _LINK_MAX or inside.intersects(link):
         return False
     return left.is_empty or link.distance(left) >= r + gap
+def _nearest_first(routes: list[np.ndarray], pts: list[np.ndarray]) -> list[np.ndarray]:
+    """The runs ``routes`` ((m, 2) each, led in from the air and out to it) of one chain in a nearest-neighbour
+    tour from where the moves ``pts`` left the tool (the last run's end, before its lift); each run keeps its
+    direction (the climb's). The runs of a chain are apart and the whole deep cut is replayed for its engagement
+    after, so only the rapids between them change (bracket: the pass beside its corners began at the far side
+    from where the corners' pass ended, 117 mm away, and crossed the part three times more)."""
+    if len(routes) < 2 or len(pts) < 2:
+        return routes
+    left = list(routes)
+    at = pts[-2][:2]
+    tour = []
+    while left:
+        k = int(np.argmin([float(np.hypot(*(route[0] - at))) for route in left]))
+        tour.append(left.pop(k))
+        at = tour[-1][-1]
+    return tour
+
+
 def _near(chain: np.ndarray, points: np.ndarray, distance: float) -> np.ndarray:
     """(n,) bool: the chain's points within ``distance`` [mm] of any of ``points`` (m, 2)."""
     d, _ = cKDTree(points).query(chain, distance_upper_bound=distance)
