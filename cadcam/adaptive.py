@@ -56,6 +56,7 @@ from shapely.geometry.polygon import orient
 from shapely.ops import linemerge
 
 from cadcam import roughing
+from cadcam.levelskim import without_skimmed
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.roughing import RoughingOptions, zlevel_roughing
 from factory.core.errors import MeshError
@@ -215,6 +216,8 @@ def adaptive_roughing(
         shadow = roughing.part_shadows(part, [zq for z in levels for zq, _ in roughing._forbidden_terms(float(z), p)])
         _, rect = roughing._axis_rect(setup, p, None)
         spaces = tuple(roughing._level_space(float(z), rect, shadow, p) for z in levels)
+        levels, spaces = without_skimmed(part, levels, spaces, float(setup.stock_max[2]), p.skim, p.allowance,
+                                         p.radius, roughing._FLOOR_EPS)  # as the levels' own roughing does
         geometry = BandGeometry(
             levels=tuple(float(z) for z in levels), spaces=spaces, top=float(setup.stock_max[2]),
             stock=box(*setup.stock_min[:2], *setup.stock_max[:2]), axis_box=rect, allowance=p.allowance,
@@ -428,7 +431,7 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
             if routes is None:
                 log.debug("deep cut at z=%.3f: no lead-in from the air", z)
                 return None
-            for route in routes:
+            for route in _nearest_first(routes, pts):
                 # the chains are sampled finely to judge them; the moves need only their corners
                 route = shapely.get_coordinates(LineString(route).simplify(_SIMPLIFY, preserve_topology=False))
                 if inside.intersects(LineString(route)):
@@ -771,6 +774,24 @@ def _stays_down(pts: list[np.ndarray], route: np.ndarray, left: BaseGeometry, in
     if link.length > _LINK_MAX or inside.intersects(link):
         return False
     return left.is_empty or link.distance(left) >= r + gap
+def _nearest_first(routes: list[np.ndarray], pts: list[np.ndarray]) -> list[np.ndarray]:
+    """The runs ``routes`` ((m, 2) each, led in from the air and out to it) of one chain in a nearest-neighbour
+    tour from where the moves ``pts`` left the tool (the last run's end, before its lift); each run keeps its
+    direction (the climb's). The runs of a chain are apart and the whole deep cut is replayed for its engagement
+    after, so only the rapids between them change (bracket: the pass beside its corners began at the far side
+    from where the corners' pass ended, 117 mm away, and crossed the part three times more)."""
+    if len(routes) < 2 or len(pts) < 2:
+        return routes
+    left = list(routes)
+    at = pts[-2][:2]
+    tour = []
+    while left:
+        k = int(np.argmin([float(np.hypot(*(route[0] - at))) for route in left]))
+        tour.append(left.pop(k))
+        at = tour[-1][-1]
+    return tour
+
+
 def _near(chain: np.ndarray, points: np.ndarray, distance: float) -> np.ndarray:
     """(n,) bool: the chain's points within ``distance`` [mm] of any of ``points`` (m, 2)."""
     d, _ = cKDTree(points).query(chain, distance_upper_bound=distance)

@@ -83,6 +83,7 @@ from shapely.ops import nearest_points
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.restlinks import COVER_TOL, Links, Piece, cut_stacked
 from cadcam.gridregion import GrownMaskCache, near_cells
+from cadcam.levelskim import without_skimmed
 from cadcam.rest import rest_level_masks, rest_levels, rooms_round, without_holder
 from cadcam.shadow import part_shadows
 from cadcam.stock import Simulation, clear_height
@@ -139,6 +140,10 @@ class RoughingOptions:
     spring_pass : bool
         Cut the outermost loop of every region at every level a second time, after the
         region (a spring pass: the walls to size where the tool deflected). Default off.
+    skim : float
+        The top floor's level, no more than this below the stock top [mm], is left to the finishing where
+        :func:`cadcam.levelskim.without_skimmed` allows; the next level is then up to ``skim`` deeper than the
+        stepdown, never past :attr:`~cadcam.model.Tool.full_width_limit`. Default 0: every floor's level.
     """
 
     stepdown: float | None = None
@@ -149,6 +154,7 @@ class RoughingOptions:
     min_helix_diameter: float | None = None
     arc_tolerance: float = 0.002
     spring_pass: bool = False
+    skim: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -167,6 +173,7 @@ class _Params:
     link_max: float
     min_ramp_length: float
     spring_pass: bool = False
+    skim: float = 0.0
 
 
 def _resolve(options: RoughingOptions, tool: Tool, setup: Setup) -> _Params:
@@ -200,6 +207,8 @@ def _resolve(options: RoughingOptions, tool: Tool, setup: Setup) -> _Params:
     if not 0 < options.arc_tolerance <= 0.1:
         raise ToolpathError(f"arc tolerance {options.arc_tolerance:g} mm must lie in (0, 0.1]",
                             source="roughing.arc_tolerance")
+    if not options.skim >= 0:
+        raise ToolpathError(f"skim {options.skim:g} mm must be >= 0", source="roughing.skim")
     top = float(setup.stock_max[2])
     clear_z = top + float(setup.clearance)
     if setup.safe_z < clear_z:
@@ -220,6 +229,7 @@ def _resolve(options: RoughingOptions, tool: Tool, setup: Setup) -> _Params:
         link_max=max(1.5 * stepover, tool.radius),
         min_ramp_length=_MIN_RAMP_DIAMETERS * d,
         spring_pass=bool(options.spring_pass),
+        skim=max(0.0, min(float(options.skim), tool.full_width_limit - stepdown)),
     )
 
 
@@ -811,6 +821,8 @@ def zlevel_roughing(
     rest_grown = GrownMaskCache(rest.grid, p.radius, quad_segs=8) if rest is not None else None
     known = rest if air is None else air  # the holder kept off all the stock, not only this operation's target
     spaces = without_holder([_level_space(float(z), rect, shadow, p) for z in levels], levels, deep, known, tool)
+    levels, spaces = without_skimmed(part, levels, spaces, float(setup.stock_max[2]), p.skim, p.allowance, p.radius,
+                                     _FLOOR_EPS)
     if rest is not None:
         masks = rest_level_masks(rest, levels, spaces, p.radius, rest_above, p.allowance, tool.full_width_limit,
                                  rest_grown)
@@ -825,9 +837,7 @@ def zlevel_roughing(
     for li, z in enumerate(levels):
         z = float(z)
         space = _bounded(spaces[li], cleared, blocked, exclude(li) if exclude is not None else None)
-        allowed = space
-        if rest is not None:
-            allowed = allowed.intersection(rest_grown(masks[li]))
+        allowed = space if rest is None else space.intersection(rest_grown(masks[li]))
         plans, missed = _plan_entries(allowed, space, z, rect_xy, p, tool, known, air_at,
                                       None if cut_before is None else (lambda z=z: cut_before(z)))
         done_regions, failed, here = (_cut_pieces(pieces, li, plans, z, z_prev, p, air_at, here) if pieces is not None

@@ -522,6 +522,35 @@ def test_the_default_levels_take_the_stock_wide_in_less_path(name):
     assert np.all(depth <= TOOL.full_width_limit + 1e-9)
 
 
+def cut_heights(op) -> np.ndarray:
+    return np.unique(op.points[op.motion == Motion.CUT, 2].round(6))
+
+
+def test_a_skin_on_the_top_floor_within_the_skim_is_left_whole_to_the_finishing():
+    # The top floor 1 mm under the stock top, a pocket in it: its 0.7 mm level is not cut; the level under
+    # it cuts no deeper than the full-width limit; nothing is left that the level did not leave but its skin.
+    part = difference(box((2, 2, -12), (38, 28, -1)), box((10, 8, -5), (30, 22, 1)))
+    setup = make_setup()
+    plain = zlevel_roughing(part, setup, TOOL, CUTTING)
+    options = RoughingOptions(skim=1.2)
+    skimmed = zlevel_roughing(part, setup, TOOL, CUTTING, options)
+    assert -0.7 in cut_heights(plain) and -0.7 not in cut_heights(skimmed)
+    assert setup.stock_max[2] - cut_heights(skimmed).max() <= TOOL.full_width_limit + 1e-9
+    assert_no_gouge(part, skimmed, options.allowance)
+    hf, bad = simulate(skimmed, setup, options.ramp_angle)
+    assert not bad, "\n".join(bad[:5])
+    hf_plain, _ = simulate(plain, setup, options.ramp_angle)
+    assert left_beyond(hf, hf_plain).max() <= 0.7 + 0.05  # the top floor's skin, nothing deeper
+
+
+def test_the_top_level_is_kept_where_only_it_enters_a_gap():
+    # Two bosses 4 mm apart, their tops the top floor 1 mm under the stock top: the 6 mm end mill enters the
+    # gap at the top level only, so that level stays (else a rest tool would meet the gap's stock from the top).
+    part = union(box((0, 0, -12), (40, 30, -8)), box((4, 4, -8), (18, 26, -1)), box((22, 4, -8), (36, 26, -1)))
+    skimmed = zlevel_roughing(part, make_setup(), TOOL, CUTTING, RoughingOptions(skim=1.2))
+    assert -0.7 in cut_heights(skimmed)
+
+
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(random_parts(), st.floats(0.55, 0.89))
 # `make explore` found it: along the pocket's wall the two plans' loops differ by 2 um at a cell's centre
