@@ -774,6 +774,8 @@ def _stays_down(pts: list[np.ndarray], route: np.ndarray, left: BaseGeometry, in
     if link.length > _LINK_MAX or inside.intersects(link):
         return False
     return left.is_empty or link.distance(left) >= r + gap
+
+
 def _nearest_first(routes: list[np.ndarray], pts: list[np.ndarray]) -> list[np.ndarray]:
     """The runs ``routes`` ((m, 2) each, led in from the air and out to it) of one chain in a nearest-neighbour
     tour from where the moves ``pts`` left the tool (the last run's end, before its lift); each run keeps its
