@@ -58,6 +58,7 @@ from shapely.ops import linemerge
 from cadcam import roughing
 from cadcam.levelskim import without_skimmed
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
+from cadcam.restlinks import nearest_tour
 from cadcam.roughing import RoughingOptions, zlevel_roughing
 from factory.core.errors import MeshError
 
@@ -784,14 +785,8 @@ def _nearest_first(routes: list[np.ndarray], pts: list[np.ndarray]) -> list[np.n
     from where the corners' pass ended, 117 mm away, and crossed the part three times more)."""
     if len(routes) < 2 or len(pts) < 2:
         return routes
-    left = list(routes)
-    at = pts[-2][:2]
-    tour = []
-    while left:
-        k = int(np.argmin([float(np.hypot(*(route[0] - at))) for route in left]))
-        tour.append(left.pop(k))
-        at = tour[-1][-1]
-    return tour
+    order = nearest_tour([route[0] for route in routes], pts[-2][:2], [route[-1] for route in routes])
+    return [routes[i] for i in order]
 
 
 def _near(chain: np.ndarray, points: np.ndarray, distance: float) -> np.ndarray:

@@ -31,6 +31,7 @@ from cadcam.gcode import PECK_CLEARANCE
 from cadcam.heightmap import Grid, upper_envelope
 from cadcam.model import CuttingData, DrillCycle, Motion, Operation, Setup, Tool
 from cadcam.post import PostOptions, operation_move_seconds
+from cadcam.restlinks import nearest_tour
 from cadcam.tools import ToolLibrary, internal_arc_feed
 
 if TYPE_CHECKING:  # (detection needs no shapely: imported only where a keep-out is used)
@@ -544,19 +545,6 @@ def _reaches(tool: Tool, top: float, tip: float) -> bool:
     return tool.flute_length >= top - tip and tool.length > top - tip
 
 
-def _tour(points: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """Visiting order of ``points`` (k, 2), nearest neighbour first from ``start``."""
-    left = list(range(len(points)))
-    order = []
-    at = np.asarray(start, dtype=np.float64)
-    while left:
-        d = [float(np.hypot(*(points[i] - at))) for i in left]
-        i = left.pop(int(np.argmin(d)))
-        order.append(i)
-        at = points[i]
-    return np.array(order, dtype=np.int64)
-
-
 def plan_holes(
     part: trimesh.Trimesh,
     setup: Setup,
@@ -797,7 +785,7 @@ def _spot_operation(drilled: dict[int, list[tuple[Hole, float]]], spot: Tool, li
     each spot ``spot_share`` of its drill wide (at most the spot drill's size) [mm]."""
     targets = [(h, library.tool(n)) for n, hs in drilled.items() for h, _ in hs]
     xy = np.array([[h.x, h.y] for h, _ in targets])
-    order = _tour(xy, origin)
+    order = nearest_tour(xy, origin)
     rows = []
     for i in order:
         h, drill = targets[i]
@@ -830,7 +818,7 @@ def _drill_operations(drilled: dict[int, list[tuple[Hole, float]]], library: Too
             rows_by_code.setdefault(code, []).append((h.x, h.y, tip_z))
         for code in sorted(rows_by_code):
             rows = np.array(rows_by_code[code])
-            rows = rows[_tour(rows[:, :2], origin)]
+            rows = rows[nearest_tour(rows[:, :2], origin)]
             peck = library.peck_depth(drill, mat) if code == 83 else 0.0
             cycle = DrillCycle(code=code, holes=rows, r_plane=r_plane, peck=peck, retract="r", initial_z=initial)
             name = f"{'peck ' if code == 83 else ''}drill {drill.diameter:g} mm"

@@ -28,6 +28,23 @@ from cadcam.stock import Simulation, clear_height
 COVER_TOL = 1e-5
 
 
+def nearest_tour(starts: np.ndarray, start: np.ndarray, ends: np.ndarray | None = None) -> np.ndarray:
+    """Visiting order of items that begin at XY ``starts`` (k, 2) [mm], nearest first from ``start``: each
+    next item is the one whose start is nearest to where the last ended (``ends`` (k, 2); points, which end
+    where they begin, by default). A greedy tour: the holes of a drill, the runs of a deep cut."""
+    starts = np.asarray(starts, dtype=np.float64)
+    ends = starts if ends is None else np.asarray(ends, dtype=np.float64)
+    left = list(range(len(starts)))
+    order = []
+    at = np.asarray(start, dtype=np.float64)
+    while left:
+        d = [float(np.hypot(*(starts[i] - at))) for i in left]
+        i = left.pop(int(np.argmin(d)))
+        order.append(i)
+        at = ends[i]
+    return np.array(order, dtype=np.int64)
+
+
 @dataclass(frozen=True)
 class Piece:
     """One region's moves at one level, cut on their own.
