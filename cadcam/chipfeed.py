@@ -57,10 +57,16 @@ def chained_chip_feeds(ops: Sequence[Operation], stock: Simulation | None, setup
               and len(op.points) >= 2]
     if not judged:
         return list(ops)
-    cut = cut_stock(operation_moves(judged), {op.tool.number: op.tool for op in judged}, setup, part_triangles,
-                    CHIP_CELL, start=None if stock is None else _finer(stock, setup, CHIP_CELL))
+    moves, tools = operation_moves(judged), {op.tool.number: op.tool for op in judged}
     share = np.zeros(sum(len(op.points) for op in judged))  # the thickest chip of the move ending at each point
-    np.maximum.at(share, cut.segments.move, cut.met.chip)
+    # A strip of stock narrower than a cell can fall between one grid's points and read as air, while a
+    # verify grid of another phase or cell has a point in it and measures the chip the raised feed makes
+    # there (two floor loops 0.85 D apart leave such a strip). Measured on two grids half a cell apart, any
+    # strip wider than half a cell holds a point of one of them.
+    for placed in (setup, _shifted(setup, 0.5 * CHIP_CELL)):
+        cut = cut_stock(moves, tools, placed, part_triangles, CHIP_CELL,
+                        start=None if stock is None else _finer(stock, placed, CHIP_CELL))
+        np.maximum.at(share, cut.segments.move, cut.met.chip)
     first = np.cumsum([0] + [len(op.points) for op in judged])
     fed = {id(op): _raised(op, share[a:b], max_feed) for op, a, b in zip(judged, first[:-1], first[1:])}
     return [fed.get(id(op), op) for op in ops]
@@ -127,6 +133,15 @@ def _nearby_max(points: np.ndarray, share: np.ndarray, reach: float) -> np.ndarr
     for i in np.flatnonzero(hi - lo > 1):
         out[i] = share[lo[i]:hi[i]].max()
     return out
+
+
+def _shifted(setup: Setup, by: float) -> Setup:
+    """``setup`` with its stock box moved ``by`` [mm] along X and Y: its grid's points (:func:`grid_over`) fall
+    ``by`` from the setup's own. The box's sides move by ``by`` too; each move keeps the larger chip of the two
+    grids, so what the moved sides miss is still read on the setup's own grid."""
+    step = np.array([by, by, 0.0])
+    return dataclasses.replace(setup, stock_min=np.asarray(setup.stock_min) + step,
+                               stock_max=np.asarray(setup.stock_max) + step)
 
 
 def _finer(stock: Simulation, setup: Setup, cell: float) -> FlippedStock:

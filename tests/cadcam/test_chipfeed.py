@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import trimesh
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from cadcam.chipfeed import FEED_STEP, chained_chip_feeds, chip_feeds
@@ -140,3 +140,29 @@ def test_a_helix_through_a_bore_cut_before_is_raised_past_one_into_the_solid():
     down = Operation("down", "roughing", MILL, NOMINAL, np.array([[35, 35, 5.0], [35, 35, 1], [35, 35, -2]]),
                      np.array([Motion.RAPID, Motion.RAPID, Motion.PLUNGE], np.int8))
     assert chip_feeds(down, None, BIG, CORNER, MAX_FEED).move_feeds()[2] == NOMINAL.plunge_feed
+
+
+def verdict_on(ops, setup: Setup, part: np.ndarray, cell: float):
+    text = post_process(Job(part_name="p", setup=setup, operations=tuple(ops)), PostOptions()).text
+    return simulate(parse_gcode(text), {MILL.number: MILL}, setup, part, VerifyOptions(cell=cell),
+                    chips={MILL.number: ChipLoad(FZ, RPM)}).report
+
+
+@settings(max_examples=8, deadline=None)
+@given(st.floats(30.0, 31.0), st.floats(0.11, 0.19), st.sampled_from([0.2, 0.5]))
+@example(30.71, 0.15, 0.5)  # the strip between the 0.2 mm grid's points 30.7 and 30.9, round the 0.5 mm grid's 30.75
+def test_a_strip_narrower_than_a_cell_between_two_passes_is_met_at_its_chip(start, width, cell):
+    """Two slots leave a strip of stock ``width`` [mm] wide (less than the model's 0.2 mm cell) between them, as
+    floor loops 0.85 D apart do; a third pass sweeps it. However the strip falls between the planner's grid points,
+    the third pass is not raised past the chip the strip gives it: verify on either grid finds no chip fault."""
+    def through(name: str, y: float) -> Operation:  # across the whole block, in and out in the air
+        pts = np.array([[-8, y, 10], [-8, y, -4], [68, y, -4], [68, y, 10]], float)
+        return Operation(name, "roughing", MILL, NOMINAL, pts,
+                         np.array([Motion.RAPID, Motion.PLUNGE, Motion.CUT, Motion.RAPID], np.int8))
+
+    under = through("under", start - MILL.radius)  # clears up to Y = start
+    over = through("over", start + width + MILL.radius)  # clears from Y = start + width
+    across = through("across", start + 0.5 * width + 0.5 * MILL.radius)  # meets the strip half a radius off its axis
+    fed = chained_chip_feeds([under, over, across], None, BIG, CORNER, MAX_FEED)
+    report = verdict_on(fed, BIG, CORNER, cell)
+    assert report.ok, [f.message for f in report.faults]
