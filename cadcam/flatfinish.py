@@ -48,8 +48,11 @@ from cadcam.stock import Simulation, excess
 from factory.core.errors import ToolError
 
 
-#: Default stepover of floor finishing, a share of the diameter.
-FLOOR_STEPOVER = 0.7
+#: Default stepover of floor finishing, a share of the diameter. A flat end mill's flat bottom leaves no cusp
+#: at any step under its diameter; 0.85 still overlaps the last loop by 0.15 D (1.5 mm on a 10 mm tool) and takes
+#: a floor in fewer loops than a machinist's customary 60-75 % (issue 32: bracket's floors 33.6 -> 31.9 s, its
+#: finishing rapids 18.0 -> 15.8 s). A shallow cut, so any width of it is within the library's limits.
+FLOOR_STEPOVER = 0.85
 #: Stock closer than this beside a wall [mm] is the hair the finishing allowance and the stock
 #: model's sampling leave (a grid point a micron off a finished wall reads as the whole wall's
 #: height), not a skin to finish: well under roughing's allowance, well over the finishing one.
@@ -70,8 +73,8 @@ class FlatFinishOptions:
     rest_above : float
         Stock over the part thinner than this is taken as finished [mm].
     stepover : float, optional
-        Radial step between loops [mm]; default :data:`FLOOR_STEPOVER` of the diameter (a
-        machinist's 60-75 % on floors), at most 90 % of it.
+        Radial step between loops [mm]; default :data:`FLOOR_STEPOVER` of the diameter, at most 90 %
+        of it.
     ramp_angle : float
         Helix and ramp entries [deg].
     spring_pass : bool
