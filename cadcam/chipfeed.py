@@ -7,8 +7,9 @@ engagement), and much of a flats-and-walls pass crosses stock cut away already. 
 cutting move runs at the library's feed per tooth over that sine, capped by the machine's feed.
 
 The engagement is the one the planner knows: the pass is cut (:func:`cadcam.stock.cut_stock`) into the stock
-model before it, laid on verify's grid (:data:`CHIP_CELL`), each fine point as high as the
-highest of the four coarse points round it, so that the stock between the model's points, which the tool may
+model before it, laid on verify's grid (:data:`CHIP_CELL`) and on a second grid half a cell off it (a strip of
+stock narrower than a cell can fall between one grid's points; each move keeps the larger chip), each fine point as
+high as the highest of the four coarse points round it, so that the stock between the model's points, which the tool may
 meet, is there (beside a wall that reads a skin up to a coarse cell thicker: slower, never faster); each move's
 chip is read as verify reads it (``MoveRecord.chip``), the largest of the moves within the tool's radius along
 the path (a move shorter than a cell reaches no new grid point and would read as air).

@@ -11,7 +11,7 @@ machining over the stock earlier operations left, with:
 * **levels** at every flat face's height (plus a hair, :attr:`FlatFinishOptions.allowance`,
   so that the face itself does not block the tool) and at most a flute length apart down
   the walls;
-* **stepover** 70 % of the diameter on the floors (the loops z-level clearing adds where that
+* **stepover** :data:`FLOOR_STEPOVER` of the diameter on the floors (the loops z-level clearing adds where that
   would leave islands cut them) and no allowance on walls: the outermost loop of each level's
   region follows the walls above it at exactly the tool radius, a flank pass over the whole
   height between two levels;

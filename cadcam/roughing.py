@@ -29,7 +29,7 @@ cleared with contour-parallel offset loops. The pieces:
   empty; every ring of every erosion is one closed loop. With ``stepover <= R`` every
   point of the region is within ``R`` of a loop, so the whole region and its
   ``R``-neighbourhood is cleared: the next level can rely on that. A wider stepover (up to
-  just under ``D``: finishing floors at 60-75 %) leaves cusps between loops, in corners and
+  just under ``D``: finishing floors at 85 %) leaves cusps between loops, in corners and
   along the middle of narrow parts more than ``R`` from every loop; those gaps get loops of
   their own (:func:`_gap_rings`), so the property holds for any stepover.
 * **Entry**: a region touching the outside of the stock is entered from the air: the tool

@@ -23,20 +23,20 @@ SETUP = Setup(stock_min=[0, 0, -10], stock_max=[40, 20, 0], transform_mesh_to_wo
 PART = trimesh.creation.box(bounds=[[0, 0, -10], [40, 10, 0]]).triangles  # a wall along X at Y 10
 
 
-def pass_along(y: float, z: float = -4.0) -> np.ndarray:
-    """From the air at the left, along X at ``y``, out into the air at the right: (points, motion)."""
-    pts = np.array([[-8, y, 10], [-8, y, z], [48, y, z], [48, y, 10]], float)
+def pass_along(y: float, z: float = -4.0, x_end: float = 48.0) -> np.ndarray:
+    """From the air at the left, along X at ``y`` to ``x_end``, out into the air at the right: (points, motion)."""
+    pts = np.array([[-8, y, 10], [-8, y, z], [x_end, y, z], [x_end, y, 10]], float)
     return pts, np.array([Motion.RAPID, Motion.PLUNGE, Motion.CUT, Motion.RAPID], np.int8)
 
 
-def op(name: str, y: float, kind: str = "roughing") -> Operation:
-    pts, mot = pass_along(y)
+def op(name: str, y: float, kind: str = "roughing", x_end: float = 48.0) -> Operation:
+    pts, mot = pass_along(y, x_end=x_end)
     return Operation(name, kind, MILL, NOMINAL, pts, mot)
 
 
-def verdict(ops):
-    text = post_process(Job(part_name="p", setup=SETUP, operations=tuple(ops)), PostOptions()).text
-    report = simulate(parse_gcode(text), {MILL.number: MILL}, SETUP, PART, VerifyOptions(cell=0.2),
+def verdict(ops, setup: Setup = SETUP, part: np.ndarray = PART, cell: float = 0.2):
+    text = post_process(Job(part_name="p", setup=setup, operations=tuple(ops)), PostOptions()).text
+    report = simulate(parse_gcode(text), {MILL.number: MILL}, setup, part, VerifyOptions(cell=cell),
                       chips={MILL.number: ChipLoad(FZ, RPM)}).report
     return text, report
 
@@ -142,12 +142,6 @@ def test_a_helix_through_a_bore_cut_before_is_raised_past_one_into_the_solid():
     assert chip_feeds(down, None, BIG, CORNER, MAX_FEED).move_feeds()[2] == NOMINAL.plunge_feed
 
 
-def verdict_on(ops, setup: Setup, part: np.ndarray, cell: float):
-    text = post_process(Job(part_name="p", setup=setup, operations=tuple(ops)), PostOptions()).text
-    return simulate(parse_gcode(text), {MILL.number: MILL}, setup, part, VerifyOptions(cell=cell),
-                    chips={MILL.number: ChipLoad(FZ, RPM)}).report
-
-
 @settings(max_examples=8, deadline=None)
 @given(st.floats(30.0, 31.0), st.floats(0.11, 0.19), st.sampled_from([0.2, 0.5]))
 @example(30.71, 0.15, 0.5)  # the strip between the 0.2 mm grid's points 30.7 and 30.9, round the 0.5 mm grid's 30.75
@@ -155,14 +149,11 @@ def test_a_strip_narrower_than_a_cell_between_two_passes_is_met_at_its_chip(star
     """Two slots leave a strip of stock ``width`` [mm] wide (less than the model's 0.2 mm cell) between them, as
     floor loops 0.85 D apart do; a third pass sweeps it. However the strip falls between the planner's grid points,
     the third pass is not raised past the chip the strip gives it: verify on either grid finds no chip fault."""
-    def through(name: str, y: float) -> Operation:  # across the whole block, in and out in the air
-        pts = np.array([[-8, y, 10], [-8, y, -4], [68, y, -4], [68, y, 10]], float)
-        return Operation(name, "roughing", MILL, NOMINAL, pts,
-                         np.array([Motion.RAPID, Motion.PLUNGE, Motion.CUT, Motion.RAPID], np.int8))
-
-    under = through("under", start - MILL.radius)  # clears up to Y = start
-    over = through("over", start + width + MILL.radius)  # clears from Y = start + width
-    across = through("across", start + 0.5 * width + 0.5 * MILL.radius)  # meets the strip half a radius off its axis
+    # each pass across the whole 60 mm block, in and out in the air
+    under = op("under", start - MILL.radius, x_end=68.0)  # clears up to Y = start
+    over = op("over", start + width + MILL.radius, x_end=68.0)  # clears from Y = start + width
+    # meets the strip half a radius off its axis
+    across = op("across", start + 0.5 * width + 0.5 * MILL.radius, x_end=68.0)
     fed = chained_chip_feeds([under, over, across], None, BIG, CORNER, MAX_FEED)
-    report = verdict_on(fed, BIG, CORNER, cell)
+    report = verdict(fed, BIG, CORNER, cell)[1]
     assert report.ok, [f.message for f in report.faults]
