@@ -27,9 +27,11 @@ It makes the program a machinist makes in the Path workbench (issue 32's peer):
 3. **Wall profiles**: the part's contour (Profile at its defaults: outside, climb, step-down = the
    tool diameter) from the stock top down to op 1's floor; not the inner walls (:func:`profile`).
 4. **A 3D surface** (Surface, OpenCAMLib's drop-cutter) with the ball over the model, kept to the
-   box of its freeform faces (neither flat nor vertical) grown by the ball's radius by FreeCAD's
-   Boundary dressup, at ``ball_stepover`` and FreeCAD's other defaults (lines along X, 1 mm sample
-   interval, one pass; ``ball_stepdown`` makes it "Multi-pass").
+   box of its freeform faces (neither flat nor vertical) grown by the ball's radius by its own
+   region (the stock's outline drawn in by BoundaryAdjustment) and down to that region's lowest
+   face, at ``ball_stepover`` and FreeCAD's other defaults (lines along X, 1 mm sample interval,
+   one pass; ``ball_stepdown`` makes it "Multi-pass", its layers lifting over what the layers
+   above cut: OptimizeStepOverTransitions).
 Then FreeCAD's LinuxCNC post writes the program, and each group of operations on its own to
 ``gcode`` with ``.adaptive``/``.face``/``.profile``/``.surface`` before the suffix. It prints one
 JSON line: ``{"ops": [...], "commands": n, "seconds": wall time of FreeCAD's computation}``.
@@ -194,37 +196,46 @@ def face_pass(k, z, group):
 
 
 def surface():
-    """3D surface with the ball over the model, kept to the freeform faces' box (drop-cutter lines, FreeCAD's
-    defaults but the stepover), and the Boundary dressup that keeps it there.
+    """3D surface with the ball over the freeform faces' box (drop-cutter lines, FreeCAD's defaults but the stepover,
+    the region and the final depth). Returns the operation and the number of freeform faces.
 
     A machinist picks the dome's face; the part here comes from a mesh, whose dome is some 9,000 triangles,
-    and FreeCAD fuses selected faces first (it ran past 15 minutes). So the surface runs over the whole model
-    and a Boundary dressup (FreeCAD's own) keeps the lines over the freeform faces' box grown by the ball's
-    radius. Returns the dressup and the number of freeform faces.
+    and FreeCAD fuses selected faces first (it ran past 15 minutes), and with "BaseBoundBox" it projects every
+    face of the model (PathSurfaceSupport._preProcessEntireBase, PathUtils.getEnvelope), which ran for minutes
+    before a line was dropped. So the surface scans the stock's outline ("Stock"), drawn in by its own
+    BoundaryAdjustment to the freeform faces' box grown by the ball's radius (the smallest of the four margins:
+    on the dome, centred in its stock, exactly that box; elsewhere a larger region, which lengthens FreeCAD's
+    program, not ours). Not FreeCAD's Boundary dressup on the whole stock's lines, which does two solid booleans
+    per move (on the safe program's 182,350 moves still at work after 7 minutes; last session the whole job did
+    not finish in 50) and turns the rapids that cross its box into feeds (4.6 of the full surface's 13.3 min).
+    The final depth is the lowest of the region's faces that are not walls, the one FreeCAD sets from the faces
+    a machinist picks (on dome_mould -16 mm, not the part's bottom, so "Multi-pass" makes no layers below it).
     """
-    import PathScripts.PathDressupPathBoundary as PathDressupPathBoundary
     import PathScripts.PathSurface as PathSurface  # needs ``ocl``: imported only when there is a ball
 
     freeform = [f for f in faces if WALL < abs(f.normalAt(0, 0).z) < FLAT]
+    radius = tools[args["ball"]]["diameter"] / 2
+    box = Part.makeCompound(freeform).BoundBox
+    box.enlarge(radius)
+    inset = max(0.0, min(box.XMin - lo[0], hi[0] - box.XMax, box.YMin - lo[1], hi[1] - box.YMax))
+    region = [f for f in faces if abs(f.normalAt(0, 0).z) > WALL and box.isInside(f.BoundBox)]
     op = created(PathSurface, "Surface", args["ball"])
     op.StepOver = 100.0 * float(args["ball_stepover"]) / tools[args["ball"]]["diameter"]
-    # The scan's region from the stock box, not the model's silhouette: with "BaseBoundBox" FreeCAD projects every
-    # face of the model (PathSurfaceSupport._preProcessEntireBase, PathUtils.getEnvelope), which on the dome's
-    # 10,958 triangles ran for minutes before a line was dropped. The lines still follow the model and the Boundary
-    # dressup below keeps them over the freeform faces; the final depth stays the model's bottom, as it was.
     op.BoundBox = "Stock"
-    set_depths(op, FinalDepth=bottom)
+    # With BoundaryEnforcement (FreeCAD's default) the ball's centre keeps the radius and the tessellation's
+    # tolerance (PathSurfaceSupport._calculateOffsetValue) inside the outline moved out by BoundaryAdjustment.
+    op.BoundaryEnforcement = True
+    tolerance = max(job.GeometryTolerance.Value / 10.0, op.LinearDeflection.Value)
+    op.BoundaryAdjustment = radius + tolerance - inset
+    set_depths(op, FinalDepth=min(f.BoundBox.ZMin for f in region))
     if args.get("ball_stepdown"):
         op.LayerMode = "Multi-pass"
         set_depths(op, StepDown=float(args["ball_stepdown"]))
-    bound = Part.makeCompound(freeform).BoundBox
-    grow = tools[args["ball"]]["diameter"] / 2
-    keep = PathDressupPathBoundary.Create(op, "SurfaceBoundary")
-    doc.removeObject(keep.Stock.Name)
-    keep.Stock = PathStock.CreateBox(
-        job, FreeCAD.Vector(bound.XLength + 2 * grow, bound.YLength + 2 * grow, hi[2] - lo[2] + 20.0),
-        FreeCAD.Placement(FreeCAD.Vector(bound.XMin - grow, bound.YMin - grow, lo[2] - 10.0), FreeCAD.Rotation()))
-    return op, keep, len(freeform)
+        # Each layer lifts over what the layers above cut ("hold points") instead of feeding along the surface
+        # again: without it every layer re-cut the whole top at feed (dome_mould: 131 min of surface, not 75).
+        # It also leaves more in the corner pockets (verify: 10.3 mm, not 5.4): FreeCAD's program the shorter.
+        op.OptimizeStepOverTransitions = True
+    return op, len(freeform)
 
 
 cuts = [section(k, z) for k, (_, z) in enumerate(bands)]
@@ -234,11 +245,10 @@ groups = {
              for k, z in enumerate(levels) if any(abs(f.BoundBox.ZMax - z) < 1e-3 for f in flats)],
     "profile": [profile(cuts[-1])],
 }
-freeform, posted_as = 0, {}
+freeform = 0
 if args.get("ball") is not None:
-    op, keep, freeform = surface()
+    op, freeform = surface()
     groups["surface"] = [op]
-    posted_as[op.Name] = keep
 job.Tools.Group = list(controllers.values())
 doc.recompute()
 ops = [op for group in groups.values() for op in group]
@@ -251,7 +261,7 @@ def posted(path, selected):
         if op.ToolController is not current:
             current = op.ToolController
             items.append(current)
-        items.append(posted_as.get(op.Name, op))
+        items.append(op)
     linuxcnc_post.export(items, path, "--no-show-editor")
 
 
