@@ -14,11 +14,11 @@ benchmarks/freecad_peer_job.py says why) with our first flats-and-walls finishin
 with that ball at our raster's stepover over the freeform faces' box grown by the ball's radius (the
 Surface's own region: the stock's outline drawn in by its BoundaryAdjustment; down to the region's
 lowest face, the final depth FreeCAD sets from picked faces; not a Boundary dressup, which on the
-safe program's 182,000 moves was still at work after 7 minutes and turns rapids crossing it into feeds). On such parts (the
-dome) it also makes the program "made safe" (the issue's target compares against it): the Adaptive
-lifts :data:`SAFE_LIFT_MM` on its links and the surface goes down in layers
-:data:`SAFE_BALL_STEPDOWN_MM` apart, each lifting over what the layers above cut (FreeCAD's
-OptimizeStepOverTransitions). FreeCAD's LinuxCNC post writes the programs.
+safe program's 182,000 moves was still at work after 7 minutes and turns rapids crossing its box
+into feeds). On such parts (the dome) it also makes the program "made safe" (the issue's target
+compares against it): the Adaptive lifts :data:`SAFE_LIFT_MM` on its links and the surface goes
+down in layers :data:`SAFE_BALL_STEPDOWN_MM` apart, each lifting over what the layers above cut
+(FreeCAD's OptimizeStepOverTransitions). FreeCAD's LinuxCNC post writes the programs.
 
 Both programs are timed by our program timer, the one the plan's cycle time is
 (:func:`program_minutes`: :func:`cadcam.gcode.parse_gcode`, then
