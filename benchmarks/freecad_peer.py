@@ -3,8 +3,8 @@
     python benchmarks/freecad_peer.py [PART.stl ...] [--cell 0.5] [--keep DIR] [--timeout 900]
 
 For each part (default: the four samples but the relief) op 1 is planned as
-``factory plan --no-robot --ops 1`` plans it (:func:`cadcam.plan.plan_job`, tools from
-fixtures/tools.yaml) and posted for LinuxCNC. FreeCAD's Path workbench (run headless by Debian's
+``factory plan --no-robot`` plans and posts it (:func:`factory.plan.plan_part`, two operations, tools from
+fixtures/tools.yaml, LinuxCNC): the program a machinist runs, on the stock that leaves op 2 its holding block. FreeCAD's Path workbench (run headless by Debian's
 ``freecadcmd``, benchmarks/freecad_peer_job.py) then makes the issue's program for the same stock
 with op 1's tools, spindle speeds, feeds and plunge feeds (:func:`peer_tools`): Adaptive clearing
 with our roughing tool at its defaults (20 % stepover, helix at 5 degrees, no lift on links,
@@ -45,6 +45,7 @@ does not find it is reported as failed.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib.util
 import json
 import os
@@ -64,13 +65,11 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.adaptive import lower_bound  # noqa: E402
 from cadcam.finishing import stepover_for  # noqa: E402
 from cadcam.gcode import parse_gcode  # noqa: E402
-from cadcam.mesh import load_part  # noqa: E402
 from cadcam.model import Motion, Operation, ProgramMoves, Setup, Tool  # noqa: E402
-from cadcam.plan import PlanOptions, plan_job  # noqa: E402
-from cadcam.post import PostOptions, post_process  # noqa: E402
-from cadcam.setup import make_setup  # noqa: E402
+from cadcam.plan import PlanOptions  # noqa: E402
+from cadcam.post import PostOptions  # noqa: E402
 from cadcam.timeline import machine_timeline  # noqa: E402
-from cadcam.tools import load_tool_library  # noqa: E402
+from factory.plan import PlanRequest, plan_part  # noqa: E402
 from cadcam.verify import VerifyOptions, simulate  # noqa: E402
 from factory.core.errors import GcodeError  # noqa: E402
 from tests.cadcam.sweep import sweep_moves  # noqa: E402
@@ -242,13 +241,13 @@ def peer_row(freecad: str, triangles: np.ndarray, setup: Setup, peer: PeerTools,
 
 
 def bench_part(path: Path, freecad: str, cell: float, keep: Path | None = None, timeout: float = 900.0) -> dict:
-    library = load_tool_library()
-    setup, part = make_setup(load_part(path).mesh)
+    # Op 1 exactly as `factory plan --no-robot` posts it (two operations: op 1 on the stock that leaves op 2 its
+    # holding block), so the figure is the program a machinist would run, not a one-operation variant of it.
     t0 = time.process_time()
-    job = plan_job(part, setup, library, part_name=path.stem).job
+    plan = plan_part(dataclasses.replace(PlanRequest.defaults(path, "aluminium"), robot=False))
     plan_cpu = time.process_time() - t0
-    setup = job.setup  # a deep part's floor is raised for op 2
-    program = post_process(job, PostOptions())
+    job, program, part = plan.planned.job, plan.program, plan.planned.part_work
+    setup = job.setup  # op 1's stock and floor: FreeCAD gets the same
     tools = {t.number: t for t in job.tools}
     triangles = np.asarray(part.triangles, dtype=np.float64)
     peer = peer_tools(job)
