@@ -83,7 +83,7 @@ from shapely.ops import nearest_points
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.restlinks import COVER_TOL, Links, Piece, cut_stacked
 from cadcam.gridregion import GrownMaskCache, near_cells
-from cadcam.levelskim import without_skimmed
+from cadcam.levelskim import local_levels, without_skimmed
 from cadcam.rest import rest_level_masks, rest_levels, rooms_round, without_holder
 from cadcam.shadow import part_shadows
 from cadcam.stock import Simulation, clear_height
@@ -826,6 +826,11 @@ def zlevel_roughing(
     if rest is not None:
         masks = rest_level_masks(rest, levels, spaces, p.radius, rest_above, p.allowance, tool.full_width_limit,
                                  rest_grown)
+        reach = None
+    else:  # a floor's level just above the next one is cut only round that floor (cadcam.levelskim)
+        reach = local_levels(levels, spaces, float(setup.stock_max[2]), p.stepdown, p.radius,
+                             None if exclude is None else [exclude(li) for li in range(len(levels))])
+        spaces = reach.spaces
     air_at = None if known is None else (lambda xy: clear_height(known, tool, xy))
     path = _Path()
     cleared: BaseGeometry | None = None  # None: nothing was ever skipped
@@ -836,6 +841,8 @@ def zlevel_roughing(
     pieces: list[Piece] | None = [] if known is not None else None  # rest machining's, cut stack by stack
     for li, z in enumerate(levels):
         z = float(z)
+        if reach is not None:
+            z_prev = reach.floor_above[li]
         space = _bounded(spaces[li], cleared, blocked, exclude(li) if exclude is not None else None)
         allowed = space if rest is None else space.intersection(rest_grown(masks[li]))
         plans, missed = _plan_entries(allowed, space, z, rect_xy, p, tool, known, air_at,
@@ -845,7 +852,7 @@ def zlevel_roughing(
         skipped += len(missed) + len(failed)
         if rest is not None:
             blocked += [region.buffer(2 * p.radius, quad_segs=4) for region in missed + failed]
-        if rest is None and (skipped or cleared is not None):
+        if rest is None and (skipped or cleared is not None) and not reach.local[li]:
             cleared = shapely.union_all(done_regions) if done_regions else Polygon()
         if path.points:
             path.go_to(path.here[:2], p)
