@@ -15,7 +15,7 @@ level in between is cut only where the one below cannot reach: round the floor i
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,7 +75,7 @@ class LevelReach:
 
 
 def local_levels(levels: np.ndarray, spaces: Sequence[BaseGeometry], top: float, stepdown: float, radius: float,
-                 taken: Sequence[BaseGeometry | None] | None = None) -> LevelReach:
+                 taken: Callable[[int], BaseGeometry | None] | None = None) -> LevelReach:
     """Which roughing ``levels`` (top down, [mm]) to cut only where the next whole level cannot reach.
 
     A level ``k`` is local when the next whole level ``j`` below it lies no more than ``stepdown`` [mm] under
@@ -83,11 +83,10 @@ def local_levels(levels: np.ndarray, spaces: Sequence[BaseGeometry], top: float,
     one step, within the depth any level may take at full width, and ``k`` need clear only the stock within
     the tool ``radius`` of its region ``spaces[k]`` that is not within ``radius`` of ``spaces[j]`` (to
     :data:`SKIM_TOL`: the floors and bosses ``j``'s shadow keeps it from), with every tool centre within
-    ``radius`` of that stock, and the areas deep cuts take from the next level down (``taken[k + 1]``: a deep cut
+    ``radius`` of that stock, and the areas deep cuts take from the next level down (``taken(k + 1)``: a deep cut
     starts from the floor of the level above its band, so that floor is cut over it). Only where the local region
     is at most :data:`LOCAL_SHARE` of the level's. The last level is always whole."""
     n = len(levels)
-    taken = [None] * n if taken is None else list(taken)
     out, floor_above, local = list(spaces), [float(top)] * n, [False] * n
     hi, k = float(top), 0
     while k < n:
@@ -98,7 +97,7 @@ def local_levels(levels: np.ndarray, spaces: Sequence[BaseGeometry], top: float,
         if j > k:
             reach = spaces[j].buffer(radius + SKIM_TOL, quad_segs=8)
             missed = spaces[k].buffer(radius, quad_segs=8).difference(reach)
-            deep = taken[k + 1]  # deep cuts whose band starts under this level start from its floor
+            deep = taken(k + 1) if taken is not None else None  # a deep cut starting under it starts from its floor
             keep = missed.buffer(radius + SKIM_TOL, quad_segs=8)
             if deep is not None:
                 keep = keep.union(deep.buffer(radius + SKIM_TOL, quad_segs=8))
