@@ -646,7 +646,8 @@ def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulati
                                                              within=within,
                                                              cut_before=plan.cut_before))
         if len(op.points) > 1:
-            operations.append(op)
+            operations.append(plan.timed("chip feeds", lambda: chip_feeds(op, stock, setup, plan.triangles,
+                                                                          library.max_feed)))
             stock = plan.model(operations)
     for tool in rest_tools(library, plan.rough_tool, float(setup.stock_max[2] - setup.floor_z)):
         if not (excess(stock, allowance) > limit).any():
@@ -671,7 +672,9 @@ def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulati
                 stock = plan.model(operations)
                 op = levels(stock)
         if len(op.points) > 1:
-            operations.append(op)
+            # its helices at the chip they cut (round a drilled hole, a side cut), its light cuts faster
+            operations.append(plan.timed("chip feeds", lambda: chip_feeds(op, stock, setup, plan.triangles,
+                                                                          library.max_feed)))
             stock = plan.model(operations)
     return stock
 
