@@ -116,7 +116,11 @@ def _ramp_feeds(op: Operation, want: np.ndarray, max_feed: float) -> np.ndarray:
     ramp = np.r_[False, (op.motion[1:] == Motion.PLUNGE) & (across > 1e-6) & (-step[:, 2] <= RAMP_SLOPE * across)]
     if not ramp.any():
         return out
+    # the steps climb from the plunge feed; the operation's own feed is a step too: a helix into the solid, its
+    # chip the full fz there, runs at the feed of a full-width cut, not at the step under it (1.25 x slower at most)
     feed = _ladder(want, c.plunge_feed, max_feed)
+    full = c.spindle_rpm * op.tool.flutes * c.chip_load  # the feed at which a full-width chip is fz
+    feed = np.where(want >= full * (1 - 1e-9), np.maximum(feed, min(c.feed, max_feed)), feed)
     fast = ramp & (feed > c.plunge_feed * (1 + 1e-9))
     out[fast] = feed[fast]
     return out
