@@ -50,10 +50,10 @@ import numpy as np
 import shapely
 import trimesh
 from scipy.spatial import cKDTree
-from shapely.geometry import LineString, MultiLineString, Polygon, box
+from shapely.geometry import LineString, MultiLineString, Point, Polygon, box
 from shapely.geometry.base import BaseGeometry
 from shapely.geometry.polygon import orient
-from shapely.ops import linemerge
+from shapely.ops import linemerge, substring
 
 from cadcam import roughing
 from cadcam.levelskim import without_skimmed
@@ -426,6 +426,7 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
     beta = max(math.radians(0.5), 0.5 * (math.acos(1 - min(limit, tool.diameter) / r)
                                          - math.acos(1 - min(step, tool.diameter) / r)))
     inside = walls.buffer(-1e-4)
+    air_box = g.stock.buffer(r + _AIR_GAP, join_style="mitre")  # a tool centre on or outside it is in the air
     for ring in passes[::-1]:
         for chain, kept in ring:
             routes = _runs(chain, kept, left, r, beta)
@@ -438,7 +439,8 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
                 if inside.intersects(LineString(route)):
                     log.debug("deep cut at z=%.3f: a lead-in crosses the part", z)
                     return None
-                _emit(pts, mot, route, z, g, _stays_down(pts, route, left, inside, r))
+                _emit(pts, mot, route, z, g, _stays_down(pts, route, left, inside, r, around=air_box,
+                                                         rise=2 * (g.clear_z - z)))
                 left = left.difference(LineString(route).buffer(r, quad_segs=16))
     if not pts:
         return None
@@ -738,14 +740,16 @@ def _oriented(line: LineString, walls: BaseGeometry) -> np.ndarray:
 
 
 def _emit(pts: list[np.ndarray], mot: list[int], route: np.ndarray, z: float, g: BandGeometry,
-          linked: bool = False) -> None:
-    """One run at ``z``: fed straight on from where the last one ended (``linked``), else from a rapid over its
-    start down in the air; it ends back up at ``g.clear_z`` (taken back off when the next run links on)."""
-    if linked:
+          link: np.ndarray | None = None) -> None:
+    """One run at ``z``: fed on from where the last one ended through the corners ``link`` (k, 2) [mm] (none: straight
+    on), or with ``link`` None from a rapid over its start down in the air; it ends back up at ``g.clear_z`` (taken
+    back off when the next run links on)."""
+    if link is not None:
         pts.pop()  # stay down: the last run's lift
         mot.pop()
-        pts.append(np.array([*route[0], z]))
-        mot.append(int(Motion.CUT))
+        for q in (*link, route[0]):
+            pts.append(np.array([*q, z]))
+            mot.append(int(Motion.CUT))
     else:
         pts.append(np.array([*route[0], g.clear_z]))
         mot.append(int(Motion.RAPID))
@@ -763,18 +767,41 @@ def _emit(pts: list[np.ndarray], mot: list[int], route: np.ndarray, z: float, g:
 
 
 def _stays_down(pts: list[np.ndarray], route: np.ndarray, left: BaseGeometry, inside: BaseGeometry,
-                r: float, gap: float = _AIR_GAP) -> bool:
-    """Whether the tool, down at the end of the last run, feeds straight to ``route``'s start: a short link
-    whose disc meets none of the stock ``left`` (with ``gap`` [mm] to spare) and that keeps off the part."""
+                r: float, gap: float = _AIR_GAP, around: Polygon | None = None, rise: float = 0.0
+                ) -> np.ndarray | None:
+    """How the tool, down at the end of the last run, feeds to ``route``'s start: straight (no corners, (0, 2)),
+    a short link whose disc meets none of the stock ``left`` (with ``gap`` [mm] to spare) and that keeps off
+    the part; else round ``around`` (:func:`_round_the_box`), no longer than the lift's way (the link and
+    ``rise`` [mm], up to the clearance and down again); else None (the tool lifts)."""
     if len(pts) < 2:
-        return False
+        return None
     here = pts[-2][:2]  # the last run's end, before its lift
-    link = LineString([here, route[0]]) if np.linalg.norm(route[0] - here) > 1e-9 else None
-    if link is None:
-        return True
-    if link.length > _LINK_MAX or inside.intersects(link):
-        return False
-    return left.is_empty or link.distance(left) >= r + gap
+    if np.linalg.norm(route[0] - here) <= 1e-9:
+        return np.empty((0, 2))
+    link = LineString([here, route[0]])
+    if link.length <= _LINK_MAX and not inside.intersects(link) and (left.is_empty or link.distance(left) >= r + gap):
+        return np.empty((0, 2))
+    way = None if around is None else _round_the_box(here, route[0], around, link.length + rise)
+    if way is None or not len(way):
+        return None
+    # each end goes out to the outline, where the disc meets no stock left (the last run ended just beside what it cut)
+    ends = MultiLineString([[here, way[0]], [way[-1], route[0]]])
+    return way if not inside.intersects(ends) and (left.is_empty or ends.distance(left) >= r - 1e-6) else None
+
+
+def _round_the_box(a: np.ndarray, b: np.ndarray, box: Polygon, most: float) -> np.ndarray | None:
+    """The corners (k, 2) [mm] of the shorter way from XY ``a`` to ``b`` along the outline of ``box`` (the stock grown
+    by the tool radius and the air gap: the tool's disc anywhere on or outside it is clear of the stock, at any
+    depth above the floor), with ``a`` and ``b`` going straight to their nearest points of it, where that is no
+    longer than ``most`` [mm]; else None."""
+    ring = box.exterior
+    total = ring.length
+    twice = LineString(np.vstack([np.asarray(ring.coords)[:-1]] * 2 + [ring.coords[0]]))
+    sa, sb = ring.project(Point(a)), ring.project(Point(b))
+    ways = [shapely.get_coordinates(substring(twice, sa, sa + (sb - sa) % total)),
+            shapely.get_coordinates(substring(twice, sb, sb + (sa - sb) % total))[::-1]]
+    best = min(ways, key=lambda w: LineString(np.vstack([a, w, b])).length)
+    return best if LineString(np.vstack([a, best, b])).length <= most else None
 
 
 def _nearest_first(routes: list[np.ndarray], pts: list[np.ndarray]) -> list[np.ndarray]:
