@@ -825,7 +825,6 @@ def zlevel_roughing(
     if rest is not None:
         masks = rest_level_masks(rest, levels, spaces, p.radius, rest_above, p.allowance, tool.full_width_limit,
                                  rest_grown)
-    # a floor's level just above the next one's reach is cut only round that floor (cadcam.levelskim)
     reach = local_levels(levels, spaces, top, p.stepdown, p.radius, exclude) if rest is None else None
     air_at = None if known is None else (lambda xy: clear_height(known, tool, xy))
     path = _Path()

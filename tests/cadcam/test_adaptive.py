@@ -198,6 +198,22 @@ def test_skin_of_a_block_is_one_lap_at_the_margin():
     assert ae == pytest.approx(2 - ALLOW, abs=0.15)
 
 
+def test_the_runs_round_a_block_link_round_the_stock_without_lifting():
+    """The bracket's skin: the runs beside its corners and sides (the stock's corners take an outer pass) link
+    from one to the next fed round the stock, clear of it, never lifting: one descent, one lift. The replay
+    (every move at depth, the links too) holds the band, and a link never comes nearer the stock than the
+    tool's radius where it leaves the runs."""
+    part = box(2, 2, 102, 62).buffer(-3).buffer(3, quad_segs=32)
+    stock = box(0, 0, 104, 64)
+    t = tool(10.0)
+    region, geometry = band(part, stock, t.radius)
+    points, motion, _, _ = deep_cut_moves(region, geometry, Z, Z_TOP, t, OPTIONS)
+    assert (motion == Motion.PLUNGE).sum() == 1 and (motion[1:] == Motion.RAPID).sum() <= 3  # down once, up once
+    assert assert_deep_cut_holds(part, stock, 10.0) is not None
+    outside = ~shapely.contains_xy(stock.buffer(t.radius - 1e-6), points[:, 0], points[:, 1])
+    assert outside.sum() >= 8  # the ways round the stock's corners
+
+
 def test_the_tools_own_engagement_is_held():
     """A tool whose library entry asks for less (target 0.08 D, radial limit 0.12 D): the skin the default tool
     takes in one 1.7 mm lap is cut in narrower passes, none past the tool's own 1.2 mm."""

@@ -21,6 +21,8 @@ from hypothesis import strategies as st
 from scipy.ndimage import maximum_filter
 from scipy.spatial import cKDTree
 
+import cadcam.roughing as roughing
+from cadcam.levelskim import LevelReach
 from cadcam.model import CuttingData, Motion, Setup, Tool
 from cadcam.stock import excess
 from cadcam.roughing import RoughingOptions, zlevel_roughing
@@ -609,3 +611,34 @@ def test_rest_terraces_are_cut_dome_by_dome_and_linked_low():
     assert_no_gouge(part, terraces, 0.3)
     _, bad = simulate(joined(first, terraces), setup, 3.0)
     assert not bad, "\n".join(bad[:5])
+
+
+def test_a_floors_level_within_the_stepdown_of_the_next_is_cut_only_round_that_floor(monkeypatch):
+    # A boss whose top (-1) holds a pocket (floor -3), an island (top -4) beside it, on a plate (top -7), the
+    # stepdown 5: the pocket's level (-2.7) lies within the stepdown of the island's (-3.7) from the stock top,
+    # so it cuts only in the pocket, and the top level (-0.7) only round the boss; the island's level takes
+    # the rest from the top, 3.7 mm, within the full-width limit. Everything the levels cut whole (main before
+    # issue 32's local levels) is cut, in less path, with no gouge and no plunge.
+    boss = difference(box((4, 8, -7), (18, 22, -1)), box((6, 10, -3), (16, 20, 1)))
+    part = union(box((0, 0, -12), (40, 30, -7)), boss, box((26, 12, -7), (32, 18, -4)))
+    setup, options = make_setup(), RoughingOptions(stepdown=5.0)
+    local = zlevel_roughing(part, setup, TOOL, CUTTING, options)
+
+    def whole(levels, spaces, top, stepdown, radius, taken=None):
+        floors = [float(top), *(float(z) for z in levels[:-1])]
+        return LevelReach(spaces=tuple(spaces), floor_above=tuple(floors), local=(False,) * len(levels))
+
+    monkeypatch.setattr(roughing, "local_levels", whole)
+    levels = zlevel_roughing(part, setup, TOOL, CUTTING, options)
+    at = {z: local.points[(local.motion == Motion.CUT) & np.isclose(local.points[:, 2], z), :2] for z in (-0.7, -2.7)}
+    assert len(at[-2.7]) and shapely.box(6, 10, 16, 20).contains(shapely.MultiPoint(at[-2.7]))
+    # round the boss: the stock the island's level cannot reach, the tool within its radius
+    near = shapely.box(4, 8, 18, 22).buffer(TOOL.radius + options.allowance + 0.1)
+    assert len(at[-0.7]) and near.contains(shapely.MultiPoint(at[-0.7]))
+    assert_no_gouge(part, local, options.allowance)
+    hf, bad = simulate(local, setup, options.ramp_angle)
+    assert not bad, "\n".join(bad[:5])
+    hf_levels, _ = simulate(levels, setup, options.ramp_angle)
+    assert left_beyond(hf, hf_levels).max() <= 0.05
+    cut = [np.linalg.norm(np.diff(o.points, axis=0), axis=1)[o.motion[1:] == Motion.CUT].sum() for o in (local, levels)]
+    assert cut[0] <= 0.8 * cut[1], cut
