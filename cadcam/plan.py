@@ -646,8 +646,7 @@ def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulati
                                                              within=within,
                                                              cut_before=plan.cut_before))
         if len(op.points) > 1:
-            operations.append(plan.timed("chip feeds", lambda: chip_feeds(op, stock, setup, plan.triangles,
-                                                                          library.max_feed)))
+            operations.append(op)
             stock = plan.model(operations)
     for tool in rest_tools(library, plan.rough_tool, float(setup.stock_max[2] - setup.floor_z)):
         if not (excess(stock, allowance) > limit).any():
