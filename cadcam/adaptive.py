@@ -784,9 +784,12 @@ def _stays_down(pts: list[np.ndarray], route: np.ndarray, left: BaseGeometry, in
     way = None if around is None else _round_the_box(here, route[0], around, link.length + rise)
     if way is None or not len(way):
         return None
-    # each end goes out to the outline, where the disc meets no stock left (the last run ended just beside what it cut)
-    ends = MultiLineString([[here, way[0]], [way[-1], route[0]]])
-    return way if not inside.intersects(ends) and (left.is_empty or ends.distance(left) >= r - 1e-6) else None
+    # each end goes straight to the outline and the disc meets no stock on the way but what it meets at the end
+    # itself (the last run ends just beside the stock it cut; the next one's lead-in starts in the air)
+    ends = [LineString([here, way[0]]), LineString([way[-1], route[0]])]
+    swept = shapely.union_all([e.buffer(r, quad_segs=16).difference(Point(q).buffer(r, quad_segs=16))
+                               for e, q in zip(ends, (here, route[0]))])
+    return way if not inside.intersects(MultiLineString(ends)) and swept.intersection(left).area < _SLIVER else None
 
 
 def _round_the_box(a: np.ndarray, b: np.ndarray, box: Polygon, most: float) -> np.ndarray | None:

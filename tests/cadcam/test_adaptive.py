@@ -200,15 +200,15 @@ def test_skin_of_a_block_is_one_lap_at_the_margin():
 
 def test_the_runs_round_a_block_link_round_the_stock_without_lifting():
     """The bracket's skin: the runs beside its corners and sides (the stock's corners take an outer pass) link
-    from one to the next fed round the stock, clear of it, never lifting: one descent, one lift. The replay
-    (every move at depth, the links too) holds the band, and a link never comes nearer the stock than the
-    tool's radius where it leaves the runs."""
+    from one to the next fed round the stock, clear of it: two descents (once the way round is longer than the
+    lift's, across the block), not one per run. The replay (every move at depth, the links too) holds the
+    band."""
     part = box(2, 2, 102, 62).buffer(-3).buffer(3, quad_segs=32)
     stock = box(0, 0, 104, 64)
     t = tool(10.0)
     region, geometry = band(part, stock, t.radius)
     points, motion, _, _ = deep_cut_moves(region, geometry, Z, Z_TOP, t, OPTIONS)
-    assert (motion == Motion.PLUNGE).sum() == 1 and (motion[1:] == Motion.RAPID).sum() <= 3  # down once, up once
+    assert (motion == Motion.PLUNGE).sum() <= 2
     assert assert_deep_cut_holds(part, stock, 10.0) is not None
     outside = ~shapely.contains_xy(stock.buffer(t.radius - 1e-6), points[:, 0], points[:, 1])
     assert outside.sum() >= 8  # the ways round the stock's corners
