@@ -223,7 +223,7 @@ def adaptive_roughing(
             levels=tuple(float(z) for z in levels), spaces=spaces, top=float(setup.stock_max[2]),
             stock=box(*setup.stock_min[:2], *setup.stock_max[:2]), axis_box=rect, allowance=p.allowance,
             clear_z=p.clear_z, lead_gap=p.lead_gap, tan_ramp=p.tan_ramp, helix_radius=p.helix_radius,
-            min_helix_radius=p.min_helix_radius)
+            min_helix_radius=p.min_helix_radius, block=True)
         plan = plan_deep_cuts(geometry, tool, cutting, max_feed,
                               lambda region: sum(r.line.length for r in roughing._rings(region, p)), adaptive)
     exclude = plan.excluded if plan is not None and plan.cuts else None
@@ -255,7 +255,9 @@ class BandGeometry:
     ``lead_gap``: the height above a floor where descents slow to the plunge feed; ``tan_ramp``: the slope
     of a helix entry (the roughing's ramp angle); ``helix_radius``/``min_helix_radius``: the radius of the
     circle a helix entry's centre follows, as large as the pocket allows up to the first, at least the second
-    (None: 0.4 D and 0.15 D, the roughing's defaults)."""
+    (None: 0.4 D and 0.15 D, the roughing's defaults); ``block``: ``stock`` is the setup's whole block, air
+    all round it at any depth of the band, so a deep cut's runs may link round it (False: a rest's material,
+    the part may lie beside it)."""
 
     levels: tuple[float, ...]
     spaces: tuple[BaseGeometry, ...]
@@ -268,6 +270,7 @@ class BandGeometry:
     tan_ramp: float = math.tan(math.radians(3.0))
     helix_radius: float | None = None
     min_helix_radius: float | None = None
+    block: bool = False
 
 
 def plan_deep_cuts(g: BandGeometry, tool: Tool, cutting: CuttingData, max_feed: float,
@@ -426,7 +429,8 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
     beta = max(math.radians(0.5), 0.5 * (math.acos(1 - min(limit, tool.diameter) / r)
                                          - math.acos(1 - min(step, tool.diameter) / r)))
     inside = walls.buffer(-1e-4)
-    air_box = g.stock.buffer(r + _AIR_GAP, join_style="mitre")  # a tool centre on or outside it is in the air
+    # a tool centre on or outside it is in the air (round a rest's material, the part may be)
+    air_box = g.stock.buffer(r + _AIR_GAP, join_style="mitre") if g.block else None
     for ring in passes[::-1]:
         for chain, kept in ring:
             routes = _runs(chain, kept, left, r, beta)
