@@ -50,10 +50,10 @@ import numpy as np
 import shapely
 import trimesh
 from scipy.spatial import cKDTree
-from shapely.geometry import LineString, MultiLineString, Polygon, box
+from shapely.geometry import LineString, MultiLineString, Point, Polygon, box
 from shapely.geometry.base import BaseGeometry
 from shapely.geometry.polygon import orient
-from shapely.ops import linemerge
+from shapely.ops import linemerge, substring
 
 from cadcam import roughing
 from cadcam.levelskim import without_skimmed
@@ -223,7 +223,7 @@ def adaptive_roughing(
             levels=tuple(float(z) for z in levels), spaces=spaces, top=float(setup.stock_max[2]),
             stock=box(*setup.stock_min[:2], *setup.stock_max[:2]), axis_box=rect, allowance=p.allowance,
             clear_z=p.clear_z, lead_gap=p.lead_gap, tan_ramp=p.tan_ramp, helix_radius=p.helix_radius,
-            min_helix_radius=p.min_helix_radius)
+            min_helix_radius=p.min_helix_radius, block=True)
         plan = plan_deep_cuts(geometry, tool, cutting, max_feed,
                               lambda region: sum(r.line.length for r in roughing._rings(region, p)), adaptive)
     exclude = plan.excluded if plan is not None and plan.cuts else None
@@ -255,7 +255,9 @@ class BandGeometry:
     ``lead_gap``: the height above a floor where descents slow to the plunge feed; ``tan_ramp``: the slope
     of a helix entry (the roughing's ramp angle); ``helix_radius``/``min_helix_radius``: the radius of the
     circle a helix entry's centre follows, as large as the pocket allows up to the first, at least the second
-    (None: 0.4 D and 0.15 D, the roughing's defaults)."""
+    (None: 0.4 D and 0.15 D, the roughing's defaults); ``block``: ``stock`` is the setup's whole block, air
+    all round it at any depth of the band, so a deep cut's runs may link round it (False: a rest's material,
+    the part may lie beside it)."""
 
     levels: tuple[float, ...]
     spaces: tuple[BaseGeometry, ...]
@@ -268,6 +270,7 @@ class BandGeometry:
     tan_ramp: float = math.tan(math.radians(3.0))
     helix_radius: float | None = None
     min_helix_radius: float | None = None
+    block: bool = False
 
 
 def plan_deep_cuts(g: BandGeometry, tool: Tool, cutting: CuttingData, max_feed: float,
@@ -426,6 +429,8 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
     beta = max(math.radians(0.5), 0.5 * (math.acos(1 - min(limit, tool.diameter) / r)
                                          - math.acos(1 - min(step, tool.diameter) / r)))
     inside = walls.buffer(-1e-4)
+    # a tool centre on or outside it is in the air (round a rest's material, the part may be)
+    air_box = g.stock.buffer(r + _AIR_GAP, join_style="mitre") if g.block else None
     for ring in passes[::-1]:
         for chain, kept in ring:
             routes = _runs(chain, kept, left, r, beta)
@@ -438,7 +443,8 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
                 if inside.intersects(LineString(route)):
                     log.debug("deep cut at z=%.3f: a lead-in crosses the part", z)
                     return None
-                _emit(pts, mot, route, z, g, _stays_down(pts, route, left, inside, r))
+                _emit(pts, mot, route, z, g, _stays_down(pts, route, left, inside, r, around=air_box,
+                                                         rise=2 * (g.clear_z - z)))
                 left = left.difference(LineString(route).buffer(r, quad_segs=16))
     if not pts:
         return None
@@ -738,14 +744,16 @@ def _oriented(line: LineString, walls: BaseGeometry) -> np.ndarray:
 
 
 def _emit(pts: list[np.ndarray], mot: list[int], route: np.ndarray, z: float, g: BandGeometry,
-          linked: bool = False) -> None:
-    """One run at ``z``: fed straight on from where the last one ended (``linked``), else from a rapid over its
-    start down in the air; it ends back up at ``g.clear_z`` (taken back off when the next run links on)."""
-    if linked:
+          link: np.ndarray | None = None) -> None:
+    """One run at ``z``: fed on from where the last one ended through the corners ``link`` (k, 2) [mm] (none: straight
+    on), or with ``link`` None from a rapid over its start down in the air; it ends back up at ``g.clear_z`` (taken
+    back off when the next run links on)."""
+    if link is not None:
         pts.pop()  # stay down: the last run's lift
         mot.pop()
-        pts.append(np.array([*route[0], z]))
-        mot.append(int(Motion.CUT))
+        for q in (*link, route[0]):
+            pts.append(np.array([*q, z]))
+            mot.append(int(Motion.CUT))
     else:
         pts.append(np.array([*route[0], g.clear_z]))
         mot.append(int(Motion.RAPID))
@@ -763,18 +771,44 @@ def _emit(pts: list[np.ndarray], mot: list[int], route: np.ndarray, z: float, g:
 
 
 def _stays_down(pts: list[np.ndarray], route: np.ndarray, left: BaseGeometry, inside: BaseGeometry,
-                r: float, gap: float = _AIR_GAP) -> bool:
-    """Whether the tool, down at the end of the last run, feeds straight to ``route``'s start: a short link
-    whose disc meets none of the stock ``left`` (with ``gap`` [mm] to spare) and that keeps off the part."""
+                r: float, gap: float = _AIR_GAP, around: Polygon | None = None, rise: float = 0.0
+                ) -> np.ndarray | None:
+    """How the tool, down at the end of the last run, feeds to ``route``'s start: straight (no corners, (0, 2)),
+    a short link whose disc meets none of the stock ``left`` (with ``gap`` [mm] to spare) and that keeps off
+    the part; else round ``around`` (:func:`_round_the_box`), no longer than the lift's way (the link and
+    ``rise`` [mm], up to the clearance and down again); else None (the tool lifts)."""
     if len(pts) < 2:
-        return False
+        return None
     here = pts[-2][:2]  # the last run's end, before its lift
-    link = LineString([here, route[0]]) if np.linalg.norm(route[0] - here) > 1e-9 else None
-    if link is None:
-        return True
-    if link.length > _LINK_MAX or inside.intersects(link):
-        return False
-    return left.is_empty or link.distance(left) >= r + gap
+    if np.linalg.norm(route[0] - here) <= 1e-9:
+        return np.empty((0, 2))
+    link = LineString([here, route[0]])
+    if link.length <= _LINK_MAX and not inside.intersects(link) and (left.is_empty or link.distance(left) >= r + gap):
+        return np.empty((0, 2))
+    way = None if around is None else _round_the_box(here, route[0], around, link.length + rise)
+    if way is None or not len(way):
+        return None
+    # each end goes straight to the outline and the disc meets no stock on the way but what it meets at the end
+    # itself (the last run ends just beside the stock it cut; the next one's lead-in starts in the air)
+    ends = [LineString([here, way[0]]), LineString([way[-1], route[0]])]
+    swept = shapely.union_all([e.buffer(r, quad_segs=16).difference(Point(q).buffer(r, quad_segs=16))
+                               for e, q in zip(ends, (here, route[0]))])
+    return way if not inside.intersects(MultiLineString(ends)) and swept.intersection(left).area < _SLIVER else None
+
+
+def _round_the_box(a: np.ndarray, b: np.ndarray, box: Polygon, most: float) -> np.ndarray | None:
+    """The corners (k, 2) [mm] of the shorter way from XY ``a`` to ``b`` along the outline of ``box`` (the stock grown
+    by the tool radius and the air gap: the tool's disc anywhere on or outside it is clear of the stock, at any
+    depth above the floor), with ``a`` and ``b`` going straight to their nearest points of it, where that is no
+    longer than ``most`` [mm]; else None."""
+    ring = box.exterior
+    total = ring.length
+    twice = LineString(np.vstack([np.asarray(ring.coords)[:-1]] * 2 + [ring.coords[0]]))
+    sa, sb = ring.project(Point(a)), ring.project(Point(b))
+    ways = [shapely.get_coordinates(substring(twice, sa, sa + (sb - sa) % total)),
+            shapely.get_coordinates(substring(twice, sb, sb + (sa - sb) % total))[::-1]]
+    best = min(ways, key=lambda w: LineString(np.vstack([a, w, b])).length)
+    return best if LineString(np.vstack([a, best, b])).length <= most else None
 
 
 def _nearest_first(routes: list[np.ndarray], pts: list[np.ndarray]) -> list[np.ndarray]:

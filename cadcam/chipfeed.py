@@ -108,7 +108,7 @@ def _ramp_feeds(op: Operation, want: np.ndarray, max_feed: float) -> np.ndarray:
     helix the curved wall of the bore wraps round the cutter and the measured engagement is the wider one that
     gives (``tests/cadcam/test_verify_chip.py``, closed form). The edge's own speed, ``(r + R) / r`` the
     centre's, runs along the edge and adds no thickness to the chip, so it is not divided out again. The steps
-    climb from the plunge feed."""
+    climb from the plunge feed up to the feed of the full chip (a slot's, the operation's feed)."""
     c, n = op.cutting, len(op.points)
     out = np.full(n, np.nan)
     step = np.diff(op.points, axis=0)
@@ -116,7 +116,11 @@ def _ramp_feeds(op: Operation, want: np.ndarray, max_feed: float) -> np.ndarray:
     ramp = np.r_[False, (op.motion[1:] == Motion.PLUNGE) & (across > 1e-6) & (-step[:, 2] <= RAMP_SLOPE * across)]
     if not ramp.any():
         return out
+    # the steps climb from the plunge feed, and the full chip's feed is a step too: a helix into the solid, its
+    # chip the whole fz there, runs at a full-width cut's feed, not at the step under it (1.25 x slower at most)
     feed = _ladder(want, c.plunge_feed, max_feed)
+    full = min(c.spindle_rpm * op.tool.flutes * c.chip_load, c.feed, max_feed)
+    feed = np.where(want >= full * (1 - 1e-9), np.maximum(feed, full), feed)
     fast = ramp & (feed > c.plunge_feed * (1 + 1e-9))
     out[fast] = feed[fast]
     return out

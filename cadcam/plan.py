@@ -671,7 +671,9 @@ def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulati
                 stock = plan.model(operations)
                 op = levels(stock)
         if len(op.points) > 1:
-            operations.append(op)
+            # its helices at the chip they cut (round a drilled hole, a side cut), its light cuts faster
+            operations.append(plan.timed("chip feeds", lambda: chip_feeds(op, stock, setup, plan.triangles,
+                                                                          library.max_feed)))
             stock = plan.model(operations)
     return stock
 

@@ -5,10 +5,10 @@ coming closer than the allowance to the part) is computed in the plane with shap
 cleared with contour-parallel offset loops. The pieces:
 
 * **Levels** go from the stock top down to the setup's floor (``Setup.floor_z``: the part's
-  bottom less a breakthrough, above the holding allowance) at most ``stepdown`` apart, and
-  every upward-facing flat face of the part (pocket floor, step top, boss top) at height
-  ``f`` gets a level at exactly ``f + allowance``, so floors are left with an even
-  allowance instead of whatever the stepdown grid happens to leave.
+  bottom less a breakthrough, above the holding allowance) at most ``stepdown`` apart, and every upward-facing
+  flat face of the part (pocket floor, step top, boss top) at height ``f`` gets a level at exactly ``f + allowance``,
+  so floors are left with an even allowance; such a level within ``stepdown`` of the last whole level above the
+  next one is cut only round what that one cannot reach (:func:`cadcam.levelskim.local_levels`).
 * **Shadow**: at level ``z`` the part blocks the tool wherever it has material at or above
   ``z`` (the end mill is a cylinder going up forever from its tip). The XY shadow is the
   union of the projections of the part's upward-facing triangles clipped to ``z' >= z``:
@@ -50,10 +50,9 @@ cleared with contour-parallel offset loops. The pieces:
   the tool is not already there it retracts to the clearance height, rapids, and descends
   vertically on a path already cut at this level (air all the way down). Rest machining cuts
   its regions stack by stack and links them low (:mod:`cadcam.restlinks`).
-* **Descents** run by rapid to ``lead_gap`` above the deepest floor known to be cleared
-  under the whole tool (the previous level's, or this level's on a cut path), and at the
-  plunge feed only for the last ``lead_gap``: the cleared-neighbourhood property above
-  makes that air.
+* **Descents** run by rapid to ``lead_gap`` above the deepest floor known to be cleared under the whole tool (the
+  last whole level's, this level's on a cut path, the level itself outside the stock's side), and at the
+  plunge feed only for the last ``lead_gap``: the cleared-neighbourhood property above makes that air.
 * **Climb milling** (M3, clockwise spindle seen from above): the uncut stock is kept on
   the *left* of the direction of travel. Each loop is oriented at the point where the link
   reaches it: the link arrives from the cleared side, so the far side is the uncut one. In
@@ -83,7 +82,7 @@ from shapely.ops import nearest_points
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.restlinks import COVER_TOL, Links, Piece, cut_stacked
 from cadcam.gridregion import GrownMaskCache, near_cells
-from cadcam.levelskim import without_skimmed
+from cadcam.levelskim import local_levels, without_skimmed
 from cadcam.rest import rest_level_masks, rest_levels, rooms_round, without_holder
 from cadcam.shadow import part_shadows
 from cadcam.stock import Simulation, clear_height
@@ -646,7 +645,8 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
 
     if entry.kind == "air":
         path.go_to(entry.air_xy, p)
-        path.descend([*entry.air_xy, z], air_over(entry.air_xy), p)  # outside the stock: air
+        # a lead gap outside the stock's side: air down to the level, whatever the levels above cut
+        path.descend([*entry.air_xy, z], z if air_at is None else air_over(entry.air_xy), p)
         path.add([*entry.start_xy, z], Motion.CUT)
         emit_ring(entry.ring_index, entry.start_xy, entry.start_xy - entry.air_xy)
     elif entry.kind == "helix":
@@ -812,31 +812,32 @@ def zlevel_roughing(
     if part is None or len(part.faces) == 0:
         raise MeshError("part mesh is empty")
     p = _resolve(options, tool, setup)
-    levels, deep = _levels(part, setup, p), 0
+    levels, deep, top = _levels(part, setup, p), 0, float(setup.stock_max[2])
     if rest is not None:  # the last ``deep`` levels lie below its reach: only where its holder clears the stock
-        levels, deep = rest_levels(levels, float(setup.stock_max[2]), tool.length)
+        levels, deep = rest_levels(levels, top, tool.length)
     shadow = part_shadows(part, [zq for z in levels for zq, _ in _forbidden_terms(float(z), p)])
     rect_xy, rect = _axis_rect(setup, p, within)
     # the rest material grown by the tool radius, remembered per distinct mask of levels
     rest_grown = GrownMaskCache(rest.grid, p.radius, quad_segs=8) if rest is not None else None
     known = rest if air is None else air  # the holder kept off all the stock, not only this operation's target
     spaces = without_holder([_level_space(float(z), rect, shadow, p) for z in levels], levels, deep, known, tool)
-    levels, spaces = without_skimmed(part, levels, spaces, float(setup.stock_max[2]), p.skim, p.allowance, p.radius,
-                                     _FLOOR_EPS)
+    levels, spaces = without_skimmed(part, levels, spaces, top, p.skim, p.allowance, p.radius, _FLOOR_EPS)
     if rest is not None:
         masks = rest_level_masks(rest, levels, spaces, p.radius, rest_above, p.allowance, tool.full_width_limit,
                                  rest_grown)
+    reach = local_levels(levels, spaces, top, p.stepdown, p.radius, exclude) if rest is None else None
     air_at = None if known is None else (lambda xy: clear_height(known, tool, xy))
     path = _Path()
     cleared: BaseGeometry | None = None  # None: nothing was ever skipped
     # Rest machining knows the air from the stock model (entries and descents use it), so a
     # skipped pocket only bars the levels below it, not every place this level had nothing to cut.
     blocked: list[BaseGeometry] = []
-    z_prev, skipped, here = float(setup.stock_max[2]), 0, setup.stock_min[:2]
+    z_prev, skipped, here = top, 0, setup.stock_min[:2]
     pieces: list[Piece] | None = [] if known is not None else None  # rest machining's, cut stack by stack
     for li, z in enumerate(levels):
-        z = float(z)
-        space = _bounded(spaces[li], cleared, blocked, exclude(li) if exclude is not None else None)
+        z, z_prev = float(z), z_prev if reach is None else reach.floor_above[li]  # a local level's: the last whole
+        space = _bounded(spaces[li] if reach is None else reach.spaces[li], cleared, blocked,
+                         exclude(li) if exclude is not None else None)
         allowed = space if rest is None else space.intersection(rest_grown(masks[li]))
         plans, missed = _plan_entries(allowed, space, z, rect_xy, p, tool, known, air_at,
                                       None if cut_before is None else (lambda z=z: cut_before(z)))
@@ -845,7 +846,7 @@ def zlevel_roughing(
         skipped += len(missed) + len(failed)
         if rest is not None:
             blocked += [region.buffer(2 * p.radius, quad_segs=4) for region in missed + failed]
-        if rest is None and (skipped or cleared is not None):
+        if reach is not None and (skipped or cleared is not None) and not reach.local[li]:
             cleared = shapely.union_all(done_regions) if done_regions else Polygon()
         if path.points:
             path.go_to(path.here[:2], p)
@@ -855,8 +856,7 @@ def zlevel_roughing(
     if pieces:  # linked low (cadcam.restlinks)
         cut_stacked(path, pieces, Links(known, tool, rect, spaces), cutting.feed, p)
     if path.points:
-        cur = path.here
-        path.add([cur[0], cur[1], p.safe_z], Motion.RAPID)
+        path.add([*path.here[:2], p.safe_z], Motion.RAPID)
     return Operation(name="rough z-level" if rest is None else f"rest rough T{tool.number}", kind="roughing",
                      tool=tool, cutting=cutting, points=np.array(path.points).reshape(-1, 3),
                      motion=np.array(path.motion, dtype=np.int8), allowance=p.allowance)

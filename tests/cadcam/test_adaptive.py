@@ -9,6 +9,7 @@ half a radius back) left, given as the side cut that makes that angle, ``R (1 - 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import shutil
 
@@ -196,6 +197,24 @@ def test_skin_of_a_block_is_one_lap_at_the_margin():
     ae = assert_deep_cut_holds(part, stock, 10.0)
     assert ae is not None, "the engine refused the plainest skin"
     assert ae == pytest.approx(2 - ALLOW, abs=0.15)
+
+
+def test_the_runs_round_a_block_link_round_the_stock_without_lifting():
+    """The bracket's skin: the runs beside its corners and sides (the stock's corners take an outer pass) link
+    from one to the next fed round the stock, clear of it: two descents (once the way round is longer than the
+    lift's, across the block), not one per run. The replay (every move at depth, the links too) holds the
+    band."""
+    part = box(2, 2, 102, 62).buffer(-3).buffer(3, quad_segs=32)
+    stock = box(0, 0, 104, 64)
+    t = tool(10.0)
+    region, geometry = band(part, stock, t.radius)
+    points, motion, _, _ = deep_cut_moves(region, dataclasses.replace(geometry, block=True), Z, Z_TOP, t, OPTIONS)
+    assert (motion == Motion.PLUNGE).sum() <= 2
+    rp = Replay(part, stock, t.radius)
+    assert replay(points, motion, rp).max() <= held_to(t) + 2 * rp.cell
+    assert rp.solid.sum() * rp.cell ** 2 <= 0.002 * stock.area + 0.5  # the stock is all cut
+    outside = ~shapely.contains_xy(stock.buffer(t.radius - 1e-6), points[:, 0], points[:, 1])
+    assert outside.sum() >= 8  # the ways round the stock's corners
 
 
 def test_the_tools_own_engagement_is_held():

@@ -110,9 +110,10 @@ def helix(r: float, depth: float = 3.0, centre=(35.0, 35.0)) -> Operation:
 @given(st.floats(1.5, 5.0))
 def test_a_helix_runs_at_the_feed_its_edge_allows_and_verify_passes_it(r):
     """A helix turns inside the bore it cuts, the bore's wall wrapped round the cutter: into the solid block its
-    chip is the full feed per tooth (a slot), so it runs raised from the plunge feed up to the library's feed and
-    no faster (the edge's own speed, (r + R) / r the centre's, runs along the edge: no thicker chip, not divided
-    out again); faster only in the air above. Verify, which reads the curved wall's engagement, passes it."""
+    chip is the full feed per tooth (a slot), so it runs raised from the plunge feed up to the library's feed, the
+    full chip's, and no faster (the edge's own speed, (r + R) / r the centre's, runs along the edge: no thicker
+    chip, not divided out again); faster only in the air above. Verify, which reads the curved wall's
+    engagement, passes it."""
     h = helix(r)
     fed = chip_feeds(h, None, BIG, CORNER, MAX_FEED)
     f = fed.move_feeds()
@@ -120,8 +121,8 @@ def test_a_helix_runs_at_the_feed_its_edge_allows_and_verify_passes_it(r):
     deep = ramp & (h.points[:, 2] < -0.5)  # moves wholly in the stock
     full = RPM * MILL.flutes * FZ  # the feed whose chip at full engagement is fz
     assert np.all(f[ramp] >= NOMINAL.plunge_feed - 1e-9)
-    assert np.all(f[deep] <= full + 1e-6)
-    assert np.all(f[deep] > full / FEED_STEP)  # at the ladder's step under it: the full chip's feed
+    # at the full chip's feed itself (to the 0.1 mm/min feeds are written to), not at the ladder's step under it
+    assert np.allclose(f[deep], full, atol=0.05)
     # the posted program carries the feeds, and verify holds every chip to fz
     text = post_process(Job(part_name="p", setup=BIG, operations=(fed,)), PostOptions()).text
     report = simulate(parse_gcode(text), {MILL.number: MILL}, BIG, CORNER, VerifyOptions(cell=0.2),

@@ -21,6 +21,8 @@ from hypothesis import strategies as st
 from scipy.ndimage import maximum_filter
 from scipy.spatial import cKDTree
 
+import cadcam.roughing as roughing
+from cadcam.levelskim import LevelReach
 from cadcam.model import CuttingData, Motion, Setup, Tool
 from cadcam.stock import excess
 from cadcam.roughing import RoughingOptions, zlevel_roughing
@@ -483,6 +485,18 @@ def left_beyond(hf, reference):
     return left
 
 
+def assert_cuts_what_it_cuts_in_less_path(part, setup, op, reference, options, share: float = 1.0) -> None:
+    """``op`` gouges nothing, plunges nowhere, cuts everything ``reference`` cuts (to 0.05 mm, :func:`left_beyond`)
+    and its cutting path is at most ``share`` of the reference's."""
+    assert_no_gouge(part, op, options.allowance)
+    hf, bad = simulate(op, setup, options.ramp_angle)
+    assert not bad, "\n".join(bad[:5])
+    left = left_beyond(hf, simulate(reference, setup, options.ramp_angle)[0])
+    assert left.max() <= 0.05, np.unravel_index(np.argmax(left), left.shape)
+    cut = [np.linalg.norm(np.diff(o.points, axis=0), axis=1)[o.motion[1:] == Motion.CUT].sum() for o in (op, reference)]
+    assert cut[0] <= share * cut[1] + 1e-6, cut
+
+
 #: A stepover of at most a radius, which leaves no gap between loops: what a wider one is held to.
 NARROW = 0.4 * TOOL.diameter
 
@@ -495,14 +509,7 @@ def test_a_wide_stepover_leaves_no_island_a_narrow_one_cuts(name, share):
     part, setup, wide, options = rough(name, stepover=share * TOOL.diameter)
     _, _, usual, _ = rough(name, stepover=NARROW)
     motion_basics(wide, setup)
-    assert_no_gouge(part, wide, options.allowance)
-    hf_wide, bad = simulate(wide, setup, options.ramp_angle)
-    assert not bad, "\n".join(bad[:5])
-    hf_usual, _ = simulate(usual, setup, options.ramp_angle)
-    left = left_beyond(hf_wide, hf_usual)
-    assert left.max() <= 0.05, np.unravel_index(np.argmax(left), left.shape)
-    cut = [np.linalg.norm(np.diff(op.points, axis=0), axis=1)[op.motion[1:] == Motion.CUT].sum() for op in (wide, usual)]
-    assert cut[0] <= cut[1] + 1e-6, cut
+    assert_cuts_what_it_cuts_in_less_path(part, setup, wide, usual, options)
 
 
 @pytest.mark.parametrize("name", ["boss", "dome"])  # open levels wide enough for loops (a pocket's fill with gaps)
@@ -511,13 +518,7 @@ def test_the_default_levels_take_the_stock_wide_in_less_path(name):
     # way): the same stock in much less cutting path, everything a narrow step cuts cut, no plunge or gouge.
     part, setup, op, options = rough(name)
     _, _, narrow, _ = rough(name, stepover=NARROW)
-    assert_no_gouge(part, op, options.allowance)
-    hf, bad = simulate(op, setup, options.ramp_angle)
-    assert not bad, "\n".join(bad[:5])
-    hf_narrow, _ = simulate(narrow, setup, options.ramp_angle)
-    assert left_beyond(hf, hf_narrow).max() <= 0.05
-    cut = [np.linalg.norm(np.diff(o.points, axis=0), axis=1)[o.motion[1:] == Motion.CUT].sum() for o in (op, narrow)]
-    assert cut[0] <= 0.85 * cut[1], cut  # boss 0.67, dome 0.79
+    assert_cuts_what_it_cuts_in_less_path(part, setup, op, narrow, options, 0.85)  # boss 0.67, dome 0.79
     depth = np.diff(np.unique(op.points[op.motion == Motion.CUT, 2].round(6)))
     assert np.all(depth <= TOOL.full_width_limit + 1e-9)
 
@@ -609,3 +610,28 @@ def test_rest_terraces_are_cut_dome_by_dome_and_linked_low():
     assert_no_gouge(part, terraces, 0.3)
     _, bad = simulate(joined(first, terraces), setup, 3.0)
     assert not bad, "\n".join(bad[:5])
+
+
+def test_a_floors_level_within_the_stepdown_of_the_next_is_cut_only_round_that_floor(monkeypatch):
+    # A boss whose top (-1) holds a pocket (floor -3), an island (top -4) beside it, on a plate (top -7), the
+    # stepdown 5: the pocket's level (-2.7) lies within the stepdown of the island's (-3.7) from the stock top,
+    # so it cuts only in the pocket, and the top level (-0.7) only round the boss; the island's level takes
+    # the rest from the top, 3.7 mm, within the full-width limit. Everything the levels cut whole (main before
+    # issue 32's local levels) is cut, in less path, with no gouge and no plunge.
+    boss = difference(box((4, 8, -7), (18, 22, -1)), box((6, 10, -3), (16, 20, 1)))
+    part = union(box((0, 0, -12), (40, 30, -7)), boss, box((26, 12, -7), (32, 18, -4)))
+    setup, options = make_setup(), RoughingOptions(stepdown=5.0)
+    local = zlevel_roughing(part, setup, TOOL, CUTTING, options)
+
+    def whole(levels, spaces, top, stepdown, radius, taken=None):
+        floors = [float(top), *(float(z) for z in levels[:-1])]
+        return LevelReach(spaces=tuple(spaces), floor_above=tuple(floors), local=(False,) * len(levels))
+
+    monkeypatch.setattr(roughing, "local_levels", whole)
+    levels = zlevel_roughing(part, setup, TOOL, CUTTING, options)
+    at = {z: local.points[(local.motion == Motion.CUT) & np.isclose(local.points[:, 2], z), :2] for z in (-0.7, -2.7)}
+    assert len(at[-2.7]) and shapely.box(6, 10, 16, 20).contains(shapely.MultiPoint(at[-2.7]))
+    # round the boss: the stock the island's level cannot reach, the tool within its radius
+    near = shapely.box(4, 8, 18, 22).buffer(TOOL.radius + options.allowance + 0.1)
+    assert len(at[-0.7]) and near.contains(shapely.MultiPoint(at[-0.7]))
+    assert_cuts_what_it_cuts_in_less_path(part, setup, local, levels, options, 0.8)
