@@ -12,13 +12,15 @@ that fails, or a caller that fails or dies (the writer sees its end of the pipe 
 
 from __future__ import annotations
 
+import contextlib
+import glob
 import multiprocessing
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Mapping
 
 from cadcam.parallel import processors
-from factory.core.atomic import check_writable
+from factory.core.atomic import check_writable, part_prefix
 from factory.core.errors import McapError
 from factory.mcaplog import LogBuffer, McapLog, check_attachment, check_channel, check_time, serialized
 
@@ -72,6 +74,8 @@ class ForkedMcapLog:
         finally:
             self._conn.close()  # without the end, the writer leaves no file
             self._proc.join()
+            if self._proc.exitcode != 0:  # killed, it could not remove its temporary file: we do
+                _remove_parts(self.path, self._proc.pid)
             self._proc = self._conn = None
         if exc_type is None and failure is not None:
             raise McapError(failure, source=self.path)
@@ -119,6 +123,14 @@ class ForkedMcapLog:
                 failure = None
             raise McapError(failure or f"the log's writer process ended early: {e}", source=self.path) from None
         self._batch, self._bytes = LogBuffer(), 0
+
+
+def _remove_parts(path: Path, pid: int) -> None:
+    """Remove the temporary files the writer process ``pid`` left for ``path``
+    (:func:`factory.core.atomic.part_prefix`)."""
+    for part in path.parent.glob(f"{glob.escape(part_prefix(path, pid))}*.part"):
+        with contextlib.suppress(FileNotFoundError):
+            part.unlink()
 
 
 def _write(conn: Any, callers: Any, log: dict[str, Any]) -> None:

@@ -46,6 +46,14 @@ def check_writable(path: Path, overwrite: bool) -> None:
         raise OutputError(f"not a folder, so {path.name} cannot be written in it", source=folder)
 
 
+def part_prefix(path: Path, pid: int | None = None) -> str:
+    """The start of the temporary file's name that :func:`atomic_output` writes ``path`` through from process
+    ``pid`` (default this one): the process's id is in it, so that a process that watches another write (a
+    forked log's writer, :mod:`factory.mcapfork`) can remove what it leaves if it is killed, which it cannot
+    do itself, and nothing another run is writing."""
+    return f".{path.name}.{os.getpid() if pid is None else pid}."
+
+
 @contextlib.contextmanager
 def atomic_output(path: str | Path, *, overwrite: bool = False, mode: str = "wb") -> Iterator[IO]:
     """Open a temporary file that replaces ``path`` when the block exits cleanly.
@@ -63,7 +71,7 @@ def atomic_output(path: str | Path, *, overwrite: bool = False, mode: str = "wb"
     path = Path(path)
     check_writable(path, overwrite)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=part_prefix(path), suffix=".part", dir=path.parent)
     # mkstemp makes the file private (0600); an output should get the mode any new file would.
     os.chmod(tmp, 0o666 & ~_umask())
     try:

@@ -15,6 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from factory.core.atomic import part_prefix
 from factory.core.errors import McapError, OutputExistsError
 from factory.mcapfork import ForkedMcapLog, big_log
 from factory.mcaplog import McapLog
@@ -82,13 +83,22 @@ def test_a_call_one_process_refuses_is_refused_at_the_call_and_leaves_nothing(tm
 
 
 def test_a_writer_that_dies_fails_the_log_and_leaves_nothing(tmp_path):
+    """Killed once its temporary file exists (it cannot remove it itself), as a loaded machine's scheduling
+    may have it; another run's temporary file for the same output is left alone."""
     out = tmp_path / "x.mcap"
+    other = tmp_path / f"{part_prefix(out, 1)}abc.part"  # pid 1 is never our writer
+    other.write_bytes(b"another run's")
     with pytest.raises(McapError, match="writer"):
         with ForkedMcapLog(out, stage="test") as log:
             log.write("/a", string_msg("one"), 1)
+            mine = f"{part_prefix(out, log._proc.pid)}*.part"
+            deadline = time.monotonic() + 30.0
+            while not list(tmp_path.glob(mine)) and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert list(tmp_path.glob(mine)), "the writer never opened its file"
             os.kill(log._proc.pid, signal.SIGKILL)
             log._proc.join()
-    assert list(tmp_path.iterdir()) == []
+    assert list(tmp_path.iterdir()) == [other]
 
 
 def test_a_caller_killed_mid_write_leaves_nothing(tmp_path):
