@@ -220,7 +220,7 @@ def unseen_edges(field: HeightField, points: np.ndarray, n1: np.ndarray, n2: np.
     """``(k,)`` bool: edge samples a picture cannot show under the key light (arguments as :func:`dark_both_sides`).
 
     Dark on both sides (:func:`dark_both_sides`), or shaded alike: the two sides the camera sees are
-    flat faces of the part itself (same metal, both facing up) at different heights, both lit or both
+    flat faces (the part's, or a top and the tray beyond it; both facing up), both lit or both
     dark, with the wall between them hidden from the camera. Under a low light the steps of a stepped
     wall are such edges: each step's top is lit as brightly as the next one's, and the step's wall is
     turned away from the camera or the light; a stepped wall at its true pose found 0.46 of its edges
