@@ -627,8 +627,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         if any(np.hypot(p.pixel[0] - centroids[i][0], p.pixel[1] - centroids[i][1]) < radius_px for p in found):
             continue
         box = (max(bx, 0), max(by, 0), min(bx + bw, w), min(by + bh, h))
-        starts, spare = chamfer_starts(model, edges, _hull(labels == i), box, ground(centroids[i]), ground, maps,
-                                       spare=LIT_SPARE)
+        starts, spare = chamfer_starts(model, edges, _hull(labels == i), box, ground(centroids[i]), ground, maps, spare=LIT_SPARE)
         light = lights_at(model, starts, log_ratio, box)
         best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin, light, options,
                          lambda spare=spare: refined_starts(model, maps, spare, ground))
