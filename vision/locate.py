@@ -49,7 +49,7 @@ from vision.mesh_edges import MeshEdges, edge_model, yaw_rotation
 from vision.picture_edges import _edge_peaks, _find_edges, _gradients, _peak_offset, _tray_ratio  # noqa: F401
 from vision.pose_uncertainty import pose_covariance
 from vision.key_light import LightAt, lights_at
-from vision.shadow import dark_both_sides, shadow_evidence
+from vision.shadow import shadow_evidence, unseen_edges
 
 log = logging.getLogger(__name__)
 
@@ -511,7 +511,7 @@ def _dark_edges(model: MeshEdges, p: np.ndarray, light: np.ndarray | None) -> np
     if light is not None:
         idx = model.visible(p)
         eye, towards = model.in_part_frame(p, light)
-        unknown[idx] = dark_both_sides(model.field, model.points[idx], model.n1[idx], model.n2[idx], eye, towards)
+        unknown[idx] = unseen_edges(model.field, model.points[idx], model.n1[idx], model.n2[idx], eye, towards)
     return unknown
 
 
@@ -627,7 +627,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         if any(np.hypot(p.pixel[0] - centroids[i][0], p.pixel[1] - centroids[i][1]) < radius_px for p in found):
             continue
         box = (max(bx, 0), max(by, 0), min(bx + bw, w), min(by + bh, h))
-        starts, spare = chamfer_starts(model, edges, labels == i, box, ground(centroids[i]), ground, maps, spare=LIT_SPARE)
+        starts, spare = chamfer_starts(model, edges, _hull(labels == i), box, ground(centroids[i]), ground, maps, spare=LIT_SPARE)
         light = lights_at(model, starts, log_ratio, box)
         best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin, light, options,
                          lambda spare=spare: refined_starts(model, maps, spare, ground))
@@ -651,6 +651,18 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         raise VisionError("no part found on the tray (check the tray height, the extrinsics and the part file)"
                           + why, source=source)
     return sorted(found, key=lambda p: -p.score)
+
+
+def _hull(blob: np.ndarray) -> np.ndarray:
+    """``(h, w)`` bool: the convex hull of a blob (``blob`` (h, w) bool), where the coarse search puts the part.
+
+    Under a low light a part's lit top can be as grey as the tray and show few edges: the blob is its
+    shadow and its outline, and the point under the part's centroid lies outside it (a stepped wall's
+    coarse starts then all lay 15-70 mm off, on the shadow's stepped edge). The hull holds it.
+    """
+    hull = np.zeros(blob.shape, np.uint8)
+    cv2.fillConvexPoly(hull, cv2.convexHull(cv2.findNonZero(blob.astype(np.uint8))), 1)
+    return hull > 0
 
 
 def _blob_outline(log_ratio: np.ndarray, mask: np.ndarray, level: float) -> np.ndarray:

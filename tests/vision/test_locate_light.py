@@ -64,7 +64,11 @@ ONCE_REFUSED = [("glare", "l_bracket", 2), ("glare", "l_bracket", 3), ("glare", 
 #: fitted again, from three more starts, each under the light its own pose explains (vision/key_light.py).
 #: And one whose fit stopped 0.75 mm along itself (its outline seen across at 0.42), brought back on that
 #: second try by a slide of 0.75 mm.
-ONCE_REFUSED_LOW = [("low_angle", "stepped_wall", 15), ("low_angle", "stepped_wall", 19)]
+ONCE_REFUSED_LOW = [("low_angle", "stepped_wall", 15), ("low_angle", "stepped_wall", 19),
+                    # Refused on fde235e: seed 8's lit top was tray-grey, its centre outside its blob (coarse starts
+                    # 15-70 mm off; now the blob's hull is searched); seed 4's steps shaded
+                    # alike, judged as missing (now unseen, vision.shadow.unseen_edges).
+                    ("low_angle", "stepped_wall", 8), ("low_angle", "stepped_wall", 4)]
 #: Pictures whose error once lay beyond the uncertainty reported with it, now within it (vision/pose_uncertainty.py):
 #: a glare L 0.91 mm off held by a few edges that disagree (+-0.66 mm; the residuals of one mesh edge now
 #: count as one). (The stepped wall beside a box once here, 1.16 deg against +-0.71, is in ONCE_WRONG.)
