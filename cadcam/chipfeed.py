@@ -81,7 +81,7 @@ def _raised(op: Operation, share: np.ndarray, max_feed: float) -> Operation:
     want = np.where(share > 0, full / np.maximum(share, 1e-9), np.inf)
     feed = np.where(want >= max_feed, max_feed, _ladder(want, c.feed, max_feed))
     raised = (op.motion == Motion.CUT) & (feed > c.feed * (1 + 1e-9))
-    ramp = _ramp_feeds(op, want, max_feed)
+    ramp = _ramp_feeds(op, want, full, max_feed)
     feed = np.where(np.isnan(ramp), feed, ramp)
     raised = (raised | ~np.isnan(ramp))
     raised[0] = False
@@ -100,7 +100,7 @@ def _ladder(want: np.ndarray, base: float, max_feed: float) -> np.ndarray:
     return np.minimum(base * FEED_STEP ** steps, max_feed)
 
 
-def _ramp_feeds(op: Operation, want: np.ndarray, max_feed: float) -> np.ndarray:
+def _ramp_feeds(op: Operation, want: np.ndarray, full: float, max_feed: float) -> np.ndarray:
     """(n,) the feed of each ramp and helix move of ``op`` (a PLUNGE move across, no steeper than
     :data:`RAMP_SLOPE`) where its chip allows more than the plunge feed [mm/min], NaN elsewhere.
 
@@ -108,7 +108,8 @@ def _ramp_feeds(op: Operation, want: np.ndarray, max_feed: float) -> np.ndarray:
     helix the curved wall of the bore wraps round the cutter and the measured engagement is the wider one that
     gives (``tests/cadcam/test_verify_chip.py``, closed form). The edge's own speed, ``(r + R) / r`` the
     centre's, runs along the edge and adds no thickness to the chip, so it is not divided out again. The steps
-    climb from the plunge feed up to the feed of the full chip (a slot's, the operation's feed)."""
+    climb from the plunge feed up to the feed of the full chip (a slot's, the operation's feed); ``full``: the
+    feed at which a full-width chip is fz [mm/min], as :func:`_raised` has it."""
     c, n = op.cutting, len(op.points)
     out = np.full(n, np.nan)
     step = np.diff(op.points, axis=0)
@@ -119,8 +120,8 @@ def _ramp_feeds(op: Operation, want: np.ndarray, max_feed: float) -> np.ndarray:
     # the steps climb from the plunge feed, and the full chip's feed is a step too: a helix into the solid, its
     # chip the whole fz there, runs at a full-width cut's feed, not at the step under it (1.25 x slower at most)
     feed = _ladder(want, c.plunge_feed, max_feed)
-    full = min(c.spindle_rpm * op.tool.flutes * c.chip_load, c.feed, max_feed)
-    feed = np.where(want >= full * (1 - 1e-9), np.maximum(feed, full), feed)
+    top = min(full, c.feed, max_feed)
+    feed = np.where(want >= top * (1 - 1e-9), np.maximum(feed, top), feed)
     fast = ramp & (feed > c.plunge_feed * (1 + 1e-9))
     out[fast] = feed[fast]
     return out
