@@ -211,8 +211,7 @@ def dark_both_sides(field: HeightField, points: np.ndarray, n1: np.ndarray, n2: 
     the edge (the tray past a wall turned away, the tray at a wall's foot, a lower step). A side is
     dark when the light grazes or misses its face, or the part stands between it and the light.
     """
-    sides = _sides(field, points, n1, n2, eye, light)
-    return ~sides.lit_a & ~sides.lit_b
+    return _sides(field, points, n1, n2, eye, light).dark
 
 
 def unseen_edges(field: HeightField, points: np.ndarray, n1: np.ndarray, n2: np.ndarray, eye: np.ndarray,
@@ -227,9 +226,7 @@ def unseen_edges(field: HeightField, points: np.ndarray, n1: np.ndarray, n2: np.
     alike too, it found 4 more hexagonal bosses but passed a stepped wall 1.8 mm off (held-out seed 21).
     """
     sides = _sides(field, points, n1, n2, eye, light)
-    dark = ~sides.lit_a & ~sides.lit_b
-    alike = sides.flat & sides.on_part & (sides.lit_a == sides.lit_b)
-    return dark | alike
+    return sides.dark | (sides.flat & sides.on_part & (sides.lit_a == sides.lit_b))
 
 
 @dataclass(frozen=True)
@@ -245,6 +242,11 @@ class _Sides:
     lit_b: np.ndarray
     flat: np.ndarray
     on_part: np.ndarray
+
+    @property
+    def dark(self) -> np.ndarray:
+        """``(k,)`` bool: the key light reaches neither side."""
+        return ~self.lit_a & ~self.lit_b
 
 
 #: A face whose normal's z is above this faces up (within 8 deg) (unitless).
