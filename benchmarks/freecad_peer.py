@@ -4,8 +4,9 @@
 
 For each part (default: the four samples but the relief) op 1 is planned as
 ``factory plan --no-robot`` plans and posts it (:func:`factory.plan.plan_part`, two operations, tools from
-fixtures/tools.yaml, LinuxCNC): the program a machinist runs, on the stock that leaves op 2 its holding block. FreeCAD's Path workbench (run headless by Debian's
-``freecadcmd``, benchmarks/freecad_peer_job.py) then makes the issue's program for the same stock
+fixtures/tools.yaml, LinuxCNC): the program a machinist runs, on the stock that leaves op 2 its holding
+block. FreeCAD's Path workbench (run headless by Debian's ``freecadcmd``, benchmarks/freecad_peer_job.py)
+then makes the issue's program for the same stock
 with op 1's tools, spindle speeds, feeds and plunge feeds (:func:`peer_tools`): Adaptive clearing
 with our roughing tool at its defaults (20 % stepover, helix at 5 degrees, no lift on links,
 step-down = the tool diameter), level by level down to op 1's floor, leaving our roughing's
@@ -69,9 +70,9 @@ from cadcam.model import Motion, Operation, ProgramMoves, Setup, Tool  # noqa: E
 from cadcam.plan import PlanOptions  # noqa: E402
 from cadcam.post import PostOptions  # noqa: E402
 from cadcam.timeline import machine_timeline  # noqa: E402
-from factory.plan import PlanRequest, plan_part  # noqa: E402
 from cadcam.verify import VerifyOptions, simulate  # noqa: E402
 from factory.core.errors import GcodeError  # noqa: E402
+from factory.plan import PlanRequest, plan_part  # noqa: E402
 from tests.cadcam.sweep import sweep_moves  # noqa: E402
 
 #: The relief is left out: ``factory plan`` plans it inside its boundary (:mod:`cadcam.relief`),
