@@ -30,7 +30,10 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from cadcam.adaptive import AdaptiveOptions, chip_thinned_feed  # noqa: E402
+from cadcam.faces import classify_faces  # noqa: E402
+from cadcam.finishing import stepover_for  # noqa: E402
 from cadcam.mesh import load_part  # noqa: E402
+from cadcam.plan import PlanOptions, choose_tools  # noqa: E402
 from cadcam.setup import make_setup  # noqa: E402
 from cadcam.tools import load_tool_library  # noqa: E402
 from factory.plan import PlanRequest, plan_part  # noqa: E402
@@ -40,8 +43,12 @@ def lower_bound(path: Path, tool_number: int = 2) -> float:
     """A feature-aware lower bound of both operations [min]: the stock's volume less the part's removed at the
     best rate the library's 10 mm end mill (T2) has in aluminium, a side cut at its library target engagement
     (0.15 D) two diameters deep at its chip-thinned feed, plus the part's upward flats faced once at 70 %
-    stepover and its walls' outline taken once at the tool's feed. No tool change, rapid or entry is
-    counted, nor the ball on freeform surfaces, so every real program takes longer."""
+    stepover and its walls' outline taken once at the tool's feed, plus the freeform faces (neither flat nor
+    wall: :func:`cadcam.faces.classify_faces`' steep and shallow ones) swept once by the finishing ball the plan
+    would choose (:func:`cadcam.plan.choose_tools`) at its library feed, its passes as far apart as the plan's
+    freeform scallop allows (:func:`cadcam.finishing.stepover_for`, on the surface: area over stepover). No tool
+    change, rapid or entry is counted, nor bores or the ball's overlap with the roughing, so every real program
+    takes longer."""
     library = load_tool_library()
     setup, part = make_setup(load_part(path).mesh)
     tool = library.tool(tool_number)
@@ -56,7 +63,21 @@ def lower_bound(path: Path, tool_number: int = 2) -> float:
     flats = float(part.area_faces[up].sum())
     walls = abs(part.face_normals[:, 2]) < 1e-3
     outline = float(part.area_faces[walls].sum()) / max(float(part.extents[2]), 1e-9)
-    return removed / rate + flats / (0.7 * tool.diameter * cutting.feed) + outline / cutting.feed
+    return (removed / rate + flats / (0.7 * tool.diameter * cutting.feed) + outline / cutting.feed
+            + _ball_minutes(library, setup, part))
+
+
+def _ball_minutes(library, setup, part) -> float:
+    """The freeform faces' area swept once by the plan's finishing ball at the freeform scallop's stepover [min];
+    0 on a part without freeform faces or a library without a ball."""
+    areas = classify_faces(part).areas()
+    freeform = areas["steep"] + areas["shallow"]  # [mm²]
+    plan = PlanOptions()
+    ball = choose_tools(library, setup, plan)[1]
+    if freeform <= 0 or ball.shape != "ball":
+        return 0.0
+    scallop = plan.freeform_scallop if plan.freeform_scallop is not None else plan.finishing.scallop
+    return freeform / (stepover_for(ball, scallop) * library.cutting_data(ball, setup.material).feed)
 
 
 def bench_part(path: Path, strategy: str) -> dict:
