@@ -739,6 +739,7 @@ def _freeform_finishing(plan: _Planning, operations: list[Operation], stock: Sim
         operations.append(plan.timed("waterline", lambda: waterline_finishing(
             part, setup, tool, cutting, ball_options,
             progress=plan.stage_progress("waterline"), stock=stock, limit=engagement, within=within, where=where)))
+        operations[-1] = _at_chip(plan, operations[-1], stock)
         # The raster comes after the waterline: where that left a wall's skin (a hole too small
         # for its loops), the raster must not take it in one deep pass either.
         if stock is not None and len(operations[-1].points) > 1:
@@ -752,9 +753,17 @@ def _freeform_finishing(plan: _Planning, operations: list[Operation], stock: Sim
         if op is not None:
             operations.append(op)
             stock = plan.model(operations)
-    operations.append(plan.timed("raster", lambda: raster_finishing(
+    operations.append(_at_chip(plan, plan.timed("raster", lambda: raster_finishing(
         part, setup, tool, cutting, raster_options, progress=plan.stage_progress("raster"), stock=stock,
-        limit=engagement, within=within, where=where)))
+        limit=engagement, within=within, where=where)), stock))
+
+
+def _at_chip(plan: _Planning, op: Operation, stock: Simulation | None) -> Operation:
+    """``op`` at the feed each move's chip allows on ``stock`` (:func:`cadcam.chipfeed.chip_feeds`), as the
+    flats and walls run; ``op`` itself without a stock model."""
+    if stock is None or len(op.points) < 2:
+        return op
+    return plan.timed("chip feeds", lambda: chip_feeds(op, stock, plan.setup, plan.triangles, plan.library.max_feed))
 
 
 def _ball_finishes(faces: FaceClasses, ball: Tool) -> Callable[[np.ndarray], np.ndarray]:
