@@ -615,7 +615,7 @@ def _holes_and_roughing(plan: _Planning, exact: tuple[Hole, ...] | None = None
             options.adaptive, progress=plan.stage_progress("roughing"), within=plan.rough_within,
             cut_before=plan.cut_before))
     # Drilled and helixed holes come first: the stock model below sees them.
-    drilled = [*(holes.operations if holes is not None else ())]
+    drilled = _bores_at_chip(plan, [*(holes.operations if holes is not None else ())])
     # each roughing move at the feed its chip allows: links and levels through stock the holes or the level
     # above took, and the light cuts round the rings, faster (the full-width ones keep the library's feed)
     before = plan.model(drilled)
@@ -624,6 +624,18 @@ def _holes_and_roughing(plan: _Planning, exact: tuple[Hole, ...] | None = None
     operations = [*drilled, *rough]
     # What roughing left lets finishing descend by rapid through air instead of feeding from safe_z.
     return holes, operations, plan.model(operations)
+
+
+def _bores_at_chip(plan: _Planning, holes: list[Operation]) -> list[Operation]:
+    """The holes' operations with each bore's helices at the feed its chip allows on the stock the drills leave
+    (:func:`cadcam.chipfeed.chained_chip_feeds`): a helix round a drilled hole is a side cut, fed by
+    :func:`cadcam.drilling.helix_cutting` as a slot from solid (dome_mould's 10 mm bores round 8.5 mm holes at F935)."""
+    first = next((i for i, op in enumerate(holes) if op.cycle is None and not op.tool.is_drill), len(holes))
+    if first == len(holes):
+        return holes
+    start = plan.model(holes[:first]) if first else None
+    return holes[:first] + plan.timed("chip feeds", lambda: chained_chip_feeds(
+        holes[first:], start, plan.setup, plan.triangles, plan.library.max_feed))
 
 
 def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulation | None) -> Simulation | None:
