@@ -458,3 +458,30 @@ def test_predrilled_bores_are_quicker_and_clean(tmp_path, diameter, rings):
     setup1, part1 = make_setup(one)
     alone = plan_holes(part1, setup1, LIBRARY, LIBRARY.tool(2), allowance=0.3)
     assert len(alone.helixed) == 1 and alone.predrilled == () and [o.kind for o in alone.operations] == ["helix"]
+
+
+def test_a_plans_predrilled_bores_run_at_their_chip_and_verify_passes_them():
+    """In a plan, a bore's helices round the drilled hole are side cuts: they run faster than
+    :func:`cadcam.drilling.helix_cutting`'s feed (a slot's from solid, the centre line slowed for the internal arc),
+    at what their chip allows on the stock the drills leave; verify, holding every move's chip to the library's
+    fz, passes the whole program, and nothing is plunged or cut past the axial limit."""
+    from cadcam.engagement import chip_loads
+    from cadcam.plan import plan_job
+
+    solid = plate((40.0, 40.0, 15.0))
+    for x, y in [(10, 10), (30, 10), (10, 30), (30, 30)]:
+        solid -= cylinder(x, y, 5.5, -1, 16)
+    setup, part = make_setup(manifold_to_trimesh(solid))
+    job = plan_job(part, setup, LIBRARY, part_name="bores").job
+    helices = [o for o in job.operations if o.kind == "helix"]
+    assert len(helices) == 4 and any(o.kind == "drill" for o in job.operations)
+    for op in helices:
+        deep = (op.motion != Motion.RAPID) & (op.points[:, 2] < -2.0)
+        assert np.median(op.move_feeds()[deep]) > 1.5 * op.cutting.feed
+    sheet = [{"tool": o.tool.number, "chip_load_mm": o.cutting.chip_load, "spindle_rpm": o.cutting.spindle_rpm}
+             for o in job.operations if not o.tool.is_drill]
+    tools = {o.tool.number: o.tool for o in job.operations}
+    report = simulate(parse_gcode(post_process(job).text), tools, setup, part.triangles, VerifyOptions(cell=0.2),
+                      chips=chip_loads(sheet)).report
+    assert report.ok and report.faults == (), [f.message for f in report.faults]
+    assert all(e.max_full_depth <= tools[e.tool].full_width_limit for e in report.engagement)

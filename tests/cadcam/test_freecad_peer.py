@@ -120,3 +120,25 @@ def test_the_peer_takes_our_op_1s_tools_for_each_of_its_operations():
 def test_a_group_freecad_made_no_path_for_takes_no_time():
     assert freecad_peer.group_minutes("(begin operation: Face0)\nG0 Z5.000\n") == 0.0
     assert freecad_peer.group_minutes(FREECAD_STYLE) == freecad_peer.program_minutes(FREECAD_STYLE)
+
+
+def test_the_bound_sweeps_the_freeform_faces_once_with_the_finishing_ball():
+    """The bound's ball (``benchmarks.adaptive``): nothing on a prismatic block; on a half sphere standing on a
+    block, the sphere's surface (2 pi r^2, less what its top tessellates as flat) swept once at the stepover the
+    plan's freeform scallop leaves with the 6 mm ball, at that ball's library feed."""
+    import manifold3d
+
+    from benchmarks.adaptive import _ball_minutes
+    from tests.conftest import manifold_to_trimesh
+
+    library = load_tool_library()
+    block = manifold3d.Manifold.cube((60.0, 50.0, 10.0))
+    setup, part = make_setup(manifold_to_trimesh(block))
+    assert _ball_minutes(library, setup, part) == 0.0
+    r = 15.0
+    dome = block + manifold3d.Manifold.sphere(r, 128).translate((30.0, 25.0, 10.0))
+    setup, part = make_setup(manifold_to_trimesh(dome))
+    ball = library.tool(3)
+    step = stepover_for(ball, PlanOptions().freeform_scallop)
+    expected = 2 * np.pi * r * r / (step * library.cutting_data(ball, setup.material).feed)
+    assert _ball_minutes(library, setup, part) == pytest.approx(expected, rel=0.03)

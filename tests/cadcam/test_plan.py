@@ -231,3 +231,27 @@ def test_in_a_pipe_a_stage_ends_when_its_work_does_not_when_its_counted_steps_do
     started = [e[:-len(" ...")] for e in events if e.endswith(" ...")]
     assert started.count("stock model") >= 2 and "freeform area" in started  # the work between stages shows
     assert sorted(started) == sorted(e.split(" done in ")[0] for e in events if " done in " in e)
+
+
+def test_the_balls_passes_run_at_their_chip_and_verify_holds_every_chip_to_fz(tmp_path):
+    """The ball's waterline and raster run at the feed each move's chip allows on the stock before them (as flats
+    and walls do): over a dome that roughing left in terraces some of their moves run faster than the library's
+    feed, none slower; verify, holding every move's chip to the library's fz, passes the program."""
+    from cadcam.engagement import chip_loads
+
+    dome = manifold3d.Manifold.cube((26.0, 20.0, 5.0)) + manifold3d.Manifold.sphere(6.0, 32).translate((13.0, 10.0, 3.0))
+    setup, part = make_setup(manifold_to_trimesh(dome), jaws=JAWS)
+    job = plan_job(part, setup, LIBRARY, part_name="dome", options=TEST_PLAN).job
+    ball = [op for op in job.operations if op.kind in ("waterline", "raster")]
+    assert [op.kind for op in ball] == ["waterline", "raster"]
+    for op in ball:
+        fed = op.move_feeds()[op.motion != Motion.RAPID][1:]
+        assert (fed >= min(op.cutting.feed, op.cutting.plunge_feed) - 1e-9).all()
+    assert any((op.move_feeds()[op.motion == Motion.CUT] > op.cutting.feed * 1.2).any() for op in ball)
+    sheet = [{"tool": o.tool.number, "chip_load_mm": o.cutting.chip_load, "spindle_rpm": o.cutting.spindle_rpm}
+             for o in job.operations if not o.tool.is_drill]
+    tools = {t.number: t for t in job.tools}
+    report = simulate(parse_gcode(post_process(job).text), tools, setup, np.asarray(part.triangles),
+                      VerifyOptions(cell=0.2), chips=chip_loads(sheet)).report
+    assert report.ok and [f.kind for f in report.faults] == [], [f.message for f in report.faults]
+    assert report.max_gouge <= 0.01
