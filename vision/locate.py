@@ -50,6 +50,7 @@ from vision.picture_edges import _edge_peaks, _find_edges, _gradients, _peak_off
 from vision.pose_uncertainty import pose_covariance
 from vision.key_light import LightAt, lights_at
 from vision.shadow import shadow_evidence, unseen_edges
+from vision.stray_edges import MAX_STRAY, stray_edges
 
 log = logging.getLogger(__name__)
 
@@ -317,7 +318,9 @@ class _EdgeFit:
     not a symmetry of the mesh, fits as well and the edges that would tell them apart are hidden;
     ``bloom_px``: how far a clipped highlight spills past its edges [px]; ``samples``: the model sample
     (:class:`vision.mesh_edges.MeshEdges`) of each of ``residuals`` and ``jac``'s rows; ``light``: the key
-    light it was judged under (unit (3,), base frame; None without one)."""
+    light it was judged under (unit (3,), base frame; None without one); ``stray``: the picture's edges beside
+    it that neither the part nor its shadow explains, per outline sample (:func:`vision.stray_edges.stray_edges`;
+    0 without a key light)."""
 
     pose: np.ndarray
     coverage: float
@@ -332,6 +335,7 @@ class _EdgeFit:
     bloom_px: float = 0.0
     samples: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False, compare=False)
     light: np.ndarray | None = field(default=None, repr=False, compare=False)
+    stray: float = 0.0
 
     @property
     def evidence(self) -> float:
@@ -754,7 +758,7 @@ def _fitted(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, 
     best = _chosen_fit(model, gx, gy, threshold, starts, symmetry, saturated, thin, light, options.min_coverage)
     if best is None or best.ambiguous:
         return best
-    best = _slid(model, gx, gy, threshold, best, saturated, slides)
+    best = _with_stray(model, _slid(model, gx, gy, threshold, best, saturated, slides), thin)
     even = light is None and (saturated is None or not saturated.any())
     return _settled(model, gx, gy, threshold, best, options) if options.refine and even else best
 
@@ -847,6 +851,10 @@ def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: flo
     reaches = SEARCH_PX if first.coverage < min_coverage else SEARCH_PX[-2:]
     fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, reaches, saturated, _light_at(light, t))
                              for t in turns) if fit is not None]
+    # A fit that leaves edges beside it unexplained lies beside the part or turned onto its shadow: the others
+    # are chosen from while there are any (:mod:`vision.stray_edges`).
+    fits = [_with_stray(model, fit, thin) for fit in fits]
+    fits = [fit for fit in fits if fit.stray <= MAX_STRAY] or fits
     # Of the fits that find (nearly) as many edges as the best, the one that lies closest on them.
     most = max(fit.found for fit in fits)
     close = [fit for fit in fits if fit.found >= most - 0.05]
@@ -883,6 +891,14 @@ def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: flo
     return best
 
 
+def _with_stray(model: MeshEdges, fit: _EdgeFit, thin: np.ndarray | None) -> _EdgeFit:
+    """``fit`` with its stray edges (:attr:`_EdgeFit.stray`) counted under the key light it was judged under
+    (``thin``: the picture's edges, :func:`vision.locate_search.thin_edges`); as it is without a light."""
+    if fit.light is None or thin is None:
+        return fit
+    return replace(fit, stray=stray_edges(model, fit.pose, fit.light, thin))
+
+
 def _light_at(light: LightAt | np.ndarray | None, pose: np.ndarray) -> np.ndarray | None:
     """The key light (unit (3,), base frame) a fit from ``pose`` is judged under: one for every pose, or
     the one estimated at it (:class:`vision.key_light.LightAt`)."""
@@ -910,6 +926,9 @@ def _refusal(fit: _EdgeFit, options: LocateOptions) -> str:
                 f"edges found, {100 * options.min_found:.0f} % needed): the pose may be turned or shifted")
     if fit.rms_px > options.max_rms_px:
         return f"the edges fit loosely (RMS {fit.rms_px:.2f} px, {options.max_rms_px:.2f} px allowed)"
+    if fit.stray > MAX_STRAY:
+        return (f"edges beside the fit that neither the part nor its shadow explains ({100 * fit.stray:.0f} % of its "
+                f"outline, {100 * MAX_STRAY:.0f} % allowed): the part may lie turned or beside it")
     return ""
 
 
