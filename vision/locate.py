@@ -34,7 +34,6 @@ import cv2
 import numpy as np
 import shapely
 import trimesh
-from contourpy import LineType, contour_generator
 from scipy.ndimage import map_coordinates
 from scipy.spatial import cKDTree
 from scipy.optimize import least_squares
@@ -46,7 +45,8 @@ from vision.camera import CameraModel, bin_image, binned_camera
 from vision.locate_search import FIT_SAMPLES, chamfer_starts, oriented_distances, refined_starts, thin_edges
 from vision.mesh_edges import MeshEdges, edge_model, yaw_rotation
 # _edge_peaks and _peak_offset stay importable from here: vision.inspect takes them with the rest.
-from vision.picture_edges import _edge_peaks, _find_edges, _gradients, _peak_offset, _tray_ratio  # noqa: F401
+from vision.picture_edges import (_blob_outline, _edge_peaks, _find_edges, _gradients, _peak_offset,  # noqa: F401
+                                  _tray_ratio)
 from vision.pose_uncertainty import pose_covariance
 from vision.key_light import LightAt, lights_at
 from vision.shadow import shadow_evidence, unseen_edges
@@ -263,24 +263,6 @@ def _grey(image: np.ndarray, source: str) -> np.ndarray:
     if img.ndim == 3:
         return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
     return img
-
-
-def _subpixel_outline(grey: np.ndarray, mask: np.ndarray, level: float, bright: bool) -> np.ndarray | None:
-    """The longest closed iso-line at ``level`` around one blob [px], or None."""
-    x, y, w, h = cv2.boundingRect(mask)
-    x0, y0 = max(x - 3, 0), max(y - 3, 0)
-    x1, y1 = min(x + w + 3, grey.shape[1]), min(y + h + 3, grey.shape[0])
-    roi = grey[y0:y1, x0:x1].astype(np.float64)
-    # Keep other blobs in the window out: outside this blob's (dilated) mask, the tray level.
-    keep = cv2.dilate(mask[y0:y1, x0:x1], np.ones((5, 5), np.uint8)) > 0
-    tray_value = level - 1e3 if bright else level + 1e3
-    roi = np.where(keep, roi, tray_value)
-    lines = contour_generator(z=roi, line_type=LineType.Separate).lines(level)
-    closed = [ln for ln in lines if len(ln) > 8 and np.allclose(ln[0], ln[-1])]
-    if not closed:
-        return None
-    best = max(closed, key=len)
-    return best[:-1] + (x0, y0)
 
 
 #: Share of the visible edges hidden in clipped highlights above which a symmetric turn that fits
@@ -674,17 +656,6 @@ def _hull(blob: np.ndarray) -> np.ndarray:
     return hull > 0
 
 
-def _blob_outline(log_ratio: np.ndarray, mask: np.ndarray, level: float) -> np.ndarray:
-    """The outline of a blob (``mask`` (h, w) uint8) for inspection [px]: the iso-line of ``log_ratio`` a
-    quarter of the way from the tray to the part's typical brightness (as far from the sensor noise as
-    from dim side faces), ``level`` at least; (0, 2) when there is none."""
-    inside = log_ratio[(mask > 0) & (np.abs(log_ratio) > level)]
-    typical = float(np.median(inside)) if len(inside) else level
-    iso = np.sign(typical) * max(abs(typical) / 4, level)
-    outline = _subpixel_outline(log_ratio, mask, iso, typical > 0)
-    return outline if outline is not None else np.zeros((0, 2))
-
-
 def _explained(model: MeshEdges, pose: np.ndarray, thin: np.ndarray, bloom: float = 0.0) -> float:
     """Share of the picture's edge pixels inside the part's outline that lie on a model edge at ``pose``.
 
@@ -731,6 +702,8 @@ LIT_SLIDES_M = (-1.5e-3, 1.5e-3)
 #: stopped 0.75 mm along itself, its outline seen across at 0.42, came back from 1.5 mm either way onto the
 #: same wrong place; from 0.75 mm back it found 0.56.
 LIT_RETRY_SLIDES_M = (-1.5e-3, -0.75e-3, 0.75e-3, 1.5e-3)
+#: ... of which the shorter, for a first fit that passes fixed across its outline by its other edges (:func:`_best_fit`) [m].
+LIT_SHORT_SLIDES_M = (-0.75e-3, 0.75e-3)
 
 
 def _best_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
@@ -744,12 +717,16 @@ def _best_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
     search's), each under the light its own pose explains, and slid 0.75 mm as well
     (:data:`LIT_RETRY_SLIDES_M`): a low light's long shadow can win the first starts, and the light
     estimated at a wrong pose leaves out the wrong edges (vision/key_light.py). A fit that passes is
-    not refitted, so its pose stays the one the first light gave. A fit whose outline is seen along one
-    direction only, fixed across it by its other edges alone (:attr:`_EdgeFit.edges_axis`), is taken only after
-    the second try, which brought a low-light stepped wall from 0.75 mm off (beyond its +-0.74 mm) to 0.26 mm."""
+    not refitted, so its pose stays the one the first light gave. A first fit whose outline is seen along one
+    direction only, fixed across it by its other edges alone (:attr:`_EdgeFit.edges_axis`), is slid 0.75 mm as
+    well (:data:`LIT_SHORT_SLIDES_M`): a low-light stepped wall came back from 0.75 mm off (beyond its +-0.74 mm)."""
     best = _fitted(model, gx, gy, threshold, starts, symmetry, saturated, thin, light and light.first, options)
     if light is None or spare is None or (best is not None and not _refusal(best, options, outline_axis=True)):
         return best
+    if best is not None and not _refusal(best, options):
+        # Fixed across its outline by its other edges alone: slid the second try's shorter way, not fitted again
+        # from every start (a second try cost such pictures 0.6-1 s more).
+        return _with_stray(model, _slid(model, gx, gy, threshold, best, saturated, LIT_SHORT_SLIDES_M), thin)
     again = _fitted(model, gx, gy, threshold, starts + spare(), symmetry, saturated, thin, light, options,
                     LIT_RETRY_SLIDES_M)
     if again is not None and not _refusal(again, options, outline_axis=True):
