@@ -15,7 +15,8 @@ the camera pose ``T_base_cam`` comes from the hand-eye file. :func:`locate_parts
    the picture's edges inside the outline).
 4. Judge: the share of the outline's edges found within a pixel must reach a minimum, in both
    of the outline's main directions, and so must the share of all visible edges (steps, bosses,
-   holes), else the blob gets no pose and the refusal says which was short. A shadow, a box or
+   holes), else the blob gets no pose and the refusal says which was short; under a key light, also
+   when edges beside it lie outside the part and its shadow (:mod:`vision.stray_edges`). A shadow, a box or
    glare do not have the part's edges; a wall as bright as the tray still has its crease with
    the top face, which the model has as well.
 
@@ -93,7 +94,9 @@ class LocateOptions:
         direction are slid along the outline first (:func:`_slid`), which brought stepped walls
         slid 2-2.5 mm (0.47-0.58) back. Below 0.5 wrong poses remain: a glare stepped wall turned
         180 deg (0.47, not slid in glare) and a blank located on a tray plane 30 mm too high
-        (about 0.5: it finds one of each pair of opposite sides), so 0.5 stands.
+        (about 0.5: it finds one of each pair of opposite sides), so 0.5 stands. Under a key light all the seen
+        edges (steps, bosses, holes, the cast shadow's edge) may reach it instead (:attr:`_EdgeFit.edges_axis`):
+        the outline's lit side beside lit tray is often faint there.
     min_found : float
         Share of all visible model edges (outline, steps, bosses, holes) found within a pixel
         (0..1): the edges inside the outline tell a pose turned or shifted onto a look-alike
