@@ -1,6 +1,6 @@
 """Edges beside a pose that neither the part nor its shadow explains (vision/stray_edges.py), on plain geometry:
 the part's own edges and its shadow's are never stray, an edge beside the part on the light's side always is,
-one far off never."""
+one far off never. And the shadow's light fit (vision/shadow.py) from an estimate below its floor."""
 
 from __future__ import annotations
 
@@ -13,9 +13,11 @@ from hypothesis import strategies as st
 from tests.vision.lit import cell_station
 from vision.locate import footprint_from_mesh
 from vision.mesh_edges import edge_model
+from vision.shadow import LOWEST_LIGHT, shadow_evidence
 from vision.stray_edges import BESIDE_PX, COVER_PX, stray_edges
 
 BOX_MM = (40.0, 30.0, 20.0)
+LOWEST_LIGHT_DEG = float(np.degrees(LOWEST_LIGHT))
 
 
 @pytest.fixture(scope="module")
@@ -90,3 +92,20 @@ def test_an_edge_beside_the_part_towards_the_light_is_stray_and_one_far_off_is_n
     thin = own.copy()
     thin[far[:, 1], far[:, 0]] = True
     assert stray_edges(box_model, p, base, thin) == 0.0
+
+
+@settings(max_examples=20, deadline=None)
+@given(az=st.floats(-np.pi, np.pi), el_deg=st.floats(0.5, 8.0), off=st.floats(-1.0, 1.0))
+def test_the_light_fit_starts_from_an_estimate_below_its_floor(box_model, az, el_deg, off):
+    """An estimate of the key light under 5 deg (the light estimated at a low-angle stepped wall's true pose was
+    4.7 deg) is fitted from within the fit's bounds, not refused by the solver: the fitted light is at 5 deg or
+    more and within the turn allowed (vision.shadow.shadow_evidence)."""
+    m, pose = box_model, np.array([0.05, 0.40, 0.3])
+    idx = m.visible(pose)
+    eye, _ = m.in_part_frame(pose, np.zeros(3))
+    light = towards(az, np.radians(el_deg))
+    got = shadow_evidence(m.field, m.points, m.direction, m.n1, m.n2, idx, eye, light,
+                          lambda pts, d: m.image_of(pose, pts, d),
+                          lambda uv, n, reach: np.full(len(uv), off), lambda pts: m.pixels(pose, pts))
+    assert np.degrees(np.arcsin(got.light[2])) >= min(el_deg, LOWEST_LIGHT_DEG) - 1e-6
+    assert abs(np.angle(np.exp(1j * (np.arctan2(got.light[1], got.light[0]) - az)))) <= np.radians(6.0) + 1e-6
