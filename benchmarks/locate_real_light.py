@@ -88,7 +88,7 @@ def picture(station, part: str, condition: str, seed: int, cache: Path | None, d
 #: What a refusal may say (vision.locate._refusal), shortened for the table of misses.
 REASONS = {"outline is not there": "outline", "seen along one direction only": "one direction",
            "inside the outline are not there": "inner edges", "fit loosely": "loose fit",
-           "the yaw is not fixed": "turn in glare"}
+           "the yaw is not fixed": "turn in glare", "neither the part nor its shadow explains": "stray edges"}
 
 
 def _reason(message: str) -> str:

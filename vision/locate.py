@@ -15,7 +15,8 @@ the camera pose ``T_base_cam`` comes from the hand-eye file. :func:`locate_parts
    the picture's edges inside the outline).
 4. Judge: the share of the outline's edges found within a pixel must reach a minimum, in both
    of the outline's main directions, and so must the share of all visible edges (steps, bosses,
-   holes), else the blob gets no pose and the refusal says which was short. A shadow, a box or
+   holes), else the blob gets no pose and the refusal says which was short; under a key light, also
+   when edges beside it lie outside the part and its shadow (:mod:`vision.stray_edges`). A shadow, a box or
    glare do not have the part's edges; a wall as bright as the tray still has its crease with
    the top face, which the model has as well.
 
@@ -34,7 +35,6 @@ import cv2
 import numpy as np
 import shapely
 import trimesh
-from contourpy import LineType, contour_generator
 from scipy.ndimage import map_coordinates
 from scipy.spatial import cKDTree
 from scipy.optimize import least_squares
@@ -46,10 +46,12 @@ from vision.camera import CameraModel, bin_image, binned_camera
 from vision.locate_search import FIT_SAMPLES, chamfer_starts, oriented_distances, refined_starts, thin_edges
 from vision.mesh_edges import MeshEdges, edge_model, yaw_rotation
 # _edge_peaks and _peak_offset stay importable from here: vision.inspect takes them with the rest.
-from vision.picture_edges import _edge_peaks, _find_edges, _gradients, _peak_offset, _tray_ratio  # noqa: F401
+from vision.picture_edges import (_blob_outline, _edge_peaks, _find_edges, _gradients, _peak_offset,  # noqa: F401
+                                  _tray_ratio)
 from vision.pose_uncertainty import pose_covariance
 from vision.key_light import LightAt, lights_at
 from vision.shadow import shadow_evidence, unseen_edges
+from vision.stray_edges import MAX_STRAY, stray_edges
 
 log = logging.getLogger(__name__)
 
@@ -92,7 +94,9 @@ class LocateOptions:
         direction are slid along the outline first (:func:`_slid`), which brought stepped walls
         slid 2-2.5 mm (0.47-0.58) back. Below 0.5 wrong poses remain: a glare stepped wall turned
         180 deg (0.47, not slid in glare) and a blank located on a tray plane 30 mm too high
-        (about 0.5: it finds one of each pair of opposite sides), so 0.5 stands.
+        (about 0.5: it finds one of each pair of opposite sides), so 0.5 stands. Under a key light all the seen
+        edges (steps, bosses, holes, the cast shadow's edge) may reach it instead (:attr:`_EdgeFit.edges_axis`):
+        the outline's lit side beside lit tray is often faint there.
     min_found : float
         Share of all visible model edges (outline, steps, bosses, holes) found within a pixel
         (0..1): the edges inside the outline tell a pose turned or shifted onto a look-alike
@@ -264,24 +268,6 @@ def _grey(image: np.ndarray, source: str) -> np.ndarray:
     return img
 
 
-def _subpixel_outline(grey: np.ndarray, mask: np.ndarray, level: float, bright: bool) -> np.ndarray | None:
-    """The longest closed iso-line at ``level`` around one blob [px], or None."""
-    x, y, w, h = cv2.boundingRect(mask)
-    x0, y0 = max(x - 3, 0), max(y - 3, 0)
-    x1, y1 = min(x + w + 3, grey.shape[1]), min(y + h + 3, grey.shape[0])
-    roi = grey[y0:y1, x0:x1].astype(np.float64)
-    # Keep other blobs in the window out: outside this blob's (dilated) mask, the tray level.
-    keep = cv2.dilate(mask[y0:y1, x0:x1], np.ones((5, 5), np.uint8)) > 0
-    tray_value = level - 1e3 if bright else level + 1e3
-    roi = np.where(keep, roi, tray_value)
-    lines = contour_generator(z=roi, line_type=LineType.Separate).lines(level)
-    closed = [ln for ln in lines if len(ln) > 8 and np.allclose(ln[0], ln[-1])]
-    if not closed:
-        return None
-    best = max(closed, key=len)
-    return best[:-1] + (x0, y0)
-
-
 #: Share of the visible edges hidden in clipped highlights above which a symmetric turn that fits
 #: as well makes the pose ambiguous (unitless).
 AMBIGUOUS_HIDDEN = 0.1
@@ -317,7 +303,10 @@ class _EdgeFit:
     not a symmetry of the mesh, fits as well and the edges that would tell them apart are hidden;
     ``bloom_px``: how far a clipped highlight spills past its edges [px]; ``samples``: the model sample
     (:class:`vision.mesh_edges.MeshEdges`) of each of ``residuals`` and ``jac``'s rows; ``light``: the key
-    light it was judged under (unit (3,), base frame; None without one)."""
+    light it was judged under (unit (3,), base frame; None without one); ``stray``: the picture's edges beside
+    it that neither the part nor its shadow explains, per outline sample (:func:`vision.stray_edges.stray_edges`;
+    0 without a key light); ``edges_axis``: under a key light, the share of all seen edges (outline, steps,
+    bosses, holes and the cast shadow's edge) found in the worse of their two main directions (0 without one)."""
 
     pose: np.ndarray
     coverage: float
@@ -332,6 +321,8 @@ class _EdgeFit:
     bloom_px: float = 0.0
     samples: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False, compare=False)
     light: np.ndarray | None = field(default=None, repr=False, compare=False)
+    stray: float = 0.0
+    edges_axis: float = 0.0
 
     @property
     def evidence(self) -> float:
@@ -460,10 +451,13 @@ def _edge_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
         outer_near = np.r_[near[outer & ~shade.unknown], shade.near]
         outer_normal = np.vstack([normal[outer & ~shade.unknown], shade.normal])
         found = np.r_[near[seen & ~shade.unknown], shade.near]
+        # Under a key light the outline's side towards it is a lit top beside lit tray, often faint: the edges
+        # inside it and the shadow's fix the position across that side as well (:attr:`_EdgeFit.edges_axis`).
+        edges_axis = _axis_coverage(found, np.vstack([normal[seen & ~shade.unknown], shade.normal]))
     coverage = float(outer_near.mean()) if len(outer_near) else float(near.mean())
     axis = _axis_coverage(outer_near, outer_normal) if len(outer_near) else _axis_coverage(near, normal)
     return _EdgeFit(pose=p, coverage=coverage, axis_coverage=axis, found=float(found.mean()) if len(found) else 0.0,
-                    rms_px=rms,
+                    rms_px=rms, edges_axis=edges_axis if light is not None else 0.0,
                     cost=float(sol.cost), jac=sol.jac[inliers][:, :3], residuals=sol.fun[inliers],
                     hidden=float(1.0 - seen.mean()), bloom_px=bloom, samples=pts[inliers], light=light)
 
@@ -665,17 +659,6 @@ def _hull(blob: np.ndarray) -> np.ndarray:
     return hull > 0
 
 
-def _blob_outline(log_ratio: np.ndarray, mask: np.ndarray, level: float) -> np.ndarray:
-    """The outline of a blob (``mask`` (h, w) uint8) for inspection [px]: the iso-line of ``log_ratio`` a
-    quarter of the way from the tray to the part's typical brightness (as far from the sensor noise as
-    from dim side faces), ``level`` at least; (0, 2) when there is none."""
-    inside = log_ratio[(mask > 0) & (np.abs(log_ratio) > level)]
-    typical = float(np.median(inside)) if len(inside) else level
-    iso = np.sign(typical) * max(abs(typical) / 4, level)
-    outline = _subpixel_outline(log_ratio, mask, iso, typical > 0)
-    return outline if outline is not None else np.zeros((0, 2))
-
-
 def _explained(model: MeshEdges, pose: np.ndarray, thin: np.ndarray, bloom: float = 0.0) -> float:
     """Share of the picture's edge pixels inside the part's outline that lie on a model edge at ``pose``.
 
@@ -722,6 +705,8 @@ LIT_SLIDES_M = (-1.5e-3, 1.5e-3)
 #: stopped 0.75 mm along itself, its outline seen across at 0.42, came back from 1.5 mm either way onto the
 #: same wrong place; from 0.75 mm back it found 0.56.
 LIT_RETRY_SLIDES_M = (-1.5e-3, -0.75e-3, 0.75e-3, 1.5e-3)
+#: ... of which the shorter, for a first fit that passes fixed across its outline by its other edges (:func:`_best_fit`) [m].
+LIT_SHORT_SLIDES_M = (-0.75e-3, 0.75e-3)
 
 
 def _best_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
@@ -735,13 +720,22 @@ def _best_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
     search's), each under the light its own pose explains, and slid 0.75 mm as well
     (:data:`LIT_RETRY_SLIDES_M`): a low light's long shadow can win the first starts, and the light
     estimated at a wrong pose leaves out the wrong edges (vision/key_light.py). A fit that passes is
-    not refitted, so its pose stays the one the first light gave."""
+    not refitted, so its pose stays the one the first light gave. A first fit whose outline is seen along one
+    direction only, fixed across it by its other edges alone (:attr:`_EdgeFit.edges_axis`), is slid 0.75 mm as
+    well (:data:`LIT_SHORT_SLIDES_M`): a low-light stepped wall came back from 0.75 mm off (beyond its +-0.74 mm)."""
     best = _fitted(model, gx, gy, threshold, starts, symmetry, saturated, thin, light and light.first, options)
-    if light is None or spare is None or (best is not None and not _refusal(best, options)):
+    if light is None or spare is None or (best is not None and not _refusal(best, options, outline_axis=True)):
         return best
+    if best is not None and not _refusal(best, options):
+        # Fixed across its outline by its other edges alone: slid the second try's shorter way, not fitted again
+        # from every start (a second try cost such pictures 0.6-1 s more).
+        return _with_stray(model, _slid(model, gx, gy, threshold, best, saturated, LIT_SHORT_SLIDES_M), thin)
     again = _fitted(model, gx, gy, threshold, starts + spare(), symmetry, saturated, thin, light, options,
                     LIT_RETRY_SLIDES_M)
-    return again if again is not None and not _refusal(again, options) else best
+    if again is not None and not _refusal(again, options, outline_axis=True):
+        return again
+    # The second try's first: its starts and lights are the wider search.
+    return next((fit for fit in (again, best) if fit is not None and not _refusal(fit, options)), best)
 
 
 def _fitted(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
@@ -754,7 +748,7 @@ def _fitted(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, 
     best = _chosen_fit(model, gx, gy, threshold, starts, symmetry, saturated, thin, light, options.min_coverage)
     if best is None or best.ambiguous:
         return best
-    best = _slid(model, gx, gy, threshold, best, saturated, slides)
+    best = _with_stray(model, _slid(model, gx, gy, threshold, best, saturated, slides), thin)
     even = light is None and (saturated is None or not saturated.any())
     return _settled(model, gx, gy, threshold, best, options) if options.refine and even else best
 
@@ -847,6 +841,10 @@ def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: flo
     reaches = SEARCH_PX if first.coverage < min_coverage else SEARCH_PX[-2:]
     fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, reaches, saturated, _light_at(light, t))
                              for t in turns) if fit is not None]
+    # A fit that leaves edges beside it unexplained lies beside the part or turned onto its shadow: the others
+    # are chosen from while there are any (:mod:`vision.stray_edges`).
+    fits = [_with_stray(model, fit, thin) for fit in fits]
+    fits = [fit for fit in fits if fit.stray <= MAX_STRAY] or fits
     # Of the fits that find (nearly) as many edges as the best, the one that lies closest on them.
     most = max(fit.found for fit in fits)
     close = [fit for fit in fits if fit.found >= most - 0.05]
@@ -883,6 +881,14 @@ def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: flo
     return best
 
 
+def _with_stray(model: MeshEdges, fit: _EdgeFit, thin: np.ndarray | None) -> _EdgeFit:
+    """``fit`` with its stray edges (:attr:`_EdgeFit.stray`) counted under the key light it was judged under
+    (``thin``: the picture's edges, :func:`vision.locate_search.thin_edges`); as it is without a light."""
+    if fit.light is None or thin is None:
+        return fit
+    return replace(fit, stray=stray_edges(model, fit.pose, fit.light, thin))
+
+
 def _light_at(light: LightAt | np.ndarray | None, pose: np.ndarray) -> np.ndarray | None:
     """The key light (unit (3,), base frame) a fit from ``pose`` is judged under: one for every pose, or
     the one estimated at it (:class:`vision.key_light.LightAt`)."""
@@ -894,22 +900,28 @@ def _turn(dyaw: float, symmetry: int) -> int:
     return int(np.rint(((dyaw % (2 * np.pi)) / (2 * np.pi / symmetry)))) % symmetry
 
 
-def _refusal(fit: _EdgeFit, options: LocateOptions) -> str:
-    """Why a fit is not confident enough to report, or '' when it is."""
+def _refusal(fit: _EdgeFit, options: LocateOptions, outline_axis: bool = False) -> str:
+    """Why a fit is not confident enough to report, or '' when it is; ``outline_axis``: the outline alone must be
+    seen across (:attr:`LocateOptions.min_axis_coverage`), not fixed by the other edges under a key light."""
     if fit.ambiguous:
         return (f"the outline fits turned as well, and {100 * fit.hidden:.0f} % of the edges that tell the turns "
                 "apart are hidden in glare: the yaw is not fixed")
     if fit.coverage < options.min_coverage:
         return (f"the part's outline is not there ({100 * fit.coverage:.0f} % of its edges found, "
                 f"{100 * options.min_coverage:.0f} % needed)")
-    if fit.axis_coverage < options.min_axis_coverage:
-        return (f"the outline is seen along one direction only ({100 * fit.axis_coverage:.0f} % across it, "
+    # Under a key light the edges inside the outline and the shadow's may fix what the faint lit outline does not.
+    if fit.axis_coverage < options.min_axis_coverage and (outline_axis or fit.edges_axis < options.min_axis_coverage):
+        inside = f", {100 * fit.edges_axis:.0f} % of all its edges" if fit.light is not None else ""
+        return (f"the outline is seen along one direction only ({100 * fit.axis_coverage:.0f} % across it{inside}, "
                 f"{100 * options.min_axis_coverage:.0f} % needed): the position along it is not fixed")
     if fit.found < options.min_found:
         return (f"the steps, bosses and holes inside the outline are not there ({100 * fit.found:.0f} % of all "
                 f"edges found, {100 * options.min_found:.0f} % needed): the pose may be turned or shifted")
     if fit.rms_px > options.max_rms_px:
         return f"the edges fit loosely (RMS {fit.rms_px:.2f} px, {options.max_rms_px:.2f} px allowed)"
+    if fit.stray > MAX_STRAY:
+        return (f"edges beside the fit that neither the part nor its shadow explains ({100 * fit.stray:.0f} % of its "
+                f"outline, {100 * MAX_STRAY:.0f} % allowed): the part may lie turned or beside it")
     return ""
 
 

@@ -14,7 +14,7 @@ import shapely
 import trimesh
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from vision.camera import CameraModel
 from vision.shadow import height_field
@@ -87,6 +87,15 @@ def _components(pairs: np.ndarray, vertices: int, of: np.ndarray | None = None) 
     return connected_components(graph, directed=False)[1][(pairs if of is None else of)[:, 0]]
 
 
+def _hull_points(vertices: np.ndarray) -> np.ndarray:
+    """``(h, 3)`` the vertices (n, 3) [m] on their convex hull (all of them where it is flat): a hull drawn
+    from its projections, or their shadows', is that of the whole mesh."""
+    try:
+        return vertices[ConvexHull(vertices).vertices]
+    except QhullError:
+        return vertices
+
+
 class MeshEdges:
     """The mesh's edges that can show in a picture, sampled about every :data:`EDGE_SAMPLE_M`.
 
@@ -131,6 +140,7 @@ class MeshEdges:
         self.tvec = cam_base[:3, 3]
         self.eye = -cam_base[:3, :3].T @ cam_base[:3, 3]
         self.field = height_field(mesh.vertices, mesh.faces)  # for the light and the shadows it casts
+        self.hull_points = _hull_points(np.asarray(mesh.vertices))  # for the shadow's hull (vision.stray_edges)
         # Each face normal's reach to its sample, n . point: a face is turned to the eye e (part frame) where
         # n . e > n . point, one product per sample at any pose (:meth:`visible`).
         self.reach1 = np.einsum("nj,nj->n", self.n1, self.points)

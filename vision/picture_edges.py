@@ -3,13 +3,15 @@
 :func:`_tray_ratio` divides out a smooth model of the empty tray (vignetting, uneven light);
 :func:`_gradients` gives the smoothed gradients and the strength an edge must beat, and
 :func:`_find_edges` the nearest sub-pixel gradient peak across each model edge sample.
-:mod:`vision.locate` fits poses to them and :mod:`vision.inspect` judges edges with them.
+:mod:`vision.locate` fits poses to them and :mod:`vision.inspect` judges edges with them;
+:func:`_blob_outline` is a blob's sub-pixel outline, which locate hands to inspection.
 """
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
+from contourpy import LineType, contour_generator
 from scipy.ndimage import map_coordinates
 
 
@@ -93,3 +95,32 @@ def _find_edges(gx: np.ndarray, gy: np.ndarray, threshold: float, uv: np.ndarray
     j = np.argmin(dist, axis=1)
     found = np.isfinite(dist[np.arange(len(j)), j])
     return np.where(found, _peak_offset(steps, resp, j), np.nan)
+
+
+def _blob_outline(log_ratio: np.ndarray, mask: np.ndarray, level: float) -> np.ndarray:
+    """The outline of a blob (``mask`` (h, w) uint8) for inspection [px]: the iso-line of ``log_ratio`` a
+    quarter of the way from the tray to the part's typical brightness (as far from the sensor noise as
+    from dim side faces), ``level`` at least; (0, 2) when there is none."""
+    inside = log_ratio[(mask > 0) & (np.abs(log_ratio) > level)]
+    typical = float(np.median(inside)) if len(inside) else level
+    iso = np.sign(typical) * max(abs(typical) / 4, level)
+    outline = _subpixel_outline(log_ratio, mask, iso, typical > 0)
+    return outline if outline is not None else np.zeros((0, 2))
+
+
+def _subpixel_outline(grey: np.ndarray, mask: np.ndarray, level: float, bright: bool) -> np.ndarray | None:
+    """The longest closed iso-line at ``level`` around one blob [px], or None."""
+    x, y, w, h = cv2.boundingRect(mask)
+    x0, y0 = max(x - 3, 0), max(y - 3, 0)
+    x1, y1 = min(x + w + 3, grey.shape[1]), min(y + h + 3, grey.shape[0])
+    roi = grey[y0:y1, x0:x1].astype(np.float64)
+    # Keep other blobs in the window out: outside this blob's (dilated) mask, the tray level.
+    keep = cv2.dilate(mask[y0:y1, x0:x1], np.ones((5, 5), np.uint8)) > 0
+    tray_value = level - 1e3 if bright else level + 1e3
+    roi = np.where(keep, roi, tray_value)
+    lines = contour_generator(z=roi, line_type=LineType.Separate).lines(level)
+    closed = [ln for ln in lines if len(ln) > 8 and np.allclose(ln[0], ln[-1])]
+    if not closed:
+        return None
+    best = max(closed, key=len)
+    return best[:-1] + (x0, y0)
