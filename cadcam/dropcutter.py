@@ -442,14 +442,22 @@ def _edge_contacts(index, radius, corner, tables, cx, cy, point, ei, out) -> Non
     d2 = np.maximum(wx * wx + wy * wy - tc * tc, 0.0)
     rho2 = radius * radius - d2
     ok = rho2 >= 0.0
-    rho = np.sqrt(np.where(ok, rho2, 0.0))
+    rho = np.sqrt(np.maximum(rho2, 0.0))
     lo = np.maximum(-rho, -tc)
     hi = np.minimum(rho, e[:, 5] - tc)
     s = e[:, 6]
     # Upper bound: the edge's highest point over the chord less the profile at the nearest
-    # XY distance (h grows with r); most pairs cannot beat the current best.
+    # XY distance (h grows with r); most pairs cannot beat the current best. It only culls, with a
+    # margin far over its rounding, so the ball's h there written as R - rho (the same number to an
+    # ulp or two) keeps every pair that can give the answer.
     top = e[:, 2] + s * (tc + np.where(s >= 0.0, hi, lo))
-    ok &= (lo <= hi) & (top - _height(np.sqrt(d2), radius, corner) > out[point] - 1e-12)
+    if corner >= radius:
+        top += rho
+        top -= radius
+    elif corner > 0.0:
+        top -= _height(np.sqrt(d2), radius, corner)
+    ok &= lo <= hi
+    ok &= top > out[point] - 1e-12
     keep = np.flatnonzero(ok)
     if not len(keep):
         return
