@@ -303,3 +303,29 @@ def test_the_shared_index_is_reused_only_for_the_same_triangles():
     other = shared_index(moved)
     assert other is not first and not other.prepared
     assert shared_index(tris.reshape(60, 3, 3)) is not other
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    count=st.integers(1, 60),
+    spread=st.floats(0.2, 4.0),
+    shape=st.sampled_from(["flat", "bull", "ball"]),
+    radius=st.floats(0.3, 6.0),
+)
+def test_a_floor_per_point_gives_the_exact_heights_above_it_to_the_bit(seed, count, spread, shape, radius):
+    """A floor per point (a waterline comparing heights with its levels) culls what cannot reach it: above it
+    every CL z is the one the plain floor gives, bit for bit; at or under it, the floor itself."""
+    rng = np.random.default_rng(seed)
+    tri = rng.uniform(0, 20, (count, 1, 3)) + rng.normal(0, spread, (count, 3, 3))
+    xy = rng.uniform(-3, 23, (300, 2))
+    rc = {"flat": 0.0, "bull": radius / 3, "ball": radius}[shape]
+    exact = drop_profile(build_index(tri), radius, rc, xy, -100.0)  # under every triangle
+    # floors near the answers (ties and ulps among them), and far under and over them; none under the plain one
+    floor = np.maximum(exact + rng.choice([0.0, -1e-12, 1e-12, -0.3, 0.3, -80.0, 80.0], size=len(xy)), -100.0)
+    got = drop_profile(build_index(tri), radius, rc, xy, floor)
+    above = exact > floor
+    assert np.array_equal(got[above], exact[above])
+    assert np.array_equal(got[~above], floor[~above])
+    with pytest.raises(ToolpathError, match="one per CL point"):
+        drop_profile(build_index(tri), radius, rc, xy, floor[:-1])
