@@ -239,7 +239,9 @@ def test_threads_give_the_single_thread_answer(shape, monkeypatch):
 )
 def test_the_query_buckets_change_which_candidates_are_tried_never_the_answer(seed, count, spread, shape, radius):
     """Fine buckets (issue 35: a waterline's queries on steep walls), the old half-radius ones, and fine ones
-    coarsened by the entry budget and made in chunks give the same CL z to the bit: buckets only cull."""
+    coarsened by the entry budget and made in chunks give the same CL z to the bit: buckets only cull. So does
+    a floor per point (a waterline comparing heights with its levels): above it every CL z is the one the
+    plain floor gives, bit for bit; at or under it, the floor itself."""
     import cadcam.dropcutter as dc
 
     rng = np.random.default_rng(seed)
@@ -258,6 +260,14 @@ def test_the_query_buckets_change_which_candidates_are_tried_never_the_answer(se
         mp.setattr(dc, "_MAX_ENTRIES", 50)
         mp.setattr(dc, "_ENTRY_CHUNK", 7)
         assert np.array_equal(drop(), fine)
+    # floors near the answers (ties and ulps among them), and far under and over them; none under the plain one
+    floor = np.maximum(fine + rng.choice([0.0, -1e-12, 1e-12, -0.3, 0.3, -80.0, 80.0], size=len(xy)), -50.0)
+    got = drop_profile(build_index(tri), radius, rc, xy, floor)
+    above = fine > floor
+    assert np.array_equal(got[above], fine[above])
+    assert np.array_equal(got[~above], floor[~above])
+    with pytest.raises(ToolpathError, match="one per CL point"):
+        drop_profile(build_index(tri), radius, rc, xy, floor[:-1])
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -303,29 +313,3 @@ def test_the_shared_index_is_reused_only_for_the_same_triangles():
     other = shared_index(moved)
     assert other is not first and not other.prepared
     assert shared_index(tris.reshape(60, 3, 3)) is not other
-
-
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(
-    seed=st.integers(0, 2**31 - 1),
-    count=st.integers(1, 60),
-    spread=st.floats(0.2, 4.0),
-    shape=st.sampled_from(["flat", "bull", "ball"]),
-    radius=st.floats(0.3, 6.0),
-)
-def test_a_floor_per_point_gives_the_exact_heights_above_it_to_the_bit(seed, count, spread, shape, radius):
-    """A floor per point (a waterline comparing heights with its levels) culls what cannot reach it: above it
-    every CL z is the one the plain floor gives, bit for bit; at or under it, the floor itself."""
-    rng = np.random.default_rng(seed)
-    tri = rng.uniform(0, 20, (count, 1, 3)) + rng.normal(0, spread, (count, 3, 3))
-    xy = rng.uniform(-3, 23, (300, 2))
-    rc = {"flat": 0.0, "bull": radius / 3, "ball": radius}[shape]
-    exact = drop_profile(build_index(tri), radius, rc, xy, -100.0)  # under every triangle
-    # floors near the answers (ties and ulps among them), and far under and over them; none under the plain one
-    floor = np.maximum(exact + rng.choice([0.0, -1e-12, 1e-12, -0.3, 0.3, -80.0, 80.0], size=len(xy)), -100.0)
-    got = drop_profile(build_index(tri), radius, rc, xy, floor)
-    above = exact > floor
-    assert np.array_equal(got[above], exact[above])
-    assert np.array_equal(got[~above], floor[~above])
-    with pytest.raises(ToolpathError, match="one per CL point"):
-        drop_profile(build_index(tri), radius, rc, xy, floor[:-1])
