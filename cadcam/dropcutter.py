@@ -442,14 +442,22 @@ def _edge_contacts(index, radius, corner, tables, cx, cy, point, ei, out) -> Non
     d2 = np.maximum(wx * wx + wy * wy - tc * tc, 0.0)
     rho2 = radius * radius - d2
     ok = rho2 >= 0.0
-    rho = np.sqrt(np.where(ok, rho2, 0.0))
+    rho = np.sqrt(np.maximum(rho2, 0.0))
     lo = np.maximum(-rho, -tc)
     hi = np.minimum(rho, e[:, 5] - tc)
     s = e[:, 6]
     # Upper bound: the edge's highest point over the chord less the profile at the nearest
-    # XY distance (h grows with r); most pairs cannot beat the current best.
+    # XY distance (h grows with r); most pairs cannot beat the current best. It only culls, with a
+    # margin far over its rounding, so the ball's h there written as R - rho (the same number to an
+    # ulp or two) keeps every pair that can give the answer.
     top = e[:, 2] + s * (tc + np.where(s >= 0.0, hi, lo))
-    ok &= (lo <= hi) & (top - _height(np.sqrt(d2), radius, corner) > out[point] - 1e-12)
+    if corner >= radius:
+        top += rho
+        top -= radius
+    elif corner > 0.0:
+        top -= _height(np.sqrt(d2), radius, corner)
+    ok &= lo <= hi
+    ok &= top > out[point] - 1e-12
     keep = np.flatnonzero(ok)
     if not len(keep):
         return
@@ -567,7 +575,7 @@ def drop_profile(
     radius: float,
     corner_radius: float,
     xy: np.ndarray,
-    floor_z: float,
+    floor_z: float | np.ndarray,
     progress: Progress | None = None,
 ) -> np.ndarray:
     """:func:`drop_cutter` for a tool given by its radii (e.g. grown by an allowance).
@@ -578,6 +586,10 @@ def drop_profile(
         Cutting radius R [mm], > 0.
     corner_radius : float
         Corner radius rc [mm], 0 <= rc <= R.
+    floor_z : float or (n,) float
+        The floor [mm], or each point's own: a caller that only compares the heights with a threshold
+        passes one just under it, and every primitive that cannot reach it is culled unseen (the
+        heights above it are exact all the same).
 
     See :func:`drop_cutter` for the rest.
     """
@@ -586,10 +598,13 @@ def drop_profile(
     pts = np.asarray(xy, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 2:
         raise ToolpathError(f"CL points must have shape (n, 2), got {pts.shape}")
-    if not np.all(np.isfinite(pts)) or not math.isfinite(floor_z):
-        raise ToolpathError("CL points and floor must be finite")
     n = len(pts)
-    out = np.full(n, float(floor_z))
+    floor = np.asarray(floor_z, dtype=np.float64)
+    if floor.shape not in ((), (n,)):
+        raise ToolpathError(f"the floor must be one height or one per CL point ({n}), got shape {floor.shape}")
+    if not np.all(np.isfinite(pts)) or not np.all(np.isfinite(floor)):
+        raise ToolpathError("CL points and floor must be finite")
+    out = np.broadcast_to(floor, (n,)).copy()
     if n == 0:
         return out
 
@@ -602,7 +617,7 @@ def drop_profile(
     cell = cell[order]
     cx = pts[order, 0]
     cy = pts[order, 1]
-    res = np.full(n, float(floor_z))
+    res = out[order]
     # Chunks of points by their (unculled) vertex candidates; culled work is split again.
     cum = np.cumsum(vbuckets.ptr[cell + 1] - vbuckets.ptr[cell])
     bull = 0.0 < corner_radius < radius

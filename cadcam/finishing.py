@@ -32,7 +32,7 @@ from shapely.geometry.base import BaseGeometry
 
 from cadcam.dropcutter import TriangleIndex, drop_profile, shared_index
 from cadcam.entries import ramp_entries
-from cadcam.isoline import onto_iso, tighten_chords
+from cadcam.isoline import onto_iso, tighten_chords, z_near
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.relief import clip_chains
 from cadcam.rest import deep_stock, engagement_ok
@@ -126,10 +126,13 @@ class _Surface:
     allowance: float
     floor: float
 
-    def z(self, xy: np.ndarray, progress: Progress | None = None) -> np.ndarray:
+    def z(self, xy: np.ndarray, progress: Progress | None = None, *, floor: np.ndarray | None = None) -> np.ndarray:
+        """CL z [mm] at ``xy`` (n, 2) [mm]. ``floor`` (n,) [mm]: the caller needs the heights only above it;
+        there they are exact, elsewhere they come back as ``floor`` (to a rounding of the allowance)."""
         a = self.allowance
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-        return drop_profile(self.index, self.radius + a, self.corner + a, xy, self.floor - a, progress) + a
+        low = self.floor if floor is None else np.maximum(self.floor, floor)
+        return drop_profile(self.index, self.radius + a, self.corner + a, xy, low - a, progress) + a
 
 
 def _surface(part: trimesh.Trimesh, setup: Setup, tool: Tool, options: FinishingOptions) -> _Surface:
@@ -672,7 +675,7 @@ def waterline_finishing(
     outs = np.split(outward, np.cumsum(sizes)[:-1])
     loops = tighten_chords(surface, loops, outs, options.tolerance)
     p = np.concatenate(loops)
-    high = int(np.sum(surface.z(p[:, :2]) > p[:, 2] + 1e-9))
+    high = int(np.sum(z_near(surface, p[:, :2], p[:, 2] + 1e-9) > p[:, 2] + 1e-9))
     if high:
         log.warning("waterline: %d loop vertices sit below the exact CL surface", high)
     # The raster owns slopes below steep_angle; overlap it by _SEAM_OVERLAP so the seam is cut.

@@ -23,7 +23,9 @@ class ClSurface(Protocol):
 
     radius: float
 
-    def z(self, xy: np.ndarray) -> np.ndarray: ...
+    def z(self, xy: np.ndarray, *, floor: np.ndarray | None = None) -> np.ndarray:
+        """CL z [mm] at ``xy`` (n, 2) [mm]; where it is below ``floor`` (n,) [mm], ``floor`` to a rounding."""
+        ...
 
 
 #: Bracket length [mm] at which a loop vertex counts as located on its iso-line: 1/100 of
@@ -33,10 +35,22 @@ _ISO_RESOLUTION = 1e-6
 _ISO_Z_RESOLUTION = 1e-7
 #: CL z step across a located bracket [mm] that counts as a jump of the surface (a wall).
 _ISO_JUMP = 1e-4
+#: A height compared with a threshold is made exact from this far under it [mm] (:func:`z_near`): far over
+#: the rounding of a floor less and plus the allowance, far under any tolerance.
+_CULL_MARGIN = 1e-9
 #: Steps of :func:`onto_level` at most (a bracket halves at least every other step).
 _ISO_MAX_STEPS = 60
 #: Rounds of chord checking; each halves the chords that still cut in.
 _CHORD_ROUNDS = 14
+
+
+def z_near(surface: ClSurface, xy: np.ndarray, threshold: np.ndarray) -> np.ndarray:
+    """The CL z [mm] at ``xy`` (n, 2) [mm] for comparing with ``threshold`` (n,) [mm]: exact from
+    :data:`_CULL_MARGIN` under it up, elsewhere that floor (to a rounding), so every comparison
+    with the threshold comes out as with the exact heights. The drop-cutter culls every primitive
+    that cannot reach the floor: most of them, where the threshold lies near the surface.
+    """
+    return surface.z(xy, floor=threshold - _CULL_MARGIN)
 
 
 def onto_iso(surface: ClSurface, xy, lev, gx, gy, Z, tolerance):
@@ -68,11 +82,11 @@ def onto_iso(surface: ClSurface, xy, lev, gx, gy, Z, tolerance):
     d = po - pi
     outward[sel] = d / np.maximum(np.hypot(*d.T), 1e-300)[:, None]
     # Where the surface jumps across the bracket, step out a little: the tool side is on a wall.
-    jump = surface.z(pi) - lv > _ISO_JUMP
+    jump = z_near(surface, pi, lv + _ISO_JUMP) - lv > _ISO_JUMP
     if np.any(jump):
         k = sel[jump]
         pushed = po[jump] + 0.5 * tolerance * outward[k]
-        free = surface.z(pushed) <= lv[jump]
+        free = z_near(surface, pushed, lv[jump]) <= lv[jump]
         out[k[free]] = pushed[free]
     unbracketed = np.flatnonzero(~bracket)
     if len(unbracketed):
@@ -210,7 +224,8 @@ def tighten_chords(surface: ClSurface, loops, outs, tolerance):
         nrm *= np.where(side == 0, 1.0, side)[:, None]
         # Samples are tested a little inside the chord: a wall the tool rounds with radius
         # >= R cannot then reach the chord between two samples that pass.
-        over = surface.z(q - margin * nrm[chord]) - lv[chord]
+        # only the samples over the limit need their height (the deepest is where the new vertex goes)
+        over = z_near(surface, q - margin * nrm[chord], lv[chord] + tol) - lv[chord]
         worst = np.full(len(ia), -np.inf)
         np.maximum.at(worst, chord, over)
         dirty[ia] = False
@@ -234,7 +249,7 @@ def tighten_chords(surface: ClSurface, loops, outs, tolerance):
             if not np.any(todo):
                 break
             cand = start[todo] + n[todo] * (s * length[k][todo, None] + tolerance)
-            ok = surface.z(cand) <= lvk[todo]
+            ok = z_near(surface, cand, lvk[todo]) <= lvk[todo]
             po[np.flatnonzero(todo)[ok]] = cand[ok]
         found = ~np.isnan(po[:, 0])
         if not np.all(found):
@@ -243,9 +258,9 @@ def tighten_chords(surface: ClSurface, loops, outs, tolerance):
             break
         pi, po, lvf, nf = start[found], po[found], lvk[found], n[found]
         pi, po, lvf = onto_level(surface, pi, po, lvf)
-        jump = surface.z(pi) - lvf > _ISO_JUMP
+        jump = z_near(surface, pi, lvf + _ISO_JUMP) - lvf > _ISO_JUMP
         pushed = po + 0.5 * tolerance * nf
-        use = jump & (surface.z(pushed) <= lvf)
+        use = jump & (z_near(surface, pushed, lvf) <= lvf)
         po[use] = pushed[use]
         po = _clear_margin(surface, po, nf, lvf, margin, tol)
         after = ia[k[found]]
@@ -271,11 +286,11 @@ def _clear_margin(surface: ClSurface, xy, outward, level, margin, tol):
     rolling over a wall's top edge) that probe would fail beside a vertex exactly on the
     iso-line, and splitting would never end.
     """
-    steep = surface.z(xy - margin * outward) > level + tol
+    steep = z_near(surface, xy - margin * outward, level + tol) > level + tol
     if not np.any(steep):
         return xy
     moved = xy[steep] + margin * outward[steep]
-    free = surface.z(moved) <= level[steep]
+    free = z_near(surface, moved, level[steep]) <= level[steep]
     out = xy.copy()
     out[np.flatnonzero(steep)[free]] = moved[free]
     return out

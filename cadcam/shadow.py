@@ -26,9 +26,12 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures
+import hashlib
 import math
+import os
 import threading
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -57,49 +60,141 @@ def part_shadows(part: trimesh.Trimesh, heights: Sequence[float]) -> dict[float,
     below the previous one, so many heights cost little more than one. Each slab's pieces are
     made in threads (GEOS runs without the interpreter lock) while this thread joins them in
     order: the same calls on the same geometry as one after another, so the same shadows.
+
+    A plan asks for one part's shadows many times (roughing, terraces, each rest tool, the jaws),
+    and many of its lists of heights begin alike (a solid's levels all start under its top). Each
+    height's shadow depends only on the part and the heights above it in its list, so the heights
+    walked once are kept (:class:`_Ladder`) and a later list that begins with the same heights takes
+    their shadows and goes on from there: the very geometries it would have made again.
     """
     up = part.face_normals[:, 2] > 1e-9
-    tri = np.asarray(part.triangles)[up]
-    zmin, zmax = tri[:, :, 2].min(axis=1), tri[:, :, 2].max(axis=1)
-    sheets = _Sheets(tri)  # each triangle's sheet, found the first time a slab is no coverage
+    tri = np.ascontiguousarray(np.asarray(part.triangles)[up], dtype=np.float64)
     levels = sorted(set(heights), reverse=True)
+    ladder = _ladder(tri)
+    with ladder.lock:
+        node, k = ladder.root, 0
+        path: list[_Rung] = []
+        while k < len(levels) and levels[k] in node.below:
+            node = node.below[levels[k]]
+            path.append(node)
+            k += 1
+        if k < len(levels):
+            path += _walk(ladder, node, levels[k - 1] if k else math.inf, levels[k:])
+        return {z: rung.shadow for z, rung in zip(levels, path)}
+
+
+def _walk(ladder: _Ladder, start: _Rung, z_start: float, levels: list[float]) -> list[_Rung]:
+    """The rungs of ``levels`` (descending [mm]) below ``start``, the rung of height ``z_start`` (inf: the
+    top, nothing above), each made and hung below the one before."""
+    zmin, zmax = ladder.zmin, ladder.zmax
 
     def slab(k: int) -> tuple[BaseGeometry | None, BaseGeometry | None]:
         """The union of the triangles of height ``k``'s slab wholly above it, and of those it cuts (None: none)."""
-        z, z_last = levels[k], levels[k - 1] if k else math.inf
-        sel = np.flatnonzero((zmax >= z) & (zmin < z_last))
-        polys, kept = _clip_projections(tri[sel], z)
-        which = sel[kept]
-        done = zmin[which] >= z
-        pieces: list[BaseGeometry | None] = []
-        for part_of in (done, ~done):
-            if not part_of.any():
-                pieces.append(None)
-                continue
-            union = _dissolved(polys[part_of])
-            if union is None:  # the slab's sheets overlap: dissolve each sheet on its own
-                union = _by_sheet(polys[part_of], sheets()[which[part_of]])
-            pieces.append(union)
-        return pieces[0], pieces[1]
+        z, z_last = levels[k], levels[k - 1] if k else z_start
+        if (z, z_last) not in ladder.above:
+            ladder.above[z, z_last] = _pieces(ladder, np.flatnonzero((zmin >= z) & (zmin < z_last)), z)
+        if z not in ladder.cut:
+            ladder.cut[z] = _pieces(ladder, np.flatnonzero((zmax >= z) & (zmin < z)), z)
+        return ladder.above[z, z_last], ladder.cut[z]
 
     # The triangles wholly above the last height, united; each height adds the ones it cuts to a
     # copy. Uniting into the last height's shadow instead would keep every earlier cut's points on
     # straight outline edges: the outline, and each union with it, would grow with every height.
-    whole: BaseGeometry = Polygon()
-    join = _Join()
+    whole = start.whole
+    join = _Join(start.dissolving)
     workers = processors() if len(levels) > 1 else 1
     with concurrent.futures.ThreadPoolExecutor(max_workers=workers, thread_name_prefix="shadow") as pool:
-        shadows: list[BaseGeometry | concurrent.futures.Future] = []
+        made: list[tuple[BaseGeometry, bool, BaseGeometry | concurrent.futures.Future]] = []
         for above, cut in _in_order(slab, len(levels), pool if workers > 1 else None, 2 * workers):
             if above is not None:
                 whole = join(whole, above)
             if cut is None:
-                shadows.append(whole)
+                shadow: BaseGeometry | concurrent.futures.Future = whole
             elif join.dissolving or workers == 1:
-                shadows.append(join(whole, cut))
+                shadow = join(whole, cut)
             else:  # no state left to change: this height's union is on its own
-                shadows.append(pool.submit(_joined, whole, cut))
-        return {z: s.result() if isinstance(s, concurrent.futures.Future) else s for z, s in zip(levels, shadows)}
+                shadow = pool.submit(_joined, whole, cut)
+            made.append((whole, join.dissolving, shadow))
+    rungs, node = [], start
+    for z, (whole, dissolving, shadow) in zip(levels, made):
+        node = node.below.setdefault(z, _Rung(whole, dissolving, shadow.result() if isinstance(
+            shadow, concurrent.futures.Future) else shadow))
+        rungs.append(node)
+    return rungs
+
+
+def _pieces(ladder: _Ladder, sel: np.ndarray, z: float) -> BaseGeometry | None:
+    """The union of the projections of the ladder's triangles ``sel`` (k,) int clipped to ``z' >= z`` [mm]
+    (None: no piece is left). Each triangle's piece depends on it and ``z`` alone, so the slab of
+    heights ``z``..``z_last`` splits into those wholly above ``z`` (the same for any list with those two
+    heights next to each other) and those ``z`` cuts (the same for any list with ``z``)."""
+    polys, kept = _clip_projections(ladder.tri[sel], z)
+    if not len(polys):
+        return None
+    union = _dissolved(polys)
+    if union is None:  # the slab's sheets overlap: dissolve each sheet on its own
+        union = _by_sheet(polys, ladder.sheets()[sel[kept]])
+    return union
+
+
+@dataclass
+class _Rung:
+    """One height of a list walked top down, and what the heights above it and it left."""
+
+    whole: BaseGeometry  #: the union of the triangles wholly above this height
+    dissolving: bool  #: whether the joins so far still dissolve (:class:`_Join`)
+    shadow: BaseGeometry  #: the part's shadow at this height
+    below: dict[float, _Rung] = field(default_factory=dict)  #: the next height down of each list walked
+
+
+@dataclass
+class _Ladder:
+    """The heights walked on one part's upward triangles ``tri`` (m, 3, 3) [mm], from the top (``root``)."""
+
+    tri: np.ndarray
+    zmin: np.ndarray
+    zmax: np.ndarray
+    sheets: _Sheets
+    root: _Rung
+    #: The union of the triangles wholly within ``z``..``z_last``, by (z, z_last) [mm] (None: none).
+    above: dict[tuple[float, float], BaseGeometry | None] = field(default_factory=dict)
+    #: The union of the triangles ``z`` cuts, clipped to it, by z [mm] (None: none).
+    cut: dict[float, BaseGeometry | None] = field(default_factory=dict)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+
+#: The last few parts' ladders by their triangles' digest: a plan's op 1 and op 2 parts, no more.
+_LADDERS: collections.OrderedDict[bytes, _Ladder] = collections.OrderedDict()
+_LADDERS_KEPT = 2
+_LADDERS_LOCK = threading.Lock()
+
+
+def _ladder(tri: np.ndarray) -> _Ladder:
+    """The ladder of the part whose upward triangles are ``tri`` (m, 3, 3) [mm], a new one if none is kept."""
+    key = hashlib.blake2b(tri.tobytes(), digest_size=20, person=repr(tri.shape).encode()[:16]).digest()
+    with _LADDERS_LOCK:
+        if key in _LADDERS:
+            _LADDERS.move_to_end(key)
+            return _LADDERS[key]
+        tri = tri.copy()
+        tri.setflags(write=False)
+        zs = tri[:, :, 2]
+        ladder = _Ladder(tri, zs.min(axis=1), zs.max(axis=1), _Sheets(tri), _Rung(Polygon(), True, Polygon()))
+        _LADDERS[key] = ladder
+        while len(_LADDERS) > _LADDERS_KEPT:
+            _LADDERS.popitem(last=False)
+        return ladder
+
+
+def _forget_ladders() -> None:
+    """Drop every kept ladder (a forked child: another thread may have held a ladder's lock)."""
+    global _LADDERS_LOCK
+    _LADDERS_LOCK = threading.Lock()
+    _LADDERS.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_ladders)
 
 
 def _in_order(fn: Callable[[int], Any], n: int, pool: concurrent.futures.Executor | None, ahead: int
@@ -139,10 +234,10 @@ class _Sheets:
 class _Join:
     """``join(a, b)``: the union of two pieces made of different triangles. While the pieces so far
     formed coverages (one sheet, or sheets that do not overlap) it dissolves them; after the first
-    that did not (sheets overlap), the general union."""
+    that did not (sheets overlap), the general union. ``dissolving``: whether the joins so far did."""
 
-    def __init__(self) -> None:
-        self.dissolving = True
+    def __init__(self, dissolving: bool = True) -> None:
+        self.dissolving = dissolving
 
     def __call__(self, a: BaseGeometry, b: BaseGeometry) -> BaseGeometry:
         if self.dissolving and not (a.is_empty or b.is_empty):

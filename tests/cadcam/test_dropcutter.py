@@ -239,7 +239,9 @@ def test_threads_give_the_single_thread_answer(shape, monkeypatch):
 )
 def test_the_query_buckets_change_which_candidates_are_tried_never_the_answer(seed, count, spread, shape, radius):
     """Fine buckets (issue 35: a waterline's queries on steep walls), the old half-radius ones, and fine ones
-    coarsened by the entry budget and made in chunks give the same CL z to the bit: buckets only cull."""
+    coarsened by the entry budget and made in chunks give the same CL z to the bit: buckets only cull. So does
+    a floor per point (a waterline comparing heights with its levels): above it every CL z is the one the
+    plain floor gives, bit for bit; at or under it, the floor itself."""
     import cadcam.dropcutter as dc
 
     rng = np.random.default_rng(seed)
@@ -258,6 +260,14 @@ def test_the_query_buckets_change_which_candidates_are_tried_never_the_answer(se
         mp.setattr(dc, "_MAX_ENTRIES", 50)
         mp.setattr(dc, "_ENTRY_CHUNK", 7)
         assert np.array_equal(drop(), fine)
+    # floors near the answers (ties and ulps among them), and far under and over them; none under the plain one
+    floor = np.maximum(fine + rng.choice([0.0, -1e-12, 1e-12, -0.3, 0.3, -80.0, 80.0], size=len(xy)), -50.0)
+    got = drop_profile(build_index(tri), radius, rc, xy, floor)
+    above = fine > floor
+    assert np.array_equal(got[above], fine[above])
+    assert np.array_equal(got[~above], floor[~above])
+    with pytest.raises(ToolpathError, match="one per CL point"):
+        drop_profile(build_index(tri), radius, rc, xy, floor[:-1])
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -26,6 +26,14 @@ from tests.conftest import manifold_to_trimesh
 TOL = 1e-7  # [mm]: far under any allowance or arc tolerance, far over the rounding of a union
 
 
+@pytest.fixture(autouse=True)
+def no_kept_shadows():
+    """Each test makes its shadows afresh: one that breaks a step must not be handed an earlier test's."""
+    shadow._forget_ladders()
+    yield
+    shadow._forget_ladders()
+
+
 def clipped_reference(part: trimesh.Trimesh, z: float) -> shapely.Geometry:
     """The union of the XY projections of the upward-facing triangles cut to ``z' >= z``."""
     polys = []
@@ -177,3 +185,25 @@ def test_threaded_shadows_are_the_serial_ones_to_the_byte(spec, heights, workers
         threaded = part_shadows(part, heights)
     assert list(threaded) == list(serial)
     assert [g.wkb for g in threaded.values()] == [g.wkb for g in serial.values()]
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(sheets(), st.lists(mm(-2.0, 8.0), min_size=1, max_size=10), st.lists(mm(0.001, 6.0), max_size=6),
+       st.integers(1, 10), st.sampled_from([1, 2]))
+def test_shadows_kept_from_earlier_lists_are_the_ones_made_afresh_to_the_byte(spec, first, deeper, shared, workers):
+    """A list of heights that begins as an earlier one did (its top ``shared`` heights) and goes on
+    deeper, or repeats it, takes the kept shadows: the very geometries (WKB) a fresh walk makes."""
+    part = sheet_mesh(*spec)
+    top = sorted(set(first), reverse=True)[:shared]
+    later = top + [top[-1] - d for d in deeper]
+    with mock.patch.object(shadow, "processors", lambda: workers):
+        part_shadows(part, first)
+        kept = part_shadows(part, later)
+        again = part_shadows(part, first)
+        shadow._forget_ladders()
+        fresh = part_shadows(part, later)
+        shadow._forget_ladders()
+        fresh_first = part_shadows(part, first)
+    assert list(kept) == list(fresh)
+    assert [g.wkb for g in kept.values()] == [g.wkb for g in fresh.values()]
+    assert [g.wkb for g in again.values()] == [g.wkb for g in fresh_first.values()]
