@@ -594,7 +594,11 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
     # shank, not its own cutter (which takes that material off no higher than its flutes).
     order_key = np.concatenate([owner * 2 + 1, b_owner * 2])
     value = np.concatenate([env, np.full(len(b_flat), np.inf)])
-    order = np.argsort(cells * (2 * (e - s) + 2) + order_key)
+    key = cells * (2 * (e - s) + 2) + order_key
+    # The keys are distinct (one pair per move, grid point and kind), so every sort gives this one order;
+    # the pairs come move by move, each move's grid points row by row: sorted runs a stable sort takes
+    # whole (88k pairs of 200 moves: 0.6 ms, numpy's default quicksort 4.5 ms; the most of a cut's sorting).
+    order = np.argsort(key, kind="stable")
     earlier = np.empty(len(cells))
     earlier[order] = _segmented_exclusive_min(cells[order], value[order])
     found = np.minimum(stock[cells], earlier)
