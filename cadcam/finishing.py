@@ -295,8 +295,9 @@ def _assemble(chains: list[np.ndarray], setup: Setup, name: str, kind: str, tool
 
     Links between chains rapid low through the air the stock model knows (:func:`_link_heights`;
     ``safe_z`` without one). Descents rapid down to ``setup.clearance`` above the highest stock under the tool
-    (from ``stock``, the material earlier operations left) and feed only the rest; without
-    a stock model the whole descent from ``safe_z`` is fed. With ``limit`` (and ``stock``)
+    (from ``stock``, the material earlier operations left) and feed only the rest: at the cutting feed down to
+    :data:`DESCENT_MARGIN` over that stock, at the plunge feed below; without a stock model the whole descent
+    from ``safe_z`` is fed at the plunge feed. With ``limit`` (and ``stock``)
     the chains are cut where a move would cut deeper than the limit (see
     :class:`EngagementLimit`).
     """
@@ -311,15 +312,22 @@ def _assemble(chains: list[np.ndarray], setup: Setup, name: str, kind: str, tool
     points: list[np.ndarray] = []
     motion: list[np.ndarray] = []
     starts = np.array([c[0, :2] for c in chains]).reshape(-1, 2)
-    air = clear_height(stock, tool, starts) + setup.clearance if stock is not None else np.full(len(chains), np.inf)
+    high = clear_height(stock, tool, starts) if stock is not None else np.full(len(chains), np.inf)
+    air = high + setup.clearance
     links = _link_heights(chains, stock, tool, setup) if stock is not None else np.full(len(chains), safe_z)
-    for k, (c, air_z) in enumerate(zip(chains, air)):
+    for k, (c, air_z, high_z) in enumerate(zip(chains, air, high)):
         top_z = safe_z if k == 0 else links[k]
         points.append(np.array([[c[0, 0], c[0, 1], top_z]]))
         motion.append(np.array([Motion.RAPID]))
         if c[0, 2] < air_z < top_z:
             points.append(np.array([[c[0, 0], c[0, 1], air_z]]))
             motion.append(np.array([Motion.RAPID]))
+        # The rapid's clearance over the stock is air: fed at the cutting feed, not the plunge feed (which
+        # holds only for the last DESCENT_MARGIN over the stock, where the model may be short of it).
+        fast_to = max(high_z + DESCENT_MARGIN, c[0, 2])
+        if fast_to < min(air_z, top_z) - _MIN_SEGMENT and fast_to > c[0, 2] + _MIN_SEGMENT:
+            points.append(np.array([[c[0, 0], c[0, 1], fast_to]]))
+            motion.append(np.array([Motion.CUT]))
         leave_z = links[k + 1] if k + 1 < len(chains) else safe_z
         points += [c, np.array([[c[-1, 0], c[-1, 1], leave_z]])]
         motion += [
@@ -687,6 +695,11 @@ def waterline_finishing(
     return _assemble(chains, setup, "finish waterline", "waterline", tool, cutting, options.allowance, stock,
                      limit, within)
 
+
+#: Height [mm] over the stock model (:func:`cadcam.stock.clear_height`, already conservative between its grid
+#: points) from which a descent into a chain is fed at the plunge feed; above it the descent is in air and fed at
+#: the cutting feed (issue 32: a 1 mm clearance at the ball's plunge feed was 17 s of the dome's raster).
+DESCENT_MARGIN = 0.25
 
 #: Overlap [deg] of the waterline's slope range with the raster's, so their seam gets cut.
 _SEAM_OVERLAP = 5.0

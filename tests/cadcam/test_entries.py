@@ -15,14 +15,18 @@ from hypothesis import example, given
 from hypothesis import strategies as st
 
 from cadcam.entries import RAMP_ANGLE, _ramped
+from cadcam.finishing import DESCENT_MARGIN, FinishingOptions, raster_finishing
 from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_part
 from cadcam.model import Motion
 from cadcam.plan import plan_job
 from cadcam.post import PostOptions, post_process
+from cadcam.roughing import zlevel_roughing
 from cadcam.setup import make_setup
+from cadcam.stock import clear_height, stock_after
 from cadcam.tools import load_tool_library
 from tests.cadcam.sweep import sweep_moves
+from tests.cadcam.test_finishing import CUTTING, TOL, hemisphere_on_block, setup_for, tool, worst_gouge
 
 ROOT = Path(__file__).resolve().parents[2]
 #: Stock a move's core must cut to count [mm] (thinner is the sweep grid's noise).
@@ -116,3 +120,26 @@ def test_ramp_falls_no_steeper_than_the_angle_and_cuts_the_whole_chain(drawn):
 def test_a_chain_stepping_straight_down_is_ramped_without_a_vertical_descent():
     """Found by the suite's fixed draw (2026-11-27): the ramp copied the chain's own drop, straight down."""
     assert_ramp_holds(np.array([(0.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 1.0, 0.0)]), 1.0)
+
+
+def test_a_balls_descent_is_fed_at_the_plunge_feed_only_in_the_last_margin_over_the_stock():
+    """Issue 32: the raster's descents fed the whole 1 mm clearance at the plunge feed (dome_mould: 17 s). Through
+    the clearance the stock model (conservative between its points) holds air, so that stretch is a cutting move;
+    only the last :data:`DESCENT_MARGIN` over the stock, where it may be short of the real stock, is a plunge."""
+    setup, part = setup_for(), hemisphere_on_block()
+    flat, ball = tool("flat", 8.0), tool("ball", 6.0)
+    stock = stock_after([zlevel_roughing(part, setup, flat, CUTTING)], setup, np.asarray(part.triangles), 0.5)
+    op = raster_finishing(part, setup, ball, CUTTING, FinishingOptions(scallop=0.01), stock=stock)
+    p, m = op.points, op.motion
+    step = np.diff(p, axis=0)
+    down = (m[1:] != Motion.RAPID) & (step[:, 2] < -1e-9) & (np.hypot(step[:, 0], step[:, 1]) < 1e-9)
+    top = clear_height(stock, ball, p[1:][down][:, :2])
+    start, kind = p[:-1][down][:, 2], m[1:][down]
+    # the plunge feed only from DESCENT_MARGIN over the stock down; the cutting feed only above it, in air
+    plunges = kind == Motion.PLUNGE
+    assert np.all(start[plunges] <= top[plunges] + DESCENT_MARGIN + 1e-9)
+    fed = (kind == Motion.CUT) & (m[:-1][down] == Motion.RAPID)  # a descent from the rapid's end (not a chain's drop)
+    assert np.all(p[1:][down][fed][:, 2] >= top[fed] + DESCENT_MARGIN - 1e-9)
+    # the descents are there: fed through the clearance, each ending where a plunge (or the chain) takes over
+    assert np.count_nonzero(fed) >= 3
+    assert not worst_gouge(op, part, ball, setup.floor_z) > TOL
