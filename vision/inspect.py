@@ -70,11 +70,16 @@ from factory.core.errors import VisionError
 from vision.camera import CameraModel
 from vision.locate import (SATURATED_GREY, Footprint, LocatedPart, LocateOptions, _edge_peaks, _gradients, _grey,
                            _peak_offset, _tray_ratio, locate_parts, mm_to_m)
+from vision.inspect_view import FRAME_PX, behind_part, in_picture
 from vision.mesh_edges import MeshEdges, yaw_rotation_3d
 from vision.shadow import DARK_LOG
 
 #: A picture edge this close to the expected one along its normal is that edge [px].
 OWN_PX = 1.5
+#: A feature's edge this close to the expected one is its own [m], at least :data:`OWN_PX`: the soft
+#: shading at a good boss's foot peaks 0.35-0.5 mm off its crease on the 5 MP camera (0.14 mm/px,
+#: diffuse, seed 1), where 1.5 px is 0.21 mm; at the cell camera's 0.82 mm/px OWN_PX (1.2 mm) rules.
+FEATURE_OWN_M = 0.6e-3
 #: A picture edge this close to another expected edge is that edge, not a defect [px].
 EXPLAINED_PX = 1.0
 #: Edges within this of a clipped pixel are unknown, and a clipped face's spill reaches this far [px].
@@ -385,6 +390,13 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
     # Deep shadow on both sides (a hole at the foot of a counterbore under a low light) hides an
     # edge as glare does: unknown, not missing.
     unknown |= _both_sides(dark, uv, normal, SHADOW_SIDE_PX)
+    # A part at the edge of the view: where the picture ends nothing shows, and the edge search
+    # clamped to its border reads the border's pixels (an outline 1.2 mm out, a feature missing on a
+    # good 5 MP dome, benchmarks/inspect_real_light.py seed 1): unknown, as glare is.
+    unknown |= ~in_picture(grey.shape, uv, normal, OWN_PX + FRAME_PX)
+    # An edge behind a taller face of the part (a step's rim behind a thin wall seen from the side)
+    # cannot show: the wall's top lies where it should be (1.6 mm out on a good glare stepped wall).
+    unknown |= behind_part(model, p, idx)
     # The outline is judged where a face turned up meets the side (the top of a wall, a step): the
     # part's own face lies inside. At a wall's foot the tray beside it may lie in the part's own
     # shadow, and the wall may be as dark as that shadow; no edge there says anything.
@@ -393,8 +405,11 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
         ~_near_corner(part.outline, model.points[idx, :2])
     sign = np.ones(len(idx))
     sign[outer] = _outward(model, part, p, idx[outer], uv[outer], normal[outer])
-    lo = -OWN_PX - GLARE_PX * bloom[:, 1]
-    hi = OWN_PX + GLARE_PX * bloom[:, 0]
+    # A feature's edge, with no side's level to absorb it, may lie further off in a finer picture:
+    # the shading at a wall's foot spreads over a length on the part, not over pixels.
+    own_px = np.where(model.outer[idx], OWN_PX, max(OWN_PX, FEATURE_OWN_M / px_m))
+    lo = -own_px - GLARE_PX * bloom[:, 1]
+    hi = own_px + GLARE_PX * bloom[:, 0]
     # A wall turned to the camera shows beyond its top edge out to its foot: a narrow one as one
     # band whose far side the blur pushes just beyond OWN_PX, so the own edge is looked for that
     # much further out (up to NARROW_WALL_PX, not out to a wide wall's foot).
@@ -551,7 +566,7 @@ def _judge_features(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.nda
         elif top_glare and through:
             features.append(Feature(pixel=pixel, edges=int(every.sum()), found=anywhere, present=False))
         else:
-            refusals.append(f"the feature at ({centre[0]:.0f}, {centre[1]:.0f}) px is hidden in glare or shadow")
+            refusals.append(f"the feature at ({centre[0]:.0f}, {centre[1]:.0f}) px is hidden in glare or shadow, or beyond the picture")
     return features, refusals
 
 
