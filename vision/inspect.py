@@ -76,10 +76,6 @@ from vision.shadow import DARK_LOG
 
 #: A picture edge this close to the expected one along its normal is that edge [px].
 OWN_PX = 1.5
-#: A feature's edge this close to the expected one is its own [m], at least :data:`OWN_PX`: the soft
-#: shading at a good boss's foot peaks 0.35-0.5 mm off its crease on the 5 MP camera (0.14 mm/px,
-#: diffuse, seed 1), where 1.5 px is 0.21 mm; at the cell camera's 0.82 mm/px OWN_PX (1.2 mm) rules.
-FEATURE_OWN_M = 0.6e-3
 #: A picture edge this close to another expected edge is that edge, not a defect [px].
 EXPLAINED_PX = 1.0
 #: Edges within this of a clipped pixel are unknown, and a clipped face's spill reaches this far [px].
@@ -405,11 +401,8 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
         ~_near_corner(part.outline, model.points[idx, :2])
     sign = np.ones(len(idx))
     sign[outer] = _outward(model, part, p, idx[outer], uv[outer], normal[outer])
-    # A feature's edge, with no side's level to absorb it, may lie further off in a finer picture:
-    # the shading at a wall's foot spreads over a length on the part, not over pixels.
-    own_px = np.where(model.outer[idx], OWN_PX, max(OWN_PX, FEATURE_OWN_M / px_m))
-    lo = -own_px - GLARE_PX * bloom[:, 1]
-    hi = own_px + GLARE_PX * bloom[:, 0]
+    lo = -OWN_PX - GLARE_PX * bloom[:, 1]
+    hi = OWN_PX + GLARE_PX * bloom[:, 0]
     # A wall turned to the camera shows beyond its top edge out to its foot: a narrow one as one
     # band whose far side the blur pushes just beyond OWN_PX, so the own edge is looked for that
     # much further out (up to NARROW_WALL_PX, not out to a wide wall's foot).

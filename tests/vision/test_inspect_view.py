@@ -1,8 +1,7 @@
 """Edges the camera cannot see are unknown to ``inspect``, not missing (:mod:`vision.inspect_view`).
 
 Pictures from tests/vision/lit.py of good parts that main rejected (benchmarks/inspect_real_light.py,
-2026-11-29): an edge behind the part's own thin wall, a feature beyond the picture's border, and a
-boss's foot whose soft shading lies further off its crease than 1.5 px of a 5 MP picture.
+2026-11-29): an edge behind the part's own thin wall, and a feature beyond the picture's border.
 """
 
 from __future__ import annotations
@@ -42,14 +41,6 @@ def test_an_edge_behind_the_parts_own_wall_is_not_judged():
     it. Main read that as 0.86 mm of extra material and rejected the part."""
     _, result = inspected(cell_station(), "glare", "stepped_wall", 1)
     assert result.passed and not result.refusal, result.to_dict()
-
-
-def test_a_good_boss_passes_at_5mp_where_its_foot_shades_softly(station_5mp):
-    """A good plate at 0.14 mm/px in diffuse light: one boss's foot shows its edge 2.5-3.5 px off
-    the crease (the soft shading at the foot), beyond 1.5 px; main found the boss missing."""
-    _, result = inspected(station_5mp, "diffuse", "plate_bosses", 1)
-    assert result.passed and not result.refusal, result.to_dict()
-    assert not result.missing_features
 
 
 def test_a_feature_beyond_the_picture_is_refused_not_missing(station_5mp):
