@@ -390,9 +390,12 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
     # clamped to its border reads the border's pixels (an outline 1.2 mm out, a feature missing on a
     # good 5 MP dome, benchmarks/inspect_real_light.py seed 1): unknown, as glare is.
     unknown |= ~in_picture(grey.shape, uv, normal, OWN_PX + FRAME_PX)
-    # An edge behind a taller face of the part (a step's rim behind a thin wall seen from the side)
-    # cannot show: the wall's top lies where it should be (1.6 mm out on a good glare stepped wall).
-    unknown |= behind_part(model, p, idx)
+    # An outline edge behind a taller face of the part (a step's rim behind a thin wall seen from the
+    # side) cannot show: the wall's top lies where it should be (1.6 mm out on a good glare stepped
+    # wall). Features keep their far-side edges: a boss's foot behind it shows with its top's edge,
+    # and the share of a loop found (min_whole_found, _least_loop) was set counting them.
+    rim = model.outer[idx]
+    unknown[rim] |= behind_part(model, p, idx[rim])
     # The outline is judged where a face turned up meets the side (the top of a wall, a step): the
     # part's own face lies inside. At a wall's foot the tray beside it may lie in the part's own
     # shadow, and the wall may be as dark as that shadow; no edge there says anything.
