@@ -70,7 +70,7 @@ from factory.core.errors import VisionError
 from vision.camera import CameraModel
 from vision.locate import (SATURATED_GREY, Footprint, LocatedPart, LocateOptions, _edge_peaks, _gradients, _grey,
                            _peak_offset, _tray_ratio, locate_parts, mm_to_m)
-from vision.inspect_view import FRAME_PX, behind_part, in_picture
+from vision.inspect_view import FRAME_PX, unseen
 from vision.mesh_edges import MeshEdges, yaw_rotation_3d
 from vision.shadow import DARK_LOG
 
@@ -386,16 +386,8 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
     # Deep shadow on both sides (a hole at the foot of a counterbore under a low light) hides an
     # edge as glare does: unknown, not missing.
     unknown |= _both_sides(dark, uv, normal, SHADOW_SIDE_PX)
-    # A part at the edge of the view: where the picture ends nothing shows, and the edge search
-    # clamped to its border reads the border's pixels (an outline 1.2 mm out, a feature missing on a
-    # good 5 MP dome, benchmarks/inspect_real_light.py seed 1): unknown, as glare is.
-    unknown |= ~in_picture(grey.shape, uv, normal, OWN_PX + FRAME_PX)
-    # An outline edge behind a taller face of the part (a step's rim behind a thin wall seen from the
-    # side) cannot show: the wall's top lies where it should be (1.6 mm out on a good glare stepped
-    # wall). Features keep their far-side edges: a boss's foot behind it shows with its top's edge,
-    # and the share of a loop found (min_whole_found, _least_loop) was set counting them.
-    rim = model.outer[idx]
-    unknown[rim] |= behind_part(model, p, idx[rim])
+    # Beyond the picture, or an outline edge behind the part's own taller faces: unknown, as glare is.
+    unknown |= unseen(model, p, idx, uv, normal, grey.shape, OWN_PX + FRAME_PX)
     # The outline is judged where a face turned up meets the side (the top of a wall, a step): the
     # part's own face lies inside. At a wall's foot the tray beside it may lie in the part's own
     # shadow, and the wall may be as dark as that shadow; no edge there says anything.

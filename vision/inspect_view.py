@@ -58,3 +58,22 @@ def behind_part(model: MeshEdges, p: np.ndarray, idx: np.ndarray) -> np.ndarray:
         q = points + t[:, None] * ray
         hidden |= (across >= s * SIGHT_STEP_M) & (model.field.at(q[:, :2]) > q[:, 2] + OVER_SIGHT_M)
     return hidden
+
+
+def unseen(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, normal: np.ndarray,
+           shape: tuple[int, ...], reach: float) -> np.ndarray:
+    """``(k,)`` bool over the visible samples ``idx`` (pixels ``uv``, image normals ``normal``) at pose ``p``:
+    those the view hides from the edge search ``reach`` [px] either side.
+
+    A part at the edge of the view: where the picture (``shape``) ends nothing shows, and the search
+    clamped to its border reads the border's pixels (an outline 1.2 mm out, a hole missing on a good
+    5 MP dome, benchmarks/inspect_real_light.py seed 1). An outline edge behind a taller face of the
+    part (a step's rim behind a thin wall seen from the side): the wall's top lies where it should be
+    (1.6 mm out on a good glare stepped wall). Features keep their far-side edges: a boss's foot behind
+    it shows with its top's edge, and the shares of a loop found (``min_whole_found``,
+    ``vision.inspect._least_loop``) were set counting them.
+    """
+    hidden = ~in_picture(shape, uv, normal, reach)
+    rim = model.outer[idx]
+    hidden[rim] |= behind_part(model, p, idx[rim])
+    return hidden
