@@ -70,6 +70,7 @@ from factory.core.errors import VisionError
 from vision.camera import CameraModel
 from vision.locate import (SATURATED_GREY, Footprint, LocatedPart, LocateOptions, _edge_peaks, _gradients, _grey,
                            _peak_offset, _tray_ratio, locate_parts, mm_to_m)
+from vision.inspect_view import FRAME_PX, unseen
 from vision.mesh_edges import MeshEdges, yaw_rotation_3d
 from vision.shadow import DARK_LOG
 
@@ -385,6 +386,8 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
     # Deep shadow on both sides (a hole at the foot of a counterbore under a low light) hides an
     # edge as glare does: unknown, not missing.
     unknown |= _both_sides(dark, uv, normal, SHADOW_SIDE_PX)
+    # Beyond the picture, or an outline edge behind the part's own taller faces: unknown, as glare is.
+    unknown |= unseen(model, p, idx, uv, normal, grey.shape, OWN_PX + FRAME_PX)
     # The outline is judged where a face turned up meets the side (the top of a wall, a step): the
     # part's own face lies inside. At a wall's foot the tray beside it may lie in the part's own
     # shadow, and the wall may be as dark as that shadow; no edge there says anything.
@@ -551,7 +554,7 @@ def _judge_features(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.nda
         elif top_glare and through:
             features.append(Feature(pixel=pixel, edges=int(every.sum()), found=anywhere, present=False))
         else:
-            refusals.append(f"the feature at ({centre[0]:.0f}, {centre[1]:.0f}) px is hidden in glare or shadow")
+            refusals.append(f"the feature at ({centre[0]:.0f}, {centre[1]:.0f}) px is hidden in glare or shadow, or beyond the picture")
     return features, refusals
 
 
