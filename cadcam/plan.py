@@ -684,8 +684,7 @@ def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulati
                 op = levels(stock)
         if len(op.points) > 1:
             # its helices at the chip they cut (round a drilled hole, a side cut), its light cuts faster
-            operations.append(plan.timed("chip feeds", lambda: chip_feeds(op, stock, setup, plan.triangles,
-                                                                          library.max_feed)))
+            operations.append(_at_chip(plan, op, stock))
             stock = plan.model(operations)
     return stock
 
@@ -848,8 +847,7 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
                                                            unreached_in=unreached_in, leave=leave))
         if len(op.points) > 1:
             # each move at the feed its chip allows on the stock before it: walls' skins and air faster
-            operations.append(plan.timed("chip feeds", lambda: chip_feeds(op, stock, setup, plan.triangles,
-                                                                          library.max_feed)))
+            operations.append(_at_chip(plan, op, stock))
             stale = True
 
 
