@@ -11,14 +11,13 @@ from __future__ import annotations
 import numpy as np
 
 from vision.mesh_edges import MeshEdges
+from vision.shadow import shadowed
 
 #: The edge filter's reach: an edge this close to the picture's border cannot be told [px].
 FRAME_PX = 1.0
 #: A taller face hides an edge where it stands this far above the line of sight [m]: clear of the
 #: height field's rounding at the edge's own face (a texel, 0.5 mm, on a face's rim).
 OVER_SIGHT_M = 5e-4
-#: The line of sight is followed in steps this long across the part [m] (the height field's texel).
-SIGHT_STEP_M = 5e-4
 
 
 def in_picture(shape: tuple[int, ...], uv: np.ndarray, normal: np.ndarray, t: float) -> np.ndarray:
@@ -38,26 +37,15 @@ def behind_part(model: MeshEdges, p: np.ndarray, idx: np.ndarray) -> np.ndarray:
     through the part itself at pose ``p`` (x, y [m], yaw [rad]): a wall standing between them and a
     camera looking down at it from the side. Its top shows where the hidden edge should be.
 
-    Followed over the part's height field (:func:`vision.shadow.height_field`), from one step off
-    the sample up to the part's highest point.
+    The part's shadow with the eye as the light (:func:`vision.shadow.shadowed`, over its height field),
+    standing :data:`OVER_SIGHT_M` above the line of sight.
     """
     points = model.points[idx]
-    hidden = np.zeros(len(idx), bool)
     if len(idx) == 0:
-        return hidden
+        return np.zeros(0, bool)
     eye, _ = model.in_part_frame(p, np.zeros(3))
-    ray = eye[None, :] - points
-    top = float(model.field.heights.max())
-    # Where each line of sight rises past the part's top, and how far it runs across the part there.
-    rise = np.maximum(ray[:, 2], 1e-9)
-    end = np.clip((top - points[:, 2]) / rise, 0.0, 1.0)
-    across = end * np.linalg.norm(ray[:, :2], axis=1)
-    steps = int(np.ceil(across.max() / SIGHT_STEP_M)) if across.max() > 0 else 0
-    for s in range(1, steps + 1):
-        t = np.minimum(s * SIGHT_STEP_M / np.maximum(across, 1e-12), 1.0) * end
-        q = points + t[:, None] * ray
-        hidden |= (across >= s * SIGHT_STEP_M) & (model.field.at(q[:, :2]) > q[:, 2] + OVER_SIGHT_M)
-    return hidden
+    to_eye = eye[None, :] - points
+    return shadowed(model.field, points, to_eye / np.linalg.norm(to_eye, axis=1, keepdims=True), bias=OVER_SIGHT_M)
 
 
 def unseen(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, normal: np.ndarray,

@@ -98,11 +98,12 @@ def height_field(vertices: np.ndarray, faces: np.ndarray) -> HeightField:
     return HeightField(heights=heights, origin=origin)
 
 
-def shadowed(field: HeightField, points: np.ndarray, light: np.ndarray) -> np.ndarray:
-    """``(n,)`` bool: the part stands between each point (n, 3) [m] and the light (unit, z > 0).
+def shadowed(field: HeightField, points: np.ndarray, light: np.ndarray, bias: float = SHADOW_BIAS_M) -> np.ndarray:
+    """``(n,)`` bool: the part stands between each point (n, 3) [m] and the light (unit, z > 0), by more
+    than ``bias`` [m] above the line to it.
 
     ``light`` is one direction (3,) or one per point (n, 3) (towards the camera's eye, the same
-    test says whether the part hides a tray point from it). March from each point towards the
+    test says whether the part hides a point from it). March from each point towards the
     light, a cell at a time, until the line to the light is above the part's highest point.
     """
     p = np.asarray(points, dtype=np.float64)
@@ -116,12 +117,12 @@ def shadowed(field: HeightField, points: np.ndarray, light: np.ndarray) -> np.nd
     ahead = d[:, :2] / np.where(steep, 1.0, flat)[:, None]
     top = float(field.heights.max())
     # Straight up: only the point's own column can cover it.
-    out[steep] = field.at(p[steep, :2]) > p[steep, 2] + SHADOW_BIAS_M
+    out[steep] = field.at(p[steep, :2]) > p[steep, 2] + bias
     live = ~steep & (p[:, 2] < top)
     # Past the field's box (or never crossing it) a line above the tray meets only tray: its march ends
     # there, not only once it rises above the part's top (a low light's lines rose for 15 cm).
     enter, leave = _crossing(field, p[:, :2], ahead)
-    above = p[:, 2] + SHADOW_BIAS_M >= 0
+    above = p[:, 2] + bias >= 0
     live &= ~above | ((leave >= np.maximum(enter, 0.0)) & (enter < np.inf))
     # A block of cells per look: once a line is above the part's top nothing further hides it, so
     # the cells a block looks at past that point change nothing.
@@ -130,7 +131,7 @@ def shadowed(field: HeightField, points: np.ndarray, light: np.ndarray) -> np.nd
         i = np.flatnonzero(live)
         z = p[i, 2, None] + s[None, :] * rise[i, None]
         q = p[i, None, :2] + s[None, :, None] * ahead[i, None, :]
-        hit = (field.at(q.reshape(-1, 2)).reshape(z.shape) > z + SHADOW_BIAS_M).any(axis=1)
+        hit = (field.at(q.reshape(-1, 2)).reshape(z.shape) > z + bias).any(axis=1)
         out[i[hit]] = True
         live[i[hit | (z[:, -1] >= top) | (above[i] & (s[-1] >= leave[i]))]] = False
         s = s + MARCH_BLOCK * TEXEL_M
