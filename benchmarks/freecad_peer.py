@@ -36,7 +36,7 @@ FreeCAD's program, ``ratio_safe`` over the one made safe (issue 32 asks for at m
 change between groups), ``rough_ratio`` is the part of our op 1 that roughs (holes bored or
 drilled, roughing and rest roughing) over FreeCAD's Adaptive. ``bound_min`` is
 :func:`benchmarks.adaptive.lower_bound`, the feature-aware lower bound of BOTH operations (stock
-removed at T2's adaptive rate, flats at 70 % stepover, the walls' outline once, the freeform faces
+removed at T2's adaptive rate, flats (op 1's upward ones and op 2's under the part) at 70 % stepover, the walls' outline once, the freeform faces
 once by the finishing ball at its scallop's stepover; no bores, rapids or tool changes), and ``ours_bound_ratio``/``freecad_bound_ratio`` op 1 over it.
 ``--keep DIR`` writes the programs there. Installs nothing: without ``freecadcmd`` on the PATH it
 prints one line and exits 0; a part whose surface needs OpenCAMLib (the ``bench`` extra) and

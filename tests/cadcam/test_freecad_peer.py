@@ -142,3 +142,21 @@ def test_the_bound_sweeps_the_freeform_faces_once_with_the_finishing_ball():
     step = stepover_for(ball, PlanOptions().freeform_scallop)
     expected = 2 * np.pi * r * r / (step * library.cutting_data(ball, setup.material).feed)
     assert _ball_minutes(library, setup, part) == pytest.approx(expected, rel=0.03)
+
+
+def test_the_bounds_flats_are_both_operations_faces_up_in_op_1_and_the_bottom_in_op_2():
+    """The bound (``benchmarks.adaptive``) is of both operations: on a stepped block the flats faced are its two
+    upward levels (op 1) and its bottom, which op 2 faces when it takes off the holding allowance; the walls
+    and a through hole's bore are not flats."""
+    import manifold3d
+
+    from benchmarks.adaptive import _flat_area
+    from tests.conftest import manifold_to_trimesh
+
+    step = manifold3d.Manifold.cube((60.0, 50.0, 10.0)) + manifold3d.Manifold.cube((30.0, 50.0, 5.0)).translate(
+        (0.0, 0.0, 10.0))
+    hole = manifold3d.Manifold.cylinder(30.0, 5.0, 5.0, 64).translate((45.0, 25.0, -5.0))
+    _, part = make_setup(manifold_to_trimesh(step - hole))
+    disc = float(manifold_to_trimesh(hole).area_faces[np.abs(manifold_to_trimesh(hole).face_normals[:, 2]) > 0.5]
+                 .sum()) / 2  # one end of the 64-gon hole
+    assert _flat_area(part) == pytest.approx(2 * 60.0 * 50.0 - 2 * disc, rel=1e-6)
