@@ -10,6 +10,7 @@ only a little over the stock known along the straight way.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 from collections.abc import Sequence
@@ -26,6 +27,13 @@ from cadcam.stock import Simulation, clear_height
 
 #: Slack when checking that a link lies in the space the axis may go [mm] (the loops lie on its outline).
 COVER_TOL = 1e-5
+#: Segments a quarter circle in a piece's footprint (:attr:`Piece.footprint`).
+FOOTPRINT_QUAD_SEGS = 4
+#: Shares of the grow distance within which a footprint surely reaches from its way, and beyond which it
+#: surely does not (:meth:`Piece.meets`). Its arcs' chords come within cos(pi / 16) = 0.981 of it, and GEOS
+#: first simplifies the line by 1 % of the distance (``BufferParameters`` simplify factor 0.01), either way.
+SURELY_MEETS = 0.95
+SURELY_APART = 1.02
 
 
 def nearest_tour(starts: np.ndarray, start: np.ndarray, ends: np.ndarray | None = None) -> np.ndarray:
@@ -51,15 +59,22 @@ class Piece:
 
     ``z`` [mm]: its level; ``start_xy`` [mm]: where the tool stands over at the clearance height before
     ``points`` (the descent, the entry and the loops, as :func:`cadcam.roughing._cut_region` emits them;
-    ``motion`` theirs); ``footprint``: the XY area its tool sweeps while feeding (the feed moves' axis grown
-    by the tool radius)."""
+    ``motion`` theirs); ``way``: the XY axis of its feed moves (a line, or a point); ``reach`` [mm]: the
+    tool radius and a little more, so :attr:`footprint`, the XY area its tool sweeps while feeding, is
+    ``way`` grown by ``reach``."""
 
     level: int
     z: float
     start_xy: np.ndarray
     points: np.ndarray
     motion: np.ndarray
-    footprint: BaseGeometry
+    way: BaseGeometry
+    reach: float
+
+    @functools.cached_property
+    def footprint(self) -> BaseGeometry:
+        """``way`` grown by ``reach``, in :data:`FOOTPRINT_QUAD_SEGS` segments a quarter circle."""
+        return self.way.buffer(self.reach, quad_segs=FOOTPRINT_QUAD_SEGS)
 
     @classmethod
     def of(cls, level: int, z: float, points: np.ndarray, motion: np.ndarray, clear_z: float,
@@ -75,16 +90,27 @@ class Piece:
         fed = np.flatnonzero(motion[lead:] != int(Motion.RAPID)) + lead  # feed moves points[i - 1] -> points[i]
         feeding = points[np.unique(np.concatenate([fed - 1, fed]))][:, :2]
         way = LineString(feeding) if len(feeding) > 1 else Point(feeding[0] if len(feeding) else points[lead, :2])
-        return cls(level, z, points[lead - 1, :2], points[lead:], motion[lead:],
-                   way.buffer(radius + 1e-5, quad_segs=4))
+        return cls(level, z, points[lead - 1, :2], points[lead:], motion[lead:], way, radius + 1e-5)
+
+    def meets(self, other: Piece) -> bool:
+        """Whether the two footprints intersect. Two ways nearer than :data:`SURELY_MEETS` of their reaches
+        together, or farther than :data:`SURELY_APART`, decide without growing either (growing a terrace's
+        long loops was most of the time its pieces took, issue 35); between, the footprints are compared."""
+        reach = self.reach + other.reach
+        shapely.prepare(self.way)
+        if shapely.dwithin(self.way, other.way, SURELY_MEETS * reach):
+            return True
+        if not shapely.dwithin(self.way, other.way, SURELY_APART * reach):
+            return False
+        return self.footprint.intersects(other.footprint)
 
 
 def stacked(pieces: list[Piece]) -> list[Piece]:
     """``pieces`` (in the level-by-level order they were planned) stack by stack: pieces whose tool sweeps
-    meet, directly or through others, form a stack, cut top down in their planned order before the next
-    stack (ordered by its first piece). No feed move meets other stock than it did level by level: a
-    piece's stock is changed only by the pieces whose sweeps meet its own, all of its stack, which keep
-    their order. The tool descends a stack's levels instead of going round every stack on each level."""
+    meet (:meth:`Piece.meets`), directly or through others, form a stack, cut top down in their planned order
+    before the next stack (ordered by its first piece). No feed move meets other stock than it did level by
+    level: a piece's stock is changed only by the pieces whose sweeps meet its own, all of its stack, which
+    keep their order. The tool descends a stack's levels instead of going round every stack on each level."""
     if len(pieces) < 2:
         return list(pieces)
     parent = list(range(len(pieces)))
@@ -95,11 +121,14 @@ def stacked(pieces: list[Piece]) -> list[Piece]:
             i = parent[i]
         return i
 
-    tree = shapely.STRtree([q.footprint for q in pieces])
-    a, b = tree.query([q.footprint for q in pieces], predicate="intersects")
+    # Pairs whose footprints' boxes meet, each judged only while the two are in different stacks.
+    ways = [q.way for q in pieces]
+    grow = np.array([[-1.0, -1.0, 1.0, 1.0]]) * SURELY_APART * np.array([[q.reach for q in pieces]]).T
+    boxes = shapely.box(*(shapely.bounds(ways) + grow).T)
+    a, b = shapely.STRtree(boxes).query(boxes, predicate="intersects")
     for i, j in zip(a.tolist(), b.tolist()):
         ri, rj = root(i), root(j)
-        if ri != rj:
+        if ri != rj and pieces[i].meets(pieces[j]):
             parent[max(ri, rj)] = min(ri, rj)  # a stack's root is its first piece
     return [pieces[i] for i in sorted(range(len(pieces)), key=lambda i: (root(i), i))]
 

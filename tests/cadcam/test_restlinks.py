@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import LineString, Point, box
 
 from cadcam.heightmap import Grid
-from cadcam.restlinks import Links
+from cadcam.restlinks import Links, Piece
 from cadcam.stock import Simulation
 from tests.cadcam.test_post import FLAT
 
@@ -56,3 +56,25 @@ def test_a_feed_along_a_wall_off_the_part_stays_down():
     links, _ = _links()
     y = PART_XY[1] - FLAT.radius - 0.5
     assert links.stays_down(np.array([25.0, y]), np.array([55.0, y]), -5.0, 0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(pts=st.lists(st.tuples(st.floats(-5.0, 5.0), st.floats(-5.0, 5.0)), min_size=1, max_size=6),
+       radius=st.floats(0.05, 8.0), apart=st.floats(1.85, 2.1), angle=st.floats(0.0, 2.0 * np.pi),
+       turn=st.one_of(st.just(0.0), st.floats(0.0, 2.0 * np.pi)))
+@example(pts=[(0.0, 0.0)], radius=1.0, apart=1.97, angle=np.pi / 16, turn=0.0)  # two 16-gons' edges, just apart
+def test_pieces_meet_exactly_where_their_footprints_do(pts, radius, apart, angle, turn):
+    """Stacking decides most pairs of pieces from their ways' distance alone; it must agree with the grown
+    footprints themselves, near the grow distance too (the pieces' order, so the program, depends on it)."""
+    way = np.array(pts)
+    c, s = np.cos(turn), np.sin(turn)
+    # the other way turned about this one's start, then moved off by about the footprints' width (apart x radius)
+    other = (way - way[0]) @ np.array([[c, s], [-s, c]]) + way[0] + apart * radius * np.array([np.cos(angle),
+                                                                                              np.sin(angle)])
+    p, q = (Piece(0, 0.0, xy[0], np.zeros((1, 3)), np.zeros(1, dtype=np.int8), _way(xy), radius)
+            for xy in (way, other))
+    assert p.meets(q) == p.way.buffer(radius, quad_segs=4).intersects(q.way.buffer(radius, quad_segs=4))
+
+
+def _way(xy: np.ndarray) -> LineString | Point:
+    return LineString(xy) if len(xy) > 1 and np.ptp(xy, axis=0).any() else Point(xy[0])
