@@ -397,8 +397,9 @@ def plan_job(
     (:func:`split_depth`): ``job.setup.floor_z`` is raised there, and op 2 machines the rest from below
     (:func:`cadcam.op2.plan_op2`).
 
-    The steps, in cutting order: holes and roughing (:func:`_holes_and_roughing`), rest roughing
-    (:func:`_rest_roughing`), what no tool reaches (:func:`_unreached`), flats and walls
+    The steps, in cutting order: holes and roughing (:func:`_holes_and_roughing`), the roughing tool's terraces
+    (:func:`_terraces`), all of them then fed at their chip (:func:`_feed_roughing`), rest roughing with narrower
+    tools (:func:`_rest_roughing`), what no tool reaches (:func:`_unreached`), flats and walls
     (:func:`_flats_and_walls`), freeform surfaces with the ball (:func:`_freeform_finishing`),
     then every rapid made safe (:func:`_finished`).
 
@@ -452,7 +453,9 @@ def plan_job(
     """
     plan = _Planning.start(part, setup, library, options, progress, boundary)
     plan.on_operations, plan.on_planned = on_operations, on_planned
-    holes, operations, stock = _holes_and_roughing(plan, holes)
+    holes, operations, unfed, stock = _holes_and_roughing(plan, holes)
+    stock = _terraces(plan, operations, stock)
+    _feed_roughing(plan, operations, unfed)
     stock = _rest_roughing(plan, operations, stock)
     left = _unreached(plan, stock)
     if plan.faces is not None and stock is not None:
@@ -589,10 +592,19 @@ class _Planning:
             sim = keep_outside(sim, self.boundary, self.rough_tool.radius)
         return sim
 
+    def feeds_changed(self, old: list[Operation], new: list[Operation]) -> None:
+        """``old`` operations are ``new`` now: the same moves at other feeds. The stock models cut on from the ones
+        they hold with these in their place (feeds do not move the tool: the stock they left is the same), not
+        from the block again (:func:`cadcam.stock.stock_after` cuts on only from the same objects)."""
+        swap = {id(a): b for a, b in zip(old, new)}
+        self.models = {cell: OperationsCut(tuple(swap.get(id(op), op) for op in cut.operations), cut.simulation)
+                       for cell, cut in self.models.items()}
+
 
 def _holes_and_roughing(plan: _Planning, exact: tuple[Hole, ...] | None = None
-                        ) -> tuple[HolePlan | None, list[Operation], Simulation | None]:
-    """Drilled and helixed holes, then z-level roughing; the operations and the stock they leave.
+                        ) -> tuple[HolePlan | None, list[Operation], _Unfed, Simulation | None]:
+    """Drilled and helixed holes, then z-level roughing; the operations (the bores and the roughing at their
+    library feeds, from ``_Unfed.first`` on: :func:`_feed_roughing`) and the stock they leave.
 
     ``exact``: the round holes when the part came with them (work coordinates), else found in the mesh."""
     options, setup, part = plan.options, plan.setup, plan.part
@@ -614,40 +626,60 @@ def _holes_and_roughing(plan: _Planning, exact: tuple[Hole, ...] | None = None
             part, setup, plan.rough_tool, plan.rough_cutting, plan.library.max_feed, roughing,
             options.adaptive, progress=plan.stage_progress("roughing"), within=plan.rough_within,
             cut_before=plan.cut_before))
-    # Drilled and helixed holes come first: the stock model below sees them.
-    drilled = _bores_at_chip(plan, [*(holes.operations if holes is not None else ())])
-    # each roughing move at the feed its chip allows: links and levels through stock the holes or the level
-    # above took, and the light cuts round the rings, faster (the full-width ones keep the library's feed)
-    before = plan.model(drilled)
-    rough = plan.timed("chip feeds", lambda: chained_chip_feeds(rough, before, setup, plan.triangles,
-                                                                plan.library.max_feed))
-    operations = [*drilled, *rough]
+    # Drilled and helixed holes come first: the stock model below sees them. Their bores and the roughing
+    # stay at their library feeds until the terraces are planned (_feed_roughing raises them all in one go).
+    holes_ops = [*(holes.operations if holes is not None else ())]
+    first = next((i for i, op in enumerate(holes_ops) if op.cycle is None and not op.tool.is_drill), len(holes_ops))
+    before = plan.model(holes_ops[:first]) if first else None
+    operations = [*holes_ops, *rough]
     # What roughing left lets finishing descend by rapid through air instead of feeding from safe_z.
-    return holes, operations, plan.model(operations)
+    return holes, operations, _Unfed(first, before), plan.model(operations)
 
 
-def _bores_at_chip(plan: _Planning, holes: list[Operation]) -> list[Operation]:
-    """The holes' operations with each bore's helices at the feed its chip allows on the stock the drills leave
-    (:func:`cadcam.chipfeed.chained_chip_feeds`): a helix round a drilled hole is a side cut, fed by
-    :func:`cadcam.drilling.helix_cutting` as a slot from solid (dome_mould's 10 mm bores round 8.5 mm holes at F935)."""
-    first = next((i for i, op in enumerate(holes) if op.cycle is None and not op.tool.is_drill), len(holes))
-    if first == len(holes):
-        return holes
-    start = plan.model(holes[:first]) if first else None
-    return holes[:first] + plan.timed("chip feeds", lambda: chained_chip_feeds(
-        holes[first:], start, plan.setup, plan.triangles, plan.library.max_feed))
+@dataclass(frozen=True)
+class _Unfed:
+    """Where the operations still at their library feeds begin (:func:`_feed_roughing` raises them).
+
+    Attributes
+    ----------
+    first : int
+        Index of the first of them in the plan's operations: the first bore (a helix after the drills), else
+        the roughing.
+    before : Simulation or None
+        The stock the operations before ``first`` leave (the drills'); None: the block.
+    """
+
+    first: int
+    before: Simulation | None
 
 
-def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulation | None) -> Simulation | None:
-    """Where roughing left more than the finishing engagement: the roughing tool again between its levels
-    (the terraces), then each narrower flat end mill in turn. Appends to ``operations``; the stock after."""
-    options, setup, part, library = plan.options, plan.setup, plan.part, plan.library
+def _feed_roughing(plan: _Planning, operations: list[Operation], unfed: _Unfed) -> None:
+    """Each move of the bores, the roughing and its terraces (``operations[unfed.first:]``) at the feed its chip
+    allows, measured from the stock the drills leave (:func:`cadcam.chipfeed.chained_chip_feeds`), in place.
+
+    One call for them all: the chip feeds cut their moves into a finer model made afresh each call, and the
+    terraces are planned from the planning model, which feeds do not change. A bore's helix round a drilled hole
+    is a side cut, fed by :func:`cadcam.drilling.helix_cutting` as a slot from solid (dome_mould's 10 mm bores
+    round 8.5 mm holes at F935); the roughing's links and levels run through stock the holes or the level above
+    took, its light cuts round the rings faster (the full-width ones keep the library's feed); the terraces cut
+    a terrace's skin, mostly narrower than the tool's full width."""
+    unfed_ops = operations[unfed.first:]
+    if not unfed_ops:
+        return
+    fed = plan.timed("chip feeds", lambda: chained_chip_feeds(unfed_ops, unfed.before, plan.setup, plan.triangles,
+                                                              plan.library.max_feed))
+    operations[unfed.first:] = fed
+    plan.feeds_changed(unfed_ops, fed)
+
+
+def _terraces(plan: _Planning, operations: list[Operation], stock: Simulation | None) -> Simulation | None:
+    """Where roughing left more than the finishing engagement: the roughing tool again between its levels, at
+    a finer stepdown (the terraces), at its library feed (:func:`_feed_roughing` raises it). Appends to
+    ``operations``; the stock after."""
+    options, setup, part = plan.options, plan.setup, plan.part
     if not options.rest_roughing or stock is None:
         return stock
-    allowance = options.roughing.allowance
-    limit = options.finish_engagement
-    within = plan.within
-    if (excess(stock, allowance) > limit).any():
+    if (excess(stock, options.roughing.allowance) > options.finish_engagement).any():
         # the terraces of the roughing levels, at a finer stepdown where more than the limit is left; not the
         # top floor's skin the roughing left to the finishing (else every terrace level contours the part to
         # meet its edge: the pocketed block of tests/cadcam/test_rest.py, -0.7 to -11.5 mm round the part)
@@ -655,11 +687,23 @@ def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulati
         op = plan.timed("terraces", lambda: zlevel_roughing(part, setup, plan.rough_tool, plan.rough_cutting, terraces,
                                                              progress=plan.stage_progress("terraces"), rest=stock,
                                                              rest_above=max(options.terrace_stepdown, plan.skim),
-                                                             within=within,
+                                                             within=plan.within,
                                                              cut_before=plan.cut_before))
         if len(op.points) > 1:
             operations.append(op)
             stock = plan.model(operations)
+    return stock
+
+
+def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulation | None) -> Simulation | None:
+    """Where roughing and its terraces left more than the finishing engagement: each narrower flat end mill in
+    turn. Appends to ``operations``; the stock after."""
+    options, setup, part, library = plan.options, plan.setup, plan.part, plan.library
+    if not options.rest_roughing or stock is None:
+        return stock
+    allowance = options.roughing.allowance
+    limit = options.finish_engagement
+    within = plan.within
     for tool in rest_tools(library, plan.rough_tool, float(setup.stock_max[2] - setup.floor_z)):
         if not (excess(stock, allowance) > limit).any():
             break
