@@ -29,7 +29,7 @@ from cadcam.adaptive_rest import adaptive_rest_roughing
 from cadcam.drilling import DrillingOptions, Hole, HolePlan, plan_holes
 from cadcam.faces import SHALLOW, STEEP, FaceClasses, classify_faces
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
-from cadcam.chipfeed import chained_chip_feeds, chip_feeds
+from cadcam.chipfeed import CHIP_CELL, chip_fed, chip_feeds
 from cadcam.flatfinish import WALL_HAIR, FlatFinishOptions, flat_wall_finishing, left_on_flats_and_walls
 from cadcam.model import CuttingData, Job, Operation, Setup, Tool
 from cadcam.relief import Boundary, keep_outside
@@ -630,7 +630,9 @@ def _holes_and_roughing(plan: _Planning, exact: tuple[Hole, ...] | None = None
     # stay at their library feeds until the terraces are planned (_feed_roughing raises them all in one go).
     holes_ops = [*(holes.operations if holes is not None else ())]
     first = next((i for i, op in enumerate(holes_ops) if op.cycle is None and not op.tool.is_drill), len(holes_ops))
-    before = plan.model(holes_ops[:first]) if first else None
+    # on the chip feeds' own grid: they cut on into it as it is, and the stock they leave is the planning model
+    # on that grid after the roughing (_feed_roughing)
+    before = plan.model(holes_ops[:first], CHIP_CELL) if first else None
     operations = [*holes_ops, *rough]
     # What roughing left lets finishing descend by rapid through air instead of feeding from safe_z.
     return holes, operations, _Unfed(first, before), plan.model(operations)
@@ -646,7 +648,8 @@ class _Unfed:
         Index of the first of them in the plan's operations: the first bore (a helix after the drills), else
         the roughing.
     before : Simulation or None
-        The stock the operations before ``first`` leave (the drills'); None: the block.
+        The stock the operations before ``first`` leave (the drills'), on the grid of
+        :data:`cadcam.chipfeed.CHIP_CELL`; None: the block.
     """
 
     first: int
@@ -655,21 +658,26 @@ class _Unfed:
 
 def _feed_roughing(plan: _Planning, operations: list[Operation], unfed: _Unfed) -> None:
     """Each move of the bores, the roughing and its terraces (``operations[unfed.first:]``) at the feed its chip
-    allows, measured from the stock the drills leave (:func:`cadcam.chipfeed.chained_chip_feeds`), in place.
+    allows, measured from the stock the drills leave (:func:`cadcam.chipfeed.chip_fed`), in place.
 
-    One call for them all: the chip feeds cut their moves into a finer model made afresh each call, and the
-    terraces are planned from the planning model, which feeds do not change. A bore's helix round a drilled hole
-    is a side cut, fed by :func:`cadcam.drilling.helix_cutting` as a slot from solid (dome_mould's 10 mm bores
-    round 8.5 mm holes at F935); the roughing's links and levels run through stock the holes or the level above
-    took, its light cuts round the rings faster (the full-width ones keep the library's feed); the terraces cut
-    a terrace's skin, mostly narrower than the tool's full width."""
+    One call for them all, once the terraces are planned (from the planning model, which feeds do not change):
+    the stock it cuts them into on its grid is the planning model there after them, which the flats and walls'
+    finer model cuts on from. A bore's helix round a drilled hole is a side cut, fed by
+    :func:`cadcam.drilling.helix_cutting` as a slot from solid (dome_mould's 10 mm bores round 8.5 mm holes at
+    F935); the roughing's links and levels run through stock the holes or the level above took, its light cuts
+    round the rings faster (the full-width ones keep the library's feed); the terraces cut a terrace's skin,
+    mostly narrower than the tool's full width."""
     unfed_ops = operations[unfed.first:]
     if not unfed_ops:
         return
-    fed = plan.timed("chip feeds", lambda: chained_chip_feeds(unfed_ops, unfed.before, plan.setup, plan.triangles,
-                                                              plan.library.max_feed))
-    operations[unfed.first:] = fed
-    plan.feeds_changed(unfed_ops, fed)
+    fed = plan.timed("chip feeds", lambda: chip_fed(unfed_ops, unfed.before, plan.setup, plan.triangles,
+                                                    plan.library.max_feed))
+    operations[unfed.first:] = fed.operations
+    plan.feeds_changed(unfed_ops, fed.operations)
+    if fed.stock is not None and plan.boundary is None:
+        # the chip feeds cut them all into the drills' model on their grid (the rapid from the drills to the first
+        # bore, over the stock, cuts nothing): the flats and walls' finer model cuts on from there
+        plan.models[CHIP_CELL] = OperationsCut(tuple(operations), fed.stock)
 
 
 def _terraces(plan: _Planning, operations: list[Operation], stock: Simulation | None) -> Simulation | None:

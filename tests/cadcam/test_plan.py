@@ -260,7 +260,8 @@ def test_the_balls_passes_run_at_their_chip_and_verify_holds_every_chip_to_fz(tm
 def _terraced_dome():
     """(setup, part): a dome on a block, which the roughing levels leave in terraces (the roughing tool steps
     down between them again, :func:`cadcam.plan._terraces`)."""
-    dome = manifold3d.Manifold.cube((40.0, 30.0, 6.0)) + manifold3d.Manifold.sphere(11.0, 48).translate((20.0, 15.0, 4.0))
+    cap = manifold3d.Manifold.sphere(11.0, 48).translate((20.0, 15.0, 4.0))
+    dome = manifold3d.Manifold.cube((40.0, 30.0, 6.0)) + cap
     return make_setup(manifold_to_trimesh(dome), jaws=JAWS)
 
 
