@@ -456,10 +456,11 @@ def plan_job(
     holes, operations, unfed, stock = _holes_and_roughing(plan, holes)
     stock = _terraces(plan, operations, stock)
     _feed_roughing(plan, operations, unfed)
+    before_rest = _BeforeRest(len(operations), stock, dict(plan.models))
     stock = _rest_roughing(plan, operations, stock)
     left = _unreached(plan, stock)
     if plan.faces is not None and stock is not None:
-        stock = _flats_and_walls(plan, operations, stock)
+        stock = _flats_and_walls(plan, operations, stock, before_rest)
         if not plan.faces.freeform:
             return _finished(plan, part_name, operations, source_sha256, left, holes, rapid_cell)
     _freeform_finishing(plan, operations, stock)
@@ -752,15 +753,51 @@ def _unreached(plan: _Planning, stock: Simulation | None) -> tuple[Unreached, ..
     return tuple(left)
 
 
-def _flats_and_walls(plan: _Planning, operations: list[Operation], stock: Simulation) -> Simulation:
+@dataclass(frozen=True)
+class _BeforeRest:
+    """The plan as the narrower tools' rest roughing (:func:`_rest_roughing`) found it.
+
+    Attributes
+    ----------
+    first : int
+        Index of the first rest roughing operation in the plan's operations (their number then).
+    stock : Simulation or None
+        The planning model before them.
+    models : dict of float to OperationsCut
+        The planning models' cache then (:attr:`_Planning.models`).
+    """
+
+    first: int
+    stock: Simulation | None
+    models: dict[float, OperationsCut]
+
+
+def _flats_and_walls(plan: _Planning, operations: list[Operation], stock: Simulation,
+                     before_rest: _BeforeRest | None = None) -> Simulation:
     """Flats and walls with flat end mills (:func:`_finish_flats_and_walls`); the stock the ball starts
-    from after them (modelled again only if there are freeform surfaces left to finish)."""
+    from after them (modelled again only if there are freeform surfaces left to finish).
+
+    Where the roughing tool finishes them too and narrower tools rough what it left (``before_rest``: the plan
+    before their rest roughing), its finishing runs before their rest roughing, planned on the stock before it:
+    the roughing tool is loaded once, and each narrower tool's rest roughing and finishing follow each other. It
+    keeps off the stock they rough (deeper than the finishing engagement there, as off what no tool reaches);
+    their rest roughing, planned before it, meets only less stock after it (the finished skin lies under the
+    allowance they leave)."""
     setup = plan.setup
     flat = flat_finish_tool(plan.library, float(setup.stock_max[2] - setup.floor_z), plan.rough_tool,
                             _ROUGH_MOST_OF_WIDTH * float(min(setup.stock_size[0], setup.stock_size[1])))
     if flat is not None:
         before = len(operations)
-        _finish_flats_and_walls(plan, flat, stock, operations)
+        if (before_rest is not None and flat is plan.rough_tool and before_rest.stock is not None
+                and len(operations) > before_rest.first):
+            rest = operations[before_rest.first:]
+            del operations[before_rest.first:]
+            plan.models = dict(before_rest.models)
+            _finish_flats_and_walls(plan, flat, before_rest.stock, operations, narrower=False)
+            operations.extend(rest)
+            _finish_flats_and_walls(plan, flat, plan.model(operations), operations, widest=False, unreached_in=stock)
+        else:
+            _finish_flats_and_walls(plan, flat, stock, operations)
         if len(operations) > before and plan.faces is not None and plan.faces.freeform:
             stock = plan.model(operations)
     return stock
@@ -847,26 +884,31 @@ def _skin_cell(allowance: float) -> float:
     return float(min(_MODEL_CELL, max(_FINEST_SKIN_CELL, 0.8 * (allowance - WALL_HAIR))))
 
 
-def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, operations: list[Operation]) -> None:
-    """Flats and walls with ``flat``, then with each narrower flat end mill where stock is left.
+def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, operations: list[Operation], *,
+                            widest: bool = True, narrower: bool = True, unreached_in: Simulation | None = None) -> None:
+    """Flats and walls with ``flat`` (``widest``), then with each narrower flat end mill where stock is left
+    (``narrower``).
 
     The narrower ones that reach the whole depth first; then those shorter than the stock is deep, each
     within its stick-out (a 4 mm slot only a small end mill enters), but only on the skin the reaching
     tools left: not beside the freeform surfaces, which the ball finishes after them.
-    Appends the operations to ``operations``; ``stock`` is the model before them."""
+    Appends the operations to ``operations``; ``stock`` is the model before them, ``unreached_in`` the one the
+    deep stock every tool keeps off is read from (default ``stock``): the one :func:`_unreached` read, or, for the
+    roughing tool finishing before the narrower tools' rest roughing, the stock before it (what they rough too)."""
     setup, library, options, faces = plan.setup, plan.library, plan.options, plan.faces
     ff = options.flat_finish
     depth = float(setup.stock_max[2] - setup.floor_z)
     skin = _skin_cell(options.roughing.allowance)
-    # What no tool reaches (:func:`_unreached` reads this same model): every flat end mill leaves it alone.
-    limit, unreached_in = EngagementLimit(depth=options.finish_engagement, allowance=options.roughing.allowance), stock
+    # What no tool reaches (:func:`_unreached` reads ``unreached_in``): every flat end mill leaves it alone.
+    limit = EngagementLimit(depth=options.finish_engagement, allowance=options.roughing.allowance)
+    unreached_in = stock if unreached_in is None else unreached_in
     stale = False  # an operation was appended since ``stock`` was modelled
-    narrower = rest_tools(library, flat, depth)
-    short = [t for t in narrower if t.length < depth]
+    thinner = rest_tools(library, flat, depth) if narrower else []
+    short = [t for t in thinner if t.length < depth]
     # Where a ball finishes anyway, a shorter tool's pass would only add a tool change and its cycle
     # (dome_mould: +127 s of a 2 mm end mill round the cavity's rim, the same verdict after).
     ball = plan.ball_finishes() if faces.freeform else None
-    for tool in [flat] + [t for t in narrower if t not in short] + short:
+    for tool in [flat] * widest + [t for t in thinner if t not in short] + short:
         if stale:
             stock, stale = plan.model(operations, stock.grid.cell), False
         # A short tool keeps off the skin the ball finishes; off a pocket no tool entered it keeps by
