@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -54,23 +55,52 @@ def chained_chip_feeds(ops: Sequence[Operation], stock: Simulation | None, setup
                        part_triangles: np.ndarray, max_feed: float) -> list[Operation]:
     """:func:`chip_feeds` of operations that run one after the other from ``stock``: each measured on the stock
     the ones before it leave, all cut into the model once (roughing's levels, then its deep cuts)."""
+    return chip_fed(ops, stock, setup, part_triangles, max_feed).operations
+
+
+@dataclass(frozen=True)
+class ChipFed:
+    """Operations at the feeds their chips allow (:func:`chip_fed`), and the stock they leave.
+
+    Attributes
+    ----------
+    operations : list of Operation
+        The operations, each at the feeds its chip allows (the operation itself where nothing was raised).
+    stock : Simulation or None
+        The stock they leave on the setup's grid of :data:`CHIP_CELL` [mm], cut from the stock they started
+        from (``removed_volume`` None: the moves before them are not counted); None where one of them was not
+        measured (a drill's, a canned cycle's, one without a chip load: not cut), or none was.
+    """
+
+    operations: list[Operation]
+    stock: Simulation | None
+
+
+def chip_fed(ops: Sequence[Operation], stock: Simulation | None, setup: Setup, part_triangles: np.ndarray,
+             max_feed: float) -> ChipFed:
+    """:func:`chained_chip_feeds`, with the stock the operations leave on the setup's chip grid (the planner's
+    model on that grid, measured already). ``stock`` on that very grid is taken as it is (:func:`_finer`)."""
     judged = [op for op in ops if op.cutting.chip_load is not None and not op.tool.is_drill and op.cycle is None
               and len(op.points) >= 2]
     if not judged:
-        return list(ops)
+        return ChipFed(list(ops), None)
     moves, tools = operation_moves(judged), {op.tool.number: op.tool for op in judged}
     share = np.zeros(sum(len(op.points) for op in judged))  # the thickest chip of the move ending at each point
     # A strip of stock narrower than a cell can fall between one grid's points and read as air, while a
     # verify grid of another phase or cell has a point in it and measures the chip the raised feed makes
     # there (two floor loops 0.85 D apart leave such a strip). Measured on two grids half a cell apart, any
     # strip wider than half a cell holds a point of one of them.
+    left = None
     for placed in (setup, _shifted(setup, 0.5 * CHIP_CELL)):
         cut = cut_stock(moves, tools, placed, part_triangles, CHIP_CELL,
                         start=None if stock is None else _finer(stock, placed, CHIP_CELL))
         np.maximum.at(share, cut.segments.move, cut.met.chip)
+        left = cut.simulation if left is None else left
     first = np.cumsum([0] + [len(op.points) for op in judged])
     fed = {id(op): _raised(op, share[a:b], max_feed) for op, a, b in zip(judged, first[:-1], first[1:])}
-    return [fed.get(id(op), op) for op in ops]
+    whole = len(judged) == len(ops)
+    return ChipFed([fed.get(id(op), op) for op in ops],
+                   dataclasses.replace(left, removed_volume=None) if whole else None)
 
 
 def _raised(op: Operation, share: np.ndarray, max_feed: float) -> Operation:
@@ -150,10 +180,13 @@ def _shifted(setup: Setup, by: float) -> Setup:
                                stock_max=np.asarray(setup.stock_max) + step)
 
 
-def _finer(stock: Simulation, setup: Setup, cell: float) -> FlippedStock:
+def _finer(stock: Simulation, setup: Setup, cell: float) -> FlippedStock | Simulation:
     """``stock`` on the grid of ``cell`` [mm] over ``setup``'s stock box: each point's top the highest of the
-    four model points round it, its bottom the lowest (never less stock than the model may hold there)."""
+    four model points round it, its bottom the lowest (never less stock than the model may hold there); a model
+    on that very grid as it is (its part top too: :func:`cadcam.stock.cut_stock` cuts on into it)."""
     g0, grid = stock.grid, grid_over(setup.stock_min, setup.stock_max, cell)
+    if g0 == grid:
+        return stock
 
     def around(at: np.ndarray, start: float, n: int) -> tuple[np.ndarray, np.ndarray]:
         i = np.clip(np.floor((at - start) / g0.cell).astype(np.int64), 0, n - 1)

@@ -29,7 +29,7 @@ from cadcam.adaptive_rest import adaptive_rest_roughing
 from cadcam.drilling import DrillingOptions, Hole, HolePlan, plan_holes
 from cadcam.faces import SHALLOW, STEEP, FaceClasses, classify_faces
 from cadcam.finishing import EngagementLimit, FinishingOptions, raster_finishing, waterline_finishing
-from cadcam.chipfeed import chained_chip_feeds, chip_feeds
+from cadcam.chipfeed import CHIP_CELL, chip_fed, chip_feeds
 from cadcam.flatfinish import WALL_HAIR, FlatFinishOptions, flat_wall_finishing, left_on_flats_and_walls
 from cadcam.model import CuttingData, Job, Operation, Setup, Tool
 from cadcam.relief import Boundary, keep_outside
@@ -397,8 +397,9 @@ def plan_job(
     (:func:`split_depth`): ``job.setup.floor_z`` is raised there, and op 2 machines the rest from below
     (:func:`cadcam.op2.plan_op2`).
 
-    The steps, in cutting order: holes and roughing (:func:`_holes_and_roughing`), rest roughing
-    (:func:`_rest_roughing`), what no tool reaches (:func:`_unreached`), flats and walls
+    The steps, in cutting order: holes and roughing (:func:`_holes_and_roughing`), the roughing tool's terraces
+    (:func:`_terraces`), all of them then fed at their chip (:func:`_feed_roughing`), rest roughing with narrower
+    tools (:func:`_rest_roughing`), what no tool reaches (:func:`_unreached`), flats and walls
     (:func:`_flats_and_walls`), freeform surfaces with the ball (:func:`_freeform_finishing`),
     then every rapid made safe (:func:`_finished`).
 
@@ -452,11 +453,14 @@ def plan_job(
     """
     plan = _Planning.start(part, setup, library, options, progress, boundary)
     plan.on_operations, plan.on_planned = on_operations, on_planned
-    holes, operations, stock = _holes_and_roughing(plan, holes)
+    holes, operations, unfed, stock = _holes_and_roughing(plan, holes)
+    stock = _terraces(plan, operations, stock)
+    _feed_roughing(plan, operations, unfed)
+    before_rest = _BeforeRest(len(operations), stock, dict(plan.models))
     stock = _rest_roughing(plan, operations, stock)
     left = _unreached(plan, stock)
     if plan.faces is not None and stock is not None:
-        stock = _flats_and_walls(plan, operations, stock)
+        stock = _flats_and_walls(plan, operations, stock, before_rest)
         if not plan.faces.freeform:
             return _finished(plan, part_name, operations, source_sha256, left, holes, rapid_cell)
     _freeform_finishing(plan, operations, stock)
@@ -589,10 +593,19 @@ class _Planning:
             sim = keep_outside(sim, self.boundary, self.rough_tool.radius)
         return sim
 
+    def feeds_changed(self, old: list[Operation], new: list[Operation]) -> None:
+        """``old`` operations are ``new`` now: the same moves at other feeds. The stock models cut on from the ones
+        they hold with these in their place (feeds do not move the tool: the stock they left is the same), not
+        from the block again (:func:`cadcam.stock.stock_after` cuts on only from the same objects)."""
+        swap = {id(a): b for a, b in zip(old, new)}
+        self.models = {cell: OperationsCut(tuple(swap.get(id(op), op) for op in cut.operations), cut.simulation)
+                       for cell, cut in self.models.items()}
+
 
 def _holes_and_roughing(plan: _Planning, exact: tuple[Hole, ...] | None = None
-                        ) -> tuple[HolePlan | None, list[Operation], Simulation | None]:
-    """Drilled and helixed holes, then z-level roughing; the operations and the stock they leave.
+                        ) -> tuple[HolePlan | None, list[Operation], _Unfed, Simulation | None]:
+    """Drilled and helixed holes, then z-level roughing; the operations (the bores and the roughing at their
+    library feeds, from ``_Unfed.first`` on: :func:`_feed_roughing`) and the stock they leave.
 
     ``exact``: the round holes when the part came with them (work coordinates), else found in the mesh."""
     options, setup, part = plan.options, plan.setup, plan.part
@@ -614,40 +627,68 @@ def _holes_and_roughing(plan: _Planning, exact: tuple[Hole, ...] | None = None
             part, setup, plan.rough_tool, plan.rough_cutting, plan.library.max_feed, roughing,
             options.adaptive, progress=plan.stage_progress("roughing"), within=plan.rough_within,
             cut_before=plan.cut_before))
-    # Drilled and helixed holes come first: the stock model below sees them.
-    drilled = _bores_at_chip(plan, [*(holes.operations if holes is not None else ())])
-    # each roughing move at the feed its chip allows: links and levels through stock the holes or the level
-    # above took, and the light cuts round the rings, faster (the full-width ones keep the library's feed)
-    before = plan.model(drilled)
-    rough = plan.timed("chip feeds", lambda: chained_chip_feeds(rough, before, setup, plan.triangles,
-                                                                plan.library.max_feed))
-    operations = [*drilled, *rough]
+    # Drilled and helixed holes come first: the stock model below sees them. Their bores and the roughing
+    # stay at their library feeds until the terraces are planned (_feed_roughing raises them all in one go).
+    holes_ops = [*(holes.operations if holes is not None else ())]
+    first = next((i for i, op in enumerate(holes_ops) if op.cycle is None and not op.tool.is_drill), len(holes_ops))
+    # on the chip feeds' own grid: they cut on into it as it is, and the stock they leave is the planning model
+    # on that grid after the roughing (_feed_roughing)
+    before = plan.model(holes_ops[:first], CHIP_CELL) if first else None
+    operations = [*holes_ops, *rough]
     # What roughing left lets finishing descend by rapid through air instead of feeding from safe_z.
-    return holes, operations, plan.model(operations)
+    return holes, operations, _Unfed(first, before), plan.model(operations)
 
 
-def _bores_at_chip(plan: _Planning, holes: list[Operation]) -> list[Operation]:
-    """The holes' operations with each bore's helices at the feed its chip allows on the stock the drills leave
-    (:func:`cadcam.chipfeed.chained_chip_feeds`): a helix round a drilled hole is a side cut, fed by
-    :func:`cadcam.drilling.helix_cutting` as a slot from solid (dome_mould's 10 mm bores round 8.5 mm holes at F935)."""
-    first = next((i for i, op in enumerate(holes) if op.cycle is None and not op.tool.is_drill), len(holes))
-    if first == len(holes):
-        return holes
-    start = plan.model(holes[:first]) if first else None
-    return holes[:first] + plan.timed("chip feeds", lambda: chained_chip_feeds(
-        holes[first:], start, plan.setup, plan.triangles, plan.library.max_feed))
+@dataclass(frozen=True)
+class _Unfed:
+    """Where the operations still at their library feeds begin (:func:`_feed_roughing` raises them).
+
+    Attributes
+    ----------
+    first : int
+        Index of the first of them in the plan's operations: the first bore (a helix after the drills), else
+        the roughing.
+    before : Simulation or None
+        The stock the operations before ``first`` leave (the drills'), on the grid of
+        :data:`cadcam.chipfeed.CHIP_CELL`; None: the block.
+    """
+
+    first: int
+    before: Simulation | None
 
 
-def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulation | None) -> Simulation | None:
-    """Where roughing left more than the finishing engagement: the roughing tool again between its levels
-    (the terraces), then each narrower flat end mill in turn. Appends to ``operations``; the stock after."""
-    options, setup, part, library = plan.options, plan.setup, plan.part, plan.library
+def _feed_roughing(plan: _Planning, operations: list[Operation], unfed: _Unfed) -> None:
+    """Each move of the bores, the roughing and its terraces (``operations[unfed.first:]``) at the feed its chip
+    allows, measured from the stock the drills leave (:func:`cadcam.chipfeed.chip_fed`), in place.
+
+    One call for them all, once the terraces are planned (from the planning model, which feeds do not change):
+    the stock it cuts them into on its grid is the planning model there after them, which the flats and walls'
+    finer model cuts on from. A bore's helix round a drilled hole is a side cut, fed by
+    :func:`cadcam.drilling.helix_cutting` as a slot from solid (dome_mould's 10 mm bores round 8.5 mm holes at
+    F935); the roughing's links and levels run through stock the holes or the level above took, its light cuts
+    round the rings faster (the full-width ones keep the library's feed); the terraces cut a terrace's skin,
+    mostly narrower than the tool's full width."""
+    unfed_ops = operations[unfed.first:]
+    if not unfed_ops:
+        return
+    fed = plan.timed("chip feeds", lambda: chip_fed(unfed_ops, unfed.before, plan.setup, plan.triangles,
+                                                    plan.library.max_feed))
+    operations[unfed.first:] = fed.operations
+    plan.feeds_changed(unfed_ops, fed.operations)
+    if fed.stock is not None and plan.boundary is None:
+        # the chip feeds cut them all into the drills' model on their grid (the rapid from the drills to the first
+        # bore, over the stock, cuts nothing): the flats and walls' finer model cuts on from there
+        plan.models[CHIP_CELL] = OperationsCut(tuple(operations), fed.stock)
+
+
+def _terraces(plan: _Planning, operations: list[Operation], stock: Simulation | None) -> Simulation | None:
+    """Where roughing left more than the finishing engagement: the roughing tool again between its levels, at
+    a finer stepdown (the terraces), at its library feed (:func:`_feed_roughing` raises it). Appends to
+    ``operations``; the stock after."""
+    options, setup, part = plan.options, plan.setup, plan.part
     if not options.rest_roughing or stock is None:
         return stock
-    allowance = options.roughing.allowance
-    limit = options.finish_engagement
-    within = plan.within
-    if (excess(stock, allowance) > limit).any():
+    if (excess(stock, options.roughing.allowance) > options.finish_engagement).any():
         # the terraces of the roughing levels, at a finer stepdown where more than the limit is left; not the
         # top floor's skin the roughing left to the finishing (else every terrace level contours the part to
         # meet its edge: the pocketed block of tests/cadcam/test_rest.py, -0.7 to -11.5 mm round the part)
@@ -655,11 +696,23 @@ def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulati
         op = plan.timed("terraces", lambda: zlevel_roughing(part, setup, plan.rough_tool, plan.rough_cutting, terraces,
                                                              progress=plan.stage_progress("terraces"), rest=stock,
                                                              rest_above=max(options.terrace_stepdown, plan.skim),
-                                                             within=within,
+                                                             within=plan.within,
                                                              cut_before=plan.cut_before))
         if len(op.points) > 1:
             operations.append(op)
             stock = plan.model(operations)
+    return stock
+
+
+def _rest_roughing(plan: _Planning, operations: list[Operation], stock: Simulation | None) -> Simulation | None:
+    """Where roughing and its terraces left more than the finishing engagement: each narrower flat end mill in
+    turn. Appends to ``operations``; the stock after."""
+    options, setup, part, library = plan.options, plan.setup, plan.part, plan.library
+    if not options.rest_roughing or stock is None:
+        return stock
+    allowance = options.roughing.allowance
+    limit = options.finish_engagement
+    within = plan.within
     for tool in rest_tools(library, plan.rough_tool, float(setup.stock_max[2] - setup.floor_z)):
         if not (excess(stock, allowance) > limit).any():
             break
@@ -700,15 +753,51 @@ def _unreached(plan: _Planning, stock: Simulation | None) -> tuple[Unreached, ..
     return tuple(left)
 
 
-def _flats_and_walls(plan: _Planning, operations: list[Operation], stock: Simulation) -> Simulation:
+@dataclass(frozen=True)
+class _BeforeRest:
+    """The plan as the narrower tools' rest roughing (:func:`_rest_roughing`) found it.
+
+    Attributes
+    ----------
+    first : int
+        Index of the first rest roughing operation in the plan's operations (their number then).
+    stock : Simulation or None
+        The planning model before them.
+    models : dict of float to OperationsCut
+        The planning models' cache then (:attr:`_Planning.models`).
+    """
+
+    first: int
+    stock: Simulation | None
+    models: dict[float, OperationsCut]
+
+
+def _flats_and_walls(plan: _Planning, operations: list[Operation], stock: Simulation,
+                     before_rest: _BeforeRest | None = None) -> Simulation:
     """Flats and walls with flat end mills (:func:`_finish_flats_and_walls`); the stock the ball starts
-    from after them (modelled again only if there are freeform surfaces left to finish)."""
+    from after them (modelled again only if there are freeform surfaces left to finish).
+
+    Where the roughing tool finishes them too and narrower tools rough what it left (``before_rest``: the plan
+    before their rest roughing), its finishing runs before their rest roughing, planned on the stock before it:
+    the roughing tool is loaded once, and each narrower tool's rest roughing and finishing follow each other. It
+    keeps off the stock they rough (deeper than the finishing engagement there, as off what no tool reaches);
+    their rest roughing, planned before it, meets only less stock after it (the finished skin lies under the
+    allowance they leave)."""
     setup = plan.setup
     flat = flat_finish_tool(plan.library, float(setup.stock_max[2] - setup.floor_z), plan.rough_tool,
                             _ROUGH_MOST_OF_WIDTH * float(min(setup.stock_size[0], setup.stock_size[1])))
     if flat is not None:
         before = len(operations)
-        _finish_flats_and_walls(plan, flat, stock, operations)
+        if (before_rest is not None and flat is plan.rough_tool and before_rest.stock is not None
+                and len(operations) > before_rest.first):
+            rest = operations[before_rest.first:]
+            del operations[before_rest.first:]
+            plan.models = dict(before_rest.models)
+            _finish_flats_and_walls(plan, flat, before_rest.stock, operations, narrower=False)
+            operations.extend(rest)
+            _finish_flats_and_walls(plan, flat, plan.model(operations), operations, widest=False, unreached_in=stock)
+        else:
+            _finish_flats_and_walls(plan, flat, stock, operations)
         if len(operations) > before and plan.faces is not None and plan.faces.freeform:
             stock = plan.model(operations)
     return stock
@@ -795,26 +884,31 @@ def _skin_cell(allowance: float) -> float:
     return float(min(_MODEL_CELL, max(_FINEST_SKIN_CELL, 0.8 * (allowance - WALL_HAIR))))
 
 
-def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, operations: list[Operation]) -> None:
-    """Flats and walls with ``flat``, then with each narrower flat end mill where stock is left.
+def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, operations: list[Operation], *,
+                            widest: bool = True, narrower: bool = True, unreached_in: Simulation | None = None) -> None:
+    """Flats and walls with ``flat`` (``widest``), then with each narrower flat end mill where stock is left
+    (``narrower``).
 
     The narrower ones that reach the whole depth first; then those shorter than the stock is deep, each
     within its stick-out (a 4 mm slot only a small end mill enters), but only on the skin the reaching
     tools left: not beside the freeform surfaces, which the ball finishes after them.
-    Appends the operations to ``operations``; ``stock`` is the model before them."""
+    Appends the operations to ``operations``; ``stock`` is the model before them, ``unreached_in`` the one the
+    deep stock every tool keeps off is read from (default ``stock``): the one :func:`_unreached` read, or, for the
+    roughing tool finishing before the narrower tools' rest roughing, the stock before it (what they rough too)."""
     setup, library, options, faces = plan.setup, plan.library, plan.options, plan.faces
     ff = options.flat_finish
     depth = float(setup.stock_max[2] - setup.floor_z)
     skin = _skin_cell(options.roughing.allowance)
-    # What no tool reaches (:func:`_unreached` reads this same model): every flat end mill leaves it alone.
-    limit, unreached_in = EngagementLimit(depth=options.finish_engagement, allowance=options.roughing.allowance), stock
+    # What no tool reaches (:func:`_unreached` reads ``unreached_in``): every flat end mill leaves it alone.
+    limit = EngagementLimit(depth=options.finish_engagement, allowance=options.roughing.allowance)
+    unreached_in = stock if unreached_in is None else unreached_in
     stale = False  # an operation was appended since ``stock`` was modelled
-    narrower = rest_tools(library, flat, depth)
-    short = [t for t in narrower if t.length < depth]
+    thinner = rest_tools(library, flat, depth) if narrower else []
+    short = [t for t in thinner if t.length < depth]
     # Where a ball finishes anyway, a shorter tool's pass would only add a tool change and its cycle
     # (dome_mould: +127 s of a 2 mm end mill round the cavity's rim, the same verdict after).
     ball = plan.ball_finishes() if faces.freeform else None
-    for tool in [flat] + [t for t in narrower if t not in short] + short:
+    for tool in [flat] * widest + [t for t in thinner if t not in short] + short:
         if stale:
             stock, stale = plan.model(operations, stock.grid.cell), False
         # A short tool keeps off the skin the ball finishes; off a pocket no tool entered it keeps by

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import trimesh
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from cadcam.chipfeed import FEED_STEP, chained_chip_feeds, chip_feeds
+from cadcam.chipfeed import CHIP_CELL, FEED_STEP, chained_chip_feeds, chip_fed, chip_feeds
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.post import PostOptions, post_process
 from cadcam.gcode import parse_gcode
@@ -88,6 +90,25 @@ def test_chained_passes_are_each_measured_on_the_stock_the_ones_before_leave(y, 
     assert chip_feeds(first, None, SETUP, PART, MAX_FEED) is first or fed[0].feeds is not None
     text, report = verdict(fed)
     assert report.ok, [f.message for f in report.faults]
+
+
+@settings(max_examples=3, deadline=None)
+@given(st.floats(11.0, 19.0), st.floats(11.0, 19.0))
+def test_the_stock_the_chained_passes_leave_is_the_planning_model_on_the_chip_grid(y0, y1):
+    """The stock :func:`chip_fed` cuts the passes into (the planner's model on that grid after them, cut on from
+    there) is, point for point, the model the planner would cut of them from the block; from a model on its own
+    grid too, which it takes as it is."""
+    first, second = op("first", y0), op("second", y1)
+    whole = stock_after([first, second], SETUP, PART, CHIP_CELL)
+    for fed in (chip_fed([first, second], None, SETUP, PART, MAX_FEED),
+                chip_fed([second], stock_after([first], SETUP, PART, CHIP_CELL), SETUP, PART, MAX_FEED)):
+        assert fed.stock is not None and fed.stock.grid == whole.grid
+        assert np.array_equal(fed.stock.stock_top, whole.stock_top)
+        assert np.array_equal(fed.stock.part_top, whole.part_top, equal_nan=True)
+    assert np.array_equal(fed.operations[0].points, second.points)  # the same moves, only their feeds raised
+    # an operation it does not cut (one without a chip load, as a drill's) leaves no stock to take
+    unmeasured = Operation("no chip", "roughing", MILL, dataclasses.replace(NOMINAL, chip_load=None), *pass_along(5.0))
+    assert chip_fed([unmeasured, second], None, SETUP, PART, MAX_FEED).stock is None
 
 
 BIG = Setup(stock_min=[0, 0, -10], stock_max=[60, 60, 0], transform_mesh_to_work=np.eye(4), safe_z=10.0)

@@ -233,12 +233,24 @@ def test_in_a_pipe_a_stage_ends_when_its_work_does_not_when_its_counted_steps_do
     assert sorted(started) == sorted(e.split(" done in ")[0] for e in events if " done in " in e)
 
 
+def assert_verified_with_chips(job, setup, part) -> None:
+    """Verify, on its 0.2 mm grid, holding every move's chip to its tool's library fz (the job's chip loads, as
+    `factory plan` gives them), passes the job's program with no fault and no gouge."""
+    from cadcam.engagement import chip_loads
+
+    sheet = [{"tool": o.tool.number, "chip_load_mm": o.cutting.chip_load, "spindle_rpm": o.cutting.spindle_rpm}
+             for o in job.operations if not o.tool.is_drill]
+    tools = {t.number: t for t in job.tools}
+    report = simulate(parse_gcode(post_process(job).text), tools, setup, np.asarray(part.triangles),
+                      VerifyOptions(cell=0.2), chips=chip_loads(sheet)).report
+    assert report.ok and [f.kind for f in report.faults] == [], [f.message for f in report.faults]
+    assert report.max_gouge <= 0.01
+
+
 def test_the_balls_passes_run_at_their_chip_and_verify_holds_every_chip_to_fz(tmp_path):
     """The ball's waterline and raster run at the feed each move's chip allows on the stock before them (as flats
     and walls do): over a dome that roughing left in terraces some of their moves run faster than the library's
     feed, none slower; verify, holding every move's chip to the library's fz, passes the program."""
-    from cadcam.engagement import chip_loads
-
     dome = manifold3d.Manifold.cube((26.0, 20.0, 5.0)) + manifold3d.Manifold.sphere(6.0, 32).translate((13.0, 10.0, 3.0))
     setup, part = make_setup(manifold_to_trimesh(dome), jaws=JAWS)
     job = plan_job(part, setup, LIBRARY, part_name="dome", options=TEST_PLAN).job
@@ -248,10 +260,68 @@ def test_the_balls_passes_run_at_their_chip_and_verify_holds_every_chip_to_fz(tm
         fed = op.move_feeds()[op.motion != Motion.RAPID][1:]
         assert (fed >= min(op.cutting.feed, op.cutting.plunge_feed) - 1e-9).all()
     assert any((op.move_feeds()[op.motion == Motion.CUT] > op.cutting.feed * 1.2).any() for op in ball)
-    sheet = [{"tool": o.tool.number, "chip_load_mm": o.cutting.chip_load, "spindle_rpm": o.cutting.spindle_rpm}
-             for o in job.operations if not o.tool.is_drill]
-    tools = {t.number: t for t in job.tools}
-    report = simulate(parse_gcode(post_process(job).text), tools, setup, np.asarray(part.triangles),
-                      VerifyOptions(cell=0.2), chips=chip_loads(sheet)).report
-    assert report.ok and [f.kind for f in report.faults] == [], [f.message for f in report.faults]
-    assert report.max_gouge <= 0.01
+    assert_verified_with_chips(job, setup, part)
+
+
+def _terraced_dome():
+    """(setup, part): a dome on a block, which the roughing levels leave in terraces (the roughing tool steps
+    down between them again, :func:`cadcam.plan._terraces`)."""
+    cap = manifold3d.Manifold.sphere(11.0, 48).translate((20.0, 15.0, 4.0))
+    dome = manifold3d.Manifold.cube((40.0, 30.0, 6.0)) + cap
+    return make_setup(manifold_to_trimesh(dome), jaws=JAWS)
+
+
+def test_the_terraces_run_at_their_chip_and_verify_holds_every_chip_to_fz():
+    """The roughing tool's terraces run at the feed each move's chip allows (measured with the bores and the
+    roughing, in one chain from the stock the drills leave): a terrace cuts a step's skin, narrower than the
+    tool's full width, so some of their cutting moves run faster than the library's feed, none slower; verify,
+    holding every move's chip to the library's fz, passes the program."""
+    setup, part = _terraced_dome()
+    job = plan_job(part, setup, LIBRARY, part_name="dome", options=TEST_PLAN).job
+    rough = job.parameters["rough_tool"]
+    terraces = [op for op in job.operations if op.name == f"rest rough T{rough}"]
+    assert len(terraces) == 1, [op.name for op in job.operations]
+    op = terraces[0]
+    fed = op.move_feeds()
+    cutting = fed[op.motion == Motion.CUT][1:]
+    assert (cutting >= op.cutting.feed - 1e-9).all()
+    assert (cutting > op.cutting.feed * 1.2).mean() > 0.1  # most of a terrace's skin is a light cut
+    assert_verified_with_chips(job, setup, part)
+
+
+def test_each_stock_model_cuts_on_from_the_last_when_feeds_were_raised_since(monkeypatch):
+    """The planning models are cut incrementally (``stock_after``'s ``earlier``): after the bores, roughing and
+    terraces are replaced by their copies at raised feeds, the next model still cuts on from the last one (the
+    same moves, so the same stock) instead of cutting every operation from the block again."""
+    import cadcam.plan as plan_module
+
+    calls = []
+    real = plan_module.stock_after
+
+    def spy(ops, setup, triangles, cell=0.5, earlier=None):
+        done = () if earlier is None else earlier.operations
+        calls.append((cell, len(ops), len(done), all(a is b for a, b in zip(done, ops))))
+        return real(ops, setup, triangles, cell, earlier)
+
+    monkeypatch.setattr(plan_module, "stock_after", spy)
+    setup, part = _terraced_dome()
+    job = plan_job(part, setup, LIBRARY, part_name="dome", options=TEST_PLAN).job
+    assert any(op.feeds is not None for op in job.operations if op.kind == "roughing")
+    seen = set()
+    for cell, n, done, same in calls:
+        if cell in seen:  # every model after the first on its grid cuts on from the one before
+            assert done > 0 and same and done <= n, calls
+        seen.add(cell)
+
+
+def test_the_roughing_tool_finishes_before_a_narrower_one_roughs_so_each_tool_is_loaded_once():
+    """plate_bosses: T14 roughs, then finishes the flats and walls it reaches (planned on the stock before the rest
+    roughing, keeping off what T2 roughs there); T2 roughs what T14 could not enter and finishes it. Each end mill
+    is loaded once (on main T14 and T2 came twice each); verify, holding every chip to fz, passes the program."""
+    setup, part, job = sample_op1("plate_bosses")
+    rough = job.parameters["rough_tool"]
+    assert any(op.kind == "roughing" and op.tool.number != rough for op in job.operations)  # a narrower tool's rest
+    mills = [op.tool.number for op in job.operations if not op.tool.is_drill]
+    loaded = [t for i, t in enumerate(mills) if i == 0 or t != mills[i - 1]]
+    assert len(loaded) == len(set(loaded)), [op.name for op in job.operations]
+    assert_verified_with_chips(job, setup, part)
