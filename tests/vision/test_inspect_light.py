@@ -234,3 +234,19 @@ def test_a_bosss_soft_foot_is_not_judged_on_its_own_at_5_mp():
     radius_px = np.hypot(*(pixel_of(station, "plate_bosses", scene, (86.6, 56.0, 14.0)) - centre))
     # the boss left out, and only it: its top's rim is as bare as its foot (0.15 of all its edges found)
     assert [np.hypot(*(np.array(f.pixel) - centre)) < radius_px for f in bad.missing_features] == [True]
+
+
+def test_a_burr_as_white_as_the_top_in_glare_is_extra_material_at_5_mp():
+    """A polished bracket under glare at 5 MP: its top and the 1 mm lip along it clip white alike,
+    so the top edge at the lip is white on both sides and main took it as hidden (the burr passed).
+    White past the spill is where the tray should be: the edge where it ends is the lip's, 1 mm out
+    where the lip is. The good part, at the same pose and light, passes."""
+    station = cell_station(CameraModel.read(ROOT / "fixtures" / "camera_5mp.yaml"))
+    _, good = inspected(station, "glare", "bracket", 0, supersample=1)
+    assert good.passed and not good.refusal, good.to_dict()
+    scene, bad = inspected(station, "glare", "bracket", 0, "burr", supersample=1)
+    assert not bad.passed and not bad.refusal and not bad.missing_features
+    assert 0.7 < bad.to_dict()["excess_mm"] < 1.5
+    worst = bad.outline_px[np.nanargmax(bad.deviation)]
+    # within half the lip's 15 mm (about 7 px a millimetre) of its middle
+    assert np.hypot(*(worst - pixel_of(station, "bracket", scene, (49.5, 61.0, 15.0)))) < 60  # [px]
