@@ -35,7 +35,7 @@ than it, a clipped highlight moved such an outline by millimetres):
   whole ``reach`` (its edges are at least that far from where they should be). With
   ``judge_from_above`` a feature seen from straight above (its walls edge-on) is judged by all its
   edges and by each loop of its creases on its own (a through-hole's foot, where the tray shows
-  through, when its rim lies beside a counterbore's floor); one whose edges mostly show is there. Edges found where the mesh puts them say *there* whatever hides the rest; a
+  through, when its rim lies beside a counterbore's floor; not a wall's foot, which soft light shades); one whose edges mostly show is there. Edges found where the mesh puts them say *there* whatever hides the rest; a
   through-hole's rim is judged from every side (straight down a hole its wall is seen edge-on),
   and white over it in glare is material where the hole should be (:func:`_judge_features`).
 
@@ -43,8 +43,10 @@ An edge beyond the own one says *defect* only when the greys agree (:func:`_mate
 between the line and a burr's edge lies something like the part's face, between the line and a
 broken corner's edge something like the tray; a shadow's or a boss's edge, or the far side of a
 lit rim, leave a band like neither. Glare (a clipped highlight) hides an edge only where it lies
-on both sides of it (a pocket in a white top); beside one side the edge shows, pushed out by the
-optics' spill (the bloom), which the side's level absorbs like a pose error. Deep shadow on both
+on both sides of it (a pocket in a white top), but on the outline of a top in glare white on both
+sides is white where the tray should be: material as white as the top (a burr's lip), judged by the
+edge where it ends; beside one side the edge shows, pushed out by the optics' spill (the bloom),
+which the side's level absorbs like a pose error. Deep shadow on both
 sides (well below the tray model) hides an edge as well.
 
 When too little of the outline or a feature can be judged the part is refused with the reason,
@@ -70,6 +72,7 @@ from factory.core.errors import VisionError
 from vision.camera import CameraModel
 from vision.locate import (SATURATED_GREY, Footprint, LocatedPart, LocateOptions, _edge_peaks, _gradients, _grey,
                            _peak_offset, _tray_ratio, locate_parts, mm_to_m)
+from vision.inspect_feet import wall_feet
 from vision.inspect_view import FRAME_PX, unseen
 from vision.mesh_edges import MeshEdges, yaw_rotation_3d
 from vision.shadow import DARK_LOG
@@ -368,7 +371,7 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
     (``grey`` the picture, ``gradients`` its ``gx, gy, threshold`` as :func:`vision.locate._gradients`,
     ``masks`` its clipped pixels and its deep shadow, uint8 1/0, ``ring_px`` its expected silhouette)."""
     gx, gy, threshold = gradients
-    saturated, dark = masks
+    saturated = masks[0]
     inside = np.zeros_like(saturated)
     cv2.fillPoly(inside, [np.rint(ring_px).astype(np.int32).reshape(-1, 1, 2)], 1)
     # Glare on the top: a good share of the part's silhouette clipped white (not a lit wall's band).
@@ -379,15 +382,7 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
     px_m = located.mm_per_px * 1e-3  # metres per pixel at the part
     steps, resp, peak = _edge_peaks(gx, gy, threshold, uv, normal, max(options.reach, options.depth) / px_m)
     offset = np.where(peak, steps[None, :], np.nan)
-    # A clipped highlight on both sides of an edge (a pocket in a white top) hides it: unknown,
-    # neither found nor missed. On one side only, the edge shows, pushed into the other side by
-    # the optics' spill (the bloom, up to GLARE_PX): its own edge is looked for that much further.
-    unknown, bloom = _clipped_sides(saturated, uv, normal, top_glare)
-    # Deep shadow on both sides (a hole at the foot of a counterbore under a low light) hides an
-    # edge as glare does: unknown, not missing.
-    unknown |= _both_sides(dark, uv, normal, SHADOW_SIDE_PX)
-    # Beyond the picture, or an outline edge behind the part's own taller faces: unknown, as glare is.
-    unknown |= unseen(model, p, idx, uv, normal, grey.shape, OWN_PX + FRAME_PX)
+    unknown, bloom, white = _hidden(model, p, idx, uv, normal, masks, top_glare)
     # The outline is judged where a face turned up meets the side (the top of a wall, a step): the
     # part's own face lies inside. At a wall's foot the tray beside it may lie in the part's own
     # shadow, and the wall may be as dark as that shadow; no edge there says anything.
@@ -396,6 +391,9 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
         ~_near_corner(part.outline, model.points[idx, :2])
     sign = np.ones(len(idx))
     sign[outer] = _outward(model, part, p, idx[outer], uv[outer], normal[outer])
+    # With the top in glare, an outline edge white on both sides past the spill has white where the
+    # tray should be: material as white as the top (a burr's lip), judged by the edge where it ends.
+    unknown[outer] &= ~white[outer]
     lo = -OWN_PX - GLARE_PX * bloom[:, 1]
     hi = OWN_PX + GLARE_PX * bloom[:, 0]
     # A wall turned to the camera shows beyond its top edge out to its foot: a narrow one as one
@@ -454,7 +452,7 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
     # Extra material along the outline from the whole grey profile across it (a burr moves the top
     # edge by a pixel, often beside a stronger wall edge it does not move, which the peaks follow).
     shift = _profile_shift(grey, uv[outer], normal[outer] * sign[outer, None], line, along, threshold, options.window)
-    shift[unknown[outer]] = np.nan
+    shift[(unknown | white)[outer]] = np.nan  # a clipped profile has no shape to compare
     # A feature's edge within the compared span (a hole 2.5 mm inside the outline) is not the side's.
     inside_uv = uv[~model.outer[idx]]
     if len(inside_uv):
@@ -562,13 +560,20 @@ def _least_loop(model: MeshEdges, idx: np.ndarray, own: np.ndarray, whole: np.nd
                 options: InspectOptions) -> float:
     """The least share of its edges found over one feature's loops of creases (:attr:`MeshEdges.loop`)
     the light lets be judged, as a whole feature is (``whole`` (k,) bool its visible samples ``idx`` not
-    hidden, ``own`` (k,) bool their edge found where expected); 1 when no loop can be judged."""
+    hidden, ``own`` (k,) bool their edge found where expected); 1 when no loop can be judged.
+
+    A foot (:func:`vision.inspect_feet.wall_feet`) is not judged on its own: the face and the wall rising from it meet in a
+    fold that soft light shades over a few pixels, not at a line, so the picture's edge lies pixels
+    either side of it (a good boss's foot at 5 MP in diffuse light: 0.12 found within OWN_PX, its top's
+    rim 0.56). A boss not there leaves its top's rim as bare as its foot; a through-hole's foot on the
+    underside, where the tray shows through, is a rim, not a foot."""
     loops = model.loop[idx]
+    feet = wall_feet(model, idx)
     least = 1.0
     for loop in np.unique(loops[whole & (loops >= 0)]):
         mine = loops == loop
         told = mine & whole
-        if told.sum() >= max(options.min_feature_edges, options.min_seen * mine.sum()):
+        if feet[mine].mean() <= 0.5 and told.sum() >= max(options.min_feature_edges, options.min_seen * mine.sum()):
             least = min(least, float(own[told].mean()))
     return least
 
@@ -607,6 +612,25 @@ def _clipped_sides(saturated: np.ndarray, uv: np.ndarray, normal: np.ndarray, to
             side[:, col] |= clipped(sign * t)
     unknown = side.all(axis=1)
     return unknown, side & ~unknown[:, None]
+
+
+def _hidden(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, normal: np.ndarray,
+            masks: tuple[np.ndarray, np.ndarray], top_glare: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which edge samples ``idx`` at pose ``p`` (``uv``, ``normal`` (k, 2) in the image) the picture
+    cannot show (``masks`` its clipped pixels and deep shadow): ``unknown`` (k,) bool, ``bloom`` (k, 2)
+    as :func:`_clipped_sides`, and ``white`` (k,) bool those unknown only for glare on both sides."""
+    # A clipped highlight on both sides of an edge (a pocket in a white top) hides it: unknown,
+    # neither found nor missed. On one side only, the edge shows, pushed into the other side by
+    # the optics' spill (the bloom, up to GLARE_PX): its own edge is looked for that much further.
+    saturated, dark = masks
+    clipped, bloom = _clipped_sides(saturated, uv, normal, top_glare)
+    # Deep shadow on both sides (a hole at the foot of a counterbore under a low light) hides an
+    # edge as glare does: unknown, not missing.
+    unknown = _both_sides(dark, uv, normal, SHADOW_SIDE_PX)
+    # Beyond the picture, or an outline edge behind the part's own taller faces: unknown, as glare is.
+    unknown |= unseen(model, p, idx, uv, normal, dark.shape, OWN_PX + FRAME_PX)
+    white = clipped & ~unknown if top_glare else np.zeros(len(idx), bool)
+    return unknown | clipped, bloom, white
 
 
 def _both_sides(mask: np.ndarray, uv: np.ndarray, normal: np.ndarray, t: float) -> np.ndarray:

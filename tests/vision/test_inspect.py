@@ -23,6 +23,8 @@ from vision.handeye import invert
 from vision.inspect import (InspectOptions, _line_level, _one_polarity, _profile_shift, _windowed, inspect_part,
                             inspection_image, part_transform)
 from vision.locate import LocatedPart, footprint_from_mesh, mm_to_m
+from vision.inspect_feet import wall_feet
+from vision.mesh_edges import MeshEdges
 from vision.render import Box, pixel_rays, render_boxes, render_mesh
 from vision.station import cut_corner
 
@@ -234,3 +236,33 @@ def test_a_burr_along_most_of_a_short_side_stands_out_from_a_trend_started_at_ze
     hidden = _windowed(points, values - _line_level(points, direction, values, band=0.5), 8e-3)
     shown = _windowed(points, values - _line_level(points, direction, values, band=0.5, start=0.0), 8e-3)
     assert abs(hidden[12]) < 0.2 and shown[12] == pytest.approx(1.0, abs=0.1)
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.floats(4.0, 12.0), st.floats(3.0, 15.0), st.floats(-8.0, 8.0), st.floats(2.0, 5.0), st.floats(6.0, 20.0))
+def test_the_feet_are_the_concave_creases_of_a_face_turned_up(radius, height, at, hole, plate):
+    """A plate with a boss and a through-hole: the crease samples ``wall_feet`` takes for feet are those
+    trimesh calls concave (its own test, not the height field) between a face turned up and a wall:
+    the boss's foot; never its top's rim, the hole's rims or the plate's outline."""
+    boss = trimesh.creation.cylinder(radius=radius, height=height + 1.0, sections=48)
+    boss.apply_translation((at - 15.0, 0.0, plate + height / 2 - 0.5))
+    drill = trimesh.creation.cylinder(radius=hole, height=plate + 2.0, sections=32)
+    drill.apply_translation((18.0, 5.0, plate / 2))
+    body = trimesh.creation.box((80.0, 50.0, plate))
+    body.apply_translation((0.0, 0.0, plate / 2))
+    mesh = trimesh.boolean.difference([trimesh.boolean.union([body, boss], engine="manifold"), drill],
+                                      engine="manifold")
+    model = MeshEdges(footprint_from_mesh(mesh.vertices, mesh.faces), TRUE_CAMERA, BASE_CAM, TRAY_Z)
+    idx = np.flatnonzero(model.crease)
+    feet = wall_feet(model, idx)
+    # The same mesh as the model's, its edges kept alike: trimesh's convexity of each sample's edge.
+    same = trimesh.Trimesh(mesh.vertices, mesh.faces, process=True)
+    convex = same.face_adjacency_convex[same.face_adjacency_angles > np.radians(1.0)][model.edge[idx]]
+    n1, n2 = model.n1[idx], model.n2[idx]
+    up_and_wall = ((n1[:, 2] > 0.5) & (np.abs(n2[:, 2]) < 0.5)) | ((n2[:, 2] > 0.5) & (np.abs(n1[:, 2]) < 0.5))
+    assert (feet == (up_and_wall & ~convex)).all()
+    # The boss's foot, all round: at the plate's top [m], within its radius of its axis.
+    z = model.points[idx, 2]
+    foot = np.isclose(z, plate * 1e-3, atol=1e-5) & \
+        (np.hypot(*(model.points[idx, :2] - model.points[idx, :2][feet].mean(axis=0)).T) < radius * 1e-3 + 1e-4)
+    assert feet.sum() > 0 and (feet == foot).all()
