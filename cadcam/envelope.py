@@ -338,8 +338,8 @@ def _row_spans(seg: Segments, grid: Grid) -> tuple[np.ndarray, np.ndarray, np.nd
     owner = np.repeat(np.arange(len(seg)), nj)
     row = np.repeat(j0, nj) + (np.arange(int(nj.sum())) - np.repeat(np.cumsum(nj) - nj, nj))
     yr = grid.y0 + row * grid.cell
-    Ro = R[owner]
-    ax, ay, dx, dy = seg.x[owner], seg.y[owner], seg.dx[owner], seg.dy[owner]
+    Ro = np.repeat(R, nj)  # = R[owner], as each move's rows are one run
+    ax, ay, dx, dy = np.repeat(seg.x, nj), np.repeat(seg.y, nj), np.repeat(seg.dx, nj), np.repeat(seg.dy, nj)
 
     def disk(cx, cy):
         h2 = Ro * Ro - (yr - cy) ** 2
@@ -383,6 +383,7 @@ def grid_pairs(seg: Segments, grid: Grid, above: Callable[[np.ndarray, np.ndarra
         live = np.flatnonzero(count > 0)
         lower = row_lower(seg, row_owner[live], grid.y0 + row[live] * grid.cell)
         count[live[lower >= above(row[live], first[live], count[live])]] = 0
+        row_owner, row, first, count = _live_pieces(seg, grid, above, row_owner, row, first, count)
     n = int(count.sum())
     owner = np.repeat(row_owner, count)
     col = np.repeat(first - (np.cumsum(count) - count), count) + np.arange(n)
@@ -390,15 +391,47 @@ def grid_pairs(seg: Segments, grid: Grid, above: Callable[[np.ndarray, np.ndarra
     return owner, rows * grid.nx + col, col, rows
 
 
-def row_lower(seg: Segments, owner: np.ndarray, yr: np.ndarray) -> np.ndarray:
+#: A run of a row's grid points that survives :func:`row_lower` is judged again in pieces of this many columns
+#: (on multiples of it), each against its own stretch of stock and its own distance from the move: most of the
+#: pairs a run leaves are still ones the move cannot cut (72 % of them in the dome's plan). The dome's verify:
+#: 29.4 million pairs whole, 18.4 million in pieces of 16, 18.0 in pieces of 8 (more pieces cost more than that).
+_PIECE = 16
+
+
+def _live_pieces(seg: Segments, grid: Grid, above, owner, row, first, count):
+    """The runs ``owner, row, first, count`` (:func:`_row_spans`) cut into pieces of :data:`_PIECE` columns, the
+    pieces the move provably cannot cut (as :func:`row_lower`, the distance across the row too) given no
+    columns; the others in the runs' order, so the pairs that are left come in the same order."""
+    live = np.flatnonzero(count > 0)
+    b0 = first[live] // _PIECE
+    pieces = (first[live] + count[live] - 1) // _PIECE - b0 + 1
+    if not (pieces > 1).any():
+        return owner, row, first, count
+    run = np.repeat(live, pieces)
+    k = np.arange(len(run)) - np.repeat(np.cumsum(pieces) - pieces, pieces)  # piece within its run
+    start = np.maximum((np.repeat(b0, pieces) + k) * _PIECE, first[run])
+    stop = np.minimum((np.repeat(b0, pieces) + k + 1) * _PIECE, first[run] + count[run])
+    p_owner, p_row, p_count = owner[run], row[run], stop - start
+    lower = row_lower(seg, p_owner, grid.y0 + p_row * grid.cell, grid.x0 + start * grid.cell,
+                      grid.x0 + (stop - 1) * grid.cell)
+    p_count[lower >= above(p_row, start, p_count)] = 0
+    return p_owner, p_row, start, p_count
+
+
+def row_lower(seg: Segments, owner: np.ndarray, yr: np.ndarray, xa: np.ndarray | None = None,
+              xb: np.ndarray | None = None) -> np.ndarray:
     """A lower bound [mm] of :func:`pair_envelope`'s cheap bound ``lower`` (lowest tip height plus the
-    profile at the nearest approach) at every point of grid row ``yr`` [mm], for the move of each row
-    ``owner``: the nearest approach of a point of the row is at least the distance between the row's
-    line and the move's XY segment, and the profile only rises with distance (rounding included: the
-    distance is taken 1e-7 mm short, far beyond any rounding of it)."""
+    profile at the nearest approach) at every point of grid row ``yr`` [mm] (from ``xa`` to ``xb`` [mm] when
+    given), for the move of each row ``owner``: the nearest approach of such a point is at least the distance
+    from the row's line (or stretch) to the box round the move's XY segment, and the profile only rises with
+    distance (rounding included: the distance is taken 1e-7 mm short, far beyond any rounding of it)."""
     y0 = seg.y[owner]
     y1 = y0 + seg.dy[owner]
     gap = np.maximum(np.maximum(np.minimum(y0, y1) - yr, yr - np.maximum(y0, y1)), 0.0)
+    if xa is not None:
+        x0 = seg.x[owner]
+        x1 = x0 + seg.dx[owner]
+        gap = np.hypot(gap, np.maximum(np.maximum(np.minimum(x0, x1) - xb, xa - np.maximum(x0, x1)), 0.0))
     dist = np.maximum(gap - 1e-7, 0.0)
     lower = seg.zmin[owner]
     lower += _profile(dist, seg.flat_radius[owner], seg.rc[owner])
