@@ -45,6 +45,16 @@ def _profile(r: np.ndarray, flat_radius: np.ndarray, rc: np.ndarray) -> np.ndarr
     return rc - np.sqrt(np.maximum(rc * rc - d * d, 0.0))
 
 
+def _per_pair(owner: np.ndarray, n: int) -> Callable[[np.ndarray], np.ndarray]:
+    """``lambda a: a[owner]`` for per-move arrays ``a`` of ``n`` rows: when ``owner`` is sorted (as
+    :func:`grid_pairs` makes the pairs) by repeating each row over its run, the same values at about a
+    quarter of the cost of indexing."""
+    if n < len(owner) and bool((owner[1:] >= owner[:-1]).all()):
+        runs = np.diff(np.searchsorted(owner, np.arange(n + 1)))
+        return lambda a: np.repeat(a, runs)
+    return lambda a: a[owner]
+
+
 #: Cutter shapes in :attr:`Segments.shape`.
 _FLAT, _BALL, _BULL, _CONE = 0, 1, 2, 3
 
@@ -130,13 +140,14 @@ def pair_envelope(
     env = np.full(len(qx), np.inf)
     if len(qx) == 0:
         return env
-    wx = qx - seg.x[owner]
-    wy = qy - seg.y[owner]
-    dx = seg.dx[owner]
-    dy = seg.dy[owner]
+    at = _per_pair(owner, len(seg))
+    wx = qx - at(seg.x)
+    wy = qy - at(seg.y)
+    dx = at(seg.dx)
+    dy = at(seg.dy)
     wd = wx * dx
     wd += wy * dy
-    t = wd * seg.inv_l2[owner]
+    t = wd * at(seg.inv_l2)
     np.clip(t, 0.0, 1.0, out=t)
     ex = t * dx
     np.subtract(wx, ex, out=ex)
@@ -147,12 +158,13 @@ def pair_envelope(
     del ey, dx, dy
     # Lowest tip height plus the profile at the nearest approach: exact for horizontal
     # and vertical moves, a lower bound otherwise (z(t) >= zmin and r(t) >= distance).
-    lower = seg.zmin[owner]
+    lower = at(seg.zmin)
     if np.any(seg.shape != _FLAT):
         dist = np.sqrt(dist2)
-        lower += _profile(dist, seg.flat_radius[owner], seg.rc[owner])
-        lower += seg.cone[owner] * np.minimum(dist, seg.radius[owner])
-    cand = dist2 <= seg.reach2[owner]
+        lower += _profile(dist, at(seg.flat_radius), at(seg.rc))
+        if seg.cone.any():  # else the term adds +0.0 to a height that is never -0.0: nothing
+            lower += at(seg.cone) * np.minimum(dist, at(seg.radius))
+    cand = dist2 <= at(seg.reach2)
     if bound is not None:
         cand &= lower < bound
     idx = np.flatnonzero(cand)
@@ -171,9 +183,10 @@ def pair_envelope(
 
 def _sloped_envelope(wx, wy, wd, o, seg: Segments) -> np.ndarray:
     """Exact envelope for moves that climb or descend while moving sideways (``o``: move rows)."""
-    dx, dy, dz, z0 = seg.dx[o], seg.dy[o], seg.dz[o], seg.z[o]
-    l2, R, rc = seg.l2[o], seg.radius[o], seg.rc[o]
-    shape = seg.shape[o]
+    at = _per_pair(o, len(seg))
+    dx, dy, dz, z0 = at(seg.dx), at(seg.dy), at(seg.dz), at(seg.z)
+    l2, R, rc = at(seg.l2), at(seg.radius), at(seg.rc)
+    shape = at(seg.shape)
     # Interval of t where r(t) <= R: roots of l2 t^2 - 2 wd t + |w|^2 - R^2; the
     # discriminant written with the cross product avoids cancellation.
     cross = wx * dy - wy * dx
@@ -252,18 +265,33 @@ def _bisect_envelope(wx, wy, dx, dy, z0, dz, a, rc, ta, tb) -> np.ndarray:
     rc2 = rc * rc
     span = float(np.max((tb - ta) * np.sqrt(dx * dx + dy * dy + dz * dz)))
     steps = int(np.clip(math.ceil(math.log2(max(span, 1e-300) / _BISECT_RESOLUTION)), 1, 60))
+    # The loop's arrays are made once and written in place (a third less time than new arrays each step);
+    # every step computes the very expressions in the comments, in their order.
+    mid, ex, ey, r, d, tmp = (np.empty_like(lo) for _ in range(6))
+    right, left = np.empty(len(lo), bool), np.empty(len(lo), bool)
     for _ in range(steps):
-        mid = 0.5 * (lo + hi)
-        ex = wx - mid * dx
-        ey = wy - mid * dy
-        r = np.sqrt(ex * ex + ey * ey)
-        d = np.minimum(np.maximum(r - a, 0.0), rc)
+        np.add(lo, hi, out=mid)
+        mid *= 0.5  # mid = 0.5 * (lo + hi)
+        np.subtract(wx, np.multiply(mid, dx, out=ex), out=ex)  # ex = wx - mid * dx
+        np.subtract(wy, np.multiply(mid, dy, out=ey), out=ey)
+        np.multiply(ex, ex, out=r)
+        r += np.multiply(ey, ey, out=tmp)
+        np.sqrt(r, out=r)  # r = |e|
+        np.subtract(r, a, out=d)
+        np.minimum(np.maximum(d, 0.0, out=d), rc, out=d)  # d = min(max(r - a, 0), rc)
         # f' = dz + h'(r) r'(t), h' = d / sqrt(rc^2 - d^2), r' = -(e . d) / r; the tiny
-        # floors only matter where h' is 0 (d = 0) or the tool rim is reached.
-        slope = dz - d * (ex * dx + ey * dy) / (np.sqrt(np.maximum(rc2 - d * d, 1e-300)) * np.maximum(r, 1e-300))
-        right = slope < 0.0
+        # floors only matter where h' is 0 (d = 0) or the tool rim is reached:
+        # slope = dz - d * (ex * dx + ey * dy) / (sqrt(max(rc2 - d * d, 1e-300)) * max(r, 1e-300))
+        ex *= dx
+        ex += np.multiply(ey, dy, out=ey)
+        ex *= d  # d * (e . d): d times the dot product, as written above
+        np.subtract(rc2, np.multiply(d, d, out=tmp), out=tmp)
+        np.sqrt(np.maximum(tmp, 1e-300, out=tmp), out=tmp)
+        tmp *= np.maximum(r, 1e-300, out=r)
+        ex /= tmp
+        np.less(np.subtract(dz, ex, out=ex), 0.0, out=right)  # right = slope < 0
         np.copyto(lo, mid, where=right)
-        np.copyto(hi, mid, where=~right)
+        np.copyto(hi, mid, where=np.logical_not(right, out=left))
     return np.minimum(f(0.5 * (lo + hi)), np.minimum(f(ta), f(tb)))
 
 
@@ -310,8 +338,8 @@ def _row_spans(seg: Segments, grid: Grid) -> tuple[np.ndarray, np.ndarray, np.nd
     owner = np.repeat(np.arange(len(seg)), nj)
     row = np.repeat(j0, nj) + (np.arange(int(nj.sum())) - np.repeat(np.cumsum(nj) - nj, nj))
     yr = grid.y0 + row * grid.cell
-    Ro = R[owner]
-    ax, ay, dx, dy = seg.x[owner], seg.y[owner], seg.dx[owner], seg.dy[owner]
+    Ro = np.repeat(R, nj)  # = R[owner], as each move's rows are one run
+    ax, ay, dx, dy = np.repeat(seg.x, nj), np.repeat(seg.y, nj), np.repeat(seg.dx, nj), np.repeat(seg.dy, nj)
 
     def disk(cx, cy):
         h2 = Ro * Ro - (yr - cy) ** 2
@@ -355,6 +383,7 @@ def grid_pairs(seg: Segments, grid: Grid, above: Callable[[np.ndarray, np.ndarra
         live = np.flatnonzero(count > 0)
         lower = row_lower(seg, row_owner[live], grid.y0 + row[live] * grid.cell)
         count[live[lower >= above(row[live], first[live], count[live])]] = 0
+        row_owner, row, first, count = _live_pieces(seg, grid, above, row_owner, row, first, count)
     n = int(count.sum())
     owner = np.repeat(row_owner, count)
     col = np.repeat(first - (np.cumsum(count) - count), count) + np.arange(n)
@@ -362,15 +391,47 @@ def grid_pairs(seg: Segments, grid: Grid, above: Callable[[np.ndarray, np.ndarra
     return owner, rows * grid.nx + col, col, rows
 
 
-def row_lower(seg: Segments, owner: np.ndarray, yr: np.ndarray) -> np.ndarray:
+#: A run of a row's grid points that survives :func:`row_lower` is judged again in pieces of this many columns
+#: (on multiples of it), each against its own stretch of stock and its own distance from the move: most of the
+#: pairs a run leaves are still ones the move cannot cut (72 % of them in the dome's plan). The dome's verify:
+#: 29.4 million pairs whole, 18.4 million in pieces of 16, 18.0 in pieces of 8 (more pieces cost more than that).
+_PIECE = 16
+
+
+def _live_pieces(seg: Segments, grid: Grid, above, owner, row, first, count):
+    """The runs ``owner, row, first, count`` (:func:`_row_spans`) cut into pieces of :data:`_PIECE` columns, the
+    pieces the move provably cannot cut (as :func:`row_lower`, the distance across the row too) given no
+    columns; the others in the runs' order, so the pairs that are left come in the same order."""
+    live = np.flatnonzero(count > 0)
+    b0 = first[live] // _PIECE
+    pieces = (first[live] + count[live] - 1) // _PIECE - b0 + 1
+    if not (pieces > 1).any():
+        return owner, row, first, count
+    run = np.repeat(live, pieces)
+    k = np.arange(len(run)) - np.repeat(np.cumsum(pieces) - pieces, pieces)  # piece within its run
+    start = np.maximum((np.repeat(b0, pieces) + k) * _PIECE, first[run])
+    stop = np.minimum((np.repeat(b0, pieces) + k + 1) * _PIECE, first[run] + count[run])
+    p_owner, p_row, p_count = owner[run], row[run], stop - start
+    lower = row_lower(seg, p_owner, grid.y0 + p_row * grid.cell, grid.x0 + start * grid.cell,
+                      grid.x0 + (stop - 1) * grid.cell)
+    p_count[lower >= above(p_row, start, p_count)] = 0
+    return p_owner, p_row, start, p_count
+
+
+def row_lower(seg: Segments, owner: np.ndarray, yr: np.ndarray, xa: np.ndarray | None = None,
+              xb: np.ndarray | None = None) -> np.ndarray:
     """A lower bound [mm] of :func:`pair_envelope`'s cheap bound ``lower`` (lowest tip height plus the
-    profile at the nearest approach) at every point of grid row ``yr`` [mm], for the move of each row
-    ``owner``: the nearest approach of a point of the row is at least the distance between the row's
-    line and the move's XY segment, and the profile only rises with distance (rounding included: the
-    distance is taken 1e-7 mm short, far beyond any rounding of it)."""
+    profile at the nearest approach) at every point of grid row ``yr`` [mm] (from ``xa`` to ``xb`` [mm] when
+    given), for the move of each row ``owner``: the nearest approach of such a point is at least the distance
+    from the row's line (or stretch) to the box round the move's XY segment, and the profile only rises with
+    distance (rounding included: the distance is taken 1e-7 mm short, far beyond any rounding of it)."""
     y0 = seg.y[owner]
     y1 = y0 + seg.dy[owner]
     gap = np.maximum(np.maximum(np.minimum(y0, y1) - yr, yr - np.maximum(y0, y1)), 0.0)
+    if xa is not None:
+        x0 = seg.x[owner]
+        x1 = x0 + seg.dx[owner]
+        gap = np.hypot(gap, np.maximum(np.maximum(np.minimum(x0, x1) - xb, xa - np.maximum(x0, x1)), 0.0))
     dist = np.maximum(gap - 1e-7, 0.0)
     lower = seg.zmin[owner]
     lower += _profile(dist, seg.flat_radius[owner], seg.rc[owner])

@@ -17,6 +17,8 @@ pays per vertex and per intersection:
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import shapely
 from scipy import ndimage
@@ -46,6 +48,44 @@ def near_cells(mask: np.ndarray, reach: float, cell: float = 1.0) -> np.ndarray:
     rows, cols = ndimage.distance_transform_edt(~mask, return_distances=False, return_indices=True)
     jj, ii = np.indices(mask.shape)
     return (jj - rows) ** 2 + (ii - cols) ** 2 <= farthest
+
+
+#: The last few :func:`highest_near` answers, by the read-only map they were made from (held, so its id is not
+#: reused), each at most :data:`_HIGHEST_NEAR_BYTES`; the plan's threads share them.
+_HIGHEST_NEAR: list[tuple[np.ndarray, float, float, np.ndarray]] = []
+_HIGHEST_NEAR_KEPT, _HIGHEST_NEAR_BYTES = 4, 16 << 20
+_HIGHEST_NEAR_LOCK = threading.Lock()
+
+
+def highest_near(top: np.ndarray, cell: float, reach: float) -> np.ndarray:
+    """(ny, nx) the highest finite value of the height map ``top`` (on a grid of ``cell`` [mm]) within ``reach``
+    [mm] of each point (``-inf``: none), points off the grid counting as none. Read-only.
+
+    A read-only ``top`` (the part's :func:`cadcam.heightmap.upper_envelope`, which gives the same array for the
+    same part and grid) is answered again from the last few maps: every stock model that measures engagement
+    on one grid (the chip feeds' models, verify's) asks for the same part's, and each answer costs one pass over
+    the grid per point of the disc."""
+    kept = not top.flags.writeable and top.nbytes <= _HIGHEST_NEAR_BYTES
+    with _HIGHEST_NEAR_LOCK:
+        for held, c, r, out in _HIGHEST_NEAR if kept else ():
+            if held is top and c == cell and r == reach:
+                return out
+    finite = np.where(np.isfinite(top), top, -np.inf)
+    out = finite.copy()
+    k = int(reach // cell)
+    ny, nx = finite.shape
+    for dj in range(-k, k + 1):
+        for di in range(-k, k + 1):
+            if (di or dj) and (di * di + dj * dj) * cell**2 <= reach * reach + 1e-12:
+                src = finite[max(0, dj):ny + min(0, dj), max(0, di):nx + min(0, di)]
+                dst = out[max(0, -dj):ny + min(0, -dj), max(0, -di):nx + min(0, -di)]
+                np.maximum(dst, src, out=dst)
+    out.setflags(write=False)
+    if kept:
+        with _HIGHEST_NEAR_LOCK:
+            _HIGHEST_NEAR.insert(0, (top, cell, reach, out))
+            del _HIGHEST_NEAR[_HIGHEST_NEAR_KEPT:]
+    return out
 
 
 def cell_runs(mask: np.ndarray, grid: Grid) -> np.ndarray:

@@ -31,6 +31,7 @@ from scipy import ndimage
 from cadcam.engagement import ENGAGED_WIDTH, FULL_WIDTH_ANGLE, MoveRecord, engaged_depth, record_max
 from cadcam.envelope import Segments, grid_pairs, pair_envelope, reach_interval
 from cadcam.envelope import SpanTops as _SpanTops
+from cadcam.gridregion import highest_near
 from cadcam.heightmap import Grid, grid_over, upper_envelope
 from cadcam.model import Motion, Operation, ProgramMoves, Setup, Tool
 from factory.core.errors import VerifyError
@@ -383,21 +384,6 @@ def _tool_table(moves: ProgramMoves, tools: Mapping[int, Tool],
 _SKIN = 1.0
 
 
-def _highest_part_near(part_top: np.ndarray, grid: Grid, reach: float) -> np.ndarray:
-    """(ny, nx) highest part top within ``reach`` [mm] of each grid point (``-inf``: none)."""
-    top = np.where(np.isfinite(part_top), part_top, -np.inf)
-    out = top.copy()
-    k = int(reach // grid.cell)
-    ny, nx = top.shape
-    for dj in range(-k, k + 1):
-        for di in range(-k, k + 1):
-            if (di or dj) and (di * di + dj * dj) * grid.cell**2 <= reach * reach + 1e-12:
-                src = top[max(0, dj):ny + min(0, dj), max(0, di):nx + min(0, di)]
-                dst = out[max(0, -dj):ny + min(0, -dj), max(0, -di):nx + min(0, -di)]
-                np.maximum(dst, src, out=dst)
-    return out
-
-
 class _Body:
     """The shank and holder of the tool making each segment, as flat cylinders to sweep.
 
@@ -474,7 +460,7 @@ class _Cut:
         body.full_width = math.radians(full_width_angle)
         body.measure = measure
         if measure:  # the skin of walls is no engagement: only engagement reads it
-            body.wall_near = _highest_part_near(part_top, grid, _SKIN).reshape(-1)
+            body.wall_near = highest_near(part_top, grid.cell, _SKIN).reshape(-1)
         self.grid, self.part_top, self.part = grid, part_top, part_flat
         self.stock, self.under, self.stock_bottom = stock, under, stock_bottom
         self.seg, self.starts, self.swept, self.body, self.tools = seg, starts, swept, body, tools

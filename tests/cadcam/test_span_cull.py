@@ -38,14 +38,16 @@ def assert_identical(a, b) -> None:
 
 @settings(max_examples=40, deadline=None)
 @given(blocks=moves_strategy, again=st.booleans(), part=st.sampled_from(["low", "sloped"]),
-       budget=st.sampled_from([300, 1 << 16]), every=st.sampled_from([1, 16]), block=st.sampled_from([1, 4, 16]))
-def test_culling_the_runs_a_move_cannot_cut_changes_nothing(blocks, again, part, budget, every, block):
-    """Whatever the batches, the tops' staleness and their blocks: the stock, what each move met and
-    removed are the unculled cut's (a program run twice: runs of its second pass are culled)."""
+       budget=st.sampled_from([300, 1 << 16]), every=st.sampled_from([1, 16]), block=st.sampled_from([1, 4, 16]),
+       piece=st.sampled_from([1, 3, 8, 1 << 20]))
+def test_culling_the_runs_a_move_cannot_cut_changes_nothing(blocks, again, part, budget, every, block, piece):
+    """Whatever the batches, the tops' staleness and their blocks, and the pieces runs are judged in again:
+    the stock, what each move met and removed are the unculled cut's (a program run twice: runs of its second
+    pass are culled)."""
     moves = program(blocks + blocks if again else blocks, start=(20, 10, 5))
     tri = LOW_PART if part == "low" else SLOPED
     with mock.patch.object(stock, "_PAIR_BUDGET", budget), mock.patch.object(stock, "_SPAN_TOPS_EVERY", every), \
-            mock.patch.object(stock._SpanTops, "_BLOCK", block):
+            mock.patch.object(stock._SpanTops, "_BLOCK", block), mock.patch.object(cadcam.envelope, "_PIECE", piece):
         assert_identical(_cut(moves, tri, cull=True), _cut(moves, tri, cull=False))
 
 
@@ -112,3 +114,28 @@ def test_a_holder_swept_low_beside_tall_stock_meets_it_as_unculled_and_pairs_onl
     assert_identical(culled, whole)
     assert whole["contact"].max() == 1.0  # the holder came 9 - 8 mm down onto the stock round the pocket
     assert n_culled < 0.7 * n_whole, (n_culled, n_whole)
+
+
+def test_judging_runs_again_in_pieces_drops_pairs_the_whole_runs_keep():
+    """A run's pieces (``envelope._PIECE`` columns) are judged on their own stretch of stock and their own
+    distance from the move: in the second ball pass (moves along X, where a run's ends are far from the move)
+    they drop pairs the whole runs keep, and the cut is the same to the bit."""
+    moves = _finishing_twice()
+    counted = []
+    real = cadcam.envelope.grid_pairs
+
+    def counting(seg, grid, above=None):
+        out = real(seg, grid, above)
+        if above is not None:
+            counted.append(len(out[0]))
+        return out
+
+    with mock.patch.object(stock, "_PAIR_BUDGET", 300), mock.patch.object(stock, "_SPAN_TOPS_EVERY", 1), \
+            mock.patch.object(stock, "grid_pairs", counting):
+        pieces = _cut(moves, SLOPED, cull=True)
+        n_pieces, counted[:] = sum(counted), []
+        with mock.patch.object(cadcam.envelope, "_PIECE", 1 << 20):  # one piece a run: runs judged whole
+            runs = _cut(moves, SLOPED, cull=True)
+        n_runs = sum(counted)
+    assert_identical(pieces, runs)
+    assert n_pieces < 0.9 * n_runs, (n_pieces, n_runs)
