@@ -723,7 +723,9 @@ def _best_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
     not refitted, so its pose stays the one the first light gave. A first fit whose outline is seen along one
     direction only, fixed across it by its other edges alone (:attr:`_EdgeFit.edges_axis`), is slid 0.75 mm as
     well (:data:`LIT_SHORT_SLIDES_M`): a low-light stepped wall came back from 0.75 mm off (beyond its +-0.74 mm)."""
-    best = _fitted(model, gx, gy, threshold, starts, symmetry, saturated, thin, light and light.first, options)
+    known: dict = {}  # the fits made, for the second try (:func:`_fit_once`)
+    best = _fitted(model, gx, gy, threshold, starts, symmetry, saturated, thin, light and light.first, options,
+                   known=known)
     if light is None or spare is None or (best is not None and not _refusal(best, options, outline_axis=True)):
         return best
     if best is not None and not _refusal(best, options):
@@ -731,7 +733,7 @@ def _best_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
         # from every start (a second try cost such pictures 0.6-1 s more).
         return _with_stray(model, _slid(model, gx, gy, threshold, best, saturated, LIT_SHORT_SLIDES_M), thin)
     again = _fitted(model, gx, gy, threshold, starts + spare(), symmetry, saturated, thin, light, options,
-                    LIT_RETRY_SLIDES_M)
+                    LIT_RETRY_SLIDES_M, known)
     if again is not None and not _refusal(again, options, outline_axis=True):
         return again
     # The second try's first: its starts and lights are the wider search.
@@ -740,15 +742,21 @@ def _best_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
 
 def _fitted(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
             symmetry: int, saturated: np.ndarray | None, thin: np.ndarray | None, light: LightAt | np.ndarray | None,
-            options: LocateOptions, slides: tuple[float, ...] = LIT_SLIDES_M) -> _EdgeFit | None:
+            options: LocateOptions, slides: tuple[float, ...] = LIT_SLIDES_M, known: dict | None = None
+            ) -> _EdgeFit | None:
     """:func:`_best_fit` under one light (``light``: a unit direction, base frame, or one per pose; None
     without a key light): the fit chosen among the starts and turns (:func:`_chosen_fit`) slid along the
     outline (:func:`_slid`, under a key light by ``slides`` [m]), and in even light (no key light, nothing
-    clipped) settled (:func:`_settled`, ``options.refine``)."""
-    best = _chosen_fit(model, gx, gy, threshold, starts, symmetry, saturated, thin, light, options.min_coverage)
+    clipped) settled (:func:`_settled`, ``options.refine``); ``known``: the blob's fits made already (:func:`_fit_once`)."""
+    best = _chosen_fit(model, gx, gy, threshold, starts, symmetry, saturated, thin, light, options.min_coverage,
+                       known)
     if best is None or best.ambiguous:
         return best
-    best = _with_stray(model, _slid(model, gx, gy, threshold, best, saturated, slides), thin)
+    # The second try's slides rescue a fit that stopped beside the part (:data:`LIT_RETRY_SLIDES_M`); one that passes
+    # is not slid (on the gallery no slide of the second try moved a fit, and the eight fits cost 0.3 s).
+    if slides != LIT_RETRY_SLIDES_M or _refusal(best, options, outline_axis=True):
+        best = _slid(model, gx, gy, threshold, best, saturated, slides)
+    best = _with_stray(model, best, thin)
     even = light is None and (saturated is None or not saturated.any())
     return _settled(model, gx, gy, threshold, best, options) if options.refine and even else best
 
@@ -766,7 +774,7 @@ def _slid(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, be
     blooms over the walls, and a slid dome found more of its blooming outline 2 mm off.
     """
     if (best.hidden > AMBIGUOUS_HIDDEN or best.coverage < SLIDE_COVERAGE
-            or best.axis_coverage >= SLIDE_AXIS_COVERAGE):
+            or best.axis_coverage >= SLIDE_AXIS_COVERAGE or max(best.axis_coverage, best.edges_axis) < SLIDE_ACROSS):
         return best
     # Under a key light the edges dark on both sides at the fitted pose are left out of every slide (the
     # same ones, found once), and each slide's judgement counts the cast shadow: some 8 times the cost
@@ -812,8 +820,13 @@ EXTRA_ROUNDS = 3
 TOOK_TOP_PX = 0.5
 #: Only a fit that finds at least this share of its outline ... (unitless)
 SLIDE_COVERAGE = 0.4
-#: ... and less than this in the outline's worse direction is slid (unitless).
+#: ... and less than this in the outline's worse direction is slid (unitless) ...
 SLIDE_AXIS_COVERAGE = 0.75
+#: ... but at least this across it, in its outline or (under a key light) all its edges (unitless): no fit seen
+#: across at less (every distractor's box, a low-light L beside its shadow) was ever brought to pass by a slide on
+#: the benchmark (432 pictures, 373 slid fits: 30 below it, none passed slid; those that did were 0.38-0.47 across
+#: before), and each such fit's slides cost 4-8 edge fits.
+SLIDE_ACROSS = 0.3
 #: Coarse starts beyond the best three that a blob under a key light is fitted from as well (a low light's
 #: long shadow took the first three places of a stepped wall's coarse search; its fourth lay 1.5 mm off it).
 LIT_SPARE = 3
@@ -824,12 +837,17 @@ SLIDE_GAIN = 0.05
 
 def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
                 symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None,
-                light: LightAt | np.ndarray | None = None, min_coverage: float = LocateOptions.min_coverage
-                ) -> _EdgeFit | None:
+                light: LightAt | np.ndarray | None = None, min_coverage: float = LocateOptions.min_coverage,
+                known: dict | None = None) -> _EdgeFit | None:
     """The edge fit of one blob from its coarse starts and the turns of the outline (see :func:`_best_fit`).
-    ``min_coverage``: the share of the outline a reported pose finds (:attr:`LocateOptions.min_coverage`)."""
-    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated, light=_light_at(light, s))
-                            for s in starts) if fit is not None]
+    ``min_coverage``: the share of the outline a reported pose finds (:attr:`LocateOptions.min_coverage`);
+    ``known``: the fits made already for this blob, by start, reaches and light (:func:`_fit_once`)."""
+    known = {} if known is None else known
+
+    def fit_from(start: np.ndarray, reaches: tuple[float, ...] = SEARCH_PX) -> _EdgeFit | None:
+        return _fit_once(known, model, gx, gy, threshold, start, reaches, saturated, _light_at(light, start))
+
+    fits = [fit for fit in (fit_from(s) for s in starts) if fit is not None]
     if not fits:
         return None
     # A symmetric outline fits turned as well as not: the edges inside it (steps, bosses) decide.
@@ -839,8 +857,7 @@ def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: flo
     # where the coarse search put it (a glare stepped wall's, 6 deg off): its turn is fitted from as
     # wide a reach as a start, else it stays those degrees off the part.
     reaches = SEARCH_PX if first.coverage < min_coverage else SEARCH_PX[-2:]
-    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, reaches, saturated, _light_at(light, t))
-                             for t in turns) if fit is not None]
+    fits += [fit for fit in (fit_from(t, reaches) for t in turns) if fit is not None]
     # A fit that leaves edges beside it unexplained lies beside the part or turned onto its shadow: the others
     # are chosen from while there are any (:mod:`vision.stray_edges`).
     fits = [_with_stray(model, fit, thin) for fit in fits]
@@ -879,6 +896,17 @@ def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: flo
             return replace(best, ambiguous=True)
         return by_turn[told[0][1]]
     return best
+
+
+def _fit_once(known: dict, model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, start: np.ndarray,
+              reaches: tuple[float, ...], saturated: np.ndarray | None, light: np.ndarray | None) -> _EdgeFit | None:
+    """:func:`_edge_fit` from ``start`` under ``light``, made once per blob: ``known`` keeps each fit by its start,
+    reaches and light. The second try (:func:`_best_fit`) starts again from the first's starts, and where the
+    light estimated at a start is the first's (a distractor's box: all of them) the fit is the same."""
+    key = (np.asarray(start, np.float64).tobytes(), tuple(reaches), None if light is None else light.tobytes())
+    if key not in known:
+        known[key] = _edge_fit(model, gx, gy, threshold, start, reaches, saturated, light)
+    return known[key]
 
 
 def _with_stray(model: MeshEdges, fit: _EdgeFit, thin: np.ndarray | None) -> _EdgeFit:
