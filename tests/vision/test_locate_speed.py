@@ -80,26 +80,24 @@ def test_the_edge_model_is_made_once_per_part_and_view():
 
 
 def _landed_step_by_step(field, start, eye):
-    """The slow truth of :func:`vision.shadow.landing`: each line of sight stepped one step at a time (at most a cell
-    across or down), as it was written before the march took its steps in blocks."""
-    p = np.asarray(start, dtype=np.float64).copy()
-    d = p - eye
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    dt = TEXEL_M / np.maximum(np.hypot(d[:, 0], d[:, 1]), -d[:, 2])
-    live = (p[:, 2] > 0) & (field.at(p[:, :2]) <= p[:, 2])
-    while live.any():
-        i = np.flatnonzero(live)
-        q = p[i] + dt[i, None] * d[i]
-        q[:, 2] = np.maximum(q[:, 2], 0.0)
-        p[i] = q
-        live[i[(q[:, 2] <= 0) | (field.at(q[:, :2]) >= q[:, 2])]] = False
-    top = field.at(p[:, :2])
-    flat = top - p[:, 2] <= 1.5 * TEXEL_M
-    p[:, 2] = np.maximum(p[:, 2], top)
-    return p, flat
+    """The slow truth of :func:`vision.shadow.landing`: each line of sight on its own, one step at a time (at most a
+    cell across or down), until it is under the tray or not above the part."""
+    landed, flat = np.array(start, dtype=np.float64), np.zeros(len(start), bool)
+    for k, point in enumerate(landed):
+        sight = (point - eye) / np.linalg.norm((point - eye)[None], axis=1)[0]  # rounded as the march's rows are
+        step = TEXEL_M / max(np.hypot(sight[0], sight[1]), -sight[2]) * sight
+        going = point[2] > 0 and field.at(point[None, :2])[0] <= point[2]
+        while going:
+            point += step  # in place: the running sum, as the march adds its steps
+            point[2] = max(point[2], 0.0)
+            going = point[2] > 0 and field.at(point[None, :2])[0] < point[2]
+        top = field.at(point[None, :2])[0]
+        flat[k] = top - point[2] <= 1.5 * TEXEL_M
+        point[2] = max(point[2], top)
+    return landed, flat
 
 
-@settings(max_examples=15, deadline=None)
+@settings(max_examples=10, deadline=None)
 @given(part=st.sampled_from(["bracket", "stepped_wall", "plate_bosses", "l_bracket"]),
        x=st.floats(-0.15, 0.15), y=st.floats(-0.12, 0.12), seed=st.integers(0, 99))
 def test_lines_of_sight_marched_in_blocks_land_where_they_land_step_by_step(part, x, y, seed):
@@ -108,7 +106,7 @@ def test_lines_of_sight_marched_in_blocks_land_where_they_land_step_by_step(part
     footprint = sample_mesh(part)[1]
     field = height_field(np.asarray(footprint.vertices) - np.r_[footprint.centroid, footprint.zmin], footprint.faces)
     rng = np.random.default_rng(seed)
-    start = np.column_stack([rng.uniform(-0.1, 0.1, (2000, 2)), rng.uniform(0.0, 0.06, 2000)])
+    start = np.column_stack([rng.uniform(-0.1, 0.1, (250, 2)), rng.uniform(0.0, 0.06, 250)])
     eye = np.array([x, y, 0.5])
     landed, flat = landing(field, start, eye)
     truth, truth_flat = _landed_step_by_step(field, start, eye)
