@@ -36,7 +36,6 @@ import numpy as np
 import shapely
 import trimesh
 from scipy.ndimage import map_coordinates
-from scipy.spatial import cKDTree
 from scipy.optimize import least_squares
 from shapely.geometry import MultiPolygon, Polygon
 
@@ -51,7 +50,7 @@ from vision.picture_edges import (_blob_outline, _edge_peaks, _find_edges, _grad
 from vision.pose_uncertainty import pose_covariance
 from vision.key_light import LightAt, lights_at
 from vision.shadow import shadow_evidence, unseen_edges
-from vision.stray_edges import MAX_STRAY, stray_edges
+from vision.stray_edges import MAX_STRAY, explained_inside, stray_edges
 
 log = logging.getLogger(__name__)
 
@@ -276,7 +275,7 @@ AMBIGUOUS_SHARE = 0.2
 #: Fits of two turns whose centroids lie within this of each other lie on the same outline [m].
 SAME_OUTLINE_M = 3e-3
 #: ... unless the share of the picture's edges inside the outline one turn explains beats every
-#: other's by this much (:func:`_explained`) (unitless).
+#: other's by this much (:func:`vision.stray_edges.explained_inside`) (unitless).
 TURN_MARGIN = 0.15
 #: Share of a fitted bloom [px] that counts as systematic edge error in the uncertainty (unitless): a
 #: clipped top blooms unevenly (parts of its outline not clipped, parallax). With the walls' feet out of
@@ -659,44 +658,6 @@ def _hull(blob: np.ndarray) -> np.ndarray:
     return hull > 0
 
 
-def _explained(model: MeshEdges, pose: np.ndarray, thin: np.ndarray, bloom: float = 0.0) -> float:
-    """Share of the picture's edge pixels inside the part's outline that lie on a model edge at ``pose``.
-
-    ``thin`` (h, w) bool are the picture's edges (:func:`vision.locate_search.thin_edges`). Only the pixels more than
-    :data:`EXPLAIN_PX` inside the outline count, and they count as explained within that (and the
-    ``bloom`` [px]) of any edge the model shows there. Turns of a symmetric outline share it, so this
-    compares what lies inside: a boss's bore seen in glare is explained by the pose that has it there,
-    not by its turn (which hides its own bosses in the clipped top and so finds a larger share of its
-    fewer edges) (0..1).
-
-    Any edge, the outline's too: a tall upright's top edge is outline, but seen off the camera's axis
-    it lies well inside the outline's hull, and a glare L's true pose explained 0.30 of the picture
-    (its turn 0.27) until it counted. And with the bloom: a clipped top blooms into its dark bores,
-    their edges lie a bloom inside the model's rims.
-    """
-    idx = model.visible(pose)
-    uv, _ = model.project(pose, idx)
-    outer = uv[model.outer[idx]]
-    if len(outer) < 3 or len(uv) == len(outer):
-        return 0.0
-    hull = cv2.convexHull(outer.astype(np.float32))
-    x, y, w, h = cv2.boundingRect(hull)
-    vs, us = np.nonzero(thin[max(y, 0):y + h, max(x, 0):x + w])
-    pix = np.column_stack([us + max(x, 0), vs + max(y, 0)]).astype(np.float64)
-    if len(pix) == 0:
-        return 0.0
-    inside = np.array([cv2.pointPolygonTest(hull, (float(u), float(v)), True) > EXPLAIN_PX for u, v in pix])
-    pix = pix[inside]
-    if len(pix) == 0:
-        return 0.0
-    d, _ = cKDTree(uv).query(pix)
-    return float(np.mean(d <= EXPLAIN_PX + bloom))
-
-
-#: A picture edge pixel this close to a model edge [px] is explained by it (:func:`_explained`).
-EXPLAIN_PX = 2.0
-
-
 #: Slides of a fitted pose along each main direction of the outline, refitted from (:func:`_slid`) [m].
 SLIDES_M = (-3e-3, -1.5e-3, 1.5e-3, 3e-3)
 #: ... and under a key light [m] ...
@@ -890,7 +851,7 @@ def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: flo
         for fit in sorted([best, *rivals], key=lambda fit: -fit.found):
             by_turn.setdefault(_turn(fit.pose[2] - best.pose[2], symmetry), fit)
         bloom = max(fit.bloom_px for fit in by_turn.values())
-        told = sorted(((_explained(model, fit.pose, thin, bloom), turn) for turn, fit in by_turn.items()), reverse=True)
+        told = sorted(((explained_inside(model, fit.pose, thin, bloom), turn) for turn, fit in by_turn.items()), reverse=True)
         log.info("turns of the outline explain %s of the edges inside it", [round(e, 2) for e, _ in told])
         if told[0][0] - told[1][0] < TURN_MARGIN:
             return replace(best, ambiguous=True)
