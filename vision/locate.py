@@ -36,7 +36,6 @@ import numpy as np
 import shapely
 import trimesh
 from scipy.ndimage import map_coordinates
-from scipy.spatial import cKDTree
 from scipy.optimize import least_squares
 from shapely.geometry import MultiPolygon, Polygon
 
@@ -51,7 +50,7 @@ from vision.picture_edges import (_blob_outline, _edge_peaks, _find_edges, _grad
 from vision.pose_uncertainty import pose_covariance
 from vision.key_light import LightAt, lights_at
 from vision.shadow import shadow_evidence, unseen_edges
-from vision.stray_edges import MAX_STRAY, stray_edges
+from vision.stray_edges import MAX_STRAY, explained_inside, stray_edges
 
 log = logging.getLogger(__name__)
 
@@ -276,7 +275,7 @@ AMBIGUOUS_SHARE = 0.2
 #: Fits of two turns whose centroids lie within this of each other lie on the same outline [m].
 SAME_OUTLINE_M = 3e-3
 #: ... unless the share of the picture's edges inside the outline one turn explains beats every
-#: other's by this much (:func:`_explained`) (unitless).
+#: other's by this much (:func:`vision.stray_edges.explained_inside`) (unitless).
 TURN_MARGIN = 0.15
 #: Share of a fitted bloom [px] that counts as systematic edge error in the uncertainty (unitless): a
 #: clipped top blooms unevenly (parts of its outline not clipped, parallax). With the walls' feet out of
@@ -659,44 +658,6 @@ def _hull(blob: np.ndarray) -> np.ndarray:
     return hull > 0
 
 
-def _explained(model: MeshEdges, pose: np.ndarray, thin: np.ndarray, bloom: float = 0.0) -> float:
-    """Share of the picture's edge pixels inside the part's outline that lie on a model edge at ``pose``.
-
-    ``thin`` (h, w) bool are the picture's edges (:func:`vision.locate_search.thin_edges`). Only the pixels more than
-    :data:`EXPLAIN_PX` inside the outline count, and they count as explained within that (and the
-    ``bloom`` [px]) of any edge the model shows there. Turns of a symmetric outline share it, so this
-    compares what lies inside: a boss's bore seen in glare is explained by the pose that has it there,
-    not by its turn (which hides its own bosses in the clipped top and so finds a larger share of its
-    fewer edges) (0..1).
-
-    Any edge, the outline's too: a tall upright's top edge is outline, but seen off the camera's axis
-    it lies well inside the outline's hull, and a glare L's true pose explained 0.30 of the picture
-    (its turn 0.27) until it counted. And with the bloom: a clipped top blooms into its dark bores,
-    their edges lie a bloom inside the model's rims.
-    """
-    idx = model.visible(pose)
-    uv, _ = model.project(pose, idx)
-    outer = uv[model.outer[idx]]
-    if len(outer) < 3 or len(uv) == len(outer):
-        return 0.0
-    hull = cv2.convexHull(outer.astype(np.float32))
-    x, y, w, h = cv2.boundingRect(hull)
-    vs, us = np.nonzero(thin[max(y, 0):y + h, max(x, 0):x + w])
-    pix = np.column_stack([us + max(x, 0), vs + max(y, 0)]).astype(np.float64)
-    if len(pix) == 0:
-        return 0.0
-    inside = np.array([cv2.pointPolygonTest(hull, (float(u), float(v)), True) > EXPLAIN_PX for u, v in pix])
-    pix = pix[inside]
-    if len(pix) == 0:
-        return 0.0
-    d, _ = cKDTree(uv).query(pix)
-    return float(np.mean(d <= EXPLAIN_PX + bloom))
-
-
-#: A picture edge pixel this close to a model edge [px] is explained by it (:func:`_explained`).
-EXPLAIN_PX = 2.0
-
-
 #: Slides of a fitted pose along each main direction of the outline, refitted from (:func:`_slid`) [m].
 SLIDES_M = (-3e-3, -1.5e-3, 1.5e-3, 3e-3)
 #: ... and under a key light [m] ...
@@ -723,7 +684,9 @@ def _best_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
     not refitted, so its pose stays the one the first light gave. A first fit whose outline is seen along one
     direction only, fixed across it by its other edges alone (:attr:`_EdgeFit.edges_axis`), is slid 0.75 mm as
     well (:data:`LIT_SHORT_SLIDES_M`): a low-light stepped wall came back from 0.75 mm off (beyond its +-0.74 mm)."""
-    best = _fitted(model, gx, gy, threshold, starts, symmetry, saturated, thin, light and light.first, options)
+    known: dict = {}  # the fits made, for the second try (:func:`_fit_once`)
+    best = _fitted(model, gx, gy, threshold, starts, symmetry, saturated, thin, light and light.first, options,
+                   known=known)
     if light is None or spare is None or (best is not None and not _refusal(best, options, outline_axis=True)):
         return best
     if best is not None and not _refusal(best, options):
@@ -731,7 +694,7 @@ def _best_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
         # from every start (a second try cost such pictures 0.6-1 s more).
         return _with_stray(model, _slid(model, gx, gy, threshold, best, saturated, LIT_SHORT_SLIDES_M), thin)
     again = _fitted(model, gx, gy, threshold, starts + spare(), symmetry, saturated, thin, light, options,
-                    LIT_RETRY_SLIDES_M)
+                    LIT_RETRY_SLIDES_M, known)
     if again is not None and not _refusal(again, options, outline_axis=True):
         return again
     # The second try's first: its starts and lights are the wider search.
@@ -740,15 +703,21 @@ def _best_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
 
 def _fitted(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
             symmetry: int, saturated: np.ndarray | None, thin: np.ndarray | None, light: LightAt | np.ndarray | None,
-            options: LocateOptions, slides: tuple[float, ...] = LIT_SLIDES_M) -> _EdgeFit | None:
+            options: LocateOptions, slides: tuple[float, ...] = LIT_SLIDES_M, known: dict | None = None
+            ) -> _EdgeFit | None:
     """:func:`_best_fit` under one light (``light``: a unit direction, base frame, or one per pose; None
     without a key light): the fit chosen among the starts and turns (:func:`_chosen_fit`) slid along the
     outline (:func:`_slid`, under a key light by ``slides`` [m]), and in even light (no key light, nothing
-    clipped) settled (:func:`_settled`, ``options.refine``)."""
-    best = _chosen_fit(model, gx, gy, threshold, starts, symmetry, saturated, thin, light, options.min_coverage)
+    clipped) settled (:func:`_settled`, ``options.refine``); ``known``: the blob's fits made already (:func:`_fit_once`)."""
+    best = _chosen_fit(model, gx, gy, threshold, starts, symmetry, saturated, thin, light, options.min_coverage,
+                       known)
     if best is None or best.ambiguous:
         return best
-    best = _with_stray(model, _slid(model, gx, gy, threshold, best, saturated, slides), thin)
+    # The second try's slides rescue a fit that stopped beside the part (:data:`LIT_RETRY_SLIDES_M`); one that passes
+    # is not slid (on the gallery no slide of the second try moved a fit, and the eight fits cost 0.3 s).
+    if slides != LIT_RETRY_SLIDES_M or _refusal(best, options, outline_axis=True):
+        best = _slid(model, gx, gy, threshold, best, saturated, slides)
+    best = _with_stray(model, best, thin)
     even = light is None and (saturated is None or not saturated.any())
     return _settled(model, gx, gy, threshold, best, options) if options.refine and even else best
 
@@ -766,7 +735,7 @@ def _slid(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, be
     blooms over the walls, and a slid dome found more of its blooming outline 2 mm off.
     """
     if (best.hidden > AMBIGUOUS_HIDDEN or best.coverage < SLIDE_COVERAGE
-            or best.axis_coverage >= SLIDE_AXIS_COVERAGE):
+            or best.axis_coverage >= SLIDE_AXIS_COVERAGE or max(best.axis_coverage, best.edges_axis) < SLIDE_ACROSS):
         return best
     # Under a key light the edges dark on both sides at the fitted pose are left out of every slide (the
     # same ones, found once), and each slide's judgement counts the cast shadow: some 8 times the cost
@@ -812,8 +781,13 @@ EXTRA_ROUNDS = 3
 TOOK_TOP_PX = 0.5
 #: Only a fit that finds at least this share of its outline ... (unitless)
 SLIDE_COVERAGE = 0.4
-#: ... and less than this in the outline's worse direction is slid (unitless).
+#: ... and less than this in the outline's worse direction is slid (unitless) ...
 SLIDE_AXIS_COVERAGE = 0.75
+#: ... but at least this across it, in its outline or (under a key light) all its edges (unitless): no fit seen
+#: across at less (every distractor's box, a low-light L beside its shadow) was ever brought to pass by a slide on
+#: the benchmark (432 pictures, 373 slid fits: 30 below it, none passed slid; those that did were 0.38-0.47 across
+#: before), and each such fit's slides cost 4-8 edge fits.
+SLIDE_ACROSS = 0.3
 #: Coarse starts beyond the best three that a blob under a key light is fitted from as well (a low light's
 #: long shadow took the first three places of a stepped wall's coarse search; its fourth lay 1.5 mm off it).
 LIT_SPARE = 3
@@ -824,12 +798,17 @@ SLIDE_GAIN = 0.05
 
 def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
                 symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None,
-                light: LightAt | np.ndarray | None = None, min_coverage: float = LocateOptions.min_coverage
-                ) -> _EdgeFit | None:
+                light: LightAt | np.ndarray | None = None, min_coverage: float = LocateOptions.min_coverage,
+                known: dict | None = None) -> _EdgeFit | None:
     """The edge fit of one blob from its coarse starts and the turns of the outline (see :func:`_best_fit`).
-    ``min_coverage``: the share of the outline a reported pose finds (:attr:`LocateOptions.min_coverage`)."""
-    fits = [fit for fit in (_edge_fit(model, gx, gy, threshold, s, saturated=saturated, light=_light_at(light, s))
-                            for s in starts) if fit is not None]
+    ``min_coverage``: the share of the outline a reported pose finds (:attr:`LocateOptions.min_coverage`);
+    ``known``: the fits made already for this blob, by start, reaches and light (:func:`_fit_once`)."""
+    known = {} if known is None else known
+
+    def fit_from(start: np.ndarray, reaches: tuple[float, ...] = SEARCH_PX) -> _EdgeFit | None:
+        return _fit_once(known, model, gx, gy, threshold, start, reaches, saturated, _light_at(light, start))
+
+    fits = [fit for fit in (fit_from(s) for s in starts) if fit is not None]
     if not fits:
         return None
     # A symmetric outline fits turned as well as not: the edges inside it (steps, bosses) decide.
@@ -839,8 +818,7 @@ def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: flo
     # where the coarse search put it (a glare stepped wall's, 6 deg off): its turn is fitted from as
     # wide a reach as a start, else it stays those degrees off the part.
     reaches = SEARCH_PX if first.coverage < min_coverage else SEARCH_PX[-2:]
-    fits += [fit for fit in (_edge_fit(model, gx, gy, threshold, t, reaches, saturated, _light_at(light, t))
-                             for t in turns) if fit is not None]
+    fits += [fit for fit in (fit_from(t, reaches) for t in turns) if fit is not None]
     # A fit that leaves edges beside it unexplained lies beside the part or turned onto its shadow: the others
     # are chosen from while there are any (:mod:`vision.stray_edges`).
     fits = [_with_stray(model, fit, thin) for fit in fits]
@@ -873,12 +851,23 @@ def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: flo
         for fit in sorted([best, *rivals], key=lambda fit: -fit.found):
             by_turn.setdefault(_turn(fit.pose[2] - best.pose[2], symmetry), fit)
         bloom = max(fit.bloom_px for fit in by_turn.values())
-        told = sorted(((_explained(model, fit.pose, thin, bloom), turn) for turn, fit in by_turn.items()), reverse=True)
+        told = sorted(((explained_inside(model, fit.pose, thin, bloom), turn) for turn, fit in by_turn.items()), reverse=True)
         log.info("turns of the outline explain %s of the edges inside it", [round(e, 2) for e, _ in told])
         if told[0][0] - told[1][0] < TURN_MARGIN:
             return replace(best, ambiguous=True)
         return by_turn[told[0][1]]
     return best
+
+
+def _fit_once(known: dict, model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, start: np.ndarray,
+              reaches: tuple[float, ...], saturated: np.ndarray | None, light: np.ndarray | None) -> _EdgeFit | None:
+    """:func:`_edge_fit` from ``start`` under ``light``, made once per blob: ``known`` keeps each fit by its start,
+    reaches and light. The second try (:func:`_best_fit`) starts again from the first's starts, and where the
+    light estimated at a start is the first's (a distractor's box: all of them) the fit is the same."""
+    key = (np.asarray(start, np.float64).tobytes(), tuple(reaches), None if light is None else light.tobytes())
+    if key not in known:
+        known[key] = _edge_fit(model, gx, gy, threshold, start, reaches, saturated, light)
+    return known[key]
 
 
 def _with_stray(model: MeshEdges, fit: _EdgeFit, thin: np.ndarray | None) -> _EdgeFit:

@@ -125,16 +125,26 @@ def shadowed(field: HeightField, points: np.ndarray, light: np.ndarray, bias: fl
     above = p[:, 2] + bias >= 0
     live &= ~above | ((leave >= np.maximum(enter, 0.0)) & (enter < np.inf))
     # A block of cells per look: once a line is above the part's top nothing further hides it, so
-    # the cells a block looks at past that point change nothing.
-    s = TEXEL_M * np.arange(1, MARCH_BLOCK + 1)
+    # the cells a block looks at past that point change nothing. Block j looks at distances ``blocks[j]``, each
+    # block's the last one's plus MARCH_BLOCK cells, made once for every line.
+    blocks = [TEXEL_M * np.arange(1, MARCH_BLOCK + 1)]
+    # A line above the tray starts at its first block that reaches the field's box: before it, it meets only
+    # tray (the shadows of tall parts on the tray are marched from centimetres away).
+    start = np.where(above & live, np.maximum(enter, 0.0), 0.0)
+    while blocks[-1][-1] < start.max():
+        blocks.append(blocks[-1] + MARCH_BLOCK * TEXEL_M)
+    block = np.searchsorted(np.array([b[-1] for b in blocks]), start)
     while live.any():
         i = np.flatnonzero(live)
-        z = p[i, 2, None] + s[None, :] * rise[i, None]
-        q = p[i, None, :2] + s[None, :, None] * ahead[i, None, :]
+        while len(blocks) <= block[i].max():
+            blocks.append(blocks[-1] + MARCH_BLOCK * TEXEL_M)
+        s = np.array(blocks)[block[i]]  # (k, MARCH_BLOCK)
+        z = p[i, 2, None] + s * rise[i, None]
+        q = p[i, None, :2] + s[:, :, None] * ahead[i, None, :]
         hit = (field.at(q.reshape(-1, 2)).reshape(z.shape) > z + bias).any(axis=1)
         out[i[hit]] = True
-        live[i[hit | (z[:, -1] >= top) | (above[i] & (s[-1] >= leave[i]))]] = False
-        s = s + MARCH_BLOCK * TEXEL_M
+        live[i[hit | (z[:, -1] >= top) | (above[i] & (s[:, -1] >= leave[i]))]] = False
+        block[i] += 1
     return out
 
 
@@ -190,12 +200,20 @@ def landing(field: HeightField, start: np.ndarray, eye: np.ndarray) -> tuple[np.
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     dt = TEXEL_M / np.maximum(np.hypot(d[:, 0], d[:, 1]), -d[:, 2])
     live = (p[:, 2] > 0) & (field.at(p[:, :2]) <= p[:, 2])
+    # A block of steps per look, each the running sum of the ones before (the same sums, to the bit, as
+    # stepping one at a time); each line stops at its block's first step that meets something.
     while live.any():
         i = np.flatnonzero(live)
-        q = p[i] + dt[i, None] * d[i]
+        walk = np.empty((len(i), MARCH_BLOCK + 1, 3))
+        walk[:, 0], walk[:, 1:] = p[i], (dt[i, None] * d[i])[:, None, :]
+        q = np.cumsum(walk, axis=1)[:, 1:]
+        z = q[..., 2]
+        stop = (z <= 0) | (field.at(q[..., :2].reshape(-1, 2)).reshape(z.shape) >= z)
+        met = stop.any(axis=1)
+        q = q[np.arange(len(i)), np.where(met, stop.argmax(axis=1), MARCH_BLOCK - 1)]
         q[:, 2] = np.maximum(q[:, 2], 0.0)
         p[i] = q
-        live[i[(q[:, 2] <= 0) | (field.at(q[:, :2]) >= q[:, 2])]] = False
+        live[i[met]] = False
     top = field.at(p[:, :2])
     flat = top - p[:, 2] <= 1.5 * TEXEL_M
     p[:, 2] = np.maximum(p[:, 2], top)
@@ -372,15 +390,18 @@ def shadow_edges(field: HeightField, points: np.ndarray, direction: np.ndarray, 
     tangent = (ahead - (ahead[:, 2] / light[2])[:, None] * light) - cast
     tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-12)
     across = np.column_stack([-tangent[:, 1], tangent[:, 0], np.zeros(len(tangent))])
+    # Only shadows that fall outside the part are kept: the others (a boss's or a bore's, on the part) are not
+    # marched (they were half of a low light's casting samples).
+    outside = np.flatnonzero((field.at((cast + SIDE_M * across)[:, :2]) <= 0)
+                             & (field.at((cast - SIDE_M * across)[:, :2]) <= 0))
+    casting, cast, tangent, across = casting[outside], cast[outside], tangent[outside], across[outside]
     to_eye = eye - cast
     # Both sides towards the light and the shadow towards the eye in one march.
     k = len(cast)
     towards = np.r_[np.broadcast_to(light, (2 * k, 3)), to_eye / np.linalg.norm(to_eye, axis=1, keepdims=True)]
     one, other, hid = np.split(shadowed(field, np.r_[cast + SIDE_M * across, cast - SIDE_M * across, cast], towards),
                                [k, 2 * k])
-    seen = ~hid
-    outside = (field.at((cast + SIDE_M * across)[:, :2]) <= 0) & (field.at((cast - SIDE_M * across)[:, :2]) <= 0)
-    keep = (one != other) & seen & outside
+    keep = (one != other) & ~hid
     return casting[keep], cast[keep], tangent[keep]
 
 

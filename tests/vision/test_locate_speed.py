@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from tests.vision.lit import cell_station, sample_mesh
 from vision.mesh_edges import MeshEdges, edge_model
-from vision.shadow import MARCH_BLOCK, SHADOW_BIAS_M, TEXEL_M, height_field, shadowed
+from vision.shadow import MARCH_BLOCK, SHADOW_BIAS_M, TEXEL_M, height_field, landing, shadowed
 
 STATION = cell_station(None)
 
@@ -77,3 +77,37 @@ def test_the_edge_model_is_made_once_per_part_and_view():
     assert edge_model(part, STATION.camera, cam_base, STATION.plane_z + 0.01) is not first
     other = edge_model(sample_mesh("hex_boss")[1], STATION.camera, cam_base, STATION.plane_z)
     assert other is not first and other.part is sample_mesh("hex_boss")[1]
+
+
+def _landed_step_by_step(field, start, eye):
+    """The slow truth of :func:`vision.shadow.landing`: each line of sight on its own, one step at a time (at most a
+    cell across or down), until it is under the tray or not above the part."""
+    landed, flat = np.array(start, dtype=np.float64), np.zeros(len(start), bool)
+    for k, point in enumerate(landed):
+        sight = (point - eye) / np.linalg.norm((point - eye)[None], axis=1)[0]  # rounded as the march's rows are
+        step = TEXEL_M / max(np.hypot(sight[0], sight[1]), -sight[2]) * sight
+        going = point[2] > 0 and field.at(point[None, :2])[0] <= point[2]
+        while going:
+            point += step  # in place: the running sum, as the march adds its steps
+            point[2] = max(point[2], 0.0)
+            going = point[2] > 0 and field.at(point[None, :2])[0] < point[2]
+        top = field.at(point[None, :2])[0]
+        flat[k] = top - point[2] <= 1.5 * TEXEL_M
+        point[2] = max(point[2], top)
+    return landed, flat
+
+
+@settings(max_examples=10, deadline=None)
+@given(part=st.sampled_from(["bracket", "stepped_wall", "plate_bosses", "l_bracket"]),
+       x=st.floats(-0.15, 0.15), y=st.floats(-0.12, 0.12), seed=st.integers(0, 99))
+def test_lines_of_sight_marched_in_blocks_land_where_they_land_step_by_step(part, x, y, seed):
+    """Lines of sight from a camera 0.5 m up (x, y [m] off the part) through points on and above the part land on
+    the same points to the bit, and on a face turned up or not alike, as when stepped one step at a time."""
+    footprint = sample_mesh(part)[1]
+    field = height_field(np.asarray(footprint.vertices) - np.r_[footprint.centroid, footprint.zmin], footprint.faces)
+    rng = np.random.default_rng(seed)
+    start = np.column_stack([rng.uniform(-0.1, 0.1, (250, 2)), rng.uniform(0.0, 0.06, 250)])
+    eye = np.array([x, y, 0.5])
+    landed, flat = landing(field, start, eye)
+    truth, truth_flat = _landed_step_by_step(field, start, eye)
+    assert np.array_equal(landed, truth) and np.array_equal(flat, truth_flat)
