@@ -36,7 +36,6 @@ tool) pairs are kept, because finishing queries the same surface many times.
 from __future__ import annotations
 
 import concurrent.futures
-import hashlib
 import logging
 import math
 import os
@@ -49,6 +48,7 @@ import numpy as np
 from cadcam.model import Tool
 from cadcam.parallel import MAX_WORKERS, processors
 from factory.core.errors import MeshError, ToolpathError
+from factory.core.kept import KeptAnswers, content_key
 
 log = logging.getLogger(__name__)
 
@@ -254,8 +254,8 @@ def build_index(triangles: np.ndarray, cell: float | None = None) -> TriangleInd
     )
 
 
-_LAST_INDEX: tuple[bytes, TriangleIndex] | None = None
-_LAST_INDEX_LOCK = threading.Lock()
+#: The last part's index: only one, so a part's buckets live no longer than the next part's are made.
+_LAST_INDEX: KeptAnswers[bytes, TriangleIndex] = KeptAnswers(kept=1)
 
 
 def shared_index(triangles: np.ndarray) -> TriangleIndex:
@@ -263,19 +263,10 @@ def shared_index(triangles: np.ndarray) -> TriangleIndex:
 
     The waterline and the raster drop the same ball on the same part: the second reuses the
     index and its prepared buckets (a few seconds on a 100k-triangle part) instead of making
-    equal ones. Only the last index is kept, so a part's buckets live no longer than the next
-    part's are made. Raises as :func:`build_index`.
+    equal ones (:data:`_LAST_INDEX`). Raises as :func:`build_index`.
     """
-    global _LAST_INDEX
     tri = np.ascontiguousarray(triangles, dtype=np.float64)
-    key = hashlib.blake2b(tri.tobytes(), digest_size=20, person=repr(tri.shape).encode()[:16]).digest()
-    with _LAST_INDEX_LOCK:
-        if _LAST_INDEX is not None and _LAST_INDEX[0] == key:
-            return _LAST_INDEX[1]
-    index = build_index(tri)
-    with _LAST_INDEX_LOCK:
-        _LAST_INDEX = (key, index)
-    return index
+    return _LAST_INDEX.get(content_key(tri), lambda: build_index(tri))
 
 
 # --------------------------------------------------------------------------- buckets

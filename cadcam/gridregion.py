@@ -17,7 +17,6 @@ pays per vertex and per intersection:
 
 from __future__ import annotations
 
-import threading
 
 import numpy as np
 import shapely
@@ -26,6 +25,7 @@ from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
 from cadcam.heightmap import Grid
+from factory.core.kept import KeptAnswers
 
 
 def near_cells(mask: np.ndarray, reach: float, cell: float = 1.0) -> np.ndarray:
@@ -50,11 +50,10 @@ def near_cells(mask: np.ndarray, reach: float, cell: float = 1.0) -> np.ndarray:
     return (jj - rows) ** 2 + (ii - cols) ** 2 <= farthest
 
 
-#: The last few :func:`highest_near` answers, by the read-only map they were made from (held, so its id is not
-#: reused), each at most :data:`_HIGHEST_NEAR_BYTES`; the plan's threads share them.
-_HIGHEST_NEAR: list[tuple[np.ndarray, float, float, np.ndarray]] = []
-_HIGHEST_NEAR_KEPT, _HIGHEST_NEAR_BYTES = 4, 16 << 20
-_HIGHEST_NEAR_LOCK = threading.Lock()
+#: The last few :func:`highest_near` answers, by the id of the read-only map they were made from (the answer
+#: holds that map, so its id is not reused while kept), each at most :data:`_HIGHEST_NEAR_BYTES`.
+_HIGHEST_NEAR: KeptAnswers[tuple[int, float, float], tuple[np.ndarray, np.ndarray]] = KeptAnswers(kept=4)
+_HIGHEST_NEAR_BYTES = 16 << 20
 
 
 def highest_near(top: np.ndarray, cell: float, reach: float) -> np.ndarray:
@@ -65,11 +64,13 @@ def highest_near(top: np.ndarray, cell: float, reach: float) -> np.ndarray:
     same part and grid) is answered again from the last few maps: every stock model that measures engagement
     on one grid (the chip feeds' models, verify's) asks for the same part's, and each answer costs one pass over
     the grid per point of the disc."""
-    kept = not top.flags.writeable and top.nbytes <= _HIGHEST_NEAR_BYTES
-    with _HIGHEST_NEAR_LOCK:
-        for held, c, r, out in _HIGHEST_NEAR if kept else ():
-            if held is top and c == cell and r == reach:
-                return out
+    if not top.flags.writeable and top.nbytes <= _HIGHEST_NEAR_BYTES:
+        return _HIGHEST_NEAR.get((id(top), cell, reach), lambda: (top, _highest_near(top, cell, reach)))[1]
+    return _highest_near(top, cell, reach)
+
+
+def _highest_near(top: np.ndarray, cell: float, reach: float) -> np.ndarray:
+    """:func:`highest_near`, made afresh."""
     finite = np.where(np.isfinite(top), top, -np.inf)
     out = finite.copy()
     k = int(reach // cell)
@@ -81,10 +82,6 @@ def highest_near(top: np.ndarray, cell: float, reach: float) -> np.ndarray:
                 dst = out[max(0, -dj):ny + min(0, -dj), max(0, -di):nx + min(0, -di)]
                 np.maximum(dst, src, out=dst)
     out.setflags(write=False)
-    if kept:
-        with _HIGHEST_NEAR_LOCK:
-            _HIGHEST_NEAR.insert(0, (top, cell, reach, out))
-            del _HIGHEST_NEAR[_HIGHEST_NEAR_KEPT:]
     return out
 
 

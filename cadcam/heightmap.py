@@ -9,16 +9,14 @@ same points never reports a gouge that is an artefact of the grid.
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import math
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
 
 from factory.core.errors import MeshError, SetupError
+from factory.core.kept import KeptAnswers, content_key
 
 log = logging.getLogger(__name__)
 
@@ -36,10 +34,10 @@ _SPAN_POINTS = 16
 #: The last upper envelopes computed, by the triangles' content and the grid: one plan rasterises the
 #: same part on the same grid for choosing tools, the stock models, the rapid check, verify and op 2's
 #: model and verify. Keyed by content, not passed along, because those are five modules' calls.
-_ENVELOPES: OrderedDict[tuple[bytes, Grid], np.ndarray] = OrderedDict()
-_ENVELOPES_LOCK = threading.Lock()
-#: The most bytes of envelopes kept (the oldest go first); a larger grid than half of it is not kept.
+#: At most :data:`_ENVELOPES_KEPT_BYTES` of them (the oldest go first); a larger grid than half of it is not kept.
 _ENVELOPES_KEPT_BYTES = 64 << 20
+_ENVELOPES: KeptAnswers[tuple[bytes, Grid], np.ndarray] = KeptAnswers(kept_bytes=_ENVELOPES_KEPT_BYTES,
+                                                                      size=lambda top: top.nbytes)
 
 
 @dataclass(frozen=True)
@@ -176,23 +174,15 @@ def upper_envelope(triangles: np.ndarray, grid: Grid) -> np.ndarray:
         If ``triangles`` is not ``(m, 3, 3)`` or holds non-finite values.
     """
     tri = _checked(triangles)
-    if grid.size * 8 > _ENVELOPES_KEPT_BYTES // 2:
+
+    def made() -> np.ndarray:
         top = _rasterised(tri, grid)
         top.setflags(write=False)
         return top
-    key = (hashlib.blake2b(tri.tobytes(), digest_size=20).digest() + str(tri.shape).encode(), grid)
-    with _ENVELOPES_LOCK:
-        kept = _ENVELOPES.get(key)
-        if kept is not None:
-            _ENVELOPES.move_to_end(key)
-            return kept
-    top = _rasterised(tri, grid)
-    top.setflags(write=False)
-    with _ENVELOPES_LOCK:
-        _ENVELOPES[key] = top
-        while sum(a.nbytes for a in _ENVELOPES.values()) > _ENVELOPES_KEPT_BYTES:
-            _ENVELOPES.popitem(last=False)
-    return top
+
+    if grid.size * 8 > _ENVELOPES_KEPT_BYTES // 2:
+        return made()
+    return _ENVELOPES.get((content_key(tri), grid), made)
 
 
 def upper_envelope_at(triangles: np.ndarray, grid: Grid, cells: np.ndarray, tile: int = 8) -> np.ndarray:

@@ -26,9 +26,7 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures
-import hashlib
 import math
-import os
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -43,6 +41,7 @@ from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
 from cadcam.parallel import processors
+from factory.core.kept import KeptAnswers, content_key
 
 #: A clipped projection smaller than this is dropped [mm^2]: a triangle seen edge-on.
 _MIN_AREA = 1e-12
@@ -172,39 +171,21 @@ class _Ladder:
 
 
 #: The last few parts' ladders by their triangles' digest: a plan's op 1 and op 2 parts, no more.
-_LADDERS: collections.OrderedDict[bytes, _Ladder] = collections.OrderedDict()
-_LADDERS_KEPT = 2
-_LADDERS_LOCK = threading.Lock()
+_LADDERS: KeptAnswers[bytes, _Ladder] = KeptAnswers(kept=2)
 
 
 def _ladder(tri: np.ndarray) -> _Ladder:
     """The ladder of the part whose upward triangles are ``tri`` (m, 3, 3) [mm], a new one if none is kept."""
-    key = hashlib.blake2b(tri.tobytes(), digest_size=20, person=repr(tri.shape).encode()[:16]).digest()
-    with _LADDERS_LOCK:
-        if key in _LADDERS:
-            _LADDERS.move_to_end(key)
-            return _LADDERS[key]
-        tri = tri.copy()
-        tri.setflags(write=False)
-        zs = tri[:, :, 2]
-        sheets = _Sheets(tri)
-        ladder = _Ladder(tri, zs.min(axis=1), zs.max(axis=1), sheets, _Overlaps(tri, sheets),
-                         _Rung(Polygon(), True, Polygon()))
-        _LADDERS[key] = ladder
-        while len(_LADDERS) > _LADDERS_KEPT:
-            _LADDERS.popitem(last=False)
-        return ladder
 
+    def made() -> _Ladder:
+        held = tri.copy()
+        held.setflags(write=False)
+        zs = held[:, :, 2]
+        sheets = _Sheets(held)
+        return _Ladder(held, zs.min(axis=1), zs.max(axis=1), sheets, _Overlaps(held, sheets),
+                       _Rung(Polygon(), True, Polygon()))
 
-def _forget_ladders() -> None:
-    """Drop every kept ladder (a forked child: another thread may have held a ladder's lock)."""
-    global _LADDERS_LOCK
-    _LADDERS_LOCK = threading.Lock()
-    _LADDERS.clear()
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_forget_ladders)
+    return _LADDERS.get(content_key(tri), made)
 
 
 def _in_order(fn: Callable[[int], Any], n: int, pool: concurrent.futures.Executor | None, ahead: int

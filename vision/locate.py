@@ -684,7 +684,7 @@ def _best_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
     not refitted, so its pose stays the one the first light gave. A first fit whose outline is seen along one
     direction only, fixed across it by its other edges alone (:attr:`_EdgeFit.edges_axis`), is slid 0.75 mm as
     well (:data:`LIT_SHORT_SLIDES_M`): a low-light stepped wall came back from 0.75 mm off (beyond its +-0.74 mm)."""
-    known: dict = {}  # the fits made, for the second try (:func:`_fit_once`)
+    known = _BlobFits()  # the fits made, for the second try
     best = _fitted(model, gx, gy, threshold, starts, symmetry, saturated, thin, light and light.first, options,
                    known=known)
     if light is None or spare is None or (best is not None and not _refusal(best, options, outline_axis=True)):
@@ -703,12 +703,12 @@ def _best_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
 
 def _fitted(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
             symmetry: int, saturated: np.ndarray | None, thin: np.ndarray | None, light: LightAt | np.ndarray | None,
-            options: LocateOptions, slides: tuple[float, ...] = LIT_SLIDES_M, known: dict | None = None
+            options: LocateOptions, slides: tuple[float, ...] = LIT_SLIDES_M, known: _BlobFits | None = None
             ) -> _EdgeFit | None:
     """:func:`_best_fit` under one light (``light``: a unit direction, base frame, or one per pose; None
     without a key light): the fit chosen among the starts and turns (:func:`_chosen_fit`) slid along the
     outline (:func:`_slid`, under a key light by ``slides`` [m]), and in even light (no key light, nothing
-    clipped) settled (:func:`_settled`, ``options.refine``); ``known``: the blob's fits made already (:func:`_fit_once`)."""
+    clipped) settled (:func:`_settled`, ``options.refine``); ``known``: the blob's fits made already."""
     best = _chosen_fit(model, gx, gy, threshold, starts, symmetry, saturated, thin, light, options.min_coverage,
                        known)
     if best is None or best.ambiguous:
@@ -799,14 +799,14 @@ SLIDE_GAIN = 0.05
 def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, starts: list[np.ndarray],
                 symmetry: int, saturated: np.ndarray | None = None, thin: np.ndarray | None = None,
                 light: LightAt | np.ndarray | None = None, min_coverage: float = LocateOptions.min_coverage,
-                known: dict | None = None) -> _EdgeFit | None:
+                known: _BlobFits | None = None) -> _EdgeFit | None:
     """The edge fit of one blob from its coarse starts and the turns of the outline (see :func:`_best_fit`).
     ``min_coverage``: the share of the outline a reported pose finds (:attr:`LocateOptions.min_coverage`);
-    ``known``: the fits made already for this blob, by start, reaches and light (:func:`_fit_once`)."""
-    known = {} if known is None else known
+    ``known``: the fits made already for this blob."""
+    known = _BlobFits() if known is None else known
 
     def fit_from(start: np.ndarray, reaches: tuple[float, ...] = SEARCH_PX) -> _EdgeFit | None:
-        return _fit_once(known, model, gx, gy, threshold, start, reaches, saturated, _light_at(light, start))
+        return known.fit(model, gx, gy, threshold, start, reaches, saturated, _light_at(light, start))
 
     fits = [fit for fit in (fit_from(s) for s in starts) if fit is not None]
     if not fits:
@@ -859,15 +859,21 @@ def _chosen_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: flo
     return best
 
 
-def _fit_once(known: dict, model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, start: np.ndarray,
-              reaches: tuple[float, ...], saturated: np.ndarray | None, light: np.ndarray | None) -> _EdgeFit | None:
-    """:func:`_edge_fit` from ``start`` under ``light``, made once per blob: ``known`` keeps each fit by its start,
-    reaches and light. The second try (:func:`_best_fit`) starts again from the first's starts, and where the
-    light estimated at a start is the first's (a distractor's box: all of them) the fit is the same."""
-    key = (np.asarray(start, np.float64).tobytes(), tuple(reaches), None if light is None else light.tobytes())
-    if key not in known:
-        known[key] = _edge_fit(model, gx, gy, threshold, start, reaches, saturated, light)
-    return known[key]
+@dataclass
+class _BlobFits:
+    """The edge fits made for one blob (:func:`_edge_fit`), each by its start, reaches and light: the second try
+    (:func:`_best_fit`) starts again from the first's starts, and where the light estimated at a start is the
+    first's (a distractor's box: all of them) the fit is the same. Only for one blob's picture and model."""
+
+    made: dict[tuple[bytes, tuple[float, ...], bytes | None], _EdgeFit | None] = field(default_factory=dict)
+
+    def fit(self, model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float, start: np.ndarray,
+            reaches: tuple[float, ...], saturated: np.ndarray | None, light: np.ndarray | None) -> _EdgeFit | None:
+        """:func:`_edge_fit` from ``start`` under ``light``, made once."""
+        key = (np.asarray(start, np.float64).tobytes(), tuple(reaches), None if light is None else light.tobytes())
+        if key not in self.made:
+            self.made[key] = _edge_fit(model, gx, gy, threshold, start, reaches, saturated, light)
+        return self.made[key]
 
 
 def _with_stray(model: MeshEdges, fit: _EdgeFit, thin: np.ndarray | None) -> _EdgeFit:

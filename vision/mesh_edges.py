@@ -16,6 +16,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
+from factory.core.kept import KeptAnswers
 from vision.camera import CameraModel
 from vision.shadow import height_field
 
@@ -46,25 +47,19 @@ RESOLVE_COS = 0.9
 RESOLVE_DZ_M = 1e-3
 
 
-#: The edge models last made (:func:`edge_model`), newest last, at most :data:`KEPT_MODELS`.
-_MODELS: list[tuple[tuple, "MeshEdges"]] = []
+#: The edge models last made (:func:`edge_model`), at most :data:`KEPT_MODELS`, by the part's id (each model holds
+#: its part, so the id is not reused while the model is kept), the camera and its pose.
 KEPT_MODELS = 8
+_MODELS: KeptAnswers[tuple, MeshEdges] = KeptAnswers(kept=KEPT_MODELS)
 
 
-def edge_model(part: PartMesh, camera: CameraModel, cam_base: np.ndarray, tray_z: float) -> "MeshEdges":
+def edge_model(part: PartMesh, camera: CameraModel, cam_base: np.ndarray, tray_z: float) -> MeshEdges:
     """The :class:`MeshEdges` of ``part`` seen by ``camera`` at ``cam_base`` over the tray at ``tray_z`` [m], made
     once for the same part (the same object), camera and pose: a cell locates the same part in picture after
     picture, and making the model (the mesh's creases, its height field) cost a tenth of a locate."""
     key = (id(part), np.asarray(camera.K).tobytes(), np.asarray(camera.dist).tobytes(), tuple(camera.image_size),
            np.asarray(cam_base, np.float64).tobytes(), float(tray_z))
-    for k, (known, model) in enumerate(_MODELS):
-        if known == key and model.part is part:
-            _MODELS.append(_MODELS.pop(k))
-            return model
-    model = MeshEdges(part, camera, cam_base, tray_z)
-    _MODELS.append((key, model))
-    del _MODELS[:-KEPT_MODELS]
-    return model
+    return _MODELS.get(key, lambda: MeshEdges(part, camera, cam_base, tray_z))
 
 
 def yaw_rotation(yaw: float) -> np.ndarray:

@@ -29,9 +29,9 @@ TOL = 1e-7  # [mm]: far under any allowance or arc tolerance, far over the round
 @pytest.fixture(autouse=True)
 def no_kept_shadows():
     """Each test makes its shadows afresh: one that breaks a step must not be handed an earlier test's."""
-    shadow._forget_ladders()
+    shadow._LADDERS.forget()
     yield
-    shadow._forget_ladders()
+    shadow._LADDERS.forget()
 
 
 def clipped_reference(part: trimesh.Trimesh, z: float) -> shapely.Geometry:
@@ -200,9 +200,9 @@ def test_shadows_kept_from_earlier_lists_are_the_ones_made_afresh_to_the_byte(sp
         part_shadows(part, first)
         kept = part_shadows(part, later)
         again = part_shadows(part, first)
-        shadow._forget_ladders()
+        shadow._LADDERS.forget()
         fresh = part_shadows(part, later)
-        shadow._forget_ladders()
+        shadow._LADDERS.forget()
         fresh_first = part_shadows(part, first)
     assert list(kept) == list(fresh)
     assert [g.wkb for g in kept.values()] == [g.wkb for g in fresh.values()]

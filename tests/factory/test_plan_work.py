@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-from collections import Counter, OrderedDict
+from collections import Counter
 
 import cadcam.heightmap
 import cadcam.stock
@@ -48,7 +48,7 @@ def test_a_plan_rasterises_each_part_on_each_grid_once(monkeypatch):
         seen[hashlib.sha1(tri.tobytes()).digest(), grid] += 1
         return rasterised(tri, grid)
 
-    monkeypatch.setattr(cadcam.heightmap, "_ENVELOPES", OrderedDict())  # none kept from earlier tests
+    cadcam.heightmap._ENVELOPES.forget()  # none kept from earlier tests
     monkeypatch.setattr(cadcam.heightmap, "_rasterised", counted)
     plan_part(dataclasses.replace(PlanRequest.defaults(SAMPLES / "bracket.stl", "aluminium"), robot=False))
     # tools, models, op 1, op 2, the holes, verify's sideways looks (the rapid check no longer looks: it
