@@ -35,8 +35,8 @@ from cadcam.envelope import BatchPairs, Segments, grid_pairs, pair_envelope, rea
 from cadcam.envelope import SpanTops as _SpanTops
 from cadcam.gridregion import highest_near
 from cadcam.heightmap import Grid, grid_over, upper_envelope
-from cadcam.parallel import processors
 from cadcam.model import Motion, Operation, ProgramMoves, Setup, Tool
+from cadcam.parallel import processors
 from factory.core.errors import VerifyError
 
 #: (grid point, move) pairs per vectorised batch: small enough for the work arrays to stay in cache.
