@@ -6,7 +6,9 @@
 ``samples/PART.stl``). The program is verified as ``factory verify`` verifies it (:func:`factory.verify.run_verify`),
 ``--repeat`` times; each run's processor time (user + sys of this process) is printed, with a fingerprint of
 everything the cut measured (the stock left, what each move removed and met): two checkouts timed in turn on
-the same program must print the same fingerprint. Prints one JSON line; times in seconds.
+the same program must print the same fingerprint. Also the processor time of this (the main) thread alone: the
+cut makes each batch's pairs in a second thread while the batch before cuts, so on a machine with a processor
+idle its wall time is this thread's (``FACTORY_THREADS=1``: all of it here). Prints one JSON line; times in seconds.
 """
 
 from __future__ import annotations
@@ -53,14 +55,16 @@ def main() -> None:
                                read.sheet.intake, 0.01)
     options = VerifyOptions(cell=args.grid, op2_follows=read.sheet.next is not None)
     text = args.program.read_text()
-    cpu, prints = [], set()
+    cpu, main_cpu, prints = [], [], set()
     for _ in range(args.repeat):
-        t = time.process_time()
+        t, m = time.process_time(), time.thread_time()
         result = run_verify(text, str(args.program), read.setup, read.tools, triangles, options,
                             operations=read.sheet.operations)
         cpu.append(round(time.process_time() - t, 3))
+        main_cpu.append(round(time.thread_time() - m, 3))
         prints.add(_fingerprint(result))
     print(json.dumps({"program": str(args.program), "grid_mm": args.grid, "cpu_s": cpu, "min_cpu_s": min(cpu),
+                      "main_thread_cpu_s": main_cpu, "min_main_thread_cpu_s": min(main_cpu),
                       "fingerprint": sorted(prints)}))
 
 

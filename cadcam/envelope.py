@@ -137,48 +137,97 @@ def pair_envelope(
         Envelope height [mm]; ``inf`` where the tool never comes within its radius (or,
         with ``bound``, where it provably stays at or above the bound).
     """
-    env = np.full(len(qx), np.inf)
     if len(qx) == 0:
+        return np.full(0, np.inf)
+    return _Approach.of(qx, qy, owner, seg).envelope(owner, seg, bound)
+
+
+@dataclass(frozen=True)
+class _Approach:
+    """Each (grid point, move) pair's nearest approach, the part of :func:`pair_envelope` that needs no stock bound:
+    ``lower`` the lowest tip height plus the profile there [mm] (exact for horizontal and vertical moves, else a
+    lower bound: z(t) >= zmin and r(t) >= that distance), ``reach`` whether the point is within the radius, and
+    ``wx, wy, wd`` (the point less the move's start [mm], its dot product with the move [mm^2]) for the exact
+    envelope. (k,) arrays, one entry per pair."""
+
+    lower: np.ndarray
+    reach: np.ndarray
+    wx: np.ndarray
+    wy: np.ndarray
+    wd: np.ndarray
+
+    @classmethod
+    def of(cls, qx: np.ndarray, qy: np.ndarray, owner: np.ndarray, seg: Segments) -> "_Approach":
+        at = _per_pair(owner, len(seg))
+        wx = qx - at(seg.x)
+        wy = qy - at(seg.y)
+        dx = at(seg.dx)
+        dy = at(seg.dy)
+        wd = wx * dx
+        wd += wy * dy
+        t = wd * at(seg.inv_l2)
+        np.clip(t, 0.0, 1.0, out=t)
+        ex = t * dx
+        np.subtract(wx, ex, out=ex)
+        ey = np.multiply(t, dy, out=t)
+        np.subtract(wy, ey, out=ey)
+        dist2 = np.multiply(ex, ex, out=ex)
+        dist2 += ey * ey
+        del ey, dx, dy
+        lower = at(seg.zmin)
+        if np.any(seg.shape != _FLAT):
+            dist = np.sqrt(dist2)
+            lower += _profile(dist, at(seg.flat_radius), at(seg.rc))
+            if seg.cone.any():  # else the term adds +0.0 to a height that is never -0.0: nothing
+                lower += at(seg.cone) * np.minimum(dist, at(seg.radius))
+        return cls(lower, dist2 <= at(seg.reach2), wx, wy, wd)
+
+    def envelope(self, owner: np.ndarray, seg: Segments, bound: np.ndarray | None = None) -> np.ndarray:
+        """:func:`pair_envelope` of these pairs (``owner``: each one's row of ``seg``), with ``bound``."""
+        env = np.full(len(owner), np.inf)
+        cand = self.reach if bound is None else self.reach & (self.lower < bound)
+        idx = np.flatnonzero(cand)
+        if len(idx) == 0:
+            return env
+        o = owner[idx]
+        out = self.lower[idx]
+        sloped = np.flatnonzero(~seg.trivial[o])
+        if len(sloped):
+            j = idx[sloped]
+            out[sloped] = _sloped_envelope(self.wx[j], self.wy[j], self.wd[j], o[sloped], seg)
+        env[idx] = out
         return env
-    at = _per_pair(owner, len(seg))
-    wx = qx - at(seg.x)
-    wy = qy - at(seg.y)
-    dx = at(seg.dx)
-    dy = at(seg.dy)
-    wd = wx * dx
-    wd += wy * dy
-    t = wd * at(seg.inv_l2)
-    np.clip(t, 0.0, 1.0, out=t)
-    ex = t * dx
-    np.subtract(wx, ex, out=ex)
-    ey = np.multiply(t, dy, out=t)
-    np.subtract(wy, ey, out=ey)
-    dist2 = np.multiply(ex, ex, out=ex)
-    dist2 += ey * ey
-    del ey, dx, dy
-    # Lowest tip height plus the profile at the nearest approach: exact for horizontal
-    # and vertical moves, a lower bound otherwise (z(t) >= zmin and r(t) >= distance).
-    lower = at(seg.zmin)
-    if np.any(seg.shape != _FLAT):
-        dist = np.sqrt(dist2)
-        lower += _profile(dist, at(seg.flat_radius), at(seg.rc))
-        if seg.cone.any():  # else the term adds +0.0 to a height that is never -0.0: nothing
-            lower += at(seg.cone) * np.minimum(dist, at(seg.radius))
-    cand = dist2 <= at(seg.reach2)
-    if bound is not None:
-        cand &= lower < bound
-    idx = np.flatnonzero(cand)
-    if len(idx) == 0:
-        return env
-    o = owner[idx]
-    out = lower[idx]
-    sloped = np.flatnonzero(~seg.trivial[o])
-    if len(sloped):
-        j = idx[sloped]
-        os_ = o[sloped]
-        out[sloped] = _sloped_envelope(wx[j], wy[j], wd[j], os_, seg)
-    env[idx] = out
-    return env
+
+
+@dataclass(frozen=True)
+class BatchPairs:
+    """The (grid point, move) pairs of a batch of moves (:func:`grid_pairs`) with each one's nearest approach,
+    all that :func:`pair_envelope` works out before it reads the stock: made from stock bounds ``above`` that
+    may be older than the stock the batch cuts (it only falls, so they still hold), the pairs are a superset of
+    those made from newer ones whose extra pairs :meth:`envelope` never finds below the stock. So they can be
+    made while the batch before is still cutting (:func:`cadcam.stock.cut_stock`).
+
+    ``owner, flat, col, row``: (k,) int, as :func:`grid_pairs` gives them."""
+
+    owner: np.ndarray
+    flat: np.ndarray
+    col: np.ndarray
+    row: np.ndarray
+    approach: _Approach
+
+    @classmethod
+    def of(cls, seg: Segments, grid: Grid, above=None, pairs=None) -> "BatchPairs":
+        """The pairs of moves ``seg`` on ``grid``, with :func:`grid_pairs`'s ``above`` (``pairs``: that
+        function, or one that stands for it)."""
+        owner, flat, col, row = (pairs or grid_pairs)(seg, grid, above)
+        return cls(owner, flat, col, row, _Approach.of(grid.x0 + col * grid.cell, grid.y0 + row * grid.cell,
+                                                        owner, seg))
+
+    def envelope(self, seg: Segments, bound: np.ndarray) -> np.ndarray:
+        """:func:`pair_envelope` of the pairs with ``bound`` (k,) [mm]: the same values, to the bit."""
+        if len(self.owner) == 0:
+            return np.full(0, np.inf)
+        return self.approach.envelope(self.owner, seg, bound)
 
 
 def _sloped_envelope(wx, wy, wd, o, seg: Segments) -> np.ndarray:

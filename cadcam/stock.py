@@ -19,6 +19,8 @@ may come without touching it (:func:`clear_height`), and op 2's stock, op 1's tu
 
 from __future__ import annotations
 
+import concurrent.futures
+import contextlib
 import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
@@ -29,11 +31,12 @@ import numpy as np
 from scipy import ndimage
 
 from cadcam.engagement import ENGAGED_WIDTH, FULL_WIDTH_ANGLE, MoveRecord, engaged_depth, record_max
-from cadcam.envelope import Segments, grid_pairs, pair_envelope, reach_interval
+from cadcam.envelope import BatchPairs, Segments, grid_pairs, pair_envelope, reach_interval
 from cadcam.envelope import SpanTops as _SpanTops
 from cadcam.gridregion import highest_near
 from cadcam.heightmap import Grid, grid_over, upper_envelope
 from cadcam.model import Motion, Operation, ProgramMoves, Setup, Tool
+from cadcam.parallel import processors
 from factory.core.errors import VerifyError
 
 #: (grid point, move) pairs per vectorised batch: small enough for the work arrays to stay in cache.
@@ -499,16 +502,24 @@ def _run(cut: _Cut, progress, bounds: np.ndarray, first: int = 0, tops: "_SpanTo
     wanted = set(snapshot_at.tolist())
     taken = {0: stock.copy()} if 0 in wanted else {}  # segments applied -> stock then
     last = len(bounds) - 1 if last is None else last
-    for c in range(first, last):
-        s, e = int(bounds[c]), int(bounds[c + 1])
-        if e > s:
-            if tops is None or c % _SPAN_TOPS_EVERY == 0:
-                tops = _SpanTops(stock, grid)  # the stock only falls: older tops stay upper bounds
-            _run_batch(seg, body, s, e, grid, stock, part, stats, under, tops)
-            if progress is not None:
-                progress(int(cut.done[e - 1]), cut.n_moves)
-        if e in wanted:
-            taken[e] = stock.copy()
+    # each batch's pairs made in a second thread while the one before cuts (envelope.BatchPairs): the same cut
+    coming = None  # (batch, its pairs being made)
+    with (concurrent.futures.ThreadPoolExecutor(1) if processors() > 1 and last - first > 1
+          else contextlib.nullcontext()) as ahead:
+        for c in range(first, last):
+            s, e = int(bounds[c]), int(bounds[c + 1])
+            if e > s:
+                if tops is None or c % _SPAN_TOPS_EVERY == 0:
+                    tops = _SpanTops(stock, grid)  # the stock only falls: older tops stay upper bounds
+                pairs, coming = coming[1].result() if coming is not None and coming[0] == c else None, None
+                if ahead is not None and c + 1 < last and bounds[c + 2] > bounds[c + 1]:
+                    coming = (c + 1, ahead.submit(BatchPairs.of, seg.sub(int(bounds[c + 1]), int(bounds[c + 2])),
+                                                  grid, tops.above, grid_pairs))
+                _run_batch(seg, body, s, e, grid, stock, part, stats, under, tops, pairs)
+                if progress is not None:
+                    progress(int(cut.done[e - 1]), cut.n_moves)
+            if e in wanted:
+                taken[e] = stock.copy()
     cut.tops = tops
     if progress is not None and last == len(bounds) - 1:
         progress(cut.n_moves, cut.n_moves)
@@ -547,7 +558,8 @@ def _segmented_exclusive_min(group: np.ndarray, value: np.ndarray) -> np.ndarray
 
 
 def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, stock: np.ndarray, part: np.ndarray,
-               stats: MoveRecord, under: np.ndarray | None = None, tops: "_SpanTops | None" = None) -> None:
+               stats: MoveRecord, under: np.ndarray | None = None, tops: "_SpanTops | None" = None,
+               pairs: BatchPairs | None = None) -> None:
     """Cut segments ``s:e`` into ``stock`` and record what each met.
 
     Each move is judged against the stock exactly as every earlier move left it (also
@@ -557,12 +569,14 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
     on one plane (a flipped part); a column cut down to it is empty (``-inf``) from then on.
     ``tops``: upper bounds of the stock on runs of grid columns (:class:`_SpanTops`, made from this
     stock or an earlier state of it): the runs of a move's grid points it provably cannot cut are
-    not paired at all (:func:`cadcam.envelope.grid_pairs`), which changes nothing else.
+    not paired at all (:func:`cadcam.envelope.grid_pairs`), which changes nothing else. ``pairs``: the batch's
+    pairs made already (from these or older ``tops``), else made here.
     """
     seg = seg_all.sub(s, e)
-    owner, flat, col, row = grid_pairs(seg, grid, None if tops is None else tops.above)
+    pairs = pairs or BatchPairs.of(seg, grid, None if tops is None else tops.above, grid_pairs)
+    owner, flat, col, row = pairs.owner, pairs.flat, pairs.col, pairs.row
     before0 = stock[flat]
-    env = pair_envelope(grid.x0 + col * grid.cell, grid.y0 + row * grid.cell, owner, seg, before0)
+    env = pairs.envelope(seg, before0)
     touch = np.flatnonzero(env < before0)
     owner, flat, col, row, env = owner[touch], flat[touch], col[touch], row[touch], env[touch]
 

@@ -55,7 +55,7 @@ from factory.refusals import check_op2_grip, check_request, check_setup
 from factory.core.progress import Progress, Stopwatch, held_open
 from factory.core.resources import FIXTURES
 from factory.core.setupsheet import SetupSheet
-from factory.robotwork import BackgroundRobot, RobotTask, stock_sheet
+from factory.robotwork import BackgroundRobot, RobotTask, RobotWork, stock_sheet
 from factory.tending import CellPlan, log_cell, log_motion
 from factory.verify import (VerifyAhead, log_simulation, report_text, run_verify, run_verify_after,
                             write_verify_outputs)
@@ -657,46 +657,58 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
     with watch("post"):
         program = post_process(job, post_options, ahead=ahead)
         sheet = dataclasses.replace(setup_sheet(job, program, outputs["program"].name), op=1, work_offset="G54")
-    # Without a robot the pictures and the log's messages, which do not depend on verify, are made in a
-    # second process while verify runs here (issue 35: they were most of the `write` stage). On one
-    # processor they are made when written, as before.
-    drawing = Background(write_ahead, planned, None) if robot is None and processors() > 1 else None
+    # The pictures and the log's messages do not depend on verify: they are made in a second process while
+    # verify runs here (issue 35: they were most of the `write` stage), with a robot once its share is planned
+    # (its process has ended, so that processor is idle; a robot still planning keeps it busy, and its share is
+    # drawn after verify, as on one processor, where everything is made when written).
+    drawing = work = robot_error = None
+    if processors() > 1 and (robot is None or robot.ready()):
+        if robot is not None:
+            try:
+                work = robot.result(sheet)
+            except FactoryError as e:
+                robot_error = e  # raised where it was before: after verify and op 2, whose errors come first
+        if robot_error is None:
+            drawing = Background(write_ahead, planned, None if work is None else _tending(robot, work))
     try:
         with watch("verify"):
             verified = run_verify(program.text, str(outputs["program"]), job.setup, {t.number: t for t in job.tools},
                                   np.asarray(planned.part_work.triangles), options, held_open(progress),
                                   operations=sheet.operations, resume=resume)
+        op2 = op2_error = None
+        if req.ops == 2:
+            try:
+                op2 = _plan_op2(req, planned, verified.simulation, outputs, progress, watch, verified.report)
+            except FactoryError as e:
+                if robot is None:
+                    raise
+                op2_error = e  # stands only if the robot turns the part over: its answer decides
+        tending = ahead = None
+        if robot is not None:
+            if robot_error is not None:
+                raise robot_error
+            work = robot.result(sheet) if work is None else work
+            if drawing is None:
+                with watch("pictures"):  # and the cell in the log: what needs no robot motion
+                    pictures = drawn(planned, robot.cell, robot.world, work.visuals)
+            if work.dropped_op2 is not None:
+                # Not asked for two operations, and the robot cannot turn this part over on the cell's
+                # flip station: op 1 alone, said loudly (the holding allowance stays on the part).
+                log.warning("%s: op 1 only, the holding allowance stays: the robot cannot turn the part over: %s",
+                            req.cam.part, work.dropped_op2)
+                req, op2, op2_error = dataclasses.replace(req, ops=1), None, None
+                outputs = req.outputs(Path("."))
+            if op2_error is not None:
+                raise op2_error
+            tending = _tending(robot, work)
+            if drawing is None:
+                with watch("log"):
+                    ahead = write_ahead(planned, tending, pictures)
     except BaseException:
         if drawing is not None:
             drawing.cancel()  # no drawing left running for a plan that failed
         raise
-    op2 = op2_error = None
-    if req.ops == 2:
-        try:
-            op2 = _plan_op2(req, planned, verified.simulation, outputs, progress, watch, verified.report)
-        except FactoryError as e:
-            if robot is None:
-                raise
-            op2_error = e  # stands only if the robot turns the part over: its answer decides
-    tending = ahead = None
-    if robot is not None:
-        work = robot.result(sheet)
-        visuals = work.visuals
-        with watch("pictures"):  # and the cell in the log: what needs no robot motion
-            pictures = drawn(planned, robot.cell, robot.world, visuals)
-        if work.dropped_op2 is not None:
-            # Not asked for two operations, and the robot cannot turn this part over on the cell's
-            # flip station: op 1 alone, said loudly (the holding allowance stays on the part).
-            log.warning("%s: op 1 only, the holding allowance stays: the robot cannot turn the part over: %s",
-                        req.cam.part, work.dropped_op2)
-            req, op2, op2_error = dataclasses.replace(req, ops=1), None, None
-            outputs = req.outputs(Path("."))
-        if op2_error is not None:
-            raise op2_error
-        tending = Tending(robot.cell, robot.world, work.plan, work.program, visuals)
-        with watch("log"):
-            ahead = write_ahead(planned, tending, pictures)
-    elif drawing is not None:
+    if drawing is not None:
         with watch("pictures and log"):  # the wait for the second process, if it is still drawing
             ahead = drawing.result()
     if op2 is not None:
@@ -704,6 +716,11 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
                                                  "setup_sheet": outputs["setup_sheet_op2"].name})
     return PartPlan(req, planned, program, sheet, tending, verified.simulation, verified.report,
                     dict(watch.seconds), op2, ahead=ahead)
+
+
+def _tending(robot: BackgroundRobot, work: RobotWork) -> Tending:
+    """The robot's load and unload from its finished ``work``, in its cell."""
+    return Tending(robot.cell, robot.world, work.plan, work.program, work.visuals)
 
 
 def _replan_op2(plan: PartPlan, cam: CamRequest, progress: Progress | None) -> PartPlan:

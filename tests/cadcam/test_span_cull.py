@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import contextlib
+import os
+import threading
 from unittest import mock
 
 import numpy as np
@@ -18,9 +20,11 @@ from tests.cadcam.test_verify import LOW_PART, SETUP, STUBBY, TOOLS, C, R, box, 
 SLOPED = np.concatenate([LOW_PART, box([2, 2, -10], [12, 18, -2]), box([28, 3, -10], [38, 9, -1])])
 
 
-def _cut(moves, part, cull: bool, tools=TOOLS):
-    """Every array cut_stock returns, with the run cull on or off (``above`` then bounds nothing)."""
+def _cut(moves, part, cull: bool, tools=TOOLS, threads: str = "1"):
+    """Every array cut_stock returns, with the run cull on or off (``above`` then bounds nothing), with each
+    batch's pairs made in the batch itself (``threads`` "1") or ahead in a second thread ("2")."""
     with contextlib.ExitStack() as patches:
+        patches.enter_context(mock.patch.dict(os.environ, {"FACTORY_THREADS": threads}))
         if not cull:
             patches.enter_context(mock.patch.object(stock._SpanTops, "above",
                                                     lambda self, row, first, count: np.full(len(row), np.inf)))
@@ -49,6 +53,35 @@ def test_culling_the_runs_a_move_cannot_cut_changes_nothing(blocks, again, part,
     with mock.patch.object(stock, "_PAIR_BUDGET", budget), mock.patch.object(stock, "_SPAN_TOPS_EVERY", every), \
             mock.patch.object(stock._SpanTops, "_BLOCK", block), mock.patch.object(cadcam.envelope, "_PIECE", piece):
         assert_identical(_cut(moves, tri, cull=True), _cut(moves, tri, cull=False))
+
+
+@settings(max_examples=30, deadline=None)
+@given(blocks=moves_strategy, again=st.booleans(), part=st.sampled_from(["low", "sloped"]),
+       budget=st.sampled_from([300, 2000]), every=st.sampled_from([1, 3, 16]))
+def test_pairs_made_while_the_batch_before_cuts_change_nothing(blocks, again, part, budget, every):
+    """Each batch's pairs made in a second thread from the stock bounds the batch before cut with (staler than
+    its own): the stock, what each move met and removed are those of the pairs made in each batch, to the bit."""
+    moves = program(blocks + blocks if again else blocks, start=(20, 10, 5))
+    tri = LOW_PART if part == "low" else SLOPED
+    with mock.patch.object(stock, "_PAIR_BUDGET", budget), mock.patch.object(stock, "_SPAN_TOPS_EVERY", every):
+        assert_identical(_cut(moves, tri, cull=True, threads="2"), _cut(moves, tri, cull=True, threads="1"))
+
+
+def test_pairs_are_made_ahead_in_a_second_thread_with_two_processors():
+    """The test above compares something: with two processors the batches after the first get their pairs
+    from the second thread (made with the bounds of the batch before), with one none does."""
+    real = cadcam.envelope.BatchPairs.of
+    made = {"1": [], "2": []}
+    for threads in ("1", "2"):
+        def recording(*args, _made=made[threads]):
+            _made.append(threading.current_thread() is threading.main_thread())
+            return real(*args)
+
+        with mock.patch.object(stock, "_PAIR_BUDGET", 300), \
+                mock.patch.object(stock.BatchPairs, "of", staticmethod(recording)):
+            _cut(_finishing_twice(), SLOPED, cull=True, threads=threads)
+    assert made["1"] and all(made["1"])
+    assert made["2"].count(True) == 1 and made["2"].count(False) == len(made["1"]) - 1
 
 
 def _finishing_twice():
