@@ -22,14 +22,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from cadcam.heightmap import grid_over
-from cadcam.model import Motion, Operation, Setup
-from cadcam.stock import FlippedStock, Simulation, cut_stock, operation_moves
+from cadcam.model import Motion, Operation, ProgramMoves, Setup, Tool
+from cadcam.parallel import Background
+from cadcam.stock import FlippedStock, Simulation, StockCut, cut_stock, operation_moves
 
 #: Raised feeds are a power of this times the operation's feed (or the machine's cap): the program
 #: changes F only where the engagement changes by more than a step, each step at most this much slower.
@@ -40,6 +41,9 @@ CHIP_CELL = 0.2
 #: read as a cutting move's (roughing's ramps and helices descend at 3 deg, tan 0.052); a steeper one keeps
 #: the plunge feed.
 RAMP_SLOPE = math.tan(math.radians(5.0))
+#: Passes of at least this many points measure their second grid in a process of its own (a fork costs ~20 ms;
+#: a pass this long takes a second or more to cut).
+_FORK_POINTS = 5000
 
 
 def chip_feeds(op: Operation, stock: Simulation | None, setup: Setup, part_triangles: np.ndarray,
@@ -85,22 +89,44 @@ def chip_fed(ops: Sequence[Operation], stock: Simulation | None, setup: Setup, p
     if not judged:
         return ChipFed(list(ops), None)
     moves, tools = operation_moves(judged), {op.tool.number: op.tool for op in judged}
-    share = np.zeros(sum(len(op.points) for op in judged))  # the thickest chip of the move ending at each point
     # A strip of stock narrower than a cell can fall between one grid's points and read as air, while a
     # verify grid of another phase or cell has a point in it and measures the chip the raised feed makes
     # there (two floor loops 0.85 D apart leave such a strip). Measured on two grids half a cell apart, any
-    # strip wider than half a cell holds a point of one of them.
-    left = None
-    for placed in (setup, _shifted(setup, 0.5 * CHIP_CELL)):
-        cut = cut_stock(moves, tools, placed, part_triangles, CHIP_CELL,
-                        start=None if stock is None else _finer(stock, placed, CHIP_CELL))
-        np.maximum.at(share, cut.segments.move, cut.met.chip)
-        left = cut.simulation if left is None else left
+    # strip wider than half a cell holds a point of one of them. The two cuts are independent: the shifted
+    # grid's runs on another processor where there is one and the pass is worth a process.
+    shifted = _shifted(setup, 0.5 * CHIP_CELL)
+    other = (Background(_chip_shares, moves, tools, shifted, part_triangles, stock)
+             if len(moves.points) >= _FORK_POINTS else None)
+    cut = _chip_cut(moves, tools, setup, part_triangles, stock)
+    share = np.maximum(_shares(cut, len(moves.points)), other.result() if other is not None
+                       else _chip_shares(moves, tools, shifted, part_triangles, stock))
+    left = cut.simulation
     first = np.cumsum([0] + [len(op.points) for op in judged])
     fed = {id(op): _raised(op, share[a:b], max_feed) for op, a, b in zip(judged, first[:-1], first[1:])}
     whole = len(judged) == len(ops)
     return ChipFed([fed.get(id(op), op) for op in ops],
                    dataclasses.replace(left, removed_volume=None) if whole else None)
+
+
+def _chip_cut(moves: ProgramMoves, tools: Mapping[int, Tool], placed: Setup, part_triangles: np.ndarray,
+              stock: Simulation | None) -> StockCut:
+    """``moves`` cut on the grid of :data:`CHIP_CELL` over ``placed``'s stock box from ``stock`` (None: the
+    block), each move's chip measured (nothing else)."""
+    return cut_stock(moves, tools, placed, part_triangles, CHIP_CELL, measure="chip",
+                     start=None if stock is None else _finer(stock, placed, CHIP_CELL))
+
+
+def _shares(cut: StockCut, n: int) -> np.ndarray:
+    """(n,) the thickest chip of the move ending at each of the ``n`` points ``cut`` cut, as a share of fz."""
+    share = np.zeros(n)
+    np.maximum.at(share, cut.segments.move, cut.met.chip)
+    return share
+
+
+def _chip_shares(moves: ProgramMoves, tools: Mapping[int, Tool], placed: Setup, part_triangles: np.ndarray,
+                 stock: Simulation | None) -> np.ndarray:
+    """:func:`_shares` of :func:`_chip_cut` (what a process of its own sends back)."""
+    return _shares(_chip_cut(moves, tools, placed, part_triangles, stock), len(moves.points))
 
 
 def _raised(op: Operation, share: np.ndarray, max_feed: float) -> Operation:
