@@ -88,7 +88,7 @@ def chip_fed(ops: Sequence[Operation], stock: Simulation | None, setup: Setup, p
               and len(op.points) >= 2]
     if not judged:
         return ChipFed(list(ops), None)
-    moves, tools = operation_moves(judged), {op.tool.number: op.tool for op in judged}
+    moves, tools = _first_passes(operation_moves(judged)), {op.tool.number: op.tool for op in judged}
     # A strip of stock narrower than a cell can fall between one grid's points and read as air, while a
     # verify grid of another phase or cell has a point in it and measures the chip the raised feed makes
     # there (two floor loops 0.85 D apart leave such a strip). Measured on two grids half a cell apart, any
@@ -106,6 +106,29 @@ def chip_fed(ops: Sequence[Operation], stock: Simulation | None, setup: Setup, p
     whole = len(judged) == len(ops)
     return ChipFed([fed.get(id(op), op) for op in ops],
                    dataclasses.replace(left, removed_volume=None) if whole else None)
+
+
+def _first_passes(moves: ProgramMoves) -> ProgramMoves:
+    """``moves`` with each move that runs again along an earlier one (the same ends in the same order, the same
+    tool and kind) taken out of the cut: an empty spindle's rapid, which sweeps nothing. The earlier move lowered
+    the stock to their common envelope already (each grid point keeps the lowest cut), so the move again
+    takes nothing off and meets no chip: the stock and every move's chip are the same to the bit. (A raster's
+    links run back along its passes: a fifth of the relief's ball raster.) Where it is this move again, its
+    ``points`` are kept: the move after it starts there."""
+    n = len(moves.points)
+    if n < 3:
+        return moves
+    key = np.empty(n - 1, dtype=[("tool", np.int64), ("motion", np.int8), ("a", np.float64, 3), ("b", np.float64, 3)])
+    key["tool"], key["motion"] = moves.tool[1:], moves.motion[1:]
+    key["a"], key["b"] = moves.points[:-1], moves.points[1:]
+    _, first = np.unique(key.view(np.void(key.dtype.itemsize)), return_index=True)
+    again = np.ones(n, bool)
+    again[0] = False
+    again[first + 1] = False
+    if not again.any():
+        return moves
+    return dataclasses.replace(moves, motion=np.where(again, Motion.RAPID, moves.motion).astype(moves.motion.dtype),
+                               tool=np.where(again, 0, moves.tool).astype(moves.tool.dtype))
 
 
 def _chip_cut(moves: ProgramMoves, tools: Mapping[int, Tool], placed: Setup, part_triangles: np.ndarray,
