@@ -214,9 +214,17 @@ def _nearby_max(points: np.ndarray, share: np.ndarray, reach: float) -> np.ndarr
     s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]
     lo = np.searchsorted(s, s - reach, side="left")
     hi = np.searchsorted(s, s + reach, side="right")
-    out = share.copy()
-    for i in np.flatnonzero(hi - lo > 1):
-        out[i] = share[lo[i]:hi[i]].max()
+    # the largest of share[lo:hi] for every move at once: the maxima of runs of 2**k moves (k up to the longest
+    # window's), two of them covering each window
+    width = hi - lo  # >= 1: each window holds its own move
+    out, run, k = share.copy(), share, 0
+    while (2 << k) <= width.max():
+        run = np.maximum(run[:-(1 << k)], run[1 << k:])  # run[i]: the largest of share[i : i + 2**(k + 1)]
+        k += 1
+        at = np.flatnonzero(width >= (1 << k))
+        top = np.floor(np.log2(width[at])).astype(np.int64) == k
+        at = at[top]
+        out[at] = np.maximum(run[lo[at]], run[hi[at] - (1 << k)])
     return out
 
 
