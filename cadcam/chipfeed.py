@@ -22,14 +22,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from cadcam.heightmap import grid_over
-from cadcam.model import Motion, Operation, Setup
-from cadcam.stock import FlippedStock, Simulation, cut_stock, operation_moves
+from cadcam.model import Motion, Operation, ProgramMoves, Setup, Tool
+from cadcam.parallel import Background
+from cadcam.stock import FlippedStock, Simulation, StockCut, cut_stock, operation_moves
 
 #: Raised feeds are a power of this times the operation's feed (or the machine's cap): the program
 #: changes F only where the engagement changes by more than a step, each step at most this much slower.
@@ -40,6 +41,9 @@ CHIP_CELL = 0.2
 #: read as a cutting move's (roughing's ramps and helices descend at 3 deg, tan 0.052); a steeper one keeps
 #: the plunge feed.
 RAMP_SLOPE = math.tan(math.radians(5.0))
+#: Passes of at least this many points measure their second grid in a process of its own (a fork costs ~20 ms;
+#: a pass this long takes a second or more to cut).
+_FORK_POINTS = 5000
 
 
 def chip_feeds(op: Operation, stock: Simulation | None, setup: Setup, part_triangles: np.ndarray,
@@ -84,23 +88,68 @@ def chip_fed(ops: Sequence[Operation], stock: Simulation | None, setup: Setup, p
               and len(op.points) >= 2]
     if not judged:
         return ChipFed(list(ops), None)
-    moves, tools = operation_moves(judged), {op.tool.number: op.tool for op in judged}
-    share = np.zeros(sum(len(op.points) for op in judged))  # the thickest chip of the move ending at each point
+    moves, tools = _first_passes(operation_moves(judged)), {op.tool.number: op.tool for op in judged}
     # A strip of stock narrower than a cell can fall between one grid's points and read as air, while a
     # verify grid of another phase or cell has a point in it and measures the chip the raised feed makes
     # there (two floor loops 0.85 D apart leave such a strip). Measured on two grids half a cell apart, any
-    # strip wider than half a cell holds a point of one of them.
-    left = None
-    for placed in (setup, _shifted(setup, 0.5 * CHIP_CELL)):
-        cut = cut_stock(moves, tools, placed, part_triangles, CHIP_CELL,
-                        start=None if stock is None else _finer(stock, placed, CHIP_CELL))
-        np.maximum.at(share, cut.segments.move, cut.met.chip)
-        left = cut.simulation if left is None else left
+    # strip wider than half a cell holds a point of one of them. The two cuts are independent: the shifted
+    # grid's runs on another processor where there is one and the pass is worth a process.
+    shifted = _shifted(setup, 0.5 * CHIP_CELL)
+    other = (Background(_chip_shares, moves, tools, shifted, part_triangles, stock)
+             if len(moves.points) >= _FORK_POINTS else None)
+    cut = _chip_cut(moves, tools, setup, part_triangles, stock)
+    share = np.maximum(_shares(cut, len(moves.points)), other.result() if other is not None
+                       else _chip_shares(moves, tools, shifted, part_triangles, stock))
+    left = cut.simulation
     first = np.cumsum([0] + [len(op.points) for op in judged])
     fed = {id(op): _raised(op, share[a:b], max_feed) for op, a, b in zip(judged, first[:-1], first[1:])}
     whole = len(judged) == len(ops)
     return ChipFed([fed.get(id(op), op) for op in ops],
                    dataclasses.replace(left, removed_volume=None) if whole else None)
+
+
+def _first_passes(moves: ProgramMoves) -> ProgramMoves:
+    """``moves`` with each move that runs again along an earlier one (the same ends in the same order, the same
+    tool and kind) taken out of the cut: an empty spindle's rapid, which sweeps nothing. The earlier move lowered
+    the stock to their common envelope already (each grid point keeps the lowest cut), so the move again
+    takes nothing off and meets no chip: the stock and every move's chip are the same to the bit. (A raster's
+    links run back along its passes: a fifth of the relief's ball raster.) Where it is this move again, its
+    ``points`` are kept: the move after it starts there."""
+    n = len(moves.points)
+    if n < 3:
+        return moves
+    key = np.empty(n - 1, dtype=[("tool", np.int64), ("motion", np.int8), ("a", np.float64, 3), ("b", np.float64, 3)])
+    key["tool"], key["motion"] = moves.tool[1:], moves.motion[1:]
+    key["a"], key["b"] = moves.points[:-1], moves.points[1:]
+    _, first = np.unique(key.view(np.void(key.dtype.itemsize)), return_index=True)
+    again = np.ones(n, bool)
+    again[0] = False
+    again[first + 1] = False
+    if not again.any():
+        return moves
+    return dataclasses.replace(moves, motion=np.where(again, Motion.RAPID, moves.motion).astype(moves.motion.dtype),
+                               tool=np.where(again, 0, moves.tool).astype(moves.tool.dtype))
+
+
+def _chip_cut(moves: ProgramMoves, tools: Mapping[int, Tool], placed: Setup, part_triangles: np.ndarray,
+              stock: Simulation | None) -> StockCut:
+    """``moves`` cut on the grid of :data:`CHIP_CELL` over ``placed``'s stock box from ``stock`` (None: the
+    block), each move's chip measured (nothing else)."""
+    return cut_stock(moves, tools, placed, part_triangles, CHIP_CELL, measure="chip",
+                     start=None if stock is None else _finer(stock, placed, CHIP_CELL))
+
+
+def _shares(cut: StockCut, n: int) -> np.ndarray:
+    """(n,) the thickest chip of the move ending at each of the ``n`` points ``cut`` cut, as a share of fz."""
+    share = np.zeros(n)
+    np.maximum.at(share, cut.segments.move, cut.met.chip)
+    return share
+
+
+def _chip_shares(moves: ProgramMoves, tools: Mapping[int, Tool], placed: Setup, part_triangles: np.ndarray,
+                 stock: Simulation | None) -> np.ndarray:
+    """:func:`_shares` of :func:`_chip_cut` (what a process of its own sends back)."""
+    return _shares(_chip_cut(moves, tools, placed, part_triangles, stock), len(moves.points))
 
 
 def _raised(op: Operation, share: np.ndarray, max_feed: float) -> Operation:
@@ -165,9 +214,17 @@ def _nearby_max(points: np.ndarray, share: np.ndarray, reach: float) -> np.ndarr
     s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]
     lo = np.searchsorted(s, s - reach, side="left")
     hi = np.searchsorted(s, s + reach, side="right")
-    out = share.copy()
-    for i in np.flatnonzero(hi - lo > 1):
-        out[i] = share[lo[i]:hi[i]].max()
+    # the largest of share[lo:hi] for every move at once: the maxima of runs of 2**k moves (k up to the longest
+    # window's), two of them covering each window
+    width = hi - lo  # >= 1: each window holds its own move
+    out, run, k = share.copy(), share, 0
+    while (2 << k) <= width.max():
+        run = np.maximum(run[:-(1 << k)], run[1 << k:])  # run[i]: the largest of share[i : i + 2**(k + 1)]
+        k += 1
+        at = np.flatnonzero(width >= (1 << k))
+        top = np.floor(np.log2(width[at])).astype(np.int64) == k
+        at = at[top]
+        out[at] = np.maximum(run[lo[at]], run[hi[at] - (1 << k)])
     return out
 
 

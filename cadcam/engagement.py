@@ -114,23 +114,15 @@ def engaged_depth(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.n
     cut, a slot or an inside corner.
     """
     R = seg.radius[o]
-    ta, tb, _ = reach_interval(seg, o, qx, qy)
-    # What the tool takes off a point while it descends over it is a plunge; the rest it
-    # takes moving sideways into the material.
     removed = before - env
-    plunge = np.minimum(removed, np.maximum(-seg.dz[o], 0.0) * np.maximum(tb - ta, 0.0))
+    plunge = _plunged(seg, o, qx, qy, removed)
     side = removed - plunge
     met_side = side  # skins included: what the flutes meet, for the engagement angle
     if skin is not None:  # the skin of a wall: taken off, but no engagement
         plunge = np.where(skin, 0.0, plunge)
         side = np.where(skin, 0.0, side)
 
-    L = np.sqrt(seg.l2[o])
-    has = L > 1e-9
-    ux = np.where(has, seg.dx[o] / np.where(has, L, 1.0), 1.0)
-    uy = np.where(has, seg.dy[o] / np.where(has, L, 1.0), 0.0)
-    wx, wy = qx - seg.x[o], qy - seg.y[o]
-    lat = np.where(has, wx * uy - wy * ux, wx)  # signed distance across the move (along X if vertical)
+    lat, has = _across(seg, o, qx, qy)
     film = removed > _ENGAGED_FILM
     if film.any():
         lo = np.full(len(seg), np.inf)
@@ -153,6 +145,7 @@ def engaged_depth(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.n
     # The arc of the cutter meeting material, and how deep that stays at full width (moves across only).
     sel = np.flatnonzero((met_side > _ENGAGED_FILM) & has)
     if len(sel):
+        _side_chip(o[sel], lat[sel], R[sel], cell, s, stats)
         _engaged_arc(o[sel], lat[sel], R[sel], met_side[sel], cells[sel], cell, s, full_width, stats)
     # Plunging: the k-th thickest, k grid points being half the cutter's footprint.
     sel = np.flatnonzero(plunge > 0.0)
@@ -165,6 +158,58 @@ def engaged_depth(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.n
         at = np.flatnonzero(rank >= need)
         if len(at):
             record_max(stats.depth, stats.depth_cell, os_[at] + s, plunge[order][at], cells[order][at])
+
+
+def side_chip(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.ndarray, before: np.ndarray,
+              env: np.ndarray, cell: float, stats: MoveRecord) -> None:
+    """Only the chip of each move (``stats.chip``), as :func:`engaged_depth` reads it from the same columns,
+    none of the rest: for a caller that reads nothing else (:mod:`cadcam.chipfeed`). Arguments as
+    :func:`engaged_depth`'s."""
+    removed = before - env
+    lat, has = _across(seg, o, qx, qy)
+    maybe = np.flatnonzero((removed > _ENGAGED_FILM) & has)  # the plunge only ever takes from what was removed
+    if not len(maybe):
+        return
+    o, qx, qy, removed, lat = o[maybe], qx[maybe], qy[maybe], removed[maybe], lat[maybe]
+    sel = np.flatnonzero(removed - _plunged(seg, o, qx, qy, removed) > _ENGAGED_FILM)
+    if len(sel):
+        _side_chip(o[sel], lat[sel], seg.radius[o[sel]], cell, s, stats)
+
+
+def _plunged(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray, removed: np.ndarray) -> np.ndarray:
+    """(k,) of the column ``removed`` [mm] a move ``o`` takes off each grid point ``(qx, qy)``, what it takes
+    while it descends over the point, as a plunge (from above); the rest it meets moving sideways. Moves that
+    do not descend plunge nowhere (their reach along the move is not needed)."""
+    plunge = np.zeros(len(o))
+    down = np.flatnonzero(seg.dz[o] < 0.0)
+    if len(down):
+        od = o[down]
+        ta, tb, _ = reach_interval(seg, od, qx[down], qy[down])
+        plunge[down] = np.minimum(removed[down], -seg.dz[od] * np.maximum(tb - ta, 0.0))
+    return plunge
+
+
+def _across(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(k,) signed distance [mm] of each grid point ``(qx, qy)`` across move ``o`` (along X for a move with no
+    length across), and (k,) bool whether the move has a length across."""
+    L = np.sqrt(seg.l2[o])
+    has = L > 1e-9
+    ux = np.where(has, seg.dx[o] / np.where(has, L, 1.0), 1.0)
+    uy = np.where(has, seg.dy[o] / np.where(has, L, 1.0), 0.0)
+    wx, wy = qx - seg.x[o], qy - seg.y[o]
+    return np.where(has, wx * uy - wy * ux, wx), has
+
+
+def _side_chip(o: np.ndarray, w: np.ndarray, r: np.ndarray, cell: float, s: int, stats: MoveRecord) -> None:
+    """The chip of moves ``s + o`` (``stats.chip``) from the points they met sideways, at lateral offset ``w``
+    [mm] from the move's line (cutter radius ``r``): a tooth meeting the material at ``w`` cuts a chip
+    ``fz * sqrt(1 - (w / r)^2)`` thick (the feed per tooth across its edge), thickest at the point nearest the
+    move's line, taken half a cell nearer it as :func:`_engaged_arc` takes it: for a side cut of width ``ae``,
+    ``fz`` times the sine of its engagement angle ``acos(1 - ae / r)`` (``2 sqrt(ae (D - ae)) / D``, the rule
+    of :func:`cadcam.adaptive.chip_thinned_feed`); 1 where the material reaches the line (a slot, a side cut of
+    half the diameter or more)."""
+    near = np.clip((np.abs(w) - 0.5 * cell) / r, 0.0, 1.0)
+    np.maximum.at(stats.chip, o + s, np.sqrt(1.0 - near * near))
 
 
 #: The leading half of the cutter is read in this many arcs of equal angle (5 deg each).
@@ -184,17 +229,10 @@ def _engaged_arc(o: np.ndarray, w: np.ndarray, r: np.ndarray, depth: np.ndarray,
     cuts, two thin skins either side of a slot two small arcs), and the full-width depth is
     the deepest column that arcs adding up to more than ``full_width`` [rad] all reach.
 
-    The chip (``stats.chip``) is read from the same points without the arcs' steps: a tooth meeting the
-    material at lateral offset ``w`` cuts a chip ``fz * sqrt(1 - (w / r)^2)`` thick (the feed per tooth
-    across its edge), thickest at the point nearest the move's line, taken half a cell nearer it as the
-    arcs take it: for a side cut of width ``ae``, ``fz`` times the sine of its engagement angle
-    ``acos(1 - ae / r)`` (``2 sqrt(ae (D - ae)) / D``, the rule of :func:`cadcam.adaptive.chip_thinned_feed`);
-    1 where the material reaches the line (a slot, a side cut of half the diameter or more).
+    The chip (``stats.chip``) is read from the same points by :func:`_side_chip`.
     """
     step = math.pi / _ARC_BINS
     n = int(o.max()) + 1
-    near = np.clip((np.abs(w) - 0.5 * cell) / r, 0.0, 1.0)
-    np.maximum.at(stats.chip, o + s, np.sqrt(1.0 - near * near))
     # Half a cell towards the axis, a whole one away from it: the band of a cell's width along the
     # cutter's side may hold no grid point, yet it spans a wide arc (asin is steep there).
     lo = np.arcsin(np.clip((w - np.where(w < 0, 1.0, 0.5) * cell) / r, -1.0, 1.0)) + 0.5 * math.pi

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from cadcam.engagement import ENGAGED_WIDTH, FULL_WIDTH_ANGLE, MoveRecord, engaged_depth, record_max
+from cadcam.engagement import ENGAGED_WIDTH, FULL_WIDTH_ANGLE, MoveRecord, engaged_depth, record_max, side_chip
 from cadcam.envelope import BatchPairs, Segments, grid_pairs, pair_envelope, reach_interval
 from cadcam.envelope import SpanTops as _SpanTops
 from cadcam.gridregion import highest_near
@@ -168,7 +168,7 @@ def cut_stock(
     engaged_width: float = ENGAGED_WIDTH,
     body_graze: float = 0.0,
     full_width_angle: float = FULL_WIDTH_ANGLE,
-    measure: bool = True,
+    measure: bool | str = True,
     resume: Any = None,
 ) -> StockCut:
     """Cut the stock with every move of a program, measuring what each move meets.
@@ -210,11 +210,13 @@ def cut_stock(
     full_width_angle : float
         A move meeting material over this arc of the cutter or more cuts at full width [deg]
         (:data:`FULL_WIDTH_ANGLE`; ``MoveRecord.full_depth``).
-    measure : bool
+    measure : bool or "chip"
         False: only the stock and what each move removed (``MoveRecord.removed_*``, the volume)
         are recorded; the engagement (depth, width, angle) and the shank and holder contacts are
         not measured, and stay zero. The stock is the same either way. For a caller that reads only
         rapids (:func:`cadcam.verify.rapid_check`), this saves most of the work beside the cut.
+        ``"chip"``: that, and each move's chip (``MoveRecord.chip``, as True measures it), for a caller
+        that reads only the chip (:mod:`cadcam.chipfeed`).
     resume : cadcam.cutahead.CutState, optional
         The first moves of this program cut already (:func:`cadcam.cutahead.cut_ahead`, in another process
         meanwhile): the cut goes on from there when they are this program's first moves, swept alike, into
@@ -408,7 +410,7 @@ class _Body:
         # A shank as wide as the cutter rides a finished wall at exactly its radius: a
         # graze sideways within the contact tolerance is no contact.
         self.graze = graze
-        # measure False: only the cut itself (see cut_stock's ``measure``); no body, no engagement. _tops: pairs'.
+        # measure False: only the cut itself (see cut_stock's ``measure``); "chip": and the chip, no body. _tops: pairs'.
         self.measure, self._tops = True, None
 
     def pairs(self, seg: Segments, s: int, e: int, grid: Grid, stock: np.ndarray, ceiling: float, tops=None):
@@ -448,7 +450,7 @@ class _Cut:
 
     def __init__(self, moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup, part_triangles: np.ndarray,
                  cell: float, start: FlippedStock | Simulation | None, rapid_rim: float, engaged_width: float,
-                 body_graze: float, full_width_angle: float, measure: bool, snap: np.ndarray):
+                 body_graze: float, full_width_angle: float, measure: bool | str, snap: np.ndarray):
         tri = _check_inputs(setup, cell, part_triangles)
         grid = grid_over(setup.stock_min, setup.stock_max, cell)
         # Cutting on from earlier moves: the part was rasterised on this grid then.
@@ -462,7 +464,7 @@ class _Cut:
         body = _Body(tools, moves.tool[seg.move], part_flat, engaged_width, body_graze)
         body.full_width = math.radians(full_width_angle)
         body.measure = measure
-        if measure:  # the skin of walls is no engagement: only engagement reads it
+        if measure is True:  # the skin of walls is no engagement: only engagement reads it
             body.wall_near = highest_near(part_top, grid.cell, _SKIN).reshape(-1)
         self.grid, self.part_top, self.part = grid, part_top, part_flat
         self.stock, self.under, self.stock_bottom = stock, under, stock_bottom
@@ -582,7 +584,7 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
 
     # Shank and holder: the same sweep with the body's cylinders, only where they can
     # come below the highest stock or part there is.
-    if body.measure:
+    if body.measure is True:
         b_owner, b_flat, b_env = body.pairs(seg, s, e, grid, stock, max(float(stock.max()), body.part_max), tops)
     else:
         b_owner = b_flat = np.zeros(0, np.int64)
@@ -627,10 +629,13 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
         # A wall's skin is no engagement (see _SKIN); it is still cut, and still counts
         # for rapids and for the width of the cut.
         # Only beside a wall: floor allowance (the part right below) is engagement as usual.
-        if body.measure:
+        if body.measure is True:
             skin = (body.wall_near[f] >= before[cut] - _SKIN) & (part[f] < before[cut] - _SKIN)
             engaged_depth(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
                            env[cut], f, grid.cell, body.engaged_width, stats, skin, body.full_width)
+        elif body.measure:
+            side_chip(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
+                      env[cut], grid.cell, stats)
         # what the cut took off, counted down to the stock's bottom (a through cut goes on into air)
         floor = stats.bottom if under is None else under[f]
         np.add.at(stats.volume, o + s, np.maximum(before[cut] - np.maximum(env[cut], floor), 0.0) * grid.cell**2)

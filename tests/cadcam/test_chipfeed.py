@@ -10,11 +10,12 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from cadcam.chipfeed import CHIP_CELL, FEED_STEP, chained_chip_feeds, chip_fed, chip_feeds
+from cadcam.chipfeed import _finer, _first_passes, _raised, _shifted
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.post import PostOptions, post_process
 from cadcam.gcode import parse_gcode
 from cadcam.model import Job
-from cadcam.stock import stock_after
+from cadcam.stock import cut_stock, operation_moves, stock_after
 from cadcam.verify import ChipLoad, VerifyOptions, simulate
 
 MILL = Tool(2, "10 mm flat", "flat", 10.0, 0.0, 30.0, 3, 50.0)
@@ -179,3 +180,38 @@ def test_a_strip_narrower_than_a_cell_between_two_passes_is_met_at_its_chip(star
     fed = chained_chip_feeds([under, over, across], None, BIG, CORNER, MAX_FEED)
     report = verdict(fed, BIG, CORNER, cell)[1]
     assert report.ok, [f.message for f in report.faults]
+
+
+@settings(max_examples=8, deadline=None)
+@given(st.lists(st.tuples(st.floats(-5.0, 45.0), st.floats(-5.0, 25.0), st.floats(-6.0, 1.0)), min_size=3,
+                max_size=12),
+       st.lists(st.integers(0, 10), min_size=1, max_size=6), st.booleans())
+def test_a_move_run_again_is_not_cut_and_every_move_keeps_the_feed_the_whole_measure_gives(corners, again, block):
+    """A path of random moves (ramps, climbs, moves across the wall at Y 10), some run again later along the same
+    ends: the chip feeds leave the moves run again out of their cut and measure only the chip, yet the stock and
+    every move's chip are those of cutting every move with everything measured, on both chip grids, and so is
+    every feed."""
+    pts = np.array([[c[0], c[1], c[2]] for c in corners], float)
+    for k in again:  # the move ending at point k + 1, run again after the path so far
+        k = k % (len(pts) - 1)
+        pts = np.vstack([pts, pts[k], pts[k + 1]])
+    pts = np.vstack([[pts[0, 0], pts[0, 1], 10.0], pts, [pts[-1, 0], pts[-1, 1], 10.0]])
+    mot = np.full(len(pts), Motion.CUT, np.int8)
+    mot[[0, -1]] = Motion.RAPID
+    path = Operation("path", "roughing", MILL, NOMINAL, pts, mot)
+    start = None if block else stock_after([op("rough", 16.0)], SETUP, PART, 0.5)
+    moves, tools = operation_moves([path]), {MILL.number: MILL}
+    share = np.zeros(len(pts))
+    for placed in (SETUP, _shifted(SETUP, 0.5 * CHIP_CELL)):
+        whole = cut_stock(moves, tools, placed, PART, CHIP_CELL, start=None if start is None
+                          else _finer(start, placed, CHIP_CELL))
+        quick = cut_stock(_first_passes(moves), tools, placed, PART, CHIP_CELL, measure="chip",
+                          start=None if start is None else _finer(start, placed, CHIP_CELL))
+        assert np.array_equal(quick.simulation.stock_top, whole.simulation.stock_top)
+        chips = [np.zeros(len(pts)), np.zeros(len(pts))]
+        np.maximum.at(chips[0], whole.segments.move, whole.met.chip)
+        np.maximum.at(chips[1], quick.segments.move, quick.met.chip)
+        assert np.array_equal(chips[0], chips[1])
+        np.maximum.at(share, whole.segments.move, whole.met.chip)
+    fed = chip_feeds(path, start, SETUP, PART, MAX_FEED)
+    assert np.array_equal(fed.move_feeds(), _raised(path, share, MAX_FEED).move_feeds(), equal_nan=True)
