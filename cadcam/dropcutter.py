@@ -481,7 +481,10 @@ def _edge_contacts(index, radius, corner, tables, cx, cy, point, ei, out) -> Non
     keep = np.flatnonzero(ok)
     if not len(keep):
         return
-    point, e, tc, d2, rho, lo, hi, s = (a[keep] for a in (point, e, tc, d2, rho, lo, hi, s))
+    # Only the edge's start height is needed from its row now: a quarter of the pairs are kept, and gathering
+    # whole rows again was a fifth of this kernel on the 100k relief (issue 35).
+    z0 = e[keep, 2]
+    point, tc, d2, rho, lo, hi, s = (a[keep] for a in (point, tc, d2, rho, lo, hi, s))
     if corner <= 0.0:
         # Flat: the edge height is linear over the chord under the flat bottom.
         t = np.where(s >= 0.0, rho, -rho)
@@ -491,7 +494,7 @@ def _edge_contacts(index, radius, corner, tables, cx, cy, point, ei, out) -> Non
     else:
         t = _bull_edge_argmax(s, d2, lo, hi, radius, corner)
     t = np.clip(t, lo, hi)
-    z = e[:, 2] + s * (tc + t)
+    z = z0 + s * (tc + t)
     r = np.minimum(np.sqrt(d2 + t * t), radius)
     np.maximum.at(out, point, z - _height(r, radius, corner))
 
