@@ -68,9 +68,12 @@ _HEAD = 24
 #: candidates of buckets of R/8, each one a gathered and bounded pair.
 _CELL_PER_RADIUS = 0.125
 #: Bucket entries (a vertex or edge listed in a bucket within the tool's reach of it) at most per
-#: prepared tool: each holds 12 B (~40 B while they are sorted), and finer buckets list each primitive
-#: in more of them, so a big mesh gets coarser buckets (never coarser than before, R/2).
-_MAX_ENTRIES = 10_000_000
+#: prepared tool: each holds 12 B (~24 B while they are sorted), and finer buckets list each primitive
+#: in more of them, so a big mesh gets coarser buckets (never coarser than before, R/2). On a 100k-triangle
+#: solid (issue 35) 10M made the ball's buckets 1.14 mm for R = 3 mm, and 46 % of the waterline's edge pairs
+#: lay beyond the tool's reach; 16M makes them 0.92 mm, the waterline's queries 20 % cheaper for 1 s more
+#: bucketing, and the sort's peak lower than 10M's was before _bucket freed its temporaries early.
+_MAX_ENTRIES = 16_000_000
 #: ... and at most this many per vertex and edge: a small mesh (or a small tool on a wide one) would
 #: otherwise spend the whole budget, and its memory, on buckets finer than its queries repay.
 _ENTRIES_PER_PRIMITIVE = 100
@@ -353,18 +356,35 @@ def _bucket(grid: _Grid, lo: np.ndarray, hi: np.ndarray, top: np.ndarray,
     cuts = np.unique(np.searchsorted(ends, np.arange(_ENTRY_CHUNK, int(ends[-1]) if len(ends) else 0, _ENTRY_CHUNK)))
     pieces = [_entries(grid, lo, hi, top, radius, corner, ix0, iy0, wx, counts, a, b)
               for a, b in zip([0, *cuts.tolist()], [*cuts.tolist(), len(lo)]) if b > a]
-    item = np.concatenate([q[0] for q in pieces]) if pieces else np.zeros(0, np.int32)
-    bucket = np.concatenate([q[1] for q in pieces]) if pieces else np.zeros(0, np.int32)
-    value = np.concatenate([q[2] for q in pieces]) if pieces else np.zeros(0)
+    items, buckets, values = (list(q) for q in zip(*pieces)) if pieces else ([], [], [])
+    del pieces  # each column's pieces go as soon as it is joined
+    item = _joined(items, np.int32)
+    bucket = _joined(buckets, np.int32)
+    value = _joined(values, np.float64)
     z_hi = float(value.max(initial=0.0)) + 1.0
     z_span = z_hi - float(value.min(initial=0.0)) + 1.0
-    key = bucket + (z_hi - value) / z_span
-    del value  # (a fine grid's entries are many: only what the lists keep stays)
-    # One float sort (not lexsort): the key itself must be sorted for searchsorted in stop().
-    order = np.argsort(key)
+    # The key made in the ranking values' own array, and the bucket numbers let go before the sort: a fine
+    # grid's entries are many, and the peak while they are sorted is what bounds them (_MAX_ENTRIES).
+    # The same operations in the same order as bucket + (z_hi - value) / z_span, so the same keys.
+    key = np.subtract(z_hi, value, out=value)
+    key /= z_span
+    key += bucket
     ptr = np.zeros(grid.nx * grid.ny + 1, dtype=np.int64)
     np.cumsum(np.bincount(bucket, minlength=grid.nx * grid.ny), out=ptr[1:])
-    return _Buckets(ptr, item[order], key[order], z_hi, z_span)
+    del bucket
+    # One float sort (not lexsort): the key itself must be sorted for searchsorted in stop().
+    order = np.argsort(key)
+    item = item[order]
+    del order
+    key.sort()  # the keys in the order argsort put them (equal keys are equal numbers)
+    return _Buckets(ptr, item, key, z_hi, z_span)
+
+
+def _joined(pieces: list[np.ndarray], dtype) -> np.ndarray:
+    """The pieces end to end, emptying the list (so each piece is freed once copied)."""
+    out = np.concatenate(pieces) if pieces else np.zeros(0, dtype)
+    pieces.clear()
+    return out
 
 
 def _entries(grid: _Grid, lo: np.ndarray, hi: np.ndarray, top: np.ndarray, radius: float, corner: float,
@@ -452,7 +472,10 @@ def _edge_contacts(index, radius, corner, tables, cx, cy, point, ei, out) -> Non
     keep = np.flatnonzero(ok)
     if not len(keep):
         return
-    point, e, tc, d2, rho, lo, hi, s = (a[keep] for a in (point, e, tc, d2, rho, lo, hi, s))
+    # Only the edge's start height is needed from its row now: a quarter of the pairs are kept, and gathering
+    # whole rows again was a fifth of this kernel on the 100k relief (issue 35).
+    z0 = e[keep, 2]
+    point, tc, d2, rho, lo, hi, s = (a[keep] for a in (point, tc, d2, rho, lo, hi, s))
     if corner <= 0.0:
         # Flat: the edge height is linear over the chord under the flat bottom.
         t = np.where(s >= 0.0, rho, -rho)
@@ -462,7 +485,7 @@ def _edge_contacts(index, radius, corner, tables, cx, cy, point, ei, out) -> Non
     else:
         t = _bull_edge_argmax(s, d2, lo, hi, radius, corner)
     t = np.clip(t, lo, hi)
-    z = e[:, 2] + s * (tc + t)
+    z = z0 + s * (tc + t)
     r = np.minimum(np.sqrt(d2 + t * t), radius)
     np.maximum.at(out, point, z - _height(r, radius, corner))
 

@@ -187,7 +187,12 @@ def _refine(surface: _Surface, xy: np.ndarray, z: np.ndarray, joined: np.ndarray
     ia, ib = seg.copy(), seg + 1
     t0, t1 = np.zeros(len(seg)), np.ones(len(seg))
     allp = np.column_stack([xy, z])
-    zm = surface.z(0.5 * (allp[ia, :2] + allp[ib, :2])) if len(seg) else np.zeros(0)
+    # A height only tested against its chord is asked from just under the chord less tol (z_near): one lower
+    # is a deviation over tol whatever it is, and most primitives are culled unseen. The heights a split
+    # carries on (the new points, the children's midpoints) are made exact where they came back that low.
+    a, b = allp[ia], allp[ib]
+    under = 0.5 * (a[:, 2] + b[:, 2]) - tol  # zm came back floored where it is under this
+    zm = z_near(surface, 0.5 * (a[:, :2] + b[:, :2]), under) if len(seg) else np.zeros(0)
     while len(seg):
         a, b = allp[ia], allp[ib]
         # Chord test at the quarter points too: an S-bend can hide from the midpoint alone.
@@ -195,12 +200,13 @@ def _refine(surface: _Surface, xy: np.ndarray, z: np.ndarray, joined: np.ndarray
         # its own XY to the last bit (the CL surface can jump).
         mid = 0.5 * (a[:, :2] + b[:, :2])
         q = np.concatenate([0.5 * (a[:, :2] + mid), 0.5 * (mid + b[:, :2])])
-        zq = surface.z(q)
+        chord_q = np.concatenate([0.75 * a[:, 2] + 0.25 * b[:, 2], 0.25 * a[:, 2] + 0.75 * b[:, 2]])
+        zq = z_near(surface, q, chord_q - tol)
         zq1, zq3 = zq[: len(seg)], zq[len(seg):]
         dev = np.maximum.reduce([
             np.abs(zm - 0.5 * (a[:, 2] + b[:, 2])),
-            np.abs(zq1 - (0.75 * a[:, 2] + 0.25 * b[:, 2])),
-            np.abs(zq3 - (0.25 * a[:, 2] + 0.75 * b[:, 2])),
+            np.abs(zq1 - chord_q[: len(seg)]),
+            np.abs(zq3 - chord_q[len(seg):]),
         ])
         length = np.hypot(*(b[:, :2] - a[:, :2]).T)
         bad = dev > tol
@@ -220,7 +226,8 @@ def _refine(surface: _Surface, xy: np.ndarray, z: np.ndarray, joined: np.ndarray
         if not np.any(split):
             break
         tm = 0.5 * (t0 + t1)
-        new = np.column_stack([mid[split], zm[split]])
+        new = np.column_stack([mid[split], zm[split] if under is None else
+                               _exact_under(surface, mid[split], zm[split], under[split])])
         ids = np.arange(total, total + len(new))
         total += len(new)
         keys.append(np.column_stack([seg[split], tm[split], np.zeros(len(new))]))
@@ -228,7 +235,9 @@ def _refine(surface: _Surface, xy: np.ndarray, z: np.ndarray, joined: np.ndarray
         seg = np.concatenate([seg[split], seg[split]])
         ia, ib = np.concatenate([ia[split], ids]), np.concatenate([ids, ib[split]])
         t0, t1 = np.concatenate([t0[split], tm[split]]), np.concatenate([tm[split], t1[split]])
-        zm = np.concatenate([zq1[split], zq3[split]])
+        both = np.concatenate([split, split])
+        zm = _exact_under(surface, q[both], zq[both], chord_q[both] - tol)
+        under = None
     key = np.concatenate(keys)
     # Points are keyed by (segment, t, side); segment i's end (t = 1) is point i + 1 at t = 0.
     key[:, 0] += np.floor(key[:, 1])
@@ -238,6 +247,17 @@ def _refine(surface: _Surface, xy: np.ndarray, z: np.ndarray, joined: np.ndarray
     if forced_ids:
         forced[np.concatenate(forced_ids)] = True
     return allp[order, :2], allp[order, 2], forced[order], key[order, 0].astype(np.int64)
+
+
+def _exact_under(surface: _Surface, xy: np.ndarray, z: np.ndarray, threshold: np.ndarray) -> np.ndarray:
+    """``z`` (n,) [mm] from :func:`cadcam.isoline.z_near` at ``xy`` (n, 2) [mm] with ``threshold`` (n,) [mm],
+    the exact CL z where it came back under the threshold (those may be the floor it was asked from)."""
+    low = np.flatnonzero(z < threshold)
+    if not len(low):
+        return z
+    z = z.copy()
+    z[low] = surface.z(xy[low])
+    return z
 
 
 def _simplify(p: np.ndarray, keep: np.ndarray, tol: float) -> np.ndarray:

@@ -8,10 +8,12 @@ from functools import lru_cache
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
 from cadcam.dropcutter import build_index, drop_profile
-from cadcam.finishing import FinishingOptions, raster_finishing, stepover_for, waterline_finishing
+from cadcam.finishing import FinishingOptions, _refine, _surface, raster_finishing, stepover_for, waterline_finishing
 from cadcam.model import CuttingData, Motion, Setup, Tool
 from factory.core.errors import ToolpathError
 
@@ -293,3 +295,32 @@ def test_waterline_chords_within_half_tolerance_and_the_margin(name):
     op = waterline_finishing(part, setup, t, CUTTING, FinishingOptions(scallop=0.05, tolerance=TOL))
     # The margin is the exact sagitta, a hair over TOL / 8.
     assert worst_gouge(op, part, t, setup.stock_min[2], step=0.01) <= TOL / 2 + 1.001 * TOL / 8
+
+
+class _Unfloored:
+    """A CL surface that answers every height exactly, whatever floor it is asked from."""
+
+    def __init__(self, surface):
+        self.surface, self.radius = surface, surface.radius
+
+    def z(self, xy, progress=None, *, floor=None):
+        return self.surface.z(xy)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.sampled_from(["pocket", "boss", "hemisphere"]), st.sampled_from([0.0, 0.3]),
+       st.floats(1e-4, 0.05), st.integers(0, 2**31 - 1))
+def test_refining_from_floors_makes_the_points_of_exact_heights(name, allowance, tol, seed):
+    """_refine asks its chord tests' heights from just under the chord (less tol): the points, cliffs and
+    sources it makes are those of exact heights to the bit, over walls (pocket, boss) and a dome."""
+    part, setup, t = PARTS[name](), setup_for(), tool("ball")
+    surface = _surface(part, setup, t, FinishingOptions(allowance=allowance))
+    rng = np.random.default_rng(seed)
+    xy = np.cumsum(rng.uniform(-2.0, 4.0, (60, 2)), axis=0) % [40.0, 30.0]
+    z = surface.z(xy)
+    joined = rng.random(59) < 0.9
+    got = _refine(surface, xy, z, joined, tol)
+    want = _refine(_Unfloored(surface), xy, z, joined, tol)
+    assert len(got[0]) > len(xy)  # something was split
+    for a, b in zip(got, want):
+        assert np.array_equal(a, b)
