@@ -652,13 +652,20 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
         emit_ring(entry.ring_index, entry.start_xy, entry.start_xy - entry.air_xy)
     elif entry.kind == "helix":
         th = np.linspace(0.0, 2 * math.pi, 24, endpoint=False)
-        circle = entry.centre + entry.helix_radius * np.column_stack([np.cos(th), np.sin(th)])
         # The helix starts where the known stock lets the tool lowest (a pocket roughed before,
         # its wall's skin beside part of the circle): from there it ramps into whatever is left,
-        # never deeper than the previous level, instead of circling down through air.
-        start = _lowest_air(circle, air_at)
-        z_top = air_over(circle[start])
-        descent, turn = _helix(entry.centre, entry.helix_radius, p, z_top, z, float(th[start]))
+        # never deeper than the previous level, instead of circling down through air. Where the
+        # narrowest helix the tool may take starts lower (the skin on a roughed pocket's wall within
+        # reach of the wider one only), it takes that one: less ramp at the same angle.
+        radius, start, z_top = entry.helix_radius, 0, math.inf
+        for r in (entry.helix_radius, p.min_helix_radius)[:1 + (air_at is not None)]:
+            circle = entry.centre + r * np.column_stack([np.cos(th), np.sin(th)])
+            i = _lowest_air(circle, air_at)
+            if air_over(circle[i]) < z_top - 1e-6 and r <= entry.helix_radius:
+                radius, start, z_top = r, i, air_over(circle[i])
+            if z_top <= z:
+                break
+        descent, turn = _helix(entry.centre, radius, p, z_top, z, float(th[start]))
         if z_top > z and air_over(entry.centre) <= z:
             # Air under the centre (a hole roughed before, with its skin left): straight down
             # there and out onto the circle, not a helix through the air.
