@@ -1,11 +1,4 @@
-"""Which of a region's contour-parallel loops z-level clearing cuts, and in what order
-(:func:`cadcam.roughing._cut_region`).
-
-Rest machining's region at a level is where the tool's axis may go within its radius of the rest material: a
-skin on a wall gives a band whose outer edge lies a radius off the skin, so the loop round that edge sweeps
-air beside the one along the wall, which takes the whole skin (the flank pass round a part, twice). A loop
-that passes no grid point of the rest material within the tool radius cuts none of it (:func:`cutting_loops`)
-and is not cut: the rest material each other loop meets is the same.
+"""The order in which z-level clearing cuts a region's contour-parallel loops (:func:`cadcam.roughing._cut_region`).
 
 Outside-in clearing cuts every loop of one erosion index before any of the next, so on a region round several
 features (a floor between bosses) the tool goes round the first loop of each feature, then the second of each,
@@ -20,7 +13,6 @@ reaches soonest from where it stands (:meth:`LoopOrder.next`).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,30 +20,8 @@ import shapely
 from shapely.geometry import LineString
 from shapely.geometry.base import BaseGeometry
 
-from cadcam.heightmap import Grid
-
 #: Slack on "less than a diameter away" [mm]: loops a hair farther apart cannot touch each other's sweep.
 _WAIT_TOL = 1e-3
-
-
-def cutting_loops(mask: np.ndarray, grid: Grid, radius: float) -> Callable[[list[LineString]], np.ndarray]:
-    """``cuts(lines) -> (n,) bool``: which loops (tool axis paths [mm]) pass within ``radius`` [mm] of a grid
-    point of ``grid`` where ``mask`` ((ny, nx) bool: the rest material at the level) holds.
-
-    The region's edge lies a radius off the rest material's cells, half a cell beyond their points: a loop along
-    it (the band's outer edge, or a terrace's 0.004 mm past the radius of the points on a wall) passes over none
-    of them. What it might graze between the points is no rest material of the model; every later operation is
-    planned on the model after this one, and verify judges the part."""
-    j, i = np.nonzero(mask)
-    tree = shapely.STRtree(shapely.points(grid.x0 + grid.cell * i, grid.y0 + grid.cell * j))
-
-    def cuts(lines: list[LineString]) -> np.ndarray:
-        out = np.zeros(len(lines), dtype=bool)
-        if len(lines) and len(i):
-            out[np.unique(tree.query(lines, predicate="dwithin", distance=radius)[0])] = True
-        return out
-
-    return cuts
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,4 @@
-"""cadcam.ringorder: a region's loops in the order a machinist takes them, each meeting the stock it met before;
-the loops that sweep no rest material left out; the bracket's flank pass round the part once a level."""
+"""cadcam.ringorder: a region's loops in the order a machinist takes them, each meeting the stock it met before."""
 
 from __future__ import annotations
 
@@ -10,15 +9,12 @@ import shapely
 import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from shapely.geometry import MultiLineString, MultiPoint, Point, box
+from shapely.geometry import MultiLineString, Point, box
 from shapely.ops import unary_union
 
-from cadcam.heightmap import Grid
-from cadcam.model import Motion
-from cadcam.ringorder import LoopOrder, cutting_loops
+from cadcam.ringorder import LoopOrder
 from cadcam.roughing import RoughingOptions, _resolve, _rings
 from cadcam.setup import make_setup
-from tests.cadcam.test_plan import sample_op1
 from tests.cadcam.test_post import FLAT
 
 #: A floor 200 x 60 mm round islands (the bracket's top between its bosses, drawn out).
@@ -87,30 +83,3 @@ def test_the_tool_finishes_round_one_island_before_crossing_to_the_next():
 
     assert crossings(done) < crossings(strict), (crossings(done), crossings(strict))
     assert way < strict_way
-
-
-def test_a_loop_sweeping_no_rest_material_is_left_out():
-    """A band of skin 0.6 mm thick on a wall: the loop along the wall passes within the radius of the skin's grid
-    points, the one round the band's outer edge (a radius and a hair off the skin) passes none."""
-    grid = Grid(x0=0.0, y0=0.0, cell=0.2, nx=301, ny=301)
-    x, y = np.meshgrid(grid.xs, grid.ys)
-    skin = (x >= 20.0) & (x <= 20.6) & (y >= 10.0) & (y <= 50.0)  # the part at X < 20, air beyond 20.6
-    cuts = cutting_loops(skin, grid, FLAT.radius)
-    along = shapely.LineString([(20.0 + FLAT.radius + 0.005, 10.0), (20.0 + FLAT.radius + 0.005, 50.0)])
-    edge = shapely.LineString([(20.6 + FLAT.radius + 0.004, 10.0), (20.6 + FLAT.radius + 0.004, 50.0)])
-    assert list(cuts([along, edge])) == [True, False]  # along: R + 0.005 from the points on the wall
-    assert list(cutting_loops(np.zeros_like(skin), grid, FLAT.radius)([along])) == [False]
-
-
-def test_the_bracket_flank_pass_goes_round_the_part_once_at_its_floor():
-    """The bracket's flats and walls at its floor level: one loop round the part (its outline grown by the tool
-    radius), not a second one a radius off the skin, sweeping air (on main: 697 mm for a 347 mm loop)."""
-    setup, part, job = sample_op1("bracket")
-    op = next(o for o in job.operations if o.name.startswith("finish flats+walls"))
-    floor = float(np.min(op.points[:, 2]))
-    at = (np.abs(op.points[1:, 2] - floor) < 1e-6) & (np.abs(op.points[:-1, 2] - floor) < 1e-6) \
-        & (op.motion[1:] != int(Motion.RAPID))
-    fed = float(np.sum(np.linalg.norm(np.diff(op.points[:, :2], axis=0)[at], axis=1)))
-    # the bracket's outline is its outermost extent, a rounded rectangle: its hull
-    loop = MultiPoint(part.vertices[:, :2]).convex_hull.buffer(op.tool.radius).exterior.length
-    assert fed < 1.2 * loop, (fed, loop)
