@@ -130,7 +130,8 @@ class DrillingOptions:
         the holding allowance op 2 faces off (to :data:`POINT_CLEARANCE_MM` over the stock's bottom);
         never below ``Setup.floor_z`` where there is no holding allowance.
     spot : bool
-        Spot drill every drilled hole first (when the library has a spot drill).
+        Spot drill every drilled hole first (when the library has a spot drill), but a bore's pilot
+        (``predrill``), which the helix takes to size and place.
     spot_share : float
         Diameter of the spot's cone at the surface, as a share of the drill's [1]; below 1
         so the drill removes it all.
@@ -615,8 +616,9 @@ def plan_holes(
 
     def operations(methods: _Methods) -> list[Operation]:
         ops: list[Operation] = []
-        if methods.drilled and spots:
-            ops.append(_spot_operation(methods.drilled, spots[0], library, mat, top, r_plane, initial, origin, options))
+        spotted = _to_spot(methods, spots[0]) if spots else {}
+        if spotted:
+            ops.append(_spot_operation(spotted, spots[0], library, mat, top, r_plane, initial, origin, options))
         ops += _drill_operations(methods.drilled, library, mat, r_plane, initial, origin, options)
         for h, mill in sorted(methods.helixed, key=lambda hm: (-hm[1].diameter, hm[0].x, hm[0].y)):
             bottom = max(h.bottom_z - (options.breakthrough if h.bottom == "through" else 0.0), floor)
@@ -635,7 +637,8 @@ def plan_holes(
         if _seconds(plain_ops) <= _seconds(ops):
             chosen, ops = plain, plain_ops
     drilled, helixed = chosen.drilled, chosen.helixed
-    spotted = {h for hs in drilled.values() for h, _ in hs if spots and _spots_countersink(spots[0], h.countersink)}
+    spotted = {h for hs in _to_spot(chosen, spots[0]).values() for h, _ in hs
+               if _spots_countersink(spots[0], h.countersink)} if spots else set()
     for h in holes:
         log.debug("hole: %s", h.describe())
         if h.countersink is not None and h not in spotted:
@@ -796,6 +799,17 @@ def _spot_operation(drilled: dict[int, list[tuple[Hole, float]]], spot: Tool, li
         rows.append((h.x, h.y, top - spot.point_slope * spot_d / 2))
     cycle = DrillCycle(code=81, holes=np.array(rows), r_plane=r_plane, peck=0.0, retract="r", initial_z=initial)
     return drill_operation("spot drill", "spot", spot, library.cutting_data(spot, mat), cycle)
+
+
+def _to_spot(methods: _Methods, spot: Tool) -> dict[int, list[tuple[Hole, float]]]:
+    """The drilled holes to spot (drill number -> (hole, tip height [mm])): not a bore's pilot, which the end mill
+    helixes to size after it (:attr:`_Methods.predrilled`), unless the spot cuts its countersink. A spot holds a
+    drill's point where the hole must be; the pilot's place is the helix's, which takes its wall all round (a
+    ring well inside the end mill's radial limit, :func:`predrilled_radii`), so the spot would cost a tool change
+    for nothing the part keeps (the bracket's five bores: 12 s)."""
+    out = {n: [(h, tip) for h, tip in hs if h not in methods.predrilled or _spots_countersink(spot, h.countersink)]
+           for n, hs in methods.drilled.items()}
+    return {n: hs for n, hs in out.items() if hs}
 
 
 def _spots_countersink(spot: Tool, countersink: Countersink | None) -> bool:

@@ -81,6 +81,7 @@ from shapely.ops import nearest_points
 
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.restlinks import COVER_TOL, Links, Piece, cut_stacked
+from cadcam.ringorder import LoopOrder
 from cadcam.gridregion import GrownMaskCache, near_cells
 from cadcam.levelskim import local_levels, without_skimmed
 from cadcam.rest import rest_level_masks, rest_levels, rooms_round, without_holder
@@ -651,13 +652,20 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
         emit_ring(entry.ring_index, entry.start_xy, entry.start_xy - entry.air_xy)
     elif entry.kind == "helix":
         th = np.linspace(0.0, 2 * math.pi, 24, endpoint=False)
-        circle = entry.centre + entry.helix_radius * np.column_stack([np.cos(th), np.sin(th)])
         # The helix starts where the known stock lets the tool lowest (a pocket roughed before,
         # its wall's skin beside part of the circle): from there it ramps into whatever is left,
-        # never deeper than the previous level, instead of circling down through air.
-        start = _lowest_air(circle, air_at)
-        z_top = air_over(circle[start])
-        descent, turn = _helix(entry.centre, entry.helix_radius, p, z_top, z, float(th[start]))
+        # never deeper than the previous level, instead of circling down through air. Where the
+        # narrowest helix the tool may take starts lower (the skin on a roughed pocket's wall within
+        # reach of the wider one only), it takes that one: less ramp at the same angle.
+        radius, start, z_top = entry.helix_radius, 0, math.inf
+        for r in (entry.helix_radius, p.min_helix_radius)[:1 + (air_at is not None)]:
+            circle = entry.centre + r * np.column_stack([np.cos(th), np.sin(th)])
+            i = _lowest_air(circle, air_at)
+            if air_over(circle[i]) < z_top - 1e-6 and r <= entry.helix_radius:
+                radius, start, z_top = r, i, air_over(circle[i])
+            if z_top <= z:
+                break
+        descent, turn = _helix(entry.centre, radius, p, z_top, z, float(th[start]))
         if z_top > z and air_over(entry.centre) <= z:
             # Air under the centre (a hole roughed before, with its skin left): straight down
             # there and out onto the circle, not a helix through the air.
@@ -685,16 +693,10 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
         cut.append(rings[j].line)
         uncut.remove(j)
 
+    order = LoopOrder.of([r.line for r in rings], np.array([r.k for r in rings], dtype=np.float64), inside_out,
+                         2 * p.radius)
     while uncut:
-        cut_geom = MultiLineString(cut)
-        ks = [rings[j].k for j in uncut]
-        k_next = max(ks) if inside_out else min(ks)
-        preferred = [j for j in uncut if rings[j].k == k_next]
-        link = _best_link(rings, preferred, cut_geom, covered, p.link_max)
-        if link is None:
-            # The globally nearest uncut loop is linkable in theory (the segment cannot leave
-            # the region without crossing a loop that is nearer); try all by distance.
-            link = _best_link(rings, uncut, cut_geom, covered, math.inf)
+        link = order.next(uncut, MultiLineString(cut), covered, path.here, p.link_max)
         if link is None:
             log.warning("z=%.3f: %d loop(s) of a region could not be linked safely; left uncut", z, len(uncut))
             return False
@@ -718,23 +720,6 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
                 path.descend([*ring[0], z], z, p)
             path.add_many(np.column_stack([ring, np.full(len(ring), z)]), Motion.CUT)
     return True
-
-
-def _best_link(rings: list[_Ring], cands: list[int], cut_geom: BaseGeometry, covered: BaseGeometry,
-               max_len: float) -> tuple[int, np.ndarray, np.ndarray] | None:
-    """Nearest candidate loop reachable from the cut paths by a segment inside the region."""
-    lines = np.array([rings[j].line for j in cands], dtype=object)
-    dist = shapely.distance(lines, cut_geom)
-    for i in np.argsort(dist, kind="stable"):
-        if dist[i] > max_len:
-            return None
-        q_pt, src_pt = nearest_points(rings[cands[i]].line, cut_geom)
-        q, src = np.asarray(q_pt.coords[0]), np.asarray(src_pt.coords[0])
-        if dist[i] < 1e-9 or covered.covers(LineString([src, q])):
-            return cands[i], src, q
-        if math.isfinite(max_len):
-            return None  # only the nearest preferred loop is worth a short link
-    return None
 
 
 # --------------------------------------------------------------------------- main

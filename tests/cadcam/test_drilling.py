@@ -366,7 +366,8 @@ def test_helix_feeds_its_edge_at_the_cutting_feed_down_the_ramp_rule(diameter):
     the axial limit. 12.8 mm takes two helices (the narrower clears the pin; the 10 mm end mill needs 13)."""
     part0 = manifold_to_trimesh(plate((40.0, 40.0, 15.0)) - cylinder(20, 20, diameter / 2, -1, 16))
     setup, part = make_setup(part0)
-    hp = plan_holes(part, setup, LIBRARY, LIBRARY.tool(14), allowance=0.3)  # 16 mm roughing: too wide to enter
+    # 16 mm roughing: too wide to enter; from solid (a drill first would be quicker: test_predrilled_bores_...)
+    hp = plan_holes(part, setup, LIBRARY, LIBRARY.tool(14), DrillingOptions(predrill=False), allowance=0.3)
     (op,) = [o for o in hp.operations if o.kind == "helix"]
     tool = op.tool
     assert tool.number == 1 and len(hp.helixed) == 1
@@ -401,12 +402,13 @@ def test_helix_feeds_its_edge_at_the_cutting_feed_down_the_ramp_rule(diameter):
 
 @pytest.mark.parametrize("diameter, rings", [(11.0, 1), (12.0, 2)])
 def test_predrilled_bores_are_quicker_and_clean(tmp_path, diameter, rings):
-    """Four bores no drill matches: spot, drill 10 mm, then helices from where the drill's point begins, quicker
+    """Four bores no drill matches: drill 10 mm (no spot: the helix places the bore), then helices from where the
+    drill's point begins, quicker
     by the program's clock than four helices from solid. The 6 mm end mill takes the 11 mm bores' wall in one
     ring (its engagement within the tool's deep radial limit at full flute length), the 12 mm ones' in two.
     Verify and the independent sweep find no fault, no rapid into stock, no plunge, no full-width cut past the
-    axial limit; the bores are cut to size; rs274 runs it. One such bore alone is helixed from solid: two more
-    tool changes would cost more than the drill saves."""
+    axial limit; the bores are cut to size; rs274 runs it. One such bore alone is drilled first too: with no spot
+    before the pilot, its one tool change costs less than the helix from solid takes longer."""
     from tests.cadcam.sweep import past_axial_limit, rapid_hits, sweep_moves
 
     centres = [(10, 10), (30, 10), (10, 30), (30, 30)]
@@ -417,11 +419,11 @@ def test_predrilled_bores_are_quicker_and_clean(tmp_path, diameter, rings):
     hp = plan_holes(part, setup, LIBRARY, LIBRARY.tool(2), allowance=0.3)
     assert len(hp.predrilled) == len(hp.helixed) == 4 and hp.drilled == () and hp.undersize == ()
     ops = list(hp.operations)
-    assert [o.kind for o in ops] == ["spot", "drill"] + ["helix"] * 4
-    drill = ops[1].tool
+    assert [o.kind for o in ops] == ["drill"] + ["helix"] * 4
+    drill = ops[0].tool
     assert drill.diameter == 10.0
-    tip = float(ops[1].cycle.holes[0, 2])
-    for op in ops[2:]:
+    tip = float(ops[0].cycle.holes[0, 2])
+    for op in ops[1:]:
         feed = op.motion != Motion.RAPID
         first = int(np.flatnonzero(feed)[0])
         h = min(hp.helixed, key=lambda h: math.hypot(h.x - op.points[0, 0], h.y - op.points[0, 1]))
@@ -457,7 +459,13 @@ def test_predrilled_bores_are_quicker_and_clean(tmp_path, diameter, rings):
     one = manifold_to_trimesh(plate((40.0, 40.0, 15.0)) - cylinder(20, 20, diameter / 2, -1, 16))
     setup1, part1 = make_setup(one)
     alone = plan_holes(part1, setup1, LIBRARY, LIBRARY.tool(2), allowance=0.3)
-    assert len(alone.helixed) == 1 and alone.predrilled == () and [o.kind for o in alone.operations] == ["helix"]
+    solid1 = plan_holes(part1, setup1, LIBRARY, LIBRARY.tool(2), DrillingOptions(predrill=False), allowance=0.3)
+    assert len(alone.helixed) == 1 and [o.kind for o in solid1.operations] == ["helix"]
+    # with no spot before it, the pilot's one tool change costs less than the helix from solid takes longer
+    assert [o.kind for o in alone.operations] == ["drill", "helix"] and len(alone.predrilled) == 1
+    timed = [post_process(Job(part_name="bore", setup=setup1, operations=o)).total_time
+             for o in (alone.operations, solid1.operations)]
+    assert timed[0] < timed[1], timed
 
 
 def test_a_plans_predrilled_bores_run_at_their_chip_and_verify_passes_them():

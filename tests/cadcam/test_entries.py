@@ -143,3 +143,20 @@ def test_a_balls_descent_is_fed_at_the_plunge_feed_only_in_the_last_margin_over_
     # the descents are there: fed through the clearance, each ending where a plunge (or the chain) takes over
     assert np.count_nonzero(fed) >= 3
     assert not worst_gouge(op, part, ball, setup.floor_z) > TOL
+
+
+def test_a_finishing_helix_into_a_roughed_counterbore_starts_just_over_what_is_left():
+    """plate_bosses: T2 rests-roughs its three counterbores to 0.3 mm over their floors; its flats and walls then
+    enter each by the narrowest helix it may take, whose circle keeps the tool off the wall's skin, from just over
+    the floor's skin, not by the wider one from the top floor through 5 mm of air (on main: 5.0 mm of ramp each);
+    verify, holding every chip to fz, passes the program."""
+    from tests.cadcam.test_plan import assert_verified_with_chips, sample_op1
+
+    setup, part, job = sample_op1("plate_bosses")
+    op = next(o for o in job.operations if o.name == "finish flats+walls T2")
+    step = np.diff(op.points, axis=0)
+    ramp = (op.motion[1:] == Motion.PLUNGE) & (step[:, 2] < -1e-9) & (np.hypot(step[:, 0], step[:, 1]) > 1e-6)
+    edges = np.flatnonzero(np.diff(np.r_[0, ramp.astype(np.int8), 0]))
+    drops = [float(op.points[s, 2] - op.points[e, 2]) for s, e in zip(edges[::2], edges[1::2])]
+    assert len(drops) >= 3 and max(drops) < 1.0, drops
+    assert_verified_with_chips(job, setup, part)

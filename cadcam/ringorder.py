@@ -1,0 +1,101 @@
+"""The order in which z-level clearing cuts a region's contour-parallel loops (:func:`cadcam.roughing._cut_region`).
+
+Outside-in clearing cuts every loop of one erosion index before any of the next, so on a region round several
+features (a floor between bosses) the tool goes round the first loop of each feature, then the second of each,
+crossing the part between them every time. A machinist finishes round one feature before going to the next.
+What the strict order guarantees is only that a loop meets the stock its outer neighbours leave: so a loop
+here waits only for the loops of the lower index (outside-in; higher, inside-out) that its tool sweep can touch,
+those less than a diameter away (:meth:`LoopOrder.of`). Any two loops whose sweeps overlap are then cut in the
+same order as before, so each loop meets the same stock; among the loops ready, the tool takes the one it
+reaches soonest from where it stands (:meth:`LoopOrder.next`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from shapely.geometry import LineString
+from shapely.geometry.base import BaseGeometry
+
+#: Slack on "less than a diameter away" [mm]: loops a hair farther apart cannot touch each other's sweep.
+_WAIT_TOL = 1e-3
+
+
+@dataclass(frozen=True)
+class LoopOrder:
+    """How a region's loops follow each other: ``lines`` the loops (closed, [mm]), ``ks`` their erosion indices,
+    ``inside_out`` whether the higher index goes first, ``waits`` per loop the loops it must wait for
+    (:meth:`of`)."""
+
+    lines: list[LineString]
+    ks: np.ndarray
+    inside_out: bool
+    waits: list[np.ndarray]
+
+    @classmethod
+    def of(cls, lines: list[LineString], ks: np.ndarray, inside_out: bool, diameter: float) -> LoopOrder:
+        """Each loop waits for those of a lower erosion index ``ks`` (higher when cutting ``inside_out``) less
+        than ``diameter`` [mm] (the tool's) from it, whose sweeps its own may meet."""
+        if len(lines) < 2:
+            return cls(lines, ks, inside_out, [np.zeros(0, np.int64)] * len(lines))
+        a, b = shapely.STRtree(lines).query(lines, predicate="dwithin", distance=diameter + _WAIT_TOL)
+        before = ks[b] > ks[a] if inside_out else ks[b] < ks[a]
+        a, b = a[before], b[before]
+        order = np.argsort(a, kind="stable")
+        a, b = a[order], b[order]
+        cuts = np.searchsorted(a, np.arange(len(lines) + 1))
+        return cls(lines, ks, inside_out, [b[cuts[i]:cuts[i + 1]] for i in range(len(lines))])
+
+    def next(self, uncut: list[int], cut_geom: BaseGeometry, covered: BaseGeometry, here: np.ndarray,
+             max_len: float) -> tuple[int, np.ndarray, np.ndarray] | None:
+        """The next loop to cut and its link ``(index, src, q)``: from ``src`` [mm] on the loops cut so far
+        (``cut_geom``) straight to ``q`` on the loop, inside the region (``covered``).
+
+        Among the loops whose waits are all cut, the one the tool at XY ``here`` [mm] gets to along the shortest
+        way (to ``src``, then the link), with a link no longer than ``max_len`` [mm]. Else, as the strict order
+        had it, the nearest loop of the next erosion index within ``max_len``, else the nearest of any that a
+        straight link reaches (the globally nearest uncut loop is linkable in theory: the segment cannot leave
+        the region without crossing a loop that is nearer). None: none can be linked."""
+        pending = set(uncut)
+        ready = [j for j in uncut if not any(int(i) in pending for i in self.waits[j])]
+        link = self._shortest_way(ready, cut_geom, covered, here, max_len) if ready else None
+        if link is None:
+            ks = self.ks[uncut]
+            k_next = ks.max() if self.inside_out else ks.min()
+            link = self._nearest(np.array(uncut)[ks == k_next], cut_geom, covered, max_len)
+        return self._nearest(np.array(uncut), cut_geom, covered, math.inf) if link is None else link
+
+    def _links(self, cands: list[int] | np.ndarray, cut_geom: BaseGeometry) -> np.ndarray:
+        """(m, 2, 2): per candidate loop its nearest point ``q`` and the nearest point ``src`` of the cut [mm]."""
+        lines = shapely.shortest_line(np.array([self.lines[j] for j in cands], dtype=object), cut_geom)
+        return shapely.get_coordinates(lines).reshape(-1, 2, 2)
+
+    def _shortest_way(self, ready: list[int], cut_geom: BaseGeometry, covered: BaseGeometry, here: np.ndarray,
+                      max_len: float) -> tuple[int, np.ndarray, np.ndarray] | None:
+        ends = self._links(ready, cut_geom)
+        length = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
+        way = np.linalg.norm(ends[:, 1] - np.asarray(here, dtype=np.float64)[:2], axis=1) + length
+        for i in np.argsort(way, kind="stable"):
+            q, src = ends[i, 0], ends[i, 1]
+            if length[i] <= max_len and (length[i] < 1e-9 or covered.covers(LineString([src, q]))):
+                return ready[i], src, q
+        return None
+
+    def _nearest(self, cands: np.ndarray, cut_geom: BaseGeometry, covered: BaseGeometry, max_len: float
+                 ) -> tuple[int, np.ndarray, np.ndarray] | None:
+        """Nearest candidate loop reachable from the cut by a segment inside the region; within a finite
+        ``max_len`` only the nearest one is worth a short link."""
+        ends = self._links(cands, cut_geom)
+        dist = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
+        for i in np.argsort(dist, kind="stable"):
+            if dist[i] > max_len:
+                return None
+            q, src = ends[i, 0], ends[i, 1]
+            if dist[i] < 1e-9 or covered.covers(LineString([src, q])):
+                return int(cands[i]), src, q
+            if math.isfinite(max_len):
+                return None
+        return None
