@@ -14,7 +14,8 @@ Outcomes: a good part *passed* or *rejected*; a defective one *caught* (rejected
 (passed); *refused* when inspection gave no verdict, with its reason: locate could not place the
 part confidently, or too little of its outline or of a feature can be judged (glare). A verdict on
 a part located more than 1.5 mm or 1 deg from the truth is counted *misplaced* as well (a judgement
-at a wrong pose). One JSON line per picture goes to stderr; the confusion table (per condition and
+at a wrong pose). A burr the verdict says it cannot resolve (``smallest_burr_mm`` over the lip's
+1 mm: the cell camera's 0.82 mm per pixel) is counted apart below the table. One JSON line per picture goes to stderr; the confusion table (per condition and
 defect) to stdout, in Markdown.
 
 Inspection's thresholds were set on seeds 0-1; ``--first-seed 2`` and ``--first-seed 4`` draw poses
@@ -42,6 +43,8 @@ from vision.camera import CameraModel  # noqa: E402
 from vision.inspect import InspectOptions, inspect_part  # noqa: E402
 
 KINDS = ("good", *DEFECTS)
+#: The burr of tests/vision/defects.py sticks out this far [mm].
+BURR_MM = 1.0
 OUTCOMES = ("passed", "rejected", "refused")
 
 
@@ -69,7 +72,8 @@ def judge(station, part: str, condition: str, seed: int, kind: str, cache: Path 
             "misplaced": not placed, "max_deviation_mm": summary["max_deviation_mm"],
             "excess_mm": summary["excess_mm"], "profile_excess_mm": summary["profile_excess_mm"],
             "missing_mm": summary["missing_mm"],
-            "outline_seen": summary["outline_seen"], "missing_features": len(summary["missing_features"])}
+            "outline_seen": summary["outline_seen"], "smallest_burr_mm": summary["smallest_burr_mm"],
+            "missing_features": len(summary["missing_features"])}
 
 
 def run(poses: int, cache: Path | None, conditions: list[str], kinds: list[str], first_seed: int = 0,
@@ -105,6 +109,13 @@ def table(rows: list[dict], conditions: list[str], kinds: list[str]) -> dict:
             first, second = (n["passed"], n["rejected"]) if k == "good" else (n["rejected"], n["passed"])
             cells.append(f"{first} / {second} / {n['refused']}")
         print(f"| {c} | " + " | ".join(cells) + " |")
+    # A burr narrower than the picture resolves may pass, and its verdict says so (Inspection.smallest_burr).
+    burrs = [x for x in rows if x["kind"] == "burr" and x["outcome"] != "refused"]
+    if burrs:
+        under = [x for x in burrs if x["smallest_burr_mm"] > BURR_MM]
+        print(f"burrs judged: {len(burrs)}; the verdict resolves no burr under {BURR_MM:g} mm in {len(under)} "
+              f"({sum(x['outcome'] == 'passed' for x in under)} of them passed); smallest burr resolved: "
+              f"{min(x['smallest_burr_mm'] for x in burrs):.2f}-{max(x['smallest_burr_mm'] for x in burrs):.2f} mm")
     misplaced = sum(x.get("misplaced", False) for x in rows)
     print(f"verdicts at a wrong pose: {misplaced}; median seconds per picture: "
           f"{np.median([x['seconds'] for x in rows]):.2f}")

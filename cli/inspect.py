@@ -46,7 +46,8 @@ def inspect(
     Exits 3 when a part deviates by more than --tolerance, or is refused (too little of it can be
     judged: glare, shadow). A part that cannot be located confidently is an error, with the reason.
     --json prints a list of {pass, refusal, tolerance_mm, max/p95_deviation_mm, excess_mm, missing_mm,
-    outline_seen, missing_features, pose}.
+    outline_seen, smallest_burr_mm, missing_features, pose}. A burr narrower than smallest_burr_mm (the camera's
+    pixel at the part) may pass: the verdict says so.
     """
     setup_logging(quiet)
     flange_pose = parse_flange(flange)
@@ -64,7 +65,8 @@ def inspect(
         for r in results:
             p = r.part
             verdict = f"REFUSED  {r.refusal}" if r.refusal else f"{'PASS' if r.passed else 'FAIL'}  max " \
-                f"{r.max_deviation * 1e3:.2f} mm (tolerance {tolerance:g} mm, {p.mm_per_px:.2f} mm/px)"
+                f"{r.max_deviation * 1e3:.2f} mm (tolerance {tolerance:g} mm, {p.mm_per_px:.2f} mm/px; " \
+                f"a burr under {r.smallest_burr * 1e3:.2f} mm is not resolved)"
             stderr.print(f"{verdict} at x {p.x:.4f} y {p.y:.4f} m", highlight=False, markup=False)
     if json_out:
         print_json([r.to_dict() for r in results])

@@ -6,6 +6,7 @@ Locating and inspecting both fit these edges to a picture's (:mod:`vision.locate
 
 from __future__ import annotations
 
+from functools import cached_property
 from typing import Protocol
 
 import cv2
@@ -45,6 +46,9 @@ RESOLVE_PX = 3.5
 RESOLVE_COS = 0.9
 #: ... and one lies higher than the other by more than this [m].
 RESOLVE_DZ_M = 1e-3
+#: A crease is a wall's foot where the part stands this much higher this far behind the wall [m]
+#: (two texels of the height field: clear of its rounding at the wall, well under any boss or step).
+FOOT_M = 1e-3
 
 
 #: The edge models last made (:func:`edge_model`), at most :data:`KEPT_MODELS`, by the part's id (each model holds
@@ -141,6 +145,21 @@ class MeshEdges:
         self.reach1 = np.einsum("nj,nj->n", self.n1, self.points)
         self.reach2 = np.einsum("nj,nj->n", self.n2, self.points)
         self._turned: dict[tuple[int, int], bool] = {}
+
+    @cached_property
+    def foot(self) -> np.ndarray:
+        """``(n,)`` bool, read-only: the samples at the foot of a wall, a concave crease where a face turned up
+        meets a wall rising from it (a boss's foot, a pocket's floor), from the height field: behind the
+        wall (against its normal) the part stands at least :data:`FOOT_M` above the crease, :data:`FOOT_M`
+        off it. Soft light shades such a fold over a few pixels, not at a line (:mod:`vision.inspect` does
+        not judge a loop of them on its own). Of the mesh alone: made once, when first asked."""
+        wall = np.where((self.n1[:, 2] > 0.5)[:, None], self.n2, self.n1)
+        across = wall[:, :2] / np.maximum(np.linalg.norm(wall[:, :2], axis=1, keepdims=True), 1e-12)
+        up = (np.maximum(self.n1[:, 2], self.n2[:, 2]) > 0.5) & (np.abs(wall[:, 2]) < 0.5)
+        behind = self.field.at(self.points[:, :2] - FOOT_M * across)
+        feet = up & (behind > self.points[:, 2] + FOOT_M)
+        feet.flags.writeable = False
+        return feet
 
     def same_turned(self, k: int, symmetry: int) -> bool:
         """Whether the mesh's edges turned by ``k`` of ``symmetry`` turns about the footprint's centroid

@@ -23,7 +23,6 @@ from vision.handeye import invert
 from vision.inspect import (InspectOptions, _line_level, _one_polarity, _profile_shift, _windowed, inspect_part,
                             inspection_image, part_transform)
 from vision.locate import LocatedPart, footprint_from_mesh, mm_to_m
-from vision.inspect_feet import wall_feet
 from vision.mesh_edges import MeshEdges
 from vision.render import Box, pixel_rays, render_boxes, render_mesh
 from vision.station import cut_corner
@@ -84,6 +83,10 @@ def test_inspect_command(tray, tmp_path):
     assert r.exit_code == 3, r.output  # one blank fails
     verdicts = sorted(p["pass"] for p in json.loads(r.stdout))
     assert verdicts == [False, True] and "FAIL" in r.stderr
+    # Each verdict says how narrow a burr the picture resolves: a pixel and a half at the part, at least.
+    for p in json.loads(r.stdout):
+        assert p["smallest_burr_mm"] >= max(1.5 * p["pose"]["mm_per_px"], p["tolerance_mm"]) - 1e-9
+    assert r.stderr.count("is not resolved") == 2
     assert cv2.imread(str(tmp_path / "out.png")) is not None
     r = CliRunner().invoke(app, args, catch_exceptions=False)  # the picture exists now
     assert r.exit_code == 1 and "--overwrite" in r.stderr and r.stdout == ""
@@ -241,7 +244,7 @@ def test_a_burr_along_most_of_a_short_side_stands_out_from_a_trend_started_at_ze
 @settings(max_examples=15, deadline=None)
 @given(st.floats(4.0, 12.0), st.floats(3.0, 15.0), st.floats(-8.0, 8.0), st.floats(2.0, 5.0), st.floats(6.0, 20.0))
 def test_the_feet_are_the_concave_creases_of_a_face_turned_up(radius, height, at, hole, plate):
-    """A plate with a boss and a through-hole: the crease samples ``wall_feet`` takes for feet are those
+    """A plate with a boss and a through-hole: the crease samples ``MeshEdges.foot`` takes for feet are those
     trimesh calls concave (its own test, not the height field) between a face turned up and a wall:
     the boss's foot; never its top's rim, the hole's rims or the plate's outline."""
     boss = trimesh.creation.cylinder(radius=radius, height=height + 1.0, sections=48)
@@ -254,7 +257,7 @@ def test_the_feet_are_the_concave_creases_of_a_face_turned_up(radius, height, at
                                       engine="manifold")
     model = MeshEdges(footprint_from_mesh(mesh.vertices, mesh.faces), TRUE_CAMERA, BASE_CAM, TRAY_Z)
     idx = np.flatnonzero(model.crease)
-    feet = wall_feet(model, idx)
+    feet = model.foot[idx]
     # The same mesh as the model's, its edges kept alike: trimesh's convexity of each sample's edge.
     same = trimesh.Trimesh(mesh.vertices, mesh.faces, process=True)
     convex = same.face_adjacency_convex[same.face_adjacency_angles > np.radians(1.0)][model.edge[idx]]

@@ -122,6 +122,8 @@ def test_a_burr_is_extra_material_at_the_burr(station):
     assert 0.6 < summary["excess_mm"] < 1.5 and summary["missing_mm"] < 0.6
     worst = bad.outline_px[np.nanargmax(bad.deviation)]
     assert np.hypot(*(worst - pixel_of(station, "dome_mould", scene, (44.5, 70.5, 30.0)))) < 12  # [px]
+    # This one is caught, but the lip is 1.2 px at 0.82 mm a pixel: the verdict promises no burr under 1.85 mm.
+    assert good.smallest_burr == bad.smallest_burr > 1e-3 and summary["smallest_burr_mm"] > 1.0
 
 
 def test_glare_on_the_top_judges_what_shows_and_refuses_only_what_it_hides(station):
@@ -250,3 +252,19 @@ def test_a_burr_as_white_as_the_top_in_glare_is_extra_material_at_5_mp():
     worst = bad.outline_px[np.nanargmax(bad.deviation)]
     # within half the lip's 15 mm (about 7 px a millimetre) of its middle
     assert np.hypot(*(worst - pixel_of(station, "bracket", scene, (49.5, 61.0, 15.0)))) < 60  # [px]
+
+
+def test_a_burr_flush_with_the_top_in_diffuse_light_is_extra_material_at_5_mp():
+    """A plate with a 1 mm lip flush with its top, in diffuse light at 5 MP (0.14 mm a pixel): no edge
+    at the expected line along the lip, only the brushed face's texture 1.5-2 px out, which main took as
+    the own edge, or a crease 6 px inside, nearer than the lip's 7 px out (main passed it: 0.01 mm).
+    The lip's edge, stronger than the texture beyond the noise and with the face's greys out to it, is
+    the material's end: about 1 mm out where the lip is. (The good plate at this pose passes:
+    test_a_bosss_soft_foot_is_not_judged_on_its_own_at_5_mp.)"""
+    station = cell_station(CameraModel.read(ROOT / "fixtures" / "camera_5mp.yaml"))
+    scene, bad = inspected(station, "diffuse", "plate_bosses", 1, "burr", supersample=1)
+    assert not bad.passed and not bad.refusal and not bad.missing_features
+    assert 0.7 < bad.to_dict()["excess_mm"] < 1.3 and bad.smallest_burr < 1e-3
+    worst = bad.outline_px[np.nanargmax(bad.deviation)]
+    # within half the lip's 15 mm (about 7 px a millimetre) of its middle
+    assert np.hypot(*(worst - pixel_of(station, "plate_bosses", scene, (27.5, 71.0, 8.0)))) < 60  # [px]

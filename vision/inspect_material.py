@@ -1,0 +1,139 @@
+"""What the greys beyond an outline sample's own edge say, for inspection: which edge ends the material.
+
+A burr's lip or a broken corner moves where the part's face meets the tray. Along the outline's
+normal the picture shows more edges than that one: the brushed face's texture, a shadow's edge,
+a chamfer's crease. :func:`material_agrees` tells whether the greys between the expected line and
+an edge are what a defect would put there; :func:`defect_edge` chooses, for each sample, the edge
+that ends the material: the nearest on each side whose greys agree, and a farther outward one
+over the own edge when the noise cannot make it that much stronger.
+Image positions and offsets are in pixels, greys in the picture's units.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import map_coordinates
+
+from vision.picture_edges import _peak_offset
+
+#: A farther outward edge whose greys agree ends the material over a nearer one (the own edge, or a
+#: nearer outward one) when its response is stronger by this share of the picture's edge threshold
+#: (unitless). The threshold is 4 x the median gradient magnitude, mostly the tray's noise and texture:
+#: for Gaussian noise that median is 1.18 sigma, so sigma is the threshold / 4.7, the difference of two
+#: responses has sigma x 1.41 = 0.30 x the threshold, and 0.6 is two of those: noise alone makes a
+#: weaker edge read this much stronger at one sample in 44, and a window's median needs half its samples.
+STRONGER = 0.6
+
+
+def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np.ndarray, sign: np.ndarray,
+                resp: np.ndarray, beyond: np.ndarray, explained: np.ndarray, level: np.ndarray, contrast: float,
+                line: np.ndarray, own: np.ndarray, own_j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The edge beyond each outline sample's own window that ends its material: ``(k,)`` its offset
+    outward [px] (NaN where none), and ``(k,)`` bool where it is taken over the sample's own edge.
+
+    ``uv`` (k, 2) [px] and unit ``outward`` (k, 2) the samples and their directions away from the part;
+    ``steps`` (s,) [px] the offsets along the image normal of ``resp`` (k, s) (the gradient across it
+    [grey/px]); ``sign`` (k,) +1 where the normal points outward, -1 where inward; ``beyond`` (k, s) bool
+    the peaks outside the own window within reach, ``explained`` (k, s) bool those on another expected
+    edge; ``level`` (k,) the line's level [px], ``contrast`` the picture's edge threshold [grey/px],
+    ``line`` (k,) int the straight line of each, ``own`` (k,) bool whether its own edge was found, at
+    column ``own_j`` (k,) int.
+
+    Each side's candidates end at its first expected edge (the material is there up to it). The
+    nearest on either side whose greys agree (:func:`material_agrees`) is taken where the own edge is
+    not found, the nearer of the two when both agree: a chamfer's crease 6 px inside a burr's lip
+    must not hide the lip. The strongest outward one whose greys agree is taken over the own edge, or
+    over a nearer outward one, when it is :data:`STRONGER` than that edge: a burr's lip, flush with the
+    top, leaves no edge at the expected line, and the brushed face's texture there makes weaker ones.
+    """
+    rows = np.arange(len(uv))
+    out_steps = steps[None, :] * sign[:, None]
+
+    def side(mask: np.ndarray) -> np.ndarray:
+        first = np.where(mask & explained, np.abs(out_steps), np.inf).min(axis=1)
+        return mask & ~explained & (np.abs(out_steps) < first[:, None])
+
+    def at(j: np.ndarray, there: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        off = np.where(there, sign * _peak_offset(steps, resp, j), np.nan)
+        return off, material_agrees(grey, uv, outward, off, level, contrast, line, own)
+
+    out_c, in_c = side(beyond & (out_steps > 0)), side(beyond & (out_steps < 0))
+    near_out = np.argmin(np.where(out_c, out_steps, np.inf), axis=1)
+    near_in = np.argmin(np.where(in_c, -out_steps, np.inf), axis=1)
+    strong = np.argmax(np.where(out_c, resp, -np.inf), axis=1)
+    any_out, any_in = out_c.any(axis=1), in_c.any(axis=1)
+    o_near, ok_near = at(near_out, any_out)
+    o_in, ok_in = at(near_in, any_in)
+    o_strong, ok_strong = at(strong, any_out)
+    than = np.where(own, resp[rows, own_j], np.where(ok_near, resp[rows, near_out], -np.inf))
+    over = ok_strong & (resp[rows, strong] > than + STRONGER * contrast)
+    nearest = np.where(ok_near & ~(ok_in & (-o_in < o_near)), o_near, np.where(ok_in, o_in, np.nan))
+    return np.where(over, o_strong, np.where(own, np.nan, nearest)), over
+
+
+def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signed: np.ndarray,
+                     level: np.ndarray, contrast: float, line: np.ndarray, own: np.ndarray) -> np.ndarray:
+    """``(k,)`` bool: the picture between each outline sample's line level and its edge found
+    ``signed`` [px] outward (+: extra material, -: missing) looks like what the defect says is there.
+
+    Three greys along the outward normal: the *face* (the part's side of the edges: 1.5-3 px inside
+    the line for extra material, beyond the found edge for missing), the *tray* (the other side)
+    and the *band* between the line and the found edge. Where the band sits between tray (0) and
+    face (1): extra material is face-like (0.5..1.5), missing material tray-like (-0.5..0.5), and
+    face and tray differ by at least ``contrast`` [grey]. Greys, not edges: a shadow's edge
+    outside an edge lost in low contrast, a boss's inside it, the two sides of a lit rim make
+    edges but leave a band like neither side. ``outward`` (k, 2) unit image directions away from
+    the part; NaN ``signed`` gives False.
+
+    The band's grey is its median (a shadow's dark fringe at one end must not drag it). Face and
+    tray are taken twice: beside the sample, and as the medians of the samples of its own straight
+    ``line`` whose edge is where expected (``own``); both must agree, and what lies past the found
+    edge must be the line's own other side (its tray past a burr, its face within a broken corner).
+    """
+    ok = np.isfinite(level) & (np.isfinite(signed) | own)
+    out = np.zeros(len(signed), bool)
+    if not ok.any():
+        return out
+    s, lv = np.where(np.isfinite(signed), signed, level)[ok], level[ok]
+    lo = np.floor(np.minimum(s, lv).min()) - 3.5
+    hi = np.ceil(np.maximum(s, lv).max()) + 3.5
+    t = np.arange(lo, hi + 1e-9, 0.5)  # [px] outward
+    q = uv[ok, None, :] + t[None, :, None] * outward[ok, None, :]
+    profile = map_coordinates(grey.astype(np.float32), [q[..., 1].ravel(), q[..., 0].ravel()], order=1,
+                              mode="nearest").reshape(q.shape[:2])
+
+    def median(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Median grey of each row's profile over t in [a, b] (the nearest step when the span is empty)."""
+        inside = (t[None, :] >= a[:, None] - 1e-9) & (t[None, :] <= b[:, None] + 1e-9)
+        nearest = np.abs(t[None, :] - 0.5 * (a + b)[:, None]).argmin(axis=1)
+        inside[np.arange(len(a)), nearest] |= ~inside.any(axis=1)
+        return np.nanmedian(np.where(inside, profile, np.nan), axis=1)
+
+    def share(band: np.ndarray, face: np.ndarray, tray: np.ndarray) -> np.ndarray:
+        """Where the band sits from tray (0) to face (1); NaN where the two are too alike to tell."""
+        return (band - tray) / np.where(np.abs(face - tray) >= contrast, face - tray, np.nan)
+
+    extra = s > lv
+    band = median(np.minimum(s, lv) + 0.5, np.maximum(s, lv) - 0.5)
+    beyond = np.where(extra, median(s + 1.5, s + 3.0), median(s - 3.0, s - 1.5))  # past the found edge
+    local = share(band, np.where(extra, median(lv - 3.0, lv - 1.5), beyond),
+                  np.where(extra, beyond, median(lv + 1.5, lv + 3.0)))
+    # The line's own face and tray, beside the samples whose edge is where expected.
+    here, where = line[ok], own[ok]
+    face_line, tray_line = np.full(len(s), np.nan), np.full(len(s), np.nan)
+    inner, outer = median(lv - 3.0, lv - 1.5), median(lv + 1.5, lv + 3.0)
+    for e in np.unique(here[where]):
+        on = here == e
+        face_line[on] = np.median(inner[on & where])
+        tray_line[on] = np.median(outer[on & where])
+    lined = share(band, face_line, tray_line)  # NaN on a line with no edge where expected: not told
+
+    def agrees(x: np.ndarray) -> np.ndarray:
+        return np.where(extra, (x >= 0.5) & (x <= 1.5), (x >= -0.5) & (x < 0.5))
+
+    # Past the found edge lies what the line shows on that side: the tray beyond a burr, the
+    # part's face within a broken corner (not a boss's shadow, not the shadow beyond the part).
+    past = share(beyond, face_line, tray_line)
+    past_ok = np.where(extra, (past > -0.5) & (past < 0.5), (past >= 0.5) & (past < 1.5))
+    out[ok] = agrees(local) & agrees(lined) & past_ok & np.isfinite(signed[ok])
+    return out
