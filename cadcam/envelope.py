@@ -546,3 +546,34 @@ class SpanTops:
         b1 = (first + count - 1) // self._BLOCK
         k = np.frexp(b1 - b0 + 1)[1].astype(np.int64) - 1  # floor(log2), exactly
         return np.maximum(self.table[k, row, b0], self.table[k, row, b1 - (1 << k) + 1])
+
+
+def segmented_exclusive_min(group: np.ndarray, value: np.ndarray) -> np.ndarray:
+    """Running minimum of ``value`` within each run of equal ``group``, excluding the entry itself.
+
+    ``group`` is sorted; ``inf`` starts each run and stands for ``inf`` in ``value``. Each
+    run is lifted below every earlier one by a multiple of the values' span, so one
+    ``minimum.accumulate`` restarts at every run; the minimum is then read back from the
+    entry that holds it, so it is exact.
+    """
+    out = np.full(len(value), np.inf)
+    if len(value) == 0:
+        return out
+    finite = np.isfinite(value)
+    if not finite.any():
+        return out
+    lo = float(value[finite].min())
+    span = float(value[finite].max()) - lo + 1.0
+    v = np.where(finite, value - lo, span)  # inf -> above every finite value
+    start = np.r_[True, group[1:] != group[:-1]]
+    run = np.cumsum(start) - 1
+    lifted = v + (run[-1] - run) * (2.0 * span)
+    running = np.minimum.accumulate(lifted)
+    # The entry holding each running minimum (every run's first entry holds one), so the
+    # minimum comes back as the exact value, whatever the lift rounded: results do not
+    # depend on how moves are batched.
+    idx = np.arange(len(value))
+    holder = np.maximum.accumulate(np.where(lifted <= running, idx, 0))
+    keep = np.flatnonzero(~start)
+    out[keep] = value[holder[keep - 1]]
+    return out

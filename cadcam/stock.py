@@ -31,7 +31,7 @@ import numpy as np
 from scipy import ndimage
 
 from cadcam.engagement import ENGAGED_WIDTH, FULL_WIDTH_ANGLE, MoveRecord, engaged_depth, record_max, side_chip
-from cadcam.envelope import BatchPairs, Segments, grid_pairs, pair_envelope, reach_interval
+from cadcam.envelope import BatchPairs, Segments, grid_pairs, pair_envelope, reach_interval, segmented_exclusive_min
 from cadcam.envelope import SpanTops as _SpanTops
 from cadcam.gridregion import highest_near
 from cadcam.heightmap import Grid, grid_over, upper_envelope
@@ -410,7 +410,8 @@ class _Body:
         # A shank as wide as the cutter rides a finished wall at exactly its radius: a
         # graze sideways within the contact tolerance is no contact.
         self.graze = graze
-        # measure False: only the cut itself (see cut_stock's ``measure``); "chip": and the chip, no body. _tops: pairs'.
+        # measure False: only the cut itself (see cut_stock's ``measure``); "chip": and the chip, no body.
+        # _tops: pairs'.
         self.measure, self._tops = True, None
 
     def pairs(self, seg: Segments, s: int, e: int, grid: Grid, stock: np.ndarray, ceiling: float, tops=None):
@@ -528,37 +529,6 @@ def _run(cut: _Cut, progress, bounds: np.ndarray, first: int = 0, tops: "_SpanTo
     return [taken[k] for k in snapshot_at.tolist()] if first == 0 and last == len(bounds) - 1 else []
 
 
-def _segmented_exclusive_min(group: np.ndarray, value: np.ndarray) -> np.ndarray:
-    """Running minimum of ``value`` within each run of equal ``group``, excluding the entry itself.
-
-    ``group`` is sorted; ``inf`` starts each run and stands for ``inf`` in ``value``. Each
-    run is lifted below every earlier one by a multiple of the values' span, so one
-    ``minimum.accumulate`` restarts at every run; the minimum is then read back from the
-    entry that holds it, so it is exact.
-    """
-    out = np.full(len(value), np.inf)
-    if len(value) == 0:
-        return out
-    finite = np.isfinite(value)
-    if not finite.any():
-        return out
-    lo = float(value[finite].min())
-    span = float(value[finite].max()) - lo + 1.0
-    v = np.where(finite, value - lo, span)  # inf -> above every finite value
-    start = np.r_[True, group[1:] != group[:-1]]
-    run = np.cumsum(start) - 1
-    lifted = v + (run[-1] - run) * (2.0 * span)
-    running = np.minimum.accumulate(lifted)
-    # The entry holding each running minimum (every run's first entry holds one), so the
-    # minimum comes back as the exact value, whatever the lift rounded: results do not
-    # depend on how moves are batched.
-    idx = np.arange(len(value))
-    holder = np.maximum.accumulate(np.where(lifted <= running, idx, 0))
-    keep = np.flatnonzero(~start)
-    out[keep] = value[holder[keep - 1]]
-    return out
-
-
 def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, stock: np.ndarray, part: np.ndarray,
                stats: MoveRecord, under: np.ndarray | None = None, tops: "_SpanTops | None" = None,
                pairs: BatchPairs | None = None) -> None:
@@ -598,7 +568,7 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
     # Distinct keys (move, point, kind): any sort's order; stable takes the pairs' sorted runs whole (8x quicksort).
     order = np.argsort(cells * (2 * (e - s) + 2) + np.concatenate([owner * 2 + 1, b_owner * 2]), kind="stable")
     earlier = np.empty(len(cells))
-    earlier[order] = _segmented_exclusive_min(cells[order], value[order])
+    earlier[order] = segmented_exclusive_min(cells[order], value[order])
     found = np.minimum(stock[cells], earlier)
     if under is not None:  # a column cut through by an earlier move holds nothing
         found[~(found > under[cells])] = -np.inf
