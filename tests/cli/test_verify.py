@@ -89,9 +89,10 @@ def test_the_planned_bracket_is_judged_safe_with_its_engagement(bracket):
     assert r.exit_code == 0, r.output
     by_tool = {e["tool"]: e for e in report["engagement"]}
     # flats and walls only: the 10 mm and 6 mm flat end mills rough and finish, no ball; exit 0
-    # says no finishing move was buried deeper than 1 mm. The spot drill and the 10 mm drill take the middle
-    # out of the four 11 mm bores the 6 mm end mill then helixes (cadcam.drilling, predrill).
-    assert set(by_tool) == {1, 2, 7, 13}
+    # says no finishing move was buried deeper than 1 mm. The 10 mm drill takes the middle out of the four
+    # 11 mm bores the 6 mm end mill then helixes (cadcam.drilling, predrill); a pilot the helix takes to size
+    # is not spotted, so no spot drill (T7).
+    assert set(by_tool) == {1, 2, 13}
     assert by_tool[2]["max_depth"] <= 30.0 and by_tool[1]["max_depth"] <= 18.0  # their flutes
     assert report["rapids_checked"] > 0
     # every tool of the sheet has its deepest engagement in the JSON and in the text: axial, at full
