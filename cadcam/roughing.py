@@ -658,11 +658,13 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
         # narrowest helix the tool may take starts lower (the skin on a roughed pocket's wall within
         # reach of the wider one only), it takes that one: less ramp at the same angle.
         radius, start, z_top = entry.helix_radius, 0, math.inf
-        for r in (entry.helix_radius, p.min_helix_radius)[:1 + (air_at is not None)]:
+        # (the entry's radius is never below the narrowest: _closed_entry takes a helix only where it fits)
+        for r in (entry.helix_radius, p.min_helix_radius) if air_at is not None else (entry.helix_radius,):
             circle = entry.centre + r * np.column_stack([np.cos(th), np.sin(th)])
             i = _lowest_air(circle, air_at)
-            if air_over(circle[i]) < z_top - 1e-6 and r <= entry.helix_radius:
-                radius, start, z_top = r, i, air_over(circle[i])
+            z_start = air_over(circle[i])
+            if z_start < z_top - 1e-6:
+                radius, start, z_top = r, i, z_start
             if z_top <= z:
                 break
         descent, turn = _helix(entry.centre, radius, p, z_top, z, float(th[start]))

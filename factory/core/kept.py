@@ -13,6 +13,7 @@ import collections
 import hashlib
 import os
 import threading
+import weakref
 from collections.abc import Callable, Hashable
 from typing import Generic, TypeVar
 
@@ -40,7 +41,8 @@ class KeptAnswers(Generic[K, V]):
     caller after the race shares one answer (which matters where the answer gathers state of its own).
     """
 
-    _all: list[KeptAnswers] = []
+    #: Every table, for the at-fork hook (weakly: a table dropped is not kept alive for it).
+    _all: weakref.WeakSet[KeptAnswers] = weakref.WeakSet()
 
     def __init__(self, *, kept: int | None = None, kept_bytes: int | None = None,
                  size: Callable[[V], int] | None = None) -> None:
@@ -50,7 +52,7 @@ class KeptAnswers(Generic[K, V]):
         self._answers: collections.OrderedDict[K, V] = collections.OrderedDict()
         self._bytes = 0
         self._lock = threading.Lock()
-        KeptAnswers._all.append(self)
+        KeptAnswers._all.add(self)
 
     def get(self, key: K, make: Callable[[], V]) -> V:
         """The kept answer for ``key``, else ``make()``'s, kept."""
