@@ -182,6 +182,10 @@ class _Approach:
                 lower += at(seg.cone) * np.minimum(dist, at(seg.radius))
         return cls(lower, dist2 <= at(seg.reach2), wx, wy, wd)
 
+    def take(self, keep: np.ndarray) -> "_Approach":
+        """The pairs ``keep`` (indices, in order) of these."""
+        return _Approach(self.lower[keep], self.reach[keep], self.wx[keep], self.wy[keep], self.wd[keep])
+
     def envelope(self, owner: np.ndarray, seg: Segments, bound: np.ndarray | None = None) -> np.ndarray:
         """:func:`pair_envelope` of these pairs (``owner``: each one's row of ``seg``), with ``bound``."""
         env = np.full(len(owner), np.inf)
@@ -207,27 +211,66 @@ class BatchPairs:
     those made from newer ones whose extra pairs :meth:`envelope` never finds below the stock. So they can be
     made while the batch before is still cutting (:func:`cadcam.stock.cut_stock`).
 
-    ``owner, flat, col, row``: (k,) int, as :func:`grid_pairs` gives them."""
+    ``owner, flat, col, row``: (k,) int, as :func:`grid_pairs` gives them. ``exact``: (k,) float or None, each
+    pair's envelope [mm] where it has a closed form (every shape but a bull-nose on a sloped move);
+    made with the pairs when they are dropped against a stock (:meth:`of`); ``bisect`` (k,) bool, the pairs left
+    to the bisection."""
 
     owner: np.ndarray
     flat: np.ndarray
     col: np.ndarray
     row: np.ndarray
     approach: _Approach
+    exact: np.ndarray | None = None
+    bisect: np.ndarray | None = None
 
     @classmethod
-    def of(cls, seg: Segments, grid: Grid, above=None, pairs=None) -> "BatchPairs":
+    def of(cls, seg: Segments, grid: Grid, above=None, pairs=None, stock: np.ndarray | None = None) -> "BatchPairs":
         """The pairs of moves ``seg`` on ``grid``, with :func:`grid_pairs`'s ``above`` (``pairs``: that
-        function, or one that stands for it)."""
+        function, or one that stands for it). ``stock``: (ny * nx,) the stock's top [mm] as it is now, or any
+        later state of it: only the pairs whose cheap bound comes below it within reach are kept (in their
+        order), the others :meth:`envelope` would give ``inf`` against it or any lower stock; and the kept
+        ones' closed-form envelopes are worked out. Read while another thread cuts it
+        (:func:`cadcam.stock.cut_stock`), each value is one it held, so an upper bound."""
         owner, flat, col, row = (pairs or grid_pairs)(seg, grid, above)
-        return cls(owner, flat, col, row, _Approach.of(grid.x0 + col * grid.cell, grid.y0 + row * grid.cell,
-                                                        owner, seg))
+        approach = _Approach.of(grid.x0 + col * grid.cell, grid.y0 + row * grid.cell, owner, seg)
+        if stock is None or len(owner) == 0:
+            return cls(owner, flat, col, row, approach)
+        # The pairs that can cut: the rest (most of them) leave here, in whole arrays, not in every pass of the
+        # cut, which runs on the thread a second processor does not help (issue 35).
+        keep = approach.reach & (approach.lower < stock[flat])
+        if not keep.all():
+            keep = np.flatnonzero(keep)
+            owner, flat, col, row = owner[keep], flat[keep], col[keep], row[keep]
+            approach = approach.take(keep)
+        # Each closed form is worked out per pair, whatever the others: the values envelope() would give. The
+        # bull-nose's bisection is not: its step count follows the longest of the pairs it is given, so it is
+        # left to envelope(), with the very pairs it would have had.
+        exact = approach.lower.copy()
+        bisect = ~seg.trivial[owner]
+        s = np.flatnonzero(bisect)
+        bisect[s] = seg.shape[owner[s]] == _BULL
+        s = s[~bisect[s]]
+        if len(s):
+            exact[s] = _sloped_envelope(approach.wx[s], approach.wy[s], approach.wd[s], owner[s], seg)
+        return cls(owner, flat, col, row, approach, exact, bisect)
 
     def envelope(self, seg: Segments, bound: np.ndarray) -> np.ndarray:
         """:func:`pair_envelope` of the pairs with ``bound`` (k,) [mm]: the same values, to the bit."""
         if len(self.owner) == 0:
             return np.full(0, np.inf)
-        return self.approach.envelope(self.owner, seg, bound)
+        if self.exact is None:
+            return self.approach.envelope(self.owner, seg, bound)
+        env = np.full(len(self.owner), np.inf)
+        idx = np.flatnonzero(self.approach.lower < bound)  # (all within reach)
+        out = self.exact[idx]
+        bull = np.flatnonzero(self.bisect[idx])
+        if len(bull):
+            j = idx[bull]
+            a = self.approach
+            out[bull] = _sloped_envelope(a.wx[j], a.wy[j], a.wd[j], self.owner[j], seg)
+        env[idx] = out
+        return env
 
 
 def _sloped_envelope(wx, wy, wd, o, seg: Segments) -> np.ndarray:

@@ -516,8 +516,10 @@ def _run(cut: _Cut, progress, bounds: np.ndarray, first: int = 0, tops: "_SpanTo
                     tops = _SpanTops(stock, grid)  # the stock only falls: older tops stay upper bounds
                 pairs, coming = coming[1].result() if coming is not None and coming[0] == c else None, None
                 if ahead is not None and c + 1 < last and bounds[c + 2] > bounds[c + 1]:
+                    # the stock read there as this batch cuts it: each value is one it held, so above what it
+                    # will be when batch c + 1 cuts (it only falls)
                     coming = (c + 1, ahead.submit(BatchPairs.of, seg.sub(int(bounds[c + 1]), int(bounds[c + 2])),
-                                                  grid, tops.above, grid_pairs))
+                                                  grid, tops.above, grid_pairs, stock))
                 _run_batch(seg, body, s, e, grid, stock, part, stats, under, tops, pairs)
                 if progress is not None:
                     progress(int(cut.done[e - 1]), cut.n_moves)
@@ -545,7 +547,7 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
     pairs made already (from these or older ``tops``), else made here.
     """
     seg = seg_all.sub(s, e)
-    pairs = pairs or BatchPairs.of(seg, grid, None if tops is None else tops.above, grid_pairs)
+    pairs = pairs or BatchPairs.of(seg, grid, None if tops is None else tops.above, grid_pairs, stock)
     owner, flat, col, row = pairs.owner, pairs.flat, pairs.col, pairs.row
     before0 = stock[flat]
     env = pairs.envelope(seg, before0)
