@@ -211,10 +211,11 @@ class BatchPairs:
     those made from newer ones whose extra pairs :meth:`envelope` never finds below the stock. So they can be
     made while the batch before is still cutting (:func:`cadcam.stock.cut_stock`).
 
-    ``owner, flat, col, row``: (k,) int, as :func:`grid_pairs` gives them. ``exact``: (k,) float or None, each
-    pair's envelope [mm] where it has a closed form (every shape but a bull-nose on a sloped move);
-    made with the pairs when they are dropped against a stock (:meth:`of`); ``bisect`` (k,) bool, the pairs left
-    to the bisection."""
+    ``owner, flat, col, row``: (k,) int, as :func:`grid_pairs` gives them. Made against a stock (:meth:`of`):
+    ``exact`` (k,) float, each pair's envelope [mm]; ``bisect`` (k,) bool, the pairs whose envelope is a bull-nose's
+    bisection (on a sloped move), ``lengths`` (k,) the stretch of the move bisected [mm] (0 for the others) and
+    ``steps`` the bisection's steps (:func:`_bisect_steps` of all of them): :meth:`envelope` takes their values
+    only where the pairs it bisects would take as many."""
 
     owner: np.ndarray
     flat: np.ndarray
@@ -223,6 +224,8 @@ class BatchPairs:
     approach: _Approach
     exact: np.ndarray | None = None
     bisect: np.ndarray | None = None
+    lengths: np.ndarray | None = None
+    steps: int = 0
 
     @classmethod
     def of(cls, seg: Segments, grid: Grid, above=None, pairs=None, stock: np.ndarray | None = None) -> "BatchPairs":
@@ -243,17 +246,22 @@ class BatchPairs:
             keep = np.flatnonzero(keep)
             owner, flat, col, row = owner[keep], flat[keep], col[keep], row[keep]
             approach = approach.take(keep)
-        # Each closed form is worked out per pair, whatever the others: the values envelope() would give. The
-        # bull-nose's bisection is not: its step count follows the longest of the pairs it is given, so it is
-        # left to envelope(), with the very pairs it would have had.
+        # Each pair's envelope depends on its own inputs only (the values envelope() would give), but for the
+        # bull-nose's bisection, whose step count follows the longest stretch it is given: envelope() checks it.
         exact = approach.lower.copy()
         bisect = ~seg.trivial[owner]
         s = np.flatnonzero(bisect)
         bisect[s] = seg.shape[owner[s]] == _BULL
-        s = s[~bisect[s]]
+        b, s = s[bisect[s]], s[~bisect[s]]
         if len(s):
             exact[s] = _sloped_envelope(approach.wx[s], approach.wy[s], approach.wd[s], owner[s], seg)
-        return cls(owner, flat, col, row, approach, exact, bisect)
+        lengths, steps = None, 0
+        if len(b):
+            lengths = np.zeros(len(owner))
+            lengths[b] = _bisected_lengths(approach.wx[b], approach.wy[b], approach.wd[b], owner[b], seg)
+            steps = _bisect_steps(lengths[b])
+            exact[b] = _sloped_envelope(approach.wx[b], approach.wy[b], approach.wd[b], owner[b], seg, steps)
+        return cls(owner, flat, col, row, approach, exact, bisect, lengths, steps)
 
     def envelope(self, seg: Segments, bound: np.ndarray) -> np.ndarray:
         """:func:`pair_envelope` of the pairs with ``bound`` (k,) [mm]: the same values, to the bit."""
@@ -265,7 +273,9 @@ class BatchPairs:
         idx = np.flatnonzero(self.approach.lower < bound)  # (all within reach)
         out = self.exact[idx]
         bull = np.flatnonzero(self.bisect[idx])
-        if len(bull):
+        if len(bull) and _bisect_steps(self.lengths[idx[bull]]) != self.steps:
+            # the longest stretch left to bisect is shorter by half or more than the longest when made: fewer
+            # steps, as before the pairs were made ahead (nearly every batch keeps its longest)
             j = idx[bull]
             a = self.approach
             out[bull] = _sloped_envelope(a.wx[j], a.wy[j], a.wd[j], self.owner[j], seg)
@@ -273,18 +283,42 @@ class BatchPairs:
         return env
 
 
-def _sloped_envelope(wx, wy, wd, o, seg: Segments) -> np.ndarray:
-    """Exact envelope for moves that climb or descend while moving sideways (``o``: move rows)."""
-    at = _per_pair(o, len(seg))
-    dx, dy, dz, z0 = at(seg.dx), at(seg.dy), at(seg.dz), at(seg.z)
-    l2, R, rc = at(seg.l2), at(seg.radius), at(seg.rc)
-    shape = at(seg.shape)
-    # Interval of t where r(t) <= R: roots of l2 t^2 - 2 wd t + |w|^2 - R^2; the
-    # discriminant written with the cross product avoids cancellation.
+def _reach_along(wx, wy, wd, dx, dy, l2, R):
+    """``cross, s, ta, tb``: the interval of t where r(t) <= R, the roots of l2 t^2 - 2 wd t + |w|^2 - R^2
+    clipped to the move (the discriminant ``s`` written with the cross product avoids cancellation)."""
     cross = wx * dy - wy * dx
     s = np.sqrt(np.maximum(l2 * R * R - cross * cross, 0.0))
     ta = np.clip((wd - s) / l2, 0.0, 1.0)
     tb = np.maximum(np.clip((wd + s) / l2, 0.0, 1.0), ta)
+    return cross, s, ta, tb
+
+
+def _bisected_lengths(wx, wy, wd, o, seg: Segments) -> np.ndarray:
+    """(k,) how long the stretch of each move is that :func:`_bisect_envelope` bisects for its pair [mm]."""
+    at = _per_pair(o, len(seg))
+    dx, dy, dz = at(seg.dx), at(seg.dy), at(seg.dz)
+    _, _, ta, tb = _reach_along(wx, wy, wd, dx, dy, at(seg.l2), at(seg.radius))
+    return _lengths(ta, tb, dx, dy, dz)
+
+
+def _lengths(ta, tb, dx, dy, dz) -> np.ndarray:
+    return (tb - ta) * np.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+def _bisect_steps(lengths: np.ndarray) -> int:
+    """How many halvings take the longest of ``lengths`` [mm] (1-D, not empty) to :data:`_BISECT_RESOLUTION`."""
+    span = float(np.max(lengths))
+    return int(np.clip(math.ceil(math.log2(max(span, 1e-300) / _BISECT_RESOLUTION)), 1, 60))
+
+
+def _sloped_envelope(wx, wy, wd, o, seg: Segments, steps: int | None = None) -> np.ndarray:
+    """Exact envelope for moves that climb or descend while moving sideways (``o``: move rows). ``steps``: the
+    bull-nose's bisection steps (:func:`_bisect_steps`; default, those of these pairs)."""
+    at = _per_pair(o, len(seg))
+    dx, dy, dz, z0 = at(seg.dx), at(seg.dy), at(seg.dz), at(seg.z)
+    l2, R, rc = at(seg.l2), at(seg.radius), at(seg.rc)
+    shape = at(seg.shape)
+    cross, s, ta, tb = _reach_along(wx, wy, wd, dx, dy, l2, R)
     # Flat end mill: linear in t on the interval, so one of its ends. Also the fallback
     # for ball points right at the reach limit (see below).
     out = z0 + np.minimum(dz * ta, dz * tb)
@@ -313,7 +347,7 @@ def _sloped_envelope(wx, wy, wd, o, seg: Segments) -> np.ndarray:
     bull = np.flatnonzero(shape == _BULL)
     if len(bull):
         m = bull
-        out[m] = _bisect_envelope(wx[m], wy[m], dx[m], dy[m], z0[m], dz[m], R[m] - rc[m], rc[m], ta[m], tb[m])
+        out[m] = _bisect_envelope(wx[m], wy[m], dx[m], dy[m], z0[m], dz[m], R[m] - rc[m], rc[m], ta[m], tb[m], steps)
     cone = np.flatnonzero(shape == _CONE)
     if len(cone):
         m = cone
@@ -340,12 +374,13 @@ def _cone_envelope(wx, wy, dx, dy, z0, dz, l2, wd, cross, R, k, ta, tb) -> np.nd
     return z0 + dz * t + k * r
 
 
-def _bisect_envelope(wx, wy, dx, dy, z0, dz, a, rc, ta, tb) -> np.ndarray:
+def _bisect_envelope(wx, wy, dx, dy, z0, dz, a, rc, ta, tb, steps: int | None = None) -> np.ndarray:
     """Minimum of the convex ``f(t) = z0 + dz t + h(r(t))`` on ``[ta, tb]``.
 
     ``f`` is C1 inside the interval (the bull-nose profile is flat at ``r = 0`` and
     tangent where the corner starts), so its minimum is an end or a zero of the
-    non-decreasing ``f'``, found by bisection on the sign of ``f'``.
+    non-decreasing ``f'``, found by bisection on the sign of ``f'``: ``steps`` halvings (default
+    :func:`_bisect_steps` of these intervals). Each pair's value depends on its own inputs and ``steps`` only.
     """
 
     def f(t: np.ndarray) -> np.ndarray:
@@ -355,8 +390,8 @@ def _bisect_envelope(wx, wy, dx, dy, z0, dz, a, rc, ta, tb) -> np.ndarray:
 
     lo, hi = ta.copy(), tb.copy()
     rc2 = rc * rc
-    span = float(np.max((tb - ta) * np.sqrt(dx * dx + dy * dy + dz * dz)))
-    steps = int(np.clip(math.ceil(math.log2(max(span, 1e-300) / _BISECT_RESOLUTION)), 1, 60))
+    if steps is None:
+        steps = _bisect_steps(_lengths(ta, tb, dx, dy, dz))
     # The loop's arrays are made once and written in place (a third less time than new arrays each step);
     # every step computes the very expressions in the comments, in their order.
     mid, ex, ey, r, d, tmp = (np.empty_like(lo) for _ in range(6))

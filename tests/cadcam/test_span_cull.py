@@ -12,9 +12,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import cadcam.envelope
+import cadcam.model
 import cadcam.stock as stock
+from cadcam.heightmap import grid_over
 from cadcam.stock import cut_stock
-from tests.cadcam.test_verify import LOW_PART, SETUP, STUBBY, TOOLS, C, R, box, moves_strategy, program
+from tests.cadcam.test_verify import BALL, BULL, FLAT, LOW_PART, SETUP, STUBBY, TOOLS, C, R, box, moves_strategy, program
 
 #: A part with a sloped top and a step, so moves meet the part and the stock at many heights.
 SLOPED = np.concatenate([LOW_PART, box([2, 2, -10], [12, 18, -2]), box([28, 3, -10], [38, 9, -1])])
@@ -215,3 +217,48 @@ def test_judging_runs_again_in_pieces_drops_pairs_the_whole_runs_keep():
         n_runs = sum(counted)
     assert_identical(pieces, runs)
     assert n_pieces < 0.9 * n_runs, (n_pieces, n_runs)
+
+
+@settings(max_examples=60, deadline=None)
+@given(moves=st.lists(st.tuples(st.floats(2, 38), st.floats(2, 18), st.floats(-6, 0), st.floats(2, 38), st.floats(2, 18),
+                                st.floats(-6, 0), st.sampled_from([0, 1, 2, 3])), min_size=1, max_size=6),
+       heights=st.lists(st.floats(-6, 1), min_size=4, max_size=4), fall=st.floats(0, 6))
+def test_pairs_made_against_a_stock_give_pair_envelopes_against_any_lower_one(moves, heights, fall):
+    """Pairs made against a stock, their envelopes worked out then (a bull-nose's bisection with the steps of
+    all of them), cut against the stock fallen since: each is :func:`pair_envelope`'s value to the bit (the
+    bisection done again where the pairs left need fewer steps), and those dropped have none."""
+    tools = [FLAT, BALL, BULL, cadcam.model.Tool(7, "drill", "drill", 6.0, 0.0, 20.0, 2, 40.0, point_angle=118.0)]
+    p0 = np.array([m[:3] for m in moves])
+    p1 = np.array([m[3:6] for m in moves])
+    used = [tools[m[6]] for m in moves]
+    seg = cadcam.envelope.Segments.between(p0, p1, [t.radius for t in used], [float(t.corner_radius) for t in used],
+                                          cone=[t.point_slope for t in used])
+    grid = grid_over(np.array([0.0, 0.0, -10.0]), np.array([40.0, 20.0, 0.0]), 0.5)
+    xs = grid.x0 + np.arange(grid.ny * grid.nx) % grid.nx * grid.cell
+    made = np.interp(xs, [0.0, 13.0, 26.0, 40.0], heights)  # a stock of four slopes
+    now = made - fall * (np.arange(len(made)) % 3 == 0)  # cut down since, here and there
+    pairs = cadcam.envelope.BatchPairs.of(seg, grid, None, None, made)
+    owner, flat, col, row = cadcam.envelope.grid_pairs(seg, grid)
+    whole = cadcam.envelope.pair_envelope(grid.x0 + col * grid.cell, grid.y0 + row * grid.cell, owner, seg, now[flat])
+    kept = {(int(o), int(f)): v for o, f, v in zip(pairs.owner, pairs.flat, pairs.envelope(seg, now[pairs.flat]))}
+    for o, f, v in zip(owner.tolist(), flat.tolist(), whole):
+        assert kept.get((o, f), np.inf) == v or (np.isnan(v) and np.isnan(kept[(o, f)]))
+    assert len(kept) <= len(owner)
+
+
+def test_a_bisection_left_with_shorter_stretches_takes_fewer_steps_as_before():
+    """The test above meets both cases: here the long sloped bull-nose move's pairs are all below the stock
+    now (cut down to -10 mm) but the short one's, so the pairs left take fewer steps than those made did, and
+    their values are still pair_envelope's (the bisection done again)."""
+    p0, p1 = np.array([[5.0, 10.0, -1.0], [20.0, 5.0, -1.0]]), np.array([[35.0, 10.0, -5.0], [20.5, 5.0, -1.2]])
+    seg = cadcam.envelope.Segments.between(p0, p1, [BULL.radius] * 2, [BULL.corner_radius] * 2)
+    grid = grid_over(np.array([0.0, 0.0, -10.0]), np.array([40.0, 20.0, 0.0]), 0.5)
+    made = np.zeros(grid.ny * grid.nx)
+    now = np.where(grid.y0 + np.arange(len(made)) // grid.nx * grid.cell < 7.0, 0.0, -10.0)
+    pairs = cadcam.envelope.BatchPairs.of(seg, grid, None, None, made)
+    left = np.flatnonzero(pairs.bisect & (pairs.approach.lower < now[pairs.flat]))
+    assert 0 < len(left) < pairs.bisect.sum() and cadcam.envelope._bisect_steps(pairs.lengths[left]) < pairs.steps
+    expected = cadcam.envelope.pair_envelope(grid.x0 + pairs.col * grid.cell, grid.y0 + pairs.row * grid.cell,
+                                             pairs.owner, seg, now[pairs.flat])
+    assert np.array_equal(pairs.envelope(seg, now[pairs.flat]), expected)
+    assert np.isfinite(expected[left]).all()
