@@ -618,6 +618,10 @@ class SpanTops:
         out.table = table
         return out
 
+    def highest(self) -> float:
+        """The highest the stock is anywhere, or more [mm] (a sixteenth of the reads of the stock's own)."""
+        return float(self.table[0].max())
+
     def above(self, row: np.ndarray, first: np.ndarray, count: np.ndarray) -> np.ndarray:
         """(r,) the highest the stock is over columns ``first .. first + count - 1`` (count >= 1) of ``row``, or more [mm]."""
         b0 = first // self._BLOCK

@@ -555,9 +555,11 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
     owner, flat, col, row, env = owner[touch], flat[touch], col[touch], row[touch], env[touch]
 
     # Shank and holder: the same sweep with the body's cylinders, only where they can
-    # come below the highest stock or part there is.
+    # come below the highest stock or part there is (the tops' highest: older, so no lower; a body part
+    # under it but over the stock comes nowhere below the stock or part, so it meets nothing all the same).
     if body.measure is True:
-        b_owner, b_flat, b_env = body.pairs(seg, s, e, grid, stock, max(float(stock.max()), body.part_max), tops)
+        highest = float(stock.max()) if tops is None else tops.highest()
+        b_owner, b_flat, b_env = body.pairs(seg, s, e, grid, stock, max(highest, body.part_max), tops)
     else:
         b_owner = b_flat = np.zeros(0, np.int64)
         b_env = np.zeros(0)

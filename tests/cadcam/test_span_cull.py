@@ -25,7 +25,8 @@ SLOPED = np.concatenate([LOW_PART, box([2, 2, -10], [12, 18, -2]), box([28, 3, -
 def _cut(moves, part, cull: bool, tools=TOOLS, threads: str = "1", pair_cull: bool = True):
     """Every array cut_stock returns, with the run cull on or off (``above`` then bounds nothing), with each
     batch's pairs made in the batch itself (``threads`` "1") or ahead in a second thread ("2"), with the pairs
-    whose cheap bound stays over the stock dropped where they are made (``pair_cull``) or kept to the envelope."""
+    whose cheap bound stays over the stock dropped where they are made (``pair_cull``) or kept to the envelope
+    and every level of the tools' bodies swept (no ceiling)."""
     with contextlib.ExitStack() as patches:
         patches.enter_context(mock.patch.dict(os.environ, {"FACTORY_THREADS": threads}))
         if not cull:
@@ -35,6 +36,7 @@ def _cut(moves, part, cull: bool, tools=TOOLS, threads: str = "1", pair_cull: bo
             real = cadcam.envelope.BatchPairs.of.__func__
             patches.enter_context(mock.patch.object(
                 stock.BatchPairs, "of", classmethod(lambda cls, *args: real(cls, *args[:4]))))
+            patches.enter_context(mock.patch.object(stock._SpanTops, "highest", lambda self: np.inf))
         c = cut_stock(moves, tools, SETUP, part, 0.5)
     arrays = {"stock_top": c.simulation.stock_top, "removed_volume": c.simulation.removed_volume}
     arrays.update({k: v for k, v in vars(c.met).items() if isinstance(v, np.ndarray)})
@@ -79,8 +81,9 @@ def test_pairs_made_while_the_batch_before_cuts_change_nothing(blocks, again, pa
        budget=st.sampled_from([300, 2000, 1 << 16]), threads=st.sampled_from(["1", "2"]))
 def test_pairs_dropped_against_the_stock_where_they_are_made_change_nothing(blocks, again, part, budget, threads):
     """The pairs whose cheap bound is at or over the stock (read as the batch before cuts it, in a second
-    thread, or as the batch begins) leave before the envelope: the stock, what each move met and removed are
-    those of the cut that takes every pair to the envelope, to the bit."""
+    thread, or as the batch begins) leave before the envelope, and the bodies are swept under the tops'
+    highest: the stock, what each move met and removed are those of the cut that takes every pair to the
+    envelope and sweeps every level of the bodies, to the bit."""
     moves = program(blocks + blocks if again else blocks, start=(20, 10, 5))
     tri = LOW_PART if part == "low" else SLOPED
     with mock.patch.object(stock, "_PAIR_BUDGET", budget):
