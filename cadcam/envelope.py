@@ -274,8 +274,8 @@ class BatchPairs:
         out = self.exact[idx]
         bull = np.flatnonzero(self.bisect[idx])
         if len(bull) and _bisect_steps(self.lengths[idx[bull]]) != self.steps:
-            # the longest stretch left to bisect is shorter by half or more than the longest when made: fewer
-            # steps, as before the pairs were made ahead (nearly every batch keeps its longest)
+            # the longest stretch left to bisect needs fewer halvings than the longest when made did: bisected
+            # here with those, as before the pairs were made ahead (in practice a batch keeps its longest)
             j = idx[bull]
             a = self.approach
             out[bull] = _sloped_envelope(a.wx[j], a.wy[j], a.wd[j], self.owner[j], seg)
@@ -302,6 +302,7 @@ def _bisected_lengths(wx, wy, wd, o, seg: Segments) -> np.ndarray:
 
 
 def _lengths(ta, tb, dx, dy, dz) -> np.ndarray:
+    """(k,) the length of each move's stretch from ``ta`` to ``tb`` [mm] (``dx, dy, dz``: the move [mm])."""
     return (tb - ta) * np.sqrt(dx * dx + dy * dy + dz * dz)
 
 
