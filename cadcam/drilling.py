@@ -130,8 +130,15 @@ class DrillingOptions:
         the holding allowance op 2 faces off (to :data:`POINT_CLEARANCE_MM` over the stock's bottom);
         never below ``Setup.floor_z`` where there is no holding allowance.
     spot : bool
-        Spot drill every drilled hole first (when the library has a spot drill), but a bore's pilot
-        (``predrill``), which the helix takes to size and place.
+        Spot drill the drilled holes that need it first (when the library has a spot drill; ``spot_depth``),
+        but a bore's pilot (``predrill``), which the helix takes to size and place.
+    spot_depth : float
+        A hole drilled to size is spotted first only where it is deeper than this many drill diameters from
+        the stock top [D], or where the spot cuts its countersink: the library's drills are solid carbide, rigid
+        and self-centring on the flat stock top, and walk only in deep holes (makers put the depth past which
+        they want a spot at 5 to 8 D: Cutting Tool Engineering, June 2012, "Starter kit"; and spotting
+        before a carbide drill mostly costs a tool change, or its corners where the spot's cone is narrower
+        than its point: CTE, "Get it straight"). 0: every drilled hole.
     spot_share : float
         Diameter of the spot's cone at the surface, as a share of the drill's [1]; below 1
         so the drill removes it all.
@@ -154,6 +161,7 @@ class DrillingOptions:
     peck_ratio: float = 3.0
     breakthrough: float = 0.5
     spot: bool = True
+    spot_depth: float = 5.0
     spot_share: float = 0.8
     helix_angle: float = 3.0
     helix_share: float = 0.3
@@ -616,7 +624,7 @@ def plan_holes(
 
     def operations(methods: _Methods) -> list[Operation]:
         ops: list[Operation] = []
-        spotted = _to_spot(methods, spots[0]) if spots else {}
+        spotted = _to_spot(methods, spots[0], library, top, options.spot_depth) if spots else {}
         if spotted:
             ops.append(_spot_operation(spotted, spots[0], library, mat, top, r_plane, initial, origin, options))
         ops += _drill_operations(methods.drilled, library, mat, r_plane, initial, origin, options)
@@ -637,7 +645,7 @@ def plan_holes(
         if _seconds(plain_ops) <= _seconds(ops):
             chosen, ops = plain, plain_ops
     drilled, helixed = chosen.drilled, chosen.helixed
-    spotted = {h for hs in _to_spot(chosen, spots[0]).values() for h, _ in hs
+    spotted = {h for hs in _to_spot(chosen, spots[0], library, top, options.spot_depth).values() for h, _ in hs
                if _spots_countersink(spots[0], h.countersink)} if spots else set()
     for h in holes:
         log.debug("hole: %s", h.describe())
@@ -801,14 +809,21 @@ def _spot_operation(drilled: dict[int, list[tuple[Hole, float]]], spot: Tool, li
     return drill_operation("spot drill", "spot", spot, library.cutting_data(spot, mat), cycle)
 
 
-def _to_spot(methods: _Methods, spot: Tool) -> dict[int, list[tuple[Hole, float]]]:
-    """The drilled holes to spot (drill number -> (hole, tip height [mm])): not a bore's pilot, which the end mill
-    helixes to size after it (:attr:`_Methods.predrilled`), unless the spot cuts its countersink. A spot holds a
-    drill's point where the hole must be; the pilot's place is the helix's, which takes its wall all round (a
-    ring well inside the end mill's radial limit, :func:`predrilled_radii`), so the spot would cost a tool change
-    for nothing the part keeps (the bracket's five bores: 12 s)."""
-    out = {n: [(h, tip) for h, tip in hs if h not in methods.predrilled or _spots_countersink(spot, h.countersink)]
-           for n, hs in methods.drilled.items()}
+def _to_spot(methods: _Methods, spot: Tool, library: ToolLibrary, top: float, spot_depth: float
+             ) -> dict[int, list[tuple[Hole, float]]]:
+    """The drilled holes to spot (drill number -> (hole, tip height [mm])): those whose countersink the spot cuts,
+    and those drilled to size deeper than ``spot_depth`` drill diameters under the stock ``top`` [mm]
+    (:attr:`DrillingOptions.spot_depth`). A spot holds a drill's point where the hole must be, which a solid
+    carbide drill keeps by itself in a shallower hole (plate_bosses' three holes, 2.5 D: 10 s); a bore's pilot
+    never needs one: its place is the helix's, which takes its wall all round (a ring well inside the end mill's
+    radial limit, :func:`predrilled_radii`), so the spot would cost a tool change for nothing the part keeps (the
+    bracket's five bores: 12 s)."""
+    def needs(n: int, h: Hole, tip: float) -> bool:
+        if _spots_countersink(spot, h.countersink):
+            return True
+        return h not in methods.predrilled and top - tip > spot_depth * library.tool(n).diameter
+
+    out = {n: [(h, tip) for h, tip in hs if needs(n, h, tip)] for n, hs in methods.drilled.items()}
     return {n: hs for n, hs in out.items() if hs}
 
 

@@ -46,13 +46,24 @@ def without_skimmed(part: trimesh.Trimesh, levels: np.ndarray, spaces: Sequence[
     tools' anyway). So no stock beside the top floor waits for a rest tool from the stock top
     (plate_bosses: the gaps between its bosses, which only the top level enters with the roughing tool).
     ``floor_eps``: material this little under a level's allowance is its floor. All [mm]."""
-    if not (skim > 0 and len(levels) > 1 and top - float(levels[0]) <= skim + 1e-9):
+    skin = top_skin(part, levels, top, skim, allowance, floor_eps)
+    if skin is None or len(levels) < 2:
         return levels, spaces
-    floor = part_shadows(part, [float(levels[0]) - allowance - floor_eps])
-    covered = shapely.union_all([spaces[1].buffer(radius + SKIM_TOL, quad_segs=8),
-                                 *(g.buffer(allowance + SKIM_TOL, quad_segs=8) for g in floor.values())])
+    covered = shapely.union_all([spaces[1].buffer(radius + SKIM_TOL, quad_segs=8), skin])
     missed = spaces[0].buffer(radius, quad_segs=8).difference(covered)
     return (levels[1:], spaces[1:]) if missed.buffer(-SKIM_SLIVER * radius).is_empty else (levels, spaces)
+
+
+def top_skin(part: trimesh.Trimesh, levels: np.ndarray, top: float, skim: float, allowance: float,
+             floor_eps: float) -> BaseGeometry | None:
+    """The XY area [mm] of the skin over the part's top floor that the finishing takes whole: the floor under the
+    first of the roughing ``levels`` (top down) grown by the ``allowance`` (and :data:`SKIM_TOL`), where that
+    level lies within ``skim`` of the stock ``top``; None where it does not (no level is skimmed). ``floor_eps``:
+    material this little under a level's allowance is its floor. All [mm]."""
+    if not (skim > 0 and len(levels) > 0 and top - float(levels[0]) <= skim + 1e-9):
+        return None
+    floor = part_shadows(part, [float(levels[0]) - allowance - floor_eps])
+    return shapely.union_all([g.buffer(allowance + SKIM_TOL, quad_segs=8) for g in floor.values()])
 
 
 #: A level is cut locally (:func:`local_levels`) only where that leaves at most this share of its region's area:
@@ -75,7 +86,8 @@ class LevelReach:
 
 
 def local_levels(levels: np.ndarray, spaces: Sequence[BaseGeometry], top: float, stepdown: float, radius: float,
-                 taken: Callable[[int], BaseGeometry | None] | None = None) -> LevelReach:
+                 taken: Callable[[int], BaseGeometry | None] | None = None, skin: BaseGeometry | None = None
+                 ) -> LevelReach:
     """Which roughing ``levels`` (top down, [mm]) to cut only where the next whole level cannot reach.
 
     A level ``k`` is local when the next whole level ``j`` below it lies no more than ``stepdown`` [mm] under
@@ -85,7 +97,12 @@ def local_levels(levels: np.ndarray, spaces: Sequence[BaseGeometry], top: float,
     :data:`SKIM_TOL`: the floors and bosses ``j``'s shadow keeps it from), with every tool centre within
     ``radius`` of that stock, and the areas deep cuts take from the next level down (``taken(k + 1)``: a deep cut
     starts from the floor of the level above its band, so that floor is cut over it). Only where the local region
-    is at most :data:`LOCAL_SHARE` of the level's. The last level is always whole."""
+    is at most :data:`LOCAL_SHARE` of the level's. The last level is always whole.
+
+    ``skin`` (:func:`top_skin`, None: none): the XY area [mm] of the top floor's skin, which the finishing takes
+    whole; a local first level leaves it, and the slivers beside it no disc of :data:`SKIM_SLIVER` ``radius``
+    fits in (the rest tools'), as :func:`without_skimmed` does: it cuts only the stock round the top floor that
+    no level below reaches (plate_bosses: the gaps between its bosses, not the bosses' tops)."""
     n = len(levels)
     out, floor_above, local = list(spaces), [float(top)] * n, [False] * n
     hi, k = float(top), 0
@@ -97,6 +114,9 @@ def local_levels(levels: np.ndarray, spaces: Sequence[BaseGeometry], top: float,
         if j > k:
             reach = spaces[j].buffer(radius + SKIM_TOL, quad_segs=8)
             missed = spaces[k].buffer(radius, quad_segs=8).difference(reach)
+            if k == 0 and skin is not None:
+                sliver = SKIM_SLIVER * radius
+                missed = missed.difference(skin).buffer(-sliver, quad_segs=8).buffer(sliver, quad_segs=8)
             deep = taken(k + 1) if taken is not None else None  # a deep cut starting under it starts from its floor
             keep = missed.buffer(radius + SKIM_TOL, quad_segs=8)
             if deep is not None:

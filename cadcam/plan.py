@@ -699,8 +699,14 @@ def _terraces(plan: _Planning, operations: list[Operation], stock: Simulation | 
                                                              within=plan.within,
                                                              cut_before=plan.cut_before))
         if len(op.points) > 1:
-            operations.append(op)
-            stock = plan.model(operations)
+            held = dict(plan.models)
+            after = plan.model([*operations, op])
+            if after is not None and bool(np.any(after.stock_top < stock.stock_top - 1e-9)):
+                operations.append(op)
+                return after
+            # They cut nothing the model holds (plate_bosses: the 16 mm end mill grazing the gaps between its
+            # bosses, which only the rest tool enters, on 20 levels: 12 s): no operation, the models as they were.
+            plan.models = held
     return stock
 
 

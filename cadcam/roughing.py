@@ -83,7 +83,7 @@ from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.restlinks import COVER_TOL, Links, Piece, cut_stacked
 from cadcam.ringorder import LoopOrder
 from cadcam.gridregion import GrownMaskCache, near_cells
-from cadcam.levelskim import local_levels, without_skimmed
+from cadcam.levelskim import local_levels, top_skin, without_skimmed
 from cadcam.rest import rest_level_masks, rest_levels, rooms_round, without_holder
 from cadcam.shadow import part_shadows
 from cadcam.stock import Simulation, clear_height
@@ -755,8 +755,7 @@ def zlevel_roughing(
     part : trimesh.Trimesh
         Watertight part in work coordinates [mm], inside the stock of ``setup``.
     setup : Setup
-        Stock box, ``safe_z`` (start and end height) and ``clearance`` (links rapid at
-        ``stock top + clearance``).
+        Stock box, ``safe_z`` (start and end height) and ``clearance`` (links rapid at ``stock top + clearance``).
     tool : Tool
         Flat or bull-nose end mill.
     cutting : CuttingData
@@ -812,7 +811,8 @@ def zlevel_roughing(
     if rest is not None:
         masks = rest_level_masks(rest, levels, spaces, p.radius, rest_above, p.allowance, tool.full_width_limit,
                                  rest_grown)
-    reach = local_levels(levels, spaces, top, p.stepdown, p.radius, exclude) if rest is None else None
+    skin = top_skin(part, levels, top, p.skim, p.allowance, _FLOOR_EPS)  # the finishing's, on the top floor
+    reach = local_levels(levels, spaces, top, p.stepdown, p.radius, exclude, skin) if rest is None else None
     air_at = None if known is None else (lambda xy: clear_height(known, tool, xy))
     path = _Path()
     cleared: BaseGeometry | None = None  # None: nothing was ever skipped

@@ -493,3 +493,21 @@ def test_a_plans_predrilled_bores_run_at_their_chip_and_verify_passes_them():
                       chips=chip_loads(sheet)).report
     assert report.ok and report.faults == (), [f.message for f in report.faults]
     assert all(e.max_full_depth <= tools[e.tool].full_width_limit for e in report.engagement)
+
+
+def test_a_shallow_hole_is_drilled_without_a_spot_and_a_deep_one_is_spotted():
+    """The library's solid carbide drills keep their place by themselves in a hole a few diameters deep: only the
+    hole deeper than ``spot_depth`` drill diameters is spotted first; with ``spot_depth`` 0, both are."""
+    solid = plate((60.0, 40.0, 40.0)) - drilled(15, 20, 2.5, 30, 41) - drilled(45, 20, 2.5, 15, 41)
+    setup, part = make_setup(manifold_to_trimesh(solid))
+    top = float(setup.stock_max[2])
+    for spot_depth, spotted in ((DrillingOptions().spot_depth, {45}), (0.0, {15, 45})):
+        plan = plan_holes(part, setup, LIBRARY, LIBRARY.tool(2), DrillingOptions(spot_depth=spot_depth))
+        drills = [op for op in plan.operations if op.kind == "drill"]
+        assert {round(x - setup.transform_mesh_to_work[0, 3]) for x, _, _ in
+                (row for op in drills for row in op.cycle.holes.tolist())} == {15, 45}
+        deep = [top - z for op in drills for x, _, z in op.cycle.holes.tolist()]
+        assert min(deep) < 5 * 5.0 < max(deep)  # one hole under 5 D, one over
+        spots = [op for op in plan.operations if op.kind == "spot"]
+        assert len(spots) == 1 and spots[0].tool.point_angle == 90.0
+        assert {round(x - setup.transform_mesh_to_work[0, 3]) for x, _, _ in spots[0].cycle.holes.tolist()} == spotted

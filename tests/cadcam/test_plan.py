@@ -325,3 +325,19 @@ def test_the_roughing_tool_finishes_before_a_narrower_one_roughs_so_each_tool_is
     loaded = [t for i, t in enumerate(mills) if i == 0 or t != mills[i - 1]]
     assert len(loaded) == len(set(loaded)), [op.name for op in job.operations]
     assert_verified_with_chips(job, setup, part)
+
+
+def test_every_roughing_operation_cuts_stock_the_ones_before_left():
+    """plate_bosses: each roughing operation takes stock the operations before it left, on the plan's model
+    (on main the 16 mm end mill's terraces grazed the gaps between the bosses, which only T2 enters, on 20
+    levels, and cut nothing: 12 s)."""
+    from cadcam.stock import OperationsCut, stock_after
+
+    setup, part, job = sample_op1("plate_bosses")
+    triangles = np.asarray(part.triangles)
+    before = None
+    for i, op in enumerate(job.operations):
+        after = stock_after(job.operations[:i + 1], setup, triangles, 0.5, before)
+        if op.kind == "roughing" and i:
+            assert np.any(after.stock_top < before.simulation.stock_top - 1e-9), op.name
+        before = OperationsCut(tuple(job.operations[:i + 1]), after)

@@ -552,6 +552,26 @@ def test_the_top_level_is_kept_where_only_it_enters_a_gap():
     assert -0.7 in cut_heights(skimmed)
 
 
+def test_the_top_level_kept_for_a_gap_leaves_the_bosses_tops_to_the_finishing():
+    # As above, but 2 mm tall (plate_bosses' counterbored bosses on its plate): the level on the plate's top is
+    # within a stepdown of the stock top, so the top level is cut only where that one cannot reach (the gap
+    # between the bosses, x 18..22), and no longer over the bosses' tops: only their skin lies there, which the
+    # finishing takes whole. So every tool centre of that level lies within the tool's radius (and a little)
+    # of the gap.
+    part = union(box((0, 0, -12), (40, 30, -3)), box((4, 4, -3), (18, 26, -1)), box((22, 4, -3), (36, 26, -1)))
+    setup, options = make_setup(), RoughingOptions(skim=1.2)
+    skimmed = zlevel_roughing(part, setup, TOOL, CUTTING, options)
+    top = skimmed.points[(skimmed.motion == Motion.CUT) & (np.abs(skimmed.points[:, 2] + 0.7) < 1e-9)]
+    assert len(top)
+    assert top[:, 0].min() >= 18 - options.allowance - TOOL.radius - 0.5
+    assert top[:, 0].max() <= 22 + options.allowance + TOOL.radius + 0.5
+    assert_no_gouge(part, skimmed, options.allowance)
+    hf, bad = simulate(skimmed, setup, options.ramp_angle)
+    assert not bad, "\n".join(bad[:5])
+    hf_plain, _ = simulate(zlevel_roughing(part, setup, TOOL, CUTTING), setup, options.ramp_angle)
+    assert left_beyond(hf, hf_plain).max() <= 0.7 + 0.05  # the bosses' tops' skin, nothing deeper
+
+
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(random_parts(), st.floats(0.55, 0.89))
 # `make explore` found it: along the pocket's wall the two plans' loops differ by 2 um at a cell's centre
@@ -623,7 +643,7 @@ def test_a_floors_level_within_the_stepdown_of_the_next_is_cut_only_round_that_f
     setup, options = make_setup(), RoughingOptions(stepdown=5.0)
     local = zlevel_roughing(part, setup, TOOL, CUTTING, options)
 
-    def whole(levels, spaces, top, stepdown, radius, taken=None):
+    def whole(levels, spaces, top, stepdown, radius, taken=None, skin=None):
         floors = [float(top), *(float(z) for z in levels[:-1])]
         return LevelReach(spaces=tuple(spaces), floor_above=tuple(floors), local=(False,) * len(levels))
 

@@ -219,15 +219,17 @@ def test_flats_and_walls_at_the_jaws_keep_out_of_them_and_report_what_they_leave
 
 
 def test_a_hole_in_the_jaws_shadow_is_not_drilled_and_one_clear_of_them_is():
-    """Drilling and helixing keep their tools (and the spot drill before a drill) off the jaws: the hole
-    2 mm from the front jaw is left to the milling tools, the one in the middle is spotted and drilled."""
+    """Drilling and helixing keep their tools (and the spot drill before a drill, every hole spotted here) off the
+    jaws: the hole 2 mm from the front jaw is left to the milling tools, the one in the middle is spotted and
+    drilled."""
+    from cadcam.drilling import DrillingOptions
     from cadcam.plan import PlanOptions
 
     part = EDGE_PART
     for x, y in ((16.0, 2.0), (22.0, 10.0)):
         part = part.difference(trimesh.creation.cylinder(radius=1.65, height=30, sections=64,
                                                          transform=trimesh.transformations.translation_matrix([x, y, -6])))
-    job = _plan_clear_of_the_jaws(part, HIGH_SETUP, PlanOptions(by_faces=False))
+    job = _plan_clear_of_the_jaws(part, HIGH_SETUP, PlanOptions(by_faces=False, drilling=DrillingOptions(spot_depth=0)))
     holes = job.parameters["holes"]
     assert [(round(h["x"]), round(h["y"])) for h in holes["drilled"]] == [(22, 10)]
     assert [(round(h["x"]), round(h["y"])) for h in holes["left"]] == [(16, 2)]
