@@ -599,10 +599,13 @@ def _judge_features(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.nda
 def _chance(beside: np.ndarray, least: int) -> float:
     """The share of a feature's edges the picture's texture alone would show (0..1): of ``beside`` (k, 2)
     (1.0: an edge near the spot BESIDE_PX off the sample on that side, 0.0 none, NaN another expected
-    edge's), the quieter side's share, over the sides with at least ``least`` spots told; 0 when none is."""
+    edge's), the quieter side's share; 0 unless both sides have at least ``least`` spots told. One side
+    alone cannot tell texture from a structure running beside the edge (the white band of a step's top
+    in glare finds an edge beside every sample), and the texture is the same on both sides."""
     told = np.isfinite(beside).sum(axis=0)
-    shares = [float(np.nanmean(beside[:, k])) for k in range(beside.shape[1]) if told[k] >= least]
-    return min(shares, default=0.0)
+    if (told < least).any():
+        return 0.0
+    return float(np.nanmean(beside, axis=0).min())
 
 
 def _least_loop(model: MeshEdges, idx: np.ndarray, own: np.ndarray, whole: np.ndarray,
