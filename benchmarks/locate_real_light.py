@@ -41,6 +41,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from factory.core.atomic import atomic_output  # noqa: E402
 from factory.core.errors import VisionError  # noqa: E402
 from tests.vision.defects import defective_mesh  # noqa: E402
 from tests.vision.lit import (CONDITIONS, OWN_PARTS, SAMPLE_PARTS, LitScene, cell_station,  # noqa: E402
@@ -81,7 +82,9 @@ def picture(station, part: str, condition: str, seed: int, cache: Path | None, d
         d = np.load(f)
         return LitScene(d["image"], float(d["x"]), float(d["y"]), float(d["yaw"]), int(d["symmetry"]))
     scene = gallery_scene(station, part, condition, seed, supersample=supersample, shown=shown)
-    np.savez_compressed(f, image=scene.image, x=scene.x, y=scene.y, yaw=scene.yaw, symmetry=scene.symmetry)
+    # Whole or not at all: another run may be reading the cache as this one fills it.
+    with atomic_output(f, overwrite=True) as out:
+        np.savez_compressed(out, image=scene.image, x=scene.x, y=scene.y, yaw=scene.yaw, symmetry=scene.symmetry)
     return scene
 
 

@@ -4,7 +4,8 @@ Pure builders returning :data:`factory.rosmsgs.TYPESTORE` message objects:
 
 * ``factory_msgs/DetectedObjectArray`` (``ros/factory_msgs``): what a camera station found in
   one image, each part with the perception seed's fields (class, image centre and radius,
-  confidence) plus its pose in the robot base frame, serial and inspection result;
+  confidence) plus its pose in the robot base frame and how far it may be off, serial and
+  inspection result with the narrowest burr it resolves;
 * ``foxglove_msgs/ImageAnnotations``: a circle and a label per detection, which Foxglove's Image
   panel draws over the picture with the same stamp;
 * ``diagnostic_msgs/DiagnosticArray``: one ``DiagnosticStatus`` per cell component (level OK,
@@ -76,6 +77,13 @@ class Detection:
     inspected, passed : bool
     max_deviation, tolerance : float
         [m]; 0 when not inspected.
+    position_uncertainty : float
+        How far the located position may be off [m], >= 0 (:attr:`vision.locate.LocatedPart.sigma_xy`).
+    yaw_uncertainty : float
+        How far the located yaw may be off [rad], >= 0.
+    smallest_burr : float
+        The narrowest burr the inspection resolves at the part [m], >= 0; 0 when not inspected
+        (:attr:`vision.inspect.Inspection.smallest_burr`).
     """
 
     class_name: str
@@ -89,6 +97,9 @@ class Detection:
     passed: bool = False
     max_deviation: float = 0.0
     tolerance: float = 0.0
+    position_uncertainty: float = 0.0
+    yaw_uncertainty: float = 0.0
+    smallest_burr: float = 0.0
 
 
 def _header(frame_id: str, stamp_ns: int) -> Any:
@@ -96,9 +107,11 @@ def _header(frame_id: str, stamp_ns: int) -> Any:
 
 
 def _check(d: Detection) -> None:
-    values = (*d.center_px, d.radius_px, d.confidence, *d.xyz, d.yaw, d.max_deviation, d.tolerance)
-    if not np.isfinite(values).all() or d.radius_px < 0 or not 0 <= d.confidence <= 1:
-        raise McapError(f"detection {d.serial}: non-finite value, negative radius or confidence outside [0, 1]")
+    sizes = (d.radius_px, d.position_uncertainty, d.yaw_uncertainty, d.smallest_burr)
+    values = (*d.center_px, d.confidence, *d.xyz, d.yaw, d.max_deviation, d.tolerance, *sizes)
+    if not np.isfinite(values).all() or min(sizes) < 0 or not 0 <= d.confidence <= 1:
+        raise McapError(f"detection {d.serial}: non-finite value, negative radius, uncertainty or burr, "
+                        "or confidence outside [0, 1]")
 
 
 def detected_object_array(detections: Sequence[Detection], step: str, outcome: str, frame_id: str,
@@ -108,7 +121,8 @@ def detected_object_array(detections: Sequence[Detection], step: str, outcome: s
     Raises
     ------
     McapError
-        A detection with a non-finite value, a negative radius or a confidence outside [0, 1].
+        A detection with a non-finite value, a negative radius, uncertainty or smallest burr, or a
+        confidence outside [0, 1].
     """
     header = _header(frame_id, stamp_ns)
     objects = []
@@ -121,7 +135,9 @@ def detected_object_array(detections: Sequence[Detection], step: str, outcome: s
             pose=_Pose(position=_Point(x=float(d.xyz[0]), y=float(d.xyz[1]), z=float(d.xyz[2])),
                        orientation=_Quaternion(x=0.0, y=0.0, z=float(np.sin(half)), w=float(np.cos(half)))),
             base_frame=base_frame, serial=d.serial, inspected=bool(d.inspected), inspection_passed=bool(d.passed),
-            max_deviation=float(d.max_deviation), tolerance=float(d.tolerance)))
+            max_deviation=float(d.max_deviation), tolerance=float(d.tolerance),
+            position_uncertainty=float(d.position_uncertainty), yaw_uncertainty=float(d.yaw_uncertainty),
+            smallest_burr=float(d.smallest_burr)))
     return _DetectedObjectArray(header=header, step=step, outcome=outcome, objects=objects)
 
 

@@ -553,7 +553,8 @@ def _detections(shot: Shot, p: PartAssets, step: str, serial: str) -> list[Detec
             radius_px=radius_mm / d["mm_per_px"], confidence=float(np.clip(d["score"], 0.0, 1.0)),
             xyz=(d["x"], d["y"], d["z"]), yaw=d["yaw"], serial=serial, inspected=inspected,
             passed=bool(d.get("pass", False)), max_deviation=d.get("max_deviation_mm", 0.0) / 1000.0,
-            tolerance=d.get("tolerance_mm", 0.0) / 1000.0))
+            tolerance=d.get("tolerance_mm", 0.0) / 1000.0, position_uncertainty=d["expected_error_mm"] / 1000.0,
+            yaw_uncertainty=np.radians(d["expected_error_deg"]), smallest_burr=d.get("smallest_burr_mm", 0.0) / 1000.0))
     return out
 
 

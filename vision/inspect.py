@@ -73,14 +73,25 @@ from shapely.geometry import MultiPolygon, Polygon
 from factory.core.errors import VisionError
 from vision.camera import CameraModel
 from vision.locate import (SATURATED_GREY, Footprint, LocatedPart, LocateOptions, _edge_peaks, _gradients, _grey,
-                           _peak_offset, _tray_ratio, locate_parts, mm_to_m)
+                           _tray_ratio, locate_parts, mm_to_m)
 from vision.inspect_material import defect_edge
 from vision.inspect_view import FRAME_PX, unseen
-from vision.mesh_edges import MeshEdges, yaw_rotation_3d
+from vision.mesh_edges import MeshEdges, edge_model, yaw_rotation_3d
+from vision.picture_edges import peak_offset
 from vision.shadow import DARK_LOG
 
 #: A picture edge this close to the expected one along its normal is that edge [px].
 OWN_PX = 1.5
+#: Beside an edge this far either way [px] (clear of the own window and its blur) the picture shows
+#: how often an edge lies within OWN_PX of a spot by chance: a low light grazing a brushed face makes
+#: many (a missing hole's place at 5 MP finds 0.35 of its edges there, 0.34 beside them).
+BESIDE_PX = 4.5
+#: A feature is there when the picture shows its edges this much more often at their place than beside
+#: them (0..1): features that are there show 0.17 or more beyond it on the cell camera's worst pictures
+#: and 0.2 at 5 MP, the missing hole above 0.01.
+BEYOND_CHANCE = 0.1
+#: Why an edge sample is unknown, as a refusal names it.
+HIDDEN_BY = {1: "clipped white (glare)", 2: "in deep shadow on both sides", 3: "beyond the picture or behind the part"}
 #: A picture edge this close to another expected edge is that edge, not a defect [px].
 EXPLAINED_PX = 1.0
 #: Edges within this of a clipped pixel are unknown, and a clipped face's spill reaches this far [px].
@@ -197,7 +208,8 @@ class Feature:
     found : float
         Share of them the picture shows within :data:`OWN_PX` (0..1).
     present : bool
-        Whether the share reaches ``InspectOptions.min_feature_found``.
+        Whether the share reaches ``InspectOptions.min_feature_found``, and what the picture's texture
+        alone shows beside the feature's edges by :data:`BEYOND_CHANCE`.
     """
 
     pixel: tuple[float, float]
@@ -370,7 +382,7 @@ def inspect_part(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     cam_base = np.linalg.inv(np.asarray(base_camera, dtype=np.float64))
     mesh = replace(part, vertices=mm_to_m(np.asarray(vertices_mm, dtype=np.float64)),
                    faces=np.asarray(faces, dtype=np.int64))
-    model = MeshEdges(mesh, camera, cam_base, tray_z)
+    model = edge_model(mesh, camera, cam_base, tray_z)  # once per mesh: its feet are asked for once
     out = []
     for located in found:
         sil = expected_silhouette(vertices_mm, faces, cam_base @ part_transform(part, located))
@@ -398,7 +410,7 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
     px_m = located.mm_per_px * 1e-3  # metres per pixel at the part
     steps, resp, peak = _edge_peaks(gx, gy, threshold, uv, normal, max(options.reach, options.depth) / px_m)
     offset = np.where(peak, steps[None, :], np.nan)
-    unknown, bloom, white = _hidden(model, p, idx, uv, normal, masks, top_glare)
+    unknown, bloom, white, cause = _hidden(model, p, idx, uv, normal, masks, top_glare)
     # The outline is judged where a face turned up meets the side (the top of a wall, a step): the
     # part's own face lies inside. At a wall's foot the tray beside it may lie in the part's own
     # shadow, and the wall may be as dark as that shadow; no edge there says anything.
@@ -442,7 +454,7 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
     out_steps = steps[None, :] * sign[:, None]
     beyond = peak & ((steps[None, :] < lo[:, None]) | (steps[None, :] > hi[:, None])) & \
         (out_steps <= options.reach / px_m) & (out_steps >= -options.depth / px_m) & ~unknown[:, None]
-    measured = np.where(own & ~unknown, _peak_offset(steps, resp, own_j), np.nan)
+    measured = np.where(own & ~unknown, peak_offset(steps, resp, own_j), np.nan)
     signed = sign[outer] * measured[outer]
     # An edge within OWN_PX inside the expected one is there: a narrow wall between the top and the
     # tray blurs into one dark band whose two edges the blur pushes apart by up to a pixel.
@@ -474,7 +486,13 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
     seen = float(np.isfinite(deviation).mean()) if len(deviation) else 0.0
     if seen < options.min_seen:
         refusals.append(f"{100 * seen:.0f} % of the outline can be judged, {100 * options.min_seen:.0f} % needed")
-    features, hidden_features = _judge_features(model, p, idx, uv, own, unknown, top_glare, options)
+    # How often the picture's texture alone puts an edge within OWN_PX of a spot: beside each sample,
+    # BESIDE_PX either way (1.0 or 0.0; NaN where another expected edge lies near the spot: that one's).
+    tree = cKDTree(uv)
+    beside = np.stack([np.where(tree.query(uv + c * normal)[0] <= OWN_PX + EXPLAINED_PX, np.nan,
+                                (peak & (np.abs(steps[None, :] - c) <= OWN_PX)).any(axis=1))
+                       for c in (BESIDE_PX, -BESIDE_PX)], axis=1)
+    features, hidden_features = _judge_features(model, p, idx, uv, own, (unknown, cause), top_glare, options, beside)
     refusals += hidden_features
     hidden = "; ".join(refusals)
     judged = Inspection(part=located, outline_px=uv[outer], deviation=deviation, features=tuple(features),
@@ -488,11 +506,14 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
 
 
 def _judge_features(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, own: np.ndarray,
-                    unknown: np.ndarray, top_glare: bool, options: InspectOptions) -> tuple[list[Feature], list[str]]:
+                    hidden: tuple[np.ndarray, np.ndarray], top_glare: bool, options: InspectOptions,
+                    beside: np.ndarray) -> tuple[list[Feature], list[str]]:
     """The features inside the outline at pose ``p``, and the refusals of those hidden in glare.
 
     ``idx`` the visible edge samples, ``uv`` (k, 2) where they are [px], ``own`` (k,) bool their
-    edge found where expected, ``unknown`` (k,) bool their edge hidden by clipped pixels.
+    edge found where expected, ``hidden`` their edge hidden ((k,) bool) and why ((k,) int,
+    :data:`HIDDEN_BY`), ``beside`` (k, 2) whether an edge shows :data:`BESIDE_PX` off each either way
+    (NaN: another expected edge's).
 
     A feature is judged by its creases with a wall turned to the camera: a step between two faces
     turned up, its wall seen edge-on or from behind, may show no edge at all (the faces alike).
@@ -506,7 +527,11 @@ def _judge_features(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.nda
     part can be white over it: a through-hole shows the tray or its walls, never a clipped top, so
     white on both sides of its edges is material where the hole should be. A pocket's or a bore's
     floor, a boss's top, mirror the light as the top does: hidden, not judged.
+    A feature's edges must show at their place more often than the picture shows edges beside them
+    (``beside`` (k, 2), :func:`_chance`) by :data:`BEYOND_CHANCE`: a low light grazing a brushed top
+    puts edges everywhere, where a hole not drilled finds a third of its edges.
     """
+    unknown, cause = hidden
     outline_features = set(model.feature[idx[model.outer[idx]]])
     facing = model.crease[idx] & _wall_facing(model, p, idx)
     features, refusals = [], []
@@ -526,6 +551,8 @@ def _judge_features(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.nda
         whole = mine & ~unknown
         if f in outline_features or (every.sum() < options.min_feature_edges and whole.sum() < options.min_feature_edges):
             continue
+        # The picture's texture alone finds this share of the feature's edges (:data:`BESIDE_PX`).
+        chance = _chance(beside[whole | every], options.min_feature_edges)
         # ... counted only where the light leaves most of them to be judged (a thin wall's few edges
         # clear of a white top say nothing of the rest).
         told = whole.sum() >= max(options.min_feature_edges, options.min_seen * mine.sum())
@@ -541,8 +568,9 @@ def _judge_features(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.nda
             # the tray shows through, shows 0.17-0.20 (one there: 0.94-0.97; the loops of features
             # there judged so read 0.41 or more in diffuse, dim and low light, seeds 8-9).
             found = min(whole_found, _least_loop(model, idx, own, whole, options))
+            present = found >= max(options.min_feature_found, chance + BEYOND_CHANCE)
             features.append(Feature(pixel=(float(centre[0]), float(centre[1])), edges=int(whole.sum()),
-                                    found=found, present=found >= options.min_feature_found))
+                                    found=found, present=present))
             continue
         on = every & ~unknown
         centre = uv[every].mean(axis=0)
@@ -551,16 +579,33 @@ def _judge_features(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.nda
         if anywhere >= options.min_feature_found or whole_found >= options.min_whole_found:
             # A wall turned to the camera may show little against its floor (dim light, a shadow in
             # a counterbore) while the rest of the feature's edges are all there.
-            features.append(Feature(pixel=pixel, edges=int(every.sum()), found=max(anywhere, whole_found), present=True))
+            found = max(anywhere, whole_found)
+            features.append(Feature(pixel=pixel, edges=int(every.sum()), found=found,
+                                    present=found >= chance + BEYOND_CHANCE))
         elif on.sum() >= options.min_seen * every.sum():
             share = float(own[on].mean())
             features.append(Feature(pixel=pixel, edges=int(on.sum()), found=share,
-                                    present=share >= options.min_feature_found))
+                                    present=share >= max(options.min_feature_found, chance + BEYOND_CHANCE)))
         elif top_glare and through:
             features.append(Feature(pixel=pixel, edges=int(every.sum()), found=anywhere, present=False))
         else:
-            refusals.append(f"the feature at ({centre[0]:.0f}, {centre[1]:.0f}) px is hidden in glare or shadow, or beyond the picture")
+            why = ", ".join(f"{100 * np.mean(cause[every] == k):.0f} % {what}" for k, what in HIDDEN_BY.items()
+                            if np.any(cause[every] == k))
+            refusals.append(f"the feature at ({centre[0]:.0f}, {centre[1]:.0f}) px is hidden in glare or shadow, or "
+                            f"beyond the picture (of its edges: {why})")
     return features, refusals
+
+
+def _chance(beside: np.ndarray, least: int) -> float:
+    """The share of a feature's edges the picture's texture alone would show (0..1): of ``beside`` (k, 2)
+    (1.0: an edge near the spot BESIDE_PX off the sample on that side, 0.0 none, NaN another expected
+    edge's), the quieter side's share; 0 unless both sides have at least ``least`` spots told. One side
+    alone cannot tell texture from a structure running beside the edge (the white band of a step's top
+    in glare finds an edge beside every sample), and the texture is the same on both sides."""
+    told = np.isfinite(beside).sum(axis=0)
+    if (told < least).any():
+        return 0.0
+    return float(np.nanmean(beside, axis=0).min())
 
 
 def _least_loop(model: MeshEdges, idx: np.ndarray, own: np.ndarray, whole: np.ndarray,
@@ -622,10 +667,12 @@ def _clipped_sides(saturated: np.ndarray, uv: np.ndarray, normal: np.ndarray, to
 
 
 def _hidden(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, normal: np.ndarray,
-            masks: tuple[np.ndarray, np.ndarray], top_glare: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            masks: tuple[np.ndarray, np.ndarray], top_glare: bool
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Which edge samples ``idx`` at pose ``p`` (``uv``, ``normal`` (k, 2) in the image) the picture
     cannot show (``masks`` its clipped pixels and deep shadow): ``unknown`` (k,) bool, ``bloom`` (k, 2)
-    as :func:`_clipped_sides`, and ``white`` (k,) bool those unknown only for glare on both sides."""
+    as :func:`_clipped_sides`, ``white`` (k,) bool those unknown only for glare on both sides, and
+    ``cause`` (k,) int why each is unknown (a key of :data:`HIDDEN_BY`; 0 where it is not)."""
     # A clipped highlight on both sides of an edge (a pocket in a white top) hides it: unknown,
     # neither found nor missed. On one side only, the edge shows, pushed into the other side by
     # the optics' spill (the bloom, up to GLARE_PX): its own edge is looked for that much further.
@@ -633,11 +680,13 @@ def _hidden(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, no
     clipped, bloom = _clipped_sides(saturated, uv, normal, top_glare)
     # Deep shadow on both sides (a hole at the foot of a counterbore under a low light) hides an
     # edge as glare does: unknown, not missing.
-    unknown = _both_sides(dark, uv, normal, SHADOW_SIDE_PX)
+    shadowed = _both_sides(dark, uv, normal, SHADOW_SIDE_PX)
     # Beyond the picture, or an outline edge behind the part's own taller faces: unknown, as glare is.
-    unknown |= unseen(model, p, idx, uv, normal, dark.shape, OWN_PX + FRAME_PX)
+    out_of_view = unseen(model, p, idx, uv, normal, dark.shape, OWN_PX + FRAME_PX)
+    unknown = shadowed | out_of_view
     white = clipped & ~unknown if top_glare else np.zeros(len(idx), bool)
-    return unknown | clipped, bloom, white
+    cause = np.select([out_of_view, shadowed, clipped], [3, 2, 1], 0)
+    return unknown | clipped, bloom, white, cause
 
 
 def _both_sides(mask: np.ndarray, uv: np.ndarray, normal: np.ndarray, t: float) -> np.ndarray:

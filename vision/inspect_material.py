@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import map_coordinates
 
-from vision.picture_edges import _peak_offset
+from vision.picture_edges import peak_offset
 
 #: A farther outward edge whose greys agree ends the material over a nearer one (the own edge, or a
 #: nearer outward one) when its response is stronger by this share of the picture's edge threshold
@@ -53,18 +53,16 @@ def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np
         first = np.where(mask & explained, np.abs(out_steps), np.inf).min(axis=1)
         return mask & ~explained & (np.abs(out_steps) < first[:, None])
 
-    def at(j: np.ndarray, there: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        off = np.where(there, sign * _peak_offset(steps, resp, j), np.nan)
-        return off, material_agrees(grey, uv, outward, off, level, contrast, line, own)
-
     out_c, in_c = side(beyond & (out_steps > 0)), side(beyond & (out_steps < 0))
     near_out = np.argmin(np.where(out_c, out_steps, np.inf), axis=1)
     near_in = np.argmin(np.where(in_c, -out_steps, np.inf), axis=1)
     strong = np.argmax(np.where(out_c, resp, -np.inf), axis=1)
     any_out, any_in = out_c.any(axis=1), in_c.any(axis=1)
-    o_near, ok_near = at(near_out, any_out)
-    o_in, ok_in = at(near_in, any_in)
-    o_strong, ok_strong = at(strong, any_out)
+    # The three candidates of each sample, judged on one grey profile across it.
+    offsets = np.stack([np.where(there, sign * peak_offset(steps, resp, j), np.nan)
+                        for j, there in ((near_out, any_out), (near_in, any_in), (strong, any_out))])
+    (o_near, o_in, o_strong) = offsets
+    ok_near, ok_in, ok_strong = material_agrees(grey, uv, outward, offsets, level, contrast, line, own)
     than = np.where(own, resp[rows, own_j], np.where(ok_near, resp[rows, near_out], -np.inf))
     over = ok_strong & (resp[rows, strong] > than + STRONGER * contrast)
     nearest = np.where(ok_near & ~(ok_in & (-o_in < o_near)), o_near, np.where(ok_in, o_in, np.nan))
@@ -73,8 +71,9 @@ def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np
 
 def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signed: np.ndarray,
                      level: np.ndarray, contrast: float, line: np.ndarray, own: np.ndarray) -> np.ndarray:
-    """``(k,)`` bool: the picture between each outline sample's line level and its edge found
-    ``signed`` [px] outward (+: extra material, -: missing) looks like what the defect says is there.
+    """``(k,)`` bool, or ``(m, k)`` for ``signed`` (m, k): the picture between each outline sample's line
+    level and its edge found ``signed`` [px] outward (+: extra material, -: missing) looks like what the
+    defect says is there. ``m`` candidate edges per sample are judged on one grey profile across it.
 
     Three greys along the outward normal: the *face* (the part's side of the edges: 1.5-3 px inside
     the line for extra material, beyond the found edge for missing), the *tray* (the other side)
@@ -90,13 +89,14 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
     ``line`` whose edge is where expected (``own``); both must agree, and what lies past the found
     edge must be the line's own other side (its tray past a burr, its face within a broken corner).
     """
-    ok = np.isfinite(level) & (np.isfinite(signed) | own)
-    out = np.zeros(len(signed), bool)
+    sets = np.atleast_2d(np.asarray(signed, dtype=np.float64))
+    out = np.zeros(sets.shape, bool)
+    ok = np.isfinite(level) & (np.isfinite(sets).any(axis=0) | own)
     if not ok.any():
-        return out
-    s, lv = np.where(np.isfinite(signed), signed, level)[ok], level[ok]
-    lo = np.floor(np.minimum(s, lv).min()) - 3.5
-    hi = np.ceil(np.maximum(s, lv).max()) + 3.5
+        return out if np.ndim(signed) == 2 else out[0]
+    cand, lv = sets[:, ok], level[ok]
+    lo = np.floor(min(np.nanmin(cand, initial=np.inf), lv.min())) - 3.5
+    hi = np.ceil(max(np.nanmax(cand, initial=-np.inf), lv.max())) + 3.5
     t = np.arange(lo, hi + 1e-9, 0.5)  # [px] outward
     q = uv[ok, None, :] + t[None, :, None] * outward[ok, None, :]
     profile = map_coordinates(grey.astype(np.float32), [q[..., 1].ravel(), q[..., 0].ravel()], order=1,
@@ -113,27 +113,28 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
         """Where the band sits from tray (0) to face (1); NaN where the two are too alike to tell."""
         return (band - tray) / np.where(np.abs(face - tray) >= contrast, face - tray, np.nan)
 
-    extra = s > lv
-    band = median(np.minimum(s, lv) + 0.5, np.maximum(s, lv) - 0.5)
-    beyond = np.where(extra, median(s + 1.5, s + 3.0), median(s - 3.0, s - 1.5))  # past the found edge
-    local = share(band, np.where(extra, median(lv - 3.0, lv - 1.5), beyond),
-                  np.where(extra, beyond, median(lv + 1.5, lv + 3.0)))
     # The line's own face and tray, beside the samples whose edge is where expected.
     here, where = line[ok], own[ok]
-    face_line, tray_line = np.full(len(s), np.nan), np.full(len(s), np.nan)
+    face_line, tray_line = np.full(len(lv), np.nan), np.full(len(lv), np.nan)
     inner, outer = median(lv - 3.0, lv - 1.5), median(lv + 1.5, lv + 3.0)
     for e in np.unique(here[where]):
         on = here == e
         face_line[on] = np.median(inner[on & where])
         tray_line[on] = np.median(outer[on & where])
-    lined = share(band, face_line, tray_line)  # NaN on a line with no edge where expected: not told
+    for k, found in enumerate(cand):
+        s = np.where(np.isfinite(found), found, lv)
+        extra = s > lv
+        band = median(np.minimum(s, lv) + 0.5, np.maximum(s, lv) - 0.5)
+        beyond = np.where(extra, median(s + 1.5, s + 3.0), median(s - 3.0, s - 1.5))  # past the found edge
+        local = share(band, np.where(extra, inner, beyond), np.where(extra, beyond, outer))
+        lined = share(band, face_line, tray_line)  # NaN on a line with no edge where expected: not told
 
-    def agrees(x: np.ndarray) -> np.ndarray:
-        return np.where(extra, (x >= 0.5) & (x <= 1.5), (x >= -0.5) & (x < 0.5))
+        def agrees(x: np.ndarray) -> np.ndarray:
+            return np.where(extra, (x >= 0.5) & (x <= 1.5), (x >= -0.5) & (x < 0.5))
 
-    # Past the found edge lies what the line shows on that side: the tray beyond a burr, the
-    # part's face within a broken corner (not a boss's shadow, not the shadow beyond the part).
-    past = share(beyond, face_line, tray_line)
-    past_ok = np.where(extra, (past > -0.5) & (past < 0.5), (past >= 0.5) & (past < 1.5))
-    out[ok] = agrees(local) & agrees(lined) & past_ok & np.isfinite(signed[ok])
-    return out
+        # Past the found edge lies what the line shows on that side: the tray beyond a burr, the
+        # part's face within a broken corner (not a boss's shadow, not the shadow beyond the part).
+        past = share(beyond, face_line, tray_line)
+        past_ok = np.where(extra, (past > -0.5) & (past < 0.5), (past >= 0.5) & (past < 1.5))
+        out[k, ok] = agrees(local) & agrees(lined) & past_ok & np.isfinite(found)
+    return out if np.ndim(signed) == 2 else out[0]

@@ -44,8 +44,8 @@ from factory.core.units import MM_PER_M
 from vision.camera import CameraModel, bin_image, binned_camera
 from vision.locate_search import FIT_SAMPLES, chamfer_starts, oriented_distances, refined_starts, thin_edges
 from vision.mesh_edges import MeshEdges, edge_model, yaw_rotation
-# _edge_peaks and _peak_offset stay importable from here: vision.inspect takes them with the rest.
-from vision.picture_edges import (_blob_outline, _edge_peaks, _find_edges, _gradients, _peak_offset,  # noqa: F401
+# _edge_peaks stays importable from here: vision.inspect takes it with the rest.
+from vision.picture_edges import (_blob_outline, _edge_peaks, _find_edges, _gradients,  # noqa: F401
                                   _tray_ratio)
 from vision.pose_uncertainty import pose_covariance
 from vision.key_light import LightAt, lights_at

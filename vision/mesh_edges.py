@@ -6,6 +6,7 @@ Locating and inspecting both fit these edges to a picture's (:mod:`vision.locate
 
 from __future__ import annotations
 
+import hashlib
 from functools import cached_property
 from typing import Protocol
 
@@ -51,18 +52,24 @@ RESOLVE_DZ_M = 1e-3
 FOOT_M = 1e-3
 
 
-#: The edge models last made (:func:`edge_model`), at most :data:`KEPT_MODELS`, by the part's id (each model holds
-#: its part, so the id is not reused while the model is kept), the camera and its pose.
+#: The edge models last made (:func:`edge_model`), at most :data:`KEPT_MODELS`, by what the part's mesh holds
+#: (its vertices, faces, outline, centroid and lowest z), the camera and its pose.
 KEPT_MODELS = 8
 _MODELS: KeptAnswers[tuple, MeshEdges] = KeptAnswers(kept=KEPT_MODELS)
 
 
 def edge_model(part: PartMesh, camera: CameraModel, cam_base: np.ndarray, tray_z: float) -> MeshEdges:
     """The :class:`MeshEdges` of ``part`` seen by ``camera`` at ``cam_base`` over the tray at ``tray_z`` [m], made
-    once for the same part (the same object), camera and pose: a cell locates the same part in picture after
-    picture, and making the model (the mesh's creases, its height field) cost a tenth of a locate."""
-    key = (id(part), np.asarray(camera.K).tobytes(), np.asarray(camera.dist).tobytes(), tuple(camera.image_size),
-           np.asarray(cam_base, np.float64).tobytes(), float(tray_z))
+    once for the same mesh, camera and pose: a cell locates and inspects the same part in picture after
+    picture, and making the model (the mesh's creases, its height field; the feet inspection asks for)
+    cost a tenth of a locate. The mesh is told by its contents, not its object: inspection makes its
+    part anew from the vertices it is given, every picture."""
+    digest = hashlib.blake2b(digest_size=16)
+    for a in (part.vertices, part.faces, part.outline, part.centroid):
+        a = np.ascontiguousarray(a)
+        digest.update(f"{a.dtype.str}{a.shape}".encode() + a.tobytes())
+    key = (digest.digest(), float(part.zmin), np.asarray(camera.K).tobytes(), np.asarray(camera.dist).tobytes(),
+           tuple(camera.image_size), np.asarray(cam_base, np.float64).tobytes(), float(tray_z))
     return _MODELS.get(key, lambda: MeshEdges(part, camera, cam_base, tray_z))
 
 
@@ -104,7 +111,7 @@ class MeshEdges:
     """
 
     def __init__(self, part: PartMesh, camera: CameraModel, cam_base: np.ndarray, tray_z: float):
-        self.part = part  # what it was made from (:func:`edge_model` tells parts apart by it)
+        self.part = part  # what it was made from
         mesh = trimesh.Trimesh(np.asarray(part.vertices) - np.r_[part.centroid, part.zmin], part.faces,
                                process=True)
         adj = mesh.face_adjacency

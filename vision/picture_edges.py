@@ -76,7 +76,7 @@ def _edge_peaks(gx: np.ndarray, gy: np.ndarray, threshold: float, uv: np.ndarray
     return steps, resp, peak
 
 
-def _peak_offset(steps: np.ndarray, resp: np.ndarray, j: np.ndarray) -> np.ndarray:
+def peak_offset(steps: np.ndarray, resp: np.ndarray, j: np.ndarray) -> np.ndarray:
     """``(k,)`` sub-pixel offset [px] of the peak at column ``j`` (k,) of each row of ``resp`` (parabola)."""
     jj = np.clip(j, 1, len(steps) - 2)
     rows = np.arange(len(jj))
@@ -94,7 +94,7 @@ def _find_edges(gx: np.ndarray, gy: np.ndarray, threshold: float, uv: np.ndarray
     dist = np.where(peak, np.abs(steps)[None, :], np.inf)
     j = np.argmin(dist, axis=1)
     found = np.isfinite(dist[np.arange(len(j)), j])
-    return np.where(found, _peak_offset(steps, resp, j), np.nan)
+    return np.where(found, peak_offset(steps, resp, j), np.nan)
 
 
 def _blob_outline(log_ratio: np.ndarray, mask: np.ndarray, level: float) -> np.ndarray:

@@ -12,7 +12,8 @@ from factory.rosmsgs import TYPESTORE
 
 PART = Detection(class_name="part", center_px=(320.0, 240.0), radius_px=40.0, confidence=0.93,
                  xyz=(0.15, 0.4, 0.78), yaw=math.pi / 2, serial="o1-3", inspected=True, passed=False,
-                 max_deviation=0.0017, tolerance=0.001)
+                 max_deviation=0.0017, tolerance=0.001, position_uncertainty=4e-4, yaw_uncertainty=0.002,
+                 smallest_burr=0.0019)
 
 
 def roundtrip(msg):
@@ -30,9 +31,13 @@ def test_detection_carries_the_image_header_and_the_pose_in_the_base_frame():
     q = obj.pose.orientation
     assert (q.x, q.y) == (0.0, 0.0) and q.z == pytest.approx(math.sqrt(0.5)) and q.w == pytest.approx(math.sqrt(0.5))
     assert obj.pose.position.z == 0.78
+    # How far the pose may be off [m, rad] and the narrowest burr the inspection resolves [m].
+    assert (obj.position_uncertainty, obj.yaw_uncertainty, obj.smallest_burr) == pytest.approx((4e-4, 0.002, 0.0019))
 
 
-@pytest.mark.parametrize("change", [{"confidence": 1.5}, {"radius_px": -1.0}, {"xyz": (0.0, math.nan, 0.0)}])
+@pytest.mark.parametrize("change", [{"confidence": 1.5}, {"radius_px": -1.0}, {"xyz": (0.0, math.nan, 0.0)},
+                                    {"position_uncertainty": -1e-4}, {"yaw_uncertainty": math.inf},
+                                    {"smallest_burr": -1e-3}])
 def test_bad_detections_are_refused(change):
     import dataclasses
 

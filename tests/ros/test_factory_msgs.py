@@ -161,9 +161,15 @@ def test_detections_share_the_image_header_and_carry_the_seed_fields(cell_log):
             assert 0 <= obj.center_x < 2000 and 0 <= obj.center_y < 2000
             assert obj.class_name == ("part" if m.step == "inspect" else "blank")
             assert obj.inspected == (m.step == "inspect")
+            # What the camera can promise: the pose to within a few tenths of a millimetre and a
+            # degree or so, and (inspected) no burr under a size beyond the tolerance.
+            assert 0 < obj.position_uncertainty < 3e-3 and 0 < obj.yaw_uncertainty < 0.05
             if obj.inspected:
                 assert obj.inspection_passed == (m.outcome == "inspect_pass")
                 assert obj.tolerance > 0 and (obj.max_deviation <= obj.tolerance) == obj.inspection_passed
+                assert obj.tolerance < obj.smallest_burr < 5e-3
+            else:
+                assert obj.smallest_burr == 0
     assert ("locate", "done") in steps and ("inspect", "inspect_pass") in steps
     annotations = [(t, m) for topic, _, t, m in msgs if topic == "/camera/annotations"]
     assert [(t, len(m.circles)) for t, m in annotations] == [(t, len(m.objects)) for t, m in detections]

@@ -268,3 +268,20 @@ def test_a_burr_flush_with_the_top_in_diffuse_light_is_extra_material_at_5_mp():
     worst = bad.outline_px[np.nanargmax(bad.deviation)]
     # within half the lip's 15 mm (about 7 px a millimetre) of its middle
     assert np.hypot(*(worst - pixel_of(station, "plate_bosses", scene, (27.5, 71.0, 8.0)))) < 60  # [px]
+
+
+def test_a_hole_not_drilled_is_missing_though_a_low_light_puts_edges_everywhere_at_5_mp():
+    """A bracket under a low, grazing light at 5 MP (0.14 mm a pixel): the brushed top's texture puts a
+    picture edge within 1.5 px of a third of any line drawn on it, so the M10 hole left undrilled found
+    0.35 of its edges and main passed the part. Beside its rim, 4.5 px either way, the texture finds
+    as many (0.34): the hole is missing where it should be. The drilled holes find 0.8-1.0 of their edges
+    against 0.02-0.2 beside them, and the good part at the same pose and light passes."""
+    station = cell_station(CameraModel.read(ROOT / "fixtures" / "camera_5mp.yaml"))
+    _, good = inspected(station, "low_angle", "bracket", 0, supersample=1)
+    assert good.passed and not good.refusal and not good.missing_features, good.to_dict()
+    scene, bad = inspected(station, "low_angle", "bracket", 0, "missing_hole", supersample=1)
+    assert not bad.passed and not bad.refusal
+    centre = pixel_of(station, "bracket", scene, (92.0, 52.0, 15.0))
+    radius_px = np.hypot(*(pixel_of(station, "bracket", scene, (97.8, 52.0, 15.0)) - centre))
+    # the undrilled hole, and only it
+    assert [np.hypot(*(np.array(f.pixel) - centre)) < radius_px for f in bad.missing_features] == [True]

@@ -4,6 +4,8 @@ line's march to the light ends past the part's box, and the edge model is made o
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -69,11 +71,17 @@ def test_a_march_ended_past_the_parts_box_shadows_the_same_points(part, az, el, 
 
 
 def test_the_edge_model_is_made_once_per_part_and_view():
-    """The same part object, camera and pose give the same model; another tray height or another part a new one."""
+    """The same mesh, camera and pose give the same model, also from a new part object made from the same
+    vertices (as inspection makes one each picture); another tray height, another part, or one vertex moved a new one."""
     part = sample_mesh("bracket")[1]
     cam_base = np.linalg.inv(STATION.camera_pose)
     first = edge_model(part, STATION.camera, cam_base, STATION.plane_z)
     assert edge_model(part, STATION.camera, cam_base.copy(), STATION.plane_z) is first
+    assert edge_model(replace(part, vertices=np.array(part.vertices), faces=np.array(part.faces)), STATION.camera,
+                      cam_base, STATION.plane_z) is first
+    moved = np.array(part.vertices)
+    moved[0, 2] += 1e-4
+    assert edge_model(replace(part, vertices=moved), STATION.camera, cam_base, STATION.plane_z) is not first
     assert edge_model(part, STATION.camera, cam_base, STATION.plane_z + 0.01) is not first
     other = edge_model(sample_mesh("hex_boss")[1], STATION.camera, cam_base, STATION.plane_z)
     assert other is not first and other.part is sample_mesh("hex_boss")[1]
