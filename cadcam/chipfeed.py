@@ -88,18 +88,19 @@ def chip_fed(ops: Sequence[Operation], stock: Simulation | None, setup: Setup, p
               and len(op.points) >= 2]
     if not judged:
         return ChipFed(list(ops), None)
-    moves, tools = _first_passes(operation_moves(judged)), {op.tool.number: op.tool for op in judged}
+    moves, tools = operation_moves(judged), {op.tool.number: op.tool for op in judged}
+    again = _run_again(moves)
     # A strip of stock narrower than a cell can fall between one grid's points and read as air, while a
     # verify grid of another phase or cell has a point in it and measures the chip the raised feed makes
     # there (two floor loops 0.85 D apart leave such a strip). Measured on two grids half a cell apart, any
     # strip wider than half a cell holds a point of one of them. The two cuts are independent: the shifted
     # grid's runs on another processor where there is one and the pass is worth a process.
     shifted = _shifted(setup, 0.5 * CHIP_CELL)
-    other = (Background(_chip_shares, moves, tools, shifted, part_triangles, stock)
+    other = (Background(_chip_shares, moves, tools, shifted, part_triangles, stock, again)
              if len(moves.points) >= _FORK_POINTS else None)
-    cut = _chip_cut(moves, tools, setup, part_triangles, stock)
+    cut = _chip_cut(moves, tools, setup, part_triangles, stock, again)
     share = np.maximum(_shares(cut, len(moves.points)), other.result() if other is not None
-                       else _chip_shares(moves, tools, shifted, part_triangles, stock))
+                       else _chip_shares(moves, tools, shifted, part_triangles, stock, again))
     left = cut.simulation
     first = np.cumsum([0] + [len(op.points) for op in judged])
     fed = {id(op): _raised(op, share[a:b], max_feed) for op, a, b in zip(judged, first[:-1], first[1:])}
@@ -108,16 +109,15 @@ def chip_fed(ops: Sequence[Operation], stock: Simulation | None, setup: Setup, p
                    dataclasses.replace(left, removed_volume=None) if whole else None)
 
 
-def _first_passes(moves: ProgramMoves) -> ProgramMoves:
-    """``moves`` with each move that runs again along an earlier one (the same ends in the same order, the same
-    tool and kind) taken out of the cut: an empty spindle's rapid, which sweeps nothing. The earlier move lowered
-    the stock to their common envelope already (each grid point keeps the lowest cut), so the move again
-    takes nothing off and meets no chip: the stock and every move's chip are the same to the bit. (A raster's
-    links run back along its passes: a fifth of the relief's ball raster.) Where it is this move again, its
-    ``points`` are kept: the move after it starts there."""
+def _run_again(moves: ProgramMoves) -> np.ndarray | None:
+    """(n,) bool over ``moves.points``: the move ending at each point marked runs again along an earlier one (the
+    same ends in the same order, the same tool and kind), for :func:`cadcam.stock.cut_stock` to skip; None: none
+    does. The earlier move lowered the stock to their common envelope already (each grid point keeps the lowest
+    cut), so the move again takes nothing off and meets no chip: the stock and every move's chip are the same to
+    the bit without it. (A raster's links run back along its passes: a fifth of the relief's ball raster.)"""
     n = len(moves.points)
     if n < 3:
-        return moves
+        return None
     key = np.empty(n - 1, dtype=[("tool", np.int64), ("motion", np.int8), ("a", np.float64, 3), ("b", np.float64, 3)])
     key["tool"], key["motion"] = moves.tool[1:], moves.motion[1:]
     key["a"], key["b"] = moves.points[:-1], moves.points[1:]
@@ -125,18 +125,15 @@ def _first_passes(moves: ProgramMoves) -> ProgramMoves:
     again = np.ones(n, bool)
     again[0] = False
     again[first + 1] = False
-    if not again.any():
-        return moves
-    return dataclasses.replace(moves, motion=np.where(again, Motion.RAPID, moves.motion).astype(moves.motion.dtype),
-                               tool=np.where(again, 0, moves.tool).astype(moves.tool.dtype))
+    return again if again.any() else None
 
 
 def _chip_cut(moves: ProgramMoves, tools: Mapping[int, Tool], placed: Setup, part_triangles: np.ndarray,
-              stock: Simulation | None) -> StockCut:
+              stock: Simulation | None, again: np.ndarray | None = None) -> StockCut:
     """``moves`` cut on the grid of :data:`CHIP_CELL` over ``placed``'s stock box from ``stock`` (None: the
-    block), each move's chip measured (nothing else)."""
+    block), each move's chip measured (nothing else); the moves ``again`` marks (:func:`_run_again`) left out."""
     return cut_stock(moves, tools, placed, part_triangles, CHIP_CELL, measure="chip",
-                     start=None if stock is None else _finer(stock, placed, CHIP_CELL))
+                     start=None if stock is None else _finer(stock, placed, CHIP_CELL), skip=again)
 
 
 def _shares(cut: StockCut, n: int) -> np.ndarray:
@@ -147,9 +144,9 @@ def _shares(cut: StockCut, n: int) -> np.ndarray:
 
 
 def _chip_shares(moves: ProgramMoves, tools: Mapping[int, Tool], placed: Setup, part_triangles: np.ndarray,
-                 stock: Simulation | None) -> np.ndarray:
+                 stock: Simulation | None, again: np.ndarray | None = None) -> np.ndarray:
     """:func:`_shares` of :func:`_chip_cut` (what a process of its own sends back)."""
-    return _shares(_chip_cut(moves, tools, placed, part_triangles, stock), len(moves.points))
+    return _shares(_chip_cut(moves, tools, placed, part_triangles, stock, again), len(moves.points))
 
 
 def _raised(op: Operation, share: np.ndarray, max_feed: float) -> Operation:

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 import shapely
+from scipy import ndimage
 from shapely.geometry import LineString, Point
 from shapely.geometry.base import BaseGeometry
 
@@ -34,6 +35,9 @@ FOOTPRINT_QUAD_SEGS = 4
 #: first simplifies the line by 1 % of the distance (``BufferParameters`` simplify factor 0.01), either way.
 SURELY_MEETS = 0.95
 SURELY_APART = 1.02
+#: Samples of a link's way whose clearance :meth:`Links.height` asks first, those under the highest bounds: the
+#: others only where their bound lies over the highest clearance these gave.
+FIRST_ASKED = 32
 
 
 def nearest_tour(starts: np.ndarray, start: np.ndarray, ends: np.ndarray | None = None) -> np.ndarray:
@@ -148,6 +152,7 @@ class Links:
         self.stock = dataclasses.replace(known, stock_top=self.top)
         self.tool, self.rect, self.spaces = tool, rect, spaces
         self._covering: dict[int, BaseGeometry] = {}  # spaces[level] grown by COVER_TOL, made when first asked
+        self._bound: np.ndarray | None = None  # (:meth:`_bounds`), made when first asked
         shapely.prepare(rect)
 
     def _way(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -162,7 +167,33 @@ class Links:
     def height(self, a: np.ndarray, b: np.ndarray) -> float:
         if not self._within(a, b):
             return math.inf
-        return float(np.max(clear_height(self.stock, self.tool, self._way(a, b))))
+        # The highest clearance along the way, asked only where it can be: first under the highest bounds, then
+        # under those over what they gave (the others give no more). The same maximum of the same numbers.
+        xy = self._way(a, b)
+        bound = self._bounds(xy)
+        order = np.argsort(-bound, kind="stable")
+        high = np.max(clear_height(self.stock, self.tool, xy[order[:FIRST_ASKED]]))
+        more = order[FIRST_ASKED:][bound[order[FIRST_ASKED:]] > high]
+        if len(more):
+            high = np.max(np.r_[high, clear_height(self.stock, self.tool, xy[more])])
+        return float(high)
+
+    def _bounds(self, xy: np.ndarray) -> np.ndarray:
+        """(n,) a height [mm] at or over :func:`cadcam.stock.clear_height` at each axis position ``xy`` (n, 2) [mm]:
+        the highest stock within the tool's radius and three cells of the grid point it rounds to, on the stock
+        known when first asked (the pieces only lower it). That height reads the stock within the radius and a
+        cell diagonal of the axis, less the tool's profile height (never negative), and the axis lies within half
+        a diagonal of that point. Off the grid by more than the padding: its edge, whose disc holds as much."""
+        g, top = self.stock.grid, self.top
+        k = int(math.ceil(self.tool.radius / g.cell)) + 3
+        if self._bound is None:
+            d = np.arange(-k, k + 1)
+            disk = np.hypot(*np.meshgrid(d, d)) <= k
+            held = np.pad(np.where(np.isnan(top), np.inf, top), k, constant_values=-np.inf)  # NaN: always asked
+            self._bound = ndimage.maximum_filter(held, footprint=disk, mode="constant", cval=-np.inf)
+        i = np.clip(np.rint((xy[:, 0] - g.x0) / g.cell).astype(np.int64) + k, 0, self._bound.shape[1] - 1)
+        j = np.clip(np.rint((xy[:, 1] - g.y0) / g.cell).astype(np.int64) + k, 0, self._bound.shape[0] - 1)
+        return self._bound[j, i]
 
     def stays_down(self, a: np.ndarray, b: np.ndarray, z: float, level: int) -> bool:
         """Whether the tool may feed straight from XY ``a`` to ``b`` [mm] at tip height ``z`` [mm] meeting

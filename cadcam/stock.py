@@ -170,6 +170,7 @@ def cut_stock(
     full_width_angle: float = FULL_WIDTH_ANGLE,
     measure: bool | str = True,
     resume: Any = None,
+    skip: np.ndarray | None = None,
 ) -> StockCut:
     """Cut the stock with every move of a program, measuring what each move meets.
 
@@ -221,7 +222,11 @@ def cut_stock(
         The first moves of this program cut already (:func:`cadcam.cutahead.cut_ahead`, in another process
         meanwhile): the cut goes on from there when they are this program's first moves, swept alike, into
         this stock and part with these options (:class:`cadcam.cutahead.CutState`), else it starts at the
-        first move; the result is the same. Not read with ``snapshot_moves``.
+        first move; the result is the same. Not read with ``snapshot_moves`` or ``skip``.
+    skip : (n,) bool, optional
+        Over ``moves.points``: the move ending at each point marked is not swept (it meets and removes
+        nothing, ``StockCut.swept`` False), for a caller that knows it takes nothing off (:mod:`cadcam.chipfeed`:
+        a move run again along an earlier one). None: none skipped.
 
     Raises
     ------
@@ -234,10 +239,10 @@ def cut_stock(
     if len(snap) and (snap.min() < 0 or snap.max() >= len(moves.points)):
         raise VerifyError(f"snapshot move indices must lie in 0..{len(moves.points) - 1}", source="snapshot_moves")
     cut = _Cut(moves, tools, setup, part_triangles, cell, start, rapid_rim, engaged_width, body_graze,
-               full_width_angle, measure, snap)
+               full_width_angle, measure, snap, skip)
     grid, stock, under, seg, met = cut.grid, cut.stock, cut.under, cut.seg, cut.met
     part_top, stock_bottom, starts, swept = cut.part_top, cut.stock_bottom, cut.starts, cut.swept
-    first, tops = (0, None) if resume is None or len(snap) else resume.restore(cut)
+    first, tops = (0, None) if resume is None or len(snap) or skip is not None else resume.restore(cut)
     stocks = _run(cut, progress, cut.bounds, first, tops)
     met.freeze()
 
@@ -286,9 +291,10 @@ def _starting_stock(setup: Setup, grid: Grid, start: FlippedStock | Simulation |
     return stock, under, top_z, stock_bottom
 
 
-def _swept_moves(moves: ProgramMoves, tools: Mapping[int, Tool], top_z: float, rapid_rim: float
-                 ) -> tuple[Segments, np.ndarray, np.ndarray, np.ndarray]:
-    """The moves to sweep, as :class:`Segments`: those with a tool whose tip comes below ``top_z``.
+def _swept_moves(moves: ProgramMoves, tools: Mapping[int, Tool], top_z: float, rapid_rim: float,
+                 skip: np.ndarray | None = None) -> tuple[Segments, np.ndarray, np.ndarray, np.ndarray]:
+    """The moves to sweep, as :class:`Segments`: those with a tool whose tip comes below ``top_z``, less those
+    ``skip`` marks (:func:`cut_stock`'s).
 
     Returns the segments, each move's start and the moves swept (as :class:`StockCut` holds
     them) and the moves whose end is known.
@@ -309,6 +315,8 @@ def _swept_moves(moves: ProgramMoves, tools: Mapping[int, Tool], top_z: float, r
     radius[rapid] -= rapid_rim
     rc[rapid] = np.minimum(rc[rapid], radius[rapid])
     swept = known & np.isfinite(radius)
+    if skip is not None:
+        swept &= ~np.asarray(skip, dtype=bool)[1:]
     # A move whose tip never comes below the stock top cannot touch the stock.
     use = swept.copy()
     use[use] &= np.minimum(a[use, 2], b[use, 2]) < top_z
@@ -451,7 +459,8 @@ class _Cut:
 
     def __init__(self, moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup, part_triangles: np.ndarray,
                  cell: float, start: FlippedStock | Simulation | None, rapid_rim: float, engaged_width: float,
-                 body_graze: float, full_width_angle: float, measure: bool | str, snap: np.ndarray):
+                 body_graze: float, full_width_angle: float, measure: bool | str, snap: np.ndarray,
+                 skip: np.ndarray | None = None):
         tri = _check_inputs(setup, cell, part_triangles)
         grid = grid_over(setup.stock_min, setup.stock_max, cell)
         # Cutting on from earlier moves: the part was rasterised on this grid then.
@@ -460,7 +469,7 @@ class _Cut:
         if not np.isfinite(part_top).any():
             raise VerifyError("the part does not overlap the stock's footprint", source="part")
         stock, under, top_z, stock_bottom = _starting_stock(setup, grid, start)
-        seg, starts, swept, known = _swept_moves(moves, tools, top_z, rapid_rim)
+        seg, starts, swept, known = _swept_moves(moves, tools, top_z, rapid_rim, skip)
         part_flat = np.where(np.isfinite(part_top), part_top, -np.inf).reshape(-1)
         body = _Body(tools, moves.tool[seg.move], part_flat, engaged_width, body_graze)
         body.full_width = math.radians(full_width_angle)

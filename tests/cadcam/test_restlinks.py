@@ -8,9 +8,10 @@ from hypothesis import strategies as st
 from shapely.geometry import LineString, Point, box
 
 from cadcam.heightmap import Grid
-from cadcam.restlinks import Links, Piece
-from cadcam.stock import Simulation
-from tests.cadcam.test_post import FLAT
+from cadcam.model import Motion
+from cadcam.restlinks import FIRST_ASKED, Links, Piece
+from cadcam.stock import Simulation, clear_height
+from tests.cadcam.test_post import BALL, DRILL, FLAT
 
 #: The part: a block 20.3..59.7 x 20.3..49.7 mm, 10 mm tall (its top at Z0), its corners between the points of a
 #: grid of 0.5 mm.
@@ -78,3 +79,34 @@ def test_pieces_meet_exactly_where_their_footprints_do(pts, radius, apart, angle
 
 def _way(xy: np.ndarray) -> LineString | Point:
     return LineString(xy) if len(xy) > 1 and np.ptp(xy, axis=0).any() else Point(xy[0])
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), tool=st.sampled_from([FLAT, BALL, DRILL]), cell=st.sampled_from([0.2, 0.5]),
+       ways=st.lists(st.tuples(st.floats(-12.0, 32.0), st.floats(-12.0, 27.0), st.floats(-12.0, 32.0),
+                               st.floats(-12.0, 27.0)), min_size=1, max_size=4),
+       cuts=st.lists(st.tuples(st.floats(0.0, 20.0), st.floats(0.0, 15.0), st.floats(-3.0, 1.0)), max_size=3))
+def test_a_links_height_is_the_highest_clearance_along_its_way(seed, tool, cell, ways, cuts):
+    """The height a link lifts to, asked only where the stock can lift it (:data:`FIRST_ASKED` samples first),
+    is the highest clearance of every sample of its way to the bit, and no sample's bound lies under its
+    clearance: over random stock with empty columns, for a flat end mill, a ball and a drill, on and off the
+    grid, before and after pieces lowered the stock."""
+    rng = np.random.default_rng(seed)
+    grid = Grid(x0=0.0, y0=0.0, cell=cell, nx=int(20 / cell) + 1, ny=int(15 / cell) + 1)
+    top = rng.normal(0.0, 2.0, grid.shape) + np.where(rng.random(grid.shape) < 0.01, 5.0, 0.0)
+    top[rng.random(grid.shape) < 0.1] = -np.inf  # columns cut through
+    stock = Simulation(grid=grid, stock_top=top, part_top=np.full(grid.shape, -np.inf), stock_bottom=-10.0)
+    rect = box(-30.0, -30.0, 50.0, 45.0)
+    links = Links(stock, tool, rect, [rect])
+    for k, (x0, y0, x1, y1) in enumerate(ways):
+        a, b = np.array([x0, y0]), np.array([x1, y1])
+        xy = links._way(a, b)
+        each = clear_height(links.stock, tool, xy)
+        assert np.all(links._bounds(xy) >= each)  # what leaves a sample unasked: never under its clearance
+        assert np.array_equal(links.height(a, b), float(np.max(each)))
+        if k < len(cuts):  # a piece cuts at its level along a line: the stock under it lowered
+            x, y, z = cuts[k]
+            pts = np.array([[x, y, 5.0], [x, y, z], [x + 3.0, y + 1.0, z]])
+            links.cut(Piece.of(0, z, pts, np.array([Motion.RAPID, Motion.PLUNGE, Motion.CUT], np.int8), 5.0,
+                               tool.radius))
+    assert len(links._way(np.array([-12.0, -12.0]), np.array([32.0, 27.0]))) > FIRST_ASKED
