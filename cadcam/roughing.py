@@ -81,7 +81,7 @@ from shapely.ops import nearest_points
 
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.restlinks import COVER_TOL, Links, Piece, cut_stacked
-from cadcam.ringorder import LoopOrder
+from cadcam.ringorder import LoopChoice, LoopOrder
 from cadcam.gridregion import GrownMaskCache, near_cells
 from cadcam.levelskim import local_levels, without_skimmed
 from cadcam.rest import rest_level_masks, rest_levels, rooms_round, without_holder
@@ -740,6 +740,7 @@ def zlevel_roughing(
     air: Simulation | None = None,
     cut_before: Callable[[float], BaseGeometry] | None = None,
     exclude: Callable[[int], BaseGeometry | None] | None = None,
+    every_loop: bool = False,
 ) -> Operation:
     """Clear the stock around ``part`` level by level, leaving ``options.allowance``.
 
@@ -780,6 +781,8 @@ def zlevel_roughing(
         :meth:`cadcam.drilling.HolePlan.cut_at`): a pocket there too small to enter is not warned about.
     exclude : callable, optional
         ``exclude(i)``: the area (tool centres) level ``i`` leaves to deep cuts (:mod:`cadcam.adaptive`) or None.
+    every_loop : bool
+        Rest machining cuts every loop, also those :class:`cadcam.ringorder.LoopChoice` leaves out (op 2).
 
     Returns
     -------
@@ -810,6 +813,7 @@ def zlevel_roughing(
     spaces = without_holder([_level_space(float(z), rect, shadow, p) for z in levels], levels, deep, known, tool)
     levels, spaces = without_skimmed(part, levels, spaces, top, p.skim, p.allowance, p.radius, _FLOOR_EPS)
     if rest is not None:
+        choice = None if every_loop else LoopChoice.of(known, p.allowance, p.radius)  # the loops that meet stock
         masks = rest_level_masks(rest, levels, spaces, p.radius, rest_above, p.allowance, tool.full_width_limit,
                                  rest_grown)
     reach = local_levels(levels, spaces, top, p.stepdown, p.radius, exclude) if rest is None else None
@@ -827,7 +831,8 @@ def zlevel_roughing(
                          exclude(li) if exclude is not None else None)
         allowed = space if rest is None else space.intersection(rest_grown(masks[li]))
         plans, missed = _plan_entries(allowed, space, z, rect_xy, p, tool, known, air_at,
-                                      None if cut_before is None else (lambda z=z: cut_before(z)))
+                                      None if cut_before is None else (lambda z=z: cut_before(z)),
+                                      None if rest is None or every_loop else choice.at(masks[li], z))
         done_regions, failed, here = (_cut_pieces(pieces, li, plans, z, z_prev, p, air_at, here) if pieces is not None
                                       else (*_cut_nearest_first(path, plans, z, z_prev, p, air_at, here), here))
         skipped += len(missed) + len(failed)
@@ -882,10 +887,12 @@ def _bounded(allowed: BaseGeometry, cleared: BaseGeometry | None, blocked: list[
 def _plan_entries(allowed: BaseGeometry, space: BaseGeometry, z: float, rect_xy: tuple[float, float, float, float],
                   p: _Params, tool: Tool, known: Simulation | None,
                   air_at: Callable[[np.ndarray], np.ndarray] | None,
-                  cut_here: Callable[[], BaseGeometry] | None = None) -> tuple[list[tuple], list[Polygon]]:
+                  cut_here: Callable[[], BaseGeometry] | None = None,
+                  cuts: Callable[[list[LineString]], np.ndarray] | None = None) -> tuple[list[tuple], list[Polygon]]:
     """How to enter each region of level ``z`` to cut: ``(region, rings, entry, inside_out)`` each,
     and the regions no entry fits (left uncut; warned about unless within ``cut_here()``, what earlier
-    operations cut at this level).
+    operations cut at this level). In rest machining only the loops that meet rest material (``cuts``,
+    :class:`cadcam.ringorder.LoopChoice`) are cut.
 
     An open region is entered from outside the stock; with a known stock (rest machining), a
     closed one from the air beside it (``space``: where the tool may go at this level); else by
@@ -896,6 +903,8 @@ def _plan_entries(allowed: BaseGeometry, space: BaseGeometry, z: float, rect_xy:
     clear_here = None  # where the known stock lets the tool down to this level, when first needed
     for region in regions:
         rings = _rings(region, p)
+        if rings and cuts is not None:
+            rings = [r for r, c in zip(rings, cuts([r.line for r in rings])) if c]
         if not rings:
             continue
         entry = _open_entry(region, rings, rect_xy, p.radius, p)
