@@ -28,6 +28,9 @@ import shapely
 from shapely.geometry import LineString
 from shapely.geometry.base import BaseGeometry
 
+from cadcam.gridregion import GrownMaskCache
+from cadcam.model import Tool
+from cadcam.rest import rest_level_masks
 from cadcam.stock import Simulation, excess
 
 #: Slack on "less than a diameter away" [mm]: loops a hair farther apart cannot touch each other's sweep.
@@ -75,6 +78,16 @@ class LoopChoice:
             return out
 
         return cuts
+
+
+def rest_targets(rest: Simulation, known: Simulation, levels: np.ndarray, spaces: list[BaseGeometry], radius: float,
+                 above: float, allowance: float, tool: Tool) -> tuple[GrownMaskCache, list[np.ndarray], LoopChoice]:
+    """For rest machining with ``tool`` of ``radius`` [mm] at ``levels`` [mm]: the rest material's cells grown by
+    the radius (remembered per distinct mask), the masks per level (:func:`cadcam.rest.rest_level_masks`, more
+    than ``above`` [mm] of excess over ``allowance`` [mm]), and which loops meet stock in ``known``."""
+    grown = GrownMaskCache(rest.grid, radius, quad_segs=8)
+    masks = rest_level_masks(rest, levels, spaces, radius, above, allowance, tool.full_width_limit, grown)
+    return grown, masks, LoopChoice.of(known, allowance, radius)
 
 
 @dataclass(frozen=True)

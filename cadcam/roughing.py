@@ -81,10 +81,10 @@ from shapely.ops import nearest_points
 
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.restlinks import COVER_TOL, Links, Piece, cut_stacked
-from cadcam.ringorder import LoopChoice, LoopOrder
-from cadcam.gridregion import GrownMaskCache, near_cells
+from cadcam.ringorder import LoopOrder, rest_targets
+from cadcam.gridregion import near_cells
 from cadcam.levelskim import local_levels, without_skimmed
-from cadcam.rest import rest_level_masks, rest_levels, rooms_round, without_holder
+from cadcam.rest import rest_levels, rooms_round, without_holder
 from cadcam.shadow import part_shadows
 from cadcam.stock import Simulation, clear_height
 from factory.core.errors import MeshError, ToolError, ToolpathError
@@ -756,8 +756,7 @@ def zlevel_roughing(
     part : trimesh.Trimesh
         Watertight part in work coordinates [mm], inside the stock of ``setup``.
     setup : Setup
-        Stock box, ``safe_z`` (start and end height) and ``clearance`` (links rapid at
-        ``stock top + clearance``).
+        Stock box, ``safe_z`` (start and end height) and ``clearance`` (links rapid at ``stock top + clearance``).
     tool : Tool
         Flat or bull-nose end mill.
     cutting : CuttingData
@@ -807,15 +806,11 @@ def zlevel_roughing(
         levels, deep = rest_levels(levels, top, tool.length)
     shadow = part_shadows(part, [zq for z in levels for zq, _ in _forbidden_terms(float(z), p)])
     rect_xy, rect = _axis_rect(setup, p, within)
-    # the rest material grown by the tool radius, remembered per distinct mask of levels
-    rest_grown = GrownMaskCache(rest.grid, p.radius, quad_segs=8) if rest is not None else None
     known = rest if air is None else air  # the holder kept off all the stock, not only this operation's target
     spaces = without_holder([_level_space(float(z), rect, shadow, p) for z in levels], levels, deep, known, tool)
     levels, spaces = without_skimmed(part, levels, spaces, top, p.skim, p.allowance, p.radius, _FLOOR_EPS)
-    if rest is not None:
-        choice = None if every_loop else LoopChoice.of(known, p.allowance, p.radius)  # the loops that meet stock
-        masks = rest_level_masks(rest, levels, spaces, p.radius, rest_above, p.allowance, tool.full_width_limit,
-                                 rest_grown)
+    if rest is not None:  # per level the rest material, grown by the radius; the loops that meet stock
+        rest_grown, masks, choice = rest_targets(rest, known, levels, spaces, p.radius, rest_above, p.allowance, tool)
     reach = local_levels(levels, spaces, top, p.stepdown, p.radius, exclude) if rest is None else None
     air_at = None if known is None else (lambda xy: clear_height(known, tool, xy))
     path = _Path()
