@@ -902,7 +902,7 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
     deep stock every tool keeps off is read from (default ``stock``): the one :func:`_unreached` read, or, for the
     roughing tool finishing before the narrower tools' rest roughing, the stock before it (what they rough too)."""
     setup, library, options, faces = plan.setup, plan.library, plan.options, plan.faces
-    ff = options.flat_finish
+    ff = options.flat_finish if plan.turned_stock is None else dataclasses.replace(options.flat_finish, every_loop=True)
     depth = float(setup.stock_max[2] - setup.floor_z)
     skin = _skin_cell(options.roughing.allowance)
     # What no tool reaches (:func:`_unreached` reads ``unreached_in``): every flat end mill leaves it alone.
@@ -941,7 +941,7 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
         # After a wider tool, what is left is mostly the inside corners it could not enter, met at full width.
         stepdown = None if tool is flat else tool.full_width_limit
         op = plan.timed(stage, lambda: flat_wall_finishing(plan.part, setup, tool, cutting, faces, stock,
-                                                           options.flat_finish, progress=plan.stage_progress(stage),
+                                                           ff, progress=plan.stage_progress(stage),
                                                            cut_before=plan.cut_before, stepdown=stepdown,
                                                            within=plan.keepout, limit=limit,
                                                            unreached_in=unreached_in, leave=leave))

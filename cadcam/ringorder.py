@@ -1,4 +1,11 @@
-"""The order in which z-level clearing cuts a region's contour-parallel loops (:func:`cadcam.roughing._cut_region`).
+"""Which of a region's contour-parallel loops z-level clearing cuts, and in what order
+(:func:`cadcam.roughing._cut_region`).
+
+Rest machining's region at a level is where the tool's axis may go within its radius of the rest material: a
+skin on a wall gives a band whose outer edge lies a radius off the skin, so the loop round that edge sweeps
+air beside the one along the wall, which takes the whole skin (the flank pass round a part, twice). A loop that
+passes within the tool radius of no rest material and of no stock at all is not cut (:class:`LoopChoice`): the
+stock each other loop meets is the same.
 
 Outside-in clearing cuts every loop of one erosion index before any of the next, so on a region round several
 features (a floor between bosses) the tool goes round the first loop of each feature, then the second of each,
@@ -13,6 +20,7 @@ reaches soonest from where it stands (:meth:`LoopOrder.next`).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,8 +28,66 @@ import shapely
 from shapely.geometry import LineString
 from shapely.geometry.base import BaseGeometry
 
+from cadcam.gridregion import GrownMaskCache
+from cadcam.model import Tool
+from cadcam.rest import rest_level_masks
+from cadcam.stock import Simulation, excess
+
 #: Slack on "less than a diameter away" [mm]: loops a hair farther apart cannot touch each other's sweep.
 _WAIT_TOL = 1e-3
+#: Stock less than this above a level, or over the part and its allowance, is none the level cuts [mm].
+_STANDING_EPS = 1e-3
+
+
+@dataclass(frozen=True)
+class LoopChoice:
+    """Which of a region's loops rest machining cuts (:meth:`at`), over ``known`` (all the stock known before
+    the operation, not only its target), with a tool of ``radius`` [mm]; ``over`` ((ny, nx) bool) marks the grid
+    points whose stock stands over the part grown by the operation's allowance."""
+
+    known: Simulation
+    over: np.ndarray
+    radius: float
+
+    @classmethod
+    def of(cls, known: Simulation, allowance: float, radius: float) -> LoopChoice:
+        """The choice for an operation leaving ``allowance`` [mm] with a tool of ``radius`` [mm]."""
+        over = excess(known, allowance, grid_slack=False) > _STANDING_EPS
+        over.setflags(write=False)
+        return cls(known, over, radius)
+
+    def at(self, mask: np.ndarray, z: float) -> Callable[[list[LineString]], np.ndarray]:
+        """``cuts(lines) -> (n,) bool``: which of a region's loops (tool axis paths at level ``z`` [mm]) are cut:
+        those that pass within the radius of a grid point of the rest material (``mask``, (ny, nx) bool on the
+        known stock's grid) or of any stock standing above ``z`` over the part and the allowance.
+
+        A loop off the rest material may still meet stock thinner than the rest threshold: the rim round a rest
+        pocket (gallery relief_to_edge: without the outer loop of the bowl T6 rest-roughs, 0.35 mm stood on the
+        bowl's rim, deeper than finishing takes). A loop that meets no stock at all changes nothing another loop
+        meets, whereas one left out whose stock another loop would take widens that loop's cut (a random block's
+        op 2 walls, 4.81 mm deep past the finishing limit). The loop round a wall's skin band, a radius and half
+        a cell off the skin's points, meets none of them: that loop is left out."""
+        g, radius = self.known.grid, self.radius
+        j, i = np.nonzero(mask | (self.over & (self.known.stock_top > z + _STANDING_EPS)))
+        stock = shapely.STRtree(shapely.points(g.x0 + g.cell * i, g.y0 + g.cell * j))
+
+        def cuts(lines: list[LineString]) -> np.ndarray:
+            out = np.zeros(len(lines), dtype=bool)
+            if len(lines) and len(i):
+                out[np.unique(stock.query(lines, predicate="dwithin", distance=radius)[0])] = True
+            return out
+
+        return cuts
+
+
+def rest_targets(rest: Simulation, known: Simulation, levels: np.ndarray, spaces: list[BaseGeometry], radius: float,
+                 above: float, allowance: float, tool: Tool) -> tuple[GrownMaskCache, list[np.ndarray], LoopChoice]:
+    """For rest machining with ``tool`` of ``radius`` [mm] at ``levels`` [mm]: the rest material's cells grown by
+    the radius (remembered per distinct mask), the masks per level (:func:`cadcam.rest.rest_level_masks`, more
+    than ``above`` [mm] of excess over ``allowance`` [mm]), and which loops meet stock in ``known``."""
+    grown = GrownMaskCache(rest.grid, radius, quad_segs=8)
+    masks = rest_level_masks(rest, levels, spaces, radius, above, allowance, tool.full_width_limit, grown)
+    return grown, masks, LoopChoice.of(known, allowance, radius)
 
 
 @dataclass(frozen=True)

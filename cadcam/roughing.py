@@ -81,10 +81,10 @@ from shapely.ops import nearest_points
 
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.restlinks import COVER_TOL, Links, Piece, cut_stacked
-from cadcam.ringorder import LoopOrder
-from cadcam.gridregion import GrownMaskCache, near_cells
+from cadcam.ringorder import LoopOrder, rest_targets
+from cadcam.gridregion import near_cells
 from cadcam.levelskim import local_levels, top_skin, without_skimmed
-from cadcam.rest import rest_level_masks, rest_levels, rooms_round, without_holder
+from cadcam.rest import rest_levels, rooms_round, without_holder
 from cadcam.shadow import part_shadows
 from cadcam.stock import Simulation, clear_height
 from factory.core.errors import MeshError, ToolError, ToolpathError
@@ -740,6 +740,7 @@ def zlevel_roughing(
     air: Simulation | None = None,
     cut_before: Callable[[float], BaseGeometry] | None = None,
     exclude: Callable[[int], BaseGeometry | None] | None = None,
+    every_loop: bool = False,
 ) -> Operation:
     """Clear the stock around ``part`` level by level, leaving ``options.allowance``.
 
@@ -779,6 +780,8 @@ def zlevel_roughing(
         :meth:`cadcam.drilling.HolePlan.cut_at`): a pocket there too small to enter is not warned about.
     exclude : callable, optional
         ``exclude(i)``: the area (tool centres) level ``i`` leaves to deep cuts (:mod:`cadcam.adaptive`) or None.
+    every_loop : bool
+        Rest machining cuts every loop, also those :class:`cadcam.ringorder.LoopChoice` leaves out (op 2).
 
     Returns
     -------
@@ -803,21 +806,17 @@ def zlevel_roughing(
         levels, deep = rest_levels(levels, top, tool.length)
     shadow = part_shadows(part, [zq for z in levels for zq, _ in _forbidden_terms(float(z), p)])
     rect_xy, rect = _axis_rect(setup, p, within)
-    # the rest material grown by the tool radius, remembered per distinct mask of levels
-    rest_grown = GrownMaskCache(rest.grid, p.radius, quad_segs=8) if rest is not None else None
     known = rest if air is None else air  # the holder kept off all the stock, not only this operation's target
     spaces = without_holder([_level_space(float(z), rect, shadow, p) for z in levels], levels, deep, known, tool)
     levels, spaces = without_skimmed(part, levels, spaces, top, p.skim, p.allowance, p.radius, _FLOOR_EPS)
-    if rest is not None:
-        masks = rest_level_masks(rest, levels, spaces, p.radius, rest_above, p.allowance, tool.full_width_limit,
-                                 rest_grown)
+    if rest is not None:  # per level the rest material, grown by the radius; the loops that meet stock
+        rest_grown, masks, choice = rest_targets(rest, known, levels, spaces, p.radius, rest_above, p.allowance, tool)
     skin = top_skin(part, levels, top, p.skim, p.allowance, _FLOOR_EPS)  # the finishing's, on the top floor
     reach = local_levels(levels, spaces, top, p.stepdown, p.radius, exclude, skin) if rest is None else None
     air_at = None if known is None else (lambda xy: clear_height(known, tool, xy))
     path = _Path()
     cleared: BaseGeometry | None = None  # None: nothing was ever skipped
-    # Rest machining knows the air from the stock model (entries and descents use it), so a
-    # skipped pocket only bars the levels below it, not every place this level had nothing to cut.
+    # rest machining knows the air (entries use it): a skipped pocket bars the levels below it, nothing more
     blocked: list[BaseGeometry] = []
     z_prev, skipped, here = top, 0, setup.stock_min[:2]
     pieces: list[Piece] | None = [] if known is not None else None  # rest machining's, cut stack by stack
@@ -827,7 +826,8 @@ def zlevel_roughing(
                          exclude(li) if exclude is not None else None)
         allowed = space if rest is None else space.intersection(rest_grown(masks[li]))
         plans, missed = _plan_entries(allowed, space, z, rect_xy, p, tool, known, air_at,
-                                      None if cut_before is None else (lambda z=z: cut_before(z)))
+                                      None if cut_before is None else (lambda z=z: cut_before(z)),
+                                      None if rest is None or every_loop else choice.at(masks[li], z))
         done_regions, failed, here = (_cut_pieces(pieces, li, plans, z, z_prev, p, air_at, here) if pieces is not None
                                       else (*_cut_nearest_first(path, plans, z, z_prev, p, air_at, here), here))
         skipped += len(missed) + len(failed)
@@ -882,10 +882,12 @@ def _bounded(allowed: BaseGeometry, cleared: BaseGeometry | None, blocked: list[
 def _plan_entries(allowed: BaseGeometry, space: BaseGeometry, z: float, rect_xy: tuple[float, float, float, float],
                   p: _Params, tool: Tool, known: Simulation | None,
                   air_at: Callable[[np.ndarray], np.ndarray] | None,
-                  cut_here: Callable[[], BaseGeometry] | None = None) -> tuple[list[tuple], list[Polygon]]:
+                  cut_here: Callable[[], BaseGeometry] | None = None,
+                  cuts: Callable[[list[LineString]], np.ndarray] | None = None) -> tuple[list[tuple], list[Polygon]]:
     """How to enter each region of level ``z`` to cut: ``(region, rings, entry, inside_out)`` each,
     and the regions no entry fits (left uncut; warned about unless within ``cut_here()``, what earlier
-    operations cut at this level).
+    operations cut at this level). In rest machining only the loops that meet rest material (``cuts``,
+    :class:`cadcam.ringorder.LoopChoice`) are cut.
 
     An open region is entered from outside the stock; with a known stock (rest machining), a
     closed one from the air beside it (``space``: where the tool may go at this level); else by
@@ -896,6 +898,8 @@ def _plan_entries(allowed: BaseGeometry, space: BaseGeometry, z: float, rect_xy:
     clear_here = None  # where the known stock lets the tool down to this level, when first needed
     for region in regions:
         rings = _rings(region, p)
+        if rings and cuts is not None:
+            rings = [r for r, c in zip(rings, cuts([r.line for r in rings])) if c]
         if not rings:
             continue
         entry = _open_entry(region, rings, rect_xy, p.radius, p)

@@ -1,4 +1,6 @@
-"""cadcam.ringorder: a region's loops in the order a machinist takes them, each meeting the stock it met before."""
+"""cadcam.ringorder: a region's loops in the order a machinist takes them, each meeting the stock it met before;
+rest machining's loops that meet no stock left out (not the loop round a rest pocket's rim);
+the bracket's flank pass round the part once a level."""
 
 from __future__ import annotations
 
@@ -9,16 +11,24 @@ import shapely
 import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from shapely.geometry import MultiLineString, Point, box
+from shapely.geometry import MultiLineString, MultiPoint, Point, box
 from shapely.ops import unary_union
 
-from cadcam.ringorder import LoopOrder
+from cadcam.gridregion import cells_region
+from cadcam.heightmap import Grid
+from cadcam.model import Motion
+from cadcam.rest import rest_mask
+from cadcam.ringorder import LoopChoice, LoopOrder
 from cadcam.roughing import RoughingOptions, _resolve, _rings
 from cadcam.setup import make_setup
+from cadcam.stock import Simulation
+from cadcam.tools import load_tool_library
+from tests.cadcam.test_plan import sample_op1
 from tests.cadcam.test_post import FLAT
 
 #: A floor 200 x 60 mm round islands (the bracket's top between its bosses, drawn out).
 FLOOR = box(0.0, 0.0, 200.0, 60.0)
+LIBRARY = load_tool_library()
 
 
 def _params():
@@ -83,3 +93,89 @@ def test_the_tool_finishes_round_one_island_before_crossing_to_the_next():
 
     assert crossings(done) < crossings(strict), (crossings(done), crossings(strict))
     assert way < strict_way
+
+
+def _flat_stock(grid: Grid, stock_top: np.ndarray, part_top: np.ndarray) -> Simulation:
+    return Simulation(grid=grid, stock_top=stock_top, part_top=part_top, stock_bottom=-30.0)
+
+
+def _points_of(mask: np.ndarray, grid: Grid):
+    j, i = np.nonzero(mask)
+    return shapely.points(grid.x0 + grid.cell * i, grid.y0 + grid.cell * j)
+
+
+def test_a_loop_sweeping_no_rest_material_is_left_out():
+    """A band of skin 0.6 mm thick on a wall, the floor beside it cut: the loop along the wall passes within the
+    radius of the skin's grid points, the one round the band's outer edge (a radius and a hair off the skin)
+    meets only skin the loop along the wall sweeps, and is left out; with no rest material, nothing is cut."""
+    grid = Grid(x0=0.0, y0=0.0, cell=0.2, nx=301, ny=301)
+    x, y = np.meshgrid(grid.xs, grid.ys)
+    wall = (x < 20.0) & (y >= 10.0) & (y <= 50.0)
+    skin = (x >= 20.0) & (x <= 20.6) & (y >= 10.0) & (y <= 50.0)  # the part at X < 20, air beyond 20.6
+    stock = _flat_stock(grid, np.where(wall | skin, 10.0, 0.0), np.where(wall, 10.0, -np.inf))
+    cuts = LoopChoice.of(stock, 0.0, FLAT.radius).at(skin, 5.0)
+    along = shapely.LineString([(20.0 + FLAT.radius + 0.005, 10.0), (20.0 + FLAT.radius + 0.005, 50.0)])
+    edge = shapely.LineString([(20.6 + FLAT.radius + 0.004, 10.0), (20.6 + FLAT.radius + 0.004, 50.0)])
+    assert list(cuts([along, edge])) == [True, False]  # along: R + 0.005 from the points on the wall
+    bare = _flat_stock(grid, np.where(wall, 10.0, 0.0), np.where(wall, 10.0, -np.inf))
+    assert list(LoopChoice.of(bare, 0.0, FLAT.radius).at(np.zeros_like(skin), 5.0)([along, edge])) == [False, False]
+
+
+def test_the_loop_round_a_rest_pocket_s_rim_is_cut():
+    """Gallery relief_to_edge's bowl, which the 2 mm end mill rest-roughs at Z-6.677: the stock stands at Z-6.27
+    over the bowl (the wider tool could not enter it), the rest material (more than 1.5 mm over the part and its
+    allowance) is the bowl's middle, and the region's outer loop, a radius and half a cell off those points,
+    passes over none of them. It meets the rim round them, which the inner loops do not reach: left out
+    (e2d6531's rule), the rim stood 0.35 mm over the finished bowl, deeper than the ball's raster takes."""
+    grid = Grid(x0=0.25, y0=0.25, cell=0.5, nx=40, ny=40)
+    x, y = np.meshgrid(grid.xs, grid.ys)
+    bowl = -8.04 + 0.045 * ((x - 10.0) ** 2 + (y - 10.0) ** 2)  # its rim 1.5 mm up 5.8 mm from the middle
+    stock = _flat_stock(grid, np.full(grid.shape, -6.27), bowl)
+    z, allowance, tool = -6.677, 0.3, LIBRARY.tool(6)
+    rest = rest_mask(stock, z, 1.5, allowance)
+    assert rest.any() and not rest.all()
+    p = _resolve(RoughingOptions(allowance=allowance), tool, make_setup(trimesh.creation.box(extents=(20, 20, 10)))[0])
+    region = cells_region(rest, grid).buffer(tool.radius, quad_segs=8)
+    lines = [r.line for r in _rings(region, p)]
+    outer = int(np.argmax([line.length for line in lines]))
+    assert shapely.distance(_points_of(rest, grid), lines[outer]).min() > tool.radius  # e2d6531 left it out
+    cut = LoopChoice.of(stock, allowance, tool.radius).at(rest, z)(lines)
+    assert cut[outer] and cut.all(), cut
+
+
+@settings(max_examples=40, deadline=None)
+@given(blobs=st.lists(st.tuples(st.floats(4.0, 16.0), st.floats(4.0, 16.0), st.floats(0.5, 3.0)), min_size=1,
+                      max_size=3),
+       standing=st.floats(0.0, 6.0))
+def test_a_loop_left_out_meets_no_stock_and_one_over_the_rest_material_is_cut(blobs, standing):
+    """Rest material in random blobs, stock standing round them out to ``standing`` mm, the loops of the region
+    the rest tool cuts: a loop within the radius of the rest material is cut, and a loop left out has no stock
+    point above the level within its radius (so no loop cut meets more stock than it did with every loop)."""
+    grid = Grid(x0=0.0, y0=0.0, cell=0.25, nx=81, ny=81)
+    x, y = np.meshgrid(grid.xs, grid.ys)
+    near = np.min([np.hypot(x - cx, y - cy) - r for cx, cy, r in blobs], axis=0)
+    rest = near <= 0.0
+    stock = _flat_stock(grid, np.where(near <= standing, 5.0, -1.0), np.full(grid.shape, -np.inf))
+    region = cells_region(rest, grid).buffer(FLAT.radius, quad_segs=8)
+    lines = [r.line for r in _rings(region, _params())]
+    cut = LoopChoice.of(stock, 0.0, FLAT.radius).at(rest, 0.0)(lines)
+    rest_points, stock_points = _points_of(rest, grid), _points_of(near <= standing, grid)
+    for line, c in zip(lines, cut):
+        if shapely.distance(rest_points, line).min() <= FLAT.radius:
+            assert c
+        if not c:
+            assert shapely.distance(stock_points, line).min() > FLAT.radius
+
+
+def test_the_bracket_flank_pass_goes_round_the_part_once_at_its_floor():
+    """The bracket's flats and walls at its floor level: one loop round the part (its outline grown by the tool
+    radius), not a second one a radius off the skin, sweeping air (on main: 697 mm for a 347 mm loop)."""
+    setup, part, job = sample_op1("bracket")
+    op = next(o for o in job.operations if o.name.startswith("finish flats+walls"))
+    floor = float(np.min(op.points[:, 2]))
+    at = (np.abs(op.points[1:, 2] - floor) < 1e-6) & (np.abs(op.points[:-1, 2] - floor) < 1e-6) \
+        & (op.motion[1:] != int(Motion.RAPID))
+    fed = float(np.sum(np.linalg.norm(np.diff(op.points[:, :2], axis=0)[at], axis=1)))
+    # the bracket's outline is its outermost extent, a rounded rectangle: its hull
+    loop = MultiPoint(part.vertices[:, :2]).convex_hull.buffer(op.tool.radius).exterior.length
+    assert fed < 1.2 * loop, (fed, loop)
