@@ -6,7 +6,6 @@ Locating and inspecting both fit these edges to a picture's (:mod:`vision.locate
 
 from __future__ import annotations
 
-import hashlib
 from functools import cached_property
 from typing import Protocol
 
@@ -18,7 +17,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from factory.core.kept import KeptAnswers
+from factory.core.kept import KeptAnswers, content_key
 from vision.camera import CameraModel
 from vision.shadow import height_field
 
@@ -64,11 +63,8 @@ def edge_model(part: PartMesh, camera: CameraModel, cam_base: np.ndarray, tray_z
     picture, and making the model (the mesh's creases, its height field; the feet inspection asks for)
     cost a tenth of a locate. The mesh is told by its contents, not its object: inspection makes its
     part anew from the vertices it is given, every picture."""
-    digest = hashlib.blake2b(digest_size=16)
-    for a in (part.vertices, part.faces, part.outline, part.centroid):
-        a = np.ascontiguousarray(a)
-        digest.update(f"{a.dtype.str}{a.shape}".encode() + a.tobytes())
-    key = (digest.digest(), float(part.zmin), np.asarray(camera.K).tobytes(), np.asarray(camera.dist).tobytes(),
+    mesh = tuple(content_key(np.asarray(a)) for a in (part.vertices, part.faces, part.outline, part.centroid))
+    key = (mesh, float(part.zmin), np.asarray(camera.K).tobytes(), np.asarray(camera.dist).tobytes(),
            tuple(camera.image_size), np.asarray(cam_base, np.float64).tobytes(), float(tray_z))
     return _MODELS.get(key, lambda: MeshEdges(part, camera, cam_base, tray_z))
 
