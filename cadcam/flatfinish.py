@@ -80,10 +80,6 @@ class FlatFinishOptions:
     spring_pass : bool
         Run each level's wall (outermost) loops a second time at the same size, so the walls
         come to size where the tool deflected. Default off.
-    every_loop : bool
-        Cut every loop of a level, also those that meet no stock (:class:`cadcam.ringorder.LoopChoice`). Op 2's
-        flats and walls do: left out there, a random block's (the gallery's explicit example) walls were
-        finished 4.81 mm deep past T14's limit; not yet understood.
     """
 
     allowance: float = 0.005
@@ -91,7 +87,6 @@ class FlatFinishOptions:
     stepover: float | None = None
     ramp_angle: float = 3.0
     spring_pass: bool = False
-    every_loop: bool = False
 
 
 def left_on_flats_and_walls(stock: Simulation, faces: FaceClasses, reach: float, allowance: float,
@@ -210,8 +205,7 @@ def flat_wall_finishing(
                           limit.grid_slack)
         keep_off = _keep_off(deep, part, setup, tool, rough, limit.depth)
     op = zlevel_roughing(part, setup, tool, cutting, rough, progress=progress, rest=_target(stock, left),
-                         rest_above=0.0, air=stock, cut_before=cut_before, within=within, exclude=keep_off,
-                         every_loop=options.every_loop)
+                         rest_above=0.0, air=stock, cut_before=cut_before, within=within, exclude=keep_off)
     return dataclasses.replace(op, name=f"finish flats+walls T{tool.number}", kind="finishing")
 
 

@@ -683,7 +683,7 @@ def _machine_from_below(part: trimesh.Trimesh, triangles: np.ndarray, setup: Set
         opts = dataclasses.replace(plan.roughing, stepdown=None, stepover=None, helix_diameter=None,
                                    min_helix_diameter=None)
         op = zlevel_roughing(part, setup, t, library.cutting_data(t, setup.material), opts, rest=stock,
-                             rest_above=limit, within=within, every_loop=True)
+                             rest_above=limit, within=within)
         if len(op.points) > 1:
             operations.append(op)
             stock = stock_after_flipped(operations, setup, triangles, start_at(cell), cell)

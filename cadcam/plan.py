@@ -902,7 +902,7 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
     deep stock every tool keeps off is read from (default ``stock``): the one :func:`_unreached` read, or, for the
     roughing tool finishing before the narrower tools' rest roughing, the stock before it (what they rough too)."""
     setup, library, options, faces = plan.setup, plan.library, plan.options, plan.faces
-    ff = options.flat_finish if plan.turned_stock is None else dataclasses.replace(options.flat_finish, every_loop=True)
+    ff = options.flat_finish
     depth = float(setup.stock_max[2] - setup.floor_z)
     skin = _skin_cell(options.roughing.allowance)
     # What no tool reaches (:func:`_unreached` reads ``unreached_in``): every flat end mill leaves it alone.

@@ -5,7 +5,8 @@ Rest machining's region at a level is where the tool's axis may go within its ra
 skin on a wall gives a band whose outer edge lies a radius off the skin, so the loop round that edge sweeps
 air beside the one along the wall, which takes the whole skin (the flank pass round a part, twice). A loop that
 passes within the tool radius of no rest material and of no stock at all is not cut (:class:`LoopChoice`): the
-stock each other loop meets is the same.
+stock each other loop meets is the same. An open region is entered from outside the stock onto the outermost loop
+cut (:func:`open_lead`), which is not the region's outline when that loop, round the stock's side, sweeps air.
 
 Outside-in clearing cuts every loop of one erosion index before any of the next, so on a region round several
 features (a floor between bosses) the tool goes round the first loop of each feature, then the second of each,
@@ -25,12 +26,13 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
-from shapely.geometry import LineString
+from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry.base import BaseGeometry
 
 from cadcam.gridregion import GrownMaskCache
 from cadcam.model import Tool
 from cadcam.rest import rest_level_masks
+from cadcam.restlinks import COVER_TOL
 from cadcam.stock import Simulation, excess
 
 #: Slack on "less than a diameter away" [mm]: loops a hair farther apart cannot touch each other's sweep.
@@ -64,9 +66,10 @@ class LoopChoice:
         A loop off the rest material may still meet stock thinner than the rest threshold: the rim round a rest
         pocket (gallery relief_to_edge: without the outer loop of the bowl T6 rest-roughs, 0.35 mm stood on the
         bowl's rim, deeper than finishing takes). A loop that meets no stock at all changes nothing another loop
-        meets, whereas one left out whose stock another loop would take widens that loop's cut (a random block's
-        op 2 walls, 4.81 mm deep past the finishing limit). The loop round a wall's skin band, a radius and half
-        a cell off the skin's points, meets none of them: that loop is left out."""
+        meets, whereas one left out whose stock another loop would take widens that loop's cut. The loop round a
+        wall's skin band, a radius and half a cell off the skin's points, meets none of them: that loop is left
+        out. So may an open region's outline be, round the stock's side: its entry goes onto a loop cut
+        (:func:`open_lead`)."""
         g, radius = self.known.grid, self.radius
         j, i = np.nonzero(mask | (self.over & (self.known.stock_top > z + _STANDING_EPS)))
         stock = shapely.STRtree(shapely.points(g.x0 + g.cell * i, g.y0 + g.cell * j))
@@ -88,6 +91,28 @@ def rest_targets(rest: Simulation, known: Simulation, levels: np.ndarray, spaces
     grown = GrownMaskCache(rest.grid, radius, quad_segs=8)
     masks = rest_level_masks(rest, levels, spaces, radius, above, allowance, tool.full_width_limit, grown)
     return grown, masks, LoopChoice.of(known, allowance, radius)
+
+
+def open_lead(lines: list[LineString], region: Polygon, side: np.ndarray, normal: np.ndarray
+              ) -> tuple[int, np.ndarray] | None:
+    """Where an open region's entry from outside the stock goes: ``(index, q)``, the loop of ``lines`` (those cut)
+    nearest ``side`` [mm], a point of the region's outline on the stock box grown by the radius, and the point
+    ``q`` [mm] on it that a straight lead along the side's outward ``normal`` (unit) meets. None: that lead leaves
+    the region.
+
+    The region's outline is the loop through ``side``, unless :class:`LoopChoice` left it out (it goes round the
+    stock's side a radius off, through air). The lead then crosses the air it would have swept and stops on the
+    loop cut: an entry onto a point off that loop would cut the loop from that point, a chord through the air
+    short of its side (op 2's stock round a random block: 1.7 mm of a wall's stock left at its full height, which
+    the finishing end mill then met 4.81 mm deep)."""
+    at = Point(side)
+    j = int(np.argmin(shapely.distance(np.array(lines, dtype=object), at)))
+    side = np.asarray(side, dtype=np.float64)
+    q = np.asarray(shapely.get_coordinates(shapely.shortest_line(lines[j], at))[0])
+    if np.linalg.norm(q - side) <= 1e-9:  # the outline was cut: the lead ends on the side
+        return j, side
+    start = q + normal * float(np.dot(side - q, normal))  # on the side, straight out from ``q``
+    return (j, q) if region.buffer(COVER_TOL).covers(LineString([start, q])) else None
 
 
 @dataclass(frozen=True)

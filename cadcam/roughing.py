@@ -81,7 +81,7 @@ from shapely.ops import nearest_points
 
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.restlinks import COVER_TOL, Links, Piece, cut_stacked
-from cadcam.ringorder import LoopOrder, rest_targets
+from cadcam.ringorder import LoopOrder, open_lead, rest_targets
 from cadcam.gridregion import near_cells
 from cadcam.levelskim import local_levels, top_skin, without_skimmed
 from cadcam.rest import rest_levels, rooms_round, without_holder
@@ -530,10 +530,12 @@ def _open_entry(region: Polygon, rings: list[_Ring], rect: tuple[float, float, f
     if best is None:
         return None
     _, s, normal = best
-    # The ring of the region's exterior at k == 0 is the one through s.
-    idx = min((j for j, r in enumerate(rings) if r.k == 0), key=lambda j: rings[j].line.distance(Point(s)))
-    air = s + normal * (p.radius - g + p.lead_gap)
-    return _Entry("air", s, air_xy=air, ring_index=idx)
+    lead = open_lead([r.line for r in rings], region, s, normal)
+    if lead is None:
+        return None
+    idx, q = lead  # straight in from the air outside the stock's side: through s, onto the loop
+    air = q + normal * (float(np.dot(s - q, normal)) + p.radius - g + p.lead_gap)
+    return _Entry("air", q, air_xy=air, ring_index=idx)
 
 
 def _closed_entry(region: Polygon, rings: list[_Ring], p: _Params) -> _Entry | None:
@@ -740,7 +742,6 @@ def zlevel_roughing(
     air: Simulation | None = None,
     cut_before: Callable[[float], BaseGeometry] | None = None,
     exclude: Callable[[int], BaseGeometry | None] | None = None,
-    every_loop: bool = False,
 ) -> Operation:
     """Clear the stock around ``part`` level by level, leaving ``options.allowance``.
 
@@ -780,8 +781,6 @@ def zlevel_roughing(
         :meth:`cadcam.drilling.HolePlan.cut_at`): a pocket there too small to enter is not warned about.
     exclude : callable, optional
         ``exclude(i)``: the area (tool centres) level ``i`` leaves to deep cuts (:mod:`cadcam.adaptive`) or None.
-    every_loop : bool
-        Rest machining cuts every loop, also those :class:`cadcam.ringorder.LoopChoice` leaves out (op 2).
 
     Returns
     -------
@@ -827,7 +826,7 @@ def zlevel_roughing(
         allowed = space if rest is None else space.intersection(rest_grown(masks[li]))
         plans, missed = _plan_entries(allowed, space, z, rect_xy, p, tool, known, air_at,
                                       None if cut_before is None else (lambda z=z: cut_before(z)),
-                                      None if rest is None or every_loop else choice.at(masks[li], z))
+                                      None if rest is None else choice.at(masks[li], z))
         done_regions, failed, here = (_cut_pieces(pieces, li, plans, z, z_prev, p, air_at, here) if pieces is not None
                                       else (*_cut_nearest_first(path, plans, z, z_prev, p, air_at, here), here))
         skipped += len(missed) + len(failed)

@@ -1,6 +1,6 @@
 """cadcam.ringorder: a region's loops in the order a machinist takes them, each meeting the stock it met before;
-rest machining's loops that meet no stock left out (not the loop round a rest pocket's rim);
-the bracket's flank pass round the part once a level."""
+rest machining's loops that meet no stock left out (not the loop round a rest pocket's rim), and an open region
+entered onto a loop that is cut; the bracket's flank pass round the part once a level."""
 
 from __future__ import annotations
 
@@ -15,11 +15,11 @@ from shapely.geometry import MultiLineString, MultiPoint, Point, box
 from shapely.ops import unary_union
 
 from cadcam.gridregion import cells_region
-from cadcam.heightmap import Grid
+from cadcam.heightmap import Grid, grid_over, upper_envelope
 from cadcam.model import Motion
 from cadcam.rest import rest_mask
 from cadcam.ringorder import LoopChoice, LoopOrder
-from cadcam.roughing import RoughingOptions, _resolve, _rings
+from cadcam.roughing import RoughingOptions, _resolve, _rings, zlevel_roughing
 from cadcam.setup import make_setup
 from cadcam.stock import Simulation
 from cadcam.tools import load_tool_library
@@ -179,3 +179,32 @@ def test_the_bracket_flank_pass_goes_round_the_part_once_at_its_floor():
     # the bracket's outline is its outermost extent, a rounded rectangle: its hull
     loop = MultiPoint(part.vertices[:, :2]).convex_hull.buffer(op.tool.radius).exterior.length
     assert fed < 1.2 * loop, (fed, loop)
+
+
+def test_stock_round_a_part_open_to_the_stock_s_sides_is_swept_to_the_wall_allowance():
+    """Op 2's stock round a block below what op 1 reached (the gallery's random block, 60 x 36.57 mm in stock 2 mm
+    wider each side), rest-roughed with the 2 mm end mill: the region reaches the stock's sides, and its outline, a
+    radius outside them, sweeps air and is left out. The entry from outside goes onto the loop along the wall;
+    entered at a point off that loop (on main with op 2's ``every_loop`` flag removed), the loop was cut from that
+    point, a chord through the air: 48 mm2 of the front wall's stock left at full height, which the finishing end
+    mill then met 4.81 mm deep."""
+    tool = LIBRARY.tool(6)
+    part = trimesh.creation.box(bounds=[[0.0, 0.0, 0.0], [60.0, 36.57, 5.0]])
+    setup, work = make_setup(part, stock_size=(64.0, 40.57, 11.5))
+    grid = grid_over(setup.stock_min, setup.stock_max, 0.5)
+    (x0, y0, z0), (x1, y1, z1) = work.bounds
+    stock = _flat_stock(grid, np.full(grid.shape, z1), upper_envelope(np.asarray(work.triangles), grid))
+    allowance = RoughingOptions().allowance
+    op = zlevel_roughing(work, setup, tool, LIBRARY.cutting_data(tool, setup.material), RoughingOptions(), rest=stock,
+                         rest_above=1.0)
+    ring = box(*setup.stock_min[:2], *setup.stock_max[:2]).difference(
+        box(x0, y0, x1, y1).buffer(allowance + 0.05, join_style="mitre"))
+    pts = op.points
+    fed = (op.motion[1:] != int(Motion.RAPID)) & (np.abs(np.diff(pts[:, 2])) < 1e-9) & (pts[1:, 2] < z1 - 1e-6)
+    levels = np.unique(np.round(pts[1:, 2][fed], 6))
+    assert len(levels)
+    for z in levels:
+        at = np.nonzero(fed & (np.abs(pts[1:, 2] - z) < 1e-6))[0]
+        swept = shapely.union_all(shapely.buffer(shapely.linestrings(np.stack([pts[at, :2], pts[at + 1, :2]], 1)),
+                                                 tool.radius))
+        assert ring.difference(swept).area < 1e-3, (z, ring.difference(swept).bounds)
