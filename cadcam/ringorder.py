@@ -29,7 +29,7 @@ import shapely
 from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry.base import BaseGeometry
 
-from cadcam.gridregion import GrownMaskCache
+from cadcam.gridregion import GrownMaskCache, near_cells
 from cadcam.model import Tool
 from cadcam.rest import rest_level_masks
 from cadcam.restlinks import COVER_TOL
@@ -39,6 +39,11 @@ from cadcam.stock import Simulation, excess
 _WAIT_TOL = 1e-3
 #: Stock less than this above a level, or over the part and its allowance, is none the level cuts [mm].
 _STANDING_EPS = 1e-3
+#: Segments per quarter circle of the rest material's cells grown by the radius (the rest region).
+_QUAD_SEGS = 8
+#: Share of the radius by which the rest region's outline comes inside it at its arcs (their chords' sagitta): a
+#: loop on that outline, tangent to the stock's cells, sweeps into them no deeper than this.
+_ARC_SAG = 1.0 - math.cos(math.pi / (4 * _QUAD_SEGS))
 
 
 @dataclass(frozen=True)
@@ -69,15 +74,33 @@ class LoopChoice:
         meets, whereas one left out whose stock another loop would take widens that loop's cut. The loop round a
         wall's skin band, a radius and half a cell off the skin's points, meets none of them: that loop is left
         out. So may an open region's outline be, round the stock's side: its entry goes onto a loop cut
-        (:func:`open_lead`)."""
+        (:func:`open_lead`).
+
+        A grid point's stock stands on its cell (as the rest region is grown from the cells): a loop passing
+        within the radius of a cell, off its point by up to the radius and half the cell's diagonal, meets it.
+        One tangent to the cells (the region's outline, inside them at its arcs' chords by :data:`_ARC_SAG` of
+        the radius) does not. Only the stock within two radii and a cell's diagonal of the rest material's
+        points is asked: the loops lie within the radius of its cells."""
         g, radius = self.known.grid, self.radius
-        j, i = np.nonzero(mask | (self.over & (self.known.stock_top > z + _STANDING_EPS)))
-        stock = shapely.STRtree(shapely.points(g.x0 + g.cell * i, g.y0 + g.cell * j))
+        half = 0.5 * g.cell
+        reach = 2.0 * radius + g.cell * math.sqrt(2.0) + _WAIT_TOL
+        near = near_cells(mask, reach, g.cell) if mask.any() else mask
+        j, i = np.nonzero(near & (mask | (self.over & (self.known.stock_top > z + _STANDING_EPS))))
+        x, y = g.x0 + g.cell * i, g.y0 + g.cell * j
+        stock = shapely.STRtree(shapely.points(x, y))
 
         def cuts(lines: list[LineString]) -> np.ndarray:
             out = np.zeros(len(lines), dtype=bool)
-            if len(lines) and len(i):
-                out[np.unique(stock.query(lines, predicate="dwithin", distance=radius)[0])] = True
+            if not len(lines) or not len(i):
+                return out
+            out[np.unique(stock.query(lines, predicate="dwithin", distance=radius)[0])] = True
+            rest = np.nonzero(~out)[0]  # off every point by more than the radius: their cells, near a corner
+            if len(rest):
+                a, b = stock.query(np.array(lines, dtype=object)[rest], predicate="dwithin",
+                                   distance=radius + half * math.sqrt(2.0))
+                cells = shapely.box(x[b] - half, y[b] - half, x[b] + half, y[b] + half)
+                into = shapely.distance(np.array(lines, dtype=object)[rest[a]], cells) < radius * (1.0 - _ARC_SAG) - 1e-6
+                out[np.unique(rest[a[into]])] = True
             return out
 
         return cuts
@@ -88,7 +111,7 @@ def rest_targets(rest: Simulation, known: Simulation, levels: np.ndarray, spaces
     """For rest machining with ``tool`` of ``radius`` [mm] at ``levels`` [mm]: the rest material's cells grown by
     the radius (remembered per distinct mask), the masks per level (:func:`cadcam.rest.rest_level_masks`, more
     than ``above`` [mm] of excess over ``allowance`` [mm]), and which loops meet stock in ``known``."""
-    grown = GrownMaskCache(rest.grid, radius, quad_segs=8)
+    grown = GrownMaskCache(rest.grid, radius, quad_segs=_QUAD_SEGS)
     masks = rest_level_masks(rest, levels, spaces, radius, above, allowance, tool.full_width_limit, grown)
     return grown, masks, LoopChoice.of(known, allowance, radius)
 
