@@ -53,9 +53,10 @@ from scipy.spatial import cKDTree
 from shapely.geometry import LineString, MultiLineString, Point, Polygon, box
 from shapely.geometry.base import BaseGeometry
 from shapely.geometry.polygon import orient
-from shapely.ops import linemerge, substring
+from shapely.ops import linemerge
 
 from cadcam import roughing
+from cadcam.levelpath import down_budget, round_the_box
 from cadcam.levelskim import without_skimmed
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.restlinks import nearest_tour
@@ -223,7 +224,7 @@ def adaptive_roughing(
             levels=tuple(float(z) for z in levels), spaces=spaces, top=float(setup.stock_max[2]),
             stock=box(*setup.stock_min[:2], *setup.stock_max[:2]), axis_box=rect, allowance=p.allowance,
             clear_z=p.clear_z, lead_gap=p.lead_gap, tan_ramp=p.tan_ramp, helix_radius=p.helix_radius,
-            min_helix_radius=p.min_helix_radius, block=True)
+            min_helix_radius=p.min_helix_radius, block=True, air_feed=p.air_feed)
         plan = plan_deep_cuts(geometry, tool, cutting, max_feed,
                               lambda region: sum(r.line.length for r in roughing._rings(region, p)), adaptive)
     exclude = plan.excluded if plan is not None and plan.cuts else None
@@ -257,7 +258,8 @@ class BandGeometry:
     circle a helix entry's centre follows, as large as the pocket allows up to the first, at least the second
     (None: 0.4 D and 0.15 D, the roughing's defaults); ``block``: ``stock`` is the setup's whole block, air
     all round it at any depth of the band, so a deep cut's runs may link round it (False: a rest's material,
-    the part may lie beside it)."""
+    the part may lie beside it); ``air_feed``: the feed moves in the air run at [mm/min] (None: the rapid rate), so a
+    link round the stock stays down where that beats the lift by the clock."""
 
     levels: tuple[float, ...]
     spaces: tuple[BaseGeometry, ...]
@@ -271,6 +273,7 @@ class BandGeometry:
     helix_radius: float | None = None
     min_helix_radius: float | None = None
     block: bool = False
+    air_feed: float | None = None
 
 
 def plan_deep_cuts(g: BandGeometry, tool: Tool, cutting: CuttingData, max_feed: float,
@@ -444,7 +447,7 @@ def deep_cut_moves(region: Polygon, g: BandGeometry, z: float, z_top: float, too
                     log.debug("deep cut at z=%.3f: a lead-in crosses the part", z)
                     return None
                 _emit(pts, mot, route, z, g, _stays_down(pts, route, left, inside, r, around=air_box,
-                                                         rise=2 * (g.clear_z - z)))
+                                                         rise=2 * (g.clear_z - z), air_feed=g.air_feed))
                 left = left.difference(LineString(route).buffer(r, quad_segs=16))
     if not pts:
         return None
@@ -771,12 +774,13 @@ def _emit(pts: list[np.ndarray], mot: list[int], route: np.ndarray, z: float, g:
 
 
 def _stays_down(pts: list[np.ndarray], route: np.ndarray, left: BaseGeometry, inside: BaseGeometry,
-                r: float, gap: float = _AIR_GAP, around: Polygon | None = None, rise: float = 0.0
-                ) -> np.ndarray | None:
+                r: float, gap: float = _AIR_GAP, around: Polygon | None = None, rise: float = 0.0,
+                air_feed: float | None = None) -> np.ndarray | None:
     """How the tool, down at the end of the last run, feeds to ``route``'s start: straight (no corners, (0, 2)),
     a short link whose disc meets none of the stock ``left`` (with ``gap`` [mm] to spare) and that keeps off
-    the part; else round ``around`` (:func:`_round_the_box`), no longer than the lift's way (the link and
-    ``rise`` [mm], up to the clearance and down again); else None (the tool lifts)."""
+    the part; else round ``around`` (:func:`cadcam.levelpath.round_the_box`), fed at ``air_feed`` [mm/min] no slower than the
+    lift's way at the rapid rate (the link and ``rise`` [mm], up to the clearance and down again; None: no longer
+    than it); else None (the tool lifts)."""
     if len(pts) < 2:
         return None
     here = pts[-2][:2]  # the last run's end, before its lift
@@ -785,7 +789,7 @@ def _stays_down(pts: list[np.ndarray], route: np.ndarray, left: BaseGeometry, in
     link = LineString([here, route[0]])
     if link.length <= _LINK_MAX and not inside.intersects(link) and (left.is_empty or link.distance(left) >= r + gap):
         return np.empty((0, 2))
-    way = None if around is None else _round_the_box(here, route[0], around, link.length + rise)
+    way = None if around is None else round_the_box(here, route[0], around, down_budget(link.length + rise, air_feed))
     if way is None or not len(way):
         return None
     # each end goes straight to the outline and the disc meets no stock on the way but what it meets at the end
@@ -794,21 +798,6 @@ def _stays_down(pts: list[np.ndarray], route: np.ndarray, left: BaseGeometry, in
     swept = shapely.union_all([e.buffer(r, quad_segs=16).difference(Point(q).buffer(r, quad_segs=16))
                                for e, q in zip(ends, (here, route[0]))])
     return way if not inside.intersects(MultiLineString(ends)) and swept.intersection(left).area < _SLIVER else None
-
-
-def _round_the_box(a: np.ndarray, b: np.ndarray, box: Polygon, most: float) -> np.ndarray | None:
-    """The corners (k, 2) [mm] of the shorter way from XY ``a`` to ``b`` along the outline of ``box`` (the stock grown
-    by the tool radius and the air gap: the tool's disc anywhere on or outside it is clear of the stock, at any
-    depth above the floor), with ``a`` and ``b`` going straight to their nearest points of it, where that is no
-    longer than ``most`` [mm]; else None."""
-    ring = box.exterior
-    total = ring.length
-    twice = LineString(np.vstack([np.asarray(ring.coords)[:-1]] * 2 + [ring.coords[0]]))
-    sa, sb = ring.project(Point(a)), ring.project(Point(b))
-    ways = [shapely.get_coordinates(substring(twice, sa, sa + (sb - sa) % total)),
-            shapely.get_coordinates(substring(twice, sb, sb + (sa - sb) % total))[::-1]]
-    best = min(ways, key=lambda w: LineString(np.vstack([a, w, b])).length)
-    return best if LineString(np.vstack([a, best, b])).length <= most else None
 
 
 def _nearest_first(routes: list[np.ndarray], pts: list[np.ndarray]) -> list[np.ndarray]:

@@ -617,6 +617,8 @@ def _holes_and_roughing(plan: _Planning, exact: tuple[Hole, ...] | None = None
     # their facing pass takes 1 mm at the feed it takes 0.3 mm, and a roughing level there costs a full level.
     roughing = options.roughing if plan.faces is None else dataclasses.replace(
         options.roughing, skim=options.finish_engagement - options.roughing.allowance)
+    # its links stay down on the paths cut where that is quicker: _feed_roughing feeds them through the air
+    roughing = dataclasses.replace(roughing, air_feed=plan.library.max_feed)
     plan.skim = roughing.skim
     if options.adaptive is None:
         rough = plan.timed("roughing", lambda: (zlevel_roughing(

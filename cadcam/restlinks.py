@@ -262,7 +262,7 @@ def stays_down(links: Links, here: np.ndarray, xy: np.ndarray, feed: float, clea
 
 
 def cut_stacked(path: Any, pieces: list[Piece], links: Links, feed: float, p: Any) -> None:
-    """The ``pieces`` of a rest machining onto ``path`` (:class:`cadcam.roughing._Path`, with its
+    """The ``pieces`` of a rest machining onto ``path`` (:class:`cadcam.levelpath.LevelPath`, with its
     parameters ``p``) stack by stack (:func:`stacked`), each linked to the next low (:class:`Links`): fed
     across at its level where that is quicker (:func:`stays_down`, at the cutting ``feed`` [mm/min]), else
     lifted only over the stock along the way (``path.go_to`` with ``path.link_height``)."""

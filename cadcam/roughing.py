@@ -79,6 +79,7 @@ from shapely.geometry.base import BaseGeometry
 from shapely.geometry.polygon import orient
 from shapely.ops import nearest_points
 
+from cadcam.levelpath import CutPaths, LevelPath
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.restlinks import COVER_TOL, Links, Piece, cut_stacked
 from cadcam.ringorder import LoopOrder, open_lead, rest_targets
@@ -144,6 +145,10 @@ class RoughingOptions:
         The top floor's level, no more than this below the stock top [mm], is left to the finishing where
         :func:`cadcam.levelskim.without_skimmed` allows; the next level is then up to ``skim`` deeper than the
         stepdown, never past :attr:`~cadcam.model.Tool.full_width_limit`. Default 0: every floor's level.
+    air_feed : float, optional
+        The feed moves that cut nothing run at [mm/min] (the machine's, which :mod:`cadcam.chipfeed` gives them):
+        a link from loop to loop of a region goes along the paths cut at its level where that is quicker than
+        the lift (:meth:`cadcam.levelpath.CutPaths.stays_down`). Default None: it lifts.
     """
 
     stepdown: float | None = None
@@ -155,6 +160,7 @@ class RoughingOptions:
     arc_tolerance: float = 0.002
     spring_pass: bool = False
     skim: float = 0.0
+    air_feed: float | None = None
 
 
 @dataclass(frozen=True)
@@ -174,6 +180,7 @@ class _Params:
     min_ramp_length: float
     spring_pass: bool = False
     skim: float = 0.0
+    air_feed: float | None = None
 
 
 def _resolve(options: RoughingOptions, tool: Tool, setup: Setup) -> _Params:
@@ -230,6 +237,7 @@ def _resolve(options: RoughingOptions, tool: Tool, setup: Setup) -> _Params:
         min_ramp_length=_MIN_RAMP_DIAMETERS * d,
         spring_pass=bool(options.spring_pass),
         skim=max(0.0, min(float(options.skim), tool.full_width_limit - stepdown)),
+        air_feed=options.air_feed,
     )
 
 
@@ -388,67 +396,6 @@ def _climb(ring: np.ndarray, uncut_dir: np.ndarray | None, inside_out: bool) -> 
 
 
 # --------------------------------------------------------------------------- path building
-
-
-class _Path:
-    """The moves of an operation as they are emitted.
-
-    ``link_height(a, b)``, given, is the lowest tip height [mm] at which the tool may rapid straight from
-    XY ``a`` to ``b`` clear of the stock known to be there (inf: not at all); links then lift only that
-    high plus ``lead_gap``, not to the clearance height (:meth:`go_to`)."""
-
-    def __init__(self, link_height: Callable[[np.ndarray, np.ndarray], float] | None = None) -> None:
-        self.points: list[np.ndarray] = []
-        self.motion: list[int] = []
-        self.link_height = link_height
-
-    def add(self, xyz, kind: Motion) -> None:
-        q = np.asarray(xyz, dtype=np.float64)
-        if self.points and np.linalg.norm(self.points[-1] - q) < 1e-9:
-            return
-        self.points.append(q)
-        self.motion.append(int(kind))
-
-    def add_many(self, xyz: np.ndarray, kind: Motion) -> None:
-        for q in xyz:
-            self.add(q, kind)
-
-    @property
-    def here(self) -> np.ndarray:
-        return self.points[-1]
-
-    def go_to(self, xy, p: _Params) -> None:
-        """Retract to clearance height and rapid over ``xy``; with ``link_height``, from below the clearance
-        height, lift only ``lead_gap`` over the known stock along the straight way there (not lower than
-        the tool is), and rapid across at that height: in rest machining most links run over stock
-        already cleared, and a lift to the clearance and back costs more than the way across."""
-        cur = self.here
-        if self.link_height is not None and cur[2] < p.clear_z - 1e-9:
-            low = max(float(cur[2]), self.link_height(cur[:2], np.asarray(xy, dtype=np.float64)) + p.lead_gap)
-            if low < p.clear_z - 1e-9:
-                self.add([cur[0], cur[1], low], Motion.RAPID)
-                self.add([xy[0], xy[1], low], Motion.RAPID)
-                return
-        if cur[2] < p.clear_z - 1e-9:
-            self.add([cur[0], cur[1], p.clear_z], Motion.RAPID)
-        elif cur[2] > p.clear_z + 1e-9 and np.linalg.norm(cur[:2] - np.asarray(xy)) > 1e-9:
-            # Leaving the start height: drop to the clearance plane first.
-            self.add([cur[0], cur[1], p.clear_z], Motion.RAPID)
-        self.add([xy[0], xy[1], p.clear_z], Motion.RAPID)
-
-    def descend(self, xyz, air_z: float, p: _Params) -> None:
-        """Go straight down to ``xyz``: by rapid to ``lead_gap`` above ``air_z``, then at plunge feed.
-
-        ``air_z`` is the lowest height known to be clear under the whole tool here: every
-        tool centre of a level lies inside the previous level's region, which was cleared
-        to within R of every point (gap loops where the stepover is wider than R, :func:`_gap_rings`),
-        so everything within R of it is cut down to that level's floor.
-        """
-        cur = self.here
-        rapid_to = air_z + p.lead_gap
-        if rapid_to < cur[2] - 1e-9 and rapid_to > xyz[2] + 1e-9:
-            self.add([cur[0], cur[1], rapid_to], Motion.RAPID)
-        self.add(xyz, Motion.PLUNGE)
 
 
 def _helix(centre: np.ndarray, r: float, p: _Params, z_top: float, z: float,
@@ -620,7 +567,7 @@ def _side_entry(region: Polygon, rings: list[_Ring], space: BaseGeometry,
     return None
 
 
-def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry, z: float,
+def _cut_region(path: LevelPath, region: Polygon, rings: list[_Ring], entry: _Entry, z: float,
                 z_prev: float, inside_out: bool, p: _Params,
                 air_at: Callable[[np.ndarray], np.ndarray] | None = None) -> bool:
     """Emit the moves clearing one region at level z. Returns False if loops were left.
@@ -635,12 +582,14 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
     covered = region.buffer(COVER_TOL)
     shapely.prepare(covered)
     cut: list[LineString] = []
+    paths = CutPaths()  # what the tool went along at z: the links may stay down on it
     uncut = list(range(len(rings)))
     outer: list[np.ndarray] = []  # the outermost loops as cut, for a spring pass
 
     def emit_ring(j: int, q: np.ndarray, uncut_dir: np.ndarray | None) -> None:
         ring = _climb(_ring_from(rings[j].coords, q), uncut_dir, inside_out)
         path.add_many(np.column_stack([ring, np.full(len(ring), z)]), Motion.CUT)
+        paths.add(ring)
         cut.append(rings[j].line)
         uncut.remove(j)
         if rings[j].k == 0:
@@ -651,6 +600,7 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
         # a lead gap outside the stock's side: air down to the level, whatever the levels above cut
         path.descend([*entry.air_xy, z], z if air_at is None else air_over(entry.air_xy), p)
         path.add([*entry.start_xy, z], Motion.CUT)
+        paths.add(np.array([entry.air_xy, entry.start_xy]))
         emit_ring(entry.ring_index, entry.start_xy, entry.start_xy - entry.air_xy)
     elif entry.kind == "helix":
         th = np.linspace(0.0, 2 * math.pi, 24, endpoint=False)
@@ -681,6 +631,7 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
             path.descend(descent[0], z_top, p)  # down to the previous floor (or the known stock): air
             path.add_many(descent[1:], Motion.PLUNGE)
         path.add_many(turn, Motion.CUT)
+        paths.add(turn)
         cut.append(LineString(turn[:, :2]))
     else:  # ramp
         j = entry.ring_index
@@ -711,9 +662,9 @@ def _cut_region(path: _Path, region: Polygon, rings: list[_Ring], entry: _Entry,
         if not at_src and direct.length <= p.link_max and covered.covers(direct):
             src = cur[:2]  # a short link straight from here stays in the region
         elif not at_src:
-            path.go_to(src, p)
-            path.descend([*src, z], z, p)  # on a path already cut at this level: air
+            path.link_to(src, z, paths, p.air_feed, p)  # on a path already cut at this level: air
         path.add([*q, z], Motion.CUT)
+        paths.add(np.array([src, q]))
         emit_ring(j, q, q - src)
     if p.spring_pass:
         # The outer loops again, in the same direction: the tool springs back less with no
@@ -813,7 +764,7 @@ def zlevel_roughing(
     skin = top_skin(part, levels, top, p.skim, p.allowance, _FLOOR_EPS)  # the finishing's, on the top floor
     reach = local_levels(levels, spaces, top, p.stepdown, p.radius, exclude, skin) if rest is None else None
     air_at = None if known is None else (lambda xy: clear_height(known, tool, xy))
-    path = _Path()
+    path = LevelPath()
     cleared: BaseGeometry | None = None  # None: nothing was ever skipped
     # rest machining knows the air (entries use it): a skipped pocket bars the levels below it, nothing more
     blocked: list[BaseGeometry] = []
@@ -942,7 +893,7 @@ def _nearest(plans: list[tuple], here: np.ndarray) -> int:
         (plans[i][2].air_xy if plans[i][2].air_xy is not None else plans[i][2].start_xy) - here))
 
 
-def _cut_nearest_first(path: _Path, plans: list[tuple], z: float, z_prev: float, p: _Params,
+def _cut_nearest_first(path: LevelPath, plans: list[tuple], z: float, z_prev: float, p: _Params,
                        air_at: Callable[[np.ndarray], np.ndarray] | None,
                        start_xy: np.ndarray) -> tuple[list[Polygon], list[Polygon]]:
     """Cut the planned regions of level ``z`` (:func:`_plan_entries`) onto ``path``, each time the
@@ -973,7 +924,7 @@ def _cut_pieces(pieces: list[Piece], level: int, plans: list[tuple], z: float, z
     while plans:
         region, rings, entry, inside_out = plans.pop(_nearest(plans, here))
         first = entry.air_xy if entry.air_xy is not None else entry.start_xy
-        own = _Path()
+        own = LevelPath()
         own.add([first[0], first[1], p.clear_z], Motion.RAPID)
         if _cut_region(own, region, rings, entry, z, z_prev, inside_out, p, air_at):
             done.append(region)
