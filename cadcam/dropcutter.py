@@ -45,7 +45,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cadcam.dropcontacts import drop_points
 from cadcam.model import Tool
 from cadcam.parallel import MAX_WORKERS, processors
 from factory.core.errors import MeshError, ToolpathError
@@ -513,6 +512,10 @@ def drop_profile(
     out = np.broadcast_to(floor, (n,)).copy()
     if n == 0:
         return out
+
+    # Imported here: numba and LLVM cost a process about 110 MB and 0.2 s, paid only by one that drops a cutter
+    # (the cell's simulation imports the planner, through op 2, for a plan it need not make).
+    from cadcam.dropcontacts import drop_points
 
     grid, vbuckets, ebuckets, fbuckets, tables = _prepared(index, radius, corner_radius)
 
