@@ -321,7 +321,8 @@ class _Buckets:
 
     ``key[j] = bucket + fraction`` with the fraction growing as the top z falls, so one
     ``searchsorted`` finds, for any bucket and height, the prefix of primitives that reach
-    above that height: the others cannot raise a CL point already known to be that high.
+    above that height (:func:`cadcam.dropcontacts._stop`): the others cannot raise a CL point
+    already known to be that high.
     """
 
     ptr: np.ndarray
@@ -329,13 +330,6 @@ class _Buckets:
     key: np.ndarray
     z_hi: float
     z_span: float
-
-    def stop(self, cell: np.ndarray, below: np.ndarray) -> np.ndarray:
-        """End of the prefix of ``cell``'s list whose top z exceeds ``below`` (maybe a few more)."""
-        # The margin only ever admits extra candidates, never drops a useful one.
-        z = below - 1e-7 * self.z_span
-        frac = np.clip((self.z_hi - z) / self.z_span, 0.0, 0.999999)
-        return np.searchsorted(self.key, cell + frac, side="left")
 
 
 def _bucket(grid: _Grid, lo: np.ndarray, hi: np.ndarray, top: np.ndarray,

@@ -26,12 +26,20 @@ def numpy_drop_profile(index: dc.TriangleIndex, radius: float, corner: float, xy
     head = np.minimum(first + dc._HEAD, vbuckets.ptr[c + 1])
     _run(_vertex_contacts, index, radius, corner, tables, cx, cy, vbuckets.items, first, head, best)
     _run(_facet_contacts, index, radius, corner, tables, cx, cy, fbuckets.items, fbuckets.ptr[c],
-         fbuckets.stop(c, best), best)
-    tail = np.maximum(vbuckets.stop(c, best), head)
+         _stop(fbuckets, c, best), best)
+    tail = np.maximum(_stop(vbuckets, c, best), head)
     _run(_vertex_contacts, index, radius, corner, tables, cx, cy, vbuckets.items, head, tail, best)
     _run(_edge_contacts, index, radius, corner, tables, cx, cy, ebuckets.items, ebuckets.ptr[c],
-         ebuckets.stop(c, best), best)
+         _stop(ebuckets, c, best), best)
     return best
+
+
+def _stop(buckets: dc._Buckets, cell: np.ndarray, below: np.ndarray) -> np.ndarray:
+    """End of the prefix of each ``cell``'s list whose top z exceeds ``below`` [mm] (maybe a few more), with
+    main's margins written out (not the compiled module's constants, which the test checks)."""
+    z = below - 1e-7 * buckets.z_span
+    frac = np.clip((buckets.z_hi - z) / buckets.z_span, 0.0, 0.999999)
+    return np.searchsorted(buckets.key, cell + frac, side="left")
 
 
 def _run(kernel, index, radius, corner, tables, cx, cy, items, first, last, best) -> None:
