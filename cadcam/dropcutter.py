@@ -28,8 +28,8 @@ Each bucket lists its primitives by decreasing upper bound on the contact they c
 axis in it (vertices and edges: top z less the profile height at the bucket's distance), so
 only a prefix above the best contact found so far is evaluated; edges are checked again
 against a per-pair bound (highest point over the chord less the profile at the nearest XY
-distance) before the exact contact. The work is vectorised over (CL point, candidate
-primitive) pairs in chunks of bounded size. The bucket lists for the last few (index,
+distance) before the exact contact. Each CL point's candidates are asked in one compiled pass
+(:mod:`cadcam.dropcontacts`), the points in chunks (progress, threads). The bucket lists for the last few (index,
 tool) pairs are kept, because finishing queries the same surface many times.
 """
 
@@ -54,7 +54,7 @@ log = logging.getLogger(__name__)
 
 Progress = Callable[[int, int], None]
 
-#: Pairs (CL point x primitive) evaluated per vectorised batch; bounds memory (~100 B/pair).
+#: Candidate vertices (before culling) of the CL points asked in one chunk: a progress report, a thread's share.
 _PAIR_BUDGET = 400_000
 #: Bisection steps for bull-nose edge contacts: 2R / 2**32 is ~1e-9 mm along the edge for
 #: R = 10 mm; at an interior maximum of the concave contact height that is off by far less
@@ -321,7 +321,8 @@ class _Buckets:
 
     ``key[j] = bucket + fraction`` with the fraction growing as the top z falls, so one
     ``searchsorted`` finds, for any bucket and height, the prefix of primitives that reach
-    above that height: the others cannot raise a CL point already known to be that high.
+    above that height (:func:`cadcam.dropcontacts._stop`): the others cannot raise a CL point
+    already known to be that high.
     """
 
     ptr: np.ndarray
@@ -329,13 +330,6 @@ class _Buckets:
     key: np.ndarray
     z_hi: float
     z_span: float
-
-    def stop(self, cell: np.ndarray, below: np.ndarray) -> np.ndarray:
-        """End of the prefix of ``cell``'s list whose top z exceeds ``below`` (maybe a few more)."""
-        # The margin only ever admits extra candidates, never drops a useful one.
-        z = below - 1e-7 * self.z_span
-        frac = np.clip((self.z_hi - z) / self.z_span, 0.0, 0.999999)
-        return np.searchsorted(self.key, cell + frac, side="left")
 
 
 def _bucket(grid: _Grid, lo: np.ndarray, hi: np.ndarray, top: np.ndarray,
@@ -415,15 +409,6 @@ def _entries(grid: _Grid, lo: np.ndarray, hi: np.ndarray, top: np.ndarray, radiu
     return item.astype(np.int32), (by * grid.nx + bx).astype(np.int32), value
 
 
-def _pairs(items: np.ndarray, start: np.ndarray, stop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """All (point, candidate) pairs for candidate ranges ``items[start:stop]`` per point."""
-    counts = np.maximum(stop - start, 0)
-    total = int(counts.sum())
-    point = np.repeat(np.arange(len(start)), counts)
-    offset = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
-    return point, items[np.repeat(start, counts) + offset]
-
-
 # --------------------------------------------------------------------------- kernels
 
 
@@ -433,91 +418,6 @@ def _height(r: np.ndarray, radius: float, corner: float) -> np.ndarray:
         return np.zeros_like(r)
     d = np.maximum(r - (radius - corner), 0.0)
     return corner - np.sqrt(np.maximum(corner * corner - d * d, 0.0))
-
-
-def _vertex_contacts(index, radius, corner, tables, cx, cy, point, vi, out) -> None:
-    v = index.vertices[vi]
-    d2 = (v[:, 0] - cx[point]) ** 2 + (v[:, 1] - cy[point]) ** 2
-    ok = d2 <= radius * radius
-    point, v, d2 = point[ok], v[ok], d2[ok]
-    z = v[:, 2] - _height(np.sqrt(d2), radius, corner)
-    np.maximum.at(out, point, z)
-
-
-def _edge_contacts(index, radius, corner, tables, cx, cy, point, ei, out) -> None:
-    # One row gather per pair: x0, y0, z0, ux, uy, length, slope.
-    e = tables.edges[ei]
-    wx = cx[point] - e[:, 0]
-    wy = cy[point] - e[:, 1]
-    tc = wx * e[:, 3] + wy * e[:, 4]  # foot of the perpendicular from the axis, along the edge
-    d2 = np.maximum(wx * wx + wy * wy - tc * tc, 0.0)
-    rho2 = radius * radius - d2
-    ok = rho2 >= 0.0
-    rho = np.sqrt(np.maximum(rho2, 0.0))
-    lo = np.maximum(-rho, -tc)
-    hi = np.minimum(rho, e[:, 5] - tc)
-    s = e[:, 6]
-    # Upper bound: the edge's highest point over the chord less the profile at the nearest
-    # XY distance (h grows with r); most pairs cannot beat the current best. It only culls, with a
-    # margin far over its rounding, so the ball's h there written as R - rho (the same number to an
-    # ulp or two) keeps every pair that can give the answer.
-    top = e[:, 2] + s * (tc + np.where(s >= 0.0, hi, lo))
-    if corner >= radius:
-        top += rho
-        top -= radius
-    elif corner > 0.0:
-        top -= _height(np.sqrt(d2), radius, corner)
-    ok &= lo <= hi
-    ok &= top > out[point] - 1e-12
-    keep = np.flatnonzero(ok)
-    if not len(keep):
-        return
-    # Only the edge's start height is needed from its row now: a quarter of the pairs are kept, and gathering
-    # whole rows again was a fifth of this kernel on the 100k relief (issue 35).
-    z0 = e[keep, 2]
-    point, tc, d2, rho, lo, hi, s = (a[keep] for a in (point, tc, d2, rho, lo, hi, s))
-    if corner <= 0.0:
-        # Flat: the edge height is linear over the chord under the flat bottom.
-        t = np.where(s >= 0.0, rho, -rho)
-    elif corner >= radius:
-        # Ball: the vertical plane cuts a circle of radius rho; its tangent of slope s.
-        t = s * rho / np.sqrt(1.0 + s * s)
-    else:
-        t = _bull_edge_argmax(s, d2, lo, hi, radius, corner)
-    t = np.clip(t, lo, hi)
-    z = z0 + s * (tc + t)
-    r = np.minimum(np.sqrt(d2 + t * t), radius)
-    np.maximum.at(out, point, z - _height(r, radius, corner))
-
-
-def _bull_edge_argmax(s, d2, lo, hi, radius, corner):
-    """argmax over t in [lo, hi] of s t - h(sqrt(d2 + t^2)) (concave) by bisection on the slope."""
-    a = radius - corner
-    c2 = corner * corner
-    lo = np.array(lo, dtype=np.float64)
-    w = np.asarray(hi, dtype=np.float64) - lo
-    mid, r, e, k, rhs = (np.empty_like(lo) for _ in range(5))
-    up = np.empty(lo.shape, dtype=bool)
-    for _ in range(_BISECT_STEPS):
-        # In place: this loop is most of a bull-nose query, and temporaries cost as much as the math.
-        w *= 0.5
-        np.add(lo, w, out=mid)
-        np.multiply(mid, mid, out=r)
-        r += d2
-        np.sqrt(r, out=r)
-        np.subtract(r, a, out=e)
-        np.maximum(e, 0.0, out=e)
-        np.multiply(e, e, out=k)
-        np.subtract(c2, k, out=k)
-        np.maximum(k, 0.0, out=k)
-        np.sqrt(k, out=k)
-        # d/dt [s t - h] > 0  <=>  s r k > e t  (h' = e / k, dr/dt = t / r; multiplied out)
-        k *= r
-        k *= s
-        np.multiply(e, mid, out=rhs)
-        np.greater(k, rhs, out=up)
-        np.add(lo, w, out=lo, where=up)
-    return lo + 0.5 * w
 
 
 @dataclass(frozen=True)
@@ -536,21 +436,6 @@ def _facet_offsets(index: TriangleIndex, radius: float, corner: float) -> np.nda
     with np.errstate(invalid="ignore", divide="ignore"):
         scale = np.where(nxy > 1e-15, a / nxy + corner, 0.0)
     return -n[:, :2] * scale[:, None]
-
-
-def _facet_contacts(index, radius, corner, tables, cx, cy, point, fi, out) -> None:
-    offsets = tables.offsets
-    dx = cx[point] + offsets[fi, 0] - index.facet_origin[fi, 0]
-    dy = cy[point] + offsets[fi, 1] - index.facet_origin[fi, 1]
-    inv = index.facet_inverse[fi]
-    b1 = inv[:, 0, 0] * dx + inv[:, 0, 1] * dy
-    b2 = inv[:, 1, 0] * dx + inv[:, 1, 1] * dy
-    ok = (b1 >= 0.0) & (b2 >= 0.0) & (b1 + b2 <= 1.0)
-    point, fi, b1, b2 = point[ok], fi[ok], b1[ok], b2[ok]
-    # The contact point rebuilt from barycentrics is a genuine point of the triangle.
-    p = index.facet_origin[fi] + b1[:, None] * index.facet_e1[fi] + b2[:, None] * index.facet_e2[fi]
-    r = np.minimum(np.hypot(p[:, 0] - cx[point], p[:, 1] - cy[point]), radius)
-    np.maximum.at(out, point, p[:, 2] - _height(r, radius, corner))
 
 
 def _prepared(index: TriangleIndex, radius: float, corner_radius: float) -> tuple:
@@ -622,6 +507,10 @@ def drop_profile(
     if n == 0:
         return out
 
+    # Imported here: numba and LLVM cost a process about 110 MB and 0.2 s, paid only by one that drops a cutter
+    # (the cell's simulation imports the planner, through op 2, for a plan it need not make).
+    from cadcam.dropcontacts import drop_points
+
     grid, vbuckets, ebuckets, fbuckets, tables = _prepared(index, radius, corner_radius)
 
     # Sorting by bucket keeps gathers local; results are scattered back at the end.
@@ -634,7 +523,7 @@ def drop_profile(
     res = out[order]
     # Chunks of points by their (unculled) vertex candidates; culled work is split again.
     cum = np.cumsum(vbuckets.ptr[cell + 1] - vbuckets.ptr[cell])
-    bull = 0.0 < corner_radius < radius
+    lists = tuple((b.ptr, b.items, b.key, b.z_hi, b.z_span) for b in (vbuckets, fbuckets, ebuckets))
 
     def drop_range(lo: int, hi: int, report: Progress | None) -> None:
         """Points ``lo:hi`` (in bucket order) into ``res[lo:hi]``; touches nothing else."""
@@ -643,21 +532,12 @@ def drop_profile(
             base = cum[start - 1] if start else 0
             stop = int(np.searchsorted(cum, base + _PAIR_BUDGET, side="right"))
             stop = min(max(stop, start + 1), hi)
-            sl = slice(start, stop)
-            c = cell[sl]
-            best = res[sl]  # a view: kernels raise it in place
-            sx, sy = cx[sl], cy[sl]
-            first = vbuckets.ptr[c]
-            # The highest few vertices give a good lower bound that culls most other candidates.
-            head = np.minimum(first + _HEAD, vbuckets.ptr[c + 1])
-            _run(_vertex_contacts, index, radius, corner_radius, tables, sx, sy, vbuckets.items, first, head, best, 1)
-            # Facets are few per point and on smooth meshes nearly exact: a tight bound for the rest.
-            _run(_facet_contacts, index, radius, corner_radius, tables, sx, sy, fbuckets.items,
-                 fbuckets.ptr[c], fbuckets.stop(c, best), best, 1)
-            tail = np.maximum(vbuckets.stop(c, best), head)
-            _run(_vertex_contacts, index, radius, corner_radius, tables, sx, sy, vbuckets.items, head, tail, best, 1)
-            _run(_edge_contacts, index, radius, corner_radius, tables, sx, sy, ebuckets.items,
-                 ebuckets.ptr[c], ebuckets.stop(c, best), best, 8 if bull else 1)
+            # The highest few vertices, then facets, the other vertices and edges, each point's in turn
+            # (cadcam.dropcontacts: compiled, the kernels' temporaries were most of a query).
+            drop_points(cx[start:stop], cy[start:stop], cell[start:stop], res[start:stop], lists[0], lists[1],
+                        lists[2], index.vertices, index.facet_origin, index.facet_e1, index.facet_e2,
+                        index.facet_inverse, tables.offsets, tables.edges, radius, corner_radius, _HEAD,
+                        _BISECT_STEPS)
             start = stop
             if report is not None:
                 report(start - lo)
@@ -720,23 +600,6 @@ def _pool() -> concurrent.futures.ThreadPoolExecutor:
         if _POOL is None:
             _POOL = concurrent.futures.ThreadPoolExecutor(max_workers=MAX_WORKERS, thread_name_prefix="dropcutter")
         return _POOL
-
-
-def _run(kernel, index, radius, corner, tables, cx, cy, items, first, last, best, cost) -> None:
-    """Apply ``kernel`` to the candidate ranges ``items[first:last]`` of each point, in batches."""
-    counts = np.maximum(last - first, 0)
-    cum = np.cumsum(counts)
-    n = len(counts)
-    budget = max(_PAIR_BUDGET // cost, 1)
-    start = 0
-    while start < n:
-        base = cum[start - 1] if start else 0
-        stop = int(np.searchsorted(cum, base + budget, side="right"))
-        stop = min(max(stop, start + 1), n)
-        point, prim = _pairs(items, first[start:stop], last[start:stop])
-        if len(point):
-            kernel(index, radius, corner, tables, cx, cy, point + start, prim, best)
-        start = stop
 
 
 def drop_cutter(

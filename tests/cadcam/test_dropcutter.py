@@ -313,3 +313,26 @@ def test_the_shared_index_is_reused_only_for_the_same_triangles():
     other = shared_index(moved)
     assert other is not first and not other.prepared
     assert shared_index(tris.reshape(60, 3, 3)) is not other
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), count=st.integers(1, 80), spread=st.floats(0.05, 4.0),
+       shape=st.sampled_from(["flat", "bull", "ball"]), radius=st.floats(0.3, 6.0),
+       grid=st.sampled_from([0.0, 0.01, 0.5]), floor=st.sampled_from([-50.0, 10.0]))
+def test_the_compiled_contacts_give_numpys_heights_to_the_bit(seed, count, spread, shape, radius, grid, floor):
+    """The compiled contacts (cadcam.dropcontacts, issue 35) against the numpy rounds they replaced
+    (tests/cadcam/drop_numpy.py): every CL height the same number, on triangle soups whose corners may sit on
+    a grid (shared vertices and edges, ties, vertical walls, flat facets), for the three tool shapes."""
+    from tests.cadcam.drop_numpy import numpy_drop_profile
+
+    rng = np.random.default_rng(seed)
+    tri = rng.uniform(0, 20, (count, 1, 3)) + rng.normal(0, spread, (count, 3, 3))
+    if grid:
+        tri = np.round(tri / grid) * grid
+    xy = np.concatenate([rng.uniform(-3, 23, (300, 2)), tri.reshape(-1, 3)[:, :2], tri.mean(axis=1)[:, :2]])
+    rc = {"flat": 0.0, "bull": radius / 3, "ball": radius}[shape]
+    index = build_index(tri)
+    got = drop_profile(index, radius, rc, xy, floor)
+    want = numpy_drop_profile(index, radius, rc, xy, floor)
+    assert np.array_equal(got, want)
+    assert np.array_equal(np.signbit(got), np.signbit(want))
