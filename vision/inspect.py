@@ -400,7 +400,8 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
                                 (peak & (np.abs(steps[None, :] - c) <= OWN_PX)).any(axis=1))
                        for c in (BESIDE_PX, -BESIDE_PX)], axis=1)
     features, hidden_features = judge_features(SeenEdges(model=model, pose=p, idx=idx, uv=uv, own=own, unknown=unknown,
-                                                         cause=cause, beside=beside, top_glare=top_glare), options)
+                                                         cause=cause, beside=beside, top_glare=top_glare,
+                                                         clipped=saturated), options)
     refusals += hidden_features
     hidden = "; ".join(refusals)
     judged = Inspection(part=located, outline_px=uv[outer], deviation=deviation, features=tuple(features),

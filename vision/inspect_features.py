@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import map_coordinates
 from scipy.spatial import cKDTree
 
 from vision.inspect_options import InspectOptions
@@ -33,6 +34,16 @@ FACING_COS = 0.1
 RIM_CLEAR_PX = 5.0
 #: The mesh under a feature's middle lower than this is none: a through-hole [m].
 THROUGH_M = 2e-4
+#: A wall turned to the camera whose face spans this much in the picture [px] shows its middle, 2 px from
+#: either edge, clear enough of the blur and of a clipped neighbour's spill to tell (below).
+WALL_BAND_PX = 4.0
+#: A feature's walls turned to the camera are not there when at least this share of their faces' middles
+#: (those wide enough to tell) is clipped white (0..1): a wall stands upright and cannot mirror into the
+#: camera the light its top and the face around it mirror; one that stands shows grey or dark there. In
+#: the glare pictures of benchmarks/inspect_real_light.py (5 MP seeds 0-1; cell camera seeds 0, 1, 8, 9)
+#: features that are there read 0 at 5 MP and up to 0.46 at the cell camera (its spill over a 4-6 px
+#: band); a boss or a hole not there, 1.0.
+WALL_WHITE = 0.9
 
 
 @dataclass(frozen=True)
@@ -84,6 +95,8 @@ class SeenEdges:
         NaN where another expected edge lies near that spot (the edge there is that one's).
     top_glare : bool
         The part's top is in glare (a good share of its silhouette clipped white).
+    clipped : (h, w) uint8
+        The picture's pixels clipped white (1), the rest 0.
     """
 
     model: MeshEdges
@@ -95,6 +108,7 @@ class SeenEdges:
     cause: np.ndarray
     beside: np.ndarray
     top_glare: bool
+    clipped: np.ndarray
 
 
 def judge_features(seen: SeenEdges, options: InspectOptions) -> tuple[list[Feature], list[str]]:
@@ -111,7 +125,10 @@ def judge_features(seen: SeenEdges, options: InspectOptions) -> tuple[list[Featu
     clipped pixels as not found, is there. A feature hidden in glare is missing when nothing of the
     part can be white over it: a through-hole shows the tray or its walls, never a clipped top, so
     white on both sides of its edges is material where the hole should be. A pocket's or a bore's
-    floor, a boss's top, mirror the light as the top does: hidden, not judged.
+    floor, a boss's top, mirror the light as the top does: hidden, but a wall of the feature turned to
+    the camera, seen wide enough, shows where it should stand (:func:`_walls_white`): white there, no
+    wall stands (a boss not there, a hole not drilled), and the feature is missing; otherwise hidden,
+    not judged.
     A feature's edges must show at their place more often than the picture shows edges beside them
     (:func:`_chance`) by :data:`BEYOND_CHANCE` (:func:`_shows`): a low light grazing a brushed top
     puts edges everywhere, where a hole not drilled finds a third of its edges.
@@ -171,7 +188,7 @@ def judge_features(seen: SeenEdges, options: InspectOptions) -> tuple[list[Featu
             share = float(own[on].mean())
             features.append(Feature(pixel=pixel, edges=int(on.sum()), found=share,
                                     present=_shows(share, chance, options.min_feature_found)))
-        elif seen.top_glare and through:
+        elif seen.top_glare and (through or _walls_white(seen, every, f, options.min_feature_edges)):
             features.append(Feature(pixel=pixel, edges=int(every.sum()), found=anywhere, present=False))
         else:
             why = ", ".join(f"{100 * np.mean(seen.cause[every] == k):.0f} % {what}" for k, what in HIDDEN_BY.items()
@@ -241,3 +258,30 @@ def _wall_facing(model: MeshEdges, p: np.ndarray, idx: np.ndarray) -> np.ndarray
     for n in (model.n1[idx] @ r.T, model.n2[idx] @ r.T):
         facing |= (np.abs(n[:, 2]) < 0.5) & (np.einsum("nj,nj->n", n, view) >= FACING_COS)
     return facing
+
+
+def _walls_white(seen: SeenEdges, every: np.ndarray, feature: int, least: int) -> bool:
+    """Whether feature ``feature``'s walls turned to the camera are clipped white where their faces
+    should show (``every`` (k,) bool its samples beside such a wall): the middle of each wall's face,
+    halfway between its top edge and the feature's lowest edge straight below, read in the picture
+    where the face spans at least :data:`WALL_BAND_PX`; True when :data:`WALL_WHITE` of them are
+    clipped, False too when fewer than ``least`` are wide enough to tell. A boss not there leaves the
+    face around it, in glare as white as its top; a boss there shows its lit wall grey or dark."""
+    model = seen.model
+    heights = model.points[model.feature == feature, 2]
+    top, foot = heights.max(), heights.min()
+    rims = model.points[seen.idx[every]]
+    rims = rims[rims[:, 2] >= top - THROUGH_M]  # the walls' top edges: each wall hangs straight below one
+    if len(rims) < least:
+        return False
+
+    def seen_at(z: float) -> np.ndarray:
+        return model.camera.project(model.world(seen.pose, np.column_stack([rims[:, :2], np.full(len(rims), z)])),
+                                    model.rvec, model.tvec)
+
+    at_top, middle = seen_at(top), seen_at(0.5 * (top + foot))
+    wide = np.linalg.norm(seen_at(foot) - at_top, axis=1) >= WALL_BAND_PX
+    if wide.sum() < least:
+        return False
+    white = map_coordinates(seen.clipped, [middle[wide, 1], middle[wide, 0]], order=0, mode="nearest") > 0
+    return bool(white.mean() >= WALL_WHITE)

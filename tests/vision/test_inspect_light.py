@@ -285,3 +285,21 @@ def test_a_hole_not_drilled_is_missing_though_a_low_light_puts_edges_everywhere_
     radius_px = np.hypot(*(pixel_of(station, "bracket", scene, (97.8, 52.0, 15.0)) - centre))
     # the undrilled hole, and only it
     assert [np.hypot(*(np.array(f.pixel) - centre)) < radius_px for f in bad.missing_features] == [True]
+
+
+def test_a_boss_not_there_in_glare_is_missing_where_its_lit_wall_should_show_at_5_mp():
+    """A polished plate under glare at 5 MP: its top and the plate's face both clip white, so a boss's
+    rim is white on both sides whether the boss stands or not, and main refused the plate with the boss
+    left out (100 % of its edges clipped). A boss that stands shows the wall turned to the camera, 5 px
+    wide here, grey or dark between the two whites: a wall cannot mirror into the camera the light the
+    faces above and below it mirror. Where that wall's face should be, the picture is white: no boss
+    stands there, and it is missing where it should be. The good plate at the same pose and light passes."""
+    station = cell_station(CameraModel.read(ROOT / "fixtures" / "camera_5mp.yaml"))
+    _, good = inspected(station, "glare", "plate_bosses", 0, supersample=1)
+    assert good.passed and not good.refusal and not good.missing_features, good.to_dict()
+    scene, bad = inspected(station, "glare", "plate_bosses", 0, "missing_boss", supersample=1)
+    assert not bad.passed and not bad.refusal
+    centre = pixel_of(station, "plate_bosses", scene, (78.0, 56.0, 14.0))
+    radius_px = np.hypot(*(pixel_of(station, "plate_bosses", scene, (86.6, 56.0, 14.0)) - centre))
+    # the boss left out, and only it
+    assert [np.hypot(*(np.array(f.pixel) - centre)) < radius_px for f in bad.missing_features] == [True]
