@@ -7,7 +7,7 @@ back instead (:class:`factory.core.errors.VisionError`).
 
 At the located pose every visible edge of the mesh (its outline at every height, steps, bosses,
 holes) is looked for in the picture along its image normal, as locate looks for it: gradient
-peaks across the edge (:func:`vision.locate._edge_peaks`). Edges are judged by what light cannot
+peaks across the edge (:func:`vision.picture_edges.edge_peaks`). Edges are judged by what light cannot
 fake, and never by a threshold of brightness (a side wall as bright as the tray, a shadow darker
 than it, a clipped highlight moved such an outline by millimetres):
 
@@ -37,7 +37,8 @@ than it, a clipped highlight moved such an outline by millimetres):
   edges and by each loop of its creases on its own (a through-hole's foot, where the tray shows
   through, when its rim lies beside a counterbore's floor; not a wall's foot, which soft light shades); one whose edges mostly show is there. Edges found where the mesh puts them say *there* whatever hides the rest; a
   through-hole's rim is judged from every side (straight down a hole its wall is seen edge-on),
-  and white over it in glare is material where the hole should be (:func:`_judge_features`).
+  and white over it in glare is material where the hole should be
+  (:func:`vision.inspect_features.judge_features`).
 
 An edge beyond the own one says *defect* only when the greys agree (:mod:`vision.inspect_material`):
 between the line and a burr's edge lies something like the part's face, between the line and a
@@ -72,26 +73,17 @@ from shapely.geometry import MultiPolygon, Polygon
 
 from factory.core.errors import VisionError
 from vision.camera import CameraModel
-from vision.locate import (SATURATED_GREY, Footprint, LocatedPart, LocateOptions, _edge_peaks, _gradients, _grey,
-                           _tray_ratio, locate_parts, mm_to_m)
+from vision.inspect_features import BESIDE_PX, Feature, SeenEdges, judge_features
 from vision.inspect_material import defect_edge
+from vision.inspect_options import InspectOptions
 from vision.inspect_view import FRAME_PX, unseen
-from vision.mesh_edges import MeshEdges, edge_model, yaw_rotation_3d
-from vision.picture_edges import peak_offset
+from vision.locate import SATURATED_GREY, Footprint, LocatedPart, grey_picture, locate_parts, mm_to_m
+from vision.mesh_edges import MeshEdges, edge_model
+from vision.picture_edges import edge_peaks, gradients, peak_offset, tray_ratio
 from vision.shadow import DARK_LOG
 
 #: A picture edge this close to the expected one along its normal is that edge [px].
 OWN_PX = 1.5
-#: Beside an edge this far either way [px] (clear of the own window and its blur) the picture shows
-#: how often an edge lies within OWN_PX of a spot by chance: a low light grazing a brushed face makes
-#: many (a missing hole's place at 5 MP finds 0.35 of its edges there, 0.34 beside them).
-BESIDE_PX = 4.5
-#: A feature is there when the picture shows its edges this much more often at their place than beside
-#: them (0..1): features that are there show 0.17 or more beyond it on the cell camera's worst pictures
-#: and 0.2 at 5 MP, the missing hole above 0.01.
-BEYOND_CHANCE = 0.1
-#: Why an edge sample is unknown, as a refusal names it.
-HIDDEN_BY = {1: "clipped white (glare)", 2: "in deep shadow on both sides", 3: "beyond the picture or behind the part"}
 #: A picture edge this close to another expected edge is that edge, not a defect [px].
 EXPLAINED_PX = 1.0
 #: Edges within this of a clipped pixel are unknown, and a clipped face's spill reaches this far [px].
@@ -104,12 +96,6 @@ TOP_GLARE = 0.3
 CORNER_M = 1.5e-3
 #: A short line of the outline takes the level of the fitted lines this close [m] (:func:`_line_level`).
 NEIGHBOUR_M = 5e-3
-#: A wall this turned to the camera (cosine with the view) shows beside its crease (unitless).
-FACING_COS = 0.1
-#: A through-hole's rim is judged from every side where no other feature's edge lies this close [px].
-RIM_CLEAR_PX = 5.0
-#: The mesh under a feature's middle lower than this is none: a through-hole [m].
-THROUGH_M = 2e-4
 #: A wall this wide in the picture [px] or narrower shows as one band with the top edge (:func:`_wall_width`).
 NARROW_WALL_PX = 1.0
 #: Grey profiles across the outline are compared over this span either side of the edge [px].
@@ -137,85 +123,6 @@ _STEEP = 0.7
 #: 0.14, seeds 0-1, a low-angle bracket's grey profile): the noise a burr's reading must clear the
 #: tolerance by (:attr:`Inspection.smallest_burr`), the larger of the two cameras' in pixels.
 GOOD_SPREAD_PX = 1.4
-
-
-@dataclass(frozen=True)
-class InspectOptions:
-    """Tunables of :func:`inspect_part`.
-
-    Attributes
-    ----------
-    tolerance : float
-        Largest deviation of a window of the outline, or of a feature, that passes [m].
-    reach : float
-        How far out along each outline edge's normal extra material is looked for [m]; a feature
-        whose edges are absent counts as off by this much.
-    depth : float
-        How far in along each outline edge's normal missing material is looked for [m].
-    window : float
-        Length of outline over which the deviation is a median [m].
-    min_feature_found : float
-        Least share of a feature's visible edges the picture must show (0..1); below it the
-        feature is missing.
-    min_feature_edges : int
-        Features with fewer visible edge samples (about a millimetre each) are too small to judge.
-    min_whole_found : float
-        Share of all a feature's visible edges (not only its creases with a wall turned to the
-        camera) the picture shows from which it is there whatever its walls show (0..1): on the
-        benchmark's pictures features that are there show 0.39-1, features left out up to 0.28.
-    judge_from_above : bool
-        Judge a feature with too few creases beside a wall turned to the camera (a boss, a thin
-        wall seen from straight above) by all its edges. In real light its wall's shading and
-        shadow show it (bosses there 0.39-1 of their edges, left out 0-0.03 on the benchmark; no
-        good part rejected for it on seeds 0-1 and 8-9), so a camera's picture is judged so by
-        default. With flat shading (the exact renderer of :mod:`vision.render`, the simulated
-        cell's pictures) its top and the face it stands on look alike and a good boss shows 0.11
-        of its edges: such pictures are judged with it off (:func:`vision.station.inspect_shot`),
-        where a boss under the camera is not judged at all.
-    min_seen : float
-        Least share of the outline, and of each feature's edges, the picture must let be judged
-        (0..1); below it (glare, an edge lost in shadow) the part is refused, not passed.
-    locate : LocateOptions
-        How the parts are located, with locate's refusals; a smaller share of all edges found than
-        locate asks for by default, since a defect (a boss not there) takes edges away and must be
-        judged, not refused (wrong poses reach 0.49 on locate's gallery, only when the outline's own
-        checks let them through); not refined (:attr:`vision.locate.LocateOptions.refine`): the
-        depths of its defects were measured and bounded at the pose fitted to all the edges.
-    """
-
-    tolerance: float = 0.7e-3
-    reach: float = 3e-3
-    depth: float = 25e-3
-    window: float = 8e-3
-    min_feature_found: float = 0.3
-    min_feature_edges: int = 12
-    min_whole_found: float = 0.45
-    judge_from_above: bool = True
-    min_seen: float = 0.5
-    locate: LocateOptions = LocateOptions(min_found=0.35, refine=False)
-
-
-@dataclass(frozen=True)
-class Feature:
-    """One set of connected mesh edges inside the outline (a hole, a boss, a pocket) as the picture shows it.
-
-    Attributes
-    ----------
-    pixel : (float, float)
-        Centre of its visible edges in the image [px].
-    edges : int
-        Visible edge samples judged (about one per millimetre of edge).
-    found : float
-        Share of them the picture shows within :data:`OWN_PX` (0..1).
-    present : bool
-        Whether the share reaches ``InspectOptions.min_feature_found``, and what the picture's texture
-        alone shows beside the feature's edges by :data:`BEYOND_CHANCE`.
-    """
-
-    pixel: tuple[float, float]
-    edges: int
-    found: float
-    present: bool
 
 
 @dataclass(frozen=True)
@@ -374,11 +281,11 @@ def inspect_part(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         pose that may be wrong.
     """
     found = locate_parts(image, camera, base_camera, part, tray_z, options.locate, source=source)
-    grey = _grey(image, source)
-    gx, gy, threshold = _gradients(grey)
+    grey = grey_picture(image, source)
+    gx, gy, threshold = gradients(grey)
     saturated = (grey >= SATURATED_GREY).astype(np.uint8)
     # Deep shadow (well below the tray model): an edge with it on both sides cannot show.
-    dark = (np.log(_tray_ratio(grey)[0]) < DARK_LOG).astype(np.uint8)
+    dark = (np.log(tray_ratio(grey)[0]) < DARK_LOG).astype(np.uint8)
     cam_base = np.linalg.inv(np.asarray(base_camera, dtype=np.float64))
     mesh = replace(part, vertices=mm_to_m(np.asarray(vertices_mm, dtype=np.float64)),
                    faces=np.asarray(faces, dtype=np.int64))
@@ -396,7 +303,7 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
            gradients: tuple[np.ndarray, np.ndarray, float], masks: tuple[np.ndarray, np.ndarray],
            options: InspectOptions, ring_px: np.ndarray) -> Inspection:
     """The inspection of one located part: its outline's windowed deviations and its features
-    (``grey`` the picture, ``gradients`` its ``gx, gy, threshold`` as :func:`vision.locate._gradients`,
+    (``grey`` the picture, ``gradients`` its ``gx, gy, threshold`` as :func:`vision.picture_edges.gradients`,
     ``masks`` its clipped pixels and its deep shadow, uint8 1/0, ``ring_px`` its expected silhouette)."""
     gx, gy, threshold = gradients
     saturated = masks[0]
@@ -408,7 +315,7 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
     idx = model.visible(p)
     uv, normal = model.project(p, idx)
     px_m = located.mm_per_px * 1e-3  # metres per pixel at the part
-    steps, resp, peak = _edge_peaks(gx, gy, threshold, uv, normal, max(options.reach, options.depth) / px_m)
+    steps, resp, peak = edge_peaks(gx, gy, threshold, uv, normal, max(options.reach, options.depth) / px_m)
     offset = np.where(peak, steps[None, :], np.nan)
     unknown, bloom, white, cause = _hidden(model, p, idx, uv, normal, masks, top_glare)
     # The outline is judged where a face turned up meets the side (the top of a wall, a step): the
@@ -492,7 +399,9 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
     beside = np.stack([np.where(tree.query(uv + c * normal)[0] <= OWN_PX + EXPLAINED_PX, np.nan,
                                 (peak & (np.abs(steps[None, :] - c) <= OWN_PX)).any(axis=1))
                        for c in (BESIDE_PX, -BESIDE_PX)], axis=1)
-    features, hidden_features = _judge_features(model, p, idx, uv, own, (unknown, cause), top_glare, options, beside)
+    features, hidden_features = judge_features(SeenEdges(model=model, pose=p, idx=idx, uv=uv, own=own, unknown=unknown,
+                                                         cause=cause, beside=beside, top_glare=top_glare,
+                                                         clipped=saturated), options)
     refusals += hidden_features
     hidden = "; ".join(refusals)
     judged = Inspection(part=located, outline_px=uv[outer], deviation=deviation, features=tuple(features),
@@ -503,140 +412,6 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
     # is hidden may be what misleads the rest: no verdict, with the reason.
     fails = top_glare and judged.max_deviation > options.tolerance
     return judged if fails or not hidden else replace(judged, refusal=hidden)
-
-
-def _judge_features(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, own: np.ndarray,
-                    hidden: tuple[np.ndarray, np.ndarray], top_glare: bool, options: InspectOptions,
-                    beside: np.ndarray) -> tuple[list[Feature], list[str]]:
-    """The features inside the outline at pose ``p``, and the refusals of those hidden in glare.
-
-    ``idx`` the visible edge samples, ``uv`` (k, 2) where they are [px], ``own`` (k,) bool their
-    edge found where expected, ``hidden`` their edge hidden ((k,) bool) and why ((k,) int,
-    :data:`HIDDEN_BY`), ``beside`` (k, 2) whether an edge shows :data:`BESIDE_PX` off each either way
-    (NaN: another expected edge's).
-
-    A feature is judged by its creases with a wall turned to the camera: a step between two faces
-    turned up, its wall seen edge-on or from behind, may show no edge at all (the faces alike).
-    Seen from straight above (too few such creases: a boss or a thin wall under the camera) it is
-    judged by all its visible edges with ``judge_from_above``, and by each loop of its creases on its
-    own (:func:`_least_loop`); one whose edges mostly show where the mesh puts them
-    (``min_whole_found``) is there whatever its walls turned to the camera show.
-    An edge found where the mesh puts it is the feature's, glare or not (a filled hole, a boss not
-    there, leave a flat face and no edge there): a feature whose edges show, counting those beside
-    clipped pixels as not found, is there. A feature hidden in glare is missing when nothing of the
-    part can be white over it: a through-hole shows the tray or its walls, never a clipped top, so
-    white on both sides of its edges is material where the hole should be. A pocket's or a bore's
-    floor, a boss's top, mirror the light as the top does: hidden, not judged.
-    A feature's edges must show at their place more often than the picture shows edges beside them
-    (``beside`` (k, 2), :func:`_chance`) by :data:`BEYOND_CHANCE`: a low light grazing a brushed top
-    puts edges everywhere, where a hole not drilled finds a third of its edges.
-    """
-    unknown, cause = hidden
-    outline_features = set(model.feature[idx[model.outer[idx]]])
-    facing = model.crease[idx] & _wall_facing(model, p, idx)
-    features, refusals = [], []
-    for f in np.unique(model.feature[idx]):
-        mine = model.feature[idx] == f
-        through = _through(model, f)
-        # A through-hole's rim shows from every side: the top against the hole's dark inside
-        # (straight down a hole its wall is seen edge-on, and the rim is all there is to judge),
-        # unless another feature's edges lie near (a counterbore's wall and its shadow on the floor).
-        rim = mine & model.crease[idx] & through & \
-            (model.points[idx, 2] >= model.points[model.feature == f, 2].max() - THROUGH_M)
-        if rim.any() and (~mine).any():
-            rim[rim] = cKDTree(uv[~mine]).query(uv[rim])[0] > RIM_CLEAR_PX
-        every = mine & (facing | rim)
-        # All its edges the light does not hide: where the mesh puts a crease or a contour the
-        # picture shows one for most of a feature that is there, and for almost none of one that is not.
-        whole = mine & ~unknown
-        if f in outline_features or (every.sum() < options.min_feature_edges and whole.sum() < options.min_feature_edges):
-            continue
-        # The picture's texture alone finds this share of the feature's edges (:data:`BESIDE_PX`).
-        chance = _chance(beside[whole | every], options.min_feature_edges)
-        # ... counted only where the light leaves most of them to be judged (a thin wall's few edges
-        # clear of a white top say nothing of the rest).
-        told = whole.sum() >= max(options.min_feature_edges, options.min_seen * mine.sum())
-        whole_found = float(own[whole].mean()) if told else 0.0
-        if every.sum() < options.min_feature_edges:
-            # Seen from straight above, its walls edge-on: a boss, a thin wall, judged by all its edges
-            # (with flat shading its top and the face it stands on look alike: off for such pictures).
-            if not told or not options.judge_from_above:
-                continue
-            centre = uv[whole].mean(axis=0)
-            # Each loop of its creases on its own: a counterbored boss's through-hole not drilled keeps
-            # its rim's share from the counterbore's floor 3 mm off (0.43-0.46), while its foot, where
-            # the tray shows through, shows 0.17-0.20 (one there: 0.94-0.97; the loops of features
-            # there judged so read 0.41 or more in diffuse, dim and low light, seeds 8-9).
-            found = min(whole_found, _least_loop(model, idx, own, whole, options))
-            present = found >= max(options.min_feature_found, chance + BEYOND_CHANCE)
-            features.append(Feature(pixel=(float(centre[0]), float(centre[1])), edges=int(whole.sum()),
-                                    found=found, present=present))
-            continue
-        on = every & ~unknown
-        centre = uv[every].mean(axis=0)
-        pixel = (float(centre[0]), float(centre[1]))
-        anywhere = float(own[every].mean())
-        if anywhere >= options.min_feature_found or whole_found >= options.min_whole_found:
-            # A wall turned to the camera may show little against its floor (dim light, a shadow in
-            # a counterbore) while the rest of the feature's edges are all there.
-            found = max(anywhere, whole_found)
-            features.append(Feature(pixel=pixel, edges=int(every.sum()), found=found,
-                                    present=found >= chance + BEYOND_CHANCE))
-        elif on.sum() >= options.min_seen * every.sum():
-            share = float(own[on].mean())
-            features.append(Feature(pixel=pixel, edges=int(on.sum()), found=share,
-                                    present=share >= max(options.min_feature_found, chance + BEYOND_CHANCE)))
-        elif top_glare and through:
-            features.append(Feature(pixel=pixel, edges=int(every.sum()), found=anywhere, present=False))
-        else:
-            why = ", ".join(f"{100 * np.mean(cause[every] == k):.0f} % {what}" for k, what in HIDDEN_BY.items()
-                            if np.any(cause[every] == k))
-            refusals.append(f"the feature at ({centre[0]:.0f}, {centre[1]:.0f}) px is hidden in glare or shadow, or "
-                            f"beyond the picture (of its edges: {why})")
-    return features, refusals
-
-
-def _chance(beside: np.ndarray, least: int) -> float:
-    """The share of a feature's edges the picture's texture alone would show (0..1): of ``beside`` (k, 2)
-    (1.0: an edge near the spot BESIDE_PX off the sample on that side, 0.0 none, NaN another expected
-    edge's), the quieter side's share; 0 unless both sides have at least ``least`` spots told. One side
-    alone cannot tell texture from a structure running beside the edge (the white band of a step's top
-    in glare finds an edge beside every sample), and the texture is the same on both sides."""
-    told = np.isfinite(beside).sum(axis=0)
-    if (told < least).any():
-        return 0.0
-    return float(np.nanmean(beside, axis=0).min())
-
-
-def _least_loop(model: MeshEdges, idx: np.ndarray, own: np.ndarray, whole: np.ndarray,
-                options: InspectOptions) -> float:
-    """The least share of its edges found over one feature's loops of creases (:attr:`MeshEdges.loop`)
-    the light lets be judged, as a whole feature is (``whole`` (k,) bool its visible samples ``idx`` not
-    hidden, ``own`` (k,) bool their edge found where expected); 1 when no loop can be judged.
-
-    A foot (:attr:`vision.mesh_edges.MeshEdges.foot`) is not judged on its own: the face and the wall rising from it meet in a
-    fold that soft light shades over a few pixels, not at a line, so the picture's edge lies pixels
-    either side of it (a good boss's foot at 5 MP in diffuse light: 0.12 found within OWN_PX, its top's
-    rim 0.56). A boss not there leaves its top's rim as bare as its foot; a through-hole's foot on the
-    underside, where the tray shows through, is a rim, not a foot."""
-    loops = model.loop[idx]
-    feet = model.foot[idx]
-    least = 1.0
-    for loop in np.unique(loops[whole & (loops >= 0)]):
-        mine = loops == loop
-        told = mine & whole
-        if feet[mine].mean() <= 0.5 and told.sum() >= max(options.min_feature_edges, options.min_seen * mine.sum()):
-            least = min(least, float(own[told].mean()))
-    return least
-
-
-def _through(model: MeshEdges, feature: int) -> bool:
-    """Whether a feature is a through-hole: its edges reach the part's underside and the mesh has
-    no material under its middle (the tray shows through it; a counterbore over a hole has its own
-    floor), from the height field (:func:`vision.shadow.height_field`)."""
-    points = model.points[model.feature == feature]
-    middle = points[:, :2].mean(axis=0)
-    return bool(points[:, 2].min() < THROUGH_M and model.field.at(middle[None])[0] < THROUGH_M)
 
 
 def _clipped_sides(saturated: np.ndarray, uv: np.ndarray, normal: np.ndarray, top_glare: bool
@@ -672,7 +447,7 @@ def _hidden(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, no
     """Which edge samples ``idx`` at pose ``p`` (``uv``, ``normal`` (k, 2) in the image) the picture
     cannot show (``masks`` its clipped pixels and deep shadow): ``unknown`` (k,) bool, ``bloom`` (k, 2)
     as :func:`_clipped_sides`, ``white`` (k,) bool those unknown only for glare on both sides, and
-    ``cause`` (k,) int why each is unknown (a key of :data:`HIDDEN_BY`; 0 where it is not)."""
+    ``cause`` (k,) int why each is unknown (a key of :data:`vision.inspect_features.HIDDEN_BY`; 0 where it is not)."""
     # A clipped highlight on both sides of an edge (a pocket in a white top) hides it: unknown,
     # neither found nor missed. On one side only, the edge shows, pushed into the other side by
     # the optics' spill (the bloom, up to GLARE_PX): its own edge is looked for that much further.
@@ -818,18 +593,6 @@ def _pose_level(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray
             break
         use = keep
     return a @ c
-
-
-def _wall_facing(model: MeshEdges, p: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """``(k,)`` bool: an edge sample borders a wall (a face within 60 deg of vertical) turned to the
-    camera by at least :data:`FACING_COS` (its cosine with the view)."""
-    r = yaw_rotation_3d(p[2])
-    view = model.eye - model.world(p, model.points[idx])
-    view /= np.linalg.norm(view, axis=1, keepdims=True)
-    facing = np.zeros(len(idx), bool)
-    for n in (model.n1[idx] @ r.T, model.n2[idx] @ r.T):
-        facing |= (np.abs(n[:, 2]) < 0.5) & (np.einsum("nj,nj->n", n, view) >= FACING_COS)
-    return facing
 
 
 def _outward(model: MeshEdges, part: Footprint, p: np.ndarray, idx: np.ndarray, uv: np.ndarray,

@@ -59,7 +59,7 @@ def unseen(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, nor
     part (a step's rim behind a thin wall seen from the side): the wall's top lies where it should be
     (1.6 mm out on a good glare stepped wall). Features keep their far-side edges: a boss's foot behind
     it shows with its top's edge, and the shares of a loop found (``min_whole_found``,
-    ``vision.inspect._least_loop``) were set counting them.
+    ``vision.inspect_features._least_loop``) were set counting them.
     """
     hidden = ~in_picture(shape, uv, normal, reach)
     rim = model.outer[idx]

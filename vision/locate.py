@@ -44,9 +44,7 @@ from factory.core.units import MM_PER_M
 from vision.camera import CameraModel, bin_image, binned_camera
 from vision.locate_search import FIT_SAMPLES, chamfer_starts, oriented_distances, refined_starts, thin_edges
 from vision.mesh_edges import MeshEdges, edge_model, yaw_rotation
-# _edge_peaks stays importable from here: vision.inspect takes it with the rest.
-from vision.picture_edges import (_blob_outline, _edge_peaks, _find_edges, _gradients,  # noqa: F401
-                                  _tray_ratio)
+from vision.picture_edges import blob_outline, find_edges, gradients, tray_ratio
 from vision.pose_uncertainty import pose_covariance
 from vision.key_light import LightAt, lights_at
 from vision.shadow import shadow_evidence, unseen_edges
@@ -257,7 +255,8 @@ class LocatedPart:
                 "pixel": list(self.pixel)}
 
 
-def _grey(image: np.ndarray, source: str) -> np.ndarray:
+def grey_picture(image: np.ndarray, source: str) -> np.ndarray:
+    """The picture as (h, w) uint8 grey (BGR or BGRA converted); VisionError for any other or under 16 x 16 px."""
     img = np.asarray(image)
     if img.dtype != np.uint8 or img.ndim not in (2, 3) or min(img.shape[:2]) < 16:
         raise VisionError(f"not an 8-bit image of at least 16x16 pixels (shape {img.shape}, {img.dtype})",
@@ -402,7 +401,7 @@ def _edge_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
         # Where the higher edge beside a foot lies, along the foot's normal [px].
         top = np.where(partner >= 0, np.einsum("nj,nj->n", uv[partner] - uv, normal), np.nan)
         idx, uv, normal, top = (a[keep][:: max(1, int(keep.sum()) // FIT_SAMPLES)] for a in (idx, uv, normal, top))
-        off = _find_edges(gx, gy, threshold, uv, normal, reach)
+        off = find_edges(gx, gy, threshold, uv, normal, reach)
         ok = np.isfinite(off)
         if settle:
             # A foot whose found edge lies on its top's (within TOOK_TOP_PX, nearer it than its own
@@ -429,7 +428,7 @@ def _edge_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
     # Judge the final pose: the share of the visible edges found within a pixel of where they should be.
     idx = model.visible(p)
     uv, normal = model.project(p, idx)
-    off = _find_edges(gx, gy, threshold, uv, normal, 1.5 + bloom)
+    off = find_edges(gx, gy, threshold, uv, normal, 1.5 + bloom)
     clipped, side = _clipped(saturated, uv, normal, off, gx, gy)
     off = off + bloom * np.where(clipped, side, 0.0)
     near = np.abs(np.nan_to_num(off, nan=np.inf)) <= 1.0
@@ -445,7 +444,7 @@ def _edge_fit(model: MeshEdges, gx: np.ndarray, gy: np.ndarray, threshold: float
         eye, towards = model.in_part_frame(p, light)
         shade = shadow_evidence(model.field, model.points, model.direction, model.n1, model.n2, idx, eye, towards,
                                 lambda pts, d: model.image_of(p, pts, d),
-                                lambda uv, n, reach: _find_edges(gx, gy, threshold, uv, n, reach),
+                                lambda uv, n, reach: find_edges(gx, gy, threshold, uv, n, reach),
                                 lambda pts: model.pixels(p, pts))
         outer_near = np.r_[near[outer & ~shade.unknown], shade.near]
         outer_normal = np.vstack([normal[outer & ~shade.unknown], shade.normal])
@@ -529,7 +528,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
                  ) -> list[LocatedPart]:
     """Every copy of ``part`` lying on the tray in one image, best score first.
 
-    1. Tray model: the picture over a smooth model of the empty tray (:func:`_tray_ratio`), so
+    1. Tray model: the picture over a smooth model of the empty tray (:func:`tray_ratio`), so
        vignetting and uneven light cancel; what departs from it, brighter (metal, glare) or
        darker (walls, shadows), makes the candidate blobs.
     2. Coarse search per blob: the mesh's visible edges (:class:`vision.mesh_edges.MeshEdges`: top outline,
@@ -561,7 +560,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     VisionError
         (``source``) Not an 8-bit image, a size other than the camera's, a camera not above the tray, or no part found.
     """
-    grey = _grey(image, source)
+    grey = grey_picture(image, source)
     if (grey.shape[1], grey.shape[0]) != camera.image_size:
         w, h = camera.image_size
         raise VisionError(f"image is {grey.shape[1]}x{grey.shape[0]} px, the camera was calibrated at {w}x{h} px",
@@ -581,10 +580,10 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         return [_refined(p, grey, camera, base_camera, part, tray_z, binning, options.refine) for p in
                 locate_parts(bin_image(grey, binning), binned_camera(camera, binning), base_camera, part, tray_z,
                              options, source=source)]
-    ratio, spread = _tray_ratio(grey)
+    ratio, spread = tray_ratio(grey)
     log_ratio = np.log(ratio)
     level = max(2.5 * spread, options.min_contrast)
-    gx, gy, threshold = _gradients(grey)
+    gx, gy, threshold = gradients(grey)
     edges = (np.hypot(gx, gy) > threshold).astype(np.uint8)
     # Clipped pixels (glare) say only "at least this bright": where an edge lies in them is unknown.
     saturated = (grey >= SATURATED_GREY).astype(np.uint8)
@@ -637,7 +636,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         if any(np.hypot(p.x - located.x, p.y - located.y) < 0.5 * radius_px * located.mm_per_px * 1e-3
                for p in found):
             continue
-        found.append(replace(located, outline=_blob_outline(log_ratio, (labels == i).astype(np.uint8), level)))
+        found.append(replace(located, outline=blob_outline(log_ratio, (labels == i).astype(np.uint8), level)))
     if not found:
         # The best refused candidate says why: a wrong pose never leaves here, a reason does.
         why = f"; {refusals[0]}" if refusals else "; nothing on the tray departs from it like a part"
@@ -969,7 +968,7 @@ def _refined(coarse: LocatedPart, grey: np.ndarray, camera: CameraModel, base_ca
     is taken off (:func:`_located`), as :attr:`LocateOptions.refine`.
     """
     model = edge_model(part, camera, np.linalg.inv(base_camera), tray_z)
-    gx, gy, threshold = _gradients(grey)
+    gx, gy, threshold = gradients(grey)
     start = np.array([coarse.x, coarse.y, coarse.yaw])
     fit = _edge_fit(model, gx, gy, threshold, start, saturated=(grey >= SATURATED_GREY).astype(np.uint8))
     outline = (coarse.outline + 0.5) * binning - 0.5  # binned pixel centres on the full picture

@@ -1,10 +1,10 @@
 """What a picture shows of a part, before any pose: its ratio to the empty tray and its edges.
 
-:func:`_tray_ratio` divides out a smooth model of the empty tray (vignetting, uneven light);
-:func:`_gradients` gives the smoothed gradients and the strength an edge must beat, and
-:func:`_find_edges` the nearest sub-pixel gradient peak across each model edge sample.
+:func:`tray_ratio` divides out a smooth model of the empty tray (vignetting, uneven light);
+:func:`gradients` gives the smoothed gradients and the strength an edge must beat, and
+:func:`find_edges` the nearest sub-pixel gradient peak across each model edge sample.
 :mod:`vision.locate` fits poses to them and :mod:`vision.inspect` judges edges with them;
-:func:`_blob_outline` is a blob's sub-pixel outline, which locate hands to inspection.
+:func:`blob_outline` is a blob's sub-pixel outline, which locate hands to inspection.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from contourpy import LineType, contour_generator
 from scipy.ndimage import map_coordinates
 
 
-def _tray_ratio(grey: np.ndarray) -> tuple[np.ndarray, float]:
+def tray_ratio(grey: np.ndarray) -> tuple[np.ndarray, float]:
     """The picture over a model of the empty tray, and the tray's own spread in that ratio.
 
     The tray model is a quadratic surface in ``log(grey)`` (vignetting, uneven light) fitted to
@@ -50,7 +50,7 @@ def _tray_ratio(grey: np.ndarray) -> tuple[np.ndarray, float]:
     return ratio, max(spread, pixel_spread)
 
 
-def _gradients(grey: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+def gradients(grey: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """Smoothed image gradients ``gx, gy`` [grey/px] and the gradient magnitude an edge must beat."""
     g = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), 1.0)
     gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3) / 8
@@ -60,7 +60,7 @@ def _gradients(grey: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     return gx, gy, max(4.0 * float(np.median(mag)), 1.0)
 
 
-def _edge_peaks(gx: np.ndarray, gy: np.ndarray, threshold: float, uv: np.ndarray, normal: np.ndarray,
+def edge_peaks(gx: np.ndarray, gy: np.ndarray, threshold: float, uv: np.ndarray, normal: np.ndarray,
                 reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The picture's edges across each model edge sample: ``steps`` (s,) offsets along the normal
     every half pixel within ``reach`` [px], ``resp`` (k, s) the gradient across the normal [grey/px]
@@ -86,10 +86,10 @@ def peak_offset(steps: np.ndarray, resp: np.ndarray, j: np.ndarray) -> np.ndarra
     return steps[jj] + 0.5 * np.clip(frac, -1, 1)
 
 
-def _find_edges(gx: np.ndarray, gy: np.ndarray, threshold: float, uv: np.ndarray, normal: np.ndarray,
+def find_edges(gx: np.ndarray, gy: np.ndarray, threshold: float, uv: np.ndarray, normal: np.ndarray,
                 reach: float) -> np.ndarray:
     """``(k,)`` signed offset [px] along each normal of the nearest edge within ``reach``, NaN where none."""
-    steps, resp, peak = _edge_peaks(gx, gy, threshold, uv, normal, reach)
+    steps, resp, peak = edge_peaks(gx, gy, threshold, uv, normal, reach)
     # The nearest strong peak: a shadow's or a texture's edge further out must not pull the fit.
     dist = np.where(peak, np.abs(steps)[None, :], np.inf)
     j = np.argmin(dist, axis=1)
@@ -97,7 +97,7 @@ def _find_edges(gx: np.ndarray, gy: np.ndarray, threshold: float, uv: np.ndarray
     return np.where(found, peak_offset(steps, resp, j), np.nan)
 
 
-def _blob_outline(log_ratio: np.ndarray, mask: np.ndarray, level: float) -> np.ndarray:
+def blob_outline(log_ratio: np.ndarray, mask: np.ndarray, level: float) -> np.ndarray:
     """The outline of a blob (``mask`` (h, w) uint8) for inspection [px]: the iso-line of ``log_ratio`` a
     quarter of the way from the tray to the part's typical brightness (as far from the sensor noise as
     from dim side faces), ``level`` at least; (0, 2) when there is none."""

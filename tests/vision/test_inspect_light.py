@@ -55,6 +55,26 @@ def pixel_of(station, part: str, scene, point_mm) -> np.ndarray:
     return station.camera.project(p[None], np.zeros(3), np.zeros(3))[0]
 
 
+def judged_at_5_mp(condition: str, part: str, seed: int, defect: str):
+    """The good part and the one with ``defect`` at the 5 MP camera, at the same pose and light (one ray a
+    pixel, as benchmarks/inspect_real_light.py renders it): the good one passes, judged whole; the station,
+    the defective one's picture and its verdict, which fails on what it judged and refuses nothing."""
+    station = cell_station(CameraModel.read(ROOT / "fixtures" / "camera_5mp.yaml"))
+    _, good = inspected(station, condition, part, seed, supersample=1)
+    assert good.passed and not good.refusal and not good.missing_features, good.to_dict()
+    scene, bad = inspected(station, condition, part, seed, defect, supersample=1)
+    assert not bad.passed and not bad.refusal, bad.to_dict()
+    return station, scene, bad
+
+
+def missing_only_at(station, part: str, scene, result, centre_mm, rim_mm) -> bool:
+    """Whether exactly one feature of ``result`` is missing, and it lies where the mesh puts the one whose
+    centre and a point of whose rim are ``centre_mm``, ``rim_mm`` [mm] (within its radius in the picture)."""
+    centre = pixel_of(station, part, scene, centre_mm)
+    radius_px = np.hypot(*(pixel_of(station, part, scene, rim_mm) - centre))
+    return [np.hypot(*(np.array(f.pixel) - centre)) < radius_px for f in result.missing_features] == [True]
+
+
 def test_a_good_part_passes_inspection_in_diffuse_light(station):
     """``factory inspect`` under the independent renderer's light: a good bracket passes, judged
     on nearly all of its outline, every hole there."""
@@ -276,12 +296,18 @@ def test_a_hole_not_drilled_is_missing_though_a_low_light_puts_edges_everywhere_
     0.35 of its edges and main passed the part. Beside its rim, 4.5 px either way, the texture finds
     as many (0.34): the hole is missing where it should be. The drilled holes find 0.8-1.0 of their edges
     against 0.02-0.2 beside them, and the good part at the same pose and light passes."""
-    station = cell_station(CameraModel.read(ROOT / "fixtures" / "camera_5mp.yaml"))
-    _, good = inspected(station, "low_angle", "bracket", 0, supersample=1)
-    assert good.passed and not good.refusal and not good.missing_features, good.to_dict()
-    scene, bad = inspected(station, "low_angle", "bracket", 0, "missing_hole", supersample=1)
-    assert not bad.passed and not bad.refusal
-    centre = pixel_of(station, "bracket", scene, (92.0, 52.0, 15.0))
-    radius_px = np.hypot(*(pixel_of(station, "bracket", scene, (97.8, 52.0, 15.0)) - centre))
+    station, scene, bad = judged_at_5_mp("low_angle", "bracket", 0, "missing_hole")
     # the undrilled hole, and only it
-    assert [np.hypot(*(np.array(f.pixel) - centre)) < radius_px for f in bad.missing_features] == [True]
+    assert missing_only_at(station, "bracket", scene, bad, (92.0, 52.0, 15.0), (97.8, 52.0, 15.0))
+
+
+def test_a_boss_not_there_in_glare_is_missing_where_its_lit_wall_should_show_at_5_mp():
+    """A polished plate under glare at 5 MP: its top and the plate's face both clip white, so a boss's
+    rim is white on both sides whether the boss stands or not, and main refused the plate with the boss
+    left out (100 % of its edges clipped). A boss that stands shows the wall turned to the camera, 5 px
+    wide here, grey or dark between the two whites: a wall cannot mirror into the camera the light the
+    faces above and below it mirror. Where that wall's face should be, the picture is white: no boss
+    stands there, and it is missing where it should be. The good plate at the same pose and light passes."""
+    station, scene, bad = judged_at_5_mp("glare", "plate_bosses", 0, "missing_boss")
+    # the boss left out, and only it
+    assert missing_only_at(station, "plate_bosses", scene, bad, (78.0, 56.0, 14.0), (86.6, 56.0, 14.0))

@@ -21,10 +21,10 @@ from factory.core.errors import VisionError
 from tests.vision.lit import (CONDITIONS, OWN_PARTS, SAMPLE_PARTS, _placed, cell_station, gallery_scene, mesh_symmetry,
                               render_lit, sample_mesh)
 from vision.lit import Material, key_light, metal
-from vision.locate import (LocateOptions, _axis_coverage, _EdgeFit, _gradients, _refusal, footprint_from_mesh,
-                           locate_parts)
+from vision.locate import LocateOptions, _axis_coverage, _EdgeFit, _refusal, footprint_from_mesh, locate_parts
 from vision.locate_search import oriented_distances, refine_start, thin_edges
 from vision.mesh_edges import RESOLVE_PX, MeshEdges
+from vision.picture_edges import gradients
 
 #: (condition, part, seed): the stepped parts, long hard shadows, dim exposure, a box beside the part;
 #: two plates whose bosses once pulled the edge fit 4-5 mm off a coarse start (diffuse 1, dim 0); the
@@ -252,7 +252,7 @@ def test_a_coarse_start_some_pixels_and_degrees_off_is_brought_within_a_pixel_an
     scene = gallery_scene(station, "plate_bosses", "dim", 0)
     _, footprint, _ = sample_mesh("plate_bosses")
     model = MeshEdges(footprint, station.camera, np.linalg.inv(station.camera_pose), station.plane_z)
-    gx, gy, threshold = _gradients(scene.image)
+    gx, gy, threshold = gradients(scene.image)
     maps = oriented_distances(gx, gy, thin_edges(gx, gy, np.hypot(gx, gy) > threshold))
 
     def ground(pixel):
@@ -271,7 +271,7 @@ def test_thin_edges_leave_one_pixel_of_a_blurred_disc_on_its_rim():
     image = np.zeros((120, 120), np.uint8)
     cv2.circle(image, (60, 60), 30, 200, -1)
     image = cv2.GaussianBlur(image, (0, 0), 1.2)
-    gx, gy, threshold = _gradients(image)
+    gx, gy, threshold = gradients(image)
     thin = thin_edges(gx, gy, np.hypot(gx, gy) > threshold)
     v, u = np.nonzero(thin)
     r = np.hypot(u - 60, v - 60)
