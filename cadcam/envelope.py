@@ -150,6 +150,7 @@ class _Approach:
 
     @classmethod
     def of(cls, qx: np.ndarray, qy: np.ndarray, owner: np.ndarray, seg: Segments) -> "_Approach":
+        toolsweep.say_if_compiling()
         # the profile only where some move's is not 0 at the nearest approach (a flat end mill's is)
         return cls(*toolsweep.nearest_approach(qx, qy, owner, seg.x, seg.y, seg.dx, seg.dy, seg.inv_l2, seg.zmin,
                                                seg.flat_radius, seg.rc, seg.cone, seg.radius, seg.reach2,

@@ -15,10 +15,13 @@ The moves' arrays are :class:`cadcam.envelope.Segments`' fields, one row per mov
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numba
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 #: Cutter shapes in :attr:`cadcam.envelope.Segments.shape`.
 FLAT, BALL, BULL, CONE = 0, 1, 2, 3
@@ -234,3 +237,24 @@ def segmented_exclusive_min(group, value):
         if lifted <= running:
             holder = i
     return out
+
+
+_told = False
+
+
+def say_if_compiling() -> None:
+    """Log once per process, before the first cut, that the kernel is not in numba's cache yet: the first plan
+    after an install compiles it (about 2 s of processor time, longer on a loaded machine); later ones load it."""
+    global _told
+    if _told:
+        return
+    _told = True
+    try:
+        # every cut starts with the nearest approach, and its compiling is most of the wait (numba's compiler
+        # starts with it): cold when its index holds no code for this very source (numba drops one whose stamp
+        # differs). The others compile when first needed, in under a second of processor time each.
+        cold = not nearest_approach._cache._cache_file._load_index()
+    except AttributeError:  # another numba's cache layout: say nothing rather than guess
+        return
+    if cold:
+        log.warning("compiling the cut's kernel (cadcam.toolsweep) once for this install: a few seconds")
