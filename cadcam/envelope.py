@@ -20,7 +20,8 @@ is found exactly:
 
 Each move covers the grid points within the tool radius of its XY segment, enumerated
 exactly row by row (:func:`grid_pairs`); the stock model (:mod:`cadcam.stock`) evaluates
-those (grid point, move) pairs in vectorised batches with :func:`pair_envelope`.
+those (grid point, move) pairs in batches with :func:`pair_envelope`, one pair at a time in the compiled loops
+of :mod:`cadcam.toolsweep`.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cadcam import toolsweep
 from cadcam.heightmap import Grid
 from cadcam.model import Tool
 
@@ -45,18 +47,8 @@ def _profile(r: np.ndarray, flat_radius: np.ndarray, rc: np.ndarray) -> np.ndarr
     return rc - np.sqrt(np.maximum(rc * rc - d * d, 0.0))
 
 
-def _per_pair(owner: np.ndarray, n: int) -> Callable[[np.ndarray], np.ndarray]:
-    """``lambda a: a[owner]`` for per-move arrays ``a`` of ``n`` rows: when ``owner`` is sorted (as
-    :func:`grid_pairs` makes the pairs) by repeating each row over its run, the same values at about a
-    quarter of the cost of indexing."""
-    if n < len(owner) and bool((owner[1:] >= owner[:-1]).all()):
-        runs = np.diff(np.searchsorted(owner, np.arange(n + 1)))
-        return lambda a: np.repeat(a, runs)
-    return lambda a: a[owner]
-
-
 #: Cutter shapes in :attr:`Segments.shape`.
-_FLAT, _BALL, _BULL, _CONE = 0, 1, 2, 3
+_FLAT, _BALL, _BULL, _CONE = toolsweep.FLAT, toolsweep.BALL, toolsweep.BULL, toolsweep.CONE
 
 
 @dataclass
@@ -158,29 +150,11 @@ class _Approach:
 
     @classmethod
     def of(cls, qx: np.ndarray, qy: np.ndarray, owner: np.ndarray, seg: Segments) -> "_Approach":
-        at = _per_pair(owner, len(seg))
-        wx = qx - at(seg.x)
-        wy = qy - at(seg.y)
-        dx = at(seg.dx)
-        dy = at(seg.dy)
-        wd = wx * dx
-        wd += wy * dy
-        t = wd * at(seg.inv_l2)
-        np.clip(t, 0.0, 1.0, out=t)
-        ex = t * dx
-        np.subtract(wx, ex, out=ex)
-        ey = np.multiply(t, dy, out=t)
-        np.subtract(wy, ey, out=ey)
-        dist2 = np.multiply(ex, ex, out=ex)
-        dist2 += ey * ey
-        del ey, dx, dy
-        lower = at(seg.zmin)
-        if np.any(seg.shape != _FLAT):
-            dist = np.sqrt(dist2)
-            lower += _profile(dist, at(seg.flat_radius), at(seg.rc))
-            if seg.cone.any():  # else the term adds +0.0 to a height that is never -0.0: nothing
-                lower += at(seg.cone) * np.minimum(dist, at(seg.radius))
-        return cls(lower, dist2 <= at(seg.reach2), wx, wy, wd)
+        toolsweep.say_if_compiling()
+        # the profile only where some move's is not 0 at the nearest approach (a flat end mill's is)
+        return cls(*toolsweep.nearest_approach(qx, qy, owner, seg.x, seg.y, seg.dx, seg.dy, seg.inv_l2, seg.zmin,
+                                               seg.flat_radius, seg.rc, seg.cone, seg.radius, seg.reach2,
+                                               bool(np.any(seg.shape != _FLAT)), bool(seg.cone.any())))
 
     def take(self, keep: np.ndarray) -> "_Approach":
         """The pairs ``keep`` (indices, in order) of these."""
@@ -197,8 +171,7 @@ class _Approach:
         out = self.lower[idx]
         sloped = np.flatnonzero(~seg.trivial[o])
         if len(sloped):
-            j = idx[sloped]
-            out[sloped] = _sloped_envelope(self.wx[j], self.wy[j], self.wd[j], o[sloped], seg)
+            out[sloped] = _sloped_envelope(self, owner, idx[sloped], seg)
         env[idx] = out
         return env
 
@@ -250,17 +223,16 @@ class BatchPairs:
         # bull-nose's bisection, whose step count follows the longest stretch it is given: envelope() checks it.
         exact = approach.lower.copy()
         bisect = ~seg.trivial[owner]
-        s = np.flatnonzero(bisect)
-        bisect[s] = seg.shape[owner[s]] == _BULL
-        b, s = s[bisect[s]], s[~bisect[s]]
-        if len(s):
-            exact[s] = _sloped_envelope(approach.wx[s], approach.wy[s], approach.wd[s], owner[s], seg)
+        sloped = np.flatnonzero(bisect)
+        bisect[sloped] = seg.shape[owner[sloped]] == _BULL
+        b = sloped[bisect[sloped]]
         lengths, steps = None, 0
         if len(b):
             lengths = np.zeros(len(owner))
-            lengths[b] = _bisected_lengths(approach.wx[b], approach.wy[b], approach.wd[b], owner[b], seg)
+            lengths[b] = _bisected_lengths(approach, owner, b, seg)
             steps = _bisect_steps(lengths[b])
-            exact[b] = _sloped_envelope(approach.wx[b], approach.wy[b], approach.wd[b], owner[b], seg, steps)
+        if len(sloped):
+            exact[sloped] = _sloped_envelope(approach, owner, sloped, seg, steps)
         return cls(owner, flat, col, row, approach, exact, bisect, lengths, steps)
 
     def envelope(self, seg: Segments, bound: np.ndarray) -> np.ndarray:
@@ -276,34 +248,14 @@ class BatchPairs:
         if len(bull) and _bisect_steps(self.lengths[idx[bull]]) != self.steps:
             # the longest stretch left to bisect needs fewer halvings than the longest when made did: bisected
             # here with those, as before the pairs were made ahead (in practice a batch keeps its longest)
-            j = idx[bull]
-            a = self.approach
-            out[bull] = _sloped_envelope(a.wx[j], a.wy[j], a.wd[j], self.owner[j], seg)
+            out[bull] = _sloped_envelope(self.approach, self.owner, idx[bull], seg)
         env[idx] = out
         return env
 
 
-def _reach_along(wx, wy, wd, dx, dy, l2, R):
-    """``cross, s, ta, tb``: the interval of t where r(t) <= R, the roots of l2 t^2 - 2 wd t + |w|^2 - R^2
-    clipped to the move (the discriminant ``s`` written with the cross product avoids cancellation)."""
-    cross = wx * dy - wy * dx
-    s = np.sqrt(np.maximum(l2 * R * R - cross * cross, 0.0))
-    ta = np.clip((wd - s) / l2, 0.0, 1.0)
-    tb = np.maximum(np.clip((wd + s) / l2, 0.0, 1.0), ta)
-    return cross, s, ta, tb
-
-
-def _bisected_lengths(wx, wy, wd, o, seg: Segments) -> np.ndarray:
-    """(k,) how long the stretch of each move is that :func:`_bisect_envelope` bisects for its pair [mm]."""
-    at = _per_pair(o, len(seg))
-    dx, dy, dz = at(seg.dx), at(seg.dy), at(seg.dz)
-    _, _, ta, tb = _reach_along(wx, wy, wd, dx, dy, at(seg.l2), at(seg.radius))
-    return _lengths(ta, tb, dx, dy, dz)
-
-
-def _lengths(ta, tb, dx, dy, dz) -> np.ndarray:
-    """(k,) the length of each move's stretch from ``ta`` to ``tb`` [mm] (``dx, dy, dz``: the move [mm])."""
-    return (tb - ta) * np.sqrt(dx * dx + dy * dy + dz * dz)
+def _bisected_lengths(a: _Approach, owner: np.ndarray, pick: np.ndarray, seg: Segments) -> np.ndarray:
+    """(len(pick),) how long the stretch of each picked pair's move is that its bull-nose bisection searches [mm]."""
+    return toolsweep.bisected_lengths(a.wx, a.wy, a.wd, owner, pick, seg.dx, seg.dy, seg.dz, seg.l2, seg.radius)
 
 
 def _bisect_steps(lengths: np.ndarray) -> int:
@@ -312,115 +264,16 @@ def _bisect_steps(lengths: np.ndarray) -> int:
     return int(np.clip(math.ceil(math.log2(max(span, 1e-300) / _BISECT_RESOLUTION)), 1, 60))
 
 
-def _sloped_envelope(wx, wy, wd, o, seg: Segments, steps: int | None = None) -> np.ndarray:
-    """Exact envelope for moves that climb or descend while moving sideways (``o``: move rows). ``steps``: the
-    bull-nose's bisection steps (:func:`_bisect_steps`; default, those of these pairs)."""
-    at = _per_pair(o, len(seg))
-    dx, dy, dz, z0 = at(seg.dx), at(seg.dy), at(seg.dz), at(seg.z)
-    l2, R, rc = at(seg.l2), at(seg.radius), at(seg.rc)
-    shape = at(seg.shape)
-    cross, s, ta, tb = _reach_along(wx, wy, wd, dx, dy, l2, R)
-    # Flat end mill: linear in t on the interval, so one of its ends. Also the fallback
-    # for ball points right at the reach limit (see below).
-    out = z0 + np.minimum(dz * ta, dz * tb)
-
-    ball = np.flatnonzero(shape == _BALL)
-    if len(ball):
-        m = ball if len(ball) < len(out) else slice(None)
-        Rb, z0b, dzb, l2b, wdb = R[m], z0[m], dz[m], l2[m], wd[m]
-        R2 = Rb * Rb
-        # Lowest entry of the vertical line through q into the capsule swept by the ball
-        # centre: the infinite cylinder round the centre's path if the entry's foot lies on
-        # the move, else one of the end spheres (both are inside the capsule, so the
-        # minimum of all valid candidates is the entry).
-        D2 = l2b + dzb * dzb
-        u = (dzb * wdb - np.sqrt(D2) * s[m]) / l2b
-        t = (wdb + dzb * u) / D2
-        best = np.where((t >= 0.0) & (t <= 1.0), z0b + Rb + u, np.inf)
-        w2 = wx[m] ** 2 + wy[m] ** 2
-        e2 = (wx[m] - dx[m]) ** 2 + (wy[m] - dy[m]) ** 2
-        best = np.minimum(best, np.where(w2 <= R2, z0b + Rb - np.sqrt(np.maximum(R2 - w2, 0.0)), np.inf))
-        best = np.minimum(best, np.where(e2 <= R2, z0b + dzb + Rb - np.sqrt(np.maximum(R2 - e2, 0.0)), np.inf))
-        # Rounding can leave a point right at the reach limit without a valid candidate;
-        # the tool touches it only with its rim there, at the interval end's height + R.
-        out[m] = np.where(np.isfinite(best), best, out[m] + Rb)
-
-    bull = np.flatnonzero(shape == _BULL)
-    if len(bull):
-        m = bull
-        out[m] = _bisect_envelope(wx[m], wy[m], dx[m], dy[m], z0[m], dz[m], R[m] - rc[m], rc[m], ta[m], tb[m], steps)
-    cone = np.flatnonzero(shape == _CONE)
-    if len(cone):
-        m = cone
-        out[m] = _cone_envelope(wx[m], wy[m], dx[m], dy[m], z0[m], dz[m], l2[m], wd[m], cross[m], R[m],
-                                seg.cone[o[m]], ta[m], tb[m])
-    return out
-
-
-def _cone_envelope(wx, wy, dx, dy, z0, dz, l2, wd, cross, R, k, ta, tb) -> np.ndarray:
-    """Minimum of the convex ``f(t) = z0 + dz t + k r(t)`` on ``[ta, tb]`` (a drill's cone).
-
-    With ``u = t - wd / l2`` the distance is ``r = sqrt(p^2 + l2 u^2)``, ``p`` the
-    perpendicular distance from the line; ``f' = 0`` where ``sqrt(l2) u / r = -dz / (k sqrt(l2))``.
-    Convex, so the stationary point clipped to the interval is the minimum; without one
-    (the move is steeper than the flank) an end is.
-    """
-    L = np.sqrt(l2)
-    p = np.abs(cross) / L
-    sgn = -dz / (k * L)
-    interior = np.abs(sgn) < 1.0
-    u = np.where(interior, sgn * p / (L * np.sqrt(np.maximum(1.0 - sgn * sgn, 1e-300))), np.sign(sgn) * np.inf)
-    t = np.clip(wd / l2 + u, ta, tb)
-    r = np.minimum(np.hypot(wx - t * dx, wy - t * dy), R)
-    return z0 + dz * t + k * r
-
-
-def _bisect_envelope(wx, wy, dx, dy, z0, dz, a, rc, ta, tb, steps: int | None = None) -> np.ndarray:
-    """Minimum of the convex ``f(t) = z0 + dz t + h(r(t))`` on ``[ta, tb]``.
-
-    ``f`` is C1 inside the interval (the bull-nose profile is flat at ``r = 0`` and
-    tangent where the corner starts), so its minimum is an end or a zero of the
-    non-decreasing ``f'``, found by bisection on the sign of ``f'``: ``steps`` halvings (default
-    :func:`_bisect_steps` of these intervals). Each pair's value depends on its own inputs and ``steps`` only.
-    """
-
-    def f(t: np.ndarray) -> np.ndarray:
-        ex = wx - t * dx
-        ey = wy - t * dy
-        return z0 + dz * t + _profile(np.sqrt(ex * ex + ey * ey), a, rc)
-
-    lo, hi = ta.copy(), tb.copy()
-    rc2 = rc * rc
+def _sloped_envelope(a: _Approach, owner: np.ndarray, pick: np.ndarray, seg: Segments, steps: int | None = None
+                     ) -> np.ndarray:
+    """(len(pick),) the exact envelope [mm] of pairs ``pick`` of ``a`` (``owner``: each pair's move row) whose moves
+    climb or descend while moving sideways (:func:`cadcam.toolsweep.sloped_envelope`). ``steps``: the
+    bull-nose's bisection steps (:func:`_bisect_steps`; default, those of the picked pairs)."""
     if steps is None:
-        steps = _bisect_steps(_lengths(ta, tb, dx, dy, dz))
-    # The loop's arrays are made once and written in place (a third less time than new arrays each step);
-    # every step computes the very expressions in the comments, in their order.
-    mid, ex, ey, r, d, tmp = (np.empty_like(lo) for _ in range(6))
-    right, left = np.empty(len(lo), bool), np.empty(len(lo), bool)
-    for _ in range(steps):
-        np.add(lo, hi, out=mid)
-        mid *= 0.5  # mid = 0.5 * (lo + hi)
-        np.subtract(wx, np.multiply(mid, dx, out=ex), out=ex)  # ex = wx - mid * dx
-        np.subtract(wy, np.multiply(mid, dy, out=ey), out=ey)
-        np.multiply(ex, ex, out=r)
-        r += np.multiply(ey, ey, out=tmp)
-        np.sqrt(r, out=r)  # r = |e|
-        np.subtract(r, a, out=d)
-        np.minimum(np.maximum(d, 0.0, out=d), rc, out=d)  # d = min(max(r - a, 0), rc)
-        # f' = dz + h'(r) r'(t), h' = d / sqrt(rc^2 - d^2), r' = -(e . d) / r; the tiny
-        # floors only matter where h' is 0 (d = 0) or the tool rim is reached:
-        # slope = dz - d * (ex * dx + ey * dy) / (sqrt(max(rc2 - d * d, 1e-300)) * max(r, 1e-300))
-        ex *= dx
-        ex += np.multiply(ey, dy, out=ey)
-        ex *= d  # d * (e . d): d times the dot product, as written above
-        np.subtract(rc2, np.multiply(d, d, out=tmp), out=tmp)
-        np.sqrt(np.maximum(tmp, 1e-300, out=tmp), out=tmp)
-        tmp *= np.maximum(r, 1e-300, out=r)
-        ex /= tmp
-        np.less(np.subtract(dz, ex, out=ex), 0.0, out=right)  # right = slope < 0
-        np.copyto(lo, mid, where=right)
-        np.copyto(hi, mid, where=np.logical_not(right, out=left))
-    return np.minimum(f(0.5 * (lo + hi)), np.minimum(f(ta), f(tb)))
+        bull = pick[seg.shape[owner[pick]] == _BULL]
+        steps = _bisect_steps(_bisected_lengths(a, owner, bull, seg)) if len(bull) else 1
+    return toolsweep.sloped_envelope(a.wx, a.wy, a.wd, owner, pick, seg.z, seg.dx, seg.dy, seg.dz, seg.l2,
+                                     seg.radius, seg.rc, seg.cone, seg.shape, steps)
 
 
 def swept_envelope(q: np.ndarray, start: np.ndarray, end: np.ndarray, tool: Tool) -> np.ndarray:
@@ -629,34 +482,3 @@ class SpanTops:
         b1 = (first + count - 1) // self._BLOCK
         k = np.frexp(b1 - b0 + 1)[1].astype(np.int64) - 1  # floor(log2), exactly
         return np.maximum(self.table[k, row, b0], self.table[k, row, b1 - (1 << k) + 1])
-
-
-def segmented_exclusive_min(group: np.ndarray, value: np.ndarray) -> np.ndarray:
-    """Running minimum of ``value`` within each run of equal ``group``, excluding the entry itself.
-
-    ``group`` is sorted; ``inf`` starts each run and stands for ``inf`` in ``value``. Each
-    run is lifted below every earlier one by a multiple of the values' span, so one
-    ``minimum.accumulate`` restarts at every run; the minimum is then read back from the
-    entry that holds it, so it is exact.
-    """
-    out = np.full(len(value), np.inf)
-    if len(value) == 0:
-        return out
-    finite = np.isfinite(value)
-    if not finite.any():
-        return out
-    lo = float(value[finite].min())
-    span = float(value[finite].max()) - lo + 1.0
-    v = np.where(finite, value - lo, span)  # inf -> above every finite value
-    start = np.r_[True, group[1:] != group[:-1]]
-    run = np.cumsum(start) - 1
-    lifted = v + (run[-1] - run) * (2.0 * span)
-    running = np.minimum.accumulate(lifted)
-    # The entry holding each running minimum (every run's first entry holds one), so the
-    # minimum comes back as the exact value, whatever the lift rounded: results do not
-    # depend on how moves are batched.
-    idx = np.arange(len(value))
-    holder = np.maximum.accumulate(np.where(lifted <= running, idx, 0))
-    keep = np.flatnonzero(~start)
-    out[keep] = value[holder[keep - 1]]
-    return out

@@ -31,7 +31,8 @@ import numpy as np
 from scipy import ndimage
 
 from cadcam.engagement import ENGAGED_WIDTH, FULL_WIDTH_ANGLE, MoveRecord, engaged_depth, record_max, side_chip
-from cadcam.envelope import BatchPairs, Segments, grid_pairs, pair_envelope, reach_interval, segmented_exclusive_min
+from cadcam.envelope import BatchPairs, Segments, grid_pairs, pair_envelope, reach_interval
+from cadcam.toolsweep import segmented_exclusive_min
 from cadcam.envelope import SpanTops as _SpanTops
 from cadcam.gridregion import highest_near
 from cadcam.heightmap import Grid, grid_over, upper_envelope
