@@ -145,7 +145,7 @@ def engaged_depth(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.n
     # The arc of the cutter meeting material, and how deep that stays at full width (moves across only).
     sel = np.flatnonzero((met_side > _ENGAGED_FILM) & has)
     if len(sel):
-        _side_chip(o[sel], lat[sel], R[sel], cell, s, stats)
+        _side_chip(seg, o[sel], lat[sel], met_side[sel], cell, s, stats)
         _engaged_arc(o[sel], lat[sel], R[sel], met_side[sel], cells[sel], cell, s, full_width, stats)
     # Plunging: the k-th thickest, k grid points being half the cutter's footprint.
     sel = np.flatnonzero(plunge > 0.0)
@@ -171,9 +171,10 @@ def side_chip(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.ndarr
     if not len(maybe):
         return
     o, qx, qy, removed, lat = o[maybe], qx[maybe], qy[maybe], removed[maybe], lat[maybe]
-    sel = np.flatnonzero(removed - _plunged(seg, o, qx, qy, removed) > _ENGAGED_FILM)
+    side = removed - _plunged(seg, o, qx, qy, removed)
+    sel = np.flatnonzero(side > _ENGAGED_FILM)
     if len(sel):
-        _side_chip(o[sel], lat[sel], seg.radius[o[sel]], cell, s, stats)
+        _side_chip(seg, o[sel], lat[sel], side[sel], cell, s, stats)
 
 
 def _plunged(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray, removed: np.ndarray) -> np.ndarray:
@@ -200,16 +201,39 @@ def _across(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray) -> tup
     return np.where(has, wx * uy - wy * ux, wx), has
 
 
-def _side_chip(o: np.ndarray, w: np.ndarray, r: np.ndarray, cell: float, s: int, stats: MoveRecord) -> None:
-    """The chip of moves ``s + o`` (``stats.chip``) from the points they met sideways, at lateral offset ``w``
-    [mm] from the move's line (cutter radius ``r``): a tooth meeting the material at ``w`` cuts a chip
-    ``fz * sqrt(1 - (w / r)^2)`` thick (the feed per tooth across its edge), thickest at the point nearest the
-    move's line, taken half a cell nearer it as :func:`_engaged_arc` takes it: for a side cut of width ``ae``,
-    ``fz`` times the sine of its engagement angle ``acos(1 - ae / r)`` (``2 sqrt(ae (D - ae)) / D``, the rule
-    of :func:`cadcam.adaptive.chip_thinned_feed`); 1 where the material reaches the line (a slot, a side cut of
-    half the diameter or more)."""
-    near = np.clip((np.abs(w) - 0.5 * cell) / r, 0.0, 1.0)
-    np.maximum.at(stats.chip, o + s, np.sqrt(1.0 - near * near))
+def _side_chip(seg: Segments, o: np.ndarray, w: np.ndarray, met: np.ndarray, cell: float, s: int,
+               stats: MoveRecord) -> None:
+    """The chip of moves ``s + o`` (``stats.chip``, as a share of the feed per tooth) from the points they met
+    sideways, at lateral offset ``w`` [mm] from the move's line, each a column ``met`` [mm] tall above the cutter.
+
+    A tooth meeting the material at ``w`` on the cutter's circle of radius ``rho`` cuts a chip
+    ``fz * sqrt(1 - (w / rho)^2)`` thick across its edge, thickest at the point nearest the move's line, taken
+    half a cell nearer it as :func:`_engaged_arc` takes it: on the flutes (``rho`` the tool's radius) and for a side
+    cut of width ``ae``, ``fz`` times the sine of its engagement angle ``acos(1 - ae / r)`` (``2 sqrt(ae (D -
+    ae)) / D``, the rule of :func:`cadcam.adaptive.chip_thinned_feed`); 1 where the material reaches the line (a
+    slot, a side cut of half the diameter or more).
+
+    A column that ends below the top of a bull nose's or ball's corner radius is met by the corner only: at the
+    column's top, the corner's circle is smaller (``rho`` < radius) and its edge leans (the chip is thinned by the
+    sine of the lead angle, 0 on the flat bottom, 1 on the flutes), so the chip there is ``fz * sin(lead) *
+    sqrt(1 - (w / rho)^2)``. Read with the tool's radius instead, the fillet a bull nose's corner leaves at the
+    foot of the wall before, met again by the next pass's flat bottom, reads as a chip 1.15 times fz where the
+    wall itself makes fz (the dome's adaptive rings). Only level moves are read so (a column's height above the
+    tip is then its height on the cutter); a sloped move is read on the tool's radius."""
+    r = seg.radius[o]
+    # A drill's point is no corner, and a sloped move's column is met where the tool rises or sinks past it, not
+    # at its height above a tip at one height: both are read on the tool's radius, the thicker chip.
+    rc = np.where((seg.cone[o] > 0.0) | (seg.dz[o] != 0.0), 0.0, seg.rc[o])
+    flat = r - rc
+    a = np.abs(w)
+    d = np.clip(a - flat, 0.0, rc)
+    top = rc - np.sqrt(np.maximum(rc * rc - d * d, 0.0)) + met  # the column's top above the tip [mm]
+    below = np.maximum(rc - top, 0.0)  # how far under the corner's centre it ends
+    reach = np.sqrt(np.maximum(rc * rc - below * below, 0.0))  # rc on the flutes
+    rho = flat + reach
+    lead = np.where(rc > 0.0, reach / np.where(rc > 0.0, rc, 1.0), 1.0)
+    near = np.clip((a - 0.5 * cell) / rho, 0.0, 1.0)
+    np.maximum.at(stats.chip, o + s, lead * np.sqrt(1.0 - near * near))
 
 
 #: The leading half of the cutter is read in this many arcs of equal angle (5 deg each).

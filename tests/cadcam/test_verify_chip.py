@@ -151,3 +151,54 @@ def test_a_concave_arcs_chip_is_read_with_the_engagement_its_curved_wall_gives(r
         assert faults
     elif chip < FZ:
         assert not faults
+
+
+def level_passes(tool: Tool, ys: list[float], feeds: list[float], z: float) -> ProgramMoves:
+    """Level passes along X at tip height ``z`` [mm], one per ``ys`` [mm] at its feed, each from air to air."""
+    points, motion = [[np.nan] * 3], [0]
+    for y, f in zip(ys, feeds):
+        points += [[-8.0, y, 5.0], [-8.0, y, z], [48.0, y, z], [48.0, y, 5.0]]
+        motion += [Motion.RAPID, Motion.CUT, Motion.CUT, Motion.RAPID]
+    motion = np.array(motion, np.int8)
+    feed = np.array([np.nan, *[x for f in feeds for x in (np.nan, f, f, np.nan)]])
+    return ProgramMoves(np.array(points), motion, np.full(len(motion), tool.number, np.int32),
+                        np.where(motion == Motion.RAPID, np.nan, feed), np.arange(len(motion), dtype=np.int32))
+
+
+@settings(max_examples=12, deadline=None)
+@given(st.floats(0.5, 3.0), st.floats(0.5, 3.0))
+def test_a_bull_noses_next_pass_is_judged_by_the_wall_not_by_the_fillet_its_corner_left(ae, rc):
+    """A bull nose (D 8) cuts a wall 3 mm deep; the next pass, ``ae`` nearer the stock at the same depth, meets the
+    fillet the corner left at the wall's foot with its flat bottom, nearer its axis than the wall. The corner meets
+    that fillet low on its radius, where its circle is small and its edge leans: the chip there is thinner than the
+    wall's, and the pass is judged by the wall's side cut, to a grid cell (read on the tool's radius, the fillet
+    made a side cut of ae = 1.2 read as 1.15 fz: the dome's adaptive rings)."""
+    tool = Tool(5, "8 mm bull-nose", "bull", 8.0, rc, 20.0, 4, 40.0)
+    first = 20.0 + tool.radius - 4.0  # takes 4 mm off the back face, at a crawl (its chip thin)
+    second = first - ae
+    nominal = RPM * tool.flutes * FZ
+    moves = level_passes(tool, [first, second], [nominal / 50.0, nominal], -6.0)
+    report = simulate(moves, {tool.number: tool}, SETUP, PART, VerifyOptions(cell=CELL),
+                      chips={tool.number: ChipLoad(FZ, RPM)}).report
+    (e,) = report.engagement
+
+    def side(a: float) -> float:
+        return FZ * 2.0 * math.sqrt(a * (tool.diameter - a)) / tool.diameter
+
+    assert side(max(ae - CELL, 0.01)) - 1e-9 <= e.max_chip <= side(ae + CELL) + 1e-9
+    assert not [f for f in report.faults if f.kind == "chip"]
+
+
+@settings(max_examples=12, deadline=None)
+@given(st.floats(0.05, 2.9))
+def test_a_balls_shallow_level_cut_is_thinned_by_the_height_it_meets_the_stock_at(ap):
+    """A 6 mm ball skims ``ap`` [mm] off the stock's top in one level pass: the material on its path meets the ball
+    only up to ``ap`` above its tip, where its edge turns towards the flat: the chip is fz times the sine of its
+    lead angle there, ``sqrt(ap (2R - ap)) / R`` (makers' ball-nose chip thinning)."""
+    ball = Tool(3, "6 mm ball", "ball", 6.0, 3.0, 12.0, 2, 30.0)
+    nominal = RPM * ball.flutes * FZ
+    report = simulate(level_passes(ball, [10.0], [nominal], -ap), {ball.number: ball}, SETUP, PART,
+                      VerifyOptions(cell=CELL), chips={ball.number: ChipLoad(FZ, RPM)}).report
+    (e,) = report.engagement
+    R = ball.radius
+    assert math.isclose(e.max_chip, FZ * math.sqrt(ap * (2 * R - ap)) / R, rel_tol=1e-6, abs_tol=1e-9)
