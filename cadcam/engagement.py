@@ -145,7 +145,7 @@ def engaged_depth(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.n
     # The arc of the cutter meeting material, and how deep that stays at full width (moves across only).
     sel = np.flatnonzero((met_side > _ENGAGED_FILM) & has)
     if len(sel):
-        _side_chip(seg, o[sel], lat[sel], met_side[sel], cell, s, stats)
+        _side_chip(seg, o[sel], lat[sel], before[sel] - seg.z[o[sel]], cell, s, stats)
         _engaged_arc(o[sel], lat[sel], R[sel], met_side[sel], cells[sel], cell, s, full_width, stats)
     # Plunging: the k-th thickest, k grid points being half the cutter's footprint.
     sel = np.flatnonzero(plunge > 0.0)
@@ -171,10 +171,9 @@ def side_chip(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.ndarr
     if not len(maybe):
         return
     o, qx, qy, removed, lat = o[maybe], qx[maybe], qy[maybe], removed[maybe], lat[maybe]
-    side = removed - _plunged(seg, o, qx, qy, removed)
-    sel = np.flatnonzero(side > _ENGAGED_FILM)
+    sel = np.flatnonzero(removed - _plunged(seg, o, qx, qy, removed) > _ENGAGED_FILM)
     if len(sel):
-        _side_chip(seg, o[sel], lat[sel], side[sel], cell, s, stats)
+        _side_chip(seg, o[sel], lat[sel], before[maybe][sel] - seg.z[o[sel]], cell, s, stats)
 
 
 def _plunged(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray, removed: np.ndarray) -> np.ndarray:
@@ -201,10 +200,11 @@ def _across(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray) -> tup
     return np.where(has, wx * uy - wy * ux, wx), has
 
 
-def _side_chip(seg: Segments, o: np.ndarray, w: np.ndarray, met: np.ndarray, cell: float, s: int,
+def _side_chip(seg: Segments, o: np.ndarray, w: np.ndarray, top: np.ndarray, cell: float, s: int,
                stats: MoveRecord) -> None:
     """The chip of moves ``s + o`` (``stats.chip``, as a share of the feed per tooth) from the points they met
-    sideways, at lateral offset ``w`` [mm] from the move's line, each a column ``met`` [mm] tall above the cutter.
+    sideways, at lateral offset ``w`` [mm] from the move's line, the stock's top there ``top`` [mm] above the move's
+    start (its tip's height on a level move).
 
     A tooth meeting the material at ``w`` on the cutter's circle of radius ``rho`` cuts a chip
     ``fz * sqrt(1 - (w / rho)^2)`` thick across its edge, thickest at the point nearest the move's line, taken
@@ -226,8 +226,8 @@ def _side_chip(seg: Segments, o: np.ndarray, w: np.ndarray, met: np.ndarray, cel
     rc = np.where((seg.cone[o] > 0.0) | (seg.dz[o] != 0.0), 0.0, seg.rc[o])
     flat = r - rc
     a = np.abs(w)
-    d = np.clip(a - flat, 0.0, rc)
-    top = rc - np.sqrt(np.maximum(rc * rc - d * d, 0.0)) + met  # the column's top above the tip [mm]
+    # The stock's top above the tip, not the column cut over the cutter's surface at ``w``: a point ahead of a
+    # move's end (a pass in short moves) loses its top to the cutter's front, which meets it at that height.
     below = np.maximum(rc - top, 0.0)  # how far under the corner's centre it ends
     reach = np.sqrt(np.maximum(rc * rc - below * below, 0.0))  # rc on the flutes
     rho = flat + reach
