@@ -202,3 +202,31 @@ def test_a_balls_shallow_level_cut_is_thinned_by_the_height_it_meets_the_stock_a
     (e,) = report.engagement
     R = ball.radius
     assert math.isclose(e.max_chip, FZ * math.sqrt(ap * (2 * R - ap)) / R, rel_tol=1e-6, abs_tol=1e-9)
+
+
+@settings(max_examples=12, deadline=None)
+@given(st.floats(5.0, 40.0), st.floats(0.1, 1.5))
+def test_a_ball_on_a_slope_is_thinned_by_its_depth_of_cut_across_the_move(slope, a):
+    """A 6 mm ball climbs a plane of ``slope`` [deg] taking ``a`` [mm] off it, measured square to the plane: its
+    sphere's front meets the stock first at ``R - a`` from its centre line, so the chip is ``fz sqrt(a (2R - a)) /
+    R`` whatever the slope (the level rule in 3-D), to half a grid cell of ``a``."""
+    ball = Tool(3, "6 mm ball", "ball", 6.0, 3.0, 12.0, 2, 30.0)
+    R, t = ball.radius, math.tan(math.radians(slope))
+    setup = Setup(stock_min=[0, -10, -30], stock_max=[40, 10, 40 * t], transform_mesh_to_work=np.eye(4))
+    part = trimesh.creation.box(bounds=[[0, -10, -30], [40, 10, -28]]).triangles
+    grid = grid_over(setup.stock_min, setup.stock_max, CELL)
+    start = FlippedStock(grid=grid, top=np.broadcast_to(grid.xs[None, :] * t, (grid.ny, grid.nx)).copy(),
+                         bottom=np.full((grid.ny, grid.nx), -30.0))
+    lift = (R - a) / math.cos(math.radians(slope)) - R  # the tip under the centre, R - a off the plane square to it
+    nominal = RPM * ball.flutes * FZ
+    text = "\n".join(["G21 G90 G17", f"T{ball.number} M6", f"S{RPM:g} M3", "G0 X-8 Y0 Z60",
+                      f"G1 Z{-8 * t + lift:.4f} F{nominal:.1f}", f"G1 X48 Z{48 * t + lift:.4f}", "G0 Z60", "M30"])
+    report = simulate_flipped(parse_gcode(text), {ball.number: ball}, setup, part, start, VerifyOptions(cell=CELL),
+                              chips={ball.number: ChipLoad(FZ, RPM)}).report
+    (e,) = report.engagement
+
+    def thinned(depth: float) -> float:
+        return FZ * math.sqrt(depth * (2 * R - depth)) / R
+
+    assert e.max_chip_line == 6
+    assert thinned(a) - 1e-9 <= e.max_chip <= thinned(a + 0.5 * CELL) + 1e-9
