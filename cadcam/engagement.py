@@ -145,7 +145,7 @@ def engaged_depth(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.n
     # The arc of the cutter meeting material, and how deep that stays at full width (moves across only).
     sel = np.flatnonzero((met_side > _ENGAGED_FILM) & has)
     if len(sel):
-        _side_chip(o[sel], lat[sel], R[sel], cell, s, stats)
+        _side_chip(seg, o[sel], qx[sel], qy[sel], lat[sel], before[sel], env[sel], cell, s, stats)
         _engaged_arc(o[sel], lat[sel], R[sel], met_side[sel], cells[sel], cell, s, full_width, stats)
     # Plunging: the k-th thickest, k grid points being half the cutter's footprint.
     sel = np.flatnonzero(plunge > 0.0)
@@ -173,7 +173,7 @@ def side_chip(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.ndarr
     o, qx, qy, removed, lat = o[maybe], qx[maybe], qy[maybe], removed[maybe], lat[maybe]
     sel = np.flatnonzero(removed - _plunged(seg, o, qx, qy, removed) > _ENGAGED_FILM)
     if len(sel):
-        _side_chip(o[sel], lat[sel], seg.radius[o[sel]], cell, s, stats)
+        _side_chip(seg, o[sel], qx[sel], qy[sel], lat[sel], before[maybe][sel], env[maybe][sel], cell, s, stats)
 
 
 def _plunged(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray, removed: np.ndarray) -> np.ndarray:
@@ -200,16 +200,70 @@ def _across(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray) -> tup
     return np.where(has, wx * uy - wy * ux, wx), has
 
 
-def _side_chip(o: np.ndarray, w: np.ndarray, r: np.ndarray, cell: float, s: int, stats: MoveRecord) -> None:
-    """The chip of moves ``s + o`` (``stats.chip``) from the points they met sideways, at lateral offset ``w``
-    [mm] from the move's line (cutter radius ``r``): a tooth meeting the material at ``w`` cuts a chip
-    ``fz * sqrt(1 - (w / r)^2)`` thick (the feed per tooth across its edge), thickest at the point nearest the
-    move's line, taken half a cell nearer it as :func:`_engaged_arc` takes it: for a side cut of width ``ae``,
-    ``fz`` times the sine of its engagement angle ``acos(1 - ae / r)`` (``2 sqrt(ae (D - ae)) / D``, the rule
-    of :func:`cadcam.adaptive.chip_thinned_feed`); 1 where the material reaches the line (a slot, a side cut of
-    half the diameter or more)."""
-    near = np.clip((np.abs(w) - 0.5 * cell) / r, 0.0, 1.0)
-    np.maximum.at(stats.chip, o + s, np.sqrt(1.0 - near * near))
+def _side_chip(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray, w: np.ndarray, before: np.ndarray,
+               env: np.ndarray, cell: float, s: int, stats: MoveRecord) -> None:
+    """The chip of moves ``s + o`` (``stats.chip``, as a share of the feed per tooth) from the grid points
+    ``(qx, qy)`` they met sideways, at lateral offset ``w`` [mm] from the move's line, the stock there standing
+    from ``env`` (the cutter's lowest point over it) up to ``before`` [mm].
+
+    A tooth meeting the material at ``w`` on the cutter's circle of radius ``rho`` cuts a chip
+    ``fz * sqrt(1 - (w / rho)^2)`` thick across its edge, thickest at the point nearest the move's line, taken
+    half a cell nearer it as :func:`_engaged_arc` takes it: on the flutes (``rho`` the tool's radius) and for a side
+    cut of width ``ae``, ``fz`` times the sine of its engagement angle ``acos(1 - ae / r)`` (``2 sqrt(ae (D -
+    ae)) / D``, the rule of :func:`cadcam.adaptive.chip_thinned_feed`); 1 where the material reaches the line (a
+    slot, a side cut of half the diameter or more).
+
+    Stock whose top stands below the top of a bull nose's or ball's corner radius on a level move is met by the
+    corner only: at that height the corner's circle is smaller (``rho`` < radius) and its edge leans (the chip
+    is thinned by the sine of the lead angle, 0 on the flat bottom, 1 on the flutes), so the chip there is ``fz *
+    sin(lead) * sqrt(1 - (w / rho)^2)``. Read with the tool's radius instead, the fillet a bull nose's corner
+    leaves at the foot of the wall before, met again by the next pass's flat bottom, reads as a chip 1.15 times fz
+    where the wall itself makes fz (the dome's adaptive rings). The height is the stock's top above the tip, not
+    the column this move cuts: a point ahead of a move's end (a pass in short moves) loses its top to the
+    cutter's front, which meets it at that height.
+
+    A ball on a sloped move meets each point where its sphere's front first reaches it: a tooth there cuts ``fz``
+    times the cosine between the move's direction and the sphere's normal, ``sqrt(1 - (d / R)^2)`` for ``d`` the
+    distance from the ball's centre line to the nearest stock of the column (the level rule in 3-D: on a level
+    move ``d^2 = w^2 + (R - H)^2``). A flat or bull nose on a sloped move, and a drill's point, are read on the
+    tool's radius (the thicker chip)."""
+    r = seg.radius[o]
+    level = seg.dz[o] == 0.0
+    ball = seg.rc[o] == r  # the corner is the whole radius (the library holds a ball to exactly that)
+    rc = np.where((seg.cone[o] > 0.0) | ~level, 0.0, seg.rc[o])
+    flat = r - rc
+    a = np.abs(w)
+    below = np.maximum(rc - (before - seg.z[o]), 0.0)  # how far under the corner's centre the stock's top stands
+    reach = np.sqrt(np.maximum(rc * rc - below * below, 0.0))  # rc on the flutes
+    rho = flat + reach
+    lead = np.where(rc > 0.0, reach / np.where(rc > 0.0, rc, 1.0), 1.0)
+    near = np.clip((a - 0.5 * cell) / rho, 0.0, 1.0)
+    chip = lead * np.sqrt(1.0 - near * near)
+    sloped = np.flatnonzero(ball & ~level)
+    if len(sloped):
+        k = o[sloped]
+        chip[sloped] = _sloped_ball_chip(seg, k, qx[sloped], qy[sloped], before[sloped], env[sloped], cell)
+    np.maximum.at(stats.chip, o + s, chip)
+
+
+def _sloped_ball_chip(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray, top: np.ndarray,
+                      low: np.ndarray, cell: float) -> np.ndarray:
+    """(k,) the chip share of ball moves ``o`` on a slope at the grid points ``(qx, qy)`` whose stock stands from
+    ``low`` to ``top`` [mm]: ``sqrt(1 - (d / R)^2)``, ``d`` the distance from the ball's centre line to the
+    column (half a cell nearer, as the level rule takes it) (:func:`_side_chip`)."""
+    r = seg.radius[o]
+    length = np.sqrt(seg.l2[o] + seg.dz[o] ** 2)
+    ux, uy, uz = seg.dx[o] / length, seg.dy[o] / length, seg.dz[o] / length
+    # the column's point at height h is a + h e_z from the centre's start; its squared distance from the line is
+    # quadratic in h, least at h0, taken within the column
+    ax, ay, az = qx - seg.x[o], qy - seg.y[o], -(seg.z[o] + r)
+    au = ax * ux + ay * uy + az * uz
+    h = np.clip(-(az - au * uz) / np.maximum(1.0 - uz * uz, 1e-12), low, top)
+    vz = az + h
+    vu = au + h * uz
+    d = np.sqrt(np.maximum(ax * ax + ay * ay + vz * vz - vu * vu, 0.0))
+    near = np.clip((d - 0.5 * cell) / r, 0.0, 1.0)
+    return np.sqrt(1.0 - near * near)
 
 
 #: The leading half of the cutter is read in this many arcs of equal angle (5 deg each).

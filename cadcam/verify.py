@@ -97,9 +97,7 @@ class VerifyOptions:
         A move's chip may be this share thicker than the tool's feed per tooth before it is a ``chip``
         fault (:class:`cadcam.engagement.ChipLoad`). The chip is read from where the stock met the cutter, to half a grid
         cell (:func:`cadcam.engagement.engaged_depth`): a wall's 0.3 mm skin on a 0.2 mm grid reads
-        0.2-0.4 mm wide, its chip 0.85-1.15 times the true one on a 10 mm end mill. 0.2: that, and the
-        dome_mould's adaptive lead-ins (T5, 8 mm bull-nose, 15 mm deep), which verify reads at 1.16 fz while
-        the adaptive planner's own replay holds them within its band (issue 32: to be looked into).
+        0.2-0.4 mm wide, its chip 0.85-1.15 times the true one on a 10 mm end mill: 0.15.
     """
 
     cell: float = 0.2
@@ -113,7 +111,7 @@ class VerifyOptions:
     relief: bool = False
     full_width_angle: float = FULL_WIDTH_ANGLE
     engagement_resolution: float | None = 0.1
-    chip_tolerance: float = 0.2
+    chip_tolerance: float = 0.15
 
 
 @dataclass(frozen=True)

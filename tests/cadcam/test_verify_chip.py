@@ -151,3 +151,82 @@ def test_a_concave_arcs_chip_is_read_with_the_engagement_its_curved_wall_gives(r
         assert faults
     elif chip < FZ:
         assert not faults
+
+
+def level_passes(tool: Tool, ys: list[float], feeds: list[float], z: float) -> ProgramMoves:
+    """Level passes along X at tip height ``z`` [mm], one per ``ys`` [mm] at its feed, each from air to air."""
+    points, motion = [[np.nan] * 3], [0]
+    for y, f in zip(ys, feeds):
+        points += [[-8.0, y, 5.0], [-8.0, y, z], [48.0, y, z], [48.0, y, 5.0]]
+        motion += [Motion.RAPID, Motion.CUT, Motion.CUT, Motion.RAPID]
+    motion = np.array(motion, np.int8)
+    feed = np.array([np.nan, *[x for f in feeds for x in (np.nan, f, f, np.nan)]])
+    return ProgramMoves(np.array(points), motion, np.full(len(motion), tool.number, np.int32),
+                        np.where(motion == Motion.RAPID, np.nan, feed), np.arange(len(motion), dtype=np.int32))
+
+
+@settings(max_examples=12, deadline=None)
+@given(st.floats(0.5, 3.0), st.floats(0.5, 3.0))
+def test_a_bull_noses_next_pass_is_judged_by_the_wall_not_by_the_fillet_its_corner_left(ae, rc):
+    """A bull nose (D 8) cuts a wall 3 mm deep; the next pass, ``ae`` nearer the stock at the same depth, meets the
+    fillet the corner left at the wall's foot with its flat bottom, nearer its axis than the wall. The corner meets
+    that fillet low on its radius, where its circle is small and its edge leans: the chip there is thinner than the
+    wall's, and the pass is judged by the wall's side cut, to a grid cell (read on the tool's radius, the fillet
+    made a side cut of ae = 1.2 read as 1.15 fz: the dome's adaptive rings)."""
+    tool = Tool(5, "8 mm bull-nose", "bull", 8.0, rc, 20.0, 4, 40.0)
+    first = 20.0 + tool.radius - 4.0  # takes 4 mm off the back face, at a crawl (its chip thin)
+    second = first - ae
+    nominal = RPM * tool.flutes * FZ
+    moves = level_passes(tool, [first, second], [nominal / 50.0, nominal], -6.0)
+    report = simulate(moves, {tool.number: tool}, SETUP, PART, VerifyOptions(cell=CELL),
+                      chips={tool.number: ChipLoad(FZ, RPM)}).report
+    (e,) = report.engagement
+
+    def side(a: float) -> float:
+        return FZ * 2.0 * math.sqrt(a * (tool.diameter - a)) / tool.diameter
+
+    assert side(max(ae - CELL, 0.01)) - 1e-9 <= e.max_chip <= side(ae + CELL) + 1e-9
+    assert not [f for f in report.faults if f.kind == "chip"]
+
+
+@settings(max_examples=12, deadline=None)
+@given(st.floats(0.05, 2.9))
+def test_a_balls_shallow_level_cut_is_thinned_by_the_height_it_meets_the_stock_at(ap):
+    """A 6 mm ball skims ``ap`` [mm] off the stock's top in one level pass: the material on its path meets the ball
+    only up to ``ap`` above its tip, where its edge turns towards the flat: the chip is fz times the sine of its
+    lead angle there, ``sqrt(ap (2R - ap)) / R`` (makers' ball-nose chip thinning)."""
+    ball = Tool(3, "6 mm ball", "ball", 6.0, 3.0, 12.0, 2, 30.0)
+    nominal = RPM * ball.flutes * FZ
+    report = simulate(level_passes(ball, [10.0], [nominal], -ap), {ball.number: ball}, SETUP, PART,
+                      VerifyOptions(cell=CELL), chips={ball.number: ChipLoad(FZ, RPM)}).report
+    (e,) = report.engagement
+    R = ball.radius
+    assert math.isclose(e.max_chip, FZ * math.sqrt(ap * (2 * R - ap)) / R, rel_tol=1e-6, abs_tol=1e-9)
+
+
+@settings(max_examples=12, deadline=None)
+@given(st.floats(5.0, 40.0), st.floats(0.1, 1.5))
+def test_a_ball_on_a_slope_is_thinned_by_its_depth_of_cut_across_the_move(slope, a):
+    """A 6 mm ball climbs a plane of ``slope`` [deg] taking ``a`` [mm] off it, measured square to the plane: its
+    sphere's front meets the stock first at ``R - a`` from its centre line, so the chip is ``fz sqrt(a (2R - a)) /
+    R`` whatever the slope (the level rule in 3-D), to half a grid cell of ``a``."""
+    ball = Tool(3, "6 mm ball", "ball", 6.0, 3.0, 12.0, 2, 30.0)
+    R, t = ball.radius, math.tan(math.radians(slope))
+    setup = Setup(stock_min=[0, -10, -30], stock_max=[40, 10, 40 * t], transform_mesh_to_work=np.eye(4))
+    part = trimesh.creation.box(bounds=[[0, -10, -30], [40, 10, -28]]).triangles
+    grid = grid_over(setup.stock_min, setup.stock_max, CELL)
+    start = FlippedStock(grid=grid, top=np.broadcast_to(grid.xs[None, :] * t, (grid.ny, grid.nx)).copy(),
+                         bottom=np.full((grid.ny, grid.nx), -30.0))
+    lift = (R - a) / math.cos(math.radians(slope)) - R  # the tip under the centre, R - a off the plane square to it
+    nominal = RPM * ball.flutes * FZ
+    text = "\n".join(["G21 G90 G17", f"T{ball.number} M6", f"S{RPM:g} M3", "G0 X-8 Y0 Z60",
+                      f"G1 Z{-8 * t + lift:.4f} F{nominal:.1f}", f"G1 X48 Z{48 * t + lift:.4f}", "G0 Z60", "M30"])
+    report = simulate_flipped(parse_gcode(text), {ball.number: ball}, setup, part, start, VerifyOptions(cell=CELL),
+                              chips={ball.number: ChipLoad(FZ, RPM)}).report
+    (e,) = report.engagement
+
+    def thinned(depth: float) -> float:
+        return FZ * math.sqrt(depth * (2 * R - depth)) / R
+
+    assert e.max_chip_line == 6
+    assert thinned(a) - 1e-9 <= e.max_chip <= thinned(a + 0.5 * CELL) + 1e-9
