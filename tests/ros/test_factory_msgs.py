@@ -249,20 +249,21 @@ def test_machine_state_follows_the_program(cell_log):
     assert all(math.isfinite(m.spindle_load_percent) and 0 <= m.spindle_load_percent < 100 for m in machine)
     assert all(m.spindle_load_percent == 0 for m in machine if m.spindle_speed_rpm == 0)
     assert sum(m.spindle_load_percent > 0.1 for m in cutting) >= 5
-    # roughing loads the spindle more than finishing the same part: the mean load of each operation's
-    # samples, a sample belonging to the operation whose "(op N: ...)" comment last precedes its program
-    # line (a tool may rough and finish: the 6 mm end mill rest-roughs, then finishes the walls)
+    # roughing loads the spindle more than finishing the same part: the mean load of the samples of each kind of
+    # operation, a sample belonging to the operation whose "(op N: ...)" comment last precedes its program line (a
+    # tool may rough and finish: the 6 mm end mill rest-roughs, then finishes the walls). Pooled by kind, not
+    # the first roughing alone: one operation holds a handful of samples, and a z-level roughing whose links run
+    # along the paths it has cut (cadcam.levelpath) may have them all land on a link, in air.
     program = (cell_log.parent / "catalog" / sheet["program"]).read_text().splitlines()
     starts = [k for k, line in enumerate(program, start=1) if line.startswith("(op ")]
     assert len(starts) == len(sheet["operations"])
     loads: dict[int, list[float]] = {}
     for m in cutting:
         loads.setdefault(int(np.searchsorted(starts, m.program_line, side="right")) - 1, []).append(m.spindle_load_percent)
-    mean = {k: float(np.mean(v)) for k, v in loads.items()}
     kind = [op["kind"] for op in sheet["operations"]]
-    bulk = kind.index("roughing")  # the first roughing takes the stock off the whole part
-    finish = max(v for k, v in mean.items() if kind[k] == "finishing")
-    assert mean[bulk] > finish > 0, (mean, kind)
+    pooled = {c: [x for k, v in loads.items() if kind[k] == c for x in v] for c in ("roughing", "finishing")}
+    rough, finish = (float(np.mean(pooled[c])) for c in ("roughing", "finishing"))
+    assert rough > finish > 0, ({k: (kind[k], len(v), float(np.mean(v))) for k, v in loads.items()})
     # the tool position is the one on /tf (work -> tool) at the same stamp
     tips = {t: x.transform.translation for topic, _, t, msg in msgs if topic == "/tf" for x in msg.transforms
             if x.child_frame_id == "tool"}
