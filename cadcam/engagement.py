@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from cadcam.envelope import Segments, reach_interval
+from cadcam.toolsweep import BALL, CONE
 from cadcam.model import ProgramMoves, Tool
 
 
@@ -229,8 +230,8 @@ def _side_chip(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray, w: 
     tool's radius (the thicker chip)."""
     r = seg.radius[o]
     level = seg.dz[o] == 0.0
-    ball = seg.rc[o] == r  # the corner is the whole radius (the library holds a ball to exactly that)
-    rc = np.where((seg.cone[o] > 0.0) | ~level, 0.0, seg.rc[o])
+    shape = seg.shape[o]
+    rc = np.where((shape == CONE) | ~level, 0.0, seg.rc[o])
     flat = r - rc
     a = np.abs(w)
     below = np.maximum(rc - (before - seg.z[o]), 0.0)  # how far under the corner's centre the stock's top stands
@@ -239,7 +240,7 @@ def _side_chip(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray, w: 
     lead = np.where(rc > 0.0, reach / np.where(rc > 0.0, rc, 1.0), 1.0)
     near = np.clip((a - 0.5 * cell) / rho, 0.0, 1.0)
     chip = lead * np.sqrt(1.0 - near * near)
-    sloped = np.flatnonzero(ball & ~level)
+    sloped = np.flatnonzero((shape == BALL) & ~level)
     if len(sloped):
         k = o[sloped]
         chip[sloped] = _sloped_ball_chip(seg, k, qx[sloped], qy[sloped], before[sloped], env[sloped], cell)
