@@ -15,8 +15,7 @@ from typing import Any
 import numpy as np
 
 from cadcam.envelope import Segments, reach_interval
-from cadcam.toolsweep import BALL, CONE
-from cadcam.model import ProgramMoves, Tool
+from cadcam.model import BALL, CONE, ProgramMoves, Tool
 
 
 class MoveRecord:

@@ -32,9 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cadcam import toolsweep
 from cadcam.heightmap import Grid
-from cadcam.model import Tool
+from cadcam.model import BALL, BULL, CONE, FLAT, Tool
 
 #: Bull-nose tools: bisect until the minimiser is known to this along the move [mm]. The
 #: height error is second order in it (``f' = 0`` there), far below a nanometre.
@@ -46,9 +45,6 @@ def _profile(r: np.ndarray, flat_radius: np.ndarray, rc: np.ndarray) -> np.ndarr
     d = np.minimum(np.maximum(r - flat_radius, 0.0), rc)
     return rc - np.sqrt(np.maximum(rc * rc - d * d, 0.0))
 
-
-#: Cutter shapes in :attr:`Segments.shape`.
-_FLAT, _BALL, _BULL, _CONE = toolsweep.FLAT, toolsweep.BALL, toolsweep.BULL, toolsweep.CONE
 
 
 @dataclass
@@ -83,8 +79,8 @@ class Segments:
         self.reach2 = self.radius * self.radius * (1 + 1e-12)
         self.flat_radius = self.radius - self.rc
         ball = np.abs(self.rc - self.radius) <= 1e-12 * np.maximum(self.radius, 1.0)
-        self.shape = np.where(self.cone > 0.0, _CONE,
-                              np.where(self.rc == 0.0, _FLAT, np.where(ball, _BALL, _BULL))).astype(np.int8)
+        self.shape = np.where(self.cone > 0.0, CONE,
+                              np.where(self.rc == 0.0, FLAT, np.where(ball, BALL, BULL))).astype(np.int8)
 
     def __len__(self) -> int:
         return len(self.x)
@@ -150,11 +146,13 @@ class _Approach:
 
     @classmethod
     def of(cls, qx: np.ndarray, qy: np.ndarray, owner: np.ndarray, seg: Segments) -> "_Approach":
+        from cadcam import toolsweep  # numba loads with the first cut, not with every command importing this
+
         toolsweep.say_if_compiling()
         # the profile only where some move's is not 0 at the nearest approach (a flat end mill's is)
         return cls(*toolsweep.nearest_approach(qx, qy, owner, seg.x, seg.y, seg.dx, seg.dy, seg.inv_l2, seg.zmin,
                                                seg.flat_radius, seg.rc, seg.cone, seg.radius, seg.reach2,
-                                               bool(np.any(seg.shape != _FLAT)), bool(seg.cone.any())))
+                                               bool(np.any(seg.shape != FLAT)), bool(seg.cone.any())))
 
     def take(self, keep: np.ndarray) -> "_Approach":
         """The pairs ``keep`` (indices, in order) of these."""
@@ -224,7 +222,7 @@ class BatchPairs:
         exact = approach.lower.copy()
         bisect = ~seg.trivial[owner]
         sloped = np.flatnonzero(bisect)
-        bisect[sloped] = seg.shape[owner[sloped]] == _BULL
+        bisect[sloped] = seg.shape[owner[sloped]] == BULL
         b = sloped[bisect[sloped]]
         lengths, steps = None, 0
         if len(b):
@@ -255,6 +253,8 @@ class BatchPairs:
 
 def _bisected_lengths(a: _Approach, owner: np.ndarray, pick: np.ndarray, seg: Segments) -> np.ndarray:
     """(len(pick),) how long the stretch of each picked pair's move is that its bull-nose bisection searches [mm]."""
+    from cadcam import toolsweep
+
     return toolsweep.bisected_lengths(a.wx, a.wy, a.wd, owner, pick, seg.dx, seg.dy, seg.dz, seg.l2, seg.radius)
 
 
@@ -270,8 +270,10 @@ def _sloped_envelope(a: _Approach, owner: np.ndarray, pick: np.ndarray, seg: Seg
     climb or descend while moving sideways (:func:`cadcam.toolsweep.sloped_envelope`). ``steps``: the
     bull-nose's bisection steps (:func:`_bisect_steps`; default, those of the picked pairs)."""
     if steps is None:
-        bull = pick[seg.shape[owner[pick]] == _BULL]
+        bull = pick[seg.shape[owner[pick]] == BULL]
         steps = _bisect_steps(_bisected_lengths(a, owner, bull, seg)) if len(bull) else 1
+    from cadcam import toolsweep
+
     return toolsweep.sloped_envelope(a.wx, a.wy, a.wd, owner, pick, seg.z, seg.dx, seg.dy, seg.dz, seg.l2,
                                      seg.radius, seg.rc, seg.cone, seg.shape, steps)
 

@@ -91,6 +91,10 @@ RADIAL_ENGAGEMENT_RULE = (0.15, 0.3)
 #: 0.85 D measured no better (more gap loops, more links).
 LEVEL_STEPOVER = 0.7
 
+#: Cutter shapes as integer codes, one per move in arrays: :attr:`cadcam.envelope.Segments.shape`, read by the
+#: compiled sweep (:mod:`cadcam.toolsweep`) and the chip rule (:mod:`cadcam.engagement`).
+FLAT, BALL, BULL, CONE = 0, 1, 2, 3
+
 
 @dataclass(frozen=True)
 class Tool:

@@ -32,7 +32,6 @@ from scipy import ndimage
 
 from cadcam.engagement import ENGAGED_WIDTH, FULL_WIDTH_ANGLE, MoveRecord, engaged_depth, record_max, side_chip
 from cadcam.envelope import BatchPairs, Segments, grid_pairs, pair_envelope, reach_interval
-from cadcam.toolsweep import segmented_exclusive_min
 from cadcam.envelope import SpanTops as _SpanTops
 from cadcam.gridregion import highest_near
 from cadcam.heightmap import Grid, grid_over, upper_envelope
@@ -556,6 +555,8 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
     not paired at all (:func:`cadcam.envelope.grid_pairs`), which changes nothing else. ``pairs``: the batch's
     pairs made already (from these or older ``tops``), else made here.
     """
+    from cadcam import toolsweep  # numba loads with the first cut, not with every command importing this
+
     seg = seg_all.sub(s, e)
     pairs = pairs or BatchPairs.of(seg, grid, None if tops is None else tops.above, grid_pairs, stock)
     owner, flat, col, row = pairs.owner, pairs.flat, pairs.col, pairs.row
@@ -582,7 +583,7 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
     # Distinct keys (move, point, kind): any sort's order; stable takes the pairs' sorted runs whole (8x quicksort).
     order = np.argsort(cells * (2 * (e - s) + 2) + np.concatenate([owner * 2 + 1, b_owner * 2]), kind="stable")
     earlier = np.empty(len(cells))
-    earlier[order] = segmented_exclusive_min(cells[order], value[order])
+    earlier[order] = toolsweep.segmented_exclusive_min(cells[order], value[order])
     found = np.minimum(stock[cells], earlier)
     if under is not None:  # a column cut through by an earlier move holds nothing
         found[~(found > under[cells])] = -np.inf

@@ -21,10 +21,10 @@ import math
 import numba
 import numpy as np
 
+from cadcam.model import BALL, BULL, CONE  # the kernels read them as constants
+
 log = logging.getLogger(__name__)
 
-#: Cutter shapes in :attr:`cadcam.envelope.Segments.shape`.
-FLAT, BALL, BULL, CONE = 0, 1, 2, 3
 
 _jit = numba.njit(cache=True, nogil=True)
 
