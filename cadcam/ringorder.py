@@ -96,10 +96,10 @@ class LoopChoice:
             out[np.unique(stock.query(lines, predicate="dwithin", distance=radius)[0])] = True
             rest = np.nonzero(~out)[0]  # off every point by more than the radius: their cells, near a corner
             if len(rest):
-                a, b = stock.query(np.array(lines, dtype=object)[rest], predicate="dwithin",
-                                   distance=radius + half * math.sqrt(2.0))
+                left = np.array(lines, dtype=object)[rest]
+                a, b = stock.query(left, predicate="dwithin", distance=radius + half * math.sqrt(2.0))
                 cells = shapely.box(x[b] - half, y[b] - half, x[b] + half, y[b] + half)
-                into = shapely.distance(np.array(lines, dtype=object)[rest[a]], cells) < radius * (1.0 - _ARC_SAG) - 1e-6
+                into = shapely.distance(left[a], cells) < radius * (1.0 - _ARC_SAG) - 1e-6
                 out[np.unique(rest[a[into]])] = True
             return out
 
