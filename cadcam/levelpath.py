@@ -216,3 +216,18 @@ def round_the_box(a: np.ndarray, b: np.ndarray, box: Polygon, most: float) -> np
             shapely.get_coordinates(substring(twice, sb, sb + (sa - sb) % total))[::-1]]
     best = min(ways, key=lambda w: LineString(np.vstack([a, w, b])).length)
     return best if LineString(np.vstack([a, best, b])).length <= most else None
+
+
+def round_the_stock(loops: list[LineString], axis_box: tuple[float, float, float, float], radius: float
+                    ) -> np.ndarray:
+    """(n,) bool: each of ``loops`` (tool centres [mm]) keeps a tool of ``radius`` [mm] off the stock all along:
+    no point of it nearer the stock box than the radius (less rounding). ``axis_box``: (x0, y0, x1, y1) [mm], the
+    stock box grown by the radius (where z-level roughing's axis roams, ``cadcam.roughing._axis_rect``).
+
+    Roughing from the block, a region's outer loop is that grown box: its disc only touches the stock's sides
+    and cuts nothing, yet it was cut on every level (fed through the air). Such a loop is air."""
+    if not loops:
+        return np.zeros(0, bool)
+    x0, y0, x1, y1 = axis_box
+    stock = shapely.box(x0 + radius, y0 + radius, x1 - radius, y1 - radius)
+    return shapely.distance(np.array(loops, dtype=object), stock) >= radius - NODE_TOL

@@ -79,7 +79,7 @@ from shapely.geometry.base import BaseGeometry
 from shapely.geometry.polygon import orient
 from shapely.ops import nearest_points
 
-from cadcam.levelpath import CutPaths, LevelPath
+from cadcam.levelpath import CutPaths, LevelPath, round_the_stock
 from cadcam.model import CuttingData, Motion, Operation, Setup, Tool
 from cadcam.restlinks import COVER_TOL, Links, Piece, cut_stacked
 from cadcam.ringorder import LoopOrder, open_lead, rest_targets
@@ -850,6 +850,8 @@ def _plan_entries(allowed: BaseGeometry, space: BaseGeometry, z: float, rect_xy:
         rings = _rings(region, p)
         if rings and cuts is not None:
             rings = [r for r, c in zip(rings, cuts([r.line for r in rings])) if c]
+        elif rings:  # from the block: the loop round the stock's sides cuts nothing
+            rings = [r for r, a in zip(rings, round_the_stock([r.line for r in rings], rect_xy, p.radius)) if not a]
         if not rings:
             continue
         entry = _open_entry(region, rings, rect_xy, p.radius, p)

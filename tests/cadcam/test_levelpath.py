@@ -144,3 +144,41 @@ def test_links_stay_down_on_the_cut_paths_where_quicker_and_cut_nothing_more():
     t_down, cut_down = seconds_and_cut(down, setup)
     assert cut_down <= cut_lift * 1.01 + 1.0, "a way along the cut paths met stock"
     assert t_down < t_lift - 1.0, (t_down, t_lift)
+
+
+def level_moves_round_the_stock(op, setup) -> float:
+    """Length [mm] of the level feed moves below the stock top whose tool keeps off the stock box all along
+    (the centre at least a radius from it), by shapely on the moves themselves."""
+    stock = shapely.box(*setup.stock_min[:2], *setup.stock_max[:2])
+    a, b = op.points[:-1], op.points[1:]
+    level = ((op.motion[1:] != Motion.RAPID) & (np.abs(a[:, 2] - b[:, 2]) < 1e-9)
+             & (a[:, 2] < setup.stock_max[2] - 1e-6))
+    lines = [LineString([p[:2], q[:2]]) for p, q in zip(a[level], b[level])]
+    off = shapely.distance(np.array(lines, dtype=object), stock) >= TOOL.radius - 1e-6
+    return float(sum(line.length for line, o in zip(lines, off) if o))
+
+
+def test_roughing_from_the_block_runs_no_loop_round_the_stock_and_cuts_what_it_did(monkeypatch):
+    """Each level's outer loop was the stock grown by the radius: its disc only touched the stock's sides. It
+    is left out (:func:`cadcam.levelpath.round_the_stock`); the levels cut everything they cut with it, no
+    gouge, no plunge, rapids clear, in less cutting path, and no level move keeps off the stock all along."""
+    from cadcam import roughing
+    from tests.cadcam.test_roughing import left_beyond
+
+    part, setup = plate_with_bosses()
+    options = RoughingOptions(air_feed=AIR_FEED)
+    op = zlevel_roughing(part, setup, TOOL, CUTTING, options)
+    with monkeypatch.context() as m:  # as before: every loop cut
+        m.setattr(roughing, "round_the_stock", lambda loops, box, radius: np.zeros(len(loops), bool))
+        every = zlevel_roughing(part, setup, TOOL, CUTTING, options)
+    motion_basics(op, setup)
+    assert level_moves_round_the_stock(every, setup) > 100.0  # the loops round the stock, every level
+    assert level_moves_round_the_stock(op, setup) == 0.0
+    assert_no_gouge(part, op, options.allowance, radius=TOOL.radius)
+    hf, bad = simulate(op, setup, options.ramp_angle, radius=TOOL.radius)
+    assert not bad, "\n".join(bad[:5])
+    left = left_beyond(hf, simulate(every, setup, options.ramp_angle, radius=TOOL.radius)[0])
+    assert left.max() <= 0.05, np.unravel_index(np.argmax(left), left.shape)
+    cut = [np.linalg.norm(np.diff(o.points, axis=0), axis=1)[o.motion[1:] == Motion.CUT].sum() for o in (op, every)]
+    assert cut[0] <= 0.9 * cut[1], cut
+    assert seconds_and_cut(op, setup)[0] < seconds_and_cut(every, setup)[0] - 1.0
