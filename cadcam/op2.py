@@ -20,8 +20,8 @@ Op 2's work coordinates
     stock.
 Facing
     Zigzag passes along X at ``stepover`` (80 % of the diameter) across the whole stock
-    footprint, level by level from the top down to the part's original bottom face, the
-    last level a light finishing skim. Every level is entered outside the stock: the tool
+    footprint, in as few even levels as the stepdown allows from the top down to the part's
+    original bottom face: the last level's bottom is the face. Every level is entered outside the stock: the tool
     ramps down in the air beside it and enters the material sideways at depth, never by a
     plunge. Passes overhang the stock's Y faces by a tenth of the diameter, so no rim stays.
 Features seen from below
@@ -211,8 +211,13 @@ class FacingOptions:
     stepdown : float, optional
         Deepest level [mm]. Default: half the diameter, at most the flute length.
     finish_depth : float
-        Depth of the last level, a light skim that leaves the bottom face clean [mm]; 0: no
-        separate skim. Default 0.2.
+        Depth of a separate last level, a light skim of the face [mm]; 0: none, the last level's
+        bottom is the face. Default 0 (issue 32): the skim was cut by the same end mill at the same
+        stepover and chip (above half the diameter the chip is the full ``fz`` at any depth), so it
+        swept the whole footprint a second time for 0.2 mm, 19.5-21 s of every sample's op 2; the
+        face's height is set by the tool's length offset either way, and verify holds it to size.
+        The holding allowance (6.5 mm on the samples) is one level within a 16 mm end mill's
+        full-width limit.
     ramp_angle : float
         Angle of the ramp down to each level beside the stock [deg], in ``(0, 45]``. Default 15.
     overhang : float
@@ -222,7 +227,7 @@ class FacingOptions:
 
     stepover: float = 0.8
     stepdown: float | None = None
-    finish_depth: float = 0.2
+    finish_depth: float = 0.0
     ramp_angle: float = 15.0
     overhang: float = 0.1
 
