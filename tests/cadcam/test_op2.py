@@ -17,7 +17,7 @@ from cadcam.finishing import FinishingOptions
 from cadcam.gcode import parse_gcode
 from cadcam.heightmap import grid_over
 from cadcam.model import CuttingData, Motion, ProgramMoves, Setup, SoftJaws, ViseJaws
-from cadcam.op2 import (FacingOptions, Op2Options, facing, facing_levels, flip_transform, op2_setup,
+from cadcam.op2 import (FacingOptions, Op2Options, facing, facing_gap, facing_levels, flip_transform, op2_setup,
                         op2_setup_image, plan_op2)
 from cadcam.plan import PlanOptions, plan_job
 from cadcam.post import PostOptions, post_process
@@ -145,7 +145,13 @@ def test_an_allowance_within_one_stepdown_is_faced_in_one_level_whose_bottom_is_
     op = facing(s, face, wide, CUT)
     level = (op.motion == Motion.CUT) & (np.abs(np.diff(op.points[:, 2], prepend=np.nan)) < 1e-12)
     np.testing.assert_array_equal(np.unique(op.points[level, 2]), [face])
-    assert (op.motion == Motion.PLUNGE).sum() == 1
+    ramps = np.flatnonzero(op.motion == Motion.PLUNGE)
+    assert len(ramps) == 1
+    # Fed down only over the last radius of run, where a block seated off by facing_reach meets the side.
+    a, b = op.points[ramps[0] - 1], op.points[ramps[0]]
+    assert abs(b[0] - a[0]) == pytest.approx(wide.radius)
+    assert op.motion[ramps[0] - 1] == Motion.RAPID
+    assert abs(a[0] - s.stock_min[0]) >= facing_gap(s) + 2 * wide.radius - 1e-9
     tri = np.array([[[5, 5, -20], [30, 5, -20], [5, 20, -20]]], dtype=float)
     verified = simulate(operation_moves([op]), {14: wide}, s, tri, VerifyOptions(cell=0.5))
     np.testing.assert_allclose(verified.simulation.stock_top, face, atol=1e-9)
