@@ -17,7 +17,7 @@ from cadcam.finishing import FinishingOptions
 from cadcam.gcode import parse_gcode
 from cadcam.heightmap import grid_over
 from cadcam.model import CuttingData, Motion, ProgramMoves, Setup, SoftJaws, ViseJaws
-from cadcam.op2 import (FacingOptions, Op2Options, facing, facing_levels, flip_transform, op2_setup,
+from cadcam.op2 import (FacingOptions, Op2Options, facing, facing_gap, facing_levels, flip_transform, op2_setup,
                         op2_setup_image, plan_op2)
 from cadcam.plan import PlanOptions, plan_job
 from cadcam.post import PostOptions, post_process
@@ -117,7 +117,7 @@ def test_facing_clears_the_whole_top_down_to_the_face_and_enters_beside_the_stoc
     assert op.points[cuts, 2].min() == face
     # Every descent (plunge-feed ramp) ends beside the stock: the tool meets material only sideways.
     ramps = np.flatnonzero(op.motion == Motion.PLUNGE)
-    assert len(ramps) == len(facing_levels(0.0, face, 5.0, 0.2))
+    assert len(ramps) == len(facing_levels(0.0, face, 5.0, FacingOptions().finish_depth))
     for k in ramps:
         a, b = op.points[k - 1], op.points[k]
         assert b[2] < a[2]
@@ -134,6 +134,28 @@ def test_facing_clears_the_whole_top_down_to_the_face_and_enters_beside_the_stoc
     sim, report = verified.simulation, verified.report
     np.testing.assert_allclose(sim.stock_top, face, atol=1e-9)
     assert report.ok, report.to_dict()
+
+
+def test_an_allowance_within_one_stepdown_is_faced_in_one_level_whose_bottom_is_the_face():
+    """Issue 32: the samples' 6.5 mm holding allowance with the 16 mm end mill (stepdown 8 mm) is one
+    level; the 0.2 mm skim after a 6.3 mm level swept the whole footprint a second time."""
+    s = _setup((94.0, 74.0, 24.5))
+    wide = LIBRARY.tool(14)
+    face = -6.5
+    op = facing(s, face, wide, CUT)
+    level = (op.motion == Motion.CUT) & (np.abs(np.diff(op.points[:, 2], prepend=np.nan)) < 1e-12)
+    np.testing.assert_array_equal(np.unique(op.points[level, 2]), [face])
+    ramps = np.flatnonzero(op.motion == Motion.PLUNGE)
+    assert len(ramps) == 1
+    # Fed down only over the last radius of run, where a block seated off by facing_reach meets the side.
+    a, b = op.points[ramps[0] - 1], op.points[ramps[0]]
+    assert abs(b[0] - a[0]) == pytest.approx(wide.radius)
+    assert op.motion[ramps[0] - 1] == Motion.RAPID
+    assert abs(a[0] - s.stock_min[0]) >= facing_gap(s) + 2 * wide.radius - 1e-9
+    tri = np.array([[[5, 5, -20], [30, 5, -20], [5, 20, -20]]], dtype=float)
+    verified = simulate(operation_moves([op]), {14: wide}, s, tri, VerifyOptions(cell=0.5))
+    np.testing.assert_allclose(verified.simulation.stock_top, face, atol=1e-9)
+    assert verified.report.ok, verified.report.to_dict()
 
 
 def test_facing_needs_a_flat_end_mill_that_reaches():
