@@ -101,9 +101,9 @@ class VerifyAhead:
     is under way, a round starts in a forked process of lower priority (:data:`AHEAD_NICENESS`): it fits
     the arcs of the operations new since the last round (kept for posting, :meth:`cadcam.post.FitAhead.know`:
     they are not fitted twice), posts the operations so far, and cuts that program's moves into verify's
-    stock model, on from the last round's state (:func:`cadcam.verify.verify_ahead`). Operations planned
-    while a round is under way, and the last one (planned as the rapid check starts, :meth:`offer_all`), are
-    fitted as :class:`cadcam.post.FitAhead` fits them, each in a process of its own.
+    stock model, on from the last round's state (:func:`cadcam.verify.verify_ahead`). The last ones (planned
+    as the rapid check starts, :meth:`offer_all`) start a round too. Operations planned while a round is
+    under way are fitted as :class:`cadcam.post.FitAhead` fits them, each in a process of its own.
 
     Verify resumes from the last state whose operations the job still holds as they were (:meth:`state`);
     :func:`cadcam.stock.cut_stock` checks it move by move and cuts from the first move where it does not
@@ -137,9 +137,11 @@ class VerifyAhead:
         self.fits.offer(ops[len(self._covered):])
 
     def offer_all(self, operations: Sequence[Operation], setup: Setup) -> None:
-        """Every operation planned, the rapid check next: fitted in processes of their own, no round started
-        (the last one's would hold up the post, which needs its fit at once)."""
-        self.fits.offer(from_and_to_safe_height(op, setup.safe_z) for op in operations)
+        """Every operation planned, the rapid check next: offered as :meth:`offer` does. A round begun here
+        holds up the post (it fits the operations it cuts), but it cuts them while the rapid check runs, and
+        the rapid check rarely changes an operation (none of the samples'): the cut verify would make after
+        the post is made meanwhile on the processor the rapid check leaves idle."""
+        self.offer(operations, setup)
 
     def state(self, operations: Sequence[Operation]) -> CutState | None:
         """The state verify of the job's ``operations`` (as posted) resumes from: the round under way waited
