@@ -12,6 +12,7 @@ import concurrent.futures
 import logging
 import multiprocessing
 import os
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -55,12 +56,67 @@ def idle_processors() -> float:
     one-minute load average (the runnable processes, this one included) [processors]; :func:`processors`
     where the system keeps no load average. Work begun on speculation (it may be thrown away) waits for an
     idle processor: on a machine a test suite's workers or a workflow's jobs keep busy it would only slow
-    the work that counts."""
+    the work that counts. :class:`IdleMeter` reads the last seconds instead of the last minute."""
     try:
         load = os.getloadavg()[0]
     except (AttributeError, OSError):
         return float(processors())
     return (os.cpu_count() or 1) - load
+
+
+#: The kernel's processor-time counters of the whole machine (Linux).
+PROC_STAT = "/proc/stat"
+#: Shortest span :class:`IdleMeter` judges [s]: below it the kernel's clock ticks (10 ms) are too few.
+MIN_SPAN = 0.25
+
+
+def _machine_times() -> tuple[float, float] | None:
+    """(idle, all) processor time of the whole machine since boot [clock ticks, all processors]: idle
+    counts waiting on I/O too. None where the system has no ``/proc/stat``."""
+    try:
+        with open(PROC_STAT, "rb") as f:
+            fields = f.readline().split()
+    except OSError:
+        return None
+    if not fields or fields[0] != b"cpu" or len(fields) < 5:
+        return None
+    ticks = [float(v) for v in fields[1:9]]  # user nice system idle iowait irq softirq steal (no guest: in user)
+    return ticks[3] + ticks[4], sum(ticks)
+
+
+class IdleMeter:
+    """Processors the whole machine left idle over a span just past, read from the kernel's counters.
+
+    :func:`idle_processors` reads the one-minute load average: it lags a minute behind, and counts this
+    process's own second thread and processes (a plan's robot, its forked workers) as load for that minute
+    after they end, so on a quiet two-processor machine it hardly ever says one is idle. This reads what
+    happened between two of its own readings (:meth:`idle`), a stage or two of a plan:
+    a processor the plan's other work left idle then shows.
+    """
+
+    def __init__(self) -> None:
+        self._mark = _machine_times()
+        self._at = time.monotonic()
+
+    def idle(self, own: float = 0.0) -> float | None:
+        """Processors idle on average since the span began [processors, 0 .. the machine's count], and a new
+        span begun; None while the span is shorter than :data:`MIN_SPAN` (too short to tell: it goes on).
+        ``own``: processor time the owner's work of lower priority took in the span [s], counted idle (it
+        gave way to everything else). Without the kernel's counters, :func:`idle_processors`."""
+        if self._mark is None:
+            return idle_processors()
+        if time.monotonic() - self._at < MIN_SPAN:
+            return None
+        now = _machine_times()
+        if now is None:
+            return idle_processors()
+        (idle0, all0), (idle1, all1) = self._mark, now
+        span = time.monotonic() - self._at
+        self._mark, self._at = now, time.monotonic()
+        if all1 <= all0:
+            return None
+        count = os.cpu_count() or 1
+        return min(float(count), count * (idle1 - idle0) / (all1 - all0) + own / span)
 
 
 def process_map(fn: Callable[..., Any], jobs: Sequence[tuple], weights: Sequence[float], min_total: float,

@@ -6,6 +6,7 @@ import json
 import logging
 import multiprocessing
 import os
+import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -17,7 +18,7 @@ from cadcam.mesh import load_planned_part
 from cadcam.relief import machining_surface, surface_footprint
 from cadcam.model import Job, Operation, Setup, Tool
 from cadcam.arcs import fit_segments
-from cadcam.parallel import Background, idle_processors, processors
+from cadcam.parallel import Background, IdleMeter, processors
 from cadcam.post import FitAhead, PostOptions, operations_end, post_process
 from cadcam.rest import from_and_to_safe_height
 from cadcam.sheet import SheetSetup, read_setup_sheet
@@ -88,6 +89,9 @@ def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int
 #: Niceness added to a round of :class:`VerifyAhead`: it takes a processor the planning leaves idle, not one
 #: the planner, its arc fitting or the robot's planning would use.
 AHEAD_NICENESS = 5
+#: Processors the machine must have left idle since the last look (:class:`cadcam.parallel.IdleMeter`) for a
+#: round of :class:`VerifyAhead` to begin: half of one, so at least half a processor's time is there for it.
+AHEAD_IDLE = 0.5
 
 
 class VerifyAhead:
@@ -97,16 +101,18 @@ class VerifyAhead:
     is under way, a round starts in a forked process of lower priority (:data:`AHEAD_NICENESS`): it fits
     the arcs of the operations new since the last round (kept for posting, :meth:`cadcam.post.FitAhead.know`:
     they are not fitted twice), posts the operations so far, and cuts that program's moves into verify's
-    stock model, on from the last round's state (:func:`cadcam.verify.verify_ahead`). Operations planned
-    while a round is under way, and the last one (planned as the rapid check starts, :meth:`offer_all`), are
-    fitted as :class:`cadcam.post.FitAhead` fits them, each in a process of its own.
+    stock model, on from the last round's state (:func:`cadcam.verify.verify_ahead`). The last ones (planned
+    as the rapid check starts, :meth:`offer_all`) start a round too. Operations planned while a round is
+    under way are fitted as :class:`cadcam.post.FitAhead` fits them, each in a process of its own.
 
     Verify resumes from the last state whose operations the job still holds as they were (:meth:`state`);
     :func:`cadcam.stock.cut_stock` checks it move by move and cuts from the first move where it does not
     hold (the rapid check changed an operation): the outputs are those of verify from the first move.
     With one processor (``FACTORY_THREADS=1``) or no ``fork`` nothing is begun ahead, and a round starts only
-    while the machine has a processor idle (:func:`cadcam.parallel.idle_processors`): a round runs at lower
-    priority, so on a machine other work keeps busy it would hardly advance, and verify would wait for it.
+    where the machine left :data:`AHEAD_IDLE` processors idle since the last look (:class:`IdleMeter`: the
+    seconds before, not the load average's minute, which counts the plan's own robot and workers a minute
+    after they end); the rounds' own time counts idle. A round runs at lower priority, so on a machine other
+    work keeps busy it would hardly advance, and verify would wait for it.
     """
 
     def __init__(self, fits: FitAhead, post: PostOptions, options: VerifyOptions, triangles: np.ndarray):
@@ -116,6 +122,8 @@ class VerifyAhead:
         self._states: list[tuple[int, CutState]] = []  # (operations cut, state after them), in order
         self._round: Background | None = None
         self._from = 0  # the first operation new in the round under way
+        self._meter = IdleMeter()
+        self._spent = 0.0  # processor time [s] of the rounds ended since the meter's last look
 
     def offer(self, operations: Sequence[Operation], setup: Setup) -> None:
         """More operations planned (all so far, in cutting order): a round on the new ones when none is
@@ -129,9 +137,11 @@ class VerifyAhead:
         self.fits.offer(ops[len(self._covered):])
 
     def offer_all(self, operations: Sequence[Operation], setup: Setup) -> None:
-        """Every operation planned, the rapid check next: fitted in processes of their own, no round started
-        (the last one's would hold up the post, which needs its fit at once)."""
-        self.fits.offer(from_and_to_safe_height(op, setup.safe_z) for op in operations)
+        """Every operation planned, the rapid check next: offered as :meth:`offer` does. A round begun here
+        holds up the post (it fits the operations it cuts), but it cuts them while the rapid check runs, and
+        the rapid check rarely changes an operation (none of the samples'): the cut verify would make after
+        the post is made meanwhile on the processor the rapid check leaves idle."""
+        self.offer(operations, setup)
 
     def state(self, operations: Sequence[Operation]) -> CutState | None:
         """The state verify of the job's ``operations`` (as posted) resumes from: the round under way waited
@@ -154,7 +164,11 @@ class VerifyAhead:
             self._round = None
 
     def _start(self, ops: list[Operation], setup: Setup) -> None:
-        if idle_processors() < 1:  # no processor to run it on: the next offer looks again
+        idle = self._meter.idle(own=self._spent)
+        if idle is None:  # too soon to tell: the next offer looks again
+            return
+        self._spent = 0.0
+        if idle < AHEAD_IDLE:  # no processor to run it on: the next offer looks again
             return
         n0 = len(self._covered)
         if not _holds(ops, self._covered):  # an operation changed after it was cut ahead: no more rounds
@@ -187,7 +201,8 @@ class VerifyAhead:
             self._covered = self._covered[:self._from]
             self.enabled = False
             return
-        fitted, cut = value
+        fitted, cut, spent = value
+        self._spent += spent
         for op, seg in zip(new, fitted):
             self.fits.know(op, seg)
         if cut is not None:
@@ -203,10 +218,11 @@ def _holds(operations: Sequence[Operation], cut: Sequence[Operation]) -> bool:
 
 def _verify_round(ops: tuple[Operation, ...], n0: int, known: tuple, setup: Setup, fits: FitAhead,
                   post: PostOptions, options: VerifyOptions, triangles: np.ndarray,
-                  state: CutState | None) -> tuple[list, CutState | None]:
+                  state: CutState | None) -> tuple[list, CutState | None, float]:
     """One round of :class:`VerifyAhead`, in its process: the fits of ``ops[n0:]`` and the verify cut of the
-    program of ``ops`` (on from ``state``), up to the end of its last operation."""
+    program of ``ops`` (on from ``state``), up to the end of its last operation; the processor time it took [s]."""
     os.nice(AHEAD_NICENESS)
+    began = time.process_time()
     fitted = []
     for op, fit in zip(ops[n0:], known):
         if fit is None:
@@ -217,7 +233,8 @@ def _verify_round(ops: tuple[Operation, ...], n0: int, known: tuple, setup: Setu
     lines = program.text.splitlines()[:operations_end(program, post)]
     moves = parse_gcode("\n".join(lines) + "\n", source="verify ahead")
     tools = {op.tool.number: op.tool for op in ops}
-    return fitted, verify_ahead(moves, tools, setup, triangles, options, before=len(moves.points), resume=state)
+    cut = verify_ahead(moves, tools, setup, triangles, options, before=len(moves.points), resume=state)
+    return fitted, cut, time.process_time() - began
 
 
 def run_verify_after(before: Simulation, flip: np.ndarray, gcode_text: str, gcode_source: str, setup: Setup,

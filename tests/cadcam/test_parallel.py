@@ -86,3 +86,46 @@ def test_the_thread_count_is_capped_and_unset_follows_the_affinity(monkeypatch):
     assert par.processors() == par.MAX_WORKERS
     monkeypatch.delenv(par.THREADS_ENV)
     assert par.processors() == min(par.MAX_WORKERS, len(os.sched_getaffinity(0)))
+
+
+def _stat(path, user, idle, iowait=0):
+    """A /proc/stat of the whole machine's counters [ticks] (one processor's line after it, not read)."""
+    path.write_text(f"cpu  {user} 0 0 {idle} {iowait} 0 0 0 0 0\ncpu0 {user} 0 0 {idle} {iowait} 0 0 0 0 0\n")
+
+
+def test_idle_meter_reads_the_span_between_its_looks(monkeypatch, tmp_path):
+    stat, clock = tmp_path / "stat", [100.0]
+    monkeypatch.setattr(par, "PROC_STAT", str(stat))
+    monkeypatch.setattr(par.time, "monotonic", lambda: clock[0])
+    monkeypatch.setattr(par.os, "cpu_count", lambda: 2)
+    _stat(stat, user=1000, idle=5000)
+    meter = par.IdleMeter()
+    _stat(stat, user=1100, idle=5100)  # one processor busy, the other idle
+    clock[0] += 0.1
+    assert meter.idle() is None  # too short a span to tell: it goes on
+    clock[0] += 0.9
+    assert meter.idle() == pytest.approx(1.0)
+    _stat(stat, user=1500, idle=5100)  # both busy for 2 s, 0.5 s of it a round of the meter's owner
+    clock[0] += 2.0
+    assert meter.idle(own=0.5) == pytest.approx(0.25)
+    assert meter.idle() is None  # a new span began with that look
+    _stat(stat, user=1550, idle=5100, iowait=50)  # waiting on a disk is idle
+    clock[0] += 0.5
+    assert meter.idle() == pytest.approx(1.0)
+    _stat(stat, user=1550, idle=5300, iowait=50)
+    clock[0] += 1.0
+    assert meter.idle(own=5.0) == 2.0  # never more than the machine has
+
+
+def test_idle_meter_without_the_kernels_counters_reads_the_load_average(monkeypatch, tmp_path):
+    monkeypatch.setattr(par, "PROC_STAT", str(tmp_path / "none"))
+    monkeypatch.setattr(par, "idle_processors", lambda: 1.25)
+    assert par.IdleMeter().idle() == 1.25
+
+
+@pytest.mark.skipif(not os.path.exists(par.PROC_STAT), reason="no /proc/stat here")
+def test_idle_meter_on_this_machine_is_within_its_processors():
+    meter = par.IdleMeter()
+    time.sleep(par.MIN_SPAN + 0.05)
+    idle = meter.idle()
+    assert idle is not None and 0.0 <= idle <= os.cpu_count()

@@ -444,3 +444,30 @@ def test_the_pictures_drawn_while_verify_runs_are_those_drawn_when_written(block
     # the log holds what was drawn ahead (the job's part and toolpath) and what verify found
     topics = {topic for name, messages in written["2"].items() if name.endswith(".mcap") for topic, _, _ in messages}
     assert {"/cam/part", "/cam/toolpath", "/verify/stock"} <= topics
+
+
+def test_verify_begun_ahead_on_an_idle_processor_writes_what_one_processor_writes(block, tmp_path, monkeypatch):
+    """Where the machine leaves a processor idle (cadcam.parallel.IdleMeter), op 1's verify is begun in rounds while
+    the later operations are planned, and verify goes on from the last round: every output the same bytes as the
+    plan on one processor, where nothing is begun ahead (issue 35)."""
+    import factory.verify
+
+    request = dataclasses.replace(fast_request(block, robot=False), ops=1)
+    monkeypatch.setattr(factory.verify.IdleMeter, "idle", lambda self, own=0.0: 2.0)
+    resumed = []
+    real_state = factory.verify.VerifyAhead.state
+
+    def state(self, operations):
+        out = real_state(self, operations)
+        resumed.append(out)
+        return out
+
+    monkeypatch.setattr(factory.verify.VerifyAhead, "state", state)
+    written = {}
+    for threads in ("1", "2"):
+        monkeypatch.setenv("FACTORY_THREADS", threads)
+        resumed.clear()
+        plan_part(request).write(tmp_path / threads)
+        written[threads] = _written(tmp_path / threads)
+        assert (resumed[-1] is not None) == (threads == "2")  # verify went on from a round's cut
+    assert written["1"] == written["2"]

@@ -73,7 +73,7 @@ def _ahead(ops, rounds):
 def two_processors(monkeypatch):
     monkeypatch.setenv("FACTORY_THREADS", "2")
     # a processor idle, whatever else the machine runs meanwhile (the suite's other workers)
-    monkeypatch.setattr(factory.verify, "idle_processors", lambda: 2.0)
+    monkeypatch.setattr(factory.verify.IdleMeter, "idle", lambda self, own=0.0: 2.0)
     with mock.patch.object(stock, "_PAIR_BUDGET", 4000):  # many batches, in the forked rounds too
         yield
 
@@ -135,7 +135,7 @@ def test_on_a_busy_machine_no_round_is_begun_and_verify_is_the_plain_one(monkeyp
     it would hardly advance at its lower priority and verify would wait for it; the operations are fitted as
     without verify ahead, and verify cuts from the first move."""
     monkeypatch.setenv("FACTORY_THREADS", "2")
-    monkeypatch.setattr(factory.verify, "idle_processors", lambda: 0.4)
+    monkeypatch.setattr(factory.verify.IdleMeter, "idle", lambda self, own=0.0: 0.4)
     ops = _operations()
     ahead = VerifyAhead(FitAhead(POST), POST, OPTIONS, np.asarray(PART))
     for k in (1, 2, 3):
@@ -145,3 +145,31 @@ def test_on_a_busy_machine_no_round_is_begun_and_verify_is_the_plain_one(monkeyp
     job = Job("p", SETUP, tuple(from_and_to_safe_height(op, SETUP.safe_z) for op in ops))
     assert ahead.state(job.operations) is None
     assert post_process(job, POST, ahead=ahead.fits).text == post_process(job, POST).text
+
+
+def test_a_round_begins_where_the_machine_left_a_processor_idle_its_own_time_counted_idle(monkeypatch):
+    """The gate reads the machine's idle processors since its last look (cadcam.parallel.IdleMeter), the rounds'
+    own processor time counted idle: on a quiet two-processor machine a round keeps the second one, and the
+    next round is judged with it."""
+    monkeypatch.setenv("FACTORY_THREADS", "2")
+    looks = []
+
+    def idle(self, own=0.0):
+        looks.append(own)
+        return 0.2 + own  # what is idle besides the rounds: too little alone
+
+    monkeypatch.setattr(factory.verify.IdleMeter, "idle", idle)
+    ops = _operations()
+    ahead = VerifyAhead(FitAhead(POST), POST, OPTIONS, np.asarray(PART))
+    ahead._spent = 1.0  # as if a round had just taken a processor for a second
+    ahead.offer(ops[:1], SETUP)
+    assert ahead._round is not None and looks == [1.0]
+    ahead.state([from_and_to_safe_height(op, SETUP.safe_z) for op in ops])  # waits for the round
+    ahead.offer(ops[:2], SETUP)
+    assert looks[1] > 0.0  # the first round's processor time
+    assert (ahead._round is not None) == (looks[1] >= factory.verify.AHEAD_IDLE - 0.2)
+    ahead.cancel()
+    monkeypatch.setattr(factory.verify.IdleMeter, "idle", lambda self, own=0.0: None)  # too soon to tell
+    again = VerifyAhead(FitAhead(POST), POST, OPTIONS, np.asarray(PART))
+    again.offer(ops[:1], SETUP)
+    assert again._round is None
