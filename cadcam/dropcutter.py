@@ -366,11 +366,13 @@ def _bucket(grid: _Grid, lo: np.ndarray, hi: np.ndarray, top: np.ndarray,
     ptr = np.zeros(grid.nx * grid.ny + 1, dtype=np.int64)
     np.cumsum(np.bincount(bucket, minlength=grid.nx * grid.ny), out=ptr[1:])
     del bucket
-    # One float sort (not lexsort): the key itself must be sorted for searchsorted in stop().
+    # One float sort (not lexsort): the key itself must be sorted for searchsorted in stop(). The keys are
+    # gathered in the order argsort put them, not sorted again: the same numbers (equal keys are equal numbers),
+    # for a gather's cost instead of a sort's (a third of the buckets' time, issue 35).
     order = np.argsort(key)
     item = item[order]
+    key = key[order]
     del order
-    key.sort()  # the keys in the order argsort put them (equal keys are equal numbers)
     return _Buckets(ptr, item, key, z_hi, z_span)
 
 

@@ -366,15 +366,23 @@ def _clip_projections(tri: np.ndarray, z: float) -> tuple[np.ndarray, np.ndarray
     return polys[big], keep[big]
 
 
-def _segments(geoms) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _segments(geoms, by_part: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The segments of the polygons ``geoms``, each with its polygon on its left: start (n, 2), end (n, 2)
-    and which ring (n,) int; zero-length ones left out."""
-    parts = shapely.get_parts(np.asarray(geoms, dtype=object))
-    holes = shapely.get_num_interior_rings(parts)
-    shell = np.ones(len(parts) + int(holes.sum()), dtype=bool)  # get_rings: each part's shell, then its holes
-    shell[1:] = False
-    shell[np.cumsum(holes[:-1] + 1)] = True
-    xy, ring = shapely.get_coordinates(shapely.get_rings(parts), return_index=True)
+    and which ring (n,) int; zero-length ones left out. ``by_part``: take every part's rings as geometries of
+    their own, as any geometry needs; else Polygons without holes (the clipped triangles) are read directly,
+    each its one ring (making the parts and rings first was most of a coverage proof's time, issue 35)."""
+    geoms = np.asarray(geoms, dtype=object)
+    if not by_part and (shapely.get_type_id(geoms) == shapely.GeometryType.POLYGON).all() \
+            and not shapely.get_num_interior_rings(geoms).any():
+        shell = np.ones(len(geoms), dtype=bool)
+        xy, ring = shapely.get_coordinates(geoms, return_index=True)
+    else:
+        parts = shapely.get_parts(geoms)
+        holes = shapely.get_num_interior_rings(parts)
+        shell = np.ones(len(parts) + int(holes.sum()), dtype=bool)  # get_rings: each part's shell, then its holes
+        shell[1:] = False
+        shell[np.cumsum(holes[:-1] + 1)] = True
+        xy, ring = shapely.get_coordinates(shapely.get_rings(parts), return_index=True)
     same = ring[1:] == ring[:-1]  # each ring is closed: its last point repeats its first
     a, b, r = xy[:-1][same], xy[1:][same], ring[:-1][same]
     real = (a != b).any(axis=1)

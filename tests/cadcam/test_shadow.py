@@ -207,3 +207,23 @@ def test_shadows_kept_from_earlier_lists_are_the_ones_made_afresh_to_the_byte(sp
     assert list(kept) == list(fresh)
     assert [g.wkb for g in kept.values()] == [g.wkb for g in fresh.values()]
     assert [g.wkb for g in again.values()] == [g.wkb for g in fresh_first.values()]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.lists(st.tuples(mm(-3.0, 3.0), mm(-3.0, 3.0)), min_size=3, max_size=6), min_size=1, max_size=12),
+       st.booleans(), st.booleans())
+def test_the_segments_of_polygons_read_directly_are_those_of_their_rings(rings, reverse, with_hole):
+    """A coverage proof reads Polygons without holes (the clipped triangles, either way round, points repeated)
+    directly: the very segments, ends and rings that taking each part's rings as geometries gives. With a hole or a
+    MultiPolygon among them, the rings are taken as geometries either way."""
+    polys = [shapely.Polygon(r[::-1] if reverse else r) for r in rings]
+    polys = [p for p in polys if not p.is_empty]
+    if with_hole:
+        polys.append(shapely.Polygon([(10, 10), (14, 10), (14, 14), (10, 14)], [[(11, 11), (12, 11), (12, 12)]]))
+        polys.append(shapely.MultiPolygon([shapely.box(20, 20, 21, 21), shapely.box(22, 20, 23, 21)]))
+    if not polys:
+        return
+    direct = shadow._segments(np.array(polys, dtype=object))
+    by_part = shadow._segments(np.array(polys, dtype=object), by_part=True)
+    for got, want in zip(direct, by_part):
+        assert got.dtype == want.dtype and np.array_equal(got, want)
