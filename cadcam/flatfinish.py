@@ -139,7 +139,6 @@ def flat_wall_finishing(
     limit: EngagementLimit | None = None,
     unreached_in: Simulation | None = None,
     leave: Callable[[np.ndarray], np.ndarray] | None = None,
-    air_feed: float | None = None,
 ) -> Operation:
     """Floors at their heights and walls by the flank, with the flat end mill ``tool``.
 
@@ -176,10 +175,6 @@ def flat_wall_finishing(
     leave : callable, optional
         ``leave(xy) -> (m,) bool``: XY [mm] where another tool finishes (a ball on the freeform
         surfaces): the skin there is not this tool's (:func:`left_on_flats_and_walls`).
-    air_feed : float, optional
-        The feed [mm/min] of moves in the air: with it, a level's links stay down on the paths it has cut where
-        that is quicker than a lift by the program's clock (:meth:`cadcam.levelpath.CutPaths.stays_down`, as
-        the first roughing's); None: they lift.
 
     Returns
     -------
@@ -197,7 +192,7 @@ def flat_wall_finishing(
     stepover = min(wide, _MOST_STEPOVER * tool.diameter)
     level = tool.flute_length if stepdown is None else min(float(stepdown), tool.flute_length)
     rough = RoughingOptions(stepdown=level, stepover=stepover, allowance=options.allowance,
-                            ramp_angle=options.ramp_angle, spring_pass=options.spring_pass, air_feed=air_feed)
+                            ramp_angle=options.ramp_angle, spring_pass=options.spring_pass)
     # A grid cell of margin: the stock beside a wall lies in the cells next to it.
     left = left_on_flats_and_walls(stock, faces, tool.radius + 2 * stock.grid.cell, options.allowance,
                                    options.rest_above, leave)

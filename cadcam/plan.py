@@ -946,7 +946,7 @@ def _finish_flats_and_walls(plan: _Planning, flat: Tool, stock: Simulation, oper
         op = plan.timed(stage, lambda: flat_wall_finishing(plan.part, setup, tool, cutting, faces, stock,
                                                            ff, progress=plan.stage_progress(stage),
                                                            cut_before=plan.cut_before, stepdown=stepdown,
-                                                           within=plan.keepout, limit=limit, air_feed=library.max_feed,
+                                                           within=plan.keepout, limit=limit,
                                                            unreached_in=unreached_in, leave=leave))
         if len(op.points) > 1:
             # each move at the feed its chip allows on the stock before it: walls' skins and air faster

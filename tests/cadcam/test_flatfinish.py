@@ -278,33 +278,3 @@ def test_below_its_reach_a_finishing_tool_s_holder_keeps_off_the_walls_not_only_
     holder = min(r for h, r in t6.body() if h >= t6.length)  # its narrowest, lowest part
     off_walls = np.minimum.reduce([deep[:, 0] - lo[0], hi[0] - deep[:, 0], deep[:, 1] - lo[1], hi[1] - deep[:, 1]])
     assert off_walls.min() >= holder + HOLDER_CLEARANCE_MM - g.cell * np.sqrt(2.0) - 1e-6, off_walls.min()
-
-
-def _lifts(op) -> int:
-    return int(((op.motion[1:] == 0) & (np.diff(op.points[:, 2]) > 1e-9)).sum())
-
-
-def test_a_finishing_level_links_its_loops_along_the_paths_it_has_cut_instead_of_lifting(monkeypatch):
-    """Issue 32: the flats and walls' links stay down on what the level has cut where that is quicker than a
-    lift (:class:`cadcam.levelpath.CutPaths`, as the first roughing's), at the machine's feed in the air."""
-    import cadcam.plan
-    from cadcam.flatfinish import flat_wall_finishing
-
-    calls = []
-
-    def both(*args, **kwargs):
-        calls.append((kwargs.get("air_feed"), flat_wall_finishing(*args, **kwargs),
-                      flat_wall_finishing(*args, **{**kwargs, "air_feed": None})))
-        return calls[-1][1]
-
-    monkeypatch.setattr(cadcam.plan, "flat_wall_finishing", both)
-    plate = manifold3d.Manifold.cube((70.0, 50.0, 8.0))
-    for x, y in ((18, 16), (52, 16), (35, 36)):  # three bosses on a plate, as plate_bosses
-        plate = plate + manifold3d.Manifold.cylinder(10.0, 9.0, 9.0, 48).translate((x, y, 8.0))
-    job, setup, sim, report = _plan_and_verify(plate, cell=0.2)
-    assert report.ok, [f.message for f in report.faults]
-    assert calls and all(feed == LIBRARY.max_feed for feed, _, _ in calls)
-    down, lifted = calls[0][1], calls[0][2]
-    assert _lifts(down) < _lifts(lifted)
-    # the ways along the cut paths are cuts at a level already cut: no move goes lower than the lifting plan's
-    assert down.points[:, 2].min() >= lifted.points[:, 2].min() - 1e-9
