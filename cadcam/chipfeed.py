@@ -12,8 +12,7 @@ stock narrower than a cell can fall between one grid's points; each move keeps t
 high as the highest of the four coarse points round it, so that the stock between the model's points, which the tool may
 meet, is there (beside a wall that reads a skin up to a coarse cell thicker: slower, never faster); each move's
 chip is read as verify reads it (``MoveRecord.chip``), the largest of the moves within the tool's radius along
-the path (a move shorter than a cell reaches no new grid point and would read as air); a cutting move longer
-than three times that reach is measured and fed in three parts, so that only its ends take a neighbour's chip.
+the path (a move shorter than a cell reaches no new grid point and would read as air).
 ``factory verify`` judges the result independently, on its own grid from the program (``chip`` faults).
 Feeds are taken down to a ladder of steps (:data:`FEED_STEP`) so that the program changes feed only where
 the engagement does. Lengths in millimetres, feeds in mm/min.
@@ -50,8 +49,7 @@ _FORK_POINTS = 5000
 def chip_feeds(op: Operation, stock: Simulation | None, setup: Setup, part_triangles: np.ndarray,
                max_feed: float) -> Operation:
     """``op`` with each cutting move's feed raised to what its chip allows on ``stock`` (module docstring),
-    at most ``max_feed`` [mm/min], never below ``op.cutting.feed``, its long moves in parts on the same path
-    (:func:`_in_parts`); ``op`` itself where nothing is raised,
+    at most ``max_feed`` [mm/min], never below ``op.cutting.feed``; ``op`` itself where nothing is raised,
     its cutting data gives no chip load, or it is a drill's or a canned cycle's. ``stock`` None: the
     setup's whole block."""
     return chained_chip_feeds([op], stock, setup, part_triangles, max_feed)[0]
@@ -90,9 +88,7 @@ def chip_fed(ops: Sequence[Operation], stock: Simulation | None, setup: Setup, p
               and len(op.points) >= 2]
     if not judged:
         return ChipFed(list(ops), None)
-    # each measured with its long moves in parts (:func:`_in_parts`); handed back so where a feed is raised
-    parted = [_in_parts(op, op.tool.radius + CHIP_CELL) for op in judged]
-    moves, tools = operation_moves(parted), {op.tool.number: op.tool for op in judged}
+    moves, tools = operation_moves(judged), {op.tool.number: op.tool for op in judged}
     again = _run_again(moves)
     # A strip of stock narrower than a cell can fall between one grid's points and read as air, while a
     # verify grid of another phase or cell has a point in it and measures the chip the raised feed makes
@@ -106,9 +102,8 @@ def chip_fed(ops: Sequence[Operation], stock: Simulation | None, setup: Setup, p
     share = np.maximum(_shares(cut, len(moves.points)), other.result() if other is not None
                        else _chip_shares(moves, tools, shifted, part_triangles, stock, again))
     left = cut.simulation
-    first = np.cumsum([0] + [len(op.points) for op in parted])
-    fed = {id(op): raised for op, part, a, b in zip(judged, parted, first[:-1], first[1:])
-           if (raised := _raised(part, share[a:b], max_feed)) is not part}
+    first = np.cumsum([0] + [len(op.points) for op in judged])
+    fed = {id(op): _raised(op, share[a:b], max_feed) for op, a, b in zip(judged, first[:-1], first[1:])}
     whole = len(judged) == len(ops)
     return ChipFed([fed.get(id(op), op) for op in ops],
                    dataclasses.replace(left, removed_volume=None) if whole else None)
@@ -172,29 +167,6 @@ def _raised(op: Operation, share: np.ndarray, max_feed: float) -> Operation:
         raised &= ~(op.feeds >= feed)
     return dataclasses.replace(op, feeds=np.where(raised, np.round(feed, 1), op.feeds if op.feeds is not None
                                                   else np.nan))
-
-
-def _in_parts(op: Operation, reach: float) -> Operation:
-    """``op`` with each cutting move longer than three times ``reach`` [mm] cut in three along its line, the first
-    and last ``reach`` long (the same path: points added on it); ``op`` itself where none is that long.
-
-    A move takes the largest chip of the moves within ``reach`` of it along the path (:func:`_nearby_max`). A long
-    link through air that ends at a cut would take the cut's feed along its whole length; in parts, only its ends
-    within reach of the cut do, and its middle runs at the feed its own chip allows (the machine's, in air). The
-    post writes a line of moves at different feeds as pieces at each one's (:func:`cadcam.post.split_at_feed_changes`).
-    """
-    step = np.diff(op.points, axis=0)
-    length = np.linalg.norm(step, axis=1)
-    long = np.flatnonzero((op.motion[1:] == Motion.CUT) & (length > 3 * reach))  # move long[i] ends at long[i] + 1
-    if not len(long):
-        return op
-    near = reach / length[long]
-    a = op.points[long]
-    added = np.stack([a + near[:, None] * step[long], a + (1 - near)[:, None] * step[long]], axis=1).reshape(-1, 3)
-    at = np.repeat(long + 1, 2)  # before the move's end point
-    feeds = None if op.feeds is None else np.insert(op.feeds, at, np.repeat(op.feeds[long + 1], 2))
-    return dataclasses.replace(op, points=np.insert(op.points, at, added, axis=0),
-                               motion=np.insert(op.motion, at, Motion.CUT), feeds=feeds)
 
 
 def _ladder(want: np.ndarray, base: float, max_feed: float) -> np.ndarray:

@@ -594,8 +594,7 @@ class _Planning:
         return sim
 
     def feeds_changed(self, old: list[Operation], new: list[Operation]) -> None:
-        """``old`` operations are ``new`` now: the same path at other feeds (a long move maybe in parts on it,
-        :func:`cadcam.chipfeed.chip_fed`). The stock models cut on from the ones
+        """``old`` operations are ``new`` now: the same moves at other feeds. The stock models cut on from the ones
         they hold with these in their place (feeds do not move the tool: the stock they left is the same), not
         from the block again (:func:`cadcam.stock.stock_after` cuts on only from the same objects)."""
         swap = {id(a): b for a, b in zip(old, new)}

@@ -785,7 +785,6 @@ def _write_approach(w: _Writer, op: Operation, safe_z: float) -> float:
 
 def _write_moves(w: _Writer, op: Operation, seg: Segments) -> _Cutting:
     """Write an operation's fitted segments as G0/G1/G2/G3 blocks."""
-    seg = split_at_feed_changes(op, seg, _fit_options(w.opt).min_chord)
     lengths = seg.lengths()
     feeds = segment_feeds(op, seg)
     seconds = move_seconds(lengths, feeds, w.opt.rapid_rate)
@@ -817,51 +816,6 @@ def segment_feeds(op: Operation, seg: Segments) -> np.ndarray:
         return np.full(len(seg), np.nan)
     first = np.minimum(np.r_[0, seg.source_end[:-1]], len(per_move) - 1)
     return np.where(seg.motion == Motion.RAPID, np.nan, np.fmin.reduceat(per_move, first))
-
-
-def split_at_feed_changes(op: Operation, seg: Segments, shortest: float) -> Segments:
-    """``seg`` with each fitted line that spans moves of different feeds cut where the feed changes, so each piece
-    runs at its own moves' feed (:func:`segment_feeds`), not the slowest of the line's.
-
-    The fit merges collinear moves whatever their feeds: a link fed in air at the machine's feed that runs on
-    straight into a cut would otherwise cross the air at the cut's feed. The control takes a new F word at any
-    block. Each cut lies on the fitted line at the place along it of the input point where the feed changes
-    (that point projected), so the program's path is the line as before, in more blocks. Arcs are left whole (at
-    their slowest move's feed); no piece is shorter than ``shortest`` [mm] (a cut nearer than that to another,
-    or to the line's ends, is not made: the pieces round it keep the slower feed)."""
-    per_move = op.move_feeds()[1:]  # the move ending at point j + 1
-    if len(seg) == 0 or len(per_move) < 2:
-        return seg
-    change = np.flatnonzero(per_move[1:] != per_move[:-1]) + 1  # points where the next move's feed differs
-    k = np.searchsorted(seg.source_end, change, side="left")  # the segment holding each such point
-    inside = (k < len(seg)) & (seg.source_end[np.minimum(k, len(seg) - 1)] != change)
-    change, k = change[inside], k[inside]
-    line = (seg.kind[k] == SegmentKind.LINE) & (seg.motion[k] != Motion.RAPID)
-    change, k = change[line], k[line]
-    if not len(change):
-        return seg
-    starts = seg.starts
-    a, b = starts[k], seg.end[k]
-    ab = b - a
-    length = np.linalg.norm(ab, axis=1)
-    along = np.einsum("ij,ij->i", op.points[change] - a, ab) / np.maximum(length, 1e-12)  # [mm] from a
-    kept: list[int] = []
-    last = 0.0  # [mm] along the line, of the last cut made in it
-    for i in range(len(change)):  # few: only where a line's moves change feed
-        if not kept or k[kept[-1]] != k[i]:
-            last = 0.0
-        if along[i] - last >= shortest and length[i] - along[i] >= shortest:
-            kept.append(i)
-            last = float(along[i])
-    if not kept:
-        return seg
-    ks, t = k[kept], along[kept] / length[kept]
-    ends = a[kept] + t[:, None] * ab[kept]
-    return Segments(start=seg.start, end=np.insert(seg.end, ks, ends, axis=0),
-                    kind=np.insert(seg.kind, ks, SegmentKind.LINE),
-                    centre=np.insert(seg.centre, ks, np.nan, axis=0),
-                    motion=np.insert(seg.motion, ks, seg.motion[ks]),
-                    source_end=np.insert(seg.source_end, ks, change[kept]))
 
 
 def operations_end(program: Program, options: PostOptions) -> int:

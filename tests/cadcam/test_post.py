@@ -12,8 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from tests.geometry import point_polyline_distance
 from tests.rs274 import run_rs274, write_tool_table
@@ -470,35 +468,3 @@ def test_op2_program_numbers_its_operations_as_op_2():
     fin = finishing_moves(b, parse_gcode(b))
     assert fin.tolist() == finishing_moves(a, parse_gcode(a)).tolist()
     assert fin.any() and not fin.all()
-
-
-@settings(max_examples=30, deadline=None)
-@given(st.lists(st.tuples(st.floats(0.5, 20.0), st.sampled_from([1200.0, 1500.0, 3000.0, 10000.0])),
-                min_size=2, max_size=12),
-       st.floats(-math.pi, math.pi))
-def test_a_straight_run_of_moves_at_several_feeds_runs_each_at_its_own(moves, heading):
-    """Collinear moves at random feeds (a link in air running on into a cut) fit as one line; the program cuts
-    that line where the feed changes: the same path (every block's end on it, in order, the whole length), each
-    block over moves of one feed and at it, and the line no slower than at the slowest feed (the fit's merge)."""
-    step = np.array([math.cos(heading), math.sin(heading), 0.0])
-    along = np.r_[0.0, np.cumsum([m[0] for m in moves])]
-    pts = np.vstack([[0, 0, 5.0], [0, 0, -1.0], np.array([5.0, 5.0, -1.0]) + along[1:, None] * step])
-    pts[1, :2] = pts[2, :2] - along[1] * step[:2]  # the way down at the line's start
-    pts[2:] = pts[1] + along[1:, None] * step
-    mot = np.r_[Motion.RAPID, Motion.PLUNGE, np.full(len(moves), Motion.CUT)].astype(np.int8)
-    feeds = np.r_[np.nan, np.nan, [m[1] for m in moves]]
-    op = Operation("line", "roughing", FLAT, CUT, pts, mot, feeds=feeds)
-    moves_read = parse_gcode(post_process(Job(part_name="p", setup=SETUP, operations=(op,)), PostOptions()).text)
-    level = np.flatnonzero((moves_read.motion == Motion.CUT) & (np.abs(moves_read.points[:, 2] + 1.0) < 1e-9)
-                           & (np.abs(moves_read.points[np.maximum(np.arange(len(moves_read.points)) - 1, 0), 2]
-                                     + 1.0) < 1e-9))
-    ends = (moves_read.points[level] - pts[1]) @ step  # [mm] along the line, each block's end
-    assert np.all(np.diff(ends) > 0) and abs(ends[-1] - along[-1]) < 1e-3
-    off = moves_read.points[level] - pts[1] - ends[:, None] * step
-    assert np.abs(off).max() < 1e-3  # on the line (the program's 4 decimals)
-    starts = np.r_[0.0, ends[:-1]]
-    for a, b, f in zip(starts, ends, moves_read.feed[level]):
-        inside = (along[1:] > a + 1e-3) & (along[:-1] < b - 1e-3)  # the moves this block runs over
-        assert set(feeds[2:][inside]) == {f}  # each block over moves of one feed, at it
-    seconds = np.sum((ends - starts) / moves_read.feed[level])
-    assert seconds <= (along[-1] + 1e-3) / feeds[2:].min()
