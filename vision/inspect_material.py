@@ -24,6 +24,11 @@ from vision.picture_edges import peak_offset
 #: weaker edge read this much stronger at one sample in 44, and a window's median needs half its samples.
 STRONGER = 0.6
 
+#: Past a broken corner's edge the part's face holds over 1.5-3 px (past the edge's blur) and over the
+#: next span, out to this [px]: a line on the face, a highlight's crease 2-3 px wide, fills the first
+#: span only (the held-out 5 MP low-angle bracket 8, good, read its crease as the end of missing material).
+FACE_HOLDS_PX = 4.5
+
 
 def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np.ndarray, sign: np.ndarray,
                 resp: np.ndarray, beyond: np.ndarray, explained: np.ndarray, level: np.ndarray, contrast: float,
@@ -87,7 +92,8 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
     The band's grey is its median (a shadow's dark fringe at one end must not drag it). Face and
     tray are taken twice: beside the sample, and as the medians of the samples of its own straight
     ``line`` whose edge is where expected (``own``); both must agree, and what lies past the found
-    edge must be the line's own other side (its tray past a burr, its face within a broken corner).
+    edge must be the line's own other side (its tray past a burr, its face within a broken corner,
+    out to :data:`FACE_HOLDS_PX`: a step, not a line on the face).
     """
     sets = np.atleast_2d(np.asarray(signed, dtype=np.float64))
     out = np.zeros(sets.shape, bool)
@@ -95,7 +101,7 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
     if not ok.any():
         return out if np.ndim(signed) == 2 else out[0]
     cand, lv = sets[:, ok], level[ok]
-    lo = np.floor(min(np.nanmin(cand, initial=np.inf), lv.min())) - 3.5
+    lo = np.floor(min(np.nanmin(cand, initial=np.inf), lv.min())) - FACE_HOLDS_PX - 0.5
     hi = np.ceil(max(np.nanmax(cand, initial=-np.inf), lv.max())) + 3.5
     t = np.arange(lo, hi + 1e-9, 0.5)  # [px] outward
     q = uv[ok, None, :] + t[None, :, None] * outward[ok, None, :]
@@ -136,5 +142,10 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
         # part's face within a broken corner (not a boss's shadow, not the shadow beyond the part).
         past = share(beyond, face_line, tray_line)
         past_ok = np.where(extra, (past > -0.5) & (past < 0.5), (past >= 0.5) & (past < 1.5))
+        # A broken corner's edge is a step up to the face, which holds past it. Where a stretch of the
+        # face is as dim as the tray (its band reads tray-like), a bright line on it (a crease of the
+        # brushed top, 2-3 px wide) makes as strong an edge, but past the line the face is dim again.
+        far = share(median(s - FACE_HOLDS_PX, s - 3.0), face_line, tray_line)
+        past_ok &= extra | ((far >= 0.5) & (far < 1.5))
         out[k, ok] = agrees(local) & agrees(lined) & past_ok & np.isfinite(found)
     return out if np.ndim(signed) == 2 else out[0]
