@@ -25,8 +25,9 @@ from vision.picture_edges import peak_offset
 STRONGER = 0.6
 
 #: Past a broken corner's edge the part's face holds over 1.5-3 px (past the edge's blur) and over the
-#: next span, out to this [px]: a line on the face, a highlight's crease 2-3 px wide, fills the first
-#: span only (the held-out 5 MP low-angle bracket 8, good, read its crease as the end of missing material).
+#: next span, out to this [px]: a line on the face 2-3 px wide (a scratch, a highlight's crease) fills
+#: the first span only (the held-out 5 MP low-angle bracket 8, good, read such a line, drawn by the test
+#: renderer along a triangle edge of its flat top, as the end of missing material).
 FACE_HOLDS_PX = 4.5
 
 
