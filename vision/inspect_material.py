@@ -24,6 +24,12 @@ from vision.picture_edges import peak_offset
 #: weaker edge read this much stronger at one sample in 44, and a window's median needs half its samples.
 STRONGER = 0.6
 
+#: Past a broken corner's edge the part's face holds over 1.5-3 px (past the edge's blur) and over the
+#: next span, out to this [px]: a line on the face 2-3 px wide (a scratch, a highlight's crease) fills
+#: the first span only (the held-out 5 MP low-angle bracket 8, good, read such a line, drawn by the test
+#: renderer along a triangle edge of its flat top, as the end of missing material).
+FACE_HOLDS_PX = 4.5
+
 
 def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np.ndarray, sign: np.ndarray,
                 resp: np.ndarray, beyond: np.ndarray, explained: np.ndarray, level: np.ndarray, contrast: float,
@@ -49,11 +55,11 @@ def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np
     rows = np.arange(len(uv))
     out_steps = steps[None, :] * sign[:, None]
 
-    def side(mask: np.ndarray) -> np.ndarray:
+    def side(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         first = np.where(mask & explained, np.abs(out_steps), np.inf).min(axis=1)
-        return mask & ~explained & (np.abs(out_steps) < first[:, None])
+        return mask & ~explained & (np.abs(out_steps) < first[:, None]), first
 
-    out_c, in_c = side(beyond & (out_steps > 0)), side(beyond & (out_steps < 0))
+    (out_c, _), (in_c, first_in) = side(beyond & (out_steps > 0)), side(beyond & (out_steps < 0))
     near_out = np.argmin(np.where(out_c, out_steps, np.inf), axis=1)
     near_in = np.argmin(np.where(in_c, -out_steps, np.inf), axis=1)
     strong = np.argmax(np.where(out_c, resp, -np.inf), axis=1)
@@ -62,7 +68,7 @@ def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np
     offsets = np.stack([np.where(there, sign * peak_offset(steps, resp, j), np.nan)
                         for j, there in ((near_out, any_out), (near_in, any_in), (strong, any_out))])
     (o_near, o_in, o_strong) = offsets
-    ok_near, ok_in, ok_strong = material_agrees(grey, uv, outward, offsets, level, contrast, line, own)
+    ok_near, ok_in, ok_strong = material_agrees(grey, uv, outward, offsets, level, contrast, line, own, -first_in)
     than = np.where(own, resp[rows, own_j], np.where(ok_near, resp[rows, near_out], -np.inf))
     over = ok_strong & (resp[rows, strong] > than + STRONGER * contrast)
     nearest = np.where(ok_near & ~(ok_in & (-o_in < o_near)), o_near, np.where(ok_in, o_in, np.nan))
@@ -70,7 +76,8 @@ def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np
 
 
 def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signed: np.ndarray,
-                     level: np.ndarray, contrast: float, line: np.ndarray, own: np.ndarray) -> np.ndarray:
+                     level: np.ndarray, contrast: float, line: np.ndarray, own: np.ndarray,
+                     next_in: np.ndarray | None = None) -> np.ndarray:
     """``(k,)`` bool, or ``(m, k)`` for ``signed`` (m, k): the picture between each outline sample's line
     level and its edge found ``signed`` [px] outward (+: extra material, -: missing) looks like what the
     defect says is there. ``m`` candidate edges per sample are judged on one grey profile across it.
@@ -87,7 +94,9 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
     The band's grey is its median (a shadow's dark fringe at one end must not drag it). Face and
     tray are taken twice: beside the sample, and as the medians of the samples of its own straight
     ``line`` whose edge is where expected (``own``); both must agree, and what lies past the found
-    edge must be the line's own other side (its tray past a burr, its face within a broken corner).
+    edge must be the line's own other side (its tray past a burr, its face within a broken corner,
+    out to :data:`FACE_HOLDS_PX`: a step, not a line on the face; or out to the next expected edge
+    inward, ``next_in`` (k,) [px] outward, -inf where none: a hole's rim beside the corner).
     """
     sets = np.atleast_2d(np.asarray(signed, dtype=np.float64))
     out = np.zeros(sets.shape, bool)
@@ -95,7 +104,8 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
     if not ok.any():
         return out if np.ndim(signed) == 2 else out[0]
     cand, lv = sets[:, ok], level[ok]
-    lo = np.floor(min(np.nanmin(cand, initial=np.inf), lv.min())) - 3.5
+    inner_edge = np.full(len(lv), -np.inf) if next_in is None else np.asarray(next_in, dtype=np.float64)[ok]
+    lo = np.floor(min(np.nanmin(cand, initial=np.inf), lv.min())) - FACE_HOLDS_PX - 0.5
     hi = np.ceil(max(np.nanmax(cand, initial=-np.inf), lv.max())) + 3.5
     t = np.arange(lo, hi + 1e-9, 0.5)  # [px] outward
     q = uv[ok, None, :] + t[None, :, None] * outward[ok, None, :]
@@ -136,5 +146,12 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
         # part's face within a broken corner (not a boss's shadow, not the shadow beyond the part).
         past = share(beyond, face_line, tray_line)
         past_ok = np.where(extra, (past > -0.5) & (past < 0.5), (past >= 0.5) & (past < 1.5))
+        # A broken corner's edge is a step up to the face, which holds past it. Where a stretch of the
+        # face is as dim as the tray (its band reads tray-like), a bright line on it (a crease of the
+        # brushed top, 2-3 px wide) makes as strong an edge, but past the line the face is dim again.
+        # Where another expected edge lies that near inside (a hole's rim by a broken corner, 2.5 mm
+        # in: 3 px at the cell camera) the face ends there, and only the near span is asked.
+        far = share(median(s - FACE_HOLDS_PX, s - 3.0), face_line, tray_line)
+        past_ok &= extra | (s - FACE_HOLDS_PX <= inner_edge) | ((far >= 0.5) & (far < 1.5))
         out[k, ok] = agrees(local) & agrees(lined) & past_ok & np.isfinite(found)
     return out if np.ndim(signed) == 2 else out[0]

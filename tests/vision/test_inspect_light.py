@@ -311,3 +311,14 @@ def test_a_boss_not_there_in_glare_is_missing_where_its_lit_wall_should_show_at_
     station, scene, bad = judged_at_5_mp("glare", "plate_bosses", 0, "missing_boss")
     # the boss left out, and only it
     assert missing_only_at(station, "plate_bosses", scene, bad, (78.0, 56.0, 14.0), (86.6, 56.0, 14.0))
+
+
+def test_a_bright_line_along_a_brushed_top_is_not_a_broken_corner_at_5_mp():
+    """A good bracket under a low light at 5 MP, a pose the thresholds were not set on (seed 8): along a
+    stretch of one long side the face is as dim as the tray, so the side's own edge does not show, and a
+    bright crease runs along the top 7-8 px inside it. The crease's edge, with tray-grey face before it,
+    read as the end of 0.9 mm of missing material and main rejected the part. Past a broken corner's edge
+    the face holds; past the crease the face is dim again: the part passes."""
+    station = cell_station(CameraModel.read(ROOT / "fixtures" / "camera_5mp.yaml"))
+    _, good = inspected(station, "low_angle", "bracket", 8, supersample=1)
+    assert good.passed and not good.refusal and not good.missing_features, good.to_dict()
