@@ -151,7 +151,12 @@ def judge_features(seen: SeenEdges, options: InspectOptions) -> tuple[list[Featu
         # All its edges the light does not hide: where the mesh puts a crease or a contour the
         # picture shows one for most of a feature that is there, and for almost none of one that is not.
         whole = mine & ~unknown
-        if f in outline_features or (every.sum() < options.min_feature_edges and whole.sum() < options.min_feature_edges):
+        if f in outline_features or mine.sum() < options.min_feature_edges:
+            continue  # too small in the picture to judge, light or not
+        if every.sum() < options.min_feature_edges and whole.sum() < options.min_feature_edges:
+            # Big enough to judge, but the light hides it (a boss seen from above, its edges all beside a
+            # clipped top): skipped, a boss not there would pass unseen (the held-out glare plate_bosses 8).
+            refusals.append(_hidden(seen, mine, f"the feature at ({uv[mine, 0].mean():.0f}, {uv[mine, 1].mean():.0f}) px"))
             continue
         # The picture's texture alone finds this share of the feature's edges (:data:`BESIDE_PX`).
         chance = _chance(seen.beside[whole | every], options.min_feature_edges)
@@ -162,7 +167,10 @@ def judge_features(seen: SeenEdges, options: InspectOptions) -> tuple[list[Featu
         if every.sum() < options.min_feature_edges:
             # Seen from straight above, its walls edge-on: a boss, a thin wall, judged by all its edges
             # (with flat shading its top and the face it stands on look alike: off for such pictures).
-            if not told or not options.judge_from_above:
+            if not options.judge_from_above:
+                continue
+            if not told:  # mostly hidden: its few edges clear of the light say nothing of the rest
+                refusals.append(_hidden(seen, mine, f"the feature at ({uv[mine, 0].mean():.0f}, {uv[mine, 1].mean():.0f}) px"))
                 continue
             centre = uv[whole].mean(axis=0)
             # Each loop of its creases on its own: a counterbored boss's through-hole not drilled keeps
@@ -191,11 +199,16 @@ def judge_features(seen: SeenEdges, options: InspectOptions) -> tuple[list[Featu
         elif seen.top_glare and (through or _walls_white(seen, every, f, options.min_feature_edges)):
             features.append(Feature(pixel=pixel, edges=int(every.sum()), found=anywhere, present=False))
         else:
-            why = ", ".join(f"{100 * np.mean(seen.cause[every] == k):.0f} % {what}" for k, what in HIDDEN_BY.items()
-                            if np.any(seen.cause[every] == k))
-            refusals.append(f"the feature at ({centre[0]:.0f}, {centre[1]:.0f}) px is hidden in glare or shadow, or "
-                            f"beyond the picture (of its edges: {why})")
+            refusals.append(_hidden(seen, every, f"the feature at ({centre[0]:.0f}, {centre[1]:.0f}) px"))
     return features, refusals
+
+
+def _hidden(seen: SeenEdges, edges: np.ndarray, what: str) -> str:
+    """The refusal of a feature the light hides: ``what``, and why its ``edges`` (mask over the seen
+    samples) cannot be read, by share of each cause."""
+    why = ", ".join(f"{100 * np.mean(seen.cause[edges] == k):.0f} % {name}" for k, name in HIDDEN_BY.items()
+                    if np.any(seen.cause[edges] == k))
+    return f"{what} is hidden in glare or shadow, or beyond the picture (of its edges: {why})"
 
 
 def _shows(found: float, chance: float, least: float) -> bool:
