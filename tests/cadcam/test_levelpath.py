@@ -163,7 +163,7 @@ def test_roughing_from_the_block_runs_no_loop_round_the_stock_and_cuts_what_it_d
     is left out (:func:`cadcam.levelpath.round_the_stock`); the levels cut everything they cut with it, no
     gouge, no plunge, rapids clear, in less cutting path, and no level move keeps off the stock all along."""
     from cadcam import roughing
-    from tests.cadcam.test_roughing import left_beyond
+    from tests.cadcam.test_roughing import assert_cuts_what_it_cuts_in_less_path
 
     part, setup = plate_with_bosses()
     options = RoughingOptions(air_feed=AIR_FEED)
@@ -174,11 +174,5 @@ def test_roughing_from_the_block_runs_no_loop_round_the_stock_and_cuts_what_it_d
     motion_basics(op, setup)
     assert level_moves_round_the_stock(every, setup) > 100.0  # the loops round the stock, every level
     assert level_moves_round_the_stock(op, setup) == 0.0
-    assert_no_gouge(part, op, options.allowance, radius=TOOL.radius)
-    hf, bad = simulate(op, setup, options.ramp_angle, radius=TOOL.radius)
-    assert not bad, "\n".join(bad[:5])
-    left = left_beyond(hf, simulate(every, setup, options.ramp_angle, radius=TOOL.radius)[0])
-    assert left.max() <= 0.05, np.unravel_index(np.argmax(left), left.shape)
-    cut = [np.linalg.norm(np.diff(o.points, axis=0), axis=1)[o.motion[1:] == Motion.CUT].sum() for o in (op, every)]
-    assert cut[0] <= 0.9 * cut[1], cut
+    assert_cuts_what_it_cuts_in_less_path(part, setup, op, every, options, 0.9)
     assert seconds_and_cut(op, setup)[0] < seconds_and_cut(every, setup)[0] - 1.0

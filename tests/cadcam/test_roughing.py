@@ -487,11 +487,11 @@ def left_beyond(hf, reference):
 
 def assert_cuts_what_it_cuts_in_less_path(part, setup, op, reference, options, share: float = 1.0) -> None:
     """``op`` gouges nothing, plunges nowhere, cuts everything ``reference`` cuts (to 0.05 mm, :func:`left_beyond`)
-    and its cutting path is at most ``share`` of the reference's."""
-    assert_no_gouge(part, op, options.allowance)
-    hf, bad = simulate(op, setup, options.ramp_angle)
+    and its cutting path is at most ``share`` of the reference's; each simulated with the tool that made it."""
+    assert_no_gouge(part, op, options.allowance, radius=op.tool.radius)
+    hf, bad = simulate(op, setup, options.ramp_angle, radius=op.tool.radius)
     assert not bad, "\n".join(bad[:5])
-    left = left_beyond(hf, simulate(reference, setup, options.ramp_angle)[0])
+    left = left_beyond(hf, simulate(reference, setup, options.ramp_angle, radius=reference.tool.radius)[0])
     assert left.max() <= 0.05, np.unravel_index(np.argmax(left), left.shape)
     cut = [np.linalg.norm(np.diff(o.points, axis=0), axis=1)[o.motion[1:] == Motion.CUT].sum() for o in (op, reference)]
     assert cut[0] <= share * cut[1] + 1e-6, cut
