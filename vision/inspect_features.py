@@ -156,7 +156,7 @@ def judge_features(seen: SeenEdges, options: InspectOptions) -> tuple[list[Featu
         if every.sum() < options.min_feature_edges and whole.sum() < options.min_feature_edges:
             # Big enough to judge, but the light hides it (a boss seen from above, its edges all beside a
             # clipped top): skipped, a boss not there would pass unseen (the held-out glare plate_bosses 8).
-            refusals.append(_hidden(seen, mine, f"the feature at ({uv[mine, 0].mean():.0f}, {uv[mine, 1].mean():.0f}) px"))
+            refusals.append(_hidden(seen, mine, uv[mine].mean(axis=0)))
             continue
         # The picture's texture alone finds this share of the feature's edges (:data:`BESIDE_PX`).
         chance = _chance(seen.beside[whole | every], options.min_feature_edges)
@@ -170,7 +170,7 @@ def judge_features(seen: SeenEdges, options: InspectOptions) -> tuple[list[Featu
             if not options.judge_from_above:
                 continue
             if not told:  # mostly hidden: its few edges clear of the light say nothing of the rest
-                refusals.append(_hidden(seen, mine, f"the feature at ({uv[mine, 0].mean():.0f}, {uv[mine, 1].mean():.0f}) px"))
+                refusals.append(_hidden(seen, mine, uv[mine].mean(axis=0)))
                 continue
             centre = uv[whole].mean(axis=0)
             # Each loop of its creases on its own: a counterbored boss's through-hole not drilled keeps
@@ -199,16 +199,17 @@ def judge_features(seen: SeenEdges, options: InspectOptions) -> tuple[list[Featu
         elif seen.top_glare and (through or _walls_white(seen, every, f, options.min_feature_edges)):
             features.append(Feature(pixel=pixel, edges=int(every.sum()), found=anywhere, present=False))
         else:
-            refusals.append(_hidden(seen, every, f"the feature at ({centre[0]:.0f}, {centre[1]:.0f}) px"))
+            refusals.append(_hidden(seen, every, centre))
     return features, refusals
 
 
-def _hidden(seen: SeenEdges, edges: np.ndarray, what: str) -> str:
-    """The refusal of a feature the light hides: ``what``, and why its ``edges`` (mask over the seen
-    samples) cannot be read, by share of each cause."""
+def _hidden(seen: SeenEdges, edges: np.ndarray, centre: np.ndarray) -> str:
+    """The refusal of a feature the light hides: where it is (``centre`` (2,) [px]), and why its ``edges``
+    (mask over the seen samples) cannot be read, by share of each cause."""
     why = ", ".join(f"{100 * np.mean(seen.cause[edges] == k):.0f} % {name}" for k, name in HIDDEN_BY.items()
                     if np.any(seen.cause[edges] == k))
-    return f"{what} is hidden in glare or shadow, or beyond the picture (of its edges: {why})"
+    return (f"the feature at ({centre[0]:.0f}, {centre[1]:.0f}) px is hidden in glare or shadow, or beyond the "
+            f"picture (of its edges: {why})")
 
 
 def _shows(found: float, chance: float, least: float) -> bool:
