@@ -105,14 +105,15 @@ class IdleMeter:
         gave way to everything else). Without the kernel's counters, :func:`idle_processors`."""
         if self._mark is None:
             return idle_processors()
-        if time.monotonic() - self._at < MIN_SPAN:
+        at = time.monotonic()
+        span = at - self._at
+        if span < MIN_SPAN:
             return None
         now = _machine_times()
         if now is None:
             return idle_processors()
         (idle0, all0), (idle1, all1) = self._mark, now
-        span = time.monotonic() - self._at
-        self._mark, self._at = now, time.monotonic()
+        self._mark, self._at = now, at
         if all1 <= all0:
             return None
         count = os.cpu_count() or 1
