@@ -93,6 +93,9 @@ def test_a_good_part_passes_inspection_in_diffuse_light(station):
     # a counterbored boss's through-hole seen from above: its rim on the counterbore's floor finds the
     # floor's corner 3 mm off, its foot (where the tray shows through) nothing: each loop is judged
     ("diffuse", "plate_bosses", 8, "missing_hole", (68.0, 20.0, 15.0), 5.3),
+    # the same hole, its walls turned to the camera: 0.30 of their edges found on the counterbore's wall and
+    # floor beside them (main passed it), its rim on the counterbore's floor 0.04: that loop is not there
+    ("dim", "plate_bosses", 0, "missing_hole", (68.0, 20.0, 15.0), 5.3),
 ])
 def test_a_missing_feature_is_found_missing_where_it_is(station, condition, part, seed, defect, where_mm, radius_mm):
     """The same picture with the good part passes; with the feature left out the part fails, and
