@@ -20,7 +20,11 @@ def plate_with_filled_hole(radius_mm: float, segments: int, centre_mm: tuple[flo
     plate = mf.Manifold.cube((60.0, 40.0, 10.0))
     hole = mf.Manifold.cylinder(10.0, radius_mm, circular_segments=segments).translate((cx, cy, 0.0))
     plug = mf.Manifold.cylinder(10.0, radius_mm + 0.3, circular_segments=96).translate((cx, cy, 0.0))
-    m = ((plate - hole) + plug).to_mesh()
+    return as_trimesh((plate - hole) + plug)
+
+
+def as_trimesh(solid: mf.Manifold) -> trimesh.Trimesh:
+    m = solid.to_mesh()
     return trimesh.Trimesh(np.asarray(m.vert_properties[:, :3], np.float64), np.asarray(m.tri_verts, np.int64))
 
 
@@ -35,10 +39,8 @@ def test_a_flat_face_is_shaded_with_its_own_normal(radius, segments, cx, cy):
     flat = np.abs(mesh.face_normals[:, 2]) > 1 - 1e-9
     assert np.allclose(normals[flat], mesh.face_normals[flat][:, None, :], atol=1e-9)
     # The walls of a 96-facet cylinder are one smooth surface: each corner's normal points away from the axis.
-    bore = mf.Manifold.cube((60.0, 40.0, 10.0)) - mf.Manifold.cylinder(10.0, radius, circular_segments=96).translate(
-        (cx, cy, 0.0))
-    m = bore.to_mesh()
-    bored = trimesh.Trimesh(np.asarray(m.vert_properties[:, :3], np.float64), np.asarray(m.tri_verts, np.int64))
+    bored = as_trimesh(mf.Manifold.cube((60.0, 40.0, 10.0))
+                       - mf.Manifold.cylinder(10.0, radius, circular_segments=96).translate((cx, cy, 0.0)))
     corners = bored.vertices[bored.faces]
     wall = (np.abs(bored.face_normals[:, 2]) < 1e-6) & (np.hypot(corners[:, :, 0] - cx, corners[:, :, 1] - cy)
                                                        < radius + 1e-4).all(axis=1)
