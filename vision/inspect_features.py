@@ -28,9 +28,10 @@ BESIDE_PX = 4.5
 BEYOND_CHANCE = 0.1
 #: Each loop of a feature's creases (:attr:`vision.mesh_edges.MeshEdges.loop`) that the light lets be judged
 #: shows at least this share of its edges where the mesh puts them when the feature is there (0..1). A
-#: counterbored boss's through-hole not drilled, at the cell camera (0.82 mm a pixel), finds 0.30 of the edges
-#: beside its walls turned to the camera on the counterbore's wall and floor edges 3 mm off, but its rim on the
-#: counterbore's floor 0.04; the loops of features there read 0.4 or more (benchmarks/README.md, feature27).
+#: counterbored boss's through-hole not drilled, at the cell camera (0.82 mm a pixel), finds 0.30-0.32 of the
+#: edges beside its walls turned to the camera on the counterbore's wall and floor edges 3 mm off, but its rim on
+#: the counterbore's floor 0.04-0.16; the loops of features there read 0.32 or more at the cell camera and 0.54
+#: at 5 MP, every cached good picture (benchmarks/README.md, feature27).
 LOOP_SHOWS = 0.2
 #: Why an edge sample is unknown, as a refusal names it.
 HIDDEN_BY = {1: "clipped white (glare)", 2: "in deep shadow on both sides", 3: "beyond the picture or behind the part"}
