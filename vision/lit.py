@@ -182,42 +182,6 @@ def _jitter(direction: np.ndarray, radius: float, rng: np.random.Generator, n: i
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-#: Faces meeting at less than this angle are one smooth surface, shaded with normals interpolated
-#: across them; at a sharper crease each face keeps its own normal [deg].
-SMOOTH_DEG = 12.0
-
-
-def corner_normals(verts: np.ndarray, faces: np.ndarray, smooth_deg: float = SMOOTH_DEG) -> np.ndarray:
-    """``(m, 3, 3)`` unit shading normal at each corner of each face (``verts`` (n, 3) [m], ``faces`` (m, 3) int).
-
-    A corner's normal is the area-weighted mean of the normals of the faces at its vertex that meet its
-    own face at under ``smooth_deg`` [deg]: a freeform surface shades smoothly, and a flat face's corners
-    all carry its own normal, however the faces beyond a crease at them lean. (A mean over every face at
-    the vertex, kept where the interpolated normal stays within that angle of the face's, tilted flat
-    tops by up to that angle near where a fan of their triangles meets an inner vertex: lit arcs and dark
-    patches under a low light that no part has, where a hole was filled.)
-    """
-    tri = verts[faces]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    area = np.linalg.norm(cross, axis=1)
-    fn = cross / np.where(area > 0, area, 1.0)[:, None]
-    # Every pair of corners at one vertex: the corners sorted by vertex, each paired with its whole group.
-    vertex = faces.ravel()
-    order = np.argsort(vertex, kind="stable")
-    counts = np.bincount(vertex, minlength=len(verts))
-    start = np.cumsum(counts) - counts
-    n = counts[vertex[order]]
-    mine = np.repeat(order, n)
-    offset = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
-    theirs = order[np.repeat(start[vertex[order]], n) + offset]
-    f, g = mine // 3, theirs // 3
-    weight = area[g] * (np.einsum("nj,nj->n", fn[f], fn[g]) > np.cos(np.radians(smooth_deg)))
-    normal = np.stack([np.bincount(mine, weight * fn[g, j], minlength=faces.size) for j in range(3)], axis=1)
-    length = np.linalg.norm(normal, axis=1, keepdims=True)
-    normal = np.where(length > 0, normal / np.where(length > 0, length, 1.0), fn.repeat(3, axis=0))
-    return normal.reshape(-1, 3, 3)
-
-
 def render_lit(station: Station, meshes: list[tuple[trimesh.Trimesh, Material]], condition: Condition,
                light: np.ndarray, rng: np.random.Generator, *, supersample: int = 2,
                tray_albedo: float = TRAY_ALBEDO) -> np.ndarray:
@@ -277,12 +241,12 @@ def render_lit(station: Station, meshes: list[tuple[trimesh.Trimesh, Material]],
     loc = eye + t_hit[:, None] * d[hit]
     point[hit] = loc
     which[hit] = owner[tri_i]
-    # Smooth normals on freeform faces (each corner's from the faces that meet there at small angles),
-    # so a flat face stays flat whatever its triangles' corners touch across a crease.
+    # Smooth normals on freeform faces (vertex normals of faces that meet at small angles), flat elsewhere.
     bary = trimesh.triangles.points_to_barycentric(scene.triangles[tri_i], loc)
-    smooth = np.einsum("nk,nkj->nj", bary, corner_normals(verts, faces)[tri_i])
+    vn = scene.vertex_normals[scene.faces[tri_i]]
+    smooth = np.einsum("nk,nkj->nj", bary, vn)
     smooth /= np.linalg.norm(smooth, axis=1, keepdims=True)
-    normal[hit] = np.where(np.isfinite(smooth).all(axis=1)[:, None], smooth, fn)
+    normal[hit] = np.where((np.einsum("nj,nj->n", smooth, fn) > np.cos(np.radians(12)))[:, None], smooth, fn)
 
     # Shadows: one shadow map per direction within the light's disc; a point's visibility is the
     # share of them that see it (soft penumbras from an extended light).

@@ -328,9 +328,7 @@ def test_a_bright_line_along_a_brushed_top_is_not_a_broken_corner_at_5_mp():
     stretch of one long side the face is as dim as the tray, so the side's own edge does not show, and a
     bright crease runs along the top 7-8 px inside it. The crease's edge, with tray-grey face before it,
     read as the end of 0.9 mm of missing material and main rejected the part. Past a broken corner's edge
-    the face holds; past the crease the face is dim again: the part passes. (The crease was the test
-    renderer's, a flat top shaded with tilted normals, vision/lit.py before corner_normals; the part passes in
-    the picture drawn without it as well.)"""
+    the face holds; past the crease the face is dim again: the part passes."""
     station = cell_station(CameraModel.read(ROOT / "fixtures" / "camera_5mp.yaml"))
     _, good = inspected(station, "low_angle", "bracket", 8, supersample=1)
     assert good.passed and not good.refusal and not good.missing_features, good.to_dict()
