@@ -340,22 +340,17 @@ def run_pieces(owner, row, first, count, piece):
     for i in range(len(count)):
         if count[i] > 0:
             total += (first[i] + count[i] - 1) // piece - first[i] // piece + 1
-    p_owner = np.empty(total, np.int64)
-    p_row = np.empty(total, np.int64)
-    start = np.empty(total, np.int64)
-    p_count = np.empty(total, np.int64)
+    out = np.empty((4, total), np.int64)  # owner, row, start, count
     k = 0
     for i in range(len(count)):
-        if count[i] <= 0:
-            continue
         stop = first[i] + count[i]
         b = first[i] // piece
-        while b * piece < stop:
+        while count[i] > 0 and b * piece < stop:
             a = max(b * piece, first[i])
-            p_owner[k], p_row[k], start[k], p_count[k] = owner[i], row[i], a, min((b + 1) * piece, stop) - a
+            out[0, k], out[1, k], out[2, k], out[3, k] = owner[i], row[i], a, min((b + 1) * piece, stop) - a
             k += 1
             b += 1
-    return p_owner, p_row, start, p_count
+    return out[0], out[1], out[2], out[3]
 
 
 @_jit
@@ -365,16 +360,13 @@ def run_pairs(owner, row, first, count, nx):
     total = 0
     for i in range(len(count)):
         total += max(count[i], 0)
-    o = np.empty(total, np.int64)
-    flat = np.empty(total, np.int64)
-    col = np.empty(total, np.int64)
-    rows = np.empty(total, np.int64)
+    out = np.empty((4, total), np.int64)  # owner, flat, col, row
     k = 0
     for i in range(len(count)):
         for c in range(first[i], first[i] + count[i]):
-            o[k], col[k], rows[k], flat[k] = owner[i], c, row[i], row[i] * nx + c
+            out[0, k], out[1, k], out[2, k], out[3, k] = owner[i], row[i] * nx + c, c, row[i]
             k += 1
-    return o, flat, col, rows
+    return out[0], out[1], out[2], out[3]
 
 
 @_jit
