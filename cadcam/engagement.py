@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from cadcam.envelope import Segments, reach_interval
-from cadcam.model import BALL, CONE, ProgramMoves, Tool
+from cadcam.model import ProgramMoves, Tool
 
 
 class MoveRecord:
@@ -191,13 +191,10 @@ def _plunged(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray, remov
 
 def _across(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(k,) signed distance [mm] of each grid point ``(qx, qy)`` across move ``o`` (along X for a move with no
-    length across), and (k,) bool whether the move has a length across."""
-    L = np.sqrt(seg.l2[o])
-    has = L > 1e-9
-    ux = np.where(has, seg.dx[o] / np.where(has, L, 1.0), 1.0)
-    uy = np.where(has, seg.dy[o] / np.where(has, L, 1.0), 0.0)
-    wx, wy = qx - seg.x[o], qy - seg.y[o]
-    return np.where(has, wx * uy - wy * ux, wx), has
+    length across), and (k,) bool whether the move has a length across (:func:`cadcam.toolsweep.across`)."""
+    from cadcam import toolsweep
+
+    return toolsweep.across(o, qx, qy, seg.x, seg.y, seg.dx, seg.dy, seg.l2)
 
 
 def _side_chip(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray, w: np.ndarray, before: np.ndarray,
@@ -226,44 +223,11 @@ def _side_chip(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray, w: 
     times the cosine between the move's direction and the sphere's normal, ``sqrt(1 - (d / R)^2)`` for ``d`` the
     distance from the ball's centre line to the nearest stock of the column (the level rule in 3-D: on a level
     move ``d^2 = w^2 + (R - H)^2``). A flat or bull nose on a sloped move, and a drill's point, are read on the
-    tool's radius (the thicker chip)."""
-    r = seg.radius[o]
-    level = seg.dz[o] == 0.0
-    shape = seg.shape[o]
-    rc = np.where((shape == CONE) | ~level, 0.0, seg.rc[o])
-    flat = r - rc
-    a = np.abs(w)
-    below = np.maximum(rc - (before - seg.z[o]), 0.0)  # how far under the corner's centre the stock's top stands
-    reach = np.sqrt(np.maximum(rc * rc - below * below, 0.0))  # rc on the flutes
-    rho = flat + reach
-    lead = np.where(rc > 0.0, reach / np.where(rc > 0.0, rc, 1.0), 1.0)
-    near = np.clip((a - 0.5 * cell) / rho, 0.0, 1.0)
-    chip = lead * np.sqrt(1.0 - near * near)
-    sloped = np.flatnonzero((shape == BALL) & ~level)
-    if len(sloped):
-        k = o[sloped]
-        chip[sloped] = _sloped_ball_chip(seg, k, qx[sloped], qy[sloped], before[sloped], env[sloped], cell)
-    np.maximum.at(stats.chip, o + s, chip)
+    tool's radius (the thicker chip). Compiled (:func:`cadcam.toolsweep.side_chips`)."""
+    from cadcam import toolsweep
 
-
-def _sloped_ball_chip(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray, top: np.ndarray,
-                      low: np.ndarray, cell: float) -> np.ndarray:
-    """(k,) the chip share of ball moves ``o`` on a slope at the grid points ``(qx, qy)`` whose stock stands from
-    ``low`` to ``top`` [mm]: ``sqrt(1 - (d / R)^2)``, ``d`` the distance from the ball's centre line to the
-    column (half a cell nearer, as the level rule takes it) (:func:`_side_chip`)."""
-    r = seg.radius[o]
-    length = np.sqrt(seg.l2[o] + seg.dz[o] ** 2)
-    ux, uy, uz = seg.dx[o] / length, seg.dy[o] / length, seg.dz[o] / length
-    # the column's point at height h is a + h e_z from the centre's start; its squared distance from the line is
-    # quadratic in h, least at h0, taken within the column
-    ax, ay, az = qx - seg.x[o], qy - seg.y[o], -(seg.z[o] + r)
-    au = ax * ux + ay * uy + az * uz
-    h = np.clip(-(az - au * uz) / np.maximum(1.0 - uz * uz, 1e-12), low, top)
-    vz = az + h
-    vu = au + h * uz
-    d = np.sqrt(np.maximum(ax * ax + ay * ay + vz * vz - vu * vu, 0.0))
-    near = np.clip((d - 0.5 * cell) / r, 0.0, 1.0)
-    return np.sqrt(1.0 - near * near)
+    toolsweep.side_chips(o, qx, qy, w, before, env, cell, s, stats.chip, seg.x, seg.y, seg.z, seg.dx, seg.dy, seg.dz,
+                         seg.l2, seg.radius, seg.rc, seg.shape)
 
 
 #: The leading half of the cutter is read in this many arcs of equal angle (5 deg each).

@@ -307,50 +307,16 @@ def _row_spans(seg: Segments, grid: Grid) -> tuple[np.ndarray, np.ndarray, np.nd
 
     The region is the set of points within the tool radius of the move's XY segment (a
     stadium); its intersection with a row is one interval: the union of those of the two
-    end disks and of the band along the segment.
+    end disks and of the band along the segment (:func:`cadcam.toolsweep.row_spans`, compiled).
 
     Returns
     -------
     owner, row, first, count : (r,) int64
         Move, grid row, first column and number of columns of each run (count may be 0).
     """
-    R = seg.radius * (1 + 1e-9) + 1e-9  # the exact reach test comes later; never lose a point here
-    x1, y1 = seg.x + seg.dx, seg.y + seg.dy
-    j0, j1 = grid.row_range(np.minimum(seg.y, y1) - R, np.maximum(seg.y, y1) + R)
-    nj = np.maximum(j1 - j0 + 1, 0)
-    owner = np.repeat(np.arange(len(seg)), nj)
-    row = np.repeat(j0, nj) + (np.arange(int(nj.sum())) - np.repeat(np.cumsum(nj) - nj, nj))
-    yr = grid.y0 + row * grid.cell
-    Ro = np.repeat(R, nj)  # = R[owner], as each move's rows are one run
-    ax, ay, dx, dy = np.repeat(seg.x, nj), np.repeat(seg.y, nj), np.repeat(seg.dx, nj), np.repeat(seg.dy, nj)
+    from cadcam import toolsweep
 
-    def disk(cx, cy):
-        h2 = Ro * Ro - (yr - cy) ** 2
-        half = np.sqrt(np.maximum(h2, 0.0))
-        return np.where(h2 >= 0, cx - half, np.inf), np.where(h2 >= 0, cx + half, -np.inf)
-
-    lo_a, hi_a = disk(ax, ay)
-    lo_b, hi_b = disk(ax + dx, ay + dy)
-    # Band: 0 <= (p - a).d <= |d|^2 and |(p - a) x d| <= R |d|, each linear in x on the row.
-    ey = yr - ay
-    l2 = dx * dx + dy * dy
-    L = np.sqrt(l2)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        u_lo, u_hi = -ey * dy / dx, (l2 - ey * dy) / dx
-        v_lo, v_hi = (ey * dx - Ro * L) / dy, (ey * dx + Ro * L) / dy
-    along_all = (dx == 0) & (ey * dy >= 0) & (ey * dy <= l2)
-    across_all = (dy == 0) & (np.abs(ey * dx) <= Ro * L)
-    lo_u = np.where(dx != 0, np.minimum(u_lo, u_hi), np.where(along_all, -np.inf, np.inf))
-    hi_u = np.where(dx != 0, np.maximum(u_lo, u_hi), np.where(along_all, np.inf, -np.inf))
-    lo_v = np.where(dy != 0, np.minimum(v_lo, v_hi), np.where(across_all, -np.inf, np.inf))
-    hi_v = np.where(dy != 0, np.maximum(v_lo, v_hi), np.where(across_all, np.inf, -np.inf))
-    band = l2 > 1e-18
-    lo_band = np.where(band, ax + np.maximum(lo_u, lo_v), np.inf)
-    hi_band = np.where(band, ax + np.minimum(hi_u, hi_v), -np.inf)
-    lo = np.minimum(np.minimum(lo_a, lo_b), lo_band)
-    hi = np.maximum(np.maximum(hi_a, hi_b), hi_band)
-    first, last = grid.column_range(lo, hi)
-    return owner, row, first, np.maximum(last - first + 1, 0)
+    return toolsweep.row_spans(seg.x, seg.y, seg.dx, seg.dy, seg.radius, grid.x0, grid.y0, grid.cell, grid.nx, grid.ny)
 
 
 def grid_pairs(seg: Segments, grid: Grid, above: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None
@@ -367,11 +333,9 @@ def grid_pairs(seg: Segments, grid: Grid, above: Callable[[np.ndarray, np.ndarra
         lower = row_lower(seg, row_owner[live], grid.y0 + row[live] * grid.cell)
         count[live[lower >= above(row[live], first[live], count[live])]] = 0
         row_owner, row, first, count = _live_pieces(seg, grid, above, row_owner, row, first, count)
-    n = int(count.sum())
-    owner = np.repeat(row_owner, count)
-    col = np.repeat(first - (np.cumsum(count) - count), count) + np.arange(n)
-    rows = np.repeat(row, count)
-    return owner, rows * grid.nx + col, col, rows
+    from cadcam import toolsweep
+
+    return toolsweep.run_pairs(row_owner, row, first, count, grid.nx)
 
 
 #: A run of a row's grid points that survives :func:`row_lower` is judged again in pieces of this many columns
@@ -385,18 +349,13 @@ def _live_pieces(seg: Segments, grid: Grid, above, owner, row, first, count):
     """The runs ``owner, row, first, count`` (:func:`_row_spans`) cut into pieces of :data:`_PIECE` columns, the
     pieces the move provably cannot cut (as :func:`row_lower`, the distance across the row too) given no
     columns; the others in the runs' order, so the pairs that are left come in the same order."""
-    live = np.flatnonzero(count > 0)
-    b0 = first[live] // _PIECE
-    pieces = (first[live] + count[live] - 1) // _PIECE - b0 + 1
-    if not (pieces > 1).any():
+    from cadcam import toolsweep
+
+    p_owner, p_row, start, p_count = toolsweep.run_pieces(owner, row, first, count, _PIECE)
+    if len(p_count) == np.count_nonzero(count > 0):  # no run is more than one piece
         return owner, row, first, count
-    run = np.repeat(live, pieces)
-    k = np.arange(len(run)) - np.repeat(np.cumsum(pieces) - pieces, pieces)  # piece within its run
-    start = np.maximum((np.repeat(b0, pieces) + k) * _PIECE, first[run])
-    stop = np.minimum((np.repeat(b0, pieces) + k + 1) * _PIECE, first[run] + count[run])
-    p_owner, p_row, p_count = owner[run], row[run], stop - start
     lower = row_lower(seg, p_owner, grid.y0 + p_row * grid.cell, grid.x0 + start * grid.cell,
-                      grid.x0 + (stop - 1) * grid.cell)
+                      grid.x0 + (start + p_count - 1) * grid.cell)
     p_count[lower >= above(p_row, start, p_count)] = 0
     return p_owner, p_row, start, p_count
 
@@ -407,19 +366,14 @@ def row_lower(seg: Segments, owner: np.ndarray, yr: np.ndarray, xa: np.ndarray |
     profile at the nearest approach) at every point of grid row ``yr`` [mm] (from ``xa`` to ``xb`` [mm] when
     given), for the move of each row ``owner``: the nearest approach of such a point is at least the distance
     from the row's line (or stretch) to the box round the move's XY segment, and the profile only rises with
-    distance (rounding included: the distance is taken 1e-7 mm short, far beyond any rounding of it)."""
-    y0 = seg.y[owner]
-    y1 = y0 + seg.dy[owner]
-    gap = np.maximum(np.maximum(np.minimum(y0, y1) - yr, yr - np.maximum(y0, y1)), 0.0)
-    if xa is not None:
-        x0 = seg.x[owner]
-        x1 = x0 + seg.dx[owner]
-        gap = np.hypot(gap, np.maximum(np.maximum(np.minimum(x0, x1) - xb, xa - np.maximum(x0, x1)), 0.0))
-    dist = np.maximum(gap - 1e-7, 0.0)
-    lower = seg.zmin[owner]
-    lower += _profile(dist, seg.flat_radius[owner], seg.rc[owner])
-    lower += seg.cone[owner] * np.minimum(dist, seg.radius[owner])
-    return lower
+    distance (rounding included: the distance is taken 1e-7 mm short, far beyond any rounding of it).
+    Compiled (:func:`cadcam.toolsweep.row_lower`)."""
+    from cadcam import toolsweep
+
+    across = xa is not None
+    xa, xb = (xa, xb) if across else (yr, yr)
+    return toolsweep.row_lower(owner, yr, xa, xb, seg.x, seg.y, seg.dx, seg.dy, seg.zmin, seg.flat_radius, seg.rc,
+                               seg.cone, seg.radius, across)
 
 
 def reach_interval(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray):
@@ -480,7 +434,6 @@ class SpanTops:
 
     def above(self, row: np.ndarray, first: np.ndarray, count: np.ndarray) -> np.ndarray:
         """(r,) the highest the stock is over columns ``first .. first + count - 1`` (count >= 1) of ``row``, or more [mm]."""
-        b0 = first // self._BLOCK
-        b1 = (first + count - 1) // self._BLOCK
-        k = np.frexp(b1 - b0 + 1)[1].astype(np.int64) - 1  # floor(log2), exactly
-        return np.maximum(self.table[k, row, b0], self.table[k, row, b1 - (1 << k) + 1])
+        from cadcam import toolsweep
+
+        return toolsweep.span_tops_above(self.table, self._BLOCK, row, first, count)

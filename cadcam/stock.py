@@ -216,8 +216,8 @@ def cut_stock(
         are recorded; the engagement (depth, width, angle) and the shank and holder contacts are
         not measured, and stay zero. The stock is the same either way. For a caller that reads only
         rapids (:func:`cadcam.verify.rapid_check`), this saves most of the work beside the cut.
-        ``"chip"``: that, and each move's chip (``MoveRecord.chip``, as True measures it), for a caller
-        that reads only the chip (:mod:`cadcam.chipfeed`).
+        ``"chip"``: only the stock and each move's chip (``MoveRecord.chip``, as True measures it; nothing
+        removed is recorded), for a caller that reads only those (:mod:`cadcam.chipfeed`).
     resume : cadcam.cutahead.CutState, optional
         The first moves of this program cut already (:func:`cadcam.cutahead.cut_ahead`, in another process
         meanwhile): the cut goes on from there when they are this program's first moves, swept alike, into
@@ -610,20 +610,19 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
     cut = np.flatnonzero(removed > 0.0)
     if len(cut):
         o, f, r = owner[cut], flat[cut], removed[cut]
-        record_max(stats.removed_max, stats.removed_cell, o + s, r, f, extra=(stats.removed_env, env[cut]))
-        # A wall's skin is no engagement (see _SKIN); it is still cut, and still counts
-        # for rapids and for the width of the cut.
+        if body.measure == "chip":  # the chip feeds read the chip and the stock, not what was removed
+            side_chip(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
+                      env[cut], grid.cell, stats)
+        else:  # what the cut took off, counted down to the stock's bottom (a through cut goes on into air)
+            record_max(stats.removed_max, stats.removed_cell, o + s, r, f, extra=(stats.removed_env, env[cut]))
+            floor = stats.bottom if under is None else under[f]
+            np.add.at(stats.volume, o + s, np.maximum(before[cut] - np.maximum(env[cut], floor), 0.0) * grid.cell**2)
+        # A wall's skin is no engagement (see _SKIN); it is still cut, and still counts for rapids and the width.
         # Only beside a wall: floor allowance (the part right below) is engagement as usual.
         if body.measure is True:
             skin = (body.wall_near[f] >= before[cut] - _SKIN) & (part[f] < before[cut] - _SKIN)
             engaged_depth(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
                            env[cut], f, grid.cell, body.engaged_width, stats, skin, body.full_width)
-        elif body.measure:
-            side_chip(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
-                      env[cut], grid.cell, stats)
-        # what the cut took off, counted down to the stock's bottom (a through cut goes on into air)
-        floor = stats.bottom if under is None else under[f]
-        np.add.at(stats.volume, o + s, np.maximum(before[cut] - np.maximum(env[cut], floor), 0.0) * grid.cell**2)
         np.minimum.at(stock, f, env[cut])
         if under is not None:
             through = f[~(stock[f] > under[f])]

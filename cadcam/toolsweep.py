@@ -267,6 +267,202 @@ def segmented_exclusive_min(group, value):
     return out
 
 
+@_jit
+def _index(v, origin, cell, n, first):
+    """:func:`cadcam.heightmap._index_range`'s first (``first``) or last index of one value ``v`` [mm]."""
+    if first:
+        return int(min(max(np.ceil((v - origin) / cell - 1e-9), 0.0), float(n)))
+    return int(min(max(np.floor((v - origin) / cell + 1e-9), -1.0), float(n - 1)))
+
+
+@_jit
+def row_spans(x, y, dx, dy, radius, x0, y0, cell, nx, ny):
+    """:func:`cadcam.envelope._row_spans` on a grid of ``nx`` by ``ny`` points from ``(x0, y0)``, ``cell`` apart
+    [mm]: ``owner, row, first, count`` (r,) int64, each move's rows in order, each row's run of columns."""
+    m = len(x)
+    reach = np.empty(m)
+    j0 = np.empty(m, np.int64)
+    nj = np.empty(m, np.int64)
+    total = 0
+    for i in range(m):
+        R = radius[i] * (1 + 1e-9) + 1e-9  # the exact reach test comes later; never lose a point here
+        y1 = y[i] + dy[i]
+        j0[i] = _index(min(y[i], y1) - R, y0, cell, ny, True)
+        nj[i] = max(_index(max(y[i], y1) + R, y0, cell, ny, False) - j0[i] + 1, 0)
+        reach[i] = R
+        total += nj[i]
+    owner = np.empty(total, np.int64)
+    row = np.empty(total, np.int64)
+    first = np.empty(total, np.int64)
+    count = np.empty(total, np.int64)
+    k = 0
+    for i in range(m):
+        Ro, ax, ay, ddx, ddy = reach[i], x[i], y[i], dx[i], dy[i]
+        l2 = ddx * ddx + ddy * ddy
+        L = math.sqrt(l2)
+        for j in range(j0[i], j0[i] + nj[i]):
+            yr = y0 + j * cell
+            lo, hi = np.inf, -np.inf
+            for cx, cy in ((ax, ay), (ax + ddx, ay + ddy)):  # the end disks
+                h2 = Ro * Ro - (yr - cy) * (yr - cy)
+                if h2 >= 0:
+                    half = math.sqrt(max(h2, 0.0))
+                    lo, hi = min(lo, cx - half), max(hi, cx + half)
+            if l2 > 1e-18:  # the band: 0 <= (p - a).d <= |d|^2 and |(p - a) x d| <= R |d|, each linear in x
+                ey = yr - ay
+                if ddx != 0:
+                    u_lo, u_hi = -ey * ddy / ddx, (l2 - ey * ddy) / ddx
+                    lo_u, hi_u = min(u_lo, u_hi), max(u_lo, u_hi)
+                elif ey * ddy >= 0 and ey * ddy <= l2:
+                    lo_u, hi_u = -np.inf, np.inf
+                else:
+                    lo_u, hi_u = np.inf, -np.inf
+                if ddy != 0:
+                    v_lo, v_hi = (ey * ddx - Ro * L) / ddy, (ey * ddx + Ro * L) / ddy
+                    lo_v, hi_v = min(v_lo, v_hi), max(v_lo, v_hi)
+                elif abs(ey * ddx) <= Ro * L:
+                    lo_v, hi_v = -np.inf, np.inf
+                else:
+                    lo_v, hi_v = np.inf, -np.inf
+                lo, hi = min(lo, ax + max(lo_u, lo_v)), max(hi, ax + min(hi_u, hi_v))
+            owner[k], row[k] = i, j
+            first[k] = _index(lo, x0, cell, nx, True)
+            count[k] = max(_index(hi, x0, cell, nx, False) - first[k] + 1, 0)
+            k += 1
+    return owner, row, first, count
+
+
+@_jit
+def run_pieces(owner, row, first, count, piece):
+    """The live runs (``count`` > 0) of :func:`row_spans` cut into pieces at the multiples of ``piece`` columns,
+    in order: ``owner, row, start, count`` (p,) int64 (:func:`cadcam.envelope._live_pieces`)."""
+    total = 0
+    for i in range(len(count)):
+        if count[i] > 0:
+            total += (first[i] + count[i] - 1) // piece - first[i] // piece + 1
+    out = np.empty((4, total), np.int64)  # owner, row, start, count
+    k = 0
+    for i in range(len(count)):
+        stop = first[i] + count[i]
+        b = first[i] // piece
+        while count[i] > 0 and b * piece < stop:
+            a = max(b * piece, first[i])
+            out[0, k], out[1, k], out[2, k], out[3, k] = owner[i], row[i], a, min((b + 1) * piece, stop) - a
+            k += 1
+            b += 1
+    return out[0], out[1], out[2], out[3]
+
+
+@_jit
+def run_pairs(owner, row, first, count, nx):
+    """Every grid point of the runs ``owner, row, first, count``, in order: ``owner, flat, col, row`` (k,) int64
+    (:func:`cadcam.envelope.grid_pairs`)."""
+    total = 0
+    for i in range(len(count)):
+        total += max(count[i], 0)
+    out = np.empty((4, total), np.int64)  # owner, flat, col, row
+    k = 0
+    for i in range(len(count)):
+        for c in range(first[i], first[i] + count[i]):
+            out[0, k], out[1, k], out[2, k], out[3, k] = owner[i], row[i] * nx + c, c, row[i]
+            k += 1
+    return out[0], out[1], out[2], out[3]
+
+
+@_jit
+def row_lower(owner, yr, xa, xb, x, y, dx, dy, zmin, flat_radius, rc, cone, radius, across):
+    """:func:`cadcam.envelope.row_lower`, (k,): ``across`` False reads ``xa, xb`` not (the whole row)."""
+    k = len(owner)
+    lower = np.empty(k)
+    for i in range(k):
+        o = owner[i]
+        y0 = y[o]
+        y1 = y0 + dy[o]
+        gap = max(max(min(y0, y1) - yr[i], yr[i] - max(y0, y1)), 0.0)
+        if across:
+            x0 = x[o]
+            x1 = x0 + dx[o]
+            gap = math.hypot(gap, max(max(min(x0, x1) - xb[i], xa[i] - max(x0, x1)), 0.0))
+        dist = max(gap - 1e-7, 0.0)
+        low = zmin[o]
+        low += _profile(dist, flat_radius[o], rc[o])
+        low += cone[o] * min(dist, radius[o])
+        lower[i] = low
+    return lower
+
+
+@_jit
+def span_tops_above(table, block, row, first, count):
+    """:meth:`cadcam.envelope.SpanTops.above` of its ``table`` and ``block``: (r,) the larger of the two entries
+    covering each run of ``count`` columns from ``first`` on ``row``."""
+    out = np.empty(len(row))
+    for i in range(len(row)):
+        b0 = first[i] // block
+        b1 = (first[i] + count[i] - 1) // block
+        k = 0
+        while (2 << k) <= b1 - b0 + 1:  # floor(log2(b1 - b0 + 1))
+            k += 1
+        out[i] = max(table[k, row[i], b0], table[k, row[i], b1 - (1 << k) + 1])
+    return out
+
+
+@_jit
+def across(o, qx, qy, x, y, dx, dy, l2):
+    """:func:`cadcam.engagement._across`: (k,) the signed distance [mm] of each grid point across its move ``o``
+    (along X for a move with no length across), and (k,) bool whether the move has a length across."""
+    k = len(o)
+    lat = np.empty(k)
+    has = np.empty(k, np.bool_)
+    for i in range(k):
+        m = o[i]
+        L = math.sqrt(l2[m])
+        has[i] = L > 1e-9
+        wx = qx[i] - x[m]
+        wy = qy[i] - y[m]
+        lat[i] = wx * (dy[m] / L) - wy * (dx[m] / L) if has[i] else wx
+    return lat, has
+
+
+@_jit
+def _clip(v, lo, hi):
+    """``np.clip`` of one value (NaN stays NaN)."""
+    return v if v != v else min(max(v, lo), hi)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")  # a division by zero gives inf or NaN, as numpy's
+def side_chips(o, qx, qy, w, before, env, cell, s, chip, x, y, z, dx, dy, dz, l2, radius, rc, shape):
+    """:func:`cadcam.engagement._side_chip`: each pair's chip share, the largest per move kept in ``chip[o + s]``
+    (NaN kept, as ``np.maximum``)."""
+    for i in range(len(o)):
+        m = o[i]
+        r = radius[m]
+        level = dz[m] == 0.0
+        if shape[m] == BALL and not level:
+            # the ball on a slope: the column's point at height h is a + h e_z from the centre's start; its squared
+            # distance from the line is quadratic in h, least at h0, taken within the column (``env`` to ``before``)
+            length = math.sqrt(l2[m] + dz[m] * dz[m])
+            ux, uy, uz = dx[m] / length, dy[m] / length, dz[m] / length
+            ax, ay, az = qx[i] - x[m], qy[i] - y[m], -(z[m] + r)
+            au = ax * ux + ay * uy + az * uz
+            h = min(max(-(az - au * uz) / max(1.0 - uz * uz, 1e-12), env[i]), before[i])
+            vz = az + h
+            vu = au + h * uz
+            d = math.sqrt(max(ax * ax + ay * ay + vz * vz - vu * vu, 0.0))
+            near = _clip((d - 0.5 * cell) / r, 0.0, 1.0)
+            c = math.sqrt(1.0 - near * near)
+        else:
+            c_r = 0.0 if (shape[m] == CONE or not level) else rc[m]
+            below = max(c_r - (before[i] - z[m]), 0.0)  # how far under the corner's centre the stock's top stands
+            reach = math.sqrt(max(c_r * c_r - below * below, 0.0))  # c_r on the flutes
+            rho = (r - c_r) + reach
+            lead = reach / c_r if c_r > 0.0 else 1.0
+            near = _clip((abs(w[i]) - 0.5 * cell) / rho, 0.0, 1.0)
+            c = lead * math.sqrt(1.0 - near * near)
+        cur = chip[m + s]
+        if cur == cur and not c <= cur:
+            chip[m + s] = c
+
+
 _told = False
 
 

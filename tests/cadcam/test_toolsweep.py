@@ -8,8 +8,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cadcam import toolsweep
-from cadcam.envelope import Segments, pair_envelope
-from cadcam.model import Tool
+from cadcam.engagement import MoveRecord, _across, _side_chip
+from cadcam.envelope import SpanTops, Segments, grid_pairs, pair_envelope, row_lower
+from cadcam.heightmap import grid_over
+from cadcam.model import BALL as BALL_SHAPE
+from cadcam.model import CONE, Tool
 from tests.cadcam.test_verify import BALL, BULL, FLAT, brute_envelope, dist_to_segment
 
 DRILL = Tool(5, "5 mm twist drill", "drill", 5.0, 0.0, 30.0, 2, 50.0, point_angle=118.0)
@@ -75,3 +78,105 @@ def test_the_running_minimum_is_the_earlier_entries_of_each_run(groups, values):
             assert out[i] == np.inf
         else:
             assert out[i] in earlier and out[i] - earlier.min() <= slack
+
+
+def _segments(moves):
+    tools = [TOOLS[i] for i, _ in moves]
+    p0 = np.array([m[0] for _, m in moves])
+    p1 = np.array([m[1] for _, m in moves])
+    seg = Segments.between(p0, p1, [t.radius for t in tools], [float(t.corner_radius) for t in tools],
+                           cone=[t.point_slope for t in tools])
+    return seg, p0, p1, tools
+
+
+GRID = grid_over(np.array([-9.0, -7.0, -5.0]), np.array([9.0, 7.0, 5.0]), 0.2)
+
+
+@settings(max_examples=40, deadline=None)
+@given(moves=st.lists(st.tuples(st.sampled_from(range(len(TOOLS))), moves()), min_size=1, max_size=5),
+       seed=st.integers(0, 2**32 - 1), cut=st.floats(0.0, 6.0))
+def test_the_compiled_pairs_are_every_grid_point_in_reach_and_the_cull_drops_only_points_the_tool_stays_over(
+        moves, seed, cut):
+    """The runs, pieces and pairs (:func:`cadcam.envelope.grid_pairs`, compiled): without a bound, each move's
+    pairs hold, in grid order, every grid point within its radius of its XY segment, none beyond its box;
+    against a stock's :class:`SpanTops`, the pairs dropped are ones whose envelope stays at or over the stock,
+    each run's bound is at least the stock's highest over it, and :func:`row_lower` is under every point's
+    cheap bound on its row."""
+    seg, p0, p1, tools = _segments(moves)
+    owner, flat, col, row = grid_pairs(seg, GRID)
+    assert np.array_equal(flat, row * GRID.nx + col)
+    key = owner * GRID.size + flat
+    assert np.all(np.diff(key) > 0)  # each move's points once, row by row, column by column
+    X, Y = GRID.x0 + col * GRID.cell, GRID.y0 + row * GRID.cell
+    xs, ys = np.meshgrid(GRID.xs, GRID.ys)
+    for k, tool in enumerate(tools):
+        d_all = dist_to_segment(xs.ravel(), ys.ravel(), p0[k], p1[k])
+        mine = np.flatnonzero(owner == k)
+        assert set(np.flatnonzero(d_all <= tool.radius).tolist()) <= set(flat[mine].tolist()), tool.name
+        lo, hi = np.minimum(p0[k], p1[k])[:2] - tool.radius - 1e-6, np.maximum(p0[k], p1[k])[:2] + tool.radius + 1e-6
+        assert np.all((X[mine] >= lo[0]) & (X[mine] <= hi[0]) & (Y[mine] >= lo[1]) & (Y[mine] <= hi[1]))
+    rng = np.random.default_rng(seed)
+    stock = 5.0 - cut * rng.random(GRID.size) * (rng.random(GRID.size) < 0.7)
+    tops = SpanTops(stock, GRID)
+    kept = grid_pairs(seg, GRID, tops.above)
+    kept_key = kept[0] * GRID.size + kept[1]
+    assert np.all(np.diff(kept_key) > 0) and set(kept_key.tolist()) <= set(key.tolist())
+    dropped = ~np.isin(key, kept_key)
+    env = pair_envelope(X[dropped], Y[dropped], owner[dropped], seg)
+    assert np.all(env >= stock[flat[dropped]]), "a pair the tool cuts was dropped"
+    r0, c0 = rng.integers(0, GRID.ny, 50), rng.integers(0, GRID.nx, 50)
+    n = np.minimum(rng.integers(1, GRID.nx + 1, 50), GRID.nx - c0)
+    top = rng.random(GRID.shape)  # every point its own height: a bound that misses a block is caught
+    rough = SpanTops(top.ravel(), GRID)
+    assert all(rough.above(r0[i:i + 1], c0[i:i + 1], n[i:i + 1])[0] >= top[r0[i], c0[i]:c0[i] + n[i]].max()
+               for i in range(50))
+    lower = row_lower(seg, owner, Y)
+    stretch = row_lower(seg, owner, Y, X - GRID.cell, X + GRID.cell)
+    near = np.hypot(*[np.maximum(np.maximum(np.minimum(a, a + d) - v, v - np.maximum(a, a + d)), 0.0)
+                      for a, d, v in ((seg.x[owner], seg.dx[owner], X), (seg.y[owner], seg.dy[owner], Y))])
+    bound = seg.zmin[owner] + np.array([Tool.profile_height(tools[o], min(r, tools[o].radius)) for o, r in
+                                        zip(owner, near)])
+    assert np.all(lower <= bound + 1e-9) and np.all(stretch <= bound + 1e-9) and np.all(lower <= stretch + 1e-12)
+
+
+def _chip_by_hand(seg, o, q, w, before, env, cell):
+    """The chip share of one pair, as :func:`cadcam.engagement._side_chip` documents it, in plain Python."""
+    r, rc, z, dz = seg.radius[o], seg.rc[o], seg.z[o], seg.dz[o]
+    if seg.shape[o] == BALL_SHAPE and dz != 0.0:  # a ball on a slope: the sphere's front at the column's nearest stock
+        u = np.array([seg.dx[o], seg.dy[o], dz]) / np.sqrt(seg.l2[o] + dz * dz)
+        a = np.array([q[0] - seg.x[o], q[1] - seg.y[o], -(z + r)])
+        hs = np.linspace(env, before, 2001)
+        d = min(np.linalg.norm(np.cross(a + np.array([0, 0, h]), u)) for h in hs)
+        return np.sqrt(1 - np.clip((d - 0.5 * cell) / r, 0, 1) ** 2)
+    if seg.shape[o] == CONE or dz != 0.0:
+        rc = 0.0
+    below = max(rc - (before - z), 0.0)
+    reach = np.sqrt(max(rc * rc - below * below, 0.0))
+    lead = reach / rc if rc > 0 else 1.0
+    return lead * np.sqrt(1 - np.clip((abs(w) - 0.5 * cell) / (r - rc + reach), 0, 1) ** 2)
+
+
+@settings(max_examples=40, deadline=None)
+@given(moves=st.lists(st.tuples(st.sampled_from(range(len(TOOLS))), moves()), min_size=1, max_size=4),
+       seed=st.integers(0, 2**32 - 1))
+def test_the_compiled_chip_is_the_documented_one_of_each_point_the_largest_kept_per_move(moves, seed):
+    """:func:`cadcam.engagement._side_chip` (compiled): each move keeps the largest chip share of its points, each
+    the rule written out by hand (a ball on a slope searched along the column), and :func:`_across` is each point's
+    signed distance across its move."""
+    seg, p0, p1, tools = _segments(moves)
+    rng = np.random.default_rng(seed)
+    o = rng.integers(0, len(tools), 30)
+    q = rng.uniform(-8, 8, (30, 2))
+    lat, has = _across(seg, o, q[:, 0], q[:, 1])
+    d = np.hypot(seg.dx[o], seg.dy[o])
+    by_hand = np.where(d > 1e-9, ((q[:, 0] - seg.x[o]) * seg.dy[o] - (q[:, 1] - seg.y[o]) * seg.dx[o]) / np.maximum(
+        d, 1e-300), q[:, 0] - seg.x[o])
+    assert np.array_equal(has, d > 1e-9) and np.allclose(lat, by_hand, atol=1e-9)
+    env = seg.z[o] + rng.uniform(0, 3, 30)
+    before = env + rng.uniform(0.01, 4, 30)
+    stats = MoveRecord(len(tools) + 2)
+    _side_chip(seg, o, q[:, 0], q[:, 1], lat, before, env, 0.2, 2, stats)
+    want = np.zeros(len(tools) + 2)
+    for i in range(30):
+        want[o[i] + 2] = max(want[o[i] + 2], _chip_by_hand(seg, o[i], q[i], lat[i], before[i], env[i], 0.2))
+    assert np.allclose(stats.chip, want, atol=2e-3, rtol=0)
