@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
-from shapely.geometry import LineString, Point, Polygon
 from scipy.spatial import cKDTree
+from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry.base import BaseGeometry
 
 from cadcam.gridregion import GrownMaskCache, near_cells
@@ -88,7 +88,6 @@ class LoopChoice:
         the radius) does not. Only the stock within two radii and a cell's diagonal of the rest material's
         points is asked: the loops lie within the radius of its cells."""
         g, radius = self.known.grid, self.radius
-        half = 0.5 * g.cell
         reach = 2.0 * radius + g.cell * math.sqrt(2.0) + _WAIT_TOL
         stock: list[np.ndarray] = []  # the stock's points (m, 2) [mm], found when first asked
 
