@@ -32,6 +32,8 @@ from cadcam.post import PostOptions
 #: Points this close are the same node of the cut paths [mm]; a link's start found on a loop by shapely lies
 #: on it to rounding.
 NODE_TOL = 1e-6
+#: A move shorter than this goes nowhere and is not emitted [mm].
+SAME_POINT = 1e-9
 
 
 class LevelPath:
@@ -48,15 +50,29 @@ class LevelPath:
         self.link_height = link_height
 
     def add(self, xyz, kind: Motion) -> None:
+        """A move to ``xyz`` [mm], unless the tool is there already (within :data:`SAME_POINT`)."""
         q = np.asarray(xyz, dtype=np.float64)
-        if self.points and np.linalg.norm(self.points[-1] - q) < 1e-9:
+        if self.points and np.linalg.norm(self.points[-1] - q) < SAME_POINT:
             return
         self.points.append(q)
         self.motion.append(int(kind))
 
-    def add_many(self, xyz: np.ndarray, kind: Motion) -> None:
-        for q in xyz:
-            self.add(q, kind)
+    def add_many(self, xyz: np.ndarray, kind: Motion | np.ndarray) -> None:
+        """Moves to each point of ``xyz`` (n, 3) [mm] in turn as :meth:`add` makes them, of ``kind`` (one, or (n,)
+        ints of :class:`cadcam.model.Motion`). A loop or a piece is thousands of points: where no point lies
+        within twice :data:`SAME_POINT` of the one before (so none is skipped, whatever the rounding of the
+        distance), they go in at once; else one by one."""
+        xyz = np.asarray(xyz, dtype=np.float64)
+        kinds = np.broadcast_to(np.asarray(kind, dtype=np.int64), (len(xyz),))
+        if not len(xyz):
+            return
+        step = np.diff(np.vstack([self.points[-1] if self.points else np.full(3, np.inf), xyz]), axis=0)
+        if np.all(np.sqrt(np.einsum("ij,ij->i", step, step)) >= 2.0 * SAME_POINT):
+            self.points.extend(xyz)
+            self.motion.extend(kinds.tolist())
+            return
+        for q, k in zip(xyz, kinds.tolist()):
+            self.add(q, Motion(k))
 
     @property
     def here(self) -> np.ndarray:

@@ -282,7 +282,6 @@ def cut_stacked(path: Any, pieces: list[Piece], links: Links, feed: float, p: An
                 first += 1  # the piece's rapid down to its descent, from higher up
         else:
             path.go_to(piece.start_xy, p)
-        for q, kind in zip(piece.points[first:], piece.motion[first:]):
-            path.add(q, Motion(int(kind)))
+        path.add_many(piece.points[first:], piece.motion[first:])
         links.cut(piece)
         last = piece

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
+from scipy.spatial import cKDTree
 from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry.base import BaseGeometry
 
@@ -44,6 +45,11 @@ _QUAD_SEGS = 8
 #: Share of the radius by which the rest region's outline comes inside it at its arcs (their chords' sagitta): a
 #: loop on that outline, tangent to the stock's cells, sweeps into them no deeper than this.
 _ARC_SAG = 1.0 - math.cos(math.pi / (4 * _QUAD_SEGS))
+#: Slack on a sure "farther than" between a point and a line's samples [mm]: far over their rounding.
+_SURE_TOL = 1e-6
+#: A loop's samples for :func:`_near`, this share of a cell apart at most: the band of points GEOS is asked
+#: about is half of it wide.
+_SAMPLE_STEP = 0.25
 
 
 @dataclass(frozen=True)
@@ -82,28 +88,67 @@ class LoopChoice:
         the radius) does not. Only the stock within two radii and a cell's diagonal of the rest material's
         points is asked: the loops lie within the radius of its cells."""
         g, radius = self.known.grid, self.radius
-        half = 0.5 * g.cell
         reach = 2.0 * radius + g.cell * math.sqrt(2.0) + _WAIT_TOL
-        near = near_cells(mask, reach, g.cell) if mask.any() else mask
-        j, i = np.nonzero(near & (mask | (self.over & (self.known.stock_top > z + _STANDING_EPS))))
-        x, y = g.x0 + g.cell * i, g.y0 + g.cell * j
-        stock = shapely.STRtree(shapely.points(x, y))
+        stock: list[np.ndarray] = []  # the stock's points (m, 2) [mm], found when first asked
+
+        def points() -> np.ndarray:
+            if not stock:
+                near = near_cells(mask, reach, g.cell) if mask.any() else mask
+                j, i = np.nonzero(near & (mask | (self.over & (self.known.stock_top > z + _STANDING_EPS))))
+                stock.append(np.column_stack([g.x0 + g.cell * i, g.y0 + g.cell * j]))
+            return stock[0]
 
         def cuts(lines: list[LineString]) -> np.ndarray:
             out = np.zeros(len(lines), dtype=bool)
-            if not len(lines) or not len(i):
+            if not len(lines) or not len(points()):
                 return out
-            out[np.unique(stock.query(lines, predicate="dwithin", distance=radius)[0])] = True
-            rest = np.nonzero(~out)[0]  # off every point by more than the radius: their cells, near a corner
-            if len(rest):
-                left = np.array(lines, dtype=object)[rest]
-                a, b = stock.query(left, predicate="dwithin", distance=radius + half * math.sqrt(2.0))
-                cells = shapely.box(x[b] - half, y[b] - half, x[b] + half, y[b] + half)
-                into = shapely.distance(left[a], cells) < radius * (1.0 - _ARC_SAG) - 1e-6
-                out[np.unique(rest[a[into]])] = True
+            for n, line in enumerate(lines):
+                out[n] = _meets_cells(line, points(), radius, g.cell)
             return out
 
         return cuts
+
+
+def _near(line: LineString, xy: np.ndarray, distance: float, step: float, first: bool = False) -> np.ndarray:
+    """Indices of the points ``xy`` (m, 2) [mm] within ``distance`` [mm] of ``line`` as GEOS decides it (the
+    STRtree's ``dwithin``); ``first``: one such point, if any, found soonest.
+
+    GEOS is asked only about the points that might be: the line's points every ``step`` [mm] or closer lie
+    within half a step of each of its points, so a point farther than the distance and half a step from all of
+    them is surely not within the distance of the line, and one within the distance of one of them surely is."""
+    x0, y0, x1, y1 = line.bounds
+    pad = distance + step
+    box = np.flatnonzero((xy[:, 0] >= x0 - pad) & (xy[:, 0] <= x1 + pad) & (xy[:, 1] >= y0 - pad)
+                         & (xy[:, 1] <= y1 + pad))
+    if not len(box):
+        return box
+    samples = shapely.get_coordinates(shapely.segmentize(line, step) if line.length > 0 else line)
+    gap, _ = cKDTree(samples).query(xy[box], distance_upper_bound=distance + 0.5 * step + _SURE_TOL)
+    if first and np.any(gap <= distance - _SURE_TOL):
+        return box[[int(np.argmin(gap))]]
+    maybe = box[np.isfinite(gap)]
+    if not len(maybe):
+        return maybe
+    shapely.prepare(line)  # as the STRtree's query prepares it: the same predicate, to the bit
+    try:
+        return maybe[shapely.dwithin(line, shapely.points(xy[maybe]), distance)]
+    finally:
+        shapely.destroy_prepared(line)
+
+
+def _meets_cells(line: LineString, xy: np.ndarray, radius: float, cell: float) -> bool:
+    """Whether ``line`` passes within ``radius`` [mm] of a grid point of ``xy`` (m, 2) [mm], or into its cell
+    (a square of ``cell`` [mm] round it) by more than the rest region's chords do (:meth:`LoopChoice.at`)."""
+    half = 0.5 * cell
+    if len(_near(line, xy, radius, _SAMPLE_STEP * cell, first=True)):
+        return True
+    # off every point by more than the radius: their cells, near a corner
+    b = _near(line, xy, radius + half * math.sqrt(2.0), _SAMPLE_STEP * cell)
+    if not len(b):
+        return False
+    x, y = xy[b, 0], xy[b, 1]
+    cells = shapely.box(x - half, y - half, x + half, y + half)
+    return bool(np.any(shapely.distance(line, cells) < radius * (1.0 - _ARC_SAG) - 1e-6))
 
 
 def rest_targets(rest: Simulation, known: Simulation, levels: np.ndarray, spaces: list[BaseGeometry], radius: float,

@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import LineString, MultiLineString
 
-from cadcam.levelpath import CutPaths, down_budget
+from cadcam.levelpath import SAME_POINT, CutPaths, LevelPath, down_budget
 from cadcam.model import CuttingData, Motion, Setup, Tool
 from cadcam.post import PostOptions
 from cadcam.roughing import RoughingOptions, zlevel_roughing
@@ -176,3 +176,30 @@ def test_roughing_from_the_block_runs_no_loop_round_the_stock_and_cuts_what_it_d
     assert level_moves_round_the_stock(op, setup) == 0.0
     assert_cuts_what_it_cuts_in_less_path(part, setup, op, every, options, 0.9)
     assert seconds_and_cut(op, setup)[0] < seconds_and_cut(every, setup)[0] - 1.0
+
+
+@settings(max_examples=80, deadline=None)
+@given(steps=st.lists(st.tuples(st.sampled_from([0.0, 0.4, 0.9, 1.0, 1.1, 2.0, 2.1, 1e6]), st.integers(0, 2),
+                                st.sampled_from(list(Motion))), min_size=0, max_size=12),
+       start=st.booleans(), one_kind=st.booleans())
+def test_moves_added_at_once_are_those_added_one_by_one(steps, start, one_kind):
+    """:meth:`LevelPath.add_many` (a loop, a piece of rest machining) emits the moves :meth:`LevelPath.add` emits
+    one by one, points and kinds: moves shorter than :data:`SAME_POINT` skipped, also in a row of them that
+    drifts past it, and after the point the path stood at."""
+    xyz, kinds, q = [], [], np.array([3.0, -2.0, 1.0])
+    for length, axis, kind in steps:  # each point a multiple of SAME_POINT along an axis from the one before
+        q = q.copy()
+        q[axis] += length * SAME_POINT
+        xyz.append(q)
+        kinds.append(int(kind))
+    xyz = np.array(xyz).reshape(-1, 3)
+    kind = Motion.CUT if one_kind else np.array(kinds, dtype=np.int8)
+    one, many = LevelPath(), LevelPath()
+    if start:
+        for path in (one, many):
+            path.add([3.0, -2.0, 1.0 + 0.5 * SAME_POINT], Motion.RAPID)
+    for p, k in zip(xyz, [kind] * len(xyz) if one_kind else kinds):
+        one.add(p, Motion(int(k)))
+    many.add_many(xyz, kind)
+    assert many.motion == one.motion and all(type(k) is int for k in many.motion)
+    assert np.array_equal(np.array(many.points).reshape(-1, 3), np.array(one.points).reshape(-1, 3))

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from shapely.geometry import MultiLineString, MultiPoint, Point, box
 from shapely.ops import unary_union
 
-from cadcam.gridregion import cells_region
+from cadcam.gridregion import cells_region, near_cells
 from cadcam.heightmap import Grid, grid_over, upper_envelope
 from cadcam.model import Motion
 from cadcam.rest import rest_mask
@@ -220,3 +220,53 @@ def test_stock_round_a_part_open_to_the_stock_s_sides_is_swept_to_the_wall_allow
         swept = shapely.union_all(shapely.buffer(shapely.linestrings(np.stack([pts[at, :2], pts[at + 1, :2]], 1)),
                                                  tool.radius))
         assert ring.difference(swept).area < 1e-3, (z, ring.difference(swept).bounds)
+
+
+def _cuts_by_point_tree(xy: np.ndarray, lines: list, radius: float, cell: float) -> np.ndarray:
+    """The loop choice as afa326e made it: an STRtree of every stock point, asked ``dwithin`` the radius, then
+    the cells of those within the radius and half a cell diagonal."""
+    out = np.zeros(len(lines), dtype=bool)
+    if not len(xy):
+        return out
+    half = 0.5 * cell
+    stock = shapely.STRtree(shapely.points(xy))
+    out[np.unique(stock.query(lines, predicate="dwithin", distance=radius)[0])] = True
+    rest = np.nonzero(~out)[0]
+    if len(rest):
+        left = np.array(lines, dtype=object)[rest]
+        a, b = stock.query(left, predicate="dwithin", distance=radius + half * math.sqrt(2.0))
+        cells = shapely.box(xy[b, 0] - half, xy[b, 1] - half, xy[b, 0] + half, xy[b, 1] + half)
+        into = shapely.distance(left[a], cells) < radius * math.cos(math.pi / 32) - 1e-6
+        out[np.unique(rest[a[into]])] = True
+    return out
+
+
+@settings(max_examples=60, deadline=None)
+@given(blobs=st.lists(st.tuples(st.floats(3.0, 12.0), st.floats(3.0, 12.0), st.floats(0.2, 3.0)), min_size=1,
+                      max_size=3),
+       cell=st.sampled_from([0.2, 0.25, 0.5]), radius=st.sampled_from([0.5, 1.5, 3.0, 4.0]),
+       shift=st.floats(-0.15, 0.05), stray=st.lists(st.tuples(st.floats(-5.0, 20.0), st.floats(-5.0, 20.0)),
+                                                  min_size=2, max_size=6),
+       standing=st.sampled_from([0.0, 0.0, 0.7]))
+def test_the_loop_choice_asks_geos_only_near_the_loop_and_gives_the_point_tree_s_answer(blobs, cell, radius, shift,
+                                                                                        stray, standing):
+    """:meth:`LoopChoice.at` finds the stock points that may be within reach of a loop from the loop's samples and
+    asks GEOS only about those: its answer is the STRtree's of every point (afa326e), on the loops of rest regions
+    (tangent to cells, a radius off their corners), the outlines of discs a radius round the points (at the
+    radius at their vertices), each moved a little either way (into the band of points within the radius of the
+    loop but not of its samples, and into the cells' corners), and stray lines."""
+    grid = Grid(x0=0.1, y0=-0.3, cell=cell, nx=int(16.0 / cell), ny=int(16.0 / cell))
+    x, y = np.meshgrid(grid.xs, grid.ys)
+    near = np.min([np.hypot(x - cx, y - cy) - r for cx, cy, r in blobs], axis=0)
+    rest = near <= 0.0
+    stock = _flat_stock(grid, np.where(near <= standing, 5.0, -1.0), np.full(grid.shape, -np.inf))
+    region = cells_region(rest, grid).buffer(radius, quad_segs=8)
+    discs = shapely.union_all(shapely.buffer(_points_of(rest, grid), radius, quad_segs=8))  # a radius off points
+    outlines = [region, region.buffer(shift, quad_segs=8), region.buffer(-0.5 * radius, quad_segs=8), discs,
+                discs.buffer(shift, quad_segs=8)]
+    lines = [*shapely.get_parts(shapely.line_merge(shapely.boundary(outlines))), shapely.LineString(stray)]
+    choice = LoopChoice.of(stock, 0.0, radius)
+    j, i = np.nonzero(near_cells(rest, 2.0 * radius + cell * math.sqrt(2.0) + 1e-3, cell)
+                      & (rest | (choice.over & (stock.stock_top > 1e-3))))
+    xy = np.column_stack([grid.x0 + grid.cell * i, grid.y0 + grid.cell * j])
+    assert list(choice.at(rest, 0.0)(lines)) == list(_cuts_by_point_tree(xy, lines, radius, cell))
