@@ -59,6 +59,7 @@ def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np
     """
     rows = np.arange(len(uv))
     out_steps = steps[None, :] * sign[:, None]
+    grey = grey.astype(np.float32, copy=False)  # once: every grey profile below is read from it
 
     def side(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         first = np.where(mask & explained, np.abs(out_steps), np.inf).min(axis=1)
@@ -96,7 +97,7 @@ def _step(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, at: np.ndarray)
     1.5 px beyond it less the grey 1.5 px before it, along the unit ``outward`` (k, 2) from ``uv`` (k, 2) [px]."""
     t = np.nan_to_num(at)[:, None] + np.array([-1.5, 1.5])[None, :]
     q = uv[:, None, :] + t[..., None] * outward[:, None, :]
-    g = map_coordinates(grey.astype(np.float32), [q[..., 1].ravel(), q[..., 0].ravel()], order=1,
+    g = map_coordinates(grey.astype(np.float32, copy=False), [q[..., 1].ravel(), q[..., 0].ravel()], order=1,
                         mode="nearest").reshape(t.shape)
     return np.where(np.isfinite(at), g[:, 1] - g[:, 0], 0.0)
 
@@ -141,7 +142,7 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
     hi = np.ceil(max(np.nanmax(cand, initial=-np.inf), lv.max())) + 3.5
     t = np.arange(lo, hi + 1e-9, 0.5)  # [px] outward
     q = uv[ok, None, :] + t[None, :, None] * outward[ok, None, :]
-    profile = map_coordinates(grey.astype(np.float32), [q[..., 1].ravel(), q[..., 0].ravel()], order=1,
+    profile = map_coordinates(grey.astype(np.float32, copy=False), [q[..., 1].ravel(), q[..., 0].ravel()], order=1,
                               mode="nearest").reshape(q.shape[:2])
 
     def median(a: np.ndarray, b: np.ndarray) -> np.ndarray:
