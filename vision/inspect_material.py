@@ -50,12 +50,13 @@ def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np
     Each side's candidates end at its first expected edge (the material is there up to it). The
     nearest on either side whose greys agree (:func:`material_agrees`) is taken where the own edge is
     not found, the nearer of the two when both agree: a chamfer's crease 6 px inside a burr's lip
-    must not hide the lip. Outward, the material ends at the farthest edge whose greys agree, not at
-    a nearer one: a lip's top can show two tones (a crease, its light), and the step between them is
-    an edge with material beyond it, stepping the way the strongest does; and at a silhouette an own edge stepping the other way from it
-    is the lip's inner step (a lip brighter than the face beside it). The strongest outward one whose greys agree is taken over the own edge, or
-    over a nearer outward one, when it is :data:`STRONGER` than that edge: a burr's lip, flush with the
-    top, leaves no edge at the expected line, and the brushed face's texture there makes weaker ones.
+    must not hide the lip. Outward, the material ends at the farthest edge whose greys agree and that
+    steps the way the strongest does, not at a nearer one: a lip's top can show two tones (a crease,
+    its light), and the step between them is an edge with material beyond it. At a silhouette an own
+    edge stepping the other way from that one is the lip's inner step (a lip brighter than the face
+    beside it). The strongest outward one whose greys agree is taken over the own edge, or over a
+    nearer outward one, when it is :data:`STRONGER` than that edge: a burr's lip, flush with the top,
+    leaves no edge at the expected line, and the brushed face's texture there makes weaker ones.
     """
     rows = np.arange(len(uv))
     out_steps = steps[None, :] * sign[:, None]
@@ -73,7 +74,8 @@ def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np
     any_out, any_in = out_c.any(axis=1), in_c.any(axis=1)
     # The four candidates of each sample, judged on one grey profile across it.
     offsets = np.stack([np.where(there, sign * peak_offset(steps, resp, j), np.nan)
-                        for j, there in ((near_out, any_out), (near_in, any_in), (strong, any_out), (far_out, any_out))])
+                        for j, there in ((near_out, any_out), (near_in, any_in), (strong, any_out),
+                                         (far_out, any_out))])
     (o_near, o_in, o_strong, o_far) = offsets
     ok_near, ok_in, ok_strong, ok_far = material_agrees(grey, uv, outward, offsets, level, contrast, line, own,
                                                         -first_in, silhouette)
