@@ -18,7 +18,7 @@ from cadcam.mesh import load_planned_part
 from cadcam.relief import machining_surface, surface_footprint
 from cadcam.model import Job, Operation, Setup, Tool
 from cadcam.arcs import fit_segments
-from cadcam.parallel import Background, IdleMeter, processors
+from cadcam.parallel import MIN_SPAN, Background, IdleMeter, processors
 from cadcam.post import FitAhead, PostOptions, operations_end, post_process
 from cadcam.rest import from_and_to_safe_height
 from cadcam.sheet import SheetSetup, read_setup_sheet
@@ -92,6 +92,9 @@ AHEAD_NICENESS = 5
 #: Processors the machine must have left idle since the last look (:class:`cadcam.parallel.IdleMeter`) for a
 #: round of :class:`VerifyAhead` to begin: half of one, so at least half a processor's time is there for it.
 AHEAD_IDLE = 0.5
+#: A round verify waits for that runs on less than this share of a processor [processors] is ended and verify
+#: cuts its operations itself (:meth:`VerifyAhead.state`): the share a round begins with (:data:`AHEAD_IDLE`).
+OVERTAKE_BELOW = AHEAD_IDLE
 
 
 class VerifyAhead:
@@ -112,7 +115,7 @@ class VerifyAhead:
     where the machine left :data:`AHEAD_IDLE` processors idle since the last look (:class:`IdleMeter`: the
     seconds before, not the load average's minute, which counts the plan's own robot and workers a minute
     after they end); the rounds' own time counts idle. A round runs at lower priority, so on a machine other
-    work keeps busy it would hardly advance, and verify would wait for it.
+    work keeps busy it would hardly advance: verify waits for it only while it runs (:meth:`_keeps_up`).
     """
 
     def __init__(self, fits: FitAhead, post: PostOptions, options: VerifyOptions, triangles: np.ndarray):
@@ -145,17 +148,34 @@ class VerifyAhead:
 
     def state(self, operations: Sequence[Operation]) -> CutState | None:
         """The state verify of the job's ``operations`` (as posted) resumes from: the round under way waited
-        for when the job holds its operations as they were (else ended), then the last state whose operations
-        it holds; None without one."""
+        for when the job holds its operations as they were and the round keeps up (:meth:`_keeps_up`; else it
+        is ended and verify cuts its operations), then the last state whose operations it holds; None without
+        one."""
         if self._round is not None:
-            if _holds(operations, self._covered):
+            if _holds(operations, self._covered) and self._keeps_up():
                 self._collect(wait=True)
-            else:
+            else:  # not these operations, or verify cuts them sooner itself: the round's are cut by verify
                 self.cancel()
+                self._covered = self._covered[:self._from]
         for n, state in reversed(self._states):
             if _holds(operations, self._covered[:n]):
                 return state
         return None
+
+    def _keeps_up(self) -> bool:
+        """Whether the round under way answers, waited for while it runs on :data:`OVERTAKE_BELOW` processor or
+        more: its work is the work verify would do (and the post: it fits the operations), begun earlier. One
+        that gets less (the machine's other work came back, and it runs niced) would keep verify waiting longer
+        than verify takes to fit and cut its operations itself: False then, within :data:`MIN_SPAN`."""
+        had, at = self._round.processor_time(), time.monotonic()
+        while not self._round.ready(wait=MIN_SPAN):
+            now, then = self._round.processor_time(), time.monotonic()
+            if had is not None and now is not None and now - had < OVERTAKE_BELOW * (then - at):
+                log.info("verify ahead ended: it ran on %.2f processor; verify cuts its operations itself",
+                         (now - had) / (then - at))
+                return False
+            had, at = now, then
+        return True
 
     def cancel(self) -> None:
         """End the round under way (the plan failed, or it is not wanted)."""

@@ -4,6 +4,7 @@ and stock verify from the first move gives, also when the rapid check then chang
 from __future__ import annotations
 
 import dataclasses
+import time
 from unittest import mock
 
 import numpy as np
@@ -74,6 +75,7 @@ def two_processors(monkeypatch):
     monkeypatch.setenv("FACTORY_THREADS", "2")
     # a processor idle, whatever else the machine runs meanwhile (the suite's other workers)
     monkeypatch.setattr(factory.verify.IdleMeter, "idle", lambda self, own=0.0: 2.0)
+    monkeypatch.setattr(factory.verify, "OVERTAKE_BELOW", 0.0)  # each round waited for, however slowly it runs
     with mock.patch.object(stock, "_PAIR_BUDGET", 4000):  # many batches, in the forked rounds too
         yield
 
@@ -159,6 +161,7 @@ def test_a_round_begins_where_the_machine_left_a_processor_idle_its_own_time_cou
         return 0.2 + own  # what is idle besides the rounds: too little alone
 
     monkeypatch.setattr(factory.verify.IdleMeter, "idle", idle)
+    monkeypatch.setattr(factory.verify, "OVERTAKE_BELOW", 0.0)  # the round waited for, however slowly it runs
     ops = _operations()
     ahead = VerifyAhead(FitAhead(POST), POST, OPTIONS, np.asarray(PART))
     ahead._spent = 1.0  # as if a round had just taken a processor for a second
@@ -173,3 +176,33 @@ def test_a_round_begins_where_the_machine_left_a_processor_idle_its_own_time_cou
     again = VerifyAhead(FitAhead(POST), POST, OPTIONS, np.asarray(PART))
     again.offer(ops[:1], SETUP)
     assert again._round is None
+
+
+def _crawling(*args):
+    """A round that gets next to no processor (the machine's other work took it back): it waits, then cuts."""
+    time.sleep(60.0)
+    return factory.verify._verify_round(*args)
+
+
+def test_verify_overtakes_a_round_that_crawls(two_processors, monkeypatch):
+    """The race forced: the last round runs on next to no processor (it sleeps). Verify does not wait for it: the
+    round is ended within a look or two, verify resumes from the round before (its operations fitted by the
+    post itself), and its verdict and stock are verify's from the first move. Rounds that run are waited for."""
+    ops = _operations()
+    ahead = _ahead(ops[:2], rounds=(1, 2))  # two rounds waited for (the fixture's): cut up to op 2
+    assert [n for n, _ in ahead._states] == [1, 2]
+    monkeypatch.setattr(factory.verify, "OVERTAKE_BELOW", factory.verify.AHEAD_IDLE)
+    monkeypatch.setattr(factory.verify, "_verify_round", _crawling)
+    ahead.offer_all(ops, SETUP)
+    assert ahead._round is not None
+    job = Job("p", SETUP, tuple(from_and_to_safe_height(op, SETUP.safe_z) for op in ops))
+    began = time.monotonic()
+    state = ahead.state(job.operations)
+    assert time.monotonic() - began < 10.0  # not the crawling round's minute
+    assert ahead._round is None and state is not None
+    assert state.moves < len(_verified(job)[0].simulation.removed_volume) - 1  # the last two operations not cut
+    plain, n_plain = _verified(job)
+    resumed, n_resumed = _verified(job, state)
+    _same(resumed, plain)
+    assert n_resumed < n_plain
+    assert post_process(job, POST, ahead=ahead.fits).text == post_process(job, POST).text
