@@ -206,3 +206,39 @@ def test_verify_overtakes_a_round_that_crawls(two_processors, monkeypatch):
     _same(resumed, plain)
     assert n_resumed < n_plain
     assert post_process(job, POST, ahead=ahead.fits).text == post_process(job, POST).text
+
+
+def test_the_last_round_posts_and_parses_the_whole_program_as_the_post_and_verify_would(two_processors):
+    """The round begun as the rapid check starts (every operation planned) posts the job as it will be posted and
+    parses all of it: the post and verify take both, the same text and moves to the bit, only for that job (its
+    operations unchanged, its name and source, no parameter the post reads)."""
+    from cadcam.gcode import parse_gcode
+
+    ops = _operations()
+    final = tuple(from_and_to_safe_height(op, SETUP.safe_z) for op in ops)
+    ahead = VerifyAhead(FitAhead(POST), POST, OPTIONS, np.asarray(PART), "p", "ab12")
+    ahead.offer(ops[:2], SETUP)
+    ahead.state(final)
+    ahead.offer_all(ops, SETUP)
+    job = Job("p", SETUP, final, source_sha256="ab12")
+    state = ahead.state(job.operations)
+    posted = ahead.posted(job)
+    assert posted is not None and state is not None
+    program, moves = posted
+    assert program.text == post_process(job, POST).text
+    plain = parse_gcode(program.text, source="p.nc")
+    for name in ("points", "motion", "tool", "feed", "line"):
+        assert getattr(moves, name).tobytes() == getattr(plain, name).tobytes(), name
+    verified = run_verify(program.text, "p.nc", SETUP, {t.number: t for t in job.tools}, np.asarray(PART), OPTIONS,
+                          resume=state, moves=moves)
+    _same(verified, _verified(job)[0])
+    # another job's: posted and parsed again
+    assert ahead.posted(dataclasses.replace(job, part_name="q")) is None
+    assert ahead.posted(dataclasses.replace(job, source_sha256="cd34")) is None
+    assert ahead.posted(dataclasses.replace(job, parameters={"setup_note": "turned over"})) is None
+    moved = final[3].points.copy()
+    moved[5, 2] -= 0.25
+    assert ahead.posted(dataclasses.replace(job, operations=(*final[:3], dataclasses.replace(final[3], points=moved)))) is None
+    slower = dataclasses.replace(final[1], feeds=None if final[1].feeds is None else final[1].feeds * 0.5,
+                                 name=final[1].name + " slower")
+    assert ahead.posted(dataclasses.replace(job, operations=(final[0], slower, *final[2:]))) is None
