@@ -5,9 +5,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import pickle
 import multiprocessing
 import os
+import pickle
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
