@@ -9,7 +9,8 @@ arc fits, the robot's planning, verify's second process) and the stage times of 
 Wall time counts the other processes on the machine: run it quiet, or compare CPU. ``verify_thread_cpu_s`` is the
 CPU of the thread that runs verify (what a quiet machine waits for), ``resumed_moves`` the program's moves verify
 found cut ahead. ``--force`` begins a round at every offer, as the gate does where a processor is idle
-(:class:`cadcam.parallel.IdleMeter`): on a loaded machine, what the rounds take off verify. With ``--json`` the
+(:class:`cadcam.parallel.IdleMeter`), and verify waits for each (``OVERTAKE_BELOW`` 0: it never cuts a slow
+round's operations itself): on a loaded machine, what the rounds take off verify. With ``--json`` the
 last line is one JSON object. The outputs are the same either way (tests/factory/test_plan.py).
 """
 
@@ -70,7 +71,8 @@ def _run(part: Path, robot: bool, ahead: bool, force: bool = False) -> dict:
             mock.patch.object(factory.verify.VerifyAhead, "state", state), \
             mock.patch.object(factory.verify.IdleMeter, "idle",
                               (lambda self, own=0.0: float(os.cpu_count() or 1)) if force
-                              else factory.verify.IdleMeter.idle):
+                              else factory.verify.IdleMeter.idle), \
+            mock.patch.object(factory.verify, "OVERTAKE_BELOW", 0.0 if force else factory.verify.OVERTAKE_BELOW):
         plan = plan_part(request)
     (own1, kids1), wall = _cpu(), time.perf_counter() - t0
     stages = {k: round(plan.seconds.get(k, 0.0), 2) for k in ("verify ahead", "post", "verify", "rapid check")}

@@ -232,19 +232,118 @@ class _Out:
 
     def __init__(self) -> None:
         self.points: list[np.ndarray] = [np.full((1, 3), np.nan)]
-        self.meta: list[tuple[int, int, float, int]] = [(0, 0, math.nan, 0)]
+        self.motion: list[int] = [0]
+        self.tool: list[int] = [0]
+        self.feed: list[float] = [math.nan]
+        self.line: list[int] = [0]
         self.count: list[int] = [1]
 
     def add(self, pts: np.ndarray, motion: int, tool: int, feed: float, line: int) -> None:
         self.points.append(pts)
-        self.meta.append((int(motion), tool, feed, line))
+        self.motion.append(int(motion))
+        self.tool.append(tool)
+        self.feed.append(feed)
+        self.line.append(line)
         self.count.append(len(pts))
+
+    def add_each(self, pts: np.ndarray, motion: np.ndarray, tool: int, feed: np.ndarray, line: np.ndarray) -> None:
+        """One point per block: ``pts`` (k, 3) [mm] with each block's motion, feed [mm/min] and line."""
+        k = len(pts)
+        self.points.append(pts)
+        self.motion.extend(motion.tolist())
+        self.tool.extend([tool] * k)
+        self.feed.extend(feed.tolist())
+        self.line.extend(line.tolist())
+        self.count.extend([1] * k)
 
     def result(self, source: str | None) -> ProgramMoves:
         count = np.asarray(self.count)
-        motion, tool, feed, line = (np.repeat(np.asarray(col), count) for col in zip(*self.meta))
+        motion, tool, feed, line = (np.repeat(np.asarray(col), count)
+                                    for col in (self.motion, self.tool, self.feed, self.line))
         return ProgramMoves(points=np.vstack(self.points), motion=motion, tool=tool, feed=feed, line=line,
                             source=source)
+
+
+# The blocks most programs are made of, a straight move of G0/G1 and X Y Z words and a feed: read all at once
+# and moved together (:func:`_plain_run`), each as the general path (:func:`_tokenize`, :func:`_execute`) would.
+# Anything else on the line (a comment, N, lower case, other words or order) takes the general path.
+_NUM = r"[+-]?(?:\d+\.?\d*|\.\d+)"
+_PLAIN = re.compile(rf"[ \t]*(?:G0?([01])[ \t]*)?(?:X({_NUM})[ \t]*)?(?:Y({_NUM})[ \t]*)?(?:Z({_NUM})[ \t]*)?"
+                    rf"(?:F(\d+\.?\d*|\.\d+)[ \t]*)?")
+
+
+@dataclass(frozen=True)
+class _PlainBlocks:
+    """The program's plain straight moves (:data:`_PLAIN`), in line order.
+
+    line : (k,) int, 1-based.
+    words : (k, 5) float, the G (0 or 1), X, Y, Z and F words as written, NaN where absent (program units).
+    last : (k, 5) int, for each word the block at or before this one that last had it, -1 before any.
+    """
+
+    line: np.ndarray
+    words: np.ndarray
+    last: np.ndarray
+
+
+def _plain_blocks(lines: list[str]) -> _PlainBlocks:
+    """The lines that are plain straight moves with at least one axis word and every number in range."""
+    found = [(i, m.group(1, 2, 3, 4, 5)) for i, m in enumerate(map(_PLAIN.fullmatch, lines), start=1)
+             if m is not None and (m.group(2) or m.group(3) or m.group(4))]
+    line = np.fromiter((i for i, _ in found), np.int64, len(found))
+    words = np.array(list(map(float, (w or "nan" for _, g in found for w in g))), dtype=np.float64).reshape(-1, 5)
+    # a number out of range is refused where the line is read (:func:`_tokenize`): those lines take that path
+    ok = ~(np.abs(words) > MAX_NUMBER).any(axis=1)
+    line, words = line[ok], words[ok]
+    last = np.where(np.isnan(words), -1, np.arange(len(words))[:, None])
+    np.maximum.accumulate(last, axis=0, out=last)
+    return _PlainBlocks(line, words, last)
+
+
+def _plain_block(p: _PlainBlocks, j: int) -> _Block:
+    """Block ``j`` of ``p`` as :func:`_tokenize` reads it."""
+    g, *axes = p.words[j].tolist()
+    return _Block([] if math.isnan(g) else [int(g) * 10], [],
+                  {a: v for a, v in zip("XYZF", axes) if not math.isnan(v)})
+
+
+_WORD_COLUMNS = np.arange(5)
+
+
+def _plain_run(p: _PlainBlocks, a: int, b: int, st: _State, out: _Out,
+               tool_lengths: Mapping[int, float] | None) -> bool:
+    """Blocks ``a:b`` of ``p``, consecutive in the program, moved as :func:`_execute` moves them one by one (the
+    same points, feeds, state); False, having done nothing, where one of them needs more than a straight
+    move in absolute mode, or is refused: :func:`_execute` then takes them one by one and says why."""
+    if not st.absolute:
+        return False
+    last = p.last[a:b]
+    # each block's modal values: its words (X Y Z scaled to mm), else the last block's in the run, else the state's
+    held = p.words[last, _WORD_COLUMNS] * [1.0, st.scale, st.scale, st.scale, 1.0]
+    before = [math.nan if st.motion is None else float(st.motion), *st.pos.tolist(),
+              math.nan if st.feed_raw is None else st.feed_raw]
+    held = np.where(last < a, before, held)
+    motion, tgt, feed_raw = held[:, 0], held[:, 1:4], held[:, 4]
+    cut = motion == 1.0
+    if (not ((motion == 0.0) | cut).all()  # no motion mode yet, or an arc's or a cycle's
+            or not (feed_raw[cut] > 0).all()  # a feed move without a feed: refused
+            or (np.abs(tgt) > MAX_COORDINATE).any()):
+        return False
+    try:
+        shift = _tip_shift(st, tool_lengths)
+    except GcodeError:
+        return False
+    pts = tgt + [0.0, 0.0, shift]
+    out.add_each(pts, cut.astype(np.int64) * int(Motion.CUT), st.spindle_tool,
+                 np.where(cut, feed_raw * st.scale, math.nan), p.line[a:b])
+    z = pts[:, 2]
+    top = np.nanmax(z) if np.isfinite(z).any() else math.nan
+    if top > st.top:  # the first block at that height, as one by one
+        st.top = float(z[np.flatnonzero(z == top)[0]])
+    st.motion = int(motion[-1])
+    st.feed_raw = None if math.isnan(feed_raw[-1]) else float(feed_raw[-1])
+    st.pos = tgt[-1].copy()
+    return True
 
 
 def parse_gcode(text: str, *, source: str | None = None, arc_tolerance: float = 0.001,
@@ -283,8 +382,13 @@ def parse_gcode(text: str, *, source: str | None = None, arc_tolerance: float = 
     if not (isinstance(arc_tolerance, (int, float)) and arc_tolerance > 0 and math.isfinite(arc_tolerance)):
         raise GcodeError(f"arc_tolerance must be a positive number of mm, got {arc_tolerance}", source=source)
     lines = text.splitlines()
+    plain = _plain_blocks(lines)
+    is_plain = np.zeros(len(lines) + 1, dtype=bool)
+    is_plain[plain.line] = True
     blocks: list[tuple[int, _Block]] = []
     for i, raw in enumerate(lines, start=1):
+        if is_plain[i]:
+            continue
         try:
             b = _tokenize(raw, source, i, block_delete)
         except (ArithmeticError, ValueError) as e:
@@ -295,9 +399,12 @@ def parse_gcode(text: str, *, source: str | None = None, arc_tolerance: float = 
     st = _State()
     out = _Out()
     total = len(lines)
-    for k, (ln, b) in enumerate(blocks):
-        if progress is not None and k % 5000 == 0:
-            progress(ln - 1, total)
+    # the plain blocks before each other block, and after the last
+    runs = np.searchsorted(plain.line, [ln for ln, _ in blocks]).tolist() + [len(plain.line)]
+    done = 0  # plain blocks moved
+    shown = -1  # the last progress reported, in 5000s of blocks
+
+    def execute(b: _Block, ln: int) -> None:
         try:
             _execute(b, st, out, ln, any_m6, arc_tolerance, tool_lengths)
         except GcodeError as e:
@@ -311,6 +418,19 @@ def parse_gcode(text: str, *, source: str | None = None, arc_tolerance: float = 
         except (ArithmeticError, ValueError) as e:
             # Not expected; still a bad program must not surface as a crash.
             raise _err(f"cannot execute block: {e}", source, ln) from e
+
+    for k, end in enumerate(runs):
+        if end > done and not _plain_run(plain, done, end, st, out, tool_lengths):
+            for j in range(done, end):  # one by one: the general path says which is refused, and why
+                execute(_plain_block(plain, j), int(plain.line[j]))
+        done = end
+        if k == len(blocks):
+            break
+        ln, b = blocks[k]
+        if progress is not None and (k + done) // 5000 != shown:
+            shown = (k + done) // 5000
+            progress(ln - 1, total)
+        execute(b, ln)
         if st.ended:
             break
     if progress is not None:

@@ -199,15 +199,28 @@ class Background:
             log.info("no worker process (%s): %s runs here", e, getattr(fn, "__name__", fn))
             self.cancel()
 
-    def ready(self) -> bool:
-        """Whether the child has answered, so that :meth:`result` returns at once. False while it works, for
-        a child that ended without an answer, and with no child (:meth:`result` does the work here then)."""
+    def ready(self, wait: float = 0.0) -> bool:
+        """Whether the child has answered, so that :meth:`result` returns at once, having waited up to ``wait``
+        [s] for it. False while it works, for a child that ended without an answer, and with no child
+        (:meth:`result` does the work here then)."""
         if self._proc is None:
             return False
         try:
-            return bool(self._conn.poll())
+            return bool(self._conn.poll(wait))
         except (EOFError, OSError):
             return False
+
+    def processor_time(self) -> float | None:
+        """Processor time the child has had so far, all its threads [s]; None with no child, or where the
+        system does not say (no ``/proc``)."""
+        if self._proc is None or self._proc.pid is None:
+            return None
+        try:
+            with open(f"/proc/{self._proc.pid}/stat", "rb") as f:
+                fields = f.read().rsplit(b")", 1)[1].split()  # after the command's name, which may hold spaces
+            return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime
+        except (OSError, IndexError, ValueError):
+            return None
 
     def outcome(self) -> tuple[bool, Any]:
         """``(True, value)`` of the child, waiting for it; ``(False, None)`` with no child or one that failed:

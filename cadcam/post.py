@@ -645,6 +645,11 @@ def _fitted(job: Job, opt: PostOptions, progress: Callable[[int, int], None] | N
 
 
 
+#: The job's parameters a program's text depends on (op 2's numbering of its operations, its setup note); the
+#: text depends on nothing else of the job but its name, source digest, setup and operations.
+POSTED_PARAMETERS = ("op", "setup_note")
+
+
 def post_process(job: Job, options: PostOptions = PostOptions(), *,
                  progress: Callable[[int, int], None] | None = None, ahead: FitAhead | None = None) -> Program:
     """Write a job as a G-code program.

@@ -604,7 +604,7 @@ def _plan_once(request: PlanRequest, progress: Progress | None = None) -> PartPl
         (:mod:`factory.robotwork`)."""
         nonlocal robot, verify_ahead
         verify_ahead = VerifyAhead(ahead, post_options, _verify_options(req, boundary is not None),
-                                   np.asarray(part_work.triangles))
+                                   np.asarray(part_work.triangles), req.cam.part.stem, loaded.sha256)
         if not req.robot:
             return
         ops = req.ops if req.ops is not None else 1 if boundary is not None else 2
@@ -654,8 +654,10 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
     outputs = req.outputs(Path("."))
     with watch("verify ahead"):  # a round under way fits operations the post needs: waited for first
         resume = verify_ahead.state(job.operations) if verify_ahead is not None else None
+        # the last round's whole program, where it is this job's: neither posted nor parsed again
+        posted = verify_ahead.posted(job) if verify_ahead is not None else None
     with watch("post"):
-        program = post_process(job, post_options, ahead=ahead)
+        program = post_process(job, post_options, ahead=ahead) if posted is None else posted[0]
         sheet = dataclasses.replace(setup_sheet(job, program, outputs["program"].name), op=1, work_offset="G54")
     # The pictures and the log's messages do not depend on verify: they are made in a second process while
     # verify runs here (issue 35: they were most of the `write` stage), with a robot once its share is planned
@@ -674,7 +676,8 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
         with watch("verify"):
             verified = run_verify(program.text, str(outputs["program"]), job.setup, {t.number: t for t in job.tools},
                                   np.asarray(planned.part_work.triangles), options, held_open(progress),
-                                  operations=sheet.operations, resume=resume)
+                                  operations=sheet.operations, resume=resume,
+                                  moves=None if posted is None else posted[1])
         op2 = op2_error = None
         if req.ops == 2:
             try:

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import multiprocessing
 import os
+import pickle
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -16,10 +18,10 @@ import numpy as np
 from cadcam.gcode import parse_gcode
 from cadcam.mesh import load_planned_part
 from cadcam.relief import machining_surface, surface_footprint
-from cadcam.model import Job, Operation, Setup, Tool
+from cadcam.model import Job, Operation, ProgramMoves, Setup, Tool
 from cadcam.arcs import fit_segments
-from cadcam.parallel import Background, IdleMeter, processors
-from cadcam.post import FitAhead, PostOptions, operations_end, post_process
+from cadcam.parallel import MIN_SPAN, Background, IdleMeter, processors
+from cadcam.post import POSTED_PARAMETERS, FitAhead, PostOptions, Program, operations_end, post_process
 from cadcam.rest import from_and_to_safe_height
 from cadcam.sheet import SheetSetup, read_setup_sheet
 from cadcam.preview import deviation_image
@@ -66,12 +68,14 @@ def part_triangles(part: Path, setup: Setup, expected_sha256: str = "", intake: 
 
 def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int, Tool],
                triangles: np.ndarray, options: VerifyOptions, progress: Progress | None = None,
-               operations: Sequence[Mapping[str, Any]] = (), resume: CutState | None = None) -> VerifyResult:
+               operations: Sequence[Mapping[str, Any]] = (), resume: CutState | None = None,
+               moves: ProgramMoves | None = None) -> VerifyResult:
     """Parse and simulate a program against the part (``triangles`` in work coordinates [mm]);
     ``operations`` are the setup sheet's, which tell finishing tools from roughing ones where the
     program's own operation comments do not, and each tool's chip load (:func:`cadcam.verify.chip_loads`).
     ``resume``: the program's first moves cut already
     (:class:`VerifyAhead`), gone on from where they are this program's; the result is the same.
+    ``moves``: this text parsed already (:meth:`VerifyAhead.posted`), read as from ``gcode_source``.
 
     Raises
     ------
@@ -80,7 +84,8 @@ def run_verify(gcode_text: str, gcode_source: str, setup: Setup, tools: dict[int
     VerifyError
         The simulation cannot run on its inputs (a tool missing from ``tools``, ...).
     """
-    moves = parse_gcode(gcode_text, source=gcode_source)
+    moves = (parse_gcode(gcode_text, source=gcode_source) if moves is None
+             else dataclasses.replace(moves, source=gcode_source))
     finishing = finishing_moves(gcode_text, moves, operations)
     return simulate(moves, tools, setup, triangles, options, progress=stage_callback(progress, "verify"),
                     finishing=finishing, resume=resume, chips=chip_loads(operations))
@@ -92,6 +97,9 @@ AHEAD_NICENESS = 5
 #: Processors the machine must have left idle since the last look (:class:`cadcam.parallel.IdleMeter`) for a
 #: round of :class:`VerifyAhead` to begin: half of one, so at least half a processor's time is there for it.
 AHEAD_IDLE = 0.5
+#: A round verify waits for that runs on less than this share of a processor [processors] is ended and verify
+#: cuts its operations itself (:meth:`VerifyAhead.state`): the share a round begins with (:data:`AHEAD_IDLE`).
+OVERTAKE_BELOW = AHEAD_IDLE
 
 
 class VerifyAhead:
@@ -112,11 +120,15 @@ class VerifyAhead:
     where the machine left :data:`AHEAD_IDLE` processors idle since the last look (:class:`IdleMeter`: the
     seconds before, not the load average's minute, which counts the plan's own robot and workers a minute
     after they end); the rounds' own time counts idle. A round runs at lower priority, so on a machine other
-    work keeps busy it would hardly advance, and verify would wait for it.
+    work keeps busy it would hardly advance: verify waits for it only while it runs (:meth:`_keeps_up`).
     """
 
-    def __init__(self, fits: FitAhead, post: PostOptions, options: VerifyOptions, triangles: np.ndarray):
+    def __init__(self, fits: FitAhead, post: PostOptions, options: VerifyOptions, triangles: np.ndarray,
+                 part_name: str = "ahead", source_sha256: str = ""):
         self.fits, self.post, self.options, self.triangles = fits, post, options, triangles
+        self.part_name, self.source_sha256 = part_name, source_sha256  # the job's, posted as it will be
+        self._setup: Setup | None = None  # the setup of the round under way
+        self._posted: tuple[Setup, Program, ProgramMoves] | None = None  # the last round's program, its moves
         self.enabled = processors() >= 2 and "fork" in multiprocessing.get_all_start_methods()
         self._covered: list[Operation] = []  # the operations of the rounds made and under way, in order
         self._states: list[tuple[int, CutState]] = []  # (operations cut, state after them), in order
@@ -145,17 +157,48 @@ class VerifyAhead:
 
     def state(self, operations: Sequence[Operation]) -> CutState | None:
         """The state verify of the job's ``operations`` (as posted) resumes from: the round under way waited
-        for when the job holds its operations as they were (else ended), then the last state whose operations
-        it holds; None without one."""
+        for when the job holds its operations as they were and the round keeps up (:meth:`_keeps_up`; else it
+        is ended and verify cuts its operations), then the last state whose operations it holds; None without
+        one."""
         if self._round is not None:
-            if _holds(operations, self._covered):
+            if _holds(operations, self._covered) and self._keeps_up():
                 self._collect(wait=True)
-            else:
+            else:  # not these operations, or verify cuts them sooner itself: the round's are cut by verify
                 self.cancel()
+                self._covered = self._covered[:self._from]
         for n, state in reversed(self._states):
             if _holds(operations, self._covered[:n]):
                 return state
         return None
+
+    def posted(self, job: Job) -> tuple[Program, ProgramMoves] | None:
+        """The program the last round posted and its moves, where they are ``job``'s (after :meth:`state`): a
+        round of all its operations, the same to the bit, its name, source and setup, and no parameter the post
+        reads (:data:`cadcam.post.POSTED_PARAMETERS`); None otherwise, and the post and verify make them."""
+        if self._posted is None or self._round is not None:
+            return None
+        setup, program, moves = self._posted
+        ops = self._covered
+        if (job.setup is not setup or job.part_name != self.part_name or job.source_sha256 != self.source_sha256
+                or any(k in job.parameters for k in POSTED_PARAMETERS) or len(job.operations) != len(ops)
+                or any(a is not b and pickle.dumps(a) != pickle.dumps(b) for a, b in zip(job.operations, ops))):
+            return None
+        return program, moves
+
+    def _keeps_up(self) -> bool:
+        """Whether the round under way answers, waited for while it runs on :data:`OVERTAKE_BELOW` processor or
+        more: its work is the work verify would do (and the post: it fits the operations), begun earlier. One
+        that gets less (the machine's other work came back, and it runs niced) would keep verify waiting longer
+        than verify takes to fit and cut its operations itself: False then, within :data:`MIN_SPAN`."""
+        had, at = self._round.processor_time(), time.monotonic()
+        while not self._round.ready(wait=MIN_SPAN):
+            now, then = self._round.processor_time(), time.monotonic()
+            if had is not None and now is not None and now - had < OVERTAKE_BELOW * (then - at):
+                log.info("verify ahead ended: it ran on %.2f processor; verify cuts its operations itself",
+                         (now - had) / (then - at))
+                return False
+            had, at = now, then
+        return True
 
     def cancel(self) -> None:
         """End the round under way (the plan failed, or it is not wanted)."""
@@ -187,8 +230,9 @@ class VerifyAhead:
         last = self._states[-1][1] if self._states else None
         self._covered = ops[:n0 + len(new)]
         self._from = n0
+        self._setup = setup
         self._round = Background(_verify_round, tuple(self._covered), n0, tuple(known), setup, self.fits, self.post,
-                                 self.options, self.triangles, last)
+                                 self.options, self.triangles, last, self.part_name, self.source_sha256)
 
     def _collect(self, wait: bool) -> None:
         if self._round is None or not (wait or self._round.ready()):
@@ -201,12 +245,13 @@ class VerifyAhead:
             self._covered = self._covered[:self._from]
             self.enabled = False
             return
-        fitted, cut, spent = value
+        fitted, cut, spent, posted = value
         self._spent += spent
         for op, seg in zip(new, fitted):
             self.fits.know(op, seg)
         if cut is not None:
             self._states.append((len(self._covered), cut))
+        self._posted = (self._setup, *posted)
 
 
 def _holds(operations: Sequence[Operation], cut: Sequence[Operation]) -> bool:
@@ -217,10 +262,13 @@ def _holds(operations: Sequence[Operation], cut: Sequence[Operation]) -> bool:
 
 
 def _verify_round(ops: tuple[Operation, ...], n0: int, known: tuple, setup: Setup, fits: FitAhead,
-                  post: PostOptions, options: VerifyOptions, triangles: np.ndarray,
-                  state: CutState | None) -> tuple[list, CutState | None, float]:
+                  post: PostOptions, options: VerifyOptions, triangles: np.ndarray, state: CutState | None,
+                  part_name: str, source_sha256: str
+                  ) -> tuple[list, CutState | None, float, tuple[Program, ProgramMoves]]:
     """One round of :class:`VerifyAhead`, in its process: the fits of ``ops[n0:]`` and the verify cut of the
-    program of ``ops`` (on from ``state``), up to the end of its last operation; the processor time it took [s]."""
+    program of ``ops`` (on from ``state``), up to the end of its last operation; the processor time it took [s];
+    the program of ``ops`` posted as the job named so (``part_name``, ``source_sha256``) is, and its moves: the
+    job's own, where ``ops`` are all of its operations."""
     os.nice(AHEAD_NICENESS)
     began = time.process_time()
     fitted = []
@@ -229,12 +277,13 @@ def _verify_round(ops: tuple[Operation, ...], n0: int, known: tuple, setup: Setu
             fit = fit_segments(op.points, op.motion, fits.fit)
         fits.know(op, fit)  # this process's copy: posted below without fitting again
         fitted.append(fit)
-    program = post_process(Job(part_name="ahead", setup=setup, operations=ops), post, ahead=fits)
-    lines = program.text.splitlines()[:operations_end(program, post)]
-    moves = parse_gcode("\n".join(lines) + "\n", source="verify ahead")
+    program = post_process(Job(part_name, setup, ops, source_sha256), post, ahead=fits)
+    moves = parse_gcode(program.text, source="verify ahead")
+    # the moves of the program's ending (a longer job's would be elsewhere) are not cut ahead
+    before = int(np.searchsorted(moves.line, operations_end(program, post), side="right"))
     tools = {op.tool.number: op.tool for op in ops}
-    cut = verify_ahead(moves, tools, setup, triangles, options, before=len(moves.points), resume=state)
-    return fitted, cut, time.process_time() - began
+    cut = verify_ahead(moves, tools, setup, triangles, options, before=before, resume=state)
+    return fitted, cut, time.process_time() - began, (program, moves)
 
 
 def run_verify_after(before: Simulation, flip: np.ndarray, gcode_text: str, gcode_source: str, setup: Setup,

@@ -326,3 +326,65 @@ def test_peck_drilling_reaches_the_bottom_in_pecks_and_never_feeds_sideways(r, d
     assert int(cut.sum()) == math.ceil((rr - zz) / qq - 1e-9)
     # A peck removes at most Q of new depth (plus the clearance it re-enters above the last one).
     assert np.all(a[cut, 2] - b[cut, 2] <= qq + 0.254 + 1e-6)
+
+
+# --------------------------------------------------------------------------- the plain lane
+
+# Plain straight moves (G0/G1 with X Y Z and F, as the posts write most of a program), which the parser moves
+# together, mixed with every block that changes what they mean: modes, units, tool lengths, arcs, cycles,
+# refusals (no motion mode, no feed, numbers and coordinates out of range).
+_PLAIN_NUM = st.one_of(_NUM, st.sampled_from(["99999", "-100001", "1" + "0" * 10, "4000"]))
+_PLAIN = st.builds(
+    lambda g, x, y, z, f, gap: gap.join(w for w in (g, x, y, z, f) if w),
+    st.sampled_from(["", "", "G0", "G1", "G00", "G01"]),
+    st.one_of(st.just(""), _PLAIN_NUM.map("X{}".format)),
+    st.one_of(st.just(""), _PLAIN_NUM.map("Y{}".format)),
+    st.one_of(st.just(""), _PLAIN_NUM.map("Z{}".format)),
+    st.one_of(st.just(""), st.sampled_from(["F0", "F100", "F.5", "F2500.", "F" + "9" * 11]), st.just("")),
+    st.sampled_from([" ", "", "\t "]))
+_OTHER = st.sampled_from([
+    "G90", "G91", "G20", "G21", "T1 M6", "T2 M6", "T7", "G43 H1", "G43", "G49", "(a comment)", "", "   ",
+    "N10 G1 X1", "g1 x2", "G2 X1 Y0 I.5 J0", "G3 X0 Y0 R.5", "G2 X2 Y2 I1 J1", "G53 Z0", "G28 Z0",
+    "G81 Z-1 R1 F50", "G80", "F-1", "G1 F0", "M2", "G0", "G1 X1 (moved)", "/G0 X5", "G1 X1 Y1 Z1 F1 S100"])
+
+
+@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.one_of(_PLAIN, _PLAIN, _OTHER, st.sampled_from(["G53 Z0", "G28 Z0"])), min_size=1, max_size=40),
+       st.booleans(), st.booleans())
+def test_plain_moves_parse_as_block_by_block(lines, with_lengths, start_known):
+    """The plain lane reads every program as the general path reads it block by block: the same moves to the
+    bit (points, motion, tool, feed, line), or the same refusal of the same line."""
+    import cadcam.gcode as gcode
+
+    text = ("G21 G90 G0 X0 Y0 Z0 F100\n" if start_known else "") + "\n".join(lines) + "\n"
+    lengths = {1: 10.0, 2: 20.5} if with_lengths else None
+
+    def parsed():
+        try:
+            mv = parse_gcode(text, source="t.nc", tool_lengths=lengths)
+        except GcodeError as e:
+            return str(e), e.data["line"], e.source
+        return tuple(a.dtype.str + a.tobytes().hex() for a in (mv.points, mv.motion, mv.tool, mv.feed, mv.line))
+
+    fast = parsed()
+    with pytest.MonkeyPatch.context() as m:  # every block by the general path
+        m.setattr(gcode, "_plain_blocks", lambda lines: gcode._PlainBlocks(
+            np.zeros(0, np.int64), np.zeros((0, 5)), np.zeros((0, 5), np.int64)))
+        general = parsed()
+    assert fast == general
+
+
+def test_the_posts_moves_take_the_plain_lane(monkeypatch):
+    """A posted program's straight moves are read all at once, not block by block (what makes the lane worth
+    having), and the program parses to the same moves as block by block."""
+    import cadcam.gcode as gcode
+
+    text = "G21 G90 G17 G94\nT1 M6\nG43 H1\nG0 Z5\nX1 Y2\nG1 Z-1 F300\n" + "".join(
+        f"X{i * 0.1:.4f} Y{(i % 7) * 0.3:.4f} Z-1.{i % 10}\n" for i in range(500)) + "G1 X1 Y0\nG3 X-1 Y0 I-1 J0\nG1 X3\nM30\n"
+    one_by_one = []
+    real = gcode._execute
+    monkeypatch.setattr(gcode, "_execute", lambda b, *a, **k: (one_by_one.append(b), real(b, *a, **k))[1])
+    mv = parse_gcode(text)
+    assert len(one_by_one) == 5  # G21 .., T1 M6, G43 H1, G3, M30: the straight moves between them were not
+    assert len(mv.points) == 1 + 3 + 500 + 1 + np.count_nonzero(mv.line == 508) + 1
+    np.testing.assert_array_equal(mv.points[-1], [3.0, 0.0, -1.9])

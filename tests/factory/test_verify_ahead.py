@@ -4,6 +4,7 @@ and stock verify from the first move gives, also when the rapid check then chang
 from __future__ import annotations
 
 import dataclasses
+import time
 from unittest import mock
 
 import numpy as np
@@ -74,6 +75,7 @@ def two_processors(monkeypatch):
     monkeypatch.setenv("FACTORY_THREADS", "2")
     # a processor idle, whatever else the machine runs meanwhile (the suite's other workers)
     monkeypatch.setattr(factory.verify.IdleMeter, "idle", lambda self, own=0.0: 2.0)
+    monkeypatch.setattr(factory.verify, "OVERTAKE_BELOW", 0.0)  # each round waited for, however slowly it runs
     with mock.patch.object(stock, "_PAIR_BUDGET", 4000):  # many batches, in the forked rounds too
         yield
 
@@ -159,6 +161,7 @@ def test_a_round_begins_where_the_machine_left_a_processor_idle_its_own_time_cou
         return 0.2 + own  # what is idle besides the rounds: too little alone
 
     monkeypatch.setattr(factory.verify.IdleMeter, "idle", idle)
+    monkeypatch.setattr(factory.verify, "OVERTAKE_BELOW", 0.0)  # the round waited for, however slowly it runs
     ops = _operations()
     ahead = VerifyAhead(FitAhead(POST), POST, OPTIONS, np.asarray(PART))
     ahead._spent = 1.0  # as if a round had just taken a processor for a second
@@ -173,3 +176,69 @@ def test_a_round_begins_where_the_machine_left_a_processor_idle_its_own_time_cou
     again = VerifyAhead(FitAhead(POST), POST, OPTIONS, np.asarray(PART))
     again.offer(ops[:1], SETUP)
     assert again._round is None
+
+
+def _crawling(*args):
+    """A round that gets next to no processor (the machine's other work took it back): it waits, then cuts."""
+    time.sleep(60.0)
+    return factory.verify._verify_round(*args)
+
+
+def test_verify_overtakes_a_round_that_crawls(two_processors, monkeypatch):
+    """The race forced: the last round runs on next to no processor (it sleeps). Verify does not wait for it: the
+    round is ended within a look or two, verify resumes from the round before (its operations fitted by the
+    post itself), and its verdict and stock are verify's from the first move. Rounds that run are waited for."""
+    ops = _operations()
+    ahead = _ahead(ops[:2], rounds=(1, 2))  # two rounds waited for (the fixture's): cut up to op 2
+    assert [n for n, _ in ahead._states] == [1, 2]
+    monkeypatch.setattr(factory.verify, "OVERTAKE_BELOW", factory.verify.AHEAD_IDLE)
+    monkeypatch.setattr(factory.verify, "_verify_round", _crawling)
+    ahead.offer_all(ops, SETUP)
+    assert ahead._round is not None
+    job = Job("p", SETUP, tuple(from_and_to_safe_height(op, SETUP.safe_z) for op in ops))
+    began = time.monotonic()
+    state = ahead.state(job.operations)
+    assert time.monotonic() - began < 10.0  # not the crawling round's minute
+    assert ahead._round is None and state is not None
+    assert state.moves < len(_verified(job)[0].simulation.removed_volume) - 1  # the last two operations not cut
+    plain, n_plain = _verified(job)
+    resumed, n_resumed = _verified(job, state)
+    _same(resumed, plain)
+    assert n_resumed < n_plain
+    assert post_process(job, POST, ahead=ahead.fits).text == post_process(job, POST).text
+
+
+def test_the_last_round_posts_and_parses_the_whole_program_as_the_post_and_verify_would(two_processors):
+    """The round begun as the rapid check starts (every operation planned) posts the job as it will be posted and
+    parses all of it: the post and verify take both, the same text and moves to the bit, only for that job (its
+    operations unchanged, its name and source, no parameter the post reads)."""
+    from cadcam.gcode import parse_gcode
+
+    ops = _operations()
+    final = tuple(from_and_to_safe_height(op, SETUP.safe_z) for op in ops)
+    ahead = VerifyAhead(FitAhead(POST), POST, OPTIONS, np.asarray(PART), "p", "ab12")
+    ahead.offer(ops[:2], SETUP)
+    ahead.state(final)
+    ahead.offer_all(ops, SETUP)
+    job = Job("p", SETUP, final, source_sha256="ab12")
+    state = ahead.state(job.operations)
+    posted = ahead.posted(job)
+    assert posted is not None and state is not None
+    program, moves = posted
+    assert program.text == post_process(job, POST).text
+    plain = parse_gcode(program.text, source="p.nc")
+    for name in ("points", "motion", "tool", "feed", "line"):
+        assert getattr(moves, name).tobytes() == getattr(plain, name).tobytes(), name
+    verified = run_verify(program.text, "p.nc", SETUP, {t.number: t for t in job.tools}, np.asarray(PART), OPTIONS,
+                          resume=state, moves=moves)
+    _same(verified, _verified(job)[0])
+    # another job's: posted and parsed again
+    assert ahead.posted(dataclasses.replace(job, part_name="q")) is None
+    assert ahead.posted(dataclasses.replace(job, source_sha256="cd34")) is None
+    assert ahead.posted(dataclasses.replace(job, parameters={"setup_note": "turned over"})) is None
+    moved = final[3].points.copy()
+    moved[5, 2] -= 0.25
+    assert ahead.posted(dataclasses.replace(job, operations=(*final[:3], dataclasses.replace(final[3], points=moved)))) is None
+    slower = dataclasses.replace(final[1], feeds=None if final[1].feeds is None else final[1].feeds * 0.5,
+                                 name=final[1].name + " slower")
+    assert ahead.posted(dataclasses.replace(job, operations=(final[0], slower, *final[2:]))) is None
