@@ -242,3 +242,19 @@ def test_the_last_round_posts_and_parses_the_whole_program_as_the_post_and_verif
     slower = dataclasses.replace(final[1], feeds=None if final[1].feeds is None else final[1].feeds * 0.5,
                                  name=final[1].name + " slower")
     assert ahead.posted(dataclasses.replace(job, operations=(final[0], slower, *final[2:]))) is None
+
+
+def test_every_job_parameter_the_post_reads_is_one_a_round_refuses_to_reuse_its_program_for():
+    """A round's program is reused only for a job without the parameters the post writes into the text
+    (``POSTED_PARAMETERS``): a parameter the post came to read and the list did not name would let verify pass a
+    program posted without it. Read from the post's source, so adding such a read without naming it fails here."""
+    import inspect
+    import re
+
+    import cadcam.post
+    from cadcam.post import POSTED_PARAMETERS
+
+    source = inspect.getsource(cadcam.post)
+    read = set(re.findall(r"parameters(?:\.get\(|\[)\s*[\"'](\w+)[\"']", source))
+    assert read, "the post reads no job parameter: the scan no longer sees how it reads them"
+    assert read <= set(POSTED_PARAMETERS), sorted(read - set(POSTED_PARAMETERS))
