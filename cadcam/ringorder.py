@@ -109,21 +109,28 @@ class LoopChoice:
         return cuts
 
 
-def _near(line: LineString, xy: np.ndarray, distance: float, step: float, first: bool = False) -> np.ndarray:
+def _samples(line: LineString, step: float) -> cKDTree:
+    """A k-d tree of ``line``'s points every ``step`` [mm] or closer (its vertices and points between), for
+    :func:`_near`: each point of the line lies within half a step of one of them."""
+    return cKDTree(shapely.get_coordinates(shapely.segmentize(line, step) if line.length > 0 else line))
+
+
+def _near(line: LineString, xy: np.ndarray, distance: float, step: float, samples: cKDTree,
+          first: bool = False) -> np.ndarray:
     """Indices of the points ``xy`` (m, 2) [mm] within ``distance`` [mm] of ``line`` as GEOS decides it (the
     STRtree's ``dwithin``); ``first``: one such point, if any, found soonest.
 
-    GEOS is asked only about the points that might be: the line's points every ``step`` [mm] or closer lie
-    within half a step of each of its points, so a point farther than the distance and half a step from all of
-    them is surely not within the distance of the line, and one within the distance of one of them surely is."""
+    GEOS is asked only about the points that might be: ``samples`` (:func:`_samples`, every ``step`` [mm] or
+    closer) lie within half a step of each of the line's points, so a point farther than the distance and half a
+    step from all of them is surely not within the distance of the line, and one within the distance of one of
+    them surely is."""
     x0, y0, x1, y1 = line.bounds
     pad = distance + step
     box = np.flatnonzero((xy[:, 0] >= x0 - pad) & (xy[:, 0] <= x1 + pad) & (xy[:, 1] >= y0 - pad)
                          & (xy[:, 1] <= y1 + pad))
     if not len(box):
         return box
-    samples = shapely.get_coordinates(shapely.segmentize(line, step) if line.length > 0 else line)
-    gap, _ = cKDTree(samples).query(xy[box], distance_upper_bound=distance + 0.5 * step + _SURE_TOL)
+    gap, _ = samples.query(xy[box], distance_upper_bound=distance + 0.5 * step + _SURE_TOL)
     if first and np.any(gap <= distance - _SURE_TOL):
         return box[[int(np.argmin(gap))]]
     maybe = box[np.isfinite(gap)]
@@ -139,11 +146,12 @@ def _near(line: LineString, xy: np.ndarray, distance: float, step: float, first:
 def _meets_cells(line: LineString, xy: np.ndarray, radius: float, cell: float) -> bool:
     """Whether ``line`` passes within ``radius`` [mm] of a grid point of ``xy`` (m, 2) [mm], or into its cell
     (a square of ``cell`` [mm] round it) by more than the rest region's chords do (:meth:`LoopChoice.at`)."""
-    half = 0.5 * cell
-    if len(_near(line, xy, radius, _SAMPLE_STEP * cell, first=True)):
+    half, step = 0.5 * cell, _SAMPLE_STEP * cell
+    samples = _samples(line, step)  # once for both questions
+    if len(_near(line, xy, radius, step, samples, first=True)):
         return True
     # off every point by more than the radius: their cells, near a corner
-    b = _near(line, xy, radius + half * math.sqrt(2.0), _SAMPLE_STEP * cell)
+    b = _near(line, xy, radius + half * math.sqrt(2.0), step, samples)
     if not len(b):
         return False
     x, y = xy[b, 0], xy[b, 1]
