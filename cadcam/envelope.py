@@ -154,6 +154,19 @@ class _Approach:
                                                seg.flat_radius, seg.rc, seg.cone, seg.radius, seg.reach2,
                                                bool(np.any(seg.shape != FLAT)), bool(seg.cone.any())))
 
+    @classmethod
+    def kept(cls, runs: tuple, grid: Grid, stock: np.ndarray, seg: Segments) -> tuple:
+        """``owner, flat, col, row`` and the approach of the pairs of ``runs`` (:func:`grid_runs`) that can cut
+        ``stock`` (ny * nx,) [mm]: within reach, ``lower`` under it (:func:`cadcam.toolsweep.kept_pairs`)."""
+        from cadcam import toolsweep
+
+        toolsweep.say_if_compiling()
+        *pairs, lower, wx, wy, wd = toolsweep.kept_pairs(
+            *runs, grid.nx, grid.x0, grid.y0, grid.cell, stock, seg.x, seg.y, seg.dx, seg.dy, seg.inv_l2, seg.zmin,
+            seg.flat_radius, seg.rc, seg.cone, seg.radius, seg.reach2, bool(np.any(seg.shape != FLAT)),
+            bool(seg.cone.any()))
+        return (*pairs, cls(lower, np.ones(len(lower), bool), wx, wy, wd))
+
     def take(self, keep: np.ndarray) -> "_Approach":
         """The pairs ``keep`` (indices, in order) of these."""
         return _Approach(self.lower[keep], self.reach[keep], self.wx[keep], self.wy[keep], self.wd[keep])
@@ -206,17 +219,21 @@ class BatchPairs:
         order), the others :meth:`envelope` would give ``inf`` against it or any lower stock; and the kept
         ones' closed-form envelopes are worked out. Read while another thread cuts it
         (:func:`cadcam.stock.cut_stock`), each value is one it held, so an upper bound."""
-        owner, flat, col, row = (pairs or grid_pairs)(seg, grid, above)
-        approach = _Approach.of(grid.x0 + col * grid.cell, grid.y0 + row * grid.cell, owner, seg)
-        if stock is None or len(owner) == 0:
-            return cls(owner, flat, col, row, approach)
-        # The pairs that can cut: the rest (most of them) leave here, in whole arrays, not in every pass of the
-        # cut, which runs on the thread a second processor does not help (issue 35).
-        keep = approach.reach & (approach.lower < stock[flat])
-        if not keep.all():
-            keep = np.flatnonzero(keep)
-            owner, flat, col, row = owner[keep], flat[keep], col[keep], row[keep]
-            approach = approach.take(keep)
+        if stock is not None and pairs in (None, grid_pairs):
+            # The pairs that can cut: the rest (most of them) leave here, not in every pass of the cut, which runs
+            # on the thread a second processor does not help (issue 35), and are never written out (one compiled
+            # walk over the runs instead of every pair's arrays, their approach's and the kept ones' copies).
+            owner, flat, col, row, approach = _Approach.kept(grid_runs(seg, grid, above), grid, stock, seg)
+        else:
+            owner, flat, col, row = (pairs or grid_pairs)(seg, grid, above)
+            approach = _Approach.of(grid.x0 + col * grid.cell, grid.y0 + row * grid.cell, owner, seg)
+            if stock is None or len(owner) == 0:
+                return cls(owner, flat, col, row, approach)
+            keep = approach.reach & (approach.lower < stock[flat])  # a stand-in's pairs (a test's), as they come
+            if not keep.all():
+                keep = np.flatnonzero(keep)
+                owner, flat, col, row = owner[keep], flat[keep], col[keep], row[keep]
+                approach = approach.take(keep)
         # Each pair's envelope depends on its own inputs only (the values envelope() would give), but for the
         # bull-nose's bisection, whose step count follows the longest stretch it is given: envelope() checks it.
         exact = approach.lower.copy()
@@ -327,15 +344,22 @@ def grid_pairs(seg: Segments, grid: Grid, above: Callable[[np.ndarray, np.ndarra
     run of ``count`` columns from ``first`` on grid ``row`` (the stock there); a run over which the
     move's tool cannot come below it (:func:`row_lower`) gives no pairs, as :func:`pair_envelope`
     with that bound would give them no envelope. The other pairs come in the same order."""
+    from cadcam import toolsweep
+
+    return toolsweep.run_pairs(*grid_runs(seg, grid, above), grid.nx)
+
+
+def grid_runs(seg: Segments, grid: Grid, above: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`grid_pairs`' pairs as runs of columns: ``owner, row, first, count`` (r,) int64, each run the grid
+    points ``first .. first + count - 1`` of grid ``row`` (count may be 0), in the pairs' order."""
     row_owner, row, first, count = _row_spans(seg, grid)
     if above is not None and len(count):
         live = np.flatnonzero(count > 0)
         lower = row_lower(seg, row_owner[live], grid.y0 + row[live] * grid.cell)
         count[live[lower >= above(row[live], first[live], count[live])]] = 0
         row_owner, row, first, count = _live_pieces(seg, grid, above, row_owner, row, first, count)
-    from cadcam import toolsweep
-
-    return toolsweep.run_pairs(row_owner, row, first, count, grid.nx)
+    return row_owner, row, first, count
 
 
 #: A run of a row's grid points that survives :func:`row_lower` is judged again in pieces of this many columns

@@ -545,9 +545,9 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
                pairs: BatchPairs | None = None) -> None:
     """Cut segments ``s:e`` into ``stock`` and record what each met.
 
-    Each move is judged against the stock exactly as every earlier move left it (also
-    the earlier moves of this batch): pairs are ordered by grid point and move, and a
-    running minimum of the earlier moves' envelopes gives the stock each move found.
+    Each move is judged against the stock exactly as every earlier move left it (also the earlier moves of
+    this batch): the pairs cut in turn, move by move (:func:`cadcam.toolsweep.cut_in_turn`; with shank and
+    holder pairs, a running minimum over the pairs sorted by point and move, :func:`_cut_with_body`).
     ``under`` (flat, per grid point): the bottom of a stock whose columns do not all stand
     on one plane (a flipped part); a column cut down to it is empty (``-inf``) from then on.
     ``tops``: upper bounds of the stock on runs of grid columns (:class:`_SpanTops`, made from this
@@ -560,10 +560,7 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
     seg = seg_all.sub(s, e)
     pairs = pairs or BatchPairs.of(seg, grid, None if tops is None else tops.above, grid_pairs, stock)
     owner, flat, col, row = pairs.owner, pairs.flat, pairs.col, pairs.row
-    before0 = stock[flat]
-    env = pairs.envelope(seg, before0)
-    touch = np.flatnonzero(env < before0)
-    owner, flat, col, row, env = owner[touch], flat[touch], col[touch], row[touch], env[touch]
+    env = pairs.envelope(seg, stock[flat])
 
     # Shank and holder: the same sweep with the body's cylinders, only where they can
     # come below the highest stock or part there is (the tops' highest: older, so no lower; a body part
@@ -572,9 +569,41 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
         highest = float(stock.max()) if tops is None else tops.highest()
         b_owner, b_flat, b_env = body.pairs(seg, s, e, grid, stock, max(highest, body.part_max), tops)
     else:
-        b_owner = b_flat = np.zeros(0, np.int64)
-        b_env = np.zeros(0)
+        b_flat = np.zeros(0, np.int64)
+    if not len(b_flat):  # the cutter's pairs alone, move by move: each cuts what the ones before it left
+        cut, before = toolsweep.cut_in_turn(flat, env, stock, stock if under is None else under, under is not None)
+    else:
+        cut, before = _cut_with_body(seg, body, s, e, grid, stock, part, stats, under, (owner, flat, env),
+                                     (b_owner, b_flat, b_env))
+    if len(cut):
+        o, f, env = owner[cut], flat[cut], env[cut]
+        qx, qy = grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell
+        if body.measure == "chip":  # the chip feeds read the chip and the stock, not what was removed
+            side_chip(seg, o, s, qx, qy, before, env, grid.cell, stats)
+        else:  # what the cut took off, counted down to the stock's bottom (a through cut goes on into air)
+            record_max(stats.removed_max, stats.removed_cell, o + s, before - env, f, extra=(stats.removed_env, env))
+            floor = stats.bottom if under is None else under[f]
+            np.add.at(stats.volume, o + s, np.maximum(before - np.maximum(env, floor), 0.0) * grid.cell**2)
+        # A wall's skin is no engagement (see _SKIN); it is still cut, and still counts for rapids and the width.
+        # Only beside a wall: floor allowance (the part right below) is engagement as usual.
+        if body.measure is True:
+            skin = (body.wall_near[f] >= before - _SKIN) & (part[f] < before - _SKIN)
+            engaged_depth(seg, o, s, qx, qy, before, env, f, grid.cell, body.engaged_width, stats, skin,
+                          body.full_width)
+        if under is not None:
+            through = f[~(stock[f] > under[f])]
+            stock[through] = -np.inf
 
+
+def _cut_with_body(seg: Segments, body: "_Body", s: int, e: int, grid: Grid, stock: np.ndarray, part: np.ndarray,
+                   stats: MoveRecord, under: np.ndarray | None, cutter: tuple, shank: tuple) -> tuple:
+    """:func:`cadcam.toolsweep.cut_in_turn`'s ``cut, before`` (the stock lowered) of the cutter's pairs ``cutter``
+    with the shank's and holder's ``shank`` (owner, flat, envelope each) between them, whose contacts it records."""
+    from cadcam import toolsweep
+
+    (owner, flat, env), (b_owner, b_flat, b_env) = cutter, shank
+    touch = np.flatnonzero(env < stock[flat])
+    owner, flat, env = owner[touch], flat[touch], env[touch]
     n_c = len(flat)
     cells = np.concatenate([flat, b_flat])
     # At a grid point, every earlier move's cut counts, and for this move's own
@@ -587,46 +616,25 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
     found = np.minimum(stock[cells], earlier)
     if under is not None:  # a column cut through by an earlier move holds nothing
         found[~(found > under[cells])] = -np.inf
-
-    if len(b_flat):
-        # This move's own flutes take off what they reach first (the tool descends or
-        # moves on into it), up to the flute length above the highest tip position
-        # from which they reach the point; material above that meets the body.
-        qx = grid.x0 + (b_flat % grid.nx) * grid.cell
-        qy = grid.y0 + (b_flat // grid.nx) * grid.cell
-        ta, tb, _ = reach_interval(seg, b_owner, qx, qy)
-        z0, dz = seg.z[b_owner], seg.dz[b_owner]
-        flute_top = np.where(ta <= tb, np.maximum(z0 + dz * ta, z0 + dz * tb) + body.flute_of_seg[b_owner + s], -np.inf)
-        standing = found[n_c:]
-        standing = np.where(standing > flute_top, standing, -np.inf)
-        met = np.maximum(standing, part[b_flat]) - b_env
-        hit = np.flatnonzero(met > 0.0)
-        if len(hit):
-            record_max(stats.contact, stats.contact_cell, b_owner[hit] + s, met[hit], b_flat[hit],
-                        extra=(stats.contact_z, b_env[hit]))
-
+    # This move's own flutes take off what they reach first (the tool descends or
+    # moves on into it), up to the flute length above the highest tip position
+    # from which they reach the point; material above that meets the body.
+    qx = grid.x0 + (b_flat % grid.nx) * grid.cell
+    qy = grid.y0 + (b_flat // grid.nx) * grid.cell
+    ta, tb, _ = reach_interval(seg, b_owner, qx, qy)
+    z0, dz = seg.z[b_owner], seg.dz[b_owner]
+    flute_top = np.where(ta <= tb, np.maximum(z0 + dz * ta, z0 + dz * tb) + body.flute_of_seg[b_owner + s], -np.inf)
+    standing = found[n_c:]
+    standing = np.where(standing > flute_top, standing, -np.inf)
+    met = np.maximum(standing, part[b_flat]) - b_env
+    hit = np.flatnonzero(met > 0.0)
+    if len(hit):
+        record_max(stats.contact, stats.contact_cell, b_owner[hit] + s, met[hit], b_flat[hit],
+                   extra=(stats.contact_z, b_env[hit]))
     before = found[:n_c]
-    removed = before - env
-    cut = np.flatnonzero(removed > 0.0)
-    if len(cut):
-        o, f, r = owner[cut], flat[cut], removed[cut]
-        if body.measure == "chip":  # the chip feeds read the chip and the stock, not what was removed
-            side_chip(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
-                      env[cut], grid.cell, stats)
-        else:  # what the cut took off, counted down to the stock's bottom (a through cut goes on into air)
-            record_max(stats.removed_max, stats.removed_cell, o + s, r, f, extra=(stats.removed_env, env[cut]))
-            floor = stats.bottom if under is None else under[f]
-            np.add.at(stats.volume, o + s, np.maximum(before[cut] - np.maximum(env[cut], floor), 0.0) * grid.cell**2)
-        # A wall's skin is no engagement (see _SKIN); it is still cut, and still counts for rapids and the width.
-        # Only beside a wall: floor allowance (the part right below) is engagement as usual.
-        if body.measure is True:
-            skin = (body.wall_near[f] >= before[cut] - _SKIN) & (part[f] < before[cut] - _SKIN)
-            engaged_depth(seg, o, s, grid.x0 + col[cut] * grid.cell, grid.y0 + row[cut] * grid.cell, before[cut],
-                           env[cut], f, grid.cell, body.engaged_width, stats, skin, body.full_width)
-        np.minimum.at(stock, f, env[cut])
-        if under is not None:
-            through = f[~(stock[f] > under[f])]
-            stock[through] = -np.inf
+    cut = np.flatnonzero(before - env > 0.0)
+    np.minimum.at(stock, flat[cut], env[cut])
+    return touch[cut], before[cut]
 
 
 #: Batches between fresh :class:`_SpanTops` (the stock only falls, so older ones are upper bounds, only looser).

@@ -75,6 +75,48 @@ def nearest_approach(qx, qy, owner, x, y, dx, dy, inv_l2, zmin, flat_radius, rc,
 
 
 @_jit
+def kept_pairs(run_owner, run_row, first, count, nx, x0, y0, cell, stock, x, y, dx, dy, inv_l2, zmin, flat_radius,
+               rc, cone, radius, reach2, profiled, coned):
+    """The pairs of the runs ``run_owner, run_row, first, count`` (:func:`run_pairs`'s) that can cut ``stock``
+    (ny * nx,) [mm]: within the radius, their nearest approach's ``lower`` under the stock there; in the runs'
+    order. ``owner, flat, col, row`` (k,) int64 and ``lower, wx, wy, wd`` (k,) float, each value as
+    :func:`run_pairs` then :func:`nearest_approach` on the grid points ``x0 + col * cell, y0 + row * cell`` [mm]
+    give it (the same formulas in the same order); the pairs that cannot cut are never written out."""
+    total = 0
+    for i in range(len(count)):
+        total += max(count[i], 0)
+    ints = np.empty((4, total), np.int64)  # owner, flat, col, row
+    floats = np.empty((4, total))  # lower, wx, wy, wd
+    k = 0
+    for r in range(len(count)):
+        o = run_owner[r]
+        j = run_row[r]
+        b = (y0 + j * cell) - y[o]
+        for c in range(first[r], first[r] + count[r]):
+            a = (x0 + c * cell) - x[o]
+            d = a * dx[o]
+            d += b * dy[o]
+            t = min(max(d * inv_l2[o], 0.0), 1.0)
+            ex = a - t * dx[o]
+            ey = b - t * dy[o]
+            dist2 = ex * ex
+            dist2 += ey * ey
+            low = zmin[o]
+            if profiled:
+                dist = math.sqrt(dist2)
+                low += _profile(dist, flat_radius[o], rc[o])
+                if coned:
+                    low += cone[o] * min(dist, radius[o])
+            f = j * nx + c
+            if dist2 <= reach2[o] and low < stock[f]:
+                ints[0, k], ints[1, k], ints[2, k], ints[3, k] = o, f, c, j
+                floats[0, k], floats[1, k], floats[2, k], floats[3, k] = low, a, b, d
+                k += 1
+    return (ints[0, :k].copy(), ints[1, :k].copy(), ints[2, :k].copy(), ints[3, :k].copy(), floats[0, :k].copy(),
+            floats[1, :k].copy(), floats[2, :k].copy(), floats[3, :k].copy())
+
+
+@_jit
 def _reach_along(wx, wy, wd, dx, dy, l2, R):
     """``cross, s, ta, tb``: the interval of t where r(t) <= R, the roots of l2 t^2 - 2 wd t + |w|^2 - R^2
     clipped to the move (the discriminant ``s`` written with the cross product avoids cancellation)."""
@@ -265,6 +307,33 @@ def segmented_exclusive_min(group, value):
         if lifted <= running:
             holder = i
     return out
+
+
+@_jit
+def cut_in_turn(flat, env, stock, under, has_under):
+    """Each pair in its turn cuts the stock the pairs before it left: ``stock[flat[i]]`` lowered to ``env[i]`` where
+    that is lower [mm], in place. Returns ``cut, before``: the pairs that took something off (indices, in order)
+    and the stock each of them found [mm].
+
+    The pairs come move by move, each grid point once a move, so the stock a pair finds is the batch's stock less
+    every earlier move's cut there: :func:`segmented_exclusive_min`'s answer over pairs sorted by point, without
+    the sort (for a batch with no shank or holder pairs, :func:`cadcam.stock._run_batch`). ``has_under``: a column
+    at or below ``under`` [mm] (cut through) holds nothing (found as ``-inf``); the caller empties those after."""
+    n = len(flat)
+    cut = np.empty(n, np.int64)
+    before = np.empty(n)
+    k = 0
+    for i in range(n):
+        f = flat[i]
+        found = stock[f]
+        if has_under and not found > under[f]:
+            found = -np.inf
+        if found - env[i] > 0.0:  # the test of removed > 0, on the same difference
+            cut[k] = i
+            before[k] = found
+            stock[f] = env[i]
+            k += 1
+    return cut[:k], before[:k]
 
 
 @_jit
