@@ -164,16 +164,13 @@ def side_chip(seg: Segments, o: np.ndarray, s: int, qx: np.ndarray, qy: np.ndarr
               env: np.ndarray, cell: float, stats: MoveRecord) -> None:
     """Only the chip of each move (``stats.chip``), as :func:`engaged_depth` reads it from the same columns,
     none of the rest: for a caller that reads nothing else (:mod:`cadcam.chipfeed`). Arguments as
-    :func:`engaged_depth`'s."""
-    removed = before - env
-    lat, has = _across(seg, o, qx, qy)
-    maybe = np.flatnonzero((removed > _ENGAGED_FILM) & has)  # the plunge only ever takes from what was removed
-    if not len(maybe):
-        return
-    o, qx, qy, removed, lat = o[maybe], qx[maybe], qy[maybe], removed[maybe], lat[maybe]
-    sel = np.flatnonzero(removed - _plunged(seg, o, qx, qy, removed) > _ENGAGED_FILM)
-    if len(sel):
-        _side_chip(seg, o[sel], qx[sel], qy[sel], lat[sel], before[maybe][sel], env[maybe][sel], cell, s, stats)
+    :func:`engaged_depth`'s. The pairs that take more than :data:`_ENGAGED_FILM` off sideways (:func:`_across`,
+    less :func:`_plunged`), each read as :func:`_side_chip` reads it, in one compiled loop
+    (:func:`cadcam.toolsweep.side_chip_pairs`)."""
+    from cadcam import toolsweep
+
+    toolsweep.side_chip_pairs(o, qx, qy, before, env, cell, s, stats.chip, _ENGAGED_FILM, seg.x, seg.y, seg.z, seg.dx,
+                              seg.dy, seg.dz, seg.l2, seg.radius, seg.rc, seg.shape)
 
 
 def _plunged(seg: Segments, o: np.ndarray, qx: np.ndarray, qy: np.ndarray, removed: np.ndarray) -> np.ndarray:

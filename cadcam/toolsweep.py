@@ -93,6 +93,9 @@ def kept_pairs(run_owner, run_row, first, count, nx, x0, y0, cell, stock, x, y, 
         j = run_row[r]
         b = (y0 + j * cell) - y[o]
         for c in range(first[r], first[r] + count[r]):
+            f = j * nx + c
+            if not zmin[o] < stock[f]:  # the profile and the cone only add to the lowest tip height: never kept
+                continue
             a = (x0 + c * cell) - x[o]
             d = a * dx[o]
             d += b * dy[o]
@@ -107,13 +110,11 @@ def kept_pairs(run_owner, run_row, first, count, nx, x0, y0, cell, stock, x, y, 
                 low += _profile(dist, flat_radius[o], rc[o])
                 if coned:
                     low += cone[o] * min(dist, radius[o])
-            f = j * nx + c
             if dist2 <= reach2[o] and low < stock[f]:
                 ints[0, k], ints[1, k], ints[2, k], ints[3, k] = o, f, c, j
                 floats[0, k], floats[1, k], floats[2, k], floats[3, k] = low, a, b, d
                 k += 1
-    return (ints[0, :k].copy(), ints[1, :k].copy(), ints[2, :k].copy(), ints[3, :k].copy(), floats[0, :k].copy(),
-            floats[1, :k].copy(), floats[2, :k].copy(), floats[3, :k].copy())
+    return ints[0, :k], ints[1, :k], ints[2, :k], ints[3, :k], floats[0, :k], floats[1, :k], floats[2, :k], floats[3, :k]
 
 
 @_jit
@@ -498,38 +499,98 @@ def _clip(v, lo, hi):
     return v if v != v else min(max(v, lo), hi)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")  # a division by zero gives inf or NaN, as numpy's
+#: The chip kernels: a division by zero gives inf or NaN, as numpy's.
+_chip_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+
+
+@_chip_jit
 def side_chips(o, qx, qy, w, before, env, cell, s, chip, x, y, z, dx, dy, dz, l2, radius, rc, shape):
     """:func:`cadcam.engagement._side_chip`: each pair's chip share, the largest per move kept in ``chip[o + s]``
     (NaN kept, as ``np.maximum``)."""
     for i in range(len(o)):
         m = o[i]
-        r = radius[m]
-        level = dz[m] == 0.0
-        if shape[m] == BALL and not level:
-            # the ball on a slope: the column's point at height h is a + h e_z from the centre's start; its squared
-            # distance from the line is quadratic in h, least at h0, taken within the column (``env`` to ``before``)
-            length = math.sqrt(l2[m] + dz[m] * dz[m])
-            ux, uy, uz = dx[m] / length, dy[m] / length, dz[m] / length
-            ax, ay, az = qx[i] - x[m], qy[i] - y[m], -(z[m] + r)
-            au = ax * ux + ay * uy + az * uz
-            h = min(max(-(az - au * uz) / max(1.0 - uz * uz, 1e-12), env[i]), before[i])
-            vz = az + h
-            vu = au + h * uz
-            d = math.sqrt(max(ax * ax + ay * ay + vz * vz - vu * vu, 0.0))
-            near = _clip((d - 0.5 * cell) / r, 0.0, 1.0)
-            c = math.sqrt(1.0 - near * near)
-        else:
-            c_r = 0.0 if (shape[m] == CONE or not level) else rc[m]
-            below = max(c_r - (before[i] - z[m]), 0.0)  # how far under the corner's centre the stock's top stands
-            reach = math.sqrt(max(c_r * c_r - below * below, 0.0))  # c_r on the flutes
-            rho = (r - c_r) + reach
-            lead = reach / c_r if c_r > 0.0 else 1.0
-            near = _clip((abs(w[i]) - 0.5 * cell) / rho, 0.0, 1.0)
-            c = lead * math.sqrt(1.0 - near * near)
+        c = _chip_share(qx[i] - x[m], qy[i] - y[m], w[i], before[i], env[i], cell, z[m], dx[m], dy[m], dz[m], l2[m],
+                        radius[m], rc[m], shape[m])
         cur = chip[m + s]
         if cur == cur and not c <= cur:
             chip[m + s] = c
+
+
+@_chip_jit
+def side_chip_pairs(o, qx, qy, before, env, cell, s, chip, film, x, y, z, dx, dy, dz, l2, radius, rc, shape):
+    """:func:`cadcam.engagement.side_chip`: of the pairs whose move takes more than ``film`` [mm] off the point
+    sideways (a move with a length across, less what it takes descending over the point: :func:`across`,
+    :func:`cadcam.engagement._plunged`), the chip share, the largest per move kept in ``chip[o + s]``; each value
+    as those functions and :func:`side_chips` give it (the same formulas in the same order)."""
+    for i in range(len(o)):
+        m = o[i]
+        removed = before[i] - env[i]
+        L = math.sqrt(l2[m])
+        wx = qx[i] - x[m]
+        wy = qy[i] - y[m]
+        if not (removed > film and L > 1e-9):
+            continue
+        plunge = 0.0
+        if dz[m] < 0.0:  # cadcam.envelope.reach_interval's ends, as numpy works them out
+            R = radius[m]
+            has = l2[m] > 1e-18
+            cross = wx * dy[m] - wy * dx[m]
+            root = math.sqrt(max(l2[m] * R * R - cross * cross, 0.0))
+            wd = wx * dx[m] + wy * dy[m]
+            ta = _clip((wd - root) / (l2[m] if has else 1.0), 0.0, 1.0) if has else 0.0
+            tb = _clip((wd + root) / (l2[m] if has else 1.0), 0.0, 1.0) if has else 1.0
+            if l2[m] * R * R * (1 + 1e-12) < cross * cross or (not has and math.hypot(wx, wy) > R * (1 + 1e-12)):
+                ta, tb = 1.0, 0.0
+            plunge = _nan_min(removed, -dz[m] * _nan_max(tb - ta, 0.0))
+        if not removed - plunge > film:
+            continue
+        lat = wx * (dy[m] / L) - wy * (dx[m] / L)
+        c = _chip_share(wx, wy, lat, before[i], env[i], cell, z[m], dx[m], dy[m], dz[m], l2[m], radius[m], rc[m],
+                        shape[m])
+        cur = chip[m + s]
+        if cur == cur and not c <= cur:  # NaN kept, as np.maximum
+            chip[m + s] = c
+
+
+@_jit
+def _nan_min(a, b):
+    """``np.minimum`` of two values (NaN wins)."""
+    return a if a != a else (b if b != b or b < a else a)
+
+
+@_jit
+def _nan_max(a, b):
+    """``np.maximum`` of two values (NaN wins)."""
+    return a if a != a else (b if b != b or b > a else a)
+
+
+@_chip_jit
+def _chip_share(ax, ay, w, before, env, cell, z, dx, dy, dz, l2, r, rc, shape):
+    """The chip share of one pair: a move from ``z`` by ``dx, dy, dz`` (``l2`` its length across squared) [mm] with a
+    tool of radius ``r``, corner ``rc`` [mm] and ``shape``, at the grid point ``ax, ay`` from its start [mm], ``w``
+    [mm] across its line, the stock there from ``env`` up to ``before`` [mm] (:func:`cadcam.engagement._side_chip`).
+    Scalars only: no array's reference count taken for every pair."""
+    level = dz == 0.0
+    if shape == BALL and not level:
+        # the ball on a slope: the column's point at height h is a + h e_z from the centre's start; its squared
+        # distance from the line is quadratic in h, least at h0, taken within the column (``env`` to ``before``)
+        length = math.sqrt(l2 + dz * dz)
+        ux, uy, uz = dx / length, dy / length, dz / length
+        az = -(z + r)
+        au = ax * ux + ay * uy + az * uz
+        h = min(max(-(az - au * uz) / max(1.0 - uz * uz, 1e-12), env), before)
+        vz = az + h
+        vu = au + h * uz
+        d = math.sqrt(max(ax * ax + ay * ay + vz * vz - vu * vu, 0.0))
+        near = _clip((d - 0.5 * cell) / r, 0.0, 1.0)
+        return math.sqrt(1.0 - near * near)
+    c_r = 0.0 if (shape == CONE or not level) else rc
+    below = max(c_r - (before - z), 0.0)  # how far under the corner's centre the stock's top stands
+    reach = math.sqrt(max(c_r * c_r - below * below, 0.0))  # c_r on the flutes
+    rho = (r - c_r) + reach
+    lead = reach / c_r if c_r > 0.0 else 1.0
+    near = _clip((abs(w) - 0.5 * cell) / rho, 0.0, 1.0)
+    return lead * math.sqrt(1.0 - near * near)
 
 
 _told = False
@@ -543,10 +604,10 @@ def say_if_compiling() -> None:
         return
     _told = True
     try:
-        # every cut starts with the nearest approach, and its compiling is most of the wait (numba's compiler
+        # every cut starts with the pairs that can cut, and its compiling is most of the wait (numba's compiler
         # starts with it): cold when its index holds no code for this very source (numba drops one whose stamp
         # differs). The others compile when first needed, in under a second of processor time each.
-        cold = not nearest_approach._cache._cache_file._load_index()
+        cold = not kept_pairs._cache._cache_file._load_index()
     except AttributeError:  # another numba's cache layout: say nothing rather than guess
         return
     if cold:
