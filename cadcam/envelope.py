@@ -431,11 +431,10 @@ class SpanTops:
     _BLOCK = 16
 
     def __init__(self, stock: np.ndarray, grid: Grid):
-        top = stock.reshape(grid.ny, grid.nx)
+        from cadcam import toolsweep
+
         nb = -(-grid.nx // self._BLOCK)
-        padded = np.full((grid.ny, nb * self._BLOCK), -np.inf)
-        padded[:, :grid.nx] = top
-        level = padded.reshape(grid.ny, nb, self._BLOCK).max(axis=2)
+        level = toolsweep.block_tops(stock.reshape(grid.ny, grid.nx), self._BLOCK)  # (ny, nb), as np.max reads them
         levels = [level]
         width = 1
         while 2 * width <= nb:

@@ -408,8 +408,9 @@ class _Body:
                  engaged_width: float, graze: float = 0.0):
         self.tool_of_seg = np.asarray(tool_of_seg, dtype=np.int64)
         self.levels = {t: tools[t].body() for t in np.unique(self.tool_of_seg).tolist() if t in tools}
-        flutes = {t: tools[t].flute_length for t in self.levels}
-        self.flute_of_seg = np.array([flutes.get(t, np.inf) for t in self.tool_of_seg.tolist()], dtype=np.float64)
+        self.flute_of_seg = np.full(len(self.tool_of_seg), np.inf)
+        for t in self.levels:  # a mask a tool, not a lookup a move
+            self.flute_of_seg[self.tool_of_seg == t] = tools[t].flute_length
         finite = part_flat[np.isfinite(part_flat)]
         self.part_max = float(finite.max()) if len(finite) else -np.inf
         self.part = part_flat

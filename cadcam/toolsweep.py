@@ -477,6 +477,24 @@ def span_tops_above(table, block, row, first, count):
 
 
 @_jit
+def block_tops(top, block):
+    """(ny, ceil(nx / block)) the highest of each run of ``block`` columns of each row of ``top`` (ny, nx) [mm], as
+    ``np.max`` over them gives it (NaN wins): :class:`cadcam.envelope.SpanTops`' first level."""
+    ny, nx = top.shape
+    nb = -(-nx // block)
+    out = np.empty((ny, nb))
+    for j in range(ny):
+        for b in range(nb):
+            m = -np.inf
+            for i in range(b * block, min((b + 1) * block, nx)):
+                v = top[j, i]
+                if m == m and (v != v or v > m):
+                    m = v
+            out[j, b] = m
+    return out
+
+
+@_jit
 def across(o, qx, qy, x, y, dx, dy, l2):
     """:func:`cadcam.engagement._across`: (k,) the signed distance [mm] of each grid point across its move ``o``
     (along X for a move with no length across), and (k,) bool whether the move has a length across."""
