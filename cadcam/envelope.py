@@ -155,16 +155,20 @@ class _Approach:
                                                bool(np.any(seg.shape != FLAT)), bool(seg.cone.any())))
 
     @classmethod
-    def kept(cls, runs: tuple, grid: Grid, stock: np.ndarray, seg: Segments) -> tuple:
-        """``owner, flat, col, row`` and the approach of the pairs of ``runs`` (:func:`grid_runs`) that can cut
-        ``stock`` (ny * nx,) [mm]: within reach, ``lower`` under it (:func:`cadcam.toolsweep.kept_pairs`)."""
+    def kept(cls, seg: Segments, grid: Grid, stock: np.ndarray, tops: "SpanTops | None" = None) -> tuple:
+        """``owner, flat, col, row`` and the approach of the pairs of moves ``seg`` on ``grid`` that can cut
+        ``stock`` (ny * nx,) [mm]: within reach, ``lower`` under it, in :func:`grid_pairs`' order
+        (:func:`cadcam.toolsweep.kept_pairs`); ``tops``: bounds of that stock, or of an earlier state of it, which
+        leave out the runs and pieces (:data:`_PIECE`) the moves provably cannot cut."""
         from cadcam import toolsweep
 
         toolsweep.say_if_compiling()
+        # no tops: no levels to read, each run one piece
+        table, block, piece = (np.zeros((0, 1, 1)), 1, 1 << 40) if tops is None else (tops.table, tops._BLOCK, _PIECE)
         *pairs, lower, wx, wy, wd = toolsweep.kept_pairs(
-            *runs, grid.nx, grid.x0, grid.y0, grid.cell, stock, seg.x, seg.y, seg.dx, seg.dy, seg.inv_l2, seg.zmin,
-            seg.flat_radius, seg.rc, seg.cone, seg.radius, seg.reach2, bool(np.any(seg.shape != FLAT)),
-            bool(seg.cone.any()))
+            *_row_spans(seg, grid), grid.nx, grid.x0, grid.y0, grid.cell, stock, seg.x, seg.y, seg.dx, seg.dy,
+            seg.inv_l2, seg.zmin, seg.flat_radius, seg.rc, seg.cone, seg.radius, seg.reach2,
+            bool(np.any(seg.shape != FLAT)), bool(seg.cone.any()), table, block, piece)
         return (*pairs, cls(lower, np.ones(len(lower), bool), wx, wy, wd))
 
     def take(self, keep: np.ndarray) -> "_Approach":
@@ -219,11 +223,15 @@ class BatchPairs:
         order), the others :meth:`envelope` would give ``inf`` against it or any lower stock; and the kept
         ones' closed-form envelopes are worked out. Read while another thread cuts it
         (:func:`cadcam.stock.cut_stock`), each value is one it held, so an upper bound."""
-        if stock is not None and pairs in (None, grid_pairs):
+        tops = getattr(above, "__self__", None)
+        if stock is not None and pairs in (None, grid_pairs) and (above is None or (
+                isinstance(tops, SpanTops) and above.__func__ is _SPAN_TOPS_ABOVE)):
             # The pairs that can cut: the rest (most of them) leave here, not in every pass of the cut, which runs
-            # on the thread a second processor does not help (issue 35), and are never written out (one compiled
-            # walk over the runs instead of every pair's arrays, their approach's and the kept ones' copies).
-            owner, flat, col, row, approach = _Approach.kept(grid_runs(seg, grid, above), grid, stock, seg)
+            # on the thread a second processor does not help (issue 35), and are never written out: one compiled
+            # walk over the rows, judged against the tops' table as it goes (grid_runs' culls), instead of every
+            # pair's arrays, their approach's and the kept ones' copies. A stand-in ``above`` or ``pairs`` (a
+            # test's) goes the way of grid_pairs, whose pairs are then filtered alike.
+            owner, flat, col, row, approach = _Approach.kept(seg, grid, stock, tops)
         else:
             owner, flat, col, row = (pairs or grid_pairs)(seg, grid, above)
             approach = _Approach.of(grid.x0 + col * grid.cell, grid.y0 + row * grid.cell, owner, seg)
@@ -344,22 +352,15 @@ def grid_pairs(seg: Segments, grid: Grid, above: Callable[[np.ndarray, np.ndarra
     run of ``count`` columns from ``first`` on grid ``row`` (the stock there); a run over which the
     move's tool cannot come below it (:func:`row_lower`) gives no pairs, as :func:`pair_envelope`
     with that bound would give them no envelope. The other pairs come in the same order."""
-    from cadcam import toolsweep
-
-    return toolsweep.run_pairs(*grid_runs(seg, grid, above), grid.nx)
-
-
-def grid_runs(seg: Segments, grid: Grid, above: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`grid_pairs`' pairs as runs of columns: ``owner, row, first, count`` (r,) int64, each run the grid
-    points ``first .. first + count - 1`` of grid ``row`` (count may be 0), in the pairs' order."""
     row_owner, row, first, count = _row_spans(seg, grid)
     if above is not None and len(count):
         live = np.flatnonzero(count > 0)
         lower = row_lower(seg, row_owner[live], grid.y0 + row[live] * grid.cell)
         count[live[lower >= above(row[live], first[live], count[live])]] = 0
         row_owner, row, first, count = _live_pieces(seg, grid, above, row_owner, row, first, count)
-    return row_owner, row, first, count
+    from cadcam import toolsweep
+
+    return toolsweep.run_pairs(row_owner, row, first, count, grid.nx)
 
 
 #: A run of a row's grid points that survives :func:`row_lower` is judged again in pieces of this many columns
@@ -460,3 +461,7 @@ class SpanTops:
         from cadcam import toolsweep
 
         return toolsweep.span_tops_above(self.table, self._BLOCK, row, first, count)
+
+
+#: The tops' own bounds: :meth:`BatchPairs.of` reads their table in the compiled walk (any other ``above`` is called).
+_SPAN_TOPS_ABOVE = SpanTops.above

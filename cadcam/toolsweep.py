@@ -76,45 +76,95 @@ def nearest_approach(qx, qy, owner, x, y, dx, dy, inv_l2, zmin, flat_radius, rc,
 
 @_jit
 def kept_pairs(run_owner, run_row, first, count, nx, x0, y0, cell, stock, x, y, dx, dy, inv_l2, zmin, flat_radius,
-               rc, cone, radius, reach2, profiled, coned):
-    """The pairs of the runs ``run_owner, run_row, first, count`` (:func:`run_pairs`'s) that can cut ``stock``
+               rc, cone, radius, reach2, profiled, coned, table, block, piece):
+    """The pairs of the runs ``run_owner, run_row, first, count`` (:func:`row_spans`') that can cut ``stock``
     (ny * nx,) [mm]: within the radius, their nearest approach's ``lower`` under the stock there; in the runs'
     order. ``owner, flat, col, row`` (k,) int64 and ``lower, wx, wy, wd`` (k,) float, each value as
     :func:`run_pairs` then :func:`nearest_approach` on the grid points ``x0 + col * cell, y0 + row * cell`` [mm]
-    give it (the same formulas in the same order); the pairs that cannot cut are never written out."""
+    give it (the same formulas in the same order); the pairs that cannot cut are never written out.
+
+    ``table``: a :class:`cadcam.envelope.SpanTops`' (levels, ny, blocks of ``block`` columns), bounds of the stock
+    (no levels: none). With it a run, then each of its pieces of ``piece`` columns (on multiples of it), is
+    walked only where the move can come under them (:func:`row_lower`'s bound, as
+    :func:`cadcam.envelope.grid_runs` judges them): a pair of a run left out has its ``lower`` at or over the
+    stock, so it would not be kept either, and the pairs are the same whatever the bounds."""
     total = 0
     for i in range(len(count)):
         total += max(count[i], 0)
     ints = np.empty((4, total), np.int64)  # owner, flat, col, row
     floats = np.empty((4, total))  # lower, wx, wy, wd
+    culled = table.shape[0] > 0
     k = 0
     for r in range(len(count)):
+        if count[r] <= 0:
+            continue
         o = run_owner[r]
         j = run_row[r]
-        b = (y0 + j * cell) - y[o]
-        for c in range(first[r], first[r] + count[r]):
-            f = j * nx + c
-            if not zmin[o] < stock[f]:  # the profile and the cone only add to the lowest tip height: never kept
-                continue
-            a = (x0 + c * cell) - x[o]
-            d = a * dx[o]
-            d += b * dy[o]
-            t = min(max(d * inv_l2[o], 0.0), 1.0)
-            ex = a - t * dx[o]
-            ey = b - t * dy[o]
-            dist2 = ex * ex
-            dist2 += ey * ey
-            low = zmin[o]
-            if profiled:
-                dist = math.sqrt(dist2)
-                low += _profile(dist, flat_radius[o], rc[o])
-                if coned:
-                    low += cone[o] * min(dist, radius[o])
-            if dist2 <= reach2[o] and low < stock[f]:
-                ints[0, k], ints[1, k], ints[2, k], ints[3, k] = o, f, c, j
-                floats[0, k], floats[1, k], floats[2, k], floats[3, k] = low, a, b, d
-                k += 1
+        yr = y0 + j * cell
+        ya = y[o]
+        yb = ya + dy[o]
+        gap = max(max(min(ya, yb) - yr, yr - max(ya, yb)), 0.0)
+        stop = first[r] + count[r]
+        if culled and _lower_at(gap, zmin[o], flat_radius[o], rc[o], cone[o], radius[o]) >= _top(
+                table, block, j, first[r], count[r]):
+            continue
+        b = yr - y[o]
+        p = first[r] // piece
+        while p * piece < stop:
+            a = max(p * piece, first[r])
+            e = min((p + 1) * piece, stop)
+            p += 1
+            if culled:
+                xs = x[o]
+                xe = xs + dx[o]
+                across = max(max(min(xs, xe) - (x0 + (e - 1) * cell), (x0 + a * cell) - max(xs, xe)), 0.0)
+                if _lower_at(math.hypot(gap, across), zmin[o], flat_radius[o], rc[o], cone[o], radius[o]) >= _top(
+                        table, block, j, a, e - a):
+                    continue
+            for c in range(a, e):
+                f = j * nx + c
+                if not zmin[o] < stock[f]:  # the profile and the cone only add to the lowest tip height: never kept
+                    continue
+                a_ = (x0 + c * cell) - x[o]
+                d = a_ * dx[o]
+                d += b * dy[o]
+                t = min(max(d * inv_l2[o], 0.0), 1.0)
+                ex = a_ - t * dx[o]
+                ey = b - t * dy[o]
+                dist2 = ex * ex
+                dist2 += ey * ey
+                low = zmin[o]
+                if profiled:
+                    dist = math.sqrt(dist2)
+                    low += _profile(dist, flat_radius[o], rc[o])
+                    if coned:
+                        low += cone[o] * min(dist, radius[o])
+                if dist2 <= reach2[o] and low < stock[f]:
+                    ints[0, k], ints[1, k], ints[2, k], ints[3, k] = o, f, c, j
+                    floats[0, k], floats[1, k], floats[2, k], floats[3, k] = low, a_, b, d
+                    k += 1
     return ints[0, :k], ints[1, :k], ints[2, :k], ints[3, :k], floats[0, :k], floats[1, :k], floats[2, :k], floats[3, :k]
+
+
+@_jit
+def _lower_at(gap, zmin, flat_radius, rc, cone, radius):
+    """:func:`row_lower`'s bound of one move [mm] at ``gap`` [mm] from the box round its XY segment."""
+    dist = max(gap - 1e-7, 0.0)
+    low = zmin
+    low += _profile(dist, flat_radius, rc)
+    low += cone * min(dist, radius)
+    return low
+
+
+@_jit
+def _top(table, block, row, first, count):
+    """:func:`span_tops_above` of one run."""
+    b0 = first // block
+    b1 = (first + count - 1) // block
+    k = 0
+    while (2 << k) <= b1 - b0 + 1:  # floor(log2(b1 - b0 + 1))
+        k += 1
+    return max(table[k, row, b0], table[k, row, b1 - (1 << k) + 1])
 
 
 @_jit
@@ -453,11 +503,7 @@ def row_lower(owner, yr, xa, xb, x, y, dx, dy, zmin, flat_radius, rc, cone, radi
             x0 = x[o]
             x1 = x0 + dx[o]
             gap = math.hypot(gap, max(max(min(x0, x1) - xb[i], xa[i] - max(x0, x1)), 0.0))
-        dist = max(gap - 1e-7, 0.0)
-        low = zmin[o]
-        low += _profile(dist, flat_radius[o], rc[o])
-        low += cone[o] * min(dist, radius[o])
-        lower[i] = low
+        lower[i] = _lower_at(gap, zmin[o], flat_radius[o], rc[o], cone[o], radius[o])
     return lower
 
 
@@ -467,12 +513,7 @@ def span_tops_above(table, block, row, first, count):
     covering each run of ``count`` columns from ``first`` on ``row``."""
     out = np.empty(len(row))
     for i in range(len(row)):
-        b0 = first[i] // block
-        b1 = (first[i] + count[i] - 1) // block
-        k = 0
-        while (2 << k) <= b1 - b0 + 1:  # floor(log2(b1 - b0 + 1))
-            k += 1
-        out[i] = max(table[k, row[i], b0], table[k, row[i], b1 - (1 << k) + 1])
+        out[i] = _top(table, block, row[i], first[i], count[i])
     return out
 
 

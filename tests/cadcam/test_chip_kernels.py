@@ -3,13 +3,16 @@ it replaced gave on the same pairs, so the stock, every move's chip and every fe
 
 from __future__ import annotations
 
+from unittest import mock
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import cadcam.envelope
 from cadcam import toolsweep
 from cadcam.engagement import MoveRecord, _across, _plunged, _side_chip, side_chip
-from cadcam.envelope import BatchPairs, SpanTops, _Approach, grid_pairs, grid_runs
+from cadcam.envelope import BatchPairs, SpanTops, _Approach, grid_pairs
 from tests.cadcam.test_toolsweep import GRID, TOOLS, _segments, moves
 
 tool_moves = st.lists(st.tuples(st.sampled_from(range(len(TOOLS))), moves()), min_size=1, max_size=5)
@@ -57,26 +60,31 @@ def test_pairs_cut_in_turn_find_what_the_running_minimum_over_points_gives(n_mov
 
 
 @settings(max_examples=60, deadline=None)
-@given(moves=tool_moves, seed=st.integers(0, 2**32 - 1), cut=st.floats(0.0, 8.0), culled=st.booleans())
-def test_the_pairs_that_can_cut_are_those_of_every_pair_s_approach_filtered(moves, seed, cut, culled):
-    """:func:`toolsweep.kept_pairs` over the runs (culled against the stock's bounds or not) gives the pairs, in
-    order, and each one's ``lower, wx, wy, wd`` that :func:`grid_pairs` then :meth:`_Approach.of` give, less
-    those out of reach or whose ``lower`` is not under the stock (empty columns too), to the bit."""
+@given(moves=tool_moves, seed=st.integers(0, 2**32 - 1), cut=st.floats(0.0, 8.0), culled=st.booleans(),
+       fall=st.floats(0.0, 3.0), piece=st.sampled_from([1, 3, 16]))
+def test_the_pairs_that_can_cut_are_those_of_every_pair_s_approach_filtered(moves, seed, cut, culled, fall, piece):
+    """:func:`toolsweep.kept_pairs` (its runs and pieces judged against the tops of the stock, or of the stock
+    before it fell, or not at all) gives the pairs, in order, and each one's ``lower, wx, wy, wd`` that
+    :func:`grid_pairs` then :meth:`_Approach.of` give, less those out of reach or whose ``lower`` is not under
+    the stock (empty columns too), to the bit; and :meth:`BatchPairs.of` takes this way with the tops' bounds."""
     seg, *_ = _segments(moves)
     rng = np.random.default_rng(seed)
-    stock = 5.0 - cut * rng.random(GRID.size)
+    made = 5.0 - cut * rng.random(GRID.size)
+    stock = made - fall * (rng.random(GRID.size) < 0.3)
     stock[rng.random(GRID.size) < 0.05] = -np.inf
-    above = SpanTops(stock, GRID).above if culled else None
-    owner, flat, col, row = grid_pairs(seg, GRID, above)
+    tops = SpanTops(made, GRID) if culled else None
+    owner, flat, col, row = grid_pairs(seg, GRID)
     a = _Approach.of(GRID.x0 + col * GRID.cell, GRID.y0 + row * GRID.cell, owner, seg)
     keep = np.flatnonzero(a.reach & (a.lower < stock[flat]))
-    got_owner, got_flat, got_col, got_row, got = _Approach.kept(grid_runs(seg, GRID, above), GRID, stock, seg)
+    with mock.patch.object(cadcam.envelope, "_PIECE", piece):
+        got_owner, got_flat, got_col, got_row, got = _Approach.kept(seg, GRID, stock, tops)
     for want, have in ((owner, got_owner), (flat, got_flat), (col, got_col), (row, got_row), (a.lower, got.lower),
                        (a.wx, got.wx), (a.wy, got.wy), (a.wd, got.wd)):
         assert _same(have, want[keep])
     assert got.reach.all()
-    made = BatchPairs.of(seg, GRID, above, None, stock)  # the batch's pairs take this way
-    assert np.array_equal(made.flat, flat[keep]) and _same(made.approach.lower, a.lower[keep])
+    with mock.patch.object(toolsweep, "kept_pairs", side_effect=toolsweep.kept_pairs) as walked:
+        pairs = BatchPairs.of(seg, GRID, None if tops is None else tops.above, cadcam.envelope.grid_pairs, stock)
+    assert walked.called and np.array_equal(pairs.flat, flat[keep]) and _same(pairs.approach.lower, a.lower[keep])
 
 
 @settings(max_examples=60, deadline=None)
