@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cadcam.heightmap import grid_over
+from cadcam.heightmap import grid_over, upper_envelope
 from cadcam.model import Motion, Operation, ProgramMoves, Setup, Tool
 from cadcam.parallel import Background
 from cadcam.stock import FlippedStock, Simulation, StockCut, cut_stock, operation_moves
@@ -94,10 +94,13 @@ def chip_fed(ops: Sequence[Operation], stock: Simulation | None, setup: Setup, p
     # verify grid of another phase or cell has a point in it and measures the chip the raised feed makes
     # there (two floor loops 0.85 D apart leave such a strip). Measured on two grids half a cell apart, any
     # strip wider than half a cell holds a point of one of them. The two cuts are independent: the shifted
-    # grid's runs on another processor where there is one and the pass is worth a process.
+    # grid's runs on another processor where there is one and the pass is worth a process, given the part on
+    # that grid (kept here for the plan's next calls; a forked process starts with no kept answers).
     shifted = _shifted(setup, 0.5 * CHIP_CELL)
-    other = (Background(_chip_shares, moves, tools, shifted, part_triangles, stock, again)
-             if len(moves.points) >= _FORK_POINTS else None)
+    other = None
+    if len(moves.points) >= _FORK_POINTS:
+        part_there = upper_envelope(part_triangles, grid_over(shifted.stock_min, shifted.stock_max, CHIP_CELL))
+        other = Background(_chip_shares, moves, tools, shifted, part_triangles, stock, again, part_there)
     cut = _chip_cut(moves, tools, setup, part_triangles, stock, again)
     share = np.maximum(_shares(cut, len(moves.points)), other.result() if other is not None
                        else _chip_shares(moves, tools, shifted, part_triangles, stock, again))
@@ -129,11 +132,13 @@ def _run_again(moves: ProgramMoves) -> np.ndarray | None:
 
 
 def _chip_cut(moves: ProgramMoves, tools: Mapping[int, Tool], placed: Setup, part_triangles: np.ndarray,
-              stock: Simulation | None, again: np.ndarray | None = None) -> StockCut:
+              stock: Simulation | None, again: np.ndarray | None = None, part_top: np.ndarray | None = None
+              ) -> StockCut:
     """``moves`` cut on the grid of :data:`CHIP_CELL` over ``placed``'s stock box from ``stock`` (None: the
-    block), each move's chip measured (nothing else); the moves ``again`` marks (:func:`_run_again`) left out."""
+    block), each move's chip measured (nothing else); the moves ``again`` marks (:func:`_run_again`) left out.
+    ``part_top``: the part's envelope on that grid, if made already (:func:`cadcam.stock.cut_stock`'s)."""
     return cut_stock(moves, tools, placed, part_triangles, CHIP_CELL, measure="chip",
-                     start=None if stock is None else _finer(stock, placed, CHIP_CELL), skip=again)
+                     start=None if stock is None else _finer(stock, placed, CHIP_CELL), skip=again, part_top=part_top)
 
 
 def _shares(cut: StockCut, n: int) -> np.ndarray:
@@ -144,9 +149,10 @@ def _shares(cut: StockCut, n: int) -> np.ndarray:
 
 
 def _chip_shares(moves: ProgramMoves, tools: Mapping[int, Tool], placed: Setup, part_triangles: np.ndarray,
-                 stock: Simulation | None, again: np.ndarray | None = None) -> np.ndarray:
+                 stock: Simulation | None, again: np.ndarray | None = None, part_top: np.ndarray | None = None
+                 ) -> np.ndarray:
     """:func:`_shares` of :func:`_chip_cut` (what a process of its own sends back)."""
-    return _shares(_chip_cut(moves, tools, placed, part_triangles, stock, again), len(moves.points))
+    return _shares(_chip_cut(moves, tools, placed, part_triangles, stock, again, part_top), len(moves.points))
 
 
 def _raised(op: Operation, share: np.ndarray, max_feed: float) -> Operation:

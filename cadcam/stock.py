@@ -171,6 +171,7 @@ def cut_stock(
     measure: bool | str = True,
     resume: Any = None,
     skip: np.ndarray | None = None,
+    part_top: np.ndarray | None = None,
 ) -> StockCut:
     """Cut the stock with every move of a program, measuring what each move meets.
 
@@ -227,6 +228,8 @@ def cut_stock(
         Over ``moves.points``: the move ending at each point marked is not swept (it meets and removes
         nothing, ``StockCut.swept`` False), for a caller that knows it takes nothing off (:mod:`cadcam.chipfeed`:
         a move run again along an earlier one). None: none skipped.
+    part_top : (ny, nx) float, optional
+        The part's :func:`upper_envelope` on this grid if made already (a worker's parent's); else ``start``'s or made.
 
     Raises
     ------
@@ -239,7 +242,7 @@ def cut_stock(
     if len(snap) and (snap.min() < 0 or snap.max() >= len(moves.points)):
         raise VerifyError(f"snapshot move indices must lie in 0..{len(moves.points) - 1}", source="snapshot_moves")
     cut = _Cut(moves, tools, setup, part_triangles, cell, start, rapid_rim, engaged_width, body_graze,
-               full_width_angle, measure, snap, skip)
+               full_width_angle, measure, snap, skip, part_top)
     grid, stock, under, seg, met = cut.grid, cut.stock, cut.under, cut.seg, cut.met
     part_top, stock_bottom, starts, swept = cut.part_top, cut.stock_bottom, cut.starts, cut.swept
     first, tops = (0, None) if resume is None or len(snap) or skip is not None else resume.restore(cut)
@@ -461,12 +464,12 @@ class _Cut:
     def __init__(self, moves: ProgramMoves, tools: Mapping[int, Tool], setup: Setup, part_triangles: np.ndarray,
                  cell: float, start: FlippedStock | Simulation | None, rapid_rim: float, engaged_width: float,
                  body_graze: float, full_width_angle: float, measure: bool | str, snap: np.ndarray,
-                 skip: np.ndarray | None = None):
+                 skip: np.ndarray | None = None, part_top: np.ndarray | None = None):
         tri = _check_inputs(setup, cell, part_triangles)
         grid = grid_over(setup.stock_min, setup.stock_max, cell)
-        # Cutting on from earlier moves: the part was rasterised on this grid then.
-        part_top = (start.part_top if isinstance(start, Simulation) and start.grid == grid
-                    else upper_envelope(tri, grid))
+        if part_top is None:  # cutting on from earlier moves: the part was rasterised on this grid then
+            part_top = (start.part_top if isinstance(start, Simulation) and start.grid == grid
+                        else upper_envelope(tri, grid))
         if not np.isfinite(part_top).any():
             raise VerifyError("the part does not overlap the stock's footprint", source="part")
         stock, under, top_z, stock_bottom = _starting_stock(setup, grid, start)
@@ -562,15 +565,13 @@ def _run_batch(seg_all: Segments, body: "_Body", s: int, e: int, grid: Grid, sto
     pairs = pairs or BatchPairs.of(seg, grid, None if tops is None else tops.above, grid_pairs, stock)
     owner, flat, col, row = pairs.owner, pairs.flat, pairs.col, pairs.row
     env = pairs.envelope(seg, stock[flat])
-
     # Shank and holder: the same sweep with the body's cylinders, only where they can
     # come below the highest stock or part there is (the tops' highest: older, so no lower; a body part
     # under it but over the stock comes nowhere below the stock or part, so it meets nothing all the same).
+    b_flat = ()
     if body.measure is True:
         highest = float(stock.max()) if tops is None else tops.highest()
         b_owner, b_flat, b_env = body.pairs(seg, s, e, grid, stock, max(highest, body.part_max), tops)
-    else:
-        b_flat = np.zeros(0, np.int64)
     if not len(b_flat):  # the cutter's pairs alone, move by move: each cuts what the ones before it left
         cut, before = toolsweep.cut_in_turn(flat, env, stock, stock if under is None else under, under is not None)
     else:

@@ -143,7 +143,8 @@ def kept_pairs(run_owner, run_row, first, count, nx, x0, y0, cell, stock, x, y, 
                     ints[0, k], ints[1, k], ints[2, k], ints[3, k] = o, f, c, j
                     floats[0, k], floats[1, k], floats[2, k], floats[3, k] = low, a_, b, d
                     k += 1
-    return ints[0, :k], ints[1, :k], ints[2, :k], ints[3, :k], floats[0, :k], floats[1, :k], floats[2, :k], floats[3, :k]
+    return (ints[0, :k], ints[1, :k], ints[2, :k], ints[3, :k],
+            floats[0, :k], floats[1, :k], floats[2, :k], floats[3, :k])
 
 
 @_jit

@@ -215,3 +215,25 @@ def test_a_move_run_again_is_not_cut_and_every_move_keeps_the_feed_the_whole_mea
         np.maximum.at(share, whole.segments.move, whole.met.chip)
     fed = chip_feeds(path, start, SETUP, PART, MAX_FEED)
     assert np.array_equal(fed.move_feeds(), _raised(path, share, MAX_FEED).move_feeds(), equal_nan=True)
+
+
+def test_the_shifted_grid_s_part_is_made_here_once_and_given_to_the_worker(monkeypatch):
+    """A pass worth a process of its own (``_FORK_POINTS`` lowered; one processor, so the worker's call runs here):
+    the stock model rasterises the part on the setup's own grid only, the shifted grid's part coming from
+    :func:`chip_fed` (kept for a plan's next calls; a forked worker starts with no kept answers), and the feeds are
+    those of the pass measured without a worker."""
+    import cadcam.chipfeed
+    import cadcam.stock
+
+    monkeypatch.setenv("FACTORY_THREADS", "1")
+    ops = [op("rough", 16.0), op("finish", 10.0 + MILL.radius, "finishing")]
+    alone = chip_fed(ops, None, SETUP, PART, MAX_FEED)
+    real, grids = cadcam.stock.upper_envelope, []
+    monkeypatch.setattr(cadcam.stock, "upper_envelope", lambda tri, grid: grids.append(grid) or real(tri, grid))
+    monkeypatch.setattr(cadcam.chipfeed, "_FORK_POINTS", 2)
+    worked = chip_fed(ops, None, SETUP, PART, MAX_FEED)
+    own = cadcam.chipfeed.grid_over(SETUP.stock_min, SETUP.stock_max, CHIP_CELL)
+    assert grids == [own]
+    for a, b in zip(alone.operations, worked.operations):
+        assert np.array_equal(a.move_feeds(), b.move_feeds(), equal_nan=True) and (a.feeds is None) == (b.feeds is None)
+    assert np.array_equal(alone.stock.stock_top, worked.stock.stock_top)
