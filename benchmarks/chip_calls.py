@@ -54,7 +54,7 @@ def _cpu() -> float:
 def record(part: Path, out: Path) -> None:
     import cadcam.chipfeed
     import cadcam.plan
-    from cli.main import main
+    from cli.main import app
 
     real, calls = cadcam.chipfeed.chip_fed, []
 
@@ -66,12 +66,7 @@ def record(part: Path, out: Path) -> None:
         return fed
 
     cadcam.plan.chip_fed = cadcam.chipfeed.chip_fed = kept  # chip_feeds calls it through the module
-    sys.argv = ["factory", "plan", str(part), "--no-robot", "-o", str(out) + ".plan", "--overwrite", "--quiet"]
-    try:
-        main()
-    except SystemExit as done:
-        if done.code:
-            raise
+    app(["plan", str(part), "--no-robot", "-o", f"{out}.plan", "--overwrite", "--quiet"], standalone_mode=False)
     out.write_bytes(pickle.dumps(calls))
     print(json.dumps({"part": part.name, "calls": [c["ops"] for c in calls]}))
 
@@ -108,16 +103,9 @@ def replay(calls_file: Path, rounds: int, profile: Path | None) -> None:
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    sub = ap.add_subparsers(dest="mode", required=True)
-    rec = sub.add_parser("record")
-    rec.add_argument("part", type=Path)
-    rec.add_argument("out", type=Path)
-    rep = sub.add_parser("replay")
-    rep.add_argument("calls", type=Path)
-    rep.add_argument("--rounds", type=int, default=1)
-    rep.add_argument("--profile", type=Path)
+    ap.add_argument("mode", choices=("record", "replay"))
+    ap.add_argument("paths", type=Path, nargs="+", help="record: PART.stl CALLS.pkl; replay: CALLS.pkl")
+    ap.add_argument("--rounds", type=int, default=1, help="replay: times over the calls")
+    ap.add_argument("--profile", type=Path, help="replay: cProfile's statistics to this file")
     a = ap.parse_args()
-    if a.mode == "record":
-        record(a.part, a.out)
-    else:
-        replay(a.calls, a.rounds, a.profile)
+    record(*a.paths) if a.mode == "record" else replay(a.paths[0], a.rounds, a.profile)

@@ -53,25 +53,34 @@ def nearest_approach(qx, qy, owner, x, y, dx, dy, inv_l2, zmin, flat_radius, rc,
         o = owner[i]
         a = qx[i] - x[o]
         b = qy[i] - y[o]
-        d = a * dx[o]
-        d += b * dy[o]
-        t = min(max(d * inv_l2[o], 0.0), 1.0)
-        ex = a - t * dx[o]
-        ey = b - t * dy[o]
-        dist2 = ex * ex
-        dist2 += ey * ey
-        low = zmin[o]
-        if profiled:
-            dist = math.sqrt(dist2)
-            low += _profile(dist, flat_radius[o], rc[o])
-            if coned:
-                low += cone[o] * min(dist, radius[o])
+        low, dist2, d = _approach(a, b, dx[o], dy[o], inv_l2[o], zmin[o], flat_radius[o], rc[o], cone[o], radius[o],
+                                  profiled, coned)
         lower[i] = low
         reach[i] = dist2 <= reach2[o]
         wx[i] = a
         wy[i] = b
         wd[i] = d
     return lower, reach, wx, wy, wd
+
+
+@_jit
+def _approach(a, b, dx, dy, inv_l2, zmin, flat_radius, rc, cone, radius, profiled, coned):
+    """One pair's nearest approach, the grid point ``a, b`` from the move's start [mm]: ``lower`` [mm], the squared
+    distance [mm^2] and the dot product with the move [mm^2] (:func:`nearest_approach`)."""
+    d = a * dx
+    d += b * dy
+    t = min(max(d * inv_l2, 0.0), 1.0)
+    ex = a - t * dx
+    ey = b - t * dy
+    dist2 = ex * ex
+    dist2 += ey * ey
+    low = zmin
+    if profiled:
+        dist = math.sqrt(dist2)
+        low += _profile(dist, flat_radius, rc)
+        if coned:
+            low += cone * min(dist, radius)
+    return low, dist2, d
 
 
 @_jit
@@ -126,19 +135,8 @@ def kept_pairs(run_owner, run_row, first, count, nx, x0, y0, cell, stock, x, y, 
                 if not zmin[o] < stock[f]:  # the profile and the cone only add to the lowest tip height: never kept
                     continue
                 a_ = (x0 + c * cell) - x[o]
-                d = a_ * dx[o]
-                d += b * dy[o]
-                t = min(max(d * inv_l2[o], 0.0), 1.0)
-                ex = a_ - t * dx[o]
-                ey = b - t * dy[o]
-                dist2 = ex * ex
-                dist2 += ey * ey
-                low = zmin[o]
-                if profiled:
-                    dist = math.sqrt(dist2)
-                    low += _profile(dist, flat_radius[o], rc[o])
-                    if coned:
-                        low += cone[o] * min(dist, radius[o])
+                low, dist2, d = _approach(a_, b, dx[o], dy[o], inv_l2[o], zmin[o], flat_radius[o], rc[o], cone[o],
+                                          radius[o], profiled, coned)
                 if dist2 <= reach2[o] and low < stock[f]:
                     ints[0, k], ints[1, k], ints[2, k], ints[3, k] = o, f, c, j
                     floats[0, k], floats[1, k], floats[2, k], floats[3, k] = low, a_, b, d
