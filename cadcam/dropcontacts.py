@@ -232,3 +232,51 @@ def drop_points(cx, cy, cell, best, vertex_lists, facet_lists, edge_lists, verti
             kept = np.empty((8, 2 * (stop - eptr[c])))
         b = _edges(edges, eitems, eptr[c], stop, x, y, b, radius, corner, steps, kept)
         best[p] = b
+
+
+@numba.njit(cache=True, nogil=True)
+def bucket_entries(a, b, ix0, iy0, wx, counts, lo, hi, top, ox, oy, cell, nx, ny, radius, corner, margin):
+    """:func:`cadcam.dropcutter._entries` compiled: the (box, bucket, ranking value) entries of boxes ``a:b``,
+    box by box, each box's buckets row by row from ``(ix0, iy0)`` over ``wx`` columns (``counts`` in all).
+
+    With ``radius > 0`` only the buckets within ``radius`` [mm] of the box (less ``margin``, the rounding
+    allowance) are kept, each ranked by the box's ``top`` less the profile height at that distance; border
+    buckets are open beyond the grid. Same formulas in the same order as the numpy entries they replace, so
+    the same numbers to the bit; (k,) int32, (k,) int32, (k,) float64.
+    """
+    total = 0
+    for t in range(a, b):
+        total += counts[t]
+    item = np.empty(total, dtype=np.int32)
+    bucket = np.empty(total, dtype=np.int32)
+    value = np.empty(total, dtype=np.float64)
+    m = 0
+    for t in range(a, b):
+        w = wx[t]
+        for local in range(counts[t]):
+            bx = ix0[t] + local % w
+            by = iy0[t] + local // w
+            v = top[t]
+            if radius > 0.0:
+                x0 = -np.inf if bx == 0 else ox + bx * cell
+                x1 = np.inf if bx == nx - 1 else ox + (bx + 1) * cell
+                y0 = -np.inf if by == 0 else oy + by * cell
+                y1 = np.inf if by == ny - 1 else oy + (by + 1) * cell
+                p = x0 - hi[t, 0]
+                q = lo[t, 0] - x1
+                dx = p if p > q else q
+                dx = dx if dx > 0.0 else 0.0
+                p = y0 - hi[t, 1]
+                q = lo[t, 1] - y1
+                dy = p if p > q else q
+                dy = dy if dy > 0.0 else 0.0
+                d = math.hypot(dx, dy) - margin
+                d = d if d > 0.0 else 0.0
+                if not d <= radius:
+                    continue
+                v = v - _height(d, radius, corner)
+            item[m] = t
+            bucket[m] = by * nx + bx
+            value[m] = v
+            m += 1
+    return item[:m], bucket[:m], value[:m]

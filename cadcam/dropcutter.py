@@ -386,29 +386,19 @@ def _joined(pieces: list[np.ndarray], dtype) -> np.ndarray:
 def _entries(grid: _Grid, lo: np.ndarray, hi: np.ndarray, top: np.ndarray, radius: float, corner: float,
              ix0: np.ndarray, iy0: np.ndarray, wx: np.ndarray, counts: np.ndarray, a: int, b: int
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_bucket`'s entries of boxes ``a:b``: (box, bucket, ranking value)."""
-    total = int(counts[a:b].sum())
-    item = a + np.repeat(np.arange(b - a), counts[a:b])
-    local = np.arange(total) - np.repeat(np.cumsum(counts[a:b]) - counts[a:b], counts[a:b])
-    w = wx[item]
-    bx = ix0[item] + local % w
-    by = iy0[item] + local // w
-    value = top[item]
-    if radius > 0.0:
-        # Border buckets also hold every axis beyond the grid (cells() clamps): open sides.
-        x0 = np.where(bx == 0, -np.inf, grid.origin[0] + bx * grid.cell)
-        x1 = np.where(bx == grid.nx - 1, np.inf, grid.origin[0] + (bx + 1) * grid.cell)
-        y0 = np.where(by == 0, -np.inf, grid.origin[1] + by * grid.cell)
-        y1 = np.where(by == grid.ny - 1, np.inf, grid.origin[1] + (by + 1) * grid.cell)
-        dx = np.maximum(np.maximum(x0 - hi[item, 0], lo[item, 0] - x1), 0.0)
-        dy = np.maximum(np.maximum(y0 - hi[item, 1], lo[item, 1] - y1), 0.0)
-        # The margin covers rounding in the bucket of an axis; it only ever lowers d.
-        d = np.maximum(np.hypot(dx, dy) - 1e-9 * (1.0 + grid.cell * max(grid.nx, grid.ny)), 0.0)
-        near = d <= radius
-        item, bx, by, value, d = item[near], bx[near], by[near], value[near], d[near]
-        value = value - _height(d, radius, corner)
-    # 32-bit: a fine grid lists each primitive many times (the index and the grid stay far below 2**31).
-    return item.astype(np.int32), (by * grid.nx + bx).astype(np.int32), value
+    """:func:`_bucket`'s entries of boxes ``a:b``: (box, bucket, ranking value), (k,) int32, int32, float64.
+
+    Compiled (:func:`cadcam.dropcontacts.bucket_entries`, the same numbers as the numpy pairs it replaced): those
+    made every entry's bucket, bounds and distance as temporaries, most of a tool's preparation (issue 35).
+    Border buckets also hold every axis beyond the grid (:meth:`_Grid.cells` clamps): open sides. The margin
+    covers rounding in the bucket of an axis; it only ever lowers the distance. 32-bit: a fine grid lists each
+    primitive many times (the index and the grid stay far below 2**31)."""
+    from cadcam.dropcontacts import bucket_entries
+
+    return bucket_entries(a, b, ix0, iy0, wx, counts, np.ascontiguousarray(lo, dtype=np.float64),
+                          np.ascontiguousarray(hi, dtype=np.float64), np.ascontiguousarray(top, dtype=np.float64),
+                          float(grid.origin[0]), float(grid.origin[1]), float(grid.cell), grid.nx, grid.ny,
+                          float(radius), float(corner), 1e-9 * (1.0 + grid.cell * max(grid.nx, grid.ny)))
 
 
 # --------------------------------------------------------------------------- kernels

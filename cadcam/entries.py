@@ -108,9 +108,7 @@ def _ramped(c: np.ndarray, z_top: float, tan: float) -> tuple[np.ndarray, int]:
     else:  # back and forth along the chain
         there, back = np.arange(m + 1), np.arange(m, -1, -1)
         idx = np.concatenate([there] + [(back if k % 2 == 0 else there)[1:] for k in range(laps)])
-    walk = c[idx]
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(walk[:, :2], axis=0), axis=1))])
-    j = int(np.argmax(s >= need))  # out to the first walked point a level ramp's length along, then back
+    walk, s, j = _walked(c, idx, need, m if closed else 0)
     way = np.concatenate([np.arange(j + 1), np.arange(j - 1, -1, -1)])
     along_way = np.concatenate([s[:j + 1], 2.0 * s[j] - s[j - 1::-1]])
     slope = float(c[0, 2]) + (rise - along_way * tan)  # the ramp's height over each point of its way
@@ -136,6 +134,26 @@ def _ramped(c: np.ndarray, z_top: float, tan: float) -> tuple[np.ndarray, int]:
     # A slope meeting the chain on a walked point repeats it: no zero-length moves.
     keep = np.concatenate([[True], np.linalg.norm(np.diff(out, axis=0), axis=1) > 1e-9])
     return out[keep], int(keep[:len(ramp)].sum()) - 1
+
+
+def _walked(c: np.ndarray, idx: np.ndarray, need: float, more: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """The first points of the walk ``c[idx]`` (k, 3) [mm], how far along it each lies (k,) [mm], and ``j``: the
+    first that lies ``need`` [mm] or more along (0: none), with ``more`` points walked past it (a loop's next lap).
+
+    A raster line is hundreds of points and its ramp a few millimetres of it: the walk is laid out and measured
+    only as far as the ramp goes, in prefixes that double. The distances are cumulative sums from the walk's
+    start, so each is the number measuring the whole walk gives (issue 35: the whole walk, laps of it, was
+    measured for every chain)."""
+    n = len(idx)
+    size = min(n, 64)
+    while True:
+        walk = c[idx[:size]]
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(walk[:, :2], axis=0), axis=1))])
+        hit = s >= need
+        j = int(np.argmax(hit))  # out to the first walked point a level ramp's length along, then back
+        if size == n or (hit[j] and j + more < size):
+            return walk, s, j
+        size = min(n, max(2 * size, j + more + 1 if hit[j] else 0))
 
 
 def _meet(a: np.ndarray, b: np.ndarray, sa: float, sb: float, base: float, rise: float, tan: float

@@ -89,21 +89,22 @@ class LoopChoice:
         points is asked: the loops lie within the radius of its cells."""
         g, radius = self.known.grid, self.radius
         reach = 2.0 * radius + g.cell * math.sqrt(2.0) + _WAIT_TOL
-        stock: list[np.ndarray] = []  # the stock's points (m, 2) [mm], found when first asked
+        stock: list[tuple[np.ndarray, cKDTree]] = []  # the stock's points (m, 2) [mm] and their tree, when asked
 
-        def points() -> np.ndarray:
+        def points() -> tuple[np.ndarray, cKDTree]:
             if not stock:
                 near = near_cells(mask, reach, g.cell) if mask.any() else mask
                 j, i = np.nonzero(near & (mask | (self.over & (self.known.stock_top > z + _STANDING_EPS))))
-                stock.append(np.column_stack([g.x0 + g.cell * i, g.y0 + g.cell * j]))
+                xy = np.column_stack([g.x0 + g.cell * i, g.y0 + g.cell * j])
+                stock.append((xy, cKDTree(xy)))
             return stock[0]
 
         def cuts(lines: list[LineString]) -> np.ndarray:
             out = np.zeros(len(lines), dtype=bool)
-            if not len(lines) or not len(points()):
+            if not len(lines) or not len(points()[0]):
                 return out
             for n, line in enumerate(lines):
-                out[n] = _meets_cells(line, points(), radius, g.cell)
+                out[n] = _meets_cells(line, *points(), radius, g.cell)
             return out
 
         return cuts
@@ -115,27 +116,26 @@ def _samples(line: LineString, step: float) -> cKDTree:
     return cKDTree(shapely.get_coordinates(shapely.segmentize(line, step) if line.length > 0 else line))
 
 
-def _near(line: LineString, xy: np.ndarray, distance: float, step: float, samples: cKDTree,
+def _near(line: LineString, xy: np.ndarray, tree: cKDTree, distance: float, step: float, samples: cKDTree,
           first: bool = False) -> np.ndarray:
-    """Indices of the points ``xy`` (m, 2) [mm] within ``distance`` [mm] of ``line`` as GEOS decides it (the
-    STRtree's ``dwithin``); ``first``: one such point, if any, found soonest.
+    """Indices (ascending) of the points ``xy`` (m, 2) [mm] (``tree``: their k-d tree) within ``distance`` [mm] of
+    ``line`` as GEOS decides it (the STRtree's ``dwithin``); ``first``: one such point, if any, found soonest.
 
     GEOS is asked only about the points that might be: ``samples`` (:func:`_samples`, every ``step`` [mm] or
     closer) lie within half a step of each of the line's points, so a point farther than the distance and half a
     step from all of them is surely not within the distance of the line, and one within the distance of one of
-    them surely is."""
-    x0, y0, x1, y1 = line.bounds
-    pad = distance + step
-    box = np.flatnonzero((xy[:, 0] >= x0 - pad) & (xy[:, 0] <= x1 + pad) & (xy[:, 1] >= y0 - pad)
-                         & (xy[:, 1] <= y1 + pad))
-    if not len(box):
-        return box
-    gap, _ = samples.query(xy[box], distance_upper_bound=distance + 0.5 * step + _SURE_TOL)
-    if first and np.any(gap <= distance - _SURE_TOL):
-        return box[[int(np.argmin(gap))]]
-    maybe = box[np.isfinite(gap)]
-    if not len(maybe):
-        return maybe
+    them surely is. The points near the samples are found from the samples, in the points' tree made once for a
+    level's loops (each loop's few hundred samples asked, not the thousands of points round it: issue 35); a
+    point-to-sample distance is the same number asked either way round, so the same points are found."""
+    near = distance + 0.5 * step + _SURE_TOL
+    if first:
+        gap, at = tree.query(samples.data, distance_upper_bound=near)
+        if np.any(gap <= distance - _SURE_TOL):
+            return at[[int(np.argmin(gap))]]
+    found = tree.query_ball_point(samples.data, near, return_sorted=False)
+    if not any(found):
+        return np.zeros(0, dtype=np.int64)
+    maybe = np.unique(np.concatenate([np.asarray(f, dtype=np.int64) for f in found]))
     shapely.prepare(line)  # as the STRtree's query prepares it: the same predicate, to the bit
     try:
         return maybe[shapely.dwithin(line, shapely.points(xy[maybe]), distance)]
@@ -143,15 +143,16 @@ def _near(line: LineString, xy: np.ndarray, distance: float, step: float, sample
         shapely.destroy_prepared(line)
 
 
-def _meets_cells(line: LineString, xy: np.ndarray, radius: float, cell: float) -> bool:
-    """Whether ``line`` passes within ``radius`` [mm] of a grid point of ``xy`` (m, 2) [mm], or into its cell
-    (a square of ``cell`` [mm] round it) by more than the rest region's chords do (:meth:`LoopChoice.at`)."""
+def _meets_cells(line: LineString, xy: np.ndarray, tree: cKDTree, radius: float, cell: float) -> bool:
+    """Whether ``line`` passes within ``radius`` [mm] of a grid point of ``xy`` (m, 2) [mm] (``tree``: their k-d
+    tree), or into its cell (a square of ``cell`` [mm] round it) by more than the rest region's chords do
+    (:meth:`LoopChoice.at`)."""
     half, step = 0.5 * cell, _SAMPLE_STEP * cell
     samples = _samples(line, step)  # once for both questions
-    if len(_near(line, xy, radius, step, samples, first=True)):
+    if len(_near(line, xy, tree, radius, step, samples, first=True)):
         return True
     # off every point by more than the radius: their cells, near a corner
-    b = _near(line, xy, radius + half * math.sqrt(2.0), step, samples)
+    b = _near(line, xy, tree, radius + half * math.sqrt(2.0), step, samples)
     if not len(b):
         return False
     x, y = xy[b, 0], xy[b, 1]

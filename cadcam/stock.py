@@ -776,24 +776,16 @@ def clear_height(sim: Simulation, tool: Tool, xy: np.ndarray, within: float | No
     i0 = np.rint((xy[:, 0] - g.x0) / g.cell).astype(np.int64)
     j0 = np.rint((xy[:, 1] - g.y0) / g.cell).astype(np.int64)
     out = np.full(len(xy), -np.inf)
-    # Every (axis, grid point near it) pair at once, in chunks of axes: the per-offset loop this
-    # replaces spent its time in numpy's per-call overhead. Each pair's number is computed as it
-    # was, and the maximum is exact, so the heights are the same to the bit.
-    step = max(1, _CLEAR_PAIRS // len(di))
-    for s in range(0, len(xy), step):
-        x, y = xy[s:s + step, 0, None], xy[s:s + step, 1, None]
-        i, j = i0[s:s + step, None] + di, j0[s:s + step, None] + dj
-        inside = (i >= 0) & (i < g.nx) & (j >= 0) & (j < g.ny)
-        ii, jj = np.clip(i, 0, g.nx - 1), np.clip(j, 0, g.ny - 1)  # outside ones are masked below
-        r = np.hypot(g.x0 + ii * g.cell - x, g.y0 + jj * g.cell - y)
-        h = tool.profile_height(np.clip(r - slack, 0.0, tool.radius))
-        need = np.where(inside & (r <= reach), sim.stock_top[jj, ii] - h, -np.inf)
-        out[s:s + step] = need.max(axis=1, initial=-np.inf)
+    # Compiled, one axis at a time over the same offsets with the same numbers as the numpy pairs it replaces
+    # (cadcam.clearheight); imported here, as numba is only where a process needs it.
+    from cadcam.clearheight import clear_heights
+
+    clear_heights(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]), i0, j0,
+                  np.ascontiguousarray(di, dtype=np.int64), np.ascontiguousarray(dj, dtype=np.int64),
+                  np.ascontiguousarray(sim.stock_top, dtype=np.float64), float(g.x0), float(g.y0), float(g.cell),
+                  float(slack), float(reach), float(tool.radius), float(tool.corner_radius),
+                  float(tool.point_slope), out)
     return out
-
-
-#: (axis, grid point) pairs :func:`clear_height` evaluates at once (bounds its temporaries, ~80 B each).
-_CLEAR_PAIRS = 400_000
 
 
 def flip_stock(sim: Simulation, transform: np.ndarray, setup: Setup) -> FlippedStock:

@@ -126,3 +126,29 @@ def _bull_edge_argmax(s, d2, lo, hi, radius, corner):
         k *= s
         lo = np.where(k > e * mid, lo + w, lo)
     return lo + 0.5 * w
+
+
+def numpy_entries(grid: dc._Grid, lo: np.ndarray, hi: np.ndarray, top: np.ndarray, radius: float, corner: float,
+                  ix0: np.ndarray, iy0: np.ndarray, wx: np.ndarray, counts: np.ndarray, a: int, b: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`cadcam.dropcutter._entries` as numpy made them before they were compiled (issue 35): every
+    (box, bucket) pair of boxes ``a:b`` at once."""
+    total = int(counts[a:b].sum())
+    item = a + np.repeat(np.arange(b - a), counts[a:b])
+    local = np.arange(total) - np.repeat(np.cumsum(counts[a:b]) - counts[a:b], counts[a:b])
+    w = wx[item]
+    bx = ix0[item] + local % w
+    by = iy0[item] + local // w
+    value = top[item]
+    if radius > 0.0:
+        x0 = np.where(bx == 0, -np.inf, grid.origin[0] + bx * grid.cell)
+        x1 = np.where(bx == grid.nx - 1, np.inf, grid.origin[0] + (bx + 1) * grid.cell)
+        y0 = np.where(by == 0, -np.inf, grid.origin[1] + by * grid.cell)
+        y1 = np.where(by == grid.ny - 1, np.inf, grid.origin[1] + (by + 1) * grid.cell)
+        dx = np.maximum(np.maximum(x0 - hi[item, 0], lo[item, 0] - x1), 0.0)
+        dy = np.maximum(np.maximum(y0 - hi[item, 1], lo[item, 1] - y1), 0.0)
+        d = np.maximum(np.hypot(dx, dy) - 1e-9 * (1.0 + grid.cell * max(grid.nx, grid.ny)), 0.0)
+        near = d <= radius
+        item, bx, by, value, d = item[near], bx[near], by[near], value[near], d[near]
+        value = value - _height(d, radius, corner)
+    return item.astype(np.int32), (by * grid.nx + bx).astype(np.int32), value

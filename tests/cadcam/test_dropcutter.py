@@ -336,3 +336,32 @@ def test_the_compiled_contacts_give_numpys_heights_to_the_bit(seed, count, sprea
     want = numpy_drop_profile(index, radius, rc, xy, floor)
     assert np.array_equal(got, want)
     assert np.array_equal(np.signbit(got), np.signbit(want))
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), count=st.integers(1, 80), spread=st.floats(0.05, 4.0),
+       shape=st.sampled_from(["flat", "bull", "ball"]), radius=st.floats(0.05, 6.0),
+       grid=st.sampled_from([0.0, 0.01, 0.5]))
+def test_the_compiled_bucket_entries_are_numpys_to_the_bit(seed, count, spread, shape, radius, grid):
+    """The compiled bucket entries (cadcam.dropcontacts.bucket_entries, issue 35) against the numpy pairs they
+    replaced (tests/cadcam/drop_numpy.py): every prepared list (vertices, edges, facets) the same pointers, items
+    and keys, on triangle soups whose corners may sit on a grid, for the three tool shapes, pins to wide tools."""
+    from cadcam import dropcutter as dc
+    from tests.cadcam.drop_numpy import numpy_entries
+
+    rng = np.random.default_rng(seed)
+    tri = rng.uniform(0, 20, (count, 1, 3)) + rng.normal(0, spread, (count, 3, 3))
+    if grid:
+        tri = np.round(tri / grid) * grid
+    rc = {"flat": 0.0, "bull": radius / 3, "ball": radius}[shape]
+    got = dc._prepare(build_index(tri), radius, rc)
+    compiled = dc._entries
+    dc._entries = numpy_entries
+    try:
+        want = dc._prepare(build_index(tri), radius, rc)
+    finally:
+        dc._entries = compiled
+    for g, w in zip(got[1:4], want[1:4]):
+        assert np.array_equal(g.ptr, w.ptr) and np.array_equal(g.items, w.items)
+        assert np.array_equal(g.key, w.key) and np.array_equal(np.signbit(g.key), np.signbit(w.key))
+        assert (g.z_hi, g.z_span) == (w.z_hi, w.z_span)

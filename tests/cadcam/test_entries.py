@@ -160,3 +160,48 @@ def test_a_finishing_helix_into_a_roughed_counterbore_starts_just_over_what_is_l
     drops = [float(op.points[s, 2] - op.points[e, 2]) for s, e in zip(edges[::2], edges[1::2])]
     assert len(drops) >= 3 and max(drops) < 1.0, drops
     assert_verified_with_chips(job, setup, part)
+
+
+def _whole_walk(c: np.ndarray, idx: np.ndarray, need: float, more: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """:func:`cadcam.entries._walked` as the ramp measured its walk before (issue 35): the whole of it, every lap."""
+    walk = c[idx]
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(walk[:, :2], axis=0), axis=1))])
+    return walk, s, int(np.argmax(s >= need))
+
+
+@given(chains, st.integers(0, 3))
+@example(([(0.0, 0.0, -1.0), (10.0, 0.0, -1.0), (10.0, 5.0, -1.0)], True, 1.0), 0)  # a level loop
+@example(([(0.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 1.0, 0.0)], True, 1.0), 0)  # a loop stepping straight down
+def test_the_ramp_measures_as_much_of_its_walk_as_it_goes_and_gives_the_whole_walks_ramp(drawn, repeat):
+    """The walk measured in doubling prefixes (:func:`cadcam.entries._walked`) holds the whole walk's first points
+    and distances, the same first point ``need`` along, and a loop's next lap past it; the ramped chain is the one
+    the whole walk gives, to the bit. ``repeat``: the chain's points that many times over (long chains, several
+    prefixes)."""
+    import cadcam.entries as entries
+
+    pts, closed, rise = drawn
+    c = np.array(pts, dtype=float)
+    if closed:
+        c = np.vstack([c, c[:1]])
+    for _ in range(repeat):  # the same shape again, shifted along x: a longer chain
+        c = np.vstack([c, c[1:] + [np.ptp(c[:, 0]) + 1.0, 0.0, 0.0]]) if not closed else np.vstack([c, c[1:]])
+    if np.linalg.norm(np.diff(c[:, :2], axis=0), axis=1).sum() < 1.0:
+        return
+    tan = math.tan(math.radians(RAMP_ANGLE))
+    m = len(c) - 1
+    length = float(np.linalg.norm(np.diff(c[:, :2], axis=0), axis=1).sum())
+    laps = int(math.ceil(rise / tan / length)) + 1
+    idx = np.concatenate([np.arange(m + 1)] + [np.arange(1, m + 1)] * laps)
+    for need in (rise / tan, 0.3 * length, 1.5 * length):
+        walk, s, j = entries._walked(c, idx, need, m if closed else 0)
+        whole, s_all, j_all = _whole_walk(c, idx, need, m if closed else 0)
+        assert j == j_all and np.array_equal(s, s_all[:len(s)]) and np.array_equal(walk, whole[:len(walk)])
+        assert len(s) == len(s_all) or j + (m if closed else 0) < len(s)
+    got = _ramped(c, float(c[0, 2]) + rise, tan)
+    walked = entries._walked
+    entries._walked = _whole_walk
+    try:
+        want = _ramped(c, float(c[0, 2]) + rise, tan)
+    finally:
+        entries._walked = walked
+    assert got[1] == want[1] and np.array_equal(got[0], want[0])

@@ -270,3 +270,36 @@ def test_the_loop_choice_asks_geos_only_near_the_loop_and_gives_the_point_tree_s
                       & (rest | (choice.over & (stock.stock_top > 1e-3))))
     xy = np.column_stack([grid.x0 + grid.cell * i, grid.y0 + grid.cell * j])
     assert list(choice.at(rest, 0.0)(lines)) == list(_cuts_by_point_tree(xy, lines, radius, cell))
+
+
+@settings(max_examples=80, deadline=None)
+@given(corners=st.lists(st.tuples(st.floats(0.0, 10.0), st.floats(0.0, 10.0)), min_size=2, max_size=6),
+       seed=st.integers(0, 2**31 - 1), distance=st.sampled_from([0.5, 1.5, 3.0]), cell=st.sampled_from([0.2, 0.5]),
+       off=st.sampled_from([-1e-7, 0.0, 1e-7, 0.01, 0.05, 0.1]))
+def test_the_points_near_a_loop_found_from_its_samples_are_geos_points_within_the_distance(corners, seed, distance,
+                                                                                           cell, off):
+    """:func:`cadcam.ringorder._near` finds the points near a loop from the loop's samples in the points' k-d tree
+    (issue 35): exactly the points GEOS puts within the distance of the line (``dwithin``, every point asked), and
+    with ``first`` one of them exactly when one lies within the distance less a hair. The points lie on and about
+    the distance from the line (``off`` [mm] beyond it: the band between the line and its samples' reach)."""
+    from scipy.spatial import cKDTree
+
+    from cadcam.ringorder import _SAMPLE_STEP, _SURE_TOL, _near, _samples
+
+    line = shapely.LineString(corners)
+    if line.length < 1e-3:
+        return
+    rng = np.random.default_rng(seed)
+    at = shapely.get_coordinates(shapely.line_interpolate_point(line, rng.uniform(0, line.length, 200)))
+    turn = rng.uniform(0, 2 * np.pi, 200)
+    xy = np.concatenate([at + (distance + off) * np.column_stack([np.cos(turn), np.sin(turn)]),
+                         rng.uniform(-5.0, 15.0, (100, 2))])
+    step = _SAMPLE_STEP * cell
+    samples = _samples(line, step)
+    within = np.flatnonzero(shapely.dwithin(line, shapely.points(xy), distance))
+    got = _near(line, xy, cKDTree(xy), distance, step, samples)
+    assert np.array_equal(got, within)
+    one = _near(line, xy, cKDTree(xy), distance, step, samples, first=True)
+    assert set(one.tolist()) <= set(within.tolist()) and (len(one) > 0) == (len(within) > 0)
+    sure = shapely.distance(line, shapely.points(xy)) <= distance - 2 * _SURE_TOL
+    assert len(one) == 1 or not sure.any()
