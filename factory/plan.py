@@ -652,27 +652,20 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
     if req.ops is None:  # a relief stays in its block, right way up, unless asked
         req = dataclasses.replace(req, ops=1 if planned.boundary is not None else 2)
     outputs = req.outputs(Path("."))
-    with watch("verify ahead"):  # a round under way fits operations the post needs: waited for first
-        resume = verify_ahead.state(job.operations) if verify_ahead is not None else None
-        # the last round's whole program, where it is this job's: neither posted nor parsed again
-        posted = verify_ahead.posted(job) if verify_ahead is not None else None
-    with watch("post"):
-        program = post_process(job, post_options, ahead=ahead) if posted is None else posted[0]
-        sheet = dataclasses.replace(setup_sheet(job, program, outputs["program"].name), op=1, work_offset="G54")
-    # The pictures and the log's messages do not depend on verify: they are made in a second process while
-    # verify runs here (issue 35: they were most of the `write` stage), with a robot once its share is planned
-    # (its process has ended, so that processor is idle; a robot still planning keeps it busy, and its share is
-    # drawn after verify, as on one processor, where everything is made when written).
-    drawing = work = robot_error = None
-    if processors() > 1 and (robot is None or robot.ready()):
-        if robot is not None:
-            try:
-                work = robot.result(sheet)
-            except FactoryError as e:
-                robot_error = e  # raised where it was before: after verify and op 2, whose errors come first
-        if robot_error is None:
-            drawing = Background(write_ahead, planned, None if work is None else _tending(robot, work))
+    # The pictures and the log's messages depend on neither the post nor verify: they are drawn in a second
+    # process from here on (issue 35: they were most of the `write` stage), beside the wait for the last round
+    # of verify ahead, which leaves this process idle (:class:`_Drawing`).
+    drawing = _Drawing(planned, robot)
+    drawing.start()
     try:
+        with watch("verify ahead"):  # a round under way fits operations the post needs: waited for first
+            resume = verify_ahead.state(job.operations) if verify_ahead is not None else None
+            # the last round's whole program, where it is this job's: neither posted nor parsed again
+            posted = verify_ahead.posted(job) if verify_ahead is not None else None
+        with watch("post"):
+            program = post_process(job, post_options, ahead=ahead) if posted is None else posted[0]
+            sheet = dataclasses.replace(setup_sheet(job, program, outputs["program"].name), op=1, work_offset="G54")
+        drawing.start()  # the robot may have answered meanwhile
         with watch("verify"):
             verified = run_verify(program.text, str(outputs["program"]), job.setup, {t.number: t for t in job.tools},
                                   np.asarray(planned.part_work.triangles), options, held_open(progress),
@@ -680,18 +673,19 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
                                   moves=None if posted is None else posted[1])
         op2 = op2_error = None
         if req.ops == 2:
+            drawing.start()  # beside op 2, if the robot has answered by now
             try:
                 op2 = _plan_op2(req, planned, verified.simulation, outputs, progress, watch, verified.report)
             except FactoryError as e:
                 if robot is None:
                     raise
                 op2_error = e  # stands only if the robot turns the part over: its answer decides
-        tending = ahead = None
+        tending = drawn_ahead = None
         if robot is not None:
-            if robot_error is not None:
-                raise robot_error
-            work = robot.result(sheet) if work is None else work
-            if drawing is None:
+            if drawing.error is not None:
+                raise drawing.error  # where it was raised before: after verify and op 2, whose errors come first
+            work = robot.result(sheet) if drawing.work is None else drawing.work
+            if drawing.background is None:
                 with watch("pictures"):  # and the cell in the log: what needs no robot motion
                     pictures = drawn(planned, robot.cell, robot.world, work.visuals)
             if work.dropped_op2 is not None:
@@ -704,21 +698,60 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
             if op2_error is not None:
                 raise op2_error
             tending = _tending(robot, work)
-            if drawing is None:
+            if drawing.background is None:
                 with watch("log"):
-                    ahead = write_ahead(planned, tending, pictures)
+                    drawn_ahead = write_ahead(planned, tending, pictures)
     except BaseException:
-        if drawing is not None:
-            drawing.cancel()  # no drawing left running for a plan that failed
+        drawing.cancel()  # no drawing left running for a plan that failed
         raise
-    if drawing is not None:
+    if drawing.background is not None:
         with watch("pictures and log"):  # the wait for the second process, if it is still drawing
-            ahead = drawing.result()
+            drawn_ahead = drawing.background.result()
     if op2 is not None:
         sheet = dataclasses.replace(sheet, next={"program": outputs["program_op2"].name,
                                                  "setup_sheet": outputs["setup_sheet_op2"].name})
     return PartPlan(req, planned, program, sheet, tending, verified.simulation, verified.report,
-                    dict(watch.seconds), op2, ahead=ahead)
+                    dict(watch.seconds), op2, ahead=drawn_ahead)
+
+
+@dataclasses.dataclass(eq=False)
+class _Drawing:
+    """:func:`write_ahead` of a plan's op 1 in a second process, begun at the first of the plan's last stages
+    (:meth:`start`) where a processor is free for it: at once without a robot, else once the robot's process
+    has answered (it has ended: its processor is free). A robot still planning keeps that processor busy; its
+    share is drawn after verify then, in the plan's process, as everything is on one processor.
+
+    The robot's work is taken for the job's stock (:func:`factory.robotwork.stock_sheet`): the posted setup
+    sheet's is the same box and placement (:func:`cadcam.sheet.setup_sheet`), so the work is the one
+    :meth:`BackgroundRobot.result` gives for that sheet. Its error is kept (:attr:`error`) for the plan to
+    raise where it raised it before: after verify and op 2.
+    """
+
+    planned: PlannedPart
+    robot: BackgroundRobot | None
+    background: Background | None = None
+    work: RobotWork | None = None
+    error: FactoryError | None = None
+
+    def start(self) -> None:
+        """Begin drawing, unless begun, failed, on one processor, or the robot's process has not answered."""
+        if self.background is not None or self.error is not None or processors() < 2:
+            return
+        if self.robot is not None:
+            if not self.robot.ready():
+                return
+            try:
+                self.work = self.robot.result(stock_sheet(self.planned.job.setup))
+            except FactoryError as e:
+                self.error = e
+                return
+        self.background = Background(write_ahead, self.planned,
+                                     None if self.work is None else _tending(self.robot, self.work))
+
+    def cancel(self) -> None:
+        """End the drawing under way (the plan failed)."""
+        if self.background is not None:
+            self.background.cancel()
 
 
 def _tending(robot: BackgroundRobot, work: RobotWork) -> Tending:

@@ -472,3 +472,35 @@ def test_verify_begun_ahead_on_an_idle_processor_writes_what_one_processor_write
         written[threads] = _written(tmp_path / threads)
         assert (resumed[-1] is not None) == (threads == "2")  # verify went on from a round's cut
     assert written["1"] == written["2"]
+
+
+@pytest.mark.parametrize("robot", [False, True])
+def test_the_pictures_are_drawn_beside_the_wait_for_the_last_round_of_verify_ahead(block, monkeypatch, robot):
+    """On two processors the pictures and the log's messages are begun in their process before the plan waits for
+    the last round of verify begun ahead (with a robot, once its process has answered): that wait leaves the plan's
+    own process idle, and the drawing needs neither the post nor verify (issue 35)."""
+    import factory.plan
+    import factory.verify
+
+    monkeypatch.setenv("FACTORY_THREADS", "2")
+    monkeypatch.setattr(BackgroundRobot, "ready", lambda self: self._background._conn.poll(None))
+    begun: list[str] = []
+    at_the_wait: list[list[str]] = []
+
+    class Recorded(factory.plan.Background):
+        def __init__(self, fn, *args):
+            begun.append(fn.__name__)
+            super().__init__(fn, *args)
+
+    real_state = factory.verify.VerifyAhead.state
+
+    def state(self, operations):
+        at_the_wait.append(list(begun))
+        return real_state(self, operations)
+
+    monkeypatch.setattr(factory.plan, "Background", Recorded)
+    monkeypatch.setattr(factory.verify.VerifyAhead, "state", state)
+    plan = plan_part(dataclasses.replace(fast_request(block, robot=robot), ops=1))
+    assert at_the_wait == [["write_ahead"]]  # drawing when the plan began to wait, and drawn once
+    assert plan.ahead is not None and "pictures and log" in plan.seconds and "pictures" not in plan.seconds
+    assert (plan.tending is not None) == robot
