@@ -31,7 +31,7 @@ from factory.mcaplog import LogBuffer, McapLog, read_attachment
 from factory.core.progress import Progress, Stopwatch
 from factory.core.resources import FIXTURES
 from factory.core.units import MM_PER_M
-from factory.views import job_messages
+from factory.views import job_log_messages
 from robotprog.cell import Vise, load_cell
 
 log = logging.getLogger(__name__)
@@ -308,9 +308,9 @@ def log_job(log: McapLog | LogBuffer, planned: PlannedPart,
 
     ``transform_world_to_work``: pose of the work frame in ``world`` [m] (default identity)."""
     part = planned.part_work
-    for topic, msg, latched in job_messages(planned.job, np.asarray(part.vertices), np.asarray(part.faces),
-                                            transform_world_to_work=transform_world_to_work):
-        log.write(topic, msg, 0, latched=latched)
+    for topic, message, latched in job_log_messages(planned.job, np.asarray(part.vertices), np.asarray(part.faces),
+                                                    transform_world_to_work=transform_world_to_work):
+        log.write_cdr(topic, message.typename, message.cdr, 0, message.make, latched=latched)
     log.attach(JOB_ATTACHMENT, "application/json", json.dumps(planned.job.to_dict()).encode())
 
 
