@@ -135,25 +135,31 @@ def job_messages(
         ``/tf_static``, ``/cam/toolpath``, ``/cam/part`` (only if the mesh has faces) and
         ``/cam/stock``, all latched, all points in metres in frame ``work``.
     """
-    return [(topic, message.make(), latched) for topic, message, latched in job_log_messages(
-        job, part_work_vertices, part_faces, stamp_ns, style, transform_world_to_work)]
+    messages = [work_frame_message(transform_world_to_work, stamp_ns),
+                *job_scene_messages(job, part_work_vertices, part_faces, stamp_ns, style)]
+    return [(topic, message.make(), latched) for topic, message, latched in messages]
 
 
-def job_log_messages(
+def work_frame_message(transform_world_to_work: np.ndarray | None = None,
+                       stamp_ns: int = 0) -> tuple[str, Serialized, bool]:
+    """The first of :func:`job_messages`, serialised: ``/tf_static`` placing ``work`` in ``world`` (the pose [m],
+    default identity; with a robot, in the cell's vise: known once the robot's share is planned)."""
+    pose = np.eye(4) if transform_world_to_work is None else transform_world_to_work
+    world_work = transform_stamped(WORLD_FRAME, WORK_FRAME, pose, stamp_ns)
+    return "/tf_static", _serialized(tf_message([world_work])), True
+
+
+def job_scene_messages(
     job: Job,
     part_work_vertices: np.ndarray,
     part_faces: np.ndarray,
     stamp_ns: int = 0,
     style: ViewStyle = ViewStyle(),
-    transform_world_to_work: np.ndarray | None = None,
 ) -> list[tuple[str, Serialized, bool]]:
-    """:func:`job_messages` serialised, for a log: the toolpath's and the part's straight from their arrays
-    (no object per point: most of a plan's log was making and serialising them). The same bytes as the
-    messages'; the same parameters and errors."""
-    pose = np.eye(4) if transform_world_to_work is None else transform_world_to_work
-    world_work = transform_stamped(WORLD_FRAME, WORK_FRAME, pose, stamp_ns)
+    """The rest of :func:`job_messages` (toolpath, part, stock), serialised for a log: the toolpath's and the
+    part's straight from their arrays (no object per point: most of a plan's log was making and serialising
+    them). The same bytes as the messages'; the same parameters and errors. They need no robot."""
     msgs: list[tuple[str, Serialized, bool]] = [
-        ("/tf_static", _serialized(tf_message([world_work])), True),
         ("/cam/toolpath", line_list_marker_array(_toolpath_lines(job, style), WORK_FRAME, stamp_ns), True),
     ]
     v = np.asarray(part_work_vertices, dtype=np.float64)
