@@ -149,13 +149,8 @@ def work_frame_message(transform_world_to_work: np.ndarray | None = None,
     return "/tf_static", _serialized(tf_message([world_work])), True
 
 
-def job_scene_messages(
-    job: Job,
-    part_work_vertices: np.ndarray,
-    part_faces: np.ndarray,
-    stamp_ns: int = 0,
-    style: ViewStyle = ViewStyle(),
-) -> list[tuple[str, Serialized, bool]]:
+def job_scene_messages(job: Job, part_work_vertices: np.ndarray, part_faces: np.ndarray, stamp_ns: int = 0,
+                       style: ViewStyle = ViewStyle()) -> list[tuple[str, Serialized, bool]]:
     """The rest of :func:`job_messages` (toolpath, part, stock), serialised for a log: the toolpath's and the
     part's straight from their arrays (no object per point: most of a plan's log was making and serialising
     them). The same bytes as the messages'; the same parameters and errors. They need no robot."""
