@@ -59,8 +59,6 @@ from factory.robotwork import BackgroundRobot, RobotTask, RobotWork, stock_sheet
 from factory.tending import CellPlan, log_cell, log_motion
 from factory.verify import (VerifyAhead, log_simulation, report_text, run_verify, run_verify_after,
                             write_verify_outputs)
-from robotprog.cell import Cell
-from robotprog.collision import CollisionWorld
 from robotprog.programs import PostedProgram
 from robotprog.visuals import LinkVisual
 
