@@ -6,6 +6,7 @@ and the pictures. Record the fingerprints on the commit before the change, then 
 
     .venv/bin/python benchmarks/identical_outputs.py --record before.json          # on the old commit
     .venv/bin/python benchmarks/identical_outputs.py --check before.json           # on the new one
+    .venv/bin/python benchmarks/identical_outputs.py --check before.json --rounds  # two processors, rounds forced
 
 To record an older commit without reinstalling, point PYTHONPATH at a checkout of it (a worktree):
 ``PYTHONPATH=/tmp/old .venv/bin/python benchmarks/identical_outputs.py --record before.json --root /tmp/old``.
@@ -79,11 +80,18 @@ def fingerprint(out_dir: Path, root: Path) -> dict[str, object]:
     return out
 
 
-def plan(part: str, root: Path, work: Path) -> dict[str, object]:
+#: ``--rounds``: the plan's process with a round of verify ahead begun at every offer and each waited for (as on
+#: a machine with an idle processor, however loaded this one is), on two processors: the pictures and the log drawn
+#: in their process, the last round's program and moves taken by the post and verify.
+FORCED_ROUNDS = ("import factory.verify as v; v.IdleMeter.idle = lambda self, own=0.0: 2.0; v.OVERTAKE_BELOW = 0.0; "
+                 "from cli.main import main; main()")
+
+
+def plan(part: str, root: Path, work: Path, rounds: bool = False) -> dict[str, object]:
     out_dir = work / part
-    cmd = [sys.executable, "-c", "from cli.main import main; main()", "plan", str(root / "samples" / f"{part}.stl"), "-o", str(out_dir),
-           "--quiet"]
-    env = dict(os.environ, FACTORY_THREADS="1")
+    code = FORCED_ROUNDS if rounds else "from cli.main import main; main()"
+    cmd = [sys.executable, "-c", code, "plan", str(root / "samples" / f"{part}.stl"), "-o", str(out_dir), "--quiet"]
+    env = dict(os.environ, FACTORY_THREADS="2" if rounds else "1")
     done = subprocess.run(cmd, cwd=root, env=env, capture_output=True, text=True)
     if done.returncode not in (0, 3):
         raise SystemExit(f"error: {part}: factory plan exited {done.returncode}: {done.stderr.strip()[-400:]}")
@@ -97,16 +105,20 @@ def main() -> int:
     mode.add_argument("--check", type=Path, help="compare against fingerprints recorded earlier")
     ap.add_argument("--root", type=Path, default=ROOT, help="the checkout whose samples are planned")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--rounds", action="store_true",
+                    help="plan on two processors with every round of verify ahead forced (FORCED_ROUNDS); default: one")
+    ap.add_argument("--parts", default=",".join(PARTS), help="comma-separated samples (default: all five)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="identical-") as tmp, ThreadPoolExecutor(args.jobs) as pool:
-        prints = dict(zip(PARTS, pool.map(lambda p: plan(p, args.root, Path(tmp)), PARTS)))
+        parts = tuple(args.parts.split(","))
+        prints = dict(zip(parts, pool.map(lambda p: plan(p, args.root, Path(tmp), args.rounds), parts)))
     if args.record:
         args.record.write_text(json.dumps(prints, indent=1, sort_keys=True) + "\n")
-        print(f"recorded {sum(len(v) for v in prints.values())} outputs of {len(PARTS)} parts in {args.record}")
+        print(f"recorded {sum(len(v) for v in prints.values())} outputs of {len(parts)} parts in {args.record}")
         return 0
     before = json.loads(args.check.read_text())
     differ = []
-    for part in PARTS:
+    for part in parts:
         old, new = before.get(part, {}), prints[part]
         for name in sorted(set(old) | set(new)):
             if old.get(name) == new.get(name):

@@ -31,7 +31,7 @@ from factory.mcaplog import LogBuffer, McapLog, read_attachment
 from factory.core.progress import Progress, Stopwatch
 from factory.core.resources import FIXTURES
 from factory.core.units import MM_PER_M
-from factory.views import job_messages
+from factory.views import job_scene_messages, work_frame_message
 from robotprog.cell import Vise, load_cell
 
 log = logging.getLogger(__name__)
@@ -304,13 +304,27 @@ def _report_step_features(loaded: PartMesh, library, part: Path) -> None:
 
 def log_job(log: McapLog | LogBuffer, planned: PlannedPart,
             transform_world_to_work: np.ndarray | None = None) -> None:
-    """Views of the job for Foxglove, and the job itself as an attachment for ``factory gcode``.
+    """Views of the job for Foxglove, and the job itself as an attachment for ``factory gcode``: the work frame
+    (:func:`log_work_frame`), then the rest (:func:`log_job_scene`).
 
     ``transform_world_to_work``: pose of the work frame in ``world`` [m] (default identity)."""
+    log_work_frame(log, transform_world_to_work)
+    log_job_scene(log, planned)
+
+
+def log_work_frame(log: McapLog | LogBuffer, transform_world_to_work: np.ndarray | None = None) -> None:
+    """The first message of :func:`log_job`: the work frame's pose in ``world`` [m] (default identity)."""
+    topic, message, latched = work_frame_message(transform_world_to_work)
+    log.write_cdr(topic, message.typename, message.cdr, 0, message.make, latched=latched)
+
+
+def log_job_scene(log: McapLog | LogBuffer, planned: PlannedPart) -> None:
+    """:func:`log_job` after the work frame: the toolpath, part and stock views and the job's attachment, which
+    need no robot (the robot places the work frame)."""
     part = planned.part_work
-    for topic, msg, latched in job_messages(planned.job, np.asarray(part.vertices), np.asarray(part.faces),
-                                            transform_world_to_work=transform_world_to_work):
-        log.write(topic, msg, 0, latched=latched)
+    for topic, message, latched in job_scene_messages(planned.job, np.asarray(part.vertices),
+                                                      np.asarray(part.faces)):
+        log.write_cdr(topic, message.typename, message.cdr, 0, message.make, latched=latched)
     log.attach(JOB_ATTACHMENT, "application/json", json.dumps(planned.job.to_dict()).encode())
 
 

@@ -46,7 +46,7 @@ from cadcam.sheet import setup_sheet
 from cadcam.stock import Simulation
 from cadcam.verify import Fault, VerifyOptions, VerifyReport
 from factory.core.atomic import check_writable, write_bytes, write_text
-from factory.cam import CamRequest, PlannedPart, compute_job, log_job
+from factory.cam import CamRequest, PlannedPart, compute_job, log_job_scene, log_work_frame
 from factory.catalog import catalog_record, sha256_file
 from factory.core.errors import FactoryError, PlanningError, SetupError, shown
 from factory.mcaplog import LogBuffer, McapLog
@@ -59,8 +59,6 @@ from factory.robotwork import BackgroundRobot, RobotTask, RobotWork, stock_sheet
 from factory.tending import CellPlan, log_cell, log_motion
 from factory.verify import (VerifyAhead, log_simulation, report_text, run_verify, run_verify_after,
                             write_verify_outputs)
-from robotprog.cell import Cell
-from robotprog.collision import CollisionWorld
 from robotprog.programs import PostedProgram
 from robotprog.visuals import LinkVisual
 
@@ -246,47 +244,48 @@ class WriteAhead:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Drawn:
-    """What of :class:`WriteAhead` needs no robot motion, made while the robot's is planned (:func:`drawn`).
+    """What of :class:`WriteAhead` needs no robot (:func:`drawn`): made while verify runs, whether the robot's
+    share is planned by then or not.
 
     Attributes
     ----------
     toolpath_png, setup_png : bytes
         Op 1's toolpath and setup pictures.
-    robot_log : LogBuffer
-        The cell in the log (:func:`factory.tending.log_cell`), its motion to follow; empty without a robot.
+    scene : LogBuffer
+        The job's views and attachment in the log (:func:`factory.cam.log_job_scene`): all of its log but the
+        work frame, which the robot's plan places in the cell.
     """
 
     toolpath_png: bytes
     setup_png: bytes
-    robot_log: LogBuffer
+    scene: LogBuffer
 
 
-def drawn(planned: PlannedPart, cell: Cell | None = None, world: CollisionWorld | None = None,
-          visuals: tuple[LinkVisual, ...] | None = None) -> Drawn:
-    """:class:`Drawn` of op 1 ``planned``, and of ``cell`` with its collision ``world`` and the robot's meshes
-    ``visuals`` (no cell: no robot)."""
+def drawn(planned: PlannedPart) -> Drawn:
+    """:class:`Drawn` of op 1 ``planned``."""
     job = planned.job
-    robot_log = LogBuffer()
-    if cell is not None:
-        log_cell(robot_log, cell, world, visuals)
+    scene = LogBuffer()
+    log_job_scene(scene, planned)
     return Drawn(png_bytes(planned.toolpath_picture()),
                  png_bytes(setup_image(job.setup, np.asarray(planned.part_work.triangles), job.part_name)),
-                 robot_log)
+                 scene)
 
 
 def write_ahead(planned: PlannedPart, tending: Tending | None, ahead: Drawn | None = None) -> WriteAhead:
     """:class:`WriteAhead` of op 1 ``planned`` and the robot's ``tending`` (None: no robot), on from what was
     ``ahead`` :func:`drawn` for them (drawn here when None). With a robot the log's work frame sits in the
-    cell's vise."""
+    cell's vise, and the cell and the robot's motion follow the job in the log."""
     if ahead is None:
-        ahead = drawn(planned) if tending is None else drawn(planned, tending.cell, tending.world, tending.visuals)
-    job_log = LogBuffer()
+        ahead = drawn(planned)
+    job_log, robot_log = LogBuffer(), LogBuffer()
     world_work = None
     if tending is not None:
         world_work = tending.cell.vise.pose.matrix() @ tending.plan.stock.transform_vise_to_work
-        log_motion(ahead.robot_log, tending.world, tending.plan)
-    log_job(job_log, planned, world_work)
-    return WriteAhead(ahead.toolpath_png, ahead.setup_png, job_log, ahead.robot_log)
+        log_cell(robot_log, tending.cell, tending.world, tending.visuals)
+        log_motion(robot_log, tending.world, tending.plan)
+    log_work_frame(job_log, world_work)
+    ahead.scene.replay(job_log)
+    return WriteAhead(ahead.toolpath_png, ahead.setup_png, job_log, robot_log)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -652,27 +651,19 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
     if req.ops is None:  # a relief stays in its block, right way up, unless asked
         req = dataclasses.replace(req, ops=1 if planned.boundary is not None else 2)
     outputs = req.outputs(Path("."))
-    with watch("verify ahead"):  # a round under way fits operations the post needs: waited for first
-        resume = verify_ahead.state(job.operations) if verify_ahead is not None else None
-        # the last round's whole program, where it is this job's: neither posted nor parsed again
-        posted = verify_ahead.posted(job) if verify_ahead is not None else None
-    with watch("post"):
-        program = post_process(job, post_options, ahead=ahead) if posted is None else posted[0]
-        sheet = dataclasses.replace(setup_sheet(job, program, outputs["program"].name), op=1, work_offset="G54")
-    # The pictures and the log's messages do not depend on verify: they are made in a second process while
-    # verify runs here (issue 35: they were most of the `write` stage), with a robot once its share is planned
-    # (its process has ended, so that processor is idle; a robot still planning keeps it busy, and its share is
-    # drawn after verify, as on one processor, where everything is made when written).
-    drawing = work = robot_error = None
-    if processors() > 1 and (robot is None or robot.ready()):
-        if robot is not None:
-            try:
-                work = robot.result(sheet)
-            except FactoryError as e:
-                robot_error = e  # raised where it was before: after verify and op 2, whose errors come first
-        if robot_error is None:
-            drawing = Background(write_ahead, planned, None if work is None else _tending(robot, work))
+    # The pictures and the log's views of the job depend on neither the post, verify nor the robot: they are drawn
+    # in a second process from here on (issue 35: they were most of the `write` stage), beside the wait for the
+    # last round of verify ahead (this process idles there), verify and op 2, and the robot's planning if it
+    # has not ended (one processor: drawn here, with a robot after verify, else when written).
+    drawing = Background(drawn, planned) if processors() > 1 else None
     try:
+        with watch("verify ahead"):  # a round under way fits operations the post needs: waited for first
+            resume = verify_ahead.state(job.operations) if verify_ahead is not None else None
+            # the last round's whole program, where it is this job's: neither posted nor parsed again
+            posted = verify_ahead.posted(job) if verify_ahead is not None else None
+        with watch("post"):
+            program = post_process(job, post_options, ahead=ahead) if posted is None else posted[0]
+            sheet = dataclasses.replace(setup_sheet(job, program, outputs["program"].name), op=1, work_offset="G54")
         with watch("verify"):
             verified = run_verify(program.text, str(outputs["program"]), job.setup, {t.number: t for t in job.tools},
                                   np.asarray(planned.part_work.triangles), options, held_open(progress),
@@ -686,14 +677,12 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
                 if robot is None:
                     raise
                 op2_error = e  # stands only if the robot turns the part over: its answer decides
-        tending = ahead = None
+        tending = drawn_ahead = None
         if robot is not None:
-            if robot_error is not None:
-                raise robot_error
-            work = robot.result(sheet) if work is None else work
+            work = robot.result(sheet)  # its errors after verify's and op 2's
             if drawing is None:
-                with watch("pictures"):  # and the cell in the log: what needs no robot motion
-                    pictures = drawn(planned, robot.cell, robot.world, work.visuals)
+                with watch("pictures"):
+                    pictures = drawn(planned)
             if work.dropped_op2 is not None:
                 # Not asked for two operations, and the robot cannot turn this part over on the cell's
                 # flip station: op 1 alone, said loudly (the holding allowance stays on the part).
@@ -706,19 +695,19 @@ def _plan_with(req: PlanRequest, progress: Progress | None, watch: Stopwatch, po
             tending = _tending(robot, work)
             if drawing is None:
                 with watch("log"):
-                    ahead = write_ahead(planned, tending, pictures)
+                    drawn_ahead = write_ahead(planned, tending, pictures)
     except BaseException:
         if drawing is not None:
             drawing.cancel()  # no drawing left running for a plan that failed
         raise
     if drawing is not None:
-        with watch("pictures and log"):  # the wait for the second process, if it is still drawing
-            ahead = drawing.result()
+        with watch("pictures and log"):  # the wait for the second process, if it is still drawing; the robot's
+            drawn_ahead = write_ahead(planned, tending, drawing.result())  # cell and motion are a few ms
     if op2 is not None:
         sheet = dataclasses.replace(sheet, next={"program": outputs["program_op2"].name,
                                                  "setup_sheet": outputs["setup_sheet_op2"].name})
     return PartPlan(req, planned, program, sheet, tending, verified.simulation, verified.report,
-                    dict(watch.seconds), op2, ahead=ahead)
+                    dict(watch.seconds), op2, ahead=drawn_ahead)
 
 
 def _tending(robot: BackgroundRobot, work: RobotWork) -> Tending:

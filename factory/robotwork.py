@@ -157,11 +157,6 @@ class BackgroundRobot:
         self._relay = ProgressRelay(watch.progress)
         self._background: Background | None = Background(robot_work, self.cell, self.world, task, self._relay)
 
-    def ready(self) -> bool:
-        """Whether the work's process has answered, so that :meth:`result` (for the setup's own stock) returns at
-        once: the processor it ran on is free."""
-        return self._background is not None and self._background.ready()
-
     def result(self, sheet: SetupSheet) -> RobotWork:
         """The work, for op 1's posted setup sheet ``sheet`` (planned again here for it when its stock is
         not the one the work started with); its stages' seconds added to the caller's watch.

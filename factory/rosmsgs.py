@@ -540,22 +540,52 @@ def triangle_mesh_marker_array(ns: str, id: int, vertices: np.ndarray, faces: np
     arrays: the message's bytes without an object per corner (a verified stock's mesh has hundreds of
     thousands); its ``make`` builds the message. Same parameters as :func:`triangle_mesh_marker`."""
     corners = _checked_points(_triangle_corners(ns, id, vertices, faces), f"marker {ns}/{id}")
-    rgba = _color(color)  # checked as the message's
     w = _Cdr()
     w.uint32(1)  # one marker
-    w.stamp(ros_time(stamp_ns))
+    _marker_cdr(w, ns, id, _Marker.TRIANGLE_LIST, frame_id, stamp_ns, color, (1.0, 1.0, 1.0), corners)
+    return Serialized("visualization_msgs/msg/MarkerArray", bytes(w.buf), lambda: marker_array(
+        [triangle_mesh_marker(ns, id, vertices, faces, color, frame_id, stamp_ns)]))
+
+
+#: One LINE_LIST of :func:`line_list_marker_array`: namespace, id, its (2k, 3) points [m], colour, width [m].
+LineList = tuple[str, int, np.ndarray, RGBA, float]
+
+
+def line_list_marker_array(lines: Sequence[LineList], frame_id: str, stamp_ns: int) -> Serialized:
+    """``visualization_msgs/MarkerArray`` of one :func:`line_list_marker` per entry of ``lines``, serialised from
+    the arrays (a finishing toolpath has hundreds of thousands of points: an object each cost more than the
+    rest of its log); its ``make`` builds the message. The same bytes as the message's, the same errors."""
+    w = _Cdr()
+    w.uint32(len(lines))
+    for ns, id, points, color, width in lines:
+        p = np.asarray(points)
+        if p.ndim == 2 and len(p) % 2:
+            raise McapError(f"marker {ns}/{id}: LINE_LIST needs an even number of points, got {len(p)}")
+        p = _checked_points(p, f"marker {ns}/{id}")
+        _marker_cdr(w, ns, id, _Marker.LINE_LIST, frame_id, stamp_ns, color, (float(width), 0.0, 0.0), p)
+    return Serialized("visualization_msgs/msg/MarkerArray", bytes(w.buf), lambda: marker_array(
+        [line_list_marker(*line, frame_id, stamp_ns) for line in lines]))
+
+
+def _marker_cdr(w: _Cdr, ns: str, id: int, type_: int, frame_id: str, stamp_ns: int, color: RGBA,
+                scale: Sequence[float], points: np.ndarray) -> None:
+    """One ``visualization_msgs/Marker`` into ``w`` as :func:`_marker` makes it (identity pose, no colours per
+    point, texture, text or mesh), its ``points`` (n, 3) [m] checked already: the bytes rosbags writes."""
+    stamp = ros_time(stamp_ns)
+    rgba = _color(color)  # checked as the message's, after its stamp
+    w.stamp(stamp)
     w.string(frame_id)
     w.string(ns)
     w.align(4)
-    w.buf += _THREE_INT32.pack(int(id), _Marker.TRIANGLE_LIST, _Marker.ADD)
+    w.buf += _THREE_INT32.pack(int(id), type_, _Marker.ADD)
     w.align(8)
-    w.buf += _TEN_DOUBLES.pack(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0)  # pose: identity; scale 1
+    w.buf += _TEN_DOUBLES.pack(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, *(float(v) for v in scale))  # pose: identity
     w.buf += _FOUR_FLOATS.pack(rgba.r, rgba.g, rgba.b, rgba.a)
     w.buf += _STAMP.pack(0, 0) + b"\x00"  # lifetime 0 (forever); frame_locked false
-    w.uint32(len(corners))
-    if len(corners):
+    w.uint32(len(points))
+    if len(points):
         w.align(8)
-        w.buf += np.ascontiguousarray(corners, dtype="<f8").tobytes()
+        w.buf += np.ascontiguousarray(points, dtype="<f8").tobytes()
     w.uint32(0)  # colors
     w.string("")  # texture_resource
     w.stamp(ros_time(0))  # texture: header, format, data
@@ -568,8 +598,6 @@ def triangle_mesh_marker_array(ns: str, id: int, vertices: np.ndarray, faces: np
     w.string("")  # mesh_file: filename, data
     w.uint32(0)
     w.buf += b"\x00"  # mesh_use_embedded_materials false
-    return Serialized("visualization_msgs/msg/MarkerArray", bytes(w.buf), lambda: marker_array(
-        [triangle_mesh_marker(ns, id, vertices, faces, color, frame_id, stamp_ns)]))
 
 
 def cube_marker(ns: str, id: int, center: Sequence[float], size: Sequence[float], color: RGBA,
@@ -633,7 +661,8 @@ def log_msg(level: int | str, name: str, text: str, stamp_ns: int, *, file: str 
 
 __all__ = [
     "MSG_DIRS", "RGBA", "ROS_DISTRO", "TYPESTORE", "CdrTemplate", "JointStateCdr", "RestampedCdr", "Serialized",
-    "TfCdr", "cube_marker", "line_list_marker", "line_strip_marker", "log_msg", "marker_array", "message_definition",
+    "LineList", "TfCdr", "cube_marker", "line_list_marker", "line_list_marker_array", "line_strip_marker", "log_msg",
+    "marker_array", "message_definition",
     "register_msg_files", "ros_time", "serialize_cdr", "string_msg", "tf_message", "transform_stamped",
     "transform_values", "transforms_stamped", "triangle_mesh_marker", "triangle_mesh_marker_array",
 ]

@@ -20,14 +20,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from cadcam.model import Job, Motion, Operation
 from factory.core.errors import McapError
 from factory.core.units import MM_PER_M
-from factory.rosmsgs import (RGBA, cube_marker, line_list_marker, marker_array, tf_message, transform_stamped,
-                             triangle_mesh_marker)
+from factory.rosmsgs import (RGBA, LineList, Serialized, cube_marker, line_list_marker, line_list_marker_array,
+                             marker_array, serialize_cdr, tf_message, transform_stamped, triangle_mesh_marker_array)
 
 #: Frame of work coordinates, and the frame it is placed in.
 WORK_FRAME = "work"
@@ -83,7 +84,12 @@ def toolpath_markers(job: Job, stamp_ns: int = 0, style: ViewStyle = ViewStyle()
     connecting line that is not a move; the price is every interior point sent twice
     (48 bytes per segment before zstd, which removes most of the repetition).
     """
-    out = []
+    return [line_list_marker(*line, WORK_FRAME, stamp_ns) for line in _toolpath_lines(job, style)]
+
+
+def _toolpath_lines(job: Job, style: ViewStyle) -> list[LineList]:
+    """The LINE_LISTs of :func:`toolpath_markers`: namespace, id, points [m], colour, width [m]."""
+    out: list[LineList] = []
     for i, op in enumerate(job.operations):
         ns = f"{i + 1:02d} {op.name}"
         feed_color = style.roughing if op.kind == "roughing" else style.finishing
@@ -94,8 +100,7 @@ def toolpath_markers(job: Job, stamp_ns: int = 0, style: ViewStyle = ViewStyle()
         ):
             seg = _segments(op, kinds)
             if len(seg):
-                out.append(line_list_marker(ns, mid, seg / MM_PER_M, color, width / MM_PER_M,
-                                            WORK_FRAME, stamp_ns))
+                out.append((ns, mid, seg / MM_PER_M, color, width / MM_PER_M))
     return out
 
 
@@ -130,22 +135,43 @@ def job_messages(
         ``/tf_static``, ``/cam/toolpath``, ``/cam/part`` (only if the mesh has faces) and
         ``/cam/stock``, all latched, all points in metres in frame ``work``.
     """
+    messages = [work_frame_message(transform_world_to_work, stamp_ns),
+                *job_scene_messages(job, part_work_vertices, part_faces, stamp_ns, style)]
+    return [(topic, message.make(), latched) for topic, message, latched in messages]
+
+
+def work_frame_message(transform_world_to_work: np.ndarray | None = None,
+                       stamp_ns: int = 0) -> tuple[str, Serialized, bool]:
+    """The first of :func:`job_messages`, serialised: ``/tf_static`` placing ``work`` in ``world`` (the pose [m],
+    default identity; with a robot, in the cell's vise: known once the robot's share is planned)."""
     pose = np.eye(4) if transform_world_to_work is None else transform_world_to_work
     world_work = transform_stamped(WORLD_FRAME, WORK_FRAME, pose, stamp_ns)
-    msgs: list[tuple[str, object, bool]] = [
-        ("/tf_static", tf_message([world_work]), True),
-        ("/cam/toolpath", marker_array(toolpath_markers(job, stamp_ns, style)), True),
+    return "/tf_static", _serialized(tf_message([world_work])), True
+
+
+def job_scene_messages(job: Job, part_work_vertices: np.ndarray, part_faces: np.ndarray, stamp_ns: int = 0,
+                       style: ViewStyle = ViewStyle()) -> list[tuple[str, Serialized, bool]]:
+    """The rest of :func:`job_messages` (toolpath, part, stock), serialised for a log: the toolpath's and the
+    part's straight from their arrays (no object per point: most of a plan's log was making and serialising
+    them). The same bytes as the messages'; the same parameters and errors. They need no robot."""
+    msgs: list[tuple[str, Serialized, bool]] = [
+        ("/cam/toolpath", line_list_marker_array(_toolpath_lines(job, style), WORK_FRAME, stamp_ns), True),
     ]
     v = np.asarray(part_work_vertices, dtype=np.float64)
     f = np.asarray(part_faces)
     if f.size:
-        part = triangle_mesh_marker("part", 0, v / MM_PER_M, f, style.part, WORK_FRAME, stamp_ns)
-        msgs.append(("/cam/part", marker_array([part]), True))
+        msgs.append(("/cam/part", triangle_mesh_marker_array("part", 0, v / MM_PER_M, f, style.part, WORK_FRAME,
+                                                             stamp_ns), True))
     s = job.setup
     stock = cube_marker("stock", 0, (s.stock_min + s.stock_max) / 2 / MM_PER_M, s.stock_size / MM_PER_M,
                         style.stock, WORK_FRAME, stamp_ns)
-    msgs.append(("/cam/stock", marker_array([stock]), True))
+    msgs.append(("/cam/stock", _serialized(marker_array([stock])), True))
     return msgs
+
+
+def _serialized(msg: Any) -> Serialized:
+    """``msg`` (a :data:`factory.rosmsgs.TYPESTORE` message) serialised, and itself to ``make``."""
+    return Serialized(msg.__msgtype__, serialize_cdr(msg, msg.__msgtype__), lambda: msg)
 
 
 def heightfield_mesh(

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from cadcam.model import CuttingData, Job, Motion, Operation, Setup, Tool
 from cadcam.preview import ORIGIN_COLOUR, RAPID_COLOUR, tick_step, tool_colours, toolpath_image, toolpath_legend
@@ -86,3 +88,55 @@ def test_the_faces_by_kind_are_drawn_under_the_toolpaths():
         assert FACE_COLOURS[k] in colours, k
     plain = toolpath_image(Job("p", setup, ()), width=400)
     assert FACE_COLOURS[FLAT] not in {tuple(c) for c in plain.reshape(-1, 3)}
+
+
+def _scattered_triangles(seed: int, n: int, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) small triangles [mm] at random places and tilts inside the box ``lo``..``hi``."""
+    rng = np.random.default_rng(seed)
+    centres = lo + (hi - lo) * rng.random((n, 1, 3))
+    return centres + rng.normal(scale=2.0, size=(n, 3, 3))
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 2**16), n=st.integers(1, 6))
+def test_the_setup_pictures_silhouette_is_every_triangles_own(seed, n):
+    """The part's silhouette in the setup picture is the union of each triangle's alone, in both views: each
+    triangle is filled where it projects, and nowhere else (the corners are worked out for all at once)."""
+    from cadcam import preview
+
+    lo, hi = np.array([0.0, 0.0, -20.0]), np.array([60.0, 40.0, 0.0])
+    setup = Setup(stock_min=lo, stock_max=hi, transform_mesh_to_work=np.eye(4), floor_z=-15.0)
+    tri = _scattered_triangles(seed, n, lo, hi)
+
+    def silhouette(triangles: np.ndarray) -> np.ndarray:
+        img = preview.setup_image(setup, triangles, "p", width=400)
+        return (img == preview._PART_COLOUR).all(axis=2)
+
+    alone = np.logical_or.reduce([silhouette(tri[i:i + 1]) for i in range(n)])
+    assert alone.any()
+    assert np.array_equal(silhouette(tri), alone)
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 2**16), n=st.integers(1, 6))
+def test_the_faces_of_a_kind_are_each_faces_own(seed, n):
+    """Under the toolpaths, the faces of one kind fill (walls: outline) the union of each face's alone."""
+    from cadcam.faces import FLAT, WALL, FaceClasses
+    from cadcam.preview import FACE_COLOURS
+    import trimesh
+
+    from cadcam.setup import make_setup
+
+    setup, _ = make_setup(trimesh.creation.box(extents=(60.0, 40.0, 20.0)))
+    lo, hi = setup.stock_min, setup.stock_max
+    tri = _scattered_triangles(seed, n, lo, hi)
+    for kind in (FLAT, WALL):
+        def drawn(triangles: np.ndarray) -> np.ndarray:
+            m = len(triangles)
+            faces = FaceClasses(np.full(m, kind, np.int8), np.ones(m), np.zeros(0), np.full(m, -1), triangles)
+            img = toolpath_image(Job("p", setup, ()), width=400, faces=faces)
+            return (img == FACE_COLOURS[kind]).all(axis=2)
+
+        alone = np.logical_or.reduce([drawn(tri[i:i + 1]) for i in range(n)])
+        assert alone.any()
+        assert np.array_equal(drawn(tri), alone), kind

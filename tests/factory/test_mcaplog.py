@@ -23,6 +23,7 @@ import factory
 from factory.core.errors import McapError, OutputExistsError
 from factory.mcaplog import LogBuffer, McapLog, offered_qos_profiles, read_attachment, read_metadata
 from factory.rosmsgs import (TYPESTORE, JointStateCdr, RestampedCdr, TfCdr, cube_marker, line_list_marker,
+                             line_list_marker_array,
                              line_strip_marker, log_msg, marker_array, message_definition, ros_time, serialize_cdr,
                              string_msg, tf_message, transform_stamped, transform_values, transforms_stamped,
                              triangle_mesh_marker, triangle_mesh_marker_array)
@@ -553,3 +554,32 @@ def test_a_mesh_marker_array_refuses_what_the_marker_refuses():
         triangle_mesh_marker_array("s", 0, VERTICES * np.nan, FACES, (1.0, 1.0, 1.0, 1.0), "work", 0)
     with pytest.raises(McapError, match="colour"):
         triangle_mesh_marker_array("s", 0, VERTICES, FACES, (2.0, 1.0, 1.0, 1.0), "work", 0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(lines=st.lists(st.tuples(st.text(max_size=9), st.integers(-3, 3), st.integers(0, 12),
+                                st.floats(0.0, 0.01)), max_size=5),
+       frame=st.sampled_from(["", "work", "world_"]), stamp=st.integers(0, 3_000_000_001), seed=st.integers(0, 2**16))
+def test_line_lists_serialised_from_arrays_are_the_messages_bytes(lines, frame, stamp, seed):
+    """A toolpath's LINE_LISTs, written from their arrays, are byte for byte what rosbags writes of the message
+    they build (names that leave every alignment, no marker, markers without a segment, many segments)."""
+    rng = np.random.default_rng(seed)
+    given_lines = [(ns, id_, rng.normal(scale=0.1, size=(2 * k, 3)), tuple(rng.random(4)), width)
+                   for ns, id_, k, width in lines]
+    got = line_list_marker_array(given_lines, frame, stamp)
+    built = marker_array([line_list_marker(*line, frame, stamp) for line in given_lines])
+    assert got.typename == "visualization_msgs/msg/MarkerArray"
+    assert got.cdr == bytes(TYPESTORE.serialize_cdr(built, got.typename))
+    assert got.cdr == bytes(TYPESTORE.serialize_cdr(got.make(), got.typename))
+
+
+def test_line_lists_from_arrays_refuse_what_the_marker_refuses():
+    ok = ("a", 0, np.zeros((2, 3)), (1.0, 1.0, 1.0, 1.0), 0.001)
+    for bad, match in ((("b", 1, np.zeros((3, 3)), (1.0, 1.0, 1.0, 1.0), 0.001), "even number"),
+                       (("b", 1, np.full((2, 3), np.nan), (1.0, 1.0, 1.0, 1.0), 0.001), "non-finite"),
+                       (("b", 1, np.zeros((2, 2)), (1.0, 1.0, 1.0, 1.0), 0.001), "shape"),
+                       (("b", 1, np.zeros((2, 3)), (1.0, 2.0, 1.0, 1.0), 0.001), "colour")):
+        with pytest.raises(McapError, match=match):
+            line_list_marker_array([ok, bad], "work", 0)
+        with pytest.raises(McapError, match=match):
+            line_list_marker(*bad, "work", 0)

@@ -12,6 +12,7 @@ import logging
 import os
 import shutil
 import signal
+import time
 from pathlib import Path
 
 import pytest
@@ -22,7 +23,6 @@ from factory.cam import CamRequest
 from factory.catalog import catalog_record, find_entry, sha256_file
 from factory.core.errors import PlanningError
 from factory.plan import PlanRequest, plan_outputs, plan_part
-from factory.robotwork import BackgroundRobot
 from factory.core.resources import FIXTURES
 from tests.conftest import ROOT, pocket_block
 from tests.rs274 import run_rs274
@@ -423,12 +423,10 @@ def _written(out: Path) -> dict[str, object]:
 
 @pytest.mark.parametrize("robot", [False, True])
 def test_the_pictures_drawn_while_verify_runs_are_those_drawn_when_written(block, tmp_path, monkeypatch, robot):
-    """The pictures and the log's messages are drawn in a second process while verify runs (two processors;
-    with a robot, once its own process has planned its share), or when the plan is written (one; with a robot,
-    after verify): the same bytes either way (issue 35)."""
+    """The pictures and the log's views of the job are drawn in a second process while verify runs (two
+    processors; with a robot, whether its own process has planned its share by then or not), or when the plan is
+    written (one; with a robot, after verify): the same bytes either way (issue 35)."""
     request = dataclasses.replace(fast_request(block, robot=robot), ops=1)
-    # the robot's process answers before verify begins (a robot still planning keeps its processor busy)
-    monkeypatch.setattr(BackgroundRobot, "ready", lambda self: self._background._conn.poll(None))
     written = {}
     for threads in ("1", "2"):
         monkeypatch.setenv("FACTORY_THREADS", threads)
@@ -472,3 +470,43 @@ def test_verify_begun_ahead_on_an_idle_processor_writes_what_one_processor_write
         written[threads] = _written(tmp_path / threads)
         assert (resumed[-1] is not None) == (threads == "2")  # verify went on from a round's cut
     assert written["1"] == written["2"]
+
+
+@pytest.mark.parametrize("robot", [False, True])
+def test_the_pictures_are_drawn_beside_the_wait_for_the_last_round_of_verify_ahead(block, monkeypatch, robot):
+    """On two processors the pictures and the log's views of the job are begun in their process before the plan
+    waits for the last round of verify begun ahead, with a robot or without: that wait leaves the plan's own
+    process idle, and the drawing needs neither the post, verify nor the robot's plan (issue 35)."""
+    import factory.plan
+    import factory.verify
+
+    import factory.robotwork
+
+    monkeypatch.setenv("FACTORY_THREADS", "2")
+    real_work = factory.robotwork.robot_work
+
+    def slow_work(*args):  # the robot still planning when the plan begins to wait
+        time.sleep(3.0)
+        return real_work(*args)
+
+    monkeypatch.setattr(factory.robotwork, "robot_work", slow_work)
+    begun: list[str] = []
+    at_the_wait: list[list[str]] = []
+
+    class Recorded(factory.plan.Background):
+        def __init__(self, fn, *args):
+            begun.append(fn.__name__)
+            super().__init__(fn, *args)
+
+    real_state = factory.verify.VerifyAhead.state
+
+    def state(self, operations):
+        at_the_wait.append(list(begun))
+        return real_state(self, operations)
+
+    monkeypatch.setattr(factory.plan, "Background", Recorded)
+    monkeypatch.setattr(factory.verify.VerifyAhead, "state", state)
+    plan = plan_part(dataclasses.replace(fast_request(block, robot=robot), ops=1))
+    assert at_the_wait == [["drawn"]]  # drawing when the plan began to wait, and drawn once
+    assert plan.ahead is not None and "pictures and log" in plan.seconds and "pictures" not in plan.seconds
+    assert (plan.tending is not None) == robot
