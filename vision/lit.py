@@ -241,12 +241,13 @@ def render_lit(station: Station, meshes: list[tuple[trimesh.Trimesh, Material]],
     loc = eye + t_hit[:, None] * d[hit]
     point[hit] = loc
     which[hit] = owner[tri_i]
-    # Smooth normals on freeform faces (vertex normals of faces that meet at small angles), flat elsewhere.
+    # Smooth normals on freeform faces, flat on flat ones: each corner's normal is the mean of the
+    # faces at its vertex that meet the corner's own face under SMOOTH_BELOW_DEG, so a flat top
+    # beside a rim stays flat (its corners see only the top's faces) and a freeform face is smooth.
     bary = trimesh.triangles.points_to_barycentric(scene.triangles[tri_i], loc)
-    vn = scene.vertex_normals[scene.faces[tri_i]]
-    smooth = np.einsum("nk,nkj->nj", bary, vn)
+    smooth = np.einsum("nk,nkj->nj", bary, corner_normals(scene)[tri_i])
     smooth /= np.linalg.norm(smooth, axis=1, keepdims=True)
-    normal[hit] = np.where((np.einsum("nj,nj->n", smooth, fn) > np.cos(np.radians(12)))[:, None], smooth, fn)
+    normal[hit] = smooth
 
     # Shadows: one shadow map per direction within the light's disc; a point's visibility is the
     # share of them that see it (soft penumbras from an extended light).
@@ -370,6 +371,40 @@ def _zbuffer(xy: np.ndarray, depth: np.ndarray, faces: np.ndarray, shape: tuple[
 #: Shadow map texel [m] and the depth margin that keeps a lit face from shadowing itself [m].
 SHADOW_TEXEL_M = 2.5e-4
 SHADOW_BIAS_M = 6e-4
+
+
+#: Faces meeting under this angle [deg] are one smooth surface in :func:`corner_normals`; sharper is an edge.
+SMOOTH_BELOW_DEG = 12.0
+
+
+def corner_normals(mesh: trimesh.Trimesh) -> np.ndarray:
+    """Each face corner's shading normal, (n_faces, 3, 3) unit vectors.
+
+    The angle-weighted mean of the normals of the faces at the corner's vertex whose normal is
+    within :data:`SMOOTH_BELOW_DEG` of the corner's own face's: an edge sharper than that is drawn
+    as an edge, on both of its sides, and a face is never tilted by a neighbour across one.
+    """
+    faces = np.asarray(mesh.faces)
+    fn = np.asarray(mesh.face_normals)
+    weight = np.nan_to_num(np.asarray(mesh.face_angles)).ravel()  # degenerate faces weigh nothing
+    corner_face = np.repeat(np.arange(len(faces)), 3)
+    vertex = faces.ravel()
+    # Every pair of corners at one vertex (the corner itself included): corners sorted by vertex,
+    # each paired with every corner of its vertex's run.
+    order = np.argsort(vertex, kind="stable")
+    runs_start = np.flatnonzero(np.r_[True, np.diff(vertex[order]) != 0])
+    runs_len = np.diff(np.r_[runs_start, len(order)])
+    run_of = np.repeat(np.arange(len(runs_start)), runs_len)
+    reps = runs_len[run_of]
+    a = np.repeat(order, reps)
+    offset = np.arange(len(a)) - np.repeat(np.cumsum(reps) - reps, reps)
+    b = order[np.repeat(runs_start[run_of], reps) + offset]
+    same = np.einsum("nj,nj->n", fn[corner_face[a]], fn[corner_face[b]]) > np.cos(np.radians(SMOOTH_BELOW_DEG))
+    acc = np.zeros((len(vertex), 3))
+    np.add.at(acc, a[same], fn[corner_face[b[same]]] * weight[b[same], None])
+    norm = np.linalg.norm(acc, axis=1, keepdims=True)
+    out = np.where(norm > 0, acc / np.where(norm > 0, norm, 1.0), fn[corner_face])
+    return out.reshape(-1, 3, 3)
 
 
 def _lit_by(verts: np.ndarray, faces: np.ndarray, light: np.ndarray, point: np.ndarray, normal: np.ndarray

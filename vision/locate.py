@@ -42,7 +42,8 @@ from shapely.geometry import MultiPolygon, Polygon
 from factory.core.errors import VisionError
 from factory.core.units import MM_PER_M
 from vision.camera import CameraModel, bin_image, binned_camera
-from vision.locate_search import FIT_SAMPLES, chamfer_starts, oriented_distances, refined_starts, thin_edges
+from vision.locate_search import (FIT_SAMPLES, chamfer_starts, hidden_by_glare, oriented_distances, refined_starts,
+                                  thin_edges)
 from vision.mesh_edges import MeshEdges, edge_model, yaw_rotation
 from vision.picture_edges import blob_outline, find_edges, gradients, tray_ratio
 from vision.pose_uncertainty import pose_covariance
@@ -594,6 +595,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(fg, connectivity=8)
     maps = oriented_distances(gx, gy, thin := thin_edges(gx, gy, edges))
+    hidden = hidden_by_glare(saturated)  # the search's unknown edges inside the outline, as the judgement's (_hidden)
     model = edge_model(part, camera, cam_base, tray_z)
     f, (w, h) = np.sqrt(camera.fx * camera.fy), camera.image_size
     top_area = Polygon(part.outline).area
@@ -619,10 +621,11 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
         if any(np.hypot(p.pixel[0] - centroids[i][0], p.pixel[1] - centroids[i][1]) < radius_px for p in found):
             continue
         box = (max(bx, 0), max(by, 0), min(bx + bw, w), min(by + bh, h))
-        starts, spare = chamfer_starts(model, edges, _hull(labels == i), box, ground(centroids[i]), ground, maps, spare=LIT_SPARE)
+        starts, spare = chamfer_starts(model, edges, _hull(labels == i), box, ground(centroids[i]), ground, maps,
+                                       spare=LIT_SPARE, hidden=hidden)
         light = lights_at(model, starts, log_ratio, box)
         best = _best_fit(model, gx, gy, threshold, starts, part.symmetry, saturated, thin, light, options,
-                         lambda spare=spare: refined_starts(model, maps, spare, ground))
+                         lambda spare=spare: refined_starts(model, maps, spare, ground, hidden))
         if best is None:
             log.info("blob at (%.0f, %.0f) px: no edge fit", *centroids[i])
             continue

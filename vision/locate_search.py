@@ -7,6 +7,11 @@ starts there.
 2. :func:`refine_start`: around each of the best few, every degree and pixel against the distance
    to picture edges of the same direction (:func:`oriented_distances`), thinned to their ridge
    (:func:`thin_edges`).
+
+Where the picture is clipped white all round (:func:`hidden_by_glare`) it cannot show an edge: a model edge inside
+the outline that falls there is unknown, not missed, in both (as in the judgement, ``vision.locate._hidden``). Counted
+missing, a glare stepped wall's steps and thin wall, all hidden in its clipped top, ranked first a start slid 15 mm
+along the part, where the thin wall's two edges lay on one end of the picture's outline.
 """
 
 from __future__ import annotations
@@ -34,17 +39,31 @@ class EdgeModel(Protocol):
     @property
     def points(self) -> np.ndarray: ...
 
+    @property
+    def outer(self) -> np.ndarray: ...
+
     def world(self, p: np.ndarray, points: np.ndarray) -> np.ndarray: ...
 
     def project(self, p: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
 
 #: Most edge samples a round of the edge fit uses (evenly thinned; the final judgement uses all).
 FIT_SAMPLES = 400
+#: A pixel is hidden by glare when the picture is clipped within this of it every way [px]: an edge there would
+#: have a clipped side at 1.5 px either way, as the judgement asks (``vision.locate._hidden``), rounded up.
+HIDDEN_REACH_PX = 2
+
+
+def hidden_by_glare(saturated: np.ndarray) -> np.ndarray:
+    """``(h, w)`` bool: where the picture is clipped (``saturated`` (h, w) uint8, 1 where clipped) within
+    :data:`HIDDEN_REACH_PX` of a pixel every way, so it cannot show an edge there."""
+    reach = 2 * HIDDEN_REACH_PX + 1
+    return cv2.erode(saturated.astype(np.uint8), np.ones((reach, reach), np.uint8), borderValue=0) > 0
 
 
 def chamfer_starts(model: EdgeModel, edges: np.ndarray, inside: np.ndarray, box: tuple[int, int, int, int],
                     centre: np.ndarray, ground: Callable[[np.ndarray], np.ndarray], maps: np.ndarray,
-                    yaw_steps: int = 36, keep: int = 3, spare: int = 0) -> tuple[list[np.ndarray], list[np.ndarray]]:
+                    yaw_steps: int = 36, keep: int = 3, spare: int = 0, hidden: np.ndarray | None = None
+                    ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """The best few (x, y, yaw) of a coarse search: model edges against the picture's edge distance map.
 
     ``box`` (x0, y0, x1, y1) [px] is the window searched (only where ``inside`` (h, w) is set),
@@ -54,15 +73,20 @@ def chamfer_starts(model: EdgeModel, edges: np.ndarray, inside: np.ndarray, box:
     Each start is then brought within a pixel and a degree on the oriented distances ``maps``
     (:func:`refine_start`), best first. Returns those ``keep`` starts and the next ``spare`` distinct ones
     of the coarse search as they are (:func:`refined_starts` brings them in where they are wanted: a
-    low light's shadow wins the first few, and refining them always cost every picture).
+    low light's shadow wins the first few, and refining them always cost every picture). ``hidden`` (h, w) bool
+    (:func:`hidden_by_glare`): where a model edge inside the outline is unknown, at no distance, here and in the
+    refinement.
     """
     x0, y0, x1, y1 = box
     dist = cv2.distanceTransform((edges == 0).astype(np.uint8), cv2.DIST_L2, 3)
     dist = np.minimum(dist, 6.0).astype(np.float32)
+    hidden = hidden if hidden is not None and hidden.any() else None
+    # The edges inside the outline read a map on which glare's hidden pixels are no distance away.
+    maps_read = [dist] if hidden is None else [dist, np.where(hidden, np.float32(0.0), dist)]
     h, w = dist.shape
     ref = model.camera.project(np.array([[centre[0], centre[1], model.tray_z]]), model.rvec, model.tvec)[0]
     results = []
-    pads: dict[int, np.ndarray] = {}
+    pads: dict[int, list[np.ndarray]] = {}
     for yaw in np.arange(yaw_steps) * 2 * np.pi / yaw_steps:
         p = np.array([centre[0], centre[1], yaw])
         idx = model.visible(p)
@@ -72,20 +96,24 @@ def chamfer_starts(model: EdgeModel, edges: np.ndarray, inside: np.ndarray, box:
         uv = model.camera.project(model.world(p, model.points[idx]), model.rvec, model.tvec)
         off = np.rint(uv - ref).astype(int)
         lo, hi = off.min(axis=0), off.max(axis=0)
-        kernel = np.zeros((hi[1] - lo[1] + 1, hi[0] - lo[0] + 1), np.float32)
-        kernel[off[:, 1] - lo[1], off[:, 0] - lo[0]] = 1.0
-        kernel /= kernel.sum()
         # The window's scores need the distance map from (x0, y0) + lo to (x1, y1) + hi.
         rx0, ry0 = x0 + lo[0], y0 + lo[1]
         # padded by the kernel's reach at least (a fine camera's kernels span more than 200 px)
         m = int(max(200, np.abs(lo).max(), np.abs(hi).max()) + 1)
         if m not in pads:
-            pads[m] = cv2.copyMakeBorder(dist, m, m, m, m, cv2.BORDER_CONSTANT, value=6.0)
-        pad = pads[m]
-        roi = pad[ry0 + m:y1 + hi[1] + m + 1, rx0 + m:x1 + hi[0] + m + 1]
-        # filter2D correlates: anchor (0, 0) puts kernel[0, 0] (offset lo) at each output pixel.
-        score = cv2.filter2D(roi, -1, kernel, anchor=(0, 0), borderType=cv2.BORDER_CONSTANT)
-        score = score[:y1 - y0, :x1 - x0]
+            pads[m] = [cv2.copyMakeBorder(d, m, m, m, m, cv2.BORDER_CONSTANT, value=6.0) for d in maps_read]
+        # The mean distance of the model's samples' pixels: one kernel over the one map, or in glare the outline's
+        # over the picture's distances and the others' over the map where the hidden pixels are none.
+        rows, cols = off[:, 1] - lo[1], off[:, 0] - lo[0]
+        pixels = len(np.unique(rows * (hi[0] - lo[0] + 1) + cols))
+        score = np.zeros((y1 - y0, x1 - x0), np.float32)
+        for which, pad in zip([slice(None)] if hidden is None else [model.outer[idx], ~model.outer[idx]], pads[m]):
+            kernel = np.zeros((hi[1] - lo[1] + 1, hi[0] - lo[0] + 1), np.float32)
+            kernel[rows[which], cols[which]] = 1.0
+            kernel /= np.float32(pixels)
+            roi = pad[ry0 + m:y1 + hi[1] + m + 1, rx0 + m:x1 + hi[0] + m + 1]
+            # filter2D correlates: anchor (0, 0) puts kernel[0, 0] (offset lo) at each output pixel.
+            score += cv2.filter2D(roi, -1, kernel, anchor=(0, 0), borderType=cv2.BORDER_CONSTANT)[:y1 - y0, :x1 - x0]
         score = np.where(inside[y0:y1, x0:x1] > 0, score, np.inf)
         # The best few only (ties by position): a full sort of the window cost as much as the correlation.
         best = np.argpartition(score, keep, axis=None)[:keep] if score.size > keep else np.arange(score.size)
@@ -100,14 +128,14 @@ def chamfer_starts(model: EdgeModel, edges: np.ndarray, inside: np.ndarray, box:
             starts.append(np.r_[xy, yaw])
         if len(starts) == keep + spare:
             break
-    return refined_starts(model, maps, starts[:keep], ground), starts[keep:]
+    return refined_starts(model, maps, starts[:keep], ground, hidden), starts[keep:]
 
 
 def refined_starts(model: EdgeModel, maps: np.ndarray, starts: list[np.ndarray],
-                   ground: Callable[[np.ndarray], np.ndarray]) -> list[np.ndarray]:
+                   ground: Callable[[np.ndarray], np.ndarray], hidden: np.ndarray | None = None) -> list[np.ndarray]:
     """Coarse ``starts`` (x, y [m], yaw [rad]) each brought within a pixel and a degree (:func:`refine_start`
-    on the oriented distances ``maps``), best first."""
-    ringed = _ringed(maps)
+    on the oriented distances ``maps``; ``hidden`` as there), best first."""
+    ringed = _ringed(maps, hidden)
     return [pose for _, pose in sorted((_refined_start(model, ringed, s, ground) for s in starts), key=lambda r: r[0])]
 
 
@@ -151,32 +179,37 @@ def thin_edges(gx: np.ndarray, gy: np.ndarray, edges: np.ndarray) -> np.ndarray:
     return (edges > 0) & (mag >= ahead) & (mag >= behind)
 
 
-def refine_start(model: EdgeModel, maps: np.ndarray, start: np.ndarray, ground: Callable[[np.ndarray], np.ndarray]
-                  ) -> tuple[float, np.ndarray]:
+def refine_start(model: EdgeModel, maps: np.ndarray, start: np.ndarray, ground: Callable[[np.ndarray], np.ndarray],
+                 hidden: np.ndarray | None = None) -> tuple[float, np.ndarray]:
     """The pose near a coarse start (x, y [m], yaw [rad]) whose edges lie closest on picture edges of
     the same direction: every :data:`REFINE_YAW_DEG` step and pixel shift within reach, scored by the
     mean oriented distance (``maps``, :func:`oriented_distances`). Returns (score [px], pose).
 
     The coarse search's 10 deg yaw grid leaves a 100 mm part's ends 5-8 px off; from there the
     edge fit's nearest-peak search can lock onto a boss or a shadow. This brings the start within
-    a pixel and a degree first.
+    a pixel and a degree first. ``hidden`` (h, w) bool (:func:`hidden_by_glare`): where a model edge inside the
+    outline is unknown, at no distance.
     """
-    return _refined_start(model, _ringed(maps), start, ground)
+    return _refined_start(model, _ringed(maps, hidden), start, ground)
 
 
-def _ringed(maps: np.ndarray) -> np.ndarray:
-    """The oriented distance maps (k, h, w) in a ring of one pixel of the cap (6 px), for :func:`_refined_start`."""
-    return np.pad(maps, ((0, 0), (1, 1), (1, 1)), constant_values=6.0)
+def _ringed(maps: np.ndarray, hidden: np.ndarray | None = None) -> np.ndarray:
+    """The oriented distance maps (k, h, w) in a ring of one pixel of the cap (6 px), for :func:`_refined_start`:
+    (1, k, h + 2, w + 2), or with glare's ``hidden`` pixels (h, w) bool (2, k, h + 2, w + 2), the second the maps
+    the edges inside the outline read, where the hidden pixels are no distance away."""
+    planes = [maps] if hidden is None or not hidden.any() else [maps, np.where(hidden[None], np.float32(0.0), maps)]
+    return np.pad(np.stack(planes), ((0, 0), (0, 0), (1, 1), (1, 1)), constant_values=6.0)
 
 
 def _refined_start(model: EdgeModel, ringed: np.ndarray, start: np.ndarray, ground: Callable[[np.ndarray], np.ndarray]
                    ) -> tuple[float, np.ndarray]:
     """:func:`refine_start` on the maps in their ring (:func:`_ringed`): every look outside the picture reads
-    the ring's cap, one flat gather per yaw (indexing the three axes with bounds masks cost half the search)."""
+    the ring's cap, one flat gather per yaw (indexing the three axes with bounds masks cost half the search); in
+    glare the edges inside the outline look on the second plane."""
     step, n = np.radians(REFINE_YAW_DEG[0]), REFINE_YAW_DEG[1]
     r = REFINE_SHIFT_PX
     shifts = np.stack(np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1)), axis=-1).reshape(-1, 2)
-    _, hr, wr = ringed.shape
+    planes, bins, hr, wr = ringed.shape
     h, w = hr - 2, wr - 2
     flat = ringed.ravel()
     shift_at = shifts[:, 1:] * wr + shifts[:, :1]  # (s, 1) flat offsets of the shifts
@@ -192,6 +225,8 @@ def _refined_start(model: EdgeModel, ringed: np.ndarray, start: np.ndarray, grou
         # The picture's gradient runs along the model edge's image normal.
         b = np.minimum((np.mod(np.arctan2(normal[:, 1], normal[:, 0]), np.pi) / np.pi * ORIENTATION_BINS)
                        .astype(np.int64), ORIENTATION_BINS - 1)
+        if planes > 1:
+            b = b + bins * ~model.outer[idx]  # the bin of the hidden pixels' plane
         u = np.rint(uv[:, 0]).astype(np.int64)
         v = np.rint(uv[:, 1]).astype(np.int64)
         # Samples within the reach of the picture's edge look inside the ring; any further out read the cap.
