@@ -16,6 +16,9 @@ from scipy.ndimage import map_coordinates
 
 from vision.picture_edges import peak_offset
 
+#: A picture edge this close to the expected one along its normal is that edge [px].
+OWN_PX = 1.5
+
 #: A farther outward edge whose greys agree ends the material over a nearer one (the own edge, or a
 #: nearer outward one) when its response is stronger by this share of the picture's edge threshold
 #: (unitless). The threshold is 4 x the median gradient magnitude, mostly the tray's noise and texture:
@@ -77,7 +80,11 @@ def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np
                         for j, there in ((near_out, any_out), (near_in, any_in), (strong, any_out),
                                          (far_out, any_out))])
     (o_near, o_in, o_strong, o_far) = offsets
-    ok_near, ok_in, ok_strong, ok_far = material_agrees(grey, uv, outward, offsets, level, contrast, line, own,
+    # The line's own face and tray are read beside the samples whose own edge lies at the line's level:
+    # not beside a lip's inner crease within the own window (a lip along most of a short side).
+    o_own = np.where(own, sign * peak_offset(steps, resp, own_j), np.nan)
+    placed = own & (np.abs(o_own - level) <= OWN_PX)
+    ok_near, ok_in, ok_strong, ok_far = material_agrees(grey, uv, outward, offsets, level, contrast, line, placed,
                                                         -first_in, silhouette)
     # The material's end steps the way the strongest outward edge does, from the face's grey to the
     # tray's: beyond a lip white in glare, its dark fringe steps back up to the tray (held-out 5 MP glare
@@ -87,15 +94,19 @@ def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np
     than = np.where(own, resp[rows, own_j], np.where(ok_near, resp[rows, near_out], -np.inf))
     # At a silhouette an own edge whose step goes the other way from the farthest agreeing one is
     # the inner step of a band brighter (or darker) than both sides: a lip, as no wall shows there.
-    o_own = np.where(own, sign * peak_offset(steps, resp, own_j), np.nan)
     inner_step = own & ok_far & (np.zeros(len(uv), bool) if silhouette is None else silhouette) & \
         (_step(grey, uv, outward, o_own) * far_step < 0)
-    over = ok_strong & (resp[rows, strong] > than + STRONGER * contrast) | inner_step
+    # Where the strongest outward edge's greys do not agree, the nearest outward one whose do may still
+    # end the material over the own edge: past a lip that covers part of a lit wall the rest of the wall
+    # shows, and its far side (to the tray) is the strongest edge but ends no material of the part's
+    # (seeds 0-1 5 MP low-angle plate_bosses 1: the own edge was the lip's inner crease, 2.2 px out).
+    by_near = own & ok_near & ~ok_strong & (resp[rows, near_out] > than + STRONGER * contrast)
+    over = ok_strong & (resp[rows, strong] > than + STRONGER * contrast) | inner_step | by_near
     # The side is the nearer's (a crease inside must not hide a lip); outward, the farthest that agrees.
     o_out = np.where(ok_far, o_far, np.where(ok_near, o_near, np.nan))
     nearest = np.where(np.isfinite(o_out) & ~(ok_in & (-o_in < np.where(ok_near, o_near, o_out))), o_out,
                        np.where(ok_in, o_in, np.nan))
-    taken = np.where(inner_step, o_far, np.fmax(o_strong, np.where(own, np.nan, o_out)))
+    taken = np.where(inner_step, o_far, np.where(by_near, o_out, np.fmax(o_strong, np.where(own, np.nan, o_out))))
     return np.where(over, taken, np.where(own, np.nan, nearest)), over
 
 
@@ -152,12 +163,13 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
     profile = map_coordinates(grey.astype(np.float32, copy=False), [q[..., 1].ravel(), q[..., 0].ravel()], order=1,
                               mode="nearest").reshape(q.shape[:2])
 
-    def median(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """Median grey of each row's profile over t in [a, b] (the nearest step when the span is empty)."""
+    def median(a: np.ndarray, b: np.ndarray, q: float = 50.0) -> np.ndarray:
+        """Median (or the ``q`` percentile) grey of each row's profile over t in [a, b] (the nearest step
+        when the span is empty)."""
         inside = (t[None, :] >= a[:, None] - 1e-9) & (t[None, :] <= b[:, None] + 1e-9)
         nearest = np.abs(t[None, :] - 0.5 * (a + b)[:, None]).argmin(axis=1)
         inside[np.arange(len(a)), nearest] |= ~inside.any(axis=1)
-        return np.nanmedian(np.where(inside, profile, np.nan), axis=1)
+        return np.nanpercentile(np.where(inside, profile, np.nan), q, axis=1)
 
     def share(band: np.ndarray, face: np.ndarray, tray: np.ndarray) -> np.ndarray:
         """Where the band sits from tray (0) to face (1); NaN where the two are too alike to tell."""
@@ -171,10 +183,18 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
         on = here == e
         face_line[on] = np.median(inner[on & where])
         tray_line[on] = np.median(outer[on & where])
+    # A wall turned to the camera and lit, brighter than the face, is the line's other side: a lip over
+    # it covers the wall, so past the lip lies the wall (the lip covers part of it) or, where it covers
+    # it to its foot, the tray or the wall in the lip's shadow, darker than the face (seeds 0-1 5 MP
+    # low-angle dome_mould 1: the wall clipped white, the tray past the lip 110-120, the face 142).
+    lit = ~bright_ok & (tray_line - face_line >= contrast) if silhouette is not None else np.zeros(len(lv), bool)
     for k, found in enumerate(cand):
         s = np.where(np.isfinite(found), found, lv)
         extra = s > lv
         band = median(np.minimum(s, lv) + 0.5, np.maximum(s, lv) - 0.5)
+        # ... and between the line and the lip's end none of the wall shows: past a lip that covers
+        # part of it, the far side of the rest of the wall is an edge too, but no end of the part's.
+        covered = share(median(np.minimum(s, lv) + 0.5, np.maximum(s, lv) - 0.5, 90.0), face_line, tray_line) >= 0.5
         beyond = np.where(extra, median(s + 1.5, s + 3.0), median(s - 3.0, s - 1.5))  # past the found edge
         local = share(band, np.where(extra, inner, beyond), np.where(extra, beyond, outer))
         lined = share(band, face_line, tray_line)  # NaN on a line with no edge where expected: not told
@@ -186,6 +206,8 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
         # part's face within a broken corner (not a boss's shadow, not the shadow beyond the part).
         past = share(beyond, face_line, tray_line)
         past_ok = np.where(extra, (past > -0.5) & (past < 0.5), (past >= 0.5) & (past < 1.5))
+        past_ok |= extra & lit & (beyond <= face_line - contrast)
+        past_ok &= ~(extra & lit) | covered
         # A broken corner's edge is a step up to the face, which holds past it. Where a stretch of the
         # face is as dim as the tray (its band reads tray-like), a bright line on it (a crease of the
         # brushed top, 2-3 px wide) makes as strong an edge, but past the line the face is dim again.
