@@ -27,6 +27,9 @@ OWN_PX = 1.5
 #: weaker edge read this much stronger at one sample in 44, and a window's median needs half its samples.
 STRONGER = 0.6
 
+#: Outward candidate edges beyond the own window tried for the material's end, farthest first.
+FAR_TRIED = 3
+
 #: Past a broken corner's edge the part's face holds over 1.5-3 px (past the edge's blur) and over the
 #: next span, out to this [px]: a line on the face 2-3 px wide (a scratch, a highlight's crease) fills
 #: the first span only (the held-out 5 MP low-angle bracket 8, good, read such a line, drawn by the test
@@ -73,37 +76,47 @@ def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np
     near_out = np.argmin(np.where(out_c, out_steps, np.inf), axis=1)
     near_in = np.argmin(np.where(in_c, -out_steps, np.inf), axis=1)
     strong = np.argmax(np.where(out_c, resp, -np.inf), axis=1)
-    far_out = np.argmax(np.where(out_c, out_steps, -np.inf), axis=1)
+    # The farthest outward ones first: past a lip over a lit wall the rest of the wall's far side lies
+    # farther still, and the lip's inner crease nearer.
+    by_far = np.argsort(np.where(out_c, -out_steps, np.inf), axis=1, kind="stable")[:, :FAR_TRIED]
     any_out, any_in = out_c.any(axis=1), in_c.any(axis=1)
-    # The four candidates of each sample, judged on one grey profile across it.
+    fars = [(by_far[:, j], out_c[rows, by_far[:, j]]) for j in range(by_far.shape[1])]
+    # The candidates of each sample, judged on one grey profile across it.
     offsets = np.stack([np.where(there, sign * peak_offset(steps, resp, j), np.nan)
-                        for j, there in ((near_out, any_out), (near_in, any_in), (strong, any_out),
-                                         (far_out, any_out))])
-    (o_near, o_in, o_strong, o_far) = offsets
+                        for j, there in ((near_out, any_out), (near_in, any_in), (strong, any_out), *fars)])
+    o_near, o_in, o_strong, o_fars = offsets[0], offsets[1], offsets[2], offsets[3:]
     # The line's own face and tray are read beside the samples whose own edge lies at the line's level:
     # not beside a lip's inner crease within the own window (a lip along most of a short side).
     o_own = np.where(own, sign * peak_offset(steps, resp, own_j), np.nan)
     placed = own & (np.abs(o_own - level) <= OWN_PX)
-    ok_near, ok_in, ok_strong, ok_far = material_agrees(grey, uv, outward, offsets, level, contrast, line, placed,
-                                                        -first_in, silhouette)
-    # The material's end steps the way the strongest outward edge does, from the face's grey to the
-    # tray's: beyond a lip white in glare, its dark fringe steps back up to the tray (held-out 5 MP glare
-    # plate_bosses 8 read 1.5 mm there).
+    agree = material_agrees(grey, uv, outward, offsets, level, contrast, line, placed, -first_in, silhouette)
+    ok_near, ok_in, ok_strong, ok_fars = agree[0], agree[1], agree[2], agree[3:]
+    # The material's end steps the way the strongest outward edge does where that one agrees, from the
+    # face's grey to the tray's: beyond a lip white in glare, its dark fringe steps back up to the tray
+    # (held-out 5 MP glare plate_bosses 8 read 1.5 mm there). Where it does not (the far side of a lit
+    # wall past a lip over part of it), the lip's end steps up to the wall, the other way.
+    strong_step = _step(grey, uv, outward, o_strong)
+    ok_fars = ok_fars & (~ok_strong | np.stack([_step(grey, uv, outward, o) * strong_step > 0 for o in o_fars]))
+    # The farthest of them that agrees.
+    first = np.argmax(ok_fars, axis=0)
+    ok_far = ok_fars[first, rows]
+    o_far = o_fars[first, rows]
+    far_out = by_far[rows, first]
     far_step = _step(grey, uv, outward, o_far)
-    ok_far &= far_step * _step(grey, uv, outward, o_strong) > 0
     than = np.where(own, resp[rows, own_j], np.where(ok_near, resp[rows, near_out], -np.inf))
     # At a silhouette an own edge whose step goes the other way from the farthest agreeing one is
     # the inner step of a band brighter (or darker) than both sides: a lip, as no wall shows there.
     inner_step = own & ok_far & (np.zeros(len(uv), bool) if silhouette is None else silhouette) & \
         (_step(grey, uv, outward, o_own) * far_step < 0)
-    # Where the strongest outward edge's greys do not agree, the nearest outward one whose do may still
+    # Where the strongest outward edge's greys do not agree, the farthest (or nearest) outward one whose do may still
     # end the material over the own edge: past a lip that covers part of a lit wall the rest of the wall
     # shows, and its far side (to the tray) is the strongest edge but ends no material of the part's
     # (seeds 0-1 5 MP low-angle plate_bosses 1: the own edge was the lip's inner crease, 2.2 px out).
-    by_near = own & ok_near & ~ok_strong & (resp[rows, near_out] > than + STRONGER * contrast)
-    over = ok_strong & (resp[rows, strong] > than + STRONGER * contrast) | inner_step | by_near
     # The side is the nearer's (a crease inside must not hide a lip); outward, the farthest that agrees.
     o_out = np.where(ok_far, o_far, np.where(ok_near, o_near, np.nan))
+    by_near = own & np.isfinite(o_out) & ~ok_strong & \
+        (resp[rows, np.where(ok_far, far_out, near_out)] > than + STRONGER * contrast)
+    over = ok_strong & (resp[rows, strong] > than + STRONGER * contrast) | inner_step | by_near
     nearest = np.where(np.isfinite(o_out) & ~(ok_in & (-o_in < np.where(ok_near, o_near, o_out))), o_out,
                        np.where(ok_in, o_in, np.nan))
     taken = np.where(inner_step, o_far, np.where(by_near, o_out, np.fmax(o_strong, np.where(own, np.nan, o_out))))
