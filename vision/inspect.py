@@ -369,9 +369,9 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
     signed = np.where(own[outer] & (signed < 0), 0.0, signed)
     # Against the rest of its own straight edge: the pose's error (a few tenths of a millimetre)
     # and the blur of a narrow wall shift a whole side alike, a burr or a broken corner only a stretch.
+    pose_cols = _pose_columns(model, p, idx[outer], uv[outer], normal[outer] * sign[outer, None])
     level = _line_level(model.points[idx[outer]], model.direction[idx[outer]], np.where(own[outer], signed, np.nan),
-                        rigid=lambda lv, fitted: _pose_level(model, p, idx[outer], uv[outer], normal[outer] * sign[outer, None],
-                                                             lv, fitted),
+                        rigid=lambda lv, fitted: _pose_level(pose_cols, lv, fitted),
                         foot=width)
     found, over = defect_edge(grey, uv[outer], normal[outer] * sign[outer, None], steps, sign[outer], resp[outer],
                               beyond[outer], explained[outer], level, threshold, line, own[outer], own_j[outer],
@@ -572,22 +572,28 @@ def _one_polarity(near: np.ndarray, rising: np.ndarray, line: np.ndarray) -> np.
     return j
 
 
-def _pose_level(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, outward: np.ndarray,
-                level: np.ndarray, fitted: np.ndarray) -> np.ndarray | None:
-    """``(k,)`` the offset [px] along each outline sample's ``outward`` (k, 2) image direction that a
-    small error of the pose ``p`` (x, y, yaw) and one push common to every edge (blur, bloom) give,
-    fitted to the ``level`` (k,) [px] of the samples whose straight line the picture shows
-    (``fitted`` (k,) bool); None where too few are, or where they do not fix the pose's error. A side whose edges lie beyond OWN_PX of the
-    located pose (its yaw a little off) takes its level from the rest of the part, not from a
-    neighbouring side's nor from none."""
-    if fitted.sum() < 12:
-        return None
+def _pose_columns(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, outward: np.ndarray
+                  ) -> np.ndarray:
+    """``(k, 4)`` how far [px] along each outline sample's ``outward`` (k, 2) image direction (from ``uv``
+    (k, 2) [px]) it moves per unit of one push common to every edge, and of the pose ``p``'s x, y [m] and
+    yaw [rad]: made once per located part, as each side's level is asked of the rest (:func:`_pose_level`)."""
     cols = [np.ones(len(idx))]
     for k, eps in enumerate((1e-4, 1e-4, 1e-3)):  # [m, m, rad]: well within the fit's linear range
         q = p.copy()
         q[k] += eps
         cols.append(np.einsum("nj,nj->n", model.project(q, idx)[0] - uv, outward) / eps)
-    a = np.column_stack(cols)
+    return np.column_stack(cols)
+
+
+def _pose_level(a: np.ndarray, level: np.ndarray, fitted: np.ndarray) -> np.ndarray | None:
+    """``(k,)`` the offset [px] along each outline sample's outward image direction that a small error of
+    the pose (x, y, yaw) and one push common to every edge (blur, bloom) give (``a`` (k, 4) their
+    derivatives, :func:`_pose_columns`), fitted to the ``level`` (k,) [px] of the samples whose straight
+    line the picture shows (``fitted`` (k,) bool); None where too few are, or where they do not fix the
+    pose's error. A side whose edges lie beyond OWN_PX of the located pose (its yaw a little off) takes
+    its level from the rest of the part, not from a neighbouring side's nor from none."""
+    if fitted.sum() < 12:
+        return None
     # The sides given must fix the pose's error: two parallel sides, or two that meet, leave a shift
     # (or a push against a shift) free, and the least-squares level elsewhere is then arbitrary. The
     # columns scaled alike, their least singular value is under 0.001 of the largest then, and 0.47-0.97

@@ -182,7 +182,8 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
         inside = (t[None, :] >= a[:, None] - 1e-9) & (t[None, :] <= b[:, None] + 1e-9)
         nearest = np.abs(t[None, :] - 0.5 * (a + b)[:, None]).argmin(axis=1)
         inside[np.arange(len(a)), nearest] |= ~inside.any(axis=1)
-        return np.nanpercentile(np.where(inside, profile, np.nan), q, axis=1)
+        spans = np.where(inside, profile, np.nan)
+        return np.nanmedian(spans, axis=1) if q == 50.0 else np.nanpercentile(spans, q, axis=1)
 
     def share(band: np.ndarray, face: np.ndarray, tray: np.ndarray) -> np.ndarray:
         """Where the band sits from tray (0) to face (1); NaN where the two are too alike to tell."""
