@@ -176,13 +176,13 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
     profile = map_coordinates(grey.astype(np.float32, copy=False), [q[..., 1].ravel(), q[..., 0].ravel()], order=1,
                               mode="nearest").reshape(q.shape[:2])
 
-    def median(a: np.ndarray, b: np.ndarray, q: float = 50.0) -> np.ndarray:
-        """Median (or the ``q`` percentile) grey of each row's profile over t in [a, b] (the nearest step
-        when the span is empty)."""
+    def median(a: np.ndarray, b: np.ndarray, q: float = 50.0, rows: np.ndarray | None = None) -> np.ndarray:
+        """Median (or the ``q`` percentile) grey of each row's profile (of the ``rows``, bool, when given)
+        over t in [a, b] (the nearest step when the span is empty)."""
         inside = (t[None, :] >= a[:, None] - 1e-9) & (t[None, :] <= b[:, None] + 1e-9)
         nearest = np.abs(t[None, :] - 0.5 * (a + b)[:, None]).argmin(axis=1)
         inside[np.arange(len(a)), nearest] |= ~inside.any(axis=1)
-        spans = np.where(inside, profile, np.nan)
+        spans = np.where(inside, profile if rows is None else profile[rows], np.nan)
         return np.nanmedian(spans, axis=1) if q == 50.0 else np.nanpercentile(spans, q, axis=1)
 
     def share(band: np.ndarray, face: np.ndarray, tray: np.ndarray) -> np.ndarray:
@@ -208,7 +208,10 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
         band = median(np.minimum(s, lv) + 0.5, np.maximum(s, lv) - 0.5)
         # ... and between the line and the lip's end none of the wall shows: past a lip that covers
         # part of it, the far side of the rest of the wall is an edge too, but no end of the part's.
-        covered = share(median(np.minimum(s, lv) + 0.5, np.maximum(s, lv) - 0.5, 90.0), face_line, tray_line) >= 0.5
+        covered = np.ones(len(lv), bool)
+        if lit.any():  # the percentile is dear: asked only beside a lit wall
+            lo_s, hi_s = np.minimum(s, lv)[lit] + 0.5, np.maximum(s, lv)[lit] - 0.5
+            covered[lit] = share(median(lo_s, hi_s, 90.0, lit), face_line[lit], tray_line[lit]) >= 0.5
         beyond = np.where(extra, median(s + 1.5, s + 3.0), median(s - 3.0, s - 1.5))  # past the found edge
         local = share(band, np.where(extra, inner, beyond), np.where(extra, beyond, outer))
         lined = share(band, face_line, tray_line)  # NaN on a line with no edge where expected: not told
