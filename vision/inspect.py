@@ -74,7 +74,7 @@ from shapely.geometry import MultiPolygon, Polygon
 from factory.core.errors import VisionError
 from vision.camera import CameraModel
 from vision.inspect_features import BESIDE_PX, Feature, SeenEdges, judge_features
-from vision.inspect_material import defect_edge
+from vision.inspect_material import OWN_PX, defect_edge
 from vision.inspect_options import InspectOptions
 from vision.inspect_view import FRAME_PX, unseen
 from vision.locate import SATURATED_GREY, Footprint, LocatedPart, grey_picture, locate_parts, mm_to_m
@@ -82,8 +82,6 @@ from vision.mesh_edges import MeshEdges, edge_model
 from vision.picture_edges import edge_peaks, gradients, peak_offset, tray_ratio
 from vision.shadow import DARK_LOG
 
-#: A picture edge this close to the expected one along its normal is that edge [px].
-OWN_PX = 1.5
 #: A picture edge this close to another expected edge is that edge, not a defect [px].
 EXPLAINED_PX = 1.0
 #: Edges within this of a clipped pixel are unknown, and a clipped face's spill reaches this far [px].
@@ -118,6 +116,9 @@ SIDE_TURN_DEG = 20.0
 _SIDE_TURN_COS = np.cos(np.radians(SIDE_TURN_DEG))
 #: Outline edges whose direction is steeper than this are the part's vertical corners: no outward side.
 _STEEP = 0.7
+#: The sides a level is fitted to fix the pose's error (:func:`_pose_level`) when the least singular value of
+#: its derivatives, each scaled to unit length, is at least this share of the largest (unitless).
+FIXED_POSE_SV = 0.05
 #: Good parts' outlines read up to this much extra material [px] (benchmarks/inspect_real_light.py, every
 #: light: 0.54 mm = 0.65 px at the cell camera's 0.82 mm/px, seeds 0-1 and 8-9; 0.19 mm = 1.37 px at 5 MP's
 #: 0.14, seeds 0-1, a low-angle bracket's grey profile): the noise a burr's reading must clear the
@@ -368,9 +369,10 @@ def _judge(model: MeshEdges, part: Footprint, located: LocatedPart, grey: np.nda
     signed = np.where(own[outer] & (signed < 0), 0.0, signed)
     # Against the rest of its own straight edge: the pose's error (a few tenths of a millimetre)
     # and the blur of a narrow wall shift a whole side alike, a burr or a broken corner only a stretch.
+    pose_cols = _pose_columns(model, p, idx[outer], uv[outer], normal[outer] * sign[outer, None])
     level = _line_level(model.points[idx[outer]], model.direction[idx[outer]], np.where(own[outer], signed, np.nan),
-                        rigid=lambda lv, fitted: _pose_level(model, p, idx[outer], uv[outer], normal[outer] * sign[outer, None],
-                                                             lv, fitted))
+                        rigid=lambda lv, fitted: _pose_level(pose_cols, lv, fitted),
+                        foot=width)
     found, over = defect_edge(grey, uv[outer], normal[outer] * sign[outer, None], steps, sign[outer], resp[outer],
                               beyond[outer], explained[outer], level, threshold, line, own[outer], own_j[outer],
                               silhouette=width <= 0.0)
@@ -570,22 +572,36 @@ def _one_polarity(near: np.ndarray, rising: np.ndarray, line: np.ndarray) -> np.
     return j
 
 
-def _pose_level(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, outward: np.ndarray,
-                level: np.ndarray, fitted: np.ndarray) -> np.ndarray:
-    """``(k,)`` the offset [px] along each outline sample's ``outward`` (k, 2) image direction that a
-    small error of the pose ``p`` (x, y, yaw) and one push common to every edge (blur, bloom) give,
-    fitted to the ``level`` (k,) [px] of the samples whose straight line the picture shows
-    (``fitted`` (k,) bool); 0 where too few are. A side whose edges lie beyond OWN_PX of the
-    located pose (its yaw a little off) takes its level from the rest of the part, not from a
-    neighbouring side's nor from none."""
-    if fitted.sum() < 12:
-        return np.zeros(len(idx))
+def _pose_columns(model: MeshEdges, p: np.ndarray, idx: np.ndarray, uv: np.ndarray, outward: np.ndarray
+                  ) -> np.ndarray:
+    """``(k, 4)`` how far [px] along each outline sample's ``outward`` (k, 2) image direction (from ``uv``
+    (k, 2) [px]) it moves per unit of one push common to every edge, and of the pose ``p``'s x, y [m] and
+    yaw [rad]: made once per located part, as each side's level is asked of the rest (:func:`_pose_level`)."""
     cols = [np.ones(len(idx))]
     for k, eps in enumerate((1e-4, 1e-4, 1e-3)):  # [m, m, rad]: well within the fit's linear range
         q = p.copy()
         q[k] += eps
         cols.append(np.einsum("nj,nj->n", model.project(q, idx)[0] - uv, outward) / eps)
-    a = np.column_stack(cols)
+    return np.column_stack(cols)
+
+
+def _pose_level(a: np.ndarray, level: np.ndarray, fitted: np.ndarray) -> np.ndarray | None:
+    """``(k,)`` the offset [px] along each outline sample's outward image direction that a small error of
+    the pose (x, y, yaw) and one push common to every edge (blur, bloom) give (``a`` (k, 4) their
+    derivatives, :func:`_pose_columns`), fitted to the ``level`` (k,) [px] of the samples whose straight
+    line the picture shows (``fitted`` (k,) bool); None where too few are, or where they do not fix the
+    pose's error. A side whose edges lie beyond OWN_PX of the located pose (its yaw a little off) takes
+    its level from the rest of the part, not from a neighbouring side's nor from none."""
+    if fitted.sum() < 12:
+        return None
+    # The sides given must fix the pose's error: two parallel sides, or two that meet, leave a shift
+    # (or a push against a shift) free, and the least-squares level elsewhere is then arbitrary. The
+    # columns scaled alike, their least singular value is under 0.001 of the largest then, and 0.47-0.97
+    # with three sides or more across both directions (the four sample parts at 5 MP).
+    cols_unit = a[fitted] / np.maximum(np.linalg.norm(a[fitted], axis=0), 1e-12)
+    sv = np.linalg.svd(cols_unit, compute_uv=False)
+    if sv[-1] < FIXED_POSE_SV * sv[0]:
+        return None
     use = fitted.copy()
     for _ in range(2):  # once more without the sides the first fit leaves more than OWN_PX off
         c = np.linalg.lstsq(a[use], level[use], rcond=None)[0]
@@ -634,16 +650,18 @@ def _lines(points: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def _line_level(points: np.ndarray, direction: np.ndarray, values: np.ndarray, least: int = 8,
-                rigid: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None, band: float = OWN_PX,
-                start: float | None = None) -> np.ndarray:
+                rigid: Callable[[np.ndarray, np.ndarray], np.ndarray | None] | None = None, band: float = OWN_PX,
+                start: float | None = None, foot: np.ndarray | None = None) -> np.ndarray:
     """``(k,)`` the level of each sample's straight line at the sample: a straight line fitted to the
     finite ``values`` [px] along it (twice, the second time without those more than :data:`OWN_PX`
     off the one before, starting flat at their median). A line with fewer than ``least`` of them (an
     arc's many short chords, a short step) takes the median level of the fitted samples within
     :data:`NEIGHBOUR_M` (the sides it joins: a bloom or a pose shift moves them alike), else 0;
     with ``rigid`` (the levels of the pose's error fitted to those of the fitted lines, ``(level,
-    fitted) -> (k,)``, :func:`_pose_level`), a long side of ``least`` samples or more takes its
-    level from there, as does a short one with no fitted neighbour. Only values within ``band``
+    fitted) -> (k,)`` or None, :func:`_pose_level`), a long side of ``least`` samples or more takes its
+    level from there, as does a short one with no fitted neighbour, and a side fitted beyond ``band``
+    of it is fitted again from it (a defect's stretch set it), unless it lies at its wall's ``foot``
+    (k,) [px] outward (a wall turned to the camera shows that wide). Only values within ``band``
     [px] of the fit count, starting flat at ``start`` [px] (None: their median).
 
     A yaw error of the pose tilts a side's deviations, a shift moves them all: neither is the part's.
@@ -668,11 +686,38 @@ def _line_level(points: np.ndarray, direction: np.ndarray, values: np.ndarray, l
             fit = np.polyfit(s[near], v[near], 1)
         out[on] = np.polyval(fit, s)
         fitted[on] = True
-    if fitted.all() or not fitted.any():
+    if not fitted.any():
+        return out
+    if rigid is not None:
+        # A side whose own edges lie beyond ``band`` of the level the rest of the part's sides give it
+        # was fitted to a defect's stretch, not to the side: a lip along most of a short side, or along
+        # the only stretch of it that a lit wall clipped white beyond it does not hide, shows its inner
+        # crease 2-2.5 px out, within the own window (held-out 5 MP low-angle stepped_wall 8, seeds 0-1
+        # low-angle plate_bosses 1: the lip then read 0 mm). The rest, without the side: with it the
+        # pose's error bends towards it (stepped_wall 8's 2.2 px side was given 0.8-1.2 px). Such a side
+        # is fitted again from that level, to its samples within ``band`` of it, or takes it. Sides
+        # farthest from the located pose first: two opposite sides disagree alike (either a lip on one
+        # or a shift of the other), and locate fitted the pose to every edge, so a shift is the smaller.
+        sides = np.unique(line[fitted])
+        for e in sides[np.argsort([-np.abs(np.median(out[line == e])) for e in sides], kind="stable")]:
+            on = line == e
+            if not (fitted & ~on).any():
+                continue
+            others = rigid(out, fitted & ~on)
+            # A wall turned to the camera a few pixels wide shows as one band: its foot may be the
+            # side's edge (the exact renderer's stepped wall at the cell camera: 2.6 px out, its foot 2.9).
+            if others is None or np.abs(out[on] - others[on]).min() <= band or \
+                    (foot is not None and np.abs(out[on] - others[on] - foot[on]).min() <= band):
+                continue
+            s, v = along[on], values[on]
+            near = np.abs(others[on] - np.nan_to_num(v, nan=np.inf)) <= band
+            out[on] = np.polyval(np.polyfit(s[near], v[near], 1), s) if near.sum() >= least and \
+                np.ptp(s[near]) >= 1e-3 else others[on]
+    from_pose = rigid(out, fitted) if rigid is not None else None
+    if fitted.all():
         return out
     # A long side the picture does not show at its place (its edge beyond OWN_PX: the located yaw
     # a little off) takes the level the rest of the part's sides give it, not a neighbouring side's.
-    from_pose = rigid(out, fitted) if rigid is not None else None
     rest = ~fitted
     if from_pose is not None:
         long_side = np.bincount(line)[line] >= least

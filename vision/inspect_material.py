@@ -16,6 +16,9 @@ from scipy.ndimage import map_coordinates
 
 from vision.picture_edges import peak_offset
 
+#: A picture edge this close to the expected one along its normal is that edge [px].
+OWN_PX = 1.5
+
 #: A farther outward edge whose greys agree ends the material over a nearer one (the own edge, or a
 #: nearer outward one) when its response is stronger by this share of the picture's edge threshold
 #: (unitless). The threshold is 4 x the median gradient magnitude, mostly the tray's noise and texture:
@@ -23,6 +26,9 @@ from vision.picture_edges import peak_offset
 #: responses has sigma x 1.41 = 0.30 x the threshold, and 0.6 is two of those: noise alone makes a
 #: weaker edge read this much stronger at one sample in 44, and a window's median needs half its samples.
 STRONGER = 0.6
+
+#: Outward candidate edges beyond the own window tried for the material's end, farthest first.
+FAR_TRIED = 3
 
 #: Past a broken corner's edge the part's face holds over 1.5-3 px (past the edge's blur) and over the
 #: next span, out to this [px]: a line on the face 2-3 px wide (a scratch, a highlight's crease) fills
@@ -70,32 +76,50 @@ def defect_edge(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, steps: np
     near_out = np.argmin(np.where(out_c, out_steps, np.inf), axis=1)
     near_in = np.argmin(np.where(in_c, -out_steps, np.inf), axis=1)
     strong = np.argmax(np.where(out_c, resp, -np.inf), axis=1)
-    far_out = np.argmax(np.where(out_c, out_steps, -np.inf), axis=1)
+    # The farthest outward ones first: past a lip over a lit wall the rest of the wall's far side lies
+    # farther still, and the lip's inner crease nearer.
+    by_far = np.argsort(np.where(out_c, -out_steps, np.inf), axis=1, kind="stable")[:, :FAR_TRIED]
     any_out, any_in = out_c.any(axis=1), in_c.any(axis=1)
-    # The four candidates of each sample, judged on one grey profile across it.
+    fars = [(by_far[:, j], out_c[rows, by_far[:, j]]) for j in range(by_far.shape[1])]
+    # The candidates of each sample, judged on one grey profile across it.
     offsets = np.stack([np.where(there, sign * peak_offset(steps, resp, j), np.nan)
-                        for j, there in ((near_out, any_out), (near_in, any_in), (strong, any_out),
-                                         (far_out, any_out))])
-    (o_near, o_in, o_strong, o_far) = offsets
-    ok_near, ok_in, ok_strong, ok_far = material_agrees(grey, uv, outward, offsets, level, contrast, line, own,
-                                                        -first_in, silhouette)
-    # The material's end steps the way the strongest outward edge does, from the face's grey to the
-    # tray's: beyond a lip white in glare, its dark fringe steps back up to the tray (held-out 5 MP glare
-    # plate_bosses 8 read 1.5 mm there).
+                        for j, there in ((near_out, any_out), (near_in, any_in), (strong, any_out), *fars)])
+    o_near, o_in, o_strong, o_fars = offsets[0], offsets[1], offsets[2], offsets[3:]
+    # The line's own face and tray are read beside the samples whose own edge lies at the line's level:
+    # not beside a lip's inner crease within the own window (a lip along most of a short side).
+    o_own = np.where(own, sign * peak_offset(steps, resp, own_j), np.nan)
+    placed = own & (np.abs(o_own - level) <= OWN_PX)
+    agree = material_agrees(grey, uv, outward, offsets, level, contrast, line, placed, -first_in, silhouette)
+    ok_near, ok_in, ok_strong, ok_fars = agree[0], agree[1], agree[2], agree[3:]
+    # The material's end steps the way the strongest outward edge does where that one agrees, from the
+    # face's grey to the tray's: beyond a lip white in glare, its dark fringe steps back up to the tray
+    # (held-out 5 MP glare plate_bosses 8 read 1.5 mm there). Where it does not (the far side of a lit
+    # wall past a lip over part of it), the lip's end steps up to the wall, the other way.
+    strong_step = _step(grey, uv, outward, o_strong)
+    ok_fars = ok_fars & (~ok_strong | np.stack([_step(grey, uv, outward, o) * strong_step > 0 for o in o_fars]))
+    # The farthest of them that agrees.
+    first = np.argmax(ok_fars, axis=0)
+    ok_far = ok_fars[first, rows]
+    o_far = o_fars[first, rows]
+    far_out = by_far[rows, first]
     far_step = _step(grey, uv, outward, o_far)
-    ok_far &= far_step * _step(grey, uv, outward, o_strong) > 0
     than = np.where(own, resp[rows, own_j], np.where(ok_near, resp[rows, near_out], -np.inf))
     # At a silhouette an own edge whose step goes the other way from the farthest agreeing one is
     # the inner step of a band brighter (or darker) than both sides: a lip, as no wall shows there.
-    o_own = np.where(own, sign * peak_offset(steps, resp, own_j), np.nan)
     inner_step = own & ok_far & (np.zeros(len(uv), bool) if silhouette is None else silhouette) & \
         (_step(grey, uv, outward, o_own) * far_step < 0)
-    over = ok_strong & (resp[rows, strong] > than + STRONGER * contrast) | inner_step
+    # Where the strongest outward edge's greys do not agree, the farthest (or nearest) outward one whose do may still
+    # end the material over the own edge: past a lip that covers part of a lit wall the rest of the wall
+    # shows, and its far side (to the tray) is the strongest edge but ends no material of the part's
+    # (seeds 0-1 5 MP low-angle plate_bosses 1: the own edge was the lip's inner crease, 2.2 px out).
     # The side is the nearer's (a crease inside must not hide a lip); outward, the farthest that agrees.
     o_out = np.where(ok_far, o_far, np.where(ok_near, o_near, np.nan))
+    by_near = own & np.isfinite(o_out) & ~ok_strong & \
+        (resp[rows, np.where(ok_far, far_out, near_out)] > than + STRONGER * contrast)
+    over = ok_strong & (resp[rows, strong] > than + STRONGER * contrast) | inner_step | by_near
     nearest = np.where(np.isfinite(o_out) & ~(ok_in & (-o_in < np.where(ok_near, o_near, o_out))), o_out,
                        np.where(ok_in, o_in, np.nan))
-    taken = np.where(inner_step, o_far, np.fmax(o_strong, np.where(own, np.nan, o_out)))
+    taken = np.where(inner_step, o_far, np.where(by_near, o_out, np.fmax(o_strong, np.where(own, np.nan, o_out))))
     return np.where(over, taken, np.where(own, np.nan, nearest)), over
 
 
@@ -152,12 +176,14 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
     profile = map_coordinates(grey.astype(np.float32, copy=False), [q[..., 1].ravel(), q[..., 0].ravel()], order=1,
                               mode="nearest").reshape(q.shape[:2])
 
-    def median(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """Median grey of each row's profile over t in [a, b] (the nearest step when the span is empty)."""
+    def median(a: np.ndarray, b: np.ndarray, q: float = 50.0, rows: np.ndarray | None = None) -> np.ndarray:
+        """Median (or the ``q`` percentile) grey of each row's profile (of the ``rows``, bool, when given)
+        over t in [a, b] (the nearest step when the span is empty)."""
         inside = (t[None, :] >= a[:, None] - 1e-9) & (t[None, :] <= b[:, None] + 1e-9)
         nearest = np.abs(t[None, :] - 0.5 * (a + b)[:, None]).argmin(axis=1)
         inside[np.arange(len(a)), nearest] |= ~inside.any(axis=1)
-        return np.nanmedian(np.where(inside, profile, np.nan), axis=1)
+        spans = np.where(inside, profile if rows is None else profile[rows], np.nan)
+        return np.nanmedian(spans, axis=1) if q == 50.0 else np.nanpercentile(spans, q, axis=1)
 
     def share(band: np.ndarray, face: np.ndarray, tray: np.ndarray) -> np.ndarray:
         """Where the band sits from tray (0) to face (1); NaN where the two are too alike to tell."""
@@ -171,10 +197,21 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
         on = here == e
         face_line[on] = np.median(inner[on & where])
         tray_line[on] = np.median(outer[on & where])
+    # A wall turned to the camera and lit, brighter than the face, is the line's other side: a lip over
+    # it covers the wall, so past the lip lies the wall (the lip covers part of it) or, where it covers
+    # it to its foot, the tray or the wall in the lip's shadow, darker than the face (seeds 0-1 5 MP
+    # low-angle dome_mould 1: the wall clipped white, the tray past the lip 110-120, the face 142).
+    lit = ~bright_ok & (tray_line - face_line >= contrast) if silhouette is not None else np.zeros(len(lv), bool)
     for k, found in enumerate(cand):
         s = np.where(np.isfinite(found), found, lv)
         extra = s > lv
         band = median(np.minimum(s, lv) + 0.5, np.maximum(s, lv) - 0.5)
+        # ... and between the line and the lip's end none of the wall shows: past a lip that covers
+        # part of it, the far side of the rest of the wall is an edge too, but no end of the part's.
+        covered = np.ones(len(lv), bool)
+        if lit.any():  # the percentile is dear: asked only beside a lit wall
+            lo_s, hi_s = np.minimum(s, lv)[lit] + 0.5, np.maximum(s, lv)[lit] - 0.5
+            covered[lit] = share(median(lo_s, hi_s, 90.0, lit), face_line[lit], tray_line[lit]) >= 0.5
         beyond = np.where(extra, median(s + 1.5, s + 3.0), median(s - 3.0, s - 1.5))  # past the found edge
         local = share(band, np.where(extra, inner, beyond), np.where(extra, beyond, outer))
         lined = share(band, face_line, tray_line)  # NaN on a line with no edge where expected: not told
@@ -186,6 +223,8 @@ def material_agrees(grey: np.ndarray, uv: np.ndarray, outward: np.ndarray, signe
         # part's face within a broken corner (not a boss's shadow, not the shadow beyond the part).
         past = share(beyond, face_line, tray_line)
         past_ok = np.where(extra, (past > -0.5) & (past < 0.5), (past >= 0.5) & (past < 1.5))
+        past_ok |= extra & lit & (beyond <= face_line - contrast)
+        past_ok &= ~(extra & lit) | covered
         # A broken corner's edge is a step up to the face, which holds past it. Where a stretch of the
         # face is as dim as the tray (its band reads tray-like), a bright line on it (a crease of the
         # brushed top, 2-3 px wide) makes as strong an edge, but past the line the face is dim again.

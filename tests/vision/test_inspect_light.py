@@ -366,3 +366,31 @@ def test_a_burr_reads_its_whole_lip_where_the_top_edge_is_the_silhouette_at_5_mp
     worst = bad.outline_px[np.nanargmax(bad.deviation)]
     # within half the lip's 15 mm (about 7 px a millimetre) of its middle
     assert np.hypot(*(worst - pixel_of(station, part, scene, lip_mm))) < 60  # [px]
+
+
+@pytest.mark.parametrize("condition, part, seed, lip_mm", [
+    # the lip covers the whole lit wall (clipped white), the tray past it: the line's other side is the wall
+    ("low_angle", "dome_mould", 1, (44.5, 71.0, 30.0)),
+    # the lip covers part of a lit wall clipped white, the only stretch of its side the white does not hide
+    ("low_angle", "plate_bosses", 1, (27.5, 71.0, 8.0)),
+    # held out: the lip along most of a short step's side, over a lit wall 21 px wide
+    ("low_angle", "stepped_wall", 8, (85.5, 51.0, 26.0)),
+])
+def test_a_burr_over_a_lit_wall_is_extra_material_at_5_mp(condition, part, seed, lip_mm):
+    """A low light at 5 MP lights the wall below the burred top edge, turned to the camera, and the 1 mm lip
+    covers it with the face's grey. Main (lit28) passed all three (0.05, 0.02, 0.27 mm): the side's level was
+    fitted to the lip's inner crease (the rest of the side hidden by the white wall, or shorter than the lip),
+    and past the lip the line's other side, the lit wall, was asked for, where the tray or the rest of the wall
+    lies. The material ends at the lip's end, about 1 mm out where the lip is. The good part at the same pose
+    and light is not rejected: it passes, or (the plate) gets no verdict, as on main, the white wall hiding
+    half its outline."""
+    station = cell_station(CameraModel.read(ROOT / "fixtures" / "camera_5mp.yaml"))
+    _, good = inspected(station, condition, part, seed, supersample=1)
+    assert good.max_deviation <= good.tolerance and not good.missing_features, good.to_dict()
+    assert good.passed or "of the outline can be judged" in good.refusal, good.to_dict()
+    scene, bad = inspected(station, condition, part, seed, "burr", supersample=1)
+    assert not bad.passed and not bad.refusal and not bad.missing_features, bad.to_dict()
+    assert 0.8 < bad.to_dict()["excess_mm"] < 1.3, bad.to_dict()
+    worst = bad.outline_px[np.nanargmax(bad.deviation)]
+    # within half the lip's 15 mm (about 7 px a millimetre) of its middle
+    assert np.hypot(*(worst - pixel_of(station, part, scene, lip_mm))) < 60  # [px]
