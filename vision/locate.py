@@ -586,7 +586,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     level = max(2.5 * spread, options.min_contrast)
     gx, gy, threshold = gradients(grey)
     edges = (np.hypot(gx, gy) > threshold).astype(np.uint8)
-    # Clipped pixels (glare) say only "at least this bright": where an edge lies in them is unknown.
+    # Clipped pixels (glare) say only "at least this bright": where an edge lies in them is unknown (``hidden``).
     saturated = (grey >= SATURATED_GREY).astype(np.uint8)
     # Candidates: what departs from the tray, or is dense with edges (a top face as bright as the tray).
     fg = ((np.abs(log_ratio) > level) | (edges > 0)).astype(np.uint8)
@@ -594,8 +594,7 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
     fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, np.ones((9, 9), np.uint8))
     fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(fg, connectivity=8)
-    maps = oriented_distances(gx, gy, thin := thin_edges(gx, gy, edges))
-    hidden = hidden_by_glare(saturated)  # the search's unknown edges inside the outline, as the judgement's (_hidden)
+    maps, hidden = oriented_distances(gx, gy, thin := thin_edges(gx, gy, edges)), hidden_by_glare(saturated)
     model = edge_model(part, camera, cam_base, tray_z)
     f, (w, h) = np.sqrt(camera.fx * camera.fy), camera.image_size
     top_area = Polygon(part.outline).area
@@ -614,9 +613,8 @@ def locate_parts(image: np.ndarray, camera: CameraModel, base_camera: np.ndarray
             continue
         depth = (tray_z + part.height - cam_pos[2]) / ray[2]
         expected = top_area * camera.fx * camera.fy / depth ** 2
-        if area < options.min_area_ratio * expected:
-            log.info("blob of %d px at (%.0f, %.0f) px: expected at least %.0f px, left out", area, *centroids[i],
-                     options.min_area_ratio * expected)
+        if area < (least := options.min_area_ratio * expected):
+            log.info("blob of %d px at (%.0f, %.0f) px: expected at least %.0f px, left out", area, *centroids[i], least)
             continue
         if any(np.hypot(p.pixel[0] - centroids[i][0], p.pixel[1] - centroids[i][1]) < radius_px for p in found):
             continue
